@@ -1,0 +1,41 @@
+"""The typer application every ``hddpg-cli`` command registers on, and the shared console."""
+
+from __future__ import annotations
+
+import typer
+from rich.console import Console
+
+import sb3_hddpg
+
+#: Where commands print their tables and progress.
+console = Console()
+_error_console = Console(stderr=True, highlight=False)
+
+app = typer.Typer(
+    name="hddpg-cli",
+    help="Hierarchical DDPG on Stable-Baselines3: train workers, a manager that selects them, and compare.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+
+
+def console_error(message: str) -> None:
+    """Print a one-line error to stderr."""
+    _error_console.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"sb3-hddpg {sb3_hddpg.__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, is_flag=True, help="Print the version and exit."
+    ),
+) -> None:
+    """Hierarchical DDPG on Stable-Baselines3. Add --debug to any command to see tracebacks."""

@@ -1,0 +1,52 @@
+"""``hddpg-cli rollout``: look at the environment with a scripted or random policy, no training."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import typer
+from rich.table import Table
+
+from sb3_hddpg.baselines import JacobianReacher
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.io import atomic_write_bytes
+from sb3_hddpg.workers import RandomPolicy
+
+
+@app.command()
+def rollout(
+    env_id: str = typer.Option("hddpg/SnakeReach-v0", "--env", help="Registered environment id."),
+    episodes: int = typer.Option(5, min=1, help="Episodes per policy."),
+    seed: int = typer.Option(0, min=0, help="Seed of the first episode (episode k uses seed + k)."),
+    png: Path = typer.Option(Path("runs/rollout.png"), help="Where to save a rendered frame."),
+) -> None:
+    """Roll out a random and a scripted (Jacobian-transpose) policy and print the env's metrics."""
+    import io
+
+    from PIL import Image
+
+    env = gym.make(env_id, render_mode="rgb_array")
+    policies = {
+        "random": RandomPolicy(env.action_space, seed=seed),
+        "scripted reacher": JacobianReacher(env.unwrapped.state_layout),
+    }
+    table = Table(title=f"{env_id}: {episodes} episodes, seeds {seed}..{seed + episodes - 1}")
+    for column in ("policy", "reward", "goal touch rate", "collisions/ep", "success", "min clearance"):
+        table.add_column(column, justify="right" if column != "policy" else "left")
+    for name, policy in policies.items():
+        s = evaluate(policy, env, n_episodes=episodes, seed=seed).summary()
+        table.add_row(
+            name,
+            f"{s['mean_reward']:.1f} ± {s['std_reward']:.1f}",
+            f"{s['goal_touch_rate']:.1%}",
+            f"{s['collisions_per_episode']:.1f}",
+            f"{s['success_rate']:.0%}",
+            f"{s['min_clearance']:.3f}",
+        )
+    console.print(table)
+    buffer = io.BytesIO()
+    Image.fromarray(env.render()).save(buffer, format="PNG")
+    atomic_write_bytes(png, buffer.getvalue())
+    console.print(f"Saved the last frame of the scripted reacher to [bold]{png}[/]")

@@ -1,0 +1,592 @@
+"""A planar snake arm among moving obstacles, simulated with pymunk (the paper's Figure 2 task)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+import pymunk
+from gymnasium import spaces
+
+from sb3_hddpg.envs.layout import StateLayout, build_state_layout
+
+#: The reward choices of :class:`SnakeArmEnv`: one per paper worker plus their normalised sum.
+REWARD_CHOICES = ("goal", "avoid", "reach")
+#: The reward terms computed every step (Table 2 of the paper).
+REWARD_TERMS = ("goal", "avoid")
+
+
+class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
+    r"""
+    ## Description
+
+    A planar snake arm of ``n_joints`` revolute joints in a chain, fixed at a base in the middle of a disc
+    shaped workspace, must touch a goal point that random-walks inside its reach while ``n_obstacles``
+    discs random-walk through the workspace (Um, Nethala & Shin, *AI* 2022, Section 3 and Figure 2).
+    Reaching and avoiding conflict: the straight way to the goal often crosses an obstacle.
+
+    Lengths are in units of the arm's reach: every link is ``1 / n_joints`` long, so the stretched arm
+    reaches exactly 1.
+
+    The arm is simulated by pymunk: every link is a dynamic body with a segment shape (each 0.6 times as
+    heavy as its parent), joined to its
+    parent (the static base for link 0) by a ``PivotJoint`` and driven by a ``SimpleMotor`` whose rate is the
+    commanded joint velocity. A soft limit keeps every joint but the base within
+    ``±joint_limit`` radians: the commanded rate is reduced so that the joint stops at its limit within
+    the step, as a servo controller would (a pymunk ``RotaryLimitJoint`` fighting a motor made the chain
+    unstable). **Self-collision** is not simulated: links share one pymunk
+    ``ShapeFilter`` group so they pass through each other, and the joint limits keep the chain from folding
+    back onto itself. **Obstacles** are kinematic discs, not pymunk bodies: like the paper's robot with a
+    sensitive skin, the arm is not pushed by an obstacle but *touches* it, which the avoid reward penalises.
+    The goal and the obstacles move by a bounded random walk of their velocity (speed capped at
+    ``goal_speed`` / ``obstacle_speed`` reach per second), reflected at the edge of their region.
+
+    ## Action Space
+
+    ``Box(-1, 1, (n_joints,), float32)``: joint velocity commands, scaled to ``max_joint_speed`` rad/s;
+    positive turns counter-clockwise. Index ``i`` drives joint ``i`` (joint 0 is the base).
+
+    ## Observation Space
+
+    ``Box(low, high, (5 * n_joints + 3,), float32)``, the paper's shared state (Table 1). "Link ``i``" is the
+    link that joint ``i`` drives; its *obstacle* is the obstacle whose disc is closest to the link segment.
+    With ``n = n_joints``:
+
+    | Index           | Name (``state_layout``)  | Meaning                                                        | Min | Max |
+    |-----------------|--------------------------|----------------------------------------------------------------|-----|-----|
+    | 0 .. 2n-1       | ``joint_positions``      | (x, y) of the far end of each link (joints 2..n, then the tip) | -1  | 1   |
+    | 2n .. 2n+1      | ``ee_to_goal``           | (goal - tip) / 2                                               | -1  | 1   |
+    | 2n+2 .. 4n+1    | ``joint_obstacle_vectors``| (obstacle centre - closest point of link i) / 2, per link     | -1  | 1   |
+    | 4n+2 .. 5n+1    | ``joint_obstacle_distances``| clearance of link i to the disc surface / ``sensor_range``, clipped | 0 | 1 |
+    | 5n+2            | ``goal_touched``         | 1 if the tip is within ``touch_radius`` of the goal            | 0   | 1   |
+    | 5n+3 .. 6n+2    | ``obstacle_touched``     | 1 if link i touches its closest obstacle                       | 0   | 1   |
+
+    The total length is therefore ``6 n + 3`` (39 for the default six joints). Joint angles and velocities
+    are not observed: the link end points determine the angles, and with velocity-commanded motors the arm
+    has no momentum worth observing (the motor holds each commanded rate within a substep).
+    ``env.unwrapped.state_layout`` maps every name above to its slice, so an agent can be fed a chosen
+    subset of the state (the paper's design specification 4).
+
+    ## Rewards
+
+    Both terms of Table 2 are computed every step and returned in ``info["reward_terms"]``:
+
+    - ``goal = -d + 1[d <= touch_radius]`` with ``d`` the tip-to-goal distance;
+    - ``avoid = r_bf * sum_i c_i - 1[any link touches an obstacle]`` with ``c_i`` the clearance of link ``i``
+      to its closest obstacle surface, clipped to ``[0, sensor_range]`` (a skin sensor's range: beyond it,
+      farther is not safer, so the avoid worker is not paid to curl up away from the task).
+
+    ``env.unwrapped.reward_bounds`` gives each term's exact per-step ``(low, high)``:
+    ``goal in [-(1 + goal_radius_max), 1]`` and ``avoid in [-1, r_bf * n_joints * sensor_range]``.
+    The step reward is chosen by the ``reward`` argument: ``"goal"`` or ``"avoid"`` (one term, raw, as a
+    worker learns it) or ``"reach"``: the sum of both terms, each min-max normalised to [0, 1] with
+    ``reward_bounds`` (the single-DDPG baseline's task, and the manager's reward with preferences 1).
+
+    ## Starting State
+
+    The base joint angle is uniform in ``[-pi, pi)``, every other joint uniform in ``[-0.5, 0.5]`` rad, all
+    at rest. The goal starts uniform in the goal annulus; obstacles start uniform in the obstacle annulus,
+    at least ``spawn_margin`` from the arm's links and from the goal (re-drawn until so).
+
+    ## Episode End
+
+    The task is continuing: the episode never terminates (a collision is penalised, not fatal). It is
+    truncated by the registered ``max_episode_steps`` (200). ``info`` at every step reports
+    ``reward_terms``, ``goal_touched``, ``collision``, ``min_clearance``, ``distance_to_goal`` and
+    ``is_success``: the goal was touched at least once and no link has touched an obstacle so far in the
+    episode; read at the last step it is the episode's success.
+
+    ## Arguments
+
+    ``gym.make("hddpg/SnakeReach-v0", n_joints=6, n_obstacles=3, ...)``; every argument is also a keyword of
+    this class. See :meth:`__init__`.
+
+    ## Version History
+
+    - v0: initial version.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        reward: str = "reach",
+        n_joints: int = 6,
+        n_obstacles: int = 3,
+        obstacle_radius: float = 0.08,
+        obstacle_speed: float = 0.15,
+        goal_speed: float = 0.08,
+        touch_radius: float = 0.1,
+        r_bf: float = 0.2,
+        sensor_range: float = 0.3,
+        max_joint_speed: float = 1.5,
+        joint_limit: float = 2.4,
+        dt: float = 0.1,
+        substeps: int = 2,
+        goal_radius_min: float = 0.3,
+        goal_radius_max: float = 0.9,
+        obstacle_radius_min: float = 0.35,
+        obstacle_radius_max: float = 1.0,
+        spawn_margin: float = 0.1,
+        render_mode: str | None = None,
+    ) -> None:
+        """
+        :param reward: the step reward: ``"goal"``, ``"avoid"`` or ``"reach"`` (see Rewards).
+        :param n_joints: number of revolute joints (and links), at least 2.
+        :param n_obstacles: number of moving obstacle discs, at least 1.
+        :param obstacle_radius: radius of every obstacle disc, in reach units.
+        :param obstacle_speed: the obstacles' top speed, reach units per second.
+        :param goal_speed: the goal's top speed, reach units per second.
+        :param touch_radius: the tip touches the goal within this distance.
+        :param r_bf: the avoid reward's factor on the summed clearances (Table 2's ``r_bf``).
+        :param sensor_range: clearances are clipped to this range in the reward and observation.
+        :param max_joint_speed: joint speed, rad/s, commanded by an action of magnitude 1.
+        :param joint_limit: every joint but the base turns at most this far (rad) either way.
+        :param dt: seconds of simulated time per environment step.
+        :param substeps: pymunk steps per environment step (each ``dt / substeps`` long).
+        :param goal_radius_min: the goal stays at least this far from the base.
+        :param goal_radius_max: the goal stays at most this far from the base (below 1: reachable).
+        :param obstacle_radius_min: obstacle centres stay at least this far from the base.
+        :param obstacle_radius_max: obstacle centres stay at most this far from the base.
+        :param spawn_margin: at reset, obstacles start at least this far from the arm and the goal.
+        :param render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
+        """
+        _check_choice("reward", reward, REWARD_CHOICES)
+        _check_count("n_joints", n_joints, minimum=2)
+        _check_count("n_obstacles", n_obstacles, minimum=1)
+        _check_count("substeps", substeps, minimum=1)
+        for name, value in (
+            ("obstacle_radius", obstacle_radius),
+            ("touch_radius", touch_radius),
+            ("r_bf", r_bf),
+            ("sensor_range", sensor_range),
+            ("max_joint_speed", max_joint_speed),
+            ("joint_limit", joint_limit),
+            ("dt", dt),
+            ("goal_radius_max", goal_radius_max),
+            ("obstacle_radius_max", obstacle_radius_max),
+        ):
+            _check_positive(name, value)
+        for name, value in (
+            ("obstacle_speed", obstacle_speed),
+            ("goal_speed", goal_speed),
+            ("goal_radius_min", goal_radius_min),
+            ("obstacle_radius_min", obstacle_radius_min),
+            ("spawn_margin", spawn_margin),
+        ):
+            _check_non_negative(name, value)
+        if not goal_radius_min < goal_radius_max <= 1.0:
+            raise ValueError(
+                "Expected 0 <= goal_radius_min < goal_radius_max <= 1 (the goal must be reachable), "
+                f"actually: goal_radius_min={goal_radius_min}, goal_radius_max={goal_radius_max}"
+            )
+        if not obstacle_radius_min < obstacle_radius_max:
+            raise ValueError(
+                "Expected obstacle_radius_min < obstacle_radius_max, actually: "
+                f"obstacle_radius_min={obstacle_radius_min}, obstacle_radius_max={obstacle_radius_max}"
+            )
+        if render_mode is not None:
+            _check_choice("render_mode", render_mode, tuple(self.metadata["render_modes"]))
+
+        self.reward_name = reward
+        self.n_joints = int(n_joints)
+        self.n_obstacles = int(n_obstacles)
+        self.obstacle_radius = float(obstacle_radius)
+        self.obstacle_speed = float(obstacle_speed)
+        self.goal_speed = float(goal_speed)
+        self.touch_radius = float(touch_radius)
+        self.r_bf = float(r_bf)
+        self.sensor_range = float(sensor_range)
+        self.max_joint_speed = float(max_joint_speed)
+        self.joint_limit = float(joint_limit)
+        self.dt = float(dt)
+        self.substeps = int(substeps)
+        self.goal_radius_min = float(goal_radius_min)
+        self.goal_radius_max = float(goal_radius_max)
+        self.obstacle_radius_min = float(obstacle_radius_min)
+        self.obstacle_radius_max = float(obstacle_radius_max)
+        self.spawn_margin = float(spawn_margin)
+        self.render_mode = render_mode
+        self.link_length = 1.0 / self.n_joints
+
+        n = self.n_joints
+        self.state_layout: StateLayout = build_state_layout(n)
+        obs_size = self.state_layout.size
+        low = np.full(obs_size, -1.0, dtype=np.float32)
+        high = np.ones(obs_size, dtype=np.float32)
+        for name in ("joint_obstacle_distances", "goal_touched", "obstacle_touched"):
+            low[self.state_layout[name]] = 0.0
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
+
+        self.reward_bounds: dict[str, tuple[float, float]] = {
+            "goal": (-(1.0 + self.goal_radius_max), 1.0),
+            "avoid": (-1.0, self.r_bf * n * self.sensor_range),
+        }
+        self.reward_terms = REWARD_TERMS
+        # Precomputed so that normalising a term in the step is one multiply-add.
+        self._term_offset = {k: lo for k, (lo, _) in self.reward_bounds.items()}
+        self._term_scale = {k: 1.0 / (hi - lo) for k, (lo, hi) in self.reward_bounds.items()}
+
+        # (top speed, min radius, max radius) of the goal's walk, then of each obstacle's.
+        self._walk_limits = [(self.goal_speed, self.goal_radius_min, self.goal_radius_max)] + [
+            (self.obstacle_speed, self.obstacle_radius_min, self.obstacle_radius_max)
+        ] * self.n_obstacles
+        self._build_space()
+        # The links' absolute angles as last read from the physics (the soft joint limits need them).
+        self._angles = [0.0] * self.n_joints
+        # Positions and velocities of the goal (index 0) and the obstacles, as plain lists (see _walk_movers).
+        self._movers: list[list[float]] = [[0.0, 0.0] for _ in range(1 + self.n_obstacles)]
+        self._velocities: list[list[float]] = [[0.0, 0.0] for _ in range(1 + self.n_obstacles)]
+        self._noise: list[Any] = []
+        self._noise_index = 0
+        self._ever_touched = False
+        self._ever_collided = False
+        self._renderer: Any = None
+
+    # ------------------------------------------------------------------ physics
+    def _build_space(self) -> None:
+        """Build the pymunk chain; ``reset`` rebuilds it, since pymunk carries solver state between steps."""
+        self.space = pymunk.Space()
+        self.space.gravity = (0.0, 0.0)  # a planar arm on a table: gravity is normal to the plane
+        self.space.iterations = 10
+        # Links get lighter toward the tip, as in a real arm. It also matters numerically: pymunk's
+        # iterative solver tracks a chain of equal-mass motor-driven links badly (the base overshoots
+        # and the tip lags), while a 0.6 mass ratio per link tracks the commanded rates within ~3 %.
+        masses = [0.6**i for i in range(self.n_joints)]
+        self.links: list[pymunk.Body] = []
+        self.motors: list[pymunk.SimpleMotor] = []
+        no_self_collision = pymunk.ShapeFilter(group=1)
+        parent: pymunk.Body = self.space.static_body
+        for i in range(self.n_joints):
+            moment = pymunk.moment_for_segment(masses[i], (0, 0), (self.link_length, 0), 0.01)
+            body = pymunk.Body(masses[i], moment)
+            shape = pymunk.Segment(body, (0, 0), (self.link_length, 0), 0.01)
+            shape.filter = no_self_collision
+            # The base pivot sits at the static body's origin; the others at the parent link's far end.
+            anchor = (0.0, 0.0) if i == 0 else (self.link_length, 0.0)
+            pivot = pymunk.PivotJoint(parent, body, anchor, (0.0, 0.0))
+            motor = pymunk.SimpleMotor(parent, body, 0.0)
+            # Strong enough to hold the commanded rate against the chain's inertia within a substep.
+            motor.max_force = 50.0
+            self.space.add(body, shape, pivot, motor)
+            self.links.append(body)
+            self.motors.append(motor)
+            parent = body
+
+    def _place_arm(self, joint_angles: np.ndarray) -> None:
+        """Put the chain at the given relative joint angles, at rest."""
+        absolute = np.cumsum(joint_angles)
+        start = np.zeros(2)
+        for body, angle in zip(self.links, absolute):
+            body.angle = float(angle)
+            body.position = (float(start[0]), float(start[1]))
+            body.velocity = (0.0, 0.0)
+            body.angular_velocity = 0.0
+            start = start + self.link_length * np.array([math.cos(angle), math.sin(angle)])
+
+    def link_points(self) -> np.ndarray:
+        """The ``(n_joints + 1, 2)`` chain points: the base, every joint, then the tip."""
+        xs, ys = self._chain_points()
+        return np.array([xs, ys]).T
+
+    def _chain_points(self) -> tuple[list[float], list[float]]:
+        # The chain from the simulated link angles by forward kinematics: the points are exactly one link
+        # length apart (the pivot solver's slack, see joint_gaps, never reaches the observation), so the
+        # observation bounds hold without clipping. Plain Python on purpose: for a handful of points it
+        # is several times faster than numpy calls, and pymunk's angle is its cheapest accessor.
+        length = self.link_length
+        x = y = 0.0
+        xs = [0.0]
+        ys = [0.0]
+        angles = self._angles
+        for i, body in enumerate(self.links):
+            angle = angles[i] = body.angle
+            x += length * math.cos(angle)
+            y += length * math.sin(angle)
+            xs.append(x)
+            ys.append(y)
+        return xs, ys
+
+    def joint_gaps(self) -> np.ndarray:
+        """
+        How far each simulated pivot has come apart (reach units): the distance between a link's start and
+        its parent's far end (the base for link 0). pymunk solves joints iteratively, so these are small but
+        not zero; they show that the physics keeps the arm connected.
+        """
+        gaps = []
+        parent_end = pymunk.Vec2d(0.0, 0.0)
+        for body in self.links:
+            gaps.append(abs(body.position - parent_end))
+            parent_end = body.local_to_world((self.link_length, 0.0))
+        return np.array(gaps)
+
+    def joint_angles(self) -> np.ndarray:
+        """Relative joint angles (rad); index 0 is the base joint's absolute angle."""
+        absolute = np.array([b.angle for b in self.links])
+        return np.diff(absolute, prepend=0.0)
+
+    @property
+    def goal(self) -> np.ndarray:
+        """The goal's position, shape ``(2,)``."""
+        return np.array(self._movers[0])
+
+    @property
+    def obstacles(self) -> np.ndarray:
+        """The obstacle centres, shape ``(n_obstacles, 2)``."""
+        return np.array(self._movers[1:]).reshape(self.n_obstacles, 2)
+
+    # ------------------------------------------------------------------ random walks
+    def _sample_annulus(self, r_min: float, r_max: float) -> list[float]:
+        # Uniform over the annulus area: radius from the square-root law.
+        radius = math.sqrt(self.np_random.uniform(r_min**2, r_max**2))
+        angle = self.np_random.uniform(-math.pi, math.pi)
+        return [radius * math.cos(angle), radius * math.sin(angle)]
+
+    def _walk_movers(self) -> None:
+        """
+        Advance the goal's and the obstacles' bounded random walks: jitter the velocity, cap the speed,
+        move, and reflect the velocity's radial part at the edge of the mover's annulus.
+        """
+        if self._noise_index >= len(self._noise):
+            # Normal noise drawn in blocks: one generator call per 256 steps instead of one per step.
+            self._noise = self.np_random.normal(0.0, 0.3, size=(256, 1 + self.n_obstacles, 2)).tolist()
+            self._noise_index = 0
+        noise = self._noise[self._noise_index]
+        self._noise_index += 1
+        dt = self.dt
+        for k, (pos, vel) in enumerate(zip(self._movers, self._velocities)):
+            top, r_min, r_max = self._walk_limits[k]
+            if top == 0.0:
+                continue
+            vx = vel[0] + noise[k][0] * top
+            vy = vel[1] + noise[k][1] * top
+            speed = math.hypot(vx, vy)
+            if speed > top:
+                vx, vy = vx * top / speed, vy * top / speed
+            x, y = pos[0] + vx * dt, pos[1] + vy * dt
+            radius = math.hypot(x, y)
+            if radius > r_max or radius < r_min:
+                ux, uy = x / max(radius, 1e-12), y / max(radius, 1e-12)
+                radial = vx * ux + vy * uy
+                vx, vy = vx - 2.0 * radial * ux, vy - 2.0 * radial * uy
+                radius = min(max(radius, r_min), r_max)
+                x, y = ux * radius, uy * radius
+            pos[0], pos[1], vel[0], vel[1] = x, y, vx, vy
+
+    # ------------------------------------------------------------------ geometry
+    def _measure(self) -> dict[str, Any]:
+        """Everything the observation, rewards and info need, from the current physics state."""
+        xs, ys = self._chain_points()
+        gx, gy = self._movers[0]
+        dgx, dgy = gx - xs[-1], gy - ys[-1]
+        goal_distance = math.hypot(dgx, dgy)
+        obstacles = self._movers[1:]
+        vectors: list[float] = []
+        clearances: list[float] = []
+        # For every link, the obstacle whose centre is closest to the link segment.
+        for i in range(self.n_joints):
+            ax, ay = xs[i], ys[i]
+            sx, sy = xs[i + 1] - ax, ys[i + 1] - ay
+            inv_len2 = 1.0 / (sx * sx + sy * sy)
+            best = math.inf
+            best_vx = best_vy = 0.0
+            for ox, oy in obstacles:
+                t = ((ox - ax) * sx + (oy - ay) * sy) * inv_len2
+                t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+                vx, vy = ox - ax - t * sx, oy - ay - t * sy
+                d = vx * vx + vy * vy
+                if d < best:
+                    best, best_vx, best_vy = d, vx, vy
+            vectors += (best_vx, best_vy)
+            clearances.append(math.sqrt(best) - self.obstacle_radius)
+        return {
+            "ends": [c for pair in zip(xs[1:], ys[1:]) for c in pair],
+            "to_goal": (dgx, dgy),
+            "goal_distance": goal_distance,
+            "obstacle_vectors": vectors,
+            "clearance": clearances,
+            "touching": [c <= 0.0 for c in clearances],
+            "goal_touched": goal_distance <= self.touch_radius,
+        }
+
+    def _observation(self, m: dict[str, Any], clipped: list[float]) -> np.ndarray:
+        inv_range = 1.0 / self.sensor_range
+        obs = np.array(
+            [
+                *m["ends"],
+                0.5 * m["to_goal"][0],
+                0.5 * m["to_goal"][1],
+                *(0.5 * v for v in m["obstacle_vectors"]),
+                *(c * inv_range for c in clipped),
+                1.0 if m["goal_touched"] else 0.0,
+                *(1.0 if t else 0.0 for t in m["touching"]),
+            ],
+            dtype=np.float32,
+        )
+        return obs
+
+    def _reward_terms(self, m: dict[str, Any], clipped: list[float]) -> dict[str, float]:
+        goal_low, goal_high = self.reward_bounds["goal"]
+        goal = -m["goal_distance"] + (1.0 if m["goal_touched"] else 0.0)
+        # Clip to the documented bounds: physics slack can put the tip a hair beyond reach.
+        goal = min(max(goal, goal_low), goal_high)
+        avoid = self.r_bf * sum(clipped) - (1.0 if any(m["touching"]) else 0.0)
+        return {"goal": goal, "avoid": avoid}
+
+    def normalise_terms(self, terms: dict[str, float]) -> dict[str, float]:
+        """Min-max normalise reward terms to [0, 1] with the fixed :attr:`reward_bounds`."""
+        return {k: (v - self._term_offset[k]) * self._term_scale[k] for k, v in terms.items()}
+
+    def _step_result(self) -> tuple[np.ndarray, float, dict[str, Any]]:
+        m = self._measure()
+        sensor_range = self.sensor_range
+        clipped = [0.0 if c < 0.0 else (sensor_range if c > sensor_range else c) for c in m["clearance"]]
+        terms = self._reward_terms(m, clipped)
+        collision = any(m["touching"])
+        self._ever_touched = self._ever_touched or m["goal_touched"]
+        self._ever_collided = self._ever_collided or collision
+        if self.reward_name == "reach":
+            normalised = self.normalise_terms(terms)
+            reward = normalised["goal"] + normalised["avoid"]
+        else:
+            reward = terms[self.reward_name]
+        info = {
+            "reward_terms": terms,
+            "goal_touched": m["goal_touched"],
+            "collision": collision,
+            "min_clearance": min(m["clearance"]),
+            "distance_to_goal": m["goal_distance"],
+            "is_success": self._ever_touched and not self._ever_collided,
+        }
+        return self._observation(m, clipped), float(reward), info
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        n = self.n_joints
+        angles = np.concatenate(
+            ([self.np_random.uniform(-np.pi, np.pi)], self.np_random.uniform(-0.5, 0.5, n - 1))
+        )
+        # A fresh space: pymunk warm-starts its solver with impulses cached from earlier steps, so reusing
+        # the old space would make the same seed and actions give a different trajectory.
+        self._build_space()
+        self._place_arm(angles)
+        goal = self._sample_annulus(self.goal_radius_min, self.goal_radius_max)
+        self._movers = [goal]
+        points = self.link_points()
+        for _ in range(self.n_obstacles):
+            for _ in range(1000):
+                candidate = self._sample_annulus(self.obstacle_radius_min, self.obstacle_radius_max)
+                if self._clear_of(np.array(candidate), points, np.array(goal)):
+                    break
+            self._movers.append(candidate)
+        self._velocities = [[0.0, 0.0] for _ in self._movers]
+        self._noise = []
+        self._noise_index = 0
+        self._ever_touched = False
+        self._ever_collided = False
+        obs, _, info = self._step_result()
+        if self.render_mode == "human":
+            self.render()
+        return obs, info
+
+    def _clear_of(self, centre: np.ndarray, points: np.ndarray, goal: np.ndarray) -> bool:
+        """Whether an obstacle at ``centre`` starts clear of the arm's links and the goal."""
+        starts, seg = points[:-1], points[1:] - points[:-1]
+        t = np.clip(np.sum((centre - starts) * seg, axis=1) / np.sum(seg * seg, axis=1), 0.0, 1.0)
+        to_links = np.linalg.norm(starts + t[:, None] * seg - centre, axis=1).min()
+        to_goal = np.linalg.norm(goal - centre)
+        need = self.obstacle_radius + self.spawn_margin
+        return bool(to_links > need and to_goal > need + self.touch_radius)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        commands = action.tolist() if isinstance(action, np.ndarray) else np.asarray(action, float).tolist()
+        if len(commands) != self.n_joints or not isinstance(commands[0], float):
+            raise ValueError(f"Expected an action of shape ({self.n_joints},), actually: {np.shape(action)}")
+        top = self.max_joint_speed
+        limit = self.joint_limit
+        inv_dt = 1.0 / self.dt
+        previous = 0.0
+        for i, (motor, command, absolute) in enumerate(zip(self.motors, commands, self._angles)):
+            if not -math.inf < command < math.inf:
+                raise ValueError(f"Expected a finite action, actually: {commands}")
+            rate = top * (-1.0 if command < -1.0 else (1.0 if command > 1.0 else command))
+            if i > 0:
+                # Soft joint limit, as a servo controller would do it: slow the joint so that it stops at
+                # the limit within this step instead of pushing into it.
+                relative = absolute - previous
+                rate = min(max(rate, (-limit - relative) * inv_dt), (limit - relative) * inv_dt)
+            previous = absolute
+            motor.rate = -rate  # pymunk's motor rate is clockwise-positive, our commands counter-clockwise
+        h = self.dt / self.substeps
+        for _ in range(self.substeps):
+            self.space.step(h)
+        self._walk_movers()
+        obs, reward, info = self._step_result()
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, False, False, info
+
+    def __getstate__(self) -> dict[str, Any]:
+        # pymunk pickles a space with copies of its bodies, which would leave ``links`` and ``motors``
+        # pointing at bodies outside the simulation: pickle the links' motion state and rebuild instead.
+        state = {k: v for k, v in self.__dict__.items() if k not in ("space", "links", "motors", "_renderer")}
+        state["_link_states"] = [
+            (tuple(b.position), b.angle, tuple(b.velocity), b.angular_velocity) for b in self.links
+        ]
+        state["_motor_rates"] = [m.rate for m in self.motors]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        link_states = state.pop("_link_states")
+        motor_rates = state.pop("_motor_rates")
+        self.__dict__.update(state)
+        self._renderer = None
+        self._build_space()
+        for body, (position, angle, velocity, spin) in zip(self.links, link_states):
+            body.position, body.angle, body.velocity, body.angular_velocity = position, angle, velocity, spin
+        for motor, rate in zip(self.motors, motor_rates):
+            motor.rate = rate
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn(
+                "You are calling render method without specifying any render mode. "
+                'Pass render_mode="rgb_array" or "human" to gym.make.'
+            )
+            return None
+        from sb3_hddpg.envs.rendering import SnakeRenderer  # drawing code loads only when asked for
+
+        if self._renderer is None:
+            self._renderer = SnakeRenderer(self.render_mode, fps=self.metadata["render_fps"])
+        return self._renderer.draw(self)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def _check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ValueError(f"Expected `{name}` to be one of {list(choices)}, actually: {value!r}")
+
+
+def _check_count(name: str, value: Any, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"Expected `{name}` to be an integer >= {minimum}, actually: {value!r}")
+
+
+def _check_positive(name: str, value: Any) -> None:
+    if not isinstance(value, (int, float, np.number)) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"Expected `{name}` to be a finite number > 0, actually: {value!r}")
+
+
+def _check_non_negative(name: str, value: Any) -> None:
+    if not isinstance(value, (int, float, np.number)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"Expected `{name}` to be a finite number >= 0, actually: {value!r}")

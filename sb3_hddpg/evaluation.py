@@ -1,0 +1,145 @@
+"""``evaluate(policy, env)``: the environment's own metrics over fixed evaluation seeds."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_hddpg.workers import Policy
+
+#: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
+#: training seeds, and the same for every method so that comparisons are paired.
+EVAL_SEED_BASE = 10_000
+
+
+@dataclass
+class EpisodeMetrics:
+    """The metrics of one episode."""
+
+    seed: int
+    reward: float
+    length: int
+    goal_reward: float
+    avoid_reward: float
+    #: Combined normalised reward: per step the goal and avoid terms each min-max normalised to [0, 1]
+    #: and summed (the SnakeReach reward, the benchmark's common metric).
+    reach_reward: float
+    goal_touch_rate: float
+    goal_touched: bool
+    collisions: int
+    success: bool
+    min_clearance: float
+    selections: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class EvaluationResult:
+    """Metrics over several episodes; :meth:`summary` gives means."""
+
+    episodes: list[EpisodeMetrics]
+
+    def summary(self) -> dict[str, Any]:
+        """Means (and the reward's std) over episodes, plus how often each worker acted, as a fraction."""
+        eps = self.episodes
+        rewards = np.array([e.reward for e in eps])
+        out: dict[str, Any] = {
+            "episodes": len(eps),
+            "mean_reward": float(rewards.mean()),
+            "std_reward": float(rewards.std()),
+            "mean_reach_reward": float(np.mean([e.reach_reward for e in eps])),
+            "mean_goal_reward": float(np.mean([e.goal_reward for e in eps])),
+            "mean_avoid_reward": float(np.mean([e.avoid_reward for e in eps])),
+            "goal_touch_rate": float(np.mean([e.goal_touch_rate for e in eps])),
+            "goal_reached_rate": float(np.mean([e.goal_touched for e in eps])),
+            "collisions_per_episode": float(np.mean([e.collisions for e in eps])),
+            "success_rate": float(np.mean([e.success for e in eps])),
+            "min_clearance": float(np.mean([e.min_clearance for e in eps])),
+            "mean_length": float(np.mean([e.length for e in eps])),
+        }
+        total: Counter[str] = Counter()
+        for e in eps:
+            total.update(e.selections)
+        if total:
+            steps = sum(total.values())
+            out["selection_rate"] = {name: count / steps for name, count in sorted(total.items())}
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary and every episode, JSON-ready."""
+        return {"summary": self.summary(), "episodes": [asdict(e) for e in self.episodes]}
+
+
+def evaluate(
+    policy: Policy,
+    env: gym.Env,
+    n_episodes: int = 20,
+    seed: int = EVAL_SEED_BASE,
+    deterministic: bool = True,
+    on_step: Callable[[gym.Env, dict[str, Any]], None] | None = None,
+) -> EvaluationResult:
+    """
+    Run ``policy`` for ``n_episodes`` on ``env``, resetting episode ``k`` with seed ``seed + k``.
+
+    The env must report the snake env's ``info`` (``reward_terms``, ``goal_touched``, ``collision``,
+    ``min_clearance``); a :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` also reports the worker it
+    ran (``selected_worker``), which is counted. The policy must act in ``env``'s action space.
+
+    :param policy: anything with SB3's ``predict``.
+    :param env: a single (not vectorised) environment, time-limited.
+    :param n_episodes: how many episodes, at least 1.
+    :param seed: the first episode's seed.
+    :param deterministic: passed to ``predict``.
+    :param on_step: called after every step with the env and its ``info`` (for recording).
+    :return: per-episode metrics.
+    """
+    if n_episodes < 1:
+        raise ValueError(f"Expected `n_episodes` to be >= 1, actually: {n_episodes}")
+    normalise = env.unwrapped.normalise_terms  # type: ignore[attr-defined]
+    episodes = []
+    for k in range(n_episodes):
+        obs, info = env.reset(seed=seed + k)
+        reward_sum = goal_sum = avoid_sum = reach_sum = 0.0
+        touches = collisions = steps = 0
+        min_clearance = np.inf
+        selections: Counter[str] = Counter()
+        done = False
+        while not done:
+            action, _ = policy.predict(obs, deterministic=deterministic)
+            obs, reward, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            steps += 1
+            reward_sum += float(reward)
+            terms = info["reward_terms"]
+            goal_sum += terms["goal"]
+            avoid_sum += terms["avoid"]
+            normalised = normalise({"goal": terms["goal"], "avoid": terms["avoid"]})
+            reach_sum += normalised["goal"] + normalised["avoid"]
+            touches += bool(info["goal_touched"])
+            collisions += bool(info["collision"])
+            min_clearance = min(min_clearance, info["min_clearance"])
+            if "selected_worker" in info:
+                selections[info["selected_worker"]] += 1
+            if on_step is not None:
+                on_step(env, info)
+        episodes.append(
+            EpisodeMetrics(
+                seed=seed + k,
+                reward=reward_sum,
+                length=steps,
+                goal_reward=goal_sum,
+                avoid_reward=avoid_sum,
+                reach_reward=reach_sum,
+                goal_touch_rate=touches / steps,
+                goal_touched=touches > 0,
+                collisions=collisions,
+                success=touches > 0 and collisions == 0,
+                min_clearance=float(min_clearance),
+                selections=dict(selections),
+            )
+        )
+    return EvaluationResult(episodes)
