@@ -1,0 +1,707 @@
+"""
+Load shared Stable-Baselines3 model zips without running code from them.
+
+An SB3 zip (see ``stable_baselines3/common/save_util.py``) holds a ``data`` JSON entry in which several values
+(``policy_class``, the spaces, ``lr_schedule``, ...) are base64 cloudpickle blobs. ``DDPG.load`` unpickles them, so
+opening a zip from someone else runs whatever code they put there. The tensors (``policy.pth`` and friends) are
+loaded by SB3 with ``torch.load(..., weights_only=True)`` and are not the problem.
+
+The idea here: describe the model with a small, strictly validated JSON document (:func:`model_spec`, written by
+our own code from the live model at save time, e.g. into a hierarchy bundle's ``manifest.json``), rebuild the
+algorithm from that description, and take only the weights from the zip (:func:`load_model_safely`). The ``data``
+entry is never read. The spec itself travels with the shared files, so it is treated as untrusted input too:
+every name in it is resolved through an explicit allow-list, never through ``getattr``/import.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import re
+import zipfile
+import zlib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from sb3_contrib import TQC
+from stable_baselines3 import DDPG, SAC, TD3
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.save_util import recursive_getattr
+from stable_baselines3.common.torch_layers import FlattenExtractor
+
+__all__ = [
+    "ACTIVATIONS",
+    "ALGOS",
+    "SPEC_FORMAT",
+    "SPEC_VERSION",
+    "SafeLoadError",
+    "load_model",
+    "load_model_safely",
+    "model_spec",
+]
+
+SPEC_FORMAT = "sb3-hddpg/model-spec"
+SPEC_VERSION = 1
+
+#: Algorithms that can be rebuilt from a spec. Only exact classes: a subclass may change the networks or
+#: ``_setup_model`` in ways the spec cannot describe.
+ALGOS: dict[str, type[OffPolicyAlgorithm]] = {"DDPG": DDPG, "TD3": TD3, "SAC": SAC, "TQC": TQC}
+
+#: ``activation_fn`` values accepted in a spec, by name. A name outside this table is refused rather than looked
+#: up in ``torch.nn``: the spec is shared data and must not be able to pick arbitrary callables.
+ACTIVATIONS: dict[str, type[th.nn.Module]] = {
+    cls.__name__: cls
+    for cls in (
+        th.nn.ReLU,
+        th.nn.Tanh,
+        th.nn.ELU,
+        th.nn.LeakyReLU,
+        th.nn.SiLU,
+        th.nn.GELU,
+        th.nn.Sigmoid,
+        th.nn.Softplus,
+        th.nn.Mish,
+        th.nn.SELU,
+        th.nn.CELU,
+        th.nn.Hardtanh,
+        th.nn.ReLU6,
+        th.nn.Identity,
+    )
+}
+
+#: Optimizers accepted in ``policy_kwargs["optimizer_class"]``. Only matters for further training.
+OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {
+    cls.__name__: cls for cls in (th.optim.Adam, th.optim.AdamW, th.optim.SGD, th.optim.RMSprop)
+}
+
+#: Box dtypes accepted in a spec (numpy names).
+DTYPES = frozenset(
+    [
+        "float16",
+        "float32",
+        "float64",
+        "int8",
+        "int16",
+        "int32",
+        "int64",
+        "uint8",
+        "uint16",
+        "uint32",
+        "uint64",
+        "bool",
+    ]
+)
+
+# Sanity limits, so that a hostile manifest cannot make us allocate absurd networks before the weights are even
+# looked at. They are far above anything this project trains.
+MAX_LAYER_WIDTH = 1 << 16
+MAX_LAYERS = 64
+MAX_CRITICS = 64
+MAX_QUANTILES = 4096
+#: Largest zip member (uncompressed, as declared in the zip directory) we are willing to read into memory.
+MAX_MEMBER_BYTES = 4 << 30
+
+POLICY_MEMBER = "policy.pth"
+VARIABLES_MEMBER = "pytorch_variables.pth"
+
+# Policy kwargs each algorithm's ``MlpPolicy`` understands and that a spec may carry. ``use_sde`` is left out on
+# purpose: the off-policy constructor overwrites ``policy_kwargs["use_sde"]`` from its own ``use_sde``
+# argument, so it lives with the hyperparameters.
+_TD3_POLICY_KWARGS = frozenset(
+    [
+        "net_arch",
+        "activation_fn",
+        "n_critics",
+        "share_features_extractor",
+        "normalize_images",
+        "optimizer_class",
+        "optimizer_kwargs",
+        "features_extractor_class",
+        "features_extractor_kwargs",
+    ]
+)
+_SAC_POLICY_KWARGS = _TD3_POLICY_KWARGS | {"log_std_init", "use_expln", "clip_mean"}
+_POLICY_KWARGS: dict[str, frozenset[str]] = {
+    "DDPG": _TD3_POLICY_KWARGS,
+    "TD3": _TD3_POLICY_KWARGS,
+    "SAC": _SAC_POLICY_KWARGS,
+    "TQC": _SAC_POLICY_KWARGS | {"n_quantiles"},
+}
+
+# Constructor hyperparameters recorded per algorithm, with their JSON kind. Only what shapes the rebuilt model
+# or its immediate use; exploration noise, train_freq etc. are training-time choices of whoever continues.
+_COMMON_HPARAMS = {
+    "learning_rate": "float",
+    "gamma": "float",
+    "tau": "float",
+    "buffer_size": "int",
+    "batch_size": "int",
+}
+_SAC_HPARAMS = {
+    "ent_coef": "ent_coef",
+    "target_entropy": "float",
+    "target_update_interval": "int",
+    "use_sde": "bool",
+    "sde_sample_freq": "int",
+}
+_HPARAMS: dict[str, dict[str, str]] = {
+    # DDPG's constructor hard-codes policy_delay / target noise, so they are not arguments there.
+    "DDPG": _COMMON_HPARAMS,
+    "TD3": {
+        **_COMMON_HPARAMS,
+        "policy_delay": "int",
+        "target_policy_noise": "float",
+        "target_noise_clip": "float",
+    },
+    "SAC": {**_COMMON_HPARAMS, **_SAC_HPARAMS},
+    "TQC": {**_COMMON_HPARAMS, **_SAC_HPARAMS, "top_quantiles_to_drop_per_net": "int"},
+}
+
+_SPEC_KEYS = frozenset(
+    [
+        "format",
+        "version",
+        "algorithm",
+        "policy",
+        "observation_space",
+        "action_space",
+        "policy_kwargs",
+        "hyperparameters",
+        "learning_rate_constant",
+    ]
+)
+
+_ENT_COEF_AUTO = re.compile(r"^auto(_[0-9.eE+-]+)?$")
+
+
+class SafeLoadError(ValueError):
+    """A model zip or its spec was refused by :func:`load_model_safely`; the message names the file and the cause."""
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Small strict converters. ``bool`` is a subclass of ``int`` in Python, so it is excluded explicitly everywhere.
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _as_float(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{key}: expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{key}: expected a finite number, got {value!r}")
+    return value
+
+
+def _as_int(key: str, value: Any, minimum: int | None = None, maximum: int | None = None) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{key}: expected an integer, got {value!r}")
+    value = int(value)
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{key}: expected an integer >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{key}: expected an integer <= {maximum}, got {value!r}")
+    return value
+
+
+def _as_bool(key: str, value: Any) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{key}: expected true/false, got {value!r}")
+    return bool(value)
+
+
+def _convert(kind: str, key: str, value: Any) -> Any:
+    if kind == "float":
+        return _as_float(key, value)
+    if kind == "int":
+        return _as_int(key, value)
+    if kind == "bool":
+        return _as_bool(key, value)
+    if kind == "ent_coef":
+        # SAC/TQC accept a float or "auto" / "auto_<initial value>".
+        if isinstance(value, str):
+            if not _ENT_COEF_AUTO.match(value):
+                raise ValueError(f"{key}: expected a number, 'auto' or 'auto_<float>', got {value!r}")
+            return value
+        return _as_float(key, value)
+    raise AssertionError(kind)  # pragma: no cover - programming error
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Spaces
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _bounds_to_json(array: np.ndarray) -> list[Any]:
+    # Strict JSON has no Infinity/NaN, and Box bounds are often infinite: write those as strings. Finite float32
+    # values survive float -> JSON -> float64 -> float32 exactly.
+    def encode(x: Any) -> Any:
+        if isinstance(x, list):
+            return [encode(v) for v in x]
+        if isinstance(x, float) and not math.isfinite(x):
+            return str(x)  # "inf", "-inf", "nan"
+        return x
+
+    return encode(array.tolist())
+
+
+def _bounds_from_json(key: str, value: Any, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+    def decode(x: Any) -> Any:
+        if isinstance(x, list):
+            return [decode(v) for v in x]
+        if isinstance(x, str):
+            if x not in ("inf", "-inf", "nan"):
+                raise ValueError(f"{key}: unexpected string {x!r} in bounds")
+            return float(x)
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise ValueError(f"{key}: bounds must be numbers, got {x!r}")
+        return x
+
+    if not isinstance(value, list):
+        raise ValueError(f"{key}: expected a (nested) list, got {value!r}")
+    array = np.asarray(decode(value), dtype=np.float64 if np.issubdtype(dtype, np.floating) else None)
+    if array.shape != shape:
+        raise ValueError(f"{key}: bounds have shape {list(array.shape)}, expected {list(shape)}")
+    return array.astype(dtype)
+
+
+def _space_to_json(space: spaces.Space, what: str) -> dict[str, Any]:
+    if type(space) is not spaces.Box:
+        raise ValueError(f"{what}: unsupported space {space!r}; only gymnasium.spaces.Box can be described")
+    dtype = np.dtype(space.dtype).name
+    if dtype not in DTYPES:
+        raise ValueError(f"{what}: unsupported Box dtype {dtype!r}")
+    return {
+        "type": "Box",
+        "low": _bounds_to_json(space.low),
+        "high": _bounds_to_json(space.high),
+        "shape": list(space.shape),
+        "dtype": dtype,
+    }
+
+
+def _space_from_json(value: Any, what: str) -> spaces.Box:
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{what}: expected an object, got {value!r}")
+    if value.get("type") != "Box":
+        raise ValueError(f"{what}: unsupported space type {value.get('type')!r}; only 'Box' is supported")
+    unknown = set(value) - {"type", "low", "high", "shape", "dtype"}
+    if unknown:
+        raise ValueError(f"{what}: unknown key {sorted(unknown)[0]!r}")
+    dtype_name = value.get("dtype")
+    if dtype_name not in DTYPES:
+        raise ValueError(f"{what}.dtype: unsupported dtype {dtype_name!r}")
+    dtype = np.dtype(dtype_name)
+    raw_shape = value.get("shape")
+    if not isinstance(raw_shape, list):
+        raise ValueError(f"{what}.shape: expected a list of integers, got {raw_shape!r}")
+    shape = tuple(_as_int(f"{what}.shape", dim, minimum=0) for dim in raw_shape)
+    low = _bounds_from_json(f"{what}.low", value.get("low"), shape, dtype)
+    high = _bounds_from_json(f"{what}.high", value.get("high"), shape, dtype)
+    return spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Policy kwargs
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _layers(key: str, value: Any) -> list[int]:
+    if not isinstance(value, (list, tuple)):
+        raise ValueError(f"{key}: expected a list of layer sizes, got {value!r}")
+    if len(value) > MAX_LAYERS:
+        raise ValueError(f"{key}: {len(value)} layers is more than the limit of {MAX_LAYERS}")
+    return [_as_int(key, size, minimum=1, maximum=MAX_LAYER_WIDTH) for size in value]
+
+
+def _net_arch(value: Any) -> list[int] | dict[str, list[int]]:
+    if isinstance(value, Mapping):
+        unknown = set(value) - {"pi", "qf"}
+        if unknown:
+            raise ValueError(f"policy_kwargs.net_arch: unknown key {sorted(map(str, unknown))[0]!r}")
+        return {name: _layers(f"policy_kwargs.net_arch.{name}", layers) for name, layers in value.items()}
+    return _layers("policy_kwargs.net_arch", value)
+
+
+def _optimizer_kwargs(value: Any, to_json: bool) -> dict[str, Any]:
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ValueError(f"policy_kwargs.optimizer_kwargs: expected a dict, got {value!r}")
+    out: dict[str, Any] = {}
+    for name, item in value.items():
+        key = f"policy_kwargs.optimizer_kwargs.{name}"
+        if not isinstance(name, str):
+            raise ValueError(f"{key}: keys must be strings")
+        if item is None:
+            out[name] = None  # e.g. foreach=None, torch's "pick for me"
+        elif isinstance(item, (bool, np.bool_)):
+            out[name] = bool(item)
+        elif isinstance(item, (list, tuple)):
+            # e.g. Adam's betas: a list in JSON, a tuple for torch.
+            numbers = [_as_float(key, x) for x in item]
+            out[name] = numbers if to_json else tuple(numbers)
+        else:
+            out[name] = _as_float(key, item)
+    return out
+
+
+def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    allowed = _POLICY_KWARGS[algo]
+    out: dict[str, Any] = {}
+    for key, value in policy_kwargs.items():
+        if key == "use_sde":
+            continue  # recorded as a hyperparameter, see _POLICY_KWARGS
+        if key not in allowed:
+            raise ValueError(f"policy_kwargs.{key}: not supported by the safe model spec (value {value!r})")
+        if key == "net_arch":
+            out[key] = _net_arch(value)
+        elif key == "activation_fn":
+            if ACTIVATIONS.get(getattr(value, "__name__", "")) is not value:
+                raise ValueError(
+                    f"policy_kwargs.activation_fn: {value!r} is not one of the allowed torch.nn activations "
+                    f"{sorted(ACTIVATIONS)}"
+                )
+            out[key] = value.__name__
+        elif key == "optimizer_class":
+            if OPTIMIZERS.get(getattr(value, "__name__", "")) is not value:
+                raise ValueError(
+                    f"policy_kwargs.optimizer_class: {value!r} is not one of {sorted(OPTIMIZERS)}"
+                )
+            out[key] = value.__name__
+        elif key == "features_extractor_class":
+            if value is not FlattenExtractor:
+                raise ValueError(
+                    f"policy_kwargs.features_extractor_class: only FlattenExtractor is supported, got {value!r}"
+                )
+            out[key] = "FlattenExtractor"
+        elif key == "features_extractor_kwargs":
+            if value:
+                raise ValueError(f"policy_kwargs.features_extractor_kwargs: must be empty, got {value!r}")
+        elif key == "optimizer_kwargs":
+            out[key] = _optimizer_kwargs(value, to_json=True)
+        else:
+            out[key] = _policy_scalar(key, value)
+    return out
+
+
+def _policy_scalar(key: str, value: Any) -> Any:
+    if key in ("share_features_extractor", "normalize_images", "use_expln"):
+        return _as_bool(f"policy_kwargs.{key}", value)
+    if key == "n_critics":
+        return _as_int(f"policy_kwargs.{key}", value, minimum=1, maximum=MAX_CRITICS)
+    if key == "n_quantiles":
+        return _as_int(f"policy_kwargs.{key}", value, minimum=1, maximum=MAX_QUANTILES)
+    if key in ("log_std_init", "clip_mean"):
+        return _as_float(f"policy_kwargs.{key}", value)
+    raise AssertionError(key)  # pragma: no cover - every allowed key is handled above
+
+
+def _policy_kwargs_from_json(algo: str, value: Any) -> dict[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ValueError(f"policy_kwargs: expected an object, got {value!r}")
+    allowed = _POLICY_KWARGS[algo]
+    out: dict[str, Any] = {}
+    for key, item in value.items():
+        if key not in allowed:
+            raise ValueError(f"policy_kwargs.{key}: not supported by the safe model spec (value {item!r})")
+        if key == "net_arch":
+            out[key] = _net_arch(item)
+        elif key == "activation_fn":
+            if not isinstance(item, str) or item not in ACTIVATIONS:
+                raise ValueError(f"policy_kwargs.activation_fn: {item!r} is not one of {sorted(ACTIVATIONS)}")
+            out[key] = ACTIVATIONS[item]
+        elif key == "optimizer_class":
+            if not isinstance(item, str) or item not in OPTIMIZERS:
+                raise ValueError(
+                    f"policy_kwargs.optimizer_class: {item!r} is not one of {sorted(OPTIMIZERS)}"
+                )
+            out[key] = OPTIMIZERS[item]
+        elif key == "features_extractor_class":
+            if item != "FlattenExtractor":
+                raise ValueError(
+                    f"policy_kwargs.features_extractor_class: only 'FlattenExtractor' is supported, got {item!r}"
+                )
+            out[key] = FlattenExtractor
+        elif key == "features_extractor_kwargs":
+            raise ValueError("policy_kwargs.features_extractor_kwargs: not supported in a spec")
+        elif key == "optimizer_kwargs":
+            out[key] = _optimizer_kwargs(item, to_json=False)
+        else:
+            out[key] = _policy_scalar(key, item)
+    return out
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Public API
+# --------------------------------------------------------------------------------------------------------------
+
+
+def model_spec(model: OffPolicyAlgorithm) -> dict[str, Any]:
+    """
+    Describe a live SB3 off-policy model as plain JSON, enough to rebuild it without unpickling anything.
+
+    Call this from our own code on the live model when saving (e.g. into a bundle manifest); the result is what
+    :func:`load_model_safely` needs next to the zip.
+
+    :param model: a DDPG, TD3 or SAC (stable-baselines3) or TQC (sb3-contrib) model with ``MlpPolicy``
+        and ``Box`` observation/action spaces.
+    :return: a dict of plain JSON values (str/int/float/bool/None/list/dict); ``json.dumps(spec, allow_nan=False)`` works.
+    :raises ValueError: for any part of the model the spec cannot describe safely (the message names it).
+    """
+    algo = next((name for name, cls in ALGOS.items() if type(model) is cls), None)
+    if algo is None:
+        raise ValueError(f"algorithm: {type(model).__qualname__} is not one of {sorted(ALGOS)}")
+    if model.policy_class is not type(model).policy_aliases["MlpPolicy"]:
+        raise ValueError(f"policy: only MlpPolicy is supported, got {model.policy_class!r}")
+
+    hparams: dict[str, Any] = {}
+    learning_rate_constant = isinstance(model.learning_rate, (int, float)) and not isinstance(
+        model.learning_rate, bool
+    )
+    # A schedule is code, which the spec cannot carry: record its current value instead and say so.
+    learning_rate = (
+        model.learning_rate
+        if learning_rate_constant
+        else model.lr_schedule(model._current_progress_remaining)
+    )
+    for key, kind in _HPARAMS[algo].items():
+        value = learning_rate if key == "learning_rate" else getattr(model, key)
+        hparams[key] = _convert(kind, key, value)
+
+    return {
+        "format": SPEC_FORMAT,
+        "version": SPEC_VERSION,
+        "algorithm": algo,
+        "policy": "MlpPolicy",
+        "observation_space": _space_to_json(model.observation_space, "observation_space"),
+        "action_space": _space_to_json(model.action_space, "action_space"),
+        "policy_kwargs": _policy_kwargs_to_json(algo, model.policy_kwargs),
+        "hyperparameters": hparams,
+        "learning_rate_constant": learning_rate_constant,
+    }
+
+
+def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
+    """Validate ``spec`` (untrusted JSON) and build a fresh, untrained model from it; raises ValueError."""
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"spec: expected an object, got {type(spec).__name__}")
+    if spec.get("format") != SPEC_FORMAT or spec.get("version") != SPEC_VERSION:
+        raise ValueError(
+            f"spec: format/version {spec.get('format')!r}/{spec.get('version')!r} is not {SPEC_FORMAT!r}/{SPEC_VERSION}"
+        )
+    unknown_top = set(spec) - _SPEC_KEYS
+    if unknown_top:
+        raise ValueError(f"spec: unknown key {sorted(map(str, unknown_top))[0]!r}")
+    algo = spec.get("algorithm")
+    if not isinstance(algo, str) or algo not in ALGOS:
+        raise ValueError(f"algorithm: unknown algorithm {algo!r}; expected one of {sorted(ALGOS)}")
+    if spec.get("policy") != "MlpPolicy":
+        raise ValueError(f"policy: only 'MlpPolicy' is supported, got {spec.get('policy')!r}")
+
+    observation_space = _space_from_json(spec.get("observation_space"), "observation_space")
+    action_space = _space_from_json(spec.get("action_space"), "action_space")
+    # SB3 checks these when an env is given; we build without one, so check here.
+    if not np.issubdtype(action_space.dtype, np.floating):
+        raise ValueError(f"action_space: expected a float Box, got dtype {action_space.dtype}")
+    if not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
+        raise ValueError("action_space: bounds must be finite")
+
+    policy_kwargs = _policy_kwargs_from_json(algo, spec.get("policy_kwargs", {}))
+
+    raw_hparams = spec.get("hyperparameters")
+    if not isinstance(raw_hparams, Mapping):
+        raise ValueError(f"hyperparameters: expected an object, got {raw_hparams!r}")
+    kinds = _HPARAMS[algo]
+    unknown = set(raw_hparams) - set(kinds)
+    if unknown:
+        raise ValueError(
+            f"hyperparameters.{sorted(map(str, unknown))[0]}: not a {algo} hyperparameter in the spec"
+        )
+    hparams = {
+        key: _convert(kinds[key], f"hyperparameters.{key}", raw_hparams[key])
+        for key in kinds
+        if key in raw_hparams
+    }
+    if "buffer_size" in hparams:
+        hparams["buffer_size"] = _as_int("hyperparameters.buffer_size", hparams["buffer_size"], minimum=1)
+    if algo in ("SAC", "TQC"):
+        # "auto" would make SAC._setup_model read self.env.action_space, and we have no env.
+        target_entropy = hparams.get("target_entropy")
+        hparams["target_entropy"] = (
+            float(-np.prod(action_space.shape)) if target_entropy is None else target_entropy
+        )
+
+    # env=None + _init_setup_model=False is how BaseAlgorithm.load builds a model; the spaces (and n_envs,
+    # normally taken from the env) are then set by hand before the networks are created.
+    model = ALGOS[algo](
+        "MlpPolicy",
+        env=None,  # type: ignore[arg-type]
+        policy_kwargs=policy_kwargs,
+        device=device,
+        _init_setup_model=False,
+        **hparams,
+    )
+    model.observation_space = observation_space
+    model.action_space = action_space
+    model.n_envs = 1
+    model._setup_model()
+    return model
+
+
+def _read_member(archive: zipfile.ZipFile, name: str, path: str) -> bytes:
+    info = archive.getinfo(name)
+    if info.file_size > MAX_MEMBER_BYTES:
+        raise SafeLoadError(
+            f"{path}: member {name!r} is {info.file_size} bytes, over the {MAX_MEMBER_BYTES} limit"
+        )
+    try:
+        return archive.read(info)
+    except (zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError) as e:
+        raise SafeLoadError(f"{path}: member {name!r} is corrupt or unreadable: {e}") from e
+
+
+def _load_tensors(raw: bytes, name: str, path: str, device: th.device | str) -> dict[str, th.Tensor]:
+    # weights_only=True: torch's restricted unpickler, which only rebuilds tensors and plain containers and
+    # refuses any other global. This is the same call SB3 itself uses for .pth members.
+    try:
+        obj = th.load(io.BytesIO(raw), map_location=device, weights_only=True)
+    except Exception as e:  # torch raises UnpicklingError, RuntimeError, ... depending on the damage
+        raise SafeLoadError(f"{path}: member {name!r} is not a plain tensor file: {e}") from e
+    if not isinstance(obj, Mapping):
+        raise SafeLoadError(f"{path}: member {name!r} holds {type(obj).__name__}, expected a dict of tensors")
+    for key, value in obj.items():
+        if not isinstance(key, str) or not (value is None or isinstance(value, th.Tensor)):
+            raise SafeLoadError(
+                f"{path}: member {name!r} entry {key!r} is {type(value).__name__}, not a tensor"
+            )
+    return dict(obj)
+
+
+def _check_state_dict(
+    expected: Mapping[str, th.Tensor], found: Mapping[str, th.Tensor], path: str, name: str
+) -> None:
+    """Raise SafeLoadError naming the first key whose presence or shape differs between spec and file."""
+    for key, tensor in expected.items():
+        if key not in found or found[key] is None:
+            raise SafeLoadError(
+                f"{path}: {name!r} lacks key {key!r} (spec expects shape {list(tensor.shape)}); "
+                "the spec does not describe this model"
+            )
+        if found[key].shape != tensor.shape:
+            raise SafeLoadError(
+                f"{path}: {name!r} key {key!r} has shape {list(found[key].shape)} but the spec builds "
+                f"{list(tensor.shape)}; the spec does not describe this model"
+            )
+    extra = [key for key in found if key not in expected]
+    if extra:
+        raise SafeLoadError(
+            f"{path}: {name!r} has key {extra[0]!r} (shape {list(found[extra[0]].shape)}) that the spec-built "
+            "model does not; the spec does not describe this model"
+        )
+
+
+def load_model_safely(
+    path: str | os.PathLike[str], spec: Mapping[str, Any], device: th.device | str = "cpu"
+) -> OffPolicyAlgorithm:
+    """
+    Rebuild a model from ``spec`` and load only its tensors from the SB3 zip at ``path``.
+
+    Nothing from the zip is unpickled except through ``torch.load(weights_only=True)``: the ``data`` entry (with
+    its cloudpickle blobs) is never read, and the architecture comes from ``spec``, which is validated against
+    allow-lists. Reads ``policy.pth`` (required) and ``pytorch_variables.pth`` (SAC/TQC entropy coefficient,
+    if present). Optimizer states are not restored (fresh optimizers), and training counters start at zero.
+
+    :param path: the model zip.
+    :param spec: the description from :func:`model_spec` (e.g. parsed from a bundle manifest).
+    :param device: torch device to build the model on and map the tensors to.
+    :return: the model, ready for ``predict``.
+    :raises SafeLoadError: (a ValueError) for an invalid spec, unknown algorithm, a file that is not a (complete)
+        zip, a missing ``policy.pth``, or weights whose keys/shapes do not match the spec.
+    :raises FileNotFoundError: if ``path`` does not exist.
+    """
+    path_str = os.fspath(path)
+    try:
+        model = _build_from_spec(spec, device)
+    except SafeLoadError:
+        raise
+    except ValueError as e:
+        raise SafeLoadError(f"{path_str}: invalid spec: {e}") from e
+
+    if not Path(path_str).is_file():
+        raise FileNotFoundError(path_str)
+    try:
+        archive = zipfile.ZipFile(path_str)
+    except zipfile.BadZipFile as e:
+        raise SafeLoadError(f"{path_str}: not a readable zip file (truncated or not a model?): {e}") from e
+    with archive:
+        names = set(archive.namelist())
+        if POLICY_MEMBER not in names:
+            raise SafeLoadError(f"{path_str}: no {POLICY_MEMBER!r} in the zip (members: {sorted(names)})")
+        policy_state = _load_tensors(
+            _read_member(archive, POLICY_MEMBER, path_str), POLICY_MEMBER, path_str, device
+        )
+        variables: dict[str, th.Tensor] = {}
+        if VARIABLES_MEMBER in names:
+            variables = _load_tensors(
+                _read_member(archive, VARIABLES_MEMBER, path_str), VARIABLES_MEMBER, path_str, device
+            )
+
+    # Compare before load_state_dict so the error names the key and both shapes instead of torch's long list.
+    _check_state_dict(model.policy.state_dict(), policy_state, path_str, POLICY_MEMBER)
+    model.policy.load_state_dict(policy_state, strict=True)
+
+    # Only the variables this model declares (log_ent_coef or ent_coef_tensor for SAC/TQC, none for TD3/DDPG)
+    # are accepted, so the names from the file never pick which attribute gets set.
+    _, variable_names = model._get_torch_save_params()
+    expected_vars = {name: recursive_getattr(model, name) for name in variable_names}
+    expected_vars = {name: value for name, value in expected_vars.items() if value is not None}
+    found_vars = {name: value for name, value in variables.items() if value is not None}
+    if expected_vars or found_vars:
+        _check_state_dict(expected_vars, found_vars, path_str, VARIABLES_MEMBER)
+    for name, value in found_vars.items():
+        # Same as SB3's load: set .data so optimizers keep referencing the same tensor object.
+        recursive_getattr(model, name).data = value.data.to(device)
+
+    if model.use_sde:
+        model.policy.reset_noise()  # type: ignore[operator]
+    return model
+
+
+def load_model(
+    path: str | os.PathLike[str],
+    spec: Mapping[str, Any] | None = None,
+    trusted: bool = False,
+    *,
+    algorithm: str | None = None,
+    device: th.device | str = "cpu",
+) -> OffPolicyAlgorithm:
+    """
+    Load a model zip: safely from a spec by default, or with SB3's full loader on explicit opt-in.
+
+    :param path: the model zip.
+    :param spec: the description from :func:`model_spec`; required unless ``trusted``.
+    :param trusted: ``True`` runs the ordinary ``ALGO.load(path)``, which unpickles the zip's ``data`` entry
+        and so runs any code in it: only for files you made yourself or fully trust.
+    :param algorithm: with ``trusted`` and no ``spec``, the algorithm name (``"DDPG"``, ``"TD3"``, ``"SAC"``,
+        ``"TQC"``); otherwise taken from ``spec``.
+    :param device: torch device.
+    :return: the loaded model.
+    :raises ValueError: if neither a spec nor ``trusted=True`` is given, or the algorithm is unknown; see
+        :func:`load_model_safely` for the safe path's errors.
+    """
+    if not trusted:
+        if spec is None:
+            raise ValueError(
+                f"{os.fspath(path)}: a model spec is required to load without running code from the file; "
+                "pass spec=... or, only for a file you trust, trusted=True"
+            )
+        return load_model_safely(path, spec, device=device)
+    name = algorithm if algorithm is not None else (spec or {}).get("algorithm")
+    if name not in ALGOS:
+        raise ValueError(f"algorithm: unknown algorithm {name!r}; expected one of {sorted(ALGOS)}")
+    return ALGOS[name].load(path, device=device)
