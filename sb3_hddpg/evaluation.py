@@ -87,7 +87,8 @@ def evaluate(
 
     The env must report the snake env's ``info`` (``reward_terms``, ``goal_touched``, ``collision``,
     ``min_clearance``); a :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` also reports the worker it
-    ran (``selected_worker``), which is counted. The policy must act in ``env``'s action space.
+    ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.Hierarchy` its ``last_selection``: both are
+    counted. The policy must act in ``env``'s action space.
 
     :param policy: anything with SB3's ``predict``.
     :param env: a single (not vectorised) environment, time-limited.
@@ -103,6 +104,9 @@ def evaluate(
     episodes = []
     for k in range(n_episodes):
         obs, info = env.reset(seed=seed + k)
+        reset_episode = getattr(policy, "reset_episode", None)
+        if reset_episode is not None:
+            reset_episode()
         reward_sum = goal_sum = avoid_sum = reach_sum = 0.0
         touches = collisions = steps = 0
         min_clearance = np.inf
@@ -122,8 +126,10 @@ def evaluate(
             touches += bool(info["goal_touched"])
             collisions += bool(info["collision"])
             min_clearance = min(min_clearance, info["min_clearance"])
-            if "selected_worker" in info:
-                selections[info["selected_worker"]] += 1
+            # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
+            selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
+            if selected is not None:
+                selections[selected] += 1
             if on_step is not None:
                 on_step(env, info)
         episodes.append(

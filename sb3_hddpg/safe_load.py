@@ -606,7 +606,7 @@ def _check_state_dict(
 
 
 def load_model_safely(
-    path: str | os.PathLike[str], spec: Mapping[str, Any], device: th.device | str = "cpu"
+    path: str | os.PathLike[str] | io.BytesIO, spec: Mapping[str, Any], device: th.device | str = "cpu"
 ) -> OffPolicyAlgorithm:
     """
     Rebuild a model from ``spec`` and load only its tensors from the SB3 zip at ``path``.
@@ -616,7 +616,7 @@ def load_model_safely(
     allow-lists. Reads ``policy.pth`` (required) and ``pytorch_variables.pth`` (SAC/TQC entropy coefficient,
     if present). Optimizer states are not restored (fresh optimizers), and training counters start at zero.
 
-    :param path: the model zip.
+    :param path: the model zip, or its bytes (a member of a bundle).
     :param spec: the description from :func:`model_spec` (e.g. parsed from a bundle manifest).
     :param device: torch device to build the model on and map the tensors to.
     :return: the model, ready for ``predict``.
@@ -624,7 +624,8 @@ def load_model_safely(
         zip, a missing ``policy.pth``, or weights whose keys/shapes do not match the spec.
     :raises FileNotFoundError: if ``path`` does not exist.
     """
-    path_str = os.fspath(path)
+    in_memory = isinstance(path, io.BytesIO)
+    path_str = "<bytes>" if in_memory else os.fspath(path)
     try:
         model = _build_from_spec(spec, device)
     except SafeLoadError:
@@ -632,10 +633,10 @@ def load_model_safely(
     except ValueError as e:
         raise SafeLoadError(f"{path_str}: invalid spec: {e}") from e
 
-    if not Path(path_str).is_file():
+    if not in_memory and not Path(path_str).is_file():
         raise FileNotFoundError(path_str)
     try:
-        archive = zipfile.ZipFile(path_str)
+        archive = zipfile.ZipFile(path if in_memory else path_str)
     except zipfile.BadZipFile as e:
         raise SafeLoadError(f"{path_str}: not a readable zip file (truncated or not a model?): {e}") from e
     with archive:
@@ -673,7 +674,7 @@ def load_model_safely(
 
 
 def load_model(
-    path: str | os.PathLike[str],
+    path: str | os.PathLike[str] | io.BytesIO,
     spec: Mapping[str, Any] | None = None,
     trusted: bool = False,
     *,
@@ -697,7 +698,7 @@ def load_model(
     if not trusted:
         if spec is None:
             raise ValueError(
-                f"{os.fspath(path)}: a model spec is required to load without running code from the file; "
+                f"{path if isinstance(path, io.BytesIO) else os.fspath(path)}: a model spec is required to load without running code from the file; "
                 "pass spec=... or, only for a file you trust, trusted=True"
             )
         return load_model_safely(path, spec, device=device)

@@ -1,0 +1,77 @@
+"""Resumable checkpoints: model, replay buffer and run state, written so that a kill at any moment is safe."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_hddpg.io import atomic_write, atomic_write_json
+
+STATE_FILE = "state.json"
+
+
+class ResumableCheckpointCallback(BaseCallback):
+    """
+    Save a resumable checkpoint every ``save_freq`` environment steps (and on demand, e.g. at Ctrl-C).
+
+    A checkpoint is ``model_<t>.zip`` and ``replay_buffer_<t>.pkl``, each written atomically, and then
+    ``state.json`` naming them, also atomically: ``state.json`` only ever points at complete files, so a
+    run killed with SIGKILL at any moment leaves the previous checkpoint loadable. Older files are removed
+    after the new state is in place.
+
+    :param checkpoint_dir: the folder for this agent's checkpoints.
+    :param save_freq: environment steps between checkpoints (0: only on demand).
+    :param extra_state: a callable returning JSON-able run state to store too (e.g. the evaluation history).
+    """
+
+    def __init__(self, checkpoint_dir: str | Path, save_freq: int = 10_000, extra_state: Any = None) -> None:
+        super().__init__()
+        self.checkpoint_dir = Path(checkpoint_dir)
+        self.save_freq = save_freq
+        self.extra_state = extra_state
+        self._last_saved = 0
+
+    def _on_training_start(self) -> None:
+        self._last_saved = self.num_timesteps
+
+    def _on_step(self) -> bool:
+        if self.save_freq > 0 and self.num_timesteps - self._last_saved >= self.save_freq:
+            self.save()
+        return True
+
+    def save(self) -> Path:
+        """Write a checkpoint of the current model and replay buffer now; return the state file's path."""
+        steps = int(self.num_timesteps)
+        self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+        model_name, buffer_name = f"model_{steps}.zip", f"replay_buffer_{steps}.pkl"
+        atomic_write(self.checkpoint_dir / model_name, lambda tmp: self.model.save(tmp))
+        if getattr(self.model, "replay_buffer", None) is not None:
+            atomic_write(self.checkpoint_dir / buffer_name, lambda tmp: self.model.save_replay_buffer(tmp))
+        else:
+            buffer_name = None
+        state = {"num_timesteps": steps, "model": model_name, "replay_buffer": buffer_name}
+        if self.extra_state is not None:
+            state.update(self.extra_state())
+        path = atomic_write_json(self.checkpoint_dir / STATE_FILE, state)
+        keep = {model_name, buffer_name, STATE_FILE}
+        for old in self.checkpoint_dir.glob("*"):
+            if old.name not in keep and not old.name.startswith("."):
+                old.unlink(missing_ok=True)
+        self._last_saved = steps
+        return path
+
+
+def read_checkpoint_state(checkpoint_dir: str | Path) -> dict[str, Any] | None:
+    """The last complete checkpoint's state (with absolute file paths), or ``None`` if there is none."""
+    path = Path(checkpoint_dir) / STATE_FILE
+    if not path.exists():
+        return None
+    state = json.loads(path.read_text())
+    state["model_path"] = Path(checkpoint_dir) / state["model"]
+    state["replay_buffer_path"] = (
+        Path(checkpoint_dir) / state["replay_buffer"] if state["replay_buffer"] else None
+    )
+    return state

@@ -1,0 +1,116 @@
+"""Periodic evaluation with the environment's own metrics, keeping the best model (SB3's EvalCallback, extended)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.io import atomic_write, atomic_write_json
+
+
+class MetricsEvalCallback(EvalCallback):
+    """
+    SB3's :class:`~stable_baselines3.common.callbacks.EvalCallback` with the snake env's metrics.
+
+    Every ``eval_freq`` calls it runs :func:`sb3_hddpg.evaluation.evaluate` on its own single env, over the
+    same fixed seeds every time (so successive evaluations differ only by the policy), logs every metric
+    under ``eval/`` (TensorBoard), appends them to a JSON history, and saves the best model atomically.
+    Because it is an ``EvalCallback``, SB3's ``StopTrainingOnNoModelImprovement`` and
+    ``callback_on_new_best`` work with it unchanged.
+
+    :param eval_env: a single (not vectorised) environment with the snake env's ``info``.
+    :param n_eval_episodes: episodes per evaluation.
+    :param eval_freq: evaluate every this many calls (one call is one step of the vectorised env).
+    :param eval_seed: seed of the first evaluation episode.
+    :param best_model_save_path: where ``best_model.zip`` goes (``None``: not saved).
+    :param history_path: a JSON file for the evaluation history (``None``: not written).
+    :param callback_on_new_best: called when the mean reward improves.
+    :param callback_after_eval: called after every evaluation.
+    :param deterministic: evaluate the deterministic policy.
+    :param history: evaluations already made (when resuming), as written to ``history_path``.
+    :param best_mean_reward: the best mean reward so far (when resuming).
+    """
+
+    def __init__(
+        self,
+        eval_env: gym.Env,
+        n_eval_episodes: int = 5,
+        eval_freq: int = 5000,
+        eval_seed: int = EVAL_SEED_BASE,
+        best_model_save_path: str | Path | None = None,
+        history_path: str | Path | None = None,
+        callback_on_new_best: BaseCallback | None = None,
+        callback_after_eval: BaseCallback | None = None,
+        deterministic: bool = True,
+        history: list[dict[str, Any]] | None = None,
+        best_mean_reward: float = -np.inf,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(
+            eval_env,
+            callback_on_new_best=callback_on_new_best,
+            callback_after_eval=callback_after_eval,
+            n_eval_episodes=n_eval_episodes,
+            eval_freq=eval_freq,
+            best_model_save_path=None,
+            deterministic=deterministic,
+            warn=False,
+            verbose=verbose,
+        )
+        self.single_eval_env = eval_env
+        self.eval_seed = eval_seed
+        self.best_model_path = Path(best_model_save_path) / "best_model.zip" if best_model_save_path else None
+        self.history_path = Path(history_path) if history_path else None
+        self.history: list[dict[str, Any]] = list(history or [])
+        self.best_mean_reward = float(best_mean_reward)
+        self.last_summary: dict[str, Any] = {}
+
+    def _init_callback(self) -> None:
+        # EvalCallback's own check compares env types and makes folders we do not use; nothing to do.
+        pass
+
+    def _on_step(self) -> bool:
+        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+            return self.run_evaluation()
+        return True
+
+    def run_evaluation(self) -> bool:
+        """Evaluate now; return whether training should continue."""
+        result = evaluate(
+            self.model,
+            self.single_eval_env,
+            n_episodes=self.n_eval_episodes,
+            seed=self.eval_seed,
+            deterministic=self.deterministic,
+        )
+        summary = result.summary()
+        self.last_summary = summary
+        self.last_mean_reward = summary["mean_reward"]
+        for key, value in summary.items():
+            if isinstance(value, float):
+                self.logger.record(f"eval/{key}", value)
+            elif isinstance(value, dict):
+                for name, rate in value.items():
+                    self.logger.record(f"eval/{key}/{name}", rate)
+        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
+        self.logger.dump(self.num_timesteps)
+        self.history.append({"timesteps": int(self.num_timesteps), **summary})
+        if self.history_path is not None:
+            atomic_write_json(self.history_path, self.history)
+
+        continue_training = True
+        if math.isfinite(summary["mean_reward"]) and summary["mean_reward"] > self.best_mean_reward:
+            self.best_mean_reward = summary["mean_reward"]
+            if self.best_model_path is not None:
+                atomic_write(self.best_model_path, lambda tmp: self.model.save(tmp))
+            if self.callback_on_new_best is not None:
+                continue_training = self.callback_on_new_best.on_step()
+        if self.callback is not None:
+            continue_training = continue_training and self._on_event()
+        return continue_training

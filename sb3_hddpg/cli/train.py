@@ -1,0 +1,222 @@
+"""``hddpg-cli train-workers`` (and, with the manager and baselines, ``train-manager`` / ``train-flat``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import at_least, positive_float, prepare_out_dir
+from sb3_hddpg.training import WORKER_ENV_IDS, TrainingInterrupted, TrainingOutcome, train_workers
+
+CONFIG_HELP = "Hyperparameters in RL Zoo format (default: the bundled zoo_configs/ddpg.yml)."
+
+
+def metrics_table(title: str, rows: dict[str, dict]) -> Table:
+    """A rich table of evaluation summaries, one row per agent."""
+    table = Table(title=title)
+    for column in ("agent", "mean reward", "goal touch", "collisions/ep", "success", "min clearance"):
+        table.add_column(column, justify="left" if column == "agent" else "right")
+    for name, s in rows.items():
+        table.add_row(
+            name,
+            f"{s['mean_reward']:.1f} ± {s['std_reward']:.1f}",
+            f"{s['goal_touch_rate']:.1%}",
+            f"{s['collisions_per_episode']:.1f}",
+            f"{s['success_rate']:.0%}",
+            f"{s['min_clearance']:.3f}",
+        )
+    return table
+
+
+@app.command("train-workers")
+def train_workers_command(
+    workers: list[str] = typer.Option(
+        ["goal", "avoid"],
+        "--workers",
+        help=f"Workers to train, among {sorted(WORKER_ENV_IDS)} (repeat the option).",
+    ),
+    config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
+    timesteps: int | None = typer.Option(
+        None,
+        "--timesteps",
+        callback=at_least(1),
+        help="Steps per worker (default: the config's n_timesteps).",
+    ),
+    seed: int = typer.Option(0, "--seed", callback=at_least(0), help="Training seed."),
+    n_envs: int | None = typer.Option(
+        None, "--n-envs", callback=at_least(1), help="Training envs per worker, in subprocesses when > 1."
+    ),
+    out: Path = typer.Option(Path("runs/workers"), "--out", help="Run folder; workers go to OUT/workers/."),
+    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoints."),
+    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    stop_on_plateau: bool = typer.Option(
+        False, "--stop-on-plateau", help="Stop a worker after 3 evaluations without a new best."
+    ),
+    eval_freq: int = typer.Option(
+        5000, "--eval-freq", callback=at_least(0), help="Steps between evaluations."
+    ),
+    eval_episodes: int = typer.Option(
+        5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
+    ),
+    threads: int = typer.Option(
+        1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
+    ),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+) -> None:
+    """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
+    unknown = [w for w in workers if w not in WORKER_ENV_IDS]
+    if unknown:
+        raise typer.BadParameter(
+            f"unknown worker {unknown[0]!r}; choose from {sorted(WORKER_ENV_IDS)}", param_hint="'--workers'"
+        )
+    if config is not None and not config.is_file():
+        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    prepare_out_dir(out, resume, force)
+    summaries: dict[str, dict] = {}
+
+    def done(name: str, outcome: TrainingOutcome) -> None:
+        summaries[name] = outcome.metrics
+        console.print(
+            f"[green]✓[/] worker [bold]{name}[/]: {outcome.num_timesteps} steps"
+            f"{' (stopped on plateau)' if outcome.stopped_early else ''} -> {outcome.model_path}"
+        )
+
+    try:
+        manifest = train_workers(
+            out,
+            workers=workers,
+            config=config,
+            timesteps=timesteps,
+            seed=seed,
+            n_envs=n_envs,
+            resume=resume,
+            stop_on_plateau=stop_on_plateau,
+            eval_freq=eval_freq,
+            eval_episodes=eval_episodes,
+            progress_bar=progress,
+            threads=threads,
+            on_worker_done=done,
+        )
+    except TrainingInterrupted as interrupted:
+        console.print(f"[yellow]{interrupted}[/]")
+        raise typer.Exit(130) from None
+    rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in workers}
+    console.print(metrics_table(f"Workers in {out / 'workers'} (best evaluation)", rows))
+    console.print(
+        f"Manifest: {out / 'workers' / 'manifest.json'}   TensorBoard: tensorboard --logdir {out / 'tensorboard'}"
+    )
+
+
+@app.command("train-manager")
+def train_manager_command(
+    workers_dir: Path = typer.Option(
+        Path("runs/workers"), "--workers", help="Run folder of train-workers (holding workers/manifest.json)."
+    ),
+    names: list[str] | None = typer.Option(
+        None, "--worker", help="Use only these workers, in this order (repeat; default: all in the manifest)."
+    ),
+    prefer: str | None = typer.Option(
+        None, "--prefer", help="A worker to prefer (paper Section 3.4), e.g. goal."
+    ),
+    bias: float = typer.Option(
+        0.15, "--bias", callback=positive_float, help="The preferred worker's extra factor."
+    ),
+    preference: str | None = typer.Option(
+        None, "--preference", help="Every factor explicitly, e.g. goal=1.15,avoid=1.0 (wins over --prefer)."
+    ),
+    selection: str | None = typer.Option(
+        None, "--selection", help="sample (the paper's), argmax or mix (default: the config's)."
+    ),
+    option_steps: int | None = typer.Option(
+        None,
+        "--option-steps",
+        callback=at_least(1),
+        help="Env steps per manager decision (default: the config's).",
+    ),
+    config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP + " Its 'manager' block is used."),
+    timesteps: int | None = typer.Option(
+        None, "--timesteps", callback=at_least(1), help="Manager steps (default: the config's n_timesteps)."
+    ),
+    seed: int = typer.Option(0, "--seed", callback=at_least(0), help="Training seed."),
+    n_envs: int | None = typer.Option(
+        None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."
+    ),
+    out: Path = typer.Option(
+        Path("runs/manager"), "--out", help="Run folder; the bundle goes to OUT/hierarchy.zip."
+    ),
+    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoint."),
+    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    stop_on_plateau: bool = typer.Option(
+        False, "--stop-on-plateau", help="Stop after 3 evaluations without a new best."
+    ),
+    eval_freq: int = typer.Option(
+        5000, "--eval-freq", callback=at_least(0), help="Steps between evaluations."
+    ),
+    eval_episodes: int = typer.Option(
+        5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
+    ),
+    threads: int = typer.Option(
+        1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
+    ),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    trust: bool = typer.Option(
+        False, "--trust", help="Load the workers with SB3's full loader (runs code in the files)."
+    ),
+) -> None:
+    """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
+    from sb3_hddpg.selection import SELECTION_MODES, parse_preferences
+    from sb3_hddpg.training import train_manager
+
+    if selection is not None and selection not in SELECTION_MODES:
+        raise typer.BadParameter(
+            f"must be one of {list(SELECTION_MODES)}, got {selection!r}", param_hint="'--selection'"
+        )
+    if config is not None and not config.is_file():
+        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    if (
+        not (workers_dir / "workers" / "manifest.json").exists()
+        and not (workers_dir / "manifest.json").exists()
+    ):
+        raise typer.BadParameter(
+            f"no workers manifest in {str(workers_dir)!r}; run train-workers first", param_hint="'--workers'"
+        )
+    try:
+        preferences = parse_preferences(preference) if preference else None
+    except ValueError as error:
+        raise typer.BadParameter(str(error), param_hint="'--preference'") from None
+    prepare_out_dir(out, resume, force)
+    try:
+        hierarchy, outcome = train_manager(
+            workers_dir,
+            out,
+            worker_names=names or None,
+            prefer=prefer,
+            bias=bias,
+            preferences=preferences,
+            selection=selection,
+            option_steps=option_steps,
+            config=config,
+            timesteps=timesteps,
+            seed=seed,
+            n_envs=n_envs,
+            resume=resume,
+            stop_on_plateau=stop_on_plateau,
+            eval_freq=eval_freq,
+            eval_episodes=eval_episodes,
+            progress_bar=progress,
+            threads=threads,
+            trusted=trust,
+        )
+    except TrainingInterrupted as interrupted:
+        console.print(f"[yellow]{interrupted}[/]")
+        raise typer.Exit(130) from None
+    console.print(
+        metrics_table(f"Manager over {hierarchy.names} (best evaluation)", {"manager": outcome.metrics})
+    )
+    rates = outcome.metrics.get("selection_rate", {})
+    if rates:
+        console.print("Worker choices: " + ", ".join(f"{n} {r:.0%}" for n, r in rates.items()))
+    console.print(f"Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}")

@@ -1,0 +1,255 @@
+"""
+Hyperparameters in RL Zoo's format: ``zoo_configs/*.yml`` -> keyword arguments for an SB3 algorithm.
+
+A config file maps an env id (or ``default``, or ``manager`` for the manager's DDPG) to a block of
+hyperparameters, exactly as in rl-baselines3-zoo's ``hyperparams/*.yml``: the env's own block if present,
+else ``default`` (blocks are not merged, as in RL Zoo; YAML anchors and ``<<:`` merge keys share values).
+Files are parsed with a safe YAML loader, and ``policy_kwargs`` strings such as
+``"dict(net_arch=[64, 64], activation_fn=nn.ReLU)"`` with a small AST evaluator, never ``eval``.
+"""
+
+from __future__ import annotations
+
+import ast
+import copy
+import inspect
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from torch import nn
+
+#: The bundled config, also reachable as ``zoo_configs/ddpg.yml`` in a checkout.
+DEFAULT_CONFIG = Path(__file__).parent / "zoo_configs" / "ddpg.yml"
+
+#: The config block of the manager's DDPG (it has no registered env id of its own).
+MANAGER_KEY = "manager"
+
+#: RL Zoo keys that are not algorithm arguments and that we interpret.
+ZOO_KEYS = {"n_timesteps", "policy", "n_envs", "noise_type", "noise_std", "policy_kwargs", "env_kwargs"}
+#: Keys of the manager block only: arguments of WorkerSelectionWrapper.
+MANAGER_ONLY_KEYS = {"wrapper_kwargs"}
+#: Algorithm arguments that the training code sets itself and a config must not.
+RESERVED_KEYS = {"env", "seed", "device", "verbose", "tensorboard_log", "action_noise", "_init_setup_model"}
+
+#: Activation functions a ``policy_kwargs`` string may name.
+ACTIVATIONS: dict[str, type[nn.Module]] = {
+    name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
+}
+
+
+class ConfigError(ValueError):
+    """A config file or block that cannot be used; the message names the file and the offending value."""
+
+
+@dataclass
+class Hyperparams:
+    """
+    One parsed config block.
+
+    :param algo_kwargs: keyword arguments for the algorithm's constructor (``action_noise`` excluded).
+    :param n_timesteps: the training budget.
+    :param policy: the policy name.
+    :param n_envs: parallel training environments.
+    :param noise_type: ``"normal"``, ``"ornstein-uhlenbeck"`` or ``None``.
+    :param noise_std: the exploration noise's standard deviation.
+    :param env_kwargs: keyword arguments for ``gym.make``.
+    :param wrapper_kwargs: manager block only: keyword arguments for ``WorkerSelectionWrapper``.
+    :param raw: the block as written, for manifests.
+    """
+
+    algo_kwargs: dict[str, Any]
+    n_timesteps: int
+    policy: str = "MlpPolicy"
+    n_envs: int = 1
+    noise_type: str | None = None
+    noise_std: float = 0.1
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    def action_noise(self, n_actions: int) -> Any:
+        """The SB3 action-noise object for ``n_actions`` dimensions (``None`` without noise)."""
+        from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+        if self.noise_type is None:
+            return None
+        mean, sigma = np.zeros(n_actions), self.noise_std * np.ones(n_actions)
+        if self.noise_type == "normal":
+            return NormalActionNoise(mean=mean, sigma=sigma)
+        return OrnsteinUhlenbeckActionNoise(mean=mean, sigma=sigma)
+
+
+def load_config_file(path: str | Path) -> dict[str, Any]:
+    """
+    Read a config file with a safe YAML loader.
+
+    :param path: a ``.yml`` file.
+    :return: the mapping of block names to blocks.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"Config file not found: {str(path)!r}") from None
+    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
+        raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        where = getattr(error, "problem_mark", None)
+        line = f" at line {where.line + 1}" if where is not None else ""
+        problem = getattr(error, "problem", None) or type(error).__name__
+        raise ConfigError(f"Invalid YAML in {str(path)!r}{line}: {problem}") from None
+    if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
+        raise ConfigError(f"Expected {str(path)!r} to map env ids to blocks of hyperparameters")
+    return data
+
+
+def select_block(config: dict[str, Any], key: str, source: str = "config") -> dict[str, Any]:
+    """The block for ``key``, else the ``default`` block (RL Zoo's rule), as a deep copy."""
+    if key in config:
+        return copy.deepcopy(config[key])
+    if "default" in config:
+        return copy.deepcopy(config["default"])
+    raise ConfigError(f"No block for {key!r} and no 'default' block in {source}; blocks: {sorted(config)}")
+
+
+def parse_block(
+    block: dict[str, Any], algo_class: type, source: str = "config", manager: bool = False
+) -> Hyperparams:
+    """
+    Validate a block and split it into constructor arguments and RL Zoo's extra keys.
+
+    :param block: the block as read from YAML.
+    :param algo_class: the SB3 algorithm the block is for (its constructor's parameters are allowed keys).
+    :param source: a name for messages, e.g. ``"zoo_configs/ddpg.yml[hddpg/SnakeGoal-v0]"``.
+    :param manager: whether ``wrapper_kwargs`` is allowed.
+    :return: the parsed hyperparameters.
+    """
+    constructor = set(inspect.signature(algo_class.__init__).parameters) - {"self", "policy"} - RESERVED_KEYS
+    allowed = constructor | ZOO_KEYS | (MANAGER_ONLY_KEYS if manager else set())
+    unknown = sorted(set(block) - allowed)
+    if unknown:
+        raise ConfigError(f"Unknown keys in {source}: {unknown} (allowed: {sorted(allowed)})")
+    raw = copy.deepcopy(block)
+    if "n_timesteps" not in block:
+        raise ConfigError(f"Missing key 'n_timesteps' in {source}")
+    n_timesteps = _as_int(block.pop("n_timesteps"), "n_timesteps", source, minimum=1)
+    n_envs = _as_int(block.pop("n_envs", 1), "n_envs", source, minimum=1)
+    policy = block.pop("policy", "MlpPolicy")
+    if policy != "MlpPolicy":
+        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {policy!r}")
+    noise_type = block.pop("noise_type", None)
+    if noise_type is not None:
+        noise_type = str(noise_type).strip()
+        if noise_type not in ("normal", "ornstein-uhlenbeck"):
+            raise ConfigError(
+                f"Unknown noise_type in {source}: {noise_type!r} (use 'normal' or 'ornstein-uhlenbeck')"
+            )
+    noise_std = float(block.pop("noise_std", 0.1))
+    if not np.isfinite(noise_std) or noise_std < 0:
+        raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
+    env_kwargs = block.pop("env_kwargs", {}) or {}
+    wrapper_kwargs = block.pop("wrapper_kwargs", {}) or {}
+    for name, value in (("env_kwargs", env_kwargs), ("wrapper_kwargs", wrapper_kwargs)):
+        if not isinstance(value, dict):
+            raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {value!r}")
+    if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
+        block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
+    if "train_freq" in block and isinstance(block["train_freq"], list):
+        block["train_freq"] = tuple(block["train_freq"])
+    for key in ("learning_rate", "gamma", "tau"):
+        if key in block and not isinstance(block[key], (int, float)):
+            raise ConfigError(f"Expected {key} in {source} to be a number, actually: {block[key]!r}")
+    return Hyperparams(
+        algo_kwargs=block,
+        n_timesteps=n_timesteps,
+        policy=policy,
+        n_envs=n_envs,
+        noise_type=noise_type,
+        noise_std=noise_std,
+        env_kwargs=env_kwargs,
+        wrapper_kwargs=wrapper_kwargs,
+        raw=raw,
+    )
+
+
+def load_hyperparams(
+    key: str, algo_class: type, path: str | Path | None = None, manager: bool = False
+) -> Hyperparams:
+    """
+    Load, select and validate the block for ``key`` (an env id or ``"manager"``).
+
+    :param key: the block to use.
+    :param algo_class: the algorithm the block configures.
+    :param path: the config file; the bundled ``zoo_configs/ddpg.yml`` by default.
+    :param manager: whether this is the manager's block.
+    """
+    path = Path(path) if path is not None else DEFAULT_CONFIG
+    block = select_block(load_config_file(path), key, source=str(path))
+    return parse_block(block, algo_class, source=f"{path}[{key}]", manager=manager)
+
+
+def parse_policy_kwargs(text: str, source: str = "config") -> dict[str, Any]:
+    """
+    Evaluate an RL Zoo ``policy_kwargs`` string safely: literals, lists, dicts, ``dict(...)`` calls and the
+    activation names of :data:`ACTIVATIONS` (as ``nn.X``, ``th.nn.X`` or ``torch.nn.X``); nothing else.
+    """
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError:
+        raise ConfigError(f"Cannot parse policy_kwargs in {source}: {text!r}") from None
+    value = _safe_value(tree.body, text, source)
+    if not isinstance(value, dict):
+        raise ConfigError(f"Expected policy_kwargs in {source} to be a dict, actually: {text!r}")
+    return value
+
+
+def policy_kwargs_to_string(policy_kwargs: dict[str, Any]) -> str:
+    """The inverse of :func:`parse_policy_kwargs`, for writing configs RL Zoo can read."""
+    parts = []
+    for key, value in policy_kwargs.items():
+        if isinstance(value, type) and issubclass(value, nn.Module):
+            parts.append(f"{key}=nn.{value.__name__}")
+        else:
+            parts.append(f"{key}={value!r}")
+    return f"dict({', '.join(parts)})"
+
+
+def _safe_value(node: ast.AST, text: str, source: str) -> Any:
+    if isinstance(node, ast.Constant):
+        return node.value
+    if isinstance(node, ast.List):
+        return [_safe_value(e, text, source) for e in node.elts]
+    if isinstance(node, ast.Tuple):
+        return tuple(_safe_value(e, text, source) for e in node.elts)
+    if isinstance(node, ast.Dict) and all(k is not None for k in node.keys):
+        return {
+            _safe_value(k, text, source): _safe_value(v, text, source) for k, v in zip(node.keys, node.values)
+        }
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        return -_safe_value(node.operand, text, source)
+    if (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id == "dict"
+        and not node.args
+    ):
+        return {kw.arg: _safe_value(kw.value, text, source) for kw in node.keywords if kw.arg is not None}
+    if isinstance(node, ast.Attribute):
+        dotted = ast.unparse(node)
+        name = dotted.rsplit(".", 1)[-1]
+        if dotted in (f"nn.{name}", f"th.nn.{name}", f"torch.nn.{name}") and name in ACTIVATIONS:
+            return ACTIVATIONS[name]
+    raise ConfigError(f"Unsupported expression {ast.unparse(node)!r} in policy_kwargs of {source}: {text!r}")
+
+
+def _as_int(value: Any, name: str, source: str, minimum: int) -> int:
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"Expected {name} in {source} to be an integer >= {minimum}, actually: {value!r}")
+    return value

@@ -1,0 +1,353 @@
+"""
+``Hierarchy``: a trained manager with its workers, as one verifiable bundle that acts like an SB3 model.
+
+A bundle (``hierarchy.zip``) holds ``manager.zip``, one member per worker (an SB3 zip, or a nested
+bundle), and ``manifest.json``: schema version, env id and kwargs, worker names with their reward
+terms and bounds, preferences, selection mode, temperature and floor, option steps, state selections,
+library versions, each SB3 model's rebuild spec, and the sha256 of every member.
+:meth:`Hierarchy.load` verifies every hash before using anything, and by default rebuilds each model from
+the manifest's JSON spec and loads only its tensors (``weights_only=True``): opening someone else's
+bundle runs none of their code. ``trusted=True`` uses SB3's full loader instead.
+
+A loaded ``Hierarchy`` is a valid worker of a higher :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper`
+(paper design specification 3), and such a two-level hierarchy saves and loads as one bundle.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import zipfile
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from sb3_hddpg.io import atomic_write
+from sb3_hddpg.selection import FrozenWorker, SimplexMap, choose
+from sb3_hddpg.workers import Policy
+
+#: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
+SCHEMA_VERSION = 1
+MANIFEST = "manifest.json"
+
+
+class BundleError(ValueError):
+    """A bundle that cannot be used: not a zip, truncated, tampered with, or inconsistent."""
+
+
+@dataclass
+class SelectionConfig:
+    """
+    How the manager's action selects workers; the arguments of ``WorkerSelectionWrapper`` that a bundle keeps.
+
+    :param preferences: worker name -> preference factor.
+    :param selection: ``sample``, ``argmax`` or ``mix``.
+    :param option_steps: env steps per manager decision.
+    :param temperature: the simplex map's temperature.
+    :param floor: every worker's least probability.
+    :param reward_terms: worker name -> its reward (term name or term weights).
+    :param manager_state: state components the manager sees (``None``: all).
+    :param worker_states: worker name -> state components it sees.
+    :param option_gamma: discount inside an option.
+    """
+
+    preferences: dict[str, float]
+    selection: str = "sample"
+    option_steps: int = 1
+    temperature: float = 0.5
+    floor: float = 0.02
+    reward_terms: dict[str, Any] = field(default_factory=dict)
+    manager_state: list[str] | None = None
+    worker_states: dict[str, list[str]] = field(default_factory=dict)
+    option_gamma: float = 0.99
+
+    def wrapper_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for ``WorkerSelectionWrapper`` (besides ``env`` and ``workers``)."""
+        return asdict(self)
+
+
+class Hierarchy:
+    """
+    A manager and its workers, acting like an SB3 model: ``predict(obs, deterministic=True)`` returns the
+    action of the worker the manager selects (single or batched observations).
+
+    :param manager: the manager's SB3 model (trained on ``WorkerSelectionWrapper``).
+    :param workers: name -> worker, in the manager's action order.
+    :param config: the selection settings the manager was trained with.
+    :param env_id: the registered id of the shared env.
+    :param env_kwargs: its keyword arguments.
+    :param worker_meta: name -> JSON-able facts about each worker (reward bounds, metrics...).
+    :param metadata: JSON-able facts about the manager (metrics, seed, config...).
+    """
+
+    def __init__(
+        self,
+        manager: BaseAlgorithm,
+        workers: Mapping[str, Policy],
+        config: SelectionConfig,
+        env_id: str = "hddpg/SnakeReach-v0",
+        env_kwargs: dict[str, Any] | None = None,
+        worker_meta: dict[str, dict[str, Any]] | None = None,
+        metadata: dict[str, Any] | None = None,
+    ) -> None:
+        import gymnasium as gym
+
+        self.manager = manager
+        self.workers = dict(workers)
+        self.names = list(self.workers)
+        self.config = config
+        self.env_id = env_id
+        self.env_kwargs = dict(env_kwargs or {})
+        self.worker_meta = dict(worker_meta or {})
+        self.metadata = dict(metadata or {})
+        probe = gym.make(env_id, **self.env_kwargs)
+        layout = probe.unwrapped.state_layout
+        self.observation_space = probe.observation_space
+        self.action_space = probe.action_space
+        probe.close()
+        self._manager_indices = layout.indices(config.manager_state) if config.manager_state else None
+        self._frozen = [
+            FrozenWorker(w, layout.indices(config.worker_states[n]) if n in config.worker_states else None)
+            for n, w in self.workers.items()
+        ]
+        self._manager = FrozenWorker(manager, self._manager_indices)
+        self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
+        self._rng = np.random.default_rng(0)
+        self._option_left = 0
+        self._option_choice = 0
+        self._option_probabilities = np.full(len(self.names), 1.0 / len(self.names))
+        self.last_selection: str | None = None
+        self.last_probabilities: dict[str, float] = {}
+
+    # ------------------------------------------------------------------ acting
+    @property
+    def reward_spec(self) -> dict[str, float]:
+        """This hierarchy's reward as a worker one level up: its preference-weighted mix of its workers' terms."""
+        mix: dict[str, float] = {}
+        for name in self.names:
+            spec = self.config.reward_terms.get(name, name)
+            weights = {spec: 1.0} if isinstance(spec, str) else dict(spec)
+            total = sum(weights.values())
+            for term, weight in weights.items():
+                mix[term] = mix.get(term, 0.0) + self.config.preferences.get(name, 1.0) * weight / total
+        return mix
+
+    def reset_episode(self) -> None:
+        """Forget the current option (call at an episode start when ``option_steps > 1``)."""
+        self._option_left = 0
+        for worker in self._frozen:
+            worker.reset_episode()
+
+    def seed(self, seed: int) -> None:
+        """Seed the generator used to sample workers in stochastic prediction."""
+        self._rng = np.random.default_rng(seed)
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """
+        The action of the selected worker, like SB3's ``predict``.
+
+        :param observation: the shared state, shape ``(obs_dim,)`` or ``(batch, obs_dim)``.
+        :param state: unused (no recurrent state), for SB3 compatibility.
+        :param episode_start: for SB3 compatibility; a true entry ends the current option.
+        :param deterministic: the most probable worker (``True``) or one sampled from the probabilities.
+        :return: the env action(s) and ``None``.
+        """
+        obs = np.asarray(observation, dtype=np.float32)
+        if episode_start is not None and np.any(episode_start):
+            self.reset_episode()
+        if obs.ndim == 2:
+            # Batched: options apply to a single stream of observations, so each row decides anew.
+            actions = [self._act(row, deterministic, keep_option=False) for row in obs]
+            return np.stack(actions), None
+        return self._act(obs, deterministic, keep_option=True), None
+
+    def _act(self, obs: np.ndarray, deterministic: bool, keep_option: bool) -> np.ndarray:
+        if not keep_option or self._option_left <= 0:
+            probabilities = self.simplex(self._manager.act(obs))
+            self._option_probabilities = probabilities
+            self._option_choice = choose(probabilities, self.config.selection, self._rng, deterministic)
+            self._option_left = self.config.option_steps
+        self._option_left -= 1
+        probabilities, chosen = self._option_probabilities, self._option_choice
+        self.last_selection = self.names[chosen]
+        self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
+        if self.config.selection == "mix":
+            return sum(p * w.act(obs) for p, w in zip(probabilities, self._frozen)).astype(np.float32)
+        return self._frozen[chosen].act(obs)
+
+    def probabilities(self, observation: np.ndarray) -> dict[str, float]:
+        """The manager's worker probabilities for one observation."""
+        return dict(
+            zip(self.names, self.simplex(self._manager.act(np.asarray(observation, np.float32))).tolist())
+        )
+
+    # ------------------------------------------------------------------ saving
+    def to_bytes(self) -> bytes:
+        """The bundle as zip bytes (see :meth:`save`)."""
+        from sb3_hddpg.safe_load import model_spec
+        from sb3_hddpg.training import library_versions
+
+        members: dict[str, bytes] = {}
+        manager_bytes = _model_bytes(self.manager)
+        members["manager.zip"] = manager_bytes
+        workers_manifest = {}
+        for name, worker in self.workers.items():
+            meta = dict(self.worker_meta.get(name, {}))
+            if isinstance(worker, Hierarchy):
+                member = f"workers/{name}.hierarchy.zip"
+                members[member] = worker.to_bytes()
+                meta.update({"kind": "hierarchy"})
+            elif isinstance(worker, BaseAlgorithm):
+                member = f"workers/{name}.zip"
+                members[member] = _model_bytes(worker)
+                meta.update({"kind": "sb3", "spec": model_spec(worker)})
+            else:
+                raise BundleError(
+                    f"Worker {name!r} of type {type(worker).__name__} cannot be bundled: only SB3 models and "
+                    "hierarchies can (bundle the worker's own models instead)"
+                )
+            meta.update({"file": member, "sha256": _sha256(members[member])})
+            meta.setdefault("reward_term", self.config.reward_terms.get(name, name))
+            workers_manifest[name] = meta
+        manifest = {
+            "schema_version": SCHEMA_VERSION,
+            "kind": "sb3-hddpg-hierarchy",
+            "env_id": self.env_id,
+            "env_kwargs": self.env_kwargs,
+            "worker_names": self.names,
+            "selection": asdict(self.config),
+            "manager": {
+                "file": "manager.zip",
+                "sha256": _sha256(manager_bytes),
+                "spec": model_spec(self.manager),
+                **self.metadata,
+            },
+            "workers": workers_manifest,
+            "versions": library_versions(),
+        }
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+            archive.writestr(MANIFEST, json.dumps(manifest, indent=2))
+            for member, data in members.items():
+                archive.writestr(member, data)
+        return buffer.getvalue()
+
+    def save(self, path: str | Path) -> Path:
+        """Write the bundle to ``path`` atomically (a ``.zip``)."""
+        data = self.to_bytes()
+        return atomic_write(path, lambda tmp: tmp.write_bytes(data))
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def load(cls, path: str | Path | io.BytesIO, trusted: bool = False) -> Hierarchy:
+        """
+        Load and verify a bundle.
+
+        :param path: a ``hierarchy.zip`` (or its bytes).
+        :param trusted: ``False`` (default): rebuild every model from the manifest's JSON spec and load only
+            its tensors, so no code from the file runs. ``True``: SB3's full loader, which unpickles
+            objects stored in the model zips (only for files you trust).
+        :return: the hierarchy; raises :class:`BundleError` naming the problem otherwise.
+        """
+        name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
+        manifest, members = read_bundle(path)
+        from sb3_hddpg.safe_load import load_model
+
+        def model(entry: dict[str, Any]) -> BaseAlgorithm:
+            data = io.BytesIO(members[entry["file"]])
+            try:
+                return load_model(data, spec=entry.get("spec"), trusted=trusted)
+            except ValueError as error:
+                raise BundleError(f"{name}: cannot load {entry['file']}: {error}") from None
+
+        workers: dict[str, Policy] = {}
+        worker_meta = {}
+        for worker_name in manifest["worker_names"]:
+            entry = manifest["workers"][worker_name]
+            if entry.get("kind") == "hierarchy":
+                workers[worker_name] = cls.load(io.BytesIO(members[entry["file"]]), trusted=trusted)
+            else:
+                workers[worker_name] = model(entry)
+            worker_meta[worker_name] = {
+                k: v for k, v in entry.items() if k not in ("file", "sha256", "spec", "kind")
+            }
+        manager_entry = manifest["manager"]
+        selection = SelectionConfig(**manifest["selection"])
+        return cls(
+            model(manager_entry),
+            workers,
+            selection,
+            env_id=manifest["env_id"],
+            env_kwargs=manifest["env_kwargs"],
+            worker_meta=worker_meta,
+            metadata={k: v for k, v in manager_entry.items() if k not in ("file", "sha256", "spec")},
+        )
+
+
+def read_bundle(path: str | Path | io.BytesIO) -> tuple[dict[str, Any], dict[str, bytes]]:
+    """
+    Open a bundle and verify it: a readable zip with a manifest of a known schema, every member listed
+    and present, every sha256 matching. Nested bundles are verified when they are loaded.
+
+    :return: the manifest and the member bytes by name.
+    """
+    name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            if MANIFEST not in names:
+                raise BundleError(f"{name} is not a hierarchy bundle: it has no {MANIFEST}")
+            manifest = json.loads(archive.read(MANIFEST))
+            members = {member: archive.read(member) for member in names if member != MANIFEST}
+    except FileNotFoundError:
+        raise BundleError(f"No such file: {name!r}") from None
+    except IsADirectoryError:
+        raise BundleError(f"Expected a bundle file, got a folder: {name!r}") from None
+    except (zipfile.BadZipFile, EOFError, zipfile.LargeZipFile):
+        raise BundleError(f"Not a zip file, or a truncated one: {name!r}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise BundleError(f"{name}: {MANIFEST} is not valid JSON") from None
+    if not isinstance(manifest, dict) or manifest.get("kind") != "sb3-hddpg-hierarchy":
+        raise BundleError(f"{name}: {MANIFEST} is not an sb3-hddpg hierarchy manifest")
+    version = manifest.get("schema_version")
+    if not isinstance(version, int) or version > SCHEMA_VERSION:
+        raise BundleError(
+            f"{name}: unsupported bundle schema version {version!r} (this library reads <= {SCHEMA_VERSION})"
+        )
+    entries = [("manager", manifest["manager"]), *list(manifest["workers"].items())]
+    if manifest["worker_names"] != list(manifest["workers"]):
+        raise BundleError(
+            f"{name}: worker_names {manifest['worker_names']} do not match workers {list(manifest['workers'])}"
+        )
+    for label, entry in entries:
+        member = entry["file"]
+        if member not in members:
+            raise BundleError(f"{name}: member {member!r} of {label!r} is missing")
+        actual = _sha256(members[member])
+        if actual != entry["sha256"]:
+            raise BundleError(
+                f"{name}: sha256 of {member!r} does not match the manifest "
+                f"(expected {entry['sha256'][:12]}…, got {actual[:12]}…): the bundle was modified or corrupted"
+            )
+    return manifest, members
+
+
+def _model_bytes(model: BaseAlgorithm) -> bytes:
+    buffer = io.BytesIO()
+    model.save(buffer)
+    return buffer.getvalue()
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()

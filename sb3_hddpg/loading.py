@@ -1,0 +1,149 @@
+"""
+``load_policy(path)``: any policy a user can point the CLI at, loaded safely, with the env it acts in.
+
+- a hierarchy bundle (``hierarchy.zip``): verified and rebuilt by :meth:`Hierarchy.load`;
+- an SB3 zip written by ``train-workers`` / ``train-flat``: found in the ``manifest.json`` beside it,
+  whose sha256 and rebuild spec make the weights-only load possible;
+- a HAM switch (``ham.json``);
+- ``random`` or ``scripted``: reference policies that need no file;
+- any other SB3 zip only with ``trusted=True`` (SB3's full loader runs code stored in the file).
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from sb3_hddpg.workers import Policy
+
+#: Names that stand for reference policies instead of files.
+REFERENCE_POLICIES = ("random", "scripted")
+
+
+@dataclass
+class LoadedPolicy:
+    """
+    A policy and where it acts.
+
+    :param policy: anything with SB3's ``predict``.
+    :param env_id: the env id it was trained on (the one to evaluate it on by default).
+    :param env_kwargs: that env's keyword arguments.
+    :param kind: ``hierarchy``, ``worker``, ``flat``, ``ham``, ``random`` or ``scripted``.
+    :param name: a display name.
+    :param meta: what the manifest says about it.
+    """
+
+    policy: Policy
+    env_id: str
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    kind: str = "worker"
+    name: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def make_env(self, env_id: str | None = None, **kwargs: Any) -> gym.Env:
+        """The env to run this policy in (``env_id`` overrides the trained-on id)."""
+        import sb3_hddpg  # noqa: F401  (registers the ids)
+
+        return gym.make(env_id or self.env_id, **{**self.env_kwargs, **kwargs})
+
+
+def load_policy(
+    path: str | Path, env_id: str | None = None, trusted: bool = False, algo: str | None = None
+) -> LoadedPolicy:
+    """
+    Load the policy at ``path`` (see the module docstring for what it may be).
+
+    :param path: a file, or ``random`` / ``scripted``.
+    :param env_id: the env to act in, for reference policies and untracked zips (default SnakeReach).
+    :param trusted: allow SB3's full loader for zips without a manifest.
+    :param algo: the algorithm of an untracked zip loaded with ``trusted``.
+    """
+    from sb3_hddpg.safe_load import load_model
+
+    text = str(path)
+    if text in REFERENCE_POLICIES:
+        return _reference_policy(text, env_id or "hddpg/SnakeReach-v0")
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"No such file: {text!r}")
+    if path.is_dir():
+        for candidate in ("hierarchy.zip", "ham.json"):
+            if (path / candidate).exists():
+                return load_policy(path / candidate, env_id, trusted, algo)
+        raise ValueError(f"Expected a model file, got a folder without hierarchy.zip or ham.json: {text!r}")
+    if path.suffix == ".json":
+        from sb3_hddpg.baselines.ham import load_ham
+
+        ham, meta = load_ham(path, trusted=trusted)
+        return LoadedPolicy(ham, meta["env_id"], meta.get("env_kwargs", {}), "ham", path.stem, meta)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = set(archive.namelist())
+    except (zipfile.BadZipFile, EOFError):
+        raise ValueError(f"Not a zip file, or a truncated one: {text!r}") from None
+    except PermissionError:
+        raise ValueError(f"Cannot read {text!r}: permission denied") from None
+    if "manifest.json" in members and "policy.pth" not in members:
+        from sb3_hddpg.hierarchy import Hierarchy
+
+        hierarchy = Hierarchy.load(path, trusted=trusted)
+        return LoadedPolicy(
+            hierarchy, hierarchy.env_id, hierarchy.env_kwargs, "hierarchy", path.stem, hierarchy.metadata
+        )
+    entry, kind = _manifest_entry(path)
+    if entry is not None:
+        from sb3_hddpg.training import sha256_file
+
+        actual = sha256_file(path)
+        if actual != entry["sha256"]:
+            raise ValueError(
+                f"sha256 of {text!r} does not match its manifest (expected {entry['sha256'][:12]}…, got {actual[:12]}…)"
+            )
+        model = load_model(path, spec=entry.get("spec"), trusted=trusted)
+        return LoadedPolicy(
+            model, entry["env_id"], entry.get("env_kwargs", {}), kind, entry.get("name", path.stem), entry
+        )
+    if not trusted:
+        raise ValueError(
+            f"{text!r} has no sb3-hddpg manifest beside it, so it cannot be loaded without running code stored "
+            "in it; pass --trust (with --algo) only if you trust the file"
+        )
+    model = load_model(path, trusted=True, algorithm=(algo or "ddpg").upper())
+    return LoadedPolicy(model, env_id or "hddpg/SnakeReach-v0", {}, "flat", path.stem, {})
+
+
+def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
+    """The entry describing ``path`` in the ``manifest.json`` beside it, if any."""
+    manifest_path = path.parent / "manifest.json"
+    if not manifest_path.exists():
+        return None, ""
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except json.JSONDecodeError:
+        raise ValueError(f"Invalid JSON in {str(manifest_path)!r}") from None
+    for key, kind in (("workers", "worker"), ("models", "flat")):
+        for entry in (manifest.get(key) or {}).values():
+            if entry.get("file") == path.name:
+                return entry, kind
+    return None, ""
+
+
+def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
+    import sb3_hddpg  # noqa: F401
+
+    env = gym.make(env_id)
+    if name == "random":
+        from sb3_hddpg.workers import RandomPolicy
+
+        policy: Policy = RandomPolicy(env.action_space, seed=0)
+    else:
+        from sb3_hddpg.baselines.scripted import JacobianReacher
+
+        policy = JacobianReacher(env.unwrapped.state_layout)
+    env.close()
+    return LoadedPolicy(policy, env_id, {}, name, name)

@@ -1,0 +1,194 @@
+"""
+How a manager's action selects workers: the simplex map, the selection modes, and cheap frozen workers.
+
+Shared by :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` (training the manager) and
+:class:`~sb3_hddpg.hierarchy.Hierarchy` (running a trained one), so both select identically.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from sb3_hddpg.workers import Policy
+
+#: Selection modes: ``sample`` (the paper's), ``argmax``, and ``mix`` (probability-weighted blend).
+SELECTION_MODES = ("sample", "argmax", "mix")
+
+
+@dataclass(frozen=True)
+class SimplexMap:
+    """
+    Maps a manager action ``a in [-1, 1]^n`` to worker probabilities:
+    ``p = floor + (1 - n * floor) * softmax(a / temperature)``.
+
+    Because ``a`` is bounded, the softmax cannot saturate: with ``n`` workers the largest probability is
+    at most ``e^(2/T) / (e^(2/T) + n - 1)`` (0.98 for two workers at the default ``T = 0.5``), and the
+    floor keeps every worker selectable, so sampling keeps exploring and the manager's gradient through
+    the critic never vanishes at a corner. Uniform warm-up actions give well-spread probabilities.
+    Actions outside ``[-1, 1]`` (SB3 clips noisy actions, but a user may not) are clipped first.
+
+    :param n_workers: number of workers, at least 2.
+    :param temperature: softmax temperature, > 0; lower is sharper.
+    :param floor: the least probability of every worker, in ``[0, 1/n)``.
+    """
+
+    n_workers: int
+    temperature: float = 0.5
+    floor: float = 0.02
+
+    def __post_init__(self) -> None:
+        if not math.isfinite(self.temperature) or self.temperature <= 0:
+            raise ValueError(
+                f"Expected `temperature` to be a finite number > 0, actually: {self.temperature}"
+            )
+        if not (0.0 <= self.floor < 1.0 / self.n_workers):
+            raise ValueError(
+                f"Expected `floor` in [0, 1/n_workers) = [0, {1.0 / self.n_workers:.3g}), actually: {self.floor}"
+            )
+
+    def __call__(self, action: np.ndarray) -> np.ndarray:
+        """Probabilities for an action of shape ``(n,)`` or ``(batch, n)``; rows sum to 1."""
+        logits = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0) / self.temperature
+        if not np.all(np.isfinite(logits)):
+            raise ValueError(f"Expected a finite manager action, actually: {np.asarray(action).tolist()}")
+        logits = logits - logits.max(axis=-1, keepdims=True)
+        weights = np.exp(logits)
+        probabilities = weights / weights.sum(axis=-1, keepdims=True)
+        return self.floor + (1.0 - self.n_workers * self.floor) * probabilities
+
+
+def choose(
+    probabilities: np.ndarray, mode: str, rng: np.random.Generator, deterministic: bool = False
+) -> int:
+    """
+    The index of the worker to run for one probability vector.
+
+    :param probabilities: shape ``(n,)``, summing to 1.
+    :param mode: ``sample`` draws from the probabilities (``argmax`` when ``deterministic``); ``argmax`` and
+        ``mix`` return the most probable worker (in ``mix`` it is only reported: all workers act).
+    :param rng: the generator to sample with.
+    :param deterministic: use the most probable worker even in ``sample`` mode.
+    """
+    if mode == "sample" and not deterministic:
+        # Inverse-CDF sampling: one uniform draw, no Generator.choice overhead.
+        return int(
+            min(np.searchsorted(np.cumsum(probabilities), rng.random(), side="right"), len(probabilities) - 1)
+        )
+    return int(np.argmax(probabilities))
+
+
+class FrozenWorker:
+    """
+    A worker used for inference only, as cheaply as possible.
+
+    An SB3 model with an actor (DDPG, TD3, SAC, TQC) is run through its policy network directly under
+    ``torch.no_grad()``, skipping ``predict``'s per-call checks and conversions; its parameters are frozen.
+    Anything else (a :class:`~sb3_hddpg.hierarchy.Hierarchy`, the HAM switch, a test double) is called
+    through its ``predict(obs, deterministic=True)``.
+
+    :param worker: the worker.
+    :param obs_indices: which entries of the shared state the worker sees (``None``: all).
+    """
+
+    def __init__(self, worker: Policy, obs_indices: np.ndarray | None = None) -> None:
+        self.worker = worker
+        self.obs_indices = obs_indices
+        policy = getattr(worker, "policy", None)
+        self._policy = policy if policy is not None and hasattr(policy, "_predict") else None
+        if self._policy is not None:
+            self._policy.set_training_mode(False)
+            for parameter in self._policy.parameters():
+                parameter.requires_grad_(False)
+            space = self._policy.action_space
+            self._squash = bool(getattr(self._policy, "squash_output", False))
+            self._low = space.low.astype(np.float32)
+            self._half_range = ((space.high - space.low) / 2.0).astype(np.float32)
+        self.act: Callable[[np.ndarray], np.ndarray] = (
+            self._act_torch if self._policy is not None else self._act_predict
+        )
+
+    def _select(self, obs: np.ndarray) -> np.ndarray:
+        return obs if self.obs_indices is None else obs[..., self.obs_indices]
+
+    def _act_torch(self, obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            tensor = torch.as_tensor(self._select(obs), dtype=torch.float32)
+            action = self._policy._predict(tensor.reshape(-1, tensor.shape[-1]), deterministic=True)  # type: ignore[union-attr]
+        action = action.numpy().reshape(*obs.shape[:-1], -1)
+        if self._squash:
+            # The actor outputs [-1, 1]; map to the action space as SB3's unscale_action does.
+            action = self._low + (action + 1.0) * self._half_range
+        return action
+
+    def _act_predict(self, obs: np.ndarray) -> np.ndarray:
+        action, _ = self.worker.predict(self._select(obs), deterministic=True)
+        return np.asarray(action, dtype=np.float32)
+
+    def reset_episode(self) -> None:
+        """Forward an episode start to a stateful worker (e.g. a nested hierarchy with options)."""
+        reset = getattr(self.worker, "reset_episode", None)
+        if reset is not None:
+            reset()
+
+
+def preferences_from_bias(
+    names: list[str], prefer: str | None = None, bias: float = 0.15
+) -> dict[str, float]:
+    """
+    The paper's preference factors (Section 3.4): 1 for every worker, ``1 + bias`` for the preferred one.
+
+    :param names: the worker names.
+    :param prefer: the preferred worker (``None``: no preference).
+    :param bias: the preferred worker's extra weight, e.g. 0.15 for the paper's 15 %.
+    """
+    if prefer is not None and prefer not in names:
+        raise ValueError(f"Unknown worker {prefer!r} to prefer; workers: {names}")
+    if not math.isfinite(bias) or bias <= -1.0:
+        raise ValueError(f"Expected `bias` to be a finite number > -1, actually: {bias}")
+    return {name: (1.0 + bias if name == prefer else 1.0) for name in names}
+
+
+def parse_preferences(text: str) -> dict[str, float]:
+    """Parse ``"goal=1.15,avoid=1.0"`` into a mapping (values checked by the wrapper)."""
+    result: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        name, sep, value = part.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"Expected NAME=VALUE pairs separated by commas, got {part!r} in {text!r}")
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"Expected a number for preference {name.strip()!r}, got {value!r}") from None
+        if name.strip() in result:
+            raise ValueError(f"Preference {name.strip()!r} given twice in {text!r}")
+        result[name.strip()] = number
+    if not result:
+        raise ValueError(f"No preferences in {text!r}")
+    return result
+
+
+def check_preferences(preferences: dict[str, Any], names: list[str]) -> dict[str, float]:
+    """Validate preference factors: known names, finite and > 0; missing names default to 1."""
+    unknown = sorted(set(preferences) - set(names))
+    if unknown:
+        raise ValueError(f"Preferences name unknown workers {unknown}; workers: {names}")
+    checked = {}
+    for name in names:
+        value = preferences.get(name, 1.0)
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+            or value <= 0
+        ):
+            raise ValueError(
+                f"Expected preference of {name!r} to be a finite number > 0, actually: {value!r}"
+            )
+        checked[name] = float(value)
+    return checked

@@ -1,0 +1,639 @@
+"""
+Training any agent of the hierarchy: a worker, the manager, or a flat baseline, as a plain SB3 model.
+
+One function, :func:`train_agent`, does what every ``hddpg-cli train-*`` command needs: build the
+vectorised env and the model from a config block, evaluate periodically with the env's metrics and keep
+the best model, checkpoint so that Ctrl-C, SIGTERM or even SIGKILL lose little, resume to the requested
+total, optionally stop on a plateau, and log to TensorBoard. :func:`train_workers` builds on it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import hashlib
+import platform
+import signal
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3 import DDPG, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
+from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
+from sb3_hddpg.config import Hyperparams
+from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.io import atomic_write, atomic_write_json
+
+
+def _algos() -> dict[str, type[BaseAlgorithm]]:
+    from sb3_contrib import TQC
+
+    return {"ddpg": DDPG, "td3": TD3, "sac": SAC, "tqc": TQC}
+
+
+#: Algorithm names accepted by ``--algo``.
+ALGO_NAMES = ("ddpg", "td3", "sac", "tqc")
+
+#: Worker name -> the registered env id whose reward it learns.
+WORKER_ENV_IDS = {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}
+
+
+def algo_class(name: str) -> type[BaseAlgorithm]:
+    """The SB3 class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``)."""
+    algos = _algos()
+    if name.lower() not in algos:
+        raise ValueError(f"Unknown algorithm {name!r}; choose from {list(ALGO_NAMES)}")
+    return algos[name.lower()]
+
+
+class TrainingInterrupted(RuntimeError):
+    """Training stopped by Ctrl-C or SIGTERM after saving a resumable checkpoint."""
+
+
+def make_snake_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gym.Env:
+    """
+    Build a registered env by id; a module-level function so that SubprocVecEnv can pickle it.
+
+    :param env_id: e.g. ``"hddpg/SnakeGoal-v0"``.
+    :param env_kwargs: keyword arguments for ``gym.make``.
+    """
+    import sb3_hddpg  # noqa: F401  (registers the ids in a fresh subprocess)
+
+    torch.set_num_threads(1)
+    return gym.make(env_id, **(env_kwargs or {}))
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of what a trained model depends on, for manifests."""
+    import gymnasium
+    import pymunk
+    import stable_baselines3
+
+    import sb3_hddpg
+
+    return {
+        "sb3_hddpg": sb3_hddpg.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "gymnasium": gymnasium.__version__,
+        "pymunk": pymunk.version,
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def sha256_file(path: str | Path) -> str:
+    """The sha256 hex digest of a file."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+@dataclass
+class AgentPaths:
+    """
+    Where one agent's files go inside a run folder.
+
+    :param root: the run folder.
+    :param name: the agent's name (``goal``, ``avoid``, ``manager``, ``flat-ddpg``...).
+    :param model_path: the final model zip.
+    """
+
+    root: Path
+    name: str
+    model_path: Path
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.root / "checkpoints" / self.name
+
+    @property
+    def best_dir(self) -> Path:
+        return self.root / "best" / self.name
+
+    @property
+    def tensorboard_dir(self) -> Path:
+        return self.root / "tensorboard"
+
+    @property
+    def history_path(self) -> Path:
+        return self.root / "evaluations" / f"{self.name}.json"
+
+
+@dataclass
+class TrainingOutcome:
+    """
+    What :func:`train_agent` produced.
+
+    :param model: the trained model (the best one by evaluation when ``keep_best``).
+    :param model_path: where it was saved.
+    :param num_timesteps: environment steps trained.
+    :param history: the evaluation history (one dict of metrics per evaluation).
+    :param metrics: the final evaluation's summary of the saved model.
+    :param stopped_early: whether the plateau rule stopped training.
+    """
+
+    model: BaseAlgorithm
+    model_path: Path
+    num_timesteps: int
+    history: list[dict[str, Any]] = field(default_factory=list)
+    metrics: dict[str, Any] = field(default_factory=dict)
+    stopped_early: bool = False
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Turn SIGTERM into KeyboardInterrupt for the duration, so both take the same save-and-exit path."""
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def train_agent(
+    env_factory: Callable[[], gym.Env],
+    hyperparams: Hyperparams,
+    paths: AgentPaths,
+    algo: str = "ddpg",
+    timesteps: int | None = None,
+    seed: int = 0,
+    n_envs: int | None = None,
+    resume: bool = False,
+    stop_on_plateau: bool = False,
+    plateau_patience: int = 3,
+    eval_freq: int = 5000,
+    eval_episodes: int = 5,
+    eval_seed: int = EVAL_SEED_BASE,
+    checkpoint_freq: int = 10_000,
+    keep_best: bool = True,
+    progress_bar: bool = False,
+    threads: int = 1,
+    extra_callbacks: Sequence[BaseCallback] = (),
+) -> TrainingOutcome:
+    """
+    Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
+
+    :param env_factory: builds one (unwrapped by Monitor) training env; picklable when ``n_envs > 1``.
+    :param hyperparams: the config block (see :mod:`sb3_hddpg.config`).
+    :param paths: where the agent's files go.
+    :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
+    :param timesteps: the total budget (default: the config's ``n_timesteps``).
+    :param seed: seeds the model, the training envs and the exploration noise.
+    :param n_envs: parallel training envs, run in subprocesses when more than one (default: the config's).
+    :param resume: continue from the last checkpoint in ``paths.checkpoint_dir`` to ``timesteps`` in total.
+    :param stop_on_plateau: stop when ``plateau_patience`` evaluations in a row bring no new best.
+    :param plateau_patience: see ``stop_on_plateau``.
+    :param eval_freq: environment steps between evaluations (0: none until the end).
+    :param eval_episodes: episodes per evaluation.
+    :param eval_seed: first seed of the fixed evaluation episodes.
+    :param checkpoint_freq: environment steps between resumable checkpoints (0: only at interrupts).
+    :param keep_best: save the best evaluated model as the result (else the final one).
+    :param progress_bar: show SB3's rich progress bar.
+    :param threads: torch threads for this process (1 is fastest for small MLPs on CPU; see docs).
+    :param extra_callbacks: more SB3 callbacks (e.g. selection statistics).
+    :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
+    """
+    total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
+    if total < 1:
+        raise ValueError(f"Expected timesteps >= 1, actually: {total}")
+    n_envs = int(n_envs or hyperparams.n_envs)
+    torch.set_num_threads(threads)
+    cls = algo_class(algo)
+
+    vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
+    vec_env = make_vec_env(env_factory, n_envs=n_envs, seed=seed, vec_env_cls=vec_cls)
+    eval_env = env_factory()
+    try:
+        state = read_checkpoint_state(paths.checkpoint_dir) if resume else None
+        if resume and state is None:
+            raise FileNotFoundError(f"Nothing to resume: no checkpoint in {str(paths.checkpoint_dir)!r}")
+        if state is not None:
+            # Our own checkpoint, written by this library: the full SB3 load is appropriate here.
+            model = cls.load(state["model_path"], env=vec_env, device="cpu")
+            if state["replay_buffer_path"] is not None:
+                model.load_replay_buffer(state["replay_buffer_path"])
+            model.set_logger(_tensorboard_logger(paths))
+            history = state.get("history", [])
+            best = state.get("best_mean_reward", -np.inf)
+            if best is None:
+                best = -np.inf
+        else:
+            kwargs = dict(hyperparams.algo_kwargs)
+            if hyperparams.noise_type is not None:
+                kwargs["action_noise"] = hyperparams.action_noise(int(np.prod(vec_env.action_space.shape)))
+            model = cls(hyperparams.policy, vec_env, seed=seed, device="cpu", verbose=0, **kwargs)
+            model.set_logger(_tensorboard_logger(paths))
+            history, best = [], -np.inf
+
+        plateau = (
+            StopTrainingOnNoModelImprovement(max_no_improvement_evals=plateau_patience, min_evals=1)
+            if stop_on_plateau
+            else None
+        )
+        evaluator = MetricsEvalCallback(
+            eval_env,
+            n_eval_episodes=eval_episodes,
+            eval_freq=max(eval_freq // n_envs, 1) if eval_freq > 0 else 0,
+            eval_seed=eval_seed,
+            best_model_save_path=paths.best_dir if keep_best else None,
+            history_path=paths.history_path,
+            callback_after_eval=plateau,
+            history=history,
+            best_mean_reward=best,
+        )
+        checkpointer = ResumableCheckpointCallback(
+            paths.checkpoint_dir,
+            save_freq=checkpoint_freq,
+            extra_state=lambda: {
+                "total_timesteps": total,
+                "seed": seed,
+                "history": evaluator.history,
+                "best_mean_reward": evaluator.best_mean_reward
+                if np.isfinite(evaluator.best_mean_reward)
+                else None,
+            },
+        )
+        callbacks = CallbackList([evaluator, checkpointer, *extra_callbacks])
+        remaining = total - model.num_timesteps
+        stopped_early = False
+        if remaining > 0:
+            try:
+                with _sigterm_as_interrupt():
+                    model.learn(
+                        remaining,
+                        callback=callbacks,
+                        reset_num_timesteps=state is None,
+                        tb_log_name=paths.name,
+                        progress_bar=progress_bar,
+                    )
+            except KeyboardInterrupt:
+                checkpointer.save()
+                raise TrainingInterrupted(
+                    f"{paths.name}: interrupted at {model.num_timesteps} of {total} steps; checkpoint saved in "
+                    f"{paths.checkpoint_dir}. Run the same command with --resume to continue."
+                ) from None
+            stopped_early = model.num_timesteps < total
+        # Always end with an evaluation of the final policy, so that a best model and metrics exist.
+        if not evaluator.history or evaluator.history[-1]["timesteps"] != model.num_timesteps:
+            evaluator.init_callback(model)
+            evaluator.run_evaluation()
+        checkpointer.init_callback(model)
+        checkpointer.save()
+
+        chosen = model
+        if keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists():
+            chosen = cls.load(evaluator.best_model_path, device="cpu")
+        atomic_write(paths.model_path, lambda tmp: chosen.save(tmp))
+        best_entry = (
+            max(evaluator.history, key=lambda h: h["mean_reward"]) if keep_best else evaluator.history[-1]
+        )
+        metrics = {k: v for k, v in best_entry.items() if k != "timesteps"}
+        metrics["selected_at_timesteps"] = best_entry["timesteps"]
+        return TrainingOutcome(
+            model=chosen,
+            model_path=paths.model_path,
+            num_timesteps=int(model.num_timesteps),
+            history=list(evaluator.history),
+            metrics=metrics,
+            stopped_early=stopped_early,
+        )
+    finally:
+        with contextlib.suppress(Exception):  # subprocesses may already be gone after Ctrl-C
+            vec_env.close()
+        eval_env.close()
+
+
+def _tensorboard_logger(paths: AgentPaths) -> Any:
+    from stable_baselines3.common.logger import configure
+
+    folder = paths.tensorboard_dir / paths.name
+    return configure(str(folder), ["tensorboard"])
+
+
+def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> Callable[[], gym.Env]:
+    """A picklable factory of the registered env whose reward is worker ``name``'s."""
+    if name not in WORKER_ENV_IDS:
+        raise ValueError(f"Unknown worker {name!r}; choose from {sorted(WORKER_ENV_IDS)}")
+    return functools.partial(make_snake_env, WORKER_ENV_IDS[name], dict(env_kwargs or {}))
+
+
+def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
+    """Write a manifest atomically."""
+    return atomic_write_json(path, manifest)
+
+
+#: The schema version of ``workers/manifest.json``.
+WORKER_MANIFEST_VERSION = 1
+
+
+def train_workers(
+    out_dir: str | Path,
+    workers: Sequence[str] = ("goal", "avoid"),
+    config: str | Path | None = None,
+    timesteps: int | None = None,
+    seed: int = 0,
+    n_envs: int | None = None,
+    resume: bool = False,
+    stop_on_plateau: bool = False,
+    eval_freq: int = 5000,
+    eval_episodes: int = 5,
+    progress_bar: bool = False,
+    threads: int = 1,
+    on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
+) -> dict[str, Any]:
+    """
+    Train each named worker as a plain SB3 DDPG on its own registered env id (paper Algorithm 1, first
+    half) and write ``out_dir/workers/<name>.zip`` and ``out_dir/workers/manifest.json``.
+
+    :param out_dir: the run folder.
+    :param workers: worker names among :data:`WORKER_ENV_IDS`.
+    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    :param timesteps: budget per worker (default: the config's ``n_timesteps``).
+    :param seed: training seed (every worker uses it).
+    :param n_envs: parallel training envs per worker.
+    :param resume: continue interrupted workers from their checkpoints; finished workers are kept.
+    :param stop_on_plateau: stop a worker when its evaluation stops improving.
+    :param eval_freq: steps between evaluations.
+    :param eval_episodes: episodes per evaluation.
+    :param progress_bar: show a progress bar per worker.
+    :param threads: torch threads.
+    :param on_worker_done: called after each worker with its outcome.
+    :return: the manifest written.
+    """
+    from sb3_hddpg.config import load_hyperparams
+    from sb3_hddpg.envs import SnakeArmEnv
+    from sb3_hddpg.safe_load import model_spec
+
+    unknown = [w for w in workers if w not in WORKER_ENV_IDS]
+    if unknown:
+        raise ValueError(f"Unknown worker names {unknown}; choose from {sorted(WORKER_ENV_IDS)}")
+    if len(set(workers)) != len(workers):
+        raise ValueError(f"Duplicate worker names: {list(workers)}")
+    out_dir = Path(out_dir)
+    manifest_path = out_dir / "workers" / "manifest.json"
+    manifest: dict[str, Any] = {"schema_version": WORKER_MANIFEST_VERSION, "workers": {}}
+    if resume and manifest_path.exists():
+        import json
+
+        manifest = json.loads(manifest_path.read_text())
+    for name in workers:
+        env_id = WORKER_ENV_IDS[name]
+        hyperparams = load_hyperparams(env_id, DDPG, config)
+        budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
+        done = manifest["workers"].get(name)
+        if resume and done is not None and done.get("timesteps_requested") == budget:
+            continue  # finished in an earlier run
+        paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
+        outcome = train_agent(
+            worker_env_factory(name, hyperparams.env_kwargs),
+            hyperparams,
+            paths,
+            algo="ddpg",
+            timesteps=budget,
+            seed=seed,
+            n_envs=n_envs,
+            resume=resume and read_checkpoint_state(paths.checkpoint_dir) is not None,
+            stop_on_plateau=stop_on_plateau,
+            eval_freq=eval_freq,
+            eval_episodes=eval_episodes,
+            progress_bar=progress_bar,
+            threads=threads,
+        )
+        probe = SnakeArmEnv(**hyperparams.env_kwargs)
+        manifest["workers"][name] = {
+            "name": name,
+            "file": f"{name}.zip",
+            "sha256": sha256_file(outcome.model_path),
+            "algo": "ddpg",
+            "env_id": env_id,
+            "env_kwargs": hyperparams.env_kwargs,
+            "reward_term": name,
+            "reward_bounds": list(probe.reward_bounds[name]),
+            "config": {
+                "file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml",
+                "block": hyperparams.raw,
+            },
+            "seed": seed,
+            "timesteps_requested": budget,
+            "timesteps_trained": outcome.num_timesteps,
+            "stopped_early": outcome.stopped_early,
+            "threads": threads,
+            "versions": library_versions(),
+            "metrics": outcome.metrics,
+            "spec": model_spec(outcome.model),
+        }
+        save_manifest(manifest_path, manifest)
+        if on_worker_done is not None:
+            on_worker_done(name, outcome)
+    return manifest
+
+
+def load_workers(
+    workers_dir: str | Path, names: Sequence[str] | None = None, trusted: bool = False
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """
+    Load workers written by :func:`train_workers`, verifying each zip's sha256 against the manifest.
+
+    :param workers_dir: a run folder (containing ``workers/manifest.json``) or the ``workers`` folder itself.
+    :param names: which workers, in order (default: all, in manifest order).
+    :param trusted: use SB3's full loader instead of the weights-only rebuild.
+    :return: name -> model, and the manifest.
+    """
+    import json
+
+    from sb3_hddpg.safe_load import load_model
+
+    folder = Path(workers_dir)
+    if (folder / "workers" / "manifest.json").exists():
+        folder = folder / "workers"
+    manifest_path = folder / "manifest.json"
+    if not manifest_path.exists():
+        raise FileNotFoundError(
+            f"No workers manifest in {str(workers_dir)!r} (expected {manifest_path}); run train-workers first"
+        )
+    try:
+        manifest = json.loads(manifest_path.read_text())
+        entries = manifest["workers"]
+    except (json.JSONDecodeError, KeyError, TypeError):
+        raise ValueError(f"Not a valid workers manifest: {str(manifest_path)!r}") from None
+    names = list(names) if names else list(entries)
+    unknown = [n for n in names if n not in entries]
+    if unknown:
+        raise ValueError(f"Unknown workers {unknown} in {str(manifest_path)!r}; it has {list(entries)}")
+    models = {}
+    for name in names:
+        entry = entries[name]
+        path = folder / entry["file"]
+        if not path.exists():
+            raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
+        actual = sha256_file(path)
+        if actual != entry["sha256"]:
+            raise ValueError(
+                f"sha256 of {str(path)!r} does not match its manifest (expected {entry['sha256'][:12]}…, got {actual[:12]}…)"
+            )
+        models[name] = load_model(path, spec=entry.get("spec"), trusted=trusted)
+    return models, manifest
+
+
+def make_manager_env(
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    workers_dir: str,
+    worker_names: Sequence[str],
+    wrapper_kwargs: dict[str, Any],
+    trusted: bool = False,
+) -> gym.Env:
+    """
+    Build the manager's env from files: the shared env wrapped in ``WorkerSelectionWrapper`` over workers
+    loaded from ``workers_dir``. Module-level and file-based so that SubprocVecEnv can pickle it.
+    """
+    from sb3_hddpg.wrappers import WorkerSelectionWrapper
+
+    env = make_snake_env(env_id, env_kwargs)
+    workers, _ = load_workers(workers_dir, worker_names, trusted=trusted)
+    return WorkerSelectionWrapper(env, workers, **wrapper_kwargs)
+
+
+def train_manager(
+    workers_dir: str | Path,
+    out_dir: str | Path,
+    worker_names: Sequence[str] | None = None,
+    prefer: str | None = None,
+    bias: float = 0.15,
+    preferences: dict[str, float] | None = None,
+    selection: str | None = None,
+    option_steps: int | None = None,
+    temperature: float | None = None,
+    floor: float | None = None,
+    config: str | Path | None = None,
+    timesteps: int | None = None,
+    seed: int = 0,
+    n_envs: int | None = None,
+    resume: bool = False,
+    stop_on_plateau: bool = False,
+    eval_freq: int = 5000,
+    eval_episodes: int = 5,
+    progress_bar: bool = False,
+    threads: int = 1,
+    trusted: bool = False,
+    env_id: str = "hddpg/SnakeReach-v0",
+) -> tuple[Any, TrainingOutcome]:
+    """
+    Train the manager: a plain SB3 DDPG on ``WorkerSelectionWrapper`` over pre-trained workers (paper
+    Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
+
+    Preference factors (paper Section 3.4): by default every worker's factor is 1; ``prefer=NAME`` makes
+    that worker's ``1 + bias`` (the paper's 15 % by default); ``preferences`` sets every factor explicitly
+    and wins over ``prefer``. A factor multiplies the worker's normalised reward term in the manager's
+    reward, so the manager is paid more for the preferred worker's objective.
+
+    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
+    :param out_dir: the run folder for the manager.
+    :param worker_names: which workers, in the manager's action order (default: all in the manifest).
+    :param prefer: a worker to prefer.
+    :param bias: the preferred worker's extra factor.
+    :param preferences: explicit factors, name -> value.
+    :param selection: ``sample``, ``argmax`` or ``mix`` (default: the config's ``wrapper_kwargs``).
+    :param option_steps: env steps per manager decision (default: the config's).
+    :param temperature: the simplex map's temperature (default: the config's).
+    :param floor: the probability floor (default: the config's).
+    :param config: a ``zoo_configs`` file; its ``manager`` block is used.
+    :param trusted: load the workers with SB3's full loader.
+    :param env_id: the shared env the manager acts in.
+    :return: the saved :class:`~sb3_hddpg.hierarchy.Hierarchy` and the training outcome.
+    """
+    from sb3_hddpg.config import MANAGER_KEY, load_hyperparams
+    from sb3_hddpg.hierarchy import Hierarchy, SelectionConfig
+    from sb3_hddpg.selection import check_preferences, preferences_from_bias
+
+    workers, manifest = load_workers(workers_dir, worker_names, trusted=trusted)
+    names = list(workers)
+    hyperparams = load_hyperparams(MANAGER_KEY, DDPG, config, manager=True)
+    wrapper_kwargs = dict(hyperparams.wrapper_kwargs)
+    factors = preferences_from_bias(names, prefer, bias)
+    if preferences:
+        factors = check_preferences(preferences, names)
+    for key, value in (
+        ("selection", selection),
+        ("option_steps", option_steps),
+        ("temperature", temperature),
+        ("floor", floor),
+    ):
+        if value is not None:
+            wrapper_kwargs[key] = value
+    wrapper_kwargs["preferences"] = factors
+    selection_config = SelectionConfig(**wrapper_kwargs)
+    env_kwargs = dict(hyperparams.env_kwargs)
+    factory = functools.partial(
+        make_manager_env,
+        env_id,
+        env_kwargs,
+        str(Path(workers_dir)),
+        names,
+        selection_config.wrapper_kwargs(),
+        trusted,
+    )
+    out_dir = Path(out_dir)
+    paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
+    from sb3_hddpg.callbacks.selection import SelectionStatsCallback
+
+    outcome = train_agent(
+        factory,
+        hyperparams,
+        paths,
+        algo="ddpg",
+        timesteps=timesteps,
+        seed=seed,
+        n_envs=n_envs,
+        resume=resume,
+        stop_on_plateau=stop_on_plateau,
+        eval_freq=eval_freq,
+        eval_episodes=eval_episodes,
+        progress_bar=progress_bar,
+        threads=threads,
+        extra_callbacks=[SelectionStatsCallback()],
+    )
+    worker_meta = {
+        name: {
+            k: manifest["workers"][name][k]
+            for k in ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
+        }
+        for name in names
+    }
+    hierarchy = Hierarchy(
+        outcome.model,
+        workers,
+        selection_config,
+        env_id=env_id,
+        env_kwargs=env_kwargs,
+        worker_meta=worker_meta,
+        metadata={
+            "seed": seed,
+            "timesteps_trained": outcome.num_timesteps,
+            "config": hyperparams.raw,
+            "metrics": outcome.metrics,
+        },
+    )
+    hierarchy.save(out_dir / "hierarchy.zip")
+    return hierarchy, outcome

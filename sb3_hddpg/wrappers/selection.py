@@ -1,0 +1,237 @@
+"""``WorkerSelectionWrapper``: the shared environment as the manager's MDP (paper Section 2.4, Algorithm 1)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from types import SimpleNamespace
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.utils import check_for_correct_spaces
+
+from sb3_hddpg.selection import SELECTION_MODES, FrozenWorker, SimplexMap, check_preferences, choose
+from sb3_hddpg.workers import Policy
+
+#: A worker's reward: one env term by name, or a weighted mix of normalised terms (a nested hierarchy's).
+RewardSpec = str | Mapping[str, float]
+
+
+class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
+    """
+    Turn the shared snake env into the manager's MDP: the manager's action chooses which worker acts.
+
+    **Action.** ``Box(-1, 1, (n_workers,), float32)``, mapped to worker probabilities by
+    :class:`~sb3_hddpg.selection.SimplexMap` (``softmax(a / temperature)`` mixed with a probability floor),
+    so SB3's noisy, clipped actions and its uniform warm-up actions are all valid. Then, per
+    ``selection``: ``"sample"`` (the paper's) draws one worker from the probabilities and applies its
+    action; ``"argmax"`` applies the most probable worker's action; ``"mix"`` applies the
+    probability-weighted blend of all workers' actions. In sample and argmax modes only the chosen worker
+    is run.
+
+    **Reward.** ``sum_w preference[w] * normalised(term_w)``: each worker's reward term min-max normalised to
+    [0, 1] with the env's fixed ``reward_bounds`` (not running statistics, so the manager's reward means
+    the same at every step of training), weighted by its preference factor (default 1; paper Section 3.4).
+
+    **Options.** With ``option_steps = k`` the chosen worker (or, in mix mode, the probabilities) is kept
+    for ``k`` env steps (fewer if the episode ends) and the manager's reward is the discounted sum
+    ``sum_j option_gamma^j r_j`` of those steps (semi-MDP, paper Section 2.3). SB3 discounts the next
+    manager decision by its own fixed ``gamma``, not by ``gamma^k``: for the same horizon in env steps, give
+    the manager ``gamma_manager = gamma_env^k``. ``k = 1`` is the paper's setting and needs no care.
+
+    **Observations.** The manager sees the shared state, or the components named in ``manager_state``
+    (names of ``env.unwrapped.state_layout``); each worker sees the shared state or its own
+    ``worker_states[name]`` subset (paper design specification 4).
+
+    **Info.** ``selected_worker``, ``selection_probabilities`` (name -> probability),
+    ``reward_terms`` (raw, from the env), ``normalised_terms`` and ``option_length``; plus the env's own.
+
+    :param env: the shared env (e.g. ``gym.make("hddpg/SnakeReach-v0")``), whose ``unwrapped`` has
+        ``reward_bounds``, ``normalise_terms`` and ``state_layout``.
+    :param workers: name -> worker (an SB3 model, a loaded ``Hierarchy``, or anything with SB3's
+        ``predict``), or a sequence of ``(name, worker)`` pairs.
+    :param preferences: name -> preference factor (finite, > 0); missing names get 1.
+    :param selection: ``"sample"``, ``"argmax"`` or ``"mix"``.
+    :param option_steps: env steps per manager decision, >= 1.
+    :param temperature: the simplex map's softmax temperature.
+    :param floor: every worker's least probability.
+    :param reward_terms: name -> the worker's reward: an env term name, or a mapping of term names to weights
+        (normalised terms mixed by those weights over their sum). Default: the worker's name, or a
+        hierarchy worker's own ``reward_spec``.
+    :param manager_state: state components the manager sees (``None``: all).
+    :param worker_states: name -> state components that worker sees (missing: all).
+    :param option_gamma: discount inside an option.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        workers: Mapping[str, Policy] | Sequence[tuple[str, Policy]],
+        preferences: Mapping[str, float] | None = None,
+        selection: str = "sample",
+        option_steps: int = 1,
+        temperature: float = 0.5,
+        floor: float = 0.02,
+        reward_terms: Mapping[str, RewardSpec] | None = None,
+        manager_state: Sequence[str] | None = None,
+        worker_states: Mapping[str, Sequence[str]] | None = None,
+        option_gamma: float = 0.99,
+    ) -> None:
+        pairs = list(workers.items()) if isinstance(workers, Mapping) else list(workers)
+        names = [name for name, _ in pairs]
+        if len(names) < 2:
+            raise ValueError(f"Expected at least 2 workers, actually: {len(names)} ({names})")
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ValueError(f"Expected unique worker names, actually duplicated: {duplicates}")
+        if selection not in SELECTION_MODES:
+            raise ValueError(
+                f"Expected `selection` to be one of {list(SELECTION_MODES)}, actually: {selection!r}"
+            )
+        if (
+            isinstance(option_steps, bool)
+            or not isinstance(option_steps, (int, np.integer))
+            or option_steps < 1
+        ):
+            raise ValueError(f"Expected `option_steps` to be an integer >= 1, actually: {option_steps!r}")
+        if not 0.0 < option_gamma <= 1.0:
+            raise ValueError(f"Expected `option_gamma` in (0, 1], actually: {option_gamma}")
+        super().__init__(env)
+
+        base = env.unwrapped
+        for attribute in ("reward_bounds", "normalise_terms", "state_layout"):
+            if not hasattr(base, attribute):
+                raise ValueError(f"Expected an env with `{attribute}` (a snake env), actually: {base!r}")
+        self.layout = base.state_layout
+        self.worker_names = names
+        self.selection = selection
+        self.option_steps = int(option_steps)
+        self.option_gamma = float(option_gamma)
+        self.simplex = SimplexMap(len(names), temperature=temperature, floor=floor)
+        self.preferences = check_preferences(dict(preferences or {}), names)
+
+        worker_states = dict(worker_states or {})
+        unknown_state_owners = sorted(set(worker_states) - set(names))
+        if unknown_state_owners:
+            raise ValueError(f"worker_states names unknown workers {unknown_state_owners}; workers: {names}")
+        self.manager_state = list(manager_state) if manager_state is not None else None
+        self.worker_states = {name: list(worker_states[name]) for name in worker_states}
+        self._manager_indices = (
+            self.layout.indices(self.manager_state) if self.manager_state is not None else None
+        )
+        self.observation_space = _subset_space(env.observation_space, self._manager_indices)
+        self.action_space = spaces.Box(-1.0, 1.0, (len(names),), dtype=np.float32)
+
+        known_terms = list(base.reward_bounds)
+        reward_terms = dict(reward_terms or {})
+        self.reward_specs: dict[str, dict[str, float]] = {}
+        self.frozen: list[FrozenWorker] = []
+        for name, worker in pairs:
+            indices = self.layout.indices(self.worker_states[name]) if name in self.worker_states else None
+            _check_worker_spaces(
+                name, worker, _subset_space(env.observation_space, indices), env.action_space
+            )
+            spec = reward_terms.get(name, getattr(worker, "reward_spec", name))
+            self.reward_specs[name] = _term_weights(name, spec, known_terms)
+            self.frozen.append(FrozenWorker(worker, indices))
+        self.workers = dict(pairs)
+        self._rng = np.random.default_rng()
+        self._last_obs: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ helpers
+    def _manager_obs(self, obs: np.ndarray) -> np.ndarray:
+        return obs if self._manager_indices is None else obs[self._manager_indices]
+
+    def manager_reward(self, terms: Mapping[str, float]) -> tuple[float, dict[str, float]]:
+        """
+        The manager's one-step reward from the env's raw terms.
+
+        :return: the reward and the normalised terms.
+        """
+        normalised = self.env.unwrapped.normalise_terms(terms)  # type: ignore[attr-defined]
+        reward = 0.0
+        for name in self.worker_names:
+            weights = self.reward_specs[name]
+            reward += self.preferences[name] * sum(w * normalised[t] for t, w in weights.items())
+        return reward, normalised
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict]:
+        if seed is not None:
+            # Our own generator for selection, seeded from the episode seed: sampling workers must not
+            # consume the env's randomness, or wrapping would change the env's trajectory.
+            self._rng = np.random.default_rng([seed, 0x5E1EC7])
+        obs, info = self.env.reset(seed=seed, options=options)
+        for worker in self.frozen:
+            worker.reset_episode()
+        self._last_obs = obs
+        return self._manager_obs(obs), info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._last_obs is None:
+            raise RuntimeError("Call reset() before step()")
+        probabilities = self.simplex(action)
+        chosen = choose(probabilities, self.selection, self._rng)
+        total = 0.0
+        discount = 1.0
+        terminated = truncated = False
+        info: dict[str, Any] = {}
+        steps = 0
+        obs = self._last_obs
+        while steps < self.option_steps and not (terminated or truncated):
+            if self.selection == "mix":
+                env_action = sum(p * w.act(obs) for p, w in zip(probabilities, self.frozen))
+            else:
+                env_action = self.frozen[chosen].act(obs)
+            obs, _, terminated, truncated, info = self.env.step(env_action)
+            reward, normalised = self.manager_reward(info["reward_terms"])
+            total += discount * reward
+            discount *= self.option_gamma
+            steps += 1
+        self._last_obs = obs
+        info["selected_worker"] = self.worker_names[chosen]
+        info["selection_probabilities"] = dict(zip(self.worker_names, probabilities.tolist()))
+        info["normalised_terms"] = normalised
+        info["option_length"] = steps
+        return self._manager_obs(obs), float(total), terminated, truncated, info
+
+
+def _subset_space(space: gym.Space, indices: np.ndarray | None) -> spaces.Box:
+    if indices is None:
+        return space  # type: ignore[return-value]
+    return spaces.Box(space.low[indices], space.high[indices], dtype=space.dtype)  # type: ignore[attr-defined]
+
+
+def _check_worker_spaces(
+    name: str, worker: Any, observation_space: gym.Space, action_space: gym.Space
+) -> None:
+    """SB3's own check (``Observation spaces do not match: A != B``) for workers that declare spaces."""
+    if not hasattr(worker, "predict"):
+        raise ValueError(f"Worker {name!r} has no predict(obs, deterministic=...) method: {worker!r}")
+    if hasattr(worker, "observation_space") and hasattr(worker, "action_space"):
+        expected = SimpleNamespace(
+            observation_space=worker.observation_space, action_space=worker.action_space
+        )
+        try:
+            check_for_correct_spaces(expected, observation_space, action_space)  # type: ignore[arg-type]
+        except ValueError as error:
+            raise ValueError(f"Worker {name!r} does not fit this env: {error}") from None
+
+
+def _term_weights(name: str, spec: RewardSpec, known_terms: list[str]) -> dict[str, float]:
+    weights = {spec: 1.0} if isinstance(spec, str) else {str(k): float(v) for k, v in dict(spec).items()}
+    unknown = sorted(set(weights) - set(known_terms))
+    if unknown:
+        raise ValueError(
+            f"Worker {name!r} has unknown reward terms {unknown}; the env's terms: {known_terms}"
+        )
+    total = sum(weights.values())
+    if not weights or not np.isfinite(total) or total <= 0 or any(w < 0 for w in weights.values()):
+        raise ValueError(
+            f"Expected worker {name!r} reward weights >= 0 with a positive sum, actually: {weights}"
+        )
+    # Normalise the weights so that a mixed term, like a single one, stays in [0, 1].
+    return {term: w / total for term, w in weights.items()}
