@@ -122,7 +122,7 @@ def test_tampered_bundles_are_refused(trained, tmp_path):
         return data
 
     _rewrite(path, tmp_path / "bad_manifest.zip", drop_member_hash)
-    with pytest.raises(BundleError, match="manager.zip"):
+    with pytest.raises(BundleError, match=r"manager\.zip"):
         Hierarchy.load(tmp_path / "bad_manifest.zip")
 
     (tmp_path / "truncated.zip").write_bytes(path.read_bytes()[:1000])

@@ -134,7 +134,6 @@ def test_option_stops_at_episode_end():
 
 def test_state_subsets_for_manager_and_workers():
     inner = gym.make("hddpg/SnakeReach-v0")
-    layout = inner.unwrapped.state_layout
     goal = ConstantWorker(GOAL_ACTION)
     env = WorkerSelectionWrapper(
         inner,
