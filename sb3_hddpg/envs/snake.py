@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pymunk
 from gymnasium import spaces
+from pymunk._chipmunk_cffi import lib as _chipmunk
 
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 
@@ -16,6 +17,14 @@ from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 REWARD_CHOICES = ("goal", "avoid", "reach")
 #: The reward terms computed every step (Table 2 of the paper).
 REWARD_TERMS = ("goal", "avoid")
+
+# The step calls Chipmunk through pymunk's cffi module directly, with the raw pointers pymunk keeps on
+# its objects (``Body._body``, ``SimpleMotor._constraint``, ``Space._space``): the same C functions that
+# pymunk's properties and ``Space.step`` call, without their Python wrapper layers (setting a motor rate
+# through the property costs ~5 times more than the C call). See docs/PERFORMANCE.md.
+_body_angle = _chipmunk.cpBodyGetAngle
+_set_motor_rate = _chipmunk.cpSimpleMotorSetRate
+_space_step = _chipmunk.cpSpaceStep
 
 
 class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -234,6 +243,11 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._walk_limits = [(self.goal_speed, self.goal_radius_min, self.goal_radius_max)] + [
             (self.obstacle_speed, self.obstacle_radius_min, self.obstacle_radius_max)
         ] * self.n_obstacles
+        # Constants of the step, precomputed once.
+        self._substep_dt = self.dt / self.substeps
+        self._inv_dt = 1.0 / self.dt
+        self._inv_sensor_range = 1.0 / self.sensor_range
+        self._reach = reward == "reach"
         self._build_space()
         # The links' absolute angles as last read from the physics (the soft joint limits need them).
         self._angles = [0.0] * self.n_joints
@@ -275,6 +289,11 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             self.links.append(body)
             self.motors.append(motor)
             parent = body
+        # Raw Chipmunk pointers for the step (see the module's note above _body_angle); the pymunk objects
+        # in space, links and motors own them and keep them alive.
+        self._space_handle = self.space._space
+        self._link_handles = [body._body for body in self.links]
+        self._motor_handles = [motor._constraint for motor in self.motors]
 
     def _place_arm(self, joint_angles: np.ndarray) -> None:
         """Put the chain at the given relative joint angles, at rest."""
@@ -357,111 +376,152 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         noise = self._noise[self._noise_index]
         self._noise_index += 1
         dt = self.dt
-        for k, (pos, vel) in enumerate(zip(self._movers, self._velocities)):
-            top, r_min, r_max = self._walk_limits[k]
+        hypot = math.hypot
+        for pos, vel, (top, r_min, r_max), (nx, ny) in zip(
+            self._movers, self._velocities, self._walk_limits, noise
+        ):
             if top == 0.0:
                 continue
-            vx = vel[0] + noise[k][0] * top
-            vy = vel[1] + noise[k][1] * top
-            speed = math.hypot(vx, vy)
+            vx = vel[0] + nx * top
+            vy = vel[1] + ny * top
+            speed = hypot(vx, vy)
             if speed > top:
                 vx, vy = vx * top / speed, vy * top / speed
-            x, y = pos[0] + vx * dt, pos[1] + vy * dt
-            radius = math.hypot(x, y)
+            x = pos[0] + vx * dt
+            y = pos[1] + vy * dt
+            radius = hypot(x, y)
             if radius > r_max or radius < r_min:
                 ux, uy = x / max(radius, 1e-12), y / max(radius, 1e-12)
                 radial = vx * ux + vy * uy
                 vx, vy = vx - 2.0 * radial * ux, vy - 2.0 * radial * uy
                 radius = min(max(radius, r_min), r_max)
                 x, y = ux * radius, uy * radius
-            pos[0], pos[1], vel[0], vel[1] = x, y, vx, vy
+            pos[0] = x
+            pos[1] = y
+            vel[0] = vx
+            vel[1] = vy
 
     # ------------------------------------------------------------------ geometry
-    def _measure(self) -> dict[str, Any]:
-        """Everything the observation, rewards and info need, from the current physics state."""
-        xs, ys = self._chain_points()
-        gx, gy = self._movers[0]
-        dgx, dgy = gx - xs[-1], gy - ys[-1]
-        goal_distance = math.hypot(dgx, dgy)
+    def _sense(self) -> tuple[list[float], float, float, bool, bool, float, float]:
+        """
+        Read the physics and compute the observation and the reward terms in one pass.
+
+        :return: ``(observation as a list, goal term, avoid term, goal touched, collision, min clearance,
+            distance to goal)``. Also stores the links' absolute angles in ``_angles``.
+        """
+        # The chain by forward kinematics from the simulated link angles: the points are exactly one link
+        # length apart (the pivot solver's slack, see joint_gaps, never reaches the observation), so the
+        # observation bounds hold without clipping. Plain Python on purpose: for a handful of points and
+        # obstacles, scalar math is several times faster than numpy's per-call overhead.
+        length = self.link_length
+        radius = self.obstacle_radius
+        sensor_range = self.sensor_range
+        inv_range = self._inv_sensor_range
+        cos, sin, sqrt = math.cos, math.sin, math.sqrt
+        angles = self._angles
         obstacles = self._movers[1:]
+        ends: list[float] = []
         vectors: list[float] = []
-        clearances: list[float] = []
-        # For every link, the obstacle whose centre is closest to the link segment.
-        for i in range(self.n_joints):
-            ax, ay = xs[i], ys[i]
-            sx, sy = xs[i + 1] - ax, ys[i + 1] - ay
+        distances: list[float] = []
+        touching: list[float] = []
+        clipped_sum = 0.0
+        min_clearance = math.inf
+        ax = ay = 0.0
+        for i, handle in enumerate(self._link_handles):
+            angle = angles[i] = _body_angle(handle)
+            bx = ax + length * cos(angle)
+            by = ay + length * sin(angle)
+            ends += (bx, by)
+            # The obstacle whose centre is closest to the link segment from (ax, ay) to (bx, by).
+            sx = bx - ax
+            sy = by - ay
             inv_len2 = 1.0 / (sx * sx + sy * sy)
             best = math.inf
             best_vx = best_vy = 0.0
             for ox, oy in obstacles:
-                t = ((ox - ax) * sx + (oy - ay) * sy) * inv_len2
-                t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
-                vx, vy = ox - ax - t * sx, oy - ay - t * sy
+                dx = ox - ax
+                dy = oy - ay
+                t = (dx * sx + dy * sy) * inv_len2
+                if t < 0.0:
+                    t = 0.0
+                elif t > 1.0:
+                    t = 1.0
+                vx = dx - t * sx
+                vy = dy - t * sy
                 d = vx * vx + vy * vy
                 if d < best:
-                    best, best_vx, best_vy = d, vx, vy
-            vectors += (best_vx, best_vy)
-            clearances.append(math.sqrt(best) - self.obstacle_radius)
-        return {
-            "ends": [c for pair in zip(xs[1:], ys[1:]) for c in pair],
-            "to_goal": (dgx, dgy),
-            "goal_distance": goal_distance,
-            "obstacle_vectors": vectors,
-            "clearance": clearances,
-            "touching": [c <= 0.0 for c in clearances],
-            "goal_touched": goal_distance <= self.touch_radius,
-        }
-
-    def _observation(self, m: dict[str, Any], clipped: list[float]) -> np.ndarray:
-        inv_range = 1.0 / self.sensor_range
-        obs = np.array(
-            [
-                *m["ends"],
-                0.5 * m["to_goal"][0],
-                0.5 * m["to_goal"][1],
-                *(0.5 * v for v in m["obstacle_vectors"]),
-                *(c * inv_range for c in clipped),
-                1.0 if m["goal_touched"] else 0.0,
-                *(1.0 if t else 0.0 for t in m["touching"]),
-            ],
-            dtype=np.float32,
-        )
-        return obs
-
-    def _reward_terms(self, m: dict[str, Any], clipped: list[float]) -> dict[str, float]:
+                    best = d
+                    best_vx = vx
+                    best_vy = vy
+            vectors += (0.5 * best_vx, 0.5 * best_vy)
+            clearance = sqrt(best) - radius
+            if clearance < min_clearance:
+                min_clearance = clearance
+            if clearance <= 0.0:
+                distances.append(0.0)
+                touching.append(1.0)
+            else:
+                clipped = sensor_range if clearance > sensor_range else clearance
+                clipped_sum += clipped
+                distances.append(clipped * inv_range)
+                touching.append(0.0)
+            ax = bx
+            ay = by
+        gx, gy = self._movers[0]
+        dgx = gx - ax
+        dgy = gy - ay
+        goal_distance = math.hypot(dgx, dgy)
+        goal_touched = goal_distance <= self.touch_radius
+        collision = 1.0 in touching
+        obs = ends
+        obs += (0.5 * dgx, 0.5 * dgy)
+        obs += vectors
+        obs += distances
+        obs.append(1.0 if goal_touched else 0.0)
+        obs += touching
         goal_low, goal_high = self.reward_bounds["goal"]
-        goal = -m["goal_distance"] + (1.0 if m["goal_touched"] else 0.0)
+        goal = -goal_distance + (1.0 if goal_touched else 0.0)
         # Clip to the documented bounds: physics slack can put the tip a hair beyond reach.
-        goal = min(max(goal, goal_low), goal_high)
-        avoid = self.r_bf * sum(clipped) - (1.0 if any(m["touching"]) else 0.0)
-        return {"goal": goal, "avoid": avoid}
+        if goal < goal_low:
+            goal = goal_low
+        elif goal > goal_high:
+            goal = goal_high
+        avoid = self.r_bf * clipped_sum - (1.0 if collision else 0.0)
+        return obs, goal, avoid, goal_touched, collision, min_clearance, goal_distance
+
+    def _measure(self) -> dict[str, Any]:
+        """The current state's touch flags and distances (for rendering and inspection, not the step)."""
+        obs, _, _, goal_touched, collision, min_clearance, goal_distance = self._sense()
+        return {
+            "goal_touched": goal_touched,
+            "touching": [flag == 1.0 for flag in obs[self.state_layout["obstacle_touched"]]],
+            "collision": collision,
+            "min_clearance": min_clearance,
+            "goal_distance": goal_distance,
+        }
 
     def normalise_terms(self, terms: dict[str, float]) -> dict[str, float]:
         """Min-max normalise reward terms to [0, 1] with the fixed :attr:`reward_bounds`."""
         return {k: (v - self._term_offset[k]) * self._term_scale[k] for k, v in terms.items()}
 
     def _step_result(self) -> tuple[np.ndarray, float, dict[str, Any]]:
-        m = self._measure()
-        sensor_range = self.sensor_range
-        clipped = [0.0 if c < 0.0 else (sensor_range if c > sensor_range else c) for c in m["clearance"]]
-        terms = self._reward_terms(m, clipped)
-        collision = any(m["touching"])
-        self._ever_touched = self._ever_touched or m["goal_touched"]
-        self._ever_collided = self._ever_collided or collision
-        if self.reward_name == "reach":
-            normalised = self.normalise_terms(terms)
-            reward = normalised["goal"] + normalised["avoid"]
+        obs, goal, avoid, goal_touched, collision, min_clearance, goal_distance = self._sense()
+        ever_touched = self._ever_touched = self._ever_touched or goal_touched
+        ever_collided = self._ever_collided = self._ever_collided or collision
+        if self._reach:
+            offset, scale = self._term_offset, self._term_scale
+            reward = (goal - offset["goal"]) * scale["goal"] + (avoid - offset["avoid"]) * scale["avoid"]
         else:
-            reward = terms[self.reward_name]
+            reward = goal if self.reward_name == "goal" else avoid
         info = {
-            "reward_terms": terms,
-            "goal_touched": m["goal_touched"],
+            "reward_terms": {"goal": goal, "avoid": avoid},
+            "goal_touched": goal_touched,
             "collision": collision,
-            "min_clearance": min(m["clearance"]),
-            "distance_to_goal": m["goal_distance"],
-            "is_success": self._ever_touched and not self._ever_collided,
+            "min_clearance": min_clearance,
+            "distance_to_goal": goal_distance,
+            "is_success": ever_touched and not ever_collided,
         }
-        return self._observation(m, clipped), float(reward), info
+        return np.array(obs, dtype=np.float32), reward, info
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(
@@ -510,22 +570,32 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"Expected an action of shape ({self.n_joints},), actually: {np.shape(action)}")
         top = self.max_joint_speed
         limit = self.joint_limit
-        inv_dt = 1.0 / self.dt
+        inv_dt = self._inv_dt
         previous = 0.0
-        for i, (motor, command, absolute) in enumerate(zip(self.motors, commands, self._angles)):
+        first = True
+        # _angles holds the links' absolute angles as read at the end of the previous step (or reset).
+        for handle, command, absolute in zip(self._motor_handles, commands, self._angles):
             if not -math.inf < command < math.inf:
                 raise ValueError(f"Expected a finite action, actually: {commands}")
             rate = top * (-1.0 if command < -1.0 else (1.0 if command > 1.0 else command))
-            if i > 0:
+            if first:
+                first = False
+            else:
                 # Soft joint limit, as a servo controller would do it: slow the joint so that it stops at
                 # the limit within this step instead of pushing into it.
                 relative = absolute - previous
-                rate = min(max(rate, (-limit - relative) * inv_dt), (limit - relative) * inv_dt)
+                low = (-limit - relative) * inv_dt
+                if rate < low:
+                    rate = low
+                high = (limit - relative) * inv_dt
+                if rate > high:
+                    rate = high
             previous = absolute
-            motor.rate = -rate  # pymunk's motor rate is clockwise-positive, our commands counter-clockwise
-        h = self.dt / self.substeps
+            # pymunk's motor rate is clockwise-positive, our commands counter-clockwise.
+            _set_motor_rate(handle, -rate)
+        space, h = self._space_handle, self._substep_dt
         for _ in range(self.substeps):
-            self.space.step(h)
+            _space_step(space, h)
         self._walk_movers()
         obs, reward, info = self._step_result()
         if self.render_mode == "human":
@@ -535,7 +605,16 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     def __getstate__(self) -> dict[str, Any]:
         # pymunk pickles a space with copies of its bodies, which would leave ``links`` and ``motors``
         # pointing at bodies outside the simulation: pickle the links' motion state and rebuild instead.
-        state = {k: v for k, v in self.__dict__.items() if k not in ("space", "links", "motors", "_renderer")}
+        unpicklable = (
+            "space",
+            "links",
+            "motors",
+            "_renderer",
+            "_space_handle",
+            "_link_handles",
+            "_motor_handles",
+        )
+        state = {k: v for k, v in self.__dict__.items() if k not in unpicklable}
         state["_link_states"] = [
             (tuple(b.position), b.angle, tuple(b.velocity), b.angular_velocity) for b in self.links
         ]
