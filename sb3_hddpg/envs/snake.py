@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -39,15 +40,16 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     Lengths are in units of the arm's reach: every link is ``1 / n_joints`` long, so the stretched arm
     reaches exactly 1.
 
-    The arm is simulated by pymunk: every link is a dynamic body with a segment shape (each 0.6 times as
-    heavy as its parent), joined to its
+    The arm is simulated by pymunk: every link is a dynamic body with the mass and moment of a thin rod
+    (each 0.6 times as heavy as its parent), joined to its
     parent (the static base for link 0) by a ``PivotJoint`` and driven by a ``SimpleMotor`` whose rate is the
     commanded joint velocity. A soft limit keeps every joint but the base within
     ``±joint_limit`` radians: the commanded rate is reduced so that the joint stops at its limit within
     the step, as a servo controller would (a pymunk ``RotaryLimitJoint`` fighting a motor made the chain
-    unstable). **Self-collision** is not simulated: links share one pymunk
-    ``ShapeFilter`` group so they pass through each other, and the joint limits keep the chain from folding
-    back onto itself. **Obstacles** are kinematic discs, not pymunk bodies: like the paper's robot with a
+    unstable). **Self-collision** is not simulated: the links have no pymunk collision shapes (nothing in
+    the space could collide with them, and pymunk's collision detection would cost a quarter of the
+    physics time), so they pass through each other, and the joint limits keep the chain from folding back
+    onto itself. **Obstacles** are kinematic discs, not pymunk bodies: like the paper's robot with a
     sensitive skin, the arm is not pushed by an obstacle but *touches* it, which the avoid reward penalises.
     The goal and the obstacles move by a bounded random walk of their velocity (speed capped at
     ``goal_speed`` / ``obstacle_speed`` reach per second), reflected at the edge of their region.
@@ -248,6 +250,19 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._inv_dt = 1.0 / self.dt
         self._inv_sensor_range = 1.0 / self.sensor_range
         self._reach = reward == "reach"
+        self._obs_size = obs_size
+        self._pack_obs = struct.Struct(f"={obs_size}f").pack
+        self._obs_offsets = tuple(
+            self.state_layout[name].start
+            for name in (
+                "ee_to_goal",
+                "joint_obstacle_vectors",
+                "joint_obstacle_distances",
+                "goal_touched",
+                "obstacle_touched",
+            )
+        )
+        self._goal_bounds = self.reward_bounds["goal"]
         self._build_space()
         # The links' absolute angles as last read from the physics (the soft joint limits need them).
         self._angles = [0.0] * self.n_joints
@@ -272,20 +287,17 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         masses = [0.6**i for i in range(self.n_joints)]
         self.links: list[pymunk.Body] = []
         self.motors: list[pymunk.SimpleMotor] = []
-        no_self_collision = pymunk.ShapeFilter(group=1)
         parent: pymunk.Body = self.space.static_body
         for i in range(self.n_joints):
             moment = pymunk.moment_for_segment(masses[i], (0, 0), (self.link_length, 0), 0.01)
             body = pymunk.Body(masses[i], moment)
-            shape = pymunk.Segment(body, (0, 0), (self.link_length, 0), 0.01)
-            shape.filter = no_self_collision
             # The base pivot sits at the static body's origin; the others at the parent link's far end.
             anchor = (0.0, 0.0) if i == 0 else (self.link_length, 0.0)
             pivot = pymunk.PivotJoint(parent, body, anchor, (0.0, 0.0))
             motor = pymunk.SimpleMotor(parent, body, 0.0)
             # Strong enough to hold the commanded rate against the chain's inertia within a substep.
             motor.max_force = 50.0
-            self.space.add(body, shape, pivot, motor)
+            self.space.add(body, pivot, motor)
             self.links.append(body)
             self.motors.append(motor)
             parent = body
@@ -420,18 +432,20 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         cos, sin, sqrt = math.cos, math.sin, math.sqrt
         angles = self._angles
         obstacles = self._movers[1:]
-        ends: list[float] = []
-        vectors: list[float] = []
-        distances: list[float] = []
-        touching: list[float] = []
+        # The observation, filled in place; see the class docstring for the layout.
+        obs = [0.0] * self._obs_size
+        to_goal, vectors, distances, goal_flag, touch_flags = self._obs_offsets
         clipped_sum = 0.0
         min_clearance = math.inf
+        collision = False
         ax = ay = 0.0
         for i, handle in enumerate(self._link_handles):
             angle = angles[i] = _body_angle(handle)
             bx = ax + length * cos(angle)
             by = ay + length * sin(angle)
-            ends += (bx, by)
+            j = 2 * i
+            obs[j] = bx
+            obs[j + 1] = by
             # The obstacle whose centre is closest to the link segment from (ax, ay) to (bx, by).
             sx = bx - ax
             sy = by - ay
@@ -439,54 +453,57 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             best = math.inf
             best_vx = best_vy = 0.0
             for ox, oy in obstacles:
-                dx = ox - ax
-                dy = oy - ay
-                t = (dx * sx + dy * sy) * inv_len2
-                if t < 0.0:
-                    t = 0.0
-                elif t > 1.0:
-                    t = 1.0
-                vx = dx - t * sx
-                vy = dy - t * sy
+                # (vx, vy): from the segment's closest point to the obstacle centre.
+                vx = ox - ax
+                vy = oy - ay
+                t = (vx * sx + vy * sy) * inv_len2
+                if t > 0.0:
+                    if t < 1.0:
+                        vx -= t * sx
+                        vy -= t * sy
+                    else:
+                        vx -= sx
+                        vy -= sy
                 d = vx * vx + vy * vy
                 if d < best:
                     best = d
                     best_vx = vx
                     best_vy = vy
-            vectors += (0.5 * best_vx, 0.5 * best_vy)
+            obs[vectors + j] = 0.5 * best_vx
+            obs[vectors + j + 1] = 0.5 * best_vy
             clearance = sqrt(best) - radius
             if clearance < min_clearance:
                 min_clearance = clearance
-            if clearance <= 0.0:
-                distances.append(0.0)
-                touching.append(1.0)
+            if clearance <= 0.0:  # touching: the distance stays 0
+                obs[touch_flags + i] = 1.0
+                collision = True
             else:
                 clipped = sensor_range if clearance > sensor_range else clearance
                 clipped_sum += clipped
-                distances.append(clipped * inv_range)
-                touching.append(0.0)
+                obs[distances + i] = clipped * inv_range
             ax = bx
             ay = by
         gx, gy = self._movers[0]
         dgx = gx - ax
         dgy = gy - ay
+        obs[to_goal] = 0.5 * dgx
+        obs[to_goal + 1] = 0.5 * dgy
         goal_distance = math.hypot(dgx, dgy)
         goal_touched = goal_distance <= self.touch_radius
-        collision = 1.0 in touching
-        obs = ends
-        obs += (0.5 * dgx, 0.5 * dgy)
-        obs += vectors
-        obs += distances
-        obs.append(1.0 if goal_touched else 0.0)
-        obs += touching
-        goal_low, goal_high = self.reward_bounds["goal"]
-        goal = -goal_distance + (1.0 if goal_touched else 0.0)
+        if goal_touched:
+            obs[goal_flag] = 1.0
+            goal = 1.0 - goal_distance
+        else:
+            goal = -goal_distance
         # Clip to the documented bounds: physics slack can put the tip a hair beyond reach.
+        goal_low, goal_high = self._goal_bounds
         if goal < goal_low:
             goal = goal_low
         elif goal > goal_high:
             goal = goal_high
-        avoid = self.r_bf * clipped_sum - (1.0 if collision else 0.0)
+        avoid = self.r_bf * clipped_sum
+        if collision:
+            avoid -= 1.0
         return obs, goal, avoid, goal_touched, collision, min_clearance, goal_distance
 
     def _measure(self) -> dict[str, Any]:
@@ -521,7 +538,8 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             "distance_to_goal": goal_distance,
             "is_success": ever_touched and not ever_collided,
         }
-        return np.array(obs, dtype=np.float32), reward, info
+        # struct packs the Python floats to float32 in one C loop: cheaper than numpy converting a list.
+        return np.frombuffer(self._pack_obs(*obs), np.float32).copy(), reward, info
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(
@@ -571,11 +589,13 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         top = self.max_joint_speed
         limit = self.joint_limit
         inv_dt = self._inv_dt
+        inf = math.inf
+        set_motor_rate = _set_motor_rate
         previous = 0.0
         first = True
         # _angles holds the links' absolute angles as read at the end of the previous step (or reset).
         for handle, command, absolute in zip(self._motor_handles, commands, self._angles):
-            if not -math.inf < command < math.inf:
+            if not -inf < command < inf:
                 raise ValueError(f"Expected a finite action, actually: {commands}")
             rate = top * (-1.0 if command < -1.0 else (1.0 if command > 1.0 else command))
             if first:
@@ -592,7 +612,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                     rate = high
             previous = absolute
             # pymunk's motor rate is clockwise-positive, our commands counter-clockwise.
-            _set_motor_rate(handle, -rate)
+            set_motor_rate(handle, -rate)
         space, h = self._space_handle, self._substep_dt
         for _ in range(self.substeps):
             _space_step(space, h)
@@ -613,6 +633,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             "_space_handle",
             "_link_handles",
             "_motor_handles",
+            "_pack_obs",
         )
         state = {k: v for k, v in self.__dict__.items() if k not in unpicklable}
         state["_link_states"] = [
@@ -626,6 +647,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         motor_rates = state.pop("_motor_rates")
         self.__dict__.update(state)
         self._renderer = None
+        self._pack_obs = struct.Struct(f"={self._obs_size}f").pack
         self._build_space()
         for body, (position, angle, velocity, spin) in zip(self.links, link_states):
             body.position, body.angle, body.velocity, body.angular_velocity = position, angle, velocity, spin
