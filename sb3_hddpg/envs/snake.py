@@ -381,21 +381,24 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         Advance the goal's and the obstacles' bounded random walks: jitter the velocity, cap the speed,
         move, and reflect the velocity's radial part at the edge of the mover's annulus.
         """
-        if self._noise_index >= len(self._noise):
-            # Normal noise drawn in blocks: one generator call per 256 steps instead of one per step.
-            self._noise = self.np_random.normal(0.0, 0.3, size=(256, 1 + self.n_obstacles, 2)).tolist()
-            self._noise_index = 0
-        noise = self._noise[self._noise_index]
-        self._noise_index += 1
+        noise = self._noise
+        k = self._noise_index
+        per_step = 2 * len(self._movers)
+        if k >= len(noise):
+            # Normal noise drawn in blocks of 256 steps, (x, y) per mover per step, as one flat list: one
+            # generator call and one (cheap, flat) tolist per block instead of a generator call per step.
+            noise = self._noise = self.np_random.normal(0.0, 0.3, size=256 * per_step).tolist()
+            k = 0
+        self._noise_index = k + per_step
         dt = self.dt
         hypot = math.hypot
-        for pos, vel, (top, r_min, r_max), (nx, ny) in zip(
-            self._movers, self._velocities, self._walk_limits, noise
-        ):
+        for pos, vel, (top, r_min, r_max) in zip(self._movers, self._velocities, self._walk_limits):
             if top == 0.0:
+                k += 2
                 continue
-            vx = vel[0] + nx * top
-            vy = vel[1] + ny * top
+            vx = vel[0] + noise[k] * top
+            vy = vel[1] + noise[k + 1] * top
+            k += 2
             speed = hypot(vx, vy)
             if speed > top:
                 vx, vy = vx * top / speed, vy * top / speed
@@ -589,14 +592,15 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         top = self.max_joint_speed
         limit = self.joint_limit
         inv_dt = self._inv_dt
-        inf = math.inf
+        # One check for all: a NaN or an infinity makes the sum non-finite (the sum of finite values can
+        # only overflow for absurdly large commands, so check them one by one then).
+        if not -math.inf < sum(commands) < math.inf and not all(-math.inf < c < math.inf for c in commands):
+            raise ValueError(f"Expected a finite action, actually: {commands}")
         set_motor_rate = _set_motor_rate
         previous = 0.0
         first = True
         # _angles holds the links' absolute angles as read at the end of the previous step (or reset).
         for handle, command, absolute in zip(self._motor_handles, commands, self._angles):
-            if not -inf < command < inf:
-                raise ValueError(f"Expected a finite action, actually: {commands}")
             rate = top * (-1.0 if command < -1.0 else (1.0 if command > 1.0 else command))
             if first:
                 first = False
