@@ -250,18 +250,15 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._inv_dt = 1.0 / self.dt
         self._inv_sensor_range = 1.0 / self.sensor_range
         self._reach = reward == "reach"
+        self._reach_normalisation = (
+            self._term_offset["goal"],
+            self._term_scale["goal"],
+            self._term_offset["avoid"],
+            self._term_scale["avoid"],
+        )
         self._obs_size = obs_size
         self._pack_obs = struct.Struct(f"={obs_size}f").pack
-        self._obs_offsets = tuple(
-            self.state_layout[name].start
-            for name in (
-                "ee_to_goal",
-                "joint_obstacle_vectors",
-                "joint_obstacle_distances",
-                "goal_touched",
-                "obstacle_touched",
-            )
-        )
+        self._obs_offsets = (self.state_layout["ee_to_goal"].start, self.state_layout["goal_touched"].start)
         self._goal_bounds = self.reward_bounds["goal"]
         self._build_space()
         # The links' absolute angles as last read from the physics (the soft joint limits need them).
@@ -306,6 +303,20 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._space_handle = self.space._space
         self._link_handles = [body._body for body in self.links]
         self._motor_handles = [motor._constraint for motor in self.motors]
+        # Per link: its index, body pointer, and where its values go in the observation (end point x,
+        # obstacle vector x, obstacle distance, touch flag; y follows x).
+        layout = self.state_layout
+        self._link_slots = [
+            (
+                i,
+                handle,
+                layout["joint_positions"].start + 2 * i,
+                layout["joint_obstacle_vectors"].start + 2 * i,
+                layout["joint_obstacle_distances"].start + i,
+                layout["obstacle_touched"].start + i,
+            )
+            for i, handle in enumerate(self._link_handles)
+        ]
 
     def _place_arm(self, joint_angles: np.ndarray) -> None:
         """Put the chain at the given relative joint angles, at rest."""
@@ -437,16 +448,15 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         obstacles = self._movers[1:]
         # The observation, filled in place; see the class docstring for the layout.
         obs = [0.0] * self._obs_size
-        to_goal, vectors, distances, goal_flag, touch_flags = self._obs_offsets
+        to_goal, goal_flag = self._obs_offsets
         clipped_sum = 0.0
         min_clearance = math.inf
         collision = False
         ax = ay = 0.0
-        for i, handle in enumerate(self._link_handles):
+        for i, handle, j, vector, distance, touch_flag in self._link_slots:
             angle = angles[i] = _body_angle(handle)
             bx = ax + length * cos(angle)
             by = ay + length * sin(angle)
-            j = 2 * i
             obs[j] = bx
             obs[j + 1] = by
             # The obstacle whose centre is closest to the link segment from (ax, ay) to (bx, by).
@@ -459,8 +469,9 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                 # (vx, vy): from the segment's closest point to the obstacle centre.
                 vx = ox - ax
                 vy = oy - ay
-                t = (vx * sx + vy * sy) * inv_len2
-                if t > 0.0:
+                dot = vx * sx + vy * sy
+                if dot > 0.0:  # beyond the link's start (else the start is the closest point)
+                    t = dot * inv_len2
                     if t < 1.0:
                         vx -= t * sx
                         vy -= t * sy
@@ -472,18 +483,18 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                     best = d
                     best_vx = vx
                     best_vy = vy
-            obs[vectors + j] = 0.5 * best_vx
-            obs[vectors + j + 1] = 0.5 * best_vy
+            obs[vector] = 0.5 * best_vx
+            obs[vector + 1] = 0.5 * best_vy
             clearance = sqrt(best) - radius
             if clearance < min_clearance:
                 min_clearance = clearance
             if clearance <= 0.0:  # touching: the distance stays 0
-                obs[touch_flags + i] = 1.0
+                obs[touch_flag] = 1.0
                 collision = True
             else:
                 clipped = sensor_range if clearance > sensor_range else clearance
                 clipped_sum += clipped
-                obs[distances + i] = clipped * inv_range
+                obs[distance] = clipped * inv_range
             ax = bx
             ay = by
         gx, gy = self._movers[0]
@@ -528,9 +539,9 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         obs, goal, avoid, goal_touched, collision, min_clearance, goal_distance = self._sense()
         ever_touched = self._ever_touched = self._ever_touched or goal_touched
         ever_collided = self._ever_collided = self._ever_collided or collision
-        if self._reach:
-            offset, scale = self._term_offset, self._term_scale
-            reward = (goal - offset["goal"]) * scale["goal"] + (avoid - offset["avoid"]) * scale["avoid"]
+        if self._reach:  # the sum of both terms, each normalised as by normalise_terms
+            goal_offset, goal_scale, avoid_offset, avoid_scale = self._reach_normalisation
+            reward = (goal - goal_offset) * goal_scale + (avoid - avoid_offset) * avoid_scale
         else:
             reward = goal if self.reward_name == "goal" else avoid
         info = {
@@ -637,6 +648,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             "_space_handle",
             "_link_handles",
             "_motor_handles",
+            "_link_slots",
             "_pack_obs",
         )
         state = {k: v for k, v in self.__dict__.items() if k not in unpicklable}
