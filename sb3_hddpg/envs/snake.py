@@ -248,6 +248,12 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         # Constants of the step, precomputed once.
         self._substep_dt = self.dt / self.substeps
         self._inv_dt = 1.0 / self.dt
+        # Joints with |relative angle| below this cannot reach their limit within a step, whatever the
+        # command (with a margin far above rounding errors); negative if any joint can.
+        reach_per_step = self.max_joint_speed * self.dt
+        self._free_joint_range = (
+            self.joint_limit - reach_per_step - 1e-9 * (self.joint_limit + reach_per_step)
+        )
         self._inv_sensor_range = 1.0 / self.sensor_range
         self._reach = reward == "reach"
         self._reach_normalisation = (
@@ -603,6 +609,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         top = self.max_joint_speed
         limit = self.joint_limit
         inv_dt = self._inv_dt
+        free = self._free_joint_range
         # One check for all: a NaN or an infinity makes the sum non-finite (the sum of finite values can
         # only overflow for absurdly large commands, so check them one by one then).
         if not -math.inf < sum(commands) < math.inf and not all(-math.inf < c < math.inf for c in commands):
@@ -617,14 +624,16 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                 first = False
             else:
                 # Soft joint limit, as a servo controller would do it: slow the joint so that it stops at
-                # the limit within this step instead of pushing into it.
+                # the limit within this step instead of pushing into it. Only a joint within one step at
+                # top speed of its limit can need it.
                 relative = absolute - previous
-                low = (-limit - relative) * inv_dt
-                if rate < low:
-                    rate = low
-                high = (limit - relative) * inv_dt
-                if rate > high:
-                    rate = high
+                if not -free < relative < free:
+                    low = (-limit - relative) * inv_dt
+                    if rate < low:
+                        rate = low
+                    high = (limit - relative) * inv_dt
+                    if rate > high:
+                        rate = high
             previous = absolute
             # pymunk's motor rate is clockwise-positive, our commands counter-clockwise.
             set_motor_rate(handle, -rate)
