@@ -449,14 +449,14 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         radius = self.obstacle_radius
         sensor_range = self.sensor_range
         inv_range = self._inv_sensor_range
-        cos, sin, sqrt = math.cos, math.sin, math.sqrt
+        cos, sin, sqrt, inf = math.cos, math.sin, math.sqrt, math.inf
         angles = self._angles
         obstacles = self._movers[1:]
         # The observation, filled in place; see the class docstring for the layout.
         obs = [0.0] * self._obs_size
         to_goal, goal_flag = self._obs_offsets
         clipped_sum = 0.0
-        min_clearance = math.inf
+        min_clearance = inf
         collision = False
         ax = ay = 0.0
         for i, handle, j, vector, distance, touch_flag in self._link_slots:
@@ -469,8 +469,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             sx = bx - ax
             sy = by - ay
             inv_len2 = 1.0 / (sx * sx + sy * sy)
-            best = math.inf
-            best_vx = best_vy = 0.0
+            best = inf  # the first obstacle always improves on it (there is at least one)
             for ox, oy in obstacles:
                 # (vx, vy): from the segment's closest point to the obstacle centre.
                 vx = ox - ax
