@@ -434,12 +434,10 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             vel[1] = vy
 
     # ------------------------------------------------------------------ geometry
-    def _sense(self) -> tuple[list[float], float, float, bool, bool, float, float]:
+    def _step_result(self) -> tuple[np.ndarray, float, dict[str, Any]]:
         """
-        Read the physics and compute the observation and the reward terms in one pass.
-
-        :return: ``(observation as a list, goal term, avoid term, goal touched, collision, min clearance,
-            distance to goal)``. Also stores the links' absolute angles in ``_angles``.
+        Read the physics and compute the observation, the reward and the info in one pass. Also stores
+        the links' absolute angles in ``_angles`` and updates the episode's touched / collided flags.
         """
         # The chain by forward kinematics from the simulated link angles: the points are exactly one link
         # length apart (the pivot solver's slack, see joint_gaps, never reaches the observation), so the
@@ -523,25 +521,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         avoid = self.r_bf * clipped_sum
         if collision:
             avoid -= 1.0
-        return obs, goal, avoid, goal_touched, collision, min_clearance, goal_distance
 
-    def _measure(self) -> dict[str, Any]:
-        """The current state's touch flags and distances (for rendering and inspection, not the step)."""
-        obs, _, _, goal_touched, collision, min_clearance, goal_distance = self._sense()
-        return {
-            "goal_touched": goal_touched,
-            "touching": [flag == 1.0 for flag in obs[self.state_layout["obstacle_touched"]]],
-            "collision": collision,
-            "min_clearance": min_clearance,
-            "goal_distance": goal_distance,
-        }
-
-    def normalise_terms(self, terms: dict[str, float]) -> dict[str, float]:
-        """Min-max normalise reward terms to [0, 1] with the fixed :attr:`reward_bounds`."""
-        return {k: (v - self._term_offset[k]) * self._term_scale[k] for k, v in terms.items()}
-
-    def _step_result(self) -> tuple[np.ndarray, float, dict[str, Any]]:
-        obs, goal, avoid, goal_touched, collision, min_clearance, goal_distance = self._sense()
         ever_touched = self._ever_touched = self._ever_touched or goal_touched
         ever_collided = self._ever_collided = self._ever_collided or collision
         if self._reach:  # the sum of both terms, each normalised as by normalise_terms
@@ -559,6 +539,21 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         }
         # struct packs the Python floats to float32 in one C loop: cheaper than numpy converting a list.
         return np.frombuffer(self._pack_obs(*obs), np.float32).copy(), reward, info
+
+    def _measure(self) -> dict[str, Any]:
+        """The current state's touch flags and distances (for rendering and inspection, not the step)."""
+        obs, _, info = self._step_result()  # the episode flags it updates are unchanged by a second call
+        return {
+            "goal_touched": info["goal_touched"],
+            "touching": (obs[self.state_layout["obstacle_touched"]] == 1.0).tolist(),
+            "collision": info["collision"],
+            "min_clearance": info["min_clearance"],
+            "goal_distance": info["distance_to_goal"],
+        }
+
+    def normalise_terms(self, terms: dict[str, float]) -> dict[str, float]:
+        """Min-max normalise reward terms to [0, 1] with the fixed :attr:`reward_bounds`."""
+        return {k: (v - self._term_offset[k]) * self._term_scale[k] for k, v in terms.items()}
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(
