@@ -272,6 +272,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         # Positions and velocities of the goal (index 0) and the obstacles, as plain lists (see _walk_movers).
         self._movers: list[list[float]] = [[0.0, 0.0] for _ in range(1 + self.n_obstacles)]
         self._velocities: list[list[float]] = [[0.0, 0.0] for _ in range(1 + self.n_obstacles)]
+        self._link_walkers()
         self._noise: list[Any] = []
         self._noise_index = 0
         self._ever_touched = False
@@ -393,6 +394,19 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         angle = self.np_random.uniform(-math.pi, math.pi)
         return [radius * math.cos(angle), radius * math.sin(angle)]
 
+    def _link_walkers(self) -> None:
+        """
+        Gather, for the random walks, the position, velocity, limits and noise offset of every mover that
+        moves; call whenever ``_movers`` or ``_velocities`` are replaced.
+        """
+        self._walkers = [
+            (pos, vel, top, r_min, r_max, 2 * k)
+            for k, (pos, vel, (top, r_min, r_max)) in enumerate(
+                zip(self._movers, self._velocities, self._walk_limits)
+            )
+            if top != 0.0
+        ]
+
     def _walk_movers(self) -> None:
         """
         Advance the goal's and the obstacles' bounded random walks: jitter the velocity, cap the speed,
@@ -400,7 +414,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         """
         noise = self._noise
         k = self._noise_index
-        per_step = 2 * len(self._movers)
+        per_step = 2 * len(self._movers)  # noise values per step: (x, y) per mover, moving or not
         if k >= len(noise):
             # Normal noise drawn in blocks of 256 steps, (x, y) per mover per step, as one flat list: one
             # generator call and one (cheap, flat) tolist per block instead of a generator call per step.
@@ -409,13 +423,10 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._noise_index = k + per_step
         dt = self.dt
         hypot = math.hypot
-        for pos, vel, (top, r_min, r_max) in zip(self._movers, self._velocities, self._walk_limits):
-            if top == 0.0:
-                k += 2
-                continue
-            vx = vel[0] + noise[k] * top
-            vy = vel[1] + noise[k + 1] * top
-            k += 2
+        for pos, vel, top, r_min, r_max, offset in self._walkers:
+            i = k + offset
+            vx = vel[0] + noise[i] * top
+            vy = vel[1] + noise[i + 1] * top
             speed = hypot(vx, vy)
             if speed > top:
                 vx, vy = vx * top / speed, vy * top / speed
@@ -578,6 +589,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                     break
             self._movers.append(candidate)
         self._velocities = [[0.0, 0.0] for _ in self._movers]
+        self._link_walkers()
         self._noise = []
         self._noise_index = 0
         self._ever_touched = False
@@ -653,6 +665,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             "_motor_handles",
             "_link_slots",
             "_pack_obs",
+            "_walkers",
         )
         state = {k: v for k, v in self.__dict__.items() if k not in unpicklable}
         state["_link_states"] = [
@@ -667,6 +680,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self.__dict__.update(state)
         self._renderer = None
         self._pack_obs = struct.Struct(f"={self._obs_size}f").pack
+        self._link_walkers()
         self._build_space()
         for body, (position, angle, velocity, spin) in zip(self.links, link_states):
             body.position, body.angle, body.velocity, body.angular_velocity = position, angle, velocity, spin
