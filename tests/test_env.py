@@ -100,6 +100,49 @@ def test_observation_distances_and_touch_flags_are_consistent():
     assert saw_touch
 
 
+def test_observation_and_rewards_match_a_numpy_reference():
+    # The step computes the observation in hand-optimised scalar Python; check it against a plain numpy
+    # version of the docstring's definitions, from the public link_points, goal and obstacles. A wide
+    # touch radius so that the rollout both touches the goal and collides.
+    env = gym.make("hddpg/SnakeReach-v0", max_episode_steps=400, touch_radius=0.6)
+    u = env.unwrapped
+    layout = u.state_layout
+    env.reset(seed=5)
+    rng = np.random.default_rng(5)
+    touches = collisions = 0
+    for _ in range(400):
+        obs, reward, _, _, info = env.step(rng.uniform(-1, 1, 6).astype(np.float32))
+        points, goal, centres = u.link_points(), u.goal, u.obstacles
+        starts, seg = points[:-1, None, :], (points[1:] - points[:-1])[:, None, :]
+        t = np.clip(np.sum((centres[None] - starts) * seg, axis=-1) / np.sum(seg * seg, axis=-1), 0.0, 1.0)
+        vectors = centres[None] - (starts + t[..., None] * seg)  # (link, obstacle, 2)
+        closest = np.linalg.norm(vectors, axis=-1).argmin(axis=1)
+        vector = vectors[np.arange(u.n_joints), closest]
+        clearance = np.linalg.norm(vector, axis=-1) - u.obstacle_radius
+        clipped = np.clip(clearance, 0.0, u.sensor_range)
+        touching = clearance <= 0.0
+        distance = np.linalg.norm(goal - points[-1])
+        np.testing.assert_allclose(obs[layout["joint_positions"]], points[1:].ravel(), atol=1e-6)
+        np.testing.assert_allclose(obs[layout["ee_to_goal"]], (goal - points[-1]) / 2, atol=1e-6)
+        np.testing.assert_allclose(obs[layout["joint_obstacle_vectors"]], vector.ravel() / 2, atol=1e-6)
+        np.testing.assert_allclose(
+            obs[layout["joint_obstacle_distances"]], clipped / u.sensor_range, atol=1e-6
+        )
+        np.testing.assert_array_equal(obs[layout["obstacle_touched"]], touching.astype(np.float32))
+        assert obs[layout["goal_touched"]][0] == float(distance <= u.touch_radius)
+        goal_term = np.clip(-distance + float(distance <= u.touch_radius), *u.reward_bounds["goal"])
+        avoid_term = u.r_bf * clipped.sum() - float(touching.any())
+        assert info["reward_terms"]["goal"] == pytest.approx(goal_term, abs=1e-9)
+        assert info["reward_terms"]["avoid"] == pytest.approx(avoid_term, abs=1e-9)
+        normalised = u.normalise_terms(info["reward_terms"])
+        assert reward == pytest.approx(normalised["goal"] + normalised["avoid"], abs=1e-12)
+        assert info["min_clearance"] == pytest.approx(clearance.min(), abs=1e-9)
+        assert info["distance_to_goal"] == pytest.approx(distance, abs=1e-9)
+        touches += info["goal_touched"]
+        collisions += info["collision"]
+    assert touches > 5 and collisions > 5, (touches, collisions)
+
+
 @pytest.mark.parametrize("policy", ["random", "bang-bang"])
 def test_reward_terms_stay_within_bounds_over_long_rollouts(policy):
     env = gym.make("hddpg/SnakeReach-v0", max_episode_steps=2000)

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
 import pymunk
 from gymnasium import spaces
+from pymunk._chipmunk_cffi import lib as _chipmunk
 
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 
@@ -16,6 +18,14 @@ from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 REWARD_CHOICES = ("goal", "avoid", "reach")
 #: The reward terms computed every step (Table 2 of the paper).
 REWARD_TERMS = ("goal", "avoid")
+
+# The step calls Chipmunk through pymunk's cffi module directly, with the raw pointers pymunk keeps on
+# its objects (``Body._body``, ``SimpleMotor._constraint``, ``Space._space``): the same C functions that
+# pymunk's properties and ``Space.step`` call, without their Python wrapper layers (setting a motor rate
+# through the property costs ~5 times more than the C call). See docs/PERFORMANCE.md.
+_body_angle = _chipmunk.cpBodyGetAngle
+_set_motor_rate = _chipmunk.cpSimpleMotorSetRate
+_space_step = _chipmunk.cpSpaceStep
 
 
 class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -30,15 +40,16 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     Lengths are in units of the arm's reach: every link is ``1 / n_joints`` long, so the stretched arm
     reaches exactly 1.
 
-    The arm is simulated by pymunk: every link is a dynamic body with a segment shape (each 0.6 times as
-    heavy as its parent), joined to its
+    The arm is simulated by pymunk: every link is a dynamic body with the mass and moment of a thin rod
+    (each 0.6 times as heavy as its parent), joined to its
     parent (the static base for link 0) by a ``PivotJoint`` and driven by a ``SimpleMotor`` whose rate is the
     commanded joint velocity. A soft limit keeps every joint but the base within
     ``±joint_limit`` radians: the commanded rate is reduced so that the joint stops at its limit within
     the step, as a servo controller would (a pymunk ``RotaryLimitJoint`` fighting a motor made the chain
-    unstable). **Self-collision** is not simulated: links share one pymunk
-    ``ShapeFilter`` group so they pass through each other, and the joint limits keep the chain from folding
-    back onto itself. **Obstacles** are kinematic discs, not pymunk bodies: like the paper's robot with a
+    unstable). **Self-collision** is not simulated: the links have no pymunk collision shapes (nothing in
+    the space could collide with them, and pymunk's collision detection would cost a quarter of the
+    physics time), so they pass through each other, and the joint limits keep the chain from folding back
+    onto itself. **Obstacles** are kinematic discs, not pymunk bodies: like the paper's robot with a
     sensitive skin, the arm is not pushed by an obstacle but *touches* it, which the avoid reward penalises.
     The goal and the obstacles move by a bounded random walk of their velocity (speed capped at
     ``goal_speed`` / ``obstacle_speed`` reach per second), reflected at the edge of their region.
@@ -234,12 +245,34 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._walk_limits = [(self.goal_speed, self.goal_radius_min, self.goal_radius_max)] + [
             (self.obstacle_speed, self.obstacle_radius_min, self.obstacle_radius_max)
         ] * self.n_obstacles
+        # Constants of the step, precomputed once.
+        self._substep_dt = self.dt / self.substeps
+        self._inv_dt = 1.0 / self.dt
+        # Joints with |relative angle| below this cannot reach their limit within a step, whatever the
+        # command (with a margin far above rounding errors); negative if any joint can.
+        reach_per_step = self.max_joint_speed * self.dt
+        self._free_joint_range = (
+            self.joint_limit - reach_per_step - 1e-9 * (self.joint_limit + reach_per_step)
+        )
+        self._inv_sensor_range = 1.0 / self.sensor_range
+        self._reach = reward == "reach"
+        self._reach_normalisation = (
+            self._term_offset["goal"],
+            self._term_scale["goal"],
+            self._term_offset["avoid"],
+            self._term_scale["avoid"],
+        )
+        self._obs_size = obs_size
+        self._pack_obs = struct.Struct(f"={obs_size}f").pack
+        self._obs_offsets = (self.state_layout["ee_to_goal"].start, self.state_layout["goal_touched"].start)
+        self._goal_bounds = self.reward_bounds["goal"]
         self._build_space()
         # The links' absolute angles as last read from the physics (the soft joint limits need them).
         self._angles = [0.0] * self.n_joints
         # Positions and velocities of the goal (index 0) and the obstacles, as plain lists (see _walk_movers).
         self._movers: list[list[float]] = [[0.0, 0.0] for _ in range(1 + self.n_obstacles)]
         self._velocities: list[list[float]] = [[0.0, 0.0] for _ in range(1 + self.n_obstacles)]
+        self._link_walkers()
         self._noise: list[Any] = []
         self._noise_index = 0
         self._ever_touched = False
@@ -258,23 +291,39 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         masses = [0.6**i for i in range(self.n_joints)]
         self.links: list[pymunk.Body] = []
         self.motors: list[pymunk.SimpleMotor] = []
-        no_self_collision = pymunk.ShapeFilter(group=1)
         parent: pymunk.Body = self.space.static_body
         for i in range(self.n_joints):
             moment = pymunk.moment_for_segment(masses[i], (0, 0), (self.link_length, 0), 0.01)
             body = pymunk.Body(masses[i], moment)
-            shape = pymunk.Segment(body, (0, 0), (self.link_length, 0), 0.01)
-            shape.filter = no_self_collision
             # The base pivot sits at the static body's origin; the others at the parent link's far end.
             anchor = (0.0, 0.0) if i == 0 else (self.link_length, 0.0)
             pivot = pymunk.PivotJoint(parent, body, anchor, (0.0, 0.0))
             motor = pymunk.SimpleMotor(parent, body, 0.0)
             # Strong enough to hold the commanded rate against the chain's inertia within a substep.
             motor.max_force = 50.0
-            self.space.add(body, shape, pivot, motor)
+            self.space.add(body, pivot, motor)
             self.links.append(body)
             self.motors.append(motor)
             parent = body
+        # Raw Chipmunk pointers for the step (see the module's note above _body_angle); the pymunk objects
+        # in space, links and motors own them and keep them alive.
+        self._space_handle = self.space._space
+        self._link_handles = [body._body for body in self.links]
+        self._motor_handles = [motor._constraint for motor in self.motors]
+        # Per link: its index, body pointer, and where its values go in the observation (end point x,
+        # obstacle vector x, obstacle distance, touch flag; y follows x).
+        layout = self.state_layout
+        self._link_slots = [
+            (
+                i,
+                handle,
+                layout["joint_positions"].start + 2 * i,
+                layout["joint_obstacle_vectors"].start + 2 * i,
+                layout["joint_obstacle_distances"].start + i,
+                layout["obstacle_touched"].start + i,
+            )
+            for i, handle in enumerate(self._link_handles)
+        ]
 
     def _place_arm(self, joint_angles: np.ndarray) -> None:
         """Put the chain at the given relative joint angles, at rest."""
@@ -345,123 +394,177 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         angle = self.np_random.uniform(-math.pi, math.pi)
         return [radius * math.cos(angle), radius * math.sin(angle)]
 
+    def _link_walkers(self) -> None:
+        """
+        Gather, for the random walks, the position, velocity, limits and noise offset of every mover that
+        moves; call whenever ``_movers`` or ``_velocities`` are replaced.
+        """
+        self._walkers = [
+            (pos, vel, top, r_min, r_max, 2 * k)
+            for k, (pos, vel, (top, r_min, r_max)) in enumerate(
+                zip(self._movers, self._velocities, self._walk_limits)
+            )
+            if top != 0.0
+        ]
+
     def _walk_movers(self) -> None:
         """
         Advance the goal's and the obstacles' bounded random walks: jitter the velocity, cap the speed,
         move, and reflect the velocity's radial part at the edge of the mover's annulus.
         """
-        if self._noise_index >= len(self._noise):
-            # Normal noise drawn in blocks: one generator call per 256 steps instead of one per step.
-            self._noise = self.np_random.normal(0.0, 0.3, size=(256, 1 + self.n_obstacles, 2)).tolist()
-            self._noise_index = 0
-        noise = self._noise[self._noise_index]
-        self._noise_index += 1
+        noise = self._noise
+        k = self._noise_index
+        per_step = 2 * len(self._movers)  # noise values per step: (x, y) per mover, moving or not
+        if k >= len(noise):
+            # Normal noise drawn in blocks of 256 steps, (x, y) per mover per step, as one flat list: one
+            # generator call and one (cheap, flat) tolist per block instead of a generator call per step.
+            noise = self._noise = self.np_random.normal(0.0, 0.3, size=256 * per_step).tolist()
+            k = 0
+        self._noise_index = k + per_step
         dt = self.dt
-        for k, (pos, vel) in enumerate(zip(self._movers, self._velocities)):
-            top, r_min, r_max = self._walk_limits[k]
-            if top == 0.0:
-                continue
-            vx = vel[0] + noise[k][0] * top
-            vy = vel[1] + noise[k][1] * top
-            speed = math.hypot(vx, vy)
+        hypot = math.hypot
+        for pos, vel, top, r_min, r_max, offset in self._walkers:
+            i = k + offset
+            vx = vel[0] + noise[i] * top
+            vy = vel[1] + noise[i + 1] * top
+            speed = hypot(vx, vy)
             if speed > top:
                 vx, vy = vx * top / speed, vy * top / speed
-            x, y = pos[0] + vx * dt, pos[1] + vy * dt
-            radius = math.hypot(x, y)
+            x = pos[0] + vx * dt
+            y = pos[1] + vy * dt
+            radius = hypot(x, y)
             if radius > r_max or radius < r_min:
                 ux, uy = x / max(radius, 1e-12), y / max(radius, 1e-12)
                 radial = vx * ux + vy * uy
                 vx, vy = vx - 2.0 * radial * ux, vy - 2.0 * radial * uy
                 radius = min(max(radius, r_min), r_max)
                 x, y = ux * radius, uy * radius
-            pos[0], pos[1], vel[0], vel[1] = x, y, vx, vy
+            pos[0] = x
+            pos[1] = y
+            vel[0] = vx
+            vel[1] = vy
 
     # ------------------------------------------------------------------ geometry
-    def _measure(self) -> dict[str, Any]:
-        """Everything the observation, rewards and info need, from the current physics state."""
-        xs, ys = self._chain_points()
-        gx, gy = self._movers[0]
-        dgx, dgy = gx - xs[-1], gy - ys[-1]
-        goal_distance = math.hypot(dgx, dgy)
+    def _step_result(self) -> tuple[np.ndarray, float, dict[str, Any]]:
+        """
+        Read the physics and compute the observation, the reward and the info in one pass. Also stores
+        the links' absolute angles in ``_angles`` and updates the episode's touched / collided flags.
+        """
+        # The chain by forward kinematics from the simulated link angles: the points are exactly one link
+        # length apart (the pivot solver's slack, see joint_gaps, never reaches the observation), so the
+        # observation bounds hold without clipping. Plain Python on purpose: for a handful of points and
+        # obstacles, scalar math is several times faster than numpy's per-call overhead.
+        length = self.link_length
+        radius = self.obstacle_radius
+        sensor_range = self.sensor_range
+        inv_range = self._inv_sensor_range
+        cos, sin, sqrt, inf = math.cos, math.sin, math.sqrt, math.inf
+        angles = self._angles
         obstacles = self._movers[1:]
-        vectors: list[float] = []
-        clearances: list[float] = []
-        # For every link, the obstacle whose centre is closest to the link segment.
-        for i in range(self.n_joints):
-            ax, ay = xs[i], ys[i]
-            sx, sy = xs[i + 1] - ax, ys[i + 1] - ay
+        # The observation, filled in place; see the class docstring for the layout.
+        obs = [0.0] * self._obs_size
+        to_goal, goal_flag = self._obs_offsets
+        clipped_sum = 0.0
+        min_clearance = inf
+        collision = False
+        ax = ay = 0.0
+        for i, handle, j, vector, distance, touch_flag in self._link_slots:
+            angle = angles[i] = _body_angle(handle)
+            bx = ax + length * cos(angle)
+            by = ay + length * sin(angle)
+            obs[j] = bx
+            obs[j + 1] = by
+            # The obstacle whose centre is closest to the link segment from (ax, ay) to (bx, by).
+            sx = bx - ax
+            sy = by - ay
             inv_len2 = 1.0 / (sx * sx + sy * sy)
-            best = math.inf
-            best_vx = best_vy = 0.0
+            best = inf  # the first obstacle always improves on it (there is at least one)
             for ox, oy in obstacles:
-                t = ((ox - ax) * sx + (oy - ay) * sy) * inv_len2
-                t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
-                vx, vy = ox - ax - t * sx, oy - ay - t * sy
+                # (vx, vy): from the segment's closest point to the obstacle centre.
+                vx = ox - ax
+                vy = oy - ay
+                dot = vx * sx + vy * sy
+                if dot > 0.0:  # beyond the link's start (else the start is the closest point)
+                    t = dot * inv_len2
+                    if t < 1.0:
+                        vx -= t * sx
+                        vy -= t * sy
+                    else:
+                        vx -= sx
+                        vy -= sy
                 d = vx * vx + vy * vy
                 if d < best:
-                    best, best_vx, best_vy = d, vx, vy
-            vectors += (best_vx, best_vy)
-            clearances.append(math.sqrt(best) - self.obstacle_radius)
-        return {
-            "ends": [c for pair in zip(xs[1:], ys[1:]) for c in pair],
-            "to_goal": (dgx, dgy),
-            "goal_distance": goal_distance,
-            "obstacle_vectors": vectors,
-            "clearance": clearances,
-            "touching": [c <= 0.0 for c in clearances],
-            "goal_touched": goal_distance <= self.touch_radius,
-        }
-
-    def _observation(self, m: dict[str, Any], clipped: list[float]) -> np.ndarray:
-        inv_range = 1.0 / self.sensor_range
-        obs = np.array(
-            [
-                *m["ends"],
-                0.5 * m["to_goal"][0],
-                0.5 * m["to_goal"][1],
-                *(0.5 * v for v in m["obstacle_vectors"]),
-                *(c * inv_range for c in clipped),
-                1.0 if m["goal_touched"] else 0.0,
-                *(1.0 if t else 0.0 for t in m["touching"]),
-            ],
-            dtype=np.float32,
-        )
-        return obs
-
-    def _reward_terms(self, m: dict[str, Any], clipped: list[float]) -> dict[str, float]:
-        goal_low, goal_high = self.reward_bounds["goal"]
-        goal = -m["goal_distance"] + (1.0 if m["goal_touched"] else 0.0)
+                    best = d
+                    best_vx = vx
+                    best_vy = vy
+            obs[vector] = 0.5 * best_vx
+            obs[vector + 1] = 0.5 * best_vy
+            clearance = sqrt(best) - radius
+            if clearance < min_clearance:
+                min_clearance = clearance
+            if clearance <= 0.0:  # touching: the distance stays 0
+                obs[touch_flag] = 1.0
+                collision = True
+            else:
+                clipped = sensor_range if clearance > sensor_range else clearance
+                clipped_sum += clipped
+                obs[distance] = clipped * inv_range
+            ax = bx
+            ay = by
+        gx, gy = self._movers[0]
+        dgx = gx - ax
+        dgy = gy - ay
+        obs[to_goal] = 0.5 * dgx
+        obs[to_goal + 1] = 0.5 * dgy
+        goal_distance = math.hypot(dgx, dgy)
+        goal_touched = goal_distance <= self.touch_radius
+        if goal_touched:
+            obs[goal_flag] = 1.0
+            goal = 1.0 - goal_distance
+        else:
+            goal = -goal_distance
         # Clip to the documented bounds: physics slack can put the tip a hair beyond reach.
-        goal = min(max(goal, goal_low), goal_high)
-        avoid = self.r_bf * sum(clipped) - (1.0 if any(m["touching"]) else 0.0)
-        return {"goal": goal, "avoid": avoid}
+        goal_low, goal_high = self._goal_bounds
+        if goal < goal_low:
+            goal = goal_low
+        elif goal > goal_high:
+            goal = goal_high
+        avoid = self.r_bf * clipped_sum
+        if collision:
+            avoid -= 1.0
+
+        ever_touched = self._ever_touched = self._ever_touched or goal_touched
+        ever_collided = self._ever_collided = self._ever_collided or collision
+        if self._reach:  # the sum of both terms, each normalised as by normalise_terms
+            goal_offset, goal_scale, avoid_offset, avoid_scale = self._reach_normalisation
+            reward = (goal - goal_offset) * goal_scale + (avoid - avoid_offset) * avoid_scale
+        else:
+            reward = goal if self.reward_name == "goal" else avoid
+        info = {
+            "reward_terms": {"goal": goal, "avoid": avoid},
+            "goal_touched": goal_touched,
+            "collision": collision,
+            "min_clearance": min_clearance,
+            "distance_to_goal": goal_distance,
+            "is_success": ever_touched and not ever_collided,
+        }
+        # struct packs the Python floats to float32 in one C loop: cheaper than numpy converting a list.
+        return np.frombuffer(self._pack_obs(*obs), np.float32).copy(), reward, info
+
+    def _measure(self) -> dict[str, Any]:
+        """The current state's touch flags and distances (for rendering and inspection, not the step)."""
+        obs, _, info = self._step_result()  # the episode flags it updates are unchanged by a second call
+        return {
+            "goal_touched": info["goal_touched"],
+            "touching": (obs[self.state_layout["obstacle_touched"]] == 1.0).tolist(),
+            "collision": info["collision"],
+            "min_clearance": info["min_clearance"],
+            "goal_distance": info["distance_to_goal"],
+        }
 
     def normalise_terms(self, terms: dict[str, float]) -> dict[str, float]:
         """Min-max normalise reward terms to [0, 1] with the fixed :attr:`reward_bounds`."""
         return {k: (v - self._term_offset[k]) * self._term_scale[k] for k, v in terms.items()}
-
-    def _step_result(self) -> tuple[np.ndarray, float, dict[str, Any]]:
-        m = self._measure()
-        sensor_range = self.sensor_range
-        clipped = [0.0 if c < 0.0 else (sensor_range if c > sensor_range else c) for c in m["clearance"]]
-        terms = self._reward_terms(m, clipped)
-        collision = any(m["touching"])
-        self._ever_touched = self._ever_touched or m["goal_touched"]
-        self._ever_collided = self._ever_collided or collision
-        if self.reward_name == "reach":
-            normalised = self.normalise_terms(terms)
-            reward = normalised["goal"] + normalised["avoid"]
-        else:
-            reward = terms[self.reward_name]
-        info = {
-            "reward_terms": terms,
-            "goal_touched": m["goal_touched"],
-            "collision": collision,
-            "min_clearance": min(m["clearance"]),
-            "distance_to_goal": m["goal_distance"],
-            "is_success": self._ever_touched and not self._ever_collided,
-        }
-        return self._observation(m, clipped), float(reward), info
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(
@@ -486,6 +589,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                     break
             self._movers.append(candidate)
         self._velocities = [[0.0, 0.0] for _ in self._movers]
+        self._link_walkers()
         self._noise = []
         self._noise_index = 0
         self._ever_touched = False
@@ -510,22 +614,38 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"Expected an action of shape ({self.n_joints},), actually: {np.shape(action)}")
         top = self.max_joint_speed
         limit = self.joint_limit
-        inv_dt = 1.0 / self.dt
+        inv_dt = self._inv_dt
+        free = self._free_joint_range
+        # One check for all: a NaN or an infinity makes the sum non-finite (the sum of finite values can
+        # only overflow for absurdly large commands, so check them one by one then).
+        if not -math.inf < sum(commands) < math.inf and not all(-math.inf < c < math.inf for c in commands):
+            raise ValueError(f"Expected a finite action, actually: {commands}")
+        set_motor_rate = _set_motor_rate
         previous = 0.0
-        for i, (motor, command, absolute) in enumerate(zip(self.motors, commands, self._angles)):
-            if not -math.inf < command < math.inf:
-                raise ValueError(f"Expected a finite action, actually: {commands}")
+        first = True
+        # _angles holds the links' absolute angles as read at the end of the previous step (or reset).
+        for handle, command, absolute in zip(self._motor_handles, commands, self._angles):
             rate = top * (-1.0 if command < -1.0 else (1.0 if command > 1.0 else command))
-            if i > 0:
+            if first:
+                first = False
+            else:
                 # Soft joint limit, as a servo controller would do it: slow the joint so that it stops at
-                # the limit within this step instead of pushing into it.
+                # the limit within this step instead of pushing into it. Only a joint within one step at
+                # top speed of its limit can need it.
                 relative = absolute - previous
-                rate = min(max(rate, (-limit - relative) * inv_dt), (limit - relative) * inv_dt)
+                if not -free < relative < free:
+                    low = (-limit - relative) * inv_dt
+                    if rate < low:
+                        rate = low
+                    high = (limit - relative) * inv_dt
+                    if rate > high:
+                        rate = high
             previous = absolute
-            motor.rate = -rate  # pymunk's motor rate is clockwise-positive, our commands counter-clockwise
-        h = self.dt / self.substeps
+            # pymunk's motor rate is clockwise-positive, our commands counter-clockwise.
+            set_motor_rate(handle, -rate)
+        space, h = self._space_handle, self._substep_dt
         for _ in range(self.substeps):
-            self.space.step(h)
+            _space_step(space, h)
         self._walk_movers()
         obs, reward, info = self._step_result()
         if self.render_mode == "human":
@@ -535,7 +655,19 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     def __getstate__(self) -> dict[str, Any]:
         # pymunk pickles a space with copies of its bodies, which would leave ``links`` and ``motors``
         # pointing at bodies outside the simulation: pickle the links' motion state and rebuild instead.
-        state = {k: v for k, v in self.__dict__.items() if k not in ("space", "links", "motors", "_renderer")}
+        unpicklable = (
+            "space",
+            "links",
+            "motors",
+            "_renderer",
+            "_space_handle",
+            "_link_handles",
+            "_motor_handles",
+            "_link_slots",
+            "_pack_obs",
+            "_walkers",
+        )
+        state = {k: v for k, v in self.__dict__.items() if k not in unpicklable}
         state["_link_states"] = [
             (tuple(b.position), b.angle, tuple(b.velocity), b.angular_velocity) for b in self.links
         ]
@@ -547,6 +679,8 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         motor_rates = state.pop("_motor_rates")
         self.__dict__.update(state)
         self._renderer = None
+        self._pack_obs = struct.Struct(f"={self._obs_size}f").pack
+        self._link_walkers()
         self._build_space()
         for body, (position, angle, velocity, spin) in zip(self.links, link_states):
             body.position, body.angle, body.velocity, body.angular_velocity = position, angle, velocity, spin
