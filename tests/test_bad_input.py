@@ -154,7 +154,7 @@ CASES = [
         "tm-workers-for-another-env",
         ("train-manager", "--workers", "{w4}", "--config", "{tiny}", "--out", "{tmp}/o"),
         2,
-        "(23,)",
+        "(27,)",
     ),
     case(
         "tm-config-unknown-key",
