@@ -766,7 +766,8 @@ def train_manager(
         timesteps=timesteps,
         seed=seed,
         n_envs=n_envs,
-        resume=resume,
+        # Killed before its first checkpoint, a run has nothing to resume: start afresh, as train_workers does.
+        resume=resume and read_checkpoint_state(paths.checkpoint_dir) is not None,
         stop_on_plateau=stop_on_plateau,
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,

@@ -47,7 +47,9 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as error:  # the one place that turns any failure into a clean line
         if debug:
             raise
-        console_error(str(error) or type(error).__name__)
+        # Our own errors are sentences; anything else (KeyError('x'), ...) needs its type to make sense.
+        own = isinstance(error, (ValueError, OSError, RuntimeError)) and str(error)
+        console_error(str(error) if own else f"{type(error).__name__}: {error}")
         sys.exit(1)
     sys.exit(code if isinstance(code, int) else 0)
 
