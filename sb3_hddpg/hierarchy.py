@@ -19,6 +19,7 @@ import hashlib
 import io
 import json
 import zipfile
+import zlib
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -283,7 +284,10 @@ class Hierarchy:
                 k: v for k, v in entry.items() if k not in ("file", "sha256", "spec", "kind")
             }
         manager_entry = manifest["manager"]
-        selection = SelectionConfig(**manifest["selection"])
+        try:
+            selection = SelectionConfig(**manifest["selection"])
+        except (KeyError, TypeError) as error:
+            raise BundleError(f"{name}: invalid selection settings in {MANIFEST}: {error}") from None
         return cls(
             model(manager_entry),
             workers,
@@ -314,8 +318,10 @@ def read_bundle(path: str | Path | io.BytesIO) -> tuple[dict[str, Any], dict[str
         raise BundleError(f"No such file: {name!r}") from None
     except IsADirectoryError:
         raise BundleError(f"Expected a bundle file, got a folder: {name!r}") from None
-    except (zipfile.BadZipFile, EOFError, zipfile.LargeZipFile):
-        raise BundleError(f"Not a zip file, or a truncated one: {name!r}") from None
+    except (zipfile.BadZipFile, EOFError, zipfile.LargeZipFile, zlib.error, NotImplementedError):
+        raise BundleError(f"Not a zip file, or a truncated or corrupted one: {name!r}") from None
+    except OSError as error:  # permission denied, I/O error
+        raise BundleError(f"Cannot read {name!r}: {error.strerror or error}") from None
     except (json.JSONDecodeError, UnicodeDecodeError):
         raise BundleError(f"{name}: {MANIFEST} is not valid JSON") from None
     if not isinstance(manifest, dict) or manifest.get("kind") != "sb3-hddpg-hierarchy":
@@ -325,7 +331,16 @@ def read_bundle(path: str | Path | io.BytesIO) -> tuple[dict[str, Any], dict[str
         raise BundleError(
             f"{name}: unsupported bundle schema version {version!r} (this library reads <= {SCHEMA_VERSION})"
         )
-    entries = [("manager", manifest["manager"]), *list(manifest["workers"].items())]
+    try:
+        entries = [("manager", manifest["manager"]), *list(manifest["workers"].items())]
+        well_formed = isinstance(manifest["worker_names"], list) and all(
+            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
+            for _, e in entries
+        )
+    except (KeyError, TypeError, AttributeError):
+        well_formed = False
+    if not well_formed:
+        raise BundleError(f"{name}: {MANIFEST} lacks the manager, the workers, or a member's file and sha256")
     if manifest["worker_names"] != list(manifest["workers"]):
         raise BundleError(
             f"{name}: worker_names {manifest['worker_names']} do not match workers {list(manifest['workers'])}"

@@ -46,10 +46,27 @@ class LoadedPolicy:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def make_env(self, env_id: str | None = None, **kwargs: Any) -> gym.Env:
-        """The env to run this policy in (``env_id`` overrides the trained-on id)."""
+        """
+        The env to run this policy in (``env_id`` overrides the trained-on id), checked to fit the policy.
+
+        :param env_id: the env id (default: the one the policy was trained on).
+        :param kwargs: env keyword arguments over the trained-on ones.
+        :return: the env; raises ``ValueError`` if its spaces are not the policy's.
+        """
         import sb3_hddpg  # noqa: F401  (registers the ids)
 
-        return gym.make(env_id or self.env_id, **{**self.env_kwargs, **kwargs})
+        env_id = env_id or self.env_id
+        env = gym.make(env_id, **{**self.env_kwargs, **kwargs})
+        for kind in ("observation", "action"):
+            expected = getattr(self.policy, f"{kind}_space", None)
+            actual = getattr(env, f"{kind}_space")
+            if expected is not None and getattr(expected, "shape", None) != actual.shape:
+                env.close()
+                raise ValueError(
+                    f"{self.kind} {self.name!r} expects {kind}s of shape {expected.shape}, but {env_id} with "
+                    f"env_kwargs {self.env_kwargs | kwargs} has {actual.shape}"
+                )
+        return env
 
 
 def load_policy(
@@ -71,6 +88,8 @@ def load_policy(
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"No such file: {text!r}")
+    if not path.is_dir() and not path.is_file():
+        raise ValueError(f"Expected a model file, got something else (a device or pipe?): {text!r}")
     if path.is_dir():
         for candidate in ("hierarchy.zip", "ham.json"):
             if (path / candidate).exists():
@@ -86,8 +105,8 @@ def load_policy(
             members = set(archive.namelist())
     except (zipfile.BadZipFile, EOFError):
         raise ValueError(f"Not a zip file, or a truncated one: {text!r}") from None
-    except PermissionError:
-        raise ValueError(f"Cannot read {text!r}: permission denied") from None
+    except OSError as error:  # permission denied, I/O error
+        raise ValueError(f"Cannot read {text!r}: {error.strerror or error}") from None
     if "manifest.json" in members and "policy.pth" not in members:
         from sb3_hddpg.hierarchy import Hierarchy
 
@@ -124,11 +143,18 @@ def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
         return None, ""
     try:
         manifest = json.loads(manifest_path.read_text())
-    except json.JSONDecodeError:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         raise ValueError(f"Invalid JSON in {str(manifest_path)!r}") from None
+    if not isinstance(manifest, dict):
+        raise ValueError(f"Not an sb3-hddpg manifest: {str(manifest_path)!r}")
     for key, kind in (("workers", "worker"), ("models", "flat")):
-        for entry in (manifest.get(key) or {}).values():
-            if entry.get("file") == path.name:
+        entries = manifest.get(key) or {}
+        if not isinstance(entries, dict):
+            raise ValueError(f"Not an sb3-hddpg manifest: {str(manifest_path)!r} ({key!r} is not a mapping)")
+        for entry in entries.values():
+            if isinstance(entry, dict) and entry.get("file") == path.name:
+                if not isinstance(entry.get("sha256"), str):
+                    raise ValueError(f"{str(manifest_path)!r} has no sha256 for {path.name!r}")
                 return entry, kind
     return None, ""
 

@@ -32,7 +32,8 @@ from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_che
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.config import Hyperparams
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.io import atomic_write, atomic_write_json
+from sb3_hddpg.io import atomic_write, atomic_write_json, remove_stale_temporaries
+from sb3_hddpg.workers import WORKER_ENV_IDS
 
 
 def _algos() -> dict[str, type[BaseAlgorithm]]:
@@ -43,9 +44,6 @@ def _algos() -> dict[str, type[BaseAlgorithm]]:
 
 #: Algorithm names accepted by ``--algo``.
 ALGO_NAMES = ("ddpg", "td3", "sac", "tqc")
-
-#: Worker name -> the registered env id whose reward it learns.
-WORKER_ENV_IDS = {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}
 
 
 def algo_class(name: str) -> type[BaseAlgorithm]:
@@ -217,7 +215,15 @@ def train_agent(
     total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
     if total < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {total}")
+    if checkpoint_freq < 0:
+        raise ValueError(f"Expected checkpoint_freq >= 0, actually: {checkpoint_freq}")
     n_envs = int(n_envs or hyperparams.n_envs)
+    # A run killed mid-write (SIGKILL, power cut) leaves hidden temporaries; they never hold anything we
+    # read, so clear this agent's before they pile up (a replay buffer's can be large).
+    remove_stale_temporaries(paths.checkpoint_dir)
+    remove_stale_temporaries(paths.best_dir)
+    remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
+    remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
     torch.set_num_threads(threads)
     cls = algo_class(algo)
 
@@ -347,6 +353,30 @@ def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
 WORKER_MANIFEST_VERSION = 1
 
 
+def worker_hyperparams(workers: Sequence[str], config: str | Path | None = None) -> dict[str, Hyperparams]:
+    """
+    Check worker names and read each worker's config block, before anything is trained: a bad block for
+    the second worker should not surface after the first one has trained for an hour.
+
+    :param workers: worker names among :data:`WORKER_ENV_IDS`, each at most once.
+    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
+    """
+    from sb3_hddpg.config import load_hyperparams
+
+    if isinstance(workers, str):
+        raise ValueError(f"Expected a sequence of worker names, actually the string {workers!r}")
+    if not workers:
+        raise ValueError(f"Expected at least one worker; choose from {sorted(WORKER_ENV_IDS)}")
+    unknown = [w for w in workers if w not in WORKER_ENV_IDS]
+    if unknown:
+        raise ValueError(f"Unknown worker names {unknown}; choose from {sorted(WORKER_ENV_IDS)}")
+    duplicates = sorted({w for w in workers if list(workers).count(w) > 1})
+    if duplicates:
+        raise ValueError(f"Duplicate worker names {duplicates} in {list(workers)}: name each worker once")
+    return {name: load_hyperparams(WORKER_ENV_IDS[name], DDPG, config) for name in workers}
+
+
 def train_workers(
     out_dir: str | Path,
     workers: Sequence[str] = ("goal", "avoid"),
@@ -358,6 +388,7 @@ def train_workers(
     stop_on_plateau: bool = False,
     eval_freq: int = 5000,
     eval_episodes: int = 5,
+    checkpoint_freq: int = 10_000,
     progress_bar: bool = False,
     threads: int = 1,
     on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
@@ -376,30 +407,28 @@ def train_workers(
     :param stop_on_plateau: stop a worker when its evaluation stops improving.
     :param eval_freq: steps between evaluations.
     :param eval_episodes: episodes per evaluation.
+    :param checkpoint_freq: steps between resumable checkpoints (0: only when interrupted and at the end).
     :param progress_bar: show a progress bar per worker.
     :param threads: torch threads.
     :param on_worker_done: called after each worker with its outcome.
     :return: the manifest written.
     """
-    from sb3_hddpg.config import load_hyperparams
     from sb3_hddpg.envs import SnakeArmEnv
     from sb3_hddpg.safe_load import model_spec
 
-    unknown = [w for w in workers if w not in WORKER_ENV_IDS]
-    if unknown:
-        raise ValueError(f"Unknown worker names {unknown}; choose from {sorted(WORKER_ENV_IDS)}")
-    if len(set(workers)) != len(workers):
-        raise ValueError(f"Duplicate worker names: {list(workers)}")
+    if timesteps is not None and timesteps < 1:
+        raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
+    if seed < 0:
+        raise ValueError(f"Expected seed >= 0, actually: {seed}")
+    blocks = worker_hyperparams(workers, config)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest: dict[str, Any] = {"schema_version": WORKER_MANIFEST_VERSION, "workers": {}}
     if resume and manifest_path.exists():
-        import json
-
-        manifest = json.loads(manifest_path.read_text())
+        manifest = read_workers_manifest(manifest_path)
     for name in workers:
         env_id = WORKER_ENV_IDS[name]
-        hyperparams = load_hyperparams(env_id, DDPG, config)
+        hyperparams = blocks[name]
         budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
         done = manifest["workers"].get(name)
         if resume and done is not None and done.get("timesteps_requested") == budget:
@@ -417,6 +446,7 @@ def train_workers(
             stop_on_plateau=stop_on_plateau,
             eval_freq=eval_freq,
             eval_episodes=eval_episodes,
+            checkpoint_freq=checkpoint_freq,
             progress_bar=progress_bar,
             threads=threads,
         )
@@ -449,6 +479,30 @@ def train_workers(
     return manifest
 
 
+def read_workers_manifest(path: str | Path) -> dict[str, Any]:
+    """
+    Read and shape-check a ``workers/manifest.json``: every entry names its file and sha256.
+
+    :param path: the manifest.
+    :return: the manifest; raises ``ValueError`` naming the file if it is not a valid one.
+    """
+    import json
+
+    path = Path(path)
+    try:
+        manifest = json.loads(path.read_text())
+        entries = manifest["workers"]
+        valid = isinstance(entries, dict) and all(
+            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
+            for e in entries.values()
+        )
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
+        valid = False
+    if not valid:
+        raise ValueError(f"Not a valid workers manifest: {str(path)!r}")
+    return manifest
+
+
 def load_workers(
     workers_dir: str | Path, names: Sequence[str] | None = None, trusted: bool = False
 ) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -460,11 +514,15 @@ def load_workers(
     :param trusted: use SB3's full loader instead of the weights-only rebuild.
     :return: name -> model, and the manifest.
     """
-    import json
-
     from sb3_hddpg.safe_load import load_model
 
     folder = Path(workers_dir)
+    if not folder.exists():
+        raise FileNotFoundError(f"No such folder: {str(workers_dir)!r}")
+    if not folder.is_dir():
+        raise NotADirectoryError(
+            f"Expected a folder of workers (from train-workers), got a file: {str(workers_dir)!r}"
+        )
     if (folder / "workers" / "manifest.json").exists():
         folder = folder / "workers"
     manifest_path = folder / "manifest.json"
@@ -472,20 +530,25 @@ def load_workers(
         raise FileNotFoundError(
             f"No workers manifest in {str(workers_dir)!r} (expected {manifest_path}); run train-workers first"
         )
-    try:
-        manifest = json.loads(manifest_path.read_text())
-        entries = manifest["workers"]
-    except (json.JSONDecodeError, KeyError, TypeError):
-        raise ValueError(f"Not a valid workers manifest: {str(manifest_path)!r}") from None
+    manifest = read_workers_manifest(manifest_path)
+    entries = manifest["workers"]
     names = list(names) if names else list(entries)
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f"Duplicate worker names {duplicates} in {names}: name each worker once")
     unknown = [n for n in names if n not in entries]
     if unknown:
         raise ValueError(f"Unknown workers {unknown} in {str(manifest_path)!r}; it has {list(entries)}")
     models = {}
     for name in names:
         entry = entries[name]
+        if Path(entry["file"]).name != entry["file"]:
+            # A manifest travels with shared files: it may only name files in its own folder.
+            raise ValueError(
+                f"{str(manifest_path)!r}: worker {name!r} names a file outside its folder: {entry['file']!r}"
+            )
         path = folder / entry["file"]
-        if not path.exists():
+        if not path.is_file():
             raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
         actual = sha256_file(path)
         if actual != entry["sha256"]:
@@ -515,6 +578,101 @@ def make_manager_env(
     return WorkerSelectionWrapper(env, workers, **wrapper_kwargs)
 
 
+@dataclass
+class ManagerSetup:
+    """
+    Everything :func:`train_manager` needs before training starts, checked: see :func:`prepare_manager`.
+
+    :param workers: name -> loaded worker, in the manager's action order.
+    :param manifest: the workers' manifest.
+    :param hyperparams: the manager's config block.
+    :param selection: the selection settings, preferences included.
+    :param env_id: the shared env the manager acts in.
+    :param env_kwargs: its keyword arguments (from the manager's config block).
+    """
+
+    workers: dict[str, Any]
+    manifest: dict[str, Any]
+    hyperparams: Hyperparams
+    selection: Any
+    env_id: str
+    env_kwargs: dict[str, Any]
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.workers)
+
+
+def prepare_manager(
+    workers_dir: str | Path,
+    worker_names: Sequence[str] | None = None,
+    prefer: str | None = None,
+    bias: float = 0.15,
+    preferences: dict[str, float] | None = None,
+    selection: str | None = None,
+    option_steps: int | None = None,
+    temperature: float | None = None,
+    floor: float | None = None,
+    config: str | Path | None = None,
+    trusted: bool = False,
+    env_id: str = "hddpg/SnakeReach-v0",
+) -> ManagerSetup:
+    """
+    Load and check everything the manager is trained from, without training: the workers (hashes
+    verified), the config block, the preferences and selection settings, and that every worker fits the
+    manager's env. :func:`train_manager` calls it first; call it yourself to validate arguments early (the
+    CLI does, to report bad input before creating the output folder). Arguments as in :func:`train_manager`.
+
+    :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
+    """
+    from sb3_hddpg.config import MANAGER_KEY, load_hyperparams
+    from sb3_hddpg.hierarchy import SelectionConfig
+    from sb3_hddpg.selection import check_preferences, preferences_from_bias
+    from sb3_hddpg.wrappers import WorkerSelectionWrapper
+
+    if worker_names is not None and isinstance(worker_names, str):
+        raise ValueError(f"Expected a sequence of worker names, actually the string {worker_names!r}")
+    hyperparams = load_hyperparams(MANAGER_KEY, DDPG, config, manager=True)
+    workers, manifest = load_workers(workers_dir, worker_names, trusted=trusted)
+    names = list(workers)
+    wrapper_kwargs = dict(hyperparams.wrapper_kwargs)
+    factors = preferences_from_bias(names, prefer, bias)
+    if preferences:
+        factors = check_preferences(preferences, names)
+    for key, value in (
+        ("selection", selection),
+        ("option_steps", option_steps),
+        ("temperature", temperature),
+        ("floor", floor),
+    ):
+        if value is not None:
+            wrapper_kwargs[key] = value
+    wrapper_kwargs["preferences"] = factors
+    try:
+        selection_config = SelectionConfig(**wrapper_kwargs)
+    except TypeError as error:  # an unknown key in the config's wrapper_kwargs
+        raise ValueError(f"Invalid wrapper_kwargs in the manager's config block: {error}") from None
+    env_kwargs = dict(hyperparams.env_kwargs)
+    probe = make_snake_env(env_id, env_kwargs)
+    try:
+        expected = probe.observation_space.shape
+        for name, worker in workers.items():
+            space = getattr(worker, "observation_space", None)
+            if space is not None and space.shape != expected:
+                trained_on = manifest["workers"][name].get("env_kwargs", {})
+                raise ValueError(
+                    f"Worker {name!r} was trained on observations of shape {space.shape} (env_kwargs "
+                    f"{trained_on}), but the manager's env {env_id} with env_kwargs {env_kwargs} gives "
+                    f"{expected}: give the manager's config block the workers' env_kwargs"
+                )
+        # The wrapper's own checks (spaces, reward terms, state names, temperature, floor), run once here
+        # in this process, so that they fail with one clear error rather than inside env subprocesses.
+        WorkerSelectionWrapper(probe, workers, **selection_config.wrapper_kwargs())
+    finally:
+        probe.close()
+    return ManagerSetup(workers, manifest, hyperparams, selection_config, env_id, env_kwargs)
+
+
 def train_manager(
     workers_dir: str | Path,
     out_dir: str | Path,
@@ -534,6 +692,7 @@ def train_manager(
     stop_on_plateau: bool = False,
     eval_freq: int = 5000,
     eval_episodes: int = 5,
+    checkpoint_freq: int = 10_000,
     progress_bar: bool = False,
     threads: int = 1,
     trusted: bool = False,
@@ -559,32 +718,33 @@ def train_manager(
     :param temperature: the simplex map's temperature (default: the config's).
     :param floor: the probability floor (default: the config's).
     :param config: a ``zoo_configs`` file; its ``manager`` block is used.
+    :param checkpoint_freq: steps between resumable checkpoints (0: only when interrupted and at the end).
     :param trusted: load the workers with SB3's full loader.
     :param env_id: the shared env the manager acts in.
     :return: the saved :class:`~sb3_hddpg.hierarchy.Hierarchy` and the training outcome.
     """
-    from sb3_hddpg.config import MANAGER_KEY, load_hyperparams
-    from sb3_hddpg.hierarchy import Hierarchy, SelectionConfig
-    from sb3_hddpg.selection import check_preferences, preferences_from_bias
+    from sb3_hddpg.hierarchy import Hierarchy
 
-    workers, manifest = load_workers(workers_dir, worker_names, trusted=trusted)
-    names = list(workers)
-    hyperparams = load_hyperparams(MANAGER_KEY, DDPG, config, manager=True)
-    wrapper_kwargs = dict(hyperparams.wrapper_kwargs)
-    factors = preferences_from_bias(names, prefer, bias)
-    if preferences:
-        factors = check_preferences(preferences, names)
-    for key, value in (
-        ("selection", selection),
-        ("option_steps", option_steps),
-        ("temperature", temperature),
-        ("floor", floor),
-    ):
-        if value is not None:
-            wrapper_kwargs[key] = value
-    wrapper_kwargs["preferences"] = factors
-    selection_config = SelectionConfig(**wrapper_kwargs)
-    env_kwargs = dict(hyperparams.env_kwargs)
+    if timesteps is not None and timesteps < 1:
+        raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
+    if seed < 0:
+        raise ValueError(f"Expected seed >= 0, actually: {seed}")
+    setup = prepare_manager(
+        workers_dir,
+        worker_names,
+        prefer=prefer,
+        bias=bias,
+        preferences=preferences,
+        selection=selection,
+        option_steps=option_steps,
+        temperature=temperature,
+        floor=floor,
+        config=config,
+        trusted=trusted,
+        env_id=env_id,
+    )
+    workers, manifest, names = setup.workers, setup.manifest, setup.names
+    hyperparams, selection_config, env_kwargs = setup.hyperparams, setup.selection, setup.env_kwargs
     factory = functools.partial(
         make_manager_env,
         env_id,
@@ -606,10 +766,12 @@ def train_manager(
         timesteps=timesteps,
         seed=seed,
         n_envs=n_envs,
-        resume=resume,
+        # Killed before its first checkpoint, a run has nothing to resume: start afresh, as train_workers does.
+        resume=resume and read_checkpoint_state(paths.checkpoint_dir) is not None,
         stop_on_plateau=stop_on_plateau,
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
+        checkpoint_freq=checkpoint_freq,
         progress_bar=progress_bar,
         threads=threads,
         extra_callbacks=[SelectionStatsCallback()],
@@ -618,6 +780,7 @@ def train_manager(
         name: {
             k: manifest["workers"][name][k]
             for k in ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
+            if k in manifest["workers"][name]
         }
         for name in names
     }

@@ -7,6 +7,10 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
+#: Worker name -> the registered env id whose reward it learns (here, not in ``training``, so that the CLI
+#: can list the names without importing torch).
+WORKER_ENV_IDS = {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}
+
 
 @runtime_checkable
 class Policy(Protocol):

@@ -8,7 +8,7 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_hddpg.io import atomic_write, atomic_write_json
+from sb3_hddpg.io import atomic_write, atomic_write_json, remove_stale_temporaries
 
 STATE_FILE = "state.json"
 
@@ -60,6 +60,8 @@ class ResumableCheckpointCallback(BaseCallback):
         for old in self.checkpoint_dir.glob("*"):
             if old.name not in keep and not old.name.startswith("."):
                 old.unlink(missing_ok=True)
+        # Temporaries of a run killed mid-write (this agent is the folder's only writer, so none is live).
+        remove_stale_temporaries(self.checkpoint_dir)
         self._last_saved = steps
         return path
 
@@ -69,9 +71,15 @@ def read_checkpoint_state(checkpoint_dir: str | Path) -> dict[str, Any] | None:
     path = Path(checkpoint_dir) / STATE_FILE
     if not path.exists():
         return None
-    state = json.loads(path.read_text())
-    state["model_path"] = Path(checkpoint_dir) / state["model"]
-    state["replay_buffer_path"] = (
-        Path(checkpoint_dir) / state["replay_buffer"] if state["replay_buffer"] else None
-    )
+    try:
+        state = json.loads(path.read_text())
+        model, buffer = state["model"], state["replay_buffer"]
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+        # state.json is written atomically, so this is damage from outside, not from a kill.
+        raise ValueError(f"Not a valid checkpoint state file: {str(path)!r}") from None
+    state["model_path"] = Path(checkpoint_dir) / model
+    state["replay_buffer_path"] = Path(checkpoint_dir) / buffer if buffer else None
+    for key in ("model_path", "replay_buffer_path"):
+        if state[key] is not None and not state[key].is_file():
+            raise FileNotFoundError(f"Checkpoint {str(path)!r} names a missing file: {str(state[key])!r}")
     return state

@@ -35,7 +35,9 @@ def main(argv: list[str] | None = None) -> None:
         if type(error).__name__ == "NoArgsIsHelpError":  # bare `hddpg-cli`: the help, not an error
             print(error.format_message())
             sys.exit(0)
-        console_error(error.format_message())
+        if debug and error.__cause__ is not None:  # the library's error behind a usage error
+            raise
+        console_error(error.format_message() + _offending_input(error))
         sys.exit(error.exit_code)
     except typer.Exit as error:
         sys.exit(error.exit_code)
@@ -45,9 +47,26 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as error:  # the one place that turns any failure into a clean line
         if debug:
             raise
-        console_error(str(error) or type(error).__name__)
+        # Our own errors are sentences; anything else (KeyError('x'), ...) needs its type to make sense.
+        own = isinstance(error, (ValueError, OSError, RuntimeError)) and str(error)
+        console_error(str(error) if own else f"{type(error).__name__}: {error}")
         sys.exit(1)
     sys.exit(code if isinstance(code, int) else 0)
+
+
+def _offending_input(error: Exception) -> str:
+    """
+    ``", got 'ten'"`` when typer's type conversion rejected a value: its messages (from pydantic, e.g.
+    "Input should be a valid integer") do not repeat the value, which the user should see.
+    """
+    errors = getattr(error.__cause__, "errors", None)
+    if not callable(errors):
+        return ""
+    try:
+        value = errors()[0]["input"]
+    except (LookupError, TypeError):
+        return ""
+    return f", got {value!r}"
 
 
 __all__ = ["app", "main"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 import sb3_hddpg
 
@@ -21,9 +22,14 @@ app = typer.Typer(
 )
 
 
+def one_line(message: str) -> str:
+    """``message`` on one line: errors from deep down (numpy reprs, torch) may span several."""
+    return " ".join(line.strip() for line in message.splitlines() if line.strip())
+
+
 def console_error(message: str) -> None:
-    """Print a one-line error to stderr."""
-    _error_console.print(f"[bold red]error:[/] {message}", soft_wrap=True)
+    """Print a one-line error to stderr (the message is shown as is, never read as rich markup)."""
+    _error_console.print(f"[bold red]error:[/] {escape(one_line(message))}", soft_wrap=True)
 
 
 def _version(value: bool) -> None:

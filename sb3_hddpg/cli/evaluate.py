@@ -8,10 +8,11 @@ import typer
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least
-from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.io import atomic_write_json
-from sb3_hddpg.loading import load_policy
+from sb3_hddpg.cli.options import at_least, usage_errors, writable_file
+
+#: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
+#: and usage errors need not import the library).
+EVAL_SEED_BASE = 10_000
 
 
 @app.command("evaluate")
@@ -31,7 +32,7 @@ def evaluate_command(
     ),
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),
     json_path: Path | None = typer.Option(
-        None, "--json", help="Also write the metrics (and every episode) as JSON."
+        None, "--json", callback=writable_file, help="Also write the metrics (and every episode) as JSON."
     ),
     trust: bool = typer.Option(
         False,
@@ -43,8 +44,16 @@ def evaluate_command(
     ),
 ) -> None:
     """Evaluate a policy: mean reward, goal-touch rate, collisions, success, clearance (and worker choices)."""
-    loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
-    env = loaded.make_env(env_id)
+    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.io import atomic_write_json
+    from sb3_hddpg.loading import load_policy
+
+    # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
+    # checked here, as a usage error; what fails during the episodes is not.
+    with usage_errors("'PATH'"):
+        loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
+    with usage_errors("'--env'"):
+        env = loaded.make_env(env_id)
     result = evaluate(loaded.policy, env, n_episodes=episodes, seed=seed, deterministic=deterministic)
     summary = result.summary()
     table = Table(

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import shutil
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import typer
@@ -12,7 +14,7 @@ import typer
 RESULT_MARKERS = ("workers/manifest.json", "hierarchy.zip", "results.json", "flat", "checkpoints", "study.db")
 
 
-def at_least(minimum: int):
+def at_least(minimum: int) -> Callable[[int | None], int | None]:
     """A typer callback that accepts integers >= ``minimum`` (``None`` passes)."""
 
     def check(value: int | None) -> int | None:
@@ -28,6 +30,58 @@ def positive_float(value: float | None) -> float | None:
     if value is not None and (not math.isfinite(value) or value <= 0):
         raise typer.BadParameter(f"must be a finite number > 0, got {value}")
     return value
+
+
+def existing_file(value: Path | None) -> Path | None:
+    """
+    A typer callback for a file to read: it must exist and be a file (``None`` passes). Checked by kind,
+    not by permission bits, because root reads anything and a folder where a file belongs is the common
+    mistake.
+    """
+    if value is None:
+        return None
+    if not value.exists():
+        raise typer.BadParameter(f"no such file: {str(value)!r}")
+    if not value.is_file():
+        raise typer.BadParameter(f"expected a file, got a folder: {str(value)!r}")
+    return value
+
+
+def existing_dir(value: Path | None) -> Path | None:
+    """A typer callback for a folder to read: it must exist and be a folder (``None`` passes)."""
+    if value is None:
+        return None
+    if not value.exists():
+        raise typer.BadParameter(f"no such folder: {str(value)!r}")
+    if not value.is_dir():
+        raise typer.BadParameter(f"expected a folder, got a file: {str(value)!r}")
+    return value
+
+
+def writable_file(value: Path | None) -> Path | None:
+    """A typer callback for a file to write: it must not be a folder (``None`` passes)."""
+    if value is not None and value.is_dir():
+        raise typer.BadParameter(f"expected a file to write, got a folder: {str(value)!r}")
+    return value
+
+
+@contextlib.contextmanager
+def usage_errors(param_hint: str | None = None) -> Iterator[None]:
+    """
+    Report the library's input validation as a usage error (exit code 2): inside this block a
+    ``ValueError`` (``ConfigError``, ``BundleError``...) or a missing or wrong-kind path means the command
+    line named something unusable. Use it only around the checks and loads before any work starts, so that
+    a failure during the work itself stays an ordinary error (exit code 1).
+
+    :param param_hint: the option the problem comes from, e.g. ``"'--config'"`` (``None``: not named).
+    """
+    import gymnasium as gym
+
+    try:
+        yield
+    except (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, gym.error.Error) as error:
+        message = str(error) or type(error).__name__
+        raise typer.BadParameter(message, param_hint=param_hint) from error
 
 
 def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:

@@ -8,11 +8,8 @@ import gymnasium as gym
 import typer
 from rich.table import Table
 
-from sb3_hddpg.baselines import JacobianReacher
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.io import atomic_write_bytes
-from sb3_hddpg.workers import RandomPolicy
+from sb3_hddpg.cli.options import usage_errors, writable_file
 
 
 @app.command()
@@ -20,14 +17,23 @@ def rollout(
     env_id: str = typer.Option("hddpg/SnakeReach-v0", "--env", help="Registered environment id."),
     episodes: int = typer.Option(5, min=1, help="Episodes per policy."),
     seed: int = typer.Option(0, min=0, help="Seed of the first episode (episode k uses seed + k)."),
-    png: Path = typer.Option(Path("runs/rollout.png"), help="Where to save a rendered frame."),
+    png: Path = typer.Option(
+        Path("runs/rollout.png"), callback=writable_file, help="Where to save a rendered frame."
+    ),
 ) -> None:
     """Roll out a random and a scripted (Jacobian-transpose) policy and print the env's metrics."""
     import io
 
     from PIL import Image
 
-    env = gym.make(env_id, render_mode="rgb_array")
+    import sb3_hddpg  # noqa: F401  (registers the env ids)
+    from sb3_hddpg.baselines import JacobianReacher
+    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.io import atomic_write_bytes
+    from sb3_hddpg.workers import RandomPolicy
+
+    with usage_errors("'--env'"):
+        env = gym.make(env_id, render_mode="rgb_array")
     policies = {
         "random": RandomPolicy(env.action_space, seed=seed),
         "scripted reacher": JacobianReacher(env.unwrapped.state_layout),

@@ -3,15 +3,32 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, positive_float, prepare_out_dir
-from sb3_hddpg.training import WORKER_ENV_IDS, TrainingInterrupted, TrainingOutcome, train_workers
+from sb3_hddpg.cli.options import (
+    at_least,
+    existing_dir,
+    existing_file,
+    positive_float,
+    prepare_out_dir,
+    usage_errors,
+)
+from sb3_hddpg.workers import WORKER_ENV_IDS
+
+if TYPE_CHECKING:
+    from sb3_hddpg.training import TrainingOutcome
+
+# The library (torch, SB3) is imported inside the commands: `--help` and usage errors stay fast.
 
 CONFIG_HELP = "Hyperparameters in RL Zoo format (default: the bundled zoo_configs/ddpg.yml)."
+CHECKPOINT_HELP = (
+    "Steps between resumable checkpoints (0: only on Ctrl-C/SIGTERM and at the end); "
+    "a SIGKILL loses at most this many steps."
+)
 
 
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
@@ -38,7 +55,7 @@ def train_workers_command(
         "--workers",
         help=f"Workers to train, among {sorted(WORKER_ENV_IDS)} (repeat the option).",
     ),
-    config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
+    config: Path | None = typer.Option(None, "--config", callback=existing_file, help=CONFIG_HELP),
     timesteps: int | None = typer.Option(
         None,
         "--timesteps",
@@ -61,19 +78,24 @@ def train_workers_command(
     eval_episodes: int = typer.Option(
         5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
     ),
+    checkpoint_freq: int = typer.Option(
+        10_000, "--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP
+    ),
     threads: int = typer.Option(
         1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
     ),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
+    from sb3_hddpg.training import TrainingInterrupted, train_workers, worker_hyperparams
+
     unknown = [w for w in workers if w not in WORKER_ENV_IDS]
-    if unknown:
-        raise typer.BadParameter(
-            f"unknown worker {unknown[0]!r}; choose from {sorted(WORKER_ENV_IDS)}", param_hint="'--workers'"
-        )
-    if config is not None and not config.is_file():
-        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    duplicates = sorted({w for w in workers if workers.count(w) > 1})
+    if unknown or duplicates:
+        problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
+        raise typer.BadParameter(f"{problem}; choose from {sorted(WORKER_ENV_IDS)}", param_hint="'--workers'")
+    with usage_errors("'--config'"):  # a bad block fails now, not after the first worker has trained
+        worker_hyperparams(workers, config)
     prepare_out_dir(out, resume, force)
     summaries: dict[str, dict] = {}
 
@@ -96,6 +118,7 @@ def train_workers_command(
             stop_on_plateau=stop_on_plateau,
             eval_freq=eval_freq,
             eval_episodes=eval_episodes,
+            checkpoint_freq=checkpoint_freq,
             progress_bar=progress,
             threads=threads,
             on_worker_done=done,
@@ -113,7 +136,10 @@ def train_workers_command(
 @app.command("train-manager")
 def train_manager_command(
     workers_dir: Path = typer.Option(
-        Path("runs/workers"), "--workers", help="Run folder of train-workers (holding workers/manifest.json)."
+        Path("runs/workers"),
+        "--workers",
+        callback=existing_dir,
+        help="Run folder of train-workers (holding workers/manifest.json).",
     ),
     names: list[str] | None = typer.Option(
         None, "--worker", help="Use only these workers, in this order (repeat; default: all in the manifest)."
@@ -136,7 +162,9 @@ def train_manager_command(
         callback=at_least(1),
         help="Env steps per manager decision (default: the config's).",
     ),
-    config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP + " Its 'manager' block is used."),
+    config: Path | None = typer.Option(
+        None, "--config", callback=existing_file, help=CONFIG_HELP + " Its 'manager' block is used."
+    ),
     timesteps: int | None = typer.Option(
         None, "--timesteps", callback=at_least(1), help="Manager steps (default: the config's n_timesteps)."
     ),
@@ -158,6 +186,9 @@ def train_manager_command(
     eval_episodes: int = typer.Option(
         5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
     ),
+    checkpoint_freq: int = typer.Option(
+        10_000, "--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP
+    ),
     threads: int = typer.Option(
         1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
     ),
@@ -168,25 +199,28 @@ def train_manager_command(
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
     from sb3_hddpg.selection import SELECTION_MODES, parse_preferences
-    from sb3_hddpg.training import train_manager
+    from sb3_hddpg.training import TrainingInterrupted, prepare_manager, train_manager
 
     if selection is not None and selection not in SELECTION_MODES:
         raise typer.BadParameter(
             f"must be one of {list(SELECTION_MODES)}, got {selection!r}", param_hint="'--selection'"
         )
-    if config is not None and not config.is_file():
-        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
-    if (
-        not (workers_dir / "workers" / "manifest.json").exists()
-        and not (workers_dir / "manifest.json").exists()
-    ):
-        raise typer.BadParameter(
-            f"no workers manifest in {str(workers_dir)!r}; run train-workers first", param_hint="'--workers'"
+    with usage_errors("'--preference'"):
+        preferences = parse_preferences(preference) if preference is not None else None
+    # The library checks the rest (workers, their hashes and spaces, names, preferences, config) before any
+    # training; run those checks now so that bad input is reported before the output folder is touched.
+    with usage_errors():
+        prepare_manager(
+            workers_dir,
+            names or None,
+            prefer=prefer,
+            bias=bias,
+            preferences=preferences,
+            selection=selection,
+            option_steps=option_steps,
+            config=config,
+            trusted=trust,
         )
-    try:
-        preferences = parse_preferences(preference) if preference else None
-    except ValueError as error:
-        raise typer.BadParameter(str(error), param_hint="'--preference'") from None
     prepare_out_dir(out, resume, force)
     try:
         hierarchy, outcome = train_manager(
@@ -206,6 +240,7 @@ def train_manager_command(
             stop_on_plateau=stop_on_plateau,
             eval_freq=eval_freq,
             eval_episodes=eval_episodes,
+            checkpoint_freq=checkpoint_freq,
             progress_bar=progress,
             threads=threads,
             trusted=trust,

@@ -609,8 +609,15 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         return bool(to_links > need and to_goal > need + self.touch_radius)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        commands = action.tolist() if isinstance(action, np.ndarray) else np.asarray(action, float).tolist()
-        if len(commands) != self.n_joints or not isinstance(commands[0], float):
+        # A float array is the fast path; anything else (lists, integer or bool arrays such as a bang-bang
+        # [1, -1, ...]) is converted, so that its values are checked rather than its dtype rejected.
+        is_float_array = isinstance(action, np.ndarray) and action.dtype.kind == "f"
+        commands = (action if is_float_array else np.asarray(action, float)).tolist()
+        if (
+            not isinstance(commands, list)
+            or len(commands) != self.n_joints
+            or not isinstance(commands[0], float)
+        ):
             raise ValueError(f"Expected an action of shape ({self.n_joints},), actually: {np.shape(action)}")
         top = self.max_joint_speed
         limit = self.joint_limit

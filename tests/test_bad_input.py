@@ -1,0 +1,314 @@
+"""
+Every ``hddpg-cli`` command answers bad input with one line on stderr that names the offending value, and
+a non-zero exit (2 for usage errors), never a traceback.
+
+One table, :data:`CASES`, lists every case. The tiny artifacts they need (workers for the default env,
+workers for a 4-joint arm, a hierarchy bundle, damaged copies) are built once, in-process. Every case
+then runs through the CLI's entry point in a separate interpreter: all of them in one batch subprocess
+(:mod:`tests.cli_batch`; starting torch once instead of 60 times keeps the file fast), and the cases
+marked ``alone`` also each in their own ``python cli.py`` process, so that real exit codes and stderr are
+checked too.
+
+Exit codes: 2 when the command line names something unusable (a bad option value, a missing path or one
+of the wrong kind, a file whose content cannot be used for what it was named for, a refused output
+folder); 1 for a failure while working; 130 for an interruption.
+"""
+
+from __future__ import annotations
+
+import shutil
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.cli_batch import run_batch
+from tests.cli_runner import run_cli
+
+TINY_CONFIG = """\
+default: &tiny
+  n_timesteps: 150
+  policy: 'MlpPolicy'
+  buffer_size: 1000
+  learning_starts: 100
+  batch_size: 16
+  noise_type: 'normal'
+  noise_std: 0.2
+  policy_kwargs: "dict(net_arch=[16])"
+manager:
+  <<: *tiny
+"""
+
+# Workers for a 4-joint arm: the same config with env_kwargs, the way a user would train them.
+FOUR_JOINT_CONFIG = TINY_CONFIG.replace("default: &tiny\n", "default: &tiny\n  env_kwargs: {n_joints: 4}\n")
+
+TW = ("train-workers", "--no-progress")
+TM = ("train-manager", "--no-progress", "--workers", "{w}", "--config", "{tiny}")
+
+
+#: Cases also run in their own ``python cli.py`` process (at least one per command).
+ALONE = {
+    "tw-negative-timesteps",
+    "tw-config-unknown-key",
+    "tm-nan-preference",
+    "tm-workers-for-another-env",
+    "ev-tampered-bundle",
+    "ro-unknown-env",
+}
+
+
+def case(case_id: str, args: tuple[str, ...], code: int, offending: str) -> Any:
+    """One row of the table, as a pytest param."""
+    return pytest.param(args, code, offending, id=case_id)
+
+
+#: (arguments with {placeholders}, expected exit code, a string the error line must contain)
+CASES = [
+    # ---- train-workers: option values
+    case("tw-unknown-worker", (*TW, "--workers", "nope", "--out", "{tmp}/o"), 2, "nope"),
+    case(
+        "tw-duplicate-worker", (*TW, "--workers", "goal", "--workers", "goal", "--out", "{tmp}/o"), 2, "goal"
+    ),
+    case("tw-negative-timesteps", (*TW, "--timesteps", "-5", "--out", "{tmp}/o"), 2, "-5"),
+    case("tw-zero-timesteps", (*TW, "--timesteps", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case("tw-text-timesteps", (*TW, "--timesteps", "ten", "--out", "{tmp}/o"), 2, "ten"),
+    case("tw-negative-seed", (*TW, "--seed", "-1", "--out", "{tmp}/o"), 2, "-1"),
+    case("tw-zero-n-envs", (*TW, "--n-envs", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case("tw-negative-eval-freq", (*TW, "--eval-freq", "-3", "--out", "{tmp}/o"), 2, "-3"),
+    case("tw-zero-eval-episodes", (*TW, "--eval-episodes", "0", "--out", "{tmp}/o"), 2, "--eval-episodes"),
+    case("tw-negative-checkpoint-freq", (*TW, "--checkpoint-freq", "-7", "--out", "{tmp}/o"), 2, "-7"),
+    case("tw-unknown-option", (*TW, "--timestep", "5", "--out", "{tmp}/o"), 2, "--timestep"),
+    # ---- train-workers: paths and files
+    case("tw-config-missing", (*TW, "--config", "{tmp}/nope.yml", "--out", "{tmp}/o"), 2, "nope.yml"),
+    case("tw-config-is-folder", (*TW, "--config", "{folder}", "--out", "{tmp}/o"), 2, "a-folder"),
+    case("tw-config-invalid-yaml", (*TW, "--config", "{bad_yaml}", "--out", "{tmp}/o"), 2, "bad_yaml.yml"),
+    case("tw-config-unknown-key", (*TW, "--config", "{unknown_key}", "--out", "{tmp}/o"), 2, "learning_rat"),
+    case("tw-config-negative-timesteps", (*TW, "--config", "{negative_budget}", "--out", "{tmp}/o"), 2, "-5"),
+    case("tw-out-holds-results", (*TW, "--config", "{tiny}", "--out", "{w}"), 2, "already holds results"),
+    case("tw-out-is-a-file", (*TW, "--config", "{tiny}", "--out", "{text_file}"), 2, "notes.txt"),
+    # ---- train-manager: names, preferences and selection
+    case("tm-duplicate-worker", (*TM, "--worker", "goal", "--worker", "goal", "--out", "{tmp}/o"), 2, "goal"),
+    case("tm-unknown-worker", (*TM, "--worker", "goal", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"),
+    case("tm-unknown-prefer", (*TM, "--prefer", "nope", "--out", "{tmp}/o"), 2, "nope"),
+    case("tm-unknown-preference", (*TM, "--preference", "nope=1.2", "--out", "{tmp}/o"), 2, "nope"),
+    case("tm-zero-preference", (*TM, "--preference", "goal=0", "--out", "{tmp}/o"), 2, "0"),
+    case("tm-negative-preference", (*TM, "--preference", "goal=-1", "--out", "{tmp}/o"), 2, "-1"),
+    case("tm-nan-preference", (*TM, "--preference", "goal=nan", "--out", "{tmp}/o"), 2, "nan"),
+    case("tm-inf-preference", (*TM, "--preference", "goal=inf", "--out", "{tmp}/o"), 2, "inf"),
+    case("tm-malformed-preference", (*TM, "--preference", "goal", "--out", "{tmp}/o"), 2, "goal"),
+    case("tm-repeated-preference", (*TM, "--preference", "goal=1,goal=2", "--out", "{tmp}/o"), 2, "goal"),
+    case("tm-zero-bias", (*TM, "--prefer", "goal", "--bias", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case("tm-negative-bias", (*TM, "--prefer", "goal", "--bias", "-0.5", "--out", "{tmp}/o"), 2, "-0.5"),
+    case("tm-nan-bias", (*TM, "--prefer", "goal", "--bias", "nan", "--out", "{tmp}/o"), 2, "nan"),
+    case("tm-inf-bias", (*TM, "--prefer", "goal", "--bias", "inf", "--out", "{tmp}/o"), 2, "inf"),
+    case("tm-unknown-selection", (*TM, "--selection", "best", "--out", "{tmp}/o"), 2, "best"),
+    case("tm-zero-option-steps", (*TM, "--option-steps", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case("tm-negative-timesteps", (*TM, "--timesteps", "-1", "--out", "{tmp}/o"), 2, "-1"),
+    case("tm-negative-seed", (*TM, "--seed", "-2", "--out", "{tmp}/o"), 2, "-2"),
+    # ---- train-manager: workers folders and files
+    case(
+        "tm-workers-missing",
+        ("train-manager", "--workers", "{tmp}/nowhere", "--out", "{tmp}/o"),
+        2,
+        "nowhere",
+    ),
+    case(
+        "tm-workers-is-a-file",
+        ("train-manager", "--workers", "{text_file}", "--out", "{tmp}/o"),
+        2,
+        "notes.txt",
+    ),
+    case(
+        "tm-workers-no-manifest",
+        ("train-manager", "--workers", "{folder}", "--out", "{tmp}/o"),
+        2,
+        "a-folder",
+    ),
+    case(
+        "tm-manifest-invalid",
+        ("train-manager", "--workers", "{bad_manifest}", "--out", "{tmp}/o"),
+        2,
+        "manifest.json",
+    ),
+    case(
+        "tm-worker-hash-mismatch",
+        ("train-manager", "--workers", "{tampered_workers}", "--out", "{tmp}/o"),
+        2,
+        "goal.zip",
+    ),
+    case(
+        "tm-worker-truncated",
+        ("train-manager", "--workers", "{truncated_workers}", "--out", "{tmp}/o"),
+        2,
+        "goal.zip",
+    ),
+    case(
+        "tm-worker-file-missing",
+        ("train-manager", "--workers", "{missing_worker}", "--out", "{tmp}/o"),
+        2,
+        "avoid.zip",
+    ),
+    case(
+        "tm-workers-for-another-env",
+        ("train-manager", "--workers", "{w4}", "--config", "{tiny}", "--out", "{tmp}/o"),
+        2,
+        "(27,)",
+    ),
+    case(
+        "tm-config-unknown-key",
+        ("train-manager", "--workers", "{w}", "--config", "{unknown_key}", "--out", "{tmp}/o"),
+        2,
+        "learning_rat",
+    ),
+    case("tm-out-holds-results", (*TM, "--out", "{m}"), 2, "already holds results"),
+    # ---- evaluate
+    case("ev-missing", ("evaluate", "{tmp}/nope.zip"), 2, "nope.zip"),
+    case("ev-folder-without-model", ("evaluate", "{folder}"), 2, "a-folder"),
+    case("ev-not-a-zip", ("evaluate", "{text_zip}"), 2, "text.zip"),
+    case("ev-truncated-bundle", ("evaluate", "{truncated_bundle}"), 2, "truncated.zip"),
+    case("ev-tampered-bundle", ("evaluate", "{tampered_bundle}"), 2, "manager.zip"),
+    case("ev-worker-hash-mismatch", ("evaluate", "{tampered_workers}/workers/goal.zip"), 2, "goal.zip"),
+    case("ev-zip-without-manifest", ("evaluate", "{lonely_zip}"), 2, "--trust"),
+    case(
+        "ev-worker-for-another-env",
+        ("evaluate", "{w4}/workers/goal.zip", "--env", "hddpg/SnakeGoal-v0"),
+        0,
+        "",
+    ),
+    case("ev-unknown-env", ("evaluate", "random", "--env", "hddpg/Nope-v0"), 2, "Nope"),
+    case("ev-zero-episodes", ("evaluate", "random", "--episodes", "0"), 2, "got 0"),
+    case("ev-negative-episodes", ("evaluate", "random", "--episodes", "-3"), 2, "-3"),
+    case("ev-negative-seed", ("evaluate", "random", "--seed", "-1"), 2, "-1"),
+    case("ev-json-is-a-folder", ("evaluate", "random", "--json", "{folder}"), 2, "a-folder"),
+    case("ev-unknown-algo", ("evaluate", "{lonely_zip}", "--trust", "--algo", "ppo"), 2, "PPO"),
+    # ---- rollout
+    case("ro-zero-episodes", ("rollout", "--episodes", "0"), 2, "0"),
+    case("ro-negative-seed", ("rollout", "--seed", "-4"), 2, "-4"),
+    case("ro-unknown-env", ("rollout", "--env", "hddpg/Nope-v0"), 2, "Nope"),
+    case("ro-png-is-a-folder", ("rollout", "--png", "{folder}"), 2, "a-folder"),
+    # ---- no command
+    case("unknown-command", ("train-everything",), 2, "train-everything"),
+]
+
+
+@pytest.fixture(scope="module")
+def artifacts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """Tiny trained artifacts and damaged copies of them, built once, in-process (no CLI start-up cost)."""
+    from sb3_hddpg.training import train_manager, train_workers
+
+    root = tmp_path_factory.mktemp("bad-input")
+    tiny = root / "tiny.yml"
+    tiny.write_text(TINY_CONFIG)
+    four = root / "four.yml"
+    four.write_text(FOUR_JOINT_CONFIG)
+    quick = {"eval_freq": 0, "eval_episodes": 1}
+    train_workers(root / "w", config=tiny, **quick)
+    train_workers(root / "w4", config=four, **quick)
+    train_manager(root / "w", root / "m", config=tiny, timesteps=120, **quick)
+
+    def copy_workers(name: str) -> Path:
+        target = root / name
+        shutil.copytree(root / "w" / "workers", target / "workers")
+        return target
+
+    tampered = copy_workers("tampered_workers")
+    with open(tampered / "workers" / "goal.zip", "ab") as handle:
+        handle.write(b"\0")
+    truncated = copy_workers("truncated_workers")
+    data = (truncated / "workers" / "goal.zip").read_bytes()
+    (truncated / "workers" / "goal.zip").write_bytes(data[: len(data) // 2])
+    missing = copy_workers("missing_worker")
+    (missing / "workers" / "avoid.zip").unlink()
+    bad_manifest = copy_workers("bad_manifest")
+    (bad_manifest / "workers" / "manifest.json").write_text('{"workers": ')
+    lonely = root / "lonely"
+    lonely.mkdir()
+    shutil.copy(root / "w" / "workers" / "goal.zip", lonely / "goal.zip")
+
+    bundle = (root / "m" / "hierarchy.zip").read_bytes()
+    (root / "truncated.zip").write_bytes(bundle[: len(bundle) * 2 // 3])
+    with zipfile.ZipFile(root / "m" / "hierarchy.zip") as source:
+        members = {name: source.read(name) for name in source.namelist()}
+    members["manager.zip"] = members["workers/goal.zip"]  # a swapped member, manifest unchanged
+    with zipfile.ZipFile(root / "tampered.zip", "w") as target:
+        for name, content in members.items():
+            target.writestr(name, content)
+
+    (root / "a-folder").mkdir()
+    (root / "notes.txt").write_text("not a folder\n")
+    (root / "text.zip").write_text("this is not a zip file\n")
+    (root / "bad_yaml.yml").write_text("default: [unclosed\n")
+    (root / "unknown_key.yml").write_text(TINY_CONFIG.replace("batch_size", "learning_rat"))
+    (root / "negative_budget.yml").write_text(TINY_CONFIG.replace("n_timesteps: 150", "n_timesteps: -5"))
+    paths = {
+        "w": root / "w",
+        "w4": root / "w4",
+        "m": root / "m",
+        "tiny": tiny,
+        "tampered_workers": tampered,
+        "truncated_workers": truncated,
+        "missing_worker": missing,
+        "bad_manifest": bad_manifest,
+        "lonely_zip": lonely / "goal.zip",
+        "truncated_bundle": root / "truncated.zip",
+        "tampered_bundle": root / "tampered.zip",
+        "folder": root / "a-folder",
+        "text_file": root / "notes.txt",
+        "text_zip": root / "text.zip",
+        "bad_yaml": root / "bad_yaml.yml",
+        "unknown_key": root / "unknown_key.yml",
+        "negative_budget": root / "negative_budget.yml",
+    }
+    return {key: str(value) for key, value in paths.items()} | {"root": str(root)}
+
+
+@pytest.fixture(scope="module")
+def outcomes(artifacts: dict[str, str]) -> dict[tuple[str, ...], list[Any]]:
+    """Every case's command line run in the batch, and the ``ALONE`` ones also in their own process."""
+    commands = {}
+    for index, param in enumerate(CASES):
+        args = param.values[0]
+        scratch = Path(artifacts["root"]) / f"case-{index}"
+        scratch.mkdir()
+        commands[args] = [arg.format(tmp=scratch, **artifacts) for arg in args]
+    alone = {param.values[0] for param in CASES if param.id in ALONE}
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        own = {args: pool.submit(run_cli, *commands[args], timeout=600) for args in alone}
+        batch = run_batch(list(commands.values()))
+        results = {args: [result] for args, result in zip(commands, batch)}
+        for args, future in own.items():
+            results[args].append(future.result())
+    return results
+
+
+@pytest.mark.parametrize(("args", "code", "offending"), CASES)
+def test_bad_input_is_one_clear_line(outcomes, args, code, offending):
+    for result in outcomes[args]:
+        shown = f"exit {result.returncode}\nstdout: {result.stdout[-1500:]}\nstderr: {result.stderr[-3000:]}"
+        assert "Traceback" not in result.stderr, shown
+        if code == 0:  # a control case: the same input, used correctly, works
+            assert result.returncode == 0, shown
+            continue
+        assert result.returncode == code, shown
+        lines = [line for line in result.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1, shown
+        assert lines[0].startswith("error: "), shown
+        assert offending in lines[0], shown
+
+
+def test_table_covers_every_command():
+    commands = {param.values[0][0] for param in CASES}
+    assert {"train-workers", "train-manager", "evaluate", "rollout"} <= commands
+
+
+@pytest.mark.parametrize("how", ["--debug", "HDDPG_DEBUG=1"])
+def test_debug_shows_the_traceback(artifacts, how, monkeypatch):
+    if how == "--debug":
+        result = run_cli("evaluate", artifacts["text_zip"], "--debug")
+    else:
+        monkeypatch.setenv("HDDPG_DEBUG", "1")
+        result = run_cli("evaluate", artifacts["text_zip"])
+    assert result.returncode != 0
+    assert "Traceback" in result.stderr and "text.zip" in result.stderr
