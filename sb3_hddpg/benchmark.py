@@ -92,7 +92,7 @@ class BenchmarkSettings:
     :param worker_timesteps: each worker's budget.
     :param flat_timesteps: a flat agent's budget (``None``: ``timesteps`` plus every worker's budget, so
         that a flat agent uses as many environment steps as the whole hierarchy).
-    :param eval_freq: steps between learning-curve evaluations (``None``: a tenth of each budget).
+    :param eval_freq: steps between learning-curve evaluations of every run (``None``: ``timesteps // 10``).
     :param eval_episodes: episodes per learning-curve evaluation.
     :param test_episodes: episodes of the final test evaluation.
     :param ham_threshold: HAM's switching threshold (``None``: its default).
@@ -132,8 +132,11 @@ class BenchmarkSettings:
         return self.timesteps + 2 * self.worker_timesteps
 
     def eval_freq_for(self, budget: int) -> int:
-        """Steps between evaluations for a run of ``budget`` steps."""
-        return self.eval_freq if self.eval_freq else max(budget // 10, 1)
+        """
+        Steps between evaluations for a run of ``budget`` steps: the same for every run (default: a tenth
+        of the manager's budget), so that all curves have points at the same own steps.
+        """
+        return min(self.eval_freq if self.eval_freq else max(self.timesteps // 10, 1), budget)
 
 
 @dataclass(frozen=True)

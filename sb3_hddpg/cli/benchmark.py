@@ -107,7 +107,7 @@ def benchmark_command(
         None,
         "--eval-freq",
         callback=at_least(1),
-        help="Steps between curve evaluations (default: budget / 10).",
+        help="Steps between curve evaluations of every run (default: --timesteps / 10).",
     ),
     eval_episodes: int = typer.Option(
         5, "--eval-episodes", callback=at_least(1), help="Episodes per learning-curve evaluation."
