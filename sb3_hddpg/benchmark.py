@@ -26,6 +26,7 @@ against HAM, which selects nothing).
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import csv
 import json
 import logging
@@ -49,6 +50,7 @@ from sb3_hddpg.stats import (
     summarise,
     trend_slope,
 )
+from sb3_hddpg.training import sigterm_as_interrupt
 
 logger = logging.getLogger(__name__)
 
@@ -340,6 +342,17 @@ def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str,
 
 
 # ------------------------------------------------------------------------------------------- scheduling
+def task_cost(task: Task, settings: BenchmarkSettings) -> int:
+    """A task's training budget in environment steps (HAM trains nothing), for scheduling."""
+    if task.method == "workers":
+        return 2 * settings.worker_timesteps
+    if task.method in FLAT_METHODS:
+        return settings.flat_budget
+    if task.method in MANAGER_PREFERENCE:
+        return settings.timesteps
+    return 0
+
+
 def run_benchmark(
     settings: BenchmarkSettings,
     out: str | Path,
@@ -350,8 +363,8 @@ def run_benchmark(
     """
     Run every task not yet finished, ``n_jobs`` processes at a time, then compute and write the results.
 
-    Workers of a seed go before the runs that need them; among ready tasks, the runs whose workers are
-    done go first (so that results arrive seed by seed), then workers, then flat baselines.
+    Workers of a seed go before the runs that need them; among ready tasks the longest (by budget) go
+    first, so that the runs left at the end are short and every process stays busy.
 
     :param settings: what to run.
     :param out: the benchmark folder (``benchmark.json``, ``records/``, ``seed-*/``, results).
@@ -394,35 +407,47 @@ def run_benchmark(
         return task.needs_workers and Task("workers", task.seed) in failed
 
     def priority(task: Task) -> tuple[int, int]:
-        rank = 0 if task.needs_workers else 1 if task.method == "workers" else 2
-        return rank, settings.seeds.index(task.seed)
+        # Longest first (the classic LPT rule), so that the last runs to finish are short ones and
+        # no process idles through a long tail.
+        return -task_cost(task, settings), settings.seeds.index(task.seed)
 
     context = multiprocessing.get_context("spawn")  # a clean interpreter per process: no forked torch state
-    with cf.ProcessPoolExecutor(max_workers=n_jobs, mp_context=context) as pool:
+    pool = cf.ProcessPoolExecutor(max_workers=n_jobs, mp_context=context)
+    with sigterm_as_interrupt():
         running: dict[cf.Future[dict[str, Any]], Task] = {}
-        while pending or running:
-            for task in [t for t in pending if blocked(t)]:
-                pending.remove(task)
-                failed[task] = f"its workers failed: {failed[Task('workers', task.seed)]}"
-                notify("failed", task, None)
-            for task in sorted((t for t in pending if ready(t)), key=priority):
-                if len(running) >= n_jobs:
-                    break
-                pending.remove(task)
-                running[pool.submit(run_task, task, settings, str(out))] = task
-                notify("start", task, None)
-            if not running:
-                break
-            done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
-            for future in done:
-                task = running.pop(future)
-                try:
-                    records[task] = future.result()
-                    notify("done", task, records[task])
-                except Exception as error:  # one failed run must not lose the others
-                    logger.exception("benchmark task %s failed", task.label)
-                    failed[task] = f"{type(error).__name__}: {error}"
+        try:
+            while pending or running:
+                for task in [t for t in pending if blocked(t)]:
+                    pending.remove(task)
+                    failed[task] = f"its workers failed: {failed[Task('workers', task.seed)]}"
                     notify("failed", task, None)
+                for task in sorted((t for t in pending if ready(t)), key=priority):
+                    if len(running) >= n_jobs:
+                        break
+                    pending.remove(task)
+                    running[pool.submit(run_task, task, settings, str(out))] = task
+                    notify("start", task, None)
+                if not running:
+                    break
+                done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+                for future in done:
+                    task = running.pop(future)
+                    try:
+                        records[task] = future.result()
+                        notify("done", task, records[task])
+                    except Exception as error:  # one failed run must not lose the others
+                        logger.exception("benchmark task %s failed", task.label)
+                        failed[task] = f"{type(error).__name__}: {error}"
+                        notify("failed", task, None)
+        except BaseException:
+            # Ctrl-C or SIGTERM: ask every running task to checkpoint and stop (train_agent turns SIGTERM into a
+            # checkpoint-and-exit), then leave; --resume continues from the checkpoints.
+            for process in list(getattr(pool, "_processes", {}).values()):  # no public API lists them
+                with contextlib.suppress(Exception):
+                    process.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+    pool.shutdown(wait=True)
     wall = time.perf_counter() - start
     results = compute_results(settings, [records[t] for t in tasks if t in records])
     results["wall_time_s_this_invocation"] = wall

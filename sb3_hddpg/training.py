@@ -154,7 +154,7 @@ class TrainingOutcome:
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
+def sigterm_as_interrupt() -> Iterator[None]:
     """Turn SIGTERM into KeyboardInterrupt for the duration, so both take the same save-and-exit path."""
 
     def handler(signum: int, frame: Any) -> None:
@@ -279,7 +279,7 @@ def train_agent(
         stopped_early = False
         if remaining > 0:
             try:
-                with _sigterm_as_interrupt():
+                with sigterm_as_interrupt():
                     model.learn(
                         remaining,
                         callback=callbacks,
