@@ -363,8 +363,8 @@ def run_benchmark(
     """
     Run every task not yet finished, ``n_jobs`` processes at a time, then compute and write the results.
 
-    Workers of a seed go before the runs that need them; among ready tasks the longest (by budget) go
-    first, so that the runs left at the end are short and every process stays busy.
+    Workers of a seed go before the runs that need them; ready tasks go seed by seed and, within a seed,
+    longest (by budget) first, so that the runs left at the end are short and every process stays busy.
 
     :param settings: what to run.
     :param out: the benchmark folder (``benchmark.json``, ``records/``, ``seed-*/``, results).
@@ -407,9 +407,9 @@ def run_benchmark(
         return task.needs_workers and Task("workers", task.seed) in failed
 
     def priority(task: Task) -> tuple[int, int]:
-        # Longest first (the classic LPT rule), so that the last runs to finish are short ones and
-        # no process idles through a long tail.
-        return -task_cost(task, settings), settings.seeds.index(task.seed)
+        # Seed by seed, so that an interrupted benchmark holds complete seeds; within a seed the longest
+        # first (the LPT rule), so that the runs left at the end are short and no process idles long.
+        return settings.seeds.index(task.seed), -task_cost(task, settings)
 
     context = multiprocessing.get_context("spawn")  # a clean interpreter per process: no forked torch state
     pool = cf.ProcessPoolExecutor(max_workers=n_jobs, mp_context=context)
