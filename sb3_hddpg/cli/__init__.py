@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import sys
 
+from typer import exceptions as typer_exceptions
 from typer._click import exceptions as click_exceptions
 from typer.main import get_command
 
@@ -30,13 +31,13 @@ def main(argv: list[str] | None = None) -> None:
     command = get_command(app)
     try:
         code = command.main(args=args, prog_name="hddpg-cli", standalone_mode=False)
-    except click_exceptions.Abort:
+    except typer_exceptions.Abort:
         console_error("aborted")
         sys.exit(130)
     except click_exceptions.ClickException as error:  # usage errors: bad option, bad value
         console_error(error.format_message())
         sys.exit(error.exit_code)
-    except click_exceptions.Exit as error:
+    except typer_exceptions.Exit as error:
         sys.exit(error.exit_code)
     except KeyboardInterrupt:
         console_error("interrupted")
