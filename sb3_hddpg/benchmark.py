@@ -696,11 +696,75 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
 
 
 #: The files :func:`write_outputs` produces in the benchmark folder.
-OUTPUT_FILES = ("results.json", "evaluations.csv", "learning_curves.png", "figure9.png", "figure10.png")
+OUTPUT_FILES = (
+    "results.json",
+    "results.md",
+    "evaluations.csv",
+    "learning_curves.png",
+    "figure9.png",
+    "figure10.png",
+)
+
+
+def _ci_text(stats: dict[str, Any], fmt: str) -> str:
+    return f"{stats['mean']:{fmt}} [{stats['ci_low']:{fmt}}, {stats['ci_high']:{fmt}}]"
+
+
+def markdown_report(results: dict[str, Any]) -> str:
+    """
+    The results as Markdown tables (for docs): per method the test metrics and curve statistics as
+    mean [95 % bootstrap CI] over seeds, then the paired comparisons.
+
+    :param results: a ``results.json`` dict.
+    """
+    unit = results["slope_unit_steps"]
+    lines = [
+        "| method | seeds | reach reward (test) | IQM | goal part | avoid part | goal-touch rate | collisions / episode "
+        f"| success | min clearance | curve mean | slope / {unit} steps | worker choices (test) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for method, entry in results["methods"].items():
+        s = entry["stats"]
+        choices = ", ".join(f"{k} {v:.0%}" for k, v in entry.get("selection_rate", {}).items()) or "-"
+        lines.append(
+            f"| {method} | {len(entry['seeds'])} | {_ci_text(s['mean_reach_reward'], '.1f')} "
+            f"| {s['mean_reach_reward']['iqm']:.1f} | {_ci_text(s['goal_reach_reward'], '.1f')} "
+            f"| {_ci_text(s['avoid_reach_reward'], '.1f')} | {_ci_text(s['goal_touch_rate'], '.3f')} "
+            f"| {_ci_text(s['collisions_per_episode'], '.2f')} | {_ci_text(s['success_rate'], '.2f')} "
+            f"| {s['min_clearance']['mean']:.3f} | {_ci_text(s['curve_mean'], '.1f')} "
+            f"| {_ci_text(s['slope'], '.2f')} | {choices} |"
+        )
+    if results["comparisons"]:
+        lines += [
+            "",
+            "| A vs B | metric | A - B [95 % CI], paired by seed | relative | P(A > B) |",
+            "|---|---|---|---|---|",
+        ]
+        for pair, comparison in results["comparisons"].items():
+            for metric in (
+                "mean_reach_reward",
+                "curve_mean",
+                "slope",
+                "success_rate",
+                "collisions_per_episode",
+            ):
+                c = comparison[metric]
+                relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
+                lines.append(
+                    f"| {pair} | {metric} | {c['difference']:+.2f} [{c['ci_low']:+.2f}, {c['ci_high']:+.2f}] "
+                    f"| {relative} | {c['probability_of_improvement']:.2f} |"
+                )
+            ratio = comparison["slope_ratio"]
+            lines.append(
+                f"| {pair} | slope ratio A / B | {ratio:.2f} | | |"
+                if ratio is not None
+                else f"| {pair} | slope ratio A / B | undefined (B's slope is 0) | | |"
+            )
+    return "\n".join(lines) + "\n"
 
 
 def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> None:
-    """Write ``results.json``, ``evaluations.csv`` and the plots into ``out``."""
+    """Write ``results.json``, ``results.md``, ``evaluations.csv`` and the plots into ``out``."""
     from sb3_hddpg import plots
 
     method_records = [r for r in records if r["method"] != "workers"]
@@ -709,6 +773,7 @@ def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, An
         "total_steps": curve_bands(method_records, "total_timesteps"),
     }
     atomic_write_json(out / "results.json", results)
+    atomic_write(out / "results.md", lambda tmp: tmp.write_text(markdown_report(results)))
     write_csv(out / "evaluations.csv", evaluation_rows(records))
     plots.learning_curves(results, out / "learning_curves.png")
     plots.figure9(results, out / "figure9.png")
