@@ -555,7 +555,8 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         }
         if selection:
             methods[method]["selection_rate"] = {
-                name: float(np.mean([rates.get(name, 0.0) for rates in selection])) for name in selection[0]
+                name: float(np.mean([rates.get(name, 0.0) for rates in selection]))
+                for name in sorted(set().union(*selection))
             }
     comparisons = {}
     for a, b in PAIRS:
