@@ -24,6 +24,20 @@ from torch import nn
 #: The bundled config, also reachable as ``zoo_configs/ddpg.yml`` in a checkout.
 DEFAULT_CONFIG = Path(__file__).parent / "zoo_configs" / "ddpg.yml"
 
+
+def default_config(algo: str = "ddpg") -> Path:
+    """
+    The bundled config of an algorithm: ``sb3_hddpg/zoo_configs/<algo>.yml``.
+
+    :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
+    """
+    path = DEFAULT_CONFIG.parent / f"{algo.lower()}.yml"
+    if not path.exists():
+        known = sorted(p.stem for p in DEFAULT_CONFIG.parent.glob("*.yml"))
+        raise ConfigError(f"No bundled config for algorithm {algo!r}; bundled: {known}")
+    return path
+
+
 #: The config block of the manager's DDPG (it has no registered env id of its own).
 MANAGER_KEY = "manager"
 

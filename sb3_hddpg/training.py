@@ -152,7 +152,7 @@ class TrainingOutcome:
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
+def sigterm_as_interrupt() -> Iterator[None]:
     """Turn SIGTERM into KeyboardInterrupt for the duration, so both take the same save-and-exit path."""
 
     def handler(signum: int, frame: Any) -> None:
@@ -285,7 +285,7 @@ def train_agent(
         stopped_early = False
         if remaining > 0:
             try:
-                with _sigterm_as_interrupt():
+                with sigterm_as_interrupt():
                     model.learn(
                         remaining,
                         callback=callbacks,
@@ -501,6 +501,103 @@ def read_workers_manifest(path: str | Path) -> dict[str, Any]:
     if not valid:
         raise ValueError(f"Not a valid workers manifest: {str(path)!r}")
     return manifest
+#: The schema version of ``flat/manifest.json``.
+FLAT_MANIFEST_VERSION = 1
+#: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
+FLAT_ENV_ID = "hddpg/SnakeReach-v0"
+
+
+def train_flat(
+    out_dir: str | Path,
+    algo: str = "ddpg",
+    config: str | Path | None = None,
+    timesteps: int | None = None,
+    seed: int = 0,
+    n_envs: int | None = None,
+    resume: bool = False,
+    stop_on_plateau: bool = False,
+    eval_freq: int = 5000,
+    eval_episodes: int = 5,
+    progress_bar: bool = False,
+    threads: int = 1,
+    env_id: str = FLAT_ENV_ID,
+) -> tuple[dict[str, Any], TrainingOutcome | None]:
+    """
+    Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
+    "single DDPG", Section 3.3), and write ``out_dir/flat/<algo>.zip`` and ``out_dir/flat/manifest.json``.
+
+    The manifest's ``models`` mapping has one entry per algorithm, in the workers manifest's format
+    (file, sha256, algo, env id and kwargs, rebuild spec, metrics, config, seed, versions), so that
+    :func:`sb3_hddpg.loading.load_policy` opens the zip without unpickling anything.
+
+    :param out_dir: the run folder.
+    :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
+    :param config: a ``zoo_configs``-format file (default: the bundled ``zoo_configs/<algo>.yml``).
+    :param timesteps: the budget (default: the config's ``n_timesteps``).
+    :param seed: training seed.
+    :param n_envs: parallel training envs.
+    :param resume: continue from a checkpoint; a model already finished with this budget is kept.
+    :param stop_on_plateau: stop when the evaluation stops improving.
+    :param eval_freq: steps between evaluations.
+    :param eval_episodes: episodes per evaluation.
+    :param progress_bar: show a progress bar.
+    :param threads: torch threads.
+    :param env_id: the env to learn (the combined reward by default).
+    :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
+    """
+    import json
+
+    from sb3_hddpg.config import default_config, load_hyperparams
+    from sb3_hddpg.safe_load import model_spec
+
+    algo = algo.lower()
+    cls = algo_class(algo)
+    config_path = Path(config) if config is not None else default_config(algo)
+    hyperparams = load_hyperparams(env_id, cls, config_path)
+    budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
+    out_dir = Path(out_dir)
+    manifest_path = out_dir / "flat" / "manifest.json"
+    manifest: dict[str, Any] = {"schema_version": FLAT_MANIFEST_VERSION, "models": {}}
+    if manifest_path.exists():
+        manifest = json.loads(manifest_path.read_text())
+    done = manifest["models"].get(algo)
+    if resume and done is not None and done.get("timesteps_requested") == budget:
+        return manifest, None  # finished in an earlier run
+    paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{algo}.zip")
+    outcome = train_agent(
+        functools.partial(make_snake_env, env_id, dict(hyperparams.env_kwargs)),
+        hyperparams,
+        paths,
+        algo=algo,
+        timesteps=budget,
+        seed=seed,
+        n_envs=n_envs,
+        resume=resume and read_checkpoint_state(paths.checkpoint_dir) is not None,
+        stop_on_plateau=stop_on_plateau,
+        eval_freq=eval_freq,
+        eval_episodes=eval_episodes,
+        progress_bar=progress_bar,
+        threads=threads,
+    )
+    manifest["models"][algo] = {
+        "name": algo,
+        "file": f"{algo}.zip",
+        "sha256": sha256_file(outcome.model_path),
+        "algo": algo,
+        "env_id": env_id,
+        "env_kwargs": hyperparams.env_kwargs,
+        "config": {"file": str(config_path), "block": hyperparams.raw},
+        "seed": seed,
+        "timesteps_requested": budget,
+        "timesteps_trained": outcome.num_timesteps,
+        "stopped_early": outcome.stopped_early,
+        "threads": threads,
+        "versions": library_versions(),
+        "metrics": outcome.metrics,
+        "spec": model_spec(outcome.model),
+    }
+    save_manifest(manifest_path, manifest)
+    return manifest, outcome
 
 
 def load_workers(

@@ -11,7 +11,15 @@ from pathlib import Path
 import typer
 
 #: Files whose presence means a folder already holds results of ours.
-RESULT_MARKERS = ("workers/manifest.json", "hierarchy.zip", "results.json", "flat", "checkpoints", "study.db")
+RESULT_MARKERS = (
+    "workers/manifest.json",
+    "hierarchy.zip",
+    "results.json",
+    "benchmark.json",
+    "flat",
+    "checkpoints",
+    "study.db",
+)
 
 
 def at_least(minimum: int) -> Callable[[int | None], int | None]:

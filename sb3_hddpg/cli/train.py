@@ -1,4 +1,4 @@
-"""``hddpg-cli train-workers`` (and, with the manager and baselines, ``train-manager`` / ``train-flat``)."""
+"""``hddpg-cli train-workers`` and ``train-manager``: the two halves of the hierarchy (paper Algorithm 1)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,254 @@
+"""
+The HAM baseline (paper Section 3.3): a hand-written switch between the same two trained workers.
+
+Parr & Russell's Hierarchical Abstract Machines choose lower-level machines by hand-designed transitions.
+The paper's HAM for the snake arm has one transition condition: the sum of the distances from the arm to
+the obstacles. Below a threshold the avoid worker acts, otherwise the goal worker. Nothing is trained: the
+switch is a policy like any other (SB3's ``predict``), so ``evaluate``, the benchmark and even a manager
+(as a worker of :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper`) can use it.
+
+The distance signal is the observation's ``joint_obstacle_distances``: per link, its clearance to the
+closest obstacle surface divided by the env's ``sensor_range`` and clipped to ``[0, 1]``. A link with no
+obstacle within sensor range contributes 1, so with ``n`` links the sum lies in ``[0, n]`` and
+``n - sum`` measures how far obstacles have entered the arm's sensed neighbourhood.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_hddpg.envs.layout import StateLayout
+from sb3_hddpg.io import atomic_write_json
+from sb3_hddpg.workers import Policy
+
+#: The component of the shared state that the switch reads.
+DISTANCE_COMPONENT = "joint_obstacle_distances"
+#: The default switching margin: the avoid worker takes over once the summed normalised clearance is
+#: this far below its maximum ``n_joints``, i.e. one link at half the sensor range from an obstacle
+#: surface (0.15 reach units by default, about one link length), or several links a little inside it.
+#: That is where the avoid reward starts to be lost (it pays clearance up to the sensor range) but
+#: before contact, which the arm cannot undo within one step at full joint speed.
+DEFAULT_MARGIN = 0.5
+#: ``ham.json``'s schema version; :func:`load_ham` refuses newer files.
+HAM_SCHEMA_VERSION = 1
+
+
+class HAMSwitch:
+    """
+    Switch between a goal worker and an avoid worker on the summed joint-to-obstacle distance.
+
+    With ``s`` the sum of ``joint_obstacle_distances`` in the observation: the avoid worker acts when
+    ``s < threshold``; with ``hysteresis = h > 0`` it keeps acting until ``s >= threshold + h``, so the arm
+    does not chatter between the workers at the boundary. Without hysteresis every step decides anew.
+
+    :param goal_worker: the policy that reaches for the goal.
+    :param avoid_worker: the policy that keeps clear of obstacles.
+    :param layout: the env's ``state_layout`` (to find the distances in the observation).
+    :param threshold: the switching threshold on the summed distances, in ``[0, n_joints]`` (default:
+        ``n_joints - DEFAULT_MARGIN``).
+    :param hysteresis: the extra distance needed to switch back to the goal worker, >= 0.
+    :param names: the display names of the two workers, as ``(goal, avoid)``; they are what
+        ``last_selection`` reports.
+    """
+
+    def __init__(
+        self,
+        goal_worker: Policy,
+        avoid_worker: Policy,
+        layout: StateLayout,
+        threshold: float | None = None,
+        hysteresis: float = 0.0,
+        names: tuple[str, str] = ("goal", "avoid"),
+    ) -> None:
+        self._slice = layout[DISTANCE_COMPONENT]
+        n_links = self._slice.stop - self._slice.start
+        if threshold is None:
+            threshold = n_links - DEFAULT_MARGIN
+        if not math.isfinite(threshold) or not 0.0 <= threshold <= n_links:
+            raise ValueError(
+                f"Expected `threshold` in [0, {n_links}] (the range of the summed distances), actually: {threshold}"
+            )
+        if not math.isfinite(hysteresis) or hysteresis < 0:
+            raise ValueError(f"Expected `hysteresis` to be a finite number >= 0, actually: {hysteresis}")
+        if len(names) != 2 or names[0] == names[1]:
+            raise ValueError(f"Expected two distinct worker names (goal, avoid), actually: {names}")
+        self.workers: dict[str, Policy] = {names[0]: goal_worker, names[1]: avoid_worker}
+        self.names = list(names)
+        self.layout = layout
+        self.threshold = float(threshold)
+        self.hysteresis = float(hysteresis)
+        for attribute in ("observation_space", "action_space"):
+            if hasattr(goal_worker, attribute):
+                setattr(self, attribute, getattr(goal_worker, attribute))
+        # One flag per observation stream: whether the avoid worker is acting (hysteresis needs memory).
+        self._avoiding = np.zeros(1, dtype=bool)
+        self.last_selection: str | None = None
+
+    @property
+    def reward_spec(self) -> dict[str, float]:
+        """This switch's reward as a worker of a manager: goal and avoid in equal parts (it serves both)."""
+        return {"goal": 1.0, "avoid": 1.0}
+
+    def summed_distance(self, observation: np.ndarray) -> np.ndarray:
+        """The summed normalised joint-to-obstacle distances of one observation or a batch."""
+        return np.asarray(observation, dtype=np.float64)[..., self._slice].sum(axis=-1)
+
+    def select(self, observation: np.ndarray) -> np.ndarray:
+        """
+        Which worker acts on each observation (``True``: avoid), updating the hysteresis memory.
+
+        :param observation: shape ``(obs_dim,)`` or ``(batch, obs_dim)``.
+        :return: a boolean array of shape ``(batch,)`` (``(1,)`` for a single observation).
+        """
+        distances = np.atleast_1d(self.summed_distance(observation))
+        if self._avoiding.shape != distances.shape:
+            self._avoiding = np.zeros(distances.shape, dtype=bool)
+        enter = distances < self.threshold
+        stay = self._avoiding & (distances < self.threshold + self.hysteresis)
+        self._avoiding = enter | stay
+        return self._avoiding.copy()
+
+    def reset_episode(self, mask: np.ndarray | None = None) -> None:
+        """
+        Forget the hysteresis state (at an episode start), for every stream or those where ``mask`` is true.
+        """
+        if mask is None or np.shape(mask) != self._avoiding.shape:
+            self._avoiding[:] = False
+        else:
+            self._avoiding[np.asarray(mask, dtype=bool)] = False
+        for worker in self.workers.values():
+            reset = getattr(worker, "reset_episode", None)
+            if reset is not None:
+                reset()
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """
+        The action of the worker the switch selects, like SB3's ``predict``.
+
+        :param observation: the shared state, shape ``(obs_dim,)`` or ``(batch, obs_dim)``; each row of a
+            batch is its own stream with its own hysteresis memory.
+        :param state: unused, for SB3 compatibility.
+        :param episode_start: true entries reset those streams' hysteresis memory first.
+        :param deterministic: passed to the workers.
+        :return: the env action(s) and ``None``.
+        """
+        obs = np.asarray(observation, dtype=np.float32)
+        if episode_start is not None and np.any(episode_start):
+            self.reset_episode(np.atleast_1d(np.asarray(episode_start)))
+        avoiding = self.select(obs)
+        goal, avoid = (self.workers[n] for n in self.names)
+        batch = obs if obs.ndim == 2 else obs[None]
+        actions: np.ndarray | None = None
+        for flag, worker in ((False, goal), (True, avoid)):
+            rows = avoiding == flag
+            if rows.any():
+                chosen = self._act(worker, batch[rows], deterministic)
+                if actions is None:
+                    actions = np.empty((len(batch), chosen.shape[1]), dtype=np.float32)
+                actions[rows] = chosen
+        assert actions is not None  # every row went to one of the two workers
+        self.last_selection = self.names[int(avoiding[-1])]
+        return (actions if obs.ndim == 2 else actions[0]), None
+
+    @staticmethod
+    def _act(worker: Policy, batch: np.ndarray, deterministic: bool) -> np.ndarray:
+        action, _ = worker.predict(batch, deterministic=deterministic)
+        return np.asarray(action, dtype=np.float32).reshape(len(batch), -1)
+
+
+def save_ham(
+    path: str | os.PathLike[str],
+    workers_manifest: str | os.PathLike[str],
+    threshold: float,
+    hysteresis: float = 0.0,
+    names: tuple[str, str] = ("goal", "avoid"),
+    env_id: str = "hddpg/SnakeReach-v0",
+    env_kwargs: Mapping[str, Any] | None = None,
+    metadata: Mapping[str, Any] | None = None,
+) -> Path:
+    """
+    Write ``ham.json``: the switch's settings and where its workers are, relative to the json file.
+
+    :param path: the json file to write.
+    :param workers_manifest: the ``workers/manifest.json`` written by ``train_workers``.
+    :param threshold: the switching threshold.
+    :param hysteresis: the switching hysteresis.
+    :param names: the goal and avoid worker names in that manifest.
+    :param env_id: the env the switch acts in.
+    :param env_kwargs: that env's keyword arguments.
+    :param metadata: more JSON-able facts (seed, metrics...).
+    :return: the path written.
+    """
+    path = Path(path)
+    manifest = Path(workers_manifest)
+    relative = os.path.relpath(manifest.resolve(), path.parent.resolve())
+    payload = {
+        "schema_version": HAM_SCHEMA_VERSION,
+        "kind": "sb3-hddpg-ham",
+        "threshold": float(threshold),
+        "hysteresis": float(hysteresis),
+        "worker_names": {"goal": names[0], "avoid": names[1]},
+        "workers_manifest": Path(relative).as_posix(),
+        "env_id": env_id,
+        "env_kwargs": dict(env_kwargs or {}),
+        **dict(metadata or {}),
+    }
+    return atomic_write_json(path, payload)
+
+
+def load_ham(path: str | os.PathLike[str], trusted: bool = False) -> tuple[HAMSwitch, dict[str, Any]]:
+    """
+    Load a switch written by :func:`save_ham`; its workers are verified and loaded by
+    :func:`sb3_hddpg.training.load_workers` (weights only unless ``trusted``).
+
+    :param path: the ``ham.json`` file.
+    :param trusted: load the workers with SB3's full loader.
+    :return: the switch and the file's contents (with ``env_id`` and ``env_kwargs``).
+    """
+    import gymnasium as gym
+
+    import sb3_hddpg  # noqa: F401  (registers the env ids)
+    from sb3_hddpg.training import load_workers
+
+    path = Path(path)
+    try:
+        meta = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"No such file: {str(path)!r}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise ValueError(f"Not a valid JSON file: {str(path)!r}") from None
+    if not isinstance(meta, dict) or meta.get("kind") != "sb3-hddpg-ham":
+        raise ValueError(f"{str(path)!r} is not an sb3-hddpg HAM file (expected kind 'sb3-hddpg-ham')")
+    version = meta.get("schema_version")
+    if not isinstance(version, int) or version > HAM_SCHEMA_VERSION:
+        raise ValueError(
+            f"{str(path)!r} has schema_version {version!r}; this sb3-hddpg reads up to {HAM_SCHEMA_VERSION}"
+        )
+    manifest = (path.parent / meta["workers_manifest"]).resolve()
+    names = (meta["worker_names"]["goal"], meta["worker_names"]["avoid"])
+    workers, _ = load_workers(manifest.parent, names, trusted=trusted)
+    env = gym.make(meta["env_id"], **meta.get("env_kwargs", {}))
+    layout = env.unwrapped.state_layout  # type: ignore[attr-defined]
+    env.close()
+    switch = HAMSwitch(
+        workers[names[0]],
+        workers[names[1]],
+        layout,
+        threshold=meta["threshold"],
+        hysteresis=meta.get("hysteresis", 0.0),
+        names=names,
+    )
+    return switch, meta

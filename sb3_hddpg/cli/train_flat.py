@@ -1,0 +1,80 @@
+"""``hddpg-cli train-flat``: the single-agent baselines (DDPG, TD3, SAC, TQC) on the combined reward."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import at_least, prepare_out_dir
+from sb3_hddpg.cli.train import metrics_table
+from sb3_hddpg.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted
+
+
+@app.command("train-flat")
+def train_flat_command(
+    algo: str = typer.Option("ddpg", "--algo", help=f"Algorithm, one of {list(ALGO_NAMES)}."),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="Hyperparameters in RL Zoo format (default: the bundled zoo_configs/<algo>.yml).",
+    ),
+    timesteps: int | None = typer.Option(
+        None, "--timesteps", callback=at_least(1), help="Training steps (default: the config's n_timesteps)."
+    ),
+    seed: int = typer.Option(0, "--seed", callback=at_least(0), help="Training seed."),
+    n_envs: int | None = typer.Option(
+        None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."
+    ),
+    out: Path = typer.Option(
+        Path("runs/flat"), "--out", help="Run folder; the model goes to OUT/flat/<algo>.zip."
+    ),
+    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoint."),
+    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    stop_on_plateau: bool = typer.Option(
+        False, "--stop-on-plateau", help="Stop after 3 evaluations without a new best."
+    ),
+    eval_freq: int = typer.Option(
+        5000, "--eval-freq", callback=at_least(0), help="Steps between evaluations."
+    ),
+    eval_episodes: int = typer.Option(
+        5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
+    ),
+    threads: int = typer.Option(
+        1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
+    ),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+) -> None:
+    """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
+    from sb3_hddpg.training import train_flat
+
+    algo = algo.lower()
+    if algo not in ALGO_NAMES:
+        raise typer.BadParameter(f"must be one of {list(ALGO_NAMES)}, got {algo!r}", param_hint="'--algo'")
+    if config is not None and not config.is_file():
+        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    prepare_out_dir(out, resume, force)
+    try:
+        manifest, outcome = train_flat(
+            out,
+            algo=algo,
+            config=config,
+            timesteps=timesteps,
+            seed=seed,
+            n_envs=n_envs,
+            resume=resume,
+            stop_on_plateau=stop_on_plateau,
+            eval_freq=eval_freq,
+            eval_episodes=eval_episodes,
+            progress_bar=progress,
+            threads=threads,
+        )
+    except TrainingInterrupted as interrupted:
+        console.print(f"[yellow]{interrupted}[/]")
+        raise typer.Exit(130) from None
+    entry = manifest["models"][algo]
+    if outcome is None:
+        console.print(f"{algo} was already trained for {entry['timesteps_requested']} steps; kept it.")
+    console.print(metrics_table(f"Flat {algo} on {FLAT_ENV_ID} (best evaluation)", {algo: entry["metrics"]}))
+    console.print(f"Model: {out / 'flat' / entry['file']}   Manifest: {out / 'flat' / 'manifest.json'}")

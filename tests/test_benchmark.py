@@ -1,0 +1,304 @@
+"""The benchmark: planning, statistics on constructed records, and a tiny real run through the CLI; train-flat."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sb3_hddpg import stats
+from sb3_hddpg.benchmark import (
+    OUTPUT_FILES,
+    TEST_SEED_BASE,
+    BenchmarkSettings,
+    Task,
+    compute_results,
+    curve_bands,
+    evaluation_rows,
+    normalised_term_sums,
+    plan_tasks,
+    write_outputs,
+)
+from sb3_hddpg.evaluation import EVAL_SEED_BASE
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    """Run ``cli.py`` in a fresh interpreter, as a user would, with this checkout first on the path."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), "COLUMNS": "200", "SDL_VIDEODRIVER": "dummy"}
+    return subprocess.run(
+        [sys.executable, str(REPO / "cli.py"), *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+        cwd=REPO,
+    )
+
+
+# --------------------------------------------------------------------------------------- constructed data
+def summary(reach: float, goal_touch: float = 0.1, collisions: float = 1.0, **extra: Any) -> dict[str, Any]:
+    """An evaluation summary with the keys evaluate() produces."""
+    return {
+        "episodes": 5,
+        "mean_reward": reach,
+        "std_reward": 1.0,
+        "mean_reach_reward": reach,
+        "mean_goal_reward": -40.0,
+        "mean_avoid_reward": 30.0,
+        "goal_touch_rate": goal_touch,
+        "goal_reached_rate": 0.5,
+        "collisions_per_episode": collisions,
+        "success_rate": 0.2,
+        "min_clearance": 0.05,
+        "mean_length": 200.0,
+        **extra,
+    }
+
+
+def record(
+    method: str, seed: int, curve: list[float], test: float, worker_steps: int = 2000
+) -> dict[str, Any]:
+    """A finished run's record with a curve evaluated every 1000 own steps."""
+    if method == "ham":
+        history = [{"timesteps": 0, "total_timesteps": worker_steps, **summary(curve[0])}]
+    else:
+        offset = 0 if method == "ddpg" else worker_steps
+        history = [
+            {"timesteps": 1000 * (i + 1), "total_timesteps": 1000 * (i + 1) + offset, **summary(value)}
+            for i, value in enumerate(curve)
+        ]
+    return {
+        "method": method,
+        "seed": seed,
+        "status": "done",
+        "worker_timesteps": 0 if method == "ddpg" else worker_steps,
+        "history": history,
+        "test": summary(test),
+        "wall_time_s": 1.0,
+    }
+
+
+@pytest.fixture
+def constructed() -> tuple[BenchmarkSettings, list[dict[str, Any]]]:
+    methods = ["hddpg", "ham", "ddpg", "hddpg-goal", "hddpg-avoid"]
+    settings = BenchmarkSettings(methods=methods, seeds=[0, 1, 2], timesteps=3000)
+    records = []
+    for seed in range(3):
+        records.append(record("hddpg", seed, [200 + seed, 210 + seed, 220 + seed], 230.0 + seed))
+        records.append(record("hddpg-goal", seed, [200.0, 205.0, 215.0], 225.0))
+        records.append(record("hddpg-avoid", seed, [200.0, 201.0, 202.0], 220.0))
+        records.append(record("ham", seed, [205.0], 205.0 + 2 * seed))
+        # ddpg trains longer (flat budget): points beyond the 3000-step window must not count.
+        records.append(record("ddpg", seed, [190.0, 195.0, 200.0 + seed, 400.0], 210.0 - seed))
+    return settings, records
+
+
+def test_plan_trains_workers_once_per_seed_only_when_needed():
+    tasks = plan_tasks(BenchmarkSettings(methods=["hddpg", "ham", "ddpg"], seeds=[0, 1]))
+    assert [t.label for t in tasks] == [
+        "workers/seed-0",
+        "hddpg/seed-0",
+        "ham/seed-0",
+        "ddpg/seed-0",
+        "workers/seed-1",
+        "hddpg/seed-1",
+        "ham/seed-1",
+        "ddpg/seed-1",
+    ]
+    assert all(
+        t.method != "workers" for t in plan_tasks(BenchmarkSettings(methods=["ddpg", "td3"], seeds=[0]))
+    )
+    assert Task("hddpg-goal", 0).needs_workers and not Task("sac", 0).needs_workers
+
+
+def test_settings_reject_unknown_methods_and_default_to_equal_total_steps():
+    with pytest.raises(ValueError, match="Unknown methods"):
+        BenchmarkSettings(methods=["hddpg", "ppo"])
+    settings = BenchmarkSettings(timesteps=1000, worker_timesteps=300)
+    assert settings.flat_budget == 1600  # the hierarchy's manager + two workers
+    assert settings.eval_freq_for(1600) == settings.eval_freq_for(1000) == 100
+
+
+def test_statistics_use_the_stats_module_on_per_seed_values(constructed):
+    settings, records = constructed
+    results = compute_results(settings, records)
+    hddpg, ddpg, ham = (results["methods"][m] for m in ("hddpg", "ddpg", "ham"))
+
+    assert hddpg["stats"]["mean_reach_reward"] == stats.summarise([230.0, 231.0, 232.0])
+    assert hddpg["stats"]["mean_reach_reward"]["iqm"] == pytest.approx(stats.iqm([230.0, 231.0, 232.0]))
+    # The curve statistics only count own steps <= the manager's budget (the window every method shares).
+    assert ddpg["per_seed"]["1"]["curve_mean"] == pytest.approx(np.mean([190.0, 195.0, 201.0]))
+    assert ddpg["per_seed"]["1"]["slope"] == pytest.approx(
+        stats.trend_slope([1, 2, 3], [190.0, 195.0, 201.0])
+    )
+    assert hddpg["per_seed"]["0"]["slope"] == pytest.approx(10.0)  # +10 per 1000 steps
+    assert ham["per_seed"]["0"]["slope"] == 0.0  # HAM does not learn: a single, flat point
+
+    comparison = results["comparisons"]["hddpg vs ddpg"]
+    a, b = [230.0, 231.0, 232.0], [210.0, 209.0, 208.0]
+    assert comparison["seeds"] == [0, 1, 2]
+    point, low, high = stats.paired_difference_ci(a, b)
+    assert comparison["mean_reach_reward"]["difference"] == pytest.approx(point)
+    assert (comparison["mean_reach_reward"]["ci_low"], comparison["mean_reach_reward"]["ci_high"]) == (
+        low,
+        high,
+    )
+    assert comparison["mean_reach_reward"]["relative_gain"] == pytest.approx(np.mean(a) / np.mean(b) - 1)
+    assert comparison["mean_reach_reward"]["probability_of_improvement"] == stats.probability_of_improvement(
+        a, b
+    )
+    ddpg_slopes = [stats.trend_slope([1, 2, 3], [190.0, 195.0, 200.0 + s]) for s in range(3)]
+    assert comparison["slope_ratio"] == pytest.approx(10.0 / np.mean(ddpg_slopes))
+    assert results["comparisons"]["hddpg vs ham"]["slope_ratio"] is None  # HAM's slope is 0
+
+
+def test_curves_on_own_and_total_steps(constructed):
+    _, records = constructed
+    own = curve_bands(records, "timesteps")
+    total = curve_bands(records, "total_timesteps")
+    assert own["hddpg"]["x"] == [1000.0, 2000.0, 3000.0]
+    assert total["hddpg"]["x"] == [3000.0, 4000.0, 5000.0]  # shifted by the workers' 2000 steps
+    assert total["ddpg"]["x"] == own["ddpg"]["x"]  # a flat agent has no pre-training
+    assert total["ham"]["x"] == [2000.0]  # HAM sits at its workers' steps
+    assert own["hddpg"]["mean"][0] == pytest.approx(201.0)
+    assert all(
+        lo <= m <= hi for lo, m, hi in zip(own["hddpg"]["low"], own["hddpg"]["mean"], own["hddpg"]["high"])
+    )
+
+
+def test_normalised_term_sums_match_the_env_normalisation():
+    import gymnasium as gym
+
+    env = gym.make("hddpg/SnakeReach-v0")
+    env.reset(seed=0)
+    goal_sum = avoid_sum = raw_goal = raw_avoid = 0.0
+    for _ in range(20):
+        _, _, _, _, info = env.step(env.action_space.sample())
+        terms = info["reward_terms"]
+        normalised = env.unwrapped.normalise_terms(terms)
+        goal_sum, avoid_sum = goal_sum + normalised["goal"], avoid_sum + normalised["avoid"]
+        raw_goal, raw_avoid = raw_goal + terms["goal"], raw_avoid + terms["avoid"]
+    s = {"mean_goal_reward": raw_goal, "mean_avoid_reward": raw_avoid, "mean_length": 20.0}
+    assert normalised_term_sums(s) == pytest.approx((goal_sum, avoid_sum))
+
+
+def test_outputs_from_constructed_records(constructed, tmp_path):
+    settings, records = constructed
+    results = compute_results(settings, records)
+    write_outputs(tmp_path, results, records)
+    for name in OUTPUT_FILES:
+        assert (tmp_path / name).stat().st_size > 0, name
+    rows = list(csv.DictReader((tmp_path / "evaluations.csv").read_text().splitlines()))
+    assert len(rows) == len(evaluation_rows(records)) == 3 * 3 * (3 + 1) + 3 * (1 + 1) + 3 * (4 + 1)
+    assert {r["kind"] for r in rows} == {"curve", "test"}
+
+
+# ------------------------------------------------------------------------------------------ real, tiny
+TINY = (
+    "--timesteps", "200", "--worker-timesteps", "100", "--eval-freq", "100",
+    "--eval-episodes", "1", "--test-episodes", "1", "--n-jobs", "2",
+)  # fmt: skip
+
+
+def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
+    out = tmp_path / "bench"
+    args = ("benchmark", "--seeds", "2", "--methods", "hddpg,ham,ddpg", *TINY, "--out", str(out))
+    done = cli(*args)
+    assert done.returncode == 0, done.stdout + done.stderr
+    for name in (*OUTPUT_FILES, "benchmark.json"):
+        assert (out / name).exists(), name
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["methods"]) == {"hddpg", "ham", "ddpg"}
+    assert all(entry["seeds"] == [0, 1] for entry in results["methods"].values())
+    assert results["test_seeds"][0] == TEST_SEED_BASE and results["curve_seeds"][0] == EVAL_SEED_BASE
+    assert results["methods"]["ddpg"]["own_timesteps"] == 400  # 200 + 2 x 100: equal total steps
+    assert results["methods"]["hddpg"]["worker_timesteps"] == 200
+    assert "hddpg vs ddpg" in results["comparisons"] and "hddpg vs ham" in results["comparisons"]
+    assert "reach reward (test)" in done.stdout
+    rows = list(csv.DictReader((out / "evaluations.csv").read_text().splitlines()))
+    hddpg_curve = [r for r in rows if r["method"] == "hddpg" and r["kind"] == "curve" and r["seed"] == "0"]
+    assert [int(r["total_timesteps"]) - int(r["timesteps"]) for r in hddpg_curve] == [200, 200]
+
+    # An occupied folder is refused without --resume or --force.
+    refused = cli(*args)
+    assert refused.returncode == 2 and "--resume" in refused.stderr
+
+    # Resume: finished runs are kept, a missing one is redone.
+    (out / "records" / "ddpg" / "seed-1.json").unlink()
+    kept_mtime = (out / "records" / "hddpg" / "seed-0.json").stat().st_mtime_ns
+    resumed = cli(*args, "--resume")
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert resumed.stdout.count("started") == 1 and "started  ddpg/seed-1" in resumed.stdout
+    assert resumed.stdout.count("kept") == 7  # 2 x (workers + 3 methods) - 1
+    assert (out / "records" / "hddpg" / "seed-0.json").stat().st_mtime_ns == kept_mtime
+
+    # Resuming with other settings would mix budgets: refused.
+    changed = cli(*args[:-2], "--timesteps", "300", "--out", str(out), "--resume")
+    assert changed.returncode == 1 and "different settings" in changed.stderr
+
+
+def test_train_flat_writes_a_model_that_opens_with_ddpg_load(tmp_path):
+    from stable_baselines3 import DDPG
+
+    from sb3_hddpg.loading import load_policy
+    from sb3_hddpg.training import sha256_file
+
+    out = tmp_path / "flat-run"
+    done = cli(
+        "train-flat",
+        "--timesteps",
+        "200",
+        "--eval-freq",
+        "100",
+        "--eval-episodes",
+        "1",
+        "--out",
+        str(out),
+        "--no-progress",
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    zip_path = out / "flat" / "ddpg.zip"
+    model = DDPG.load(zip_path, device="cpu")
+    assert model.policy.actor.mu[0].out_features == 64  # the config's net_arch, equal to the workers'
+    manifest = json.loads((out / "flat" / "manifest.json").read_text())
+    entry = manifest["models"]["ddpg"]
+    assert entry["sha256"] == sha256_file(zip_path)
+    assert entry["env_id"] == "hddpg/SnakeReach-v0" and entry["algo"] == "ddpg"
+    assert entry["spec"] and entry["metrics"]["mean_reach_reward"] > 0
+    assert entry["timesteps_trained"] == 200 and "versions" in entry and entry["seed"] == 0
+    loaded = load_policy(zip_path)  # the weights-only path, through the manifest
+    assert loaded.kind == "flat"
+    obs = np.zeros(loaded.policy.observation_space.shape, dtype=np.float32)
+    np.testing.assert_allclose(
+        loaded.policy.predict(obs)[0], model.predict(obs, deterministic=True)[0], atol=1e-6
+    )
+
+
+@pytest.mark.parametrize("algo", ["td3", "sac", "tqc"])
+def test_flat_configs_give_every_algorithm_the_same_care(algo):
+    from sb3_hddpg.config import default_config, load_hyperparams
+    from sb3_hddpg.training import FLAT_ENV_ID, algo_class
+
+    ddpg = load_hyperparams(FLAT_ENV_ID, algo_class("ddpg"), default_config("ddpg"))
+    other = load_hyperparams(FLAT_ENV_ID, algo_class(algo), default_config(algo))
+    assert other.n_timesteps == ddpg.n_timesteps
+    assert other.algo_kwargs["policy_kwargs"]["net_arch"] == ddpg.algo_kwargs["policy_kwargs"]["net_arch"]
+    for key in (
+        "learning_rate",
+        "buffer_size",
+        "learning_starts",
+        "batch_size",
+        "tau",
+        "gamma",
+        "train_freq",
+    ):
+        assert other.algo_kwargs[key] == ddpg.algo_kwargs[key], key
