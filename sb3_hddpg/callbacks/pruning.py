@@ -63,6 +63,8 @@ class TrialPruningCallback(BaseCallback):
 
     def check_divergence(self) -> str | None:
         """Why the model has diverged, looking at its weights now (for exceptions raised mid-training)."""
-        if self.diverged is None and self.model is not None and not parameters_finite(self.model):
+        # SB3 sets ``model`` only in ``init_callback``: training may have failed before that.
+        model = getattr(self, "model", None)
+        if self.diverged is None and model is not None and not parameters_finite(model):
             self.diverged = f"non-finite weights at {self.num_timesteps} steps"
         return self.diverged
