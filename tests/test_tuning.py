@@ -219,12 +219,18 @@ def test_divergence_is_pruned_not_failed(tmp_path, tiny_config, monkeypatch):
     assert "nan" in study.trials[0].user_attrs["diverged"]
 
 
-def run_two_processes(tmp_path: Path, tiny_config: Path, storage: str | None, n_trials: int) -> None:
+def run_two_processes(
+    tmp_path: Path, tiny_config: Path, storage: str | None, n_trials: int, first_jobs: int = 1
+) -> None:
+    """Two ``hddpg-cli tune`` commands at once on one study; the first may itself run several processes."""
     out = tmp_path / "shared"
     extra = ["--storage", storage] if storage else []
     processes = [
-        spawn_cli(cli_args(out, tiny_config, n_trials, "--seed", str(seed), *extra), tmp_path / f"{seed}.log")
-        for seed in (1, 2)
+        spawn_cli(
+            cli_args(out, tiny_config, n_trials, "--seed", str(seed), *extra, *jobs),
+            tmp_path / f"{seed}.log",
+        )
+        for seed, jobs in ((1, ["--n-jobs", str(first_jobs)]), (2, []))
     ]
     codes = [process.wait(timeout=300) for process in processes]
     logs = "\n".join((tmp_path / f"{seed}.log").read_text() for seed in (1, 2))
@@ -236,7 +242,8 @@ def run_two_processes(tmp_path: Path, tiny_config: Path, storage: str | None, n_
 
 
 def test_two_cli_processes_share_the_embedded_study(tmp_path, tiny_config):
-    run_two_processes(tmp_path, tiny_config, None, n_trials=4)
+    # Three trial processes in all: the first command runs --n-jobs 2.
+    run_two_processes(tmp_path, tiny_config, None, n_trials=5, first_jobs=2)
 
 
 def test_two_cli_processes_share_a_postgresql_study(tmp_path, tiny_config, postgres_url):  # noqa: F811
@@ -278,3 +285,22 @@ def test_a_study_killed_mid_trial_is_resumed_and_completed(tmp_path, tiny_config
     retried = [optuna.storages.RetryFailedTrialCallback.retried_trial_number(t) for t in finished]
     assert 0 in retried  # and re-run with its parameters
     assert not study.get_trials(deepcopy=False, states=(TrialState.RUNNING, TrialState.WAITING))
+
+
+def test_the_embedded_storage_opens_in_optuna_dashboard(tmp_path):
+    dashboard = pytest.importorskip(
+        "optuna_dashboard", reason="optuna-dashboard not installed (extra 'dashboard')"
+    )
+    from wsgiref.util import setup_testing_defaults
+
+    storage = make_storage(default_storage_url(tmp_path))
+    study = optuna.create_study(storage=storage, study_name="seen", direction="maximize")
+    study.optimize(lambda trial: trial.suggest_float("x", 0, 1), n_trials=2)
+    environ = {"PATH_INFO": "/api/studies", "REQUEST_METHOD": "GET"}
+    setup_testing_defaults(environ)
+    statuses = []
+    body = b"".join(
+        dashboard.wsgi(default_storage_url(tmp_path))(environ, lambda s, h, *exc: statuses.append(s))
+    )
+    assert statuses[0].startswith("200")
+    assert '"seen"' in body.decode()
