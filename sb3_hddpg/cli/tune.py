@@ -123,6 +123,7 @@ def tune_command(
         StudySettings,
         TuningTarget,
         best_trials,
+        ham_class,
         save_best_config,
         save_plots,
         trial_counts,
@@ -165,6 +166,8 @@ def tune_command(
     if config is not None and not config.is_file():
         raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
     fixed = parse_fixed(fix)
+    if level == "ham":
+        ham_class()  # a missing HAM baseline is reported before anything is created
 
     target = TuningTarget(
         level=level,
@@ -190,9 +193,10 @@ def tune_command(
         heartbeat_interval=heartbeat,
     )
     shown_storage = storage.split("@")[-1] if storage else settings.storage
+    per_trial = "one evaluation" if level == "ham" else f"{target.budget()} steps"
     console.print(
         f"Tuning [bold]{target.name}[/] in study [bold]{name}[/] ({shown_storage}): "
-        f"{n_trials} trials of {target.budget() if level != 'ham' else 0} steps, {n_jobs} process(es)"
+        f"{n_trials} trials of {per_trial}, {n_jobs} process(es)"
     )
     try:
         study = tune(target, settings, out, n_jobs=n_jobs)
