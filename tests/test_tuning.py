@@ -260,7 +260,6 @@ def running_trials(db: Path) -> int:
         return 0
 
 
-@pytest.mark.slow  # two CLI start-ups and a wait for the dead trial's heartbeat to go stale
 def test_a_study_killed_mid_trial_is_resumed_and_completed(tmp_path, tiny_config):
     out = tmp_path / "killed"
     args = [*cli_args(out, tiny_config, 2, "--heartbeat", "1", "--pruner", "none"), "--timesteps", "1500"]
