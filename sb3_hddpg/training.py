@@ -188,6 +188,7 @@ def train_agent(
     progress_bar: bool = False,
     threads: int = 1,
     extra_callbacks: Sequence[BaseCallback] = (),
+    after_eval: BaseCallback | None = None,
 ) -> TrainingOutcome:
     """
     Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
@@ -210,6 +211,8 @@ def train_agent(
     :param progress_bar: show SB3's rich progress bar.
     :param threads: torch threads for this process (1 is fastest for small MLPs on CPU; see docs).
     :param extra_callbacks: more SB3 callbacks (e.g. selection statistics).
+    :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
+        Optuna pruning callback); returning ``False`` stops training.
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
     """
     total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
@@ -257,6 +260,7 @@ def train_agent(
             if stop_on_plateau
             else None
         )
+        after_eval_callbacks = [c for c in (plateau, after_eval) if c is not None]
         evaluator = MetricsEvalCallback(
             eval_env,
             n_eval_episodes=eval_episodes,
@@ -264,10 +268,14 @@ def train_agent(
             eval_seed=eval_seed,
             best_model_save_path=paths.best_dir if keep_best else None,
             history_path=paths.history_path,
-            callback_after_eval=plateau,
+            callback_after_eval=_combine_callbacks(after_eval_callbacks),
             history=history,
             best_mean_reward=best,
         )
+        # SB3 makes only the direct after-eval callback a child of the evaluator; the plateau rule and the
+        # pruner both read the evaluator's results through ``parent``, also when combined in a list.
+        for callback in after_eval_callbacks:
+            callback.parent = evaluator
         checkpointer = ResumableCheckpointCallback(
             paths.checkpoint_dir,
             save_freq=checkpoint_freq,
@@ -328,6 +336,13 @@ def train_agent(
         with contextlib.suppress(Exception):  # subprocesses may already be gone after Ctrl-C
             vec_env.close()
         eval_env.close()
+
+
+def _combine_callbacks(callbacks: Sequence[BaseCallback]) -> BaseCallback | None:
+    """One callback for a slot that takes one: ``None``, the callback itself, or a ``CallbackList``."""
+    if not callbacks:
+        return None
+    return callbacks[0] if len(callbacks) == 1 else CallbackList(list(callbacks))
 
 
 def _tensorboard_logger(paths: AgentPaths) -> Any:

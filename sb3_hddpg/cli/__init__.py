@@ -20,6 +20,7 @@ from sb3_hddpg.cli.app import app, console_error
 from sb3_hddpg.cli import rollout, train, evaluate  # noqa: F401  isort: skip
 from sb3_hddpg.cli import train_flat  # noqa: F401  isort: skip
 from sb3_hddpg.cli import benchmark  # noqa: F401  isort: skip
+from sb3_hddpg.cli import tune  # noqa: F401  isort: skip
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,0 +1,70 @@
+"""Optuna pruning during training: report each evaluation to a trial and stop when told (rl_zoo3's TrialEvalCallback)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+
+
+def parameters_finite(model: BaseAlgorithm) -> bool:
+    """Whether every weight of ``model``'s policy (actor, critic and their targets) is finite."""
+    with torch.no_grad():
+        return all(bool(torch.isfinite(p).all()) for p in model.policy.parameters())
+
+
+class TrialPruningCallback(BaseCallback):
+    """
+    Report every evaluation of its parent :class:`~sb3_hddpg.callbacks.MetricsEvalCallback` to an Optuna trial,
+    and stop training when the trial's pruner says so or when the agent has diverged.
+
+    Like rl_zoo3's ``TrialEvalCallback``, but hooked as the evaluator's ``callback_after_eval`` instead of
+    subclassing the evaluator, so that evaluation, history and best-model keeping stay in one place and
+    the same training code runs with or without Optuna. Training stops by returning ``False``; the
+    objective then reads :attr:`is_pruned` and :attr:`diverged` and raises ``optuna.TrialPruned``, since
+    raising inside SB3's loop would skip the clean-up of ``train_agent``.
+
+    The ``step`` of each report is the evaluation's index (1, 2, ...), as in rl_zoo3, so that pruners'
+    warm-up settings read in evaluations whatever the budget.
+
+    :param trial: the Optuna trial to report to.
+    :param verbose: SB3's verbosity.
+    """
+
+    def __init__(self, trial: Any, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.trial = trial
+        self.eval_idx = 0
+        self.is_pruned = False
+        #: Why the agent counts as diverged (``None`` while it has not).
+        self.diverged: str | None = None
+
+    def _on_step(self) -> bool:
+        evaluator = self.parent
+        if evaluator is None:
+            raise RuntimeError("TrialPruningCallback must be a MetricsEvalCallback's callback_after_eval")
+        mean_reward = float(evaluator.last_mean_reward)
+        self.eval_idx += 1
+        # A NaN reward or weight never recovers; stopping now saves the rest of the budget.
+        if not math.isfinite(mean_reward):
+            self.diverged = f"mean evaluation reward is {mean_reward} at {self.num_timesteps} steps"
+            return False
+        if not parameters_finite(self.model):
+            self.diverged = f"non-finite weights at {self.num_timesteps} steps"
+            return False
+        self.trial.report(mean_reward, self.eval_idx)
+        if self.trial.should_prune():
+            self.is_pruned = True
+            return False
+        return True
+
+    def check_divergence(self) -> str | None:
+        """Why the model has diverged, looking at its weights now (for exceptions raised mid-training)."""
+        # SB3 sets ``model`` only in ``init_callback``: training may have failed before that.
+        model = getattr(self, "model", None)
+        if self.diverged is None and model is not None and not parameters_finite(model):
+            self.diverged = f"non-finite weights at {self.num_timesteps} steps"
+        return self.diverged

@@ -1,0 +1,223 @@
+"""``hddpg-cli tune``: Optuna hyperparameter search at any level, in several processes, on a shared study."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+import yaml
+from rich.table import Table
+
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import at_least, positive_float
+from sb3_hddpg.training import WORKER_ENV_IDS, TrainingInterrupted
+from sb3_hddpg.tuning import LEVELS, PRUNERS, SAMPLERS
+
+
+def parse_fixed(items: list[str]) -> dict[str, object]:
+    """``["net_arch=small", "batch_size=64"]`` -> ``{"net_arch": "small", "batch_size": 64}`` (YAML values)."""
+    fixed: dict[str, object] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise typer.BadParameter(f"expected NAME=VALUE, got {item!r}", param_hint="'--fix'")
+        fixed[name.strip()] = yaml.safe_load(value)
+    return fixed
+
+
+def trials_table(title: str, trials: list) -> Table:
+    """A rich table of trials: rank, number, value, parameters, duration."""
+    table = Table(title=title)
+    for column in ("rank", "trial", "mean reward", "parameters", "duration"):
+        table.add_column(column, justify="left" if column == "parameters" else "right")
+    for rank, trial in enumerate(trials, 1):
+        params = ", ".join(
+            f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in trial.params.items()
+        )
+        duration = trial.duration.total_seconds() if trial.duration is not None else float("nan")
+        table.add_row(str(rank), str(trial.number), f"{trial.value:.2f}", params, f"{duration:.0f} s")
+    return table
+
+
+@app.command("tune")
+def tune_command(
+    level: str = typer.Option(..., "--level", help=f"What to tune: {' | '.join(LEVELS)}."),
+    worker: str | None = typer.Option(
+        None,
+        "--worker",
+        help=f"The worker to tune with --level worker: {' | '.join(sorted(WORKER_ENV_IDS))}.",
+    ),
+    workers_dir: Path | None = typer.Option(
+        None, "--workers", help="Run folder of train-workers (for --level manager and --level ham)."
+    ),
+    n_trials: int = typer.Option(
+        20,
+        "--n-trials",
+        callback=at_least(1),
+        help="Finished (complete or pruned) trials the study should have, over all processes and re-runs.",
+    ),
+    timeout: float | None = typer.Option(
+        None, "--timeout", callback=positive_float, help="Start no trial after this many seconds."
+    ),
+    timesteps: int | None = typer.Option(
+        None, "--timesteps", callback=at_least(1), help="Training steps per trial (default: the config's)."
+    ),
+    n_evaluations: int = typer.Option(
+        5, "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."
+    ),
+    eval_episodes: int = typer.Option(
+        5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
+    ),
+    n_jobs: int = typer.Option(
+        1, "--n-jobs", callback=at_least(1), help="Trial processes, each with cores // n-jobs torch threads."
+    ),
+    sampler: str = typer.Option("tpe", "--sampler", help=f"Sampler: {' | '.join(SAMPLERS)}."),
+    pruner: str = typer.Option("median", "--pruner", help=f"Pruner: {' | '.join(PRUNERS)}."),
+    storage: str | None = typer.Option(
+        None,
+        "--storage",
+        help="Optuna storage URL, e.g. postgresql+psycopg://user:pw@host/db (default: sqlite OUT/study.db).",
+    ),
+    study_name: str | None = typer.Option(
+        None,
+        "--study-name",
+        help="Study name; an existing study resumes (default: the level, e.g. worker-goal).",
+    ),
+    seed: int | None = typer.Option(
+        None,
+        "--seed",
+        callback=at_least(0),
+        help="Seeds training (default 0) and the sampler (default: unseeded, so parallel runs differ).",
+    ),
+    out: Path | None = typer.Option(
+        None,
+        "--out",
+        help="Run folder for the study file, plots and trial scratch (default: runs/tune/NAME).",
+    ),
+    save_config: Path | None = typer.Option(
+        None, "--save-config", help="Write the best parameters as a zoo_configs YAML for train-* --config."
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="Base zoo_configs file whose untuned keys trials keep (default: the bundled one).",
+    ),
+    fix: list[str] = typer.Option(
+        [], "--fix", help="Hold a parameter fixed, e.g. --fix net_arch=small (repeat)."
+    ),
+    heartbeat: int = typer.Option(
+        30,
+        "--heartbeat",
+        callback=at_least(1),
+        help="Seconds between a running trial's heartbeats; a trial silent for twice that is retried.",
+    ),
+    top: int = typer.Option(5, "--top", callback=at_least(1), help="Best trials to show."),
+) -> None:
+    """Search hyperparameters with Optuna; several processes or machines can share one study."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # plots are files; never open a window
+
+    from sb3_hddpg.study_storage import default_storage_url
+    from sb3_hddpg.tuning import (
+        StudySettings,
+        TuningTarget,
+        best_trials,
+        ham_class,
+        save_best_config,
+        save_plots,
+        trial_counts,
+        tune,
+    )
+
+    if level not in LEVELS:
+        raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
+    if level == "worker" and worker not in WORKER_ENV_IDS:
+        raise typer.BadParameter(
+            f"--level worker needs --worker among {sorted(WORKER_ENV_IDS)}, got {worker!r}",
+            param_hint="'--worker'",
+        )
+    if level != "worker" and worker is not None:
+        raise typer.BadParameter(f"only applies to --level worker, not {level!r}", param_hint="'--worker'")
+    if level in ("manager", "ham"):
+        if workers_dir is None:
+            raise typer.BadParameter(f"--level {level} needs --workers DIR", param_hint="'--workers'")
+        if (
+            not (workers_dir / "workers" / "manifest.json").exists()
+            and not (workers_dir / "manifest.json").exists()
+        ):
+            raise typer.BadParameter(
+                f"no workers manifest in {str(workers_dir)!r}; run train-workers first",
+                param_hint="'--workers'",
+            )
+    if level == "ham" and save_config is not None:
+        raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
+    if sampler not in SAMPLERS:
+        raise typer.BadParameter(
+            f"must be one of {list(SAMPLERS)}, got {sampler!r}", param_hint="'--sampler'"
+        )
+    if pruner not in PRUNERS:
+        raise typer.BadParameter(f"must be one of {list(PRUNERS)}, got {pruner!r}", param_hint="'--pruner'")
+    if storage is not None and "://" not in storage:
+        raise typer.BadParameter(
+            f"expected a URL such as sqlite:///path/study.db or postgresql+psycopg://user@host/db, got {storage!r}",
+            param_hint="'--storage'",
+        )
+    if config is not None and not config.is_file():
+        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    fixed = parse_fixed(fix)
+    if level == "ham":
+        ham_class()  # a missing HAM baseline is reported before anything is created
+
+    target = TuningTarget(
+        level=level,
+        worker=worker,
+        workers_dir=str(workers_dir) if workers_dir is not None else None,
+        config=str(config) if config is not None else None,
+        timesteps=timesteps,
+        n_evaluations=n_evaluations,
+        eval_episodes=eval_episodes,
+        seed=seed if seed is not None else 0,
+    )
+    name = study_name or target.name
+    out = out or Path("runs") / "tune" / name
+    settings = StudySettings(
+        storage=storage or default_storage_url(out),
+        study_name=name,
+        n_trials=n_trials,
+        timeout=timeout,
+        sampler=sampler,
+        pruner=pruner,
+        seed=seed,
+        fixed_params=fixed,
+        heartbeat_interval=heartbeat,
+    )
+    shown_storage = storage.split("@")[-1] if storage else settings.storage
+    per_trial = "one evaluation" if level == "ham" else f"{target.budget()} steps"
+    console.print(
+        f"Tuning [bold]{target.name}[/] in study [bold]{name}[/] ({shown_storage}): "
+        f"{n_trials} trials of {per_trial}, {n_jobs} process(es)"
+    )
+    try:
+        study = tune(target, settings, out, n_jobs=n_jobs)
+    except TrainingInterrupted as interrupted:
+        console.print(f"[yellow]{interrupted}[/] Re-run the same command to resume the study.")
+        raise typer.Exit(130) from None
+
+    counts = trial_counts(study)
+    console.print("Trials: " + ", ".join(f"{state.lower()} {n}" for state, n in sorted(counts.items())))
+    best = best_trials(study, top)
+    if not best:
+        console.print("[yellow]No completed trial yet[/]: no best parameters, config or plots.")
+        return
+    console.print(trials_table(f"Best trials of {name} (mean evaluation reward)", best))
+    if save_config is not None:
+        console.print(f"[green]✓[/] best config -> {save_best_config(study, target, save_config)}")
+    for plot, result in save_plots(study, out).items():
+        if isinstance(result, Path):
+            console.print(f"[green]✓[/] {plot} -> {result}")
+        else:
+            console.print(f"[yellow]skipped {plot}[/]: {result}")
+    console.print(
+        f"Dashboard: optuna-dashboard {settings.storage if storage is None else '<your --storage URL>'}"
+    )

@@ -1,0 +1,104 @@
+"""
+Search spaces of ``hddpg-cli tune``: one ``sample_*_params(trial)`` per level, in a registry, as in rl_zoo3's
+``hyperparams_opt.py``.
+
+Each sampler returns the *changes* to a ``zoo_configs`` block, already in the file's format (``policy_kwargs``
+as a string, ``noise_type`` ``None`` for no noise), so that one function serves twice: in a trial it shapes
+the block that is trained, and replayed on ``optuna.trial.FixedTrial(best.params)`` it rebuilds the block
+that ``--save-config`` writes. The ranges follow rl_zoo3's DDPG/TD3 spaces, narrowed where the full range
+only wastes trials on this task and a CPU: learning rates above 1e-2 diverge, and batches above 512 or
+replay buffers above 3e5 cost time and memory per trial process without changing a tuning-sized run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+#: ``net_arch`` choices by name (rl_zoo3's names and sizes).
+NET_ARCHS: dict[str, list[int]] = {"small": [64, 64], "medium": [256, 256], "big": [400, 300]}
+
+#: Largest HAM threshold: the observation's per-link obstacle clearances lie in [0, 1], so their sum over
+#: the default six links lies in [0, 6].
+HAM_THRESHOLD_MAX = 6.0
+
+
+def sample_ddpg_params(trial: Any) -> dict[str, Any]:
+    """
+    DDPG's hyperparameters: discount, learning rate, batch and buffer size, soft-update rate, update
+    schedule, exploration noise and network size.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    :return: the keys of a ``zoo_configs`` block that the trial sets.
+    """
+    gamma = trial.suggest_categorical("gamma", [0.9, 0.95, 0.98, 0.99, 0.995, 0.999])
+    learning_rate = trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True)
+    batch_size = trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512])
+    buffer_size = trial.suggest_categorical("buffer_size", [10_000, 100_000, 300_000])
+    tau = trial.suggest_categorical("tau", [0.001, 0.005, 0.01, 0.02, 0.05, 0.08])
+    # As in rl_zoo3: as many gradient steps as env steps between updates, so the update-to-data ratio
+    # stays 1 and only the update's granularity is tuned.
+    train_freq = trial.suggest_categorical("train_freq", [1, 4, 8, 16, 32, 64])
+    noise_type = trial.suggest_categorical("noise_type", ["normal", "ornstein-uhlenbeck", "none"])
+    net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
+    block: dict[str, Any] = {
+        "gamma": gamma,
+        "learning_rate": learning_rate,
+        "batch_size": batch_size,
+        "buffer_size": buffer_size,
+        "tau": tau,
+        "train_freq": train_freq,
+        "gradient_steps": train_freq,
+        # "none" rather than None among the choices: every storage and the dashboard show it plainly.
+        "noise_type": None if noise_type == "none" else noise_type,
+        "policy_kwargs": f"dict(net_arch={NET_ARCHS[net_arch]})",
+    }
+    if noise_type != "none":
+        block["noise_std"] = trial.suggest_float("noise_std", 0.0, 1.0)
+    return block
+
+
+def sample_worker_params(trial: Any) -> dict[str, Any]:
+    """A worker is a plain DDPG on its own reward: :func:`sample_ddpg_params`."""
+    return sample_ddpg_params(trial)
+
+
+def sample_flat_params(trial: Any) -> dict[str, Any]:
+    """The flat baseline is a plain DDPG on the combined reward: :func:`sample_ddpg_params`."""
+    return sample_ddpg_params(trial)
+
+
+def sample_manager_params(trial: Any) -> dict[str, Any]:
+    """
+    The manager's DDPG plus how its action selects workers (``wrapper_kwargs``): the simplex map's
+    temperature and floor, the selection mode and the option length.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    block = sample_ddpg_params(trial)
+    block["wrapper_kwargs"] = {
+        "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
+        # Below 1/n for any n <= 9 workers, as SimplexMap requires.
+        "floor": trial.suggest_float("floor", 0.0, 0.1),
+        "selection": trial.suggest_categorical("selection", ["sample", "argmax", "mix"]),
+        "option_steps": trial.suggest_categorical("option_steps", [1, 2, 4, 8]),
+    }
+    return block
+
+
+def sample_ham_params(trial: Any) -> dict[str, Any]:
+    """
+    HAM's switching threshold on the sum of obstacle clearances (paper Section 4); HAM trains nothing.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    return {"threshold": trial.suggest_float("threshold", 0.0, HAM_THRESHOLD_MAX)}
+
+
+#: Level -> its sampler, as rl_zoo3's ``HYPERPARAMS_SAMPLER``.
+HYPERPARAMS_SAMPLER: dict[str, Callable[[Any], dict[str, Any]]] = {
+    "worker": sample_worker_params,
+    "manager": sample_manager_params,
+    "flat": sample_flat_params,
+    "ham": sample_ham_params,
+}

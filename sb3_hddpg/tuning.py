@@ -1,0 +1,742 @@
+"""
+Hyperparameter tuning with Optuna at every level: a worker, the manager, the flat baseline, and HAM's switch.
+
+One trial samples a ``zoo_configs`` block from :data:`~sb3_hddpg.hyperparams_opt.HYPERPARAMS_SAMPLER`, trains
+it with :func:`~sb3_hddpg.training.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
+evaluations to the pruner through :class:`~sb3_hddpg.callbacks.TrialPruningCallback`, and returns the last
+evaluation's mean reward (rl_zoo3's objective: the best of several noisy evaluations would favour lucky
+configurations). A trial that diverges (NaN reward or weights, or an exception about NaN) is pruned, not
+failed: it is a bad configuration, not a bug. HAM trains nothing: its trial is one evaluation.
+
+:func:`tune` runs ``n_jobs`` processes (not threads: training holds the GIL between torch calls) on one
+study in a shared storage (see :mod:`sb3_hddpg.study_storage`). ``n_trials`` is the *study's* target of
+finished (complete or pruned) trials, so a re-run after an interruption completes the same study, and any
+number of processes, on any number of machines, together finish exactly that many.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import datetime
+import functools
+import inspect
+import json
+import logging
+import math
+import multiprocessing
+import os
+import re
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import optuna
+import torch
+import yaml
+from optuna.trial import FrozenTrial, TrialState
+from stable_baselines3 import DDPG
+
+from sb3_hddpg.callbacks.pruning import TrialPruningCallback
+from sb3_hddpg.config import (
+    DEFAULT_CONFIG,
+    MANAGER_KEY,
+    load_config_file,
+    load_hyperparams,
+    parse_block,
+    select_block,
+)
+from sb3_hddpg.hyperparams_opt import HYPERPARAMS_SAMPLER
+from sb3_hddpg.io import atomic_write_bytes
+from sb3_hddpg.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
+from sb3_hddpg.training import (
+    WORKER_ENV_IDS,
+    AgentPaths,
+    TrainingInterrupted,
+    make_manager_env,
+    make_snake_env,
+    train_agent,
+    worker_env_factory,
+)
+
+logger = logging.getLogger(__name__)
+
+#: What can be tuned.
+LEVELS = ("worker", "manager", "flat", "ham")
+#: ``--sampler`` choices.
+SAMPLERS = ("tpe", "random")
+#: ``--pruner`` choices.
+PRUNERS = ("median", "halving", "none")
+#: The env of the manager, the flat baseline and HAM: the combined reward.
+SHARED_ENV_ID = "hddpg/SnakeReach-v0"
+#: Trial states that count towards ``n_trials``.
+FINISHED_STATES = (TrialState.COMPLETE, TrialState.PRUNED)
+#: Startup trials of TPE (random ones before it models anything) and of the median pruner, as in rl_zoo3.
+N_STARTUP_TRIALS = 10
+N_STARTUP_TRIALS_PRUNER = 5
+
+_NAN_MESSAGE = re.compile(r"\bnan\b|non-finite|not finite|\binf\b|infinit", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class TuningTarget:
+    """
+    What a study tunes, and how each trial is trained and evaluated. Picklable, so that every trial
+    process rebuilds the same objective.
+
+    :param level: ``worker``, ``manager``, ``flat`` or ``ham``.
+    :param worker: the worker to tune (``goal`` or ``avoid``; level ``worker`` only).
+    :param workers_dir: a ``train-workers`` run folder (levels ``manager`` and ``ham``).
+    :param config: the base ``zoo_configs`` file whose block the sampled values override (default: the
+        bundled one); its other keys (``learning_starts``, ``env_kwargs``...) are kept.
+    :param timesteps: training steps per trial (default: the base block's ``n_timesteps``).
+    :param n_evaluations: evaluations per trial, evenly spread, each reported to the pruner.
+    :param eval_episodes: episodes per evaluation.
+    :param seed: the training seed of every trial (the same for all, so trials differ only by their
+        hyperparameters).
+    """
+
+    level: str
+    worker: str | None = None
+    workers_dir: str | None = None
+    config: str | None = None
+    timesteps: int | None = None
+    n_evaluations: int = 5
+    eval_episodes: int = 5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.level not in LEVELS:
+            raise ValueError(f"Unknown level {self.level!r}; choose from {list(LEVELS)}")
+        if self.level == "worker" and self.worker not in WORKER_ENV_IDS:
+            raise ValueError(
+                f"Level 'worker' needs a worker among {sorted(WORKER_ENV_IDS)}, got {self.worker!r}"
+            )
+        if self.level != "worker" and self.worker is not None:
+            raise ValueError(f"A worker name only applies to level 'worker', not {self.level!r}")
+        if self.level in ("manager", "ham") and not self.workers_dir:
+            raise ValueError(f"Level {self.level!r} needs the run folder of train-workers (workers_dir)")
+        if self.n_evaluations < 1 or self.eval_episodes < 1:
+            raise ValueError(
+                f"Expected n_evaluations >= 1 and eval_episodes >= 1, actually: "
+                f"{self.n_evaluations} and {self.eval_episodes}"
+            )
+        if self.timesteps is not None and self.timesteps < self.n_evaluations:
+            raise ValueError(
+                f"Expected timesteps >= n_evaluations ({self.n_evaluations}), actually: {self.timesteps}"
+            )
+
+    @property
+    def name(self) -> str:
+        """A short name: ``worker-goal``, ``manager``, ``flat`` or ``ham`` (the default study name)."""
+        return f"worker-{self.worker}" if self.level == "worker" else self.level
+
+    @property
+    def block_key(self) -> str | None:
+        """The ``zoo_configs`` key of the tuned block (``None`` for HAM, which has none)."""
+        if self.level == "worker":
+            return WORKER_ENV_IDS[str(self.worker)]
+        return {"manager": MANAGER_KEY, "flat": SHARED_ENV_ID}.get(self.level)
+
+    @property
+    def config_path(self) -> Path:
+        """The base config file."""
+        return Path(self.config) if self.config else DEFAULT_CONFIG
+
+    def base_block(self) -> dict[str, Any]:
+        """The base config's block for :attr:`block_key` (empty for HAM)."""
+        if self.block_key is None:
+            return {}
+        return select_block(load_config_file(self.config_path), self.block_key, source=str(self.config_path))
+
+    def budget(self) -> int:
+        """Training steps per trial."""
+        if self.timesteps is not None:
+            return int(self.timesteps)
+        return int(self.base_block().get("n_timesteps", 0)) or 1
+
+    def describe(self) -> dict[str, Any]:
+        """What makes trials comparable, stored in the study so that a mismatching re-run is refused."""
+        return {
+            "level": self.level,
+            "worker": self.worker,
+            "timesteps": self.budget() if self.level != "ham" else None,
+            "n_evaluations": self.n_evaluations if self.level != "ham" else 1,
+            "eval_episodes": self.eval_episodes,
+        }
+
+
+@dataclass(frozen=True)
+class StudySettings:
+    """
+    How the study is searched and where it is stored.
+
+    :param storage: an Optuna storage URL (see :func:`~sb3_hddpg.study_storage.default_storage_url`).
+    :param study_name: the study's name in the storage; re-using it resumes the study.
+    :param n_trials: the study's target of finished (complete or pruned) trials, over all processes and runs.
+    :param timeout: seconds after which no new trial is started (``None``: no limit).
+    :param sampler: ``tpe`` or ``random``.
+    :param pruner: ``median``, ``halving`` or ``none``.
+    :param seed: seeds the sampler (process ``k`` of ``n_jobs`` uses ``seed + k``); ``None``: fresh entropy,
+        so that independent processes (e.g. on several machines) do not propose the same trials.
+    :param fixed_params: parameters held fixed, name -> value (Optuna's ``PartialFixedSampler``).
+    :param heartbeat_interval: seconds between heartbeats of a running trial; a trial silent for twice as
+        long is failed and re-queued.
+    """
+
+    storage: str
+    study_name: str
+    n_trials: int = 20
+    timeout: float | None = None
+    sampler: str = "tpe"
+    pruner: str = "median"
+    seed: int | None = None
+    fixed_params: dict[str, Any] = field(default_factory=dict)
+    heartbeat_interval: int = 30
+
+    def __post_init__(self) -> None:
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"Unknown sampler {self.sampler!r}; choose from {list(SAMPLERS)}")
+        if self.pruner not in PRUNERS:
+            raise ValueError(f"Unknown pruner {self.pruner!r}; choose from {list(PRUNERS)}")
+        if self.n_trials < 1:
+            raise ValueError(f"Expected n_trials >= 1, actually: {self.n_trials}")
+        if self.heartbeat_interval < 1:
+            raise ValueError(f"Expected heartbeat_interval >= 1 s, actually: {self.heartbeat_interval}")
+        if self.timeout is not None and not self.timeout > 0:
+            raise ValueError(f"Expected timeout > 0 s, actually: {self.timeout}")
+
+
+def make_sampler(settings: StudySettings, process_index: int = 0) -> optuna.samplers.BaseSampler:
+    """
+    The sampler of one process: TPE (multivariate, with constant liar so that parallel processes do not
+    all sample next to the same promising point) or random, wrapped to hold ``fixed_params``.
+
+    :param settings: the study settings.
+    :param process_index: the process's index among ``n_jobs`` (offsets the seed).
+    """
+    seed = None if settings.seed is None else settings.seed + process_index
+    with quiet_experimental():
+        if settings.sampler == "random":
+            sampler: optuna.samplers.BaseSampler = optuna.samplers.RandomSampler(seed=seed)
+        else:
+            sampler = optuna.samplers.TPESampler(
+                n_startup_trials=N_STARTUP_TRIALS, multivariate=True, constant_liar=True, seed=seed
+            )
+        if settings.fixed_params:
+            sampler = optuna.samplers.PartialFixedSampler(dict(settings.fixed_params), sampler)
+    return sampler
+
+
+def make_pruner(name: str, n_evaluations: int) -> optuna.pruners.BasePruner:
+    """
+    rl_zoo3's pruners: ``median`` (after 5 trials, from a third of the evaluations on), ``halving``
+    (successive halving, one evaluation as the least resource) or ``none``.
+
+    :param name: one of :data:`PRUNERS`.
+    :param n_evaluations: evaluations per trial.
+    """
+    if name == "median":
+        return optuna.pruners.MedianPruner(
+            n_startup_trials=N_STARTUP_TRIALS_PRUNER, n_warmup_steps=n_evaluations // 3
+        )
+    if name == "halving":
+        return optuna.pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=4)
+    if name == "none":
+        return optuna.pruners.NopPruner()
+    raise ValueError(f"Unknown pruner {name!r}; choose from {list(PRUNERS)}")
+
+
+def open_study(target: TuningTarget, settings: StudySettings, process_index: int = 0) -> optuna.Study:
+    """
+    Create the study, or load it if it exists (``load_if_exists``), and check that it tunes ``target``.
+
+    :param target: what is tuned.
+    :param settings: where and how.
+    :param process_index: this process's index (for the sampler's seed).
+    :return: the study, maximising the mean evaluation reward.
+    """
+    storage = make_storage(settings.storage, heartbeat_interval=settings.heartbeat_interval)
+    study = optuna.create_study(
+        storage=storage,
+        study_name=settings.study_name,
+        direction="maximize",
+        load_if_exists=True,
+        sampler=make_sampler(settings, process_index),
+        pruner=make_pruner(settings.pruner, target.n_evaluations),
+    )
+    expected = target.describe()
+    stored = study.user_attrs.get("target")
+    if stored is None:
+        study.set_user_attr("target", expected)
+    elif stored != expected:
+        raise ValueError(
+            f"Study {settings.study_name!r} in {_safe_url(settings.storage)} was made for {stored}, "
+            f"not {expected}: re-run with the same settings to resume it, or choose another --study-name"
+        )
+    return study
+
+
+def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, threads: int = 1) -> float:
+    """
+    Train (or, for HAM, evaluate) one sampled configuration and return its last mean evaluation reward.
+
+    :param trial: the Optuna trial.
+    :param target: what is tuned.
+    :param out_dir: the run folder; trials train in temporary folders under ``OUT/trials``.
+    :param threads: torch threads.
+    :return: the objective value; raises ``optuna.TrialPruned`` when pruned or diverged.
+    """
+    changes = HYPERPARAMS_SAMPLER[target.level](trial)
+    if target.level == "ham":
+        return _evaluate_ham(trial, target, float(changes["threshold"]))
+    block = merge_block(target.base_block(), changes)
+    trial.set_user_attr("config_block", block)
+    timesteps = target.budget()
+    hyperparams = parse_block(
+        dict(block, n_timesteps=timesteps, n_envs=1),
+        DDPG,
+        source=f"trial {trial.number}",
+        manager=target.level == "manager",
+    )
+    pruning = TrialPruningCallback(trial)
+    trials_dir = Path(out_dir) / "trials"
+    trials_dir.mkdir(parents=True, exist_ok=True)
+    # The trial's models, checkpoint and logs are not needed once its value is known: a temporary folder.
+    with tempfile.TemporaryDirectory(prefix=f"trial-{trial.number}-", dir=trials_dir) as folder:
+        paths = AgentPaths(Path(folder), target.name, Path(folder) / "model.zip")
+        try:
+            outcome = train_agent(
+                _env_factory(target, hyperparams),
+                hyperparams,
+                paths,
+                algo="ddpg",
+                timesteps=timesteps,
+                seed=target.seed,
+                n_envs=1,
+                eval_freq=math.ceil(timesteps / target.n_evaluations),
+                eval_episodes=target.eval_episodes,
+                checkpoint_freq=0,
+                keep_best=False,
+                threads=threads,
+                after_eval=pruning,
+            )
+        except (KeyboardInterrupt, TrainingInterrupted):
+            # Interrupted by the user, not a bad configuration: queue the same parameters again so that a
+            # re-run tries them (the interrupted trial itself ends FAIL).
+            trial.study.enqueue_trial(trial.params, user_attrs={"retry_of": trial.number})
+            raise
+        except Exception as error:
+            reason = pruning.check_divergence()
+            if reason is None and _NAN_MESSAGE.search(str(error)):
+                reason = f"{type(error).__name__}: {error}"
+            if reason is None:
+                raise
+            trial.set_user_attr("diverged", reason)
+            raise optuna.TrialPruned(f"diverged: {reason}") from error
+    trial.set_user_attr("history", [_jsonable(entry) for entry in outcome.history])
+    if pruning.diverged is not None:
+        trial.set_user_attr("diverged", pruning.diverged)
+        raise optuna.TrialPruned(f"diverged: {pruning.diverged}")
+    if pruning.is_pruned:
+        raise optuna.TrialPruned(
+            f"pruned after evaluation {pruning.eval_idx} ({outcome.num_timesteps} steps)"
+        )
+    return float(outcome.history[-1]["mean_reward"])
+
+
+def run_trials(
+    target: TuningTarget,
+    settings: StudySettings,
+    out_dir: str | Path,
+    process_index: int = 0,
+    threads: int = 1,
+    deadline: float | None = None,
+) -> int:
+    """
+    One process's share of the study: claim and run trials until the study has ``n_trials`` finished ones.
+
+    When the remaining trials are all running in other processes, it waits instead of leaving: if one of
+    them dies, its trial turns stale, is failed and re-queued, and a waiting process picks it up.
+
+    :param target: what is tuned.
+    :param settings: where and how.
+    :param out_dir: the run folder.
+    :param process_index: this process's index among ``n_jobs``.
+    :param threads: torch threads for this process.
+    :param deadline: ``time.time()`` after which no trial is started.
+    :return: how many trials this process ran.
+    """
+    torch.set_num_threads(threads)
+    study = open_study(target, settings, process_index)
+    lock = TrialClaimLock(settings.storage, settings.study_name)
+
+    def claimed_objective(trial: optuna.Trial) -> float:
+        # The trial now exists with its number: other processes may count it and claim the next one.
+        lock.release()
+        return objective(trial, target, out_dir, threads)
+
+    poll = min(5.0, float(settings.heartbeat_interval))
+    ran = 0
+    try:
+        while deadline is None or time.time() < deadline:
+            lock.acquire()
+            try:
+                step = _next_step(study, settings.n_trials)
+                if step == "done":
+                    break
+                if step == "wait":
+                    lock.release()
+                    time.sleep(poll)
+                    continue
+                with quiet_experimental():
+                    study.optimize(claimed_objective, n_trials=1, gc_after_trial=True)
+                ran += 1
+            finally:
+                lock.release()
+    finally:
+        lock.close()
+        with contextlib.suppress(Exception):
+            study._storage.engine.dispose()  # type: ignore[attr-defined]  # free connections before exit
+    return ran
+
+
+def tune(target: TuningTarget, settings: StudySettings, out_dir: str | Path, n_jobs: int = 1) -> optuna.Study:
+    """
+    Tune ``target`` with ``n_jobs`` trial processes on one study, until it has ``settings.n_trials``
+    finished trials or ``settings.timeout`` has passed.
+
+    Each process gets ``max(1, cores // n_jobs)`` torch threads so that together they do not
+    oversubscribe the machine. More processes (or machines) can join the same study at any time by
+    running the same command against the same storage.
+
+    :param target: what is tuned.
+    :param settings: where and how.
+    :param out_dir: the run folder (temporary trial folders; the default storage lives here too).
+    :param n_jobs: trial processes on this machine.
+    :return: the study.
+    """
+    if n_jobs < 1:
+        raise ValueError(f"Expected n_jobs >= 1, actually: {n_jobs}")
+    if target.level == "ham":
+        ham_class()  # fail now, not in every trial process
+    if n_jobs > 1 and settings.storage.startswith("sqlite") and sqlite_path(settings.storage) is None:
+        raise ValueError("An in-memory storage cannot be shared by several processes; use a file or a server")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    deadline = time.time() + settings.timeout if settings.timeout else None
+    # Created here, once, so that the trial processes only load it.
+    study = open_study(target, settings)
+    threads = max(1, available_cores() // n_jobs)
+    if n_jobs == 1:
+        run_trials(target, settings, out_dir, 0, threads, deadline)
+        return study
+    # spawn, not fork: a forked child would share this process's database connections and torch state.
+    context = multiprocessing.get_context("spawn")
+    processes = [
+        context.Process(
+            target=run_trials,
+            args=(target, settings, str(out_dir), index, threads, deadline),
+            name=f"tune-{index}",
+        )
+        for index in range(n_jobs)
+    ]
+    for process in processes:
+        process.start()
+    try:
+        for process in processes:
+            process.join()
+    except KeyboardInterrupt:
+        # The children got the same Ctrl-C; give them time to queue their trials again and leave.
+        for process in processes:
+            process.join(timeout=30)
+            if process.is_alive():
+                process.terminate()
+        raise
+    failed = [f"{p.name} (exit code {p.exitcode})" for p in processes if p.exitcode != 0]
+    if failed:
+        raise RuntimeError(f"Trial processes failed: {', '.join(failed)}; their errors are printed above")
+    return study
+
+
+def available_cores() -> int:
+    """CPU cores this process may use (its affinity mask where the OS has one)."""
+    with contextlib.suppress(AttributeError):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def trial_counts(study: optuna.Study) -> dict[str, int]:
+    """How many trials are in each state, e.g. ``{"COMPLETE": 18, "PRUNED": 2}``."""
+    counts: dict[str, int] = {}
+    for trial in study.get_trials(deepcopy=False):
+        counts[trial.state.name] = counts.get(trial.state.name, 0) + 1
+    return counts
+
+
+def best_trials(study: optuna.Study, k: int = 5) -> list[FrozenTrial]:
+    """The ``k`` completed trials with the highest values, best first."""
+    completed = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    return sorted(completed, key=lambda t: t.value if t.value is not None else -math.inf, reverse=True)[:k]
+
+
+def best_block(study: optuna.Study, target: TuningTarget) -> dict[str, Any]:
+    """
+    The best trial's config block: the base block with the best parameters, rebuilt by replaying the
+    level's sampler on ``optuna.trial.FixedTrial(best.params)``.
+
+    :param study: a study with at least one completed trial.
+    :param target: what was tuned (not HAM, which has no block).
+    """
+    if target.level == "ham":
+        raise ValueError("HAM has no DDPG hyperparameters to save; its best threshold is in the study")
+    try:
+        best = study.best_trial
+    except ValueError:
+        raise ValueError(
+            f"Study {study.study_name!r} has no completed trial yet: no best parameters"
+        ) from None
+    changes = HYPERPARAMS_SAMPLER[target.level](optuna.trial.FixedTrial(best.params))
+    return merge_block(target.base_block(), changes)
+
+
+def save_best_config(study: optuna.Study, target: TuningTarget, path: str | Path) -> Path:
+    """
+    Write the best parameters as a ``zoo_configs`` file that ``train-workers``, ``train-manager`` and
+    ``train-flat --config`` accept as is.
+
+    If ``path`` exists, only the tuned block is replaced (so tuning ``goal`` and then ``avoid`` into one file
+    collects both); otherwise the file starts as a copy of the base config, so that every other block
+    (``default``, the other workers, ``manager``) is still there.
+
+    :param study: the tuned study.
+    :param target: what was tuned.
+    :param path: the YAML file to write.
+    :return: the path written.
+    """
+    path = Path(path)
+    block = best_block(study, target)
+    key = str(target.block_key)
+    config = load_config_file(path) if path.exists() else load_config_file(target.config_path)
+    config[key] = block
+    best = study.best_trial
+    header = (
+        f"# Written by hddpg-cli tune on {datetime.datetime.now().isoformat(timespec='seconds')}: "
+        f"block {key!r} from study {study.study_name!r},\n"
+        f"# trial {best.number}, mean evaluation reward {best.value:.4g} after {target.budget()} steps. "
+        f"RL Zoo format (zoo_configs/ddpg.yml).\n"
+    )
+    text = header + yaml.safe_dump(config, sort_keys=False, default_flow_style=False)
+    atomic_write_bytes(path, text.encode())
+    # What we promise: the commands read it back as written.
+    load_hyperparams(key, DDPG, path, manager=key == MANAGER_KEY)
+    return path
+
+
+def save_plots(study: optuna.Study, out_dir: str | Path) -> dict[str, Path | str]:
+    """
+    Save the optimisation history and the parameter importances as PNG files in ``OUT/plots``.
+
+    Importances are PED-ANOVA's (:class:`optuna.importance.PedAnovaImportanceEvaluator`), which, unlike the
+    default fANOVA, needs no scikit-learn. Use a non-interactive matplotlib backend (``Agg``) on servers.
+
+    :param study: the study.
+    :param out_dir: the run folder.
+    :return: plot name -> the PNG written, or the reason it was skipped.
+    """
+    import matplotlib.pyplot as plt
+    from optuna.importance import PedAnovaImportanceEvaluator
+    from optuna.visualization.matplotlib import plot_optimization_history, plot_param_importances
+
+    folder = Path(out_dir) / "plots"
+    n_completed = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
+    plots: dict[str, Any] = {
+        "optimization_history": functools.partial(plot_optimization_history, study),
+        "param_importances": functools.partial(
+            plot_param_importances, study, evaluator=PedAnovaImportanceEvaluator()
+        ),
+    }
+    needed = {"optimization_history": 1, "param_importances": 2}
+    results: dict[str, Path | str] = {}
+    for name, plot in plots.items():
+        if n_completed < needed[name]:
+            results[name] = f"needs at least {needed[name]} completed trials, the study has {n_completed}"
+            continue
+        try:
+            # PED-ANOVA warns about the accuracy of importances from few trials; the plot still helps.
+            with quiet_experimental(), warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                axes = plot()
+        except (ValueError, RuntimeError, ZeroDivisionError) as error:
+            results[name] = f"{type(error).__name__}: {error}"
+            continue
+        figure = axes.figure
+        folder.mkdir(parents=True, exist_ok=True)
+        figure.tight_layout()
+        figure.savefig(folder / f"{name}.png", dpi=120)
+        plt.close(figure)
+        results[name] = folder / f"{name}.png"
+    return results
+
+
+def merge_block(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """``base`` updated by ``changes``; ``wrapper_kwargs`` are merged key by key, ``noise_std`` dropped without noise."""
+    block = copy.deepcopy(base)
+    for key, value in changes.items():
+        if key == "wrapper_kwargs":
+            block[key] = {**(block.get(key) or {}), **value}
+        else:
+            block[key] = value
+    if "noise_type" in block and block["noise_type"] is None:
+        block.pop("noise_std", None)  # meaningless without noise; a reader would wonder which applies
+    return block
+
+
+def ham_class() -> type:
+    """The HAM baseline's policy class, or a clear error where this installation has none."""
+    try:
+        from sb3_hddpg.baselines.ham import HAMSwitch
+    except ImportError as error:
+        raise RuntimeError(
+            "Level 'ham' needs the HAM baseline (sb3_hddpg.baselines.ham.HAMSwitch), which this "
+            f"installation lacks ({error})"
+        ) from None
+    return HAMSwitch
+
+
+def _next_step(study: optuna.Study, n_trials: int) -> str:
+    """``run`` a trial, ``wait`` for others' running trials, or ``done``; call with the claim lock held."""
+    with quiet_experimental():
+        optuna.storages.fail_stale_trials(study)  # re-queues dead processes' trials as WAITING
+    trials = study.get_trials(deepcopy=False)
+    finished = sum(t.state in FINISHED_STATES for t in trials)
+    running = sum(t.state == TrialState.RUNNING for t in trials)
+    waiting = sum(t.state == TrialState.WAITING for t in trials)
+    if finished >= n_trials:
+        return "done"
+    if waiting:
+        return "run"  # optimize() takes queued trials first
+    return "wait" if finished + running >= n_trials else "run"
+
+
+def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
+    """A picklable factory of the training env of ``target``, as the ``train-*`` commands build it."""
+    if target.level == "worker":
+        return worker_env_factory(str(target.worker), hyperparams.env_kwargs)
+    if target.level == "flat":
+        return functools.partial(make_snake_env, SHARED_ENV_ID, dict(hyperparams.env_kwargs))
+    from sb3_hddpg.hierarchy import SelectionConfig
+
+    names = _worker_names(str(target.workers_dir))
+    selection = SelectionConfig(preferences=dict.fromkeys(names, 1.0), **hyperparams.wrapper_kwargs)
+    return functools.partial(
+        make_manager_env,
+        SHARED_ENV_ID,
+        dict(hyperparams.env_kwargs),
+        str(target.workers_dir),
+        names,
+        selection.wrapper_kwargs(),
+        False,
+    )
+
+
+def _worker_names(workers_dir: str) -> list[str]:
+    folder = Path(workers_dir)
+    manifest = folder / "workers" / "manifest.json"
+    if not manifest.exists():
+        manifest = folder / "manifest.json"
+    if not manifest.exists():
+        raise FileNotFoundError(f"No workers manifest in {workers_dir!r}; run train-workers first")
+    return list(json.loads(manifest.read_text())["workers"])
+
+
+def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -> float:
+    """HAM's trial: no training, one evaluation on the combined reward."""
+    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.training import load_workers
+
+    workers, _ = load_workers(str(target.workers_dir))
+    env = make_snake_env(SHARED_ENV_ID)
+    try:
+        policy = _make_ham(ham_class(), workers, env, threshold)
+        summary = evaluate(policy, env, n_episodes=target.eval_episodes).summary()
+    finally:
+        env.close()
+    trial.set_user_attr("history", [_jsonable({"timesteps": 0, **summary})])
+    value = float(summary["mean_reward"])
+    if not math.isfinite(value):
+        raise optuna.TrialPruned(f"diverged: mean evaluation reward is {value}")
+    trial.report(value, 1)
+    return value
+
+
+def _make_ham(cls: type, workers: dict[str, Any], env: Any, threshold: float) -> Any:
+    """
+    Build a HAM switch from whatever of (workers, the env or its state layout, threshold) its constructor
+    names: this was written alongside the HAM baseline, against its class name and ``threshold`` only.
+    """
+    known = {
+        "workers": workers,
+        "env": env,
+        "layout": env.unwrapped.state_layout,
+        "state_layout": env.unwrapped.state_layout,
+        "threshold": threshold,
+        **{name: model for name, model in workers.items()},
+        **{f"{name}_worker": model for name, model in workers.items()},
+    }
+    signature = inspect.signature(cls)
+    kwargs = {}
+    for name, parameter in signature.parameters.items():
+        if name in known:
+            kwargs[name] = known[name]
+        elif parameter.default is inspect.Parameter.empty and parameter.kind not in (
+            inspect.Parameter.VAR_POSITIONAL,
+            inspect.Parameter.VAR_KEYWORD,
+        ):
+            raise TypeError(f"Cannot build {cls.__name__}{signature} for tuning: unknown argument {name!r}")
+    return cls(**kwargs)
+
+
+def _jsonable(entry: dict[str, Any]) -> dict[str, Any]:
+    """An evaluation summary with only JSON-safe finite numbers (NaN becomes ``None``)."""
+    out: dict[str, Any] = {}
+    for key, value in entry.items():
+        if isinstance(value, float):
+            out[key] = value if math.isfinite(value) else None
+        elif isinstance(value, (int, str, bool)) or value is None:
+            out[key] = value
+        elif isinstance(value, dict):
+            out[key] = _jsonable(value)
+    return out
+
+
+def _safe_url(url: str) -> str:
+    with contextlib.suppress(Exception):
+        from sqlalchemy.engine import make_url
+
+        return make_url(url).render_as_string(hide_password=True)
+    return url
+
+
+__all__ = [
+    "LEVELS",
+    "PRUNERS",
+    "SAMPLERS",
+    "StudySettings",
+    "TuningTarget",
+    "available_cores",
+    "best_block",
+    "best_trials",
+    "make_pruner",
+    "make_sampler",
+    "objective",
+    "open_study",
+    "run_trials",
+    "save_best_config",
+    "save_plots",
+    "trial_counts",
+    "tune",
+]
