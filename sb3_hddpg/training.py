@@ -361,6 +361,7 @@ def train_workers(
     progress_bar: bool = False,
     threads: int = 1,
     on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
+    extra_callbacks: Sequence[BaseCallback] = (),
 ) -> dict[str, Any]:
     """
     Train each named worker as a plain SB3 DDPG on its own registered env id (paper Algorithm 1, first
@@ -379,6 +380,7 @@ def train_workers(
     :param progress_bar: show a progress bar per worker.
     :param threads: torch threads.
     :param on_worker_done: called after each worker with its outcome.
+    :param extra_callbacks: more SB3 callbacks for every worker (e.g. progress reporting).
     :return: the manifest written.
     """
     from sb3_hddpg.config import load_hyperparams
@@ -419,6 +421,7 @@ def train_workers(
             eval_episodes=eval_episodes,
             progress_bar=progress_bar,
             threads=threads,
+            extra_callbacks=extra_callbacks,
         )
         probe = SnakeArmEnv(**hyperparams.env_kwargs)
         manifest["workers"][name] = {
@@ -538,6 +541,7 @@ def train_manager(
     threads: int = 1,
     trusted: bool = False,
     env_id: str = "hddpg/SnakeReach-v0",
+    extra_callbacks: Sequence[BaseCallback] = (),
 ) -> tuple[Any, TrainingOutcome]:
     """
     Train the manager: a plain SB3 DDPG on ``WorkerSelectionWrapper`` over pre-trained workers (paper
@@ -561,6 +565,7 @@ def train_manager(
     :param config: a ``zoo_configs`` file; its ``manager`` block is used.
     :param trusted: load the workers with SB3's full loader.
     :param env_id: the shared env the manager acts in.
+    :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
     :return: the saved :class:`~sb3_hddpg.hierarchy.Hierarchy` and the training outcome.
     """
     from sb3_hddpg.config import MANAGER_KEY, load_hyperparams
@@ -612,7 +617,7 @@ def train_manager(
         eval_episodes=eval_episodes,
         progress_bar=progress_bar,
         threads=threads,
-        extra_callbacks=[SelectionStatsCallback()],
+        extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
     )
     worker_meta = {
         name: {
