@@ -106,3 +106,29 @@ class StepRecorder(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
         if self.on_frame is not None:
             self.on_frame(self.env.render(), record)  # type: ignore[arg-type]
         return obs, reward, terminated, truncated, info
+
+
+def trace_episodes(
+    policy: Policy, env: gym.Env, n_episodes: int = 1, seed: int | None = None, deterministic: bool = True
+) -> tuple[list[StepRecord], Any]:
+    """
+    Run ``policy`` for ``n_episodes`` through :func:`~sb3_hddpg.evaluation.evaluate` and keep every step.
+
+    :param policy: anything with SB3's ``predict``.
+    :param env: a snake env (no rendering needed).
+    :param n_episodes: how many episodes.
+    :param seed: the first episode's seed (default: the evaluation seeds).
+    :param deterministic: passed to ``predict``.
+    :return: the step records and the :class:`~sb3_hddpg.evaluation.EvaluationResult`.
+    """
+    from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+
+    recorder = StepRecorder(env, policy)
+    result = evaluate(
+        policy,
+        recorder,
+        n_episodes=n_episodes,
+        seed=EVAL_SEED_BASE if seed is None else seed,
+        deterministic=deterministic,
+    )
+    return recorder.records, result
