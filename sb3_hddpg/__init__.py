@@ -1,10 +1,32 @@
 """sb3-hddpg: Hierarchical DDPG (Um, Nethala & Shin, AI 2022) on Stable-Baselines3."""
 
 import os
+from typing import Any
 
 from sb3_hddpg.envs import ENV_IDS, SnakeArmEnv
 
 with open(os.path.join(os.path.dirname(__file__), "version.txt")) as _file:
     __version__ = _file.read().strip()
 
-__all__ = ["ENV_IDS", "SnakeArmEnv", "__version__"]
+# The heavy parts (torch, SB3) load on first use, so that `import sb3_hddpg` (which registers the env ids,
+# e.g. in every SubprocVecEnv worker or for rl_zoo3's --gym-packages) stays cheap.
+_LAZY = {
+    "Hierarchy": "sb3_hddpg.hierarchy",
+    "SelectionConfig": "sb3_hddpg.hierarchy",
+    "WorkerSelectionWrapper": "sb3_hddpg.wrappers.selection",
+    "evaluate": "sb3_hddpg.evaluation",
+    "load_policy": "sb3_hddpg.loading",
+    "train_workers": "sb3_hddpg.training",
+    "train_manager": "sb3_hddpg.training",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'sb3_hddpg' has no attribute {name!r}")
+
+
+__all__ = ["ENV_IDS", "SnakeArmEnv", "__version__", *_LAZY]

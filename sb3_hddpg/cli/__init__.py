@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import sys
 
-from typer._click import exceptions as click_exceptions
+import typer
 from typer.main import get_command
 
 from sb3_hddpg.cli.app import app, console_error
@@ -31,13 +31,16 @@ def main(argv: list[str] | None = None) -> None:
     command = get_command(app)
     try:
         code = command.main(args=args, prog_name="hddpg-cli", standalone_mode=False)
-    except click_exceptions.Abort:
+    except typer.Abort:
         console_error("aborted")
         sys.exit(130)
-    except click_exceptions.ClickException as error:  # usage errors: bad option, bad value
+    except typer.TyperException as error:  # usage errors: unknown option, bad value (exit code 2)
+        if type(error).__name__ == "NoArgsIsHelpError":  # bare `hddpg-cli`: the help, not an error
+            print(error.format_message())
+            sys.exit(0)
         console_error(error.format_message())
         sys.exit(error.exit_code)
-    except click_exceptions.Exit as error:
+    except typer.Exit as error:
         sys.exit(error.exit_code)
     except KeyboardInterrupt:
         console_error("interrupted")

@@ -1,0 +1,49 @@
+"""Test doubles and small utilities shared by the tests."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+
+class ConstantWorker:
+    """A worker that always outputs the same action and records what it was shown."""
+
+    def __init__(
+        self,
+        action: np.ndarray,
+        observation_space: gym.Space | None = None,
+        action_space: gym.Space | None = None,
+    ):
+        self.action = np.asarray(action, dtype=np.float32)
+        if observation_space is not None:
+            self.observation_space = observation_space
+        if action_space is not None:
+            self.action_space = action_space
+        self.calls = 0
+        self.last_obs: np.ndarray | None = None
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ):
+        self.calls += 1
+        self.last_obs = np.asarray(observation)
+        return np.broadcast_to(self.action, (*np.shape(observation)[:-1], self.action.shape[0])).copy(), None
+
+
+class ActionRecorder(gym.Wrapper):
+    """Records every action that reaches the inner env (gymnasium's GenericTestEnv idea, on the real env)."""
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        self.actions: list[np.ndarray] = []
+
+    def step(self, action):
+        self.actions.append(np.array(action, dtype=np.float32))
+        return self.env.step(action)

@@ -1,0 +1,174 @@
+"""The training commands end to end through the CLI, in subprocesses, on tiny budgets."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from stable_baselines3 import DDPG
+
+from tests.cli_runner import CLI, run_cli
+
+TINY = ("--timesteps", "400", "--eval-freq", "200", "--eval-episodes", "1", "--no-progress")
+
+
+def test_version_and_help():
+    assert run_cli("--version", check=True).stdout.startswith("sb3-hddpg ")
+    out = run_cli("--help", check=True).stdout
+    for command in ("train-workers", "train-manager", "evaluate"):
+        assert command in out
+
+
+def test_workers_manager_evaluate_end_to_end(tmp_path):
+    run_cli("train-workers", *TINY, "--out", tmp_path / "w", "--seed", "1", check=True)
+    assert DDPG.load(tmp_path / "w" / "workers" / "goal.zip").num_timesteps > 0
+    assert (tmp_path / "w" / "tensorboard" / "goal").is_dir()
+    result = run_cli(
+        "train-manager",
+        "--workers",
+        tmp_path / "w",
+        *TINY,
+        "--out",
+        tmp_path / "m",
+        "--prefer",
+        "avoid",
+        check=True,
+    )
+    assert "Worker choices" in result.stdout
+    result = run_cli(
+        "evaluate",
+        tmp_path / "m" / "hierarchy.zip",
+        "--episodes",
+        "2",
+        "--json",
+        tmp_path / "eval.json",
+        check=True,
+    )
+    report = json.loads((tmp_path / "eval.json").read_text())
+    assert report["kind"] == "hierarchy" and report["summary"]["episodes"] == 2
+    assert sum(report["summary"]["selection_rate"].values()) == pytest.approx(1.0)
+    assert "selection_rate: " in result.stdout
+    # A worker zip evaluates through the manifest beside it (safe load, no --trust needed).
+    run_cli("evaluate", tmp_path / "w" / "workers" / "goal.zip", "--episodes", "1", check=True)
+    # An output folder with results is refused without --force/--resume.
+    refused = run_cli("train-workers", *TINY, "--out", tmp_path / "w")
+    assert refused.returncode == 2 and "already holds results" in refused.stderr
+    assert "Traceback" not in refused.stderr
+
+
+def test_interrupt_saves_a_checkpoint_and_resume_reaches_the_total(tmp_path):
+    out = tmp_path / "run"
+    env = {**os.environ, "SDL_VIDEODRIVER": "dummy"}
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            str(CLI),
+            "train-workers",
+            "--workers",
+            "goal",
+            "--timesteps",
+            "20000",
+            "--eval-freq",
+            "500",
+            "--eval-episodes",
+            "1",
+            "--no-progress",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    history = out / "evaluations" / "goal.json"
+    deadline = time.time() + 300
+    while not history.exists() and time.time() < deadline:
+        time.sleep(0.5)
+    assert history.exists(), "training never evaluated"
+    process.send_signal(signal.SIGTERM)
+    stdout, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    assert "--resume" in stdout and "Traceback" not in stderr
+    state = json.loads((out / "checkpoints" / "goal" / "state.json").read_text())
+    assert 0 < state["num_timesteps"] < 20000
+    DDPG.load(out / "checkpoints" / "goal" / state["model"])
+    resumed = run_cli(
+        "train-workers",
+        "--workers",
+        "goal",
+        "--timesteps",
+        str(state["num_timesteps"] + 300),
+        "--eval-freq",
+        "500",
+        "--eval-episodes",
+        "1",
+        "--no-progress",
+        "--out",
+        out,
+        "--resume",
+        check=True,
+    )
+    manifest = json.loads((out / "workers" / "manifest.json").read_text())
+    assert manifest["workers"]["goal"]["timesteps_trained"] == state["num_timesteps"] + 300
+    assert "goal" in resumed.stdout
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("default:\n  n_timesteps: 100\n  learning_rat: 0.001\n", "Unknown keys"),
+        ("default: [unclosed\n", "Invalid YAML"),
+        ("default:\n  n_timesteps: -5\n", "n_timesteps"),
+        (
+            "default:\n  n_timesteps: 100\n  policy_kwargs: \"dict(net_arch=__import__('os').system('true'))\"\n",
+            "Unsupported expression",
+        ),
+    ],
+)
+def test_config_errors_are_one_line(tmp_path, content, message):
+    config = tmp_path / "bad.yml"
+    config.write_text(content)
+    result = run_cli("train-workers", "--config", config, "--out", tmp_path / "out", "--timesteps", "100")
+    assert result.returncode != 0
+    lines = [line for line in result.stderr.strip().splitlines() if line]
+    assert len(lines) == 1 and message in lines[0], result.stderr
+
+
+def test_missing_config_file_is_a_usage_error(tmp_path):
+    result = run_cli("train-workers", "--config", tmp_path / "nope.yml", "--out", tmp_path / "o")
+    assert result.returncode == 2 and "nope.yml" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_rl_zoo_trains_with_our_config_unchanged(tmp_path, repo_root):
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rl_zoo3.train",
+            "--algo",
+            "ddpg",
+            "--env",
+            "hddpg/SnakeGoal-v0",
+            "--gym-packages",
+            "sb3_hddpg",
+            "--conf-file",
+            os.path.join(repo_root, "zoo_configs", "ddpg.yml"),
+            "-n",
+            "300",
+            "--eval-freq",
+            "-1",
+            "-f",
+            str(tmp_path / "logs"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    model = DDPG.load(tmp_path / "logs" / "ddpg" / "hddpg-SnakeGoal-v0_1" / "hddpg-SnakeGoal-v0.zip")
+    assert model.num_timesteps == 300

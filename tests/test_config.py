@@ -1,0 +1,78 @@
+"""Config parsing: RL Zoo's format, safe policy_kwargs, clear errors."""
+
+import pytest
+from stable_baselines3 import DDPG
+from torch import nn
+
+from sb3_hddpg.config import (
+    DEFAULT_CONFIG,
+    ConfigError,
+    load_config_file,
+    load_hyperparams,
+    parse_block,
+    parse_policy_kwargs,
+    policy_kwargs_to_string,
+)
+
+
+def test_bundled_config_has_every_env_and_the_manager():
+    config = load_config_file(DEFAULT_CONFIG)
+    assert {"default", "hddpg/SnakeGoal-v0", "hddpg/SnakeAvoid-v0", "hddpg/SnakeReach-v0", "manager"} <= set(
+        config
+    )
+    goal = load_hyperparams("hddpg/SnakeGoal-v0", DDPG)
+    assert goal.algo_kwargs["policy_kwargs"] == {"net_arch": [64, 64]}
+    assert goal.noise_type == "normal" and goal.n_timesteps > 0
+    manager = load_hyperparams("manager", DDPG, manager=True)
+    assert manager.wrapper_kwargs["selection"] == "sample"
+
+
+def test_env_block_replaces_default_like_rl_zoo(tmp_path):
+    path = tmp_path / "c.yml"
+    path.write_text("default:\n  n_timesteps: 10\n  gamma: 0.5\nhddpg/SnakeGoal-v0:\n  n_timesteps: 20\n")
+    assert load_hyperparams("hddpg/SnakeGoal-v0", DDPG, path).algo_kwargs == {}
+    assert load_hyperparams("hddpg/SnakeAvoid-v0", DDPG, path).algo_kwargs == {"gamma": 0.5}
+
+
+def test_policy_kwargs_round_trip_and_safety():
+    kwargs = parse_policy_kwargs("dict(net_arch=[400, 300], activation_fn=nn.Tanh)")
+    assert kwargs == {"net_arch": [400, 300], "activation_fn": nn.Tanh}
+    assert parse_policy_kwargs(policy_kwargs_to_string(kwargs)) == kwargs
+    assert parse_policy_kwargs("dict(net_arch=dict(pi=[64], qf=[400, 300]))")["net_arch"]["qf"] == [400, 300]
+    for hostile in (
+        "__import__('os').system('true')",
+        "dict(a=open('x'))",
+        "dict(activation_fn=nn.Module)",
+        "[1, 2]",
+    ):
+        with pytest.raises(ConfigError):
+            parse_policy_kwargs(hostile)
+
+
+@pytest.mark.parametrize(
+    ("block", "message"),
+    [
+        ({"n_timesteps": 10, "lr": 0.1}, r"Unknown keys in .*\['lr'\]"),
+        ({"gamma": 0.9}, "Missing key 'n_timesteps'"),
+        ({"n_timesteps": 0}, "n_timesteps"),
+        ({"n_timesteps": 10, "noise_type": "pink"}, "noise_type"),
+        ({"n_timesteps": 10, "noise_std": -1}, "noise_std"),
+        ({"n_timesteps": 10, "policy": "CnnPolicy"}, "MlpPolicy"),
+        ({"n_timesteps": 10, "wrapper_kwargs": {}}, "Unknown keys"),
+        ({"n_timesteps": 10, "seed": 3}, "Unknown keys"),
+    ],
+)
+def test_bad_blocks(block, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_block(block, DDPG, source="test")
+
+
+def test_missing_file_and_bad_yaml(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_config_file(tmp_path / "none.yml")
+    (tmp_path / "bad.yml").write_text("a: [1,\n")
+    with pytest.raises(ConfigError, match="Invalid YAML"):
+        load_config_file(tmp_path / "bad.yml")
+    (tmp_path / "list.yml").write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="map env ids"):
+        load_config_file(tmp_path / "list.yml")

@@ -1,0 +1,161 @@
+"""Workers, the manager and bundles, through the Python API on tiny budgets."""
+
+import io
+import json
+import subprocess
+import sys
+import zipfile
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import DDPG
+
+from sb3_hddpg.hierarchy import BundleError, Hierarchy, SelectionConfig
+from sb3_hddpg.training import sha256_file, train_manager, train_workers
+from sb3_hddpg.wrappers import WorkerSelectionWrapper
+
+TINY = {"timesteps": 400, "eval_freq": 200, "eval_episodes": 1}
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("run")
+    manifest = train_workers(root / "w", seed=3, **TINY)
+    hierarchy, outcome = train_manager(root / "w", root / "m", prefer="goal", bias=0.15, seed=3, **TINY)
+    return root, manifest, hierarchy, outcome
+
+
+def test_worker_zips_are_plain_sb3_and_manifest_is_complete(trained):
+    root, manifest, _, _ = trained
+    assert set(manifest["workers"]) == {"goal", "avoid"}
+    on_disk = json.loads((root / "w" / "workers" / "manifest.json").read_text())
+    assert on_disk == json.loads(json.dumps(manifest))
+    for name, entry in manifest["workers"].items():
+        path = root / "w" / "workers" / entry["file"]
+        model = DDPG.load(path)  # nothing but SB3
+        assert model.observation_space.shape == (39,)
+        assert entry["sha256"] == sha256_file(path)
+        assert entry["env_id"] == {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}[name]
+        assert entry["reward_term"] == name
+        assert entry["reward_bounds"] == list(gym.make(entry["env_id"]).unwrapped.reward_bounds[name])
+        assert entry["seed"] == 3 and entry["timesteps_trained"] == 400
+        assert {"stable_baselines3", "torch", "gymnasium", "pymunk"} <= set(entry["versions"])
+        assert {
+            "mean_reward",
+            "goal_touch_rate",
+            "collisions_per_episode",
+            "success_rate",
+            "min_clearance",
+        } <= set(entry["metrics"])
+        assert entry["config"]["block"]["policy_kwargs"] == "dict(net_arch=[64, 64])"
+        assert entry["spec"]["algorithm"] == "DDPG"
+
+
+def test_same_seed_gives_identical_weights(tmp_path):
+    a = train_workers(tmp_path / "a", workers=["goal"], seed=11, timesteps=300, eval_freq=0, eval_episodes=1)
+    b = train_workers(tmp_path / "b", workers=["goal"], seed=11, timesteps=300, eval_freq=0, eval_episodes=1)
+    c = train_workers(tmp_path / "c", workers=["goal"], seed=12, timesteps=300, eval_freq=0, eval_episodes=1)
+    weights = [
+        DDPG.load(p / "workers" / "goal.zip").policy.state_dict()
+        for p in (tmp_path / "a", tmp_path / "b", tmp_path / "c")
+    ]
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+    assert not all(torch.equal(weights[0][k], weights[2][k]) for k in weights[0])
+    assert a["workers"]["goal"]["sha256"] != c["workers"]["goal"]["sha256"]
+    assert b["workers"]["goal"]["metrics"] == a["workers"]["goal"]["metrics"]
+
+
+def test_bundle_round_trip_in_a_fresh_process(trained):
+    root, _, hierarchy, _ = trained
+    path = root / "m" / "hierarchy.zip"
+    obs = np.stack([gym.make("hddpg/SnakeReach-v0").reset(seed=s)[0] for s in range(8)])
+    expected, _ = hierarchy.predict(obs, deterministic=True)
+    np.save(root / "obs.npy", obs)
+    script = (
+        "import numpy as np, sys; from sb3_hddpg import Hierarchy;"
+        f"h = Hierarchy.load({str(path)!r});"
+        f"a, _ = h.predict(np.load({str(root / 'obs.npy')!r}), deterministic=True);"
+        f"np.save({str(root / 'out.npy')!r}, a)"
+    )
+    subprocess.run([sys.executable, "-c", script], check=True)
+    np.testing.assert_array_equal(np.load(root / "out.npy"), expected)
+    # Single observations behave like batched ones, and every member still opens with plain DDPG.load.
+    single, _ = hierarchy.predict(obs[0], deterministic=True)
+    np.testing.assert_array_equal(single, expected[0])
+    with zipfile.ZipFile(path) as archive:
+        manifest = json.loads(archive.read("manifest.json"))
+        for member in ("manager.zip", "workers/goal.zip", "workers/avoid.zip"):
+            DDPG.load(io.BytesIO(archive.read(member)))
+    assert manifest["selection"]["preferences"] == {"goal": 1.15, "avoid": 1.0}
+    assert manifest["worker_names"] == ["goal", "avoid"]
+    assert manifest["workers"]["goal"]["reward_bounds"] == [-1.9, 1.0]
+
+
+def _rewrite(path, out, change):
+    with zipfile.ZipFile(path) as source, zipfile.ZipFile(out, "w") as target:
+        for item in source.infolist():
+            target.writestr(item, change(item.filename, source.read(item.filename)))
+
+
+def test_tampered_bundles_are_refused(trained, tmp_path):
+    root, _, _, _ = trained
+    path = root / "m" / "hierarchy.zip"
+
+    def flip_worker(name, data):
+        if name == "workers/avoid.zip":
+            data = bytearray(data)
+            data[len(data) // 2] ^= 0xFF
+            return bytes(data)
+        return data
+
+    _rewrite(path, tmp_path / "tampered.zip", flip_worker)
+    with pytest.raises(BundleError, match=r"sha256 of 'workers/avoid.zip' does not match"):
+        Hierarchy.load(tmp_path / "tampered.zip")
+
+    def drop_member_hash(name, data):
+        if name == "manifest.json":
+            manifest = json.loads(data)
+            manifest["manager"]["sha256"] = "0" * 64
+            return json.dumps(manifest).encode()
+        return data
+
+    _rewrite(path, tmp_path / "bad_manifest.zip", drop_member_hash)
+    with pytest.raises(BundleError, match=r"manager\.zip"):
+        Hierarchy.load(tmp_path / "bad_manifest.zip")
+
+    (tmp_path / "truncated.zip").write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(BundleError, match="truncated"):
+        Hierarchy.load(tmp_path / "truncated.zip")
+
+
+def test_nested_hierarchy_is_a_worker_and_saves_as_one_bundle(trained, tmp_path):
+    root, _, hierarchy, _ = trained
+    avoid = DDPG.load(root / "w" / "workers" / "avoid.zip")
+    env = WorkerSelectionWrapper(
+        gym.make("hddpg/SnakeReach-v0"), {"reach": hierarchy, "avoid": avoid}, selection="argmax"
+    )
+    # The sub-hierarchy's reward is its own preference-weighted mix of goal and avoid.
+    assert env.reward_specs["reach"] == pytest.approx({"goal": 1.15 / 2.15, "avoid": 1.0 / 2.15})
+    top = DDPG("MlpPolicy", env, learning_starts=50, policy_kwargs={"net_arch": [16]}, seed=0)
+    top.learn(100)
+    nested = Hierarchy(
+        top,
+        {"reach": hierarchy, "avoid": avoid},
+        SelectionConfig(preferences={"reach": 1.0, "avoid": 1.0}, selection="argmax"),
+    )
+    nested.save(tmp_path / "nested.zip")
+    loaded = Hierarchy.load(tmp_path / "nested.zip")
+    assert isinstance(loaded.workers["reach"], Hierarchy)
+    obs = np.stack([gym.make("hddpg/SnakeReach-v0").reset(seed=s)[0] for s in range(5)])
+    np.testing.assert_array_equal(loaded.predict(obs)[0], nested.predict(obs)[0])
+    with zipfile.ZipFile(tmp_path / "nested.zip") as archive:
+        assert "workers/reach.hierarchy.zip" in archive.namelist()
+
+
+def test_training_metrics_and_selection_are_reported(trained):
+    _, _, hierarchy, outcome = trained
+    assert set(outcome.metrics["selection_rate"]) == {"goal", "avoid"}
+    assert sum(outcome.metrics["selection_rate"].values()) == pytest.approx(1.0)
+    assert outcome.num_timesteps == 400
