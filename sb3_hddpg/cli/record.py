@@ -56,7 +56,7 @@ def record_command(
             seed=seed,
             fps=fps,
             deterministic=deterministic,
-            title=f"{loaded.kind} {loaded.name}",
+            title=loaded.name if loaded.name == loaded.kind else f"{loaded.kind}: {loaded.name}",
         )
     env.close()
     summary = result.evaluation.summary()

@@ -66,35 +66,37 @@ def compose_frame(
         pen.rectangle((0, 0, width - 1, height - 1), outline=colour, width=4)
         pen.text((10, 8), f"acting: {record.selected}", fill=colour, font=large)
 
+    if title:
+        # The policy's label, top right of the frame, clear of the acting worker's label.
+        label_width = pen.textlength(title, font=small)
+        pen.text((width - 10 - label_width, 10), title, fill=_MUTED, font=small)
+
     top = height + 6
-    header = f"{title}  " if title else ""
-    pen.text(
-        (8, top), f"{header}episode {record.episode + 1}  step {record.step + 1}", fill=_TEXT, font=small
-    )
+    pen.text((8, top), f"episode {record.episode + 1}   step {record.step + 1}", fill=_TEXT, font=small)
     collision = "  CONTACT" if record.collision else ""
     pen.text(
-        (8, top + 18),
+        (8, top + 20),
         f"nearest obstacle {record.min_clearance:.3f}{collision}",
         fill=(200, 30, 30) if record.collision else _TEXT,
         font=small,
     )
     touched = "  TOUCH" if record.goal_touched else ""
-    pen.text((8, top + 36), f"goal distance {record.distance_to_goal:.3f}{touched}", fill=_TEXT, font=small)
+    pen.text((8, top + 40), f"goal distance {record.distance_to_goal:.3f}{touched}", fill=_TEXT, font=small)
 
     if names and record.probabilities:
-        left, bar_width, row = width // 2 + 10, width // 2 - 70, 20
-        pen.text((left, top), "manager probabilities", fill=_MUTED, font=small)
+        left = width // 2 + 5
+        bar_left, bar_width = left + 52, width - (left + 52) - 42
+        pen.text((left, top), "manager's probabilities", fill=_MUTED, font=small)
         for i, name in enumerate(names):
-            y = top + 18 + i * row
+            y = top + 20 + i * 20
             if y + 14 > height + PANEL_HEIGHT:
                 break
             p = record.probabilities.get(name, 0.0)
             colour = worker_colour(name, names)
             pen.text((left, y), name[:8], fill=colour, font=small)
-            x0 = left + 52
-            pen.rectangle((x0, y + 2, x0 + bar_width, y + 12), fill=_BAR_BACK)
-            pen.rectangle((x0, y + 2, x0 + round(p * bar_width), y + 12), fill=colour)
+            pen.rectangle((bar_left, y + 2, bar_left + bar_width, y + 12), fill=_BAR_BACK)
+            pen.rectangle((bar_left, y + 2, bar_left + round(p * bar_width), y + 12), fill=colour)
             if name == record.selected:
-                pen.rectangle((x0 - 1, y + 1, x0 + bar_width + 1, y + 13), outline=_TEXT, width=1)
-            pen.text((x0 + bar_width + 4, y), f"{p:.0%}", fill=_TEXT, font=small)
+                pen.rectangle((bar_left - 1, y + 1, bar_left + bar_width + 1, y + 13), outline=_TEXT, width=1)
+            pen.text((bar_left + bar_width + 5, y), f"{p:.0%}", fill=_TEXT, font=small)
     return np.asarray(image, dtype=np.uint8)
