@@ -74,7 +74,7 @@ def package_policy(
     n_eval_episodes: int = 10,
     seed: int = EVAL_SEED_BASE,
     deterministic: bool = True,
-    video_episodes: int = 1,
+    video_steps: int | None = None,
     force: bool = False,
 ) -> PackageResult:
     """
@@ -87,7 +87,8 @@ def package_policy(
     :param n_eval_episodes: evaluation episodes for ``results.json`` and the model card.
     :param seed: the first evaluation episode's seed.
     :param deterministic: deterministic actions in evaluation and replay.
-    :param video_episodes: episodes in ``replay.mp4``.
+    :param video_steps: the length of ``replay.mp4`` in steps, one episode cut short (default: one full
+        episode; huggingface_sb3's ``video_length``).
     :param force: replace an existing folder.
     :return: the folder, the model file and the results.
     """
@@ -133,12 +134,13 @@ def package_policy(
             algo_name = str(loaded.meta.get("algo", "ddpg")).upper()
         atomic_write_json(staging / "config.json", config)
         atomic_write_json(staging / "results.json", results)
-        replay_env = loaded.make_env(render_mode="rgb_array")
+        limit = {"max_episode_steps": video_steps} if video_steps else {}
+        replay_env = loaded.make_env(render_mode="rgb_array", **limit)
         record_video(
             loaded.policy,
             replay_env,
             staging / "replay.mp4",
-            episodes=video_episodes,
+            episodes=1,
             seed=seed,
             deterministic=deterministic,
             title=loaded.name,
@@ -288,3 +290,25 @@ import sb3_hddpg  # registers {env_id}
 
 Files: `{model_file}`, `manifest.json`, `config.json`, `results.json` (huggingface_sb3's keys), `replay.mp4`.
 """
+
+
+def write_zoo_layout(
+    models: dict[str, str | Path], folder: str | Path, algo: str = "ddpg", exp_id: int = 1
+) -> Path:
+    """
+    Copy SB3 model zips into RL Zoo's log layout, ``FOLDER/<algo>/<env name>_<exp_id>/<env name>.zip``, so
+    that ``python -m rl_zoo3.enjoy --algo ddpg --env ENV_ID --gym-packages sb3_hddpg -f FOLDER --exp-id 1``
+    finds them (see docs/RL_ZOO.md). One model per env id: that is how RL Zoo names its runs.
+
+    :param models: env id -> model zip trained on it.
+    :param folder: RL Zoo's ``-f`` folder.
+    :param algo: the algorithm's RL Zoo name.
+    :param exp_id: the experiment number in the folder name.
+    :return: ``folder``.
+    """
+    folder = Path(folder)
+    for env_id, path in models.items():
+        name = hub_env_name(env_id)
+        data = Path(path).read_bytes()
+        atomic_write_bytes(folder / algo / f"{name}_{exp_id}" / f"{name}.zip", data)
+    return folder

@@ -13,6 +13,7 @@ bundle and ``results.json``::
       hierarchy.zip           the bundle: manager + workers + manifest (load with Hierarchy.load)
       flat/                   flat-ddpg.zip, manifest.json (the single-DDPG baseline)
       ham.json                the HAM switch (when the HAM baseline is installed)
+      zoo/                    the workers and flat DDPG in RL Zoo's layout (rl_zoo3.enjoy -f RUN/zoo)
       results.json            every method's metrics on the shared seeds, budget, timings, versions
       comparison.png  learning_curves.png  selection.png  hierarchy.gif
       evaluations/  tensorboard/  checkpoints/  best/
@@ -192,7 +193,7 @@ def _train_job(
     """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
     from sb3_hddpg import training
 
-    started = time.monotonic()
+    started, cpu_started = time.monotonic(), time.process_time()
     common = dict(
         config=config,
         timesteps=timesteps,
@@ -211,7 +212,14 @@ def _train_job(
     else:
         out = train_flat_baseline(Path(run_dir), name=name, **common)  # type: ignore[arg-type]
         steps = out["timesteps_trained"]
-    out.update({"timesteps": int(steps), "seconds": time.monotonic() - started})
+    out.update(
+        {
+            "timesteps": int(steps),
+            "seconds": time.monotonic() - started,
+            # CPU time: what the job needs on an idle core, whatever else shares the machine.
+            "cpu_seconds": time.process_time() - cpu_started,
+        }
+    )
     return out
 
 
@@ -392,15 +400,22 @@ def run_quickstart(
     run_dir.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()
     stage_seconds: dict[str, float] = {}
+    stage_cpu: dict[str, float] = {}
     files: dict[str, Path] = {}
     methods: dict[str, dict[str, Any]] = {}
 
     def stage(index: int) -> None:
         stage_seconds[STAGES[index]] = time.monotonic()
+        stage_cpu[STAGES[index]] = time.process_time()
         observer.on_stage(index, STAGES[index])
 
-    def stage_done(index: int) -> None:
-        stage_seconds[STAGES[index]] = time.monotonic() - stage_seconds[STAGES[index]]
+    def stage_done(index: int, jobs: dict[str, dict[str, Any]] | None = None) -> None:
+        name = STAGES[index]
+        stage_seconds[name] = time.monotonic() - stage_seconds[name]
+        # Side-by-side jobs take as long as the slowest one on an idle machine.
+        stage_cpu[name] = time.process_time() - stage_cpu[name]
+        if jobs and processes > 1:  # in-process jobs are already in this process's CPU time
+            stage_cpu[name] += max(job["cpu_seconds"] for job in jobs.values())
 
     config = write_config(run_dir / "config.yml", budget.overrides)
     files["config"] = config
@@ -420,9 +435,9 @@ def run_quickstart(
         for name in WORKER_ENV_IDS
     ]
     trained = _run_jobs(worker_jobs, processes, observer)
+    stage_done(0, trained)
     manifest = {"schema_version": 1, "workers": {name: trained[name]["entry"] for name in WORKER_ENV_IDS}}
     save_manifest(run_dir / "workers" / "manifest.json", manifest)
-    stage_done(0)
 
     # 2. The manager (over the merged workers) and the flat DDPG, side by side.
     stage(1)
@@ -430,8 +445,9 @@ def run_quickstart(
         {"kind": "manager", "name": "manager", "timesteps": budget.manager_timesteps, **common},
         {"kind": "flat", "name": "flat-ddpg", "timesteps": budget.flat_timesteps, **common},
     ]
-    trained.update(_run_jobs(jobs, processes, observer))
-    stage_done(1)
+    second = _run_jobs(jobs, processes, observer)
+    trained.update(second)
+    stage_done(1, second)
     files["bundle"] = run_dir / "hierarchy.zip"
 
     # 3. Every method on the same seeds of the same env.
@@ -535,6 +551,14 @@ def run_quickstart(
     )
     stage_done(4)
 
+    from sb3_hddpg.packaging import write_zoo_layout
+
+    zoo_models: dict[str, str | Path] = {
+        env: run_dir / "workers" / f"{n}.zip" for n, env in WORKER_ENV_IDS.items()
+    }
+    zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
+    files["zoo"] = write_zoo_layout(zoo_models, run_dir / "zoo")
+
     wall = time.monotonic() - started
     files["results"] = run_dir / "results.json"
     results = {
@@ -550,6 +574,8 @@ def run_quickstart(
         "methods": {label: {**methods[label], "summary": summaries[label]} for label in summaries},
         "files": {label: str(_relative(path, run_dir)) for label, path in files.items()},
         "stage_seconds": stage_seconds,
+        # CPU seconds per stage (the slowest job for side-by-side training): the wall time on idle cores.
+        "stage_cpu_seconds": stage_cpu,
         "wall_seconds": wall,
         "processes": processes,
     }

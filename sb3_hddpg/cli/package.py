@@ -21,6 +21,12 @@ def package_command(
     seed: int = typer.Option(
         EVAL_SEED_BASE, "--seed", callback=at_least(0), help="Seed of the first evaluation episode."
     ),
+    video_steps: int | None = typer.Option(
+        None,
+        "--video-steps",
+        callback=at_least(1),
+        help="Length of replay.mp4 in steps (default: one episode).",
+    ),
     force: bool = typer.Option(False, "--force", help="Replace a folder that is not empty."),
     trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
 ) -> None:
@@ -33,7 +39,9 @@ def package_command(
         )
     loaded = load_policy(path, trusted=trust)
     with console.status(f"Evaluating and recording {loaded.kind} {loaded.name!r}…"):
-        result = package_policy(loaded, path, out, n_eval_episodes=episodes, seed=seed, force=force)
+        result = package_policy(
+            loaded, path, out, n_eval_episodes=episodes, seed=seed, video_steps=video_steps, force=force
+        )
     console.print(
         f"[green]✓[/] {result.folder}: mean reward {result.results['mean_reward']:.2f} ± "
         f"{result.results['std_reward']:.2f} over {episodes} episodes"

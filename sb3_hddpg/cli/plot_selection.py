@@ -27,6 +27,12 @@ def plot_selection_command(
     env_id: str | None = typer.Option(
         None, "--env", help="Env id to act in (default: the one it was trained on)."
     ),
+    max_steps: int | None = typer.Option(
+        None,
+        "--max-steps",
+        callback=at_least(1),
+        help="Cut every episode to this many steps (default: full).",
+    ),
     trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
 ) -> None:
     """Per step: the worker chosen and the manager's probabilities, beside obstacle clearance and goal distance."""
@@ -42,7 +48,7 @@ def plot_selection_command(
             f"{path!r} is a {loaded.kind}, which selects no worker; give a hierarchy bundle or a HAM switch",
             param_hint="'PATH'",
         )
-    env = loaded.make_env(env_id)
+    env = loaded.make_env(env_id, **({"max_episode_steps": max_steps} if max_steps else {}))
     records, result = trace_episodes(loaded.policy, env, n_episodes=episodes, seed=seed)
     base = env.unwrapped
     written = plot_selection_timeline(

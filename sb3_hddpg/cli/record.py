@@ -32,6 +32,12 @@ def record_command(
     env_id: str | None = typer.Option(
         None, "--env", help="Env id to act in (default: the one it was trained on)."
     ),
+    max_steps: int | None = typer.Option(
+        None,
+        "--max-steps",
+        callback=at_least(1),
+        help="Cut every episode to this many steps (default: full).",
+    ),
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),
     trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
     algo: str | None = typer.Option(
@@ -46,7 +52,8 @@ def record_command(
     except ValueError as error:
         raise typer.BadParameter(str(error), param_hint="'--out'") from None
     loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
-    env = loaded.make_env(env_id, render_mode="rgb_array")
+    limit = {"max_episode_steps": max_steps} if max_steps else {}
+    env = loaded.make_env(env_id, render_mode="rgb_array", **limit)
     with console.status(f"Recording {episodes} episode(s) of {loaded.kind} {loaded.name!r}…"):
         result = record_video(
             loaded.policy,
