@@ -74,10 +74,19 @@ def test_refuses_to_overwrite(run):
 @pytest.mark.skipif(importlib.util.find_spec("requests") is None, reason="rl_zoo3.enjoy imports requests")
 def test_rl_zoo_enjoy_runs_the_quickstart_workers(run, tmp_path):
     out, _ = run
-    args = ["--algo", "ddpg", "--env", "hddpg/SnakeGoal-v0", "--gym-packages", "sb3_hddpg"]
+    args = ["--algo", "ddpg", "--env", "hddpg/SnakeGoal-v0", "--gym-packages", "sb3_hddpg", "-n", "200"]
     result = subprocess.run(
-        [sys.executable, "-m", "rl_zoo3.enjoy", *args, "-f", str(out / "zoo"), "--exp-id", "1"]
-        + ["-n", "200", "--no-render"],
+        [
+            sys.executable,
+            "-m",
+            "rl_zoo3.enjoy",
+            *args,
+            "-f",
+            str(out / "zoo"),
+            "--exp-id",
+            "1",
+            "--no-render",
+        ],
         capture_output=True,
         text=True,
         timeout=300,
