@@ -587,8 +587,20 @@ def run_quickstart(
 
 
 def _build_ham(run_dir: Path) -> Path:
-    """Write the HAM switch over the run's workers to ``run_dir/ham.json``."""
-    raise NotImplementedError("HAM baseline not wired yet")
+    """Write the HAM switch over the run's workers to ``run_dir/ham.json``, with its default threshold."""
+    import gymnasium as gym
+
+    from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
+
+    probe = gym.make(COMPARISON_ENV_ID)
+    n_joints = len(probe.unwrapped.state_layout.indices(["joint_obstacle_distances"]))
+    probe.close()
+    return save_ham(
+        run_dir / "ham.json",
+        run_dir / "workers" / "manifest.json",
+        threshold=n_joints - DEFAULT_MARGIN,
+        metadata={"made_by": "quickstart"},
+    )
 
 
 def _episode_steps() -> int:
