@@ -18,7 +18,7 @@ from sb3_hddpg.media import StepRecorder, record_video
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
 from sb3_hddpg.media.overlay import PANEL_HEIGHT, WORKER_COLOURS
 from sb3_hddpg.media.trace import trace_episodes
-from sb3_hddpg.packaging import RESULTS_KEYS, write_zoo_layout
+from sb3_hddpg.packaging import RESULTS_KEYS, package_policy, write_zoo_layout
 from sb3_hddpg.wrappers import WorkerSelectionWrapper
 from tests.cli_runner import run_cli
 
