@@ -159,3 +159,8 @@ def test_training_metrics_and_selection_are_reported(trained):
     assert set(outcome.metrics["selection_rate"]) == {"goal", "avoid"}
     assert sum(outcome.metrics["selection_rate"].values()) == pytest.approx(1.0)
     assert outcome.num_timesteps == 400
+
+
+def test_parallel_envs_in_subprocesses(tmp_path):
+    manifest = train_workers(tmp_path, workers=["avoid"], n_envs=2, timesteps=400, eval_freq=200, eval_episodes=1)
+    assert manifest["workers"]["avoid"]["timesteps_trained"] == 400

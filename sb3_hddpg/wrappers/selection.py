@@ -173,7 +173,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._last_obs is None:
             raise RuntimeError("Call reset() before step()")
-        probabilities = self.simplex(action)
+        probabilities = self.simplex.single(np.asarray(action, dtype=np.float64).tolist())
         chosen = choose(probabilities, self.selection, self._rng)
         total = 0.0
         discount = 1.0
@@ -193,7 +193,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             steps += 1
         self._last_obs = obs
         info["selected_worker"] = self.worker_names[chosen]
-        info["selection_probabilities"] = dict(zip(self.worker_names, probabilities.tolist()))
+        info["selection_probabilities"] = dict(zip(self.worker_names, probabilities))
         info["normalised_terms"] = normalised
         info["option_length"] = steps
         return self._manager_obs(obs), float(total), terminated, truncated, info
