@@ -82,7 +82,7 @@ BUDGETS: dict[str, QuickstartBudget] = {
     "small": QuickstartBudget(
         "small",
         worker_timesteps=30_000,
-        manager_timesteps=20_000,
+        manager_timesteps=30_000,
         flat_timesteps=30_000,
         eval_freq=5_000,
         eval_episodes=5,

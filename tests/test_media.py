@@ -162,22 +162,12 @@ def test_cli_package_bundle_like_huggingface_sb3(bundle, tmp_path):
     assert again.returncode == 2 and "--force" in again.stderr
 
 
-def test_cli_package_sb3_zip(tmp_path):
+def test_package_sb3_zip(tmp_path):
     model = _ddpg(gym.make("hddpg/SnakeGoal-v0"), 0)
     model.save(tmp_path / "m.zip")
     out = tmp_path / "pkg"
-    run_cli(
-        "package",
-        tmp_path / "m.zip",
-        "--out",
-        out,
-        "--episodes",
-        "1",
-        "--video-steps",
-        "5",
-        "--trust",
-        check=True,
-    )
+    loaded = load_policy(tmp_path / "m.zip", trusted=True)
+    package_policy(loaded, tmp_path / "m.zip", out, n_eval_episodes=1, video_steps=5)
     name = "ddpg-hddpg-SnakeReach-v0"  # an untracked zip acts in SnakeReach by default
     assert (out / f"{name}.zip").is_file() and (out / name / "data").is_file()
     assert json.loads((out / "config.json").read_text()) == json.loads((out / name / "data").read_text())
