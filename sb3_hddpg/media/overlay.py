@@ -76,7 +76,7 @@ def compose_frame(
     collision = "  CONTACT" if record.collision else ""
     pen.text(
         (8, top + 20),
-        f"nearest obstacle {record.min_clearance:.3f}{collision}",
+        f"obstacle gap {record.min_clearance:.3f}{collision}",
         fill=(200, 30, 30) if record.collision else _TEXT,
         font=small,
     )
