@@ -82,11 +82,15 @@ def plot_selection_timeline(
                 ax.axvline(i - 0.5, color="black", lw=1.2)
 
     top = axes[0]
-    for name in names:
+    # A HAM switch has no probabilities: then the top panel shows only who acts.
+    with_probabilities = any(r.probabilities for r in records)
+    for name in names if with_probabilities else []:
         p = [r.probabilities.get(name, np.nan) for r in records]
         top.plot(x, p, color=_colour(name, names), lw=1.4, label=f"P({name})")
     top.set_ylim(-0.02, 1.02)
-    top.set_ylabel("manager\nprobability")
+    top.set_ylabel("manager\nprobability" if with_probabilities else "acting\nworker")
+    if not with_probabilities:
+        top.set_yticks([])
     handles, labels = top.get_legend_handles_labels()
     from matplotlib.patches import Patch
 
