@@ -1,5 +1,6 @@
 """Recordings, overlays, timelines and packages: every output exists, decodes and has the expected shape."""
 
+import dataclasses
 import json
 
 import gymnasium as gym
@@ -111,6 +112,12 @@ def test_figures_decode(bundle, tmp_path):
             references={"random": 1.5},
         ),
         plot_comparison({"HDDPG": {**result.summary(), "std_reach_reward": 1.0}}, tmp_path / "cmp.png"),
+        # A switch without probabilities (HAM) still gets its timeline.
+        plot_selection_timeline(
+            [dataclasses.replace(r, probabilities={}) for r in records],
+            tmp_path / "switch.png",
+            ["goal", "avoid"],
+        ),
     ]
     for path in paths:
         with Image.open(path) as image:
