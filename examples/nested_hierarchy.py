@@ -25,11 +25,15 @@ from sb3_hddpg.training import load_workers, train_manager, train_workers
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--hierarchy", type=Path, help="a trained hierarchy.zip (default: train a tiny one)")
     parser.add_argument("--workers", type=Path, help="the train-workers run folder it was trained on")
     parser.add_argument("--timesteps", type=int, default=2000, help="steps for the top manager")
-    parser.add_argument("--out", type=Path, default=Path("runs/nested.zip"), help="where to save the two-level bundle")
+    parser.add_argument(
+        "--out", type=Path, default=Path("runs/nested.zip"), help="where to save the two-level bundle"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
 
@@ -52,7 +56,9 @@ def main() -> None:
     nested.save(args.out)
     reloaded = Hierarchy.load(args.out)
     summary = evaluate(reloaded, gym.make("hddpg/SnakeReach-v0"), n_episodes=5).summary()
-    print(f"saved {args.out}; top-level choices: {summary.get('selection_rate')}; mean reach reward {summary['mean_reach_reward']:.1f}")
+    print(
+        f"saved {args.out}; top-level choices: {summary.get('selection_rate')}; mean reach reward {summary['mean_reach_reward']:.1f}"
+    )
 
 
 if __name__ == "__main__":

@@ -407,6 +407,7 @@ def train_workers(
     progress_bar: bool = False,
     threads: int = 1,
     on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
+    extra_callbacks: Sequence[BaseCallback] = (),
 ) -> dict[str, Any]:
     """
     Train each named worker as a plain SB3 DDPG on its own registered env id (paper Algorithm 1, first
@@ -426,6 +427,7 @@ def train_workers(
     :param progress_bar: show a progress bar per worker.
     :param threads: torch threads.
     :param on_worker_done: called after each worker with its outcome.
+    :param extra_callbacks: more SB3 callbacks for every worker (e.g. progress reporting).
     :return: the manifest written.
     """
     from sb3_hddpg.envs import SnakeArmEnv
@@ -464,6 +466,7 @@ def train_workers(
             checkpoint_freq=checkpoint_freq,
             progress_bar=progress_bar,
             threads=threads,
+            extra_callbacks=extra_callbacks,
         )
         probe = SnakeArmEnv(**hyperparams.env_kwargs)
         manifest["workers"][name] = {
@@ -809,6 +812,7 @@ def train_manager(
     threads: int = 1,
     trusted: bool = False,
     env_id: str = "hddpg/SnakeReach-v0",
+    extra_callbacks: Sequence[BaseCallback] = (),
 ) -> tuple[Any, TrainingOutcome]:
     """
     Train the manager: a plain SB3 DDPG on ``WorkerSelectionWrapper`` over pre-trained workers (paper
@@ -833,6 +837,7 @@ def train_manager(
     :param checkpoint_freq: steps between resumable checkpoints (0: only when interrupted and at the end).
     :param trusted: load the workers with SB3's full loader.
     :param env_id: the shared env the manager acts in.
+    :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
     :return: the saved :class:`~sb3_hddpg.hierarchy.Hierarchy` and the training outcome.
     """
     from sb3_hddpg.hierarchy import Hierarchy
@@ -886,7 +891,7 @@ def train_manager(
         checkpoint_freq=checkpoint_freq,
         progress_bar=progress_bar,
         threads=threads,
-        extra_callbacks=[SelectionStatsCallback()],
+        extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
     )
     worker_meta = {
         name: {

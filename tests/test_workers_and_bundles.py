@@ -162,5 +162,7 @@ def test_training_metrics_and_selection_are_reported(trained):
 
 
 def test_parallel_envs_in_subprocesses(tmp_path):
-    manifest = train_workers(tmp_path, workers=["avoid"], n_envs=2, timesteps=400, eval_freq=200, eval_episodes=1)
+    manifest = train_workers(
+        tmp_path, workers=["avoid"], n_envs=2, timesteps=400, eval_freq=200, eval_episodes=1
+    )
     assert manifest["workers"]["avoid"]["timesteps_trained"] == 400

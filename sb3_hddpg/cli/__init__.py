@@ -21,6 +21,10 @@ from sb3_hddpg.cli import rollout, train, evaluate  # noqa: F401  isort: skip
 from sb3_hddpg.cli import train_flat  # noqa: F401  isort: skip
 from sb3_hddpg.cli import benchmark  # noqa: F401  isort: skip
 from sb3_hddpg.cli import tune  # noqa: F401  isort: skip
+from sb3_hddpg.cli import quickstart  # noqa: F401  isort: skip
+from sb3_hddpg.cli import record  # noqa: F401  isort: skip
+from sb3_hddpg.cli import plot_selection  # noqa: F401  isort: skip
+from sb3_hddpg.cli import package  # noqa: F401  isort: skip
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,0 +1,50 @@
+"""``hddpg-cli package PATH --out DIR``: a huggingface_sb3-style folder, made offline."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import at_least
+from sb3_hddpg.cli.record import TRUST_HELP
+from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.loading import load_policy
+
+
+@app.command("package")
+def package_command(
+    path: str = typer.Argument(..., help="A worker or flat zip, or a hierarchy.zip (or its folder)."),
+    out: Path = typer.Option(..., "--out", help="The package folder to create."),
+    episodes: int = typer.Option(10, "--episodes", callback=at_least(1), help="Evaluation episodes."),
+    seed: int = typer.Option(
+        EVAL_SEED_BASE, "--seed", callback=at_least(0), help="Seed of the first evaluation episode."
+    ),
+    video_steps: int | None = typer.Option(
+        None,
+        "--video-steps",
+        callback=at_least(1),
+        help="Length of replay.mp4 in steps (default: one episode).",
+    ),
+    force: bool = typer.Option(False, "--force", help="Replace a folder that is not empty."),
+    trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
+) -> None:
+    """Model zip (or bundle + manifest), model card, config.json, results.json and replay.mp4 in one folder."""
+    from sb3_hddpg.packaging import package_policy
+
+    if out.exists() and out.is_dir() and any(out.iterdir()) and not force:
+        raise typer.BadParameter(
+            f"{str(out)!r} is not empty; pass --force to replace it", param_hint="'--out'"
+        )
+    loaded = load_policy(path, trusted=trust)
+    with console.status(f"Evaluating and recording {loaded.kind} {loaded.name!r}…"):
+        result = package_policy(
+            loaded, path, out, n_eval_episodes=episodes, seed=seed, video_steps=video_steps, force=force
+        )
+    console.print(
+        f"[green]✓[/] {result.folder}: mean reward {result.results['mean_reward']:.2f} ± "
+        f"{result.results['std_reward']:.2f} over {episodes} episodes"
+    )
+    for item in sorted(result.folder.iterdir()):
+        console.print(f"  {item.name}{'/' if item.is_dir() else ''}")

@@ -1,0 +1,121 @@
+"""``hddpg-cli quickstart``: the main job. Workers, manager and baselines on a small budget, compared."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import at_least, prepare_out_dir
+from sb3_hddpg.quickstart import BUDGETS, STAGES, QuickstartObserver, QuickstartResult, run_quickstart
+
+
+class _RichObserver(QuickstartObserver):
+    """An overall bar over the stages, and one bar per task of the current stage."""
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+        self.overall = progress.add_task("[bold]quickstart", total=len(STAGES), unit="stage")
+        self.tasks: dict[str, TaskID] = {}
+        self.stage = -1
+        self.stage_tasks: list[str] = []
+
+    def on_stage(self, index: int, name: str) -> None:
+        self.stage = index
+        self.stage_tasks = []
+        self.progress.update(
+            self.overall, completed=index, description=f"[bold]{index + 1}/{len(STAGES)} {name}"
+        )
+
+    def on_task(self, task: str, completed: float, total: float) -> None:
+        if task not in self.tasks:
+            self.tasks[task] = self.progress.add_task(f"  {task}", total=total)
+            self.stage_tasks.append(task)
+        self.progress.update(self.tasks[task], completed=completed, total=total)
+        # The overall bar moves inside a stage by the mean progress of the stage's tasks.
+        fractions = [
+            self.progress.tasks[self.tasks[t]].percentage / 100 for t in self.stage_tasks if t in self.tasks
+        ]
+        if fractions:
+            self.progress.update(self.overall, completed=self.stage + sum(fractions) / len(fractions))
+
+    def on_message(self, message: str) -> None:
+        self.progress.console.print(f"[green]✓[/] {message}")
+
+    def finish(self) -> None:
+        self.progress.update(self.overall, completed=len(STAGES), description="[bold]quickstart done")
+
+
+def comparison_table(result: QuickstartResult) -> Table:
+    """The methods on the shared seeds, one row each."""
+    summary = next(iter(result.summaries.values()))
+    table = Table(title=f"hddpg/SnakeReach-v0, {summary['episodes']} episodes per method on the same seeds")
+    for column in (
+        "method",
+        "reach reward",
+        "goal touch",
+        "collisions/ep",
+        "success",
+        "min clearance",
+        "worker use",
+        "train steps",
+    ):
+        table.add_column(column, justify="left" if column in ("method", "worker use") else "right")
+    for label, s in result.summaries.items():
+        rates = s.get("selection_rate", {})
+        steps = result.methods[label]["train_timesteps"]
+        table.add_row(
+            label,
+            f"{s['mean_reach_reward']:.1f} ± {s['std_reach_reward']:.1f}",
+            f"{s['goal_touch_rate']:.1%}",
+            f"{s['collisions_per_episode']:.1f}",
+            f"{s['success_rate']:.0%}",
+            f"{s['min_clearance']:.3f}",
+            " / ".join(f"{n} {r:.0%}" for n, r in rates.items()) or "-",
+            f"{steps:,}" if steps else "-",
+        )
+    return table
+
+
+@app.command("quickstart")
+def quickstart_command(
+    out: Path | None = typer.Option(
+        None, "--out", help="Run folder (default: runs/quickstart-<date>-<time>)."
+    ),
+    budget: str = typer.Option(
+        "small", "--budget", help="small (about 10 min on 2 CPU cores) or tiny (seconds; for tests)."
+    ),
+    seed: int = typer.Option(0, "--seed", callback=at_least(0), help="Training seed of every agent."),
+    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    processes: int = typer.Option(
+        2, "--processes", callback=at_least(1), help="Agents trained at a time, one process each."
+    ),
+) -> None:
+    """Train both workers, a manager, a flat DDPG (and HAM), compare them on the same seeds, save everything."""
+    if budget not in BUDGETS:
+        raise typer.BadParameter(f"must be one of {list(BUDGETS)}, got {budget!r}", param_hint="'--budget'")
+    out = out or Path("runs") / f"quickstart-{datetime.now():%Y%m%d-%H%M%S}"
+    prepare_out_dir(out, resume=False, force=force)
+    console.print(f"Run folder: [bold]{out}[/]  (budget {budget}, seed {seed}, {processes} processes)")
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=False,
+    ) as progress:
+        observer = _RichObserver(progress)
+        result = run_quickstart(out, budget=budget, seed=seed, processes=processes, observer=observer)
+        observer.finish()
+    console.print(comparison_table(result))
+    if not result.ham_available:
+        console.print("[yellow]HAM baseline not installed in this version: compared without it.[/]")
+    for label in ("bundle", "gif", "selection", "comparison", "learning_curves", "results"):
+        if label in result.files:
+            console.print(f"  {label:16} {result.files[label]}")
+    console.print(f"Done in {result.wall_seconds / 60:.1f} min. Everything is in [bold]{result.run_dir}[/]")

@@ -1,0 +1,6 @@
+"""Seeing a policy work: per-step traces, frames with a selection overlay, GIF/MP4 recordings and figures."""
+
+from sb3_hddpg.media.trace import StepRecord, StepRecorder, selected_names
+from sb3_hddpg.media.video import RecordingResult, record_video
+
+__all__ = ["RecordingResult", "StepRecord", "StepRecorder", "record_video", "selected_names"]

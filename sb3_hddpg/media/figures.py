@@ -1,0 +1,206 @@
+"""Figures of a run: learning curves, the methods side by side, and the manager's selection timeline."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_hddpg.io import atomic_write_bytes
+from sb3_hddpg.media.overlay import worker_colour
+from sb3_hddpg.media.trace import StepRecord
+
+
+def _colour(name: str, names: Sequence[str] = ()) -> tuple[float, float, float]:
+    return tuple(c / 255 for c in worker_colour(name, names))  # type: ignore[return-value]
+
+
+def _save(fig: Any, path: str | Path, dpi: int = 110) -> Path:
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return atomic_write_bytes(path, buffer.getvalue())
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only: never open a window, work without a display
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_selection_timeline(
+    records: Sequence[StepRecord],
+    path: str | Path,
+    names: Sequence[str] | None = None,
+    title: str = "",
+    sensor_range: float | None = None,
+    touch_radius: float | None = None,
+) -> Path:
+    """
+    Per step: the worker the manager chose and its probabilities (top), the clearance to the nearest
+    obstacle (middle) and the distance to the goal (bottom), episodes one after another. The chosen worker
+    also shades the two lower panels, so that a switch to avoidance can be read against closing obstacles.
+
+    :param records: the steps, from :class:`~sb3_hddpg.media.trace.StepRecorder`.
+    :param path: the PNG to write.
+    :param names: the workers in the manager's order (default: those seen in ``records``).
+    :param title: the figure's title.
+    :param sensor_range: drawn as a dashed line in the clearance panel (the avoid reward's range).
+    :param touch_radius: drawn as a dashed line in the goal panel (within it the goal counts as touched).
+    :return: the path written.
+    """
+    if not records:
+        raise ValueError("Expected at least one step record, actually: none")
+    plt = _pyplot()
+    names = list(names) if names else sorted({n for r in records for n in r.probabilities})
+    x = np.arange(len(records))
+    fig, axes = plt.subplots(3, 1, figsize=(11, 6.5), sharex=True, height_ratios=[1.2, 1, 1])
+
+    # Runs of the same chosen worker become shaded spans in every panel.
+    spans: list[tuple[int, int, str]] = []
+    start = 0
+    for i in range(1, len(records) + 1):
+        if i == len(records) or records[i].selected != records[start].selected:
+            if records[start].selected is not None:
+                spans.append((start, i, records[start].selected))
+            start = i
+    for ax_index, ax in enumerate(axes):
+        for begin, end, name in spans:
+            ax.axvspan(
+                begin - 0.5, end - 0.5, color=_colour(name, names), alpha=0.28 if ax_index == 0 else 0.1, lw=0
+            )
+        for i in range(1, len(records)):
+            if records[i].episode != records[i - 1].episode:
+                ax.axvline(i - 0.5, color="black", lw=1.2)
+
+    top = axes[0]
+    # A HAM switch has no probabilities: then the top panel shows only who acts.
+    with_probabilities = any(r.probabilities for r in records)
+    for name in names if with_probabilities else []:
+        p = [r.probabilities.get(name, np.nan) for r in records]
+        top.plot(x, p, color=_colour(name, names), lw=1.4, label=f"P({name})")
+    top.set_ylim(-0.02, 1.02)
+    top.set_ylabel("manager\nprobability" if with_probabilities else "acting\nworker")
+    if not with_probabilities:
+        top.set_yticks([])
+    handles, labels = top.get_legend_handles_labels()
+    from matplotlib.patches import Patch
+
+    handles += [Patch(color=_colour(n, names), alpha=0.4) for n in names]
+    labels += [f"{n} acts" for n in names]
+    top.legend(handles, labels, loc="upper right", ncol=2 * max(1, len(names)), fontsize=8, framealpha=0.9)
+
+    middle = axes[1]
+    clearance = np.array([r.min_clearance for r in records])
+    middle.plot(x, clearance, color="#444444", lw=1.3)
+    hits = [i for i, r in enumerate(records) if r.collision]
+    if hits:
+        middle.scatter(hits, clearance[hits], color="#d62728", s=12, zorder=3, label="contact")
+        middle.legend(loc="upper right", fontsize=8)
+    middle.axhline(0.0, color="#d62728", lw=0.8)
+    if sensor_range is not None:
+        middle.axhline(sensor_range, color="#444444", lw=0.8, ls="--")
+        middle.annotate("sensor range", (0, sensor_range), fontsize=7, va="bottom", color="#444444")
+    middle.set_ylabel("nearest\nobstacle")
+
+    bottom = axes[2]
+    distance = np.array([r.distance_to_goal for r in records])
+    bottom.plot(x, distance, color=_colour("goal"), lw=1.3)
+    if touch_radius is not None:
+        bottom.axhline(touch_radius, color=_colour("goal"), lw=0.8, ls="--")
+        bottom.annotate("touch radius", (0, touch_radius), fontsize=7, va="bottom", color=_colour("goal"))
+    bottom.set_ylabel("distance\nto goal")
+    bottom.set_xlabel("step (episodes one after another; black lines separate them)")
+    bottom.set_xlim(-0.5, len(records) - 0.5)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_learning_curves(
+    histories: Mapping[str, Sequence[Mapping[str, Any]]],
+    path: str | Path,
+    references: Mapping[str, float] | None = None,
+    metric: str = "mean_reach_reward",
+    title: str = "",
+) -> Path:
+    """
+    The evaluation metric of each trained agent against its own training steps, with horizontal lines for
+    untrained references (HAM, scripted, random).
+
+    :param histories: agent name -> its evaluation history (``evaluations/<name>.json``).
+    :param path: the PNG to write.
+    :param references: name -> the metric's value.
+    :param metric: the history key to plot; ``mean_reach_reward`` is comparable across agents.
+    :param title: the figure's title.
+    :return: the path written.
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    palette = ["#1f77b4", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
+    others = [n for n in histories if n not in ("goal", "avoid")]
+    for name, history in histories.items():
+        if not history:
+            continue
+        steps = [h["timesteps"] for h in history]
+        values = [h[metric] for h in history]
+        colour = _colour(name) if name in ("goal", "avoid") else palette[others.index(name) % len(palette)]
+        ax.plot(steps, values, marker="o", ms=3, lw=1.5, color=colour, label=name)
+    for j, (name, value) in enumerate((references or {}).items()):
+        ax.axhline(value, ls=("--", ":", "-.")[j % 3], lw=1, color="#555555", label=name)
+    ax.set_xlabel("training steps of that agent")
+    ax.set_ylabel(metric.replace("_", " "))
+    ax.legend(fontsize=8, loc="best")
+    ax.grid(alpha=0.3)
+    ax.set_title(title or "Evaluation during training (same metric for every agent)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_comparison(summaries: Mapping[str, Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
+    """
+    The methods side by side on the same evaluation seeds: the combined reach reward (mean and std over
+    episodes), the goal-touch rate and collisions per episode.
+
+    :param summaries: method name -> :meth:`EvaluationResult.summary` on the shared env.
+    :param path: the PNG to write.
+    :param title: the figure's title.
+    :return: the path written.
+    """
+    plt = _pyplot()
+    names = list(summaries)
+    y = np.arange(len(names))[::-1]
+    fig, axes = plt.subplots(1, 3, figsize=(11, 0.45 * len(names) + 1.6), sharey=True)
+    panels = (
+        ("mean_reach_reward", "reach reward (higher is better)", "#1f77b4"),
+        ("goal_touch_rate", "goal-touch rate", _colour("goal")),
+        ("collisions_per_episode", "collision steps / episode", _colour("avoid")),
+    )
+    for ax, (key, label, colour) in zip(axes, panels):
+        values = [summaries[n][key] for n in names]
+        if key == "mean_reach_reward":
+            # Every method earns most of the reward by existing: dots with std bars on a zoomed axis show the
+            # differences that bars from zero would hide.
+            error = [summaries[n].get("std_reach_reward", 0.0) for n in names]
+            ax.errorbar(values, y, xerr=error, fmt="o", color=colour, capsize=3, ms=6)
+            ax.set_ylim(-0.6, len(names) - 0.4)
+        else:
+            ax.barh(y, values, color=colour, alpha=0.8)
+        ax.set_title(label, fontsize=10)
+        ax.grid(axis="x", alpha=0.3)
+        if key == "goal_touch_rate":
+            ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:.0%}"))
+    axes[0].set_yticks(y, names)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)

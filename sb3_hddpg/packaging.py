@@ -1,0 +1,314 @@
+"""
+``package_policy``: a folder laid out like ``huggingface_sb3.package_to_hub``'s, made offline (no upload).
+
+For an SB3 model (a worker or the flat baseline)::
+
+    DIR/
+      ddpg-hddpg-SnakeGoal-v0.zip     the model, named <algo>-<env id with / as ->, as package_to_hub names it
+      ddpg-hddpg-SnakeGoal-v0/        the same zip unpacked (package_to_hub does this too)
+      manifest.json                   sb3-hddpg's entry (sha256, rebuild spec): loads without unpickling
+      config.json                     the model's "data" JSON from the zip (package_to_hub's config.json)
+      results.json                    mean_reward, std_reward, is_deterministic, n_eval_episodes, eval_datetime
+      replay.mp4                      the policy at work
+      README.md                       model card: YAML metadata (library_name, tags, model-index) and usage
+
+For a hierarchy bundle, the bundle itself (``hierarchy.zip``) and its ``manifest.json`` take the model's
+place, and ``config.json`` holds the selection settings and every member's SB3 data.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.io import atomic_write_bytes, atomic_write_json
+from sb3_hddpg.loading import LoadedPolicy
+
+#: The keys of ``results.json``: huggingface_sb3's five, then ours.
+RESULTS_KEYS = (
+    "mean_reward",
+    "std_reward",
+    "is_deterministic",
+    "n_eval_episodes",
+    "eval_datetime",
+    "env_id",
+    "eval_seeds",
+    "metrics",
+)
+
+
+@dataclass
+class PackageResult:
+    """
+    What :func:`package_policy` wrote.
+
+    :param folder: the package folder.
+    :param model_file: the model zip or bundle inside it.
+    :param results: the content of ``results.json``.
+    """
+
+    folder: Path
+    model_file: Path
+    results: dict[str, Any]
+
+
+def hub_env_name(env_id: str) -> str:
+    """An env id as huggingface_sb3 and RL Zoo put it in file names: ``/`` becomes ``-``."""
+    return env_id.replace("/", "-")
+
+
+def package_policy(
+    loaded: LoadedPolicy,
+    source: str | Path,
+    out_dir: str | Path,
+    n_eval_episodes: int = 10,
+    seed: int = EVAL_SEED_BASE,
+    deterministic: bool = True,
+    video_steps: int | None = None,
+    force: bool = False,
+) -> PackageResult:
+    """
+    Evaluate, record and lay out a policy for sharing, like ``huggingface_sb3.package_to_hub`` but offline.
+    The folder is built beside ``out_dir`` and renamed into place, so it appears whole or not at all.
+
+    :param loaded: the policy, from :func:`~sb3_hddpg.loading.load_policy`.
+    :param source: the file it was loaded from (copied into the package).
+    :param out_dir: the package folder; must not exist (or be empty) unless ``force``.
+    :param n_eval_episodes: evaluation episodes for ``results.json`` and the model card.
+    :param seed: the first evaluation episode's seed.
+    :param deterministic: deterministic actions in evaluation and replay.
+    :param video_steps: the length of ``replay.mp4`` in steps, one episode cut short (default: one full
+        episode; huggingface_sb3's ``video_length``).
+    :param force: replace an existing folder.
+    :return: the folder, the model file and the results.
+    """
+    from sb3_hddpg.media.video import record_video
+
+    if loaded.kind not in ("worker", "flat", "hierarchy"):
+        raise ValueError(
+            f"Expected an SB3 model zip or a hierarchy bundle to package, actually a {loaded.kind!r} "
+            f"({str(source)!r})"
+        )
+    source = Path(source)
+    if source.is_dir():
+        source = source / "hierarchy.zip"
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"Expected a folder for the package, actually a file: {str(out_dir)!r}")
+    if out_dir.exists() and any(out_dir.iterdir()) and not force:
+        raise FileExistsError(f"{str(out_dir)!r} is not empty; pass force=True (--force) to replace it")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        env = loaded.make_env()
+        evaluation = evaluate(
+            loaded.policy, env, n_episodes=n_eval_episodes, seed=seed, deterministic=deterministic
+        )
+        env.close()
+        summary = evaluation.summary()
+        results = {
+            "mean_reward": summary["mean_reward"],
+            "std_reward": summary["std_reward"],
+            "is_deterministic": deterministic,
+            "n_eval_episodes": n_eval_episodes,
+            "eval_datetime": datetime.now(timezone.utc).isoformat(),
+            "env_id": loaded.env_id,
+            "eval_seeds": list(range(seed, seed + n_eval_episodes)),
+            "metrics": summary,
+        }
+        if loaded.kind == "hierarchy":
+            model_file, config = _lay_out_bundle(source, staging)
+            algo_name = "HDDPG"
+        else:
+            model_file, config = _lay_out_model(loaded, source, staging)
+            algo_name = str(loaded.meta.get("algo", "ddpg")).upper()
+        atomic_write_json(staging / "config.json", config)
+        atomic_write_json(staging / "results.json", results)
+        limit = {"max_episode_steps": video_steps} if video_steps else {}
+        replay_env = loaded.make_env(render_mode="rgb_array", **limit)
+        record_video(
+            loaded.policy,
+            replay_env,
+            staging / "replay.mp4",
+            episodes=1,
+            seed=seed,
+            deterministic=deterministic,
+            title=loaded.name,
+        )
+        replay_env.close()
+        card = model_card(loaded, algo_name, model_file.name, results)
+        atomic_write_bytes(staging / "README.md", card.encode())
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        os.replace(staging, out_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return PackageResult(out_dir, out_dir / model_file.name, results)
+
+
+def _zip_data(data: bytes | Path) -> dict[str, Any]:
+    """The ``data`` JSON of an SB3 zip (what package_to_hub writes as config.json)."""
+    import io
+
+    with zipfile.ZipFile(io.BytesIO(data) if isinstance(data, bytes) else data) as archive:
+        return json.loads(archive.read("data"))
+
+
+def _lay_out_model(loaded: LoadedPolicy, source: Path, staging: Path) -> tuple[Path, dict[str, Any]]:
+    name = f"{loaded.meta.get('algo', 'ddpg')}-{hub_env_name(loaded.env_id)}"
+    model_file = staging / f"{name}.zip"
+    shutil.copyfile(source, model_file)
+    with zipfile.ZipFile(model_file) as archive:
+        archive.extractall(staging / name)
+    if loaded.meta:
+        # The manifest entry, renamed to the packaged file, keeps the safe (weights-only) loading path.
+        key = "workers" if loaded.kind == "worker" else "models"
+        entry = {**loaded.meta, "file": model_file.name}
+        atomic_write_json(
+            staging / "manifest.json", {"schema_version": 1, key: {entry.get("name", name): entry}}
+        )
+    return model_file, _zip_data(model_file)
+
+
+def _lay_out_bundle(source: Path, staging: Path) -> tuple[Path, dict[str, Any]]:
+    from sb3_hddpg.hierarchy import read_bundle
+
+    manifest, members = read_bundle(source)
+    model_file = staging / "hierarchy.zip"
+    shutil.copyfile(source, model_file)
+    atomic_write_json(staging / "manifest.json", manifest)
+    config = {
+        "kind": "sb3-hddpg-hierarchy",
+        "env_id": manifest["env_id"],
+        "env_kwargs": manifest["env_kwargs"],
+        "worker_names": manifest["worker_names"],
+        "selection": manifest["selection"],
+        "manager": _zip_data(members[manifest["manager"]["file"]]),
+        "workers": {
+            name: _zip_data(members[entry["file"]])
+            for name, entry in manifest["workers"].items()
+            if entry.get("kind") != "hierarchy"
+        },
+    }
+    return model_file, config
+
+
+def model_card(loaded: LoadedPolicy, algo_name: str, model_file: str, results: dict[str, Any]) -> str:
+    """
+    A model card like huggingface_sb3's: YAML metadata (``library_name``, ``tags``, ``model-index`` with the
+    mean reward) between ``---`` lines, then a description and how to use the files.
+
+    :param loaded: the packaged policy.
+    :param algo_name: e.g. ``DDPG`` or ``HDDPG``.
+    :param model_file: the model file's name in the package.
+    :param results: the content of ``results.json``.
+    """
+    env_id = loaded.env_id
+    tags = [env_id, "deep-reinforcement-learning", "reinforcement-learning", "stable-baselines3", "sb3-hddpg"]
+    if loaded.kind == "hierarchy":
+        tags.append("hierarchical-reinforcement-learning")
+    value = f"{results['mean_reward']:.2f} +/- {results['std_reward']:.2f}"
+    metadata = {
+        "library_name": "stable-baselines3",
+        "tags": tags,
+        "model-index": [
+            {
+                "name": algo_name,
+                "results": [
+                    {
+                        "task": {"type": "reinforcement-learning", "name": "reinforcement-learning"},
+                        "dataset": {"name": env_id, "type": env_id},
+                        "metrics": [
+                            {"type": "mean_reward", "value": value, "name": "mean_reward", "verified": False}
+                        ],
+                    }
+                ],
+            }
+        ],
+    }
+    m = results["metrics"]
+    if loaded.kind == "hierarchy":
+        names = list(getattr(loaded.policy, "names", []))
+        what = (
+            f"a **Hierarchical DDPG** (sb3-hddpg): a DDPG manager that picks, at every step, which of the "
+            f"workers {names} acts. Every member is a plain Stable-Baselines3 DDPG; `{model_file}` holds them "
+            "with a manifest of sha256 hashes (`manifest.json` is a copy)."
+        )
+        python = (
+            "from sb3_hddpg.hierarchy import Hierarchy\n\n"
+            f'policy = Hierarchy.load("{model_file}")  # verified; rebuilt without unpickling\n'
+            "action, _ = policy.predict(obs, deterministic=True)"
+        )
+    else:
+        what = f"a **{algo_name}** agent (a plain Stable-Baselines3 model) trained with sb3-hddpg."
+        python = (
+            "from sb3_hddpg.loading import load_policy\n\n"
+            f'loaded = load_policy("{model_file}")  # checks manifest.json; loads weights only\n'
+            "action, _ = loaded.policy.predict(obs, deterministic=True)\n\n"
+            "# or, trusting the file, with SB3 itself:\n"
+            f'# from stable_baselines3 import {algo_name}; model = {algo_name}.load("{model_file}")'
+        )
+    front = yaml.safe_dump(metadata, sort_keys=False)
+    return f"""---
+{front}---
+
+# **{algo_name}** agent on **{env_id}**
+
+This is {what}
+
+| metric | value |
+|---|---|
+| mean reward | {value} |
+| goal-touch rate | {m["goal_touch_rate"]:.1%} |
+| collision steps per episode | {m["collisions_per_episode"]:.1f} |
+| success rate | {m["success_rate"]:.0%} |
+| evaluation | {results["n_eval_episodes"]} episodes, seeds {results["eval_seeds"][0]}..{results["eval_seeds"][-1]}, deterministic={results["is_deterministic"]} |
+
+## Usage
+
+```bash
+pip install sb3-hddpg
+hddpg-cli evaluate {model_file} --episodes 20
+hddpg-cli record {model_file} --out replay.gif
+```
+
+```python
+import sb3_hddpg  # registers {env_id}
+{python}
+```
+
+Files: `{model_file}`, `manifest.json`, `config.json`, `results.json` (huggingface_sb3's keys), `replay.mp4`.
+"""
+
+
+def write_zoo_layout(
+    models: dict[str, str | Path], folder: str | Path, algo: str = "ddpg", exp_id: int = 1
+) -> Path:
+    """
+    Copy SB3 model zips into RL Zoo's log layout, ``FOLDER/<algo>/<env name>_<exp_id>/<env name>.zip``, so
+    that ``python -m rl_zoo3.enjoy --algo ddpg --env ENV_ID --gym-packages sb3_hddpg -f FOLDER --exp-id 1``
+    finds them (see docs/RL_ZOO.md). One model per env id: that is how RL Zoo names its runs.
+
+    :param models: env id -> model zip trained on it.
+    :param folder: RL Zoo's ``-f`` folder.
+    :param algo: the algorithm's RL Zoo name.
+    :param exp_id: the experiment number in the folder name.
+    :return: ``folder``.
+    """
+    folder = Path(folder)
+    for env_id, path in models.items():
+        name = hub_env_name(env_id)
+        data = Path(path).read_bytes()
+        atomic_write_bytes(folder / algo / f"{name}_{exp_id}" / f"{name}.zip", data)
+    return folder

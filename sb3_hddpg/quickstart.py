@@ -1,0 +1,617 @@
+"""
+``run_quickstart``: the whole method on a small budget, in one run folder.
+
+Both workers are trained side by side (one process each), then the manager and the flat DDPG baseline side
+by side; the HAM switch needs no training. Every method is then evaluated on the same seeds of
+``hddpg/SnakeReach-v0``, and the run folder receives the figures, a GIF of the hierarchy at work, the
+bundle and ``results.json``::
+
+    RUN/
+      config.yml              the hyperparameters used (RL Zoo format)
+      workers/                goal.zip, avoid.zip, manifest.json
+      manager/manager.zip     the manager alone
+      hierarchy.zip           the bundle: manager + workers + manifest (load with Hierarchy.load)
+      flat/                   flat-ddpg.zip, manifest.json (the single-DDPG baseline)
+      ham.json                the HAM switch (when the HAM baseline is installed)
+      zoo/                    the workers and flat DDPG in RL Zoo's layout (rl_zoo3.enjoy -f RUN/zoo)
+      results.json            every method's metrics on the shared seeds, budget, timings, versions
+      comparison.png  learning_curves.png  selection.png  hierarchy.gif
+      evaluations/  tensorboard/  checkpoints/  best/
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+import multiprocessing
+import queue as queue_module
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.io import atomic_write_bytes, atomic_write_json
+
+#: The env every method is compared on.
+COMPARISON_ENV_ID = "hddpg/SnakeReach-v0"
+#: ``results.json``'s schema version.
+RESULTS_SCHEMA_VERSION = 1
+#: The stages, in order; the overall progress bar counts them.
+STAGES = ("train workers", "train manager + flat DDPG", "evaluate on shared seeds", "record GIF", "figures")
+
+
+@dataclass(frozen=True)
+class QuickstartBudget:
+    """
+    How much a quickstart trains and evaluates.
+
+    :param name: ``small`` or ``tiny``.
+    :param worker_timesteps: steps per worker.
+    :param manager_timesteps: manager steps.
+    :param flat_timesteps: steps of the flat DDPG baseline.
+    :param eval_freq: steps between evaluations during training.
+    :param eval_episodes: episodes per evaluation during training.
+    :param compare_episodes: episodes per method in the final comparison (the same seeds for all).
+    :param gif_episodes: episodes in the GIF (the selection timeline shows the same ones).
+    :param gif_max_steps: cut the GIF's episodes to this many steps (``None``: full episodes).
+    :param overrides: hyperparameters replaced in every block of the bundled config.
+    """
+
+    name: str
+    worker_timesteps: int
+    manager_timesteps: int
+    flat_timesteps: int
+    eval_freq: int
+    eval_episodes: int
+    compare_episodes: int
+    gif_episodes: int = 1
+    gif_max_steps: int | None = None
+    overrides: dict[str, Any] = field(default_factory=dict)
+
+
+#: ``small`` finishes in about ten minutes on two idle CPU cores; ``tiny`` in well under a minute (tests).
+BUDGETS: dict[str, QuickstartBudget] = {
+    "small": QuickstartBudget(
+        "small",
+        worker_timesteps=30_000,
+        manager_timesteps=30_000,
+        flat_timesteps=30_000,
+        eval_freq=5_000,
+        eval_episodes=5,
+        compare_episodes=20,
+    ),
+    "tiny": QuickstartBudget(
+        "tiny",
+        worker_timesteps=300,
+        manager_timesteps=300,
+        flat_timesteps=300,
+        eval_freq=150,
+        eval_episodes=1,
+        compare_episodes=2,
+        gif_max_steps=40,
+        overrides={
+            "learning_starts": 100,
+            "batch_size": 32,
+            "buffer_size": 5_000,
+            "policy_kwargs": "dict(net_arch=[16])",
+        },
+    ),
+}
+
+
+class QuickstartObserver:
+    """
+    What :func:`run_quickstart` reports while it runs; every method does nothing here. The CLI subclasses it
+    with rich progress bars.
+    """
+
+    def on_stage(self, index: int, name: str) -> None:
+        """Stage ``index`` (of :data:`STAGES`) starts."""
+
+    def on_task(self, task: str, completed: float, total: float) -> None:
+        """A task of the current stage (an agent's training, an evaluation) has done ``completed`` of ``total``."""
+
+    def on_message(self, message: str) -> None:
+        """Something worth a line: an agent finished, a file was written."""
+
+
+@dataclass
+class QuickstartResult:
+    """
+    What :func:`run_quickstart` produced.
+
+    :param run_dir: the run folder.
+    :param summaries: method name -> its evaluation summary on the shared seeds.
+    :param methods: method name -> facts about it (kind, file, training steps and seconds).
+    :param files: label -> path of every figure, video, bundle and ``results.json``.
+    :param stage_seconds: stage name -> wall time.
+    :param wall_seconds: the whole run's wall time.
+    :param ham_available: whether the HAM baseline was part of the run.
+    """
+
+    run_dir: Path
+    summaries: dict[str, dict[str, Any]]
+    methods: dict[str, dict[str, Any]]
+    files: dict[str, Path]
+    stage_seconds: dict[str, float]
+    wall_seconds: float
+    ham_available: bool
+
+
+# ---------------------------------------------------------------------------------------- child processes
+_report: Callable[[str, int], None] | None = None
+
+
+def _init_child(progress_queue: Any) -> None:
+    """Pool initialiser: report training progress through ``progress_queue``; one torch thread."""
+    import torch
+
+    global _report
+    torch.set_num_threads(1)
+    _report = lambda name, steps: progress_queue.put((name, steps))  # noqa: E731
+
+
+class _ProgressReporter(BaseCallback):
+    """Reports the step count at most every ``interval`` seconds (and at the end) to the parent."""
+
+    def __init__(self, name: str, interval: float = 0.5) -> None:
+        super().__init__()
+        self.name = name
+        self.interval = interval
+        self._last = 0.0
+
+    def _on_step(self) -> bool:
+        now = time.monotonic()
+        if _report is not None and now - self._last >= self.interval:
+            self._last = now
+            _report(self.name, int(self.num_timesteps))
+        return True
+
+    def _on_training_end(self) -> None:
+        if _report is not None:
+            _report(self.name, int(self.num_timesteps))
+
+
+def _train_job(
+    kind: str,
+    name: str,
+    run_dir: str,
+    config: str,
+    timesteps: int,
+    seed: int,
+    eval_freq: int,
+    eval_episodes: int,
+) -> dict[str, Any]:
+    """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
+    from sb3_hddpg import training
+
+    started, cpu_started = time.monotonic(), time.process_time()
+    common = dict(
+        config=config,
+        timesteps=timesteps,
+        seed=seed,
+        eval_freq=eval_freq,
+        eval_episodes=eval_episodes,
+        extra_callbacks=[_ProgressReporter(name)],
+    )
+    if kind == "worker":
+        manifest = training.train_workers(run_dir, workers=[name], **common)  # type: ignore[arg-type]
+        out: dict[str, Any] = {"entry": manifest["workers"][name]}
+        steps = out["entry"]["timesteps_trained"]
+    elif kind == "manager":
+        _, outcome = training.train_manager(run_dir, run_dir, **common)  # type: ignore[arg-type]
+        out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps
+    else:
+        out = train_flat_baseline(Path(run_dir), name=name, **common)  # type: ignore[arg-type]
+        steps = out["timesteps_trained"]
+    out.update(
+        {
+            "timesteps": int(steps),
+            "seconds": time.monotonic() - started,
+            # CPU time: what the job needs on an idle core, whatever else shares the machine.
+            "cpu_seconds": time.process_time() - cpu_started,
+        }
+    )
+    return out
+
+
+def train_flat_baseline(
+    run_dir: Path,
+    name: str = "flat-ddpg",
+    config: str | Path | None = None,
+    timesteps: int | None = None,
+    seed: int = 0,
+    eval_freq: int = 5000,
+    eval_episodes: int = 5,
+    extra_callbacks: Any = (),
+) -> dict[str, Any]:
+    """
+    The single-DDPG baseline: a plain SB3 DDPG on ``hddpg/SnakeReach-v0`` (both terms, normalised and
+    summed), written to ``run_dir/flat/<name>.zip`` with a ``manifest.json`` that
+    :func:`~sb3_hddpg.loading.load_policy` verifies.
+
+    :param run_dir: the run folder.
+    :param name: the model's name.
+    :param config: a ``zoo_configs`` file (default: the bundled one); its SnakeReach block is used.
+    :param timesteps: the budget (default: the config's).
+    :param seed: training seed.
+    :param eval_freq: steps between evaluations.
+    :param eval_episodes: episodes per evaluation.
+    :param extra_callbacks: more SB3 callbacks.
+    :return: the manifest entry written.
+    """
+    from stable_baselines3 import DDPG
+
+    from sb3_hddpg.config import load_hyperparams
+    from sb3_hddpg.safe_load import model_spec
+    from sb3_hddpg.training import AgentPaths, library_versions, make_snake_env, sha256_file, train_agent
+
+    hyperparams = load_hyperparams(COMPARISON_ENV_ID, DDPG, config)
+    paths = AgentPaths(run_dir, name, run_dir / "flat" / f"{name}.zip")
+    outcome = train_agent(
+        functools.partial(make_snake_env, COMPARISON_ENV_ID, dict(hyperparams.env_kwargs)),
+        hyperparams,
+        paths,
+        timesteps=timesteps,
+        seed=seed,
+        eval_freq=eval_freq,
+        eval_episodes=eval_episodes,
+        extra_callbacks=list(extra_callbacks),
+    )
+    entry = {
+        "name": name,
+        "file": f"{name}.zip",
+        "sha256": sha256_file(outcome.model_path),
+        "algo": "ddpg",
+        "env_id": COMPARISON_ENV_ID,
+        "env_kwargs": hyperparams.env_kwargs,
+        "config": {
+            "file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml",
+            "block": hyperparams.raw,
+        },
+        "seed": seed,
+        "timesteps_requested": int(timesteps or hyperparams.n_timesteps),
+        "timesteps_trained": outcome.num_timesteps,
+        "versions": library_versions(),
+        "metrics": outcome.metrics,
+        "spec": model_spec(outcome.model),
+    }
+    atomic_write_json(run_dir / "flat" / "manifest.json", {"schema_version": 1, "models": {name: entry}})
+    return entry
+
+
+# ---------------------------------------------------------------------------------------- the parent
+def ham_available() -> bool:
+    """Whether this installation has the HAM baseline (``sb3_hddpg.baselines.ham``)."""
+    return importlib.util.find_spec("sb3_hddpg.baselines.ham") is not None
+
+
+def write_config(path: Path, overrides: dict[str, Any]) -> Path:
+    """The bundled config with ``overrides`` applied to every block, written to ``path`` (RL Zoo format)."""
+    from sb3_hddpg.config import DEFAULT_CONFIG, load_config_file
+
+    config = load_config_file(DEFAULT_CONFIG)
+    for block in config.values():
+        block.update(overrides)
+    header = "# The hyperparameters of this quickstart run (the bundled zoo_configs/ddpg.yml"
+    header += f" with {overrides}).\n" if overrides else ").\n"
+    return atomic_write_bytes(path, (header + yaml.safe_dump(config, sort_keys=False)).encode())
+
+
+def _run_jobs(
+    jobs: list[dict[str, Any]], processes: int, observer: QuickstartObserver
+) -> dict[str, dict[str, Any]]:
+    """Run training jobs, ``processes`` at a time, relaying their progress to ``observer``."""
+    global _report
+    results: dict[str, dict[str, Any]] = {}
+    totals = {job["name"]: job["timesteps"] for job in jobs}
+    for name, total in totals.items():
+        observer.on_task(name, 0, total)
+    if processes <= 1:
+        # In this process: the same code path without a pool (handy for debugging and profiling).
+        _report = lambda name, steps: observer.on_task(name, min(steps, totals[name]), totals[name])  # noqa: E731
+        try:
+            for job in jobs:
+                results[job["name"]] = _train_job(**job)
+                observer.on_message(f"{job['name']}: {results[job['name']]['timesteps']} steps")
+        finally:
+            _report = None
+        return results
+
+    # spawn, not fork: the parent has torch loaded, and forked torch processes can deadlock.
+    context = multiprocessing.get_context("spawn")
+    progress_queue = context.Queue()
+    executor = ProcessPoolExecutor(
+        max_workers=min(processes, len(jobs)),
+        mp_context=context,
+        initializer=_init_child,
+        initargs=(progress_queue,),
+    )
+    futures: dict[Future[dict[str, Any]], str] = {}
+    try:
+        for job in jobs:
+            futures[executor.submit(_train_job, **job)] = job["name"]
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
+            _drain(progress_queue, totals, observer)
+            for future in done:
+                name = futures[future]
+                results[name] = future.result()  # re-raises a child's error here
+                observer.on_task(name, totals[name], totals[name])
+                observer.on_message(
+                    f"{name}: {results[name]['timesteps']} steps in {results[name]['seconds']:.0f} s"
+                )
+    except BaseException:
+        executor.shutdown(wait=True, cancel_futures=True)
+        raise
+    executor.shutdown(wait=True)
+    return results
+
+
+def _drain(progress_queue: Any, totals: dict[str, int], observer: QuickstartObserver) -> None:
+    while True:
+        try:
+            name, steps = progress_queue.get_nowait()
+        except queue_module.Empty:
+            return
+        observer.on_task(name, min(steps, totals[name]), totals[name])
+
+
+def run_quickstart(
+    out_dir: str | Path,
+    budget: str | QuickstartBudget = "small",
+    seed: int = 0,
+    processes: int = 2,
+    observer: QuickstartObserver | None = None,
+) -> QuickstartResult:
+    """
+    Train both workers, the manager and the baselines, compare them on the same seeds and write everything
+    into ``out_dir`` (see the module docstring for the layout). The folder must not hold results already.
+
+    :param out_dir: the run folder.
+    :param budget: a name in :data:`BUDGETS` or a :class:`QuickstartBudget`.
+    :param seed: training seed of every agent (evaluation seeds are the library's fixed ones).
+    :param processes: training processes at a time (2: the workers side by side, then manager and flat DDPG).
+    :param observer: receives progress (default: none).
+    :return: the metrics, the files written and the timings.
+    """
+    from sb3_hddpg.loading import LoadedPolicy, load_policy
+    from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
+    from sb3_hddpg.media.video import record_video
+    from sb3_hddpg.training import WORKER_ENV_IDS, save_manifest
+
+    if isinstance(budget, str):
+        if budget not in BUDGETS:
+            raise ValueError(f"Unknown budget {budget!r}; choose from {list(BUDGETS)}")
+        budget = BUDGETS[budget]
+    if processes < 1:
+        raise ValueError(f"Expected `processes` >= 1, actually: {processes}")
+    observer = observer or QuickstartObserver()
+    run_dir = Path(out_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    started = time.monotonic()
+    stage_seconds: dict[str, float] = {}
+    stage_cpu: dict[str, float] = {}
+    files: dict[str, Path] = {}
+    methods: dict[str, dict[str, Any]] = {}
+
+    def stage(index: int) -> None:
+        stage_seconds[STAGES[index]] = time.monotonic()
+        stage_cpu[STAGES[index]] = time.process_time()
+        observer.on_stage(index, STAGES[index])
+
+    def stage_done(index: int, jobs: dict[str, dict[str, Any]] | None = None) -> None:
+        name = STAGES[index]
+        stage_seconds[name] = time.monotonic() - stage_seconds[name]
+        # Side-by-side jobs take as long as the slowest one on an idle machine.
+        stage_cpu[name] = time.process_time() - stage_cpu[name]
+        if jobs and processes > 1:  # in-process jobs are already in this process's CPU time
+            stage_cpu[name] += max(job["cpu_seconds"] for job in jobs.values())
+
+    config = write_config(run_dir / "config.yml", budget.overrides)
+    files["config"] = config
+    common = dict(
+        run_dir=str(run_dir),
+        config=str(config),
+        seed=seed,
+        eval_freq=budget.eval_freq,
+        eval_episodes=budget.eval_episodes,
+    )
+
+    # 1. Workers, side by side. Each process writes workers/manifest.json with its own entry only; the
+    #    merged manifest is written once both are done.
+    stage(0)
+    worker_jobs = [
+        {"kind": "worker", "name": name, "timesteps": budget.worker_timesteps, **common}
+        for name in WORKER_ENV_IDS
+    ]
+    trained = _run_jobs(worker_jobs, processes, observer)
+    stage_done(0, trained)
+    manifest = {"schema_version": 1, "workers": {name: trained[name]["entry"] for name in WORKER_ENV_IDS}}
+    save_manifest(run_dir / "workers" / "manifest.json", manifest)
+
+    # 2. The manager (over the merged workers) and the flat DDPG, side by side.
+    stage(1)
+    jobs = [
+        {"kind": "manager", "name": "manager", "timesteps": budget.manager_timesteps, **common},
+        {"kind": "flat", "name": "flat-ddpg", "timesteps": budget.flat_timesteps, **common},
+    ]
+    second = _run_jobs(jobs, processes, observer)
+    trained.update(second)
+    stage_done(1, second)
+    files["bundle"] = run_dir / "hierarchy.zip"
+
+    # 3. Every method on the same seeds of the same env.
+    stage(2)
+    sources: dict[str, Path | str] = {"HDDPG": run_dir / "hierarchy.zip"}
+    with_ham = ham_available()
+    if with_ham:
+        files["ham"] = sources["HAM"] = _build_ham(run_dir)
+    sources["flat DDPG"] = run_dir / "flat" / "flat-ddpg.zip"
+    for name in WORKER_ENV_IDS:
+        sources[f"{name} worker"] = run_dir / "workers" / f"{name}.zip"
+    sources["scripted"] = "scripted"
+    sources["random"] = "random"
+    # The same loaders a user's `hddpg-cli evaluate` uses: hashes verified, no pickle.
+    policies: dict[str, LoadedPolicy] = {label: load_policy(source) for label, source in sources.items()}
+    trained_by = {"HDDPG": ["goal", "avoid", "manager"], "flat DDPG": ["flat-ddpg"]}
+    trained_by.update({f"{n} worker": [n] for n in WORKER_ENV_IDS})
+
+    steps_per_episode = _episode_steps()
+    total_steps = len(policies) * budget.compare_episodes * steps_per_episode
+    done_steps = 0
+    summaries: dict[str, dict[str, Any]] = {}
+    for label, loaded in policies.items():
+        env = loaded.make_env(COMPARISON_ENV_ID)
+
+        def tick(_env: Any, _info: dict[str, Any]) -> None:
+            nonlocal done_steps
+            done_steps += 1
+            if done_steps % 50 == 0:
+                observer.on_task("evaluation", done_steps, total_steps)
+
+        result = evaluate(
+            loaded.policy, env, n_episodes=budget.compare_episodes, seed=EVAL_SEED_BASE, on_step=tick
+        )
+        env.close()
+        summary = result.summary()
+        summary["std_reach_reward"] = float(np.std([e.reach_reward for e in result.episodes]))
+        summaries[label] = summary
+        agents = trained_by.get(label, [])
+        methods[label] = {
+            "kind": loaded.kind,
+            "source": str(_relative(sources[label], run_dir)),
+            "train_timesteps": sum(trained[a]["timesteps"] for a in agents),
+            "train_seconds": sum(trained[a]["seconds"] for a in agents),
+            "episodes": [e.reach_reward for e in result.episodes],
+        }
+    observer.on_task("evaluation", total_steps, total_steps)
+    stage_done(2)
+
+    # 4. The hierarchy at work: a GIF, and the same episodes as a selection timeline.
+    stage(3)
+    hierarchy = policies["HDDPG"]
+    limit = {"max_episode_steps": budget.gif_max_steps} if budget.gif_max_steps else {}
+    gif_env = hierarchy.make_env(COMPARISON_ENV_ID, render_mode="rgb_array", **limit)
+    gif_steps = budget.gif_episodes * (budget.gif_max_steps or steps_per_episode)
+
+    recording = record_video(
+        hierarchy.policy,
+        gif_env,
+        run_dir / "hierarchy.gif",
+        episodes=budget.gif_episodes,
+        seed=EVAL_SEED_BASE,
+        fps=10,
+        title="HDDPG",
+    )
+    observer.on_task("GIF", gif_steps, gif_steps)
+    files["gif"] = recording.path
+    base = gif_env.unwrapped
+    gif_env.close()
+    stage_done(3)
+
+    # 5. Figures.
+    stage(4)
+    names = list(hierarchy.policy.names)  # type: ignore[attr-defined]
+    files["selection"] = plot_selection_timeline(
+        recording.records,
+        run_dir / "selection.png",
+        names=names,
+        title=f"HDDPG on {COMPARISON_ENV_ID}, seed {EVAL_SEED_BASE}: which worker acts, and why",
+        sensor_range=base.sensor_range,
+        touch_radius=base.touch_radius,
+    )
+    histories = {}
+    for agent in ("goal", "avoid", "manager", "flat-ddpg"):
+        path = run_dir / "evaluations" / f"{agent}.json"
+        if path.exists():
+            import json
+
+            histories[agent] = json.loads(path.read_text())
+    references = {
+        f"{label} (untrained)": summaries[label]["mean_reach_reward"]
+        for label in ("HAM", "scripted", "random")
+        if label in summaries
+    }
+    files["learning_curves"] = plot_learning_curves(histories, run_dir / "learning_curves.png", references)
+    files["comparison"] = plot_comparison(
+        summaries,
+        run_dir / "comparison.png",
+        title=f"{COMPARISON_ENV_ID}: {budget.compare_episodes} episodes per method, seeds "
+        f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + budget.compare_episodes - 1}",
+    )
+    stage_done(4)
+
+    from sb3_hddpg.packaging import write_zoo_layout
+
+    zoo_models: dict[str, str | Path] = {
+        env: run_dir / "workers" / f"{n}.zip" for n, env in WORKER_ENV_IDS.items()
+    }
+    zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
+    files["zoo"] = write_zoo_layout(zoo_models, run_dir / "zoo")
+
+    wall = time.monotonic() - started
+    files["results"] = run_dir / "results.json"
+    results = {
+        "schema_version": RESULTS_SCHEMA_VERSION,
+        "kind": "sb3-hddpg-quickstart",
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "env_id": COMPARISON_ENV_ID,
+        "budget": {k: v for k, v in vars(budget).items()},
+        "seed": seed,
+        "eval_seeds": list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + budget.compare_episodes)),
+        "deterministic": True,
+        "ham_available": with_ham,
+        "methods": {label: {**methods[label], "summary": summaries[label]} for label in summaries},
+        "files": {label: str(_relative(path, run_dir)) for label, path in files.items()},
+        "stage_seconds": stage_seconds,
+        # CPU seconds per stage (the slowest job for side-by-side training): the wall time on idle cores.
+        "stage_cpu_seconds": stage_cpu,
+        "wall_seconds": wall,
+        "processes": processes,
+    }
+    from sb3_hddpg.training import library_versions
+
+    results["versions"] = library_versions()
+    atomic_write_json(files["results"], results)
+    return QuickstartResult(run_dir, summaries, methods, files, stage_seconds, wall, with_ham)
+
+
+def _build_ham(run_dir: Path) -> Path:
+    """Write the HAM switch over the run's workers to ``run_dir/ham.json``, with its default threshold."""
+    import gymnasium as gym
+
+    from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
+
+    probe = gym.make(COMPARISON_ENV_ID)
+    n_joints = len(probe.unwrapped.state_layout.indices(["joint_obstacle_distances"]))
+    probe.close()
+    return save_ham(
+        run_dir / "ham.json",
+        run_dir / "workers" / "manifest.json",
+        threshold=n_joints - DEFAULT_MARGIN,
+        metadata={"made_by": "quickstart"},
+    )
+
+
+def _episode_steps() -> int:
+    from sb3_hddpg.envs import MAX_EPISODE_STEPS
+
+    return MAX_EPISODE_STEPS
+
+
+def _relative(path: Any, root: Path) -> Path:
+    path = Path(path)
+    try:
+        return path.relative_to(root)
+    except ValueError:
+        return path

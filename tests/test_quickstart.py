@@ -1,0 +1,96 @@
+"""``hddpg-cli quickstart --budget tiny`` end to end, in a subprocess, as a user runs it."""
+
+import importlib.util
+import json
+import subprocess
+import sys
+
+import imageio.v3 as iio
+import pytest
+from PIL import Image
+from stable_baselines3 import DDPG
+
+from sb3_hddpg.hierarchy import Hierarchy
+from sb3_hddpg.quickstart import BUDGETS, RESULTS_SCHEMA_VERSION, STAGES
+from tests.cli_runner import run_cli
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("qs") / "run"
+    result = run_cli("quickstart", "--budget", "tiny", "--out", out, "--seed", "1", timeout=900, check=True)
+    return out, result
+
+
+def test_prints_the_table_and_the_run_folder(run):
+    out, result = run
+    assert "HDDPG" in result.stdout and "flat DDPG" in result.stdout and "reach reward" in result.stdout
+    assert str(out) in result.stdout
+
+
+def test_results_json_schema(run):
+    out, _ = run
+    results = json.loads((out / "results.json").read_text())
+    assert results["schema_version"] == RESULTS_SCHEMA_VERSION and results["kind"] == "sb3-hddpg-quickstart"
+    assert results["budget"]["name"] == "tiny" and results["seed"] == 1
+    assert results["eval_seeds"] == list(range(10_000, 10_000 + BUDGETS["tiny"].compare_episodes))
+    expected = {"HDDPG", "flat DDPG", "goal worker", "avoid worker", "scripted", "random"}
+    assert expected <= set(results["methods"]) and ("HAM" in results["methods"]) == results["ham_available"]
+    for method in results["methods"].values():
+        summary = method["summary"]
+        assert summary["episodes"] == BUDGETS["tiny"].compare_episodes
+        assert len(method["episodes"]) == summary["episodes"]
+        for key in ("mean_reach_reward", "std_reach_reward", "goal_touch_rate", "collisions_per_episode"):
+            assert isinstance(summary[key], float)
+    assert results["methods"]["HDDPG"]["train_timesteps"] == 900
+    assert set(results["stage_seconds"]) == set(STAGES) == set(results["stage_cpu_seconds"])
+    for label, path in results["files"].items():
+        assert (out / path).exists(), label
+
+
+def test_media_decode(run):
+    out, _ = run
+    for name in ("comparison.png", "learning_curves.png", "selection.png"):
+        with Image.open(out / name) as image:
+            image.verify()
+    frames = iio.imread(out / "hierarchy.gif", index=None)
+    assert frames.shape[0] == BUDGETS["tiny"].gif_max_steps
+
+
+def test_bundle_and_models_load(run):
+    out, _ = run
+    assert Hierarchy.load(out / "hierarchy.zip").names == ["goal", "avoid"]
+    manifest = json.loads((out / "workers" / "manifest.json").read_text())
+    assert set(manifest["workers"]) == {"goal", "avoid"}  # merged from the two processes
+    assert DDPG.load(out / "zoo" / "ddpg" / "hddpg-SnakeReach-v0_1" / "hddpg-SnakeReach-v0.zip")
+
+
+def test_refuses_to_overwrite(run):
+    out, _ = run
+    again = run_cli("quickstart", "--budget", "tiny", "--out", out)
+    assert again.returncode == 2 and "--force" in again.stderr
+
+
+@pytest.mark.skipif(importlib.util.find_spec("requests") is None, reason="rl_zoo3.enjoy imports requests")
+def test_rl_zoo_enjoy_runs_the_quickstart_workers(run, tmp_path):
+    out, _ = run
+    args = ["--algo", "ddpg", "--env", "hddpg/SnakeGoal-v0", "--gym-packages", "sb3_hddpg", "-n", "200"]
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rl_zoo3.enjoy",
+            *args,
+            "-f",
+            str(out / "zoo"),
+            "--exp-id",
+            "1",
+            "--no-render",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "Mean reward" in result.stdout
