@@ -519,6 +519,8 @@ def read_workers_manifest(path: str | Path) -> dict[str, Any]:
     if not valid:
         raise ValueError(f"Not a valid workers manifest: {str(path)!r}")
     return manifest
+
+
 #: The schema version of ``flat/manifest.json``.
 FLAT_MANIFEST_VERSION = 1
 #: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
