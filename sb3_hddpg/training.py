@@ -227,12 +227,14 @@ def train_agent(
     remove_stale_temporaries(paths.best_dir)
     remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
     remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
-    torch.set_num_threads(threads)
     cls = algo_class(algo)
 
     vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
     vec_env = make_vec_env(env_factory, n_envs=n_envs, seed=seed, vec_env_cls=vec_cls)
     eval_env = env_factory()
+    # After the env factories: make_snake_env sets one thread for subprocess envs, which must not
+    # override this process's choice.
+    torch.set_num_threads(threads)
     try:
         state = read_checkpoint_state(paths.checkpoint_dir) if resume else None
         if resume and state is None:
