@@ -146,7 +146,9 @@ def test_two_trials_at_each_level(level, tmp_path, tiny_config, workers_dir):
                 "selection",
                 "option_steps",
             }
-    assert not any((tmp_path / "trials").iterdir()), "trial scratch folders are removed"
+    # HAM trials train nothing, so they may never make the scratch folder.
+    scratch = tmp_path / "trials"
+    assert not scratch.exists() or not any(scratch.iterdir()), "trial scratch folders are removed"
 
 
 def test_cli_saves_a_config_that_trains_and_plots(tmp_path, tiny_config):
