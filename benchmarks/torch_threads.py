@@ -26,7 +26,7 @@ def steps_per_second(threads: int, steps: int, net: list[int]) -> float:
         "MlpPolicy",
         gym.make("hddpg/SnakeGoal-v0"),
         learning_starts=200,
-        batch_size=256,
+        batch_size=128,
         policy_kwargs={"net_arch": net},
         seed=0,
     )

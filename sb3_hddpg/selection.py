@@ -135,6 +135,8 @@ class FrozenWorker:
             self._squash = bool(getattr(self._policy, "squash_output", False))
             self._low = space.low.astype(np.float32)
             self._half_range = ((space.high - space.low) / 2.0).astype(np.float32)
+            # Unscaling to [-1, 1] (the snake's action space) is the identity: skip it.
+            self._squash = self._squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
             self._layers = _compile_actor(self._policy)
         if self._layers is not None:
             self.act: Callable[[np.ndarray], np.ndarray] = self._act_numpy
@@ -153,7 +155,8 @@ class FrozenWorker:
     def _act_numpy(self, obs: np.ndarray) -> np.ndarray:
         x = self._select(obs).astype(np.float32, copy=False)
         for weight, bias, activation in self._layers:  # type: ignore[union-attr]
-            x = x @ weight + bias
+            x = np.dot(x, weight)
+            x += bias  # in place: one temporary less per layer
             if activation is not None:
                 x = activation(x)
         return self._unscale(x)
@@ -181,8 +184,9 @@ def _leaky_relu(slope: float) -> Callable[[np.ndarray], np.ndarray]:
 
 #: numpy versions of the activations an actor may use; others fall back to torch.
 _NUMPY_ACTIVATIONS: dict[type, Callable[[torch.nn.Module], Callable[[np.ndarray], np.ndarray]]] = {
-    torch.nn.ReLU: lambda m: lambda x: np.maximum(x, 0.0),
-    torch.nn.Tanh: lambda m: np.tanh,
+    # Activations get a fresh layer output, so ReLU and tanh may work in place.
+    torch.nn.ReLU: lambda m: lambda x: np.maximum(x, 0.0, out=x),
+    torch.nn.Tanh: lambda m: lambda x: np.tanh(x, out=x),
     torch.nn.ELU: lambda m: lambda x: np.where(x > 0, x, m.alpha * np.expm1(np.minimum(x, 0.0))),
     torch.nn.LeakyReLU: lambda m: _leaky_relu(m.negative_slope),
     torch.nn.Sigmoid: lambda m: lambda x: 1.0 / (1.0 + np.exp(-x)),

@@ -136,6 +136,13 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             self.reward_specs[name] = _term_weights(name, spec, known_terms)
             self.frozen.append(FrozenWorker(worker, indices))
         self.workers = dict(pairs)
+        # The reward is linear in the raw terms: precompute sum_w preference_w * weight_wt per term, so a
+        # step costs one multiply-add per term (the manager step has a budget of 2x a plain env step).
+        self._normalise = base.normalise_terms
+        self._term_coefficients = [
+            (term, sum(self.preferences[n] * self.reward_specs[n].get(term, 0.0) for n in names))
+            for term in known_terms
+        ]
         self._rng = np.random.default_rng()
         self._last_obs: np.ndarray | None = None
 
@@ -149,11 +156,10 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
 
         :return: the reward and the normalised terms.
         """
-        normalised = self.env.unwrapped.normalise_terms(terms)  # type: ignore[attr-defined]
+        normalised = self._normalise(terms)
         reward = 0.0
-        for name in self.worker_names:
-            weights = self.reward_specs[name]
-            reward += self.preferences[name] * sum(w * normalised[t] for t, w in weights.items())
+        for term, coefficient in self._term_coefficients:
+            reward += coefficient * normalised[term]
         return reward, normalised
 
     # ------------------------------------------------------------------ gymnasium API
@@ -173,7 +179,12 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._last_obs is None:
             raise RuntimeError("Call reset() before step()")
-        probabilities = self.simplex.single(np.asarray(action, dtype=np.float64).tolist())
+        values = (
+            action.tolist()
+            if isinstance(action, np.ndarray) and action.ndim == 1
+            else np.asarray(action, dtype=np.float64).ravel().tolist()
+        )
+        probabilities = self.simplex.single(values)
         chosen = choose(probabilities, self.selection, self._rng)
         total = 0.0
         discount = 1.0
