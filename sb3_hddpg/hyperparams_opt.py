@@ -102,3 +102,54 @@ HYPERPARAMS_SAMPLER: dict[str, Callable[[Any], dict[str, Any]]] = {
     "flat": sample_flat_params,
     "ham": sample_ham_params,
 }
+
+
+class _SpaceRecorder:
+    """A stand-in trial that records every parameter a sampler asks for and its distribution."""
+
+    def __init__(self) -> None:
+        self.space: dict[str, tuple[str, Any]] = {}
+
+    def suggest_categorical(self, name: str, choices: Any) -> Any:
+        self.space[name] = ("choices", list(choices))
+        return choices[0]
+
+    def suggest_float(self, name: str, low: float, high: float, **_: Any) -> float:
+        self.space[name] = ("range", (low, high))
+        return low
+
+    def suggest_int(self, name: str, low: int, high: int, **_: Any) -> int:
+        self.space[name] = ("range", (low, high))
+        return low
+
+
+def search_space(level: str) -> dict[str, tuple[str, Any]]:
+    """
+    The parameters a level's sampler can suggest: name -> ``("choices", [...])`` or ``("range", (low, high))``
+    (conditional ones included, as sampled with every earlier choice at its first value).
+    """
+    recorder = _SpaceRecorder()
+    HYPERPARAMS_SAMPLER[level](recorder)
+    return recorder.space
+
+
+def check_fixed_params(level: str, fixed: dict[str, Any]) -> None:
+    """
+    Validate ``--fix`` values before a study starts: Optuna's ``PartialFixedSampler`` silently ignores
+    unknown names, so a typo would tune what the user meant to hold fixed.
+
+    :raises ValueError: naming the unknown parameter or the value outside its choices or range.
+    """
+    space = search_space(level)
+    for name, value in fixed.items():
+        if name not in space:
+            raise ValueError(f"Unknown parameter {name!r} for level {level!r}; tunable: {sorted(space)}")
+        kind, domain = space[name]
+        if kind == "choices" and value not in domain:
+            raise ValueError(f"Expected {name} among {domain}, actually: {value!r}")
+        if kind == "range" and not (
+            isinstance(value, (int, float))
+            and not isinstance(value, bool)
+            and domain[0] <= value <= domain[1]
+        ):
+            raise ValueError(f"Expected {name} in [{domain[0]}, {domain[1]}], actually: {value!r}")

@@ -64,6 +64,28 @@ def sqlite_path(url: str) -> Path | None:
     return Path(parsed.database)
 
 
+def check_storage_url(url: str) -> None:
+    """
+    Check an Optuna storage URL's form and that its database driver is installed, without connecting: a
+    typo in the scheme fails here with the URL named, not inside SQLAlchemy after the run has started.
+
+    :raises ValueError: for a malformed URL, an unknown dialect or a missing driver (e.g. the
+        ``distributed`` extra's psycopg for ``postgresql+psycopg://``).
+    """
+    import sqlalchemy.engine
+
+    try:
+        parsed = sqlalchemy.engine.make_url(url)
+        parsed.get_dialect().import_dbapi()
+    except ImportError as error:
+        raise ValueError(
+            f"The driver for {parsed.drivername!r} in {url.split('@')[-1]!r} is not installed ({error}); "
+            "for PostgreSQL install the 'distributed' extra"
+        ) from None
+    except Exception as error:  # sqlalchemy's ArgumentError / NoSuchModuleError
+        raise ValueError(f"Not a usable storage URL {url.split('@')[-1]!r}: {error}") from None
+
+
 def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int = MAX_RETRY) -> Any:
     """
     An Optuna storage for ``url`` with heartbeats and retry of trials whose process died.

@@ -152,6 +152,32 @@ class TuningTarget:
             return {}
         return select_block(load_config_file(self.config_path), self.block_key, source=str(self.config_path))
 
+    def check(self) -> None:
+        """
+        Fail before any study or trial exists if a trial could not even start: the base config's block must
+        parse, and for the levels over workers, the workers must load (hashes verified) and fit the env.
+        Otherwise every trial would fail the same way, one after another.
+        """
+        hyperparams = None
+        if self.block_key is not None:
+            hyperparams = parse_block(
+                dict(self.base_block(), n_envs=1),
+                DDPG,
+                source=f"{self.config_path}[{self.block_key}]",
+                manager=self.level == "manager",
+            )
+        if self.level == "manager":
+            _env_factory(self, hyperparams)().close()
+        elif self.level == "ham":
+            from sb3_hddpg.training import load_workers
+
+            workers, _ = load_workers(str(self.workers_dir))
+            env = make_snake_env(SHARED_ENV_ID)
+            try:
+                _make_ham(ham_class(), workers, env, float(env.unwrapped.n_joints) - 0.5)
+            finally:
+                env.close()
+
     def budget(self) -> int:
         """Training steps per trial."""
         if self.timesteps is not None:

@@ -56,6 +56,13 @@ ALONE = {
     "tm-workers-for-another-env",
     "ev-tampered-bundle",
     "ro-unknown-env",
+    "tf-config-unknown-key",
+    "bm-unknown-method",
+    "tu-fix-unknown",
+    "qs-unknown-budget",
+    "rec-tampered-bundle",
+    "ps-worker-zip",
+    "pk-not-a-zip",
 }
 
 
@@ -188,6 +195,117 @@ CASES = [
     case("ro-negative-seed", ("rollout", "--seed", "-4"), 2, "-4"),
     case("ro-unknown-env", ("rollout", "--env", "hddpg/Nope-v0"), 2, "Nope"),
     case("ro-png-is-a-folder", ("rollout", "--png", "{folder}"), 2, "a-folder"),
+    # ---- train-flat
+    case("tf-unknown-algo", ("train-flat", "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
+    case("tf-negative-timesteps", ("train-flat", "--timesteps", "-3", "--out", "{tmp}/o"), 2, "-3"),
+    case("tf-zero-n-envs", ("train-flat", "--n-envs", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case(
+        "tf-config-unknown-key",
+        ("train-flat", "--config", "{unknown_key}", "--out", "{tmp}/o"),
+        2,
+        "learning_rat",
+    ),
+    case(
+        "tf-out-holds-results",
+        ("train-flat", "--config", "{tiny}", "--out", "{w}"),
+        2,
+        "already holds results",
+    ),
+    # ---- benchmark
+    case("bm-unknown-method", ("benchmark", "--methods", "hddpg,nope", "--out", "{tmp}/o"), 2, "nope"),
+    case("bm-zero-seeds", ("benchmark", "--seeds", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case("bm-negative-timesteps", ("benchmark", "--timesteps", "-10", "--out", "{tmp}/o"), 2, "-10"),
+    case("bm-negative-bias", ("benchmark", "--bias", "-2", "--out", "{tmp}/o"), 2, "-2"),
+    case("bm-zero-n-jobs", ("benchmark", "--n-jobs", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case("bm-negative-hysteresis", ("benchmark", "--ham-hysteresis", "-1", "--out", "{tmp}/o"), 2, "-1"),
+    case("bm-out-is-a-file", ("benchmark", "--out", "{text_file}"), 2, "notes.txt"),
+    # ---- tune
+    case("tu-unknown-level", ("tune", "--level", "everything", "--out", "{tmp}/o"), 2, "everything"),
+    case("tu-worker-missing", ("tune", "--level", "worker", "--out", "{tmp}/o"), 2, "--worker"),
+    case(
+        "tu-unknown-worker", ("tune", "--level", "worker", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"
+    ),
+    case("tu-zero-trials", ("tune", "--level", "flat", "--n-trials", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case(
+        "tu-unknown-sampler", ("tune", "--level", "flat", "--sampler", "nope", "--out", "{tmp}/o"), 2, "nope"
+    ),
+    case(
+        "tu-unknown-storage",
+        ("tune", "--level", "flat", "--storage", "nosuchdb://x", "--out", "{tmp}/o"),
+        2,
+        "nosuchdb",
+    ),
+    case("tu-fix-unknown", ("tune", "--level", "flat", "--fix", "nope=1", "--out", "{tmp}/o"), 2, "nope"),
+    case(
+        "tu-fix-out-of-range",
+        ("tune", "--level", "flat", "--fix", "learning_rate=5", "--out", "{tmp}/o"),
+        2,
+        "learning_rate",
+    ),
+    case(
+        "tu-config-unknown-key",
+        ("tune", "--level", "flat", "--config", "{unknown_key}", "--out", "{tmp}/o"),
+        2,
+        "learning_rat",
+    ),
+    case(
+        "tu-workers-missing",
+        ("tune", "--level", "manager", "--workers", "{tmp}/nowhere", "--out", "{tmp}/o"),
+        2,
+        "nowhere",
+    ),
+    case(
+        "tu-workers-for-another-env",
+        ("tune", "--level", "manager", "--workers", "{w4}", "--out", "{tmp}/o"),
+        2,
+        "(27,)",
+    ),
+    case(
+        "tu-tampered-workers",
+        ("tune", "--level", "ham", "--workers", "{tampered_workers}", "--out", "{tmp}/o"),
+        2,
+        "goal.zip",
+    ),
+    # ---- quickstart
+    case("qs-unknown-budget", ("quickstart", "--budget", "huge", "--out", "{tmp}/o"), 2, "huge"),
+    case("qs-zero-processes", ("quickstart", "--processes", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case("qs-out-holds-results", ("quickstart", "--out", "{w}"), 2, "already holds results"),
+    # ---- record
+    case("rec-missing", ("record", "{tmp}/nope.zip", "--out", "{tmp}/x.gif"), 2, "nope.zip"),
+    case("rec-bad-extension", ("record", "{m}/hierarchy.zip", "--out", "{tmp}/x.avi"), 2, "x.avi"),
+    case(
+        "rec-zero-episodes",
+        ("record", "{m}/hierarchy.zip", "--out", "{tmp}/x.gif", "--episodes", "0"),
+        2,
+        "got 0",
+    ),
+    case("rec-zero-fps", ("record", "{m}/hierarchy.zip", "--out", "{tmp}/x.gif", "--fps", "0"), 2, "got 0"),
+    case("rec-tampered-bundle", ("record", "{tampered_bundle}", "--out", "{tmp}/x.gif"), 2, "manager.zip"),
+    # ---- plot-selection
+    case("ps-worker-zip", ("plot-selection", "{w}/workers/goal.zip", "--out", "{tmp}/p.png"), 2, "goal.zip"),
+    case(
+        "ps-zero-episodes",
+        ("plot-selection", "{m}/hierarchy.zip", "--episodes", "0", "--out", "{tmp}/p.png"),
+        2,
+        "got 0",
+    ),
+    case("ps-out-not-png", ("plot-selection", "{m}/hierarchy.zip", "--out", "{folder}"), 2, "a-folder"),
+    case(
+        "ps-truncated-bundle",
+        ("plot-selection", "{truncated_bundle}", "--out", "{tmp}/p.png"),
+        2,
+        "truncated.zip",
+    ),
+    # ---- package
+    case("pk-missing", ("package", "{tmp}/nope.zip", "--out", "{tmp}/pk"), 2, "nope.zip"),
+    case("pk-not-a-zip", ("package", "{text_zip}", "--out", "{tmp}/pk"), 2, "text.zip"),
+    case("pk-out-not-empty", ("package", "{m}/hierarchy.zip", "--out", "{w}"), 2, "not empty"),
+    case(
+        "pk-zero-episodes",
+        ("package", "{m}/hierarchy.zip", "--out", "{tmp}/pk", "--episodes", "0"),
+        2,
+        "got 0",
+    ),
     # ---- no command
     case("unknown-command", ("train-everything",), 2, "train-everything"),
 ]
@@ -299,8 +417,15 @@ def test_bad_input_is_one_clear_line(outcomes, args, code, offending):
 
 
 def test_table_covers_every_command():
-    commands = {param.values[0][0] for param in CASES}
-    assert {"train-workers", "train-manager", "evaluate", "rollout"} <= commands
+    """Every registered command has rows in the table (a new command must bring its own)."""
+    import typer
+
+    from sb3_hddpg.cli import app
+
+    registered = {command.name for command in typer.main.get_command(app).commands.values()}
+    in_table = {param.values[0][0] for param in CASES}
+    assert registered - in_table == set()
+    assert {"ALONE": ALONE - {param.id for param in CASES}} == {"ALONE": set()}
 
 
 @pytest.mark.parametrize("how", ["--debug", "HDDPG_DEBUG=1"])

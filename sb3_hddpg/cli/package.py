@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least
+from sb3_hddpg.cli.options import at_least, usage_errors
 from sb3_hddpg.cli.record import TRUST_HELP
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.loading import load_policy
@@ -37,7 +37,8 @@ def package_command(
         raise typer.BadParameter(
             f"{str(out)!r} is not empty; pass --force to replace it", param_hint="'--out'"
         )
-    loaded = load_policy(path, trusted=trust)
+    with usage_errors("'PATH'"):  # the model named on the command line is unusable
+        loaded = load_policy(path, trusted=trust)
     with console.status(f"Evaluating and recording {loaded.kind} {loaded.name!r}…"):
         result = package_policy(
             loaded, path, out, n_eval_episodes=episodes, seed=seed, video_steps=video_steps, force=force

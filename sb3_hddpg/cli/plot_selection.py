@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least
+from sb3_hddpg.cli.options import at_least, usage_errors
 from sb3_hddpg.cli.record import TRUST_HELP
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.loading import load_policy
@@ -41,7 +41,8 @@ def plot_selection_command(
 
     if out.suffix.lower() != ".png":
         raise typer.BadParameter(f"expected a .png file, got {str(out)!r}", param_hint="'--out'")
-    loaded = load_policy(path, env_id=env_id, trusted=trust)
+    with usage_errors("'PATH'"):  # the model named on the command line is unusable
+        loaded = load_policy(path, env_id=env_id, trusted=trust)
     names = selected_names(loaded.policy)
     if not names:
         raise typer.BadParameter(

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least
+from sb3_hddpg.cli.options import at_least, usage_errors
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.loading import load_policy
 
@@ -51,7 +51,8 @@ def record_command(
         check_video_path(out)
     except ValueError as error:
         raise typer.BadParameter(str(error), param_hint="'--out'") from None
-    loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
+    with usage_errors("'PATH'"):  # the model named on the command line is unusable
+        loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
     limit = {"max_episode_steps": max_steps} if max_steps else {}
     env = loaded.make_env(env_id, render_mode="rgb_array", **limit)
     with console.status(f"Recording {episodes} episode(s) of {loaded.kind} {loaded.name!r}…"):

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, prepare_out_dir
+from sb3_hddpg.cli.options import at_least, prepare_out_dir, usage_errors
 from sb3_hddpg.cli.train import metrics_table
 from sb3_hddpg.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted
 
@@ -54,6 +54,13 @@ def train_flat_command(
         raise typer.BadParameter(f"must be one of {list(ALGO_NAMES)}, got {algo!r}", param_hint="'--algo'")
     if config is not None and not config.is_file():
         raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    from sb3_hddpg.config import default_config, load_hyperparams
+    from sb3_hddpg.training import algo_class
+
+    with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
+        load_hyperparams(
+            FLAT_ENV_ID, algo_class(algo), config if config is not None else default_config(algo)
+        )
     prepare_out_dir(out, resume, force)
     try:
         manifest, outcome = train_flat(

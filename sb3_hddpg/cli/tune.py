@@ -9,7 +9,7 @@ import yaml
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, positive_float
+from sb3_hddpg.cli.options import at_least, positive_float, usage_errors
 from sb3_hddpg.training import WORKER_ENV_IDS, TrainingInterrupted
 from sb3_hddpg.tuning import LEVELS, PRUNERS, SAMPLERS
 
@@ -118,7 +118,8 @@ def tune_command(
 
     matplotlib.use("Agg")  # plots are files; never open a window
 
-    from sb3_hddpg.study_storage import default_storage_url
+    from sb3_hddpg.hyperparams_opt import check_fixed_params
+    from sb3_hddpg.study_storage import check_storage_url, default_storage_url
     from sb3_hddpg.tuning import (
         StudySettings,
         TuningTarget,
@@ -166,6 +167,11 @@ def tune_command(
     if config is not None and not config.is_file():
         raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
     fixed = parse_fixed(fix)
+    with usage_errors("'--fix'"):
+        check_fixed_params(level, fixed)
+    if storage is not None:
+        with usage_errors("'--storage'"):
+            check_storage_url(storage)
     if level == "ham":
         ham_class()  # a missing HAM baseline is reported before anything is created
 
@@ -179,6 +185,8 @@ def tune_command(
         eval_episodes=eval_episodes,
         seed=seed if seed is not None else 0,
     )
+    with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
+        target.check()
     name = study_name or target.name
     out = out or Path("runs") / "tune" / name
     settings = StudySettings(
