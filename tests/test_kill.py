@@ -164,3 +164,41 @@ def test_a_crash_before_the_first_checkpoint_needs_no_cleanup(tmp_path):
         == 300
     )
     assert temporaries(out) == []
+
+
+def test_train_manager_survives_sigkill_and_resume_writes_a_verified_bundle(tmp_path):
+    # The manager goes through the same checkpoint code as the workers, but with its own env (the
+    # selection wrapper over loaded workers) and its own outputs (the bundle): kill it for real too.
+    from sb3_hddpg import Hierarchy
+    from sb3_hddpg.training import train_workers
+
+    config = tmp_path / "kill.yml"
+    config.write_text(CONFIG + "manager:\n" + CONFIG.split("\n", 1)[1])
+    train_workers(tmp_path / "w", config=config, timesteps=150, eval_freq=0, eval_episodes=1)
+    out = tmp_path / "m"
+    checkpoints = out / "checkpoints" / "manager"
+    state = checkpoints / "state.json"
+    args = ["train-manager", "--workers", str(tmp_path / "w"), "--config", str(config)]
+    args += ["--timesteps", str(TOTAL), "--checkpoint-freq", "100", "--eval-freq", "0", "--eval-episodes", "1"]
+    args += ["--no-progress", "--out", str(out)]
+    progress = [0]
+    for round_number, moment in enumerate(["mid-write", "random"]):
+        before, old_debris = state_mtime(state), set(temporaries(checkpoints))
+        process = subprocess.Popen(
+            [sys.executable, str(CLI), *args, *(["--resume"] if round_number else [])],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        assert kill_when(process, trigger(moment, checkpoints, before, old_debris, pause=0.2))
+        progress.append(check_checkpoint(checkpoints))
+    assert 0 < progress[-1] < TOTAL and progress == sorted(progress), progress
+    assert not (out / "hierarchy.zip").exists()  # nothing final was written by a killed run
+
+    run_cli(*args, "--resume", check=True)
+    assert check_checkpoint(checkpoints) == TOTAL
+    assert temporaries(out) == []
+    hierarchy = Hierarchy.load(out / "hierarchy.zip")  # every member's sha256 verified
+    # The bundle holds the resumed run's final manager: the weights of the last checkpoint.
+    final = DDPG.load(checkpoints / json.loads(state.read_text())["model"], device="cpu")
+    for name, tensor in final.policy.state_dict().items():
+        assert (hierarchy.manager.policy.state_dict()[name] == tensor).all(), name
