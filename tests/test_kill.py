@@ -179,8 +179,8 @@ def test_train_manager_survives_sigkill_and_resume_writes_a_verified_bundle(tmp_
     checkpoints = out / "checkpoints" / "manager"
     state = checkpoints / "state.json"
     args = ["train-manager", "--workers", str(tmp_path / "w"), "--config", str(config)]
-    args += ["--timesteps", str(TOTAL), "--checkpoint-freq", "100", "--eval-freq", "0", "--eval-episodes", "1"]
-    args += ["--no-progress", "--out", str(out)]
+    args += ["--timesteps", str(TOTAL), "--checkpoint-freq", "100", "--eval-freq", "0"]
+    args += ["--eval-episodes", "1", "--no-progress", "--out", str(out)]
     progress = [0]
     for round_number, moment in enumerate(["mid-write", "random"]):
         before, old_debris = state_mtime(state), set(temporaries(checkpoints))
