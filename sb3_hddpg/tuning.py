@@ -430,19 +430,26 @@ def run_trials(
     return ran
 
 
-def tune(target: TuningTarget, settings: StudySettings, out_dir: str | Path, n_jobs: int = 1) -> optuna.Study:
+def tune(
+    target: TuningTarget,
+    settings: StudySettings,
+    out_dir: str | Path,
+    n_jobs: int = 1,
+    threads: int | None = None,
+) -> optuna.Study:
     """
     Tune ``target`` with ``n_jobs`` trial processes on one study, until it has ``settings.n_trials``
     finished trials or ``settings.timeout`` has passed.
 
-    Each process gets ``max(1, cores // n_jobs)`` torch threads so that together they do not
-    oversubscribe the machine. More processes (or machines) can join the same study at any time by
+    Each process gets ``max(1, cores // n_jobs)`` torch threads (or ``threads``) so that together they do
+    not oversubscribe the machine. More processes (or machines) can join the same study at any time by
     running the same command against the same storage.
 
     :param target: what is tuned.
     :param settings: where and how.
     :param out_dir: the run folder (temporary trial folders; the default storage lives here too).
     :param n_jobs: trial processes on this machine.
+    :param threads: torch threads per process (default: ``max(1, cores // n_jobs)``).
     :return: the study.
     """
     if n_jobs < 1:
@@ -456,7 +463,8 @@ def tune(target: TuningTarget, settings: StudySettings, out_dir: str | Path, n_j
     deadline = time.time() + settings.timeout if settings.timeout else None
     # Created here, once, so that the trial processes only load it.
     study = open_study(target, settings)
-    threads = max(1, available_cores() // n_jobs)
+    if threads is None:
+        threads = max(1, available_cores() // n_jobs)
     if n_jobs == 1:
         run_trials(target, settings, out_dir, 0, threads, deadline)
         return study

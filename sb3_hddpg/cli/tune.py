@@ -69,7 +69,13 @@ def tune_command(
         5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
     ),
     n_jobs: int = typer.Option(
-        1, "--n-jobs", callback=at_least(1), help="Trial processes, each with cores // n-jobs torch threads."
+        1, "--n-jobs", callback=at_least(1), help="Trial processes on this machine (one per core is fastest)."
+    ),
+    threads: int | None = typer.Option(
+        None,
+        "--threads",
+        callback=at_least(1),
+        help="Torch threads per trial process (default: cores // n-jobs, so processes never oversubscribe).",
     ),
     sampler: str = typer.Option("tpe", "--sampler", help=f"Sampler: {' | '.join(SAMPLERS)}."),
     pruner: str = typer.Option("median", "--pruner", help=f"Pruner: {' | '.join(PRUNERS)}."),
@@ -207,7 +213,7 @@ def tune_command(
         f"{n_trials} trials of {per_trial}, {n_jobs} process(es)"
     )
     try:
-        study = tune(target, settings, out, n_jobs=n_jobs)
+        study = tune(target, settings, out, n_jobs=n_jobs, threads=threads)
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/] Re-run the same command to resume the study.")
         raise typer.Exit(130) from None
