@@ -1,10 +1,11 @@
 """
 Post-hoc evaluation for docs/RESULTS.md: each seed's managers with *sampled* worker selection (the paper's
 probabilistic selection) on the benchmark's test episodes. Run from a checkout after the benchmark:
-``PYTHONPATH=. python docs/results/sampled_selection.py``.
+``python docs/results/sampled_selection.py [RUN_FOLDER]`` (default ``runs/bench``).
 """
 
 import json
+import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -14,7 +15,7 @@ from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.hierarchy import Hierarchy
 from sb3_hddpg.stats import summarise
 
-RUN = Path("runs/bench5")
+RUN = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/bench")
 METRICS = ("mean_reach_reward", "goal_reach_reward", "avoid_reach_reward", "collisions_per_episode")
 
 out: dict[str, dict[int, dict]] = {}
@@ -23,7 +24,7 @@ for method in ("hddpg", "hddpg-goal", "hddpg-avoid"):
         hierarchy = Hierarchy.load(RUN / f"seed-{seed}" / method / "hierarchy.zip")
         hierarchy.seed(seed)
         env = gym.make(hierarchy.env_id, **hierarchy.env_kwargs)
-        s = evaluate(hierarchy, env, n_episodes=10, seed=TEST_SEED_BASE, deterministic=False).summary()
+        s = evaluate(hierarchy, env, n_episodes=20, seed=TEST_SEED_BASE, deterministic=False).summary()
         goal, avoid = normalised_term_sums(s)
         out.setdefault(method, {})[seed] = {**s, "goal_reach_reward": goal, "avoid_reach_reward": avoid}
 Path("docs/results/sampled_selection.json").write_text(json.dumps(out, indent=1))
