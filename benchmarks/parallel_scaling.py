@@ -56,6 +56,9 @@ def benchmark_args(out: Path, n_jobs: int, steps: int) -> list[str]:
 
 
 def tune_args(out: Path, n_jobs: int, steps: int) -> list[str]:
+    # Trials of ~30 s each (4x the benchmark's per-run budget): real trials are minutes long, and with
+    # seconds-long ones the fixed cost of starting the trial processes would be all the ratio measured.
+    steps *= 4
     fixed = ["net_arch=small", "batch_size=64", "train_freq=1", "buffer_size=10000", "noise_type=normal"]
     return [
         "tune",
@@ -79,14 +82,17 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--scale", type=float, default=1.0, help="multiply the training budgets (1: ~6 min total)"
+        "--scale", type=float, default=1.0, help="multiply the training budgets (1: ~8 min total)"
     )
+    parser.add_argument("--only", choices=["benchmark", "tune"], help="measure one command only")
     args = parser.parse_args()
     steps = max(200, int(2000 * args.scale))
     root = Path(tempfile.mkdtemp(prefix="hddpg-scaling-"))
     results = {}
     try:
         for name, make in (("benchmark", benchmark_args), ("tune", tune_args)):
+            if args.only not in (None, name):
+                continue
             times = {}
             for n_jobs in (1, 2):
                 times[n_jobs] = wall_seconds(make(root / f"{name}-{n_jobs}", n_jobs, steps))

@@ -22,11 +22,15 @@ summary = {}
 for bias in sorted({p.name.split("-")[0][1:] for p in RUN.glob("b*-goal-s*.json")}, key=float):
     seeds = sorted(int(p.stem.rsplit("-s", 1)[1]) for p in RUN.glob(f"b{bias}-goal-s*.json"))
     runs = {
-        prefer: [json.loads((RUN / f"b{bias}-{prefer}-s{seed}.json").read_text())["summary"] for seed in seeds]
+        prefer: [
+            json.loads((RUN / f"b{bias}-{prefer}-s{seed}.json").read_text())["summary"] for seed in seeds
+        ]
         for prefer in ("goal", "avoid")
     }
     print(f"\n## bias {bias} (factor {1 + float(bias):g} on the preferred worker), seeds {seeds}\n")
-    print("| seed | manager | " + " | ".join(label for label, _ in METRICS.values()) + " | goal worker chosen |")
+    print(
+        "| seed | manager | " + " | ".join(label for label, _ in METRICS.values()) + " | goal worker chosen |"
+    )
     print("|---|---|" + "---|" * (len(METRICS) + 1))
     for index, seed in enumerate(seeds):
         for prefer in ("goal", "avoid"):
