@@ -4,7 +4,7 @@ default-size workers, the bundled config's hyperparameters, one torch thread) en
 (a sampling profiler: it does not inflate the many small calls the way cProfile does), and report the share
 of the wall time spent in this package's code, split into the env's physics and the manager's selection.
 
-    pip install pyinstrument   # or the package's `profile` extra
+    pip install -e .[profile]   # pyinstrument
     python benchmarks/profile_training.py [--steps 3000] [--html profile.html]
 """
 
