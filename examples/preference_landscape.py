@@ -109,7 +109,9 @@ def main() -> None:
 
     table = Table(title=f"Selection policies over {args.workers}, {args.episodes} episodes each")
     for column in ("policy", "goal (norm.)", "avoid (norm.)", "touch %", "collisions/ep"):
-        table.add_column(column, justify="left" if column == "policy" else "right")
+        table.add_column(
+            column, justify="left" if column == "policy" else "right", no_wrap=column == "policy"
+        )
     for bias in args.bias:
         table.add_column(f"R goal-pref {bias:g}", justify="right")
         table.add_column(f"R avoid-pref {bias:g}", justify="right")

@@ -1,0 +1,33 @@
+"""The examples run as their docstrings say, on tiny trained workers."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.test_bad_input import TINY_CONFIG
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def test_preference_landscape_scores_every_policy_and_names_the_best(tmp_path):
+    from sb3_hddpg.training import train_workers
+
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
+    args = ["--workers", str(tmp_path / "w"), "--episodes", "1", "--bias", "0.15", "3"]
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / "preference_landscape.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    table = [line for line in result.stdout.splitlines() if line.startswith("│")]
+    rows = [line for line in table if "mixture" in line or "HAM threshold" in line]
+    assert len(rows) == 12, result.stdout  # 5 mixtures + 7 thresholds
+    verdicts = [line for line in result.stdout.splitlines() if line.startswith("bias ")]
+    assert [v.split(":")[0] for v in verdicts] == ["bias 0.15", "bias 3"], result.stdout
+    assert all("goal-preferred best =" in v and "avoid-preferred best =" in v for v in verdicts)
