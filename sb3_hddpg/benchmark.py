@@ -74,6 +74,7 @@ FINAL_METRICS = (
     "success_rate",
     "min_clearance",
     "mean_reward",
+    "action_saturation",
 )
 #: The comparisons of the paper's claims: (challenger, baseline).
 PAIRS = (("hddpg", "ddpg"), ("hddpg", "ham"), ("hddpg", "td3"), ("hddpg", "sac"), ("hddpg", "tqc"))
@@ -535,13 +536,15 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         for seed in seeds:
             run = runs[seed]
             test = _with_term_sums(run["test"])
-            values[seed] = {key: float(test[key]) for key in FINAL_METRICS}
+            # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
+            values[seed] = {key: float(test[key]) for key in FINAL_METRICS if key in test}
             values[seed].update(curve_statistics(run["history"], window))
             values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
         per_seed[method] = values
         stats = {
             key: summarise([values[s][key] for s in seeds])
             for key in (*FINAL_METRICS, "curve_mean", "slope", "final_curve_reward")
+            if all(key in values[s] for s in seeds)
         }
         selection = [
             runs[s]["test"].get("selection_rate") for s in seeds if runs[s]["test"].get("selection_rate")
@@ -721,18 +724,20 @@ def markdown_report(results: dict[str, Any]) -> str:
     unit = results["slope_unit_steps"]
     lines = [
         "| method | seeds | reach reward (test) | IQM | goal part | avoid part | goal-touch rate | collisions / episode "
-        f"| success | min clearance | curve mean | slope / {unit} steps | worker choices (test) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        f"| success | min clearance | saturated actions | curve mean | slope / {unit} steps | worker choices (test) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for method, entry in results["methods"].items():
         s = entry["stats"]
         choices = ", ".join(f"{k} {v:.0%}" for k, v in entry.get("selection_rate", {}).items()) or "-"
+        # The deciding network's saturation (the manager's for hierarchies); absent in older results.
+        saturation = f"{s['action_saturation']['mean']:.0%}" if "action_saturation" in s else "-"
         lines.append(
             f"| {method} | {len(entry['seeds'])} | {_ci_text(s['mean_reach_reward'], '.1f')} "
             f"| {s['mean_reach_reward']['iqm']:.1f} | {_ci_text(s['goal_reach_reward'], '.1f')} "
             f"| {_ci_text(s['avoid_reach_reward'], '.1f')} | {_ci_text(s['goal_touch_rate'], '.3f')} "
             f"| {_ci_text(s['collisions_per_episode'], '.2f')} | {_ci_text(s['success_rate'], '.2f')} "
-            f"| {s['min_clearance']['mean']:.3f} | {_ci_text(s['curve_mean'], '.1f')} "
+            f"| {s['min_clearance']['mean']:.3f} | {saturation} | {_ci_text(s['curve_mean'], '.1f')} "
             f"| {_ci_text(s['slope'], '.2f')} | {choices} |"
         )
     if results["comparisons"]:

@@ -15,6 +15,9 @@ from sb3_hddpg.workers import Policy
 #: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
 #: training seeds, and the same for every method so that comparisons are paired.
 EVAL_SEED_BASE = 10_000
+#: An action entry at least this far out in [-1, 1] counts as saturated: a tanh actor there has almost no
+#: gradient left (``1 - 0.99**2`` = 2 % of its slope at 0), so it has stopped learning that output.
+SATURATION_LEVEL = 0.99
 
 
 @dataclass
@@ -35,6 +38,9 @@ class EpisodeMetrics:
     success: bool
     min_clearance: float
     selections: dict[str, int] = field(default_factory=dict)
+    #: Fraction of the deciding network's output entries with ``|a| >= SATURATION_LEVEL``: the manager's
+    #: action for a hierarchy (its ``last_manager_action``), the action given to the env otherwise.
+    action_saturation: float = 0.0
 
 
 @dataclass
@@ -59,6 +65,7 @@ class EvaluationResult:
             "collisions_per_episode": float(np.mean([e.collisions for e in eps])),
             "success_rate": float(np.mean([e.success for e in eps])),
             "min_clearance": float(np.mean([e.min_clearance for e in eps])),
+            "action_saturation": float(np.mean([e.action_saturation for e in eps])),
             "mean_length": float(np.mean([e.length for e in eps])),
         }
         total: Counter[str] = Counter()
@@ -108,12 +115,17 @@ def evaluate(
         if reset_episode is not None:
             reset_episode()
         reward_sum = goal_sum = avoid_sum = reach_sum = 0.0
-        touches = collisions = steps = 0
+        touches = collisions = steps = saturated = entries = 0
         min_clearance = np.inf
         selections: Counter[str] = Counter()
         done = False
         while not done:
             action, _ = policy.predict(obs, deterministic=deterministic)
+            # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
+            decision = getattr(policy, "last_manager_action", None)
+            decision = np.asarray(action if decision is None else decision, dtype=np.float64)
+            saturated += int(np.count_nonzero(np.abs(decision) >= SATURATION_LEVEL))
+            entries += decision.size
             obs, reward, terminated, truncated, info = env.step(action)
             done = terminated or truncated
             steps += 1
@@ -146,6 +158,7 @@ def evaluate(
                 success=touches > 0 and collisions == 0,
                 min_clearance=float(min_clearance),
                 selections=dict(selections),
+                action_saturation=saturated / max(entries, 1),
             )
         )
     return EvaluationResult(episodes)

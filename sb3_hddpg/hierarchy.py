@@ -123,6 +123,8 @@ class Hierarchy:
         self._option_choice = 0
         self._option_probabilities = np.full(len(self.names), 1.0 / len(self.names))
         self.last_selection: str | None = None
+        #: The manager actor's output at the last decision (in [-1, 1]; how saturated the manager is).
+        self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
 
     # ------------------------------------------------------------------ acting
@@ -175,7 +177,8 @@ class Hierarchy:
 
     def _act(self, obs: np.ndarray, deterministic: bool, keep_option: bool) -> np.ndarray:
         if not keep_option or self._option_left <= 0:
-            probabilities = self.simplex(self._manager.act(obs))
+            self.last_manager_action = self._manager.act(obs)
+            probabilities = self.simplex(self.last_manager_action)
             self._option_probabilities = probabilities
             self._option_choice = choose(probabilities, self.config.selection, self._rng, deterministic)
             self._option_left = self.config.option_steps

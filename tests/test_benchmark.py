@@ -223,6 +223,9 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert results["methods"]["ddpg"]["own_timesteps"] == 400  # 200 + 2 x 100: equal total steps
     assert results["methods"]["hddpg"]["worker_timesteps"] == 200
     assert "hddpg vs ddpg" in results["comparisons"] and "hddpg vs ham" in results["comparisons"]
+    for entry in results["methods"].values():  # the deciding network's saturation, a fraction
+        assert 0.0 <= entry["stats"]["action_saturation"]["mean"] <= 1.0
+    assert "saturated actions" in (out / "results.md").read_text()
     assert "reach reward (test)" in done.stdout
     rows = list(csv.DictReader((out / "evaluations.csv").read_text().splitlines()))
     hddpg_curve = [r for r in rows if r["method"] == "hddpg" and r["kind"] == "curve" and r["seed"] == "0"]

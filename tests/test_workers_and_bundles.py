@@ -166,3 +166,40 @@ def test_parallel_envs_in_subprocesses(tmp_path):
         tmp_path, workers=["avoid"], n_envs=2, timesteps=400, eval_freq=200, eval_episodes=1
     )
     assert manifest["workers"]["avoid"]["timesteps_trained"] == 400
+
+
+class _Constant:
+    """A policy that always gives the same action."""
+
+    def __init__(self, value: float) -> None:
+        self.value = value
+
+    def predict(self, obs, deterministic=True):
+        return np.full(6, self.value, dtype=np.float32), None
+
+
+@pytest.mark.parametrize(("value", "expected"), [(1.0, 1.0), (-0.995, 1.0), (0.5, 0.0), (0.0, 0.0)])
+def test_action_saturation_of_a_flat_policy(value, expected):
+    from sb3_hddpg.evaluation import evaluate
+
+    summary = evaluate(_Constant(value), gym.make("hddpg/SnakeReach-v0"), n_episodes=1).summary()
+    assert summary["action_saturation"] == expected
+
+
+def test_action_saturation_of_a_hierarchy_is_its_managers(trained):
+    # For a hierarchy the deciding network is the manager: its raw action, not the worker's env action.
+    from sb3_hddpg.evaluation import SATURATION_LEVEL, evaluate
+
+    root = trained[0]
+    hierarchy = Hierarchy.load(root / "m" / "hierarchy.zip")
+    seen = []
+    summary = evaluate(
+        hierarchy,
+        gym.make("hddpg/SnakeReach-v0"),
+        n_episodes=2,
+        on_step=lambda env, info: seen.append(np.array(hierarchy.last_manager_action)),
+    ).summary()
+    manager_actions = np.stack(seen)
+    assert manager_actions.shape == (400, 2)
+    expected = np.mean(np.abs(manager_actions) >= SATURATION_LEVEL)
+    assert summary["action_saturation"] == pytest.approx(expected)

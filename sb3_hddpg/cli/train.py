@@ -34,7 +34,15 @@ CHECKPOINT_HELP = (
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
     """A rich table of evaluation summaries, one row per agent."""
     table = Table(title=title)
-    for column in ("agent", "mean reward", "goal touch", "collisions/ep", "success", "min clearance"):
+    for column in (
+        "agent",
+        "mean reward",
+        "goal touch",
+        "collisions/ep",
+        "success",
+        "min clearance",
+        "saturated",
+    ):
         table.add_column(column, justify="left" if column == "agent" else "right")
     for name, s in rows.items():
         table.add_row(
@@ -44,6 +52,8 @@ def metrics_table(title: str, rows: dict[str, dict]) -> Table:
             f"{s['collisions_per_episode']:.1f}",
             f"{s['success_rate']:.0%}",
             f"{s['min_clearance']:.3f}",
+            # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
+            f"{s['action_saturation']:.0%}" if "action_saturation" in s else "-",
         )
     return table
 
