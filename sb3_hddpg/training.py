@@ -678,6 +678,27 @@ def load_workers(
     return models, manifest
 
 
+def observed_components(manifest: dict[str, Any], names: Sequence[str]) -> dict[str, list[str]]:
+    """
+    The state components each worker was trained on, from its manifest entry's ``env_kwargs["observe"]``.
+
+    :param manifest: a workers manifest (see :func:`read_workers_manifest`).
+    :param names: the workers to look at.
+    :return: name -> component names, for the workers trained on part of the state only.
+    """
+    out: dict[str, list[str]] = {}
+    for name in names:
+        env_kwargs = manifest["workers"][name].get("env_kwargs") or {}
+        observe = env_kwargs.get("observe") if isinstance(env_kwargs, dict) else None
+        if observe is not None:
+            if not isinstance(observe, list) or not all(isinstance(c, str) for c in observe):
+                raise ValueError(
+                    f"Worker {name!r}: env_kwargs.observe must be a list of names, actually: {observe!r:.200}"
+                )
+            out[name] = list(observe)
+    return out
+
+
 def make_manager_env(
     env_id: str,
     env_kwargs: dict[str, Any],
@@ -767,17 +788,31 @@ def prepare_manager(
         if value is not None:
             wrapper_kwargs[key] = value
     wrapper_kwargs["preferences"] = factors
+    # A worker trained on part of the state (env_kwargs `observe`) is fed the same components of the
+    # manager's full state; a worker_states entry in the config block wins.
+    configured = wrapper_kwargs.get("worker_states") or {}
+    if not isinstance(configured, dict):
+        raise ValueError(
+            f"Expected wrapper_kwargs.worker_states to map worker names to component lists, actually: {configured!r:.200}"
+        )
+    wrapper_kwargs["worker_states"] = {**observed_components(manifest, names), **configured}
     try:
         selection_config = SelectionConfig(**wrapper_kwargs)
     except TypeError as error:  # an unknown key in the config's wrapper_kwargs
         raise ValueError(f"Invalid wrapper_kwargs in the manager's config block: {error}") from None
     env_kwargs = dict(hyperparams.env_kwargs)
+    if "observe" in env_kwargs:
+        raise ValueError(
+            "The manager's env must give the full state (its workers slice it): remove `observe` from the "
+            "manager block's env_kwargs; to feed the manager part of the state, set wrapper_kwargs.manager_state"
+        )
     probe = make_snake_env(env_id, env_kwargs)
     try:
         expected = probe.observation_space.shape
         for name, worker in workers.items():
             space = getattr(worker, "observation_space", None)
-            if space is not None and space.shape != expected:
+            sliced = name in selection_config.worker_states  # the wrapper checks the sliced shape itself
+            if space is not None and not sliced and space.shape != expected:
                 trained_on = manifest["workers"][name].get("env_kwargs", {})
                 raise ValueError(
                     f"Worker {name!r} was trained on observations of shape {space.shape} (env_kwargs "

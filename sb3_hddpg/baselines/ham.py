@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +56,8 @@ class HAMSwitch:
     :param hysteresis: the extra distance needed to switch back to the goal worker, >= 0.
     :param names: the display names of the two workers, as ``(goal, avoid)``; they are what
         ``last_selection`` reports.
+    :param worker_states: worker name -> the state components it was trained on (env kwarg ``observe``);
+        missing workers see the whole state.
     """
 
     def __init__(
@@ -66,6 +68,7 @@ class HAMSwitch:
         threshold: float | None = None,
         hysteresis: float = 0.0,
         names: tuple[str, str] = ("goal", "avoid"),
+        worker_states: Mapping[str, Sequence[str]] | None = None,
     ) -> None:
         self._slice = layout[DISTANCE_COMPONENT]
         n_links = self._slice.stop - self._slice.start
@@ -80,6 +83,12 @@ class HAMSwitch:
         if len(names) != 2 or names[0] == names[1]:
             raise ValueError(f"Expected two distinct worker names (goal, avoid), actually: {names}")
         self.workers: dict[str, Policy] = {names[0]: goal_worker, names[1]: avoid_worker}
+        worker_states = dict(worker_states or {})
+        unknown = sorted(set(worker_states) - set(names))
+        if unknown:
+            raise ValueError(f"worker_states names unknown workers {unknown}; workers: {list(names)}")
+        # Each worker sees the state components it was trained on (all of them by default).
+        self._worker_indices = {n: layout.indices(c) for n, c in worker_states.items()}
         self.names = list(names)
         self.layout = layout
         self.threshold = float(threshold)
@@ -152,10 +161,13 @@ class HAMSwitch:
         goal, avoid = (self.workers[n] for n in self.names)
         batch = obs if obs.ndim == 2 else obs[None]
         actions: np.ndarray | None = None
-        for flag, worker in ((False, goal), (True, avoid)):
+        for flag, name, worker in ((False, self.names[0], goal), (True, self.names[1], avoid)):
             rows = avoiding == flag
             if rows.any():
-                chosen = self._act(worker, batch[rows], deterministic)
+                view = batch[rows]
+                if name in self._worker_indices:
+                    view = view[:, self._worker_indices[name]]
+                chosen = self._act(worker, view, deterministic)
                 if actions is None:
                     actions = np.empty((len(batch), chosen.shape[1]), dtype=np.float32)
                 actions[rows] = chosen
@@ -221,7 +233,7 @@ def load_ham(path: str | os.PathLike[str], trusted: bool = False) -> tuple[HAMSw
     import gymnasium as gym
 
     import sb3_hddpg  # noqa: F401  (registers the env ids)
-    from sb3_hddpg.training import load_workers
+    from sb3_hddpg.training import load_workers, observed_components
 
     path = Path(path)
     try:
@@ -239,7 +251,7 @@ def load_ham(path: str | os.PathLike[str], trusted: bool = False) -> tuple[HAMSw
         )
     manifest = (path.parent / meta["workers_manifest"]).resolve()
     names = (meta["worker_names"]["goal"], meta["worker_names"]["avoid"])
-    workers, _ = load_workers(manifest.parent, names, trusted=trusted)
+    workers, workers_manifest = load_workers(manifest.parent, names, trusted=trusted)
     env = gym.make(meta["env_id"], **meta.get("env_kwargs", {}))
     layout = env.unwrapped.state_layout  # type: ignore[attr-defined]
     env.close()
@@ -250,5 +262,6 @@ def load_ham(path: str | os.PathLike[str], trusted: bool = False) -> tuple[HAMSw
         threshold=meta["threshold"],
         hysteresis=meta.get("hysteresis", 0.0),
         names=names,
+        worker_states=observed_components(workers_manifest, names),
     )
     return switch, meta

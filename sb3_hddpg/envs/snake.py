@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -78,7 +79,10 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     are not observed: the link end points determine the angles, and with velocity-commanded motors the arm
     has no momentum worth observing (the motor holds each commanded rate within a substep).
     ``env.unwrapped.state_layout`` maps every name above to its slice, so an agent can be fed a chosen
-    subset of the state (the paper's design specification 4).
+    subset of the state (the paper's design specification 4). With ``observe=[names...]`` the env itself
+    returns only those components, in that order (e.g. the goal worker's ``["joint_positions",
+    "ee_to_goal", "goal_touched"]``, 15 values): ``state_layout`` still describes the full state, and
+    ``observed_components`` lists what the observation holds.
 
     ## Rewards
 
@@ -141,6 +145,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         obstacle_radius_min: float = 0.35,
         obstacle_radius_max: float = 1.0,
         spawn_margin: float = 0.1,
+        observe: Sequence[str] | None = None,
         render_mode: str | None = None,
     ) -> None:
         """
@@ -162,6 +167,10 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         :param obstacle_radius_min: obstacle centres stay at least this far from the base.
         :param obstacle_radius_max: obstacle centres stay at most this far from the base.
         :param spawn_margin: at reset, obstacles start at least this far from the arm and the goal.
+        :param observe: the state components the observation holds, in this order (names of
+            ``state_layout``; default: all of them). A worker that needs only part of the shared state
+            (the paper's design specification 4: the goal worker needs no obstacle values) learns on less
+            noise; ``WorkerSelectionWrapper`` then feeds it the same components of the full state.
         :param render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
         """
         _check_choice("reward", reward, REWARD_CHOICES)
@@ -229,6 +238,13 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         high = np.ones(obs_size, dtype=np.float32)
         for name in ("joint_obstacle_distances", "goal_touched", "obstacle_touched"):
             low[self.state_layout[name]] = 0.0
+        self.observed_components: tuple[str, ...] | None = _check_components(observe, self.state_layout)
+        # None (the whole state, no copy) or the indices that select the observed components.
+        self._observe_index: np.ndarray | None = (
+            None if self.observed_components is None else self.state_layout.indices(self.observed_components)
+        )
+        if self._observe_index is not None:
+            low, high = low[self._observe_index], high[self._observe_index]
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
 
@@ -551,6 +567,10 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         # struct packs the Python floats to float32 in one C loop: cheaper than numpy converting a list.
         return np.frombuffer(self._pack_obs(*obs), np.float32).copy(), reward, info
 
+    def _observed(self, state: np.ndarray) -> np.ndarray:
+        """The observation: the full state, or the components chosen by ``observe``."""
+        return state if self._observe_index is None else state[self._observe_index]
+
     def _measure(self) -> dict[str, Any]:
         """The current state's touch flags and distances (for rendering and inspection, not the step)."""
         obs, _, info = self._step_result()  # the episode flags it updates are unchanged by a second call
@@ -597,7 +617,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         obs, _, info = self._step_result()
         if self.render_mode == "human":
             self.render()
-        return obs, info
+        return self._observed(obs), info
 
     def _clear_of(self, centre: np.ndarray, points: np.ndarray, goal: np.ndarray) -> bool:
         """Whether an obstacle at ``centre`` starts clear of the arm's links and the goal."""
@@ -657,7 +677,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         obs, reward, info = self._step_result()
         if self.render_mode == "human":
             self.render()
-        return obs, reward, False, False, info
+        return self._observed(obs), reward, False, False, info
 
     def __getstate__(self) -> dict[str, Any]:
         # pymunk pickles a space with copies of its bodies, which would leave ``links`` and ``motors``
@@ -711,6 +731,24 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+def _check_components(observe: Any, layout: StateLayout) -> tuple[str, ...] | None:
+    """``observe`` as a tuple of known, distinct component names (``None``: the whole state)."""
+    if observe is None:
+        return None
+    if isinstance(observe, str) or not isinstance(observe, (list, tuple)) or not observe:
+        raise ValueError(
+            f"Expected `observe` to be a non-empty list of state components {list(layout)}, actually: "
+            f"{observe!r:.200}"
+        )
+    names = tuple(observe)
+    unknown = [n for n in names if not isinstance(n, str) or n not in layout]
+    if unknown:
+        raise ValueError(f"Unknown state components in `observe`: {unknown!r:.200}; known: {list(layout)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"Expected `observe` to name each state component once, actually: {list(names)}")
+    return names
 
 
 def _check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
