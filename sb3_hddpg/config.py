@@ -42,7 +42,18 @@ def default_config(algo: str = "ddpg") -> Path:
 MANAGER_KEY = "manager"
 
 #: RL Zoo keys that are not algorithm arguments and that we interpret.
-ZOO_KEYS = {"n_timesteps", "policy", "n_envs", "noise_type", "noise_std", "policy_kwargs", "env_kwargs"}
+ZOO_KEYS = {
+    "n_timesteps",
+    "policy",
+    "n_envs",
+    "noise_type",
+    "noise_std",
+    "policy_kwargs",
+    "env_kwargs",
+    "callback",
+}
+#: The callbacks a config's ``callback`` key may name (RL Zoo imports any class path; we import none).
+CALLBACKS = {"sb3_hddpg.callbacks.ActionL2Penalty": "action_l2"}
 #: Keys of the manager block only: arguments of WorkerSelectionWrapper.
 MANAGER_ONLY_KEYS = {"wrapper_kwargs"}
 #: Algorithm arguments that the training code sets itself and a config must not.
@@ -71,6 +82,8 @@ class Hyperparams:
     :param noise_std: the exploration noise's standard deviation.
     :param env_kwargs: keyword arguments for ``gym.make``.
     :param wrapper_kwargs: manager block only: keyword arguments for ``WorkerSelectionWrapper``.
+    :param action_l2: the actor's action penalty (DDPG/TD3; see
+        :class:`~sb3_hddpg.callbacks.ActionL2Penalty`), set with RL Zoo's ``callback`` key; 0: none.
     :param raw: the block as written, for manifests.
     """
 
@@ -82,7 +95,14 @@ class Hyperparams:
     noise_std: float = 0.1
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
+    action_l2: float = 0.0
     raw: dict[str, Any] = field(default_factory=dict)
+
+    def callbacks(self) -> list[Any]:
+        """The SB3 callbacks the block asks for (as RL Zoo would build them from its ``callback`` key)."""
+        from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
+
+        return [ActionL2Penalty(self.action_l2)] if self.action_l2 > 0 else []
 
     def action_noise(self, n_actions: int) -> Any:
         """The SB3 action-noise object for ``n_actions`` dimensions (``None`` without noise)."""
@@ -166,6 +186,7 @@ def parse_block(
     noise_std = float(block.pop("noise_std", 0.1))
     if not np.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
+    action_l2 = _parse_callbacks(block.pop("callback", None), source).get("action_l2", 0.0)
     env_kwargs = block.pop("env_kwargs", {}) or {}
     wrapper_kwargs = block.pop("wrapper_kwargs", {}) or {}
     for name, value in (("env_kwargs", env_kwargs), ("wrapper_kwargs", wrapper_kwargs)):
@@ -187,8 +208,49 @@ def parse_block(
         noise_std=noise_std,
         env_kwargs=env_kwargs,
         wrapper_kwargs=wrapper_kwargs,
+        action_l2=action_l2,
         raw=raw,
     )
+
+
+def _parse_callbacks(value: Any, source: str) -> dict[str, float]:
+    """
+    RL Zoo's ``callback`` key (a class path, or a list of paths or ``{path: kwargs}``), restricted to
+    :data:`CALLBACKS`: the settings they carry, e.g. ``{"action_l2": 0.1}``. Nothing is imported.
+    """
+    if value is None:
+        return {}
+    entries = value if isinstance(value, list) else [value]
+    settings: dict[str, float] = {}
+    for entry in entries:
+        if isinstance(entry, str):
+            path, kwargs = entry, {}
+        elif isinstance(entry, dict) and len(entry) == 1:
+            path, kwargs = next(iter(entry.items()))
+            kwargs = kwargs or {}
+        else:
+            raise ConfigError(
+                f"Expected callback entries in {source} to be class paths or {{path: kwargs}}, actually: {entry!r:.200}"
+            )
+        if path not in CALLBACKS:
+            raise ConfigError(
+                f"Unknown callback {str(path)!r:.200} in {source}; allowed: {sorted(CALLBACKS)}"
+            )
+        if not isinstance(kwargs, dict) or set(kwargs) - {"coefficient"}:
+            raise ConfigError(
+                f"Expected {path} in {source} to take only `coefficient`, actually: {kwargs!r:.200}"
+            )
+        coefficient = kwargs.get("coefficient", 0.1)
+        if (
+            isinstance(coefficient, bool)
+            or not isinstance(coefficient, (int, float))
+            or not (np.isfinite(coefficient) and coefficient >= 0)
+        ):
+            raise ConfigError(
+                f"Expected {path}'s coefficient in {source} to be a number >= 0, actually: {coefficient!r:.100}"
+            )
+        settings[CALLBACKS[path]] = float(coefficient)
+    return settings
 
 
 def load_hyperparams(

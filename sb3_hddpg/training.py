@@ -228,6 +228,10 @@ def train_agent(
     remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
     remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
     cls = algo_class(algo)
+    if hyperparams.action_l2 > 0 and not issubclass(cls, TD3):
+        raise ValueError(
+            f"The ActionL2Penalty callback applies to DDPG and TD3, not {algo!r}: remove it from the config block"
+        )
 
     vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
     vec_env = make_vec_env(env_factory, n_envs=n_envs, seed=seed, vec_env_cls=vec_cls)
@@ -290,7 +294,7 @@ def train_agent(
                 else None,
             },
         )
-        callbacks = CallbackList([evaluator, checkpointer, *extra_callbacks])
+        callbacks = CallbackList([*hyperparams.callbacks(), evaluator, checkpointer, *extra_callbacks])
         remaining = total - model.num_timesteps
         stopped_early = False
         if remaining > 0:

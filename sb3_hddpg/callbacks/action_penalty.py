@@ -1,0 +1,80 @@
+"""An L2 penalty on the actor's actions for DDPG and TD3: keeps a deterministic actor out of tanh saturation."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.td3.td3 import TD3
+
+#: Marks a critic whose ``q1_forward`` already carries the penalty (so that learning again adds none).
+_MARK = "_sb3_hddpg_action_l2"
+
+
+class ActionL2Penalty(BaseCallback):
+    """
+    Add ``coefficient * mean(a ** 2)`` to the actor's loss of a DDPG or TD3 model (``a`` = the actor's action in
+    ``[-1, 1]``), as OpenAI Baselines' HER DDPG does with its ``action_l2`` for the same reason.
+
+    **Why.** A deterministic actor's output is ``tanh`` of a linear layer, and DDPG pushes it along the
+    critic's action gradient. Where that gradient keeps one sign (far from a goal, "faster is better"; or
+    for a manager whose return is linear in its worker probabilities) the pre-activation grows until the
+    ``tanh`` saturates at ±1 and its gradient vanishes: the actor ends bang-bang everywhere and can neither
+    hold a goal within a touch radius (a bang-bang version of an IK reacher that touches on 76 % of steps
+    touches on 4 %, docs/WORKERS.md) nor switch to another choice in other states. The penalty gives the
+    actor's objective an interior optimum wherever the critic's slope is below ``2 * coefficient``.
+
+    **How.** SB3's ``TD3.train`` (DDPG's too) uses ``critic.q1_forward`` only for the actor's loss, so the
+    penalty is applied by wrapping that one method on this model's critic at the start of training: the
+    critic's own loss, the targets and the saved files are untouched (a model trained with it is a plain
+    SB3 zip). A callback, so that RL Zoo runs it from a config unchanged
+    (``callback: [{sb3_hddpg.callbacks.ActionL2Penalty: {coefficient: 0.1}}]``).
+
+    :param coefficient: the penalty's weight, finite and >= 0 (0: no penalty).
+    :param verbose: SB3's verbosity.
+    """
+
+    def __init__(self, coefficient: float = 0.1, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        if (
+            isinstance(coefficient, bool)
+            or not isinstance(coefficient, (int, float))
+            or not (math.isfinite(coefficient) and coefficient >= 0)
+        ):
+            raise ValueError(
+                f"Expected `coefficient` to be a finite number >= 0, actually: {coefficient!r:.100}"
+            )
+        self.coefficient = float(coefficient)
+
+    def _on_training_start(self) -> None:
+        apply_action_l2(self.model, self.coefficient)
+
+    def _on_step(self) -> bool:
+        return True
+
+
+def apply_action_l2(model: Any, coefficient: float) -> None:
+    """
+    Give a DDPG/TD3 model's actor loss the action penalty (see :class:`ActionL2Penalty`); idempotent.
+
+    :param model: an SB3 ``DDPG`` or ``TD3`` (or a subclass).
+    :param coefficient: the penalty's weight (0 removes it).
+    """
+    if not isinstance(model, TD3):
+        raise ValueError(
+            f"The action_l2 penalty applies to DDPG and TD3 actors, not {type(model).__name__} "
+            "(SAC's entropy term already keeps its actions from saturating)"
+        )
+    critic = model.critic
+    original = getattr(critic, _MARK, None) or critic.q1_forward
+    if coefficient == 0:
+        critic.q1_forward = original
+        return
+
+    def penalised_q1(observations: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        return original(observations, actions) - coefficient * actions.pow(2).mean(dim=-1, keepdim=True)
+
+    critic.q1_forward = penalised_q1
+    setattr(critic, _MARK, original)

@@ -1,0 +1,82 @@
+"""The actor's action penalty (ActionL2Penalty): mechanism, config key, and its effect on a trained actor."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import DDPG, SAC, TD3
+
+from sb3_hddpg.callbacks import ActionL2Penalty, apply_action_l2
+from sb3_hddpg.config import ConfigError, parse_block
+
+PATH = "sb3_hddpg.callbacks.ActionL2Penalty"
+
+
+def _model(cls=DDPG):
+    return cls("MlpPolicy", gym.make("Pendulum-v1"), policy_kwargs={"net_arch": [8]}, seed=0, device="cpu")
+
+
+def test_penalty_wraps_only_the_actor_objective_and_is_idempotent():
+    model = _model()
+    obs = torch.rand(5, 3)
+    actions = torch.rand(5, 1) * 2 - 1
+    plain = model.critic.q1_forward(obs, actions).detach()
+    critic_values = [q.detach() for q in model.critic(obs, actions)]
+    for _ in range(2):  # applying twice must not double the penalty
+        apply_action_l2(model, 0.5)
+    penalised = model.critic.q1_forward(obs, actions).detach()
+    torch.testing.assert_close(penalised, plain - 0.5 * actions.pow(2).mean(-1, keepdim=True))
+    # The critic's own values (its loss and targets) are untouched.
+    for before, after in zip(critic_values, model.critic(obs, actions)):
+        torch.testing.assert_close(before, after.detach())
+    apply_action_l2(model, 0.0)
+    torch.testing.assert_close(model.critic.q1_forward(obs, actions).detach(), plain)
+
+
+def test_penalty_shrinks_a_saturating_actor():
+    # Pendulum's critic early on has a steep action slope; DDPG's actor then saturates. With a large
+    # penalty the same seed ends with much smaller actions.
+    magnitudes = {}
+    for coefficient in (0.0, 50.0):
+        model = _model(TD3)
+        model.learn(600, callback=ActionL2Penalty(coefficient))
+        obs = np.stack([model.observation_space.sample() for _ in range(64)])
+        actions, _ = model.predict(obs, deterministic=True)
+        magnitudes[coefficient] = float(np.abs(actions).mean())
+    assert magnitudes[50.0] < 0.5 * magnitudes[0.0], magnitudes
+
+
+def test_penalty_refuses_algorithms_without_a_deterministic_actor():
+    with pytest.raises(ValueError, match="DDPG and TD3"):
+        apply_action_l2(_model(SAC), 0.1)
+    with pytest.raises(ValueError, match="coefficient"):
+        ActionL2Penalty(-1.0)
+
+
+@pytest.mark.parametrize(
+    "callback, expected",
+    [
+        (PATH, 0.1),
+        ([{PATH: {"coefficient": 0.3}}], 0.3),
+        ([{PATH: None}], 0.1),
+    ],
+)
+def test_config_callback_key_sets_the_penalty(callback, expected):
+    parsed = parse_block({"n_timesteps": 10, "callback": callback}, DDPG)
+    assert parsed.action_l2 == expected
+    assert isinstance(parsed.callbacks()[0], ActionL2Penalty)
+
+
+@pytest.mark.parametrize(
+    "callback, message",
+    [
+        ("os.system", "Unknown callback"),
+        ([{PATH: {"coefficient": -1}}], "coefficient"),
+        ([{PATH: {"coefficient": "x"}}], "coefficient"),
+        ([{PATH: {"other": 1}}], "only `coefficient`"),
+        ([42], "class paths"),
+    ],
+)
+def test_bad_callback_entries_are_refused(callback, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_block({"n_timesteps": 10, "callback": callback}, DDPG)
