@@ -22,7 +22,7 @@ import gymnasium as gym
 from sb3_hddpg.workers import Policy
 
 #: Names that stand for reference policies instead of files.
-REFERENCE_POLICIES = ("random", "scripted")
+REFERENCE_POLICIES = ("random", "scripted", "ik")
 
 
 @dataclass
@@ -167,6 +167,10 @@ def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
         from sb3_hddpg.workers import RandomPolicy
 
         policy: Policy = RandomPolicy(env.action_space, seed=0)
+    elif name == "ik":
+        from sb3_hddpg.baselines.scripted import IKReacher
+
+        policy = IKReacher(env.unwrapped.state_layout, max_joint_speed=env.unwrapped.max_joint_speed)
     else:
         from sb3_hddpg.baselines.scripted import JacobianReacher
 

@@ -39,3 +39,56 @@ class JacobianReacher:
         signal = lever[..., 0] * error[:, None, 1] - lever[..., 1] * error[:, None, 0]
         action = np.clip(self.gain * signal, -1.0, 1.0).astype(np.float32)
         return (action if observation.ndim > 1 else action[0]), None
+
+
+class IKReacher:
+    """
+    Moves the tip toward the goal by damped-least-squares inverse kinematics, using only the observation:
+    joint rates ``J^T (J J^T + damping^2 I)^-1 (gain * error)``, with ``J``'s column ``i`` the tip velocity
+    ``perp(tip - p_i)`` that joint ``i`` makes, scaled to the action range by ``max_joint_speed``. Blind to
+    obstacles like :class:`JacobianReacher`, but proportional instead of bang-bang, so it holds a moving
+    goal within the touch radius: it is the ceiling that reaching alone reaches on this task, and with
+    ``bang_bang=True`` (every command pushed to ±1, what a saturated DDPG actor does) it shows what
+    saturation costs (docs/WORKERS.md).
+
+    :param layout: the env's ``state_layout``.
+    :param gain: the error fraction closed per second.
+    :param damping: the damping of the least-squares solve (in reach units), for poses near a singularity.
+    :param max_joint_speed: the env's joint speed at an action of 1 (rad/s).
+    :param bang_bang: replace every command by its sign.
+    """
+
+    def __init__(
+        self,
+        layout: StateLayout,
+        gain: float = 3.0,
+        damping: float = 0.1,
+        max_joint_speed: float = 1.5,
+        bang_bang: bool = False,
+    ) -> None:
+        self.layout = layout
+        self.gain = gain
+        self.damping = damping
+        self.max_joint_speed = max_joint_speed
+        self.bang_bang = bang_bang
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        obs = np.atleast_2d(observation).astype(np.float64)
+        ends = obs[:, self.layout["joint_positions"]].reshape(len(obs), -1, 2)
+        pivots = np.concatenate((np.zeros((len(obs), 1, 2)), ends[:, :-1]), axis=1)
+        error = 2.0 * obs[:, self.layout["ee_to_goal"]]  # the observation halves it
+        lever = ends[:, -1:, :] - pivots  # (batch, joints, 2)
+        jacobian = np.stack((-lever[..., 1], lever[..., 0]), axis=1)  # (batch, 2, joints)
+        damped = jacobian @ jacobian.transpose(0, 2, 1) + self.damping**2 * np.eye(2)
+        task = np.linalg.solve(damped, self.gain * error[..., None])  # (batch, 2, 1)
+        rates = (jacobian.transpose(0, 2, 1) @ task)[..., 0] / self.max_joint_speed
+        if self.bang_bang:
+            rates = np.sign(rates)
+        action = np.clip(rates, -1.0, 1.0).astype(np.float32)
+        return (action if np.ndim(observation) > 1 else action[0]), None
