@@ -1,0 +1,179 @@
+"""
+Hindsight goal relabelling for the snake arm's goal worker, on flat observations (HER's "future" strategy).
+
+The goal term depends only on the tip and the goal (``-d + 1[d <= touch_radius]``), and the observation holds
+both: the tip is the last point of ``joint_positions`` and the goal is ``tip + 2 * ee_to_goal``. So a stored
+transition can be replayed as if the goal had been somewhere else, here where the tip itself got to later in
+the same episode (Andrychowicz et al., 2017): the observation's ``ee_to_goal`` and ``goal_touched`` and the
+reward are recomputed for that goal. Early in training almost no transition touches the real goal, but every
+relabelled one near its new goal does: the critic learns what reaching looks like long before the actor
+reaches anything. The model stays a plain SB3 model on flat observations (SB3's own ``HerReplayBuffer``
+needs a ``Dict`` goal-env interface that the shared state of the hierarchy does not have).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_hddpg.envs.layout import StateLayout, build_state_layout
+
+#: The components relabelling needs in the observation.
+REQUIRED_COMPONENTS = ("joint_positions", "ee_to_goal", "goal_touched")
+
+
+class GoalRelabelingReplayBuffer(ReplayBuffer):
+    """
+    SB3's ``ReplayBuffer`` that replays a share of its samples with a hindsight goal (see the module's note).
+
+    Use it for the goal worker: ``DDPG(..., replay_buffer_class=GoalRelabelingReplayBuffer,
+    replay_buffer_kwargs={"n_joints": 6, "observe": [...]})``, or the config's ``goal_relabeling`` key. The
+    stored data are never changed: a sample is relabelled when drawn, so the same transition serves with
+    its real goal and with others.
+
+    :param buffer_size: as SB3's.
+    :param observation_space: as SB3's: the goal env's observation (the full state or an ``observe`` subset).
+    :param action_space: as SB3's.
+    :param device: as SB3's.
+    :param n_envs: as SB3's.
+    :param optimize_memory_usage: not supported (next observations are needed as stored).
+    :param handle_timeout_termination: as SB3's.
+    :param n_joints: the arm's joints (the env's ``n_joints``).
+    :param observe: the state components the observation holds, in order (the env's ``observe``; default all).
+    :param touch_radius: the env's ``touch_radius``.
+    :param goal_low: the lower bound of the goal term (the env's ``reward_bounds["goal"][0]``).
+    :param relabel_fraction: the share of sampled transitions given a hindsight goal (HER's 0.8 for k = 4).
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        n_joints: int = 6,
+        observe: Sequence[str] | None = None,
+        touch_radius: float = 0.1,
+        goal_low: float = -1.9,
+        relabel_fraction: float = 0.8,
+    ) -> None:
+        if optimize_memory_usage:
+            raise ValueError("GoalRelabelingReplayBuffer does not support optimize_memory_usage=True")
+        if not 0.0 <= relabel_fraction <= 1.0:
+            raise ValueError(f"Expected `relabel_fraction` in [0, 1], actually: {relabel_fraction!r:.50}")
+        super().__init__(
+            buffer_size,
+            observation_space,
+            action_space,
+            device=device,
+            n_envs=n_envs,
+            optimize_memory_usage=False,
+            handle_timeout_termination=handle_timeout_termination,
+        )
+        full = build_state_layout(n_joints)
+        names = list(observe) if observe is not None else list(full)
+        missing = [c for c in REQUIRED_COMPONENTS if c not in names]
+        if missing:
+            raise ValueError(f"Goal relabelling needs the state components {missing} in the observation")
+        layout = StateLayout([(name, full[name].stop - full[name].start) for name in names])
+        if layout.size != int(np.prod(observation_space.shape or (0,))):
+            raise ValueError(
+                f"The observation has {observation_space.shape} values, but {names} of a {n_joints}-joint arm "
+                f"make {layout.size}: give the env's n_joints and observe"
+            )
+        positions = layout["joint_positions"]
+        self._tip = slice(positions.stop - 2, positions.stop)
+        self._to_goal = layout["ee_to_goal"]
+        self._touched = layout["goal_touched"].start
+        self.touch_radius = float(touch_radius)
+        self.goal_low = float(goal_low)
+        self.relabel_fraction = float(relabel_fraction)
+        # Per stored step: which episode it belongs to (-1: none yet), and where that episode's latest stored
+        # step is, so that a "future" index can be drawn from the same episode.
+        self._episode = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
+        self._episode_counter = np.zeros(self.n_envs, dtype=np.int64)
+        self._episode_end: dict[tuple[int, int], int] = {}
+
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        position = self.pos
+        for env in range(self.n_envs):
+            episode = int(self._episode_counter[env])
+            self._episode[position, env] = episode
+            self._episode_end[(env, episode)] = position
+        super().add(obs, next_obs, action, reward, done, infos)
+        for env in np.flatnonzero(np.asarray(done).reshape(-1)):
+            self._episode_end.pop(
+                (int(env), int(self._episode_counter[env]) - 1), None
+            )  # keep the dict small
+            self._episode_counter[env] += 1
+
+    def _future_index(self, index: int, env: int, rng: np.random.Generator) -> int | None:
+        """A stored step at or after ``index`` in the same episode (``None`` if none can be found)."""
+        episode = int(self._episode[index, env])
+        end = self._episode_end.get((env, episode))
+        if end is None:  # a finished episode: walk forward while the episode id holds
+            end = index
+            while (
+                self._episode[(end + 1) % self.buffer_size, env] == episode
+                and (end + 1) % self.buffer_size != self.pos
+            ):
+                end = (end + 1) % self.buffer_size
+        span = (end - index) % self.buffer_size
+        return (index + int(rng.integers(0, span + 1))) % self.buffer_size
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+        obs = self.observations[batch_inds, env_indices, :].copy()
+        next_obs = self.next_observations[batch_inds, env_indices, :].copy()
+        rewards = self.rewards[batch_inds, env_indices].copy()
+        relabel = np.flatnonzero(np.random.random(len(batch_inds)) < self.relabel_fraction)
+        if len(relabel):
+            rng = np.random.default_rng(np.random.randint(2**31))
+            futures = [self._future_index(int(batch_inds[k]), int(env_indices[k]), rng) for k in relabel]
+            goals = self.next_observations[np.array(futures), env_indices[relabel], self._tip]
+            self.relabel(obs, next_obs, rewards, relabel, goals)
+        data = (
+            self._normalize_obs(obs, env),
+            self.actions[batch_inds, env_indices, :],
+            self._normalize_obs(next_obs, env),
+            (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(
+                -1, 1
+            ),
+            self._normalize_reward(rewards.reshape(-1, 1), env),
+        )
+        return ReplayBufferSamples(*tuple(map(self.to_torch, data)))
+
+    def relabel(
+        self, obs: np.ndarray, next_obs: np.ndarray, rewards: np.ndarray, rows: np.ndarray, goals: np.ndarray
+    ) -> None:
+        """
+        Give ``rows`` of a batch the goal positions ``goals`` (shape ``(len(rows), 2)``), in place: the
+        observations' goal vector and touch flag, and the goal term as the env computes it.
+        """
+        for batch, is_next in ((obs, False), (next_obs, True)):
+            tips = batch[rows, self._tip]
+            offset = goals - tips
+            distance = np.sqrt((offset**2).sum(axis=1))
+            touched = distance <= self.touch_radius
+            batch[rows, self._to_goal] = offset / 2.0
+            batch[rows, self._touched] = touched
+            if is_next:
+                rewards[rows] = np.maximum(-distance + touched, self.goal_low)

@@ -1,0 +1,85 @@
+"""Hindsight goal relabelling: relabelled transitions are ones the env itself would give."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3 import DDPG
+
+from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
+
+VIEW = ["joint_positions", "ee_to_goal", "goal_touched"]
+
+
+def _rollout(env, steps=60, seed=0):
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    out = []
+    for _ in range(steps):
+        action = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
+        next_obs, reward, terminated, truncated, info = env.step(action)
+        out.append((obs, action, reward, next_obs, info))
+        obs = next_obs
+    return out
+
+
+@pytest.mark.parametrize("observe", [None, VIEW])
+def test_relabelling_with_the_real_goal_reproduces_the_env(observe):
+    kwargs = {} if observe is None else {"observe": observe}
+    env = gym.make("hddpg/SnakeGoal-v0", **kwargs)
+    buffer = GoalRelabelingReplayBuffer(
+        100, env.observation_space, env.action_space, device="cpu", observe=observe
+    )
+    transitions = _rollout(env)
+    obs = np.stack([t[0] for t in transitions])
+    next_obs = np.stack([t[3] for t in transitions])
+    rewards = np.array([t[2] for t in transitions], dtype=np.float32)
+    # The goal after each step, as the env had it: tip + 2 * ee_to_goal of the next observation.
+    goals = next_obs[:, buffer._tip] + 2 * next_obs[:, buffer._to_goal]
+    np.testing.assert_allclose(goals[-1], env.unwrapped.goal, atol=1e-5)
+    relabelled_next, relabelled_rewards = next_obs.copy(), rewards.copy()
+    buffer.relabel(obs.copy(), relabelled_next, relabelled_rewards, np.arange(len(obs)), goals)
+    np.testing.assert_allclose(relabelled_next, next_obs, atol=1e-6)
+    np.testing.assert_allclose(relabelled_rewards, rewards, atol=1e-5)
+
+
+def test_hindsight_goals_come_from_the_same_episode_and_pay_touches():
+    env = gym.make("hddpg/SnakeGoal-v0", observe=VIEW, max_episode_steps=20)
+    model = DDPG(
+        "MlpPolicy",
+        env,
+        replay_buffer_class=GoalRelabelingReplayBuffer,
+        replay_buffer_kwargs={"observe": VIEW, "relabel_fraction": 1.0},
+        learning_starts=100,
+        policy_kwargs={"net_arch": [8]},
+        seed=0,
+        device="cpu",
+    )
+    model.learn(100)  # 5 episodes of 20 steps
+    buffer = model.replay_buffer
+    assert sorted(set(buffer._episode[:100, 0].tolist())) == [0, 1, 2, 3, 4]
+    rng = np.random.default_rng(0)
+    for index in rng.integers(0, 100, 50):
+        future = buffer._future_index(int(index), 0, rng)
+        assert buffer._episode[future, 0] == buffer._episode[index, 0] and future >= index
+    samples = buffer.sample(512)
+    rewards = samples.rewards.numpy().ravel()
+    touched = samples.next_observations.numpy()[:, -1]
+    # A hindsight goal at the very step's own tip is touched: rewards above 0 appear, and they are the touches.
+    assert (touched == 1).any()
+    np.testing.assert_array_equal(rewards > 0, touched == 1)
+    assert samples.observations.shape == (512, 15)
+
+
+def test_wrong_layout_is_refused():
+    env = gym.make("hddpg/SnakeGoal-v0", observe=VIEW)
+    with pytest.raises(ValueError, match="n_joints and observe"):
+        GoalRelabelingReplayBuffer(10, env.observation_space, env.action_space, device="cpu")
+    avoid_view = gym.make("hddpg/SnakeGoal-v0", observe=["joint_positions", "joint_obstacle_distances"])
+    with pytest.raises(ValueError, match="needs the state components"):
+        GoalRelabelingReplayBuffer(
+            10,
+            avoid_view.observation_space,
+            avoid_view.action_space,
+            device="cpu",
+            observe=["joint_positions", "joint_obstacle_distances"],
+        )
