@@ -189,6 +189,7 @@ def _train_job(
     seed: int,
     eval_freq: int,
     eval_episodes: int,
+    keep_checkpoints: bool = False,
 ) -> dict[str, Any]:
     """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
     from sb3_hddpg import training
@@ -201,6 +202,7 @@ def _train_job(
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
         extra_callbacks=[_ProgressReporter(name)],
+        keep_checkpoints=keep_checkpoints,
     )
     if kind == "worker":
         manifest = training.train_workers(run_dir, workers=[name], **common)  # type: ignore[arg-type]
@@ -232,6 +234,7 @@ def train_flat_baseline(
     eval_freq: int = 5000,
     eval_episodes: int = 5,
     extra_callbacks: Any = (),
+    keep_checkpoints: bool = False,
 ) -> dict[str, Any]:
     """
     The single-DDPG baseline: a plain SB3 DDPG on ``hddpg/SnakeReach-v0`` (both terms, normalised and
@@ -246,6 +249,7 @@ def train_flat_baseline(
     :param eval_freq: steps between evaluations.
     :param eval_episodes: episodes per evaluation.
     :param extra_callbacks: more SB3 callbacks.
+    :param keep_checkpoints: keep the finished run's replay buffer (see :func:`~sb3_hddpg.training.train_agent`).
     :return: the manifest entry written.
     """
     from stable_baselines3 import DDPG
@@ -265,6 +269,7 @@ def train_flat_baseline(
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
         extra_callbacks=list(extra_callbacks),
+        keep_checkpoints=keep_checkpoints,
     )
     entry = {
         "name": name,
@@ -372,6 +377,7 @@ def run_quickstart(
     seed: int = 0,
     processes: int = 2,
     observer: QuickstartObserver | None = None,
+    keep_checkpoints: bool = False,
 ) -> QuickstartResult:
     """
     Train both workers, the manager and the baselines, compare them on the same seeds and write everything
@@ -382,6 +388,9 @@ def run_quickstart(
     :param seed: training seed of every agent (evaluation seeds are the library's fixed ones).
     :param processes: training processes at a time (2: the workers side by side, then manager and flat DDPG).
     :param observer: receives progress (default: none).
+    :param keep_checkpoints: keep every agent's replay buffer in ``checkpoints/`` (about 70 MB each at the
+        ``small`` budget), so that ``hddpg-cli train-* --resume`` can extend an agent's training exactly;
+        by default only the model checkpoints stay and the run folder is about 5 MB.
     :return: the metrics, the files written and the timings.
     """
     from sb3_hddpg.loading import LoadedPolicy, load_policy
@@ -425,6 +434,7 @@ def run_quickstart(
         seed=seed,
         eval_freq=budget.eval_freq,
         eval_episodes=budget.eval_episodes,
+        keep_checkpoints=keep_checkpoints,
     )
 
     # 1. Workers, side by side. Each process writes workers/manifest.json with its own entry only; the

@@ -94,6 +94,12 @@ def quickstart_command(
     processes: int = typer.Option(
         2, "--processes", callback=at_least(1), help="Agents trained at a time, one process each."
     ),
+    keep_checkpoints: bool = typer.Option(
+        False,
+        "--keep-checkpoints",
+        help="Keep every agent's replay buffer in RUN/checkpoints/ (about 270 MB in all at --budget small) "
+        "so that train-* --resume can extend an agent exactly; by default the run folder is about 5 MB.",
+    ),
 ) -> None:
     """Train both workers, a manager, a flat DDPG (and HAM), compare them on the same seeds, save everything."""
     if budget not in BUDGETS:
@@ -110,7 +116,14 @@ def quickstart_command(
         transient=False,
     ) as progress:
         observer = _RichObserver(progress)
-        result = run_quickstart(out, budget=budget, seed=seed, processes=processes, observer=observer)
+        result = run_quickstart(
+            out,
+            budget=budget,
+            seed=seed,
+            processes=processes,
+            observer=observer,
+            keep_checkpoints=keep_checkpoints,
+        )
         observer.finish()
     console.print(comparison_table(result))
     if not result.ham_available:

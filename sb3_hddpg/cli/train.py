@@ -29,6 +29,11 @@ CHECKPOINT_HELP = (
     "Steps between resumable checkpoints (0: only on Ctrl-C/SIGTERM and at the end); "
     "a SIGKILL loses at most this many steps."
 )
+KEEP_CHECKPOINTS_HELP = (
+    "After a successful run, keep the replay buffer in OUT/checkpoints/ (about 70 MB per agent at the "
+    "bundled buffer_size) so that --resume with a larger --timesteps continues exactly; by default only "
+    "the model checkpoint stays (resuming it refills the buffer first)."
+)
 
 
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
@@ -95,6 +100,7 @@ def train_workers_command(
         1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
     ),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
     from sb3_hddpg.training import TrainingInterrupted, train_workers, worker_hyperparams
@@ -132,6 +138,7 @@ def train_workers_command(
             progress_bar=progress,
             threads=threads,
             on_worker_done=done,
+            keep_checkpoints=keep_checkpoints,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
@@ -206,6 +213,7 @@ def train_manager_command(
     trust: bool = typer.Option(
         False, "--trust", help="Load the workers with SB3's full loader (runs code in the files)."
     ),
+    keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
     from sb3_hddpg.selection import SELECTION_MODES, parse_preferences
@@ -254,6 +262,7 @@ def train_manager_command(
             progress_bar=progress,
             threads=threads,
             trusted=trust,
+            keep_checkpoints=keep_checkpoints,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
