@@ -31,7 +31,7 @@ from typing import Any
 import yaml
 
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.io import atomic_write_bytes, atomic_write_json
+from sb3_hddpg.io import _UMASK, atomic_write_bytes, atomic_write_json
 from sb3_hddpg.loading import LoadedPolicy
 
 #: The keys of ``results.json``: huggingface_sb3's five, then ours.
@@ -109,6 +109,9 @@ def package_policy(
         raise FileExistsError(f"{str(out_dir)!r} is not empty; pass force=True (--force) to replace it")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    # mkdtemp makes the folder private (0700); the package is meant to be shared: give it the permissions
+    # any other new folder gets (as atomic_write does for files).
+    os.chmod(staging, 0o777 & ~_UMASK)
     try:
         env = loaded.make_env()
         evaluation = evaluate(

@@ -552,7 +552,16 @@ def run_quickstart(
         for label in ("HAM", "scripted", "random")
         if label in summaries
     }
-    files["learning_curves"] = plot_learning_curves(histories, run_dir / "learning_curves.png", references)
+    last_compare_seed = EVAL_SEED_BASE + budget.compare_episodes - 1
+    note = (
+        f"Each point: the agent at that step, mean over {budget.eval_episodes} evaluation episodes (seeds "
+        f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + budget.eval_episodes - 1}). Horizontal lines and the printed "
+        f"table: {budget.compare_episodes} episodes (seeds {EVAL_SEED_BASE}..{last_compare_seed}); the table "
+        "scores each agent's saved (best-evaluated) model, so its HDDPG row need not equal the manager's last point."
+    )
+    files["learning_curves"] = plot_learning_curves(
+        histories, run_dir / "learning_curves.png", references, note=note
+    )
     files["comparison"] = plot_comparison(
         summaries,
         run_dir / "comparison.png",

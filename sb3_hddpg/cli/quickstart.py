@@ -51,31 +51,31 @@ class _RichObserver(QuickstartObserver):
 
 
 def comparison_table(result: QuickstartResult) -> Table:
-    """The methods on the shared seeds, one row each."""
+    """The methods on the shared seeds, one row each, each column in one unit."""
+    from sb3_hddpg.evaluation import EVAL_SEED_BASE
+    from sb3_hddpg.metric_labels import SELECTION_LABEL, metric_label
+
     summary = next(iter(result.summaries.values()))
-    table = Table(title=f"hddpg/SnakeReach-v0, {summary['episodes']} episodes per method on the same seeds")
-    for column in (
-        "method",
-        "reach reward",
-        "goal touch",
-        "collisions/ep",
-        "success",
-        "min clearance",
-        "worker use",
-        "train steps",
-    ):
-        table.add_column(column, justify="left" if column in ("method", "worker use") else "right")
-    for label, s in result.summaries.items():
+    episodes = summary["episodes"]
+    table = Table(
+        title=f"hddpg/SnakeReach-v0: each method's saved model, mean ± std over the same {episodes} episodes "
+        f"(seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + episodes - 1})"
+    )
+    keys = ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode", "success_rate", "min_clearance")
+    table.add_column("method")
+    for key in keys:
+        table.add_column(metric_label(key).header, justify="right")
+    table.add_column(SELECTION_LABEL.header)
+    table.add_column("train steps", justify="right")
+    for name, s in result.summaries.items():
+        cells = [metric_label(key).format(s[key]) for key in keys]
+        cells[0] += f" ± {metric_label(keys[0]).format(s['std_reach_reward'])}"
         rates = s.get("selection_rate", {})
-        steps = result.methods[label]["train_timesteps"]
+        steps = result.methods[name]["train_timesteps"]
         table.add_row(
-            label,
-            f"{s['mean_reach_reward']:.1f} ± {s['std_reach_reward']:.1f}",
-            f"{s['goal_touch_rate']:.1%}",
-            f"{s['collisions_per_episode']:.1f}",
-            f"{s['success_rate']:.0%}",
-            f"{s['min_clearance']:.3f}",
-            " / ".join(f"{n} {r:.0%}" for n, r in rates.items()) or "-",
+            name,
+            *cells,
+            " / ".join(f"{n} {100 * r:.0f}" for n, r in rates.items()) or "-",
             f"{steps:,}" if steps else "-",
         )
     return table

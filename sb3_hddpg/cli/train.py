@@ -37,29 +37,31 @@ KEEP_CHECKPOINTS_HELP = (
 
 
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
-    """A rich table of evaluation summaries, one row per agent."""
+    """A rich table of evaluation summaries, one row per agent, each column in one unit."""
+    from sb3_hddpg.metric_labels import metric_label
+
+    keys = (
+        "mean_reward",
+        "goal_touch_rate",
+        "collisions_per_episode",
+        "success_rate",
+        "min_clearance",
+        # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
+        "action_saturation",
+    )
     table = Table(title=title)
-    for column in (
-        "agent",
-        "mean reward",
-        "goal touch",
-        "collisions/ep",
-        "success",
-        "min clearance",
-        "saturated",
-    ):
-        table.add_column(column, justify="left" if column == "agent" else "right")
+    table.add_column("agent")
+    for key in keys:
+        table.add_column(metric_label(key).header, justify="right")
     for name, s in rows.items():
-        table.add_row(
-            name,
-            f"{s['mean_reward']:.1f} ± {s['std_reward']:.1f}",
-            f"{s['goal_touch_rate']:.1%}",
-            f"{s['collisions_per_episode']:.1f}",
-            f"{s['success_rate']:.0%}",
-            f"{s['min_clearance']:.3f}",
-            # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
-            f"{s['action_saturation']:.0%}" if "action_saturation" in s else "-",
-        )
+        cells = []
+        for key in keys:
+            label = metric_label(key)
+            cell = label.format(s[key]) if key in s else "-"
+            if key == "mean_reward" and "std_reward" in s:
+                cell += f" ± {label.format(s['std_reward'])}"
+            cells.append(cell)
+        table.add_row(name, *cells)
     return table
 
 
@@ -272,5 +274,7 @@ def train_manager_command(
     )
     rates = outcome.metrics.get("selection_rate", {})
     if rates:
-        console.print("Worker choices: " + ", ".join(f"{n} {r:.0%}" for n, r in rates.items()))
+        console.print(
+            "Worker choices (% of steps): " + ", ".join(f"{n} {100 * r:.0f}" for n, r in rates.items())
+        )
     console.print(f"Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}")
