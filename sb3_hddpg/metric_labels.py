@@ -35,9 +35,15 @@ class MetricLabel:
 
     @property
     def header(self) -> str:
-        """The short name with its unit, for a table column."""
+        """The short name with its unit, for an axis or a column."""
         name = self.short or self.label
         return f"{name} ({self.unit})" if self.unit else name
+
+    @property
+    def column(self) -> str:
+        """The short name over its unit: a narrow two-line column header."""
+        name = self.short or self.label
+        return f"{name}\n({self.unit})" if self.unit else name
 
 
 #: Summary key -> how it is shown. Keys not listed are shown by name, with three decimals.

@@ -16,7 +16,8 @@ bundle and ``results.json``::
       zoo/                    the workers and flat DDPG in RL Zoo's layout (rl_zoo3.enjoy -f RUN/zoo)
       results.json            every method's metrics on the shared seeds, budget, timings, versions
       comparison.png  learning_curves.png  selection.png  hierarchy.gif
-      evaluations/  tensorboard/  checkpoints/  best/
+      evaluations/  tensorboard/  best/
+      checkpoints/            each agent's last model (its replay buffer too with keep_checkpoints)
 """
 
 from __future__ import annotations
@@ -390,7 +391,7 @@ def run_quickstart(
     :param observer: receives progress (default: none).
     :param keep_checkpoints: keep every agent's replay buffer in ``checkpoints/`` (about 70 MB each at the
         ``small`` budget), so that ``hddpg-cli train-* --resume`` can extend an agent's training exactly;
-        by default only the model checkpoints stay and the run folder is about 5 MB.
+        by default only the model checkpoints stay and the run folder is about 6 MB.
     :return: the metrics, the files written and the timings.
     """
     from sb3_hddpg.loading import LoadedPolicy, load_policy

@@ -52,7 +52,7 @@ def metrics_table(title: str, rows: dict[str, dict]) -> Table:
     table = Table(title=title)
     table.add_column("agent")
     for key in keys:
-        table.add_column(metric_label(key).header, justify="right")
+        table.add_column(metric_label(key).column, justify="right")
     for name, s in rows.items():
         cells = []
         for key in keys:
