@@ -30,6 +30,7 @@ from typing import Any
 
 import yaml
 
+from sb3_hddpg import __version__ as version
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.io import _UMASK, atomic_write_bytes, atomic_write_json
 from sb3_hddpg.loading import LoadedPolicy
@@ -281,7 +282,10 @@ This is {what}
 ## Usage
 
 ```bash
-pip install sb3-hddpg
+# sb3-hddpg {version} is not on the package index yet: install it from a checkout of its repository,
+pip install ./sb3-hddpg                                  # (add extras: "./sb3-hddpg[render]")
+# or from the wheel built there with `python -m build` (dist/sb3_hddpg-{version}-py3-none-any.whl):
+pip install sb3_hddpg-{version}-py3-none-any.whl
 hddpg-cli evaluate {model_file} --episodes 20
 hddpg-cli record {model_file} --out replay.gif
 ```

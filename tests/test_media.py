@@ -190,6 +190,9 @@ def test_package_sb3_zip(tmp_path):
     assert (out / f"{name}.zip").is_file() and (out / name / "data").is_file()
     assert json.loads((out / "config.json").read_text()) == json.loads((out / name / "data").read_text())
     assert _front_matter((out / "README.md").read_text())["model-index"][0]["name"] == "DDPG"
+    # The card installs from a checkout or a wheel: sb3-hddpg is not on the package index.
+    card = (out / "README.md").read_text()
+    assert "pip install sb3-hddpg\n" not in card and "py3-none-any.whl" in card
     # A package is for sharing: the folder gets the umask's permissions like any new folder, not 0700.
     umask = os.umask(0)
     os.umask(umask)
