@@ -19,6 +19,8 @@ pytestmark = pytest.mark.slow  # a fresh environment installs torch and every de
 
 
 def _run(*args: object, cwd: Path | None = None, env: dict[str, str] | None = None) -> str:
+    # Without PYTHONPATH: a checkout on the path would hide what the installed package lacks.
+    env = env or {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     result = subprocess.run(
         [str(a) for a in args], cwd=cwd, env=env, capture_output=True, text=True, timeout=1800
     )
