@@ -4,22 +4,43 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+TORCH := torch==2.13.0
+# PyTorch's CPU-only wheels (a plain `pip install torch` on Linux pulls the multi-GB CUDA build): used when
+# reachable, else pip's own configured index. Override: `make TORCH_INDEX=URL ...` or the environment;
+# `make TORCH_INDEX= ...` uses pip's configured index only.
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
+# More pytest options for `make test`, e.g. PYTEST_ARGS="-m slow" or PYTEST_ARGS="-x tests/test_env.py".
+PYTEST_ARGS ?=
 
-.PHONY: quickstart test lint clean-venv
+# torch before the package, so that the package's unpinned `torch` finds it installed.
+INSTALL_TORCH = if [ -n "$(TORCH_INDEX)" ] && $(BIN)/python -c "import sys, urllib.request; urllib.request.urlopen(sys.argv[1].rstrip('/') + '/torch/', timeout=15)" "$(TORCH_INDEX)" 2>/dev/null; then \
+		echo "Installing $(TORCH), CPU build, from $(TORCH_INDEX)"; \
+		$(BIN)/python -m pip install --quiet --index-url "$(TORCH_INDEX)" "$(TORCH)"; \
+	else \
+		echo "Installing $(TORCH) from pip's configured index ($(if $(TORCH_INDEX),$(TORCH_INDEX) is not reachable,TORCH_INDEX is empty))"; \
+		$(BIN)/python -m pip install --quiet "$(TORCH)"; \
+	fi
+
+.PHONY: quickstart test torch lint clean-venv
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	# The CPU build of torch first (it lies on this machine's disk): otherwise pip pulls a multi-GB CUDA build.
-	$(BIN)/python -m pip install --quiet "torch==2.13.0"
+	@$(INSTALL_TORCH)
 	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard]"
 	touch $(STAMP)
+
+# Only a virtual environment with torch (what the packaging test installs the built wheel into).
+torch:
+	$(PYTHON) -m venv $(VENV)
+	@$(INSTALL_TORCH)
 
 quickstart: $(STAMP)
 	$(BIN)/hddpg-cli quickstart
 
+# One line per test file with its progress count, then the 15 slowest tests (about 8 min on 2 idle cores).
 test: $(STAMP)
-	SDL_VIDEODRIVER=dummy SDL_AUDIODRIVER=dummy $(BIN)/python -m pytest -q
+	SDL_VIDEODRIVER=dummy SDL_AUDIODRIVER=dummy $(BIN)/python -m pytest -o console_output_style=count --durations=15 $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .

@@ -269,6 +269,50 @@ def load_hyperparams(
     return parse_block(block, algo_class, source=f"{path}[{key}]", manager=manager)
 
 
+def agent_kwargs(
+    key: str, env: Any, config: str | Path | None = None, algo_class: type | None = None
+) -> dict[str, Any]:
+    """
+    The project's hyperparameters for one agent, as keyword arguments of the algorithm's constructor, so
+    that the Python API trains with what the CLI uses (``zoo_configs/ddpg.yml``: [64, 64] networks,
+    Gaussian action noise, gamma 0.9...) rather than SB3's defaults::
+
+        goal = DDPG(**agent_kwargs("hddpg/SnakeGoal-v0", gym.make("hddpg/SnakeGoal-v0")))
+        manager = DDPG(**agent_kwargs("manager", WorkerSelectionWrapper(...)))
+
+    The budget (``n_timesteps``) is not a constructor argument: pass it to ``learn``. A block's
+    ``env_kwargs`` are for making ``env``: they are not applied here.
+
+    :param key: the config block: an env id (``hddpg/SnakeGoal-v0``...) or ``"manager"``.
+    :param env: the training env (it sizes the action noise and is passed on as ``env``).
+    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    :param algo_class: the algorithm whose constructor the block must fit (default: SB3's ``DDPG``).
+    :return: ``policy``, ``env``, the block's algorithm arguments and ``action_noise``; add ``seed`` etc.
+    """
+    if algo_class is None:
+        from stable_baselines3 import DDPG
+
+        algo_class = DDPG
+    hyperparams = load_hyperparams(key, algo_class, config, manager=key == MANAGER_KEY)
+    n_actions = int(np.prod(env.action_space.shape))
+    kwargs: dict[str, Any] = {"policy": hyperparams.policy, "env": env, **hyperparams.algo_kwargs}
+    if hyperparams.noise_type is not None:
+        kwargs["action_noise"] = hyperparams.action_noise(n_actions)
+    return kwargs
+
+
+def wrapper_kwargs(config: str | Path | None = None) -> dict[str, Any]:
+    """
+    The manager block's ``wrapper_kwargs`` (selection mode, temperature, floor, option steps): keyword
+    arguments for ``WorkerSelectionWrapper`` and ``SelectionConfig``, as the CLI's manager gets them.
+
+    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    """
+    from stable_baselines3 import DDPG
+
+    return dict(load_hyperparams(MANAGER_KEY, DDPG, config, manager=True).wrapper_kwargs)
+
+
 def parse_policy_kwargs(text: str, source: str = "config") -> dict[str, Any]:
     """
     Evaluate an RL Zoo ``policy_kwargs`` string safely: literals, lists, dicts, ``dict(...)`` calls and the

@@ -35,6 +35,8 @@ from sb3_hddpg.workers import Policy
 #: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
+#: The shared env of a hierarchy when neither ``env_id`` is given nor the models' training envs tell.
+DEFAULT_ENV_ID = "hddpg/SnakeReach-v0"
 
 
 class BundleError(ValueError):
@@ -80,8 +82,9 @@ class Hierarchy:
     :param manager: the manager's SB3 model (trained on ``WorkerSelectionWrapper``).
     :param workers: name -> worker, in the manager's action order.
     :param config: the selection settings the manager was trained with.
-    :param env_id: the registered id of the shared env.
-    :param env_kwargs: its keyword arguments.
+    :param env_id: the registered id of the shared env (default: the env the manager was trained on, else
+        the one every worker was trained on, else ``hddpg/SnakeReach-v0``; see :func:`infer_env`).
+    :param env_kwargs: its keyword arguments (default: those of the inferred env; ``{}`` with ``env_id``).
     :param worker_meta: name -> JSON-able facts about each worker (reward bounds, metrics...).
     :param metadata: JSON-able facts about the manager (metrics, seed, config...).
     """
@@ -91,7 +94,7 @@ class Hierarchy:
         manager: BaseAlgorithm,
         workers: Mapping[str, Policy],
         config: SelectionConfig,
-        env_id: str = "hddpg/SnakeReach-v0",
+        env_id: str | None = None,
         env_kwargs: dict[str, Any] | None = None,
         worker_meta: dict[str, dict[str, Any]] | None = None,
         metadata: dict[str, Any] | None = None,
@@ -102,15 +105,28 @@ class Hierarchy:
         self.workers = dict(workers)
         self.names = list(self.workers)
         self.config = config
+        if env_id is None:
+            # Without an env id the bundle would record the snake env whatever the models were trained on,
+            # and fail only much later (in evaluate); the models' own training envs say which env it is.
+            env_id, inferred_kwargs = infer_env(manager, self.workers) or (DEFAULT_ENV_ID, {})
+            env_kwargs = inferred_kwargs if env_kwargs is None else env_kwargs
         self.env_id = env_id
         self.env_kwargs = dict(env_kwargs or {})
         self.worker_meta = dict(worker_meta or {})
         self.metadata = dict(metadata or {})
         probe = gym.make(env_id, **self.env_kwargs)
-        layout = probe.unwrapped.state_layout
+        layout = getattr(probe.unwrapped, "state_layout", None)
+        if layout is None and (config.manager_state or config.worker_states):
+            raise ValueError(
+                f"The hierarchy's env {env_id!r} declares no state_layout, so manager_state and worker_states "
+                "cannot name its components"
+            )
         self.observation_space = probe.observation_space
         self.action_space = probe.action_space
         probe.close()
+        check_spaces(
+            manager, self.workers, config, self.observation_space, self.action_space, layout, self._env_name()
+        )
         self._manager_indices = layout.indices(config.manager_state) if config.manager_state else None
         self._frozen = [
             FrozenWorker(w, layout.indices(config.worker_states[n]) if n in config.worker_states else None)
@@ -126,6 +142,9 @@ class Hierarchy:
         #: The manager actor's output at the last decision (in [-1, 1]; how saturated the manager is).
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
+
+    def _env_name(self) -> str:
+        return f"{self.env_id!r}" + (f" with env_kwargs {self.env_kwargs}" if self.env_kwargs else "")
 
     # ------------------------------------------------------------------ acting
     @property
@@ -369,3 +388,102 @@ def _model_bytes(model: BaseAlgorithm) -> bytes:
 
 def _sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+def infer_env(manager: Any, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
+    """
+    The env a hierarchy acts in, read from its models: the manager's training env (the env under its
+    ``WorkerSelectionWrapper``) if the manager still has one, else the env every worker names, if they all
+    name the same (a nested hierarchy names its ``env_id``; an SB3 model its training env). Models loaded
+    from files carry no env, so this may find nothing.
+
+    :param manager: the manager.
+    :param workers: name -> worker.
+    :return: ``(env_id, env_kwargs)`` (kwargs beyond the registered ones), or ``None`` when the models do not
+        tell or the workers disagree.
+    """
+    found = _training_env(manager)
+    if found is not None:
+        return found
+    named = [_training_env(worker) for worker in workers.values()]
+    known = [env for env in named if env is not None]
+    if known and all(env == known[0] for env in known):
+        return known[0]
+    return None
+
+
+def _training_env(model: Any) -> tuple[str, dict[str, Any]] | None:
+    """``(env_id, env_kwargs)`` of a model's training env (a hierarchy's own env), if it still has one."""
+    import gymnasium as gym
+
+    if isinstance(model, Hierarchy):
+        return model.env_id, dict(model.env_kwargs)
+    get_env = getattr(model, "get_env", None)
+    vec_env = get_env() if callable(get_env) else None
+    if vec_env is None:
+        return None
+    try:
+        envs = getattr(vec_env, "envs", None)  # in-process envs: read the spec without copying it
+        spec = envs[0].unwrapped.spec if envs else vec_env.get_attr("spec", [0])[0]
+    except Exception:  # an env in a subprocess that cannot answer: the model does not tell
+        return None
+    if spec is None:
+        return None
+    registered = gym.spec(spec.id).kwargs if spec.id in gym.registry else {}
+    kwargs = {
+        key: value
+        for key, value in (spec.kwargs or {}).items()
+        if key != "render_mode" and (key not in registered or registered[key] != value)
+    }
+    return spec.id, kwargs
+
+
+def check_spaces(
+    manager: Any,
+    workers: Mapping[str, Policy],
+    config: SelectionConfig,
+    observation_space: Any,
+    action_space: Any,
+    layout: Any,
+    env_name: str,
+) -> None:
+    """
+    Check that the manager and every worker that declares its spaces fit the env: the manager sees the
+    env's observation (or its ``manager_state`` components) and outputs one value per worker; each worker
+    sees the env's observation (or its ``worker_states`` components) and outputs the env's action.
+
+    :param env_name: the env as named in messages.
+    :raises ValueError: one line naming the model, the expected and the actual space.
+    """
+    from gymnasium import spaces
+
+    from sb3_hddpg.wrappers.selection import _subset_space
+
+    def subset(components: list[str] | None) -> Any:
+        return _subset_space(observation_space, layout.indices(components) if components else None)
+
+    manager_action = spaces.Box(-1.0, 1.0, (len(workers),), dtype=np.float32)
+    checks = [("The manager", manager, subset(config.manager_state), manager_action, " (one per worker)")]
+    checks += [
+        (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")
+        for name, worker in workers.items()
+    ]
+    hint = "pass the env they were trained on as env_id= (and env_kwargs=)"
+    for label, model, expected_obs, expected_action, action_note in checks:
+        for kind, expected, actual, note in (
+            ("observations", expected_obs, getattr(model, "observation_space", None), ""),
+            ("actions", expected_action, getattr(model, "action_space", None), action_note),
+        ):
+            if actual is None or actual == expected:
+                continue
+            if getattr(actual, "shape", None) != getattr(expected, "shape", None):
+                raise ValueError(
+                    f"{label} has {kind} of shape {actual.shape}, but the hierarchy's env {env_name} needs "
+                    f"{expected.shape}{note}: {hint}"
+                )
+            # A Box with per-entry bounds prints its arrays over several lines: keep the message on one.
+            shown = " ".join(f"{actual} != {expected}".split())
+            raise ValueError(
+                f"{label} has {kind} of shape {actual.shape} like the hierarchy's env {env_name}, but other "
+                f"bounds or dtype ({shown}): {hint}"
+            )

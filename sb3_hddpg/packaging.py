@@ -30,8 +30,9 @@ from typing import Any
 
 import yaml
 
+from sb3_hddpg import __version__ as version
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.io import atomic_write_bytes, atomic_write_json
+from sb3_hddpg.io import _UMASK, atomic_write_bytes, atomic_write_json
 from sb3_hddpg.loading import LoadedPolicy
 
 #: The keys of ``results.json``: huggingface_sb3's five, then ours.
@@ -109,6 +110,9 @@ def package_policy(
         raise FileExistsError(f"{str(out_dir)!r} is not empty; pass force=True (--force) to replace it")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    # mkdtemp makes the folder private (0700); the package is meant to be shared: give it the permissions
+    # any other new folder gets (as atomic_write does for files).
+    os.chmod(staging, 0o777 & ~_UMASK)
     try:
         env = loaded.make_env()
         evaluation = evaluate(
@@ -278,7 +282,10 @@ This is {what}
 ## Usage
 
 ```bash
-pip install sb3-hddpg
+# sb3-hddpg {version} is not on the package index yet: install it from a checkout of its repository,
+pip install ./sb3-hddpg                                  # (add extras: "./sb3-hddpg[render]")
+# or from the wheel built there with `python -m build` (dist/sb3_hddpg-{version}-py3-none-any.whl):
+pip install sb3_hddpg-{version}-py3-none-any.whl
 hddpg-cli evaluate {model_file} --episodes 20
 hddpg-cli record {model_file} --out replay.gif
 ```

@@ -16,7 +16,8 @@ bundle and ``results.json``::
       zoo/                    the workers and flat DDPG in RL Zoo's layout (rl_zoo3.enjoy -f RUN/zoo)
       results.json            every method's metrics on the shared seeds, budget, timings, versions
       comparison.png  learning_curves.png  selection.png  hierarchy.gif
-      evaluations/  tensorboard/  checkpoints/  best/
+      evaluations/  tensorboard/  best/
+      checkpoints/            each agent's last model (its replay buffer too with keep_checkpoints)
 """
 
 from __future__ import annotations
@@ -189,6 +190,7 @@ def _train_job(
     seed: int,
     eval_freq: int,
     eval_episodes: int,
+    keep_checkpoints: bool = False,
 ) -> dict[str, Any]:
     """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
     from sb3_hddpg import training
@@ -201,6 +203,7 @@ def _train_job(
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
         extra_callbacks=[_ProgressReporter(name)],
+        keep_checkpoints=keep_checkpoints,
     )
     if kind == "worker":
         manifest = training.train_workers(run_dir, workers=[name], **common)  # type: ignore[arg-type]
@@ -232,6 +235,7 @@ def train_flat_baseline(
     eval_freq: int = 5000,
     eval_episodes: int = 5,
     extra_callbacks: Any = (),
+    keep_checkpoints: bool = False,
 ) -> dict[str, Any]:
     """
     The single-DDPG baseline: a plain SB3 DDPG on ``hddpg/SnakeReach-v0`` (both terms, normalised and
@@ -246,6 +250,7 @@ def train_flat_baseline(
     :param eval_freq: steps between evaluations.
     :param eval_episodes: episodes per evaluation.
     :param extra_callbacks: more SB3 callbacks.
+    :param keep_checkpoints: keep the finished run's replay buffer (see :func:`~sb3_hddpg.training.train_agent`).
     :return: the manifest entry written.
     """
     from stable_baselines3 import DDPG
@@ -265,6 +270,7 @@ def train_flat_baseline(
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
         extra_callbacks=list(extra_callbacks),
+        keep_checkpoints=keep_checkpoints,
     )
     entry = {
         "name": name,
@@ -372,6 +378,7 @@ def run_quickstart(
     seed: int = 0,
     processes: int = 2,
     observer: QuickstartObserver | None = None,
+    keep_checkpoints: bool = False,
 ) -> QuickstartResult:
     """
     Train both workers, the manager and the baselines, compare them on the same seeds and write everything
@@ -382,6 +389,9 @@ def run_quickstart(
     :param seed: training seed of every agent (evaluation seeds are the library's fixed ones).
     :param processes: training processes at a time (2: the workers side by side, then manager and flat DDPG).
     :param observer: receives progress (default: none).
+    :param keep_checkpoints: keep every agent's replay buffer in ``checkpoints/`` (about 70 MB each at the
+        ``small`` budget), so that ``hddpg-cli train-* --resume`` can extend an agent's training exactly;
+        by default only the model checkpoints stay and the run folder is about 6 MB.
     :return: the metrics, the files written and the timings.
     """
     from sb3_hddpg.loading import LoadedPolicy, load_policy
@@ -425,6 +435,7 @@ def run_quickstart(
         seed=seed,
         eval_freq=budget.eval_freq,
         eval_episodes=budget.eval_episodes,
+        keep_checkpoints=keep_checkpoints,
     )
 
     # 1. Workers, side by side. Each process writes workers/manifest.json with its own entry only; the
@@ -542,7 +553,16 @@ def run_quickstart(
         for label in ("HAM", "scripted", "random")
         if label in summaries
     }
-    files["learning_curves"] = plot_learning_curves(histories, run_dir / "learning_curves.png", references)
+    last_compare_seed = EVAL_SEED_BASE + budget.compare_episodes - 1
+    note = (
+        f"Each point: the agent at that step, mean over {budget.eval_episodes} evaluation episodes (seeds "
+        f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + budget.eval_episodes - 1}). Horizontal lines and the printed "
+        f"table: {budget.compare_episodes} episodes (seeds {EVAL_SEED_BASE}..{last_compare_seed}); the table "
+        "scores each agent's saved (best-evaluated) model, so its HDDPG row need not equal the manager's last point."
+    )
+    files["learning_curves"] = plot_learning_curves(
+        histories, run_dir / "learning_curves.png", references, note=note
+    )
     files["comparison"] = plot_comparison(
         summaries,
         run_dir / "comparison.png",

@@ -50,7 +50,9 @@ def test_workers_manager_evaluate_end_to_end(tmp_path):
     report = json.loads((tmp_path / "eval.json").read_text())
     assert report["kind"] == "hierarchy" and report["summary"]["episodes"] == 2
     assert sum(report["summary"]["selection_rate"].values()) == pytest.approx(1.0)
-    assert "selection_rate: " in result.stdout
+    # Words and one unit per quantity, not raw keys and fractions mixed with percentages.
+    assert "steps run by the goal worker" in result.stdout and "% of steps" in result.stdout
+    assert "selection_rate" not in result.stdout and "goal_touch_rate" not in result.stdout
     # A worker zip evaluates through the manifest beside it (safe load, no --trust needed).
     run_cli("evaluate", tmp_path / "w" / "workers" / "goal.zip", "--episodes", "1", check=True)
     # An output folder with results is refused without --force/--resume.

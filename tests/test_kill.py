@@ -50,16 +50,22 @@ def state_mtime(state: Path) -> int:
         return 0
 
 
-def check_checkpoint(checkpoints: Path) -> int:
-    """The state file names complete, loadable files; returns the steps it records."""
+def check_checkpoint(checkpoints: Path, finished: bool = False) -> int:
+    """
+    The state file names complete, loadable files; returns the steps it records. A finished run's
+    checkpoint holds the model only (its replay buffer is dropped); an interrupted one's holds both.
+    """
     state_path = checkpoints / "state.json"
     if not state_path.exists():
         return 0
     state = json.loads(state_path.read_text())
     model = DDPG.load(checkpoints / state["model"], device="cpu")  # our own file: the full loader is fine
     assert model.num_timesteps == state["num_timesteps"]
-    model.load_replay_buffer(checkpoints / state["replay_buffer"])
-    assert model.replay_buffer.size() > 0
+    if finished:
+        assert state["replay_buffer"] is None and not list(checkpoints.glob("*.pkl"))
+    else:
+        model.load_replay_buffer(checkpoints / state["replay_buffer"])
+        assert model.replay_buffer.size() > 0
     return state["num_timesteps"]
 
 
@@ -134,7 +140,7 @@ def test_sigkill_at_any_moment_leaves_a_loadable_checkpoint_and_resume_finishes(
     assert "goal" in result.stdout
     manifest = json.loads((out / "workers" / "manifest.json").read_text())
     assert manifest["workers"]["goal"]["timesteps_trained"] == TOTAL
-    assert check_checkpoint(checkpoints) == TOTAL
+    assert check_checkpoint(checkpoints, finished=True) == TOTAL
     assert temporaries(out) == [], temporaries(out)
     # And the result is usable: the worker evaluates through its manifest.
     run_cli("evaluate", out / "workers" / "goal.zip", "--episodes", "1", check=True)
@@ -195,7 +201,7 @@ def test_train_manager_survives_sigkill_and_resume_writes_a_verified_bundle(tmp_
     assert not (out / "hierarchy.zip").exists()  # nothing final was written by a killed run
 
     run_cli(*args, "--resume", check=True)
-    assert check_checkpoint(checkpoints) == TOTAL
+    assert check_checkpoint(checkpoints, finished=True) == TOTAL
     assert temporaries(out) == []
     hierarchy = Hierarchy.load(out / "hierarchy.zip")  # every member's sha256 verified
     # The bundle holds the resumed run's final manager: the weights of the last checkpoint.

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import os
 
 import gymnasium as gym
 import imageio.v2 as imageio_v2
@@ -16,7 +17,12 @@ import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.hierarchy import Hierarchy, SelectionConfig
 from sb3_hddpg.loading import load_policy
 from sb3_hddpg.media import StepRecorder, record_video
-from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
+from sb3_hddpg.media.figures import (
+    plot_comparison,
+    plot_learning_curves,
+    plot_selection_timeline,
+    step_axis_label,
+)
 from sb3_hddpg.media.overlay import PANEL_HEIGHT, WORKER_COLOURS
 from sb3_hddpg.media.trace import trace_episodes
 from sb3_hddpg.packaging import RESULTS_KEYS, package_policy, write_zoo_layout
@@ -110,6 +116,7 @@ def test_figures_decode(bundle, tmp_path):
             },
             tmp_path / "curves.png",
             references={"random": 1.5},
+            note="Each point: 5 evaluation episodes. The table: 20 episodes.",
         ),
         plot_comparison({"HDDPG": {**result.summary(), "std_reach_reward": 1.0}}, tmp_path / "cmp.png"),
         # A switch without probabilities (HAM) still gets its timeline.
@@ -123,6 +130,10 @@ def test_figures_decode(bundle, tmp_path):
         with Image.open(path) as image:
             image.verify()
             assert image.format == "PNG" and image.size[0] > 300
+    # The black separators are mentioned only where a figure has them (two episodes or more).
+    assert "2 episodes" in step_axis_label(records) and "black lines" in step_axis_label(records)
+    first = [r for r in records if r.episode == records[0].episode]
+    assert step_axis_label(first) == "step of the episode"
 
 
 def test_cli_record_and_plot_selection(bundle, tmp_path):
@@ -179,6 +190,13 @@ def test_package_sb3_zip(tmp_path):
     assert (out / f"{name}.zip").is_file() and (out / name / "data").is_file()
     assert json.loads((out / "config.json").read_text()) == json.loads((out / name / "data").read_text())
     assert _front_matter((out / "README.md").read_text())["model-index"][0]["name"] == "DDPG"
+    # The card installs from a checkout or a wheel: sb3-hddpg is not on the package index.
+    card = (out / "README.md").read_text()
+    assert "pip install sb3-hddpg\n" not in card and "py3-none-any.whl" in card
+    # A package is for sharing: the folder gets the umask's permissions like any new folder, not 0700.
+    umask = os.umask(0)
+    os.umask(umask)
+    assert out.stat().st_mode & 0o777 == 0o777 & ~umask
 
 
 def test_zoo_layout_names(tmp_path):

@@ -65,6 +65,14 @@ def test_bundle_and_models_load(run):
     assert DDPG.load(out / "zoo" / "ddpg" / "hddpg-SnakeReach-v0_1" / "hddpg-SnakeReach-v0.zip")
 
 
+def test_a_finished_run_keeps_models_and_drops_replay_buffers(run):
+    out, _ = run
+    assert list(out.rglob("*.pkl")) == []
+    for agent in ("goal", "avoid", "manager", "flat-ddpg"):
+        state = json.loads((out / "checkpoints" / agent / "state.json").read_text())
+        assert state["replay_buffer"] is None and (out / "checkpoints" / agent / state["model"]).is_file()
+
+
 def test_refuses_to_overwrite(run):
     out, _ = run
     again = run_cli("quickstart", "--budget", "tiny", "--out", out)

@@ -42,13 +42,19 @@ class ResumableCheckpointCallback(BaseCallback):
             self.save()
         return True
 
-    def save(self) -> Path:
-        """Write a checkpoint of the current model and replay buffer now; return the state file's path."""
+    def save(self, replay_buffer: bool = True) -> Path:
+        """
+        Write a checkpoint of the current model and replay buffer now; return the state file's path.
+
+        :param replay_buffer: also write the replay buffer (``buffer_size`` transitions, tens of MB at our
+            configs' sizes). Without it the checkpoint still resumes, from the model with an empty buffer;
+            a finished run drops it this way (the older checkpoint's buffer is removed as usual).
+        """
         steps = int(self.num_timesteps)
         self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
         model_name, buffer_name = f"model_{steps}.zip", f"replay_buffer_{steps}.pkl"
         atomic_write(self.checkpoint_dir / model_name, lambda tmp: self.model.save(tmp))
-        if getattr(self.model, "replay_buffer", None) is not None:
+        if replay_buffer and getattr(self.model, "replay_buffer", None) is not None:
             atomic_write(self.checkpoint_dir / buffer_name, lambda tmp: self.model.save_replay_buffer(tmp))
         else:
             buffer_name = None

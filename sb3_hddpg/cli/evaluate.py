@@ -55,20 +55,18 @@ def evaluate_command(
     with usage_errors("'--env'"):
         env = loaded.make_env(env_id)
     result = evaluate(loaded.policy, env, n_episodes=episodes, seed=seed, deterministic=deterministic)
+    from sb3_hddpg.metric_labels import summary_rows
+
     summary = result.summary()
     table = Table(
-        title=f"{loaded.kind} {loaded.name!r} on {env_id or loaded.env_id}: {episodes} episodes from seed {seed}"
+        title=f"{loaded.kind} {loaded.name!r} on {env_id or loaded.env_id}: mean over {episodes} episodes, "
+        f"seeds {seed}..{seed + episodes - 1} (± standard deviation across episodes)"
     )
-    table.add_column("metric")
+    table.add_column("quantity")
     table.add_column("value", justify="right")
-    for key, value in summary.items():
-        if isinstance(value, dict):
-            for name, rate in value.items():
-                table.add_row(f"{key}: {name}", f"{rate:.1%}")
-        elif isinstance(value, float):
-            table.add_row(key, f"{value:.3f}")
-        else:
-            table.add_row(key, str(value))
+    table.add_column("unit")
+    for label, value, unit in summary_rows(summary):
+        table.add_row(label, value, unit)
     console.print(table)
     if json_path is not None:
         payload = {

@@ -51,31 +51,32 @@ class _RichObserver(QuickstartObserver):
 
 
 def comparison_table(result: QuickstartResult) -> Table:
-    """The methods on the shared seeds, one row each."""
+    """The methods on the shared seeds, one row each, each column in one unit."""
+    from sb3_hddpg.evaluation import EVAL_SEED_BASE
+    from sb3_hddpg.metric_labels import SELECTION_LABEL, metric_label
+
     summary = next(iter(result.summaries.values()))
-    table = Table(title=f"hddpg/SnakeReach-v0, {summary['episodes']} episodes per method on the same seeds")
-    for column in (
-        "method",
-        "reach reward",
-        "goal touch",
-        "collisions/ep",
-        "success",
-        "min clearance",
-        "worker use",
-        "train steps",
-    ):
-        table.add_column(column, justify="left" if column in ("method", "worker use") else "right")
-    for label, s in result.summaries.items():
+    episodes = summary["episodes"]
+    table = Table(
+        title=f"hddpg/SnakeReach-v0: each method's saved model, mean ± std over the same {episodes} episodes "
+        f"(seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + episodes - 1})"
+    )
+    # The closest approach to an obstacle is in results.json; the table keeps to what fits a terminal.
+    keys = ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode", "success_rate")
+    table.add_column("method")
+    for key in keys:
+        table.add_column(metric_label(key).column, justify="right")
+    table.add_column(SELECTION_LABEL.column)
+    table.add_column("train steps", justify="right")
+    for name, s in result.summaries.items():
+        cells = [metric_label(key).format(s[key]) for key in keys]
+        cells[0] += f" ± {metric_label(keys[0]).format(s['std_reach_reward'])}"
         rates = s.get("selection_rate", {})
-        steps = result.methods[label]["train_timesteps"]
+        steps = result.methods[name]["train_timesteps"]
         table.add_row(
-            label,
-            f"{s['mean_reach_reward']:.1f} ± {s['std_reach_reward']:.1f}",
-            f"{s['goal_touch_rate']:.1%}",
-            f"{s['collisions_per_episode']:.1f}",
-            f"{s['success_rate']:.0%}",
-            f"{s['min_clearance']:.3f}",
-            " / ".join(f"{n} {r:.0%}" for n, r in rates.items()) or "-",
+            name,
+            *cells,
+            " / ".join(f"{n} {100 * r:.0f}" for n, r in rates.items()) or "-",
             f"{steps:,}" if steps else "-",
         )
     return table
@@ -94,6 +95,12 @@ def quickstart_command(
     processes: int = typer.Option(
         2, "--processes", callback=at_least(1), help="Agents trained at a time, one process each."
     ),
+    keep_checkpoints: bool = typer.Option(
+        False,
+        "--keep-checkpoints",
+        help="Keep every agent's replay buffer in RUN/checkpoints/ (about 275 MB in all at --budget small) "
+        "so that train-* --resume can extend an agent exactly; by default the run folder is about 6 MB.",
+    ),
 ) -> None:
     """Train both workers, a manager, a flat DDPG (and HAM), compare them on the same seeds, save everything."""
     if budget not in BUDGETS:
@@ -110,7 +117,14 @@ def quickstart_command(
         transient=False,
     ) as progress:
         observer = _RichObserver(progress)
-        result = run_quickstart(out, budget=budget, seed=seed, processes=processes, observer=observer)
+        result = run_quickstart(
+            out,
+            budget=budget,
+            seed=seed,
+            processes=processes,
+            observer=observer,
+            keep_checkpoints=keep_checkpoints,
+        )
         observer.finish()
     console.print(comparison_table(result))
     if not result.ham_available:

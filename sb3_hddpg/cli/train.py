@@ -29,32 +29,39 @@ CHECKPOINT_HELP = (
     "Steps between resumable checkpoints (0: only on Ctrl-C/SIGTERM and at the end); "
     "a SIGKILL loses at most this many steps."
 )
+KEEP_CHECKPOINTS_HELP = (
+    "After a successful run, keep the replay buffer in OUT/checkpoints/ (about 70 MB per agent at the "
+    "bundled buffer_size) so that --resume with a larger --timesteps continues exactly; by default only "
+    "the model checkpoint stays (resuming it refills the buffer first)."
+)
 
 
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
-    """A rich table of evaluation summaries, one row per agent."""
+    """A rich table of evaluation summaries, one row per agent, each column in one unit."""
+    from sb3_hddpg.metric_labels import metric_label
+
+    keys = (
+        "mean_reward",
+        "goal_touch_rate",
+        "collisions_per_episode",
+        "success_rate",
+        "min_clearance",
+        # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
+        "action_saturation",
+    )
     table = Table(title=title)
-    for column in (
-        "agent",
-        "mean reward",
-        "goal touch",
-        "collisions/ep",
-        "success",
-        "min clearance",
-        "saturated",
-    ):
-        table.add_column(column, justify="left" if column == "agent" else "right")
+    table.add_column("agent")
+    for key in keys:
+        table.add_column(metric_label(key).column, justify="right")
     for name, s in rows.items():
-        table.add_row(
-            name,
-            f"{s['mean_reward']:.1f} ± {s['std_reward']:.1f}",
-            f"{s['goal_touch_rate']:.1%}",
-            f"{s['collisions_per_episode']:.1f}",
-            f"{s['success_rate']:.0%}",
-            f"{s['min_clearance']:.3f}",
-            # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
-            f"{s['action_saturation']:.0%}" if "action_saturation" in s else "-",
-        )
+        cells = []
+        for key in keys:
+            label = metric_label(key)
+            cell = label.format(s[key]) if key in s else "-"
+            if key == "mean_reward" and "std_reward" in s:
+                cell += f" ± {label.format(s['std_reward'])}"
+            cells.append(cell)
+        table.add_row(name, *cells)
     return table
 
 
@@ -95,6 +102,7 @@ def train_workers_command(
         1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
     ),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
     from sb3_hddpg.training import TrainingInterrupted, train_workers, worker_hyperparams
@@ -132,6 +140,7 @@ def train_workers_command(
             progress_bar=progress,
             threads=threads,
             on_worker_done=done,
+            keep_checkpoints=keep_checkpoints,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
@@ -206,6 +215,7 @@ def train_manager_command(
     trust: bool = typer.Option(
         False, "--trust", help="Load the workers with SB3's full loader (runs code in the files)."
     ),
+    keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
     from sb3_hddpg.selection import SELECTION_MODES, parse_preferences
@@ -254,6 +264,7 @@ def train_manager_command(
             progress_bar=progress,
             threads=threads,
             trusted=trust,
+            keep_checkpoints=keep_checkpoints,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
@@ -263,5 +274,7 @@ def train_manager_command(
     )
     rates = outcome.metrics.get("selection_rate", {})
     if rates:
-        console.print("Worker choices: " + ", ".join(f"{n} {r:.0%}" for n, r in rates.items()))
+        console.print(
+            "Worker choices (% of steps): " + ", ".join(f"{n} {100 * r:.0f}" for n, r in rates.items())
+        )
     console.print(f"Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}")

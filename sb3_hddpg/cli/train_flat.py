@@ -8,7 +8,7 @@ import typer
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import at_least, prepare_out_dir, usage_errors
-from sb3_hddpg.cli.train import metrics_table
+from sb3_hddpg.cli.train import KEEP_CHECKPOINTS_HELP, metrics_table
 from sb3_hddpg.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted
 
 
@@ -45,6 +45,7 @@ def train_flat_command(
         1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
     ),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
     from sb3_hddpg.training import train_flat
@@ -76,6 +77,7 @@ def train_flat_command(
             eval_episodes=eval_episodes,
             progress_bar=progress,
             threads=threads,
+            keep_checkpoints=keep_checkpoints,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")

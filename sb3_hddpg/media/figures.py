@@ -36,6 +36,14 @@ def _pyplot() -> Any:
     return plt
 
 
+def step_axis_label(records: Sequence[StepRecord]) -> str:
+    """The timeline's x label: it mentions the black episode separators only when there are some."""
+    n_episodes = len({r.episode for r in records})
+    if n_episodes == 1:
+        return "step of the episode"
+    return f"step ({n_episodes} episodes one after another; black lines separate them)"
+
+
 def plot_selection_timeline(
     records: Sequence[StepRecord],
     path: str | Path,
@@ -118,7 +126,7 @@ def plot_selection_timeline(
         bottom.axhline(touch_radius, color=_colour("goal"), lw=0.8, ls="--")
         bottom.annotate("touch radius", (0, touch_radius), fontsize=7, va="bottom", color=_colour("goal"))
     bottom.set_ylabel("distance\nto goal")
-    bottom.set_xlabel("step (episodes one after another; black lines separate them)")
+    bottom.set_xlabel(step_axis_label(records))
     bottom.set_xlim(-0.5, len(records) - 0.5)
     if title:
         fig.suptitle(title)
@@ -132,6 +140,7 @@ def plot_learning_curves(
     references: Mapping[str, float] | None = None,
     metric: str = "mean_reach_reward",
     title: str = "",
+    note: str = "",
 ) -> Path:
     """
     The evaluation metric of each trained agent against its own training steps, with horizontal lines for
@@ -142,8 +151,12 @@ def plot_learning_curves(
     :param references: name -> the metric's value.
     :param metric: the history key to plot; ``mean_reach_reward`` is comparable across agents.
     :param title: the figure's title.
+    :param note: printed under the plot: what each point and line is measured on (episodes, seeds), so
+        that a reader does not expect the last point to equal a table measured on other episodes.
     :return: the path written.
     """
+    from sb3_hddpg.metric_labels import metric_label
+
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
     palette = ["#1f77b4", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
@@ -158,11 +171,13 @@ def plot_learning_curves(
     for j, (name, value) in enumerate((references or {}).items()):
         ax.axhline(value, ls=("--", ":", "-.")[j % 3], lw=1, color="#555555", label=name)
     ax.set_xlabel("training steps of that agent")
-    ax.set_ylabel(metric.replace("_", " "))
+    ax.set_ylabel(metric_label(metric).header)
     ax.legend(fontsize=8, loc="best")
     ax.grid(alpha=0.3)
     ax.set_title(title or "Evaluation during training (same metric for every agent)")
     fig.tight_layout()
+    if note:
+        fig.text(0.01, -0.01, note, fontsize=7.5, color="#444444", va="top", wrap=True)
     return _save(fig, path)
 
 
@@ -180,13 +195,17 @@ def plot_comparison(summaries: Mapping[str, Mapping[str, Any]], path: str | Path
     names = list(summaries)
     y = np.arange(len(names))[::-1]
     fig, axes = plt.subplots(1, 3, figsize=(11, 0.45 * len(names) + 1.6), sharey=True)
+    from sb3_hddpg.metric_labels import metric_label
+
     panels = (
-        ("mean_reach_reward", "reach reward (higher is better)", "#1f77b4"),
-        ("goal_touch_rate", "goal-touch rate", _colour("goal")),
-        ("collisions_per_episode", "collision steps / episode", _colour("avoid")),
+        ("mean_reach_reward", f"{metric_label('mean_reach_reward').header}, higher is better", "#1f77b4"),
+        ("goal_touch_rate", metric_label("goal_touch_rate").header, _colour("goal")),
+        ("collisions_per_episode", metric_label("collisions_per_episode").header, _colour("avoid")),
     )
     for ax, (key, label, colour) in zip(axes, panels):
-        values = [summaries[n][key] for n in names]
+        # One unit per quantity, as in the printed tables: rates in percent.
+        scale = 100.0 if metric_label(key).percent else 1.0
+        values = [scale * summaries[n][key] for n in names]
         if key == "mean_reach_reward":
             # Every method earns most of the reward by existing: dots with std bars on a zoomed axis show the
             # differences that bars from zero would hide.
@@ -197,8 +216,6 @@ def plot_comparison(summaries: Mapping[str, Mapping[str, Any]], path: str | Path
             ax.barh(y, values, color=colour, alpha=0.8)
         ax.set_title(label, fontsize=10)
         ax.grid(axis="x", alpha=0.3)
-        if key == "goal_touch_rate":
-            ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:.0%}"))
     axes[0].set_yticks(y, names)
     if title:
         fig.suptitle(title)

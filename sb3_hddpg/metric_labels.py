@@ -1,0 +1,123 @@
+"""
+How evaluation metrics are named and shown to people: words instead of keys, one unit per quantity.
+
+:meth:`~sb3_hddpg.evaluation.EvaluationResult.summary` keeps rates as fractions (0..1) for programs; every
+printed table shows them as percentages of what they count (steps, episodes, actor outputs), with the
+unit in its own column or header, so that no table mixes ``0.070`` with ``99.4%``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class MetricLabel:
+    """
+    :param label: the quantity in words.
+    :param unit: its unit as printed (``""``: a count or a plain number).
+    :param percent: the value is a fraction, shown as a percentage.
+    :param digits: decimals shown.
+    :param short: a shorter name for table columns (default: ``label``).
+    """
+
+    label: str
+    unit: str
+    percent: bool = False
+    digits: int = 1
+    short: str = ""
+
+    def format(self, value: float) -> str:
+        """The value in this quantity's unit, without the unit."""
+        return f"{100 * value:.{self.digits}f}" if self.percent else f"{value:.{self.digits}f}"
+
+    @property
+    def header(self) -> str:
+        """The short name with its unit, for an axis or a column."""
+        name = self.short or self.label
+        return f"{name} ({self.unit})" if self.unit else name
+
+    @property
+    def column(self) -> str:
+        """The short name over its unit: a narrow two-line column header."""
+        name = self.short or self.label
+        return f"{name}\n({self.unit})" if self.unit else name
+
+
+#: Summary key -> how it is shown. Keys not listed are shown by name, with three decimals.
+METRIC_LABELS: dict[str, MetricLabel] = {
+    "mean_reward": MetricLabel("reward (the env's own)", "per episode", short="reward"),
+    "mean_reach_reward": MetricLabel(
+        "reach reward (normalised goal + avoid)", "per episode", short="reach reward"
+    ),
+    "mean_goal_reward": MetricLabel("goal reward", "per episode"),
+    "mean_avoid_reward": MetricLabel("avoid reward", "per episode"),
+    # Rates of steps matter at one decimal (3.0 % against 0.1 % goal touch).
+    "goal_touch_rate": MetricLabel("touching the goal", "% of steps", percent=True, short="goal touch"),
+    "goal_reached_rate": MetricLabel("goal touched at least once", "% of episodes", percent=True, digits=0),
+    "collisions_per_episode": MetricLabel("steps touching an obstacle", "per episode", short="contact steps"),
+    "success_rate": MetricLabel(
+        "success: goal touched, no contact", "% of episodes", percent=True, digits=0, short="success"
+    ),
+    "min_clearance": MetricLabel(
+        "min clearance to an obstacle", "arm lengths", digits=3, short="min clearance"
+    ),
+    "action_saturation": MetricLabel(
+        "actor outputs pinned at ±1", "% of outputs", percent=True, digits=0, short="saturated"
+    ),
+    "mean_length": MetricLabel("episode length", "steps", digits=0),
+}
+
+#: How one worker's share of the steps (``selection_rate``) is shown.
+SELECTION_LABEL = MetricLabel(
+    "steps run by the {name} worker", "% of steps", percent=True, digits=1, short="worker use"
+)
+
+
+def metric_label(key: str) -> MetricLabel:
+    """How ``key`` is shown (a plain-words fallback for keys without an entry)."""
+    return METRIC_LABELS.get(key, MetricLabel(key.replace("_", " "), "", digits=3))
+
+
+def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
+    """
+    An evaluation summary as ``(quantity, value, unit)`` rows: the reward with its spread across episodes,
+    rates as percentages, each worker's share of the steps.
+
+    :param summary: :meth:`~sb3_hddpg.evaluation.EvaluationResult.summary`.
+    :return: the rows, in the summary's order.
+    """
+    rows: list[tuple[str, str, str]] = []
+    for key, value in summary.items():
+        if key in ("episodes", "std_reward", "std_reach_reward"):
+            continue  # the episodes are in the title; a std is shown with its mean
+        if key == "selection_rate" and isinstance(value, Mapping):
+            for name, rate in value.items():
+                rows.append(
+                    (
+                        SELECTION_LABEL.label.format(name=name),
+                        SELECTION_LABEL.format(rate),
+                        SELECTION_LABEL.unit,
+                    )
+                )
+            continue
+        if isinstance(value, Mapping):
+            for name, item in value.items():
+                rows.append((f"{key.replace('_', ' ')}: {name}", _plain(item), ""))
+            continue
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            rows.append((key.replace("_", " "), str(value), ""))
+            continue
+        label = metric_label(key)
+        shown = label.format(value)
+        spread = {"mean_reward": "std_reward", "mean_reach_reward": "std_reach_reward"}.get(key)
+        if spread in summary:
+            shown += f" ± {label.format(summary[spread])}"
+        rows.append((label.label, shown, label.unit))
+    return rows
+
+
+def _plain(value: Any) -> str:
+    return f"{value:.3f}" if isinstance(value, float) else str(value)

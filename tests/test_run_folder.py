@@ -1,0 +1,45 @@
+"""A finished run keeps its models and drops its replay buffers, unless asked to keep them."""
+
+from __future__ import annotations
+
+import json
+
+from stable_baselines3 import DDPG
+
+from sb3_hddpg.training import train_workers
+from tests.test_bad_input import TINY_CONFIG
+
+RUN = {"workers": ["goal"], "eval_freq": 0, "eval_episodes": 1, "checkpoint_freq": 100}
+
+
+def _checkpoint(out):
+    folder = out / "checkpoints" / "goal"
+    return json.loads((folder / "state.json").read_text()), sorted(p.name for p in folder.iterdir())
+
+
+def test_a_finished_run_drops_the_buffer_and_still_resumes_to_a_larger_budget(tmp_path):
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    train_workers(tmp_path / "run", config=config, timesteps=300, **RUN)
+    state, files = _checkpoint(tmp_path / "run")
+    assert state["num_timesteps"] == 300 and state["replay_buffer"] is None
+    assert files == ["model_300.zip", "state.json"]  # the 100- and 200-step checkpoints' buffers are gone too
+    assert (tmp_path / "run" / "workers" / "goal.zip").is_file()
+
+    # Resuming the finished run with a larger budget continues from its model, refilling the buffer
+    # (learning_starts fresh steps) before the first update.
+    manifest = train_workers(tmp_path / "run", config=config, timesteps=450, resume=True, **RUN)
+    assert manifest["workers"]["goal"]["timesteps_trained"] == 450
+    resumed = DDPG.load(tmp_path / "run" / "checkpoints" / "goal" / "model_450.zip", device="cpu")
+    assert resumed.learning_starts == 300 + 100
+
+
+def test_keep_checkpoints_keeps_the_buffer(tmp_path):
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    train_workers(tmp_path / "run", config=config, timesteps=300, keep_checkpoints=True, **RUN)
+    state, files = _checkpoint(tmp_path / "run")
+    assert files == ["model_300.zip", "replay_buffer_300.pkl", "state.json"]
+    model = DDPG.load(tmp_path / "run" / "checkpoints" / "goal" / state["model"], device="cpu")
+    model.load_replay_buffer(tmp_path / "run" / "checkpoints" / "goal" / state["replay_buffer"])
+    assert model.replay_buffer.size() == 300
