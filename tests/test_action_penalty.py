@@ -46,6 +46,29 @@ def test_penalty_shrinks_a_saturating_actor():
     assert magnitudes[50.0] < 0.5 * magnitudes[0.0], magnitudes
 
 
+def test_penalty_in_sbx_adds_exactly_its_term_to_the_actor_loss_and_is_removable():
+    sbx = pytest.importorskip("sbx")
+    import jax
+
+    model = sbx.DDPG("MlpPolicy", gym.make("Pendulum-v1"), policy_kwargs={"net_arch": [8]}, seed=0)
+    observations = np.stack([model.observation_space.sample() for _ in range(32)]).astype(np.float32)
+    key = jax.random.PRNGKey(0)
+    state = model.policy.actor_state, model.policy.qf_state
+    _, _, plain_loss, _ = type(model).update_actor(*state, observations, key)
+    for _ in range(2):  # idempotent
+        apply_action_l2(model, 0.5)
+    assert isinstance(model, sbx.DDPG) and type(model) is not sbx.DDPG
+    assert type(model).__module__.startswith("sbx")  # still told apart from SB3 models by module
+    _, _, penalised_loss, _ = type(model).update_actor(*state, observations, key)
+    actions = np.asarray(model.policy.actor_state.apply_fn(model.policy.actor_state.params, observations))
+    assert float(penalised_loss) - float(plain_loss) == pytest.approx(
+        0.5 * float((actions**2).mean()), rel=1e-4
+    )
+    model.learn(150)  # trains with the penalised update
+    apply_action_l2(model, 0.0)
+    assert type(model) is sbx.DDPG
+
+
 def test_penalty_refuses_algorithms_without_a_deterministic_actor():
     with pytest.raises(ValueError, match="DDPG and TD3"):
         apply_action_l2(_model(SAC), 0.1)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -62,6 +63,10 @@ def apply_action_l2(model: Any, coefficient: float) -> None:
     :param model: an SB3 ``DDPG`` or ``TD3`` (or a subclass).
     :param coefficient: the penalty's weight (0 removes it).
     """
+    if _is_sbx_td3(model):
+        base = getattr(type(model), "_action_l2_base", type(model))
+        model.__class__ = base if coefficient == 0 else _penalised_sbx_class(base, float(coefficient))
+        return
     if not isinstance(model, TD3):
         raise ValueError(
             f"The action_l2 penalty applies to DDPG and TD3 actors, not {type(model).__name__} "
@@ -78,3 +83,41 @@ def apply_action_l2(model: Any, coefficient: float) -> None:
 
     critic.q1_forward = penalised_q1
     setattr(critic, _MARK, original)
+
+
+def _is_sbx_td3(model: Any) -> bool:
+    """Whether ``model`` is SBX's (JAX) TD3 or DDPG, without importing SBX when it is not in use."""
+    import sys
+
+    sbx = sys.modules.get("sbx")
+    return sbx is not None and isinstance(model, sbx.TD3)
+
+
+@functools.cache
+def _penalised_sbx_class(base: type, coefficient: float) -> type:
+    """
+    ``base`` (SBX's TD3 or DDPG) with the penalty in its jitted actor update. SBX's ``_train`` calls
+    ``cls.update_actor`` with the class as a static argument, so a subclass is compiled with its own update.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    @jax.jit
+    def update_actor(actor_state: Any, qf_state: Any, observations: Any, key: Any) -> Any:
+        # SBX's TD3.update_actor with the penalty added to the loss.
+        key, dropout_key = jax.random.split(key, 2)
+
+        def actor_loss(params: Any) -> Any:
+            actions = actor_state.apply_fn(params, observations)
+            qf_pi = qf_state.apply_fn(qf_state.params, observations, actions, rngs={"dropout": dropout_key})
+            return -jnp.min(qf_pi, axis=0).mean() + coefficient * jnp.mean(actions**2)
+
+        loss, grads = jax.value_and_grad(actor_loss)(actor_state.params)
+        return actor_state.apply_gradients(grads=grads), qf_state, loss, key
+
+    # The module of the base, so that code telling SBX models from SB3 ones by module still does.
+    return type(
+        base.__name__,
+        (base,),
+        {"update_actor": staticmethod(update_actor), "_action_l2_base": base, "__module__": base.__module__},
+    )
