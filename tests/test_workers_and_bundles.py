@@ -35,7 +35,8 @@ def test_worker_zips_are_plain_sb3_and_manifest_is_complete(trained):
     for name, entry in manifest["workers"].items():
         path = root / "w" / "workers" / entry["file"]
         model = DDPG.load(path)  # nothing but SB3
-        assert model.observation_space.shape == (39,)
+        # The bundled config feeds the goal worker its 15 goal-relevant values (env kwarg observe).
+        assert model.observation_space.shape == {"goal": (15,), "avoid": (39,)}[name]
         assert entry["sha256"] == sha256_file(path)
         assert entry["env_id"] == {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}[name]
         assert entry["reward_term"] == name

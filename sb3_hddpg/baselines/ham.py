@@ -93,9 +93,14 @@ class HAMSwitch:
         self.layout = layout
         self.threshold = float(threshold)
         self.hysteresis = float(hysteresis)
+        # The switch takes the full state: declare the spaces of a worker that sees all of it.
+        full_view = [w for n, w in self.workers.items() if n not in self._worker_indices]
         for attribute in ("observation_space", "action_space"):
-            if hasattr(goal_worker, attribute):
-                setattr(self, attribute, getattr(goal_worker, attribute))
+            if attribute == "observation_space" and not full_view:
+                continue  # no worker declares the full state's space
+            source = full_view[0] if attribute == "observation_space" else goal_worker
+            if hasattr(source, attribute):
+                setattr(self, attribute, getattr(source, attribute))
         # One flag per observation stream: whether the avoid worker is acting (hysteresis needs memory).
         self._avoiding = np.zeros(1, dtype=bool)
         self.last_selection: str | None = None

@@ -18,7 +18,8 @@ EVAL_SEED_BASE = 10_000
 @app.command("evaluate")
 def evaluate_command(
     path: str = typer.Argument(
-        ..., help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK)."
+        ...,
+        help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK).",
     ),
     env_id: str | None = typer.Option(
         None, "--env", help="Env id to evaluate on (default: the one it was trained on)."
