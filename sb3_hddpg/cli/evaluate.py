@@ -42,9 +42,19 @@ def evaluate_command(
     algo: str | None = typer.Option(
         None, "--algo", help="Algorithm of a zip without manifest (with --trust)."
     ),
+    worker: str = typer.Option(
+        "avoid",
+        "--state-worker",
+        help="For a hierarchy: the worker whose share near obstacles vs with none in range is reported.",
+    ),
+    near_clearance: float | None = typer.Option(
+        None,
+        "--near-clearance",
+        help="A choice is 'near an obstacle' at a clearance <= this (default: half the env's sensor range).",
+    ),
 ) -> None:
     """Evaluate a policy: mean reward, goal-touch rate, collisions, success, clearance (and worker choices)."""
-    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
     from sb3_hddpg.io import atomic_write_json
     from sb3_hddpg.loading import load_policy
 
@@ -54,14 +64,26 @@ def evaluate_command(
         loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
     with usage_errors("'--env'"):
         env = loaded.make_env(env_id)
-    result = evaluate(loaded.policy, env, n_episodes=episodes, seed=seed, deterministic=deterministic)
+    with usage_errors("'--near-clearance'"):
+        clearance_bands(env, near_clearance, None)
+    result = evaluate(
+        loaded.policy,
+        env,
+        n_episodes=episodes,
+        seed=seed,
+        deterministic=deterministic,
+        near_clearance=near_clearance,
+    )
     summary = result.summary()
+    dependence = state_dependence(summary, worker)
     table = Table(
         title=f"{loaded.kind} {loaded.name!r} on {env_id or loaded.env_id}: {episodes} episodes from seed {seed}"
     )
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key, value in summary.items():
+        if key in ("selections_near", "selections_clear", "near_clearance", "clear_clearance"):
+            continue  # counts behind the state-dependence rows below
         if isinstance(value, dict):
             for name, rate in value.items():
                 table.add_row(f"{key}: {name}", f"{rate:.1%}")
@@ -69,6 +91,20 @@ def evaluate_command(
             table.add_row(key, f"{value:.3f}")
         else:
             table.add_row(key, str(value))
+    if dependence is not None:
+        table.add_row(
+            f"{worker} share, clearance <= {dependence['near_clearance']:.3g}",
+            _share(dependence["near_share"], dependence["near_choices"]),
+        )
+        table.add_row(
+            f"{worker} share, clearance >= {dependence['clear_clearance']:.3g} (none in range)",
+            _share(dependence["clear_share"], dependence["clear_choices"]),
+        )
+        ratio = dependence["ratio"]
+        table.add_row(
+            f"{worker} share ratio near / none in range",
+            f"{ratio:.2f}" if ratio is not None else "undefined",
+        )
     console.print(table)
     if json_path is not None:
         payload = {
@@ -76,6 +112,12 @@ def evaluate_command(
             "kind": loaded.kind,
             "env_id": env_id or loaded.env_id,
             **result.to_dict(),
+            "state_dependence": dependence,
         }
         atomic_write_json(json_path, payload)
         console.print(f"Metrics written to {json_path}")
+
+
+def _share(share: float | None, choices: int) -> str:
+    """A share with the number of choices it is out of (``-`` when no choice fell in the band)."""
+    return f"{share:.1%} of {choices}" if share is not None else "- (0 choices)"
