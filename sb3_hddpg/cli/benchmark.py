@@ -207,6 +207,11 @@ def benchmark_command(
     out: Path = typer.Option(Path("runs/benchmark"), "--out", help="Benchmark folder."),
     resume: bool = typer.Option(False, "--resume", help="Keep finished runs and continue interrupted ones."),
     force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    export_dir: Path | None = typer.Option(
+        None,
+        "--export-models",
+        help="Afterwards copy the final models into this folder with an index.json (see export-models).",
+    ),
 ) -> None:
     """Train and evaluate every method on every seed; write results.json, evaluations.csv and plots."""
     if scenario not in SCENARIOS:
@@ -275,7 +280,34 @@ def benchmark_command(
     console.print(
         f"Wall time: {results['wall_time_s_this_invocation'] / 60:.1f} min.  Outputs in {out}: {', '.join(OUTPUT_FILES)}"
     )
+    if export_dir is not None:
+        _export(out, export_dir)
     if results["failures"]:
         for label, message in results["failures"].items():
             console.print(f"[red]failed[/] {label}: {message}")
         raise typer.Exit(1)
+
+
+def _export(run: Path, dest: Path) -> None:
+    from sb3_hddpg.model_export import export_models
+
+    index = export_models(run, dest)
+    console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
+
+
+@app.command("export-models")
+def export_models_command(
+    run: Path = typer.Argument(..., help="A benchmark folder (the --out of hddpg-cli benchmark)."),
+    dest: Path = typer.Argument(..., help="The folder to copy the final models into, with index.json."),
+) -> None:
+    """
+    Copy a benchmark's final models (worker zips, hierarchy bundles, ham.json, flat zips) into DEST, in the
+    benchmark's layout, with DEST/index.json: {"method", "seed", "path", "sha256"} per model.
+    """
+    with usage_errors("'RUN'"):
+        if not (run / "records").is_dir():
+            raise FileNotFoundError(f"not a benchmark folder (no records/): {str(run)!r}")
+        from sb3_hddpg.model_export import export_models
+
+        index = export_models(run, dest)
+    console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
