@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -277,3 +278,49 @@ def test_tiny_transfer_benchmark_through_the_cli(tmp_path):
     for key in ("hddpg_steps", "flat_steps"):  # an evaluation step of the run, or None (no gain over random)
         assert entry[key] is None or entry[key] in (100, 200, 300)
     assert "Transfer" in done.stdout and "Transfer:" in (out / "results.md").read_text()
+
+
+# ------------------------------------------------------------------------------------------------- export
+@pytest.mark.slow
+def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
+    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.loading import load_policy
+    from sb3_hddpg.model_export import read_index
+
+    out, models = tmp_path / "bench", tmp_path / "models"
+    methods = "hddpg,hddpg-goal,hddpg-avoid,ham,ddpg,td3,sac"
+    args = ("benchmark", "--seeds", "1", "--methods", methods, *TINY, "--n-jobs", "2", "--out", str(out))
+    done = cli(*args, "--export-models", str(models))
+    assert done.returncode == 0, done.stdout + done.stderr
+    results = json.loads((out / "results.json").read_text())
+    for name in ("td3", "sac"):  # the hierarchy's total env steps: 200 + 2 x 100
+        assert results["methods"][name]["own_timesteps"] == 400
+        assert f"hddpg vs {name}" in results["comparisons"]
+    assert "state_dependence" in results["methods"]["hddpg"] and "State dependence" in done.stdout
+
+    index = read_index(models)  # every file present and matching its sha256
+    expected = [
+        "worker:goal",
+        "worker:avoid",
+        "hddpg",
+        "hddpg-goal",
+        "hddpg-avoid",
+        "ham",
+        "ddpg",
+        "td3",
+        "sac",
+    ]
+    assert [entry["method"] for entry in index] == expected
+    assert all(entry["seed"] == 0 and not Path(entry["path"]).is_absolute() for entry in index)
+    # Re-evaluate from the export alone (the benchmark folder gone), on episodes of our own.
+    shutil.rmtree(out)
+    for entry in index:
+        loaded = load_policy(models / entry["path"])
+        env = loaded.make_env()
+        metrics = evaluate(loaded.policy, env, n_episodes=1, seed=123).summary()
+        env.close()
+        assert metrics["episodes"] == 1 and np.isfinite(metrics["mean_reach_reward"]), entry
+    # A file altered after the export is caught.
+    (models / index[0]["path"]).write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="sha256"):
+        read_index(models)

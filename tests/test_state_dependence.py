@@ -102,6 +102,6 @@ def test_the_figure_is_absent_without_worker_choices_and_bands_are_checked():
     assert state_dependence(flat) is None  # a flat policy reports no worker choices
     with pytest.raises(ValueError, match="near_clearance"):
         clearance_bands(env, -0.1, None)
-    with pytest.raises(ValueError, match="near_clearance.*<=.*clear_clearance"):
+    with pytest.raises(ValueError, match=r"near_clearance.*<=.*clear_clearance"):
         clearance_bands(env, 0.5, None)  # beyond the sensor range, where "none in range" starts
     env.close()
