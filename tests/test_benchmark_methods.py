@@ -324,3 +324,69 @@ def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
     (models / index[0]["path"]).write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="sha256"):
         read_index(models)
+
+
+def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
+    """The exporter on a benchmark folder's layout (files stand in for models: only copying is tested here)."""
+    from sb3_hddpg.model_export import export_models, read_index
+    from sb3_hddpg.training import sha256_file
+
+    run = tmp_path / "bench"
+    files = {
+        "seed-3/workers/manifest.json": "{}",
+        "seed-3/workers/goal.zip": "goal",
+        "seed-3/workers/avoid.zip": "avoid",
+        "seed-3/hddpg/hierarchy.zip": "bundle",
+        "seed-3/ham/ham.json": "ham",
+        "seed-3/td3/flat/td3.zip": "td3",
+        "seed-3/td3/flat/manifest.json": "{}",
+        "seed-3/ddpg@goal=2,avoid=1/flat/ddpg.zip": "transfer",
+        "seed-3/ddpg@goal=2,avoid=1/flat/manifest.json": "{}",
+        "seed-3/sac/flat/sac.zip": "unfinished",
+    }
+    for relative, text in files.items():
+        (run / relative).parent.mkdir(parents=True, exist_ok=True)
+        (run / relative).write_text(text)
+    records = {
+        "workers": {"workers": {"goal": {}, "avoid": {}}},
+        "hddpg": {},
+        "ham": {},
+        "td3": {},
+        "ddpg@goal=2,avoid=1": {},
+        "sac": {"status": "running"},  # not finished: not exported
+    }
+    for key, extra in records.items():
+        path = run / "records" / key / "seed-3.json"
+        path.parent.mkdir(parents=True)
+        path.write_text(json.dumps({"method": key, "seed": 3, "status": "done", **extra}))
+
+    index = export_models(run, tmp_path / "models")
+    assert (
+        json.loads((tmp_path / "models" / "index.json").read_text())
+        == index
+        == read_index(tmp_path / "models")
+    )
+    assert [(e["method"], e["path"]) for e in index] == [
+        ("worker:goal", "seed-3/workers/goal.zip"),
+        ("worker:avoid", "seed-3/workers/avoid.zip"),
+        ("hddpg", "seed-3/hddpg/hierarchy.zip"),
+        ("ham", "seed-3/ham/ham.json"),
+        ("ddpg", "seed-3/ddpg@goal=2,avoid=1/flat/ddpg.zip"),
+        ("td3", "seed-3/td3/flat/td3.zip"),
+    ]
+    assert index[4]["preference"] == "goal=2,avoid=1" and "preference" not in index[5]
+    for entry in index:
+        assert entry["sha256"] == sha256_file(run / entry["path"]) and entry["seed"] == 3
+    # What the models open through is copied beside them.
+    for relative in ("seed-3/workers/manifest.json", "seed-3/td3/flat/manifest.json"):
+        assert (tmp_path / "models" / relative).is_file()
+    assert not (tmp_path / "models" / "seed-3" / "sac").exists()
+
+    escaped = [dict(index[0], path="../bench/seed-3/workers/goal.zip")]
+    (tmp_path / "models" / "index.json").write_text(json.dumps(escaped))
+    with pytest.raises(ValueError, match="outside"):
+        read_index(tmp_path / "models")
+    with pytest.raises(ValueError, match="outside the benchmark folder"):
+        export_models(run, run / "models")
+    with pytest.raises(FileNotFoundError, match="no records"):
+        export_models(tmp_path / "models", tmp_path / "elsewhere")

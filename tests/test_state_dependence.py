@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import gymnasium as gym
@@ -105,3 +106,36 @@ def test_the_figure_is_absent_without_worker_choices_and_bands_are_checked():
     with pytest.raises(ValueError, match=r"near_clearance.*<=.*clear_clearance"):
         clearance_bands(env, 0.5, None)  # beyond the sensor range, where "none in range" starts
     env.close()
+
+
+def test_evaluate_reports_the_figure_for_a_bundle(tmp_path):
+    from stable_baselines3 import DDPG
+
+    from sb3_hddpg.wrappers import WorkerSelectionWrapper
+    from tests.cli_batch import run_batch
+
+    env = gym.make(ENV_ID)
+
+    def ddpg(env: gym.Env, seed: int) -> DDPG:
+        return DDPG("MlpPolicy", env, policy_kwargs={"net_arch": [16]}, seed=seed, device="cpu")
+
+    workers = {"goal": ddpg(env, 1), "avoid": ddpg(env, 2)}
+    config = SelectionConfig(preferences={"goal": 1.0, "avoid": 1.0}, selection="sample")
+    manager = ddpg(WorkerSelectionWrapper(env, workers, **config.wrapper_kwargs()), 3)
+    bundle = tmp_path / "hierarchy.zip"
+    Hierarchy(manager, workers, config).save(bundle)
+    env.close()
+    report, bad = run_batch(
+        [
+            ["evaluate", str(bundle), "--episodes", "2", "--json", str(tmp_path / "eval.json")],
+            ["evaluate", str(bundle), "--episodes", "1", "--near-clearance", "-1"],
+        ]
+    )
+    assert report.returncode == 0, report.stderr
+    written = json.loads((tmp_path / "eval.json").read_text())
+    figure = written["state_dependence"]
+    assert figure == state_dependence(written["summary"]) and figure["worker"] == "avoid"
+    assert figure["near_choices"] + figure["clear_choices"] <= 2 * 200
+    assert "avoid share ratio near / none in range" in report.stdout
+    assert "selections_near" not in report.stdout  # counts behind the rows, not rows of their own
+    assert bad.returncode == 2 and "near_clearance" in bad.stderr and "Traceback" not in bad.stderr

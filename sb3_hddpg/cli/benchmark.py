@@ -86,6 +86,10 @@ def comparisons_table(results: dict[str, Any]) -> Table:
     return table
 
 
+def _steps(steps: int | None) -> str:
+    return str(steps) if steps is not None else "no gain"  # the curve ended at or below the random score
+
+
 def transfer_table(results: dict[str, Any]) -> Table:
     """The transfer figure: per preference and flat method, steps to the final score's fraction and their ratio."""
     transfer = results["transfer"]
@@ -106,7 +110,10 @@ def transfer_table(results: dict[str, Any]) -> Table:
                 flat,
                 f"{comparison['seeds_with_ratio']}/{len(comparison['per_seed'])}",
                 _ci(ratio, ".2f") if ratio else "undefined",
-                ", ".join(f"{v['flat_steps']} / {v['hddpg_steps']}" for v in comparison["per_seed"].values()),
+                ", ".join(
+                    f"{_steps(v['flat_steps'])} / {_steps(v['hddpg_steps'])}"
+                    for v in comparison["per_seed"].values()
+                ),
             )
     return table
 
@@ -154,7 +161,7 @@ def benchmark_command(
         help=(
             f"One of {list(SCENARIOS)}: 'transfer' trains each seed's workers once, then per --preference a "
             "manager and each flat method from scratch on that preference's reward, and reports the ratio of "
-            "env steps each needs to reach 90 % of its final score."
+            "env steps each needs to get 90 % of the way from a random policy's score to its own final score."
         ),
     ),
     preference: list[str] | None = typer.Option(
