@@ -144,6 +144,10 @@ def tune_command(
 
     if level not in LEVELS:
         raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
+    if algo != "ddpg" and level != "flat":
+        raise typer.BadParameter(f"only applies to --level flat, not {level!r}", param_hint="'--algo'")
+    if level == "flat" and algo not in FLAT_SAMPLERS:
+        raise typer.BadParameter(f"must be one of {list(FLAT_SAMPLERS)}, got {algo!r}", param_hint="'--algo'")
     if level == "worker" and worker not in WORKER_ENV_IDS:
         raise typer.BadParameter(
             f"--level worker needs --worker among {sorted(WORKER_ENV_IDS)}, got {worker!r}",
@@ -162,10 +166,6 @@ def tune_command(
                 f"no workers manifest in {str(workers_dir)!r}; run train-workers first",
                 param_hint="'--workers'",
             )
-    if algo != "ddpg" and level != "flat":
-        raise typer.BadParameter(f"only applies to --level flat, not {level!r}", param_hint="'--algo'")
-    if level == "flat" and algo not in FLAT_SAMPLERS:
-        raise typer.BadParameter(f"must be one of {list(FLAT_SAMPLERS)}, got {algo!r}", param_hint="'--algo'")
     if level == "ham" and save_config is not None:
         raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
     if sampler not in SAMPLERS:
