@@ -1,12 +1,20 @@
 """
 The benchmark of paper Section 3.3-3.4: every method for every seed, one common metric, seed statistics.
 
-Methods (:data:`METHODS`):
+Methods are records in :data:`METHOD_REGISTRY` (:class:`Method`: name, whether it needs its seed's
+workers, how it runs, its budget, its colour); adding a method is one :func:`register_method` call. Built in:
 
 - ``hddpg``: the two workers, then a manager with equal preferences (paper Algorithm 1);
 - ``hddpg-goal`` / ``hddpg-avoid``: managers preferring one worker by ``bias`` (15 %, paper Figure 10);
 - ``ham``: the hand-written switch over the same workers (:mod:`sb3_hddpg.baselines.ham`), no training;
-- ``ddpg`` (and optionally ``td3``, ``sac``, ``tqc``): one flat agent on the combined reward.
+- ``ddpg``, ``td3``, ``sac`` (and ``tqc``): one flat agent on the combined reward, each given the
+  hierarchy's total env steps (workers + manager), configured by ``zoo_configs/<algo>.yml``.
+
+**Scenarios.** ``standard`` runs every method once per seed. ``transfer`` (the paper's "minimal learning
+period") trains each seed's workers once, then for every given preference (e.g. ``goal=2,avoid=1``) a
+manager with those factors and each flat agent from scratch on the same scalarised reward
+(:class:`~sb3_hddpg.wrappers.PreferenceReward`); :func:`transfer_results` compares the env steps each
+needs to reach 90 % of its final score. A run on a preference is the method key ``<method>@<preference>``.
 
 Workers are trained once per seed and shared by that seed's ``hddpg*`` and ``ham`` runs. Every run is an
 independent process (``n_jobs`` at a time, one torch thread each); a run's dependencies (its seed's
@@ -28,20 +36,22 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import csv
+import functools
 import json
 import logging
+import math
 import multiprocessing
 import os
 import platform
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, state_dependence
 from sb3_hddpg.io import atomic_write, atomic_write_json
 from sb3_hddpg.stats import (
     bootstrap_ci,
@@ -54,14 +64,16 @@ from sb3_hddpg.training import sigterm_as_interrupt
 
 logger = logging.getLogger(__name__)
 
-#: Every method the benchmark knows.
-METHODS = ("hddpg", "ham", "ddpg", "td3", "sac", "tqc", "hddpg-goal", "hddpg-avoid")
-#: The methods run by default: the paper's three plus the biased managers of Figure 10.
-DEFAULT_METHODS = ("hddpg", "ham", "ddpg", "hddpg-goal", "hddpg-avoid")
-#: Flat single-agent baselines (``train_flat``'s algorithms).
-FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
-#: Methods that need the seed's workers, with the worker a manager prefers (``None``: no preference).
-MANAGER_PREFERENCE = {"hddpg": None, "hddpg-goal": "goal", "hddpg-avoid": "avoid"}
+#: The pseudo-method of a seed's two workers, which the methods that need them depend on.
+WORKERS = "workers"
+#: ``standard``: every method once per seed; ``transfer``: managers and flat agents on new preferences.
+SCENARIOS = ("standard", "transfer")
+#: The preferences of the transfer scenario by default: the goal term weighted twice, then the avoid term.
+DEFAULT_TRANSFER_PREFERENCES = ("goal=2,avoid=1", "goal=1,avoid=2")
+#: The methods of the transfer scenario by default: the manager against flat DDPG.
+DEFAULT_TRANSFER_METHODS = ("hddpg", "ddpg")
+#: The share of its final score (measured from a random policy's) a run must reach in the transfer figure.
+TRANSFER_FRACTION = 0.9
 #: First seed of the final test episodes: disjoint from the learning-curve seeds ``EVAL_SEED_BASE + k``.
 TEST_SEED_BASE = EVAL_SEED_BASE + 5_000
 #: The metrics reported for the final test evaluation.
@@ -76,12 +88,88 @@ FINAL_METRICS = (
     "mean_reward",
     "action_saturation",
 )
-#: The comparisons of the paper's claims: (challenger, baseline).
-PAIRS = (("hddpg", "ddpg"), ("hddpg", "ham"), ("hddpg", "td3"), ("hddpg", "sac"), ("hddpg", "tqc"))
 #: Bumped when a record's meaning changes.
 RECORD_VERSION = 1
 #: Steps per unit of the reported learning-curve slopes.
 SLOPE_UNIT = 1000
+
+
+# ---------------------------------------------------------------------------------------------- methods
+@dataclass(frozen=True)
+class Method:
+    """
+    One benchmark method: everything the benchmark knows of it, so that a new method is one record.
+
+    :param name: its name in ``--methods`` and the results.
+    :param run: ``run(task, settings, folder) -> fields`` trains (if it learns) and evaluates the task in
+        its own process, in the seed's ``folder``, and returns the record's fields: ``history`` (the
+        learning curve, every point with ``timesteps`` and ``total_timesteps``), ``test`` (the final test
+        summary), ``worker_timesteps`` and anything else worth keeping. It must be a module-level function
+        (or a ``functools.partial`` of one) registered at import, since it runs in a spawned process.
+    :param cost: its training budget in env steps for the given settings (for scheduling).
+    :param needs_workers: it uses its seed's workers, so it runs after them.
+    :param colour: its colour in every figure (a matplotlib colour).
+    :param default: run when ``--methods`` is not given.
+    :param baseline: compared with ``hddpg`` (paired differences by seed) whenever both ran.
+    :param takes_preference: it can learn a given preference (the transfer scenario).
+    :param description: one line for the docs.
+    """
+
+    name: str
+    run: Callable[[Task, BenchmarkSettings, Path], dict[str, Any]]
+    cost: Callable[[BenchmarkSettings], int]
+    needs_workers: bool = False
+    colour: str = "tab:olive"
+    default: bool = False
+    baseline: bool = False
+    takes_preference: bool = False
+    description: str = ""
+
+
+#: Every method the benchmark knows, by name, in registration order.
+METHOD_REGISTRY: dict[str, Method] = {}
+
+
+def register_method(method: Method) -> Method:
+    """
+    Add a method to :data:`METHOD_REGISTRY` (a name may be registered once; ``@`` is reserved).
+
+    :param method: the record.
+    :return: the record.
+    """
+    if method.name in METHOD_REGISTRY or method.name == WORKERS or "@" in method.name or not method.name:
+        raise ValueError(f"Cannot register benchmark method {method.name!r}: taken or reserved")
+    METHOD_REGISTRY[method.name] = method
+    return method
+
+
+def method_key(name: str, preference: str | None = None) -> str:
+    """A run's key: the method's name, with ``@<preference>`` in the transfer scenario."""
+    return name if preference is None else f"{name}@{preference}"
+
+
+def split_key(key: str) -> tuple[str, str | None]:
+    """The method name and the preference (``None``: none) of a run's key."""
+    name, _, preference = key.partition("@")
+    return name, preference or None
+
+
+def canonical_preference(text: str) -> str:
+    """
+    A preference such as ``"goal=2, avoid=1"`` checked and written one way (``goal=2,avoid=1``: factors in
+    the given order, ``%g``), so that it names the same runs however it was typed.
+
+    :raises ValueError: naming the bad entry.
+    """
+    from sb3_hddpg.selection import parse_preferences
+
+    factors = parse_preferences(text)
+    for name, value in factors.items():
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(
+                f"Expected preference of {name!r} to be a finite number > 0, actually: {value!r}"
+            )
+    return ",".join(f"{name}={value:g}" for name, value in factors.items())
 
 
 @dataclass
@@ -89,7 +177,7 @@ class BenchmarkSettings:
     """
     What to run; stored in ``DIR/benchmark.json`` so that ``--resume`` continues the same benchmark.
 
-    :param methods: methods among :data:`METHODS`.
+    :param methods: methods among :data:`METHOD_REGISTRY`.
     :param seeds: training seeds (each method runs once per seed).
     :param timesteps: the manager's budget, in its own (env) steps.
     :param worker_timesteps: each worker's budget.
@@ -100,7 +188,10 @@ class BenchmarkSettings:
     :param test_episodes: episodes of the final test evaluation.
     :param ham_threshold: HAM's switching threshold (``None``: its default).
     :param ham_hysteresis: HAM's hysteresis.
-    :param bias: the biased managers' extra preference factor (paper: 15 %).
+    :param bias: the biased managers' extra preference factor.
+    :param scenario: ``standard`` or ``transfer`` (see the module's docstring).
+    :param preferences: the transfer scenario's preferences, e.g. ``["goal=2,avoid=1"]``; every method runs
+        once per preference and seed (empty in the standard scenario).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -114,11 +205,13 @@ class BenchmarkSettings:
     ham_threshold: float | None = None
     ham_hysteresis: float = 0.0
     bias: float = 0.15
+    scenario: str = "standard"
+    preferences: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        unknown = [m for m in self.methods if m not in METHODS]
+        unknown = [m for m in self.methods if m not in METHOD_REGISTRY]
         if unknown:
-            raise ValueError(f"Unknown methods {unknown}; choose from {list(METHODS)}")
+            raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
         if len(set(self.methods)) != len(self.methods) or not self.methods:
             raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
@@ -126,6 +219,32 @@ class BenchmarkSettings:
         for name in ("timesteps", "worker_timesteps", "eval_episodes", "test_episodes"):
             if getattr(self, name) < 1:
                 raise ValueError(f"Expected `{name}` >= 1, actually: {getattr(self, name)}")
+        if self.scenario not in SCENARIOS:
+            raise ValueError(f"Unknown scenario {self.scenario!r}; choose from {list(SCENARIOS)}")
+        if self.scenario == "standard":
+            if self.preferences:
+                raise ValueError("Preferences apply to the transfer scenario only (scenario='transfer')")
+            return
+        self.preferences = [canonical_preference(p) for p in self.preferences]
+        if not self.preferences or len(set(self.preferences)) != len(self.preferences):
+            raise ValueError(f"Expected distinct preferences, at least one, actually: {self.preferences}")
+        fixed = [m for m in self.methods if not METHOD_REGISTRY[m].takes_preference]
+        if fixed:
+            choices = [m.name for m in METHOD_REGISTRY.values() if m.takes_preference]
+            raise ValueError(
+                f"Methods {fixed} cannot learn a given preference; the transfer scenario takes {choices}"
+            )
+        if "hddpg" not in self.methods or len(self.methods) < 2:
+            raise ValueError(
+                f"The transfer scenario compares hddpg with flat agents, actually: {self.methods}"
+            )
+
+    @property
+    def method_keys(self) -> list[str]:
+        """The runs of one seed: the methods, or in the transfer scenario each method on each preference."""
+        if self.scenario == "transfer":
+            return [method_key(m, p) for p in self.preferences for m in self.methods]
+        return list(self.methods)
 
     @property
     def flat_budget(self) -> int:
@@ -147,7 +266,7 @@ class Task:
     """
     One unit of work in its own process.
 
-    :param method: a method, or ``workers`` (a seed's two workers).
+    :param method: a run's key (a method, or ``<method>@<preference>``), or ``workers`` (a seed's two workers).
     :param seed: the training seed.
     """
 
@@ -155,8 +274,21 @@ class Task:
     seed: int
 
     @property
+    def spec(self) -> Method | None:
+        """The method's record (``None`` for the workers)."""
+        return None if self.method == WORKERS else METHOD_REGISTRY[split_key(self.method)[0]]
+
+    @property
+    def preferences(self) -> dict[str, float] | None:
+        """The preference factors of a transfer run (``None``: the method's own)."""
+        from sb3_hddpg.selection import parse_preferences
+
+        preference = split_key(self.method)[1]
+        return parse_preferences(preference) if preference else None
+
+    @property
     def needs_workers(self) -> bool:
-        return self.method in MANAGER_PREFERENCE or self.method == "ham"
+        return self.spec is not None and self.spec.needs_workers
 
     @property
     def label(self) -> str:
@@ -183,13 +315,13 @@ def read_record(out: Path, task: Task) -> dict[str, Any] | None:
 
 
 def plan_tasks(settings: BenchmarkSettings) -> list[Task]:
-    """Every task of a benchmark: per seed its workers (if any method needs them) and every method."""
+    """Every task of a benchmark: per seed its workers (if any method needs them) and every run."""
     tasks = []
     for seed in settings.seeds:
-        methods = [Task(m, seed) for m in settings.methods]
-        if any(t.needs_workers for t in methods):
-            tasks.append(Task("workers", seed))
-        tasks.extend(methods)
+        runs = [Task(key, seed) for key in settings.method_keys]
+        if any(t.needs_workers for t in runs):
+            tasks.append(Task(WORKERS, seed))
+        tasks.extend(runs)
     return tasks
 
 
@@ -213,6 +345,22 @@ def _test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
         env.close()
 
 
+def _random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
+    """A random policy's evaluation on the learning-curve episodes: the floor of the transfer figure."""
+    import gymnasium as gym
+
+    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.training import FLAT_ENV_ID
+    from sb3_hddpg.workers import RandomPolicy
+
+    env = gym.make(FLAT_ENV_ID)
+    try:
+        policy = RandomPolicy(env.action_space, seed=0)
+        return evaluate(policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
+    finally:
+        env.close()
+
+
 def _workers_steps(folder: Path) -> int:
     manifest = json.loads((folder / "workers" / "manifest.json").read_text())
     return int(sum(entry["timesteps_trained"] for entry in manifest["workers"].values()))
@@ -229,8 +377,6 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
     """
     import torch
 
-    from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
-
     torch.set_num_threads(1)
     out = Path(out)
     folder = seed_dir(out, task.seed)
@@ -241,67 +387,90 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
         "seed": task.seed,
         "status": "done",
     }
-    if task.method == "workers":
-        from sb3_hddpg.training import train_workers
-
-        manifest = train_workers(
-            folder,
-            timesteps=settings.worker_timesteps,
-            seed=task.seed,
-            resume=True,  # keeps finished workers and continues an interrupted one
-            eval_freq=settings.eval_freq_for(settings.worker_timesteps),
-            eval_episodes=settings.eval_episodes,
-        )
-        record["worker_timesteps"] = _workers_steps(folder)
-        record["workers"] = {
-            name: {"timesteps": entry["timesteps_trained"], "metrics": entry["metrics"]}
-            for name, entry in manifest["workers"].items()
-        }
-        record["history"] = {
-            name: _history(folder / "evaluations" / f"{name}.json", 0) for name in manifest["workers"]
-        }
-    elif task.method in MANAGER_PREFERENCE:
-        from sb3_hddpg.training import train_manager
-
-        run_dir = folder / task.method
-        train_manager(
-            folder,
-            run_dir,
-            prefer=MANAGER_PREFERENCE[task.method],
-            bias=settings.bias,
-            timesteps=settings.timesteps,
-            seed=task.seed,
-            resume=read_checkpoint_state(run_dir / "checkpoints" / "manager") is not None,
-            eval_freq=settings.eval_freq_for(settings.timesteps),
-            eval_episodes=settings.eval_episodes,
-        )
-        offset = _workers_steps(folder)
-        record["worker_timesteps"] = offset
-        record["history"] = _history(run_dir / "evaluations" / "manager.json", offset)
-        record["test"] = _test(run_dir / "hierarchy.zip", settings)
-    elif task.method == "ham":
-        record.update(_run_ham(task, settings, folder))
-    elif task.method in FLAT_METHODS:
-        from sb3_hddpg.training import train_flat
-
-        run_dir = folder / task.method
-        train_flat(
-            run_dir,
-            algo=task.method,
-            timesteps=settings.flat_budget,
-            seed=task.seed,
-            resume=True,
-            eval_freq=settings.eval_freq_for(settings.flat_budget),
-            eval_episodes=settings.eval_episodes,
-        )
-        record["worker_timesteps"] = 0
-        record["history"] = _history(run_dir / "evaluations" / f"flat-{task.method}.json", 0)
-        record["test"] = _test(run_dir / "flat" / f"{task.method}.zip", settings)
+    spec = task.spec
+    if spec is None:
+        record.update(_run_workers(task, settings, folder))
     else:
-        raise ValueError(f"Unknown task {task.label}")
+        record.update(spec.run(task, settings, folder))
+        preference = split_key(task.method)[1]
+        if preference is not None:
+            record["preference"] = preference
+            record["reference"] = _random_reference(settings)
     record["wall_time_s"] = time.perf_counter() - start
     atomic_write_json(record_path(out, task), record)
     return record
+
+
+def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """Train (or finish) a seed's two workers."""
+    from sb3_hddpg.training import train_workers
+
+    manifest = train_workers(
+        folder,
+        timesteps=settings.worker_timesteps,
+        seed=task.seed,
+        resume=True,  # keeps finished workers and continues an interrupted one
+        eval_freq=settings.eval_freq_for(settings.worker_timesteps),
+        eval_episodes=settings.eval_episodes,
+    )
+    return {
+        "worker_timesteps": _workers_steps(folder),
+        "workers": {
+            name: {"timesteps": entry["timesteps_trained"], "metrics": entry["metrics"]}
+            for name, entry in manifest["workers"].items()
+        },
+        "history": {
+            name: _history(folder / "evaluations" / f"{name}.json", 0) for name in manifest["workers"]
+        },
+    }
+
+
+def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors)."""
+    from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
+    from sb3_hddpg.training import train_manager
+
+    run_dir = folder / task.method
+    train_manager(
+        folder,
+        run_dir,
+        prefer=prefer,
+        bias=settings.bias,
+        preferences=task.preferences,
+        timesteps=settings.timesteps,
+        seed=task.seed,
+        resume=read_checkpoint_state(run_dir / "checkpoints" / "manager") is not None,
+        eval_freq=settings.eval_freq_for(settings.timesteps),
+        eval_episodes=settings.eval_episodes,
+    )
+    offset = _workers_steps(folder)
+    return {
+        "worker_timesteps": offset,
+        "history": _history(run_dir / "evaluations" / "manager.json", offset),
+        "test": _test(run_dir / "hierarchy.zip", settings),
+    }
+
+
+def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps."""
+    from sb3_hddpg.training import train_flat
+
+    run_dir = folder / task.method
+    train_flat(
+        run_dir,
+        algo=algo,
+        timesteps=settings.flat_budget,
+        seed=task.seed,
+        resume=True,
+        eval_freq=settings.eval_freq_for(settings.flat_budget),
+        eval_episodes=settings.eval_episodes,
+        preferences=task.preferences,
+    )
+    return {
+        "worker_timesteps": 0,
+        "history": _history(run_dir / "evaluations" / f"flat-{algo}.json", 0),
+        "test": _test(run_dir / "flat" / f"{algo}.zip", settings),
+    }
 
 
 def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
@@ -342,16 +511,97 @@ def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str,
     }
 
 
+def _manager_cost(settings: BenchmarkSettings) -> int:
+    return settings.timesteps
+
+
+def _flat_cost(settings: BenchmarkSettings) -> int:
+    return settings.flat_budget
+
+
+def _no_cost(settings: BenchmarkSettings) -> int:
+    return 0
+
+
+register_method(
+    Method(
+        "hddpg",
+        functools.partial(_run_manager, None),
+        _manager_cost,
+        needs_workers=True,
+        colour="tab:red",
+        default=True,
+        takes_preference=True,
+        description="the two workers, then a manager with equal preferences (paper Algorithm 1)",
+    )
+)
+register_method(
+    Method(
+        "ham",
+        _run_ham,
+        _no_cost,
+        needs_workers=True,
+        colour="tab:gray",
+        default=True,
+        baseline=True,
+        description="the hand-written switch over the same workers, no training",
+    )
+)
+for _algo, _colour in (
+    ("ddpg", "tab:blue"),
+    ("td3", "tab:cyan"),
+    ("sac", "tab:purple"),
+    ("tqc", "tab:brown"),
+):
+    register_method(
+        Method(
+            _algo,
+            functools.partial(_run_flat, _algo),
+            _flat_cost,
+            colour=_colour,
+            default=_algo == "ddpg",
+            baseline=True,
+            takes_preference=True,
+            description=f"flat {_algo.upper()} on the combined reward for the hierarchy's total env steps",
+        )
+    )
+for _worker, _colour in (("goal", "tab:green"), ("avoid", "tab:orange")):
+    register_method(
+        Method(
+            f"hddpg-{_worker}",
+            functools.partial(_run_manager, _worker),
+            _manager_cost,
+            needs_workers=True,
+            colour=_colour,
+            default=True,
+            description=f"a manager preferring the {_worker} worker by the bias (paper Figure 10)",
+        )
+    )
+
+#: The built-in methods (the registry may hold more).
+METHODS = tuple(METHOD_REGISTRY)
+#: The methods run by default: the paper's three plus the biased managers of Figure 10.
+DEFAULT_METHODS = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
+#: Flat single-agent baselines (``train_flat``'s algorithms).
+FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
+
+
+def comparison_pairs(settings: BenchmarkSettings) -> list[tuple[str, str]]:
+    """
+    The paired comparisons of the paper's claims, as (challenger, baseline) run keys: ``hddpg`` against
+    every baseline method that ran (in the transfer scenario, on each preference).
+    """
+    suffixes = [f"@{p}" for p in settings.preferences] if settings.scenario == "transfer" else [""]
+    baselines = [m for m in settings.methods if METHOD_REGISTRY[m].baseline]
+    return [(f"hddpg{s}", f"{b}{s}") for s in suffixes for b in baselines if "hddpg" in settings.methods]
+
+
 # ------------------------------------------------------------------------------------------- scheduling
 def task_cost(task: Task, settings: BenchmarkSettings) -> int:
     """A task's training budget in environment steps (HAM trains nothing), for scheduling."""
-    if task.method == "workers":
+    if task.spec is None:
         return 2 * settings.worker_timesteps
-    if task.method in FLAT_METHODS:
-        return settings.flat_budget
-    if task.method in MANAGER_PREFERENCE:
-        return settings.timesteps
-    return 0
+    return task.spec.cost(settings)
 
 
 def run_benchmark(
@@ -382,6 +632,9 @@ def run_benchmark(
     stored = asdict(settings)
     if resume and settings_path.exists():
         previous = json.loads(settings_path.read_text())["settings"]
+        # Settings added since that benchmark was made hold their defaults in it.
+        defaults = asdict(BenchmarkSettings())
+        previous = {**{f.name: defaults[f.name] for f in fields(BenchmarkSettings)}, **previous}
         if previous != stored:
             changed = sorted(k for k in stored if previous.get(k) != stored[k])
             raise ValueError(
@@ -402,10 +655,10 @@ def run_benchmark(
     start = time.perf_counter()
 
     def ready(task: Task) -> bool:
-        return not task.needs_workers or Task("workers", task.seed) in records
+        return not task.needs_workers or Task(WORKERS, task.seed) in records
 
     def blocked(task: Task) -> bool:
-        return task.needs_workers and Task("workers", task.seed) in failed
+        return task.needs_workers and Task(WORKERS, task.seed) in failed
 
     def priority(task: Task) -> tuple[int, int]:
         # Seed by seed, so that an interrupted benchmark holds complete seeds; within a seed the longest
@@ -420,7 +673,7 @@ def run_benchmark(
             while pending or running:
                 for task in [t for t in pending if blocked(t)]:
                     pending.remove(task)
-                    failed[task] = f"its workers failed: {failed[Task('workers', task.seed)]}"
+                    failed[task] = f"its workers failed: {failed[Task(WORKERS, task.seed)]}"
                     notify("failed", task, None)
                 for task in sorted((t for t in pending if ready(t)), key=priority):
                     if len(running) >= n_jobs:
@@ -522,14 +775,14 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     by_method: dict[str, dict[int, dict[str, Any]]] = {}
     worker_records = {}
     for record in records:
-        if record["method"] == "workers":
+        if record["method"] == WORKERS:
             worker_records[record["seed"]] = record
         else:
             by_method.setdefault(record["method"], {})[record["seed"]] = record
     window = settings.timesteps
     methods: dict[str, Any] = {}
     per_seed: dict[str, dict[int, dict[str, float]]] = {}
-    for method in [m for m in settings.methods if m in by_method]:
+    for method in [m for m in settings.method_keys if m in by_method]:
         runs = by_method[method]
         seeds = sorted(runs)
         values: dict[int, dict[str, float]] = {}
@@ -561,8 +814,12 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
                 name: float(np.mean([rates.get(name, 0.0) for rates in selection]))
                 for name in sorted(set().union(*selection))
             }
+        # Issue 13's target 2, per seed: does the hierarchy's choice depend on the state?
+        dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
+        if any(figure is not None for figure in dependence.values()):
+            methods[method]["state_dependence"] = dependence
     comparisons = {}
-    for a, b in PAIRS:
+    for a, b in comparison_pairs(settings):
         if a in per_seed and b in per_seed:
             comparisons[f"{a} vs {b}"] = compare(per_seed[a], per_seed[b])
     workers = {}
@@ -574,8 +831,9 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         ]
         if finals:
             workers[name] = {"validation_mean_reach_reward": summarise(finals)}
-    return {
+    results: dict[str, Any] = {
         "settings": asdict(settings),
+        "scenario": settings.scenario,
         "metric": "mean_reach_reward: episode sum of the normalised goal and avoid terms (max 2 per step)",
         "test_seeds": [TEST_SEED_BASE, TEST_SEED_BASE + settings.test_episodes - 1],
         "curve_seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + settings.eval_episodes - 1],
@@ -584,7 +842,116 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         "methods": methods,
         "comparisons": comparisons,
         "workers": workers,
+        "colours": {key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
     }
+    if settings.scenario == "transfer":
+        results["transfer"] = transfer_results(settings, by_method)
+    return results
+
+
+# --------------------------------------------------------------------------------------------- transfer
+def preference_score(summary: dict[str, Any], preferences: dict[str, float]) -> float:
+    """
+    An evaluation's score under preference factors: ``sum_t factor_t * (episode sum of normalised term t)``,
+    the return of the manager (and of the flat agent) trained on that preference.
+
+    :param summary: an evaluation summary (raw term means and ``mean_length``).
+    :param preferences: term -> factor (terms not named: 1).
+    """
+    goal, avoid = normalised_term_sums(summary)
+    parts = {"goal": goal, "avoid": avoid}
+    unknown = sorted(set(preferences) - set(parts))
+    if unknown:
+        raise ValueError(f"Unknown reward terms {unknown} in the preferences; the terms: {list(parts)}")
+    return float(sum(preferences.get(term, 1.0) * value for term, value in parts.items()))
+
+
+def steps_to_fraction(
+    history: Sequence[dict[str, Any]],
+    score: Callable[[dict[str, Any]], float],
+    fraction: float = TRANSFER_FRACTION,
+    floor: float = 0.0,
+) -> int | None:
+    """
+    The own steps at which a learning curve first reaches ``fraction`` of its final score, measured from
+    ``floor``: the first evaluation with ``score >= floor + fraction * (final - floor)``, where ``final`` is
+    the last evaluation's score. With ``floor`` a random policy's score this is "90 % of the way from
+    random to where it ended"; with ``floor = 0`` it is 90 % of the final score itself.
+
+    :param history: the curve's evaluations, in order (``timesteps``: the run's own steps).
+    :param score: the score of one evaluation.
+    :param fraction: in (0, 1].
+    :param floor: the score counted as no progress.
+    :return: the steps, or ``None`` if the curve ends at or below ``floor`` (it learned nothing to reach).
+    """
+    if not 0 < fraction <= 1:
+        raise ValueError(f"Expected `fraction` in (0, 1], actually: {fraction}")
+    if not history:
+        raise ValueError("Expected a learning curve with at least one evaluation, actually: none")
+    scores = [score(point) for point in history]
+    if scores[-1] <= floor:
+        return None
+    target = floor + fraction * (scores[-1] - floor)
+    return next(int(p["timesteps"]) for p, value in zip(history, scores) if value >= target)
+
+
+def transfer_results(
+    settings: BenchmarkSettings, by_method: dict[str, dict[int, dict[str, Any]]]
+) -> dict[str, Any]:
+    """
+    The transfer figure (issue 13, target 5): per preference and flat method, per seed the own env steps
+    each run needs to reach :data:`TRANSFER_FRACTION` of its final score on its learning curve (scored
+    with the preference's factors, measured from a random policy's score on the same episodes), their
+    ratio flat / hddpg (how many times fewer steps the manager over pre-trained workers needs), and the
+    ratio's mean with a 95 % bootstrap CI over the seeds where both are defined.
+
+    :param settings: the benchmark's settings (transfer scenario).
+    :param by_method: run key -> seed -> record.
+    """
+    out: dict[str, Any] = {
+        "fraction": TRANSFER_FRACTION,
+        "definition": (
+            f"own env steps until the learning curve first reaches {TRANSFER_FRACTION:.0%} of the way from a "
+            "random policy's score to the run's final score (both scored with the preference's factors); "
+            "ratio = flat steps / hddpg steps (the manager's workers are trained once, before)"
+        ),
+        "eval_freq": settings.eval_freq_for(settings.timesteps),
+        "preferences": {},
+    }
+    flats = [m for m in settings.methods if m != "hddpg"]
+    for preference in settings.preferences:
+        factors = Task(method_key("hddpg", preference), 0).preferences or {}
+
+        def score(point: dict[str, Any], factors: dict[str, float] = factors) -> float:
+            return preference_score(point, factors)
+
+        managers = by_method.get(method_key("hddpg", preference), {})
+        entry: dict[str, Any] = {}
+        for flat in flats:
+            agents = by_method.get(method_key(flat, preference), {})
+            per_seed: dict[str, dict[str, Any]] = {}
+            for seed in sorted(set(managers) & set(agents)):
+                manager, agent = managers[seed], agents[seed]
+                floor = score(manager["reference"])
+                manager_steps = steps_to_fraction(manager["history"], score, floor=floor)
+                flat_steps = steps_to_fraction(agent["history"], score, floor=floor)
+                per_seed[str(seed)] = {
+                    "hddpg_steps": manager_steps,
+                    "flat_steps": flat_steps,
+                    "ratio": flat_steps / manager_steps if manager_steps and flat_steps else None,
+                    "hddpg_final_score": score(manager["history"][-1]),
+                    "flat_final_score": score(agent["history"][-1]),
+                    "random_score": floor,
+                    "worker_timesteps": manager["worker_timesteps"],
+                }
+            ratios = [v["ratio"] for v in per_seed.values() if v["ratio"] is not None]
+            entry[flat] = {
+                "per_seed": per_seed,
+                "ratio": summarise(ratios) if ratios else None,
+                "seeds_with_ratio": len(ratios),
+            }
+        out["preferences"][preference] = entry
+    return out
 
 
 def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> dict[str, Any]:
@@ -630,7 +997,7 @@ def curve_bands(
     """
     curves: dict[str, list[dict[float, float]]] = {}
     for record in records:
-        if record["method"] == "workers":
+        if record["method"] == WORKERS:
             continue
         curves.setdefault(record["method"], []).append(
             {float(p[x_key]): float(p["mean_reach_reward"]) for p in record["history"]}
@@ -658,7 +1025,7 @@ def evaluation_rows(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     rows = []
     for record in records:
         base = {"method": record["method"], "seed": record["seed"]}
-        if record["method"] == "workers":
+        if record["method"] == WORKERS:
             for name, history in record["history"].items():
                 rows.extend({**base, "kind": f"worker-{name}", **_flat(p)} for p in history)
             continue
@@ -766,14 +1133,81 @@ def markdown_report(results: dict[str, Any]) -> str:
                 if ratio is not None
                 else f"| {pair} | slope ratio A / B | undefined (B's slope is 0) | | |"
             )
+    lines += _dependence_lines(results)
+    lines += _transfer_lines(results)
     return "\n".join(lines) + "\n"
+
+
+def _share_text(value: float | None) -> str:
+    return f"{value:.1%}" if value is not None else "-"
+
+
+def _dependence_lines(results: dict[str, Any]) -> list[str]:
+    """The per-seed state-dependence table (issue 13, target 2), for the methods that report choices."""
+    rows = []
+    for method, entry in results["methods"].items():
+        for seed, figure in entry.get("state_dependence", {}).items():
+            if figure is None:
+                continue
+            ratio = f"{figure['ratio']:.2f}" if figure["ratio"] is not None else "undefined"
+            rows.append(
+                f"| {method} | {seed} | {_share_text(figure['near_share'])} ({figure['near_choices']}) "
+                f"| {_share_text(figure['clear_share'])} ({figure['clear_choices']}) | {ratio} |"
+            )
+    if not rows:
+        return []
+    figure = next(f for e in results["methods"].values() for f in e.get("state_dependence", {}).values() if f)
+    return [
+        "",
+        f"State dependence (test episodes): the {figure['worker']} worker's share of the choices made with the "
+        f"nearest obstacle within {figure['near_clearance']:.3g} (half the sensor range) and with none within "
+        f"{figure['clear_clearance']:.3g} (the sensor range); choices counted in brackets. A manager that "
+        "decides by state has a ratio well above 1; a fixed mix, about 1.",
+        "",
+        f"| method | seed | {figure['worker']} share near | {figure['worker']} share none in range | ratio |",
+        "|---|---|---|---|---|",
+        *rows,
+    ]
+
+
+def _transfer_lines(results: dict[str, Any]) -> list[str]:
+    """The transfer figure (issue 13, target 5): steps to reach the final score's fraction, and their ratio."""
+    transfer = results.get("transfer")
+    if not transfer:
+        return []
+    lines = [
+        "",
+        f"Transfer: {transfer['definition']}. Curves are evaluated every {transfer['eval_freq']} own steps, "
+        "so a run that is there at its first evaluation counts that many; 'no gain': the curve ended at or below the random score.",
+        "",
+        "| preference | flat | seeds | hddpg steps (mean) | flat steps (mean) | ratio flat / hddpg [95 % CI] "
+        "| per seed (flat / hddpg) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for preference, entry in transfer["preferences"].items():
+        for flat, comparison in entry.items():
+            seeds = comparison["per_seed"]
+            manager = [v["hddpg_steps"] for v in seeds.values() if v["hddpg_steps"] is not None]
+            agent = [v["flat_steps"] for v in seeds.values() if v["flat_steps"] is not None]
+            ratio = comparison["ratio"]
+            per_seed = ", ".join(
+                f"{seed}: {v['flat_steps'] if v['flat_steps'] is not None else 'no gain'} / "
+                f"{v['hddpg_steps'] if v['hddpg_steps'] is not None else 'no gain'}"
+                for seed, v in seeds.items()
+            )
+            lines.append(
+                f"| {preference} | {flat} | {comparison['seeds_with_ratio']}/{len(seeds)} "
+                f"| {np.mean(manager) if manager else float('nan'):.0f} | {np.mean(agent) if agent else float('nan'):.0f} "
+                f"| {_ci_text(ratio, '.2f') if ratio else 'undefined'} | {per_seed} |"
+            )
+    return lines
 
 
 def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> None:
     """Write ``results.json``, ``results.md``, ``evaluations.csv`` and the plots into ``out``."""
     from sb3_hddpg import plots
 
-    method_records = [r for r in records if r["method"] != "workers"]
+    method_records = [r for r in records if r["method"] != WORKERS]
     results["curves"] = {
         "own_steps": curve_bands(method_records, "timesteps"),
         "total_steps": curve_bands(method_records, "total_timesteps"),

@@ -1,7 +1,11 @@
-"""``evaluate(policy, env)``: the environment's own metrics over fixed evaluation seeds."""
+"""
+``evaluate(policy, env)``: the environment's own metrics over fixed evaluation seeds, and
+:func:`state_dependence`, whether a hierarchy's choice of worker depends on the state.
+"""
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -18,6 +22,8 @@ EVAL_SEED_BASE = 10_000
 #: An action entry at least this far out in [-1, 1] counts as saturated: a tanh actor there has almost no
 #: gradient left (``1 - 0.99**2`` = 2 % of its slope at 0), so it has stopped learning that output.
 SATURATION_LEVEL = 0.99
+#: The worker whose share :func:`state_dependence` reports by default: the snake env's obstacle avoider.
+DEPENDENCE_WORKER = "avoid"
 
 
 @dataclass
@@ -41,6 +47,10 @@ class EpisodeMetrics:
     #: Fraction of the deciding network's output entries with ``|a| >= SATURATION_LEVEL``: the manager's
     #: action for a hierarchy (its ``last_manager_action``), the action given to the env otherwise.
     action_saturation: float = 0.0
+    #: Worker choices made in a state whose nearest obstacle was within ``near_clearance`` (see
+    #: :func:`evaluate`), and in a state with no obstacle within ``clear_clearance``.
+    selections_near: dict[str, int] = field(default_factory=dict)
+    selections_clear: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -48,6 +58,9 @@ class EvaluationResult:
     """Metrics over several episodes; :meth:`summary` gives means."""
 
     episodes: list[EpisodeMetrics]
+    #: The clearance bands of ``selections_near`` / ``selections_clear`` (``None``: not measured).
+    near_clearance: float | None = None
+    clear_clearance: float | None = None
 
     def summary(self) -> dict[str, Any]:
         """Means (and the reward's std) over episodes, plus how often each worker acted, as a fraction."""
@@ -74,6 +87,13 @@ class EvaluationResult:
         if total:
             steps = sum(total.values())
             out["selection_rate"] = {name: count / steps for name, count in sorted(total.items())}
+            for band in ("near", "clear"):
+                counts: Counter[str] = Counter()
+                for e in eps:
+                    counts.update(getattr(e, f"selections_{band}"))
+                out[f"selections_{band}"] = {name: counts.get(name, 0) for name in sorted(total)}
+            out["near_clearance"] = self.near_clearance
+            out["clear_clearance"] = self.clear_clearance
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -88,6 +108,8 @@ def evaluate(
     seed: int = EVAL_SEED_BASE,
     deterministic: bool = True,
     on_step: Callable[[gym.Env, dict[str, Any]], None] | None = None,
+    near_clearance: float | None = None,
+    clear_clearance: float | None = None,
 ) -> EvaluationResult:
     """
     Run ``policy`` for ``n_episodes`` on ``env``, resetting episode ``k`` with seed ``seed + k``.
@@ -95,7 +117,9 @@ def evaluate(
     The env must report the snake env's ``info`` (``reward_terms``, ``goal_touched``, ``collision``,
     ``min_clearance``); a :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` also reports the worker it
     ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.Hierarchy` its ``last_selection``: both are
-    counted. The policy must act in ``env``'s action space.
+    counted, each also by the state it was made in: with the nearest obstacle within ``near_clearance``
+    (the ``min_clearance`` of the observation the policy acted on), or with none within ``clear_clearance``
+    (see :func:`state_dependence`). The policy must act in ``env``'s action space.
 
     :param policy: anything with SB3's ``predict``.
     :param env: a single (not vectorised) environment, time-limited.
@@ -103,10 +127,15 @@ def evaluate(
     :param seed: the first episode's seed.
     :param deterministic: passed to ``predict``.
     :param on_step: called after every step with the env and its ``info`` (for recording).
+    :param near_clearance: a choice counts as "near an obstacle" at a clearance <= this (default: half the
+        env's ``sensor_range``; without one, choices are not split by state).
+    :param clear_clearance: a choice counts as "no obstacle in range" at a clearance >= this (default: the
+        env's ``sensor_range``: every proximity sensor reads its maximum).
     :return: per-episode metrics.
     """
     if n_episodes < 1:
         raise ValueError(f"Expected `n_episodes` to be >= 1, actually: {n_episodes}")
+    near_clearance, clear_clearance = clearance_bands(env, near_clearance, clear_clearance)
     normalise = env.unwrapped.normalise_terms  # type: ignore[attr-defined]
     episodes = []
     for k in range(n_episodes):
@@ -118,6 +147,10 @@ def evaluate(
         touches = collisions = steps = saturated = entries = 0
         min_clearance = np.inf
         selections: Counter[str] = Counter()
+        near: Counter[str] = Counter()
+        clear: Counter[str] = Counter()
+        # The clearance of the state the policy decides in: the previous step's (or the reset's) info.
+        clearance = float(info.get("min_clearance", math.nan))
         done = False
         while not done:
             action, _ = policy.predict(obs, deterministic=deterministic)
@@ -142,6 +175,11 @@ def evaluate(
             selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
             if selected is not None:
                 selections[selected] += 1
+                if near_clearance is not None and clearance <= near_clearance:
+                    near[selected] += 1
+                if clear_clearance is not None and clearance >= clear_clearance:
+                    clear[selected] += 1
+            clearance = float(info["min_clearance"])
             if on_step is not None:
                 on_step(env, info)
         episodes.append(
@@ -159,6 +197,61 @@ def evaluate(
                 min_clearance=float(min_clearance),
                 selections=dict(selections),
                 action_saturation=saturated / max(entries, 1),
+                selections_near=dict(near),
+                selections_clear=dict(clear),
             )
         )
-    return EvaluationResult(episodes)
+    return EvaluationResult(episodes, near_clearance, clear_clearance)
+
+
+def clearance_bands(
+    env: gym.Env, near: float | None, clear: float | None
+) -> tuple[float | None, float | None]:
+    """
+    The clearance bands of :func:`evaluate`, checked, defaulting to the env's ``sensor_range`` (half and
+    full); ``None`` where neither is given nor the env has a ``sensor_range``.
+    """
+    sensor_range = getattr(env.unwrapped, "sensor_range", None)
+    if near is None and sensor_range is not None:
+        near = 0.5 * float(sensor_range)
+    if clear is None and sensor_range is not None:
+        clear = float(sensor_range)
+    for name, value in (("near_clearance", near), ("clear_clearance", clear)):
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"Expected `{name}` to be a finite number >= 0, actually: {value}")
+    if near is not None and clear is not None and near > clear:
+        raise ValueError(f"Expected `near_clearance` <= `clear_clearance`, actually: {near} > {clear}")
+    return near, clear
+
+
+def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -> dict[str, Any] | None:
+    """
+    Whether a hierarchy chooses by state (issue 13's target 2): ``worker``'s share of the choices made near
+    an obstacle (clearance <= ``near_clearance``) against its share where no obstacle is in range
+    (clearance >= ``clear_clearance``), and their ratio. A manager that decides by state picks the avoid
+    worker far more often near obstacles (ratio well above 1); a fixed mix of workers gives about 1.
+
+    :param summary: an :meth:`EvaluationResult.summary` (of a policy that reports its worker choices).
+    :param worker: the worker whose share is compared.
+    :return: ``near_share``, ``clear_share`` (``None`` where no choice fell in that band), ``ratio``
+        (``None`` where undefined: a band without choices, or a clear share of 0), the choices counted in
+        each band, the bands and the worker; ``None`` when the policy reported no choices or has no
+        ``worker``.
+    """
+    near, clear = summary.get("selections_near"), summary.get("selections_clear")
+    if near is None or clear is None or worker not in summary.get("selection_rate", {}):
+        return None
+    near_total, clear_total = sum(near.values()), sum(clear.values())
+    near_share = near.get(worker, 0) / near_total if near_total else None
+    clear_share = clear.get(worker, 0) / clear_total if clear_total else None
+    ratio = near_share / clear_share if near_share is not None and clear_share else None
+    return {
+        "worker": worker,
+        "near_share": near_share,
+        "clear_share": clear_share,
+        "ratio": ratio,
+        "near_choices": near_total,
+        "clear_choices": clear_total,
+        "near_clearance": summary.get("near_clearance"),
+        "clear_clearance": summary.get("clear_clearance"),
+    }

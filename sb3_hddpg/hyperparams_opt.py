@@ -1,6 +1,7 @@
 """
 Search spaces of ``hddpg-cli tune``: one ``sample_*_params(trial)`` per level, in a registry, as in rl_zoo3's
-``hyperparams_opt.py``.
+``hyperparams_opt.py``; the flat level has one per algorithm (:data:`FLAT_SAMPLERS`: DDPG, TD3, SAC), so that
+every flat baseline can get the same tuning effort (trials and steps per trial) before a benchmark.
 
 Each sampler returns the *changes* to a ``zoo_configs`` block, already in the file's format (``policy_kwargs``
 as a string, ``noise_type`` ``None`` for no noise), so that one function serves twice: in a trial it shapes
@@ -58,6 +59,54 @@ def sample_ddpg_params(trial: Any) -> dict[str, Any]:
     return block
 
 
+def sample_td3_params(trial: Any) -> dict[str, Any]:
+    """
+    TD3's hyperparameters: DDPG's space (as rl_zoo3's ``sample_td3_params``), so that a difference between
+    the tuned DDPG and TD3 is the algorithm's (twin critics, delayed actor, target smoothing), not the
+    search's. TD3's own settings stay SB3's defaults, as in ``zoo_configs/td3.yml``.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    return sample_ddpg_params(trial)
+
+
+def sample_sac_params(trial: Any) -> dict[str, Any]:
+    """
+    SAC's hyperparameters: DDPG's shared ones (discount, learning rate, batch and buffer size, soft-update
+    rate, update schedule, network size, same choices) plus, in place of action noise, the initial log std
+    of its stochastic policy (rl_zoo3's ``log_std_init``); the entropy coefficient stays ``auto``.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    gamma = trial.suggest_categorical("gamma", [0.9, 0.95, 0.98, 0.99, 0.995, 0.999])
+    learning_rate = trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True)
+    batch_size = trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512])
+    buffer_size = trial.suggest_categorical("buffer_size", [10_000, 100_000, 300_000])
+    tau = trial.suggest_categorical("tau", [0.001, 0.005, 0.01, 0.02, 0.05, 0.08])
+    train_freq = trial.suggest_categorical("train_freq", [1, 4, 8, 16, 32, 64])
+    log_std_init = trial.suggest_float("log_std_init", -4.0, 1.0)
+    net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
+    return {
+        "gamma": gamma,
+        "learning_rate": learning_rate,
+        "batch_size": batch_size,
+        "buffer_size": buffer_size,
+        "tau": tau,
+        "train_freq": train_freq,
+        "gradient_steps": train_freq,
+        "ent_coef": "auto",
+        "policy_kwargs": f"dict(net_arch={NET_ARCHS[net_arch]}, log_std_init={log_std_init!r})",
+    }
+
+
+#: Flat algorithm -> its sampler (``--level flat --algo NAME``).
+FLAT_SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
+    "ddpg": sample_ddpg_params,
+    "td3": sample_td3_params,
+    "sac": sample_sac_params,
+}
+
+
 def sample_worker_params(trial: Any) -> dict[str, Any]:
     """A worker is a plain DDPG on its own reward: :func:`sample_ddpg_params`."""
     return sample_ddpg_params(trial)
@@ -104,6 +153,25 @@ HYPERPARAMS_SAMPLER: dict[str, Callable[[Any], dict[str, Any]]] = {
 }
 
 
+def sampler_for(level: str, algo: str = "ddpg") -> Callable[[Any], dict[str, Any]]:
+    """
+    The sampler of a level (and, for ``flat``, of an algorithm among :data:`FLAT_SAMPLERS`).
+
+    :raises ValueError: naming the unknown level or algorithm, or an algorithm for a DDPG-only level.
+    """
+    if level not in HYPERPARAMS_SAMPLER:
+        raise ValueError(f"Unknown level {level!r}; choose from {list(HYPERPARAMS_SAMPLER)}")
+    if level == "flat":
+        if algo not in FLAT_SAMPLERS:
+            raise ValueError(
+                f"Unknown algorithm {algo!r} for level 'flat'; choose from {list(FLAT_SAMPLERS)}"
+            )
+        return FLAT_SAMPLERS[algo]
+    if algo != "ddpg":
+        raise ValueError(f"Level {level!r} is tuned for DDPG only; an algorithm applies to level 'flat'")
+    return HYPERPARAMS_SAMPLER[level]
+
+
 class _SpaceRecorder:
     """A stand-in trial that records every parameter a sampler asks for and its distribution."""
 
@@ -123,27 +191,28 @@ class _SpaceRecorder:
         return low
 
 
-def search_space(level: str) -> dict[str, tuple[str, Any]]:
+def search_space(level: str, algo: str = "ddpg") -> dict[str, tuple[str, Any]]:
     """
     The parameters a level's sampler can suggest: name -> ``("choices", [...])`` or ``("range", (low, high))``
     (conditional ones included, as sampled with every earlier choice at its first value).
     """
     recorder = _SpaceRecorder()
-    HYPERPARAMS_SAMPLER[level](recorder)
+    sampler_for(level, algo)(recorder)
     return recorder.space
 
 
-def check_fixed_params(level: str, fixed: dict[str, Any]) -> None:
+def check_fixed_params(level: str, fixed: dict[str, Any], algo: str = "ddpg") -> None:
     """
     Validate ``--fix`` values before a study starts: Optuna's ``PartialFixedSampler`` silently ignores
     unknown names, so a typo would tune what the user meant to hold fixed.
 
     :raises ValueError: naming the unknown parameter or the value outside its choices or range.
     """
-    space = search_space(level)
+    space = search_space(level, algo)
     for name, value in fixed.items():
         if name not in space:
-            raise ValueError(f"Unknown parameter {name!r} for level {level!r}; tunable: {sorted(space)}")
+            what = f"level {level!r}" + (f" ({algo})" if level == "flat" else "")
+            raise ValueError(f"Unknown parameter {name!r} for {what}; tunable: {sorted(space)}")
         kind, domain = space[name]
         if kind == "choices" and value not in domain:
             raise ValueError(f"Expected {name} among {domain}, actually: {value!r}")

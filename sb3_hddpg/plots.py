@@ -17,7 +17,8 @@ import matplotlib.pyplot as plt
 
 from sb3_hddpg.io import atomic_write
 
-#: One colour per method, the same in every figure.
+#: One colour per method, the same in every figure: the fallback for results written before they carried
+#: their methods' colours (``results["colours"]``, from the benchmark's method registry).
 COLOURS = {
     "hddpg": "tab:red",
     "ham": "tab:gray",
@@ -30,11 +31,21 @@ COLOURS = {
 }
 
 
+def method_colour(results: dict[str, Any], method: str) -> str | None:
+    """A method's colour: the one its results record, else :data:`COLOURS`' (``None``: matplotlib's next)."""
+    return results.get("colours", {}).get(method) or COLOURS.get(method.partition("@")[0])
+
+
 def _save(figure: Any, path: Path) -> Path:
     figure.tight_layout()
     atomic_write(path, lambda tmp: figure.savefig(tmp, format="png", dpi=110))
     plt.close(figure)
     return path
+
+
+def _first_preference(results: dict[str, Any]) -> str:
+    preferences = results["settings"].get("preferences") or [""]
+    return f"@{preferences[0]}"
 
 
 def learning_curves(results: dict[str, Any], path: str | Path) -> Path:
@@ -55,17 +66,19 @@ def learning_curves(results: dict[str, Any], path: str | Path) -> Path:
         bands = results["curves"][key]
         right = max((max(b["x"]) for b in bands.values() if b["x"]), default=1.0)
         for method, band in bands.items():
-            colour = COLOURS.get(method)
+            line_colour = method_colour(results, method)
             x, mean, low, high = band["x"], band["mean"], band["low"], band["high"]
             if not x:
                 continue
             if method == "ham":
                 start = x[0] if key == "total_steps" else 0.0
                 x, mean, low, high = [start, right], mean[:1] * 2, low[:1] * 2, high[:1] * 2
-                axis.plot(x, mean, "--", color=colour, label=method)
+                axis.plot(x, mean, "--", color=line_colour, label=method)
             else:
-                axis.plot(x, mean, "-o", markersize=3, color=colour, label=method)
-            axis.fill_between(x, low, high, color=colour, alpha=0.2, linewidth=0)
+                # A second preference of the same method (transfer scenario) keeps its colour, dashed.
+                style = "-o" if "@" not in method or method.endswith(_first_preference(results)) else "--s"
+                axis.plot(x, mean, style, markersize=3, color=line_colour, label=method)
+            axis.fill_between(x, low, high, color=line_colour, alpha=0.2, linewidth=0)
         axis.set_xlabel(label)
         axis.grid(alpha=0.3)
     axes[0].set_ylabel("combined normalised reward per episode")
@@ -155,7 +168,7 @@ def figure10(results: dict[str, Any], path: str | Path) -> Path:
             xerr=[[collisions["mean"] - collisions["ci_low"]], [collisions["ci_high"] - collisions["mean"]]],
             yerr=[[touch["mean"] - touch["ci_low"]], [touch["ci_high"] - touch["mean"]]],
             fmt="o",
-            color=COLOURS.get(method),
+            color=method_colour(results, method),
             capsize=4,
             label=method,
         )

@@ -561,6 +561,7 @@ def train_flat(
     threads: int = 1,
     env_id: str = FLAT_ENV_ID,
     keep_checkpoints: bool = False,
+    preferences: dict[str, float] | None = None,
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
@@ -584,6 +585,9 @@ def train_flat(
     :param threads: torch threads.
     :param env_id: the env to learn (the combined reward by default).
     :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
+    :param preferences: reward term -> factor: learn ``sum_t factor_t * normalised(term_t)`` instead of the
+        env's reward (:class:`~sb3_hddpg.wrappers.PreferenceReward`, the reward of a manager with the same
+        factors); ``None``: the env's own reward.
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
     import json
@@ -605,8 +609,16 @@ def train_flat(
     if resume and done is not None and done.get("timesteps_requested") == budget:
         return manifest, None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{algo}.zip")
+    factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, dict(hyperparams.env_kwargs))
+    if preferences is not None:
+        from sb3_hddpg.wrappers.preference import make_preference_env
+
+        factory = functools.partial(
+            make_preference_env, env_id, dict(hyperparams.env_kwargs), dict(preferences)
+        )
+        factory().close()  # checks the factors here, once, rather than inside env subprocesses
     outcome = train_agent(
-        functools.partial(make_snake_env, env_id, dict(hyperparams.env_kwargs)),
+        factory,
         hyperparams,
         paths,
         algo=algo,
@@ -633,6 +645,7 @@ def train_flat(
         "timesteps_requested": budget,
         "timesteps_trained": outcome.num_timesteps,
         "stopped_early": outcome.stopped_early,
+        "preferences": dict(preferences) if preferences is not None else None,
         "threads": threads,
         "versions": library_versions(),
         "metrics": outcome.metrics,

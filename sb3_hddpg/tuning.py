@@ -1,8 +1,8 @@
 """
 Hyperparameter tuning with Optuna at every level: a worker, the manager, the flat baseline, and HAM's switch.
 
-One trial samples a ``zoo_configs`` block from :data:`~sb3_hddpg.hyperparams_opt.HYPERPARAMS_SAMPLER`, trains
-it with :func:`~sb3_hddpg.training.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
+One trial samples a ``zoo_configs`` block with :func:`~sb3_hddpg.hyperparams_opt.sampler_for` (one sampler per
+level; for ``flat``, one per algorithm: DDPG, TD3, SAC), trains it with :func:`~sb3_hddpg.training.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
 evaluations to the pruner through :class:`~sb3_hddpg.callbacks.TrialPruningCallback`, and returns the last
 evaluation's mean reward (rl_zoo3's objective: the best of several noisy evaluations would favour lucky
 configurations). A trial that diverges (NaN reward or weights, or an exception about NaN) is pruned, not
@@ -38,18 +38,18 @@ import optuna
 import torch
 import yaml
 from optuna.trial import FrozenTrial, TrialState
-from stable_baselines3 import DDPG
 
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.config import (
     DEFAULT_CONFIG,
     MANAGER_KEY,
+    default_config,
     load_config_file,
     load_hyperparams,
     parse_block,
     select_block,
 )
-from sb3_hddpg.hyperparams_opt import HYPERPARAMS_SAMPLER
+from sb3_hddpg.hyperparams_opt import sampler_for
 from sb3_hddpg.io import atomic_write_bytes
 from sb3_hddpg.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
 from sb3_hddpg.training import (
@@ -97,6 +97,8 @@ class TuningTarget:
     :param eval_episodes: episodes per evaluation.
     :param seed: the training seed of every trial (the same for all, so trials differ only by their
         hyperparameters).
+    :param algo: the algorithm (level ``flat``: ``ddpg``, ``td3`` or ``sac``, each with its own search space
+        and bundled base config ``zoo_configs/<algo>.yml``; the other levels are DDPG).
     """
 
     level: str
@@ -107,10 +109,12 @@ class TuningTarget:
     n_evaluations: int = 5
     eval_episodes: int = 5
     seed: int = 0
+    algo: str = "ddpg"
 
     def __post_init__(self) -> None:
         if self.level not in LEVELS:
             raise ValueError(f"Unknown level {self.level!r}; choose from {list(LEVELS)}")
+        sampler_for(self.level, self.algo)  # an unknown algorithm, or one for a DDPG-only level, fails here
         if self.level == "worker" and self.worker not in WORKER_ENV_IDS:
             raise ValueError(
                 f"Level 'worker' needs a worker among {sorted(WORKER_ENV_IDS)}, got {self.worker!r}"
@@ -131,8 +135,10 @@ class TuningTarget:
 
     @property
     def name(self) -> str:
-        """A short name: ``worker-goal``, ``manager``, ``flat`` or ``ham`` (the default study name)."""
-        return f"worker-{self.worker}" if self.level == "worker" else self.level
+        """A short name: ``worker-goal``, ``manager``, ``flat`` (``flat-td3``...) or ``ham`` (the default study name)."""
+        if self.level == "worker":
+            return f"worker-{self.worker}"
+        return f"flat-{self.algo}" if self.level == "flat" and self.algo != "ddpg" else self.level
 
     @property
     def block_key(self) -> str | None:
@@ -143,8 +149,21 @@ class TuningTarget:
 
     @property
     def config_path(self) -> Path:
-        """The base config file."""
-        return Path(self.config) if self.config else DEFAULT_CONFIG
+        """The base config file (default: the bundled one of the algorithm)."""
+        if self.config:
+            return Path(self.config)
+        return default_config(self.algo) if self.algo != "ddpg" else DEFAULT_CONFIG
+
+    @property
+    def algo_class(self) -> type:
+        """The SB3 class of :attr:`algo`."""
+        from sb3_hddpg.training import algo_class
+
+        return algo_class(self.algo)
+
+    def sampler(self, trial: Any) -> dict[str, Any]:
+        """The changes to the base block a trial samples (:func:`~sb3_hddpg.hyperparams_opt.sampler_for`)."""
+        return sampler_for(self.level, self.algo)(trial)
 
     def base_block(self) -> dict[str, Any]:
         """The base config's block for :attr:`block_key` (empty for HAM)."""
@@ -162,7 +181,7 @@ class TuningTarget:
         if self.block_key is not None:
             hyperparams = parse_block(
                 dict(self.base_block(), n_envs=1),
-                DDPG,
+                self.algo_class,
                 source=f"{self.config_path}[{self.block_key}]",
                 manager=self.level == "manager",
             )
@@ -186,13 +205,16 @@ class TuningTarget:
 
     def describe(self) -> dict[str, Any]:
         """What makes trials comparable, stored in the study so that a mismatching re-run is refused."""
-        return {
+        described = {
             "level": self.level,
             "worker": self.worker,
             "timesteps": self.budget() if self.level != "ham" else None,
             "n_evaluations": self.n_evaluations if self.level != "ham" else 1,
             "eval_episodes": self.eval_episodes,
         }
+        if self.algo != "ddpg":  # DDPG studies made before other algorithms were tunable stay resumable
+            described["algo"] = self.algo
+        return described
 
 
 @dataclass(frozen=True)
@@ -316,7 +338,7 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
     :param threads: torch threads.
     :return: the objective value; raises ``optuna.TrialPruned`` when pruned or diverged.
     """
-    changes = HYPERPARAMS_SAMPLER[target.level](trial)
+    changes = target.sampler(trial)
     if target.level == "ham":
         return _evaluate_ham(trial, target, float(changes["threshold"]))
     block = merge_block(target.base_block(), changes)
@@ -324,7 +346,7 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
     timesteps = target.budget()
     hyperparams = parse_block(
         dict(block, n_timesteps=timesteps, n_envs=1),
-        DDPG,
+        target.algo_class,
         source=f"trial {trial.number}",
         manager=target.level == "manager",
     )
@@ -339,7 +361,7 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
                 _env_factory(target, hyperparams),
                 hyperparams,
                 paths,
-                algo="ddpg",
+                algo=target.algo,
                 timesteps=timesteps,
                 seed=target.seed,
                 n_envs=1,
@@ -535,7 +557,7 @@ def best_block(study: optuna.Study, target: TuningTarget) -> dict[str, Any]:
         raise ValueError(
             f"Study {study.study_name!r} has no completed trial yet: no best parameters"
         ) from None
-    changes = HYPERPARAMS_SAMPLER[target.level](optuna.trial.FixedTrial(best.params))
+    changes = target.sampler(optuna.trial.FixedTrial(best.params))
     return merge_block(target.base_block(), changes)
 
 
@@ -563,12 +585,12 @@ def save_best_config(study: optuna.Study, target: TuningTarget, path: str | Path
         f"# Written by hddpg-cli tune on {datetime.datetime.now().isoformat(timespec='seconds')}: "
         f"block {key!r} from study {study.study_name!r},\n"
         f"# trial {best.number}, mean evaluation reward {best.value:.4g} after {target.budget()} steps. "
-        f"RL Zoo format (zoo_configs/ddpg.yml).\n"
+        f"RL Zoo format (zoo_configs/{target.algo}.yml).\n"
     )
     text = header + yaml.safe_dump(config, sort_keys=False, default_flow_style=False)
     atomic_write_bytes(path, text.encode())
     # What we promise: the commands read it back as written.
-    load_hyperparams(key, DDPG, path, manager=key == MANAGER_KEY)
+    load_hyperparams(key, target.algo_class, path, manager=key == MANAGER_KEY)
     return path
 
 

@@ -219,6 +219,21 @@ CASES = [
     case("bm-zero-n-jobs", ("benchmark", "--n-jobs", "0", "--out", "{tmp}/o"), 2, "got 0"),
     case("bm-negative-hysteresis", ("benchmark", "--ham-hysteresis", "-1", "--out", "{tmp}/o"), 2, "-1"),
     case("bm-out-is-a-file", ("benchmark", "--out", "{text_file}"), 2, "notes.txt"),
+    case(
+        "bm-transfer-bad-preference",
+        ("benchmark", "--scenario", "transfer", "--preference", "goal=-1", "--out", "{tmp}/o"),
+        2,
+        "goal",
+    ),
+    case(
+        "bm-transfer-with-ham",
+        ("benchmark", "--scenario", "transfer", "--methods", "hddpg,ham", "--out", "{tmp}/o"),
+        2,
+        "ham",
+    ),
+    # ---- export-models
+    case("ex-missing-run", ("export-models", "{tmp}/nope", "{tmp}/models"), 2, "nope"),
+    case("ex-not-a-benchmark", ("export-models", "{folder}", "{tmp}/models"), 2, "a-folder"),
     # ---- tune
     case("tu-unknown-level", ("tune", "--level", "everything", "--out", "{tmp}/o"), 2, "everything"),
     case("tu-worker-missing", ("tune", "--level", "worker", "--out", "{tmp}/o"), 2, "--worker"),
@@ -236,6 +251,16 @@ CASES = [
         "nosuchdb",
     ),
     case("tu-fix-unknown", ("tune", "--level", "flat", "--fix", "nope=1", "--out", "{tmp}/o"), 2, "nope"),
+    case("tu-algo-unknown", ("tune", "--level", "flat", "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
+    case(
+        "tu-algo-not-flat", ("tune", "--level", "ham", "--algo", "sac", "--out", "{tmp}/o"), 2, "--level flat"
+    ),
+    case(
+        "tu-sac-fix-noise",
+        ("tune", "--level", "flat", "--algo", "sac", "--fix", "noise_std=0.1", "--out", "{tmp}/o"),
+        2,
+        "noise_std",
+    ),
     case(
         "tu-fix-out-of-range",
         ("tune", "--level", "flat", "--fix", "learning_rate=5", "--out", "{tmp}/o"),

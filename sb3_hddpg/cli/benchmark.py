@@ -11,14 +11,17 @@ from rich.table import Table
 
 from sb3_hddpg.benchmark import (
     DEFAULT_METHODS,
-    METHODS,
+    DEFAULT_TRANSFER_METHODS,
+    DEFAULT_TRANSFER_PREFERENCES,
+    METHOD_REGISTRY,
     OUTPUT_FILES,
+    SCENARIOS,
     BenchmarkSettings,
     Task,
     run_benchmark,
 )
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, positive_float, prepare_out_dir
+from sb3_hddpg.cli.options import at_least, positive_float, prepare_out_dir, usage_errors
 
 
 def _ci(stats: dict[str, Any], fmt: str = ".1f") -> str:
@@ -83,10 +86,91 @@ def comparisons_table(results: dict[str, Any]) -> Table:
     return table
 
 
+def _steps(steps: int | None) -> str:
+    return str(steps) if steps is not None else "no gain"  # the curve ended at or below the random score
+
+
+def transfer_table(results: dict[str, Any]) -> Table:
+    """The transfer figure: per preference and flat method, steps to the final score's fraction and their ratio."""
+    transfer = results["transfer"]
+    table = Table(title=f"Transfer: {transfer['definition']}")
+    for column in (
+        "preference",
+        "flat",
+        "seeds",
+        "ratio flat / hddpg [95 % CI]",
+        "per seed (flat / hddpg steps)",
+    ):
+        table.add_column(column, justify="left" if column in ("preference", "flat") else "right")
+    for preference, entry in transfer["preferences"].items():
+        for flat, comparison in entry.items():
+            ratio = comparison["ratio"]
+            table.add_row(
+                preference,
+                flat,
+                f"{comparison['seeds_with_ratio']}/{len(comparison['per_seed'])}",
+                _ci(ratio, ".2f") if ratio else "undefined",
+                ", ".join(
+                    f"{_steps(v['flat_steps'])} / {_steps(v['hddpg_steps'])}"
+                    for v in comparison["per_seed"].values()
+                ),
+            )
+    return table
+
+
+def dependence_table(results: dict[str, Any]) -> Table | None:
+    """Per method and seed: the avoid worker's share near obstacles vs with none in range, and the ratio."""
+    rows = [
+        (method, seed, figure)
+        for method, entry in results["methods"].items()
+        for seed, figure in entry.get("state_dependence", {}).items()
+        if figure is not None
+    ]
+    if not rows:
+        return None
+    worker = rows[0][2]["worker"]
+    table = Table(
+        title=f"State dependence (test): the {worker} worker's share of choices by nearest-obstacle clearance"
+    )
+    for column in ("method", "seed", "near (<= half sensor range)", "none in range", "ratio"):
+        table.add_column(column, justify="left" if column == "method" else "right")
+    for method, seed, figure in rows:
+        table.add_row(
+            method,
+            seed,
+            f"{figure['near_share']:.1%}" if figure["near_share"] is not None else "-",
+            f"{figure['clear_share']:.1%}" if figure["clear_share"] is not None else "-",
+            f"{figure['ratio']:.2f}" if figure["ratio"] is not None else "undefined",
+        )
+    return table
+
+
 @app.command("benchmark")
 def benchmark_command(
-    methods: str = typer.Option(
-        ",".join(DEFAULT_METHODS), "--methods", help=f"Comma-separated methods among {list(METHODS)}."
+    methods: str | None = typer.Option(
+        None,
+        "--methods",
+        help=(
+            f"Comma-separated methods among {list(METHOD_REGISTRY)} (default: {','.join(DEFAULT_METHODS)}; "
+            f"with --scenario transfer: {','.join(DEFAULT_TRANSFER_METHODS)})."
+        ),
+    ),
+    scenario: str = typer.Option(
+        "standard",
+        "--scenario",
+        help=(
+            f"One of {list(SCENARIOS)}: 'transfer' trains each seed's workers once, then per --preference a "
+            "manager and each flat method from scratch on that preference's reward, and reports the ratio of "
+            "env steps each needs to get 90 % of the way from a random policy's score to its own final score."
+        ),
+    ),
+    preference: list[str] | None = typer.Option(
+        None,
+        "--preference",
+        help=(
+            "A preference of the transfer scenario, e.g. goal=2,avoid=1 (repeat the option for more; default: "
+            f"{' and '.join(DEFAULT_TRANSFER_PREFERENCES)})."
+        ),
     ),
     seeds: int = typer.Option(
         5, "--seeds", callback=at_least(1), help="Seeds 0..N-1, one run per method each."
@@ -130,30 +214,48 @@ def benchmark_command(
     out: Path = typer.Option(Path("runs/benchmark"), "--out", help="Benchmark folder."),
     resume: bool = typer.Option(False, "--resume", help="Keep finished runs and continue interrupted ones."),
     force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    export_dir: Path | None = typer.Option(
+        None,
+        "--export-models",
+        help="Afterwards copy the final models into this folder with an index.json (see export-models).",
+    ),
 ) -> None:
     """Train and evaluate every method on every seed; write results.json, evaluations.csv and plots."""
+    if scenario not in SCENARIOS:
+        raise typer.BadParameter(
+            f"unknown scenario {scenario!r}; choose from {list(SCENARIOS)}", param_hint="'--scenario'"
+        )
+    transfer = scenario == "transfer"
+    if preference and not transfer:
+        raise typer.BadParameter("applies to --scenario transfer only", param_hint="'--preference'")
+    if methods is None:
+        methods = ",".join(DEFAULT_TRANSFER_METHODS if transfer else DEFAULT_METHODS)
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
-    unknown = [m for m in chosen if m not in METHODS]
+    unknown = [m for m in chosen if m not in METHOD_REGISTRY]
     if unknown or not chosen:
         raise typer.BadParameter(
-            f"unknown method {unknown[0] if unknown else methods!r}; choose from {list(METHODS)}",
+            f"unknown method {unknown[0] if unknown else methods!r}; choose from {list(METHOD_REGISTRY)}",
             param_hint="'--methods'",
         )
     if ham_hysteresis < 0:
         raise typer.BadParameter(f"must be >= 0, got {ham_hysteresis}", param_hint="'--ham-hysteresis'")
-    settings = BenchmarkSettings(
-        methods=chosen,
-        seeds=list(range(seeds)),
-        timesteps=timesteps,
-        worker_timesteps=worker_timesteps,
-        flat_timesteps=flat_timesteps,
-        eval_freq=eval_freq,
-        eval_episodes=eval_episodes,
-        test_episodes=test_episodes,
-        ham_threshold=ham_threshold,
-        ham_hysteresis=ham_hysteresis,
-        bias=bias,
-    )
+    preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []
+    with usage_errors("'--methods' / '--preference'"):
+        settings = BenchmarkSettings(
+            methods=chosen,
+            seeds=list(range(seeds)),
+            timesteps=timesteps,
+            worker_timesteps=worker_timesteps,
+            flat_timesteps=flat_timesteps,
+            eval_freq=eval_freq,
+            eval_episodes=eval_episodes,
+            test_episodes=test_episodes,
+            ham_threshold=ham_threshold,
+            ham_hysteresis=ham_hysteresis,
+            bias=bias,
+            scenario=scenario,
+            preferences=preferences,
+        )
     prepare_out_dir(out, resume, force)
     started = time.perf_counter()
 
@@ -177,10 +279,42 @@ def benchmark_command(
     console.print(results_table(results))
     if results["comparisons"]:
         console.print(comparisons_table(results))
+    dependence = dependence_table(results)
+    if dependence is not None:
+        console.print(dependence)
+    if "transfer" in results:
+        console.print(transfer_table(results))
     console.print(
         f"Wall time: {results['wall_time_s_this_invocation'] / 60:.1f} min.  Outputs in {out}: {', '.join(OUTPUT_FILES)}"
     )
+    if export_dir is not None:
+        _export(out, export_dir)
     if results["failures"]:
         for label, message in results["failures"].items():
             console.print(f"[red]failed[/] {label}: {message}")
         raise typer.Exit(1)
+
+
+def _export(run: Path, dest: Path) -> None:
+    from sb3_hddpg.model_export import export_models
+
+    index = export_models(run, dest)
+    console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
+
+
+@app.command("export-models")
+def export_models_command(
+    run: Path = typer.Argument(..., help="A benchmark folder (the --out of hddpg-cli benchmark)."),
+    dest: Path = typer.Argument(..., help="The folder to copy the final models into, with index.json."),
+) -> None:
+    """
+    Copy a benchmark's final models (worker zips, hierarchy bundles, ham.json, flat zips) into DEST, in the
+    benchmark's layout, with DEST/index.json: {"method", "seed", "path", "sha256"} per model.
+    """
+    with usage_errors("'RUN'"):
+        if not (run / "records").is_dir():
+            raise FileNotFoundError(f"not a benchmark folder (no records/): {str(run)!r}")
+        from sb3_hddpg.model_export import export_models
+
+        index = export_models(run, dest)
+    console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")

@@ -43,9 +43,19 @@ def evaluate_command(
     algo: str | None = typer.Option(
         None, "--algo", help="Algorithm of a zip without manifest (with --trust)."
     ),
+    worker: str = typer.Option(
+        "avoid",
+        "--state-worker",
+        help="For a hierarchy: the worker whose share near obstacles vs with none in range is reported.",
+    ),
+    near_clearance: float | None = typer.Option(
+        None,
+        "--near-clearance",
+        help="A choice is 'near an obstacle' at a clearance <= this (default: half the env's sensor range).",
+    ),
 ) -> None:
     """Evaluate a policy: mean reward, goal-touch rate, collisions, success, clearance (and worker choices)."""
-    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
     from sb3_hddpg.io import atomic_write_json
     from sb3_hddpg.loading import load_policy
 
@@ -55,10 +65,20 @@ def evaluate_command(
         loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
     with usage_errors("'--env'"):
         env = loaded.make_env(env_id)
-    result = evaluate(loaded.policy, env, n_episodes=episodes, seed=seed, deterministic=deterministic)
+    with usage_errors("'--near-clearance'"):
+        clearance_bands(env, near_clearance, None)
+    result = evaluate(
+        loaded.policy,
+        env,
+        n_episodes=episodes,
+        seed=seed,
+        deterministic=deterministic,
+        near_clearance=near_clearance,
+    )
     from sb3_hddpg.metric_labels import summary_rows
 
     summary = result.summary()
+    dependence = state_dependence(summary, worker)
     table = Table(
         title=f"{loaded.kind} {loaded.name!r} on {env_id or loaded.env_id}: mean over {episodes} episodes, "
         f"seeds {seed}..{seed + episodes - 1} (± standard deviation across episodes)"
@@ -66,8 +86,27 @@ def evaluate_command(
     table.add_column("quantity")
     table.add_column("value", justify="right")
     table.add_column("unit")
-    for label, value, unit in summary_rows(summary):
+    # The counts behind the state-dependence rows below are not rows of their own.
+    counts = ("selections_near", "selections_clear", "near_clearance", "clear_clearance")
+    for label, value, unit in summary_rows({k: v for k, v in summary.items() if k not in counts}):
         table.add_row(label, value, unit)
+    if dependence is not None:
+        table.add_row(
+            f"{worker} worker's share of choices, clearance <= {dependence['near_clearance']:.3g}",
+            _share(dependence["near_share"], dependence["near_choices"]),
+            "% of choices in the band",
+        )
+        table.add_row(
+            f"{worker} worker's share of choices, clearance >= {dependence['clear_clearance']:.3g} (none in range)",
+            _share(dependence["clear_share"], dependence["clear_choices"]),
+            "% of choices in the band",
+        )
+        ratio = dependence["ratio"]
+        table.add_row(
+            f"{worker} worker's share near / with none in range",
+            f"{ratio:.2f}" if ratio is not None else "undefined",
+            "ratio",
+        )
     console.print(table)
     if json_path is not None:
         payload = {
@@ -75,6 +114,12 @@ def evaluate_command(
             "kind": loaded.kind,
             "env_id": env_id or loaded.env_id,
             **result.to_dict(),
+            "state_dependence": dependence,
         }
         atomic_write_json(json_path, payload)
         console.print(f"Metrics written to {json_path}")
+
+
+def _share(share: float | None, choices: int) -> str:
+    """A share with the number of choices it is out of (``-`` when no choice fell in the band)."""
+    return f"{share:.1%} of {choices}" if share is not None else "- (0 choices)"

@@ -50,6 +50,11 @@ def tune_command(
     workers_dir: Path | None = typer.Option(
         None, "--workers", help="Run folder of train-workers (for --level manager and --level ham)."
     ),
+    algo: str = typer.Option(
+        "ddpg",
+        "--algo",
+        help="The flat baseline's algorithm with --level flat: ddpg | td3 | sac (its own search space and config).",
+    ),
     n_trials: int = typer.Option(
         20,
         "--n-trials",
@@ -124,7 +129,7 @@ def tune_command(
 
     matplotlib.use("Agg")  # plots are files; never open a window
 
-    from sb3_hddpg.hyperparams_opt import check_fixed_params
+    from sb3_hddpg.hyperparams_opt import FLAT_SAMPLERS, check_fixed_params
     from sb3_hddpg.study_storage import check_storage_url, default_storage_url
     from sb3_hddpg.tuning import (
         StudySettings,
@@ -139,6 +144,10 @@ def tune_command(
 
     if level not in LEVELS:
         raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
+    if algo != "ddpg" and level != "flat":
+        raise typer.BadParameter(f"only applies to --level flat, not {level!r}", param_hint="'--algo'")
+    if level == "flat" and algo not in FLAT_SAMPLERS:
+        raise typer.BadParameter(f"must be one of {list(FLAT_SAMPLERS)}, got {algo!r}", param_hint="'--algo'")
     if level == "worker" and worker not in WORKER_ENV_IDS:
         raise typer.BadParameter(
             f"--level worker needs --worker among {sorted(WORKER_ENV_IDS)}, got {worker!r}",
@@ -174,7 +183,7 @@ def tune_command(
         raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
     fixed = parse_fixed(fix)
     with usage_errors("'--fix'"):
-        check_fixed_params(level, fixed)
+        check_fixed_params(level, fixed, algo)
     if storage is not None:
         with usage_errors("'--storage'"):
             check_storage_url(storage)
@@ -190,6 +199,7 @@ def tune_command(
         n_evaluations=n_evaluations,
         eval_episodes=eval_episodes,
         seed=seed if seed is not None else 0,
+        algo=algo,
     )
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()

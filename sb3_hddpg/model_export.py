@@ -1,0 +1,148 @@
+"""
+``export_models``: a finished benchmark's final models copied into one folder with an ``index.json``, so that
+anyone can re-evaluate them on episodes of their own (issue 13: ``docs/results/models/``).
+
+The folder keeps the benchmark's layout below it (``seed-<s>/workers/``, ``seed-<s>/<method>/...``), so that
+every file still finds what it refers to: a worker zip its ``manifest.json`` beside it, a flat zip its
+``flat/manifest.json``, ``ham.json`` its workers by a relative path; a hierarchy bundle is self-contained.
+``index.json`` lists one record per model: ``{"method", "seed", "path", "sha256"}`` (plus ``"preference"``
+for the transfer scenario's runs), ``method`` one of :data:`INDEX_METHODS`, ``path`` relative to the folder
+and openable with :func:`sb3_hddpg.loading.load_policy` (``hddpg-cli evaluate PATH``).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+from sb3_hddpg.io import atomic_write_json
+
+#: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
+INDEX_METHODS = (
+    "worker:goal",
+    "worker:avoid",
+    "hddpg",
+    "hddpg-goal",
+    "hddpg-avoid",
+    "ham",
+    "ddpg",
+    "td3",
+    "sac",
+    "tqc",
+)
+
+
+def _sha256(path: Path) -> str:
+    from sb3_hddpg.training import sha256_file
+
+    return sha256_file(path)
+
+
+def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
+    if not source.is_file():
+        raise FileNotFoundError(f"Expected a finished run's file, missing: {str(source)!r}")
+    target = dest_root / relative
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(source, target)
+    return target
+
+
+def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
+    """The file a run's model is opened by and the files it needs beside it, relative to the seed folder."""
+    if base in ("hddpg", "hddpg-goal", "hddpg-avoid"):
+        return f"{run_key}/hierarchy.zip", []
+    if base == "ham":
+        return "ham/ham.json", []  # its workers are exported with the seed's workers
+    if base in ("ddpg", "td3", "sac", "tqc"):
+        return f"{run_key}/flat/{base}.zip", [f"{run_key}/flat/manifest.json"]
+    return None
+
+
+def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str, Any]]:
+    """
+    Copy a finished benchmark's final models into ``dest`` and write ``dest/index.json``.
+
+    Only finished runs (``records/<method>/seed-<s>.json`` with status ``done``) are exported; every copied
+    file's sha256 is checked against the source after copying, and the index is written last, atomically,
+    so that an interrupted export leaves no index that promises missing files.
+
+    :param benchmark_dir: the benchmark folder (``--out`` of ``hddpg-cli benchmark``).
+    :param dest: the folder to fill (created if missing; existing files of the same names are replaced).
+    :return: the index's records.
+    """
+    from sb3_hddpg.benchmark import WORKERS, split_key
+
+    root = Path(benchmark_dir)
+    records_dir = root / "records"
+    if not records_dir.is_dir():
+        raise FileNotFoundError(f"Not a benchmark folder (no records/): {str(benchmark_dir)!r}")
+    dest = Path(dest)
+    if dest.resolve() == root.resolve() or root.resolve() in dest.resolve().parents:
+        raise ValueError(f"Expected an export folder outside the benchmark folder, actually: {str(dest)!r}")
+    index: list[dict[str, Any]] = []
+    for record_file in sorted(records_dir.glob("*/seed-*.json")):
+        record = json.loads(record_file.read_text())
+        if record.get("status") != "done":
+            continue
+        key, seed = str(record["method"]), int(record["seed"])
+        seed_folder = Path(f"seed-{seed}")
+        if key == WORKERS:
+            # The manifest first: a worker zip is opened through it.
+            _copy(
+                root / seed_folder / "workers" / "manifest.json",
+                dest,
+                seed_folder / "workers" / "manifest.json",
+            )
+            for name in sorted(record["workers"]):
+                relative = seed_folder / "workers" / f"{name}.zip"
+                index.append(_entry(f"worker:{name}", seed, root, dest, relative))
+            continue
+        base, preference = split_key(key)
+        files = _model_files(key, base)
+        if files is None:
+            continue  # a method registered elsewhere, with files this exporter does not know
+        model, extras = files
+        for extra in extras:
+            _copy(root / seed_folder / extra, dest, seed_folder / extra)
+        entry = _entry(base, seed, root, dest, seed_folder / model)
+        if preference is not None:
+            entry["preference"] = preference
+        index.append(entry)
+    if not index:
+        raise ValueError(f"No finished runs to export in {str(benchmark_dir)!r}")
+    order = {name: i for i, name in enumerate(INDEX_METHODS)}
+    index.sort(key=lambda e: (order.get(e["method"], len(order)), e.get("preference") or "", e["seed"]))
+    atomic_write_json(dest / "index.json", index)
+    return index
+
+
+def _entry(method: str, seed: int, root: Path, dest: Path, relative: Path) -> dict[str, Any]:
+    source = root / relative
+    target = _copy(source, dest, relative)
+    digest = _sha256(target)
+    if digest != _sha256(source):
+        raise OSError(f"Copy of {str(source)!r} differs from its source (sha256): disk full or changing?")
+    return {"method": method, "seed": seed, "path": relative.as_posix(), "sha256": digest}
+
+
+def read_index(folder: str | Path) -> list[dict[str, Any]]:
+    """
+    An export's ``index.json``, every file checked against its recorded sha256.
+
+    :param folder: the export folder.
+    :return: the records, each with ``path`` still relative to ``folder``.
+    :raises ValueError: naming the record whose file is missing, outside the folder, or altered.
+    """
+    folder = Path(folder)
+    index = json.loads((folder / "index.json").read_text())
+    for entry in index:
+        path = (folder / entry["path"]).resolve()
+        if folder.resolve() not in path.parents:
+            raise ValueError(f"index.json: {entry['path']!r} points outside {str(folder)!r}")
+        if not path.is_file():
+            raise ValueError(f"index.json: {entry['path']!r} is missing")
+        if _sha256(path) != entry["sha256"]:
+            raise ValueError(f"index.json: {entry['path']!r} does not match its sha256")
+    return index

@@ -1,0 +1,62 @@
+"""``PreferenceReward``: the shared env's reward re-weighted by preference factors (a flat agent's view of a preference)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+
+class PreferenceReward(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
+    """
+    Replace the env's reward by ``sum_t preference[t] * normalised(term_t)``: each reward term min-max
+    normalised to [0, 1] with the env's fixed ``reward_bounds``, weighted by its factor. It is the reward a
+    manager with the same preference factors is paid (``WorkerSelectionWrapper`` with one worker per term,
+    ``option_steps = 1``), so that a flat agent trained on it learns the same scalarised objective from
+    scratch (the transfer benchmark). With every factor 1 on ``hddpg/SnakeReach-v0`` it is that env's own
+    reward.
+
+    :param env: the shared env, whose ``unwrapped`` has ``reward_bounds`` and ``normalise_terms`` and whose
+        ``info`` has ``reward_terms``.
+    :param preferences: term name -> factor (finite, > 0); terms not named get 1.
+    """
+
+    def __init__(self, env: gym.Env, preferences: Mapping[str, float]) -> None:
+        super().__init__(env)
+        terms = list(getattr(env.unwrapped, "reward_bounds", {}))
+        if not terms or not callable(getattr(env.unwrapped, "normalise_terms", None)):
+            raise ValueError("Expected an env with `reward_bounds` and `normalise_terms` (the snake env's)")
+        unknown = sorted(set(preferences) - set(terms))
+        if unknown:
+            raise ValueError(f"Unknown reward terms {unknown} in the preferences; the env's terms: {terms}")
+        self.preferences: dict[str, float] = {}
+        for term in terms:
+            value = preferences.get(term, 1.0)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not math.isfinite(value)
+                or value <= 0
+            ):
+                raise ValueError(
+                    f"Expected preference of {term!r} to be a finite number > 0, actually: {value!r}"
+                )
+            self.preferences[term] = float(value)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, _, terminated, truncated, info = self.env.step(action)
+        normalised = self.env.unwrapped.normalise_terms(info["reward_terms"])  # type: ignore[attr-defined]
+        reward = sum(factor * normalised[term] for term, factor in self.preferences.items())
+        return obs, float(reward), terminated, truncated, info
+
+
+def make_preference_env(
+    env_id: str, env_kwargs: dict[str, Any] | None, preferences: Mapping[str, float]
+) -> gym.Env:
+    """``gym.make(env_id, **env_kwargs)`` wrapped in :class:`PreferenceReward` (module-level: picklable)."""
+    import sb3_hddpg  # noqa: F401  (registers the ids in a fresh subprocess)
+
+    return PreferenceReward(gym.make(env_id, **(env_kwargs or {})), preferences)

@@ -1,0 +1,392 @@
+"""Benchmark methods as records, TD3/SAC baselines, the transfer scenario and the model export (issue 13)."""
+
+from __future__ import annotations
+
+import functools
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from sb3_hddpg import stats
+from sb3_hddpg.benchmark import (
+    DEFAULT_METHODS,
+    METHOD_REGISTRY,
+    METHODS,
+    BenchmarkSettings,
+    Method,
+    Task,
+    compute_results,
+    markdown_report,
+    normalised_term_sums,
+    plan_tasks,
+    preference_score,
+    register_method,
+    steps_to_fraction,
+    task_cost,
+    write_outputs,
+)
+from sb3_hddpg.wrappers import PreferenceReward
+from tests.cli_batch import run_batch
+from tests.test_benchmark import cli, record, summary
+
+TINY = (
+    "--timesteps", "200", "--worker-timesteps", "100", "--eval-freq", "100",
+    "--eval-episodes", "1", "--test-episodes", "1",
+)  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------------------ records
+def test_td3_and_sac_are_flat_records_given_the_hierarchy_total_steps():
+    settings = BenchmarkSettings(
+        methods=["hddpg", "td3", "sac"], seeds=[0], timesteps=1000, worker_timesteps=300
+    )
+    for name in ("td3", "sac"):
+        method = METHOD_REGISTRY[name]
+        assert name in METHODS and name not in DEFAULT_METHODS
+        assert not method.needs_workers and method.baseline and method.takes_preference
+        assert task_cost(Task(name, 0), settings) == 1000 + 2 * 300
+    assert task_cost(Task("hddpg", 0), settings) == 1000 and task_cost(Task("workers", 0), settings) == 600
+    assert METHOD_REGISTRY["td3"].colour != METHOD_REGISTRY["sac"].colour
+
+
+def test_td3_and_sac_are_compared_with_hddpg_and_reported():
+    settings = BenchmarkSettings(methods=["hddpg", "ddpg", "td3", "sac"], seeds=[0, 1, 2], timesteps=3000)
+    records = []
+    for seed in range(3):
+        records.append(record("hddpg", seed, [200.0, 210.0, 220.0], 230.0 + seed))
+        records.append(record("ddpg", seed, [190.0, 195.0, 200.0], 210.0 - seed))
+        for name, test in (("td3", 215.0 + 2 * seed), ("sac", 225.0 - seed)):
+            # A flat agent: no worker pre-training (record() offsets all but ddpg by default).
+            records.append({**record("ddpg", seed, [190.0, 200.0, 205.0], test), "method": name})
+    results = compute_results(settings, records)
+    for name, tests in (("td3", [215.0, 217.0, 219.0]), ("sac", [225.0, 224.0, 223.0])):
+        comparison = results["comparisons"][f"hddpg vs {name}"]
+        point, low, high = stats.paired_difference_ci([230.0, 231.0, 232.0], tests)
+        assert comparison["mean_reach_reward"]["difference"] == pytest.approx(point)
+        assert (comparison["mean_reach_reward"]["ci_low"], comparison["mean_reach_reward"]["ci_high"]) == (
+            low,
+            high,
+        )
+        assert results["colours"][name] == METHOD_REGISTRY[name].colour
+    report = markdown_report(results)
+    assert "| hddpg vs td3 | mean_reach_reward |" in report and "| sac | 3 |" in report
+
+
+def test_a_new_method_is_one_record(tmp_path):
+    def run(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+        raise AssertionError("not run in this test")
+
+    method = Method("scripted-ik", run, lambda settings: 0, colour="black", baseline=True)
+    register_method(method)
+    try:
+        with pytest.raises(ValueError, match="taken or reserved"):
+            register_method(method)
+        settings = BenchmarkSettings(methods=["hddpg", "scripted-ik"], seeds=[0, 1], timesteps=2000)
+        assert [t.label for t in plan_tasks(settings)][:3] == [
+            "workers/seed-0",
+            "hddpg/seed-0",
+            "scripted-ik/seed-0",
+        ]
+        records = [record("hddpg", s, [200.0, 210.0], 230.0 + s) for s in range(2)]
+        records += [{**record("ham", s, [220.0], 220.0), "method": "scripted-ik"} for s in range(2)]
+        results = compute_results(settings, records)
+        assert "hddpg vs scripted-ik" in results["comparisons"]  # baseline=True: compared with hddpg
+        assert results["colours"]["scripted-ik"] == "black"
+        write_outputs(tmp_path, results, records)  # its colour reaches the plots without a table to edit
+        assert (tmp_path / "learning_curves.png").stat().st_size > 0
+    finally:
+        METHOD_REGISTRY.pop("scripted-ik")
+    with pytest.raises(ValueError, match="taken or reserved"):
+        register_method(Method("workers", run, lambda settings: 0))
+
+
+def test_state_dependence_per_seed_in_the_results():
+    settings = BenchmarkSettings(methods=["hddpg", "ddpg"], seeds=[0, 1], timesteps=2000)
+    choices = {
+        0: ({"avoid": 30, "goal": 10}, {"avoid": 10, "goal": 90}),  # near 75 %, clear 10 %: ratio 7.5
+        1: ({"avoid": 5, "goal": 15}, {"avoid": 25, "goal": 75}),  # a fixed mix: 25 % and 25 %
+    }
+    records = []
+    for seed, (near, clear) in choices.items():
+        test = summary(
+            230.0,
+            selection_rate={"avoid": 0.5, "goal": 0.5},
+            selections_near=near,
+            selections_clear=clear,
+            near_clearance=0.15,
+            clear_clearance=0.3,
+        )
+        records.append({**record("hddpg", seed, [200.0, 210.0], 230.0), "test": test})
+        records.append(record("ddpg", seed, [190.0, 200.0], 210.0))
+    results = compute_results(settings, records)
+    figures = results["methods"]["hddpg"]["state_dependence"]
+    assert figures["0"]["near_share"] == 0.75 and figures["0"]["clear_share"] == 0.1
+    assert figures["0"]["ratio"] == pytest.approx(7.5) and figures["1"]["ratio"] == pytest.approx(1.0)
+    assert "state_dependence" not in results["methods"]["ddpg"]  # a flat agent makes no choices
+    report = markdown_report(results)
+    assert "| hddpg | 0 | 75.0% (40) | 10.0% (100) | 7.50 |" in report
+    assert "| hddpg | 1 | 25.0% (20) | 25.0% (100) | 1.00 |" in report
+
+
+# ----------------------------------------------------------------------------------------------- transfer
+def test_preference_reward_is_the_weighted_sum_of_normalised_terms():
+    reach = gym.make("hddpg/SnakeReach-v0")
+    weighted = PreferenceReward(gym.make("hddpg/SnakeReach-v0"), {"goal": 2.0, "avoid": 0.5})
+    equal = PreferenceReward(gym.make("hddpg/SnakeReach-v0"), {})
+    for env in (reach, weighted, equal):
+        env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        action = rng.uniform(-1, 1, reach.action_space.shape).astype(np.float32)
+        _, reach_reward, *_ = reach.step(action)
+        _, reward, _, _, info = weighted.step(action)
+        _, equal_reward, *_ = equal.step(action)
+        normalised = reach.unwrapped.normalise_terms(info["reward_terms"])
+        assert reward == pytest.approx(2.0 * normalised["goal"] + 0.5 * normalised["avoid"])
+        assert equal_reward == pytest.approx(reach_reward)  # every factor 1: the reach reward itself
+    with pytest.raises(ValueError, match="Unknown reward terms"):
+        PreferenceReward(gym.make("hddpg/SnakeReach-v0"), {"speed": 1.0})
+    with pytest.raises(ValueError, match="finite number > 0"):
+        PreferenceReward(gym.make("hddpg/SnakeReach-v0"), {"goal": 0.0})
+
+
+def test_steps_to_fraction_of_the_final_score():
+    curve = [{"timesteps": 100 * (i + 1), "score": v} for i, v in enumerate([10.0, 50.0, 88.0, 92.0, 100.0])]
+    score = functools.partial(lambda point: point["score"])
+    assert steps_to_fraction(curve, score, 0.9) == 400  # 90 % of 100: 92 at step 400
+    # From a floor of 50 (a random policy's score): 50 + 0.9 * 50 = 95, first reached at the end.
+    assert steps_to_fraction(curve, score, 0.9, floor=50.0) == 500
+    assert steps_to_fraction(curve, score, 0.5, floor=50.0) == 300
+    assert steps_to_fraction(curve, score, 0.9, floor=100.0) is None  # no gain over the floor
+    with pytest.raises(ValueError, match="fraction"):
+        steps_to_fraction(curve, score, 1.5)
+
+
+def test_preference_score_weights_the_normalised_parts():
+    s = summary(200.0, mean_goal_reward=-40.0, mean_avoid_reward=30.0)
+    goal, avoid = normalised_term_sums(s)
+    assert preference_score(s, {"goal": 2.0, "avoid": 1.0}) == pytest.approx(2 * goal + avoid)
+    assert preference_score(s, {}) == pytest.approx(goal + avoid)
+
+
+def transfer_record(method: str, seed: int, goal_avoid: list[tuple[float, float]], worker_steps: int) -> dict:
+    """A transfer run's record whose curve has the given normalised goal / avoid episode sums."""
+    bounds = __import__("sb3_hddpg.envs", fromlist=["SnakeArmEnv"]).SnakeArmEnv().reward_bounds
+
+    def raw(part: float, term: str) -> float:  # the raw mean whose normalised episode sum is `part`
+        low, high = bounds[term]
+        return part * (high - low) + 200.0 * low
+
+    def point(goal: float, avoid: float) -> dict[str, Any]:
+        return summary(
+            goal + avoid, mean_goal_reward=raw(goal, "goal"), mean_avoid_reward=raw(avoid, "avoid")
+        )
+
+    return {
+        "method": method,
+        "seed": seed,
+        "status": "done",
+        "worker_timesteps": worker_steps,
+        "history": [
+            {"timesteps": 100 * (i + 1), "total_timesteps": 100 * (i + 1) + worker_steps, **point(g, a)}
+            for i, (g, a) in enumerate(goal_avoid)
+        ],
+        "test": point(*goal_avoid[-1]),
+        "preference": method.partition("@")[2],
+        "reference": point(50.0, 150.0),  # the random policy: 2 * 50 + 150 = 250 under goal=2,avoid=1
+    }
+
+
+def test_transfer_ratio_per_seed_with_a_bootstrap_ci():
+    settings = BenchmarkSettings(
+        methods=["hddpg", "ddpg"],
+        seeds=[0, 1, 2],
+        timesteps=400,
+        scenario="transfer",
+        preferences=["goal=2, avoid=1"],
+    )
+    assert settings.preferences == ["goal=2,avoid=1"]  # one spelling names the runs
+    assert settings.method_keys == ["hddpg@goal=2,avoid=1", "ddpg@goal=2,avoid=1"]
+    assert Task("ddpg@goal=2,avoid=1", 0).preferences == {"goal": 2.0, "avoid": 1.0}
+    records = []
+    for seed in range(3):
+        # Manager: past 90 % of the way from 250 to its final 350 (340) at its 1st evaluation (100 steps).
+        records.append(transfer_record("hddpg@goal=2,avoid=1", seed, [(96.0, 150.0), (100.0, 150.0)], 200))
+        # Flat: from 250 to 330; past 322 first at evaluation 2 + seed.
+        curve = [(50.0, 150.0)] * (1 + seed) + [(87.0, 150.0), (90.0, 150.0)]
+        records.append(transfer_record("ddpg@goal=2,avoid=1", seed, curve, 0))
+    results = compute_results(settings, records)
+    entry = results["transfer"]["preferences"]["goal=2,avoid=1"]["ddpg"]
+    assert [entry["per_seed"][str(s)]["hddpg_steps"] for s in range(3)] == [100, 100, 100]
+    assert [entry["per_seed"][str(s)]["flat_steps"] for s in range(3)] == [200, 300, 400]
+    assert entry["per_seed"]["0"]["random_score"] == pytest.approx(250.0)
+    assert entry["per_seed"]["0"]["hddpg_final_score"] == pytest.approx(350.0)
+    assert entry["ratio"] == stats.summarise([2.0, 3.0, 4.0])
+    assert "hddpg@goal=2,avoid=1 vs ddpg@goal=2,avoid=1" in results["comparisons"]
+    report = markdown_report(results)
+    assert "| goal=2,avoid=1 | ddpg | 3/3 | 100 | 300 | 3.00 [" in report
+
+
+def test_transfer_settings_are_checked():
+    with pytest.raises(ValueError, match="cannot learn a given preference"):
+        BenchmarkSettings(methods=["hddpg", "ham"], scenario="transfer", preferences=["goal=2,avoid=1"])
+    with pytest.raises(ValueError, match="compares hddpg with flat agents"):
+        BenchmarkSettings(methods=["ddpg", "td3"], scenario="transfer", preferences=["goal=2,avoid=1"])
+    with pytest.raises(ValueError, match="finite number > 0"):
+        BenchmarkSettings(methods=["hddpg", "ddpg"], scenario="transfer", preferences=["goal=-1"])
+    with pytest.raises(ValueError, match="transfer scenario only"):
+        BenchmarkSettings(methods=["hddpg", "ddpg"], preferences=["goal=2"])
+    with pytest.raises(ValueError, match="Unknown scenario"):
+        BenchmarkSettings(scenario="zero-shot")
+
+
+def test_usage_errors_through_the_cli(tmp_path):
+    out = str(tmp_path / "b")
+    transfer, without, sideways, export = run_batch(
+        [
+            ["benchmark", "--scenario", "transfer", "--preference", "goal=x", "--out", out],
+            ["benchmark", "--preference", "goal=2", "--out", out],
+            ["benchmark", "--scenario", "sideways", "--out", out],
+            ["export-models", str(tmp_path), out],
+        ]
+    )
+    assert transfer.returncode == 2 and "'goal'" in transfer.stderr
+    assert without.returncode == 2 and "--scenario transfer" in without.stderr
+    assert sideways.returncode == 2 and "--scenario" in sideways.stderr
+    assert export.returncode == 2 and "not a benchmark folder" in export.stderr
+    for done in (transfer, without, sideways, export):
+        assert "Traceback" not in done.stderr
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.slow
+def test_tiny_transfer_benchmark_through_the_cli(tmp_path):
+    out = tmp_path / "transfer"
+    args = ("benchmark", "--scenario", "transfer", "--preference", "goal=2,avoid=1", "--seeds", "1", *TINY)
+    done = cli(*args, "--flat-timesteps", "300", "--n-jobs", "2", "--out", str(out))
+    assert done.returncode == 0, done.stdout + done.stderr
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["methods"]) == {"hddpg@goal=2,avoid=1", "ddpg@goal=2,avoid=1"}
+    manifest = json.loads((out / "seed-0" / "ddpg@goal=2,avoid=1" / "flat" / "manifest.json").read_text())
+    assert manifest["models"]["ddpg"]["preferences"] == {"goal": 2.0, "avoid": 1.0}
+    entry = results["transfer"]["preferences"]["goal=2,avoid=1"]["ddpg"]["per_seed"]["0"]
+    for key in ("hddpg_steps", "flat_steps"):  # an evaluation step of the run, or None (no gain over random)
+        assert entry[key] is None or entry[key] in (100, 200, 300)
+    assert "Transfer" in done.stdout and "Transfer:" in (out / "results.md").read_text()
+
+
+# ------------------------------------------------------------------------------------------------- export
+@pytest.mark.slow
+def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
+    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.loading import load_policy
+    from sb3_hddpg.model_export import read_index
+
+    out, models = tmp_path / "bench", tmp_path / "models"
+    methods = "hddpg,hddpg-goal,hddpg-avoid,ham,ddpg,td3,sac"
+    args = ("benchmark", "--seeds", "1", "--methods", methods, *TINY, "--n-jobs", "2", "--out", str(out))
+    done = cli(*args, "--export-models", str(models))
+    assert done.returncode == 0, done.stdout + done.stderr
+    results = json.loads((out / "results.json").read_text())
+    for name in ("td3", "sac"):  # the hierarchy's total env steps: 200 + 2 x 100
+        assert results["methods"][name]["own_timesteps"] == 400
+        assert f"hddpg vs {name}" in results["comparisons"]
+    assert "state_dependence" in results["methods"]["hddpg"] and "State dependence" in done.stdout
+
+    index = read_index(models)  # every file present and matching its sha256
+    expected = [
+        "worker:goal",
+        "worker:avoid",
+        "hddpg",
+        "hddpg-goal",
+        "hddpg-avoid",
+        "ham",
+        "ddpg",
+        "td3",
+        "sac",
+    ]
+    assert [entry["method"] for entry in index] == expected
+    assert all(entry["seed"] == 0 and not Path(entry["path"]).is_absolute() for entry in index)
+    # Re-evaluate from the export alone (the benchmark folder gone), on episodes of our own.
+    shutil.rmtree(out)
+    for entry in index:
+        loaded = load_policy(models / entry["path"])
+        env = loaded.make_env()
+        metrics = evaluate(loaded.policy, env, n_episodes=1, seed=123).summary()
+        env.close()
+        assert metrics["episodes"] == 1 and np.isfinite(metrics["mean_reach_reward"]), entry
+    # A file altered after the export is caught.
+    (models / index[0]["path"]).write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="sha256"):
+        read_index(models)
+
+
+def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
+    """The exporter on a benchmark folder's layout (files stand in for models: only copying is tested here)."""
+    from sb3_hddpg.model_export import export_models, read_index
+    from sb3_hddpg.training import sha256_file
+
+    run = tmp_path / "bench"
+    files = {
+        "seed-3/workers/manifest.json": "{}",
+        "seed-3/workers/goal.zip": "goal",
+        "seed-3/workers/avoid.zip": "avoid",
+        "seed-3/hddpg/hierarchy.zip": "bundle",
+        "seed-3/ham/ham.json": "ham",
+        "seed-3/td3/flat/td3.zip": "td3",
+        "seed-3/td3/flat/manifest.json": "{}",
+        "seed-3/ddpg@goal=2,avoid=1/flat/ddpg.zip": "transfer",
+        "seed-3/ddpg@goal=2,avoid=1/flat/manifest.json": "{}",
+        "seed-3/sac/flat/sac.zip": "unfinished",
+    }
+    for relative, text in files.items():
+        (run / relative).parent.mkdir(parents=True, exist_ok=True)
+        (run / relative).write_text(text)
+    records = {
+        "workers": {"workers": {"goal": {}, "avoid": {}}},
+        "hddpg": {},
+        "ham": {},
+        "td3": {},
+        "ddpg@goal=2,avoid=1": {},
+        "sac": {"status": "running"},  # not finished: not exported
+    }
+    for key, extra in records.items():
+        path = run / "records" / key / "seed-3.json"
+        path.parent.mkdir(parents=True)
+        path.write_text(json.dumps({"method": key, "seed": 3, "status": "done", **extra}))
+
+    index = export_models(run, tmp_path / "models")
+    assert (
+        json.loads((tmp_path / "models" / "index.json").read_text())
+        == index
+        == read_index(tmp_path / "models")
+    )
+    assert [(e["method"], e["path"]) for e in index] == [
+        ("worker:goal", "seed-3/workers/goal.zip"),
+        ("worker:avoid", "seed-3/workers/avoid.zip"),
+        ("hddpg", "seed-3/hddpg/hierarchy.zip"),
+        ("ham", "seed-3/ham/ham.json"),
+        ("ddpg", "seed-3/ddpg@goal=2,avoid=1/flat/ddpg.zip"),
+        ("td3", "seed-3/td3/flat/td3.zip"),
+    ]
+    assert index[4]["preference"] == "goal=2,avoid=1" and "preference" not in index[5]
+    for entry in index:
+        assert entry["sha256"] == sha256_file(run / entry["path"]) and entry["seed"] == 3
+    # What the models open through is copied beside them.
+    for relative in ("seed-3/workers/manifest.json", "seed-3/td3/flat/manifest.json"):
+        assert (tmp_path / "models" / relative).is_file()
+    assert not (tmp_path / "models" / "seed-3" / "sac").exists()
+
+    escaped = [dict(index[0], path="../bench/seed-3/workers/goal.zip")]
+    (tmp_path / "models" / "index.json").write_text(json.dumps(escaped))
+    with pytest.raises(ValueError, match="outside"):
+        read_index(tmp_path / "models")
+    with pytest.raises(ValueError, match="outside the benchmark folder"):
+        export_models(run, run / "models")
+    with pytest.raises(FileNotFoundError, match="no records"):
+        export_models(tmp_path / "models", tmp_path / "elsewhere")

@@ -1,0 +1,89 @@
+"""``tune --level flat --algo td3|sac``: the same tuning effort for every flat baseline (issue 13, target 4)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import optuna
+import pytest
+import yaml
+from stable_baselines3 import SAC, TD3
+
+from sb3_hddpg import tuning
+from sb3_hddpg.config import load_hyperparams, parse_block
+from sb3_hddpg.hyperparams_opt import check_fixed_params, sample_sac_params, sampler_for, search_space
+from sb3_hddpg.study_storage import default_storage_url
+from sb3_hddpg.tuning import StudySettings, TuningTarget
+from tests.cli_batch import run_batch
+
+REPO = Path(__file__).resolve().parent.parent
+FIXED = {"net_arch": "small", "buffer_size": 10_000, "batch_size": 32}
+SHARED = ("gamma", "learning_rate", "batch_size", "buffer_size", "tau", "train_freq", "net_arch")
+
+
+def test_every_flat_algorithm_searches_the_shared_parameters_alike():
+    ddpg, td3, sac = (search_space("flat", algo) for algo in ("ddpg", "td3", "sac"))
+    assert td3 == ddpg  # TD3 gets DDPG's space (rl_zoo3 does the same)
+    for name in SHARED:
+        assert sac[name] == ddpg[name], name
+    assert "log_std_init" in sac and "noise_type" not in sac  # SAC explores by its own entropy
+    with pytest.raises(ValueError, match="Unknown parameter 'noise_std' for level 'flat' \\(sac\\)"):
+        check_fixed_params("flat", {"noise_std": 0.2}, "sac")
+    with pytest.raises(ValueError, match="DDPG only"):
+        sampler_for("manager", "sac")
+    with pytest.raises(ValueError, match="Unknown algorithm 'ppo'"):
+        TuningTarget(level="flat", algo="ppo")
+
+
+def test_a_replayed_sac_trial_is_a_block_sac_accepts():
+    params = {
+        **FIXED,
+        "gamma": 0.98,
+        "learning_rate": 3e-4,
+        "tau": 0.02,
+        "train_freq": 4,
+        "log_std_init": -2.5,
+    }
+    changes = sample_sac_params(optuna.trial.FixedTrial(params))
+    block = dict(yaml.safe_load((REPO / "zoo_configs" / "sac.yml").read_text())["default"], **changes)
+    parsed = parse_block(block, SAC, source="replayed")
+    assert parsed.algo_kwargs["policy_kwargs"] == {"net_arch": [64, 64], "log_std_init": -2.5}
+    assert parsed.algo_kwargs["gradient_steps"] == 4 and parsed.algo_kwargs["ent_coef"] == "auto"
+
+
+@pytest.mark.slow  # two trainings per algorithm: 40-120 s each on a shared 2-core machine
+@pytest.mark.parametrize(("algo", "cls"), [("td3", TD3), ("sac", SAC)])
+def test_two_tiny_trials_and_a_saved_config(algo, cls, tmp_path):
+    config = yaml.safe_load((REPO / "zoo_configs" / f"{algo}.yml").read_text())
+    for block in config.values():
+        block.update(learning_starts=50, n_timesteps=200, policy_kwargs="dict(net_arch=[16])")
+    base = tmp_path / f"{algo}.yml"
+    base.write_text(yaml.safe_dump(config, sort_keys=False))
+    target = TuningTarget(
+        level="flat", algo=algo, config=str(base), timesteps=200, n_evaluations=2, eval_episodes=1
+    )
+    assert target.name == f"flat-{algo}" and target.describe()["algo"] == algo
+    settings = StudySettings(
+        storage=default_storage_url(tmp_path), study_name=target.name, n_trials=2, pruner="none", seed=0,
+        fixed_params={**FIXED, "train_freq": 4},  # 200 steps in whole updates: exactly two evaluations
+    )  # fmt: skip
+    study = tuning.tune(target, settings, tmp_path)
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 2
+    assert all(math.isfinite(t.value) and len(t.intermediate_values) == 2 for t in study.trials)
+    assert tuning.best_block(study, target) == study.best_trial.user_attrs["config_block"]
+    saved = tuning.save_best_config(study, target, tmp_path / "best.yml")
+    hyperparams = load_hyperparams("hddpg/SnakeReach-v0", cls, saved)
+    assert hyperparams.algo_kwargs["learning_rate"] == study.best_params["learning_rate"]
+
+
+def test_algo_usage_errors_through_the_cli(tmp_path):
+    wrong_level, unknown = run_batch(
+        [
+            ["tune", "--level", "worker", "--worker", "goal", "--algo", "sac", "--out", str(tmp_path / "a")],
+            ["tune", "--level", "flat", "--algo", "ppo", "--out", str(tmp_path / "b")],
+        ]
+    )
+    assert wrong_level.returncode == 2 and "--level flat" in wrong_level.stderr
+    assert unknown.returncode == 2 and "'ppo'" in unknown.stderr
+    assert "Traceback" not in wrong_level.stderr + unknown.stderr
