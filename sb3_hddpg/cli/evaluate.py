@@ -92,18 +92,18 @@ def evaluate_command(
         table.add_row(label, value, unit)
     if dependence is not None:
         table.add_row(
-            f"{worker} worker's share of choices, clearance <= {dependence['near_clearance']:.3g}",
+            f"{worker} share, clearance <= {dependence['near_clearance']:.3g}",
             _share(dependence["near_share"], dependence["near_choices"]),
-            "% of choices in the band",
+            "of choices",
         )
         table.add_row(
-            f"{worker} worker's share of choices, clearance >= {dependence['clear_clearance']:.3g} (none in range)",
+            f"{worker} share, clearance >= {dependence['clear_clearance']:.3g} (none in range)",
             _share(dependence["clear_share"], dependence["clear_choices"]),
-            "% of choices in the band",
+            "of choices",
         )
         ratio = dependence["ratio"]
         table.add_row(
-            f"{worker} worker's share near / with none in range",
+            f"{worker} share ratio near / none in range",
             f"{ratio:.2f}" if ratio is not None else "undefined",
             "ratio",
         )
