@@ -52,6 +52,9 @@ ZOO_KEYS = {
     "env_kwargs",
     "callback",
 }
+#: The replay buffers a config's ``replay_buffer_class`` key may name (RL Zoo evaluates the string; we look
+#: it up here). Their env-dependent arguments are filled in from the training env.
+REPLAY_BUFFERS = ("GoalRelabelingReplayBuffer",)
 #: The callbacks a config's ``callback`` key may name (RL Zoo imports any class path; we import none).
 CALLBACKS = {"sb3_hddpg.callbacks.ActionL2Penalty": "action_l2"}
 #: Keys of the manager block only: arguments of WorkerSelectionWrapper.
@@ -194,6 +197,16 @@ def parse_block(
             raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {value!r}")
     if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
         block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
+    buffer = block.get("replay_buffer_class")
+    if buffer is not None and buffer not in REPLAY_BUFFERS:
+        raise ConfigError(
+            f"Unknown replay_buffer_class {str(buffer)!r:.100} in {source}; allowed: {list(REPLAY_BUFFERS)}"
+        )
+    buffer_kwargs = block.get("replay_buffer_kwargs", {}) or {}
+    if not isinstance(buffer_kwargs, dict) or set(buffer_kwargs) - {"relabel_fraction"}:
+        raise ConfigError(
+            f"Expected replay_buffer_kwargs in {source} to set only relabel_fraction, actually: {buffer_kwargs!r:.200}"
+        )
     if "train_freq" in block and isinstance(block["train_freq"], list):
         block["train_freq"] = tuple(block["train_freq"])
     for key in ("learning_rate", "gamma", "tau"):

@@ -104,6 +104,23 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         self._episode_counter = np.zeros(self.n_envs, dtype=np.int64)
         self._episode_end: dict[tuple[int, int], int] = {}
 
+    @staticmethod
+    def env_kwargs(env: Any) -> dict[str, Any]:
+        """
+        The env-dependent arguments of this buffer, read from a snake env (or a wrapper of one).
+
+        :param env: the goal worker's training env.
+        :return: ``n_joints``, ``observe``, ``touch_radius`` and ``goal_low``.
+        """
+        base = env.unwrapped
+        observed = getattr(base, "observed_components", None)
+        return {
+            "n_joints": base.n_joints,
+            "observe": list(observed) if observed is not None else None,
+            "touch_radius": base.touch_radius,
+            "goal_low": base.reward_bounds["goal"][0],
+        }
+
     def add(
         self,
         obs: np.ndarray,

@@ -265,6 +265,14 @@ def train_agent(
                 best = -np.inf
         else:
             kwargs = dict(hyperparams.algo_kwargs)
+            if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
+                from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
+
+                kwargs["replay_buffer_class"] = GoalRelabelingReplayBuffer
+                kwargs["replay_buffer_kwargs"] = {
+                    **GoalRelabelingReplayBuffer.env_kwargs(eval_env),
+                    **(kwargs.get("replay_buffer_kwargs") or {}),
+                }
             if hyperparams.noise_type is not None:
                 kwargs["action_noise"] = hyperparams.action_noise(int(np.prod(vec_env.action_space.shape)))
             model = cls(hyperparams.policy, vec_env, seed=seed, device="cpu", verbose=0, **kwargs)

@@ -83,3 +83,38 @@ def test_wrong_layout_is_refused():
             device="cpu",
             observe=["joint_positions", "joint_obstacle_distances"],
         )
+
+
+def test_config_key_trains_the_goal_worker_with_relabelling(tmp_path):
+    import yaml
+
+    from sb3_hddpg.config import DEFAULT_CONFIG
+    from sb3_hddpg.training import load_workers, train_workers
+
+    config = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    block = {k: v for k, v in config["hddpg/SnakeGoal-v0"].items() if k != "<<"}
+    block.update(
+        replay_buffer_class="GoalRelabelingReplayBuffer", replay_buffer_kwargs={"relabel_fraction": 0.5}
+    )
+    path = tmp_path / "config.yml"
+    path.write_text(yaml.safe_dump({"hddpg/SnakeGoal-v0": block}))
+    train_workers(tmp_path / "w", workers=["goal"], config=path, timesteps=200, eval_freq=0, eval_episodes=1)
+    models, manifest = load_workers(tmp_path / "w")
+    assert models["goal"].observation_space.shape == (15,)
+    assert (
+        manifest["workers"]["goal"]["config"]["block"]["replay_buffer_class"] == "GoalRelabelingReplayBuffer"
+    )
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ({"replay_buffer_class": "os.system"}, "Unknown replay_buffer_class"),
+        ({"replay_buffer_kwargs": {"device": "cuda"}}, "relabel_fraction"),
+    ],
+)
+def test_config_refuses_other_buffers(extra, message):
+    from sb3_hddpg.config import ConfigError, parse_block
+
+    with pytest.raises(ConfigError, match=message):
+        parse_block({"n_timesteps": 10, **extra}, DDPG)
