@@ -31,3 +31,32 @@ def test_preference_landscape_scores_every_policy_and_names_the_best(tmp_path):
     verdicts = [line for line in result.stdout.splitlines() if line.startswith("bias ")]
     assert [v.split(":")[0] for v in verdicts] == ["bias 0.15", "bias 3"], result.stdout
     assert all("goal-preferred best =" in v and "avoid-preferred best =" in v for v in verdicts)
+
+
+def test_worker_study_trains_with_every_setting_and_saves_a_plain_sb3_zip(tmp_path):
+    import json
+
+    from stable_baselines3 import DDPG
+
+    args = ["--steps", "300", "--eval-every", "300", "--curve-episodes", "1", "--test-episodes", "1"]
+    args += [
+        "--observe",
+        "goal",
+        "--relabel",
+        "0.8",
+        "--action-l2",
+        "0.5",
+        "--save",
+        str(tmp_path / "goal.zip"),
+    ]
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / "worker_study.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    lines = [json.loads(line) for line in result.stdout.splitlines() if line.startswith("{")]
+    assert lines[0]["steps"] == 300 and "test" in lines[-1]
+    assert 0.0 <= lines[-1]["goal_touch_rate"] <= 1.0
+    assert DDPG.load(tmp_path / "goal.zip", device="cpu").observation_space.shape == (15,)
