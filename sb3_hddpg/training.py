@@ -46,11 +46,21 @@ def _algos() -> dict[str, type[BaseAlgorithm]]:
 ALGO_NAMES = ("ddpg", "td3", "sac", "tqc")
 
 
-def algo_class(name: str) -> type[BaseAlgorithm]:
-    """The SB3 class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``)."""
+def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
+    """
+    The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
+
+    :param name: the algorithm.
+    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX, see :mod:`sb3_hddpg.backends`).
+    """
     algos = _algos()
     if name.lower() not in algos:
         raise ValueError(f"Unknown algorithm {name!r}; choose from {list(ALGO_NAMES)}")
+    if backend != "sb3":
+        from sb3_hddpg.backends import check_backend, sbx_class
+
+        if check_backend(backend) == "sbx":
+            return sbx_class(name)
     return algos[name.lower()]
 
 
