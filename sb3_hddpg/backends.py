@@ -290,7 +290,11 @@ def _state_dict_to_sbx(model: Any, algo: str, state: Mapping[str, th.Tensor]) ->
         n = _layer_count(inner)
         for i in range(n):
             if algo == "sac":
-                source = f"{prefix}.latent_pi.{2 * i}" if i < n - 2 else (f"{prefix}.mu", f"{prefix}.log_std")[i - n + 2]
+                source = (
+                    f"{prefix}.latent_pi.{2 * i}"
+                    if i < n - 2
+                    else (f"{prefix}.mu", f"{prefix}.log_std")[i - n + 2]
+                )
             else:
                 source = f"{prefix}.mu.{2 * i}"
             inner[f"Dense_{i}"] = dense(source)
@@ -302,7 +306,9 @@ def _state_dict_to_sbx(model: Any, algo: str, state: Mapping[str, th.Tensor]) ->
         n_critics = int(np.asarray(stacked["Dense_0"]["kernel"]).shape[0])
         for i in range(_layer_count(stacked)):
             layers = [dense(f"{prefix}.qf{k}.{2 * i}") for k in range(n_critics)]
-            stacked[f"Dense_{i}"] = {key: jnp.stack([layer[key] for layer in layers]) for key in ("kernel", "bias")}
+            stacked[f"Dense_{i}"] = {
+                key: jnp.stack([layer[key] for layer in layers]) for key in ("kernel", "bias")
+            }
         return freeze(params) if not isinstance(template, dict) else params
 
     actor_params = actor("actor", policy.actor_state.params)
@@ -491,7 +497,8 @@ def share_compiled(model: Any) -> None:
     if hasattr(model, "ent_coef_state"):
         states["ent_coef_state"] = model
     shared = _SHARED.setdefault(
-        key, {name: (getattr(owner, name).apply_fn, getattr(owner, name).tx) for name, owner in states.items()}
+        key,
+        {name: (getattr(owner, name).apply_fn, getattr(owner, name).tx) for name, owner in states.items()},
     )
     for name, owner in states.items():
         apply_fn, tx = shared[name]

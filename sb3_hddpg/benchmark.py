@@ -101,6 +101,7 @@ class BenchmarkSettings:
     :param ham_threshold: HAM's switching threshold (``None``: its default).
     :param ham_hysteresis: HAM's hysteresis.
     :param bias: the biased managers' extra preference factor (paper: 15 %).
+    :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -114,8 +115,15 @@ class BenchmarkSettings:
     ham_threshold: float | None = None
     ham_hysteresis: float = 0.0
     bias: float = 0.15
+    backend: str = "sb3"
 
     def __post_init__(self) -> None:
+        from sb3_hddpg.backends import check_algo, check_backend
+
+        self.backend = check_backend(self.backend)
+        for method in self.methods:
+            if method in FLAT_METHODS:
+                check_algo(method, self.backend)
         unknown = [m for m in self.methods if m not in METHODS]
         if unknown:
             raise ValueError(f"Unknown methods {unknown}; choose from {list(METHODS)}")
@@ -251,6 +259,7 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
             resume=True,  # keeps finished workers and continues an interrupted one
             eval_freq=settings.eval_freq_for(settings.worker_timesteps),
             eval_episodes=settings.eval_episodes,
+            backend=settings.backend,
         )
         record["worker_timesteps"] = _workers_steps(folder)
         record["workers"] = {
@@ -274,6 +283,7 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
             resume=read_checkpoint_state(run_dir / "checkpoints" / "manager") is not None,
             eval_freq=settings.eval_freq_for(settings.timesteps),
             eval_episodes=settings.eval_episodes,
+            backend=settings.backend,
         )
         offset = _workers_steps(folder)
         record["worker_timesteps"] = offset
@@ -293,6 +303,7 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
             resume=True,
             eval_freq=settings.eval_freq_for(settings.flat_budget),
             eval_episodes=settings.eval_episodes,
+            backend=settings.backend,
         )
         record["worker_timesteps"] = 0
         record["history"] = _history(run_dir / "evaluations" / f"flat-{task.method}.json", 0)
@@ -381,7 +392,8 @@ def run_benchmark(
     settings_path = out / "benchmark.json"
     stored = asdict(settings)
     if resume and settings_path.exists():
-        previous = json.loads(settings_path.read_text())["settings"]
+        # Benchmarks from before the backend choice trained on SB3.
+        previous = {"backend": "sb3", **json.loads(settings_path.read_text())["settings"]}
         if previous != stored:
             changed = sorted(k for k in stored if previous.get(k) != stored[k])
             raise ValueError(

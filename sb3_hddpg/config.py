@@ -43,6 +43,8 @@ MANAGER_KEY = "manager"
 
 #: RL Zoo keys that are not algorithm arguments and that we interpret.
 ZOO_KEYS = {"n_timesteps", "policy", "n_envs", "noise_type", "noise_std", "policy_kwargs", "env_kwargs"}
+#: Our own keys (RL Zoo does not know them): ``backend`` picks the training backend, ``sb3`` or ``sbx``.
+OWN_KEYS = {"backend"}
 #: Keys of the manager block only: arguments of WorkerSelectionWrapper.
 MANAGER_ONLY_KEYS = {"wrapper_kwargs"}
 #: Algorithm arguments that the training code sets itself and a config must not.
@@ -71,6 +73,7 @@ class Hyperparams:
     :param noise_std: the exploration noise's standard deviation.
     :param env_kwargs: keyword arguments for ``gym.make``.
     :param wrapper_kwargs: manager block only: keyword arguments for ``WorkerSelectionWrapper``.
+    :param backend: the training backend the block asks for (``sb3``, ``sbx``; ``None``: not set).
     :param raw: the block as written, for manifests.
     """
 
@@ -82,6 +85,7 @@ class Hyperparams:
     noise_std: float = 0.1
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
+    backend: str | None = None
     raw: dict[str, Any] = field(default_factory=dict)
 
     def action_noise(self, n_actions: int) -> Any:
@@ -144,7 +148,7 @@ def parse_block(
     :return: the parsed hyperparameters.
     """
     constructor = set(inspect.signature(algo_class.__init__).parameters) - {"self", "policy"} - RESERVED_KEYS
-    allowed = constructor | ZOO_KEYS | (MANAGER_ONLY_KEYS if manager else set())
+    allowed = constructor | ZOO_KEYS | OWN_KEYS | (MANAGER_ONLY_KEYS if manager else set())
     unknown = sorted(set(block) - allowed)
     if unknown:
         raise ConfigError(f"Unknown keys in {source}: {unknown} (allowed: {sorted(allowed)})")
@@ -163,6 +167,13 @@ def parse_block(
             raise ConfigError(
                 f"Unknown noise_type in {source}: {noise_type!r} (use 'normal' or 'ornstein-uhlenbeck')"
             )
+    backend = block.pop("backend", None)
+    if backend is not None:
+        from sb3_hddpg.backends import BACKENDS
+
+        if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
+            raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")
+        backend = backend.strip().lower()
     noise_std = float(block.pop("noise_std", 0.1))
     if not np.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
@@ -187,6 +198,7 @@ def parse_block(
         noise_std=noise_std,
         env_kwargs=env_kwargs,
         wrapper_kwargs=wrapper_kwargs,
+        backend=backend,
         raw=raw,
     )
 

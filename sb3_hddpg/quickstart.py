@@ -189,6 +189,7 @@ def _train_job(
     seed: int,
     eval_freq: int,
     eval_episodes: int,
+    backend: str = "sb3",
 ) -> dict[str, Any]:
     """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
     from sb3_hddpg import training
@@ -201,6 +202,7 @@ def _train_job(
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
         extra_callbacks=[_ProgressReporter(name)],
+        backend=backend,
     )
     if kind == "worker":
         manifest = training.train_workers(run_dir, workers=[name], **common)  # type: ignore[arg-type]
@@ -232,6 +234,7 @@ def train_flat_baseline(
     eval_freq: int = 5000,
     eval_episodes: int = 5,
     extra_callbacks: Any = (),
+    backend: str | None = None,
 ) -> dict[str, Any]:
     """
     The single-DDPG baseline: a plain SB3 DDPG on ``hddpg/SnakeReach-v0`` (both terms, normalised and
@@ -246,6 +249,7 @@ def train_flat_baseline(
     :param eval_freq: steps between evaluations.
     :param eval_episodes: episodes per evaluation.
     :param extra_callbacks: more SB3 callbacks.
+    :param backend: ``sb3`` or ``sbx`` (the saved model is an SB3 zip either way).
     :return: the manifest entry written.
     """
     from stable_baselines3 import DDPG
@@ -265,6 +269,7 @@ def train_flat_baseline(
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
         extra_callbacks=list(extra_callbacks),
+        backend=backend,
     )
     entry = {
         "name": name,
@@ -282,6 +287,7 @@ def train_flat_baseline(
         "timesteps_trained": outcome.num_timesteps,
         "versions": library_versions(),
         "metrics": outcome.metrics,
+        "backend": outcome.backend,
         "spec": model_spec(outcome.model),
     }
     atomic_write_json(run_dir / "flat" / "manifest.json", {"schema_version": 1, "models": {name: entry}})
@@ -372,6 +378,7 @@ def run_quickstart(
     seed: int = 0,
     processes: int = 2,
     observer: QuickstartObserver | None = None,
+    backend: str = "sb3",
 ) -> QuickstartResult:
     """
     Train both workers, the manager and the baselines, compare them on the same seeds and write everything
@@ -382,6 +389,7 @@ def run_quickstart(
     :param seed: training seed of every agent (evaluation seeds are the library's fixed ones).
     :param processes: training processes at a time (2: the workers side by side, then manager and flat DDPG).
     :param observer: receives progress (default: none).
+    :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
     :return: the metrics, the files written and the timings.
     """
     from sb3_hddpg.loading import LoadedPolicy, load_policy
@@ -395,6 +403,9 @@ def run_quickstart(
         budget = BUDGETS[budget]
     if processes < 1:
         raise ValueError(f"Expected `processes` >= 1, actually: {processes}")
+    from sb3_hddpg.backends import check_backend
+
+    backend = check_backend(backend)
     observer = observer or QuickstartObserver()
     run_dir = Path(out_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -425,6 +436,7 @@ def run_quickstart(
         seed=seed,
         eval_freq=budget.eval_freq,
         eval_episodes=budget.eval_episodes,
+        backend=backend,
     )
 
     # 1. Workers, side by side. Each process writes workers/manifest.json with its own entry only; the

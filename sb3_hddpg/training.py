@@ -28,6 +28,14 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopT
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+from sb3_hddpg.backends import (
+    check_algo,
+    configure_jax_threads,
+    load_native,
+    make_model,
+    resolve_backend,
+    to_sb3,
+)
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.config import Hyperparams
@@ -151,6 +159,7 @@ class TrainingOutcome:
     :param history: the evaluation history (one dict of metrics per evaluation).
     :param metrics: the final evaluation's summary of the saved model.
     :param stopped_early: whether the plateau rule stopped training.
+    :param backend: the backend that trained it (``sb3`` or ``sbx``; the saved model is SB3 either way).
     """
 
     model: BaseAlgorithm
@@ -159,6 +168,7 @@ class TrainingOutcome:
     history: list[dict[str, Any]] = field(default_factory=list)
     metrics: dict[str, Any] = field(default_factory=dict)
     stopped_early: bool = False
+    backend: str = "sb3"
 
 
 @contextlib.contextmanager
@@ -199,9 +209,14 @@ def train_agent(
     threads: int = 1,
     extra_callbacks: Sequence[BaseCallback] = (),
     after_eval: BaseCallback | None = None,
+    backend: str | None = None,
 ) -> TrainingOutcome:
     """
     Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
+
+    With ``backend="sbx"`` the agent trains on JAX (:mod:`sb3_hddpg.backends`); its checkpoints and best
+    model stay in SBX's format inside the run folder, and the model saved to ``paths.model_path`` and
+    returned is exported to the same SB3 algorithm.
 
     :param env_factory: builds one (unwrapped by Monitor) training env; picklable when ``n_envs > 1``.
     :param hyperparams: the config block (see :mod:`sb3_hddpg.config`).
@@ -223,6 +238,7 @@ def train_agent(
     :param extra_callbacks: more SB3 callbacks (e.g. selection statistics).
     :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
         Optuna pruning callback); returning ``False`` stops training.
+    :param backend: ``sb3`` or ``sbx`` (default: the config block's ``backend``, else ``sb3``).
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
     """
     total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
@@ -231,13 +247,17 @@ def train_agent(
     if checkpoint_freq < 0:
         raise ValueError(f"Expected checkpoint_freq >= 0, actually: {checkpoint_freq}")
     n_envs = int(n_envs or hyperparams.n_envs)
+    backend = resolve_backend(backend, hyperparams.backend)
+    check_algo(algo, backend)
+    if backend == "sbx":
+        configure_jax_threads(threads)  # before jax's first import in this process, or it cannot apply
     # A run killed mid-write (SIGKILL, power cut) leaves hidden temporaries; they never hold anything we
     # read, so clear this agent's before they pile up (a replay buffer's can be large).
     remove_stale_temporaries(paths.checkpoint_dir)
     remove_stale_temporaries(paths.best_dir)
     remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
     remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
-    cls = algo_class(algo)
+    algo_class(algo)  # a clear error for an unknown name before any env starts
 
     vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
     vec_env = make_vec_env(env_factory, n_envs=n_envs, seed=seed, vec_env_cls=vec_cls)
@@ -250,8 +270,14 @@ def train_agent(
         if resume and state is None:
             raise FileNotFoundError(f"Nothing to resume: no checkpoint in {str(paths.checkpoint_dir)!r}")
         if state is not None:
-            # Our own checkpoint, written by this library: the full SB3 load is appropriate here.
-            model = cls.load(state["model_path"], env=vec_env, device="cpu")
+            saved_backend = state.get("backend", "sb3")
+            if saved_backend != backend:
+                raise ValueError(
+                    f"The checkpoint in {str(paths.checkpoint_dir)!r} was trained with backend "
+                    f"{saved_backend!r}; resume it with --backend {saved_backend}"
+                )
+            # Our own checkpoint, written by this library: the full (SB3 or SBX) load is appropriate here.
+            model = load_native(algo, backend, state["model_path"], env=vec_env)
             if state["replay_buffer_path"] is not None:
                 model.load_replay_buffer(state["replay_buffer_path"])
             model.set_logger(_tensorboard_logger(paths))
@@ -263,7 +289,7 @@ def train_agent(
             kwargs = dict(hyperparams.algo_kwargs)
             if hyperparams.noise_type is not None:
                 kwargs["action_noise"] = hyperparams.action_noise(int(np.prod(vec_env.action_space.shape)))
-            model = cls(hyperparams.policy, vec_env, seed=seed, device="cpu", verbose=0, **kwargs)
+            model = make_model(algo, backend, vec_env, kwargs, seed=seed, policy=hyperparams.policy)
             model.set_logger(_tensorboard_logger(paths))
             history, best = [], -np.inf
 
@@ -294,6 +320,7 @@ def train_agent(
             extra_state=lambda: {
                 "total_timesteps": total,
                 "seed": seed,
+                "backend": backend,
                 "history": evaluator.history,
                 "best_mean_reward": evaluator.best_mean_reward
                 if np.isfinite(evaluator.best_mean_reward)
@@ -329,7 +356,9 @@ def train_agent(
 
         chosen = model
         if keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists():
-            chosen = cls.load(evaluator.best_model_path, device="cpu")
+            chosen = load_native(algo, backend, evaluator.best_model_path)
+        # What a user shares is plain SB3, whichever backend trained it.
+        chosen = to_sb3(chosen)
         atomic_write(paths.model_path, lambda tmp: chosen.save(tmp))
         best_entry = (
             max(evaluator.history, key=lambda h: h["mean_reward"]) if keep_best else evaluator.history[-1]
@@ -343,6 +372,7 @@ def train_agent(
             history=list(evaluator.history),
             metrics=metrics,
             stopped_early=stopped_early,
+            backend=backend,
         )
     finally:
         with contextlib.suppress(Exception):  # subprocesses may already be gone after Ctrl-C
@@ -420,6 +450,7 @@ def train_workers(
     threads: int = 1,
     on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
+    backend: str | None = None,
 ) -> dict[str, Any]:
     """
     Train each named worker as a plain SB3 DDPG on its own registered env id (paper Algorithm 1, first
@@ -440,6 +471,8 @@ def train_workers(
     :param threads: torch threads.
     :param on_worker_done: called after each worker with its outcome.
     :param extra_callbacks: more SB3 callbacks for every worker (e.g. progress reporting).
+    :param backend: ``sb3`` or ``sbx`` (default: each block's ``backend`` key, else ``sb3``); the saved
+        workers are SB3 zips either way.
     :return: the manifest written.
     """
     from sb3_hddpg.envs import SnakeArmEnv
@@ -479,6 +512,7 @@ def train_workers(
             progress_bar=progress_bar,
             threads=threads,
             extra_callbacks=extra_callbacks,
+            backend=backend,
         )
         probe = SnakeArmEnv(**hyperparams.env_kwargs)
         manifest["workers"][name] = {
@@ -499,6 +533,7 @@ def train_workers(
             "timesteps_trained": outcome.num_timesteps,
             "stopped_early": outcome.stopped_early,
             "threads": threads,
+            "backend": outcome.backend,
             "versions": library_versions(),
             "metrics": outcome.metrics,
             "spec": model_spec(outcome.model),
@@ -553,6 +588,7 @@ def train_flat(
     progress_bar: bool = False,
     threads: int = 1,
     env_id: str = FLAT_ENV_ID,
+    backend: str | None = None,
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
@@ -575,6 +611,8 @@ def train_flat(
     :param progress_bar: show a progress bar.
     :param threads: torch threads.
     :param env_id: the env to learn (the combined reward by default).
+    :param backend: ``sb3`` or ``sbx`` (default: the block's ``backend`` key, else ``sb3``); the saved
+        model is an SB3 zip either way.
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
     import json
@@ -610,6 +648,7 @@ def train_flat(
         eval_episodes=eval_episodes,
         progress_bar=progress_bar,
         threads=threads,
+        backend=backend,
     )
     manifest["models"][algo] = {
         "name": algo,
@@ -624,6 +663,7 @@ def train_flat(
         "timesteps_trained": outcome.num_timesteps,
         "stopped_early": outcome.stopped_early,
         "threads": threads,
+        "backend": outcome.backend,
         "versions": library_versions(),
         "metrics": outcome.metrics,
         "spec": model_spec(outcome.model),
@@ -827,6 +867,7 @@ def train_manager(
     trusted: bool = False,
     env_id: str = "hddpg/SnakeReach-v0",
     extra_callbacks: Sequence[BaseCallback] = (),
+    backend: str | None = None,
 ) -> tuple[Any, TrainingOutcome]:
     """
     Train the manager: a plain SB3 DDPG on ``WorkerSelectionWrapper`` over pre-trained workers (paper
@@ -852,6 +893,8 @@ def train_manager(
     :param trusted: load the workers with SB3's full loader.
     :param env_id: the shared env the manager acts in.
     :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
+    :param backend: ``sb3`` or ``sbx`` for the manager's DDPG (default: the block's ``backend`` key, else
+        ``sb3``); the bundle holds an SB3 manager either way.
     :return: the saved :class:`~sb3_hddpg.hierarchy.Hierarchy` and the training outcome.
     """
     from sb3_hddpg.hierarchy import Hierarchy
@@ -906,6 +949,7 @@ def train_manager(
         progress_bar=progress_bar,
         threads=threads,
         extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
+        backend=backend,
     )
     worker_meta = {
         name: {
@@ -927,6 +971,7 @@ def train_manager(
             "timesteps_trained": outcome.num_timesteps,
             "config": hyperparams.raw,
             "metrics": outcome.metrics,
+            "backend": outcome.backend,
         },
     )
     hierarchy.save(out_dir / "hierarchy.zip")

@@ -97,6 +97,8 @@ class TuningTarget:
     :param eval_episodes: episodes per evaluation.
     :param seed: the training seed of every trial (the same for all, so trials differ only by their
         hyperparameters).
+    :param backend: the trials' training backend, ``sb3`` or ``sbx`` (``None``: the base block's
+        ``backend`` key, else ``sb3``).
     """
 
     level: str
@@ -107,6 +109,7 @@ class TuningTarget:
     n_evaluations: int = 5
     eval_episodes: int = 5
     seed: int = 0
+    backend: str | None = None
 
     def __post_init__(self) -> None:
         if self.level not in LEVELS:
@@ -186,13 +189,17 @@ class TuningTarget:
 
     def describe(self) -> dict[str, Any]:
         """What makes trials comparable, stored in the study so that a mismatching re-run is refused."""
-        return {
+        described = {
             "level": self.level,
             "worker": self.worker,
             "timesteps": self.budget() if self.level != "ham" else None,
             "n_evaluations": self.n_evaluations if self.level != "ham" else 1,
             "eval_episodes": self.eval_episodes,
         }
+        # Only when not the default: studies made before the backend choice (all SB3) stay resumable.
+        if self.level != "ham" and (self.backend or self.base_block().get("backend")) == "sbx":
+            described["backend"] = "sbx"
+        return described
 
 
 @dataclass(frozen=True)
@@ -349,6 +356,7 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
                 keep_best=False,
                 threads=threads,
                 after_eval=pruning,
+                backend=target.backend,
             )
         except (KeyboardInterrupt, TrainingInterrupted):
             # Interrupted by the user, not a bad configuration: queue the same parameters again so that a

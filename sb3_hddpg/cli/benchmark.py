@@ -18,7 +18,14 @@ from sb3_hddpg.benchmark import (
     run_benchmark,
 )
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, positive_float, prepare_out_dir
+from sb3_hddpg.cli.options import (
+    BACKEND_HELP,
+    at_least,
+    backend_name,
+    positive_float,
+    prepare_out_dir,
+    usage_errors,
+)
 
 
 def _ci(stats: dict[str, Any], fmt: str = ".1f") -> str:
@@ -130,6 +137,9 @@ def benchmark_command(
     out: Path = typer.Option(Path("runs/benchmark"), "--out", help="Benchmark folder."),
     resume: bool = typer.Option(False, "--resume", help="Keep finished runs and continue interrupted ones."),
     force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    backend: str = typer.Option(
+        "sb3", "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
+    ),
 ) -> None:
     """Train and evaluate every method on every seed; write results.json, evaluations.csv and plots."""
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
@@ -141,6 +151,8 @@ def benchmark_command(
         )
     if ham_hysteresis < 0:
         raise typer.BadParameter(f"must be >= 0, got {ham_hysteresis}", param_hint="'--ham-hysteresis'")
+    with usage_errors("'--backend'"):  # e.g. tqc, which the sbx backend does not train
+        BenchmarkSettings(methods=chosen, backend=backend)
     settings = BenchmarkSettings(
         methods=chosen,
         seeds=list(range(seeds)),
@@ -153,6 +165,7 @@ def benchmark_command(
         ham_threshold=ham_threshold,
         ham_hysteresis=ham_hysteresis,
         bias=bias,
+        backend=backend,
     )
     prepare_out_dir(out, resume, force)
     started = time.perf_counter()

@@ -10,7 +10,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, prepare_out_dir
+from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir
 from sb3_hddpg.quickstart import BUDGETS, STAGES, QuickstartObserver, QuickstartResult, run_quickstart
 
 
@@ -94,13 +94,18 @@ def quickstart_command(
     processes: int = typer.Option(
         2, "--processes", callback=at_least(1), help="Agents trained at a time, one process each."
     ),
+    backend: str = typer.Option(
+        "sb3", "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
+    ),
 ) -> None:
     """Train both workers, a manager, a flat DDPG (and HAM), compare them on the same seeds, save everything."""
     if budget not in BUDGETS:
         raise typer.BadParameter(f"must be one of {list(BUDGETS)}, got {budget!r}", param_hint="'--budget'")
     out = out or Path("runs") / f"quickstart-{datetime.now():%Y%m%d-%H%M%S}"
     prepare_out_dir(out, resume=False, force=force)
-    console.print(f"Run folder: [bold]{out}[/]  (budget {budget}, seed {seed}, {processes} processes)")
+    console.print(
+        f"Run folder: [bold]{out}[/]  (budget {budget}, seed {seed}, {processes} processes, backend {backend})"
+    )
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -110,7 +115,9 @@ def quickstart_command(
         transient=False,
     ) as progress:
         observer = _RichObserver(progress)
-        result = run_quickstart(out, budget=budget, seed=seed, processes=processes, observer=observer)
+        result = run_quickstart(
+            out, budget=budget, seed=seed, processes=processes, observer=observer, backend=backend
+        )
         observer.finish()
     console.print(comparison_table(result))
     if not result.ham_available:

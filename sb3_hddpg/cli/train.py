@@ -10,7 +10,9 @@ from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
+    BACKEND_HELP,
     at_least,
+    backend_name,
     existing_dir,
     existing_file,
     positive_float,
@@ -95,8 +97,10 @@ def train_workers_command(
         1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
     ),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
+    from sb3_hddpg.backends import resolve_backend
     from sb3_hddpg.training import TrainingInterrupted, train_workers, worker_hyperparams
 
     unknown = [w for w in workers if w not in WORKER_ENV_IDS]
@@ -105,7 +109,10 @@ def train_workers_command(
         problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
         raise typer.BadParameter(f"{problem}; choose from {sorted(WORKER_ENV_IDS)}", param_hint="'--workers'")
     with usage_errors("'--config'"):  # a bad block fails now, not after the first worker has trained
-        worker_hyperparams(workers, config)
+        blocks = worker_hyperparams(workers, config)
+    with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
+        for block in blocks.values():
+            resolve_backend(backend, block.backend)
     prepare_out_dir(out, resume, force)
     summaries: dict[str, dict] = {}
 
@@ -132,6 +139,7 @@ def train_workers_command(
             progress_bar=progress,
             threads=threads,
             on_worker_done=done,
+            backend=backend,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
@@ -206,8 +214,10 @@ def train_manager_command(
     trust: bool = typer.Option(
         False, "--trust", help="Load the workers with SB3's full loader (runs code in the files)."
     ),
+    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
+    from sb3_hddpg.backends import resolve_backend
     from sb3_hddpg.selection import SELECTION_MODES, parse_preferences
     from sb3_hddpg.training import TrainingInterrupted, prepare_manager, train_manager
 
@@ -220,7 +230,7 @@ def train_manager_command(
     # The library checks the rest (workers, their hashes and spaces, names, preferences, config) before any
     # training; run those checks now so that bad input is reported before the output folder is touched.
     with usage_errors():
-        prepare_manager(
+        setup = prepare_manager(
             workers_dir,
             names or None,
             prefer=prefer,
@@ -231,6 +241,8 @@ def train_manager_command(
             config=config,
             trusted=trust,
         )
+    with usage_errors("'--backend'"):
+        resolve_backend(backend, setup.hyperparams.backend)
     prepare_out_dir(out, resume, force)
     try:
         hierarchy, outcome = train_manager(
@@ -254,6 +266,7 @@ def train_manager_command(
             progress_bar=progress,
             threads=threads,
             trusted=trust,
+            backend=backend,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
