@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	# The CPU build of torch first (it lies on this machine's disk): otherwise pip pulls a multi-GB CUDA build.
 	$(BIN)/python -m pip install --quiet "torch==2.13.0"
-	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard]"
+	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard,fast]"
 	touch $(STAMP)
 
 quickstart: $(STAMP)

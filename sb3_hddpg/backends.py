@@ -542,8 +542,9 @@ def to_sb3(model: BaseAlgorithm) -> OffPolicyAlgorithm:
         model.action_space,
         _sb3_hyperparams(model, algo),
         _sb3_policy_kwargs(model),
-        model.seed,
+        None,  # a seed would re-seed the global random state (SB3's set_random_seed) mid-run
     )
+    sb3_model.seed = model.seed
     state = _sbx_to_state_dict(model, algo)
     sb3_model.policy.load_state_dict(state, strict=True)
     if algo == "sac" and getattr(sb3_model, "log_ent_coef", None) is not None:
