@@ -192,6 +192,7 @@ class BenchmarkSettings:
     :param scenario: ``standard`` or ``transfer`` (see the module's docstring).
     :param preferences: the transfer scenario's preferences, e.g. ``["goal=2,avoid=1"]``; every method runs
         once per preference and seed (empty in the standard scenario).
+    :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -207,11 +208,18 @@ class BenchmarkSettings:
     bias: float = 0.15
     scenario: str = "standard"
     preferences: list[str] = field(default_factory=list)
+    backend: str = "sb3"
 
     def __post_init__(self) -> None:
+        from sb3_hddpg.backends import check_algo, check_backend
+
         unknown = [m for m in self.methods if m not in METHOD_REGISTRY]
         if unknown:
             raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
+        self.backend = check_backend(self.backend)
+        for method in self.methods:
+            if method in FLAT_METHODS:
+                check_algo(method, self.backend)
         if len(set(self.methods)) != len(self.methods) or not self.methods:
             raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
@@ -412,6 +420,7 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
         resume=True,  # keeps finished workers and continues an interrupted one
         eval_freq=settings.eval_freq_for(settings.worker_timesteps),
         eval_episodes=settings.eval_episodes,
+        backend=settings.backend,
     )
     return {
         "worker_timesteps": _workers_steps(folder),
@@ -442,6 +451,7 @@ def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, fo
         resume=read_checkpoint_state(run_dir / "checkpoints" / "manager") is not None,
         eval_freq=settings.eval_freq_for(settings.timesteps),
         eval_episodes=settings.eval_episodes,
+        backend=settings.backend,
     )
     offset = _workers_steps(folder)
     return {
@@ -465,6 +475,7 @@ def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) 
         eval_freq=settings.eval_freq_for(settings.flat_budget),
         eval_episodes=settings.eval_episodes,
         preferences=task.preferences,
+        backend=settings.backend,
     )
     return {
         "worker_timesteps": 0,

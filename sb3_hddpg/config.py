@@ -57,6 +57,8 @@ ZOO_KEYS = {
 REPLAY_BUFFERS = ("GoalRelabelingReplayBuffer",)
 #: The callbacks a config's ``callback`` key may name (RL Zoo imports any class path; we import none).
 CALLBACKS = {"sb3_hddpg.callbacks.ActionL2Penalty": "action_l2"}
+#: Our own keys (RL Zoo does not know them): ``backend`` picks the training backend, ``sb3`` or ``sbx``.
+OWN_KEYS = {"backend"}
 #: Keys of the manager block only: arguments of WorkerSelectionWrapper.
 MANAGER_ONLY_KEYS = {"wrapper_kwargs"}
 #: Algorithm arguments that the training code sets itself and a config must not.
@@ -87,6 +89,7 @@ class Hyperparams:
     :param wrapper_kwargs: manager block only: keyword arguments for ``WorkerSelectionWrapper``.
     :param action_l2: the actor's action penalty (DDPG/TD3; see
         :class:`~sb3_hddpg.callbacks.ActionL2Penalty`), set with RL Zoo's ``callback`` key; 0: none.
+    :param backend: the training backend the block asks for (``sb3``, ``sbx``; ``None``: not set).
     :param raw: the block as written, for manifests.
     """
 
@@ -99,6 +102,7 @@ class Hyperparams:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
     action_l2: float = 0.0
+    backend: str | None = None
     raw: dict[str, Any] = field(default_factory=dict)
 
     def callbacks(self) -> list[Any]:
@@ -167,7 +171,7 @@ def parse_block(
     :return: the parsed hyperparameters.
     """
     constructor = set(inspect.signature(algo_class.__init__).parameters) - {"self", "policy"} - RESERVED_KEYS
-    allowed = constructor | ZOO_KEYS | (MANAGER_ONLY_KEYS if manager else set())
+    allowed = constructor | ZOO_KEYS | OWN_KEYS | (MANAGER_ONLY_KEYS if manager else set())
     unknown = sorted(set(block) - allowed)
     if unknown:
         raise ConfigError(f"Unknown keys in {source}: {unknown} (allowed: {sorted(allowed)})")
@@ -186,6 +190,13 @@ def parse_block(
             raise ConfigError(
                 f"Unknown noise_type in {source}: {noise_type!r} (use 'normal' or 'ornstein-uhlenbeck')"
             )
+    backend = block.pop("backend", None)
+    if backend is not None:
+        from sb3_hddpg.backends import BACKENDS
+
+        if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
+            raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")
+        backend = backend.strip().lower()
     noise_std = float(block.pop("noise_std", 0.1))
     if not np.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
@@ -222,6 +233,7 @@ def parse_block(
         env_kwargs=env_kwargs,
         wrapper_kwargs=wrapper_kwargs,
         action_l2=action_l2,
+        backend=backend,
         raw=raw,
     )
 

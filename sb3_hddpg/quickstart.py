@@ -191,6 +191,7 @@ def _train_job(
     eval_freq: int,
     eval_episodes: int,
     keep_checkpoints: bool = False,
+    backend: str = "sb3",
 ) -> dict[str, Any]:
     """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
     from sb3_hddpg import training
@@ -204,6 +205,7 @@ def _train_job(
         eval_episodes=eval_episodes,
         extra_callbacks=[_ProgressReporter(name)],
         keep_checkpoints=keep_checkpoints,
+        backend=backend,
     )
     if kind == "worker":
         manifest = training.train_workers(run_dir, workers=[name], **common)  # type: ignore[arg-type]
@@ -236,6 +238,7 @@ def train_flat_baseline(
     eval_episodes: int = 5,
     extra_callbacks: Any = (),
     keep_checkpoints: bool = False,
+    backend: str | None = None,
 ) -> dict[str, Any]:
     """
     The single-DDPG baseline: a plain SB3 DDPG on ``hddpg/SnakeReach-v0`` (both terms, normalised and
@@ -251,6 +254,7 @@ def train_flat_baseline(
     :param eval_episodes: episodes per evaluation.
     :param extra_callbacks: more SB3 callbacks.
     :param keep_checkpoints: keep the finished run's replay buffer (see :func:`~sb3_hddpg.training.train_agent`).
+    :param backend: ``sb3`` or ``sbx`` (the saved model is an SB3 zip either way).
     :return: the manifest entry written.
     """
     from stable_baselines3 import DDPG
@@ -271,6 +275,7 @@ def train_flat_baseline(
         eval_episodes=eval_episodes,
         extra_callbacks=list(extra_callbacks),
         keep_checkpoints=keep_checkpoints,
+        backend=backend,
     )
     entry = {
         "name": name,
@@ -288,6 +293,7 @@ def train_flat_baseline(
         "timesteps_trained": outcome.num_timesteps,
         "versions": library_versions(),
         "metrics": outcome.metrics,
+        "backend": outcome.backend,
         "spec": model_spec(outcome.model),
     }
     atomic_write_json(run_dir / "flat" / "manifest.json", {"schema_version": 1, "models": {name: entry}})
@@ -379,6 +385,7 @@ def run_quickstart(
     processes: int = 2,
     observer: QuickstartObserver | None = None,
     keep_checkpoints: bool = False,
+    backend: str = "sb3",
 ) -> QuickstartResult:
     """
     Train both workers, the manager and the baselines, compare them on the same seeds and write everything
@@ -392,6 +399,7 @@ def run_quickstart(
     :param keep_checkpoints: keep every agent's replay buffer in ``checkpoints/`` (about 70 MB each at the
         ``small`` budget), so that ``hddpg-cli train-* --resume`` can extend an agent's training exactly;
         by default only the model checkpoints stay and the run folder is about 6 MB.
+    :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
     :return: the metrics, the files written and the timings.
     """
     from sb3_hddpg.loading import LoadedPolicy, load_policy
@@ -405,6 +413,9 @@ def run_quickstart(
         budget = BUDGETS[budget]
     if processes < 1:
         raise ValueError(f"Expected `processes` >= 1, actually: {processes}")
+    from sb3_hddpg.backends import check_backend
+
+    backend = check_backend(backend)
     observer = observer or QuickstartObserver()
     run_dir = Path(out_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -436,6 +447,7 @@ def run_quickstart(
         eval_freq=budget.eval_freq,
         eval_episodes=budget.eval_episodes,
         keep_checkpoints=keep_checkpoints,
+        backend=backend,
     )
 
     # 1. Workers, side by side. Each process writes workers/manifest.json with its own entry only; the

@@ -28,6 +28,14 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopT
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+from sb3_hddpg.backends import (
+    check_algo,
+    configure_jax_threads,
+    load_native,
+    make_model,
+    resolve_backend,
+    to_sb3,
+)
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.config import Hyperparams
@@ -46,11 +54,21 @@ def _algos() -> dict[str, type[BaseAlgorithm]]:
 ALGO_NAMES = ("ddpg", "td3", "sac", "tqc")
 
 
-def algo_class(name: str) -> type[BaseAlgorithm]:
-    """The SB3 class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``)."""
+def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
+    """
+    The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
+
+    :param name: the algorithm.
+    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX, see :mod:`sb3_hddpg.backends`).
+    """
     algos = _algos()
     if name.lower() not in algos:
         raise ValueError(f"Unknown algorithm {name!r}; choose from {list(ALGO_NAMES)}")
+    if backend != "sb3":
+        from sb3_hddpg.backends import check_backend, sbx_class
+
+        if check_backend(backend) == "sbx":
+            return sbx_class(name)
     return algos[name.lower()]
 
 
@@ -141,6 +159,7 @@ class TrainingOutcome:
     :param history: the evaluation history (one dict of metrics per evaluation).
     :param metrics: the final evaluation's summary of the saved model.
     :param stopped_early: whether the plateau rule stopped training.
+    :param backend: the backend that trained it (``sb3`` or ``sbx``; the saved model is SB3 either way).
     """
 
     model: BaseAlgorithm
@@ -149,6 +168,7 @@ class TrainingOutcome:
     history: list[dict[str, Any]] = field(default_factory=list)
     metrics: dict[str, Any] = field(default_factory=dict)
     stopped_early: bool = False
+    backend: str = "sb3"
 
 
 @contextlib.contextmanager
@@ -190,9 +210,14 @@ def train_agent(
     extra_callbacks: Sequence[BaseCallback] = (),
     after_eval: BaseCallback | None = None,
     keep_checkpoints: bool = False,
+    backend: str | None = None,
 ) -> TrainingOutcome:
     """
     Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
+
+    With ``backend="sbx"`` the agent trains on JAX (:mod:`sb3_hddpg.backends`); its checkpoints and best
+    model stay in SBX's format inside the run folder, and the model saved to ``paths.model_path`` and
+    returned is exported to the same SB3 algorithm.
 
     :param env_factory: builds one (unwrapped by Monitor) training env; picklable when ``n_envs > 1``.
     :param hyperparams: the config block (see :mod:`sb3_hddpg.config`).
@@ -219,6 +244,7 @@ def train_agent(
         run drops it (``buffer_size`` x (2 x obs + action + 3) float32 values: 70 MB for a worker of the
         bundled config) and keeps the model checkpoint; resuming that refills the buffer before training on.
         Interrupted runs always keep their buffer.
+    :param backend: ``sb3`` or ``sbx`` (default: the config block's ``backend``, else ``sb3``).
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
     """
     total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
@@ -227,14 +253,18 @@ def train_agent(
     if checkpoint_freq < 0:
         raise ValueError(f"Expected checkpoint_freq >= 0, actually: {checkpoint_freq}")
     n_envs = int(n_envs or hyperparams.n_envs)
+    backend = resolve_backend(backend, hyperparams.backend)
+    check_algo(algo, backend)
+    if backend == "sbx":
+        configure_jax_threads(threads)  # before jax's first import in this process, or it cannot apply
     # A run killed mid-write (SIGKILL, power cut) leaves hidden temporaries; they never hold anything we
     # read, so clear this agent's before they pile up (a replay buffer's can be large).
     remove_stale_temporaries(paths.checkpoint_dir)
     remove_stale_temporaries(paths.best_dir)
     remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
     remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
-    cls = algo_class(algo)
-    if hyperparams.action_l2 > 0 and not issubclass(cls, TD3):
+    algo_class(algo)  # a clear error for an unknown name before any env starts
+    if hyperparams.action_l2 > 0 and algo.lower() not in ("ddpg", "td3"):
         raise ValueError(
             f"The ActionL2Penalty callback applies to DDPG and TD3, not {algo!r}: remove it from the config block"
         )
@@ -250,8 +280,14 @@ def train_agent(
         if resume and state is None:
             raise FileNotFoundError(f"Nothing to resume: no checkpoint in {str(paths.checkpoint_dir)!r}")
         if state is not None:
-            # Our own checkpoint, written by this library: the full SB3 load is appropriate here.
-            model = cls.load(state["model_path"], env=vec_env, device="cpu")
+            saved_backend = state.get("backend", "sb3")
+            if saved_backend != backend:
+                raise ValueError(
+                    f"The checkpoint in {str(paths.checkpoint_dir)!r} was trained with backend "
+                    f"{saved_backend!r}; resume it with --backend {saved_backend}"
+                )
+            # Our own checkpoint, written by this library: the full (SB3 or SBX) load is appropriate here.
+            model = load_native(algo, backend, state["model_path"], env=vec_env)
             if state["replay_buffer_path"] is not None:
                 model.load_replay_buffer(state["replay_buffer_path"])
             elif getattr(model, "replay_buffer", None) is not None:
@@ -275,7 +311,7 @@ def train_agent(
                 }
             if hyperparams.noise_type is not None:
                 kwargs["action_noise"] = hyperparams.action_noise(int(np.prod(vec_env.action_space.shape)))
-            model = cls(hyperparams.policy, vec_env, seed=seed, device="cpu", verbose=0, **kwargs)
+            model = make_model(algo, backend, vec_env, kwargs, seed=seed, policy=hyperparams.policy)
             model.set_logger(_tensorboard_logger(paths))
             history, best = [], -np.inf
 
@@ -306,6 +342,7 @@ def train_agent(
             extra_state=lambda: {
                 "total_timesteps": total,
                 "seed": seed,
+                "backend": backend,
                 "history": evaluator.history,
                 "best_mean_reward": evaluator.best_mean_reward
                 if np.isfinite(evaluator.best_mean_reward)
@@ -341,7 +378,9 @@ def train_agent(
 
         chosen = model
         if keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists():
-            chosen = cls.load(evaluator.best_model_path, device="cpu")
+            chosen = load_native(algo, backend, evaluator.best_model_path)
+        # What a user shares is plain SB3, whichever backend trained it.
+        chosen = to_sb3(chosen)
         atomic_write(paths.model_path, lambda tmp: chosen.save(tmp))
         best_entry = (
             max(evaluator.history, key=lambda h: h["mean_reward"]) if keep_best else evaluator.history[-1]
@@ -355,6 +394,7 @@ def train_agent(
             history=list(evaluator.history),
             metrics=metrics,
             stopped_early=stopped_early,
+            backend=backend,
         )
     finally:
         with contextlib.suppress(Exception):  # subprocesses may already be gone after Ctrl-C
@@ -433,6 +473,7 @@ def train_workers(
     on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     keep_checkpoints: bool = False,
+    backend: str | None = None,
 ) -> dict[str, Any]:
     """
     Train each named worker as a plain SB3 DDPG on its own registered env id (paper Algorithm 1, first
@@ -454,6 +495,8 @@ def train_workers(
     :param on_worker_done: called after each worker with its outcome.
     :param extra_callbacks: more SB3 callbacks for every worker (e.g. progress reporting).
     :param keep_checkpoints: keep each finished worker's replay buffer (see :func:`train_agent`).
+    :param backend: ``sb3`` or ``sbx`` (default: each block's ``backend`` key, else ``sb3``); the saved
+        workers are SB3 zips either way.
     :return: the manifest written.
     """
     from sb3_hddpg.envs import SnakeArmEnv
@@ -494,6 +537,7 @@ def train_workers(
             threads=threads,
             extra_callbacks=extra_callbacks,
             keep_checkpoints=keep_checkpoints,
+            backend=backend,
         )
         probe = SnakeArmEnv(**hyperparams.env_kwargs)
         manifest["workers"][name] = {
@@ -514,6 +558,7 @@ def train_workers(
             "timesteps_trained": outcome.num_timesteps,
             "stopped_early": outcome.stopped_early,
             "threads": threads,
+            "backend": outcome.backend,
             "versions": library_versions(),
             "metrics": outcome.metrics,
             "spec": model_spec(outcome.model),
@@ -570,6 +615,7 @@ def train_flat(
     env_id: str = FLAT_ENV_ID,
     keep_checkpoints: bool = False,
     preferences: dict[str, float] | None = None,
+    backend: str | None = None,
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
@@ -596,6 +642,8 @@ def train_flat(
     :param preferences: reward term -> factor: learn ``sum_t factor_t * normalised(term_t)`` instead of the
         env's reward (:class:`~sb3_hddpg.wrappers.PreferenceReward`, the reward of a manager with the same
         factors); ``None``: the env's own reward.
+    :param backend: ``sb3`` or ``sbx`` (default: the block's ``backend`` key, else ``sb3``); the saved
+        model is an SB3 zip either way.
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
     import json
@@ -640,6 +688,7 @@ def train_flat(
         progress_bar=progress_bar,
         threads=threads,
         keep_checkpoints=keep_checkpoints,
+        backend=backend,
     )
     manifest["models"][algo] = {
         "name": algo,
@@ -655,6 +704,7 @@ def train_flat(
         "stopped_early": outcome.stopped_early,
         "preferences": dict(preferences) if preferences is not None else None,
         "threads": threads,
+        "backend": outcome.backend,
         "versions": library_versions(),
         "metrics": outcome.metrics,
         "spec": model_spec(outcome.model),
@@ -894,6 +944,7 @@ def train_manager(
     env_id: str = "hddpg/SnakeReach-v0",
     extra_callbacks: Sequence[BaseCallback] = (),
     keep_checkpoints: bool = False,
+    backend: str | None = None,
 ) -> tuple[Any, TrainingOutcome]:
     """
     Train the manager: a plain SB3 DDPG on ``WorkerSelectionWrapper`` over pre-trained workers (paper
@@ -920,6 +971,8 @@ def train_manager(
     :param env_id: the shared env the manager acts in.
     :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
     :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
+    :param backend: ``sb3`` or ``sbx`` for the manager's DDPG (default: the block's ``backend`` key, else
+        ``sb3``); the bundle holds an SB3 manager either way.
     :return: the saved :class:`~sb3_hddpg.hierarchy.Hierarchy` and the training outcome.
     """
     from sb3_hddpg.hierarchy import Hierarchy
@@ -975,6 +1028,7 @@ def train_manager(
         threads=threads,
         extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
         keep_checkpoints=keep_checkpoints,
+        backend=backend,
     )
     worker_meta = {
         name: {
@@ -996,6 +1050,7 @@ def train_manager(
             "timesteps_trained": outcome.num_timesteps,
             "config": hyperparams.raw,
             "metrics": outcome.metrics,
+            "backend": outcome.backend,
         },
     )
     hierarchy.save(out_dir / "hierarchy.zip")

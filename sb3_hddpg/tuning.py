@@ -99,6 +99,8 @@ class TuningTarget:
         hyperparameters).
     :param algo: the algorithm (level ``flat``: ``ddpg``, ``td3`` or ``sac``, each with its own search space
         and bundled base config ``zoo_configs/<algo>.yml``; the other levels are DDPG).
+    :param backend: the trials' training backend, ``sb3`` or ``sbx`` (``None``: the base block's
+        ``backend`` key, else ``sb3``).
     """
 
     level: str
@@ -110,6 +112,7 @@ class TuningTarget:
     eval_episodes: int = 5
     seed: int = 0
     algo: str = "ddpg"
+    backend: str | None = None
 
     def __post_init__(self) -> None:
         if self.level not in LEVELS:
@@ -214,6 +217,9 @@ class TuningTarget:
         }
         if self.algo != "ddpg":  # DDPG studies made before other algorithms were tunable stay resumable
             described["algo"] = self.algo
+        # Only when not the default: studies made before the backend choice (all SB3) stay resumable.
+        if self.level != "ham" and (self.backend or self.base_block().get("backend")) == "sbx":
+            described["backend"] = "sbx"
         return described
 
 
@@ -371,6 +377,7 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
                 keep_best=False,
                 threads=threads,
                 after_eval=pruning,
+                backend=target.backend,
             )
         except (KeyboardInterrupt, TrainingInterrupted):
             # Interrupted by the user, not a bad configuration: queue the same parameters again so that a

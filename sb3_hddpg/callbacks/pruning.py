@@ -5,15 +5,15 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 
 def parameters_finite(model: BaseAlgorithm) -> bool:
-    """Whether every weight of ``model``'s policy (actor, critic and their targets) is finite."""
-    with torch.no_grad():
-        return all(bool(torch.isfinite(p).all()) for p in model.policy.parameters())
+    """Whether every weight of ``model``'s policy (actor, critic and their targets) is finite, on either backend."""
+    from sb3_hddpg.backends import parameters_finite as finite
+
+    return finite(model)
 
 
 class TrialPruningCallback(BaseCallback):

@@ -21,7 +21,14 @@ from sb3_hddpg.benchmark import (
     run_benchmark,
 )
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, positive_float, prepare_out_dir, usage_errors
+from sb3_hddpg.cli.options import (
+    BACKEND_HELP,
+    at_least,
+    backend_name,
+    positive_float,
+    prepare_out_dir,
+    usage_errors,
+)
 
 
 def _ci(stats: dict[str, Any], fmt: str = ".1f") -> str:
@@ -219,6 +226,9 @@ def benchmark_command(
         "--export-models",
         help="Afterwards copy the final models into this folder with an index.json (see export-models).",
     ),
+    backend: str = typer.Option(
+        "sb3", "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
+    ),
 ) -> None:
     """Train and evaluate every method on every seed; write results.json, evaluations.csv and plots."""
     if scenario not in SCENARIOS:
@@ -240,6 +250,8 @@ def benchmark_command(
     if ham_hysteresis < 0:
         raise typer.BadParameter(f"must be >= 0, got {ham_hysteresis}", param_hint="'--ham-hysteresis'")
     preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []
+    with usage_errors("'--backend'"):  # e.g. tqc, which the sbx backend does not train
+        BenchmarkSettings(methods=chosen, backend=backend)
     with usage_errors("'--methods' / '--preference'"):
         settings = BenchmarkSettings(
             methods=chosen,
@@ -255,6 +267,7 @@ def benchmark_command(
             bias=bias,
             scenario=scenario,
             preferences=preferences,
+            backend=backend,
         )
     prepare_out_dir(out, resume, force)
     started = time.perf_counter()

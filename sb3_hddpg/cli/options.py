@@ -109,3 +109,22 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+#: Help of every training command's ``--backend``.
+BACKEND_HELP = (
+    'Training backend: sb3 (PyTorch) or sbx (JAX, faster; pip install "sb3-hddpg[fast]"). Saved models are '
+    "plain SB3 zips either way. Default: the config block's 'backend' key, else sb3."
+)
+
+
+def backend_name(value: str | None) -> str | None:
+    """A typer callback for ``--backend``: ``sb3`` or ``sbx``, and installed (``None`` passes)."""
+    if value is None:
+        return None
+    from sb3_hddpg.backends import BackendError, check_backend
+
+    try:
+        return check_backend(value)
+    except BackendError as error:
+        raise typer.BadParameter(str(error)) from None

@@ -10,7 +10,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, prepare_out_dir
+from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir
 from sb3_hddpg.quickstart import BUDGETS, STAGES, QuickstartObserver, QuickstartResult, run_quickstart
 
 
@@ -101,13 +101,18 @@ def quickstart_command(
         help="Keep every agent's replay buffer in RUN/checkpoints/ (about 275 MB in all at --budget small) "
         "so that train-* --resume can extend an agent exactly; by default the run folder is about 6 MB.",
     ),
+    backend: str = typer.Option(
+        "sb3", "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
+    ),
 ) -> None:
     """Train both workers, a manager, a flat DDPG (and HAM), compare them on the same seeds, save everything."""
     if budget not in BUDGETS:
         raise typer.BadParameter(f"must be one of {list(BUDGETS)}, got {budget!r}", param_hint="'--budget'")
     out = out or Path("runs") / f"quickstart-{datetime.now():%Y%m%d-%H%M%S}"
     prepare_out_dir(out, resume=False, force=force)
-    console.print(f"Run folder: [bold]{out}[/]  (budget {budget}, seed {seed}, {processes} processes)")
+    console.print(
+        f"Run folder: [bold]{out}[/]  (budget {budget}, seed {seed}, {processes} processes, backend {backend})"
+    )
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -124,6 +129,7 @@ def quickstart_command(
             processes=processes,
             observer=observer,
             keep_checkpoints=keep_checkpoints,
+            backend=backend,
         )
         observer.finish()
     console.print(comparison_table(result))

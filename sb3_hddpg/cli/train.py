@@ -10,7 +10,9 @@ from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
+    BACKEND_HELP,
     at_least,
+    backend_name,
     existing_dir,
     existing_file,
     positive_float,
@@ -103,8 +105,10 @@ def train_workers_command(
     ),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
     keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
+    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
+    from sb3_hddpg.backends import resolve_backend
     from sb3_hddpg.training import TrainingInterrupted, train_workers, worker_hyperparams
 
     unknown = [w for w in workers if w not in WORKER_ENV_IDS]
@@ -113,7 +117,10 @@ def train_workers_command(
         problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
         raise typer.BadParameter(f"{problem}; choose from {sorted(WORKER_ENV_IDS)}", param_hint="'--workers'")
     with usage_errors("'--config'"):  # a bad block fails now, not after the first worker has trained
-        worker_hyperparams(workers, config)
+        blocks = worker_hyperparams(workers, config)
+    with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
+        for block in blocks.values():
+            resolve_backend(backend, block.backend)
     prepare_out_dir(out, resume, force)
     summaries: dict[str, dict] = {}
 
@@ -141,6 +148,7 @@ def train_workers_command(
             threads=threads,
             on_worker_done=done,
             keep_checkpoints=keep_checkpoints,
+            backend=backend,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
@@ -216,8 +224,10 @@ def train_manager_command(
         False, "--trust", help="Load the workers with SB3's full loader (runs code in the files)."
     ),
     keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
+    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
+    from sb3_hddpg.backends import resolve_backend
     from sb3_hddpg.selection import SELECTION_MODES, parse_preferences
     from sb3_hddpg.training import TrainingInterrupted, prepare_manager, train_manager
 
@@ -230,7 +240,7 @@ def train_manager_command(
     # The library checks the rest (workers, their hashes and spaces, names, preferences, config) before any
     # training; run those checks now so that bad input is reported before the output folder is touched.
     with usage_errors():
-        prepare_manager(
+        setup = prepare_manager(
             workers_dir,
             names or None,
             prefer=prefer,
@@ -241,6 +251,8 @@ def train_manager_command(
             config=config,
             trusted=trust,
         )
+    with usage_errors("'--backend'"):
+        resolve_backend(backend, setup.hyperparams.backend)
     prepare_out_dir(out, resume, force)
     try:
         hierarchy, outcome = train_manager(
@@ -265,6 +277,7 @@ def train_manager_command(
             threads=threads,
             trusted=trust,
             keep_checkpoints=keep_checkpoints,
+            backend=backend,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")

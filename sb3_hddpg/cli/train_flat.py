@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, prepare_out_dir, usage_errors
+from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir, usage_errors
 from sb3_hddpg.cli.train import KEEP_CHECKPOINTS_HELP, metrics_table
 from sb3_hddpg.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted
 
@@ -46,6 +46,7 @@ def train_flat_command(
     ),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
     keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
+    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
     from sb3_hddpg.training import train_flat
@@ -59,9 +60,13 @@ def train_flat_command(
     from sb3_hddpg.training import algo_class
 
     with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
-        load_hyperparams(
+        hyperparams = load_hyperparams(
             FLAT_ENV_ID, algo_class(algo), config if config is not None else default_config(algo)
         )
+    from sb3_hddpg.backends import check_algo, resolve_backend
+
+    with usage_errors("'--backend'"):
+        check_algo(algo, resolve_backend(backend, hyperparams.backend))
     prepare_out_dir(out, resume, force)
     try:
         manifest, outcome = train_flat(
@@ -78,6 +83,7 @@ def train_flat_command(
             progress_bar=progress,
             threads=threads,
             keep_checkpoints=keep_checkpoints,
+            backend=backend,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")

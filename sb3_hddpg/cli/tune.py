@@ -9,7 +9,7 @@ import yaml
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, positive_float, usage_errors
+from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, positive_float, usage_errors
 from sb3_hddpg.training import WORKER_ENV_IDS, TrainingInterrupted
 from sb3_hddpg.tuning import LEVELS, PRUNERS, SAMPLERS
 
@@ -123,6 +123,7 @@ def tune_command(
         help="Seconds between a running trial's heartbeats; a trial silent for twice that is retried.",
     ),
     top: int = typer.Option(5, "--top", callback=at_least(1), help="Best trials to show."),
+    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Search hyperparameters with Optuna; several processes or machines can share one study."""
     import matplotlib
@@ -200,9 +201,15 @@ def tune_command(
         eval_episodes=eval_episodes,
         seed=seed if seed is not None else 0,
         algo=algo,
+        backend=backend,
     )
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()
+    if level != "ham":
+        from sb3_hddpg.backends import resolve_backend
+
+        with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
+            resolve_backend(backend, target.base_block().get("backend"))
     name = study_name or target.name
     out = out or Path("runs") / "tune" / name
     settings = StudySettings(

@@ -1,0 +1,569 @@
+"""
+Training backends: SB3 (PyTorch, the default) and SBX (JAX), behind the one algorithm registry.
+
+SBX (``sbx-rl``) is the SB3 maintainers' JAX implementation of the same algorithms with SB3's API: the same
+``learn``, callbacks, ``VecEnv``s, replay buffer and action noise classes. Its jitted updates cost far less
+per gradient step on small networks than torch's eager mode (docs/PERFORMANCE.md), so training can run on
+it while everything a user shares stays plain SB3:
+
+- :func:`make_model` builds an SBX model whose initial weights are those SB3 would draw with the same seed
+  (copied from a freshly built SB3 policy), so both backends start from the same networks;
+- :func:`to_sb3` exports a trained SBX model to an ordinary SB3 model of the same algorithm (actor,
+  critic and target weights, entropy coefficient), so ``DDPG.load``, the safe loader and bundles work
+  unchanged and the exported policy acts exactly like the JAX one;
+- :func:`configure_jax_threads` pins XLA's CPU thread pool like ``torch.set_num_threads`` (one
+  intra-op thread per process by default), which only works before ``jax`` is first imported;
+- :func:`share_compiled` lets every model of one architecture reuse the same jitted update, so a process
+  compiles it once, not once per model (each worker, trial or reloaded best model).
+
+Resumable checkpoints and ``best_model.zip`` stay in SBX's own format inside a run folder; only the final
+model is exported. Nothing here imports ``jax`` or ``sbx`` at import time.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import logging
+import os
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3 import DDPG, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+logger = logging.getLogger(__name__)
+
+#: Backend names accepted by ``--backend`` and the config key ``backend``.
+BACKENDS = ("sb3", "sbx")
+#: The backend used when neither the command line nor the config names one. SB3 stays the default even
+#: where SBX is installed: the same command then gives the same result on every machine, and the backends
+#: do not learn bit for bit alike (see docs/PERFORMANCE.md, "The JAX backend").
+DEFAULT_BACKEND = "sb3"
+#: How to install the SBX backend.
+INSTALL_HINT = 'pip install "sb3-hddpg[fast]"'
+#: Algorithms the SBX backend trains and exports (SB3's classes of the same name).
+SBX_ALGOS: dict[str, type[OffPolicyAlgorithm]] = {"ddpg": DDPG, "td3": TD3, "sac": SAC}
+
+
+class BackendError(ValueError):
+    """A backend that cannot be used: unknown, not installed, or unable to run a given setting."""
+
+
+def sbx_installed() -> bool:
+    """Whether SBX and JAX can be imported (checked without importing them, which would fix XLA's threads)."""
+    return all(importlib.util.find_spec(name) is not None for name in ("sbx", "jax", "flax", "optax"))
+
+
+def check_backend(name: Any) -> str:
+    """
+    Validate a backend name and that it can run here.
+
+    :param name: ``"sb3"`` or ``"sbx"`` (any case).
+    :return: the name, lower-cased; raises :class:`BackendError` naming the choices or the missing extra.
+    """
+    if not isinstance(name, str) or name.strip().lower() not in BACKENDS:
+        raise BackendError(f"Unknown backend {name!r}; choose from {list(BACKENDS)}")
+    name = name.strip().lower()
+    if name == "sbx" and not sbx_installed():
+        raise BackendError(f"The sbx backend needs SBX and JAX, which are not installed: {INSTALL_HINT}")
+    return name
+
+
+def resolve_backend(requested: str | None, configured: str | None = None) -> str:
+    """
+    The backend to train with: the one requested (``--backend``), else the config's, else :data:`DEFAULT_BACKEND`.
+
+    :param requested: from the command line or the API (``None``: not given).
+    :param configured: the config block's ``backend`` key (``None``: not set).
+    :return: a checked backend name.
+    """
+    return check_backend(requested or configured or DEFAULT_BACKEND)
+
+
+def check_algo(algo: str, backend: str) -> None:
+    """Raise :class:`BackendError` if ``backend`` cannot train ``algo``."""
+    if backend == "sbx" and algo.lower() not in SBX_ALGOS:
+        raise BackendError(
+            f"The sbx backend trains {sorted(SBX_ALGOS)}, not {algo!r}: use --backend sb3 for {algo}"
+        )
+
+
+# ------------------------------------------------------------------------------------------------ threads
+def jax_cache_dir() -> Path:
+    """Where jax's compilation cache goes by default: ``$XDG_CACHE_HOME/sb3-hddpg/jax`` (``~/.cache/...``)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "sb3-hddpg" / "jax"
+
+
+#: The thread count XLA was configured with in this process (``None``: jax not configured by us).
+_configured_threads: int | None = None
+
+
+def configure_jax_threads(threads: int = 1) -> None:
+    """
+    Size XLA's CPU thread pool like ``torch.set_num_threads(threads)``.
+
+    XLA reads its pool size once, when jax creates its CPU client, from the environment: ``PJRT_NPROC``
+    (and ``NPROC``) set the intra-op pool; with one thread, ``--xla_cpu_multi_thread_eigen=false`` also
+    keeps Eigen's own pool out. (The often-quoted ``intra_op_parallelism_threads=1`` in ``XLA_FLAGS`` is
+    silently ignored by XLA; measured with per-thread CPU times, only ``PJRT_NPROC`` confines a jitted
+    matrix product to one thread.) Call this before jax is imported; afterwards a different count cannot
+    take effect, which is logged as a warning.
+
+    :param threads: threads for jitted computations in this process (>= 1).
+    """
+    global _configured_threads
+    if threads < 1:
+        raise ValueError(f"Expected threads >= 1, actually: {threads}")
+    if "jax" in sys.modules:
+        if _configured_threads is not None and _configured_threads != threads:
+            logger.warning(
+                "jax already runs with %d thread(s) in this process; threads=%d cannot take effect",
+                _configured_threads,
+                threads,
+            )
+        elif _configured_threads is None and os.environ.get("PJRT_NPROC") != str(threads):
+            logger.warning("jax was imported before its threads were set; threads=%d may not apply", threads)
+        return
+    os.environ["PJRT_NPROC"] = os.environ["NPROC"] = str(threads)
+    # jax's persistent compilation cache, for every compilation however short: a new process (a benchmark
+    # task, a quickstart job, a tuning process) then loads the updates and the dozens of small initialiser
+    # programs instead of compiling them again (measured: 22 s -> 7.6 s of CPU for a DDPG's first 80 steps
+    # on a loaded machine). A user's own JAX_COMPILATION_CACHE_DIR wins.
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(jax_cache_dir()))
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if "xla_cpu_multi_thread_eigen" not in f]
+    if threads == 1:
+        flags.append("--xla_cpu_multi_thread_eigen=false")
+    os.environ["XLA_FLAGS"] = " ".join(flags)
+    _configured_threads = threads
+
+
+# ------------------------------------------------------------------------------------------------ classes
+def sbx_class(algo: str) -> type[OffPolicyAlgorithm]:
+    """The SBX class of an algorithm name (imports jax: call :func:`configure_jax_threads` first)."""
+    check_algo(algo, "sbx")
+    check_backend("sbx")
+    if _configured_threads is None and "jax" not in sys.modules:
+        configure_jax_threads(1)
+    import sbx
+
+    return {"ddpg": sbx.DDPG, "td3": sbx.TD3, "sac": sbx.SAC}[algo.lower()]
+
+
+def is_sbx_model(model: Any) -> bool:
+    """Whether ``model`` is an SBX (JAX) model rather than an SB3 one."""
+    return type(model).__module__.split(".")[0] == "sbx"
+
+
+def _sbx_algo_name(model: Any) -> str:
+    import sbx
+
+    for name, cls in (("ddpg", sbx.DDPG), ("td3", sbx.TD3), ("sac", sbx.SAC)):
+        if type(model) is cls:
+            return name
+    raise BackendError(f"Cannot export {type(model).__qualname__} to SB3; exportable: {sorted(SBX_ALGOS)}")
+
+
+# ---------------------------------------------------------------------------------------- activations
+def _activation_pairs() -> list[tuple[type[th.nn.Module], Any]]:
+    """(torch activation class, the flax function computing the same) for every activation configs may name."""
+    import functools
+
+    import flax.linen as fnn
+
+    return [
+        (th.nn.ReLU, fnn.relu),
+        (th.nn.Tanh, fnn.tanh),
+        (th.nn.ELU, fnn.elu),
+        (th.nn.LeakyReLU, fnn.leaky_relu),  # both slopes default to 0.01
+        (th.nn.SiLU, fnn.silu),
+        (th.nn.GELU, functools.partial(fnn.gelu, approximate=False)),  # torch's GELU is the exact one
+        (th.nn.Sigmoid, fnn.sigmoid),
+    ]
+
+
+def _to_flax_activation(activation: Any) -> Any:
+    for torch_cls, flax_fn in _activation_pairs():
+        if activation is torch_cls:
+            return flax_fn
+    raise BackendError(f"The sbx backend has no JAX counterpart of activation_fn {activation!r}")
+
+
+def _to_torch_activation(activation: Any) -> type[th.nn.Module]:
+    for torch_cls, flax_fn in _activation_pairs():
+        if activation is flax_fn or (
+            getattr(activation, "func", None) is getattr(flax_fn, "func", flax_fn)
+            and getattr(activation, "keywords", None) == getattr(flax_fn, "keywords", None)
+        ):
+            return torch_cls
+    raise BackendError(f"No torch counterpart of the SBX activation_fn {activation!r}")
+
+
+#: ``policy_kwargs`` both backends read the same way.
+_SHARED_POLICY_KWARGS = {"net_arch", "activation_fn", "n_critics", "share_features_extractor"}
+#: SBX policy options without an SB3 counterpart: only their defaults can be exported.
+_SBX_ONLY_POLICY_DEFAULTS = {"dropout_rate": 0.0, "layer_norm": False, "use_sde": False}
+
+
+def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """
+    Translate SB3 constructor arguments (a config block's) into SBX's, refusing what SBX cannot honour.
+
+    :param algo: ``ddpg``, ``td3`` or ``sac``.
+    :param kwargs: SB3 keyword arguments (``policy_kwargs`` with torch activations).
+    :return: the SBX keyword arguments; raises :class:`BackendError` naming the key SBX lacks.
+    """
+    import inspect
+
+    cls = sbx_class(algo)
+    accepted = set(inspect.signature(cls.__init__).parameters)
+    out = dict(kwargs)
+    for key in out:
+        if key not in accepted:
+            raise BackendError(f"The sbx backend's {cls.__name__} has no argument {key!r}: use --backend sb3")
+    policy_kwargs = dict(out.get("policy_kwargs") or {})
+    if policy_kwargs.get("use_sde") is False:  # SB3 writes its default into the dict it was given
+        del policy_kwargs["use_sde"]
+    extra = sorted(set(policy_kwargs) - _SHARED_POLICY_KWARGS)
+    if extra:
+        raise BackendError(f"The sbx backend cannot honour policy_kwargs {extra}: use --backend sb3")
+    if "activation_fn" in policy_kwargs:
+        policy_kwargs["activation_fn"] = _to_flax_activation(policy_kwargs["activation_fn"])
+    out["policy_kwargs"] = policy_kwargs
+    if "qf_learning_rate" in accepted:
+        # SB3 trains the critic at learning_rate; SBX's DDPG defaults its critic to 1e-3 whatever that is.
+        out["qf_learning_rate"] = None
+    return out
+
+
+# ---------------------------------------------------------------------------------- weights, both ways
+def _layer_count(params: Mapping[str, Any]) -> int:
+    return sum(1 for name in params if name.startswith("Dense_"))
+
+
+def _sbx_to_state_dict(model: Any, algo: str) -> dict[str, th.Tensor]:
+    """SB3's ``policy.state_dict()`` keys and tensors, read from an SBX model's flax parameters."""
+    policy = model.policy
+    state: dict[str, th.Tensor] = {}
+
+    def linear(prefix: str, dense: Mapping[str, Any], critic: int | None = None) -> None:
+        kernel, bias = np.asarray(dense["kernel"]), np.asarray(dense["bias"])
+        if critic is not None:
+            kernel, bias = kernel[critic], bias[critic]
+        # flax Dense computes x @ kernel (in, out); torch Linear x @ weight.T with weight (out, in).
+        state[f"{prefix}.weight"] = th.tensor(np.array(kernel.T, dtype=np.float32))
+        state[f"{prefix}.bias"] = th.tensor(np.array(bias, dtype=np.float32))
+
+    def actor(prefix: str, params: Mapping[str, Any]) -> None:
+        n = _layer_count(params)
+        if algo == "sac":  # hidden layers, then the mean's and the log-std's heads
+            for i in range(n - 2):
+                linear(f"{prefix}.latent_pi.{2 * i}", params[f"Dense_{i}"])
+            linear(f"{prefix}.mu", params[f"Dense_{n - 2}"])
+            linear(f"{prefix}.log_std", params[f"Dense_{n - 1}"])
+        else:  # Sequential(Linear, act, ..., Linear, Tanh): Linear modules at even indices
+            for i in range(n):
+                linear(f"{prefix}.mu.{2 * i}", params[f"Dense_{i}"])
+
+    def critics(prefix: str, params: Mapping[str, Any]) -> None:
+        stacked = params["VmapContinuousCritic_0"]
+        n_critics = int(np.asarray(stacked["Dense_0"]["kernel"]).shape[0])
+        for k in range(n_critics):
+            for i in range(_layer_count(stacked)):
+                linear(f"{prefix}.qf{k}.{2 * i}", stacked[f"Dense_{i}"], critic=k)
+
+    actor("actor", policy.actor_state.params["params"])
+    if algo != "sac":
+        actor("actor_target", policy.actor_state.target_params["params"])
+    critics("critic", policy.qf_state.params["params"])
+    critics("critic_target", policy.qf_state.target_params["params"])
+    return state
+
+
+def _state_dict_to_sbx(model: Any, algo: str, state: Mapping[str, th.Tensor]) -> None:
+    """Set an SBX model's flax parameters (and targets) from SB3's ``policy.state_dict()``: the inverse."""
+    import jax.numpy as jnp
+    from flax.core import freeze, unfreeze
+
+    policy = model.policy
+
+    def dense(prefix: str) -> dict[str, Any]:
+        return {
+            "kernel": jnp.asarray(state[f"{prefix}.weight"].detach().cpu().numpy().T),
+            "bias": jnp.asarray(state[f"{prefix}.bias"].detach().cpu().numpy()),
+        }
+
+    def actor(prefix: str, template: Any) -> Any:
+        params = unfreeze(template)
+        inner = params["params"]
+        n = _layer_count(inner)
+        for i in range(n):
+            if algo == "sac":
+                source = (
+                    f"{prefix}.latent_pi.{2 * i}"
+                    if i < n - 2
+                    else (f"{prefix}.mu", f"{prefix}.log_std")[i - n + 2]
+                )
+            else:
+                source = f"{prefix}.mu.{2 * i}"
+            inner[f"Dense_{i}"] = dense(source)
+        return freeze(params) if not isinstance(template, dict) else params
+
+    def critics(prefix: str, template: Any) -> Any:
+        params = unfreeze(template)
+        stacked = params["params"]["VmapContinuousCritic_0"]
+        n_critics = int(np.asarray(stacked["Dense_0"]["kernel"]).shape[0])
+        for i in range(_layer_count(stacked)):
+            layers = [dense(f"{prefix}.qf{k}.{2 * i}") for k in range(n_critics)]
+            stacked[f"Dense_{i}"] = {
+                key: jnp.stack([layer[key] for layer in layers]) for key in ("kernel", "bias")
+            }
+        return freeze(params) if not isinstance(template, dict) else params
+
+    actor_params = actor("actor", policy.actor_state.params)
+    qf_params = critics("critic", policy.qf_state.params)
+    # New parameters need a matching fresh optimiser state (Adam's moments start at zero, as in torch).
+    policy.actor_state = policy.actor_state.replace(
+        params=actor_params, opt_state=policy.actor_state.tx.init(actor_params)
+    )
+    if algo != "sac":
+        policy.actor_state = policy.actor_state.replace(target_params=actor("actor_target", actor_params))
+    policy.qf_state = policy.qf_state.replace(
+        params=qf_params,
+        target_params=critics("critic_target", qf_params),
+        opt_state=policy.qf_state.tx.init(qf_params),
+    )
+
+
+def _sb3_hyperparams(model: Any, algo: str) -> dict[str, Any]:
+    """The SB3 constructor arguments that reproduce an SBX model's settings."""
+    train_freq = model.train_freq
+    hparams: dict[str, Any] = {
+        "learning_rate": model.learning_rate,
+        "buffer_size": int(model.buffer_size),
+        "learning_starts": int(model.learning_starts),
+        "batch_size": int(model.batch_size),
+        "tau": float(model.tau),
+        "gamma": float(model.gamma),
+        # SB3 turns train_freq into a TrainFreq(frequency, unit) named tuple; hand it back as a plain tuple.
+        "train_freq": (int(train_freq.frequency), train_freq.unit.value)
+        if hasattr(train_freq, "unit")
+        else train_freq,
+        "gradient_steps": int(model.gradient_steps),
+    }
+    if algo == "td3":
+        hparams.update(
+            policy_delay=int(model.policy_delay),
+            target_policy_noise=float(model.target_policy_noise),
+            target_noise_clip=float(model.target_noise_clip),
+        )
+    if algo == "sac":
+        ent_coef = model.ent_coef_init
+        hparams.update(
+            ent_coef=ent_coef,
+            target_entropy=float(model.target_entropy),
+            # SBX's SAC updates its targets after every gradient step, SB3's target_update_interval=1.
+            target_update_interval=1,
+        )
+    return hparams
+
+
+def _sb3_policy_kwargs(model: Any) -> dict[str, Any]:
+    policy_kwargs = dict(model.policy_kwargs)
+    for key, default in _SBX_ONLY_POLICY_DEFAULTS.items():
+        if key in policy_kwargs and policy_kwargs.pop(key) != default:
+            raise BackendError(f"Cannot export an SBX model with {key}={model.policy_kwargs[key]!r} to SB3")
+    extra = sorted(set(policy_kwargs) - _SHARED_POLICY_KWARGS)
+    if extra:
+        raise BackendError(f"Cannot export an SBX model with policy_kwargs {extra} to SB3")
+    if "activation_fn" in policy_kwargs:
+        policy_kwargs["activation_fn"] = _to_torch_activation(policy_kwargs["activation_fn"])
+    if type(model).__name__ == "DDPG" and policy_kwargs.get("n_critics") == 1:
+        # SBX's DDPG writes its default of one critic into policy_kwargs; SB3's DDPG has the same default.
+        policy_kwargs.pop("n_critics")
+    return policy_kwargs
+
+
+def _build_sb3(
+    algo: str,
+    observation_space: Any,
+    action_space: Any,
+    hparams: Mapping[str, Any],
+    policy_kwargs: Mapping[str, Any],
+    seed: int | None,
+) -> OffPolicyAlgorithm:
+    """A fresh SB3 model without an env (as ``BaseAlgorithm.load`` builds one), seeded like SB3 training."""
+    model = SBX_ALGOS[algo](
+        "MlpPolicy",
+        env=None,  # type: ignore[arg-type]
+        policy_kwargs=dict(policy_kwargs),
+        device="cpu",
+        seed=seed,
+        _init_setup_model=False,
+        **hparams,
+    )
+    model.observation_space = observation_space
+    model.action_space = action_space
+    model.n_envs = 1
+    model._setup_model()
+    return model
+
+
+# ------------------------------------------------------------------------------------------- public API
+def make_model(
+    algo: str,
+    backend: str,
+    env: Any,
+    kwargs: Mapping[str, Any],
+    seed: int | None = None,
+    policy: str = "MlpPolicy",
+) -> BaseAlgorithm:
+    """
+    Build a fresh model of ``algo`` on ``backend``.
+
+    With ``sbx``, the networks start from the weights SB3 draws for the same seed (copied from a freshly
+    built SB3 policy; flax's own initialisation differs, see docs/PERFORMANCE.md), and the global NumPy
+    and action-space random states are left as SB3's constructor leaves them, so that exploration noise
+    and replay sampling follow the same random streams on both backends.
+
+    :param algo: ``ddpg``, ``td3``, ``sac`` (and ``tqc`` on ``sb3``).
+    :param backend: ``sb3`` or ``sbx``.
+    :param env: the (vectorised) training env.
+    :param kwargs: SB3 constructor arguments (from the config block, ``action_noise`` included).
+    :param seed: the training seed.
+    :param policy: the policy name (``MlpPolicy``).
+    :return: the model, on the CPU.
+    """
+    from sb3_hddpg.training import algo_class
+
+    backend = check_backend(backend)
+    # SB3 writes into the policy_kwargs dict it is given (use_sde): keep the caller's (the config's) intact.
+    kwargs = {**kwargs, "policy_kwargs": dict(kwargs.get("policy_kwargs") or {})}
+    if backend == "sb3":
+        return algo_class(algo)(policy, env, seed=seed, device="cpu", verbose=0, **kwargs)
+    algo = algo.lower()
+    model = sbx_class(algo)(policy, env, seed=seed, device="cpu", verbose=0, **sbx_kwargs(algo, kwargs))
+    sb3_kwargs = {k: v for k, v in kwargs.items() if k not in ("action_noise", "policy_kwargs")}
+    if algo == "sac":  # "auto" reads an env the twin does not have; the SBX model has resolved it
+        sb3_kwargs["target_entropy"] = float(model.target_entropy)
+    twin = _build_sb3(
+        algo,
+        model.observation_space,
+        model.action_space,
+        sb3_kwargs,
+        kwargs.get("policy_kwargs") or {},
+        seed,
+    )
+    _state_dict_to_sbx(model, algo, twin.policy.state_dict())
+    share_compiled(model)
+    return model
+
+
+def load_native(algo: str, backend: str, path: Any, env: Any = None) -> BaseAlgorithm:
+    """
+    Load a model saved by this backend's own ``save`` (a checkpoint or ``best_model.zip`` of a run).
+
+    :param algo: the algorithm name.
+    :param backend: ``sb3`` or ``sbx``.
+    :param path: the zip.
+    :param env: the env to attach (to continue training), or ``None``.
+    """
+    from sb3_hddpg.training import algo_class
+
+    cls = algo_class(algo, backend)
+    model = cls.load(path, env=env, device="cpu")
+    if is_sbx_model(model):
+        share_compiled(model)
+    return model
+
+
+#: One set of jitted functions and optimisers per architecture and optimiser setting, shared by models.
+_SHARED: dict[tuple[Any, ...], dict[str, tuple[Any, Any]]] = {}
+
+
+def share_compiled(model: Any) -> None:
+    """
+    Make ``model`` reuse the apply functions and optimisers of an earlier model of the same architecture.
+
+    SBX's jitted update takes its train states as arguments; their ``apply_fn`` and ``tx`` are static parts
+    of the jit's cache key, and every SBX model creates its own (new closures), so each new model would
+    recompile the whole update (seconds to tens of seconds on a loaded machine). Both are pure functions of
+    the architecture and the optimiser's settings (the optimiser's state lives in ``opt_state``), so
+    models that agree on those can share them, and jax's cache then serves every later model.
+
+    :param model: an SBX model (modified in place).
+    """
+    policy = model.policy
+    key = (
+        type(model).__qualname__,
+        repr(policy.actor),
+        repr(policy.qf),
+        float(model.lr_schedule(1)),
+        float(model.qf_learning_rate),
+        policy.optimizer_class,
+        repr(sorted(policy.optimizer_kwargs.items())),
+        repr(getattr(model, "ent_coef_init", None)),
+    )
+    states = {"actor_state": policy, "qf_state": policy}
+    if hasattr(model, "ent_coef_state"):
+        states["ent_coef_state"] = model
+    shared = _SHARED.setdefault(
+        key,
+        {name: (getattr(owner, name).apply_fn, getattr(owner, name).tx) for name, owner in states.items()},
+    )
+    for name, owner in states.items():
+        apply_fn, tx = shared[name]
+        setattr(owner, name, getattr(owner, name).replace(apply_fn=apply_fn, tx=tx))
+
+
+def to_sb3(model: BaseAlgorithm) -> OffPolicyAlgorithm:
+    """
+    The SB3 model to save and share for a trained model: SB3 models as they are, SBX models exported.
+
+    The export builds an SB3 model of the same algorithm with the same settings (no env attached, as after
+    ``DDPG.load``) and copies the actor, the critics, their targets and (SAC) the entropy coefficient.
+    Its deterministic actions equal the JAX policy's to float rounding (tests/test_backends.py checks
+    1e-5). Optimiser moments are not copied: continue training from the run's native checkpoint.
+
+    :param model: an SB3 or SBX model.
+    :return: an SB3 model (``DDPG``, ``TD3`` or ``SAC``).
+    """
+    if not is_sbx_model(model):
+        return model  # type: ignore[return-value]
+    algo = _sbx_algo_name(model)
+    sb3_model = _build_sb3(
+        algo,
+        model.observation_space,
+        model.action_space,
+        _sb3_hyperparams(model, algo),
+        _sb3_policy_kwargs(model),
+        None,  # a seed would re-seed the global random state (SB3's set_random_seed) mid-run
+    )
+    sb3_model.seed = model.seed
+    state = _sbx_to_state_dict(model, algo)
+    sb3_model.policy.load_state_dict(state, strict=True)
+    if algo == "sac" and getattr(sb3_model, "log_ent_coef", None) is not None:
+        log_ent_coef = float(np.asarray(model.ent_coef_state.params["log_ent_coef"]))
+        sb3_model.log_ent_coef.data.fill_(log_ent_coef)
+    sb3_model.num_timesteps = int(model.num_timesteps)
+    sb3_model._n_updates = int(model._n_updates)
+    return sb3_model
+
+
+def parameters_finite(model: Any) -> bool:
+    """Whether every weight of ``model`` (actor, critics and their targets, on either backend) is finite."""
+    if not is_sbx_model(model):
+        with th.no_grad():
+            return all(bool(th.isfinite(p).all()) for p in model.policy.parameters())
+    import jax
+
+    policy = model.policy
+    trees = [policy.actor_state.params, policy.qf_state.params, policy.qf_state.target_params]
+    trees += [getattr(policy.actor_state, "target_params", None)]
+    leaves = [leaf for tree in trees if tree is not None for leaf in jax.tree_util.tree_leaves(tree)]
+    return all(bool(np.isfinite(np.asarray(leaf)).all()) for leaf in leaves)
