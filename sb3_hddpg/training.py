@@ -32,7 +32,13 @@ from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_che
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.config import Hyperparams
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.io import atomic_write, atomic_write_json, remove_stale_temporaries
+from sb3_hddpg.io import (
+    atomic_write,
+    atomic_write_json,
+    holds_folder_lock,
+    locked_file,
+    remove_stale_temporaries,
+)
 from sb3_hddpg.workers import WORKER_ENV_IDS
 
 
@@ -169,6 +175,7 @@ def sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+@holds_folder_lock(lambda call: call.arguments["paths"].root)
 def train_agent(
     env_factory: Callable[[], gym.Env],
     hyperparams: Hyperparams,
@@ -218,6 +225,8 @@ def train_agent(
     total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
     if total < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {total}")
+    if not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"Expected seed in [0, {MAX_SEED}], actually: {seed}")
     if checkpoint_freq < 0:
         raise ValueError(f"Expected checkpoint_freq >= 0, actually: {checkpoint_freq}")
     n_envs = int(n_envs or hyperparams.n_envs)
@@ -289,6 +298,7 @@ def train_agent(
                 if np.isfinite(evaluator.best_mean_reward)
                 else None,
             },
+            min_timesteps=state["num_timesteps"] if state is not None else 0,
         )
         callbacks = CallbackList([evaluator, checkpointer, *extra_callbacks])
         remaining = total - model.num_timesteps
@@ -361,9 +371,34 @@ def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> C
     return functools.partial(make_snake_env, WORKER_ENV_IDS[name], dict(env_kwargs or {}))
 
 
+#: The largest seed SB3 (numpy's legacy seeding) accepts.
+MAX_SEED = 2**32 - 1
+
+
 def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
-    """Write a manifest atomically."""
-    return atomic_write_json(path, manifest)
+    """
+    Write a manifest atomically, read-modify-write: the entries (``workers`` or ``models``) already in the
+    file are kept unless ``manifest`` replaces them, so two runs writing different agents into one folder
+    one after the other (each under the folder's lock, see :func:`~sb3_hddpg.io.locked_folder`) both stay
+    listed.
+
+    :param path: the manifest file.
+    :param manifest: the new content; its entry mappings win over the file's.
+    """
+    from sb3_hddpg.limits import read_json_file
+
+    path = Path(path)
+    merged = dict(manifest)
+    with locked_file(path):
+        try:
+            current = read_json_file(path) if path.is_file() else {}
+        except ValueError:  # damaged or not JSON: the new content replaces it
+            current = {}
+        if isinstance(current, dict):
+            for key in ("workers", "models"):
+                if isinstance(current.get(key), dict) and isinstance(manifest.get(key), dict):
+                    merged[key] = {**current[key], **manifest[key]}
+        return atomic_write_json(path, merged)
 
 
 #: The schema version of ``workers/manifest.json``.
@@ -394,6 +429,7 @@ def worker_hyperparams(workers: Sequence[str], config: str | Path | None = None)
     return {name: load_hyperparams(WORKER_ENV_IDS[name], DDPG, config) for name in workers}
 
 
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_workers(
     out_dir: str | Path,
     workers: Sequence[str] = ("goal", "avoid"),
@@ -508,18 +544,23 @@ def read_workers_manifest(path: str | Path) -> dict[str, Any]:
     """
     import json
 
+    from sb3_hddpg.limits import LimitError, brief, check_file_entry, check_name, read_json_file
+
     path = Path(path)
     try:
-        manifest = json.loads(path.read_text())
+        manifest = read_json_file(path)
         entries = manifest["workers"]
-        valid = isinstance(entries, dict) and all(
-            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
-            for e in entries.values()
-        )
+        valid = isinstance(entries, dict)
+    except LimitError:
+        raise
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
         valid = False
     if not valid:
         raise ValueError(f"Not a valid workers manifest: {str(path)!r}")
+    # Names and files travel with shared folders: each must be a plain name before it picks a file.
+    for name, entry in entries.items():
+        check_name(name, f"{path}: workers")
+        check_file_entry(entry, f"{path}: workers.{brief(name)}")
     return manifest
 
 
@@ -529,6 +570,7 @@ FLAT_MANIFEST_VERSION = 1
 FLAT_ENV_ID = "hddpg/SnakeReach-v0"
 
 
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_flat(
     out_dir: str | Path,
     algo: str = "ddpg",
@@ -567,9 +609,9 @@ def train_flat(
     :param env_id: the env to learn (the combined reward by default).
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
-    import json
 
     from sb3_hddpg.config import default_config, load_hyperparams
+    from sb3_hddpg.limits import read_json_file
     from sb3_hddpg.safe_load import model_spec
 
     algo = algo.lower()
@@ -581,7 +623,7 @@ def train_flat(
     manifest_path = out_dir / "flat" / "manifest.json"
     manifest: dict[str, Any] = {"schema_version": FLAT_MANIFEST_VERSION, "models": {}}
     if manifest_path.exists():
-        manifest = json.loads(manifest_path.read_text())
+        manifest = read_json_file(manifest_path)
     done = manifest["models"].get(algo)
     if resume and done is not None and done.get("timesteps_requested") == budget:
         return manifest, None  # finished in an earlier run
@@ -792,6 +834,7 @@ def prepare_manager(
     return ManagerSetup(workers, manifest, hyperparams, selection_config, env_id, env_kwargs)
 
 
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_manager(
     workers_dir: str | Path,
     out_dir: str | Path,
