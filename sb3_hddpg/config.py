@@ -21,6 +21,8 @@ import numpy as np
 import yaml
 from torch import nn
 
+from sb3_hddpg.limits import MAX_CONFIG_NODES, MAX_JSON_BYTES, brief, check_buffer_size, count_nodes
+
 #: The bundled config, also reachable as ``zoo_configs/ddpg.yml`` in a checkout.
 DEFAULT_CONFIG = Path(__file__).parent / "zoo_configs" / "ddpg.yml"
 
@@ -110,13 +112,26 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"Config file not found: {str(path)!r}") from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
         raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
+    if len(text) > MAX_JSON_BYTES:
+        raise ConfigError(
+            f"Config file {str(path)!r} is {len(text)} characters, over the {MAX_JSON_BYTES} limit"
+        )
     try:
         data = yaml.safe_load(text)
+    except RecursionError:
+        raise ConfigError(f"Invalid YAML in {str(path)!r}: nested too deeply") from None
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)
         line = f" at line {where.line + 1}" if where is not None else ""
         problem = getattr(error, "problem", None) or type(error).__name__
         raise ConfigError(f"Invalid YAML in {str(path)!r}{line}: {problem}") from None
+    # Anchors and aliases share one object, so loading is cheap, but an alias bomb ("billion laughs")
+    # expands to billions of values when printed or copied: budget the expanded size here, once.
+    nodes = count_nodes(data)
+    if nodes > MAX_CONFIG_NODES:
+        raise ConfigError(
+            f"Config file {str(path)!r} expands to more than {MAX_CONFIG_NODES} values (YAML aliases?); refused"
+        )
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise ConfigError(f"Expected {str(path)!r} to map env ids to blocks of hyperparameters")
     return data
@@ -128,7 +143,9 @@ def select_block(config: dict[str, Any], key: str, source: str = "config") -> di
         return copy.deepcopy(config[key])
     if "default" in config:
         return copy.deepcopy(config["default"])
-    raise ConfigError(f"No block for {key!r} and no 'default' block in {source}; blocks: {sorted(config)}")
+    raise ConfigError(
+        f"No block for {key!r} and no 'default' block in {source}; blocks: {brief(sorted(map(str, config)))}"
+    )
 
 
 def parse_block(
@@ -147,7 +164,7 @@ def parse_block(
     allowed = constructor | ZOO_KEYS | (MANAGER_ONLY_KEYS if manager else set())
     unknown = sorted(set(block) - allowed)
     if unknown:
-        raise ConfigError(f"Unknown keys in {source}: {unknown} (allowed: {sorted(allowed)})")
+        raise ConfigError(f"Unknown keys in {source}: {brief(unknown)} (allowed: {sorted(allowed)})")
     raw = copy.deepcopy(block)
     if "n_timesteps" not in block:
         raise ConfigError(f"Missing key 'n_timesteps' in {source}")
@@ -155,29 +172,42 @@ def parse_block(
     n_envs = _as_int(block.pop("n_envs", 1), "n_envs", source, minimum=1)
     policy = block.pop("policy", "MlpPolicy")
     if policy != "MlpPolicy":
-        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {policy!r}")
+        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {brief(policy)}")
     noise_type = block.pop("noise_type", None)
     if noise_type is not None:
         noise_type = str(noise_type).strip()
         if noise_type not in ("normal", "ornstein-uhlenbeck"):
             raise ConfigError(
-                f"Unknown noise_type in {source}: {noise_type!r} (use 'normal' or 'ornstein-uhlenbeck')"
+                f"Unknown noise_type in {source}: {brief(noise_type)} (use 'normal' or 'ornstein-uhlenbeck')"
             )
-    noise_std = float(block.pop("noise_std", 0.1))
+    noise_std = block.pop("noise_std", 0.1)
+    if isinstance(noise_std, bool) or not isinstance(noise_std, (int, float)):
+        raise ConfigError(f"Expected noise_std in {source} to be a number, actually: {brief(noise_std)}")
+    noise_std = float(noise_std)
     if not np.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
     env_kwargs = block.pop("env_kwargs", {}) or {}
     wrapper_kwargs = block.pop("wrapper_kwargs", {}) or {}
     for name, value in (("env_kwargs", env_kwargs), ("wrapper_kwargs", wrapper_kwargs)):
         if not isinstance(value, dict):
-            raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {value!r}")
+            raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {brief(value)}")
     if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
         block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
     if "train_freq" in block and isinstance(block["train_freq"], list):
         block["train_freq"] = tuple(block["train_freq"])
+    if "buffer_size" in block:
+        buffer_size = block["buffer_size"]
+        if isinstance(buffer_size, float) and buffer_size.is_integer():
+            buffer_size = block["buffer_size"] = int(buffer_size)  # RL Zoo writes 1e6
+        try:
+            # Bounded before SB3 allocates it; the dimensions are not known yet, so a 64-wide observation
+            # stands in (the snake's is 27): the transition count is the real limit.
+            check_buffer_size(buffer_size, 64, 8, "buffer_size")
+        except ValueError as error:
+            raise ConfigError(f"{source}: {error}") from None
     for key in ("learning_rate", "gamma", "tau"):
         if key in block and not isinstance(block[key], (int, float)):
-            raise ConfigError(f"Expected {key} in {source} to be a number, actually: {block[key]!r}")
+            raise ConfigError(f"Expected {key} in {source} to be a number, actually: {brief(block[key])}")
     return Hyperparams(
         algo_kwargs=block,
         n_timesteps=n_timesteps,
@@ -215,10 +245,10 @@ def parse_policy_kwargs(text: str, source: str = "config") -> dict[str, Any]:
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError:
-        raise ConfigError(f"Cannot parse policy_kwargs in {source}: {text!r}") from None
+        raise ConfigError(f"Cannot parse policy_kwargs in {source}: {brief(text)}") from None
     value = _safe_value(tree.body, text, source)
     if not isinstance(value, dict):
-        raise ConfigError(f"Expected policy_kwargs in {source} to be a dict, actually: {text!r}")
+        raise ConfigError(f"Expected policy_kwargs in {source} to be a dict, actually: {brief(text)}")
     return value
 
 
@@ -258,12 +288,16 @@ def _safe_value(node: ast.AST, text: str, source: str) -> Any:
         name = dotted.rsplit(".", 1)[-1]
         if dotted in (f"nn.{name}", f"th.nn.{name}", f"torch.nn.{name}") and name in ACTIVATIONS:
             return ACTIVATIONS[name]
-    raise ConfigError(f"Unsupported expression {ast.unparse(node)!r} in policy_kwargs of {source}: {text!r}")
+    raise ConfigError(
+        f"Unsupported expression {brief(ast.unparse(node))} in policy_kwargs of {source}: {brief(text)}"
+    )
 
 
 def _as_int(value: Any, name: str, source: str, minimum: int) -> int:
     if isinstance(value, float) and value.is_integer():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ConfigError(f"Expected {name} in {source} to be an integer >= {minimum}, actually: {value!r}")
+        raise ConfigError(
+            f"Expected {name} in {source} to be an integer >= {minimum}, actually: {brief(value)}"
+        )
     return value
