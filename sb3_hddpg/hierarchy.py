@@ -337,7 +337,7 @@ class Hierarchy:
             )
         except BundleError:
             raise
-        except (ValueError, KeyError, TypeError) as error:
+        except (ValueError, KeyError, TypeError, AttributeError) as error:
             raise BundleError(f"{name}: invalid settings in {MANIFEST}: {brief(str(error), 300)}") from None
 
 

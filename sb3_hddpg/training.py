@@ -788,6 +788,7 @@ def prepare_manager(
     """
     from sb3_hddpg.config import MANAGER_KEY, load_hyperparams
     from sb3_hddpg.hierarchy import SelectionConfig
+    from sb3_hddpg.limits import brief
     from sb3_hddpg.selection import check_preferences, preferences_from_bias
     from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
@@ -820,7 +821,7 @@ def prepare_manager(
         for name, worker in workers.items():
             space = getattr(worker, "observation_space", None)
             if space is not None and space.shape != expected:
-                trained_on = manifest["workers"][name].get("env_kwargs", {})
+                trained_on = brief(manifest["workers"][name].get("env_kwargs", {}))
                 raise ValueError(
                     f"Worker {name!r} was trained on observations of shape {space.shape} (env_kwargs "
                     f"{trained_on}), but the manager's env {env_id} with env_kwargs {env_kwargs} gives "
