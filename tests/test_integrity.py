@@ -138,6 +138,7 @@ def test_a_second_run_into_a_locked_folder_is_refused_with_the_holders_pid(tmp_p
         pass
 
 
+@pytest.mark.slow  # two training processes at once: ~35 s on a shared machine
 def test_two_runs_started_together_into_one_folder_lose_nothing(tmp_path: Path) -> None:
     """The issue's race: both used to exit 0 while the manifest listed only one worker."""
     config = tmp_path / "tiny.yml"
