@@ -21,7 +21,14 @@ import numpy as np
 import yaml
 from torch import nn
 
-from sb3_hddpg.limits import MAX_CONFIG_NODES, MAX_JSON_BYTES, brief, check_buffer_size, count_nodes
+from sb3_hddpg.limits import (
+    MAX_CONFIG_NODES,
+    MAX_JSON_BYTES,
+    brief,
+    check_buffer_size,
+    check_parameter_count,
+    count_nodes,
+)
 
 #: The bundled config, also reachable as ``zoo_configs/ddpg.yml`` in a checkout.
 DEFAULT_CONFIG = Path(__file__).parent / "zoo_configs" / "ddpg.yml"
@@ -193,6 +200,7 @@ def parse_block(
             raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {brief(value)}")
     if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
         block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
+    _check_network_size(block.get("policy_kwargs"), algo_class.__name__, source)
     if "train_freq" in block and isinstance(block["train_freq"], list):
         block["train_freq"] = tuple(block["train_freq"])
     if "buffer_size" in block:
@@ -291,6 +299,38 @@ def _safe_value(node: ast.AST, text: str, source: str) -> Any:
     raise ConfigError(
         f"Unsupported expression {brief(ast.unparse(node))} in policy_kwargs of {source}: {brief(text)}"
     )
+
+
+def _check_network_size(policy_kwargs: Any, algo: str, source: str) -> None:
+    """
+    Refuse a ``net_arch`` whose networks would be too large to build (``[65536, 65536]`` is 17 GB) before
+    SB3 allocates them. The spaces are not known yet: a 64-wide observation and 8-wide action stand in
+    (the snake's are 39 and 6); the hidden layers dominate the count.
+    """
+    if not isinstance(policy_kwargs, dict) or "net_arch" not in policy_kwargs:
+        return
+    net_arch = policy_kwargs["net_arch"]
+    pi, qf = (
+        (net_arch.get("pi", []), net_arch.get("qf", []))
+        if isinstance(net_arch, dict)
+        else (net_arch, net_arch)
+    )
+    if not all(isinstance(layers, (list, tuple)) for layers in (pi, qf)) or not all(
+        isinstance(size, int) and not isinstance(size, bool) and size >= 1 for size in (*pi, *qf)
+    ):
+        raise ConfigError(
+            f"Expected net_arch in {source} to be lists of layer sizes >= 1, actually: {brief(net_arch)}"
+        )
+    n_critics = policy_kwargs.get("n_critics", 1 if algo == "DDPG" else 2)
+    n_quantiles = policy_kwargs.get("n_quantiles", 25)
+    if not all(
+        isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 4096 for n in (n_critics, n_quantiles)
+    ):
+        raise ConfigError(f"Expected n_critics and n_quantiles in {source} to be integers in [1, 4096]")
+    try:
+        check_parameter_count(algo, 64, 8, pi, qf, n_critics=n_critics, n_quantiles=n_quantiles)
+    except ValueError as error:
+        raise ConfigError(f"{source}: {error}") from None
 
 
 def _as_int(value: Any, name: str, source: str, minimum: int) -> int:

@@ -103,6 +103,10 @@ CASES = [
     case("tw-seed-too-large", (*TW, "--seed", "99999999999", "--out", "{tmp}/o"), 2, "99999999999"),
     case("tw-config-alias-bomb", (*TW, "--config", "{alias_bomb}", "--out", "{tmp}/o"), 2, "aliases"),
     case("tw-config-deep-yaml", (*TW, "--config", "{deep_yaml}", "--out", "{tmp}/o"), 2, "deep_yaml.yml"),
+    case("tw-config-buffer-bomb", (*TW, "--config", "{buffer_bomb}", "--out", "{tmp}/o"), 2, "buffer_size"),
+    case(
+        "tw-config-net-arch-bomb", (*TW, "--config", "{net_arch_bomb}", "--out", "{tmp}/o"), 2, "parameters"
+    ),
     # ---- train-manager: names, preferences and selection
     case("tm-duplicate-worker", (*TM, "--worker", "goal", "--worker", "goal", "--out", "{tmp}/o"), 2, "goal"),
     case("tm-unknown-worker", (*TM, "--worker", "goal", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"),
@@ -413,6 +417,8 @@ def artifacts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
         "negative_budget": root / "negative_budget.yml",
         "alias_bomb": root / "alias_bomb.yml",
         "deep_yaml": root / "deep_yaml.yml",
+        "buffer_bomb": root / "buffer_bomb.yml",
+        "net_arch_bomb": root / "net_arch_bomb.yml",
         "ham_missing_keys": root / "ham.json",
         "traversal_algo": root / "traversal_algo",
         **{f"hostile_{key}": root / f"hostile_{key}.zip" for key in HOSTILE_BUNDLES},
@@ -456,6 +462,8 @@ def _hostile_files(root: Path, members: dict[str, bytes]) -> None:
     lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, 10)]
     lines += ["default:", "  n_timesteps: *a9", "  policy: 'MlpPolicy'"]
     (root / "alias_bomb.yml").write_text("\n".join(lines) + "\n")
+    (root / "buffer_bomb.yml").write_text(TINY_CONFIG.replace("buffer_size: 1000", "buffer_size: 1e13"))
+    (root / "net_arch_bomb.yml").write_text(TINY_CONFIG.replace("net_arch=[16]", "net_arch=[65536, 65536]"))
     (root / "deep_yaml.yml").write_text("default: " + "[" * 100_000 + "]" * 100_000 + "\n")
     (root / "ham.json").write_text(json.dumps({"kind": "sb3-hddpg-ham", "schema_version": 1, "env_id": "x"}))
     # A worker whose manifest entry names its algorithm with a path (package used to write there).
