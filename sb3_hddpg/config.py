@@ -21,6 +21,15 @@ import numpy as np
 import yaml
 from torch import nn
 
+from sb3_hddpg.limits import (
+    MAX_CONFIG_NODES,
+    MAX_JSON_BYTES,
+    brief,
+    check_buffer_size,
+    check_parameter_count,
+    count_nodes,
+)
+
 #: The bundled config, also reachable as ``zoo_configs/ddpg.yml`` in a checkout.
 DEFAULT_CONFIG = Path(__file__).parent / "zoo_configs" / "ddpg.yml"
 
@@ -137,13 +146,26 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"Config file not found: {str(path)!r}") from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
         raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
+    if len(text) > MAX_JSON_BYTES:
+        raise ConfigError(
+            f"Config file {str(path)!r} is {len(text)} characters, over the {MAX_JSON_BYTES} limit"
+        )
     try:
         data = yaml.safe_load(text)
+    except RecursionError:
+        raise ConfigError(f"Invalid YAML in {str(path)!r}: nested too deeply") from None
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)
         line = f" at line {where.line + 1}" if where is not None else ""
         problem = getattr(error, "problem", None) or type(error).__name__
         raise ConfigError(f"Invalid YAML in {str(path)!r}{line}: {problem}") from None
+    # Anchors and aliases share one object, so loading is cheap, but an alias bomb ("billion laughs")
+    # expands to billions of values when printed or copied: budget the expanded size here, once.
+    nodes = count_nodes(data)
+    if nodes > MAX_CONFIG_NODES:
+        raise ConfigError(
+            f"Config file {str(path)!r} expands to more than {MAX_CONFIG_NODES} values (YAML aliases?); refused"
+        )
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise ConfigError(f"Expected {str(path)!r} to map env ids to blocks of hyperparameters")
     return data
@@ -155,7 +177,9 @@ def select_block(config: dict[str, Any], key: str, source: str = "config") -> di
         return copy.deepcopy(config[key])
     if "default" in config:
         return copy.deepcopy(config["default"])
-    raise ConfigError(f"No block for {key!r} and no 'default' block in {source}; blocks: {sorted(config)}")
+    raise ConfigError(
+        f"No block for {key!r} and no 'default' block in {source}; blocks: {brief(sorted(map(str, config)))}"
+    )
 
 
 def parse_block(
@@ -174,7 +198,7 @@ def parse_block(
     allowed = constructor | ZOO_KEYS | OWN_KEYS | (MANAGER_ONLY_KEYS if manager else set())
     unknown = sorted(set(block) - allowed)
     if unknown:
-        raise ConfigError(f"Unknown keys in {source}: {unknown} (allowed: {sorted(allowed)})")
+        raise ConfigError(f"Unknown keys in {source}: {brief(unknown)} (allowed: {sorted(allowed)})")
     raw = copy.deepcopy(block)
     if "n_timesteps" not in block:
         raise ConfigError(f"Missing key 'n_timesteps' in {source}")
@@ -182,13 +206,13 @@ def parse_block(
     n_envs = _as_int(block.pop("n_envs", 1), "n_envs", source, minimum=1)
     policy = block.pop("policy", "MlpPolicy")
     if policy != "MlpPolicy":
-        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {policy!r}")
+        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {brief(policy)}")
     noise_type = block.pop("noise_type", None)
     if noise_type is not None:
         noise_type = str(noise_type).strip()
         if noise_type not in ("normal", "ornstein-uhlenbeck"):
             raise ConfigError(
-                f"Unknown noise_type in {source}: {noise_type!r} (use 'normal' or 'ornstein-uhlenbeck')"
+                f"Unknown noise_type in {source}: {brief(noise_type)} (use 'normal' or 'ornstein-uhlenbeck')"
             )
     backend = block.pop("backend", None)
     if backend is not None:
@@ -197,7 +221,10 @@ def parse_block(
         if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
             raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")
         backend = backend.strip().lower()
-    noise_std = float(block.pop("noise_std", 0.1))
+    noise_std = block.pop("noise_std", 0.1)
+    if isinstance(noise_std, bool) or not isinstance(noise_std, (int, float)):
+        raise ConfigError(f"Expected noise_std in {source} to be a number, actually: {brief(noise_std)}")
+    noise_std = float(noise_std)
     if not np.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
     action_l2 = _parse_callbacks(block.pop("callback", None), source).get("action_l2", 0.0)
@@ -205,7 +232,7 @@ def parse_block(
     wrapper_kwargs = block.pop("wrapper_kwargs", {}) or {}
     for name, value in (("env_kwargs", env_kwargs), ("wrapper_kwargs", wrapper_kwargs)):
         if not isinstance(value, dict):
-            raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {value!r}")
+            raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {brief(value)}")
     if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
         block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
     buffer = block.get("replay_buffer_class")
@@ -218,11 +245,22 @@ def parse_block(
         raise ConfigError(
             f"Expected replay_buffer_kwargs in {source} to set only relabel_fraction, actually: {buffer_kwargs!r:.200}"
         )
+    _check_network_size(block.get("policy_kwargs"), algo_class.__name__, source)
     if "train_freq" in block and isinstance(block["train_freq"], list):
         block["train_freq"] = tuple(block["train_freq"])
+    if "buffer_size" in block:
+        buffer_size = block["buffer_size"]
+        if isinstance(buffer_size, float) and buffer_size.is_integer():
+            buffer_size = block["buffer_size"] = int(buffer_size)  # RL Zoo writes 1e6
+        try:
+            # Bounded before SB3 allocates it; the dimensions are not known yet, so a 64-wide observation
+            # stands in (the snake's is 27): the transition count is the real limit.
+            check_buffer_size(buffer_size, 64, 8, "buffer_size")
+        except ValueError as error:
+            raise ConfigError(f"{source}: {error}") from None
     for key in ("learning_rate", "gamma", "tau"):
         if key in block and not isinstance(block[key], (int, float)):
-            raise ConfigError(f"Expected {key} in {source} to be a number, actually: {block[key]!r}")
+            raise ConfigError(f"Expected {key} in {source} to be a number, actually: {brief(block[key])}")
     return Hyperparams(
         algo_kwargs=block,
         n_timesteps=n_timesteps,
@@ -346,10 +384,10 @@ def parse_policy_kwargs(text: str, source: str = "config") -> dict[str, Any]:
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError:
-        raise ConfigError(f"Cannot parse policy_kwargs in {source}: {text!r}") from None
+        raise ConfigError(f"Cannot parse policy_kwargs in {source}: {brief(text)}") from None
     value = _safe_value(tree.body, text, source)
     if not isinstance(value, dict):
-        raise ConfigError(f"Expected policy_kwargs in {source} to be a dict, actually: {text!r}")
+        raise ConfigError(f"Expected policy_kwargs in {source} to be a dict, actually: {brief(text)}")
     return value
 
 
@@ -389,12 +427,48 @@ def _safe_value(node: ast.AST, text: str, source: str) -> Any:
         name = dotted.rsplit(".", 1)[-1]
         if dotted in (f"nn.{name}", f"th.nn.{name}", f"torch.nn.{name}") and name in ACTIVATIONS:
             return ACTIVATIONS[name]
-    raise ConfigError(f"Unsupported expression {ast.unparse(node)!r} in policy_kwargs of {source}: {text!r}")
+    raise ConfigError(
+        f"Unsupported expression {brief(ast.unparse(node))} in policy_kwargs of {source}: {brief(text)}"
+    )
+
+
+def _check_network_size(policy_kwargs: Any, algo: str, source: str) -> None:
+    """
+    Refuse a ``net_arch`` whose networks would be too large to build (``[65536, 65536]`` is 17 GB) before
+    SB3 allocates them. The spaces are not known yet: a 64-wide observation and 8-wide action stand in
+    (the snake's are 39 and 6); the hidden layers dominate the count.
+    """
+    if not isinstance(policy_kwargs, dict) or "net_arch" not in policy_kwargs:
+        return
+    net_arch = policy_kwargs["net_arch"]
+    pi, qf = (
+        (net_arch.get("pi", []), net_arch.get("qf", []))
+        if isinstance(net_arch, dict)
+        else (net_arch, net_arch)
+    )
+    if not all(isinstance(layers, (list, tuple)) for layers in (pi, qf)) or not all(
+        isinstance(size, int) and not isinstance(size, bool) and size >= 1 for size in (*pi, *qf)
+    ):
+        raise ConfigError(
+            f"Expected net_arch in {source} to be lists of layer sizes >= 1, actually: {brief(net_arch)}"
+        )
+    n_critics = policy_kwargs.get("n_critics", 1 if algo == "DDPG" else 2)
+    n_quantiles = policy_kwargs.get("n_quantiles", 25)
+    if not all(
+        isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 4096 for n in (n_critics, n_quantiles)
+    ):
+        raise ConfigError(f"Expected n_critics and n_quantiles in {source} to be integers in [1, 4096]")
+    try:
+        check_parameter_count(algo, 64, 8, pi, qf, n_critics=n_critics, n_quantiles=n_quantiles)
+    except ValueError as error:
+        raise ConfigError(f"{source}: {error}") from None
 
 
 def _as_int(value: Any, name: str, source: str, minimum: int) -> int:
     if isinstance(value, float) and value.is_integer():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ConfigError(f"Expected {name} in {source} to be an integer >= {minimum}, actually: {value!r}")
+        raise ConfigError(
+            f"Expected {name} in {source} to be an integer >= {minimum}, actually: {brief(value)}"
+        )
     return value

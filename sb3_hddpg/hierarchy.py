@@ -18,9 +18,10 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import re
 import zipfile
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,19 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.io import atomic_write
+from sb3_hddpg.limits import (
+    MAX_JSON_BYTES,
+    MAX_WORKERS,
+    LoadBudget,
+    brief,
+    check_env_id,
+    check_env_kwargs,
+    check_name,
+    check_selection_settings,
+    check_zip_directory,
+    parse_json,
+    read_member,
+)
 from sb3_hddpg.selection import FrozenWorker, SimplexMap, choose
 from sb3_hddpg.workers import Policy
 
@@ -273,33 +287,57 @@ class Hierarchy:
 
     # ------------------------------------------------------------------ loading
     @classmethod
-    def load(cls, path: str | Path | io.BytesIO, trusted: bool = False) -> Hierarchy:
+    def load(
+        cls,
+        path: str | Path | io.BytesIO,
+        trusted: bool = False,
+        allowed_env_ids: Sequence[str] | None = None,
+        *,
+        budget: LoadBudget | None = None,
+    ) -> Hierarchy:
         """
         Load and verify a bundle.
 
         :param path: a ``hierarchy.zip`` (or its bytes).
         :param trusted: ``False`` (default): rebuild every model from the manifest's JSON spec and load only
             its tensors, so no code from the file runs. ``True``: SB3's full loader, which unpickles
-            objects stored in the model zips (only for files you trust).
+            objects stored in the model zips (only for files you trust), and any registered env id.
+        :param allowed_env_ids: registered env ids the bundle may name besides this package's own.
+        :param budget: what the load may spend (bytes, models, nesting); nested bundles share their
+            parent's (see :mod:`sb3_hddpg.limits`).
         :return: the hierarchy; raises :class:`BundleError` naming the problem otherwise.
         """
-        name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
-        manifest, members = read_bundle(path)
         from sb3_hddpg.safe_load import load_model
+
+        name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
+        budget = budget if budget is not None else LoadBudget()
+        manifest, members = read_bundle(path, budget=budget)
+        names = manifest["worker_names"]
+        try:
+            env_id = check_env_id(manifest.get("env_id"), f"{name}: env_id", allowed_env_ids, trusted)
+            env_kwargs = check_env_kwargs(env_id, manifest.get("env_kwargs"), f"{name}: env_kwargs")
+            settings = check_selection_settings(manifest.get("selection"), names, f"{name}: selection")
+        except ValueError as error:
+            raise BundleError(str(error)) from None
 
         def model(entry: dict[str, Any]) -> BaseAlgorithm:
             data = io.BytesIO(members[entry["file"]])
             try:
-                return load_model(data, spec=entry.get("spec"), trusted=trusted)
+                if trusted:
+                    budget.spend_model(name)
+                return load_model(data, spec=entry.get("spec"), trusted=trusted, budget=budget)
             except ValueError as error:
                 raise BundleError(f"{name}: cannot load {entry['file']}: {error}") from None
 
         workers: dict[str, Policy] = {}
         worker_meta = {}
-        for worker_name in manifest["worker_names"]:
+        for worker_name in names:
             entry = manifest["workers"][worker_name]
             if entry.get("kind") == "hierarchy":
-                workers[worker_name] = cls.load(io.BytesIO(members[entry["file"]]), trusted=trusted)
+                with budget.nested(name):
+                    workers[worker_name] = cls.load(
+                        io.BytesIO(members[entry["file"]]), trusted, allowed_env_ids, budget=budget
+                    )
             else:
                 workers[worker_name] = model(entry)
             worker_meta[worker_name] = {
@@ -307,35 +345,55 @@ class Hierarchy:
             }
         manager_entry = manifest["manager"]
         try:
-            selection = SelectionConfig(**manifest["selection"])
-        except (KeyError, TypeError) as error:
-            raise BundleError(f"{name}: invalid selection settings in {MANIFEST}: {error}") from None
-        return cls(
-            model(manager_entry),
-            workers,
-            selection,
-            env_id=manifest["env_id"],
-            env_kwargs=manifest["env_kwargs"],
-            worker_meta=worker_meta,
-            metadata={k: v for k, v in manager_entry.items() if k not in ("file", "sha256", "spec")},
-        )
+            return cls(
+                model(manager_entry),
+                workers,
+                SelectionConfig(**settings),
+                env_id=env_id,
+                env_kwargs=env_kwargs,
+                worker_meta=worker_meta,
+                metadata={k: v for k, v in manager_entry.items() if k not in ("file", "sha256", "spec")},
+            )
+        except BundleError:
+            raise
+        except (ValueError, KeyError, TypeError, AttributeError) as error:
+            raise BundleError(f"{name}: invalid settings in {MANIFEST}: {brief(str(error), 300)}") from None
 
 
-def read_bundle(path: str | Path | io.BytesIO) -> tuple[dict[str, Any], dict[str, bytes]]:
+def read_bundle(
+    path: str | Path | io.BytesIO, budget: LoadBudget | None = None
+) -> tuple[dict[str, Any], dict[str, bytes]]:
     """
     Open a bundle and verify it: a readable zip with a manifest of a known schema, every member listed
-    and present, every sha256 matching. Nested bundles are verified when they are loaded.
+    and present, every sha256 matching. Only the members the manifest lists are read, each within the
+    limits of :mod:`sb3_hddpg.limits` (size declared and actual, compression ratio, total bytes). Nested
+    bundles are verified when they are loaded.
 
+    :param path: the bundle or its bytes.
+    :param budget: what the read may spend (default: a fresh budget).
     :return: the manifest and the member bytes by name.
     """
     name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
+    budget = budget if budget is not None else LoadBudget()
     try:
         with zipfile.ZipFile(path) as archive:
-            names = set(archive.namelist())
+            names = {info.filename for info in check_zip_directory(archive, name)}
             if MANIFEST not in names:
                 raise BundleError(f"{name} is not a hierarchy bundle: it has no {MANIFEST}")
-            manifest = json.loads(archive.read(MANIFEST))
-            members = {member: archive.read(member) for member in names if member != MANIFEST}
+            raw = read_member(archive, MANIFEST, name, limit=MAX_JSON_BYTES, budget=budget)
+            try:
+                manifest = parse_json(raw, f"{name}: {MANIFEST}")
+            except (json.JSONDecodeError, UnicodeDecodeError):
+                raise BundleError(f"{name}: {MANIFEST} is not valid JSON") from None
+            entries = _check_manifest(manifest, name)
+            members = {}
+            for label, entry in entries:
+                member = entry["file"]
+                if member not in names:
+                    raise BundleError(f"{name}: member {member!r} of {label!r} is missing")
+                members[member] = read_member(archive, member, name, budget=budget)
+    except BundleError:
+        raise
     except FileNotFoundError:
         raise BundleError(f"No such file: {name!r}") from None
     except IsADirectoryError:
@@ -344,33 +402,10 @@ def read_bundle(path: str | Path | io.BytesIO) -> tuple[dict[str, Any], dict[str
         raise BundleError(f"Not a zip file, or a truncated or corrupted one: {name!r}") from None
     except OSError as error:  # permission denied, I/O error
         raise BundleError(f"Cannot read {name!r}: {error.strerror or error}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise BundleError(f"{name}: {MANIFEST} is not valid JSON") from None
-    if not isinstance(manifest, dict) or manifest.get("kind") != "sb3-hddpg-hierarchy":
-        raise BundleError(f"{name}: {MANIFEST} is not an sb3-hddpg hierarchy manifest")
-    version = manifest.get("schema_version")
-    if not isinstance(version, int) or version > SCHEMA_VERSION:
-        raise BundleError(
-            f"{name}: unsupported bundle schema version {version!r} (this library reads <= {SCHEMA_VERSION})"
-        )
-    try:
-        entries = [("manager", manifest["manager"]), *list(manifest["workers"].items())]
-        well_formed = isinstance(manifest["worker_names"], list) and all(
-            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
-            for _, e in entries
-        )
-    except (KeyError, TypeError, AttributeError):
-        well_formed = False
-    if not well_formed:
-        raise BundleError(f"{name}: {MANIFEST} lacks the manager, the workers, or a member's file and sha256")
-    if manifest["worker_names"] != list(manifest["workers"]):
-        raise BundleError(
-            f"{name}: worker_names {manifest['worker_names']} do not match workers {list(manifest['workers'])}"
-        )
-    for label, entry in entries:
+    except ValueError as error:  # over a limit, or a corrupt member
+        raise BundleError(str(error)) from None
+    for _label, entry in entries:
         member = entry["file"]
-        if member not in members:
-            raise BundleError(f"{name}: member {member!r} of {label!r} is missing")
         actual = _sha256(members[member])
         if actual != entry["sha256"]:
             raise BundleError(
@@ -378,6 +413,61 @@ def read_bundle(path: str | Path | io.BytesIO) -> tuple[dict[str, Any], dict[str
                 f"(expected {entry['sha256'][:12]}…, got {actual[:12]}…): the bundle was modified or corrupted"
             )
     return manifest, members
+
+
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
+
+
+def _check_manifest(manifest: Any, name: str) -> list[tuple[str, dict[str, Any]]]:
+    """The manifest's (label, entry) pairs, after checking its shape and every name that picks a member."""
+    if not isinstance(manifest, dict) or manifest.get("kind") != "sb3-hddpg-hierarchy":
+        raise BundleError(f"{name}: {MANIFEST} is not an sb3-hddpg hierarchy manifest")
+    version = manifest.get("schema_version")
+    if not isinstance(version, int) or isinstance(version, bool) or version > SCHEMA_VERSION:
+        raise BundleError(
+            f"{name}: unsupported bundle schema version {brief(version)} (this library reads <= {SCHEMA_VERSION})"
+        )
+    names, workers, manager = manifest.get("worker_names"), manifest.get("workers"), manifest.get("manager")
+    if not isinstance(names, list) or not isinstance(workers, dict) or not isinstance(manager, dict):
+        raise BundleError(f"{name}: {MANIFEST} lacks the manager, the workers, or the worker_names list")
+    if not 2 <= len(names) <= MAX_WORKERS:
+        raise BundleError(
+            f"{name}: {MANIFEST} has {len(names)} workers; a manager selects between 2 and {MAX_WORKERS}"
+        )
+    try:
+        for worker in names:
+            check_name(worker, f"{name}: worker_names")
+    except ValueError as error:
+        raise BundleError(str(error)) from None
+    if names != list(workers):
+        raise BundleError(f"{name}: worker_names {brief(names)} do not match workers {brief(list(workers))}")
+    entries: list[tuple[str, dict[str, Any]]] = [("manager", manager)]
+    for worker in names:
+        entries.append((worker, workers[worker]))
+    for label, entry in entries:
+        if not (
+            isinstance(entry, dict)
+            and isinstance(entry.get("file"), str)
+            and isinstance(entry.get("sha256"), str)
+            and _SHA256.match(entry["sha256"])
+        ):
+            raise BundleError(f"{name}: {MANIFEST} entry {label!r} lacks its member's file and sha256")
+        # Members are named by the writer (to_bytes) and by nothing else: any other name is refused.
+        kind = entry.get("kind", "sb3")
+        expected = (
+            "manager.zip"
+            if label == "manager"
+            else f"workers/{label}.hierarchy.zip"
+            if kind == "hierarchy"
+            else f"workers/{label}.zip"
+        )
+        if kind not in ("sb3", "hierarchy") or (label == "manager" and kind != "sb3"):
+            raise BundleError(f"{name}: {label!r} has an unknown kind {brief(kind)}")
+        if entry["file"] != expected:
+            raise BundleError(
+                f"{name}: {label!r} names member {brief(entry['file'])}; a bundle names it {expected!r}"
+            )
+    return entries
 
 
 def _model_bytes(model: BaseAlgorithm) -> bytes:

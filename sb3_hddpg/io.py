@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import contextlib
+import functools
+import inspect
 import json
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 #: Suffix of the temporary files :func:`atomic_write` makes (hidden: their names start with a dot).
 TMP_SUFFIX = ".tmp"
@@ -52,6 +56,13 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None]) ->
         # file would get, so that shared run folders stay readable.
         os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
+    except OSError as error:
+        tmp.unlink(missing_ok=True)
+        if error.errno is None:
+            raise
+        # A full disk says "[Errno 28] No space left on device" without a file name, and the temporary's
+        # name means nothing to a user: name the file being written.
+        raise type(error)(error.errno, f"Cannot write {str(path)!r}: {error.strerror or error}") from error
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -101,3 +112,117 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
 def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
     """Write ``obj`` as indented JSON to ``path`` atomically."""
     return atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=False) + "\n").encode())
+
+
+#: The lock file every writer of a run folder holds (hidden; it stays after the run, unlocked).
+LOCK_FILE = ".hddpg.lock"
+#: Folders locked by this process or an ancestor of it (the pool processes of one run share its folder).
+HELD_FOLDERS_ENV = "HDDPG_HELD_FOLDERS"
+
+
+class FolderLockedError(RuntimeError):
+    """Another process holds a run folder's lock; the message names the folder and the holder's pid."""
+
+
+# Locks this process holds, by resolved folder -> [open lock file, depth]: a library function that locks
+# the folder its caller (the CLI) already locked must not deadlock on itself, because flock locks of two
+# open file descriptions conflict even inside one process.
+_HELD: dict[Path, list[Any]] = {}
+
+
+def _held_by_ancestor(key: Path) -> bool:
+    return str(key) in os.environ.get(HELD_FOLDERS_ENV, "").split(os.pathsep)
+
+
+@contextlib.contextmanager
+def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
+    """
+    Hold an exclusive lock on a run folder for the duration (``flock`` on ``FOLDER/.hddpg.lock``, which
+    records the holder's pid). Another run asking for the same folder gets :class:`FolderLockedError` at
+    once, naming the holder, instead of silently interleaving its writes. Re-entrant within a process, and
+    shared with the processes this one starts (quickstart trains its workers side by side in one folder):
+    the held folders are listed in the environment variable ``HDDPG_HELD_FOLDERS`` that they inherit. The
+    operating system releases the lock when the process ends, even after SIGKILL.
+
+    :param folder: the run folder (created if missing).
+    :return: the folder.
+    """
+    import fcntl
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    key = folder.resolve()
+    if key in _HELD or _held_by_ancestor(key):
+        if key in _HELD:
+            _HELD[key][1] += 1
+        try:
+            yield folder
+        finally:
+            if key in _HELD:
+                _HELD[key][1] -= 1
+        return
+    handle = open(folder / LOCK_FILE, "a+")  # noqa: SIM115  (held open for the whole block)
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read(32).strip() or "unknown"
+        handle.close()
+        raise FolderLockedError(
+            f"{str(folder)!r} is in use by another run (pid {holder}); wait for it to finish or choose "
+            "another folder"
+        ) from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"{os.getpid()}\n")
+    handle.flush()
+    _HELD[key] = [handle, 1]
+    inherited = os.environ.get(HELD_FOLDERS_ENV, "")
+    os.environ[HELD_FOLDERS_ENV] = os.pathsep.join(filter(None, [inherited, str(key)]))
+    try:
+        yield folder
+    finally:
+        _HELD[key][1] -= 1
+        if _HELD[key][1] == 0:
+            del _HELD[key]
+            held = [f for f in os.environ.get(HELD_FOLDERS_ENV, "").split(os.pathsep) if f and f != str(key)]
+            os.environ[HELD_FOLDERS_ENV] = os.pathsep.join(held)
+            handle.close()  # closing releases the flock
+
+
+@contextlib.contextmanager
+def locked_file(path: str | os.PathLike[str]) -> Iterator[None]:
+    """
+    A short exclusive lock for a read-modify-write of ``path`` (``flock`` on a hidden ``.NAME.lock``
+    beside it, waiting for the holder): processes of one run that share a folder update its manifest
+    one after the other, and none loses another's entry.
+    """
+    import fcntl
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.parent / f".{path.name}.lock", "a+") as handle:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+        yield
+
+
+def holds_folder_lock(folder_of: Callable[[inspect.BoundArguments], Any]) -> Callable[[F], F]:
+    """
+    Decorate a function that writes a run folder so that it runs under :func:`locked_folder`.
+
+    :param folder_of: picks the folder from the call's bound arguments (defaults applied).
+    """
+
+    def decorate(function: F) -> F:
+        signature = inspect.signature(function)
+
+        @functools.wraps(function)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            bound = signature.bind(*args, **kwargs)
+            bound.apply_defaults()
+            with locked_folder(folder_of(bound)):
+                return function(*args, **kwargs)
+
+        return wrapper  # type: ignore[return-value]
+
+    return decorate

@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import json
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
+from sb3_hddpg.limits import brief, check_env_id, check_env_kwargs, check_file_entry, read_json_file
 from sb3_hddpg.workers import Policy
 
 #: Names that stand for reference policies instead of files.
@@ -70,15 +72,24 @@ class LoadedPolicy:
 
 
 def load_policy(
-    path: str | Path, env_id: str | None = None, trusted: bool = False, algo: str | None = None
+    path: str | Path,
+    env_id: str | None = None,
+    trusted: bool = False,
+    algo: str | None = None,
+    allowed_env_ids: Sequence[str] | None = None,
 ) -> LoadedPolicy:
     """
     Load the policy at ``path`` (see the module docstring for what it may be).
 
+    An env id read from a file is used only if it is registered, has no ``module:`` prefix (which
+    ``gym.make`` would import) and is one of this package's ids or of ``allowed_env_ids`` (any registered
+    id with ``trusted``); its env kwargs must be the env's own parameters (:mod:`sb3_hddpg.limits`).
+
     :param path: a file, or ``random`` / ``scripted``.
     :param env_id: the env to act in, for reference policies and untracked zips (default SnakeReach).
-    :param trusted: allow SB3's full loader for zips without a manifest.
+    :param trusted: allow SB3's full loader for zips without a manifest, and any registered env id.
     :param algo: the algorithm of an untracked zip loaded with ``trusted``.
+    :param allowed_env_ids: registered env ids a file may name besides this package's own.
     """
     from sb3_hddpg.safe_load import load_model
 
@@ -93,12 +104,12 @@ def load_policy(
     if path.is_dir():
         for candidate in ("hierarchy.zip", "ham.json"):
             if (path / candidate).exists():
-                return load_policy(path / candidate, env_id, trusted, algo)
+                return load_policy(path / candidate, env_id, trusted, algo, allowed_env_ids)
         raise ValueError(f"Expected a model file, got a folder without hierarchy.zip or ham.json: {text!r}")
     if path.suffix == ".json":
         from sb3_hddpg.baselines.ham import load_ham
 
-        ham, meta = load_ham(path, trusted=trusted)
+        ham, meta = load_ham(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(ham, meta["env_id"], meta.get("env_kwargs", {}), "ham", path.stem, meta)
     try:
         with zipfile.ZipFile(path) as archive:
@@ -110,7 +121,7 @@ def load_policy(
     if "manifest.json" in members and "policy.pth" not in members:
         from sb3_hddpg.hierarchy import Hierarchy
 
-        hierarchy = Hierarchy.load(path, trusted=trusted)
+        hierarchy = Hierarchy.load(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(
             hierarchy, hierarchy.env_id, hierarchy.env_kwargs, "hierarchy", path.stem, hierarchy.metadata
         )
@@ -123,10 +134,11 @@ def load_policy(
             raise ValueError(
                 f"sha256 of {text!r} does not match its manifest (expected {entry['sha256'][:12]}…, got {actual[:12]}…)"
             )
+        where = f"{text}: manifest entry"
+        entry_env = check_env_id(entry.get("env_id"), f"{where} env_id", allowed_env_ids, trusted)
+        env_kwargs = check_env_kwargs(entry_env, entry.get("env_kwargs"), f"{where} env_kwargs")
         model = load_model(path, spec=entry.get("spec"), trusted=trusted)
-        return LoadedPolicy(
-            model, entry["env_id"], entry.get("env_kwargs", {}), kind, entry.get("name", path.stem), entry
-        )
+        return LoadedPolicy(model, entry_env, env_kwargs, kind, entry.get("name", path.stem), entry)
     if not trusted:
         raise ValueError(
             f"{text!r} has no sb3-hddpg manifest beside it, so it cannot be loaded without running code stored "
@@ -142,7 +154,7 @@ def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
     if not manifest_path.exists():
         return None, ""
     try:
-        manifest = json.loads(manifest_path.read_text())
+        manifest = read_json_file(manifest_path)
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         raise ValueError(f"Invalid JSON in {str(manifest_path)!r}") from None
     if not isinstance(manifest, dict):
@@ -151,11 +163,9 @@ def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
         entries = manifest.get(key) or {}
         if not isinstance(entries, dict):
             raise ValueError(f"Not an sb3-hddpg manifest: {str(manifest_path)!r} ({key!r} is not a mapping)")
-        for entry in entries.values():
+        for entry_name, entry in entries.items():
             if isinstance(entry, dict) and entry.get("file") == path.name:
-                if not isinstance(entry.get("sha256"), str):
-                    raise ValueError(f"{str(manifest_path)!r} has no sha256 for {path.name!r}")
-                return entry, kind
+                return check_file_entry(entry, f"{manifest_path}: {key}.{brief(entry_name)}"), kind
     return None, ""
 
 

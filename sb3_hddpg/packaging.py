@@ -18,8 +18,8 @@ place, and ``config.json`` holds the selection settings and every member's SB3 d
 
 from __future__ import annotations
 
-import json
 import os
+import re
 import shutil
 import tempfile
 import zipfile
@@ -33,6 +33,15 @@ import yaml
 from sb3_hddpg import __version__ as version
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.io import _UMASK, atomic_write_bytes, atomic_write_json
+from sb3_hddpg.limits import (
+    MAX_JSON_BYTES,
+    LoadBudget,
+    brief,
+    check_name,
+    check_zip_directory,
+    parse_json,
+    read_member,
+)
 from sb3_hddpg.loading import LoadedPolicy
 
 #: The keys of ``results.json``: huggingface_sb3's five, then ours.
@@ -161,20 +170,56 @@ def package_policy(
     return PackageResult(out_dir, out_dir / model_file.name, results)
 
 
+#: The members an SB3 zip holds (``save_util.save_to_zip_file``): the only ones a package unpacks.
+SB3_MEMBERS = (
+    "data",
+    "policy.pth",
+    "pytorch_variables.pth",
+    "policy.optimizer.pth",
+    "actor.optimizer.pth",
+    "critic.optimizer.pth",
+    "ent_coef_optimizer.pth",
+    "_stable_baselines3_version",
+    "system_info.txt",
+)
+#: A package's file and folder names: built from checked names, checked again before use.
+_PACKAGE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}-[A-Za-z0-9_.-]{1,129}$")
+
+
 def _zip_data(data: bytes | Path) -> dict[str, Any]:
-    """The ``data`` JSON of an SB3 zip (what package_to_hub writes as config.json)."""
+    """The ``data`` JSON of an SB3 zip (what package_to_hub writes as config.json), read within limits."""
     import io
 
+    what = "<bundle member>" if isinstance(data, bytes) else str(data)
     with zipfile.ZipFile(io.BytesIO(data) if isinstance(data, bytes) else data) as archive:
-        return json.loads(archive.read("data"))
+        check_zip_directory(archive, what)
+        return parse_json(read_member(archive, "data", what, limit=MAX_JSON_BYTES), f"{what}: data")
+
+
+def _unpack_model(model_file: Path, folder: Path) -> None:
+    """
+    Unpack the SB3 members of ``model_file`` into ``folder`` (what package_to_hub does), never
+    ``extractall``: only the names in :data:`SB3_MEMBERS`, each read within the size limits, so a member
+    named ``../x`` or a zip bomb cannot write outside the package or fill the disk.
+    """
+    budget = LoadBudget()
+    folder.mkdir()
+    with zipfile.ZipFile(model_file) as archive:
+        present = {info.filename for info in check_zip_directory(archive, str(model_file))}
+        for member in SB3_MEMBERS:
+            if member in present:
+                data = read_member(archive, member, str(model_file), budget=budget)
+                (folder / member).write_bytes(data)
 
 
 def _lay_out_model(loaded: LoadedPolicy, source: Path, staging: Path) -> tuple[Path, dict[str, Any]]:
-    name = f"{loaded.meta.get('algo', 'ddpg')}-{hub_env_name(loaded.env_id)}"
+    algo = check_name(loaded.meta.get("algo", "ddpg"), "manifest entry algo")
+    name = f"{algo}-{hub_env_name(loaded.env_id)}"
+    if not _PACKAGE_NAME.match(name) or ".." in name:
+        raise ValueError(f"Cannot name a package {brief(name)}: not a plain file name")
     model_file = staging / f"{name}.zip"
     shutil.copyfile(source, model_file)
-    with zipfile.ZipFile(model_file) as archive:
-        archive.extractall(staging / name)
+    _unpack_model(model_file, staging / name)
     if loaded.meta:
         # The manifest entry, renamed to the packaged file, keeps the safe (weights-only) loading path.
         key = "workers" if loaded.kind == "worker" else "models"

@@ -39,7 +39,7 @@ import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.io import atomic_write_bytes, atomic_write_json
+from sb3_hddpg.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
 
 #: The env every method is compared on.
 COMPARISON_ENV_ID = "hddpg/SnakeReach-v0"
@@ -378,6 +378,8 @@ def _drain(progress_queue: Any, totals: dict[str, int], observer: QuickstartObse
         observer.on_task(name, min(steps, totals[name]), totals[name])
 
 
+# The workers train side by side in this folder: the lock is taken here, once, and shared with them.
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
 def run_quickstart(
     out_dir: str | Path,
     budget: str | QuickstartBudget = "small",

@@ -20,7 +20,6 @@ import math
 import os
 import re
 import zipfile
-import zlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -33,6 +32,16 @@ from stable_baselines3 import DDPG, SAC, TD3
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.torch_layers import FlattenExtractor
+
+from sb3_hddpg.limits import (
+    MAX_MEMBER_BYTES,
+    LoadBudget,
+    brief,
+    check_buffer_size,
+    check_parameter_count,
+    check_zip_directory,
+    read_member,
+)
 
 __all__ = [
     "ACTIVATIONS",
@@ -103,8 +112,8 @@ MAX_LAYER_WIDTH = 1 << 16
 MAX_LAYERS = 64
 MAX_CRITICS = 64
 MAX_QUANTILES = 4096
-#: Largest zip member (uncompressed, as declared in the zip directory) we are willing to read into memory.
-MAX_MEMBER_BYTES = 4 << 30
+#: Most elements of an observation or action space (ours: 27 and 6).
+MAX_SPACE_SIZE = 1 << 16
 
 POLICY_MEMBER = "policy.pth"
 VARIABLES_MEMBER = "pytorch_variables.pth"
@@ -190,27 +199,27 @@ class SafeLoadError(ValueError):
 
 def _as_float(key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{key}: expected a number, got {value!r}")
+        raise ValueError(f"{key}: expected a number, got {brief(value)}")
     value = float(value)
     if not math.isfinite(value):
-        raise ValueError(f"{key}: expected a finite number, got {value!r}")
+        raise ValueError(f"{key}: expected a finite number, got {brief(value)}")
     return value
 
 
 def _as_int(key: str, value: Any, minimum: int | None = None, maximum: int | None = None) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{key}: expected an integer, got {value!r}")
+        raise ValueError(f"{key}: expected an integer, got {brief(value)}")
     value = int(value)
     if minimum is not None and value < minimum:
-        raise ValueError(f"{key}: expected an integer >= {minimum}, got {value!r}")
+        raise ValueError(f"{key}: expected an integer >= {minimum}, got {brief(value)}")
     if maximum is not None and value > maximum:
-        raise ValueError(f"{key}: expected an integer <= {maximum}, got {value!r}")
+        raise ValueError(f"{key}: expected an integer <= {maximum}, got {brief(value)}")
     return value
 
 
 def _as_bool(key: str, value: Any) -> bool:
     if not isinstance(value, (bool, np.bool_)):
-        raise ValueError(f"{key}: expected true/false, got {value!r}")
+        raise ValueError(f"{key}: expected true/false, got {brief(value)}")
     return bool(value)
 
 
@@ -225,7 +234,7 @@ def _convert(kind: str, key: str, value: Any) -> Any:
         # SAC/TQC accept a float or "auto" / "auto_<initial value>".
         if isinstance(value, str):
             if not _ENT_COEF_AUTO.match(value):
-                raise ValueError(f"{key}: expected a number, 'auto' or 'auto_<float>', got {value!r}")
+                raise ValueError(f"{key}: expected a number, 'auto' or 'auto_<float>', got {brief(value)}")
             return value
         return _as_float(key, value)
     raise AssertionError(kind)  # pragma: no cover - programming error
@@ -255,14 +264,14 @@ def _bounds_from_json(key: str, value: Any, shape: tuple[int, ...], dtype: np.dt
             return [decode(v) for v in x]
         if isinstance(x, str):
             if x not in ("inf", "-inf", "nan"):
-                raise ValueError(f"{key}: unexpected string {x!r} in bounds")
+                raise ValueError(f"{key}: unexpected string {brief(x)} in bounds")
             return float(x)
         if isinstance(x, bool) or not isinstance(x, (int, float)):
-            raise ValueError(f"{key}: bounds must be numbers, got {x!r}")
+            raise ValueError(f"{key}: bounds must be numbers, got {brief(x)}")
         return x
 
     if not isinstance(value, list):
-        raise ValueError(f"{key}: expected a (nested) list, got {value!r}")
+        raise ValueError(f"{key}: expected a (nested) list, got {brief(value)}")
     array = np.asarray(decode(value), dtype=np.float64 if np.issubdtype(dtype, np.floating) else None)
     if array.shape != shape:
         raise ValueError(f"{key}: bounds have shape {list(array.shape)}, expected {list(shape)}")
@@ -286,20 +295,28 @@ def _space_to_json(space: spaces.Space, what: str) -> dict[str, Any]:
 
 def _space_from_json(value: Any, what: str) -> spaces.Box:
     if not isinstance(value, Mapping):
-        raise ValueError(f"{what}: expected an object, got {value!r}")
+        raise ValueError(f"{what}: expected an object, got {brief(value)}")
     if value.get("type") != "Box":
-        raise ValueError(f"{what}: unsupported space type {value.get('type')!r}; only 'Box' is supported")
+        raise ValueError(
+            f"{what}: unsupported space type {brief(value.get('type'))}; only 'Box' is supported"
+        )
     unknown = set(value) - {"type", "low", "high", "shape", "dtype"}
     if unknown:
-        raise ValueError(f"{what}: unknown key {sorted(unknown)[0]!r}")
+        raise ValueError(f"{what}: unknown key {brief(sorted(map(str, unknown))[0])}")
     dtype_name = value.get("dtype")
     if dtype_name not in DTYPES:
-        raise ValueError(f"{what}.dtype: unsupported dtype {dtype_name!r}")
+        raise ValueError(f"{what}.dtype: unsupported dtype {brief(dtype_name)}")
     dtype = np.dtype(dtype_name)
     raw_shape = value.get("shape")
     if not isinstance(raw_shape, list):
-        raise ValueError(f"{what}.shape: expected a list of integers, got {raw_shape!r}")
-    shape = tuple(_as_int(f"{what}.shape", dim, minimum=0) for dim in raw_shape)
+        raise ValueError(f"{what}.shape: expected a list of integers, got {brief(raw_shape)}")
+    if not 1 <= len(raw_shape) <= 8:
+        raise ValueError(f"{what}.shape: expected 1 to 8 dimensions, got {brief(raw_shape)}")
+    # Dimensions of 0 make an empty space that SB3 cannot act in; the product is bounded before numpy
+    # allocates the bounds.
+    shape = tuple(_as_int(f"{what}.shape", dim, minimum=1, maximum=MAX_SPACE_SIZE) for dim in raw_shape)
+    if math.prod(shape) > MAX_SPACE_SIZE:
+        raise ValueError(f"{what}.shape: {list(shape)} has more than {MAX_SPACE_SIZE} elements")
     low = _bounds_from_json(f"{what}.low", value.get("low"), shape, dtype)
     high = _bounds_from_json(f"{what}.high", value.get("high"), shape, dtype)
     return spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
@@ -312,7 +329,7 @@ def _space_from_json(value: Any, what: str) -> spaces.Box:
 
 def _layers(key: str, value: Any) -> list[int]:
     if not isinstance(value, (list, tuple)):
-        raise ValueError(f"{key}: expected a list of layer sizes, got {value!r}")
+        raise ValueError(f"{key}: expected a list of layer sizes, got {brief(value)}")
     if len(value) > MAX_LAYERS:
         raise ValueError(f"{key}: {len(value)} layers is more than the limit of {MAX_LAYERS}")
     return [_as_int(key, size, minimum=1, maximum=MAX_LAYER_WIDTH) for size in value]
@@ -322,7 +339,7 @@ def _net_arch(value: Any) -> list[int] | dict[str, list[int]]:
     if isinstance(value, Mapping):
         unknown = set(value) - {"pi", "qf"}
         if unknown:
-            raise ValueError(f"policy_kwargs.net_arch: unknown key {sorted(map(str, unknown))[0]!r}")
+            raise ValueError(f"policy_kwargs.net_arch: unknown key {brief(sorted(map(str, unknown))[0])}")
         return {name: _layers(f"policy_kwargs.net_arch.{name}", layers) for name, layers in value.items()}
     return _layers("policy_kwargs.net_arch", value)
 
@@ -331,7 +348,7 @@ def _optimizer_kwargs(value: Any, to_json: bool) -> dict[str, Any]:
     if value is None:
         return {}
     if not isinstance(value, Mapping):
-        raise ValueError(f"policy_kwargs.optimizer_kwargs: expected a dict, got {value!r}")
+        raise ValueError(f"policy_kwargs.optimizer_kwargs: expected a dict, got {brief(value)}")
     out: dict[str, Any] = {}
     for name, item in value.items():
         key = f"policy_kwargs.optimizer_kwargs.{name}"
@@ -357,31 +374,35 @@ def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, Any]) -> dict[
         if key == "use_sde":
             continue  # recorded as a hyperparameter, see _POLICY_KWARGS
         if key not in allowed:
-            raise ValueError(f"policy_kwargs.{key}: not supported by the safe model spec (value {value!r})")
+            raise ValueError(
+                f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(value)})"
+            )
         if key == "net_arch":
             out[key] = _net_arch(value)
         elif key == "activation_fn":
             if ACTIVATIONS.get(getattr(value, "__name__", "")) is not value:
                 raise ValueError(
-                    f"policy_kwargs.activation_fn: {value!r} is not one of the allowed torch.nn activations "
+                    f"policy_kwargs.activation_fn: {brief(value)} is not one of the allowed torch.nn activations "
                     f"{sorted(ACTIVATIONS)}"
                 )
             out[key] = value.__name__
         elif key == "optimizer_class":
             if OPTIMIZERS.get(getattr(value, "__name__", "")) is not value:
                 raise ValueError(
-                    f"policy_kwargs.optimizer_class: {value!r} is not one of {sorted(OPTIMIZERS)}"
+                    f"policy_kwargs.optimizer_class: {brief(value)} is not one of {sorted(OPTIMIZERS)}"
                 )
             out[key] = value.__name__
         elif key == "features_extractor_class":
             if value is not FlattenExtractor:
                 raise ValueError(
-                    f"policy_kwargs.features_extractor_class: only FlattenExtractor is supported, got {value!r}"
+                    f"policy_kwargs.features_extractor_class: only FlattenExtractor is supported, got {brief(value)}"
                 )
             out[key] = "FlattenExtractor"
         elif key == "features_extractor_kwargs":
             if value:
-                raise ValueError(f"policy_kwargs.features_extractor_kwargs: must be empty, got {value!r}")
+                raise ValueError(
+                    f"policy_kwargs.features_extractor_kwargs: must be empty, got {brief(value)}"
+                )
         elif key == "optimizer_kwargs":
             out[key] = _optimizer_kwargs(value, to_json=True)
         else:
@@ -403,28 +424,32 @@ def _policy_scalar(key: str, value: Any) -> Any:
 
 def _policy_kwargs_from_json(algo: str, value: Any) -> dict[str, Any]:
     if not isinstance(value, Mapping):
-        raise ValueError(f"policy_kwargs: expected an object, got {value!r}")
+        raise ValueError(f"policy_kwargs: expected an object, got {brief(value)}")
     allowed = _POLICY_KWARGS[algo]
     out: dict[str, Any] = {}
     for key, item in value.items():
         if key not in allowed:
-            raise ValueError(f"policy_kwargs.{key}: not supported by the safe model spec (value {item!r})")
+            raise ValueError(
+                f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(item)})"
+            )
         if key == "net_arch":
             out[key] = _net_arch(item)
         elif key == "activation_fn":
             if not isinstance(item, str) or item not in ACTIVATIONS:
-                raise ValueError(f"policy_kwargs.activation_fn: {item!r} is not one of {sorted(ACTIVATIONS)}")
+                raise ValueError(
+                    f"policy_kwargs.activation_fn: {brief(item)} is not one of {sorted(ACTIVATIONS)}"
+                )
             out[key] = ACTIVATIONS[item]
         elif key == "optimizer_class":
             if not isinstance(item, str) or item not in OPTIMIZERS:
                 raise ValueError(
-                    f"policy_kwargs.optimizer_class: {item!r} is not one of {sorted(OPTIMIZERS)}"
+                    f"policy_kwargs.optimizer_class: {brief(item)} is not one of {sorted(OPTIMIZERS)}"
                 )
             out[key] = OPTIMIZERS[item]
         elif key == "features_extractor_class":
             if item != "FlattenExtractor":
                 raise ValueError(
-                    f"policy_kwargs.features_extractor_class: only 'FlattenExtractor' is supported, got {item!r}"
+                    f"policy_kwargs.features_extractor_class: only 'FlattenExtractor' is supported, got {brief(item)}"
                 )
             out[key] = FlattenExtractor
         elif key == "features_extractor_kwargs":
@@ -492,16 +517,16 @@ def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
         raise ValueError(f"spec: expected an object, got {type(spec).__name__}")
     if spec.get("format") != SPEC_FORMAT or spec.get("version") != SPEC_VERSION:
         raise ValueError(
-            f"spec: format/version {spec.get('format')!r}/{spec.get('version')!r} is not {SPEC_FORMAT!r}/{SPEC_VERSION}"
+            f"spec: format/version {brief(spec.get('format'))}/{brief(spec.get('version'))} is not {SPEC_FORMAT!r}/{SPEC_VERSION}"
         )
     unknown_top = set(spec) - _SPEC_KEYS
     if unknown_top:
-        raise ValueError(f"spec: unknown key {sorted(map(str, unknown_top))[0]!r}")
+        raise ValueError(f"spec: unknown key {brief(sorted(map(str, unknown_top))[0])}")
     algo = spec.get("algorithm")
     if not isinstance(algo, str) or algo not in ALGOS:
-        raise ValueError(f"algorithm: unknown algorithm {algo!r}; expected one of {sorted(ALGOS)}")
+        raise ValueError(f"algorithm: unknown algorithm {brief(algo)}; expected one of {sorted(ALGOS)}")
     if spec.get("policy") != "MlpPolicy":
-        raise ValueError(f"policy: only 'MlpPolicy' is supported, got {spec.get('policy')!r}")
+        raise ValueError(f"policy: only 'MlpPolicy' is supported, got {brief(spec.get('policy'))}")
 
     observation_space = _space_from_json(spec.get("observation_space"), "observation_space")
     action_space = _space_from_json(spec.get("action_space"), "action_space")
@@ -515,7 +540,7 @@ def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
 
     raw_hparams = spec.get("hyperparameters")
     if not isinstance(raw_hparams, Mapping):
-        raise ValueError(f"hyperparameters: expected an object, got {raw_hparams!r}")
+        raise ValueError(f"hyperparameters: expected an object, got {brief(raw_hparams)}")
     kinds = _HPARAMS[algo]
     unknown = set(raw_hparams) - set(kinds)
     if unknown:
@@ -527,8 +552,12 @@ def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
         for key in kinds
         if key in raw_hparams
     }
+    obs_dim, act_dim = math.prod(observation_space.shape), math.prod(action_space.shape)
+    # Each field has its own cap, but their product can still be tens of GB: bound the totals before
+    # SB3 allocates networks and replay buffer.
+    _check_network_size(algo, policy_kwargs, obs_dim, act_dim)
     if "buffer_size" in hparams:
-        hparams["buffer_size"] = _as_int("hyperparameters.buffer_size", hparams["buffer_size"], minimum=1)
+        check_buffer_size(hparams["buffer_size"], obs_dim, act_dim, "hyperparameters.buffer_size")
     if algo in ("SAC", "TQC"):
         # "auto" would make SAC._setup_model read self.env.action_space, and we have no env.
         target_entropy = hparams.get("target_entropy")
@@ -553,16 +582,29 @@ def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
     return model
 
 
-def _read_member(archive: zipfile.ZipFile, name: str, path: str) -> bytes:
-    info = archive.getinfo(name)
-    if info.file_size > MAX_MEMBER_BYTES:
-        raise SafeLoadError(
-            f"{path}: member {name!r} is {info.file_size} bytes, over the {MAX_MEMBER_BYTES} limit"
-        )
+def _check_network_size(algo: str, policy_kwargs: Mapping[str, Any], obs_dim: int, act_dim: int) -> None:
+    default = [400, 300] if algo in ("DDPG", "TD3") else [256, 256]
+    net_arch = policy_kwargs.get("net_arch", default)
+    if isinstance(net_arch, Mapping):
+        pi, qf = net_arch.get("pi", []), net_arch.get("qf", [])
+    else:
+        pi = qf = net_arch
+    check_parameter_count(
+        algo,
+        obs_dim,
+        act_dim,
+        pi,
+        qf,
+        n_critics=policy_kwargs.get("n_critics", 1 if algo == "DDPG" else 2),
+        n_quantiles=policy_kwargs.get("n_quantiles", 25),
+    )
+
+
+def _read_member(archive: zipfile.ZipFile, name: str, path: str, budget: LoadBudget | None = None) -> bytes:
     try:
-        return archive.read(info)
-    except (zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError) as e:
-        raise SafeLoadError(f"{path}: member {name!r} is corrupt or unreadable: {e}") from e
+        return read_member(archive, name, path, limit=MAX_MEMBER_BYTES, budget=budget)
+    except ValueError as e:
+        raise SafeLoadError(str(e)) from None
 
 
 def _load_tensors(raw: bytes, name: str, path: str, device: th.device | str) -> dict[str, th.Tensor]:
@@ -571,13 +613,15 @@ def _load_tensors(raw: bytes, name: str, path: str, device: th.device | str) -> 
     try:
         obj = th.load(io.BytesIO(raw), map_location=device, weights_only=True)
     except Exception as e:  # torch raises UnpicklingError, RuntimeError, ... depending on the damage
-        raise SafeLoadError(f"{path}: member {name!r} is not a plain tensor file: {e}") from e
+        raise SafeLoadError(f"{path}: member {brief(name)} is not a plain tensor file: {e}") from e
     if not isinstance(obj, Mapping):
-        raise SafeLoadError(f"{path}: member {name!r} holds {type(obj).__name__}, expected a dict of tensors")
+        raise SafeLoadError(
+            f"{path}: member {brief(name)} holds {type(obj).__name__}, expected a dict of tensors"
+        )
     for key, value in obj.items():
         if not isinstance(key, str) or not (value is None or isinstance(value, th.Tensor)):
             raise SafeLoadError(
-                f"{path}: member {name!r} entry {key!r} is {type(value).__name__}, not a tensor"
+                f"{path}: member {brief(name)} entry {brief(key)} is {type(value).__name__}, not a tensor"
             )
     return dict(obj)
 
@@ -589,24 +633,27 @@ def _check_state_dict(
     for key, tensor in expected.items():
         if key not in found or found[key] is None:
             raise SafeLoadError(
-                f"{path}: {name!r} lacks key {key!r} (spec expects shape {list(tensor.shape)}); "
+                f"{path}: {brief(name)} lacks key {brief(key)} (spec expects shape {list(tensor.shape)}); "
                 "the spec does not describe this model"
             )
         if found[key].shape != tensor.shape:
             raise SafeLoadError(
-                f"{path}: {name!r} key {key!r} has shape {list(found[key].shape)} but the spec builds "
+                f"{path}: {brief(name)} key {brief(key)} has shape {list(found[key].shape)} but the spec builds "
                 f"{list(tensor.shape)}; the spec does not describe this model"
             )
     extra = [key for key in found if key not in expected]
     if extra:
         raise SafeLoadError(
-            f"{path}: {name!r} has key {extra[0]!r} (shape {list(found[extra[0]].shape)}) that the spec-built "
+            f"{path}: {brief(name)} has key {brief(extra[0])} (shape {list(found[extra[0]].shape)}) that the spec-built "
             "model does not; the spec does not describe this model"
         )
 
 
 def load_model_safely(
-    path: str | os.PathLike[str] | io.BytesIO, spec: Mapping[str, Any], device: th.device | str = "cpu"
+    path: str | os.PathLike[str] | io.BytesIO,
+    spec: Mapping[str, Any],
+    device: th.device | str = "cpu",
+    budget: LoadBudget | None = None,
 ) -> OffPolicyAlgorithm:
     """
     Rebuild a model from ``spec`` and load only its tensors from the SB3 zip at ``path``.
@@ -619,14 +666,17 @@ def load_model_safely(
     :param path: the model zip, or its bytes (a member of a bundle).
     :param spec: the description from :func:`model_spec` (e.g. parsed from a bundle manifest).
     :param device: torch device to build the model on and map the tensors to.
+    :param budget: the bytes and models a whole load may still spend (a bundle's; default: a fresh one).
     :return: the model, ready for ``predict``.
-    :raises SafeLoadError: (a ValueError) for an invalid spec, unknown algorithm, a file that is not a (complete)
+    :raises SafeLoadError: (a ValueError) for an invalid spec, sizes over :mod:`sb3_hddpg.limits`, unknown algorithm, a file that is not a (complete)
         zip, a missing ``policy.pth``, or weights whose keys/shapes do not match the spec.
     :raises FileNotFoundError: if ``path`` does not exist.
     """
     in_memory = isinstance(path, io.BytesIO)
     path_str = "<bytes>" if in_memory else os.fspath(path)
+    budget = budget if budget is not None else LoadBudget()
     try:
+        budget.spend_model(path_str)
         model = _build_from_spec(spec, device)
     except SafeLoadError:
         raise
@@ -640,16 +690,21 @@ def load_model_safely(
     except zipfile.BadZipFile as e:
         raise SafeLoadError(f"{path_str}: not a readable zip file (truncated or not a model?): {e}") from e
     with archive:
-        names = set(archive.namelist())
+        try:
+            names = {info.filename for info in check_zip_directory(archive, path_str)}
+        except ValueError as e:
+            raise SafeLoadError(str(e)) from None
         if POLICY_MEMBER not in names:
-            raise SafeLoadError(f"{path_str}: no {POLICY_MEMBER!r} in the zip (members: {sorted(names)})")
+            raise SafeLoadError(
+                f"{path_str}: no {POLICY_MEMBER!r} in the zip (members: {brief(sorted(names))})"
+            )
         policy_state = _load_tensors(
-            _read_member(archive, POLICY_MEMBER, path_str), POLICY_MEMBER, path_str, device
+            _read_member(archive, POLICY_MEMBER, path_str, budget), POLICY_MEMBER, path_str, device
         )
         variables: dict[str, th.Tensor] = {}
         if VARIABLES_MEMBER in names:
             variables = _load_tensors(
-                _read_member(archive, VARIABLES_MEMBER, path_str), VARIABLES_MEMBER, path_str, device
+                _read_member(archive, VARIABLES_MEMBER, path_str, budget), VARIABLES_MEMBER, path_str, device
             )
 
     # Compare before load_state_dict so the error names the key and both shapes instead of torch's long list.
@@ -680,6 +735,7 @@ def load_model(
     *,
     algorithm: str | None = None,
     device: th.device | str = "cpu",
+    budget: LoadBudget | None = None,
 ) -> OffPolicyAlgorithm:
     """
     Load a model zip: safely from a spec by default, or with SB3's full loader on explicit opt-in.
@@ -691,6 +747,7 @@ def load_model(
     :param algorithm: with ``trusted`` and no ``spec``, the algorithm name (``"DDPG"``, ``"TD3"``, ``"SAC"``,
         ``"TQC"``); otherwise taken from ``spec``.
     :param device: torch device.
+    :param budget: see :func:`load_model_safely` (the safe path only).
     :return: the loaded model.
     :raises ValueError: if neither a spec nor ``trusted=True`` is given, or the algorithm is unknown; see
         :func:`load_model_safely` for the safe path's errors.
@@ -701,8 +758,8 @@ def load_model(
                 f"{path if isinstance(path, io.BytesIO) else os.fspath(path)}: a model spec is required to load without running code from the file; "
                 "pass spec=... or, only for a file you trust, trusted=True"
             )
-        return load_model_safely(path, spec, device=device)
+        return load_model_safely(path, spec, device=device, budget=budget)
     name = algorithm if algorithm is not None else (spec or {}).get("algorithm")
     if name not in ALGOS:
-        raise ValueError(f"algorithm: unknown algorithm {name!r}; expected one of {sorted(ALGOS)}")
+        raise ValueError(f"algorithm: unknown algorithm {brief(name)}; expected one of {sorted(ALGOS)}")
     return ALGOS[name].load(path, device=device)

@@ -7,6 +7,7 @@ Shared by :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` (training the mana
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -111,8 +112,9 @@ class FrozenWorker:
     ``latent_pi`` + ``mu`` + tanh without gSDE) is compiled once into numpy matrix products on copies of
     its frozen weights: for one observation and these small networks that is about 10x faster than a torch
     forward call (measured in ``benchmarks/manager_env_speed.py``), and exactly the deterministic action.
-    Any other SB3 policy runs its network directly under ``torch.no_grad()``, skipping ``predict``'s
-    per-call checks; anything else (a :class:`~sb3_hddpg.hierarchy.Hierarchy`, the HAM switch, a test
+    Any other SB3 policy runs a frozen deep copy of its network under ``torch.no_grad()``, skipping
+    ``predict``'s per-call checks. Either way the caller's model is never modified: it can keep training,
+    and the frozen worker keeps acting with the weights it had when wrapped; anything else (a :class:`~sb3_hddpg.hierarchy.Hierarchy`, the HAM switch, a test
     double) is called through ``predict(obs, deterministic=True)``.
 
     :param worker: the worker.
@@ -128,16 +130,20 @@ class FrozenWorker:
             list[tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray] | None]] | None
         ) = None
         if self._policy is not None:
-            self._policy.set_training_mode(False)
-            for parameter in self._policy.parameters():
-                parameter.requires_grad_(False)
             space = self._policy.action_space
             self._squash = bool(getattr(self._policy, "squash_output", False))
             self._low = space.low.astype(np.float32)
             self._half_range = ((space.high - space.low) / 2.0).astype(np.float32)
             # Unscaling to [-1, 1] (the snake's action space) is the identity: skip it.
             self._squash = self._squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
+            # Freeze copies, never the caller's model: the numpy layers copy the weights, and the torch
+            # path runs a frozen deep copy, so the worker (or manager) can go on training elsewhere.
             self._layers = _compile_actor(self._policy)
+            if self._layers is None:
+                self._policy = _frozen_copy(self._policy)
+                self._policy.set_training_mode(False)
+                for parameter in self._policy.parameters():
+                    parameter.requires_grad_(False)
         if self._layers is not None:
             self.act: Callable[[np.ndarray], np.ndarray] = self._act_numpy
         elif self._policy is not None:
@@ -176,6 +182,19 @@ class FrozenWorker:
         reset = getattr(self.worker, "reset_episode", None)
         if reset is not None:
             reset()
+
+
+def _frozen_copy(policy: Any) -> Any:
+    """
+    A copy of an SB3 policy with the same weights, built the way ``BasePolicy.load`` builds one (from its
+    constructor parameters): ``copy.deepcopy`` fails on policies holding non-leaf tensors (gSDE's noise).
+    """
+    try:
+        clone = type(policy)(**policy._get_constructor_parameters()).to(policy.device)
+        clone.load_state_dict(policy.state_dict())
+    except (TypeError, AttributeError, RuntimeError):  # not an SB3 BasePolicy after all
+        return copy.deepcopy(policy)
+    return clone
 
 
 def _leaky_relu(slope: float) -> Callable[[np.ndarray], np.ndarray]:

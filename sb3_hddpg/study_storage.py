@@ -76,6 +76,18 @@ def check_storage_url(url: str) -> None:
 
     try:
         parsed = sqlalchemy.engine.make_url(url)
+    except Exception as error:  # sqlalchemy's ArgumentError
+        raise ValueError(f"Not a usable storage URL {url.split('@')[-1]!r}: {error}") from None
+    if parsed.get_backend_name() == "sqlite" and (
+        parsed.database in (None, "", ":memory:") or parsed.query.get("mode") == "memory"
+    ):
+        # Optuna's RDB storage opens new connections, each with its own empty in-memory database: trials
+        # fail with tracebacks and the study is gone with the process. A study must outlive it.
+        raise ValueError(
+            f"In-memory SQLite storage {url!r} cannot hold a study (each connection gets a new empty "
+            "database); give a file, e.g. sqlite:///study.db, or leave --storage out"
+        )
+    try:
         parsed.get_dialect().import_dbapi()
     except ImportError as error:
         raise ValueError(
@@ -98,6 +110,8 @@ def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int =
     :return: an ``optuna.storages.RDBStorage``.
     """
     import sqlalchemy.exc
+
+    check_storage_url(url)  # refuses in-memory SQLite, which cannot hold a study
 
     engine_kwargs: dict[str, Any] = {}
     path = sqlite_path(url)

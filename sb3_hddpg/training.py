@@ -40,7 +40,13 @@ from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_che
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.config import Hyperparams
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.io import atomic_write, atomic_write_json, remove_stale_temporaries
+from sb3_hddpg.io import (
+    atomic_write,
+    atomic_write_json,
+    holds_folder_lock,
+    locked_file,
+    remove_stale_temporaries,
+)
 from sb3_hddpg.workers import WORKER_ENV_IDS
 
 
@@ -189,6 +195,7 @@ def sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+@holds_folder_lock(lambda call: call.arguments["paths"].root)
 def train_agent(
     env_factory: Callable[[], gym.Env],
     hyperparams: Hyperparams,
@@ -250,6 +257,8 @@ def train_agent(
     total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
     if total < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {total}")
+    if not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"Expected seed in [0, {MAX_SEED}], actually: {seed}")
     if checkpoint_freq < 0:
         raise ValueError(f"Expected checkpoint_freq >= 0, actually: {checkpoint_freq}")
     n_envs = int(n_envs or hyperparams.n_envs)
@@ -348,6 +357,7 @@ def train_agent(
                 if np.isfinite(evaluator.best_mean_reward)
                 else None,
             },
+            min_timesteps=state["num_timesteps"] if state is not None else 0,
         )
         callbacks = CallbackList([*hyperparams.callbacks(), evaluator, checkpointer, *extra_callbacks])
         remaining = total - model.num_timesteps
@@ -423,9 +433,34 @@ def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> C
     return functools.partial(make_snake_env, WORKER_ENV_IDS[name], dict(env_kwargs or {}))
 
 
+#: The largest seed SB3 (numpy's legacy seeding) accepts.
+MAX_SEED = 2**32 - 1
+
+
 def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
-    """Write a manifest atomically."""
-    return atomic_write_json(path, manifest)
+    """
+    Write a manifest atomically, read-modify-write: the entries (``workers`` or ``models``) already in the
+    file are kept unless ``manifest`` replaces them, so two runs writing different agents into one folder
+    one after the other (each under the folder's lock, see :func:`~sb3_hddpg.io.locked_folder`) both stay
+    listed.
+
+    :param path: the manifest file.
+    :param manifest: the new content; its entry mappings win over the file's.
+    """
+    from sb3_hddpg.limits import read_json_file
+
+    path = Path(path)
+    merged = dict(manifest)
+    with locked_file(path):
+        try:
+            current = read_json_file(path) if path.is_file() else {}
+        except ValueError:  # damaged or not JSON: the new content replaces it
+            current = {}
+        if isinstance(current, dict):
+            for key in ("workers", "models"):
+                if isinstance(current.get(key), dict) and isinstance(manifest.get(key), dict):
+                    merged[key] = {**current[key], **manifest[key]}
+        return atomic_write_json(path, merged)
 
 
 #: The schema version of ``workers/manifest.json``.
@@ -456,6 +491,7 @@ def worker_hyperparams(workers: Sequence[str], config: str | Path | None = None)
     return {name: load_hyperparams(WORKER_ENV_IDS[name], DDPG, config) for name in workers}
 
 
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_workers(
     out_dir: str | Path,
     workers: Sequence[str] = ("goal", "avoid"),
@@ -578,18 +614,23 @@ def read_workers_manifest(path: str | Path) -> dict[str, Any]:
     """
     import json
 
+    from sb3_hddpg.limits import LimitError, brief, check_file_entry, check_name, read_json_file
+
     path = Path(path)
     try:
-        manifest = json.loads(path.read_text())
+        manifest = read_json_file(path)
         entries = manifest["workers"]
-        valid = isinstance(entries, dict) and all(
-            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
-            for e in entries.values()
-        )
+        valid = isinstance(entries, dict)
+    except LimitError:
+        raise
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
         valid = False
     if not valid:
         raise ValueError(f"Not a valid workers manifest: {str(path)!r}")
+    # Names and files travel with shared folders: each must be a plain name before it picks a file.
+    for name, entry in entries.items():
+        check_name(name, f"{path}: workers")
+        check_file_entry(entry, f"{path}: workers.{brief(name)}")
     return manifest
 
 
@@ -599,6 +640,7 @@ FLAT_MANIFEST_VERSION = 1
 FLAT_ENV_ID = "hddpg/SnakeReach-v0"
 
 
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_flat(
     out_dir: str | Path,
     algo: str = "ddpg",
@@ -646,9 +688,9 @@ def train_flat(
         model is an SB3 zip either way.
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
-    import json
 
     from sb3_hddpg.config import default_config, load_hyperparams
+    from sb3_hddpg.limits import read_json_file
     from sb3_hddpg.safe_load import model_spec
 
     algo = algo.lower()
@@ -660,7 +702,7 @@ def train_flat(
     manifest_path = out_dir / "flat" / "manifest.json"
     manifest: dict[str, Any] = {"schema_version": FLAT_MANIFEST_VERSION, "models": {}}
     if manifest_path.exists():
-        manifest = json.loads(manifest_path.read_text())
+        manifest = read_json_file(manifest_path)
     done = manifest["models"].get(algo)
     if resume and done is not None and done.get("timesteps_requested") == budget:
         return manifest, None  # finished in an earlier run
@@ -858,6 +900,7 @@ def prepare_manager(
     """
     from sb3_hddpg.config import MANAGER_KEY, load_hyperparams
     from sb3_hddpg.hierarchy import SelectionConfig
+    from sb3_hddpg.limits import brief
     from sb3_hddpg.selection import check_preferences, preferences_from_bias
     from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
@@ -904,7 +947,7 @@ def prepare_manager(
             space = getattr(worker, "observation_space", None)
             sliced = name in selection_config.worker_states  # the wrapper checks the sliced shape itself
             if space is not None and not sliced and space.shape != expected:
-                trained_on = manifest["workers"][name].get("env_kwargs", {})
+                trained_on = brief(manifest["workers"][name].get("env_kwargs", {}))
                 raise ValueError(
                     f"Worker {name!r} was trained on observations of shape {space.shape} (env_kwargs "
                     f"{trained_on}), but the manager's env {env_id} with env_kwargs {env_kwargs} gives "
@@ -918,6 +961,7 @@ def prepare_manager(
     return ManagerSetup(workers, manifest, hyperparams, selection_config, env_id, env_kwargs)
 
 
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_manager(
     workers_dir: str | Path,
     out_dir: str | Path,

@@ -21,7 +21,6 @@ import copy
 import datetime
 import functools
 import inspect
-import json
 import logging
 import math
 import multiprocessing
@@ -715,7 +714,9 @@ def _worker_names(workers_dir: str) -> list[str]:
         manifest = folder / "manifest.json"
     if not manifest.exists():
         raise FileNotFoundError(f"No workers manifest in {workers_dir!r}; run train-workers first")
-    return list(json.loads(manifest.read_text())["workers"])
+    from sb3_hddpg.training import read_workers_manifest
+
+    return list(read_workers_manifest(manifest)["workers"])
 
 
 def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -> float:

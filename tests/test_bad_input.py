@@ -63,6 +63,9 @@ ALONE = {
     "rec-tampered-bundle",
     "ps-worker-zip",
     "pk-not-a-zip",
+    "ev-module-prefixed-env",
+    "tw-config-alias-bomb",
+    "tu-in-memory-storage",
 }
 
 
@@ -95,6 +98,15 @@ CASES = [
     case("tw-config-negative-timesteps", (*TW, "--config", "{negative_budget}", "--out", "{tmp}/o"), 2, "-5"),
     case("tw-out-holds-results", (*TW, "--config", "{tiny}", "--out", "{w}"), 2, "already holds results"),
     case("tw-out-is-a-file", (*TW, "--config", "{tiny}", "--out", "{text_file}"), 2, "notes.txt"),
+    case("tw-out-under-a-file", (*TW, "--config", "{tiny}", "--out", "{text_file}/sub"), 2, "notes.txt"),
+    case("tw-out-empty", (*TW, "--config", "{tiny}", "--out", ""), 2, "--out"),
+    case("tw-seed-too-large", (*TW, "--seed", "99999999999", "--out", "{tmp}/o"), 2, "99999999999"),
+    case("tw-config-alias-bomb", (*TW, "--config", "{alias_bomb}", "--out", "{tmp}/o"), 2, "aliases"),
+    case("tw-config-deep-yaml", (*TW, "--config", "{deep_yaml}", "--out", "{tmp}/o"), 2, "deep_yaml.yml"),
+    case("tw-config-buffer-bomb", (*TW, "--config", "{buffer_bomb}", "--out", "{tmp}/o"), 2, "buffer_size"),
+    case(
+        "tw-config-net-arch-bomb", (*TW, "--config", "{net_arch_bomb}", "--out", "{tmp}/o"), 2, "parameters"
+    ),
     # ---- train-manager: names, preferences and selection
     case("tm-duplicate-worker", (*TM, "--worker", "goal", "--worker", "goal", "--out", "{tmp}/o"), 2, "goal"),
     case("tm-unknown-worker", (*TM, "--worker", "goal", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"),
@@ -190,6 +202,19 @@ CASES = [
     case("ev-negative-seed", ("evaluate", "random", "--seed", "-1"), 2, "-1"),
     case("ev-json-is-a-folder", ("evaluate", "random", "--json", "{folder}"), 2, "a-folder"),
     case("ev-unknown-algo", ("evaluate", "{lonely_zip}", "--trust", "--algo", "ppo"), 2, "PPO"),
+    # ---- evaluate: hostile bundles and files (a file someone else made; docs/ROBUSTNESS.md "Limits")
+    case("ev-module-prefixed-env", ("evaluate", "{hostile_env_id}"), 2, "env_id"),
+    case("ev-env-kwargs-list", ("evaluate", "{hostile_env_kwargs_list}"), 2, "env_kwargs"),
+    case("ev-env-kwargs-huge", ("evaluate", "{hostile_n_obstacles}"), 2, "n_obstacles"),
+    case("ev-temperature-text", ("evaluate", "{hostile_temperature}"), 2, "temperature"),
+    case("ev-selection-unknown", ("evaluate", "{hostile_selection}"), 2, "selection.selection"),
+    case("ev-option-steps-negative", ("evaluate", "{hostile_option_steps}"), 2, "option_steps"),
+    case("ev-zero-workers", ("evaluate", "{hostile_zero_workers}"), 2, "0 workers"),
+    case("ev-observation-shape-0", ("evaluate", "{hostile_shape}"), 2, "shape"),
+    case("ev-deep-json", ("evaluate", "{hostile_deep_json}"), 2, "nested"),
+    case("ev-traversal-member", ("evaluate", "{hostile_traversal}"), 2, "names member"),
+    case("ev-parameter-bomb", ("evaluate", "{hostile_net_arch}"), 2, "parameters"),
+    case("ev-ham-missing-keys", ("evaluate", "{ham_missing_keys}"), 2, "workers_manifest"),
     # ---- rollout
     case("ro-zero-episodes", ("rollout", "--episodes", "0"), 2, "0"),
     case("ro-negative-seed", ("rollout", "--seed", "-4"), 2, "-4"),
@@ -249,6 +274,12 @@ CASES = [
         ("tune", "--level", "flat", "--storage", "nosuchdb://x", "--out", "{tmp}/o"),
         2,
         "nosuchdb",
+    ),
+    case(
+        "tu-in-memory-storage",
+        ("tune", "--level", "flat", "--storage", "sqlite://", "--out", "{tmp}/o"),
+        2,
+        "In-memory",
     ),
     case("tu-fix-unknown", ("tune", "--level", "flat", "--fix", "nope=1", "--out", "{tmp}/o"), 2, "nope"),
     case("tu-algo-unknown", ("tune", "--level", "flat", "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
@@ -324,6 +355,9 @@ CASES = [
     # ---- package
     case("pk-missing", ("package", "{tmp}/nope.zip", "--out", "{tmp}/pk"), 2, "nope.zip"),
     case("pk-not-a-zip", ("package", "{text_zip}", "--out", "{tmp}/pk"), 2, "text.zip"),
+    case(
+        "pk-traversal-algo", ("package", "{traversal_algo}/workers/goal.zip", "--out", "{tmp}/pk"), 2, "algo"
+    ),
     case("pk-out-not-empty", ("package", "{m}/hierarchy.zip", "--out", "{w}"), 2, "not empty"),
     case(
         "pk-zero-episodes",
@@ -374,10 +408,13 @@ def artifacts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     (root / "truncated.zip").write_bytes(bundle[: len(bundle) * 2 // 3])
     with zipfile.ZipFile(root / "m" / "hierarchy.zip") as source:
         members = {name: source.read(name) for name in source.namelist()}
-    members["manager.zip"] = members["workers/goal.zip"]  # a swapped member, manifest unchanged
+    swapped = dict(members)
+    swapped["manager.zip"] = members["workers/goal.zip"]  # a swapped member, manifest unchanged
     with zipfile.ZipFile(root / "tampered.zip", "w") as target:
-        for name, content in members.items():
+        for name, content in swapped.items():
             target.writestr(name, content)
+
+    _hostile_files(root, members)
 
     (root / "a-folder").mkdir()
     (root / "notes.txt").write_text("not a folder\n")
@@ -403,8 +440,63 @@ def artifacts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
         "bad_yaml": root / "bad_yaml.yml",
         "unknown_key": root / "unknown_key.yml",
         "negative_budget": root / "negative_budget.yml",
+        "alias_bomb": root / "alias_bomb.yml",
+        "deep_yaml": root / "deep_yaml.yml",
+        "buffer_bomb": root / "buffer_bomb.yml",
+        "net_arch_bomb": root / "net_arch_bomb.yml",
+        "ham_missing_keys": root / "ham.json",
+        "traversal_algo": root / "traversal_algo",
+        **{f"hostile_{key}": root / f"hostile_{key}.zip" for key in HOSTILE_BUNDLES},
     }
     return {key: str(value) for key, value in paths.items()} | {"root": str(root)}
+
+
+#: Bundles edited as someone might send them: (what is changed in the manifest), each refused by name.
+HOSTILE_BUNDLES: dict[str, Any] = {
+    "env_id": lambda m: m.update(env_id="os:hddpg/SnakeReach-v0"),
+    "env_kwargs_list": lambda m: m.update(env_kwargs=["n_joints", 4]),
+    "n_obstacles": lambda m: m.update(env_kwargs={"n_obstacles": 10_000_000}),
+    "temperature": lambda m: m["selection"].update(temperature="abc"),
+    "selection": lambda m: m["selection"].update(selection="evil"),
+    "option_steps": lambda m: m["selection"].update(option_steps=-3),
+    "zero_workers": lambda m: m.update(worker_names=[], workers={}),
+    "shape": lambda m: m["manager"]["spec"]["observation_space"].update(shape=[0], low=[], high=[]),
+    "deep_json": None,  # the manifest is 200,000 nested lists
+    "traversal": lambda m: m["workers"]["goal"].update(file="../../goal.zip"),
+    "net_arch": lambda m: m["workers"]["goal"]["spec"]["policy_kwargs"].update(net_arch=[65536, 65536]),
+}
+
+
+def _hostile_files(root: Path, members: dict[str, bytes]) -> None:
+    """The hostile inputs of the table, generated from the tiny trained artifacts."""
+    import json
+
+    base = json.loads(members["manifest.json"])
+    for key, edit in HOSTILE_BUNDLES.items():
+        manifest = json.loads(json.dumps(base))
+        if edit is not None:
+            edit(manifest)
+        raw = json.dumps(manifest).encode() if edit is not None else b"[" * 200_000 + b"]" * 200_000
+        with zipfile.ZipFile(root / f"hostile_{key}.zip", "w") as target:
+            target.writestr("manifest.json", raw)
+            for name, content in members.items():
+                if name != "manifest.json":
+                    target.writestr(name, content)
+    # Ten nested aliases, each listing the previous ten times: 10^10 values when expanded.
+    lines = ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, 10)]
+    lines += ["default:", "  n_timesteps: *a9", "  policy: 'MlpPolicy'"]
+    (root / "alias_bomb.yml").write_text("\n".join(lines) + "\n")
+    (root / "buffer_bomb.yml").write_text(TINY_CONFIG.replace("buffer_size: 1000", "buffer_size: 1e13"))
+    (root / "net_arch_bomb.yml").write_text(TINY_CONFIG.replace("net_arch=[16]", "net_arch=[65536, 65536]"))
+    (root / "deep_yaml.yml").write_text("default: " + "[" * 100_000 + "]" * 100_000 + "\n")
+    (root / "ham.json").write_text(json.dumps({"kind": "sb3-hddpg-ham", "schema_version": 1, "env_id": "x"}))
+    # A worker whose manifest entry names its algorithm with a path (package used to write there).
+    target = root / "traversal_algo"
+    shutil.copytree(root / "w" / "workers", target / "workers")
+    manifest = json.loads((target / "workers" / "manifest.json").read_text())
+    manifest["workers"]["goal"]["algo"] = "../../y"
+    (target / "workers" / "manifest.json").write_text(json.dumps(manifest))
 
 
 @pytest.fixture(scope="module")

@@ -228,3 +228,74 @@ def test_model_spec_refuses_what_it_cannot_describe() -> None:
         model_spec(model)
     with pytest.raises(ValueError, match="PPO"):
         model_spec(PPO("MlpPolicy", "Pendulum-v1", n_steps=8, batch_size=8))
+
+
+# ---- limits (sb3_hddpg/limits.py): a spec or zip that would cost more than a few hundred MB is refused first
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        (lambda s: s["policy_kwargs"].update(net_arch=[65536, 65536]), "parameters"),
+        (lambda s: s["policy_kwargs"].update(net_arch=[4096] * 64), "parameters"),
+        (lambda s: s["hyperparameters"].update(buffer_size=10**13), "buffer_size"),
+        (lambda s: s["hyperparameters"].update(buffer_size=0), "buffer_size"),
+        (lambda s: s["observation_space"].update(shape=[0], low=[], high=[]), "shape"),
+        (lambda s: s["observation_space"].update(shape=[1 << 16, 1 << 16]), "shape"),
+        (lambda s: s["observation_space"].update(shape=[1] * 9), "dimensions"),
+    ],
+    ids=["wide", "deep", "buffer", "zero-buffer", "empty-space", "huge-space", "many-dims"],
+)
+def test_spec_bombs_are_refused_before_anything_is_built(trained, edit, needle) -> None:
+    model, path = trained["DDPG"]
+    spec = copy.deepcopy(model_spec(model))
+    edit(spec)
+    with pytest.raises(SafeLoadError, match=needle):
+        load_model_safely(path, spec)
+
+
+def test_oversized_and_bomb_members_are_refused_from_their_header(trained, tmp_path: Path) -> None:
+    from sb3_hddpg.limits import MAX_MEMBER_BYTES
+
+    model, path = trained["DDPG"]
+    # 100 MiB of zeros in policy.pth: under the size limit but ~1000x compressed (a zip bomb).
+    bomb = tmp_path / "bomb.zip"
+    with zipfile.ZipFile(path) as zin, zipfile.ZipFile(bomb, "w", compression=zipfile.ZIP_DEFLATED) as zout:
+        for info in zin.infolist():
+            if info.filename != "policy.pth":
+                zout.writestr(info, zin.read(info))
+        with zout.open("policy.pth", "w", force_zip64=True) as handle:
+            for _ in range(100):
+                handle.write(bytes(1 << 20))
+    with pytest.raises(SafeLoadError, match=r"bomb\.zip.*policy\.pth.*zip bomb"):
+        load_model_safely(bomb, model_spec(model))
+    # Incompressible but over the size limit: refused from the declared size, before reading.
+    big = tmp_path / "big.zip"
+    with zipfile.ZipFile(path) as zin, zipfile.ZipFile(big, "w", compression=zipfile.ZIP_STORED) as zout:
+        for info in zin.infolist():
+            if info.filename != "policy.pth":
+                zout.writestr(info.filename, zin.read(info))
+        with zout.open("policy.pth", "w", force_zip64=True) as handle:
+            chunk = np.random.default_rng(0).bytes(1 << 20)
+            for _ in range((MAX_MEMBER_BYTES >> 20) + 1):
+                handle.write(chunk)
+    with pytest.raises(SafeLoadError, match=r"policy\.pth.*over the"):
+        load_model_safely(big, model_spec(model))
+    big.unlink()
+
+
+def test_messages_never_format_an_unbounded_value(trained) -> None:
+    model, path = trained["DDPG"]
+    spec = copy.deepcopy(model_spec(model))
+    spec["policy_kwargs"]["activation_fn"] = "x" * 10_000_000
+    with pytest.raises(SafeLoadError) as excinfo:
+        load_model_safely(path, spec)
+    assert "activation_fn" in str(excinfo.value) and len(str(excinfo.value)) < 2_000
+    spec = copy.deepcopy(model_spec(model))
+    nested: list[Any] = []
+    for _ in range(30):  # a value shared 2^30 times over, as a YAML alias bomb builds it
+        nested = [nested, nested]
+    spec["hyperparameters"]["gamma"] = nested
+    with pytest.raises(SafeLoadError) as excinfo:
+        load_model_safely(path, spec)
+    assert "gamma" in str(excinfo.value) and len(str(excinfo.value)) < 2_000

@@ -226,23 +226,29 @@ def save_ham(
     return atomic_write_json(path, payload)
 
 
-def load_ham(path: str | os.PathLike[str], trusted: bool = False) -> tuple[HAMSwitch, dict[str, Any]]:
+def load_ham(
+    path: str | os.PathLike[str], trusted: bool = False, allowed_env_ids: Sequence[str] | None = None
+) -> tuple[HAMSwitch, dict[str, Any]]:
     """
     Load a switch written by :func:`save_ham`; its workers are verified and loaded by
-    :func:`sb3_hddpg.training.load_workers` (weights only unless ``trusted``).
+    :func:`sb3_hddpg.training.load_workers` (weights only unless ``trusted``). Every field is checked
+    first (:mod:`sb3_hddpg.limits`): the env id must be registered and allowed, the workers manifest a
+    ``manifest.json`` path, the names plain names.
 
     :param path: the ``ham.json`` file.
-    :param trusted: load the workers with SB3's full loader.
+    :param trusted: load the workers with SB3's full loader, and accept any registered env id.
+    :param allowed_env_ids: registered env ids the file may name besides this package's own.
     :return: the switch and the file's contents (with ``env_id`` and ``env_kwargs``).
     """
     import gymnasium as gym
 
     import sb3_hddpg  # noqa: F401  (registers the env ids)
+    from sb3_hddpg.limits import brief, check_env_id, check_env_kwargs, check_name, read_json_file
     from sb3_hddpg.training import load_workers, observed_components
 
     path = Path(path)
     try:
-        meta = json.loads(path.read_text())
+        meta = read_json_file(path)
     except FileNotFoundError:
         raise FileNotFoundError(f"No such file: {str(path)!r}") from None
     except (json.JSONDecodeError, UnicodeDecodeError):
@@ -254,10 +260,31 @@ def load_ham(path: str | os.PathLike[str], trusted: bool = False) -> tuple[HAMSw
         raise ValueError(
             f"{str(path)!r} has schema_version {version!r}; this sb3-hddpg reads up to {HAM_SCHEMA_VERSION}"
         )
-    manifest = (path.parent / meta["workers_manifest"]).resolve()
-    names = (meta["worker_names"]["goal"], meta["worker_names"]["avoid"])
+    where = str(path)
+    missing = [k for k in ("workers_manifest", "worker_names", "env_id", "threshold") if k not in meta]
+    if missing:
+        raise ValueError(f"{where}: missing field {missing[0]!r}")
+    relative = meta["workers_manifest"]
+    if not isinstance(relative, str) or Path(relative).name != "manifest.json":
+        raise ValueError(
+            f"{where}: workers_manifest must be a path to a manifest.json, got {brief(relative)}"
+        )
+    pair = meta["worker_names"]
+    if not isinstance(pair, dict) or set(pair) != {"goal", "avoid"}:
+        raise ValueError(f"{where}: worker_names must map 'goal' and 'avoid' to names, got {brief(pair)}")
+    names = (
+        check_name(pair["goal"], f"{where}: worker_names.goal"),
+        check_name(pair["avoid"], f"{where}: worker_names.avoid"),
+    )
+    env_id = check_env_id(meta["env_id"], f"{where}: env_id", allowed_env_ids, trusted)
+    env_kwargs = check_env_kwargs(env_id, meta.get("env_kwargs"), f"{where}: env_kwargs")
+    for key in ("threshold", "hysteresis"):
+        value = meta.get(key, 0.0)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ValueError(f"{where}: {key} must be a finite number, got {brief(value)}")
+    manifest = (path.parent / relative).resolve()
     workers, workers_manifest = load_workers(manifest.parent, names, trusted=trusted)
-    env = gym.make(meta["env_id"], **meta.get("env_kwargs", {}))
+    env = gym.make(env_id, **env_kwargs)
     layout = env.unwrapped.state_layout  # type: ignore[attr-defined]
     env.close()
     switch = HAMSwitch(

@@ -25,13 +25,22 @@ class ResumableCheckpointCallback(BaseCallback):
     :param checkpoint_dir: the folder for this agent's checkpoints.
     :param save_freq: environment steps between checkpoints (0: only on demand).
     :param extra_state: a callable returning JSON-able run state to store too (e.g. the evaluation history).
+    :param min_timesteps: the step count of the checkpoint a resumed run started from: a checkpoint is
+        never written at fewer steps (checkpoints never go backwards).
     """
 
-    def __init__(self, checkpoint_dir: str | Path, save_freq: int = 10_000, extra_state: Any = None) -> None:
+    def __init__(
+        self,
+        checkpoint_dir: str | Path,
+        save_freq: int = 10_000,
+        extra_state: Any = None,
+        min_timesteps: int = 0,
+    ) -> None:
         super().__init__()
         self.checkpoint_dir = Path(checkpoint_dir)
         self.save_freq = save_freq
         self.extra_state = extra_state
+        self.min_timesteps = int(min_timesteps)
         self._last_saved = 0
 
     def _on_training_start(self) -> None:
@@ -50,7 +59,14 @@ class ResumableCheckpointCallback(BaseCallback):
             configs' sizes). Without it the checkpoint still resumes, from the model with an empty buffer;
             a finished run drops it this way (the older checkpoint's buffer is removed as usual).
         """
-        steps = int(self.num_timesteps)
+        # The model's own count: the callback's copy is only updated inside learn(), so a save after
+        # init_callback without learn() (resuming a run that had already finished) would say 0.
+        steps = int(self.model.num_timesteps)
+        if steps < self.min_timesteps:
+            raise RuntimeError(
+                f"Refusing to write a checkpoint at step {steps} over the one at step {self.min_timesteps} "
+                f"in {str(self.checkpoint_dir)!r}: checkpoints never go backwards"
+            )
         self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
         model_name, buffer_name = f"model_{steps}.zip", f"replay_buffer_{steps}.pkl"
         atomic_write(self.checkpoint_dir / model_name, lambda tmp: self.model.save(tmp))

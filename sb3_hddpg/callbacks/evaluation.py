@@ -98,9 +98,12 @@ class MetricsEvalCallback(EvalCallback):
             elif isinstance(value, dict):
                 for name, rate in value.items():
                     self.logger.record(f"eval/{key}/{name}", rate)
-        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
-        self.logger.dump(self.num_timesteps)
-        self.history.append({"timesteps": int(self.num_timesteps), **summary})
+        # The model's own count: the callback's copy is only updated inside learn(), so an evaluation run
+        # after init_callback without learn() (the final one of a resumed, finished run) would say 0.
+        steps = int(self.model.num_timesteps)
+        self.logger.record("time/total_timesteps", steps, exclude="tensorboard")
+        self.logger.dump(steps)
+        self.history.append({"timesteps": steps, **summary})
         if self.history_path is not None:
             atomic_write_json(self.history_path, self.history)
 

@@ -27,9 +27,16 @@ def one_line(message: str) -> str:
     return " ".join(line.strip() for line in message.splitlines() if line.strip())
 
 
+#: The longest error line shown (a last guard: messages already truncate values from files).
+MAX_ERROR_CHARS = 2000
+
+
 def console_error(message: str) -> None:
     """Print a one-line error to stderr (the message is shown as is, never read as rich markup)."""
-    _error_console.print(f"[bold red]error:[/] {escape(one_line(message))}", soft_wrap=True)
+    line = one_line(message)
+    if len(line) > MAX_ERROR_CHARS:
+        line = line[: MAX_ERROR_CHARS - 1] + "…"
+    _error_console.print(f"[bold red]error:[/] {escape(line)}", soft_wrap=True)
 
 
 def _version(value: bool) -> None:

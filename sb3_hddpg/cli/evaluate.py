@@ -8,7 +8,7 @@ import typer
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, usage_errors, writable_file
+from sb3_hddpg.cli.options import at_least, seed_range, usage_errors, writable_file
 
 #: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
 #: and usage errors need not import the library).
@@ -28,7 +28,7 @@ def evaluate_command(
     seed: int = typer.Option(
         EVAL_SEED_BASE,
         "--seed",
-        callback=at_least(0),
+        callback=seed_range,
         help="Seed of the first episode (episode k uses seed + k).",
     ),
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),

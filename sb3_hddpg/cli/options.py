@@ -8,6 +8,7 @@ import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import click
 import typer
 
 #: Files whose presence means a folder already holds results of ours.
@@ -31,6 +32,17 @@ def at_least(minimum: int) -> Callable[[int | None], int | None]:
         return value
 
     return check
+
+
+#: The largest seed SB3 accepts (``sb3_hddpg.training.MAX_SEED``, repeated to keep ``--help`` light).
+MAX_SEED = 2**32 - 1
+
+
+def seed_range(value: int | None) -> int | None:
+    """A typer callback for seeds: integers in ``[0, 2**32 - 1]`` (SB3's range; ``None`` passes)."""
+    if value is not None and not 0 <= value <= MAX_SEED:
+        raise typer.BadParameter(f"must be in [0, {MAX_SEED}], got {value}")
+    return value
 
 
 def positive_float(value: float | None) -> float | None:
@@ -94,11 +106,38 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
 
 def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
     """
-    Refuse to overwrite a folder that already holds results unless ``--resume`` or ``--force``;
-    ``--force`` clears it first.
+    Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a path
+    through a file, and a folder that already holds results unless ``--resume`` or ``--force`` (which
+    clears it first); then lock it (:func:`sb3_hddpg.io.locked_folder`) until the command ends, so a
+    second run into the same folder stops at once with the holder's pid.
     """
+    from sb3_hddpg.io import LOCK_FILE, FolderLockedError, locked_folder
+
+    if str(out) in ("", ".") or out.resolve() in (Path.cwd().resolve(), Path(out.anchor or "/").resolve()):
+        raise typer.BadParameter(
+            f"expected a folder for this run's files, got {str(out)!r} (the current or root folder)",
+            param_hint="'--out'",
+        )
     if out.exists() and not out.is_dir():
         raise typer.BadParameter(f"is a file, not a folder: {str(out)!r}", param_hint="'--out'")
+    blocking = next((p for p in out.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise typer.BadParameter(
+            f"{str(blocking)!r} is a file, so {str(out)!r} cannot be a folder", param_hint="'--out'"
+        )
+    try:
+        lock = locked_folder(out)
+        lock.__enter__()
+    except FolderLockedError as error:
+        raise typer.BadParameter(str(error), param_hint="'--out'") from None
+    except OSError as error:
+        raise typer.BadParameter(
+            f"cannot create {str(out)!r}: {error.strerror or error}", param_hint="'--out'"
+        ) from None
+    context = click.get_current_context(silent=True)
+    if context is not None:
+        # Released when the command returns or fails (click closes its context then).
+        context.call_on_close(lambda: lock.__exit__(None, None, None))
     held = [m for m in RESULT_MARKERS if (out / m).exists()]
     if held and not (resume or force):
         raise typer.BadParameter(
@@ -106,8 +145,14 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
             param_hint="'--out'",
         )
     if held and force and not resume:
-        shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
+        # Everything but the lock file we hold: removing it would let another run lock a new one.
+        for item in out.iterdir():
+            if item.name == LOCK_FILE:
+                continue
+            if item.is_dir() and not item.is_symlink():
+                shutil.rmtree(item)
+            else:
+                item.unlink()
     return out
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, usage_errors
+from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
 from sb3_hddpg.cli.record import TRUST_HELP
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.loading import load_policy
@@ -19,7 +19,7 @@ def package_command(
     out: Path = typer.Option(..., "--out", help="The package folder to create."),
     episodes: int = typer.Option(10, "--episodes", callback=at_least(1), help="Evaluation episodes."),
     seed: int = typer.Option(
-        EVAL_SEED_BASE, "--seed", callback=at_least(0), help="Seed of the first evaluation episode."
+        EVAL_SEED_BASE, "--seed", callback=seed_range, help="Seed of the first evaluation episode."
     ),
     video_steps: int | None = typer.Option(
         None,

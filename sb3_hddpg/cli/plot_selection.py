@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, usage_errors
+from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
 from sb3_hddpg.cli.record import TRUST_HELP
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.loading import load_policy
@@ -21,7 +21,7 @@ def plot_selection_command(
     seed: int = typer.Option(
         EVAL_SEED_BASE,
         "--seed",
-        callback=at_least(0),
+        callback=seed_range,
         help="Seed of the first episode (episode k uses seed + k).",
     ),
     env_id: str | None = typer.Option(

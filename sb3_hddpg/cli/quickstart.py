@@ -10,7 +10,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir
+from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir, seed_range
 from sb3_hddpg.quickstart import BUDGETS, STAGES, QuickstartObserver, QuickstartResult, run_quickstart
 
 
@@ -90,7 +90,7 @@ def quickstart_command(
     budget: str = typer.Option(
         "small", "--budget", help="small (about 10 min on 2 CPU cores) or tiny (seconds; for tests)."
     ),
-    seed: int = typer.Option(0, "--seed", callback=at_least(0), help="Training seed of every agent."),
+    seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed of every agent."),
     force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
     processes: int = typer.Option(
         2, "--processes", callback=at_least(1), help="Agents trained at a time, one process each."

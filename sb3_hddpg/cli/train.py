@@ -17,6 +17,7 @@ from sb3_hddpg.cli.options import (
     existing_file,
     positive_float,
     prepare_out_dir,
+    seed_range,
     usage_errors,
 )
 from sb3_hddpg.workers import WORKER_ENV_IDS
@@ -81,7 +82,7 @@ def train_workers_command(
         callback=at_least(1),
         help="Steps per worker (default: the config's n_timesteps).",
     ),
-    seed: int = typer.Option(0, "--seed", callback=at_least(0), help="Training seed."),
+    seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed."),
     n_envs: int | None = typer.Option(
         None, "--n-envs", callback=at_least(1), help="Training envs per worker, in subprocesses when > 1."
     ),
@@ -195,7 +196,7 @@ def train_manager_command(
     timesteps: int | None = typer.Option(
         None, "--timesteps", callback=at_least(1), help="Manager steps (default: the config's n_timesteps)."
     ),
-    seed: int = typer.Option(0, "--seed", callback=at_least(0), help="Training seed."),
+    seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed."),
     n_envs: int | None = typer.Option(
         None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."
     ),

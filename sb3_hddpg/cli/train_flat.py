@@ -7,7 +7,14 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir, usage_errors
+from sb3_hddpg.cli.options import (
+    BACKEND_HELP,
+    at_least,
+    backend_name,
+    prepare_out_dir,
+    seed_range,
+    usage_errors,
+)
 from sb3_hddpg.cli.train import KEEP_CHECKPOINTS_HELP, metrics_table
 from sb3_hddpg.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted
 
@@ -23,7 +30,7 @@ def train_flat_command(
     timesteps: int | None = typer.Option(
         None, "--timesteps", callback=at_least(1), help="Training steps (default: the config's n_timesteps)."
     ),
-    seed: int = typer.Option(0, "--seed", callback=at_least(0), help="Training seed."),
+    seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed."),
     n_envs: int | None = typer.Option(
         None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."
     ),

@@ -9,7 +9,14 @@ import yaml
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, positive_float, usage_errors
+from sb3_hddpg.cli.options import (
+    BACKEND_HELP,
+    at_least,
+    backend_name,
+    positive_float,
+    seed_range,
+    usage_errors,
+)
 from sb3_hddpg.training import WORKER_ENV_IDS, TrainingInterrupted
 from sb3_hddpg.tuning import LEVELS, PRUNERS, SAMPLERS
 
@@ -97,7 +104,7 @@ def tune_command(
     seed: int | None = typer.Option(
         None,
         "--seed",
-        callback=at_least(0),
+        callback=seed_range,
         help="Seeds training (default 0) and the sampler (default: unseeded, so parallel runs differ).",
     ),
     out: Path | None = typer.Option(

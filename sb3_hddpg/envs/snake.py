@@ -17,6 +17,11 @@ from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 
 #: The reward choices of :class:`SnakeArmEnv`: one per paper worker plus their normalised sum.
 REWARD_CHOICES = ("goal", "avoid", "reach")
+#: Upper limits of the counts (the work per step and the observation grow with them). Env kwargs can
+#: come from a shared file; far above any sensible arm, they keep such a file from stalling a step.
+MAX_JOINTS = 32
+MAX_OBSTACLES = 32
+MAX_SUBSTEPS = 100
 #: The reward terms computed every step (Table 2 of the paper).
 REWARD_TERMS = ("goal", "avoid")
 
@@ -150,8 +155,8 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> None:
         """
         :param reward: the step reward: ``"goal"``, ``"avoid"`` or ``"reach"`` (see Rewards).
-        :param n_joints: number of revolute joints (and links), at least 2.
-        :param n_obstacles: number of moving obstacle discs, at least 1.
+        :param n_joints: number of revolute joints (and links), 2 to 32.
+        :param n_obstacles: number of moving obstacle discs, 1 to 32.
         :param obstacle_radius: radius of every obstacle disc, in reach units.
         :param obstacle_speed: the obstacles' top speed, reach units per second.
         :param goal_speed: the goal's top speed, reach units per second.
@@ -161,7 +166,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         :param max_joint_speed: joint speed, rad/s, commanded by an action of magnitude 1.
         :param joint_limit: every joint but the base turns at most this far (rad) either way.
         :param dt: seconds of simulated time per environment step.
-        :param substeps: pymunk steps per environment step (each ``dt / substeps`` long).
+        :param substeps: pymunk steps per environment step (each ``dt / substeps`` long), 1 to 100.
         :param goal_radius_min: the goal stays at least this far from the base.
         :param goal_radius_max: the goal stays at most this far from the base (below 1: reachable).
         :param obstacle_radius_min: obstacle centres stay at least this far from the base.
@@ -174,9 +179,9 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         :param render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
         """
         _check_choice("reward", reward, REWARD_CHOICES)
-        _check_count("n_joints", n_joints, minimum=2)
-        _check_count("n_obstacles", n_obstacles, minimum=1)
-        _check_count("substeps", substeps, minimum=1)
+        _check_count("n_joints", n_joints, minimum=2, maximum=MAX_JOINTS)
+        _check_count("n_obstacles", n_obstacles, minimum=1, maximum=MAX_OBSTACLES)
+        _check_count("substeps", substeps, minimum=1, maximum=MAX_SUBSTEPS)
         for name, value in (
             ("obstacle_radius", obstacle_radius),
             ("touch_radius", touch_radius),
@@ -756,9 +761,9 @@ def _check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
         raise ValueError(f"Expected `{name}` to be one of {list(choices)}, actually: {value!r}")
 
 
-def _check_count(name: str, value: Any, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"Expected `{name}` to be an integer >= {minimum}, actually: {value!r}")
+def _check_count(name: str, value: Any, minimum: int, maximum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not minimum <= value <= maximum:
+        raise ValueError(f"Expected `{name}` to be an integer in [{minimum}, {maximum}], actually: {value!r}")
 
 
 def _check_positive(name: str, value: Any) -> None:

@@ -1,0 +1,505 @@
+"""
+Limits on input from files someone else made, and the checks that enforce them.
+
+Every file a user may receive (a ``hierarchy.zip`` bundle, a ``workers/manifest.json``, a worker or flat
+zip, a ``ham.json``, a config file) passes through the functions here before its content reaches memory,
+a path, an import or a constructor. Each limit is far above what this project writes, and low enough that
+no small file can cost more than a few hundred MB or minutes of work. docs/ROBUSTNESS.md lists them with
+the tests that hold them.
+
+- **Names** (worker names, file names, algorithm names) match a strict pattern before they become paths.
+- **Env ids** are used only when registered, without a ``module:`` prefix (``gym.make("mod:id")`` imports
+  ``mod``), and by default only this package's ids.
+- **Env kwargs** are only the env constructor's own named parameters, with plain values; the env checks
+  their ranges itself (``SnakeArmEnv`` has upper limits on every count).
+- **Sizes**: JSON files, zip members (declared and actual, compression ratio), member counts, the total
+  bytes one load may read, the total parameters of a network, a replay buffer, nesting depth and the
+  number of models one load may build.
+- **Messages** never format an unbounded value: :func:`brief` truncates.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import inspect
+import itertools
+import json
+import math
+import re
+import reprlib
+import zipfile
+import zlib
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+#: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
+MAX_JSON_BYTES = 1 << 20
+#: Deepest nesting of a JSON document or a config value (json.loads recurses; ours are < 10 deep).
+MAX_JSON_DEPTH = 64
+#: Most values (nodes) in one config file after YAML aliases are expanded (ours: a few hundred).
+MAX_CONFIG_NODES = 100_000
+#: Most members in one zip (a bundle: manifest, manager and one per worker).
+MAX_ZIP_MEMBERS = 256
+#: Largest zip member we read (uncompressed; declared and actual). A 256x256 worker's policy.pth is ~1 MB.
+MAX_MEMBER_BYTES = 128 << 20
+#: Most uncompressed bytes one load may read, over all members and nested bundles.
+MAX_LOAD_BYTES = 256 << 20
+#: Largest compression ratio of a member over 1 MiB (weights compress ~1.1x; a zip bomb ~1000x).
+MAX_COMPRESSION_RATIO = 100
+#: Most trainable parameters one model spec may describe, targets and critics included (ours: ~0.2 M).
+MAX_PARAMETERS = 20_000_000
+#: Largest replay buffer a spec or config may ask for, in transitions and in (lazily committed) bytes.
+MAX_BUFFER_SIZE = 10_000_000
+MAX_BUFFER_BYTES = 4 << 30
+#: Deepest nesting of bundles (a hierarchy of hierarchies: ours are 2 deep).
+MAX_NESTING = 4
+#: Most models (manager and workers, over all nested bundles) one load may build.
+MAX_MODELS = 64
+#: Most workers one manager may select between.
+MAX_WORKERS = 32
+#: Longest message fragment showing a value from a file.
+MAX_SHOWN = 200
+
+#: Worker names, algorithm names: what may become part of a file name.
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+#: Env ids: gymnasium's ``[namespace/]name-vN`` without a ``module:`` prefix.
+ENV_ID_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}(/[A-Za-z0-9_.-]{1,64})?$")
+
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxdict, _REPR.maxlist, _REPR.maxtuple = 3, 6, 8, 8
+_REPR.maxstring, _REPR.maxother, _REPR.maxlong = 80, 80, 40
+
+
+class LimitError(ValueError):
+    """Input from a file exceeds one of this module's limits; the message names the file or field."""
+
+
+def brief(value: Any, limit: int = MAX_SHOWN) -> str:
+    """
+    ``repr(value)``, bounded in time and length: nested containers are cut by :mod:`reprlib` (so a YAML alias
+    bomb or a 200k-deep list is never expanded), and the result is truncated to ``limit`` characters.
+
+    :param value: anything, typically a value read from a file.
+    :param limit: the longest result.
+    """
+    text = _REPR.repr(value)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def check_name(value: Any, what: str) -> str:
+    """
+    A name that becomes part of a path or a member name: letters, digits, ``_`` and ``-``, at most 64.
+
+    :param value: the name from a file.
+    :param what: the field, for the message.
+    :return: the name; raises :class:`LimitError` otherwise.
+    """
+    if not isinstance(value, str) or not NAME_PATTERN.match(value):
+        raise LimitError(
+            f"{what}: expected a name of letters, digits, '_' and '-' (at most 64), got {brief(value)}"
+        )
+    return value
+
+
+def own_env_ids() -> frozenset[str]:
+    """The env ids this package registers (the default allow-list for ids read from files)."""
+    from sb3_hddpg.envs import ENV_IDS
+
+    return frozenset(ENV_IDS)
+
+
+def check_env_id(
+    env_id: Any, what: str, allowed_env_ids: Sequence[str] | None = None, trusted: bool = False
+) -> str:
+    """
+    An env id read from a file, before it reaches ``gym.make``: registered already, without a ``module:``
+    prefix (which would import that module), and in the allow-list.
+
+    :param env_id: the id from the file.
+    :param what: the field, for the message.
+    :param allowed_env_ids: more ids to accept besides this package's own (they must be registered).
+    :param trusted: accept any registered id (still no module prefix).
+    :return: the id; raises :class:`LimitError` naming it otherwise.
+    """
+    from gymnasium.envs.registration import registry
+
+    import sb3_hddpg.envs  # noqa: F401  (registers our ids)
+
+    if not isinstance(env_id, str) or not ENV_ID_PATTERN.match(env_id):
+        raise LimitError(
+            f"{what}: {brief(env_id)} is not a plain env id ('namespace/Name-vN' without a module prefix)"
+        )
+    if env_id not in registry:
+        raise LimitError(f"{what}: env id {env_id!r} is not registered")
+    allowed = own_env_ids() | frozenset(allowed_env_ids or ())
+    if not trusted and env_id not in allowed:
+        raise LimitError(
+            f"{what}: env id {env_id!r} is not one of {sorted(allowed)}; pass allowed_env_ids=[...] "
+            "(or --trust) to use another registered env"
+        )
+    return env_id
+
+
+def check_env_kwargs(env_id: str, env_kwargs: Any, what: str) -> dict[str, Any]:
+    """
+    Env keyword arguments read from a file: a mapping of the env constructor's own named parameters to
+    plain values (numbers, strings, booleans, ``None``). Keys of ``gym.make`` itself
+    (``max_episode_steps``...) and of wrappers are refused; the env checks the values' ranges.
+
+    :param env_id: the (checked) env id they are for.
+    :param env_kwargs: the value from the file.
+    :param what: the field, for the message.
+    :return: a copy; raises :class:`LimitError` naming the key otherwise.
+    """
+    import gymnasium as gym
+
+    if env_kwargs is None:
+        return {}
+    if not isinstance(env_kwargs, Mapping):
+        raise LimitError(f"{what}: expected a mapping of keyword arguments, got {brief(env_kwargs)}")
+    if len(env_kwargs) > 64:
+        raise LimitError(f"{what}: {len(env_kwargs)} keyword arguments is more than the limit of 64")
+    spec = gym.spec(env_id)
+    creator = (
+        spec.entry_point
+        if callable(spec.entry_point)
+        else gym.envs.registration.load_env_creator(spec.entry_point)
+    )
+    parameters = inspect.signature(creator).parameters
+    open_ended = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
+    named = {name for name, p in parameters.items() if p.kind is not inspect.Parameter.VAR_KEYWORD}
+    named.discard("self")
+    checked = {}
+    for key, value in env_kwargs.items():
+        if not isinstance(key, str) or not (key in named or (open_ended and key.isidentifier())):
+            raise LimitError(
+                f"{what}: {brief(key)} is not a parameter of {env_id} (parameters: {sorted(named)})"
+            )
+        if key == "render_mode":
+            raise LimitError(f"{what}: render_mode is chosen by the command, not by a file")
+        if not (value is None or isinstance(value, (bool, int, str)) or _finite(value)):
+            raise LimitError(f"{what}.{key}: expected a number, string or boolean, got {brief(value)}")
+        if isinstance(value, str) and len(value) > 64:
+            raise LimitError(f"{what}.{key}: string of {len(value)} characters is longer than 64")
+        checked[key] = value
+    return checked
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, float) and math.isfinite(value)
+
+
+def parse_json(data: bytes | str, what: str) -> Any:
+    """
+    Parse a JSON document from a file someone else made: at most :data:`MAX_JSON_BYTES` and
+    :data:`MAX_JSON_DEPTH` deep (``json.loads`` would recurse until ``RecursionError``).
+
+    :param data: the document.
+    :param what: the file, for the message.
+    :return: the parsed value; raises :class:`LimitError` (too big or deep) or ``ValueError`` (not JSON).
+    """
+    if len(data) > MAX_JSON_BYTES:
+        raise LimitError(f"{what}: {len(data)} bytes is more than the {MAX_JSON_BYTES}-byte limit for JSON")
+    text = data.decode("utf-8") if isinstance(data, bytes) else data
+    # Brackets outside strings bound the depth; counting them first keeps json.loads from recursing deep.
+    depth = deepest = 0
+    in_string = escaped = False
+    for char in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif char == "\\":
+                escaped = True
+            elif char == '"':
+                in_string = False
+        elif char == '"':
+            in_string = True
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    if deepest > MAX_JSON_DEPTH:
+        raise LimitError(f"{what}: JSON nested {deepest} deep, more than the limit of {MAX_JSON_DEPTH}")
+    try:
+        return json.loads(text)
+    except RecursionError:  # pragma: no cover - the count above refuses these first
+        raise LimitError(f"{what}: JSON nested too deeply") from None
+
+
+def read_json_file(path: Any, what: str | None = None) -> Any:
+    """:func:`parse_json` of a file, reading at most one byte past the limit."""
+    with open(path, "rb") as handle:
+        data = handle.read(MAX_JSON_BYTES + 1)
+    return parse_json(data, what or str(path))
+
+
+def count_nodes(value: Any, limit: int = MAX_CONFIG_NODES) -> int:
+    """
+    The number of values in ``value`` with shared sub-objects counted every time they appear (what
+    printing or copying it would cost), stopping past ``limit``. Shared sub-objects (YAML aliases) are
+    sized once, so this takes time linear in the distinct objects even for an alias bomb.
+    """
+    sizes: dict[int, int] = {}
+
+    def size(node: Any, depth: int) -> int:
+        if depth > MAX_JSON_DEPTH:
+            return limit + 1
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        total = 1
+        children = node.items() if isinstance(node, Mapping) else node if isinstance(node, list) else ()
+        for child in children:
+            parts = child if isinstance(node, Mapping) else (child,)
+            for part in parts:
+                total += size(part, depth + 1)
+                if total > limit:
+                    break
+        total = min(total, limit + 1)
+        if isinstance(node, (Mapping, list)):
+            sizes[key] = total
+        return total
+
+    return size(value, 0)
+
+
+@dataclass
+class LoadBudget:
+    """
+    What one load (a bundle with all its nested bundles) may still spend: one object, shared by the
+    nested loads, so that a member reused by many entries cannot multiply the work.
+
+    :param bytes_left: uncompressed bytes that may still be read.
+    :param models_left: models that may still be built.
+    :param depth: the current nesting depth (0: the outer bundle).
+    """
+
+    bytes_left: int = MAX_LOAD_BYTES
+    models_left: int = MAX_MODELS
+    depth: int = 0
+
+    @contextlib.contextmanager
+    def nested(self, what: str) -> Iterator[None]:
+        """One level deeper for the duration; raises past :data:`MAX_NESTING`."""
+        if self.depth + 1 > MAX_NESTING:
+            raise LimitError(f"{what}: bundles nested more than {MAX_NESTING} deep")
+        self.depth += 1
+        try:
+            yield
+        finally:
+            self.depth -= 1
+
+    def spend_model(self, what: str) -> None:
+        """Count one model built; raises past :data:`MAX_MODELS`."""
+        self.models_left -= 1
+        if self.models_left < 0:
+            raise LimitError(f"{what}: more than {MAX_MODELS} models in one bundle")
+
+    def spend_bytes(self, size: int, what: str) -> None:
+        """Count ``size`` bytes read; raises past :data:`MAX_LOAD_BYTES`."""
+        self.bytes_left -= size
+        if self.bytes_left < 0:
+            raise LimitError(f"{what}: more than {MAX_LOAD_BYTES} bytes read for one bundle")
+
+
+def check_zip_directory(archive: zipfile.ZipFile, what: str) -> list[zipfile.ZipInfo]:
+    """The members of ``archive``, refused when there are more than :data:`MAX_ZIP_MEMBERS`."""
+    infos = archive.infolist()
+    if len(infos) > MAX_ZIP_MEMBERS:
+        raise LimitError(f"{what}: {len(infos)} members is more than the limit of {MAX_ZIP_MEMBERS}")
+    return infos
+
+
+def read_member(
+    archive: zipfile.ZipFile,
+    name: str,
+    what: str,
+    limit: int = MAX_MEMBER_BYTES,
+    budget: LoadBudget | None = None,
+) -> bytes:
+    """
+    Read one zip member within limits: its declared size and compression ratio are checked before
+    reading, and the actual bytes are counted while reading in 1 MiB chunks, so a member whose header
+    lies costs no more than the limit.
+
+    :param archive: the open zip.
+    :param name: the member.
+    :param what: the file, for the message.
+    :param limit: the largest uncompressed size accepted.
+    :param budget: a load's budget to spend the bytes from.
+    :return: the bytes; raises :class:`LimitError` (too big) or ``ValueError`` (missing, corrupt).
+    """
+    try:
+        info = archive.getinfo(name)
+    except KeyError:
+        raise ValueError(f"{what}: no member {name!r}") from None
+    declared = info.file_size
+    if declared > limit:
+        raise LimitError(f"{what}: member {name!r} is {declared} bytes, over the {limit}-byte limit")
+    if declared > 1 << 20 and declared > MAX_COMPRESSION_RATIO * max(info.compress_size, 1):
+        raise LimitError(
+            f"{what}: member {name!r} inflates {declared // max(info.compress_size, 1)}x "
+            f"(limit {MAX_COMPRESSION_RATIO}x): refused as a zip bomb"
+        )
+    if budget is not None:
+        budget.spend_bytes(declared, what)
+    chunks, total = [], 0
+    try:
+        with archive.open(info) as handle:
+            while chunk := handle.read(1 << 20):
+                total += len(chunk)
+                if total > min(limit, declared):
+                    raise LimitError(f"{what}: member {name!r} holds more than its declared {declared} bytes")
+                chunks.append(chunk)
+    except (zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError, RuntimeError) as error:
+        raise ValueError(f"{what}: member {name!r} is corrupt or unreadable: {error}") from None
+    return b"".join(chunks)
+
+
+def check_buffer_size(buffer_size: Any, obs_dim: int, act_dim: int, what: str) -> None:
+    """
+    A replay buffer's size, before SB3 allocates it: at most :data:`MAX_BUFFER_SIZE` transitions and
+    :data:`MAX_BUFFER_BYTES` (observations, next observations, actions, rewards, dones in float32).
+    """
+    if isinstance(buffer_size, bool) or not isinstance(buffer_size, int) or buffer_size < 1:
+        raise LimitError(f"{what}: expected an integer >= 1, got {brief(buffer_size)}")
+    size = buffer_size * (2 * obs_dim + act_dim + 3) * 4
+    if buffer_size > MAX_BUFFER_SIZE or size > MAX_BUFFER_BYTES:
+        raise LimitError(
+            f"{what}: {buffer_size} transitions ({size / 2**30:.1f} GiB) is over the limit of "
+            f"{MAX_BUFFER_SIZE} transitions and {MAX_BUFFER_BYTES >> 30} GiB"
+        )
+
+
+def mlp_parameters(sizes: Sequence[int]) -> int:
+    """Weights and biases of an MLP with these layer sizes (input first, output last)."""
+    return sum((a + 1) * b for a, b in itertools.pairwise(sizes))
+
+
+def check_parameter_count(
+    algo: str,
+    obs_dim: int,
+    act_dim: int,
+    pi_layers: Sequence[int],
+    qf_layers: Sequence[int],
+    n_critics: int = 2,
+    n_quantiles: int = 25,
+    what: str = "policy_kwargs.net_arch",
+) -> int:
+    """
+    The total parameters a spec or config would build (actor, critics, and their targets), refused over
+    :data:`MAX_PARAMETERS` before anything is allocated: each layer may be within bounds and the product
+    still be tens of GB (``net_arch [65536, 65536]``).
+
+    :param algo: ``DDPG``, ``TD3``, ``SAC`` or ``TQC`` (case-insensitive).
+    :return: the count; raises :class:`LimitError` otherwise.
+    """
+    algo = algo.upper()
+    outputs = n_quantiles if algo == "TQC" else 1
+    actor = mlp_parameters([obs_dim, *pi_layers, act_dim * (2 if algo in ("SAC", "TQC") else 1)])
+    critic = n_critics * mlp_parameters([obs_dim + act_dim, *qf_layers, outputs])
+    # DDPG/TD3 keep target copies of actor and critics; SAC/TQC of the critics only.
+    total = 2 * (actor + critic) if algo in ("DDPG", "TD3") else actor + 2 * critic
+    if total > MAX_PARAMETERS:
+        raise LimitError(
+            f"{what}: the networks would have {total:,} parameters, over the limit of {MAX_PARAMETERS:,}"
+        )
+    return total
+
+
+def check_selection_settings(selection: Any, names: Sequence[str], what: str) -> dict[str, Any]:
+    """
+    A bundle's selection settings (``SelectionConfig``'s fields), each checked for type and range, so that
+    a file's ``temperature: "abc"`` or ``option_steps: -3`` is refused by name instead of failing later.
+
+    :param selection: the mapping from the manifest.
+    :param names: the bundle's worker names.
+    :param what: the field, for the message.
+    :return: the checked mapping.
+    """
+    from sb3_hddpg.selection import SELECTION_MODES
+
+    if not isinstance(selection, Mapping):
+        raise LimitError(f"{what}: expected a mapping, got {brief(selection)}")
+    known = {
+        "preferences",
+        "selection",
+        "option_steps",
+        "temperature",
+        "floor",
+        "reward_terms",
+        "manager_state",
+        "worker_states",
+        "option_gamma",
+    }
+    unknown = sorted(str(k) for k in set(selection) - known)
+    if unknown:
+        raise LimitError(f"{what}: unknown key {brief(unknown[0])}")
+    out = dict(selection)
+
+    def number(key: str, low: float, high: float, low_open: bool = False) -> None:
+        if key not in out:
+            return
+        value = out[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise LimitError(f"{what}.{key}: expected a finite number, got {brief(value)}")
+        if value < low or value > high or (low_open and value == low):
+            bracket = "(" if low_open else "["
+            raise LimitError(f"{what}.{key}: expected a number in {bracket}{low}, {high}], got {value!r}")
+
+    if "selection" in out and out["selection"] not in SELECTION_MODES:
+        raise LimitError(
+            f"{what}.selection: expected one of {list(SELECTION_MODES)}, got {brief(out['selection'])}"
+        )
+    if "option_steps" in out:
+        steps = out["option_steps"]
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10_000:
+            raise LimitError(f"{what}.option_steps: expected an integer in [1, 10000], got {brief(steps)}")
+    number("temperature", 0.0, 1e6, low_open=True)
+    number("floor", 0.0, 1.0 / max(len(names), 1))
+    number("option_gamma", 0.0, 1.0, low_open=True)
+    preferences = out.get("preferences", {})
+    if not isinstance(preferences, Mapping) or set(preferences) - set(names):
+        raise LimitError(f"{what}.preferences: expected worker name -> factor, got {brief(preferences)}")
+    for name, value in preferences.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e6:
+            raise LimitError(f"{what}.preferences.{name}: expected a finite number > 0, got {brief(value)}")
+    for key in ("reward_terms", "worker_states"):
+        if not isinstance(out.get(key, {}), Mapping):
+            raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
+    state = out.get("manager_state")
+    if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
+        raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
+    return out
+
+
+#: A model file named in a workers or flat manifest: a name and ``.zip``, in the manifest's own folder.
+FILE_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}\.zip$")
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
+
+
+def check_file_entry(entry: Any, what: str) -> dict[str, Any]:
+    """
+    One entry of a ``workers/manifest.json`` or ``flat/manifest.json``: its ``file`` is a plain
+    ``NAME.zip`` in the manifest's folder, its ``sha256`` a hex digest, and its ``name`` and ``algo`` (which
+    become parts of file names when packaged) match :data:`NAME_PATTERN`.
+
+    :param entry: the entry from the file.
+    :param what: where it is, for the message.
+    :return: the entry; raises :class:`LimitError` naming the field otherwise.
+    """
+    if not isinstance(entry, Mapping):
+        raise LimitError(f"{what}: expected an object, got {brief(entry)}")
+    file = entry.get("file")
+    if not isinstance(file, str) or not FILE_PATTERN.match(file):
+        raise LimitError(
+            f"{what}.file: expected a file name 'NAME.zip' in the same folder, got {brief(file)}"
+        )
+    if not isinstance(entry.get("sha256"), str) or not _SHA256.match(entry["sha256"]):
+        raise LimitError(f"{what}.sha256: expected a sha256 hex digest, got {brief(entry.get('sha256'))}")
+    for key in ("name", "algo"):
+        if key in entry:
+            check_name(entry[key], f"{what}.{key}")
+    return dict(entry)
