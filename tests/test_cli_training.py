@@ -159,6 +159,10 @@ def test_rl_zoo_trains_with_our_config_unchanged(tmp_path, repo_root):
             "sb3_hddpg",
             "--conf-file",
             os.path.join(repo_root, "zoo_configs", "ddpg.yml"),
+            # RL Zoo evaluates replay_buffer_class as Python; the goal block names ours (docs/RL_ZOO.md).
+            "--hyperparams",
+            "replay_buffer_class:None",
+            "replay_buffer_kwargs:None",
             "-n",
             "300",
             "--eval-freq",
@@ -174,3 +178,4 @@ def test_rl_zoo_trains_with_our_config_unchanged(tmp_path, repo_root):
     assert result.returncode == 0, result.stderr[-2000:]
     model = DDPG.load(tmp_path / "logs" / "ddpg" / "hddpg-SnakeGoal-v0_1" / "hddpg-SnakeGoal-v0.zip")
     assert model.num_timesteps == 300
+    assert model.observation_space.shape == (15,)  # the block's env_kwargs (observe) reached the env
