@@ -98,11 +98,13 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         self.touch_radius = float(touch_radius)
         self.goal_low = float(goal_low)
         self.relabel_fraction = float(relabel_fraction)
-        # Per stored step: which episode it belongs to (-1: none yet), and where that episode's latest stored
-        # step is, so that a "future" index can be drawn from the same episode.
+        # Per stored step: its episode's number (to tell a step overwritten by a later episode) and, once
+        # that episode has ended, the position of its last step; -1 while it runs. Arrays, so that drawing
+        # a "future" step for a whole batch is a few numpy operations.
         self._episode = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
+        self._episode_last = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
         self._episode_counter = np.zeros(self.n_envs, dtype=np.int64)
-        self._episode_end: dict[tuple[int, int], int] = {}
+        self._episode_start = np.zeros(self.n_envs, dtype=np.int64)
 
     @staticmethod
     def env_kwargs(env: Any) -> dict[str, Any]:
@@ -131,30 +133,32 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         infos: list[dict[str, Any]],
     ) -> None:
         position = self.pos
-        for env in range(self.n_envs):
-            episode = int(self._episode_counter[env])
-            self._episode[position, env] = episode
-            self._episode_end[(env, episode)] = position
+        self._episode[position] = self._episode_counter
+        self._episode_last[position] = -1
         super().add(obs, next_obs, action, reward, done, infos)
         for env in np.flatnonzero(np.asarray(done).reshape(-1)):
-            self._episode_end.pop(
-                (int(env), int(self._episode_counter[env]) - 1), None
-            )  # keep the dict small
+            start = int(self._episode_start[env])
+            length = (position - start) % self.buffer_size + 1
+            steps = (start + np.arange(length)) % self.buffer_size
+            self._episode_last[steps, env] = position
+            self._episode_start[env] = (position + 1) % self.buffer_size
             self._episode_counter[env] += 1
 
-    def _future_index(self, index: int, env: int, rng: np.random.Generator) -> int | None:
-        """A stored step at or after ``index`` in the same episode (``None`` if none can be found)."""
-        episode = int(self._episode[index, env])
-        end = self._episode_end.get((env, episode))
-        if end is None:  # a finished episode: walk forward while the episode id holds
-            end = index
-            while (
-                self._episode[(end + 1) % self.buffer_size, env] == episode
-                and (end + 1) % self.buffer_size != self.pos
-            ):
-                end = (end + 1) % self.buffer_size
-        span = (end - index) % self.buffer_size
-        return (index + int(rng.integers(0, span + 1))) % self.buffer_size
+    def future_indices(self, indices: np.ndarray, envs: np.ndarray) -> np.ndarray:
+        """
+        For each stored step, a step of the same episode at or after it, uniformly (HER's "future").
+
+        :param indices: buffer positions.
+        :param envs: their env indices.
+        :return: positions; a step whose episode was partly overwritten gets itself.
+        """
+        last = self._episode_last[indices, envs]
+        running = last < 0  # the episode is still being played: its last stored step is the newest one
+        last = np.where(running, (self.pos - 1) % self.buffer_size, last)
+        span = (last - indices) % self.buffer_size
+        future = (indices + (np.random.random(len(indices)) * (span + 1)).astype(np.int64)) % self.buffer_size
+        same = self._episode[future, envs] == self._episode[indices, envs]
+        return np.where(same, future, indices)
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
         env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
@@ -163,9 +167,8 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         rewards = self.rewards[batch_inds, env_indices].copy()
         relabel = np.flatnonzero(np.random.random(len(batch_inds)) < self.relabel_fraction)
         if len(relabel):
-            rng = np.random.default_rng(np.random.randint(2**31))
-            futures = [self._future_index(int(batch_inds[k]), int(env_indices[k]), rng) for k in relabel]
-            goals = self.next_observations[np.array(futures), env_indices[relabel], self._tip]
+            futures = self.future_indices(batch_inds[relabel], env_indices[relabel])
+            goals = self.next_observations[futures, env_indices[relabel], self._tip]
             self.relabel(obs, next_obs, rewards, relabel, goals)
         data = (
             self._normalize_obs(obs, env),

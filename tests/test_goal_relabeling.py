@@ -57,10 +57,10 @@ def test_hindsight_goals_come_from_the_same_episode_and_pay_touches():
     model.learn(100)  # 5 episodes of 20 steps
     buffer = model.replay_buffer
     assert sorted(set(buffer._episode[:100, 0].tolist())) == [0, 1, 2, 3, 4]
-    rng = np.random.default_rng(0)
-    for index in rng.integers(0, 100, 50):
-        future = buffer._future_index(int(index), 0, rng)
-        assert buffer._episode[future, 0] == buffer._episode[index, 0] and future >= index
+    indices = np.random.default_rng(0).integers(0, 100, 500)
+    futures = buffer.future_indices(indices, np.zeros_like(indices))
+    assert np.all(buffer._episode[futures, 0] == buffer._episode[indices, 0]) and np.all(futures >= indices)
+    assert np.all(futures - indices < 20) and len(set((futures - indices).tolist())) > 10
     samples = buffer.sample(512)
     rewards = samples.rewards.numpy().ravel()
     touched = samples.next_observations.numpy()[:, -1]
