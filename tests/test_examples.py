@@ -60,3 +60,24 @@ def test_worker_study_trains_with_every_setting_and_saves_a_plain_sb3_zip(tmp_pa
     assert lines[0]["steps"] == 300 and "test" in lines[-1]
     assert 0.0 <= lines[-1]["goal_touch_rate"] <= 1.0
     assert DDPG.load(tmp_path / "goal.zip", device="cpu").observation_space.shape == (15,)
+
+
+def test_manager_study_reports_the_state_dependence(tmp_path):
+    import json
+
+    from sb3_hddpg.training import train_workers
+
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
+    args = ["--workers", str(tmp_path / "w"), "--steps", "200", "--action-l2", "0.5", "--test-episodes", "1"]
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / "manager_study.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["args"]["action_l2"] == 0.5 and 0.0 <= report["action_saturation"] <= 1.0
+    assert report["state_dependence"]["worker"] == "avoid"
