@@ -114,6 +114,27 @@ class Hyperparams:
     backend: str | None = None
     raw: dict[str, Any] = field(default_factory=dict)
 
+    def model_kwargs(self, env: Any) -> dict[str, Any]:
+        """
+        The algorithm's constructor arguments for ``env``: the block's, with the action noise sized to the
+        env and a named replay buffer (``GoalRelabelingReplayBuffer``) resolved, its env-dependent arguments
+        read from ``env``.
+
+        :param env: the training env (or a ``VecEnv``'s single env, for the buffer's arguments).
+        """
+        kwargs = dict(self.algo_kwargs)
+        if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
+            from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
+
+            kwargs["replay_buffer_class"] = GoalRelabelingReplayBuffer
+            kwargs["replay_buffer_kwargs"] = {
+                **GoalRelabelingReplayBuffer.env_kwargs(env),
+                **(kwargs.get("replay_buffer_kwargs") or {}),
+            }
+        if self.noise_type is not None:
+            kwargs["action_noise"] = self.action_noise(int(np.prod(env.action_space.shape)))
+        return kwargs
+
     def callbacks(self) -> list[Any]:
         """The SB3 callbacks the block asks for (as RL Zoo would build them from its ``callback`` key)."""
         from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
@@ -357,11 +378,20 @@ def agent_kwargs(
 
         algo_class = DDPG
     hyperparams = load_hyperparams(key, algo_class, config, manager=key == MANAGER_KEY)
-    n_actions = int(np.prod(env.action_space.shape))
-    kwargs: dict[str, Any] = {"policy": hyperparams.policy, "env": env, **hyperparams.algo_kwargs}
-    if hyperparams.noise_type is not None:
-        kwargs["action_noise"] = hyperparams.action_noise(n_actions)
-    return kwargs
+    return {"policy": hyperparams.policy, "env": env, **hyperparams.model_kwargs(env)}
+
+
+def agent_callbacks(key: str, config: str | Path | None = None) -> list[Any]:
+    """
+    The SB3 callbacks a config block asks for (e.g. the actor's ``ActionL2Penalty``), to pass to ``learn``
+    with :func:`agent_kwargs`'s model: ``model.learn(n, callback=agent_callbacks("manager"))``.
+
+    :param key: the config block: an env id or ``"manager"``.
+    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    """
+    from stable_baselines3 import DDPG
+
+    return load_hyperparams(key, DDPG, config, manager=key == MANAGER_KEY).callbacks()
 
 
 def wrapper_kwargs(config: str | Path | None = None) -> dict[str, Any]:

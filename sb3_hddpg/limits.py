@@ -144,7 +144,7 @@ def check_env_id(
 def check_env_kwargs(env_id: str, env_kwargs: Any, what: str) -> dict[str, Any]:
     """
     Env keyword arguments read from a file: a mapping of the env constructor's own named parameters to
-    plain values (numbers, strings, booleans, ``None``). Keys of ``gym.make`` itself
+    plain values (numbers, strings, booleans, ``None``, or lists of at most 64 short strings). Keys of ``gym.make`` itself
     (``max_episode_steps``...) and of wrappers are refused; the env checks the values' ranges.
 
     :param env_id: the (checked) env id they are for.
@@ -178,11 +178,16 @@ def check_env_kwargs(env_id: str, env_kwargs: Any, what: str) -> dict[str, Any]:
             )
         if key == "render_mode":
             raise LimitError(f"{what}: render_mode is chosen by the command, not by a file")
-        if not (value is None or isinstance(value, (bool, int, str)) or _finite(value)):
-            raise LimitError(f"{what}.{key}: expected a number, string or boolean, got {brief(value)}")
-        if isinstance(value, str) and len(value) > 64:
-            raise LimitError(f"{what}.{key}: string of {len(value)} characters is longer than 64")
-        checked[key] = value
+        # A list of short strings (e.g. the snake env's ``observe``: state component names) is plain too.
+        items = value if isinstance(value, list) and len(value) <= 64 else [value]
+        for item in items:
+            if isinstance(value, list) and not isinstance(item, str):
+                raise LimitError(f"{what}.{key}: expected a list of strings, got {brief(value)}")
+            if not (item is None or isinstance(item, (bool, int, str)) or _finite(item)):
+                raise LimitError(f"{what}.{key}: expected a number, string or boolean, got {brief(value)}")
+            if isinstance(item, str) and len(item) > 64:
+                raise LimitError(f"{what}.{key}: string of {len(item)} characters is longer than 64")
+        checked[key] = list(value) if isinstance(value, list) else value
     return checked
 
 

@@ -309,17 +309,7 @@ def train_agent(
             if best is None:
                 best = -np.inf
         else:
-            kwargs = dict(hyperparams.algo_kwargs)
-            if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
-                from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
-
-                kwargs["replay_buffer_class"] = GoalRelabelingReplayBuffer
-                kwargs["replay_buffer_kwargs"] = {
-                    **GoalRelabelingReplayBuffer.env_kwargs(eval_env),
-                    **(kwargs.get("replay_buffer_kwargs") or {}),
-                }
-            if hyperparams.noise_type is not None:
-                kwargs["action_noise"] = hyperparams.action_noise(int(np.prod(vec_env.action_space.shape)))
+            kwargs = hyperparams.model_kwargs(eval_env)
             model = make_model(algo, backend, vec_env, kwargs, seed=seed, policy=hyperparams.policy)
             model.set_logger(_tensorboard_logger(paths))
             history, best = [], -np.inf

@@ -57,6 +57,7 @@ from sb3_hddpg.training import (
     TrainingInterrupted,
     make_manager_env,
     make_snake_env,
+    observed_components,
     train_agent,
     worker_env_factory,
 )
@@ -192,10 +193,10 @@ class TuningTarget:
         elif self.level == "ham":
             from sb3_hddpg.training import load_workers
 
-            workers, _ = load_workers(str(self.workers_dir))
+            workers, manifest = load_workers(str(self.workers_dir))
             env = make_snake_env(SHARED_ENV_ID)
             try:
-                _make_ham(ham_class(), workers, env, float(env.unwrapped.n_joints) - 0.5)
+                _make_ham(ham_class(), workers, env, float(env.unwrapped.n_joints) - 0.5, manifest)
             finally:
                 env.close()
 
@@ -694,8 +695,15 @@ def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
         return functools.partial(make_snake_env, SHARED_ENV_ID, dict(hyperparams.env_kwargs))
     from sb3_hddpg.hierarchy import SelectionConfig
 
-    names = _worker_names(str(target.workers_dir))
-    selection = SelectionConfig(preferences=dict.fromkeys(names, 1.0), **hyperparams.wrapper_kwargs)
+    manifest = _workers_manifest(str(target.workers_dir))
+    names = list(manifest["workers"])
+    wrapper = dict(hyperparams.wrapper_kwargs)
+    # Each worker sees the state components it was trained on, as train-manager feeds it.
+    wrapper["worker_states"] = {
+        **observed_components(manifest, names),
+        **(wrapper.get("worker_states") or {}),
+    }
+    selection = SelectionConfig(preferences=dict.fromkeys(names, 1.0), **wrapper)
     return functools.partial(
         make_manager_env,
         SHARED_ENV_ID,
@@ -708,6 +716,10 @@ def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
 
 
 def _worker_names(workers_dir: str) -> list[str]:
+    return list(_workers_manifest(workers_dir)["workers"])
+
+
+def _workers_manifest(workers_dir: str) -> dict[str, Any]:
     folder = Path(workers_dir)
     manifest = folder / "workers" / "manifest.json"
     if not manifest.exists():
@@ -716,7 +728,7 @@ def _worker_names(workers_dir: str) -> list[str]:
         raise FileNotFoundError(f"No workers manifest in {workers_dir!r}; run train-workers first")
     from sb3_hddpg.training import read_workers_manifest
 
-    return list(read_workers_manifest(manifest)["workers"])
+    return read_workers_manifest(manifest)
 
 
 def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -> float:
@@ -724,10 +736,10 @@ def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -
     from sb3_hddpg.evaluation import evaluate
     from sb3_hddpg.training import load_workers
 
-    workers, _ = load_workers(str(target.workers_dir))
+    workers, manifest = load_workers(str(target.workers_dir))
     env = make_snake_env(SHARED_ENV_ID)
     try:
-        policy = _make_ham(ham_class(), workers, env, threshold)
+        policy = _make_ham(ham_class(), workers, env, threshold, manifest)
         summary = evaluate(policy, env, n_episodes=target.eval_episodes).summary()
     finally:
         env.close()
@@ -739,7 +751,9 @@ def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -
     return value
 
 
-def _make_ham(cls: type, workers: dict[str, Any], env: Any, threshold: float) -> Any:
+def _make_ham(
+    cls: type, workers: dict[str, Any], env: Any, threshold: float, manifest: dict[str, Any] | None = None
+) -> Any:
     """
     Build a HAM switch from whatever of (workers, the env or its state layout, threshold) its constructor
     names: this was written alongside the HAM baseline, against its class name and ``threshold`` only.
@@ -750,6 +764,7 @@ def _make_ham(cls: type, workers: dict[str, Any], env: Any, threshold: float) ->
         "layout": env.unwrapped.state_layout,
         "state_layout": env.unwrapped.state_layout,
         "threshold": threshold,
+        "worker_states": observed_components(manifest, list(workers)) if manifest else {},
         **{name: model for name, model in workers.items()},
         **{f"{name}_worker": model for name, model in workers.items()},
     }

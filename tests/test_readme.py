@@ -23,7 +23,7 @@ def readme_snippet(section: str = "## The Python API") -> str:
 
 def tiny(snippet: str) -> str:
     """The snippet with every training budget and episode count lowered, each substitution checked."""
-    snippet, learns = re.subn(r"\.learn\(\s*[\d_]+\s*\)", ".learn(300)", snippet)
+    snippet, learns = re.subn(r"\.learn\(\s*[\d_]+\s*([,)])", r".learn(300\1", snippet)
     snippet, episodes = re.subn(r"n_episodes=\d+", "n_episodes=1", snippet)
     assert learns == 2 and episodes == 1, "the README snippet changed shape: update this test's substitutions"
     return snippet
@@ -46,13 +46,21 @@ def test_readme_python_snippet_runs_with_the_projects_hyperparameters(tmp_path, 
     # What the CLI trains with (zoo_configs/ddpg.yml), not SB3's DDPG defaults ([400, 300], no noise, gamma 0.99).
     from stable_baselines3 import DDPG
 
-    block = load_hyperparams("manager", DDPG, manager=True)
-    for model in (manager, *workers.values()):
+    from sb3_hddpg.callbacks.action_penalty import _MARK
+    from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
+
+    keys = {"manager": "manager", "goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}
+    for name, model in {"manager": manager, **workers}.items():
+        block = load_hyperparams(keys[name], DDPG, manager=name == "manager")
         assert model.actor.net_arch == [64, 64]
-        assert model.gamma == block.algo_kwargs["gamma"] == 0.9
+        assert model.gamma == block.algo_kwargs["gamma"]
         assert model.batch_size == block.algo_kwargs["batch_size"]
         assert isinstance(model.action_noise, NormalActionNoise)
         assert model.action_noise._sigma == pytest.approx(np.full(model.action_space.shape, block.noise_std))
+        # The block's callbacks ran: the action penalty where the block asks for it.
+        assert hasattr(model.critic, _MARK) == (block.action_l2 > 0)
+    assert isinstance(workers["goal"].replay_buffer, GoalRelabelingReplayBuffer)
+    block = load_hyperparams("manager", DDPG, manager=True)
     assert loaded.config.temperature == block.wrapper_kwargs["temperature"]
     assert loaded.config.preferences == {"goal": 1.15, "avoid": 1.0}
     assert loaded.env_id == "hddpg/SnakeReach-v0"
