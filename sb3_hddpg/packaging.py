@@ -345,7 +345,11 @@ Files: `{model_file}`, `manifest.json`, `config.json`, `results.json` (huggingfa
 
 
 def write_zoo_layout(
-    models: dict[str, str | Path], folder: str | Path, algo: str = "ddpg", exp_id: int = 1
+    models: dict[str, str | Path],
+    folder: str | Path,
+    algo: str = "ddpg",
+    exp_id: int = 1,
+    env_kwargs: dict[str, dict[str, Any]] | None = None,
 ) -> Path:
     """
     Copy SB3 model zips into RL Zoo's log layout, ``FOLDER/<algo>/<env name>_<exp_id>/<env name>.zip``, so
@@ -356,11 +360,20 @@ def write_zoo_layout(
     :param folder: RL Zoo's ``-f`` folder.
     :param algo: the algorithm's RL Zoo name.
     :param exp_id: the experiment number in the folder name.
+    :param env_kwargs: env id -> the keyword arguments its model was trained with (e.g. the goal worker's
+        ``observe``), written where ``rl_zoo3.enjoy`` reads them (``<env name>/args.yml``).
     :return: ``folder``.
     """
+    import yaml
+
     folder = Path(folder)
     for env_id, path in models.items():
         name = hub_env_name(env_id)
         data = Path(path).read_bytes()
-        atomic_write_bytes(folder / algo / f"{name}_{exp_id}" / f"{name}.zip", data)
+        run = folder / algo / f"{name}_{exp_id}"
+        atomic_write_bytes(run / f"{name}.zip", data)
+        kwargs = (env_kwargs or {}).get(env_id)
+        if kwargs:
+            text = yaml.safe_dump({"env_kwargs": dict(kwargs)})
+            atomic_write_bytes(run / name / "args.yml", text.encode())
     return folder

@@ -591,7 +591,13 @@ def run_quickstart(
         env: run_dir / "workers" / f"{n}.zip" for n, env in WORKER_ENV_IDS.items()
     }
     zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
-    files["zoo"] = write_zoo_layout(zoo_models, run_dir / "zoo")
+    from sb3_hddpg.training import read_workers_manifest
+
+    trained = read_workers_manifest(run_dir / "workers" / "manifest.json")["workers"]
+    zoo_env_kwargs = {
+        env: trained[n].get("env_kwargs") or {} for n, env in WORKER_ENV_IDS.items() if n in trained
+    }
+    files["zoo"] = write_zoo_layout(zoo_models, run_dir / "zoo", env_kwargs=zoo_env_kwargs)
 
     wall = time.monotonic() - started
     files["results"] = run_dir / "results.json"

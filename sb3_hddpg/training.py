@@ -450,6 +450,12 @@ def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
             for key in ("workers", "models"):
                 if isinstance(current.get(key), dict) and isinstance(manifest.get(key), dict):
                     merged[key] = {**current[key], **manifest[key]}
+        if isinstance(merged.get("workers"), dict):
+            # One order whichever worker finished first (workers trained side by side): the manager's
+            # action order follows the manifest's, so it must not depend on timing.
+            entries = merged["workers"]
+            known = [n for n in WORKER_ENV_IDS if n in entries]
+            merged["workers"] = {n: entries[n] for n in known + sorted(set(entries) - set(known))}
         return atomic_write_json(path, merged)
 
 
