@@ -31,11 +31,7 @@ class JacobianReacher:
         episode_start: Any = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, None]:
-        obs = np.atleast_2d(observation)
-        ends = obs[:, self.layout["joint_positions"]].reshape(len(obs), -1, 2)
-        pivots = np.concatenate((np.zeros((len(obs), 1, 2)), ends[:, :-1]), axis=1)
-        error = 2.0 * obs[:, self.layout["ee_to_goal"]]  # the observation halves it
-        lever = ends[:, -1:, :] - pivots
+        lever, error = _levers_and_error(self.layout, observation)
         signal = lever[..., 0] * error[:, None, 1] - lever[..., 1] * error[:, None, 0]
         action = np.clip(self.gain * signal, -1.0, 1.0).astype(np.float32)
         return (action if observation.ndim > 1 else action[0]), None
@@ -79,11 +75,7 @@ class IKReacher:
         episode_start: Any = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, None]:
-        obs = np.atleast_2d(observation).astype(np.float64)
-        ends = obs[:, self.layout["joint_positions"]].reshape(len(obs), -1, 2)
-        pivots = np.concatenate((np.zeros((len(obs), 1, 2)), ends[:, :-1]), axis=1)
-        error = 2.0 * obs[:, self.layout["ee_to_goal"]]  # the observation halves it
-        lever = ends[:, -1:, :] - pivots  # (batch, joints, 2)
+        lever, error = _levers_and_error(self.layout, observation)  # (batch, joints, 2), (batch, 2)
         jacobian = np.stack((-lever[..., 1], lever[..., 0]), axis=1)  # (batch, 2, joints)
         damped = jacobian @ jacobian.transpose(0, 2, 1) + self.damping**2 * np.eye(2)
         task = np.linalg.solve(damped, self.gain * error[..., None])  # (batch, 2, 1)
@@ -92,3 +84,15 @@ class IKReacher:
             rates = np.sign(rates)
         action = np.clip(rates, -1.0, 1.0).astype(np.float32)
         return (action if np.ndim(observation) > 1 else action[0]), None
+
+
+def _levers_and_error(layout: StateLayout, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """
+    From observations (one or a batch): each joint's lever ``tip - p_i`` (the base pivot at the origin) and
+    the tip-to-goal vector, both in reach units.
+    """
+    obs = np.atleast_2d(observation).astype(np.float64)
+    ends = obs[:, layout["joint_positions"]].reshape(len(obs), -1, 2)
+    pivots = np.concatenate((np.zeros((len(obs), 1, 2)), ends[:, :-1]), axis=1)
+    error = 2.0 * obs[:, layout["ee_to_goal"]]  # the observation halves it
+    return ends[:, -1:, :] - pivots, error
