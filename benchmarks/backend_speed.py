@@ -68,7 +68,7 @@ def case_setup(case: str) -> tuple[str, Callable[[], gym.Env], Any, int, dict[st
         params = load_hyperparams("hddpg/SnakeReach-v0", algo_class(algo), default_config(algo))
         return algo, lambda: gym.make("hddpg/SnakeReach-v0"), params, 1, {}
     params = load_hyperparams("hddpg/SnakeGoal-v0", DDPG)
-    factory = lambda: gym.make("hddpg/SnakeGoal-v0")  # noqa: E731
+    factory = lambda: gym.make("hddpg/SnakeGoal-v0", **params.env_kwargs)  # noqa: E731
     if case == "worker-k8":
         return "ddpg", factory, params, 1, {"train_freq": 8, "gradient_steps": 8}
     if case == "worker-4envs":
@@ -80,9 +80,8 @@ def build(case: str, backend: str) -> Any:
     """The case's model on ``backend``, warmed up past ``learning_starts`` (SBX compiles its update here)."""
     algo, factory, params, n_envs, overrides = case_setup(case)
     env = make_vec_env(factory, n_envs=n_envs, seed=0)
-    kwargs = {**params.algo_kwargs, **overrides}
-    if params.noise_type is not None:
-        kwargs["action_noise"] = params.action_noise(int(env.action_space.shape[0]))
+    # The block's arguments as training builds them (action noise, a named replay buffer resolved).
+    kwargs = {**params.model_kwargs(factory()), **overrides}
     model = make_model(algo, backend, env, kwargs, seed=0)
     model.learn(int(kwargs.get("learning_starts", 100)) + 200 * n_envs)
     return model
