@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
+from sb3_hddpg.selection import check_preferences
 
 
 class PreferenceReward(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
@@ -32,19 +33,8 @@ class PreferenceReward(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         unknown = sorted(set(preferences) - set(terms))
         if unknown:
             raise ValueError(f"Unknown reward terms {unknown} in the preferences; the env's terms: {terms}")
-        self.preferences: dict[str, float] = {}
-        for term in terms:
-            value = preferences.get(term, 1.0)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, (int, float))
-                or not math.isfinite(value)
-                or value <= 0
-            ):
-                raise ValueError(
-                    f"Expected preference of {term!r} to be a finite number > 0, actually: {value!r}"
-                )
-            self.preferences[term] = float(value)
+        # The manager's own rule for preference factors (finite, > 0, missing ones 1): one check for both.
+        self.preferences: dict[str, float] = check_preferences(dict(preferences), list(terms))
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         obs, _, terminated, truncated, info = self.env.step(action)
