@@ -54,8 +54,8 @@ from sb3_hddpg.training.config import (
 from sb3_hddpg.training.training import (
     WORKER_ENV_IDS,
     AgentPaths,
+    ManagerEnvFactory,
     TrainingInterrupted,
-    make_manager_env,
     make_snake_env,
     observed_components,
     train_agent,
@@ -704,14 +704,12 @@ def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
         **(wrapper.get("worker_states") or {}),
     }
     selection = SelectionConfig(preferences=dict.fromkeys(names, 1.0), **wrapper)
-    return functools.partial(
-        make_manager_env,
+    return ManagerEnvFactory(
         SHARED_ENV_ID,
         dict(hyperparams.env_kwargs),
         str(target.workers_dir),
         names,
         selection.wrapper_kwargs(),
-        False,
     )
 
 

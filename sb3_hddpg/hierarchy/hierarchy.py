@@ -22,7 +22,7 @@ import re
 import zipfile
 import zlib
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -38,12 +38,17 @@ from sb3_hddpg.artifacts.limits import (
     check_env_id,
     check_env_kwargs,
     check_name,
-    check_selection_settings,
     check_zip_directory,
     parse_json,
     read_member,
 )
-from sb3_hddpg.hierarchy.selection import FrozenWorker, SimplexMap, choose
+from sb3_hddpg.hierarchy.selection import (
+    FrozenWorker,
+    SelectionConfig,
+    SimplexMap,
+    check_selection_settings,
+    get_selector,
+)
 from sb3_hddpg.policy import Policy
 
 #: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
@@ -55,37 +60,6 @@ DEFAULT_ENV_ID = "hddpg/SnakeReach-v0"
 
 class BundleError(ValueError):
     """A bundle that cannot be used: not a zip, truncated, tampered with, or inconsistent."""
-
-
-@dataclass
-class SelectionConfig:
-    """
-    How the manager's action selects workers; the arguments of ``WorkerSelectionWrapper`` that a bundle keeps.
-
-    :param preferences: worker name -> preference factor.
-    :param selection: ``sample``, ``argmax`` or ``mix``.
-    :param option_steps: env steps per manager decision.
-    :param temperature: the simplex map's temperature.
-    :param floor: every worker's least probability.
-    :param reward_terms: worker name -> its reward (term name or term weights).
-    :param manager_state: state components the manager sees (``None``: all).
-    :param worker_states: worker name -> state components it sees.
-    :param option_gamma: discount inside an option.
-    """
-
-    preferences: dict[str, float]
-    selection: str = "sample"
-    option_steps: int = 1
-    temperature: float = 0.5
-    floor: float = 0.02
-    reward_terms: dict[str, Any] = field(default_factory=dict)
-    manager_state: list[str] | None = None
-    worker_states: dict[str, list[str]] = field(default_factory=dict)
-    option_gamma: float = 0.99
-
-    def wrapper_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for ``WorkerSelectionWrapper`` (besides ``env`` and ``workers``)."""
-        return asdict(self)
 
 
 class Hierarchy:
@@ -148,6 +122,7 @@ class Hierarchy:
         ]
         self._manager = FrozenWorker(manager, self._manager_indices)
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
+        self._selector = get_selector(config.selection)
         self._rng = np.random.default_rng(0)
         self._option_left = 0
         self._option_choice = 0
@@ -213,15 +188,13 @@ class Hierarchy:
             self.last_manager_action = self._manager.act(obs)
             probabilities = self.simplex(self.last_manager_action)
             self._option_probabilities = probabilities
-            self._option_choice = choose(probabilities, self.config.selection, self._rng, deterministic)
+            self._option_choice = self._selector.choose(probabilities, self._rng, deterministic)
             self._option_left = self.config.option_steps
         self._option_left -= 1
         probabilities, chosen = self._option_probabilities, self._option_choice
         self.last_selection = self.names[chosen]
         self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
-        if self.config.selection == "mix":
-            return sum(p * w.act(obs) for p, w in zip(probabilities, self._frozen)).astype(np.float32)
-        return self._frozen[chosen].act(obs)
+        return np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs), dtype=np.float32)
 
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
         """The manager's worker probabilities for one observation."""

@@ -35,19 +35,29 @@ from sb3_hddpg.artifacts.io import (
     locked_file,
     remove_stale_temporaries,
 )
+from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
+from sb3_hddpg.artifacts.safe_load import load_model, model_spec
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
+from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
+from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from sb3_hddpg.hierarchy.preference import make_preference_env
+from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import (
     check_algo,
+    check_backend,
     configure_jax_threads,
     load_native,
     make_model,
     resolve_backend,
+    sbx_class,
     to_sb3,
 )
-from sb3_hddpg.training.config import Hyperparams
+from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
 
 
 def _algos() -> dict[str, type[BaseAlgorithm]]:
@@ -70,11 +80,8 @@ def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
     algos = _algos()
     if name.lower() not in algos:
         raise ValueError(f"Unknown algorithm {name!r}; choose from {list(ALGO_NAMES)}")
-    if backend != "sb3":
-        from sb3_hddpg.training.backends import check_backend, sbx_class
-
-        if check_backend(backend) == "sbx":
-            return sbx_class(name)
+    if backend != "sb3" and check_backend(backend) == "sbx":
+        return sbx_class(name)
     return algos[name.lower()]
 
 
@@ -437,7 +444,6 @@ def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
     :param path: the manifest file.
     :param manifest: the new content; its entry mappings win over the file's.
     """
-    from sb3_hddpg.artifacts.limits import read_json_file
 
     path = Path(path)
     merged = dict(manifest)
@@ -472,7 +478,6 @@ def worker_hyperparams(workers: Sequence[str], config: str | Path | None = None)
     :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
     :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
     """
-    from sb3_hddpg.training.config import load_hyperparams
 
     if isinstance(workers, str):
         raise ValueError(f"Expected a sequence of worker names, actually the string {workers!r}")
@@ -531,8 +536,6 @@ def train_workers(
         workers are SB3 zips either way.
     :return: the manifest written.
     """
-    from sb3_hddpg.artifacts.safe_load import model_spec
-    from sb3_hddpg.envs import SnakeArmEnv
 
     if timesteps is not None and timesteps < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
@@ -610,8 +613,6 @@ def read_workers_manifest(path: str | Path) -> dict[str, Any]:
     """
     import json
 
-    from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
-
     path = Path(path)
     try:
         manifest = read_json_file(path)
@@ -685,10 +686,6 @@ def train_flat(
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
 
-    from sb3_hddpg.artifacts.limits import read_json_file
-    from sb3_hddpg.artifacts.safe_load import model_spec
-    from sb3_hddpg.training.config import default_config, load_hyperparams
-
     algo = algo.lower()
     cls = algo_class(algo)
     config_path = Path(config) if config is not None else default_config(algo)
@@ -705,8 +702,6 @@ def train_flat(
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{algo}.zip")
     factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, dict(hyperparams.env_kwargs))
     if preferences is not None:
-        from sb3_hddpg.hierarchy.preference import make_preference_env
-
         factory = functools.partial(
             make_preference_env, env_id, dict(hyperparams.env_kwargs), dict(preferences)
         )
@@ -762,7 +757,6 @@ def load_workers(
     :param trusted: use SB3's full loader instead of the weights-only rebuild.
     :return: name -> model, and the manifest.
     """
-    from sb3_hddpg.artifacts.safe_load import load_model
 
     folder = Path(workers_dir)
     if not folder.exists():
@@ -828,23 +822,41 @@ def observed_components(manifest: dict[str, Any], names: Sequence[str]) -> dict[
     return out
 
 
-def make_manager_env(
-    env_id: str,
-    env_kwargs: dict[str, Any],
-    workers_dir: str,
-    worker_names: Sequence[str],
-    wrapper_kwargs: dict[str, Any],
-    trusted: bool = False,
-) -> gym.Env:
+@dataclass
+class ManagerEnvFactory:
     """
-    Build the manager's env from files: the shared env wrapped in ``WorkerSelectionWrapper`` over workers
-    loaded from ``workers_dir``. Module-level and file-based so that SubprocVecEnv can pickle it.
-    """
-    from sb3_hddpg.wrappers import WorkerSelectionWrapper
+    Builds the manager's env: the shared env wrapped in ``WorkerSelectionWrapper`` over the workers.
 
-    env = make_snake_env(env_id, env_kwargs)
-    workers, _ = load_workers(workers_dir, worker_names, trusted=trusted)
-    return WorkerSelectionWrapper(env, workers, **wrapper_kwargs)
+    The workers are the ones already loaded (``workers``), so a run loads and verifies them once; pickled
+    into a ``SubprocVecEnv`` process the factory drops them and that process loads them from
+    ``workers_dir`` once (hashes verified), for all the envs it builds.
+
+    :param env_id: the shared env.
+    :param env_kwargs: its keyword arguments.
+    :param workers_dir: the workers' folder (for processes that must load them themselves).
+    :param worker_names: the workers, in the manager's action order.
+    :param wrapper_kwargs: the selection settings (``SelectionConfig.wrapper_kwargs()``).
+    :param trusted: load the workers with SB3's full loader.
+    :param workers: name -> worker already loaded in this process (``None``: load on first use).
+    """
+
+    env_id: str
+    env_kwargs: dict[str, Any]
+    workers_dir: str
+    worker_names: Sequence[str]
+    wrapper_kwargs: dict[str, Any]
+    trusted: bool = False
+    workers: dict[str, Any] | None = None
+
+    def __call__(self) -> gym.Env:
+        if self.workers is None:
+            self.workers, _ = load_workers(self.workers_dir, self.worker_names, trusted=self.trusted)
+        env = make_snake_env(self.env_id, self.env_kwargs)
+        return WorkerSelectionWrapper(env, self.workers, **self.wrapper_kwargs)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # Models do not cross process boundaries: the receiving process loads them from the files.
+        return {**self.__dict__, "workers": None}
 
 
 @dataclass
@@ -863,13 +875,27 @@ class ManagerSetup:
     workers: dict[str, Any]
     manifest: dict[str, Any]
     hyperparams: Hyperparams
-    selection: Any
+    selection: SelectionConfig
     env_id: str
     env_kwargs: dict[str, Any]
+    workers_dir: str = ""
+    trusted: bool = False
 
     @property
     def names(self) -> list[str]:
         return list(self.workers)
+
+    def env_factory(self) -> ManagerEnvFactory:
+        """The manager's env factory over these (already loaded) workers."""
+        return ManagerEnvFactory(
+            self.env_id,
+            self.env_kwargs,
+            self.workers_dir,
+            self.names,
+            self.selection.wrapper_kwargs(),
+            self.trusted,
+            dict(self.workers),
+        )
 
 
 def prepare_manager(
@@ -894,12 +920,6 @@ def prepare_manager(
 
     :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
     """
-    from sb3_hddpg.artifacts.limits import brief
-    from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
-    from sb3_hddpg.hierarchy.selection import check_preferences, preferences_from_bias
-    from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
-    from sb3_hddpg.wrappers import WorkerSelectionWrapper
-
     if worker_names is not None and isinstance(worker_names, str):
         raise ValueError(f"Expected a sequence of worker names, actually the string {worker_names!r}")
     hyperparams = load_hyperparams(MANAGER_KEY, DDPG, config, manager=True)
@@ -954,16 +974,18 @@ def prepare_manager(
         WorkerSelectionWrapper(probe, workers, **selection_config.wrapper_kwargs())
     finally:
         probe.close()
-    return ManagerSetup(workers, manifest, hyperparams, selection_config, env_id, env_kwargs)
+    return ManagerSetup(
+        workers, manifest, hyperparams, selection_config, env_id, env_kwargs, str(Path(workers_dir)), trusted
+    )
 
 
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_manager(
-    workers_dir: str | Path,
+    workers_dir: str | Path | ManagerSetup,
     out_dir: str | Path,
     worker_names: Sequence[str] | None = None,
     prefer: str | None = None,
-    bias: float = 0.15,
+    bias: float | None = None,
     preferences: dict[str, float] | None = None,
     selection: str | None = None,
     option_steps: int | None = None,
@@ -980,8 +1002,8 @@ def train_manager(
     checkpoint_freq: int = 10_000,
     progress_bar: bool = False,
     threads: int = 1,
-    trusted: bool = False,
-    env_id: str = "hddpg/SnakeReach-v0",
+    trusted: bool | None = None,
+    env_id: str | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     keep_checkpoints: bool = False,
     backend: str | None = None,
@@ -995,61 +1017,62 @@ def train_manager(
     and wins over ``prefer``. A factor multiplies the worker's normalised reward term in the manager's
     reward, so the manager is paid more for the preferred worker's objective.
 
-    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
+    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder), or the set-up
+        :func:`prepare_manager` returned: then the workers it loaded are used as they are (nothing is loaded
+        or checked twice) and the arguments of :func:`prepare_manager` below must be left out.
     :param out_dir: the run folder for the manager.
     :param worker_names: which workers, in the manager's action order (default: all in the manifest).
     :param prefer: a worker to prefer.
-    :param bias: the preferred worker's extra factor.
+    :param bias: the preferred worker's extra factor, > 0 (default 0.15).
     :param preferences: explicit factors, name -> value.
-    :param selection: ``sample``, ``argmax`` or ``mix`` (default: the config's ``wrapper_kwargs``).
+    :param selection: a registered selection mode (default: the config's ``wrapper_kwargs``).
     :param option_steps: env steps per manager decision (default: the config's).
     :param temperature: the simplex map's temperature (default: the config's).
     :param floor: the probability floor (default: the config's).
     :param config: a ``zoo_configs`` file; its ``manager`` block is used.
     :param checkpoint_freq: steps between resumable checkpoints (0: only when interrupted and at the end).
-    :param trusted: load the workers with SB3's full loader.
-    :param env_id: the shared env the manager acts in.
+    :param trusted: load the workers with SB3's full loader (default ``False``).
+    :param env_id: the shared env the manager acts in (default ``hddpg/SnakeReach-v0``).
     :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
     :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
     :param backend: ``sb3`` or ``sbx`` for the manager's DDPG (default: the block's ``backend`` key, else
         ``sb3``); the bundle holds an SB3 manager either way.
     :return: the saved :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` and the training outcome.
     """
-    from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-
     if timesteps is not None and timesteps < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
     if seed < 0:
         raise ValueError(f"Expected seed >= 0, actually: {seed}")
-    setup = prepare_manager(
-        workers_dir,
-        worker_names,
-        prefer=prefer,
-        bias=bias,
-        preferences=preferences,
-        selection=selection,
-        option_steps=option_steps,
-        temperature=temperature,
-        floor=floor,
-        config=config,
-        trusted=trusted,
-        env_id=env_id,
-    )
+    preparation = {
+        key: value
+        for key, value in (
+            ("worker_names", worker_names),
+            ("prefer", prefer),
+            ("bias", bias),
+            ("preferences", preferences),
+            ("selection", selection),
+            ("option_steps", option_steps),
+            ("temperature", temperature),
+            ("floor", floor),
+            ("config", config),
+            ("trusted", trusted),
+            ("env_id", env_id),
+        )
+        if value is not None
+    }
+    if isinstance(workers_dir, ManagerSetup):
+        if preparation:
+            raise ValueError(
+                f"train_manager got a prepared set-up and also {sorted(preparation)}: give those to prepare_manager"
+            )
+        setup = workers_dir
+    else:
+        setup = prepare_manager(workers_dir, **preparation)
     workers, manifest, names = setup.workers, setup.manifest, setup.names
     hyperparams, selection_config, env_kwargs = setup.hyperparams, setup.selection, setup.env_kwargs
-    factory = functools.partial(
-        make_manager_env,
-        env_id,
-        env_kwargs,
-        str(Path(workers_dir)),
-        names,
-        selection_config.wrapper_kwargs(),
-        trusted,
-    )
+    factory = setup.env_factory()
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
-    from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
-
     outcome = train_agent(
         factory,
         hyperparams,
@@ -1082,7 +1105,7 @@ def train_manager(
         outcome.model,
         workers,
         selection_config,
-        env_id=env_id,
+        env_id=setup.env_id,
         env_kwargs=env_kwargs,
         worker_meta=worker_meta,
         metadata={
