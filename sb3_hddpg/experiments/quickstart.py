@@ -259,13 +259,12 @@ def train_flat_baseline(
     """
     from stable_baselines3 import DDPG
 
+    from sb3_hddpg.artifacts.provenance import library_versions, sha256_file
     from sb3_hddpg.artifacts.safe_load import model_spec
     from sb3_hddpg.training.config import load_hyperparams
     from sb3_hddpg.training.training import (
         AgentPaths,
-        library_versions,
         make_snake_env,
-        sha256_file,
         train_agent,
     )
 
@@ -625,7 +624,7 @@ def run_quickstart(
         "wall_seconds": wall,
         "processes": processes,
     }
-    from sb3_hddpg.training.training import library_versions
+    from sb3_hddpg.artifacts.provenance import library_versions
 
     results["versions"] = library_versions()
     atomic_write_json(files["results"], results)

@@ -15,7 +15,6 @@ A loaded ``Hierarchy`` is a valid worker of a higher :class:`~sb3_hddpg.wrappers
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import re
@@ -42,6 +41,8 @@ from sb3_hddpg.artifacts.limits import (
     parse_json,
     read_member,
 )
+from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verify_sha256
+from sb3_hddpg.artifacts.safe_load import load_model, model_spec
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
     SelectionConfig,
@@ -205,9 +206,6 @@ class Hierarchy:
     # ------------------------------------------------------------------ saving
     def to_bytes(self) -> bytes:
         """The bundle as zip bytes (see :meth:`save`)."""
-        from sb3_hddpg.artifacts.safe_load import model_spec
-        from sb3_hddpg.training.training import library_versions
-
         members: dict[str, bytes] = {}
         manager_bytes = _model_bytes(self.manager)
         members["manager.zip"] = manager_bytes
@@ -227,7 +225,7 @@ class Hierarchy:
                     f"Worker {name!r} of type {type(worker).__name__} cannot be bundled: only SB3 models and "
                     "hierarchies can (bundle the worker's own models instead)"
                 )
-            meta.update({"file": member, "sha256": _sha256(members[member])})
+            meta.update({"file": member, "sha256": sha256_bytes(members[member])})
             meta.setdefault("reward_term", self.config.reward_terms.get(name, name))
             workers_manifest[name] = meta
         manifest = {
@@ -239,7 +237,7 @@ class Hierarchy:
             "selection": asdict(self.config),
             "manager": {
                 "file": "manager.zip",
-                "sha256": _sha256(manager_bytes),
+                "sha256": sha256_bytes(manager_bytes),
                 "spec": model_spec(self.manager),
                 **self.metadata,
             },
@@ -280,7 +278,6 @@ class Hierarchy:
             parent's (see :mod:`sb3_hddpg.artifacts.limits`).
         :return: the hierarchy; raises :class:`BundleError` naming the problem otherwise.
         """
-        from sb3_hddpg.artifacts.safe_load import load_model
 
         name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
         budget = budget if budget is not None else LoadBudget()
@@ -378,13 +375,14 @@ def read_bundle(
     except ValueError as error:  # over a limit, or a corrupt member
         raise BundleError(str(error)) from None
     for _label, entry in entries:
-        member = entry["file"]
-        actual = _sha256(members[member])
-        if actual != entry["sha256"]:
-            raise BundleError(
-                f"{name}: sha256 of {member!r} does not match the manifest "
-                f"(expected {entry['sha256'][:12]}…, got {actual[:12]}…): the bundle was modified or corrupted"
-            )
+        verify_sha256(
+            members[entry["file"]],
+            entry["sha256"],
+            entry["file"],
+            where=name,
+            consequence="the bundle was modified or corrupted",
+            error=BundleError,
+        )
     return manifest, members
 
 
@@ -447,10 +445,6 @@ def _model_bytes(model: BaseAlgorithm) -> bytes:
     buffer = io.BytesIO()
     model.save(buffer)
     return buffer.getvalue()
-
-
-def _sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
 
 
 def infer_env(manager: Any, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:

@@ -21,6 +21,7 @@ from typing import Any
 import gymnasium as gym
 
 from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_file_entry, read_json_file
+from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.policy import Policy
 
 #: Names that stand for reference policies instead of files.
@@ -127,13 +128,7 @@ def load_policy(
         )
     entry, kind = _manifest_entry(path)
     if entry is not None:
-        from sb3_hddpg.training.training import sha256_file
-
-        actual = sha256_file(path)
-        if actual != entry["sha256"]:
-            raise ValueError(
-                f"sha256 of {text!r} does not match its manifest (expected {entry['sha256'][:12]}…, got {actual[:12]}…)"
-            )
+        verify_sha256(path, entry["sha256"], text)
         where = f"{text}: manifest entry"
         entry_env = check_env_id(entry.get("env_id"), f"{where} env_id", allowed_env_ids, trusted)
         env_kwargs = check_env_kwargs(entry_env, entry.get("env_kwargs"), f"{where} env_kwargs")

@@ -21,6 +21,8 @@ import numpy as np
 import yaml
 from torch import nn
 
+from sb3_hddpg.algorithms import ACTIVATIONS as ALL_ACTIVATIONS
+from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS
 from sb3_hddpg.artifacts.limits import (
     MAX_CONFIG_NODES,
     MAX_JSON_BYTES,
@@ -73,10 +75,8 @@ MANAGER_ONLY_KEYS = {"wrapper_kwargs"}
 #: Algorithm arguments that the training code sets itself and a config must not.
 RESERVED_KEYS = {"env", "seed", "device", "verbose", "tensorboard_log", "action_noise", "_init_setup_model"}
 
-#: Activation functions a ``policy_kwargs`` string may name.
-ACTIVATIONS: dict[str, type[nn.Module]] = {
-    name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
-}
+#: Activation functions a ``policy_kwargs`` string may name (the registry's, the subset both backends compute).
+ACTIVATIONS: dict[str, type[nn.Module]] = {name: ALL_ACTIVATIONS[name] for name in CONFIG_ACTIVATIONS}
 
 
 class ConfigError(ValueError):

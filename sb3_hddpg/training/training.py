@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import hashlib
-import platform
 import signal
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -22,12 +20,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
-from stable_baselines3 import DDPG, SAC, TD3
+from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+from sb3_hddpg.algorithms import ALGORITHMS
 from sb3_hddpg.artifacts.io import (
     atomic_write,
     atomic_write_json,
@@ -36,6 +35,7 @@ from sb3_hddpg.artifacts.io import (
     remove_stale_temporaries,
 )
 from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
+from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model, model_spec
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
@@ -48,41 +48,18 @@ from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, pr
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import (
+    algo_class,
     check_algo,
-    check_backend,
     configure_jax_threads,
     load_native,
     make_model,
     resolve_backend,
-    sbx_class,
     to_sb3,
 )
 from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
 
-
-def _algos() -> dict[str, type[BaseAlgorithm]]:
-    from sb3_contrib import TQC
-
-    return {"ddpg": DDPG, "td3": TD3, "sac": SAC, "tqc": TQC}
-
-
-#: Algorithm names accepted by ``--algo``.
-ALGO_NAMES = ("ddpg", "td3", "sac", "tqc")
-
-
-def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
-    """
-    The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
-
-    :param name: the algorithm.
-    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX, see :mod:`sb3_hddpg.training.backends`).
-    """
-    algos = _algos()
-    if name.lower() not in algos:
-        raise ValueError(f"Unknown algorithm {name!r}; choose from {list(ALGO_NAMES)}")
-    if backend != "sb3" and check_backend(backend) == "sbx":
-        return sbx_class(name)
-    return algos[name.lower()]
+#: Algorithm names accepted by ``--algo`` (the registry's, in its order).
+ALGO_NAMES = tuple(ALGORITHMS)
 
 
 class TrainingInterrupted(RuntimeError):
@@ -100,34 +77,6 @@ def make_snake_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gym
 
     torch.set_num_threads(1)
     return gym.make(env_id, **(env_kwargs or {}))
-
-
-def library_versions() -> dict[str, str]:
-    """Versions of what a trained model depends on, for manifests."""
-    import gymnasium
-    import pymunk
-    import stable_baselines3
-
-    import sb3_hddpg
-
-    return {
-        "sb3_hddpg": sb3_hddpg.__version__,
-        "stable_baselines3": stable_baselines3.__version__,
-        "gymnasium": gymnasium.__version__,
-        "pymunk": pymunk.version,
-        "torch": torch.__version__,
-        "numpy": np.__version__,
-        "python": platform.python_version(),
-    }
-
-
-def sha256_file(path: str | Path) -> str:
-    """The sha256 hex digest of a file."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 @dataclass
@@ -792,11 +741,7 @@ def load_workers(
         path = folder / entry["file"]
         if not path.is_file():
             raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
-        actual = sha256_file(path)
-        if actual != entry["sha256"]:
-            raise ValueError(
-                f"sha256 of {str(path)!r} does not match its manifest (expected {entry['sha256'][:12]}…, got {actual[:12]}…)"
-            )
+        verify_sha256(path, entry["sha256"], str(path))
         models[name] = load_model(path, spec=entry.get("spec"), trusted=trusted)
     return models, manifest
 
@@ -1095,9 +1040,14 @@ def train_manager(
     )
     worker_meta = {
         name: {
-            k: manifest["workers"][name][k]
-            for k in ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
-            if k in manifest["workers"][name]
+            **{
+                k: manifest["workers"][name][k]
+                for k in ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
+                if k in manifest["workers"][name]
+            },
+            # Which workers/NAME.zip this worker came from: the bundle re-serialises the model, so its
+            # member's own hash differs from the source file's.
+            "source_sha256": manifest["workers"][name]["sha256"],
         }
         for name in names
     }
