@@ -1,13 +1,27 @@
-"""The extension points of docs/DESIGN.md, exercised through the real code paths: a new selection mode."""
+"""The extension points of docs/DESIGN.md through the real code paths: a new selection mode, a new benchmark method."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.experiments.benchmark import (
+    METHOD_REGISTRY,
+    BenchmarkSettings,
+    Method,
+    Task,
+    compute_results,
+    plan_tasks,
+    read_record,
+    register_method,
+    run_task,
+)
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import (
     SELECTORS,
@@ -17,6 +31,7 @@ from sb3_hddpg.hierarchy.selection import (
     get_selector,
     register_selector,
 )
+from sb3_hddpg.policy import RandomPolicy
 from sb3_hddpg.wrappers import WorkerSelectionWrapper
 from tests.helpers import ActionRecorder, ConstantWorker
 
@@ -87,3 +102,30 @@ def test_unregistered_and_duplicate_modes_are_refused_by_name():
     with pytest.raises(ValueError, match="least"):
         check_selection_settings({"selection": "least"}, ["goal", "avoid"], "m")
     assert list(SELECTORS) == ["sample", "argmax", "mix"]
+
+
+def run_random(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """A benchmark method that does not learn: uniform random actions, one curve point and the test."""
+    env = gym.make(ENV_ID)
+    try:
+        policy = RandomPolicy(env.action_space, seed=task.seed)  # type: ignore[arg-type]
+        curve = evaluate(policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
+        test = evaluate(policy, env, n_episodes=settings.test_episodes, seed=EVAL_SEED_BASE + 1).summary()
+    finally:
+        env.close()
+    return {"worker_timesteps": 0, "history": [{"timesteps": 0, "total_timesteps": 0, **curve}], "test": test}
+
+
+def test_a_registered_benchmark_method_is_planned_run_and_compared(tmp_path):
+    register_method(Method("random", run_random, lambda settings: 0, colour="black", baseline=True))
+    try:
+        settings = BenchmarkSettings(methods=["random"], seeds=[3], eval_episodes=1, test_episodes=1)
+        tasks = plan_tasks(settings)
+        assert [t.label for t in tasks] == ["random/seed-3"]  # needs no workers: none planned
+        record = run_task(tasks[0], settings, tmp_path)
+        assert read_record(tmp_path, tasks[0]) == record
+        assert record["method"] == "random" and record["seed"] == 3 and record["test"]["episodes"] == 1
+        results = compute_results(settings, [record])
+        assert results["colours"]["random"] == "black"
+    finally:
+        METHOD_REGISTRY.pop("random")

@@ -343,7 +343,7 @@ def test_deep_and_huge_json_is_refused_without_recursion(bundle, tmp_path):
     folder = tmp_path / "w"
     folder.mkdir()
     (folder / "manifest.json").write_text("[" * 200_000)
-    from sb3_hddpg.training.training import read_workers_manifest
+    from sb3_hddpg.artifacts.manifests import read_workers_manifest
 
     with pytest.raises(ValueError, match="nested"):
         read_workers_manifest(folder / "manifest.json")

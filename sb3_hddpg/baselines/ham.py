@@ -244,7 +244,7 @@ def load_ham(
 
     import sb3_hddpg  # noqa: F401  (registers the env ids)
     from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_name, read_json_file
-    from sb3_hddpg.training.training import load_workers, observed_components
+    from sb3_hddpg.artifacts.manifests import load_workers, observed_components
 
     path = Path(path)
     try:

@@ -259,8 +259,7 @@ def train_flat_baseline(
     """
     from stable_baselines3 import DDPG
 
-    from sb3_hddpg.artifacts.provenance import library_versions, sha256_file
-    from sb3_hddpg.artifacts.safe_load import model_spec
+    from sb3_hddpg.artifacts.manifests import model_entry
     from sb3_hddpg.training.config import load_hyperparams
     from sb3_hddpg.training.training import (
         AgentPaths,
@@ -282,25 +281,16 @@ def train_flat_baseline(
         keep_checkpoints=keep_checkpoints,
         backend=backend,
     )
-    entry = {
-        "name": name,
-        "file": f"{name}.zip",
-        "sha256": sha256_file(outcome.model_path),
-        "algo": "ddpg",
-        "env_id": COMPARISON_ENV_ID,
-        "env_kwargs": hyperparams.env_kwargs,
-        "config": {
-            "file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml",
-            "block": hyperparams.raw,
-        },
-        "seed": seed,
-        "timesteps_requested": int(timesteps or hyperparams.n_timesteps),
-        "timesteps_trained": outcome.num_timesteps,
-        "versions": library_versions(),
-        "metrics": outcome.metrics,
-        "backend": outcome.backend,
-        "spec": model_spec(outcome.model),
-    }
+    entry = model_entry(
+        name,
+        outcome,
+        "ddpg",
+        COMPARISON_ENV_ID,
+        hyperparams.env_kwargs,
+        {"file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml", "block": hyperparams.raw},
+        seed,
+        int(timesteps or hyperparams.n_timesteps),
+    )
     atomic_write_json(run_dir / "flat" / "manifest.json", {"schema_version": 1, "models": {name: entry}})
     return entry
 
@@ -409,10 +399,11 @@ def run_quickstart(
     :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
     :return: the metrics, the files written and the timings.
     """
+    from sb3_hddpg.artifacts.manifests import save_manifest
     from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
     from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
     from sb3_hddpg.media.video import record_video
-    from sb3_hddpg.training.training import WORKER_ENV_IDS, save_manifest
+    from sb3_hddpg.training.training import WORKER_ENV_IDS
 
     if isinstance(budget, str):
         if budget not in BUDGETS:
@@ -596,7 +587,7 @@ def run_quickstart(
         env: run_dir / "workers" / f"{n}.zip" for n, env in WORKER_ENV_IDS.items()
     }
     zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
-    from sb3_hddpg.training.training import read_workers_manifest
+    from sb3_hddpg.artifacts.manifests import read_workers_manifest
 
     trained = read_workers_manifest(run_dir / "workers" / "manifest.json")["workers"]
     zoo_env_kwargs = {

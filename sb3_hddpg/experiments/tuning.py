@@ -191,7 +191,7 @@ class TuningTarget:
         if self.level == "manager":
             _env_factory(self, hyperparams)().close()
         elif self.level == "ham":
-            from sb3_hddpg.training.training import load_workers
+            from sb3_hddpg.artifacts.manifests import load_workers
 
             workers, manifest = load_workers(str(self.workers_dir))
             env = make_snake_env(SHARED_ENV_ID)
@@ -724,15 +724,15 @@ def _workers_manifest(workers_dir: str) -> dict[str, Any]:
         manifest = folder / "manifest.json"
     if not manifest.exists():
         raise FileNotFoundError(f"No workers manifest in {workers_dir!r}; run train-workers first")
-    from sb3_hddpg.training.training import read_workers_manifest
+    from sb3_hddpg.artifacts.manifests import read_workers_manifest
 
     return read_workers_manifest(manifest)
 
 
 def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -> float:
     """HAM's trial: no training, one evaluation on the combined reward."""
+    from sb3_hddpg.artifacts.manifests import load_workers
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.training.training import load_workers
 
     workers, manifest = load_workers(str(target.workers_dir))
     env = make_snake_env(SHARED_ENV_ID)
