@@ -33,6 +33,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from sb3_hddpg.envs import ENV_IDS
+
 #: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
 MAX_JSON_BYTES = 1 << 20
 #: Deepest nesting of a JSON document or a config value (json.loads recurses; ours are < 10 deep).
@@ -104,7 +106,6 @@ def check_name(value: Any, what: str) -> str:
 
 def own_env_ids() -> frozenset[str]:
     """The env ids this package registers (the default allow-list for ids read from files)."""
-    from sb3_hddpg.envs import ENV_IDS
 
     return frozenset(ENV_IDS)
 

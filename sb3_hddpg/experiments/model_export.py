@@ -19,6 +19,7 @@ from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
+from sb3_hddpg.experiments.benchmark import WORKERS, split_key
 
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
@@ -67,7 +68,6 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     :param dest: the folder to fill (created if missing; existing files of the same names are replaced).
     :return: the index's records.
     """
-    from sb3_hddpg.experiments.benchmark import WORKERS, split_key
 
     root = Path(benchmark_dir)
     records_dir = root / "records"

@@ -50,6 +50,7 @@ from sb3_hddpg.hierarchy.selection import (
     check_selection_settings,
     get_selector,
 )
+from sb3_hddpg.hierarchy.wrapper import _subset_space
 from sb3_hddpg.policy import Policy
 
 #: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
@@ -513,8 +514,6 @@ def check_spaces(
     :raises ValueError: one line naming the model, the expected and the actual space.
     """
     from gymnasium import spaces
-
-    from sb3_hddpg.hierarchy.wrapper import _subset_space
 
     def subset(components: list[str] | None) -> Any:
         return _subset_space(observation_space, layout.indices(components) if components else None)

@@ -79,6 +79,10 @@ class SimplexMap:
         return [self.floor + w * scale for w in weights]
 
 
+#: A probability vector: a list (the wrapper's fast path) or an array (``Hierarchy``).
+Probabilities = Sequence[float] | np.ndarray
+
+
 class Selector:
     """
     One selection mode: which worker a probability vector chooses, and what the env receives. The base class
@@ -91,7 +95,7 @@ class Selector:
     #: The mode's name, as given to ``selection=`` and stored in bundles.
     name: ClassVar[str]
 
-    def choose(self, probabilities: Sequence[float], rng: np.random.Generator, deterministic: bool) -> int:
+    def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
         """
         The index of the worker to run (and to report) for one probability vector.
 
@@ -102,7 +106,7 @@ class Selector:
         return int(np.argmax(probabilities))
 
     def act(
-        self, probabilities: Sequence[float], chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
+        self, probabilities: Probabilities, chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
     ) -> np.ndarray:
         """
         The env action for one observation.
@@ -142,7 +146,7 @@ class SampleSelector(Selector):
 
     name = "sample"
 
-    def choose(self, probabilities: Sequence[float], rng: np.random.Generator, deterministic: bool) -> int:
+    def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
         if deterministic:
             return int(np.argmax(probabilities))
         # Inverse-CDF sampling with one uniform draw (no Generator.choice overhead).
@@ -169,7 +173,7 @@ class MixSelector(Selector):
     name = "mix"
 
     def act(
-        self, probabilities: Sequence[float], chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
+        self, probabilities: Probabilities, chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
     ) -> np.ndarray:
         return sum(p * w.act(obs) for p, w in zip(probabilities, workers))  # type: ignore[return-value]
 

@@ -843,7 +843,7 @@ def train_manager(
         raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
     if seed < 0:
         raise ValueError(f"Expected seed >= 0, actually: {seed}")
-    preparation = {
+    preparation: dict[str, Any] = {
         key: value
         for key, value in (
             ("worker_names", worker_names),
