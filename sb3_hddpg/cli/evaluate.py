@@ -7,8 +7,12 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import at_least, seed_range, usage_errors, writable_file
+from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
+from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.metric_labels import summary_rows
 
 #: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
 #: and usage errors need not import the library).
@@ -55,9 +59,6 @@ def evaluate_command(
     ),
 ) -> None:
     """Evaluate a policy: mean reward, goal-touch rate, collisions, success, clearance (and worker choices)."""
-    from sb3_hddpg.artifacts.io import atomic_write_json
-    from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
-    from sb3_hddpg.hierarchy.loading import load_policy
 
     # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
     # checked here, as a usage error; what fails during the episodes is not.
@@ -75,7 +76,6 @@ def evaluate_command(
         deterministic=deterministic,
         near_clearance=near_clearance,
     )
-    from sb3_hddpg.metric_labels import summary_rows
 
     summary = result.summary()
     dependence = state_dependence(summary, worker)

@@ -16,7 +16,9 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.cli.train import KEEP_CHECKPOINTS_HELP, metrics_table
-from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted
+from sb3_hddpg.training.backends import check_algo, resolve_backend
+from sb3_hddpg.training.config import default_config, load_hyperparams
+from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted, algo_class, train_flat
 
 
 @app.command("train-flat")
@@ -56,21 +58,17 @@ def train_flat_command(
     backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
-    from sb3_hddpg.training.training import train_flat
 
     algo = algo.lower()
     if algo not in ALGO_NAMES:
         raise typer.BadParameter(f"must be one of {list(ALGO_NAMES)}, got {algo!r}", param_hint="'--algo'")
     if config is not None and not config.is_file():
         raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
-    from sb3_hddpg.training.config import default_config, load_hyperparams
-    from sb3_hddpg.training.training import algo_class
 
     with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
         hyperparams = load_hyperparams(
             FLAT_ENV_ID, algo_class(algo), config if config is not None else default_config(algo)
         )
-    from sb3_hddpg.training.backends import check_algo, resolve_backend
 
     with usage_errors("'--backend'"):
         check_algo(algo, resolve_backend(backend, hyperparams.backend))
