@@ -489,12 +489,13 @@ def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str,
     import gymnasium as gym
 
     from sb3_hddpg.baselines.ham import load_ham, save_ham
+    from sb3_hddpg.envs.contract import state_layout_of
     from sb3_hddpg.evaluation import evaluate
     from sb3_hddpg.training import FLAT_ENV_ID
 
     env = gym.make(FLAT_ENV_ID)
     try:
-        n_links = env.unwrapped.state_layout["joint_obstacle_distances"]  # type: ignore[attr-defined]
+        n_links = state_layout_of(env)["joint_obstacle_distances"]
         threshold = settings.ham_threshold
         if threshold is None:
             from sb3_hddpg.baselines.ham import DEFAULT_MARGIN
@@ -744,14 +745,12 @@ def normalised_term_sums(summary: dict[str, Any]) -> tuple[float, float]:
     ``(mean raw sum - mean length * low) / (high - low)`` with the env's fixed ``reward_bounds``.
     """
     from sb3_hddpg.envs import SnakeArmEnv
+    from sb3_hddpg.envs.contract import TermNormaliser
 
-    bounds = SnakeArmEnv().reward_bounds
+    normaliser = TermNormaliser(SnakeArmEnv().reward_bounds)
     length = summary["mean_length"]
-    out = []
-    for term in ("goal", "avoid"):
-        low, high = bounds[term]
-        out.append((summary[f"mean_{term}_reward"] - length * low) / (high - low))
-    return out[0], out[1]
+    goal, avoid = (normaliser.episode_sum(t, summary[f"mean_{t}_reward"], length) for t in ("goal", "avoid"))
+    return goal, avoid
 
 
 def _with_term_sums(summary: dict[str, Any]) -> dict[str, Any]:

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.io import atomic_write
 from sb3_hddpg.limits import (
     MAX_JSON_BYTES,
@@ -129,12 +130,9 @@ class Hierarchy:
         self.worker_meta = dict(worker_meta or {})
         self.metadata = dict(metadata or {})
         probe = gym.make(env_id, **self.env_kwargs)
-        layout = getattr(probe.unwrapped, "state_layout", None)
-        if layout is None and (config.manager_state or config.worker_states):
-            raise ValueError(
-                f"The hierarchy's env {env_id!r} declares no state_layout, so manager_state and worker_states "
-                "cannot name its components"
-            )
+        # Absent a declared layout the whole observation is one component: naming any other is refused
+        # by StateLayout.indices with the known names.
+        layout = state_layout_of(probe)
         self.observation_space = probe.observation_space
         self.action_space = probe.action_space
         probe.close()
@@ -164,14 +162,8 @@ class Hierarchy:
     @property
     def reward_spec(self) -> dict[str, float]:
         """This hierarchy's reward as a worker one level up: its preference-weighted mix of its workers' terms."""
-        mix: dict[str, float] = {}
-        for name in self.names:
-            spec = self.config.reward_terms.get(name, name)
-            weights = {spec: 1.0} if isinstance(spec, str) else dict(spec)
-            total = sum(weights.values())
-            for term, weight in weights.items():
-                mix[term] = mix.get(term, 0.0) + self.config.preferences.get(name, 1.0) * weight / total
-        return mix
+        specs = {name: self.config.reward_terms.get(name, name) for name in self.names}
+        return mix_terms(specs, self.config.preferences)
 
     def reset_episode(self) -> None:
         """Forget the current option (call at an episode start when ``option_steps > 1``)."""

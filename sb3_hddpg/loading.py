@@ -20,6 +20,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from sb3_hddpg.envs import SnakeArmEnv
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.limits import brief, check_env_id, check_env_kwargs, check_file_entry, read_json_file
 from sb3_hddpg.workers import Policy
 
@@ -173,6 +175,7 @@ def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
     import sb3_hddpg  # noqa: F401
 
     env = gym.make(env_id)
+    layout = state_layout_of(env)
     if name == "random":
         from sb3_hddpg.workers import RandomPolicy
 
@@ -180,10 +183,13 @@ def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
     elif name == "ik":
         from sb3_hddpg.baselines.scripted import IKReacher
 
-        policy = IKReacher(env.unwrapped.state_layout, max_joint_speed=env.unwrapped.max_joint_speed)
+        snake = env.unwrapped
+        if not isinstance(snake, SnakeArmEnv):
+            raise ValueError(f"The IK reacher drives the snake arm only, not {env_id!r}")
+        policy = IKReacher(layout, max_joint_speed=snake.max_joint_speed)
     else:
         from sb3_hddpg.baselines.scripted import JacobianReacher
 
-        policy = JacobianReacher(env.unwrapped.state_layout)
+        policy = JacobianReacher(layout)
     env.close()
     return LoadedPolicy(policy, env_id, {}, name, name)

@@ -631,9 +631,10 @@ def _build_ham(run_dir: Path) -> Path:
     import gymnasium as gym
 
     from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
+    from sb3_hddpg.envs.contract import state_layout_of
 
     probe = gym.make(COMPARISON_ENV_ID)
-    n_joints = len(probe.unwrapped.state_layout.indices(["joint_obstacle_distances"]))
+    n_joints = len(state_layout_of(probe).indices(["joint_obstacle_distances"]))
     probe.close()
     return save_ham(
         run_dir / "ham.json",

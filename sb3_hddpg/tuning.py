@@ -48,6 +48,7 @@ from sb3_hddpg.config import (
     parse_block,
     select_block,
 )
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.hyperparams_opt import sampler_for
 from sb3_hddpg.io import atomic_write_bytes
 from sb3_hddpg.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
@@ -196,7 +197,13 @@ class TuningTarget:
             workers, manifest = load_workers(str(self.workers_dir))
             env = make_snake_env(SHARED_ENV_ID)
             try:
-                _make_ham(ham_class(), workers, env, float(env.unwrapped.n_joints) - 0.5, manifest)
+                _make_ham(
+                    ham_class(),
+                    workers,
+                    env,
+                    float(len(state_layout_of(env).indices(["joint_obstacle_distances"]))) - 0.5,
+                    manifest,
+                )
             finally:
                 env.close()
 
@@ -761,8 +768,8 @@ def _make_ham(
     known = {
         "workers": workers,
         "env": env,
-        "layout": env.unwrapped.state_layout,
-        "state_layout": env.unwrapped.state_layout,
+        "layout": state_layout_of(env),
+        "state_layout": state_layout_of(env),
         "threshold": threshold,
         "worker_states": observed_components(manifest, list(workers)) if manifest else {},
         **{name: model for name, model in workers.items()},

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.io import atomic_write_json
 from sb3_hddpg.workers import Policy
@@ -285,7 +286,7 @@ def load_ham(
     manifest = (path.parent / relative).resolve()
     workers, workers_manifest = load_workers(manifest.parent, names, trusted=trusted)
     env = gym.make(env_id, **env_kwargs)
-    layout = env.unwrapped.state_layout  # type: ignore[attr-defined]
+    layout = state_layout_of(env)
     env.close()
     switch = HAMSwitch(
         workers[names[0]],

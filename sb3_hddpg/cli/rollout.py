@@ -28,6 +28,7 @@ def rollout(
 
     import sb3_hddpg  # noqa: F401  (registers the env ids)
     from sb3_hddpg.baselines import JacobianReacher
+    from sb3_hddpg.envs.contract import state_layout_of
     from sb3_hddpg.evaluation import evaluate
     from sb3_hddpg.io import atomic_write_bytes
     from sb3_hddpg.workers import RandomPolicy
@@ -36,7 +37,7 @@ def rollout(
         env = gym.make(env_id, render_mode="rgb_array")
     policies = {
         "random": RandomPolicy(env.action_space, seed=seed),
-        "scripted reacher": JacobianReacher(env.unwrapped.state_layout),
+        "scripted reacher": JacobianReacher(state_layout_of(env)),
     }
     table = Table(title=f"{env_id}: {episodes} episodes, seeds {seed}..{seed + episodes - 1}")
     for column in ("policy", "reward", "goal touch rate", "collisions/ep", "success", "min clearance"):
