@@ -307,7 +307,9 @@ class Hierarchy:
         names = manifest["worker_names"]
         try:
             env_id = check_env_id(manifest.get("env_id"), f"{name}: env_id", allowed_env_ids, trusted)
-            env_kwargs = check_env_kwargs(env_id, manifest.get("env_kwargs"), f"{name}: env_kwargs")
+            env_kwargs = check_env_kwargs(
+                env_id, manifest.get("env_kwargs"), f"{name}: env_kwargs", allowed_env_ids, trusted
+            )
             settings = check_selection_settings(manifest.get("selection"), names, f"{name}: selection")
         except ValueError as error:
             raise BundleError(str(error)) from None

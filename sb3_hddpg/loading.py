@@ -138,7 +138,9 @@ def load_policy(
             )
         where = f"{text}: manifest entry"
         entry_env = check_env_id(entry.get("env_id"), f"{where} env_id", allowed_env_ids, trusted)
-        env_kwargs = check_env_kwargs(entry_env, entry.get("env_kwargs"), f"{where} env_kwargs")
+        env_kwargs = check_env_kwargs(
+            entry_env, entry.get("env_kwargs"), f"{where} env_kwargs", allowed_env_ids, trusted
+        )
         model = load_model(path, spec=entry.get("spec"), trusted=trusted)
         return LoadedPolicy(model, entry_env, env_kwargs, kind, entry.get("name", path.stem), entry)
     if not trusted:

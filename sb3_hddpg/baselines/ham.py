@@ -278,7 +278,9 @@ def load_ham(
         check_name(pair["avoid"], f"{where}: worker_names.avoid"),
     )
     env_id = check_env_id(meta["env_id"], f"{where}: env_id", allowed_env_ids, trusted)
-    env_kwargs = check_env_kwargs(env_id, meta.get("env_kwargs"), f"{where}: env_kwargs")
+    env_kwargs = check_env_kwargs(
+        env_id, meta.get("env_kwargs"), f"{where}: env_kwargs", allowed_env_ids, trusted
+    )
     for key in ("threshold", "hysteresis"):
         value = meta.get(key, 0.0)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):

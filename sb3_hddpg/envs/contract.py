@@ -17,7 +17,7 @@ An environment with several objectives (the snake arm, an MO-Gymnasium env throu
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Protocol, runtime_checkable
 
 import gymnasium as gym
@@ -53,7 +53,9 @@ class HasStateLayout(Protocol):
     state_layout: StateLayout
 
 
-def check_bounds(bounds: Mapping[str, tuple[float, float]], what: str = "reward_bounds") -> dict:
+def check_bounds(
+    bounds: Mapping[str, Sequence[float]], what: str = "reward_bounds"
+) -> dict[str, tuple[float, float]]:
     """
     Per-term bounds, checked: at least one term, names non-empty strings, ``low < high``, both finite.
 
@@ -89,7 +91,7 @@ class TermNormaliser:
     :param bounds: term name -> per-step ``(low, high)``, finite, ``low < high``.
     """
 
-    def __init__(self, bounds: Mapping[str, tuple[float, float]]) -> None:
+    def __init__(self, bounds: Mapping[str, Sequence[float]]) -> None:
         self.bounds = check_bounds(bounds)
         # Precomputed so that normalising a term in a step is one multiply-add.
         self._affine = {k: (lo, 1.0 / (hi - lo)) for k, (lo, hi) in self.bounds.items()}
