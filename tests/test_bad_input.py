@@ -51,6 +51,7 @@ TM = ("train-manager", "--no-progress", "--workers", "{w}", "--config", "{tiny}"
 #: Cases also run in their own ``python cli.py`` process (at least one per command).
 ALONE = {
     "tw-negative-timesteps",
+    "tw-bad-term-bounds",
     "tw-config-unknown-key",
     "tm-nan-preference",
     "tm-workers-for-another-env",
@@ -90,6 +91,28 @@ CASES = [
     case("tw-zero-eval-episodes", (*TW, "--eval-episodes", "0", "--out", "{tmp}/o"), 2, "--eval-episodes"),
     case("tw-negative-checkpoint-freq", (*TW, "--checkpoint-freq", "-7", "--out", "{tmp}/o"), 2, "-7"),
     case("tw-unknown-option", (*TW, "--timestep", "5", "--out", "{tmp}/o"), 2, "--timestep"),
+    # ---- train-workers: another env with several objectives (docs/ENVIRONMENTS.md)
+    case("tw-terms-without-env", (*TW, "--terms", "a,b", "--out", "{tmp}/o"), 2, "--terms needs --env"),
+    case("tw-unregistered-env", (*TW, "--env", "nope-v0", "--out", "{tmp}/o"), 2, "nope-v0"),
+    case("tw-module-prefixed-env", (*TW, "--env", "os:Evil-v0", "--out", "{tmp}/o"), 2, "os:Evil-v0"),
+    case(
+        "tw-bad-term-bounds",
+        (*TW, "--env", "mo-mountaincarcontinuous-v0", "--term-bounds", "time=1", "--out", "{tmp}/o"),
+        2,
+        "time=1",
+    ),
+    case(
+        "tw-terms-miscounted",
+        (*TW, "--env", "mo-mountaincarcontinuous-v0", "--terms", "a,b,c", "--out", "{tmp}/o"),
+        2,
+        "Expected 2 `terms`",
+    ),
+    case(
+        "tw-env-without-terms",
+        (*TW, "--env", "Pendulum-v1", "--out", "{tmp}/o"),
+        2,
+        "declares no reward terms",
+    ),
     # ---- train-workers: paths and files
     case("tw-config-missing", (*TW, "--config", "{tmp}/nope.yml", "--out", "{tmp}/o"), 2, "nope.yml"),
     case("tw-config-is-folder", (*TW, "--config", "{folder}", "--out", "{tmp}/o"), 2, "a-folder"),

@@ -8,7 +8,18 @@ import typer
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, seed_range, usage_errors, writable_file
+from sb3_hddpg.cli.options import (
+    ENV_HELP,
+    EPISODE_STEPS_HELP,
+    INFO_KEY_HELP,
+    TERM_BOUNDS_HELP,
+    TERMS_HELP,
+    at_least,
+    seed_range,
+    terms_env_option,
+    usage_errors,
+    writable_file,
+)
 
 #: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
 #: and usage errors need not import the library).
@@ -22,7 +33,13 @@ def evaluate_command(
         help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK).",
     ),
     env_id: str | None = typer.Option(
-        None, "--env", help="Env id to evaluate on (default: the one it was trained on)."
+        None, "--env", help="Env id to evaluate on (default: the one it was trained on). " + ENV_HELP
+    ),
+    terms: str | None = typer.Option(None, "--terms", help=TERMS_HELP),
+    term_bounds: str | None = typer.Option(None, "--term-bounds", help=TERM_BOUNDS_HELP),
+    info_key: str | None = typer.Option(None, "--info-key", help=INFO_KEY_HELP),
+    episode_steps: int | None = typer.Option(
+        None, "--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP
     ),
     episodes: int = typer.Option(20, "--episodes", callback=at_least(1), help="Evaluation episodes."),
     seed: int = typer.Option(
@@ -61,10 +78,12 @@ def evaluate_command(
 
     # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
     # checked here, as a usage error; what fails during the episodes is not.
+    # Another env with several objectives resolves to the adapter it needs (the snake ids stay as they are).
+    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     with usage_errors("'PATH'"):
-        loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
+        loaded = load_policy(path, env_id=shared.env_id if shared else None, trusted=trust, algo=algo)
     with usage_errors("'--env'"):
-        env = loaded.make_env(env_id)
+        env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):
         clearance_bands(env, near_clearance, None)
     result = evaluate(

@@ -47,6 +47,8 @@ def register_envs() -> None:
             id=SNAKE_MO_ENV_ID,
             entry_point="sb3_hddpg.envs.snake_mo:SnakeMOEnv",
             max_episode_steps=MAX_EPISODE_STEPS,
+            # Gymnasium's checker expects a scalar reward; MO-Gymnasium's API returns a vector.
+            disable_env_checker=True,
         )
     # The adapters: their own time limit is the inner env's (``max_episode_steps`` of the adapted id).
     for env_id, entry_point in (

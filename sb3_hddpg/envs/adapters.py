@@ -71,7 +71,10 @@ def _make_inner(env_id: str, render_mode: str | None, episode_steps: int | None,
         if isinstance(episode_steps, bool) or not isinstance(episode_steps, int) or episode_steps < 1:
             raise ValueError(f"Expected `episode_steps` to be an integer >= 1, actually: {episode_steps!r}")
         kwargs["max_episode_steps"] = episode_steps
-    return gym.make(env_id, render_mode=render_mode, **kwargs)
+    # Gymnasium's checker expects a scalar reward; an MO-Gymnasium env returns a vector by design.
+    if render_mode is not None:  # not passed otherwise: an env without rendering may not take it
+        kwargs["render_mode"] = render_mode
+    return gym.make(env_id, disable_env_checker=True, **kwargs)
 
 
 def _check_terms(terms: Any, count: int | None) -> list[str]:
@@ -247,7 +250,7 @@ class InfoTermsEnv(TermsAdapter):
         self,
         env_id: str,
         terms: Sequence[str],
-        term_bounds: Mapping[str, Sequence[float]],
+        term_bounds: Mapping[str, Sequence[float]] | None = None,
         info_key: str | None = None,
         term: str | None = None,
         episode_steps: int | None = None,

@@ -160,3 +160,39 @@ def _resolved(env_id: str, env_kwargs: dict[str, Any]) -> TermsEnv:
         if not (math.isfinite(low) and math.isfinite(high)):  # pragma: no cover - check_bounds refuses it
             raise ValueError(f"Term {term!r} of {env_id!r} has no finite bounds")
     return TermsEnv(env_id, env_kwargs, terms)
+
+
+def parse_terms(text: str) -> list[str]:
+    """
+    Term names from text such as ``"speed,energy"`` (the CLI's ``--terms``).
+
+    :raises ValueError: one line naming the bad part.
+    """
+    names = [part.strip() for part in text.split(",")]
+    bad = [n for n in names if not n.isidentifier()]
+    if bad:
+        raise ValueError(f"Expected comma-separated term names (letters, digits, '_'), got {text!r}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"Expected each term named once, got {text!r}")
+    return names
+
+
+def parse_term_bounds(text: str) -> dict[str, tuple[float, float]]:
+    """
+    Per-term bounds from text such as ``"speed=-1:3,energy=-2:0"`` (the CLI's ``--term-bounds``).
+
+    :raises ValueError: one line naming the bad part.
+    """
+    from sb3_hddpg.envs.contract import check_bounds
+
+    bounds: dict[str, tuple[float, float]] = {}
+    for part in text.split(","):
+        name, _, pair = part.partition("=")
+        low, sep, high = pair.partition(":")
+        try:
+            if not sep or not name.strip().isidentifier():
+                raise ValueError
+            bounds[name.strip()] = (float(low), float(high))
+        except ValueError:
+            raise ValueError(f"Expected TERM=LOW:HIGH[,TERM=LOW:HIGH...], got {part!r} in {text!r}") from None
+    return check_bounds(bounds, "term_bounds")
