@@ -28,20 +28,8 @@ from sb3_hddpg.hierarchy import Hierarchy
 from sb3_hddpg.limits import LimitError, check_env_kwargs
 from sb3_hddpg.training import train_manager, train_workers
 from tests.cli_runner import run_cli
+from tests.helpers import TINY_CONFIG
 
-TINY_CONFIG = """\
-default: &tiny
-  n_timesteps: 150
-  policy: 'MlpPolicy'
-  buffer_size: 1000
-  learning_starts: 50
-  batch_size: 16
-  noise_type: 'normal'
-  noise_std: 0.2
-  policy_kwargs: "dict(net_arch=[16])"
-manager:
-  <<: *tiny
-"""
 TINY = {"timesteps": 200, "eval_freq": 0, "eval_episodes": 1}
 
 
@@ -358,3 +346,20 @@ def test_cli_trains_workers_on_an_mo_gymnasium_env(tmp_path, tiny):
             "episode_steps": 30,
         },
     }
+
+
+@pytest.mark.slow
+def test_mujoco_half_cheetah_with_estimated_bounds_end_to_end(tmp_path, tiny):
+    """mo-halfcheetah-v5 (unbounded reward_space): estimated bounds recorded, and the bundle rebuilds them."""
+    pytest.importorskip("mujoco")
+    with pytest.warns(UserWarning, match="ESTIMATED"):
+        env = terms_env("mo-halfcheetah-v5", terms=["speed", "energy"], episode_steps=50)
+    bounds = env.env_kwargs["term_bounds"]
+    train_workers(tmp_path / "w", config=tiny, seed=0, env=env, **TINY)
+    train_manager(tmp_path / "w", tmp_path / "m", config=tiny, seed=0, **TINY)
+    loaded = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
+    assert loaded.env_kwargs["term_bounds"] == bounds
+    rebuilt = gym.make(loaded.env_id, **loaded.env_kwargs)
+    assert rebuilt.unwrapped.reward_bounds == {k: tuple(v) for k, v in bounds.items()}
+    summary = evaluate(loaded, rebuilt, n_episodes=1).summary()
+    assert summary["mean_length"] == 50 and {"mean_speed_reward", "mean_energy_reward"} <= set(summary)

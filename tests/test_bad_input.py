@@ -26,20 +26,7 @@ import pytest
 
 from tests.cli_batch import run_batch
 from tests.cli_runner import run_cli
-
-TINY_CONFIG = """\
-default: &tiny
-  n_timesteps: 150
-  policy: 'MlpPolicy'
-  buffer_size: 1000
-  learning_starts: 100
-  batch_size: 16
-  noise_type: 'normal'
-  noise_std: 0.2
-  policy_kwargs: "dict(net_arch=[16])"
-manager:
-  <<: *tiny
-"""
+from tests.helpers import TINY_CONFIG
 
 # Workers for a 4-joint arm: the same config with env_kwargs, the way a user would train them.
 FOUR_JOINT_CONFIG = TINY_CONFIG.replace("default: &tiny\n", "default: &tiny\n  env_kwargs: {n_joints: 4}\n")
