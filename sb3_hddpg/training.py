@@ -676,6 +676,7 @@ def train_flat(
     keep_checkpoints: bool = False,
     preferences: dict[str, float] | None = None,
     backend: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
@@ -704,6 +705,8 @@ def train_flat(
         factors); ``None``: the env's own reward.
     :param backend: ``sb3`` or ``sbx`` (default: the block's ``backend`` key, else ``sb3``); the saved
         model is an SB3 zip either way.
+    :param env_kwargs: the env's keyword arguments over the config block's (e.g. a
+        :class:`~sb3_hddpg.envs.terms_env.TermsEnv`'s, to learn any env's scalarisation).
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
 
@@ -715,6 +718,7 @@ def train_flat(
     cls = algo_class(algo)
     config_path = Path(config) if config is not None else default_config(algo)
     hyperparams = load_hyperparams(env_id, cls, config_path)
+    make_kwargs = {**hyperparams.env_kwargs, **(env_kwargs or {})}
     budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "flat" / "manifest.json"
@@ -725,13 +729,11 @@ def train_flat(
     if resume and done is not None and done.get("timesteps_requested") == budget:
         return manifest, None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{algo}.zip")
-    factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, dict(hyperparams.env_kwargs))
+    factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
     if preferences is not None:
         from sb3_hddpg.wrappers.preference import make_preference_env
 
-        factory = functools.partial(
-            make_preference_env, env_id, dict(hyperparams.env_kwargs), dict(preferences)
-        )
+        factory = functools.partial(make_preference_env, env_id, make_kwargs, dict(preferences))
         factory().close()  # checks the factors here, once, rather than inside env subprocesses
     outcome = train_agent(
         factory,
@@ -756,7 +758,7 @@ def train_flat(
         "sha256": sha256_file(outcome.model_path),
         "algo": algo,
         "env_id": env_id,
-        "env_kwargs": hyperparams.env_kwargs,
+        "env_kwargs": make_kwargs,
         "config": {"file": str(config_path), "block": hyperparams.raw},
         "seed": seed,
         "timesteps_requested": budget,

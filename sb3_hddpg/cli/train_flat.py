@@ -9,10 +9,16 @@ import typer
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     BACKEND_HELP,
+    ENV_HELP,
+    EPISODE_STEPS_HELP,
+    INFO_KEY_HELP,
+    TERM_BOUNDS_HELP,
+    TERMS_HELP,
     at_least,
     backend_name,
     prepare_out_dir,
     seed_range,
+    terms_env_option,
     usage_errors,
 )
 from sb3_hddpg.cli.train import KEEP_CHECKPOINTS_HELP, metrics_table
@@ -54,9 +60,32 @@ def train_flat_command(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
     keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
     backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
+    preference: str | None = typer.Option(
+        None,
+        "--preference",
+        help="Learn the preference-weighted sum of the normalised terms, e.g. time=1,fuel=2 (terms not named "
+        "get 1); default: the env's own reward (the normalised sum).",
+    ),
+    env: str | None = typer.Option(None, "--env", help=ENV_HELP),
+    terms: str | None = typer.Option(None, "--terms", help=TERMS_HELP),
+    term_bounds: str | None = typer.Option(None, "--term-bounds", help=TERM_BOUNDS_HELP),
+    info_key: str | None = typer.Option(None, "--info-key", help=INFO_KEY_HELP),
+    episode_steps: int | None = typer.Option(
+        None, "--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP
+    ),
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
+    from sb3_hddpg.selection import parse_preferences
     from sb3_hddpg.training import train_flat
+
+    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
+    env_id = shared.env_id if shared is not None else FLAT_ENV_ID
+    with usage_errors("'--preference'"):
+        preferences = parse_preferences(preference) if preference is not None else None
+        if preferences is not None:
+            from sb3_hddpg.wrappers.preference import make_preference_env
+
+            make_preference_env(env_id, shared.env_kwargs if shared else {}, preferences).close()
 
     algo = algo.lower()
     if algo not in ALGO_NAMES:
@@ -68,7 +97,7 @@ def train_flat_command(
 
     with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
         hyperparams = load_hyperparams(
-            FLAT_ENV_ID, algo_class(algo), config if config is not None else default_config(algo)
+            env_id, algo_class(algo), config if config is not None else default_config(algo)
         )
     from sb3_hddpg.backends import check_algo, resolve_backend
 
@@ -91,6 +120,9 @@ def train_flat_command(
             threads=threads,
             keep_checkpoints=keep_checkpoints,
             backend=backend,
+            env_id=env_id,
+            env_kwargs=shared.env_kwargs if shared is not None else None,
+            preferences=preferences,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
@@ -98,5 +130,5 @@ def train_flat_command(
     entry = manifest["models"][algo]
     if outcome is None:
         console.print(f"{algo} was already trained for {entry['timesteps_requested']} steps; kept it.")
-    console.print(metrics_table(f"Flat {algo} on {FLAT_ENV_ID} (best evaluation)", {algo: entry["metrics"]}))
+    console.print(metrics_table(f"Flat {algo} on {env_id} (best evaluation)", {algo: entry["metrics"]}))
     console.print(f"Model: {out / 'flat' / entry['file']}   Manifest: {out / 'flat' / 'manifest.json'}")

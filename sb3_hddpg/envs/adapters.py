@@ -19,7 +19,6 @@ preference 1, and a flat agent's scalarisation); with ``term`` it is that raw te
 from __future__ import annotations
 
 import contextlib
-import logging
 import math
 import warnings
 from collections.abc import Mapping, Sequence
@@ -31,8 +30,6 @@ import numpy as np
 from gymnasium.envs.registration import EnvSpec
 
 from sb3_hddpg.envs.contract import TermNormaliser, check_bounds
-
-logger = logging.getLogger(__name__)
 
 MULTI_OBJECTIVE_ENV_ID = "hddpg/MultiObjective-v0"
 INFO_TERMS_ENV_ID = "hddpg/InfoTerms-v0"
@@ -65,7 +62,10 @@ def registered_env_id(env_id: Any) -> str:
     return env_id
 
 
-def _make_inner(env_id: str, render_mode: str | None, episode_steps: int | None, **kwargs: Any) -> gym.Env:
+def make_adapted(
+    env_id: str, render_mode: str | None = None, episode_steps: int | None = None, **kwargs: Any
+) -> gym.Env:
+    """The env an adapter adapts: ``gym.make`` of a checked id, its time limit, without scalar-reward checks."""
     registered_env_id(env_id)
     if episode_steps is not None:
         if isinstance(episode_steps, bool) or not isinstance(episode_steps, int) or episode_steps < 1:
@@ -74,7 +74,10 @@ def _make_inner(env_id: str, render_mode: str | None, episode_steps: int | None,
     # Gymnasium's checker expects a scalar reward; an MO-Gymnasium env returns a vector by design.
     if render_mode is not None:  # not passed otherwise: an env without rendering may not take it
         kwargs["render_mode"] = render_mode
-    return gym.make(env_id, disable_env_checker=True, **kwargs)
+    with warnings.catch_warnings():
+        # Some MO-Gymnasium envs build float64 bounds into float32 spaces: noise on every make, not news.
+        warnings.filterwarnings("ignore", message=".*precision lowered by casting to float32")
+        return gym.make(env_id, disable_env_checker=True, **kwargs)
 
 
 def _check_terms(terms: Any, count: int | None) -> list[str]:
@@ -195,7 +198,7 @@ class MultiObjectiveEnv(TermsAdapter):
     ) -> None:
         from mo_gymnasium.wrappers import LinearReward
 
-        inner = _make_inner(env_id, render_mode, episode_steps, **env_kwargs)
+        inner = make_adapted(env_id, render_mode, episode_steps, **env_kwargs)
         space = getattr(inner.unwrapped, "reward_space", None)
         if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
             inner.close()
@@ -265,7 +268,7 @@ class InfoTermsEnv(TermsAdapter):
                 f"actually for {sorted(bounds)}"
             )
         self.info_key = info_key
-        inner = _make_inner(env_id, render_mode, episode_steps, **env_kwargs)
+        inner = make_adapted(env_id, render_mode, episode_steps, **env_kwargs)
         super().__init__(inner, {n: bounds[n] for n in names}, term)
 
     def _terms(self, reward: Any, info: dict[str, Any]) -> dict[str, float]:
@@ -302,7 +305,6 @@ def _estimate_bounds(
         f"term_bounds (CLI: --term-bounds {shown}). The estimate is recorded with the env."
     )
     warnings.warn(message, UserWarning, stacklevel=3)
-    logger.warning(message)
     return estimated
 
 

@@ -18,6 +18,7 @@ from sb3_hddpg.envs.adapters import (
     INFO_TERMS_ENV_ID,
     MULTI_OBJECTIVE_ENV_ID,
     TermReward,
+    make_adapted,
     registered_env_id,
 )
 from sb3_hddpg.envs.contract import RewardTermsEnv, env_contract
@@ -114,7 +115,7 @@ def terms_env(
         adapter_kwargs["term_bounds"] = {t: [float(v) for v in b] for t, b in term_bounds.items()}
     if episode_steps is not None:
         adapter_kwargs["episode_steps"] = episode_steps
-    probe = gym.make(env_id, **kwargs)
+    probe = make_adapted(env_id, **kwargs)
     try:
         native = _native(probe)
         vector = hasattr(probe.unwrapped, "reward_space")  # MO-Gymnasium's declared API
