@@ -363,3 +363,19 @@ def test_mujoco_half_cheetah_with_estimated_bounds_end_to_end(tmp_path, tiny):
     assert rebuilt.unwrapped.reward_bounds == {k: tuple(v) for k, v in bounds.items()}
     summary = evaluate(loaded, rebuilt, n_episodes=1).summary()
     assert summary["mean_length"] == 50 and {"mean_speed_reward", "mean_energy_reward"} <= set(summary)
+
+
+def test_selection_timeline_of_an_env_without_the_snakes_panels(tmp_path):
+    """plot-selection's figure on any env: its reward terms stand where the snake's clearance would."""
+    from sb3_hddpg.media.figures import plot_selection_timeline
+    from sb3_hddpg.media.trace import trace_episodes
+    from sb3_hddpg.workers import RandomPolicy
+
+    env = gym.make("test/ThreeTerms-v0")
+    records, _ = trace_episodes(RandomPolicy(env.action_space, seed=0), env, n_episodes=2, seed=0)
+    assert len(records) == 40 and set(records[0].reward_terms) == {"near", "calm", "right"}
+    assert all(math.isnan(r.min_clearance) for r in records)
+    for record, name in zip(records, ["near", "calm", "right"] * 14):  # as a hierarchy would report
+        record.selected = name
+    path = plot_selection_timeline(records, tmp_path / "s.png", names=["near", "calm", "right"])
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
