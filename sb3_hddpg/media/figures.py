@@ -110,7 +110,7 @@ def plot_selection_timeline(
     clearance = np.array([r.min_clearance for r in records])
     if np.isnan(clearance).all():
         # An env without the snake's clearance and goal distance: its reward terms, per step and summed.
-        _plot_terms(records, x, middle, bottom)
+        _plot_terms(records, x, middle, bottom, names)
     else:
         _plot_snake_panels(records, x, clearance, middle, bottom, sensor_range, touch_radius)
     bottom.set_xlabel(step_axis_label(records))
@@ -150,17 +150,20 @@ def _plot_snake_panels(
     bottom.set_ylabel("distance\nto goal")
 
 
-def _plot_terms(records: Sequence[StepRecord], x: np.ndarray, middle: Any, bottom: Any) -> None:
-    """Each reward term per step (middle) and its running sum within the episode (bottom)."""
+def _plot_terms(
+    records: Sequence[StepRecord], x: np.ndarray, middle: Any, bottom: Any, names: Sequence[str]
+) -> None:
+    """Each reward term per step (middle) and its running sum within the episode (bottom), in the colour of
+    the worker of the same name (workers are named after their terms)."""
     terms = list(records[0].reward_terms)
     episodes = np.array([r.episode for r in records])
-    for j, term in enumerate(terms):
+    for term in terms:
         values = np.array([r.reward_terms.get(term, np.nan) for r in records])
         running = np.zeros_like(values)
         for episode in np.unique(episodes):
             mask = episodes == episode
             running[mask] = np.cumsum(values[mask])
-        colour = f"C{j}"
+        colour = _colour(term, [*names, *terms])
         middle.plot(x, values, color=colour, lw=1.1, label=term)
         bottom.plot(x, running, color=colour, lw=1.3, label=term)
     middle.set_ylabel("reward term\nper step")
