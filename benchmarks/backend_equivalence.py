@@ -35,11 +35,11 @@ def run_one(backend: str, seed: int, args: dict[str, Any]) -> dict[str, Any]:
     result_path = out / "result.json"
     if result_path.exists():
         return json.loads(result_path.read_text())
-    from sb3_hddpg.benchmark import TEST_SEED_BASE
+    from sb3_hddpg.artifacts.io import atomic_write_json
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.io import atomic_write_json
-    from sb3_hddpg.loading import load_policy
-    from sb3_hddpg.training import train_workers
+    from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE
+    from sb3_hddpg.hierarchy.loading import load_policy
+    from sb3_hddpg.training.training import train_workers
 
     started, cpu = time.perf_counter(), time.process_time()
     manifest = train_workers(
@@ -88,7 +88,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.seeds < 1 or args.n_jobs < 1:
         parser.error("--seeds and --n-jobs must be >= 1")
-    from sb3_hddpg.backends import check_backend
+    from sb3_hddpg.training.backends import check_backend
 
     check_backend("sbx")  # a clear error, naming the extra, before anything runs
     settings = {key: getattr(args, key) for key in ("config", "timesteps", "eval_freq", "eval_episodes")}

@@ -22,7 +22,7 @@ from rich.table import Table
 from stable_baselines3 import DDPG
 
 import sb3_hddpg  # noqa: F401
-from sb3_hddpg.config import load_hyperparams
+from sb3_hddpg.training.config import load_hyperparams
 from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 

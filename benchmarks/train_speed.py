@@ -21,7 +21,7 @@ import torch
 from stable_baselines3 import DDPG
 
 import sb3_hddpg  # noqa: F401
-from sb3_hddpg.config import Hyperparams, load_hyperparams
+from sb3_hddpg.training.config import Hyperparams, load_hyperparams
 from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 

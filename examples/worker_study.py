@@ -43,6 +43,8 @@ def main() -> None:
         "--relabel", type=float, default=0.0, help="share of replayed samples with a hindsight goal"
     )
     p.add_argument("--action-l2", type=float, default=0.0, help="actor action penalty (0: none)")
+    p.add_argument("--net", default="64,64", help="hidden layer sizes of actor and critic, comma-separated")
+    p.add_argument("--lr", type=float, default=1e-3, help="learning rate of actor and critic")
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--eval-every", type=int, default=10_000, help="steps between curve points (5 episodes)")
     p.add_argument("--curve-episodes", type=int, default=5, help="episodes per curve point")
@@ -57,14 +59,14 @@ def main() -> None:
 
     env, eval_env = make(), make()
     kwargs = dict(
-        learning_rate=1e-3,
+        learning_rate=args.lr,
         buffer_size=200_000,
         learning_starts=1000,
         batch_size=128,
         tau=0.005,
         gamma=args.gamma,
         seed=args.seed,
-        policy_kwargs={"net_arch": [64, 64]},
+        policy_kwargs={"net_arch": [int(size) for size in args.net.split(",")]},
         action_noise=NormalActionNoise(np.zeros(6), args.noise * np.ones(6)),
     )
     if args.relabel > 0:

@@ -11,13 +11,13 @@ with open(os.path.join(os.path.dirname(__file__), "version.txt")) as _file:
 # The heavy parts (torch, SB3) load on first use, so that `import sb3_hddpg` (which registers the env ids,
 # e.g. in every SubprocVecEnv worker or for rl_zoo3's --gym-packages) stays cheap.
 _LAZY = {
-    "Hierarchy": "sb3_hddpg.hierarchy",
-    "SelectionConfig": "sb3_hddpg.hierarchy",
-    "WorkerSelectionWrapper": "sb3_hddpg.wrappers.selection",
+    "Hierarchy": "sb3_hddpg.hierarchy.hierarchy",
+    "SelectionConfig": "sb3_hddpg.hierarchy.hierarchy",
+    "WorkerSelectionWrapper": "sb3_hddpg.hierarchy.wrapper",
     "evaluate": "sb3_hddpg.evaluation",
-    "load_policy": "sb3_hddpg.loading",
-    "train_workers": "sb3_hddpg.training",
-    "train_manager": "sb3_hddpg.training",
+    "load_policy": "sb3_hddpg.hierarchy.loading",
+    "train_workers": "sb3_hddpg.training.training",
+    "train_manager": "sb3_hddpg.training.training",
 }
 
 

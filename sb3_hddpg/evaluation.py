@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.envs.contract import TermNormaliser, env_contract
-from sb3_hddpg.workers import Policy
+from sb3_hddpg.policy import Policy
 
 #: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
 #: training seeds, and the same for every method so that comparisons are paired.
@@ -124,7 +124,7 @@ def evaluate(
     The env must meet the env contract (:mod:`sb3_hddpg.envs.contract`): per-term sums and the normalised
     total are measured on any such env; the snake env's touch, collision and clearance metrics only where
     the env reports ``goal_touched``, ``collision`` and ``min_clearance`` in ``info``. A :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` also reports the worker it
-    ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.Hierarchy` its ``last_selection``: both are
+    ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` its ``last_selection``: both are
     counted, each also by the state it was made in: with the nearest obstacle within ``near_clearance``
     (the ``min_clearance`` of the observation the policy acted on), or with none within ``clear_clearance``
     (see :func:`state_dependence`). The policy must act in ``env``'s action space.

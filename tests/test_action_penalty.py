@@ -7,7 +7,7 @@ import torch
 from stable_baselines3 import DDPG, SAC, TD3
 
 from sb3_hddpg.callbacks import ActionL2Penalty, apply_action_l2
-from sb3_hddpg.config import ConfigError, parse_block
+from sb3_hddpg.training.config import ConfigError, parse_block
 
 PATH = "sb3_hddpg.callbacks.ActionL2Penalty"
 

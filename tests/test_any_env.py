@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
+from sb3_hddpg.artifacts.limits import LimitError, check_env_kwargs
 from sb3_hddpg.envs import (
     InfoTermsEnv,
     MultiObjectiveEnv,
@@ -25,7 +26,6 @@ from sb3_hddpg.envs import (
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.hierarchy import Hierarchy
-from sb3_hddpg.limits import LimitError, check_env_kwargs
 from sb3_hddpg.training import train_manager, train_workers
 from tests.cli_runner import run_cli
 from tests.helpers import TINY_CONFIG
@@ -369,7 +369,7 @@ def test_selection_timeline_of_an_env_without_the_snakes_panels(tmp_path):
     """plot-selection's figure on any env: its reward terms stand where the snake's clearance would."""
     from sb3_hddpg.media.figures import plot_selection_timeline
     from sb3_hddpg.media.trace import trace_episodes
-    from sb3_hddpg.workers import RandomPolicy
+    from sb3_hddpg.policy import RandomPolicy
 
     env = gym.make("test/ThreeTerms-v0")
     records, _ = trace_episodes(RandomPolicy(env.action_space, seed=0), env, n_episodes=2, seed=0)

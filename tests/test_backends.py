@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
-from sb3_hddpg.backends import BACKENDS, BackendError, check_backend, sbx_installed
+from sb3_hddpg.training.backends import BACKENDS, BackendError, check_backend, sbx_installed
 from tests.cli_batch import ROOT, run_batch
 
 needs_sbx = pytest.mark.skipif(
@@ -161,7 +161,7 @@ def trained():
         pytest.skip("needs SBX")
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_hddpg.backends import configure_jax_threads, make_model, to_sb3
+    from sb3_hddpg.training.backends import configure_jax_threads, make_model, to_sb3
 
     configure_jax_threads(1)
     models = {}
@@ -180,7 +180,7 @@ def trained():
 def test_export_acts_like_the_jax_policy(trained, algo, tmp_path):
     from stable_baselines3 import DDPG, SAC, TD3
 
-    from sb3_hddpg.safe_load import load_model, model_spec
+    from sb3_hddpg.artifacts.safe_load import load_model, model_spec
 
     model, exported, _ = trained[algo]
     sb3_class = {"ddpg": DDPG, "td3": TD3, "sac": SAC}[algo]
@@ -232,7 +232,7 @@ def test_sbx_starts_from_sb3s_initial_weights(trained, algo):
     """Same seed, same initial networks on both backends (flax's own initialisation would differ)."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_hddpg.backends import make_model
+    from sb3_hddpg.training.backends import make_model
 
     _, _, kwargs = trained[algo]
     obs = _observations(64)
@@ -250,7 +250,7 @@ def test_no_recompile_per_model_or_learn_call():
     import jax
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_hddpg.backends import make_model
+    from sb3_hddpg.training.backends import make_model
 
     compiled: list[str] = []
 
@@ -288,7 +288,7 @@ def test_jax_keeps_to_one_thread():
     script = textwrap.dedent(
         """
         import os
-        from sb3_hddpg.backends import configure_jax_threads
+        from sb3_hddpg.training.backends import configure_jax_threads
         configure_jax_threads(1)
         import jax, jax.numpy as jnp
 
@@ -335,8 +335,8 @@ def test_every_training_command_trains_on_sbx_and_ships_sb3(tmp_path, timesteps)
     """train-workers, train-manager, train-flat (by option and by config key): SB3 files, SBX recorded."""
     from stable_baselines3 import DDPG, TD3
 
-    from sb3_hddpg.hierarchy import Hierarchy
-    from sb3_hddpg.loading import load_policy
+    from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+    from sb3_hddpg.hierarchy.loading import load_policy
 
     tiny, sbx_config = tmp_path / "tiny.yml", tmp_path / "sbx.yml"
     tiny.write_text(TINY_CONFIG)
@@ -378,9 +378,9 @@ def test_every_training_command_trains_on_sbx_and_ships_sb3(tmp_path, timesteps)
 def test_api_backend_selection(tmp_path):
     """The library functions take ``backend=`` (or the config key) too; resuming with the other backend is
     refused."""
-    from sb3_hddpg.benchmark import BenchmarkSettings
-    from sb3_hddpg.training import train_flat
-    from sb3_hddpg.tuning import TuningTarget
+    from sb3_hddpg.experiments.benchmark import BenchmarkSettings
+    from sb3_hddpg.experiments.tuning import TuningTarget
+    from sb3_hddpg.training.training import train_flat
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)

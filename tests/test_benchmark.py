@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from sb3_hddpg import stats
-from sb3_hddpg.benchmark import (
+from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.experiments.benchmark import (
     OUTPUT_FILES,
     TEST_SEED_BASE,
     BenchmarkSettings,
@@ -26,7 +27,6 @@ from sb3_hddpg.benchmark import (
     plan_tasks,
     write_outputs,
 )
-from sb3_hddpg.evaluation import EVAL_SEED_BASE
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -252,8 +252,8 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
 def test_train_flat_writes_a_model_that_opens_with_ddpg_load(tmp_path):
     from stable_baselines3 import DDPG
 
-    from sb3_hddpg.loading import load_policy
-    from sb3_hddpg.training import sha256_file
+    from sb3_hddpg.hierarchy.loading import load_policy
+    from sb3_hddpg.training.training import sha256_file
 
     out = tmp_path / "flat-run"
     done = cli(
@@ -288,8 +288,8 @@ def test_train_flat_writes_a_model_that_opens_with_ddpg_load(tmp_path):
 
 @pytest.mark.parametrize("algo", ["td3", "sac", "tqc"])
 def test_flat_configs_give_every_algorithm_the_same_care(algo):
-    from sb3_hddpg.config import default_config, load_hyperparams
-    from sb3_hddpg.training import FLAT_ENV_ID, algo_class
+    from sb3_hddpg.training.config import default_config, load_hyperparams
+    from sb3_hddpg.training.training import FLAT_ENV_ID, algo_class
 
     ddpg = load_hyperparams(FLAT_ENV_ID, algo_class("ddpg"), default_config("ddpg"))
     other = load_hyperparams(FLAT_ENV_ID, algo_class(algo), default_config(algo))

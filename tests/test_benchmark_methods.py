@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from sb3_hddpg import stats
-from sb3_hddpg.benchmark import (
+from sb3_hddpg.experiments.benchmark import (
     DEFAULT_METHODS,
     METHOD_REGISTRY,
     METHODS,
@@ -284,8 +284,8 @@ def test_tiny_transfer_benchmark_through_the_cli(tmp_path):
 @pytest.mark.slow
 def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.loading import load_policy
-    from sb3_hddpg.model_export import read_index
+    from sb3_hddpg.experiments.model_export import read_index
+    from sb3_hddpg.hierarchy.loading import load_policy
 
     out, models = tmp_path / "bench", tmp_path / "models"
     methods = "hddpg,hddpg-goal,hddpg-avoid,ham,ddpg,td3,sac"
@@ -328,8 +328,8 @@ def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
 
 def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
     """The exporter on a benchmark folder's layout (files stand in for models: only copying is tested here)."""
-    from sb3_hddpg.model_export import export_models, read_index
-    from sb3_hddpg.training import sha256_file
+    from sb3_hddpg.experiments.model_export import export_models, read_index
+    from sb3_hddpg.training.training import sha256_file
 
     run = tmp_path / "bench"
     files = {

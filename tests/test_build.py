@@ -58,7 +58,7 @@ def test_sdist_and_wheel_install_in_a_fresh_venv(tmp_path):
     env.update(SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy", MPLBACKEND="Agg")
     probe = (
         "import sb3_hddpg, gymnasium as gym\n"
-        "from sb3_hddpg.config import agent_kwargs, default_config\n"
+        "from sb3_hddpg.training.config import agent_kwargs, default_config\n"
         "assert '/site-packages/' in sb3_hddpg.__file__, sb3_hddpg.__file__\n"
         "assert all(default_config(a).is_file() for a in ('ddpg', 'td3', 'sac', 'tqc'))\n"
         "kwargs = agent_kwargs('hddpg/SnakeGoal-v0', gym.make('hddpg/SnakeGoal-v0'))\n"

@@ -4,7 +4,7 @@ import pytest
 from stable_baselines3 import DDPG
 from torch import nn
 
-from sb3_hddpg.config import (
+from sb3_hddpg.training.config import (
     DEFAULT_CONFIG,
     ConfigError,
     load_config_file,

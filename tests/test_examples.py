@@ -12,7 +12,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def test_preference_landscape_scores_every_policy_and_names_the_best(tmp_path):
-    from sb3_hddpg.training import train_workers
+    from sb3_hddpg.training.training import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)
@@ -65,7 +65,7 @@ def test_worker_study_trains_with_every_setting_and_saves_a_plain_sb3_zip(tmp_pa
 def test_manager_study_reports_the_state_dependence(tmp_path):
     import json
 
-    from sb3_hddpg.training import train_workers
+    from sb3_hddpg.training.training import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)

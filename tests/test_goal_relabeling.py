@@ -88,8 +88,8 @@ def test_wrong_layout_is_refused():
 def test_config_key_trains_the_goal_worker_with_relabelling(tmp_path):
     import yaml
 
-    from sb3_hddpg.config import DEFAULT_CONFIG
-    from sb3_hddpg.training import load_workers, train_workers
+    from sb3_hddpg.training.config import DEFAULT_CONFIG
+    from sb3_hddpg.training.training import load_workers, train_workers
 
     config = yaml.safe_load(DEFAULT_CONFIG.read_text())
     block = {k: v for k, v in config["hddpg/SnakeGoal-v0"].items() if k != "<<"}
@@ -114,7 +114,7 @@ def test_config_key_trains_the_goal_worker_with_relabelling(tmp_path):
     ],
 )
 def test_config_refuses_other_buffers(extra, message):
-    from sb3_hddpg.config import ConfigError, parse_block
+    from sb3_hddpg.training.config import ConfigError, parse_block
 
     with pytest.raises(ConfigError, match=message):
         parse_block({"n_timesteps": 10, **extra}, DDPG)

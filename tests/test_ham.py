@@ -14,7 +14,7 @@ import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.baselines import HAMSwitch, load_ham, save_ham
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.loading import load_policy
+from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 GOAL_ACTION = np.full(6, 0.5, dtype=np.float32)
@@ -137,7 +137,7 @@ def test_ham_is_a_worker_of_a_selection_wrapper(env):
 
 @pytest.fixture(scope="module")
 def workers_dir(tmp_path_factory) -> Path:
-    from sb3_hddpg.training import train_workers
+    from sb3_hddpg.training.training import train_workers
 
     out = tmp_path_factory.mktemp("ham-workers")
     train_workers(out, timesteps=50, eval_freq=0, eval_episodes=1)

@@ -26,9 +26,9 @@ import pytest
 from stable_baselines3 import DDPG
 
 import sb3_hddpg  # noqa: F401  (registers the ids)
-from sb3_hddpg.hierarchy import BundleError, Hierarchy, SelectionConfig
-from sb3_hddpg.limits import MAX_MEMBER_BYTES, MAX_MODELS, MAX_NESTING
-from sb3_hddpg.loading import load_policy
+from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, MAX_MODELS, MAX_NESTING
+from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy, SelectionConfig
+from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -163,8 +163,8 @@ def test_names_from_a_bundle_are_checked_before_they_pick_a_member(bundle, tmp_p
 
 def test_package_writes_nothing_outside_its_folder(tmp_path):
     """A worker entry whose algo is a path, and a zip with a ``../`` member: nothing lands outside ``--out``."""
-    from sb3_hddpg.packaging import _unpack_model
-    from sb3_hddpg.training import sha256_file
+    from sb3_hddpg.experiments.packaging import _unpack_model
+    from sb3_hddpg.training.training import sha256_file
 
     folder = tmp_path / "shared" / "workers"
     folder.mkdir(parents=True)
@@ -172,7 +172,7 @@ def test_package_writes_nothing_outside_its_folder(tmp_path):
     worker.save(folder / "goal.zip")
     with zipfile.ZipFile(folder / "goal.zip", "a") as archive:
         archive.writestr("../../escaped.txt", "outside")
-    from sb3_hddpg.safe_load import model_spec
+    from sb3_hddpg.artifacts.safe_load import model_spec
 
     for algo in ("../../y", "/tmp/x/y"):
         entry = {
@@ -230,9 +230,9 @@ def test_only_registered_allowed_env_ids_are_used(bundle, tmp_path):
 
 
 def test_worker_manifest_env_ids_and_ham_files_pass_the_same_gate(tmp_path):
+    from sb3_hddpg.artifacts.safe_load import model_spec
     from sb3_hddpg.baselines.ham import load_ham
-    from sb3_hddpg.safe_load import model_spec
-    from sb3_hddpg.training import sha256_file
+    from sb3_hddpg.training.training import sha256_file
 
     folder = tmp_path / "workers"
     folder.mkdir()
@@ -343,7 +343,7 @@ def test_deep_and_huge_json_is_refused_without_recursion(bundle, tmp_path):
     folder = tmp_path / "w"
     folder.mkdir()
     (folder / "manifest.json").write_text("[" * 200_000)
-    from sb3_hddpg.training import read_workers_manifest
+    from sb3_hddpg.training.training import read_workers_manifest
 
     with pytest.raises(ValueError, match="nested"):
         read_workers_manifest(folder / "manifest.json")
@@ -374,7 +374,7 @@ def test_oversized_members_and_zip_bombs_cost_little_memory(bundle, tmp_path):
     _write(tmp_path / "inner.zip", json.loads(json.dumps(manifest)), {**members, "workers/goal.zip": inner})
     result = run_limited(
         f"""
-        from sb3_hddpg.hierarchy import Hierarchy
+        from sb3_hddpg.hierarchy.hierarchy import Hierarchy
         out = {{}}
         for name in ("listed", "inner"):
             try:
@@ -399,7 +399,7 @@ def test_an_unlisted_gigabyte_costs_no_memory(bundle, tmp_path):
     assert path.stat().st_size < 4 << 20
     result = run_limited(
         f"""
-        from sb3_hddpg.hierarchy import Hierarchy
+        from sb3_hddpg.hierarchy.hierarchy import Hierarchy
         print(json.dumps(Hierarchy.load({str(path)!r}).names))
         """,
         tmp_path,
@@ -426,7 +426,7 @@ def test_parameter_and_buffer_bombs_are_refused_before_allocation(bundle, tmp_pa
     path = _write(tmp_path / "b.zip", manifest, members)
     result = run_limited(
         f"""
-        from sb3_hddpg.hierarchy import Hierarchy
+        from sb3_hddpg.hierarchy.hierarchy import Hierarchy
         try:
             Hierarchy.load({str(path)!r})
             print(json.dumps("loaded"))
@@ -455,7 +455,7 @@ def test_nesting_depth_and_fan_out_are_bounded(tmp_path):
     (tmp_path / "wide.zip").write_bytes(_nested(3, width=3).to_bytes())
     result = run_limited(
         f"""
-        from sb3_hddpg.hierarchy import Hierarchy
+        from sb3_hddpg.hierarchy.hierarchy import Hierarchy
         out = {{}}
         for name in ("ok", "deep", "wide"):
             try:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_hddpg.io import LOCK_FILE, FolderLockedError, locked_folder
+from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, locked_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +43,7 @@ def test_resume_after_a_kill_right_after_the_final_checkpoint_does_not_rewind(tm
     (SIGKILL right after that checkpoint), then --resume. It used to rewrite state.json as step 0, delete
     the step-200 files, and add an evaluation labelled step 0.
     """
-    from sb3_hddpg.training import train_manager, train_workers
+    from sb3_hddpg.training.training import train_manager, train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY)
@@ -97,7 +97,7 @@ def _train_workers_cli(out: Path, config: Path, worker: str) -> subprocess.Popen
 
 
 def test_a_second_run_into_a_locked_folder_is_refused_with_the_holders_pid(tmp_path: Path) -> None:
-    from sb3_hddpg.training import train_workers
+    from sb3_hddpg.training.training import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY)
@@ -109,7 +109,7 @@ def test_a_second_run_into_a_locked_folder_is_refused_with_the_holders_pid(tmp_p
             textwrap.dedent(
                 f"""
                 import time
-                from sb3_hddpg.io import locked_folder
+                from sb3_hddpg.artifacts.io import locked_folder
                 with locked_folder({str(out)!r}):
                     print("locked", flush=True)
                     time.sleep(300)
@@ -157,7 +157,7 @@ def test_two_runs_started_together_into_one_folder_lose_nothing(tmp_path: Path) 
 
 def test_manifests_are_read_modify_write(tmp_path: Path) -> None:
     """Two runs one after the other into one folder (the Python API): both workers stay listed."""
-    from sb3_hddpg.training import load_workers, train_workers
+    from sb3_hddpg.training.training import load_workers, train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY)
@@ -178,7 +178,7 @@ def test_a_full_disk_names_the_file(tmp_path: Path) -> None:
         import resource, signal
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of being killed
         resource.setrlimit(resource.RLIMIT_FSIZE, (1 << 16, 1 << 16))
-        from sb3_hddpg.io import atomic_write_bytes
+        from sb3_hddpg.artifacts.io import atomic_write_bytes
         try:
             atomic_write_bytes({str(target)!r}, bytes(1 << 20))
         except OSError as error:

@@ -10,8 +10,8 @@ import pytest
 from PIL import Image
 from stable_baselines3 import DDPG
 
-from sb3_hddpg.hierarchy import Hierarchy
-from sb3_hddpg.quickstart import BUDGETS, RESULTS_SCHEMA_VERSION, STAGES
+from sb3_hddpg.experiments.quickstart import BUDGETS, RESULTS_SCHEMA_VERSION, STAGES
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from tests.cli_runner import run_cli
 
 

@@ -32,7 +32,7 @@ def tiny(snippet: str) -> str:
 def test_readme_python_snippet_runs_with_the_projects_hyperparameters(tmp_path, monkeypatch, capsys):
     from stable_baselines3.common.noise import NormalActionNoise
 
-    from sb3_hddpg.config import load_hyperparams
+    from sb3_hddpg.training.config import load_hyperparams
 
     monkeypatch.chdir(tmp_path)  # the snippet writes hierarchy.zip into the working folder
     script = tmp_path / "snippet.py"

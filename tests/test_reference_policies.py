@@ -5,7 +5,7 @@ import numpy as np
 
 from sb3_hddpg.baselines import IKReacher
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.loading import load_policy
+from sb3_hddpg.hierarchy.loading import load_policy
 
 
 def test_ik_reacher_holds_the_goal_and_saturation_costs_it_the_touch():

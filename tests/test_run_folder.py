@@ -6,7 +6,7 @@ import json
 
 from stable_baselines3 import DDPG
 
-from sb3_hddpg.training import train_workers
+from sb3_hddpg.training.training import train_workers
 from tests.test_bad_input import TINY_CONFIG
 
 RUN = {"workers": ["goal"], "eval_freq": 0, "eval_episodes": 1, "checkpoint_freq": 100}

@@ -17,7 +17,7 @@ import torch as th
 from sb3_contrib import TQC
 from stable_baselines3 import DDPG, PPO, SAC, TD3
 
-from sb3_hddpg.safe_load import SafeLoadError, load_model, load_model_safely, model_spec
+from sb3_hddpg.artifacts.safe_load import SafeLoadError, load_model, load_model_safely, model_spec
 
 TINY = {"net_arch": [16, 16]}
 
@@ -230,7 +230,7 @@ def test_model_spec_refuses_what_it_cannot_describe() -> None:
         model_spec(PPO("MlpPolicy", "Pendulum-v1", n_steps=8, batch_size=8))
 
 
-# ---- limits (sb3_hddpg/limits.py): a spec or zip that would cost more than a few hundred MB is refused first
+# ---- limits (sb3_hddpg/artifacts/limits.py): a spec or zip that would cost more than a few hundred MB is refused first
 
 
 @pytest.mark.parametrize(
@@ -255,7 +255,7 @@ def test_spec_bombs_are_refused_before_anything_is_built(trained, edit, needle) 
 
 
 def test_oversized_and_bomb_members_are_refused_from_their_header(trained, tmp_path: Path) -> None:
-    from sb3_hddpg.limits import MAX_MEMBER_BYTES
+    from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES
 
     model, path = trained["DDPG"]
     # 100 MiB of zeros in policy.pth: under the size limit but ~1000x compressed (a zip bomb).

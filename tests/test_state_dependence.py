@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
-from sb3_hddpg.hierarchy import Hierarchy, SelectionConfig
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
 from tests.helpers import ConstantWorker
 
 ENV_ID = "hddpg/SnakeReach-v0"

@@ -21,13 +21,13 @@ from optuna.trial import TrialState
 from postgres_server import postgres_url  # noqa: F401  (fixture)
 from stable_baselines3 import DDPG
 
-from sb3_hddpg import tuning
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.cli import main as cli_main
-from sb3_hddpg.config import load_hyperparams
-from sb3_hddpg.study_storage import default_storage_url, make_storage
-from sb3_hddpg.training import train_workers
-from sb3_hddpg.tuning import StudySettings, TuningTarget
+from sb3_hddpg.experiments import tuning
+from sb3_hddpg.experiments.study_storage import default_storage_url, make_storage
+from sb3_hddpg.experiments.tuning import StudySettings, TuningTarget
+from sb3_hddpg.training.config import load_hyperparams
+from sb3_hddpg.training.training import train_workers
 
 REPO = Path(__file__).resolve().parent.parent
 #: Keep every trial tiny: small nets, a small buffer (the end-of-training checkpoint pickles it whole).

@@ -10,11 +10,16 @@ import pytest
 import yaml
 from stable_baselines3 import SAC, TD3
 
-from sb3_hddpg import tuning
-from sb3_hddpg.config import load_hyperparams, parse_block
-from sb3_hddpg.hyperparams_opt import check_fixed_params, sample_sac_params, sampler_for, search_space
-from sb3_hddpg.study_storage import default_storage_url
-from sb3_hddpg.tuning import StudySettings, TuningTarget
+from sb3_hddpg.experiments import tuning
+from sb3_hddpg.experiments.hyperparams_opt import (
+    check_fixed_params,
+    sample_sac_params,
+    sampler_for,
+    search_space,
+)
+from sb3_hddpg.experiments.study_storage import default_storage_url
+from sb3_hddpg.experiments.tuning import StudySettings, TuningTarget
+from sb3_hddpg.training.config import load_hyperparams, parse_block
 from tests.cli_batch import run_batch
 
 REPO = Path(__file__).resolve().parent.parent

@@ -4,7 +4,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_hddpg.selection import SimplexMap, parse_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.selection import SimplexMap, parse_preferences, preferences_from_bias
 from sb3_hddpg.wrappers import WorkerSelectionWrapper
 from tests.helpers import ActionRecorder, ConstantWorker
 

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import gymnasium as gym
 
-from sb3_hddpg.benchmark import TEST_SEED_BASE
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.loading import load_policy
+from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE
+from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.stats import summarise
 
 run = sys.argv[1]

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import gymnasium as gym
 
-from sb3_hddpg.benchmark import TEST_SEED_BASE, normalised_term_sums
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.hierarchy import Hierarchy
+from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE, normalised_term_sums
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.stats import summarise
 
 RUN = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/bench")

@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
+from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
-from sb3_hddpg.io import atomic_write_json
-from sb3_hddpg.workers import Policy
+from sb3_hddpg.policy import Policy
 
 #: The component of the shared state that the switch reads.
 DISTANCE_COMPONENT = "joint_obstacle_distances"
@@ -232,8 +232,8 @@ def load_ham(
 ) -> tuple[HAMSwitch, dict[str, Any]]:
     """
     Load a switch written by :func:`save_ham`; its workers are verified and loaded by
-    :func:`sb3_hddpg.training.load_workers` (weights only unless ``trusted``). Every field is checked
-    first (:mod:`sb3_hddpg.limits`): the env id must be registered and allowed, the workers manifest a
+    :func:`sb3_hddpg.training.training.load_workers` (weights only unless ``trusted``). Every field is checked
+    first (:mod:`sb3_hddpg.artifacts.limits`): the env id must be registered and allowed, the workers manifest a
     ``manifest.json`` path, the names plain names.
 
     :param path: the ``ham.json`` file.
@@ -244,8 +244,8 @@ def load_ham(
     import gymnasium as gym
 
     import sb3_hddpg  # noqa: F401  (registers the env ids)
-    from sb3_hddpg.limits import brief, check_env_id, check_env_kwargs, check_name, read_json_file
-    from sb3_hddpg.training import load_workers, observed_components
+    from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_name, read_json_file
+    from sb3_hddpg.training.training import load_workers, observed_components
 
     path = Path(path)
     try:

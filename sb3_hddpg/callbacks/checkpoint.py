@@ -8,7 +8,7 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_hddpg.io import atomic_write, atomic_write_json, remove_stale_temporaries
+from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json, remove_stale_temporaries
 
 STATE_FILE = "state.json"
 

@@ -10,8 +10,8 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
+from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.io import atomic_write, atomic_write_json
 
 
 class MetricsEvalCallback(EvalCallback):

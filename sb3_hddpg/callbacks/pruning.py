@@ -11,7 +11,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 def parameters_finite(model: BaseAlgorithm) -> bool:
     """Whether every weight of ``model``'s policy (actor, critic and their targets) is finite, on either backend."""
-    from sb3_hddpg.backends import parameters_finite as finite
+    from sb3_hddpg.training.backends import parameters_finite as finite
 
     return finite(model)
 

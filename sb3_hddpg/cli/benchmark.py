@@ -9,7 +9,16 @@ from typing import Any
 import typer
 from rich.table import Table
 
-from sb3_hddpg.benchmark import (
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import (
+    BACKEND_HELP,
+    at_least,
+    backend_name,
+    positive_float,
+    prepare_out_dir,
+    usage_errors,
+)
+from sb3_hddpg.experiments.benchmark import (
     DEFAULT_METHODS,
     DEFAULT_TRANSFER_METHODS,
     DEFAULT_TRANSFER_PREFERENCES,
@@ -19,15 +28,6 @@ from sb3_hddpg.benchmark import (
     BenchmarkSettings,
     Task,
     run_benchmark,
-)
-from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import (
-    BACKEND_HELP,
-    at_least,
-    backend_name,
-    positive_float,
-    prepare_out_dir,
-    usage_errors,
 )
 
 
@@ -309,7 +309,7 @@ def benchmark_command(
 
 
 def _export(run: Path, dest: Path) -> None:
-    from sb3_hddpg.model_export import export_models
+    from sb3_hddpg.experiments.model_export import export_models
 
     index = export_models(run, dest)
     console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
@@ -327,7 +327,7 @@ def export_models_command(
     with usage_errors("'RUN'"):
         if not (run / "records").is_dir():
             raise FileNotFoundError(f"not a benchmark folder (no records/): {str(run)!r}")
-        from sb3_hddpg.model_export import export_models
+        from sb3_hddpg.experiments.model_export import export_models
 
         index = export_models(run, dest)
     console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")

@@ -72,9 +72,9 @@ def evaluate_command(
     ),
 ) -> None:
     """Evaluate a policy: mean reward, goal-touch rate, collisions, success, clearance (and worker choices)."""
+    from sb3_hddpg.artifacts.io import atomic_write_json
     from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
-    from sb3_hddpg.io import atomic_write_json
-    from sb3_hddpg.loading import load_policy
+    from sb3_hddpg.hierarchy.loading import load_policy
 
     # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
     # checked here, as a usage error; what fails during the episodes is not.

@@ -35,7 +35,7 @@ def at_least(minimum: int) -> Callable[[int | None], int | None]:
     return check
 
 
-#: The largest seed SB3 accepts (``sb3_hddpg.training.MAX_SEED``, repeated to keep ``--help`` light).
+#: The largest seed SB3 accepts (``sb3_hddpg.training.training.MAX_SEED``, repeated to keep ``--help`` light).
 MAX_SEED = 2**32 - 1
 
 
@@ -109,10 +109,10 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
     """
     Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a path
     through a file, and a folder that already holds results unless ``--resume`` or ``--force`` (which
-    clears it first); then lock it (:func:`sb3_hddpg.io.locked_folder`) until the command ends, so a
+    clears it first); then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the command ends, so a
     second run into the same folder stops at once with the holder's pid.
     """
-    from sb3_hddpg.io import LOCK_FILE, FolderLockedError, locked_folder
+    from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, locked_folder
 
     if str(out) in ("", ".") or out.resolve() in (Path.cwd().resolve(), Path(out.anchor or "/").resolve()):
         raise typer.BadParameter(
@@ -168,7 +168,7 @@ def backend_name(value: str | None) -> str | None:
     """A typer callback for ``--backend``: ``sb3`` or ``sbx``, and installed (``None`` passes)."""
     if value is None:
         return None
-    from sb3_hddpg.backends import BackendError, check_backend
+    from sb3_hddpg.training.backends import BackendError, check_backend
 
     try:
         return check_backend(value)

@@ -10,7 +10,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
 from sb3_hddpg.cli.record import TRUST_HELP
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.loading import load_policy
+from sb3_hddpg.hierarchy.loading import load_policy
 
 
 @app.command("plot-selection")

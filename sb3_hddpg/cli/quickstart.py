@@ -11,7 +11,13 @@ from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir, seed_range
-from sb3_hddpg.quickstart import BUDGETS, STAGES, QuickstartObserver, QuickstartResult, run_quickstart
+from sb3_hddpg.experiments.quickstart import (
+    BUDGETS,
+    STAGES,
+    QuickstartObserver,
+    QuickstartResult,
+    run_quickstart,
+)
 
 
 class _RichObserver(QuickstartObserver):

@@ -9,7 +9,7 @@ import typer
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.loading import load_policy
+from sb3_hddpg.hierarchy.loading import load_policy
 
 POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK)."
 TRUST_HELP = "Allow SB3's full loader, which runs code stored in the file: only for files you trust."

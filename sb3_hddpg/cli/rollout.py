@@ -27,11 +27,11 @@ def rollout(
     from PIL import Image
 
     import sb3_hddpg  # noqa: F401  (registers the env ids)
+    from sb3_hddpg.artifacts.io import atomic_write_bytes
     from sb3_hddpg.baselines import JacobianReacher
     from sb3_hddpg.envs.contract import state_layout_of
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.io import atomic_write_bytes
-    from sb3_hddpg.workers import RandomPolicy
+    from sb3_hddpg.policy import RandomPolicy
 
     with usage_errors("'--env'"):
         env = gym.make(env_id, render_mode="rgb_array")

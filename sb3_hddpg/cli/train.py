@@ -26,10 +26,10 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
-from sb3_hddpg.workers import WORKER_ENV_IDS
+from sb3_hddpg.policy import WORKER_ENV_IDS
 
 if TYPE_CHECKING:
-    from sb3_hddpg.training import TrainingOutcome
+    from sb3_hddpg.training.training import TrainingOutcome
 
 # The library (torch, SB3) is imported inside the commands: `--help` and usage errors stay fast.
 
@@ -126,8 +126,8 @@ def train_workers_command(
     backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
-    from sb3_hddpg.backends import resolve_backend
-    from sb3_hddpg.training import TrainingInterrupted, train_workers, worker_hyperparams
+    from sb3_hddpg.training.backends import resolve_backend
+    from sb3_hddpg.training.training import TrainingInterrupted, train_workers, worker_hyperparams
 
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
@@ -256,9 +256,9 @@ def train_manager_command(
     ),
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
-    from sb3_hddpg.backends import resolve_backend
-    from sb3_hddpg.selection import SELECTION_MODES, parse_preferences
-    from sb3_hddpg.training import TrainingInterrupted, prepare_manager, train_manager
+    from sb3_hddpg.hierarchy.selection import SELECTION_MODES, parse_preferences
+    from sb3_hddpg.training.backends import resolve_backend
+    from sb3_hddpg.training.training import TrainingInterrupted, prepare_manager, train_manager
 
     if selection is not None and selection not in SELECTION_MODES:
         raise typer.BadParameter(

@@ -17,8 +17,8 @@ from sb3_hddpg.cli.options import (
     seed_range,
     usage_errors,
 )
-from sb3_hddpg.training import WORKER_ENV_IDS, TrainingInterrupted
-from sb3_hddpg.tuning import LEVELS, PRUNERS, SAMPLERS
+from sb3_hddpg.experiments.tuning import LEVELS, PRUNERS, SAMPLERS
+from sb3_hddpg.training.training import WORKER_ENV_IDS, TrainingInterrupted
 
 
 def parse_fixed(items: list[str]) -> dict[str, object]:
@@ -137,9 +137,9 @@ def tune_command(
 
     matplotlib.use("Agg")  # plots are files; never open a window
 
-    from sb3_hddpg.hyperparams_opt import FLAT_SAMPLERS, check_fixed_params
-    from sb3_hddpg.study_storage import check_storage_url, default_storage_url
-    from sb3_hddpg.tuning import (
+    from sb3_hddpg.experiments.hyperparams_opt import FLAT_SAMPLERS, check_fixed_params
+    from sb3_hddpg.experiments.study_storage import check_storage_url, default_storage_url
+    from sb3_hddpg.experiments.tuning import (
         StudySettings,
         TuningTarget,
         best_trials,
@@ -213,7 +213,7 @@ def tune_command(
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()
     if level != "ham":
-        from sb3_hddpg.backends import resolve_backend
+        from sb3_hddpg.training.backends import resolve_backend
 
         with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
             resolve_backend(backend, target.base_block().get("backend"))

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_hddpg.io import atomic_write_bytes
+from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.media.overlay import worker_colour
 from sb3_hddpg.media.trace import StepRecord
 

@@ -9,7 +9,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.workers import Policy
+from sb3_hddpg.policy import Policy
 
 
 @dataclass

@@ -11,11 +11,11 @@ import gymnasium as gym
 import numpy as np
 from PIL import Image
 
+from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
-from sb3_hddpg.io import atomic_write
 from sb3_hddpg.media.overlay import compose_frame
 from sb3_hddpg.media.trace import StepRecord, StepRecorder, selected_names
-from sb3_hddpg.workers import Policy
+from sb3_hddpg.policy import Policy
 
 #: The containers :func:`record_video` writes, by file suffix.
 VIDEO_FORMATS = (".gif", ".mp4")

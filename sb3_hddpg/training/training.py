@@ -28,7 +28,21 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopT
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-from sb3_hddpg.backends import (
+from sb3_hddpg.artifacts.io import (
+    atomic_write,
+    atomic_write_json,
+    holds_folder_lock,
+    locked_file,
+    remove_stale_temporaries,
+)
+from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
+from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
+from sb3_hddpg.envs import REWARD_TERMS
+from sb3_hddpg.envs.contract import env_contract
+from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, make_term_view
+from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.policy import WORKER_ENV_IDS
+from sb3_hddpg.training.backends import (
     check_algo,
     configure_jax_threads,
     load_native,
@@ -36,21 +50,7 @@ from sb3_hddpg.backends import (
     resolve_backend,
     to_sb3,
 )
-from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
-from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
-from sb3_hddpg.config import Hyperparams
-from sb3_hddpg.envs import REWARD_TERMS
-from sb3_hddpg.envs.contract import env_contract
-from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, make_term_view
-from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.io import (
-    atomic_write,
-    atomic_write_json,
-    holds_folder_lock,
-    locked_file,
-    remove_stale_temporaries,
-)
-from sb3_hddpg.workers import WORKER_ENV_IDS
+from sb3_hddpg.training.config import Hyperparams
 
 
 def _algos() -> dict[str, type[BaseAlgorithm]]:
@@ -68,13 +68,13 @@ def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
     The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
 
     :param name: the algorithm.
-    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX, see :mod:`sb3_hddpg.backends`).
+    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX, see :mod:`sb3_hddpg.training.backends`).
     """
     algos = _algos()
     if name.lower() not in algos:
         raise ValueError(f"Unknown algorithm {name!r}; choose from {list(ALGO_NAMES)}")
     if backend != "sb3":
-        from sb3_hddpg.backends import check_backend, sbx_class
+        from sb3_hddpg.training.backends import check_backend, sbx_class
 
         if check_backend(backend) == "sbx":
             return sbx_class(name)
@@ -225,12 +225,12 @@ def train_agent(
     """
     Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
 
-    With ``backend="sbx"`` the agent trains on JAX (:mod:`sb3_hddpg.backends`); its checkpoints and best
+    With ``backend="sbx"`` the agent trains on JAX (:mod:`sb3_hddpg.training.backends`); its checkpoints and best
     model stay in SBX's format inside the run folder, and the model saved to ``paths.model_path`` and
     returned is exported to the same SB3 algorithm.
 
     :param env_factory: builds one (unwrapped by Monitor) training env; picklable when ``n_envs > 1``.
-    :param hyperparams: the config block (see :mod:`sb3_hddpg.config`).
+    :param hyperparams: the config block (see :mod:`sb3_hddpg.training.config`).
     :param paths: where the agent's files go.
     :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
     :param timesteps: the total budget (default: the config's ``n_timesteps``).
@@ -434,13 +434,13 @@ def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
     """
     Write a manifest atomically, read-modify-write: the entries (``workers`` or ``models``) already in the
     file are kept unless ``manifest`` replaces them, so two runs writing different agents into one folder
-    one after the other (each under the folder's lock, see :func:`~sb3_hddpg.io.locked_folder`) both stay
+    one after the other (each under the folder's lock, see :func:`~sb3_hddpg.artifacts.io.locked_folder`) both stay
     listed.
 
     :param path: the manifest file.
     :param manifest: the new content; its entry mappings win over the file's.
     """
-    from sb3_hddpg.limits import read_json_file
+    from sb3_hddpg.artifacts.limits import read_json_file
 
     path = Path(path)
     merged = dict(manifest)
@@ -479,7 +479,7 @@ def worker_hyperparams(
         adapted env's id, else ``default``.
     :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
     """
-    from sb3_hddpg.config import load_hyperparams
+    from sb3_hddpg.training.config import load_hyperparams
 
     known = list(env.terms) if env is not None else sorted(WORKER_ENV_IDS)
     if isinstance(workers, str):
@@ -546,7 +546,7 @@ def train_workers(
         shared env (``shared_env``) so that ``train_manager`` acts in it.
     :return: the manifest written.
     """
-    from sb3_hddpg.safe_load import model_spec
+    from sb3_hddpg.artifacts.safe_load import model_spec
 
     if timesteps is not None and timesteps < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
@@ -632,7 +632,7 @@ def read_workers_manifest(path: str | Path) -> dict[str, Any]:
     """
     import json
 
-    from sb3_hddpg.limits import LimitError, brief, check_file_entry, check_name, read_json_file
+    from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
 
     path = Path(path)
     try:
@@ -684,7 +684,7 @@ def train_flat(
 
     The manifest's ``models`` mapping has one entry per algorithm, in the workers manifest's format
     (file, sha256, algo, env id and kwargs, rebuild spec, metrics, config, seed, versions), so that
-    :func:`sb3_hddpg.loading.load_policy` opens the zip without unpickling anything.
+    :func:`sb3_hddpg.hierarchy.loading.load_policy` opens the zip without unpickling anything.
 
     :param out_dir: the run folder.
     :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
@@ -710,9 +710,9 @@ def train_flat(
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
 
-    from sb3_hddpg.config import default_config, load_hyperparams
-    from sb3_hddpg.limits import read_json_file
-    from sb3_hddpg.safe_load import model_spec
+    from sb3_hddpg.artifacts.limits import read_json_file
+    from sb3_hddpg.artifacts.safe_load import model_spec
+    from sb3_hddpg.training.config import default_config, load_hyperparams
 
     algo = algo.lower()
     cls = algo_class(algo)
@@ -731,7 +731,7 @@ def train_flat(
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{algo}.zip")
     factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
     if preferences is not None:
-        from sb3_hddpg.wrappers.preference import make_preference_env
+        from sb3_hddpg.hierarchy.preference import make_preference_env
 
         factory = functools.partial(make_preference_env, env_id, make_kwargs, dict(preferences))
         factory().close()  # checks the factors here, once, rather than inside env subprocesses
@@ -786,7 +786,7 @@ def load_workers(
     :param trusted: use SB3's full loader instead of the weights-only rebuild.
     :return: name -> model, and the manifest.
     """
-    from sb3_hddpg.safe_load import load_model
+    from sb3_hddpg.artifacts.safe_load import load_model
 
     folder = Path(workers_dir)
     if not folder.exists():
@@ -879,7 +879,7 @@ def shared_env_of(
     ``shared_env`` (written by :func:`train_workers` for an env other than the snake arm; its id and
     kwargs pass the safe-loading checks), else ``hddpg/SnakeReach-v0``.
     """
-    from sb3_hddpg.limits import check_env_id, check_env_kwargs
+    from sb3_hddpg.artifacts.limits import check_env_id, check_env_kwargs
 
     if env_id is not None:
         return env_id, dict(env_kwargs or {})
@@ -943,10 +943,10 @@ def prepare_manager(
 
     :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
     """
-    from sb3_hddpg.config import MANAGER_KEY, load_hyperparams
-    from sb3_hddpg.hierarchy import SelectionConfig
-    from sb3_hddpg.limits import brief
-    from sb3_hddpg.selection import check_preferences, preferences_from_bias
+    from sb3_hddpg.artifacts.limits import brief
+    from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
+    from sb3_hddpg.hierarchy.selection import check_preferences, preferences_from_bias
+    from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
     from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
     if worker_names is not None and isinstance(worker_names, str):
@@ -1066,9 +1066,9 @@ def train_manager(
     :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
     :param backend: ``sb3`` or ``sbx`` for the manager's DDPG (default: the block's ``backend`` key, else
         ``sb3``); the bundle holds an SB3 manager either way.
-    :return: the saved :class:`~sb3_hddpg.hierarchy.Hierarchy` and the training outcome.
+    :return: the saved :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` and the training outcome.
     """
-    from sb3_hddpg.hierarchy import Hierarchy
+    from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 
     if timesteps is not None and timesteps < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
@@ -1103,7 +1103,7 @@ def train_manager(
     )
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
-    from sb3_hddpg.callbacks.selection import SelectionStatsCallback
+    from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 
     outcome = train_agent(
         factory,

@@ -7,7 +7,7 @@ every file still finds what it refers to: a worker zip its ``manifest.json`` bes
 ``flat/manifest.json``, ``ham.json`` its workers by a relative path; a hierarchy bundle is self-contained.
 ``index.json`` lists one record per model: ``{"method", "seed", "path", "sha256"}`` (plus ``"preference"``
 for the transfer scenario's runs), ``method`` one of :data:`INDEX_METHODS`, ``path`` relative to the folder
-and openable with :func:`sb3_hddpg.loading.load_policy` (``hddpg-cli evaluate PATH``).
+and openable with :func:`sb3_hddpg.hierarchy.loading.load_policy` (``hddpg-cli evaluate PATH``).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from sb3_hddpg.io import atomic_write_json
+from sb3_hddpg.artifacts.io import atomic_write_json
 
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
@@ -35,7 +35,7 @@ INDEX_METHODS = (
 
 
 def _sha256(path: Path) -> str:
-    from sb3_hddpg.training import sha256_file
+    from sb3_hddpg.training.training import sha256_file
 
     return sha256_file(path)
 
@@ -72,7 +72,7 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     :param dest: the folder to fill (created if missing; existing files of the same names are replaced).
     :return: the index's records.
     """
-    from sb3_hddpg.benchmark import WORKERS, split_key
+    from sb3_hddpg.experiments.benchmark import WORKERS, split_key
 
     root = Path(benchmark_dir)
     records_dir = root / "records"

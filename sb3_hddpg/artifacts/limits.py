@@ -471,7 +471,7 @@ def check_selection_settings(selection: Any, names: Sequence[str], what: str) ->
     :param what: the field, for the message.
     :return: the checked mapping.
     """
-    from sb3_hddpg.selection import SELECTION_MODES
+    from sb3_hddpg.hierarchy.selection import SELECTION_MODES
 
     if not isinstance(selection, Mapping):
         raise LimitError(f"{what}: expected a mapping, got {brief(selection)}")

@@ -12,8 +12,8 @@ from gymnasium import spaces
 from stable_baselines3.common.utils import check_for_correct_spaces
 
 from sb3_hddpg.envs.contract import env_contract, mix_terms, state_layout_of
-from sb3_hddpg.selection import SELECTION_MODES, FrozenWorker, SimplexMap, check_preferences, choose
-from sb3_hddpg.workers import Policy
+from sb3_hddpg.hierarchy.selection import SELECTION_MODES, FrozenWorker, SimplexMap, check_preferences, choose
+from sb3_hddpg.policy import Policy
 
 #: A worker's reward: one env term by name, or a weighted mix of normalised terms (a nested hierarchy's).
 RewardSpec = str | Mapping[str, float]
@@ -24,7 +24,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     Turn the shared env into the manager's MDP: the manager's action chooses which worker acts.
 
     **Action.** ``Box(-1, 1, (n_workers,), float32)``, mapped to worker probabilities by
-    :class:`~sb3_hddpg.selection.SimplexMap` (``softmax(a / temperature)`` mixed with a probability floor),
+    :class:`~sb3_hddpg.hierarchy.selection.SimplexMap` (``softmax(a / temperature)`` mixed with a probability floor),
     so SB3's noisy, clipped actions and its uniform warm-up actions are all valid. Then, per
     ``selection``: ``"sample"`` (the paper's) draws one worker from the probabilities and applies its
     action; ``"argmax"`` applies the most probable worker's action; ``"mix"`` applies the

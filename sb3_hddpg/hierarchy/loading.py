@@ -20,10 +20,10 @@ from typing import Any
 
 import gymnasium as gym
 
+from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_file_entry, read_json_file
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.limits import brief, check_env_id, check_env_kwargs, check_file_entry, read_json_file
-from sb3_hddpg.workers import Policy
+from sb3_hddpg.policy import Policy
 
 #: Names that stand for reference policies instead of files.
 REFERENCE_POLICIES = ("random", "scripted", "ik")
@@ -85,7 +85,7 @@ def load_policy(
 
     An env id read from a file is used only if it is registered, has no ``module:`` prefix (which
     ``gym.make`` would import) and is one of this package's ids or of ``allowed_env_ids`` (any registered
-    id with ``trusted``); its env kwargs must be the env's own parameters (:mod:`sb3_hddpg.limits`).
+    id with ``trusted``); its env kwargs must be the env's own parameters (:mod:`sb3_hddpg.artifacts.limits`).
 
     :param path: a file, or ``random`` / ``scripted``.
     :param env_id: the env to act in, for reference policies and untracked zips (default SnakeReach).
@@ -93,7 +93,7 @@ def load_policy(
     :param algo: the algorithm of an untracked zip loaded with ``trusted``.
     :param allowed_env_ids: registered env ids a file may name besides this package's own.
     """
-    from sb3_hddpg.safe_load import load_model
+    from sb3_hddpg.artifacts.safe_load import load_model
 
     text = str(path)
     if text in REFERENCE_POLICIES:
@@ -121,7 +121,7 @@ def load_policy(
     except OSError as error:  # permission denied, I/O error
         raise ValueError(f"Cannot read {text!r}: {error.strerror or error}") from None
     if "manifest.json" in members and "policy.pth" not in members:
-        from sb3_hddpg.hierarchy import Hierarchy
+        from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 
         hierarchy = Hierarchy.load(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(
@@ -129,7 +129,7 @@ def load_policy(
         )
     entry, kind = _manifest_entry(path)
     if entry is not None:
-        from sb3_hddpg.training import sha256_file
+        from sb3_hddpg.training.training import sha256_file
 
         actual = sha256_file(path)
         if actual != entry["sha256"]:
@@ -179,7 +179,7 @@ def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
     env = gym.make(env_id)
     layout = state_layout_of(env)
     if name == "random":
-        from sb3_hddpg.workers import RandomPolicy
+        from sb3_hddpg.policy import RandomPolicy
 
         policy: Policy = RandomPolicy(env.action_space, seed=0)
     elif name == "ik":

@@ -439,7 +439,7 @@ def make_model(
     :param policy: the policy name (``MlpPolicy``).
     :return: the model, on the CPU.
     """
-    from sb3_hddpg.training import algo_class
+    from sb3_hddpg.training.training import algo_class
 
     backend = check_backend(backend)
     # SB3 writes into the policy_kwargs dict it is given (use_sde): keep the caller's (the config's) intact.
@@ -473,7 +473,7 @@ def load_native(algo: str, backend: str, path: Any, env: Any = None) -> BaseAlgo
     :param path: the zip.
     :param env: the env to attach (to continue training), or ``None``.
     """
-    from sb3_hddpg.training import algo_class
+    from sb3_hddpg.training.training import algo_class
 
     cls = algo_class(algo, backend)
     model = cls.load(path, env=env, device="cpu")

@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.envs.contract import env_contract
-from sb3_hddpg.selection import check_preferences
+from sb3_hddpg.hierarchy.selection import check_preferences
 
 
 class PreferenceReward(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):

@@ -33,7 +33,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
-from sb3_hddpg.limits import (
+from sb3_hddpg.artifacts.limits import (
     MAX_MEMBER_BYTES,
     LoadBudget,
     brief,
@@ -668,7 +668,7 @@ def load_model_safely(
     :param device: torch device to build the model on and map the tensors to.
     :param budget: the bytes and models a whole load may still spend (a bundle's; default: a fresh one).
     :return: the model, ready for ``predict``.
-    :raises SafeLoadError: (a ValueError) for an invalid spec, sizes over :mod:`sb3_hddpg.limits`, unknown algorithm, a file that is not a (complete)
+    :raises SafeLoadError: (a ValueError) for an invalid spec, sizes over :mod:`sb3_hddpg.artifacts.limits`, unknown algorithm, a file that is not a (complete)
         zip, a missing ``policy.pth``, or weights whose keys/shapes do not match the spec.
     :raises FileNotFoundError: if ``path`` does not exist.
     """

@@ -29,9 +29,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_hddpg.envs.contract import mix_terms, state_layout_of
-from sb3_hddpg.io import atomic_write
-from sb3_hddpg.limits import (
+from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
     MAX_WORKERS,
     LoadBudget,
@@ -44,8 +43,9 @@ from sb3_hddpg.limits import (
     parse_json,
     read_member,
 )
-from sb3_hddpg.selection import FrozenWorker, SimplexMap, choose
-from sb3_hddpg.workers import Policy
+from sb3_hddpg.envs.contract import mix_terms, state_layout_of
+from sb3_hddpg.hierarchy.selection import FrozenWorker, SimplexMap, choose
+from sb3_hddpg.policy import Policy
 
 #: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
 SCHEMA_VERSION = 1
@@ -224,8 +224,8 @@ class Hierarchy:
     # ------------------------------------------------------------------ saving
     def to_bytes(self) -> bytes:
         """The bundle as zip bytes (see :meth:`save`)."""
-        from sb3_hddpg.safe_load import model_spec
-        from sb3_hddpg.training import library_versions
+        from sb3_hddpg.artifacts.safe_load import model_spec
+        from sb3_hddpg.training.training import library_versions
 
         members: dict[str, bytes] = {}
         manager_bytes = _model_bytes(self.manager)
@@ -296,10 +296,10 @@ class Hierarchy:
             objects stored in the model zips (only for files you trust), and any registered env id.
         :param allowed_env_ids: registered env ids the bundle may name besides this package's own.
         :param budget: what the load may spend (bytes, models, nesting); nested bundles share their
-            parent's (see :mod:`sb3_hddpg.limits`).
+            parent's (see :mod:`sb3_hddpg.artifacts.limits`).
         :return: the hierarchy; raises :class:`BundleError` naming the problem otherwise.
         """
-        from sb3_hddpg.safe_load import load_model
+        from sb3_hddpg.artifacts.safe_load import load_model
 
         name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
         budget = budget if budget is not None else LoadBudget()
@@ -360,7 +360,7 @@ def read_bundle(
     """
     Open a bundle and verify it: a readable zip with a manifest of a known schema, every member listed
     and present, every sha256 matching. Only the members the manifest lists are read, each within the
-    limits of :mod:`sb3_hddpg.limits` (size declared and actual, compression ratio, total bytes). Nested
+    limits of :mod:`sb3_hddpg.artifacts.limits` (size declared and actual, compression ratio, total bytes). Nested
     bundles are verified when they are loaded.
 
     :param path: the bundle or its bytes.
@@ -541,7 +541,7 @@ def check_spaces(
     """
     from gymnasium import spaces
 
-    from sb3_hddpg.wrappers.selection import _subset_space
+    from sb3_hddpg.hierarchy.wrapper import _subset_space
 
     def subset(components: list[str] | None) -> Any:
         return _subset_space(observation_space, layout.indices(components) if components else None)

@@ -2,7 +2,7 @@
 How a manager's action selects workers: the simplex map, the selection modes, and cheap frozen workers.
 
 Shared by :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` (training the manager) and
-:class:`~sb3_hddpg.hierarchy.Hierarchy` (running a trained one), so both select identically.
+:class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` (running a trained one), so both select identically.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from sb3_hddpg.workers import Policy
+from sb3_hddpg.policy import Policy
 
 #: Selection modes: ``sample`` (the paper's), ``argmax``, and ``mix`` (probability-weighted blend).
 SELECTION_MODES = ("sample", "argmax", "mix")
@@ -114,7 +114,7 @@ class FrozenWorker:
     forward call (measured in ``benchmarks/manager_env_speed.py``), and exactly the deterministic action.
     Any other SB3 policy runs a frozen deep copy of its network under ``torch.no_grad()``, skipping
     ``predict``'s per-call checks. Either way the caller's model is never modified: it can keep training,
-    and the frozen worker keeps acting with the weights it had when wrapped; anything else (a :class:`~sb3_hddpg.hierarchy.Hierarchy`, the HAM switch, a test
+    and the frozen worker keeps acting with the weights it had when wrapped; anything else (a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`, the HAM switch, a test
     double) is called through ``predict(obs, deterministic=True)``.
 
     :param worker: the worker.

@@ -1,15 +1,15 @@
 """
 Hyperparameter tuning with Optuna at every level: a worker, the manager, the flat baseline, and HAM's switch.
 
-One trial samples a ``zoo_configs`` block with :func:`~sb3_hddpg.hyperparams_opt.sampler_for` (one sampler per
-level; for ``flat``, one per algorithm: DDPG, TD3, SAC), trains it with :func:`~sb3_hddpg.training.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
+One trial samples a ``zoo_configs`` block with :func:`~sb3_hddpg.experiments.hyperparams_opt.sampler_for` (one sampler per
+level; for ``flat``, one per algorithm: DDPG, TD3, SAC), trains it with :func:`~sb3_hddpg.training.training.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
 evaluations to the pruner through :class:`~sb3_hddpg.callbacks.TrialPruningCallback`, and returns the last
 evaluation's mean reward (rl_zoo3's objective: the best of several noisy evaluations would favour lucky
 configurations). A trial that diverges (NaN reward or weights, or an exception about NaN) is pruned, not
 failed: it is a bad configuration, not a bug. HAM trains nothing: its trial is one evaluation.
 
 :func:`tune` runs ``n_jobs`` processes (not threads: training holds the GIL between torch calls) on one
-study in a shared storage (see :mod:`sb3_hddpg.study_storage`). ``n_trials`` is the *study's* target of
+study in a shared storage (see :mod:`sb3_hddpg.experiments.study_storage`). ``n_trials`` is the *study's* target of
 finished (complete or pruned) trials, so a re-run after an interruption completes the same study, and any
 number of processes, on any number of machines, together finish exactly that many.
 """
@@ -38,8 +38,12 @@ import torch
 import yaml
 from optuna.trial import FrozenTrial, TrialState
 
+from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
-from sb3_hddpg.config import (
+from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.experiments.hyperparams_opt import sampler_for
+from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
+from sb3_hddpg.training.config import (
     DEFAULT_CONFIG,
     MANAGER_KEY,
     default_config,
@@ -48,11 +52,7 @@ from sb3_hddpg.config import (
     parse_block,
     select_block,
 )
-from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.hyperparams_opt import sampler_for
-from sb3_hddpg.io import atomic_write_bytes
-from sb3_hddpg.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
-from sb3_hddpg.training import (
+from sb3_hddpg.training.training import (
     WORKER_ENV_IDS,
     AgentPaths,
     TrainingInterrupted,
@@ -161,12 +161,12 @@ class TuningTarget:
     @property
     def algo_class(self) -> type:
         """The SB3 class of :attr:`algo`."""
-        from sb3_hddpg.training import algo_class
+        from sb3_hddpg.training.training import algo_class
 
         return algo_class(self.algo)
 
     def sampler(self, trial: Any) -> dict[str, Any]:
-        """The changes to the base block a trial samples (:func:`~sb3_hddpg.hyperparams_opt.sampler_for`)."""
+        """The changes to the base block a trial samples (:func:`~sb3_hddpg.experiments.hyperparams_opt.sampler_for`)."""
         return sampler_for(self.level, self.algo)(trial)
 
     def base_block(self) -> dict[str, Any]:
@@ -192,7 +192,7 @@ class TuningTarget:
         if self.level == "manager":
             _env_factory(self, hyperparams)().close()
         elif self.level == "ham":
-            from sb3_hddpg.training import load_workers
+            from sb3_hddpg.training.training import load_workers
 
             workers, manifest = load_workers(str(self.workers_dir))
             env = make_snake_env(SHARED_ENV_ID)
@@ -235,7 +235,7 @@ class StudySettings:
     """
     How the study is searched and where it is stored.
 
-    :param storage: an Optuna storage URL (see :func:`~sb3_hddpg.study_storage.default_storage_url`).
+    :param storage: an Optuna storage URL (see :func:`~sb3_hddpg.experiments.study_storage.default_storage_url`).
     :param study_name: the study's name in the storage; re-using it resumes the study.
     :param n_trials: the study's target of finished (complete or pruned) trials, over all processes and runs.
     :param timeout: seconds after which no new trial is started (``None``: no limit).
@@ -700,7 +700,7 @@ def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
         return worker_env_factory(str(target.worker), hyperparams.env_kwargs)
     if target.level == "flat":
         return functools.partial(make_snake_env, SHARED_ENV_ID, dict(hyperparams.env_kwargs))
-    from sb3_hddpg.hierarchy import SelectionConfig
+    from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
 
     manifest = _workers_manifest(str(target.workers_dir))
     names = list(manifest["workers"])
@@ -733,7 +733,7 @@ def _workers_manifest(workers_dir: str) -> dict[str, Any]:
         manifest = folder / "manifest.json"
     if not manifest.exists():
         raise FileNotFoundError(f"No workers manifest in {workers_dir!r}; run train-workers first")
-    from sb3_hddpg.training import read_workers_manifest
+    from sb3_hddpg.training.training import read_workers_manifest
 
     return read_workers_manifest(manifest)
 
@@ -741,7 +741,7 @@ def _workers_manifest(workers_dir: str) -> dict[str, Any]:
 def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -> float:
     """HAM's trial: no training, one evaluation on the combined reward."""
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.training import load_workers
+    from sb3_hddpg.training.training import load_workers
 
     workers, manifest = load_workers(str(target.workers_dir))
     env = make_snake_env(SHARED_ENV_ID)

@@ -38,8 +38,8 @@ import numpy as np
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
 
 #: The env every method is compared on.
 COMPARISON_ENV_ID = "hddpg/SnakeReach-v0"
@@ -194,7 +194,7 @@ def _train_job(
     backend: str = "sb3",
 ) -> dict[str, Any]:
     """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
-    from sb3_hddpg import training
+    from sb3_hddpg.training import training
 
     started, cpu_started = time.monotonic(), time.process_time()
     common = dict(
@@ -243,7 +243,7 @@ def train_flat_baseline(
     """
     The single-DDPG baseline: a plain SB3 DDPG on ``hddpg/SnakeReach-v0`` (both terms, normalised and
     summed), written to ``run_dir/flat/<name>.zip`` with a ``manifest.json`` that
-    :func:`~sb3_hddpg.loading.load_policy` verifies.
+    :func:`~sb3_hddpg.hierarchy.loading.load_policy` verifies.
 
     :param run_dir: the run folder.
     :param name: the model's name.
@@ -253,15 +253,21 @@ def train_flat_baseline(
     :param eval_freq: steps between evaluations.
     :param eval_episodes: episodes per evaluation.
     :param extra_callbacks: more SB3 callbacks.
-    :param keep_checkpoints: keep the finished run's replay buffer (see :func:`~sb3_hddpg.training.train_agent`).
+    :param keep_checkpoints: keep the finished run's replay buffer (see :func:`~sb3_hddpg.training.training.train_agent`).
     :param backend: ``sb3`` or ``sbx`` (the saved model is an SB3 zip either way).
     :return: the manifest entry written.
     """
     from stable_baselines3 import DDPG
 
-    from sb3_hddpg.config import load_hyperparams
-    from sb3_hddpg.safe_load import model_spec
-    from sb3_hddpg.training import AgentPaths, library_versions, make_snake_env, sha256_file, train_agent
+    from sb3_hddpg.artifacts.safe_load import model_spec
+    from sb3_hddpg.training.config import load_hyperparams
+    from sb3_hddpg.training.training import (
+        AgentPaths,
+        library_versions,
+        make_snake_env,
+        sha256_file,
+        train_agent,
+    )
 
     hyperparams = load_hyperparams(COMPARISON_ENV_ID, DDPG, config)
     paths = AgentPaths(run_dir, name, run_dir / "flat" / f"{name}.zip")
@@ -308,7 +314,7 @@ def ham_available() -> bool:
 
 def write_config(path: Path, overrides: dict[str, Any]) -> Path:
     """The bundled config with ``overrides`` applied to every block, written to ``path`` (RL Zoo format)."""
-    from sb3_hddpg.config import DEFAULT_CONFIG, load_config_file
+    from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file
 
     config = load_config_file(DEFAULT_CONFIG)
     for block in config.values():
@@ -404,10 +410,10 @@ def run_quickstart(
     :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
     :return: the metrics, the files written and the timings.
     """
-    from sb3_hddpg.loading import LoadedPolicy, load_policy
+    from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
     from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
     from sb3_hddpg.media.video import record_video
-    from sb3_hddpg.training import WORKER_ENV_IDS, save_manifest
+    from sb3_hddpg.training.training import WORKER_ENV_IDS, save_manifest
 
     if isinstance(budget, str):
         if budget not in BUDGETS:
@@ -415,7 +421,7 @@ def run_quickstart(
         budget = BUDGETS[budget]
     if processes < 1:
         raise ValueError(f"Expected `processes` >= 1, actually: {processes}")
-    from sb3_hddpg.backends import check_backend
+    from sb3_hddpg.training.backends import check_backend
 
     backend = check_backend(backend)
     observer = observer or QuickstartObserver()
@@ -585,13 +591,13 @@ def run_quickstart(
     )
     stage_done(4)
 
-    from sb3_hddpg.packaging import write_zoo_layout
+    from sb3_hddpg.experiments.packaging import write_zoo_layout
 
     zoo_models: dict[str, str | Path] = {
         env: run_dir / "workers" / f"{n}.zip" for n, env in WORKER_ENV_IDS.items()
     }
     zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
-    from sb3_hddpg.training import read_workers_manifest
+    from sb3_hddpg.training.training import read_workers_manifest
 
     trained = read_workers_manifest(run_dir / "workers" / "manifest.json")["workers"]
     zoo_env_kwargs = {
@@ -619,7 +625,7 @@ def run_quickstart(
         "wall_seconds": wall,
         "processes": processes,
     }
-    from sb3_hddpg.training import library_versions
+    from sb3_hddpg.training.training import library_versions
 
     results["versions"] = library_versions()
     atomic_write_json(files["results"], results)

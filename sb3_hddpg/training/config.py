@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 from torch import nn
 
-from sb3_hddpg.limits import (
+from sb3_hddpg.artifacts.limits import (
     MAX_CONFIG_NODES,
     MAX_JSON_BYTES,
     brief,
@@ -31,7 +31,7 @@ from sb3_hddpg.limits import (
 )
 
 #: The bundled config, also reachable as ``zoo_configs/ddpg.yml`` in a checkout.
-DEFAULT_CONFIG = Path(__file__).parent / "zoo_configs" / "ddpg.yml"
+DEFAULT_CONFIG = Path(__file__).parent.parent / "zoo_configs" / "ddpg.yml"
 
 
 def default_config(algo: str = "ddpg") -> Path:
@@ -237,7 +237,7 @@ def parse_block(
             )
     backend = block.pop("backend", None)
     if backend is not None:
-        from sb3_hddpg.backends import BACKENDS
+        from sb3_hddpg.training.backends import BACKENDS
 
         if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
             raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")

@@ -51,8 +51,8 @@ from typing import Any
 
 import numpy as np
 
+from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, state_dependence
-from sb3_hddpg.io import atomic_write, atomic_write_json
 from sb3_hddpg.stats import (
     bootstrap_ci,
     paired_difference_ci,
@@ -60,7 +60,7 @@ from sb3_hddpg.stats import (
     summarise,
     trend_slope,
 )
-from sb3_hddpg.training import sigterm_as_interrupt
+from sb3_hddpg.training.training import sigterm_as_interrupt
 
 logger = logging.getLogger(__name__)
 
@@ -161,7 +161,7 @@ def canonical_preference(text: str) -> str:
 
     :raises ValueError: naming the bad entry.
     """
-    from sb3_hddpg.selection import parse_preferences
+    from sb3_hddpg.hierarchy.selection import parse_preferences
 
     factors = parse_preferences(text)
     for name, value in factors.items():
@@ -211,7 +211,7 @@ class BenchmarkSettings:
     backend: str = "sb3"
 
     def __post_init__(self) -> None:
-        from sb3_hddpg.backends import check_algo, check_backend
+        from sb3_hddpg.training.backends import check_algo, check_backend
 
         unknown = [m for m in self.methods if m not in METHOD_REGISTRY]
         if unknown:
@@ -289,7 +289,7 @@ class Task:
     @property
     def preferences(self) -> dict[str, float] | None:
         """The preference factors of a transfer run (``None``: the method's own)."""
-        from sb3_hddpg.selection import parse_preferences
+        from sb3_hddpg.hierarchy.selection import parse_preferences
 
         preference = split_key(self.method)[1]
         return parse_preferences(preference) if preference else None
@@ -343,7 +343,7 @@ def _history(path: Path, offset: int) -> list[dict[str, Any]]:
 def _test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
     """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.loading import load_policy
+    from sb3_hddpg.hierarchy.loading import load_policy
 
     loaded = load_policy(policy_path)
     env = loaded.make_env()
@@ -358,8 +358,8 @@ def _random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
     import gymnasium as gym
 
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.training import FLAT_ENV_ID
-    from sb3_hddpg.workers import RandomPolicy
+    from sb3_hddpg.policy import RandomPolicy
+    from sb3_hddpg.training.training import FLAT_ENV_ID
 
     env = gym.make(FLAT_ENV_ID)
     try:
@@ -411,7 +411,7 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
 
 def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
     """Train (or finish) a seed's two workers."""
-    from sb3_hddpg.training import train_workers
+    from sb3_hddpg.training.training import train_workers
 
     manifest = train_workers(
         folder,
@@ -437,7 +437,7 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
 def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
     """A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors)."""
     from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
-    from sb3_hddpg.training import train_manager
+    from sb3_hddpg.training.training import train_manager
 
     run_dir = folder / task.method
     train_manager(
@@ -463,7 +463,7 @@ def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, fo
 
 def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
     """A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps."""
-    from sb3_hddpg.training import train_flat
+    from sb3_hddpg.training.training import train_flat
 
     run_dir = folder / task.method
     train_flat(
@@ -491,7 +491,7 @@ def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str,
     from sb3_hddpg.baselines.ham import load_ham, save_ham
     from sb3_hddpg.envs.contract import state_layout_of
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.training import FLAT_ENV_ID
+    from sb3_hddpg.training.training import FLAT_ENV_ID
 
     env = gym.make(FLAT_ENV_ID)
     try:
@@ -1215,7 +1215,7 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
 
 def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> None:
     """Write ``results.json``, ``results.md``, ``evaluations.csv`` and the plots into ``out``."""
-    from sb3_hddpg import plots
+    from sb3_hddpg.media import plots
 
     method_records = [r for r in records if r["method"] != WORKERS]
     results["curves"] = {

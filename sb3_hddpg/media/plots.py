@@ -15,7 +15,7 @@ matplotlib.use("Agg")  # files only: never open a window, even where a display e
 
 import matplotlib.pyplot as plt
 
-from sb3_hddpg.io import atomic_write
+from sb3_hddpg.artifacts.io import atomic_write
 
 #: One colour per method, the same in every figure: the fallback for results written before they carried
 #: their methods' colours (``results["colours"]``, from the benchmark's method registry).

@@ -31,9 +31,8 @@ from typing import Any
 import yaml
 
 from sb3_hddpg import __version__ as version
-from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.io import _UMASK, atomic_write_bytes, atomic_write_json
-from sb3_hddpg.limits import (
+from sb3_hddpg.artifacts.io import _UMASK, atomic_write_bytes, atomic_write_json
+from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
     LoadBudget,
     brief,
@@ -42,7 +41,8 @@ from sb3_hddpg.limits import (
     parse_json,
     read_member,
 )
-from sb3_hddpg.loading import LoadedPolicy
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.hierarchy.loading import LoadedPolicy
 
 #: The keys of ``results.json``: huggingface_sb3's five, then ours.
 RESULTS_KEYS = (
@@ -91,7 +91,7 @@ def package_policy(
     Evaluate, record and lay out a policy for sharing, like ``huggingface_sb3.package_to_hub`` but offline.
     The folder is built beside ``out_dir`` and renamed into place, so it appears whole or not at all.
 
-    :param loaded: the policy, from :func:`~sb3_hddpg.loading.load_policy`.
+    :param loaded: the policy, from :func:`~sb3_hddpg.hierarchy.loading.load_policy`.
     :param source: the file it was loaded from (copied into the package).
     :param out_dir: the package folder; must not exist (or be empty) unless ``force``.
     :param n_eval_episodes: evaluation episodes for ``results.json`` and the model card.
@@ -231,7 +231,7 @@ def _lay_out_model(loaded: LoadedPolicy, source: Path, staging: Path) -> tuple[P
 
 
 def _lay_out_bundle(source: Path, staging: Path) -> tuple[Path, dict[str, Any]]:
-    from sb3_hddpg.hierarchy import read_bundle
+    from sb3_hddpg.hierarchy.hierarchy import read_bundle
 
     manifest, members = read_bundle(source)
     model_file = staging / "hierarchy.zip"
@@ -295,14 +295,14 @@ def model_card(loaded: LoadedPolicy, algo_name: str, model_file: str, results: d
             "with a manifest of sha256 hashes (`manifest.json` is a copy)."
         )
         python = (
-            "from sb3_hddpg.hierarchy import Hierarchy\n\n"
+            "from sb3_hddpg.hierarchy.hierarchy import Hierarchy\n\n"
             f'policy = Hierarchy.load("{model_file}")  # verified; rebuilt without unpickling\n'
             "action, _ = policy.predict(obs, deterministic=True)"
         )
     else:
         what = f"a **{algo_name}** agent (a plain Stable-Baselines3 model) trained with sb3-hddpg."
         python = (
-            "from sb3_hddpg.loading import load_policy\n\n"
+            "from sb3_hddpg.hierarchy.loading import load_policy\n\n"
             f'loaded = load_policy("{model_file}")  # checks manifest.json; loads weights only\n'
             "action, _ = loaded.policy.predict(obs, deterministic=True)\n\n"
             "# or, trusting the file, with SB3 itself:\n"

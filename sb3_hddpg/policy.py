@@ -15,7 +15,7 @@ WORKER_ENV_IDS = {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}
 @runtime_checkable
 class Policy(Protocol):
     """
-    What every policy in sb3-hddpg is: an SB3 model, a :class:`~sb3_hddpg.hierarchy.Hierarchy`, the HAM
+    What every policy in sb3-hddpg is: an SB3 model, a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`, the HAM
     switch, or any object with SB3's ``predict`` signature. Any policy can be a worker of a manager.
     """
 

@@ -1,0 +1,1 @@
+"""Experiments built on the library: benchmark, tuning, quickstart, packaging and model export."""
