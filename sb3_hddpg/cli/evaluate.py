@@ -10,10 +10,10 @@ from rich.table import Table
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
-    EPISODE_STEPS_HELP,
-    INFO_KEY_HELP,
-    TERM_BOUNDS_HELP,
-    TERMS_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
     at_least,
     seed_range,
     terms_env_option,
@@ -35,12 +35,10 @@ def evaluate_command(
     env_id: str | None = typer.Option(
         None, "--env", help="Env id to evaluate on (default: the one it was trained on). " + ENV_HELP
     ),
-    terms: str | None = typer.Option(None, "--terms", help=TERMS_HELP),
-    term_bounds: str | None = typer.Option(None, "--term-bounds", help=TERM_BOUNDS_HELP),
-    info_key: str | None = typer.Option(None, "--info-key", help=INFO_KEY_HELP),
-    episode_steps: int | None = typer.Option(
-        None, "--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP
-    ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
     episodes: int = typer.Option(20, "--episodes", callback=at_least(1), help="Evaluation episodes."),
     seed: int = typer.Option(
         EVAL_SEED_BASE,

@@ -7,7 +7,7 @@ import math
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import click
 import typer
@@ -193,6 +193,15 @@ INFO_KEY_HELP = (
     "The info entry holding the per-term rewards, e.g. rewards (highway-env); default: info itself."
 )
 EPISODE_STEPS_HELP = "Time limit of an adapted env (default: its registered max_episode_steps)."
+
+
+# The options that name another env's terms, declared once for every command that takes them.
+TermsOpt = Annotated[str | None, typer.Option("--terms", help=TERMS_HELP)]
+TermBoundsOpt = Annotated[str | None, typer.Option("--term-bounds", help=TERM_BOUNDS_HELP)]
+InfoKeyOpt = Annotated[str | None, typer.Option("--info-key", help=INFO_KEY_HELP)]
+EpisodeStepsOpt = Annotated[
+    int | None, typer.Option("--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP)
+]
 
 
 def terms_env_option(

@@ -12,10 +12,10 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     BACKEND_HELP,
     ENV_HELP,
-    EPISODE_STEPS_HELP,
-    INFO_KEY_HELP,
-    TERM_BOUNDS_HELP,
-    TERMS_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
     at_least,
     backend_name,
     existing_dir,
@@ -86,12 +86,10 @@ def train_workers_command(
         f"(the snake arm: {sorted(WORKER_ENV_IDS)}).",
     ),
     env: str | None = typer.Option(None, "--env", help=ENV_HELP),
-    terms: str | None = typer.Option(None, "--terms", help=TERMS_HELP),
-    term_bounds: str | None = typer.Option(None, "--term-bounds", help=TERM_BOUNDS_HELP),
-    info_key: str | None = typer.Option(None, "--info-key", help=INFO_KEY_HELP),
-    episode_steps: int | None = typer.Option(
-        None, "--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP
-    ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
     config: Path | None = typer.Option(None, "--config", callback=existing_file, help=CONFIG_HELP),
     timesteps: int | None = typer.Option(
         None,
@@ -248,12 +246,10 @@ def train_manager_command(
     keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
     backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
     env: str | None = typer.Option(None, "--env", help=ENV_HELP + MANAGER_ENV_NOTE),
-    terms: str | None = typer.Option(None, "--terms", help=TERMS_HELP),
-    term_bounds: str | None = typer.Option(None, "--term-bounds", help=TERM_BOUNDS_HELP),
-    info_key: str | None = typer.Option(None, "--info-key", help=INFO_KEY_HELP),
-    episode_steps: int | None = typer.Option(
-        None, "--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP
-    ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
     from sb3_hddpg.hierarchy.selection import SELECTION_MODES, parse_preferences

@@ -10,10 +10,10 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     BACKEND_HELP,
     ENV_HELP,
-    EPISODE_STEPS_HELP,
-    INFO_KEY_HELP,
-    TERM_BOUNDS_HELP,
-    TERMS_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
     at_least,
     backend_name,
     prepare_out_dir,
@@ -67,12 +67,10 @@ def train_flat_command(
         "get 1); default: the env's own reward (the normalised sum).",
     ),
     env: str | None = typer.Option(None, "--env", help=ENV_HELP),
-    terms: str | None = typer.Option(None, "--terms", help=TERMS_HELP),
-    term_bounds: str | None = typer.Option(None, "--term-bounds", help=TERM_BOUNDS_HELP),
-    info_key: str | None = typer.Option(None, "--info-key", help=INFO_KEY_HELP),
-    episode_steps: int | None = typer.Option(
-        None, "--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP
-    ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
     from sb3_hddpg.hierarchy.selection import parse_preferences
