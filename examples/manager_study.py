@@ -21,10 +21,10 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.noise import NormalActionNoise
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
+from sb3_hddpg.artifacts.manifests import load_workers, observed_components
 from sb3_hddpg.callbacks import apply_action_l2
 from sb3_hddpg.evaluation import evaluate, state_dependence
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
-from sb3_hddpg.training.training import load_workers, observed_components
 from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 

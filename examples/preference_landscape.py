@@ -27,8 +27,8 @@ from rich.table import Table
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg import WorkerSelectionWrapper, evaluate
+from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.baselines.ham import HAMSwitch
-from sb3_hddpg.training.training import load_workers
 
 
 def normalised_returns(summary: dict[str, Any], bounds: dict[str, tuple[float, float]]) -> dict[str, float]:

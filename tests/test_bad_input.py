@@ -128,7 +128,7 @@ CASES = [
     case("tm-inf-preference", (*TM, "--preference", "goal=inf", "--out", "{tmp}/o"), 2, "inf"),
     case("tm-malformed-preference", (*TM, "--preference", "goal", "--out", "{tmp}/o"), 2, "goal"),
     case("tm-repeated-preference", (*TM, "--preference", "goal=1,goal=2", "--out", "{tmp}/o"), 2, "goal"),
-    case("tm-zero-bias", (*TM, "--prefer", "goal", "--bias", "0", "--out", "{tmp}/o"), 2, "got 0"),
+    case("tm-zero-bias", (*TM, "--prefer", "goal", "--bias", "0", "--out", "{tmp}/o"), 2, "> 0, actually: 0"),
     case("tm-negative-bias", (*TM, "--prefer", "goal", "--bias", "-0.5", "--out", "{tmp}/o"), 2, "-0.5"),
     case("tm-nan-bias", (*TM, "--prefer", "goal", "--bias", "nan", "--out", "{tmp}/o"), 2, "nan"),
     case("tm-inf-bias", (*TM, "--prefer", "goal", "--bias", "inf", "--out", "{tmp}/o"), 2, "inf"),

@@ -252,8 +252,8 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
 def test_train_flat_writes_a_model_that_opens_with_ddpg_load(tmp_path):
     from stable_baselines3 import DDPG
 
+    from sb3_hddpg.artifacts.provenance import sha256_file
     from sb3_hddpg.hierarchy.loading import load_policy
-    from sb3_hddpg.training.training import sha256_file
 
     out = tmp_path / "flat-run"
     done = cli(

@@ -328,8 +328,8 @@ def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
 
 def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
     """The exporter on a benchmark folder's layout (files stand in for models: only copying is tested here)."""
+    from sb3_hddpg.artifacts.provenance import sha256_file
     from sb3_hddpg.experiments.model_export import export_models, read_index
-    from sb3_hddpg.training.training import sha256_file
 
     run = tmp_path / "bench"
     files = {

@@ -163,8 +163,8 @@ def test_names_from_a_bundle_are_checked_before_they_pick_a_member(bundle, tmp_p
 
 def test_package_writes_nothing_outside_its_folder(tmp_path):
     """A worker entry whose algo is a path, and a zip with a ``../`` member: nothing lands outside ``--out``."""
+    from sb3_hddpg.artifacts.provenance import sha256_file
     from sb3_hddpg.experiments.packaging import _unpack_model
-    from sb3_hddpg.training.training import sha256_file
 
     folder = tmp_path / "shared" / "workers"
     folder.mkdir(parents=True)
@@ -230,9 +230,9 @@ def test_only_registered_allowed_env_ids_are_used(bundle, tmp_path):
 
 
 def test_worker_manifest_env_ids_and_ham_files_pass_the_same_gate(tmp_path):
+    from sb3_hddpg.artifacts.provenance import sha256_file
     from sb3_hddpg.artifacts.safe_load import model_spec
     from sb3_hddpg.baselines.ham import load_ham
-    from sb3_hddpg.training.training import sha256_file
 
     folder = tmp_path / "workers"
     folder.mkdir()
@@ -343,7 +343,7 @@ def test_deep_and_huge_json_is_refused_without_recursion(bundle, tmp_path):
     folder = tmp_path / "w"
     folder.mkdir()
     (folder / "manifest.json").write_text("[" * 200_000)
-    from sb3_hddpg.training.training import read_workers_manifest
+    from sb3_hddpg.artifacts.manifests import read_workers_manifest
 
     with pytest.raises(ValueError, match="nested"):
         read_workers_manifest(folder / "manifest.json")

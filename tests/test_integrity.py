@@ -157,7 +157,8 @@ def test_two_runs_started_together_into_one_folder_lose_nothing(tmp_path: Path) 
 
 def test_manifests_are_read_modify_write(tmp_path: Path) -> None:
     """Two runs one after the other into one folder (the Python API): both workers stay listed."""
-    from sb3_hddpg.training.training import load_workers, train_workers
+    from sb3_hddpg.artifacts.manifests import load_workers
+    from sb3_hddpg.training.training import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY)

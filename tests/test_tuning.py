@@ -109,11 +109,6 @@ def assert_exactly(study: optuna.Study, n_trials: int) -> None:
 
 @pytest.mark.parametrize("level", ["worker", "flat", "manager", "ham"])
 def test_two_trials_at_each_level(level, tmp_path, tiny_config, workers_dir):
-    if level == "ham":
-        try:
-            tuning.ham_class()
-        except RuntimeError as missing:
-            pytest.skip(str(missing))
     target = TuningTarget(
         level=level,
         worker="goal" if level == "worker" else None,

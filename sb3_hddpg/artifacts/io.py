@@ -29,7 +29,7 @@ def _read_umask() -> int:
 _UMASK = _read_umask()
 
 
-def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], None]) -> Path:
+def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) -> Path:
     """
     Produce ``path`` atomically: ``write`` fills a temporary path in the same folder, which is then renamed
     over ``path``. A reader (or a run killed at any moment, even with SIGKILL) sees the old file or the new

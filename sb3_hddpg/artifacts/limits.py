@@ -33,6 +33,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
+from sb3_hddpg.envs import ADAPTER_ENV_IDS, OWN_ENV_IDS
+
 #: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
 MAX_JSON_BYTES = 1 << 20
 #: Deepest nesting of a JSON document or a config value (json.loads recurses; ours are < 10 deep).
@@ -104,8 +106,6 @@ def check_name(value: Any, what: str) -> str:
 
 def own_env_ids() -> frozenset[str]:
     """The env ids this package registers (the default allow-list for ids read from files)."""
-    from sb3_hddpg.envs import OWN_ENV_IDS
-
     return frozenset(OWN_ENV_IDS)
 
 
@@ -164,8 +164,6 @@ def check_env_kwargs(
     :return: a copy; raises :class:`LimitError` naming the key otherwise.
     """
     import gymnasium as gym
-
-    from sb3_hddpg.envs import ADAPTER_ENV_IDS
 
     if env_kwargs is None:
         return {}
@@ -459,72 +457,6 @@ def check_parameter_count(
             f"{what}: the networks would have {total:,} parameters, over the limit of {MAX_PARAMETERS:,}"
         )
     return total
-
-
-def check_selection_settings(selection: Any, names: Sequence[str], what: str) -> dict[str, Any]:
-    """
-    A bundle's selection settings (``SelectionConfig``'s fields), each checked for type and range, so that
-    a file's ``temperature: "abc"`` or ``option_steps: -3`` is refused by name instead of failing later.
-
-    :param selection: the mapping from the manifest.
-    :param names: the bundle's worker names.
-    :param what: the field, for the message.
-    :return: the checked mapping.
-    """
-    from sb3_hddpg.hierarchy.selection import SELECTION_MODES
-
-    if not isinstance(selection, Mapping):
-        raise LimitError(f"{what}: expected a mapping, got {brief(selection)}")
-    known = {
-        "preferences",
-        "selection",
-        "option_steps",
-        "temperature",
-        "floor",
-        "reward_terms",
-        "manager_state",
-        "worker_states",
-        "option_gamma",
-    }
-    unknown = sorted(str(k) for k in set(selection) - known)
-    if unknown:
-        raise LimitError(f"{what}: unknown key {brief(unknown[0])}")
-    out = dict(selection)
-
-    def number(key: str, low: float, high: float, low_open: bool = False) -> None:
-        if key not in out:
-            return
-        value = out[key]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise LimitError(f"{what}.{key}: expected a finite number, got {brief(value)}")
-        if value < low or value > high or (low_open and value == low):
-            bracket = "(" if low_open else "["
-            raise LimitError(f"{what}.{key}: expected a number in {bracket}{low}, {high}], got {value!r}")
-
-    if "selection" in out and out["selection"] not in SELECTION_MODES:
-        raise LimitError(
-            f"{what}.selection: expected one of {list(SELECTION_MODES)}, got {brief(out['selection'])}"
-        )
-    if "option_steps" in out:
-        steps = out["option_steps"]
-        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10_000:
-            raise LimitError(f"{what}.option_steps: expected an integer in [1, 10000], got {brief(steps)}")
-    number("temperature", 0.0, 1e6, low_open=True)
-    number("floor", 0.0, 1.0 / max(len(names), 1))
-    number("option_gamma", 0.0, 1.0, low_open=True)
-    preferences = out.get("preferences", {})
-    if not isinstance(preferences, Mapping) or set(preferences) - set(names):
-        raise LimitError(f"{what}.preferences: expected worker name -> factor, got {brief(preferences)}")
-    for name, value in preferences.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e6:
-            raise LimitError(f"{what}.preferences.{name}: expected a finite number > 0, got {brief(value)}")
-    for key in ("reward_terms", "worker_states"):
-        if not isinstance(out.get(key, {}), Mapping):
-            raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
-    state = out.get("manager_state")
-    if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
-        raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
-    return out
 
 
 #: A model file named in a workers or flat manifest: a name and ``.zip``, in the manifest's own folder.

@@ -27,12 +27,11 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from sb3_contrib import TQC
-from stable_baselines3 import DDPG, SAC, TD3
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
+from sb3_hddpg.algorithms import ACTIVATIONS, ALGORITHMS
 from sb3_hddpg.artifacts.limits import (
     MAX_MEMBER_BYTES,
     LoadBudget,
@@ -57,31 +56,8 @@ __all__ = [
 SPEC_FORMAT = "sb3-hddpg/model-spec"
 SPEC_VERSION = 1
 
-#: Algorithms that can be rebuilt from a spec. Only exact classes: a subclass may change the networks or
-#: ``_setup_model`` in ways the spec cannot describe.
-ALGOS: dict[str, type[OffPolicyAlgorithm]] = {"DDPG": DDPG, "TD3": TD3, "SAC": SAC, "TQC": TQC}
-
-#: ``activation_fn`` values accepted in a spec, by name. A name outside this table is refused rather than looked
-#: up in ``torch.nn``: the spec is shared data and must not be able to pick arbitrary callables.
-ACTIVATIONS: dict[str, type[th.nn.Module]] = {
-    cls.__name__: cls
-    for cls in (
-        th.nn.ReLU,
-        th.nn.Tanh,
-        th.nn.ELU,
-        th.nn.LeakyReLU,
-        th.nn.SiLU,
-        th.nn.GELU,
-        th.nn.Sigmoid,
-        th.nn.Softplus,
-        th.nn.Mish,
-        th.nn.SELU,
-        th.nn.CELU,
-        th.nn.Hardtanh,
-        th.nn.ReLU6,
-        th.nn.Identity,
-    )
-}
+#: Algorithms that can be rebuilt from a spec, by the class name a spec records (the registry's classes).
+ALGOS: dict[str, type[OffPolicyAlgorithm]] = {cls.__name__: cls for cls in ALGORITHMS.values()}
 
 #: Optimizers accepted in ``policy_kwargs["optimizer_class"]``. Only matters for further training.
 OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {

@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_name, read_json_file
+from sb3_hddpg.artifacts.manifests import load_workers, observed_components
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.policy import Policy
@@ -244,8 +246,6 @@ def load_ham(
     import gymnasium as gym
 
     import sb3_hddpg  # noqa: F401  (registers the env ids)
-    from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_name, read_json_file
-    from sb3_hddpg.training.training import load_workers, observed_components
 
     path = Path(path)
     try:

@@ -5,15 +5,24 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 
 def parameters_finite(model: BaseAlgorithm) -> bool:
-    """Whether every weight of ``model``'s policy (actor, critic and their targets) is finite, on either backend."""
-    from sb3_hddpg.training.backends import parameters_finite as finite
+    """Whether every weight of ``model`` (actor, critics and their targets, on either backend) is finite."""
+    if type(model).__module__.split(".")[0] != "sbx":
+        with th.no_grad():
+            return all(bool(th.isfinite(p).all()) for p in model.policy.parameters())
+    import jax  # only an SBX model gets here, and then jax is loaded already
 
-    return finite(model)
+    policy: Any = model.policy
+    trees = [policy.actor_state.params, policy.qf_state.params, policy.qf_state.target_params]
+    trees += [getattr(policy.actor_state, "target_params", None)]
+    leaves = [leaf for tree in trees if tree is not None for leaf in jax.tree_util.tree_leaves(tree)]
+    return all(bool(np.isfinite(np.asarray(leaf)).all()) for leaf in leaves)
 
 
 class TrialPruningCallback(BaseCallback):

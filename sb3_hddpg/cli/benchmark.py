@@ -29,6 +29,7 @@ from sb3_hddpg.experiments.benchmark import (
     Task,
     run_benchmark,
 )
+from sb3_hddpg.experiments.model_export import export_models
 
 
 def _ci(stats: dict[str, Any], fmt: str = ".1f") -> str:
@@ -309,8 +310,6 @@ def benchmark_command(
 
 
 def _export(run: Path, dest: Path) -> None:
-    from sb3_hddpg.experiments.model_export import export_models
-
     index = export_models(run, dest)
     console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
 
@@ -327,7 +326,6 @@ def export_models_command(
     with usage_errors("'RUN'"):
         if not (run / "records").is_dir():
             raise FileNotFoundError(f"not a benchmark folder (no records/): {str(run)!r}")
-        from sb3_hddpg.experiments.model_export import export_models
 
         index = export_models(run, dest)
     console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
@@ -20,6 +21,9 @@ from sb3_hddpg.cli.options import (
     usage_errors,
     writable_file,
 )
+from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
+from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.metric_labels import summary_rows
 
 #: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
 #: and usage errors need not import the library).
@@ -70,16 +74,20 @@ def evaluate_command(
     ),
 ) -> None:
     """Evaluate a policy: mean reward, goal-touch rate, collisions, success, clearance (and worker choices)."""
-    from sb3_hddpg.artifacts.io import atomic_write_json
-    from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
-    from sb3_hddpg.hierarchy.loading import load_policy
 
     # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
     # checked here, as a usage error; what fails during the episodes is not.
     # Another env with several objectives resolves to the adapter it needs (the snake ids stay as they are).
     shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     with usage_errors("'PATH'"):
-        loaded = load_policy(path, env_id=shared.env_id if shared else None, trusted=trust, algo=algo)
+        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
+        loaded = load_policy(
+            path,
+            env_id=shared.env_id if shared else None,
+            trusted=trust,
+            algo=algo,
+            allowed_env_ids=[shared.env_id] if shared else None,
+        )
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):
@@ -92,7 +100,6 @@ def evaluate_command(
         deterministic=deterministic,
         near_clearance=near_clearance,
     )
-    from sb3_hddpg.metric_labels import summary_rows
 
     summary = result.summary()
     dependence = state_dependence(summary, worker)

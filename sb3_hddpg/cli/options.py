@@ -12,6 +12,9 @@ from typing import Annotated, Any
 import click
 import typer
 
+from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, locked_folder
+from sb3_hddpg.training.backends import BackendError, check_backend
+
 #: Files whose presence means a folder already holds results of ours.
 RESULT_MARKERS = (
     "workers/manifest.json",
@@ -112,7 +115,6 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
     clears it first); then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the command ends, so a
     second run into the same folder stops at once with the holder's pid.
     """
-    from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, locked_folder
 
     if str(out) in ("", ".") or out.resolve() in (Path.cwd().resolve(), Path(out.anchor or "/").resolve()):
         raise typer.BadParameter(
@@ -168,7 +170,6 @@ def backend_name(value: str | None) -> str | None:
     """A typer callback for ``--backend``: ``sb3`` or ``sbx``, and installed (``None`` passes)."""
     if value is None:
         return None
-    from sb3_hddpg.training.backends import BackendError, check_backend
 
     try:
         return check_backend(value)

@@ -10,6 +10,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
 from sb3_hddpg.cli.record import TRUST_HELP
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.experiments.packaging import package_policy
 from sb3_hddpg.hierarchy.loading import load_policy
 
 
@@ -31,7 +32,6 @@ def package_command(
     trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
 ) -> None:
     """Model zip (or bundle + manifest), model card, config.json, results.json and replay.mp4 in one folder."""
-    from sb3_hddpg.experiments.packaging import package_policy
 
     if out.exists() and out.is_dir() and any(out.iterdir()) and not force:
         raise typer.BadParameter(

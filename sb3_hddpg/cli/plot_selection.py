@@ -11,6 +11,8 @@ from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
 from sb3_hddpg.cli.record import TRUST_HELP
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.media.figures import plot_selection_timeline
+from sb3_hddpg.media.trace import selected_names, trace_episodes
 
 
 @app.command("plot-selection")
@@ -36,8 +38,6 @@ def plot_selection_command(
     trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
 ) -> None:
     """Per step: the worker chosen and the manager's probabilities, beside obstacle clearance and goal distance."""
-    from sb3_hddpg.media.figures import plot_selection_timeline
-    from sb3_hddpg.media.trace import selected_names, trace_episodes
 
     if out.suffix.lower() != ".png":
         raise typer.BadParameter(f"expected a .png file, got {str(out)!r}", param_hint="'--out'")

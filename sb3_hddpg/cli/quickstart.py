@@ -11,6 +11,7 @@ from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir, seed_range
+from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments.quickstart import (
     BUDGETS,
     STAGES,
@@ -18,6 +19,7 @@ from sb3_hddpg.experiments.quickstart import (
     QuickstartResult,
     run_quickstart,
 )
+from sb3_hddpg.metric_labels import SELECTION_LABEL, metric_label
 
 
 class _RichObserver(QuickstartObserver):
@@ -58,8 +60,6 @@ class _RichObserver(QuickstartObserver):
 
 def comparison_table(result: QuickstartResult) -> Table:
     """The methods on the shared seeds, one row each, each column in one unit."""
-    from sb3_hddpg.evaluation import EVAL_SEED_BASE
-    from sb3_hddpg.metric_labels import SELECTION_LABEL, metric_label
 
     summary = next(iter(result.summaries.values()))
     episodes = summary["episodes"]
@@ -139,8 +139,6 @@ def quickstart_command(
         )
         observer.finish()
     console.print(comparison_table(result))
-    if not result.ham_available:
-        console.print("[yellow]HAM baseline not installed in this version: compared without it.[/]")
     for label in ("bundle", "gif", "selection", "comparison", "learning_curves", "results"):
         if label in result.files:
             console.print(f"  {label:16} {result.files[label]}")

@@ -10,6 +10,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.media.video import check_video_path, record_video
 
 POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK)."
 TRUST_HELP = "Allow SB3's full loader, which runs code stored in the file: only for files you trust."
@@ -45,7 +46,6 @@ def record_command(
     ),
 ) -> None:
     """Render a policy to a GIF or MP4; for a hierarchy or HAM each frame shows the acting worker and the odds."""
-    from sb3_hddpg.media.video import check_video_path, record_video
 
     try:
         check_video_path(out)

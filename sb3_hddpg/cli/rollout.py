@@ -8,8 +8,13 @@ import gymnasium as gym
 import typer
 from rich.table import Table
 
+from sb3_hddpg.artifacts.io import atomic_write_bytes
+from sb3_hddpg.baselines import JacobianReacher
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import usage_errors, writable_file
+from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.policy import RandomPolicy
 
 
 @app.command()
@@ -27,11 +32,6 @@ def rollout(
     from PIL import Image
 
     import sb3_hddpg  # noqa: F401  (registers the env ids)
-    from sb3_hddpg.artifacts.io import atomic_write_bytes
-    from sb3_hddpg.baselines import JacobianReacher
-    from sb3_hddpg.envs.contract import state_layout_of
-    from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.policy import RandomPolicy
 
     with usage_errors("'--env'"):
         env = gym.make(env_id, render_mode="rgb_array")

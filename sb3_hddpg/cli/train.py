@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import typer
 from rich.table import Table
@@ -20,18 +19,23 @@ from sb3_hddpg.cli.options import (
     backend_name,
     existing_dir,
     existing_file,
-    positive_float,
     prepare_out_dir,
     seed_range,
     terms_env_option,
     usage_errors,
 )
+from sb3_hddpg.hierarchy.selection import parse_preferences
+from sb3_hddpg.metric_labels import metric_label
 from sb3_hddpg.policy import WORKER_ENV_IDS
-
-if TYPE_CHECKING:
-    from sb3_hddpg.training.training import TrainingOutcome
-
-# The library (torch, SB3) is imported inside the commands: `--help` and usage errors stay fast.
+from sb3_hddpg.training.backends import resolve_backend
+from sb3_hddpg.training.training import (
+    TrainingInterrupted,
+    TrainingOutcome,
+    prepare_manager,
+    train_manager,
+    train_workers,
+    worker_hyperparams,
+)
 
 #: train-manager's --env: where its default comes from.
 MANAGER_ENV_NOTE = " For the manager, the default is the shared env recorded in the workers' manifest."
@@ -49,7 +53,6 @@ KEEP_CHECKPOINTS_HELP = (
 
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
     """A rich table of evaluation summaries, one row per agent, each column in one unit."""
-    from sb3_hddpg.metric_labels import metric_label
 
     snake = ("goal_touch_rate", "collisions_per_episode", "success_rate", "min_clearance")
     # The snake env's touch and collision metrics where the env reports them, else every reward term.
@@ -124,8 +127,6 @@ def train_workers_command(
     backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
-    from sb3_hddpg.training.backends import resolve_backend
-    from sb3_hddpg.training.training import TrainingInterrupted, train_workers, worker_hyperparams
 
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
@@ -194,14 +195,14 @@ def train_manager_command(
     prefer: str | None = typer.Option(
         None, "--prefer", help="A worker to prefer (paper Section 3.4), e.g. goal."
     ),
-    bias: float = typer.Option(
-        0.15, "--bias", callback=positive_float, help="The preferred worker's extra factor."
-    ),
+    bias: float = typer.Option(0.15, "--bias", help="The preferred worker's extra factor, > 0."),
     preference: str | None = typer.Option(
         None, "--preference", help="Every factor explicitly, e.g. goal=1.15,avoid=1.0 (wins over --prefer)."
     ),
     selection: str | None = typer.Option(
-        None, "--selection", help="sample (the paper's), argmax or mix (default: the config's)."
+        None,
+        "--selection",
+        help="sample (the paper's), argmax, mix, or another registered mode (default: the config's).",
     ),
     option_steps: int | None = typer.Option(
         None,
@@ -252,20 +253,13 @@ def train_manager_command(
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
-    from sb3_hddpg.hierarchy.selection import SELECTION_MODES, parse_preferences
-    from sb3_hddpg.training.backends import resolve_backend
-    from sb3_hddpg.training.training import TrainingInterrupted, prepare_manager, train_manager
-
-    if selection is not None and selection not in SELECTION_MODES:
-        raise typer.BadParameter(
-            f"must be one of {list(SELECTION_MODES)}, got {selection!r}", param_hint="'--selection'"
-        )
     with usage_errors("'--preference'"):
         preferences = parse_preferences(preference) if preference is not None else None
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     env_id, env_kwargs = (shared.env_id, shared.env_kwargs) if shared is not None else (None, None)
-    # The library checks the rest (workers, their hashes and spaces, names, preferences, config) before any
-    # training; run those checks now so that bad input is reported before the output folder is touched.
+    # The library checks the rest (workers, their hashes and spaces, names, preferences and --bias, the
+    # selection mode, config) before any training; run those checks now so that bad input is reported before
+    # the output folder is touched. The checked set-up is what trains: nothing is loaded or checked twice.
     with usage_errors():
         setup = prepare_manager(
             workers_dir,
@@ -285,15 +279,8 @@ def train_manager_command(
     prepare_out_dir(out, resume, force)
     try:
         hierarchy, outcome = train_manager(
-            workers_dir,
+            setup,
             out,
-            worker_names=names or None,
-            prefer=prefer,
-            bias=bias,
-            preferences=preferences,
-            selection=selection,
-            option_steps=option_steps,
-            config=config,
             timesteps=timesteps,
             seed=seed,
             n_envs=n_envs,
@@ -304,11 +291,8 @@ def train_manager_command(
             checkpoint_freq=checkpoint_freq,
             progress_bar=progress,
             threads=threads,
-            trusted=trust,
             keep_checkpoints=keep_checkpoints,
             backend=backend,
-            env_id=env_id,
-            env_kwargs=env_kwargs,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")

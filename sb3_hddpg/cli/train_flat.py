@@ -22,7 +22,11 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.cli.train import KEEP_CHECKPOINTS_HELP, metrics_table
-from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted
+from sb3_hddpg.hierarchy.preference import make_preference_env
+from sb3_hddpg.hierarchy.selection import parse_preferences
+from sb3_hddpg.training.backends import check_algo, resolve_backend
+from sb3_hddpg.training.config import default_config, load_hyperparams
+from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted, algo_class, train_flat
 
 
 @app.command("train-flat")
@@ -73,16 +77,11 @@ def train_flat_command(
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
-    from sb3_hddpg.hierarchy.selection import parse_preferences
-    from sb3_hddpg.training.training import train_flat
-
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     env_id = shared.env_id if shared is not None else FLAT_ENV_ID
     with usage_errors("'--preference'"):
         preferences = parse_preferences(preference) if preference is not None else None
         if preferences is not None:
-            from sb3_hddpg.hierarchy.preference import make_preference_env
-
             make_preference_env(env_id, shared.env_kwargs if shared else {}, preferences).close()
 
     algo = algo.lower()
@@ -90,14 +89,11 @@ def train_flat_command(
         raise typer.BadParameter(f"must be one of {list(ALGO_NAMES)}, got {algo!r}", param_hint="'--algo'")
     if config is not None and not config.is_file():
         raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
-    from sb3_hddpg.training.config import default_config, load_hyperparams
-    from sb3_hddpg.training.training import algo_class
 
     with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
         hyperparams = load_hyperparams(
             env_id, algo_class(algo), config if config is not None else default_config(algo)
         )
-    from sb3_hddpg.training.backends import check_algo, resolve_backend
 
     with usage_errors("'--backend'"):
         check_algo(algo, resolve_backend(backend, hyperparams.backend))

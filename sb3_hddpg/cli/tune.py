@@ -17,7 +17,21 @@ from sb3_hddpg.cli.options import (
     seed_range,
     usage_errors,
 )
-from sb3_hddpg.experiments.tuning import LEVELS, PRUNERS, SAMPLERS
+from sb3_hddpg.experiments.hyperparams_opt import FLAT_SAMPLERS, check_fixed_params
+from sb3_hddpg.experiments.study_storage import check_storage_url, default_storage_url
+from sb3_hddpg.experiments.tuning import (
+    LEVELS,
+    PRUNERS,
+    SAMPLERS,
+    StudySettings,
+    TuningTarget,
+    best_trials,
+    save_best_config,
+    save_plots,
+    trial_counts,
+    tune,
+)
+from sb3_hddpg.training.backends import resolve_backend
 from sb3_hddpg.training.training import WORKER_ENV_IDS, TrainingInterrupted
 
 
@@ -137,19 +151,6 @@ def tune_command(
 
     matplotlib.use("Agg")  # plots are files; never open a window
 
-    from sb3_hddpg.experiments.hyperparams_opt import FLAT_SAMPLERS, check_fixed_params
-    from sb3_hddpg.experiments.study_storage import check_storage_url, default_storage_url
-    from sb3_hddpg.experiments.tuning import (
-        StudySettings,
-        TuningTarget,
-        best_trials,
-        ham_class,
-        save_best_config,
-        save_plots,
-        trial_counts,
-        tune,
-    )
-
     if level not in LEVELS:
         raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
     if algo != "ddpg" and level != "flat":
@@ -195,8 +196,6 @@ def tune_command(
     if storage is not None:
         with usage_errors("'--storage'"):
             check_storage_url(storage)
-    if level == "ham":
-        ham_class()  # a missing HAM baseline is reported before anything is created
 
     target = TuningTarget(
         level=level,
@@ -213,8 +212,6 @@ def tune_command(
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()
     if level != "ham":
-        from sb3_hddpg.training.backends import resolve_backend
-
         with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
             resolve_backend(backend, target.base_block().get("backend"))
     name = study_name or target.name

@@ -52,7 +52,15 @@ from typing import Any
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
-from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, state_dependence
+from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
+from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
+from sb3_hddpg.envs import SnakeArmEnv
+from sb3_hddpg.envs.contract import TermNormaliser, state_layout_of
+from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, evaluate, state_dependence
+from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.hierarchy.selection import parse_preferences
+from sb3_hddpg.media import figures
+from sb3_hddpg.policy import RandomPolicy
 from sb3_hddpg.stats import (
     bootstrap_ci,
     paired_difference_ci,
@@ -60,7 +68,14 @@ from sb3_hddpg.stats import (
     summarise,
     trend_slope,
 )
-from sb3_hddpg.training.training import sigterm_as_interrupt
+from sb3_hddpg.training.backends import check_algo, check_backend
+from sb3_hddpg.training.training import (
+    FLAT_ENV_ID,
+    sigterm_as_interrupt,
+    train_flat,
+    train_manager,
+    train_workers,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -88,6 +103,7 @@ FINAL_METRICS = (
     "mean_reward",
     "action_saturation",
 )
+
 #: Bumped when a record's meaning changes.
 RECORD_VERSION = 1
 #: Steps per unit of the reported learning-curve slopes.
@@ -161,7 +177,6 @@ def canonical_preference(text: str) -> str:
 
     :raises ValueError: naming the bad entry.
     """
-    from sb3_hddpg.hierarchy.selection import parse_preferences
 
     factors = parse_preferences(text)
     for name, value in factors.items():
@@ -211,8 +226,6 @@ class BenchmarkSettings:
     backend: str = "sb3"
 
     def __post_init__(self) -> None:
-        from sb3_hddpg.training.backends import check_algo, check_backend
-
         unknown = [m for m in self.methods if m not in METHOD_REGISTRY]
         if unknown:
             raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
@@ -289,7 +302,6 @@ class Task:
     @property
     def preferences(self) -> dict[str, float] | None:
         """The preference factors of a transfer run (``None``: the method's own)."""
-        from sb3_hddpg.hierarchy.selection import parse_preferences
 
         preference = split_key(self.method)[1]
         return parse_preferences(preference) if preference else None
@@ -342,8 +354,6 @@ def _history(path: Path, offset: int) -> list[dict[str, Any]]:
 
 def _test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
     """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
-    from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.hierarchy.loading import load_policy
 
     loaded = load_policy(policy_path)
     env = loaded.make_env()
@@ -356,10 +366,6 @@ def _test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
 def _random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
     """A random policy's evaluation on the learning-curve episodes: the floor of the transfer figure."""
     import gymnasium as gym
-
-    from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.policy import RandomPolicy
-    from sb3_hddpg.training.training import FLAT_ENV_ID
 
     env = gym.make(FLAT_ENV_ID)
     try:
@@ -411,7 +417,6 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
 
 def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
     """Train (or finish) a seed's two workers."""
-    from sb3_hddpg.training.training import train_workers
 
     manifest = train_workers(
         folder,
@@ -436,8 +441,6 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
 
 def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
     """A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors)."""
-    from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
-    from sb3_hddpg.training.training import train_manager
 
     run_dir = folder / task.method
     train_manager(
@@ -463,7 +466,6 @@ def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, fo
 
 def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
     """A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps."""
-    from sb3_hddpg.training.training import train_flat
 
     run_dir = folder / task.method
     train_flat(
@@ -488,18 +490,11 @@ def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str,
     """Save the seed's HAM switch and evaluate it: one learning-curve point (it does not learn) and the test."""
     import gymnasium as gym
 
-    from sb3_hddpg.baselines.ham import load_ham, save_ham
-    from sb3_hddpg.envs.contract import state_layout_of
-    from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.training.training import FLAT_ENV_ID
-
     env = gym.make(FLAT_ENV_ID)
     try:
         n_links = state_layout_of(env)["joint_obstacle_distances"]
         threshold = settings.ham_threshold
         if threshold is None:
-            from sb3_hddpg.baselines.ham import DEFAULT_MARGIN
-
             threshold = (n_links.stop - n_links.start) - DEFAULT_MARGIN
         offset = _workers_steps(folder)
         ham_path = save_ham(
@@ -593,7 +588,7 @@ for _worker, _colour in (("goal", "tab:green"), ("avoid", "tab:orange")):
 #: The built-in methods (the registry may hold more).
 METHODS = tuple(METHOD_REGISTRY)
 #: The methods run by default: the paper's three plus the biased managers of Figure 10.
-DEFAULT_METHODS = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
+DEFAULT_METHODS: tuple[str, ...] = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
 #: Flat single-agent baselines (``train_flat``'s algorithms).
 FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
 
@@ -744,8 +739,6 @@ def normalised_term_sums(summary: dict[str, Any]) -> tuple[float, float]:
     Normalisation is affine per step, so the mean episode sum of a normalised term is
     ``(mean raw sum - mean length * low) / (high - low)`` with the env's fixed ``reward_bounds``.
     """
-    from sb3_hddpg.envs import SnakeArmEnv
-    from sb3_hddpg.envs.contract import TermNormaliser
 
     normaliser = TermNormaliser(SnakeArmEnv().reward_bounds)
     length = summary["mean_length"]
@@ -1032,7 +1025,7 @@ CSV_KEYS = ("method", "seed", "kind", "timesteps", "total_timesteps")
 
 def evaluation_rows(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     """Every evaluation of every run as flat rows (``kind``: ``curve``, ``test`` or ``worker-<name>``)."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for record in records:
         base = {"method": record["method"], "seed": record["seed"]}
         if record["method"] == WORKERS:
@@ -1215,7 +1208,6 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
 
 def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> None:
     """Write ``results.json``, ``results.md``, ``evaluations.csv`` and the plots into ``out``."""
-    from sb3_hddpg.media import plots
 
     method_records = [r for r in records if r["method"] != WORKERS]
     results["curves"] = {
@@ -1225,11 +1217,6 @@ def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, An
     atomic_write_json(out / "results.json", results)
     atomic_write(out / "results.md", lambda tmp: tmp.write_text(markdown_report(results)))
     write_csv(out / "evaluations.csv", evaluation_rows(records))
-    plots.learning_curves(results, out / "learning_curves.png")
-    plots.figure9(results, out / "figure9.png")
-    plots.figure10(results, out / "figure10.png")
-
-
-def load_results(out: str | Path) -> dict[str, Any]:
-    """The ``results.json`` of a finished benchmark."""
-    return json.loads((Path(out) / "results.json").read_text())
+    figures.benchmark_learning_curves(results, out / "learning_curves.png")
+    figures.figure9(results, out / "figure9.png")
+    figures.figure10(results, out / "figure10.png")

@@ -16,6 +16,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from sb3_hddpg.hierarchy.selection import SELECTORS
+
 #: ``net_arch`` choices by name (rl_zoo3's names and sizes).
 NET_ARCHS: dict[str, list[int]] = {"small": [64, 64], "medium": [256, 256], "big": [400, 300]}
 
@@ -129,7 +131,7 @@ def sample_manager_params(trial: Any) -> dict[str, Any]:
         "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
         # Below 1/n for any n <= 9 workers, as SimplexMap requires.
         "floor": trial.suggest_float("floor", 0.0, 0.1),
-        "selection": trial.suggest_categorical("selection", ["sample", "argmax", "mix"]),
+        "selection": trial.suggest_categorical("selection", list(SELECTORS)),
         "option_steps": trial.suggest_categorical("option_steps", [1, 2, 4, 8]),
     }
     return block

@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
+from sb3_hddpg.experiments.benchmark import WORKERS, split_key
 
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
@@ -32,12 +34,6 @@ INDEX_METHODS = (
     "sac",
     "tqc",
 )
-
-
-def _sha256(path: Path) -> str:
-    from sb3_hddpg.training.training import sha256_file
-
-    return sha256_file(path)
 
 
 def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
@@ -72,7 +68,6 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     :param dest: the folder to fill (created if missing; existing files of the same names are replaced).
     :return: the index's records.
     """
-    from sb3_hddpg.experiments.benchmark import WORKERS, split_key
 
     root = Path(benchmark_dir)
     records_dir = root / "records"
@@ -121,8 +116,8 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
 def _entry(method: str, seed: int, root: Path, dest: Path, relative: Path) -> dict[str, Any]:
     source = root / relative
     target = _copy(source, dest, relative)
-    digest = _sha256(target)
-    if digest != _sha256(source):
+    digest = sha256_file(target)
+    if digest != sha256_file(source):
         raise OSError(f"Copy of {str(source)!r} differs from its source (sha256): disk full or changing?")
     return {"method": method, "seed": seed, "path": relative.as_posix(), "sha256": digest}
 
@@ -143,6 +138,5 @@ def read_index(folder: str | Path) -> list[dict[str, Any]]:
             raise ValueError(f"index.json: {entry['path']!r} points outside {str(folder)!r}")
         if not path.is_file():
             raise ValueError(f"index.json: {entry['path']!r} is missing")
-        if _sha256(path) != entry["sha256"]:
-            raise ValueError(f"index.json: {entry['path']!r} does not match its sha256")
+        verify_sha256(path, entry["sha256"], entry["path"], where="index.json")
     return index

@@ -42,7 +42,9 @@ from sb3_hddpg.artifacts.limits import (
     read_member,
 )
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.hierarchy.hierarchy import read_bundle
 from sb3_hddpg.hierarchy.loading import LoadedPolicy
+from sb3_hddpg.media.video import record_video
 
 #: The keys of ``results.json``: huggingface_sb3's five, then ours.
 RESULTS_KEYS = (
@@ -102,7 +104,6 @@ def package_policy(
     :param force: replace an existing folder.
     :return: the folder, the model file and the results.
     """
-    from sb3_hddpg.media.video import record_video
 
     if loaded.kind not in ("worker", "flat", "hierarchy"):
         raise ValueError(
@@ -231,8 +232,6 @@ def _lay_out_model(loaded: LoadedPolicy, source: Path, staging: Path) -> tuple[P
 
 
 def _lay_out_bundle(source: Path, staging: Path) -> tuple[Path, dict[str, Any]]:
-    from sb3_hddpg.hierarchy.hierarchy import read_bundle
-
     manifest, members = read_bundle(source)
     model_file = staging / "hierarchy.zip"
     shutil.copyfile(source, model_file)

@@ -23,7 +23,6 @@ bundle and ``results.json``::
 from __future__ import annotations
 
 import functools
-import importlib.util
 import multiprocessing
 import queue as queue_module
 import time
@@ -39,12 +38,25 @@ import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
+from sb3_hddpg.artifacts.manifests import model_entry, read_workers_manifest, save_manifest
+from sb3_hddpg.artifacts.provenance import library_versions
+from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
+from sb3_hddpg.envs import MAX_EPISODE_STEPS
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.experiments.packaging import write_zoo_layout
+from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
+from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
+from sb3_hddpg.media.video import record_video
+from sb3_hddpg.training import training
+from sb3_hddpg.training.backends import check_backend
+from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, load_hyperparams
+from sb3_hddpg.training.training import WORKER_ENV_IDS, AgentPaths, make_snake_env, train_agent
 
 #: The env every method is compared on.
 COMPARISON_ENV_ID = "hddpg/SnakeReach-v0"
 #: ``results.json``'s schema version.
-RESULTS_SCHEMA_VERSION = 1
+RESULTS_SCHEMA_VERSION = 2  # 2: no ham_available (HAM is always compared)
 #: The stages, in order; the overall progress bar counts them.
 STAGES = ("train workers", "train manager + flat DDPG", "evaluate on shared seeds", "record GIF", "figures")
 
@@ -135,7 +147,6 @@ class QuickstartResult:
     :param files: label -> path of every figure, video, bundle and ``results.json``.
     :param stage_seconds: stage name -> wall time.
     :param wall_seconds: the whole run's wall time.
-    :param ham_available: whether the HAM baseline was part of the run.
     """
 
     run_dir: Path
@@ -144,7 +155,6 @@ class QuickstartResult:
     files: dict[str, Path]
     stage_seconds: dict[str, float]
     wall_seconds: float
-    ham_available: bool
 
 
 # ---------------------------------------------------------------------------------------- child processes
@@ -194,7 +204,6 @@ def _train_job(
     backend: str = "sb3",
 ) -> dict[str, Any]:
     """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
-    from sb3_hddpg.training import training
 
     started, cpu_started = time.monotonic(), time.process_time()
     common = dict(
@@ -259,16 +268,6 @@ def train_flat_baseline(
     """
     from stable_baselines3 import DDPG
 
-    from sb3_hddpg.artifacts.safe_load import model_spec
-    from sb3_hddpg.training.config import load_hyperparams
-    from sb3_hddpg.training.training import (
-        AgentPaths,
-        library_versions,
-        make_snake_env,
-        sha256_file,
-        train_agent,
-    )
-
     hyperparams = load_hyperparams(COMPARISON_ENV_ID, DDPG, config)
     paths = AgentPaths(run_dir, name, run_dir / "flat" / f"{name}.zip")
     outcome = train_agent(
@@ -283,38 +282,23 @@ def train_flat_baseline(
         keep_checkpoints=keep_checkpoints,
         backend=backend,
     )
-    entry = {
-        "name": name,
-        "file": f"{name}.zip",
-        "sha256": sha256_file(outcome.model_path),
-        "algo": "ddpg",
-        "env_id": COMPARISON_ENV_ID,
-        "env_kwargs": hyperparams.env_kwargs,
-        "config": {
-            "file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml",
-            "block": hyperparams.raw,
-        },
-        "seed": seed,
-        "timesteps_requested": int(timesteps or hyperparams.n_timesteps),
-        "timesteps_trained": outcome.num_timesteps,
-        "versions": library_versions(),
-        "metrics": outcome.metrics,
-        "backend": outcome.backend,
-        "spec": model_spec(outcome.model),
-    }
+    entry = model_entry(
+        name,
+        outcome,
+        "ddpg",
+        COMPARISON_ENV_ID,
+        hyperparams.env_kwargs,
+        {"file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml", "block": hyperparams.raw},
+        seed,
+        int(timesteps or hyperparams.n_timesteps),
+    )
     atomic_write_json(run_dir / "flat" / "manifest.json", {"schema_version": 1, "models": {name: entry}})
     return entry
 
 
 # ---------------------------------------------------------------------------------------- the parent
-def ham_available() -> bool:
-    """Whether this installation has the HAM baseline (``sb3_hddpg.baselines.ham``)."""
-    return importlib.util.find_spec("sb3_hddpg.baselines.ham") is not None
-
-
 def write_config(path: Path, overrides: dict[str, Any]) -> Path:
     """The bundled config with ``overrides`` applied to every block, written to ``path`` (RL Zoo format)."""
-    from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file
 
     config = load_config_file(DEFAULT_CONFIG)
     for block in config.values():
@@ -410,10 +394,6 @@ def run_quickstart(
     :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
     :return: the metrics, the files written and the timings.
     """
-    from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
-    from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
-    from sb3_hddpg.media.video import record_video
-    from sb3_hddpg.training.training import WORKER_ENV_IDS, save_manifest
 
     if isinstance(budget, str):
         if budget not in BUDGETS:
@@ -421,7 +401,6 @@ def run_quickstart(
         budget = BUDGETS[budget]
     if processes < 1:
         raise ValueError(f"Expected `processes` >= 1, actually: {processes}")
-    from sb3_hddpg.training.backends import check_backend
 
     backend = check_backend(backend)
     observer = observer or QuickstartObserver()
@@ -484,9 +463,7 @@ def run_quickstart(
     # 3. Every method on the same seeds of the same env.
     stage(2)
     sources: dict[str, Path | str] = {"HDDPG": run_dir / "hierarchy.zip"}
-    with_ham = ham_available()
-    if with_ham:
-        files["ham"] = sources["HAM"] = _build_ham(run_dir)
+    files["ham"] = sources["HAM"] = _build_ham(run_dir)
     sources["flat DDPG"] = run_dir / "flat" / "flat-ddpg.zip"
     for name in WORKER_ENV_IDS:
         sources[f"{name} worker"] = run_dir / "workers" / f"{name}.zip"
@@ -591,13 +568,10 @@ def run_quickstart(
     )
     stage_done(4)
 
-    from sb3_hddpg.experiments.packaging import write_zoo_layout
-
     zoo_models: dict[str, str | Path] = {
         env: run_dir / "workers" / f"{n}.zip" for n, env in WORKER_ENV_IDS.items()
     }
     zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
-    from sb3_hddpg.training.training import read_workers_manifest
 
     trained = read_workers_manifest(run_dir / "workers" / "manifest.json")["workers"]
     zoo_env_kwargs = {
@@ -616,7 +590,6 @@ def run_quickstart(
         "seed": seed,
         "eval_seeds": list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + budget.compare_episodes)),
         "deterministic": True,
-        "ham_available": with_ham,
         "methods": {label: {**methods[label], "summary": summaries[label]} for label in summaries},
         "files": {label: str(_relative(path, run_dir)) for label, path in files.items()},
         "stage_seconds": stage_seconds,
@@ -625,19 +598,15 @@ def run_quickstart(
         "wall_seconds": wall,
         "processes": processes,
     }
-    from sb3_hddpg.training.training import library_versions
 
     results["versions"] = library_versions()
     atomic_write_json(files["results"], results)
-    return QuickstartResult(run_dir, summaries, methods, files, stage_seconds, wall, with_ham)
+    return QuickstartResult(run_dir, summaries, methods, files, stage_seconds, wall)
 
 
 def _build_ham(run_dir: Path) -> Path:
     """Write the HAM switch over the run's workers to ``run_dir/ham.json``, with its default threshold."""
     import gymnasium as gym
-
-    from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
-    from sb3_hddpg.envs.contract import state_layout_of
 
     probe = gym.make(COMPARISON_ENV_ID)
     n_joints = len(state_layout_of(probe).indices(["joint_obstacle_distances"]))
@@ -651,8 +620,6 @@ def _build_ham(run_dir: Path) -> Path:
 
 
 def _episode_steps() -> int:
-    from sb3_hddpg.envs import MAX_EPISODE_STEPS
-
     return MAX_EPISODE_STEPS
 
 

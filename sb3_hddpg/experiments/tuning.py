@@ -20,7 +20,6 @@ import contextlib
 import copy
 import datetime
 import functools
-import inspect
 import logging
 import math
 import multiprocessing
@@ -39,10 +38,14 @@ import yaml
 from optuna.trial import FrozenTrial, TrialState
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes
+from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
+from sb3_hddpg.baselines.ham import HAMSwitch
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.hyperparams_opt import sampler_for
 from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
+from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
 from sb3_hddpg.training.config import (
     DEFAULT_CONFIG,
     MANAGER_KEY,
@@ -55,8 +58,9 @@ from sb3_hddpg.training.config import (
 from sb3_hddpg.training.training import (
     WORKER_ENV_IDS,
     AgentPaths,
+    ManagerEnvFactory,
     TrainingInterrupted,
-    make_manager_env,
+    algo_class,
     make_snake_env,
     observed_components,
     train_agent,
@@ -161,7 +165,6 @@ class TuningTarget:
     @property
     def algo_class(self) -> type:
         """The SB3 class of :attr:`algo`."""
-        from sb3_hddpg.training.training import algo_class
 
         return algo_class(self.algo)
 
@@ -192,13 +195,10 @@ class TuningTarget:
         if self.level == "manager":
             _env_factory(self, hyperparams)().close()
         elif self.level == "ham":
-            from sb3_hddpg.training.training import load_workers
-
             workers, manifest = load_workers(str(self.workers_dir))
             env = make_snake_env(SHARED_ENV_ID)
             try:
                 _make_ham(
-                    ham_class(),
                     workers,
                     env,
                     float(len(state_layout_of(env).indices(["joint_obstacle_distances"]))) - 0.5,
@@ -492,8 +492,6 @@ def tune(
     """
     if n_jobs < 1:
         raise ValueError(f"Expected n_jobs >= 1, actually: {n_jobs}")
-    if target.level == "ham":
-        ham_class()  # fail now, not in every trial process
     if n_jobs > 1 and settings.storage.startswith("sqlite") and sqlite_path(settings.storage) is None:
         raise ValueError("An in-memory storage cannot be shared by several processes; use a file or a server")
     out_dir = Path(out_dir)
@@ -667,18 +665,6 @@ def merge_block(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]
     return block
 
 
-def ham_class() -> type:
-    """The HAM baseline's policy class, or a clear error where this installation has none."""
-    try:
-        from sb3_hddpg.baselines.ham import HAMSwitch
-    except ImportError as error:
-        raise RuntimeError(
-            "Level 'ham' needs the HAM baseline (sb3_hddpg.baselines.ham.HAMSwitch), which this "
-            f"installation lacks ({error})"
-        ) from None
-    return HAMSwitch
-
-
 def _next_step(study: optuna.Study, n_trials: int) -> str:
     """``run`` a trial, ``wait`` for others' running trials, or ``done``; call with the claim lock held."""
     with quiet_experimental():
@@ -700,7 +686,6 @@ def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
         return worker_env_factory(str(target.worker), hyperparams.env_kwargs)
     if target.level == "flat":
         return functools.partial(make_snake_env, SHARED_ENV_ID, dict(hyperparams.env_kwargs))
-    from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
 
     manifest = _workers_manifest(str(target.workers_dir))
     names = list(manifest["workers"])
@@ -711,14 +696,12 @@ def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
         **(wrapper.get("worker_states") or {}),
     }
     selection = SelectionConfig(preferences=dict.fromkeys(names, 1.0), **wrapper)
-    return functools.partial(
-        make_manager_env,
+    return ManagerEnvFactory(
         SHARED_ENV_ID,
         dict(hyperparams.env_kwargs),
         str(target.workers_dir),
         names,
         selection.wrapper_kwargs(),
-        False,
     )
 
 
@@ -733,20 +716,17 @@ def _workers_manifest(workers_dir: str) -> dict[str, Any]:
         manifest = folder / "manifest.json"
     if not manifest.exists():
         raise FileNotFoundError(f"No workers manifest in {workers_dir!r}; run train-workers first")
-    from sb3_hddpg.training.training import read_workers_manifest
 
     return read_workers_manifest(manifest)
 
 
 def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -> float:
     """HAM's trial: no training, one evaluation on the combined reward."""
-    from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.training.training import load_workers
 
     workers, manifest = load_workers(str(target.workers_dir))
     env = make_snake_env(SHARED_ENV_ID)
     try:
-        policy = _make_ham(ham_class(), workers, env, threshold, manifest)
+        policy = _make_ham(workers, env, threshold, manifest)
         summary = evaluate(policy, env, n_episodes=target.eval_episodes).summary()
     finally:
         env.close()
@@ -758,34 +738,15 @@ def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -
     return value
 
 
-def _make_ham(
-    cls: type, workers: dict[str, Any], env: Any, threshold: float, manifest: dict[str, Any] | None = None
-) -> Any:
-    """
-    Build a HAM switch from whatever of (workers, the env or its state layout, threshold) its constructor
-    names: this was written alongside the HAM baseline, against its class name and ``threshold`` only.
-    """
-    known = {
-        "workers": workers,
-        "env": env,
-        "layout": state_layout_of(env),
-        "state_layout": state_layout_of(env),
-        "threshold": threshold,
-        "worker_states": observed_components(manifest, list(workers)) if manifest else {},
-        **{name: model for name, model in workers.items()},
-        **{f"{name}_worker": model for name, model in workers.items()},
-    }
-    signature = inspect.signature(cls)
-    kwargs = {}
-    for name, parameter in signature.parameters.items():
-        if name in known:
-            kwargs[name] = known[name]
-        elif parameter.default is inspect.Parameter.empty and parameter.kind not in (
-            inspect.Parameter.VAR_POSITIONAL,
-            inspect.Parameter.VAR_KEYWORD,
-        ):
-            raise TypeError(f"Cannot build {cls.__name__}{signature} for tuning: unknown argument {name!r}")
-    return cls(**kwargs)
+def _make_ham(workers: dict[str, Any], env: Any, threshold: float, manifest: dict[str, Any]) -> HAMSwitch:
+    """The HAM switch over the goal and avoid workers, each fed the state components it was trained on."""
+    return HAMSwitch(
+        workers["goal"],
+        workers["avoid"],
+        state_layout_of(env),
+        threshold=threshold,
+        worker_states=observed_components(manifest, list(workers)),
+    )
 
 
 def _jsonable(entry: dict[str, Any]) -> dict[str, Any]:

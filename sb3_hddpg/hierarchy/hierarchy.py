@@ -15,14 +15,13 @@ A loaded ``Hierarchy`` is a valid worker of a higher :class:`~sb3_hddpg.wrappers
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import re
 import zipfile
 import zlib
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -38,13 +37,21 @@ from sb3_hddpg.artifacts.limits import (
     check_env_id,
     check_env_kwargs,
     check_name,
-    check_selection_settings,
     check_zip_directory,
     parse_json,
     read_member,
 )
+from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verify_sha256
+from sb3_hddpg.artifacts.safe_load import load_model, model_spec
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
-from sb3_hddpg.hierarchy.selection import FrozenWorker, SimplexMap, choose
+from sb3_hddpg.hierarchy.selection import (
+    FrozenWorker,
+    SelectionConfig,
+    SimplexMap,
+    check_selection_settings,
+    get_selector,
+)
+from sb3_hddpg.hierarchy.wrapper import _subset_space
 from sb3_hddpg.policy import Policy
 
 #: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
@@ -56,37 +63,6 @@ DEFAULT_ENV_ID = "hddpg/SnakeReach-v0"
 
 class BundleError(ValueError):
     """A bundle that cannot be used: not a zip, truncated, tampered with, or inconsistent."""
-
-
-@dataclass
-class SelectionConfig:
-    """
-    How the manager's action selects workers; the arguments of ``WorkerSelectionWrapper`` that a bundle keeps.
-
-    :param preferences: worker name -> preference factor.
-    :param selection: ``sample``, ``argmax`` or ``mix``.
-    :param option_steps: env steps per manager decision.
-    :param temperature: the simplex map's temperature.
-    :param floor: every worker's least probability.
-    :param reward_terms: worker name -> its reward (term name or term weights).
-    :param manager_state: state components the manager sees (``None``: all).
-    :param worker_states: worker name -> state components it sees.
-    :param option_gamma: discount inside an option.
-    """
-
-    preferences: dict[str, float]
-    selection: str = "sample"
-    option_steps: int = 1
-    temperature: float = 0.5
-    floor: float = 0.02
-    reward_terms: dict[str, Any] = field(default_factory=dict)
-    manager_state: list[str] | None = None
-    worker_states: dict[str, list[str]] = field(default_factory=dict)
-    option_gamma: float = 0.99
-
-    def wrapper_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for ``WorkerSelectionWrapper`` (besides ``env`` and ``workers``)."""
-        return asdict(self)
 
 
 class Hierarchy:
@@ -146,6 +122,7 @@ class Hierarchy:
         ]
         self._manager = FrozenWorker(manager, self._manager_indices)
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
+        self._selector = get_selector(config.selection)
         self._rng = np.random.default_rng(0)
         self._option_left = 0
         self._option_choice = 0
@@ -205,15 +182,13 @@ class Hierarchy:
             self.last_manager_action = self._manager.act(obs)
             probabilities = self.simplex(self.last_manager_action)
             self._option_probabilities = probabilities
-            self._option_choice = choose(probabilities, self.config.selection, self._rng, deterministic)
+            self._option_choice = self._selector.choose(probabilities, self._rng, deterministic)
             self._option_left = self.config.option_steps
         self._option_left -= 1
         probabilities, chosen = self._option_probabilities, self._option_choice
         self.last_selection = self.names[chosen]
         self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
-        if self.config.selection == "mix":
-            return sum(p * w.act(obs) for p, w in zip(probabilities, self._frozen)).astype(np.float32)
-        return self._frozen[chosen].act(obs)
+        return np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs), dtype=np.float32)
 
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
         """The manager's worker probabilities for one observation."""
@@ -224,9 +199,6 @@ class Hierarchy:
     # ------------------------------------------------------------------ saving
     def to_bytes(self) -> bytes:
         """The bundle as zip bytes (see :meth:`save`)."""
-        from sb3_hddpg.artifacts.safe_load import model_spec
-        from sb3_hddpg.training.training import library_versions
-
         members: dict[str, bytes] = {}
         manager_bytes = _model_bytes(self.manager)
         members["manager.zip"] = manager_bytes
@@ -246,7 +218,7 @@ class Hierarchy:
                     f"Worker {name!r} of type {type(worker).__name__} cannot be bundled: only SB3 models and "
                     "hierarchies can (bundle the worker's own models instead)"
                 )
-            meta.update({"file": member, "sha256": _sha256(members[member])})
+            meta.update({"file": member, "sha256": sha256_bytes(members[member])})
             meta.setdefault("reward_term", self.config.reward_terms.get(name, name))
             workers_manifest[name] = meta
         manifest = {
@@ -258,7 +230,7 @@ class Hierarchy:
             "selection": asdict(self.config),
             "manager": {
                 "file": "manager.zip",
-                "sha256": _sha256(manager_bytes),
+                "sha256": sha256_bytes(manager_bytes),
                 "spec": model_spec(self.manager),
                 **self.metadata,
             },
@@ -299,7 +271,6 @@ class Hierarchy:
             parent's (see :mod:`sb3_hddpg.artifacts.limits`).
         :return: the hierarchy; raises :class:`BundleError` naming the problem otherwise.
         """
-        from sb3_hddpg.artifacts.safe_load import load_model
 
         name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
         budget = budget if budget is not None else LoadBudget()
@@ -399,13 +370,14 @@ def read_bundle(
     except ValueError as error:  # over a limit, or a corrupt member
         raise BundleError(str(error)) from None
     for _label, entry in entries:
-        member = entry["file"]
-        actual = _sha256(members[member])
-        if actual != entry["sha256"]:
-            raise BundleError(
-                f"{name}: sha256 of {member!r} does not match the manifest "
-                f"(expected {entry['sha256'][:12]}…, got {actual[:12]}…): the bundle was modified or corrupted"
-            )
+        verify_sha256(
+            members[entry["file"]],
+            entry["sha256"],
+            entry["file"],
+            where=name,
+            consequence="the bundle was modified or corrupted",
+            error=BundleError,
+        )
     return manifest, members
 
 
@@ -468,10 +440,6 @@ def _model_bytes(model: BaseAlgorithm) -> bytes:
     buffer = io.BytesIO()
     model.save(buffer)
     return buffer.getvalue()
-
-
-def _sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
 
 
 def infer_env(manager: Any, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
@@ -540,8 +508,6 @@ def check_spaces(
     :raises ValueError: one line naming the model, the expected and the actual space.
     """
     from gymnasium import spaces
-
-    from sb3_hddpg.hierarchy.wrapper import _subset_space
 
     def subset(components: list[str] | None) -> Any:
         return _subset_space(observation_space, layout.indices(components) if components else None)

@@ -21,9 +21,14 @@ from typing import Any
 import gymnasium as gym
 
 from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_file_entry, read_json_file
+from sb3_hddpg.artifacts.provenance import verify_sha256
+from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.baselines.ham import load_ham
+from sb3_hddpg.baselines.scripted import IKReacher, JacobianReacher
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.policy import Policy
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from sb3_hddpg.policy import Policy, RandomPolicy
 
 #: Names that stand for reference policies instead of files.
 REFERENCE_POLICIES = ("random", "scripted", "ik")
@@ -93,7 +98,6 @@ def load_policy(
     :param algo: the algorithm of an untracked zip loaded with ``trusted``.
     :param allowed_env_ids: registered env ids a file may name besides this package's own.
     """
-    from sb3_hddpg.artifacts.safe_load import load_model
 
     text = str(path)
     if text in REFERENCE_POLICIES:
@@ -109,8 +113,6 @@ def load_policy(
                 return load_policy(path / candidate, env_id, trusted, algo, allowed_env_ids)
         raise ValueError(f"Expected a model file, got a folder without hierarchy.zip or ham.json: {text!r}")
     if path.suffix == ".json":
-        from sb3_hddpg.baselines.ham import load_ham
-
         ham, meta = load_ham(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(ham, meta["env_id"], meta.get("env_kwargs", {}), "ham", path.stem, meta)
     try:
@@ -121,21 +123,13 @@ def load_policy(
     except OSError as error:  # permission denied, I/O error
         raise ValueError(f"Cannot read {text!r}: {error.strerror or error}") from None
     if "manifest.json" in members and "policy.pth" not in members:
-        from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-
         hierarchy = Hierarchy.load(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(
             hierarchy, hierarchy.env_id, hierarchy.env_kwargs, "hierarchy", path.stem, hierarchy.metadata
         )
     entry, kind = _manifest_entry(path)
     if entry is not None:
-        from sb3_hddpg.training.training import sha256_file
-
-        actual = sha256_file(path)
-        if actual != entry["sha256"]:
-            raise ValueError(
-                f"sha256 of {text!r} does not match its manifest (expected {entry['sha256'][:12]}…, got {actual[:12]}…)"
-            )
+        verify_sha256(path, entry["sha256"], text)
         where = f"{text}: manifest entry"
         entry_env = check_env_id(entry.get("env_id"), f"{where} env_id", allowed_env_ids, trusted)
         env_kwargs = check_env_kwargs(
@@ -179,19 +173,13 @@ def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
     env = gym.make(env_id)
     layout = state_layout_of(env)
     if name == "random":
-        from sb3_hddpg.policy import RandomPolicy
-
         policy: Policy = RandomPolicy(env.action_space, seed=0)
     elif name == "ik":
-        from sb3_hddpg.baselines.scripted import IKReacher
-
         snake = env.unwrapped
         if not isinstance(snake, SnakeArmEnv):
             raise ValueError(f"The IK reacher drives the snake arm only, not {env_id!r}")
         policy = IKReacher(layout, max_joint_speed=snake.max_joint_speed)
     else:
-        from sb3_hddpg.baselines.scripted import JacobianReacher
-
         policy = JacobianReacher(layout)
     env.close()
     return LoadedPolicy(policy, env_id, {}, name, name)

@@ -1,5 +1,6 @@
 """
-How a manager's action selects workers: the simplex map, the selection modes, and cheap frozen workers.
+How a manager's action selects workers: the simplex map, the selection settings (:class:`SelectionConfig`), one
+:class:`Selector` per selection mode registered by name, the preference factors, and cheap frozen workers.
 
 Shared by :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` (training the manager) and
 :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` (running a trained one), so both select identically.
@@ -9,17 +10,15 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
+from sb3_hddpg.artifacts.limits import LimitError, brief
 from sb3_hddpg.policy import Policy
-
-#: Selection modes: ``sample`` (the paper's), ``argmax``, and ``mix`` (probability-weighted blend).
-SELECTION_MODES = ("sample", "argmax", "mix")
 
 
 @dataclass(frozen=True)
@@ -80,19 +79,76 @@ class SimplexMap:
         return [self.floor + w * scale for w in weights]
 
 
-def choose(
-    probabilities: np.ndarray, mode: str, rng: np.random.Generator, deterministic: bool = False
-) -> int:
-    """
-    The index of the worker to run for one probability vector.
+#: A probability vector: a list (the wrapper's fast path) or an array (``Hierarchy``).
+Probabilities = Sequence[float] | np.ndarray
 
-    :param probabilities: shape ``(n,)``, summing to 1.
-    :param mode: ``sample`` draws from the probabilities (``argmax`` when ``deterministic``); ``argmax`` and
-        ``mix`` return the most probable worker (in ``mix`` it is only reported: all workers act).
-    :param rng: the generator to sample with.
-    :param deterministic: use the most probable worker even in ``sample`` mode.
+
+class Selector:
     """
-    if mode == "sample" and not deterministic:
+    One selection mode: which worker a probability vector chooses, and what the env receives. The base class
+    is the ``argmax`` behaviour (the most probable worker acts alone); a mode overrides what differs.
+
+    A new mode is one subclass with a ``name``, decorated with :func:`register_selector`: the wrapper, the
+    bundle, the CLI's ``--selection``, the file checks and the tuner's search space all read the registry.
+    """
+
+    #: The mode's name, as given to ``selection=`` and stored in bundles.
+    name: ClassVar[str]
+
+    def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
+        """
+        The index of the worker to run (and to report) for one probability vector.
+
+        :param probabilities: shape ``(n,)``, summing to 1.
+        :param rng: the generator to draw with (the wrapper's or the hierarchy's own, never the env's).
+        :param deterministic: the caller asks for no randomness.
+        """
+        return int(np.argmax(probabilities))
+
+    def act(
+        self, probabilities: Probabilities, chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
+    ) -> np.ndarray:
+        """
+        The env action for one observation.
+
+        :param probabilities: the worker probabilities.
+        :param chosen: what :meth:`choose` returned.
+        :param workers: the frozen workers, in the manager's action order.
+        :param obs: the shared state.
+        """
+        return workers[chosen].act(obs)
+
+
+#: Mode name -> its selector, in registration order (the tuner's categorical choices keep this order).
+SELECTORS: dict[str, Selector] = {}
+
+
+def register_selector(cls: type[Selector]) -> type[Selector]:
+    """Class decorator: make a :class:`Selector` subclass available by its ``name``."""
+    if not isinstance(getattr(cls, "name", None), str) or not cls.name:
+        raise ValueError(f"Expected a selector class with a non-empty `name`, actually: {cls!r}")
+    if cls.name in SELECTORS:
+        raise ValueError(f"Selection mode {cls.name!r} is already registered")
+    SELECTORS[cls.name] = cls()
+    return cls
+
+
+def get_selector(mode: Any) -> Selector:
+    """The registered selector of ``mode``; a ``ValueError`` names the registered modes otherwise."""
+    if not isinstance(mode, str) or mode not in SELECTORS:
+        raise ValueError(f"Expected `selection` to be one of {list(SELECTORS)}, actually: {mode!r}")
+    return SELECTORS[mode]
+
+
+@register_selector
+class SampleSelector(Selector):
+    """``sample`` (the paper's): one worker drawn from the probabilities acts (the most probable if deterministic)."""
+
+    name = "sample"
+
+    def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
+        if deterministic:
+            return int(np.argmax(probabilities))
         # Inverse-CDF sampling with one uniform draw (no Generator.choice overhead).
         u = rng.random()
         cumulative = 0.0
@@ -101,7 +157,56 @@ def choose(
             if u < cumulative:
                 return index
         return len(probabilities) - 1
-    return int(np.argmax(probabilities))
+
+
+@register_selector
+class ArgmaxSelector(Selector):
+    """``argmax``: the most probable worker acts."""
+
+    name = "argmax"
+
+
+@register_selector
+class MixSelector(Selector):
+    """``mix``: every worker acts and the env gets the probability-weighted blend (the most probable is reported)."""
+
+    name = "mix"
+
+    def act(
+        self, probabilities: Probabilities, chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
+    ) -> np.ndarray:
+        return sum(p * w.act(obs) for p, w in zip(probabilities, workers))  # type: ignore[return-value]
+
+
+@dataclass
+class SelectionConfig:
+    """
+    How the manager's action selects workers; the arguments of ``WorkerSelectionWrapper`` that a bundle keeps.
+
+    :param preferences: worker name -> preference factor.
+    :param selection: a registered selection mode (``sample``, ``argmax`` or ``mix``; see :data:`SELECTORS`).
+    :param option_steps: env steps per manager decision.
+    :param temperature: the simplex map's temperature.
+    :param floor: every worker's least probability.
+    :param reward_terms: worker name -> its reward (term name or term weights).
+    :param manager_state: state components the manager sees (``None``: all).
+    :param worker_states: worker name -> state components it sees.
+    :param option_gamma: discount inside an option.
+    """
+
+    preferences: dict[str, float]
+    selection: str = "sample"
+    option_steps: int = 1
+    temperature: float = 0.5
+    floor: float = 0.02
+    reward_terms: dict[str, Any] = field(default_factory=dict)
+    manager_state: list[str] | None = None
+    worker_states: dict[str, list[str]] = field(default_factory=dict)
+    option_gamma: float = 0.99
+
+    def wrapper_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for ``WorkerSelectionWrapper`` (besides ``env`` and ``workers``)."""
+        return asdict(self)
 
 
 class FrozenWorker:
@@ -257,8 +362,10 @@ def preferences_from_bias(
     """
     if prefer is not None and prefer not in names:
         raise ValueError(f"Unknown worker {prefer!r} to prefer; workers: {names}")
-    if not math.isfinite(bias) or bias <= -1.0:
-        raise ValueError(f"Expected `bias` to be a finite number > -1, actually: {bias}")
+    # A preference raises the preferred worker's factor (the paper's 15 %); no preference is ``prefer=None``,
+    # and any other factors (a smaller one too) are given explicitly as ``preferences``.
+    if isinstance(bias, bool) or not isinstance(bias, (int, float)) or not math.isfinite(bias) or bias <= 0:
+        raise ValueError(f"Expected `bias` to be a finite number > 0, actually: {bias}")
     return {name: (1.0 + bias if name == prefer else 1.0) for name in names}
 
 
@@ -300,3 +407,67 @@ def check_preferences(preferences: dict[str, Any], names: list[str]) -> dict[str
             )
         checked[name] = float(value)
     return checked
+
+
+def check_selection_settings(selection: Any, names: Sequence[str], what: str) -> dict[str, Any]:
+    """
+    A bundle's selection settings (``SelectionConfig``'s fields), each checked for type and range, so that
+    a file's ``temperature: "abc"`` or ``option_steps: -3`` is refused by name instead of failing later.
+
+    :param selection: the mapping from the manifest.
+    :param names: the bundle's worker names.
+    :param what: the field, for the message.
+    :return: the checked mapping.
+    """
+    if not isinstance(selection, Mapping):
+        raise LimitError(f"{what}: expected a mapping, got {brief(selection)}")
+    known = {
+        "preferences",
+        "selection",
+        "option_steps",
+        "temperature",
+        "floor",
+        "reward_terms",
+        "manager_state",
+        "worker_states",
+        "option_gamma",
+    }
+    unknown = sorted(str(k) for k in set(selection) - known)
+    if unknown:
+        raise LimitError(f"{what}: unknown key {brief(unknown[0])}")
+    out = dict(selection)
+
+    def number(key: str, low: float, high: float, low_open: bool = False) -> None:
+        if key not in out:
+            return
+        value = out[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise LimitError(f"{what}.{key}: expected a finite number, got {brief(value)}")
+        if value < low or value > high or (low_open and value == low):
+            bracket = "(" if low_open else "["
+            raise LimitError(f"{what}.{key}: expected a number in {bracket}{low}, {high}], got {value!r}")
+
+    if "selection" in out and out["selection"] not in SELECTORS:
+        raise LimitError(
+            f"{what}.selection: expected one of {list(SELECTORS)}, got {brief(out['selection'])}"
+        )
+    if "option_steps" in out:
+        steps = out["option_steps"]
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10_000:
+            raise LimitError(f"{what}.option_steps: expected an integer in [1, 10000], got {brief(steps)}")
+    number("temperature", 0.0, 1e6, low_open=True)
+    number("floor", 0.0, 1.0 / max(len(names), 1))
+    number("option_gamma", 0.0, 1.0, low_open=True)
+    preferences = out.get("preferences", {})
+    if not isinstance(preferences, Mapping) or set(preferences) - set(names):
+        raise LimitError(f"{what}.preferences: expected worker name -> factor, got {brief(preferences)}")
+    for name, value in preferences.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e6:
+            raise LimitError(f"{what}.preferences.{name}: expected a finite number > 0, got {brief(value)}")
+    for key in ("reward_terms", "worker_states"):
+        if not isinstance(out.get(key, {}), Mapping):
+            raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
+    state = out.get("manager_state")
+    if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
+        raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
+    return out

@@ -12,7 +12,7 @@ from gymnasium import spaces
 from stable_baselines3.common.utils import check_for_correct_spaces
 
 from sb3_hddpg.envs.contract import env_contract, mix_terms, state_layout_of
-from sb3_hddpg.hierarchy.selection import SELECTION_MODES, FrozenWorker, SimplexMap, check_preferences, choose
+from sb3_hddpg.hierarchy.selection import FrozenWorker, SimplexMap, check_preferences, get_selector
 from sb3_hddpg.policy import Policy
 
 #: A worker's reward: one env term by name, or a weighted mix of normalised terms (a nested hierarchy's).
@@ -26,7 +26,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     **Action.** ``Box(-1, 1, (n_workers,), float32)``, mapped to worker probabilities by
     :class:`~sb3_hddpg.hierarchy.selection.SimplexMap` (``softmax(a / temperature)`` mixed with a probability floor),
     so SB3's noisy, clipped actions and its uniform warm-up actions are all valid. Then, per
-    ``selection``: ``"sample"`` (the paper's) draws one worker from the probabilities and applies its
+    ``selection`` (a registered :class:`~sb3_hddpg.hierarchy.selection.Selector`): ``"sample"`` (the paper's) draws one worker from the probabilities and applies its
     action; ``"argmax"`` applies the most probable worker's action; ``"mix"`` applies the
     probability-weighted blend of all workers' actions. In sample and argmax modes only the chosen worker
     is run.
@@ -54,7 +54,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     :param workers: name -> worker (an SB3 model, a loaded ``Hierarchy``, or anything with SB3's
         ``predict``), or a sequence of ``(name, worker)`` pairs.
     :param preferences: name -> preference factor (finite, > 0); missing names get 1.
-    :param selection: ``"sample"``, ``"argmax"`` or ``"mix"``.
+    :param selection: a registered selection mode: ``"sample"``, ``"argmax"``, ``"mix"`` or one of yours.
     :param option_steps: env steps per manager decision, >= 1.
     :param temperature: the simplex map's softmax temperature.
     :param floor: every worker's least probability.
@@ -87,10 +87,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
             raise ValueError(f"Expected unique worker names, actually duplicated: {duplicates}")
-        if selection not in SELECTION_MODES:
-            raise ValueError(
-                f"Expected `selection` to be one of {list(SELECTION_MODES)}, actually: {selection!r}"
-            )
+        selector = get_selector(selection)
         if (
             isinstance(option_steps, bool)
             or not isinstance(option_steps, (int, np.integer))
@@ -105,6 +102,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self.layout = state_layout_of(env)
         self.worker_names = names
         self.selection = selection
+        self.selector = selector
         self.option_steps = int(option_steps)
         self.option_gamma = float(option_gamma)
         self.simplex = SimplexMap(len(names), temperature=temperature, floor=floor)
@@ -182,7 +180,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             else np.asarray(action, dtype=np.float64).ravel().tolist()
         )
         probabilities = self.simplex.single(values)
-        chosen = choose(probabilities, self.selection, self._rng)
+        chosen = self.selector.choose(probabilities, self._rng, False)
         total = 0.0
         discount = 1.0
         terminated = truncated = False
@@ -190,10 +188,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         steps = 0
         obs = self._last_obs
         while steps < self.option_steps and not (terminated or truncated):
-            if self.selection == "mix":
-                env_action = sum(p * w.act(obs) for p, w in zip(probabilities, self.frozen))
-            else:
-                env_action = self.frozen[chosen].act(obs)
+            env_action = self.selector.act(probabilities, chosen, self.frozen, obs)
             obs, _, terminated, truncated, info = self.env.step(env_action)
             reward, normalised = self.manager_reward(info["reward_terms"])
             total += discount * reward

@@ -9,6 +9,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.policy import Policy
 
 
@@ -124,7 +125,6 @@ def trace_episodes(
     :param deterministic: passed to ``predict``.
     :return: the step records and the :class:`~sb3_hddpg.evaluation.EvaluationResult`.
     """
-    from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 
     recorder = StepRecorder(env, policy)
     result = evaluate(

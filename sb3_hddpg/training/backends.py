@@ -32,9 +32,10 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3 import DDPG, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+from sb3_hddpg.algorithms import ALGORITHMS, SBX_ALGORITHMS, algorithm_class
 
 logger = logging.getLogger(__name__)
 
@@ -47,7 +48,7 @@ DEFAULT_BACKEND = "sb3"
 #: How to install the SBX backend.
 INSTALL_HINT = 'pip install "sb3-hddpg[fast]"'
 #: Algorithms the SBX backend trains and exports (SB3's classes of the same name).
-SBX_ALGOS: dict[str, type[OffPolicyAlgorithm]] = {"ddpg": DDPG, "td3": TD3, "sac": SAC}
+SBX_ALGOS: dict[str, type[OffPolicyAlgorithm]] = {name: ALGORITHMS[name] for name in SBX_ALGORITHMS}
 
 
 class BackendError(ValueError):
@@ -144,6 +145,19 @@ def configure_jax_threads(threads: int = 1) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ classes
+def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
+    """
+    The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
+
+    :param name: the algorithm.
+    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX, see :mod:`sb3_hddpg.training.backends`).
+    """
+    cls = algorithm_class(name)
+    if backend != "sb3" and check_backend(backend) == "sbx":
+        return sbx_class(name)
+    return cls
+
+
 def sbx_class(algo: str) -> type[OffPolicyAlgorithm]:
     """The SBX class of an algorithm name (imports jax: call :func:`configure_jax_threads` first)."""
     check_algo(algo, "sbx")
@@ -439,8 +453,6 @@ def make_model(
     :param policy: the policy name (``MlpPolicy``).
     :return: the model, on the CPU.
     """
-    from sb3_hddpg.training.training import algo_class
-
     backend = check_backend(backend)
     # SB3 writes into the policy_kwargs dict it is given (use_sde): keep the caller's (the config's) intact.
     kwargs = {**kwargs, "policy_kwargs": dict(kwargs.get("policy_kwargs") or {})}
@@ -473,8 +485,6 @@ def load_native(algo: str, backend: str, path: Any, env: Any = None) -> BaseAlgo
     :param path: the zip.
     :param env: the env to attach (to continue training), or ``None``.
     """
-    from sb3_hddpg.training.training import algo_class
-
     cls = algo_class(algo, backend)
     model = cls.load(path, env=env, device="cpu")
     if is_sbx_model(model):
@@ -553,17 +563,3 @@ def to_sb3(model: BaseAlgorithm) -> OffPolicyAlgorithm:
     sb3_model.num_timesteps = int(model.num_timesteps)
     sb3_model._n_updates = int(model._n_updates)
     return sb3_model
-
-
-def parameters_finite(model: Any) -> bool:
-    """Whether every weight of ``model`` (actor, critics and their targets, on either backend) is finite."""
-    if not is_sbx_model(model):
-        with th.no_grad():
-            return all(bool(th.isfinite(p).all()) for p in model.policy.parameters())
-    import jax
-
-    policy = model.policy
-    trees = [policy.actor_state.params, policy.qf_state.params, policy.qf_state.target_params]
-    trees += [getattr(policy.actor_state, "target_params", None)]
-    leaves = [leaf for tree in trees if tree is not None for leaf in jax.tree_util.tree_leaves(tree)]
-    return all(bool(np.isfinite(np.asarray(leaf)).all()) for leaf in leaves)

@@ -21,6 +21,8 @@ import numpy as np
 import yaml
 from torch import nn
 
+from sb3_hddpg.algorithms import ACTIVATIONS as ALL_ACTIVATIONS
+from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS
 from sb3_hddpg.artifacts.limits import (
     MAX_CONFIG_NODES,
     MAX_JSON_BYTES,
@@ -29,6 +31,9 @@ from sb3_hddpg.artifacts.limits import (
     check_parameter_count,
     count_nodes,
 )
+from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
+from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
+from sb3_hddpg.training.backends import BACKENDS
 
 #: The bundled config, also reachable as ``zoo_configs/ddpg.yml`` in a checkout.
 DEFAULT_CONFIG = Path(__file__).parent.parent / "zoo_configs" / "ddpg.yml"
@@ -73,10 +78,8 @@ MANAGER_ONLY_KEYS = {"wrapper_kwargs"}
 #: Algorithm arguments that the training code sets itself and a config must not.
 RESERVED_KEYS = {"env", "seed", "device", "verbose", "tensorboard_log", "action_noise", "_init_setup_model"}
 
-#: Activation functions a ``policy_kwargs`` string may name.
-ACTIVATIONS: dict[str, type[nn.Module]] = {
-    name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
-}
+#: Activation functions a ``policy_kwargs`` string may name (the registry's, the subset both backends compute).
+ACTIVATIONS: dict[str, type[nn.Module]] = {name: ALL_ACTIVATIONS[name] for name in CONFIG_ACTIVATIONS}
 
 
 class ConfigError(ValueError):
@@ -124,8 +127,6 @@ class Hyperparams:
         """
         kwargs = dict(self.algo_kwargs)
         if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
-            from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
-
             kwargs["replay_buffer_class"] = GoalRelabelingReplayBuffer
             kwargs["replay_buffer_kwargs"] = {
                 **GoalRelabelingReplayBuffer.env_kwargs(env),
@@ -137,7 +138,6 @@ class Hyperparams:
 
     def callbacks(self) -> list[Any]:
         """The SB3 callbacks the block asks for (as RL Zoo would build them from its ``callback`` key)."""
-        from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
 
         return [ActionL2Penalty(self.action_l2)] if self.action_l2 > 0 else []
 
@@ -215,7 +215,7 @@ def parse_block(
     :param manager: whether ``wrapper_kwargs`` is allowed.
     :return: the parsed hyperparameters.
     """
-    constructor = set(inspect.signature(algo_class.__init__).parameters) - {"self", "policy"} - RESERVED_KEYS
+    constructor = set(inspect.signature(algo_class).parameters) - {"self", "policy"} - RESERVED_KEYS
     allowed = constructor | ZOO_KEYS | OWN_KEYS | (MANAGER_ONLY_KEYS if manager else set())
     unknown = sorted(set(block) - allowed)
     if unknown:
@@ -237,8 +237,6 @@ def parse_block(
             )
     backend = block.pop("backend", None)
     if backend is not None:
-        from sb3_hddpg.training.backends import BACKENDS
-
         if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
             raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")
         backend = backend.strip().lower()
@@ -307,6 +305,7 @@ def _parse_callbacks(value: Any, source: str) -> dict[str, float]:
     entries = value if isinstance(value, list) else [value]
     settings: dict[str, float] = {}
     for entry in entries:
+        kwargs: dict[str, Any]
         if isinstance(entry, str):
             path, kwargs = entry, {}
         elif isinstance(entry, dict) and len(entry) == 1:
@@ -421,17 +420,6 @@ def parse_policy_kwargs(text: str, source: str = "config") -> dict[str, Any]:
     return value
 
 
-def policy_kwargs_to_string(policy_kwargs: dict[str, Any]) -> str:
-    """The inverse of :func:`parse_policy_kwargs`, for writing configs RL Zoo can read."""
-    parts = []
-    for key, value in policy_kwargs.items():
-        if isinstance(value, type) and issubclass(value, nn.Module):
-            parts.append(f"{key}=nn.{value.__name__}")
-        else:
-            parts.append(f"{key}={value!r}")
-    return f"dict({', '.join(parts)})"
-
-
 def _safe_value(node: ast.AST, text: str, source: str) -> Any:
     if isinstance(node, ast.Constant):
         return node.value
@@ -439,10 +427,10 @@ def _safe_value(node: ast.AST, text: str, source: str) -> Any:
         return [_safe_value(e, text, source) for e in node.elts]
     if isinstance(node, ast.Tuple):
         return tuple(_safe_value(e, text, source) for e in node.elts)
-    if isinstance(node, ast.Dict) and all(k is not None for k in node.keys):
-        return {
-            _safe_value(k, text, source): _safe_value(v, text, source) for k, v in zip(node.keys, node.values)
-        }
+    if isinstance(node, ast.Dict):
+        pairs = [(k, v) for k, v in zip(node.keys, node.values) if k is not None]
+        if len(pairs) == len(node.keys):  # no ``**spread``
+            return {_safe_value(k, text, source): _safe_value(v, text, source) for k, v in pairs}
     if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
         return -_safe_value(node.operand, text, source)
     if (

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import hashlib
-import platform
 import signal
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -22,27 +20,41 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
-from stable_baselines3 import DDPG, SAC, TD3
+from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+from sb3_hddpg.algorithms import ALGORITHMS
 from sb3_hddpg.artifacts.io import (
     atomic_write,
-    atomic_write_json,
     holds_folder_lock,
-    locked_file,
     remove_stale_temporaries,
+)
+from sb3_hddpg.artifacts.limits import brief, read_json_file
+from sb3_hddpg.artifacts.manifests import (
+    WORKER_MANIFEST_VERSION,
+    load_workers,
+    model_entry,
+    observed_components,
+    read_workers_manifest,
+    save_manifest,
 )
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
+from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, make_term_view
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from sb3_hddpg.hierarchy.preference import make_preference_env
+from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import (
+    algo_class,
     check_algo,
     configure_jax_threads,
     load_native,
@@ -50,35 +62,10 @@ from sb3_hddpg.training.backends import (
     resolve_backend,
     to_sb3,
 )
-from sb3_hddpg.training.config import Hyperparams
+from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
 
-
-def _algos() -> dict[str, type[BaseAlgorithm]]:
-    from sb3_contrib import TQC
-
-    return {"ddpg": DDPG, "td3": TD3, "sac": SAC, "tqc": TQC}
-
-
-#: Algorithm names accepted by ``--algo``.
-ALGO_NAMES = ("ddpg", "td3", "sac", "tqc")
-
-
-def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
-    """
-    The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
-
-    :param name: the algorithm.
-    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX, see :mod:`sb3_hddpg.training.backends`).
-    """
-    algos = _algos()
-    if name.lower() not in algos:
-        raise ValueError(f"Unknown algorithm {name!r}; choose from {list(ALGO_NAMES)}")
-    if backend != "sb3":
-        from sb3_hddpg.training.backends import check_backend, sbx_class
-
-        if check_backend(backend) == "sbx":
-            return sbx_class(name)
-    return algos[name.lower()]
+#: Algorithm names accepted by ``--algo`` (the registry's, in its order).
+ALGO_NAMES = tuple(ALGORITHMS)
 
 
 class TrainingInterrupted(RuntimeError):
@@ -96,34 +83,6 @@ def make_snake_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gym
 
     torch.set_num_threads(1)
     return gym.make(env_id, **(env_kwargs or {}))
-
-
-def library_versions() -> dict[str, str]:
-    """Versions of what a trained model depends on, for manifests."""
-    import gymnasium
-    import pymunk
-    import stable_baselines3
-
-    import sb3_hddpg
-
-    return {
-        "sb3_hddpg": sb3_hddpg.__version__,
-        "stable_baselines3": stable_baselines3.__version__,
-        "gymnasium": gymnasium.__version__,
-        "pymunk": pymunk.version,
-        "torch": torch.__version__,
-        "numpy": np.__version__,
-        "python": platform.python_version(),
-    }
-
-
-def sha256_file(path: str | Path) -> str:
-    """The sha256 hex digest of a file."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 @dataclass
@@ -430,42 +389,6 @@ def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> C
 MAX_SEED = 2**32 - 1
 
 
-def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
-    """
-    Write a manifest atomically, read-modify-write: the entries (``workers`` or ``models``) already in the
-    file are kept unless ``manifest`` replaces them, so two runs writing different agents into one folder
-    one after the other (each under the folder's lock, see :func:`~sb3_hddpg.artifacts.io.locked_folder`) both stay
-    listed.
-
-    :param path: the manifest file.
-    :param manifest: the new content; its entry mappings win over the file's.
-    """
-    from sb3_hddpg.artifacts.limits import read_json_file
-
-    path = Path(path)
-    merged = dict(manifest)
-    with locked_file(path):
-        try:
-            current = read_json_file(path) if path.is_file() else {}
-        except ValueError:  # damaged or not JSON: the new content replaces it
-            current = {}
-        if isinstance(current, dict):
-            for key in ("workers", "models"):
-                if isinstance(current.get(key), dict) and isinstance(manifest.get(key), dict):
-                    merged[key] = {**current[key], **manifest[key]}
-        if isinstance(merged.get("workers"), dict):
-            # One order whichever worker finished first (workers trained side by side): the manager's
-            # action order follows the manifest's, so it must not depend on timing.
-            entries = merged["workers"]
-            known = [n for n in WORKER_ENV_IDS if n in entries]
-            merged["workers"] = {n: entries[n] for n in known + sorted(set(entries) - set(known))}
-        return atomic_write_json(path, merged)
-
-
-#: The schema version of ``workers/manifest.json``.
-WORKER_MANIFEST_VERSION = 1
-
-
 def worker_hyperparams(
     workers: Sequence[str], config: str | Path | None = None, env: TermsEnv | None = None
 ) -> dict[str, Hyperparams]:
@@ -479,8 +402,6 @@ def worker_hyperparams(
         adapted env's id, else ``default``.
     :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
     """
-    from sb3_hddpg.training.config import load_hyperparams
-
     known = list(env.terms) if env is not None else sorted(WORKER_ENV_IDS)
     if isinstance(workers, str):
         raise ValueError(f"Expected a sequence of worker names, actually the string {workers!r}")
@@ -546,7 +467,6 @@ def train_workers(
         shared env (``shared_env``) so that ``train_manager`` acts in it.
     :return: the manifest written.
     """
-    from sb3_hddpg.artifacts.safe_load import model_spec
 
     if timesteps is not None and timesteps < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
@@ -594,61 +514,23 @@ def train_workers(
         probe = make_term_view(env_id, env_kwargs, name)
         bounds = env_contract(probe).reward_bounds[name]
         probe.close()
-        manifest["workers"][name] = {
-            "name": name,
-            "file": f"{name}.zip",
-            "sha256": sha256_file(outcome.model_path),
-            "algo": "ddpg",
-            "env_id": env_id,
-            "env_kwargs": env_kwargs,
-            "reward_term": name,
-            "reward_bounds": list(bounds),
-            "config": {
-                "file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml",
-                "block": hyperparams.raw,
-            },
-            "seed": seed,
-            "timesteps_requested": budget,
-            "timesteps_trained": outcome.num_timesteps,
-            "stopped_early": outcome.stopped_early,
-            "threads": threads,
-            "backend": outcome.backend,
-            "versions": library_versions(),
-            "metrics": outcome.metrics,
-            "spec": model_spec(outcome.model),
-        }
+        manifest["workers"][name] = model_entry(
+            name,
+            outcome,
+            "ddpg",
+            env_id,
+            env_kwargs,
+            {"file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml", "block": hyperparams.raw},
+            seed,
+            budget,
+            reward_term=name,
+            reward_bounds=list(bounds),
+            stopped_early=outcome.stopped_early,
+            threads=threads,
+        )
         save_manifest(manifest_path, manifest)
         if on_worker_done is not None:
             on_worker_done(name, outcome)
-    return manifest
-
-
-def read_workers_manifest(path: str | Path) -> dict[str, Any]:
-    """
-    Read and shape-check a ``workers/manifest.json``: every entry names its file and sha256.
-
-    :param path: the manifest.
-    :return: the manifest; raises ``ValueError`` naming the file if it is not a valid one.
-    """
-    import json
-
-    from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
-
-    path = Path(path)
-    try:
-        manifest = read_json_file(path)
-        entries = manifest["workers"]
-        valid = isinstance(entries, dict)
-    except LimitError:
-        raise
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
-        valid = False
-    if not valid:
-        raise ValueError(f"Not a valid workers manifest: {str(path)!r}")
-    # Names and files travel with shared folders: each must be a plain name before it picks a file.
-    for name, entry in entries.items():
-        check_name(name, f"{path}: workers")
-        check_file_entry(entry, f"{path}: workers.{brief(name)}")
     return manifest
 
 
@@ -705,14 +587,8 @@ def train_flat(
         factors); ``None``: the env's own reward.
     :param backend: ``sb3`` or ``sbx`` (default: the block's ``backend`` key, else ``sb3``); the saved
         model is an SB3 zip either way.
-    :param env_kwargs: the env's keyword arguments over the config block's (e.g. a
-        :class:`~sb3_hddpg.envs.terms_env.TermsEnv`'s, to learn any env's scalarisation).
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
-
-    from sb3_hddpg.artifacts.limits import read_json_file
-    from sb3_hddpg.artifacts.safe_load import model_spec
-    from sb3_hddpg.training.config import default_config, load_hyperparams
 
     algo = algo.lower()
     cls = algo_class(algo)
@@ -731,8 +607,6 @@ def train_flat(
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{algo}.zip")
     factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
     if preferences is not None:
-        from sb3_hddpg.hierarchy.preference import make_preference_env
-
         factory = functools.partial(make_preference_env, env_id, make_kwargs, dict(preferences))
         factory().close()  # checks the factors here, once, rather than inside env subprocesses
     outcome = train_agent(
@@ -752,123 +626,58 @@ def train_flat(
         keep_checkpoints=keep_checkpoints,
         backend=backend,
     )
-    manifest["models"][algo] = {
-        "name": algo,
-        "file": f"{algo}.zip",
-        "sha256": sha256_file(outcome.model_path),
-        "algo": algo,
-        "env_id": env_id,
-        "env_kwargs": make_kwargs,
-        "config": {"file": str(config_path), "block": hyperparams.raw},
-        "seed": seed,
-        "timesteps_requested": budget,
-        "timesteps_trained": outcome.num_timesteps,
-        "stopped_early": outcome.stopped_early,
-        "preferences": dict(preferences) if preferences is not None else None,
-        "threads": threads,
-        "backend": outcome.backend,
-        "versions": library_versions(),
-        "metrics": outcome.metrics,
-        "spec": model_spec(outcome.model),
-    }
+    manifest["models"][algo] = model_entry(
+        algo,
+        outcome,
+        algo,
+        env_id,
+        make_kwargs,
+        {"file": str(config_path), "block": hyperparams.raw},
+        seed,
+        budget,
+        stopped_early=outcome.stopped_early,
+        preferences=dict(preferences) if preferences is not None else None,
+        threads=threads,
+    )
     save_manifest(manifest_path, manifest)
     return manifest, outcome
 
 
-def load_workers(
-    workers_dir: str | Path, names: Sequence[str] | None = None, trusted: bool = False
-) -> tuple[dict[str, Any], dict[str, Any]]:
+@dataclass
+class ManagerEnvFactory:
     """
-    Load workers written by :func:`train_workers`, verifying each zip's sha256 against the manifest.
+    Builds the manager's env: the shared env wrapped in ``WorkerSelectionWrapper`` over the workers.
 
-    :param workers_dir: a run folder (containing ``workers/manifest.json``) or the ``workers`` folder itself.
-    :param names: which workers, in order (default: all, in manifest order).
-    :param trusted: use SB3's full loader instead of the weights-only rebuild.
-    :return: name -> model, and the manifest.
+    The workers are the ones already loaded (``workers``), so a run loads and verifies them once; pickled
+    into a ``SubprocVecEnv`` process the factory drops them and that process loads them from
+    ``workers_dir`` once (hashes verified), for all the envs it builds.
+
+    :param env_id: the shared env.
+    :param env_kwargs: its keyword arguments.
+    :param workers_dir: the workers' folder (for processes that must load them themselves).
+    :param worker_names: the workers, in the manager's action order.
+    :param wrapper_kwargs: the selection settings (``SelectionConfig.wrapper_kwargs()``).
+    :param trusted: load the workers with SB3's full loader.
+    :param workers: name -> worker already loaded in this process (``None``: load on first use).
     """
-    from sb3_hddpg.artifacts.safe_load import load_model
 
-    folder = Path(workers_dir)
-    if not folder.exists():
-        raise FileNotFoundError(f"No such folder: {str(workers_dir)!r}")
-    if not folder.is_dir():
-        raise NotADirectoryError(
-            f"Expected a folder of workers (from train-workers), got a file: {str(workers_dir)!r}"
-        )
-    if (folder / "workers" / "manifest.json").exists():
-        folder = folder / "workers"
-    manifest_path = folder / "manifest.json"
-    if not manifest_path.exists():
-        raise FileNotFoundError(
-            f"No workers manifest in {str(workers_dir)!r} (expected {manifest_path}); run train-workers first"
-        )
-    manifest = read_workers_manifest(manifest_path)
-    entries = manifest["workers"]
-    names = list(names) if names else list(entries)
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates:
-        raise ValueError(f"Duplicate worker names {duplicates} in {names}: name each worker once")
-    unknown = [n for n in names if n not in entries]
-    if unknown:
-        raise ValueError(f"Unknown workers {unknown} in {str(manifest_path)!r}; it has {list(entries)}")
-    models = {}
-    for name in names:
-        entry = entries[name]
-        if Path(entry["file"]).name != entry["file"]:
-            # A manifest travels with shared files: it may only name files in its own folder.
-            raise ValueError(
-                f"{str(manifest_path)!r}: worker {name!r} names a file outside its folder: {entry['file']!r}"
-            )
-        path = folder / entry["file"]
-        if not path.is_file():
-            raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
-        actual = sha256_file(path)
-        if actual != entry["sha256"]:
-            raise ValueError(
-                f"sha256 of {str(path)!r} does not match its manifest (expected {entry['sha256'][:12]}…, got {actual[:12]}…)"
-            )
-        models[name] = load_model(path, spec=entry.get("spec"), trusted=trusted)
-    return models, manifest
+    env_id: str
+    env_kwargs: dict[str, Any]
+    workers_dir: str
+    worker_names: Sequence[str]
+    wrapper_kwargs: dict[str, Any]
+    trusted: bool = False
+    workers: dict[str, Any] | None = None
 
+    def __call__(self) -> gym.Env:
+        if self.workers is None:
+            self.workers, _ = load_workers(self.workers_dir, self.worker_names, trusted=self.trusted)
+        env = make_snake_env(self.env_id, self.env_kwargs)
+        return WorkerSelectionWrapper(env, self.workers, **self.wrapper_kwargs)
 
-def observed_components(manifest: dict[str, Any], names: Sequence[str]) -> dict[str, list[str]]:
-    """
-    The state components each worker was trained on, from its manifest entry's ``env_kwargs["observe"]``.
-
-    :param manifest: a workers manifest (see :func:`read_workers_manifest`).
-    :param names: the workers to look at.
-    :return: name -> component names, for the workers trained on part of the state only.
-    """
-    out: dict[str, list[str]] = {}
-    for name in names:
-        env_kwargs = manifest["workers"][name].get("env_kwargs") or {}
-        observe = env_kwargs.get("observe") if isinstance(env_kwargs, dict) else None
-        if observe is not None:
-            if not isinstance(observe, list) or not all(isinstance(c, str) for c in observe):
-                raise ValueError(
-                    f"Worker {name!r}: env_kwargs.observe must be a list of names, actually: {observe!r:.200}"
-                )
-            out[name] = list(observe)
-    return out
-
-
-def make_manager_env(
-    env_id: str,
-    env_kwargs: dict[str, Any],
-    workers_dir: str,
-    worker_names: Sequence[str],
-    wrapper_kwargs: dict[str, Any],
-    trusted: bool = False,
-) -> gym.Env:
-    """
-    Build the manager's env from files: the shared env wrapped in ``WorkerSelectionWrapper`` over workers
-    loaded from ``workers_dir``. Module-level and file-based so that SubprocVecEnv can pickle it.
-    """
-    from sb3_hddpg.wrappers import WorkerSelectionWrapper
-
-    env = make_snake_env(env_id, env_kwargs)
-    workers, _ = load_workers(workers_dir, worker_names, trusted=trusted)
-    return WorkerSelectionWrapper(env, workers, **wrapper_kwargs)
+    def __getstate__(self) -> dict[str, Any]:
+        # Models do not cross process boundaries: the receiving process loads them from the files.
+        return {**self.__dict__, "workers": None}
 
 
 def shared_env_of(
@@ -911,13 +720,27 @@ class ManagerSetup:
     workers: dict[str, Any]
     manifest: dict[str, Any]
     hyperparams: Hyperparams
-    selection: Any
+    selection: SelectionConfig
     env_id: str
     env_kwargs: dict[str, Any]
+    workers_dir: str = ""
+    trusted: bool = False
 
     @property
     def names(self) -> list[str]:
         return list(self.workers)
+
+    def env_factory(self) -> ManagerEnvFactory:
+        """The manager's env factory over these (already loaded) workers."""
+        return ManagerEnvFactory(
+            self.env_id,
+            self.env_kwargs,
+            self.workers_dir,
+            self.names,
+            self.selection.wrapper_kwargs(),
+            self.trusted,
+            dict(self.workers),
+        )
 
 
 def prepare_manager(
@@ -939,16 +762,12 @@ def prepare_manager(
     Load and check everything the manager is trained from, without training: the workers (hashes
     verified), the config block, the preferences and selection settings, and that every worker fits the
     manager's env. :func:`train_manager` calls it first; call it yourself to validate arguments early (the
-    CLI does, to report bad input before creating the output folder). Arguments as in :func:`train_manager`.
+    CLI does, to report bad input before creating the output folder). Arguments as in :func:`train_manager`,
+    and ``env_id`` / ``env_kwargs``: the shared env (default: the workers manifest's ``shared_env``, else
+    ``hddpg/SnakeReach-v0``; ``env_kwargs`` go under the config block's).
 
     :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
     """
-    from sb3_hddpg.artifacts.limits import brief
-    from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
-    from sb3_hddpg.hierarchy.selection import check_preferences, preferences_from_bias
-    from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
-    from sb3_hddpg.wrappers import WorkerSelectionWrapper
-
     if worker_names is not None and isinstance(worker_names, str):
         raise ValueError(f"Expected a sequence of worker names, actually the string {worker_names!r}")
     hyperparams = load_hyperparams(MANAGER_KEY, DDPG, config, manager=True)
@@ -1004,16 +823,18 @@ def prepare_manager(
         WorkerSelectionWrapper(probe, workers, **selection_config.wrapper_kwargs())
     finally:
         probe.close()
-    return ManagerSetup(workers, manifest, hyperparams, selection_config, env_id, env_kwargs)
+    return ManagerSetup(
+        workers, manifest, hyperparams, selection_config, env_id, env_kwargs, str(Path(workers_dir)), trusted
+    )
 
 
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_manager(
-    workers_dir: str | Path,
+    workers_dir: str | Path | ManagerSetup,
     out_dir: str | Path,
     worker_names: Sequence[str] | None = None,
     prefer: str | None = None,
-    bias: float = 0.15,
+    bias: float | None = None,
     preferences: dict[str, float] | None = None,
     selection: str | None = None,
     option_steps: int | None = None,
@@ -1030,7 +851,7 @@ def train_manager(
     checkpoint_freq: int = 10_000,
     progress_bar: bool = False,
     threads: int = 1,
-    trusted: bool = False,
+    trusted: bool | None = None,
     env_id: str | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     keep_checkpoints: bool = False,
@@ -1046,19 +867,21 @@ def train_manager(
     and wins over ``prefer``. A factor multiplies the worker's normalised reward term in the manager's
     reward, so the manager is paid more for the preferred worker's objective.
 
-    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
+    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder), or the set-up
+        :func:`prepare_manager` returned: then the workers it loaded are used as they are (nothing is loaded
+        or checked twice) and the arguments of :func:`prepare_manager` below must be left out.
     :param out_dir: the run folder for the manager.
     :param worker_names: which workers, in the manager's action order (default: all in the manifest).
     :param prefer: a worker to prefer.
-    :param bias: the preferred worker's extra factor.
+    :param bias: the preferred worker's extra factor, > 0 (default 0.15).
     :param preferences: explicit factors, name -> value.
-    :param selection: ``sample``, ``argmax`` or ``mix`` (default: the config's ``wrapper_kwargs``).
+    :param selection: a registered selection mode (default: the config's ``wrapper_kwargs``).
     :param option_steps: env steps per manager decision (default: the config's).
     :param temperature: the simplex map's temperature (default: the config's).
     :param floor: the probability floor (default: the config's).
     :param config: a ``zoo_configs`` file; its ``manager`` block is used.
     :param checkpoint_freq: steps between resumable checkpoints (0: only when interrupted and at the end).
-    :param trusted: load the workers with SB3's full loader.
+    :param trusted: load the workers with SB3's full loader (default ``False``).
     :param env_id: the shared env the manager acts in (default: the workers manifest's ``shared_env``,
         else ``hddpg/SnakeReach-v0``).
     :param env_kwargs: its keyword arguments (default: the manifest's, with the config block's on top).
@@ -1068,43 +891,41 @@ def train_manager(
         ``sb3``); the bundle holds an SB3 manager either way.
     :return: the saved :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` and the training outcome.
     """
-    from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-
     if timesteps is not None and timesteps < 1:
         raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
     if seed < 0:
         raise ValueError(f"Expected seed >= 0, actually: {seed}")
-    setup = prepare_manager(
-        workers_dir,
-        worker_names,
-        prefer=prefer,
-        bias=bias,
-        preferences=preferences,
-        selection=selection,
-        option_steps=option_steps,
-        temperature=temperature,
-        floor=floor,
-        config=config,
-        trusted=trusted,
-        env_id=env_id,
-        env_kwargs=env_kwargs,
-    )
+    preparation: dict[str, Any] = {
+        key: value
+        for key, value in (
+            ("worker_names", worker_names),
+            ("prefer", prefer),
+            ("bias", bias),
+            ("preferences", preferences),
+            ("selection", selection),
+            ("option_steps", option_steps),
+            ("temperature", temperature),
+            ("floor", floor),
+            ("config", config),
+            ("trusted", trusted),
+            ("env_id", env_id),
+            ("env_kwargs", env_kwargs),
+        )
+        if value is not None
+    }
+    if isinstance(workers_dir, ManagerSetup):
+        if preparation:
+            raise ValueError(
+                f"train_manager got a prepared set-up and also {sorted(preparation)}: give those to prepare_manager"
+            )
+        setup = workers_dir
+    else:
+        setup = prepare_manager(workers_dir, **preparation)
     workers, manifest, names = setup.workers, setup.manifest, setup.names
-    env_id = setup.env_id
     hyperparams, selection_config, env_kwargs = setup.hyperparams, setup.selection, setup.env_kwargs
-    factory = functools.partial(
-        make_manager_env,
-        env_id,
-        env_kwargs,
-        str(Path(workers_dir)),
-        names,
-        selection_config.wrapper_kwargs(),
-        trusted,
-    )
+    factory = setup.env_factory()
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
-    from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
-
     outcome = train_agent(
         factory,
         hyperparams,
@@ -1127,9 +948,14 @@ def train_manager(
     )
     worker_meta = {
         name: {
-            k: manifest["workers"][name][k]
-            for k in ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
-            if k in manifest["workers"][name]
+            **{
+                k: manifest["workers"][name][k]
+                for k in ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
+                if k in manifest["workers"][name]
+            },
+            # Which workers/NAME.zip this worker came from: the bundle re-serialises the model, so its
+            # member's own hash differs from the source file's.
+            "source_sha256": manifest["workers"][name]["sha256"],
         }
         for name in names
     }
@@ -1137,7 +963,7 @@ def train_manager(
         outcome.model,
         workers,
         selection_config,
-        env_id=env_id,
+        env_id=setup.env_id,
         env_kwargs=env_kwargs,
         worker_meta=worker_meta,
         metadata={

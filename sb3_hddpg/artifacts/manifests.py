@@ -1,0 +1,193 @@
+"""
+The manifests beside trained models: one builder of a model's entry, writing (read-modify-write under a lock),
+reading and shape-checking ``workers/manifest.json``, and loading the workers it lists with their hashes
+verified.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from sb3_hddpg.artifacts.io import atomic_write_json, locked_file
+from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
+from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify_sha256
+from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.policy import WORKER_ENV_IDS
+
+#: The schema version of ``workers/manifest.json``.
+WORKER_MANIFEST_VERSION = 1
+
+
+def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
+    """
+    Write a manifest atomically, read-modify-write: the entries (``workers`` or ``models``) already in the
+    file are kept unless ``manifest`` replaces them, so two runs writing different agents into one folder
+    one after the other (each under the folder's lock, see :func:`~sb3_hddpg.artifacts.io.locked_folder`) both stay
+    listed.
+
+    :param path: the manifest file.
+    :param manifest: the new content; its entry mappings win over the file's.
+    """
+
+    path = Path(path)
+    merged = dict(manifest)
+    with locked_file(path):
+        try:
+            current = read_json_file(path) if path.is_file() else {}
+        except ValueError:  # damaged or not JSON: the new content replaces it
+            current = {}
+        if isinstance(current, dict):
+            for key in ("workers", "models"):
+                if isinstance(current.get(key), dict) and isinstance(manifest.get(key), dict):
+                    merged[key] = {**current[key], **manifest[key]}
+        if isinstance(merged.get("workers"), dict):
+            # One order whichever worker finished first (workers trained side by side): the manager's
+            # action order follows the manifest's, so it must not depend on timing.
+            entries = merged["workers"]
+            known = [n for n in WORKER_ENV_IDS if n in entries]
+            merged["workers"] = {n: entries[n] for n in known + sorted(set(entries) - set(known))}
+        return atomic_write_json(path, merged)
+
+
+def read_workers_manifest(path: str | Path) -> dict[str, Any]:
+    """
+    Read and shape-check a ``workers/manifest.json``: every entry names its file and sha256.
+
+    :param path: the manifest.
+    :return: the manifest; raises ``ValueError`` naming the file if it is not a valid one.
+    """
+    path = Path(path)
+    try:
+        manifest = read_json_file(path)
+        entries = manifest["workers"]
+        valid = isinstance(entries, dict)
+    except LimitError:
+        raise
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
+        valid = False
+    if not valid:
+        raise ValueError(f"Not a valid workers manifest: {str(path)!r}")
+    # Names and files travel with shared folders: each must be a plain name before it picks a file.
+    for name, entry in entries.items():
+        check_name(name, f"{path}: workers")
+        check_file_entry(entry, f"{path}: workers.{brief(name)}")
+    return manifest
+
+
+def load_workers(
+    workers_dir: str | Path, names: Sequence[str] | None = None, trusted: bool = False
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """
+    Load workers written by :func:`train_workers`, verifying each zip's sha256 against the manifest.
+
+    :param workers_dir: a run folder (containing ``workers/manifest.json``) or the ``workers`` folder itself.
+    :param names: which workers, in order (default: all, in manifest order).
+    :param trusted: use SB3's full loader instead of the weights-only rebuild.
+    :return: name -> model, and the manifest.
+    """
+
+    folder = Path(workers_dir)
+    if not folder.exists():
+        raise FileNotFoundError(f"No such folder: {str(workers_dir)!r}")
+    if not folder.is_dir():
+        raise NotADirectoryError(
+            f"Expected a folder of workers (from train-workers), got a file: {str(workers_dir)!r}"
+        )
+    if (folder / "workers" / "manifest.json").exists():
+        folder = folder / "workers"
+    manifest_path = folder / "manifest.json"
+    if not manifest_path.exists():
+        raise FileNotFoundError(
+            f"No workers manifest in {str(workers_dir)!r} (expected {manifest_path}); run train-workers first"
+        )
+    manifest = read_workers_manifest(manifest_path)
+    entries = manifest["workers"]
+    names = list(names) if names else list(entries)
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f"Duplicate worker names {duplicates} in {names}: name each worker once")
+    unknown = [n for n in names if n not in entries]
+    if unknown:
+        raise ValueError(f"Unknown workers {unknown} in {str(manifest_path)!r}; it has {list(entries)}")
+    models = {}
+    for name in names:
+        entry = entries[name]
+        if Path(entry["file"]).name != entry["file"]:
+            # A manifest travels with shared files: it may only name files in its own folder.
+            raise ValueError(
+                f"{str(manifest_path)!r}: worker {name!r} names a file outside its folder: {entry['file']!r}"
+            )
+        path = folder / entry["file"]
+        if not path.is_file():
+            raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
+        verify_sha256(path, entry["sha256"], str(path))
+        models[name] = load_model(path, spec=entry.get("spec"), trusted=trusted)
+    return models, manifest
+
+
+def observed_components(manifest: dict[str, Any], names: Sequence[str]) -> dict[str, list[str]]:
+    """
+    The state components each worker was trained on, from its manifest entry's ``env_kwargs["observe"]``.
+
+    :param manifest: a workers manifest (see :func:`read_workers_manifest`).
+    :param names: the workers to look at.
+    :return: name -> component names, for the workers trained on part of the state only.
+    """
+    out: dict[str, list[str]] = {}
+    for name in names:
+        env_kwargs = manifest["workers"][name].get("env_kwargs") or {}
+        observe = env_kwargs.get("observe") if isinstance(env_kwargs, dict) else None
+        if observe is not None:
+            if not isinstance(observe, list) or not all(isinstance(c, str) for c in observe):
+                raise ValueError(
+                    f"Worker {name!r}: env_kwargs.observe must be a list of names, actually: {observe!r:.200}"
+                )
+            out[name] = list(observe)
+    return out
+
+
+def model_entry(
+    name: str,
+    outcome: Any,
+    algo: str,
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    config: dict[str, Any],
+    seed: int,
+    timesteps_requested: int,
+    **facts: Any,
+) -> dict[str, Any]:
+    """
+    A trained model's manifest entry: the one builder for workers, flat baselines and the quickstart's agents.
+
+    :param name: the entry's name; the model file is ``NAME.zip`` beside the manifest.
+    :param outcome: the training outcome (``model``, ``model_path``, ``num_timesteps``, ``metrics``, ``backend``).
+    :param algo: the algorithm name.
+    :param env_id: the env the model was trained on.
+    :param env_kwargs: its keyword arguments.
+    :param config: ``{"file": ..., "block": ...}``: the config the model was trained with.
+    :param seed: the training seed.
+    :param timesteps_requested: the budget asked for.
+    :param facts: more facts for this kind of model (reward term and bounds, preferences, threads...).
+    :return: the entry, with the file's sha256, the library versions and the model's rebuild spec.
+    """
+    return {
+        "name": name,
+        "file": f"{name}.zip",
+        "sha256": sha256_file(outcome.model_path),
+        "algo": algo,
+        "env_id": env_id,
+        "env_kwargs": env_kwargs,
+        "config": config,
+        "seed": seed,
+        "timesteps_requested": timesteps_requested,
+        "timesteps_trained": outcome.num_timesteps,
+        **facts,
+        "backend": outcome.backend,
+        "versions": library_versions(),
+        "metrics": outcome.metrics,
+        "spec": model_spec(outcome.model),
+    }
