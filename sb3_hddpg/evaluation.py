@@ -14,6 +14,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_hddpg.envs.contract import TermNormaliser, env_contract
 from sb3_hddpg.policy import Policy
 
 #: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
@@ -33,16 +34,18 @@ class EpisodeMetrics:
     seed: int
     reward: float
     length: int
-    goal_reward: float
-    avoid_reward: float
-    #: Combined normalised reward: per step the goal and avoid terms each min-max normalised to [0, 1]
-    #: and summed (the SnakeReach reward, the benchmark's common metric).
+    #: Per reward term, its raw episode sum.
+    term_rewards: dict[str, float]
+    #: Combined normalised reward: per step every reward term min-max normalised to [0, 1] with the env's
+    #: bounds and summed (on the snake the SnakeReach reward; the benchmark's common metric).
     reach_reward: float
-    goal_touch_rate: float
-    goal_touched: bool
-    collisions: int
-    success: bool
-    min_clearance: float
+    #: The snake env's touch and collision metrics: ``None`` where the env does not report them in ``info``
+    #: (``goal_touched``, ``collision``, ``min_clearance``).
+    goal_touch_rate: float | None = None
+    goal_touched: bool | None = None
+    collisions: int | None = None
+    success: bool | None = None
+    min_clearance: float | None = None
     selections: dict[str, int] = field(default_factory=dict)
     #: Fraction of the deciding network's output entries with ``|a| >= SATURATION_LEVEL``: the manager's
     #: action for a hierarchy (its ``last_manager_action``), the action given to the env otherwise.
@@ -71,13 +74,17 @@ class EvaluationResult:
             "mean_reward": float(rewards.mean()),
             "std_reward": float(rewards.std()),
             "mean_reach_reward": float(np.mean([e.reach_reward for e in eps])),
-            "mean_goal_reward": float(np.mean([e.goal_reward for e in eps])),
-            "mean_avoid_reward": float(np.mean([e.avoid_reward for e in eps])),
-            "goal_touch_rate": float(np.mean([e.goal_touch_rate for e in eps])),
-            "goal_reached_rate": float(np.mean([e.goal_touched for e in eps])),
-            "collisions_per_episode": float(np.mean([e.collisions for e in eps])),
-            "success_rate": float(np.mean([e.success for e in eps])),
-            "min_clearance": float(np.mean([e.min_clearance for e in eps])),
+        }
+        for term in eps[0].term_rewards:
+            out[f"mean_{term}_reward"] = float(np.mean([e.term_rewards[term] for e in eps]))
+        if eps[0].goal_touch_rate is not None:  # the env reports touches and collisions (the snake env)
+            out["goal_touch_rate"] = float(np.mean([e.goal_touch_rate for e in eps]))
+            out["goal_reached_rate"] = float(np.mean([e.goal_touched for e in eps]))
+            out["collisions_per_episode"] = float(np.mean([e.collisions for e in eps]))
+            out["success_rate"] = float(np.mean([e.success for e in eps]))
+        if eps[0].min_clearance is not None:
+            out["min_clearance"] = float(np.mean([e.min_clearance for e in eps]))
+        out |= {
             "action_saturation": float(np.mean([e.action_saturation for e in eps])),
             "mean_length": float(np.mean([e.length for e in eps])),
         }
@@ -114,8 +121,9 @@ def evaluate(
     """
     Run ``policy`` for ``n_episodes`` on ``env``, resetting episode ``k`` with seed ``seed + k``.
 
-    The env must report the snake env's ``info`` (``reward_terms``, ``goal_touched``, ``collision``,
-    ``min_clearance``); a :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` also reports the worker it
+    The env must meet the env contract (:mod:`sb3_hddpg.envs.contract`): per-term sums and the normalised
+    total are measured on any such env; the snake env's touch, collision and clearance metrics only where
+    the env reports ``goal_touched``, ``collision`` and ``min_clearance`` in ``info``. A :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` also reports the worker it
     ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` its ``last_selection``: both are
     counted, each also by the state it was made in: with the nearest obstacle within ``near_clearance``
     (the ``min_clearance`` of the observation the policy acted on), or with none within ``clear_clearance``
@@ -136,15 +144,21 @@ def evaluate(
     if n_episodes < 1:
         raise ValueError(f"Expected `n_episodes` to be >= 1, actually: {n_episodes}")
     near_clearance, clear_clearance = clearance_bands(env, near_clearance, clear_clearance)
-    normalise = env.unwrapped.normalise_terms  # type: ignore[attr-defined]
+    contract = env_contract(env)
+    terms_known = list(contract.reward_bounds)
+    every_term = [(term, 1.0) for term in terms_known]
+    normaliser = TermNormaliser(contract.reward_bounds)
     episodes = []
     for k in range(n_episodes):
         obs, info = env.reset(seed=seed + k)
         reset_episode = getattr(policy, "reset_episode", None)
         if reset_episode is not None:
             reset_episode()
-        reward_sum = goal_sum = avoid_sum = reach_sum = 0.0
+        reward_sum = reach_sum = 0.0
+        term_sums = dict.fromkeys(terms_known, 0.0)
         touches = collisions = steps = saturated = entries = 0
+        # The snake env's metrics, counted only where the env reports them.
+        reports_touches = reports_clearance = False
         min_clearance = np.inf
         selections: Counter[str] = Counter()
         near: Counter[str] = Counter()
@@ -164,13 +178,16 @@ def evaluate(
             steps += 1
             reward_sum += float(reward)
             terms = info["reward_terms"]
-            goal_sum += terms["goal"]
-            avoid_sum += terms["avoid"]
-            normalised = normalise({"goal": terms["goal"], "avoid": terms["avoid"]})
-            reach_sum += normalised["goal"] + normalised["avoid"]
-            touches += bool(info["goal_touched"])
-            collisions += bool(info["collision"])
-            min_clearance = min(min_clearance, info["min_clearance"])
+            for term in terms_known:
+                term_sums[term] += terms[term]
+            reach_sum += normaliser.weighted_sum(terms, every_term)
+            if "goal_touched" in info and "collision" in info:
+                reports_touches = True
+                touches += bool(info["goal_touched"])
+                collisions += bool(info["collision"])
+            if "min_clearance" in info:
+                reports_clearance = True
+                min_clearance = min(min_clearance, info["min_clearance"])
             # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
             selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
             if selected is not None:
@@ -179,7 +196,7 @@ def evaluate(
                     near[selected] += 1
                 if clear_clearance is not None and clearance >= clear_clearance:
                     clear[selected] += 1
-            clearance = float(info["min_clearance"])
+            clearance = float(info.get("min_clearance", math.nan))
             if on_step is not None:
                 on_step(env, info)
         episodes.append(
@@ -187,14 +204,13 @@ def evaluate(
                 seed=seed + k,
                 reward=reward_sum,
                 length=steps,
-                goal_reward=goal_sum,
-                avoid_reward=avoid_sum,
+                term_rewards={term: float(v) for term, v in term_sums.items()},
                 reach_reward=reach_sum,
-                goal_touch_rate=touches / steps,
-                goal_touched=touches > 0,
-                collisions=collisions,
-                success=touches > 0 and collisions == 0,
-                min_clearance=float(min_clearance),
+                goal_touch_rate=touches / steps if reports_touches else None,
+                goal_touched=touches > 0 if reports_touches else None,
+                collisions=collisions if reports_touches else None,
+                success=touches > 0 and collisions == 0 if reports_touches else None,
+                min_clearance=float(min_clearance) if reports_clearance else None,
                 selections=dict(selections),
                 action_saturation=saturated / max(entries, 1),
                 selections_near=dict(near),

@@ -8,6 +8,7 @@ unit in its own column or header, so that no table mixes ``0.070`` with ``99.4%`
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -50,7 +51,7 @@ class MetricLabel:
 METRIC_LABELS: dict[str, MetricLabel] = {
     "mean_reward": MetricLabel("reward (the env's own)", "per episode", short="reward"),
     "mean_reach_reward": MetricLabel(
-        "reach reward (normalised goal + avoid)", "per episode", short="reach reward"
+        "reach reward (sum of the normalised terms)", "per episode", short="reach reward"
     ),
     "mean_goal_reward": MetricLabel("goal reward", "per episode"),
     "mean_avoid_reward": MetricLabel("avoid reward", "per episode"),
@@ -78,7 +79,12 @@ SELECTION_LABEL = MetricLabel(
 
 def metric_label(key: str) -> MetricLabel:
     """How ``key`` is shown (a plain-words fallback for keys without an entry)."""
-    return METRIC_LABELS.get(key, MetricLabel(key.replace("_", " "), "", digits=3))
+    if key in METRIC_LABELS:
+        return METRIC_LABELS[key]
+    term = re.fullmatch(r"mean_(\w+)_reward", key)
+    if term:  # any env's reward term (evaluate reports one per term)
+        return MetricLabel(f"{term.group(1)} reward", "per episode")
+    return MetricLabel(key.replace("_", " "), "", digits=3)
 
 
 def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:

@@ -7,6 +7,21 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+#: The smallest config that trains every agent (workers, manager, flat) in a few seconds.
+TINY_CONFIG = """\
+default: &tiny
+  n_timesteps: 150
+  policy: 'MlpPolicy'
+  buffer_size: 1000
+  learning_starts: 100
+  batch_size: 16
+  noise_type: 'normal'
+  noise_std: 0.2
+  policy_kwargs: "dict(net_arch=[16])"
+manager:
+  <<: *tiny
+"""
+
 
 class ConstantWorker:
     """A worker that always outputs the same action and records what it was shown."""

@@ -26,20 +26,7 @@ import pytest
 
 from tests.cli_batch import run_batch
 from tests.cli_runner import run_cli
-
-TINY_CONFIG = """\
-default: &tiny
-  n_timesteps: 150
-  policy: 'MlpPolicy'
-  buffer_size: 1000
-  learning_starts: 100
-  batch_size: 16
-  noise_type: 'normal'
-  noise_std: 0.2
-  policy_kwargs: "dict(net_arch=[16])"
-manager:
-  <<: *tiny
-"""
+from tests.helpers import TINY_CONFIG
 
 # Workers for a 4-joint arm: the same config with env_kwargs, the way a user would train them.
 FOUR_JOINT_CONFIG = TINY_CONFIG.replace("default: &tiny\n", "default: &tiny\n  env_kwargs: {n_joints: 4}\n")
@@ -51,6 +38,7 @@ TM = ("train-manager", "--no-progress", "--workers", "{w}", "--config", "{tiny}"
 #: Cases also run in their own ``python cli.py`` process (at least one per command).
 ALONE = {
     "tw-negative-timesteps",
+    "tw-bad-term-bounds",
     "tw-config-unknown-key",
     "tm-nan-preference",
     "tm-workers-for-another-env",
@@ -90,6 +78,28 @@ CASES = [
     case("tw-zero-eval-episodes", (*TW, "--eval-episodes", "0", "--out", "{tmp}/o"), 2, "--eval-episodes"),
     case("tw-negative-checkpoint-freq", (*TW, "--checkpoint-freq", "-7", "--out", "{tmp}/o"), 2, "-7"),
     case("tw-unknown-option", (*TW, "--timestep", "5", "--out", "{tmp}/o"), 2, "--timestep"),
+    # ---- train-workers: another env with several objectives (docs/ENVIRONMENTS.md)
+    case("tw-terms-without-env", (*TW, "--terms", "a,b", "--out", "{tmp}/o"), 2, "--terms needs --env"),
+    case("tw-unregistered-env", (*TW, "--env", "nope-v0", "--out", "{tmp}/o"), 2, "nope-v0"),
+    case("tw-module-prefixed-env", (*TW, "--env", "os:Evil-v0", "--out", "{tmp}/o"), 2, "os:Evil-v0"),
+    case(
+        "tw-bad-term-bounds",
+        (*TW, "--env", "mo-mountaincarcontinuous-v0", "--term-bounds", "time=1", "--out", "{tmp}/o"),
+        2,
+        "time=1",
+    ),
+    case(
+        "tw-terms-miscounted",
+        (*TW, "--env", "mo-mountaincarcontinuous-v0", "--terms", "a,b,c", "--out", "{tmp}/o"),
+        2,
+        "Expected 2 `terms`",
+    ),
+    case(
+        "tw-env-without-terms",
+        (*TW, "--env", "Pendulum-v1", "--out", "{tmp}/o"),
+        2,
+        "declares no reward terms",
+    ),
     # ---- train-workers: paths and files
     case("tw-config-missing", (*TW, "--config", "{tmp}/nope.yml", "--out", "{tmp}/o"), 2, "nope.yml"),
     case("tw-config-is-folder", (*TW, "--config", "{folder}", "--out", "{tmp}/o"), 2, "a-folder"),

@@ -31,9 +31,9 @@ import zipfile
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
-from sb3_hddpg.envs import ENV_IDS
+from sb3_hddpg.envs import ADAPTER_ENV_IDS, OWN_ENV_IDS
 
 #: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
 MAX_JSON_BYTES = 1 << 20
@@ -106,8 +106,7 @@ def check_name(value: Any, what: str) -> str:
 
 def own_env_ids() -> frozenset[str]:
     """The env ids this package registers (the default allow-list for ids read from files)."""
-
-    return frozenset(ENV_IDS)
+    return frozenset(OWN_ENV_IDS)
 
 
 def check_env_id(
@@ -142,15 +141,26 @@ def check_env_id(
     return env_id
 
 
-def check_env_kwargs(env_id: str, env_kwargs: Any, what: str) -> dict[str, Any]:
+def check_env_kwargs(
+    env_id: str,
+    env_kwargs: Any,
+    what: str,
+    allowed_env_ids: Sequence[str] | None = None,
+    trusted: bool = False,
+) -> dict[str, Any]:
     """
     Env keyword arguments read from a file: a mapping of the env constructor's own named parameters to
-    plain values (numbers, strings, booleans, ``None``, or lists of at most 64 short strings). Keys of ``gym.make`` itself
-    (``max_episode_steps``...) and of wrappers are refused; the env checks the values' ranges.
+    plain values (numbers, strings, booleans, ``None``; lists of at most 64 of them; a mapping of at most 64
+    short names to such values or lists, e.g. an adapter's ``term_bounds``). Keys of ``gym.make`` itself
+    (``max_episode_steps``...) and of wrappers are refused; the env checks the values' ranges. An adapter's
+    ``env_id`` (the env it adapts, see :mod:`sb3_hddpg.envs.adapters`) passes :func:`check_env_id` too, whose
+    allow-list there also holds MO-Gymnasium's ids.
 
     :param env_id: the (checked) env id they are for.
     :param env_kwargs: the value from the file.
     :param what: the field, for the message.
+    :param allowed_env_ids: more ids an adapter may adapt (as in :func:`check_env_id`).
+    :param trusted: an adapter may adapt any registered id (still no module prefix).
     :return: a copy; raises :class:`LimitError` naming the key otherwise.
     """
     import gymnasium as gym
@@ -179,17 +189,51 @@ def check_env_kwargs(env_id: str, env_kwargs: Any, what: str) -> dict[str, Any]:
             )
         if key == "render_mode":
             raise LimitError(f"{what}: render_mode is chosen by the command, not by a file")
-        # A list of short strings (e.g. the snake env's ``observe``: state component names) is plain too.
-        items = value if isinstance(value, list) and len(value) <= 64 else [value]
-        for item in items:
-            if isinstance(value, list) and not isinstance(item, str):
-                raise LimitError(f"{what}.{key}: expected a list of strings, got {brief(value)}")
-            if not (item is None or isinstance(item, (bool, int, str)) or _finite(item)):
-                raise LimitError(f"{what}.{key}: expected a number, string or boolean, got {brief(value)}")
-            if isinstance(item, str) and len(item) > 64:
-                raise LimitError(f"{what}.{key}: string of {len(item)} characters is longer than 64")
-        checked[key] = list(value) if isinstance(value, list) else value
+        if env_id in ADAPTER_ENV_IDS and key == "env_id":
+            allowed = [*mo_gymnasium_env_ids(), *(allowed_env_ids or ())]
+            checked[key] = check_env_id(value, f"{what}.env_id", allowed, trusted)
+            continue
+        checked[key] = _plain_value(value, f"{what}.{key}", nested=True)
     return checked
+
+
+def mo_gymnasium_env_ids() -> list[str]:
+    """The ids MO-Gymnasium registers (none when it is not installed): an adapter may adapt them by default."""
+    from gymnasium.envs.registration import registry
+
+    try:
+        import mo_gymnasium  # noqa: F401  (registers its ids)
+    except ImportError:
+        return []
+    return [
+        env_id
+        for env_id, spec in registry.items()
+        if isinstance(spec.entry_point, str) and spec.entry_point.startswith("mo_gymnasium.")
+    ]
+
+
+def _plain_value(value: Any, what: str, nested: bool) -> Any:
+    """A plain JSON value from a file, bounded: scalars, lists of scalars, and (if ``nested``) one mapping level."""
+    if value is None or isinstance(value, (bool, int)) or _finite(value):
+        return value
+    if isinstance(value, str):
+        if len(value) > 64:
+            raise LimitError(f"{what}: string of {len(value)} characters is longer than 64")
+        return value
+    if isinstance(value, list) and len(value) <= 64:
+        if any(isinstance(item, (list, Mapping)) for item in value):
+            _refuse(value, what)
+        return [_plain_value(item, what, nested=False) for item in value]
+    if nested and isinstance(value, Mapping) and len(value) <= 64:
+        return {check_name(k, what): _plain_value(v, f"{what}.{k}", nested=False) for k, v in value.items()}
+    return _refuse(value, what)
+
+
+def _refuse(value: Any, what: str) -> NoReturn:
+    raise LimitError(
+        f"{what}: expected a number, string, boolean, a list of at most 64 of them or a mapping of names to "
+        f"them, got {brief(value)}"
+    )
 
 
 def _finite(value: Any) -> bool:

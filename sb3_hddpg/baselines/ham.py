@@ -27,6 +27,7 @@ import numpy as np
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_name, read_json_file
 from sb3_hddpg.artifacts.manifests import load_workers, observed_components
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.policy import Policy
 
@@ -277,7 +278,9 @@ def load_ham(
         check_name(pair["avoid"], f"{where}: worker_names.avoid"),
     )
     env_id = check_env_id(meta["env_id"], f"{where}: env_id", allowed_env_ids, trusted)
-    env_kwargs = check_env_kwargs(env_id, meta.get("env_kwargs"), f"{where}: env_kwargs")
+    env_kwargs = check_env_kwargs(
+        env_id, meta.get("env_kwargs"), f"{where}: env_kwargs", allowed_env_ids, trusted
+    )
     for key in ("threshold", "hysteresis"):
         value = meta.get(key, 0.0)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -285,7 +288,7 @@ def load_ham(
     manifest = (path.parent / relative).resolve()
     workers, workers_manifest = load_workers(manifest.parent, names, trusted=trusted)
     env = gym.make(env_id, **env_kwargs)
-    layout = env.unwrapped.state_layout  # type: ignore[attr-defined]
+    layout = state_layout_of(env)
     env.close()
     switch = HAMSwitch(
         workers[names[0]],

@@ -9,7 +9,18 @@ from rich.table import Table
 
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, seed_range, usage_errors, writable_file
+from sb3_hddpg.cli.options import (
+    ENV_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
+    at_least,
+    seed_range,
+    terms_env_option,
+    usage_errors,
+    writable_file,
+)
 from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.metric_labels import summary_rows
@@ -26,8 +37,12 @@ def evaluate_command(
         help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK).",
     ),
     env_id: str | None = typer.Option(
-        None, "--env", help="Env id to evaluate on (default: the one it was trained on)."
+        None, "--env", help="Env id to evaluate on (default: the one it was trained on). " + ENV_HELP
     ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
     episodes: int = typer.Option(20, "--episodes", callback=at_least(1), help="Evaluation episodes."),
     seed: int = typer.Option(
         EVAL_SEED_BASE,
@@ -62,10 +77,19 @@ def evaluate_command(
 
     # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
     # checked here, as a usage error; what fails during the episodes is not.
+    # Another env with several objectives resolves to the adapter it needs (the snake ids stay as they are).
+    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     with usage_errors("'PATH'"):
-        loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
+        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
+        loaded = load_policy(
+            path,
+            env_id=shared.env_id if shared else None,
+            trusted=trust,
+            algo=algo,
+            allowed_env_ids=[shared.env_id] if shared else None,
+        )
     with usage_errors("'--env'"):
-        env = loaded.make_env(env_id)
+        env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):
         clearance_bands(env, near_clearance, None)
     result = evaluate(

@@ -7,6 +7,7 @@ import math
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Annotated, Any
 
 import click
 import typer
@@ -174,3 +175,68 @@ def backend_name(value: str | None) -> str | None:
         return check_backend(value)
     except BackendError as error:
         raise typer.BadParameter(str(error)) from None
+
+
+#: Help of the options that choose an env with several objectives (train-workers, train-manager, evaluate).
+ENV_HELP = (
+    'Env id with several objectives: one of ours, an MO-Gymnasium id (pip install "sb3-hddpg[mo]"), or a '
+    "registered env with per-term rewards in info (docs/ENVIRONMENTS.md). Default: the snake arm."
+)
+TERMS_HELP = (
+    "Comma-separated reward term names, e.g. speed,energy: an MO-Gymnasium env's objectives in order "
+    "(default obj0..objN), or the info keys of an env's per-term rewards (required there)."
+)
+TERM_BOUNDS_HELP = (
+    "Per-step bounds TERM=LOW:HIGH[,...] for terms the env does not bound (needed for info terms; for an "
+    "unbounded MO-Gymnasium reward_space they are otherwise estimated, with a warning)."
+)
+INFO_KEY_HELP = (
+    "The info entry holding the per-term rewards, e.g. rewards (highway-env); default: info itself."
+)
+EPISODE_STEPS_HELP = "Time limit of an adapted env (default: its registered max_episode_steps)."
+
+
+# The options that name another env's terms, declared once for every command that takes them.
+TermsOpt = Annotated[str | None, typer.Option("--terms", help=TERMS_HELP)]
+TermBoundsOpt = Annotated[str | None, typer.Option("--term-bounds", help=TERM_BOUNDS_HELP)]
+InfoKeyOpt = Annotated[str | None, typer.Option("--info-key", help=INFO_KEY_HELP)]
+EpisodeStepsOpt = Annotated[
+    int | None, typer.Option("--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP)
+]
+
+
+def terms_env_option(
+    env: str | None,
+    terms: str | None,
+    term_bounds: str | None,
+    info_key: str | None = None,
+    episode_steps: int | None = None,
+) -> Any:
+    """
+    The :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the env options name (``None`` when ``--env`` is not
+    given and no other option needs it); the library's errors become usage errors naming the option.
+    """
+    from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
+
+    if env is None:
+        given = [
+            n
+            for n, v in (
+                ("--terms", terms),
+                ("--term-bounds", term_bounds),
+                ("--info-key", info_key),
+                ("--episode-steps", episode_steps),
+            )
+            if v is not None
+        ]
+        if given:
+            raise typer.BadParameter(
+                f"{given[0]} needs --env (the env whose terms it names)", param_hint="'--env'"
+            )
+        return None
+    with usage_errors("'--terms'"):
+        names = parse_terms(terms) if terms is not None else None
+    with usage_errors("'--term-bounds'"):
+        bounds = parse_term_bounds(term_bounds) if term_bounds is not None else None
+    with usage_errors("'--env'"):
+        return terms_env(env, names, bounds, info_key=info_key, episode_steps=episode_steps)

@@ -12,6 +12,7 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.baselines import JacobianReacher
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import usage_errors, writable_file
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.policy import RandomPolicy
 
@@ -36,7 +37,7 @@ def rollout(
         env = gym.make(env_id, render_mode="rgb_array")
     policies = {
         "random": RandomPolicy(env.action_space, seed=seed),
-        "scripted reacher": JacobianReacher(env.unwrapped.state_layout),
+        "scripted reacher": JacobianReacher(state_layout_of(env)),
     }
     table = Table(title=f"{env_id}: {episodes} episodes, seeds {seed}..{seed + episodes - 1}")
     for column in ("policy", "reward", "goal touch rate", "collisions/ep", "success", "min clearance"):

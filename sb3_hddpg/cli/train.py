@@ -10,12 +10,18 @@ from rich.table import Table
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     BACKEND_HELP,
+    ENV_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
     at_least,
     backend_name,
     existing_dir,
     existing_file,
     prepare_out_dir,
     seed_range,
+    terms_env_option,
     usage_errors,
 )
 from sb3_hddpg.hierarchy.selection import parse_preferences
@@ -31,6 +37,8 @@ from sb3_hddpg.training.training import (
     worker_hyperparams,
 )
 
+#: train-manager's --env: where its default comes from.
+MANAGER_ENV_NOTE = " For the manager, the default is the shared env recorded in the workers' manifest."
 CONFIG_HELP = "Hyperparameters in RL Zoo format (default: the bundled zoo_configs/ddpg.yml)."
 CHECKPOINT_HELP = (
     "Steps between resumable checkpoints (0: only on Ctrl-C/SIGTERM and at the end); "
@@ -46,15 +54,16 @@ KEEP_CHECKPOINTS_HELP = (
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
     """A rich table of evaluation summaries, one row per agent, each column in one unit."""
 
-    keys = (
-        "mean_reward",
-        "goal_touch_rate",
-        "collisions_per_episode",
-        "success_rate",
-        "min_clearance",
-        # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
-        "action_saturation",
-    )
+    snake = ("goal_touch_rate", "collisions_per_episode", "success_rate", "min_clearance")
+    # The snake env's touch and collision metrics where the env reports them, else every reward term.
+    shown = [k for k in snake if any(k in row for row in rows.values())] or [
+        k
+        for row in list(rows.values())[:1]
+        for k in row
+        if k != "mean_reward" and k.startswith("mean_") and k.endswith("_reward")
+    ]
+    # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
+    keys = ("mean_reward", *shown, "action_saturation")
     table = Table(title=title)
     table.add_column("agent")
     for key in keys:
@@ -73,11 +82,17 @@ def metrics_table(title: str, rows: dict[str, dict]) -> Table:
 
 @app.command("train-workers")
 def train_workers_command(
-    workers: list[str] = typer.Option(
-        ["goal", "avoid"],
+    workers: list[str] | None = typer.Option(
+        None,
         "--workers",
-        help=f"Workers to train, among {sorted(WORKER_ENV_IDS)} (repeat the option).",
+        help=f"Workers to train, one per reward term (repeat the option). Default: every term of the env "
+        f"(the snake arm: {sorted(WORKER_ENV_IDS)}).",
     ),
+    env: str | None = typer.Option(None, "--env", help=ENV_HELP),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
     config: Path | None = typer.Option(None, "--config", callback=existing_file, help=CONFIG_HELP),
     timesteps: int | None = typer.Option(
         None,
@@ -113,13 +128,16 @@ def train_workers_command(
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
 
-    unknown = [w for w in workers if w not in WORKER_ENV_IDS]
+    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
+    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
+    workers = list(workers) if workers else list(known)
+    unknown = [w for w in workers if w not in known]
     duplicates = sorted({w for w in workers if workers.count(w) > 1})
     if unknown or duplicates:
         problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
-        raise typer.BadParameter(f"{problem}; choose from {sorted(WORKER_ENV_IDS)}", param_hint="'--workers'")
+        raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
     with usage_errors("'--config'"):  # a bad block fails now, not after the first worker has trained
-        blocks = worker_hyperparams(workers, config)
+        blocks = worker_hyperparams(workers, config, shared)
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
         for block in blocks.values():
             resolve_backend(backend, block.backend)
@@ -151,6 +169,7 @@ def train_workers_command(
             on_worker_done=done,
             keep_checkpoints=keep_checkpoints,
             backend=backend,
+            env=shared,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
@@ -227,10 +246,17 @@ def train_manager_command(
     ),
     keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
     backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
+    env: str | None = typer.Option(None, "--env", help=ENV_HELP + MANAGER_ENV_NOTE),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
     with usage_errors("'--preference'"):
         preferences = parse_preferences(preference) if preference is not None else None
+    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
+    env_id, env_kwargs = (shared.env_id, shared.env_kwargs) if shared is not None else (None, None)
     # The library checks the rest (workers, their hashes and spaces, names, preferences and --bias, the
     # selection mode, config) before any training; run those checks now so that bad input is reported before
     # the output folder is touched. The checked set-up is what trains: nothing is loaded or checked twice.
@@ -245,6 +271,8 @@ def train_manager_command(
             option_steps=option_steps,
             config=config,
             trusted=trust,
+            env_id=env_id,
+            env_kwargs=env_kwargs,
         )
     with usage_errors("'--backend'"):
         resolve_backend(backend, setup.hyperparams.backend)

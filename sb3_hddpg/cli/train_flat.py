@@ -9,13 +9,21 @@ import typer
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     BACKEND_HELP,
+    ENV_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
     at_least,
     backend_name,
     prepare_out_dir,
     seed_range,
+    terms_env_option,
     usage_errors,
 )
 from sb3_hddpg.cli.train import KEEP_CHECKPOINTS_HELP, metrics_table
+from sb3_hddpg.hierarchy.preference import make_preference_env
+from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.config import default_config, load_hyperparams
 from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted, algo_class, train_flat
@@ -56,8 +64,25 @@ def train_flat_command(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
     keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
     backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
+    preference: str | None = typer.Option(
+        None,
+        "--preference",
+        help="Learn the preference-weighted sum of the normalised terms, e.g. time=1,fuel=2 (terms not named "
+        "get 1); default: the env's own reward (the normalised sum).",
+    ),
+    env: str | None = typer.Option(None, "--env", help=ENV_HELP),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
+    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
+    env_id = shared.env_id if shared is not None else FLAT_ENV_ID
+    with usage_errors("'--preference'"):
+        preferences = parse_preferences(preference) if preference is not None else None
+        if preferences is not None:
+            make_preference_env(env_id, shared.env_kwargs if shared else {}, preferences).close()
 
     algo = algo.lower()
     if algo not in ALGO_NAMES:
@@ -67,7 +92,7 @@ def train_flat_command(
 
     with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
         hyperparams = load_hyperparams(
-            FLAT_ENV_ID, algo_class(algo), config if config is not None else default_config(algo)
+            env_id, algo_class(algo), config if config is not None else default_config(algo)
         )
 
     with usage_errors("'--backend'"):
@@ -89,6 +114,9 @@ def train_flat_command(
             threads=threads,
             keep_checkpoints=keep_checkpoints,
             backend=backend,
+            env_id=env_id,
+            env_kwargs=shared.env_kwargs if shared is not None else None,
+            preferences=preferences,
         )
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/]")
@@ -96,5 +124,5 @@ def train_flat_command(
     entry = manifest["models"][algo]
     if outcome is None:
         console.print(f"{algo} was already trained for {entry['timesteps_requested']} steps; kept it.")
-    console.print(metrics_table(f"Flat {algo} on {FLAT_ENV_ID} (best evaluation)", {algo: entry["metrics"]}))
+    console.print(metrics_table(f"Flat {algo} on {env_id} (best evaluation)", {algo: entry["metrics"]}))
     console.print(f"Model: {out / 'flat' / entry['file']}   Manifest: {out / 'flat' / 'manifest.json'}")

@@ -2,8 +2,18 @@
 
 from gymnasium.envs.registration import register, registry
 
+from sb3_hddpg.envs.adapters import (
+    ADAPTER_ENV_IDS,
+    INFO_TERMS_ENV_ID,
+    MULTI_OBJECTIVE_ENV_ID,
+    InfoTermsEnv,
+    MultiObjectiveEnv,
+    TermReward,
+)
+from sb3_hddpg.envs.contract import RewardTermsEnv, TermNormaliser, env_contract, state_layout_of
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 from sb3_hddpg.envs.snake import REWARD_TERMS, SnakeArmEnv
+from sb3_hddpg.envs.snake_mo import SnakeMOEnv
 
 #: Steps per episode of every registered id (20 s of simulated time at the default ``dt``).
 MAX_EPISODE_STEPS = 200
@@ -14,6 +24,12 @@ ENV_IDS = {
     "hddpg/SnakeAvoid-v0": "avoid",
     "hddpg/SnakeReach-v0": "reach",
 }
+#: The snake arm with MO-Gymnasium's vector reward and ``reward_space``.
+SNAKE_MO_ENV_ID = "hddpg/SnakeMO-v0"
+
+
+#: Every id this package registers (the default allow-list for env ids read from files).
+OWN_ENV_IDS = (*ENV_IDS, SNAKE_MO_ENV_ID, *ADAPTER_ENV_IDS)
 
 
 def register_envs() -> None:
@@ -26,8 +42,43 @@ def register_envs() -> None:
                 max_episode_steps=MAX_EPISODE_STEPS,
                 kwargs={"reward": reward},
             )
+    if SNAKE_MO_ENV_ID not in registry:
+        register(
+            id=SNAKE_MO_ENV_ID,
+            entry_point="sb3_hddpg.envs.snake_mo:SnakeMOEnv",
+            max_episode_steps=MAX_EPISODE_STEPS,
+            # Gymnasium's checker expects a scalar reward; MO-Gymnasium's API returns a vector.
+            disable_env_checker=True,
+        )
+    # The adapters: their own time limit is the inner env's (``max_episode_steps`` of the adapted id).
+    for env_id, entry_point in (
+        (MULTI_OBJECTIVE_ENV_ID, "sb3_hddpg.envs.adapters:MultiObjectiveEnv"),
+        (INFO_TERMS_ENV_ID, "sb3_hddpg.envs.adapters:InfoTermsEnv"),
+    ):
+        if env_id not in registry:
+            register(id=env_id, entry_point=entry_point, disable_env_checker=True)
 
 
 register_envs()
 
-__all__ = ["ENV_IDS", "MAX_EPISODE_STEPS", "REWARD_TERMS", "SnakeArmEnv", "StateLayout", "build_state_layout"]
+__all__ = [
+    "ADAPTER_ENV_IDS",
+    "ENV_IDS",
+    "INFO_TERMS_ENV_ID",
+    "MAX_EPISODE_STEPS",
+    "MULTI_OBJECTIVE_ENV_ID",
+    "OWN_ENV_IDS",
+    "REWARD_TERMS",
+    "SNAKE_MO_ENV_ID",
+    "InfoTermsEnv",
+    "MultiObjectiveEnv",
+    "RewardTermsEnv",
+    "SnakeArmEnv",
+    "SnakeMOEnv",
+    "StateLayout",
+    "TermNormaliser",
+    "TermReward",
+    "build_state_layout",
+    "env_contract",
+    "state_layout_of",
+]

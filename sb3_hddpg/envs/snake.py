@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -13,6 +13,7 @@ import pymunk
 from gymnasium import spaces
 from pymunk._chipmunk_cffi import lib as _chipmunk
 
+from sb3_hddpg.envs.contract import TermNormaliser
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 
 #: The reward choices of :class:`SnakeArmEnv`: one per paper worker plus their normalised sum.
@@ -128,7 +129,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     - v0: initial version.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # type: ignore[misc]
 
     def __init__(
         self,
@@ -258,9 +259,9 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             "avoid": (-1.0, self.r_bf * n * self.sensor_range),
         }
         self.reward_terms = REWARD_TERMS
-        # Precomputed so that normalising a term in the step is one multiply-add.
-        self._term_offset = {k: lo for k, (lo, _) in self.reward_bounds.items()}
-        self._term_scale = {k: 1.0 / (hi - lo) for k, (lo, hi) in self.reward_bounds.items()}
+        self._normaliser = TermNormaliser(self.reward_bounds)
+        # The reach reward: every term, normalised, weight 1.
+        self._reach_weights = tuple((term, 1.0) for term in REWARD_TERMS)
 
         # (top speed, min radius, max radius) of the goal's walk, then of each obstacle's.
         self._walk_limits = [(self.goal_speed, self.goal_radius_min, self.goal_radius_max)] + [
@@ -277,12 +278,6 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         )
         self._inv_sensor_range = 1.0 / self.sensor_range
         self._reach = reward == "reach"
-        self._reach_normalisation = (
-            self._term_offset["goal"],
-            self._term_scale["goal"],
-            self._term_offset["avoid"],
-            self._term_scale["avoid"],
-        )
         self._obs_size = obs_size
         self._pack_obs = struct.Struct(f"={obs_size}f").pack
         self._obs_offsets = (self.state_layout["ee_to_goal"].start, self.state_layout["goal_touched"].start)
@@ -556,13 +551,13 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
         ever_touched = self._ever_touched = self._ever_touched or goal_touched
         ever_collided = self._ever_collided = self._ever_collided or collision
+        terms = {"goal": goal, "avoid": avoid}
         if self._reach:  # the sum of both terms, each normalised as by normalise_terms
-            goal_offset, goal_scale, avoid_offset, avoid_scale = self._reach_normalisation
-            reward = (goal - goal_offset) * goal_scale + (avoid - avoid_offset) * avoid_scale
+            reward = self._normaliser.weighted_sum(terms, self._reach_weights)
         else:
             reward = goal if self.reward_name == "goal" else avoid
         info = {
-            "reward_terms": {"goal": goal, "avoid": avoid},
+            "reward_terms": terms,
             "goal_touched": goal_touched,
             "collision": collision,
             "min_clearance": min_clearance,
@@ -587,9 +582,9 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             "goal_distance": info["distance_to_goal"],
         }
 
-    def normalise_terms(self, terms: dict[str, float]) -> dict[str, float]:
+    def normalise_terms(self, terms: Mapping[str, float]) -> dict[str, float]:
         """Min-max normalise reward terms to [0, 1] with the fixed :attr:`reward_bounds`."""
-        return {k: (v - self._term_offset[k]) * self._term_scale[k] for k, v in terms.items()}
+        return self._normaliser(terms)
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(

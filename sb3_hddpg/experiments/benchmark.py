@@ -55,6 +55,7 @@ from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
 from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
 from sb3_hddpg.envs import SnakeArmEnv
+from sb3_hddpg.envs.contract import TermNormaliser, state_layout_of
 from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, evaluate, state_dependence
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.hierarchy.selection import parse_preferences
@@ -491,7 +492,7 @@ def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str,
 
     env = gym.make(FLAT_ENV_ID)
     try:
-        n_links = env.unwrapped.state_layout["joint_obstacle_distances"]  # type: ignore[attr-defined]
+        n_links = state_layout_of(env)["joint_obstacle_distances"]
         threshold = settings.ham_threshold
         if threshold is None:
             threshold = (n_links.stop - n_links.start) - DEFAULT_MARGIN
@@ -739,13 +740,10 @@ def normalised_term_sums(summary: dict[str, Any]) -> tuple[float, float]:
     ``(mean raw sum - mean length * low) / (high - low)`` with the env's fixed ``reward_bounds``.
     """
 
-    bounds = SnakeArmEnv().reward_bounds
+    normaliser = TermNormaliser(SnakeArmEnv().reward_bounds)
     length = summary["mean_length"]
-    out = []
-    for term in ("goal", "avoid"):
-        low, high = bounds[term]
-        out.append((summary[f"mean_{term}_reward"] - length * low) / (high - low))
-    return out[0], out[1]
+    goal, avoid = (normaliser.episode_sum(t, summary[f"mean_{t}_reward"], length) for t in ("goal", "avoid"))
+    return goal, avoid
 
 
 def _with_term_sums(summary: dict[str, Any]) -> dict[str, Any]:

@@ -42,6 +42,7 @@ from sb3_hddpg.artifacts.manifests import model_entry, read_workers_manifest, sa
 from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.experiments.packaging import write_zoo_layout
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
@@ -608,7 +609,7 @@ def _build_ham(run_dir: Path) -> Path:
     import gymnasium as gym
 
     probe = gym.make(COMPARISON_ENV_ID)
-    n_joints = len(probe.unwrapped.state_layout.indices(["joint_obstacle_distances"]))
+    n_joints = len(state_layout_of(probe).indices(["joint_obstacle_distances"]))
     probe.close()
     return save_ham(
         run_dir / "ham.json",

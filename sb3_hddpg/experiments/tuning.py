@@ -41,6 +41,7 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
 from sb3_hddpg.baselines.ham import HAMSwitch
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.hyperparams_opt import sampler_for
 from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
@@ -197,7 +198,12 @@ class TuningTarget:
             workers, manifest = load_workers(str(self.workers_dir))
             env = make_snake_env(SHARED_ENV_ID)
             try:
-                _make_ham(workers, env, float(env.unwrapped.n_joints) - 0.5, manifest)
+                _make_ham(
+                    workers,
+                    env,
+                    float(len(state_layout_of(env).indices(["joint_obstacle_distances"]))) - 0.5,
+                    manifest,
+                )
             finally:
                 env.close()
 
@@ -737,7 +743,7 @@ def _make_ham(workers: dict[str, Any], env: Any, threshold: float, manifest: dic
     return HAMSwitch(
         workers["goal"],
         workers["avoid"],
-        env.unwrapped.state_layout,
+        state_layout_of(env),
         threshold=threshold,
         worker_states=observed_components(manifest, list(workers)),
     )

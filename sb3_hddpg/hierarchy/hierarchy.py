@@ -43,6 +43,7 @@ from sb3_hddpg.artifacts.limits import (
 )
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
     SelectionConfig,
@@ -105,12 +106,9 @@ class Hierarchy:
         self.worker_meta = dict(worker_meta or {})
         self.metadata = dict(metadata or {})
         probe = gym.make(env_id, **self.env_kwargs)
-        layout = getattr(probe.unwrapped, "state_layout", None)
-        if layout is None and (config.manager_state or config.worker_states):
-            raise ValueError(
-                f"The hierarchy's env {env_id!r} declares no state_layout, so manager_state and worker_states "
-                "cannot name its components"
-            )
+        # Absent a declared layout the whole observation is one component: naming any other is refused
+        # by StateLayout.indices with the known names.
+        layout = state_layout_of(probe)
         self.observation_space = probe.observation_space
         self.action_space = probe.action_space
         probe.close()
@@ -141,14 +139,8 @@ class Hierarchy:
     @property
     def reward_spec(self) -> dict[str, float]:
         """This hierarchy's reward as a worker one level up: its preference-weighted mix of its workers' terms."""
-        mix: dict[str, float] = {}
-        for name in self.names:
-            spec = self.config.reward_terms.get(name, name)
-            weights = {spec: 1.0} if isinstance(spec, str) else dict(spec)
-            total = sum(weights.values())
-            for term, weight in weights.items():
-                mix[term] = mix.get(term, 0.0) + self.config.preferences.get(name, 1.0) * weight / total
-        return mix
+        specs = {name: self.config.reward_terms.get(name, name) for name in self.names}
+        return mix_terms(specs, self.config.preferences)
 
     def reset_episode(self) -> None:
         """Forget the current option (call at an episode start when ``option_steps > 1``)."""
@@ -286,7 +278,9 @@ class Hierarchy:
         names = manifest["worker_names"]
         try:
             env_id = check_env_id(manifest.get("env_id"), f"{name}: env_id", allowed_env_ids, trusted)
-            env_kwargs = check_env_kwargs(env_id, manifest.get("env_kwargs"), f"{name}: env_kwargs")
+            env_kwargs = check_env_kwargs(
+                env_id, manifest.get("env_kwargs"), f"{name}: env_kwargs", allowed_env_ids, trusted
+            )
             settings = check_selection_settings(manifest.get("selection"), names, f"{name}: selection")
         except ValueError as error:
             raise BundleError(str(error)) from None

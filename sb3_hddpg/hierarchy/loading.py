@@ -25,6 +25,8 @@ from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.baselines.ham import load_ham
 from sb3_hddpg.baselines.scripted import IKReacher, JacobianReacher
+from sb3_hddpg.envs import SnakeArmEnv
+from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.policy import Policy, RandomPolicy
 
@@ -130,7 +132,9 @@ def load_policy(
         verify_sha256(path, entry["sha256"], text)
         where = f"{text}: manifest entry"
         entry_env = check_env_id(entry.get("env_id"), f"{where} env_id", allowed_env_ids, trusted)
-        env_kwargs = check_env_kwargs(entry_env, entry.get("env_kwargs"), f"{where} env_kwargs")
+        env_kwargs = check_env_kwargs(
+            entry_env, entry.get("env_kwargs"), f"{where} env_kwargs", allowed_env_ids, trusted
+        )
         model = load_model(path, spec=entry.get("spec"), trusted=trusted)
         return LoadedPolicy(model, entry_env, env_kwargs, kind, entry.get("name", path.stem), entry)
     if not trusted:
@@ -167,11 +171,15 @@ def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
     import sb3_hddpg  # noqa: F401
 
     env = gym.make(env_id)
+    layout = state_layout_of(env)
     if name == "random":
         policy: Policy = RandomPolicy(env.action_space, seed=0)
     elif name == "ik":
-        policy = IKReacher(env.unwrapped.state_layout, max_joint_speed=env.unwrapped.max_joint_speed)
+        snake = env.unwrapped
+        if not isinstance(snake, SnakeArmEnv):
+            raise ValueError(f"The IK reacher drives the snake arm only, not {env_id!r}")
+        policy = IKReacher(layout, max_joint_speed=snake.max_joint_speed)
     else:
-        policy = JacobianReacher(env.unwrapped.state_layout)
+        policy = JacobianReacher(layout)
     env.close()
     return LoadedPolicy(policy, env_id, {}, name, name)

@@ -8,6 +8,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.hierarchy.selection import check_preferences
 
 
@@ -20,16 +21,14 @@ class PreferenceReward(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     scratch (the transfer benchmark). With every factor 1 on ``hddpg/SnakeReach-v0`` it is that env's own
     reward.
 
-    :param env: the shared env, whose ``unwrapped`` has ``reward_bounds`` and ``normalise_terms`` and whose
-        ``info`` has ``reward_terms``.
+    :param env: the shared env, which meets the env contract (:mod:`sb3_hddpg.envs.contract`).
     :param preferences: term name -> factor (finite, > 0); terms not named get 1.
     """
 
     def __init__(self, env: gym.Env, preferences: Mapping[str, float]) -> None:
         super().__init__(env)
-        terms = list(getattr(env.unwrapped, "reward_bounds", {}))
-        if not terms or not callable(getattr(env.unwrapped, "normalise_terms", None)):
-            raise ValueError("Expected an env with `reward_bounds` and `normalise_terms` (the snake env's)")
+        self.contract = env_contract(env)
+        terms = list(self.contract.reward_bounds)
         unknown = sorted(set(preferences) - set(terms))
         if unknown:
             raise ValueError(f"Unknown reward terms {unknown} in the preferences; the env's terms: {terms}")
@@ -38,7 +37,7 @@ class PreferenceReward(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarra
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         obs, _, terminated, truncated, info = self.env.step(action)
-        normalised = self.env.unwrapped.normalise_terms(info["reward_terms"])  # type: ignore[attr-defined]
+        normalised = self.contract.normalise_terms(info["reward_terms"])
         reward = sum(factor * normalised[term] for term, factor in self.preferences.items())
         return obs, float(reward), terminated, truncated, info
 

@@ -11,6 +11,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.utils import check_for_correct_spaces
 
+from sb3_hddpg.envs.contract import env_contract, mix_terms, state_layout_of
 from sb3_hddpg.hierarchy.selection import FrozenWorker, SimplexMap, check_preferences, get_selector
 from sb3_hddpg.policy import Policy
 
@@ -20,7 +21,7 @@ RewardSpec = str | Mapping[str, float]
 
 class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     """
-    Turn the shared snake env into the manager's MDP: the manager's action chooses which worker acts.
+    Turn the shared env into the manager's MDP: the manager's action chooses which worker acts.
 
     **Action.** ``Box(-1, 1, (n_workers,), float32)``, mapped to worker probabilities by
     :class:`~sb3_hddpg.hierarchy.selection.SimplexMap` (``softmax(a / temperature)`` mixed with a probability floor),
@@ -41,14 +42,15 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     the manager ``gamma_manager = gamma_env^k``. ``k = 1`` is the paper's setting and needs no care.
 
     **Observations.** The manager sees the shared state, or the components named in ``manager_state``
-    (names of ``env.unwrapped.state_layout``); each worker sees the shared state or its own
+    (names of the env's ``state_layout``, see :func:`~sb3_hddpg.envs.contract.state_layout_of`); each worker sees the shared state or its own
     ``worker_states[name]`` subset (paper design specification 4).
 
     **Info.** ``selected_worker``, ``selection_probabilities`` (name -> probability),
     ``reward_terms`` (raw, from the env), ``normalised_terms`` and ``option_length``; plus the env's own.
 
-    :param env: the shared env (e.g. ``gym.make("hddpg/SnakeReach-v0")``), whose ``unwrapped`` has
-        ``reward_bounds``, ``normalise_terms`` and ``state_layout``.
+    :param env: the shared env (e.g. ``gym.make("hddpg/SnakeReach-v0")``), which meets the env contract
+        (:class:`~sb3_hddpg.envs.contract.RewardTermsEnv`; an MO-Gymnasium env through
+        :mod:`sb3_hddpg.envs.adapters`).
     :param workers: name -> worker (an SB3 model, a loaded ``Hierarchy``, or anything with SB3's
         ``predict``), or a sequence of ``(name, worker)`` pairs.
     :param preferences: name -> preference factor (finite, > 0); missing names get 1.
@@ -96,11 +98,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             raise ValueError(f"Expected `option_gamma` in (0, 1], actually: {option_gamma}")
         super().__init__(env)
 
-        base = env.unwrapped
-        for attribute in ("reward_bounds", "normalise_terms", "state_layout"):
-            if not hasattr(base, attribute):
-                raise ValueError(f"Expected an env with `{attribute}` (a snake env), actually: {base!r}")
-        self.layout = base.state_layout
+        contract = env_contract(env)
+        self.layout = state_layout_of(env)
         self.worker_names = names
         self.selection = selection
         self.selector = selector
@@ -121,7 +120,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self.observation_space = _subset_space(env.observation_space, self._manager_indices)
         self.action_space = spaces.Box(-1.0, 1.0, (len(names),), dtype=np.float32)
 
-        known_terms = list(base.reward_bounds)
+        known_terms = list(contract.reward_bounds)
         reward_terms = dict(reward_terms or {})
         self.reward_specs: dict[str, dict[str, float]] = {}
         self.frozen: list[FrozenWorker] = []
@@ -136,11 +135,9 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self.workers = dict(pairs)
         # The reward is linear in the raw terms: precompute sum_w preference_w * weight_wt per term, so a
         # step costs one multiply-add per term (the manager step has a budget of 2x a plain env step).
-        self._normalise = base.normalise_terms
-        self._term_coefficients = [
-            (term, sum(self.preferences[n] * self.reward_specs[n].get(term, 0.0) for n in names))
-            for term in known_terms
-        ]
+        self._normalise = contract.normalise_terms
+        coefficients = mix_terms(self.reward_specs, self.preferences)
+        self._term_coefficients = [(term, coefficients.get(term, 0.0)) for term in known_terms]
         self._rng = np.random.default_rng()
         self._last_obs: np.ndarray | None = None
 

@@ -118,8 +118,31 @@ def plot_selection_timeline(
     labels += [f"{n} acts" for n in names]
     top.legend(handles, labels, loc="upper right", ncol=2 * max(1, len(names)), fontsize=8, framealpha=0.9)
 
-    middle = axes[1]
+    middle, bottom = axes[1], axes[2]
     clearance = np.array([r.min_clearance for r in records])
+    if np.isnan(clearance).all():
+        # An env without the snake's clearance and goal distance: its reward terms, per step and summed.
+        _plot_terms(records, x, middle, bottom, names)
+    else:
+        _plot_snake_panels(records, x, clearance, middle, bottom, sensor_range, touch_radius)
+    bottom.set_xlabel(step_axis_label(records))
+    bottom.set_xlim(-0.5, len(records) - 0.5)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _plot_snake_panels(
+    records: Sequence[StepRecord],
+    x: np.ndarray,
+    clearance: np.ndarray,
+    middle: Any,
+    bottom: Any,
+    sensor_range: float | None,
+    touch_radius: float | None,
+) -> None:
+    """The snake env's panels: the nearest obstacle's clearance (middle) and the goal distance (bottom)."""
     middle.plot(x, clearance, color="#444444", lw=1.3)
     hits = [i for i, r in enumerate(records) if r.collision]
     if hits:
@@ -131,19 +154,34 @@ def plot_selection_timeline(
         middle.annotate("sensor range", (0, sensor_range), fontsize=7, va="bottom", color="#444444")
     middle.set_ylabel("nearest\nobstacle")
 
-    bottom = axes[2]
     distance = np.array([r.distance_to_goal for r in records])
     bottom.plot(x, distance, color=_colour("goal"), lw=1.3)
     if touch_radius is not None:
         bottom.axhline(touch_radius, color=_colour("goal"), lw=0.8, ls="--")
         bottom.annotate("touch radius", (0, touch_radius), fontsize=7, va="bottom", color=_colour("goal"))
     bottom.set_ylabel("distance\nto goal")
-    bottom.set_xlabel(step_axis_label(records))
-    bottom.set_xlim(-0.5, len(records) - 0.5)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    return _save(fig, path)
+
+
+def _plot_terms(
+    records: Sequence[StepRecord], x: np.ndarray, middle: Any, bottom: Any, names: Sequence[str]
+) -> None:
+    """Each reward term per step (middle) and its running sum within the episode (bottom), in the colour of
+    the worker of the same name (workers are named after their terms)."""
+    terms = list(records[0].reward_terms)
+    episodes = np.array([r.episode for r in records])
+    for term in terms:
+        values = np.array([r.reward_terms.get(term, np.nan) for r in records])
+        running = np.zeros_like(values)
+        for episode in np.unique(episodes):
+            mask = episodes == episode
+            running[mask] = np.cumsum(values[mask])
+        colour = _colour(term, [*names, *terms])
+        middle.plot(x, values, color=colour, lw=1.1, label=term)
+        bottom.plot(x, running, color=colour, lw=1.3, label=term)
+    middle.set_ylabel("reward term\nper step")
+    bottom.set_ylabel("reward term\nepisode sum")
+    if terms:
+        middle.legend(loc="upper right", fontsize=8)
 
 
 def plot_learning_curves(

@@ -26,6 +26,7 @@ class StepRecord:
     :param distance_to_goal: the tip-to-goal distance.
     :param goal_touched: the tip touches the goal.
     :param collision: a link touches an obstacle.
+    :param reward_terms: the env's raw reward terms of the step (any env of the contract).
     """
 
     episode: int
@@ -36,6 +37,7 @@ class StepRecord:
     distance_to_goal: float = float("nan")
     goal_touched: bool = False
     collision: bool = False
+    reward_terms: dict[str, float] = field(default_factory=dict)
 
 
 def selected_names(policy: Any) -> list[str]:
@@ -101,6 +103,7 @@ class StepRecorder(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
             distance_to_goal=float(info.get("distance_to_goal", np.nan)),
             goal_touched=bool(info.get("goal_touched", False)),
             collision=bool(info.get("collision", False)),
+            reward_terms={str(k): float(v) for k, v in (info.get("reward_terms") or {}).items()},
         )
         self.records.append(record)
         self._step += 1

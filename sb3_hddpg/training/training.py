@@ -44,7 +44,9 @@ from sb3_hddpg.artifacts.manifests import (
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
-from sb3_hddpg.envs import SnakeArmEnv
+from sb3_hddpg.envs import REWARD_TERMS
+from sb3_hddpg.envs.contract import env_contract
+from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, make_term_view
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.preference import make_preference_env
@@ -387,33 +389,40 @@ def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> C
 MAX_SEED = 2**32 - 1
 
 
-def worker_hyperparams(workers: Sequence[str], config: str | Path | None = None) -> dict[str, Hyperparams]:
+def worker_hyperparams(
+    workers: Sequence[str], config: str | Path | None = None, env: TermsEnv | None = None
+) -> dict[str, Hyperparams]:
     """
     Check worker names and read each worker's config block, before anything is trained: a bad block for
     the second worker should not surface after the first one has trained for an hour.
 
-    :param workers: worker names among :data:`WORKER_ENV_IDS`, each at most once.
+    :param workers: worker names among :data:`WORKER_ENV_IDS` (or ``env``'s terms), each at most once.
     :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    :param env: another env with several objectives (default: the snake arm); its blocks are keyed by the
+        adapted env's id, else ``default``.
     :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
     """
-
+    known = list(env.terms) if env is not None else sorted(WORKER_ENV_IDS)
     if isinstance(workers, str):
         raise ValueError(f"Expected a sequence of worker names, actually the string {workers!r}")
     if not workers:
-        raise ValueError(f"Expected at least one worker; choose from {sorted(WORKER_ENV_IDS)}")
-    unknown = [w for w in workers if w not in WORKER_ENV_IDS]
+        raise ValueError(f"Expected at least one worker; choose from {known}")
+    unknown = [w for w in workers if w not in known]
     if unknown:
-        raise ValueError(f"Unknown worker names {unknown}; choose from {sorted(WORKER_ENV_IDS)}")
+        raise ValueError(f"Unknown worker names {unknown}; choose from {known}")
     duplicates = sorted({w for w in workers if list(workers).count(w) > 1})
     if duplicates:
         raise ValueError(f"Duplicate worker names {duplicates} in {list(workers)}: name each worker once")
+    if env is not None:
+        key = str(env.env_kwargs.get("env_id", env.env_id))
+        return {name: load_hyperparams(key, DDPG, config) for name in workers}
     return {name: load_hyperparams(WORKER_ENV_IDS[name], DDPG, config) for name in workers}
 
 
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_workers(
     out_dir: str | Path,
-    workers: Sequence[str] = ("goal", "avoid"),
+    workers: Sequence[str] | None = None,
     config: str | Path | None = None,
     timesteps: int | None = None,
     seed: int = 0,
@@ -429,13 +438,14 @@ def train_workers(
     extra_callbacks: Sequence[BaseCallback] = (),
     keep_checkpoints: bool = False,
     backend: str | None = None,
+    env: TermsEnv | None = None,
 ) -> dict[str, Any]:
     """
     Train each named worker as a plain SB3 DDPG on its own registered env id (paper Algorithm 1, first
     half) and write ``out_dir/workers/<name>.zip`` and ``out_dir/workers/manifest.json``.
 
     :param out_dir: the run folder.
-    :param workers: worker names among :data:`WORKER_ENV_IDS`.
+    :param workers: worker names among :data:`WORKER_ENV_IDS`, or ``env``'s terms (``None``: all of them).
     :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
     :param timesteps: budget per worker (default: the config's ``n_timesteps``).
     :param seed: training seed (every worker uses it).
@@ -452,6 +462,9 @@ def train_workers(
     :param keep_checkpoints: keep each finished worker's replay buffer (see :func:`train_agent`).
     :param backend: ``sb3`` or ``sbx`` (default: each block's ``backend`` key, else ``sb3``); the saved
         workers are SB3 zips either way.
+    :param env: another env with several objectives (:func:`~sb3_hddpg.envs.terms_env.terms_env`; default:
+        the snake arm): one worker per named term, each on that term's view; the manifest records the
+        shared env (``shared_env``) so that ``train_manager`` acts in it.
     :return: the manifest written.
     """
 
@@ -459,22 +472,28 @@ def train_workers(
         raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
     if seed < 0:
         raise ValueError(f"Expected seed >= 0, actually: {seed}")
-    blocks = worker_hyperparams(workers, config)
+    shared = env if env is not None else TermsEnv(SNAKE_SHARED_ENV_ID, {}, REWARD_TERMS)
+    if workers is None:
+        workers = list(shared.terms)
+    blocks = worker_hyperparams(workers, config, env)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest: dict[str, Any] = {"schema_version": WORKER_MANIFEST_VERSION, "workers": {}}
     if resume and manifest_path.exists():
         manifest = read_workers_manifest(manifest_path)
+    if env is not None:
+        manifest["shared_env"] = {"env_id": env.env_id, "env_kwargs": env.env_kwargs}
     for name in workers:
-        env_id = WORKER_ENV_IDS[name]
         hyperparams = blocks[name]
+        env_id, view_kwargs = shared.term_view(name)
+        env_kwargs = {**view_kwargs, **hyperparams.env_kwargs}
         budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
         done = manifest["workers"].get(name)
         if resume and done is not None and done.get("timesteps_requested") == budget:
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
         outcome = train_agent(
-            worker_env_factory(name, hyperparams.env_kwargs),
+            functools.partial(make_term_view, env_id, env_kwargs, name),
             hyperparams,
             paths,
             algo="ddpg",
@@ -492,18 +511,20 @@ def train_workers(
             keep_checkpoints=keep_checkpoints,
             backend=backend,
         )
-        probe = SnakeArmEnv(**hyperparams.env_kwargs)
+        probe = make_term_view(env_id, env_kwargs, name)
+        bounds = env_contract(probe).reward_bounds[name]
+        probe.close()
         manifest["workers"][name] = model_entry(
             name,
             outcome,
             "ddpg",
             env_id,
-            hyperparams.env_kwargs,
+            env_kwargs,
             {"file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml", "block": hyperparams.raw},
             seed,
             budget,
             reward_term=name,
-            reward_bounds=list(probe.reward_bounds[name]),
+            reward_bounds=list(bounds),
             stopped_early=outcome.stopped_early,
             threads=threads,
         )
@@ -537,6 +558,7 @@ def train_flat(
     keep_checkpoints: bool = False,
     preferences: dict[str, float] | None = None,
     backend: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
@@ -572,6 +594,7 @@ def train_flat(
     cls = algo_class(algo)
     config_path = Path(config) if config is not None else default_config(algo)
     hyperparams = load_hyperparams(env_id, cls, config_path)
+    make_kwargs = {**hyperparams.env_kwargs, **(env_kwargs or {})}
     budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "flat" / "manifest.json"
@@ -582,11 +605,9 @@ def train_flat(
     if resume and done is not None and done.get("timesteps_requested") == budget:
         return manifest, None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{algo}.zip")
-    factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, dict(hyperparams.env_kwargs))
+    factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
     if preferences is not None:
-        factory = functools.partial(
-            make_preference_env, env_id, dict(hyperparams.env_kwargs), dict(preferences)
-        )
+        factory = functools.partial(make_preference_env, env_id, make_kwargs, dict(preferences))
         factory().close()  # checks the factors here, once, rather than inside env subprocesses
     outcome = train_agent(
         factory,
@@ -610,7 +631,7 @@ def train_flat(
         outcome,
         algo,
         env_id,
-        hyperparams.env_kwargs,
+        make_kwargs,
         {"file": str(config_path), "block": hyperparams.raw},
         seed,
         budget,
@@ -657,6 +678,30 @@ class ManagerEnvFactory:
     def __getstate__(self) -> dict[str, Any]:
         # Models do not cross process boundaries: the receiving process loads them from the files.
         return {**self.__dict__, "workers": None}
+
+
+def shared_env_of(
+    manifest: dict[str, Any], env_id: str | None, env_kwargs: dict[str, Any] | None, trusted: bool = False
+) -> tuple[str, dict[str, Any]]:
+    """
+    The shared env a manager over these workers acts in: ``env_id`` if given, else the manifest's
+    ``shared_env`` (written by :func:`train_workers` for an env other than the snake arm; its id and
+    kwargs pass the safe-loading checks), else ``hddpg/SnakeReach-v0``.
+    """
+    from sb3_hddpg.artifacts.limits import check_env_id, check_env_kwargs
+
+    if env_id is not None:
+        return env_id, dict(env_kwargs or {})
+    shared = manifest.get("shared_env")
+    if shared is None:
+        return SNAKE_SHARED_ENV_ID, dict(env_kwargs or {})
+    if not isinstance(shared, dict):
+        raise ValueError(f"workers manifest: shared_env must be a mapping, actually: {shared!r:.200}")
+    found = check_env_id(shared.get("env_id"), "workers manifest: shared_env.env_id", trusted=trusted)
+    kwargs = check_env_kwargs(
+        found, shared.get("env_kwargs"), "workers manifest: shared_env.env_kwargs", trusted=trusted
+    )
+    return found, {**kwargs, **(env_kwargs or {})}
 
 
 @dataclass
@@ -710,13 +755,16 @@ def prepare_manager(
     floor: float | None = None,
     config: str | Path | None = None,
     trusted: bool = False,
-    env_id: str = "hddpg/SnakeReach-v0",
+    env_id: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
     verified), the config block, the preferences and selection settings, and that every worker fits the
     manager's env. :func:`train_manager` calls it first; call it yourself to validate arguments early (the
-    CLI does, to report bad input before creating the output folder). Arguments as in :func:`train_manager`.
+    CLI does, to report bad input before creating the output folder). Arguments as in :func:`train_manager`,
+    and ``env_id`` / ``env_kwargs``: the shared env (default: the workers manifest's ``shared_env``, else
+    ``hddpg/SnakeReach-v0``; ``env_kwargs`` go under the config block's).
 
     :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
     """
@@ -724,6 +772,7 @@ def prepare_manager(
         raise ValueError(f"Expected a sequence of worker names, actually the string {worker_names!r}")
     hyperparams = load_hyperparams(MANAGER_KEY, DDPG, config, manager=True)
     workers, manifest = load_workers(workers_dir, worker_names, trusted=trusted)
+    env_id, given_kwargs = shared_env_of(manifest, env_id, env_kwargs, trusted)
     names = list(workers)
     wrapper_kwargs = dict(hyperparams.wrapper_kwargs)
     factors = preferences_from_bias(names, prefer, bias)
@@ -750,7 +799,7 @@ def prepare_manager(
         selection_config = SelectionConfig(**wrapper_kwargs)
     except TypeError as error:  # an unknown key in the config's wrapper_kwargs
         raise ValueError(f"Invalid wrapper_kwargs in the manager's config block: {error}") from None
-    env_kwargs = dict(hyperparams.env_kwargs)
+    env_kwargs = {**given_kwargs, **hyperparams.env_kwargs}
     if "observe" in env_kwargs:
         raise ValueError(
             "The manager's env must give the full state (its workers slice it): remove `observe` from the "
@@ -807,6 +856,7 @@ def train_manager(
     extra_callbacks: Sequence[BaseCallback] = (),
     keep_checkpoints: bool = False,
     backend: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> tuple[Any, TrainingOutcome]:
     """
     Train the manager: a plain SB3 DDPG on ``WorkerSelectionWrapper`` over pre-trained workers (paper
@@ -832,7 +882,9 @@ def train_manager(
     :param config: a ``zoo_configs`` file; its ``manager`` block is used.
     :param checkpoint_freq: steps between resumable checkpoints (0: only when interrupted and at the end).
     :param trusted: load the workers with SB3's full loader (default ``False``).
-    :param env_id: the shared env the manager acts in (default ``hddpg/SnakeReach-v0``).
+    :param env_id: the shared env the manager acts in (default: the workers manifest's ``shared_env``,
+        else ``hddpg/SnakeReach-v0``).
+    :param env_kwargs: its keyword arguments (default: the manifest's, with the config block's on top).
     :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
     :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
     :param backend: ``sb3`` or ``sbx`` for the manager's DDPG (default: the block's ``backend`` key, else
@@ -857,6 +909,7 @@ def train_manager(
             ("config", config),
             ("trusted", trusted),
             ("env_id", env_id),
+            ("env_kwargs", env_kwargs),
         )
         if value is not None
     }

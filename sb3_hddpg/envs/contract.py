@@ -1,0 +1,181 @@
+"""
+The env contract: what an environment declares so that workers and a manager can be trained on it.
+
+An environment with several objectives (the snake arm, an MO-Gymnasium env through
+:mod:`sb3_hddpg.envs.adapters`, or a user's own) declares:
+
+- ``reward_bounds``: term name -> its per-step ``(low, high)``, finite, ``low < high``;
+- ``normalise_terms(terms)``: each raw term min-max normalised to [0, 1] with those bounds (the
+  :class:`TermNormaliser` below is the one implementation: call it, don't write the formula again);
+- ``info["reward_terms"]`` at every step: term name -> raw value;
+- optionally ``state_layout``: a :class:`~sb3_hddpg.envs.layout.StateLayout` naming slices of the
+  observation (absent: the whole observation is one component, ``"state"``).
+
+:func:`env_contract` resolves any env, wrapped or not, to the object that declares the contract.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Protocol, runtime_checkable
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_hddpg.envs.layout import StateLayout
+
+#: The one component of an env that declares no ``state_layout``.
+WHOLE_STATE = "state"
+
+
+@runtime_checkable
+class RewardTermsEnv(Protocol):
+    """
+    An env with named reward terms (see the module docstring): the contract every env of a hierarchy meets.
+
+    A class complies by having the two members below and putting its raw terms in ``info["reward_terms"]``
+    at every step; :class:`TermNormaliser` implements ``normalise_terms`` in one line.
+    """
+
+    #: term name -> per-step ``(low, high)`` of the raw term.
+    reward_bounds: Mapping[str, tuple[float, float]]
+
+    def normalise_terms(self, terms: Mapping[str, float]) -> dict[str, float]:
+        """Each raw term min-max normalised to [0, 1] with :attr:`reward_bounds`."""
+        ...
+
+
+@runtime_checkable
+class HasStateLayout(Protocol):
+    """An env whose observation is made of named components (optional part of the contract)."""
+
+    state_layout: StateLayout
+
+
+def check_bounds(
+    bounds: Mapping[str, Sequence[float]], what: str = "reward_bounds"
+) -> dict[str, tuple[float, float]]:
+    """
+    Per-term bounds, checked: at least one term, names non-empty strings, ``low < high``, both finite.
+
+    :param bounds: term name -> ``(low, high)``.
+    :param what: the argument named in messages.
+    :return: a copy as ``{name: (float(low), float(high))}``; raises ``ValueError`` otherwise.
+    """
+    if not isinstance(bounds, Mapping) or not bounds:
+        raise ValueError(
+            f"Expected `{what}` to map at least one term name to (low, high), actually: {bounds!r}"
+        )
+    checked: dict[str, tuple[float, float]] = {}
+    for name, pair in bounds.items():
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"Expected `{what}` term names to be non-empty strings, actually: {name!r}")
+        try:
+            low, high = (float(v) for v in pair)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"Expected `{what}[{name!r}]` to be a pair (low, high), actually: {pair!r}"
+            ) from None
+        if not (math.isfinite(low) and math.isfinite(high) and low < high):
+            raise ValueError(f"Expected `{what}[{name!r}]` finite with low < high, actually: ({low}, {high})")
+        checked[name] = (low, high)
+    return checked
+
+
+class TermNormaliser:
+    """
+    The one home of term normalisation: ``(value - low) / (high - low)`` per term, with fixed bounds (not
+    running statistics, so a normalised term means the same at every step of training and evaluation).
+
+    :param bounds: term name -> per-step ``(low, high)``, finite, ``low < high``.
+    """
+
+    def __init__(self, bounds: Mapping[str, Sequence[float]]) -> None:
+        self.bounds = check_bounds(bounds)
+        # Precomputed so that normalising a term in a step is one multiply-add.
+        self._affine = {k: (lo, 1.0 / (hi - lo)) for k, (lo, hi) in self.bounds.items()}
+
+    def __call__(self, terms: Mapping[str, float]) -> dict[str, float]:
+        """Each raw term of ``terms`` normalised (to [0, 1] when within its bounds)."""
+        affine = self._affine
+        return {k: (v - affine[k][0]) * affine[k][1] for k, v in terms.items()}
+
+    def weighted_sum(self, terms: Mapping[str, float], weights: Iterable[tuple[str, float]]) -> float:
+        """
+        ``sum_t weight_t * normalised(term_t)``: a preference-weighted scalarisation.
+
+        :param terms: raw terms.
+        :param weights: ``(term, weight)`` pairs; terms not listed weigh 0.
+        """
+        affine = self._affine
+        total = 0.0
+        for term, weight in weights:
+            low, scale = affine[term]
+            total += weight * (terms[term] - low) * scale
+        return total
+
+    def episode_sum(self, term: str, raw_sum: float, length: float) -> float:
+        """
+        The episode sum of a normalised term from the raw sum: normalisation is affine per step, so it is
+        ``(raw_sum - length * low) / (high - low)`` (also for means of sums and of lengths).
+        """
+        low, scale = self._affine[term]
+        return (raw_sum - length * low) * scale
+
+
+def env_contract(env: gym.Env) -> RewardTermsEnv:
+    """
+    The object that declares ``env``'s reward terms: the outermost wrapper that does, else the base env.
+
+    :param env: any gymnasium env, wrapped or not.
+    :return: an object with ``reward_bounds`` and ``normalise_terms``.
+    :raises ValueError: one line naming the env when nothing in it declares the contract.
+    """
+    layer: gym.Env | None = env
+    while layer is not None:
+        if isinstance(layer, RewardTermsEnv):
+            return layer
+        layer = getattr(layer, "env", None) if isinstance(layer, gym.Wrapper) else None
+    raise ValueError(
+        f"Expected an env that declares its reward terms (`reward_bounds` and `normalise_terms`, see "
+        f"sb3_hddpg.envs.contract), actually: {env!r}; wrap an MO-Gymnasium env or an env with per-term "
+        "rewards in `info` with sb3_hddpg.envs.adapters"
+    )
+
+
+def state_layout_of(env: gym.Env) -> StateLayout:
+    """
+    ``env``'s declared state layout, or one component :data:`WHOLE_STATE` spanning the whole (flat)
+    observation when it declares none.
+    """
+    layer: gym.Env | None = env
+    while layer is not None:
+        if isinstance(layer, HasStateLayout):
+            return layer.state_layout
+        layer = getattr(layer, "env", None) if isinstance(layer, gym.Wrapper) else None
+    return StateLayout([(WHOLE_STATE, int(np.prod(env.observation_space.shape or (0,))))])
+
+
+def mix_terms(
+    specs: Mapping[str, str | Mapping[str, float]], preferences: Mapping[str, float]
+) -> dict[str, float]:
+    """
+    The weight of every term in a preference-weighted scalarisation of workers' rewards.
+
+    A worker's reward is one term (its name as a string) or a mix of normalised terms (term -> weight, the
+    weights taken over their sum so that the mix stays in [0, 1]); the scalarisation is
+    ``sum_w preference_w * reward_w``, linear in the normalised terms: this returns each term's coefficient,
+    so that :meth:`TermNormaliser.weighted_sum` computes it in one pass.
+
+    :param specs: worker name -> its reward (a term name, or term -> weight >= 0 with a positive sum).
+    :param preferences: worker name -> preference factor; missing names get 1.
+    :return: term -> coefficient.
+    """
+    mix: dict[str, float] = {}
+    for name, spec in specs.items():
+        weights = {spec: 1.0} if isinstance(spec, str) else dict(spec)
+        total = sum(weights.values())
+        for term, weight in weights.items():
+            mix[term] = mix.get(term, 0.0) + preferences.get(name, 1.0) * weight / total
+    return mix

@@ -1,0 +1,199 @@
+"""
+:func:`terms_env`: any env with several objectives, named by id, resolved once to the shared env that a
+manager acts in and one scalar-reward view per term that a worker learns on, all rebuilt from
+``(env_id, env_kwargs)`` as recorded in manifests.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+
+from sb3_hddpg.envs.adapters import (
+    ADAPTER_ENV_IDS,
+    INFO_TERMS_ENV_ID,
+    MULTI_OBJECTIVE_ENV_ID,
+    TermReward,
+    make_adapted,
+    registered_env_id,
+)
+from sb3_hddpg.envs.contract import RewardTermsEnv, env_contract
+
+#: The snake arm's shared env and each term's registered view.
+SNAKE_SHARED_ENV_ID = "hddpg/SnakeReach-v0"
+SNAKE_TERM_ENV_IDS = {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}
+
+
+@dataclass(frozen=True)
+class TermsEnv:
+    """
+    A multi-objective env as the hierarchy uses it: ``gym.make(env_id, **env_kwargs)`` is the shared env
+    (it meets the env contract), and :meth:`term_view` names the env a worker on one term learns on.
+
+    :param env_id: the shared env's id (one of this package's, an adapter's, or a user's own compliant env).
+    :param env_kwargs: its keyword arguments.
+    :param terms: its reward terms, in order.
+    """
+
+    env_id: str
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    terms: tuple[str, ...] = ()
+
+    def make(self, **extra: Any) -> gym.Env:
+        """The shared env (``extra``: e.g. ``render_mode``)."""
+        return gym.make(self.env_id, **self.env_kwargs, **extra)
+
+    def term_view(self, term: str) -> tuple[str, dict[str, Any]]:
+        """
+        ``(env_id, env_kwargs)`` of the env whose reward is ``term``'s raw value: the snake's registered
+        id for the term, an adapter with ``term=...``, or, for an env that meets the contract natively, the
+        env itself (:func:`make_term_view` then wraps it in :class:`~sb3_hddpg.envs.adapters.TermReward`).
+        """
+        if term not in self.terms:
+            raise ValueError(
+                f"Unknown term {term!r}; the env {self.env_id!r} has the terms {list(self.terms)}"
+            )
+        if self.env_id == SNAKE_SHARED_ENV_ID and term in SNAKE_TERM_ENV_IDS:
+            return SNAKE_TERM_ENV_IDS[term], dict(self.env_kwargs)
+        if self.env_id in ADAPTER_ENV_IDS:
+            return self.env_id, {**self.env_kwargs, "term": term}
+        return self.env_id, dict(self.env_kwargs)
+
+
+def make_term_view(env_id: str, env_kwargs: Mapping[str, Any], term: str) -> gym.Env:
+    """
+    The env ``(env_id, env_kwargs)`` with ``term``'s raw value as its reward (module-level: picklable for
+    subprocess envs): as made when the id already gives that reward (see :meth:`TermsEnv.term_view`), else
+    wrapped in :class:`~sb3_hddpg.envs.adapters.TermReward`.
+    """
+    env = gym.make(env_id, **env_kwargs)
+    if env_id in SNAKE_TERM_ENV_IDS.values() or env_kwargs.get("term") == term:
+        return env
+    return TermReward(env, term)
+
+
+def terms_env(
+    env_id: str,
+    terms: Sequence[str] | None = None,
+    term_bounds: Mapping[str, Sequence[float]] | None = None,
+    info_key: str | None = None,
+    episode_steps: int | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+) -> TermsEnv:
+    """
+    Resolve an env id to a :class:`TermsEnv`, choosing the adapter it needs:
+
+    - an env that meets the contract natively (the snake ids, a user's compliant env) is used as it is;
+    - an MO-Gymnasium env (``reward_space`` and a vector reward) goes through
+      :class:`~sb3_hddpg.envs.adapters.MultiObjectiveEnv` (bounds from ``reward_space``; infinite ones from
+      ``term_bounds`` or estimated, with a warning, and recorded);
+    - any other env goes through :class:`~sb3_hddpg.envs.adapters.InfoTermsEnv`: ``terms`` are ``info`` keys
+      (under ``info[info_key]`` if given), and ``term_bounds`` must cover them.
+
+    :param env_id: a registered id, without a module prefix.
+    :param terms: term names (MO-Gymnasium: one per objective, default ``obj0..objN``; info terms: required).
+    :param term_bounds: term -> ``[low, high]`` per step.
+    :param info_key: the ``info`` entry holding the terms (info-terms envs only).
+    :param episode_steps: the time limit of an adapted env (default: its registered one).
+    :param env_kwargs: more keyword arguments of the env.
+    :return: the resolved env; raises ``ValueError`` naming the problem.
+    """
+    import sb3_hddpg.envs  # noqa: F401  (registers our ids)
+
+    kwargs = dict(env_kwargs or {})
+    registered_env_id(env_id)
+    if env_id in ADAPTER_ENV_IDS:
+        return _resolved(env_id, kwargs)
+    adapter_kwargs: dict[str, Any] = {"env_id": env_id, **kwargs}
+    if terms is not None:
+        adapter_kwargs["terms"] = list(terms)
+    if term_bounds:
+        adapter_kwargs["term_bounds"] = {t: [float(v) for v in b] for t, b in term_bounds.items()}
+    if episode_steps is not None:
+        adapter_kwargs["episode_steps"] = episode_steps
+    probe = make_adapted(env_id, **kwargs)
+    try:
+        native = _native(probe)
+        vector = hasattr(probe.unwrapped, "reward_space")  # MO-Gymnasium's declared API
+    finally:
+        probe.close()
+    if native and terms is None and not term_bounds and info_key is None:
+        if episode_steps is not None:
+            raise ValueError(f"{env_id!r} meets the env contract itself: set its time limit at registration")
+        return _resolved(env_id, kwargs)
+    if vector and info_key is None:
+        return _resolved(MULTI_OBJECTIVE_ENV_ID, adapter_kwargs)
+    if terms is None:
+        raise ValueError(
+            f"{env_id!r} declares no reward terms (no env contract, no MO-Gymnasium reward_space): name the "
+            "per-term rewards of its `info` with `terms` (CLI: --terms) and give their `term_bounds`"
+        )
+    if info_key is not None:
+        adapter_kwargs["info_key"] = info_key
+    return _resolved(INFO_TERMS_ENV_ID, adapter_kwargs)
+
+
+def _native(env: gym.Env) -> bool:
+    try:
+        env_contract(env)
+    except ValueError:
+        return False
+    return True
+
+
+def _resolved(env_id: str, env_kwargs: dict[str, Any]) -> TermsEnv:
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        contract: RewardTermsEnv = env_contract(env)
+        terms = tuple(contract.reward_bounds)
+        # An adapter that estimated bounds records them in its spec: keep them, so that every later
+        # make (workers, manager, evaluation, a rebuilt bundle) normalises with the same bounds.
+        spec_kwargs = env.unwrapped.spec.kwargs if env.unwrapped.spec is not None else {}
+        if "term_bounds" in spec_kwargs:
+            env_kwargs = {**env_kwargs, "term_bounds": spec_kwargs["term_bounds"]}
+    finally:
+        env.close()
+    for term, (low, high) in contract.reward_bounds.items():
+        if not (math.isfinite(low) and math.isfinite(high)):  # pragma: no cover - check_bounds refuses it
+            raise ValueError(f"Term {term!r} of {env_id!r} has no finite bounds")
+    return TermsEnv(env_id, env_kwargs, terms)
+
+
+def parse_terms(text: str) -> list[str]:
+    """
+    Term names from text such as ``"speed,energy"`` (the CLI's ``--terms``).
+
+    :raises ValueError: one line naming the bad part.
+    """
+    names = [part.strip() for part in text.split(",")]
+    bad = [n for n in names if not n.isidentifier()]
+    if bad:
+        raise ValueError(f"Expected comma-separated term names (letters, digits, '_'), got {text!r}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"Expected each term named once, got {text!r}")
+    return names
+
+
+def parse_term_bounds(text: str) -> dict[str, tuple[float, float]]:
+    """
+    Per-term bounds from text such as ``"speed=-1:3,energy=-2:0"`` (the CLI's ``--term-bounds``).
+
+    :raises ValueError: one line naming the bad part.
+    """
+    from sb3_hddpg.envs.contract import check_bounds
+
+    bounds: dict[str, tuple[float, float]] = {}
+    for part in text.split(","):
+        name, _, pair = part.partition("=")
+        low, sep, high = pair.partition(":")
+        try:
+            if not sep or not name.strip().isidentifier():
+                raise ValueError
+            bounds[name.strip()] = (float(low), float(high))
+        except ValueError:
+            raise ValueError(f"Expected TERM=LOW:HIGH[,TERM=LOW:HIGH...], got {part!r} in {text!r}") from None
+    return check_bounds(bounds, "term_bounds")

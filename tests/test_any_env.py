@@ -1,0 +1,381 @@
+"""
+Any env with several objectives (docs/ENVIRONMENTS.md): MO-Gymnasium envs through the adapter, envs with
+per-term rewards in ``info``, a user's own env that meets the contract, three workers; tiny budgets.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import ClassVar
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+from sb3_hddpg.artifacts.limits import LimitError, check_env_kwargs
+from sb3_hddpg.envs import (
+    InfoTermsEnv,
+    MultiObjectiveEnv,
+    RewardTermsEnv,
+    TermNormaliser,
+    env_contract,
+    state_layout_of,
+)
+from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
+from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.hierarchy import Hierarchy
+from sb3_hddpg.training import train_manager, train_workers
+from tests.cli_runner import run_cli
+from tests.helpers import TINY_CONFIG
+
+TINY = {"timesteps": 200, "eval_freq": 0, "eval_episodes": 1}
+
+
+# ------------------------------------------------------------------------ envs a user would write
+class PointEnv(gym.Env):
+    """A point on a line must be near a target (``near``), move little (``calm``), stay right of 0 (``right``)."""
+
+    def __init__(self) -> None:
+        self.observation_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x, self.target = self.np_random.uniform(-1, 1, 2)
+        return np.array([self.x, self.target], np.float32), {}
+
+    def _move(self, action) -> tuple[np.ndarray, dict[str, float]]:
+        move = float(np.clip(action[0], -1, 1))
+        self.x = float(np.clip(self.x + 0.1 * move, -1, 1))
+        terms = {"near": -abs(self.x - self.target), "calm": -(move**2), "right": float(self.x > 0)}
+        return np.array([self.x, self.target], np.float32), terms
+
+
+class ThreeTermsEnv(PointEnv):
+    """A user's own env meeting the contract natively: these few lines are all it takes."""
+
+    reward_bounds: ClassVar[dict] = {"near": (-2.0, 0.0), "calm": (-1.0, 0.0), "right": (0.0, 1.0)}
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.normalise_terms = TermNormaliser(self.reward_bounds)
+
+    def step(self, action):
+        obs, terms = self._move(action)
+        return obs, sum(self.normalise_terms(terms).values()), False, False, {"reward_terms": terms}
+
+
+class InfoRewardsEnv(PointEnv):
+    """An env that reports per-term rewards in ``info`` only (as MuJoCo's do): no contract of its own."""
+
+    def step(self, action):
+        obs, terms = self._move(action)
+        return obs, terms["near"], False, False, {"reward_near": terms["near"], "reward_calm": terms["calm"]}
+
+
+class UnboundedMOEnv(gym.Env):
+    """An MO-Gymnasium-style env whose ``reward_space`` is unbounded (as MuJoCo's are)."""
+
+    def __init__(self) -> None:
+        self.observation_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.reward_space = spaces.Box(-np.inf, np.inf, (2,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        a = float(action[0])
+        return np.zeros(1, np.float32), np.array([3 * a, -(a**2)], np.float32), False, False, {}
+
+
+def _register(env_id: str, cls: type) -> None:
+    if env_id not in gym.registry:
+        gym.register(env_id, entry_point=cls, max_episode_steps=20)
+
+
+_register("test/ThreeTerms-v0", ThreeTermsEnv)
+_register("test/InfoRewards-v0", InfoRewardsEnv)
+_register("test/UnboundedMO-v0", UnboundedMOEnv)
+
+
+@pytest.fixture()
+def tiny(tmp_path):
+    path = tmp_path / "tiny.yml"
+    path.write_text(TINY_CONFIG)
+    return path
+
+
+# ------------------------------------------------------------------------ the contract
+def test_the_snake_and_a_users_env_meet_the_contract_natively():
+    snake = gym.make("hddpg/SnakeReach-v0")
+    assert isinstance(env_contract(snake), RewardTermsEnv)
+    assert list(env_contract(snake).reward_bounds) == ["goal", "avoid"]
+    assert "joint_positions" in state_layout_of(snake)
+    own = gym.make("test/ThreeTerms-v0")
+    assert list(env_contract(own).reward_bounds) == ["near", "calm", "right"]
+    # No declared layout: the whole observation is one component.
+    assert dict(state_layout_of(own)) == {"state": slice(0, 2)}
+    with pytest.raises(ValueError, match="declares its reward terms"):
+        env_contract(gym.make("Pendulum-v1"))
+
+
+def test_one_normaliser_and_its_episode_sums_agree():
+    normalise = TermNormaliser({"a": (-2.0, 0.0), "b": (0.0, 4.0)})
+    steps = [{"a": -2.0, "b": 1.0}, {"a": -0.5, "b": 4.0}, {"a": 0.0, "b": 0.0}]
+    per_step = [normalise(s) for s in steps]
+    assert per_step[0] == {"a": 0.0, "b": 0.25}
+    for term in ("a", "b"):
+        raw_sum = sum(s[term] for s in steps)
+        assert normalise.episode_sum(term, raw_sum, len(steps)) == pytest.approx(
+            sum(p[term] for p in per_step)
+        )
+    assert normalise.weighted_sum(steps[1], [("a", 2.0), ("b", 1.0)]) == pytest.approx(2 * 0.75 + 1.0)
+    with pytest.raises(ValueError, match=r"low < high"):
+        TermNormaliser({"a": (1.0, 1.0)})
+    with pytest.raises(ValueError, match=r"finite"):
+        TermNormaliser({"a": (0.0, math.inf)})
+
+
+# ------------------------------------------------------------------------ MO-Gymnasium
+def test_mo_gymnasium_env_through_the_adapter():
+    env = gym.make("hddpg/MultiObjective-v0", env_id="mo-mountaincarcontinuous-v0", terms=["time", "fuel"])
+    base = env.unwrapped
+    assert isinstance(base, MultiObjectiveEnv)
+    assert base.reward_bounds == {"time": (-1.0, 0.0), "fuel": (-1.0, 0.0)}  # from reward_space
+    env.reset(seed=0)
+    _, reward, _, _, info = env.step(np.array([0.5], np.float32))
+    terms = info["reward_terms"]
+    assert terms == {"time": -1.0, "fuel": pytest.approx(float(info["vector_reward"][1]))}
+    assert reward == pytest.approx(sum(base.normalise_terms(terms).values()))
+    # A worker's view: LinearReward with a one-hot weight gives the raw term.
+    view = gym.make(
+        "hddpg/MultiObjective-v0", env_id="mo-mountaincarcontinuous-v0", terms=["time", "fuel"], term="fuel"
+    )
+    view.reset(seed=0)
+    _, reward, _, _, info = view.step(np.array([0.5], np.float32))
+    assert reward == pytest.approx(info["reward_terms"]["fuel"]) and reward < 0
+    assert list(info["reward_weights"]) == [0.0, 1.0]
+    # Default names obj0..objN; a miscount is refused.
+    assert terms_env("mo-mountaincarcontinuous-v0").terms == ("obj0", "obj1")
+    with pytest.raises(ValueError, match="Expected 2 `terms`"):
+        terms_env("mo-mountaincarcontinuous-v0", terms=["a", "b", "c"])
+
+
+def test_unbounded_reward_space_is_estimated_loudly_and_recorded():
+    with pytest.warns(UserWarning, match="ESTIMATED"):
+        resolved = terms_env("test/UnboundedMO-v0", terms=["speed", "energy"])
+    bounds = resolved.env_kwargs["term_bounds"]
+    # The random rollout saw speed in about [-3, 3] and energy in about [-1, 0]; widened by the margin.
+    assert bounds["speed"][0] < -2.5 and bounds["speed"][1] > 2.5
+    assert bounds["energy"][0] < -0.9 and bounds["energy"][1] >= 0.0
+    # Rebuilt from the recorded kwargs (as a manifest does): the same bounds, no new estimate.
+    rebuilt = resolved.make()
+    assert rebuilt.unwrapped.reward_bounds == {k: tuple(v) for k, v in bounds.items()}
+    assert not rebuilt.unwrapped.estimated_bounds
+    # User-given bounds win and need no estimate.
+    given = terms_env(
+        "test/UnboundedMO-v0", terms=["speed", "energy"], term_bounds={"speed": (-3, 3), "energy": (-1, 0)}
+    )
+    assert given.make().unwrapped.reward_bounds == {"speed": (-3.0, 3.0), "energy": (-1.0, 0.0)}
+
+
+def test_snake_speaks_mo_gymnasium():
+    from mo_gymnasium.wrappers import LinearReward
+
+    env = gym.make("hddpg/SnakeMO-v0")
+    base = env.unwrapped
+    assert np.allclose(base.reward_space.low, [base.reward_bounds["goal"][0], base.reward_bounds["avoid"][0]])
+    env.reset(seed=1)
+    _, vector, _, _, info = env.step(env.action_space.sample())
+    assert vector.shape == (2,) and np.allclose(
+        vector, [info["reward_terms"]["goal"], info["reward_terms"]["avoid"]]
+    )
+    scalar = LinearReward(gym.make("hddpg/SnakeMO-v0"), weight=np.array([1.0, 0.0]))
+    scalar.reset(seed=1)
+    reward, info = scalar.step(np.zeros(6, np.float32))[1::3]
+    assert reward == pytest.approx(info["reward_terms"]["goal"])
+    # Our tools take it through the MO adapter too.
+    assert terms_env("hddpg/SnakeMO-v0").env_id == "hddpg/SnakeMO-v0"  # it meets the contract natively
+
+
+# ------------------------------------------------------------------------ info terms
+def test_info_terms_env_through_the_adapter():
+    resolved = terms_env(
+        "test/InfoRewards-v0",
+        terms=["reward_near", "reward_calm"],
+        term_bounds=parse_term_bounds("reward_near=-2:0,reward_calm=-1:0"),
+    )
+    assert resolved.env_id == "hddpg/InfoTerms-v0" and resolved.terms == ("reward_near", "reward_calm")
+    env = resolved.make()
+    assert isinstance(env.unwrapped, InfoTermsEnv)
+    env.reset(seed=0)
+    _, reward, _, _, info = env.step(np.array([1.0], np.float32))
+    assert info["reward_terms"] == {"reward_near": info["reward_near"], "reward_calm": -1.0}
+    assert reward == pytest.approx(info["reward_terms"]["reward_near"] / 2 + 1 + 0.0)
+    with pytest.raises(ValueError, match="term_bounds"):
+        terms_env("test/InfoRewards-v0", terms=["reward_near"])
+    with pytest.raises(ValueError, match="declares no reward terms"):
+        terms_env("test/InfoRewards-v0")
+    missing = terms_env(
+        "test/InfoRewards-v0", terms=["reward_run"], term_bounds={"reward_run": (0, 1)}
+    ).make()
+    missing.reset(seed=0)
+    with pytest.raises(KeyError, match="reward_run"):
+        missing.step(np.zeros(1, np.float32))
+
+
+def test_cli_parsers_name_the_bad_part():
+    assert parse_terms("speed, energy") == ["speed", "energy"]
+    assert parse_term_bounds("a=-1:2.5") == {"a": (-1.0, 2.5)}
+    for text in ("a", "a=1", "a=x:1", "=0:1", "a=2:1"):
+        with pytest.raises(ValueError, match=r"term_bounds|TERM=LOW:HIGH"):
+            parse_term_bounds(text)
+    with pytest.raises(ValueError, match="once"):
+        parse_terms("a,a")
+
+
+# ------------------------------------------------------------------------ safe loading
+def test_adapted_ids_from_a_file_are_allow_listed():
+    ok = check_env_kwargs(
+        "hddpg/MultiObjective-v0",
+        {"env_id": "mo-mountaincarcontinuous-v0", "terms": ["a", "b"], "term_bounds": {"a": [-1, 0]}},
+        "f",
+    )
+    assert ok["term_bounds"] == {"a": [-1, 0]}
+    with pytest.raises(LimitError, match="module prefix"):
+        check_env_kwargs("hddpg/MultiObjective-v0", {"env_id": "os:Evil-v0"}, "f")
+    # A registered id that is not MO-Gymnasium's: only when the user opts in.
+    with pytest.raises(LimitError, match="allowed_env_ids"):
+        check_env_kwargs("hddpg/InfoTerms-v0", {"env_id": "test/InfoRewards-v0"}, "f")
+    assert check_env_kwargs(
+        "hddpg/InfoTerms-v0", {"env_id": "test/InfoRewards-v0"}, "f", ["test/InfoRewards-v0"]
+    )
+    with pytest.raises(LimitError, match="term_bounds"):
+        check_env_kwargs("hddpg/MultiObjective-v0", {"term_bounds": {"a": [[1]]}}, "f")
+
+
+# ------------------------------------------------------------------------ end to end
+def test_mo_gymnasium_end_to_end_and_load_in_a_fresh_process(tmp_path, tiny):
+    """Workers -> manager -> bundle (API, tiny), then a fresh process loads the bundle and evaluates it."""
+    env = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=50)
+    manifest = train_workers(tmp_path / "w", config=tiny, seed=1, env=env, **TINY)
+    assert manifest["shared_env"]["env_kwargs"]["env_id"] == "mo-mountaincarcontinuous-v0"
+    assert {n: e["env_kwargs"]["term"] for n, e in manifest["workers"].items()} == {
+        "time": "time",
+        "fuel": "fuel",
+    }
+    hierarchy, _ = train_manager(tmp_path / "w", tmp_path / "m", config=tiny, seed=1, **TINY)
+    assert hierarchy.env_id == "hddpg/MultiObjective-v0"
+    out = tmp_path / "eval.json"
+    run_cli("evaluate", tmp_path / "m" / "hierarchy.zip", "--episodes", "2", "--json", out, check=True)
+    summary = json.loads(out.read_text())["summary"]
+    assert summary["mean_length"] == 50
+    assert summary["mean_time_reward"] == pytest.approx(-50.0)  # -1 per step until the (unreached) goal
+    assert -50.0 <= summary["mean_fuel_reward"] <= 0.0
+    assert summary["mean_reach_reward"] == pytest.approx(
+        100 + summary["mean_time_reward"] + summary["mean_fuel_reward"]
+    )
+    assert set(summary["selection_rate"]) <= {"time", "fuel"}
+    assert "goal_touch_rate" not in summary and "min_clearance" not in summary  # not reported by this env
+
+
+def test_three_workers_on_a_users_own_env(tmp_path, tiny):
+    env = terms_env("test/ThreeTerms-v0")
+    assert env.terms == ("near", "calm", "right")
+    manifest = train_workers(tmp_path / "w", config=tiny, seed=2, env=env, **TINY)
+    assert list(manifest["workers"]) == ["near", "calm", "right"]
+    assert manifest["workers"]["right"]["reward_bounds"] == [0.0, 1.0]
+    # The workers' manifest names a user's id: the user opts in by naming the env (the CLI's --env).
+    with pytest.raises(ValueError, match="allowed_env_ids"):
+        train_manager(tmp_path / "w", tmp_path / "m", config=tiny, **TINY)
+    hierarchy, _ = train_manager(
+        tmp_path / "w",
+        tmp_path / "m",
+        config=tiny,
+        seed=2,
+        preferences={"near": 2.0},
+        env_id="test/ThreeTerms-v0",
+        **TINY,
+    )
+    assert sorted(hierarchy.names) == ["calm", "near", "right"] and hierarchy.env_id == "test/ThreeTerms-v0"
+    # A user's own id loads once they opt in to it.
+    with pytest.raises(ValueError, match="allowed_env_ids"):
+        Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
+    loaded = Hierarchy.load(tmp_path / "m" / "hierarchy.zip", allowed_env_ids=["test/ThreeTerms-v0"])
+    result = evaluate(loaded, gym.make("test/ThreeTerms-v0"), n_episodes=2).summary()
+    assert {"mean_near_reward", "mean_calm_reward", "mean_right_reward"} <= set(result)
+    assert set(result["selection_rate"]) <= {"near", "calm", "right"}
+    assert sum(result["selection_rate"].values()) == pytest.approx(1.0)
+    assert loaded.reward_spec == {"near": 2.0, "calm": 1.0, "right": 1.0}
+
+
+def test_cli_trains_workers_on_an_mo_gymnasium_env(tmp_path, tiny):
+    done = run_cli(
+        "train-workers",
+        "--no-progress",
+        "--env",
+        "mo-mountaincarcontinuous-v0",
+        "--terms",
+        "time,fuel",
+        "--episode-steps",
+        "30",
+        "--workers",
+        "fuel",
+        "--config",
+        tiny,
+        "--timesteps",
+        "100",
+        "--eval-freq",
+        "0",
+        "--out",
+        tmp_path / "w",
+        check=True,
+    )
+    assert "fuel" in done.stdout
+    manifest = json.loads((tmp_path / "w" / "workers" / "manifest.json").read_text())
+    assert list(manifest["workers"]) == ["fuel"]
+    assert manifest["shared_env"] == {
+        "env_id": "hddpg/MultiObjective-v0",
+        "env_kwargs": {
+            "env_id": "mo-mountaincarcontinuous-v0",
+            "terms": ["time", "fuel"],
+            "episode_steps": 30,
+        },
+    }
+
+
+@pytest.mark.slow
+def test_mujoco_half_cheetah_with_estimated_bounds_end_to_end(tmp_path, tiny):
+    """mo-halfcheetah-v5 (unbounded reward_space): estimated bounds recorded, and the bundle rebuilds them."""
+    pytest.importorskip("mujoco")
+    with pytest.warns(UserWarning, match="ESTIMATED"):
+        env = terms_env("mo-halfcheetah-v5", terms=["speed", "energy"], episode_steps=50)
+    bounds = env.env_kwargs["term_bounds"]
+    train_workers(tmp_path / "w", config=tiny, seed=0, env=env, **TINY)
+    train_manager(tmp_path / "w", tmp_path / "m", config=tiny, seed=0, **TINY)
+    loaded = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
+    assert loaded.env_kwargs["term_bounds"] == bounds
+    rebuilt = gym.make(loaded.env_id, **loaded.env_kwargs)
+    assert rebuilt.unwrapped.reward_bounds == {k: tuple(v) for k, v in bounds.items()}
+    summary = evaluate(loaded, rebuilt, n_episodes=1).summary()
+    assert summary["mean_length"] == 50 and {"mean_speed_reward", "mean_energy_reward"} <= set(summary)
+
+
+def test_selection_timeline_of_an_env_without_the_snakes_panels(tmp_path):
+    """plot-selection's figure on any env: its reward terms stand where the snake's clearance would."""
+    from sb3_hddpg.media.figures import plot_selection_timeline
+    from sb3_hddpg.media.trace import trace_episodes
+    from sb3_hddpg.policy import RandomPolicy
+
+    env = gym.make("test/ThreeTerms-v0")
+    records, _ = trace_episodes(RandomPolicy(env.action_space, seed=0), env, n_episodes=2, seed=0)
+    assert len(records) == 40 and set(records[0].reward_terms) == {"near", "calm", "right"}
+    assert all(math.isnan(r.min_clearance) for r in records)
+    for record, name in zip(records, ["near", "calm", "right"] * 14):  # as a hierarchy would report
+        record.selected = name
+    path = plot_selection_timeline(records, tmp_path / "s.png", names=["near", "calm", "right"])
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
