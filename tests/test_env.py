@@ -288,3 +288,16 @@ def test_bad_actions_raise_value_error(bad):
     env.reset(seed=0)
     with pytest.raises(ValueError, match="action"):
         env.step(bad.astype(np.float32))
+
+
+def test_every_space_the_env_lets_go_of_is_emptied_first():
+    # pymunk 7 aborts the process when the cyclic collector frees a joint before its space; an emptied
+    # space frees safely in any order (this aborted `hddpg-cli evaluate` at random before the fix).
+    env = SnakeArmEnv()
+    env.reset(seed=0)
+    old = env.space
+    env.reset(seed=1)
+    assert not old.constraints and not old.bodies
+    assert len(env.space.constraints) == 2 * env.n_joints  # a pivot and a motor per joint
+    env.close()
+    assert not env.space.constraints and not env.space.bodies

@@ -298,6 +298,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     # ------------------------------------------------------------------ physics
     def _build_space(self) -> None:
         """Build the pymunk chain; ``reset`` rebuilds it, since pymunk carries solver state between steps."""
+        self._release_space()
         self.space = pymunk.Space()
         self.space.gravity = (0.0, 0.0)  # a planar arm on a table: gravity is normal to the plane
         self.space.iterations = 10
@@ -727,10 +728,33 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             self._renderer = SnakeRenderer(self.render_mode, fps=self.metadata["render_fps"])
         return self._renderer.draw(self)
 
+    def _release_space(self) -> None:
+        """
+        Empty the current pymunk space before it is dropped.
+
+        A space, its bodies and its joints reference each other, so the cyclic garbage collector frees them,
+        in no fixed order; pymunk 7 aborts the whole process ("Cannot remove a constraint that was not
+        added to the space") when a joint is freed before its space. An empty space frees safely in any
+        order, so every space this env lets go of is emptied first.
+        """
+        space = getattr(self, "space", None)
+        if space is not None:
+            space.remove(*space.constraints, *space.shapes, *space.bodies)
+            self._space_handle = None
+
     def close(self) -> None:
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        self._release_space()
+
+    def __del__(self) -> None:
+        # An env dropped without close() (or left in a reference cycle) still empties its space first:
+        # finalisers run before the collector clears the objects of a cycle (PEP 442).
+        try:
+            self._release_space()
+        except Exception:  # noqa: BLE001 - at interpreter shutdown pymunk's module may already be gone
+            pass
 
 
 def _check_components(observe: Any, layout: StateLayout) -> tuple[str, ...] | None:
