@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import struct
 from collections.abc import Mapping, Sequence
@@ -750,11 +751,10 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def __del__(self) -> None:
         # An env dropped without close() (or left in a reference cycle) still empties its space first:
-        # finalisers run before the collector clears the objects of a cycle (PEP 442).
-        try:
+        # finalisers run before the collector clears the objects of a cycle (PEP 442). At interpreter
+        # shutdown pymunk's module may already be gone: nothing is left to protect then.
+        with contextlib.suppress(Exception):
             self._release_space()
-        except Exception:  # noqa: BLE001 - at interpreter shutdown pymunk's module may already be gone
-            pass
 
 
 def _check_components(observe: Any, layout: StateLayout) -> tuple[str, ...] | None:
