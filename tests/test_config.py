@@ -22,7 +22,8 @@ def test_bundled_config_has_every_env_and_the_manager():
     goal = load_hyperparams("hddpg/SnakeGoal-v0", DDPG)
     assert goal.algo_kwargs["policy_kwargs"] == {"net_arch": [256, 256]}  # the goal block's own networks
     avoid = load_hyperparams("hddpg/SnakeAvoid-v0", DDPG)
-    assert avoid.algo_kwargs["policy_kwargs"] == {"net_arch": [64, 64]}  # the shared values, through `<<: *ddpg`
+    # The avoid block keeps the shared values, through `<<: *ddpg`.
+    assert avoid.algo_kwargs["policy_kwargs"] == {"net_arch": [64, 64]}
     assert goal.noise_type == "normal" and goal.n_timesteps > 0
     manager = load_hyperparams("manager", DDPG, manager=True)
     assert manager.wrapper_kwargs["selection"] == "sample"
