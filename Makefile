@@ -35,8 +35,10 @@ torch:
 	$(PYTHON) -m venv $(VENV)
 	@$(INSTALL_TORCH)
 
+# The fast extra is installed above, so the main job trains with SBX (JAX, ~2.5x faster on these CPUs); the
+# models it saves are plain SB3 zips all the same. `hddpg-cli quickstart` alone keeps the SB3 default.
 quickstart: $(STAMP)
-	$(BIN)/hddpg-cli quickstart
+	$(BIN)/hddpg-cli quickstart --backend sbx
 
 # One line per test file with its progress count, then the 15 slowest tests (about 8 min on 2 idle cores).
 test: $(STAMP)
