@@ -52,7 +52,7 @@ def test_readme_python_snippet_runs_with_the_projects_hyperparameters(tmp_path, 
     keys = {"manager": "manager", "goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}
     for name, model in {"manager": manager, **workers}.items():
         block = load_hyperparams(keys[name], DDPG, manager=name == "manager")
-        assert model.actor.net_arch == [64, 64]
+        assert model.actor.net_arch == block.algo_kwargs["policy_kwargs"]["net_arch"]
         assert model.gamma == block.algo_kwargs["gamma"]
         assert model.batch_size == block.algo_kwargs["batch_size"]
         assert isinstance(model.action_noise, NormalActionNoise)

@@ -51,7 +51,9 @@ def test_worker_zips_are_plain_sb3_and_manifest_is_complete(trained):
             "success_rate",
             "min_clearance",
         } <= set(entry["metrics"])
-        assert entry["config"]["block"]["policy_kwargs"] == "dict(net_arch=[64, 64])"
+        # Each worker's own block, as the config wrote it (the goal worker has larger networks).
+        nets = {"goal": "dict(net_arch=[256, 256])", "avoid": "dict(net_arch=[64, 64])"}
+        assert entry["config"]["block"]["policy_kwargs"] == nets[name]
         assert entry["spec"]["algorithm"] == "DDPG"
 
 
