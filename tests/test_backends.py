@@ -22,26 +22,14 @@ import pytest
 import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.training.backends import BACKENDS, BackendError, check_backend, sbx_installed
 from tests.cli_batch import ROOT, run_batch
+from tests.helpers import TINY_CONFIG
 
 needs_sbx = pytest.mark.skipif(
     not sbx_installed(), reason='needs the SBX backend: pip install "sb3-hddpg[fast]"'
 )
 
-TINY_CONFIG = """\
-default: &tiny
-  n_timesteps: 200
-  policy: 'MlpPolicy'
-  buffer_size: 1000
-  learning_starts: 100
-  batch_size: 16
-  noise_type: 'normal'
-  noise_std: 0.2
-  policy_kwargs: "dict(net_arch=[16])"
-manager:
-  <<: *tiny
-"""
 #: The same block asking for SBX through the config key instead of ``--backend``.
-SBX_CONFIG = TINY_CONFIG.replace("  n_timesteps: 200\n", "  n_timesteps: 200\n  backend: sbx\n")
+SBX_CONFIG = TINY_CONFIG.replace("  n_timesteps: 150\n", "  n_timesteps: 150\n  backend: sbx\n")
 FAST = ("--no-progress", "--eval-freq", "100", "--eval-episodes", "1")
 
 
