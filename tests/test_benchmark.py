@@ -25,6 +25,7 @@ from sb3_hddpg.experiments.benchmark import (
     evaluation_rows,
     normalised_term_sums,
     plan_tasks,
+    task_cost,
     write_outputs,
 )
 
@@ -126,6 +127,14 @@ def test_settings_reject_unknown_methods_and_default_to_equal_total_steps():
     settings = BenchmarkSettings(timesteps=1000, worker_timesteps=300)
     assert settings.flat_budget == 1600  # the hierarchy's manager + two workers
     assert settings.eval_freq_for(1600) == settings.eval_freq_for(1000) == 100
+
+
+def test_settings_default_to_the_configs_budgets():
+    # The bundled config: goal worker 150k, avoid worker 30k, manager 20k; a flat agent gets the sum.
+    settings = BenchmarkSettings(methods=["hddpg", "ddpg"])
+    assert settings.timesteps == 20_000 and settings.worker_timesteps is None
+    assert settings.workers_budget == 180_000 and settings.flat_budget == 200_000
+    assert task_cost(Task("workers", 0), settings) == 180_000
 
 
 def test_statistics_use_the_stats_module_on_per_seed_values(constructed):

@@ -183,17 +183,23 @@ def benchmark_command(
     seeds: int = typer.Option(
         5, "--seeds", callback=at_least(1), help="Seeds 0..N-1, one run per method each."
     ),
-    timesteps: int = typer.Option(
-        10_000, "--timesteps", callback=at_least(1), help="Manager steps (the curve window of every method)."
+    timesteps: int | None = typer.Option(
+        None,
+        "--timesteps",
+        callback=at_least(1),
+        help="Manager steps, the curve window of every method (default: the config's manager n_timesteps).",
     ),
-    worker_timesteps: int = typer.Option(
-        10_000, "--worker-timesteps", callback=at_least(1), help="Steps per worker (trained once per seed)."
+    worker_timesteps: int | None = typer.Option(
+        None,
+        "--worker-timesteps",
+        callback=at_least(1),
+        help="Steps per worker, trained once per seed (default: each worker's config n_timesteps).",
     ),
     flat_timesteps: int | None = typer.Option(
         None,
         "--flat-timesteps",
         callback=at_least(1),
-        help="Flat agents' steps (default: --timesteps + 2 x --worker-timesteps, the hierarchy's total).",
+        help="Flat agents' steps (default: the hierarchy's total, manager's plus every worker's).",
     ),
     eval_freq: int | None = typer.Option(
         None,
@@ -257,7 +263,7 @@ def benchmark_command(
         settings = BenchmarkSettings(
             methods=chosen,
             seeds=list(range(seeds)),
-            timesteps=timesteps,
+            timesteps=timesteps or 0,
             worker_timesteps=worker_timesteps,
             flat_timesteps=flat_timesteps,
             eval_freq=eval_freq,

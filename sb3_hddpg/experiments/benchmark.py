@@ -60,7 +60,7 @@ from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, evaluate, st
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.media import figures
-from sb3_hddpg.policy import RandomPolicy
+from sb3_hddpg.policy import WORKER_ENV_IDS, RandomPolicy
 from sb3_hddpg.stats import (
     bootstrap_ci,
     paired_difference_ci,
@@ -69,15 +69,28 @@ from sb3_hddpg.stats import (
     trend_slope,
 )
 from sb3_hddpg.training.backends import check_algo, check_backend
+from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
 from sb3_hddpg.training.training import (
     FLAT_ENV_ID,
     sigterm_as_interrupt,
     train_flat,
     train_manager,
     train_workers,
+    worker_hyperparams,
 )
 
 logger = logging.getLogger(__name__)
+
+
+@functools.cache
+def _config_budgets() -> dict[str, int]:
+    """The bundled config's budgets (``n_timesteps``): each snake worker's and the manager's."""
+    from stable_baselines3 import DDPG
+
+    budgets = {name: hp.n_timesteps for name, hp in worker_hyperparams(sorted(WORKER_ENV_IDS)).items()}
+    budgets[MANAGER_KEY] = load_hyperparams(MANAGER_KEY, DDPG, manager=True).n_timesteps
+    return budgets
+
 
 #: The pseudo-method of a seed's two workers, which the methods that need them depend on.
 WORKERS = "workers"
@@ -194,8 +207,10 @@ class BenchmarkSettings:
 
     :param methods: methods among :data:`METHOD_REGISTRY`.
     :param seeds: training seeds (each method runs once per seed).
-    :param timesteps: the manager's budget, in its own (env) steps.
-    :param worker_timesteps: each worker's budget.
+    :param timesteps: the manager's budget, in its own (env) steps (``0``: the bundled config's manager
+        block, ``n_timesteps``; resolved when the settings are made, so ``benchmark.json`` records it).
+    :param worker_timesteps: each worker's budget (``None``: each worker's own config block, e.g. 150k steps
+        for the goal worker and 30k for the avoid worker).
     :param flat_timesteps: a flat agent's budget (``None``: ``timesteps`` plus every worker's budget, so
         that a flat agent uses as many environment steps as the whole hierarchy).
     :param eval_freq: steps between learning-curve evaluations of every run (``None``: ``timesteps // 10``).
@@ -212,8 +227,8 @@ class BenchmarkSettings:
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
     seeds: list[int] = field(default_factory=lambda: list(range(5)))
-    timesteps: int = 10_000
-    worker_timesteps: int = 10_000
+    timesteps: int = 0
+    worker_timesteps: int | None = None
     flat_timesteps: int | None = None
     eval_freq: int | None = None
     eval_episodes: int = 5
@@ -237,8 +252,11 @@ class BenchmarkSettings:
             raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"Expected distinct seeds, at least one, actually: {self.seeds}")
+        if not self.timesteps:
+            self.timesteps = _config_budgets()[MANAGER_KEY]
         for name in ("timesteps", "worker_timesteps", "eval_episodes", "test_episodes"):
-            if getattr(self, name) < 1:
+            value = getattr(self, name)
+            if value is not None and value < 1:
                 raise ValueError(f"Expected `{name}` >= 1, actually: {getattr(self, name)}")
         if self.scenario not in SCENARIOS:
             raise ValueError(f"Unknown scenario {self.scenario!r}; choose from {list(SCENARIOS)}")
@@ -272,7 +290,16 @@ class BenchmarkSettings:
         """A flat agent's budget: as many env steps as the hierarchy (workers + manager) by default."""
         if self.flat_timesteps is not None:
             return self.flat_timesteps
-        return self.timesteps + 2 * self.worker_timesteps
+        return self.timesteps + self.workers_budget
+
+    @property
+    def workers_budget(self) -> int:
+        """Env steps of a seed's workers together: ``worker_timesteps`` each, or each worker's config budget."""
+        budgets = _config_budgets()
+        workers = [budgets[name] for name in budgets if name != MANAGER_KEY]
+        if self.worker_timesteps is not None:
+            return self.worker_timesteps * len(workers)
+        return sum(workers)
 
     def eval_freq_for(self, budget: int) -> int:
         """
@@ -423,7 +450,7 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
         timesteps=settings.worker_timesteps,
         seed=task.seed,
         resume=True,  # keeps finished workers and continues an interrupted one
-        eval_freq=settings.eval_freq_for(settings.worker_timesteps),
+        eval_freq=settings.eval_freq_for(settings.worker_timesteps or settings.workers_budget),
         eval_episodes=settings.eval_episodes,
         backend=settings.backend,
     )
@@ -607,7 +634,7 @@ def comparison_pairs(settings: BenchmarkSettings) -> list[tuple[str, str]]:
 def task_cost(task: Task, settings: BenchmarkSettings) -> int:
     """A task's training budget in environment steps (HAM trains nothing), for scheduling."""
     if task.spec is None:
-        return 2 * settings.worker_timesteps
+        return settings.workers_budget
     return task.spec.cost(settings)
 
 
