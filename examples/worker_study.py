@@ -34,6 +34,7 @@ TEST_SEED, CURVE_SEED = 15000, 14000
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="goal", choices=sorted(ENV_IDS), help="which reward the worker learns")
+    p.add_argument("--algo", default="ddpg", choices=["ddpg", "td3"], help="the worker's algorithm")
     p.add_argument("--backend", default="sb3", choices=["sb3", "sbx"], help="torch (sb3) or JAX (sbx)")
     p.add_argument("--steps", type=int, default=40_000, help="training env steps")
     p.add_argument("--gamma", type=float, default=0.9, help="discount")
@@ -45,6 +46,12 @@ def main() -> None:
     p.add_argument("--action-l2", type=float, default=0.0, help="actor action penalty (0: none)")
     p.add_argument("--net", default="64,64", help="hidden layer sizes of actor and critic, comma-separated")
     p.add_argument("--lr", type=float, default=1e-3, help="learning rate of actor and critic")
+    p.add_argument(
+        "--train-freq",
+        type=int,
+        default=1,
+        help="env steps between updates, with as many gradient steps (the same updates per env step)",
+    )
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--eval-every", type=int, default=10_000, help="steps between curve points (5 episodes)")
     p.add_argument("--curve-episodes", type=int, default=5, help="episodes per curve point")
@@ -64,6 +71,8 @@ def main() -> None:
         learning_starts=1000,
         batch_size=128,
         tau=0.005,
+        train_freq=args.train_freq,
+        gradient_steps=args.train_freq,
         gamma=args.gamma,
         seed=args.seed,
         policy_kwargs={"net_arch": [int(size) for size in args.net.split(",")]},
@@ -78,11 +87,11 @@ def main() -> None:
     if args.backend == "sbx":
         import sbx
 
-        model = sbx.DDPG("MlpPolicy", env, **kwargs)
+        model = getattr(sbx, args.algo.upper())("MlpPolicy", env, **kwargs)
     else:
-        from stable_baselines3 import DDPG
+        import stable_baselines3
 
-        model = DDPG("MlpPolicy", env, device="cpu", **kwargs)
+        model = getattr(stable_baselines3, args.algo.upper())("MlpPolicy", env, device="cpu", **kwargs)
     if args.action_l2 > 0:
         apply_action_l2(model, args.action_l2)
 
