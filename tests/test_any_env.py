@@ -379,3 +379,110 @@ def test_selection_timeline_of_an_env_without_the_snakes_panels(tmp_path):
         record.selected = name
     path = plot_selection_timeline(records, tmp_path / "s.png", names=["near", "calm", "right"])
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# ------------------------------------------------------------------------ tune --env
+#: Trials as small as tests/test_tuning's: small nets, a small buffer.
+TUNE_FIXED = {"net_arch": "small", "buffer_size": 10_000, "batch_size": 32}
+
+
+def _tune_once(tmp_path, target):
+    from sb3_hddpg.experiments.study_storage import default_storage_url
+    from sb3_hddpg.experiments.tuning import StudySettings, tune
+
+    settings = StudySettings(
+        storage=default_storage_url(tmp_path),
+        study_name=target.name,
+        n_trials=1,
+        pruner="none",
+        seed=0,
+        fixed_params=TUNE_FIXED,
+    )
+    study = tune(target, settings, tmp_path)
+    assert [t.state.name for t in study.trials] == ["COMPLETE"]
+    return study
+
+
+def test_tune_a_worker_and_a_flat_agent_on_other_envs(tmp_path, tiny):
+    from sb3_hddpg.experiments.tuning import TuningTarget
+
+    mountain_car = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
+    budget = {"config": str(tiny), "timesteps": 100, "n_evaluations": 1, "eval_episodes": 1}
+    worker = TuningTarget(level="worker", worker="time", env=mountain_car, **budget)
+    assert worker.name == "worker-time" and worker.block_key == "mo-mountaincarcontinuous-v0"
+    study = _tune_once(tmp_path / "worker", worker)
+    # The trial learned on the `time` term's view: -1 per step, 30 steps (the flag is out of reach).
+    assert study.best_value == pytest.approx(-30.0)
+    assert study.user_attrs["target"]["env"]["env_kwargs"]["env_id"] == "mo-mountaincarcontinuous-v0"
+    with pytest.raises(ValueError, match=r"among \['time', 'fuel'\]"):
+        TuningTarget(level="worker", worker="goal", env=mountain_car)
+
+    info = terms_env(
+        "test/InfoRewards-v0",
+        terms=["reward_near", "reward_calm"],
+        term_bounds={"reward_near": (-2, 0), "reward_calm": (-1, 0)},
+    )
+    flat = TuningTarget(level="flat", env=info, **budget)
+    assert flat.block_key == "test/InfoRewards-v0"
+    value = _tune_once(tmp_path / "flat", flat).best_value
+    # The flat agent's reward is the normalised sum of both terms: each in [0, 1] per step, 20 steps.
+    assert 0.0 < value <= 40.0
+
+
+def test_tune_the_manager_over_workers_of_another_env(tmp_path, tiny):
+    from sb3_hddpg.experiments.tuning import TuningTarget
+
+    env = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
+    train_workers(tmp_path / "w", config=tiny, seed=0, env=env, timesteps=100, eval_freq=0, eval_episodes=1)
+    budget = {"config": str(tiny), "timesteps": 100, "n_evaluations": 1, "eval_episodes": 1}
+    # No env given: the manager acts in the shared env the workers' manifest records (as train-manager).
+    target = TuningTarget(level="manager", workers_dir=str(tmp_path / "w"), **budget)
+    target.check()
+    value = _tune_once(tmp_path / "m", target).best_value
+    # Manager reward: normalised time (0 until the flag) + normalised fuel (in [0, 1]) per step, 30 steps.
+    assert 0.0 < value <= 30.0
+    ham = TuningTarget(level="ham", workers_dir=str(tmp_path / "w"))
+    with pytest.raises(ValueError, match="snake arm only"):
+        ham.check()
+
+
+def test_cli_tune_env_options(tmp_path, tiny):
+    from tests.cli_batch import run_batch
+
+    env_args = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
+    fix = [arg for name, value in TUNE_FIXED.items() for arg in ("--fix", f"{name}={value}")]
+    small = ["--n-trials", "1", "--timesteps", "100", "--n-evaluations", "1", "--eval-episodes", "1"]
+    saved = tmp_path / "best.yml"
+    ok, bad_worker, ham, lone_terms = run_batch(
+        [
+            [
+                "tune",
+                "--level",
+                "flat",
+                *env_args,
+                "--config",
+                str(tiny),
+                *small,
+                *fix,
+                "--out",
+                str(tmp_path / "t"),
+                "--save-config",
+                str(saved),
+            ],
+            ["tune", "--level", "worker", "--worker", "goal", *env_args, "--out", str(tmp_path / "b")],
+            ["tune", "--level", "ham", "--workers", str(tmp_path), *env_args, "--out", str(tmp_path / "h")],
+            ["tune", "--level", "flat", "--terms", "a,b", "--out", str(tmp_path / "l")],
+        ]
+    )
+    assert ok.returncode == 0, ok.stderr
+    # The best block is keyed by the adapted env, where train-flat --env reads it.
+    assert "mo-mountaincarcontinuous-v0" in yaml_keys(saved)
+    for result, option in ((bad_worker, "--worker"), (ham, "--env"), (lone_terms, "--env")):
+        assert result.returncode == 2 and option in result.stderr and "Traceback" not in result.stderr
+    assert "['time', 'fuel']" in bad_worker.stderr and "snake arm only" in ham.stderr
+
+
+def yaml_keys(path) -> list[str]:
+    import yaml
+
+    return list(yaml.safe_load(path.read_text()))
