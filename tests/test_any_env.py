@@ -486,3 +486,50 @@ def yaml_keys(path) -> list[str]:
     import yaml
 
     return list(yaml.safe_load(path.read_text()))
+
+
+# ------------------------------------------------------------------------ record on other envs
+@pytest.fixture(scope="module")
+def mountain_car_bundle(tmp_path_factory):
+    """A tiny hierarchy over two workers of mo-mountaincarcontinuous-v0 (30-step episodes)."""
+    folder = tmp_path_factory.mktemp("mc")
+    config = folder / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    env = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
+    train_workers(folder / "w", config=config, seed=0, env=env, timesteps=100, eval_freq=0, eval_episodes=1)
+    train_manager(
+        folder / "w", folder / "m", config=config, seed=0, timesteps=100, eval_freq=0, eval_episodes=1
+    )
+    return folder / "m" / "hierarchy.zip"
+
+
+def test_record_a_hierarchy_on_an_mo_gymnasium_env(mountain_car_bundle, tmp_path):
+    import imageio.v3 as iio
+
+    from tests.cli_batch import run_one
+
+    out = tmp_path / "mc.gif"
+    done = run_one(["record", str(mountain_car_bundle), "--out", str(out), "--fps", "20"])
+    assert done["code"] == 0, done["stderr"]
+    frames = iio.imread(out, index=None)
+    # One frame per step of the 30-step episode: the env's own 600 x 400 render, padded to multiples of
+    # 16, with the 80-pixel panel under it.
+    assert frames.shape[:3] == (30, 400 + 80, 608)
+    assert "time -30.0" in done["stdout"] and "goal touch" not in done["stdout"]
+    # The mountain car's own scene (a white sky), not a blank frame.
+    assert (frames[0, :400, :600] == 255).mean() > 0.5 and frames[0, :400, :600].std() > 10
+
+
+def test_record_refuses_an_env_that_cannot_render(tmp_path, tiny):
+    import functools
+
+    from sb3_hddpg.media import make_recording_env
+    from tests.cli_batch import run_one
+
+    with pytest.raises(ValueError, match=r"test/ThreeTerms-v0 cannot render frames.*'rgb_array'"):
+        make_recording_env(functools.partial(gym.make, "test/ThreeTerms-v0"), "test/ThreeTerms-v0")
+    train_workers(tmp_path / "w", config=tiny, env=terms_env("test/ThreeTerms-v0"), workers=["near"], **TINY)
+    worker = tmp_path / "w" / "workers" / "near.zip"
+    done = run_one(["record", str(worker), "--env", "test/ThreeTerms-v0", "--out", str(tmp_path / "x.gif")])
+    assert done["code"] == 2 and "cannot render frames" in done["stderr"]
+    assert "Traceback" not in done["stderr"] and not (tmp_path / "x.gif").exists()
