@@ -18,14 +18,17 @@ from sb3_hddpg.artifacts.limits import LimitError, check_env_kwargs
 from sb3_hddpg.envs import (
     InfoTermsEnv,
     MultiObjectiveEnv,
+    Proximity,
     RewardTermsEnv,
     TermNormaliser,
     env_contract,
+    proximity_of,
     state_layout_of,
 )
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.hierarchy import Hierarchy
+from sb3_hddpg.policy import RandomPolicy
 from sb3_hddpg.training import train_manager, train_workers
 from tests.cli_runner import run_cli
 from tests.helpers import TINY_CONFIG
@@ -369,7 +372,6 @@ def test_selection_timeline_of_an_env_without_the_snakes_panels(tmp_path):
     """plot-selection's figure on any env: its reward terms stand where the snake's clearance would."""
     from sb3_hddpg.media.figures import plot_selection_timeline
     from sb3_hddpg.media.trace import trace_episodes
-    from sb3_hddpg.policy import RandomPolicy
 
     env = gym.make("test/ThreeTerms-v0")
     records, _ = trace_episodes(RandomPolicy(env.action_space, seed=0), env, n_episodes=2, seed=0)
@@ -533,3 +535,58 @@ def test_record_refuses_an_env_that_cannot_render(tmp_path, tiny):
     done = run_one(["record", str(worker), "--env", "test/ThreeTerms-v0", "--out", str(tmp_path / "x.gif")])
     assert done["code"] == 2 and "cannot render frames" in done["stderr"]
     assert "Traceback" not in done["stderr"] and not (tmp_path / "x.gif").exists()
+
+
+# ------------------------------------------------------------------------ the optional proximity capability
+class WalledPointEnv(ThreeTermsEnv):
+    """A user's env that declares proximity: the wall at x = -1 is its obstacle, the target its goal."""
+
+    proximity = Proximity(sensor_range=1.0, touch_radius=0.05)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = super().step(action)
+        info |= {"min_clearance": self.x + 1.0, "distance_to_goal": abs(self.x - self.target)}
+        return obs, reward, terminated, truncated, info
+
+
+_register("test/WalledPoint-v0", WalledPointEnv)
+
+
+def test_proximity_is_declared_not_guessed():
+    from sb3_hddpg.evaluation import clearance_bands
+
+    snake = gym.make("hddpg/SnakeReach-v0", sensor_range=0.4)
+    assert proximity_of(snake) == Proximity(sensor_range=0.4, touch_radius=0.1)  # through gym.make's wrappers
+    assert clearance_bands(snake, None, None) == (0.2, 0.4)
+    walled = gym.make("test/WalledPoint-v0")
+    assert clearance_bands(walled, None, None) == (0.5, 1.0)
+    result = evaluate(RandomPolicy(walled.action_space, seed=0), walled, n_episodes=2)
+    assert (result.near_clearance, result.clear_clearance) == (0.5, 1.0)
+    assert 0.0 <= result.summary()["min_clearance"] <= 2.0
+    # No proximity declared: no bands, and a band asked for is refused rather than counting nothing.
+    mountain_car = terms_env("mo-mountaincarcontinuous-v0").make()
+    assert proximity_of(mountain_car) is None and proximity_of(gym.make("test/ThreeTerms-v0")) is None
+    assert clearance_bands(mountain_car, None, None) == (None, None)
+    with pytest.raises(ValueError, match=r"`near_clearance` is not available for this env: 'hddpg/MultiObj"):
+        clearance_bands(mountain_car, 0.1, None)
+    with pytest.raises(ValueError, match="sensor_range"):
+        Proximity(sensor_range=0.0)
+
+
+def test_state_dependence_and_selection_figure_say_not_available(mountain_car_bundle, tmp_path):
+    from sb3_hddpg.evaluation import state_dependence
+    from tests.cli_batch import run_one
+
+    loaded = Hierarchy.load(mountain_car_bundle)
+    summary = evaluate(loaded, gym.make(loaded.env_id, **loaded.env_kwargs), n_episodes=1).summary()
+    assert set(summary["selection_rate"]) <= {"time", "fuel"}
+    assert summary["selections_near"] == dict.fromkeys(summary["selection_rate"], 0)
+    assert state_dependence(summary, "fuel") is None  # not a ratio of empty bands
+    shown = run_one(["evaluate", str(mountain_car_bundle), "--episodes", "1", "--state-worker", "fuel"])
+    assert shown["code"] == 0 and "not available" in shown["stdout"] and "share ratio" not in shown["stdout"]
+    refused = run_one(["evaluate", str(mountain_car_bundle), "--episodes", "1", "--near-clearance", "0.1"])
+    assert refused["code"] == 2 and "not available for this env" in refused["stderr"]
+    out = tmp_path / "s.png"
+    plotted = run_one(["plot-selection", str(mountain_car_bundle), "--out", str(out)])
+    assert plotted["code"] == 0, plotted["stderr"]
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "not available" in plotted["stdout"]
