@@ -590,3 +590,36 @@ def test_state_dependence_and_selection_figure_say_not_available(mountain_car_bu
     plotted = run_one(["plot-selection", str(mountain_car_bundle), "--out", str(out)])
     assert plotted["code"] == 0, plotted["stderr"]
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "not available" in plotted["stdout"]
+
+
+# ------------------------------------------------------------------------ benchmark --env
+def test_benchmark_on_an_mo_gymnasium_env(tmp_path):
+    from tests.cli_batch import run_batch
+
+    env_args = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
+    tiny = ["--seeds", "1", "--timesteps", "100", "--worker-timesteps", "50", "--eval-freq", "50"]
+    tiny += ["--eval-episodes", "1", "--test-episodes", "1"]
+    out = tmp_path / "bench"
+    done, ham = run_batch(
+        [
+            ["benchmark", *env_args, *tiny, "--out", str(out)],
+            ["benchmark", *env_args, "--methods", "hddpg,ham", "--out", str(tmp_path / "h")],
+        ]
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["methods"]) == {"hddpg", "ddpg"}  # the default on another env
+    assert results["settings"]["env"]["env_kwargs"]["env_id"] == "mo-mountaincarcontinuous-v0"
+    assert results["methods"]["hddpg"]["worker_timesteps"] == 100  # two workers of 50 steps
+    assert results["methods"]["ddpg"]["own_timesteps"] == 200  # as many env steps as the hierarchy
+    for entry in results["methods"].values():
+        stats = entry["stats"]
+        # Normalised time (0 short of the flag) + normalised fuel (in [0, 1]) per step, 30 steps.
+        assert 0.0 < stats["mean_reach_reward"]["mean"] <= 30.0
+        assert "goal_touch_rate" not in stats and "success_rate" not in stats
+    assert set(results["methods"]["hddpg"]["selection_rate"]) <= {"time", "fuel"}
+    comparison = results["comparisons"]["hddpg vs ddpg"]
+    assert "mean_reach_reward" in comparison and "success_rate" not in comparison
+    assert "['time', 'fuel']" in results["metric"]
+    assert "| hddpg | 1 |" in (out / "results.md").read_text()
+    assert ham.returncode == 2 and "snake arm only" in ham.stderr and "Traceback" not in ham.stderr
