@@ -221,8 +221,8 @@ class TuningTarget:
                 )
             finally:
                 env.close()
-        elif self.level == "worker" and self.env is not None and hyperparams is not None:
-            _env_factory(self, hyperparams)().close()  # the term's view builds (e.g. info keys present)
+        elif self.level == "worker" and self.env is not None:
+            _env_factory(self, hyperparams)().close()  # e.g. block env_kwargs the env does not take fail here
 
     def budget(self) -> int:
         """Training steps per trial."""

@@ -580,6 +580,8 @@ def train_flat(
     :param progress_bar: show a progress bar.
     :param threads: torch threads.
     :param env_id: the env to learn (the combined reward by default).
+    :param env_kwargs: its keyword arguments, over the config block's; the block read is the adapted env's
+        for an adapter (:func:`~sb3_hddpg.envs.terms_env.config_key`), as the workers' is.
     :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
     :param preferences: reward term -> factor: learn ``sum_t factor_t * normalised(term_t)`` instead of the
         env's reward (:class:`~sb3_hddpg.wrappers.PreferenceReward`, the reward of a manager with the same
