@@ -14,7 +14,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.envs.contract import TermNormaliser, env_contract
+from sb3_hddpg.envs.contract import TermNormaliser, env_contract, proximity_of
 from sb3_hddpg.policy import Policy
 
 #: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
@@ -136,7 +136,8 @@ def evaluate(
     :param deterministic: passed to ``predict``.
     :param on_step: called after every step with the env and its ``info`` (for recording).
     :param near_clearance: a choice counts as "near an obstacle" at a clearance <= this (default: half the
-        env's ``sensor_range``; without one, choices are not split by state).
+        ``sensor_range`` of the env's declared :class:`~sb3_hddpg.envs.contract.Proximity`; an env that
+        declares none has its choices not split by state, and refuses a band given here).
     :param clear_clearance: a choice counts as "no obstacle in range" at a clearance >= this (default: the
         env's ``sensor_range``: every proximity sensor reads its maximum).
     :return: per-episode metrics.
@@ -224,20 +225,39 @@ def clearance_bands(
     env: gym.Env, near: float | None, clear: float | None
 ) -> tuple[float | None, float | None]:
     """
-    The clearance bands of :func:`evaluate`, checked, defaulting to the env's ``sensor_range`` (half and
-    full); ``None`` where neither is given nor the env has a ``sensor_range``.
+    The clearance bands of :func:`evaluate`, checked, defaulting to the ``sensor_range`` of the env's
+    declared :class:`~sb3_hddpg.envs.contract.Proximity` (half and full); both ``None`` for an env that
+    declares none (it reports no clearance, so choices cannot be split by it).
+
+    :raises ValueError: a band that is negative or not finite, ``near > clear``, or a band given for an env
+        without the proximity capability (it would count no choice at all, silently).
     """
-    sensor_range = getattr(env.unwrapped, "sensor_range", None)
-    if near is None and sensor_range is not None:
-        near = 0.5 * float(sensor_range)
-    if clear is None and sensor_range is not None:
-        clear = float(sensor_range)
+    proximity = proximity_of(env)
+    if proximity is None:
+        given = next(
+            (n for n, v in (("near_clearance", near), ("clear_clearance", clear)) if v is not None), None
+        )
+        if given is not None:
+            raise ValueError(
+                f"`{given}` is not available for this env: {_env_name(env)} declares no proximity (no "
+                "`proximity` with a sensor range, no info['min_clearance']; see sb3_hddpg.envs.contract)"
+            )
+        return None, None
+    if near is None:
+        near = 0.5 * proximity.sensor_range
+    if clear is None:
+        clear = proximity.sensor_range
     for name, value in (("near_clearance", near), ("clear_clearance", clear)):
         if value is not None and not (math.isfinite(value) and value >= 0):
             raise ValueError(f"Expected `{name}` to be a finite number >= 0, actually: {value}")
     if near is not None and clear is not None and near > clear:
         raise ValueError(f"Expected `near_clearance` <= `clear_clearance`, actually: {near} > {clear}")
     return near, clear
+
+
+def _env_name(env: gym.Env) -> str:
+    spec = env.unwrapped.spec
+    return repr(spec.id) if spec is not None else type(env.unwrapped).__name__
 
 
 def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -> dict[str, Any] | None:
@@ -251,11 +271,13 @@ def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -
     :param worker: the worker whose share is compared.
     :return: ``near_share``, ``clear_share`` (``None`` where no choice fell in that band), ``ratio``
         (``None`` where undefined: a band without choices, or a clear share of 0), the choices counted in
-        each band, the bands and the worker; ``None`` when the policy reported no choices or has no
-        ``worker``.
+        each band, the bands and the worker; ``None`` when the policy reported no choices, has no
+        ``worker``, or the env has no clearance bands (it declares no proximity: not available there).
     """
     near, clear = summary.get("selections_near"), summary.get("selections_clear")
     if near is None or clear is None or worker not in summary.get("selection_rate", {}):
+        return None
+    if summary.get("near_clearance") is None or summary.get("clear_clearance") is None:
         return None
     near_total, clear_total = sum(near.values()), sum(clear.values())
     near_share = near.get(worker, 0) / near_total if near_total else None

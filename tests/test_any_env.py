@@ -18,14 +18,17 @@ from sb3_hddpg.artifacts.limits import LimitError, check_env_kwargs
 from sb3_hddpg.envs import (
     InfoTermsEnv,
     MultiObjectiveEnv,
+    Proximity,
     RewardTermsEnv,
     TermNormaliser,
     env_contract,
+    proximity_of,
     state_layout_of,
 )
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.hierarchy import Hierarchy
+from sb3_hddpg.policy import RandomPolicy
 from sb3_hddpg.training import train_manager, train_workers
 from tests.cli_runner import run_cli
 from tests.helpers import TINY_CONFIG
@@ -369,7 +372,6 @@ def test_selection_timeline_of_an_env_without_the_snakes_panels(tmp_path):
     """plot-selection's figure on any env: its reward terms stand where the snake's clearance would."""
     from sb3_hddpg.media.figures import plot_selection_timeline
     from sb3_hddpg.media.trace import trace_episodes
-    from sb3_hddpg.policy import RandomPolicy
 
     env = gym.make("test/ThreeTerms-v0")
     records, _ = trace_episodes(RandomPolicy(env.action_space, seed=0), env, n_episodes=2, seed=0)
@@ -379,3 +381,245 @@ def test_selection_timeline_of_an_env_without_the_snakes_panels(tmp_path):
         record.selected = name
     path = plot_selection_timeline(records, tmp_path / "s.png", names=["near", "calm", "right"])
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# ------------------------------------------------------------------------ tune --env
+#: Trials as small as tests/test_tuning's: small nets, a small buffer.
+TUNE_FIXED = {"net_arch": "small", "buffer_size": 10_000, "batch_size": 32}
+
+
+def _tune_once(tmp_path, target):
+    from sb3_hddpg.experiments.study_storage import default_storage_url
+    from sb3_hddpg.experiments.tuning import StudySettings, tune
+
+    settings = StudySettings(
+        storage=default_storage_url(tmp_path),
+        study_name=target.name,
+        n_trials=1,
+        pruner="none",
+        seed=0,
+        fixed_params=TUNE_FIXED,
+    )
+    study = tune(target, settings, tmp_path)
+    assert [t.state.name for t in study.trials] == ["COMPLETE"]
+    return study
+
+
+def test_tune_a_worker_and_a_flat_agent_on_other_envs(tmp_path, tiny):
+    from sb3_hddpg.experiments.tuning import TuningTarget
+
+    mountain_car = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
+    budget = {"config": str(tiny), "timesteps": 100, "n_evaluations": 1, "eval_episodes": 1}
+    worker = TuningTarget(level="worker", worker="time", env=mountain_car, **budget)
+    assert worker.name == "worker-time" and worker.block_key == "mo-mountaincarcontinuous-v0"
+    study = _tune_once(tmp_path / "worker", worker)
+    # The trial learned on the `time` term's view: -1 per step, 30 steps (the flag is out of reach).
+    assert study.best_value == pytest.approx(-30.0)
+    assert study.user_attrs["target"]["env"]["env_kwargs"]["env_id"] == "mo-mountaincarcontinuous-v0"
+    with pytest.raises(ValueError, match=r"among \['time', 'fuel'\]"):
+        TuningTarget(level="worker", worker="goal", env=mountain_car)
+
+    info = terms_env(
+        "test/InfoRewards-v0",
+        terms=["reward_near", "reward_calm"],
+        term_bounds={"reward_near": (-2, 0), "reward_calm": (-1, 0)},
+    )
+    flat = TuningTarget(level="flat", env=info, **budget)
+    assert flat.block_key == "test/InfoRewards-v0"
+    value = _tune_once(tmp_path / "flat", flat).best_value
+    # The flat agent's reward is the normalised sum of both terms: each in [0, 1] per step, 20 steps.
+    assert 0.0 < value <= 40.0
+
+
+def test_tune_the_manager_over_workers_of_another_env(tmp_path, tiny):
+    from sb3_hddpg.experiments.tuning import TuningTarget
+
+    env = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
+    train_workers(tmp_path / "w", config=tiny, seed=0, env=env, timesteps=100, eval_freq=0, eval_episodes=1)
+    budget = {"config": str(tiny), "timesteps": 100, "n_evaluations": 1, "eval_episodes": 1}
+    # No env given: the manager acts in the shared env the workers' manifest records (as train-manager).
+    target = TuningTarget(level="manager", workers_dir=str(tmp_path / "w"), **budget)
+    target.check()
+    value = _tune_once(tmp_path / "m", target).best_value
+    # Manager reward: normalised time (0 until the flag) + normalised fuel (in [0, 1]) per step, 30 steps.
+    assert 0.0 < value <= 30.0
+    ham = TuningTarget(level="ham", workers_dir=str(tmp_path / "w"))
+    with pytest.raises(ValueError, match="snake arm only"):
+        ham.check()
+
+
+def test_cli_tune_env_options(tmp_path, tiny):
+    from tests.cli_batch import run_batch
+
+    env_args = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
+    fix = [arg for name, value in TUNE_FIXED.items() for arg in ("--fix", f"{name}={value}")]
+    small = ["--n-trials", "1", "--timesteps", "100", "--n-evaluations", "1", "--eval-episodes", "1"]
+    saved = tmp_path / "best.yml"
+    ok, bad_worker, ham, lone_terms = run_batch(
+        [
+            [
+                "tune",
+                "--level",
+                "flat",
+                *env_args,
+                "--config",
+                str(tiny),
+                *small,
+                *fix,
+                "--out",
+                str(tmp_path / "t"),
+                "--save-config",
+                str(saved),
+            ],
+            ["tune", "--level", "worker", "--worker", "goal", *env_args, "--out", str(tmp_path / "b")],
+            ["tune", "--level", "ham", "--workers", str(tmp_path), *env_args, "--out", str(tmp_path / "h")],
+            ["tune", "--level", "flat", "--terms", "a,b", "--out", str(tmp_path / "l")],
+        ]
+    )
+    assert ok.returncode == 0, ok.stderr
+    # The best block is keyed by the adapted env, where train-flat --env reads it.
+    assert "mo-mountaincarcontinuous-v0" in yaml_keys(saved)
+    for result, option in ((bad_worker, "--worker"), (ham, "--env"), (lone_terms, "--env")):
+        assert result.returncode == 2 and option in result.stderr and "Traceback" not in result.stderr
+    assert "['time', 'fuel']" in bad_worker.stderr and "snake arm only" in ham.stderr
+
+
+def yaml_keys(path) -> list[str]:
+    import yaml
+
+    return list(yaml.safe_load(path.read_text()))
+
+
+# ------------------------------------------------------------------------ record on other envs
+@pytest.fixture(scope="module")
+def mountain_car_bundle(tmp_path_factory):
+    """A tiny hierarchy over two workers of mo-mountaincarcontinuous-v0 (30-step episodes)."""
+    folder = tmp_path_factory.mktemp("mc")
+    config = folder / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    env = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
+    train_workers(folder / "w", config=config, seed=0, env=env, timesteps=100, eval_freq=0, eval_episodes=1)
+    train_manager(
+        folder / "w", folder / "m", config=config, seed=0, timesteps=100, eval_freq=0, eval_episodes=1
+    )
+    return folder / "m" / "hierarchy.zip"
+
+
+def test_record_a_hierarchy_on_an_mo_gymnasium_env(mountain_car_bundle, tmp_path):
+    import imageio.v3 as iio
+
+    from tests.cli_batch import run_one
+
+    out = tmp_path / "mc.gif"
+    done = run_one(["record", str(mountain_car_bundle), "--out", str(out), "--fps", "20"])
+    assert done["code"] == 0, done["stderr"]
+    frames = iio.imread(out, index=None)
+    # One frame per step of the 30-step episode: the env's own 600 x 400 render, padded to multiples of
+    # 16, with the 80-pixel panel under it.
+    assert frames.shape[:3] == (30, 400 + 80, 608)
+    assert "time -30.0" in done["stdout"] and "goal touch" not in done["stdout"]
+    # The mountain car's own scene (a white sky), not a blank frame.
+    assert (frames[0, :400, :600] == 255).mean() > 0.5 and frames[0, :400, :600].std() > 10
+
+
+def test_record_refuses_an_env_that_cannot_render(tmp_path, tiny):
+    import functools
+
+    from sb3_hddpg.media import make_recording_env
+    from tests.cli_batch import run_one
+
+    with pytest.raises(ValueError, match=r"test/ThreeTerms-v0 cannot render frames.*'rgb_array'"):
+        make_recording_env(functools.partial(gym.make, "test/ThreeTerms-v0"), "test/ThreeTerms-v0")
+    train_workers(tmp_path / "w", config=tiny, env=terms_env("test/ThreeTerms-v0"), workers=["near"], **TINY)
+    worker = tmp_path / "w" / "workers" / "near.zip"
+    done = run_one(["record", str(worker), "--env", "test/ThreeTerms-v0", "--out", str(tmp_path / "x.gif")])
+    assert done["code"] == 2 and "cannot render frames" in done["stderr"]
+    assert "Traceback" not in done["stderr"] and not (tmp_path / "x.gif").exists()
+
+
+# ------------------------------------------------------------------------ the optional proximity capability
+class WalledPointEnv(ThreeTermsEnv):
+    """A user's env that declares proximity: the wall at x = -1 is its obstacle, the target its goal."""
+
+    proximity = Proximity(sensor_range=1.0, touch_radius=0.05)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = super().step(action)
+        info |= {"min_clearance": self.x + 1.0, "distance_to_goal": abs(self.x - self.target)}
+        return obs, reward, terminated, truncated, info
+
+
+_register("test/WalledPoint-v0", WalledPointEnv)
+
+
+def test_proximity_is_declared_not_guessed():
+    from sb3_hddpg.evaluation import clearance_bands
+
+    snake = gym.make("hddpg/SnakeReach-v0", sensor_range=0.4)
+    assert proximity_of(snake) == Proximity(sensor_range=0.4, touch_radius=0.1)  # through gym.make's wrappers
+    assert clearance_bands(snake, None, None) == (0.2, 0.4)
+    walled = gym.make("test/WalledPoint-v0")
+    assert clearance_bands(walled, None, None) == (0.5, 1.0)
+    result = evaluate(RandomPolicy(walled.action_space, seed=0), walled, n_episodes=2)
+    assert (result.near_clearance, result.clear_clearance) == (0.5, 1.0)
+    assert 0.0 <= result.summary()["min_clearance"] <= 2.0
+    # No proximity declared: no bands, and a band asked for is refused rather than counting nothing.
+    mountain_car = terms_env("mo-mountaincarcontinuous-v0").make()
+    assert proximity_of(mountain_car) is None and proximity_of(gym.make("test/ThreeTerms-v0")) is None
+    assert clearance_bands(mountain_car, None, None) == (None, None)
+    with pytest.raises(ValueError, match=r"`near_clearance` is not available for this env: 'hddpg/MultiObj"):
+        clearance_bands(mountain_car, 0.1, None)
+    with pytest.raises(ValueError, match="sensor_range"):
+        Proximity(sensor_range=0.0)
+
+
+def test_state_dependence_and_selection_figure_say_not_available(mountain_car_bundle, tmp_path):
+    from sb3_hddpg.evaluation import state_dependence
+    from tests.cli_batch import run_one
+
+    loaded = Hierarchy.load(mountain_car_bundle)
+    summary = evaluate(loaded, gym.make(loaded.env_id, **loaded.env_kwargs), n_episodes=1).summary()
+    assert set(summary["selection_rate"]) <= {"time", "fuel"}
+    assert summary["selections_near"] == dict.fromkeys(summary["selection_rate"], 0)
+    assert state_dependence(summary, "fuel") is None  # not a ratio of empty bands
+    shown = run_one(["evaluate", str(mountain_car_bundle), "--episodes", "1", "--state-worker", "fuel"])
+    assert shown["code"] == 0 and "not available" in shown["stdout"] and "share ratio" not in shown["stdout"]
+    refused = run_one(["evaluate", str(mountain_car_bundle), "--episodes", "1", "--near-clearance", "0.1"])
+    assert refused["code"] == 2 and "not available for this env" in refused["stderr"]
+    out = tmp_path / "s.png"
+    plotted = run_one(["plot-selection", str(mountain_car_bundle), "--out", str(out)])
+    assert plotted["code"] == 0, plotted["stderr"]
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "not available" in plotted["stdout"]
+
+
+# ------------------------------------------------------------------------ benchmark --env
+def test_benchmark_on_an_mo_gymnasium_env(tmp_path):
+    from tests.cli_batch import run_batch
+
+    env_args = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
+    tiny = ["--seeds", "1", "--timesteps", "100", "--worker-timesteps", "50", "--eval-freq", "50"]
+    tiny += ["--eval-episodes", "1", "--test-episodes", "1"]
+    out = tmp_path / "bench"
+    done, ham = run_batch(
+        [
+            ["benchmark", *env_args, *tiny, "--out", str(out)],
+            ["benchmark", *env_args, "--methods", "hddpg,ham", "--out", str(tmp_path / "h")],
+        ]
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["methods"]) == {"hddpg", "ddpg"}  # the default on another env
+    assert results["settings"]["env"]["env_kwargs"]["env_id"] == "mo-mountaincarcontinuous-v0"
+    assert results["methods"]["hddpg"]["worker_timesteps"] == 100  # two workers of 50 steps
+    assert results["methods"]["ddpg"]["own_timesteps"] == 200  # as many env steps as the hierarchy
+    for entry in results["methods"].values():
+        stats = entry["stats"]
+        # Normalised time (0 short of the flag) + normalised fuel (in [0, 1]) per step, 30 steps.
+        assert 0.0 < stats["mean_reach_reward"]["mean"] <= 30.0
+        assert "goal_touch_rate" not in stats and "success_rate" not in stats
+    assert set(results["methods"]["hddpg"]["selection_rate"]) <= {"time", "fuel"}
+    comparison = results["comparisons"]["hddpg vs ddpg"]
+    assert "mean_reach_reward" in comparison and "success_rate" not in comparison
+    assert "['time', 'fuel']" in results["metric"]
+    assert "| hddpg | 1 |" in (out / "results.md").read_text()
+    assert ham.returncode == 2 and "snake arm only" in ham.stderr and "Traceback" not in ham.stderr

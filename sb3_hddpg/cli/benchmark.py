@@ -12,16 +12,24 @@ from rich.table import Table
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     BACKEND_HELP,
+    ENV_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
     at_least,
     backend_name,
     positive_float,
     prepare_out_dir,
+    terms_env_option,
     usage_errors,
 )
 from sb3_hddpg.experiments.benchmark import (
+    DEFAULT_ENV_METHODS,
     DEFAULT_METHODS,
     DEFAULT_TRANSFER_METHODS,
     DEFAULT_TRANSFER_PREFERENCES,
+    ENV_METHODS,
     METHOD_REGISTRY,
     OUTPUT_FILES,
     SCENARIOS,
@@ -65,10 +73,11 @@ def results_table(results: dict[str, Any]) -> Table:
             str(len(entry["seeds"])),
             _ci(s["mean_reach_reward"]),
             f"{s['mean_reach_reward']['iqm']:.1f}",
-            _ci(s["goal_touch_rate"], ".1%"),
-            _ci(s["collisions_per_episode"], ".2f"),
-            _ci(s["success_rate"], ".0%"),
-            f"{s['min_clearance']['mean']:.3f}",
+            # The snake's own metrics; "-" on an env that does not report them.
+            _ci(s["goal_touch_rate"], ".1%") if "goal_touch_rate" in s else "-",
+            _ci(s["collisions_per_episode"], ".2f") if "collisions_per_episode" in s else "-",
+            _ci(s["success_rate"], ".0%") if "success_rate" in s else "-",
+            f"{s['min_clearance']['mean']:.3f}" if "min_clearance" in s else "-",
             _ci(s["curve_mean"]),
             _ci(s["slope"], ".2f"),
         )
@@ -236,6 +245,16 @@ def benchmark_command(
     backend: str = typer.Option(
         "sb3", "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
     ),
+    env: str | None = typer.Option(
+        None,
+        "--env",
+        help=ENV_HELP
+        + f" There the methods are among {list(ENV_METHODS)} (default: {','.join(DEFAULT_ENV_METHODS)}), standard scenario only.",
+    ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train and evaluate every method on every seed; write results.json, evaluations.csv and plots."""
     if scenario not in SCENARIOS:
@@ -245,8 +264,10 @@ def benchmark_command(
     transfer = scenario == "transfer"
     if preference and not transfer:
         raise typer.BadParameter("applies to --scenario transfer only", param_hint="'--preference'")
+    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     if methods is None:
-        methods = ",".join(DEFAULT_TRANSFER_METHODS if transfer else DEFAULT_METHODS)
+        defaults = DEFAULT_ENV_METHODS if shared is not None else DEFAULT_METHODS
+        methods = ",".join(DEFAULT_TRANSFER_METHODS if transfer else defaults)
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     unknown = [m for m in chosen if m not in METHOD_REGISTRY]
     if unknown or not chosen:
@@ -259,7 +280,7 @@ def benchmark_command(
     preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []
     with usage_errors("'--backend'"):  # e.g. tqc, which the sbx backend does not train
         BenchmarkSettings(methods=chosen, backend=backend)
-    with usage_errors("'--methods' / '--preference'"):
+    with usage_errors("'--methods' / '--preference' / '--env'"):
         settings = BenchmarkSettings(
             methods=chosen,
             seeds=list(range(seeds)),
@@ -275,6 +296,11 @@ def benchmark_command(
             scenario=scenario,
             preferences=preferences,
             backend=backend,
+            env=(
+                {"env_id": shared.env_id, "env_kwargs": shared.env_kwargs, "terms": list(shared.terms)}
+                if shared is not None
+                else None
+            ),
         )
     prepare_out_dir(out, resume, force)
     started = time.perf_counter()

@@ -103,6 +103,8 @@ def evaluate_command(
 
     summary = result.summary()
     dependence = state_dependence(summary, worker)
+    # Say so rather than print nothing: without the proximity capability choices cannot be split by state.
+    unavailable = "selection_rate" in summary and summary.get("near_clearance") is None
     table = Table(
         title=f"{loaded.kind} {loaded.name!r} on {env_id or loaded.env_id}: mean over {episodes} episodes, "
         f"seeds {seed}..{seed + episodes - 1} (± standard deviation across episodes)"
@@ -132,6 +134,11 @@ def evaluate_command(
             "ratio",
         )
     console.print(table)
+    if unavailable:
+        console.print(
+            f"State dependence of the worker choices: not available for {env_id or loaded.env_id} (it declares "
+            "no proximity: no obstacle clearance to split the choices by; see docs/ENVIRONMENTS.md)"
+        )
     if json_path is not None:
         payload = {
             "path": str(path),

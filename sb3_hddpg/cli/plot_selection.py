@@ -7,8 +7,19 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
+from sb3_hddpg.cli.options import (
+    ENV_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
+    at_least,
+    seed_range,
+    terms_env_option,
+    usage_errors,
+)
 from sb3_hddpg.cli.record import TRUST_HELP
+from sb3_hddpg.envs.contract import proximity_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.media.figures import plot_selection_timeline
@@ -27,8 +38,12 @@ def plot_selection_command(
         help="Seed of the first episode (episode k uses seed + k).",
     ),
     env_id: str | None = typer.Option(
-        None, "--env", help="Env id to act in (default: the one it was trained on)."
+        None, "--env", help="Env id to act in (default: the one it was trained on). " + ENV_HELP
     ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
     max_steps: int | None = typer.Option(
         None,
         "--max-steps",
@@ -37,28 +52,45 @@ def plot_selection_command(
     ),
     trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
 ) -> None:
-    """Per step: the worker chosen and the manager's probabilities, beside obstacle clearance and goal distance."""
+    """
+    Per step: the worker chosen and the manager's probabilities, beside obstacle clearance and goal distance
+    (an env without them, i.e. without the proximity capability: its reward terms).
+    """
 
     if out.suffix.lower() != ".png":
         raise typer.BadParameter(f"expected a .png file, got {str(out)!r}", param_hint="'--out'")
+    # Another env with several objectives resolves to the adapter it needs, as in evaluate.
+    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     with usage_errors("'PATH'"):  # the model named on the command line is unusable
-        loaded = load_policy(path, env_id=env_id, trusted=trust)
+        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
+        loaded = load_policy(
+            path,
+            env_id=shared.env_id if shared else None,
+            trusted=trust,
+            allowed_env_ids=[shared.env_id] if shared else None,
+        )
     names = selected_names(loaded.policy)
     if not names:
         raise typer.BadParameter(
             f"{path!r} is a {loaded.kind}, which selects no worker; give a hierarchy bundle or a HAM switch",
             param_hint="'PATH'",
         )
-    env = loaded.make_env(env_id, **({"max_episode_steps": max_steps} if max_steps else {}))
+    kwargs = {**(shared.env_kwargs if shared else {})}
+    if max_steps:
+        kwargs["max_episode_steps"] = max_steps
+    with usage_errors("'--env'" if shared else "'PATH'"):
+        env = loaded.make_env(shared.env_id if shared else None, **kwargs)
     records, result = trace_episodes(loaded.policy, env, n_episodes=episodes, seed=seed)
-    base = env.unwrapped
+    # The clearance and goal panels' reference lines come from the env's declared proximity; an env
+    # without it gets its reward terms in those panels instead.
+    proximity = proximity_of(env)
     written = plot_selection_timeline(
         records,
         out,
         names=names,
         title=f"{loaded.kind} {loaded.name!r} on {env_id or loaded.env_id}, seeds {seed}..{seed + episodes - 1}",
-        sensor_range=getattr(base, "sensor_range", None),
-        touch_radius=getattr(base, "touch_radius", None),
+        sensor_range=proximity.sensor_range if proximity else None,
+        touch_radius=proximity.touch_radius if proximity else None,
     )
     env.close()
     rates = result.summary().get("selection_rate", {})
@@ -66,3 +98,8 @@ def plot_selection_command(
         f"[green]✓[/] {len(records)} steps -> [bold]{written}[/]   "
         + ", ".join(f"{n} acted {r:.0%}" for n, r in rates.items())
     )
+    if proximity is None:
+        console.print(
+            f"Obstacle clearance and goal distance: not available for {shared.env_id if shared else loaded.env_id} "
+            "(it declares no proximity); its reward terms are plotted instead."
+        )

@@ -2,15 +2,26 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
+from sb3_hddpg.cli.options import (
+    ENV_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
+    at_least,
+    seed_range,
+    terms_env_option,
+    usage_errors,
+)
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.media.video import check_video_path, record_video
+from sb3_hddpg.media.video import check_video_path, make_recording_env, record_video
 
 POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK)."
 TRUST_HELP = "Allow SB3's full loader, which runs code stored in the file: only for files you trust."
@@ -31,8 +42,12 @@ def record_command(
         10, "--fps", callback=at_least(1), help="Frames per second (the env runs at 10)."
     ),
     env_id: str | None = typer.Option(
-        None, "--env", help="Env id to act in (default: the one it was trained on)."
+        None, "--env", help="Env id to act in (default: the one it was trained on). " + ENV_HELP
     ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
     max_steps: int | None = typer.Option(
         None,
         "--max-steps",
@@ -51,10 +66,24 @@ def record_command(
         check_video_path(out)
     except ValueError as error:
         raise typer.BadParameter(str(error), param_hint="'--out'") from None
+    # Another env with several objectives resolves to the adapter it needs, as in evaluate.
+    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     with usage_errors("'PATH'"):  # the model named on the command line is unusable
-        loaded = load_policy(path, env_id=env_id, trusted=trust, algo=algo)
-    limit = {"max_episode_steps": max_steps} if max_steps else {}
-    env = loaded.make_env(env_id, render_mode="rgb_array", **limit)
+        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
+        loaded = load_policy(
+            path,
+            env_id=shared.env_id if shared else None,
+            trusted=trust,
+            algo=algo,
+            allowed_env_ids=[shared.env_id] if shared else None,
+        )
+    kwargs = {**(shared.env_kwargs if shared else {})}
+    if max_steps:
+        kwargs["max_episode_steps"] = max_steps
+    make = functools.partial(loaded.make_env, shared.env_id if shared else None, **kwargs)
+    # The env the policy acts in must render frames; one that cannot is named in one line.
+    with usage_errors("'--env'" if shared else "'PATH'"):
+        env = make_recording_env(make, shared.env_id if shared else loaded.env_id)
     with console.status(f"Recording {episodes} episode(s) of {loaded.kind} {loaded.name!r}…"):
         result = record_video(
             loaded.policy,
@@ -68,8 +97,20 @@ def record_command(
         )
     env.close()
     summary = result.evaluation.summary()
+    if "goal_touch_rate" in summary:  # the snake arm's own metrics
+        details = (
+            f"goal touch {summary['goal_touch_rate']:.1%}, "
+            f"collisions/ep {summary['collisions_per_episode']:.1f}"
+        )
+    else:  # any env of the contract: its reward terms summed per episode
+        details = ", ".join(
+            f"{key[len('mean_') : -len('_reward')]} {value:.1f}"
+            for key, value in summary.items()
+            if key.startswith("mean_")
+            and key.endswith("_reward")
+            and key not in ("mean_reward", "mean_reach_reward")
+        )
     console.print(
         f"[green]✓[/] {result.frames} frames ({result.size[0]}×{result.size[1]}, {fps} fps) -> [bold]{result.path}[/]"
-        f"   mean reward {summary['mean_reward']:.1f}, goal touch {summary['goal_touch_rate']:.1%}, "
-        f"collisions/ep {summary['collisions_per_episode']:.1f}"
+        f"   mean reward {summary['mean_reward']:.1f}{', ' + details if details else ''}"
     )

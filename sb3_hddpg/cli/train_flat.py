@@ -92,7 +92,9 @@ def train_flat_command(
 
     with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
         hyperparams = load_hyperparams(
-            env_id, algo_class(algo), config if config is not None else default_config(algo)
+            shared.config_key if shared is not None else env_id,
+            algo_class(algo),
+            config if config is not None else default_config(algo),
         )
 
     with usage_errors("'--backend'"):

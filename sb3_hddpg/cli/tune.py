@@ -11,10 +11,16 @@ from rich.table import Table
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     BACKEND_HELP,
+    ENV_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    TermBoundsOpt,
+    TermsOpt,
     at_least,
     backend_name,
     positive_float,
     seed_range,
+    terms_env_option,
     usage_errors,
 )
 from sb3_hddpg.experiments.hyperparams_opt import FLAT_SAMPLERS, check_fixed_params
@@ -66,7 +72,7 @@ def tune_command(
     worker: str | None = typer.Option(
         None,
         "--worker",
-        help=f"The worker to tune with --level worker: {' | '.join(sorted(WORKER_ENV_IDS))}.",
+        help=f"The worker to tune with --level worker: {' | '.join(sorted(WORKER_ENV_IDS))}, or a term of --env.",
     ),
     workers_dir: Path | None = typer.Option(
         None, "--workers", help="Run folder of train-workers (for --level manager and --level ham)."
@@ -145,6 +151,13 @@ def tune_command(
     ),
     top: int = typer.Option(5, "--top", callback=at_least(1), help="Best trials to show."),
     backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
+    env: str | None = typer.Option(
+        None, "--env", help=ENV_HELP + " For --level manager the default is the workers' manifest's env."
+    ),
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Search hyperparameters with Optuna; several processes or machines can share one study."""
     import matplotlib
@@ -157,10 +170,16 @@ def tune_command(
         raise typer.BadParameter(f"only applies to --level flat, not {level!r}", param_hint="'--algo'")
     if level == "flat" and algo not in FLAT_SAMPLERS:
         raise typer.BadParameter(f"must be one of {list(FLAT_SAMPLERS)}, got {algo!r}", param_hint="'--algo'")
-    if level == "worker" and worker not in WORKER_ENV_IDS:
+    if level == "ham" and env is not None:
         raise typer.BadParameter(
-            f"--level worker needs --worker among {sorted(WORKER_ENV_IDS)}, got {worker!r}",
-            param_hint="'--worker'",
+            "HAM's switch rule is defined for the snake arm only (it reads its obstacle clearances)",
+            param_hint="'--env'",
+        )
+    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
+    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
+    if level == "worker" and worker not in known:
+        raise typer.BadParameter(
+            f"--level worker needs --worker among {known}, got {worker!r}", param_hint="'--worker'"
         )
     if level != "worker" and worker is not None:
         raise typer.BadParameter(f"only applies to --level worker, not {level!r}", param_hint="'--worker'")
@@ -208,6 +227,7 @@ def tune_command(
         seed=seed if seed is not None else 0,
         algo=algo,
         backend=backend,
+        env=shared,
     )
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()

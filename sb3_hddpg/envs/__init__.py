@@ -10,7 +10,14 @@ from sb3_hddpg.envs.adapters import (
     MultiObjectiveEnv,
     TermReward,
 )
-from sb3_hddpg.envs.contract import RewardTermsEnv, TermNormaliser, env_contract, state_layout_of
+from sb3_hddpg.envs.contract import (
+    Proximity,
+    RewardTermsEnv,
+    TermNormaliser,
+    env_contract,
+    proximity_of,
+    state_layout_of,
+)
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 from sb3_hddpg.envs.snake import REWARD_TERMS, SnakeArmEnv
 from sb3_hddpg.envs.snake_mo import SnakeMOEnv
@@ -72,6 +79,7 @@ __all__ = [
     "SNAKE_MO_ENV_ID",
     "InfoTermsEnv",
     "MultiObjectiveEnv",
+    "Proximity",
     "RewardTermsEnv",
     "SnakeArmEnv",
     "SnakeMOEnv",
@@ -80,5 +88,6 @@ __all__ = [
     "TermReward",
     "build_state_layout",
     "env_contract",
+    "proximity_of",
     "state_layout_of",
 ]

@@ -9,7 +9,11 @@ An environment with several objectives (the snake arm, an MO-Gymnasium env throu
   :class:`TermNormaliser` below is the one implementation: call it, don't write the formula again);
 - ``info["reward_terms"]`` at every step: term name -> raw value;
 - optionally ``state_layout``: a :class:`~sb3_hddpg.envs.layout.StateLayout` naming slices of the
-  observation (absent: the whole observation is one component, ``"state"``).
+  observation (absent: the whole observation is one component, ``"state"``);
+- optionally ``proximity``: a :class:`Proximity`, declaring that ``info`` reports the gap to the nearest
+  obstacle (``min_clearance``) read by proximity sensors of a given range, and the distance to a goal
+  (absent: the clearance bands of the state-dependence measure and the clearance and goal panels of
+  ``plot-selection`` are not available for the env).
 
 :func:`env_contract` resolves any env, wrapped or not, to the object that declares the contract.
 """
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import gymnasium as gym
@@ -51,6 +56,37 @@ class HasStateLayout(Protocol):
     """An env whose observation is made of named components (optional part of the contract)."""
 
     state_layout: StateLayout
+
+
+@dataclass(frozen=True)
+class Proximity:
+    """
+    An optional capability of an env: at every step (and reset) ``info["min_clearance"]`` holds the gap
+    between the agent and the nearest obstacle surface, and ``info["distance_to_goal"]`` the distance to its
+    goal. The snake arm declares it; an env without obstacles does not.
+
+    :param sensor_range: the range of the proximity sensors: at a clearance at or beyond it nothing is
+        sensed, so a state there has "no obstacle in range" (:func:`~sb3_hddpg.evaluation.clearance_bands`).
+    :param touch_radius: within this distance the goal counts as touched (``None``: no such radius).
+    """
+
+    sensor_range: float
+    touch_radius: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.sensor_range) and self.sensor_range > 0):
+            raise ValueError(f"Expected `sensor_range` finite and > 0, actually: {self.sensor_range}")
+        if self.touch_radius is not None and not (
+            math.isfinite(self.touch_radius) and self.touch_radius >= 0
+        ):
+            raise ValueError(f"Expected `touch_radius` finite and >= 0, actually: {self.touch_radius}")
+
+
+@runtime_checkable
+class HasProximity(Protocol):
+    """An env that reports its clearance to obstacles and its distance to a goal (optional part of the contract)."""
+
+    proximity: Proximity
 
 
 def check_bounds(
@@ -155,6 +191,16 @@ def state_layout_of(env: gym.Env) -> StateLayout:
             return layer.state_layout
         layer = getattr(layer, "env", None) if isinstance(layer, gym.Wrapper) else None
     return StateLayout([(WHOLE_STATE, int(np.prod(env.observation_space.shape or (0,))))])
+
+
+def proximity_of(env: gym.Env) -> Proximity | None:
+    """``env``'s declared :class:`Proximity` (the outermost layer that declares one), else ``None``."""
+    layer: gym.Env | None = env
+    while layer is not None:
+        if isinstance(layer, HasProximity) and isinstance(layer.proximity, Proximity):
+            return layer.proximity
+        layer = getattr(layer, "env", None) if isinstance(layer, gym.Wrapper) else None
+    return None
 
 
 def mix_terms(

@@ -14,7 +14,7 @@ import pymunk
 from gymnasium import spaces
 from pymunk._chipmunk_cffi import lib as _chipmunk
 
-from sb3_hddpg.envs.contract import TermNormaliser
+from sb3_hddpg.envs.contract import Proximity, TermNormaliser
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 
 #: The reward choices of :class:`SnakeArmEnv`: one per paper worker plus their normalised sum.
@@ -240,6 +240,9 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
         n = self.n_joints
         self.state_layout: StateLayout = build_state_layout(n)
+        # The optional proximity capability of the env contract: info reports min_clearance (read by the
+        # skin sensors up to sensor_range) and distance_to_goal (touched within touch_radius).
+        self.proximity = Proximity(self.sensor_range, self.touch_radius)
         obs_size = self.state_layout.size
         low = np.full(obs_size, -1.0, dtype=np.float32)
         high = np.ones(obs_size, dtype=np.float32)

@@ -43,6 +43,14 @@ class TermsEnv:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     terms: tuple[str, ...] = ()
 
+    @property
+    def config_key(self) -> str:
+        """
+        The ``zoo_configs`` block its agents read: the adapted env's id for an adapter (so that a block for
+        ``mo-halfcheetah-v5`` applies to it), else :attr:`env_id` (RL Zoo's rule: else ``default``).
+        """
+        return config_key(self.env_id, self.env_kwargs)
+
     def make(self, **extra: Any) -> gym.Env:
         """The shared env (``extra``: e.g. ``render_mode``)."""
         return gym.make(self.env_id, **self.env_kwargs, **extra)
@@ -62,6 +70,16 @@ class TermsEnv:
         if self.env_id in ADAPTER_ENV_IDS:
             return self.env_id, {**self.env_kwargs, "term": term}
         return self.env_id, dict(self.env_kwargs)
+
+
+def config_key(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> str:
+    """
+    The ``zoo_configs`` block of agents trained on ``gym.make(env_id, **env_kwargs)``: the adapted env's
+    id (``env_kwargs["env_id"]``) for one of the adapters, else ``env_id`` itself.
+    """
+    if env_id in ADAPTER_ENV_IDS and isinstance((env_kwargs or {}).get("env_id"), str):
+        return str((env_kwargs or {})["env_id"])
+    return env_id
 
 
 def make_term_view(env_id: str, env_kwargs: Mapping[str, Any], term: str) -> gym.Env:

@@ -56,6 +56,7 @@ from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
 from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import TermNormaliser, state_layout_of
+from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, evaluate, state_dependence
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.hierarchy.selection import parse_preferences
@@ -223,6 +224,11 @@ class BenchmarkSettings:
     :param preferences: the transfer scenario's preferences, e.g. ``["goal=2,avoid=1"]``; every method runs
         once per preference and seed (empty in the standard scenario).
     :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
+    :param env: another env with several objectives, as ``{"env_id", "env_kwargs", "terms"}`` (a
+        :class:`~sb3_hddpg.envs.terms_env.TermsEnv`'s fields, see :attr:`terms_env`; ``None``: the snake
+        arm): its workers, managers and flat agents are trained and tested on it. Only the methods of
+        :data:`ENV_METHODS` and the standard scenario apply there (HAM's switch rule and the biased
+        managers are the snake's).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -239,11 +245,14 @@ class BenchmarkSettings:
     scenario: str = "standard"
     preferences: list[str] = field(default_factory=list)
     backend: str = "sb3"
+    env: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHOD_REGISTRY]
         if unknown:
             raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
+        if self.env is not None:
+            self._check_env()
         self.backend = check_backend(self.backend)
         for method in self.methods:
             if method in FLAT_METHODS:
@@ -278,6 +287,30 @@ class BenchmarkSettings:
                 f"The transfer scenario compares hddpg with flat agents, actually: {self.methods}"
             )
 
+    def _check_env(self) -> None:
+        """Another env: its spec as plain JSON (so that ``benchmark.json`` resumes), and methods that apply."""
+        env = self.env if isinstance(self.env, dict) else {}
+        if set(env) != {"env_id", "env_kwargs", "terms"} or not isinstance(env["env_id"], str):
+            raise ValueError(
+                f"Expected `env` as {{'env_id', 'env_kwargs', 'terms'}}, actually: {str(self.env)[:200]}"
+            )
+        self.env = json.loads(json.dumps(env))  # tuples become lists, as benchmark.json stores them
+        snake_only = [m for m in self.methods if m not in ENV_METHODS]
+        if snake_only:
+            raise ValueError(
+                f"Methods {snake_only} are defined for the snake arm only; on {env['env_id']!r} choose from "
+                f"{list(ENV_METHODS)}"
+            )
+        if self.scenario != "standard":
+            raise ValueError(f"The {self.scenario!r} scenario is defined for the snake arm only")
+
+    @property
+    def terms_env(self) -> TermsEnv | None:
+        """:attr:`env` as the :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the training functions take."""
+        if self.env is None:
+            return None
+        return TermsEnv(self.env["env_id"], dict(self.env["env_kwargs"]), tuple(self.env["terms"]))
+
     @property
     def method_keys(self) -> list[str]:
         """The runs of one seed: the methods, or in the transfer scenario each method on each preference."""
@@ -295,8 +328,13 @@ class BenchmarkSettings:
     @property
     def workers_budget(self) -> int:
         """Env steps of a seed's workers together: ``worker_timesteps`` each, or each worker's config budget."""
-        budgets = _config_budgets()
-        workers = [budgets[name] for name in budgets if name != MANAGER_KEY]
+        env = self.terms_env
+        if env is not None:
+            blocks = worker_hyperparams(list(env.terms), None, env)
+            workers = [block.n_timesteps for block in blocks.values()]
+        else:
+            budgets = _config_budgets()
+            workers = [budgets[name] for name in budgets if name != MANAGER_KEY]
         if self.worker_timesteps is not None:
             return self.worker_timesteps * len(workers)
         return sum(workers)
@@ -382,7 +420,9 @@ def _history(path: Path, offset: int) -> list[dict[str, Any]]:
 def _test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
     """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
 
-    loaded = load_policy(policy_path)
+    # Another env is the user's choice: its id may be loaded from the run's files (allowed_env_ids).
+    env_id = settings.env["env_id"] if settings.env is not None else None
+    loaded = load_policy(policy_path, allowed_env_ids=[env_id] if env_id else None)
     env = loaded.make_env()
     try:
         return evaluate(loaded.policy, env, n_episodes=settings.test_episodes, seed=TEST_SEED_BASE).summary()
@@ -447,6 +487,7 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
 
     manifest = train_workers(
         folder,
+        env=settings.terms_env,
         timesteps=settings.worker_timesteps,
         seed=task.seed,
         resume=True,  # keeps finished workers and continues an interrupted one
@@ -470,9 +511,12 @@ def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, fo
     """A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors)."""
 
     run_dir = folder / task.method
+    env = settings.terms_env
     train_manager(
         folder,
         run_dir,
+        env_id=env.env_id if env is not None else None,
+        env_kwargs=env.env_kwargs if env is not None else None,
         prefer=prefer,
         bias=settings.bias,
         preferences=task.preferences,
@@ -495,9 +539,12 @@ def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) 
     """A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps."""
 
     run_dir = folder / task.method
+    env = settings.terms_env
     train_flat(
         run_dir,
         algo=algo,
+        env_id=env.env_id if env is not None else FLAT_ENV_ID,
+        env_kwargs=env.env_kwargs if env is not None else None,
         timesteps=settings.flat_budget,
         seed=task.seed,
         resume=True,
@@ -618,6 +665,9 @@ METHODS = tuple(METHOD_REGISTRY)
 DEFAULT_METHODS: tuple[str, ...] = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
 #: Flat single-agent baselines (``train_flat``'s algorithms).
 FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
+#: The methods defined on any env with several objectives (``BenchmarkSettings.env``), and their default.
+ENV_METHODS = ("hddpg", *FLAT_METHODS)
+DEFAULT_ENV_METHODS = ("hddpg", "ddpg")
 
 
 def comparison_pairs(settings: BenchmarkSettings) -> list[tuple[str, str]]:
@@ -774,6 +824,8 @@ def normalised_term_sums(summary: dict[str, Any]) -> tuple[float, float]:
 
 
 def _with_term_sums(summary: dict[str, Any]) -> dict[str, Any]:
+    if "mean_goal_reward" not in summary or "mean_avoid_reward" not in summary:
+        return summary  # another env: its normalised total is mean_reach_reward already
     goal, avoid = normalised_term_sums(summary)
     return {**summary, "goal_reach_reward": goal, "avoid_reach_reward": avoid}
 
@@ -864,7 +916,12 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     results: dict[str, Any] = {
         "settings": asdict(settings),
         "scenario": settings.scenario,
-        "metric": "mean_reach_reward: episode sum of the normalised goal and avoid terms (max 2 per step)",
+        "metric": "mean_reach_reward: episode sum of the normalised "
+        + (
+            f"terms {settings.env['terms']} (max {len(settings.env['terms'])} per step)"
+            if settings.env is not None
+            else "goal and avoid terms (max 2 per step)"
+        ),
         "test_seeds": [TEST_SEED_BASE, TEST_SEED_BASE + settings.test_episodes - 1],
         "curve_seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + settings.eval_episodes - 1],
         "curve_window": window,
@@ -997,6 +1054,8 @@ def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> d
     seeds = sorted(set(a) & set(b))
     out: dict[str, Any] = {"seeds": seeds}
     for key in ("mean_reach_reward", "curve_mean", "slope", "success_rate", "collisions_per_episode"):
+        if not all(key in a[s] and key in b[s] for s in seeds):
+            continue  # a metric the env does not report (the snake's success and collisions)
         xa = np.array([a[s][key] for s in seeds])
         xb = np.array([b[s][key] for s in seeds])
         diff, low, high = paired_difference_ci(xa, xb)
@@ -1129,12 +1188,24 @@ def markdown_report(results: dict[str, Any]) -> str:
         choices = ", ".join(f"{k} {v:.0%}" for k, v in entry.get("selection_rate", {}).items()) or "-"
         # The deciding network's saturation (the manager's for hierarchies); absent in older results.
         saturation = f"{s['action_saturation']['mean']:.0%}" if "action_saturation" in s else "-"
+        # The snake's own metrics; "-" on an env that does not report them.
+        snake = {
+            key: _ci_text(s[key], fmt) if key in s else "-"
+            for key, fmt in (
+                ("goal_reach_reward", ".1f"),
+                ("avoid_reach_reward", ".1f"),
+                ("goal_touch_rate", ".3f"),
+                ("collisions_per_episode", ".2f"),
+                ("success_rate", ".2f"),
+            )
+        }
+        clearance = f"{s['min_clearance']['mean']:.3f}" if "min_clearance" in s else "-"
         lines.append(
             f"| {method} | {len(entry['seeds'])} | {_ci_text(s['mean_reach_reward'], '.1f')} "
-            f"| {s['mean_reach_reward']['iqm']:.1f} | {_ci_text(s['goal_reach_reward'], '.1f')} "
-            f"| {_ci_text(s['avoid_reach_reward'], '.1f')} | {_ci_text(s['goal_touch_rate'], '.3f')} "
-            f"| {_ci_text(s['collisions_per_episode'], '.2f')} | {_ci_text(s['success_rate'], '.2f')} "
-            f"| {s['min_clearance']['mean']:.3f} | {saturation} | {_ci_text(s['curve_mean'], '.1f')} "
+            f"| {s['mean_reach_reward']['iqm']:.1f} | {snake['goal_reach_reward']} "
+            f"| {snake['avoid_reach_reward']} | {snake['goal_touch_rate']} "
+            f"| {snake['collisions_per_episode']} | {snake['success_rate']} "
+            f"| {clearance} | {saturation} | {_ci_text(s['curve_mean'], '.1f')} "
             f"| {_ci_text(s['slope'], '.2f')} | {choices} |"
         )
     if results["comparisons"]:
@@ -1151,6 +1222,8 @@ def markdown_report(results: dict[str, Any]) -> str:
                 "success_rate",
                 "collisions_per_episode",
             ):
+                if metric not in comparison:
+                    continue
                 c = comparison[metric]
                 relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
                 lines.append(

@@ -42,7 +42,7 @@ from sb3_hddpg.artifacts.manifests import model_entry, read_workers_manifest, sa
 from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
-from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.contract import proximity_of, state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.experiments.packaging import write_zoo_layout
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
@@ -523,7 +523,9 @@ def run_quickstart(
     )
     observer.on_task("GIF", gif_steps, gif_steps)
     files["gif"] = recording.path
-    base = gif_env.unwrapped
+    proximity = proximity_of(
+        gif_env
+    )  # the snake's sensor range and touch radius, as the contract declares them
     gif_env.close()
     stage_done(3)
 
@@ -535,8 +537,8 @@ def run_quickstart(
         run_dir / "selection.png",
         names=names,
         title=f"HDDPG on {COMPARISON_ENV_ID}, seed {EVAL_SEED_BASE}: which worker acts, and why",
-        sensor_range=base.sensor_range,
-        touch_radius=base.touch_radius,
+        sensor_range=proximity.sensor_range if proximity else None,
+        touch_radius=proximity.touch_radius if proximity else None,
     )
     histories = {}
     for agent in ("goal", "avoid", "manager", "flat-ddpg"):

@@ -42,6 +42,7 @@ from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
 from sb3_hddpg.baselines.ham import HAMSwitch
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.hyperparams_opt import sampler_for
 from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
@@ -63,6 +64,7 @@ from sb3_hddpg.training.training import (
     algo_class,
     make_snake_env,
     observed_components,
+    shared_env_of,
     train_agent,
     worker_env_factory,
 )
@@ -75,8 +77,10 @@ LEVELS = ("worker", "manager", "flat", "ham")
 SAMPLERS = ("tpe", "random")
 #: ``--pruner`` choices.
 PRUNERS = ("median", "halving", "none")
-#: The env of the manager, the flat baseline and HAM: the combined reward.
+#: The env of the manager, the flat baseline and HAM on the snake arm: the combined reward.
 SHARED_ENV_ID = "hddpg/SnakeReach-v0"
+#: The state component HAM's switch rule reads (the snake's per-link obstacle clearances).
+HAM_COMPONENT = "joint_obstacle_distances"
 #: Trial states that count towards ``n_trials``.
 FINISHED_STATES = (TrialState.COMPLETE, TrialState.PRUNED)
 #: Startup trials of TPE (random ones before it models anything) and of the median pruner, as in rl_zoo3.
@@ -106,6 +110,11 @@ class TuningTarget:
         and bundled base config ``zoo_configs/<algo>.yml``; the other levels are DDPG).
     :param backend: the trials' training backend, ``sb3`` or ``sbx`` (``None``: the base block's
         ``backend`` key, else ``sb3``).
+    :param env: another env with several objectives (:func:`~sb3_hddpg.envs.terms_env.terms_env`, the
+        same as ``train-workers --env``; ``None``: the snake arm). Level ``worker`` tunes the worker of one
+        of its terms on that term's view, ``flat`` a flat agent on its shared env; level ``manager`` acts in
+        it instead of the shared env recorded in the workers' manifest (which is the default, as in
+        ``train-manager``).
     """
 
     level: str
@@ -118,15 +127,14 @@ class TuningTarget:
     seed: int = 0
     algo: str = "ddpg"
     backend: str | None = None
+    env: TermsEnv | None = None
 
     def __post_init__(self) -> None:
         if self.level not in LEVELS:
             raise ValueError(f"Unknown level {self.level!r}; choose from {list(LEVELS)}")
         sampler_for(self.level, self.algo)  # an unknown algorithm, or one for a DDPG-only level, fails here
-        if self.level == "worker" and self.worker not in WORKER_ENV_IDS:
-            raise ValueError(
-                f"Level 'worker' needs a worker among {sorted(WORKER_ENV_IDS)}, got {self.worker!r}"
-            )
+        if self.level == "worker" and self.worker not in self.worker_names:
+            raise ValueError(f"Level 'worker' needs a worker among {self.worker_names}, got {self.worker!r}")
         if self.level != "worker" and self.worker is not None:
             raise ValueError(f"A worker name only applies to level 'worker', not {self.level!r}")
         if self.level in ("manager", "ham") and not self.workers_dir:
@@ -142,6 +150,11 @@ class TuningTarget:
             )
 
     @property
+    def worker_names(self) -> list[str]:
+        """The workers level ``worker`` can tune: :attr:`env`'s terms, else the snake arm's."""
+        return list(self.env.terms) if self.env is not None else sorted(WORKER_ENV_IDS)
+
+    @property
     def name(self) -> str:
         """A short name: ``worker-goal``, ``manager``, ``flat`` (``flat-td3``...) or ``ham`` (the default study name)."""
         if self.level == "worker":
@@ -151,6 +164,8 @@ class TuningTarget:
     @property
     def block_key(self) -> str | None:
         """The ``zoo_configs`` key of the tuned block (``None`` for HAM, which has none)."""
+        if self.level in ("worker", "flat") and self.env is not None:
+            return self.env.config_key  # as train-workers and train-flat --env read it
         if self.level == "worker":
             return WORKER_ENV_IDS[str(self.worker)]
         return {"manager": MANAGER_KEY, "flat": SHARED_ENV_ID}.get(self.level)
@@ -196,16 +211,18 @@ class TuningTarget:
             _env_factory(self, hyperparams)().close()
         elif self.level == "ham":
             workers, manifest = load_workers(str(self.workers_dir))
-            env = make_snake_env(SHARED_ENV_ID)
+            env = _ham_env(self, manifest)
             try:
                 _make_ham(
                     workers,
                     env,
-                    float(len(state_layout_of(env).indices(["joint_obstacle_distances"]))) - 0.5,
+                    float(len(state_layout_of(env).indices([HAM_COMPONENT]))) - 0.5,
                     manifest,
                 )
             finally:
                 env.close()
+        elif self.level == "worker" and self.env is not None:
+            _env_factory(self, hyperparams)().close()  # e.g. block env_kwargs the env does not take fail here
 
     def budget(self) -> int:
         """Training steps per trial."""
@@ -224,6 +241,8 @@ class TuningTarget:
         }
         if self.algo != "ddpg":  # DDPG studies made before other algorithms were tunable stay resumable
             described["algo"] = self.algo
+        if self.env is not None:  # only when given: snake studies made before --env stay resumable
+            described["env"] = {"env_id": self.env.env_id, "env_kwargs": self.env.env_kwargs}
         # Only when not the default: studies made before the backend choice (all SB3) stay resumable.
         if self.level != "ham" and (self.backend or self.base_block().get("backend")) == "sbx":
             described["backend"] = "sbx"
@@ -682,12 +701,23 @@ def _next_step(study: optuna.Study, n_trials: int) -> str:
 
 def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
     """A picklable factory of the training env of ``target``, as the ``train-*`` commands build it."""
+    env = target.env
     if target.level == "worker":
-        return worker_env_factory(str(target.worker), hyperparams.env_kwargs)
+        if env is None:
+            return worker_env_factory(str(target.worker), hyperparams.env_kwargs)
+        # As train_workers builds a worker's env: the term's view, the block's env_kwargs on top.
+        env_id, view_kwargs = env.term_view(str(target.worker))
+        return functools.partial(
+            make_term_view, env_id, {**view_kwargs, **hyperparams.env_kwargs}, str(target.worker)
+        )
     if target.level == "flat":
-        return functools.partial(make_snake_env, SHARED_ENV_ID, dict(hyperparams.env_kwargs))
+        # As train_flat builds it: the block's env_kwargs, the chosen env's on top.
+        env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (SHARED_ENV_ID, {})
+        return functools.partial(make_snake_env, env_id, {**hyperparams.env_kwargs, **env_kwargs})
 
     manifest = _workers_manifest(str(target.workers_dir))
+    # As prepare_manager: --env, else the manifest's shared env (safe-loading checks), the block's kwargs on top.
+    env_id, env_kwargs = _shared_env(target, manifest)
     names = list(manifest["workers"])
     wrapper = dict(hyperparams.wrapper_kwargs)
     # Each worker sees the state components it was trained on, as train-manager feeds it.
@@ -697,12 +727,18 @@ def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
     }
     selection = SelectionConfig(preferences=dict.fromkeys(names, 1.0), **wrapper)
     return ManagerEnvFactory(
-        SHARED_ENV_ID,
-        dict(hyperparams.env_kwargs),
+        env_id,
+        {**env_kwargs, **hyperparams.env_kwargs},
         str(target.workers_dir),
         names,
         selection.wrapper_kwargs(),
     )
+
+
+def _shared_env(target: TuningTarget, manifest: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """The env a manager (or HAM) over the manifest's workers acts in, chosen as train-manager does."""
+    env = target.env
+    return shared_env_of(manifest, env.env_id if env else None, env.env_kwargs if env else None)
 
 
 def _worker_names(workers_dir: str) -> list[str]:
@@ -724,7 +760,7 @@ def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -
     """HAM's trial: no training, one evaluation on the combined reward."""
 
     workers, manifest = load_workers(str(target.workers_dir))
-    env = make_snake_env(SHARED_ENV_ID)
+    env = _ham_env(target, manifest)
     try:
         policy = _make_ham(workers, env, threshold, manifest)
         summary = evaluate(policy, env, n_episodes=target.eval_episodes).summary()
@@ -736,6 +772,22 @@ def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -
         raise optuna.TrialPruned(f"diverged: mean evaluation reward is {value}")
     trial.report(value, 1)
     return value
+
+
+def _ham_env(target: TuningTarget, manifest: dict[str, Any]) -> Any:
+    """
+    The env HAM is evaluated in (as the manager's: ``--env``, else the manifest's shared env), refused
+    with one line unless its state layout declares the component HAM's switch rule reads.
+    """
+    env_id, env_kwargs = _shared_env(target, manifest)
+    env = make_snake_env(env_id, env_kwargs)
+    if HAM_COMPONENT not in state_layout_of(env):
+        env.close()
+        raise ValueError(
+            f"HAM's switch rule reads the state component {HAM_COMPONENT!r} (the snake arm's obstacle "
+            f"clearances), which {env_id!r} does not declare: tune HAM on the snake arm only"
+        )
+    return env
 
 
 def _make_ham(workers: dict[str, Any], env: Any, threshold: float, manifest: dict[str, Any]) -> HAMSwitch:

@@ -46,15 +46,19 @@ def compose_frame(
 ) -> np.ndarray:
     """
     The env's frame with a panel underneath: the step, the acting worker (and a border of its colour around
-    the frame), one probability bar per worker, the nearest obstacle's clearance and the goal distance.
+    the frame), one probability bar per worker, the nearest obstacle's clearance and the goal distance
+    (where the env reports them, as the snake arm does; else the step's raw reward terms).
+
+    A frame whose sides are not multiples of 16 (another env's) is padded to them, which is what H.264
+    wants; the snake arm's 400 x 400 is kept as it is.
 
     :param frame: the env's ``(H, W, 3)`` uint8 frame.
     :param record: what happened at this step.
     :param names: the workers the policy selects among (empty for a plain policy: no bars).
     :param title: a label for the policy, drawn at the panel's top left.
-    :return: a ``(H + PANEL_HEIGHT, W, 3)`` uint8 frame.
+    :return: a ``(H + PANEL_HEIGHT, W, 3)`` uint8 frame (``H`` and ``W`` rounded up to multiples of 16).
     """
-    height, width = frame.shape[:2]
+    height, width = (-(-side // 16) * 16 for side in frame.shape[:2])
     image = Image.new("RGB", (width, height + PANEL_HEIGHT), _PANEL)
     image.paste(Image.fromarray(frame), (0, 0))
     pen = ImageDraw.Draw(image)
@@ -73,15 +77,23 @@ def compose_frame(
 
     top = height + 6
     pen.text((8, top), f"episode {record.episode + 1}   step {record.step + 1}", fill=_TEXT, font=small)
-    collision = "  CONTACT" if record.collision else ""
-    pen.text(
-        (8, top + 20),
-        f"obstacle gap {record.min_clearance:.3f}{collision}",
-        fill=(200, 30, 30) if record.collision else _TEXT,
-        font=small,
-    )
-    touched = "  TOUCH" if record.goal_touched else ""
-    pen.text((8, top + 40), f"goal distance {record.distance_to_goal:.3f}{touched}", fill=_TEXT, font=small)
+    if np.isnan(record.min_clearance) and np.isnan(record.distance_to_goal):
+        # An env without the snake's gaps: its raw reward terms, two to a line.
+        terms = [f"{name[:10]} {value:.3g}" for name, value in record.reward_terms.items()]
+        for line, start in enumerate(range(0, min(len(terms), 4), 2)):
+            pen.text((8, top + 20 + 20 * line), "   ".join(terms[start : start + 2]), fill=_TEXT, font=small)
+    else:
+        collision = "  CONTACT" if record.collision else ""
+        pen.text(
+            (8, top + 20),
+            f"obstacle gap {record.min_clearance:.3f}{collision}",
+            fill=(200, 30, 30) if record.collision else _TEXT,
+            font=small,
+        )
+        touched = "  TOUCH" if record.goal_touched else ""
+        pen.text(
+            (8, top + 40), f"goal distance {record.distance_to_goal:.3f}{touched}", fill=_TEXT, font=small
+        )
 
     if names and record.probabilities:
         left = width // 2 + 5

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,6 +51,38 @@ def check_video_path(path: str | Path) -> Path:
     return path
 
 
+#: The render mode :func:`record_video` needs.
+RGB_ARRAY = "rgb_array"
+
+
+def make_recording_env(make: Callable[..., gym.Env], name: str) -> gym.Env:
+    """
+    The env to record, made with ``render_mode="rgb_array"``, or a one-line ``ValueError`` when the env does
+    not declare that mode (an env of any kind: the snake arm, an adapted MO-Gymnasium env, a user's own).
+
+    The mode is read from an env made without rendering (an env that cannot render may not even accept
+    ``render_mode``); an adapter declares the render modes of the env it adapts.
+
+    :param make: makes the env, taking ``render_mode`` as a keyword (e.g. ``LoadedPolicy.make_env``).
+    :param name: the env's name for the message.
+    :return: the env, rendering ``rgb_array`` frames.
+    """
+    probe = make()
+    try:
+        modes = list(probe.metadata.get("render_modes") or [])
+    finally:
+        probe.close()
+    if RGB_ARRAY not in modes:
+        raise ValueError(
+            f"{name} cannot render frames to record: its render_modes are {modes}, {RGB_ARRAY!r} is needed "
+            "(evaluate it with hddpg-cli evaluate instead)"
+        )
+    with warnings.catch_warnings():
+        # An adapter's class declares no render modes (they are its inner env's): gym.make's warning is noise.
+        warnings.filterwarnings("ignore", message=".*not in the possible render_modes")
+        return make(render_mode=RGB_ARRAY)
+
+
 def record_video(
     policy: Policy,
     env: gym.Env,
@@ -74,7 +107,7 @@ def record_video(
     memory until the end, so prefer MP4 for long recordings. The file appears atomically.
 
     :param policy: anything with SB3's ``predict`` acting in ``env``.
-    :param env: a snake env made with ``render_mode="rgb_array"``.
+    :param env: an env made with ``render_mode="rgb_array"`` (see :func:`make_recording_env`).
     :param path: the output, ending in ``.gif`` or ``.mp4``.
     :param episodes: how many episodes, at least 1.
     :param seed: the first episode's seed.
@@ -106,7 +139,7 @@ def record_video(
                 state["seen"] += 1
                 if (state["seen"] - 1) % stride or (max_frames is not None and state["frames"] >= max_frames):
                     return
-                composed = _resize(compose_frame(frame, record, names, title), scale)
+                composed = _resize(compose_frame(_rgb(frame), record, names, title), scale)
                 sink.append(composed)
                 state["frames"] += 1
                 state["size"] = (composed.shape[1], composed.shape[0])
@@ -124,6 +157,15 @@ def record_video(
         evaluation=result["evaluation"],
         records=state["recorder"].records,
     )
+
+
+def _rgb(frame: Any) -> np.ndarray:
+    """An env's rendered frame as ``(H, W, 3)`` uint8, or a one-line ``ValueError`` saying what it was."""
+    array = np.asarray(frame) if frame is not None else None
+    if array is None or array.ndim != 3 or array.shape[2] not in (3, 4) or 0 in array.shape:
+        shape = None if array is None else array.shape
+        raise ValueError(f"Expected render() to return an RGB frame (H, W, 3), actually: shape {shape}")
+    return np.ascontiguousarray(array[:, :, :3]).astype(np.uint8, copy=False)
 
 
 def _resize(frame: np.ndarray, scale: float) -> np.ndarray:

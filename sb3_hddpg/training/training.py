@@ -46,7 +46,7 @@ from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
-from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, make_term_view
+from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, config_key, make_term_view
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.preference import make_preference_env
@@ -414,8 +414,7 @@ def worker_hyperparams(
     if duplicates:
         raise ValueError(f"Duplicate worker names {duplicates} in {list(workers)}: name each worker once")
     if env is not None:
-        key = str(env.env_kwargs.get("env_id", env.env_id))
-        return {name: load_hyperparams(key, DDPG, config) for name in workers}
+        return {name: load_hyperparams(env.config_key, DDPG, config) for name in workers}
     return {name: load_hyperparams(WORKER_ENV_IDS[name], DDPG, config) for name in workers}
 
 
@@ -581,6 +580,8 @@ def train_flat(
     :param progress_bar: show a progress bar.
     :param threads: torch threads.
     :param env_id: the env to learn (the combined reward by default).
+    :param env_kwargs: its keyword arguments, over the config block's; the block read is the adapted env's
+        for an adapter (:func:`~sb3_hddpg.envs.terms_env.config_key`), as the workers' is.
     :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
     :param preferences: reward term -> factor: learn ``sum_t factor_t * normalised(term_t)`` instead of the
         env's reward (:class:`~sb3_hddpg.wrappers.PreferenceReward`, the reward of a manager with the same
@@ -593,7 +594,8 @@ def train_flat(
     algo = algo.lower()
     cls = algo_class(algo)
     config_path = Path(config) if config is not None else default_config(algo)
-    hyperparams = load_hyperparams(env_id, cls, config_path)
+    # An adapter's block is keyed by the env it adapts, as the workers' are.
+    hyperparams = load_hyperparams(config_key(env_id, env_kwargs), cls, config_path)
     make_kwargs = {**hyperparams.env_kwargs, **(env_kwargs or {})}
     budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
     out_dir = Path(out_dir)
