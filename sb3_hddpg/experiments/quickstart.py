@@ -23,15 +23,11 @@ bundle and ``results.json``::
 from __future__ import annotations
 
 import functools
-import multiprocessing
-import queue as queue_module
 import time
-from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import yaml
@@ -41,10 +37,11 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_
 from sb3_hddpg.artifacts.manifests import model_entry, read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
-from sb3_hddpg.envs import MAX_EPISODE_STEPS
+from sb3_hddpg.envs import MAX_EPISODE_STEPS, SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.experiments.packaging import write_zoo_layout
+from sb3_hddpg.experiments.runner import Job, make_executor, report_progress, run_jobs
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
 from sb3_hddpg.media.video import record_video
@@ -158,37 +155,23 @@ class QuickstartResult:
 
 
 # ---------------------------------------------------------------------------------------- child processes
-_report: Callable[[str, int], None] | None = None
-
-
-def _init_child(progress_queue: Any) -> None:
-    """Pool initialiser: report training progress through ``progress_queue``; one torch thread."""
-    import torch
-
-    global _report
-    torch.set_num_threads(1)
-    _report = lambda name, steps: progress_queue.put((name, steps))  # noqa: E731
-
-
 class _ProgressReporter(BaseCallback):
-    """Reports the step count at most every ``interval`` seconds (and at the end) to the parent."""
+    """Reports the step count at most every ``interval`` seconds (and at the end) to the runner."""
 
-    def __init__(self, name: str, interval: float = 0.5) -> None:
+    def __init__(self, interval: float = 0.5) -> None:
         super().__init__()
-        self.name = name
         self.interval = interval
         self._last = 0.0
 
     def _on_step(self) -> bool:
         now = time.monotonic()
-        if _report is not None and now - self._last >= self.interval:
+        if now - self._last >= self.interval:
             self._last = now
-            _report(self.name, int(self.num_timesteps))
+            report_progress(int(self.num_timesteps))
         return True
 
     def _on_training_end(self) -> None:
-        if _report is not None:
-            _report(self.name, int(self.num_timesteps))
+        report_progress(int(self.num_timesteps))
 
 
 def _train_job(
@@ -203,7 +186,7 @@ def _train_job(
     keep_checkpoints: bool = False,
     backend: str = "sb3",
 ) -> dict[str, Any]:
-    """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
+    """Train one agent (``kind``: worker, manager or flat); runs in a process of the runner."""
 
     started, cpu_started = time.monotonic(), time.process_time()
     common = dict(
@@ -212,7 +195,7 @@ def _train_job(
         seed=seed,
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
-        extra_callbacks=[_ProgressReporter(name)],
+        extra_callbacks=[_ProgressReporter()],
         keep_checkpoints=keep_checkpoints,
         backend=backend,
     )
@@ -311,61 +294,31 @@ def write_config(path: Path, overrides: dict[str, Any]) -> Path:
 def _run_jobs(
     jobs: list[dict[str, Any]], processes: int, observer: QuickstartObserver
 ) -> dict[str, dict[str, Any]]:
-    """Run training jobs, ``processes`` at a time, relaying their progress to ``observer``."""
-    global _report
-    results: dict[str, dict[str, Any]] = {}
+    """
+    Run training jobs on the process runner, ``processes`` at a time (in this process when 1), relaying
+    their progress to ``observer``; the first failure is re-raised.
+    """
     totals = {job["name"]: job["timesteps"] for job in jobs}
     for name, total in totals.items():
         observer.on_task(name, 0, total)
-    if processes <= 1:
-        # In this process: the same code path without a pool (handy for debugging and profiling).
-        _report = lambda name, steps: observer.on_task(name, min(steps, totals[name]), totals[name])  # noqa: E731
-        try:
-            for job in jobs:
-                results[job["name"]] = _train_job(**job)
-                observer.on_message(f"{job['name']}: {results[job['name']]['timesteps']} steps")
-        finally:
-            _report = None
-        return results
 
-    # spawn, not fork: the parent has torch loaded, and forked torch processes can deadlock.
-    context = multiprocessing.get_context("spawn")
-    progress_queue = context.Queue()
-    executor = ProcessPoolExecutor(
-        max_workers=min(processes, len(jobs)),
-        mp_context=context,
-        initializer=_init_child,
-        initargs=(progress_queue,),
-    )
-    futures: dict[Future[dict[str, Any]], str] = {}
-    try:
-        for job in jobs:
-            futures[executor.submit(_train_job, **job)] = job["name"]
-        pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
-            _drain(progress_queue, totals, observer)
-            for future in done:
-                name = futures[future]
-                results[name] = future.result()  # re-raises a child's error here
-                observer.on_task(name, totals[name], totals[name])
-                observer.on_message(
-                    f"{name}: {results[name]['timesteps']} steps in {results[name]['seconds']:.0f} s"
-                )
-    except BaseException:
-        executor.shutdown(wait=True, cancel_futures=True)
-        raise
-    executor.shutdown(wait=True)
-    return results
-
-
-def _drain(progress_queue: Any, totals: dict[str, int], observer: QuickstartObserver) -> None:
-    while True:
-        try:
-            name, steps = progress_queue.get_nowait()
-        except queue_module.Empty:
-            return
+    def progress(name: str, steps: float) -> None:
         observer.on_task(name, min(steps, totals[name]), totals[name])
+
+    def event(kind: str, job: Job, result: Any) -> None:
+        if kind == "done":
+            observer.on_task(job.key, totals[job.key], totals[job.key])
+            observer.on_message(f"{job.key}: {result['timesteps']} steps in {result['seconds']:.0f} s")
+
+    outcome = run_jobs(
+        [Job(job["name"], _train_job, kwargs=job, cost=job["timesteps"]) for job in jobs],
+        # A stopped quickstart is not resumed: a running job is left to end however it ends.
+        make_executor(min(processes, len(jobs)), interrupt_grace=None, inline=processes <= 1),
+        on_event=event,
+        on_progress=progress,
+        fail_fast=True,
+    )
+    return outcome.results
 
 
 # The workers train side by side in this folder: the lock is taken here, once, and shared with them.
@@ -523,7 +476,7 @@ def run_quickstart(
     )
     observer.on_task("GIF", gif_steps, gif_steps)
     files["gif"] = recording.path
-    base = gif_env.unwrapped
+    base = cast(SnakeArmEnv, gif_env.unwrapped)  # the comparison env is the snake env
     gif_env.close()
     stage_done(3)
 
