@@ -22,7 +22,6 @@ bundle and ``results.json``::
 
 from __future__ import annotations
 
-import functools
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -34,7 +33,7 @@ import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
-from sb3_hddpg.artifacts.manifests import model_entry, read_workers_manifest, save_manifest
+from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.envs import MAX_EPISODE_STEPS, SnakeArmEnv
@@ -47,8 +46,8 @@ from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_
 from sb3_hddpg.media.video import record_video
 from sb3_hddpg.training import training
 from sb3_hddpg.training.backends import check_backend
-from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, load_hyperparams
-from sb3_hddpg.training.training import WORKER_ENV_IDS, AgentPaths, make_snake_env, train_agent
+from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file
+from sb3_hddpg.training.training import WORKER_ENV_IDS
 
 #: The env every method is compared on.
 COMPARISON_ENV_ID = "hddpg/SnakeReach-v0"
@@ -189,7 +188,7 @@ def _train_job(
     """Train one agent (``kind``: worker, manager or flat); runs in a process of the runner."""
 
     started, cpu_started = time.monotonic(), time.process_time()
-    common = dict(
+    common: dict[str, Any] = dict(
         config=config,
         timesteps=timesteps,
         seed=seed,
@@ -200,14 +199,16 @@ def _train_job(
         backend=backend,
     )
     if kind == "worker":
-        manifest = training.train_workers(run_dir, workers=[name], **common)  # type: ignore[arg-type]
+        manifest = training.train_workers(run_dir, workers=[name], **common)
         out: dict[str, Any] = {"entry": manifest["workers"][name]}
         steps = out["entry"]["timesteps_trained"]
     elif kind == "manager":
-        _, outcome = training.train_manager(run_dir, run_dir, **common)  # type: ignore[arg-type]
+        _, outcome = training.train_manager(run_dir, run_dir, **common)
         out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps
     else:
-        out = train_flat_baseline(Path(run_dir), name=name, **common)  # type: ignore[arg-type]
+        # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
+        manifest, _ = training.train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
+        out = manifest["models"][name]
         steps = out["timesteps_trained"]
     out.update(
         {
@@ -218,65 +219,6 @@ def _train_job(
         }
     )
     return out
-
-
-def train_flat_baseline(
-    run_dir: Path,
-    name: str = "flat-ddpg",
-    config: str | Path | None = None,
-    timesteps: int | None = None,
-    seed: int = 0,
-    eval_freq: int = 5000,
-    eval_episodes: int = 5,
-    extra_callbacks: Any = (),
-    keep_checkpoints: bool = False,
-    backend: str | None = None,
-) -> dict[str, Any]:
-    """
-    The single-DDPG baseline: a plain SB3 DDPG on ``hddpg/SnakeReach-v0`` (both terms, normalised and
-    summed), written to ``run_dir/flat/<name>.zip`` with a ``manifest.json`` that
-    :func:`~sb3_hddpg.hierarchy.loading.load_policy` verifies.
-
-    :param run_dir: the run folder.
-    :param name: the model's name.
-    :param config: a ``zoo_configs`` file (default: the bundled one); its SnakeReach block is used.
-    :param timesteps: the budget (default: the config's).
-    :param seed: training seed.
-    :param eval_freq: steps between evaluations.
-    :param eval_episodes: episodes per evaluation.
-    :param extra_callbacks: more SB3 callbacks.
-    :param keep_checkpoints: keep the finished run's replay buffer (see :func:`~sb3_hddpg.training.training.train_agent`).
-    :param backend: ``sb3`` or ``sbx`` (the saved model is an SB3 zip either way).
-    :return: the manifest entry written.
-    """
-    from stable_baselines3 import DDPG
-
-    hyperparams = load_hyperparams(COMPARISON_ENV_ID, DDPG, config)
-    paths = AgentPaths(run_dir, name, run_dir / "flat" / f"{name}.zip")
-    outcome = train_agent(
-        functools.partial(make_snake_env, COMPARISON_ENV_ID, dict(hyperparams.env_kwargs)),
-        hyperparams,
-        paths,
-        timesteps=timesteps,
-        seed=seed,
-        eval_freq=eval_freq,
-        eval_episodes=eval_episodes,
-        extra_callbacks=list(extra_callbacks),
-        keep_checkpoints=keep_checkpoints,
-        backend=backend,
-    )
-    entry = model_entry(
-        name,
-        outcome,
-        "ddpg",
-        COMPARISON_ENV_ID,
-        hyperparams.env_kwargs,
-        {"file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml", "block": hyperparams.raw},
-        seed,
-        int(timesteps or hyperparams.n_timesteps),
-    )
-    atomic_write_json(run_dir / "flat" / "manifest.json", {"schema_version": 1, "models": {name: entry}})
-    return entry
 
 
 # ---------------------------------------------------------------------------------------- the parent
