@@ -22,6 +22,7 @@ bundle and ``results.json``::
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -38,7 +39,7 @@ from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.envs import MAX_EPISODE_STEPS, SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.experiments.packaging import write_zoo_layout
 from sb3_hddpg.experiments.runner import Job, make_executor, report_progress, run_jobs
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
@@ -370,34 +371,19 @@ def run_quickstart(
     trained_by.update({f"{n} worker": [n] for n in WORKER_ENV_IDS})
 
     steps_per_episode = _episode_steps()
-    total_steps = len(policies) * budget.compare_episodes * steps_per_episode
-    done_steps = 0
     summaries: dict[str, dict[str, Any]] = {}
-    for label, loaded in policies.items():
-        env = loaded.make_env(COMPARISON_ENV_ID)
-
-        def tick(_env: Any, _info: dict[str, Any]) -> None:
-            nonlocal done_steps
-            done_steps += 1
-            if done_steps % 50 == 0:
-                observer.on_task("evaluation", done_steps, total_steps)
-
-        result = evaluate(
-            loaded.policy, env, n_episodes=budget.compare_episodes, seed=EVAL_SEED_BASE, on_step=tick
-        )
-        env.close()
+    for label, result in _evaluate_on_shared_seeds(policies, budget.compare_episodes, observer).items():
         summary = result.summary()
         summary["std_reach_reward"] = float(np.std([e.reach_reward for e in result.episodes]))
         summaries[label] = summary
         agents = trained_by.get(label, [])
         methods[label] = {
-            "kind": loaded.kind,
+            "kind": policies[label].kind,
             "source": str(_relative(sources[label], run_dir)),
             "train_timesteps": sum(trained[a]["timesteps"] for a in agents),
             "train_seconds": sum(trained[a]["seconds"] for a in agents),
             "episodes": [e.reach_reward for e in result.episodes],
         }
-    observer.on_task("evaluation", total_steps, total_steps)
     stage_done(2)
 
     # 4. The hierarchy at work: a GIF, and the same episodes as a selection timeline.
@@ -433,13 +419,11 @@ def run_quickstart(
         sensor_range=base.sensor_range,
         touch_radius=base.touch_radius,
     )
-    histories = {}
-    for agent in ("goal", "avoid", "manager", "flat-ddpg"):
-        path = run_dir / "evaluations" / f"{agent}.json"
-        if path.exists():
-            import json
-
-            histories[agent] = json.loads(path.read_text())
+    histories = {
+        agent: json.loads(path.read_text())
+        for agent in ("goal", "avoid", "manager", "flat-ddpg")
+        if (path := run_dir / "evaluations" / f"{agent}.json").exists()
+    }
     references = {
         f"{label} (untrained)": summaries[label]["mean_reach_reward"]
         for label in ("HAM", "scripted", "random")
@@ -497,6 +481,32 @@ def run_quickstart(
     results["versions"] = library_versions()
     atomic_write_json(files["results"], results)
     return QuickstartResult(run_dir, summaries, methods, files, stage_seconds, wall)
+
+
+def _evaluate_on_shared_seeds(
+    policies: dict[str, LoadedPolicy], episodes: int, observer: QuickstartObserver
+) -> dict[str, EvaluationResult]:
+    """Every policy on the same ``episodes`` seeds of the comparison env, progress to ``observer``."""
+    total_steps = len(policies) * episodes * _episode_steps()
+    done_steps = 0
+
+    def tick(_env: Any, _info: dict[str, Any]) -> None:
+        nonlocal done_steps
+        done_steps += 1
+        if done_steps % 50 == 0:
+            observer.on_task("evaluation", done_steps, total_steps)
+
+    results = {}
+    for label, loaded in policies.items():
+        env = loaded.make_env(COMPARISON_ENV_ID)
+        try:
+            results[label] = evaluate(
+                loaded.policy, env, n_episodes=episodes, seed=EVAL_SEED_BASE, on_step=tick
+            )
+        finally:
+            env.close()
+    observer.on_task("evaluation", total_steps, total_steps)
+    return results
 
 
 def _build_ham(run_dir: Path) -> Path:

@@ -99,15 +99,7 @@ class BenchmarkSettings:
     backend: str = "sb3"
 
     def __post_init__(self) -> None:
-        unknown = [m for m in self.methods if m not in METHOD_REGISTRY]
-        if unknown:
-            raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
-        self.backend = check_backend(self.backend)
-        for method in self.methods:
-            if method in FLAT_METHODS:
-                check_algo(method, self.backend)
-        if len(set(self.methods)) != len(self.methods) or not self.methods:
-            raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
+        self._check_methods()
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"Expected distinct seeds, at least one, actually: {self.seeds}")
         if not self.timesteps:
@@ -121,7 +113,23 @@ class BenchmarkSettings:
         if self.scenario == "standard":
             if self.preferences:
                 raise ValueError("Preferences apply to the transfer scenario only (scenario='transfer')")
-            return
+        else:
+            self._check_transfer()
+
+    def _check_methods(self) -> None:
+        """Known and distinct methods, at least one; the backend, and that it trains each flat method."""
+        unknown = [m for m in self.methods if m not in METHOD_REGISTRY]
+        if unknown:
+            raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
+        self.backend = check_backend(self.backend)
+        for method in self.methods:
+            if method in FLAT_METHODS:
+                check_algo(method, self.backend)
+        if len(set(self.methods)) != len(self.methods) or not self.methods:
+            raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
+
+    def _check_transfer(self) -> None:
+        """The transfer scenario's preferences (written one way) and methods: hddpg and flat agents."""
         self.preferences = [canonical_preference(p) for p in self.preferences]
         if not self.preferences or len(set(self.preferences)) != len(self.preferences):
             raise ValueError(f"Expected distinct preferences, at least one, actually: {self.preferences}")
