@@ -21,14 +21,8 @@ independent process (``n_jobs`` at a time, one torch thread each); a run's depen
 workers) are scheduled before it. Every finished run writes a record atomically to
 ``DIR/records/<method>/seed-<s>.json``, which :func:`run_benchmark` skips when resuming.
 
-**Metric.** Everything is measured with :func:`sb3_hddpg.evaluation.evaluate` on the env's combined
-normalised reward, ``mean_reach_reward`` (per step the goal and avoid terms min-max normalised to
-``[0, 1]`` and summed; at most 2 per step, 400 per episode), plus goal-touch rate, collisions, success
-and clearance. The learning curves are the in-training evaluations (``evaluations/<name>.json``) on the
-fixed seeds ``EVAL_SEED_BASE + k``; because ``train_agent`` keeps the best model by those evaluations,
-the final scores are measured on a disjoint block of fixed test seeds, ``TEST_SEED_BASE + k``, the same
-for every method and seed (selecting and scoring on the same episodes would flatter the learned methods
-against HAM, which selects nothing).
+**Metric.** ``mean_reach_reward``, the env's combined normalised reward, on fixed test seeds disjoint from
+the learning-curve seeds (see :mod:`.statistics`).
 
 The package follows the benchmark's sections, each a module: :mod:`.methods` (the records),
 :mod:`.settings` (settings, tasks, plan), :mod:`.run` (one task, the whole run on the process runner),
