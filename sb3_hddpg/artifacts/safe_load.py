@@ -541,13 +541,37 @@ def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
             float(-np.prod(action_space.shape)) if target_entropy is None else target_entropy
         )
 
-    # env=None + _init_setup_model=False is how BaseAlgorithm.load builds a model; the spaces (and n_envs,
-    # normally taken from the env) are then set by hand before the networks are created.
-    model = ALGOS[algo](
+    return build_without_env(ALGOS[algo], observation_space, action_space, hparams, policy_kwargs, device)
+
+
+def build_without_env(
+    cls: type[OffPolicyAlgorithm],
+    observation_space: spaces.Space,
+    action_space: spaces.Space,
+    hparams: Mapping[str, Any],
+    policy_kwargs: Mapping[str, Any],
+    device: th.device | str = "cpu",
+    seed: int | None = None,
+) -> OffPolicyAlgorithm:
+    """
+    A fresh ``MlpPolicy`` model of ``cls`` with no env, built the way ``BaseAlgorithm.load`` builds one:
+    ``env=None`` and ``_init_setup_model=False``, then the spaces (and ``n_envs``, normally taken from the
+    env) set by hand before the networks are created.
+
+    :param cls: the SB3 algorithm class.
+    :param observation_space: the policy's observation space.
+    :param action_space: its action space.
+    :param hparams: the algorithm's constructor arguments.
+    :param policy_kwargs: the policy's.
+    :param device: where the networks live.
+    :param seed: the model's seed (``None``: unseeded).
+    """
+    model = cls(
         "MlpPolicy",
         env=None,  # type: ignore[arg-type]
-        policy_kwargs=policy_kwargs,
+        policy_kwargs=dict(policy_kwargs),
         device=device,
+        seed=seed,
         _init_setup_model=False,
         **hparams,
     )
