@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import signal
+import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -90,3 +93,41 @@ def test_processes_return_results_errors_progress_and_survive_a_killed_one():
     )
     # The others ran to the end in child processes (not this one), a dead one being replaced.
     assert {"pid-a", "pid-b"} <= set(outcome.results) and os.getpid() not in outcome.results.values()
+
+
+def checkpoint_on_sigterm(folder: str) -> int:
+    """A long job that, like ``train_agent``, turns SIGTERM into saving a checkpoint and stopping."""
+    from sb3_hddpg.training.training import sigterm_as_interrupt
+
+    with sigterm_as_interrupt():
+        try:
+            (Path(folder) / f"started-{os.getpid()}").touch()
+            time.sleep(120)
+        except KeyboardInterrupt:
+            (Path(folder) / f"checkpoint-{os.getpid()}").touch()
+            raise
+    return 0
+
+
+@pytest.mark.slow  # spawns processes that import torch
+def test_sigterm_to_the_parent_makes_running_jobs_checkpoint_and_stop(tmp_path):
+    jobs = [Job(f"long-{i}", checkpoint_on_sigterm, (str(tmp_path),)) for i in range(3)]
+
+    def sigterm_once_two_started() -> None:
+        deadline = time.monotonic() + 120
+        while len(list(tmp_path.glob("started-*"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    handler = signal.getsignal(signal.SIGTERM)
+    threading.Thread(target=sigterm_once_two_started, daemon=True).start()
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        run_jobs(jobs, LocalProcessExecutor(2))
+    assert time.monotonic() - started < 100  # nobody waited for the 120 s jobs
+    # The two running jobs saved their checkpoints; the third never started; no process is left.
+    started_pids = {p.name.split("-")[1] for p in tmp_path.glob("started-*")}
+    assert len(started_pids) == 2
+    assert {p.name.split("-")[1] for p in tmp_path.glob("checkpoint-*")} == started_pids
+    assert not [p for p in multiprocessing.active_children() if p.name.startswith("job-")]
+    assert signal.getsignal(signal.SIGTERM) is handler  # the parent's handler is restored
