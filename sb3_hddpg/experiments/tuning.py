@@ -512,6 +512,9 @@ def tune(
     ]
     # On Ctrl-C the trial processes got the signal too: they get 30 s to queue their trials again and leave.
     outcome = run_jobs(jobs, make_executor(n_jobs, interrupt_grace=30.0, inline=n_jobs == 1))
+    for error in outcome.failures.values():
+        if isinstance(error, TrainingInterrupted):
+            raise error  # Ctrl-C or SIGTERM in a trial, its parameters queued again: the study resumes
     if outcome.failures:
         failed = [f"{key} ({outcome.failure_message(key)})" for key in outcome.failures]
         raise RuntimeError(f"Trial processes failed: {', '.join(failed)}; their errors are logged above")
