@@ -356,18 +356,20 @@ def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, Any]) -> dict[
         if key == "net_arch":
             out[key] = _net_arch(value)
         elif key == "activation_fn":
-            if ACTIVATIONS.get(getattr(value, "__name__", "")) is not value:
+            activation = ACTIVATIONS.get(getattr(value, "__name__", ""))
+            if activation is None or activation is not value:
                 raise ValueError(
                     f"policy_kwargs.activation_fn: {brief(value)} is not one of the allowed torch.nn activations "
                     f"{sorted(ACTIVATIONS)}"
                 )
-            out[key] = value.__name__
+            out[key] = activation.__name__
         elif key == "optimizer_class":
-            if OPTIMIZERS.get(getattr(value, "__name__", "")) is not value:
+            optimizer = OPTIMIZERS.get(getattr(value, "__name__", ""))
+            if optimizer is None or optimizer is not value:
                 raise ValueError(
                     f"policy_kwargs.optimizer_class: {brief(value)} is not one of {sorted(OPTIMIZERS)}"
                 )
-            out[key] = value.__name__
+            out[key] = optimizer.__name__
         elif key == "features_extractor_class":
             if value is not FlattenExtractor:
                 raise ValueError(
@@ -541,13 +543,37 @@ def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
             float(-np.prod(action_space.shape)) if target_entropy is None else target_entropy
         )
 
-    # env=None + _init_setup_model=False is how BaseAlgorithm.load builds a model; the spaces (and n_envs,
-    # normally taken from the env) are then set by hand before the networks are created.
-    model = ALGOS[algo](
+    return build_without_env(ALGOS[algo], observation_space, action_space, hparams, policy_kwargs, device)
+
+
+def build_without_env(
+    cls: type[OffPolicyAlgorithm],
+    observation_space: spaces.Space,
+    action_space: spaces.Space,
+    hparams: Mapping[str, Any],
+    policy_kwargs: Mapping[str, Any],
+    device: th.device | str = "cpu",
+    seed: int | None = None,
+) -> OffPolicyAlgorithm:
+    """
+    A fresh ``MlpPolicy`` model of ``cls`` with no env, built the way ``BaseAlgorithm.load`` builds one:
+    ``env=None`` and ``_init_setup_model=False``, then the spaces (and ``n_envs``, normally taken from the
+    env) set by hand before the networks are created.
+
+    :param cls: the SB3 algorithm class.
+    :param observation_space: the policy's observation space.
+    :param action_space: its action space.
+    :param hparams: the algorithm's constructor arguments.
+    :param policy_kwargs: the policy's.
+    :param device: where the networks live.
+    :param seed: the model's seed (``None``: unseeded).
+    """
+    model = cls(  # type: ignore[call-arg]  # every concrete algorithm takes _init_setup_model
         "MlpPolicy",
         env=None,  # type: ignore[arg-type]
-        policy_kwargs=policy_kwargs,
+        policy_kwargs=dict(policy_kwargs),
         device=device,
+        seed=seed,
         _init_setup_model=False,
         **hparams,
     )
@@ -649,7 +675,7 @@ def load_model_safely(
     :raises FileNotFoundError: if ``path`` does not exist.
     """
     in_memory = isinstance(path, io.BytesIO)
-    path_str = "<bytes>" if in_memory else os.fspath(path)
+    path_str = "<bytes>" if isinstance(path, io.BytesIO) else os.fspath(path)
     budget = budget if budget is not None else LoadBudget()
     try:
         budget.spend_model(path_str)
@@ -738,4 +764,4 @@ def load_model(
     name = algorithm if algorithm is not None else (spec or {}).get("algorithm")
     if name not in ALGOS:
         raise ValueError(f"algorithm: unknown algorithm {brief(name)}; expected one of {sorted(ALGOS)}")
-    return ALGOS[name].load(path, device=device)
+    return ALGOS[name].load(path if isinstance(path, io.BytesIO) else Path(path), device=device)

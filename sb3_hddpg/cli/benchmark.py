@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -162,6 +163,43 @@ def dependence_table(results: dict[str, Any]) -> Table | None:
     return table
 
 
+def _chosen_methods(methods: str | None, transfer: bool, other_env: bool = False) -> list[str]:
+    """The ``--methods`` list (default: the scenario's, or on another env than the snake its own), each known."""
+    if methods is None:
+        defaults = DEFAULT_ENV_METHODS if other_env else DEFAULT_METHODS
+        methods = ",".join(DEFAULT_TRANSFER_METHODS if transfer else defaults)
+    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    unknown = [m for m in chosen if m not in METHOD_REGISTRY]
+    if unknown or not chosen:
+        raise typer.BadParameter(
+            f"unknown method {unknown[0] if unknown else methods!r}; choose from {list(METHOD_REGISTRY)}",
+            param_hint="'--methods'",
+        )
+    return chosen
+
+
+def _event_printer(started: float) -> Callable[[str, Task, dict[str, Any] | None], None]:
+    """One line per task event (started, kept, failed, finished), stamped with the minutes since ``started``."""
+
+    def event(kind: str, task: Task, record: dict[str, Any] | None) -> None:
+        elapsed = time.perf_counter() - started
+        stamp = f"[dim]{elapsed / 60:6.1f} min[/]"
+        if kind == "start":
+            console.print(f"{stamp} started  {task.label}")
+        elif kind == "skip":
+            console.print(f"{stamp} [dim]kept     {task.label} (finished earlier)[/]")
+        elif kind == "failed":
+            console.print(f"{stamp} [red]failed   {task.label}[/] (see the log above; --resume retries)")
+        elif record is not None:
+            score = record.get("test", {}).get("mean_reach_reward")
+            detail = f"test reach reward {score:.1f}" if score is not None else "workers trained"
+            console.print(
+                f"{stamp} [green]finished[/] {task.label}: {detail} ({record['wall_time_s']:.0f} s)"
+            )
+
+    return event
+
+
 @app.command("benchmark")
 def benchmark_command(
     methods: str | None = typer.Option(
@@ -265,16 +303,7 @@ def benchmark_command(
     if preference and not transfer:
         raise typer.BadParameter("applies to --scenario transfer only", param_hint="'--preference'")
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    if methods is None:
-        defaults = DEFAULT_ENV_METHODS if shared is not None else DEFAULT_METHODS
-        methods = ",".join(DEFAULT_TRANSFER_METHODS if transfer else defaults)
-    chosen = [m.strip() for m in methods.split(",") if m.strip()]
-    unknown = [m for m in chosen if m not in METHOD_REGISTRY]
-    if unknown or not chosen:
-        raise typer.BadParameter(
-            f"unknown method {unknown[0] if unknown else methods!r}; choose from {list(METHOD_REGISTRY)}",
-            param_hint="'--methods'",
-        )
+    chosen = _chosen_methods(methods, transfer, other_env=shared is not None)
     if ham_hysteresis < 0:
         raise typer.BadParameter(f"must be >= 0, got {ham_hysteresis}", param_hint="'--ham-hysteresis'")
     preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []
@@ -305,23 +334,7 @@ def benchmark_command(
     prepare_out_dir(out, resume, force)
     started = time.perf_counter()
 
-    def event(kind: str, task: Task, record: dict[str, Any] | None) -> None:
-        elapsed = time.perf_counter() - started
-        stamp = f"[dim]{elapsed / 60:6.1f} min[/]"
-        if kind == "start":
-            console.print(f"{stamp} started  {task.label}")
-        elif kind == "skip":
-            console.print(f"{stamp} [dim]kept     {task.label} (finished earlier)[/]")
-        elif kind == "failed":
-            console.print(f"{stamp} [red]failed   {task.label}[/] (see the log above; --resume retries)")
-        elif record is not None:
-            score = record.get("test", {}).get("mean_reach_reward")
-            detail = f"test reach reward {score:.1f}" if score is not None else "workers trained"
-            console.print(
-                f"{stamp} [green]finished[/] {task.label}: {detail} ({record['wall_time_s']:.0f} s)"
-            )
-
-    results = run_benchmark(settings, out, n_jobs=n_jobs, resume=resume, on_event=event)
+    results = run_benchmark(settings, out, n_jobs=n_jobs, resume=resume, on_event=_event_printer(started))
     console.print(results_table(results))
     if results["comparisons"]:
         console.print(comparisons_table(results))

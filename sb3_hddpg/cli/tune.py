@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import optuna
 import typer
 import yaml
 from rich.table import Table
@@ -64,6 +65,85 @@ def trials_table(title: str, trials: list) -> Table:
         duration = trial.duration.total_seconds() if trial.duration is not None else float("nan")
         table.add_row(str(rank), str(trial.number), f"{trial.value:.2f}", params, f"{duration:.0f} s")
     return table
+
+
+def _check_level_options(
+    level: str,
+    algo: str,
+    worker: str | None,
+    workers_dir: Path | None,
+    save_config: Path | None,
+    known_workers: list[str],
+) -> None:
+    """The options that depend on ``--level`` (``known_workers``: the env's terms): usage errors naming the option."""
+    if level not in LEVELS:
+        raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
+    if algo != "ddpg" and level != "flat":
+        raise typer.BadParameter(f"only applies to --level flat, not {level!r}", param_hint="'--algo'")
+    if level == "flat" and algo not in FLAT_SAMPLERS:
+        raise typer.BadParameter(f"must be one of {list(FLAT_SAMPLERS)}, got {algo!r}", param_hint="'--algo'")
+    if level == "worker" and worker not in known_workers:
+        raise typer.BadParameter(
+            f"--level worker needs --worker among {known_workers}, got {worker!r}", param_hint="'--worker'"
+        )
+    if level != "worker" and worker is not None:
+        raise typer.BadParameter(f"only applies to --level worker, not {level!r}", param_hint="'--worker'")
+    if level in ("manager", "ham"):
+        if workers_dir is None:
+            raise typer.BadParameter(f"--level {level} needs --workers DIR", param_hint="'--workers'")
+        if (
+            not (workers_dir / "workers" / "manifest.json").exists()
+            and not (workers_dir / "manifest.json").exists()
+        ):
+            raise typer.BadParameter(
+                f"no workers manifest in {str(workers_dir)!r}; run train-workers first",
+                param_hint="'--workers'",
+            )
+    if level == "ham" and save_config is not None:
+        raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
+
+
+def _check_search_options(sampler: str, pruner: str, storage: str | None, config: Path | None) -> None:
+    """The sampler, pruner, storage URL and config file: usage errors naming the option."""
+    if sampler not in SAMPLERS:
+        raise typer.BadParameter(
+            f"must be one of {list(SAMPLERS)}, got {sampler!r}", param_hint="'--sampler'"
+        )
+    if pruner not in PRUNERS:
+        raise typer.BadParameter(f"must be one of {list(PRUNERS)}, got {pruner!r}", param_hint="'--pruner'")
+    if storage is not None and "://" not in storage:
+        raise typer.BadParameter(
+            f"expected a URL such as sqlite:///path/study.db or postgresql+psycopg://user@host/db, got {storage!r}",
+            param_hint="'--storage'",
+        )
+    if config is not None and not config.is_file():
+        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+
+
+def _print_outcome(
+    study: optuna.Study,
+    target: TuningTarget,
+    out: Path,
+    top: int,
+    save_config: Path | None,
+    storage: str | None,
+) -> None:
+    """Trial counts, the best trials, the saved config and plots, and how to open the dashboard."""
+    counts = trial_counts(study)
+    console.print("Trials: " + ", ".join(f"{state.lower()} {n}" for state, n in sorted(counts.items())))
+    best = best_trials(study, top)
+    if not best:
+        console.print("[yellow]No completed trial yet[/]: no best parameters, config or plots.")
+        return
+    console.print(trials_table(f"Best trials of {study.study_name} (mean evaluation reward)", best))
+    if save_config is not None:
+        console.print(f"[green]✓[/] best config -> {save_best_config(study, target, save_config)}")
+    for plot, result in save_plots(study, out).items():
+        if isinstance(result, Path):
+            console.print(f"[green]✓[/] {plot} -> {result}")
+        else:
+            console.print(f"[yellow]skipped {plot}[/]: {result}")
+    console.print(f"Dashboard: optuna-dashboard {storage or '<your --storage URL>'}")
 
 
 @app.command("tune")
@@ -164,12 +244,6 @@ def tune_command(
 
     matplotlib.use("Agg")  # plots are files; never open a window
 
-    if level not in LEVELS:
-        raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
-    if algo != "ddpg" and level != "flat":
-        raise typer.BadParameter(f"only applies to --level flat, not {level!r}", param_hint="'--algo'")
-    if level == "flat" and algo not in FLAT_SAMPLERS:
-        raise typer.BadParameter(f"must be one of {list(FLAT_SAMPLERS)}, got {algo!r}", param_hint="'--algo'")
     if level == "ham" and env is not None:
         raise typer.BadParameter(
             "HAM's switch rule is defined for the snake arm only (it reads its obstacle clearances)",
@@ -177,38 +251,8 @@ def tune_command(
         )
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
-    if level == "worker" and worker not in known:
-        raise typer.BadParameter(
-            f"--level worker needs --worker among {known}, got {worker!r}", param_hint="'--worker'"
-        )
-    if level != "worker" and worker is not None:
-        raise typer.BadParameter(f"only applies to --level worker, not {level!r}", param_hint="'--worker'")
-    if level in ("manager", "ham"):
-        if workers_dir is None:
-            raise typer.BadParameter(f"--level {level} needs --workers DIR", param_hint="'--workers'")
-        if (
-            not (workers_dir / "workers" / "manifest.json").exists()
-            and not (workers_dir / "manifest.json").exists()
-        ):
-            raise typer.BadParameter(
-                f"no workers manifest in {str(workers_dir)!r}; run train-workers first",
-                param_hint="'--workers'",
-            )
-    if level == "ham" and save_config is not None:
-        raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
-    if sampler not in SAMPLERS:
-        raise typer.BadParameter(
-            f"must be one of {list(SAMPLERS)}, got {sampler!r}", param_hint="'--sampler'"
-        )
-    if pruner not in PRUNERS:
-        raise typer.BadParameter(f"must be one of {list(PRUNERS)}, got {pruner!r}", param_hint="'--pruner'")
-    if storage is not None and "://" not in storage:
-        raise typer.BadParameter(
-            f"expected a URL such as sqlite:///path/study.db or postgresql+psycopg://user@host/db, got {storage!r}",
-            param_hint="'--storage'",
-        )
-    if config is not None and not config.is_file():
-        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    _check_level_options(level, algo, worker, workers_dir, save_config, known)
+    _check_search_options(sampler, pruner, storage, config)
     fixed = parse_fixed(fix)
     with usage_errors("'--fix'"):
         check_fixed_params(level, fixed, algo)
@@ -259,20 +303,4 @@ def tune_command(
         console.print(f"[yellow]{interrupted}[/] Re-run the same command to resume the study.")
         raise typer.Exit(130) from None
 
-    counts = trial_counts(study)
-    console.print("Trials: " + ", ".join(f"{state.lower()} {n}" for state, n in sorted(counts.items())))
-    best = best_trials(study, top)
-    if not best:
-        console.print("[yellow]No completed trial yet[/]: no best parameters, config or plots.")
-        return
-    console.print(trials_table(f"Best trials of {name} (mean evaluation reward)", best))
-    if save_config is not None:
-        console.print(f"[green]✓[/] best config -> {save_best_config(study, target, save_config)}")
-    for plot, result in save_plots(study, out).items():
-        if isinstance(result, Path):
-            console.print(f"[green]✓[/] {plot} -> {result}")
-        else:
-            console.print(f"[yellow]skipped {plot}[/]: {result}")
-    console.print(
-        f"Dashboard: optuna-dashboard {settings.storage if storage is None else '<your --storage URL>'}"
-    )
+    _print_outcome(study, target, out, top, save_config, settings.storage if storage is None else None)

@@ -26,6 +26,25 @@ NET_ARCHS: dict[str, list[int]] = {"small": [64, 64], "medium": [256, 256], "big
 HAM_THRESHOLD_MAX = 6.0
 
 
+def _sample_shared(trial: Any) -> dict[str, Any]:
+    """
+    The hyperparameters DDPG, TD3 and SAC share, with the same choices and sampled first, in this order:
+    discount, learning rate, batch and buffer size, soft-update rate, update schedule.
+    """
+    block = {
+        "gamma": trial.suggest_categorical("gamma", [0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
+        "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
+        "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512]),
+        "buffer_size": trial.suggest_categorical("buffer_size", [10_000, 100_000, 300_000]),
+        "tau": trial.suggest_categorical("tau", [0.001, 0.005, 0.01, 0.02, 0.05, 0.08]),
+        "train_freq": trial.suggest_categorical("train_freq", [1, 4, 8, 16, 32, 64]),
+    }
+    # As in rl_zoo3: as many gradient steps as env steps between updates, so the update-to-data ratio
+    # stays 1 and only the update's granularity is tuned.
+    block["gradient_steps"] = block["train_freq"]
+    return block
+
+
 def sample_ddpg_params(trial: Any) -> dict[str, Any]:
     """
     DDPG's hyperparameters: discount, learning rate, batch and buffer size, soft-update rate, update
@@ -34,28 +53,12 @@ def sample_ddpg_params(trial: Any) -> dict[str, Any]:
     :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
     :return: the keys of a ``zoo_configs`` block that the trial sets.
     """
-    gamma = trial.suggest_categorical("gamma", [0.9, 0.95, 0.98, 0.99, 0.995, 0.999])
-    learning_rate = trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True)
-    batch_size = trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512])
-    buffer_size = trial.suggest_categorical("buffer_size", [10_000, 100_000, 300_000])
-    tau = trial.suggest_categorical("tau", [0.001, 0.005, 0.01, 0.02, 0.05, 0.08])
-    # As in rl_zoo3: as many gradient steps as env steps between updates, so the update-to-data ratio
-    # stays 1 and only the update's granularity is tuned.
-    train_freq = trial.suggest_categorical("train_freq", [1, 4, 8, 16, 32, 64])
+    block = _sample_shared(trial)
     noise_type = trial.suggest_categorical("noise_type", ["normal", "ornstein-uhlenbeck", "none"])
     net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
-    block: dict[str, Any] = {
-        "gamma": gamma,
-        "learning_rate": learning_rate,
-        "batch_size": batch_size,
-        "buffer_size": buffer_size,
-        "tau": tau,
-        "train_freq": train_freq,
-        "gradient_steps": train_freq,
-        # "none" rather than None among the choices: every storage and the dashboard show it plainly.
-        "noise_type": None if noise_type == "none" else noise_type,
-        "policy_kwargs": f"dict(net_arch={NET_ARCHS[net_arch]})",
-    }
+    # "none" rather than None among the choices: every storage and the dashboard show it plainly.
+    block["noise_type"] = None if noise_type == "none" else noise_type
+    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]})"
     if noise_type != "none":
         block["noise_std"] = trial.suggest_float("noise_std", 0.0, 1.0)
     return block
@@ -80,25 +83,12 @@ def sample_sac_params(trial: Any) -> dict[str, Any]:
 
     :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
     """
-    gamma = trial.suggest_categorical("gamma", [0.9, 0.95, 0.98, 0.99, 0.995, 0.999])
-    learning_rate = trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True)
-    batch_size = trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512])
-    buffer_size = trial.suggest_categorical("buffer_size", [10_000, 100_000, 300_000])
-    tau = trial.suggest_categorical("tau", [0.001, 0.005, 0.01, 0.02, 0.05, 0.08])
-    train_freq = trial.suggest_categorical("train_freq", [1, 4, 8, 16, 32, 64])
+    block = _sample_shared(trial)
     log_std_init = trial.suggest_float("log_std_init", -4.0, 1.0)
     net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
-    return {
-        "gamma": gamma,
-        "learning_rate": learning_rate,
-        "batch_size": batch_size,
-        "buffer_size": buffer_size,
-        "tau": tau,
-        "train_freq": train_freq,
-        "gradient_steps": train_freq,
-        "ent_coef": "auto",
-        "policy_kwargs": f"dict(net_arch={NET_ARCHS[net_arch]}, log_std_init={log_std_init!r})",
-    }
+    block["ent_coef"] = "auto"
+    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]}, log_std_init={log_std_init!r})"
+    return block
 
 
 #: Flat algorithm -> its sampler (``--level flat --algo NAME``).

@@ -22,12 +22,8 @@ bundle and ``results.json``::
 
 from __future__ import annotations
 
-import functools
-import multiprocessing
-import queue as queue_module
+import json
 import time
-from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -38,20 +34,21 @@ import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
-from sb3_hddpg.artifacts.manifests import model_entry, read_workers_manifest, save_manifest
+from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
 from sb3_hddpg.envs.contract import proximity_of, state_layout_of
-from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.experiments.packaging import write_zoo_layout
+from sb3_hddpg.experiments.runner import Job, make_executor, report_progress, run_jobs
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
 from sb3_hddpg.media.video import record_video
 from sb3_hddpg.training import training
 from sb3_hddpg.training.backends import check_backend
-from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, load_hyperparams
-from sb3_hddpg.training.training import WORKER_ENV_IDS, AgentPaths, make_snake_env, train_agent
+from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file
+from sb3_hddpg.training.training import WORKER_ENV_IDS
 
 #: The env every method is compared on.
 COMPARISON_ENV_ID = "hddpg/SnakeReach-v0"
@@ -158,37 +155,23 @@ class QuickstartResult:
 
 
 # ---------------------------------------------------------------------------------------- child processes
-_report: Callable[[str, int], None] | None = None
-
-
-def _init_child(progress_queue: Any) -> None:
-    """Pool initialiser: report training progress through ``progress_queue``; one torch thread."""
-    import torch
-
-    global _report
-    torch.set_num_threads(1)
-    _report = lambda name, steps: progress_queue.put((name, steps))  # noqa: E731
-
-
 class _ProgressReporter(BaseCallback):
-    """Reports the step count at most every ``interval`` seconds (and at the end) to the parent."""
+    """Reports the step count at most every ``interval`` seconds (and at the end) to the runner."""
 
-    def __init__(self, name: str, interval: float = 0.5) -> None:
+    def __init__(self, interval: float = 0.5) -> None:
         super().__init__()
-        self.name = name
         self.interval = interval
         self._last = 0.0
 
     def _on_step(self) -> bool:
         now = time.monotonic()
-        if _report is not None and now - self._last >= self.interval:
+        if now - self._last >= self.interval:
             self._last = now
-            _report(self.name, int(self.num_timesteps))
+            report_progress(int(self.num_timesteps))
         return True
 
     def _on_training_end(self) -> None:
-        if _report is not None:
-            _report(self.name, int(self.num_timesteps))
+        report_progress(int(self.num_timesteps))
 
 
 def _train_job(
@@ -203,28 +186,30 @@ def _train_job(
     keep_checkpoints: bool = False,
     backend: str = "sb3",
 ) -> dict[str, Any]:
-    """Train one agent (``kind``: worker, manager or flat); runs in a pool process."""
+    """Train one agent (``kind``: worker, manager or flat); runs in a process of the runner."""
 
     started, cpu_started = time.monotonic(), time.process_time()
-    common = dict(
+    common: dict[str, Any] = dict(
         config=config,
         timesteps=timesteps,
         seed=seed,
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
-        extra_callbacks=[_ProgressReporter(name)],
+        extra_callbacks=[_ProgressReporter()],
         keep_checkpoints=keep_checkpoints,
         backend=backend,
     )
     if kind == "worker":
-        manifest = training.train_workers(run_dir, workers=[name], **common)  # type: ignore[arg-type]
+        manifest = training.train_workers(run_dir, workers=[name], **common)
         out: dict[str, Any] = {"entry": manifest["workers"][name]}
         steps = out["entry"]["timesteps_trained"]
     elif kind == "manager":
-        _, outcome = training.train_manager(run_dir, run_dir, **common)  # type: ignore[arg-type]
+        _, outcome = training.train_manager(run_dir, run_dir, **common)
         out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps
     else:
-        out = train_flat_baseline(Path(run_dir), name=name, **common)  # type: ignore[arg-type]
+        # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
+        manifest, _ = training.train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
+        out = manifest["models"][name]
         steps = out["timesteps_trained"]
     out.update(
         {
@@ -235,65 +220,6 @@ def _train_job(
         }
     )
     return out
-
-
-def train_flat_baseline(
-    run_dir: Path,
-    name: str = "flat-ddpg",
-    config: str | Path | None = None,
-    timesteps: int | None = None,
-    seed: int = 0,
-    eval_freq: int = 5000,
-    eval_episodes: int = 5,
-    extra_callbacks: Any = (),
-    keep_checkpoints: bool = False,
-    backend: str | None = None,
-) -> dict[str, Any]:
-    """
-    The single-DDPG baseline: a plain SB3 DDPG on ``hddpg/SnakeReach-v0`` (both terms, normalised and
-    summed), written to ``run_dir/flat/<name>.zip`` with a ``manifest.json`` that
-    :func:`~sb3_hddpg.hierarchy.loading.load_policy` verifies.
-
-    :param run_dir: the run folder.
-    :param name: the model's name.
-    :param config: a ``zoo_configs`` file (default: the bundled one); its SnakeReach block is used.
-    :param timesteps: the budget (default: the config's).
-    :param seed: training seed.
-    :param eval_freq: steps between evaluations.
-    :param eval_episodes: episodes per evaluation.
-    :param extra_callbacks: more SB3 callbacks.
-    :param keep_checkpoints: keep the finished run's replay buffer (see :func:`~sb3_hddpg.training.training.train_agent`).
-    :param backend: ``sb3`` or ``sbx`` (the saved model is an SB3 zip either way).
-    :return: the manifest entry written.
-    """
-    from stable_baselines3 import DDPG
-
-    hyperparams = load_hyperparams(COMPARISON_ENV_ID, DDPG, config)
-    paths = AgentPaths(run_dir, name, run_dir / "flat" / f"{name}.zip")
-    outcome = train_agent(
-        functools.partial(make_snake_env, COMPARISON_ENV_ID, dict(hyperparams.env_kwargs)),
-        hyperparams,
-        paths,
-        timesteps=timesteps,
-        seed=seed,
-        eval_freq=eval_freq,
-        eval_episodes=eval_episodes,
-        extra_callbacks=list(extra_callbacks),
-        keep_checkpoints=keep_checkpoints,
-        backend=backend,
-    )
-    entry = model_entry(
-        name,
-        outcome,
-        "ddpg",
-        COMPARISON_ENV_ID,
-        hyperparams.env_kwargs,
-        {"file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml", "block": hyperparams.raw},
-        seed,
-        int(timesteps or hyperparams.n_timesteps),
-    )
-    atomic_write_json(run_dir / "flat" / "manifest.json", {"schema_version": 1, "models": {name: entry}})
-    return entry
 
 
 # ---------------------------------------------------------------------------------------- the parent
@@ -311,61 +237,31 @@ def write_config(path: Path, overrides: dict[str, Any]) -> Path:
 def _run_jobs(
     jobs: list[dict[str, Any]], processes: int, observer: QuickstartObserver
 ) -> dict[str, dict[str, Any]]:
-    """Run training jobs, ``processes`` at a time, relaying their progress to ``observer``."""
-    global _report
-    results: dict[str, dict[str, Any]] = {}
+    """
+    Run training jobs on the process runner, ``processes`` at a time (in this process when 1), relaying
+    their progress to ``observer``; the first failure is re-raised.
+    """
     totals = {job["name"]: job["timesteps"] for job in jobs}
     for name, total in totals.items():
         observer.on_task(name, 0, total)
-    if processes <= 1:
-        # In this process: the same code path without a pool (handy for debugging and profiling).
-        _report = lambda name, steps: observer.on_task(name, min(steps, totals[name]), totals[name])  # noqa: E731
-        try:
-            for job in jobs:
-                results[job["name"]] = _train_job(**job)
-                observer.on_message(f"{job['name']}: {results[job['name']]['timesteps']} steps")
-        finally:
-            _report = None
-        return results
 
-    # spawn, not fork: the parent has torch loaded, and forked torch processes can deadlock.
-    context = multiprocessing.get_context("spawn")
-    progress_queue = context.Queue()
-    executor = ProcessPoolExecutor(
-        max_workers=min(processes, len(jobs)),
-        mp_context=context,
-        initializer=_init_child,
-        initargs=(progress_queue,),
-    )
-    futures: dict[Future[dict[str, Any]], str] = {}
-    try:
-        for job in jobs:
-            futures[executor.submit(_train_job, **job)] = job["name"]
-        pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
-            _drain(progress_queue, totals, observer)
-            for future in done:
-                name = futures[future]
-                results[name] = future.result()  # re-raises a child's error here
-                observer.on_task(name, totals[name], totals[name])
-                observer.on_message(
-                    f"{name}: {results[name]['timesteps']} steps in {results[name]['seconds']:.0f} s"
-                )
-    except BaseException:
-        executor.shutdown(wait=True, cancel_futures=True)
-        raise
-    executor.shutdown(wait=True)
-    return results
-
-
-def _drain(progress_queue: Any, totals: dict[str, int], observer: QuickstartObserver) -> None:
-    while True:
-        try:
-            name, steps = progress_queue.get_nowait()
-        except queue_module.Empty:
-            return
+    def progress(name: str, steps: float) -> None:
         observer.on_task(name, min(steps, totals[name]), totals[name])
+
+    def event(kind: str, job: Job, result: Any) -> None:
+        if kind == "done":
+            observer.on_task(job.key, totals[job.key], totals[job.key])
+            observer.on_message(f"{job.key}: {result['timesteps']} steps in {result['seconds']:.0f} s")
+
+    outcome = run_jobs(
+        [Job(job["name"], _train_job, kwargs=job, cost=job["timesteps"]) for job in jobs],
+        # A stopped quickstart is not resumed: a running job is left to end however it ends.
+        make_executor(min(processes, len(jobs)), interrupt_grace=None, inline=processes <= 1),
+        on_event=event,
+        on_progress=progress,
+        fail_fast=True,
+    )
+    return outcome.results
 
 
 # The workers train side by side in this folder: the lock is taken here, once, and shared with them.
@@ -475,34 +371,19 @@ def run_quickstart(
     trained_by.update({f"{n} worker": [n] for n in WORKER_ENV_IDS})
 
     steps_per_episode = _episode_steps()
-    total_steps = len(policies) * budget.compare_episodes * steps_per_episode
-    done_steps = 0
     summaries: dict[str, dict[str, Any]] = {}
-    for label, loaded in policies.items():
-        env = loaded.make_env(COMPARISON_ENV_ID)
-
-        def tick(_env: Any, _info: dict[str, Any]) -> None:
-            nonlocal done_steps
-            done_steps += 1
-            if done_steps % 50 == 0:
-                observer.on_task("evaluation", done_steps, total_steps)
-
-        result = evaluate(
-            loaded.policy, env, n_episodes=budget.compare_episodes, seed=EVAL_SEED_BASE, on_step=tick
-        )
-        env.close()
+    for label, result in _evaluate_on_shared_seeds(policies, budget.compare_episodes, observer).items():
         summary = result.summary()
         summary["std_reach_reward"] = float(np.std([e.reach_reward for e in result.episodes]))
         summaries[label] = summary
         agents = trained_by.get(label, [])
         methods[label] = {
-            "kind": loaded.kind,
+            "kind": policies[label].kind,
             "source": str(_relative(sources[label], run_dir)),
             "train_timesteps": sum(trained[a]["timesteps"] for a in agents),
             "train_seconds": sum(trained[a]["seconds"] for a in agents),
             "episodes": [e.reach_reward for e in result.episodes],
         }
-    observer.on_task("evaluation", total_steps, total_steps)
     stage_done(2)
 
     # 4. The hierarchy at work: a GIF, and the same episodes as a selection timeline.
@@ -540,13 +421,11 @@ def run_quickstart(
         sensor_range=proximity.sensor_range if proximity else None,
         touch_radius=proximity.touch_radius if proximity else None,
     )
-    histories = {}
-    for agent in ("goal", "avoid", "manager", "flat-ddpg"):
-        path = run_dir / "evaluations" / f"{agent}.json"
-        if path.exists():
-            import json
-
-            histories[agent] = json.loads(path.read_text())
+    histories = {
+        agent: json.loads(path.read_text())
+        for agent in ("goal", "avoid", "manager", "flat-ddpg")
+        if (path := run_dir / "evaluations" / f"{agent}.json").exists()
+    }
     references = {
         f"{label} (untrained)": summaries[label]["mean_reach_reward"]
         for label in ("HAM", "scripted", "random")
@@ -604,6 +483,32 @@ def run_quickstart(
     results["versions"] = library_versions()
     atomic_write_json(files["results"], results)
     return QuickstartResult(run_dir, summaries, methods, files, stage_seconds, wall)
+
+
+def _evaluate_on_shared_seeds(
+    policies: dict[str, LoadedPolicy], episodes: int, observer: QuickstartObserver
+) -> dict[str, EvaluationResult]:
+    """Every policy on the same ``episodes`` seeds of the comparison env, progress to ``observer``."""
+    total_steps = len(policies) * episodes * _episode_steps()
+    done_steps = 0
+
+    def tick(_env: Any, _info: dict[str, Any]) -> None:
+        nonlocal done_steps
+        done_steps += 1
+        if done_steps % 50 == 0:
+            observer.on_task("evaluation", done_steps, total_steps)
+
+    results = {}
+    for label, loaded in policies.items():
+        env = loaded.make_env(COMPARISON_ENV_ID)
+        try:
+            results[label] = evaluate(
+                loaded.policy, env, n_episodes=episodes, seed=EVAL_SEED_BASE, on_step=tick
+            )
+        finally:
+            env.close()
+    observer.on_task("evaluation", total_steps, total_steps)
+    return results
 
 
 def _build_ham(run_dir: Path) -> Path:

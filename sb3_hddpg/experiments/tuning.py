@@ -22,7 +22,6 @@ import datetime
 import functools
 import logging
 import math
-import multiprocessing
 import os
 import re
 import tempfile
@@ -45,6 +44,7 @@ from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.hyperparams_opt import sampler_for
+from sb3_hddpg.experiments.runner import Job, make_executor, run_jobs
 from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
 from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
 from sb3_hddpg.training.config import (
@@ -232,7 +232,7 @@ class TuningTarget:
 
     def describe(self) -> dict[str, Any]:
         """What makes trials comparable, stored in the study so that a mismatching re-run is refused."""
-        described = {
+        described: dict[str, Any] = {
             "level": self.level,
             "worker": self.worker,
             "timesteps": self.budget() if self.level != "ham" else None,
@@ -520,34 +520,23 @@ def tune(
     study = open_study(target, settings)
     if threads is None:
         threads = max(1, available_cores() // n_jobs)
-    if n_jobs == 1:
-        run_trials(target, settings, out_dir, 0, threads, deadline)
-        return study
-    # spawn, not fork: a forked child would share this process's database connections and torch state.
-    context = multiprocessing.get_context("spawn")
-    processes = [
-        context.Process(
-            target=run_trials,
-            args=(target, settings, str(out_dir), index, threads, deadline),
-            name=f"tune-{index}",
+    jobs = [
+        Job(
+            f"tune-{index}",
+            run_trials,
+            (target, settings, str(out_dir), index, threads, deadline),
+            threads=threads,
         )
         for index in range(n_jobs)
     ]
-    for process in processes:
-        process.start()
-    try:
-        for process in processes:
-            process.join()
-    except KeyboardInterrupt:
-        # The children got the same Ctrl-C; give them time to queue their trials again and leave.
-        for process in processes:
-            process.join(timeout=30)
-            if process.is_alive():
-                process.terminate()
-        raise
-    failed = [f"{p.name} (exit code {p.exitcode})" for p in processes if p.exitcode != 0]
-    if failed:
-        raise RuntimeError(f"Trial processes failed: {', '.join(failed)}; their errors are printed above")
+    # On Ctrl-C the trial processes got the signal too: they get 30 s to queue their trials again and leave.
+    outcome = run_jobs(jobs, make_executor(n_jobs, interrupt_grace=30.0, inline=n_jobs == 1))
+    for error in outcome.failures.values():
+        if isinstance(error, TrainingInterrupted):
+            raise error  # Ctrl-C or SIGTERM in a trial, its parameters queued again: the study resumes
+    if outcome.failures:
+        failed = [f"{key} ({outcome.failure_message(key)})" for key in outcome.failures]
+        raise RuntimeError(f"Trial processes failed: {', '.join(failed)}; their errors are logged above")
     return study
 
 

@@ -36,6 +36,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_hddpg.algorithms import ALGORITHMS, SBX_ALGORITHMS, algorithm_class
+from sb3_hddpg.artifacts.safe_load import build_without_env
 
 logger = logging.getLogger(__name__)
 
@@ -412,20 +413,9 @@ def _build_sb3(
     seed: int | None,
 ) -> OffPolicyAlgorithm:
     """A fresh SB3 model without an env (as ``BaseAlgorithm.load`` builds one), seeded like SB3 training."""
-    model = SBX_ALGOS[algo](
-        "MlpPolicy",
-        env=None,  # type: ignore[arg-type]
-        policy_kwargs=dict(policy_kwargs),
-        device="cpu",
-        seed=seed,
-        _init_setup_model=False,
-        **hparams,
+    return build_without_env(
+        SBX_ALGOS[algo], observation_space, action_space, hparams, policy_kwargs, seed=seed
     )
-    model.observation_space = observation_space
-    model.action_space = action_space
-    model.n_envs = 1
-    model._setup_model()
-    return model
 
 
 # ------------------------------------------------------------------------------------------- public API

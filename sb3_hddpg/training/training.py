@@ -558,12 +558,14 @@ def train_flat(
     preferences: dict[str, float] | None = None,
     backend: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    name: str | None = None,
+    extra_callbacks: Sequence[BaseCallback] = (),
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
-    "single DDPG", Section 3.3), and write ``out_dir/flat/<algo>.zip`` and ``out_dir/flat/manifest.json``.
+    "single DDPG", Section 3.3), and write ``out_dir/flat/<name>.zip`` and ``out_dir/flat/manifest.json``.
 
-    The manifest's ``models`` mapping has one entry per algorithm, in the workers manifest's format
+    The manifest's ``models`` mapping has one entry per model name (by default the algorithm), in the workers manifest's format
     (file, sha256, algo, env id and kwargs, rebuild spec, metrics, config, seed, versions), so that
     :func:`sb3_hddpg.hierarchy.loading.load_policy` opens the zip without unpickling anything.
 
@@ -588,6 +590,8 @@ def train_flat(
         factors); ``None``: the env's own reward.
     :param backend: ``sb3`` or ``sbx`` (default: the block's ``backend`` key, else ``sb3``); the saved
         model is an SB3 zip either way.
+    :param name: the model's name in the manifest and its file name (default: ``algo``).
+    :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
 
@@ -603,10 +607,11 @@ def train_flat(
     manifest: dict[str, Any] = {"schema_version": FLAT_MANIFEST_VERSION, "models": {}}
     if manifest_path.exists():
         manifest = read_json_file(manifest_path)
-    done = manifest["models"].get(algo)
+    name = name or algo
+    done = manifest["models"].get(name)
     if resume and done is not None and done.get("timesteps_requested") == budget:
         return manifest, None  # finished in an earlier run
-    paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{algo}.zip")
+    paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
     factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
     if preferences is not None:
         factory = functools.partial(make_preference_env, env_id, make_kwargs, dict(preferences))
@@ -627,9 +632,10 @@ def train_flat(
         threads=threads,
         keep_checkpoints=keep_checkpoints,
         backend=backend,
+        extra_callbacks=extra_callbacks,
     )
-    manifest["models"][algo] = model_entry(
-        algo,
+    manifest["models"][name] = model_entry(
+        name,
         outcome,
         algo,
         env_id,

@@ -1,0 +1,138 @@
+"""
+The benchmark of paper Section 3.3-3.4: every method for every seed, one common metric, seed statistics.
+
+Methods are records in :data:`METHOD_REGISTRY` (:class:`Method`: name, whether it needs its seed's
+workers, how it runs, its budget, its colour); adding a method is one :func:`register_method` call. Built in:
+
+- ``hddpg``: the two workers, then a manager with equal preferences (paper Algorithm 1);
+- ``hddpg-goal`` / ``hddpg-avoid``: managers preferring one worker by ``bias`` (15 %, paper Figure 10);
+- ``ham``: the hand-written switch over the same workers (:mod:`sb3_hddpg.baselines.ham`), no training;
+- ``ddpg``, ``td3``, ``sac`` (and ``tqc``): one flat agent on the combined reward, each given the
+  hierarchy's total env steps (workers + manager), configured by ``zoo_configs/<algo>.yml``.
+
+**Scenarios.** ``standard`` runs every method once per seed. ``transfer`` (the paper's "minimal learning
+period") trains each seed's workers once, then for every given preference (e.g. ``goal=2,avoid=1``) a
+manager with those factors and each flat agent from scratch on the same scalarised reward
+(:class:`~sb3_hddpg.wrappers.PreferenceReward`); :func:`transfer_results` compares the env steps each
+needs to reach 90 % of its final score. A run on a preference is the method key ``<method>@<preference>``.
+
+Workers are trained once per seed and shared by that seed's ``hddpg*`` and ``ham`` runs. Every run is an
+independent process (``n_jobs`` at a time, one torch thread each); a run's dependencies (its seed's
+workers) are scheduled before it. Every finished run writes a record atomically to
+``DIR/records/<method>/seed-<s>.json``, which :func:`run_benchmark` skips when resuming.
+
+**Metric.** ``mean_reach_reward``, the env's combined normalised reward, on fixed test seeds disjoint from
+the learning-curve seeds (see :mod:`.statistics`).
+
+The package follows the benchmark's sections, each a module: :mod:`.methods` (the records),
+:mod:`.settings` (settings, tasks, plan), :mod:`.run` (one task, the whole run on the process runner),
+:mod:`.statistics` and :mod:`.report`. Everything public is re-exported here.
+"""
+
+from __future__ import annotations
+
+from sb3_hddpg.experiments.benchmark.methods import (
+    DEFAULT_ENV_METHODS,
+    DEFAULT_METHODS,
+    ENV_METHODS,
+    FLAT_METHODS,
+    METHOD_REGISTRY,
+    METHODS,
+    TEST_SEED_BASE,
+    WORKERS,
+    Method,
+    method_key,
+    register_method,
+    split_key,
+)
+from sb3_hddpg.experiments.benchmark.report import (
+    CSV_KEYS,
+    OUTPUT_FILES,
+    evaluation_rows,
+    markdown_report,
+    write_csv,
+    write_outputs,
+)
+from sb3_hddpg.experiments.benchmark.run import (
+    RECORD_VERSION,
+    machine_info,
+    read_record,
+    record_path,
+    run_benchmark,
+    run_task,
+    seed_dir,
+    task_job,
+)
+from sb3_hddpg.experiments.benchmark.settings import (
+    DEFAULT_TRANSFER_METHODS,
+    DEFAULT_TRANSFER_PREFERENCES,
+    SCENARIOS,
+    BenchmarkSettings,
+    Task,
+    canonical_preference,
+    comparison_pairs,
+    plan_tasks,
+    task_cost,
+)
+from sb3_hddpg.experiments.benchmark.statistics import (
+    FINAL_METRICS,
+    SLOPE_UNIT,
+    TRANSFER_FRACTION,
+    compare,
+    compute_results,
+    curve_bands,
+    curve_statistics,
+    normalised_term_sums,
+    preference_score,
+    steps_to_fraction,
+    transfer_results,
+)
+
+__all__ = [
+    "CSV_KEYS",
+    "DEFAULT_ENV_METHODS",
+    "DEFAULT_METHODS",
+    "DEFAULT_TRANSFER_METHODS",
+    "DEFAULT_TRANSFER_PREFERENCES",
+    "ENV_METHODS",
+    "FINAL_METRICS",
+    "FLAT_METHODS",
+    "METHODS",
+    "METHOD_REGISTRY",
+    "OUTPUT_FILES",
+    "RECORD_VERSION",
+    "SCENARIOS",
+    "SLOPE_UNIT",
+    "TEST_SEED_BASE",
+    "TRANSFER_FRACTION",
+    "WORKERS",
+    "BenchmarkSettings",
+    "Method",
+    "Task",
+    "canonical_preference",
+    "compare",
+    "comparison_pairs",
+    "compute_results",
+    "curve_bands",
+    "curve_statistics",
+    "evaluation_rows",
+    "machine_info",
+    "markdown_report",
+    "method_key",
+    "normalised_term_sums",
+    "plan_tasks",
+    "preference_score",
+    "read_record",
+    "record_path",
+    "register_method",
+    "run_benchmark",
+    "run_task",
+    "seed_dir",
+    "split_key",
+    "steps_to_fraction",
+    "task_cost",
+    "task_job",
+    "transfer_results",
+    "write_csv",
+    "write_outputs",
+]

@@ -1,0 +1,291 @@
+"""
+The benchmark's methods as records: a new method is one :class:`Method` passed to :func:`register_method`.
+
+The built-in ones (``hddpg``, ``hddpg-goal``/``hddpg-avoid``, ``ham``, flat ``ddpg``/``td3``/``sac``/``tqc``)
+are registered here, with the functions that run them in a task's process.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
+import gymnasium as gym
+
+from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
+from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
+from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.policy import RandomPolicy
+from sb3_hddpg.training.training import FLAT_ENV_ID, train_flat, train_manager
+
+if TYPE_CHECKING:
+    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task
+
+#: The pseudo-method of a seed's two workers, which the methods that need them depend on.
+WORKERS = "workers"
+
+#: First seed of the final test episodes: disjoint from the learning-curve seeds ``EVAL_SEED_BASE + k``.
+TEST_SEED_BASE = EVAL_SEED_BASE + 5_000
+
+
+@dataclass(frozen=True)
+class Method:
+    """
+    One benchmark method: everything the benchmark knows of it, so that a new method is one record.
+
+    :param name: its name in ``--methods`` and the results.
+    :param run: ``run(task, settings, folder) -> fields`` trains (if it learns) and evaluates the task in
+        its own process, in the seed's ``folder``, and returns the record's fields: ``history`` (the
+        learning curve, every point with ``timesteps`` and ``total_timesteps``), ``test`` (the final test
+        summary), ``worker_timesteps`` and anything else worth keeping. It must be a module-level function
+        (or a ``functools.partial`` of one) registered at import, since it runs in a spawned process.
+    :param cost: its training budget in env steps for the given settings (for scheduling).
+    :param needs_workers: it uses its seed's workers, so it runs after them.
+    :param colour: its colour in every figure (a matplotlib colour).
+    :param default: run when ``--methods`` is not given.
+    :param baseline: compared with ``hddpg`` (paired differences by seed) whenever both ran.
+    :param takes_preference: it can learn a given preference (the transfer scenario).
+    :param description: one line for the docs.
+    """
+
+    name: str
+    run: Callable[[Task, BenchmarkSettings, Path], dict[str, Any]]
+    cost: Callable[[BenchmarkSettings], int]
+    needs_workers: bool = False
+    colour: str = "tab:olive"
+    default: bool = False
+    baseline: bool = False
+    takes_preference: bool = False
+    description: str = ""
+
+
+#: Every method the benchmark knows, by name, in registration order.
+METHOD_REGISTRY: dict[str, Method] = {}
+
+
+def register_method(method: Method) -> Method:
+    """
+    Add a method to :data:`METHOD_REGISTRY` (a name may be registered once; ``@`` is reserved).
+
+    :param method: the record.
+    :return: the record.
+    """
+    if method.name in METHOD_REGISTRY or method.name == WORKERS or "@" in method.name or not method.name:
+        raise ValueError(f"Cannot register benchmark method {method.name!r}: taken or reserved")
+    METHOD_REGISTRY[method.name] = method
+    return method
+
+
+def method_key(name: str, preference: str | None = None) -> str:
+    """A run's key: the method's name, with ``@<preference>`` in the transfer scenario."""
+    return name if preference is None else f"{name}@{preference}"
+
+
+def split_key(key: str) -> tuple[str, str | None]:
+    """The method name and the preference (``None``: none) of a run's key."""
+    name, _, preference = key.partition("@")
+    return name, preference or None
+
+
+def history_of(path: Path, offset: int) -> list[dict[str, Any]]:
+    """An ``evaluations/<name>.json`` history with ``total_timesteps = timesteps + offset`` on every point."""
+    history = json.loads(path.read_text())
+    return [{**point, "total_timesteps": int(point["timesteps"]) + offset} for point in history]
+
+
+def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
+    """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
+
+    # Another env is the user's choice: its id may be loaded from the run's files (allowed_env_ids).
+    env_id = settings.env["env_id"] if settings.env is not None else None
+    loaded = load_policy(policy_path, allowed_env_ids=[env_id] if env_id else None)
+    env = loaded.make_env()
+    try:
+        return evaluate(loaded.policy, env, n_episodes=settings.test_episodes, seed=TEST_SEED_BASE).summary()
+    finally:
+        env.close()
+
+
+def random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
+    """A random policy's evaluation on the learning-curve episodes: the floor of the transfer figure."""
+
+    env = gym.make(FLAT_ENV_ID)
+    try:
+        policy = RandomPolicy(cast(gym.spaces.Box, env.action_space), seed=0)  # the snake's actions: a box
+        return evaluate(policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
+    finally:
+        env.close()
+
+
+def workers_steps(folder: Path) -> int:
+    """Env steps of the seed's workers together, as their manifest records them."""
+    manifest = json.loads((folder / "workers" / "manifest.json").read_text())
+    return int(sum(entry["timesteps_trained"] for entry in manifest["workers"].values()))
+
+
+def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors)."""
+
+    run_dir = folder / task.method
+    env = settings.terms_env
+    train_manager(
+        folder,
+        run_dir,
+        env_id=env.env_id if env is not None else None,
+        env_kwargs=env.env_kwargs if env is not None else None,
+        prefer=prefer,
+        bias=settings.bias,
+        preferences=task.preferences,
+        timesteps=settings.timesteps,
+        seed=task.seed,
+        resume=read_checkpoint_state(run_dir / "checkpoints" / "manager") is not None,
+        eval_freq=settings.eval_freq_for(settings.timesteps),
+        eval_episodes=settings.eval_episodes,
+        backend=settings.backend,
+    )
+    offset = workers_steps(folder)
+    return {
+        "worker_timesteps": offset,
+        "history": history_of(run_dir / "evaluations" / "manager.json", offset),
+        "test": final_test(run_dir / "hierarchy.zip", settings),
+    }
+
+
+def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps."""
+
+    run_dir = folder / task.method
+    env = settings.terms_env
+    train_flat(
+        run_dir,
+        algo=algo,
+        env_id=env.env_id if env is not None else FLAT_ENV_ID,
+        env_kwargs=env.env_kwargs if env is not None else None,
+        timesteps=settings.flat_budget,
+        seed=task.seed,
+        resume=True,
+        eval_freq=settings.eval_freq_for(settings.flat_budget),
+        eval_episodes=settings.eval_episodes,
+        preferences=task.preferences,
+        backend=settings.backend,
+    )
+    return {
+        "worker_timesteps": 0,
+        "history": history_of(run_dir / "evaluations" / f"flat-{algo}.json", 0),
+        "test": final_test(run_dir / "flat" / f"{algo}.zip", settings),
+    }
+
+
+def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """Save the seed's HAM switch and evaluate it: one learning-curve point (it does not learn) and the test."""
+
+    env = gym.make(FLAT_ENV_ID)
+    try:
+        n_links = state_layout_of(env)["joint_obstacle_distances"]
+        threshold = settings.ham_threshold
+        if threshold is None:
+            threshold = (n_links.stop - n_links.start) - DEFAULT_MARGIN
+        offset = workers_steps(folder)
+        ham_path = save_ham(
+            folder / "ham" / "ham.json",
+            folder / "workers" / "manifest.json",
+            threshold=threshold,
+            hysteresis=settings.ham_hysteresis,
+            env_id=FLAT_ENV_ID,
+            metadata={"seed": task.seed, "worker_timesteps": offset},
+        )
+        switch, _ = load_ham(ham_path)
+        curve = evaluate(switch, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
+    finally:
+        env.close()
+    return {
+        "worker_timesteps": offset,
+        "history": [{"timesteps": 0, "total_timesteps": offset, **curve}],
+        "test": final_test(ham_path, settings),
+        "threshold": threshold,
+        "hysteresis": settings.ham_hysteresis,
+    }
+
+
+def _manager_cost(settings: BenchmarkSettings) -> int:
+    return settings.timesteps
+
+
+def _flat_cost(settings: BenchmarkSettings) -> int:
+    return settings.flat_budget
+
+
+def _no_cost(settings: BenchmarkSettings) -> int:
+    return 0
+
+
+register_method(
+    Method(
+        "hddpg",
+        functools.partial(_run_manager, None),
+        _manager_cost,
+        needs_workers=True,
+        colour="tab:red",
+        default=True,
+        takes_preference=True,
+        description="the two workers, then a manager with equal preferences (paper Algorithm 1)",
+    )
+)
+register_method(
+    Method(
+        "ham",
+        _run_ham,
+        _no_cost,
+        needs_workers=True,
+        colour="tab:gray",
+        default=True,
+        baseline=True,
+        description="the hand-written switch over the same workers, no training",
+    )
+)
+for _algo, _colour in (
+    ("ddpg", "tab:blue"),
+    ("td3", "tab:cyan"),
+    ("sac", "tab:purple"),
+    ("tqc", "tab:brown"),
+):
+    register_method(
+        Method(
+            _algo,
+            functools.partial(_run_flat, _algo),
+            _flat_cost,
+            colour=_colour,
+            default=_algo == "ddpg",
+            baseline=True,
+            takes_preference=True,
+            description=f"flat {_algo.upper()} on the combined reward for the hierarchy's total env steps",
+        )
+    )
+for _worker, _colour in (("goal", "tab:green"), ("avoid", "tab:orange")):
+    register_method(
+        Method(
+            f"hddpg-{_worker}",
+            functools.partial(_run_manager, _worker),
+            _manager_cost,
+            needs_workers=True,
+            colour=_colour,
+            default=True,
+            description=f"a manager preferring the {_worker} worker by the bias (paper Figure 10)",
+        )
+    )
+
+#: The built-in methods (the registry may hold more).
+METHODS = tuple(METHOD_REGISTRY)
+#: The methods run by default: the paper's three plus the biased managers of Figure 10.
+DEFAULT_METHODS: tuple[str, ...] = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
+#: Flat single-agent baselines (``train_flat``'s algorithms).
+FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
+#: The methods defined on any env with several objectives (``BenchmarkSettings.env``), and their default.
+ENV_METHODS = ("hddpg", *FLAT_METHODS)
+DEFAULT_ENV_METHODS = ("hddpg", "ddpg")

@@ -1,0 +1,232 @@
+"""The benchmark's report: ``results.json``, ``results.md``, ``evaluations.csv`` and the figures."""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
+from sb3_hddpg.experiments.benchmark.methods import WORKERS
+from sb3_hddpg.experiments.benchmark.statistics import curve_bands, with_term_sums
+from sb3_hddpg.media import figures
+
+# ---------------------------------------------------------------------------------------------- outputs
+#: Columns of ``evaluations.csv`` before the metrics.
+CSV_KEYS = ("method", "seed", "kind", "timesteps", "total_timesteps")
+
+
+def evaluation_rows(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every evaluation of every run as flat rows (``kind``: ``curve``, ``test`` or ``worker-<name>``)."""
+    rows: list[dict[str, Any]] = []
+    for record in records:
+        base = {"method": record["method"], "seed": record["seed"]}
+        if record["method"] == WORKERS:
+            for name, history in record["history"].items():
+                rows.extend({**base, "kind": f"worker-{name}", **_flat(p)} for p in history)
+            continue
+        rows.extend({**base, "kind": "curve", **_flat(p)} for p in record["history"])
+        last = record["history"][-1]
+        rows.append(
+            {
+                **base,
+                "kind": "test",
+                "timesteps": last["timesteps"],
+                "total_timesteps": last["total_timesteps"],
+                **_flat(with_term_sums(record["test"])),
+            }
+        )
+    return rows
+
+
+def _flat(point: dict[str, Any]) -> dict[str, Any]:
+    row = {}
+    for key, value in point.items():
+        if isinstance(value, dict):
+            row.update({f"{key}.{name}": v for name, v in value.items()})
+        else:
+            row[key] = value
+    return row
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
+    """Write rows as CSV atomically, with the union of their keys as columns."""
+    metric_keys = sorted({k for row in rows for k in row} - set(CSV_KEYS))
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=[*CSV_KEYS, *metric_keys], restval="")
+            writer.writeheader()
+            writer.writerows(rows)
+
+    return atomic_write(path, write)
+
+
+#: The files :func:`write_outputs` produces in the benchmark folder.
+OUTPUT_FILES = (
+    "results.json",
+    "results.md",
+    "evaluations.csv",
+    "learning_curves.png",
+    "figure9.png",
+    "figure10.png",
+)
+
+
+def _ci_text(stats: dict[str, Any], fmt: str) -> str:
+    return f"{stats['mean']:{fmt}} [{stats['ci_low']:{fmt}}, {stats['ci_high']:{fmt}}]"
+
+
+def markdown_report(results: dict[str, Any]) -> str:
+    """
+    The results as Markdown tables (for docs): per method the test metrics and curve statistics as
+    mean [95 % bootstrap CI] over seeds, then the paired comparisons.
+
+    :param results: a ``results.json`` dict.
+    """
+    unit = results["slope_unit_steps"]
+    lines = [
+        "| method | seeds | reach reward (test) | IQM | goal part | avoid part | goal-touch rate | collisions / episode "
+        f"| success | min clearance | saturated actions | curve mean | slope / {unit} steps | worker choices (test) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for method, entry in results["methods"].items():
+        s = entry["stats"]
+        choices = ", ".join(f"{k} {v:.0%}" for k, v in entry.get("selection_rate", {}).items()) or "-"
+        # The deciding network's saturation (the manager's for hierarchies); absent in older results.
+        saturation = f"{s['action_saturation']['mean']:.0%}" if "action_saturation" in s else "-"
+        # The snake's own metrics; "-" on an env that does not report them.
+        snake = {
+            key: _ci_text(s[key], fmt) if key in s else "-"
+            for key, fmt in (
+                ("goal_reach_reward", ".1f"),
+                ("avoid_reach_reward", ".1f"),
+                ("goal_touch_rate", ".3f"),
+                ("collisions_per_episode", ".2f"),
+                ("success_rate", ".2f"),
+            )
+        }
+        clearance = f"{s['min_clearance']['mean']:.3f}" if "min_clearance" in s else "-"
+        lines.append(
+            f"| {method} | {len(entry['seeds'])} | {_ci_text(s['mean_reach_reward'], '.1f')} "
+            f"| {s['mean_reach_reward']['iqm']:.1f} | {snake['goal_reach_reward']} "
+            f"| {snake['avoid_reach_reward']} | {snake['goal_touch_rate']} "
+            f"| {snake['collisions_per_episode']} | {snake['success_rate']} "
+            f"| {clearance} | {saturation} | {_ci_text(s['curve_mean'], '.1f')} "
+            f"| {_ci_text(s['slope'], '.2f')} | {choices} |"
+        )
+    if results["comparisons"]:
+        lines += [
+            "",
+            "| A vs B | metric | A - B [95 % CI], paired by seed | relative | P(A > B) |",
+            "|---|---|---|---|---|",
+        ]
+        for pair, comparison in results["comparisons"].items():
+            for metric in (
+                "mean_reach_reward",
+                "curve_mean",
+                "slope",
+                "success_rate",
+                "collisions_per_episode",
+            ):
+                if metric not in comparison:
+                    continue
+                c = comparison[metric]
+                relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
+                lines.append(
+                    f"| {pair} | {metric} | {c['difference']:+.2f} [{c['ci_low']:+.2f}, {c['ci_high']:+.2f}] "
+                    f"| {relative} | {c['probability_of_improvement']:.2f} |"
+                )
+            ratio = comparison["slope_ratio"]
+            lines.append(
+                f"| {pair} | slope ratio A / B | {ratio:.2f} | | |"
+                if ratio is not None
+                else f"| {pair} | slope ratio A / B | undefined (B's slope is 0) | | |"
+            )
+    lines += _dependence_lines(results)
+    lines += _transfer_lines(results)
+    return "\n".join(lines) + "\n"
+
+
+def _share_text(value: float | None) -> str:
+    return f"{value:.1%}" if value is not None else "-"
+
+
+def _dependence_lines(results: dict[str, Any]) -> list[str]:
+    """The per-seed state-dependence table (issue 13, target 2), for the methods that report choices."""
+    rows = []
+    for method, entry in results["methods"].items():
+        for seed, figure in entry.get("state_dependence", {}).items():
+            if figure is None:
+                continue
+            ratio = f"{figure['ratio']:.2f}" if figure["ratio"] is not None else "undefined"
+            rows.append(
+                f"| {method} | {seed} | {_share_text(figure['near_share'])} ({figure['near_choices']}) "
+                f"| {_share_text(figure['clear_share'])} ({figure['clear_choices']}) | {ratio} |"
+            )
+    if not rows:
+        return []
+    figure = next(f for e in results["methods"].values() for f in e.get("state_dependence", {}).values() if f)
+    return [
+        "",
+        f"State dependence (test episodes): the {figure['worker']} worker's share of the choices made with the "
+        f"nearest obstacle within {figure['near_clearance']:.3g} (half the sensor range) and with none within "
+        f"{figure['clear_clearance']:.3g} (the sensor range); choices counted in brackets. A manager that "
+        "decides by state has a ratio well above 1; a fixed mix, about 1.",
+        "",
+        f"| method | seed | {figure['worker']} share near | {figure['worker']} share none in range | ratio |",
+        "|---|---|---|---|---|",
+        *rows,
+    ]
+
+
+def _transfer_lines(results: dict[str, Any]) -> list[str]:
+    """The transfer figure (issue 13, target 5): steps to reach the final score's fraction, and their ratio."""
+    transfer = results.get("transfer")
+    if not transfer:
+        return []
+    lines = [
+        "",
+        f"Transfer: {transfer['definition']}. Curves are evaluated every {transfer['eval_freq']} own steps, "
+        "so a run that is there at its first evaluation counts that many; 'no gain': the curve ended at or below the random score.",
+        "",
+        "| preference | flat | seeds | hddpg steps (mean) | flat steps (mean) | ratio flat / hddpg [95 % CI] "
+        "| per seed (flat / hddpg) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for preference, entry in transfer["preferences"].items():
+        for flat, comparison in entry.items():
+            seeds = comparison["per_seed"]
+            manager = [v["hddpg_steps"] for v in seeds.values() if v["hddpg_steps"] is not None]
+            agent = [v["flat_steps"] for v in seeds.values() if v["flat_steps"] is not None]
+            ratio = comparison["ratio"]
+            per_seed = ", ".join(
+                f"{seed}: {v['flat_steps'] if v['flat_steps'] is not None else 'no gain'} / "
+                f"{v['hddpg_steps'] if v['hddpg_steps'] is not None else 'no gain'}"
+                for seed, v in seeds.items()
+            )
+            lines.append(
+                f"| {preference} | {flat} | {comparison['seeds_with_ratio']}/{len(seeds)} "
+                f"| {np.mean(manager) if manager else float('nan'):.0f} | {np.mean(agent) if agent else float('nan'):.0f} "
+                f"| {_ci_text(ratio, '.2f') if ratio else 'undefined'} | {per_seed} |"
+            )
+    return lines
+
+
+def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> None:
+    """Write ``results.json``, ``results.md``, ``evaluations.csv`` and the plots into ``out``."""
+
+    method_records = [r for r in records if r["method"] != WORKERS]
+    results["curves"] = {
+        "own_steps": curve_bands(method_records, "timesteps"),
+        "total_steps": curve_bands(method_records, "total_timesteps"),
+    }
+    atomic_write_json(out / "results.json", results)
+    atomic_write(out / "results.md", lambda tmp: tmp.write_text(markdown_report(results)))
+    write_csv(out / "evaluations.csv", evaluation_rows(records))
+    figures.benchmark_learning_curves(results, out / "learning_curves.png")
+    figures.figure9(results, out / "figure9.png")
+    figures.figure10(results, out / "figure10.png")

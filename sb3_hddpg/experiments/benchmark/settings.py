@@ -1,0 +1,278 @@
+"""The benchmark's settings (``benchmark.json``), its tasks (one run of a method on a seed) and their plan."""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from stable_baselines3 import DDPG
+
+from sb3_hddpg.envs.terms_env import TermsEnv
+from sb3_hddpg.experiments.benchmark.methods import (
+    DEFAULT_METHODS,
+    ENV_METHODS,
+    FLAT_METHODS,
+    METHOD_REGISTRY,
+    WORKERS,
+    Method,
+    method_key,
+    split_key,
+)
+from sb3_hddpg.hierarchy.selection import parse_preferences
+from sb3_hddpg.policy import WORKER_ENV_IDS
+from sb3_hddpg.training.backends import check_algo, check_backend
+from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
+from sb3_hddpg.training.training import worker_hyperparams
+
+
+@functools.cache
+def _config_budgets() -> dict[str, int]:
+    """The bundled config's budgets (``n_timesteps``): each snake worker's and the manager's."""
+
+    budgets = {name: hp.n_timesteps for name, hp in worker_hyperparams(sorted(WORKER_ENV_IDS)).items()}
+    budgets[MANAGER_KEY] = load_hyperparams(MANAGER_KEY, DDPG, manager=True).n_timesteps
+    return budgets
+
+
+#: ``standard``: every method once per seed; ``transfer``: managers and flat agents on new preferences.
+SCENARIOS = ("standard", "transfer")
+#: The preferences of the transfer scenario by default: the goal term weighted twice, then the avoid term.
+DEFAULT_TRANSFER_PREFERENCES = ("goal=2,avoid=1", "goal=1,avoid=2")
+#: The methods of the transfer scenario by default: the manager against flat DDPG.
+DEFAULT_TRANSFER_METHODS = ("hddpg", "ddpg")
+
+
+def canonical_preference(text: str) -> str:
+    """
+    A preference such as ``"goal=2, avoid=1"`` checked and written one way (``goal=2,avoid=1``: factors in
+    the given order, ``%g``), so that it names the same runs however it was typed.
+
+    :raises ValueError: naming the bad entry.
+    """
+
+    factors = parse_preferences(text)
+    for name, value in factors.items():
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(
+                f"Expected preference of {name!r} to be a finite number > 0, actually: {value!r}"
+            )
+    return ",".join(f"{name}={value:g}" for name, value in factors.items())
+
+
+@dataclass
+class BenchmarkSettings:
+    """
+    What to run; stored in ``DIR/benchmark.json`` so that ``--resume`` continues the same benchmark.
+
+    :param methods: methods among :data:`METHOD_REGISTRY`.
+    :param seeds: training seeds (each method runs once per seed).
+    :param timesteps: the manager's budget, in its own (env) steps (``0``: the bundled config's manager
+        block, ``n_timesteps``; resolved when the settings are made, so ``benchmark.json`` records it).
+    :param worker_timesteps: each worker's budget (``None``: each worker's own config block, e.g. 150k steps
+        for the goal worker and 30k for the avoid worker).
+    :param flat_timesteps: a flat agent's budget (``None``: ``timesteps`` plus every worker's budget, so
+        that a flat agent uses as many environment steps as the whole hierarchy).
+    :param eval_freq: steps between learning-curve evaluations of every run (``None``: ``timesteps // 10``).
+    :param eval_episodes: episodes per learning-curve evaluation.
+    :param test_episodes: episodes of the final test evaluation.
+    :param ham_threshold: HAM's switching threshold (``None``: its default).
+    :param ham_hysteresis: HAM's hysteresis.
+    :param bias: the biased managers' extra preference factor.
+    :param scenario: ``standard`` or ``transfer`` (see the module's docstring).
+    :param preferences: the transfer scenario's preferences, e.g. ``["goal=2,avoid=1"]``; every method runs
+        once per preference and seed (empty in the standard scenario).
+    :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
+    :param env: another env with several objectives, as ``{"env_id", "env_kwargs", "terms"}`` (a
+        :class:`~sb3_hddpg.envs.terms_env.TermsEnv`'s fields, see :attr:`terms_env`; ``None``: the snake
+        arm): its workers, managers and flat agents are trained and tested on it. Only the methods of
+        :data:`ENV_METHODS` and the standard scenario apply there (HAM's switch rule and the biased
+        managers are the snake's).
+    """
+
+    methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
+    seeds: list[int] = field(default_factory=lambda: list(range(5)))
+    timesteps: int = 0
+    worker_timesteps: int | None = None
+    flat_timesteps: int | None = None
+    eval_freq: int | None = None
+    eval_episodes: int = 5
+    test_episodes: int = 20
+    ham_threshold: float | None = None
+    ham_hysteresis: float = 0.0
+    bias: float = 0.15
+    scenario: str = "standard"
+    preferences: list[str] = field(default_factory=list)
+    backend: str = "sb3"
+    env: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        self._check_methods()
+        if self.env is not None:
+            self._check_env()
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"Expected distinct seeds, at least one, actually: {self.seeds}")
+        if not self.timesteps:
+            self.timesteps = _config_budgets()[MANAGER_KEY]
+        for name in ("timesteps", "worker_timesteps", "eval_episodes", "test_episodes"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"Expected `{name}` >= 1, actually: {getattr(self, name)}")
+        if self.scenario not in SCENARIOS:
+            raise ValueError(f"Unknown scenario {self.scenario!r}; choose from {list(SCENARIOS)}")
+        if self.scenario == "standard":
+            if self.preferences:
+                raise ValueError("Preferences apply to the transfer scenario only (scenario='transfer')")
+        else:
+            self._check_transfer()
+
+    def _check_methods(self) -> None:
+        """Known and distinct methods, at least one; the backend, and that it trains each flat method."""
+        unknown = [m for m in self.methods if m not in METHOD_REGISTRY]
+        if unknown:
+            raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
+        self.backend = check_backend(self.backend)
+        for method in self.methods:
+            if method in FLAT_METHODS:
+                check_algo(method, self.backend)
+        if len(set(self.methods)) != len(self.methods) or not self.methods:
+            raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
+
+    def _check_transfer(self) -> None:
+        """The transfer scenario's preferences (written one way) and methods: hddpg and flat agents."""
+        self.preferences = [canonical_preference(p) for p in self.preferences]
+        if not self.preferences or len(set(self.preferences)) != len(self.preferences):
+            raise ValueError(f"Expected distinct preferences, at least one, actually: {self.preferences}")
+        fixed = [m for m in self.methods if not METHOD_REGISTRY[m].takes_preference]
+        if fixed:
+            choices = [m.name for m in METHOD_REGISTRY.values() if m.takes_preference]
+            raise ValueError(
+                f"Methods {fixed} cannot learn a given preference; the transfer scenario takes {choices}"
+            )
+        if "hddpg" not in self.methods or len(self.methods) < 2:
+            raise ValueError(
+                f"The transfer scenario compares hddpg with flat agents, actually: {self.methods}"
+            )
+
+    def _check_env(self) -> None:
+        """Another env: its spec as plain JSON (so that ``benchmark.json`` resumes), and methods that apply."""
+        env = self.env if isinstance(self.env, dict) else {}
+        if set(env) != {"env_id", "env_kwargs", "terms"} or not isinstance(env["env_id"], str):
+            raise ValueError(
+                f"Expected `env` as {{'env_id', 'env_kwargs', 'terms'}}, actually: {str(self.env)[:200]}"
+            )
+        self.env = json.loads(json.dumps(env))  # tuples become lists, as benchmark.json stores them
+        snake_only = [m for m in self.methods if m not in ENV_METHODS]
+        if snake_only:
+            raise ValueError(
+                f"Methods {snake_only} are defined for the snake arm only; on {env['env_id']!r} choose from "
+                f"{list(ENV_METHODS)}"
+            )
+        if self.scenario != "standard":
+            raise ValueError(f"The {self.scenario!r} scenario is defined for the snake arm only")
+
+    @property
+    def terms_env(self) -> TermsEnv | None:
+        """:attr:`env` as the :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the training functions take."""
+        if self.env is None:
+            return None
+        return TermsEnv(self.env["env_id"], dict(self.env["env_kwargs"]), tuple(self.env["terms"]))
+
+    @property
+    def method_keys(self) -> list[str]:
+        """The runs of one seed: the methods, or in the transfer scenario each method on each preference."""
+        if self.scenario == "transfer":
+            return [method_key(m, p) for p in self.preferences for m in self.methods]
+        return list(self.methods)
+
+    @property
+    def flat_budget(self) -> int:
+        """A flat agent's budget: as many env steps as the hierarchy (workers + manager) by default."""
+        if self.flat_timesteps is not None:
+            return self.flat_timesteps
+        return self.timesteps + self.workers_budget
+
+    @property
+    def workers_budget(self) -> int:
+        """Env steps of a seed's workers together: ``worker_timesteps`` each, or each worker's config budget."""
+        env = self.terms_env
+        if env is not None:
+            blocks = worker_hyperparams(list(env.terms), None, env)
+            workers = [block.n_timesteps for block in blocks.values()]
+        else:
+            budgets = _config_budgets()
+            workers = [budgets[name] for name in budgets if name != MANAGER_KEY]
+        if self.worker_timesteps is not None:
+            return self.worker_timesteps * len(workers)
+        return sum(workers)
+
+    def eval_freq_for(self, budget: int) -> int:
+        """
+        Steps between evaluations for a run of ``budget`` steps: the same for every run (default: a tenth
+        of the manager's budget), so that all curves have points at the same own steps.
+        """
+        return min(self.eval_freq if self.eval_freq else max(self.timesteps // 10, 1), budget)
+
+
+@dataclass(frozen=True)
+class Task:
+    """
+    One unit of work in its own process.
+
+    :param method: a run's key (a method, or ``<method>@<preference>``), or ``workers`` (a seed's two workers).
+    :param seed: the training seed.
+    """
+
+    method: str
+    seed: int
+
+    @property
+    def spec(self) -> Method | None:
+        """The method's record (``None`` for the workers)."""
+        return None if self.method == WORKERS else METHOD_REGISTRY[split_key(self.method)[0]]
+
+    @property
+    def preferences(self) -> dict[str, float] | None:
+        """The preference factors of a transfer run (``None``: the method's own)."""
+
+        preference = split_key(self.method)[1]
+        return parse_preferences(preference) if preference else None
+
+    @property
+    def needs_workers(self) -> bool:
+        return self.spec is not None and self.spec.needs_workers
+
+    @property
+    def label(self) -> str:
+        return f"{self.method}/seed-{self.seed}"
+
+
+def plan_tasks(settings: BenchmarkSettings) -> list[Task]:
+    """Every task of a benchmark: per seed its workers (if any method needs them) and every run."""
+    tasks = []
+    for seed in settings.seeds:
+        runs = [Task(key, seed) for key in settings.method_keys]
+        if any(t.needs_workers for t in runs):
+            tasks.append(Task(WORKERS, seed))
+        tasks.extend(runs)
+    return tasks
+
+
+def comparison_pairs(settings: BenchmarkSettings) -> list[tuple[str, str]]:
+    """
+    The paired comparisons of the paper's claims, as (challenger, baseline) run keys: ``hddpg`` against
+    every baseline method that ran (in the transfer scenario, on each preference).
+    """
+    suffixes = [f"@{p}" for p in settings.preferences] if settings.scenario == "transfer" else [""]
+    baselines = [m for m in settings.methods if METHOD_REGISTRY[m].baseline]
+    return [(f"hddpg{s}", f"{b}{s}") for s in suffixes for b in baselines if "hddpg" in settings.methods]
+
+
+# ------------------------------------------------------------------------------------------- scheduling
+def task_cost(task: Task, settings: BenchmarkSettings) -> int:
+    """A task's training budget in environment steps (HAM trains nothing), for scheduling."""
+    if task.spec is None:
+        return settings.workers_budget
+    return task.spec.cost(settings)

@@ -1,0 +1,355 @@
+"""
+The benchmark's statistics over seeds: final test metrics, learning-curve statistics, paired comparisons and
+the transfer figure.
+
+
+Everything is measured with :func:`sb3_hddpg.evaluation.evaluate` on the env's combined
+normalised reward, ``mean_reach_reward`` (per step the goal and avoid terms min-max normalised to
+``[0, 1]`` and summed; at most 2 per step, 400 per episode), plus goal-touch rate, collisions, success
+and clearance. The learning curves are the in-training evaluations (``evaluations/<name>.json``) on the
+fixed seeds ``EVAL_SEED_BASE + k``; because ``train_agent`` keeps the best model by those evaluations,
+the final scores are measured on a disjoint block of fixed test seeds, ``TEST_SEED_BASE + k``, the same
+for every method and seed (selecting and scoring on the same episodes would flatter the learned methods
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from sb3_hddpg.envs import SnakeArmEnv
+from sb3_hddpg.envs.contract import TermNormaliser
+from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, state_dependence
+from sb3_hddpg.experiments.benchmark.methods import (
+    METHOD_REGISTRY,
+    TEST_SEED_BASE,
+    WORKERS,
+    method_key,
+    split_key,
+)
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, comparison_pairs
+from sb3_hddpg.stats import (
+    bootstrap_ci,
+    paired_difference_ci,
+    probability_of_improvement,
+    summarise,
+    trend_slope,
+)
+
+#: The share of its final score (measured from a random policy's) a run must reach in the transfer figure.
+TRANSFER_FRACTION = 0.9
+
+#: The metrics reported for the final test evaluation.
+FINAL_METRICS = (
+    "mean_reach_reward",
+    "goal_reach_reward",
+    "avoid_reach_reward",
+    "goal_touch_rate",
+    "collisions_per_episode",
+    "success_rate",
+    "min_clearance",
+    "mean_reward",
+    "action_saturation",
+)
+
+
+#: Steps per unit of the reported learning-curve slopes.
+SLOPE_UNIT = 1000
+
+
+def normalised_term_sums(summary: dict[str, Any]) -> tuple[float, float]:
+    """
+    The episode sums of the normalised goal and avoid terms, from an evaluation summary's raw means.
+
+    Normalisation is affine per step, so the mean episode sum of a normalised term is
+    ``(mean raw sum - mean length * low) / (high - low)`` with the env's fixed ``reward_bounds``.
+    """
+
+    normaliser = TermNormaliser(SnakeArmEnv().reward_bounds)
+    length = summary["mean_length"]
+    goal, avoid = (normaliser.episode_sum(t, summary[f"mean_{t}_reward"], length) for t in ("goal", "avoid"))
+    return goal, avoid
+
+
+def with_term_sums(summary: dict[str, Any]) -> dict[str, Any]:
+    if "mean_goal_reward" not in summary or "mean_avoid_reward" not in summary:
+        return summary  # another env: its normalised total is mean_reach_reward already
+    goal, avoid = normalised_term_sums(summary)
+    return {**summary, "goal_reach_reward": goal, "avoid_reach_reward": avoid}
+
+
+def curve_statistics(history: Sequence[dict[str, Any]], window: int) -> dict[str, float]:
+    """
+    A learning curve's mean and trend slope (paper Figure 9) over the evaluations at own steps <= ``window``.
+
+    :param history: the run's evaluations (``timesteps`` and ``mean_reach_reward``).
+    :param window: the last own step counted (the same for every method, so curves are compared alike).
+    :return: ``curve_mean`` and ``slope`` (reach reward per :data:`SLOPE_UNIT` steps; 0 with < 2 points).
+    """
+    points = [p for p in history if p["timesteps"] <= window] or list(history[:1])
+    x = np.array([p["timesteps"] for p in points], dtype=float) / SLOPE_UNIT
+    y = np.array([p["mean_reach_reward"] for p in points], dtype=float)
+    slope = trend_slope(x, y) if len(set(x.tolist())) >= 2 else 0.0
+    return {"curve_mean": float(y.mean()), "slope": slope}
+
+
+def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """
+    Seed statistics of finished runs: per method the final test metrics (mean, 95 % bootstrap CI, IQM),
+    the learning curve's mean and slope, and the paired comparisons of the paper's claims.
+
+    :param settings: the benchmark's settings.
+    :param records: finished records (``workers`` records are used for the worker summaries).
+    :return: a JSON-ready dict.
+    """
+    by_method: dict[str, dict[int, dict[str, Any]]] = {}
+    worker_records = {}
+    for record in records:
+        if record["method"] == WORKERS:
+            worker_records[record["seed"]] = record
+        else:
+            by_method.setdefault(record["method"], {})[record["seed"]] = record
+    window = settings.timesteps
+    methods: dict[str, Any] = {}
+    per_seed: dict[str, dict[int, dict[str, float]]] = {}
+    for method in [m for m in settings.method_keys if m in by_method]:
+        runs = by_method[method]
+        seeds = sorted(runs)
+        values: dict[int, dict[str, float]] = {}
+        for seed in seeds:
+            run = runs[seed]
+            test = with_term_sums(run["test"])
+            # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
+            values[seed] = {key: float(test[key]) for key in FINAL_METRICS if key in test}
+            values[seed].update(curve_statistics(run["history"], window))
+            values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
+        per_seed[method] = values
+        stats = {
+            key: summarise([values[s][key] for s in seeds])
+            for key in (*FINAL_METRICS, "curve_mean", "slope", "final_curve_reward")
+            if all(key in values[s] for s in seeds)
+        }
+        selection = [
+            runs[s]["test"].get("selection_rate") for s in seeds if runs[s]["test"].get("selection_rate")
+        ]
+        methods[method] = {
+            "seeds": seeds,
+            "per_seed": {str(s): values[s] for s in seeds},
+            "stats": stats,
+            "worker_timesteps": int(np.mean([runs[s]["worker_timesteps"] for s in seeds])),
+            "own_timesteps": int(max(runs[seeds[0]]["history"][-1]["timesteps"], 0)),
+        }
+        if selection:
+            methods[method]["selection_rate"] = {
+                name: float(np.mean([rates.get(name, 0.0) for rates in selection]))
+                for name in sorted(set().union(*selection))
+            }
+        # Issue 13's target 2, per seed: does the hierarchy's choice depend on the state?
+        dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
+        if any(figure is not None for figure in dependence.values()):
+            methods[method]["state_dependence"] = dependence
+    comparisons = {}
+    for a, b in comparison_pairs(settings):
+        if a in per_seed and b in per_seed:
+            comparisons[f"{a} vs {b}"] = compare(per_seed[a], per_seed[b])
+    workers = {}
+    for name in ("goal", "avoid"):
+        finals = [
+            with_term_sums(r["workers"][name]["metrics"])["mean_reach_reward"]
+            for r in worker_records.values()
+            if name in r["workers"]
+        ]
+        if finals:
+            workers[name] = {"validation_mean_reach_reward": summarise(finals)}
+    results: dict[str, Any] = {
+        "settings": asdict(settings),
+        "scenario": settings.scenario,
+        "metric": "mean_reach_reward: episode sum of the normalised "
+        + (
+            f"terms {settings.env['terms']} (max {len(settings.env['terms'])} per step)"
+            if settings.env is not None
+            else "goal and avoid terms (max 2 per step)"
+        ),
+        "test_seeds": [TEST_SEED_BASE, TEST_SEED_BASE + settings.test_episodes - 1],
+        "curve_seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + settings.eval_episodes - 1],
+        "curve_window": window,
+        "slope_unit_steps": SLOPE_UNIT,
+        "methods": methods,
+        "comparisons": comparisons,
+        "workers": workers,
+        "colours": {key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
+    }
+    if settings.scenario == "transfer":
+        results["transfer"] = transfer_results(settings, by_method)
+    return results
+
+
+# --------------------------------------------------------------------------------------------- transfer
+def preference_score(summary: dict[str, Any], preferences: dict[str, float]) -> float:
+    """
+    An evaluation's score under preference factors: ``sum_t factor_t * (episode sum of normalised term t)``,
+    the return of the manager (and of the flat agent) trained on that preference.
+
+    :param summary: an evaluation summary (raw term means and ``mean_length``).
+    :param preferences: term -> factor (terms not named: 1).
+    """
+    goal, avoid = normalised_term_sums(summary)
+    parts = {"goal": goal, "avoid": avoid}
+    unknown = sorted(set(preferences) - set(parts))
+    if unknown:
+        raise ValueError(f"Unknown reward terms {unknown} in the preferences; the terms: {list(parts)}")
+    return float(sum(preferences.get(term, 1.0) * value for term, value in parts.items()))
+
+
+def steps_to_fraction(
+    history: Sequence[dict[str, Any]],
+    score: Callable[[dict[str, Any]], float],
+    fraction: float = TRANSFER_FRACTION,
+    floor: float = 0.0,
+) -> int | None:
+    """
+    The own steps at which a learning curve first reaches ``fraction`` of its final score, measured from
+    ``floor``: the first evaluation with ``score >= floor + fraction * (final - floor)``, where ``final`` is
+    the last evaluation's score. With ``floor`` a random policy's score this is "90 % of the way from
+    random to where it ended"; with ``floor = 0`` it is 90 % of the final score itself.
+
+    :param history: the curve's evaluations, in order (``timesteps``: the run's own steps).
+    :param score: the score of one evaluation.
+    :param fraction: in (0, 1].
+    :param floor: the score counted as no progress.
+    :return: the steps, or ``None`` if the curve ends at or below ``floor`` (it learned nothing to reach).
+    """
+    if not 0 < fraction <= 1:
+        raise ValueError(f"Expected `fraction` in (0, 1], actually: {fraction}")
+    if not history:
+        raise ValueError("Expected a learning curve with at least one evaluation, actually: none")
+    scores = [score(point) for point in history]
+    if scores[-1] <= floor:
+        return None
+    target = floor + fraction * (scores[-1] - floor)
+    return next(int(p["timesteps"]) for p, value in zip(history, scores) if value >= target)
+
+
+def transfer_results(
+    settings: BenchmarkSettings, by_method: dict[str, dict[int, dict[str, Any]]]
+) -> dict[str, Any]:
+    """
+    The transfer figure (issue 13, target 5): per preference and flat method, per seed the own env steps
+    each run needs to reach :data:`TRANSFER_FRACTION` of its final score on its learning curve (scored
+    with the preference's factors, measured from a random policy's score on the same episodes), their
+    ratio flat / hddpg (how many times fewer steps the manager over pre-trained workers needs), and the
+    ratio's mean with a 95 % bootstrap CI over the seeds where both are defined.
+
+    :param settings: the benchmark's settings (transfer scenario).
+    :param by_method: run key -> seed -> record.
+    """
+    out: dict[str, Any] = {
+        "fraction": TRANSFER_FRACTION,
+        "definition": (
+            f"own env steps until the learning curve first reaches {TRANSFER_FRACTION:.0%} of the way from a "
+            "random policy's score to the run's final score (both scored with the preference's factors); "
+            "ratio = flat steps / hddpg steps (the manager's workers are trained once, before)"
+        ),
+        "eval_freq": settings.eval_freq_for(settings.timesteps),
+        "preferences": {},
+    }
+    flats = [m for m in settings.methods if m != "hddpg"]
+    for preference in settings.preferences:
+        factors = Task(method_key("hddpg", preference), 0).preferences or {}
+
+        def score(point: dict[str, Any], factors: dict[str, float] = factors) -> float:
+            return preference_score(point, factors)
+
+        managers = by_method.get(method_key("hddpg", preference), {})
+        entry: dict[str, Any] = {}
+        for flat in flats:
+            agents = by_method.get(method_key(flat, preference), {})
+            per_seed: dict[str, dict[str, Any]] = {}
+            for seed in sorted(set(managers) & set(agents)):
+                manager, agent = managers[seed], agents[seed]
+                floor = score(manager["reference"])
+                manager_steps = steps_to_fraction(manager["history"], score, floor=floor)
+                flat_steps = steps_to_fraction(agent["history"], score, floor=floor)
+                per_seed[str(seed)] = {
+                    "hddpg_steps": manager_steps,
+                    "flat_steps": flat_steps,
+                    "ratio": flat_steps / manager_steps if manager_steps and flat_steps else None,
+                    "hddpg_final_score": score(manager["history"][-1]),
+                    "flat_final_score": score(agent["history"][-1]),
+                    "random_score": floor,
+                    "worker_timesteps": manager["worker_timesteps"],
+                }
+            ratios = [v["ratio"] for v in per_seed.values() if v["ratio"] is not None]
+            entry[flat] = {
+                "per_seed": per_seed,
+                "ratio": summarise(ratios) if ratios else None,
+                "seeds_with_ratio": len(ratios),
+            }
+        out["preferences"][preference] = entry
+    return out
+
+
+def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> dict[str, Any]:
+    """
+    Paired comparison of two methods over their common seeds (same seed: same workers, same test episodes).
+
+    :param a: seed -> metrics of the challenger.
+    :param b: seed -> metrics of the baseline.
+    :return: per metric the paired mean difference with its 95 % bootstrap CI, the relative gain of the
+        means, and the probability of improvement; plus the ratio of mean slopes (the paper's
+        "improvement rate").
+    """
+    seeds = sorted(set(a) & set(b))
+    out: dict[str, Any] = {"seeds": seeds}
+    for key in ("mean_reach_reward", "curve_mean", "slope", "success_rate", "collisions_per_episode"):
+        if not all(key in a[s] and key in b[s] for s in seeds):
+            continue  # a metric the env does not report (the snake's success and collisions)
+        xa = np.array([a[s][key] for s in seeds])
+        xb = np.array([b[s][key] for s in seeds])
+        diff, low, high = paired_difference_ci(xa, xb)
+        out[key] = {
+            "difference": diff,
+            "ci_low": low,
+            "ci_high": high,
+            "relative_gain": float(xa.mean() / xb.mean() - 1.0) if xb.mean() != 0 else None,
+            "probability_of_improvement": probability_of_improvement(xa, xb),
+        }
+    mean_b_slope = float(np.mean([b[s]["slope"] for s in seeds]))
+    out["slope_ratio"] = (
+        float(np.mean([a[s]["slope"] for s in seeds]) / mean_b_slope) if mean_b_slope != 0 else None
+    )
+    return out
+
+
+def curve_bands(
+    records: Iterable[dict[str, Any]], x_key: str, confidence: float = 0.95
+) -> dict[str, dict[str, list[float]]]:
+    """
+    Per method, the mean learning curve over seeds with a bootstrap CI band, at the evaluation points
+    every seed shares.
+
+    :param records: finished method records.
+    :param x_key: ``timesteps`` (own steps) or ``total_timesteps`` (including worker pre-training).
+    :return: method -> ``{"x", "mean", "low", "high"}``.
+    """
+    curves: dict[str, list[dict[float, float]]] = {}
+    for record in records:
+        if record["method"] == WORKERS:
+            continue
+        curves.setdefault(record["method"], []).append(
+            {float(p[x_key]): float(p["mean_reach_reward"]) for p in record["history"]}
+        )
+    bands = {}
+    for method, per_seed in curves.items():
+        xs = sorted(set.intersection(*(set(c) for c in per_seed)))
+        band: dict[str, list[float]] = {"x": xs, "mean": [], "low": [], "high": []}
+        for x in xs:
+            mean, low, high = bootstrap_ci([c[x] for c in per_seed], confidence=confidence, n_resamples=2000)
+            band["mean"].append(mean)
+            band["low"].append(low)
+            band["high"].append(high)
+        bands[method] = band
+    return bands
