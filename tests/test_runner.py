@@ -62,12 +62,14 @@ def test_a_failure_fails_its_dependants_only():
     jobs = [
         Job("bad", broken, ("no luck",)),
         Job("needs-bad", square, (2,), after=("bad",)),
+        Job("needs-needs-bad", square, (5,), after=("needs-bad",)),
         Job("fine", square, (3,)),
     ]
     outcome = run_jobs(jobs, InlineExecutor(), on_progress=lambda key, value: progress.append((key, value)))
     assert outcome.results == {"fine": 9}
     assert outcome.failure_message("bad") == "ValueError: no luck"
     assert outcome.failure_message("needs-bad") == "RuntimeError: bad failed: ValueError: no luck"
+    assert outcome.failure_message("needs-needs-bad").startswith("RuntimeError: needs-bad failed: ")
     assert progress == [("fine", 3)]
     with pytest.raises(ValueError, match="no luck"):
         run_jobs(jobs, InlineExecutor(), fail_fast=True)

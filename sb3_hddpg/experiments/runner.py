@@ -172,10 +172,12 @@ def run_jobs(
         notify("failed", job, error)
 
     def schedule() -> None:
-        for job in [j for j in pending.values() if any(d in outcome.failures for d in j.after)]:
-            del pending[job.key]
-            dep = next(d for d in job.after if d in outcome.failures)
-            fail(job, RuntimeError(f"{dep} failed: {outcome.failure_message(dep)}"))
+        # A job after a failed one fails too, and so on down the chain.
+        while blocked := [j for j in pending.values() if any(d in outcome.failures for d in j.after)]:
+            for job in blocked:
+                del pending[job.key]
+                dep = next(d for d in job.after if d in outcome.failures)
+                fail(job, RuntimeError(f"{dep} failed: {outcome.failure_message(dep)}"))
         ready = [j for j in pending.values() if all(d in outcome.results for d in j.after)]
         for job in sorted(ready, key=lambda j: (j.group, -j.cost))[: executor.slots - len(running)]:
             del pending[job.key]
