@@ -26,7 +26,7 @@ def test_bundled_config_has_every_env_and_the_manager():
     assert avoid.algo_kwargs["policy_kwargs"] == {"net_arch": [64, 64]}
     assert goal.noise_type == "normal" and goal.n_timesteps > 0
     manager = load_hyperparams("manager", DDPG, manager=True)
-    assert manager.wrapper_kwargs["selection"] == "sample"
+    assert manager.wrapper_kwargs["selection"] == "argmax"
 
 
 def test_env_block_replaces_default_like_rl_zoo(tmp_path):
