@@ -150,6 +150,7 @@ def evaluate(
     every_term = [(term, 1.0) for term in terms_known]
     normaliser = TermNormaliser(contract.reward_bounds)
     episodes = []
+    worker_names = _worker_names(policy, env)
     for k in range(n_episodes):
         obs, info = env.reset(seed=seed + k)
         reset_episode = getattr(policy, "reset_episode", None)
@@ -161,7 +162,8 @@ def evaluate(
         # The snake env's metrics, counted only where the env reports them.
         reports_touches = reports_clearance = False
         min_clearance = np.inf
-        selections: Counter[str] = Counter()
+        # A hierarchy's every worker gets a share, 0 for one never chosen (an argmax manager may pick one).
+        selections: Counter[str] = Counter(dict.fromkeys(worker_names, 0))
         near: Counter[str] = Counter()
         clear: Counter[str] = Counter()
         # The clearance of the state the policy decides in: the previous step's (or the reset's) info.
@@ -293,3 +295,14 @@ def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -
         "near_clearance": summary.get("near_clearance"),
         "clear_clearance": summary.get("clear_clearance"),
     }
+
+
+def _worker_names(policy: Any, env: gym.Env) -> list[str]:
+    """The workers a hierarchy (``policy``) or a manager's env (a ``WorkerSelectionWrapper``) chooses among."""
+    names = getattr(policy, "names", None)
+    if names is not None:
+        return list(names)
+    try:
+        return list(env.get_wrapper_attr("worker_names"))
+    except AttributeError:
+        return []

@@ -164,7 +164,7 @@ def test_rl_zoo_trains_with_our_config_unchanged(tmp_path, repo_root):
             "replay_buffer_class:None",
             "replay_buffer_kwargs:None",
             "-n",
-            "300",
+            "304",  # a multiple of the goal block's train_freq (8): SB3 trains in blocks of 8 steps
             "--eval-freq",
             "-1",
             "-f",
@@ -177,5 +177,5 @@ def test_rl_zoo_trains_with_our_config_unchanged(tmp_path, repo_root):
     )
     assert result.returncode == 0, result.stderr[-2000:]
     model = DDPG.load(tmp_path / "logs" / "ddpg" / "hddpg-SnakeGoal-v0_1" / "hddpg-SnakeGoal-v0.zip")
-    assert model.num_timesteps == 300
+    assert model.num_timesteps == 304
     assert model.observation_space.shape == (15,)  # the block's env_kwargs (observe) reached the env
