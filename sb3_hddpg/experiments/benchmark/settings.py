@@ -37,6 +37,14 @@ def _config_budgets() -> dict[str, int]:
     return budgets
 
 
+@functools.cache
+def _env_worker_budgets(env_json: str) -> list[int]:
+    """Each worker's config budget on another env (given as JSON, so that the config is read once per env)."""
+    env = json.loads(env_json)
+    shared = TermsEnv(env["env_id"], dict(env["env_kwargs"]), tuple(env["terms"]))
+    return [block.n_timesteps for block in worker_hyperparams(list(shared.terms), None, shared).values()]
+
+
 #: ``standard``: every method once per seed; ``transfer``: managers and flat agents on new preferences.
 SCENARIOS = ("standard", "transfer")
 #: The preferences of the transfer scenario by default: the goal term weighted twice, then the avoid term.
@@ -197,13 +205,11 @@ class BenchmarkSettings:
     @property
     def workers_budget(self) -> int:
         """Env steps of a seed's workers together: ``worker_timesteps`` each, or each worker's config budget."""
-        env = self.terms_env
-        if env is not None:
-            blocks = worker_hyperparams(list(env.terms), None, env)
-            workers = [block.n_timesteps for block in blocks.values()]
-        else:
-            budgets = _config_budgets()
-            workers = [budgets[name] for name in budgets if name != MANAGER_KEY]
+        workers = (
+            _env_worker_budgets(json.dumps(self.env, sort_keys=True))
+            if self.env is not None
+            else [budget for name, budget in _config_budgets().items() if name != MANAGER_KEY]
+        )
         if self.worker_timesteps is not None:
             return self.worker_timesteps * len(workers)
         return sum(workers)
