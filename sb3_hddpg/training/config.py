@@ -215,71 +215,21 @@ def parse_block(
     :param manager: whether ``wrapper_kwargs`` is allowed.
     :return: the parsed hyperparameters.
     """
-    constructor = set(inspect.signature(algo_class).parameters) - {"self", "policy"} - RESERVED_KEYS
-    allowed = constructor | ZOO_KEYS | OWN_KEYS | (MANAGER_ONLY_KEYS if manager else set())
-    unknown = sorted(set(block) - allowed)
-    if unknown:
-        raise ConfigError(f"Unknown keys in {source}: {brief(unknown)} (allowed: {sorted(allowed)})")
+    _check_keys(block, algo_class, source, manager)
     raw = copy.deepcopy(block)
     if "n_timesteps" not in block:
         raise ConfigError(f"Missing key 'n_timesteps' in {source}")
+    # Each _pop_* takes its key out of ``block``: what is left are the algorithm's constructor arguments.
     n_timesteps = _as_int(block.pop("n_timesteps"), "n_timesteps", source, minimum=1)
     n_envs = _as_int(block.pop("n_envs", 1), "n_envs", source, minimum=1)
-    policy = block.pop("policy", "MlpPolicy")
-    if policy != "MlpPolicy":
-        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {brief(policy)}")
-    noise_type = block.pop("noise_type", None)
-    if noise_type is not None:
-        noise_type = str(noise_type).strip()
-        if noise_type not in ("normal", "ornstein-uhlenbeck"):
-            raise ConfigError(
-                f"Unknown noise_type in {source}: {brief(noise_type)} (use 'normal' or 'ornstein-uhlenbeck')"
-            )
-    backend = block.pop("backend", None)
-    if backend is not None:
-        if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
-            raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")
-        backend = backend.strip().lower()
-    noise_std = block.pop("noise_std", 0.1)
-    if isinstance(noise_std, bool) or not isinstance(noise_std, (int, float)):
-        raise ConfigError(f"Expected noise_std in {source} to be a number, actually: {brief(noise_std)}")
-    noise_std = float(noise_std)
-    if not np.isfinite(noise_std) or noise_std < 0:
-        raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
+    policy = _pop_policy(block, source)
+    noise_type = _pop_noise_type(block, source)
+    backend = _pop_backend(block, source)
+    noise_std = _pop_noise_std(block, source)
     action_l2 = _parse_callbacks(block.pop("callback", None), source).get("action_l2", 0.0)
-    env_kwargs = block.pop("env_kwargs", {}) or {}
-    wrapper_kwargs = block.pop("wrapper_kwargs", {}) or {}
-    for name, value in (("env_kwargs", env_kwargs), ("wrapper_kwargs", wrapper_kwargs)):
-        if not isinstance(value, dict):
-            raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {brief(value)}")
-    if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
-        block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
-    buffer = block.get("replay_buffer_class")
-    if buffer is not None and buffer not in REPLAY_BUFFERS:
-        raise ConfigError(
-            f"Unknown replay_buffer_class {str(buffer)!r:.100} in {source}; allowed: {list(REPLAY_BUFFERS)}"
-        )
-    buffer_kwargs = block.get("replay_buffer_kwargs", {}) or {}
-    if not isinstance(buffer_kwargs, dict) or set(buffer_kwargs) - {"relabel_fraction"}:
-        raise ConfigError(
-            f"Expected replay_buffer_kwargs in {source} to set only relabel_fraction, actually: {buffer_kwargs!r:.200}"
-        )
-    _check_network_size(block.get("policy_kwargs"), algo_class.__name__, source)
-    if "train_freq" in block and isinstance(block["train_freq"], list):
-        block["train_freq"] = tuple(block["train_freq"])
-    if "buffer_size" in block:
-        buffer_size = block["buffer_size"]
-        if isinstance(buffer_size, float) and buffer_size.is_integer():
-            buffer_size = block["buffer_size"] = int(buffer_size)  # RL Zoo writes 1e6
-        try:
-            # Bounded before SB3 allocates it; the dimensions are not known yet, so a 64-wide observation
-            # stands in (the snake's is 27): the transition count is the real limit.
-            check_buffer_size(buffer_size, 64, 8, "buffer_size")
-        except ValueError as error:
-            raise ConfigError(f"{source}: {error}") from None
-    for key in ("learning_rate", "gamma", "tau"):
-        if key in block and not isinstance(block[key], (int, float)):
-            raise ConfigError(f"Expected {key} in {source} to be a number, actually: {brief(block[key])}")
+    env_kwargs = _pop_mapping(block, "env_kwargs", source)
+    wrapper_kwargs = _pop_mapping(block, "wrapper_kwargs", source)
+    _check_algo_kwargs(block, algo_class.__name__, source)
     return Hyperparams(
         algo_kwargs=block,
         n_timesteps=n_timesteps,
@@ -293,6 +243,106 @@ def parse_block(
         backend=backend,
         raw=raw,
     )
+
+
+def _check_keys(block: dict[str, Any], algo_class: type, source: str, manager: bool) -> None:
+    """Refuse a key that is neither the algorithm's constructor argument nor one we interpret."""
+    constructor = set(inspect.signature(algo_class).parameters) - {"self", "policy"} - RESERVED_KEYS
+    allowed = constructor | ZOO_KEYS | OWN_KEYS | (MANAGER_ONLY_KEYS if manager else set())
+    unknown = sorted(set(block) - allowed)
+    if unknown:
+        raise ConfigError(f"Unknown keys in {source}: {brief(unknown)} (allowed: {sorted(allowed)})")
+
+
+def _pop_policy(block: dict[str, Any], source: str) -> str:
+    policy = block.pop("policy", "MlpPolicy")
+    if policy != "MlpPolicy":
+        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {brief(policy)}")
+    return "MlpPolicy"
+
+
+def _pop_noise_type(block: dict[str, Any], source: str) -> str | None:
+    noise_type = block.pop("noise_type", None)
+    if noise_type is None:
+        return None
+    noise_type = str(noise_type).strip()
+    if noise_type not in ("normal", "ornstein-uhlenbeck"):
+        raise ConfigError(
+            f"Unknown noise_type in {source}: {brief(noise_type)} (use 'normal' or 'ornstein-uhlenbeck')"
+        )
+    return noise_type
+
+
+def _pop_backend(block: dict[str, Any], source: str) -> str | None:
+    backend = block.pop("backend", None)
+    if backend is None:
+        return None
+    if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
+        raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")
+    return backend.strip().lower()
+
+
+def _pop_noise_std(block: dict[str, Any], source: str) -> float:
+    noise_std = block.pop("noise_std", 0.1)
+    if isinstance(noise_std, bool) or not isinstance(noise_std, (int, float)):
+        raise ConfigError(f"Expected noise_std in {source} to be a number, actually: {brief(noise_std)}")
+    noise_std = float(noise_std)
+    if not np.isfinite(noise_std) or noise_std < 0:
+        raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
+    return noise_std
+
+
+def _pop_mapping(block: dict[str, Any], name: str, source: str) -> dict[str, Any]:
+    """``env_kwargs`` or ``wrapper_kwargs``: a mapping, empty when absent or null."""
+    value = block.pop(name, {}) or {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"Expected {name} in {source} to be a mapping, actually: {brief(value)}")
+    return value
+
+
+def _check_algo_kwargs(block: dict[str, Any], algo: str, source: str) -> None:
+    """
+    Check the algorithm's constructor arguments that SB3 would accept unchecked or allocate from (network
+    and buffer sizes), and put the YAML spellings into SB3's types, in place.
+    """
+    if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
+        block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
+    _check_replay_buffer(block, source)
+    _check_network_size(block.get("policy_kwargs"), algo, source)
+    if "train_freq" in block and isinstance(block["train_freq"], list):
+        block["train_freq"] = tuple(block["train_freq"])
+    if "buffer_size" in block:
+        block["buffer_size"] = _buffer_size(block["buffer_size"], source)
+    for key in ("learning_rate", "gamma", "tau"):
+        if key in block and not isinstance(block[key], (int, float)):
+            raise ConfigError(f"Expected {key} in {source} to be a number, actually: {brief(block[key])}")
+
+
+def _check_replay_buffer(block: dict[str, Any], source: str) -> None:
+    """A named replay buffer must be one of :data:`REPLAY_BUFFERS`, with only the arguments it takes."""
+    buffer = block.get("replay_buffer_class")
+    if buffer is not None and buffer not in REPLAY_BUFFERS:
+        raise ConfigError(
+            f"Unknown replay_buffer_class {str(buffer)!r:.100} in {source}; allowed: {list(REPLAY_BUFFERS)}"
+        )
+    buffer_kwargs = block.get("replay_buffer_kwargs", {}) or {}
+    if not isinstance(buffer_kwargs, dict) or set(buffer_kwargs) - {"relabel_fraction"}:
+        raise ConfigError(
+            f"Expected replay_buffer_kwargs in {source} to set only relabel_fraction, actually: {buffer_kwargs!r:.200}"
+        )
+
+
+def _buffer_size(buffer_size: Any, source: str) -> Any:
+    """``buffer_size`` as an integer (RL Zoo writes ``1e6``), bounded before SB3 allocates it."""
+    if isinstance(buffer_size, float) and buffer_size.is_integer():
+        buffer_size = int(buffer_size)
+    try:
+        # The dimensions are not known yet, so a 64-wide observation stands in (the snake's is 27): the
+        # transition count is the real limit.
+        check_buffer_size(buffer_size, 64, 8, "buffer_size")
+    except ValueError as error:
+        raise ConfigError(f"{source}: {error}") from None
+    return buffer_size
 
 
 def _parse_callbacks(value: Any, source: str) -> dict[str, float]:
