@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3 import SAC
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_hddpg.algorithms import ALGORITHMS, SBX_ALGORITHMS, algorithm_class
@@ -146,7 +146,7 @@ def configure_jax_threads(threads: int = 1) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ classes
-def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
+def algo_class(name: str, backend: str = "sb3") -> type[OffPolicyAlgorithm]:
     """
     The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
 
@@ -167,7 +167,8 @@ def sbx_class(algo: str) -> type[OffPolicyAlgorithm]:
         configure_jax_threads(1)
     import sbx
 
-    return {"ddpg": sbx.DDPG, "td3": sbx.TD3, "sac": sbx.SAC}[algo.lower()]
+    classes: dict[str, type[OffPolicyAlgorithm]] = {"ddpg": sbx.DDPG, "td3": sbx.TD3, "sac": sbx.SAC}
+    return classes[algo.lower()]
 
 
 def is_sbx_model(model: Any) -> bool:
@@ -426,7 +427,7 @@ def make_model(
     kwargs: Mapping[str, Any],
     seed: int | None = None,
     policy: str = "MlpPolicy",
-) -> BaseAlgorithm:
+) -> OffPolicyAlgorithm:
     """
     Build a fresh model of ``algo`` on ``backend``.
 
@@ -449,7 +450,8 @@ def make_model(
     if backend == "sb3":
         return algo_class(algo)(policy, env, seed=seed, device="cpu", verbose=0, **kwargs)
     algo = algo.lower()
-    model = sbx_class(algo)(policy, env, seed=seed, device="cpu", verbose=0, **sbx_kwargs(algo, kwargs))
+    # Any: SBX's SAC adds attributes (target_entropy) that OffPolicyAlgorithm does not declare.
+    model: Any = sbx_class(algo)(policy, env, seed=seed, device="cpu", verbose=0, **sbx_kwargs(algo, kwargs))
     sb3_kwargs = {k: v for k, v in kwargs.items() if k not in ("action_noise", "policy_kwargs")}
     if algo == "sac":  # "auto" reads an env the twin does not have; the SBX model has resolved it
         sb3_kwargs["target_entropy"] = float(model.target_entropy)
@@ -466,7 +468,7 @@ def make_model(
     return model
 
 
-def load_native(algo: str, backend: str, path: Any, env: Any = None) -> BaseAlgorithm:
+def load_native(algo: str, backend: str, path: Any, env: Any = None) -> OffPolicyAlgorithm:
     """
     Load a model saved by this backend's own ``save`` (a checkpoint or ``best_model.zip`` of a run).
 
@@ -521,7 +523,7 @@ def share_compiled(model: Any) -> None:
         setattr(owner, name, getattr(owner, name).replace(apply_fn=apply_fn, tx=tx))
 
 
-def to_sb3(model: BaseAlgorithm) -> OffPolicyAlgorithm:
+def to_sb3(model: OffPolicyAlgorithm) -> OffPolicyAlgorithm:
     """
     The SB3 model to save and share for a trained model: SB3 models as they are, SBX models exported.
 
@@ -534,7 +536,7 @@ def to_sb3(model: BaseAlgorithm) -> OffPolicyAlgorithm:
     :return: an SB3 model (``DDPG``, ``TD3`` or ``SAC``).
     """
     if not is_sbx_model(model):
-        return model  # type: ignore[return-value]
+        return model
     algo = _sbx_algo_name(model)
     sb3_model = _build_sb3(
         algo,
@@ -547,8 +549,10 @@ def to_sb3(model: BaseAlgorithm) -> OffPolicyAlgorithm:
     sb3_model.seed = model.seed
     state = _sbx_to_state_dict(model, algo)
     sb3_model.policy.load_state_dict(state, strict=True)
-    if algo == "sac" and getattr(sb3_model, "log_ent_coef", None) is not None:
-        log_ent_coef = float(np.asarray(model.ent_coef_state.params["log_ent_coef"]))
+    if isinstance(sb3_model, SAC) and sb3_model.log_ent_coef is not None:
+        # SBX's SAC keeps its entropy coefficient in a flax train state OffPolicyAlgorithm does not declare.
+        sbx_model: Any = model
+        log_ent_coef = float(np.asarray(sbx_model.ent_coef_state.params["log_ent_coef"]))
         sb3_model.log_ent_coef.data.fill_(log_ent_coef)
     sb3_model.num_timesteps = int(model.num_timesteps)
     sb3_model._n_updates = int(model._n_updates)

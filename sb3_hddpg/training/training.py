@@ -24,6 +24,7 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 from sb3_hddpg.algorithms import ALGORITHMS
@@ -217,23 +218,13 @@ def train_agent(
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
     """
     total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
-    if total < 1:
-        raise ValueError(f"Expected timesteps >= 1, actually: {total}")
-    if not 0 <= seed <= MAX_SEED:
-        raise ValueError(f"Expected seed in [0, {MAX_SEED}], actually: {seed}")
-    if checkpoint_freq < 0:
-        raise ValueError(f"Expected checkpoint_freq >= 0, actually: {checkpoint_freq}")
+    _check_run_settings(total, seed, checkpoint_freq)
     n_envs = int(n_envs or hyperparams.n_envs)
     backend = resolve_backend(backend, hyperparams.backend)
     check_algo(algo, backend)
     if backend == "sbx":
         configure_jax_threads(threads)  # before jax's first import in this process, or it cannot apply
-    # A run killed mid-write (SIGKILL, power cut) leaves hidden temporaries; they never hold anything we
-    # read, so clear this agent's before they pile up (a replay buffer's can be large).
-    remove_stale_temporaries(paths.checkpoint_dir)
-    remove_stale_temporaries(paths.best_dir)
-    remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
-    remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
+    _remove_stale_temporaries(paths)
     algo_class(algo)  # a clear error for an unknown name before any env starts
     if hyperparams.action_l2 > 0 and algo.lower() not in ("ddpg", "td3"):
         raise ValueError(
@@ -247,56 +238,27 @@ def train_agent(
     # override this process's choice.
     torch.set_num_threads(threads)
     try:
-        state = read_checkpoint_state(paths.checkpoint_dir) if resume else None
-        if resume and state is None:
-            raise FileNotFoundError(f"Nothing to resume: no checkpoint in {str(paths.checkpoint_dir)!r}")
-        if state is not None:
-            saved_backend = state.get("backend", "sb3")
-            if saved_backend != backend:
-                raise ValueError(
-                    f"The checkpoint in {str(paths.checkpoint_dir)!r} was trained with backend "
-                    f"{saved_backend!r}; resume it with --backend {saved_backend}"
-                )
-            # Our own checkpoint, written by this library: the full (SB3 or SBX) load is appropriate here.
-            model = load_native(algo, backend, state["model_path"], env=vec_env)
-            if state["replay_buffer_path"] is not None:
-                model.load_replay_buffer(state["replay_buffer_path"])
-            elif getattr(model, "replay_buffer", None) is not None:
-                # A finished run's checkpoint without its buffer: collect learning_starts fresh transitions
-                # before the first update, as at the start, rather than train on a handful of them.
-                model.learning_starts = int(model.num_timesteps + model.learning_starts)
-            model.set_logger(_tensorboard_logger(paths))
-            history = state.get("history", [])
-            best = state.get("best_mean_reward", -np.inf)
-            if best is None:
-                best = -np.inf
+        if resume:
+            model, state = _resume_model(algo, backend, paths, vec_env)
         else:
             kwargs = hyperparams.model_kwargs(eval_env)
-            model = make_model(algo, backend, vec_env, kwargs, seed=seed, policy=hyperparams.policy)
-            model.set_logger(_tensorboard_logger(paths))
-            history, best = [], -np.inf
-
-        plateau = (
-            StopTrainingOnNoModelImprovement(max_no_improvement_evals=plateau_patience, min_evals=1)
-            if stop_on_plateau
-            else None
-        )
-        after_eval_callbacks = [c for c in (plateau, after_eval) if c is not None]
-        evaluator = MetricsEvalCallback(
+            model, state = (
+                make_model(algo, backend, vec_env, kwargs, seed=seed, policy=hyperparams.policy),
+                None,
+            )
+        model.set_logger(_tensorboard_logger(paths))
+        evaluator = _make_evaluator(
             eval_env,
-            n_eval_episodes=eval_episodes,
-            eval_freq=max(eval_freq // n_envs, 1) if eval_freq > 0 else 0,
+            paths,
+            state,
+            n_envs=n_envs,
+            eval_freq=eval_freq,
+            eval_episodes=eval_episodes,
             eval_seed=eval_seed,
-            best_model_save_path=paths.best_dir if keep_best else None,
-            history_path=paths.history_path,
-            callback_after_eval=_combine_callbacks(after_eval_callbacks),
-            history=history,
-            best_mean_reward=best,
+            keep_best=keep_best,
+            after_eval=after_eval,
+            plateau_patience=plateau_patience if stop_on_plateau else None,
         )
-        # SB3 makes only the direct after-eval callback a child of the evaluator; the plateau rule and the
-        # pruner both read the evaluator's results through ``parent``, also when combined in a list.
-        for callback in after_eval_callbacks:
-            callback.parent = evaluator
         checkpointer = ResumableCheckpointCallback(
             paths.checkpoint_dir,
             save_freq=checkpoint_freq,
@@ -312,56 +274,170 @@ def train_agent(
             min_timesteps=state["num_timesteps"] if state is not None else 0,
         )
         callbacks = CallbackList([*hyperparams.callbacks(), evaluator, checkpointer, *extra_callbacks])
-        remaining = total - model.num_timesteps
-        stopped_early = False
-        if remaining > 0:
-            try:
-                with sigterm_as_interrupt():
-                    model.learn(
-                        remaining,
-                        callback=callbacks,
-                        reset_num_timesteps=state is None,
-                        tb_log_name=paths.name,
-                        progress_bar=progress_bar,
-                    )
-            except KeyboardInterrupt:
-                checkpointer.save()
-                raise TrainingInterrupted(
-                    f"{paths.name}: interrupted at {model.num_timesteps} of {total} steps; checkpoint saved in "
-                    f"{paths.checkpoint_dir}. Run the same command with --resume to continue."
-                ) from None
-            stopped_early = model.num_timesteps < total
+        _learn(model, total, callbacks, checkpointer, paths, fresh=state is None, progress_bar=progress_bar)
+        stopped_early = model.num_timesteps < total
         # Always end with an evaluation of the final policy, so that a best model and metrics exist.
         if not evaluator.history or evaluator.history[-1]["timesteps"] != model.num_timesteps:
             evaluator.init_callback(model)
             evaluator.run_evaluation()
         checkpointer.init_callback(model)
         checkpointer.save(replay_buffer=keep_checkpoints)
-
-        chosen = model
-        if keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists():
-            chosen = load_native(algo, backend, evaluator.best_model_path)
-        # What a user shares is plain SB3, whichever backend trained it.
-        chosen = to_sb3(chosen)
-        atomic_write(paths.model_path, lambda tmp: chosen.save(tmp))
-        best_entry = (
-            max(evaluator.history, key=lambda h: h["mean_reward"]) if keep_best else evaluator.history[-1]
-        )
-        metrics = {k: v for k, v in best_entry.items() if k != "timesteps"}
-        metrics["selected_at_timesteps"] = best_entry["timesteps"]
-        return TrainingOutcome(
-            model=chosen,
-            model_path=paths.model_path,
-            num_timesteps=int(model.num_timesteps),
-            history=list(evaluator.history),
-            metrics=metrics,
-            stopped_early=stopped_early,
-            backend=backend,
-        )
+        return _save_outcome(model, evaluator, paths, algo, backend, keep_best, stopped_early)
     finally:
         with contextlib.suppress(Exception):  # subprocesses may already be gone after Ctrl-C
             vec_env.close()
         eval_env.close()
+
+
+def _check_run_settings(total: int, seed: int, checkpoint_freq: int) -> None:
+    """The budget, the seed and the checkpoint frequency, checked before any env starts."""
+    if total < 1:
+        raise ValueError(f"Expected timesteps >= 1, actually: {total}")
+    if not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"Expected seed in [0, {MAX_SEED}], actually: {seed}")
+    if checkpoint_freq < 0:
+        raise ValueError(f"Expected checkpoint_freq >= 0, actually: {checkpoint_freq}")
+
+
+def _remove_stale_temporaries(paths: AgentPaths) -> None:
+    """
+    A run killed mid-write (SIGKILL, power cut) leaves hidden temporaries; they never hold anything we
+    read, so clear this agent's before they pile up (a replay buffer's can be large).
+    """
+    remove_stale_temporaries(paths.checkpoint_dir)
+    remove_stale_temporaries(paths.best_dir)
+    remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
+    remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
+
+
+def _resume_model(
+    algo: str, backend: str, paths: AgentPaths, vec_env: Any
+) -> tuple[OffPolicyAlgorithm, dict[str, Any]]:
+    """The model of the last checkpoint in ``paths.checkpoint_dir``, with its replay buffer, and its state."""
+    state = read_checkpoint_state(paths.checkpoint_dir)
+    if state is None:
+        raise FileNotFoundError(f"Nothing to resume: no checkpoint in {str(paths.checkpoint_dir)!r}")
+    saved_backend = state.get("backend", "sb3")
+    if saved_backend != backend:
+        raise ValueError(
+            f"The checkpoint in {str(paths.checkpoint_dir)!r} was trained with backend "
+            f"{saved_backend!r}; resume it with --backend {saved_backend}"
+        )
+    # Our own checkpoint, written by this library: the full (SB3 or SBX) load is appropriate here.
+    model = load_native(algo, backend, state["model_path"], env=vec_env)
+    if state["replay_buffer_path"] is not None:
+        model.load_replay_buffer(state["replay_buffer_path"])
+    elif getattr(model, "replay_buffer", None) is not None:
+        # A finished run's checkpoint without its buffer: collect learning_starts fresh transitions
+        # before the first update, as at the start, rather than train on a handful of them.
+        model.learning_starts = int(model.num_timesteps + model.learning_starts)
+    return model, state
+
+
+def _make_evaluator(
+    eval_env: gym.Env,
+    paths: AgentPaths,
+    state: dict[str, Any] | None,
+    n_envs: int,
+    eval_freq: int,
+    eval_episodes: int,
+    eval_seed: int,
+    keep_best: bool,
+    after_eval: BaseCallback | None,
+    plateau_patience: int | None,
+) -> MetricsEvalCallback:
+    """
+    The periodic evaluator, continuing a resumed run's history and best reward, with the plateau rule
+    (``plateau_patience``; ``None``: none) and ``after_eval`` run after each evaluation.
+    """
+    plateau = (
+        StopTrainingOnNoModelImprovement(max_no_improvement_evals=plateau_patience, min_evals=1)
+        if plateau_patience is not None
+        else None
+    )
+    after_eval_callbacks = [c for c in (plateau, after_eval) if c is not None]
+    best = state.get("best_mean_reward") if state is not None else None
+    evaluator = MetricsEvalCallback(
+        eval_env,
+        n_eval_episodes=eval_episodes,
+        eval_freq=max(eval_freq // n_envs, 1) if eval_freq > 0 else 0,
+        eval_seed=eval_seed,
+        best_model_save_path=paths.best_dir if keep_best else None,
+        history_path=paths.history_path,
+        callback_after_eval=_combine_callbacks(after_eval_callbacks),
+        history=state.get("history", []) if state is not None else [],
+        best_mean_reward=best if best is not None else -np.inf,
+    )
+    # SB3 makes only the direct after-eval callback a child of the evaluator; the plateau rule and the
+    # pruner both read the evaluator's results through ``parent``, also when combined in a list.
+    for callback in after_eval_callbacks:
+        callback.parent = evaluator
+    return evaluator
+
+
+def _learn(
+    model: OffPolicyAlgorithm,
+    total: int,
+    callbacks: BaseCallback,
+    checkpointer: ResumableCheckpointCallback,
+    paths: AgentPaths,
+    fresh: bool,
+    progress_bar: bool,
+) -> None:
+    """
+    Learn up to ``total`` steps in all; on Ctrl-C or SIGTERM save a checkpoint and raise
+    :class:`TrainingInterrupted`.
+    """
+    remaining = total - model.num_timesteps
+    if remaining <= 0:
+        return
+    try:
+        with sigterm_as_interrupt():
+            model.learn(
+                remaining,
+                callback=callbacks,
+                reset_num_timesteps=fresh,
+                tb_log_name=paths.name,
+                progress_bar=progress_bar,
+            )
+    except KeyboardInterrupt:
+        checkpointer.save()
+        raise TrainingInterrupted(
+            f"{paths.name}: interrupted at {model.num_timesteps} of {total} steps; checkpoint saved in "
+            f"{paths.checkpoint_dir}. Run the same command with --resume to continue."
+        ) from None
+
+
+def _save_outcome(
+    model: OffPolicyAlgorithm,
+    evaluator: MetricsEvalCallback,
+    paths: AgentPaths,
+    algo: str,
+    backend: str,
+    keep_best: bool,
+    stopped_early: bool,
+) -> TrainingOutcome:
+    """Save the chosen model (the best evaluated one when ``keep_best``, else the final one) as plain SB3."""
+    chosen = model
+    if keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists():
+        chosen = load_native(algo, backend, evaluator.best_model_path)
+    # What a user shares is plain SB3, whichever backend trained it.
+    chosen = to_sb3(chosen)
+    atomic_write(paths.model_path, lambda tmp: chosen.save(tmp))
+    best_entry = (
+        max(evaluator.history, key=lambda h: h["mean_reward"]) if keep_best else evaluator.history[-1]
+    )
+    metrics = {k: v for k, v in best_entry.items() if k != "timesteps"}
+    metrics["selected_at_timesteps"] = best_entry["timesteps"]
+    return TrainingOutcome(
+        model=chosen,
+        model_path=paths.model_path,
+        num_timesteps=int(model.num_timesteps),
+        history=list(evaluator.history),
+        metrics=metrics,
+        stopped_early=stopped_early,
+        backend=backend,
+    )
 
 
 def _combine_callbacks(callbacks: Sequence[BaseCallback]) -> BaseCallback | None:
