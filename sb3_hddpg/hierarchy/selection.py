@@ -302,7 +302,11 @@ def _frozen_copy(policy: Any) -> Any:
     return clone
 
 
-def _leaky_relu(slope: float) -> Callable[[np.ndarray], np.ndarray]:
+def _leaky_relu(module: torch.nn.Module) -> Callable[[np.ndarray], np.ndarray]:
+    # The table below is keyed by the module's class, so this is a LeakyReLU; the check tells the type checker.
+    if not isinstance(module, torch.nn.LeakyReLU):
+        raise TypeError(f"Expected a LeakyReLU, actually: {module!r}")
+    slope = module.negative_slope
     return lambda x: np.where(x > 0, x, slope * x)
 
 
@@ -312,7 +316,7 @@ _NUMPY_ACTIVATIONS: dict[type, Callable[[torch.nn.Module], Callable[[np.ndarray]
     torch.nn.ReLU: lambda m: lambda x: np.maximum(x, 0.0, out=x),
     torch.nn.Tanh: lambda m: lambda x: np.tanh(x, out=x),
     torch.nn.ELU: lambda m: lambda x: np.where(x > 0, x, m.alpha * np.expm1(np.minimum(x, 0.0))),
-    torch.nn.LeakyReLU: lambda m: _leaky_relu(m.negative_slope),
+    torch.nn.LeakyReLU: _leaky_relu,
     torch.nn.Sigmoid: lambda m: lambda x: 1.0 / (1.0 + np.exp(-x)),
     torch.nn.SiLU: lambda m: lambda x: x / (1.0 + np.exp(-x)),
 }
@@ -409,6 +413,20 @@ def check_preferences(preferences: dict[str, Any], names: list[str]) -> dict[str
     return checked
 
 
+#: The keys of a bundle's selection settings.
+SELECTION_SETTINGS = (
+    "preferences",
+    "selection",
+    "option_steps",
+    "temperature",
+    "floor",
+    "reward_terms",
+    "manager_state",
+    "worker_states",
+    "option_gamma",
+)
+
+
 def check_selection_settings(selection: Any, names: Sequence[str], what: str) -> dict[str, Any]:
     """
     A bundle's selection settings (``SelectionConfig``'s fields), each checked for type and range, so that
@@ -421,32 +439,10 @@ def check_selection_settings(selection: Any, names: Sequence[str], what: str) ->
     """
     if not isinstance(selection, Mapping):
         raise LimitError(f"{what}: expected a mapping, got {brief(selection)}")
-    known = {
-        "preferences",
-        "selection",
-        "option_steps",
-        "temperature",
-        "floor",
-        "reward_terms",
-        "manager_state",
-        "worker_states",
-        "option_gamma",
-    }
-    unknown = sorted(str(k) for k in set(selection) - known)
+    unknown = sorted(str(k) for k in set(selection) - set(SELECTION_SETTINGS))
     if unknown:
         raise LimitError(f"{what}: unknown key {brief(unknown[0])}")
     out = dict(selection)
-
-    def number(key: str, low: float, high: float, low_open: bool = False) -> None:
-        if key not in out:
-            return
-        value = out[key]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise LimitError(f"{what}.{key}: expected a finite number, got {brief(value)}")
-        if value < low or value > high or (low_open and value == low):
-            bracket = "(" if low_open else "["
-            raise LimitError(f"{what}.{key}: expected a number in {bracket}{low}, {high}], got {value!r}")
-
     if "selection" in out and out["selection"] not in SELECTORS:
         raise LimitError(
             f"{what}.selection: expected one of {list(SELECTORS)}, got {brief(out['selection'])}"
@@ -455,15 +451,16 @@ def check_selection_settings(selection: Any, names: Sequence[str], what: str) ->
         steps = out["option_steps"]
         if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10_000:
             raise LimitError(f"{what}.option_steps: expected an integer in [1, 10000], got {brief(steps)}")
-    number("temperature", 0.0, 1e6, low_open=True)
-    number("floor", 0.0, 1.0 / max(len(names), 1))
-    number("option_gamma", 0.0, 1.0, low_open=True)
-    preferences = out.get("preferences", {})
-    if not isinstance(preferences, Mapping) or set(preferences) - set(names):
-        raise LimitError(f"{what}.preferences: expected worker name -> factor, got {brief(preferences)}")
-    for name, value in preferences.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e6:
-            raise LimitError(f"{what}.preferences.{name}: expected a finite number > 0, got {brief(value)}")
+    # key -> (low, high, whether low itself is excluded)
+    ranges = {
+        "temperature": (0.0, 1e6, True),
+        "floor": (0.0, 1.0 / max(len(names), 1), False),
+        "option_gamma": (0.0, 1.0, True),
+    }
+    for key, (low, high, low_open) in ranges.items():
+        if key in out:
+            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open)
+    _check_preference_factors(out.get("preferences", {}), names, f"{what}.preferences")
     for key in ("reward_terms", "worker_states"):
         if not isinstance(out.get(key, {}), Mapping):
             raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
@@ -471,3 +468,21 @@ def check_selection_settings(selection: Any, names: Sequence[str], what: str) ->
     if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
         raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
     return out
+
+
+def _check_number_in_range(value: Any, what: str, low: float, high: float, low_open: bool) -> None:
+    """A finite number in ``[low, high]`` (``(low, high]`` when ``low_open``), else a ``LimitError``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise LimitError(f"{what}: expected a finite number, got {brief(value)}")
+    if value < low or value > high or (low_open and value == low):
+        bracket = "(" if low_open else "["
+        raise LimitError(f"{what}: expected a number in {bracket}{low}, {high}], got {value!r}")
+
+
+def _check_preference_factors(preferences: Any, names: Sequence[str], what: str) -> None:
+    """A bundle's preference factors: worker name -> a number in (0, 1e6)."""
+    if not isinstance(preferences, Mapping) or set(preferences) - set(names):
+        raise LimitError(f"{what}: expected worker name -> factor, got {brief(preferences)}")
+    for name, value in preferences.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e6:
+            raise LimitError(f"{what}.{name}: expected a finite number > 0, got {brief(value)}")
