@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.torch_layers import FlattenExtractor
@@ -444,7 +445,7 @@ def _policy_kwargs_from_json(algo: str, value: Any) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------------------------------
 
 
-def model_spec(model: OffPolicyAlgorithm) -> dict[str, Any]:
+def model_spec(model: BaseAlgorithm) -> dict[str, Any]:
     """
     Describe a live SB3 off-policy model as plain JSON, enough to rebuild it without unpickling anything.
 
@@ -457,7 +458,7 @@ def model_spec(model: OffPolicyAlgorithm) -> dict[str, Any]:
     :raises ValueError: for any part of the model the spec cannot describe safely (the message names it).
     """
     algo = next((name for name, cls in ALGOS.items() if type(model) is cls), None)
-    if algo is None:
+    if algo is None or not isinstance(model, OffPolicyAlgorithm):  # the second tells the type checker
         raise ValueError(f"algorithm: {type(model).__qualname__} is not one of {sorted(ALGOS)}")
     if model.policy_class is not type(model).policy_aliases["MlpPolicy"]:
         raise ValueError(f"policy: only MlpPolicy is supported, got {model.policy_class!r}")

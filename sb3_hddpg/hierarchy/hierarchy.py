@@ -396,6 +396,16 @@ def _check_manifest(manifest: Any, name: str) -> list[tuple[str, dict[str, Any]]
     names, workers, manager = manifest.get("worker_names"), manifest.get("workers"), manifest.get("manager")
     if not isinstance(names, list) or not isinstance(workers, dict) or not isinstance(manager, dict):
         raise BundleError(f"{name}: {MANIFEST} lacks the manager, the workers, or the worker_names list")
+    _check_worker_names(names, list(workers), name)
+    entries: list[tuple[str, dict[str, Any]]] = [("manager", manager)]
+    entries.extend((worker, workers[worker]) for worker in names)
+    for label, entry in entries:
+        _check_member_entry(label, entry, name)
+    return entries
+
+
+def _check_worker_names(names: list[Any], workers: list[Any], name: str) -> None:
+    """``worker_names``: 2 to ``MAX_WORKERS`` safe names, exactly the keys of ``workers`` in order."""
     if not 2 <= len(names) <= MAX_WORKERS:
         raise BundleError(
             f"{name}: {MANIFEST} has {len(names)} workers; a manager selects between 2 and {MAX_WORKERS}"
@@ -405,35 +415,33 @@ def _check_manifest(manifest: Any, name: str) -> list[tuple[str, dict[str, Any]]
             check_name(worker, f"{name}: worker_names")
     except ValueError as error:
         raise BundleError(str(error)) from None
-    if names != list(workers):
-        raise BundleError(f"{name}: worker_names {brief(names)} do not match workers {brief(list(workers))}")
-    entries: list[tuple[str, dict[str, Any]]] = [("manager", manager)]
-    for worker in names:
-        entries.append((worker, workers[worker]))
-    for label, entry in entries:
-        if not (
-            isinstance(entry, dict)
-            and isinstance(entry.get("file"), str)
-            and isinstance(entry.get("sha256"), str)
-            and _SHA256.match(entry["sha256"])
-        ):
-            raise BundleError(f"{name}: {MANIFEST} entry {label!r} lacks its member's file and sha256")
-        # Members are named by the writer (to_bytes) and by nothing else: any other name is refused.
-        kind = entry.get("kind", "sb3")
-        expected = (
-            "manager.zip"
-            if label == "manager"
-            else f"workers/{label}.hierarchy.zip"
-            if kind == "hierarchy"
-            else f"workers/{label}.zip"
+    if names != workers:
+        raise BundleError(f"{name}: worker_names {brief(names)} do not match workers {brief(workers)}")
+
+
+def _check_member_entry(label: str, entry: Any, name: str) -> None:
+    """
+    One member's entry: its file and sha256, and the member name the writer (``to_bytes``) gives it; any
+    other name is refused, so a manifest cannot point at an arbitrary member.
+    """
+    if not (
+        isinstance(entry, dict)
+        and isinstance(entry.get("file"), str)
+        and isinstance(entry.get("sha256"), str)
+        and _SHA256.match(entry["sha256"])
+    ):
+        raise BundleError(f"{name}: {MANIFEST} entry {label!r} lacks its member's file and sha256")
+    kind = entry.get("kind", "sb3")
+    if kind not in ("sb3", "hierarchy") or (label == "manager" and kind != "sb3"):
+        raise BundleError(f"{name}: {label!r} has an unknown kind {brief(kind)}")
+    if label == "manager":
+        expected = "manager.zip"
+    else:
+        expected = f"workers/{label}.hierarchy.zip" if kind == "hierarchy" else f"workers/{label}.zip"
+    if entry["file"] != expected:
+        raise BundleError(
+            f"{name}: {label!r} names member {brief(entry['file'])}; a bundle names it {expected!r}"
         )
-        if kind not in ("sb3", "hierarchy") or (label == "manager" and kind != "sb3"):
-            raise BundleError(f"{name}: {label!r} has an unknown kind {brief(kind)}")
-        if entry["file"] != expected:
-            raise BundleError(
-                f"{name}: {label!r} names member {brief(entry['file'])}; a bundle names it {expected!r}"
-            )
-    return entries
 
 
 def _model_bytes(model: BaseAlgorithm) -> bytes:
