@@ -32,11 +32,13 @@ class RandomPolicy:
     """
     Uniform random actions: the floor every learned policy must beat.
 
-    :param action_space: the space to sample from.
+    :param action_space: the space to sample from: a ``Box``.
     :param seed: seed of the sampler.
     """
 
-    def __init__(self, action_space: gym.spaces.Box, seed: int | None = None) -> None:
+    def __init__(self, action_space: gym.spaces.Space[Any], seed: int | None = None) -> None:
+        if not isinstance(action_space, gym.spaces.Box):
+            raise TypeError(f"RandomPolicy samples Box action spaces, got {action_space}")
         self.action_space = action_space
         self.rng = np.random.default_rng(seed)
 

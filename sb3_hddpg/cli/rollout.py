@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import typer
 from rich.table import Table
 
@@ -14,7 +15,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import usage_errors, writable_file
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.policy import RandomPolicy
+from sb3_hddpg.policy import Policy, RandomPolicy
 
 
 @app.command()
@@ -35,7 +36,7 @@ def rollout(
 
     with usage_errors("'--env'"):
         env = gym.make(env_id, render_mode="rgb_array")
-    policies = {
+    policies: dict[str, Policy] = {
         "random": RandomPolicy(env.action_space, seed=seed),
         "scripted reacher": JacobianReacher(state_layout_of(env)),
     }
@@ -54,6 +55,9 @@ def rollout(
         )
     console.print(table)
     buffer = io.BytesIO()
-    Image.fromarray(env.render()).save(buffer, format="PNG")
+    frame = env.render()
+    # gymnasium types render() for every render mode; rgb_array (asked for above) returns one array.
+    assert isinstance(frame, np.ndarray), type(frame)
+    Image.fromarray(frame).save(buffer, format="PNG")
     atomic_write_bytes(png, buffer.getvalue())
     console.print(f"Saved the last frame of the scripted reacher to [bold]{png}[/]")

@@ -102,27 +102,12 @@ def load_policy(
     text = str(path)
     if text in REFERENCE_POLICIES:
         return _reference_policy(text, env_id or "hddpg/SnakeReach-v0")
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"No such file: {text!r}")
-    if not path.is_dir() and not path.is_file():
-        raise ValueError(f"Expected a model file, got something else (a device or pipe?): {text!r}")
-    if path.is_dir():
-        for candidate in ("hierarchy.zip", "ham.json"):
-            if (path / candidate).exists():
-                return load_policy(path / candidate, env_id, trusted, algo, allowed_env_ids)
-        raise ValueError(f"Expected a model file, got a folder without hierarchy.zip or ham.json: {text!r}")
+    path = _policy_file(Path(path))
+    text = str(path)
     if path.suffix == ".json":
         ham, meta = load_ham(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(ham, meta["env_id"], meta.get("env_kwargs", {}), "ham", path.stem, meta)
-    try:
-        with zipfile.ZipFile(path) as archive:
-            members = set(archive.namelist())
-    except (zipfile.BadZipFile, EOFError):
-        raise ValueError(f"Not a zip file, or a truncated one: {text!r}") from None
-    except OSError as error:  # permission denied, I/O error
-        raise ValueError(f"Cannot read {text!r}: {error.strerror or error}") from None
-    if "manifest.json" in members and "policy.pth" not in members:
+    if _is_bundle(path):
         hierarchy = Hierarchy.load(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(
             hierarchy, hierarchy.env_id, hierarchy.env_kwargs, "hierarchy", path.stem, hierarchy.metadata
@@ -144,6 +129,33 @@ def load_policy(
         )
     model = load_model(path, trusted=True, algorithm=(algo or "ddpg").upper())
     return LoadedPolicy(model, env_id or "hddpg/SnakeReach-v0", {}, "flat", path.stem, {})
+
+
+def _policy_file(path: Path) -> Path:
+    """The file to load for ``path``: the path itself, or a run folder's ``hierarchy.zip`` or ``ham.json``."""
+    text = str(path)
+    if not path.exists():
+        raise FileNotFoundError(f"No such file: {text!r}")
+    if not path.is_dir() and not path.is_file():
+        raise ValueError(f"Expected a model file, got something else (a device or pipe?): {text!r}")
+    if path.is_dir():
+        for candidate in ("hierarchy.zip", "ham.json"):
+            if (path / candidate).exists():
+                return _policy_file(path / candidate)
+        raise ValueError(f"Expected a model file, got a folder without hierarchy.zip or ham.json: {text!r}")
+    return path
+
+
+def _is_bundle(path: Path) -> bool:
+    """Whether the zip at ``path`` is a hierarchy bundle (a manifest and no SB3 ``policy.pth``)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = set(archive.namelist())
+    except (zipfile.BadZipFile, EOFError):
+        raise ValueError(f"Not a zip file, or a truncated one: {str(path)!r}") from None
+    except OSError as error:  # permission denied, I/O error
+        raise ValueError(f"Cannot read {str(path)!r}: {error.strerror or error}") from None
+    return "manifest.json" in members and "policy.pth" not in members
 
 
 def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
