@@ -202,10 +202,13 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         return self._manager_obs(obs), float(total), terminated, truncated, info
 
 
-def _subset_space(space: gym.Space, indices: np.ndarray | None) -> spaces.Box:
+def _subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Space[Any]:
+    """The observation space restricted to ``indices`` (``None``: all of it)."""
     if indices is None:
-        return space  # type: ignore[return-value]
-    return spaces.Box(space.low[indices], space.high[indices], dtype=space.dtype)  # type: ignore[attr-defined]
+        return space
+    if not isinstance(space, spaces.Box):
+        raise ValueError(f"Selecting state components needs a Box observation space, got {space}")
+    return spaces.Box(space.low[indices], space.high[indices], dtype=space.dtype.type)
 
 
 def _check_worker_spaces(
