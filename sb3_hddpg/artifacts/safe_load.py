@@ -344,49 +344,78 @@ def _optimizer_kwargs(value: Any, to_json: bool) -> dict[str, Any]:
     return out
 
 
+#: The ``policy_kwargs`` keys whose values are classes, each with the classes a spec may name (by their name).
+_CLASS_KWARGS: dict[str, Mapping[str, type]] = {
+    "activation_fn": ACTIVATIONS,
+    "optimizer_class": OPTIMIZERS,
+    "features_extractor_class": {"FlattenExtractor": FlattenExtractor},
+}
+
+
 def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    allowed = _POLICY_KWARGS[algo]
     out: dict[str, Any] = {}
     for key, value in policy_kwargs.items():
         if key == "use_sde":
             continue  # recorded as a hyperparameter, see _POLICY_KWARGS
-        if key not in allowed:
-            raise ValueError(
-                f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(value)})"
-            )
-        if key == "net_arch":
-            out[key] = _net_arch(value)
-        elif key == "activation_fn":
-            activation = ACTIVATIONS.get(getattr(value, "__name__", ""))
-            if activation is None or activation is not value:
-                raise ValueError(
-                    f"policy_kwargs.activation_fn: {brief(value)} is not one of the allowed torch.nn activations "
-                    f"{sorted(ACTIVATIONS)}"
-                )
-            out[key] = activation.__name__
-        elif key == "optimizer_class":
-            optimizer = OPTIMIZERS.get(getattr(value, "__name__", ""))
-            if optimizer is None or optimizer is not value:
-                raise ValueError(
-                    f"policy_kwargs.optimizer_class: {brief(value)} is not one of {sorted(OPTIMIZERS)}"
-                )
-            out[key] = optimizer.__name__
-        elif key == "features_extractor_class":
-            if value is not FlattenExtractor:
-                raise ValueError(
-                    f"policy_kwargs.features_extractor_class: only FlattenExtractor is supported, got {brief(value)}"
-                )
-            out[key] = "FlattenExtractor"
-        elif key == "features_extractor_kwargs":
+        _check_policy_kwarg(algo, key, value)
+        if key == "features_extractor_kwargs":
             if value:
                 raise ValueError(
                     f"policy_kwargs.features_extractor_kwargs: must be empty, got {brief(value)}"
                 )
+        elif key in _CLASS_KWARGS:
+            out[key] = _class_name(key, value)
         elif key == "optimizer_kwargs":
             out[key] = _optimizer_kwargs(value, to_json=True)
         else:
-            out[key] = _policy_scalar(key, value)
+            out[key] = _policy_value(key, value)
     return out
+
+
+def _policy_kwargs_from_json(algo: str, value: Any) -> dict[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ValueError(f"policy_kwargs: expected an object, got {brief(value)}")
+    out: dict[str, Any] = {}
+    for key, item in value.items():
+        _check_policy_kwarg(algo, key, item)
+        if key == "features_extractor_kwargs":
+            raise ValueError("policy_kwargs.features_extractor_kwargs: not supported in a spec")
+        if key in _CLASS_KWARGS:
+            out[key] = _class_named(key, item)
+        elif key == "optimizer_kwargs":
+            out[key] = _optimizer_kwargs(item, to_json=False)
+        else:
+            out[key] = _policy_value(key, item)
+    return out
+
+
+def _check_policy_kwarg(algo: str, key: str, value: Any) -> None:
+    if key not in _POLICY_KWARGS[algo]:
+        raise ValueError(f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(value)})")
+
+
+def _class_name(key: str, value: Any) -> str:
+    """The name a spec records for a class-valued key: the class must be exactly the table's."""
+    table = _CLASS_KWARGS[key]
+    cls = table.get(getattr(value, "__name__", ""))
+    if cls is None or cls is not value:
+        raise ValueError(f"policy_kwargs.{key}: {brief(value)} is not one of {sorted(table)}")
+    return cls.__name__
+
+
+def _class_named(key: str, name: Any) -> type:
+    """The class a spec's name stands for, looked up in the table only (a spec is data, not an import)."""
+    table = _CLASS_KWARGS[key]
+    if not isinstance(name, str) or name not in table:
+        raise ValueError(f"policy_kwargs.{key}: {brief(name)} is not one of {sorted(table)}")
+    return table[name]
+
+
+def _policy_value(key: str, value: Any) -> Any:
+    """``net_arch`` or a scalar setting, the same in a live model and in JSON."""
+    if key == "net_arch":
+        return _net_arch(value)
+    return _policy_scalar(key, value)
 
 
 def _policy_scalar(key: str, value: Any) -> Any:
@@ -399,45 +428,6 @@ def _policy_scalar(key: str, value: Any) -> Any:
     if key in ("log_std_init", "clip_mean"):
         return _as_float(f"policy_kwargs.{key}", value)
     raise AssertionError(key)  # pragma: no cover - every allowed key is handled above
-
-
-def _policy_kwargs_from_json(algo: str, value: Any) -> dict[str, Any]:
-    if not isinstance(value, Mapping):
-        raise ValueError(f"policy_kwargs: expected an object, got {brief(value)}")
-    allowed = _POLICY_KWARGS[algo]
-    out: dict[str, Any] = {}
-    for key, item in value.items():
-        if key not in allowed:
-            raise ValueError(
-                f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(item)})"
-            )
-        if key == "net_arch":
-            out[key] = _net_arch(item)
-        elif key == "activation_fn":
-            if not isinstance(item, str) or item not in ACTIVATIONS:
-                raise ValueError(
-                    f"policy_kwargs.activation_fn: {brief(item)} is not one of {sorted(ACTIVATIONS)}"
-                )
-            out[key] = ACTIVATIONS[item]
-        elif key == "optimizer_class":
-            if not isinstance(item, str) or item not in OPTIMIZERS:
-                raise ValueError(
-                    f"policy_kwargs.optimizer_class: {brief(item)} is not one of {sorted(OPTIMIZERS)}"
-                )
-            out[key] = OPTIMIZERS[item]
-        elif key == "features_extractor_class":
-            if item != "FlattenExtractor":
-                raise ValueError(
-                    f"policy_kwargs.features_extractor_class: only 'FlattenExtractor' is supported, got {brief(item)}"
-                )
-            out[key] = FlattenExtractor
-        elif key == "features_extractor_kwargs":
-            raise ValueError("policy_kwargs.features_extractor_kwargs: not supported in a spec")
-        elif key == "optimizer_kwargs":
-            out[key] = _optimizer_kwargs(item, to_json=False)
-        else:
-            out[key] = _policy_scalar(key, item)
-    return out
 
 
 # --------------------------------------------------------------------------------------------------------------
