@@ -484,7 +484,6 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         obstacles = self._movers[1:]
         # The observation, filled in place; see the class docstring for the layout.
         obs = [0.0] * self._obs_size
-        to_goal, goal_flag = self._obs_offsets
         clipped_sum = 0.0
         min_clearance = inf
         collision = False
@@ -532,24 +531,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                 obs[distance] = clipped * inv_range
             ax = bx
             ay = by
-        gx, gy = self._movers[0]
-        dgx = gx - ax
-        dgy = gy - ay
-        obs[to_goal] = 0.5 * dgx
-        obs[to_goal + 1] = 0.5 * dgy
-        goal_distance = math.hypot(dgx, dgy)
-        goal_touched = goal_distance <= self.touch_radius
-        if goal_touched:
-            obs[goal_flag] = 1.0
-            goal = 1.0 - goal_distance
-        else:
-            goal = -goal_distance
-        # Clip to the documented bounds: physics slack can put the tip a hair beyond reach.
-        goal_low, goal_high = self._goal_bounds
-        if goal < goal_low:
-            goal = goal_low
-        elif goal > goal_high:
-            goal = goal_high
+        goal, goal_distance, goal_touched = self._goal_term(ax, ay, obs)
         avoid = self.r_bf * clipped_sum
         if collision:
             avoid -= 1.0
@@ -571,6 +553,32 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         }
         # struct packs the Python floats to float32 in one C loop: cheaper than numpy converting a list.
         return np.frombuffer(self._pack_obs(*obs), np.float32).copy(), reward, info
+
+    def _goal_term(self, tip_x: float, tip_y: float, obs: list[float]) -> tuple[float, float, bool]:
+        """
+        The goal term for the tip at (``tip_x``, ``tip_y``), its distance to the goal and whether it touches
+        it; writes the tip-to-goal vector and the touch flag into ``obs``.
+        """
+        to_goal, goal_flag = self._obs_offsets
+        gx, gy = self._movers[0]
+        dgx = gx - tip_x
+        dgy = gy - tip_y
+        obs[to_goal] = 0.5 * dgx
+        obs[to_goal + 1] = 0.5 * dgy
+        goal_distance = math.hypot(dgx, dgy)
+        goal_touched = goal_distance <= self.touch_radius
+        if goal_touched:
+            obs[goal_flag] = 1.0
+            goal = 1.0 - goal_distance
+        else:
+            goal = -goal_distance
+        # Clip to the documented bounds: physics slack can put the tip a hair beyond reach.
+        goal_low, goal_high = self._goal_bounds
+        if goal < goal_low:
+            goal = goal_low
+        elif goal > goal_high:
+            goal = goal_high
+        return goal, goal_distance, goal_touched
 
     def _observed(self, state: np.ndarray) -> np.ndarray:
         """The observation: the full state, or the components chosen by ``observe``."""
