@@ -84,39 +84,8 @@ def plot_selection_timeline(
     x = np.arange(len(records))
     fig, axes = plt.subplots(3, 1, figsize=(11, 6.5), sharex=True, height_ratios=[1.2, 1, 1])
 
-    # Runs of the same chosen worker become shaded spans in every panel.
-    spans: list[tuple[int, int, str]] = []
-    start = 0
-    for i in range(1, len(records) + 1):
-        if i == len(records) or records[i].selected != records[start].selected:
-            if records[start].selected is not None:
-                spans.append((start, i, records[start].selected))
-            start = i
-    for ax_index, ax in enumerate(axes):
-        for begin, end, name in spans:
-            ax.axvspan(
-                begin - 0.5, end - 0.5, color=_colour(name, names), alpha=0.28 if ax_index == 0 else 0.1, lw=0
-            )
-        for i in range(1, len(records)):
-            if records[i].episode != records[i - 1].episode:
-                ax.axvline(i - 0.5, color="black", lw=1.2)
-
-    top = axes[0]
-    # A HAM switch has no probabilities: then the top panel shows only who acts.
-    with_probabilities = any(r.probabilities for r in records)
-    for name in names if with_probabilities else []:
-        p = [r.probabilities.get(name, np.nan) for r in records]
-        top.plot(x, p, color=_colour(name, names), lw=1.4, label=f"P({name})")
-    top.set_ylim(-0.02, 1.02)
-    top.set_ylabel("manager\nprobability" if with_probabilities else "acting\nworker")
-    if not with_probabilities:
-        top.set_yticks([])
-    handles, labels = top.get_legend_handles_labels()
-    from matplotlib.patches import Patch
-
-    handles += [Patch(color=_colour(n, names), alpha=0.4) for n in names]
-    labels += [f"{n} acts" for n in names]
-    top.legend(handles, labels, loc="upper right", ncol=2 * max(1, len(names)), fontsize=8, framealpha=0.9)
+    _shade_selections_and_episodes(axes, records, names)
+    _plot_probabilities(axes[0], records, x, names)
 
     middle, bottom = axes[1], axes[2]
     clearance = np.array([r.min_clearance for r in records])
@@ -131,6 +100,51 @@ def plot_selection_timeline(
         fig.suptitle(title)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def _selection_spans(records: Sequence[StepRecord]) -> list[tuple[int, int, str]]:
+    """Runs of steps with the same chosen worker, as (first step, step after the last, worker name)."""
+    spans: list[tuple[int, int, str]] = []
+    start = 0
+    for i in range(1, len(records) + 1):
+        if i == len(records) or records[i].selected != records[start].selected:
+            selected = records[start].selected
+            if selected is not None:
+                spans.append((start, i, selected))
+            start = i
+    return spans
+
+
+def _shade_selections_and_episodes(axes: Any, records: Sequence[StepRecord], names: Sequence[str]) -> None:
+    """Shade each run of the same chosen worker in every panel, and separate episodes by black lines."""
+    spans = _selection_spans(records)
+    for ax_index, ax in enumerate(axes):
+        for begin, end, name in spans:
+            ax.axvspan(
+                begin - 0.5, end - 0.5, color=_colour(name, names), alpha=0.28 if ax_index == 0 else 0.1, lw=0
+            )
+        for i in range(1, len(records)):
+            if records[i].episode != records[i - 1].episode:
+                ax.axvline(i - 0.5, color="black", lw=1.2)
+
+
+def _plot_probabilities(top: Any, records: Sequence[StepRecord], x: np.ndarray, names: Sequence[str]) -> None:
+    """The top panel: each worker's selection probability, and a legend of who acts."""
+    from matplotlib.patches import Patch
+
+    # A HAM switch has no probabilities: then the top panel shows only who acts.
+    with_probabilities = any(r.probabilities for r in records)
+    for name in names if with_probabilities else []:
+        p = [r.probabilities.get(name, np.nan) for r in records]
+        top.plot(x, p, color=_colour(name, names), lw=1.4, label=f"P({name})")
+    top.set_ylim(-0.02, 1.02)
+    top.set_ylabel("manager\nprobability" if with_probabilities else "acting\nworker")
+    if not with_probabilities:
+        top.set_yticks([])
+    handles, labels = top.get_legend_handles_labels()
+    handles += [Patch(color=_colour(n, names), alpha=0.4) for n in names]
+    labels += [f"{n} acts" for n in names]
+    top.legend(handles, labels, loc="upper right", ncol=2 * max(1, len(names)), fontsize=8, framealpha=0.9)
 
 
 def _plot_snake_panels(
