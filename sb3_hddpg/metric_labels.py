@@ -119,7 +119,7 @@ def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
         label = metric_label(key)
         shown = label.format(value)
         spread = {"mean_reward": "std_reward", "mean_reach_reward": "std_reach_reward"}.get(key)
-        if spread in summary:
+        if spread is not None and spread in summary:
             shown += f" ± {label.format(summary[spread])}"
         rows.append((label.label, shown, label.unit))
     return rows

@@ -172,6 +172,8 @@ def check_env_kwargs(
     if len(env_kwargs) > 64:
         raise LimitError(f"{what}: {len(env_kwargs)} keyword arguments is more than the limit of 64")
     spec = gym.spec(env_id)
+    if spec.entry_point is None:  # registered without one: gym.make could not build it either
+        raise LimitError(f"{what}: {env_id!r} is registered without an entry point")
     creator = (
         spec.entry_point
         if callable(spec.entry_point)

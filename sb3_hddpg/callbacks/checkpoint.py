@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json, remove_stale_temporaries
 
@@ -68,12 +69,14 @@ class ResumableCheckpointCallback(BaseCallback):
                 f"in {str(self.checkpoint_dir)!r}: checkpoints never go backwards"
             )
         self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
-        model_name, buffer_name = f"model_{steps}.zip", f"replay_buffer_{steps}.pkl"
-        atomic_write(self.checkpoint_dir / model_name, lambda tmp: self.model.save(tmp))
-        if replay_buffer and getattr(self.model, "replay_buffer", None) is not None:
-            atomic_write(self.checkpoint_dir / buffer_name, lambda tmp: self.model.save_replay_buffer(tmp))
-        else:
-            buffer_name = None
+        model = self.model
+        model_name = f"model_{steps}.zip"
+        atomic_write(self.checkpoint_dir / model_name, lambda tmp: model.save(tmp))
+        buffer_name: str | None = None
+        # Every algorithm trained here is off-policy (SBX's too); the check also tells the type checker.
+        if replay_buffer and isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
+            buffer_name = f"replay_buffer_{steps}.pkl"
+            atomic_write(self.checkpoint_dir / buffer_name, model.save_replay_buffer)
         state = {"num_timesteps": steps, "model": model_name, "replay_buffer": buffer_name}
         if self.extra_state is not None:
             state.update(self.extra_state())

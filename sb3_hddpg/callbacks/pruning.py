@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import torch as th
@@ -23,6 +23,13 @@ def parameters_finite(model: BaseAlgorithm) -> bool:
     trees += [getattr(policy.actor_state, "target_params", None)]
     leaves = [leaf for tree in trees if tree is not None for leaf in jax.tree_util.tree_leaves(tree)]
     return all(bool(np.isfinite(np.asarray(leaf)).all()) for leaf in leaves)
+
+
+@runtime_checkable
+class _Evaluator(Protocol):
+    """What the pruner reads of its parent: the last evaluation's mean reward (``EvalCallback`` has it)."""
+
+    last_mean_reward: float
 
 
 class TrialPruningCallback(BaseCallback):
@@ -53,7 +60,7 @@ class TrialPruningCallback(BaseCallback):
 
     def _on_step(self) -> bool:
         evaluator = self.parent
-        if evaluator is None:
+        if not isinstance(evaluator, _Evaluator):
             raise RuntimeError("TrialPruningCallback must be a MetricsEvalCallback's callback_after_eval")
         mean_reward = float(evaluator.last_mean_reward)
         self.eval_idx += 1

@@ -148,8 +148,10 @@ def package_policy(
             algo_name = str(loaded.meta.get("algo", "ddpg")).upper()
         atomic_write_json(staging / "config.json", config)
         atomic_write_json(staging / "results.json", results)
-        limit = {"max_episode_steps": video_steps} if video_steps else {}
-        replay_env = loaded.make_env(render_mode="rgb_array", **limit)
+        env_kwargs: dict[str, Any] = {"render_mode": "rgb_array"}
+        if video_steps:
+            env_kwargs["max_episode_steps"] = video_steps
+        replay_env = loaded.make_env(**env_kwargs)
         record_video(
             loaded.policy,
             replay_env,

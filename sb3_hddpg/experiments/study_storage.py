@@ -27,9 +27,12 @@ import time
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TextIO
 
 import optuna
+
+if TYPE_CHECKING:  # sqlalchemy (optuna's) is imported only when a PostgreSQL lock is taken
+    from sqlalchemy.engine import Connection, Engine
 
 logger = logging.getLogger(__name__)
 
@@ -164,9 +167,9 @@ class TrialClaimLock:
         from sqlalchemy.engine import make_url
 
         self.url = url
-        self._file = None
-        self._connection = None
-        self._engine = None
+        self._file: TextIO | None = None
+        self._connection: Connection | None = None
+        self._engine: Engine | None = None
         path = sqlite_path(url)
         backend = make_url(url).get_backend_name()
         self._lock_path = path.with_name(path.name + ".lock") if path is not None else None
