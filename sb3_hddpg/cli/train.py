@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 from rich.table import Table
@@ -49,6 +50,25 @@ KEEP_CHECKPOINTS_HELP = (
     "bundled buffer_size) so that --resume with a larger --timesteps continues exactly; by default only "
     "the model checkpoint stays (resuming it refills the buffer first)."
 )
+
+# The options every training command (train-workers, train-manager, train-flat) shares, spelled once.
+SeedOpt = Annotated[int, typer.Option("--seed", callback=seed_range, help="Training seed.")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite a folder that already holds results.")]
+EvalFreqOpt = Annotated[
+    int, typer.Option("--eval-freq", callback=at_least(0), help="Steps between evaluations.")
+]
+EvalEpisodesOpt = Annotated[
+    int, typer.Option("--eval-episodes", callback=at_least(1), help="Episodes per evaluation.")
+]
+CheckpointFreqOpt = Annotated[
+    int, typer.Option("--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP)
+]
+ThreadsOpt = Annotated[
+    int, typer.Option("--threads", callback=at_least(1), help="Torch threads (1 is fastest here).")
+]
+ProgressOpt = Annotated[bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")]
+KeepCheckpointsOpt = Annotated[bool, typer.Option("--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP)]
+BackendOpt = Annotated[str | None, typer.Option("--backend", callback=backend_name, help=BACKEND_HELP)]
 
 
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
@@ -100,31 +120,23 @@ def train_workers_command(
         callback=at_least(1),
         help="Steps per worker (default: the config's n_timesteps).",
     ),
-    seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed."),
+    seed: SeedOpt = 0,
     n_envs: int | None = typer.Option(
         None, "--n-envs", callback=at_least(1), help="Training envs per worker, in subprocesses when > 1."
     ),
     out: Path = typer.Option(Path("runs/workers"), "--out", help="Run folder; workers go to OUT/workers/."),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoints."),
-    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    force: ForceOpt = False,
     stop_on_plateau: bool = typer.Option(
         False, "--stop-on-plateau", help="Stop a worker after 3 evaluations without a new best."
     ),
-    eval_freq: int = typer.Option(
-        5000, "--eval-freq", callback=at_least(0), help="Steps between evaluations."
-    ),
-    eval_episodes: int = typer.Option(
-        5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
-    ),
-    checkpoint_freq: int = typer.Option(
-        10_000, "--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP
-    ),
-    threads: int = typer.Option(
-        1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
-    ),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
-    keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
-    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
+    eval_freq: EvalFreqOpt = 5000,
+    eval_episodes: EvalEpisodesOpt = 5,
+    checkpoint_freq: CheckpointFreqOpt = 10_000,
+    threads: ThreadsOpt = 1,
+    progress: ProgressOpt = True,
+    keep_checkpoints: KeepCheckpointsOpt = False,
+    backend: BackendOpt = None,
 ) -> None:
     """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
 
@@ -216,7 +228,7 @@ def train_manager_command(
     timesteps: int | None = typer.Option(
         None, "--timesteps", callback=at_least(1), help="Manager steps (default: the config's n_timesteps)."
     ),
-    seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed."),
+    seed: SeedOpt = 0,
     n_envs: int | None = typer.Option(
         None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."
     ),
@@ -224,28 +236,20 @@ def train_manager_command(
         Path("runs/manager"), "--out", help="Run folder; the bundle goes to OUT/hierarchy.zip."
     ),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoint."),
-    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    force: ForceOpt = False,
     stop_on_plateau: bool = typer.Option(
         False, "--stop-on-plateau", help="Stop after 3 evaluations without a new best."
     ),
-    eval_freq: int = typer.Option(
-        5000, "--eval-freq", callback=at_least(0), help="Steps between evaluations."
-    ),
-    eval_episodes: int = typer.Option(
-        5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
-    ),
-    checkpoint_freq: int = typer.Option(
-        10_000, "--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP
-    ),
-    threads: int = typer.Option(
-        1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
-    ),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    eval_freq: EvalFreqOpt = 5000,
+    eval_episodes: EvalEpisodesOpt = 5,
+    checkpoint_freq: CheckpointFreqOpt = 10_000,
+    threads: ThreadsOpt = 1,
+    progress: ProgressOpt = True,
     trust: bool = typer.Option(
         False, "--trust", help="Load the workers with SB3's full loader (runs code in the files)."
     ),
-    keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
-    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
+    keep_checkpoints: KeepCheckpointsOpt = False,
+    backend: BackendOpt = None,
     env: str | None = typer.Option(None, "--env", help=ENV_HELP + MANAGER_ENV_NOTE),
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,

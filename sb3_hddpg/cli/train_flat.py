@@ -8,20 +8,27 @@ import typer
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
-    BACKEND_HELP,
     ENV_HELP,
     EpisodeStepsOpt,
     InfoKeyOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
-    backend_name,
     prepare_out_dir,
-    seed_range,
     terms_env_option,
     usage_errors,
 )
-from sb3_hddpg.cli.train import KEEP_CHECKPOINTS_HELP, metrics_table
+from sb3_hddpg.cli.train import (
+    BackendOpt,
+    EvalEpisodesOpt,
+    EvalFreqOpt,
+    ForceOpt,
+    KeepCheckpointsOpt,
+    ProgressOpt,
+    SeedOpt,
+    ThreadsOpt,
+    metrics_table,
+)
 from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import check_algo, resolve_backend
@@ -40,7 +47,7 @@ def train_flat_command(
     timesteps: int | None = typer.Option(
         None, "--timesteps", callback=at_least(1), help="Training steps (default: the config's n_timesteps)."
     ),
-    seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed."),
+    seed: SeedOpt = 0,
     n_envs: int | None = typer.Option(
         None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."
     ),
@@ -48,22 +55,16 @@ def train_flat_command(
         Path("runs/flat"), "--out", help="Run folder; the model goes to OUT/flat/<algo>.zip."
     ),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoint."),
-    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    force: ForceOpt = False,
     stop_on_plateau: bool = typer.Option(
         False, "--stop-on-plateau", help="Stop after 3 evaluations without a new best."
     ),
-    eval_freq: int = typer.Option(
-        5000, "--eval-freq", callback=at_least(0), help="Steps between evaluations."
-    ),
-    eval_episodes: int = typer.Option(
-        5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
-    ),
-    threads: int = typer.Option(
-        1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."
-    ),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
-    keep_checkpoints: bool = typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP),
-    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
+    eval_freq: EvalFreqOpt = 5000,
+    eval_episodes: EvalEpisodesOpt = 5,
+    threads: ThreadsOpt = 1,
+    progress: ProgressOpt = True,
+    keep_checkpoints: KeepCheckpointsOpt = False,
+    backend: BackendOpt = None,
     preference: str | None = typer.Option(
         None,
         "--preference",

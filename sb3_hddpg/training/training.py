@@ -454,6 +454,27 @@ def _tensorboard_logger(paths: AgentPaths) -> Any:
     return configure(str(folder), ["tensorboard"])
 
 
+def _check_budget_and_seed(timesteps: int | None, seed: int) -> None:
+    """A command's budget and seed, checked before anything is loaded or trained."""
+    if timesteps is not None and timesteps < 1:
+        raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
+    if seed < 0:
+        raise ValueError(f"Expected seed >= 0, actually: {seed}")
+
+
+def _can_resume(paths: AgentPaths, resume: bool) -> bool:
+    """
+    Whether to resume the agent at ``paths``: asked to, and a checkpoint exists (killed before its first
+    checkpoint, a run has nothing to resume and starts afresh).
+    """
+    return resume and read_checkpoint_state(paths.checkpoint_dir) is not None
+
+
+def _finished(entry: Any, budget: int) -> bool:
+    """Whether a manifest entry is a model that an earlier run finished with this budget."""
+    return isinstance(entry, dict) and entry.get("timesteps_requested") == budget
+
+
 def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> Callable[[], gym.Env]:
     """A picklable factory of the registered env whose reward is worker ``name``'s."""
     if name not in WORKER_ENV_IDS:
@@ -543,10 +564,7 @@ def train_workers(
     :return: the manifest written.
     """
 
-    if timesteps is not None and timesteps < 1:
-        raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
-    if seed < 0:
-        raise ValueError(f"Expected seed >= 0, actually: {seed}")
+    _check_budget_and_seed(timesteps, seed)
     shared = env if env is not None else TermsEnv(SNAKE_SHARED_ENV_ID, {}, REWARD_TERMS)
     if workers is None:
         workers = list(shared.terms)
@@ -563,8 +581,7 @@ def train_workers(
         env_id, view_kwargs = shared.term_view(name)
         env_kwargs = {**view_kwargs, **hyperparams.env_kwargs}
         budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
-        done = manifest["workers"].get(name)
-        if resume and done is not None and done.get("timesteps_requested") == budget:
+        if resume and _finished(manifest["workers"].get(name), budget):
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
         outcome = train_agent(
@@ -575,7 +592,7 @@ def train_workers(
             timesteps=budget,
             seed=seed,
             n_envs=n_envs,
-            resume=resume and read_checkpoint_state(paths.checkpoint_dir) is not None,
+            resume=_can_resume(paths, resume),
             stop_on_plateau=stop_on_plateau,
             eval_freq=eval_freq,
             eval_episodes=eval_episodes,
@@ -684,8 +701,7 @@ def train_flat(
     if manifest_path.exists():
         manifest = read_json_file(manifest_path)
     name = name or algo
-    done = manifest["models"].get(name)
-    if resume and done is not None and done.get("timesteps_requested") == budget:
+    if resume and _finished(manifest["models"].get(name), budget):
         return manifest, None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
     factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
@@ -700,7 +716,7 @@ def train_flat(
         timesteps=budget,
         seed=seed,
         n_envs=n_envs,
-        resume=resume and read_checkpoint_state(paths.checkpoint_dir) is not None,
+        resume=_can_resume(paths, resume),
         stop_on_plateau=stop_on_plateau,
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
@@ -975,10 +991,7 @@ def train_manager(
         ``sb3``); the bundle holds an SB3 manager either way.
     :return: the saved :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` and the training outcome.
     """
-    if timesteps is not None and timesteps < 1:
-        raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
-    if seed < 0:
-        raise ValueError(f"Expected seed >= 0, actually: {seed}")
+    _check_budget_and_seed(timesteps, seed)
     preparation: dict[str, Any] = {
         key: value
         for key, value in (
@@ -1018,8 +1031,7 @@ def train_manager(
         timesteps=timesteps,
         seed=seed,
         n_envs=n_envs,
-        # Killed before its first checkpoint, a run has nothing to resume: start afresh, as train_workers does.
-        resume=resume and read_checkpoint_state(paths.checkpoint_dir) is not None,
+        resume=_can_resume(paths, resume),
         stop_on_plateau=stop_on_plateau,
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
