@@ -8,7 +8,7 @@ import typer
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
-from sb3_hddpg.cli.record import TRUST_HELP
+from sb3_hddpg.cli.record import TrustOpt
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments.packaging import package_policy
 from sb3_hddpg.hierarchy.loading import load_policy
@@ -29,7 +29,7 @@ def package_command(
         help="Length of replay.mp4 in steps (default: one episode).",
     ),
     force: bool = typer.Option(False, "--force", help="Replace a folder that is not empty."),
-    trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
+    trust: TrustOpt = False,
 ) -> None:
     """Model zip (or bundle + manifest), model card, config.json, results.json and replay.mp4 in one folder."""
 

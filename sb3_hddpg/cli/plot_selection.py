@@ -8,17 +8,15 @@ import typer
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
-    ENV_HELP,
     EpisodeStepsOpt,
     InfoKeyOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
-    seed_range,
     terms_env_option,
     usage_errors,
 )
-from sb3_hddpg.cli.record import TRUST_HELP
+from sb3_hddpg.cli.record import ActInEnvOpt, EpisodeSeedOpt, MaxStepsOpt, TrustOpt
 from sb3_hddpg.envs.contract import proximity_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.loading import load_policy
@@ -31,26 +29,14 @@ def plot_selection_command(
     path: str = typer.Argument(..., help="A hierarchy.zip (or its folder) or a ham.json."),
     out: Path = typer.Option(Path("selection.png"), "--out", help="The PNG to write."),
     episodes: int = typer.Option(1, "--episodes", callback=at_least(1), help="Episodes, one after another."),
-    seed: int = typer.Option(
-        EVAL_SEED_BASE,
-        "--seed",
-        callback=seed_range,
-        help="Seed of the first episode (episode k uses seed + k).",
-    ),
-    env_id: str | None = typer.Option(
-        None, "--env", help="Env id to act in (default: the one it was trained on). " + ENV_HELP
-    ),
+    seed: EpisodeSeedOpt = EVAL_SEED_BASE,
+    env_id: ActInEnvOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
     episode_steps: EpisodeStepsOpt = None,
-    max_steps: int | None = typer.Option(
-        None,
-        "--max-steps",
-        callback=at_least(1),
-        help="Cut every episode to this many steps (default: full).",
-    ),
-    trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
+    max_steps: MaxStepsOpt = None,
+    trust: TrustOpt = False,
 ) -> None:
     """
     Per step: the worker chosen and the manager's probabilities, beside obstacle clearance and goal distance

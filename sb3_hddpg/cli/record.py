@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -26,36 +27,41 @@ from sb3_hddpg.media.video import check_video_path, make_recording_env, record_v
 POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK)."
 TRUST_HELP = "Allow SB3's full loader, which runs code stored in the file: only for files you trust."
 
+# The options of the commands that run a policy for a few episodes (record, plot-selection), spelled once.
+EpisodeSeedOpt = Annotated[
+    int,
+    typer.Option("--seed", callback=seed_range, help="Seed of the first episode (episode k uses seed + k)."),
+]
+ActInEnvOpt = Annotated[
+    str | None,
+    typer.Option("--env", help="Env id to act in (default: the one it was trained on). " + ENV_HELP),
+]
+MaxStepsOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--max-steps", callback=at_least(1), help="Cut every episode to this many steps (default: full)."
+    ),
+]
+TrustOpt = Annotated[bool, typer.Option("--trust", help=TRUST_HELP)]
+
 
 @app.command("record")
 def record_command(
     path: str = typer.Argument(..., help=POLICY_HELP),
     out: Path = typer.Option(..., "--out", help="The video to write: FILE.gif or FILE.mp4."),
     episodes: int = typer.Option(1, "--episodes", callback=at_least(1), help="Episodes to record."),
-    seed: int = typer.Option(
-        EVAL_SEED_BASE,
-        "--seed",
-        callback=seed_range,
-        help="Seed of the first episode (episode k uses seed + k).",
-    ),
+    seed: EpisodeSeedOpt = EVAL_SEED_BASE,
     fps: int = typer.Option(
         10, "--fps", callback=at_least(1), help="Frames per second (the env runs at 10)."
     ),
-    env_id: str | None = typer.Option(
-        None, "--env", help="Env id to act in (default: the one it was trained on). " + ENV_HELP
-    ),
+    env_id: ActInEnvOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
     episode_steps: EpisodeStepsOpt = None,
-    max_steps: int | None = typer.Option(
-        None,
-        "--max-steps",
-        callback=at_least(1),
-        help="Cut every episode to this many steps (default: full).",
-    ),
+    max_steps: MaxStepsOpt = None,
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),
-    trust: bool = typer.Option(False, "--trust", help=TRUST_HELP),
+    trust: TrustOpt = False,
     algo: str | None = typer.Option(
         None, "--algo", help="Algorithm of a zip without manifest (with --trust)."
     ),
