@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated
 
@@ -69,6 +71,16 @@ ThreadsOpt = Annotated[
 ProgressOpt = Annotated[bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")]
 KeepCheckpointsOpt = Annotated[bool, typer.Option("--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP)]
 BackendOpt = Annotated[str | None, typer.Option("--backend", callback=backend_name, help=BACKEND_HELP)]
+
+
+@contextlib.contextmanager
+def training_interrupt_exits() -> Iterator[None]:
+    """Training stopped by Ctrl-C or SIGTERM (its checkpoint saved): say where, and exit 130 (128 + SIGINT)."""
+    try:
+        yield
+    except TrainingInterrupted as interrupted:
+        console.print(f"[yellow]{interrupted}[/]")
+        raise typer.Exit(130) from None
 
 
 def metrics_table(title: str, rows: dict[str, dict]) -> Table:
@@ -163,7 +175,7 @@ def train_workers_command(
             f"{' (stopped on plateau)' if outcome.stopped_early else ''} -> {outcome.model_path}"
         )
 
-    try:
+    with training_interrupt_exits():
         manifest = train_workers(
             out,
             workers=workers,
@@ -183,9 +195,6 @@ def train_workers_command(
             backend=backend,
             env=shared,
         )
-    except TrainingInterrupted as interrupted:
-        console.print(f"[yellow]{interrupted}[/]")
-        raise typer.Exit(130) from None
     rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in workers}
     console.print(metrics_table(f"Workers in {out / 'workers'} (best evaluation)", rows))
     console.print(
@@ -281,7 +290,7 @@ def train_manager_command(
     with usage_errors("'--backend'"):
         resolve_backend(backend, setup.hyperparams.backend)
     prepare_out_dir(out, resume, force)
-    try:
+    with training_interrupt_exits():
         hierarchy, outcome = train_manager(
             setup,
             out,
@@ -298,9 +307,6 @@ def train_manager_command(
             keep_checkpoints=keep_checkpoints,
             backend=backend,
         )
-    except TrainingInterrupted as interrupted:
-        console.print(f"[yellow]{interrupted}[/]")
-        raise typer.Exit(130) from None
     console.print(
         metrics_table(f"Manager over {hierarchy.names} (best evaluation)", {"manager": outcome.metrics})
     )

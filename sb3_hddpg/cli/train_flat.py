@@ -28,12 +28,13 @@ from sb3_hddpg.cli.train import (
     SeedOpt,
     ThreadsOpt,
     metrics_table,
+    training_interrupt_exits,
 )
 from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.config import default_config, load_hyperparams
-from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, TrainingInterrupted, algo_class, train_flat
+from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, algo_class, train_flat
 
 
 @app.command("train-flat")
@@ -101,7 +102,7 @@ def train_flat_command(
     with usage_errors("'--backend'"):
         check_algo(algo, resolve_backend(backend, hyperparams.backend))
     prepare_out_dir(out, resume, force)
-    try:
+    with training_interrupt_exits():
         manifest, outcome = train_flat(
             out,
             algo=algo,
@@ -121,9 +122,6 @@ def train_flat_command(
             env_kwargs=shared.env_kwargs if shared is not None else None,
             preferences=preferences,
         )
-    except TrainingInterrupted as interrupted:
-        console.print(f"[yellow]{interrupted}[/]")
-        raise typer.Exit(130) from None
     entry = manifest["models"][algo]
     if outcome is None:
         console.print(f"{algo} was already trained for {entry['timesteps_requested']} steps; kept it.")
