@@ -11,8 +11,10 @@ A :class:`Job` is a module-level function with its arguments, a key, a cost and 
 - :class:`InlineExecutor`: in this process, one job at a time (the same code path without processes, handy
   for debugging and profiling).
 
-Another executor (a cluster's, issue 17) implements the same four methods: ``open``, ``submit``, ``wait``,
-``stop``.
+- :class:`~sb3_hddpg.experiments.ray_executor.RayExecutor` (its own module, Ray being optional): each job a
+  Ray task on an existing cluster.
+
+An executor implements four methods: ``open``, ``submit``, ``wait``, ``stop``.
 
 **Scheduling.** A job runs once every job it runs ``after`` has finished (and fails without running when one
 of them failed); ready jobs go group by group (e.g. seed by seed, so that an interrupted benchmark holds
@@ -40,7 +42,7 @@ import multiprocessing.connection
 import queue as queue_module
 import time
 import traceback
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -218,6 +220,17 @@ def report_progress(value: float) -> None:
         _reporter(value)
 
 
+@contextlib.contextmanager
+def reporting_to(reporter: Callable[[float], None]) -> Iterator[None]:
+    """Inside a job's process (for another executor, e.g. Ray's): send its :func:`report_progress` to ``reporter``."""
+    global _reporter
+    previous, _reporter = _reporter, reporter
+    try:
+        yield
+    finally:
+        _reporter = previous
+
+
 def _call(job: Job) -> Finished:
     """Run ``job`` here, catching what it raises (not interrupts: those stop the run)."""
     try:
@@ -369,12 +382,24 @@ class LocalProcessExecutor:
                 slot.process.terminate()
 
 
-def make_executor(n_jobs: int, interrupt_grace: float | None = 0.0, inline: bool = False) -> Executor:
+def make_executor(
+    n_jobs: int | None,
+    interrupt_grace: float | None = 0.0,
+    inline: bool = False,
+    ray_address: str | None = None,
+) -> Executor:
     """
-    The local executor for ``n_jobs`` processes, or :class:`InlineExecutor` when ``inline``.
+    The local executor for ``n_jobs`` processes, :class:`InlineExecutor` when ``inline``, or the Ray
+    executor when ``ray_address`` is given.
 
-    :param n_jobs: processes at a time.
+    :param n_jobs: jobs at a time (``None``: 1 locally, every CPU of a Ray cluster).
     :param interrupt_grace: see :class:`LocalProcessExecutor`.
-    :param inline: run in this process instead.
+    :param inline: run in this process instead (local only).
+    :param ray_address: run each job as a Ray task on the cluster at this address (``auto`` or
+        ``HOST:PORT``, see :class:`~sb3_hddpg.experiments.ray_executor.RayExecutor`); ``None``: locally.
     """
-    return InlineExecutor() if inline else LocalProcessExecutor(n_jobs, interrupt_grace)
+    if ray_address is not None:
+        from sb3_hddpg.experiments.ray_executor import RayExecutor
+
+        return RayExecutor(ray_address, slots=n_jobs, interrupt_grace=interrupt_grace)
+    return InlineExecutor() if inline else LocalProcessExecutor(n_jobs or 1, interrupt_grace)
