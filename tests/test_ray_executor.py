@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
+import shutil
 import signal
 import socket
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -143,3 +148,129 @@ def test_an_unreachable_or_malformed_address_is_one_clear_error():
     assert time.monotonic() - started < 10  # not ray.init's minutes of retries
     with pytest.raises(ClusterError, match="expected 'auto' or HOST:PORT"):
         check_address("no-port")
+
+
+# ------------------------------------------------------------------------------------------- the CLI
+REPO = Path(__file__).resolve().parents[1]
+
+
+def cli_env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(REPO), "COLUMNS": "200", "SDL_VIDEODRIVER": "dummy"}
+
+
+def test_without_ray_the_cli_says_how_to_install_it(tmp_path):
+    # Ray hidden from a fresh interpreter, as on a machine without the cluster extra.
+    code = (
+        "import sys; sys.modules['ray'] = None; from sb3_hddpg.cli import main; "
+        f"sys.argv = ['hddpg-cli', 'benchmark', '--executor', 'ray', '--out', {str(tmp_path / 'o')!r}]; main()"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=cli_env(), timeout=300
+    )
+    assert done.returncode == 2, done.stderr
+    assert 'pip install "sb3-hddpg[cluster]"' in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "o").exists()  # refused before anything was made
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.fixture
+def ray_head():
+    """A Ray head of 2 CPUs on loopback, as `ray start --head` makes one; its address. Stopped after."""
+    port = free_port()
+    temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths have a length limit
+    head = subprocess.Popen(
+        [
+            str(Path(sys.executable).parent / "ray"),
+            "start",
+            "--head",
+            "--block",
+            f"--port={port}",
+            "--node-ip-address=127.0.0.1",
+            "--num-cpus=2",
+            "--include-dashboard=false",
+            "--disable-usage-stats",
+            f"--temp-dir={temp_dir}",
+        ],
+        env=cli_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=1):
+                break
+            time.sleep(0.5)
+        yield f"127.0.0.1:{port}"
+    finally:
+        head.terminate()  # `ray start --block` stops the processes it started (only ours: not `ray stop`)
+        head.wait(timeout=60)
+        shutil.rmtree(temp_dir, ignore_errors=True)
+
+
+# The tiny budgets of tests/test_benchmark.py.
+TINY = (
+    "--seeds", "2", "--methods", "hddpg,ham,ddpg", "--timesteps", "200", "--worker-timesteps", "100",
+    "--eval-freq", "100", "--eval-episodes", "1", "--test-episodes", "1", "--n-jobs", "2",
+)  # fmt: skip
+
+
+def kill_one_task(label: str, seen_for: float = 1.0, timeout: float = 300) -> int:
+    """SIGKILL the Ray worker process running the task ``label`` (its title: ``ray::LABEL``) once seen."""
+    import psutil
+
+    deadline = time.monotonic() + timeout
+    first_seen: dict[int, float] = {}
+    while time.monotonic() < deadline:
+        for process in psutil.process_iter(["pid", "cmdline"]):
+            with contextlib.suppress(psutil.Error):
+                if (process.info["cmdline"] or [""])[0].startswith(f"ray::{label}"):
+                    seen = first_seen.setdefault(process.pid, time.monotonic())
+                    if time.monotonic() - seen >= seen_for:
+                        process.kill()
+                        return process.pid
+        time.sleep(0.1)
+    raise AssertionError(f"no Ray task {label} seen in {timeout} s")
+
+
+def records(out: Path) -> dict[str, dict]:
+    """Every task's record, without its wall time."""
+    found = {}
+    for path in sorted((out / "records").glob("*/seed-*.json")):
+        record = json.loads(path.read_text())
+        record.pop("wall_time_s")
+        found[f"{path.parent.name}/{path.stem}"] = record
+    return found
+
+
+@pytest.mark.slow  # two tiny benchmarks (local, then Ray with a worker killed): minutes
+def test_benchmark_on_a_ray_cluster_survives_a_killed_worker_and_matches_local(ray_head, tmp_path):
+    local = subprocess.run(
+        [sys.executable, str(REPO / "cli.py"), "benchmark", *TINY, "--out", str(tmp_path / "local")],
+        capture_output=True, text=True, env=cli_env(), timeout=900, cwd=REPO,
+    )  # fmt: skip
+    assert local.returncode == 0, local.stdout + local.stderr
+
+    command = [
+        sys.executable, str(REPO / "cli.py"), "benchmark", *TINY, "--out", str(tmp_path / "ray"),
+        "--executor", "ray", "--ray-address", ray_head,
+    ]  # fmt: skip
+    with subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=cli_env()
+    ) as run:
+        killed = kill_one_task("workers/seed-0")  # mid-training: its retry must finish the seed's workers
+        stdout, stderr = run.communicate(timeout=900)
+    assert run.returncode == 0, stdout + stderr
+    assert killed > 0
+
+    # The same results file, key for key, and the same numbers: every run is seeded and deterministic.
+    ours, theirs = (json.loads((tmp_path / n / "results.json").read_text()) for n in ("ray", "local"))
+    assert ours.keys() == theirs.keys() and ours["methods"].keys() == theirs["methods"].keys()
+    assert records(tmp_path / "ray") == records(tmp_path / "local")
+    for method, entry in theirs["methods"].items():
+        assert ours["methods"][method]["stats"] == entry["stats"], method

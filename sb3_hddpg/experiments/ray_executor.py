@@ -97,11 +97,11 @@ def connect(address: str = "auto") -> bool:
     :return: whether this call connected (and the caller should disconnect with ``ray.shutdown``).
     :raises ClusterError: Ray is not installed or the cluster cannot be reached.
     """
+    if address != "auto":
+        check_address(address)  # a usage error whether Ray is installed or not
     ray = import_ray()
     if ray.is_initialized():
         return False
-    if address != "auto":
-        check_address(address)
     try:
         # Never start a cluster of our own here: the executor is for an existing one.
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=True)

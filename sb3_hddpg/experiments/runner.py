@@ -393,7 +393,9 @@ def make_executor(
     executor when ``ray_address`` is given.
 
     :param n_jobs: jobs at a time (``None``: 1 locally, every CPU of a Ray cluster).
-    :param interrupt_grace: see :class:`LocalProcessExecutor`.
+    :param interrupt_grace: see :class:`LocalProcessExecutor` (local only: a Ray task does not see the
+        terminal's Ctrl-C that local jobs see at once, so on an interrupt it is cancelled, which raises the
+        same ``KeyboardInterrupt`` in it, without waiting).
     :param inline: run in this process instead (local only).
     :param ray_address: run each job as a Ray task on the cluster at this address (``auto`` or
         ``HOST:PORT``, see :class:`~sb3_hddpg.experiments.ray_executor.RayExecutor`); ``None``: locally.
@@ -401,5 +403,5 @@ def make_executor(
     if ray_address is not None:
         from sb3_hddpg.experiments.ray_executor import RayExecutor
 
-        return RayExecutor(ray_address, slots=n_jobs, interrupt_grace=interrupt_grace)
+        return RayExecutor(ray_address, slots=n_jobs)
     return InlineExecutor() if inline else LocalProcessExecutor(n_jobs or 1, interrupt_grace)
