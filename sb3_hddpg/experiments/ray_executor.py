@@ -54,6 +54,8 @@ DEFAULT_MAX_RETRIES = 2
 CONNECT_TIMEOUT = 5.0
 #: Seconds to wait for the last progress reports of a job that ended.
 SETTLE_TIMEOUT = 2.0
+#: Seconds to wait for the progress actor to start.
+SINK_START_TIMEOUT = 60.0
 
 
 class ClusterError(ValueError):
@@ -156,13 +158,20 @@ def _driver_context(cwd: str, held_folders: str) -> Iterator[None]:
 
 def _run_task(job: Job, sink: Any, cwd: str, held_folders: str) -> Finished:
     """A Ray task: run ``job`` as a local process would, its progress sent to ``sink``."""
-    torch.set_num_threads(job.threads)
-    with _driver_context(cwd, held_folders), reporting_to(lambda value: sink.put.remote(job.key, value)):
-        end = _call(job)
-    try:
-        import ray.cloudpickle as cloudpickle
+    import ray
 
-        cloudpickle.dumps(end)
+    sent: list[Any] = []
+
+    def report(value: float) -> None:
+        sent[:] = [sink.put.remote(job.key, value)]  # fire and forget: training never waits for it
+
+    torch.set_num_threads(job.threads)
+    with _driver_context(cwd, held_folders), reporting_to(report):
+        end = _call(job)
+    if sent:  # the last report reaches the sink before the driver sees the end (a job's progress comes first)
+        ray.wait(sent, timeout=SETTLE_TIMEOUT)
+    try:
+        ray.cloudpickle.dumps(end)
     except Exception as error:  # a result or error that does not pickle: say so rather than lose the task
         return Finished(job.key, False, RuntimeError(describe(error)), end.details)
     return end
@@ -211,7 +220,12 @@ class RayExecutor:
         here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=True)
         sink = ray.remote(num_cpus=0)(_progress_sink_class()).options(scheduling_strategy=here)
         self._sink = sink.remote()
-        self._drained: Any = None  # the pending drain call
+        # Started before any job, so that no early report is lost (seconds on a busy machine, once).
+        self._drained: Any = self._sink.drain.remote()  # the pending drain call
+        if not ray.wait([self._drained], timeout=SINK_START_TIMEOUT)[0]:
+            logger.warning(
+                "the progress actor did not start in %.0f s; progress may be late", SINK_START_TIMEOUT
+            )
         self._task = ray.remote(_run_task)
         self._cwd = os.getcwd()
 
