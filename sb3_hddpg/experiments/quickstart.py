@@ -40,8 +40,9 @@ from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
 from sb3_hddpg.envs.contract import proximity_of, state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
+from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.packaging import write_zoo_layout
-from sb3_hddpg.experiments.runner import Job, make_executor, report_progress, run_jobs
+from sb3_hddpg.experiments.runner import Job, report_progress, run_jobs
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
 from sb3_hddpg.media.video import record_video

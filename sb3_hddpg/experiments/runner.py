@@ -10,11 +10,11 @@ A :class:`Job` is a module-level function with its arguments, a key, a cost and 
   only, and is replaced;
 - :class:`InlineExecutor`: in this process, one job at a time (the same code path without processes, handy
   for debugging and profiling).
-
 - :class:`~sb3_hddpg.experiments.ray_executor.RayExecutor` (its own module, Ray being optional): each job a
   Ray task on an existing cluster.
 
-An executor implements four methods: ``open``, ``submit``, ``wait``, ``stop``.
+An executor implements four methods: ``open``, ``submit``, ``wait``, ``stop``;
+:func:`~sb3_hddpg.experiments.executors.make_executor` picks one from a command's options.
 
 **Scheduling.** A job runs once every job it runs ``after`` has finished (and fails without running when one
 of them failed); ready jobs go group by group (e.g. seed by seed, so that an interrupted benchmark holds
@@ -380,28 +380,3 @@ class LocalProcessExecutor:
             slot.process.join(max(0.0, deadline - time.monotonic()))
             if slot.process.is_alive():
                 slot.process.terminate()
-
-
-def make_executor(
-    n_jobs: int | None,
-    interrupt_grace: float | None = 0.0,
-    inline: bool = False,
-    ray_address: str | None = None,
-) -> Executor:
-    """
-    The local executor for ``n_jobs`` processes, :class:`InlineExecutor` when ``inline``, or the Ray
-    executor when ``ray_address`` is given.
-
-    :param n_jobs: jobs at a time (``None``: 1 locally, every CPU of a Ray cluster).
-    :param interrupt_grace: see :class:`LocalProcessExecutor` (local only: a Ray task does not see the
-        terminal's Ctrl-C that local jobs see at once, so on an interrupt it is cancelled, which raises the
-        same ``KeyboardInterrupt`` in it, without waiting).
-    :param inline: run in this process instead (local only).
-    :param ray_address: run each job as a Ray task on the cluster at this address (``auto`` or
-        ``HOST:PORT``, see :class:`~sb3_hddpg.experiments.ray_executor.RayExecutor`); ``None``: locally.
-    """
-    if ray_address is not None:
-        from sb3_hddpg.experiments.ray_executor import RayExecutor
-
-        return RayExecutor(ray_address, slots=n_jobs)
-    return InlineExecutor() if inline else LocalProcessExecutor(n_jobs or 1, interrupt_grace)

@@ -43,8 +43,9 @@ from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.hyperparams_opt import sampler_for
-from sb3_hddpg.experiments.runner import Job, make_executor, run_jobs
+from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
 from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
 from sb3_hddpg.training.config import (

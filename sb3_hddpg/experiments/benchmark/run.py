@@ -26,7 +26,8 @@ from sb3_hddpg.experiments.benchmark.methods import (
 from sb3_hddpg.experiments.benchmark.report import write_outputs
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
-from sb3_hddpg.experiments.runner import Job, make_executor, run_jobs
+from sb3_hddpg.experiments.executors import make_executor
+from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.training.training import train_workers
 
 #: Bumped when a record's meaning changes.
