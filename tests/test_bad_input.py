@@ -254,6 +254,19 @@ CASES = [
     case("bm-zero-n-jobs", ("benchmark", "--n-jobs", "0", "--out", "{tmp}/o"), 2, "got 0"),
     case("bm-negative-hysteresis", ("benchmark", "--ham-hysteresis", "-1", "--out", "{tmp}/o"), 2, "-1"),
     case("bm-out-is-a-file", ("benchmark", "--out", "{text_file}"), 2, "notes.txt"),
+    case("bm-unknown-executor", ("benchmark", "--executor", "slurm", "--out", "{tmp}/o"), 2, "slurm"),
+    case(
+        "bm-ray-address-alone",
+        ("benchmark", "--ray-address", "10.0.0.1:6379", "--out", "{tmp}/o"),
+        2,
+        "--executor ray",
+    ),
+    case(
+        "bm-ray-address-malformed",
+        ("benchmark", "--executor", "ray", "--ray-address", "headnode", "--out", "{tmp}/o"),
+        2,
+        "'headnode'",
+    ),
     case(
         "bm-transfer-bad-preference",
         ("benchmark", "--scenario", "transfer", "--preference", "goal=-1", "--out", "{tmp}/o"),
@@ -292,6 +305,12 @@ CASES = [
         "In-memory",
     ),
     case("tu-fix-unknown", ("tune", "--level", "flat", "--fix", "nope=1", "--out", "{tmp}/o"), 2, "nope"),
+    case(
+        "tu-ray-address-alone",
+        ("tune", "--level", "flat", "--ray-address", "auto", "--out", "{tmp}/o"),
+        2,
+        "--executor ray",
+    ),
     case("tu-algo-unknown", ("tune", "--level", "flat", "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
     case(
         "tu-algo-not-flat", ("tune", "--level", "ham", "--algo", "sac", "--out", "{tmp}/o"), 2, "--level flat"
@@ -336,6 +355,13 @@ CASES = [
     case("qs-unknown-budget", ("quickstart", "--budget", "huge", "--out", "{tmp}/o"), 2, "huge"),
     case("qs-zero-processes", ("quickstart", "--processes", "0", "--out", "{tmp}/o"), 2, "got 0"),
     case("qs-out-holds-results", ("quickstart", "--out", "{w}"), 2, "already holds results"),
+    # Port 9 (discard): nothing listens there on a test machine.
+    case(
+        "qs-ray-unreachable",
+        ("quickstart", "--executor", "ray", "--ray-address", "127.0.0.1:9", "--out", "{tmp}/o"),
+        2,
+        "127.0.0.1:9",
+    ),
     # ---- record
     case("rec-missing", ("record", "{tmp}/nope.zip", "--out", "{tmp}/x.gif"), 2, "nope.zip"),
     case("rec-bad-extension", ("record", "{m}/hierarchy.zip", "--out", "{tmp}/x.avi"), 2, "x.avi"),

@@ -15,11 +15,14 @@ from sb3_hddpg.cli.options import (
     BACKEND_HELP,
     ENV_HELP,
     EpisodeStepsOpt,
+    ExecutorOpt,
     InfoKeyOpt,
+    RayAddressOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
     backend_name,
+    cluster_address,
     positive_float,
     prepare_out_dir,
     terms_env_option,
@@ -269,9 +272,14 @@ def benchmark_command(
     bias: float = typer.Option(
         0.15, "--bias", callback=positive_float, help="The biased managers' extra preference factor."
     ),
-    n_jobs: int = typer.Option(
-        1, "--n-jobs", callback=at_least(1), help="Runs in parallel (one process each)."
+    n_jobs: int | None = typer.Option(
+        None,
+        "--n-jobs",
+        callback=at_least(1),
+        help="Runs in parallel, one process each (default: 1; with --executor ray, every CPU of the cluster).",
     ),
+    executor: ExecutorOpt = "local",
+    ray_address: RayAddressOpt = None,
     out: Path = typer.Option(Path("runs/benchmark"), "--out", help="Benchmark folder."),
     resume: bool = typer.Option(False, "--resume", help="Keep finished runs and continue interrupted ones."),
     force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
@@ -331,10 +339,18 @@ def benchmark_command(
                 else None
             ),
         )
+    address = cluster_address(executor, ray_address)
     prepare_out_dir(out, resume, force)
     started = time.perf_counter()
 
-    results = run_benchmark(settings, out, n_jobs=n_jobs, resume=resume, on_event=_event_printer(started))
+    results = run_benchmark(
+        settings,
+        out,
+        n_jobs=n_jobs,
+        resume=resume,
+        on_event=_event_printer(started),
+        ray_address=address,
+    )
     console.print(results_table(results))
     if results["comparisons"]:
         console.print(comparisons_table(results))

@@ -240,3 +240,45 @@ def terms_env_option(
         bounds = parse_term_bounds(term_bounds) if term_bounds is not None else None
     with usage_errors("'--env'"):
         return terms_env(env, names, bounds, info_key=info_key, episode_steps=episode_steps)
+
+
+#: Help of the options that choose where a command's independent runs go (benchmark, quickstart, tune).
+EXECUTOR_HELP = (
+    "Where the runs go: local (processes on this machine) or ray (one Ray task each on an existing Ray "
+    'cluster, see --ray-address; pip install "sb3-hddpg[cluster]"; shared filesystem assumed, docs/CLUSTER.md).'
+)
+RAY_ADDRESS_HELP = (
+    "With --executor ray: the cluster's head, auto (the cluster `ray start` runs on this machine, or "
+    "RAY_ADDRESS) or HOST:PORT. Default: auto."
+)
+EXECUTORS = ("local", "ray")
+
+
+def executor_name(value: str) -> str:
+    """A typer callback for ``--executor``: ``local`` or ``ray``."""
+    if value not in EXECUTORS:
+        raise typer.BadParameter(f"must be one of {list(EXECUTORS)}, got {value!r}")
+    return value
+
+
+ExecutorOpt = Annotated[str, typer.Option("--executor", callback=executor_name, help=EXECUTOR_HELP)]
+RayAddressOpt = Annotated[str | None, typer.Option("--ray-address", help=RAY_ADDRESS_HELP)]
+
+
+def cluster_address(executor: str, ray_address: str | None) -> str | None:
+    """
+    The Ray address the executor options name (``None``: run locally). Connects to the cluster now, before
+    any work starts, so that a missing Ray or an unreachable address is a usage error naming the option.
+    """
+    if executor == "local":
+        if ray_address is not None:
+            raise typer.BadParameter("applies to --executor ray only", param_hint="'--ray-address'")
+        return None
+    from sb3_hddpg.experiments.ray_executor import ClusterError, connect
+
+    address = ray_address or "auto"
+    try:
+        connect(address)
+    except ClusterError as error:
+        raise typer.BadParameter(str(error), param_hint="'--ray-address'") from None
+    return address

@@ -10,7 +10,16 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import BACKEND_HELP, at_least, backend_name, prepare_out_dir, seed_range
+from sb3_hddpg.cli.options import (
+    BACKEND_HELP,
+    ExecutorOpt,
+    RayAddressOpt,
+    at_least,
+    backend_name,
+    cluster_address,
+    prepare_out_dir,
+    seed_range,
+)
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments.quickstart import (
     BUDGETS,
@@ -110,14 +119,18 @@ def quickstart_command(
     backend: str = typer.Option(
         "sb3", "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
     ),
+    executor: ExecutorOpt = "local",
+    ray_address: RayAddressOpt = None,
 ) -> None:
     """Train both workers, a manager, a flat DDPG (and HAM), compare them on the same seeds, save everything."""
     if budget not in BUDGETS:
         raise typer.BadParameter(f"must be one of {list(BUDGETS)}, got {budget!r}", param_hint="'--budget'")
     out = out or Path("runs") / f"quickstart-{datetime.now():%Y%m%d-%H%M%S}"
+    address = cluster_address(executor, ray_address)
     prepare_out_dir(out, resume=False, force=force)
     console.print(
-        f"Run folder: [bold]{out}[/]  (budget {budget}, seed {seed}, {processes} processes, backend {backend})"
+        f"Run folder: [bold]{out}[/]  (budget {budget}, seed {seed}, {processes} processes, backend {backend}"
+        + (f", on the Ray cluster at {address})" if address else ")")
     )
     with Progress(
         TextColumn("{task.description}"),
@@ -136,6 +149,7 @@ def quickstart_command(
             observer=observer,
             keep_checkpoints=keep_checkpoints,
             backend=backend,
+            ray_address=address,
         )
         observer.finish()
     console.print(comparison_table(result))

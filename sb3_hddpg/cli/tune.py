@@ -14,11 +14,14 @@ from sb3_hddpg.cli.options import (
     BACKEND_HELP,
     ENV_HELP,
     EpisodeStepsOpt,
+    ExecutorOpt,
     InfoKeyOpt,
+    RayAddressOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
     backend_name,
+    cluster_address,
     positive_float,
     seed_range,
     terms_env_option,
@@ -181,14 +184,20 @@ def tune_command(
         5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
     ),
     n_jobs: int = typer.Option(
-        1, "--n-jobs", callback=at_least(1), help="Trial processes on this machine (one per core is fastest)."
+        1,
+        "--n-jobs",
+        callback=at_least(1),
+        help="Trial processes on this machine (one per core is fastest), or Ray tasks with --executor ray.",
     ),
     threads: int | None = typer.Option(
         None,
         "--threads",
         callback=at_least(1),
-        help="Torch threads per trial process (default: cores // n-jobs, so processes never oversubscribe).",
+        help="Torch threads per trial process (default: cores // n-jobs, so processes never oversubscribe; "
+        "1 with --executor ray).",
     ),
+    executor: ExecutorOpt = "local",
+    ray_address: RayAddressOpt = None,
     sampler: str = typer.Option("tpe", "--sampler", help=f"Sampler: {' | '.join(SAMPLERS)}."),
     pruner: str = typer.Option("median", "--pruner", help=f"Pruner: {' | '.join(PRUNERS)}."),
     storage: str | None = typer.Option(
@@ -278,6 +287,7 @@ def tune_command(
     if level != "ham":
         with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
             resolve_backend(backend, target.base_block().get("backend"))
+    address = cluster_address(executor, ray_address)
     name = study_name or target.name
     out = out or Path("runs") / "tune" / name
     settings = StudySettings(
@@ -296,9 +306,10 @@ def tune_command(
     console.print(
         f"Tuning [bold]{target.name}[/] in study [bold]{name}[/] ({shown_storage}): "
         f"{n_trials} trials of {per_trial}, {n_jobs} process(es)"
+        + (f" on the Ray cluster at {address}" if address else "")
     )
     try:
-        study = tune(target, settings, out, n_jobs=n_jobs, threads=threads)
+        study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/] Re-run the same command to resume the study.")
         raise typer.Exit(130) from None

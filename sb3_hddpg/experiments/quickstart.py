@@ -40,8 +40,9 @@ from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
 from sb3_hddpg.envs.contract import proximity_of, state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
+from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.packaging import write_zoo_layout
-from sb3_hddpg.experiments.runner import Job, make_executor, report_progress, run_jobs
+from sb3_hddpg.experiments.runner import Job, report_progress, run_jobs
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
 from sb3_hddpg.media.video import record_video
@@ -235,11 +236,15 @@ def write_config(path: Path, overrides: dict[str, Any]) -> Path:
 
 
 def _run_jobs(
-    jobs: list[dict[str, Any]], processes: int, observer: QuickstartObserver
+    jobs: list[dict[str, Any]],
+    processes: int,
+    observer: QuickstartObserver,
+    ray_address: str | None = None,
 ) -> dict[str, dict[str, Any]]:
     """
-    Run training jobs on the process runner, ``processes`` at a time (in this process when 1), relaying
-    their progress to ``observer``; the first failure is re-raised.
+    Run training jobs on the process runner, ``processes`` at a time (in this process when 1, or as Ray
+    tasks on the cluster at ``ray_address``), relaying their progress to ``observer``; the first failure
+    is re-raised.
     """
     totals = {job["name"]: job["timesteps"] for job in jobs}
     for name, total in totals.items():
@@ -256,7 +261,12 @@ def _run_jobs(
     outcome = run_jobs(
         [Job(job["name"], _train_job, kwargs=job, cost=job["timesteps"]) for job in jobs],
         # A stopped quickstart is not resumed: a running job is left to end however it ends.
-        make_executor(min(processes, len(jobs)), interrupt_grace=None, inline=processes <= 1),
+        make_executor(
+            min(processes, len(jobs)),
+            interrupt_grace=None,
+            inline=processes <= 1,
+            ray_address=ray_address,
+        ),
         on_event=event,
         on_progress=progress,
         fail_fast=True,
@@ -274,6 +284,7 @@ def run_quickstart(
     observer: QuickstartObserver | None = None,
     keep_checkpoints: bool = False,
     backend: str = "sb3",
+    ray_address: str | None = None,
 ) -> QuickstartResult:
     """
     Train both workers, the manager and the baselines, compare them on the same seeds and write everything
@@ -288,6 +299,9 @@ def run_quickstart(
         ``small`` budget), so that ``hddpg-cli train-* --resume`` can extend an agent's training exactly;
         by default only the model checkpoints stay and the run folder is about 6 MB.
     :param backend: the training backend of every agent, ``sb3`` or ``sbx`` (saved models are SB3 either way).
+    :param ray_address: train the agents as Ray tasks on the cluster at this address (``auto`` or
+        ``HOST:PORT``; every node must see ``out_dir`` at the same path), ``processes`` at a time; the
+        evaluation, GIF and figures stay in this process. ``None``: local processes.
     :return: the metrics, the files written and the timings.
     """
 
@@ -340,7 +354,7 @@ def run_quickstart(
         {"kind": "worker", "name": name, "timesteps": budget.worker_timesteps, **common}
         for name in WORKER_ENV_IDS
     ]
-    trained = _run_jobs(worker_jobs, processes, observer)
+    trained = _run_jobs(worker_jobs, processes, observer, ray_address)
     stage_done(0, trained)
     manifest = {"schema_version": 1, "workers": {name: trained[name]["entry"] for name in WORKER_ENV_IDS}}
     save_manifest(run_dir / "workers" / "manifest.json", manifest)
@@ -351,7 +365,7 @@ def run_quickstart(
         {"kind": "manager", "name": "manager", "timesteps": budget.manager_timesteps, **common},
         {"kind": "flat", "name": "flat-ddpg", "timesteps": budget.flat_timesteps, **common},
     ]
-    second = _run_jobs(jobs, processes, observer)
+    second = _run_jobs(jobs, processes, observer, ray_address)
     trained.update(second)
     stage_done(1, second)
     files["bundle"] = run_dir / "hierarchy.zip"

@@ -10,9 +10,11 @@ A :class:`Job` is a module-level function with its arguments, a key, a cost and 
   only, and is replaced;
 - :class:`InlineExecutor`: in this process, one job at a time (the same code path without processes, handy
   for debugging and profiling).
+- :class:`~sb3_hddpg.experiments.ray_executor.RayExecutor` (its own module, Ray being optional): each job a
+  Ray task on an existing cluster.
 
-Another executor (a cluster's, issue 17) implements the same four methods: ``open``, ``submit``, ``wait``,
-``stop``.
+An executor implements four methods: ``open``, ``submit``, ``wait``, ``stop``;
+:func:`~sb3_hddpg.experiments.executors.make_executor` picks one from a command's options.
 
 **Scheduling.** A job runs once every job it runs ``after`` has finished (and fails without running when one
 of them failed); ready jobs go group by group (e.g. seed by seed, so that an interrupted benchmark holds
@@ -40,7 +42,7 @@ import multiprocessing.connection
 import queue as queue_module
 import time
 import traceback
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -218,6 +220,17 @@ def report_progress(value: float) -> None:
         _reporter(value)
 
 
+@contextlib.contextmanager
+def reporting_to(reporter: Callable[[float], None]) -> Iterator[None]:
+    """Inside a job's process (for another executor, e.g. Ray's): send its :func:`report_progress` to ``reporter``."""
+    global _reporter
+    previous, _reporter = _reporter, reporter
+    try:
+        yield
+    finally:
+        _reporter = previous
+
+
 def _call(job: Job) -> Finished:
     """Run ``job`` here, catching what it raises (not interrupts: those stop the run)."""
     try:
@@ -367,14 +380,3 @@ class LocalProcessExecutor:
             slot.process.join(max(0.0, deadline - time.monotonic()))
             if slot.process.is_alive():
                 slot.process.terminate()
-
-
-def make_executor(n_jobs: int, interrupt_grace: float | None = 0.0, inline: bool = False) -> Executor:
-    """
-    The local executor for ``n_jobs`` processes, or :class:`InlineExecutor` when ``inline``.
-
-    :param n_jobs: processes at a time.
-    :param interrupt_grace: see :class:`LocalProcessExecutor`.
-    :param inline: run in this process instead.
-    """
-    return InlineExecutor() if inline else LocalProcessExecutor(n_jobs, interrupt_grace)

@@ -43,8 +43,9 @@ from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.hyperparams_opt import sampler_for
-from sb3_hddpg.experiments.runner import Job, make_executor, run_jobs
+from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
 from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
 from sb3_hddpg.training.config import (
@@ -493,6 +494,7 @@ def tune(
     out_dir: str | Path,
     n_jobs: int = 1,
     threads: int | None = None,
+    ray_address: str | None = None,
 ) -> optuna.Study:
     """
     Tune ``target`` with ``n_jobs`` trial processes on one study, until it has ``settings.n_trials``
@@ -505,13 +507,18 @@ def tune(
     :param target: what is tuned.
     :param settings: where and how.
     :param out_dir: the run folder (temporary trial folders; the default storage lives here too).
-    :param n_jobs: trial processes on this machine.
-    :param threads: torch threads per process (default: ``max(1, cores // n_jobs)``).
+    :param n_jobs: trial processes on this machine (or Ray tasks, with ``ray_address``).
+    :param threads: torch threads per process (default: ``max(1, cores // n_jobs)``; 1 on a Ray cluster,
+        whose tasks ask for as many CPUs).
+    :param ray_address: run the trial processes as Ray tasks on the cluster at this address (``auto`` or
+        ``HOST:PORT``); every node must reach ``settings.storage`` (a server, or a SQLite file on a
+        filesystem they share at the same path). ``None``: local processes.
     :return: the study.
     """
     if n_jobs < 1:
         raise ValueError(f"Expected n_jobs >= 1, actually: {n_jobs}")
-    if n_jobs > 1 and settings.storage.startswith("sqlite") and sqlite_path(settings.storage) is None:
+    shared = n_jobs > 1 or ray_address is not None  # trials in other processes than this one
+    if shared and settings.storage.startswith("sqlite") and sqlite_path(settings.storage) is None:
         raise ValueError("An in-memory storage cannot be shared by several processes; use a file or a server")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -519,7 +526,8 @@ def tune(
     # Created here, once, so that the trial processes only load it.
     study = open_study(target, settings)
     if threads is None:
-        threads = max(1, available_cores() // n_jobs)
+        # This machine's cores say nothing about a cluster's nodes: one CPU per trial task there.
+        threads = 1 if ray_address is not None else max(1, available_cores() // n_jobs)
     jobs = [
         Job(
             f"tune-{index}",
@@ -530,7 +538,8 @@ def tune(
         for index in range(n_jobs)
     ]
     # On Ctrl-C the trial processes got the signal too: they get 30 s to queue their trials again and leave.
-    outcome = run_jobs(jobs, make_executor(n_jobs, interrupt_grace=30.0, inline=n_jobs == 1))
+    executor = make_executor(n_jobs, interrupt_grace=30.0, inline=n_jobs == 1, ray_address=ray_address)
+    outcome = run_jobs(jobs, executor)
     for error in outcome.failures.values():
         if isinstance(error, TrainingInterrupted):
             raise error  # Ctrl-C or SIGTERM in a trial, its parameters queued again: the study resumes

@@ -26,7 +26,8 @@ from sb3_hddpg.experiments.benchmark.methods import (
 from sb3_hddpg.experiments.benchmark.report import write_outputs
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
-from sb3_hddpg.experiments.runner import Job, LocalProcessExecutor, run_jobs
+from sb3_hddpg.experiments.executors import make_executor
+from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.training.training import train_workers
 
 #: Bumped when a record's meaning changes.
@@ -128,12 +129,13 @@ def task_job(task: Task, settings: BenchmarkSettings, out: Path) -> Job:
 def run_benchmark(
     settings: BenchmarkSettings,
     out: str | Path,
-    n_jobs: int = 1,
+    n_jobs: int | None = 1,
     resume: bool = False,
     on_event: Callable[[str, Task, dict[str, Any] | None], None] | None = None,
+    ray_address: str | None = None,
 ) -> dict[str, Any]:
     """
-    Run every task not yet finished, ``n_jobs`` processes at a time, then compute and write the results.
+    Run every task not yet finished, ``n_jobs`` at a time, then compute and write the results.
 
     The tasks run on the process runner (:mod:`sb3_hddpg.experiments.runner`, see :func:`task_job`): workers
     of a seed before the runs that need them, seed by seed, longest first; Ctrl-C or SIGTERM makes every
@@ -141,12 +143,15 @@ def run_benchmark(
 
     :param settings: what to run.
     :param out: the benchmark folder (``benchmark.json``, ``records/``, ``seed-*/``, results).
-    :param n_jobs: processes at a time.
+    :param n_jobs: processes (or Ray tasks) at a time (``None``: 1 locally, every CPU of a Ray cluster).
     :param resume: keep finished runs (their records) and continue interrupted ones from checkpoints.
     :param on_event: called with ``("start" | "done" | "skip" | "failed", task, record or None)``.
+    :param ray_address: run each task as a Ray task on the cluster at this address (``auto`` or
+        ``HOST:PORT``; every node must see ``out`` at the same path, and a task lost with its node is run
+        again from its checkpoint: :mod:`sb3_hddpg.experiments.ray_executor`); ``None``: local processes.
     :return: the results (also written to ``out/results.json``).
     """
-    if n_jobs < 1:
+    if n_jobs is not None and n_jobs < 1:
         raise ValueError(f"Expected `n_jobs` >= 1, actually: {n_jobs}")
     out = Path(out)
     notify = on_event or (lambda kind, task, record: None)
@@ -178,7 +183,7 @@ def run_benchmark(
     jobs = [task_job(task, settings, out) for task in tasks if task not in records]
     outcome = run_jobs(
         [replace(job, after=tuple(d for d in job.after if d not in kept)) for job in jobs],
-        LocalProcessExecutor(n_jobs),
+        make_executor(n_jobs, ray_address=ray_address),
         on_event=lambda kind, job, value: notify(kind, by_label[job.key], value if kind == "done" else None),
     )
     records.update({by_label[label]: record for label, record in outcome.results.items()})

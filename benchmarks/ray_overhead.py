@@ -1,0 +1,119 @@
+"""
+What does the Ray executor cost? The same ``hddpg-cli benchmark`` (its default methods, 2 seeds, small
+budgets) run with the local process pool and with ``--executor ray`` on a local Ray head of as many CPUs,
+wall clock compared (run it on an otherwise idle machine). The head is started before the Ray run is
+timed, as a cluster exists before a user points the benchmark at it; connecting to it is timed.
+
+Target (issue 17): the Ray run takes at most 1.1x the local run's wall time.
+
+    python benchmarks/ray_overhead.py [--scale 1.0] [--n-jobs 2]
+
+Needs Ray (``pip install "sb3-hddpg[cluster]"``). The head runs on loopback without Ray's token
+authentication and is stopped afterwards (only the processes this script started).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CLI = [sys.executable, str(REPO / "cli.py")]
+#: A loopback cluster of our own: no token to hand around (keep authentication on a real network).
+ENV = {**os.environ, "COLUMNS": "120", "RAY_AUTH_MODE": "disabled"}
+
+
+def wall_seconds(args: list[str]) -> float:
+    start = time.perf_counter()
+    done = subprocess.run([*CLI, *args], capture_output=True, text=True, env=ENV)
+    if done.returncode != 0:
+        raise SystemExit(f"hddpg-cli {' '.join(args)} failed:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
+    return time.perf_counter() - start
+
+
+def benchmark_args(out: Path, n_jobs: int, steps: int) -> list[str]:
+    return [
+        "benchmark",
+        "--seeds", "2",
+        "--timesteps", str(steps),
+        "--worker-timesteps", str(steps),
+        "--eval-freq", str(max(1, steps // 2)),
+        "--eval-episodes", "2",
+        "--test-episodes", "4",
+        "--n-jobs", str(n_jobs),
+        "--out", str(out),
+    ]  # fmt: skip
+
+
+def start_head(n_cpus: int, log: Path) -> tuple[subprocess.Popen, str, str]:
+    """``ray start --head --block`` on a free loopback port; the process, its address and its temp dir."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths have a length limit
+    with log.open("w") as output:
+        head = subprocess.Popen(
+            [
+                str(Path(sys.executable).parent / "ray"),
+                "start",
+                "--head",
+                "--block",
+                f"--port={port}",
+                "--node-ip-address=127.0.0.1",
+                f"--num-cpus={n_cpus}",
+                "--include-dashboard=false",
+                "--disable-usage-stats",
+                f"--temp-dir={temp_dir}",
+            ],
+            env=ENV,
+            stdout=output,
+            stderr=subprocess.STDOUT,
+        )
+    deadline = time.monotonic() + 300
+    while "block forever" not in log.read_text():  # `ray start` says so once everything is up
+        if head.poll() is not None or time.monotonic() > deadline:
+            head.terminate()
+            raise SystemExit(f"ray start failed:\n{log.read_text()[-2000:]}")
+        time.sleep(0.5)
+    return head, f"127.0.0.1:{port}", temp_dir
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--scale", type=float, default=1.0, help="multiply the training budgets (1: 2000 steps per run)"
+    )
+    parser.add_argument("--n-jobs", type=int, default=2, help="runs at a time, and the Ray head's CPUs")
+    args = parser.parse_args()
+    steps = max(100, int(2000 * args.scale))
+    root = Path(tempfile.mkdtemp(prefix="hddpg-ray-overhead-"))
+    try:
+        local = wall_seconds(benchmark_args(root / "local", args.n_jobs, steps))
+        print(f"local executor, --n-jobs {args.n_jobs}: {local:6.1f} s wall")
+        started = time.perf_counter()
+        head, address, temp_dir = start_head(args.n_jobs, root / "ray-head.log")
+        print(f"(ray start --head: {time.perf_counter() - started:.1f} s, not counted)")
+        try:
+            ray_args = [*benchmark_args(root / "ray", args.n_jobs, steps), "--executor", "ray"]
+            on_ray = wall_seconds([*ray_args, "--ray-address", address])
+        finally:
+            head.terminate()  # `ray start --block` stops what it started
+            head.wait(timeout=120)
+            shutil.rmtree(temp_dir, ignore_errors=True)
+        print(f"Ray executor,   --n-jobs {args.n_jobs}: {on_ray:6.1f} s wall")
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    print(f"ratio Ray / local wall time: {on_ray / local:.2f}x (target <= 1.1x)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,303 @@
+"""
+:class:`RayExecutor`: the process runner's jobs as Ray tasks on an existing Ray cluster (issue 17).
+
+The same four methods as :class:`~sb3_hddpg.experiments.runner.LocalProcessExecutor` (``open``, ``submit``,
+``wait``, ``stop``), so :func:`~sb3_hddpg.experiments.runner.run_jobs` schedules cluster jobs exactly as local
+ones (dependencies, groups, longest first, per-job failures). Ray is imported only here, and only when an
+executor is opened: the package and every ``--help`` work without it (``pip install "sb3-hddpg[cluster]"``).
+
+**What runs where.** The driver (the ``hddpg-cli`` process) schedules, relays progress and writes the
+results; each job is one Ray task with ``num_cpus`` = its ``threads`` (Ray then sets its torch/OpenMP
+threads to match), on whichever node has room.
+
+**Shared filesystem assumed.** A task runs in the driver's working directory, on its node, and writes its
+own folder under ``--out`` as a local job would; every node must therefore see the driver's working
+directory and ``--out`` at the same paths (NFS, a cluster filesystem, or one machine). A node that does not
+fails the task with a message saying so.
+
+**Retries.** A task whose worker process or node dies is run again (``max_retries`` times, Ray's own task
+retry); the benchmark's tasks resume from their last training checkpoint (see
+:func:`~sb3_hddpg.experiments.benchmark.run.run_task`), so a retry loses at most ``checkpoint_freq`` steps.
+An error the job raises itself is not retried: it fails that job only, as locally.
+
+**Progress.** :func:`~sb3_hddpg.experiments.runner.report_progress` inside a task goes to a small Ray actor
+on the driver's node (fire and forget: a task never waits for it), which the driver drains while it waits.
+
+**Interruption.** Ctrl-C or SIGTERM on the driver: running tasks get ``interrupt_grace`` seconds to end,
+then are cancelled with ``ray.cancel`` (a ``KeyboardInterrupt`` in the task, which
+:func:`~sb3_hddpg.training.training.train_agent` turns into a checkpoint and exit), and the driver waits for
+them to leave; ``--resume`` continues from those checkpoints. A second Ctrl-C while it waits kills them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import socket
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import torch
+
+from sb3_hddpg.artifacts.io import HELD_FOLDERS_ENV
+from sb3_hddpg.experiments.runner import POLL_INTERVAL, Finished, Job, _call, describe, reporting_to
+
+logger = logging.getLogger(__name__)
+
+#: How the cluster extra is installed (named in the error when Ray is missing).
+INSTALL_HINT = 'pip install "sb3-hddpg[cluster]"'
+#: Times a task lost with its worker process or node is run again.
+DEFAULT_MAX_RETRIES = 2
+#: Seconds to wait for a HOST:PORT address to accept a connection (``ray.init`` itself retries for minutes).
+CONNECT_TIMEOUT = 5.0
+#: Seconds to wait for the last progress reports of a job that ended.
+SETTLE_TIMEOUT = 2.0
+#: Seconds to wait for the progress actor to start.
+SINK_START_TIMEOUT = 60.0
+
+
+class ClusterError(ValueError):
+    """Ray is not installed, or the cluster's address cannot be reached (a usage error: exit code 2)."""
+
+
+def import_ray() -> Any:
+    """The ``ray`` module, or :class:`ClusterError` saying how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise ClusterError(f"the Ray executor needs Ray, which is not installed: {INSTALL_HINT}") from None
+    return ray
+
+
+def check_address(address: str) -> None:
+    """
+    Fail fast (rather than after ``ray.init``'s minutes of retries) when ``HOST:PORT`` accepts nothing.
+
+    :param address: ``HOST:PORT`` (or ``ray://HOST:PORT``).
+    :raises ClusterError: it is malformed or nothing listens there.
+    """
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise ClusterError(f"expected 'auto' or HOST:PORT for the Ray address, got {address!r}")
+    try:
+        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT).close()
+    except OSError as error:
+        raise ClusterError(
+            f"cannot reach a Ray cluster at {address!r} ({error.strerror or error}); start one with "
+            "`ray start --head` or check the address"
+        ) from None
+
+
+def connect(address: str = "auto") -> bool:
+    """
+    Connect this process to the Ray cluster at ``address`` (nothing to do when already connected).
+
+    :param address: ``auto`` (the cluster started on this machine with ``ray start``, or ``RAY_ADDRESS``)
+        or ``HOST:PORT`` of its head (``ray://HOST:PORT`` for Ray Client).
+    :return: whether this call connected (and the caller should disconnect with ``ray.shutdown``).
+    :raises ClusterError: Ray is not installed or the cluster cannot be reached.
+    """
+    if address != "auto":
+        check_address(address)  # a usage error whether Ray is installed or not
+    ray = import_ray()
+    if ray.is_initialized():
+        return False
+    try:
+        # Never start a cluster of our own here: the executor is for an existing one.
+        ray.init(address=address, logging_level=logging.WARNING, log_to_driver=True)
+    except ConnectionError as error:
+        raise ClusterError(f"cannot connect to a Ray cluster at {address!r}: {error}") from None
+    return True
+
+
+def _progress_sink_class() -> type:
+    """
+    The progress actor's class: the latest :func:`report_progress` value of each job, until the driver
+    drains them. Defined in a function so that Ray ships it by value: its process then imports only Ray,
+    not torch and this package (seconds saved each time an executor opens).
+    """
+
+    class ProgressSink:
+        def __init__(self) -> None:
+            self._latest: dict[str, float] = {}
+
+        def put(self, key: str, value: float) -> None:
+            self._latest[key] = value
+
+        def drain(self) -> dict[str, float]:
+            latest, self._latest = self._latest, {}
+            return latest
+
+    return ProgressSink
+
+
+@contextlib.contextmanager
+def _driver_context(cwd: str, held_folders: str) -> Iterator[None]:
+    """Run in the driver's working directory, sharing its folder locks as a local job would, then restore."""
+    previous_cwd = os.getcwd()
+    previous_held = os.environ.get(HELD_FOLDERS_ENV)
+    try:
+        os.chdir(cwd)
+    except OSError:
+        raise RuntimeError(
+            f"the driver's working directory {cwd!r} does not exist on node {socket.gethostname()!r}: "
+            "the Ray executor assumes a filesystem shared by every node at the same paths"
+        ) from None
+    os.environ[HELD_FOLDERS_ENV] = held_folders
+    try:
+        yield
+    finally:
+        os.chdir(previous_cwd)
+        if previous_held is None:
+            os.environ.pop(HELD_FOLDERS_ENV, None)
+        else:
+            os.environ[HELD_FOLDERS_ENV] = previous_held
+
+
+def _run_task(job: Job, sink: Any, cwd: str, held_folders: str) -> Finished:
+    """A Ray task: run ``job`` as a local process would, its progress sent to ``sink``."""
+    import ray
+
+    sent: list[Any] = []
+
+    def report(value: float) -> None:
+        sent[:] = [sink.put.remote(job.key, value)]  # fire and forget: training never waits for it
+
+    torch.set_num_threads(job.threads)
+    with _driver_context(cwd, held_folders), reporting_to(report):
+        end = _call(job)
+    if sent:  # the last report reaches the sink before the driver sees the end (a job's progress comes first)
+        ray.wait(sent, timeout=SETTLE_TIMEOUT)
+    try:
+        ray.cloudpickle.dumps(end)
+    except Exception as error:  # a result or error that does not pickle: say so rather than lose the task
+        return Finished(job.key, False, RuntimeError(describe(error)), end.details)
+    return end
+
+
+class RayExecutor:
+    """
+    Runs each job as a Ray task on an existing cluster (see the module docstring).
+
+    :param address: the cluster: ``auto`` or ``HOST:PORT`` of its head (see :func:`connect`); ignored when
+        this process is already connected.
+    :param slots: jobs submitted at a time (``None``: the cluster's CPUs when opened, at least 1).
+    :param max_retries: times a task lost with its worker process or node is run again.
+    :param interrupt_grace: on an interrupt, seconds running tasks get to end before they are cancelled
+        (``None``: wait for them however long they take).
+    """
+
+    def __init__(
+        self,
+        address: str = "auto",
+        slots: int | None = None,
+        max_retries: int = DEFAULT_MAX_RETRIES,
+        interrupt_grace: float | None = 0.0,
+    ) -> None:
+        if slots is not None and slots < 1:
+            raise ValueError(f"Expected `slots` >= 1, actually: {slots}")
+        if max_retries < 0:
+            raise ValueError(f"Expected `max_retries` >= 0, actually: {max_retries}")
+        self.address = address
+        self.slots = slots or 1
+        self._wanted_slots = slots
+        self.max_retries = max_retries
+        self.interrupt_grace = interrupt_grace
+        self._running: dict[Any, str] = {}  # object ref -> job key
+        self._connected = False
+
+    def open(self, on_progress: Callable[[str, float], None]) -> None:
+        self._ray = ray = import_ray()
+        self._connected = connect(self.address)
+        if self._wanted_slots is None:
+            self.slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        self._on_progress = on_progress
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        # On the driver's node (soft: anywhere if it cannot be), so progress lives and dies with the driver.
+        here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=True)
+        sink = ray.remote(num_cpus=0)(_progress_sink_class()).options(scheduling_strategy=here)
+        self._sink = sink.remote()
+        # Started before any job, so that no early report is lost (seconds on a busy machine, once).
+        self._drained: Any = self._sink.drain.remote()  # the pending drain call
+        if not ray.wait([self._drained], timeout=SINK_START_TIMEOUT)[0]:
+            logger.warning(
+                "the progress actor did not start in %.0f s; progress may be late", SINK_START_TIMEOUT
+            )
+        self._task = ray.remote(_run_task)
+        self._cwd = os.getcwd()
+
+    def submit(self, job: Job) -> None:
+        ref = self._task.options(num_cpus=job.threads, max_retries=self.max_retries, name=job.key).remote(
+            job, self._sink, self._cwd, os.environ.get(HELD_FOLDERS_ENV, "")
+        )
+        self._running[ref] = job.key
+
+    def wait(self, timeout: float) -> list[Finished]:
+        ray = self._ray
+        refs = list(self._running)
+        ready: list[Any] = []
+        if refs:
+            ready, rest = ray.wait(refs, num_returns=1, timeout=timeout)
+            if rest:  # others that ended meanwhile, without waiting again
+                ready += ray.wait(rest, num_returns=len(rest), timeout=0)[0]
+        else:
+            time.sleep(timeout)
+        self._relay_progress(settle=bool(ready))
+        return [self._result(ref) for ref in ready]
+
+    def _result(self, ref: Any) -> Finished:
+        key = self._running.pop(ref)
+        try:
+            return self._ray.get(ref)
+        except self._ray.exceptions.RayError as error:  # retries used up, node lost, cancelled...
+            return Finished(key, False, error)
+
+    def _relay_progress(self, settle: bool) -> None:
+        """
+        Relay what the sink holds for running jobs. While jobs run, never wait for it (it may still be
+        starting, or be lost with its node); when some ended (``settle``), wait a moment for their last
+        reports, so that a job's progress comes before its end, as locally.
+        """
+        ray = self._ray
+        running = set(self._running.values())
+        for _ in range(2 if settle else 1):
+            if self._drained is not None:
+                if not ray.wait([self._drained], timeout=SETTLE_TIMEOUT if settle else 0)[0]:
+                    return
+                with contextlib.suppress(ray.exceptions.RayError):  # progress is optional; results are not
+                    for key, value in ray.get(self._drained).items():
+                        if key in running:
+                            self._on_progress(key, value)
+            self._drained = self._sink.drain.remote()
+
+    def stop(self, interrupted: bool) -> None:
+        ray = self._ray
+        try:
+            if interrupted and self._running:
+                self._stop_running()
+        except KeyboardInterrupt:  # a second Ctrl-C while waiting: no more waiting
+            for ref in self._running:
+                ray.cancel(ref, force=True)
+            raise
+        finally:
+            self._running = {}
+            with contextlib.suppress(Exception):
+                ray.kill(self._sink)
+            if self._connected:
+                ray.shutdown()
+                self._connected = False
+
+    def _stop_running(self) -> None:
+        """Give running tasks ``interrupt_grace`` seconds, cancel the rest the resumable way, wait for them."""
+        ray = self._ray
+        refs = list(self._running)
+        if self.interrupt_grace is not None:
+            refs = ray.wait(refs, num_returns=len(refs), timeout=self.interrupt_grace)[1]
+            for ref in refs:
+                ray.cancel(ref, force=False)  # a KeyboardInterrupt in the task: checkpoint and stop
+        logger.info("waiting for %d Ray task(s) to stop", len(refs))
+        while refs:
+            refs = ray.wait(refs, num_returns=len(refs), timeout=POLL_INTERVAL)[1]
