@@ -27,7 +27,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	@$(INSTALL_TORCH)
-	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard,fast,mo]"
+	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard,fast,mo,cluster]"
 	touch $(STAMP)
 
 # Only a virtual environment with torch (what the packaging test installs the built wheel into).
