@@ -2,6 +2,8 @@
 
 import math
 import pickle
+import subprocess
+import sys
 import warnings
 
 import gymnasium as gym
@@ -301,3 +303,18 @@ def test_every_space_the_env_lets_go_of_is_emptied_first():
     assert len(env.space.constraints) == 2 * env.n_joints  # a pivot and a motor per joint
     env.close()
     assert not env.space.constraints and not env.space.bodies
+
+
+def test_a_script_that_never_closes_its_env_exits_without_noise():
+    # An SBX model keeps its env alive until interpreter teardown, after pymunk's globals are gone: its
+    # finaliser then printed a traceback per space at every exit of such a script.
+    pytest.importorskip("sbx")
+    script = (
+        "import gymnasium as gym, sb3_hddpg\n"
+        "from sbx import DDPG\n"
+        "env = gym.make('hddpg/SnakeReach-v0')\n"
+        "model = DDPG('MlpPolicy', env)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr

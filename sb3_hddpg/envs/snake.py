@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import contextlib
+import atexit
 import math
 import struct
+import weakref
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
@@ -287,6 +288,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._obs_offsets = (self.state_layout["ee_to_goal"].start, self.state_layout["goal_touched"].start)
         self._goal_bounds = self.reward_bounds["goal"]
         self._build_space()
+        _LIVE_ENVS.add(self)
         # The links' absolute angles as last read from the physics (the soft joint limits need them).
         self._angles = [0.0] * self.n_joints
         # Positions and velocities of the goal (index 0) and the obstacles, as plain lists (see _walk_movers).
@@ -762,10 +764,31 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def __del__(self) -> None:
         # An env dropped without close() (or left in a reference cycle) still empties its space first:
-        # finalisers run before the collector clears the objects of a cycle (PEP 442). At interpreter
-        # shutdown pymunk's module may already be gone: nothing is left to protect then.
-        with contextlib.suppress(Exception):
+        # finalisers run before the collector clears the objects of a cycle (PEP 442). Envs still alive at
+        # interpreter exit were released by _release_live_spaces while the modules existed; a finaliser run
+        # later may find module globals set to None, hence a bare try (no contextlib lookup).
+        try:  # noqa: SIM105 - contextlib may already be None here
             self._release_space()
+        except Exception:
+            pass
+
+
+#: Every SnakeArmEnv not yet garbage-collected (weakly held, so it keeps none alive).
+_LIVE_ENVS: weakref.WeakSet[SnakeArmEnv] = weakref.WeakSet()
+
+
+@atexit.register
+def _release_live_spaces() -> None:
+    """
+    Free the pymunk spaces of envs still alive at interpreter exit, while pymunk can still free them.
+
+    Objects left at exit (an env held by a model in a script's globals, say) are freed after the modules'
+    globals are torn down, when pymunk's own finaliser fails and prints a traceback for every space.
+    """
+    for env in list(_LIVE_ENVS):
+        env._release_space()
+        if hasattr(env, "space"):
+            del env.space  # the last reference: the space is freed now, not at teardown
 
 
 def _check_components(observe: Any, layout: StateLayout) -> tuple[str, ...] | None:
