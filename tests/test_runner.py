@@ -27,19 +27,27 @@ from tests.jobs import (
     started_pids,
 )
 
-#: The executors that run jobs in other processes: the local pool (its processes import torch: about 25 s on
-#: a loaded machine, so slow) and the Ray executor (on the module's Ray cluster, whose workers stay up).
-PROCESS_EXECUTORS = [pytest.param("local", marks=pytest.mark.slow), "ray"]
 
-
-def process_executor(kind: str, request: pytest.FixtureRequest) -> Executor:
-    """A 2-slot executor of ``kind`` (Ray: on the module's cluster, no retries, so a killed job fails)."""
-    if kind == "local":
+@pytest.fixture(params=[pytest.param("local", marks=pytest.mark.slow), "ray"])
+def process_executor(request: pytest.FixtureRequest) -> Executor:
+    """
+    A 2-slot executor that runs jobs in other processes: the local pool (its processes import torch: about
+    25 s on a loaded machine, so slow), or the Ray executor on the module's Ray cluster (whose workers stay
+    up from test to test), without retries, so that a killed job fails as locally.
+    """
+    if request.param == "local":
         return LocalProcessExecutor(2)
     request.getfixturevalue("ray_cluster")
     from sb3_hddpg.experiments.ray_executor import RayExecutor
 
     return RayExecutor(max_retries=0)
+
+
+#: How each executor reports a job whose process was killed.
+KILLED = {
+    "LocalProcessExecutor": f"RuntimeError: its process exited with code {-signal.SIGKILL}",
+    "RayExecutor": "WorkerCrashedError: ",
+}
 
 
 def test_dependencies_first_then_group_then_longest_first():
@@ -80,8 +88,7 @@ def test_a_failure_fails_its_dependants_only():
         run_jobs([Job("a", square, (1,), after=("b",))], InlineExecutor())
 
 
-@pytest.mark.parametrize("kind", PROCESS_EXECUTORS)
-def test_processes_return_results_errors_progress_and_survive_a_killed_one(kind, request):
+def test_processes_return_results_errors_progress_and_survive_a_killed_one(process_executor):
     progress: dict[str, float] = {}
     order: list[str] = []
     jobs = [
@@ -95,7 +102,7 @@ def test_processes_return_results_errors_progress_and_survive_a_killed_one(kind,
     ]
     outcome = run_jobs(
         jobs,
-        process_executor(kind, request),
+        process_executor,
         on_event=lambda event, job, value: order.append(f"{event} {job.key}"),
         on_progress=progress.__setitem__,
     )
@@ -105,19 +112,13 @@ def test_processes_return_results_errors_progress_and_survive_a_killed_one(kind,
     # The child's own error, re-created here, fails it and its dependant only.
     assert outcome.failure_message("bad") == "ValueError: in a child"
     assert outcome.failure_message("needs-bad").startswith("RuntimeError: bad failed: ValueError")
-    killed = {
-        "local": f"RuntimeError: its process exited with code {-signal.SIGKILL}",
-        "ray": "WorkerCrashedError",
-    }
-    assert outcome.failure_message("killed").startswith(killed[kind])
+    assert outcome.failure_message("killed").startswith(KILLED[type(process_executor).__name__])
     # The others ran to the end in other processes (not this one), a dead one being replaced.
     assert {"pid-a", "pid-b"} <= set(outcome.results) and os.getpid() not in outcome.results.values()
 
 
-@pytest.mark.parametrize("kind", PROCESS_EXECUTORS)
-def test_sigterm_to_the_parent_makes_running_jobs_checkpoint_and_stop(kind, request, tmp_path):
+def test_sigterm_to_the_parent_makes_running_jobs_checkpoint_and_stop(process_executor, tmp_path):
     jobs = [Job(f"long-{i}", checkpoint_on_interrupt, (str(tmp_path),)) for i in range(3)]
-    executor = process_executor(kind, request)
 
     def sigterm_once_two_started() -> None:
         deadline = time.monotonic() + 120
@@ -129,7 +130,7 @@ def test_sigterm_to_the_parent_makes_running_jobs_checkpoint_and_stop(kind, requ
     threading.Thread(target=sigterm_once_two_started, daemon=True).start()
     started = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
-        run_jobs(jobs, executor)
+        run_jobs(jobs, process_executor)
     assert time.monotonic() - started < 100  # nobody waited for the 120 s jobs
     # The two running jobs saved their checkpoints (none was killed); the third never started.
     assert len(started_pids(tmp_path)) == 2
