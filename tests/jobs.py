@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 from pathlib import Path
 
@@ -83,3 +84,15 @@ def started_pids(folder: Path) -> set[str]:
 def checkpointed_pids(folder: Path) -> set[str]:
     """The processes that saved a checkpoint in ``folder`` when interrupted."""
     return {p.name.split("-")[1] for p in folder.glob("checkpoint-*")}
+
+
+def sigterm_once_started(folder: Path, count: int, timeout: float = 120) -> None:
+    """SIGTERM this process (the driver), from a thread, once ``count`` of the jobs above started in ``folder``."""
+
+    def send() -> None:
+        deadline = time.monotonic() + timeout
+        while len(started_pids(folder)) < count and time.monotonic() < deadline:
+            time.sleep(0.1)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=send, daemon=True).start()

@@ -10,11 +10,9 @@ import contextlib
 import json
 import logging
 import os
-import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -30,6 +28,7 @@ from tests.jobs import (
     checkpoint_on_interrupt,
     checkpointed_pids,
     die_once,
+    sigterm_once_started,
     started_pids,
     where,
 )
@@ -60,14 +59,7 @@ def test_a_task_a_cancel_does_not_stop_is_killed_after_the_grace_with_one_warnin
         Job("resumable", checkpoint_on_interrupt, (str(tmp_path),)),
         Job("blocked", blocked_in_c, (str(tmp_path),)),
     ]
-
-    def sigterm_once_both_started() -> None:
-        deadline = time.monotonic() + 120
-        while len(started_pids(tmp_path)) < 2 and time.monotonic() < deadline:
-            time.sleep(0.1)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    threading.Thread(target=sigterm_once_both_started, daemon=True).start()
+    sigterm_once_started(tmp_path, 2)
     started = time.monotonic()
     with (
         caplog.at_level(logging.WARNING, logger="sb3_hddpg.experiments.ray_executor"),

@@ -11,7 +11,6 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
-import threading
 import time
 
 import pytest
@@ -23,6 +22,7 @@ from tests.jobs import (
     checkpointed_pids,
     die,
     pid_after,
+    sigterm_once_started,
     square,
     started_pids,
 )
@@ -119,15 +119,8 @@ def test_processes_return_results_errors_progress_and_survive_a_killed_one(proce
 
 def test_sigterm_to_the_parent_makes_running_jobs_checkpoint_and_stop(process_executor, tmp_path):
     jobs = [Job(f"long-{i}", checkpoint_on_interrupt, (str(tmp_path),)) for i in range(3)]
-
-    def sigterm_once_two_started() -> None:
-        deadline = time.monotonic() + 120
-        while len(started_pids(tmp_path)) < 2 and time.monotonic() < deadline:
-            time.sleep(0.1)
-        os.kill(os.getpid(), signal.SIGTERM)
-
     handler = signal.getsignal(signal.SIGTERM)
-    threading.Thread(target=sigterm_once_two_started, daemon=True).start()
+    sigterm_once_started(tmp_path, 2)
     started = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
         run_jobs(jobs, process_executor)
