@@ -351,7 +351,7 @@ class RayExecutor:
             ray.cancel(ref, force=True)  # kills its worker process
         logger.warning(
             "%d Ray task(s) did not stop within %.0f s of being cancelled and were killed (%s); "
-            "with --resume they continue from their last checkpoint",
+            "--resume continues them from their last checkpoint",
             len(refs),
             self.cancel_grace,
             ", ".join(sorted(self._running[ref] for ref in refs)),
