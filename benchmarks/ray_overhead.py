@@ -17,17 +17,19 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from sb3_hddpg.experiments.ray_executor import ClusterError
+from sb3_hddpg.experiments.ray_head import LOOPBACK_ENV, local_ray_head
+
 REPO = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, str(REPO / "cli.py")]
 #: A loopback cluster of our own: no token to hand around (keep authentication on a real network).
-ENV = {**os.environ, "COLUMNS": "120", "RAY_AUTH_MODE": "disabled"}
+ENV = {**os.environ, "COLUMNS": "120", **LOOPBACK_ENV}
 
 
 def wall_seconds(args: list[str]) -> float:
@@ -52,39 +54,6 @@ def benchmark_args(out: Path, n_jobs: int, steps: int) -> list[str]:
     ]  # fmt: skip
 
 
-def start_head(n_cpus: int, log: Path) -> tuple[subprocess.Popen, str, str]:
-    """``ray start --head --block`` on a free loopback port; the process, its address and its temp dir."""
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths have a length limit
-    with log.open("w") as output:
-        head = subprocess.Popen(
-            [
-                str(Path(sys.executable).parent / "ray"),
-                "start",
-                "--head",
-                "--block",
-                f"--port={port}",
-                "--node-ip-address=127.0.0.1",
-                f"--num-cpus={n_cpus}",
-                "--include-dashboard=false",
-                "--disable-usage-stats",
-                f"--temp-dir={temp_dir}",
-            ],
-            env=ENV,
-            stdout=output,
-            stderr=subprocess.STDOUT,
-        )
-    deadline = time.monotonic() + 300
-    while "block forever" not in log.read_text():  # `ray start` says so once everything is up
-        if head.poll() is not None or time.monotonic() > deadline:
-            head.terminate()
-            raise SystemExit(f"ray start failed:\n{log.read_text()[-2000:]}")
-        time.sleep(0.5)
-    return head, f"127.0.0.1:{port}", temp_dir
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -100,16 +69,13 @@ def main() -> None:
         local = wall_seconds(benchmark_args(root / "local", args.n_jobs, steps))
         print(f"local executor, --n-jobs {args.n_jobs}: {local:6.1f} s wall")
         started = time.perf_counter()
-        head, address, temp_dir = start_head(args.n_jobs, root / "ray-head.log")
-        print(f"(ray start --head: {time.perf_counter() - started:.1f} s, not counted)")
-        try:
+        with local_ray_head(args.n_jobs, root / "ray-head.log", env=ENV) as head:
+            print(f"(ray start --head: {time.perf_counter() - started:.1f} s, not counted)")
             ray_args = [*benchmark_args(root / "ray", args.n_jobs, steps), "--executor", "ray"]
-            on_ray = wall_seconds([*ray_args, "--ray-address", address])
-        finally:
-            head.terminate()  # `ray start --block` stops what it started
-            head.wait(timeout=120)
-            shutil.rmtree(temp_dir, ignore_errors=True)
+            on_ray = wall_seconds([*ray_args, "--ray-address", head.address])
         print(f"Ray executor,   --n-jobs {args.n_jobs}: {on_ray:6.1f} s wall")
+    except ClusterError as error:  # Ray missing, or the head did not come up
+        raise SystemExit(str(error)) from None
     finally:
         shutil.rmtree(root, ignore_errors=True)
     print(f"ratio Ray / local wall time: {on_ray / local:.2f}x (target <= 1.1x)")

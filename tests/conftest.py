@@ -1,6 +1,7 @@
-"""Shared test set-up: headless pygame, one torch thread, and a checkout-relative path helper."""
+"""Shared test set-up: headless pygame, one torch thread, a checkout-relative path helper, a Ray cluster."""
 
 import os
+import signal
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
@@ -17,3 +18,24 @@ REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 @pytest.fixture
 def repo_root() -> str:
     return REPO_ROOT
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """
+    A local Ray cluster of 2 CPUs in this process, no dashboard, for one test module (seconds to start);
+    skipped without Ray. Started with SIGINT ignored, as when the tests run in the background (``nohup``,
+    ``make test &``, CI runners): Ray's workers inherit that, the case in which a non-forced ``ray.cancel``
+    once reached no running task (sb3_hddpg/experiments/ray_executor.py, "Interruption").
+    """
+    ray = pytest.importorskip("ray")
+    from tests import jobs
+
+    ray.cloudpickle.register_pickle_by_value(jobs)  # Ray's workers cannot import the tests by name
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    yield ray
+    ray.shutdown()

@@ -1,144 +1,92 @@
-"""The Ray executor (issue 17) on a real local Ray cluster: results, dependencies, failures, retries, interrupts."""
+"""
+What only the Ray executor (issue 17) does, on a real local Ray cluster: CPUs and working directory,
+retries, killing tasks a cancel does not stop, the cluster's address, the CLI on a ``ray start`` head. What
+every executor does (results, failures, progress, interrupts) is in tests/test_runner.py, for both.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
-import shutil
-import signal
 import socket
 import subprocess
 import sys
-import tempfile
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
-ray = pytest.importorskip("ray")
+pytest.importorskip("ray")
 
-from sb3_hddpg.experiments.ray_executor import ClusterError, RayExecutor, check_address  # noqa: E402
-from sb3_hddpg.experiments.runner import Job, report_progress, run_jobs  # noqa: E402
-
-# The job functions below live in this test module, which Ray's worker processes cannot import by name.
-ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-
-
-def square(x: int) -> int:
-    report_progress(x)
-    return x * x
-
-
-def broken(message: str) -> int:
-    raise ValueError(message)
+from sb3_hddpg.experiments.ray_executor import ClusterError, RayExecutor, check_address
+from sb3_hddpg.experiments.ray_head import LOOPBACK_ENV, local_ray_head
+from sb3_hddpg.experiments.runner import Job, run_jobs
+from tests.jobs import (
+    blocked_in_c,
+    checkpoint_on_interrupt,
+    checkpointed_pids,
+    die_once,
+    sigterm_once_started,
+    started_pids,
+    where,
+)
 
 
-def where(name: str) -> tuple[int, int, str]:
-    """Writes a file by a relative path (it lands in the driver's working directory) and says who ran it."""
-    Path(name).write_text(str(os.getpid()))
-    return os.getpid(), int(ray.get_runtime_context().get_assigned_resources()["CPU"]), os.getcwd()
-
-
-def die_once(folder: str) -> str:
-    """Kills its own process the first time (as a lost node would), returns on the retry."""
-    marker = Path(folder) / "died-once"
-    if not marker.exists():
-        marker.write_text(str(os.getpid()))
-        os.kill(os.getpid(), signal.SIGKILL)
-    return f"retried after {marker.read_text()}"
-
-
-def checkpoint_on_interrupt(folder: str) -> int:
-    """A long job that, like ``train_agent``, turns an interrupt into saving a checkpoint and stopping."""
-    try:
-        (Path(folder) / f"started-{os.getpid()}").touch()
-        for _ in range(1200):  # short sleeps, like training steps: Ray's interrupt lands between them
-            time.sleep(0.1)
-    except KeyboardInterrupt:
-        (Path(folder) / f"checkpoint-{os.getpid()}").touch()
-        raise
-    return 0
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    """A local Ray cluster of 2 CPUs in this process, no dashboard (a few seconds to start)."""
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
-    yield
-    ray.shutdown()
-
-
-def test_results_dependencies_failures_and_progress_through_ray(cluster, tmp_path, monkeypatch):
+def test_a_task_gets_its_threads_as_cpus_in_the_drivers_working_directory(ray_cluster, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    progress: dict[str, float] = {}
-    order: list[str] = []
-    jobs = [
-        Job("base", square, (3,)),
-        Job("after-base", square, (4,), after=("base",)),
-        Job("bad", broken, ("on a Ray worker",)),
-        Job("needs-bad", square, (5,), after=("bad",)),
-        Job("two-cpus", where, ("written-here.txt",), threads=2),
-    ]
     executor = RayExecutor()
-    outcome = run_jobs(
-        jobs,
-        executor,
-        on_event=lambda kind, job, value: order.append(f"{kind} {job.key}"),
-        on_progress=progress.__setitem__,
-    )
+    outcome = run_jobs([Job("two-cpus", where, ("written-here.txt",), threads=2)], executor)
     assert executor.slots == 2  # the cluster's CPUs
-    assert outcome.results["base"] == 9 and outcome.results["after-base"] == 16
-    assert order.index("done base") < order.index("start after-base")
-    assert progress == {"base": 3, "after-base": 4}  # relayed from the tasks to this process
-    # The job's own error, re-created here, fails it and its dependant only.
-    assert outcome.failure_message("bad") == "ValueError: on a Ray worker"
-    assert outcome.failure_message("needs-bad").startswith("RuntimeError: bad failed: ValueError")
     # Another process, given num_cpus = threads, in this process's working directory.
     pid, cpus, cwd = outcome.results["two-cpus"]
     assert pid != os.getpid() and cpus == 2 and Path(cwd) == tmp_path
     assert (tmp_path / "written-here.txt").read_text() == str(pid)
 
 
-def test_a_task_whose_process_dies_is_retried_and_without_retries_fails_alone(cluster, tmp_path):
-    retried = tmp_path / "retried"
-    retried.mkdir()
-    outcome = run_jobs([Job("dies", die_once, (str(retried),))], RayExecutor(max_retries=1))
-    first_pid = (retried / "died-once").read_text()
+def test_a_task_whose_process_dies_is_retried(ray_cluster, tmp_path):
+    outcome = run_jobs([Job("dies", die_once, (str(tmp_path),))], RayExecutor(max_retries=1))
+    first_pid = (tmp_path / "died-once").read_text()
     assert outcome.results == {"dies": f"retried after {first_pid}"}
 
-    lost = tmp_path / "lost"
-    lost.mkdir()
-    jobs = [Job("dies", die_once, (str(lost),)), Job("fine", square, (2,))]
-    outcome = run_jobs(jobs, RayExecutor(max_retries=0))
-    assert outcome.results == {"fine": 4}
-    assert type(outcome.failures["dies"]).__name__ == "WorkerCrashedError"
 
-
-# Slow, and out of the default run: in one fresh-clone CI run (2026-11-30) the driver waited 124 s, about the
-# jobs' own length, as if a non-forced ray.cancel had not reached a running task; cause not found yet.
-@pytest.mark.slow
-def test_sigterm_to_the_driver_cancels_running_tasks_the_resumable_way(cluster, tmp_path):
-    jobs = [Job(f"long-{i}", checkpoint_on_interrupt, (str(tmp_path),)) for i in range(3)]
-
-    def sigterm_once_two_started() -> None:
-        deadline = time.monotonic() + 60
-        while len(list(tmp_path.glob("started-*"))) < 2 and time.monotonic() < deadline:
-            time.sleep(0.1)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    handler = signal.getsignal(signal.SIGTERM)
-    threading.Thread(target=sigterm_once_two_started, daemon=True).start()
+def test_a_task_a_cancel_does_not_stop_is_killed_after_the_grace_with_one_warning(
+    ray_cluster, tmp_path, caplog
+):
+    # One task stops the resumable way when cancelled; the other, blocked in C code, does not.
+    jobs = [
+        Job("resumable", checkpoint_on_interrupt, (str(tmp_path),)),
+        Job("blocked", blocked_in_c, (str(tmp_path),)),
+    ]
+    sigterm_once_started(tmp_path, 2)
     started = time.monotonic()
-    with pytest.raises(KeyboardInterrupt):
-        run_jobs(jobs, RayExecutor(interrupt_grace=0.5))
-    assert time.monotonic() - started < 60  # nobody waited for the 120 s jobs
-    # The two running tasks got the interrupt and saved their checkpoints; the third never started.
-    started_pids = {p.name.split("-")[1] for p in tmp_path.glob("started-*")}
-    assert len(started_pids) == 2
-    assert {p.name.split("-")[1] for p in tmp_path.glob("checkpoint-*")} == started_pids
-    assert signal.getsignal(signal.SIGTERM) is handler
+    with (
+        caplog.at_level(logging.WARNING, logger="sb3_hddpg.experiments.ray_executor"),
+        pytest.raises(KeyboardInterrupt),
+    ):
+        run_jobs(jobs, RayExecutor(cancel_grace=2.0))
+    interrupted = time.monotonic()
+    assert interrupted - started < 60  # nobody waited for the 120 s jobs
+    assert len(started_pids(tmp_path)) == 2
+    (resumable_pid,) = checkpointed_pids(tmp_path)  # the resumable one saved its checkpoint...
+    (blocked_pid,) = started_pids(tmp_path) - {resumable_pid}
+    # ...the blocked one was killed (its process is gone, not left sleeping), and said so once.
+    while psutil_alive(int(blocked_pid)) and time.monotonic() - interrupted < 30:
+        time.sleep(0.1)
+    assert not psutil_alive(int(blocked_pid))
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1, warnings
+    assert "1 Ray task(s)" in warnings[0] and "(blocked)" in warnings[0] and "--resume" in warnings[0]
+
+
+def psutil_alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie awaiting its parent's wait counts as gone)."""
+    import psutil
+
+    with contextlib.suppress(psutil.Error):
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    return False
 
 
 def test_an_unreachable_or_malformed_address_is_one_clear_error():
@@ -175,53 +123,11 @@ def test_without_ray_the_cli_says_how_to_install_it(tmp_path):
     assert not (tmp_path / "o").exists()  # refused before anything was made
 
 
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
-
-
-def head_env() -> dict[str, str]:
-    # A loopback test cluster: without Ray's token authentication (on by default since Ray 2.5x), which
-    # a real cluster keeps (docs/CLUSTER.md).
-    return {**cli_env(), "RAY_AUTH_MODE": "disabled"}
-
-
 @pytest.fixture
 def ray_head(tmp_path):
-    """A Ray head of 2 CPUs on loopback, as `ray start --head` makes one; its address. Stopped after."""
-    port = free_port()
-    temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths have a length limit
-    log = tmp_path / "ray-head.log"
-    with log.open("w") as output:
-        head = subprocess.Popen(
-            [
-                str(Path(sys.executable).parent / "ray"),
-                "start",
-                "--head",
-                "--block",
-                f"--port={port}",
-                "--node-ip-address=127.0.0.1",
-                "--num-cpus=2",
-                "--include-dashboard=false",
-                "--disable-usage-stats",
-                f"--temp-dir={temp_dir}",
-            ],
-            env=head_env(),
-            stdout=output,
-            stderr=subprocess.STDOUT,
-        )
-    try:
-        # Up once `ray start` says it blocks (its GCS port opens well before the rest is ready).
-        deadline = time.monotonic() + 180
-        while "block forever" not in log.read_text() and time.monotonic() < deadline:
-            assert head.poll() is None, f"ray start exited:\n{log.read_text()}"
-            time.sleep(0.5)
-        yield f"127.0.0.1:{port}", head, log
-    finally:
-        head.terminate()  # `ray start --block` stops the processes it started (only ours: not `ray stop`)
-        head.wait(timeout=90)
-        shutil.rmtree(temp_dir, ignore_errors=True)
+    """A Ray head of 2 CPUs on loopback, as `ray start --head` makes one; stopped after."""
+    with local_ray_head(num_cpus=2, log=tmp_path / "ray-head.log", env=cli_env()) as head:
+        yield head
 
 
 # The tiny budgets of tests/test_benchmark.py.
@@ -261,17 +167,17 @@ def records(out: Path) -> dict[str, dict]:
 
 @pytest.mark.slow  # two tiny benchmarks (local, then Ray with a worker killed): minutes
 def test_benchmark_on_a_ray_cluster_survives_a_killed_worker_and_matches_local(ray_head, tmp_path):
-    address, head, log = ray_head
     command = [
         sys.executable, str(REPO / "cli.py"), "benchmark", *TINY, "--out", str(tmp_path / "ray"),
-        "--executor", "ray", "--ray-address", address,
+        "--executor", "ray", "--ray-address", ray_head.address,
     ]  # fmt: skip
+    env = {**cli_env(), **LOOPBACK_ENV}
     with subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=head_env(), cwd=REPO
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO
     ) as run:
         killed = kill_one_task("workers/seed-0")  # mid-training: its retry must finish the seed's workers
         stdout, stderr = run.communicate(timeout=900)
-    assert run.returncode == 0, f"{stdout}\n{stderr}\nhead alive: {head.poll() is None}\n{log.read_text()}"
+    assert run.returncode == 0, f"{stdout}\n{stderr}\n{ray_head.describe()}"
     assert killed > 0
 
     local = subprocess.run(

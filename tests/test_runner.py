@@ -1,42 +1,53 @@
-"""The one process runner of benchmark, tuning and quickstart: scheduling, failures, progress, processes."""
+"""
+The one process runner of benchmark, tuning and quickstart: scheduling, failures, progress, processes.
+
+The tests of what every executor that runs jobs in other processes must do run for the local pool and for
+the Ray executor (on a local Ray cluster; skipped without Ray); tests/test_ray_executor.py holds what only
+the Ray executor does.
+"""
 
 from __future__ import annotations
 
 import multiprocessing
 import os
 import signal
-import threading
 import time
-from pathlib import Path
 
 import pytest
 
-from sb3_hddpg.experiments.runner import (
-    InlineExecutor,
-    Job,
-    LocalProcessExecutor,
-    report_progress,
-    run_jobs,
+from sb3_hddpg.experiments.runner import Executor, InlineExecutor, Job, LocalProcessExecutor, run_jobs
+from tests.jobs import (
+    broken,
+    checkpoint_on_interrupt,
+    checkpointed_pids,
+    die,
+    pid_after,
+    sigterm_once_started,
+    square,
+    started_pids,
 )
 
 
-def square(x: int) -> int:
-    report_progress(x)
-    return x * x
+@pytest.fixture(params=[pytest.param("local", marks=pytest.mark.slow), "ray"])
+def process_executor(request: pytest.FixtureRequest) -> Executor:
+    """
+    A 2-slot executor that runs jobs in other processes: the local pool (its processes import torch: about
+    25 s on a loaded machine, so slow), or the Ray executor on the module's Ray cluster (whose workers stay
+    up from test to test), without retries, so that a killed job fails as locally.
+    """
+    if request.param == "local":
+        return LocalProcessExecutor(2)
+    request.getfixturevalue("ray_cluster")
+    from sb3_hddpg.experiments.ray_executor import RayExecutor
+
+    return RayExecutor(max_retries=0)
 
 
-def broken(message: str) -> int:
-    raise ValueError(message)
-
-
-def die() -> int:
-    os.kill(os.getpid(), signal.SIGKILL)
-    return 0
-
-
-def pid_after(seconds: float) -> int:
-    time.sleep(seconds)
-    return os.getpid()
+#: How each executor reports a job whose process was killed.
+KILLED = {
+    "LocalProcessExecutor": f"RuntimeError: its process exited with code {-signal.SIGKILL}",
+    "RayExecutor": "WorkerCrashedError: ",
+}
 
 
 def test_dependencies_first_then_group_then_longest_first():
@@ -77,59 +88,45 @@ def test_a_failure_fails_its_dependants_only():
         run_jobs([Job("a", square, (1,), after=("b",))], InlineExecutor())
 
 
-@pytest.mark.slow  # spawns processes that import torch: about 25 s on a loaded machine
-def test_processes_return_results_errors_progress_and_survive_a_killed_one():
+def test_processes_return_results_errors_progress_and_survive_a_killed_one(process_executor):
     progress: dict[str, float] = {}
+    order: list[str] = []
     jobs = [
         Job("square", square, (7,)),
+        Job("after-square", square, (4,), after=("square",)),
         Job("bad", broken, ("in a child",)),
+        Job("needs-bad", square, (5,), after=("bad",)),
         Job("killed", die),
         Job("pid-a", pid_after, (0.5,)),
         Job("pid-b", pid_after, (0.5,)),
     ]
-    outcome = run_jobs(jobs, LocalProcessExecutor(2), on_progress=progress.__setitem__)
-    assert outcome.results["square"] == 49 and progress == {"square": 7}
-    assert isinstance(outcome.failures["bad"], ValueError)  # the child's own error, re-created here
-    assert (
-        outcome.failure_message("killed") == f"RuntimeError: its process exited with code {-signal.SIGKILL}"
+    outcome = run_jobs(
+        jobs,
+        process_executor,
+        on_event=lambda event, job, value: order.append(f"{event} {job.key}"),
+        on_progress=progress.__setitem__,
     )
-    # The others ran to the end in child processes (not this one), a dead one being replaced.
+    assert outcome.results["square"] == 49 and outcome.results["after-square"] == 16
+    assert order.index("done square") < order.index("start after-square")
+    assert progress == {"square": 7, "after-square": 4}  # relayed from the jobs' processes to this one
+    # The child's own error, re-created here, fails it and its dependant only.
+    assert outcome.failure_message("bad") == "ValueError: in a child"
+    assert outcome.failure_message("needs-bad").startswith("RuntimeError: bad failed: ValueError")
+    assert outcome.failure_message("killed").startswith(KILLED[type(process_executor).__name__])
+    # The others ran to the end in other processes (not this one), a dead one being replaced.
     assert {"pid-a", "pid-b"} <= set(outcome.results) and os.getpid() not in outcome.results.values()
 
 
-def checkpoint_on_sigterm(folder: str) -> int:
-    """A long job that, like ``train_agent``, turns SIGTERM into saving a checkpoint and stopping."""
-    from sb3_hddpg.training.training import sigterm_as_interrupt
-
-    with sigterm_as_interrupt():
-        try:
-            (Path(folder) / f"started-{os.getpid()}").touch()
-            time.sleep(120)
-        except KeyboardInterrupt:
-            (Path(folder) / f"checkpoint-{os.getpid()}").touch()
-            raise
-    return 0
-
-
-@pytest.mark.slow  # spawns processes that import torch
-def test_sigterm_to_the_parent_makes_running_jobs_checkpoint_and_stop(tmp_path):
-    jobs = [Job(f"long-{i}", checkpoint_on_sigterm, (str(tmp_path),)) for i in range(3)]
-
-    def sigterm_once_two_started() -> None:
-        deadline = time.monotonic() + 120
-        while len(list(tmp_path.glob("started-*"))) < 2 and time.monotonic() < deadline:
-            time.sleep(0.1)
-        os.kill(os.getpid(), signal.SIGTERM)
-
+def test_sigterm_to_the_parent_makes_running_jobs_checkpoint_and_stop(process_executor, tmp_path):
+    jobs = [Job(f"long-{i}", checkpoint_on_interrupt, (str(tmp_path),)) for i in range(3)]
     handler = signal.getsignal(signal.SIGTERM)
-    threading.Thread(target=sigterm_once_two_started, daemon=True).start()
+    sigterm_once_started(tmp_path, 2)
     started = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
-        run_jobs(jobs, LocalProcessExecutor(2))
+        run_jobs(jobs, process_executor)
     assert time.monotonic() - started < 100  # nobody waited for the 120 s jobs
-    # The two running jobs saved their checkpoints; the third never started; no process is left.
-    started_pids = {p.name.split("-")[1] for p in tmp_path.glob("started-*")}
-    assert len(started_pids) == 2
-    assert {p.name.split("-")[1] for p in tmp_path.glob("checkpoint-*")} == started_pids
+    # The two running jobs saved their checkpoints (none was killed); the third never started.
+    assert len(started_pids(tmp_path)) == 2
+    assert checkpointed_pids(tmp_path) == started_pids(tmp_path)
     assert not [p for p in multiprocessing.active_children() if p.name.startswith("job-")]
     assert signal.getsignal(signal.SIGTERM) is handler  # the parent's handler is restored

@@ -20,8 +20,9 @@ def make_executor(
 
     :param n_jobs: jobs at a time (``None``: 1 locally, every CPU of a Ray cluster).
     :param interrupt_grace: see :class:`LocalProcessExecutor` (local only: a Ray task does not see the
-        terminal's Ctrl-C that local jobs see at once, so on an interrupt it is cancelled, which raises the
-        same ``KeyboardInterrupt`` in it, without waiting).
+        terminal's Ctrl-C that local jobs see at once, so on an interrupt it is cancelled without waiting,
+        which raises the same ``KeyboardInterrupt`` in it, and killed if still running
+        :data:`~sb3_hddpg.experiments.ray_executor.CANCEL_GRACE` seconds later).
     :param inline: run in this process instead (local only).
     :param ray_address: run each job as a Ray task on the cluster at this address (``auto`` or
         ``HOST:PORT``, see :class:`~sb3_hddpg.experiments.ray_executor.RayExecutor`); ``None``: locally.

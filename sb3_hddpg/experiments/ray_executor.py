@@ -25,8 +25,17 @@ on the driver's node (fire and forget: a task never waits for it), which the dri
 
 **Interruption.** Ctrl-C or SIGTERM on the driver: running tasks get ``interrupt_grace`` seconds to end,
 then are cancelled with ``ray.cancel`` (a ``KeyboardInterrupt`` in the task, which
-:func:`~sb3_hddpg.training.training.train_agent` turns into a checkpoint and exit), and the driver waits for
-them to leave; ``--resume`` continues from those checkpoints. A second Ctrl-C while it waits kills them.
+:func:`~sb3_hddpg.training.training.train_agent` turns into a checkpoint and exit). Those still running
+``cancel_grace`` seconds later (blocked in C code, or past the interrupt's reach) are killed with
+``ray.cancel(force=True)``, with one warning: they resume from their last periodic checkpoint (every write
+is atomic, so a kill mid-write leaves the previous one whole). ``--resume`` then continues from the
+checkpoints. A second Ctrl-C while the driver waits kills them at once.
+
+A task's ``KeyboardInterrupt`` is Python's simulated SIGINT (``_thread.interrupt_main``), which does nothing
+in a process where SIGINT is ignored, and Ray's worker processes inherit that from whatever started the
+cluster: a driver or ``ray start`` launched in the background by a non-interactive shell (``nohup``,
+``cmd &``, many CI runners) ignores SIGINT. So each task restores Python's SIGINT handler while it runs
+(:func:`_interruptible`); without that, a non-forced cancel silently let such tasks run to their end.
 """
 
 from __future__ import annotations
@@ -34,7 +43,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -56,6 +67,12 @@ CONNECT_TIMEOUT = 5.0
 SETTLE_TIMEOUT = 2.0
 #: Seconds to wait for the progress actor to start.
 SINK_START_TIMEOUT = 60.0
+#: Seconds cancelled tasks get to stop the resumable way (a checkpoint with its replay buffer, tens of MB,
+#: written on a possibly busy node) before they are killed: a kill loses at most ``checkpoint_freq`` steps
+#: (the last complete checkpoint stays), while an unbounded wait lets one stuck task hold the driver forever.
+CANCEL_GRACE = 10.0
+#: Seconds to wait for killed tasks to be reported gone (Ray's owner learns of a killed worker quickly).
+KILL_TIMEOUT = 30.0
 
 
 class ClusterError(ValueError):
@@ -156,6 +173,22 @@ def _driver_context(cwd: str, held_folders: str) -> Iterator[None]:
             os.environ[HELD_FOLDERS_ENV] = previous_held
 
 
+@contextlib.contextmanager
+def _interruptible() -> Iterator[None]:
+    """
+    Python's SIGINT handler for the duration, so that ``ray.cancel`` raises ``KeyboardInterrupt`` here even
+    in a worker that inherited an ignored SIGINT (see the module docstring); the previous handler after.
+    """
+    if threading.current_thread() is not threading.main_thread():  # only the main thread sets handlers
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _run_task(job: Job, sink: Any, cwd: str, held_folders: str) -> Finished:
     """A Ray task: run ``job`` as a local process would, its progress sent to ``sink``."""
     import ray
@@ -166,7 +199,7 @@ def _run_task(job: Job, sink: Any, cwd: str, held_folders: str) -> Finished:
         sent[:] = [sink.put.remote(job.key, value)]  # fire and forget: training never waits for it
 
     torch.set_num_threads(job.threads)
-    with _driver_context(cwd, held_folders), reporting_to(report):
+    with _interruptible(), _driver_context(cwd, held_folders), reporting_to(report):
         end = _call(job)
     if sent:  # the last report reaches the sink before the driver sees the end (a job's progress comes first)
         ray.wait(sent, timeout=SETTLE_TIMEOUT)
@@ -187,6 +220,7 @@ class RayExecutor:
     :param max_retries: times a task lost with its worker process or node is run again.
     :param interrupt_grace: on an interrupt, seconds running tasks get to end before they are cancelled
         (``None``: wait for them however long they take).
+    :param cancel_grace: seconds cancelled tasks get to stop the resumable way before they are killed.
     """
 
     def __init__(
@@ -195,16 +229,20 @@ class RayExecutor:
         slots: int | None = None,
         max_retries: int = DEFAULT_MAX_RETRIES,
         interrupt_grace: float | None = 0.0,
+        cancel_grace: float = CANCEL_GRACE,
     ) -> None:
         if slots is not None and slots < 1:
             raise ValueError(f"Expected `slots` >= 1, actually: {slots}")
         if max_retries < 0:
             raise ValueError(f"Expected `max_retries` >= 0, actually: {max_retries}")
+        if cancel_grace < 0:
+            raise ValueError(f"Expected `cancel_grace` >= 0, actually: {cancel_grace}")
         self.address = address
         self.slots = slots or 1
         self._wanted_slots = slots
         self.max_retries = max_retries
         self.interrupt_grace = interrupt_grace
+        self.cancel_grace = cancel_grace
         self._running: dict[Any, str] = {}  # object ref -> job key
         self._connected = False
 
@@ -291,13 +329,37 @@ class RayExecutor:
                 self._connected = False
 
     def _stop_running(self) -> None:
-        """Give running tasks ``interrupt_grace`` seconds, cancel the rest the resumable way, wait for them."""
+        """
+        Give running tasks ``interrupt_grace`` seconds, cancel the rest the resumable way, give them
+        ``cancel_grace`` seconds, kill what is left (one warning) and wait for them to leave.
+        """
         ray = self._ray
         refs = list(self._running)
-        if self.interrupt_grace is not None:
-            refs = ray.wait(refs, num_returns=len(refs), timeout=self.interrupt_grace)[1]
-            for ref in refs:
-                ray.cancel(ref, force=False)  # a KeyboardInterrupt in the task: checkpoint and stop
-        logger.info("waiting for %d Ray task(s) to stop", len(refs))
-        while refs:
-            refs = ray.wait(refs, num_returns=len(refs), timeout=POLL_INTERVAL)[1]
+        if self.interrupt_grace is None:
+            logger.info("waiting for %d Ray task(s) to end", len(refs))
+            while refs:
+                refs = self._still_running(refs, POLL_INTERVAL)
+            return
+        refs = self._still_running(refs, self.interrupt_grace)
+        for ref in refs:
+            ray.cancel(ref, force=False)  # a KeyboardInterrupt in the task: checkpoint and stop
+        logger.info("waiting up to %.0f s for %d cancelled Ray task(s) to stop", self.cancel_grace, len(refs))
+        refs = self._still_running(refs, self.cancel_grace)
+        if not refs:
+            return
+        for ref in refs:
+            ray.cancel(ref, force=True)  # kills its worker process
+        logger.warning(
+            "%d Ray task(s) did not stop within %.0f s of being cancelled and were killed (%s); "
+            "--resume continues them from their last checkpoint",
+            len(refs),
+            self.cancel_grace,
+            ", ".join(sorted(self._running[ref] for ref in refs)),
+        )
+        self._still_running(refs, KILL_TIMEOUT)
+
+    def _still_running(self, refs: list[Any], timeout: float) -> list[Any]:
+        """Those of ``refs`` that have not ended within ``timeout`` seconds (all ended: at once)."""
+        if not refs:
+            return refs
+        return self._ray.wait(refs, num_returns=len(refs), timeout=timeout)[1]
