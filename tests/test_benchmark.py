@@ -130,11 +130,11 @@ def test_settings_reject_unknown_methods_and_default_to_equal_total_steps():
 
 
 def test_settings_default_to_the_configs_budgets():
-    # The bundled config: goal worker 150k, avoid worker 30k, manager 20k; a flat agent gets the sum.
+    # The bundled config: goal and avoid worker 150k each, manager 20k; a flat agent gets the sum.
     settings = BenchmarkSettings(methods=["hddpg", "ddpg"])
     assert settings.timesteps == 20_000 and settings.worker_timesteps is None
-    assert settings.workers_budget == 180_000 and settings.flat_budget == 200_000
-    assert task_cost(Task("workers", 0), settings) == 180_000
+    assert settings.workers_budget == 300_000 and settings.flat_budget == 320_000
+    assert task_cost(Task("workers", 0), settings) == 300_000
 
 
 def test_statistics_use_the_stats_module_on_per_seed_values(constructed):
