@@ -56,6 +56,11 @@ def main() -> None:
     p.add_argument("--eval-every", type=int, default=10_000, help="steps between curve points (5 episodes)")
     p.add_argument("--curve-episodes", type=int, default=5, help="episodes per curve point")
     p.add_argument("--test-episodes", type=int, default=20, help="held-out test episodes at the end")
+    p.add_argument(
+        "--test-each-point",
+        action="store_true",
+        help="also score every curve point on the held-out test episodes (how well a curve point picks a model)",
+    )
     p.add_argument("--save", default="", help="save the final model here (an SB3 zip for --backend sb3)")
     args = p.parse_args()
     torch.set_num_threads(1)
@@ -111,6 +116,7 @@ def main() -> None:
                     "steps": done,
                     "seconds": round(time.time() - start),
                     **score(args.curve_episodes, CURVE_SEED),
+                    **({"test": score(args.test_episodes, TEST_SEED)} if args.test_each_point else {}),
                 }
             ),
             flush=True,

@@ -280,6 +280,42 @@ def test_tiny_transfer_benchmark_through_the_cli(tmp_path):
     assert "Transfer" in done.stdout and "Transfer:" in (out / "results.md").read_text()
 
 
+# ------------------------------------------------------------------------------- references without training
+@pytest.mark.slow  # a tiny benchmark plus HAM's 24-threshold grid: ~30 s idle, minutes on a loaded machine
+def test_tuned_ham_and_workers_alone_are_scored_on_the_same_episodes(tmp_path):
+    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.experiments.benchmark.methods import TEST_SEED_BASE
+    from sb3_hddpg.hierarchy.loading import load_policy
+
+    out = tmp_path / "bench"
+    methods = "ham,ham-tuned,goal-only"
+    done = cli("benchmark", "--seeds", "1", "--methods", methods, *TINY, "--out", str(out))
+    assert done.returncode == 0, done.stdout + done.stderr
+    record_of = {m: json.loads((out / "records" / m / "seed-0.json").read_text()) for m in methods.split(",")}
+
+    # The tuned threshold is the grid's best on the learning-curve episodes, which hold HAM's default (5.5):
+    # the same deterministic episodes, so the tuned switch can only score as well or better there.
+    tuned, default = record_of["ham-tuned"], record_of["ham"]
+    grid = tuned["threshold_grid"]
+    assert [p["threshold"] for p in grid] == [0.25 * k for k in range(1, 25)]
+    best = max(grid, key=lambda p: p["mean_reward"])
+    assert tuned["threshold"] == best["threshold"] and default["threshold"] == 5.5
+    assert tuned["history"][0]["mean_reward"] == pytest.approx(best["mean_reward"])
+    assert best["mean_reward"] >= default["history"][0]["mean_reward"] - 1e-9
+    assert (
+        json.loads((out / "seed-0" / "ham-tuned" / "ham.json").read_text())["threshold"] == tuned["threshold"]
+    )
+
+    # The goal worker alone: its own view of the combined task, on the test episodes every method gets.
+    loaded = load_policy(out / "seed-0" / "workers" / "goal.zip")
+    env = loaded.make_env("hddpg/SnakeReach-v0")
+    expected = evaluate(loaded.policy, env, n_episodes=1, seed=TEST_SEED_BASE).summary()
+    env.close()
+    assert record_of["goal-only"]["test"]["mean_reach_reward"] == pytest.approx(expected["mean_reach_reward"])
+    # It stands on the two workers' steps (the goal worker's 8-step updates round its 100 up to 104).
+    assert record_of["goal-only"]["worker_timesteps"] == record_of["ham"]["worker_timesteps"] == 204
+
+
 # ------------------------------------------------------------------------------------------------- export
 @pytest.mark.slow
 def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):

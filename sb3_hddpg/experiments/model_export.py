@@ -29,6 +29,7 @@ INDEX_METHODS = (
     "hddpg-goal",
     "hddpg-avoid",
     "ham",
+    "ham-tuned",
     "ddpg",
     "td3",
     "sac",
@@ -49,8 +50,8 @@ def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
     """The file a run's model is opened by and the files it needs beside it, relative to the seed folder."""
     if base in ("hddpg", "hddpg-goal", "hddpg-avoid"):
         return f"{run_key}/hierarchy.zip", []
-    if base == "ham":
-        return "ham/ham.json", []  # its workers are exported with the seed's workers
+    if base in ("ham", "ham-tuned"):
+        return f"{base}/ham.json", []  # its workers are exported with the seed's workers
     if base in ("ddpg", "td3", "sac", "tqc"):
         return f"{run_key}/flat/{base}.zip", [f"{run_key}/flat/manifest.json"]
     return None

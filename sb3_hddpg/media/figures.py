@@ -290,6 +290,9 @@ def plot_comparison(summaries: Mapping[str, Mapping[str, Any]], path: str | Path
 COLOURS = {
     "hddpg": "tab:red",
     "ham": "tab:gray",
+    "ham-tuned": "black",
+    "goal-only": "yellowgreen",
+    "avoid-only": "gold",
     "ddpg": "tab:blue",
     "td3": "tab:cyan",
     "sac": "tab:purple",
@@ -312,8 +315,8 @@ def _first_preference(results: dict[str, Any]) -> str:
 def benchmark_learning_curves(results: dict[str, Any], path: str | Path) -> Path:
     """
     Mean combined reward over seeds with 95 % bootstrap CI bands, against the agent's own steps (left)
-    and against all environment steps including worker pre-training (right). HAM does not learn: it is a
-    horizontal line at its evaluation (from its workers' steps on the right).
+    and against all environment steps including worker pre-training (right). A method that does not learn
+    (HAM, a worker alone: one evaluation) is a horizontal line at it (from its workers' steps on the right).
 
     :param results: a ``results.json`` dict with ``curves``.
     :param path: the PNG to write.
@@ -331,7 +334,7 @@ def benchmark_learning_curves(results: dict[str, Any], path: str | Path) -> Path
             x, mean, low, high = band["x"], band["mean"], band["low"], band["high"]
             if not x:
                 continue
-            if method == "ham":
+            if len(x) == 1:  # it does not learn
                 start = x[0] if key == "total_steps" else 0.0
                 x, mean, low, high = [start, right], mean[:1] * 2, low[:1] * 2, high[:1] * 2
                 axis.plot(x, mean, "--", color=line_colour, label=method)

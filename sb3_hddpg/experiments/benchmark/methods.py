@@ -182,18 +182,28 @@ def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) 
     }
 
 
-def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
-    """Save the seed's HAM switch and evaluate it: one learning-curve point (it does not learn) and the test."""
+#: Spacing of the thresholds ``ham-tuned`` tries, from ``HAM_GRID_STEP`` to the number of links (24 for six).
+HAM_GRID_STEP = 0.25
+
+
+def _run_ham(tuned: bool, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """
+    Save the seed's HAM switch and evaluate it: one learning-curve point (it does not learn) and the test.
+
+    With ``tuned`` its threshold is the best of a grid on the learning-curve episodes (the episodes every
+    other method's best model is picked on), never on the test episodes; otherwise ``--ham-threshold``.
+    """
 
     env = gym.make(FLAT_ENV_ID)
     try:
         n_links = state_layout_of(env)["joint_obstacle_distances"]
+        n_links_count = n_links.stop - n_links.start
         threshold = settings.ham_threshold
-        if threshold is None:
-            threshold = (n_links.stop - n_links.start) - DEFAULT_MARGIN
+        if threshold is None or tuned:
+            threshold = n_links_count - DEFAULT_MARGIN
         offset = workers_steps(folder)
         ham_path = save_ham(
-            folder / "ham" / "ham.json",
+            folder / task.method / "ham.json",
             folder / "workers" / "manifest.json",
             threshold=threshold,
             hysteresis=settings.ham_hysteresis,
@@ -201,6 +211,25 @@ def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str,
             metadata={"seed": task.seed, "worker_timesteps": offset},
         )
         switch, _ = load_ham(ham_path)
+        grid: list[dict[str, float]] = []
+        if tuned:
+            for step in range(1, round(n_links_count / HAM_GRID_STEP) + 1):
+                switch.threshold = step * HAM_GRID_STEP
+                point = evaluate(
+                    switch, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE
+                ).summary()
+                grid.append({"threshold": switch.threshold, "mean_reward": point["mean_reward"]})
+            # The first best on ties: the smallest threshold, the one that hands over to the avoid worker least.
+            threshold = max(grid, key=lambda point: point["mean_reward"])["threshold"]
+            ham_path = save_ham(
+                ham_path,
+                folder / "workers" / "manifest.json",
+                threshold=threshold,
+                hysteresis=settings.ham_hysteresis,
+                env_id=FLAT_ENV_ID,
+                metadata={"seed": task.seed, "worker_timesteps": offset, "threshold_grid": grid},
+            )
+            switch.threshold = threshold
         curve = evaluate(switch, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
     finally:
         env.close()
@@ -210,6 +239,28 @@ def _run_ham(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str,
         "test": final_test(ham_path, settings),
         "threshold": threshold,
         "hysteresis": settings.ham_hysteresis,
+        **({"threshold_grid": grid} if tuned else {}),
+    }
+
+
+def _run_worker_alone(worker: str, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+    """
+    The seed's ``worker`` alone on the combined task (seeing its own share of the state): what a manager
+    over it has to beat, since a manager could always pick that worker.
+    """
+
+    offset = workers_steps(folder)
+    loaded = load_policy(folder / "workers" / f"{worker}.zip")
+    env = loaded.make_env(FLAT_ENV_ID)
+    try:
+        curve = evaluate(loaded.policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
+        test = evaluate(loaded.policy, env, n_episodes=settings.test_episodes, seed=TEST_SEED_BASE).summary()
+    finally:
+        env.close()
+    return {
+        "worker_timesteps": offset,
+        "history": [{"timesteps": 0, "total_timesteps": offset, **curve}],
+        "test": test,
     }
 
 
@@ -240,13 +291,25 @@ register_method(
 register_method(
     Method(
         "ham",
-        _run_ham,
+        functools.partial(_run_ham, False),
         _no_cost,
         needs_workers=True,
         colour="tab:gray",
         default=True,
         baseline=True,
         description="the hand-written switch over the same workers, no training",
+    )
+)
+register_method(
+    Method(
+        "ham-tuned",
+        functools.partial(_run_ham, True),
+        _no_cost,
+        needs_workers=True,
+        colour="black",
+        default=True,
+        baseline=True,
+        description="the same switch with its threshold the best of a grid on the learning-curve episodes",
     )
 )
 for _algo, _colour in (
@@ -265,6 +328,19 @@ for _algo, _colour in (
             baseline=True,
             takes_preference=True,
             description=f"flat {_algo.upper()} on the combined reward for the hierarchy's total env steps",
+        )
+    )
+for _worker, _colour in (("goal", "yellowgreen"), ("avoid", "gold")):
+    register_method(
+        Method(
+            f"{_worker}-only",
+            functools.partial(_run_worker_alone, _worker),
+            _no_cost,
+            needs_workers=True,
+            colour=_colour,
+            default=True,
+            baseline=True,
+            description=f"the {_worker} worker alone on the combined task, no manager",
         )
     )
 for _worker, _colour in (("goal", "tab:green"), ("avoid", "tab:orange")):
