@@ -255,6 +255,18 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert resumed.stdout.count("kept") == 7  # 2 x (workers + 3 methods) - 1
     assert (out / "records" / "hddpg" / "seed-0.json").stat().st_mtime_ns == kept_mtime
 
+    # More methods (or seeds) on resume: only the new runs start, on the same workers and episodes.
+    grown = ("benchmark", "--seeds", "2", "--methods", "hddpg,ham,ddpg,goal-only", *TINY, "--out", str(out))
+    resumed = cli(*grown, "--resume")
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert resumed.stdout.count("started") == 2 and resumed.stdout.count("kept") == 8
+    assert set(json.loads((out / "results.json").read_text())["methods"]) == {
+        "hddpg",
+        "ham",
+        "ddpg",
+        "goal-only",
+    }
+
     # Resuming with other settings would mix budgets: refused.
     changed = cli(*args[:-2], "--timesteps", "300", "--out", str(out), "--resume")
     assert changed.returncode == 1 and "different settings" in changed.stderr

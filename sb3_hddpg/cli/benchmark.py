@@ -281,7 +281,11 @@ def benchmark_command(
     executor: ExecutorOpt = "local",
     ray_address: RayAddressOpt = None,
     out: Path = typer.Option(Path("runs/benchmark"), "--out", help="Benchmark folder."),
-    resume: bool = typer.Option(False, "--resume", help="Keep finished runs and continue interrupted ones."),
+    resume: bool = typer.Option(
+        False,
+        "--resume",
+        help="Keep finished runs and continue interrupted ones; --methods and --seeds may add runs.",
+    ),
     force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
     export_dir: Path | None = typer.Option(
         None,

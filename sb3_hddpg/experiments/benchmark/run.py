@@ -126,6 +126,10 @@ def task_job(task: Task, settings: BenchmarkSettings, out: Path) -> Job:
     )
 
 
+#: Settings a resumed benchmark may change (every other must be as the folder's ``benchmark.json`` says).
+RESUME_MAY_CHANGE = ("methods", "seeds")
+
+
 def run_benchmark(
     settings: BenchmarkSettings,
     out: str | Path,
@@ -144,7 +148,8 @@ def run_benchmark(
     :param settings: what to run.
     :param out: the benchmark folder (``benchmark.json``, ``records/``, ``seed-*/``, results).
     :param n_jobs: processes (or Ray tasks) at a time (``None``: 1 locally, every CPU of a Ray cluster).
-    :param resume: keep finished runs (their records) and continue interrupted ones from checkpoints.
+    :param resume: keep finished runs (their records) and continue interrupted ones from checkpoints; the
+        methods and seeds may differ from the folder's (new runs are added), every other setting may not.
     :param on_event: called with ``("start" | "done" | "skip" | "failed", task, record or None)``.
     :param ray_address: run each task as a Ray task on the cluster at this address (``auto`` or
         ``HOST:PORT``; every node must see ``out`` at the same path, and a task lost with its node is run
@@ -162,8 +167,10 @@ def run_benchmark(
         # Settings added since that benchmark was made hold their defaults in it.
         defaults = asdict(BenchmarkSettings())
         previous = {**{f.name: defaults[f.name] for f in fields(BenchmarkSettings)}, **previous}
-        if previous != stored:
-            changed = sorted(k for k in stored if previous.get(k) != stored[k])
+        # Methods and seeds may change: each run is its own record, made with the same budgets and episodes
+        # whatever else ran beside it, so a resumed benchmark can grow (or report a subset).
+        changed = sorted(k for k in stored if k not in RESUME_MAY_CHANGE and previous.get(k) != stored[k])
+        if changed:
             raise ValueError(
                 f"Cannot resume {str(out)!r} with different settings ({', '.join(changed)} changed); "
                 "run with the same options, or use --force to start over"
