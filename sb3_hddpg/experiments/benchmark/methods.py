@@ -358,7 +358,8 @@ for _worker, _colour in (("goal", "tab:green"), ("avoid", "tab:orange")):
 
 #: The built-in methods (the registry may hold more).
 METHODS = tuple(METHOD_REGISTRY)
-#: The methods run by default: the paper's three plus the biased managers of Figure 10.
+#: The methods run by default: the paper's three, the biased managers of Figure 10 and the references that need no
+#: training (HAM tuned, each worker alone).
 DEFAULT_METHODS: tuple[str, ...] = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
 #: Flat single-agent baselines (``train_flat``'s algorithms).
 FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
