@@ -57,6 +57,7 @@ from sb3_hddpg.training.config import (
     parse_block,
     select_block,
 )
+from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.training import (
     WORKER_ENV_IDS,
     AgentPaths,
@@ -395,16 +396,18 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
                 hyperparams,
                 paths,
                 algo=target.algo,
-                timesteps=timesteps,
-                seed=target.seed,
-                n_envs=1,
-                eval_freq=math.ceil(timesteps / target.n_evaluations),
-                eval_episodes=target.eval_episodes,
-                checkpoint_freq=0,
-                keep_best=False,
-                threads=threads,
+                run=RunOptions(
+                    timesteps=timesteps,
+                    seed=target.seed,
+                    n_envs=1,
+                    eval_freq=math.ceil(timesteps / target.n_evaluations),
+                    eval_episodes=target.eval_episodes,
+                    checkpoint_freq=0,
+                    keep_best=False,
+                    threads=threads,
+                    backend=target.backend,
+                ),
                 after_eval=pruning,
-                backend=target.backend,
             )
         except (KeyboardInterrupt, TrainingInterrupted):
             # Interrupted by the user, not a bad configuration: queue the same parameters again so that a
