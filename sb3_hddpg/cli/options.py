@@ -10,9 +10,11 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import click
+import gymnasium as gym
 import typer
 
 from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, locked_folder
+from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.training.backends import BackendError, check_backend
 from sb3_hddpg.training.run_options import MAX_SEED, RUN_OPTION_NAMES, RunOptions
 
@@ -96,8 +98,6 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
 
     :param param_hint: the option the problem comes from, e.g. ``"'--config'"`` (``None``: not named).
     """
-    import gymnasium as gym
-
     try:
         yield
     except (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, gym.error.Error) as error:
@@ -271,8 +271,6 @@ def terms_env_option(
     The :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the env options name (``None`` when ``--env`` is not
     given and no other option needs it); the library's errors become usage errors naming the option.
     """
-    from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
-
     if env is None:
         given = [
             n
@@ -329,6 +327,7 @@ def cluster_address(executor: str, ray_address: str | None) -> str | None:
         if ray_address is not None:
             raise typer.BadParameter("applies to --executor ray only", param_hint="'--ray-address'")
         return None
+    # Lazily: Ray is optional (the `cluster` extra) and only --executor ray needs it.
     from sb3_hddpg.experiments.ray_executor import ClusterError, connect
 
     address = ray_address or "auto"

@@ -29,6 +29,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
@@ -527,8 +528,6 @@ def _evaluate_on_shared_seeds(
 
 def _build_ham(run_dir: Path) -> Path:
     """Write the HAM switch over the run's workers to ``run_dir/ham.json``, with its default threshold."""
-    import gymnasium as gym
-
     probe = gym.make(COMPARISON_ENV_ID)
     n_joints = len(state_layout_of(probe).indices(["joint_obstacle_distances"]))
     probe.close()

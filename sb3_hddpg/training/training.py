@@ -24,6 +24,7 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
@@ -33,7 +34,7 @@ from sb3_hddpg.artifacts.io import (
     holds_folder_lock,
     remove_stale_temporaries,
 )
-from sb3_hddpg.artifacts.limits import brief, read_json_file
+from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, read_json_file
 from sb3_hddpg.artifacts.manifests import (
     WORKER_MANIFEST_VERSION,
     load_workers,
@@ -80,8 +81,6 @@ def make_snake_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gym
     :param env_id: e.g. ``"hddpg/SnakeGoal-v0"``.
     :param env_kwargs: keyword arguments for ``gym.make``.
     """
-    import sb3_hddpg  # noqa: F401  (registers the ids in a fresh subprocess)
-
     torch.set_num_threads(1)
     return gym.make(env_id, **(env_kwargs or {}))
 
@@ -401,8 +400,6 @@ def _combine_callbacks(callbacks: Sequence[BaseCallback]) -> BaseCallback | None
 
 
 def _tensorboard_logger(paths: AgentPaths) -> Any:
-    from stable_baselines3.common.logger import configure
-
     folder = paths.tensorboard_dir / paths.name
     return configure(str(folder), ["tensorboard"])
 
@@ -672,8 +669,6 @@ def shared_env_of(
     ``shared_env`` (written by :func:`train_workers` for an env other than the snake arm; its id and
     kwargs pass the safe-loading checks), else ``hddpg/SnakeReach-v0``.
     """
-    from sb3_hddpg.artifacts.limits import check_env_id, check_env_kwargs
-
     if env_id is not None:
         return env_id, dict(env_kwargs or {})
     shared = manifest.get("shared_env")
