@@ -233,13 +233,14 @@ def test_train_manager_loads_each_worker_once(trained, tmp_path, monkeypatch):
     setup = prepare_manager(root / "w", prefer="goal")
     train_manager(setup, tmp_path / "m", timesteps=100, eval_freq=0, eval_episodes=1)
     assert sorted(loaded) == sorted(str(root / "w" / "workers" / f"{n}.zip") for n in ("goal", "avoid"))
-    # The probe that checks the workers fit the env, the training env, the evaluation env.
-    assert made == ["hddpg/SnakeReach-v0"] * 3
+    # The probe that checks the workers fit the env, the training env, the evaluation env, and the one
+    # Hierarchy builds to check the bundle's spaces against its env.
+    assert made == ["hddpg/SnakeReach-v0"] * 4
     # The one-call path loads them once too.
     loaded.clear()
     made.clear()
     train_manager(root / "w", tmp_path / "m2", timesteps=100, eval_freq=0, eval_episodes=1)
-    assert len(loaded) == 2 and len(made) == 3
+    assert len(loaded) == 2 and len(made) == 4
 
 
 def test_run_options_are_one_object_or_keywords(tmp_path):
