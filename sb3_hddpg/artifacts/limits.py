@@ -199,7 +199,7 @@ def check_env_kwargs(
 def mo_gymnasium_env_ids() -> list[str]:
     """The ids MO-Gymnasium registers (none when it is not installed): an adapter may adapt them by default."""
     try:
-        # Lazily: optional (the `mo` extra), and about half a second to import.
+        # Lazily: optional (the `mo` extra).
         import mo_gymnasium  # noqa: F401  (registers its ids)
     except ImportError:
         return []

@@ -53,7 +53,7 @@ def registered_env_id(env_id: Any) -> str:
             f"Expected `env_id` to be a registered env id without a module prefix, actually: {env_id!r}"
         )
     if env_id not in gym.registry:
-        # Lazily: MO-Gymnasium is optional (the `mo` extra), ~0.5 s to import; it registers its ids when imported.
+        # Lazily: MO-Gymnasium is optional (the `mo` extra); it registers its ids when imported.
         with contextlib.suppress(ImportError):
             import mo_gymnasium  # noqa: F401
     if env_id not in gym.registry:
@@ -197,7 +197,7 @@ class MultiObjectiveEnv(TermsAdapter):
         render_mode: str | None = None,
         **env_kwargs: Any,
     ) -> None:
-        from mo_gymnasium.wrappers import LinearReward  # lazily: optional (`mo` extra), slow to import
+        from mo_gymnasium.wrappers import LinearReward  # lazily: optional (the `mo` extra)
 
         inner = make_adapted(env_id, render_mode, episode_steps, **env_kwargs)
         space = getattr(inner.unwrapped, "reward_space", None)

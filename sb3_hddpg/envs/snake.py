@@ -734,7 +734,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                 'Pass render_mode="rgb_array" or "human" to gym.make.'
             )
             return None
-        # Lazily: Pillow loads only when drawing is asked for, not in every env subprocess (see docs/DESIGN.md).
+        # Lazily: Pillow (+25 ms) loads only when drawing is asked for, not in every env subprocess.
         from sb3_hddpg.envs.rendering import SnakeRenderer
 
         if self._renderer is None:
