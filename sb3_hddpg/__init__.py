@@ -1,5 +1,6 @@
 """sb3-hddpg: Hierarchical DDPG (Um, Nethala & Shin, AI 2022) on Stable-Baselines3."""
 
+import importlib
 import os
 from typing import Any
 
@@ -23,8 +24,6 @@ _LAZY = {
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'sb3_hddpg' has no attribute {name!r}")
 

@@ -207,3 +207,53 @@ def test_action_saturation_of_a_hierarchy_is_its_managers(trained):
     assert manager_actions.shape == (400, 2)
     expected = np.mean(np.abs(manager_actions) >= SATURATION_LEVEL)
     assert summary["action_saturation"] == pytest.approx(expected)
+
+
+def test_train_manager_loads_each_worker_once(trained, tmp_path, monkeypatch):
+    """Each worker's zip is read once per train-manager (the issue measured 6 loads for 2 workers before)."""
+    import sb3_hddpg.artifacts.manifests as manifests
+    from sb3_hddpg.training.training import prepare_manager
+
+    root = trained[0]
+    loaded: list[str] = []
+    made: list[str] = []
+    real_load, real_make = manifests.load_model, gym.make
+
+    def counting_load(path, *args, **kwargs):
+        loaded.append(str(path))
+        return real_load(path, *args, **kwargs)
+
+    def counting_make(env_id, *args, **kwargs):
+        made.append(str(env_id))
+        return real_make(env_id, *args, **kwargs)
+
+    monkeypatch.setattr(manifests, "load_model", counting_load)
+    monkeypatch.setattr(gym, "make", counting_make)
+    # The CLI's path: check everything first, then train on the checked set-up.
+    setup = prepare_manager(root / "w", prefer="goal")
+    train_manager(setup, tmp_path / "m", timesteps=100, eval_freq=0, eval_episodes=1)
+    assert sorted(loaded) == sorted(str(root / "w" / "workers" / f"{n}.zip") for n in ("goal", "avoid"))
+    # The probe that checks the workers fit the env, the training env, the evaluation env, and the one
+    # Hierarchy builds to check the bundle's spaces against its env.
+    assert made == ["hddpg/SnakeReach-v0"] * 4
+    # The one-call path loads them once too.
+    loaded.clear()
+    made.clear()
+    train_manager(root / "w", tmp_path / "m2", timesteps=100, eval_freq=0, eval_episodes=1)
+    assert len(loaded) == 2 and len(made) == 4
+
+
+def test_run_options_are_one_object_or_keywords(tmp_path):
+    """The run-control settings: checked when built, given as RunOptions or as keywords, typos refused."""
+    from sb3_hddpg.training import RunOptions
+
+    with pytest.raises(ValueError, match="Expected seed in"):
+        RunOptions(seed=-1)
+    with pytest.raises(ValueError, match="Expected timesteps >= 1"):
+        train_workers(tmp_path, timesteps=0)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'timestep'"):
+        train_workers(tmp_path, timestep=10)
+    with pytest.raises(ValueError, match="Expected checkpoint_freq >= 0"):
+        train_manager(tmp_path, tmp_path / "m", run=RunOptions(), checkpoint_freq=-1)
+    assert RunOptions(seed=2).replace(timesteps=5) == RunOptions(timesteps=5, seed=2)
+    assert not (tmp_path / "workers").exists()  # nothing started

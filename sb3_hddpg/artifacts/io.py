@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import functools
 import inspect
 import json
@@ -147,8 +148,6 @@ def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
     :param folder: the run folder (created if missing).
     :return: the folder.
     """
-    import fcntl
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     key = folder.resolve()
@@ -197,8 +196,6 @@ def locked_file(path: str | os.PathLike[str]) -> Iterator[None]:
     beside it, waiting for the holder): processes of one run that share a folder update its manifest
     one after the other, and none loses another's entry.
     """
-    import fcntl
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path.parent / f".{path.name}.lock", "a+") as handle:

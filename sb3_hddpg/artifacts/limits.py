@@ -33,6 +33,9 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
+import gymnasium as gym
+from gymnasium.envs.registration import registry
+
 from sb3_hddpg.envs import ADAPTER_ENV_IDS, OWN_ENV_IDS
 
 #: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
@@ -122,10 +125,6 @@ def check_env_id(
     :param trusted: accept any registered id (still no module prefix).
     :return: the id; raises :class:`LimitError` naming it otherwise.
     """
-    from gymnasium.envs.registration import registry
-
-    import sb3_hddpg.envs  # noqa: F401  (registers our ids)
-
     if not isinstance(env_id, str) or not ENV_ID_PATTERN.match(env_id):
         raise LimitError(
             f"{what}: {brief(env_id)} is not a plain env id ('namespace/Name-vN' without a module prefix)"
@@ -163,8 +162,6 @@ def check_env_kwargs(
     :param trusted: an adapter may adapt any registered id (still no module prefix).
     :return: a copy; raises :class:`LimitError` naming the key otherwise.
     """
-    import gymnasium as gym
-
     if env_kwargs is None:
         return {}
     if not isinstance(env_kwargs, Mapping):
@@ -201,9 +198,8 @@ def check_env_kwargs(
 
 def mo_gymnasium_env_ids() -> list[str]:
     """The ids MO-Gymnasium registers (none when it is not installed): an adapter may adapt them by default."""
-    from gymnasium.envs.registration import registry
-
     try:
+        # Lazily: optional (the `mo` extra).
         import mo_gymnasium  # noqa: F401  (registers its ids)
     except ImportError:
         return []

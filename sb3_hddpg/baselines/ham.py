@@ -22,6 +22,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write_json
@@ -243,10 +244,6 @@ def load_ham(
     :param allowed_env_ids: registered env ids the file may name besides this package's own.
     :return: the switch and the file's contents (with ``env_id`` and ``env_kwargs``).
     """
-    import gymnasium as gym
-
-    import sb3_hddpg  # noqa: F401  (registers the env ids)
-
     path = Path(path)
     try:
         meta = read_json_file(path)

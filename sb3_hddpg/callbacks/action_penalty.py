@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 from typing import Any
 
 import torch
@@ -89,8 +90,6 @@ def apply_action_l2(model: Any, coefficient: float) -> None:
 
 def _is_sbx_td3(model: Any) -> bool:
     """Whether ``model`` is SBX's (JAX) TD3 or DDPG, without importing SBX when it is not in use."""
-    import sys
-
     sbx = sys.modules.get("sbx")
     return sbx is not None and isinstance(model, sbx.TD3)
 
@@ -101,6 +100,7 @@ def _penalised_sbx_class(base: type, coefficient: float) -> type:
     ``base`` (SBX's TD3 or DDPG) with the penalty in its jitted actor update. SBX's ``_train`` calls
     ``cls.update_actor`` with the class as a static argument, so a subclass is compiled with its own update.
     """
+    # Lazily: only an SBX model gets here (jax is optional and adds 1.4 s to an import).
     import jax
     import jax.numpy as jnp
 

@@ -12,16 +12,16 @@ from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
-    BACKEND_HELP,
     ENV_HELP,
     EpisodeStepsOpt,
     ExecutorOpt,
+    ExperimentBackendOpt,
+    ForceOpt,
     InfoKeyOpt,
     RayAddressOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
-    backend_name,
     cluster_address,
     positive_float,
     prepare_out_dir,
@@ -286,15 +286,13 @@ def benchmark_command(
         "--resume",
         help="Keep finished runs and continue interrupted ones; --methods and --seeds may add runs.",
     ),
-    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    force: ForceOpt = False,
     export_dir: Path | None = typer.Option(
         None,
         "--export-models",
         help="Afterwards copy the final models into this folder with an index.json (see export-models).",
     ),
-    backend: str = typer.Option(
-        "sb3", "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
-    ),
+    backend: ExperimentBackendOpt = "sb3",
     env: str | None = typer.Option(
         None,
         "--env",

@@ -10,10 +10,13 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import click
+import gymnasium as gym
 import typer
 
 from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, locked_folder
+from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.training.backends import BackendError, check_backend
+from sb3_hddpg.training.run_options import MAX_SEED, RUN_OPTION_NAMES, RunOptions
 
 #: Files whose presence means a folder already holds results of ours.
 RESULT_MARKERS = (
@@ -36,10 +39,6 @@ def at_least(minimum: int) -> Callable[[int | None], int | None]:
         return value
 
     return check
-
-
-#: The largest seed SB3 accepts (``sb3_hddpg.training.training.MAX_SEED``, repeated to keep ``--help`` light).
-MAX_SEED = 2**32 - 1
 
 
 def seed_range(value: int | None) -> int | None:
@@ -99,8 +98,6 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
 
     :param param_hint: the option the problem comes from, e.g. ``"'--config'"`` (``None``: not named).
     """
-    import gymnasium as gym
-
     try:
         yield
     except (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, gym.error.Error) as error:
@@ -177,6 +174,64 @@ def backend_name(value: str | None) -> str | None:
         raise typer.BadParameter(str(error)) from None
 
 
+CHECKPOINT_HELP = (
+    "Steps between resumable checkpoints (0: only on Ctrl-C/SIGTERM and at the end); "
+    "a SIGKILL loses at most this many steps."
+)
+KEEP_CHECKPOINTS_HELP = (
+    "After a successful run, keep the replay buffer in OUT/checkpoints/ (about 70 MB per agent at the "
+    "bundled buffer_size) so that --resume with a larger --timesteps continues exactly; by default only "
+    "the model checkpoint stays (resuming it refills the buffer first)."
+)
+
+# The options the training commands (train-workers, train-manager, train-flat) share, spelled once; the
+# ones that are RunOptions fields keep the field's name, so that run_options_of_command collects them.
+SeedOpt = Annotated[int, typer.Option("--seed", callback=seed_range, help="Training seed.")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite a folder that already holds results.")]
+NEnvsOpt = Annotated[
+    int | None,
+    typer.Option("--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."),
+]
+ResumeOpt = Annotated[bool, typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")]
+StopOnPlateauOpt = Annotated[
+    bool, typer.Option("--stop-on-plateau", help="Stop after 3 evaluations without a new best.")
+]
+EvalFreqOpt = Annotated[
+    int, typer.Option("--eval-freq", callback=at_least(0), help="Steps between evaluations.")
+]
+EvalEpisodesOpt = Annotated[
+    int, typer.Option("--eval-episodes", callback=at_least(1), help="Episodes per evaluation.")
+]
+CheckpointFreqOpt = Annotated[
+    int, typer.Option("--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP)
+]
+ThreadsOpt = Annotated[
+    int, typer.Option("--threads", callback=at_least(1), help="Torch threads (1 is fastest here).")
+]
+ProgressOpt = Annotated[bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")]
+KeepCheckpointsOpt = Annotated[bool, typer.Option("--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP)]
+BackendOpt = Annotated[str | None, typer.Option("--backend", callback=backend_name, help=BACKEND_HELP)]
+#: ``--backend`` of the commands that run whole experiments (benchmark, quickstart): sb3 unless asked.
+ExperimentBackendOpt = Annotated[
+    str,
+    typer.Option(
+        "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
+    ),
+]
+
+
+def run_options_of(context: typer.Context) -> RunOptions:
+    """
+    The :class:`~sb3_hddpg.training.run_options.RunOptions` of a running command: its parameters named as
+    the fields (``--seed`` -> ``seed``, ``--progress`` -> ``progress_bar``...); fields it has no option for
+    keep their defaults. Built once here, then passed through the library.
+
+    :param context: the command's context (a ``typer.Context`` parameter of the command).
+    """
+    with usage_errors():
+        return RunOptions(**{k: v for k, v in context.params.items() if k in RUN_OPTION_NAMES})
+
+
 #: Help of the options that choose an env with several objectives (train-workers, train-manager, evaluate).
 ENV_HELP = (
     'Env id with several objectives: one of ours, an MO-Gymnasium id (pip install "sb3-hddpg[mo]"), or a '
@@ -216,8 +271,6 @@ def terms_env_option(
     The :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the env options name (``None`` when ``--env`` is not
     given and no other option needs it); the library's errors become usage errors naming the option.
     """
-    from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
-
     if env is None:
         given = [
             n
@@ -274,6 +327,7 @@ def cluster_address(executor: str, ray_address: str | None) -> str | None:
         if ray_address is not None:
             raise typer.BadParameter("applies to --executor ray only", param_hint="'--ray-address'")
         return None
+    # Lazily: Ray is optional (the `cluster` extra) and only --executor ray needs it.
     from sb3_hddpg.experiments.ray_executor import ClusterError, connect
 
     address = ray_address or "auto"

@@ -11,11 +11,11 @@ from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
-    BACKEND_HELP,
     ExecutorOpt,
+    ExperimentBackendOpt,
+    ForceOpt,
     RayAddressOpt,
     at_least,
-    backend_name,
     cluster_address,
     prepare_out_dir,
     seed_range,
@@ -106,7 +106,7 @@ def quickstart_command(
         "small", "--budget", help="small (about 10 min on 2 CPU cores) or tiny (seconds; for tests)."
     ),
     seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed of every agent."),
-    force: bool = typer.Option(False, "--force", help="Overwrite a folder that already holds results."),
+    force: ForceOpt = False,
     processes: int = typer.Option(
         2, "--processes", callback=at_least(1), help="Agents trained at a time, one process each."
     ),
@@ -116,9 +116,7 @@ def quickstart_command(
         help="Keep every agent's replay buffer in RUN/checkpoints/ (about 275 MB in all at --budget small) "
         "so that train-* --resume can extend an agent exactly; by default the run folder is about 6 MB.",
     ),
-    backend: str = typer.Option(
-        "sb3", "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
-    ),
+    backend: ExperimentBackendOpt = "sb3",
     executor: ExecutorOpt = "local",
     ray_address: RayAddressOpt = None,
 ) -> None:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import typer
+from PIL import Image
 from rich.table import Table
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes
@@ -28,12 +30,6 @@ def rollout(
     ),
 ) -> None:
     """Roll out a random and a scripted (Jacobian-transpose) policy and print the env's metrics."""
-    import io
-
-    from PIL import Image
-
-    import sb3_hddpg  # noqa: F401  (registers the env ids)
-
     with usage_errors("'--env'"):
         env = gym.make(env_id, render_mode="rgb_array")
     policies: dict[str, Policy] = {

@@ -5,25 +5,34 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated
 
 import typer
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
-    BACKEND_HELP,
     ENV_HELP,
+    BackendOpt,
+    CheckpointFreqOpt,
     EpisodeStepsOpt,
+    EvalEpisodesOpt,
+    EvalFreqOpt,
+    ForceOpt,
     InfoKeyOpt,
+    KeepCheckpointsOpt,
+    NEnvsOpt,
+    ProgressOpt,
+    ResumeOpt,
+    SeedOpt,
+    StopOnPlateauOpt,
     TermBoundsOpt,
     TermsOpt,
+    ThreadsOpt,
     at_least,
-    backend_name,
     existing_dir,
     existing_file,
     prepare_out_dir,
-    seed_range,
+    run_options_of,
     terms_env_option,
     usage_errors,
 )
@@ -43,34 +52,6 @@ from sb3_hddpg.training.training import (
 #: train-manager's --env: where its default comes from.
 MANAGER_ENV_NOTE = " For the manager, the default is the shared env recorded in the workers' manifest."
 CONFIG_HELP = "Hyperparameters in RL Zoo format (default: the bundled zoo_configs/ddpg.yml)."
-CHECKPOINT_HELP = (
-    "Steps between resumable checkpoints (0: only on Ctrl-C/SIGTERM and at the end); "
-    "a SIGKILL loses at most this many steps."
-)
-KEEP_CHECKPOINTS_HELP = (
-    "After a successful run, keep the replay buffer in OUT/checkpoints/ (about 70 MB per agent at the "
-    "bundled buffer_size) so that --resume with a larger --timesteps continues exactly; by default only "
-    "the model checkpoint stays (resuming it refills the buffer first)."
-)
-
-# The options every training command (train-workers, train-manager, train-flat) shares, spelled once.
-SeedOpt = Annotated[int, typer.Option("--seed", callback=seed_range, help="Training seed.")]
-ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite a folder that already holds results.")]
-EvalFreqOpt = Annotated[
-    int, typer.Option("--eval-freq", callback=at_least(0), help="Steps between evaluations.")
-]
-EvalEpisodesOpt = Annotated[
-    int, typer.Option("--eval-episodes", callback=at_least(1), help="Episodes per evaluation.")
-]
-CheckpointFreqOpt = Annotated[
-    int, typer.Option("--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP)
-]
-ThreadsOpt = Annotated[
-    int, typer.Option("--threads", callback=at_least(1), help="Torch threads (1 is fastest here).")
-]
-ProgressOpt = Annotated[bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")]
-KeepCheckpointsOpt = Annotated[bool, typer.Option("--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP)]
-BackendOpt = Annotated[str | None, typer.Option("--backend", callback=backend_name, help=BACKEND_HELP)]
 
 
 @contextlib.contextmanager
@@ -114,6 +95,7 @@ def metrics_table(title: str, rows: dict[str, dict]) -> Table:
 
 @app.command("train-workers")
 def train_workers_command(
+    context: typer.Context,
     workers: list[str] | None = typer.Option(
         None,
         "--workers",
@@ -133,20 +115,16 @@ def train_workers_command(
         help="Steps per worker (default: the config's n_timesteps).",
     ),
     seed: SeedOpt = 0,
-    n_envs: int | None = typer.Option(
-        None, "--n-envs", callback=at_least(1), help="Training envs per worker, in subprocesses when > 1."
-    ),
+    n_envs: NEnvsOpt = None,
     out: Path = typer.Option(Path("runs/workers"), "--out", help="Run folder; workers go to OUT/workers/."),
-    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoints."),
+    resume: ResumeOpt = False,
     force: ForceOpt = False,
-    stop_on_plateau: bool = typer.Option(
-        False, "--stop-on-plateau", help="Stop a worker after 3 evaluations without a new best."
-    ),
+    stop_on_plateau: StopOnPlateauOpt = False,
     eval_freq: EvalFreqOpt = 5000,
     eval_episodes: EvalEpisodesOpt = 5,
     checkpoint_freq: CheckpointFreqOpt = 10_000,
     threads: ThreadsOpt = 1,
-    progress: ProgressOpt = True,
+    progress_bar: ProgressOpt = True,
     keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
 ) -> None:
@@ -177,23 +155,7 @@ def train_workers_command(
 
     with training_interrupt_exits():
         manifest = train_workers(
-            out,
-            workers=workers,
-            config=config,
-            timesteps=timesteps,
-            seed=seed,
-            n_envs=n_envs,
-            resume=resume,
-            stop_on_plateau=stop_on_plateau,
-            eval_freq=eval_freq,
-            eval_episodes=eval_episodes,
-            checkpoint_freq=checkpoint_freq,
-            progress_bar=progress,
-            threads=threads,
-            on_worker_done=done,
-            keep_checkpoints=keep_checkpoints,
-            backend=backend,
-            env=shared,
+            out, workers=workers, config=config, run=run_options_of(context), on_worker_done=done, env=shared
         )
     rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in workers}
     console.print(metrics_table(f"Workers in {out / 'workers'} (best evaluation)", rows))
@@ -204,6 +166,7 @@ def train_workers_command(
 
 @app.command("train-manager")
 def train_manager_command(
+    context: typer.Context,
     workers_dir: Path = typer.Option(
         Path("runs/workers"),
         "--workers",
@@ -238,22 +201,18 @@ def train_manager_command(
         None, "--timesteps", callback=at_least(1), help="Manager steps (default: the config's n_timesteps)."
     ),
     seed: SeedOpt = 0,
-    n_envs: int | None = typer.Option(
-        None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."
-    ),
+    n_envs: NEnvsOpt = None,
     out: Path = typer.Option(
         Path("runs/manager"), "--out", help="Run folder; the bundle goes to OUT/hierarchy.zip."
     ),
-    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoint."),
+    resume: ResumeOpt = False,
     force: ForceOpt = False,
-    stop_on_plateau: bool = typer.Option(
-        False, "--stop-on-plateau", help="Stop after 3 evaluations without a new best."
-    ),
+    stop_on_plateau: StopOnPlateauOpt = False,
     eval_freq: EvalFreqOpt = 5000,
     eval_episodes: EvalEpisodesOpt = 5,
     checkpoint_freq: CheckpointFreqOpt = 10_000,
     threads: ThreadsOpt = 1,
-    progress: ProgressOpt = True,
+    progress_bar: ProgressOpt = True,
     trust: bool = typer.Option(
         False, "--trust", help="Load the workers with SB3's full loader (runs code in the files)."
     ),
@@ -291,22 +250,7 @@ def train_manager_command(
         resolve_backend(backend, setup.hyperparams.backend)
     prepare_out_dir(out, resume, force)
     with training_interrupt_exits():
-        hierarchy, outcome = train_manager(
-            setup,
-            out,
-            timesteps=timesteps,
-            seed=seed,
-            n_envs=n_envs,
-            resume=resume,
-            stop_on_plateau=stop_on_plateau,
-            eval_freq=eval_freq,
-            eval_episodes=eval_episodes,
-            checkpoint_freq=checkpoint_freq,
-            progress_bar=progress,
-            threads=threads,
-            keep_checkpoints=keep_checkpoints,
-            backend=backend,
-        )
+        hierarchy, outcome = train_manager(setup, out, run=run_options_of(context))
     console.print(
         metrics_table(f"Manager over {hierarchy.names} (best evaluation)", {"manager": outcome.metrics})
     )

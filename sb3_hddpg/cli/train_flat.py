@@ -9,27 +9,28 @@ import typer
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
-    EpisodeStepsOpt,
-    InfoKeyOpt,
-    TermBoundsOpt,
-    TermsOpt,
-    at_least,
-    prepare_out_dir,
-    terms_env_option,
-    usage_errors,
-)
-from sb3_hddpg.cli.train import (
     BackendOpt,
+    EpisodeStepsOpt,
     EvalEpisodesOpt,
     EvalFreqOpt,
     ForceOpt,
+    InfoKeyOpt,
     KeepCheckpointsOpt,
+    NEnvsOpt,
     ProgressOpt,
+    ResumeOpt,
     SeedOpt,
+    StopOnPlateauOpt,
+    TermBoundsOpt,
+    TermsOpt,
     ThreadsOpt,
-    metrics_table,
-    training_interrupt_exits,
+    at_least,
+    prepare_out_dir,
+    run_options_of,
+    terms_env_option,
+    usage_errors,
 )
+from sb3_hddpg.cli.train import metrics_table, training_interrupt_exits
 from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import check_algo, resolve_backend
@@ -39,6 +40,7 @@ from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, algo_class, tra
 
 @app.command("train-flat")
 def train_flat_command(
+    context: typer.Context,
     algo: str = typer.Option("ddpg", "--algo", help=f"Algorithm, one of {list(ALGO_NAMES)}."),
     config: Path | None = typer.Option(
         None,
@@ -49,21 +51,17 @@ def train_flat_command(
         None, "--timesteps", callback=at_least(1), help="Training steps (default: the config's n_timesteps)."
     ),
     seed: SeedOpt = 0,
-    n_envs: int | None = typer.Option(
-        None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."
-    ),
+    n_envs: NEnvsOpt = None,
     out: Path = typer.Option(
         Path("runs/flat"), "--out", help="Run folder; the model goes to OUT/flat/<algo>.zip."
     ),
-    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run from its checkpoint."),
+    resume: ResumeOpt = False,
     force: ForceOpt = False,
-    stop_on_plateau: bool = typer.Option(
-        False, "--stop-on-plateau", help="Stop after 3 evaluations without a new best."
-    ),
+    stop_on_plateau: StopOnPlateauOpt = False,
     eval_freq: EvalFreqOpt = 5000,
     eval_episodes: EvalEpisodesOpt = 5,
     threads: ThreadsOpt = 1,
-    progress: ProgressOpt = True,
+    progress_bar: ProgressOpt = True,
     keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
     preference: str | None = typer.Option(
@@ -107,17 +105,7 @@ def train_flat_command(
             out,
             algo=algo,
             config=config,
-            timesteps=timesteps,
-            seed=seed,
-            n_envs=n_envs,
-            resume=resume,
-            stop_on_plateau=stop_on_plateau,
-            eval_freq=eval_freq,
-            eval_episodes=eval_episodes,
-            progress_bar=progress,
-            threads=threads,
-            keep_checkpoints=keep_checkpoints,
-            backend=backend,
+            run=run_options_of(context),
             env_id=env_id,
             env_kwargs=shared.env_kwargs if shared is not None else None,
             preferences=preferences,

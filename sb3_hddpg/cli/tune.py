@@ -11,16 +11,16 @@ from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
-    BACKEND_HELP,
     ENV_HELP,
+    BackendOpt,
     EpisodeStepsOpt,
+    EvalEpisodesOpt,
     ExecutorOpt,
     InfoKeyOpt,
     RayAddressOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
-    backend_name,
     cluster_address,
     positive_float,
     seed_range,
@@ -180,9 +180,7 @@ def tune_command(
     n_evaluations: int = typer.Option(
         5, "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."
     ),
-    eval_episodes: int = typer.Option(
-        5, "--eval-episodes", callback=at_least(1), help="Episodes per evaluation."
-    ),
+    eval_episodes: EvalEpisodesOpt = 5,
     n_jobs: int = typer.Option(
         1,
         "--n-jobs",
@@ -239,7 +237,7 @@ def tune_command(
         help="Seconds between a running trial's heartbeats; a trial silent for twice that is retried.",
     ),
     top: int = typer.Option(5, "--top", callback=at_least(1), help="Best trials to show."),
-    backend: str | None = typer.Option(None, "--backend", callback=backend_name, help=BACKEND_HELP),
+    backend: BackendOpt = None,
     env: str | None = typer.Option(
         None, "--env", help=ENV_HELP + " For --level manager the default is the workers' manifest's env."
     ),
@@ -249,7 +247,7 @@ def tune_command(
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Search hyperparameters with Optuna; several processes or machines can share one study."""
-    import matplotlib
+    import matplotlib  # lazily: +0.9 s with pyplot, only when a study runs
 
     matplotlib.use("Agg")  # plots are files; never open a window
 

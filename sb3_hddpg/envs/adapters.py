@@ -29,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.envs.registration import EnvSpec
 
-from sb3_hddpg.envs.contract import TermNormaliser, check_bounds
+from sb3_hddpg.envs.contract import TermNormaliser, check_bounds, env_contract
 
 MULTI_OBJECTIVE_ENV_ID = "hddpg/MultiObjective-v0"
 INFO_TERMS_ENV_ID = "hddpg/InfoTerms-v0"
@@ -53,7 +53,8 @@ def registered_env_id(env_id: Any) -> str:
             f"Expected `env_id` to be a registered env id without a module prefix, actually: {env_id!r}"
         )
     if env_id not in gym.registry:
-        with contextlib.suppress(ImportError):  # MO-Gymnasium registers its ids when imported
+        # Lazily: MO-Gymnasium is optional (the `mo` extra); it registers its ids when imported.
+        with contextlib.suppress(ImportError):
             import mo_gymnasium  # noqa: F401
     if env_id not in gym.registry:
         raise ValueError(
@@ -196,7 +197,7 @@ class MultiObjectiveEnv(TermsAdapter):
         render_mode: str | None = None,
         **env_kwargs: Any,
     ) -> None:
-        from mo_gymnasium.wrappers import LinearReward
+        from mo_gymnasium.wrappers import LinearReward  # lazily: optional (the `mo` extra)
 
         inner = make_adapted(env_id, render_mode, episode_steps, **env_kwargs)
         space = getattr(inner.unwrapped, "reward_space", None)
@@ -318,8 +319,6 @@ class TermReward(gym.Wrapper[Any, Any, Any, Any]):
     """
 
     def __init__(self, env: gym.Env, term: str) -> None:
-        from sb3_hddpg.envs.contract import env_contract
-
         terms = list(env_contract(env).reward_bounds)
         if term not in terms:
             raise ValueError(f"Expected `term` to be one of the env's terms {terms}, actually: {term!r}")

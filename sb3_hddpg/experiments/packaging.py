@@ -18,6 +18,7 @@ place, and ``config.json`` holds the selection settings and every member's SB3 d
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import shutil
@@ -191,8 +192,6 @@ _PACKAGE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}-[A-Za-z0-9_.-]{1,12
 
 def _zip_data(data: bytes | Path) -> dict[str, Any]:
     """The ``data`` JSON of an SB3 zip (what package_to_hub writes as config.json), read within limits."""
-    import io
-
     what = "<bundle member>" if isinstance(data, bytes) else str(data)
     with zipfile.ZipFile(io.BytesIO(data) if isinstance(data, bytes) else data) as archive:
         check_zip_directory(archive, what)
@@ -365,8 +364,6 @@ def write_zoo_layout(
         ``observe``), written where ``rl_zoo3.enjoy`` reads them (``<env name>/args.yml``).
     :return: ``folder``.
     """
-    import yaml
-
     folder = Path(folder)
     for env_id, path in models.items():
         name = hub_env_name(env_id)

@@ -29,6 +29,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
@@ -49,6 +50,7 @@ from sb3_hddpg.media.video import record_video
 from sb3_hddpg.training import training
 from sb3_hddpg.training.backends import check_backend
 from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file
+from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.training import WORKER_ENV_IDS
 
 #: The env every method is compared on.
@@ -190,16 +192,15 @@ def _train_job(
     """Train one agent (``kind``: worker, manager or flat); runs in a process of the runner."""
 
     started, cpu_started = time.monotonic(), time.process_time()
-    common: dict[str, Any] = dict(
-        config=config,
+    run = RunOptions(
         timesteps=timesteps,
         seed=seed,
         eval_freq=eval_freq,
         eval_episodes=eval_episodes,
-        extra_callbacks=[_ProgressReporter()],
         keep_checkpoints=keep_checkpoints,
         backend=backend,
     )
+    common: dict[str, Any] = dict(config=config, run=run, extra_callbacks=[_ProgressReporter()])
     if kind == "worker":
         manifest = training.train_workers(run_dir, workers=[name], **common)
         out: dict[str, Any] = {"entry": manifest["workers"][name]}
@@ -527,8 +528,6 @@ def _evaluate_on_shared_seeds(
 
 def _build_ham(run_dir: Path) -> Path:
     """Write the HAM switch over the run's workers to ``run_dir/ham.json``, with its default threshold."""
-    import gymnasium as gym
-
     probe = gym.make(COMPARISON_ENV_ID)
     n_joints = len(state_layout_of(probe).indices(["joint_obstacle_distances"]))
     probe.close()

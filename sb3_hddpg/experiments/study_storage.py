@@ -59,7 +59,7 @@ def quiet_experimental() -> Iterator[None]:
 
 def sqlite_path(url: str) -> Path | None:
     """The database file of a ``sqlite:///`` URL (``None`` for other URLs and in-memory databases)."""
-    from sqlalchemy.engine import make_url
+    from sqlalchemy.engine import make_url  # lazily: +0.6 s to import, only for a storage URL
 
     parsed = make_url(url)
     if parsed.get_backend_name() != "sqlite" or parsed.database in (None, "", ":memory:"):
@@ -75,7 +75,7 @@ def check_storage_url(url: str) -> None:
     :raises ValueError: for a malformed URL, an unknown dialect or a missing driver (e.g. the
         ``distributed`` extra's psycopg for ``postgresql+psycopg://``).
     """
-    import sqlalchemy.engine
+    import sqlalchemy.engine  # lazily: +0.6 s to import, only for a storage URL
 
     try:
         parsed = sqlalchemy.engine.make_url(url)
@@ -112,7 +112,7 @@ def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int =
     :param max_retry: how often a dead trial is re-queued.
     :return: an ``optuna.storages.RDBStorage``.
     """
-    import sqlalchemy.exc
+    import sqlalchemy.exc  # lazily: +0.6 s to import, only for a storage URL
 
     check_storage_url(url)  # refuses in-memory SQLite, which cannot hold a study
 
@@ -164,7 +164,7 @@ class TrialClaimLock:
     """
 
     def __init__(self, url: str, study_name: str) -> None:
-        from sqlalchemy.engine import make_url
+        from sqlalchemy.engine import make_url  # lazily: +0.6 s to import, only for a storage URL
 
         self.url = url
         self._file: TextIO | None = None
@@ -190,6 +190,7 @@ class TrialClaimLock:
             fcntl.flock(handle, fcntl.LOCK_EX)
             self._file = handle
         elif self._postgres and self._connection is None:
+            # Lazily: +0.6 s to import, only for a PostgreSQL lock.
             import sqlalchemy
             from sqlalchemy.pool import NullPool
 
@@ -207,7 +208,7 @@ class TrialClaimLock:
             fcntl.flock(handle, fcntl.LOCK_UN)
             handle.close()
         if self._connection is not None:
-            import sqlalchemy
+            import sqlalchemy  # lazily: only for a PostgreSQL lock
 
             connection, self._connection = self._connection, None
             try:

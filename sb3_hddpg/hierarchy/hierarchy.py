@@ -25,7 +25,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.io import atomic_write
@@ -90,8 +92,6 @@ class Hierarchy:
         worker_meta: dict[str, dict[str, Any]] | None = None,
         metadata: dict[str, Any] | None = None,
     ) -> None:
-        import gymnasium as gym
-
         self.manager = manager
         self.workers = dict(workers)
         self.names = list(self.workers)
@@ -474,8 +474,6 @@ def infer_env(manager: Any, workers: Mapping[str, Policy]) -> tuple[str, dict[st
 
 def _training_env(model: Any) -> tuple[str, dict[str, Any]] | None:
     """``(env_id, env_kwargs)`` of a model's training env (a hierarchy's own env), if it still has one."""
-    import gymnasium as gym
-
     if isinstance(model, Hierarchy):
         return model.env_id, dict(model.env_kwargs)
     get_env = getattr(model, "get_env", None)
@@ -515,7 +513,6 @@ def check_spaces(
     :param env_name: the env as named in messages.
     :raises ValueError: one line naming the model, the expected and the actual space.
     """
-    from gymnasium import spaces
 
     def subset(components: list[str] | None) -> Any:
         return _subset_space(observation_space, layout.indices(components) if components else None)

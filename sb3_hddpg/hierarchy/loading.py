@@ -62,8 +62,6 @@ class LoadedPolicy:
         :param kwargs: env keyword arguments over the trained-on ones.
         :return: the env; raises ``ValueError`` if its spaces are not the policy's.
         """
-        import sb3_hddpg  # noqa: F401  (registers the ids)
-
         env_id = env_id or self.env_id
         env = gym.make(env_id, **{**self.env_kwargs, **kwargs})
         for kind in ("observation", "action"):
@@ -180,8 +178,6 @@ def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
 
 
 def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
-    import sb3_hddpg  # noqa: F401
-
     env = gym.make(env_id)
     layout = state_layout_of(env)
     if name == "random":

@@ -46,6 +46,4 @@ def make_preference_env(
     env_id: str, env_kwargs: dict[str, Any] | None, preferences: Mapping[str, float]
 ) -> gym.Env:
     """``gym.make(env_id, **env_kwargs)`` wrapped in :class:`PreferenceReward` (module-level: picklable)."""
-    import sb3_hddpg  # noqa: F401  (registers the ids in a fresh subprocess)
-
     return PreferenceReward(gym.make(env_id, **(env_kwargs or {})), preferences)

@@ -9,6 +9,8 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import imageio.v3 as iio
+import imageio_ffmpeg
 import numpy as np
 from PIL import Image
 
@@ -192,8 +194,6 @@ class _VideoSink:
             self._frames.append(frame)
             return
         if self._writer is None:
-            import imageio_ffmpeg
-
             # The target is a temporary name without the .mp4 suffix, so tell ffmpeg the container.
             self._writer = imageio_ffmpeg.write_frames(
                 str(self.path),
@@ -215,7 +215,5 @@ class _VideoSink:
             return
         if not self._frames:
             raise ValueError("No frame was recorded")
-        import imageio.v3 as iio
-
         # Pillow's GIF writer takes the frame duration in milliseconds; loop=0 repeats forever.
         iio.imwrite(self.path, np.stack(self._frames), extension=".gif", duration=1000 / self.fps, loop=0)

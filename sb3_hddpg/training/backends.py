@@ -22,7 +22,9 @@ model is exported. Nothing here imports ``jax`` or ``sbx`` at import time.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
+import inspect
 import logging
 import os
 import sys
@@ -165,7 +167,7 @@ def sbx_class(algo: str) -> type[OffPolicyAlgorithm]:
     check_backend("sbx")
     if _configured_threads is None and "jax" not in sys.modules:
         configure_jax_threads(1)
-    import sbx
+    import sbx  # lazily: optional (the `fast` extra), and jax adds 1.4 s to an import
 
     classes: dict[str, type[OffPolicyAlgorithm]] = {"ddpg": sbx.DDPG, "td3": sbx.TD3, "sac": sbx.SAC}
     return classes[algo.lower()]
@@ -177,7 +179,7 @@ def is_sbx_model(model: Any) -> bool:
 
 
 def _sbx_algo_name(model: Any) -> str:
-    import sbx
+    import sbx  # lazily: optional, jax adds 1.4 s (only SBX models get here)
 
     for name, cls in (("ddpg", sbx.DDPG), ("td3", sbx.TD3), ("sac", sbx.SAC)):
         if type(model) is cls:
@@ -188,9 +190,7 @@ def _sbx_algo_name(model: Any) -> str:
 # ---------------------------------------------------------------------------------------- activations
 def _activation_pairs() -> list[tuple[type[th.nn.Module], Any]]:
     """(torch activation class, the flax function computing the same) for every activation configs may name."""
-    import functools
-
-    import flax.linen as fnn
+    import flax.linen as fnn  # lazily: optional (the `fast` extra), with jax, 1.4 s to import
 
     return [
         (th.nn.ReLU, fnn.relu),
@@ -234,8 +234,6 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     :param kwargs: SB3 keyword arguments (``policy_kwargs`` with torch activations).
     :return: the SBX keyword arguments; raises :class:`BackendError` naming the key SBX lacks.
     """
-    import inspect
-
     cls = sbx_class(algo)
     accepted = set(inspect.signature(cls.__init__).parameters)
     out = dict(kwargs)
@@ -303,6 +301,7 @@ def _sbx_to_state_dict(model: Any, algo: str) -> dict[str, th.Tensor]:
 
 def _state_dict_to_sbx(model: Any, algo: str, state: Mapping[str, th.Tensor]) -> None:
     """Set an SBX model's flax parameters (and targets) from SB3's ``policy.state_dict()``: the inverse."""
+    # Lazily: optional (the `fast` extra), and jax adds 1.4 s to an import; only SBX models get here.
     import jax.numpy as jnp
     from flax.core import freeze, unfreeze
 

@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 import yaml
+from stable_baselines3 import DDPG
+from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from torch import nn
 
 from sb3_hddpg.algorithms import ACTIVATIONS as ALL_ACTIVATIONS
@@ -143,8 +145,6 @@ class Hyperparams:
 
     def action_noise(self, n_actions: int) -> Any:
         """The SB3 action-noise object for ``n_actions`` dimensions (``None`` without noise)."""
-        from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
-
         if self.noise_type is None:
             return None
         mean, sigma = np.zeros(n_actions), self.noise_std * np.ones(n_actions)
@@ -423,8 +423,6 @@ def agent_kwargs(
     :return: ``policy``, ``env``, the block's algorithm arguments and ``action_noise``; add ``seed`` etc.
     """
     if algo_class is None:
-        from stable_baselines3 import DDPG
-
         algo_class = DDPG
     hyperparams = load_hyperparams(key, algo_class, config, manager=key == MANAGER_KEY)
     return {"policy": hyperparams.policy, "env": env, **hyperparams.model_kwargs(env)}
@@ -438,8 +436,6 @@ def agent_callbacks(key: str, config: str | Path | None = None) -> list[Any]:
     :param key: the config block: an env id or ``"manager"``.
     :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
     """
-    from stable_baselines3 import DDPG
-
     return load_hyperparams(key, DDPG, config, manager=key == MANAGER_KEY).callbacks()
 
 
@@ -450,8 +446,6 @@ def wrapper_kwargs(config: str | Path | None = None) -> dict[str, Any]:
 
     :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
     """
-    from stable_baselines3 import DDPG
-
     return dict(load_hyperparams(MANAGER_KEY, DDPG, config, manager=True).wrapper_kwargs)
 
 

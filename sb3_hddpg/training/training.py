@@ -24,6 +24,7 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
@@ -33,7 +34,7 @@ from sb3_hddpg.artifacts.io import (
     holds_folder_lock,
     remove_stale_temporaries,
 )
-from sb3_hddpg.artifacts.limits import brief, read_json_file
+from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, read_json_file
 from sb3_hddpg.artifacts.manifests import (
     WORKER_MANIFEST_VERSION,
     load_workers,
@@ -48,7 +49,6 @@ from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, config_key, make_term_view
-from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
@@ -64,6 +64,7 @@ from sb3_hddpg.training.backends import (
     to_sb3,
 )
 from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: Algorithm names accepted by ``--algo`` (the registry's, in its order).
 ALGO_NAMES = tuple(ALGORITHMS)
@@ -80,8 +81,6 @@ def make_snake_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gym
     :param env_id: e.g. ``"hddpg/SnakeGoal-v0"``.
     :param env_kwargs: keyword arguments for ``gym.make``.
     """
-    import sb3_hddpg  # noqa: F401  (registers the ids in a fresh subprocess)
-
     torch.set_num_threads(1)
     return gym.make(env_id, **(env_kwargs or {}))
 
@@ -164,23 +163,11 @@ def train_agent(
     hyperparams: Hyperparams,
     paths: AgentPaths,
     algo: str = "ddpg",
-    timesteps: int | None = None,
-    seed: int = 0,
-    n_envs: int | None = None,
-    resume: bool = False,
-    stop_on_plateau: bool = False,
-    plateau_patience: int = 3,
-    eval_freq: int = 5000,
-    eval_episodes: int = 5,
-    eval_seed: int = EVAL_SEED_BASE,
-    checkpoint_freq: int = 10_000,
-    keep_best: bool = True,
-    progress_bar: bool = False,
-    threads: int = 1,
+    *,
+    run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     after_eval: BaseCallback | None = None,
-    keep_checkpoints: bool = False,
-    backend: str | None = None,
+    **run_changes: Any,
 ) -> TrainingOutcome:
     """
     Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
@@ -193,37 +180,25 @@ def train_agent(
     :param hyperparams: the config block (see :mod:`sb3_hddpg.training.config`).
     :param paths: where the agent's files go.
     :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
-    :param timesteps: the total budget (default: the config's ``n_timesteps``).
-    :param seed: seeds the model, the training envs and the exploration noise.
-    :param n_envs: parallel training envs, run in subprocesses when more than one (default: the config's).
-    :param resume: continue from the last checkpoint in ``paths.checkpoint_dir`` to ``timesteps`` in total.
-    :param stop_on_plateau: stop when ``plateau_patience`` evaluations in a row bring no new best.
-    :param plateau_patience: see ``stop_on_plateau``.
-    :param eval_freq: environment steps between evaluations (0: none until the end).
-    :param eval_episodes: episodes per evaluation.
-    :param eval_seed: first seed of the fixed evaluation episodes.
-    :param checkpoint_freq: environment steps between resumable checkpoints (0: only at interrupts).
-    :param keep_best: save the best evaluated model as the result (else the final one).
-    :param progress_bar: show SB3's rich progress bar.
-    :param threads: torch threads for this process (1 is fastest for small MLPs on CPU; see docs).
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`: budget, seed,
+        envs, resume, plateau rule, evaluation, checkpoints, threads, backend); ``resume`` continues from the
+        last checkpoint in ``paths.checkpoint_dir``.
     :param extra_callbacks: more SB3 callbacks (e.g. selection statistics).
     :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
         Optuna pruning callback); returning ``False`` stops training.
-    :param keep_checkpoints: keep the replay buffer in the last checkpoint of a finished run, so that a
-        later ``resume`` with a larger budget continues exactly as if never stopped. By default a finished
-        run drops it (``buffer_size`` x (2 x obs + action + 3) float32 values: 70 MB for a worker of the
-        bundled config) and keeps the model checkpoint; resuming that refills the buffer before training on.
-        Interrupted runs always keep their buffer.
-    :param backend: ``sb3`` or ``sbx`` (default: the config block's ``backend``, else ``sb3``).
+    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
+        ``seed=3``), over ``run``'s.
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
     """
-    total = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
-    _check_run_settings(total, seed, checkpoint_freq)
-    n_envs = int(n_envs or hyperparams.n_envs)
-    backend = resolve_backend(backend, hyperparams.backend)
+    run = run_options(run, run_changes, "train_agent")
+    total = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
+    if total < 1:  # a config block's n_timesteps (the options' own budget is checked when they are built)
+        raise ValueError(f"Expected timesteps >= 1, actually: {total}")
+    n_envs = int(run.n_envs or hyperparams.n_envs)
+    backend = resolve_backend(run.backend, hyperparams.backend)
     check_algo(algo, backend)
     if backend == "sbx":
-        configure_jax_threads(threads)  # before jax's first import in this process, or it cannot apply
+        configure_jax_threads(run.threads)  # before jax's first import in this process, or it cannot apply
     _remove_stale_temporaries(paths)
     algo_class(algo)  # a clear error for an unknown name before any env starts
     if hyperparams.action_l2 > 0 and algo.lower() not in ("ddpg", "td3"):
@@ -232,39 +207,28 @@ def train_agent(
         )
 
     vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
-    vec_env = make_vec_env(env_factory, n_envs=n_envs, seed=seed, vec_env_cls=vec_cls)
+    vec_env = make_vec_env(env_factory, n_envs=n_envs, seed=run.seed, vec_env_cls=vec_cls)
     eval_env = env_factory()
     # After the env factories: make_snake_env sets one thread for subprocess envs, which must not
     # override this process's choice.
-    torch.set_num_threads(threads)
+    torch.set_num_threads(run.threads)
     try:
-        if resume:
+        if run.resume:
             model, state = _resume_model(algo, backend, paths, vec_env)
         else:
             kwargs = hyperparams.model_kwargs(eval_env)
             model, state = (
-                make_model(algo, backend, vec_env, kwargs, seed=seed, policy=hyperparams.policy),
+                make_model(algo, backend, vec_env, kwargs, seed=run.seed, policy=hyperparams.policy),
                 None,
             )
         model.set_logger(_tensorboard_logger(paths))
-        evaluator = _make_evaluator(
-            eval_env,
-            paths,
-            state,
-            n_envs=n_envs,
-            eval_freq=eval_freq,
-            eval_episodes=eval_episodes,
-            eval_seed=eval_seed,
-            keep_best=keep_best,
-            after_eval=after_eval,
-            plateau_patience=plateau_patience if stop_on_plateau else None,
-        )
+        evaluator = _make_evaluator(eval_env, paths, state, n_envs, run, after_eval)
         checkpointer = ResumableCheckpointCallback(
             paths.checkpoint_dir,
-            save_freq=checkpoint_freq,
+            save_freq=run.checkpoint_freq,
             extra_state=lambda: {
                 "total_timesteps": total,
-                "seed": seed,
+                "seed": run.seed,
                 "backend": backend,
                 "history": evaluator.history,
                 "best_mean_reward": evaluator.best_mean_reward
@@ -274,29 +238,21 @@ def train_agent(
             min_timesteps=state["num_timesteps"] if state is not None else 0,
         )
         callbacks = CallbackList([*hyperparams.callbacks(), evaluator, checkpointer, *extra_callbacks])
-        _learn(model, total, callbacks, checkpointer, paths, fresh=state is None, progress_bar=progress_bar)
+        _learn(
+            model, total, callbacks, checkpointer, paths, fresh=state is None, progress_bar=run.progress_bar
+        )
         stopped_early = model.num_timesteps < total
         # Always end with an evaluation of the final policy, so that a best model and metrics exist.
         if not evaluator.history or evaluator.history[-1]["timesteps"] != model.num_timesteps:
             evaluator.init_callback(model)
             evaluator.run_evaluation()
         checkpointer.init_callback(model)
-        checkpointer.save(replay_buffer=keep_checkpoints)
-        return _save_outcome(model, evaluator, paths, algo, backend, keep_best, stopped_early)
+        checkpointer.save(replay_buffer=run.keep_checkpoints)
+        return _save_outcome(model, evaluator, paths, algo, backend, run.keep_best, stopped_early)
     finally:
         with contextlib.suppress(Exception):  # subprocesses may already be gone after Ctrl-C
             vec_env.close()
         eval_env.close()
-
-
-def _check_run_settings(total: int, seed: int, checkpoint_freq: int) -> None:
-    """The budget, the seed and the checkpoint frequency, checked before any env starts."""
-    if total < 1:
-        raise ValueError(f"Expected timesteps >= 1, actually: {total}")
-    if not 0 <= seed <= MAX_SEED:
-        raise ValueError(f"Expected seed in [0, {MAX_SEED}], actually: {seed}")
-    if checkpoint_freq < 0:
-        raise ValueError(f"Expected checkpoint_freq >= 0, actually: {checkpoint_freq}")
 
 
 def _remove_stale_temporaries(paths: AgentPaths) -> None:
@@ -339,30 +295,26 @@ def _make_evaluator(
     paths: AgentPaths,
     state: dict[str, Any] | None,
     n_envs: int,
-    eval_freq: int,
-    eval_episodes: int,
-    eval_seed: int,
-    keep_best: bool,
+    run: RunOptions,
     after_eval: BaseCallback | None,
-    plateau_patience: int | None,
 ) -> MetricsEvalCallback:
     """
     The periodic evaluator, continuing a resumed run's history and best reward, with the plateau rule
-    (``plateau_patience``; ``None``: none) and ``after_eval`` run after each evaluation.
+    (when ``run.stop_on_plateau``) and ``after_eval`` run after each evaluation.
     """
     plateau = (
-        StopTrainingOnNoModelImprovement(max_no_improvement_evals=plateau_patience, min_evals=1)
-        if plateau_patience is not None
+        StopTrainingOnNoModelImprovement(max_no_improvement_evals=run.plateau_patience, min_evals=1)
+        if run.stop_on_plateau
         else None
     )
     after_eval_callbacks = [c for c in (plateau, after_eval) if c is not None]
     best = state.get("best_mean_reward") if state is not None else None
     evaluator = MetricsEvalCallback(
         eval_env,
-        n_eval_episodes=eval_episodes,
-        eval_freq=max(eval_freq // n_envs, 1) if eval_freq > 0 else 0,
-        eval_seed=eval_seed,
-        best_model_save_path=paths.best_dir if keep_best else None,
+        n_eval_episodes=run.eval_episodes,
+        eval_freq=max(run.eval_freq // n_envs, 1) if run.eval_freq > 0 else 0,
+        eval_seed=run.eval_seed,
+        best_model_save_path=paths.best_dir if run.keep_best else None,
         history_path=paths.history_path,
         callback_after_eval=_combine_callbacks(after_eval_callbacks),
         history=state.get("history", []) if state is not None else [],
@@ -448,26 +400,17 @@ def _combine_callbacks(callbacks: Sequence[BaseCallback]) -> BaseCallback | None
 
 
 def _tensorboard_logger(paths: AgentPaths) -> Any:
-    from stable_baselines3.common.logger import configure
-
     folder = paths.tensorboard_dir / paths.name
     return configure(str(folder), ["tensorboard"])
 
 
-def _check_budget_and_seed(timesteps: int | None, seed: int) -> None:
-    """A command's budget and seed, checked before anything is loaded or trained."""
-    if timesteps is not None and timesteps < 1:
-        raise ValueError(f"Expected timesteps >= 1, actually: {timesteps}")
-    if seed < 0:
-        raise ValueError(f"Expected seed >= 0, actually: {seed}")
-
-
-def _can_resume(paths: AgentPaths, resume: bool) -> bool:
+def _agent_run(run: RunOptions, paths: AgentPaths, budget: int | None) -> RunOptions:
     """
-    Whether to resume the agent at ``paths``: asked to, and a checkpoint exists (killed before its first
-    checkpoint, a run has nothing to resume and starts afresh).
+    One agent's options within a command's ``run``: its own budget, and resume only when asked to and a
+    checkpoint exists (killed before its first checkpoint, a run has nothing to resume and starts afresh).
     """
-    return resume and read_checkpoint_state(paths.checkpoint_dir) is not None
+    resume = run.resume and read_checkpoint_state(paths.checkpoint_dir) is not None
+    return run.replace(timesteps=budget, resume=resume)
 
 
 def _finished(entry: Any, budget: int) -> bool:
@@ -480,10 +423,6 @@ def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> C
     if name not in WORKER_ENV_IDS:
         raise ValueError(f"Unknown worker {name!r}; choose from {sorted(WORKER_ENV_IDS)}")
     return functools.partial(make_snake_env, WORKER_ENV_IDS[name], dict(env_kwargs or {}))
-
-
-#: The largest seed SB3 (numpy's legacy seeding) accepts.
-MAX_SEED = 2**32 - 1
 
 
 def worker_hyperparams(
@@ -520,21 +459,12 @@ def train_workers(
     out_dir: str | Path,
     workers: Sequence[str] | None = None,
     config: str | Path | None = None,
-    timesteps: int | None = None,
-    seed: int = 0,
-    n_envs: int | None = None,
-    resume: bool = False,
-    stop_on_plateau: bool = False,
-    eval_freq: int = 5000,
-    eval_episodes: int = 5,
-    checkpoint_freq: int = 10_000,
-    progress_bar: bool = False,
-    threads: int = 1,
+    *,
+    run: RunOptions | None = None,
     on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
-    keep_checkpoints: bool = False,
-    backend: str | None = None,
     env: TermsEnv | None = None,
+    **run_changes: Any,
 ) -> dict[str, Any]:
     """
     Train each named worker as a plain SB3 DDPG on its own registered env id (paper Algorithm 1, first
@@ -543,28 +473,17 @@ def train_workers(
     :param out_dir: the run folder.
     :param workers: worker names among :data:`WORKER_ENV_IDS`, or ``env``'s terms (``None``: all of them).
     :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
-    :param timesteps: budget per worker (default: the config's ``n_timesteps``).
-    :param seed: training seed (every worker uses it).
-    :param n_envs: parallel training envs per worker.
-    :param resume: continue interrupted workers from their checkpoints; finished workers are kept.
-    :param stop_on_plateau: stop a worker when its evaluation stops improving.
-    :param eval_freq: steps between evaluations.
-    :param eval_episodes: episodes per evaluation.
-    :param checkpoint_freq: steps between resumable checkpoints (0: only when interrupted and at the end).
-    :param progress_bar: show a progress bar per worker.
-    :param threads: torch threads.
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
+    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
+        ``seed=3``), over ``run``'s.
     :param on_worker_done: called after each worker with its outcome.
     :param extra_callbacks: more SB3 callbacks for every worker (e.g. progress reporting).
-    :param keep_checkpoints: keep each finished worker's replay buffer (see :func:`train_agent`).
-    :param backend: ``sb3`` or ``sbx`` (default: each block's ``backend`` key, else ``sb3``); the saved
-        workers are SB3 zips either way.
     :param env: another env with several objectives (:func:`~sb3_hddpg.envs.terms_env.terms_env`; default:
         the snake arm): one worker per named term, each on that term's view; the manifest records the
         shared env (``shared_env``) so that ``train_manager`` acts in it.
     :return: the manifest written.
     """
-
-    _check_budget_and_seed(timesteps, seed)
+    run = run_options(run, run_changes, "train_workers")
     shared = env if env is not None else TermsEnv(SNAKE_SHARED_ENV_ID, {}, REWARD_TERMS)
     if workers is None:
         workers = list(shared.terms)
@@ -572,7 +491,7 @@ def train_workers(
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest: dict[str, Any] = {"schema_version": WORKER_MANIFEST_VERSION, "workers": {}}
-    if resume and manifest_path.exists():
+    if run.resume and manifest_path.exists():
         manifest = read_workers_manifest(manifest_path)
     if env is not None:
         manifest["shared_env"] = {"env_id": env.env_id, "env_kwargs": env.env_kwargs}
@@ -580,8 +499,8 @@ def train_workers(
         hyperparams = blocks[name]
         env_id, view_kwargs = shared.term_view(name)
         env_kwargs = {**view_kwargs, **hyperparams.env_kwargs}
-        budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
-        if resume and _finished(manifest["workers"].get(name), budget):
+        budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
+        if run.resume and _finished(manifest["workers"].get(name), budget):
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
         outcome = train_agent(
@@ -589,19 +508,8 @@ def train_workers(
             hyperparams,
             paths,
             algo="ddpg",
-            timesteps=budget,
-            seed=seed,
-            n_envs=n_envs,
-            resume=_can_resume(paths, resume),
-            stop_on_plateau=stop_on_plateau,
-            eval_freq=eval_freq,
-            eval_episodes=eval_episodes,
-            checkpoint_freq=checkpoint_freq,
-            progress_bar=progress_bar,
-            threads=threads,
+            run=_agent_run(run, paths, budget),
             extra_callbacks=extra_callbacks,
-            keep_checkpoints=keep_checkpoints,
-            backend=backend,
         )
         probe = make_term_view(env_id, env_kwargs, name)
         bounds = env_contract(probe).reward_bounds[name]
@@ -613,12 +521,12 @@ def train_workers(
             env_id,
             env_kwargs,
             {"file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml", "block": hyperparams.raw},
-            seed,
+            run.seed,
             budget,
             reward_term=name,
             reward_bounds=list(bounds),
             stopped_early=outcome.stopped_early,
-            threads=threads,
+            threads=run.threads,
         )
         save_manifest(manifest_path, manifest)
         if on_worker_done is not None:
@@ -637,22 +545,14 @@ def train_flat(
     out_dir: str | Path,
     algo: str = "ddpg",
     config: str | Path | None = None,
-    timesteps: int | None = None,
-    seed: int = 0,
-    n_envs: int | None = None,
-    resume: bool = False,
-    stop_on_plateau: bool = False,
-    eval_freq: int = 5000,
-    eval_episodes: int = 5,
-    progress_bar: bool = False,
-    threads: int = 1,
+    *,
+    run: RunOptions | None = None,
     env_id: str = FLAT_ENV_ID,
-    keep_checkpoints: bool = False,
     preferences: dict[str, float] | None = None,
-    backend: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
     name: str | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
+    **run_changes: Any,
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
@@ -665,43 +565,34 @@ def train_flat(
     :param out_dir: the run folder.
     :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
     :param config: a ``zoo_configs``-format file (default: the bundled ``zoo_configs/<algo>.yml``).
-    :param timesteps: the budget (default: the config's ``n_timesteps``).
-    :param seed: training seed.
-    :param n_envs: parallel training envs.
-    :param resume: continue from a checkpoint; a model already finished with this budget is kept.
-    :param stop_on_plateau: stop when the evaluation stops improving.
-    :param eval_freq: steps between evaluations.
-    :param eval_episodes: episodes per evaluation.
-    :param progress_bar: show a progress bar.
-    :param threads: torch threads.
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`); with ``resume`` a model already finished with this budget is kept.
+    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
+        ``seed=3``), over ``run``'s.
     :param env_id: the env to learn (the combined reward by default).
     :param env_kwargs: its keyword arguments, over the config block's; the block read is the adapted env's
         for an adapter (:func:`~sb3_hddpg.envs.terms_env.config_key`), as the workers' is.
-    :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
     :param preferences: reward term -> factor: learn ``sum_t factor_t * normalised(term_t)`` instead of the
         env's reward (:class:`~sb3_hddpg.wrappers.PreferenceReward`, the reward of a manager with the same
         factors); ``None``: the env's own reward.
-    :param backend: ``sb3`` or ``sbx`` (default: the block's ``backend`` key, else ``sb3``); the saved
-        model is an SB3 zip either way.
     :param name: the model's name in the manifest and its file name (default: ``algo``).
     :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
-
+    run = run_options(run, run_changes, "train_flat")
     algo = algo.lower()
     cls = algo_class(algo)
     config_path = Path(config) if config is not None else default_config(algo)
     # An adapter's block is keyed by the env it adapts, as the workers' are.
     hyperparams = load_hyperparams(config_key(env_id, env_kwargs), cls, config_path)
     make_kwargs = {**hyperparams.env_kwargs, **(env_kwargs or {})}
-    budget = int(timesteps if timesteps is not None else hyperparams.n_timesteps)
+    budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "flat" / "manifest.json"
     manifest: dict[str, Any] = {"schema_version": FLAT_MANIFEST_VERSION, "models": {}}
     if manifest_path.exists():
         manifest = read_json_file(manifest_path)
     name = name or algo
-    if resume and _finished(manifest["models"].get(name), budget):
+    if run.resume and _finished(manifest["models"].get(name), budget):
         return manifest, None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
     factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
@@ -713,17 +604,7 @@ def train_flat(
         hyperparams,
         paths,
         algo=algo,
-        timesteps=budget,
-        seed=seed,
-        n_envs=n_envs,
-        resume=_can_resume(paths, resume),
-        stop_on_plateau=stop_on_plateau,
-        eval_freq=eval_freq,
-        eval_episodes=eval_episodes,
-        progress_bar=progress_bar,
-        threads=threads,
-        keep_checkpoints=keep_checkpoints,
-        backend=backend,
+        run=_agent_run(run, paths, budget),
         extra_callbacks=extra_callbacks,
     )
     manifest["models"][name] = model_entry(
@@ -733,11 +614,11 @@ def train_flat(
         env_id,
         make_kwargs,
         {"file": str(config_path), "block": hyperparams.raw},
-        seed,
+        run.seed,
         budget,
         stopped_early=outcome.stopped_early,
         preferences=dict(preferences) if preferences is not None else None,
-        threads=threads,
+        threads=run.threads,
     )
     save_manifest(manifest_path, manifest)
     return manifest, outcome
@@ -788,8 +669,6 @@ def shared_env_of(
     ``shared_env`` (written by :func:`train_workers` for an env other than the snake arm; its id and
     kwargs pass the safe-loading checks), else ``hddpg/SnakeReach-v0``.
     """
-    from sb3_hddpg.artifacts.limits import check_env_id, check_env_kwargs
-
     if env_id is not None:
         return env_id, dict(env_kwargs or {})
     shared = manifest.get("shared_env")
@@ -941,22 +820,13 @@ def train_manager(
     temperature: float | None = None,
     floor: float | None = None,
     config: str | Path | None = None,
-    timesteps: int | None = None,
-    seed: int = 0,
-    n_envs: int | None = None,
-    resume: bool = False,
-    stop_on_plateau: bool = False,
-    eval_freq: int = 5000,
-    eval_episodes: int = 5,
-    checkpoint_freq: int = 10_000,
-    progress_bar: bool = False,
-    threads: int = 1,
     trusted: bool | None = None,
     env_id: str | None = None,
-    extra_callbacks: Sequence[BaseCallback] = (),
-    keep_checkpoints: bool = False,
-    backend: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    *,
+    run: RunOptions | None = None,
+    extra_callbacks: Sequence[BaseCallback] = (),
+    **run_changes: Any,
 ) -> tuple[Any, TrainingOutcome]:
     """
     Train the manager: a plain SB3 DDPG on ``WorkerSelectionWrapper`` over pre-trained workers (paper
@@ -980,18 +850,17 @@ def train_manager(
     :param temperature: the simplex map's temperature (default: the config's).
     :param floor: the probability floor (default: the config's).
     :param config: a ``zoo_configs`` file; its ``manager`` block is used.
-    :param checkpoint_freq: steps between resumable checkpoints (0: only when interrupted and at the end).
     :param trusted: load the workers with SB3's full loader (default ``False``).
     :param env_id: the shared env the manager acts in (default: the workers manifest's ``shared_env``,
         else ``hddpg/SnakeReach-v0``).
     :param env_kwargs: its keyword arguments (default: the manifest's, with the config block's on top).
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the manager's DDPG; the bundle holds an SB3 manager whichever ``backend`` trains it.
+    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
+        ``seed=3``), over ``run``'s.
     :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
-    :param keep_checkpoints: keep the finished run's replay buffer (see :func:`train_agent`).
-    :param backend: ``sb3`` or ``sbx`` for the manager's DDPG (default: the block's ``backend`` key, else
-        ``sb3``); the bundle holds an SB3 manager either way.
     :return: the saved :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` and the training outcome.
     """
-    _check_budget_and_seed(timesteps, seed)
+    run = run_options(run, run_changes, "train_manager")
     preparation: dict[str, Any] = {
         key: value
         for key, value in (
@@ -1028,19 +897,8 @@ def train_manager(
         hyperparams,
         paths,
         algo="ddpg",
-        timesteps=timesteps,
-        seed=seed,
-        n_envs=n_envs,
-        resume=_can_resume(paths, resume),
-        stop_on_plateau=stop_on_plateau,
-        eval_freq=eval_freq,
-        eval_episodes=eval_episodes,
-        checkpoint_freq=checkpoint_freq,
-        progress_bar=progress_bar,
-        threads=threads,
+        run=_agent_run(run, paths, run.timesteps),
         extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
-        keep_checkpoints=keep_checkpoints,
-        backend=backend,
     )
     worker_meta = {
         name: {
@@ -1063,7 +921,7 @@ def train_manager(
         env_kwargs=env_kwargs,
         worker_meta=worker_meta,
         metadata={
-            "seed": seed,
+            "seed": run.seed,
             "timesteps_trained": outcome.num_timesteps,
             "config": hyperparams.raw,
             "metrics": outcome.metrics,

@@ -12,12 +12,11 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
-from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.hierarchy.loading import load_policy
@@ -117,7 +116,7 @@ def random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
 
     env = gym.make(FLAT_ENV_ID)
     try:
-        policy = RandomPolicy(cast(gym.spaces.Box, env.action_space), seed=0)  # the snake's actions: a box
+        policy = RandomPolicy(env.action_space, seed=0)
         return evaluate(policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
     finally:
         env.close()
@@ -142,12 +141,7 @@ def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, fo
         prefer=prefer,
         bias=settings.bias,
         preferences=task.preferences,
-        timesteps=settings.timesteps,
-        seed=task.seed,
-        resume=read_checkpoint_state(run_dir / "checkpoints" / "manager") is not None,
-        eval_freq=settings.eval_freq_for(settings.timesteps),
-        eval_episodes=settings.eval_episodes,
-        backend=settings.backend,
+        run=settings.run_options(task.seed, settings.timesteps, settings.timesteps),
     )
     offset = workers_steps(folder)
     return {
@@ -167,13 +161,8 @@ def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) 
         algo=algo,
         env_id=env.env_id if env is not None else FLAT_ENV_ID,
         env_kwargs=env.env_kwargs if env is not None else None,
-        timesteps=settings.flat_budget,
-        seed=task.seed,
-        resume=True,
-        eval_freq=settings.eval_freq_for(settings.flat_budget),
-        eval_episodes=settings.eval_episodes,
         preferences=task.preferences,
-        backend=settings.backend,
+        run=settings.run_options(task.seed, settings.flat_budget, settings.flat_budget),
     )
     return {
         "worker_timesteps": 0,

@@ -88,16 +88,9 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
 def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
     """Train (or finish) a seed's two workers."""
 
-    manifest = train_workers(
-        folder,
-        env=settings.terms_env,
-        timesteps=settings.worker_timesteps,
-        seed=task.seed,
-        resume=True,  # keeps finished workers and continues an interrupted one
-        eval_freq=settings.eval_freq_for(settings.worker_timesteps or settings.workers_budget),
-        eval_episodes=settings.eval_episodes,
-        backend=settings.backend,
-    )
+    budget = settings.worker_timesteps or settings.workers_budget
+    run = settings.run_options(task.seed, settings.worker_timesteps, budget)
+    manifest = train_workers(folder, env=settings.terms_env, run=run)
     return {
         "worker_timesteps": workers_steps(folder),
         "workers": {

@@ -25,6 +25,7 @@ from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import check_algo, check_backend
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
+from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.training import worker_hyperparams
 
 
@@ -220,6 +221,21 @@ class BenchmarkSettings:
         of the manager's budget), so that all curves have points at the same own steps.
         """
         return min(self.eval_freq if self.eval_freq else max(self.timesteps // 10, 1), budget)
+
+    def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
+        """
+        How every training run of the benchmark is run: ``timesteps`` (``None``: the config's) from ``seed``,
+        evaluated every :meth:`eval_freq_for` ``budget`` steps, resumed where a checkpoint exists (a task
+        re-run after an interruption continues; a finished agent is kept).
+        """
+        return RunOptions(
+            timesteps=timesteps,
+            seed=seed,
+            resume=True,
+            eval_freq=self.eval_freq_for(budget),
+            eval_episodes=self.eval_episodes,
+            backend=self.backend,
+        )
 
 
 @dataclass(frozen=True)
