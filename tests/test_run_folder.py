@@ -3,9 +3,15 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
+import typer
 from stable_baselines3 import DDPG
 
+from sb3_hddpg.artifacts.io import HELD_FOLDERS_ENV
 from sb3_hddpg.training.training import train_workers
 from tests.test_bad_input import TINY_CONFIG
 
@@ -43,3 +49,37 @@ def test_keep_checkpoints_keeps_the_buffer(tmp_path):
     model = DDPG.load(tmp_path / "run" / "checkpoints" / "goal" / state["model"], device="cpu")
     model.load_replay_buffer(tmp_path / "run" / "checkpoints" / "goal" / state["replay_buffer"])
     assert model.replay_buffer.size() == 300
+
+
+def _locked_for_another_process(folder: Path) -> bool:
+    """Whether a separate process (not one this process started for the run) finds ``folder`` locked."""
+    env = {k: v for k, v in os.environ.items() if k != HELD_FOLDERS_ENV}
+    code = (
+        "import sys\nfrom sb3_hddpg.artifacts.io import FolderLockedError, locked_folder\n"
+        "try:\n    locked_folder(sys.argv[1]).__enter__()\nexcept FolderLockedError:\n    sys.exit(3)\n"
+    )
+    return subprocess.run([sys.executable, "-c", code, str(folder)], env=env, timeout=60).returncode == 3
+
+
+def test_a_command_holds_its_folder_lock_until_it_ends_in_process(tmp_path):
+    # The lock lives as long as the command's own context: typer keeps its own copy of click, so a lock
+    # tied to click's current context was never tied to anything, and was released as soon as it was
+    # garbage (at once), leaving a running command's folder open to a second run.
+    from typer.testing import CliRunner
+
+    from sb3_hddpg.cli.options import prepare_out_dir
+
+    app = typer.Typer()
+    seen: list[bool] = []
+
+    @app.command()
+    def take(context: typer.Context, out: Path) -> None:
+        prepare_out_dir(context, out, resume=False, force=False)
+        seen.append(_locked_for_another_process(out))
+
+    out = tmp_path / "run"
+    for _ in range(2):  # and released when the command ends: the second takes it again
+        result = CliRunner().invoke(app, [str(out)])
+        assert result.exit_code == 0, result.output
+    assert seen == [True, True]
+    assert not _locked_for_another_process(out)

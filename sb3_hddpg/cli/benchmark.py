@@ -205,6 +205,7 @@ def _event_printer(started: float) -> Callable[[str, Task, dict[str, Any] | None
 
 @app.command("benchmark")
 def benchmark_command(
+    context: typer.Context,
     methods: str | None = typer.Option(
         None,
         "--methods",
@@ -342,7 +343,7 @@ def benchmark_command(
             ),
         )
     address = cluster_address(executor, ray_address)
-    prepare_out_dir(out, resume, force)
+    prepare_out_dir(context, out, resume, force)
     started = time.perf_counter()
 
     results = run_benchmark(

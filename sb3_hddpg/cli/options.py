@@ -9,7 +9,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
-import click
 import gymnasium as gym
 import typer
 
@@ -105,12 +104,16 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
         raise typer.BadParameter(message, param_hint=param_hint) from error
 
 
-def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
+def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool) -> Path:
     """
     Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a path
     through a file, and a folder that already holds results unless ``--resume`` or ``--force`` (which
     clears it first); then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the command ends, so a
     second run into the same folder stops at once with the holder's pid.
+
+    :param context: the command's context (a ``typer.Context`` parameter): the lock is released when it
+        closes. Passed in because typer keeps its own copy of click, whose current context
+        ``click.get_current_context`` does not see.
     """
 
     if str(out) in ("", ".") or out.resolve() in (Path.cwd().resolve(), Path(out.anchor or "/").resolve()):
@@ -134,10 +137,8 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
         raise typer.BadParameter(
             f"cannot create {str(out)!r}: {error.strerror or error}", param_hint="'--out'"
         ) from None
-    context = click.get_current_context(silent=True)
-    if context is not None:
-        # Released when the command returns or fails (click closes its context then).
-        context.call_on_close(lambda: lock.__exit__(None, None, None))
+    # Released when the command returns or fails (its context closes then), not only when the process ends.
+    context.call_on_close(lambda: lock.__exit__(None, None, None))
     held = [m for m in RESULT_MARKERS if (out / m).exists()]
     if held and not (resume or force):
         raise typer.BadParameter(

@@ -99,6 +99,7 @@ def comparison_table(result: QuickstartResult) -> Table:
 
 @app.command("quickstart")
 def quickstart_command(
+    context: typer.Context,
     out: Path | None = typer.Option(
         None, "--out", help="Run folder (default: runs/quickstart-<date>-<time>)."
     ),
@@ -125,7 +126,7 @@ def quickstart_command(
         raise typer.BadParameter(f"must be one of {list(BUDGETS)}, got {budget!r}", param_hint="'--budget'")
     out = out or Path("runs") / f"quickstart-{datetime.now():%Y%m%d-%H%M%S}"
     address = cluster_address(executor, ray_address)
-    prepare_out_dir(out, resume=False, force=force)
+    prepare_out_dir(context, out, resume=False, force=force)
     console.print(
         f"Run folder: [bold]{out}[/]  (budget {budget}, seed {seed}, {processes} processes, backend {backend}"
         + (f", on the Ray cluster at {address})" if address else ")")

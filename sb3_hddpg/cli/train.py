@@ -143,7 +143,7 @@ def train_workers_command(
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
         for block in blocks.values():
             resolve_backend(backend, block.backend)
-    prepare_out_dir(out, resume, force)
+    prepare_out_dir(context, out, resume, force)
     summaries: dict[str, dict] = {}
 
     def done(name: str, outcome: TrainingOutcome) -> None:
@@ -248,7 +248,7 @@ def train_manager_command(
         )
     with usage_errors("'--backend'"):
         resolve_backend(backend, setup.hyperparams.backend)
-    prepare_out_dir(out, resume, force)
+    prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
         hierarchy, outcome = train_manager(setup, out, run=run_options_of(context))
     console.print(

@@ -99,7 +99,7 @@ def train_flat_command(
 
     with usage_errors("'--backend'"):
         check_algo(algo, resolve_backend(backend, hyperparams.backend))
-    prepare_out_dir(out, resume, force)
+    prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
         manifest, outcome = train_flat(
             out,
