@@ -328,3 +328,25 @@ def test_flat_configs_give_every_algorithm_the_same_care(algo):
         "train_freq",
     ):
         assert other.algo_kwargs[key] == ddpg.algo_kwargs[key], key
+
+
+def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_path, monkeypatch):
+    # With options of k env steps a manager's `timesteps` are decisions: k times as many env steps, which the
+    # flat agents' equal budget, the curve window and the curve points must count.
+    from sb3_hddpg.experiments.benchmark import settings as settings_module
+    from sb3_hddpg.experiments.benchmark.methods import history_of
+
+    monkeypatch.setattr(settings_module, "_manager_option_steps", lambda: 4)
+    settings = BenchmarkSettings(methods=["hddpg", "ddpg"], timesteps=1000, worker_timesteps=300)
+    assert settings.manager_env_steps == 4000 and settings.flat_budget == 4600
+    assert task_cost(Task("hddpg", 0), settings) == 4000
+    assert settings.eval_freq_for(settings.flat_budget) == 400  # a tenth of the manager's env steps
+    assert settings.manager_run_options(0).eval_freq == 100  # the same env steps, in decisions
+    assert settings.manager_run_options(0).timesteps == 1000
+
+    path = tmp_path / "manager.json"
+    path.write_text(json.dumps([{"timesteps": 100, "mean_reach_reward": 1.0}]))
+    assert history_of(path, 600, 4) == [
+        {"timesteps": 400, "decisions": 100, "total_timesteps": 1000, "mean_reach_reward": 1.0}
+    ]
+    assert history_of(path, 600) == [{"timesteps": 100, "total_timesteps": 700, "mean_reach_reward": 1.0}]

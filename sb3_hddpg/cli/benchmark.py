@@ -238,7 +238,7 @@ def benchmark_command(
         None,
         "--timesteps",
         callback=at_least(1),
-        help="Manager steps, the curve window of every method (default: the config's manager n_timesteps).",
+        help="Manager steps (decisions; x option_steps env steps each), whose env steps are the curve window of every method (default: the config's manager n_timesteps).",
     ),
     worker_timesteps: int | None = typer.Option(
         None,

@@ -92,10 +92,19 @@ def split_key(key: str) -> tuple[str, str | None]:
     return name, preference or None
 
 
-def history_of(path: Path, offset: int) -> list[dict[str, Any]]:
-    """An ``evaluations/<name>.json`` history with ``total_timesteps = timesteps + offset`` on every point."""
+def history_of(path: Path, offset: int, steps_per_timestep: int = 1) -> list[dict[str, Any]]:
+    """
+    An ``evaluations/<name>.json`` history in env steps: ``timesteps`` times ``steps_per_timestep`` (a
+    manager's decisions times its ``option_steps``; the decisions kept as ``decisions``), and
+    ``total_timesteps`` = that + ``offset`` on every point.
+    """
     history = json.loads(path.read_text())
-    return [{**point, "total_timesteps": int(point["timesteps"]) + offset} for point in history]
+    out = []
+    for point in history:
+        steps = int(point["timesteps"]) * steps_per_timestep
+        extra = {"decisions": int(point["timesteps"])} if steps_per_timestep != 1 else {}
+        out.append({**point, **extra, "timesteps": steps, "total_timesteps": steps + offset})
+    return out
 
 
 def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
@@ -141,12 +150,12 @@ def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, fo
         prefer=prefer,
         bias=settings.bias,
         preferences=task.preferences,
-        run=settings.run_options(task.seed, settings.timesteps, settings.timesteps),
+        run=settings.manager_run_options(task.seed),
     )
     offset = workers_steps(folder)
     return {
         "worker_timesteps": offset,
-        "history": history_of(run_dir / "evaluations" / "manager.json", offset),
+        "history": history_of(run_dir / "evaluations" / "manager.json", offset, settings.option_steps),
         "test": final_test(run_dir / "hierarchy.zip", settings),
     }
 
@@ -254,7 +263,7 @@ def _run_worker_alone(worker: str, task: Task, settings: BenchmarkSettings, fold
 
 
 def _manager_cost(settings: BenchmarkSettings) -> int:
-    return settings.timesteps
+    return settings.manager_env_steps
 
 
 def _flat_cost(settings: BenchmarkSettings) -> int:

@@ -24,7 +24,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import check_algo, check_backend
-from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
+from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, wrapper_kwargs
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.training import worker_hyperparams
 
@@ -36,6 +36,12 @@ def _config_budgets() -> dict[str, int]:
     budgets = {name: hp.n_timesteps for name, hp in worker_hyperparams(sorted(WORKER_ENV_IDS)).items()}
     budgets[MANAGER_KEY] = load_hyperparams(MANAGER_KEY, DDPG, manager=True).n_timesteps
     return budgets
+
+
+@functools.cache
+def _manager_option_steps() -> int:
+    """Env steps per decision of the benchmark's managers: the bundled manager block's ``option_steps``."""
+    return int(wrapper_kwargs().get("option_steps", 1))
 
 
 @functools.cache
@@ -197,11 +203,24 @@ class BenchmarkSettings:
         return list(self.methods)
 
     @property
+    def option_steps(self) -> int:
+        """Env steps per manager decision (the manager block's ``option_steps``; 1 in the bundled config)."""
+        return _manager_option_steps()
+
+    @property
+    def manager_env_steps(self) -> int:
+        """
+        Env steps of a manager's training: ``timesteps`` counts its decisions (SB3's steps of the wrapper),
+        each of which runs ``option_steps`` env steps. Equal budgets and curve windows are in env steps.
+        """
+        return self.timesteps * self.option_steps
+
+    @property
     def flat_budget(self) -> int:
         """A flat agent's budget: as many env steps as the hierarchy (workers + manager) by default."""
         if self.flat_timesteps is not None:
             return self.flat_timesteps
-        return self.timesteps + self.workers_budget
+        return self.manager_env_steps + self.workers_budget
 
     @property
     def workers_budget(self) -> int:
@@ -220,7 +239,15 @@ class BenchmarkSettings:
         Steps between evaluations for a run of ``budget`` steps: the same for every run (default: a tenth
         of the manager's budget), so that all curves have points at the same own steps.
         """
-        return min(self.eval_freq if self.eval_freq else max(self.timesteps // 10, 1), budget)
+        return min(self.eval_freq if self.eval_freq else max(self.manager_env_steps // 10, 1), budget)
+
+    def manager_run_options(self, seed: int) -> RunOptions:
+        """
+        :meth:`run_options` of a manager: ``timesteps`` decisions, evaluated every :meth:`eval_freq_for`
+        env steps converted to decisions, so that its curve points fall at the same env steps as the others'.
+        """
+        every = max(self.eval_freq_for(self.manager_env_steps) // self.option_steps, 1)
+        return self.run_options(seed, self.timesteps, self.timesteps).replace(eval_freq=every)
 
     def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
         """

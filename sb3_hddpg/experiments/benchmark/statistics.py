@@ -112,7 +112,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
             worker_records[record["seed"]] = record
         else:
             by_method.setdefault(record["method"], {})[record["seed"]] = record
-    window = settings.timesteps
+    window = settings.manager_env_steps  # the manager's own env steps: the window every method shares
     methods: dict[str, Any] = {}
     per_seed: dict[str, dict[int, dict[str, float]]] = {}
     for method in [m for m in settings.method_keys if m in by_method]:
@@ -253,7 +253,7 @@ def transfer_results(
             "random policy's score to the run's final score (both scored with the preference's factors); "
             "ratio = flat steps / hddpg steps (the manager's workers are trained once, before)"
         ),
-        "eval_freq": settings.eval_freq_for(settings.timesteps),
+        "eval_freq": settings.eval_freq_for(settings.manager_env_steps),
         "preferences": {},
     }
     flats = [m for m in settings.methods if m != "hddpg"]
