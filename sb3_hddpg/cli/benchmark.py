@@ -256,7 +256,7 @@ def benchmark_command(
         None,
         "--eval-freq",
         callback=at_least(1),
-        help="Steps between curve evaluations of every run (default: --timesteps / 10).",
+        help="Env steps between curve evaluations of every run (default: a tenth of the manager's env steps).",
     ),
     eval_episodes: int = typer.Option(
         5, "--eval-episodes", callback=at_least(1), help="Episodes per learning-curve evaluation."
