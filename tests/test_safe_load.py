@@ -118,6 +118,27 @@ def test_trusted_load_uses_sb3(trained: dict[str, tuple[Any, Path]]) -> None:
         load_model(path)
 
 
+def test_trusted_load_of_a_zip_saved_by_sbx_uses_sbx(tmp_path: Path) -> None:
+    # SBX (SB3's JAX sibling) writes SB3's zip layout with its own policy classes, which SB3's loader cannot
+    # rebuild ("'TD3Policy' object has no attribute 'actor'"); with the user's trust, SBX's loader opens it.
+    sbx = pytest.importorskip("sbx")
+    import gymnasium as gym
+
+    env = gym.make("hddpg/SnakeAvoid-v0")
+    model = sbx.DDPG("MlpPolicy", env, policy_kwargs={"net_arch": [16, 16]}, seed=0)
+    path = tmp_path / "sbx_ddpg.zip"
+    model.save(path)
+    loaded = load_model(path, trusted=True, algorithm="DDPG")
+    assert type(loaded) is sbx.DDPG
+    observation, _ = env.reset(seed=3)
+    expected, _ = model.predict(observation, deterministic=True)
+    actual, _ = loaded.predict(observation, deterministic=True)
+    np.testing.assert_allclose(actual, expected, atol=1e-6)
+    with io.BytesIO(path.read_bytes()) as in_memory:  # the same from memory
+        assert type(load_model(in_memory, trusted=True, algorithm="DDPG")) is sbx.DDPG
+    env.close()
+
+
 def test_malicious_data_entry_is_not_executed(trained: dict[str, tuple[Any, Path]], tmp_path: Path) -> None:
     model, path = trained["DDPG"]
     marker = tmp_path / "pwned"

@@ -60,6 +60,10 @@ SPEC_VERSION = 1
 #: Algorithms that can be rebuilt from a spec, by the class name a spec records (the registry's classes).
 ALGOS: dict[str, type[OffPolicyAlgorithm]] = {cls.__name__: cls for cls in ALGORITHMS.values()}
 
+#: Bytes of a zip's ``data`` member read to tell whether SBX saved it, and what says so there.
+SBX_SNIFF_BYTES = 4096
+_SBX_POLICY_CLASS = re.compile(r'"policy_class":\s*\{[^{}]*?"__module__":\s*"sbx\.')
+
 #: Optimizers accepted in ``policy_kwargs["optimizer_class"]``. Only matters for further training.
 OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {
     cls.__name__: cls for cls in (th.optim.Adam, th.optim.AdamW, th.optim.SGD, th.optim.RMSprop)
@@ -755,4 +759,41 @@ def load_model(
     name = algorithm if algorithm is not None else (spec or {}).get("algorithm")
     if name not in ALGOS:
         raise ValueError(f"algorithm: unknown algorithm {brief(name)}; expected one of {sorted(ALGOS)}")
-    return ALGOS[name].load(path if isinstance(path, io.BytesIO) else Path(path), device=device)
+    source = path if isinstance(path, io.BytesIO) else Path(path)
+    if _saved_by_sbx(source):
+        return _load_sbx(source, name)
+    return ALGOS[name].load(source, device=device)
+
+
+def _saved_by_sbx(source: Path | io.BytesIO) -> bool:
+    """
+    Whether a model zip was saved by SBX (SB3's JAX sibling: the same zip layout, its own policy classes):
+    the ``data`` member's ``policy_class`` entry, which SB3 writes first, names an ``sbx.`` module. Only
+    its first bytes are read, as text (the member can be megabytes: SBX keeps the weights in it); ``False``
+    if that cannot be told, and SB3's loader then reports what is wrong with the file.
+    """
+    where = "model" if isinstance(source, io.BytesIO) else os.fspath(source)
+    try:
+        with zipfile.ZipFile(source) as archive:
+            head = _read_member(archive, "data", where)[:SBX_SNIFF_BYTES].decode("utf-8", "replace")
+    except (OSError, ValueError, zipfile.BadZipFile, KeyError):
+        return False
+    finally:
+        if isinstance(source, io.BytesIO):
+            source.seek(0)
+    return _SBX_POLICY_CLASS.search(head) is not None
+
+
+def _load_sbx(source: Path | io.BytesIO, name: str) -> OffPolicyAlgorithm:
+    """SBX's own loader for a zip SBX saved (SB3's cannot rebuild SBX's JAX policy classes)."""
+    try:
+        import sbx  # lazy: JAX is an optional extra, and importing it costs over a second
+    except ImportError:
+        raise ValueError(
+            f'{brief(str(source))}: saved by SBX (JAX), which is not installed: pip install "sb3-hddpg[fast]"'
+        ) from None
+    algo_class = getattr(sbx, name, None)
+    if algo_class is None:
+        raise ValueError(f"algorithm: SBX has no {name}; the file was saved by SBX")
+    model: OffPolicyAlgorithm = algo_class.load(source)
+    return model
