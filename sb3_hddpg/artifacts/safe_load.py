@@ -772,10 +772,9 @@ def _saved_by_sbx(source: Path | io.BytesIO) -> bool:
     its first bytes are read, as text (the member can be megabytes: SBX keeps the weights in it); ``False``
     if that cannot be told, and SB3's loader then reports what is wrong with the file.
     """
-    where = "model" if isinstance(source, io.BytesIO) else os.fspath(source)
     try:
-        with zipfile.ZipFile(source) as archive:
-            head = _read_member(archive, "data", where)[:SBX_SNIFF_BYTES].decode("utf-8", "replace")
+        with zipfile.ZipFile(source) as archive, archive.open("data") as member:
+            head = member.read(SBX_SNIFF_BYTES).decode("utf-8", "replace")
     except (OSError, ValueError, zipfile.BadZipFile, KeyError):
         return False
     finally:
