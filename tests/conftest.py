@@ -1,4 +1,7 @@
-"""Shared test set-up: headless pygame, one torch thread, a checkout-relative path helper, a Ray cluster."""
+"""
+Shared test set-up: headless pygame, one torch thread, SB3's stray log folders kept in pytest's, a
+checkout-relative path helper, a Ray cluster.
+"""
 
 import os
 import signal
@@ -13,6 +16,16 @@ import torch
 torch.set_num_threads(1)
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def sb3_logdir(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """
+    SB3's ``learn`` without a logger of the caller's makes an empty ``SB3-<date>`` folder in the system's
+    temporary folder (SB3's ``configure``); a test run made hundreds. ``SB3_LOGDIR`` sends them all,
+    subprocesses included, into this session's pytest folder.
+    """
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3-logs"))
 
 
 @pytest.fixture

@@ -126,8 +126,12 @@ def test_two_trials_at_each_level(level, tmp_path, tiny_config, workers_dir):
         seed=0,
         fixed_params=FIXED if level != "ham" else {},
     )
+    torch.set_num_threads(1)
     study = tuning.tune(target, settings, tmp_path)
     assert_exactly(study, 2)
+    # One study process (n_jobs=1) runs its trials in this process, with tune's default of one torch
+    # thread: with two, on cores shared with other work, a trial once ran 14x slower.
+    assert torch.get_num_threads() == 1
     for trial in study.trials:
         assert math.isfinite(trial.value)
         assert len(trial.intermediate_values) == (1 if level == "ham" else 2)

@@ -187,12 +187,12 @@ def tune_command(
         callback=at_least(1),
         help="Trial processes on this machine (one per core is fastest), or Ray tasks with --executor ray.",
     ),
-    threads: int | None = typer.Option(
-        None,
+    threads: int = typer.Option(
+        1,
         "--threads",
         callback=at_least(1),
-        help="Torch threads per trial process (default: cores // n-jobs, so processes never oversubscribe; "
-        "1 with --executor ray).",
+        help="Torch threads per trial process: 1 is faster for small networks and never oversubscribes "
+        "cores shared with other work.",
     ),
     executor: ExecutorOpt = "local",
     ray_address: RayAddressOpt = None,

@@ -22,7 +22,6 @@ import datetime
 import functools
 import logging
 import math
-import os
 import re
 import tempfile
 import time
@@ -496,23 +495,24 @@ def tune(
     settings: StudySettings,
     out_dir: str | Path,
     n_jobs: int = 1,
-    threads: int | None = None,
+    threads: int = 1,
     ray_address: str | None = None,
 ) -> optuna.Study:
     """
     Tune ``target`` with ``n_jobs`` trial processes on one study, until it has ``settings.n_trials``
     finished trials or ``settings.timeout`` has passed.
 
-    Each process gets ``max(1, cores // n_jobs)`` torch threads (or ``threads``) so that together they do
-    not oversubscribe the machine. More processes (or machines) can join the same study at any time by
+    Each process gets one torch thread unless ``threads`` says otherwise, as every ``train-*`` command: for
+    the small networks tuned here one thread is the faster (docs/PERFORMANCE.md, "Torch threads"), and two
+    threads in a process that shares its cores with other work spin for each other (a trial ran 14x slower
+    that way beside a benchmark). More processes (or machines) can join the same study at any time by
     running the same command against the same storage.
 
     :param target: what is tuned.
     :param settings: where and how.
     :param out_dir: the run folder (temporary trial folders; the default storage lives here too).
     :param n_jobs: trial processes on this machine (or Ray tasks, with ``ray_address``).
-    :param threads: torch threads per process (default: ``max(1, cores // n_jobs)``; 1 on a Ray cluster,
-        whose tasks ask for as many CPUs).
+    :param threads: torch threads per process (a Ray task asks for as many CPUs).
     :param ray_address: run the trial processes as Ray tasks on the cluster at this address (``auto`` or
         ``HOST:PORT``); every node must reach ``settings.storage`` (a server, or a SQLite file on a
         filesystem they share at the same path). ``None``: local processes.
@@ -528,9 +528,6 @@ def tune(
     deadline = time.time() + settings.timeout if settings.timeout else None
     # Created here, once, so that the trial processes only load it.
     study = open_study(target, settings)
-    if threads is None:
-        # This machine's cores say nothing about a cluster's nodes: one CPU per trial task there.
-        threads = 1 if ray_address is not None else max(1, available_cores() // n_jobs)
     jobs = [
         Job(
             f"tune-{index}",
@@ -550,13 +547,6 @@ def tune(
         failed = [f"{key} ({outcome.failure_message(key)})" for key in outcome.failures]
         raise RuntimeError(f"Trial processes failed: {', '.join(failed)}; their errors are logged above")
     return study
-
-
-def available_cores() -> int:
-    """CPU cores this process may use (its affinity mask where the OS has one)."""
-    with contextlib.suppress(AttributeError):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 def trial_counts(study: optuna.Study) -> dict[str, int]:
@@ -830,7 +820,6 @@ __all__ = [
     "SAMPLERS",
     "StudySettings",
     "TuningTarget",
-    "available_cores",
     "best_block",
     "best_trials",
     "make_pruner",
