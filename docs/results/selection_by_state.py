@@ -83,16 +83,16 @@ def main() -> None:
     for spec in args.bundles:
         name, _, path = spec.partition("=")
         rows = steps_of(path)
-        result[name] = {"avoid_share": float(rows[:, 2].mean()), **bands(rows)}
+        by_band = bands(rows)
+        result[name] = {"avoid_share": float(rows[:, 2].mean()), **by_band}
         print(f"{name}: avoid worker on {rows[:, 2].mean():.1%} of {len(rows)} steps")
-        for quantity, entries in result[name].items():
-            if isinstance(entries, list):
-                print(f"  by {quantity}")
-                for e in entries:
-                    print(
-                        f"    [{_edge(e['low'], '-inf')}, {_edge(e['high'], 'inf')})  {e['steps']:5d} steps  avoid "
-                        f"{e['avoid_share']:6.1%}  collision {e['collision_rate']:6.1%}  touch {e['touch_rate']:6.1%}"
-                    )
+        for quantity, entries in by_band.items():
+            print(f"  by {quantity}")
+            for e in entries:
+                print(
+                    f"    [{_edge(e['low'], '-inf')}, {_edge(e['high'], 'inf')})  {e['steps']:5d} steps  avoid "
+                    f"{e['avoid_share']:6.1%}  collision {e['collision_rate']:6.1%}  touch {e['touch_rate']:6.1%}"
+                )
     if args.out:
         args.out.write_text(json.dumps(result, indent=1, default=float))
 
