@@ -280,6 +280,43 @@ def test_tiny_transfer_benchmark_through_the_cli(tmp_path):
     assert "Transfer" in done.stdout and "Transfer:" in (out / "results.md").read_text()
 
 
+@pytest.mark.slow  # two tiny benchmarks: ~20 s idle
+def test_workers_from_another_benchmark_are_copied_checked_and_never_retrained(tmp_path):
+    first, second = tmp_path / "first", tmp_path / "second"
+    args = ("benchmark", "--seeds", "1", "--methods", "goal-only", *TINY)
+    done = cli(*args, "--out", str(first))
+    assert done.returncode == 0, done.stdout + done.stderr
+    reuse, other_budget, missing_seed, not_a_run = run_batch(
+        [
+            [*args, "--workers-from", str(first), "--out", str(second)],
+            [*args, "--worker-timesteps", "50", "--workers-from", str(first), "--out", str(tmp_path / "c")],
+            ["benchmark", "--seeds", "2", "--methods", "goal-only", *TINY, "--workers-from", str(first),
+             "--out", str(tmp_path / "d")],
+            [*args, "--workers-from", str(tmp_path), "--out", str(tmp_path / "e")],
+        ]
+    )  # fmt: skip
+    assert reuse.returncode == 0, reuse.stdout + reuse.stderr
+    for name in ("goal.zip", "avoid.zip", "manifest.json"):
+        copied = (second / "seed-0" / "workers" / name).read_bytes()
+        assert copied == (first / "seed-0" / "workers" / name).read_bytes()
+    assert not (second / "seed-0" / "checkpoints").exists()  # nothing was trained again
+    record = json.loads((second / "records" / "workers" / "seed-0.json").read_text())
+    assert record["workers_from"] == str((first / "seed-0").resolve())
+    original = json.loads((first / "records" / "workers" / "seed-0.json").read_text())
+    assert record["history"] == original["history"] and record["worker_timesteps"] == 204
+    scores = [
+        json.loads((run / "records" / "goal-only" / "seed-0.json").read_text())["test"] for run in (first, second)
+    ]
+    assert scores[0] == scores[1]
+
+    # What would not be the same workers is refused before anything is written.
+    assert other_budget.returncode == 2 and "worker_timesteps=100" in other_budget.stderr
+    assert missing_seed.returncode == 2 and "no finished workers for seed 1" in missing_seed.stderr
+    assert not_a_run.returncode == 2 and "not a benchmark folder" in not_a_run.stderr
+    for refused, folder in ((other_budget, "c"), (missing_seed, "d"), (not_a_run, "e")):
+        assert "Traceback" not in refused.stderr and not (tmp_path / folder).exists()
+
+
 # ------------------------------------------------------------------------------- references without training
 @pytest.mark.slow  # a tiny benchmark plus HAM's 24-threshold grid: ~30 s idle, minutes on a loaded machine
 def test_tuned_ham_and_workers_alone_are_scored_on_the_same_episodes(tmp_path):

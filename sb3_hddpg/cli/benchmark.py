@@ -39,6 +39,7 @@ from sb3_hddpg.experiments.benchmark import (
     SCENARIOS,
     BenchmarkSettings,
     Task,
+    check_workers_source,
     run_benchmark,
 )
 from sb3_hddpg.experiments.model_export import export_models
@@ -294,6 +295,15 @@ def benchmark_command(
         help="Afterwards copy the final models into this folder with an index.json (see export-models).",
     ),
     backend: ExperimentBackendOpt = "sb3",
+    workers_from: Path | None = typer.Option(
+        None,
+        "--workers-from",
+        help=(
+            "A finished benchmark folder whose workers each seed reuses instead of training its own (they "
+            "must come from the same config, worker budget, backend, env and seeds: then they are the workers "
+            "this run would train, and their sha256 is checked). Default: train them."
+        ),
+    ),
     env: str | None = typer.Option(
         None,
         "--env",
@@ -341,7 +351,10 @@ def benchmark_command(
                 if shared is not None
                 else None
             ),
+            workers_from=str(workers_from.resolve()) if workers_from is not None else None,
         )
+    with usage_errors("'--workers-from'"):
+        check_workers_source(settings)
     address = cluster_address(executor, ray_address)
     prepare_out_dir(context, out, resume, force)
     started = time.perf_counter()

@@ -16,7 +16,9 @@ manager with those factors and each flat agent from scratch on the same scalaris
 (:class:`~sb3_hddpg.wrappers.PreferenceReward`); :func:`transfer_results` compares the env steps each
 needs to reach 90 % of its final score. A run on a preference is the method key ``<method>@<preference>``.
 
-Workers are trained once per seed and shared by that seed's ``hddpg*`` and ``ham`` runs. Every run is an
+Workers are trained once per seed and shared by that seed's ``hddpg*`` and ``ham`` runs; with
+``workers_from`` they are copied from another benchmark that trained the same ones (e.g. the transfer
+scenario reusing a standard run's workers, :func:`check_workers_source`). Every run is an
 independent process (``n_jobs`` at a time, one torch thread each); a run's dependencies (its seed's
 workers) are scheduled before it. Every finished run writes a record atomically to
 ``DIR/records/<method>/seed-<s>.json``, which :func:`run_benchmark` skips when resuming.
@@ -55,6 +57,7 @@ from sb3_hddpg.experiments.benchmark.report import (
 )
 from sb3_hddpg.experiments.benchmark.run import (
     RECORD_VERSION,
+    check_workers_source,
     machine_info,
     read_record,
     record_path,
@@ -110,6 +113,7 @@ __all__ = [
     "Method",
     "Task",
     "canonical_preference",
+    "check_workers_source",
     "compare",
     "comparison_pairs",
     "compute_results",

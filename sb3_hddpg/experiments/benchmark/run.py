@@ -15,7 +15,11 @@ from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
 
-from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
+from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, read_json_file
+from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
+from sb3_hddpg.artifacts.provenance import verify_sha256
+from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.methods import (
     WORKERS,
     history_of,
@@ -28,7 +32,7 @@ from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, pl
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Job, run_jobs
-from sb3_hddpg.training.training import train_workers
+from sb3_hddpg.training.training import train_workers, worker_hyperparams
 
 #: Bumped when a record's meaning changes.
 RECORD_VERSION = 1
@@ -86,12 +90,20 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
 
 
 def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
-    """Train (or finish) a seed's two workers."""
+    """Train (or finish) a seed's two workers, or copy them from ``settings.workers_from``."""
 
+    reused: dict[str, Any] = {}
+    if settings.workers_from is not None:
+        source = seed_dir(Path(settings.workers_from), task.seed)
+        if not (folder / "workers" / "manifest.json").exists():  # else copied before an interruption
+            _copy_workers(source, folder)
+        reused = {"workers_from": str(source)}
     budget = settings.worker_timesteps or settings.workers_budget
     run = settings.run_options(task.seed, settings.worker_timesteps, budget)
+    # Copied workers are finished ones with this budget: train_workers keeps them (resume) and trains nothing.
     manifest = train_workers(folder, env=settings.terms_env, run=run)
     return {
+        **reused,
         "worker_timesteps": workers_steps(folder),
         "workers": {
             name: {"timesteps": entry["timesteps_trained"], "metrics": entry["metrics"]}
@@ -101,6 +113,95 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
             name: history_of(folder / "evaluations" / f"{name}.json", 0) for name in manifest["workers"]
         },
     }
+
+
+def _worker_names(settings: BenchmarkSettings) -> list[str]:
+    """The workers a seed trains: one per reward term of the env."""
+    return list(settings.terms_env.terms) if settings.terms_env is not None else list(REWARD_TERMS)
+
+
+def check_workers_source(settings: BenchmarkSettings) -> None:
+    """
+    Check that ``settings.workers_from`` holds, for every seed, the workers this benchmark would train: a
+    finished workers record, a manifest whose every worker was trained from the same config block, with the
+    same budget, backend and seed, and its learning curve. Then copying them changes nothing but the time
+    (on the CPU a seed's training is deterministic), and a mismatch is refused before anything runs.
+
+    :param settings: the benchmark's settings (nothing to check when ``workers_from`` is ``None``).
+    :raises ValueError: naming the folder, the seed and what differs (``FileNotFoundError`` when the
+        folder is not a benchmark folder).
+    """
+    if settings.workers_from is None:
+        return
+    source = Path(settings.workers_from)
+    stored = source / "benchmark.json"
+    if not stored.is_file():
+        raise FileNotFoundError(f"not a benchmark folder (no benchmark.json): {str(source)!r}")
+    theirs = read_json_file(stored)
+    theirs = theirs.get("settings") if isinstance(theirs, dict) else None
+    if not isinstance(theirs, dict):
+        raise ValueError(f"Not a benchmark's settings: {str(stored)!r}")
+    for key in ("backend", "env", "worker_timesteps"):
+        if theirs.get(key, getattr(BenchmarkSettings, key, None)) != getattr(settings, key):
+            raise ValueError(
+                f"The workers in {str(source)!r} were trained with {key}={theirs.get(key)!r}, this benchmark "
+                f"uses {getattr(settings, key)!r}: train them here instead (without --workers-from)"
+            )
+    names = _worker_names(settings)
+    blocks = worker_hyperparams(names, None, settings.terms_env)
+    for seed in settings.seeds:
+        folder = seed_dir(source, seed)
+        manifest_path = folder / "workers" / "manifest.json"
+        if read_record(source, Task(WORKERS, seed)) is None or not manifest_path.is_file():
+            raise ValueError(f"{str(source)!r} has no finished workers for seed {seed}")
+        entries = read_workers_manifest(manifest_path)["workers"]
+        for name in names:
+            block = blocks[name]
+            budget = settings.worker_timesteps or int(block.n_timesteps)
+            entry = entries.get(name)
+            expected = {
+                "config block": _plain(block.raw),
+                "timesteps_requested": budget,
+                "backend": settings.backend,
+                "seed": seed,
+            }
+            actual = {
+                "config block": _plain(entry.get("config", {}).get("block"))
+                if isinstance(entry, dict)
+                else None,
+                **{key: entry.get(key) if isinstance(entry, dict) else None for key in list(expected)[1:]},
+            }
+            differ = [key for key in expected if actual[key] != expected[key]]
+            if differ:
+                raise ValueError(
+                    f"{str(manifest_path)!r}: worker {name!r} was not trained as this benchmark trains it "
+                    f"({', '.join(differ)} differ): train them here instead (without --workers-from)"
+                )
+            if not (folder / "evaluations" / f"{name}.json").is_file():
+                raise ValueError(f"{str(source)!r}: worker {name!r} of seed {seed} has no learning curve")
+
+
+def _plain(value: Any) -> Any:
+    """A value as JSON stores it (tuples become lists), so a config block compares with its stored copy."""
+    return json.loads(json.dumps(value))
+
+
+def _copy_workers(source: Path, folder: Path) -> None:
+    """
+    Copy a seed's workers (zips checked against their sha256, learning curves) from another benchmark's
+    seed folder, the manifest last: until it is written, the copy does not count as finished.
+    """
+    manifest = read_workers_manifest(source / "workers" / "manifest.json")
+    for name, entry in manifest["workers"].items():
+        path = source / "workers" / entry["file"]
+        if path.stat().st_size > MAX_MEMBER_BYTES:
+            raise ValueError(f"{str(path)!r} is larger than {MAX_MEMBER_BYTES} bytes: not a worker of ours")
+        data = path.read_bytes()
+        verify_sha256(data, entry["sha256"], str(path))
+        atomic_write_bytes(folder / "workers" / entry["file"], data)
+        history = source / "evaluations" / f"{name}.json"
+        atomic_write_json(folder / "evaluations" / f"{name}.json", read_json_file(history))
+    save_manifest(folder / "workers" / "manifest.json", manifest)
 
 
 def task_job(task: Task, settings: BenchmarkSettings, out: Path) -> Job:
@@ -168,6 +269,7 @@ def run_benchmark(
                 f"Cannot resume {str(out)!r} with different settings ({', '.join(changed)} changed); "
                 "run with the same options, or use --force to start over"
             )
+    check_workers_source(settings)
     atomic_write_json(settings_path, {"settings": stored, "machine": machine_info()})
 
     tasks = plan_tasks(settings)

@@ -105,6 +105,10 @@ class BenchmarkSettings:
         arm): its workers, managers and flat agents are trained and tested on it. Only the methods of
         :data:`ENV_METHODS` and the standard scenario apply there (HAM's switch rule and the biased
         managers are the snake's).
+    :param workers_from: another benchmark folder whose workers every seed reuses instead of training its
+        own (they must have been trained with the same config blocks, budget, backend, env and seed: then
+        they are the workers this benchmark would train, since a seed's run is deterministic on the CPU).
+        The copies are checked against their manifest's sha256 (:func:`~.run.check_workers_source`).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -122,6 +126,7 @@ class BenchmarkSettings:
     preferences: list[str] = field(default_factory=list)
     backend: str = "sb3"
     env: dict[str, Any] | None = None
+    workers_from: str | None = None
 
     def __post_init__(self) -> None:
         self._check_methods()
