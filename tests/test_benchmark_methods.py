@@ -305,7 +305,8 @@ def test_workers_from_another_benchmark_are_copied_checked_and_never_retrained(t
     original = json.loads((first / "records" / "workers" / "seed-0.json").read_text())
     assert record["history"] == original["history"] and record["worker_timesteps"] == 204
     scores = [
-        json.loads((run / "records" / "goal-only" / "seed-0.json").read_text())["test"] for run in (first, second)
+        json.loads((run / "records" / "goal-only" / "seed-0.json").read_text())["test"]
+        for run in (first, second)
     ]
     assert scores[0] == scores[1]
 

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tests.test_bad_input import TINY_CONFIG
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -81,3 +83,29 @@ def test_manager_study_reports_the_state_dependence(tmp_path):
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert report["args"]["action_l2"] == 0.5 and 0.0 <= report["action_saturation"] <= 1.0
     assert report["state_dependence"]["worker"] == "avoid"
+
+
+@pytest.mark.slow  # seven tiny studies and two tiny workers: ~30 s idle
+def test_equal_effort_tuning_gives_every_method_the_same_trials_from_its_bundled_config(tmp_path):
+    import json
+
+    args = ["--n-trials", "2", "--timesteps", "200", "--n-evaluations", "2", "--eval-episodes", "1"]
+    args += ["--worker-timesteps", "100", "--out", str(tmp_path)]
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / "equal_effort_tuning.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    names = ["worker-goal", "worker-avoid", "flat", "flat-td3", "flat-sac", "manager", "ham"]
+    assert [entry["study"] for entry in summary] == names
+    for entry in summary:
+        assert sum(entry["trials"].values()) == 2, entry
+        assert entry["env_steps_per_trial"] == (None if entry["study"] == "ham" else 200)
+        assert entry["base_value"] is not None and entry["best_value"] >= entry["base_value"]
+        assert entry["base_sampled_outside_space"] == []  # each bundled block is a point of its space
+    for file in ("ddpg.yml", "td3.yml", "sac.yml"):
+        assert (tmp_path / file).is_file()
+    assert "| worker-goal | " in result.stdout

@@ -30,8 +30,9 @@ from sb3_hddpg.training.config import load_hyperparams
 from sb3_hddpg.training.training import train_workers
 
 REPO = Path(__file__).resolve().parent.parent
-#: Keep every trial tiny: small nets, a small buffer (the end-of-training checkpoint pickles it whole).
-FIXED = {"net_arch": "small", "buffer_size": 10_000, "batch_size": 32}
+#: Keep every trial tiny: small nets, a small buffer (the end-of-training checkpoint pickles it whole), and
+#: one update per step (with train_freq 64 a 200-step trial runs 256 steps and evaluates a third time).
+FIXED = {"net_arch": "small", "buffer_size": 10_000, "batch_size": 32, "train_freq": 1}
 FIX_ARGS = [arg for name, value in FIXED.items() for arg in ("--fix", f"{name}={value}")]
 FINISHED = (TrialState.COMPLETE, TrialState.PRUNED)
 
@@ -135,6 +136,20 @@ def test_two_trials_at_each_level(level, tmp_path, tiny_config, workers_dir):
     for trial in study.trials:
         assert math.isfinite(trial.value)
         assert len(trial.intermediate_values) == (1 if level == "ham" else 2)
+    # The first trial is the base config (its values inside the space; --fix values stay fixed).
+    first = study.trials[0]
+    assert first.user_attrs["base_config"] is True
+    base, _ = target.base_params()
+    assert {k: first.params[k] for k in base if k not in FIXED} == {
+        k: v for k, v in base.items() if k not in FIXED
+    }
+    if level == "ham":
+        assert first.params == {"threshold": 5.5}  # HAM's default: six links minus the margin
+    else:
+        assert first.user_attrs["config_block"]["gamma"] == target.base_block()["gamma"]
+    if level == "manager":  # the same env steps per trial as every level: decisions x option_steps
+        for trial in study.trials:
+            assert trial.user_attrs["decisions"] == 200 // trial.params["option_steps"]
     if level != "ham":
         # Replaying the best parameters rebuilds the block the best trial trained.
         assert tuning.best_block(study, target) == study.best_trial.user_attrs["config_block"]

@@ -8,10 +8,12 @@ from pathlib import Path
 import optuna
 import pytest
 import yaml
-from stable_baselines3 import SAC, TD3
+from stable_baselines3 import DDPG, SAC, TD3
 
 from sb3_hddpg.experiments import tuning
 from sb3_hddpg.experiments.hyperparams_opt import (
+    SAC_LOG_STD_INIT,
+    base_params,
     check_fixed_params,
     sample_sac_params,
     sampler_for,
@@ -19,7 +21,13 @@ from sb3_hddpg.experiments.hyperparams_opt import (
 )
 from sb3_hddpg.experiments.study_storage import default_storage_url
 from sb3_hddpg.experiments.tuning import StudySettings, TuningTarget
-from sb3_hddpg.training.config import load_hyperparams, parse_block
+from sb3_hddpg.training.config import (
+    default_config,
+    load_config_file,
+    load_hyperparams,
+    parse_block,
+    select_block,
+)
 from tests.cli_batch import run_batch
 
 REPO = Path(__file__).resolve().parent.parent
@@ -39,6 +47,44 @@ def test_every_flat_algorithm_searches_the_shared_parameters_alike():
         sampler_for("manager", "sac")
     with pytest.raises(ValueError, match="Unknown algorithm 'ppo'"):
         TuningTarget(level="flat", algo="ppo")
+
+
+#: Every block a study tunes: (level, algorithm, bundled config block).
+TUNED_BLOCKS = [
+    ("worker", "ddpg", "hddpg/SnakeGoal-v0"),
+    ("worker", "ddpg", "hddpg/SnakeAvoid-v0"),
+    ("manager", "ddpg", "manager"),
+    ("flat", "ddpg", "hddpg/SnakeReach-v0"),
+    ("flat", "td3", "hddpg/SnakeReach-v0"),
+    ("flat", "sac", "hddpg/SnakeReach-v0"),
+]
+
+
+@pytest.mark.parametrize(("level", "algo", "key"), TUNED_BLOCKS)
+def test_every_bundled_block_is_a_point_of_its_search_space(level, algo, key):
+    # Equal effort: each study's first trial is its method's bundled config, which the space must hold
+    # whole, or that method would start its search from somewhere else than the others.
+    block = select_block(load_config_file(default_config(algo)), key)
+    params, outside = base_params(level, block, algo)
+    assert outside == []
+    replayed = sampler_for(level, algo)(optuna.trial.FixedTrial(params))
+    cls = {"ddpg": DDPG, "td3": TD3, "sac": SAC}[algo]
+    original = parse_block(dict(block), cls, source=key, manager=level == "manager")
+    rebuilt = parse_block(tuning.merge_block(block, replayed), cls, source=key, manager=level == "manager")
+    if algo == "sac":  # the sampler writes SB3's default log std out; the bundled block leaves it implicit
+        original.algo_kwargs["policy_kwargs"].setdefault("log_std_init", SAC_LOG_STD_INIT)
+    assert rebuilt.algo_kwargs == original.algo_kwargs
+    assert (rebuilt.noise_type, rebuilt.noise_std) == (original.noise_type, original.noise_std)
+    assert rebuilt.wrapper_kwargs == original.wrapper_kwargs
+
+
+def test_base_params_leave_out_what_the_space_cannot_express():
+    block = {"gamma": 0.5, "train_freq": 4, "gradient_steps": 1, "noise_type": None, "noise_std": 0.2}
+    params, outside = base_params("worker", block)
+    assert params == {"train_freq": 4, "noise_type": "none"}  # no noise: no noise_std to sample
+    assert {"gamma", "gradient_steps", "learning_rate", "net_arch"} <= set(outside)
+    assert "noise_std" not in outside
+    assert base_params("ham", {}, ham_threshold=5.5) == ({"threshold": 5.5}, [])
 
 
 def test_a_replayed_sac_trial_is_a_block_sac_accepts():

@@ -139,6 +139,13 @@ def _print_outcome(
         console.print("[yellow]No completed trial yet[/]: no best parameters, config or plots.")
         return
     console.print(trials_table(f"Best trials of {study.study_name} (mean evaluation reward)", best))
+    base = [t for t in study.trials if t.user_attrs.get("base_config")]
+    if base:
+        value = base[0].value if base[0].value is not None else base[0].state.name.lower()
+        console.print(
+            f"Base config (trial {base[0].number}): {value if isinstance(value, str) else f'{value:.2f}'}; "
+            f"best: {best[0].value:.2f} (trial {best[0].number})"
+        )
     if save_config is not None:
         console.print(f"[green]✓[/] best config -> {save_best_config(study, target, save_config)}")
     for plot, result in save_plots(study, out).items():
@@ -237,6 +244,14 @@ def tune_command(
         help="Seconds between a running trial's heartbeats; a trial silent for twice that is retried.",
     ),
     top: int = typer.Option(5, "--top", callback=at_least(1), help="Best trials to show."),
+    enqueue_base: bool = typer.Option(
+        True,
+        "--enqueue-base/--no-enqueue-base",
+        help=(
+            "A new study's first trial is the base config's own values (those in the search space), so the "
+            "best trial is never worse than the base config at the trial budget."
+        ),
+    ),
     backend: BackendOpt = None,
     env: str | None = typer.Option(
         None, "--env", help=ENV_HELP + " For --level manager the default is the workers' manifest's env."
@@ -298,6 +313,7 @@ def tune_command(
         seed=seed,
         fixed_params=fixed,
         heartbeat_interval=heartbeat,
+        enqueue_base=enqueue_base,
     )
     shown_storage = storage.split("@")[-1] if storage else settings.storage
     per_trial = "one evaluation" if level == "ham" else f"{target.budget()} steps"

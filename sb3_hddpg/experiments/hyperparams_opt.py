@@ -9,6 +9,9 @@ the block that is trained, and replayed on ``optuna.trial.FixedTrial(best.params
 that ``--save-config`` writes. The ranges follow rl_zoo3's DDPG/TD3 spaces, narrowed where the full range
 only wastes trials on this task and a CPU: learning rates above 1e-2 diverge, and batches above 512 or
 replay buffers above 3e5 cost time and memory per trial process without changing a tuning-sized run.
+The discount also offers 0.7 and 0.8 (below rl_zoo3's 0.9), and the buffer 2e5: the goal worker's
+config found by hand (docs/WORKERS.md) uses both, and every method's base config is a study's first trial
+(:func:`base_params`), which only reproduces values inside the space.
 """
 
 from __future__ import annotations
@@ -17,9 +20,13 @@ from collections.abc import Callable
 from typing import Any
 
 from sb3_hddpg.hierarchy.selection import SELECTORS
+from sb3_hddpg.training.config import parse_policy_kwargs
 
 #: ``net_arch`` choices by name (rl_zoo3's names and sizes).
 NET_ARCHS: dict[str, list[int]] = {"small": [64, 64], "medium": [256, 256], "big": [400, 300]}
+
+#: SB3's SAC policy's initial log std, when ``policy_kwargs`` does not set ``log_std_init``.
+SAC_LOG_STD_INIT = -3.0
 
 #: Largest HAM threshold: the observation's per-link obstacle clearances lie in [0, 1], so their sum over
 #: the default six links lies in [0, 6].
@@ -32,10 +39,10 @@ def _sample_shared(trial: Any) -> dict[str, Any]:
     discount, learning rate, batch and buffer size, soft-update rate, update schedule.
     """
     block = {
-        "gamma": trial.suggest_categorical("gamma", [0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
+        "gamma": trial.suggest_categorical("gamma", [0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
         "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
         "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512]),
-        "buffer_size": trial.suggest_categorical("buffer_size", [10_000, 100_000, 300_000]),
+        "buffer_size": trial.suggest_categorical("buffer_size", [10_000, 100_000, 200_000, 300_000]),
         "tau": trial.suggest_categorical("tau", [0.001, 0.005, 0.01, 0.02, 0.05, 0.08]),
         "train_freq": trial.suggest_categorical("train_freq", [1, 4, 8, 16, 32, 64]),
     }
@@ -206,11 +213,73 @@ def check_fixed_params(level: str, fixed: dict[str, Any], algo: str = "ddpg") ->
             what = f"level {level!r}" + (f" ({algo})" if level == "flat" else "")
             raise ValueError(f"Unknown parameter {name!r} for {what}; tunable: {sorted(space)}")
         kind, domain = space[name]
-        if kind == "choices" and value not in domain:
-            raise ValueError(f"Expected {name} among {domain}, actually: {value!r}")
-        if kind == "range" and not (
-            isinstance(value, (int, float))
-            and not isinstance(value, bool)
-            and domain[0] <= value <= domain[1]
-        ):
-            raise ValueError(f"Expected {name} in [{domain[0]}, {domain[1]}], actually: {value!r}")
+        if not _in_domain(value, kind, domain):
+            expected = f"among {domain}" if kind == "choices" else f"in [{domain[0]}, {domain[1]}]"
+            raise ValueError(f"Expected {name} {expected}, actually: {value!r}")
+
+
+def base_params(
+    level: str, block: dict[str, Any], algo: str = "ddpg", ham_threshold: float | None = None
+) -> tuple[dict[str, Any], list[str]]:
+    """
+    The sampler's parameters that reproduce a base ``zoo_configs`` block: a study's first trial (``tune``
+    enqueues it), so that every method's search starts from the config it had and its best trial is never
+    worse than that config at the trial budget. Equal effort needs this as much as equal trial counts: a
+    method whose hand-found values the search never tries starts behind.
+
+    :param level: the level tuned.
+    :param block: the base config's block (as in the file: ``policy_kwargs`` a string, ``noise_type``
+        ``None`` for none).
+    :param algo: the flat algorithm (level ``flat``).
+    :param ham_threshold: HAM's default threshold (level ``ham``, which has no block).
+    :return: the parameters whose base value lies in the search space, and the names of those whose value
+        does not (or that the block cannot express, e.g. ``gradient_steps`` other than ``train_freq``):
+        the trial samples those.
+    """
+    candidates: dict[str, Any] = {
+        key: block[key]
+        for key in ("gamma", "learning_rate", "batch_size", "buffer_size", "tau", "train_freq")
+        if key in block
+    }
+    candidates["noise_type"] = "none" if block.get("noise_type") is None else block["noise_type"]
+    if "noise_std" in block:
+        candidates["noise_std"] = block["noise_std"]
+    policy_kwargs = block.get("policy_kwargs", {})
+    if isinstance(policy_kwargs, str):
+        policy_kwargs = parse_policy_kwargs(policy_kwargs, "the base block")
+    names = [name for name, sizes in NET_ARCHS.items() if sizes == list(policy_kwargs.get("net_arch", []))]
+    if names:
+        candidates["net_arch"] = names[0]
+    # SB3's SAC starts from log_std_init = -3 when the block does not say.
+    candidates["log_std_init"] = policy_kwargs.get("log_std_init", SAC_LOG_STD_INIT)
+    candidates.update(
+        {
+            k: v
+            for k, v in block.get("wrapper_kwargs", {}).items()
+            if k in ("temperature", "floor", "selection")
+        }
+    )
+    if "option_steps" in block.get("wrapper_kwargs", {}):
+        candidates["option_steps"] = block["wrapper_kwargs"]["option_steps"]
+    if ham_threshold is not None:
+        candidates["threshold"] = ham_threshold
+    space = search_space(level, algo)
+    params = {
+        name: candidates[name]
+        for name, (kind, domain) in space.items()
+        if name in candidates and _in_domain(candidates[name], kind, domain)
+    }
+    outside = [name for name in space if name not in params]
+    if "train_freq" in params and block.get("gradient_steps", params["train_freq"]) != params["train_freq"]:
+        outside.append("gradient_steps")  # the space ties it to train_freq
+    if params.get("noise_type") == "none":  # no noise: noise_std is not a parameter of that trial
+        params.pop("noise_std", None)
+        outside = [name for name in outside if name != "noise_std"]
+    return params, outside
+
+
+def _in_domain(value: Any, kind: str, domain: Any) -> bool:
+    """Whether a value is one of a categorical parameter's choices, or a number in a range's bounds."""
+    if kind == "choices":
+        return value in domain
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and domain[0] <= value <= domain[1]

@@ -37,13 +37,13 @@ from optuna.trial import FrozenTrial, TrialState
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
-from sb3_hddpg.baselines.ham import HAMSwitch
+from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, HAMSwitch
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.executors import make_executor
-from sb3_hddpg.experiments.hyperparams_opt import sampler_for
+from sb3_hddpg.experiments.hyperparams_opt import base_params, sampler_for
 from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
 from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
@@ -214,19 +214,28 @@ class TuningTarget:
             workers, manifest = load_workers(str(self.workers_dir))
             env = _ham_env(self, manifest)
             try:
-                _make_ham(
-                    workers,
-                    env,
-                    float(len(state_layout_of(env).indices([HAM_COMPONENT]))) - 0.5,
-                    manifest,
-                )
+                _make_ham(workers, env, _ham_default_threshold(env), manifest)
             finally:
                 env.close()
         elif self.level == "worker" and self.env is not None:
             _env_factory(self, hyperparams)().close()  # e.g. block env_kwargs the env does not take fail here
 
+    def base_params(self) -> tuple[dict[str, Any], list[str]]:
+        """
+        The base config's values as the sampler's parameters (:func:`~sb3_hddpg.experiments.hyperparams_opt.base_params`;
+        for HAM its default threshold), and the names it cannot reproduce: a new study's first trial.
+        """
+        threshold = None
+        if self.level == "ham":
+            env = _ham_env(self, _workers_manifest(str(self.workers_dir)))
+            try:
+                threshold = _ham_default_threshold(env)
+            finally:
+                env.close()
+        return base_params(self.level, self.base_block(), self.algo, threshold)
+
     def budget(self) -> int:
-        """Training steps per trial."""
+        """Training env steps per trial (a manager's decisions are this divided by its ``option_steps``)."""
         if self.timesteps is not None:
             return int(self.timesteps)
         return int(self.base_block().get("n_timesteps", 0)) or 1
@@ -266,6 +275,9 @@ class StudySettings:
     :param fixed_params: parameters held fixed, name -> value (Optuna's ``PartialFixedSampler``).
     :param heartbeat_interval: seconds between heartbeats of a running trial; a trial silent for twice as
         long is failed and re-queued.
+    :param enqueue_base: a new study's first trial is the base config's own values (those in the search
+        space, :meth:`TuningTarget.base_params`), so that its best trial is never worse than the base
+        config at the trial budget, whatever the search finds.
     """
 
     storage: str
@@ -277,6 +289,7 @@ class StudySettings:
     seed: int | None = None
     fixed_params: dict[str, Any] = field(default_factory=dict)
     heartbeat_interval: int = 30
+    enqueue_base: bool = True
 
     def __post_init__(self) -> None:
         if self.sampler not in SAMPLERS:
@@ -383,6 +396,10 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
         source=f"trial {trial.number}",
         manager=target.level == "manager",
     )
+    if target.level == "manager":
+        # Every level's trial gets the same env steps: a manager decides once per option_steps env steps.
+        timesteps = max(1, timesteps // int(hyperparams.wrapper_kwargs.get("option_steps", 1)))
+        trial.set_user_attr("decisions", timesteps)
     pruning = TrialPruningCallback(trial)
     trials_dir = Path(out_dir) / "trials"
     trials_dir.mkdir(parents=True, exist_ok=True)
@@ -528,6 +545,8 @@ def tune(
     deadline = time.time() + settings.timeout if settings.timeout else None
     # Created here, once, so that the trial processes only load it.
     study = open_study(target, settings)
+    if settings.enqueue_base and not study.trials:
+        enqueue_base_trial(study, target, settings.fixed_params)
     jobs = [
         Job(
             f"tune-{index}",
@@ -547,6 +566,20 @@ def tune(
         failed = [f"{key} ({outcome.failure_message(key)})" for key in outcome.failures]
         raise RuntimeError(f"Trial processes failed: {', '.join(failed)}; their errors are logged above")
     return study
+
+
+def enqueue_base_trial(study: optuna.Study, target: TuningTarget, fixed: dict[str, Any]) -> dict[str, Any]:
+    """
+    Queue the base config's values (:meth:`TuningTarget.base_params`) as the study's next trial, marked
+    with the user attribute ``base_config``; parameters held fixed keep their fixed values, and those the
+    base config cannot express are sampled (listed in ``sampled_outside_space``).
+
+    :return: the parameters queued.
+    """
+    params, outside = target.base_params()
+    params = {name: value for name, value in params.items() if name not in fixed}
+    study.enqueue_trial(params, user_attrs={"base_config": True, "sampled_outside_space": outside})
+    return params
 
 
 def trial_counts(study: optuna.Study) -> dict[str, int]:
@@ -780,6 +813,11 @@ def _ham_env(target: TuningTarget, manifest: dict[str, Any]) -> Any:
             f"clearances), which {env_id!r} does not declare: tune HAM on the snake arm only"
         )
     return env
+
+
+def _ham_default_threshold(env: Any) -> float:
+    """HAM's default threshold in ``env``: the number of links minus the default margin."""
+    return float(len(state_layout_of(env).indices([HAM_COMPONENT]))) - DEFAULT_MARGIN
 
 
 def _make_ham(workers: dict[str, Any], env: Any, threshold: float, manifest: dict[str, Any]) -> HAMSwitch:

@@ -1,0 +1,157 @@
+"""
+Equal tuning effort for every method of the benchmark (issue 13, target 4): the same Optuna budget, the same
+number of trials of the same env steps each, for the two workers, the manager, HAM's threshold and the flat
+DDPG, TD3 and SAC; every study starts from its method's bundled config (its first trial, ``enqueue_base``).
+
+    python examples/equal_effort_tuning.py --n-trials 10 --timesteps 40000 --backend sbx --n-jobs 2 \\
+        --out runs/equal-tuning
+
+Order: the goal and avoid workers, then the flat agents (each on its own study); then two workers are trained
+with the tuned worker blocks at their full budget (seed 0), over which the manager and HAM are tuned. A
+manager's trial counts env steps (decisions x ``option_steps``) like every other; a HAM trial trains nothing
+and costs one evaluation. Everything resumes: re-run the same command after an interruption.
+
+Writes ``OUT/ddpg.yml`` (the tuned goal, avoid, flat and manager blocks over the bundled file), ``OUT/td3.yml``,
+``OUT/sac.yml``, ``OUT/summary.json`` (per study: trials by state, steps per trial, the base config's value,
+the best value and parameters; HAM's best threshold) and prints the summary as a Markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from sb3_hddpg.experiments.study_storage import default_storage_url
+from sb3_hddpg.experiments.tuning import (
+    StudySettings,
+    TuningTarget,
+    best_trials,
+    save_best_config,
+    trial_counts,
+    tune,
+)
+from sb3_hddpg.training.run_options import RunOptions
+from sb3_hddpg.training.training import train_workers
+
+#: The studies before the workers exist: (level, worker, algorithm, file the best block goes to).
+FIRST: list[tuple[str, str | None, str, str]] = [
+    ("worker", "goal", "ddpg", "ddpg.yml"),
+    ("worker", "avoid", "ddpg", "ddpg.yml"),
+    ("flat", None, "ddpg", "ddpg.yml"),
+    ("flat", None, "td3", "td3.yml"),
+    ("flat", None, "sac", "sac.yml"),
+]
+#: The studies over the workers trained with the tuned worker blocks.
+OVER_WORKERS: list[tuple[str, str | None, str, str | None]] = [
+    ("manager", None, "ddpg", "ddpg.yml"),
+    ("ham", None, "ddpg", None),
+]
+
+
+def run_study(
+    args: argparse.Namespace,
+    level: str,
+    worker: str | None,
+    algo: str,
+    config: Path | None,
+    workers: Path | None,
+) -> tuple[TuningTarget, Any]:
+    """One method's study (resumed if it exists), with the shared budget."""
+    target = TuningTarget(
+        level=level,
+        worker=worker,
+        workers_dir=str(workers) if workers is not None else None,
+        config=str(config) if config is not None else None,
+        timesteps=args.timesteps,
+        n_evaluations=args.n_evaluations,
+        eval_episodes=args.eval_episodes,
+        seed=args.seed,
+        algo=algo,
+        backend=args.backend if level != "ham" else None,
+    )
+    folder = args.out / "studies" / target.name
+    folder.mkdir(parents=True, exist_ok=True)
+    settings = StudySettings(
+        storage=default_storage_url(folder),
+        study_name=target.name,
+        n_trials=args.n_trials,
+        pruner=args.pruner,
+        seed=args.seed,
+    )
+    started = time.perf_counter()
+    study = tune(target, settings, folder, n_jobs=args.n_jobs)
+    print(f"{target.name}: {trial_counts(study)} in {time.perf_counter() - started:.0f} s", flush=True)
+    return target, study
+
+
+def summarise(target: TuningTarget, study: Any, args: argparse.Namespace) -> dict[str, Any]:
+    """What the docs report of a study: its budget, trials by state, the base config's value and the best."""
+    base = [t for t in study.trials if t.user_attrs.get("base_config")]
+    best = best_trials(study, 1)
+    return {
+        "study": target.name,
+        "level": target.level,
+        "algo": target.algo,
+        "trials": trial_counts(study),
+        "env_steps_per_trial": None if target.level == "ham" else args.timesteps,
+        "base_value": base[0].value if base else None,
+        "base_sampled_outside_space": base[0].user_attrs.get("sampled_outside_space") if base else None,
+        "best_value": best[0].value if best else None,
+        "best_trial": best[0].number if best else None,
+        "best_params": best[0].params if best else None,
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--n-trials", type=int, default=10, help="finished trials per method")
+    p.add_argument("--timesteps", type=int, default=40_000, help="env steps per trial, every method")
+    p.add_argument("--n-evaluations", type=int, default=5, help="evaluations per trial (for the pruner)")
+    p.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation")
+    p.add_argument("--pruner", default="median", choices=["median", "halving", "none"], help="Optuna pruner")
+    p.add_argument("--backend", default="sb3", choices=["sb3", "sbx"], help="training backend of every trial")
+    p.add_argument("--n-jobs", type=int, default=1, help="trial processes per study")
+    p.add_argument(
+        "--worker-timesteps",
+        type=int,
+        default=None,
+        help="steps per worker under the manager (default: its block's)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="training seed of every trial, and the samplers' seed")
+    p.add_argument("--out", type=Path, default=Path("runs/equal-tuning"), help="output folder")
+    args = p.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    summary: list[dict[str, Any]] = []
+    for level, worker, algo, first_file in FIRST:
+        target, study = run_study(args, level, worker, algo, None, None)
+        save_best_config(study, target, args.out / first_file)
+        summary.append(summarise(target, study, args))
+
+    workers = args.out / "workers"
+    print("training the workers with the tuned blocks...", flush=True)
+    run = RunOptions(timesteps=args.worker_timesteps, seed=args.seed, backend=args.backend, resume=True)
+    train_workers(workers, config=args.out / "ddpg.yml", run=run)
+    for level, worker, algo, file in OVER_WORKERS:
+        target, study = run_study(args, level, worker, algo, args.out / "ddpg.yml", workers)
+        if file is not None:
+            save_best_config(study, target, args.out / file)
+        summary.append(summarise(target, study, args))
+
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print("| study | trials (complete / pruned) | env steps per trial | base config | best | best trial |")
+    print("|---|---|---|---:|---:|---:|")
+    for entry in summary:
+        counts = entry["trials"]
+        base = f"{entry['base_value']:.1f}" if entry["base_value"] is not None else "-"
+        best = f"{entry['best_value']:.1f}" if entry["best_value"] is not None else "-"
+        print(
+            f"| {entry['study']} | {counts.get('COMPLETE', 0)} / {counts.get('PRUNED', 0)} | "
+            f"{entry['env_steps_per_trial'] or 'one evaluation'} | {base} | {best} | {entry['best_trial']} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
