@@ -164,6 +164,31 @@ def trained():
 
 
 @needs_sbx
+@pytest.mark.parametrize("algo", ["ddpg", "td3"])
+def test_a_model_under_the_action_penalty_exports_as_its_algorithm(trained, algo):
+    # A tuning trial exports the model it trained as is, still under the penalty's subclass (a trial once
+    # failed on it: "Cannot export DDPG to SB3").
+    from stable_baselines3 import DDPG, TD3
+
+    from sb3_hddpg.callbacks import apply_action_l2
+    from sb3_hddpg.training.backends import to_sb3
+
+    model, exported, _ = trained[algo]
+    apply_action_l2(model, 0.5)
+    try:
+        import sbx
+
+        assert type(model) is not getattr(sbx, algo.upper())  # the penalty's subclass, named as its base
+        penalised = to_sb3(model)
+    finally:
+        apply_action_l2(model, 0.0)
+    assert type(penalised) is {"ddpg": DDPG, "td3": TD3}[algo]
+    obs = _observations()
+    expected = exported.predict(obs, deterministic=True)[0]
+    assert np.abs(penalised.predict(obs, deterministic=True)[0] - expected).max() <= 1e-6
+
+
+@needs_sbx
 @pytest.mark.parametrize("algo", ["ddpg", "td3", "sac"])
 def test_export_acts_like_the_jax_policy(trained, algo, tmp_path):
     from stable_baselines3 import DDPG, SAC, TD3

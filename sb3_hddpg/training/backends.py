@@ -181,8 +181,10 @@ def is_sbx_model(model: Any) -> bool:
 def _sbx_algo_name(model: Any) -> str:
     import sbx  # lazily: optional, jax adds 1.4 s (only SBX models get here)
 
+    # isinstance, DDPG first (SBX's DDPG is a TD3): a model under the action penalty is a subclass of its
+    # algorithm (callbacks/action_penalty.py), and a tuning trial exports the model it trained as is.
     for name, cls in (("ddpg", sbx.DDPG), ("td3", sbx.TD3), ("sac", sbx.SAC)):
-        if type(model) is cls:
+        if isinstance(model, cls):
             return name
     raise BackendError(f"Cannot export {type(model).__qualname__} to SB3; exportable: {sorted(SBX_ALGOS)}")
 
