@@ -11,6 +11,9 @@ TORCH := torch==2.13.0
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 # More pytest options for `make test`, e.g. PYTEST_ARGS="-m slow" or PYTEST_ARGS="-x tests/test_env.py".
 PYTEST_ARGS ?=
+# Test processes (pytest-xdist), each given whole test files: a file's module fixtures (trained artifacts)
+# are built once. Two keep two cores busy: most tests wait on a subprocess or train one tiny agent.
+TEST_WORKERS ?= 2
 
 # torch before the package, so that the package's unpinned `torch` finds it installed.
 INSTALL_TORCH = if [ -n "$(TORCH_INDEX)" ] && $(BIN)/python -c "import sys, urllib.request; urllib.request.urlopen(sys.argv[1].rstrip('/') + '/torch/', timeout=15)" "$(TORCH_INDEX)" 2>/dev/null; then \
@@ -40,9 +43,9 @@ torch:
 quickstart: $(STAMP)
 	$(BIN)/hddpg-cli quickstart --backend sbx
 
-# One line per test file with its progress count, then the 15 slowest tests (about 8 min on 2 idle cores).
+# The tests in TEST_WORKERS processes, then the 15 slowest.
 test: $(STAMP)
-	SDL_VIDEODRIVER=dummy SDL_AUDIODRIVER=dummy $(BIN)/python -m pytest -o console_output_style=count --durations=15 $(PYTEST_ARGS)
+	SDL_VIDEODRIVER=dummy SDL_AUDIODRIVER=dummy $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --durations=15 $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check . && $(BIN)/mypy
