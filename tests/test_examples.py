@@ -13,6 +13,15 @@ from tests.test_bad_input import TINY_CONFIG
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
+def run_example(script: str, args: list[str], timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    """Run an example as its docstring does, in a fresh interpreter, and check that it exits 0."""
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / script), *args], capture_output=True, text=True, timeout=timeout
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    return result
+
+
 def test_preference_landscape_scores_every_policy_and_names_the_best(tmp_path):
     from sb3_hddpg.training.training import train_workers
 
@@ -20,13 +29,7 @@ def test_preference_landscape_scores_every_policy_and_names_the_best(tmp_path):
     config.write_text(TINY_CONFIG)
     train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
     args = ["--workers", str(tmp_path / "w"), "--episodes", "1", "--bias", "0.15", "3"]
-    result = subprocess.run(
-        [sys.executable, str(EXAMPLES / "preference_landscape.py"), *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
+    result = run_example("preference_landscape.py", args)
     table = [line for line in result.stdout.splitlines() if line.startswith("│")]
     rows = [line for line in table if "mixture" in line or "HAM threshold" in line]
     assert len(rows) == 12, result.stdout  # 5 mixtures + 7 thresholds
@@ -51,13 +54,7 @@ def test_worker_study_trains_with_every_setting_and_saves_a_plain_sb3_zip(tmp_pa
         "--save",
         str(tmp_path / "goal.zip"),
     ]
-    result = subprocess.run(
-        [sys.executable, str(EXAMPLES / "worker_study.py"), *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
+    result = run_example("worker_study.py", args)
     lines = [json.loads(line) for line in result.stdout.splitlines() if line.startswith("{")]
     assert lines[0]["steps"] == 300 and "test" in lines[-1]
     assert 0.0 <= lines[-1]["goal_touch_rate"] <= 1.0
@@ -73,13 +70,7 @@ def test_manager_study_reports_the_state_dependence(tmp_path):
     config.write_text(TINY_CONFIG)
     train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
     args = ["--workers", str(tmp_path / "w"), "--steps", "200", "--action-l2", "0.5", "--test-episodes", "1"]
-    result = subprocess.run(
-        [sys.executable, str(EXAMPLES / "manager_study.py"), *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
+    result = run_example("manager_study.py", args)
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert report["args"]["action_l2"] == 0.5 and 0.0 <= report["action_saturation"] <= 1.0
     assert report["state_dependence"]["worker"] == "avoid"
@@ -91,13 +82,7 @@ def test_equal_effort_tuning_gives_every_method_the_same_trials_from_its_bundled
 
     args = ["--n-trials", "2", "--timesteps", "200", "--n-evaluations", "2", "--eval-episodes", "1"]
     args += ["--worker-timesteps", "100", "--out", str(tmp_path)]
-    result = subprocess.run(
-        [sys.executable, str(EXAMPLES / "equal_effort_tuning.py"), *args],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
+    result = run_example("equal_effort_tuning.py", args, timeout=900)
     summary = json.loads((tmp_path / "summary.json").read_text())
     names = ["worker-goal", "worker-avoid", "flat", "flat-td3", "flat-sac", "manager", "ham"]
     assert [entry["study"] for entry in summary] == names
