@@ -182,7 +182,13 @@ def tune_command(
         None, "--timeout", callback=positive_float, help="Start no trial after this many seconds."
     ),
     timesteps: int | None = typer.Option(
-        None, "--timesteps", callback=at_least(1), help="Training steps per trial (default: the config's)."
+        None,
+        "--timesteps",
+        callback=at_least(1),
+        help=(
+            "Env steps per trial, at every level (a manager makes this / option_steps decisions; default: "
+            "the config's n_timesteps)."
+        ),
     ),
     n_evaluations: int = typer.Option(
         5, "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."

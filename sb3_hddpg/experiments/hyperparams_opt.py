@@ -252,15 +252,10 @@ def base_params(
         candidates["net_arch"] = names[0]
     # SB3's SAC starts from log_std_init = -3 when the block does not say.
     candidates["log_std_init"] = policy_kwargs.get("log_std_init", SAC_LOG_STD_INIT)
+    wrapper = block.get("wrapper_kwargs", {})
     candidates.update(
-        {
-            k: v
-            for k, v in block.get("wrapper_kwargs", {}).items()
-            if k in ("temperature", "floor", "selection")
-        }
+        {k: wrapper[k] for k in ("temperature", "floor", "selection", "option_steps") if k in wrapper}
     )
-    if "option_steps" in block.get("wrapper_kwargs", {}):
-        candidates["option_steps"] = block["wrapper_kwargs"]["option_steps"]
     if ham_threshold is not None:
         candidates["threshold"] = ham_threshold
     space = search_space(level, algo)

@@ -159,6 +159,8 @@ def check_workers_source(settings: BenchmarkSettings) -> None:
             block = blocks[name]
             budget = settings.worker_timesteps or int(block.n_timesteps)
             entry = entries.get(name)
+            entry = entry if isinstance(entry, dict) else {}
+            config = entry.get("config")
             expected = {
                 "config block": _plain(block.raw),
                 "timesteps_requested": budget,
@@ -166,10 +168,8 @@ def check_workers_source(settings: BenchmarkSettings) -> None:
                 "seed": seed,
             }
             actual = {
-                "config block": _plain(entry.get("config", {}).get("block"))
-                if isinstance(entry, dict)
-                else None,
-                **{key: entry.get(key) if isinstance(entry, dict) else None for key in list(expected)[1:]},
+                "config block": _plain(config.get("block")) if isinstance(config, dict) else None,
+                **{key: entry.get(key) for key in ("timesteps_requested", "backend", "seed")},
             }
             differ = [key for key in expected if actual[key] != expected[key]]
             if differ:
