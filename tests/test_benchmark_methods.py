@@ -286,13 +286,14 @@ def test_workers_from_another_benchmark_are_copied_checked_and_never_retrained(t
     args = ("benchmark", "--seeds", "1", "--methods", "goal-only", *TINY)
     done = cli(*args, "--out", str(first))
     assert done.returncode == 0, done.stdout + done.stderr
-    reuse, other_budget, missing_seed, not_a_run = run_batch(
+    reuse, other_budget, missing_seed, not_a_run, other_curve = run_batch(
         [
             [*args, "--workers-from", str(first), "--out", str(second)],
             [*args, "--worker-timesteps", "50", "--workers-from", str(first), "--out", str(tmp_path / "c")],
             ["benchmark", "--seeds", "2", "--methods", "goal-only", *TINY, "--workers-from", str(first),
              "--out", str(tmp_path / "d")],
             [*args, "--workers-from", str(tmp_path), "--out", str(tmp_path / "e")],
+            [*args, "--eval-episodes", "2", "--workers-from", str(first), "--out", str(tmp_path / "f")],
         ]
     )  # fmt: skip
     assert reuse.returncode == 0, reuse.stdout + reuse.stderr
@@ -314,7 +315,9 @@ def test_workers_from_another_benchmark_are_copied_checked_and_never_retrained(t
     assert other_budget.returncode == 2 and "worker_timesteps=100" in other_budget.stderr
     assert missing_seed.returncode == 2 and "no finished workers for seed 1" in missing_seed.stderr
     assert not_a_run.returncode == 2 and "not a benchmark folder" in not_a_run.stderr
-    for refused, folder in ((other_budget, "c"), (missing_seed, "d"), (not_a_run, "e")):
+    # Its best checkpoint was picked on curves of 1 episode: a run evaluating on 2 would pick another.
+    assert other_curve.returncode == 2 and "on 1 episodes, this benchmark evaluates" in other_curve.stderr
+    for refused, folder in ((other_budget, "c"), (missing_seed, "d"), (not_a_run, "e"), (other_curve, "f")):
         assert "Traceback" not in refused.stderr and not (tmp_path / folder).exists()
 
 

@@ -124,7 +124,8 @@ def check_workers_source(settings: BenchmarkSettings) -> None:
     """
     Check that ``settings.workers_from`` holds, for every seed, the workers this benchmark would train: a
     finished workers record, a manifest whose every worker was trained from the same config block, with the
-    same budget, backend and seed, and its learning curve. Then copying them changes nothing but the time
+    same budget, backend and seed, and its learning curve on the same evaluation schedule (which picked
+    the checkpoint kept). Then copying them changes nothing but the time
     (on the CPU a seed's training is deterministic), and a mismatch is refused before anything runs.
 
     :param settings: the benchmark's settings (nothing to check when ``workers_from`` is ``None``).
@@ -177,8 +178,26 @@ def check_workers_source(settings: BenchmarkSettings) -> None:
                     f"{str(manifest_path)!r}: worker {name!r} was not trained as this benchmark trains it "
                     f"({', '.join(differ)} differ): train them here instead (without --workers-from)"
                 )
-            if not (folder / "evaluations" / f"{name}.json").is_file():
-                raise ValueError(f"{str(source)!r}: worker {name!r} of seed {seed} has no learning curve")
+            _check_worker_curve(folder / "evaluations" / f"{name}.json", settings, name, seed)
+
+
+def _check_worker_curve(path: Path, settings: BenchmarkSettings, name: str, seed: int) -> None:
+    """
+    A reused worker's learning curve must come from this benchmark's evaluation schedule: a worker is its
+    best checkpoint on that curve, so other evaluation steps or episodes would have picked another one.
+    """
+    if not path.is_file():
+        raise ValueError(f"{str(path)!r}: worker {name!r} of seed {seed} has no learning curve")
+    curve = read_json_file(path)
+    every = settings.eval_freq_for(settings.worker_timesteps or settings.workers_budget)
+    points = curve if isinstance(curve, list) else []
+    theirs = [(p.get("timesteps"), p.get("episodes")) for p in points if isinstance(p, dict)]
+    if not theirs or theirs[0] != (every, settings.eval_episodes) or len(theirs) != len(points):
+        raise ValueError(
+            f"{str(path)!r}: worker {name!r} was evaluated every {theirs[0][0] if theirs else '?'} steps on "
+            f"{theirs[0][1] if theirs else '?'} episodes, this benchmark evaluates every {every} on "
+            f"{settings.eval_episodes}: its best checkpoint would differ; train the workers here instead"
+        )
 
 
 def _plain(value: Any) -> Any:
