@@ -6,8 +6,8 @@ DDPG, TD3 and SAC; every study starts from its method's bundled config (its firs
     python examples/equal_effort_tuning.py --n-trials 10 --timesteps 40000 --backend sbx --n-jobs 2 \\
         --out runs/equal-tuning
 
-Order: the goal and avoid workers, then the flat agents (each on its own study); then two workers are trained
-with the tuned worker blocks at their full budget (seed 0), over which the manager and HAM are tuned. A
+Order: the goal and avoid workers, then the flat agents (each on its own study) while two workers are trained
+with the tuned worker blocks at their full budget (seed 0); over those the manager and HAM are tuned. A
 manager's trial counts env steps (decisions x ``option_steps``) like every other; a HAM trial trains nothing
 and costs one evaluation. Everything resumes: re-run the same command after an interruption.
 
@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -36,10 +38,12 @@ from sb3_hddpg.experiments.tuning import (
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.training import train_workers
 
-#: The studies before the workers exist: (level, worker, algorithm, file the best block goes to).
-FIRST: list[tuple[str, str | None, str, str]] = [
+#: The studies of the workers, then of the flat agents: (level, worker, algorithm, file the best block goes to).
+WORKER_STUDIES: list[tuple[str, str | None, str, str]] = [
     ("worker", "goal", "ddpg", "ddpg.yml"),
     ("worker", "avoid", "ddpg", "ddpg.yml"),
+]
+FLAT_STUDIES: list[tuple[str, str | None, str, str]] = [
     ("flat", None, "ddpg", "ddpg.yml"),
     ("flat", None, "td3", "td3.yml"),
     ("flat", None, "sac", "sac.yml"),
@@ -125,19 +129,34 @@ def main() -> None:
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     summary: list[dict[str, Any]] = []
-    for level, worker, algo, first_file in FIRST:
+    for level, worker, algo, file in WORKER_STUDIES:
         target, study = run_study(args, level, worker, algo, None, None)
-        save_best_config(study, target, args.out / first_file)
+        save_best_config(study, target, args.out / file)
         summary.append(summarise(target, study, args))
 
-    workers = args.out / "workers"
-    print("training the workers with the tuned blocks...", flush=True)
+    # The workers the manager and HAM are tuned over train (one process, from their own copy of the tuned
+    # blocks) while the flat studies run, so that no core waits for them.
+    workers_config = args.out / "workers.yml"
+    shutil.copyfile(args.out / "ddpg.yml", workers_config)
     run = RunOptions(timesteps=args.worker_timesteps, seed=args.seed, backend=args.backend, resume=True)
-    train_workers(workers, config=args.out / "ddpg.yml", run=run)
-    for level, worker, algo, file in OVER_WORKERS:
+    trainer = multiprocessing.get_context("spawn").Process(
+        target=train_workers, args=(args.out / "workers",), kwargs={"config": workers_config, "run": run}
+    )
+    print("training the workers with the tuned blocks, beside the flat studies...", flush=True)
+    trainer.start()
+    for level, worker, algo, file in FLAT_STUDIES:
+        target, study = run_study(args, level, worker, algo, None, None)
+        save_best_config(study, target, args.out / file)
+        summary.append(summarise(target, study, args))
+    trainer.join()
+    if trainer.exitcode != 0:
+        raise SystemExit(f"training the workers failed (exit code {trainer.exitcode}); re-run to resume")
+
+    workers = args.out / "workers"
+    for level, worker, algo, maybe_file in OVER_WORKERS:
         target, study = run_study(args, level, worker, algo, args.out / "ddpg.yml", workers)
-        if file is not None:
-            save_best_config(study, target, args.out / file)
+        if maybe_file is not None:  # HAM has no config block: its threshold is in the summary
+            save_best_config(study, target, args.out / maybe_file)
         summary.append(summarise(target, study, args))
 
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -93,4 +93,9 @@ def test_equal_effort_tuning_gives_every_method_the_same_trials_from_its_bundled
         assert entry["base_sampled_outside_space"] == []  # each bundled block is a point of its space
     for file in ("ddpg.yml", "td3.yml", "sac.yml"):
         assert (tmp_path / file).is_file()
+    # The manager and HAM were tuned over workers trained from the tuned worker blocks.
+    manifest = json.loads((tmp_path / "workers" / "workers" / "manifest.json").read_text())
+    assert {entry["config"]["file"] for entry in manifest["workers"].values()} == {
+        str(tmp_path / "workers.yml")
+    }
     assert "| worker-goal | " in result.stdout
