@@ -106,6 +106,12 @@ def summarise(target: TuningTarget, study: Any, args: argparse.Namespace) -> dic
         "best_value": best[0].value if best else None,
         "best_trial": best[0].number if best else None,
         "best_params": best[0].params if best else None,
+        # What the study cost: its finished trials' own durations, summed (process minutes, not wall time).
+        "trial_minutes": sum(
+            (t.datetime_complete - t.datetime_start).total_seconds() / 60
+            for t in study.trials
+            if t.datetime_complete is not None and t.datetime_start is not None
+        ),
     }
 
 
@@ -160,15 +166,18 @@ def main() -> None:
         summary.append(summarise(target, study, args))
 
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    print("| study | trials (complete / pruned) | env steps per trial | base config | best | best trial |")
-    print("|---|---|---|---:|---:|---:|")
+    print(
+        "| study | trials (complete / pruned) | env steps per trial | base config | best | best trial | trial minutes |"
+    )
+    print("|---|---|---|---:|---:|---:|---:|")
     for entry in summary:
         counts = entry["trials"]
         base = f"{entry['base_value']:.1f}" if entry["base_value"] is not None else "-"
         best = f"{entry['best_value']:.1f}" if entry["best_value"] is not None else "-"
         print(
             f"| {entry['study']} | {counts.get('COMPLETE', 0)} / {counts.get('PRUNED', 0)} | "
-            f"{entry['env_steps_per_trial'] or 'one evaluation'} | {base} | {best} | {entry['best_trial']} |"
+            f"{entry['env_steps_per_trial'] or 'one evaluation'} | {base} | {best} | {entry['best_trial']} | "
+            f"{entry['trial_minutes']:.0f} |"
         )
 
 
