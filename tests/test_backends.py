@@ -168,6 +168,7 @@ def trained():
 def test_a_model_under_the_action_penalty_exports_as_its_algorithm(trained, algo):
     # A tuning trial exports the model it trained as is, still under the penalty's subclass (a trial once
     # failed on it: "Cannot export DDPG to SB3").
+    import sbx
     from stable_baselines3 import DDPG, TD3
 
     from sb3_hddpg.callbacks import apply_action_l2
@@ -176,8 +177,6 @@ def test_a_model_under_the_action_penalty_exports_as_its_algorithm(trained, algo
     model, exported, _ = trained[algo]
     apply_action_l2(model, 0.5)
     try:
-        import sbx
-
         assert type(model) is not getattr(sbx, algo.upper())  # the penalty's subclass, named as its base
         penalised = to_sb3(model)
     finally:
