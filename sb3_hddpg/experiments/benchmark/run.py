@@ -191,12 +191,16 @@ def _check_worker_curve(path: Path, settings: BenchmarkSettings, name: str, seed
     curve = read_json_file(path)
     every = settings.eval_freq_for(settings.worker_timesteps or settings.workers_budget)
     points = curve if isinstance(curve, list) else []
-    theirs = [(p.get("timesteps"), p.get("episodes")) for p in points if isinstance(p, dict)]
-    if not theirs or theirs[0] != (every, settings.eval_episodes) or len(theirs) != len(points):
+    first = (
+        (points[0].get("timesteps"), points[0].get("episodes"))
+        if points and isinstance(points[0], dict)
+        else None
+    )
+    if first != (every, settings.eval_episodes):
+        shown = f"every {first[0]} steps on {first[1]} episodes" if first else "without a readable curve"
         raise ValueError(
-            f"{str(path)!r}: worker {name!r} was evaluated every {theirs[0][0] if theirs else '?'} steps on "
-            f"{theirs[0][1] if theirs else '?'} episodes, this benchmark evaluates every {every} on "
-            f"{settings.eval_episodes}: its best checkpoint would differ; train the workers here instead"
+            f"{str(path)!r}: worker {name!r} was evaluated {shown}, this benchmark evaluates every {every} "
+            f"on {settings.eval_episodes}: its best checkpoint would differ; train the workers here instead"
         )
 
 
