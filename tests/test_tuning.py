@@ -205,6 +205,27 @@ def test_a_resumed_study_must_tune_the_same_thing(tmp_path, tiny_config):
     assert exited.value.code == 1
 
 
+@pytest.mark.filterwarnings("ignore:Heartbeat of storage")  # ask/tell stand in for optimize's trials here
+def test_a_resumed_seeded_study_does_not_replay_its_first_draws(tmp_path):
+    """A seeded process that reopens a study proposes new configurations, not its first run's again; a
+    fresh study with the same seed proposes the same ones (reproducible)."""
+    target = TuningTarget(level="flat", timesteps=200)
+
+    def first_proposal(storage_dir: Path) -> dict:
+        settings = StudySettings(
+            storage=default_storage_url(storage_dir), study_name=target.name, sampler="random", seed=7
+        )
+        study = tuning.open_study(target, settings, process_index=0)
+        trial = study.ask()
+        params = target.sampler(trial)
+        study.tell(trial, 0.0)
+        return params
+
+    first = first_proposal(tmp_path / "a")
+    assert first_proposal(tmp_path / "b") == first  # same seed, fresh study: the same draw
+    assert first_proposal(tmp_path / "a") != first  # the same study resumed: a new draw
+
+
 def test_plots_are_skipped_with_a_reason_below_two_trials(tmp_path):
     study = optuna.create_study(direction="maximize")
     study.optimize(lambda trial: trial.suggest_float("x", 0, 1), n_trials=1)

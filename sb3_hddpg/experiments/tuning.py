@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import optuna
 import torch
 import yaml
@@ -270,8 +271,9 @@ class StudySettings:
     :param timeout: seconds after which no new trial is started (``None``: no limit).
     :param sampler: ``tpe`` or ``random``.
     :param pruner: ``median``, ``halving`` or ``none``.
-    :param seed: seeds the sampler (process ``k`` of ``n_jobs`` uses ``seed + k``); ``None``: fresh entropy,
-        so that independent processes (e.g. on several machines) do not propose the same trials.
+    :param seed: seeds the samplers: each process's seed is drawn from ``seed``, its index among ``n_jobs``
+        and the study's trial count when it opened the study (see :func:`make_sampler`); ``None``: fresh
+        entropy, so that independent processes (e.g. on several machines) do not propose the same trials.
     :param fixed_params: parameters held fixed, name -> value (Optuna's ``PartialFixedSampler``).
     :param heartbeat_interval: seconds between heartbeats of a running trial; a trial silent for twice as
         long is failed and re-queued.
@@ -304,15 +306,26 @@ class StudySettings:
             raise ValueError(f"Expected timeout > 0 s, actually: {self.timeout}")
 
 
-def make_sampler(settings: StudySettings, process_index: int = 0) -> optuna.samplers.BaseSampler:
+def make_sampler(
+    settings: StudySettings, process_index: int = 0, trials_before: int = 0
+) -> optuna.samplers.BaseSampler:
     """
     The sampler of one process: TPE (multivariate, with constant liar so that parallel processes do not
     all sample next to the same promising point) or random, wrapped to hold ``fixed_params``.
 
+    A seeded sampler's seed mixes ``settings.seed``, ``process_index`` and ``trials_before``: a resumed
+    study's processes would otherwise replay their first run's random draws, and so train the
+    configurations of its first trials a second time.
+
     :param settings: the study settings.
-    :param process_index: the process's index among ``n_jobs`` (offsets the seed).
+    :param process_index: the process's index among ``n_jobs``.
+    :param trials_before: how many trials (in any state) the study held when this process opened it.
     """
-    seed = None if settings.seed is None else settings.seed + process_index
+    seed = (
+        None
+        if settings.seed is None
+        else int(np.random.SeedSequence([settings.seed, process_index, trials_before]).generate_state(1)[0])
+    )
     with quiet_experimental():
         if settings.sampler == "random":
             sampler: optuna.samplers.BaseSampler = optuna.samplers.RandomSampler(seed=seed)
@@ -359,9 +372,10 @@ def open_study(target: TuningTarget, settings: StudySettings, process_index: int
         study_name=settings.study_name,
         direction="maximize",
         load_if_exists=True,
-        sampler=make_sampler(settings, process_index),
+        sampler=optuna.samplers.RandomSampler(),  # a placeholder: the seed depends on the trials stored
         pruner=make_pruner(settings.pruner, target.n_evaluations),
     )
+    study.sampler = make_sampler(settings, process_index, len(study.get_trials(deepcopy=False)))
     expected = target.describe()
     stored = study.user_attrs.get("target")
     if stored is None:
