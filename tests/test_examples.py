@@ -90,6 +90,8 @@ def test_equal_effort_tuning_gives_every_method_the_same_trials_from_its_bundled
         assert sum(entry["trials"].values()) == 2, entry
         assert entry["env_steps_per_trial"] == (None if entry["study"] == "ham" else 200)
         assert entry["base_value"] is not None and entry["best_value"] >= entry["base_value"]
+        # Ranked by each trial's best evaluation; the pick by the last evaluation is reported beside it.
+        assert entry["rank_by"] == "peak" and entry["best_last_value"] >= entry["base_last_value"]
         assert entry["base_sampled_outside_space"] == []  # each bundled block is a point of its space
     for file in ("ddpg.yml", "td3.yml", "sac.yml"):
         assert (tmp_path / file).is_file()

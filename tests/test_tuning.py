@@ -205,6 +205,39 @@ def test_a_resumed_study_must_tune_the_same_thing(tmp_path, tiny_config):
     assert exited.value.code == 1
 
 
+def test_ranking_by_peak_picks_the_trial_with_the_best_evaluation(tmp_path):
+    """A learner that swings (its best evaluation 300, its last 285) against a policy stuck at 290: the last
+    evaluation ranks the stuck one first, the peak the learner; the saved block follows the ranking."""
+    target = TuningTarget(level="flat", timesteps=200)
+    study = optuna.create_study(direction="maximize")
+    learner, _ = target.base_params()
+    stuck = {**learner, "net_arch": "medium"}
+    for params, curve in ((learner, [280.0, 300.0, 285.0]), (stuck, [290.0, 290.0, 290.0])):
+        study.enqueue_trial(params)
+        trial = study.ask()
+        target.sampler(trial)
+        for step, value in enumerate(curve, 1):
+            trial.report(value, step)
+        study.tell(trial, curve[-1])
+
+    assert [t.number for t in tuning.best_trials(study, 2)] == [1, 0]
+    assert [t.number for t in tuning.best_trials(study, 2, rank_by="peak")] == [0, 1]
+    assert tuning.trial_score(study.trials[0], "peak") == 300.0
+    saved = tuning.save_best_config(study, target, tmp_path / "best.yml", rank_by="peak")
+    block = yaml.safe_load(saved.read_text())["hddpg/SnakeReach-v0"]
+    assert "net_arch=[64, 64]" in block["policy_kwargs"]
+    assert "trial 0, best mean evaluation reward 300" in saved.read_text()
+    by_last = tuning.save_best_config(study, target, tmp_path / "last.yml")
+    assert "net_arch=[256, 256]" in yaml.safe_load(by_last.read_text())["hddpg/SnakeReach-v0"]["policy_kwargs"]
+
+
+def test_an_unknown_ranking_is_a_usage_error(tmp_path, tiny_config):
+    with pytest.raises(SystemExit) as exited:
+        cli_main([*cli_args(tmp_path, tiny_config, 1), "--rank-by", "median"])
+    assert exited.value.code == 2
+    assert not (tmp_path / "study.db").exists()
+
+
 @pytest.mark.filterwarnings("ignore:Heartbeat of storage")  # ask/tell stand in for optimize's trials here
 def test_a_resumed_seeded_study_does_not_replay_its_first_draws(tmp_path):
     """A seeded process that reopens a study proposes new configurations, not its first run's again; a

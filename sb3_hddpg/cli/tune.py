@@ -32,6 +32,7 @@ from sb3_hddpg.experiments.study_storage import check_storage_url, default_stora
 from sb3_hddpg.experiments.tuning import (
     LEVELS,
     PRUNERS,
+    RANKINGS,
     SAMPLERS,
     StudySettings,
     TuningTarget,
@@ -39,6 +40,7 @@ from sb3_hddpg.experiments.tuning import (
     save_best_config,
     save_plots,
     trial_counts,
+    trial_score,
     tune,
 )
 from sb3_hddpg.training.backends import resolve_backend
@@ -57,16 +59,23 @@ def parse_fixed(items: list[str]) -> dict[str, object]:
 
 
 def trials_table(title: str, trials: list) -> Table:
-    """A rich table of trials: rank, number, value, parameters, duration."""
+    """A rich table of trials: rank, number, last and best evaluation, parameters, duration."""
     table = Table(title=title)
-    for column in ("rank", "trial", "mean reward", "parameters", "duration"):
+    for column in ("rank", "trial", "last", "best", "parameters", "duration"):
         table.add_column(column, justify="left" if column == "parameters" else "right")
     for rank, trial in enumerate(trials, 1):
         params = ", ".join(
             f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in trial.params.items()
         )
         duration = trial.duration.total_seconds() if trial.duration is not None else float("nan")
-        table.add_row(str(rank), str(trial.number), f"{trial.value:.2f}", params, f"{duration:.0f} s")
+        table.add_row(
+            str(rank),
+            str(trial.number),
+            f"{trial.value:.2f}",
+            f"{trial_score(trial, 'peak'):.2f}",
+            params,
+            f"{duration:.0f} s",
+        )
     return table
 
 
@@ -106,8 +115,14 @@ def _check_level_options(
         raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
 
 
-def _check_search_options(sampler: str, pruner: str, storage: str | None, config: Path | None) -> None:
-    """The sampler, pruner, storage URL and config file: usage errors naming the option."""
+def _check_search_options(
+    sampler: str, pruner: str, storage: str | None, config: Path | None, rank_by: str = "last"
+) -> None:
+    """The sampler, pruner, storage URL, config file and ranking: usage errors naming the option."""
+    if rank_by not in RANKINGS:
+        raise typer.BadParameter(
+            f"must be one of {list(RANKINGS)}, got {rank_by!r}", param_hint="'--rank-by'"
+        )
     if sampler not in SAMPLERS:
         raise typer.BadParameter(
             f"must be one of {list(SAMPLERS)}, got {sampler!r}", param_hint="'--sampler'"
@@ -130,24 +145,34 @@ def _print_outcome(
     top: int,
     save_config: Path | None,
     storage: str | None,
+    rank_by: str = "last",
 ) -> None:
     """Trial counts, the best trials, the saved config and plots, and how to open the dashboard."""
     counts = trial_counts(study)
     console.print("Trials: " + ", ".join(f"{state.lower()} {n}" for state, n in sorted(counts.items())))
-    best = best_trials(study, top)
+    best = best_trials(study, top, rank_by)
     if not best:
         console.print("[yellow]No completed trial yet[/]: no best parameters, config or plots.")
         return
-    console.print(trials_table(f"Best trials of {study.study_name} (mean evaluation reward)", best))
+    which = "last" if rank_by == "last" else "best"
+    console.print(
+        trials_table(f"Best trials of {study.study_name} (mean evaluation reward; ranked by {which})", best)
+    )
     base = [t for t in study.trials if t.user_attrs.get("base_config")]
     if base:
-        value = base[0].value if base[0].value is not None else base[0].state.name.lower()
+        state = base[0].state
+        shown = (
+            f"{trial_score(base[0], rank_by):.2f}"
+            if state == optuna.trial.TrialState.COMPLETE
+            else state.name.lower()
+        )
         console.print(
-            f"Base config (trial {base[0].number}): {value if isinstance(value, str) else f'{value:.2f}'}; "
-            f"best: {best[0].value:.2f} (trial {best[0].number})"
+            f"Base config (trial {base[0].number}): {shown}; "
+            f"best: {trial_score(best[0], rank_by):.2f} (trial {best[0].number}), {which} evaluations"
         )
     if save_config is not None:
-        console.print(f"[green]✓[/] best config -> {save_best_config(study, target, save_config)}")
+        saved = save_best_config(study, target, save_config, rank_by)
+        console.print(f"[green]✓[/] best config -> {saved}")
     for plot, result in save_plots(study, out).items():
         if isinstance(result, Path):
             console.print(f"[green]✓[/] {plot} -> {result}")
@@ -250,6 +275,13 @@ def tune_command(
         help="Seconds between a running trial's heartbeats; a trial silent for twice that is retried.",
     ),
     top: int = typer.Option(5, "--top", callback=at_least(1), help="Best trials to show."),
+    rank_by: str = typer.Option(
+        "last",
+        "--rank-by",
+        help="Which trial is best (shown, and saved by --save-config): last = by its last evaluation "
+        "(the Optuna value, RL Zoo's objective); peak = by its best evaluation (the checkpoint train-* "
+        "and benchmark keep).",
+    ),
     enqueue_base: bool = typer.Option(
         True,
         "--enqueue-base/--no-enqueue-base",
@@ -280,7 +312,7 @@ def tune_command(
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
     _check_level_options(level, algo, worker, workers_dir, save_config, known)
-    _check_search_options(sampler, pruner, storage, config)
+    _check_search_options(sampler, pruner, storage, config, rank_by)
     fixed = parse_fixed(fix)
     with usage_errors("'--fix'"):
         check_fixed_params(level, fixed, algo)
@@ -334,4 +366,6 @@ def tune_command(
         console.print(f"[yellow]{interrupted}[/] Re-run the same command to resume the study.")
         raise typer.Exit(130) from None
 
-    _print_outcome(study, target, out, top, save_config, settings.storage if storage is None else None)
+    _print_outcome(
+        study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
+    )

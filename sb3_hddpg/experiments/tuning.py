@@ -5,7 +5,10 @@ One trial samples a ``zoo_configs`` block with :func:`~sb3_hddpg.experiments.hyp
 level; for ``flat``, one per algorithm: DDPG, TD3, SAC), trains it with :func:`~sb3_hddpg.training.training.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
 evaluations to the pruner through :class:`~sb3_hddpg.callbacks.TrialPruningCallback`, and returns the last
 evaluation's mean reward (rl_zoo3's objective: the best of several noisy evaluations would favour lucky
-configurations). A trial that diverges (NaN reward or weights, or an exception about NaN) is pruned, not
+configurations). Which trial is *best* is a separate choice (:data:`RANKINGS`): by that value, or by the
+trial's best evaluation, the checkpoint every ``train-*`` command keeps. A policy stuck on one constant
+action scores the same at every evaluation, and can win the first ranking by a point over one that
+learns and swings. A trial that diverges (NaN reward or weights, or an exception about NaN) is pruned, not
 failed: it is a bad configuration, not a bug. HAM trains nothing: its trial is one evaluation.
 
 :func:`tune` runs ``n_jobs`` processes (not threads: training holds the GIL between torch calls) on one
@@ -83,6 +86,10 @@ PRUNERS = ("median", "halving", "none")
 SHARED_ENV_ID = "hddpg/SnakeReach-v0"
 #: The state component HAM's switch rule reads (the snake's per-link obstacle clearances).
 HAM_COMPONENT = "joint_obstacle_distances"
+#: How :func:`best_trials` ranks completed trials: ``last`` by the Optuna value, a trial's last evaluation
+#: (rl_zoo3's objective); ``peak`` by its best evaluation, the checkpoint that ``train-*`` and the benchmark
+#: keep. HAM's trial is one evaluation: both are the same there.
+RANKINGS = ("last", "peak")
 #: Trial states that count towards ``n_trials``.
 FINISHED_STATES = (TrialState.COMPLETE, TrialState.PRUNED)
 #: Startup trials of TPE (random ones before it models anything) and of the median pruner, as in rl_zoo3.
@@ -604,33 +611,46 @@ def trial_counts(study: optuna.Study) -> dict[str, int]:
     return counts
 
 
-def best_trials(study: optuna.Study, k: int = 5) -> list[FrozenTrial]:
-    """The ``k`` completed trials with the highest values, best first."""
+def trial_score(trial: FrozenTrial, rank_by: str = "last") -> float:
+    """
+    A completed trial's score under ``rank_by`` (see :data:`RANKINGS`): its value, or its best reported
+    evaluation (its value when it reported none).
+    """
+    if rank_by not in RANKINGS:
+        raise ValueError(f"Unknown ranking {rank_by!r}; choose from {list(RANKINGS)}")
+    value = trial.value if trial.value is not None else -math.inf
+    if rank_by == "peak":
+        return max([value, *trial.intermediate_values.values()])
+    return value
+
+
+def best_trials(study: optuna.Study, k: int = 5, rank_by: str = "last") -> list[FrozenTrial]:
+    """The ``k`` best completed trials under ``rank_by`` (:data:`RANKINGS`), best first."""
     completed = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-    return sorted(completed, key=lambda t: t.value if t.value is not None else -math.inf, reverse=True)[:k]
+    return sorted(completed, key=lambda t: trial_score(t, rank_by), reverse=True)[:k]
 
 
-def best_block(study: optuna.Study, target: TuningTarget) -> dict[str, Any]:
+def best_block(study: optuna.Study, target: TuningTarget, rank_by: str = "last") -> dict[str, Any]:
     """
     The best trial's config block: the base block with the best parameters, rebuilt by replaying the
     level's sampler on ``optuna.trial.FixedTrial(best.params)``.
 
     :param study: a study with at least one completed trial.
     :param target: what was tuned (not HAM, which has no block).
+    :param rank_by: which trial is best (:data:`RANKINGS`).
     """
     if target.level == "ham":
         raise ValueError("HAM has no DDPG hyperparameters to save; its best threshold is in the study")
-    try:
-        best = study.best_trial
-    except ValueError:
-        raise ValueError(
-            f"Study {study.study_name!r} has no completed trial yet: no best parameters"
-        ) from None
-    changes = target.sampler(optuna.trial.FixedTrial(best.params))
+    best = best_trials(study, 1, rank_by)
+    if not best:
+        raise ValueError(f"Study {study.study_name!r} has no completed trial yet: no best parameters")
+    changes = target.sampler(optuna.trial.FixedTrial(best[0].params))
     return merge_block(target.base_block(), changes)
 
 
-def save_best_config(study: optuna.Study, target: TuningTarget, path: str | Path) -> Path:
+def save_best_config(
+    study: optuna.Study, target: TuningTarget, path: str | Path, rank_by: str = "last"
+) -> Path:
     """
     Write the best parameters as a ``zoo_configs`` file that ``train-workers``, ``train-manager`` and
     ``train-flat --config`` accept as is.
@@ -642,19 +662,21 @@ def save_best_config(study: optuna.Study, target: TuningTarget, path: str | Path
     :param study: the tuned study.
     :param target: what was tuned.
     :param path: the YAML file to write.
+    :param rank_by: which trial is best (:data:`RANKINGS`).
     :return: the path written.
     """
     path = Path(path)
-    block = best_block(study, target)
+    block = best_block(study, target, rank_by)
     key = str(target.block_key)
     config = load_config_file(path) if path.exists() else load_config_file(target.config_path)
     config[key] = block
-    best = study.best_trial
+    best = best_trials(study, 1, rank_by)[0]
+    which = "last" if rank_by == "last" else "best"
     header = (
         f"# Written by hddpg-cli tune on {datetime.datetime.now().isoformat(timespec='seconds')}: "
         f"block {key!r} from study {study.study_name!r},\n"
-        f"# trial {best.number}, mean evaluation reward {best.value:.4g} after {target.budget()} steps. "
-        f"RL Zoo format (zoo_configs/{target.algo}.yml).\n"
+        f"# trial {best.number}, {which} mean evaluation reward {trial_score(best, rank_by):.4g} "
+        f"in {target.budget()} steps. RL Zoo format (zoo_configs/{target.algo}.yml).\n"
     )
     text = header + yaml.safe_dump(config, sort_keys=False, default_flow_style=False)
     atomic_write_bytes(path, text.encode())
@@ -869,6 +891,7 @@ def _safe_url(url: str) -> str:
 __all__ = [
     "LEVELS",
     "PRUNERS",
+    "RANKINGS",
     "SAMPLERS",
     "StudySettings",
     "TuningTarget",
@@ -882,5 +905,6 @@ __all__ = [
     "save_best_config",
     "save_plots",
     "trial_counts",
+    "trial_score",
     "tune",
 ]
