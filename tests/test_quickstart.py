@@ -44,6 +44,8 @@ def test_results_json_schema(run):
             assert isinstance(summary[key], float)
     # Manager 300 + avoid worker 300 + goal worker 304 (it trains in blocks of train_freq = 8 steps).
     assert results["methods"]["HDDPG"]["train_timesteps"] == 904
+    # The flat DDPG gets the hierarchy's planned total: two workers' 300 steps and the manager's 300.
+    assert results["methods"]["flat DDPG"]["train_timesteps"] == results["budget"]["flat_timesteps"] == 900
     assert set(results["stage_seconds"]) == set(STAGES) == set(results["stage_cpu_seconds"])
     for label, path in results["files"].items():
         assert (out / path).exists(), label

@@ -49,7 +49,7 @@ from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_
 from sb3_hddpg.media.video import record_video
 from sb3_hddpg.training import training
 from sb3_hddpg.training.backends import check_backend
-from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file
+from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, wrapper_kwargs
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.training import WORKER_ENV_IDS
 
@@ -69,7 +69,8 @@ class QuickstartBudget:
     :param name: ``small`` or ``tiny``.
     :param worker_timesteps: steps per worker.
     :param manager_timesteps: manager steps.
-    :param flat_timesteps: steps of the flat DDPG baseline.
+    :param flat_timesteps: steps of the flat DDPG baseline (``None``: the hierarchy's total env steps, every
+        worker's and the manager's, as in the benchmark).
     :param eval_freq: steps between evaluations during training.
     :param eval_episodes: episodes per evaluation during training.
     :param compare_episodes: episodes per method in the final comparison (the same seeds for all).
@@ -81,10 +82,10 @@ class QuickstartBudget:
     name: str
     worker_timesteps: int
     manager_timesteps: int
-    flat_timesteps: int
     eval_freq: int
     eval_episodes: int
     compare_episodes: int
+    flat_timesteps: int | None = None
     gif_episodes: int = 1
     gif_max_steps: int | None = None
     overrides: dict[str, Any] = field(default_factory=dict)
@@ -96,7 +97,6 @@ BUDGETS: dict[str, QuickstartBudget] = {
         "small",
         worker_timesteps=30_000,
         manager_timesteps=30_000,
-        flat_timesteps=30_000,
         eval_freq=5_000,
         eval_episodes=5,
         compare_episodes=20,
@@ -105,7 +105,6 @@ BUDGETS: dict[str, QuickstartBudget] = {
         "tiny",
         worker_timesteps=300,
         manager_timesteps=300,
-        flat_timesteps=300,
         eval_freq=150,
         eval_episodes=1,
         compare_episodes=2,
@@ -207,7 +206,8 @@ def _train_job(
         steps = out["entry"]["timesteps_trained"]
     elif kind == "manager":
         _, outcome = training.train_manager(run_dir, run_dir, **common)
-        out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps
+        # Env steps, as every other agent's: each decision runs option_steps of them.
+        out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps * _option_steps(config)
     else:
         # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
         manifest, _ = training.train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
@@ -222,6 +222,22 @@ def _train_job(
         }
     )
     return out
+
+
+def _option_steps(config: str | Path) -> int:
+    """Env steps per manager decision: the manager block's ``option_steps``."""
+    return int(wrapper_kwargs(config).get("option_steps", 1))
+
+
+def flat_budget(budget: QuickstartBudget, config: str | Path) -> int:
+    """
+    The flat DDPG's steps: the budget's own, or the hierarchy's total env steps (both workers' and the
+    manager's decisions times its ``option_steps``), so that the flat agent sees as much data as the whole
+    hierarchy, as in the benchmark.
+    """
+    if budget.flat_timesteps is not None:
+        return budget.flat_timesteps
+    return len(WORKER_ENV_IDS) * budget.worker_timesteps + budget.manager_timesteps * _option_steps(config)
 
 
 # ---------------------------------------------------------------------------------------- the parent
@@ -364,7 +380,7 @@ def run_quickstart(
     stage(1)
     jobs = [
         {"kind": "manager", "name": "manager", "timesteps": budget.manager_timesteps, **common},
-        {"kind": "flat", "name": "flat-ddpg", "timesteps": budget.flat_timesteps, **common},
+        {"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget, config), **common},
     ]
     second = _run_jobs(jobs, processes, observer, ray_address)
     trained.update(second)
@@ -482,7 +498,7 @@ def run_quickstart(
         "kind": "sb3-hddpg-quickstart",
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "env_id": COMPARISON_ENV_ID,
-        "budget": {k: v for k, v in vars(budget).items()},
+        "budget": {**vars(budget), "flat_timesteps": flat_budget(budget, config)},
         "seed": seed,
         "eval_seeds": list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + budget.compare_episodes)),
         "deterministic": True,
