@@ -12,7 +12,6 @@ from stable_baselines3 import DDPG, SAC, TD3
 
 from sb3_hddpg.experiments import tuning
 from sb3_hddpg.experiments.hyperparams_opt import (
-    SAC_LOG_STD_INIT,
     base_params,
     check_fixed_params,
     sample_sac_params,
@@ -21,6 +20,7 @@ from sb3_hddpg.experiments.hyperparams_opt import (
 )
 from sb3_hddpg.experiments.study_storage import default_storage_url
 from sb3_hddpg.experiments.tuning import StudySettings, TuningTarget
+from sb3_hddpg.training.backends import sbx_kwargs
 from sb3_hddpg.training.config import (
     default_config,
     load_config_file,
@@ -40,7 +40,8 @@ def test_every_flat_algorithm_searches_the_shared_parameters_alike():
     assert td3 == ddpg  # TD3 gets DDPG's space (rl_zoo3 does the same)
     for name in SHARED:
         assert sac[name] == ddpg[name], name
-    assert "log_std_init" in sac and "noise_type" not in sac  # SAC explores by its own entropy
+    assert "ent_coef_init" in sac and "noise_type" not in sac  # SAC explores by its own entropy
+    assert "log_std_init" not in sac  # read only with gSDE: a dimension that would change nothing
     with pytest.raises(ValueError, match="Unknown parameter 'noise_std' for level 'flat' \\(sac\\)"):
         check_fixed_params("flat", {"noise_std": 0.2}, "sac")
     with pytest.raises(ValueError, match="DDPG only"):
@@ -71,8 +72,6 @@ def test_every_bundled_block_is_a_point_of_its_search_space(level, algo, key):
     cls = {"ddpg": DDPG, "td3": TD3, "sac": SAC}[algo]
     original = parse_block(dict(block), cls, source=key, manager=level == "manager")
     rebuilt = parse_block(tuning.merge_block(block, replayed), cls, source=key, manager=level == "manager")
-    if algo == "sac":  # the sampler writes SB3's default log std out; the bundled block leaves it implicit
-        original.algo_kwargs["policy_kwargs"].setdefault("log_std_init", SAC_LOG_STD_INIT)
     assert rebuilt.algo_kwargs == original.algo_kwargs
     assert (rebuilt.noise_type, rebuilt.noise_std) == (original.noise_type, original.noise_std)
     assert rebuilt.wrapper_kwargs == original.wrapper_kwargs
@@ -94,25 +93,43 @@ def test_a_replayed_sac_trial_is_a_block_sac_accepts():
         "learning_rate": 3e-4,
         "tau": 0.02,
         "train_freq": 4,
-        "log_std_init": -2.5,
+        "ent_coef_init": 0.1,
     }
     changes = sample_sac_params(optuna.trial.FixedTrial(params))
     block = dict(yaml.safe_load((REPO / "zoo_configs" / "sac.yml").read_text())["default"], **changes)
     parsed = parse_block(block, SAC, source="replayed")
-    assert parsed.algo_kwargs["policy_kwargs"] == {"net_arch": [64, 64], "log_std_init": -2.5}
-    assert parsed.algo_kwargs["gradient_steps"] == 4 and parsed.algo_kwargs["ent_coef"] == "auto"
+    assert parsed.algo_kwargs["policy_kwargs"] == {"net_arch": [64, 64]}
+    assert parsed.algo_kwargs["gradient_steps"] == 4 and parsed.algo_kwargs["ent_coef"] == "auto_0.1"
+    # SB3 and SBX both build it: the entropy coefficient starts at 0.1, as the trial said.
+    model = SAC("MlpPolicy", "Pendulum-v1", **{**parsed.algo_kwargs, "buffer_size": 1_000})
+    assert float(model.log_ent_coef.exp().item()) == pytest.approx(0.1)
+    sbx = pytest.importorskip("sbx")
+    jax_model = sbx.SAC(
+        "MlpPolicy", "Pendulum-v1", **sbx_kwargs("sac", {**parsed.algo_kwargs, "buffer_size": 1_000})
+    )
+    assert float(jax_model.ent_coef.apply({"params": jax_model.ent_coef_state.params})) == pytest.approx(0.1)
 
 
 @pytest.mark.slow  # two trainings per algorithm: 40-120 s each on a shared 2-core machine
-@pytest.mark.parametrize(("algo", "cls"), [("td3", TD3), ("sac", SAC)])
-def test_two_tiny_trials_and_a_saved_config(algo, cls, tmp_path):
+@pytest.mark.parametrize(
+    ("algo", "cls", "backend"), [("td3", TD3, "sb3"), ("sac", SAC, "sb3"), ("sac", SAC, "sbx")]
+)
+def test_two_tiny_trials_and_a_saved_config(algo, cls, backend, tmp_path):
+    if backend == "sbx":
+        pytest.importorskip("sbx")
     config = yaml.safe_load((REPO / "zoo_configs" / f"{algo}.yml").read_text())
     for block in config.values():
         block.update(learning_starts=50, n_timesteps=200, policy_kwargs="dict(net_arch=[16])")
     base = tmp_path / f"{algo}.yml"
     base.write_text(yaml.safe_dump(config, sort_keys=False))
     target = TuningTarget(
-        level="flat", algo=algo, config=str(base), timesteps=200, n_evaluations=2, eval_episodes=1
+        level="flat",
+        algo=algo,
+        config=str(base),
+        timesteps=200,
+        n_evaluations=2,
+        eval_episodes=1,
+        backend=backend,
     )
     assert target.name == f"flat-{algo}" and target.describe()["algo"] == algo
     settings = StudySettings(

@@ -25,8 +25,8 @@ from sb3_hddpg.training.config import parse_policy_kwargs
 #: ``net_arch`` choices by name (rl_zoo3's names and sizes).
 NET_ARCHS: dict[str, list[int]] = {"small": [64, 64], "medium": [256, 256], "big": [400, 300]}
 
-#: SB3's SAC policy's initial log std, when ``policy_kwargs`` does not set ``log_std_init``.
-SAC_LOG_STD_INIT = -3.0
+#: The initial entropy coefficient of SB3's and SBX's SAC under ``ent_coef: 'auto'`` (``'auto_X'`` starts at X).
+SAC_ENT_COEF_INIT = 1.0
 
 #: Largest HAM threshold: the observation's per-link obstacle clearances lie in [0, 1], so their sum over
 #: the default six links lies in [0, 6].
@@ -85,16 +85,20 @@ def sample_td3_params(trial: Any) -> dict[str, Any]:
 def sample_sac_params(trial: Any) -> dict[str, Any]:
     """
     SAC's hyperparameters: DDPG's shared ones (discount, learning rate, batch and buffer size, soft-update
-    rate, update schedule, network size, same choices) plus, in place of action noise, the initial log std
-    of its stochastic policy (rl_zoo3's ``log_std_init``); the entropy coefficient stays ``auto``.
+    rate, update schedule, network size, same choices) plus, in place of DDPG's action noise, how much it
+    explores at first: the starting value of its learned entropy coefficient (``ent_coef: 'auto_X'``).
+
+    rl_zoo3 samples ``log_std_init`` instead. Without gSDE (``use_sde``, off here) neither SB3's nor SBX's
+    SAC reads it, so it would be a search dimension that changes nothing (and SBX refuses it).
 
     :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
     """
     block = _sample_shared(trial)
-    log_std_init = trial.suggest_float("log_std_init", -4.0, 1.0)
+    ent_coef_init = trial.suggest_float("ent_coef_init", 0.01, 1.0, log=True)
     net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
-    block["ent_coef"] = "auto"
-    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]}, log_std_init={log_std_init!r})"
+    # 'auto' is 'auto_1.0': the bundled block's spelling is kept where it is the value.
+    block["ent_coef"] = "auto" if ent_coef_init == SAC_ENT_COEF_INIT else f"auto_{ent_coef_init!r}"
+    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]})"
     return block
 
 
@@ -250,8 +254,7 @@ def base_params(
     names = [name for name, sizes in NET_ARCHS.items() if sizes == list(policy_kwargs.get("net_arch", []))]
     if names:
         candidates["net_arch"] = names[0]
-    # SB3's SAC starts from log_std_init = -3 when the block does not say.
-    candidates["log_std_init"] = policy_kwargs.get("log_std_init", SAC_LOG_STD_INIT)
+    candidates["ent_coef_init"] = _ent_coef_init(block.get("ent_coef", "auto"))
     wrapper = block.get("wrapper_kwargs", {})
     candidates.update(
         {k: wrapper[k] for k in ("temperature", "floor", "selection", "option_steps") if k in wrapper}
@@ -271,6 +274,17 @@ def base_params(
         params.pop("noise_std", None)
         outside = [name for name in outside if name != "noise_std"]
     return params, outside
+
+
+def _ent_coef_init(ent_coef: Any) -> float | None:
+    """The starting value of a learned entropy coefficient (``'auto'``, ``'auto_0.1'``); ``None`` for a fixed one."""
+    if not isinstance(ent_coef, str) or not ent_coef.startswith("auto"):
+        return None
+    _, _, start = ent_coef.partition("_")
+    try:
+        return float(start) if start else SAC_ENT_COEF_INIT
+    except ValueError:
+        return None
 
 
 def _in_domain(value: Any, kind: str, domain: Any) -> bool:
