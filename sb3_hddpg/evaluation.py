@@ -145,10 +145,7 @@ def evaluate(
     if n_episodes < 1:
         raise ValueError(f"Expected `n_episodes` to be >= 1, actually: {n_episodes}")
     near_clearance, clear_clearance = clearance_bands(env, near_clearance, clear_clearance)
-    contract = env_contract(env)
-    terms_known = list(contract.reward_bounds)
-    every_term = [(term, 1.0) for term in terms_known]
-    normaliser = TermNormaliser(contract.reward_bounds)
+    normaliser = TermNormaliser(env_contract(env).reward_bounds)
     episodes = []
     worker_names = _worker_names(policy, env)
     for k in range(n_episodes):
@@ -156,71 +153,105 @@ def evaluate(
         reset_episode = getattr(policy, "reset_episode", None)
         if reset_episode is not None:
             reset_episode()
-        reward_sum = reach_sum = 0.0
-        term_sums = dict.fromkeys(terms_known, 0.0)
-        touches = collisions = steps = saturated = entries = 0
-        # The snake env's metrics, counted only where the env reports them.
-        reports_touches = reports_clearance = False
-        min_clearance = np.inf
-        # A hierarchy's every worker gets a share, 0 for one never chosen (an argmax manager may pick one).
-        selections: Counter[str] = Counter(dict.fromkeys(worker_names, 0))
-        near: Counter[str] = Counter()
-        clear: Counter[str] = Counter()
-        # The clearance of the state the policy decides in: the previous step's (or the reset's) info.
-        clearance = float(info.get("min_clearance", math.nan))
+        tally = _EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
         done = False
         while not done:
             action, _ = policy.predict(obs, deterministic=deterministic)
             # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
             decision = getattr(policy, "last_manager_action", None)
-            decision = np.asarray(action if decision is None else decision, dtype=np.float64)
-            saturated += int(np.count_nonzero(np.abs(decision) >= SATURATION_LEVEL))
-            entries += decision.size
+            tally.add_decision(np.asarray(action if decision is None else decision, dtype=np.float64))
             obs, reward, terminated, truncated, info = env.step(action)
             done = terminated or truncated
-            steps += 1
-            reward_sum += float(reward)
-            terms = info["reward_terms"]
-            for term in terms_known:
-                term_sums[term] += terms[term]
-            reach_sum += normaliser.weighted_sum(terms, every_term)
-            if "goal_touched" in info and "collision" in info:
-                reports_touches = True
-                touches += bool(info["goal_touched"])
-                collisions += bool(info["collision"])
-            if "min_clearance" in info:
-                reports_clearance = True
-                min_clearance = min(min_clearance, info["min_clearance"])
             # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
             selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
-            if selected is not None:
-                selections[selected] += 1
-                if near_clearance is not None and clearance <= near_clearance:
-                    near[selected] += 1
-                if clear_clearance is not None and clearance >= clear_clearance:
-                    clear[selected] += 1
-            clearance = float(info.get("min_clearance", math.nan))
+            # A manager's wrapper with options runs several env steps per decision, and its own reward
+            # discounts them: count each env step with its undiscounted reward, as for every other policy.
+            if "option_infos" in info:
+                for step_reward, step_info in zip(info["option_rewards"], info["option_infos"], strict=True):
+                    tally.add_step(float(step_reward), step_info, selected)
+            else:
+                tally.add_step(float(reward), info, selected)
             if on_step is not None:
                 on_step(env, info)
-        episodes.append(
-            EpisodeMetrics(
-                seed=seed + k,
-                reward=reward_sum,
-                length=steps,
-                term_rewards={term: float(v) for term, v in term_sums.items()},
-                reach_reward=reach_sum,
-                goal_touch_rate=touches / steps if reports_touches else None,
-                goal_touched=touches > 0 if reports_touches else None,
-                collisions=collisions if reports_touches else None,
-                success=touches > 0 and collisions == 0 if reports_touches else None,
-                min_clearance=float(min_clearance) if reports_clearance else None,
-                selections=dict(selections),
-                action_saturation=saturated / max(entries, 1),
-                selections_near=dict(near),
-                selections_clear=dict(clear),
-            )
-        )
+        episodes.append(tally.metrics(seed + k))
     return EvaluationResult(episodes, near_clearance, clear_clearance)
+
+
+class _EpisodeTally:
+    """One episode's sums for :func:`evaluate`, one env step (and one decision) at a time."""
+
+    def __init__(
+        self,
+        normaliser: TermNormaliser,
+        worker_names: list[str],
+        near_clearance: float | None,
+        clear_clearance: float | None,
+        reset_info: dict[str, Any],
+    ) -> None:
+        self.normaliser = normaliser
+        self.every_term = [(term, 1.0) for term in normaliser.bounds]
+        self.near_clearance = near_clearance
+        self.clear_clearance = clear_clearance
+        self.reward = self.reach = 0.0
+        self.term_sums = dict.fromkeys(normaliser.bounds, 0.0)
+        self.touches = self.collisions = self.steps = self.saturated = self.entries = 0
+        # The snake env's metrics, counted only where the env reports them.
+        self.reports_touches = self.reports_clearance = False
+        self.min_clearance = np.inf
+        # A hierarchy's every worker gets a share, 0 for one never chosen (an argmax manager may pick one).
+        self.selections: Counter[str] = Counter(dict.fromkeys(worker_names, 0))
+        self.near: Counter[str] = Counter()
+        self.clear: Counter[str] = Counter()
+        # The clearance of the state the policy acts in: the previous step's (or the reset's) info.
+        self.clearance = float(reset_info.get("min_clearance", math.nan))
+
+    def add_decision(self, decision: np.ndarray) -> None:
+        """The deciding network's output: how many of its entries are saturated."""
+        self.saturated += int(np.count_nonzero(np.abs(decision) >= SATURATION_LEVEL))
+        self.entries += decision.size
+
+    def add_step(self, reward: float, info: dict[str, Any], selected: str | None) -> None:
+        """One env step: its reward, the env's ``info`` and the worker that acted (``None``: not a hierarchy)."""
+        self.steps += 1
+        self.reward += reward
+        terms = info["reward_terms"]
+        for term in self.term_sums:
+            self.term_sums[term] += terms[term]
+        self.reach += self.normaliser.weighted_sum(terms, self.every_term)
+        if "goal_touched" in info and "collision" in info:
+            self.reports_touches = True
+            self.touches += bool(info["goal_touched"])
+            self.collisions += bool(info["collision"])
+        if "min_clearance" in info:
+            self.reports_clearance = True
+            self.min_clearance = min(self.min_clearance, info["min_clearance"])
+        if selected is not None:
+            self.selections[selected] += 1
+            if self.near_clearance is not None and self.clearance <= self.near_clearance:
+                self.near[selected] += 1
+            if self.clear_clearance is not None and self.clearance >= self.clear_clearance:
+                self.clear[selected] += 1
+        self.clearance = float(info.get("min_clearance", math.nan))
+
+    def metrics(self, seed: int) -> EpisodeMetrics:
+        """The episode's metrics."""
+        touched = self.reports_touches
+        return EpisodeMetrics(
+            seed=seed,
+            reward=self.reward,
+            length=self.steps,
+            term_rewards={term: float(v) for term, v in self.term_sums.items()},
+            reach_reward=self.reach,
+            goal_touch_rate=self.touches / self.steps if touched else None,
+            goal_touched=self.touches > 0 if touched else None,
+            collisions=self.collisions if touched else None,
+            success=self.touches > 0 and self.collisions == 0 if touched else None,
+            min_clearance=float(self.min_clearance) if self.reports_clearance else None,
+            selections=dict(self.selections),
+            action_saturation=self.saturated / max(self.entries, 1),
+            selections_near=dict(self.near),
+            selections_clear=dict(self.clear),
+        )
 
 
 def clearance_bands(

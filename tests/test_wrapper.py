@@ -115,6 +115,34 @@ def test_option_steps_keep_the_worker_and_discount_the_reward():
     assert reward == pytest.approx(sum(0.9**j * r for j, r in enumerate(manager_rewards)))
 
 
+def test_a_manager_with_options_is_evaluated_per_env_step():
+    """The same worker held for 4 env steps per decision, or chosen at every step: the same env actions,
+    so ``evaluate`` must report the same episode (the wrapper's own reward discounts inside an option)."""
+    from sb3_hddpg.evaluation import evaluate
+
+    class Always:
+        def predict(self, obs, deterministic=True):
+            return np.array([1.0, -1.0], np.float32), None
+
+    summaries = []
+    for option_steps in (1, 4):
+        env, _, _ = make(selection="argmax", option_steps=option_steps, option_gamma=0.9)
+        summaries.append(evaluate(Always(), env, n_episodes=2).summary())
+    per_step, per_option = summaries
+    assert per_option["mean_length"] == per_step["mean_length"] == 200
+    for key in (
+        "mean_reward",
+        "mean_reach_reward",
+        "goal_touch_rate",
+        "collisions_per_episode",
+        "min_clearance",
+    ):
+        assert per_option[key] == pytest.approx(per_step[key]), key
+    assert per_option["selection_rate"] == per_step["selection_rate"] == {"avoid": 0.0, "goal": 1.0}
+    assert per_option["selections_near"] == per_step["selections_near"]
+    assert per_option["selections_clear"] == per_step["selections_clear"]
+
+
 def test_option_stops_at_episode_end():
     inner = gym.make("hddpg/SnakeReach-v0", max_episode_steps=6)
     env = WorkerSelectionWrapper(

@@ -46,7 +46,10 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     ``worker_states[name]`` subset (paper design specification 4).
 
     **Info.** ``selected_worker``, ``selection_probabilities`` (name -> probability),
-    ``reward_terms`` (raw, from the env), ``normalised_terms`` and ``option_length``; plus the env's own.
+    ``reward_terms`` (raw, from the env), ``normalised_terms`` and ``option_length``; plus the env's own (of
+    the option's last env step). ``option_rewards`` and ``option_infos`` hold each env step of the option:
+    its undiscounted manager reward and the env's info. :func:`~sb3_hddpg.evaluation.evaluate` counts
+    those, so a manager's metrics are per env step, as every other method's.
 
     :param env: the shared env (e.g. ``gym.make("hddpg/SnakeReach-v0")``), which meets the env contract
         (:class:`~sb3_hddpg.envs.contract.RewardTermsEnv`; an MO-Gymnasium env through
@@ -185,6 +188,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         discount = 1.0
         terminated = truncated = False
         info: dict[str, Any] = {}
+        rewards: list[float] = []
+        infos: list[dict[str, Any]] = []
         steps = 0
         obs = self._last_obs
         while steps < self.option_steps and not (terminated or truncated):
@@ -193,8 +198,13 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             reward, normalised = self.manager_reward(info["reward_terms"])
             total += discount * reward
             discount *= self.option_gamma
+            rewards.append(reward)
+            infos.append(info)
             steps += 1
         self._last_obs = obs
+        info = dict(info)  # the last step's, without a reference to itself in option_infos
+        info["option_rewards"] = rewards
+        info["option_infos"] = infos
         info["selected_worker"] = self.worker_names[chosen]
         info["selection_probabilities"] = dict(zip(self.worker_names, probabilities))
         info["normalised_terms"] = normalised
