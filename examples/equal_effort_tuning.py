@@ -179,7 +179,9 @@ def main() -> None:
 
     workers = args.out / "workers"
     for level, worker, algo, maybe_file in OVER_WORKERS:
-        target, study = run_study(args, level, worker, algo, args.out / "ddpg.yml", workers)
+        # From the bundled manager block, not OUT/ddpg.yml's: once a manager study has saved its best block
+        # there, a study started again (e.g. after deleting it) would start from that block instead.
+        target, study = run_study(args, level, worker, algo, None, workers)
         if maybe_file is not None:  # HAM has no config block: its threshold is in the summary
             save_best_config(study, target, args.out / maybe_file, args.rank_by)
         summary.append(summarise(target, study, args))
