@@ -12,6 +12,7 @@ from stable_baselines3 import DDPG
 
 from sb3_hddpg.experiments.quickstart import BUDGETS, RESULTS_SCHEMA_VERSION, STAGES
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from sb3_hddpg.training.config import wrapper_kwargs
 from tests.cli_runner import run_cli
 
 
@@ -42,8 +43,10 @@ def test_results_json_schema(run):
         assert len(method["episodes"]) == summary["episodes"]
         for key in ("mean_reach_reward", "std_reach_reward", "goal_touch_rate", "collisions_per_episode"):
             assert isinstance(summary[key], float)
-    # Manager 300 + avoid worker 300 + goal worker 304 (it trains in blocks of train_freq = 8 steps).
-    assert results["methods"]["HDDPG"]["train_timesteps"] == 904
+    # Avoid worker 300 + goal worker 304 (it trains in blocks of train_freq = 8 steps) + the manager's env
+    # steps: 300 // k decisions of k = option_steps env steps each.
+    k = int(wrapper_kwargs(out / "config.yml").get("option_steps", 1))
+    assert results["methods"]["HDDPG"]["train_timesteps"] == 604 + (300 // k) * k
     # The flat DDPG gets the hierarchy's planned total: two workers' 300 steps and the manager's 300.
     assert results["methods"]["flat DDPG"]["train_timesteps"] == results["budget"]["flat_timesteps"] == 900
     assert set(results["stage_seconds"]) == set(STAGES) == set(results["stage_cpu_seconds"])

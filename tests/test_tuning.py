@@ -228,7 +228,9 @@ def test_ranking_by_peak_picks_the_trial_with_the_best_evaluation(tmp_path):
     assert "net_arch=[64, 64]" in block["policy_kwargs"]
     assert "trial 0, best mean evaluation reward 300" in saved.read_text()
     by_last = tuning.save_best_config(study, target, tmp_path / "last.yml")
-    assert "net_arch=[256, 256]" in yaml.safe_load(by_last.read_text())["hddpg/SnakeReach-v0"]["policy_kwargs"]
+    assert (
+        "net_arch=[256, 256]" in yaml.safe_load(by_last.read_text())["hddpg/SnakeReach-v0"]["policy_kwargs"]
+    )
 
 
 def test_an_unknown_ranking_is_a_usage_error(tmp_path, tiny_config):

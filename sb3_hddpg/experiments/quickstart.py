@@ -68,7 +68,7 @@ class QuickstartBudget:
 
     :param name: ``small`` or ``tiny``.
     :param worker_timesteps: steps per worker.
-    :param manager_timesteps: manager steps.
+    :param manager_timesteps: the manager's env steps (it decides once per ``option_steps`` of them).
     :param flat_timesteps: steps of the flat DDPG baseline (``None``: the hierarchy's total env steps, every
         worker's and the manager's, as in the benchmark).
     :param eval_freq: steps between evaluations during training.
@@ -232,12 +232,11 @@ def _option_steps(config: str | Path) -> int:
 def flat_budget(budget: QuickstartBudget, config: str | Path) -> int:
     """
     The flat DDPG's steps: the budget's own, or the hierarchy's total env steps (both workers' and the
-    manager's decisions times its ``option_steps``), so that the flat agent sees as much data as the whole
-    hierarchy, as in the benchmark.
+    manager's), so that the flat agent sees as much data as the whole hierarchy, as in the benchmark.
     """
     if budget.flat_timesteps is not None:
         return budget.flat_timesteps
-    return len(WORKER_ENV_IDS) * budget.worker_timesteps + budget.manager_timesteps * _option_steps(config)
+    return len(WORKER_ENV_IDS) * budget.worker_timesteps + budget.manager_timesteps
 
 
 # ---------------------------------------------------------------------------------------- the parent
@@ -379,7 +378,14 @@ def run_quickstart(
     # 2. The manager (over the merged workers) and the flat DDPG, side by side.
     stage(1)
     jobs = [
-        {"kind": "manager", "name": "manager", "timesteps": budget.manager_timesteps, **common},
+        # SB3 counts a manager's steps, and its evaluation period, in decisions of option_steps env steps.
+        {
+            "kind": "manager",
+            "name": "manager",
+            **common,
+            "timesteps": max(1, budget.manager_timesteps // _option_steps(config)),
+            "eval_freq": max(1, budget.eval_freq // _option_steps(config)),
+        },
         {"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget, config), **common},
     ]
     second = _run_jobs(jobs, processes, observer, ray_address)
@@ -457,6 +463,9 @@ def run_quickstart(
         for agent in ("goal", "avoid", "manager", "flat-ddpg")
         if (path := run_dir / "evaluations" / f"{agent}.json").exists()
     }
+    # Every curve over env steps: the manager's history counts decisions.
+    for point in histories.get("manager", []):
+        point["timesteps"] *= _option_steps(config)
     references = {
         f"{label} (untrained)": summaries[label]["mean_reach_reward"]
         for label in ("HAM", "scripted", "random")
