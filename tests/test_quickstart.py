@@ -12,7 +12,7 @@ from stable_baselines3 import DDPG
 
 from sb3_hddpg.experiments.quickstart import BUDGETS, RESULTS_SCHEMA_VERSION, STAGES
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-from sb3_hddpg.training.config import wrapper_kwargs
+from sb3_hddpg.training.config import manager_option_steps
 from tests.cli_runner import run_cli
 
 
@@ -45,7 +45,7 @@ def test_results_json_schema(run):
             assert isinstance(summary[key], float)
     # Avoid worker 300 + goal worker 304 (it trains in blocks of train_freq = 8 steps) + the manager's env
     # steps: 300 // k decisions of k = option_steps env steps each.
-    k = int(wrapper_kwargs(out / "config.yml").get("option_steps", 1))
+    k = manager_option_steps(out / "config.yml")
     assert results["methods"]["HDDPG"]["train_timesteps"] == 604 + (300 // k) * k
     # The flat DDPG gets the hierarchy's planned total: two workers' 300 steps and the manager's 300.
     assert results["methods"]["flat DDPG"]["train_timesteps"] == results["budget"]["flat_timesteps"] == 900

@@ -49,7 +49,7 @@ from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_
 from sb3_hddpg.media.video import record_video
 from sb3_hddpg.training import training
 from sb3_hddpg.training.backends import check_backend
-from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, wrapper_kwargs
+from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, manager_option_steps
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.training import WORKER_ENV_IDS
 
@@ -207,7 +207,7 @@ def _train_job(
     elif kind == "manager":
         _, outcome = training.train_manager(run_dir, run_dir, **common)
         # Env steps, as every other agent's: each decision runs option_steps of them.
-        out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps * _option_steps(config)
+        out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps * manager_option_steps(config)
     else:
         # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
         manifest, _ = training.train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
@@ -222,11 +222,6 @@ def _train_job(
         }
     )
     return out
-
-
-def _option_steps(config: str | Path) -> int:
-    """Env steps per manager decision: the manager block's ``option_steps``."""
-    return int(wrapper_kwargs(config).get("option_steps", 1))
 
 
 def flat_budget(budget: QuickstartBudget, config: str | Path) -> int:
@@ -377,14 +372,15 @@ def run_quickstart(
 
     # 2. The manager (over the merged workers) and the flat DDPG, side by side.
     stage(1)
+    option_steps = manager_option_steps(config)
     jobs = [
         # SB3 counts a manager's steps, and its evaluation period, in decisions of option_steps env steps.
         {
             "kind": "manager",
             "name": "manager",
             **common,
-            "timesteps": max(1, budget.manager_timesteps // _option_steps(config)),
-            "eval_freq": max(1, budget.eval_freq // _option_steps(config)),
+            "timesteps": max(1, budget.manager_timesteps // option_steps),
+            "eval_freq": max(1, budget.eval_freq // option_steps),
         },
         {"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget, config), **common},
     ]
@@ -465,7 +461,7 @@ def run_quickstart(
     }
     # Every curve over env steps: the manager's history counts decisions.
     for point in histories.get("manager", []):
-        point["timesteps"] *= _option_steps(config)
+        point["timesteps"] *= option_steps
     references = {
         f"{label} (untrained)": summaries[label]["mean_reach_reward"]
         for label in ("HAM", "scripted", "random")

@@ -449,6 +449,16 @@ def wrapper_kwargs(config: str | Path | None = None) -> dict[str, Any]:
     return dict(load_hyperparams(MANAGER_KEY, DDPG, config, manager=True).wrapper_kwargs)
 
 
+def manager_option_steps(config: str | Path | None = None) -> int:
+    """
+    Env steps per manager decision: the manager block's ``option_steps`` (1 when it sets none). SB3 counts a
+    manager's timesteps and evaluation period in decisions; budgets and curves in env steps multiply by it.
+
+    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    """
+    return int(wrapper_kwargs(config).get("option_steps", 1))
+
+
 def parse_policy_kwargs(text: str, source: str = "config") -> dict[str, Any]:
     """
     Evaluate an RL Zoo ``policy_kwargs`` string safely: literals, lists, dicts, ``dict(...)`` calls and the

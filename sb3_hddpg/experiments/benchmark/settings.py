@@ -24,7 +24,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import check_algo, check_backend
-from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, wrapper_kwargs
+from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.training import worker_hyperparams
 
@@ -41,7 +41,7 @@ def _config_budgets() -> dict[str, int]:
 @functools.cache
 def _manager_option_steps() -> int:
     """Env steps per decision of the benchmark's managers: the bundled manager block's ``option_steps``."""
-    return int(wrapper_kwargs().get("option_steps", 1))
+    return manager_option_steps()
 
 
 @functools.cache
