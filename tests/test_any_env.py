@@ -594,6 +594,7 @@ def test_state_dependence_and_selection_figure_say_not_available(mountain_car_bu
 
 # ------------------------------------------------------------------------ benchmark --env
 def test_benchmark_on_an_mo_gymnasium_env(tmp_path):
+    from sb3_hddpg.training.config import manager_option_steps
     from tests.cli_batch import run_batch
 
     env_args = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
@@ -611,7 +612,8 @@ def test_benchmark_on_an_mo_gymnasium_env(tmp_path):
     assert set(results["methods"]) == {"hddpg", "ddpg"}  # the default on another env
     assert results["settings"]["env"]["env_kwargs"]["env_id"] == "mo-mountaincarcontinuous-v0"
     assert results["methods"]["hddpg"]["worker_timesteps"] == 100  # two workers of 50 steps
-    assert results["methods"]["ddpg"]["own_timesteps"] == 200  # as many env steps as the hierarchy
+    # As many env steps as the hierarchy: the manager's 100 decisions of option_steps env steps + 2 x 50.
+    assert results["methods"]["ddpg"]["own_timesteps"] == 100 * manager_option_steps() + 100
     for entry in results["methods"].values():
         stats = entry["stats"]
         # Normalised time (0 short of the flag) + normalised fuel (in [0, 1]) per step, 30 steps.

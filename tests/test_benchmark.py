@@ -28,6 +28,7 @@ from sb3_hddpg.experiments.benchmark import (
     task_cost,
     write_outputs,
 )
+from sb3_hddpg.training.config import manager_option_steps
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -89,7 +90,18 @@ def record(
 
 
 @pytest.fixture
-def constructed() -> tuple[BenchmarkSettings, list[dict[str, Any]]]:
+def per_step_manager(monkeypatch: pytest.MonkeyPatch) -> None:
+    """
+    Managers deciding every env step (``option_steps`` 1), whatever the bundled manager block holds: the
+    constructed records' curves and the budget arithmetic below count one env step per decision.
+    """
+    from sb3_hddpg.experiments.benchmark import settings as settings_module
+
+    monkeypatch.setattr(settings_module, "_manager_option_steps", lambda: 1)
+
+
+@pytest.fixture
+def constructed(per_step_manager: None) -> tuple[BenchmarkSettings, list[dict[str, Any]]]:
     methods = ["hddpg", "ham", "ddpg", "hddpg-goal", "hddpg-avoid"]
     settings = BenchmarkSettings(methods=methods, seeds=[0, 1, 2], timesteps=3000)
     records = []
@@ -121,7 +133,7 @@ def test_plan_trains_workers_once_per_seed_only_when_needed():
     assert Task("hddpg-goal", 0).needs_workers and not Task("sac", 0).needs_workers
 
 
-def test_settings_reject_unknown_methods_and_default_to_equal_total_steps():
+def test_settings_reject_unknown_methods_and_default_to_equal_total_steps(per_step_manager):
     with pytest.raises(ValueError, match="Unknown methods"):
         BenchmarkSettings(methods=["hddpg", "ppo"])
     settings = BenchmarkSettings(timesteps=1000, worker_timesteps=300)
@@ -130,10 +142,12 @@ def test_settings_reject_unknown_methods_and_default_to_equal_total_steps():
 
 
 def test_settings_default_to_the_configs_budgets():
-    # The bundled config: goal and avoid worker 150k each, manager 20k; a flat agent gets the sum.
+    # The bundled config: goal and avoid worker 150k each, the manager 5000 decisions of 8 env steps (40k env
+    # steps); a flat agent gets the sum.
     settings = BenchmarkSettings(methods=["hddpg", "ddpg"])
-    assert settings.timesteps == 20_000 and settings.worker_timesteps is None
-    assert settings.workers_budget == 300_000 and settings.flat_budget == 320_000
+    assert settings.timesteps == 5000 and settings.option_steps == 8 and settings.worker_timesteps is None
+    assert settings.manager_env_steps == 40_000 and task_cost(Task("hddpg", 0), settings) == 40_000
+    assert settings.workers_budget == 300_000 and settings.flat_budget == 340_000
     assert task_cost(Task("workers", 0), settings) == 300_000
 
 
@@ -229,7 +243,9 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert set(results["methods"]) == {"hddpg", "ham", "ddpg"}
     assert all(entry["seeds"] == [0, 1] for entry in results["methods"].values())
     assert results["test_seeds"][0] == TEST_SEED_BASE and results["curve_seeds"][0] == EVAL_SEED_BASE
-    assert results["methods"]["ddpg"]["own_timesteps"] == 400  # 200 + 2 x 100: equal total steps
+    # Equal total steps: the manager's 200 decisions of k env steps (the bundled block's options) + 2 x 100.
+    k = manager_option_steps()
+    assert results["methods"]["ddpg"]["own_timesteps"] == 200 * k + 200
     # What the workers' manifest records: the goal worker collects 8 steps per update call
     # (train_freq 8), so its 100 requested steps become 104; the avoid worker's stay 100.
     assert results["methods"]["hddpg"]["worker_timesteps"] == 204
@@ -240,7 +256,10 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert "reach reward (test)" in done.stdout
     rows = list(csv.DictReader((out / "evaluations.csv").read_text().splitlines()))
     hddpg_curve = [r for r in rows if r["method"] == "hddpg" and r["kind"] == "curve" and r["seed"] == "0"]
-    assert [int(r["total_timesteps"]) - int(r["timesteps"]) for r in hddpg_curve] == [204, 204]
+    # A point every 100 env steps, i.e. every 100 // k decisions, and one at the end (training always ends
+    # with an evaluation), each offset by the workers' steps.
+    offsets = [int(r["total_timesteps"]) - int(r["timesteps"]) for r in hddpg_curve]
+    assert offsets == [204] * -(-200 // max(100 // k, 1))
 
     # An occupied folder is refused without --resume or --force.
     refused = cli(*args)

@@ -49,8 +49,10 @@ def test_td3_and_sac_are_flat_records_given_the_hierarchy_total_steps():
         method = METHOD_REGISTRY[name]
         assert name in METHODS and name not in DEFAULT_METHODS
         assert not method.needs_workers and method.baseline and method.takes_preference
-        assert task_cost(Task(name, 0), settings) == 1000 + 2 * 300
-    assert task_cost(Task("hddpg", 0), settings) == 1000 and task_cost(Task("workers", 0), settings) == 600
+        assert task_cost(Task(name, 0), settings) == settings.manager_env_steps + 2 * 300
+    # The manager's 1000 decisions are option_steps env steps each.
+    assert task_cost(Task("hddpg", 0), settings) == 1000 * settings.option_steps == settings.manager_env_steps
+    assert task_cost(Task("workers", 0), settings) == 600
     assert METHOD_REGISTRY["td3"].colour != METHOD_REGISTRY["sac"].colour
 
 

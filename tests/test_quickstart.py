@@ -12,7 +12,7 @@ from stable_baselines3 import DDPG
 
 from sb3_hddpg.experiments.quickstart import BUDGETS, RESULTS_SCHEMA_VERSION, STAGES
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-from sb3_hddpg.training.config import manager_option_steps
+from sb3_hddpg.training.config import load_hyperparams, manager_option_steps
 from tests.cli_runner import run_cli
 
 
@@ -44,9 +44,12 @@ def test_results_json_schema(run):
         for key in ("mean_reach_reward", "std_reach_reward", "goal_touch_rate", "collisions_per_episode"):
             assert isinstance(summary[key], float)
     # Avoid worker 300 + goal worker 304 (it trains in blocks of train_freq = 8 steps) + the manager's env
-    # steps: 300 // k decisions of k = option_steps env steps each.
+    # steps: 300 // k decisions of k = option_steps env steps each, which SB3 rounds up to whole blocks of
+    # the manager's train_freq decisions.
     k = manager_option_steps(out / "config.yml")
-    assert results["methods"]["HDDPG"]["train_timesteps"] == 604 + (300 // k) * k
+    every = load_hyperparams("manager", DDPG, out / "config.yml", manager=True).algo_kwargs["train_freq"]
+    decisions = -(-(300 // k) // every) * every
+    assert results["methods"]["HDDPG"]["train_timesteps"] == 604 + decisions * k
     # The flat DDPG gets the hierarchy's planned total: two workers' 300 steps and the manager's 300.
     assert results["methods"]["flat DDPG"]["train_timesteps"] == results["budget"]["flat_timesteps"] == 900
     assert set(results["stage_seconds"]) == set(STAGES) == set(results["stage_cpu_seconds"])

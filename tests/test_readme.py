@@ -55,8 +55,13 @@ def test_readme_python_snippet_runs_with_the_projects_hyperparameters(tmp_path, 
         assert model.actor.net_arch == block.algo_kwargs["policy_kwargs"]["net_arch"]
         assert model.gamma == block.algo_kwargs["gamma"]
         assert model.batch_size == block.algo_kwargs["batch_size"]
-        assert isinstance(model.action_noise, NormalActionNoise)
-        assert model.action_noise._sigma == pytest.approx(np.full(model.action_space.shape, block.noise_std))
+        if block.noise_type is None:  # the manager's block: no action noise
+            assert model.action_noise is None
+        else:
+            assert isinstance(model.action_noise, NormalActionNoise)
+            assert model.action_noise._sigma == pytest.approx(
+                np.full(model.action_space.shape, block.noise_std)
+            )
         # The block's callbacks ran: the action penalty where the block asks for it.
         assert hasattr(model.critic, _MARK) == (block.action_l2 > 0)
     assert isinstance(workers["goal"].replay_buffer, GoalRelabelingReplayBuffer)
