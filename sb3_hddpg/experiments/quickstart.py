@@ -224,7 +224,7 @@ def _train_job(
     return out
 
 
-def flat_budget(budget: QuickstartBudget, config: str | Path) -> int:
+def flat_budget(budget: QuickstartBudget) -> int:
     """
     The flat DDPG's steps: the budget's own, or the hierarchy's total env steps (both workers' and the
     manager's), so that the flat agent sees as much data as the whole hierarchy, as in the benchmark.
@@ -382,7 +382,7 @@ def run_quickstart(
             "timesteps": max(1, budget.manager_timesteps // option_steps),
             "eval_freq": max(1, budget.eval_freq // option_steps),
         },
-        {"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget, config), **common},
+        {"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget), **common},
     ]
     second = _run_jobs(jobs, processes, observer, ray_address)
     trained.update(second)
@@ -503,7 +503,7 @@ def run_quickstart(
         "kind": "sb3-hddpg-quickstart",
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "env_id": COMPARISON_ENV_ID,
-        "budget": {**vars(budget), "flat_timesteps": flat_budget(budget, config)},
+        "budget": {**vars(budget), "flat_timesteps": flat_budget(budget)},
         "seed": seed,
         "eval_seeds": list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + budget.compare_episodes)),
         "deterministic": True,
