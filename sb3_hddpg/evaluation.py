@@ -328,6 +328,20 @@ def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -
     }
 
 
+def dependence_ratio_text(figure: dict[str, Any]) -> str:
+    """
+    A :func:`state_dependence` ratio as text. Where the ratio is ``None`` it says why: ``"inf"`` when the
+    worker is chosen near obstacles but never with none in range (a rule such as HAM's that reads the
+    distances), ``"never chosen"`` when it is chosen in neither band, ``"n/a"`` when a band had no choices.
+    """
+    near, clear, ratio = figure["near_share"], figure["clear_share"], figure["ratio"]
+    if ratio is not None:
+        return f"{ratio:.2f}"
+    if near is None or clear is None:
+        return "n/a"
+    return "inf" if near > 0 else "never chosen"
+
+
 def _worker_names(policy: Any, env: gym.Env) -> list[str]:
     """The workers a hierarchy (``policy``) or a manager's env (a ``WorkerSelectionWrapper``) chooses among."""
     names = getattr(policy, "names", None)

@@ -108,10 +108,12 @@ def test_a_new_method_is_one_record(tmp_path):
 
 
 def test_state_dependence_per_seed_in_the_results():
-    settings = BenchmarkSettings(methods=["hddpg", "ddpg"], seeds=[0, 1], timesteps=2000)
+    settings = BenchmarkSettings(methods=["hddpg", "ddpg"], seeds=[0, 1, 2, 3], timesteps=2000)
     choices = {
         0: ({"avoid": 30, "goal": 10}, {"avoid": 10, "goal": 90}),  # near 75 %, clear 10 %: ratio 7.5
         1: ({"avoid": 5, "goal": 15}, {"avoid": 25, "goal": 75}),  # a fixed mix: 25 % and 25 %
+        2: ({"avoid": 5, "goal": 15}, {"goal": 100}),  # HAM-like: never with none in range
+        3: ({"goal": 20}, {"goal": 100}),  # the avoid worker never chosen
     }
     records = []
     for seed, (near, clear) in choices.items():
@@ -133,6 +135,10 @@ def test_state_dependence_per_seed_in_the_results():
     report = markdown_report(results)
     assert "| hddpg | 0 | 75.0% (40) | 10.0% (100) | 7.50 |" in report
     assert "| hddpg | 1 | 25.0% (20) | 25.0% (100) | 1.00 |" in report
+    # No number for the last two, but each says why: an infinite ratio is not a fixed mix.
+    assert figures["2"]["ratio"] is None and figures["3"]["ratio"] is None
+    assert "| hddpg | 2 | 25.0% (20) | 0.0% (100) | inf |" in report
+    assert "| hddpg | 3 | 0.0% (20) | 0.0% (100) | never chosen |" in report
 
 
 # ----------------------------------------------------------------------------------------------- transfer

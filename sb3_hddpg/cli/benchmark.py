@@ -28,6 +28,7 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
+from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark import (
     DEFAULT_ENV_METHODS,
     DEFAULT_METHODS,
@@ -162,7 +163,7 @@ def dependence_table(results: dict[str, Any]) -> Table | None:
             seed,
             f"{figure['near_share']:.1%}" if figure["near_share"] is not None else "-",
             f"{figure['clear_share']:.1%}" if figure["clear_share"] is not None else "-",
-            f"{figure['ratio']:.2f}" if figure["ratio"] is not None else "undefined",
+            dependence_ratio_text(figure),
         )
     return table
 

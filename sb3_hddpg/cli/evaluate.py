@@ -21,7 +21,7 @@ from sb3_hddpg.cli.options import (
     usage_errors,
     writable_file,
 )
-from sb3_hddpg.evaluation import clearance_bands, evaluate, state_dependence
+from sb3_hddpg.evaluation import clearance_bands, dependence_ratio_text, evaluate, state_dependence
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.metric_labels import summary_rows
 
@@ -127,10 +127,9 @@ def evaluate_command(
             _share(dependence["clear_share"], dependence["clear_choices"]),
             "of choices",
         )
-        ratio = dependence["ratio"]
         table.add_row(
             f"{worker} share ratio near / none in range",
-            f"{ratio:.2f}" if ratio is not None else "undefined",
+            dependence_ratio_text(dependence),
             "ratio",
         )
     console.print(table)

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
+from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.methods import WORKERS
 from sb3_hddpg.experiments.benchmark.statistics import curve_bands, with_term_sums
 from sb3_hddpg.media import figures
@@ -162,7 +163,7 @@ def _dependence_lines(results: dict[str, Any]) -> list[str]:
         for seed, figure in entry.get("state_dependence", {}).items():
             if figure is None:
                 continue
-            ratio = f"{figure['ratio']:.2f}" if figure["ratio"] is not None else "undefined"
+            ratio = dependence_ratio_text(figure)
             rows.append(
                 f"| {method} | {seed} | {_share_text(figure['near_share'])} ({figure['near_choices']}) "
                 f"| {_share_text(figure['clear_share'])} ({figure['clear_choices']}) | {ratio} |"
