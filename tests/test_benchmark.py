@@ -353,8 +353,8 @@ def test_flat_configs_give_every_algorithm_the_same_care(algo):
 def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_path, monkeypatch):
     # With options of k env steps a manager's `timesteps` are decisions: k times as many env steps, which the
     # flat agents' equal budget, the curve window and the curve points must count.
+    from sb3_hddpg.callbacks.evaluation import read_history
     from sb3_hddpg.experiments.benchmark import settings as settings_module
-    from sb3_hddpg.experiments.benchmark.methods import history_of
 
     monkeypatch.setattr(settings_module, "_manager_option_steps", lambda: 4)
     settings = BenchmarkSettings(methods=["hddpg", "ddpg"], timesteps=1000, worker_timesteps=300)
@@ -366,7 +366,9 @@ def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_p
 
     path = tmp_path / "manager.json"
     path.write_text(json.dumps([{"timesteps": 100, "mean_reach_reward": 1.0}]))
-    assert history_of(path, 600, 4) == [
+    assert read_history(path, 4, offset=600) == [
         {"timesteps": 400, "decisions": 100, "total_timesteps": 1000, "mean_reach_reward": 1.0}
     ]
-    assert history_of(path, 600) == [{"timesteps": 100, "total_timesteps": 700, "mean_reach_reward": 1.0}]
+    assert read_history(path, offset=600) == [
+        {"timesteps": 100, "total_timesteps": 700, "mean_reach_reward": 1.0}
+    ]

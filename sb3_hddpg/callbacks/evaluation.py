@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -117,3 +118,21 @@ class MetricsEvalCallback(EvalCallback):
         if self.callback is not None:
             continue_training = continue_training and self._on_event()
         return continue_training
+
+
+def read_history(path: Path, steps_per_timestep: int = 1, offset: int = 0) -> list[dict[str, Any]]:
+    """
+    A history written by :class:`MetricsEvalCallback`, over env steps: ``timesteps`` times
+    ``steps_per_timestep`` (a manager's decisions times its ``option_steps``; the decisions are kept as
+    ``decisions``), and ``total_timesteps`` = that + ``offset`` (e.g. the workers' steps before a manager's).
+
+    :param path: the run's own ``evaluations/<name>.json``.
+    :param steps_per_timestep: env steps per step the model counts.
+    :param offset: env steps spent before this model's first step.
+    """
+    out = []
+    for point in json.loads(Path(path).read_text()):
+        steps = int(point["timesteps"]) * steps_per_timestep
+        extra = {"decisions": int(point["timesteps"])} if steps_per_timestep != 1 else {}
+        out.append({**point, **extra, "timesteps": steps, "total_timesteps": steps + offset})
+    return out

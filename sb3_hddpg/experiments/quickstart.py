@@ -22,7 +22,6 @@ bundle and ``results.json``::
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -38,6 +37,7 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
+from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
 from sb3_hddpg.envs.contract import proximity_of, state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
@@ -454,14 +454,12 @@ def run_quickstart(
         sensor_range=proximity.sensor_range if proximity else None,
         touch_radius=proximity.touch_radius if proximity else None,
     )
+    # Every curve over env steps: the manager's history counts decisions.
     histories = {
-        agent: json.loads(path.read_text())
+        agent: read_history(path, option_steps if agent == "manager" else 1)
         for agent in ("goal", "avoid", "manager", "flat-ddpg")
         if (path := run_dir / "evaluations" / f"{agent}.json").exists()
     }
-    # Every curve over env steps: the manager's history counts decisions.
-    for point in histories.get("manager", []):
-        point["timesteps"] *= option_steps
     references = {
         f"{label} (untrained)": summaries[label]["mean_reach_reward"]
         for label in ("HAM", "scripted", "random")

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
+from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.hierarchy.loading import load_policy
@@ -92,21 +93,6 @@ def split_key(key: str) -> tuple[str, str | None]:
     return name, preference or None
 
 
-def history_of(path: Path, offset: int, steps_per_timestep: int = 1) -> list[dict[str, Any]]:
-    """
-    An ``evaluations/<name>.json`` history in env steps: ``timesteps`` times ``steps_per_timestep`` (a
-    manager's decisions times its ``option_steps``; the decisions kept as ``decisions``), and
-    ``total_timesteps`` = that + ``offset`` on every point.
-    """
-    history = json.loads(path.read_text())
-    out = []
-    for point in history:
-        steps = int(point["timesteps"]) * steps_per_timestep
-        extra = {"decisions": int(point["timesteps"])} if steps_per_timestep != 1 else {}
-        out.append({**point, **extra, "timesteps": steps, "total_timesteps": steps + offset})
-    return out
-
-
 def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
     """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
 
@@ -155,7 +141,7 @@ def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, fo
     offset = workers_steps(folder)
     return {
         "worker_timesteps": offset,
-        "history": history_of(run_dir / "evaluations" / "manager.json", offset, settings.option_steps),
+        "history": read_history(run_dir / "evaluations" / "manager.json", settings.option_steps, offset),
         "test": final_test(run_dir / "hierarchy.zip", settings),
     }
 
@@ -175,7 +161,7 @@ def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) 
     )
     return {
         "worker_timesteps": 0,
-        "history": history_of(run_dir / "evaluations" / f"flat-{algo}.json", 0),
+        "history": read_history(run_dir / "evaluations" / f"flat-{algo}.json"),
         "test": final_test(run_dir / "flat" / f"{algo}.zip", settings),
     }
 

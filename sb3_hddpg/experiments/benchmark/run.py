@@ -19,10 +19,10 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, read_json_file
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import verify_sha256
+from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.methods import (
     WORKERS,
-    history_of,
     random_reference,
     split_key,
     workers_steps,
@@ -110,7 +110,7 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
             for name, entry in manifest["workers"].items()
         },
         "history": {
-            name: history_of(folder / "evaluations" / f"{name}.json", 0) for name in manifest["workers"]
+            name: read_history(folder / "evaluations" / f"{name}.json") for name in manifest["workers"]
         },
     }
 
