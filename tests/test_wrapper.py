@@ -41,6 +41,33 @@ def test_argmax_applies_the_most_probable_workers_action(manager_action):
     assert workers[expected_name].calls == 1 and workers[other].calls == 0
 
 
+@pytest.mark.parametrize("selection", ["argmax", "sample"])
+def test_an_exact_tie_is_broken_at_random_not_by_worker_order(selection):
+    # A manager saturated at (+1, +1) gives both workers 0.5: it states no preference, so the first-listed
+    # worker must not win every step (the argmax, and sample's deterministic choice).
+    from sb3_hddpg.hierarchy.selection import get_selector
+
+    selector, rng = get_selector(selection), np.random.default_rng(0)
+    chosen = [selector.choose([0.5, 0.5], rng, deterministic=True) for _ in range(1000)]
+    assert 0.45 < np.mean(chosen) < 0.55
+    three_way = [selector.choose([0.1, 0.45, 0.45], rng, deterministic=True) for _ in range(1000)]
+    assert set(three_way) == {1, 2}  # only the tied ones
+    # Untied choices are deterministic and draw nothing: the generator's stream is untouched.
+    state = rng.bit_generator.state
+    assert selector.choose([0.4999, 0.5001], rng, deterministic=True) == 1
+    assert rng.bit_generator.state == state
+    # Seeded, the draws repeat.
+    again = np.random.default_rng(0)
+    assert [selector.choose([0.5, 0.5], again, deterministic=True) for _ in range(1000)] == chosen
+
+
+def test_a_saturated_manager_runs_both_workers_in_the_wrapper():
+    env, inner, workers = make(selection="argmax")
+    env.reset(seed=3)
+    names = [env.step(np.ones(2, np.float32))[4]["selected_worker"] for _ in range(100)]
+    assert 30 < names.count("goal") < 70 and workers["avoid"].calls == names.count("avoid")
+
+
 def test_sample_follows_the_probabilities_and_is_seeded():
     env, inner, _ = make(selection="sample", temperature=1.0, floor=0.0)
     env.reset(seed=1)

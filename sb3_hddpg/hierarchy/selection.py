@@ -83,10 +83,28 @@ class SimplexMap:
 Probabilities = Sequence[float] | np.ndarray
 
 
+def most_probable(probabilities: Probabilities, rng: np.random.Generator) -> int:
+    """
+    The index of the most probable worker; an exact tie is broken at random with ``rng``, never by position.
+
+    A manager whose actor saturates at ``(+1, +1)`` gives its two workers 0.5 each: it states no preference,
+    and running the first-listed worker on every step would pass that indecision off as a choice of that
+    worker (and make a manager's worker order change its score). Only a tie draws from ``rng``, so seeded
+    runs stay reproducible and untied choices never consume randomness.
+
+    :param probabilities: shape ``(n,)``.
+    :param rng: the caller's generator (the wrapper's or the hierarchy's own, never the env's).
+    """
+    top = max(probabilities)
+    tied = [index for index, p in enumerate(probabilities) if p == top]
+    return tied[0] if len(tied) == 1 else tied[int(rng.integers(len(tied)))]
+
+
 class Selector:
     """
     One selection mode: which worker a probability vector chooses, and what the env receives. The base class
-    is the ``argmax`` behaviour (the most probable worker acts alone); a mode overrides what differs.
+    is the ``argmax`` behaviour (the most probable worker acts alone, an exact tie broken at random: see
+    :func:`most_probable`); a mode overrides what differs.
 
     A new mode is one subclass with a ``name``, decorated with :func:`register_selector`: the wrapper, the
     bundle, the CLI's ``--selection``, the file checks and the tuner's search space all read the registry.
@@ -101,9 +119,9 @@ class Selector:
 
         :param probabilities: shape ``(n,)``, summing to 1.
         :param rng: the generator to draw with (the wrapper's or the hierarchy's own, never the env's).
-        :param deterministic: the caller asks for no randomness.
+        :param deterministic: the caller asks for no sampling (an exact tie is still drawn from ``rng``).
         """
-        return int(np.argmax(probabilities))
+        return most_probable(probabilities, rng)
 
     def act(
         self, probabilities: Probabilities, chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
@@ -148,7 +166,7 @@ class SampleSelector(Selector):
 
     def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
         if deterministic:
-            return int(np.argmax(probabilities))
+            return most_probable(probabilities, rng)
         # Inverse-CDF sampling with one uniform draw (no Generator.choice overhead).
         u = rng.random()
         cumulative = 0.0
@@ -161,7 +179,7 @@ class SampleSelector(Selector):
 
 @register_selector
 class ArgmaxSelector(Selector):
-    """``argmax``: the most probable worker acts."""
+    """``argmax``: the most probable worker acts (an exact tie: one of the tied at random)."""
 
     name = "argmax"
 
