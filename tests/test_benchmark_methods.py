@@ -171,6 +171,10 @@ def test_steps_to_fraction_of_the_final_score():
     assert steps_to_fraction(curve, score, 0.9, floor=50.0) == 500
     assert steps_to_fraction(curve, score, 0.5, floor=50.0) == 300
     assert steps_to_fraction(curve, score, 0.9, floor=100.0) is None  # no gain over the floor
+    # Toward another run's final score: 90 % of the way from 50 to 90 is 86, first reached at step 300;
+    # a final it never gets near gives None.
+    assert steps_to_fraction(curve, score, 0.9, floor=50.0, final=90.0) == 300
+    assert steps_to_fraction(curve, score, 0.9, floor=50.0, final=200.0) is None
     with pytest.raises(ValueError, match="fraction"):
         steps_to_fraction(curve, score, 1.5)
 
@@ -235,9 +239,13 @@ def test_transfer_ratio_per_seed_with_a_bootstrap_ci():
     assert entry["per_seed"]["0"]["random_score"] == pytest.approx(250.0)
     assert entry["per_seed"]["0"]["hddpg_final_score"] == pytest.approx(350.0)
     assert entry["ratio"] == stats.summarise([2.0, 3.0, 4.0])
+    # The flat agents end at 330, below 90 % of the way to the manager's 350 (340): none gets there.
+    assert entry["seeds_flat_reaches_hddpg"] == 0
+    assert all(v["flat_steps_to_hddpg_final"] is None for v in entry["per_seed"].values())
     assert "hddpg@goal=2,avoid=1 vs ddpg@goal=2,avoid=1" in results["comparisons"]
     report = markdown_report(results)
     assert "| goal=2,avoid=1 | ddpg | 3/3 | 100 | 300 | 3.00 [" in report
+    assert "| 350.0 / 330.0 | 0/3 |" in report
 
 
 def test_transfer_settings_are_checked():

@@ -41,6 +41,8 @@ from sb3_hddpg.experiments.benchmark import (
     BenchmarkSettings,
     Task,
     check_workers_source,
+    final_scores_text,
+    flat_reaches_text,
     run_benchmark,
 )
 from sb3_hddpg.experiments.model_export import export_models
@@ -122,6 +124,8 @@ def transfer_table(results: dict[str, Any]) -> Table:
         "flat",
         "seeds",
         "ratio flat / hddpg [95 % CI]",
+        "final score hddpg / flat",
+        "flat reaches hddpg's final",
         "per seed (flat / hddpg steps)",
     ):
         table.add_column(column, justify="left" if column in ("preference", "flat") else "right")
@@ -133,6 +137,8 @@ def transfer_table(results: dict[str, Any]) -> Table:
                 flat,
                 f"{comparison['seeds_with_ratio']}/{len(comparison['per_seed'])}",
                 _ci(ratio, ".2f") if ratio else "undefined",
+                final_scores_text(comparison),
+                flat_reaches_text(comparison),
                 ", ".join(
                     f"{_steps(v['flat_steps'])} / {_steps(v['hddpg_steps'])}"
                     for v in comparison["per_seed"].values()

@@ -184,6 +184,22 @@ def _dependence_lines(results: dict[str, Any]) -> list[str]:
     ]
 
 
+def final_scores_text(comparison: dict[str, Any]) -> str:
+    """A transfer comparison's mean final scores over its seeds, ``hddpg / flat`` (the preference's score)."""
+    seeds = comparison["per_seed"].values()
+    manager = np.mean([v["hddpg_final_score"] for v in seeds])
+    agent = np.mean([v["flat_final_score"] for v in seeds])
+    return f"{manager:.1f} / {agent:.1f}"
+
+
+def flat_reaches_text(comparison: dict[str, Any]) -> str:
+    """In how many seeds the flat agent gets 90 % of the way to the manager's final score, and at which steps."""
+    steps = [v.get("flat_steps_to_hddpg_final") for v in comparison["per_seed"].values()]
+    reached = [s for s in steps if s is not None]
+    text = f"{len(reached)}/{len(steps)}"
+    return f"{text} (at {', '.join(str(s) for s in reached)})" if reached else text
+
+
 def _transfer_lines(results: dict[str, Any]) -> list[str]:
     """The transfer figure (issue 13, target 5): steps to reach the final score's fraction, and their ratio."""
     transfer = results.get("transfer")
@@ -195,8 +211,8 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
         "so a run that is there at its first evaluation counts that many; 'no gain': the curve ended at or below the random score.",
         "",
         "| preference | flat | seeds | hddpg steps (mean) | flat steps (mean) | ratio flat / hddpg [95 % CI] "
-        "| per seed (flat / hddpg) |",
-        "|---|---|---|---|---|---|---|",
+        "| final score hddpg / flat (mean) | flat gets 90 % of the way to hddpg's final | per seed (flat / hddpg) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for preference, entry in transfer["preferences"].items():
         for flat, comparison in entry.items():
@@ -212,7 +228,8 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
             lines.append(
                 f"| {preference} | {flat} | {comparison['seeds_with_ratio']}/{len(seeds)} "
                 f"| {np.mean(manager) if manager else float('nan'):.0f} | {np.mean(agent) if agent else float('nan'):.0f} "
-                f"| {_ci_text(ratio, '.2f') if ratio else 'undefined'} | {per_seed} |"
+                f"| {_ci_text(ratio, '.2f') if ratio else 'undefined'} | {final_scores_text(comparison)} "
+                f"| {flat_reaches_text(comparison)} | {per_seed} |"
             )
     return lines
 

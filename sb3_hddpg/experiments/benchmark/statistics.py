@@ -209,28 +209,33 @@ def steps_to_fraction(
     score: Callable[[dict[str, Any]], float],
     fraction: float = TRANSFER_FRACTION,
     floor: float = 0.0,
+    final: float | None = None,
 ) -> int | None:
     """
-    The own steps at which a learning curve first reaches ``fraction`` of its final score, measured from
+    The own steps at which a learning curve first reaches ``fraction`` of a final score, measured from
     ``floor``: the first evaluation with ``score >= floor + fraction * (final - floor)``, where ``final`` is
-    the last evaluation's score. With ``floor`` a random policy's score this is "90 % of the way from
-    random to where it ended"; with ``floor = 0`` it is 90 % of the final score itself.
+    the curve's last evaluation's score unless given. With ``floor`` a random policy's score this is "90 % of
+    the way from random to where it ended"; with ``floor = 0`` it is 90 % of the final score itself. With
+    another run's ``final``, it is how long this curve takes to get (nearly) as far as that run.
 
     :param history: the curve's evaluations, in order (``timesteps``: the run's own steps).
     :param score: the score of one evaluation.
     :param fraction: in (0, 1].
     :param floor: the score counted as no progress.
-    :return: the steps, or ``None`` if the curve ends at or below ``floor`` (it learned nothing to reach).
+    :param final: the score to get 90 % of the way to (default: the curve's own last).
+    :return: the steps, or ``None`` if ``final`` is at or below ``floor`` (nothing to reach) or the curve never
+        gets there.
     """
     if not 0 < fraction <= 1:
         raise ValueError(f"Expected `fraction` in (0, 1], actually: {fraction}")
     if not history:
         raise ValueError("Expected a learning curve with at least one evaluation, actually: none")
     scores = [score(point) for point in history]
-    if scores[-1] <= floor:
+    final = scores[-1] if final is None else final
+    if final <= floor:
         return None
-    target = floor + fraction * (scores[-1] - floor)
-    return next(int(p["timesteps"]) for p, value in zip(history, scores) if value >= target)
+    target = floor + fraction * (final - floor)
+    return next((int(p["timesteps"]) for p, value in zip(history, scores) if value >= target), None)
 
 
 def transfer_results(
@@ -273,11 +278,17 @@ def transfer_results(
                 floor = score(manager["reference"])
                 manager_steps = steps_to_fraction(manager["history"], score, floor=floor)
                 flat_steps = steps_to_fraction(agent["history"], score, floor=floor)
+                manager_final = score(manager["history"][-1])
                 per_seed[str(seed)] = {
                     "hddpg_steps": manager_steps,
                     "flat_steps": flat_steps,
                     "ratio": flat_steps / manager_steps if manager_steps and flat_steps else None,
-                    "hddpg_final_score": score(manager["history"][-1]),
+                    # Own final scores can differ a lot: a flat agent that settles early on a low score
+                    # "reaches 90 % of it" at once. So also: when (if ever) it gets as far as the manager.
+                    "flat_steps_to_hddpg_final": steps_to_fraction(
+                        agent["history"], score, floor=floor, final=manager_final
+                    ),
+                    "hddpg_final_score": manager_final,
                     "flat_final_score": score(agent["history"][-1]),
                     "random_score": floor,
                     "worker_timesteps": manager["worker_timesteps"],
@@ -287,6 +298,9 @@ def transfer_results(
                 "per_seed": per_seed,
                 "ratio": summarise(ratios) if ratios else None,
                 "seeds_with_ratio": len(ratios),
+                "seeds_flat_reaches_hddpg": sum(
+                    v["flat_steps_to_hddpg_final"] is not None for v in per_seed.values()
+                ),
             }
         out["preferences"][preference] = entry
     return out
