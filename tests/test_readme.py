@@ -30,7 +30,7 @@ def tiny(snippet: str) -> str:
 
 
 def test_readme_python_snippet_runs_with_the_projects_hyperparameters(tmp_path, monkeypatch, capsys):
-    from stable_baselines3.common.noise import NormalActionNoise
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 
     from sb3_hddpg.training.config import load_hyperparams
 
@@ -55,10 +55,11 @@ def test_readme_python_snippet_runs_with_the_projects_hyperparameters(tmp_path, 
         assert model.actor.net_arch == block.algo_kwargs["policy_kwargs"]["net_arch"]
         assert model.gamma == block.algo_kwargs["gamma"]
         assert model.batch_size == block.algo_kwargs["batch_size"]
-        if block.noise_type is None:  # the manager's block: no action noise
+        if block.noise_type is None:
             assert model.action_noise is None
-        else:
-            assert isinstance(model.action_noise, NormalActionNoise)
+        else:  # the workers' Gaussian noise; the manager's Ornstein-Uhlenbeck noise
+            noise_class = {"normal": NormalActionNoise, "ornstein-uhlenbeck": OrnsteinUhlenbeckActionNoise}
+            assert isinstance(model.action_noise, noise_class[block.noise_type])
             assert model.action_noise._sigma == pytest.approx(
                 np.full(model.action_space.shape, block.noise_std)
             )
