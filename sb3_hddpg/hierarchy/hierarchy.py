@@ -149,7 +149,7 @@ class Hierarchy:
             worker.reset_episode()
 
     def seed(self, seed: int) -> None:
-        """Seed the generator used to sample workers in stochastic prediction."""
+        """Seed the generator used to sample workers in stochastic prediction and to break exact ties."""
         self._rng = np.random.default_rng(seed)
 
     def predict(
@@ -165,7 +165,9 @@ class Hierarchy:
         :param observation: the shared state, shape ``(obs_dim,)`` or ``(batch, obs_dim)``.
         :param state: unused (no recurrent state), for SB3 compatibility.
         :param episode_start: for SB3 compatibility; a true entry ends the current option.
-        :param deterministic: the most probable worker (``True``) or one sampled from the probabilities.
+        :param deterministic: the most probable worker (``True``) or one sampled from the probabilities. An
+            exact tie among the most probable is drawn from the hierarchy's generator either way (see
+            :meth:`seed`): the manager prefers neither, and the worker order must not decide.
         :return: the env action(s) and ``None``.
         """
         obs = np.asarray(observation, dtype=np.float32)
