@@ -1,0 +1,55 @@
+"""
+The final run's shipped models (docs/results/models) are what docs/RESULTS.md reports: each file matches its
+index entry, every benchmarked method is there for every seed, and a model evaluated again on the run's test
+episodes gives the figures its record holds. A change to how a policy acts (e.g. how selection breaks ties)
+that would make the published table unreproducible fails here.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.experiments.benchmark.methods import TEST_SEED_BASE
+from sb3_hddpg.experiments.model_export import read_index
+from sb3_hddpg.hierarchy.loading import load_policy
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = ROOT / "docs" / "results" / "models"
+RECORDS = ROOT / "docs" / "results" / "tuned" / "records"
+METHODS = {
+    "worker:goal",
+    "worker:avoid",
+    "hddpg",
+    "hddpg-goal",
+    "hddpg-avoid",
+    "ham",
+    "ham-tuned",
+    "ddpg",
+    "td3",
+    "sac",
+}
+
+
+def test_every_shipped_model_matches_its_index_and_every_method_has_every_seed():
+    entries = read_index(MODELS)  # checks every file's sha256
+    assert Counter(entry["method"] for entry in entries) == dict.fromkeys(METHODS, 5)
+    assert {entry["seed"] for entry in entries} == set(range(5))
+
+
+@pytest.mark.parametrize("method", ["hddpg", "ham", "ddpg"])
+def test_a_shipped_model_reproduces_its_recorded_test_figures(method):
+    entry = next(e for e in read_index(MODELS) if e["method"] == method and e["seed"] == 0)
+    expected = json.loads((RECORDS / method / "seed-0.json").read_text())["test"]
+    loaded = load_policy(MODELS / entry["path"])
+    env = loaded.make_env()
+    try:
+        summary = evaluate(loaded.policy, env, n_episodes=expected["episodes"], seed=TEST_SEED_BASE).summary()
+    finally:
+        env.close()
+    for key in ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode"):
+        assert summary[key] == pytest.approx(expected[key], rel=1e-9, abs=1e-9), key
