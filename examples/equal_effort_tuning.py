@@ -10,6 +10,9 @@ Order: the goal and avoid workers, then the flat agents (each on its own study) 
 with the tuned worker blocks at their full budget (seed 0); over those the manager and HAM are tuned. A
 manager's trial counts env steps (decisions x ``option_steps``) like every other; a HAM trial trains nothing
 and costs one evaluation. Everything resumes: re-run the same command after an interruption.
+``--seeds-per-trial K`` trains every trial K times (seeds ``--seed`` to ``--seed + K - 1``) and ranks it by
+the mean: a study over one seed picked a manager block that ran the goal worker in that seed and worse mixes
+in three of five others (docs/MANAGER.md).
 
 Writes ``OUT/ddpg.yml`` (the tuned goal, avoid, flat and manager blocks over the bundled file), ``OUT/td3.yml``,
 ``OUT/sac.yml``, ``OUT/summary.json`` (per study: trials by state, steps per trial, the base config's value,
@@ -82,6 +85,7 @@ def run_study(
         seed=args.seed,
         algo=algo,
         backend=args.backend if level != "ham" else None,
+        n_seeds=args.seeds_per_trial if level != "ham" else 1,
     )
     folder = args.out / "studies" / target.name
     folder.mkdir(parents=True, exist_ok=True)
@@ -144,6 +148,12 @@ def main() -> None:
         help="steps per worker under the manager (default: its block's)",
     )
     p.add_argument("--seed", type=int, default=0, help="training seed of every trial, and the samplers' seed")
+    p.add_argument(
+        "--seeds-per-trial",
+        type=int,
+        default=1,
+        help="training seeds per trial (--seed, --seed + 1, ...), every method but HAM; a trial's value is their mean",
+    )
     p.add_argument(
         "--rank-by",
         default="peak",

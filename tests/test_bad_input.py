@@ -306,6 +306,15 @@ CASES = [
     ),
     case("tu-fix-unknown", ("tune", "--level", "flat", "--fix", "nope=1", "--out", "{tmp}/o"), 2, "nope"),
     case(
+        "tu-zero-seeds", ("tune", "--level", "flat", "--seeds-per-trial", "0", "--out", "{tmp}/o"), 2, "got 0"
+    ),
+    case(
+        "tu-ham-seeds",
+        ("tune", "--level", "ham", "--seeds-per-trial", "2", "--out", "{tmp}/o"),
+        2,
+        "--seeds-per-trial",
+    ),
+    case(
         "tu-ray-address-alone",
         ("tune", "--level", "flat", "--ray-address", "auto", "--out", "{tmp}/o"),
         2,

@@ -165,6 +165,45 @@ def test_two_trials_at_each_level(level, tmp_path, tiny_config, workers_dir):
     assert not scratch.exists() or not any(scratch.iterdir()), "trial scratch folders are removed"
 
 
+def test_a_trial_over_several_seeds_is_their_mean(tmp_path, tiny_config):
+    # Two seeds per trial: each run trains with its own seed, its evaluations reach the pruner as steps 1-2
+    # and 3-4, and the value is the mean of the two last evaluations; `peak` ranks by the mean of each
+    # run's best, not by the luckiest run's.
+    target = TuningTarget(
+        level="worker",
+        worker="goal",
+        config=str(tiny_config),
+        timesteps=200,
+        n_evaluations=2,
+        eval_episodes=1,
+        seed=3,
+        n_seeds=2,
+    )
+    assert target.describe()["n_seeds"] == 2  # a resumed study must use the same number
+    settings = StudySettings(
+        storage=default_storage_url(tmp_path),
+        study_name=target.name,
+        n_trials=1,
+        pruner="none",
+        seed=0,
+        fixed_params=FIXED,
+    )
+    torch.set_num_threads(1)
+    trial = tuning.tune(target, settings, tmp_path).trials[0]
+    history = trial.user_attrs["history"]
+    assert sorted({entry["seed"] for entry in history}) == [3, 4]
+    runs = [[e["mean_reward"] for e in history if e["seed"] == seed] for seed in (3, 4)]
+    assert sorted(trial.intermediate_values) == [1, 2, 3, 4]
+    assert [trial.intermediate_values[step] for step in (1, 2, 3, 4)] == [*runs[0][:2], *runs[1][:2]]
+    assert runs[0] != runs[1]  # the seeds differ
+    assert trial.value == pytest.approx((runs[0][-1] + runs[1][-1]) / 2)
+    assert tuning.trial_score(trial, "peak") == pytest.approx((max(runs[0]) + max(runs[1])) / 2)
+    with pytest.raises(ValueError, match="n_seeds"):
+        TuningTarget(level="worker", worker="goal", n_seeds=0)
+    with pytest.raises(ValueError, match="no seed to repeat"):
+        TuningTarget(level="ham", workers_dir="w", n_seeds=2)
+
+
 def test_cli_saves_a_config_that_trains_and_plots(tmp_path, tiny_config):
     out = tmp_path / "study"
     saved = tmp_path / "best.yml"

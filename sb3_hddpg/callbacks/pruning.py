@@ -47,12 +47,15 @@ class TrialPruningCallback(BaseCallback):
     warm-up settings read in evaluations whatever the budget.
 
     :param trial: the Optuna trial to report to.
+    :param step_offset: added to each report's step: a trial that trains several seeds reports its k-th run
+        from ``k * n_evaluations + 1`` on, so that no step is reported twice.
     :param verbose: SB3's verbosity.
     """
 
-    def __init__(self, trial: Any, verbose: int = 0) -> None:
+    def __init__(self, trial: Any, step_offset: int = 0, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.trial = trial
+        self.step_offset = step_offset
         self.eval_idx = 0
         self.is_pruned = False
         #: Why the agent counts as diverged (``None`` while it has not).
@@ -71,7 +74,7 @@ class TrialPruningCallback(BaseCallback):
         if not parameters_finite(self.model):
             self.diverged = f"non-finite weights at {self.num_timesteps} steps"
             return False
-        self.trial.report(mean_reward, self.eval_idx)
+        self.trial.report(mean_reward, self.step_offset + self.eval_idx)
         if self.trial.should_prune():
             self.is_pruned = True
             return False

@@ -219,6 +219,16 @@ def tune_command(
         5, "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."
     ),
     eval_episodes: EvalEpisodesOpt = 5,
+    seeds_per_trial: int = typer.Option(
+        1,
+        "--seeds-per-trial",
+        callback=at_least(1),
+        help=(
+            "Training seeds per trial (--seed, --seed + 1, ...): a trial's value is the mean over them, so "
+            "configurations are ranked across seeds, not on one seed's luck; each seed costs --timesteps "
+            "again. Give every method's study the same value. Not with --level ham."
+        ),
+    ),
     n_jobs: int = typer.Option(
         1,
         "--n-jobs",
@@ -304,6 +314,11 @@ def tune_command(
 
     matplotlib.use("Agg")  # plots are files; never open a window
 
+    if level == "ham" and seeds_per_trial != 1:
+        raise typer.BadParameter(
+            "HAM's trials train nothing, so there is no seed to repeat: leave it at 1",
+            param_hint="'--seeds-per-trial'",
+        )
     if level == "ham" and env is not None:
         raise typer.BadParameter(
             "HAM's switch rule is defined for the snake arm only (it reads its obstacle clearances)",
@@ -332,6 +347,7 @@ def tune_command(
         algo=algo,
         backend=backend,
         env=shared,
+        n_seeds=seeds_per_trial,
     )
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()

@@ -115,6 +115,10 @@ class TuningTarget:
     :param eval_episodes: episodes per evaluation.
     :param seed: the training seed of every trial (the same for all, so trials differ only by their
         hyperparameters).
+    :param n_seeds: training seeds per trial, ``seed``, ``seed + 1``...: a trial's value is the mean over
+        them of each run's last evaluation (its ``peak`` score the mean of each run's best), so that a
+        configuration is ranked on what it does across seeds rather than on one seed's luck. Each costs
+        the trial budget again.
     :param algo: the algorithm (level ``flat``: ``ddpg``, ``td3`` or ``sac``, each with its own search space
         and bundled base config ``zoo_configs/<algo>.yml``; the other levels are DDPG).
     :param backend: the trials' training backend, ``sb3`` or ``sbx`` (``None``: the base block's
@@ -137,6 +141,7 @@ class TuningTarget:
     algo: str = "ddpg"
     backend: str | None = None
     env: TermsEnv | None = None
+    n_seeds: int = 1
 
     def __post_init__(self) -> None:
         if self.level not in LEVELS:
@@ -148,6 +153,10 @@ class TuningTarget:
             raise ValueError(f"A worker name only applies to level 'worker', not {self.level!r}")
         if self.level in ("manager", "ham") and not self.workers_dir:
             raise ValueError(f"Level {self.level!r} needs the run folder of train-workers (workers_dir)")
+        if isinstance(self.n_seeds, bool) or not isinstance(self.n_seeds, int) or self.n_seeds < 1:
+            raise ValueError(f"Expected n_seeds to be an integer >= 1, actually: {self.n_seeds!r}")
+        if self.level == "ham" and self.n_seeds != 1:
+            raise ValueError("Level 'ham' trains nothing: its trials have no seed to repeat (n_seeds 1)")
         if self.n_evaluations < 1 or self.eval_episodes < 1:
             raise ValueError(
                 f"Expected n_evaluations >= 1 and eval_episodes >= 1, actually: "
@@ -257,6 +266,8 @@ class TuningTarget:
             "n_evaluations": self.n_evaluations if self.level != "ham" else 1,
             "eval_episodes": self.eval_episodes,
         }
+        if self.n_seeds != 1:  # only when not 1: studies made before n_seeds stay resumable
+            described["n_seeds"] = self.n_seeds
         if self.algo != "ddpg":  # DDPG studies made before other algorithms were tunable stay resumable
             described["algo"] = self.algo
         if self.env is not None:  # only when given: snake studies made before --env stay resumable
@@ -397,7 +408,8 @@ def open_study(target: TuningTarget, settings: StudySettings, process_index: int
 
 def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, threads: int = 1) -> float:
     """
-    Train (or, for HAM, evaluate) one sampled configuration and return its last mean evaluation reward.
+    Train (or, for HAM, evaluate) one sampled configuration and return its last mean evaluation reward (the
+    mean over the trial's ``n_seeds`` runs).
 
     :param trial: the Optuna trial.
     :param target: what is tuned.
@@ -421,11 +433,44 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
         # Every level's trial gets the same env steps: a manager decides once per option_steps env steps.
         timesteps = max(1, timesteps // int(hyperparams.wrapper_kwargs.get("option_steps", 1)))
         trial.set_user_attr("decisions", timesteps)
-    pruning = TrialPruningCallback(trial)
     trials_dir = Path(out_dir) / "trials"
     trials_dir.mkdir(parents=True, exist_ok=True)
+    histories = []
+    for index in range(target.n_seeds):
+        # Run k's evaluations are reported as steps k * n_evaluations + 1...: every trial trains the same
+        # seeds in the same order, so the pruner compares like with like (seed k, evaluation i).
+        pruning = TrialPruningCallback(trial, step_offset=index * target.n_evaluations)
+        history = _train_trial_run(
+            trial, target, hyperparams, timesteps, target.seed + index, pruning, threads, trials_dir
+        )
+        histories.append(history)
+        seeded = [dict(entry, seed=target.seed + i) for i, run in enumerate(histories) for entry in run]
+        trial.set_user_attr("history", seeded if target.n_seeds > 1 else history)
+        if pruning.diverged is not None:
+            trial.set_user_attr("diverged", pruning.diverged)
+            raise optuna.TrialPruned(f"diverged: {pruning.diverged}")
+        if pruning.is_pruned:
+            raise optuna.TrialPruned(
+                f"pruned after evaluation {pruning.eval_idx} of seed {target.seed + index}"
+            )
+    # Each run's best evaluation, for the `peak` ranking (the mean of these, not the best of all runs).
+    trial.set_user_attr("seed_peaks", [max(float(e["mean_reward"]) for e in run) for run in histories])
+    return float(np.mean([float(run[-1]["mean_reward"]) for run in histories]))
+
+
+def _train_trial_run(
+    trial: optuna.Trial,
+    target: TuningTarget,
+    hyperparams: Any,
+    timesteps: int,
+    seed: int,
+    pruning: TrialPruningCallback,
+    threads: int,
+    trials_dir: Path,
+) -> list[dict[str, Any]]:
+    """One training run of a trial with one seed (in a temporary folder under ``trials_dir``); its history."""
     # The trial's models, checkpoint and logs are not needed once its value is known: a temporary folder.
-    with tempfile.TemporaryDirectory(prefix=f"trial-{trial.number}-", dir=trials_dir) as folder:
+    with tempfile.TemporaryDirectory(prefix=f"trial-{trial.number}-seed-{seed}-", dir=trials_dir) as folder:
         paths = AgentPaths(Path(folder), target.name, Path(folder) / "model.zip")
         try:
             outcome = train_agent(
@@ -435,7 +480,7 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
                 algo=target.algo,
                 run=RunOptions(
                     timesteps=timesteps,
-                    seed=target.seed,
+                    seed=seed,
                     n_envs=1,
                     eval_freq=math.ceil(timesteps / target.n_evaluations),
                     eval_episodes=target.eval_episodes,
@@ -459,15 +504,7 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
                 raise
             trial.set_user_attr("diverged", reason)
             raise optuna.TrialPruned(f"diverged: {reason}") from error
-    trial.set_user_attr("history", [_jsonable(entry) for entry in outcome.history])
-    if pruning.diverged is not None:
-        trial.set_user_attr("diverged", pruning.diverged)
-        raise optuna.TrialPruned(f"diverged: {pruning.diverged}")
-    if pruning.is_pruned:
-        raise optuna.TrialPruned(
-            f"pruned after evaluation {pruning.eval_idx} ({outcome.num_timesteps} steps)"
-        )
-    return float(outcome.history[-1]["mean_reward"])
+    return [_jsonable(entry) for entry in outcome.history]
 
 
 def run_trials(
@@ -620,6 +657,9 @@ def trial_score(trial: FrozenTrial, rank_by: str = "last") -> float:
         raise ValueError(f"Unknown ranking {rank_by!r}; choose from {list(RANKINGS)}")
     value = trial.value if trial.value is not None else -math.inf
     if rank_by == "peak":
+        peaks = trial.user_attrs.get("seed_peaks")
+        if peaks:  # each seed's best evaluation, averaged: not the luckiest seed's best
+            return float(np.mean(peaks))
         return max([value, *trial.intermediate_values.values()])
     return value
 
