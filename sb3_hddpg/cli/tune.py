@@ -371,6 +371,8 @@ def tune_command(
     )
     shown_storage = storage.split("@")[-1] if storage else settings.storage
     per_trial = "one evaluation" if level == "ham" else f"{target.budget()} steps"
+    if seeds_per_trial > 1:
+        per_trial += f" x {seeds_per_trial} seeds ({target.seed}..{target.seed + seeds_per_trial - 1})"
     console.print(
         f"Tuning [bold]{target.name}[/] in study [bold]{name}[/] ({shown_storage}): "
         f"{n_trials} trials of {per_trial}, {n_jobs} process(es)"
