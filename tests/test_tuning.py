@@ -108,6 +108,18 @@ def assert_exactly(study: optuna.Study, n_trials: int) -> None:
     assert len(trials) == n_trials
 
 
+def one_process_settings(tmp_path: Path, target: TuningTarget, n_trials: int, fixed: dict) -> StudySettings:
+    """A seeded study in ``tmp_path`` without pruning, so that every trial runs to its end."""
+    return StudySettings(
+        storage=default_storage_url(tmp_path),
+        study_name=target.name,
+        n_trials=n_trials,
+        pruner="none",
+        seed=0,
+        fixed_params=fixed,
+    )
+
+
 @pytest.mark.parametrize("level", ["worker", "flat", "manager", "ham"])
 def test_two_trials_at_each_level(level, tmp_path, tiny_config, workers_dir):
     target = TuningTarget(
@@ -119,14 +131,7 @@ def test_two_trials_at_each_level(level, tmp_path, tiny_config, workers_dir):
         n_evaluations=2,
         eval_episodes=1,
     )
-    settings = StudySettings(
-        storage=default_storage_url(tmp_path),
-        study_name=target.name,
-        n_trials=2,
-        pruner="none",
-        seed=0,
-        fixed_params=FIXED if level != "ham" else {},
-    )
+    settings = one_process_settings(tmp_path, target, 2, FIXED if level != "ham" else {})
     torch.set_num_threads(1)
     study = tuning.tune(target, settings, tmp_path)
     assert_exactly(study, 2)
@@ -180,16 +185,8 @@ def test_a_trial_over_several_seeds_is_their_mean(tmp_path, tiny_config):
         n_seeds=2,
     )
     assert target.describe()["n_seeds"] == 2  # a resumed study must use the same number
-    settings = StudySettings(
-        storage=default_storage_url(tmp_path),
-        study_name=target.name,
-        n_trials=1,
-        pruner="none",
-        seed=0,
-        fixed_params=FIXED,
-    )
     torch.set_num_threads(1)
-    trial = tuning.tune(target, settings, tmp_path).trials[0]
+    trial = tuning.tune(target, one_process_settings(tmp_path, target, 1, FIXED), tmp_path).trials[0]
     history = trial.user_attrs["history"]
     assert sorted({entry["seed"] for entry in history}) == [3, 4]
     runs = [[e["mean_reward"] for e in history if e["seed"] == seed] for seed in (3, 4)]
