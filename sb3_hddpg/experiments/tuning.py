@@ -444,8 +444,9 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
             trial, target, hyperparams, timesteps, target.seed + index, pruning, threads, trials_dir
         )
         histories.append(history)
-        seeded = [dict(entry, seed=target.seed + i) for i, run in enumerate(histories) for entry in run]
-        trial.set_user_attr("history", seeded if target.n_seeds > 1 else history)
+        if target.n_seeds > 1:  # every run so far, each entry with its seed (kept if a later run is pruned)
+            history = [dict(entry, seed=target.seed + i) for i, run in enumerate(histories) for entry in run]
+        trial.set_user_attr("history", history)
         if pruning.diverged is not None:
             trial.set_user_attr("diverged", pruning.diverged)
             raise optuna.TrialPruned(f"diverged: {pruning.diverged}")
