@@ -171,14 +171,15 @@ def test_two_trials_at_each_level(level, tmp_path, tiny_config, workers_dir):
 
 
 def test_a_trial_over_several_seeds_is_their_mean(tmp_path, tiny_config):
-    # Two seeds per trial: each run trains with its own seed, its evaluations reach the pruner as steps 1-2
-    # and 3-4, and the value is the mean of the two last evaluations; `peak` ranks by the mean of each
-    # run's best, not by the luckiest run's.
+    # Two seeds per trial: each run trains with its own seed, its evaluations reach the pruner as steps 1-3
+    # and 4-6, and the value is the mean of the two last evaluations; `peak` ranks by the mean of each
+    # run's best, not by the luckiest run's. 100 steps collected 64 at a time: SB3 stops at 128, so each
+    # run has its 2 evaluations (50, 100) and a final one (128), and none of them is dropped.
     target = TuningTarget(
         level="worker",
         worker="goal",
         config=str(tiny_config),
-        timesteps=200,
+        timesteps=100,
         n_evaluations=2,
         eval_episodes=1,
         seed=3,
@@ -186,12 +187,14 @@ def test_a_trial_over_several_seeds_is_their_mean(tmp_path, tiny_config):
     )
     assert target.describe()["n_seeds"] == 2  # a resumed study must use the same number
     torch.set_num_threads(1)
-    trial = tuning.tune(target, one_process_settings(tmp_path, target, 1, FIXED), tmp_path).trials[0]
+    settings = one_process_settings(tmp_path, target, 1, {**FIXED, "train_freq": 64})
+    trial = tuning.tune(target, settings, tmp_path).trials[0]
     history = trial.user_attrs["history"]
     assert sorted({entry["seed"] for entry in history}) == [3, 4]
     runs = [[e["mean_reward"] for e in history if e["seed"] == seed] for seed in (3, 4)]
-    assert sorted(trial.intermediate_values) == [1, 2, 3, 4]
-    assert [trial.intermediate_values[step] for step in (1, 2, 3, 4)] == [*runs[0][:2], *runs[1][:2]]
+    assert [[e["timesteps"] for e in history if e["seed"] == seed] for seed in (3, 4)] == [[50, 100, 128]] * 2
+    assert sorted(trial.intermediate_values) == [1, 2, 3, 4, 5, 6]
+    assert [trial.intermediate_values[step] for step in range(1, 7)] == [*runs[0], *runs[1]]
     assert runs[0] != runs[1]  # the seeds differ
     assert trial.value == pytest.approx((runs[0][-1] + runs[1][-1]) / 2)
     assert tuning.trial_score(trial, "peak") == pytest.approx((max(runs[0]) + max(runs[1])) / 2)

@@ -48,7 +48,7 @@ class TrialPruningCallback(BaseCallback):
 
     :param trial: the Optuna trial to report to.
     :param step_offset: added to each report's step: a trial that trains several seeds reports its k-th run
-        from ``k * n_evaluations + 1`` on, so that no step is reported twice.
+        from ``k * (n_evaluations + 1) + 1`` on, so that no step is reported twice.
     :param verbose: SB3's verbosity.
     """
 

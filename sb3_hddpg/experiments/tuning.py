@@ -437,9 +437,11 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
     trials_dir.mkdir(parents=True, exist_ok=True)
     histories = []
     for index in range(target.n_seeds):
-        # Run k's evaluations are reported as steps k * n_evaluations + 1...: every trial trains the same
-        # seeds in the same order, so the pruner compares like with like (seed k, evaluation i).
-        pruning = TrialPruningCallback(trial, step_offset=index * target.n_evaluations)
+        # Run k's evaluations are reported as steps k * (n_evaluations + 1) + 1...: every trial trains the
+        # same seeds in the same order, so the pruner compares like with like (seed k, evaluation i). The
+        # + 1 is room for the final evaluation: with train_freq > 1 SB3 overshoots the budget by up to
+        # train_freq - 1 steps, and a run then ends with n_evaluations + 1 of them.
+        pruning = TrialPruningCallback(trial, step_offset=index * (target.n_evaluations + 1))
         history = _train_trial_run(
             trial, target, hyperparams, timesteps, target.seed + index, pruning, threads, trials_dir
         )
