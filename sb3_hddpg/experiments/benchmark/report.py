@@ -194,9 +194,9 @@ def final_scores_text(comparison: dict[str, Any]) -> str:
 
 def flat_reaches_text(comparison: dict[str, Any]) -> str:
     """In how many seeds the flat agent gets 90 % of the way to the manager's final score, and at which steps."""
-    steps = [v.get("flat_steps_to_hddpg_final") for v in comparison["per_seed"].values()]
-    reached = [s for s in steps if s is not None]
-    text = f"{len(reached)}/{len(steps)}"
+    per_seed = comparison["per_seed"].values()
+    reached = [v["flat_steps_to_hddpg_final"] for v in per_seed if v["flat_steps_to_hddpg_final"] is not None]
+    text = f"{comparison['seeds_flat_reaches_hddpg']}/{len(per_seed)}"
     return f"{text} (at {', '.join(str(s) for s in reached)})" if reached else text
 
 
