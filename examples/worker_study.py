@@ -50,8 +50,12 @@ def main() -> None:
         "--train-freq",
         type=int,
         default=1,
-        help="env steps between updates, with as many gradient steps (the same updates per env step)",
+        help="env steps between updates, with as many gradient steps times --updates-per-step",
     )
+    p.add_argument(
+        "--updates-per-step", type=int, default=1, help="gradient steps per env step (the replay ratio)"
+    )
+    p.add_argument("--batch-size", type=int, default=128, help="transitions per gradient step")
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--eval-every", type=int, default=10_000, help="steps between curve points (5 episodes)")
     p.add_argument("--curve-episodes", type=int, default=5, help="episodes per curve point")
@@ -74,10 +78,10 @@ def main() -> None:
         learning_rate=args.lr,
         buffer_size=200_000,
         learning_starts=1000,
-        batch_size=128,
+        batch_size=args.batch_size,
         tau=0.005,
         train_freq=args.train_freq,
-        gradient_steps=args.train_freq,
+        gradient_steps=args.train_freq * args.updates_per_step,
         gamma=args.gamma,
         seed=args.seed,
         policy_kwargs={"net_arch": [int(size) for size in args.net.split(",")]},
