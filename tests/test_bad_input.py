@@ -121,6 +121,7 @@ CASES = [
     case("tm-duplicate-worker", (*TM, "--worker", "goal", "--worker", "goal", "--out", "{tmp}/o"), 2, "goal"),
     case("tm-unknown-worker", (*TM, "--worker", "goal", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"),
     case("tm-unknown-prefer", (*TM, "--prefer", "nope", "--out", "{tmp}/o"), 2, "nope"),
+    case("tm-unknown-algo", (*TM, "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
     case("tm-unknown-preference", (*TM, "--preference", "nope=1.2", "--out", "{tmp}/o"), 2, "nope"),
     case("tm-zero-preference", (*TM, "--preference", "goal=0", "--out", "{tmp}/o"), 2, "0"),
     case("tm-negative-preference", (*TM, "--preference", "goal=-1", "--out", "{tmp}/o"), 2, "-1"),
@@ -322,7 +323,10 @@ CASES = [
     ),
     case("tu-algo-unknown", ("tune", "--level", "flat", "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
     case(
-        "tu-algo-not-flat", ("tune", "--level", "ham", "--algo", "sac", "--out", "{tmp}/o"), 2, "--level flat"
+        "tu-algo-not-flat",
+        ("tune", "--level", "ham", "--algo", "sac", "--out", "{tmp}/o"),
+        2,
+        "--level manager",
     ),
     case(
         "tu-sac-fix-noise",

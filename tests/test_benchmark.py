@@ -364,6 +364,12 @@ def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_p
     assert settings.manager_run_options(0).eval_freq == 100  # the same env steps, in decisions
     assert settings.manager_run_options(0).timesteps == 1000
 
+    # Another algorithm's manager gets the same env steps in decisions of its own option_steps.
+    monkeypatch.setattr(settings_module, "manager_option_steps", lambda algo: {"sac": 2}[algo])
+    assert settings.option_steps_of("sac") == 2
+    assert settings.manager_run_options(0, "sac").timesteps == 2000
+    assert settings.manager_run_options(0, "sac").eval_freq == 200
+
     path = tmp_path / "manager.json"
     path.write_text(json.dumps([{"timesteps": 100, "mean_reach_reward": 1.0}]))
     assert read_history(path, 4, offset=600) == [

@@ -381,15 +381,23 @@ def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
     from sb3_hddpg.hierarchy.loading import load_policy
 
     out, models = tmp_path / "bench", tmp_path / "models"
-    methods = "hddpg,hddpg-goal,hddpg-avoid,ham,ddpg,td3,sac"
+    methods = "hddpg,hddpg-goal,hddpg-avoid,hddpg-sac,ham,ddpg,td3,sac"
     args = ("benchmark", "--seeds", "1", "--methods", methods, *TINY, "--n-jobs", "2", "--out", str(out))
     done = cli(*args, "--export-models", str(models))
     assert done.returncode == 0, done.stdout + done.stderr
     results = json.loads((out / "results.json").read_text())
-    for name in ("td3", "sac"):  # the hierarchy's total env steps: 200 + 2 x 100
-        assert results["methods"][name]["own_timesteps"] == 400
+    # The hierarchy's total env steps: the manager's (200 decisions of the bundled block's option_steps)
+    # + 2 x 100 for the workers, rounded up to TD3's 16-step update blocks.
+    total = results["methods"]["hddpg"]["own_timesteps"] + 2 * 100
+    for name in ("td3", "sac"):
+        assert total <= results["methods"][name]["own_timesteps"] < total + 16
         assert f"hddpg vs {name}" in results["comparisons"]
     assert "state_dependence" in results["methods"]["hddpg"] and "State dependence" in done.stdout
+    # The SAC manager: the same env steps as the DDPG manager, compared like it with every baseline and with it.
+    sac_manager = results["methods"]["hddpg-sac"]
+    assert sac_manager["own_timesteps"] == results["methods"]["hddpg"]["own_timesteps"]
+    assert {"hddpg-sac vs ham", "hddpg-sac vs ddpg", "hddpg-sac vs hddpg"} <= set(results["comparisons"])
+    assert "hddpg-sac vs hddpg-goal" not in results["comparisons"]  # a challenger, not a baseline
 
     index = read_index(models)  # every file present and matching its sha256
     expected = [
@@ -398,6 +406,7 @@ def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
         "hddpg",
         "hddpg-goal",
         "hddpg-avoid",
+        "hddpg-sac",
         "ham",
         "ddpg",
         "td3",

@@ -45,7 +45,11 @@ def test_every_flat_algorithm_searches_the_shared_parameters_alike():
     with pytest.raises(ValueError, match="Unknown parameter 'noise_std' for level 'flat' \\(sac\\)"):
         check_fixed_params("flat", {"noise_std": 0.2}, "sac")
     with pytest.raises(ValueError, match="DDPG only"):
-        sampler_for("manager", "sac")
+        sampler_for("worker", "sac")
+    # A manager of another algorithm: that algorithm's space plus the same selection parameters.
+    manager_sac, manager_ddpg = search_space("manager", "sac"), search_space("manager", "ddpg")
+    wrapper = {"temperature", "floor", "selection", "option_steps"}
+    assert set(manager_sac) == set(sac) | wrapper and set(manager_ddpg) == set(ddpg) | wrapper
     with pytest.raises(ValueError, match="Unknown algorithm 'ppo'"):
         TuningTarget(level="flat", algo="ppo")
 
@@ -55,6 +59,8 @@ TUNED_BLOCKS = [
     ("worker", "ddpg", "hddpg/SnakeGoal-v0"),
     ("worker", "ddpg", "hddpg/SnakeAvoid-v0"),
     ("manager", "ddpg", "manager"),
+    ("manager", "sac", "manager"),
+    ("manager", "td3", "manager"),
     ("flat", "ddpg", "hddpg/SnakeReach-v0"),
     ("flat", "td3", "hddpg/SnakeReach-v0"),
     ("flat", "sac", "hddpg/SnakeReach-v0"),
@@ -155,3 +161,37 @@ def test_algo_usage_errors_through_the_cli(tmp_path):
     assert wrong_level.returncode == 2 and "--level flat" in wrong_level.stderr
     assert unknown.returncode == 2 and "'ppo'" in unknown.stderr
     assert "Traceback" not in wrong_level.stderr + unknown.stderr
+
+
+def test_a_sac_manager_study_trains_sac_managers_and_saves_their_block(tmp_path):
+    from sb3_hddpg.training.training import train_workers
+
+    config = yaml.safe_load((REPO / "sb3_hddpg" / "zoo_configs" / "sac.yml").read_text())
+    for block in config.values():
+        block.update(learning_starts=50, n_timesteps=200)
+    path = tmp_path / "sac.yml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    workers = tmp_path / "workers"
+    train_workers(workers, timesteps=150, eval_freq=0, eval_episodes=1)
+    target = TuningTarget(
+        level="manager",
+        algo="sac",
+        workers_dir=str(workers),
+        config=str(path),
+        timesteps=200,
+        n_evaluations=2,
+        eval_episodes=1,
+    )
+    assert target.name == "manager-sac" and target.describe()["algo"] == "sac"
+    settings = StudySettings(
+        storage=default_storage_url(tmp_path), study_name=target.name, n_trials=1, pruner="none", seed=0
+    )
+    study = tuning.tune(target, settings, tmp_path)
+    trial = study.trials[0]
+    assert trial.user_attrs["base_config"] is True and math.isfinite(trial.value)
+    assert trial.user_attrs["decisions"] == 200 // 4  # the SAC manager block's 4-step options
+    assert "ent_coef" in trial.user_attrs["config_block"] and "noise_type" not in trial.params
+    saved = tmp_path / "best.yml"
+    tuning.save_best_config(study, target, saved)
+    manager = load_hyperparams("manager", SAC, saved, manager=True)
+    assert manager.wrapper_kwargs["option_steps"] == 4 and manager.algo_kwargs["ent_coef"] == "auto"

@@ -261,3 +261,28 @@ def test_run_options_are_one_object_or_keywords(tmp_path):
         train_manager(tmp_path, tmp_path / "m", run=RunOptions(), checkpoint_freq=-1)
     assert RunOptions(seed=2).replace(timesteps=5) == RunOptions(timesteps=5, seed=2)
     assert not (tmp_path / "workers").exists()  # nothing started
+
+
+def test_a_sac_manager_trains_bundles_and_reloads(trained, tmp_path):
+    """`train_manager(algo="sac")`: SAC on the same action, its own config block, in a bundle like DDPG's."""
+    from stable_baselines3 import SAC
+
+    from sb3_hddpg.training.config import manager_option_steps
+
+    root = trained[0]
+    hierarchy, outcome = train_manager(root / "w", tmp_path / "m", algo="sac", seed=3, **TINY)
+    assert type(hierarchy.manager) is SAC and outcome.num_timesteps >= TINY["timesteps"]
+    # The bundled sac.yml's manager block: its own option length, SAC's entropy coefficient.
+    assert hierarchy.config.option_steps == manager_option_steps(algo="sac") == 4
+    loaded = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
+    assert type(loaded.manager) is SAC
+    obs = np.stack([gym.make("hddpg/SnakeReach-v0").reset(seed=s)[0] for s in range(4)])
+    hierarchy.seed(0)
+    loaded.seed(0)
+    np.testing.assert_array_equal(
+        hierarchy.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0]
+    )
+    with zipfile.ZipFile(tmp_path / "m" / "hierarchy.zip") as archive:
+        SAC.load(io.BytesIO(archive.read("manager.zip")))  # a plain SB3 zip
+    with pytest.raises(ValueError, match="Unknown manager algorithm 'ppo'"):
+        train_manager(root / "w", tmp_path / "m2", algo="ppo", **TINY)

@@ -39,8 +39,9 @@ from sb3_hddpg.cli.options import (
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.metric_labels import metric_label
 from sb3_hddpg.policy import WORKER_ENV_IDS
-from sb3_hddpg.training.backends import resolve_backend
+from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.training import (
+    MANAGER_ALGOS,
     TrainingInterrupted,
     TrainingOutcome,
     prepare_manager,
@@ -194,6 +195,12 @@ def train_manager_command(
         callback=at_least(1),
         help="Env steps per manager decision (default: the config's).",
     ),
+    algo: str = typer.Option(
+        "ddpg",
+        "--algo",
+        help=f"The manager's algorithm, one of {list(MANAGER_ALGOS)}: DDPG is the paper's; TD3 and SAC act on "
+        "the same action (default config: the bundled zoo_configs/<algo>.yml).",
+    ),
     config: Path | None = typer.Option(
         None, "--config", callback=existing_file, help=CONFIG_HELP + " Its 'manager' block is used."
     ),
@@ -225,6 +232,9 @@ def train_manager_command(
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
+    algo = algo.lower()
+    if algo not in MANAGER_ALGOS:
+        raise typer.BadParameter(f"must be one of {list(MANAGER_ALGOS)}, got {algo!r}", param_hint="'--algo'")
     with usage_errors("'--preference'"):
         preferences = parse_preferences(preference) if preference is not None else None
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
@@ -245,9 +255,10 @@ def train_manager_command(
             trusted=trust,
             env_id=env_id,
             env_kwargs=env_kwargs,
+            algo=algo,
         )
     with usage_errors("'--backend'"):
-        resolve_backend(backend, setup.hyperparams.backend)
+        check_algo(algo, resolve_backend(backend, setup.hyperparams.backend))
     prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
         hierarchy, outcome = train_manager(setup, out, run=run_options_of(context))

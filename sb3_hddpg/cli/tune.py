@@ -90,9 +90,11 @@ def _check_level_options(
     """The options that depend on ``--level`` (``known_workers``: the env's terms): usage errors naming the option."""
     if level not in LEVELS:
         raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
-    if algo != "ddpg" and level != "flat":
-        raise typer.BadParameter(f"only applies to --level flat, not {level!r}", param_hint="'--algo'")
-    if level == "flat" and algo not in FLAT_SAMPLERS:
+    if algo != "ddpg" and level not in ("flat", "manager"):
+        raise typer.BadParameter(
+            f"only applies to --level flat and --level manager, not {level!r}", param_hint="'--algo'"
+        )
+    if level in ("flat", "manager") and algo not in FLAT_SAMPLERS:
         raise typer.BadParameter(f"must be one of {list(FLAT_SAMPLERS)}, got {algo!r}", param_hint="'--algo'")
     if level == "worker" and worker not in known_workers:
         raise typer.BadParameter(
@@ -195,7 +197,8 @@ def tune_command(
     algo: str = typer.Option(
         "ddpg",
         "--algo",
-        help="The flat baseline's algorithm with --level flat: ddpg | td3 | sac (its own search space and config).",
+        help="The algorithm with --level flat or --level manager: ddpg | td3 | sac (its own search space and "
+        "bundled config zoo_configs/<algo>.yml).",
     ),
     n_trials: int = typer.Option(
         20,

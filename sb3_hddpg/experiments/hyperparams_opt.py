@@ -16,6 +16,7 @@ config found by hand (docs/WORKERS.md) uses both, and every method's base config
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -120,14 +121,16 @@ def sample_flat_params(trial: Any) -> dict[str, Any]:
     return sample_ddpg_params(trial)
 
 
-def sample_manager_params(trial: Any) -> dict[str, Any]:
+def sample_manager_params(trial: Any, algo: str = "ddpg") -> dict[str, Any]:
     """
-    The manager's DDPG plus how its action selects workers (``wrapper_kwargs``): the simplex map's
-    temperature and floor, the selection mode and the option length.
+    The manager's algorithm (DDPG's space, or TD3's or SAC's: :data:`FLAT_SAMPLERS`) plus how its action
+    selects workers (``wrapper_kwargs``): the simplex map's temperature and floor, the selection mode and
+    the option length.
 
     :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    :param algo: the manager's algorithm.
     """
-    block = sample_ddpg_params(trial)
+    block = FLAT_SAMPLERS[algo](trial)
     block["wrapper_kwargs"] = {
         "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
         # Below 1/n for any n <= 9 workers, as SimplexMap requires.
@@ -158,20 +161,22 @@ HYPERPARAMS_SAMPLER: dict[str, Callable[[Any], dict[str, Any]]] = {
 
 def sampler_for(level: str, algo: str = "ddpg") -> Callable[[Any], dict[str, Any]]:
     """
-    The sampler of a level (and, for ``flat``, of an algorithm among :data:`FLAT_SAMPLERS`).
+    The sampler of a level (and, for ``flat`` and ``manager``, of an algorithm among :data:`FLAT_SAMPLERS`).
 
     :raises ValueError: naming the unknown level or algorithm, or an algorithm for a DDPG-only level.
     """
     if level not in HYPERPARAMS_SAMPLER:
         raise ValueError(f"Unknown level {level!r}; choose from {list(HYPERPARAMS_SAMPLER)}")
-    if level == "flat":
+    if level in ("flat", "manager"):
         if algo not in FLAT_SAMPLERS:
             raise ValueError(
-                f"Unknown algorithm {algo!r} for level 'flat'; choose from {list(FLAT_SAMPLERS)}"
+                f"Unknown algorithm {algo!r} for level {level!r}; choose from {list(FLAT_SAMPLERS)}"
             )
-        return FLAT_SAMPLERS[algo]
+        return FLAT_SAMPLERS[algo] if level == "flat" else functools.partial(sample_manager_params, algo=algo)
     if algo != "ddpg":
-        raise ValueError(f"Level {level!r} is tuned for DDPG only; an algorithm applies to level 'flat'")
+        raise ValueError(
+            f"Level {level!r} is tuned for DDPG only; an algorithm applies to levels 'flat' and 'manager'"
+        )
     return HYPERPARAMS_SAMPLER[level]
 
 
@@ -214,7 +219,7 @@ def check_fixed_params(level: str, fixed: dict[str, Any], algo: str = "ddpg") ->
     space = search_space(level, algo)
     for name, value in fixed.items():
         if name not in space:
-            what = f"level {level!r}" + (f" ({algo})" if level == "flat" else "")
+            what = f"level {level!r}" + (f" ({algo})" if level in ("flat", "manager") else "")
             raise ValueError(f"Unknown parameter {name!r} for {what}; tunable: {sorted(space)}")
         kind, domain = space[name]
         if not _in_domain(value, kind, domain):
@@ -234,7 +239,7 @@ def base_params(
     :param level: the level tuned.
     :param block: the base config's block (as in the file: ``policy_kwargs`` a string, ``noise_type``
         ``None`` for none).
-    :param algo: the flat algorithm (level ``flat``).
+    :param algo: the algorithm (levels ``flat`` and ``manager``).
     :param ham_threshold: HAM's default threshold (level ``ham``, which has no block).
     :return: the parameters whose base value lies in the search space, and the names of those whose value
         does not (or that the block cannot express, e.g. ``gradient_steps`` other than ``train_freq``):

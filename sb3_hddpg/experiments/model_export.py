@@ -28,6 +28,7 @@ INDEX_METHODS = (
     "hddpg",
     "hddpg-goal",
     "hddpg-avoid",
+    "hddpg-sac",
     "ham",
     "ham-tuned",
     "ddpg",
@@ -48,7 +49,7 @@ def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
 
 def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
     """The file a run's model is opened by and the files it needs beside it, relative to the seed folder."""
-    if base in ("hddpg", "hddpg-goal", "hddpg-avoid"):
+    if base in ("hddpg", "hddpg-goal", "hddpg-avoid", "hddpg-sac"):
         return f"{run_key}/hierarchy.zip", []
     if base in ("ham", "ham-tuned"):
         return f"{base}/ham.json", []  # its workers are exported with the seed's workers

@@ -119,8 +119,8 @@ class TuningTarget:
         them of each run's last evaluation (its ``peak`` score the mean of each run's best), so that a
         configuration is ranked on what it does across seeds rather than on one seed's luck. Each costs
         the trial budget again.
-    :param algo: the algorithm (level ``flat``: ``ddpg``, ``td3`` or ``sac``, each with its own search space
-        and bundled base config ``zoo_configs/<algo>.yml``; the other levels are DDPG).
+    :param algo: the algorithm (levels ``flat`` and ``manager``: ``ddpg``, ``td3`` or ``sac``, each with its
+        own search space and bundled base config ``zoo_configs/<algo>.yml``; the workers are DDPG).
     :param backend: the trials' training backend, ``sb3`` or ``sbx`` (``None``: the base block's
         ``backend`` key, else ``sb3``).
     :param env: another env with several objectives (:func:`~sb3_hddpg.envs.terms_env.terms_env`, the
@@ -174,10 +174,13 @@ class TuningTarget:
 
     @property
     def name(self) -> str:
-        """A short name: ``worker-goal``, ``manager``, ``flat`` (``flat-td3``...) or ``ham`` (the default study name)."""
+        """
+        A short name: ``worker-goal``, ``manager`` (``manager-sac``...), ``flat`` (``flat-td3``...) or ``ham``
+        (the default study name).
+        """
         if self.level == "worker":
             return f"worker-{self.worker}"
-        return f"flat-{self.algo}" if self.level == "flat" and self.algo != "ddpg" else self.level
+        return f"{self.level}-{self.algo}" if self.algo != "ddpg" else self.level
 
     @property
     def block_key(self) -> str | None:

@@ -24,7 +24,7 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from torch import nn
 
 from sb3_hddpg.algorithms import ACTIVATIONS as ALL_ACTIVATIONS
-from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS
+from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS, algorithm_class
 from sb3_hddpg.artifacts.limits import (
     MAX_CONFIG_NODES,
     MAX_JSON_BYTES,
@@ -439,24 +439,27 @@ def agent_callbacks(key: str, config: str | Path | None = None) -> list[Any]:
     return load_hyperparams(key, DDPG, config, manager=key == MANAGER_KEY).callbacks()
 
 
-def wrapper_kwargs(config: str | Path | None = None) -> dict[str, Any]:
+def wrapper_kwargs(config: str | Path | None = None, algo: str = "ddpg") -> dict[str, Any]:
     """
     The manager block's ``wrapper_kwargs`` (selection mode, temperature, floor, option steps): keyword
     arguments for ``WorkerSelectionWrapper`` and ``SelectionConfig``, as the CLI's manager gets them.
 
-    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    :param config: a ``zoo_configs``-format file (default: the bundled config of ``algo``).
+    :param algo: the manager's algorithm (``ddpg``, ``td3`` or ``sac``).
     """
-    return dict(load_hyperparams(MANAGER_KEY, DDPG, config, manager=True).wrapper_kwargs)
+    path = config if config is not None else default_config(algo)
+    return dict(load_hyperparams(MANAGER_KEY, algorithm_class(algo), path, manager=True).wrapper_kwargs)
 
 
-def manager_option_steps(config: str | Path | None = None) -> int:
+def manager_option_steps(config: str | Path | None = None, algo: str = "ddpg") -> int:
     """
     Env steps per manager decision: the manager block's ``option_steps`` (1 when it sets none). SB3 counts a
     manager's timesteps and evaluation period in decisions; budgets and curves in env steps multiply by it.
 
-    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    :param config: a ``zoo_configs``-format file (default: the bundled config of ``algo``).
+    :param algo: the manager's algorithm (``ddpg``, ``td3`` or ``sac``).
     """
-    return int(wrapper_kwargs(config).get("option_steps", 1))
+    return int(wrapper_kwargs(config, algo).get("option_steps", 1))
 
 
 def parse_policy_kwargs(text: str, source: str = "config") -> dict[str, Any]:

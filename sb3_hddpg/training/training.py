@@ -69,6 +69,10 @@ from sb3_hddpg.training.run_options import RunOptions, run_options
 #: Algorithm names accepted by ``--algo`` (the registry's, in its order).
 ALGO_NAMES = tuple(ALGORITHMS)
 
+#: The algorithms a manager can be: DDPG (the paper's), or TD3 or SAC on the same Box action, each with a
+#: ``manager`` block in its bundled config (``zoo_configs/<algo>.yml``).
+MANAGER_ALGOS = ("ddpg", "td3", "sac")
+
 
 class TrainingInterrupted(RuntimeError):
     """Training stopped by Ctrl-C or SIGTERM after saving a resumable checkpoint."""
@@ -694,6 +698,7 @@ class ManagerSetup:
     :param selection: the selection settings, preferences included.
     :param env_id: the shared env the manager acts in.
     :param env_kwargs: its keyword arguments (from the manager's config block).
+    :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS`.
     """
 
     workers: dict[str, Any]
@@ -704,6 +709,7 @@ class ManagerSetup:
     env_kwargs: dict[str, Any]
     workers_dir: str = ""
     trusted: bool = False
+    algo: str = "ddpg"
 
     @property
     def names(self) -> list[str]:
@@ -736,6 +742,7 @@ def prepare_manager(
     trusted: bool = False,
     env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    algo: str = "ddpg",
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
@@ -743,13 +750,17 @@ def prepare_manager(
     manager's env. :func:`train_manager` calls it first; call it yourself to validate arguments early (the
     CLI does, to report bad input before creating the output folder). Arguments as in :func:`train_manager`,
     and ``env_id`` / ``env_kwargs``: the shared env (default: the workers manifest's ``shared_env``, else
-    ``hddpg/SnakeReach-v0``; ``env_kwargs`` go under the config block's).
+    ``hddpg/SnakeReach-v0``; ``env_kwargs`` go under the config block's), and ``algo``: the manager's
+    algorithm, one of :data:`MANAGER_ALGOS`, whose bundled config (``zoo_configs/<algo>.yml``) is the default.
 
     :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
     """
     if worker_names is not None and isinstance(worker_names, str):
         raise ValueError(f"Expected a sequence of worker names, actually the string {worker_names!r}")
-    hyperparams = load_hyperparams(MANAGER_KEY, DDPG, config, manager=True)
+    if algo not in MANAGER_ALGOS:
+        raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
+    config = config if config is not None else default_config(algo)
+    hyperparams = load_hyperparams(MANAGER_KEY, algo_class(algo), config, manager=True)
     workers, manifest = load_workers(workers_dir, worker_names, trusted=trusted)
     env_id, given_kwargs = shared_env_of(manifest, env_id, env_kwargs, trusted)
     names = list(workers)
@@ -803,7 +814,15 @@ def prepare_manager(
     finally:
         probe.close()
     return ManagerSetup(
-        workers, manifest, hyperparams, selection_config, env_id, env_kwargs, str(Path(workers_dir)), trusted
+        workers,
+        manifest,
+        hyperparams,
+        selection_config,
+        env_id,
+        env_kwargs,
+        str(Path(workers_dir)),
+        trusted,
+        algo,
     )
 
 
@@ -823,14 +842,15 @@ def train_manager(
     trusted: bool | None = None,
     env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    algo: str | None = None,
     *,
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     **run_changes: Any,
 ) -> tuple[Any, TrainingOutcome]:
     """
-    Train the manager: a plain SB3 DDPG on ``WorkerSelectionWrapper`` over pre-trained workers (paper
-    Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
+    Train the manager: a plain SB3 DDPG (or TD3 or SAC, ``algo``) on ``WorkerSelectionWrapper`` over
+    pre-trained workers (paper Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
 
     Preference factors (paper Section 3.4): by default every worker's factor is 1; ``prefer=NAME`` makes
     that worker's ``1 + bias`` (the paper's 15 % by default); ``preferences`` sets every factor explicitly
@@ -854,6 +874,8 @@ def train_manager(
     :param env_id: the shared env the manager acts in (default: the workers manifest's ``shared_env``,
         else ``hddpg/SnakeReach-v0``).
     :param env_kwargs: its keyword arguments (default: the manifest's, with the config block's on top).
+    :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS` (default ``ddpg``, the paper's);
+        its bundled config ``zoo_configs/<algo>.yml`` is the default ``config``.
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the manager's DDPG; the bundle holds an SB3 manager whichever ``backend`` trains it.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -876,6 +898,7 @@ def train_manager(
             ("trusted", trusted),
             ("env_id", env_id),
             ("env_kwargs", env_kwargs),
+            ("algo", algo),
         )
         if value is not None
     }
@@ -896,7 +919,7 @@ def train_manager(
         factory,
         hyperparams,
         paths,
-        algo="ddpg",
+        algo=setup.algo,
         run=_agent_run(run, paths, run.timesteps),
         extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
     )

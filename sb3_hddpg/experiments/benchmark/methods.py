@@ -51,6 +51,7 @@ class Method:
     :param default: run when ``--methods`` is not given.
     :param baseline: compared with ``hddpg`` (paired differences by seed) whenever both ran.
     :param takes_preference: it can learn a given preference (the transfer scenario).
+    :param challenger: compared, like ``hddpg``, with every baseline (and with ``hddpg``) whenever both ran.
     :param description: one line for the docs.
     """
 
@@ -62,6 +63,7 @@ class Method:
     default: bool = False
     baseline: bool = False
     takes_preference: bool = False
+    challenger: bool = False
     description: str = ""
 
 
@@ -123,8 +125,13 @@ def workers_steps(folder: Path) -> int:
     return int(sum(entry["timesteps_trained"] for entry in manifest["workers"].values()))
 
 
-def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
-    """A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors)."""
+def _run_manager(
+    prefer: str | None, task: Task, settings: BenchmarkSettings, folder: Path, algo: str = "ddpg"
+) -> dict[str, Any]:
+    """
+    A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors), of
+    algorithm ``algo`` (its bundled config's manager block), for the manager's env steps.
+    """
 
     run_dir = folder / task.method
     env = settings.terms_env
@@ -136,12 +143,14 @@ def _run_manager(prefer: str | None, task: Task, settings: BenchmarkSettings, fo
         prefer=prefer,
         bias=settings.bias,
         preferences=task.preferences,
-        run=settings.manager_run_options(task.seed),
+        algo=algo,
+        run=settings.manager_run_options(task.seed, algo),
     )
     offset = workers_steps(folder)
+    steps_per_decision = settings.option_steps_of(algo)
     return {
         "worker_timesteps": offset,
-        "history": read_history(run_dir / "evaluations" / "manager.json", settings.option_steps, offset),
+        "history": read_history(run_dir / "evaluations" / "manager.json", steps_per_decision, offset),
         "test": final_test(run_dir / "hierarchy.zip", settings),
     }
 
@@ -339,6 +348,18 @@ for _worker, _colour in (("goal", "tab:green"), ("avoid", "tab:orange")):
             description=f"a manager preferring the {_worker} worker by the bias (paper Figure 10)",
         )
     )
+
+register_method(
+    Method(
+        "hddpg-sac",
+        functools.partial(_run_manager, None, algo="sac"),
+        _manager_cost,
+        needs_workers=True,
+        colour="tab:pink",
+        challenger=True,
+        description="the same hierarchy with a SAC manager (zoo_configs/sac.yml's manager block), the same env steps",
+    )
+)
 
 #: The built-in methods (the registry may hold more).
 METHODS = tuple(METHOD_REGISTRY)

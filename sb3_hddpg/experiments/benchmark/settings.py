@@ -246,13 +246,21 @@ class BenchmarkSettings:
         """
         return min(self.eval_freq if self.eval_freq else max(self.manager_env_steps // 10, 1), budget)
 
-    def manager_run_options(self, seed: int) -> RunOptions:
+    def option_steps_of(self, algo: str) -> int:
+        """Env steps per decision of a manager of algorithm ``algo`` (its bundled manager block's ``option_steps``)."""
+        return self.option_steps if algo == "ddpg" else manager_option_steps(algo=algo)
+
+    def manager_run_options(self, seed: int, algo: str = "ddpg") -> RunOptions:
         """
-        :meth:`run_options` of a manager: ``timesteps`` decisions, evaluated every :meth:`eval_freq_for`
-        env steps converted to decisions, so that its curve points fall at the same env steps as the others'.
+        :meth:`run_options` of a manager: ``timesteps`` decisions (another algorithm's manager: as many
+        decisions as make :attr:`manager_env_steps` with its own ``option_steps``), evaluated every
+        :meth:`eval_freq_for` env steps converted to decisions, so that its curve points fall at the same
+        env steps as the others'.
         """
-        every = max(self.eval_freq_for(self.manager_env_steps) // self.option_steps, 1)
-        return self.run_options(seed, self.timesteps, self.timesteps).replace(eval_freq=every)
+        option_steps = self.option_steps_of(algo)
+        decisions = self.timesteps if algo == "ddpg" else max(self.manager_env_steps // option_steps, 1)
+        every = max(self.eval_freq_for(self.manager_env_steps) // option_steps, 1)
+        return self.run_options(seed, decisions, decisions).replace(eval_freq=every)
 
     def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
         """
@@ -317,11 +325,15 @@ def plan_tasks(settings: BenchmarkSettings) -> list[Task]:
 def comparison_pairs(settings: BenchmarkSettings) -> list[tuple[str, str]]:
     """
     The paired comparisons of the paper's claims, as (challenger, baseline) run keys: ``hddpg`` against
-    every baseline method that ran (in the transfer scenario, on each preference).
+    every baseline method that ran (in the transfer scenario, on each preference), and so does every other
+    challenger (e.g. ``hddpg-sac``), which is also paired with ``hddpg``.
     """
     suffixes = [f"@{p}" for p in settings.preferences] if settings.scenario == "transfer" else [""]
     baselines = [m for m in settings.methods if METHOD_REGISTRY[m].baseline]
-    return [(f"hddpg{s}", f"{b}{s}") for s in suffixes for b in baselines if "hddpg" in settings.methods]
+    challengers = [m for m in settings.methods if m == "hddpg" or METHOD_REGISTRY[m].challenger]
+    pairs = [(c, b) for c in challengers for b in baselines if b != c]
+    pairs += [(c, "hddpg") for c in challengers if c != "hddpg" and "hddpg" in settings.methods]
+    return [(f"{c}{s}", f"{b}{s}") for s in suffixes for c, b in pairs]
 
 
 # ------------------------------------------------------------------------------------------- scheduling
