@@ -31,7 +31,7 @@ def test_every_shipped_model_matches_its_index_and_every_method_has_every_seed()
     assert {entry["seed"] for entry in entries} == set(range(5))
 
 
-@pytest.mark.parametrize("method", ["hddpg", "ham", "ddpg"])
+@pytest.mark.parametrize("method", ["hddpg", "hddpg-sac", "ham", "ddpg"])
 def test_a_shipped_model_reproduces_its_recorded_test_figures(method):
     entry = next(e for e in read_index(MODELS) if e["method"] == method and e["seed"] == 0)
     expected = json.loads((RECORDS / method / "seed-0.json").read_text())["test"]
