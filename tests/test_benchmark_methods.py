@@ -216,14 +216,14 @@ def transfer_record(method: str, seed: int, goal_avoid: list[tuple[float, float]
 
 def test_transfer_ratio_per_seed_with_a_bootstrap_ci():
     settings = BenchmarkSettings(
-        methods=["hddpg", "ddpg"],
+        methods=["hddpg", "ddpg", "hddpg-sac"],
         seeds=[0, 1, 2],
         timesteps=400,
         scenario="transfer",
         preferences=["goal=2, avoid=1"],
     )
     assert settings.preferences == ["goal=2,avoid=1"]  # one spelling names the runs
-    assert settings.method_keys == ["hddpg@goal=2,avoid=1", "ddpg@goal=2,avoid=1"]
+    assert settings.method_keys == ["hddpg@goal=2,avoid=1", "ddpg@goal=2,avoid=1", "hddpg-sac@goal=2,avoid=1"]
     assert Task("ddpg@goal=2,avoid=1", 0).preferences == {"goal": 2.0, "avoid": 1.0}
     records = []
     for seed in range(3):
@@ -232,6 +232,9 @@ def test_transfer_ratio_per_seed_with_a_bootstrap_ci():
         # Flat: from 250 to 330; past 322 first at evaluation 2 + seed.
         curve = [(50.0, 150.0)] * (1 + seed) + [(87.0, 150.0), (90.0, 150.0)]
         records.append(transfer_record("ddpg@goal=2,avoid=1", seed, curve, 0))
+        # A SAC manager, there at its 2nd evaluation (200 steps).
+        sac_curve = [(50.0, 150.0), (96.0, 150.0), (100.0, 150.0)]
+        records.append(transfer_record("hddpg-sac@goal=2,avoid=1", seed, sac_curve, 200))
     results = compute_results(settings, records)
     entry = results["transfer"]["preferences"]["goal=2,avoid=1"]["ddpg"]
     assert [entry["per_seed"][str(s)]["hddpg_steps"] for s in range(3)] == [100, 100, 100]
@@ -244,8 +247,14 @@ def test_transfer_ratio_per_seed_with_a_bootstrap_ci():
     assert all(v["flat_steps_to_hddpg_final"] is None for v in entry["per_seed"].values())
     assert "hddpg@goal=2,avoid=1 vs ddpg@goal=2,avoid=1" in results["comparisons"]
     report = markdown_report(results)
-    assert "| goal=2,avoid=1 | ddpg | 3/3 | 100 | 300 | 3.00 [" in report
+    assert "| goal=2,avoid=1 | hddpg | ddpg | 3/3 | 100 | 300 | 3.00 [" in report
     assert "| 350.0 / 330.0 | 0/3 |" in report
+    # Every hierarchy is compared with every flat agent; the SAC manager's entry names both.
+    sac = results["transfer"]["preferences"]["goal=2,avoid=1"]["ddpg vs hddpg-sac"]
+    assert (sac["manager"], sac["flat"], entry["manager"]) == ("hddpg-sac", "ddpg", "hddpg")
+    assert [sac["per_seed"][str(s)]["hddpg_steps"] for s in range(3)] == [200, 200, 200]
+    assert sac["ratio"] == stats.summarise([1.0, 1.5, 2.0])
+    assert "| goal=2,avoid=1 | hddpg-sac | ddpg | 3/3 | 200 | 300 | 1.50 [" in report
 
 
 def test_transfer_settings_are_checked():

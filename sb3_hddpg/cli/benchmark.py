@@ -116,25 +116,30 @@ def _steps(steps: int | None) -> str:
 
 
 def transfer_table(results: dict[str, Any]) -> Table:
-    """The transfer figure: per preference and flat method, steps to the final score's fraction and their ratio."""
+    """
+    The transfer figure: per preference, manager and flat method, steps to the final score's fraction and
+    their ratio.
+    """
     transfer = results["transfer"]
     table = Table(title=f"Transfer: {transfer['definition']}")
     for column in (
         "preference",
+        "manager",
         "flat",
         "seeds",
-        "ratio flat / hddpg [95 % CI]",
-        "final score hddpg / flat",
-        "flat reaches hddpg's final",
-        "per seed (flat / hddpg steps)",
+        "ratio flat / manager [95 % CI]",
+        "final score manager / flat",
+        "flat reaches the manager's final",
+        "per seed (flat / manager steps)",
     ):
-        table.add_column(column, justify="left" if column in ("preference", "flat") else "right")
+        table.add_column(column, justify="left" if column in ("preference", "manager", "flat") else "right")
     for preference, entry in transfer["preferences"].items():
-        for flat, comparison in entry.items():
+        for key, comparison in entry.items():
             ratio = comparison["ratio"]
             table.add_row(
                 preference,
-                flat,
+                comparison.get("manager", "hddpg"),
+                comparison.get("flat", key),
                 f"{comparison['seeds_with_ratio']}/{len(comparison['per_seed'])}",
                 _ci(ratio, ".2f") if ratio else "undefined",
                 final_scores_text(comparison),

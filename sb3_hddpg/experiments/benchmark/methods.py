@@ -357,6 +357,7 @@ register_method(
         needs_workers=True,
         colour="tab:pink",
         challenger=True,
+        takes_preference=True,
         description="the same hierarchy with a SAC manager (zoo_configs/sac.yml's manager block), the same env steps",
     )
 )

@@ -185,7 +185,7 @@ def _dependence_lines(results: dict[str, Any]) -> list[str]:
 
 
 def final_scores_text(comparison: dict[str, Any]) -> str:
-    """A transfer comparison's mean final scores over its seeds, ``hddpg / flat`` (the preference's score)."""
+    """A transfer comparison's mean final scores over its seeds, ``manager / flat`` (the preference's score)."""
     seeds = comparison["per_seed"].values()
     manager = np.mean([v["hddpg_final_score"] for v in seeds])
     agent = np.mean([v["flat_final_score"] for v in seeds])
@@ -210,12 +210,14 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
         f"Transfer: {transfer['definition']}. Curves are evaluated every {transfer['eval_freq']} own steps, "
         "so a run that is there at its first evaluation counts that many; 'no gain': the curve ended at or below the random score.",
         "",
-        "| preference | flat | seeds | hddpg steps (mean) | flat steps (mean) | ratio flat / hddpg [95 % CI] "
-        "| final score hddpg / flat (mean) | flat gets 90 % of the way to hddpg's final | per seed (flat / hddpg) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| preference | manager | flat | seeds | manager steps (mean) | flat steps (mean) "
+        "| ratio flat / manager [95 % CI] | final score manager / flat (mean) "
+        "| flat gets 90 % of the way to the manager's final | per seed (flat / manager) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for preference, entry in transfer["preferences"].items():
-        for flat, comparison in entry.items():
+        for key, comparison in entry.items():
+            hierarchy, flat = comparison.get("manager", "hddpg"), comparison.get("flat", key)
             seeds = comparison["per_seed"]
             manager = [v["hddpg_steps"] for v in seeds.values() if v["hddpg_steps"] is not None]
             agent = [v["flat_steps"] for v in seeds.values() if v["flat_steps"] is not None]
@@ -226,7 +228,7 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
                 for seed, v in seeds.items()
             )
             lines.append(
-                f"| {preference} | {flat} | {comparison['seeds_with_ratio']}/{len(seeds)} "
+                f"| {preference} | {hierarchy} | {flat} | {comparison['seeds_with_ratio']}/{len(seeds)} "
                 f"| {np.mean(manager) if manager else float('nan'):.0f} | {np.mean(agent) if agent else float('nan'):.0f} "
                 f"| {_ci_text(ratio, '.2f') if ratio else 'undefined'} | {final_scores_text(comparison)} "
                 f"| {flat_reaches_text(comparison)} | {per_seed} |"

@@ -242,11 +242,13 @@ def transfer_results(
     settings: BenchmarkSettings, by_method: dict[str, dict[int, dict[str, Any]]]
 ) -> dict[str, Any]:
     """
-    The transfer figure (issue 13, target 5): per preference and flat method, per seed the own env steps
-    each run needs to reach :data:`TRANSFER_FRACTION` of its final score on its learning curve (scored
-    with the preference's factors, measured from a random policy's score on the same episodes), their
-    ratio flat / hddpg (how many times fewer steps the manager over pre-trained workers needs), and the
-    ratio's mean with a 95 % bootstrap CI over the seeds where both are defined.
+    The transfer figure (issue 13, target 5): per preference, hierarchy (``hddpg`` and every challenger,
+    e.g. ``hddpg-sac``) and flat method, per seed the own env steps each run needs to reach
+    :data:`TRANSFER_FRACTION` of its final score on its learning curve (scored with the preference's
+    factors, measured from a random policy's score on the same episodes), their ratio flat / manager (how
+    many times fewer steps the manager over pre-trained workers needs), and the ratio's mean with a 95 %
+    bootstrap CI over the seeds where both are defined. The per-seed fields named ``hddpg_*`` hold the
+    comparison's ``manager``'s figures.
 
     :param settings: the benchmark's settings (transfer scenario).
     :param by_method: run key -> seed -> record.
@@ -261,16 +263,17 @@ def transfer_results(
         "eval_freq": settings.eval_freq_for(settings.manager_env_steps),
         "preferences": {},
     }
-    flats = [m for m in settings.methods if m != "hddpg"]
+    hierarchies = [m for m in settings.methods if m == "hddpg" or METHOD_REGISTRY[m].challenger]
+    flats = [m for m in settings.methods if m not in hierarchies]
     for preference in settings.preferences:
         factors = Task(method_key("hddpg", preference), 0).preferences or {}
 
         def score(point: dict[str, Any], factors: dict[str, float] = factors) -> float:
             return preference_score(point, factors)
 
-        managers = by_method.get(method_key("hddpg", preference), {})
         entry: dict[str, Any] = {}
-        for flat in flats:
+        for hierarchy, flat in ((h, f) for h in hierarchies for f in flats):
+            managers = by_method.get(method_key(hierarchy, preference), {})
             agents = by_method.get(method_key(flat, preference), {})
             per_seed: dict[str, dict[str, Any]] = {}
             for seed in sorted(set(managers) & set(agents)):
@@ -294,7 +297,10 @@ def transfer_results(
                     "worker_timesteps": manager["worker_timesteps"],
                 }
             ratios = [v["ratio"] for v in per_seed.values() if v["ratio"] is not None]
-            entry[flat] = {
+            # Keyed by the flat method against hddpg (as before other hierarchies took part), else "flat vs M".
+            entry[flat if hierarchy == "hddpg" else f"{flat} vs {hierarchy}"] = {
+                "manager": hierarchy,
+                "flat": flat,
                 "per_seed": per_seed,
                 "ratio": summarise(ratios) if ratios else None,
                 "seeds_with_ratio": len(ratios),
