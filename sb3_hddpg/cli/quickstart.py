@@ -115,7 +115,7 @@ def quickstart_command(
         False,
         "--keep-checkpoints",
         help="Keep every agent's replay buffer in RUN/checkpoints/ (about 275 MB in all at --budget small) "
-        "so that train-* --resume can extend an agent exactly; by default the run folder is about 6 MB.",
+        "so that train-* --resume can extend an agent exactly; by default the run folder is about 17 MB.",
     ),
     backend: ExperimentBackendOpt = "sb3",
     executor: ExecutorOpt = "local",
@@ -152,6 +152,12 @@ def quickstart_command(
         )
         observer.finish()
     console.print(comparison_table(result))
+    # One seed at a quickstart budget says little about the method; say where the real comparison is.
+    console.print(
+        "One seed at a small budget: a check that the pipeline works, not a comparison of the methods. "
+        "The 5-seed benchmark at the full budget (HDDPG against HAM, its workers alone and flat DDPG, TD3 "
+        "and SAC, with confidence intervals) is in docs/RESULTS.md; run it with hddpg-cli benchmark."
+    )
     for label in ("bundle", "gif", "selection", "comparison", "learning_curves", "results"):
         if label in result.files:
             console.print(f"  {label:16} {result.files[label]}")
