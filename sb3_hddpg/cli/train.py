@@ -231,7 +231,7 @@ def train_manager_command(
     info_key: InfoKeyOpt = None,
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
-    """Train the manager: a plain SB3 DDPG whose action selects a worker (paper Algorithm 1, second half)."""
+    """Train the manager: a plain SB3 DDPG (or TD3, SAC) whose action selects a worker (paper Algorithm 1)."""
     algo = algo.lower()
     if algo not in MANAGER_ALGOS:
         raise typer.BadParameter(f"must be one of {list(MANAGER_ALGOS)}, got {algo!r}", param_hint="'--algo'")
