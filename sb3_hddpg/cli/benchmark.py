@@ -134,12 +134,12 @@ def transfer_table(results: dict[str, Any]) -> Table:
     ):
         table.add_column(column, justify="left" if column in ("preference", "manager", "flat") else "right")
     for preference, entry in transfer["preferences"].items():
-        for key, comparison in entry.items():
+        for comparison in entry.values():
             ratio = comparison["ratio"]
             table.add_row(
                 preference,
-                comparison.get("manager", "hddpg"),
-                comparison.get("flat", key),
+                comparison["manager"],
+                comparison["flat"],
                 f"{comparison['seeds_with_ratio']}/{len(comparison['per_seed'])}",
                 _ci(ratio, ".2f") if ratio else "undefined",
                 final_scores_text(comparison),

@@ -216,8 +216,8 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for preference, entry in transfer["preferences"].items():
-        for key, comparison in entry.items():
-            hierarchy, flat = comparison.get("manager", "hddpg"), comparison.get("flat", key)
+        for comparison in entry.values():
+            hierarchy, flat = comparison["manager"], comparison["flat"]
             seeds = comparison["per_seed"]
             manager = [v["hddpg_steps"] for v in seeds.values() if v["hddpg_steps"] is not None]
             agent = [v["flat_steps"] for v in seeds.values() if v["flat_steps"] is not None]

@@ -258,7 +258,7 @@ class BenchmarkSettings:
         env steps as the others'.
         """
         option_steps = self.option_steps_of(algo)
-        decisions = self.timesteps if algo == "ddpg" else max(self.manager_env_steps // option_steps, 1)
+        decisions = max(self.manager_env_steps // option_steps, 1)  # the DDPG manager's: ``timesteps``
         every = max(self.eval_freq_for(self.manager_env_steps) // option_steps, 1)
         return self.run_options(seed, decisions, decisions).replace(eval_freq=every)
 
