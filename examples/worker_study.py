@@ -24,6 +24,8 @@ import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.callbacks import apply_action_l2
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
+from sb3_hddpg.training.backends import sbx_class, sbx_kwargs
+from sb3_hddpg.training.config import parse_schedule
 
 ENV_IDS = {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0", "reach": "hddpg/SnakeReach-v0"}
 VIEWS = {"all": None, "goal": ["joint_positions", "ee_to_goal", "goal_touched"]}
@@ -46,6 +48,12 @@ def main() -> None:
     p.add_argument("--action-l2", type=float, default=0.0, help="actor action penalty (0: none)")
     p.add_argument("--net", default="64,64", help="hidden layer sizes of actor and critic, comma-separated")
     p.add_argument("--lr", type=float, default=1e-3, help="learning rate of actor and critic")
+    p.add_argument(
+        "--lr-schedule",
+        default="constant",
+        choices=["constant", "linear"],
+        help="constant, or linear: from --lr at the start to 0 at the end of the run (RL Zoo's lin_)",
+    )
     p.add_argument(
         "--train-freq",
         type=int,
@@ -75,7 +83,7 @@ def main() -> None:
 
     env, eval_env = make(), make()
     kwargs = dict(
-        learning_rate=args.lr,
+        learning_rate=args.lr if args.lr_schedule == "constant" else parse_schedule(f"lin_{args.lr}", "--lr"),
         buffer_size=200_000,
         learning_starts=1000,
         batch_size=args.batch_size,
@@ -94,9 +102,9 @@ def main() -> None:
             "relabel_fraction": args.relabel,
         }
     if args.backend == "sbx":
-        import sbx
-
-        model = getattr(sbx, args.algo.upper())("MlpPolicy", env, **kwargs)
+        # sbx_kwargs: the critic learns at --lr too (SBX's DDPG would keep it at 1e-3), and a schedule
+        # reaches the optimisers.
+        model = sbx_class(args.algo)("MlpPolicy", env, **sbx_kwargs(args.algo, kwargs))
     else:
         import stable_baselines3
 
@@ -109,22 +117,22 @@ def main() -> None:
         keys = ("mean_reward", "goal_touch_rate", "collisions_per_episode", "action_saturation")
         return {k: round(summary[k], 4) for k in keys}
 
-    start, done = time.time(), 0
-    while done < args.steps:
-        chunk = min(args.eval_every, args.steps - done)
-        model.learn(chunk, reset_num_timesteps=False)
-        done += chunk
-        print(
-            json.dumps(
-                {
-                    "steps": done,
-                    "seconds": round(time.time() - start),
-                    **score(args.curve_episodes, CURVE_SEED),
-                    **({"test": score(args.test_episodes, TEST_SEED)} if args.test_each_point else {}),
-                }
-            ),
-            flush=True,
-        )
+    start = time.time()
+
+    def curve_point(locals_: dict, globals_: dict) -> bool:
+        # One learn call for the whole run, so that a schedule's progress spans it; a point every
+        # --eval-every steps.
+        if model.num_timesteps % args.eval_every == 0 or model.num_timesteps == args.steps:
+            point = {
+                "steps": model.num_timesteps,
+                "seconds": round(time.time() - start),
+                **score(args.curve_episodes, CURVE_SEED),
+                **({"test": score(args.test_episodes, TEST_SEED)} if args.test_each_point else {}),
+            }
+            print(json.dumps(point), flush=True)
+        return True
+
+    model.learn(args.steps, callback=curve_point)
     print(json.dumps({"test": vars(args), **score(args.test_episodes, TEST_SEED)}), flush=True)
     if args.save:
         model.save(args.save)

@@ -189,6 +189,53 @@ def test_a_model_under_the_action_penalty_exports_as_its_algorithm(trained, algo
 
 @needs_sbx
 @pytest.mark.parametrize("algo", ["ddpg", "td3", "sac"])
+def test_a_learning_rate_schedule_reaches_the_jax_optimisers(algo):
+    # SBX's own TD3 and DDPG build their optimisers at the schedule's first value and keep it there; on
+    # our backend actor and critic follow it as on SB3, and the export carries the schedule.
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sb3_hddpg.training.backends import make_model, to_sb3
+    from sb3_hddpg.training.config import parse_schedule
+
+    class RecordRates(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.rates: list[tuple[float, float, float]] = []
+
+        def _on_rollout_start(self) -> None:
+            policy = self.model.policy
+            actor, critic = (
+                state.opt_state.hyperparams["learning_rate"]
+                for state in (policy.actor_state, policy.qf_state)
+            )
+            self.rates.append((self.model._current_progress_remaining, float(actor), float(critic)))
+
+        def _on_step(self) -> bool:
+            return True
+
+    env = make_vec_env("hddpg/SnakeGoal-v0", n_envs=1, seed=0)
+    kwargs = dict(
+        learning_rate=parse_schedule("lin_1e-3", "learning_rate"),
+        learning_starts=50,
+        batch_size=16,
+        buffer_size=1000,
+        train_freq=10,
+        gradient_steps=10,
+        policy_kwargs=dict(net_arch=[16, 16]),
+    )
+    model = make_model(algo, "sbx", env, kwargs, seed=1)
+    recorder = RecordRates()
+    model.learn(200, callback=recorder)
+    trained = [(progress, actor, critic) for progress, actor, critic in recorder.rates if progress < 0.7]
+    assert len(trained) >= 10
+    for progress, actor, critic in trained:
+        assert actor == pytest.approx(1e-3 * progress, abs=1e-9) and critic == pytest.approx(actor)
+    assert to_sb3(model).lr_schedule(0.5) == pytest.approx(5e-4)
+
+
+@needs_sbx
+@pytest.mark.parametrize("algo", ["ddpg", "td3", "sac"])
 def test_export_acts_like_the_jax_policy(trained, algo, tmp_path):
     from stable_baselines3 import DDPG, SAC, TD3
 

@@ -2,6 +2,7 @@
 
 import pytest
 from stable_baselines3 import DDPG
+from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 from sb3_hddpg.training.config import (
@@ -62,11 +63,26 @@ def test_policy_kwargs_round_trip_and_safety():
         ({"n_timesteps": 10, "policy": "CnnPolicy"}, "MlpPolicy"),
         ({"n_timesteps": 10, "wrapper_kwargs": {}}, "Unknown keys"),
         ({"n_timesteps": 10, "seed": 3}, "Unknown keys"),
+        ({"n_timesteps": 10, "learning_rate": "exp_1e-3"}, "schedule 'lin_<initial value > 0>'"),
+        ({"n_timesteps": 10, "learning_rate": "lin_"}, "actually: 'lin_'"),
+        ({"n_timesteps": 10, "learning_rate": "lin_-1e-3"}, "learning_rate"),
+        ({"n_timesteps": 10, "learning_rate": "lin_nan"}, "learning_rate"),
+        ({"n_timesteps": 10, "gamma": "lin_0.9"}, "gamma"),
     ],
 )
 def test_bad_blocks(block, message):
     with pytest.raises(ConfigError, match=message):
         parse_block(block, DDPG, source="test")
+
+
+def test_rl_zoos_linear_schedule():
+    # RL Zoo's `lin_<initial>`: from the initial value at the start (progress remaining 1) to 0 at the end,
+    # kept as a value that SB3 saves without code; the block as written stays in `raw` for manifests.
+    hyperparams = parse_block({"n_timesteps": 10, "learning_rate": "lin_1e-3"}, DDPG, source="test")
+    schedule = hyperparams.algo_kwargs["learning_rate"]
+    assert isinstance(schedule, LinearSchedule)
+    assert [schedule(p) for p in (1.0, 0.25, 0.0)] == pytest.approx([1e-3, 2.5e-4, 0.0])
+    assert hyperparams.raw["learning_rate"] == "lin_1e-3"
 
 
 def test_missing_file_and_bad_yaml(tmp_path):

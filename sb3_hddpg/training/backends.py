@@ -169,8 +169,42 @@ def sbx_class(algo: str) -> type[OffPolicyAlgorithm]:
         configure_jax_threads(1)
     import sbx  # lazily: optional (the `fast` extra), and jax adds 1.4 s to an import
 
-    classes: dict[str, type[OffPolicyAlgorithm]] = {"ddpg": sbx.DDPG, "td3": sbx.TD3, "sac": sbx.SAC}
+    classes: dict[str, type[OffPolicyAlgorithm]] = {
+        "ddpg": _scheduled_sbx_class(sbx.DDPG),
+        "td3": _scheduled_sbx_class(sbx.TD3),
+        "sac": sbx.SAC,
+    }
     return classes[algo.lower()]
+
+
+@functools.cache
+def _scheduled_sbx_class(base: type) -> type:
+    """
+    SBX's TD3 or DDPG, following a learning-rate schedule as SB3's and SBX's SAC do.
+
+    SBX's TD3 and DDPG build their optimisers with the schedule's initial value and never update it. With
+    an optimiser whose rate lives in its state (``optax.inject_hyperparams``, which :func:`sbx_kwargs` puts
+    in ``policy_kwargs`` when ``learning_rate`` is a schedule), this class sets actor's and critic's rate
+    from ``lr_schedule`` before each training call, as SB3 does. A model built with a plain optimiser (a
+    constant rate, or a checkpoint from before schedules) trains exactly as SBX's own class.
+    """
+
+    def train(self: Any, gradient_steps: int, batch_size: int) -> None:
+        optimizers = [self.policy.actor_state.opt_state, self.policy.qf_state.opt_state]
+        if all(hasattr(state, "hyperparams") for state in optimizers):
+            self._update_learning_rate(optimizers, self.lr_schedule(self._current_progress_remaining))
+        base.train(self, gradient_steps, batch_size)
+
+    # The name and module of the base, so that code telling SBX models from SB3 ones by module still does.
+    return type(base.__name__, (base,), {"train": train, "__module__": base.__module__})
+
+
+@functools.cache
+def scheduled_adam() -> Any:
+    """Adam with its learning rate in the optimiser state, so a schedule can set it (one object: see share_compiled)."""
+    import optax  # lazily: optional, with SBX
+
+    return optax.inject_hyperparams(optax.adam)
 
 
 def is_sbx_model(model: Any) -> bool:
@@ -254,6 +288,9 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     if "qf_learning_rate" in accepted:
         # SB3 trains the critic at learning_rate; SBX's DDPG defaults its critic to 1e-3 whatever that is.
         out["qf_learning_rate"] = None
+    if callable(out.get("learning_rate")) and algo.lower() in ("ddpg", "td3"):
+        # SBX's SAC puts its rates into the optimiser state itself; TD3 and DDPG need it asked for.
+        policy_kwargs["optimizer_class"] = scheduled_adam()
     return out
 
 
@@ -392,6 +429,9 @@ def _sb3_hyperparams(model: Any, algo: str) -> dict[str, Any]:
 
 def _sb3_policy_kwargs(model: Any) -> dict[str, Any]:
     policy_kwargs = dict(model.policy_kwargs)
+    if policy_kwargs.get("optimizer_class") is scheduled_adam():
+        # SB3's optimiser follows the schedule (learning_rate) by itself.
+        del policy_kwargs["optimizer_class"]
     for key, default in _SBX_ONLY_POLICY_DEFAULTS.items():
         if key in policy_kwargs and policy_kwargs.pop(key) != default:
             raise BackendError(f"Cannot export an SBX model with {key}={model.policy_kwargs[key]!r} to SB3")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import ast
 import copy
 import inspect
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ import numpy as np
 import yaml
 from stable_baselines3 import DDPG
 from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 from sb3_hddpg.algorithms import ACTIVATIONS as ALL_ACTIVATIONS
@@ -313,9 +315,34 @@ def _check_algo_kwargs(block: dict[str, Any], algo: str, source: str) -> None:
         block["train_freq"] = tuple(block["train_freq"])
     if "buffer_size" in block:
         block["buffer_size"] = _buffer_size(block["buffer_size"], source)
-    for key in ("learning_rate", "gamma", "tau"):
+    if isinstance(block.get("learning_rate"), str):
+        block["learning_rate"] = parse_schedule(block["learning_rate"], "learning_rate", source)
+    for key in ("gamma", "tau", *(() if callable(block.get("learning_rate")) else ("learning_rate",))):
         if key in block and not isinstance(block[key], (int, float)):
             raise ConfigError(f"Expected {key} in {source} to be a number, actually: {brief(block[key])}")
+
+
+def parse_schedule(text: str, name: str, source: str = "config") -> LinearSchedule:
+    """
+    An RL Zoo schedule string, ``lin_<initial value>``: the value falls linearly from its initial value at
+    the start of training to 0 at its end (RL Zoo's ``linear_schedule``; SB3's :class:`LinearSchedule`, which
+    saves as a value, not code).
+
+    :param text: e.g. ``"lin_1e-3"``.
+    :param name: the key, for messages.
+    :param source: a name for messages.
+    """
+    kind, _, initial = text.partition("_")
+    try:
+        value = float(initial)
+    except ValueError:
+        value = math.nan
+    if kind != "lin" or not (math.isfinite(value) and value > 0):
+        raise ConfigError(
+            f"Expected {name} in {source} to be a number or a schedule 'lin_<initial value > 0>' "
+            f"(RL Zoo's linear schedule), actually: {brief(text)}"
+        )
+    return LinearSchedule(value, 0.0, 1.0)
 
 
 def _check_replay_buffer(block: dict[str, Any], source: str) -> None:
