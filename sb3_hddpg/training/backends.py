@@ -178,7 +178,7 @@ def sbx_class(algo: str) -> type[OffPolicyAlgorithm]:
 
 
 @functools.cache
-def _scheduled_sbx_class(base: type) -> type:
+def _scheduled_sbx_class(base: Any) -> type:
     """
     SBX's TD3 or DDPG, following a learning-rate schedule as SB3's and SBX's SAC do.
 
