@@ -237,14 +237,14 @@ def test_transfer_ratio_per_seed_with_a_bootstrap_ci():
         records.append(transfer_record("hddpg-sac@goal=2,avoid=1", seed, sac_curve, 200))
     results = compute_results(settings, records)
     entry = results["transfer"]["preferences"]["goal=2,avoid=1"]["ddpg"]
-    assert [entry["per_seed"][str(s)]["hddpg_steps"] for s in range(3)] == [100, 100, 100]
+    assert [entry["per_seed"][str(s)]["manager_steps"] for s in range(3)] == [100, 100, 100]
     assert [entry["per_seed"][str(s)]["flat_steps"] for s in range(3)] == [200, 300, 400]
     assert entry["per_seed"]["0"]["random_score"] == pytest.approx(250.0)
-    assert entry["per_seed"]["0"]["hddpg_final_score"] == pytest.approx(350.0)
+    assert entry["per_seed"]["0"]["manager_final_score"] == pytest.approx(350.0)
     assert entry["ratio"] == stats.summarise([2.0, 3.0, 4.0])
     # The flat agents end at 330, below 90 % of the way to the manager's 350 (340): none gets there.
     assert entry["seeds_flat_reaches_hddpg"] == 0
-    assert all(v["flat_steps_to_hddpg_final"] is None for v in entry["per_seed"].values())
+    assert all(v["flat_steps_to_manager_final"] is None for v in entry["per_seed"].values())
     assert "hddpg@goal=2,avoid=1 vs ddpg@goal=2,avoid=1" in results["comparisons"]
     report = markdown_report(results)
     assert "| goal=2,avoid=1 | hddpg | ddpg | 3/3 | 100 | 300 | 3.00 [" in report
@@ -252,7 +252,7 @@ def test_transfer_ratio_per_seed_with_a_bootstrap_ci():
     # Every hierarchy is compared with every flat agent; the SAC manager's entry names both.
     sac = results["transfer"]["preferences"]["goal=2,avoid=1"]["ddpg vs hddpg-sac"]
     assert (sac["manager"], sac["flat"], entry["manager"]) == ("hddpg-sac", "ddpg", "hddpg")
-    assert [sac["per_seed"][str(s)]["hddpg_steps"] for s in range(3)] == [200, 200, 200]
+    assert [sac["per_seed"][str(s)]["manager_steps"] for s in range(3)] == [200, 200, 200]
     assert sac["ratio"] == stats.summarise([1.0, 1.5, 2.0])
     assert "| goal=2,avoid=1 | hddpg-sac | ddpg | 3/3 | 200 | 300 | 1.50 [" in report
 
@@ -300,7 +300,7 @@ def test_tiny_transfer_benchmark_through_the_cli(tmp_path):
     manifest = json.loads((out / "seed-0" / "ddpg@goal=2,avoid=1" / "flat" / "manifest.json").read_text())
     assert manifest["models"]["ddpg"]["preferences"] == {"goal": 2.0, "avoid": 1.0}
     entry = results["transfer"]["preferences"]["goal=2,avoid=1"]["ddpg"]["per_seed"]["0"]
-    for key in ("hddpg_steps", "flat_steps"):  # an evaluation step of the run, or None (no gain over random)
+    for key in ("manager_steps", "flat_steps"):  # an evaluation step of the run, or None (no gain over random)
         assert entry[key] is None or entry[key] in (100, 200, 300)
     assert "Transfer" in done.stdout and "Transfer:" in (out / "results.md").read_text()
 

@@ -145,7 +145,7 @@ def transfer_table(results: dict[str, Any]) -> Table:
                 final_scores_text(comparison),
                 flat_reaches_text(comparison),
                 ", ".join(
-                    f"{_steps(v['flat_steps'])} / {_steps(v['hddpg_steps'])}"
+                    f"{_steps(v['flat_steps'])} / {_steps(v['manager_steps'])}"
                     for v in comparison["per_seed"].values()
                 ),
             )

@@ -187,7 +187,7 @@ def _dependence_lines(results: dict[str, Any]) -> list[str]:
 def final_scores_text(comparison: dict[str, Any]) -> str:
     """A transfer comparison's mean final scores over its seeds, ``manager / flat`` (the preference's score)."""
     seeds = comparison["per_seed"].values()
-    manager = np.mean([v["hddpg_final_score"] for v in seeds])
+    manager = np.mean([v["manager_final_score"] for v in seeds])
     agent = np.mean([v["flat_final_score"] for v in seeds])
     return f"{manager:.1f} / {agent:.1f}"
 
@@ -195,7 +195,7 @@ def final_scores_text(comparison: dict[str, Any]) -> str:
 def flat_reaches_text(comparison: dict[str, Any]) -> str:
     """In how many seeds the flat agent gets 90 % of the way to the manager's final score, and at which steps."""
     per_seed = comparison["per_seed"].values()
-    reached = [v["flat_steps_to_hddpg_final"] for v in per_seed if v["flat_steps_to_hddpg_final"] is not None]
+    reached = [v["flat_steps_to_manager_final"] for v in per_seed if v["flat_steps_to_manager_final"] is not None]
     text = f"{comparison['seeds_flat_reaches_hddpg']}/{len(per_seed)}"
     return f"{text} (at {', '.join(str(s) for s in reached)})" if reached else text
 
@@ -219,12 +219,12 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
         for comparison in entry.values():
             hierarchy, flat = comparison["manager"], comparison["flat"]
             seeds = comparison["per_seed"]
-            manager = [v["hddpg_steps"] for v in seeds.values() if v["hddpg_steps"] is not None]
+            manager = [v["manager_steps"] for v in seeds.values() if v["manager_steps"] is not None]
             agent = [v["flat_steps"] for v in seeds.values() if v["flat_steps"] is not None]
             ratio = comparison["ratio"]
             per_seed = ", ".join(
                 f"{seed}: {v['flat_steps'] if v['flat_steps'] is not None else 'no gain'} / "
-                f"{v['hddpg_steps'] if v['hddpg_steps'] is not None else 'no gain'}"
+                f"{v['manager_steps'] if v['manager_steps'] is not None else 'no gain'}"
                 for seed, v in seeds.items()
             )
             lines.append(

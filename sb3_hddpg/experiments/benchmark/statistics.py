@@ -247,8 +247,8 @@ def transfer_results(
     :data:`TRANSFER_FRACTION` of its final score on its learning curve (scored with the preference's
     factors, measured from a random policy's score on the same episodes), their ratio flat / manager (how
     many times fewer steps the manager over pre-trained workers needs), and the ratio's mean with a 95 %
-    bootstrap CI over the seeds where both are defined. The per-seed fields named ``hddpg_*`` hold the
-    comparison's ``manager``'s figures.
+    bootstrap CI over the seeds where both are defined. The per-seed fields named ``manager_*`` hold the
+    figures of the comparison's ``manager`` (a hierarchy method), ``flat_*`` those of its ``flat`` method.
 
     :param settings: the benchmark's settings (transfer scenario).
     :param by_method: run key -> seed -> record.
@@ -258,7 +258,7 @@ def transfer_results(
         "definition": (
             f"own env steps until the learning curve first reaches {TRANSFER_FRACTION:.0%} of the way from a "
             "random policy's score to the run's final score (both scored with the preference's factors); "
-            "ratio = flat steps / hddpg steps (the manager's workers are trained once, before)"
+            "ratio = flat steps / manager steps (the manager's workers are trained once, before)"
         ),
         "eval_freq": settings.eval_freq_for(settings.manager_env_steps),
         "preferences": {},
@@ -283,15 +283,15 @@ def transfer_results(
                 flat_steps = steps_to_fraction(agent["history"], score, floor=floor)
                 manager_final = score(manager["history"][-1])
                 per_seed[str(seed)] = {
-                    "hddpg_steps": manager_steps,
+                    "manager_steps": manager_steps,
                     "flat_steps": flat_steps,
                     "ratio": flat_steps / manager_steps if manager_steps and flat_steps else None,
                     # Own final scores can differ a lot: a flat agent that settles early on a low score
                     # "reaches 90 % of it" at once. So also: when (if ever) it gets as far as the manager.
-                    "flat_steps_to_hddpg_final": steps_to_fraction(
+                    "flat_steps_to_manager_final": steps_to_fraction(
                         agent["history"], score, floor=floor, final=manager_final
                     ),
-                    "hddpg_final_score": manager_final,
+                    "manager_final_score": manager_final,
                     "flat_final_score": score(agent["history"][-1]),
                     "random_score": floor,
                     "worker_timesteps": manager["worker_timesteps"],
@@ -305,7 +305,7 @@ def transfer_results(
                 "ratio": summarise(ratios) if ratios else None,
                 "seeds_with_ratio": len(ratios),
                 "seeds_flat_reaches_hddpg": sum(
-                    v["flat_steps_to_hddpg_final"] is not None for v in per_seed.values()
+                    v["flat_steps_to_manager_final"] is not None for v in per_seed.values()
                 ),
             }
         out["preferences"][preference] = entry
