@@ -243,7 +243,7 @@ def test_transfer_ratio_per_seed_with_a_bootstrap_ci():
     assert entry["per_seed"]["0"]["manager_final_score"] == pytest.approx(350.0)
     assert entry["ratio"] == stats.summarise([2.0, 3.0, 4.0])
     # The flat agents end at 330, below 90 % of the way to the manager's 350 (340): none gets there.
-    assert entry["seeds_flat_reaches_hddpg"] == 0
+    assert entry["seeds_flat_reaches_manager"] == 0
     assert all(v["flat_steps_to_manager_final"] is None for v in entry["per_seed"].values())
     assert "hddpg@goal=2,avoid=1 vs ddpg@goal=2,avoid=1" in results["comparisons"]
     report = markdown_report(results)
@@ -300,7 +300,10 @@ def test_tiny_transfer_benchmark_through_the_cli(tmp_path):
     manifest = json.loads((out / "seed-0" / "ddpg@goal=2,avoid=1" / "flat" / "manifest.json").read_text())
     assert manifest["models"]["ddpg"]["preferences"] == {"goal": 2.0, "avoid": 1.0}
     entry = results["transfer"]["preferences"]["goal=2,avoid=1"]["ddpg"]["per_seed"]["0"]
-    for key in ("manager_steps", "flat_steps"):  # an evaluation step of the run, or None (no gain over random)
+    for key in (
+        "manager_steps",
+        "flat_steps",
+    ):  # an evaluation step of the run, or None (no gain over random)
         assert entry[key] is None or entry[key] in (100, 200, 300)
     assert "Transfer" in done.stdout and "Transfer:" in (out / "results.md").read_text()
 

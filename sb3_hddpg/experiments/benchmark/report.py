@@ -195,8 +195,10 @@ def final_scores_text(comparison: dict[str, Any]) -> str:
 def flat_reaches_text(comparison: dict[str, Any]) -> str:
     """In how many seeds the flat agent gets 90 % of the way to the manager's final score, and at which steps."""
     per_seed = comparison["per_seed"].values()
-    reached = [v["flat_steps_to_manager_final"] for v in per_seed if v["flat_steps_to_manager_final"] is not None]
-    text = f"{comparison['seeds_flat_reaches_hddpg']}/{len(per_seed)}"
+    reached = [
+        v["flat_steps_to_manager_final"] for v in per_seed if v["flat_steps_to_manager_final"] is not None
+    ]
+    text = f"{comparison['seeds_flat_reaches_manager']}/{len(per_seed)}"
     return f"{text} (at {', '.join(str(s) for s in reached)})" if reached else text
 
 

@@ -304,7 +304,7 @@ def transfer_results(
                 "per_seed": per_seed,
                 "ratio": summarise(ratios) if ratios else None,
                 "seeds_with_ratio": len(ratios),
-                "seeds_flat_reaches_hddpg": sum(
+                "seeds_flat_reaches_manager": sum(
                     v["flat_steps_to_manager_final"] is not None for v in per_seed.values()
                 ),
             }
