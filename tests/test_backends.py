@@ -189,13 +189,13 @@ def test_a_model_under_the_action_penalty_exports_as_its_algorithm(trained, algo
 
 @needs_sbx
 @pytest.mark.parametrize("algo", ["ddpg", "td3", "sac"])
-def test_a_learning_rate_schedule_reaches_the_jax_optimisers(algo):
+def test_a_learning_rate_schedule_reaches_the_jax_optimisers(algo, tmp_path):
     # SBX's own TD3 and DDPG build their optimisers at the schedule's first value and keep it there; on
     # our backend actor and critic follow it as on SB3, and the export carries the schedule.
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_hddpg.training.backends import make_model, to_sb3
+    from sb3_hddpg.training.backends import load_native, make_model, to_sb3
     from sb3_hddpg.training.config import parse_schedule
 
     class RecordRates(BaseCallback):
@@ -232,6 +232,10 @@ def test_a_learning_rate_schedule_reaches_the_jax_optimisers(algo):
     for progress, actor, critic in trained:
         assert actor == pytest.approx(1e-3 * progress, abs=1e-9) and critic == pytest.approx(actor)
     assert to_sb3(model).lr_schedule(0.5) == pytest.approx(5e-4)
+    # A checkpoint or best model reloaded from SBX's own file (as every training command exports) too.
+    model.save(tmp_path / "model.zip")
+    reloaded = load_native(algo, "sbx", tmp_path / "model.zip")
+    assert to_sb3(reloaded).lr_schedule(0.5) == pytest.approx(5e-4)
 
 
 @needs_sbx

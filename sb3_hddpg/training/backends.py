@@ -199,12 +199,15 @@ def _scheduled_sbx_class(base: Any) -> type:
     return type(base.__name__, (base,), {"train": train, "__module__": base.__module__})
 
 
-@functools.cache
-def scheduled_adam() -> Any:
-    """Adam with its learning rate in the optimiser state, so a schedule can set it (one object: see share_compiled)."""
+def scheduled_adam(learning_rate: float, **kwargs: Any) -> Any:
+    """
+    optax's Adam with its learning rate in the optimiser state, so that a schedule can set it. A function
+    of this module, so that a saved model refers to it by name (SBX pickles ``policy_kwargs``): a reloaded
+    model still has this very optimiser class, which :func:`share_compiled` and :func:`to_sb3` recognise.
+    """
     import optax  # lazily: optional, with SBX
 
-    return optax.inject_hyperparams(optax.adam)
+    return optax.inject_hyperparams(optax.adam)(learning_rate=learning_rate, **kwargs)
 
 
 def is_sbx_model(model: Any) -> bool:
@@ -290,7 +293,7 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
         out["qf_learning_rate"] = None
     if callable(out.get("learning_rate")) and algo.lower() in ("ddpg", "td3"):
         # SBX's SAC puts its rates into the optimiser state itself; TD3 and DDPG need it asked for.
-        policy_kwargs["optimizer_class"] = scheduled_adam()
+        policy_kwargs["optimizer_class"] = scheduled_adam
     return out
 
 
@@ -429,7 +432,7 @@ def _sb3_hyperparams(model: Any, algo: str) -> dict[str, Any]:
 
 def _sb3_policy_kwargs(model: Any) -> dict[str, Any]:
     policy_kwargs = dict(model.policy_kwargs)
-    if policy_kwargs.get("optimizer_class") is scheduled_adam():
+    if policy_kwargs.get("optimizer_class") is scheduled_adam:
         # SB3's optimiser follows the schedule (learning_rate) by itself.
         del policy_kwargs["optimizer_class"]
     for key, default in _SBX_ONLY_POLICY_DEFAULTS.items():
