@@ -36,7 +36,12 @@ TEST_SEED, CURVE_SEED = 15000, 14000
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="goal", choices=sorted(ENV_IDS), help="which reward the worker learns")
-    p.add_argument("--algo", default="ddpg", choices=["ddpg", "td3"], help="the worker's algorithm")
+    p.add_argument(
+        "--algo",
+        default="ddpg",
+        choices=["ddpg", "td3", "sac"],
+        help="the worker's algorithm (sac: no action noise or penalty; its entropy term explores)",
+    )
     p.add_argument("--backend", default="sb3", choices=["sb3", "sbx"], help="torch (sb3) or JAX (sbx)")
     p.add_argument("--steps", type=int, default=40_000, help="training env steps")
     p.add_argument("--gamma", type=float, default=0.9, help="discount")
@@ -93,8 +98,12 @@ def main() -> None:
         gamma=args.gamma,
         seed=args.seed,
         policy_kwargs={"net_arch": [int(size) for size in args.net.split(",")]},
-        action_noise=NormalActionNoise(np.zeros(6), args.noise * np.ones(6)),
     )
+    if args.algo == "sac":
+        if args.action_l2 > 0:
+            p.error("--action-l2 applies to DDPG and TD3 actors, not SAC")
+    else:
+        kwargs["action_noise"] = NormalActionNoise(np.zeros(6), args.noise * np.ones(6))
     if args.relabel > 0:
         kwargs["replay_buffer_class"] = GoalRelabelingReplayBuffer
         kwargs["replay_buffer_kwargs"] = {
