@@ -101,3 +101,27 @@ def test_equal_effort_tuning_gives_every_method_the_same_trials_from_its_bundled
         str(tmp_path / "workers.yml")
     }
     assert "| worker-goal | " in result.stdout
+
+
+def test_goal_holding_measures_a_worker_and_the_reference_reachers(tmp_path):
+    from sb3_hddpg.training.training import train_workers
+
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
+    worker = str(tmp_path / "w" / "workers" / "goal.zip")
+    result = run_example("goal_holding.py", [worker, "ik", "random", "--episodes", "2"])
+    cells = [
+        [cell.strip() for cell in line.strip("│").split("│")]
+        for line in result.stdout.splitlines()
+        if line.startswith("│")
+    ]
+    # One row per policy, in order; a long path folds onto lines of its own with the other cells empty.
+    measured = [row[1:] for row in cells if row[1]]
+    assert len(measured) == 3, result.stdout
+    rows = dict(zip([worker, "ik", "random"], measured))
+    # The IK reacher holds the goal within the touch radius far more often than a random arm, and closer.
+    within_radius = {name: float(cells[0].rstrip(" %")) for name, cells in rows.items()}
+    median_distance = {name: float(cells[4]) for name, cells in rows.items()}
+    assert within_radius["ik"] > within_radius["random"] + 30, result.stdout
+    assert median_distance["ik"] < median_distance["random"], result.stdout
