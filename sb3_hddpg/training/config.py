@@ -6,6 +6,7 @@ hyperparameters, exactly as in rl-baselines3-zoo's ``hyperparams/*.yml``: the en
 else ``default`` (blocks are not merged, as in RL Zoo; YAML anchors and ``<<:`` merge keys share values).
 Files are parsed with a safe YAML loader, and ``policy_kwargs`` strings such as
 ``"dict(net_arch=[64, 64], activation_fn=nn.ReLU)"`` with a small AST evaluator, never ``eval``.
+``learning_rate`` may be RL Zoo's linear schedule, ``lin_<initial value>`` (:func:`parse_schedule`).
 """
 
 from __future__ import annotations
