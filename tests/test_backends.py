@@ -235,6 +235,8 @@ def test_a_learning_rate_schedule_reaches_the_jax_optimisers(algo, tmp_path):
     # A checkpoint or best model reloaded from SBX's own file (as every training command exports) too.
     model.save(tmp_path / "model.zip")
     reloaded = load_native(algo, "sbx", tmp_path / "model.zip")
+    # A resumed run keeps an optimiser whose rate the schedule can still set.
+    assert hasattr(reloaded.policy.actor_state.opt_state, "hyperparams")
     assert to_sb3(reloaded).lr_schedule(0.5) == pytest.approx(5e-4)
 
 

@@ -318,8 +318,9 @@ def _check_algo_kwargs(block: dict[str, Any], algo: str, source: str) -> None:
         block["buffer_size"] = _buffer_size(block["buffer_size"], source)
     if isinstance(block.get("learning_rate"), str):
         block["learning_rate"] = parse_schedule(block["learning_rate"], "learning_rate", source)
-    for key in ("gamma", "tau", *(() if callable(block.get("learning_rate")) else ("learning_rate",))):
-        if key in block and not isinstance(block[key], (int, float)):
+    for key in ("learning_rate", "gamma", "tau"):
+        allowed = (int, float, LinearSchedule) if key == "learning_rate" else (int, float)
+        if key in block and not isinstance(block[key], allowed):
             raise ConfigError(f"Expected {key} in {source} to be a number, actually: {brief(block[key])}")
 
 
