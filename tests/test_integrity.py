@@ -7,14 +7,17 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
 import pytest
+from stable_baselines3 import DDPG
 
-from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, locked_folder
+from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, atomic_write, locked_folder
+from sb3_hddpg.training.training import sigterm_as_interrupt
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -195,3 +198,25 @@ def test_a_full_disk_names_the_file(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     assert str(target) in done.stdout and "Errno" in done.stdout, done.stdout
     assert not target.exists() and not list(target.parent.glob(".*.tmp"))
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_signal_during_a_save_waits_for_the_file_then_interrupts(tmp_path: Path, signum: int) -> None:
+    """
+    Ctrl-C or SIGTERM arriving while a model is being saved: the save completes, then the interrupt
+    takes its usual path. (Raised inside torch's zip writer, it came out as ``RuntimeError: unexpected
+    pos`` and a stopped run failed instead of saving its checkpoint.)
+    """
+    model = DDPG("MlpPolicy", "Pendulum-v1", policy_kwargs={"net_arch": [16]}, device="cpu")
+    target = tmp_path / "model.zip"
+
+    def save_while_signalled(tmp: Path) -> None:
+        os.kill(os.getpid(), signum)
+        model.save(tmp)
+
+    with sigterm_as_interrupt(), pytest.raises(KeyboardInterrupt):
+        atomic_write(target, save_while_signalled)
+    DDPG.load(target, device="cpu")  # complete
+    assert not list(tmp_path.glob(".*.tmp"))
+    # The handlers in place before are back.
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

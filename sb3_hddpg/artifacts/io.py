@@ -8,6 +8,7 @@ import functools
 import inspect
 import json
 import os
+import signal
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -28,6 +29,44 @@ def _read_umask() -> int:
 
 
 _UMASK = _read_umask()
+
+#: The signals that stop a run cleanly (Ctrl-C, and SIGTERM turned into Ctrl-C while training).
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def deferred_stop_signals() -> Iterator[None]:
+    """
+    Hold Ctrl-C and SIGTERM until the block ends, then deliver them to the handlers that were in place.
+
+    An exception raised by a signal handler inside a library's writer does not always arrive as itself:
+    torch's zip writer, interrupted between two of its writes, reports ``unexpected pos`` as a
+    ``RuntimeError``, so a stopped run failed instead of saving its checkpoint. Writes are short; the
+    signal waits for the write to end, then takes its usual path. Outside the main thread (where handlers
+    cannot be set) the block runs as is.
+    """
+    received: list[signal.Signals] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        if signum not in received:
+            received.append(signal.Signals(signum))
+
+    current = {signum: signal.getsignal(signum) for signum in _STOP_SIGNALS}
+    if any(handler is None for handler in current.values()):  # set outside Python: cannot be restored
+        yield
+        return
+    try:
+        previous = {signum: signal.signal(signum, hold) for signum in _STOP_SIGNALS}
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in received:
+            signal.raise_signal(signum)
 
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) -> Path:
@@ -50,13 +89,14 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) 
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        write(tmp)
-        with open(tmp, "rb+") as handle:
-            os.fsync(handle.fileno())
-        # mkstemp creates the file readable by its owner only; give results the permissions any other
-        # file would get, so that shared run folders stay readable.
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
+        with deferred_stop_signals():
+            write(tmp)
+            with open(tmp, "rb+") as handle:
+                os.fsync(handle.fileno())
+            # mkstemp creates the file readable by its owner only; give results the permissions any other
+            # file would get, so that shared run folders stay readable.
+            os.chmod(tmp, 0o666 & ~_UMASK)
+            os.replace(tmp, path)
     except OSError as error:
         tmp.unlink(missing_ok=True)
         if error.errno is None:
