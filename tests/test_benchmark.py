@@ -142,10 +142,10 @@ def test_settings_reject_unknown_methods_and_default_to_equal_total_steps(per_st
 
 
 def test_settings_default_to_the_configs_budgets():
-    # The bundled config: goal and avoid worker 150k each, the manager 5000 decisions of 8 env steps (40k env
+    # The bundled config: goal and avoid worker 150k each, the manager 10000 decisions of 4 env steps (40k env
     # steps); a flat agent gets the sum.
     settings = BenchmarkSettings(methods=["hddpg", "ddpg"])
-    assert settings.timesteps == 5000 and settings.option_steps == 8 and settings.worker_timesteps is None
+    assert settings.timesteps == 10_000 and settings.option_steps == 4 and settings.worker_timesteps is None
     assert settings.manager_env_steps == 40_000 and task_cost(Task("hddpg", 0), settings) == 40_000
     assert settings.workers_budget == 300_000 and settings.flat_budget == 340_000
     assert task_cost(Task("workers", 0), settings) == 300_000
