@@ -274,7 +274,7 @@ def test_a_sac_manager_trains_bundles_and_reloads(trained, tmp_path):
     assert type(hierarchy.manager) is SAC and outcome.num_timesteps >= TINY["timesteps"]
     # The bundled sac.yml's manager block, not ddpg.yml's: its own selection settings.
     assert hierarchy.config.option_steps == manager_option_steps(algo="sac")
-    assert hierarchy.config.selection == "mix" != trained[2].config.selection
+    assert hierarchy.config.temperature == pytest.approx(0.3914) != trained[2].config.temperature
     loaded = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
     assert type(loaded.manager) is SAC
     obs = np.stack([gym.make("hddpg/SnakeReach-v0").reset(seed=s)[0] for s in range(4)])
