@@ -115,7 +115,7 @@ def quickstart_command(
         False,
         "--keep-checkpoints",
         help="Keep every agent's replay buffer in RUN/checkpoints/ (about 275 MB in all at --budget small) "
-        "so that train-* --resume can extend an agent exactly; by default the run folder is about 16 MB.",
+        "so that train-* --resume can extend an agent exactly; by default the run folder is about 31 MB.",
     ),
     backend: ExperimentBackendOpt = "sb3",
     executor: ExecutorOpt = "local",
