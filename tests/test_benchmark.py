@@ -290,6 +290,31 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     changed = cli(*args[:-2], "--timesteps", "300", "--out", str(out), "--resume")
     assert changed.returncode == 1 and "different settings" in changed.stderr
 
+    # A kept run made from another config block than the bundled one now (here: its record says it trained
+    # at another learning rate) is refused, named; --redo runs that method again and keeps the old runs aside.
+    path = out / "records" / "ddpg" / "seed-0.json"
+    record = json.loads(path.read_text())
+    (block,) = record["config_blocks"]
+    record["config_blocks"][block]["learning_rate"] = 0.5
+    path.write_text(json.dumps(record))
+    stale = cli(*grown, "--resume")
+    assert stale.returncode == 1 and "Traceback" not in stale.stderr
+    assert "ddpg/seed-0" in stale.stderr and "--redo ddpg" in stale.stderr and block in stale.stderr
+    assert cli(*grown, "--redo", "ddpg").returncode == 2  # without --resume
+    assert cli(*grown, "--resume", "--redo", "td3").returncode == 2  # not among the methods
+    redone = cli(*grown, "--resume", "--redo", "ddpg")
+    assert redone.returncode == 0, redone.stdout + redone.stderr
+    assert redone.stdout.count("started") == 2 and "started  ddpg/seed-0" in redone.stdout
+    (aside,) = out.glob("replaced-*")
+    assert (
+        json.loads((aside / "records" / "ddpg" / "seed-0.json").read_text())["config_blocks"][block][
+            "learning_rate"
+        ]
+        == 0.5
+    )
+    assert (aside / "seed-1" / "ddpg").is_dir()
+    assert json.loads(path.read_text())["config_blocks"][block]["learning_rate"] != 0.5
+
 
 def test_train_flat_writes_a_model_that_opens_with_ddpg_load(tmp_path):
     from stable_baselines3 import DDPG

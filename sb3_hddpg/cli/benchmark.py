@@ -300,6 +300,15 @@ def benchmark_command(
         "--resume",
         help="Keep finished runs and continue interrupted ones; --methods and --seeds may add runs.",
     ),
+    redo: str | None = typer.Option(
+        None,
+        "--redo",
+        help=(
+            "With --resume: comma-separated methods to run again, e.g. after their config block changed (a "
+            "kept run made from another block is refused otherwise); their runs so far are moved to "
+            "OUT/replaced-<UTC time>/. Default: none."
+        ),
+    ),
     force: ForceOpt = False,
     export_dir: Path | None = typer.Option(
         None,
@@ -367,6 +376,16 @@ def benchmark_command(
         )
     with usage_errors("'--workers-from'"):
         check_workers_source(settings)
+    redone = [m.strip() for m in redo.split(",") if m.strip()] if redo else []
+    if redone and not resume:
+        raise typer.BadParameter(
+            "replaces runs of a benchmark folder: use it with --resume", param_hint="'--redo'"
+        )
+    unknown = [m for m in redone if m not in settings.methods]
+    if unknown:
+        raise typer.BadParameter(
+            f"{unknown} are not among this benchmark's methods {settings.methods}", param_hint="'--redo'"
+        )
     address = cluster_address(executor, ray_address)
     prepare_out_dir(context, out, resume, force)
     started = time.perf_counter()
@@ -378,6 +397,7 @@ def benchmark_command(
         resume=resume,
         on_event=_event_printer(started),
         ray_address=address,
+        redo=redone,
     )
     console.print(results_table(results))
     if results["comparisons"]:

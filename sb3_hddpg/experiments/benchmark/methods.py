@@ -19,9 +19,12 @@ import gymnasium as gym
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.terms_env import config_key
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import RandomPolicy
+from sb3_hddpg.training.backends import algo_class
+from sb3_hddpg.training.config import MANAGER_KEY, default_config, load_hyperparams
 from sb3_hddpg.training.training import FLAT_ENV_ID, train_flat, train_manager
 
 if TYPE_CHECKING:
@@ -32,6 +35,11 @@ WORKERS = "workers"
 
 #: First seed of the final test episodes: disjoint from the learning-curve seeds ``EVAL_SEED_BASE + k``.
 TEST_SEED_BASE = EVAL_SEED_BASE + 5_000
+
+
+def _no_blocks(settings: BenchmarkSettings) -> dict[str, Any]:
+    """No config block of its own (HAM's threshold is a setting; a worker alone is the workers' run)."""
+    return {}
 
 
 @dataclass(frozen=True)
@@ -53,6 +61,9 @@ class Method:
     :param takes_preference: it can learn a given preference (the transfer scenario).
     :param challenger: compared, like ``hddpg``, with every baseline (and with ``hddpg``) whenever both ran.
     :param description: one line for the docs.
+    :param config_blocks: ``config_blocks(settings) -> {"<file>[<block>]": block}``: the bundled config
+        blocks it trains from, as written. A run's record keeps them, so that ``--resume`` can tell a run
+        made from an older block (the workers' blocks belong to the workers' record).
     """
 
     name: str
@@ -65,6 +76,7 @@ class Method:
     takes_preference: bool = False
     challenger: bool = False
     description: str = ""
+    config_blocks: Callable[[BenchmarkSettings], dict[str, Any]] = _no_blocks
 
 
 #: Every method the benchmark knows, by name, in registration order.
@@ -257,6 +269,19 @@ def _run_worker_alone(worker: str, task: Task, settings: BenchmarkSettings, fold
     }
 
 
+def _manager_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
+    """The manager block of ``algo``'s bundled config."""
+    block = load_hyperparams(MANAGER_KEY, algo_class(algo), default_config(algo), manager=True)
+    return {f"{algo}.yml[{MANAGER_KEY}]": block.raw}
+
+
+def _flat_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
+    """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads."""
+    env = settings.terms_env
+    key = config_key(env.env_id, env.env_kwargs) if env is not None else FLAT_ENV_ID
+    return {f"{algo}.yml[{key}]": load_hyperparams(key, algo_class(algo), default_config(algo)).raw}
+
+
 def _manager_cost(settings: BenchmarkSettings) -> int:
     return settings.manager_env_steps
 
@@ -279,6 +304,7 @@ register_method(
         default=True,
         takes_preference=True,
         description="the two workers, then a manager with equal preferences (paper Algorithm 1)",
+        config_blocks=functools.partial(_manager_blocks, "ddpg"),
     )
 )
 register_method(
@@ -321,6 +347,7 @@ for _algo, _colour in (
             baseline=True,
             takes_preference=True,
             description=f"flat {_algo.upper()} on the combined reward for the hierarchy's total env steps",
+            config_blocks=functools.partial(_flat_blocks, _algo),
         )
     )
 for _worker, _colour in (("goal", "yellowgreen"), ("avoid", "gold")):
@@ -346,6 +373,7 @@ for _worker, _colour in (("goal", "tab:green"), ("avoid", "tab:orange")):
             colour=_colour,
             default=True,
             description=f"a manager preferring the {_worker} worker by the bias (paper Figure 10)",
+            config_blocks=functools.partial(_manager_blocks, "ddpg"),
         )
     )
 
@@ -359,6 +387,7 @@ register_method(
         challenger=True,
         takes_preference=True,
         description="the same hierarchy with a SAC manager (zoo_configs/sac.yml's manager block), the same env steps",
+        config_blocks=functools.partial(_manager_blocks, "sac"),
     )
 )
 

@@ -9,8 +9,9 @@ from __future__ import annotations
 import json
 import os
 import platform
+import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, pl
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Job, run_jobs
+from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.training import train_workers, worker_hyperparams
 
 #: Bumped when a record's meaning changes.
@@ -74,6 +76,8 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
         "method": task.method,
         "seed": task.seed,
         "status": "done",
+        # Read before training: the blocks this run trains from, whatever the file holds when it ends.
+        "config_blocks": _plain(task_config_blocks(task, settings)),
     }
     spec = task.spec
     if spec is None:
@@ -112,6 +116,18 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
         "history": {
             name: read_history(folder / "evaluations" / f"{name}.json") for name in manifest["workers"]
         },
+    }
+
+
+def task_config_blocks(task: Task, settings: BenchmarkSettings) -> dict[str, Any]:
+    """The bundled config blocks a task trains from, by ``"<file>[<block>]"`` (the workers': per worker)."""
+    if task.spec is not None:
+        return task.spec.config_blocks(settings)
+    env = settings.terms_env
+    blocks = worker_hyperparams(_worker_names(settings), None, env)
+    return {
+        f"worker {name}: ddpg.yml[{env.config_key if env is not None else WORKER_ENV_IDS[name]}]": block.raw
+        for name, block in blocks.items()
     }
 
 
@@ -245,6 +261,75 @@ def task_job(task: Task, settings: BenchmarkSettings, out: Path) -> Job:
 
 #: Settings a resumed benchmark may change (every other must be as the folder's ``benchmark.json`` says).
 RESUME_MAY_CHANGE = ("methods", "seeds")
+#: Where ``redo`` moves the runs it replaces: ``DIR/replaced-<UTC time>/`` (records and seed folders).
+REPLACED_PREFIX = "replaced-"
+
+
+def _changed_settings(settings: BenchmarkSettings, saved: dict[str, Any]) -> list[str]:
+    """
+    The settings that differ from a folder's ``benchmark.json`` (``saved``), beyond those a resume may
+    change. The manager's budget counts in env steps: its decisions may differ when a new manager block
+    decides every k env steps for as many env steps (that block's runs are told by their config blocks).
+    """
+    stored = asdict(settings)
+    previous = saved["settings"]
+    # Settings added since that benchmark was made hold their defaults in it.
+    defaults = asdict(BenchmarkSettings())
+    previous = {**{f.name: defaults[f.name] for f in fields(BenchmarkSettings)}, **previous}
+    # Methods and seeds may change: each run is its own record, made with the same budgets and episodes
+    # whatever else ran beside it, so a resumed benchmark can grow (or report a subset).
+    changed = sorted(k for k in stored if k not in RESUME_MAY_CHANGE and previous.get(k) != stored[k])
+    same_env_steps = saved.get("budgets", {}).get("manager_env_steps") == settings.manager_env_steps
+    return [k for k in changed if not (k == "timesteps" and same_env_steps)]
+
+
+def _stale_runs(settings: BenchmarkSettings, records: dict[Task, dict[str, Any]]) -> dict[Task, list[str]]:
+    """
+    The kept runs whose config blocks differ from the bundled ones now, with the blocks that differ. A
+    record from before records kept their blocks cannot be checked, and is kept.
+    """
+    stale: dict[Task, list[str]] = {}
+    current: dict[str, dict[str, Any]] = {}
+    for task, record in records.items():
+        kept = record.get("config_blocks")
+        if not isinstance(kept, dict):
+            continue
+        name = task.method if task.spec is None else task.spec.name
+        if name not in current:
+            current[name] = _plain(task_config_blocks(task, settings))
+        differ = sorted(k for k in {*kept, *current[name]} if kept.get(k) != current[name].get(k))
+        if differ:
+            stale[task] = differ
+    return stale
+
+
+def _check_redo(settings: BenchmarkSettings, redo: Sequence[str]) -> list[str]:
+    """``redo``: methods of this benchmark (the workers cannot be redone under the runs built on them)."""
+    redo = list(redo)
+    if WORKERS in redo:
+        raise ValueError(
+            "The workers cannot be redone in place: every run of their seed is built on them; start a new "
+            "benchmark folder (or --force)"
+        )
+    unknown = [m for m in redo if m not in settings.methods]
+    if unknown:
+        raise ValueError(f"Cannot redo {unknown}: not among this benchmark's methods {settings.methods}")
+    return redo
+
+
+def _set_aside(out: Path, tasks: Sequence[Task]) -> Path:
+    """
+    Move the runs of ``tasks`` (records and seed folders) to ``out/replaced-<UTC time>/``, keeping their
+    paths: nothing is deleted, and ``--resume`` then runs them afresh.
+    """
+    target = out / f"{REPLACED_PREFIX}{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}"
+    for task in tasks:
+        for path in (record_path(out, task), seed_dir(out, task.seed) / task.method):
+            if path.exists():
+                destination = target / path.relative_to(out)
+                destination.parent.mkdir(parents=True, exist_ok=True)
+                shutil.move(str(path), str(destination))
+    return target
 
 
 def run_benchmark(
@@ -254,6 +339,7 @@ def run_benchmark(
     resume: bool = False,
     on_event: Callable[[str, Task, dict[str, Any] | None], None] | None = None,
     ray_address: str | None = None,
+    redo: Sequence[str] = (),
 ) -> dict[str, Any]:
     """
     Run every task not yet finished, ``n_jobs`` at a time, then compute and write the results.
@@ -271,6 +357,9 @@ def run_benchmark(
     :param ray_address: run each task as a Ray task on the cluster at this address (``auto`` or
         ``HOST:PORT``; every node must see ``out`` at the same path, and a task lost with its node is run
         again from its checkpoint: :mod:`sb3_hddpg.experiments.ray_executor`); ``None``: local processes.
+    :param redo: with ``resume``, methods to run again: their runs so far are moved to
+        ``out/replaced-<UTC time>/``. A kept run whose bundled config block has changed since it ran is
+        refused otherwise, so that one benchmark never mixes runs of two configs unawares.
     :return: the results (also written to ``out/results.json``).
     """
     if n_jobs is not None and n_jobs < 1:
@@ -279,21 +368,17 @@ def run_benchmark(
     notify = on_event or (lambda kind, task, record: None)
     settings_path = out / "benchmark.json"
     stored = asdict(settings)
+    redo = _check_redo(settings, redo)
+    if redo and not resume:
+        raise ValueError("--redo replaces runs of a benchmark folder: it goes with --resume")
     if resume and settings_path.exists():
-        previous = json.loads(settings_path.read_text())["settings"]
-        # Settings added since that benchmark was made hold their defaults in it.
-        defaults = asdict(BenchmarkSettings())
-        previous = {**{f.name: defaults[f.name] for f in fields(BenchmarkSettings)}, **previous}
-        # Methods and seeds may change: each run is its own record, made with the same budgets and episodes
-        # whatever else ran beside it, so a resumed benchmark can grow (or report a subset).
-        changed = sorted(k for k in stored if k not in RESUME_MAY_CHANGE and previous.get(k) != stored[k])
+        changed = _changed_settings(settings, json.loads(settings_path.read_text()))
         if changed:
             raise ValueError(
                 f"Cannot resume {str(out)!r} with different settings ({', '.join(changed)} changed); "
                 "run with the same options, or use --force to start over"
             )
     check_workers_source(settings)
-    atomic_write_json(settings_path, {"settings": stored, "machine": machine_info()})
 
     tasks = plan_tasks(settings)
     records: dict[Task, dict[str, Any]] = {}
@@ -301,7 +386,34 @@ def run_benchmark(
         record = read_record(out, task) if resume else None
         if record is not None:
             records[task] = record
-            notify("skip", task, record)
+    redone = [t for t in tasks if t.spec is not None and t.spec.name in redo]
+    stale = {t: blocks for t, blocks in _stale_runs(settings, records).items() if t not in redone}
+    if stale:
+        if any(t.spec is None for t in stale):
+            raise ValueError(
+                f"Cannot resume {str(out)!r}: the workers' config blocks changed since they were trained "
+                f"({', '.join(sorted({b for blocks in stale.values() for b in blocks}))}); every run of their "
+                "seed is built on them: start a new benchmark folder (or --force)"
+            )
+        methods = sorted({t.spec.name for t in stale if t.spec is not None})
+        raise ValueError(
+            f"Cannot resume {str(out)!r}: the config blocks of {', '.join(t.label for t in stale)} changed since "
+            f"they ran ({', '.join(sorted({b for blocks in stale.values() for b in blocks}))}); run them again "
+            f"with --redo {','.join(methods)} (the old runs are kept aside), or start over with --force"
+        )
+    if redone:
+        _set_aside(out, redone)
+        records = {t: r for t, r in records.items() if t not in redone}
+    for task, record in records.items():
+        notify("skip", task, record)
+    atomic_write_json(
+        settings_path,
+        {
+            "settings": stored,
+            "budgets": {"manager_env_steps": settings.manager_env_steps},
+            "machine": machine_info(),
+        },
+    )
     start = time.perf_counter()
     by_label = {task.label: task for task in tasks}
     kept = {task.label for task in records}
