@@ -54,6 +54,8 @@ class EpisodeMetrics:
     #: :func:`evaluate`), and in a state with no obstacle within ``clear_clearance``.
     selections_near: dict[str, int] = field(default_factory=dict)
     selections_clear: dict[str, int] = field(default_factory=dict)
+    #: A hierarchy's contact steps by the worker that acted in them (where the env reports collisions).
+    collisions_by_worker: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -99,6 +101,13 @@ class EvaluationResult:
                 for e in eps:
                     counts.update(getattr(e, f"selections_{band}"))
                 out[f"selections_{band}"] = {name: counts.get(name, 0) for name in sorted(total)}
+            if eps[0].collisions is not None:
+                # Which worker was acting when the arm touched an obstacle: a manager that leaves the goal
+                # worker in charge near obstacles shows here, whatever its share of the choices.
+                out["collisions_by_worker"] = {
+                    name: float(np.mean([e.collisions_by_worker.get(name, 0) for e in eps]))
+                    for name in sorted(total)
+                }
             out["near_clearance"] = self.near_clearance
             out["clear_clearance"] = self.clear_clearance
         return out
@@ -202,6 +211,7 @@ class _EpisodeTally:
         self.selections: Counter[str] = Counter(dict.fromkeys(worker_names, 0))
         self.near: Counter[str] = Counter()
         self.clear: Counter[str] = Counter()
+        self.contacts: Counter[str] = Counter()
         # The clearance of the state the policy acts in: the previous step's (or the reset's) info.
         self.clearance = float(reset_info.get("min_clearance", math.nan))
 
@@ -227,6 +237,7 @@ class _EpisodeTally:
             self.min_clearance = min(self.min_clearance, info["min_clearance"])
         if selected is not None:
             self.selections[selected] += 1
+            self.contacts[selected] += bool(info.get("collision", False))
             if self.near_clearance is not None and self.clearance <= self.near_clearance:
                 self.near[selected] += 1
             if self.clear_clearance is not None and self.clearance >= self.clear_clearance:
@@ -251,6 +262,7 @@ class _EpisodeTally:
             action_saturation=self.saturated / max(self.entries, 1),
             selections_near=dict(self.near),
             selections_clear=dict(self.clear),
+            collisions_by_worker=dict(self.contacts) if touched else {},
         )
 
 

@@ -75,6 +75,10 @@ METRIC_LABELS: dict[str, MetricLabel] = {
 SELECTION_LABEL = MetricLabel(
     "steps run by the {name} worker", "% of steps", percent=True, digits=1, short="worker use"
 )
+#: How the contact steps made while one worker acted (``collisions_by_worker``) are shown.
+CONTACTS_LABEL = MetricLabel(
+    "steps touching an obstacle while the {name} worker acts", "per episode", short="contacts by worker"
+)
 
 
 def metric_label(key: str) -> MetricLabel:
@@ -99,15 +103,10 @@ def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
     for key, value in summary.items():
         if key in ("episodes", "std_reward", "std_reach_reward"):
             continue  # the episodes are in the title; a std is shown with its mean
-        if key == "selection_rate" and isinstance(value, Mapping):
-            for name, rate in value.items():
-                rows.append(
-                    (
-                        SELECTION_LABEL.label.format(name=name),
-                        SELECTION_LABEL.format(rate),
-                        SELECTION_LABEL.unit,
-                    )
-                )
+        by_worker = {"selection_rate": SELECTION_LABEL, "collisions_by_worker": CONTACTS_LABEL}.get(key)
+        if by_worker is not None and isinstance(value, Mapping):
+            for name, item in value.items():
+                rows.append((by_worker.label.format(name=name), by_worker.format(item), by_worker.unit))
             continue
         if isinstance(value, Mapping):
             for name, item in value.items():

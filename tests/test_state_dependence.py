@@ -95,6 +95,10 @@ def test_a_fixed_mix_gives_a_ratio_near_one():
     # The generic form: the goal worker's figure is the complement's.
     goal = state_dependence(summary, worker="goal")
     assert goal["near_share"] == pytest.approx(1.0 - figure["near_share"])
+    # Every contact step is counted once, under the worker that acted in it (these sweeping workers collide).
+    contacts = summary["collisions_by_worker"]
+    assert set(contacts) == {"goal", "avoid"} and summary["collisions_per_episode"] > 0
+    assert sum(contacts.values()) == pytest.approx(summary["collisions_per_episode"])
 
 
 def test_the_figure_is_absent_without_worker_choices_and_bands_are_checked():
