@@ -40,6 +40,7 @@ from sb3_hddpg.experiments.benchmark import (
     SCENARIOS,
     BenchmarkSettings,
     Task,
+    check_redo,
     check_workers_source,
     final_scores_text,
     flat_reaches_text,
@@ -381,11 +382,8 @@ def benchmark_command(
         raise typer.BadParameter(
             "replaces runs of a benchmark folder: use it with --resume", param_hint="'--redo'"
         )
-    unknown = [m for m in redone if m not in settings.methods]
-    if unknown:
-        raise typer.BadParameter(
-            f"{unknown} are not among this benchmark's methods {settings.methods}", param_hint="'--redo'"
-        )
+    with usage_errors("'--redo'"):
+        check_redo(settings, redone)
     address = cluster_address(executor, ray_address)
     prepare_out_dir(context, out, resume, force)
     started = time.perf_counter()

@@ -59,6 +59,7 @@ from sb3_hddpg.experiments.benchmark.report import (
 )
 from sb3_hddpg.experiments.benchmark.run import (
     RECORD_VERSION,
+    check_redo,
     check_workers_source,
     machine_info,
     read_record,
@@ -115,6 +116,7 @@ __all__ = [
     "Method",
     "Task",
     "canonical_preference",
+    "check_redo",
     "check_workers_source",
     "compare",
     "comparison_pairs",

@@ -303,8 +303,12 @@ def _stale_runs(settings: BenchmarkSettings, records: dict[Task, dict[str, Any]]
     return stale
 
 
-def _check_redo(settings: BenchmarkSettings, redo: Sequence[str]) -> list[str]:
-    """``redo``: methods of this benchmark (the workers cannot be redone under the runs built on them)."""
+def check_redo(settings: BenchmarkSettings, redo: Sequence[str]) -> list[str]:
+    """
+    ``redo`` as a list: methods of this benchmark (the workers cannot be redone under the runs built on them).
+
+    :raises ValueError: naming what cannot be redone.
+    """
     redo = list(redo)
     if WORKERS in redo:
         raise ValueError(
@@ -368,7 +372,7 @@ def run_benchmark(
     notify = on_event or (lambda kind, task, record: None)
     settings_path = out / "benchmark.json"
     stored = asdict(settings)
-    redo = _check_redo(settings, redo)
+    redo = check_redo(settings, redo)
     if redo and not resume:
         raise ValueError("--redo replaces runs of a benchmark folder: it goes with --resume")
     if resume and settings_path.exists():
