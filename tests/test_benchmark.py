@@ -273,6 +273,13 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert resumed.stdout.count("started") == 1 and "started  ddpg/seed-1" in resumed.stdout
     assert resumed.stdout.count("kept") == 7  # 2 x (workers + 3 methods) - 1
     assert (out / "records" / "hddpg" / "seed-0.json").stat().st_mtime_ns == kept_mtime
+    # Each invocation's wall time is kept, and the total over them reported.
+    invocations = json.loads((out / "benchmark.json").read_text())["invocations"]
+    assert [(i["runs_kept"], i["runs_to_do"], i["runs_done"]) for i in invocations] == [(0, 8, 8), (7, 1, 1)]
+    assert all(i["wall_time_s"] > 0 and not i["interrupted"] for i in invocations)
+    total = json.loads((out / "results.json").read_text())["wall_time_s_all_invocations"]
+    assert total == pytest.approx(sum(i["wall_time_s"] for i in invocations))
+    assert "over its 2 invocations" in resumed.stdout
 
     # More methods (or seeds) on resume: only the new runs start, on the same workers and episodes.
     grown = ("benchmark", "--seeds", "2", "--methods", "hddpg,ham,ddpg,goal-only", *TINY, "--out", str(out))
@@ -403,3 +410,33 @@ def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_p
     assert read_history(path, offset=600) == [
         {"timesteps": 100, "total_timesteps": 700, "mean_reach_reward": 1.0}
     ]
+
+
+def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
+    """SIGTERM mid-run: the invocation is logged as interrupted, and --resume adds its own."""
+    import signal
+    import time
+
+    out = tmp_path / "bench"
+    args = (
+        "benchmark", "--seeds", "1", "--methods", "ddpg", "--flat-timesteps", "200000", "--eval-freq", "1000",
+        "--eval-episodes", "1", "--test-episodes", "1", "--out", str(out),
+    )  # fmt: skip
+    process = subprocess.Popen(
+        [sys.executable, str(REPO / "cli.py"), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(REPO), "SDL_VIDEODRIVER": "dummy"},
+        cwd=REPO,
+    )
+    curve = out / "seed-0" / "ddpg" / "evaluations" / "flat-ddpg.json"
+    deadline = time.time() + 300
+    while not curve.exists() and time.time() < deadline:
+        time.sleep(0.5)
+    assert curve.exists(), "the flat agent never evaluated"
+    process.send_signal(signal.SIGTERM)
+    stdout, stderr = process.communicate(timeout=180)
+    assert process.returncode == 130, stdout + stderr
+    (invocation,) = json.loads((out / "benchmark.json").read_text())["invocations"]
+    assert invocation["interrupted"] and invocation["runs_done"] is None and invocation["wall_time_s"] > 0

@@ -49,6 +49,14 @@ from sb3_hddpg.experiments.benchmark import (
 from sb3_hddpg.experiments.model_export import export_models
 
 
+def _all_invocations(results: dict[str, Any]) -> str:
+    """The wall time over every invocation of a resumed benchmark (empty for a benchmark run once)."""
+    count = results.get("invocations", 1)
+    if count <= 1:
+        return ""
+    return f" ({results['wall_time_s_all_invocations'] / 60:.1f} min over its {count} invocations)"
+
+
 def _ci(stats: dict[str, Any], fmt: str = ".1f") -> str:
     return f"{stats['mean']:{fmt}} [{stats['ci_low']:{fmt}}, {stats['ci_high']:{fmt}}]"
 
@@ -406,7 +414,8 @@ def benchmark_command(
     if "transfer" in results:
         console.print(transfer_table(results))
     console.print(
-        f"Wall time: {results['wall_time_s_this_invocation'] / 60:.1f} min.  Outputs in {out}: {', '.join(OUTPUT_FILES)}"
+        f"Wall time: {results['wall_time_s_this_invocation'] / 60:.1f} min{_all_invocations(results)}.  "
+        f"Outputs in {out}: {', '.join(OUTPUT_FILES)}"
     )
     if export_dir is not None:
         _export(out, export_dir)

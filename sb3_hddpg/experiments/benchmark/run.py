@@ -375,8 +375,9 @@ def run_benchmark(
     redo = check_redo(settings, redo)
     if redo and not resume:
         raise ValueError("--redo replaces runs of a benchmark folder: it goes with --resume")
-    if resume and settings_path.exists():
-        changed = _changed_settings(settings, json.loads(settings_path.read_text()))
+    saved = json.loads(settings_path.read_text()) if resume and settings_path.exists() else None
+    if saved is not None:
+        changed = _changed_settings(settings, saved)
         if changed:
             raise ValueError(
                 f"Cannot resume {str(out)!r} with different settings ({', '.join(changed)} changed); "
@@ -410,28 +411,49 @@ def run_benchmark(
         records = {t: r for t, r in records.items() if t not in redone}
     for task, record in records.items():
         notify("skip", task, record)
-    atomic_write_json(
-        settings_path,
-        {
-            "settings": stored,
-            "budgets": {"manager_env_steps": settings.manager_env_steps},
-            "machine": machine_info(),
-        },
-    )
+    header = {
+        "settings": stored,
+        "budgets": {"manager_env_steps": settings.manager_env_steps},
+        "machine": machine_info(),
+    }
+    # Every invocation's wall time, so that a benchmark resumed several times still says what it took.
+    previous_invocations = (saved or {}).get("invocations")
+    invocations = list(previous_invocations) if isinstance(previous_invocations, list) else []
+    atomic_write_json(settings_path, {**header, "invocations": invocations})
+    started_at = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     start = time.perf_counter()
     by_label = {task.label: task for task in tasks}
     kept = {task.label for task in records}
     jobs = [task_job(task, settings, out) for task in tasks if task not in records]
-    outcome = run_jobs(
-        [replace(job, after=tuple(d for d in job.after if d not in kept)) for job in jobs],
-        make_executor(n_jobs, ray_address=ray_address),
-        on_event=lambda kind, job, value: notify(kind, by_label[job.key], value if kind == "done" else None),
-    )
+    outcome = None
+    try:
+        outcome = run_jobs(
+            [replace(job, after=tuple(d for d in job.after if d not in kept)) for job in jobs],
+            make_executor(n_jobs, ray_address=ray_address),
+            on_event=lambda kind, job, value: notify(
+                kind, by_label[job.key], value if kind == "done" else None
+            ),
+        )
+    finally:
+        # Written even when interrupted: the time spent counts, and the next --resume adds its own.
+        wall = time.perf_counter() - start
+        invocations.append(
+            {
+                "started": started_at,
+                "wall_time_s": wall,
+                "runs_kept": len(kept),
+                "runs_to_do": len(jobs),
+                "runs_done": len(outcome.results) if outcome is not None else None,
+                "interrupted": outcome is None,
+            }
+        )
+        atomic_write_json(settings_path, {**header, "invocations": invocations})
     records.update({by_label[label]: record for label, record in outcome.results.items()})
     failed = {by_label[label]: outcome.failure_message(label) for label in outcome.failures}
-    wall = time.perf_counter() - start
     results = compute_results(settings, [records[t] for t in tasks if t in records])
     results["wall_time_s_this_invocation"] = wall
+    results["wall_time_s_all_invocations"] = sum(float(i.get("wall_time_s", 0.0)) for i in invocations)
+    results["invocations"] = len(invocations)
     results["failures"] = {t.label: message for t, message in failed.items()}
     results["machine"] = machine_info()
     write_outputs(out, results, [records[t] for t in tasks if t in records])
