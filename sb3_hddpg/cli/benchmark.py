@@ -386,12 +386,8 @@ def benchmark_command(
     with usage_errors("'--workers-from'"):
         check_workers_source(settings)
     redone = [m.strip() for m in redo.split(",") if m.strip()] if redo else []
-    if redone and not resume:
-        raise typer.BadParameter(
-            "replaces runs of a benchmark folder: use it with --resume", param_hint="'--redo'"
-        )
     with usage_errors("'--redo'"):
-        check_redo(settings, redone)
+        check_redo(settings, redone, resume)
     address = cluster_address(executor, ray_address)
     prepare_out_dir(context, out, resume, force)
     started = time.perf_counter()

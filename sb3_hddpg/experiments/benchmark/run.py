@@ -303,13 +303,16 @@ def _stale_runs(settings: BenchmarkSettings, records: dict[Task, dict[str, Any]]
     return stale
 
 
-def check_redo(settings: BenchmarkSettings, redo: Sequence[str]) -> list[str]:
+def check_redo(settings: BenchmarkSettings, redo: Sequence[str], resume: bool) -> list[str]:
     """
-    ``redo`` as a list: methods of this benchmark (the workers cannot be redone under the runs built on them).
+    ``redo`` as a list: methods of this benchmark (the workers cannot be redone under the runs built on them),
+    which replace runs of a benchmark folder, so only with ``resume``.
 
     :raises ValueError: naming what cannot be redone.
     """
     redo = list(redo)
+    if redo and not resume:
+        raise ValueError("--redo replaces runs of a benchmark folder: it goes with --resume")
     if WORKERS in redo:
         raise ValueError(
             "The workers cannot be redone in place: every run of their seed is built on them; start a new "
@@ -372,9 +375,7 @@ def run_benchmark(
     notify = on_event or (lambda kind, task, record: None)
     settings_path = out / "benchmark.json"
     stored = asdict(settings)
-    redo = check_redo(settings, redo)
-    if redo and not resume:
-        raise ValueError("--redo replaces runs of a benchmark folder: it goes with --resume")
+    redo = check_redo(settings, redo, resume)
     saved = json.loads(settings_path.read_text()) if resume and settings_path.exists() else None
     if saved is not None:
         changed = _changed_settings(settings, saved)
