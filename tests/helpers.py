@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import time
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -62,3 +66,18 @@ class ActionRecorder(gym.Wrapper):
     def step(self, action):
         self.actions.append(np.array(action, dtype=np.float32))
         return self.env.step(action)
+
+
+def sigterm_once_written(
+    process: subprocess.Popen[str], path: Path, what: str, timeout: float = 300, grace: float = 180
+) -> tuple[str, str]:
+    """
+    Wait until ``path`` exists (a run's first evaluation, say), then send ``process`` SIGTERM and collect
+    its output; fails naming ``what`` never happened.
+    """
+    deadline = time.time() + timeout
+    while not path.exists() and time.time() < deadline:
+        time.sleep(0.5)
+    assert path.exists(), f"{what} never happened"
+    process.send_signal(signal.SIGTERM)
+    return process.communicate(timeout=grace)

@@ -414,8 +414,7 @@ def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_p
 
 def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
     """SIGTERM mid-run: the invocation is logged as interrupted, and --resume adds its own."""
-    import signal
-    import time
+    from tests.helpers import sigterm_once_written
 
     out = tmp_path / "bench"
     args = (
@@ -431,12 +430,7 @@ def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
         cwd=REPO,
     )
     curve = out / "seed-0" / "ddpg" / "evaluations" / "flat-ddpg.json"
-    deadline = time.time() + 300
-    while not curve.exists() and time.time() < deadline:
-        time.sleep(0.5)
-    assert curve.exists(), "the flat agent never evaluated"
-    process.send_signal(signal.SIGTERM)
-    stdout, stderr = process.communicate(timeout=180)
+    stdout, stderr = sigterm_once_written(process, curve, "the flat agent's first evaluation")
     assert process.returncode == 130, stdout + stderr
     (invocation,) = json.loads((out / "benchmark.json").read_text())["invocations"]
     assert invocation["interrupted"] and invocation["runs_done"] is None and invocation["wall_time_s"] > 0

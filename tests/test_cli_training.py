@@ -2,15 +2,14 @@
 
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 
 import pytest
 from stable_baselines3 import DDPG
 
 from tests.cli_runner import CLI, run_cli
+from tests.helpers import sigterm_once_written
 
 TINY = ("--timesteps", "400", "--eval-freq", "200", "--eval-episodes", "1", "--no-progress")
 
@@ -86,13 +85,7 @@ def test_interrupt_saves_a_checkpoint_and_resume_reaches_the_total(tmp_path):
         text=True,
         env=env,
     )
-    history = out / "evaluations" / "goal.json"
-    deadline = time.time() + 300
-    while not history.exists() and time.time() < deadline:
-        time.sleep(0.5)
-    assert history.exists(), "training never evaluated"
-    process.send_signal(signal.SIGTERM)
-    stdout, stderr = process.communicate(timeout=120)
+    stdout, stderr = sigterm_once_written(process, out / "evaluations" / "goal.json", "the first evaluation")
     assert process.returncode == 130, stderr
     assert "--resume" in stdout and "Traceback" not in stderr
     state = json.loads((out / "checkpoints" / "goal" / "state.json").read_text())
