@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import signal
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -458,6 +458,28 @@ def worker_hyperparams(
     return {name: load_hyperparams(WORKER_ENV_IDS[name], DDPG, config) for name in workers}
 
 
+def flat_hyperparams(
+    algo: str, env_id: str, env_kwargs: Mapping[str, Any] | None = None, config: str | Path | None = None
+) -> Hyperparams:
+    """
+    The block a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` trains from: an adapter's is
+    keyed by the env it adapts, as the workers' are.
+
+    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
+    """
+    path = Path(config) if config is not None else default_config(algo)
+    return load_hyperparams(config_key(env_id, env_kwargs), algo_class(algo), path)
+
+
+def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) -> Hyperparams:
+    """
+    The ``manager`` block a manager of ``algo`` trains from.
+
+    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
+    """
+    return load_hyperparams(MANAGER_KEY, algo_class(algo), config or default_config(algo), manager=True)
+
+
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_workers(
     out_dir: str | Path,
@@ -584,10 +606,9 @@ def train_flat(
     """
     run = run_options(run, run_changes, "train_flat")
     algo = algo.lower()
-    cls = algo_class(algo)
+    algo_class(algo)  # an unknown algorithm named as such, before its config file is looked for
     config_path = Path(config) if config is not None else default_config(algo)
-    # An adapter's block is keyed by the env it adapts, as the workers' are.
-    hyperparams = load_hyperparams(config_key(env_id, env_kwargs), cls, config_path)
+    hyperparams = flat_hyperparams(algo, env_id, env_kwargs, config_path)
     make_kwargs = {**hyperparams.env_kwargs, **(env_kwargs or {})}
     budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
     out_dir = Path(out_dir)
@@ -760,7 +781,7 @@ def prepare_manager(
     if algo not in MANAGER_ALGOS:
         raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
     config = config if config is not None else default_config(algo)
-    hyperparams = load_hyperparams(MANAGER_KEY, algo_class(algo), config, manager=True)
+    hyperparams = manager_hyperparams(algo, config)
     workers, manifest = load_workers(workers_dir, worker_names, trusted=trusted)
     env_id, given_kwargs = shared_env_of(manifest, env_id, env_kwargs, trusted)
     names = list(workers)

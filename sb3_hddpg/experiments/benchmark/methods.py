@@ -19,13 +19,17 @@ import gymnasium as gym
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.envs.terms_env import config_key
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import RandomPolicy
-from sb3_hddpg.training.backends import algo_class
-from sb3_hddpg.training.config import MANAGER_KEY, default_config, load_hyperparams
-from sb3_hddpg.training.training import FLAT_ENV_ID, train_flat, train_manager
+from sb3_hddpg.training.config import MANAGER_KEY
+from sb3_hddpg.training.training import (
+    FLAT_ENV_ID,
+    flat_hyperparams,
+    manager_hyperparams,
+    train_flat,
+    train_manager,
+)
 
 if TYPE_CHECKING:
     from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task
@@ -61,7 +65,7 @@ class Method:
     :param takes_preference: it can learn a given preference (the transfer scenario).
     :param challenger: compared, like ``hddpg``, with every baseline (and with ``hddpg``) whenever both ran.
     :param description: one line for the docs.
-    :param config_blocks: ``config_blocks(settings) -> {"<file>[<block>]": block}``: the bundled config
+    :param config_blocks: ``config_blocks(settings) -> {label: block}``: the bundled config
         blocks it trains from, as written. A run's record keeps them, so that ``--resume`` can tell a run
         made from an older block (the workers' blocks belong to the workers' record).
     """
@@ -271,15 +275,14 @@ def _run_worker_alone(worker: str, task: Task, settings: BenchmarkSettings, fold
 
 def _manager_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
     """The manager block of ``algo``'s bundled config."""
-    block = load_hyperparams(MANAGER_KEY, algo_class(algo), default_config(algo), manager=True)
-    return {f"{algo}.yml[{MANAGER_KEY}]": block.raw}
+    return {f"{algo}.yml[{MANAGER_KEY}]": manager_hyperparams(algo).raw}
 
 
 def _flat_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
     """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads."""
     env = settings.terms_env
-    key = config_key(env.env_id, env.env_kwargs) if env is not None else FLAT_ENV_ID
-    return {f"{algo}.yml[{key}]": load_hyperparams(key, algo_class(algo), default_config(algo)).raw}
+    env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (FLAT_ENV_ID, None)
+    return {f"{algo}.yml, flat agent on {env_id}": flat_hyperparams(algo, env_id, env_kwargs).raw}
 
 
 def _manager_cost(settings: BenchmarkSettings) -> int:

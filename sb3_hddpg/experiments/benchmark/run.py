@@ -33,7 +33,6 @@ from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, pl
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Job, run_jobs
-from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.training import train_workers, worker_hyperparams
 
 #: Bumped when a record's meaning changes.
@@ -120,15 +119,11 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
 
 
 def task_config_blocks(task: Task, settings: BenchmarkSettings) -> dict[str, Any]:
-    """The bundled config blocks a task trains from, by ``"<file>[<block>]"`` (the workers': per worker)."""
+    """The bundled config blocks a task trains from, by a label (the workers': one per worker)."""
     if task.spec is not None:
         return task.spec.config_blocks(settings)
-    env = settings.terms_env
-    blocks = worker_hyperparams(_worker_names(settings), None, env)
-    return {
-        f"worker {name}: ddpg.yml[{env.config_key if env is not None else WORKER_ENV_IDS[name]}]": block.raw
-        for name, block in blocks.items()
-    }
+    blocks = worker_hyperparams(_worker_names(settings), None, settings.terms_env)
+    return {f"ddpg.yml, {name} worker": block.raw for name, block in blocks.items()}
 
 
 def _worker_names(settings: BenchmarkSettings) -> list[str]:
@@ -324,7 +319,7 @@ def check_redo(settings: BenchmarkSettings, redo: Sequence[str], resume: bool) -
     return redo
 
 
-def _set_aside(out: Path, tasks: Sequence[Task]) -> Path:
+def _set_aside(out: Path, tasks: Sequence[Task]) -> None:
     """
     Move the runs of ``tasks`` (records and seed folders) to ``out/replaced-<UTC time>/``, keeping their
     paths: nothing is deleted, and ``--resume`` then runs them afresh.
@@ -336,7 +331,6 @@ def _set_aside(out: Path, tasks: Sequence[Task]) -> Path:
                 destination = target / path.relative_to(out)
                 destination.parent.mkdir(parents=True, exist_ok=True)
                 shutil.move(str(path), str(destination))
-    return target
 
 
 def run_benchmark(
@@ -395,17 +389,18 @@ def run_benchmark(
     redone = [t for t in tasks if t.spec is not None and t.spec.name in redo]
     stale = {t: blocks for t, blocks in _stale_runs(settings, records).items() if t not in redone}
     if stale:
+        changed_blocks = ", ".join(sorted({b for blocks in stale.values() for b in blocks}))
         if any(t.spec is None for t in stale):
             raise ValueError(
                 f"Cannot resume {str(out)!r}: the workers' config blocks changed since they were trained "
-                f"({', '.join(sorted({b for blocks in stale.values() for b in blocks}))}); every run of their "
-                "seed is built on them: start a new benchmark folder (or --force)"
+                f"({changed_blocks}); every run of their seed is built on them: start a new benchmark folder "
+                "(or --force)"
             )
         methods = sorted({t.spec.name for t in stale if t.spec is not None})
         raise ValueError(
             f"Cannot resume {str(out)!r}: the config blocks of {', '.join(t.label for t in stale)} changed since "
-            f"they ran ({', '.join(sorted({b for blocks in stale.values() for b in blocks}))}); run them again "
-            f"with --redo {','.join(methods)} (the old runs are kept aside), or start over with --force"
+            f"they ran ({changed_blocks}); run them again with --redo {','.join(methods)} (the old runs are "
+            "kept aside), or start over with --force"
         )
     if redone:
         _set_aside(out, redone)
