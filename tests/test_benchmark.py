@@ -434,3 +434,23 @@ def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
     assert process.returncode == 130, stdout + stderr
     (invocation,) = json.loads((out / "benchmark.json").read_text())["invocations"]
     assert invocation["interrupted"] and invocation["runs_done"] is None and invocation["wall_time_s"] > 0
+
+
+def test_a_curve_evaluated_off_the_grid_is_interpolated_not_dropped():
+    # Seed 2 was resumed between evaluations before the grid was kept across resumes: its later points sit
+    # 500 steps off the others'. The mean curve keeps the shared grid and reads seed 2 between its points.
+    def record(seed, steps, values):
+        history = [
+            {"timesteps": x, "total_timesteps": x, "mean_reach_reward": v} for x, v in zip(steps, values)
+        ]
+        return {"method": "ddpg", "seed": seed, "history": history}
+
+    grid = [1000, 2000, 3000, 4000]
+    records = [
+        record(0, grid, [200.0, 210.0, 220.0, 230.0]),
+        record(1, grid, [202.0, 212.0, 222.0, 232.0]),
+        record(2, [1000, 2000, 2500, 3500, 4000], [201.0, 211.0, 216.0, 226.0, 231.0]),
+    ]
+    band = curve_bands(records, "timesteps")["ddpg"]
+    assert band["x"] == [1000.0, 2000.0, 3000.0, 4000.0]
+    assert band["mean"][2] == pytest.approx((220.0 + 222.0 + 221.0) / 3)  # seed 2 halfway from 216 to 226

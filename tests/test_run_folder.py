@@ -83,3 +83,17 @@ def test_a_command_holds_its_folder_lock_until_it_ends_in_process(tmp_path):
         assert result.exit_code == 0, result.output
     assert seen == [True, True]
     assert not _locked_for_another_process(out)
+
+
+def test_a_run_resumed_between_evaluations_keeps_evaluating_on_the_same_grid(tmp_path):
+    # A run stopped between two evaluations (Ctrl-C) used to count its evaluation period from the resume,
+    # so its points fell between every other seed's and the benchmark's mean curve dropped them.
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    run = {**RUN, "eval_freq": 100}
+    train_workers(tmp_path / "run", config=config, timesteps=250, **run)
+    manifest = train_workers(tmp_path / "run", config=config, timesteps=450, resume=True, **run)
+    assert manifest["workers"]["goal"]["timesteps_trained"] == 450
+    history = json.loads((tmp_path / "run" / "evaluations" / "goal.json").read_text())
+    # Every 100 steps from the run's start, plus the final evaluation each call ends with.
+    assert [point["timesteps"] for point in history] == [100, 200, 250, 300, 400, 450]

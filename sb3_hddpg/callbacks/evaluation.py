@@ -27,7 +27,8 @@ class MetricsEvalCallback(EvalCallback):
 
     :param eval_env: a single (not vectorised) environment with the snake env's ``info``.
     :param n_eval_episodes: episodes per evaluation.
-    :param eval_freq: evaluate every this many calls (one call is one step of the vectorised env).
+    :param eval_freq: evaluate every this many calls (one call is one step of the vectorised env), counted
+        from the run's first step, also in a resumed run.
     :param eval_seed: seed of the first evaluation episode.
     :param best_model_save_path: where ``best_model.zip`` goes (``None``: not saved).
     :param history_path: a JSON file for the evaluation history (``None``: not written).
@@ -77,7 +78,11 @@ class MetricsEvalCallback(EvalCallback):
         pass
 
     def _on_step(self) -> bool:
-        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+        # Calls counted from the run's first step, not from this learn() call's: a run resumed from a
+        # checkpoint taken between evaluations (Ctrl-C, SIGTERM) keeps evaluating on the same grid, so the
+        # curves of different seeds share their points and can be averaged point by point.
+        calls = self.num_timesteps // self.model.n_envs
+        if self.eval_freq > 0 and calls % self.eval_freq == 0:
             return self.run_evaluation()
         return True
 

@@ -14,6 +14,7 @@ for every method and seed (selecting and scoring on the same episodes would flat
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict
 from typing import Any
@@ -348,8 +349,10 @@ def curve_bands(
     records: Iterable[dict[str, Any]], x_key: str, confidence: float = 0.95
 ) -> dict[str, dict[str, list[float]]]:
     """
-    Per method, the mean learning curve over seeds with a bootstrap CI band, at the evaluation points
-    every seed shares.
+    Per method, the mean learning curve over seeds with a bootstrap CI band, at the evaluation points at
+    least half of the seeds share, within the steps every seed covers. A seed not evaluated at such a point
+    (a run resumed between evaluations before their grid was kept across resumes) is interpolated linearly
+    between its neighbouring evaluations.
 
     :param records: finished method records.
     :param x_key: ``timesteps`` (own steps) or ``total_timesteps`` (including worker pre-training).
@@ -364,10 +367,13 @@ def curve_bands(
         )
     bands = {}
     for method, per_seed in curves.items():
-        xs = sorted(set.intersection(*(set(c) for c in per_seed)))
+        counts = Counter(x for curve in per_seed for x in curve)
+        start, end = max(min(c) for c in per_seed), min(max(c) for c in per_seed)
+        xs = sorted(x for x, n in counts.items() if 2 * n >= len(per_seed) and start <= x <= end)
+        values = [np.interp(xs, sorted(c), [c[x] for x in sorted(c)]) for c in per_seed]
         band: dict[str, list[float]] = {"x": xs, "mean": [], "low": [], "high": []}
-        for x in xs:
-            mean, low, high = bootstrap_ci([c[x] for c in per_seed], confidence=confidence, n_resamples=2000)
+        for i, _ in enumerate(xs):
+            mean, low, high = bootstrap_ci([v[i] for v in values], confidence=confidence, n_resamples=2000)
             band["mean"].append(mean)
             band["low"].append(low)
             band["high"].append(high)
