@@ -322,6 +322,16 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert (aside / "seed-1" / "ddpg").is_dir()
     assert json.loads(path.read_text())["config_blocks"][block]["learning_rate"] != 0.5
 
+    # HAM's threshold is HAM's alone: changing it is refused with the way out, and allowed with --redo ham,
+    # which runs HAM again at the new threshold and nothing else.
+    other_threshold = (*grown, "--ham-threshold", "1.5")
+    refused = cli(*other_threshold, "--resume")
+    assert refused.returncode == 1 and "ham_threshold" in refused.stderr and "--redo ham" in refused.stderr
+    rethresholded = cli(*other_threshold, "--resume", "--redo", "ham")
+    assert rethresholded.returncode == 0, rethresholded.stdout + rethresholded.stderr
+    assert rethresholded.stdout.count("started") == 2 and "started  ham/seed-0" in rethresholded.stdout
+    assert json.loads((out / "records" / "ham" / "seed-1.json").read_text())["threshold"] == 1.5
+
 
 def test_train_flat_writes_a_model_that_opens_with_ddpg_load(tmp_path):
     from stable_baselines3 import DDPG

@@ -314,8 +314,9 @@ def benchmark_command(
         "--redo",
         help=(
             "With --resume: comma-separated methods to run again, e.g. after their config block changed (a "
-            "kept run made from another block is refused otherwise); their runs so far are moved to "
-            "OUT/replaced-<UTC time>/. Default: none."
+            "kept run made from another block is refused otherwise) or with a setting only they read "
+            "(--ham-threshold: --redo ham); their runs so far are moved to OUT/replaced-<UTC time>/. "
+            "Default: none."
         ),
     ),
     force: ForceOpt = False,

@@ -68,6 +68,8 @@ class Method:
     :param config_blocks: ``config_blocks(settings) -> {label: block}``: the bundled config
         blocks it trains from, as written. A run's record keeps them, so that ``--resume`` can tell a run
         made from an older block (the workers' blocks belong to the workers' record).
+    :param own_settings: the benchmark settings that only this method (and others declaring them) reads,
+        e.g. HAM's threshold: a resumed benchmark may change one when it redoes every method that reads it.
     """
 
     name: str
@@ -81,6 +83,7 @@ class Method:
     challenger: bool = False
     description: str = ""
     config_blocks: Callable[[BenchmarkSettings], dict[str, Any]] = _no_blocks
+    own_settings: tuple[str, ...] = ()
 
 
 #: Every method the benchmark knows, by name, in registration order.
@@ -320,6 +323,7 @@ register_method(
         default=True,
         baseline=True,
         description="the hand-written switch over the same workers, no training",
+        own_settings=("ham_threshold", "ham_hysteresis"),
     )
 )
 register_method(
@@ -332,6 +336,7 @@ register_method(
         default=True,
         baseline=True,
         description="the same switch with its threshold the best of a grid on the learning-curve episodes",
+        own_settings=("ham_hysteresis",),
     )
 )
 for _algo, _colour in (
@@ -376,6 +381,7 @@ for _worker, _colour in (("goal", "tab:green"), ("avoid", "tab:orange")):
             colour=_colour,
             default=True,
             description=f"a manager preferring the {_worker} worker by the bias (paper Figure 10)",
+            own_settings=("bias",),
             config_blocks=functools.partial(_manager_blocks, "ddpg"),
         )
     )

@@ -11,7 +11,7 @@ import os
 import platform
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
@@ -23,6 +23,7 @@ from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.methods import (
+    METHOD_REGISTRY,
     WORKERS,
     random_reference,
     split_key,
@@ -260,11 +261,15 @@ RESUME_MAY_CHANGE = ("methods", "seeds")
 REPLACED_PREFIX = "replaced-"
 
 
-def _changed_settings(settings: BenchmarkSettings, saved: dict[str, Any]) -> list[str]:
+def _changed_settings(
+    settings: BenchmarkSettings, saved: dict[str, Any], redo: Sequence[str] = ()
+) -> list[str]:
     """
     The settings that differ from a folder's ``benchmark.json`` (``saved``), beyond those a resume may
     change. The manager's budget counts in env steps: its decisions may differ when a new manager block
     decides every k env steps for as many env steps (that block's runs are told by their config blocks).
+    A setting some methods own (:attr:`Method.own_settings`, e.g. HAM's threshold) may change when every
+    one of them, among the folder's methods and this run's, is in ``redo``.
     """
     stored = asdict(settings)
     previous = saved["settings"]
@@ -275,7 +280,18 @@ def _changed_settings(settings: BenchmarkSettings, saved: dict[str, Any]) -> lis
     # whatever else ran beside it, so a resumed benchmark can grow (or report a subset).
     changed = sorted(k for k in stored if k not in RESUME_MAY_CHANGE and previous.get(k) != stored[k])
     same_env_steps = saved.get("budgets", {}).get("manager_env_steps") == settings.manager_env_steps
-    return [k for k in changed if not (k == "timesteps" and same_env_steps)]
+    methods = [*settings.methods, *previous.get("methods", ())]
+
+    def redone(key: str) -> bool:
+        owners = _owners(key, methods)
+        return bool(owners) and set(owners) <= set(redo)
+
+    return [k for k in changed if not (k == "timesteps" and same_env_steps) and not redone(k)]
+
+
+def _owners(key: str, methods: Iterable[str]) -> list[str]:
+    """The methods among ``methods`` that own setting ``key`` (:attr:`Method.own_settings`)."""
+    return sorted(m for m in set(methods) if m in METHOD_REGISTRY and key in METHOD_REGISTRY[m].own_settings)
 
 
 def _stale_runs(settings: BenchmarkSettings, records: dict[Task, dict[str, Any]]) -> dict[Task, list[str]]:
@@ -372,11 +388,16 @@ def run_benchmark(
     redo = check_redo(settings, redo, resume)
     saved = json.loads(settings_path.read_text()) if resume and settings_path.exists() else None
     if saved is not None:
-        changed = _changed_settings(settings, saved)
+        changed = _changed_settings(settings, saved, redo)
         if changed:
             raise ValueError(
                 f"Cannot resume {str(out)!r} with different settings ({', '.join(changed)} changed); "
                 "run with the same options, or use --force to start over"
+                + "".join(
+                    f"; {key} is read only by {', '.join(owners)}: add --redo {','.join(owners)}"
+                    for key in changed
+                    if (owners := _owners(key, stored["methods"]))
+                )
             )
     check_workers_source(settings)
 
