@@ -20,7 +20,7 @@ from sb3_hddpg.hierarchy.loading import load_policy
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "docs" / "results" / "models"
-RECORDS = ROOT / "docs" / "results" / "tuned" / "records"
+RECORDS = ROOT / "docs" / "results" / "bench-e20" / "records"
 # Every method of the final run: the index's methods but TQC, which it did not run.
 METHODS = set(INDEX_METHODS) - {"tqc"}
 
