@@ -214,9 +214,15 @@ def test_a_stop_signal_during_a_save_waits_for_the_file_then_interrupts(tmp_path
         os.kill(os.getpid(), signum)
         model.save(tmp)
 
-    with sigterm_as_interrupt(), pytest.raises(KeyboardInterrupt):
-        atomic_write(target, save_while_signalled)
-    DDPG.load(target, device="cpu")  # complete
-    assert not list(tmp_path.glob(".*.tmp"))
-    # The handlers in place before are back.
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # Python's own Ctrl-C handler, whatever this process inherited: a shell starts a background job with
+    # SIGINT ignored, and Python then installs no handler of its own.
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with sigterm_as_interrupt(), pytest.raises(KeyboardInterrupt):
+            atomic_write(target, save_while_signalled)
+        DDPG.load(target, device="cpu")  # complete
+        assert not list(tmp_path.glob(".*.tmp"))
+        # The handlers in place before are back.
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, inherited)
