@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import json
 import shutil
+import time
 from pathlib import Path
 from typing import Any
 
@@ -504,3 +505,29 @@ def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
         export_models(run, run / "models")
     with pytest.raises(FileNotFoundError, match="no records"):
         export_models(tmp_path / "models", tmp_path / "elsewhere")
+
+
+def test_a_task_interrupted_and_resumed_keeps_the_time_of_both_invocations(tmp_path):
+    from sb3_hddpg.experiments.benchmark.run import elapsed_path, run_task
+
+    calls: list[int] = []
+
+    def run(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+        calls.append(1)
+        time.sleep(0.2)
+        if len(calls) == 1:
+            raise KeyboardInterrupt  # what a task sees on Ctrl-C or SIGTERM, after its checkpoint
+        return {"worker_timesteps": 0, "history": [], "test": {}}
+
+    register_method(Method("interrupted-once", run, lambda settings: 0))
+    try:
+        settings = BenchmarkSettings(methods=["interrupted-once"], seeds=[0])
+        task = Task("interrupted-once", 0)
+        with pytest.raises(KeyboardInterrupt):
+            run_task(task, settings, tmp_path)
+        assert json.loads(elapsed_path(tmp_path, task).read_text())["wall_time_s"] >= 0.2
+        record = run_task(task, settings, tmp_path)
+    finally:
+        METHOD_REGISTRY.pop("interrupted-once")
+    assert 0.2 <= record["wall_time_s"] < 0.4 <= record["wall_time_s_total"]
+    assert not elapsed_path(tmp_path, task).exists()  # counted once: a later --redo starts from 0

@@ -6,6 +6,7 @@ statistics and the report.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -59,9 +60,28 @@ def read_record(out: Path, task: Task) -> dict[str, Any] | None:
     return record if record.get("status") == "done" else None
 
 
+def elapsed_path(out: Path, task: Task) -> Path:
+    """Where an interrupted task keeps the wall time it has spent so far, until an invocation finishes it."""
+    return seed_dir(out, task.seed) / f".elapsed-{task.method}.json"
+
+
+def _time_spent_before(out: Path, task: Task) -> float:
+    """The wall time earlier, interrupted invocations spent on ``task`` (0 if none, or if unreadable)."""
+    path = elapsed_path(out, task)
+    try:
+        spent = read_json_file(path).get("wall_time_s")
+    except (OSError, ValueError, AttributeError):
+        return 0.0
+    return float(spent) if isinstance(spent, (int, float)) and 0 <= spent < float("inf") else 0.0
+
+
 def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[str, Any]:
     """
     Run one task to the end and write its record atomically (the function each process runs).
+
+    The record's ``wall_time_s`` is this invocation's; ``wall_time_s_total`` adds what earlier invocations
+    spent on the task before they were interrupted (Ctrl-C, SIGTERM, an error: kept in
+    :func:`elapsed_path`; a SIGKILL loses that invocation's share).
 
     :param task: what to run.
     :param settings: the benchmark's settings.
@@ -69,8 +89,25 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
     :return: the record written.
     """
     out = Path(out)
-    folder = seed_dir(out, task.seed)
+    before = _time_spent_before(out, task)
     start = time.perf_counter()
+    try:
+        record = _run_task(task, settings, out)
+    except BaseException:
+        # Kept for the invocation that finishes the task; failing to keep it must not hide why the task stopped.
+        with contextlib.suppress(OSError):
+            atomic_write_json(elapsed_path(out, task), {"wall_time_s": before + time.perf_counter() - start})
+        raise
+    record["wall_time_s"] = time.perf_counter() - start
+    record["wall_time_s_total"] = before + record["wall_time_s"]
+    atomic_write_json(record_path(out, task), record)
+    elapsed_path(out, task).unlink(missing_ok=True)
+    return record
+
+
+def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, Any]:
+    """The record of one task, run to the end (without its wall times)."""
+    folder = seed_dir(out, task.seed)
     record: dict[str, Any] = {
         "record_version": RECORD_VERSION,
         "method": task.method,
@@ -88,8 +125,6 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
         if preference is not None:
             record["preference"] = preference
             record["reference"] = random_reference(settings)
-    record["wall_time_s"] = time.perf_counter() - start
-    atomic_write_json(record_path(out, task), record)
     return record
 
 
@@ -342,7 +377,7 @@ def _set_aside(out: Path, tasks: Sequence[Task]) -> None:
     """
     target = out / f"{REPLACED_PREFIX}{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}"
     for task in tasks:
-        for path in (record_path(out, task), seed_dir(out, task.seed) / task.method):
+        for path in (record_path(out, task), seed_dir(out, task.seed) / task.method, elapsed_path(out, task)):
             if path.exists():
                 destination = target / path.relative_to(out)
                 destination.parent.mkdir(parents=True, exist_ok=True)
