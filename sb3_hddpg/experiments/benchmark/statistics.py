@@ -372,7 +372,7 @@ def curve_bands(
         xs = sorted(x for x, n in counts.items() if 2 * n >= len(per_seed) and start <= x <= end)
         values = [np.interp(xs, sorted(c), [c[x] for x in sorted(c)]) for c in per_seed]
         band: dict[str, list[float]] = {"x": xs, "mean": [], "low": [], "high": []}
-        for i, _ in enumerate(xs):
+        for i in range(len(xs)):
             mean, low, high = bootstrap_ci([v[i] for v in values], confidence=confidence, n_resamples=2000)
             band["mean"].append(mean)
             band["low"].append(low)
