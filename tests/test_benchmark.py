@@ -423,7 +423,11 @@ def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_p
 
 
 def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
-    """SIGTERM mid-run: the invocation is logged as interrupted, and --resume adds its own."""
+    """
+    SIGTERM mid-run: the invocation is logged as interrupted, and the task keeps the time it spent, for the
+    --resume that finishes it to add.
+    """
+    from sb3_hddpg.experiments.benchmark.run import elapsed_path
     from tests.helpers import sigterm_once_written
 
     out = tmp_path / "bench"
@@ -444,6 +448,8 @@ def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
     assert process.returncode == 130, stdout + stderr
     (invocation,) = json.loads((out / "benchmark.json").read_text())["invocations"]
     assert invocation["interrupted"] and invocation["runs_done"] is None and invocation["wall_time_s"] > 0
+    task_time = json.loads(elapsed_path(out, Task("ddpg", 0)).read_text())["wall_time_s"]
+    assert 0 < task_time <= invocation["wall_time_s"]
 
 
 def test_a_curve_evaluated_off_the_grid_is_interpolated_not_dropped():

@@ -529,5 +529,6 @@ def test_a_task_interrupted_and_resumed_keeps_the_time_of_both_invocations(tmp_p
         record = run_task(task, settings, tmp_path)
     finally:
         METHOD_REGISTRY.pop("interrupted-once")
-    assert 0.2 <= record["wall_time_s"] < 0.4 <= record["wall_time_s_total"]
+    # This invocation's time, and both invocations' (each slept 0.2 s).
+    assert record["wall_time_s"] >= 0.2 and record["wall_time_s_total"] >= record["wall_time_s"] + 0.2
     assert not elapsed_path(tmp_path, task).exists()  # counted once: a later --redo starts from 0

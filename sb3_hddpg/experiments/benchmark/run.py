@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import platform
 import shutil
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
@@ -72,7 +73,7 @@ def _time_spent_before(out: Path, task: Task) -> float:
         spent = read_json_file(path).get("wall_time_s")
     except (OSError, ValueError, AttributeError):
         return 0.0
-    return float(spent) if isinstance(spent, (int, float)) and 0 <= spent < float("inf") else 0.0
+    return float(spent) if isinstance(spent, (int, float)) and spent >= 0 and math.isfinite(spent) else 0.0
 
 
 def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[str, Any]:
@@ -315,18 +316,21 @@ def _changed_settings(
     # whatever else ran beside it, so a resumed benchmark can grow (or report a subset).
     changed = sorted(k for k in stored if k not in RESUME_MAY_CHANGE and previous.get(k) != stored[k])
     same_env_steps = saved.get("budgets", {}).get("manager_env_steps") == settings.manager_env_steps
-    methods = [*settings.methods, *previous.get("methods", ())]
 
     def redone(key: str) -> bool:
-        owners = _owners(key, methods)
+        owners = _owners(key, settings, saved)
         return bool(owners) and set(owners) <= set(redo)
 
     return [k for k in changed if not (k == "timesteps" and same_env_steps) and not redone(k)]
 
 
-def _owners(key: str, methods: Iterable[str]) -> list[str]:
-    """The methods among ``methods`` that own setting ``key`` (:attr:`Method.own_settings`)."""
-    return sorted(m for m in set(methods) if m in METHOD_REGISTRY and key in METHOD_REGISTRY[m].own_settings)
+def _owners(key: str, settings: BenchmarkSettings, saved: dict[str, Any]) -> list[str]:
+    """
+    The methods that own setting ``key`` (:attr:`Method.own_settings`) among this run's and the folder's
+    (``saved``, its ``benchmark.json``): the ones a change of ``key`` must redo.
+    """
+    methods = {*settings.methods, *saved["settings"].get("methods", ())}
+    return sorted(m for m in methods if m in METHOD_REGISTRY and key in METHOD_REGISTRY[m].own_settings)
 
 
 def _stale_runs(settings: BenchmarkSettings, records: dict[Task, dict[str, Any]]) -> dict[Task, list[str]]:
@@ -431,7 +435,7 @@ def run_benchmark(
                 + "".join(
                     f"; {key} is read only by {', '.join(owners)}: add --redo {','.join(owners)}"
                     for key in changed
-                    if (owners := _owners(key, stored["methods"]))
+                    if (owners := _owners(key, settings, saved))
                 )
             )
     check_workers_source(settings)
