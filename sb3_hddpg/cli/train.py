@@ -182,7 +182,13 @@ def train_manager_command(
     ),
     bias: float = typer.Option(0.15, "--bias", help="The preferred worker's extra factor, > 0."),
     preference: str | None = typer.Option(
-        None, "--preference", help="Every factor explicitly, e.g. goal=1.15,avoid=1.0 (wins over --prefer)."
+        None,
+        "--preference",
+        help=(
+            "Every factor explicitly, e.g. goal=1.15,avoid=1.0 (wins over --prefer). The factors scale the "
+            "manager's reward too: to change only the trade-off, keep their sum at the number of workers "
+            "(goal=0.4,avoid=1.6, not goal=1,avoid=4, which saturated the bundled block; docs/MANAGER.md)."
+        ),
     ),
     selection: str | None = typer.Option(
         None,
