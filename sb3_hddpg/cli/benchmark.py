@@ -218,7 +218,7 @@ def _event_printer(started: float) -> Callable[[str, Task, dict[str, Any] | None
         elif record is not None:
             score = record.get("test", {}).get("mean_reach_reward")
             detail = f"test reach reward {score:.1f}" if score is not None else "workers trained"
-            wall, total = record["wall_time_s"], record.get("wall_time_s_total", record["wall_time_s"])
+            wall, total = record["wall_time_s"], record["wall_time_s_total"]
             # A task resumed after an interruption: its time in this invocation, and in all of them.
             spent = f"{wall:.0f} s" + (f", {total:.0f} s in all" if total - wall >= 1 else "")
             console.print(f"{stamp} [green]finished[/] {task.label}: {detail} ({spent})")

@@ -68,11 +68,11 @@ def elapsed_path(out: Path, task: Task) -> Path:
 
 def _time_spent_before(out: Path, task: Task) -> float:
     """The wall time earlier, interrupted invocations spent on ``task`` (0 if none, or if unreadable)."""
-    path = elapsed_path(out, task)
     try:
-        spent = read_json_file(path).get("wall_time_s")
-    except (OSError, ValueError, AttributeError):
+        kept = read_json_file(elapsed_path(out, task))
+    except (OSError, ValueError):
         return 0.0
+    spent = kept.get("wall_time_s") if isinstance(kept, dict) else None
     return float(spent) if isinstance(spent, (int, float)) and spent >= 0 and math.isfinite(spent) else 0.0
 
 
