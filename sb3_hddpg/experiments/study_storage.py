@@ -141,9 +141,14 @@ def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int =
                     grace_period=2 * heartbeat_interval if heartbeat_interval else None,
                     heartbeat_stale_trial_callback=callback,
                 )
-        except (sqlalchemy.exc.OperationalError, sqlalchemy.exc.IntegrityError):
-            # Processes started together race to create the tables of a new database; the loser retries
-            # and finds them.
+        except (
+            sqlalchemy.exc.OperationalError,
+            sqlalchemy.exc.IntegrityError,
+            sqlalchemy.exc.ProgrammingError,
+        ):
+            # Processes started together race to create the tables of a new database (PostgreSQL reports
+            # the loser's CREATE TABLE as a ProgrammingError, DuplicateTable); the loser retries and finds
+            # them. Any other error of these kinds comes back after the last attempt.
             if attempt == attempts - 1:
                 raise
             time.sleep(0.2 * (attempt + 1))
