@@ -16,6 +16,7 @@ ROOT = Path(sb3_hddpg.__file__).parent
 FLOORS = {
     "sb3_hddpg": 0,
     "sb3_hddpg.envs": 0,
+    "sb3_hddpg.names": 0,
     "sb3_hddpg.policy": 1,
     "sb3_hddpg.algorithms": 1,
     "sb3_hddpg.stats": 1,

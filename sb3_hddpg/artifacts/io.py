@@ -175,6 +175,12 @@ def _held_by_ancestor(key: Path) -> bool:
     return str(key) in os.environ.get(HELD_FOLDERS_ENV, "").split(os.pathsep)
 
 
+def holds_lock(folder: str | os.PathLike[str]) -> bool:
+    """Whether this process (or the run that started it) holds ``folder``'s run lock."""
+    key = Path(folder).resolve()
+    return key in _HELD or _held_by_ancestor(key)
+
+
 @contextlib.contextmanager
 def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
     """

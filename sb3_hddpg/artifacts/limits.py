@@ -37,6 +37,7 @@ import gymnasium as gym
 from gymnasium.envs.registration import registry
 
 from sb3_hddpg.envs import ADAPTER_ENV_IDS, OWN_ENV_IDS
+from sb3_hddpg.names import PLAIN_NAME
 
 #: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
 MAX_JSON_BYTES = 1 << 20
@@ -66,8 +67,8 @@ MAX_WORKERS = 32
 #: Longest message fragment showing a value from a file.
 MAX_SHOWN = 200
 
-#: Worker names, algorithm names: what may become part of a file name.
-NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+#: Worker names, algorithm names: what may become part of a file name (the one plain-name rule).
+NAME_PATTERN = PLAIN_NAME
 #: Env ids: gymnasium's ``[namespace/]name-vN`` without a ``module:`` prefix.
 ENV_ID_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}(/[A-Za-z0-9_.-]{1,64})?$")
 
@@ -458,7 +459,7 @@ def check_parameter_count(
 
 
 #: A model file named in a workers or flat manifest: a name and ``.zip``, in the manifest's own folder.
-FILE_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}\.zip$")
+FILE_PATTERN = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_-]{0,63}\.zip\Z", re.ASCII)
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 

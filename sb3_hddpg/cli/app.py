@@ -39,6 +39,11 @@ def console_error(message: str) -> None:
     _error_console.print(f"[bold red]error:[/] {escape(line)}", soft_wrap=True)
 
 
+def console_note(message: str) -> None:
+    """Print a one-line note to stderr: something the user should know that is not an error."""
+    _error_console.print(f"[yellow]note:[/] {escape(one_line(message))}", soft_wrap=True)
+
+
 def _version(value: bool) -> None:
     if value:
         typer.echo(f"sb3-hddpg {sb3_hddpg.__version__}")

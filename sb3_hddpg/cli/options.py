@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
@@ -12,7 +11,15 @@ from typing import Annotated, Any
 import gymnasium as gym
 import typer
 
-from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, locked_folder
+from sb3_hddpg.artifacts.io import FolderLockedError, locked_folder
+from sb3_hddpg.artifacts.run_folder import (
+    RunFolderError,
+    check_clearable,
+    clear_run_folder,
+    mark_run_folder,
+    protected_reason,
+)
+from sb3_hddpg.cli.app import console_note
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.training.backends import BackendError, check_backend
 from sb3_hddpg.training.run_options import MAX_SEED, RUN_OPTION_NAMES, RunOptions
@@ -106,20 +113,22 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
 
 def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool) -> Path:
     """
-    Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a path
-    through a file, and a folder that already holds results unless ``--resume`` or ``--force`` (which
-    clears it first); then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the command ends, so a
-    second run into the same folder stops at once with the holder's pid.
+    Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a folder above
+    it, the home or root folder, a path through a file, and a folder that already holds results unless
+    ``--resume`` or ``--force``; then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the
+    command ends, so a second run into the same folder stops at once with the holder's pid. ``--force``
+    clears it through :func:`sb3_hddpg.artifacts.run_folder.clear_run_folder`, which deletes only what the
+    tool wrote; this function only reports.
 
     :param context: the command's context (a ``typer.Context`` parameter): the lock is released when it
         closes. Passed in because typer keeps its own copy of click, whose current context
         ``click.get_current_context`` does not see.
     """
 
-    if str(out) in ("", ".") or out.resolve() in (Path.cwd().resolve(), Path(out.anchor or "/").resolve()):
+    reason = "the current folder" if str(out) in ("", ".") else protected_reason(out)
+    if reason is not None:
         raise typer.BadParameter(
-            f"expected a folder for this run's files, got {str(out)!r} (the current or root folder)",
-            param_hint="'--out'",
+            f"expected a folder for this run's files, got {str(out)!r} ({reason})", param_hint="'--out'"
         )
     if out.exists() and not out.is_dir():
         raise typer.BadParameter(f"is a file, not a folder: {str(out)!r}", param_hint="'--out'")
@@ -128,10 +137,19 @@ def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool
         raise typer.BadParameter(
             f"{str(blocking)!r} is a file, so {str(out)!r} cannot be a folder", param_hint="'--out'"
         )
+    held = [m for m in RESULT_MARKERS if (out / m).exists()]
+    if held and not (resume or force):
+        raise typer.BadParameter(
+            f"{str(out)!r} already holds results ({held[0]}); pass --resume to continue or --force to overwrite",
+            param_hint="'--out'",
+        )
+    clear = bool(held) and force and not resume
     try:
+        if clear:  # before the lock: taking it writes the lock file that marks older run folders
+            check_clearable(out)
         lock = locked_folder(out)
         lock.__enter__()
-    except FolderLockedError as error:
+    except (FolderLockedError, RunFolderError) as error:
         raise typer.BadParameter(str(error), param_hint="'--out'") from None
     except OSError as error:
         raise typer.BadParameter(
@@ -139,21 +157,14 @@ def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool
         ) from None
     # Released when the command returns or fails (its context closes then), not only when the process ends.
     context.call_on_close(lambda: lock.__exit__(None, None, None))
-    held = [m for m in RESULT_MARKERS if (out / m).exists()]
-    if held and not (resume or force):
-        raise typer.BadParameter(
-            f"{str(out)!r} already holds results ({held[0]}); pass --resume to continue or --force to overwrite",
-            param_hint="'--out'",
-        )
-    if held and force and not resume:
-        # Everything but the lock file we hold: removing it would let another run lock a new one.
-        for item in out.iterdir():
-            if item.name == LOCK_FILE:
-                continue
-            if item.is_dir() and not item.is_symlink():
-                shutil.rmtree(item)
-            else:
-                item.unlink()
+    if clear:
+        with usage_errors("'--out'"):
+            kept = clear_run_folder(out)
+        if kept:
+            console_note(
+                f"--force kept {len(kept)} entries the tool did not write in {str(out)!r}: {kept[:5]}"
+            )
+    mark_run_folder(out, context.info_name or "hddpg-cli")
     return out
 
 

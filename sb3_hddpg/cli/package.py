@@ -10,7 +10,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
 from sb3_hddpg.cli.record import TrustOpt
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.experiments.packaging import package_policy
+from sb3_hddpg.experiments.packaging import check_package_folder, package_policy
 from sb3_hddpg.hierarchy.loading import load_policy
 
 
@@ -33,10 +33,8 @@ def package_command(
 ) -> None:
     """Model zip (or bundle + manifest), model card, config.json, results.json and replay.mp4 in one folder."""
 
-    if out.exists() and out.is_dir() and any(out.iterdir()) and not force:
-        raise typer.BadParameter(
-            f"{str(out)!r} is not empty; pass --force to replace it", param_hint="'--out'"
-        )
+    with usage_errors("'--out'"):  # refused before the model is even loaded
+        check_package_folder(out, force)
     with usage_errors("'PATH'"):  # the model named on the command line is unusable
         loaded = load_policy(path, trusted=trust)
     with console.status(f"Evaluating and recording {loaded.kind} {loaded.name!r}…"):

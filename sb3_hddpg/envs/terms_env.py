@@ -22,6 +22,7 @@ from sb3_hddpg.envs.adapters import (
     registered_env_id,
 )
 from sb3_hddpg.envs.contract import RewardTermsEnv, check_bounds, env_contract
+from sb3_hddpg.names import check_plain_name
 
 #: The snake arm's shared env and each term's registered view.
 SNAKE_SHARED_ENV_ID = "hddpg/SnakeReach-v0"
@@ -173,6 +174,8 @@ def _resolved(env_id: str, env_kwargs: dict[str, Any]) -> TermsEnv:
             env_kwargs = {**env_kwargs, "term_bounds": spec_kwargs["term_bounds"]}
     finally:
         env.close()
+    for term in terms:  # every env's terms pass here: each becomes a worker's file name
+        check_plain_name(term, f"term of {env_id!r}")
     for term, (low, high) in contract.reward_bounds.items():
         if not (math.isfinite(low) and math.isfinite(high)):  # pragma: no cover - check_bounds refuses it
             raise ValueError(f"Term {term!r} of {env_id!r} has no finite bounds")
@@ -186,9 +189,13 @@ def parse_terms(text: str) -> list[str]:
     :raises ValueError: one line naming the bad part.
     """
     names = [part.strip() for part in text.split(",")]
-    bad = [n for n in names if not n.isidentifier()]
-    if bad:
-        raise ValueError(f"Expected comma-separated term names (letters, digits, '_'), got {text!r}")
+    for name in names:
+        # A term names a worker's file: the plain-name rule first, then Python's (the adapters' own).
+        check_plain_name(name, "term name")
+        if not name.isidentifier():
+            raise ValueError(
+                f"term name: expected one that does not start with a digit or contain '-', got {name!r}"
+            )
     if len(set(names)) != len(names):
         raise ValueError(f"Expected each term named once, got {text!r}")
     return names

@@ -42,6 +42,13 @@ from sb3_hddpg.artifacts.limits import (
     parse_json,
     read_member,
 )
+from sb3_hddpg.artifacts.run_folder import (
+    RunFolderError,
+    check_clearable,
+    clear_run_folder,
+    mark_run_folder,
+    protected_reason,
+)
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.hierarchy.hierarchy import read_bundle
 from sb3_hddpg.hierarchy.loading import LoadedPolicy
@@ -114,11 +121,7 @@ def package_policy(
     source = Path(source)
     if source.is_dir():
         source = source / "hierarchy.zip"
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"Expected a folder for the package, actually a file: {str(out_dir)!r}")
-    if out_dir.exists() and any(out_dir.iterdir()) and not force:
-        raise FileExistsError(f"{str(out_dir)!r} is not empty; pass force=True (--force) to replace it")
+    out_dir = check_package_folder(out_dir, force)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     # mkdtemp makes the folder private (0700); the package is meant to be shared: give it the permissions
@@ -165,13 +168,51 @@ def package_policy(
         replay_env.close()
         card = model_card(loaded, algo_name, model_file.name, results)
         atomic_write_bytes(staging / "README.md", card.encode())
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(staging, out_dir)
+        _move_into_place(staging, out_dir)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return PackageResult(out_dir, out_dir / model_file.name, results)
+
+
+def check_package_folder(out_dir: str | Path, force: bool) -> Path:
+    """
+    Refuse a package folder that cannot be (re)placed, before any work: the current folder, one above it,
+    the home or root folder, a file, and a folder that is not empty unless ``force``, and then only a package
+    or run folder of this tool that no live run holds
+    (:func:`~sb3_hddpg.artifacts.run_folder.check_clearable`).
+
+    :param out_dir: the package folder.
+    :param force: whether the tool's own files there may be replaced.
+    :return: the folder; raises :class:`~sb3_hddpg.artifacts.run_folder.RunFolderError` otherwise.
+    """
+    out_dir = Path(out_dir)
+    reason = "the current folder" if str(out_dir) in ("", ".") else protected_reason(out_dir)
+    if reason is not None:
+        raise RunFolderError(f"Expected a folder for the package, actually {str(out_dir)!r} ({reason})")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise RunFolderError(f"Expected a folder for the package, actually a file: {str(out_dir)!r}")
+    if out_dir.exists() and any(out_dir.iterdir()):
+        if not force:
+            raise RunFolderError(f"{str(out_dir)!r} is not empty; pass force=True (--force) to replace it")
+        check_clearable(out_dir)
+    return out_dir
+
+
+def _move_into_place(staging: Path, out_dir: Path) -> None:
+    """
+    Put the finished package where it belongs: one rename into a new or empty folder; into an existing
+    one (``force``) after :func:`~sb3_hddpg.artifacts.run_folder.clear_run_folder` removed the tool's own
+    files, entry by entry, keeping the files the tool did not write.
+    """
+    mark_run_folder(staging, "package", entries=[entry.name for entry in staging.iterdir()])
+    if out_dir.exists() and any(out_dir.iterdir()):
+        clear_run_folder(out_dir)
+        for entry in staging.iterdir():
+            os.replace(entry, out_dir / entry.name)
+        staging.rmdir()
+        return
+    os.replace(staging, out_dir)
 
 
 #: The members an SB3 zip holds (``save_util.save_to_zip_file``): the only ones a package unpacks.

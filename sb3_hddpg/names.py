@@ -1,0 +1,39 @@
+"""
+The one plain-name rule: every name that becomes part of a path (a term, a worker, a method, a record, a
+model file) passes :func:`check_plain_name` where it enters, from the command line or from a file.
+
+A plain name is ASCII letters, digits, ``_`` and ``-``, starting with a letter or digit, at most 64
+characters: it cannot climb out of a folder (no ``/``, no ``..``), cannot be hidden, cannot carry a
+newline into a message or a file name, and fits every filesystem's name length.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+#: The longest plain name.
+MAX_NAME_CHARS = 64
+#: A plain name (``\A``/``\Z``, not ``^``/``$``: ``$`` would accept a trailing newline).
+PLAIN_NAME = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_-]{0,%d}\Z" % (MAX_NAME_CHARS - 1), re.ASCII)
+
+
+class PlainNameError(ValueError):
+    """A name that would become part of a path is not plain; the message names where it came from."""
+
+
+def check_plain_name(value: Any, what: str) -> str:
+    """
+    ``value`` if it is a plain name, else :class:`PlainNameError` in one line naming ``what``.
+
+    :param value: the name, from the command line or a file.
+    :param what: where it comes from (an option or a field), for the message.
+    :return: the name.
+    """
+    if isinstance(value, str) and PLAIN_NAME.match(value):
+        return value
+    shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:79] + "…"
+    raise PlainNameError(
+        f"{what}: expected a name of ASCII letters, digits, '_' and '-' (starting with a letter or digit, "
+        f"at most {MAX_NAME_CHARS}), got {shown}"
+    )
