@@ -15,7 +15,7 @@ from typing import Any
 #: The longest plain name.
 MAX_NAME_CHARS = 64
 #: A plain name (``\A``/``\Z``, not ``^``/``$``: ``$`` would accept a trailing newline).
-PLAIN_NAME = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_-]{0,%d}\Z" % (MAX_NAME_CHARS - 1), re.ASCII)
+PLAIN_NAME = re.compile(rf"\A[A-Za-z0-9][A-Za-z0-9_-]{{0,{MAX_NAME_CHARS - 1}}}\Z", re.ASCII)
 
 
 class PlainNameError(ValueError):

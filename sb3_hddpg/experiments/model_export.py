@@ -12,14 +12,16 @@ and openable with :func:`sb3_hddpg.hierarchy.loading.load_policy` (``hddpg-cli e
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
 from sb3_hddpg.experiments.benchmark import WORKERS, split_key
+from sb3_hddpg.names import check_plain_name
+from sb3_hddpg.training.run_options import MAX_SEED
 
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
@@ -42,9 +44,42 @@ def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
     if not source.is_file():
         raise FileNotFoundError(f"Expected a finished run's file, missing: {str(source)!r}")
     target = dest_root / relative
+    # Defence in depth at the one writer: every name was checked where it was read, and the final path
+    # must still resolve inside the destination (a symlink planted in it could point elsewhere).
+    if dest_root.resolve() not in target.resolve().parents:
+        raise ValueError(f"Refusing to write {relative.as_posix()!r}: it resolves outside {str(dest_root)!r}")
     target.parent.mkdir(parents=True, exist_ok=True)
     shutil.copy2(source, target)
     return target
+
+
+def _read_record(record_file: Path) -> tuple[str, int, list[str]] | None:
+    """
+    A finished run's key, seed and (for the workers' record) worker names, every one checked before it
+    becomes part of a path; ``None`` for a run that is not done.
+    """
+    record = read_json_file(record_file)
+    if not isinstance(record, dict) or record.get("status") != "done":
+        return None
+    what = str(record_file)
+    key = record.get("method")
+    if not isinstance(key, str):
+        raise ValueError(f"{what}: method: expected a name, got {brief(key)}")
+    base, preference = split_key(key)
+    check_plain_name(base, f"{what}: method")
+    if preference is not None:
+        check_plain_name(preference, f"{what}: method preference")
+    seed = record.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"{what}: seed: expected an integer in [0, {MAX_SEED}], got {brief(seed)}")
+    workers = record.get("workers", []) if key == WORKERS else []
+    if isinstance(workers, dict):  # a record maps each worker to its results
+        workers = list(workers)
+    if not isinstance(workers, list) or len(workers) > MAX_WORKERS:
+        raise ValueError(
+            f"{what}: workers: expected a list or object of at most {MAX_WORKERS} names, got {brief(workers)}"
+        )
+    return key, seed, [check_plain_name(name, f"{what}: workers") for name in workers]
 
 
 def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
@@ -80,10 +115,10 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
         raise ValueError(f"Expected an export folder outside the benchmark folder, actually: {str(dest)!r}")
     index: list[dict[str, Any]] = []
     for record_file in sorted(records_dir.glob("*/seed-*.json")):
-        record = json.loads(record_file.read_text())
-        if record.get("status") != "done":
+        checked = _read_record(record_file)
+        if checked is None:
             continue
-        key, seed = str(record["method"]), int(record["seed"])
+        key, seed, workers = checked
         seed_folder = Path(f"seed-{seed}")
         if key == WORKERS:
             # The manifest first: a worker zip is opened through it.
@@ -92,7 +127,7 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
                 dest,
                 seed_folder / "workers" / "manifest.json",
             )
-            for name in sorted(record["workers"]):
+            for name in sorted(workers):
                 relative = seed_folder / "workers" / f"{name}.zip"
                 index.append(_entry(f"worker:{name}", seed, root, dest, relative))
             continue
@@ -133,7 +168,7 @@ def read_index(folder: str | Path) -> list[dict[str, Any]]:
     :raises ValueError: naming the record whose file is missing, outside the folder, or altered.
     """
     folder = Path(folder)
-    index = json.loads((folder / "index.json").read_text())
+    index = read_json_file(folder / "index.json")
     for entry in index:
         path = (folder / entry["path"]).resolve()
         if folder.resolve() not in path.parents:

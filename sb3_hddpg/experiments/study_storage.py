@@ -81,6 +81,13 @@ def check_storage_url(url: str) -> None:
         parsed = sqlalchemy.engine.make_url(url)
     except Exception as error:  # sqlalchemy's ArgumentError
         raise ValueError(f"Not a usable storage URL {url.split('@')[-1]!r}: {error}") from None
+    if parsed.get_backend_name() == "sqlite" and parsed.query.get("uri") not in (None, "false", "0"):
+        # SQLite's URI filenames ("file:...?mode=memory", "file::memory:") name no file to share, or name
+        # one in a syntax the file checks below do not read: a study needs a plain path.
+        raise ValueError(
+            f"SQLite URI filenames (uri=true) cannot hold a study: {_shown(url)}; give a path, e.g. "
+            "sqlite:///study.db, or leave --storage out"
+        )
     if parsed.get_backend_name() == "sqlite" and (
         parsed.database in (None, "", ":memory:") or parsed.query.get("mode") == "memory"
     ):
@@ -101,6 +108,30 @@ def check_storage_url(url: str) -> None:
         raise ValueError(f"Not a usable storage URL {url.split('@')[-1]!r}: {error}") from None
 
 
+#: Seconds a connection to a database server may take before the storage counts as unreachable.
+CONNECT_TIMEOUT = 10
+
+
+class StorageError(ValueError):
+    """The study storage a URL names cannot be opened; the message names the URL without its password."""
+
+
+def _shown(url: str) -> str:
+    """``url`` without its password, for messages."""
+    from sqlalchemy.engine import make_url  # lazily: +0.6 s to import, only for a storage URL
+
+    try:
+        return repr(make_url(url).render_as_string(hide_password=True))
+    except Exception:  # a URL make_url cannot read shows only its part after the credentials
+        return repr(url.split("@")[-1])
+
+
+def _first_line(error: BaseException) -> str:
+    """The driver's own message without SQLAlchemy's SQL echo and background link."""
+    origin = getattr(error, "orig", None) or error
+    return " ".join(str(origin).split("\n")[0].split())[:300]
+
+
 def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int = MAX_RETRY) -> Any:
     """
     An Optuna storage for ``url`` with heartbeats and retry of trials whose process died.
@@ -113,17 +144,26 @@ def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int =
     :return: an ``optuna.storages.RDBStorage``.
     """
     import sqlalchemy.exc  # lazily: +0.6 s to import, only for a storage URL
+    from sqlalchemy.engine import make_url
 
     check_storage_url(url)  # refuses in-memory SQLite, which cannot hold a study
 
     engine_kwargs: dict[str, Any] = {}
     path = sqlite_path(url)
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # WAL is a property of the file, set once; it must be set outside SQLAlchemy's transactions.
-        with contextlib.closing(sqlite3.connect(path, timeout=SQLITE_BUSY_TIMEOUT)) as connection:
-            connection.execute("PRAGMA journal_mode=WAL")
+        if path.exists() and not path.is_file():
+            raise StorageError(f"Cannot hold a study in {_shown(url)}: {str(path)!r} is not a regular file")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            # WAL is a property of the file, set once; it must be set outside SQLAlchemy's transactions.
+            with contextlib.closing(sqlite3.connect(path, timeout=SQLITE_BUSY_TIMEOUT)) as connection:
+                connection.execute("PRAGMA journal_mode=WAL")
+        except (OSError, sqlite3.Error) as error:
+            raise StorageError(f"Cannot open the study storage {_shown(url)}: {error}") from None
         engine_kwargs["connect_args"] = {"timeout": SQLITE_BUSY_TIMEOUT}
+    elif make_url(url).get_backend_name() == "postgresql":
+        # A host that drops packets would otherwise hold the command for the system's TCP timeout.
+        engine_kwargs["connect_args"] = {"connect_timeout": CONNECT_TIMEOUT}
     # Optuna 4.9 renamed RetryFailedTrialCallback; take the new name where it exists.
     retry_class = getattr(
         optuna.storages, "RetryHeartbeatStaleTrialCallback", optuna.storages.RetryFailedTrialCallback
@@ -145,13 +185,17 @@ def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int =
             sqlalchemy.exc.OperationalError,
             sqlalchemy.exc.IntegrityError,
             sqlalchemy.exc.ProgrammingError,
-        ):
+        ) as error:
             # Processes started together race to create the tables of a new database (PostgreSQL reports
             # the loser's CREATE TABLE as a ProgrammingError, DuplicateTable); the loser retries and finds
             # them. Any other error of these kinds comes back after the last attempt.
             if attempt == attempts - 1:
-                raise
+                raise StorageError(
+                    f"Cannot open the study storage {_shown(url)}: {_first_line(error)}"
+                ) from None
             time.sleep(0.2 * (attempt + 1))
+        except (sqlalchemy.exc.DBAPIError, optuna.exceptions.StorageInternalError) as error:  # sslmode=bogus
+            raise StorageError(f"Cannot open the study storage {_shown(url)}: {_first_line(error)}") from None
     raise AssertionError("unreachable")
 
 

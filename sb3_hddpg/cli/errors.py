@@ -1,0 +1,79 @@
+"""
+The one place that decides a command's exit code and its one error line, from what ended it.
+
+- **2**, a usage or input error: the command line or a file it named cannot be used. typer's own usage
+  errors, and the library's input errors: the ``ValueError`` family (every check of the library raises one
+  of its subclasses: ``LimitError``, ``ConfigError``, ``BundleError``, ``PlainNameError``,
+  ``RunFolderError``, ``StorageError``, ``ClusterError``...), a missing path or one of the wrong kind,
+  gymnasium's errors for an env that cannot be made, and a run folder another run holds.
+- **130**: Ctrl-C or SIGTERM.
+- **1**: anything else, an internal failure while working.
+
+The library raises; :func:`sb3_hddpg.cli.main` calls :func:`exit_code` and :func:`error_line` once, and no
+command chooses a code of its own.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import typer
+
+from sb3_hddpg.artifacts.io import FolderLockedError
+
+#: The exceptions that mean "the input cannot be used" wherever they are raised.
+INPUT_ERRORS: tuple[type[BaseException], ...] = (
+    ValueError,
+    FileNotFoundError,
+    FileExistsError,
+    NotADirectoryError,
+    IsADirectoryError,
+    gym.error.Error,
+    FolderLockedError,
+)
+#: Exit code of a usage or input error (click's own for usage errors).
+USAGE_EXIT = 2
+#: Exit code of an internal failure.
+INTERNAL_EXIT = 1
+#: Exit code after Ctrl-C or SIGTERM (128 + SIGINT).
+INTERRUPTED_EXIT = 130
+
+
+def exit_code(error: BaseException) -> int:
+    """The exit code for a command that ended with ``error``."""
+    if isinstance(error, (KeyboardInterrupt, typer.Abort)):
+        return INTERRUPTED_EXIT
+    if isinstance(error, (typer.Exit, typer.TyperException)):
+        return int(error.exit_code)
+    if isinstance(error, INPUT_ERRORS):
+        return USAGE_EXIT
+    return INTERNAL_EXIT
+
+
+def error_line(error: BaseException) -> str:
+    """
+    The error line's text for ``error``: the library's own message for its errors (they are sentences
+    naming the value); for anything else its type too, since ``KeyError('x')`` alone says nothing.
+    """
+    if isinstance(error, (KeyboardInterrupt, typer.Abort)):
+        return "interrupted"
+    if isinstance(error, typer.TyperException):
+        return error.format_message() + _offending_input(error)
+    message = str(error)
+    if isinstance(error, (*INPUT_ERRORS, OSError, RuntimeError)) and message:
+        return message
+    return f"{type(error).__name__}: {message}" if message else type(error).__name__
+
+
+def _offending_input(error: Exception) -> str:
+    """
+    ``", got 'ten'"`` when typer's type conversion rejected a value: its messages (from pydantic, e.g.
+    "Input should be a valid integer") do not repeat the value, which the user should see.
+    """
+    errors = getattr(error.__cause__, "errors", None)
+    if not callable(errors):
+        return ""
+    try:
+        value = errors()[0]["input"]
+    except (LookupError, TypeError):
+        return ""
+    return f", got {value!r}"
