@@ -10,17 +10,20 @@ import contextlib
 import json
 import logging
 import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("ray")
 
-from sb3_hddpg.experiments.ray_executor import ClusterError, RayExecutor, check_address
+from sb3_hddpg.experiments.ray_executor import ClusterError, RayExecutor, check_address, parse_address
 from sb3_hddpg.experiments.ray_head import LOOPBACK_ENV, local_ray_head
 from sb3_hddpg.experiments.runner import Job, run_jobs
 from tests.jobs import (
@@ -121,6 +124,105 @@ def test_without_ray_the_cli_says_how_to_install_it(tmp_path):
     assert done.returncode == 2, done.stderr
     assert 'pip install "sb3-hddpg[cluster]"' in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "o").exists()  # refused before anything was made
+
+
+@contextlib.contextmanager
+def silent_server() -> Iterator[tuple[int, threading.Event]]:
+    """A loopback port that accepts connections and never says a word (not Ray); the event: one came."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    accepted = threading.Event()
+    held: list[socket.socket] = []
+
+    def serve() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                held.append(server.accept()[0])
+                accepted.set()
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield server.getsockname()[1], accepted
+    finally:
+        server.close()
+        for connection in held:
+            connection.close()
+
+
+@pytest.mark.parametrize(
+    "address",
+    [
+        "127.0.0.1:\u00b2",
+        "127.0.0.1:\u0663",
+        "127.0.0.1:0",
+        "127.0.0.1:65536",
+        "h\u00e9st:1",
+        ":80",
+        "a:b:c",
+        "x" * 400,
+    ],
+)
+def test_malformed_addresses_are_refused_by_the_one_parser(address):
+    with pytest.raises(ClusterError, match="expected 'auto' or HOST:PORT") as refused:
+        parse_address(address)
+    assert len(str(refused.value)) < 200
+
+
+def test_a_port_that_accepts_but_is_not_ray_is_refused_within_the_timeout():
+    with silent_server() as (port, _):
+        started = time.monotonic()
+        with pytest.raises(ClusterError, match="accepts connections but is not a Ray head"):
+            check_address(f"127.0.0.1:{port}", timeout=1.0)
+        assert time.monotonic() - started < 3
+
+
+def test_the_cli_refuses_a_non_ray_port_in_one_line_and_honours_sigterm(tmp_path):
+    command = [
+        sys.executable,
+        str(REPO / "cli.py"),
+        "benchmark",
+        "--executor",
+        "ray",
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    with silent_server() as (port, _):
+        done = subprocess.run(
+            [*command, "--ray-address", f"127.0.0.1:{port}"],
+            capture_output=True,
+            text=True,
+            env=cli_env(),
+            timeout=120,
+        )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and "is not a Ray head" in done.stderr
+    done = subprocess.run(
+        [*command, "--ray-address", "127.0.0.1:\u00b2"],
+        capture_output=True,
+        text=True,
+        env=cli_env(),
+        timeout=120,
+    )
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "HOST:PORT" in done.stderr, done.stderr
+    # SIGTERM while the CLI waits for the silent port's answer ends it at once.
+    with silent_server() as (port, accepted):
+        process = subprocess.Popen(
+            [*command, "--ray-address", f"127.0.0.1:{port}"],
+            env=cli_env(),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        try:
+            assert accepted.wait(120), "the CLI never connected"
+            process.send_signal(signal.SIGTERM)
+            started = time.monotonic()
+            process.wait(timeout=10)
+            assert time.monotonic() - started < 1.0
+        finally:
+            process.kill()
+            process.wait()
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.fixture

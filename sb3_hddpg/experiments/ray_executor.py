@@ -43,11 +43,16 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
+import secrets
+import shutil
 import signal
 import socket
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -88,23 +93,65 @@ def import_ray() -> Any:
     return ray
 
 
-def check_address(address: str) -> None:
+#: A Ray address: ``[ray://]HOST:PORT``, HOST a DNS name, an IPv4 address or a bracketed IPv6 address, all
+#: ASCII (``str.isdigit`` would take ``²`` as a digit, which ``int`` then refuses).
+_ADDRESS = re.compile(
+    r"\A(?P<scheme>ray://)?(?P<host>[A-Za-z0-9](?:[A-Za-z0-9.-]{0,252})|\[[0-9A-Fa-f:.]{2,45}\])"
+    r":(?P<port>[0-9]{1,5})\Z",
+    re.ASCII,
+)
+#: The first bytes every HTTP/2 client sends (RFC 9113, 3.4); Ray's head answers them with a SETTINGS frame.
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+#: The frame type of SETTINGS (the 4th byte of a frame header).
+_HTTP2_SETTINGS = 4
+
+
+def parse_address(address: str) -> tuple[str, int]:
     """
-    Fail fast (rather than after ``ray.init``'s minutes of retries) when ``HOST:PORT`` accepts nothing.
+    The host and port of a Ray address, read by one strict rule.
+
+    :param address: ``HOST:PORT`` or ``ray://HOST:PORT``.
+    :return: ``(host, port)``; :class:`ClusterError` naming the address when it is not one.
+    """
+    match = _ADDRESS.match(address) if isinstance(address, str) and len(address) <= 300 else None
+    port = int(match["port"]) if match else 0
+    if match is None or not 1 <= port <= 65535:
+        shown = repr(address) if len(repr(address)) <= 80 else repr(address)[:79] + "…"
+        raise ClusterError(f"expected 'auto' or HOST:PORT (port 1-65535) for the Ray address, got {shown}")
+    return match["host"].strip("[]"), port
+
+
+def check_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
+    """
+    Fail fast (rather than after ``ray.init``'s minutes of retries, or never) when ``HOST:PORT`` is not a Ray
+    head: nothing listens there, or what listens does not speak gRPC's HTTP/2 (any other server: ``ray.init``
+    would wait on it without end). The whole check takes at most about ``2 * timeout`` seconds.
 
     :param address: ``HOST:PORT`` (or ``ray://HOST:PORT``).
-    :raises ClusterError: it is malformed or nothing listens there.
+    :param timeout: seconds for the connection and for the answer.
+    :raises ClusterError: it is malformed, nothing listens there, or it does not answer as a Ray head.
     """
-    host, _, port = address.removeprefix("ray://").rpartition(":")
-    if not host or not port.isdigit():
-        raise ClusterError(f"expected 'auto' or HOST:PORT for the Ray address, got {address!r}")
+    host, port = parse_address(address)
     try:
-        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT).close()
+        connection = socket.create_connection((host, port), timeout=timeout)
     except OSError as error:
+        reason = "no answer" if isinstance(error, TimeoutError) else (error.strerror or str(error))
         raise ClusterError(
-            f"cannot reach a Ray cluster at {address!r} ({error.strerror or error}); start one with "
-            "`ray start --head` or check the address"
+            f"cannot reach a Ray cluster at {address!r} ({reason}); start one with `ray start --head` or "
+            "check the address"
         ) from None
+    with connection:
+        try:
+            connection.settimeout(timeout)
+            connection.sendall(_HTTP2_PREFACE)
+            header = connection.recv(9)
+        except OSError:  # reset, or silent for `timeout` seconds
+            header = b""
+    if len(header) < 9 or header[3] != _HTTP2_SETTINGS:
+        raise ClusterError(
+            f"{address!r} accepts connections but is not a Ray head (it does not answer gRPC); check the "
+            "address and port (`ray status` on the head prints it)"
+        )
 
 
 def connect(address: str = "auto") -> bool:
@@ -116,8 +163,9 @@ def connect(address: str = "auto") -> bool:
     :return: whether this call connected (and the caller should disconnect with ``ray.shutdown``).
     :raises ClusterError: Ray is not installed or the cluster cannot be reached.
     """
-    if address != "auto":
-        check_address(address)  # a usage error whether Ray is installed or not
+    named = os.environ.get("RAY_ADDRESS") if address == "auto" else address
+    if named and named != "auto":
+        check_address(named)  # a usage error whether Ray is installed or not
     ray = import_ray()
     if ray.is_initialized():
         return False
@@ -127,6 +175,69 @@ def connect(address: str = "auto") -> bool:
     except ConnectionError as error:
         raise ClusterError(f"cannot connect to a Ray cluster at {address!r}: {error}") from None
     return True
+
+
+#: Longest folder a private Ray's temporary folder may be made in: Ray's socket paths live below it, and a
+#: Unix socket path is limited to 107 bytes, of which its session and socket names take about 80.
+MAX_RAY_PARENT_CHARS = 24
+
+
+@contextlib.contextmanager
+def private_ray(folder: str | os.PathLike[str] | None = None, num_cpus: int | None = None) -> Iterator[None]:
+    """
+    A Ray of this process's own for the duration, that leaves nothing in the user's home folder and joins no
+    other cluster: its temporary folder (sessions, logs, sockets) is a new folder inside ``folder`` (the
+    system's temporary folder when ``folder`` is ``None`` or too long a path for Ray's sockets), removed
+    after; its token authentication uses a token generated here and handed to Ray's processes in their
+    environment only (Ray would otherwise write one to ``~/.ray/auth_token``, which from then on makes Ray
+    expect that token from every driver of the machine).
+
+    :param folder: where its temporary folder goes (one the caller controls: the run's folder, a tempdir).
+    :param num_cpus: the CPUs it offers (default: the machine's).
+    """
+    ray = import_ray()
+    parent = None if folder is None or len(str(Path(folder).resolve())) > MAX_RAY_PARENT_CHARS else folder
+    if parent is not None:
+        Path(parent).mkdir(parents=True, exist_ok=True)
+    temp_dir = tempfile.mkdtemp(prefix="ray-", dir=parent)
+    saved = {name: os.environ.get(name) for name in _PRIVATE_RAY_ENV}
+    os.environ.update({"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)})
+    _reload_ray_auth()
+    try:
+        ray.init(
+            num_cpus=num_cpus,
+            include_dashboard=False,
+            logging_level=logging.WARNING,
+            _temp_dir=temp_dir,
+            configure_logging=True,
+        )
+        try:
+            yield
+        finally:
+            ray.shutdown()
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+        _reload_ray_auth()
+        shutil.rmtree(temp_dir, ignore_errors=True)
+
+
+def _reload_ray_auth() -> None:
+    """
+    Make Ray read its authentication settings from the environment again: it caches them when imported,
+    and re-reads them this way itself when it turns token authentication on for a new local cluster.
+    """
+    from ray._raylet import AuthenticationTokenLoader, Config
+
+    Config.initialize("")
+    AuthenticationTokenLoader.instance().reset_cache()
+
+
+#: The environment variables :func:`private_ray` sets while it runs (and restores after).
+_PRIVATE_RAY_ENV = ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN")
 
 
 def _progress_sink_class() -> type:
@@ -214,22 +325,26 @@ class RayExecutor:
     """
     Runs each job as a Ray task on an existing cluster (see the module docstring).
 
-    :param address: the cluster: ``auto`` or ``HOST:PORT`` of its head (see :func:`connect`); ignored when
-        this process is already connected.
+    :param address: the cluster: ``auto`` or ``HOST:PORT`` of its head (see :func:`connect`); ``None``: a
+        Ray of this process's own (:func:`private_ray`, in ``local_dir``). Ignored when this process is
+        already connected.
     :param slots: jobs submitted at a time (``None``: the cluster's CPUs when opened, at least 1).
     :param max_retries: times a task lost with its worker process or node is run again.
     :param interrupt_grace: on an interrupt, seconds running tasks get to end before they are cancelled
         (``None``: wait for them however long they take).
     :param cancel_grace: seconds cancelled tasks get to stop the resumable way before they are killed.
+    :param local_dir: with ``address=None``, the folder the private Ray keeps its files in while it runs
+        (default: the system's temporary folder); nothing goes to the home folder either way.
     """
 
     def __init__(
         self,
-        address: str = "auto",
+        address: str | None = None,
         slots: int | None = None,
         max_retries: int = DEFAULT_MAX_RETRIES,
         interrupt_grace: float | None = 0.0,
         cancel_grace: float = CANCEL_GRACE,
+        local_dir: str | os.PathLike[str] | None = None,
     ) -> None:
         if slots is not None and slots < 1:
             raise ValueError(f"Expected `slots` >= 1, actually: {slots}")
@@ -243,12 +358,18 @@ class RayExecutor:
         self.max_retries = max_retries
         self.interrupt_grace = interrupt_grace
         self.cancel_grace = cancel_grace
+        self.local_dir = local_dir
         self._running: dict[Any, str] = {}  # object ref -> job key
         self._connected = False
+        self._private: contextlib.ExitStack | None = None
 
     def open(self, on_progress: Callable[[str, float], None]) -> None:
         self._ray = ray = import_ray()
-        self._connected = connect(self.address)
+        if self.address is None and not ray.is_initialized():
+            self._private = contextlib.ExitStack()
+            self._private.enter_context(private_ray(self.local_dir))
+        elif self.address is not None:
+            self._connected = connect(self.address)
         if self._wanted_slots is None:
             self.slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
         self._on_progress = on_progress
@@ -327,6 +448,9 @@ class RayExecutor:
             if self._connected:
                 ray.shutdown()
                 self._connected = False
+            if self._private is not None:
+                self._private.close()
+                self._private = None
 
     def _stop_running(self) -> None:
         """
