@@ -40,8 +40,13 @@ def run_one(argv: list[str]) -> dict[str, object]:
     return {"code": code if isinstance(code, int) else 1, "stdout": out.getvalue(), "stderr": err.getvalue()}
 
 
-def run_batch(commands: list[list[str]], timeout: float = 900) -> list[subprocess.CompletedProcess]:
-    """Run ``commands`` in one fresh interpreter; one ``CompletedProcess``-like result per command."""
+def run_batch(
+    commands: list[list[str]], timeout: float = 900, cwd: Path = ROOT
+) -> list[subprocess.CompletedProcess]:
+    """
+    Run ``commands`` in one fresh interpreter, from the folder ``cwd``; one ``CompletedProcess``-like
+    result per command.
+    """
     import os
 
     env = {**os.environ, "SDL_VIDEODRIVER": "dummy", "COLUMNS": "200", "PYTHONPATH": str(ROOT)}
@@ -53,7 +58,7 @@ def run_batch(commands: list[list[str]], timeout: float = 900) -> list[subproces
         text=True,
         timeout=timeout,
         env=env,
-        cwd=ROOT,
+        cwd=cwd,
     )
     if done.returncode != 0:
         raise RuntimeError(f"the batch runner itself failed ({done.returncode}):\n{done.stderr[-3000:]}")

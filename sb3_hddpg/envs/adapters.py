@@ -30,6 +30,7 @@ import numpy as np
 from gymnasium.envs.registration import EnvSpec
 
 from sb3_hddpg.envs.contract import TermNormaliser, check_bounds, env_contract
+from sb3_hddpg.envs.mujoco_log import route_mujoco_warnings
 
 MULTI_OBJECTIVE_ENV_ID = "hddpg/MultiObjective-v0"
 INFO_TERMS_ENV_ID = "hddpg/InfoTerms-v0"
@@ -78,7 +79,9 @@ def make_adapted(
     with warnings.catch_warnings():
         # Some MO-Gymnasium envs build float64 bounds into float32 spaces: noise on every make, not news.
         warnings.filterwarnings("ignore", message=".*precision lowered by casting to float32")
-        return gym.make(env_id, disable_env_checker=True, **kwargs)
+        env = gym.make(env_id, disable_env_checker=True, **kwargs)
+    route_mujoco_warnings()  # not MUJOCO_LOG.TXT in the user's current folder
+    return env
 
 
 def _check_terms(terms: Any, count: int | None) -> list[str]:
