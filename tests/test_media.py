@@ -14,6 +14,7 @@ from PIL import Image
 from stable_baselines3 import DDPG
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
+from sb3_hddpg.artifacts.run_folder import RUN_MARKER
 from sb3_hddpg.experiments.packaging import RESULTS_KEYS, package_policy, write_zoo_layout
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
 from sb3_hddpg.hierarchy.loading import load_policy
@@ -155,7 +156,8 @@ def _front_matter(card: str) -> dict:
 def test_cli_package_bundle_like_huggingface_sb3(bundle, tmp_path):
     out = tmp_path / "pkg"
     run_cli("package", bundle, "--out", out, "--episodes", "2", "--video-steps", str(STEPS), check=True)
-    assert sorted(p.name for p in out.iterdir()) == [
+    assert (out / RUN_MARKER).is_file()  # hidden: it lets a later --force replace what the tool wrote
+    assert sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER) == [
         "README.md",
         "config.json",
         "hierarchy.zip",

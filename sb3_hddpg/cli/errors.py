@@ -5,7 +5,8 @@ The one place that decides a command's exit code and its one error line, from wh
   errors, and the library's input errors: the ``ValueError`` family (every check of the library raises one
   of its subclasses: ``LimitError``, ``ConfigError``, ``BundleError``, ``PlainNameError``,
   ``RunFolderError``, ``StorageError``, ``ClusterError``...), a missing path or one of the wrong kind,
-  gymnasium's errors for an env that cannot be made, and a run folder another run holds.
+  gymnasium's errors for an env that cannot be made, a run folder another run holds, and an ``OSError``
+  saying a path cannot be one (too long, through a file, a loop of links).
 - **130**: Ctrl-C or SIGTERM.
 - **1**: anything else, an internal failure while working.
 
@@ -14,6 +15,8 @@ command chooses a code of its own.
 """
 
 from __future__ import annotations
+
+import errno
 
 import gymnasium as gym
 import typer
@@ -38,13 +41,19 @@ INTERNAL_EXIT = 1
 INTERRUPTED_EXIT = 130
 
 
+#: ``OSError`` numbers that mean a path the user named cannot be one (a full disk is not among them).
+INPUT_ERRNOS = frozenset(
+    {errno.ENAMETOOLONG, errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.EEXIST, errno.ELOOP}
+)
+
+
 def exit_code(error: BaseException) -> int:
     """The exit code for a command that ended with ``error``."""
     if isinstance(error, (KeyboardInterrupt, typer.Abort)):
         return INTERRUPTED_EXIT
     if isinstance(error, (typer.Exit, typer.TyperException)):
         return int(error.exit_code)
-    if isinstance(error, INPUT_ERRORS):
+    if isinstance(error, INPUT_ERRORS) or (isinstance(error, OSError) and error.errno in INPUT_ERRNOS):
         return USAGE_EXIT
     return INTERNAL_EXIT
 

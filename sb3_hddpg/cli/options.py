@@ -111,6 +111,20 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
         raise typer.BadParameter(message, param_hint=param_hint) from error
 
 
+def refuse_protected_out(out: Path) -> Path:
+    """
+    Refuse, as a usage error, an output folder that may never hold a run: the current folder (``--out ""``
+    or ``.``), one above it, the home or root folder
+    (:func:`~sb3_hddpg.artifacts.run_folder.protected_reason`).
+    """
+    reason = "the current folder" if str(out) in ("", ".") else protected_reason(out)
+    if reason is not None:
+        raise typer.BadParameter(
+            f"expected a folder for this run's files, got {str(out)!r} ({reason})", param_hint="'--out'"
+        )
+    return out
+
+
 def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool) -> Path:
     """
     Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a folder above
@@ -125,11 +139,7 @@ def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool
         ``click.get_current_context`` does not see.
     """
 
-    reason = "the current folder" if str(out) in ("", ".") else protected_reason(out)
-    if reason is not None:
-        raise typer.BadParameter(
-            f"expected a folder for this run's files, got {str(out)!r} ({reason})", param_hint="'--out'"
-        )
+    refuse_protected_out(out)
     if out.exists() and not out.is_dir():
         raise typer.BadParameter(f"is a file, not a folder: {str(out)!r}", param_hint="'--out'")
     blocking = next((p for p in out.parents if p.exists() and not p.is_dir()), None)

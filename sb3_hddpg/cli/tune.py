@@ -23,6 +23,7 @@ from sb3_hddpg.cli.options import (
     at_least,
     cluster_address,
     positive_float,
+    refuse_protected_out,
     seed_range,
     terms_env_option,
     usage_errors,
@@ -359,7 +360,7 @@ def tune_command(
             resolve_backend(backend, target.base_block().get("backend"))
     address = cluster_address(executor, ray_address)
     name = study_name or target.name
-    out = out or Path("runs") / "tune" / name
+    out = refuse_protected_out(out or Path("runs") / "tune" / name)
     settings = StudySettings(
         storage=storage or default_storage_url(out),
         study_name=name,
