@@ -49,7 +49,7 @@ MEMORY_BOUND = 4 << 30
 #: Seconds one command may take (the valid ones train or package a few steps).
 TIME_BOUND = 90.0
 FAST_EXAMPLES = 12
-LONG_EXAMPLES = 150
+LONG_EXAMPLES = 60
 #: What the server prefixes its answers with: commands' children may write to the same stdout.
 MARK = "@@fuzz@@"
 
@@ -382,6 +382,7 @@ def long_twin(test: Any) -> Any:
     body = test.fuzz_body
 
     @pytest.mark.slow
+    @pytest.mark.timeout(LONG_EXAMPLES * TIME_BOUND)
     @settings(max_examples=LONG_EXAMPLES, **_SETTINGS)
     @given(case=test.fuzz_strategy)
     def twin(server: CliServer, tmp_path: Path, case: Any) -> None:

@@ -104,6 +104,8 @@ _ADDRESS = re.compile(
 _HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
 #: The frame type of SETTINGS (the 4th byte of a frame header).
 _HTTP2_SETTINGS = 4
+#: A request every Ray head's GCS answers at once, with or without a job running.
+_GCS_CLUSTER_ID = "/ray.rpc.NodeInfoGcsService/GetClusterId"
 
 
 def parse_address(address: str) -> tuple[str, int]:
@@ -141,17 +143,42 @@ def check_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
             "check the address"
         ) from None
     with connection:
+        peer = connection.getpeername()[0]
         try:
             connection.settimeout(timeout)
             connection.sendall(_HTTP2_PREFACE)
             header = connection.recv(9)
         except OSError:  # reset, or silent for `timeout` seconds
             header = b""
-    if len(header) < 9 or header[3] != _HTTP2_SETTINGS:
+    answer = "no gRPC" if len(header) < 9 or header[3] != _HTTP2_SETTINGS else None
+    if answer is None and not address.startswith("ray://"):  # Ray Client's server has no GCS to ask
+        answer = _gcs_answer(peer, port, timeout)
+    if answer is not None:
         raise ClusterError(
-            f"{address!r} accepts connections but is not a Ray head (it does not answer gRPC); check the "
-            "address and port (`ray status` on the head prints it)"
+            f"{address!r} accepts connections but is not a Ray head ({answer}); check the address and port "
+            "(`ray status` on the head prints it)"
         )
+
+
+def _gcs_answer(host: str, port: int, timeout: float) -> str | None:
+    """
+    ``None`` when ``host:port`` answers a Ray head's cluster-id request (or refuses it for want of the
+    cluster's token, which only a Ray head does), else what it answered: any other gRPC server, or a proxy
+    that speaks HTTP/2 for every address, would keep ``ray.init`` waiting.
+    """
+    try:
+        import grpc  # Ray's own dependency: missing only when Ray is, which connect reports
+    except ImportError:
+        return None
+    target = f"ipv6:[{host}]:{port}" if ":" in host else f"ipv4:{host}:{port}"
+    with grpc.insecure_channel(target) as channel:
+        call = channel.unary_unary(_GCS_CLUSTER_ID, request_serializer=bytes, response_deserializer=bytes)
+        try:
+            call(b"", timeout=timeout)  # an empty request message is a valid protobuf
+        except grpc.RpcError as error:
+            if error.code() != grpc.StatusCode.UNAUTHENTICATED:
+                return f"its answer to a Ray head's request: {error.code().name}"
+    return None
 
 
 def connect(address: str = "auto") -> bool:
@@ -230,7 +257,7 @@ def _reload_ray_auth() -> None:
     Make Ray read its authentication settings from the environment again: it caches them when imported,
     and re-reads them this way itself when it turns token authentication on for a new local cluster.
     """
-    from ray._raylet import AuthenticationTokenLoader, Config
+    from ray._raylet import AuthenticationTokenLoader, Config  # type: ignore[attr-defined]  # compiled, untyped
 
     Config.initialize("")
     AuthenticationTokenLoader.instance().reset_cache()
