@@ -281,6 +281,16 @@ def test_export_models_follows_no_name_out_of_its_destination(tmp_path, record):
     assert snapshot(tmp_path) == before
 
 
+@pytest.mark.parametrize("dest", [".", "", "..", "/"])
+def test_export_models_never_writes_into_the_current_a_parent_or_the_root_folder(tmp_path, monkeypatch, dest):
+    run = benchmark_with(tmp_path, {"status": "done", "method": "workers", "seed": 0, "workers": ["goal"]})
+    monkeypatch.chdir(run)
+    before = snapshot(tmp_path)
+    with pytest.raises(RunFolderError):
+        export_models(run, dest)
+    assert snapshot(tmp_path) == before
+
+
 def test_export_models_refuses_a_destination_whose_links_lead_elsewhere(tmp_path):
     run = benchmark_with(tmp_path, {"status": "done", "method": "workers", "seed": 0, "workers": ["goal"]})
     (run / "seed-0" / "workers").mkdir(parents=True)

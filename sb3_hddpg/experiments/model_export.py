@@ -19,6 +19,7 @@ from typing import Any
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
+from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
 from sb3_hddpg.experiments.benchmark import WORKERS, split_key
 from sb3_hddpg.names import check_plain_name
 from sb3_hddpg.training.run_options import MAX_SEED
@@ -111,6 +112,9 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     if not records_dir.is_dir():
         raise FileNotFoundError(f"Not a benchmark folder (no records/): {str(benchmark_dir)!r}")
     dest = Path(dest)
+    reason = "the current folder" if str(dest) in ("", ".") else protected_reason(dest)
+    if reason is not None:  # it replaces files of its own names there: never in such a folder
+        raise RunFolderError(f"Expected an export folder, actually {str(dest)!r} ({reason})")
     if dest.resolve() == root.resolve() or root.resolve() in dest.resolve().parents:
         raise ValueError(f"Expected an export folder outside the benchmark folder, actually: {str(dest)!r}")
     index: list[dict[str, Any]] = []
