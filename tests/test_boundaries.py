@@ -17,6 +17,7 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import pytest
@@ -394,3 +395,26 @@ def test_the_listed_cli_cases_exit_2_with_one_line(tmp_path, unused_port):
         assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr, done.stderr
         assert "secret" not in done.stderr
     assert not any((tmp_path / name).exists() for name in ("o", "dest", "evil"))
+
+
+# ------------------------------------------------------------------------------- the current folder, MuJoCo
+def test_mujoco_warnings_go_to_logging_not_to_a_file_in_the_current_folder(tmp_path, monkeypatch, caplog):
+    """MuJoCo writes MUJOCO_LOG.TXT to the current folder unless a warning callback is set: one is."""
+    import types
+
+    from sb3_hddpg.envs.adapters import make_adapted
+
+    installed: list[Any] = []
+    fake = types.SimpleNamespace(
+        get_mju_user_warning=lambda: installed[-1] if installed else None,
+        set_mju_user_warning=installed.append,
+    )
+    monkeypatch.setitem(sys.modules, "mujoco", fake)
+    monkeypatch.chdir(tmp_path)
+    make_adapted("mo-mountaincarcontinuous-v0").close()
+    make_adapted("mo-mountaincarcontinuous-v0").close()
+    assert len(installed) == 1  # once per process; a user's own callback would stay
+    with caplog.at_level("WARNING", logger="sb3_hddpg.mujoco"):
+        installed[0]("Nan, Inf or huge value in QACC at DOF 0.\n")
+    assert "MuJoCo: Nan, Inf or huge value in QACC" in caplog.text
+    assert list(tmp_path.iterdir()) == []
