@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_hddpg.artifacts.limits import LimitError, check_env_kwargs
+from sb3_hddpg.artifacts.limits import LimitError
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs import (
     InfoTermsEnv,
     MultiObjectiveEnv,

@@ -207,7 +207,12 @@ def parse_term_bounds(text: str) -> dict[str, tuple[float, float]]:
         try:
             if not sep or not name.strip().isidentifier():
                 raise ValueError
-            bounds[name.strip()] = (float(low), float(high))
+            pair = (float(low), float(high))
         except ValueError:
-            raise ValueError(f"Expected TERM=LOW:HIGH[,TERM=LOW:HIGH...], got {part!r} in {text!r}") from None
+            raise ValueError(
+                f"Expected TERM=LOW:HIGH[,TERM=LOW:HIGH...], got {part[:100]!r} in {text[:200]!r}"
+            ) from None
+        if name.strip() in bounds:
+            raise ValueError(f"Expected each term bounded once, got {name.strip()!r} twice in {text[:200]!r}")
+        bounds[name.strip()] = pair
     return check_bounds(bounds, "term_bounds")

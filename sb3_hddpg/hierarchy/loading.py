@@ -20,9 +20,10 @@ from typing import Any
 
 import gymnasium as gym
 
-from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_file_entry, read_json_file
+from sb3_hddpg.artifacts.limits import brief, check_env_id, check_file_entry, read_json_file
 from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.baselines.ham import load_ham
 from sb3_hddpg.baselines.scripted import IKReacher, JacobianReacher
 from sb3_hddpg.envs import SnakeArmEnv

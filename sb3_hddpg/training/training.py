@@ -34,7 +34,7 @@ from sb3_hddpg.artifacts.io import (
     holds_folder_lock,
     remove_stale_temporaries,
 )
-from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, read_json_file
+from sb3_hddpg.artifacts.limits import brief, check_env_id, read_json_file
 from sb3_hddpg.artifacts.manifests import (
     WORKER_MANIFEST_VERSION,
     load_workers,
@@ -43,6 +43,7 @@ from sb3_hddpg.artifacts.manifests import (
     read_workers_manifest,
     save_manifest,
 )
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
