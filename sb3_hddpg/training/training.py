@@ -37,6 +37,7 @@ from sb3_hddpg.artifacts.io import (
 from sb3_hddpg.artifacts.limits import brief, check_env_id, read_json_file
 from sb3_hddpg.artifacts.manifests import (
     WORKER_MANIFEST_VERSION,
+    check_resumed_env,
     load_workers,
     model_entry,
     observed_components,
@@ -525,6 +526,15 @@ def train_workers(
     manifest: dict[str, Any] = {"schema_version": WORKER_MANIFEST_VERSION, "workers": {}}
     if run.resume and manifest_path.exists():
         manifest = read_workers_manifest(manifest_path)
+        if env is not None or "shared_env" in manifest:
+            check_resumed_env(
+                manifest.get("shared_env", {"env_id": SNAKE_SHARED_ENV_ID}), shared.env_id, shared.env_kwargs
+            )
+        for name in workers:
+            env_id, view_kwargs = shared.term_view(name)
+            check_resumed_env(
+                manifest["workers"].get(name), env_id, {**view_kwargs, **blocks[name].env_kwargs}
+            )
     if env is not None:
         manifest["shared_env"] = {"env_id": env.env_id, "env_kwargs": env.env_kwargs}
     for name in workers:
@@ -623,6 +633,8 @@ def train_flat(
     if manifest_path.exists():
         manifest = read_json_file(manifest_path)
     name = name or algo
+    if run.resume:
+        check_resumed_env(manifest["models"].get(name), env_id, make_kwargs)
     if run.resume and _finished(manifest["models"].get(name), budget):
         return manifest, None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
