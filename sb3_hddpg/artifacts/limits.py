@@ -163,8 +163,9 @@ def check_env_id(
     allowed = own_env_ids() | frozenset(allowed_env_ids or ())
     if not trusted and env_id not in allowed:
         raise LimitError(
-            f"{what}: env id {env_id!r} is not one of {sorted(allowed)}; pass allowed_env_ids=[...] "
-            "(or --trust) to use another registered env"
+            f"{what}: env id {env_id!r} is not one of the {len(allowed)} allowed ids (this package's, and "
+            "Gymnasium's and MO-Gymnasium's for an adapter); pass allowed_env_ids=[...] (CLI: name it with "
+            "--env) or --trust to use another registered env"
         )
     return env_id
 

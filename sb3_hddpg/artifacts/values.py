@@ -233,7 +233,7 @@ def check_env_kwargs(
     :data:`~sb3_hddpg.artifacts.limits.MAX_EPISODE_LENGTH`, strings plain tokens (no file paths; a
     parameter named like a file is refused), ``render_mode`` only ``None`` or ``"rgb_array"``. An adapter's
     ``env_id`` passes :func:`~sb3_hddpg.artifacts.limits.check_env_id` (its allow-list there also holds
-    MO-Gymnasium's ids).
+    Gymnasium's and MO-Gymnasium's ids, :func:`adaptable_env_ids`).
 
     :param env_id: the (checked) env id they are for.
     :param env_kwargs: the value from the file.
@@ -255,7 +255,7 @@ def check_env_kwargs(
     inner = own.pop("env_id", None)
     checked = _check_constructor_kwargs(env_id, own, what)
     if inner is not None:
-        allowed = [*mo_gymnasium_env_ids(), *(allowed_env_ids or ())]
+        allowed = [*adaptable_env_ids(), *(allowed_env_ids or ())]
         checked = {"env_id": check_env_id(inner, f"{what}.env_id", allowed, trusted), **checked}
         checked.update(_check_constructor_kwargs(checked["env_id"], rest, what))
     elif rest:
@@ -426,13 +426,21 @@ def _refuse(value: Any, what: str) -> NoReturn:
     )
 
 
-def mo_gymnasium_env_ids() -> list[str]:
-    """The ids MO-Gymnasium registers (none when it is not installed): an adapter may adapt them by default."""
+def adaptable_env_ids() -> list[str]:
+    """
+    The ids an adapter may adapt by default: Gymnasium's own (``HalfCheetah-v5``'s ``reward_ctrl``...)
+    and MO-Gymnasium's (when installed). Their constructors are the ones :func:`check_env_kwargs` checks
+    the settings against; another registered env needs ``allowed_env_ids`` (naming it with ``--env``).
+    """
     with contextlib.suppress(ImportError):
         # Lazily: optional (the `mo` extra); importing it registers its ids.
         import mo_gymnasium  # noqa: F401
     return [
         env_id
         for env_id, spec in registry.items()
-        if isinstance(spec.entry_point, str) and spec.entry_point.startswith("mo_gymnasium.")
+        if isinstance(spec.entry_point, str) and spec.entry_point.startswith(ADAPTABLE_MODULES)
     ]
+
+
+#: The packages whose registered envs an adapter may adapt by default.
+ADAPTABLE_MODULES = ("mo_gymnasium.", "gymnasium.envs.")

@@ -82,7 +82,7 @@ def record_command(
             env_kwargs=shared.env_kwargs if shared else None,
             trusted=trust,
             algo=algo,
-            allowed_env_ids=[shared.env_id] if shared else None,
+            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
         )
     kwargs = {**(shared.env_kwargs if shared else {})}
     if max_steps:

@@ -12,14 +12,14 @@ and openable with :func:`sb3_hddpg.hierarchy.loading.load_policy` (``hddpg-cli e
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
-from sb3_hddpg.experiments.benchmark import WORKERS, split_key
+from sb3_hddpg.experiments.benchmark import WORKERS, read_record_file, split_key
 
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
@@ -80,7 +80,7 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
         raise ValueError(f"Expected an export folder outside the benchmark folder, actually: {str(dest)!r}")
     index: list[dict[str, Any]] = []
     for record_file in sorted(records_dir.glob("*/seed-*.json")):
-        record = json.loads(record_file.read_text())
+        record = read_record_file(record_file)
         if record.get("status") != "done":
             continue
         key, seed = str(record["method"]), int(record["seed"])
@@ -133,7 +133,12 @@ def read_index(folder: str | Path) -> list[dict[str, Any]]:
     :raises ValueError: naming the record whose file is missing, outside the folder, or altered.
     """
     folder = Path(folder)
-    index = json.loads((folder / "index.json").read_text())
+    index = read_json_file(folder / "index.json")
+    if not isinstance(index, list) or not all(
+        isinstance(e, dict) and isinstance(e.get("path"), str) and isinstance(e.get("sha256"), str)
+        for e in index
+    ):
+        raise ValueError(f"{folder / 'index.json'}: expected a list of records with a path and a sha256")
     for entry in index:
         path = (folder / entry["path"]).resolve()
         if folder.resolve() not in path.parents:
