@@ -454,8 +454,10 @@ def test_evaluate_random_on_an_mo_env_writes_finite_json(tmp_path):
     out = tmp_path / "r.json"
     (done,) = run_batch(
         [
-            ["evaluate", "random", "--env", "mo-mountaincarcontinuous-v0", "--episodes", "1"]
-            + ["--episode-steps", "20", "--json", str(out)]
+            [
+                *("evaluate", "random", "--env", "mo-mountaincarcontinuous-v0", "--episodes", "1"),
+                *("--episode-steps", "20", "--json", str(out)),
+            ]
         ]
     )
     assert done.returncode == 0, done.stderr[-2000:]

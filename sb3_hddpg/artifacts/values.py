@@ -363,14 +363,16 @@ def _episode_length(value: Any, what: str) -> int:
 
 
 def _check_kind(value: Any, default: Any, what: str) -> None:
-    """A value whose parameter has a number or boolean default must be one too (an int default: an integer)."""
+    """A value whose parameter has a number, boolean or string default must be one too."""
     if value is None or default is inspect.Parameter.empty or default is None:
         return
     if isinstance(default, bool):
         if not isinstance(value, bool):
             raise LimitError(f"{what}: expected true or false, got {brief(value)}")
     elif isinstance(default, int):
-        Bound(int, -MAX_ENV_INTEGER, MAX_ENV_INTEGER).check(value, what)
+        # A count or size (an integer default); a float is allowed where the default merely looks whole
+        # (``goal_velocity=0``), within the same magnitude.
+        Bound(float, -MAX_ENV_INTEGER, MAX_ENV_INTEGER).check(value, what)
     elif isinstance(default, float):
         Bound(float, -MAX_ENV_FLOAT, MAX_ENV_FLOAT).check(value, what)
     elif isinstance(default, str) and not isinstance(value, str):
