@@ -215,8 +215,8 @@ def parse_term_bounds(text: str) -> dict[str, tuple[float, float]]:
     """
     bounds: dict[str, tuple[float, float]] = {}
     for part in text.split(","):
-        name, _, pair = part.partition("=")
-        low, sep, high = pair.partition(":")
+        name, _, text_pair = part.partition("=")
+        low, sep, high = text_pair.partition(":")
         try:
             if not sep or not name.strip().isidentifier():
                 raise ValueError

@@ -119,9 +119,9 @@ def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]
     """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
 
     # Another env is the user's choice: its id may be loaded from the run's files (allowed_env_ids).
-    env = settings.env or {}
+    shared = settings.env or {}
     # The adapter's own id and the env it adapts, as naming them on the command line allows them.
-    allowed = [env["env_id"], config_key(env["env_id"], env.get("env_kwargs"))] if env else None
+    allowed = [shared["env_id"], config_key(shared["env_id"], shared.get("env_kwargs"))] if shared else None
     loaded = load_policy(policy_path, allowed_env_ids=allowed)
     env = loaded.make_env()
     try:
