@@ -155,7 +155,7 @@ WRAPPER_SETTINGS: dict[str, Bound] = {
 }
 
 #: SAC's ``ent_coef`` / ``target_entropy`` may be ``"auto"`` or ``"auto_<initial value>"``.
-_AUTO = re.compile(r"^auto(_[0-9.eE+-]{1,20})?$")
+_AUTO = re.compile(r"^auto(_[0-9.eE+-]{1,32})?$")
 
 
 def check_hyperparameters(block: dict[str, Any], source: str) -> None:
@@ -182,7 +182,14 @@ def check_hyperparameters(block: dict[str, Any], source: str) -> None:
 
 
 def _auto_or_number(value: Any, what: str) -> Any:
+    """SAC's ``"auto"``, ``"auto_<initial value > 0>"`` or a bounded number."""
     if isinstance(value, str) and _AUTO.match(value):
+        _, _, initial = value.partition("_")
+        if initial:
+            try:
+                Bound(float, 0.0, MAX_MAGNITUDE, low_open=True).check(float(initial), what)
+            except ValueError:
+                raise LimitError(f"{what}: expected 'auto_<initial value > 0>', got {brief(value)}") from None
         return value
     return Bound(float, -MAX_MAGNITUDE, MAX_MAGNITUDE).check(value, what)
 
