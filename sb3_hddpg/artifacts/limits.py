@@ -84,6 +84,10 @@ MAX_LAYERS = 16
 MAX_MAGNITUDE = 1e6
 #: Most env steps one manager decision may last (a manager block's ``option_steps``).
 MAX_OPTION_STEPS = 10_000
+#: Most episodes of one evaluation.
+MAX_EVAL_EPISODES = 10_000
+#: Most torch threads of one process.
+MAX_THREADS = 256
 
 # Env settings (env kwargs from a file, a manifest's ``shared_env``, a bundle, ``--env`` options).
 #: Longest episode (``episode_steps``, ``max_episode_steps``): ours are 200 steps.

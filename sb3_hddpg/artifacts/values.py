@@ -36,11 +36,13 @@ from sb3_hddpg.artifacts.limits import (
     MAX_ENV_FLOAT,
     MAX_ENV_INTEGER,
     MAX_EPISODE_LENGTH,
+    MAX_EVAL_EPISODES,
     MAX_GRADIENT_STEPS,
     MAX_LEARNING_STARTS,
     MAX_MAGNITUDE,
     MAX_N_ENVS,
     MAX_OPTION_STEPS,
+    MAX_THREADS,
     MAX_TIMESTEPS,
     MAX_TRAIN_FREQ,
     LimitError,
@@ -146,6 +148,16 @@ STRUCTURED = (
     "ent_coef",
     "target_entropy",
 )
+#: The run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`, the CLI's options) -> range.
+RUN_SETTINGS: dict[str, Bound] = {
+    "timesteps": HYPERPARAMETERS["n_timesteps"],
+    "n_envs": HYPERPARAMETERS["n_envs"],
+    "plateau_patience": Bound(int, 1, MAX_EVAL_EPISODES),
+    "eval_freq": Bound(int, 0, MAX_TIMESTEPS),
+    "eval_episodes": Bound(int, 1, MAX_EVAL_EPISODES),
+    "checkpoint_freq": Bound(int, 0, MAX_TIMESTEPS),
+    "threads": Bound(int, 1, MAX_THREADS),
+}
 #: A manager block's ``wrapper_kwargs`` that are numbers -> their range.
 WRAPPER_SETTINGS: dict[str, Bound] = {
     "option_steps": Bound(int, 1, MAX_OPTION_STEPS),
