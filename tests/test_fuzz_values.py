@@ -30,6 +30,7 @@ from sb3_hddpg.artifacts.values import (
     FLAGS,
     HYPERPARAMETERS,
     PLAIN_STRING,
+    RUN_SETTINGS,
     WRAPPER_SETTINGS,
     check_env_kwargs,
     check_make_kwargs,
@@ -462,3 +463,47 @@ def test_evaluate_random_on_an_mo_env_writes_finite_json(tmp_path):
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert "NaN" not in out.read_text() and "Infinity" not in out.read_text()
+
+
+# ------------------------------------------------------------------------ run options
+@SHORT
+@given(st.dictionaries(st.sampled_from(sorted(RUN_SETTINGS)), NUMBERS, max_size=3))
+def test_hostile_run_options_are_bounded_or_refused(changes):
+    from sb3_hddpg.training import RunOptions
+
+    try:
+        run = RunOptions(**changes)
+    except ValueError as error:
+        assert_one_line(error)
+        return
+    for name, bound in RUN_SETTINGS.items():
+        value = getattr(run, name)
+        assert value is None or bound.check(value, name) == value
+
+
+def test_resume_with_another_episode_length_through_the_cli(tmp_path):
+    from tests.cli_batch import run_batch
+
+    env = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel"]
+    tiny = [
+        "--config",
+        str(tmp_path / "tiny.yml"),
+        "--timesteps",
+        "60",
+        "--eval-freq",
+        "0",
+        "--out",
+        str(tmp_path / "r"),
+    ]
+    (tmp_path / "tiny.yml").write_text(TINY_CONFIG)
+    first, resumed = run_batch(
+        [
+            ["train-workers", *env, "--episode-steps", "30", "--workers", "time", *tiny],
+            ["train-workers", *env, "--episode-steps", "500", "--resume", *tiny],
+        ]
+    )
+    assert first.returncode == 0, first.stderr[-2000:]
+    lines = [line for line in resumed.stderr.splitlines() if line.strip()]
+    assert resumed.returncode != 0 and len(lines) == 1, resumed.stderr[-2000:]
+    assert "--resume: episode_steps was 30 in the run, now 500" in lines[0]
+    assert not (tmp_path / "r" / "workers" / "fuel.zip").exists()

@@ -112,9 +112,9 @@ def _number(value: Any, kind: type) -> int | float | None:
 _UNIT = Bound(float, 0.0, 1.0)
 _MAGNITUDE = Bound(float, 0.0, MAX_MAGNITUDE)
 
-#: Algorithm argument -> its range (or, for a non-numeric argument, a checker). Arguments whose values are
-#: structures (``policy_kwargs``, ``replay_buffer_*``, ``train_freq``, schedules) are checked by
-#: :mod:`sb3_hddpg.training.config` and listed in :data:`STRUCTURED` instead.
+#: Numeric config keys (algorithm arguments and RL Zoo's own) -> their range. Arguments whose values are
+#: structures (``policy_kwargs``, ``replay_buffer_*``, ``train_freq``, ``buffer_size``) are listed in
+#: :data:`STRUCTURED`, and bounded by :mod:`sb3_hddpg.training.config` with the constants here.
 HYPERPARAMETERS: dict[str, Bound] = {
     "n_timesteps": Bound(int, 1, MAX_TIMESTEPS),
     "n_envs": Bound(int, 1, MAX_N_ENVS),
