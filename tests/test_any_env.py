@@ -233,6 +233,9 @@ def test_info_terms_env_through_the_adapter():
 def test_an_info_terms_bundle_evaluates_and_packages_with_its_own_env(tmp_path, tiny):
     """An info-terms hierarchy: train-manager reads the env from the workers manifest, and the bundle is
     evaluated through the CLI with --env naming the env it adapts (a user's id: the opt-in)."""
+    from types import SimpleNamespace
+
+    from sb3_hddpg.experiments.benchmark.methods import final_test
     from sb3_hddpg.hierarchy.loading import load_policy
     from tests.cli_batch import run_one
 
@@ -265,6 +268,9 @@ def test_an_info_terms_bundle_evaluates_and_packages_with_its_own_env(tmp_path, 
     assert summary["mean_length"] == 15 and "mean_reward_calm_reward" in summary
     loaded = load_policy(bundle, allowed_env_ids=["test/InfoRewards-v0"])
     assert loaded.make_env().spec.kwargs["env_id"] == "test/InfoRewards-v0"  # the bundle rebuilds its env
+    # The benchmark's final test (benchmark --env) loads it the same way, the adapted env allowed.
+    settings = SimpleNamespace(env={"env_id": env.env_id, "env_kwargs": env.env_kwargs}, test_episodes=1)
+    assert final_test(bundle, settings)["mean_length"] == 15
 
 
 def test_cli_parsers_name_the_bad_part():

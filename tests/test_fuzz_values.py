@@ -121,7 +121,7 @@ def check_block(block: dict[str, Any], algo: type) -> None:
     for key, value in parsed.env_kwargs.items():
         assert key not in ("config",), key
         if key == "max_episode_steps":
-            assert 1 <= value <= MAX_EPISODE_LENGTH
+            assert value is None or 1 <= value <= MAX_EPISODE_LENGTH
         if key == "render_mode":
             assert value in (None, "rgb_array")
         if isinstance(value, str):
