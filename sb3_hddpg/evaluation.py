@@ -182,8 +182,23 @@ def evaluate(
                 tally.add_step(float(reward), info, selected)
             if on_step is not None:
                 on_step(env, info)
-        episodes.append(tally.metrics(seed + k))
+        episodes.append(_finite_episode(tally.metrics(seed + k)))
     return EvaluationResult(episodes, near_clearance, clear_clearance)
+
+
+def _finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
+    """
+    ``metrics`` if its rewards are finite numbers; else a ``ValueError`` naming the first that is not: a NaN
+    or infinite reward is a broken env or term bounds, to be reported, never averaged into a result file.
+    """
+    values = {"reward": metrics.reward, "reach_reward": metrics.reach_reward, **metrics.term_rewards}
+    for name, value in values.items():
+        if not math.isfinite(value):
+            raise ValueError(
+                f"evaluation: episode with seed {metrics.seed} has {name} = {value} (the env's rewards or its "
+                "term bounds give non-finite values); nothing was written"
+            )
+    return metrics
 
 
 class _EpisodeTally:

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_hddpg.artifacts.limits import LimitError, check_env_kwargs
+from sb3_hddpg.artifacts.limits import LimitError
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs import (
     InfoTermsEnv,
     MultiObjectiveEnv,
@@ -223,12 +224,53 @@ def test_info_terms_env_through_the_adapter():
         terms_env("test/InfoRewards-v0", terms=["reward_near"])
     with pytest.raises(ValueError, match="declares no reward terms"):
         terms_env("test/InfoRewards-v0")
-    missing = terms_env(
-        "test/InfoRewards-v0", terms=["reward_run"], term_bounds={"reward_run": (0, 1)}
-    ).make()
-    missing.reset(seed=0)
-    with pytest.raises(KeyError, match="reward_run"):
-        missing.step(np.zeros(1, np.float32))
+    # Terms missing from the env's info are refused when the env is resolved, before any run folder exists.
+    with pytest.raises(ValueError, match="reward_run") as caught:
+        terms_env("test/InfoRewards-v0", terms=["reward_run"], term_bounds={"reward_run": (0, 1)})
+    assert "\n" not in str(caught.value) and "reward_calm" in str(caught.value)
+
+
+def test_an_info_terms_bundle_evaluates_and_packages_with_its_own_env(tmp_path, tiny):
+    """An info-terms hierarchy: train-manager reads the env from the workers manifest, and the bundle is
+    evaluated through the CLI with --env naming the env it adapts (a user's id: the opt-in)."""
+    from types import SimpleNamespace
+
+    from sb3_hddpg.experiments.benchmark.methods import final_test
+    from sb3_hddpg.hierarchy.loading import load_policy
+    from tests.cli_batch import run_one
+
+    env = terms_env(
+        "test/InfoRewards-v0",
+        terms=["reward_near", "reward_calm"],
+        term_bounds=parse_term_bounds("reward_near=-2:0,reward_calm=-1:0"),
+        episode_steps=15,
+    )
+    train_workers(tmp_path / "w", config=tiny, seed=0, env=env, **TINY)
+    # A user's own env id is opted in by naming it (as train-manager --env does); Gymnasium's own ids
+    # (HalfCheetah-v5...) are read from the workers manifest without it.
+    with pytest.raises(ValueError, match="allowed ids"):
+        train_manager(tmp_path / "w", tmp_path / "x", config=tiny, seed=0, **TINY)
+    train_manager(
+        tmp_path / "w",
+        tmp_path / "m",
+        config=tiny,
+        seed=0,
+        env_id=env.env_id,
+        env_kwargs=env.env_kwargs,
+        **TINY,
+    )
+    bundle = tmp_path / "m" / "hierarchy.zip"
+    args = ["--env", "test/InfoRewards-v0", "--terms", "reward_near,reward_calm"]
+    args += ["--term-bounds", "reward_near=-2:0,reward_calm=-1:0", "--episode-steps", "15"]
+    done = run_one(["evaluate", str(bundle), *args, "--episodes", "1", "--json", str(tmp_path / "e.json")])
+    assert done["code"] == 0, done["stderr"]
+    summary = json.loads((tmp_path / "e.json").read_text())["summary"]
+    assert summary["mean_length"] == 15 and "mean_reward_calm_reward" in summary
+    loaded = load_policy(bundle, allowed_env_ids=["test/InfoRewards-v0"])
+    assert loaded.make_env().spec.kwargs["env_id"] == "test/InfoRewards-v0"  # the bundle rebuilds its env
+    # The benchmark's final test (benchmark --env) loads it the same way, the adapted env allowed.
+    settings = SimpleNamespace(env={"env_id": env.env_id, "env_kwargs": env.env_kwargs}, test_episodes=1)
+    assert final_test(bundle, settings)["mean_length"] == 15
 
 
 def test_cli_parsers_name_the_bad_part():
@@ -520,6 +562,17 @@ def test_record_a_hierarchy_on_an_mo_gymnasium_env(mountain_car_bundle, tmp_path
     assert "time -30.0" in done["stdout"] and "goal touch" not in done["stdout"]
     # The mountain car's own scene (a white sky), not a blank frame.
     assert (frames[0, :400, :600] == 255).mean() > 0.5 and frames[0, :400, :600].std() > 10
+
+
+def test_package_an_mo_bundle_reports_the_envs_own_metrics(mountain_car_bundle, tmp_path):
+    from sb3_hddpg.experiments.packaging import package_policy
+    from sb3_hddpg.hierarchy.loading import load_policy
+
+    loaded = load_policy(mountain_car_bundle)
+    done = package_policy(loaded, mountain_car_bundle, tmp_path / "pkg", n_eval_episodes=1, video_steps=5)
+    card = (tmp_path / "pkg" / "README.md").read_text()
+    assert "time reward" in card and "fuel reward" in card and "goal-touch" not in card
+    assert "goal_touch_rate" not in done.results["metrics"]
 
 
 def test_record_refuses_an_env_that_cannot_render(tmp_path, tiny):

@@ -114,9 +114,7 @@ CASES = [
     case("tw-config-alias-bomb", (*TW, "--config", "{alias_bomb}", "--out", "{tmp}/o"), 2, "aliases"),
     case("tw-config-deep-yaml", (*TW, "--config", "{deep_yaml}", "--out", "{tmp}/o"), 2, "deep_yaml.yml"),
     case("tw-config-buffer-bomb", (*TW, "--config", "{buffer_bomb}", "--out", "{tmp}/o"), 2, "buffer_size"),
-    case(
-        "tw-config-net-arch-bomb", (*TW, "--config", "{net_arch_bomb}", "--out", "{tmp}/o"), 2, "parameters"
-    ),
+    case("tw-config-net-arch-bomb", (*TW, "--config", "{net_arch_bomb}", "--out", "{tmp}/o"), 2, "net_arch"),
     # ---- train-manager: names, preferences and selection
     case("tm-duplicate-worker", (*TM, "--worker", "goal", "--worker", "goal", "--out", "{tmp}/o"), 2, "goal"),
     case("tm-unknown-worker", (*TM, "--worker", "goal", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"),

@@ -63,7 +63,7 @@ def test_policy_kwargs_round_trip_and_safety():
         ({"n_timesteps": 10, "policy": "CnnPolicy"}, "MlpPolicy"),
         ({"n_timesteps": 10, "wrapper_kwargs": {}}, "Unknown keys"),
         ({"n_timesteps": 10, "seed": 3}, "Unknown keys"),
-        ({"n_timesteps": 10, "learning_rate": "exp_1e-3"}, "schedule 'lin_<initial value > 0>'"),
+        ({"n_timesteps": 10, "learning_rate": "exp_1e-3"}, "schedule 'lin_<initial value in \\(0, 1\\]>'"),
         ({"n_timesteps": 10, "learning_rate": "lin_"}, "actually: 'lin_'"),
         ({"n_timesteps": 10, "learning_rate": "lin_-1e-3"}, "learning_rate"),
         ({"n_timesteps": 10, "learning_rate": "lin_nan"}, "learning_rate"),

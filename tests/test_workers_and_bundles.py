@@ -253,11 +253,11 @@ def test_run_options_are_one_object_or_keywords(tmp_path):
 
     with pytest.raises(ValueError, match="Expected seed in"):
         RunOptions(seed=-1)
-    with pytest.raises(ValueError, match="Expected timesteps >= 1"):
+    with pytest.raises(ValueError, match="timesteps: expected an integer in \\[1, "):
         train_workers(tmp_path, timesteps=0)
     with pytest.raises(TypeError, match="unexpected keyword argument 'timestep'"):
         train_workers(tmp_path, timestep=10)
-    with pytest.raises(ValueError, match="Expected checkpoint_freq >= 0"):
+    with pytest.raises(ValueError, match="checkpoint_freq: expected an integer in \\[0, "):
         train_manager(tmp_path, tmp_path / "m", run=RunOptions(), checkpoint_freq=-1)
     assert RunOptions(seed=2).replace(timesteps=5) == RunOptions(timesteps=5, seed=2)
     assert not (tmp_path / "workers").exists()  # nothing started

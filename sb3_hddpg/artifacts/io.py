@@ -7,6 +7,7 @@ import fcntl
 import functools
 import inspect
 import json
+import math
 import os
 import signal
 import tempfile
@@ -150,9 +151,52 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     return atomic_write(path, lambda tmp: tmp.write_bytes(data))
 
 
+class NotFiniteError(ValueError):
+    """A value about to be written to a JSON file is NaN or infinite (JSON has no such numbers)."""
+
+
 def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
-    """Write ``obj`` as indented JSON to ``path`` atomically."""
-    return atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=False) + "\n").encode())
+    """
+    Write ``obj`` as indented JSON to ``path`` atomically. NaN and infinities are refused (strict JSON has
+    none, and a ``NaN`` in a result file is a silently wrong result): :class:`NotFiniteError` names the
+    first such value's place, and nothing is written.
+    """
+    return atomic_write_bytes(path, (json_text(obj, Path(path).name) + "\n").encode())
+
+
+def json_text(obj: Any, what: str) -> str:
+    """
+    ``obj`` as indented strict JSON: the one serialiser of every JSON file we write (also inside zips).
+
+    :param obj: plain JSON values.
+    :param what: the file, for the message.
+    :return: the text; raises :class:`NotFiniteError` naming the first NaN or infinite value's place.
+    """
+    try:
+        return json.dumps(obj, indent=2, sort_keys=False, allow_nan=False)
+    except ValueError:
+        where = _first_not_finite(obj, "") or "a value"
+        raise NotFiniteError(f"{what}: {where} is not a finite number; not written") from None
+
+
+def _first_not_finite(value: Any, where: str) -> str | None:
+    """The path (``a.b[2]``) of the first NaN or infinite float in ``value``, else ``None``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return where or "the value"
+    items = (
+        value.items()
+        if isinstance(value, dict)
+        else enumerate(value)
+        if isinstance(value, (list, tuple))
+        else ()
+    )
+    for key, item in items:
+        found = _first_not_finite(
+            item, f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}".lstrip(".")
+        )
+        if found:
+            return found
+    return None
 
 
 #: The lock file every writer of a run folder holds (hidden; it stays after the run, unlocked).

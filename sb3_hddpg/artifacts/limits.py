@@ -21,22 +21,19 @@ the tests that hold them.
 from __future__ import annotations
 
 import contextlib
-import inspect
 import itertools
 import json
-import math
 import re
 import reprlib
 import zipfile
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, NoReturn
+from typing import Any
 
-import gymnasium as gym
 from gymnasium.envs.registration import registry
 
-from sb3_hddpg.envs import ADAPTER_ENV_IDS, OWN_ENV_IDS
+from sb3_hddpg.envs import OWN_ENV_IDS
 from sb3_hddpg.names import PLAIN_NAME
 
 #: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
@@ -66,6 +63,42 @@ MAX_MODELS = 64
 MAX_WORKERS = 32
 #: Longest message fragment showing a value from a file.
 MAX_SHOWN = 200
+
+# Hyperparameters (a config block, a bundle's saved spec): each far above what the bundled configs use.
+#: Largest minibatch (a 65536 x 64-float batch is 16 MB per tensor).
+MAX_BATCH_SIZE = 65_536
+#: Most gradient steps per rollout (SB3's -1, "as many as env steps", is allowed too).
+MAX_GRADIENT_STEPS = 1_000
+#: Longest rollout between updates, in steps or episodes.
+MAX_TRAIN_FREQ = 100_000
+#: Most parallel training environments (each a process with ``SubprocVecEnv``).
+MAX_N_ENVS = 64
+#: Largest training budget of one agent, in timesteps.
+MAX_TIMESTEPS = 1_000_000_000
+#: Most warm-up steps before learning starts.
+MAX_LEARNING_STARTS = MAX_BUFFER_SIZE
+#: Widest hidden layer of a network (the parameter count bounds the product).
+MAX_LAYER_SIZE = 4_096
+#: Most hidden layers of a network.
+MAX_LAYERS = 16
+#: Largest magnitude of a noise parameter, an action penalty or another unbounded float setting.
+MAX_MAGNITUDE = 1e6
+#: Most env steps one manager decision may last (a manager block's ``option_steps``).
+MAX_OPTION_STEPS = 10_000
+#: Most episodes of one evaluation.
+MAX_EVAL_EPISODES = 10_000
+#: Most torch threads of one process.
+MAX_THREADS = 256
+
+# Env settings (env kwargs from a file, a manifest's ``shared_env``, a bundle, ``--env`` options).
+#: Longest episode (``episode_steps``, ``max_episode_steps``): ours are 200 steps.
+MAX_EPISODE_LENGTH = 100_000
+#: Largest integer env setting (a count or size: ``n_obstacles``, ``size``, ``frame_skip``...).
+MAX_ENV_INTEGER = 1_000
+#: Largest magnitude of a float env setting (a speed, a radius, a time step...).
+MAX_ENV_FLOAT = 1e6
+#: The render modes a file may ask for (a window is the command's choice, never a file's).
+FILE_RENDER_MODES = (None, "rgb_array")
 
 #: Worker names, algorithm names: what may become part of a file name (the one plain-name rule).
 NAME_PATTERN = PLAIN_NAME
@@ -135,108 +168,11 @@ def check_env_id(
     allowed = own_env_ids() | frozenset(allowed_env_ids or ())
     if not trusted and env_id not in allowed:
         raise LimitError(
-            f"{what}: env id {env_id!r} is not one of {sorted(allowed)}; pass allowed_env_ids=[...] "
-            "(or --trust) to use another registered env"
+            f"{what}: env id {env_id!r} is not one of the {len(allowed)} allowed ids (this package's, and "
+            "Gymnasium's and MO-Gymnasium's for an adapter); pass allowed_env_ids=[...] (CLI: name it with "
+            "--env) or --trust to use another registered env"
         )
     return env_id
-
-
-def check_env_kwargs(
-    env_id: str,
-    env_kwargs: Any,
-    what: str,
-    allowed_env_ids: Sequence[str] | None = None,
-    trusted: bool = False,
-) -> dict[str, Any]:
-    """
-    Env keyword arguments read from a file: a mapping of the env constructor's own named parameters to
-    plain values (numbers, strings, booleans, ``None``; lists of at most 64 of them; a mapping of at most 64
-    short names to such values or lists, e.g. an adapter's ``term_bounds``). Keys of ``gym.make`` itself
-    (``max_episode_steps``...) and of wrappers are refused; the env checks the values' ranges. An adapter's
-    ``env_id`` (the env it adapts, see :mod:`sb3_hddpg.envs.adapters`) passes :func:`check_env_id` too, whose
-    allow-list there also holds MO-Gymnasium's ids.
-
-    :param env_id: the (checked) env id they are for.
-    :param env_kwargs: the value from the file.
-    :param what: the field, for the message.
-    :param allowed_env_ids: more ids an adapter may adapt (as in :func:`check_env_id`).
-    :param trusted: an adapter may adapt any registered id (still no module prefix).
-    :return: a copy; raises :class:`LimitError` naming the key otherwise.
-    """
-    if env_kwargs is None:
-        return {}
-    if not isinstance(env_kwargs, Mapping):
-        raise LimitError(f"{what}: expected a mapping of keyword arguments, got {brief(env_kwargs)}")
-    if len(env_kwargs) > 64:
-        raise LimitError(f"{what}: {len(env_kwargs)} keyword arguments is more than the limit of 64")
-    spec = gym.spec(env_id)
-    if spec.entry_point is None:  # registered without one: gym.make could not build it either
-        raise LimitError(f"{what}: {env_id!r} is registered without an entry point")
-    creator = (
-        spec.entry_point
-        if callable(spec.entry_point)
-        else gym.envs.registration.load_env_creator(spec.entry_point)
-    )
-    parameters = inspect.signature(creator).parameters
-    open_ended = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
-    named = {name for name, p in parameters.items() if p.kind is not inspect.Parameter.VAR_KEYWORD}
-    named.discard("self")
-    checked = {}
-    for key, value in env_kwargs.items():
-        if not isinstance(key, str) or not (key in named or (open_ended and key.isidentifier())):
-            raise LimitError(
-                f"{what}: {brief(key)} is not a parameter of {env_id} (parameters: {sorted(named)})"
-            )
-        if key == "render_mode":
-            raise LimitError(f"{what}: render_mode is chosen by the command, not by a file")
-        if env_id in ADAPTER_ENV_IDS and key == "env_id":
-            allowed = [*mo_gymnasium_env_ids(), *(allowed_env_ids or ())]
-            checked[key] = check_env_id(value, f"{what}.env_id", allowed, trusted)
-            continue
-        checked[key] = _plain_value(value, f"{what}.{key}", nested=True)
-    return checked
-
-
-def mo_gymnasium_env_ids() -> list[str]:
-    """The ids MO-Gymnasium registers (none when it is not installed): an adapter may adapt them by default."""
-    try:
-        # Lazily: optional (the `mo` extra).
-        import mo_gymnasium  # noqa: F401  (registers its ids)
-    except ImportError:
-        return []
-    return [
-        env_id
-        for env_id, spec in registry.items()
-        if isinstance(spec.entry_point, str) and spec.entry_point.startswith("mo_gymnasium.")
-    ]
-
-
-def _plain_value(value: Any, what: str, nested: bool) -> Any:
-    """A plain JSON value from a file, bounded: scalars, lists of scalars, and (if ``nested``) one mapping level."""
-    if value is None or isinstance(value, (bool, int)) or _finite(value):
-        return value
-    if isinstance(value, str):
-        if len(value) > 64:
-            raise LimitError(f"{what}: string of {len(value)} characters is longer than 64")
-        return value
-    if isinstance(value, list) and len(value) <= 64:
-        if any(isinstance(item, (list, Mapping)) for item in value):
-            _refuse(value, what)
-        return [_plain_value(item, what, nested=False) for item in value]
-    if nested and isinstance(value, Mapping) and len(value) <= 64:
-        return {check_name(k, what): _plain_value(v, f"{what}.{k}", nested=False) for k, v in value.items()}
-    return _refuse(value, what)
-
-
-def _refuse(value: Any, what: str) -> NoReturn:
-    raise LimitError(
-        f"{what}: expected a number, string, boolean, a list of at most 64 of them or a mapping of names to "
-        f"them, got {brief(value)}"
-    )
-
-
-def _finite(value: Any) -> bool:
-    return isinstance(value, float) and math.isfinite(value)
 
 
 def parse_json(data: bytes | str, what: str) -> Any:

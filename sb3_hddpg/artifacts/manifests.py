@@ -191,3 +191,46 @@ def model_entry(
         "metrics": outcome.metrics,
         "spec": model_spec(outcome.model),
     }
+
+
+class ResumeMismatch(ValueError):
+    """A resumed run asked for an env or term setting other than the one its saved agents were trained with."""
+
+
+def check_resumed_env(stored: Any, env_id: str, env_kwargs: dict[str, Any], what: str = "--resume") -> None:
+    """
+    The one comparison of a run's recorded env settings with the ones a resumed command asks for: the env
+    id and every env keyword argument (``episode_steps``, ``terms``, ``term_bounds``, ``observe``...) must
+    be the same, else agents trained on two different envs would end up in one manifest.
+
+    :param stored: the recorded ``{"env_id": ..., "env_kwargs": ...}`` (a manifest's ``shared_env`` or a
+        model entry); ``None``: nothing recorded, nothing to compare.
+    :param env_id: the env id asked for now.
+    :param env_kwargs: its keyword arguments.
+    :param what: the option named in the message.
+    :raises ResumeMismatch: one line naming the first differences, e.g.
+        ``--resume: episode_steps was 30 in the run, now 500``.
+    """
+    if not isinstance(stored, dict):
+        return
+    differences = []
+    if stored.get("env_id") != env_id:
+        differences.append(f"env was {brief(stored.get('env_id'))} in the run, now {env_id!r}")
+    before = _as_json(stored.get("env_kwargs") or {})
+    now = _as_json(env_kwargs)
+    if isinstance(before, dict):
+        for key in sorted(set(before) | set(now), key=str):
+            if before.get(key) != now.get(key):
+                differences.append(
+                    f"{str(key)[:64]} was {brief(before.get(key))} in the run, now {brief(now.get(key))}"
+                )
+    if differences:
+        more = f" (and {len(differences) - 2} more)" if len(differences) > 2 else ""
+        raise ResumeMismatch(
+            f"{what}: {'; '.join(differences[:2])}{more}; resume with the run's settings, or start a new run"
+        )
+
+
+def _as_json(value: Any) -> Any:
+    """``value`` as JSON would store it (tuples become lists), so that a recorded and a new setting compare equal."""
+    return json.loads(json.dumps(value, default=str))

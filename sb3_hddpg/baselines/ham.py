@@ -26,8 +26,9 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_name, read_json_file
+from sb3_hddpg.artifacts.limits import brief, check_env_id, check_name, read_json_file
 from sb3_hddpg.artifacts.manifests import load_workers, observed_components
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.policy import Policy

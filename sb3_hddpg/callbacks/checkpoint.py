@@ -10,6 +10,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json, remove_stale_temporaries
+from sb3_hddpg.artifacts.limits import read_json_file
 
 STATE_FILE = "state.json"
 
@@ -97,7 +98,7 @@ def read_checkpoint_state(checkpoint_dir: str | Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
     try:
-        state = json.loads(path.read_text())
+        state = read_json_file(path)
         model, buffer = state["model"], state["replay_buffer"]
     except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
         # state.json is written atomically, so this is damage from outside, not from a kill.

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -12,6 +11,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
+from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 
 
@@ -136,7 +136,10 @@ def read_history(path: Path, steps_per_timestep: int = 1, offset: int = 0) -> li
     :param offset: env steps spent before this model's first step.
     """
     out = []
-    for point in json.loads(Path(path).read_text()):
+    points = read_json_file(path)
+    if not isinstance(points, list) or not all(isinstance(p, dict) for p in points):
+        raise ValueError(f"{path}: expected a list of evaluation points")
+    for point in points:
         steps = int(point["timesteps"]) * steps_per_timestep
         extra = {"decisions": int(point["timesteps"])} if steps_per_timestep != 1 else {}
         out.append({**point, **extra, "timesteps": steps, "total_timesteps": steps + offset})

@@ -84,9 +84,10 @@ def evaluate_command(
         loaded = load_policy(
             path,
             env_id=shared.env_id if shared else None,
+            env_kwargs=shared.env_kwargs if shared else None,
             trusted=trust,
             algo=algo,
-            allowed_env_ids=[shared.env_id] if shared else None,
+            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
         )
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()

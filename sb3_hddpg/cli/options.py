@@ -19,6 +19,7 @@ from sb3_hddpg.artifacts.run_folder import (
     mark_run_folder,
     protected_reason,
 )
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.cli.app import console_note
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.training.backends import BackendError, check_backend
@@ -314,7 +315,10 @@ def terms_env_option(
     with usage_errors("'--term-bounds'"):
         bounds = parse_term_bounds(term_bounds) if term_bounds is not None else None
     with usage_errors("'--env'"):
-        return terms_env(env, names, bounds, info_key=info_key, episode_steps=episode_steps)
+        shared = terms_env(env, names, bounds, info_key=info_key, episode_steps=episode_steps)
+        # The same bounds as for env settings from a file (episode lengths, term bounds, values).
+        check_env_kwargs(shared.env_id, shared.env_kwargs, "--env", trusted=True)
+        return shared
 
 
 #: Help of the options that choose where a command's independent runs go (benchmark, quickstart, tune).

@@ -52,8 +52,9 @@ def plot_selection_command(
         loaded = load_policy(
             path,
             env_id=shared.env_id if shared else None,
+            env_kwargs=shared.env_kwargs if shared else None,
             trusted=trust,
-            allowed_env_ids=[shared.env_id] if shared else None,
+            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
         )
     names = selected_names(loaded.policy)
     if not names:

@@ -79,7 +79,12 @@ def make_adapted(
     with warnings.catch_warnings():
         # Some MO-Gymnasium envs build float64 bounds into float32 spaces: noise on every make, not news.
         warnings.filterwarnings("ignore", message=".*precision lowered by casting to float32")
-        env = gym.make(env_id, disable_env_checker=True, **kwargs)
+        try:
+            env = gym.make(env_id, disable_env_checker=True, **kwargs)
+        except (ImportError, gym.error.DependencyNotInstalled) as error:
+            # A missing optional dependency of the adapted env (highway-env, MuJoCo...) is the user's setup.
+            first = (str(error).splitlines() or [type(error).__name__])[0][:200]
+            raise ValueError(f"{env_id!r} cannot be made here, a dependency is missing: {first}") from None
     route_mujoco_warnings()  # not MUJOCO_LOG.TXT in the user's current folder
     return env
 
@@ -279,9 +284,10 @@ class InfoTermsEnv(TermsAdapter):
         source = info if self.info_key is None else info.get(self.info_key, {})
         try:
             return {name: float(source[name]) for name in self.reward_terms}
-        except KeyError as missing:
+        except (KeyError, TypeError) as missing:
             where = "info" if self.info_key is None else f"info[{self.info_key!r}]"
-            raise KeyError(f"{where} has no reward term {missing}; it has {sorted(source)}") from None
+            have = sorted(map(str, source))[:20] if isinstance(source, Mapping) else type(source).__name__
+            raise ValueError(f"{where} has no reward term {missing}; it has {have}") from None
 
 
 def _estimate_bounds(

@@ -21,6 +21,7 @@ An environment with several objectives (the snake arm, an MO-Gymnasium env throu
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -115,8 +116,23 @@ def check_bounds(
             ) from None
         if not (math.isfinite(low) and math.isfinite(high) and low < high):
             raise ValueError(f"Expected `{what}[{name!r}]` finite with low < high, actually: ({low}, {high})")
+        if not normalisable(low, high):
+            raise ValueError(
+                f"Expected `{what}[{name!r}]` to span a normal float width whose inverse is finite (so that "
+                f"normalising neither overflows nor underflows), actually: ({low}, {high})"
+            )
         checked[name] = (low, high)
     return checked
+
+
+def normalisable(low: float, high: float) -> bool:
+    """
+    Whether ``(value - low) / (high - low)`` is computable for values in the bounds: the width is finite and
+    a normal float (not subnormal) with a finite inverse, so that the normaliser's scale neither overflows
+    (``5e-324:1e-323``) nor underflows to 0 (``-1e308:1e308``, whose width overflows).
+    """
+    width = high - low
+    return math.isfinite(width) and width >= sys.float_info.min and math.isfinite(1.0 / width)
 
 
 class TermNormaliser:

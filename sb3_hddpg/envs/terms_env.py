@@ -124,6 +124,11 @@ def terms_env(
     kwargs = dict(env_kwargs or {})
     registered_env_id(env_id)
     if env_id in ADAPTER_ENV_IDS:
+        if "env_id" not in kwargs:
+            raise ValueError(
+                f"{env_id!r} is an adapter and needs the env it adapts: name that env instead (e.g. "
+                "--env mo-mountaincarcontinuous-v0); the adapter is chosen for it"
+            )
         return _resolved(env_id, kwargs)
     adapter_kwargs: dict[str, Any] = {"env_id": env_id, **kwargs}
     if terms is not None:
@@ -163,9 +168,17 @@ def _native(env: gym.Env) -> bool:
 
 
 def _resolved(env_id: str, env_kwargs: dict[str, Any]) -> TermsEnv:
-    env = gym.make(env_id, **env_kwargs)
+    try:
+        env = gym.make(env_id, **env_kwargs)
+    except TypeError as error:  # a missing or unknown constructor argument: the user's input
+        raise ValueError(f"{env_id!r} cannot be made with {sorted(env_kwargs)}: {error}") from None
     try:
         contract: RewardTermsEnv = env_contract(env)
+        if env_id == INFO_TERMS_ENV_ID:
+            # One step now, so that terms missing from the env's info are refused before anything is written.
+            env.reset(seed=0)
+            env.action_space.seed(0)
+            env.step(env.action_space.sample())
         terms = tuple(contract.reward_bounds)
         # An adapter that estimated bounds records them in its spec: keep them, so that every later
         # make (workers, manager, evaluation, a rebuilt bundle) normalises with the same bounds.
@@ -209,12 +222,17 @@ def parse_term_bounds(text: str) -> dict[str, tuple[float, float]]:
     """
     bounds: dict[str, tuple[float, float]] = {}
     for part in text.split(","):
-        name, _, pair = part.partition("=")
-        low, sep, high = pair.partition(":")
+        name, _, text_pair = part.partition("=")
+        low, sep, high = text_pair.partition(":")
         try:
             if not sep or not name.strip().isidentifier():
                 raise ValueError
-            bounds[name.strip()] = (float(low), float(high))
+            pair = (float(low), float(high))
         except ValueError:
-            raise ValueError(f"Expected TERM=LOW:HIGH[,TERM=LOW:HIGH...], got {part!r} in {text!r}") from None
+            raise ValueError(
+                f"Expected TERM=LOW:HIGH[,TERM=LOW:HIGH...], got {part[:100]!r} in {text[:200]!r}"
+            ) from None
+        if name.strip() in bounds:
+            raise ValueError(f"Expected each term bounded once, got {name.strip()!r} twice in {text[:200]!r}")
+        bounds[name.strip()] = pair
     return check_bounds(bounds, "term_bounds")

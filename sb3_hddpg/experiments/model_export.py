@@ -20,7 +20,7 @@ from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
 from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
-from sb3_hddpg.experiments.benchmark import WORKERS, split_key
+from sb3_hddpg.experiments.benchmark import WORKERS, read_record_file, split_key
 from sb3_hddpg.names import check_plain_name
 from sb3_hddpg.training.run_options import MAX_SEED
 
@@ -59,7 +59,7 @@ def _read_record(record_file: Path) -> tuple[str, int, list[str]] | None:
     A finished run's key, seed and (for the workers' record) worker names, every one checked before it
     becomes part of a path; ``None`` for a run that is not done.
     """
-    record = read_json_file(record_file)
+    record = read_record_file(record_file)
     if not isinstance(record, dict) or record.get("status") != "done":
         return None
     what = str(record_file)
@@ -173,6 +173,11 @@ def read_index(folder: str | Path) -> list[dict[str, Any]]:
     """
     folder = Path(folder)
     index = read_json_file(folder / "index.json")
+    if not isinstance(index, list) or not all(
+        isinstance(e, dict) and isinstance(e.get("path"), str) and isinstance(e.get("sha256"), str)
+        for e in index
+    ):
+        raise ValueError(f"{folder / 'index.json'}: expected a list of records with a path and a sha256")
     for entry in index:
         path = (folder / entry["path"]).resolve()
         if folder.resolve() not in path.parents:

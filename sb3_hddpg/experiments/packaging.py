@@ -53,6 +53,7 @@ from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.hierarchy.hierarchy import read_bundle
 from sb3_hddpg.hierarchy.loading import LoadedPolicy
 from sb3_hddpg.media.video import record_video
+from sb3_hddpg.metric_labels import summary_rows
 
 #: The keys of ``results.json``: huggingface_sb3's five, then ours.
 RESULTS_KEYS = (
@@ -327,7 +328,6 @@ def model_card(loaded: LoadedPolicy, algo_name: str, model_file: str, results: d
             }
         ],
     }
-    m = results["metrics"]
     if loaded.kind == "hierarchy":
         names = list(getattr(loaded.policy, "names", []))
         what = (
@@ -350,6 +350,12 @@ def model_card(loaded: LoadedPolicy, algo_name: str, model_file: str, results: d
             f'# from stable_baselines3 import {algo_name}; model = {algo_name}.load("{model_file}")'
         )
     front = yaml.safe_dump(metadata, sort_keys=False)
+    # Whatever the evaluation measured on this env (the snake's touch and collision rates, another env's
+    # own terms), in the words and units every table uses.
+    shown = {k: v for k, v in results["metrics"].items() if k not in ("mean_reward", "std_reward")}
+    metric_rows = "\n".join(
+        f"| {label} | {text}{' ' + unit if unit else ''} |" for label, text, unit in summary_rows(shown)
+    )
     return f"""---
 {front}---
 
@@ -360,9 +366,7 @@ This is {what}
 | metric | value |
 |---|---|
 | mean reward | {value} |
-| goal-touch rate | {m["goal_touch_rate"]:.1%} |
-| collision steps per episode | {m["collisions_per_episode"]:.1f} |
-| success rate | {m["success_rate"]:.0%} |
+{metric_rows}
 | evaluation | {results["n_eval_episodes"]} episodes, seeds {results["eval_seeds"][0]}..{results["eval_seeds"][-1]}, deterministic={results["is_deterministic"]} |
 
 ## Usage

@@ -30,14 +30,13 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.artifacts.io import atomic_write, json_text
 from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
     MAX_WORKERS,
     LoadBudget,
     brief,
     check_env_id,
-    check_env_kwargs,
     check_name,
     check_zip_directory,
     parse_json,
@@ -45,6 +44,7 @@ from sb3_hddpg.artifacts.limits import (
 )
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
@@ -241,7 +241,7 @@ class Hierarchy:
         }
         buffer = io.BytesIO()
         with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr(MANIFEST, json.dumps(manifest, indent=2))
+            archive.writestr(MANIFEST, json_text(manifest, MANIFEST))
             for member, data in members.items():
                 archive.writestr(member, data)
         return buffer.getvalue()

@@ -20,9 +20,10 @@ from typing import Any
 
 import gymnasium as gym
 
-from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, check_file_entry, read_json_file
+from sb3_hddpg.artifacts.limits import brief, check_env_id, check_file_entry, read_json_file
 from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.baselines.ham import load_ham
 from sb3_hddpg.baselines.scripted import IKReacher, JacobianReacher
 from sb3_hddpg.envs import SnakeArmEnv
@@ -54,7 +55,7 @@ class LoadedPolicy:
     name: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
 
-    def make_env(self, env_id: str | None = None, **kwargs: Any) -> gym.Env:
+    def make_env(self, env_id: str | None = None, /, **kwargs: Any) -> gym.Env:
         """
         The env to run this policy in (``env_id`` overrides the trained-on id), checked to fit the policy.
 
@@ -82,6 +83,7 @@ def load_policy(
     trusted: bool = False,
     algo: str | None = None,
     allowed_env_ids: Sequence[str] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> LoadedPolicy:
     """
     Load the policy at ``path`` (see the module docstring for what it may be).
@@ -95,11 +97,12 @@ def load_policy(
     :param trusted: allow SB3's full loader for zips without a manifest, and any registered env id.
     :param algo: the algorithm of an untracked zip loaded with ``trusted``.
     :param allowed_env_ids: registered env ids a file may name besides this package's own.
+    :param env_kwargs: ``env_id``'s keyword arguments, for reference policies (an adapter's ``env_id``...).
     """
 
     text = str(path)
     if text in REFERENCE_POLICIES:
-        return _reference_policy(text, env_id or "hddpg/SnakeReach-v0")
+        return _reference_policy(text, env_id or "hddpg/SnakeReach-v0", dict(env_kwargs or {}))
     path = _policy_file(Path(path))
     text = str(path)
     if path.suffix == ".json":
@@ -177,8 +180,8 @@ def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
     return None, ""
 
 
-def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
-    env = gym.make(env_id)
+def _reference_policy(name: str, env_id: str, env_kwargs: dict[str, Any]) -> LoadedPolicy:
+    env = gym.make(env_id, **env_kwargs)
     layout = state_layout_of(env)
     if name == "random":
         policy: Policy = RandomPolicy(env.action_space, seed=0)
@@ -190,4 +193,4 @@ def _reference_policy(name: str, env_id: str) -> LoadedPolicy:
     else:
         policy = JacobianReacher(layout)
     env.close()
-    return LoadedPolicy(policy, env_id, {}, name, name)
+    return LoadedPolicy(policy, env_id, env_kwargs, name, name)

@@ -31,10 +31,20 @@ from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS, algorithm_class
 from sb3_hddpg.artifacts.limits import (
     MAX_CONFIG_NODES,
     MAX_JSON_BYTES,
+    MAX_LAYER_SIZE,
+    MAX_LAYERS,
+    LimitError,
     brief,
     check_buffer_size,
     check_parameter_count,
     count_nodes,
+)
+from sb3_hddpg.artifacts.values import (
+    HYPERPARAMETERS,
+    check_env_value,
+    check_hyperparameters,
+    check_train_freq,
+    check_wrapper_settings,
 )
 from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
 from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
@@ -218,21 +228,35 @@ def parse_block(
     :param manager: whether ``wrapper_kwargs`` is allowed.
     :return: the parsed hyperparameters.
     """
+    try:
+        return _parse_block(block, algo_class, source, manager)
+    except LimitError as error:  # a bound of the value schema: the config's own kind of error
+        raise ConfigError(str(error)) from None
+
+
+def _parse_block(block: dict[str, Any], algo_class: type, source: str, manager: bool) -> Hyperparams:
     _check_keys(block, algo_class, source, manager)
     raw = copy.deepcopy(block)
     if "n_timesteps" not in block:
         raise ConfigError(f"Missing key 'n_timesteps' in {source}")
     # Each _pop_* takes its key out of ``block``: what is left are the algorithm's constructor arguments.
-    n_timesteps = _as_int(block.pop("n_timesteps"), "n_timesteps", source, minimum=1)
-    n_envs = _as_int(block.pop("n_envs", 1), "n_envs", source, minimum=1)
+    n_timesteps = HYPERPARAMETERS["n_timesteps"].check(block.pop("n_timesteps"), f"{source}: n_timesteps")
+    n_envs = HYPERPARAMETERS["n_envs"].check(block.pop("n_envs", 1), f"{source}: n_envs")
     policy = _pop_policy(block, source)
     noise_type = _pop_noise_type(block, source)
     backend = _pop_backend(block, source)
     noise_std = _pop_noise_std(block, source)
     action_l2 = _parse_callbacks(block.pop("callback", None), source).get("action_l2", 0.0)
     env_kwargs = _pop_mapping(block, "env_kwargs", source)
+    for key, value in env_kwargs.items():
+        # The values here; the keys against the env's constructor where the env is known (check_make_kwargs).
+        env_kwargs[key] = check_env_value(
+            str(key), value, inspect.Parameter.empty, f"{source}: env_kwargs.{key}"
+        )
     wrapper_kwargs = _pop_mapping(block, "wrapper_kwargs", source)
+    check_wrapper_settings(wrapper_kwargs, source)
     _check_algo_kwargs(block, algo_class.__name__, source)
+    check_hyperparameters(block, source)
     return Hyperparams(
         algo_kwargs=block,
         n_timesteps=n_timesteps,
@@ -286,13 +310,7 @@ def _pop_backend(block: dict[str, Any], source: str) -> str | None:
 
 
 def _pop_noise_std(block: dict[str, Any], source: str) -> float:
-    noise_std = block.pop("noise_std", 0.1)
-    if isinstance(noise_std, bool) or not isinstance(noise_std, (int, float)):
-        raise ConfigError(f"Expected noise_std in {source} to be a number, actually: {brief(noise_std)}")
-    noise_std = float(noise_std)
-    if not np.isfinite(noise_std) or noise_std < 0:
-        raise ConfigError(f"Expected noise_std >= 0 in {source}, actually: {noise_std}")
-    return noise_std
+    return float(HYPERPARAMETERS["noise_std"].check(block.pop("noise_std", 0.1), f"{source}: noise_std"))
 
 
 def _pop_mapping(block: dict[str, Any], name: str, source: str) -> dict[str, Any]:
@@ -312,8 +330,8 @@ def _check_algo_kwargs(block: dict[str, Any], algo: str, source: str) -> None:
         block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
     _check_replay_buffer(block, source)
     _check_network_size(block.get("policy_kwargs"), algo, source)
-    if "train_freq" in block and isinstance(block["train_freq"], list):
-        block["train_freq"] = tuple(block["train_freq"])
+    if "train_freq" in block:
+        block["train_freq"] = check_train_freq(block["train_freq"], f"{source}: train_freq")
     if "buffer_size" in block:
         block["buffer_size"] = _buffer_size(block["buffer_size"], source)
     if isinstance(block.get("learning_rate"), str):
@@ -339,9 +357,9 @@ def parse_schedule(text: str, name: str, source: str = "config") -> LinearSchedu
         value = float(initial)
     except ValueError:
         value = math.nan
-    if kind != "lin" or not (math.isfinite(value) and value > 0):
+    if kind != "lin" or not (math.isfinite(value) and 0 < value <= 1):
         raise ConfigError(
-            f"Expected {name} in {source} to be a number or a schedule 'lin_<initial value > 0>' "
+            f"Expected {name} in {source} to be a number or a schedule 'lin_<initial value in (0, 1]>' "
             f"(RL Zoo's linear schedule), actually: {brief(text)}"
         )
     return LinearSchedule(value, 0.0, 1.0)
@@ -358,6 +376,10 @@ def _check_replay_buffer(block: dict[str, Any], source: str) -> None:
     if not isinstance(buffer_kwargs, dict) or set(buffer_kwargs) - {"relabel_fraction"}:
         raise ConfigError(
             f"Expected replay_buffer_kwargs in {source} to set only relabel_fraction, actually: {buffer_kwargs!r:.200}"
+        )
+    if "relabel_fraction" in buffer_kwargs:
+        buffer_kwargs["relabel_fraction"] = HYPERPARAMETERS["relabel_fraction"].check(
+            buffer_kwargs["relabel_fraction"], f"{source}: replay_buffer_kwargs.relabel_fraction"
         )
 
 
@@ -402,15 +424,9 @@ def _parse_callbacks(value: Any, source: str) -> dict[str, float]:
             raise ConfigError(
                 f"Expected {path} in {source} to take only `coefficient`, actually: {kwargs!r:.200}"
             )
-        coefficient = kwargs.get("coefficient", 0.1)
-        if (
-            isinstance(coefficient, bool)
-            or not isinstance(coefficient, (int, float))
-            or not (np.isfinite(coefficient) and coefficient >= 0)
-        ):
-            raise ConfigError(
-                f"Expected {path}'s coefficient in {source} to be a number >= 0, actually: {coefficient!r:.100}"
-            )
+        coefficient = HYPERPARAMETERS["coefficient"].check(
+            kwargs.get("coefficient", 0.1), f"{source}: {path}.coefficient"
+        )
         settings[CALLBACKS[path]] = float(coefficient)
     return settings
 
@@ -550,11 +566,15 @@ def _check_network_size(policy_kwargs: Any, algo: str, source: str) -> None:
         if isinstance(net_arch, dict)
         else (net_arch, net_arch)
     )
-    if not all(isinstance(layers, (list, tuple)) for layers in (pi, qf)) or not all(
-        isinstance(size, int) and not isinstance(size, bool) and size >= 1 for size in (*pi, *qf)
+    if not all(
+        isinstance(layers, (list, tuple)) and len(layers) <= MAX_LAYERS for layers in (pi, qf)
+    ) or not all(
+        isinstance(size, int) and not isinstance(size, bool) and 1 <= size <= MAX_LAYER_SIZE
+        for size in (*pi, *qf)
     ):
         raise ConfigError(
-            f"Expected net_arch in {source} to be lists of layer sizes >= 1, actually: {brief(net_arch)}"
+            f"Expected net_arch in {source} to be lists of at most {MAX_LAYERS} layer sizes in "
+            f"[1, {MAX_LAYER_SIZE}], actually: {brief(net_arch)}"
         )
     n_critics = policy_kwargs.get("n_critics", 1 if algo == "DDPG" else 2)
     n_quantiles = policy_kwargs.get("n_quantiles", 25)
@@ -566,13 +586,3 @@ def _check_network_size(policy_kwargs: Any, algo: str, source: str) -> None:
         check_parameter_count(algo, 64, 8, pi, qf, n_critics=n_critics, n_quantiles=n_quantiles)
     except ValueError as error:
         raise ConfigError(f"{source}: {error}") from None
-
-
-def _as_int(value: Any, name: str, source: str, minimum: int) -> int:
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ConfigError(
-            f"Expected {name} in {source} to be an integer >= {minimum}, actually: {brief(value)}"
-        )
-    return value

@@ -10,6 +10,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from sb3_hddpg.artifacts.values import RUN_SETTINGS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 
 #: The largest seed SB3 (numpy's legacy seeding) accepts.
@@ -65,12 +66,13 @@ class RunOptions:
     backend: str | None = None
 
     def __post_init__(self) -> None:
-        if self.timesteps is not None and self.timesteps < 1:
-            raise ValueError(f"Expected timesteps >= 1, actually: {self.timesteps}")
+        # The numbers through the one value schema (the CLI's options and a Python caller's alike).
+        for name, bound in RUN_SETTINGS.items():
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, bound.check(value, name))
         if not 0 <= self.seed <= MAX_SEED:
             raise ValueError(f"Expected seed in [0, {MAX_SEED}], actually: {self.seed}")
-        if self.checkpoint_freq < 0:
-            raise ValueError(f"Expected checkpoint_freq >= 0, actually: {self.checkpoint_freq}")
 
     def replace(self, **changes: Any) -> RunOptions:
         """A copy with ``changes`` (field name -> value), checked as a new one is."""

@@ -34,15 +34,17 @@ from sb3_hddpg.artifacts.io import (
     holds_folder_lock,
     remove_stale_temporaries,
 )
-from sb3_hddpg.artifacts.limits import brief, check_env_id, check_env_kwargs, read_json_file
+from sb3_hddpg.artifacts.limits import brief, check_env_id, read_json_file
 from sb3_hddpg.artifacts.manifests import (
     WORKER_MANIFEST_VERSION,
+    check_resumed_env,
     load_workers,
     model_entry,
     observed_components,
     read_workers_manifest,
     save_manifest,
 )
+from sb3_hddpg.artifacts.values import check_env_kwargs, check_make_kwargs
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
@@ -453,9 +455,14 @@ def worker_hyperparams(
     duplicates = sorted({w for w in workers if list(workers).count(w) > 1})
     if duplicates:
         raise ValueError(f"Duplicate worker names {duplicates} in {list(workers)}: name each worker once")
-    if env is not None:
-        return {name: load_hyperparams(env.config_key, DDPG, config) for name in workers}
-    return {name: load_hyperparams(WORKER_ENV_IDS[name], DDPG, config) for name in workers}
+    blocks = {
+        name: load_hyperparams(env.config_key if env is not None else WORKER_ENV_IDS[name], DDPG, config)
+        for name in workers
+    }
+    for name, block in blocks.items():
+        env_id, view_kwargs = env.term_view(name) if env is not None else (WORKER_ENV_IDS[name], {})
+        check_make_kwargs(env_id, {**view_kwargs, **block.env_kwargs}, f"worker {name!r}: env_kwargs")
+    return blocks
 
 
 def flat_hyperparams(
@@ -519,6 +526,15 @@ def train_workers(
     manifest: dict[str, Any] = {"schema_version": WORKER_MANIFEST_VERSION, "workers": {}}
     if run.resume and manifest_path.exists():
         manifest = read_workers_manifest(manifest_path)
+        if env is not None or "shared_env" in manifest:
+            check_resumed_env(
+                manifest.get("shared_env", {"env_id": SNAKE_SHARED_ENV_ID}), shared.env_id, shared.env_kwargs
+            )
+        for name in workers:
+            env_id, view_kwargs = shared.term_view(name)
+            check_resumed_env(
+                manifest["workers"].get(name), env_id, {**view_kwargs, **blocks[name].env_kwargs}
+            )
     if env is not None:
         manifest["shared_env"] = {"env_id": env.env_id, "env_kwargs": env.env_kwargs}
     for name in workers:
@@ -609,7 +625,7 @@ def train_flat(
     algo_class(algo)  # an unknown algorithm named as such, before its config file is looked for
     config_path = Path(config) if config is not None else default_config(algo)
     hyperparams = flat_hyperparams(algo, env_id, env_kwargs, config_path)
-    make_kwargs = {**hyperparams.env_kwargs, **(env_kwargs or {})}
+    make_kwargs = check_make_kwargs(env_id, {**hyperparams.env_kwargs, **(env_kwargs or {})}, "env_kwargs")
     budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "flat" / "manifest.json"
@@ -617,6 +633,8 @@ def train_flat(
     if manifest_path.exists():
         manifest = read_json_file(manifest_path)
     name = name or algo
+    if run.resume:
+        check_resumed_env(manifest["models"].get(name), env_id, make_kwargs)
     if run.resume and _finished(manifest["models"].get(name), budget):
         return manifest, None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
@@ -810,7 +828,7 @@ def prepare_manager(
         selection_config = SelectionConfig(**wrapper_kwargs)
     except TypeError as error:  # an unknown key in the config's wrapper_kwargs
         raise ValueError(f"Invalid wrapper_kwargs in the manager's config block: {error}") from None
-    env_kwargs = {**given_kwargs, **hyperparams.env_kwargs}
+    env_kwargs = check_make_kwargs(env_id, {**given_kwargs, **hyperparams.env_kwargs}, "manager env_kwargs")
     if "observe" in env_kwargs:
         raise ValueError(
             "The manager's env must give the full state (its workers slice it): remove `observe` from the "

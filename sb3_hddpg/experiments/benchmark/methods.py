@@ -8,7 +8,6 @@ are registered here, with the functions that run them in a task's process.
 from __future__ import annotations
 
 import functools
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,9 +15,11 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
+from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.terms_env import config_key
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import RandomPolicy
@@ -118,8 +119,10 @@ def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]
     """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
 
     # Another env is the user's choice: its id may be loaded from the run's files (allowed_env_ids).
-    env_id = settings.env["env_id"] if settings.env is not None else None
-    loaded = load_policy(policy_path, allowed_env_ids=[env_id] if env_id else None)
+    shared = settings.env or {}
+    # The adapter's own id and the env it adapts, as naming them on the command line allows them.
+    allowed = [shared["env_id"], config_key(shared["env_id"], shared.get("env_kwargs"))] if shared else None
+    loaded = load_policy(policy_path, allowed_env_ids=allowed)
     env = loaded.make_env()
     try:
         return evaluate(loaded.policy, env, n_episodes=settings.test_episodes, seed=TEST_SEED_BASE).summary()
@@ -140,8 +143,12 @@ def random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
 
 def workers_steps(folder: Path) -> int:
     """Env steps of the seed's workers together, as their manifest records them."""
-    manifest = json.loads((folder / "workers" / "manifest.json").read_text())
-    return int(sum(entry["timesteps_trained"] for entry in manifest["workers"].values()))
+    path = folder / "workers" / "manifest.json"
+    manifest = read_workers_manifest(path)
+    try:
+        return int(sum(int(entry["timesteps_trained"]) for entry in manifest["workers"].values()))
+    except (KeyError, TypeError, ValueError, OverflowError):
+        raise ValueError(f"{path}: a worker entry has no whole timesteps_trained") from None
 
 
 def _run_manager(

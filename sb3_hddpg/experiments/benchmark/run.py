@@ -57,8 +57,32 @@ def read_record(out: Path, task: Task) -> dict[str, Any] | None:
     path = record_path(out, task)
     if not path.exists():
         return None
-    record = json.loads(path.read_text())
+    record = read_record_file(path)
     return record if record.get("status") == "done" else None
+
+
+def read_record_file(path: Path) -> dict[str, Any]:
+    """
+    A task's record file, through the JSON size and depth limits and shape-checked: an object whose
+    ``status`` and ``method`` are strings and whose ``seed`` is a whole number in ``[0, 2**31)``.
+
+    :raises ValueError: one line naming the file (a ``LimitError`` for one too big or too deep).
+    """
+    try:
+        record = read_json_file(path)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: not a readable benchmark record ({type(error).__name__})") from None
+    seed = record.get("seed") if isinstance(record, dict) else None
+    if (
+        not isinstance(record, dict)
+        or not isinstance(record.get("status"), str)
+        or not isinstance(record.get("method"), str)
+        or isinstance(seed, bool)
+        or not isinstance(seed, int)
+        or not 0 <= seed < 2**31
+    ):
+        raise ValueError(f"{path}: expected a benchmark record (status, method, seed in [0, 2**31))")
+    return record
 
 
 def elapsed_path(out: Path, task: Task) -> Path:
@@ -425,7 +449,7 @@ def run_benchmark(
     settings_path = out / "benchmark.json"
     stored = asdict(settings)
     redo = check_redo(settings, redo, resume)
-    saved = json.loads(settings_path.read_text()) if resume and settings_path.exists() else None
+    saved = read_json_file(settings_path) if resume and settings_path.exists() else None
     if saved is not None:
         changed = _changed_settings(settings, saved, redo)
         if changed:
