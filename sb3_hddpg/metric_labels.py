@@ -50,8 +50,9 @@ class MetricLabel:
 #: Summary key -> how it is shown. Keys not listed are shown by name, with three decimals.
 METRIC_LABELS: dict[str, MetricLabel] = {
     "mean_reward": MetricLabel("reward (the env's own)", "per episode", short="reward"),
+    # Any env's terms, each min-max normalised to [0, 1] and summed (on the snake arm: its reach reward).
     "mean_reach_reward": MetricLabel(
-        "reach reward (sum of the normalised terms)", "per episode", short="reach reward"
+        "normalised return (terms scaled to [0, 1], summed)", "per episode", short="normalised return"
     ),
     "mean_goal_reward": MetricLabel("goal reward", "per episode"),
     "mean_avoid_reward": MetricLabel("avoid reward", "per episode"),
@@ -100,9 +101,10 @@ def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
     :return: the rows, in the summary's order.
     """
     rows: list[tuple[str, str, str]] = []
+    same = _same_returns(summary)
     for key, value in summary.items():
-        if key in ("episodes", "std_reward", "std_reach_reward"):
-            continue  # the episodes are in the title; a std is shown with its mean
+        if key in ("episodes", "std_reward", "std_reach_reward") or (same and key == "mean_reach_reward"):
+            continue  # the episodes are in the title; a std is shown with its mean; one number once
         by_worker = {"selection_rate": SELECTION_LABEL, "collisions_by_worker": CONTACTS_LABEL}.get(key)
         if by_worker is not None and isinstance(value, Mapping):
             for name, item in value.items():
@@ -120,8 +122,19 @@ def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
         spread = {"mean_reward": "std_reward", "mean_reach_reward": "std_reach_reward"}.get(key)
         if spread is not None and spread in summary:
             shown += f" ± {label.format(summary[spread])}"
-        rows.append((label.label, shown, label.unit))
+        name = (
+            f"{label.label} = {METRIC_LABELS['mean_reach_reward'].short}" if same and spread else label.label
+        )
+        rows.append((name, shown, label.unit))
     return rows
+
+
+def _same_returns(summary: Mapping[str, Any]) -> bool:
+    """Whether the env's own reward is the normalised return (an env whose reward is that sum)."""
+    reward, normalised = summary.get("mean_reward"), summary.get("mean_reach_reward")
+    if not isinstance(reward, float) or not isinstance(normalised, float):
+        return False
+    return metric_label("mean_reward").format(reward) == metric_label("mean_reward").format(normalised)
 
 
 def _plain(value: Any) -> str:

@@ -170,7 +170,7 @@ def test_manifests_are_read_modify_write(tmp_path: Path) -> None:
     manifest = train_workers(tmp_path / "w", workers=["avoid"], **quick)
     on_disk = json.loads((tmp_path / "w" / "workers" / "manifest.json").read_text())
     assert set(on_disk["workers"]) == {"goal", "avoid"} and set(manifest["workers"]) >= {"avoid"}
-    workers, _ = load_workers(tmp_path / "w")
+    workers = load_workers(tmp_path / "w")
     assert set(workers) == {"goal", "avoid"}
 
 
