@@ -145,6 +145,7 @@ def test_own_manager_runs_the_readme_snippet_over_loaded_workers(tmp_path):
     train_workers(tmp_path / "w", config=config, timesteps=200, eval_freq=0, eval_episodes=1)
     workers = load_workers(tmp_path / "w")
     assert any(workers.states.values()), "the quickstart's workers see part of the state"
+    assert not list((tmp_path / "w").rglob("*.lock")), "a finished run leaves no lock files"
     out = tmp_path / "mine.zip"
     args = [str(tmp_path / "w"), "--timesteps", "150", "--episodes", "1", "--out", str(out)]
     result = run_example("own_manager.py", args)

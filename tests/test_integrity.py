@@ -226,3 +226,15 @@ def test_a_stop_signal_during_a_save_waits_for_the_file_then_interrupts(tmp_path
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         signal.signal(signal.SIGINT, inherited)
+
+
+def test_released_locks_leave_no_lock_files(tmp_path):
+    from sb3_hddpg.artifacts.io import locked_file
+
+    with locked_folder(tmp_path / "run"):
+        with locked_file(tmp_path / "run" / "manifest.json"):
+            assert (tmp_path / "run" / ".manifest.json.lock").exists()
+        assert (tmp_path / "run" / LOCK_FILE).exists()
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == []
+    with locked_folder(tmp_path / "run"):  # and the folder can be locked again
+        pass
