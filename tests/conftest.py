@@ -3,6 +3,7 @@ Shared test set-up: headless pygame, one torch thread, SB3's stray log folders k
 checkout-relative path helper, a Ray cluster.
 """
 
+import contextlib
 import os
 import signal
 
@@ -34,21 +35,28 @@ def repo_root() -> str:
 
 
 @pytest.fixture(scope="module")
-def ray_cluster():
+def ray_cluster(tmp_path_factory: pytest.TempPathFactory):
     """
-    A local Ray cluster of 2 CPUs in this process, no dashboard, for one test module (seconds to start);
-    skipped without Ray. Started with SIGINT ignored, as when the tests run in the background (``nohup``,
-    ``make test &``, CI runners): Ray's workers inherit that, the case in which a non-forced ``ray.cancel``
-    once reached no running task (sb3_hddpg/experiments/ray_executor.py, "Interruption").
+    A local Ray cluster of 2 CPUs, no dashboard, this process its driver, for one test module (seconds to
+    start); skipped without Ray. The head runs as ``ray start`` in a process of its own: ``ray.init`` starting
+    it here would fork this process (Ray's ``preexec_fn``), which JAX, loaded by an earlier test of the
+    same process, warns would deadlock. Started with SIGINT ignored, as when the tests run in the
+    background (``nohup``, ``make test &``, CI runners): Ray's workers inherit that, the case in which a
+    non-forced ``ray.cancel`` once reached no running task (sb3_hddpg/experiments/ray_executor.py,
+    "Interruption").
     """
     ray = pytest.importorskip("ray")
+    from sb3_hddpg.experiments.ray_head import local_ray_head
     from tests import jobs
 
     ray.cloudpickle.register_pickle_by_value(jobs)  # Ray's workers cannot import the tests by name
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    yield ray
-    ray.shutdown()
+    log = tmp_path_factory.mktemp("ray-cluster") / "head.log"
+    with contextlib.ExitStack() as stack:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            head = stack.enter_context(local_ray_head(2, log))
+        finally:
+            signal.signal(signal.SIGINT, previous)
+        ray.init(address=head.address, logging_level="WARNING")
+        yield ray
+        ray.shutdown()
