@@ -15,6 +15,7 @@ import typer
 from typer.main import get_command
 
 from sb3_hddpg.cli.app import app, console_error
+from sb3_hddpg.envs.headless import as_rendering_error
 
 # Importing a command module registers its commands on ``app``.
 from sb3_hddpg.cli import rollout, train, evaluate  # noqa: F401  isort: skip
@@ -54,6 +55,8 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as error:  # the one place that turns any failure into a clean line
         if debug:
             raise
+        # An OpenGL context that could not be made, from whichever library: named with its fix.
+        error = as_rendering_error(error) or error
         # Our own errors are sentences; anything else (KeyError('x'), ...) needs its type to make sense.
         own = isinstance(error, (ValueError, OSError, RuntimeError)) and str(error)
         console_error(str(error) if own else f"{type(error).__name__}: {error}")

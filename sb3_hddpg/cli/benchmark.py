@@ -13,6 +13,7 @@ from rich.table import Table
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
+    SNAKE_DEFAULT,
     EpisodeStepsOpt,
     ExecutorOpt,
     ExperimentBackendOpt,
@@ -340,6 +341,7 @@ def benchmark_command(
         None,
         "--env",
         help=ENV_HELP
+        + SNAKE_DEFAULT
         + f" There the methods are among {list(ENV_METHODS)} (default: {','.join(DEFAULT_ENV_METHODS)}), standard scenario only.",
     ),
     terms: TermsOpt = None,

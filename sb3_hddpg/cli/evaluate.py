@@ -36,9 +36,7 @@ def evaluate_command(
         ...,
         help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK).",
     ),
-    env_id: str | None = typer.Option(
-        None, "--env", help="Env id to evaluate on (default: the one it was trained on). " + ENV_HELP
-    ),
+    env_id: str | None = typer.Option(None, "--env", help=ENV_HELP + " Default: the env it was trained on."),
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,

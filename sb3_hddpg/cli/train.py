@@ -12,6 +12,7 @@ from rich.table import Table
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
+    SNAKE_DEFAULT,
     BackendOpt,
     CheckpointFreqOpt,
     EpisodeStepsOpt,
@@ -51,7 +52,7 @@ from sb3_hddpg.training.training import (
 )
 
 #: train-manager's --env: where its default comes from.
-MANAGER_ENV_NOTE = " For the manager, the default is the shared env recorded in the workers' manifest."
+MANAGER_ENV_NOTE = " Default: the shared env recorded in the workers' manifest."
 CONFIG_HELP = "Hyperparameters in RL Zoo format (default: the bundled zoo_configs/ddpg.yml)."
 
 
@@ -103,7 +104,7 @@ def train_workers_command(
         help=f"Workers to train, one per reward term (repeat the option). Default: every term of the env "
         f"(the snake arm: {sorted(WORKER_ENV_IDS)}).",
     ),
-    env: str | None = typer.Option(None, "--env", help=ENV_HELP),
+    env: str | None = typer.Option(None, "--env", help=ENV_HELP + SNAKE_DEFAULT),
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,

@@ -47,6 +47,7 @@ from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verif
 from sb3_hddpg.artifacts.safe_load import load_model, model_spec
 from sb3_hddpg.artifacts.workers import Workers, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
+from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
     SelectionConfig,
@@ -122,7 +123,10 @@ class Hierarchy:
             worker_meta = workers.bundle_meta()
         self.worker_meta = dict(worker_meta or {})
         self.metadata = dict(metadata or {})
-        probe = gym.make(env_id, **self.env_kwargs)
+        with (
+            rendering_errors()
+        ):  # MuJoCo's OpenGL may fail on import: a problem of this machine, not the bundle
+            probe = gym.make(env_id, **self.env_kwargs)
         # Absent a declared layout the whole observation is one component: naming any other is refused
         # by StateLayout.indices with the known names.
         layout = state_layout_of(probe)
@@ -346,7 +350,7 @@ class Hierarchy:
                 worker_meta=worker_meta,
                 metadata={k: v for k, v in manager_entry.items() if k not in ("file", "sha256", "spec")},
             )
-        except BundleError:
+        except (BundleError, HeadlessRenderingError):
             raise
         except (ValueError, KeyError, TypeError, AttributeError) as error:
             raise BundleError(f"{name}: invalid settings in {MANIFEST}: {brief(str(error), 300)}") from None
