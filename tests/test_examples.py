@@ -150,7 +150,10 @@ def test_own_manager_runs_the_readme_snippet_over_loaded_workers(tmp_path):
     args = [str(tmp_path / "w"), "--timesteps", "150", "--episodes", "1", "--out", str(out)]
     result = run_example("own_manager.py", args)
     assert result.stdout.startswith("1 episodes"), result.stdout
-    assert "normalised return" in result.stdout and "mean_reward" not in result.stdout, result.stdout
+    assert (
+        "reward (the env's own) = return (normalised terms)" in result.stdout
+        and "mean_reward" not in result.stdout
+    ), result.stdout
     bundle = Hierarchy.load(out)
     assert bundle.env_id == workers.env_id
     assert bundle.config.worker_states == workers.states
