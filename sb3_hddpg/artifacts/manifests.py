@@ -79,7 +79,10 @@ def read_workers_manifest(path: str | Path) -> dict[str, Any]:
 
 
 def load_workers(
-    workers_dir: str | Path, names: Sequence[str] | None = None, trusted: bool = False
+    workers_dir: str | Path,
+    names: Sequence[str] | None = None,
+    trusted: bool = False,
+    allowed_env_ids: Sequence[str] | None = None,
 ) -> Workers:
     """
     Load workers written by ``train_workers``, verifying each zip's sha256 against the manifest.
@@ -95,6 +98,8 @@ def load_workers(
     :param names: which workers, in order (default: all, in manifest order).
     :param trusted: use SB3's full loader instead of the weights-only rebuild (only for files you trust),
         and accept any registered env id as the shared env.
+    :param allowed_env_ids: registered env ids the manifest's shared env may be besides this package's own
+        (a user's env; otherwise ``make_env()`` says how to allow it, and the models load all the same).
     :return: name -> SB3 model, a :class:`~sb3_hddpg.artifacts.workers.Workers` mapping that also holds
         each worker's observed components, the shared env and the manifest.
     """
@@ -135,8 +140,12 @@ def load_workers(
             raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
         verify_sha256(path, entry["sha256"], str(path))
         models[name] = load_model(path, spec=entry.get("spec"), trusted=trusted)
-    env_id, env_kwargs = shared_env_of(manifest, None, None, trusted)
-    return Workers(models, observed_components(manifest, names), env_id, env_kwargs, manifest, folder)
+    states = observed_components(manifest, names)
+    try:
+        env_id, env_kwargs = shared_env_of(manifest, None, None, trusted, allowed_env_ids)
+    except ValueError as error:  # an env outside the allow-list: the caller may name the env itself
+        return Workers(models, states, None, {}, manifest, folder, env_problem=str(error))
+    return Workers(models, states, env_id, env_kwargs, manifest, folder)
 
 
 def model_entry(

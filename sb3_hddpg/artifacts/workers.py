@@ -32,18 +32,22 @@ class Workers(Mapping[str, Any]):
     :param models: name -> loaded model, in order.
     :param states: name -> the state components that worker sees (workers trained on the full state are
         absent).
-    :param env_id: the shared env's registered id.
+    :param env_id: the shared env's registered id (``None``: the manifest's is not usable here, see
+        ``env_problem``).
     :param env_kwargs: its keyword arguments.
     :param manifest: the workers manifest the models were loaded from.
     :param folder: the folder holding that manifest.
+    :param env_problem: why the manifest's shared env is not usable (e.g. an env id outside the allow-list),
+        raised by :meth:`make_env`; the models themselves are usable in any env they fit.
     """
 
     models: dict[str, Any]
     states: dict[str, list[str]] = field(default_factory=dict)
-    env_id: str = SNAKE_SHARED_ENV_ID
+    env_id: str | None = SNAKE_SHARED_ENV_ID
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     manifest: dict[str, Any] = field(default_factory=dict)
     folder: Path | None = None
+    env_problem: str = ""
 
     def __getitem__(self, name: str) -> Any:
         return self.models[name]
@@ -63,6 +67,8 @@ class Workers(Mapping[str, Any]):
 
         :param overrides: keyword arguments over ``env_kwargs`` (e.g. ``render_mode="rgb_array"``).
         """
+        if self.env_id is None:
+            raise ValueError(self.env_problem or "These workers name no shared env: make it yourself")
         return gym.make(self.env_id, **{**self.env_kwargs, **overrides})
 
     def bundle_meta(self) -> dict[str, dict[str, Any]]:
@@ -83,7 +89,11 @@ class Workers(Mapping[str, Any]):
 
 
 def shared_env_of(
-    manifest: dict[str, Any], env_id: str | None, env_kwargs: dict[str, Any] | None, trusted: bool = False
+    manifest: dict[str, Any],
+    env_id: str | None,
+    env_kwargs: dict[str, Any] | None,
+    trusted: bool = False,
+    allowed_env_ids: Any = None,
 ) -> tuple[str, dict[str, Any]]:
     """
     The shared env a manager over these workers acts in: ``env_id`` if given, else the manifest's
@@ -94,6 +104,7 @@ def shared_env_of(
     :param env_id: an env id given by the caller, which wins.
     :param env_kwargs: keyword arguments given by the caller, over the manifest's.
     :param trusted: accept any registered env id.
+    :param allowed_env_ids: registered env ids the manifest may name besides this package's own.
     :return: the env id and its keyword arguments.
     """
     if env_id is not None:
@@ -103,9 +114,15 @@ def shared_env_of(
         return SNAKE_SHARED_ENV_ID, dict(env_kwargs or {})
     if not isinstance(shared, dict):
         raise ValueError(f"workers manifest: shared_env must be a mapping, actually: {shared!r:.200}")
-    found = check_env_id(shared.get("env_id"), "workers manifest: shared_env.env_id", trusted=trusted)
+    found = check_env_id(
+        shared.get("env_id"), "workers manifest: shared_env.env_id", allowed_env_ids, trusted=trusted
+    )
     kwargs = check_env_kwargs(
-        found, shared.get("env_kwargs"), "workers manifest: shared_env.env_kwargs", trusted=trusted
+        found,
+        shared.get("env_kwargs"),
+        "workers manifest: shared_env.env_kwargs",
+        allowed_env_ids,
+        trusted=trusted,
     )
     return found, {**kwargs, **(env_kwargs or {})}
 

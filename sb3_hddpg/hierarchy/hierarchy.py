@@ -114,7 +114,7 @@ class Hierarchy:
         if env_id is None:
             # Without an env id the bundle would record the snake env whatever the models were trained on,
             # and fail only much later (in evaluate); the models' own training envs say which env it is.
-            shared = (workers.env_id, workers.env_kwargs) if isinstance(workers, Workers) else None
+            shared = _shared_env(workers)
             env_id, inferred_kwargs = infer_env(manager, self.workers) or shared or (DEFAULT_ENV_ID, {})
             env_kwargs = inferred_kwargs if env_kwargs is None else env_kwargs
         self.env_id = env_id
@@ -473,6 +473,13 @@ def _check_member_entry(label: str, entry: Any, name: str) -> None:
         raise BundleError(
             f"{name}: {label!r} names member {brief(entry['file'])}; a bundle names it {expected!r}"
         )
+
+
+def _shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
+    """The shared env workers from ``load_workers`` name, if usable."""
+    if isinstance(workers, Workers) and workers.env_id is not None:
+        return workers.env_id, workers.env_kwargs
+    return None
 
 
 def _selection_config(

@@ -276,7 +276,7 @@ def _check_worker_spaces(
             raise ValueError(
                 f"Worker {name!r} sees {seen[0]} values but the env gives {given[0]}: load workers with "
                 f"sb3_hddpg.load_workers(folder), or pass worker_states={{{name!r}: [...]}} with the "
-                f"components it was trained on (the env's: {list(layout)})"
+                f"components it was trained on (the env's: {list(layout)}), or use the env it was trained on"
             )
         expected = SimpleNamespace(
             observation_space=worker.observation_space, action_space=worker.action_space
