@@ -38,10 +38,20 @@ torch:
 	$(PYTHON) -m venv $(VENV)
 	@$(INSTALL_TORCH)
 
+# The quickstart's run folder: a fixed one, so that the next commands (printed at the end) and the README's
+# examples name it; `make quickstart` again replaces it.
+QUICKSTART_OUT ?= runs/quickstart
+
 # The fast extra is installed above, so the main job trains with SBX (JAX, ~2.5x faster on these CPUs); the
 # models it saves are plain SB3 zips all the same. `hddpg-cli quickstart` alone keeps the SB3 default.
+# hddpg-cli lives in $(BIN): the last lines say to activate the virtual environment before using it.
 quickstart: $(STAMP)
-	$(BIN)/hddpg-cli quickstart --backend sbx
+	$(BIN)/hddpg-cli quickstart --backend sbx --out $(QUICKSTART_OUT) --force
+	@echo
+	@echo "Next, in this shell (hddpg-cli and the package are in $(VENV)):"
+	@echo "  source $(BIN)/activate"
+	@echo "  hddpg-cli evaluate $(QUICKSTART_OUT)/hierarchy.zip --episodes 5"
+	@echo "  python examples/own_manager.py $(QUICKSTART_OUT)/workers   # your own SAC manager over its workers"
 
 # The tests in TEST_WORKERS processes, then the 15 slowest.
 test: $(STAMP)

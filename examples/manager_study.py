@@ -21,7 +21,7 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.noise import NormalActionNoise
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
-from sb3_hddpg.artifacts.manifests import load_workers, observed_components
+from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.callbacks import apply_action_l2
 from sb3_hddpg.evaluation import evaluate, state_dependence
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
@@ -44,12 +44,12 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(1)
 
-    workers, manifest = load_workers(args.workers, ["goal", "avoid"])
+    workers = load_workers(args.workers, ["goal", "avoid"])
     config = SelectionConfig(
         preferences={"goal": 1.0, "avoid": 1.0},
         selection=args.selection,
         temperature=args.temperature,
-        worker_states=observed_components(manifest, ["goal", "avoid"]),
+        worker_states=workers.states,
     )
     env = WorkerSelectionWrapper(gym.make("hddpg/SnakeReach-v0"), workers, **config.wrapper_kwargs())
     model = DDPG(

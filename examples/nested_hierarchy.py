@@ -45,7 +45,7 @@ def main() -> None:
         args.hierarchy, args.workers = scratch / "m" / "hierarchy.zip", scratch / "w"
 
     lower = Hierarchy.load(args.hierarchy)
-    avoid = load_workers(args.workers, ["avoid"])[0]["avoid"]
+    avoid = load_workers(args.workers, ["avoid"])["avoid"]
     workers = {"reach": lower, "avoid": avoid}
     config = SelectionConfig(preferences={"reach": 1.0, "avoid": 1.0}, selection="sample")
     env = WorkerSelectionWrapper(gym.make("hddpg/SnakeReach-v0"), workers, **config.wrapper_kwargs())

@@ -86,7 +86,7 @@ def main() -> None:
     )
     args = parser.parse_args()
 
-    workers, _ = load_workers(args.workers)
+    workers = load_workers(args.workers)
     env = gym.make("hddpg/SnakeReach-v0")
     bounds = env.unwrapped.reward_bounds
     layout = env.unwrapped.state_layout

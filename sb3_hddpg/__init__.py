@@ -15,10 +15,14 @@ _LAZY = {
     "Hierarchy": "sb3_hddpg.hierarchy.hierarchy",
     "SelectionConfig": "sb3_hddpg.hierarchy.hierarchy",
     "WorkerSelectionWrapper": "sb3_hddpg.hierarchy.wrapper",
+    "Workers": "sb3_hddpg.artifacts.workers",
     "evaluate": "sb3_hddpg.evaluation",
     "load_policy": "sb3_hddpg.hierarchy.loading",
-    "train_workers": "sb3_hddpg.training.training",
+    "load_workers": "sb3_hddpg.artifacts.manifests",
+    "prepare_manager": "sb3_hddpg.training.training",
+    "train_flat": "sb3_hddpg.training.training",
     "train_manager": "sb3_hddpg.training.training",
+    "train_workers": "sb3_hddpg.training.training",
 }
 
 

@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.envs.contract import TermNormaliser, env_contract, proximity_of
+from sb3_hddpg.metric_labels import summary_rows
 from sb3_hddpg.policy import Policy
 
 #: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
@@ -58,6 +59,20 @@ class EpisodeMetrics:
     collisions_by_worker: dict[str, int] = field(default_factory=dict)
 
 
+class EvaluationSummary(dict[str, Any]):
+    """
+    The means of an evaluation: a plain dict for programs (JSON-ready; rates as fractions), printed as a
+    table in words with units (rates as percentages; see :mod:`sb3_hddpg.metric_labels`).
+    """
+
+    def __str__(self) -> str:
+        rows = summary_rows(self)
+        width = max((len(quantity) for quantity, _, _ in rows), default=0)
+        lines = [f"{self.get('episodes', 0)} episodes"]
+        lines += [f"  {quantity:<{width}}  {value} {unit}".rstrip() for quantity, value, unit in rows]
+        return "\n".join(lines)
+
+
 @dataclass
 class EvaluationResult:
     """Metrics over several episodes; :meth:`summary` gives means."""
@@ -67,8 +82,11 @@ class EvaluationResult:
     near_clearance: float | None = None
     clear_clearance: float | None = None
 
-    def summary(self) -> dict[str, Any]:
-        """Means (and the reward's std) over episodes, plus how often each worker acted, as a fraction."""
+    def summary(self) -> EvaluationSummary:
+        """
+        Means (and the reward's std) over episodes, plus how often each worker acted, as a fraction; a
+        dict that prints as a readable table.
+        """
         eps = self.episodes
         rewards = np.array([e.reward for e in eps])
         out: dict[str, Any] = {
@@ -110,7 +128,7 @@ class EvaluationResult:
                 }
             out["near_clearance"] = self.near_clearance
             out["clear_clearance"] = self.clear_clearance
-        return out
+        return EvaluationSummary(out)
 
     def to_dict(self) -> dict[str, Any]:
         """Summary and every episode, JSON-ready."""
@@ -119,7 +137,7 @@ class EvaluationResult:
 
 def evaluate(
     policy: Policy,
-    env: gym.Env,
+    env: gym.Env | None = None,
     n_episodes: int = 20,
     seed: int = EVAL_SEED_BASE,
     deterministic: bool = True,
@@ -139,7 +157,9 @@ def evaluate(
     (see :func:`state_dependence`). The policy must act in ``env``'s action space.
 
     :param policy: anything with SB3's ``predict``.
-    :param env: a single (not vectorised) environment, time-limited.
+    :param env: a single (not vectorised) environment, time-limited (default, for a policy that knows its
+        env such as a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`: one from its ``make_env()``,
+        closed afterwards).
     :param n_episodes: how many episodes, at least 1.
     :param seed: the first episode's seed.
     :param deterministic: passed to ``predict``.
@@ -153,6 +173,20 @@ def evaluate(
     """
     if n_episodes < 1:
         raise ValueError(f"Expected `n_episodes` to be >= 1, actually: {n_episodes}")
+    if env is None:
+        make_env = getattr(policy, "make_env", None)
+        if not callable(make_env):
+            raise ValueError(
+                f"evaluate() needs env= for a {type(policy).__name__}: only a policy with make_env() "
+                "(a Hierarchy) knows its env"
+            )
+        own_env = make_env()
+        try:
+            return evaluate(
+                policy, own_env, n_episodes, seed, deterministic, on_step, near_clearance, clear_clearance
+            )
+        finally:
+            own_env.close()
     near_clearance, clear_clearance = clearance_bands(env, near_clearance, clear_clearance)
     normaliser = TermNormaliser(env_contract(env).reward_bounds)
     episodes = []

@@ -9,7 +9,7 @@ unit in its own column or header, so that no table mixes ``0.070`` with ``99.4%`
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,9 +50,9 @@ class MetricLabel:
 #: Summary key -> how it is shown. Keys not listed are shown by name, with three decimals.
 METRIC_LABELS: dict[str, MetricLabel] = {
     "mean_reward": MetricLabel("reward (the env's own)", "per episode", short="reward"),
-    "mean_reach_reward": MetricLabel(
-        "reach reward (sum of the normalised terms)", "per episode", short="reach reward"
-    ),
+    # Any env's reward terms, each min-max normalised to [0, 1] with the env's bounds and summed over the
+    # episode's steps: one name on every env (on the snake arm it is the SnakeReach reward, "reach reward").
+    "mean_reach_reward": MetricLabel("return (normalised terms)", "per episode", short="norm. return"),
     "mean_goal_reward": MetricLabel("goal reward", "per episode"),
     "mean_avoid_reward": MetricLabel("avoid reward", "per episode"),
     # Rates of steps matter at one decimal (3.0 % against 0.1 % goal touch).
@@ -71,6 +71,11 @@ METRIC_LABELS: dict[str, MetricLabel] = {
     "mean_length": MetricLabel("episode length", "steps", digits=0),
 }
 
+#: What a manager's ``mean_reward`` is: its own reward, the normalised terms weighted by the preferences.
+MANAGER_REWARD_LABEL = MetricLabel(
+    "manager's reward (normalised terms weighted by the preferences)", "per episode", short="manager reward"
+)
+
 #: How one worker's share of the steps (``selection_rate``) is shown.
 SELECTION_LABEL = MetricLabel(
     "steps run by the {name} worker", "% of steps", percent=True, digits=1, short="worker use"
@@ -81,13 +86,27 @@ CONTACTS_LABEL = MetricLabel(
 )
 
 
+def units_caption(labels: Sequence[MetricLabel]) -> str:
+    """
+    The units of a table's columns in one line (``"per episode: reward, return; % of steps: goal touch"``), so
+    that the headers can be short names and the table fits an 80-column terminal.
+
+    :param labels: the columns' labels, in order.
+    """
+    by_unit: dict[str, list[str]] = {}
+    for label in labels:
+        if label.unit:
+            by_unit.setdefault(label.unit, []).append(label.short or label.label)
+    return "; ".join(f"{unit}: {', '.join(names)}" for unit, names in by_unit.items())
+
+
 def metric_label(key: str) -> MetricLabel:
     """How ``key`` is shown (a plain-words fallback for keys without an entry)."""
     if key in METRIC_LABELS:
         return METRIC_LABELS[key]
     term = re.fullmatch(r"mean_(\w+)_reward", key)
     if term:  # any env's reward term (evaluate reports one per term)
-        return MetricLabel(f"{term.group(1)} reward", "per episode")
+        return MetricLabel(f"{term.group(1)} reward", "per episode", short=f"{term.group(1)} term")
     return MetricLabel(key.replace("_", " "), "", digits=3)
 
 
@@ -100,9 +119,10 @@ def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
     :return: the rows, in the summary's order.
     """
     rows: list[tuple[str, str, str]] = []
+    same = same_returns(summary)
     for key, value in summary.items():
-        if key in ("episodes", "std_reward", "std_reach_reward"):
-            continue  # the episodes are in the title; a std is shown with its mean
+        if key in ("episodes", "std_reward", "std_reach_reward") or (same and key == "mean_reach_reward"):
+            continue  # the episodes are in the title; a std is shown with its mean; one number once
         by_worker = {"selection_rate": SELECTION_LABEL, "collisions_by_worker": CONTACTS_LABEL}.get(key)
         if by_worker is not None and isinstance(value, Mapping):
             for name, item in value.items():
@@ -120,8 +140,19 @@ def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
         spread = {"mean_reward": "std_reward", "mean_reach_reward": "std_reach_reward"}.get(key)
         if spread is not None and spread in summary:
             shown += f" ± {label.format(summary[spread])}"
-        rows.append((label.label, shown, label.unit))
+        name = (
+            f"{label.label} = {METRIC_LABELS['mean_reach_reward'].label}" if same and spread else label.label
+        )
+        rows.append((name, shown, label.unit))
     return rows
+
+
+def same_returns(summary: Mapping[str, Any]) -> bool:
+    """Whether the env's own reward is the return of the normalised terms (an env whose reward is that sum)."""
+    reward, normalised = summary.get("mean_reward"), summary.get("mean_reach_reward")
+    if not isinstance(reward, float) or not isinstance(normalised, float):
+        return False
+    return metric_label("mean_reward").format(reward) == metric_label("mean_reward").format(normalised)
 
 
 def _plain(value: Any) -> str:

@@ -354,7 +354,7 @@ CASES = [
         "tu-workers-for-another-env",
         ("tune", "--level", "manager", "--workers", "{w4}", "--out", "{tmp}/o"),
         2,
-        "(27,)",
+        "sees 27 values but the env gives 39",
     ),
     case(
         "tu-tampered-workers",

@@ -253,7 +253,7 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     for entry in results["methods"].values():  # the deciding network's saturation, a fraction
         assert 0.0 <= entry["stats"]["action_saturation"]["mean"] <= 1.0
     assert "saturated actions" in (out / "results.md").read_text()
-    assert "reach reward (test)" in done.stdout
+    assert "norm. return (test)" in done.stdout
     rows = list(csv.DictReader((out / "evaluations.csv").read_text().splitlines()))
     hddpg_curve = [r for r in rows if r["method"] == "hddpg" and r["kind"] == "curve" and r["seed"] == "0"]
     # A point every 100 env steps, i.e. every 100 // k decisions, and one at the end (training always ends

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -15,8 +16,14 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 def run_example(script: str, args: list[str], timeout: float = 600) -> subprocess.CompletedProcess[str]:
     """Run an example as its docstring does, in a fresh interpreter, and check that it exits 0."""
+    # One torch thread: the test machine's cores are shared by the test processes.
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
     result = subprocess.run(
-        [sys.executable, str(EXAMPLES / script), *args], capture_output=True, text=True, timeout=timeout
+        [sys.executable, str(EXAMPLES / script), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
     )
     assert result.returncode == 0, result.stderr[-3000:]
     return result
@@ -125,3 +132,31 @@ def test_goal_holding_measures_a_worker_and_the_reference_reachers(tmp_path):
     median_distance = {name: float(cells[4]) for name, cells in rows.items()}
     assert within_radius["ik"] > within_radius["random"] + 30, result.stdout
     assert median_distance["ik"] < median_distance["random"], result.stdout
+
+
+def test_own_manager_runs_the_readme_snippet_over_loaded_workers(tmp_path):
+    from sb3_hddpg import Hierarchy, load_workers
+    from sb3_hddpg.training import train_workers
+
+    config = tmp_path / "tiny.yml"
+    # As the quickstart's goal worker: trained on part of the state.
+    view = "  env_kwargs:\n    observe: ['joint_positions', 'ee_to_goal', 'goal_touched']\n"
+    config.write_text(TINY_CONFIG + "hddpg/SnakeGoal-v0:\n  <<: *tiny\n" + view)
+    train_workers(tmp_path / "w", config=config, timesteps=200, eval_freq=0, eval_episodes=1)
+    workers = load_workers(tmp_path / "w")
+    assert any(workers.states.values()), "the quickstart's workers see part of the state"
+    assert not list((tmp_path / "w").rglob("*.lock")), "a finished run leaves no lock files"
+    out = tmp_path / "mine.zip"
+    args = [str(tmp_path / "w"), "--timesteps", "150", "--episodes", "1", "--out", str(out)]
+    result = run_example("own_manager.py", args)
+    assert result.stdout.startswith("1 episodes"), result.stdout
+    assert (
+        "reward (the env's own) = return (normalised terms)" in result.stdout
+        and "mean_reward" not in result.stdout
+    ), result.stdout
+    bundle = Hierarchy.load(out)
+    assert bundle.env_id == workers.env_id
+    assert bundle.config.worker_states == workers.states
+    assert {name: meta["source_sha256"] for name, meta in bundle.worker_meta.items()} == {
+        name: entry["sha256"] for name, entry in workers.manifest["workers"].items()
+    }

@@ -100,7 +100,8 @@ def test_config_key_trains_the_goal_worker_with_relabelling(tmp_path):
     path = tmp_path / "config.yml"
     path.write_text(yaml.safe_dump({"hddpg/SnakeGoal-v0": block}))
     train_workers(tmp_path / "w", workers=["goal"], config=path, timesteps=200, eval_freq=0, eval_episodes=1)
-    models, manifest = load_workers(tmp_path / "w")
+    models = load_workers(tmp_path / "w")
+    manifest = models.manifest
     assert models["goal"].observation_space.shape == (15,)
     assert (
         manifest["workers"]["goal"]["config"]["block"]["replay_buffer_class"] == "GoalRelabelingReplayBuffer"

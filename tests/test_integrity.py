@@ -170,7 +170,7 @@ def test_manifests_are_read_modify_write(tmp_path: Path) -> None:
     manifest = train_workers(tmp_path / "w", workers=["avoid"], **quick)
     on_disk = json.loads((tmp_path / "w" / "workers" / "manifest.json").read_text())
     assert set(on_disk["workers"]) == {"goal", "avoid"} and set(manifest["workers"]) >= {"avoid"}
-    workers, _ = load_workers(tmp_path / "w")
+    workers = load_workers(tmp_path / "w")
     assert set(workers) == {"goal", "avoid"}
 
 
@@ -226,3 +226,15 @@ def test_a_stop_signal_during_a_save_waits_for_the_file_then_interrupts(tmp_path
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         signal.signal(signal.SIGINT, inherited)
+
+
+def test_released_locks_leave_no_lock_files(tmp_path):
+    from sb3_hddpg.artifacts.io import locked_file
+
+    with locked_folder(tmp_path / "run"):
+        with locked_file(tmp_path / "run" / "manifest.json"):
+            assert (tmp_path / "run" / ".manifest.json.lock").exists()
+        assert (tmp_path / "run" / LOCK_FILE).exists()
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == []
+    with locked_folder(tmp_path / "run"):  # and the folder can be locked again
+        pass

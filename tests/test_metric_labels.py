@@ -38,7 +38,8 @@ def test_rows_show_rates_as_percentages_with_the_unit_beside(summary):
     assert rows["steps run by the avoid worker"] == ("0.6", "% of steps")
     success, unit = rows["success: goal touched, no contact"]
     assert unit == "% of episodes" and float(success) in (0.0, 50.0, 100.0)
-    reward, unit = rows["reward (the env's own)"]
+    # On the snake's reach env the env's reward is the return of the normalised terms: one row, both names.
+    reward, unit = rows["reward (the env's own) = return (normalised terms)"]
     assert unit == "per episode" and re.fullmatch(r"-?\d+\.\d ± \d+\.\d", reward)
     # Keys added later (by another metric) still print in words, never as a raw key.
     assert summary_rows({"state_dependence": 0.25}) == [("state dependence", "0.250", "")]

@@ -2,6 +2,7 @@
 
 import importlib.util
 import json
+import re
 import subprocess
 import sys
 
@@ -27,6 +28,8 @@ def test_prints_the_table_and_the_run_folder(run):
     out, result = run
     assert "HDDPG" in result.stdout and "flat DDPG" in result.stdout and "reach reward" in result.stdout
     assert str(out) in result.stdout
+    # Every agent's budget in env steps, the manager's too (its SB3 steps are decisions of several).
+    assert re.search(r"manager: [\d,]+ env steps", result.stdout), result.stdout
 
 
 def test_results_json_schema(run):

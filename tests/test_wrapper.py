@@ -230,7 +230,7 @@ def test_state_subsets_for_manager_and_workers():
                     "avoid": ConstantWorker(AVOID_ACTION),
                 }
             },
-            "Observation spaces do not match",
+            "Worker .goal. sees 5 values but the env gives",
         ),
         (
             {

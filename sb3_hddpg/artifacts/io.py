@@ -199,7 +199,7 @@ def _first_not_finite(value: Any, where: str) -> str | None:
     return None
 
 
-#: The lock file every writer of a run folder holds (hidden; it stays after the run, unlocked).
+#: The lock file every writer of a run folder holds (hidden; removed when the run releases it).
 LOCK_FILE = ".hddpg.lock"
 #: Folders locked by this process or an ancestor of it (the pool processes of one run share its folder).
 HELD_FOLDERS_ENV = "HDDPG_HELD_FOLDERS"
@@ -223,6 +223,37 @@ def holds_lock(folder: str | os.PathLike[str]) -> bool:
     """Whether this process (or the run that started it) holds ``folder``'s run lock."""
     key = Path(folder).resolve()
     return key in _HELD or _held_by_ancestor(key)
+
+
+def _open_locked(path: Path, blocking: bool) -> Any:
+    """
+    Open ``path`` and ``flock`` it, the file that is at ``path`` once locked: a releasing holder removes
+    the file, so a lock taken on a file that was removed meanwhile guards nothing and is taken again.
+
+    :raises BlockingIOError: ``blocking=False`` and another process holds the lock.
+    """
+    while True:
+        handle = open(path, "a+")  # noqa: SIM115  (returned open, the caller holds it)
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+            current = os.stat(path).st_ino
+        except (BlockingIOError, FileNotFoundError) as error:
+            if isinstance(error, BlockingIOError):
+                handle.seek(0)
+                holder = handle.read(32).strip()
+                handle.close()
+                raise BlockingIOError(holder) from None
+            current = -1
+        if current == os.fstat(handle.fileno()).st_ino:
+            return handle
+        handle.close()
+
+
+def _release(path: Path, handle: Any) -> None:
+    """Remove the lock file, then release it (in this order: see :func:`_open_locked`)."""
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(path)
+    handle.close()  # closing releases the flock
 
 
 @contextlib.contextmanager
@@ -250,13 +281,10 @@ def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
             if key in _HELD:
                 _HELD[key][1] -= 1
         return
-    handle = open(folder / LOCK_FILE, "a+")  # noqa: SIM115  (held open for the whole block)
     try:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        handle.seek(0)
-        holder = handle.read(32).strip() or "unknown"
-        handle.close()
+        handle = _open_locked(folder / LOCK_FILE, blocking=False)
+    except BlockingIOError as error:
+        holder = str(error) or "unknown"
         raise FolderLockedError(
             f"{str(folder)!r} is in use by another run (pid {holder}); wait for it to finish or choose "
             "another folder"
@@ -276,21 +304,24 @@ def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
             del _HELD[key]
             held = [f for f in os.environ.get(HELD_FOLDERS_ENV, "").split(os.pathsep) if f and f != str(key)]
             os.environ[HELD_FOLDERS_ENV] = os.pathsep.join(held)
-            handle.close()  # closing releases the flock
+            _release(folder / LOCK_FILE, handle)
 
 
 @contextlib.contextmanager
 def locked_file(path: str | os.PathLike[str]) -> Iterator[None]:
     """
     A short exclusive lock for a read-modify-write of ``path`` (``flock`` on a hidden ``.NAME.lock``
-    beside it, waiting for the holder): processes of one run that share a folder update its manifest
-    one after the other, and none loses another's entry.
+    beside it, waiting for the holder, and removed after): processes of one run that share a folder update
+    its manifest one after the other, and none loses another's entry.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.parent / f".{path.name}.lock", "a+") as handle:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+    lock = path.parent / f".{path.name}.lock"
+    handle = _open_locked(lock, blocking=True)
+    try:
         yield
+    finally:
+        _release(lock, handle)
 
 
 def holds_folder_lock(folder_of: Callable[[inspect.BoundArguments], Any]) -> Callable[[F], F]:

@@ -15,6 +15,7 @@ from sb3_hddpg.artifacts.io import atomic_write_json, locked_file
 from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.artifacts.workers import Workers, observed_components, shared_env_of
 from sb3_hddpg.policy import WORKER_ENV_IDS
 
 #: The schema version of ``workers/manifest.json``.
@@ -78,15 +79,29 @@ def read_workers_manifest(path: str | Path) -> dict[str, Any]:
 
 
 def load_workers(
-    workers_dir: str | Path, names: Sequence[str] | None = None, trusted: bool = False
-) -> tuple[dict[str, Any], dict[str, Any]]:
+    workers_dir: str | Path,
+    names: Sequence[str] | None = None,
+    trusted: bool = False,
+    allowed_env_ids: Sequence[str] | None = None,
+) -> Workers:
     """
-    Load workers written by :func:`train_workers`, verifying each zip's sha256 against the manifest.
+    Load workers written by ``train_workers``, verifying each zip's sha256 against the manifest.
+
+    Each worker comes with the state components it was trained on, and the record with the shared env
+    they were trained for, so that ``WorkerSelectionWrapper(workers.make_env(), workers)`` needs nothing
+    more::
+
+        workers = load_workers("runs/quickstart/workers")
+        env = WorkerSelectionWrapper(workers.make_env(), workers)
 
     :param workers_dir: a run folder (containing ``workers/manifest.json``) or the ``workers`` folder itself.
     :param names: which workers, in order (default: all, in manifest order).
-    :param trusted: use SB3's full loader instead of the weights-only rebuild.
-    :return: name -> model, and the manifest.
+    :param trusted: use SB3's full loader instead of the weights-only rebuild (only for files you trust),
+        and accept any registered env id as the shared env.
+    :param allowed_env_ids: registered env ids the manifest's shared env may be besides this package's own
+        (a user's env; otherwise ``make_env()`` says how to allow it, and the models load all the same).
+    :return: name -> SB3 model, a :class:`~sb3_hddpg.artifacts.workers.Workers` mapping that also holds
+        each worker's observed components, the shared env and the manifest.
     """
 
     folder = Path(workers_dir)
@@ -125,28 +140,12 @@ def load_workers(
             raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
         verify_sha256(path, entry["sha256"], str(path))
         models[name] = load_model(path, spec=entry.get("spec"), trusted=trusted)
-    return models, manifest
-
-
-def observed_components(manifest: dict[str, Any], names: Sequence[str]) -> dict[str, list[str]]:
-    """
-    The state components each worker was trained on, from its manifest entry's ``env_kwargs["observe"]``.
-
-    :param manifest: a workers manifest (see :func:`read_workers_manifest`).
-    :param names: the workers to look at.
-    :return: name -> component names, for the workers trained on part of the state only.
-    """
-    out: dict[str, list[str]] = {}
-    for name in names:
-        env_kwargs = manifest["workers"][name].get("env_kwargs") or {}
-        observe = env_kwargs.get("observe") if isinstance(env_kwargs, dict) else None
-        if observe is not None:
-            if not isinstance(observe, list) or not all(isinstance(c, str) for c in observe):
-                raise ValueError(
-                    f"Worker {name!r}: env_kwargs.observe must be a list of names, actually: {observe!r:.200}"
-                )
-            out[name] = list(observe)
-    return out
+    states = observed_components(manifest, names)
+    try:
+        env_id, env_kwargs = shared_env_of(manifest, None, None, trusted, allowed_env_ids)
+    except ValueError as error:  # an env outside the allow-list: the caller may name the env itself
+        return Workers(models, states, None, {}, manifest, folder, env_problem=str(error))
+    return Workers(models, states, env_id, env_kwargs, manifest, folder)
 
 
 def model_entry(

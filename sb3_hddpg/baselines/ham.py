@@ -27,7 +27,7 @@ import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import brief, check_env_id, check_name, read_json_file
-from sb3_hddpg.artifacts.manifests import load_workers, observed_components
+from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
@@ -284,7 +284,7 @@ def load_ham(
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ValueError(f"{where}: {key} must be a finite number, got {brief(value)}")
     manifest = (path.parent / relative).resolve()
-    workers, workers_manifest = load_workers(manifest.parent, names, trusted=trusted)
+    workers = load_workers(manifest.parent, names, trusted=trusted)
     env = gym.make(env_id, **env_kwargs)
     layout = state_layout_of(env)
     env.close()
@@ -295,6 +295,6 @@ def load_ham(
         threshold=meta["threshold"],
         hysteresis=meta.get("hysteresis", 0.0),
         names=names,
-        worker_states=observed_components(workers_manifest, names),
+        worker_states=workers.states,
     )
     return switch, meta

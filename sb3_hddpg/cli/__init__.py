@@ -16,6 +16,7 @@ from typer.main import get_command
 
 from sb3_hddpg.cli.app import app, console_error
 from sb3_hddpg.cli.errors import error_line, exit_code
+from sb3_hddpg.envs.headless import as_rendering_error
 
 # Importing a command module registers its commands on ``app``.
 from sb3_hddpg.cli import rollout, train, evaluate  # noqa: F401  isort: skip
@@ -55,6 +56,8 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as error:  # the one place that turns any failure into a clean line
         if debug:
             raise
+        # An OpenGL context that could not be made, from whichever library: named with its fix.
+        error = as_rendering_error(error) or error
         console_error(error_line(error))
         sys.exit(exit_code(error))
     sys.exit(code if isinstance(code, int) else 0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import typer
+import typer.core
 from rich.console import Console
 from rich.markup import escape
 
@@ -11,6 +12,18 @@ import sb3_hddpg
 #: Where commands print their tables and progress.
 console = Console()
 _error_console = Console(stderr=True, highlight=False)
+
+
+def _usage_name(argument: typer.core.TyperArgument) -> str:
+    """A required argument as ``PATH`` in usage lines (click's spelling), an optional one as ``[PATH]``."""
+    name = argument.metavar or (argument.name or "").upper()
+    name = name if argument.required else f"[{name}]"
+    return name + ("..." if argument.nargs != 1 else "")
+
+
+# Typer's usage line writes a required argument as {path}, which reads as a template left unfilled.
+if hasattr(typer.core.TyperArgument, "_usage_display_name"):
+    typer.core.TyperArgument._usage_display_name = _usage_name  # type: ignore[method-assign,assignment]
 
 app = typer.Typer(
     name="hddpg-cli",

@@ -21,6 +21,7 @@ from sb3_hddpg.cli.options import (
     usage_errors,
     writable_file,
 )
+from sb3_hddpg.envs.terms_env import adapted_env_id
 from sb3_hddpg.evaluation import clearance_bands, dependence_ratio_text, evaluate, state_dependence
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.metric_labels import summary_rows
@@ -36,9 +37,7 @@ def evaluate_command(
         ...,
         help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK).",
     ),
-    env_id: str | None = typer.Option(
-        None, "--env", help="Env id to evaluate on (default: the one it was trained on). " + ENV_HELP
-    ),
+    env_id: str | None = typer.Option(None, "--env", help=ENV_HELP + " Default: the env it was trained on."),
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
@@ -73,7 +72,11 @@ def evaluate_command(
         help="A choice is 'near an obstacle' at a clearance <= this (default: half the env's sensor range).",
     ),
 ) -> None:
-    """Evaluate a policy: mean reward, goal-touch rate, collisions, success, clearance (and worker choices)."""
+    """
+    Evaluate a policy on fixed seeds: the env's own reward, each reward term and the return of the
+    normalised terms; goal touches, contacts, success and clearance only where the env reports them (the
+    snake arm); a hierarchy's worker choices.
+    """
 
     # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
     # checked here, as a usage error; what fails during the episodes is not.
@@ -106,8 +109,15 @@ def evaluate_command(
     dependence = state_dependence(summary, worker)
     # Say so rather than print nothing: without the proximity capability choices cannot be split by state.
     unavailable = "selection_rate" in summary and summary.get("near_clearance") is None
+    # The env by the id people know (an adapter's inner env), the policy by its kind and, if it has one, name.
+    env_name = (
+        adapted_env_id(shared.env_id, shared.env_kwargs)
+        if shared
+        else adapted_env_id(loaded.env_id, loaded.env_kwargs)
+    )
+    policy_name = loaded.kind if loaded.name in ("", loaded.kind) else f"{loaded.kind} {loaded.name!r}"
     table = Table(
-        title=f"{loaded.kind} {loaded.name!r} on {env_id or loaded.env_id}: mean over {episodes} episodes, "
+        title=f"{policy_name} on {env_name}: mean over {episodes} episodes, "
         f"seeds {seed}..{seed + episodes - 1} (± standard deviation across episodes)"
     )
     table.add_column("quantity")
@@ -136,7 +146,7 @@ def evaluate_command(
     console.print(table)
     if unavailable:
         console.print(
-            f"State dependence of the worker choices: not available for {env_id or loaded.env_id} (it declares "
+            f"State dependence of the worker choices: not available for {env_name} (it declares "
             "no proximity: no obstacle clearance to split the choices by; see docs/ENVIRONMENTS.md)"
         )
     if json_path is not None:

@@ -256,10 +256,13 @@ def run_options_of(context: typer.Context) -> RunOptions:
 
 
 #: Help of the options that choose an env with several objectives (train-workers, train-manager, evaluate).
+#: What ``--env`` accepts; each command adds its one default.
 ENV_HELP = (
-    'Env id with several objectives: one of ours, an MO-Gymnasium id (pip install "sb3-hddpg[mo]"), or a '
-    "registered env with per-term rewards in info (docs/ENVIRONMENTS.md). Default: the snake arm."
+    "Env id with several objectives: one of ours, an MO-Gymnasium id (the mo extra, which make installs), or "
+    "a registered env with per-term rewards in info (docs/ENVIRONMENTS.md)."
 )
+#: The default of ``--env`` where it is the snake arm.
+SNAKE_DEFAULT = " Default: the snake arm (hddpg/SnakeReach-v0)."
 TERMS_HELP = (
     "Comma-separated reward term names, e.g. speed,energy: an MO-Gymnasium env's objectives in order "
     "(default obj0..objN), or the info keys of an env's per-term rewards (required there)."

@@ -28,7 +28,10 @@ from sb3_hddpg.experiments.quickstart import (
     QuickstartResult,
     run_quickstart,
 )
-from sb3_hddpg.metric_labels import SELECTION_LABEL, metric_label
+from sb3_hddpg.metric_labels import SELECTION_LABEL, MetricLabel, metric_label, units_caption
+
+#: The training budget column: every agent's in env steps (a manager's decisions run several each).
+TRAIN_STEPS = MetricLabel("training", "env steps", digits=0, short="trained")
 
 
 class _RichObserver(QuickstartObserver):
@@ -72,17 +75,21 @@ def comparison_table(result: QuickstartResult) -> Table:
 
     summary = next(iter(result.summaries.values()))
     episodes = summary["episodes"]
+    # The closest approach to an obstacle is in results.json; the table keeps to what fits a terminal
+    # (80 columns: short headers, their units in the caption).
+    keys = ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode", "success_rate")
+    labels = [metric_label(key) for key in keys]
     table = Table(
         title=f"hddpg/SnakeReach-v0: each method's saved model, mean ± std over the same {episodes} episodes "
-        f"(seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + episodes - 1})"
+        f"(seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + episodes - 1})",
+        caption=f"{units_caption([*labels, SELECTION_LABEL, TRAIN_STEPS])}. {labels[0].short}: "
+        f"{labels[0].label}, the snake's reach reward",
     )
-    # The closest approach to an obstacle is in results.json; the table keeps to what fits a terminal.
-    keys = ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode", "success_rate")
     table.add_column("method")
-    for key in keys:
-        table.add_column(metric_label(key).column, justify="right")
-    table.add_column(SELECTION_LABEL.column)
-    table.add_column("train steps", justify="right")
+    for label in labels:
+        table.add_column(label.short or label.label, justify="right", overflow="fold")
+    table.add_column(SELECTION_LABEL.short)
+    table.add_column(TRAIN_STEPS.short, justify="right")
     for name, s in result.summaries.items():
         cells = [metric_label(key).format(s[key]) for key in keys]
         cells[0] += f" ± {metric_label(keys[0]).format(s['std_reach_reward'])}"

@@ -34,7 +34,7 @@ EpisodeSeedOpt = Annotated[
 ]
 ActInEnvOpt = Annotated[
     str | None,
-    typer.Option("--env", help="Env id to act in (default: the one it was trained on). " + ENV_HELP),
+    typer.Option("--env", help=ENV_HELP + " Default: the env it was trained on."),
 ]
 MaxStepsOpt = Annotated[
     int | None,

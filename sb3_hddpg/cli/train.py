@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -12,6 +13,7 @@ from rich.table import Table
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
+    SNAKE_DEFAULT,
     BackendOpt,
     CheckpointFreqOpt,
     EpisodeStepsOpt,
@@ -37,7 +39,13 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.hierarchy.selection import parse_preferences
-from sb3_hddpg.metric_labels import metric_label
+from sb3_hddpg.metric_labels import (
+    MANAGER_REWARD_LABEL,
+    MetricLabel,
+    metric_label,
+    same_returns,
+    units_caption,
+)
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.training import (
@@ -51,7 +59,7 @@ from sb3_hddpg.training.training import (
 )
 
 #: train-manager's --env: where its default comes from.
-MANAGER_ENV_NOTE = " For the manager, the default is the shared env recorded in the workers' manifest."
+MANAGER_ENV_NOTE = " Default: the shared env recorded in the workers' manifest."
 CONFIG_HELP = "Hyperparameters in RL Zoo format (default: the bundled zoo_configs/ddpg.yml)."
 
 
@@ -65,27 +73,44 @@ def training_interrupt_exits() -> Iterator[None]:
         raise typer.Exit(130) from None
 
 
-def metrics_table(title: str, rows: dict[str, dict]) -> Table:
-    """A rich table of evaluation summaries, one row per agent, each column in one unit."""
+def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None = None) -> Table:
+    """
+    A rich table of evaluation summaries, one row per agent, each column in one unit (named in the caption,
+    so that the table fits an 80-column terminal).
 
-    snake = ("goal_touch_rate", "collisions_per_episode", "success_rate", "min_clearance")
+    :param title: the table's title.
+    :param rows: agent -> its evaluation summary.
+    :param reward: what ``mean_reward`` is for these agents (default: the env's own reward).
+    """
+
+    # The closest approach to an obstacle is in the evaluation history (and `evaluate`): 80 columns hold no more.
+    snake = ("goal_touch_rate", "collisions_per_episode", "success_rate")
     # The snake env's touch and collision metrics where the env reports them, else every reward term.
     shown = [k for k in snake if any(k in row for row in rows.values())] or [
         k
         for row in list(rows.values())[:1]
         for k in row
-        if k != "mean_reward" and k.startswith("mean_") and k.endswith("_reward")
+        if k not in ("mean_reward", "mean_reach_reward") and k.startswith("mean_") and k.endswith("_reward")
     ]
+    # The return of the normalised terms where it is not the reward itself (on the snake's reach env it is).
+    same = all(same_returns(row) for row in rows.values())
+    normalised = [] if same else ["mean_reach_reward"]
     # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
-    keys = ("mean_reward", *shown, "action_saturation")
-    table = Table(title=title)
+    keys = ("mean_reward", *normalised, *shown, "action_saturation")
+    labels = {key: metric_label(key) for key in keys}
+    labels["mean_reward"] = reward or labels["mean_reward"]
+    if same:
+        names = (labels["mean_reward"].short, metric_label("mean_reach_reward").short)
+        labels["mean_reward"] = replace(labels["mean_reward"], short=" = ".join(dict.fromkeys(names)))
+    table = Table(title=title, caption=units_caption(list(labels.values())))
     table.add_column("agent")
     for key in keys:
-        table.add_column(metric_label(key).column, justify="right")
+        # Folded, not cut, where a header word is wider than the column 80 characters leave it.
+        table.add_column(labels[key].short or labels[key].label, justify="right", overflow="fold")
     for name, s in rows.items():
         cells = []
         for key in keys:
-            label = metric_label(key)
+            label = labels[key]
             cell = label.format(s[key]) if key in s else "-"
             if key == "mean_reward" and "std_reward" in s:
                 cell += f" ± {label.format(s['std_reward'])}"
@@ -103,7 +128,7 @@ def train_workers_command(
         help=f"Workers to train, one per reward term (repeat the option). Default: every term of the env "
         f"(the snake arm: {sorted(WORKER_ENV_IDS)}).",
     ),
-    env: str | None = typer.Option(None, "--env", help=ENV_HELP),
+    env: str | None = typer.Option(None, "--env", help=ENV_HELP + SNAKE_DEFAULT),
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
@@ -211,7 +236,11 @@ def train_manager_command(
         None, "--config", callback=existing_file, help=CONFIG_HELP + " Its 'manager' block is used."
     ),
     timesteps: int | None = typer.Option(
-        None, "--timesteps", callback=at_least(1), help="Manager steps (default: the config's n_timesteps)."
+        None,
+        "--timesteps",
+        callback=at_least(1),
+        help="The manager's budget in decisions (SB3 steps of the manager; each runs --option-steps env "
+        "steps; default: the config's n_timesteps).",
     ),
     seed: SeedOpt = 0,
     n_envs: NEnvsOpt = None,
@@ -237,7 +266,11 @@ def train_manager_command(
     info_key: InfoKeyOpt = None,
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
-    """Train the manager: a plain SB3 DDPG (or TD3, SAC) whose action selects a worker (paper Algorithm 1)."""
+    """
+    Train the manager: a plain SB3 DDPG (or TD3, SAC) whose action selects a worker (paper Algorithm 1). Its
+    budget and progress bar count decisions; its table reports the env's reward terms and the return of the
+    normalised terms, and goal touches and contacts only where the env reports them (the snake arm).
+    """
     algo = algo.lower()
     if algo not in MANAGER_ALGOS:
         raise typer.BadParameter(f"must be one of {list(MANAGER_ALGOS)}, got {algo!r}", param_hint="'--algo'")
@@ -269,11 +302,20 @@ def train_manager_command(
     with training_interrupt_exits():
         hierarchy, outcome = train_manager(setup, out, run=run_options_of(context))
     console.print(
-        metrics_table(f"Manager over {hierarchy.names} (best evaluation)", {"manager": outcome.metrics})
+        metrics_table(
+            f"Manager over {hierarchy.names} (best evaluation)",
+            {"manager": outcome.metrics},
+            reward=MANAGER_REWARD_LABEL,
+        )
     )
     rates = outcome.metrics.get("selection_rate", {})
     if rates:
         console.print(
             "Worker choices (% of steps): " + ", ".join(f"{n} {100 * r:.0f}" for n, r in rates.items())
         )
-    console.print(f"Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}")
+    option_steps = hierarchy.config.option_steps
+    console.print(
+        f"Trained {outcome.num_timesteps:,} decisions"
+        + (f" of up to {option_steps} env steps each" if option_steps > 1 else " (one env step each)")
+        + f". Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}"
+    )

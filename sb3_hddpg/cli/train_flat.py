@@ -9,6 +9,7 @@ import typer
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
+    SNAKE_DEFAULT,
     BackendOpt,
     EpisodeStepsOpt,
     EvalEpisodesOpt,
@@ -70,7 +71,7 @@ def train_flat_command(
         help="Learn the preference-weighted sum of the normalised terms, e.g. time=1,fuel=2 (terms not named "
         "get 1); default: the env's own reward (the normalised sum).",
     ),
-    env: str | None = typer.Option(None, "--env", help=ENV_HELP),
+    env: str | None = typer.Option(None, "--env", help=ENV_HELP + SNAKE_DEFAULT),
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,

@@ -306,7 +306,9 @@ def tune_command(
     ),
     backend: BackendOpt = None,
     env: str | None = typer.Option(
-        None, "--env", help=ENV_HELP + " For --level manager the default is the workers' manifest's env."
+        None,
+        "--env",
+        help=ENV_HELP + " Default: the snake arm; for --level manager, the env of the workers' manifest.",
     ),
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,

@@ -73,14 +73,19 @@ class TermsEnv:
         return self.env_id, dict(self.env_kwargs)
 
 
-def config_key(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> str:
+def adapted_env_id(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> str:
     """
-    The ``zoo_configs`` block of agents trained on ``gym.make(env_id, **env_kwargs)``: the adapted env's
-    id (``env_kwargs["env_id"]``) for one of the adapters, else ``env_id`` itself.
+    The env ``gym.make(env_id, **env_kwargs)`` is, by the id people know it by: the adapted env's id
+    (``env_kwargs["env_id"]``, e.g. ``mo-hopper-v5``) for one of the adapters, else ``env_id`` itself.
     """
     if env_id in ADAPTER_ENV_IDS and isinstance((env_kwargs or {}).get("env_id"), str):
         return str((env_kwargs or {})["env_id"])
     return env_id
+
+
+def config_key(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> str:
+    """The ``zoo_configs`` block of agents trained on ``gym.make(env_id, **env_kwargs)``: the adapted env's id."""
+    return adapted_env_id(env_id, env_kwargs)
 
 
 def make_term_view(env_id: str, env_kwargs: Mapping[str, Any], term: str) -> gym.Env:

@@ -224,6 +224,10 @@ def _train_job(
     return out
 
 
+#: A training job's env steps per SB3 step (the manager's: its option steps), for progress in env steps.
+ENV_STEPS_PER_STEP = "env_steps_per_step"
+
+
 def flat_budget(budget: QuickstartBudget) -> int:
     """
     The flat DDPG's steps: the budget's own, or the hierarchy's total env steps (both workers' and the
@@ -254,23 +258,28 @@ def _run_jobs(
 ) -> dict[str, dict[str, Any]]:
     """
     Run training jobs on the process runner, ``processes`` at a time (in this process when 1, or as Ray
-    tasks on the cluster at ``ray_address``), relaying their progress to ``observer``; the first failure
+    tasks on the cluster at ``ray_address``), relaying their progress to ``observer`` in env steps (a job's
+    ``env_steps_per_step``: the manager's SB3 steps are decisions of several env steps); the first failure
     is re-raised.
     """
-    totals = {job["name"]: job["timesteps"] for job in jobs}
+    scale = {job["name"]: int(job.get(ENV_STEPS_PER_STEP, 1)) for job in jobs}
+    totals = {job["name"]: job["timesteps"] * scale[job["name"]] for job in jobs}
     for name, total in totals.items():
         observer.on_task(name, 0, total)
 
     def progress(name: str, steps: float) -> None:
-        observer.on_task(name, min(steps, totals[name]), totals[name])
+        observer.on_task(name, min(steps * scale[name], totals[name]), totals[name])
 
     def event(kind: str, job: Job, result: Any) -> None:
         if kind == "done":
             observer.on_task(job.key, totals[job.key], totals[job.key])
-            observer.on_message(f"{job.key}: {result['timesteps']} steps in {result['seconds']:.0f} s")
+            observer.on_message(f"{job.key}: {result['timesteps']:,} env steps in {result['seconds']:.0f} s")
+
+    def arguments(job: dict[str, Any]) -> dict[str, Any]:
+        return {key: value for key, value in job.items() if key != ENV_STEPS_PER_STEP}
 
     outcome = run_jobs(
-        [Job(job["name"], _train_job, kwargs=job, cost=job["timesteps"]) for job in jobs],
+        [Job(job["name"], _train_job, kwargs=arguments(job), cost=totals[job["name"]]) for job in jobs],
         # A stopped quickstart is not resumed: a running job is left to end however it ends.
         make_executor(
             min(processes, len(jobs)),
@@ -381,6 +390,7 @@ def run_quickstart(
             **common,
             "timesteps": max(1, budget.manager_timesteps // option_steps),
             "eval_freq": max(1, budget.eval_freq // option_steps),
+            ENV_STEPS_PER_STEP: option_steps,
         },
         {"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget), **common},
     ]

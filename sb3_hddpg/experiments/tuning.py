@@ -29,6 +29,7 @@ import re
 import tempfile
 import time
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,7 @@ from optuna.trial import FrozenTrial, TrialState
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
+from sb3_hddpg.artifacts.workers import observed_components, shared_env_of
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, HAMSwitch
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.envs.contract import state_layout_of
@@ -68,8 +70,6 @@ from sb3_hddpg.training.training import (
     TrainingInterrupted,
     algo_class,
     make_snake_env,
-    observed_components,
-    shared_env_of,
     train_agent,
     worker_env_factory,
 )
@@ -231,7 +231,8 @@ class TuningTarget:
         if self.level == "manager":
             _env_factory(self, hyperparams)().close()
         elif self.level == "ham":
-            workers, manifest = load_workers(str(self.workers_dir))
+            workers = load_workers(str(self.workers_dir))
+            manifest = workers.manifest
             env = _ham_env(self, manifest)
             try:
                 _make_ham(workers, env, _ham_default_threshold(env), manifest)
@@ -866,7 +867,8 @@ def _workers_manifest(workers_dir: str) -> dict[str, Any]:
 def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -> float:
     """HAM's trial: no training, one evaluation on the combined reward."""
 
-    workers, manifest = load_workers(str(target.workers_dir))
+    workers = load_workers(str(target.workers_dir))
+    manifest = workers.manifest
     env = _ham_env(target, manifest)
     try:
         policy = _make_ham(workers, env, threshold, manifest)
@@ -902,7 +904,7 @@ def _ham_default_threshold(env: Any) -> float:
     return float(len(state_layout_of(env).indices([HAM_COMPONENT]))) - DEFAULT_MARGIN
 
 
-def _make_ham(workers: dict[str, Any], env: Any, threshold: float, manifest: dict[str, Any]) -> HAMSwitch:
+def _make_ham(workers: Mapping[str, Any], env: Any, threshold: float, manifest: dict[str, Any]) -> HAMSwitch:
     """The HAM switch over the goal and avoid workers, each fed the state components it was trained on."""
     return HAMSwitch(
         workers["goal"],

@@ -21,7 +21,7 @@ import re
 import zipfile
 import zlib
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -45,15 +45,18 @@ from sb3_hddpg.artifacts.limits import (
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model, model_spec
 from sb3_hddpg.artifacts.values import check_env_kwargs
+from sb3_hddpg.artifacts.workers import Workers, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
+from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
     SelectionConfig,
     SimplexMap,
+    check_preferences,
     check_selection_settings,
     get_selector,
 )
-from sb3_hddpg.hierarchy.wrapper import _subset_space
+from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper, _subset_space
 from sb3_hddpg.policy import Policy
 
 #: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
@@ -72,13 +75,24 @@ class Hierarchy:
     A manager and its workers, acting like an SB3 model: ``predict(obs, deterministic=True)`` returns the
     action of the worker the manager selects (single or batched observations).
 
+    Example, over workers from :func:`~sb3_hddpg.artifacts.manifests.load_workers` and a manager of your own::
+
+        hierarchy = Hierarchy(manager, workers)
+        hierarchy.save("my-hierarchy.zip")
+        evaluate(Hierarchy.load("my-hierarchy.zip"), n_episodes=5)
+
     :param manager: the manager's SB3 model (trained on ``WorkerSelectionWrapper``).
-    :param workers: name -> worker, in the manager's action order.
-    :param config: the selection settings the manager was trained with.
+    :param workers: name -> worker, in the manager's action order; workers from ``load_workers`` also give
+        each worker's state components, the shared env and the facts the bundle keeps about them.
+    :param config: the selection settings the manager was trained with (default: those of the
+        ``WorkerSelectionWrapper`` the manager still has as its env, else the wrapper's defaults with the
+        state components the workers carry).
     :param env_id: the registered id of the shared env (default: the env the manager was trained on, else
-        the one every worker was trained on, else ``hddpg/SnakeReach-v0``; see :func:`infer_env`).
+        the one every worker was trained on, else the workers' shared env, else ``hddpg/SnakeReach-v0``; see
+        :func:`infer_env`).
     :param env_kwargs: its keyword arguments (default: those of the inferred env; ``{}`` with ``env_id``).
-    :param worker_meta: name -> JSON-able facts about each worker (reward bounds, metrics...).
+    :param worker_meta: name -> JSON-able facts about each worker (reward bounds, metrics...; default: from
+        the workers' manifest, for workers from ``load_workers``).
     :param metadata: JSON-able facts about the manager (metrics, seed, config...).
     """
 
@@ -86,7 +100,7 @@ class Hierarchy:
         self,
         manager: BaseAlgorithm,
         workers: Mapping[str, Policy],
-        config: SelectionConfig,
+        config: SelectionConfig | None = None,
         env_id: str | None = None,
         env_kwargs: dict[str, Any] | None = None,
         worker_meta: dict[str, dict[str, Any]] | None = None,
@@ -95,17 +109,24 @@ class Hierarchy:
         self.manager = manager
         self.workers = dict(workers)
         self.names = list(self.workers)
+        config = _selection_config(manager, workers, config)
         self.config = config
         if env_id is None:
             # Without an env id the bundle would record the snake env whatever the models were trained on,
             # and fail only much later (in evaluate); the models' own training envs say which env it is.
-            env_id, inferred_kwargs = infer_env(manager, self.workers) or (DEFAULT_ENV_ID, {})
+            shared = _shared_env(workers)
+            env_id, inferred_kwargs = infer_env(manager, self.workers) or shared or (DEFAULT_ENV_ID, {})
             env_kwargs = inferred_kwargs if env_kwargs is None else env_kwargs
         self.env_id = env_id
         self.env_kwargs = dict(env_kwargs or {})
+        if worker_meta is None and isinstance(workers, Workers):
+            worker_meta = workers.bundle_meta()
         self.worker_meta = dict(worker_meta or {})
         self.metadata = dict(metadata or {})
-        probe = gym.make(env_id, **self.env_kwargs)
+        with (
+            rendering_errors()
+        ):  # MuJoCo's OpenGL may fail on import: a problem of this machine, not the bundle
+            probe = gym.make(env_id, **self.env_kwargs)
         # Absent a declared layout the whole observation is one component: naming any other is refused
         # by StateLayout.indices with the known names.
         layout = state_layout_of(probe)
@@ -131,6 +152,14 @@ class Hierarchy:
         #: The manager actor's output at the last decision (in [-1, 1]; how saturated the manager is).
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
+
+    def make_env(self, **overrides: Any) -> gym.Env:
+        """
+        The shared env this hierarchy acts in: ``gym.make(env_id, **env_kwargs)``.
+
+        :param overrides: keyword arguments over ``env_kwargs`` (e.g. ``render_mode="rgb_array"``).
+        """
+        return gym.make(self.env_id, **{**self.env_kwargs, **overrides})
 
     def _env_name(self) -> str:
         return f"{self.env_id!r}" + (f" with env_kwargs {self.env_kwargs}" if self.env_kwargs else "")
@@ -321,7 +350,7 @@ class Hierarchy:
                 worker_meta=worker_meta,
                 metadata={k: v for k, v in manager_entry.items() if k not in ("file", "sha256", "spec")},
             )
-        except BundleError:
+        except (BundleError, HeadlessRenderingError):
             raise
         except (ValueError, KeyError, TypeError, AttributeError) as error:
             raise BundleError(f"{name}: invalid settings in {MANIFEST}: {brief(str(error), 300)}") from None
@@ -444,6 +473,42 @@ def _check_member_entry(label: str, entry: Any, name: str) -> None:
         raise BundleError(
             f"{name}: {label!r} names member {brief(entry['file'])}; a bundle names it {expected!r}"
         )
+
+
+def _shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
+    """The shared env workers from ``load_workers`` name, if usable."""
+    if isinstance(workers, Workers) and workers.env_id is not None:
+        return workers.env_id, workers.env_kwargs
+    return None
+
+
+def _selection_config(
+    manager: Any, workers: Mapping[str, Policy], config: SelectionConfig | None
+) -> SelectionConfig:
+    """
+    The selection settings of a new hierarchy: ``config``, else those of the ``WorkerSelectionWrapper`` the
+    manager was trained on (if it still has its env), else the wrapper's defaults; the state components the
+    workers carry are the default of ``worker_states`` either way.
+    """
+    if config is None:
+        wrapper = _selection_wrapper(manager)
+        if wrapper is not None:
+            return wrapper.selection_config()
+        config = SelectionConfig(preferences=check_preferences({}, list(workers)))
+    carried = {name: states for name, states in states_of(workers).items() if name in workers}
+    return replace(config, worker_states={**carried, **config.worker_states}) if carried else config
+
+
+def _selection_wrapper(manager: Any) -> WorkerSelectionWrapper | None:
+    """The ``WorkerSelectionWrapper`` a manager trains on, if it still has an in-process env."""
+    get_env = getattr(manager, "get_env", None)
+    vec_env = get_env() if callable(get_env) else None
+    env = (getattr(vec_env, "envs", None) or [None])[0]
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, WorkerSelectionWrapper):
+            return env
+        env = env.env
+    return None
 
 
 def _model_bytes(model: BaseAlgorithm) -> bytes:

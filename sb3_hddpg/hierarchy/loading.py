@@ -28,6 +28,7 @@ from sb3_hddpg.baselines.ham import load_ham
 from sb3_hddpg.baselines.scripted import IKReacher, JacobianReacher
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.headless import rendering_errors
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.policy import Policy, RandomPolicy
 
@@ -64,7 +65,8 @@ class LoadedPolicy:
         :return: the env; raises ``ValueError`` if its spaces are not the policy's.
         """
         env_id = env_id or self.env_id
-        env = gym.make(env_id, **{**self.env_kwargs, **kwargs})
+        with rendering_errors():  # MuJoCo's OpenGL may fail on import, before any frame is asked for
+            env = gym.make(env_id, **{**self.env_kwargs, **kwargs})
         for kind in ("observation", "action"):
             expected = getattr(self.policy, f"{kind}_space", None)
             actual = getattr(env, f"{kind}_space")

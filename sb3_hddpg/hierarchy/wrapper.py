@@ -11,8 +11,16 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.utils import check_for_correct_spaces
 
+from sb3_hddpg.artifacts.workers import states_of
 from sb3_hddpg.envs.contract import env_contract, mix_terms, state_layout_of
-from sb3_hddpg.hierarchy.selection import FrozenWorker, SimplexMap, check_preferences, get_selector
+from sb3_hddpg.envs.layout import StateLayout
+from sb3_hddpg.hierarchy.selection import (
+    FrozenWorker,
+    SelectionConfig,
+    SimplexMap,
+    check_preferences,
+    get_selector,
+)
 from sb3_hddpg.policy import Policy
 
 #: A worker's reward: one env term by name, or a weighted mix of normalised terms (a nested hierarchy's).
@@ -42,8 +50,16 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     the manager ``gamma_manager = gamma_env^k``. ``k = 1`` is the paper's setting and needs no care.
 
     **Observations.** The manager sees the shared state, or the components named in ``manager_state``
-    (names of the env's ``state_layout``, see :func:`~sb3_hddpg.envs.contract.state_layout_of`); each worker sees the shared state or its own
-    ``worker_states[name]`` subset (paper design specification 4).
+    (names of the env's ``state_layout``, see :func:`~sb3_hddpg.envs.contract.state_layout_of`); each worker
+    sees its own ``worker_states[name]`` subset (paper design specification 4): by default the components
+    it was trained on, which workers from :func:`~sb3_hddpg.artifacts.manifests.load_workers` carry, else
+    the whole state.
+
+    Example, your own manager over trained workers::
+
+        workers = load_workers("runs/quickstart/workers")
+        env = WorkerSelectionWrapper(workers.make_env(), workers)
+        manager = SAC("MlpPolicy", env).learn(2_000)
 
     **Info.** ``selected_worker``, ``selection_probabilities`` (name -> probability),
     ``reward_terms`` (raw, from the env), ``normalised_terms`` and ``option_length``; plus the env's own (of
@@ -54,8 +70,9 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     :param env: the shared env (e.g. ``gym.make("hddpg/SnakeReach-v0")``), which meets the env contract
         (:class:`~sb3_hddpg.envs.contract.RewardTermsEnv`; an MO-Gymnasium env through
         :mod:`sb3_hddpg.envs.adapters`).
-    :param workers: name -> worker (an SB3 model, a loaded ``Hierarchy``, or anything with SB3's
-        ``predict``), or a sequence of ``(name, worker)`` pairs.
+    :param workers: the workers :func:`~sb3_hddpg.artifacts.manifests.load_workers` returns (each carries the
+        state components it sees), or name -> worker (an SB3 model, a loaded ``Hierarchy``, or anything
+        with SB3's ``predict``), or a sequence of ``(name, worker)`` pairs.
     :param preferences: name -> preference factor (finite, > 0); missing names get 1.
     :param selection: a registered selection mode: ``"sample"``, ``"argmax"``, ``"mix"`` or one of yours.
     :param option_steps: env steps per manager decision, >= 1.
@@ -65,7 +82,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         (normalised terms mixed by those weights over their sum). Default: the worker's name, or a
         hierarchy worker's own ``reward_spec``.
     :param manager_state: state components the manager sees (``None``: all).
-    :param worker_states: name -> state components that worker sees (missing: all).
+    :param worker_states: name -> state components that worker sees, over those the workers carry
+        (missing: all).
     :param option_gamma: discount inside an option.
     """
 
@@ -83,6 +101,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         worker_states: Mapping[str, Sequence[str]] | None = None,
         option_gamma: float = 0.99,
     ) -> None:
+        # help(WorkerSelectionWrapper.__init__) shows this (the class docstring, assigned below), not
+        # gymnasium's generic Wrapper.__init__ text.
         pairs = list(workers.items()) if isinstance(workers, Mapping) else list(workers)
         names = [name for name, _ in pairs]
         if len(names) < 2:
@@ -111,7 +131,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self.simplex = SimplexMap(len(names), temperature=temperature, floor=floor)
         self.preferences = check_preferences(dict(preferences or {}), names)
 
-        worker_states = dict(worker_states or {})
+        carried = states_of(workers) if isinstance(workers, Mapping) else {}
+        worker_states = {**{n: v for n, v in carried.items() if n in names}, **dict(worker_states or {})}
         unknown_state_owners = sorted(set(worker_states) - set(names))
         if unknown_state_owners:
             raise ValueError(f"worker_states names unknown workers {unknown_state_owners}; workers: {names}")
@@ -125,12 +146,13 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
 
         known_terms = list(contract.reward_bounds)
         reward_terms = dict(reward_terms or {})
+        self.reward_terms = reward_terms
         self.reward_specs: dict[str, dict[str, float]] = {}
         self.frozen: list[FrozenWorker] = []
         for name, worker in pairs:
             indices = self.layout.indices(self.worker_states[name]) if name in self.worker_states else None
             _check_worker_spaces(
-                name, worker, _subset_space(env.observation_space, indices), env.action_space
+                name, worker, _subset_space(env.observation_space, indices), env.action_space, self.layout
             )
             spec = reward_terms.get(name, getattr(worker, "reward_spec", name))
             self.reward_specs[name] = _term_weights(name, spec, known_terms)
@@ -143,6 +165,23 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self._term_coefficients = [(term, coefficients.get(term, 0.0)) for term in known_terms]
         self._rng = np.random.default_rng()
         self._last_obs: np.ndarray | None = None
+
+    # The arguments are documented once, on the class.
+    __init__.__doc__ = __doc__
+
+    def selection_config(self) -> SelectionConfig:
+        """The selection settings of this wrapper, as a bundle keeps them (see ``Hierarchy``)."""
+        return SelectionConfig(
+            preferences=dict(self.preferences),
+            selection=self.selection,
+            option_steps=self.option_steps,
+            temperature=self.simplex.temperature,
+            floor=self.simplex.floor,
+            reward_terms=dict(self.reward_terms),
+            manager_state=self.manager_state,
+            worker_states={name: list(states) for name, states in self.worker_states.items()},
+            option_gamma=self.option_gamma,
+        )
 
     # ------------------------------------------------------------------ helpers
     def _manager_obs(self, obs: np.ndarray) -> np.ndarray:
@@ -222,12 +261,23 @@ def _subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Spac
 
 
 def _check_worker_spaces(
-    name: str, worker: Any, observation_space: gym.Space, action_space: gym.Space
+    name: str, worker: Any, observation_space: gym.Space, action_space: gym.Space, layout: StateLayout
 ) -> None:
-    """SB3's own check (``Observation spaces do not match: A != B``) for workers that declare spaces."""
+    """
+    SB3's own check (``Observation spaces do not match: A != B``) for workers that declare spaces; a worker
+    that sees a different number of values than it is given gets the fix instead (it was trained on part
+    of the state, and was not loaded with its view).
+    """
     if not hasattr(worker, "predict"):
         raise ValueError(f"Worker {name!r} has no predict(obs, deterministic=...) method: {worker!r}")
     if hasattr(worker, "observation_space") and hasattr(worker, "action_space"):
+        seen, given = getattr(worker.observation_space, "shape", None), observation_space.shape
+        if seen is not None and given is not None and len(seen) == len(given) == 1 and seen != given:
+            raise ValueError(
+                f"Worker {name!r} sees {seen[0]} values but the env gives {given[0]}: load workers with "
+                f"sb3_hddpg.load_workers(folder), or pass worker_states={{{name!r}: [...]}} with the "
+                f"components it was trained on (the env's: {list(layout)}), or use the env it was trained on"
+            )
         expected = SimpleNamespace(
             observation_space=worker.observation_space, action_space=worker.action_space
         )

@@ -15,6 +15,7 @@ import numpy as np
 from PIL import Image
 
 from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.envs.headless import rendering_errors
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.media.overlay import compose_frame
 from sb3_hddpg.media.trace import StepRecord, StepRecorder, selected_names
@@ -67,8 +68,14 @@ def make_recording_env(make: Callable[..., gym.Env], name: str) -> gym.Env:
 
     :param make: makes the env, taking ``render_mode`` as a keyword (e.g. ``LoadedPolicy.make_env``).
     :param name: the env's name for the message.
-    :return: the env, rendering ``rgb_array`` frames.
+    :return: the env, rendering ``rgb_array`` frames; an env that cannot make an OpenGL context (MuJoCo
+        without a display) raises :class:`~sb3_hddpg.envs.headless.HeadlessRenderingError`.
     """
+    with rendering_errors():
+        return _make_recording_env(make, name)
+
+
+def _make_recording_env(make: Callable[..., gym.Env], name: str) -> gym.Env:
     probe = make()
     try:
         modes = list(probe.metadata.get("render_modes") or [])
@@ -120,7 +127,8 @@ def record_video(
     :param stride: keep every ``stride``-th step (a shorter GIF for documentation).
     :param max_frames: stop writing frames after this many (the episodes still run to the end).
     :param scale: resize frames by this factor (sizes rounded to multiples of 16).
-    :return: the path, the frame count and the episodes' metrics.
+    :return: the path, the frame count and the episodes' metrics; an env that cannot make an OpenGL
+        context (MuJoCo without a display) raises :class:`~sb3_hddpg.envs.headless.HeadlessRenderingError`.
     """
     path = check_video_path(path)
     if episodes < 1:
@@ -151,7 +159,8 @@ def record_video(
             return evaluate(policy, recorder, n_episodes=episodes, seed=seed, deterministic=deterministic)
 
     result: dict[str, EvaluationResult] = {}
-    atomic_write(path, lambda tmp: result.setdefault("evaluation", run(tmp)))
+    with rendering_errors():
+        atomic_write(path, lambda tmp: result.setdefault("evaluation", run(tmp)))
     return RecordingResult(
         path=path,
         frames=state["frames"],

@@ -34,17 +34,17 @@ from sb3_hddpg.artifacts.io import (
     holds_folder_lock,
     remove_stale_temporaries,
 )
-from sb3_hddpg.artifacts.limits import brief, check_env_id, read_json_file
+from sb3_hddpg.artifacts.limits import brief, read_json_file
 from sb3_hddpg.artifacts.manifests import (
     WORKER_MANIFEST_VERSION,
     check_resumed_env,
     load_workers,
     model_entry,
-    observed_components,
     read_workers_manifest,
     save_manifest,
 )
-from sb3_hddpg.artifacts.values import check_env_kwargs, check_make_kwargs
+from sb3_hddpg.artifacts.values import check_make_kwargs
+from sb3_hddpg.artifacts.workers import Workers, shared_env_of
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
@@ -691,11 +691,11 @@ class ManagerEnvFactory:
     worker_names: Sequence[str]
     wrapper_kwargs: dict[str, Any]
     trusted: bool = False
-    workers: dict[str, Any] | None = None
+    workers: Mapping[str, Any] | None = None
 
     def __call__(self) -> gym.Env:
         if self.workers is None:
-            self.workers, _ = load_workers(self.workers_dir, self.worker_names, trusted=self.trusted)
+            self.workers = load_workers(self.workers_dir, self.worker_names, trusted=self.trusted)
         env = make_snake_env(self.env_id, self.env_kwargs)
         return WorkerSelectionWrapper(env, self.workers, **self.wrapper_kwargs)
 
@@ -704,34 +704,12 @@ class ManagerEnvFactory:
         return {**self.__dict__, "workers": None}
 
 
-def shared_env_of(
-    manifest: dict[str, Any], env_id: str | None, env_kwargs: dict[str, Any] | None, trusted: bool = False
-) -> tuple[str, dict[str, Any]]:
-    """
-    The shared env a manager over these workers acts in: ``env_id`` if given, else the manifest's
-    ``shared_env`` (written by :func:`train_workers` for an env other than the snake arm; its id and
-    kwargs pass the safe-loading checks), else ``hddpg/SnakeReach-v0``.
-    """
-    if env_id is not None:
-        return env_id, dict(env_kwargs or {})
-    shared = manifest.get("shared_env")
-    if shared is None:
-        return SNAKE_SHARED_ENV_ID, dict(env_kwargs or {})
-    if not isinstance(shared, dict):
-        raise ValueError(f"workers manifest: shared_env must be a mapping, actually: {shared!r:.200}")
-    found = check_env_id(shared.get("env_id"), "workers manifest: shared_env.env_id", trusted=trusted)
-    kwargs = check_env_kwargs(
-        found, shared.get("env_kwargs"), "workers manifest: shared_env.env_kwargs", trusted=trusted
-    )
-    return found, {**kwargs, **(env_kwargs or {})}
-
-
 @dataclass
 class ManagerSetup:
     """
     Everything :func:`train_manager` needs before training starts, checked: see :func:`prepare_manager`.
 
-    :param workers: name -> loaded worker, in the manager's action order.
+    :param workers: the loaded workers, in the manager's action order.
     :param manifest: the workers' manifest.
     :param hyperparams: the manager's config block.
     :param selection: the selection settings, preferences included.
@@ -740,7 +718,7 @@ class ManagerSetup:
     :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS`.
     """
 
-    workers: dict[str, Any]
+    workers: Workers
     manifest: dict[str, Any]
     hyperparams: Hyperparams
     selection: SelectionConfig
@@ -763,7 +741,7 @@ class ManagerSetup:
             self.names,
             self.selection.wrapper_kwargs(),
             self.trusted,
-            dict(self.workers),
+            self.workers,
         )
 
 
@@ -800,7 +778,8 @@ def prepare_manager(
         raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
     config = config if config is not None else default_config(algo)
     hyperparams = manager_hyperparams(algo, config)
-    workers, manifest = load_workers(workers_dir, worker_names, trusted=trusted)
+    workers = load_workers(workers_dir, worker_names, trusted=trusted)
+    manifest = workers.manifest
     env_id, given_kwargs = shared_env_of(manifest, env_id, env_kwargs, trusted)
     names = list(workers)
     wrapper_kwargs = dict(hyperparams.wrapper_kwargs)
@@ -823,7 +802,7 @@ def prepare_manager(
         raise ValueError(
             f"Expected wrapper_kwargs.worker_states to map worker names to component lists, actually: {configured!r:.200}"
         )
-    wrapper_kwargs["worker_states"] = {**observed_components(manifest, names), **configured}
+    wrapper_kwargs["worker_states"] = {**workers.states, **configured}
     try:
         selection_config = SelectionConfig(**wrapper_kwargs)
     except TypeError as error:  # an unknown key in the config's wrapper_kwargs
@@ -949,7 +928,7 @@ def train_manager(
         setup = workers_dir
     else:
         setup = prepare_manager(workers_dir, **preparation)
-    workers, manifest, names = setup.workers, setup.manifest, setup.names
+    workers = setup.workers
     hyperparams, selection_config, env_kwargs = setup.hyperparams, setup.selection, setup.env_kwargs
     factory = setup.env_factory()
     out_dir = Path(out_dir)
@@ -962,26 +941,13 @@ def train_manager(
         run=_agent_run(run, paths, run.timesteps),
         extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
     )
-    worker_meta = {
-        name: {
-            **{
-                k: manifest["workers"][name][k]
-                for k in ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
-                if k in manifest["workers"][name]
-            },
-            # Which workers/NAME.zip this worker came from: the bundle re-serialises the model, so its
-            # member's own hash differs from the source file's.
-            "source_sha256": manifest["workers"][name]["sha256"],
-        }
-        for name in names
-    }
     hierarchy = Hierarchy(
         outcome.model,
         workers,
         selection_config,
         env_id=setup.env_id,
         env_kwargs=env_kwargs,
-        worker_meta=worker_meta,
+        worker_meta=workers.bundle_meta(),
         metadata={
             "seed": run.seed,
             "timesteps_trained": outcome.num_timesteps,

@@ -1,0 +1,153 @@
+"""
+``Workers``: trained workers as loaded from a workers folder, each carrying the state components it sees,
+with the shared env they were trained for.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from sb3_hddpg.artifacts.limits import check_env_id, check_env_kwargs
+from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID
+
+#: The facts of a workers-manifest entry a bundle keeps about each worker.
+BUNDLED_FACTS = ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
+
+
+@dataclass(frozen=True)
+class Workers(Mapping[str, Any]):
+    """
+    Name -> trained worker (an SB3 model), in the manager's action order, as :func:`load_workers` returns
+    them. Each worker knows which state components it was trained on (``states``), and the record knows the
+    shared env the manager acts in (``env_id``, ``env_kwargs``; :meth:`make_env` builds it), so that
+    ``WorkerSelectionWrapper(workers.make_env(), workers)`` and ``Hierarchy(manager, workers)`` feed every
+    worker what it saw in training without being told. It is a read-only mapping: anywhere a dict of
+    workers is accepted, this is too.
+
+    :param models: name -> loaded model, in order.
+    :param states: name -> the state components that worker sees (workers trained on the full state are
+        absent).
+    :param env_id: the shared env's registered id (``None``: the manifest's is not usable here, see
+        ``env_problem``).
+    :param env_kwargs: its keyword arguments.
+    :param manifest: the workers manifest the models were loaded from.
+    :param folder: the folder holding that manifest.
+    :param env_problem: why the manifest's shared env is not usable (e.g. an env id outside the allow-list),
+        raised by :meth:`make_env`; the models themselves are usable in any env they fit.
+    """
+
+    models: dict[str, Any]
+    states: dict[str, list[str]] = field(default_factory=dict)
+    env_id: str | None = SNAKE_SHARED_ENV_ID
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    manifest: dict[str, Any] = field(default_factory=dict)
+    folder: Path | None = None
+    env_problem: str = ""
+
+    def __getitem__(self, name: str) -> Any:
+        return self.models[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.models)
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def __repr__(self) -> str:
+        return f"Workers({list(self.models)}, env_id={self.env_id!r}, folder={str(self.folder)!r})"
+
+    def make_env(self, **overrides: Any) -> gym.Env:
+        """
+        The shared env as the workers were trained for it: ``gym.make(env_id, **env_kwargs)``.
+
+        :param overrides: keyword arguments over ``env_kwargs`` (e.g. ``render_mode="rgb_array"``).
+        """
+        if self.env_id is None:
+            raise ValueError(self.env_problem or "These workers name no shared env: make it yourself")
+        return gym.make(self.env_id, **{**self.env_kwargs, **overrides})
+
+    def bundle_meta(self) -> dict[str, dict[str, Any]]:
+        """
+        Name -> the facts a bundle keeps about each worker: its reward term and bounds, training env,
+        metrics and seed, and ``source_sha256``, the hash of the file it came from (the bundle
+        re-serialises the model, so its member's own hash differs).
+        """
+        entries = self.manifest.get("workers", {})
+        meta: dict[str, dict[str, Any]] = {}
+        for name in self.models:
+            entry = entries.get(name, {})
+            facts = {key: entry[key] for key in BUNDLED_FACTS if key in entry}
+            if "sha256" in entry:
+                facts["source_sha256"] = entry["sha256"]
+            meta[name] = facts
+        return meta
+
+
+def shared_env_of(
+    manifest: dict[str, Any],
+    env_id: str | None,
+    env_kwargs: dict[str, Any] | None,
+    trusted: bool = False,
+    allowed_env_ids: Any = None,
+) -> tuple[str, dict[str, Any]]:
+    """
+    The shared env a manager over these workers acts in: ``env_id`` if given, else the manifest's
+    ``shared_env`` (written by ``train_workers`` for an env other than the snake arm; its id and kwargs pass
+    the safe-loading checks), else ``hddpg/SnakeReach-v0``.
+
+    :param manifest: the workers manifest.
+    :param env_id: an env id given by the caller, which wins.
+    :param env_kwargs: keyword arguments given by the caller, over the manifest's.
+    :param trusted: accept any registered env id.
+    :param allowed_env_ids: registered env ids the manifest may name besides this package's own.
+    :return: the env id and its keyword arguments.
+    """
+    if env_id is not None:
+        return env_id, dict(env_kwargs or {})
+    shared = manifest.get("shared_env")
+    if shared is None:
+        return SNAKE_SHARED_ENV_ID, dict(env_kwargs or {})
+    if not isinstance(shared, dict):
+        raise ValueError(f"workers manifest: shared_env must be a mapping, actually: {shared!r:.200}")
+    found = check_env_id(
+        shared.get("env_id"), "workers manifest: shared_env.env_id", allowed_env_ids, trusted=trusted
+    )
+    kwargs = check_env_kwargs(
+        found,
+        shared.get("env_kwargs"),
+        "workers manifest: shared_env.env_kwargs",
+        allowed_env_ids,
+        trusted=trusted,
+    )
+    return found, {**kwargs, **(env_kwargs or {})}
+
+
+def observed_components(manifest: dict[str, Any], names: Any) -> dict[str, list[str]]:
+    """
+    The state components each worker was trained on, from its manifest entry's ``env_kwargs["observe"]``.
+
+    :param manifest: a workers manifest.
+    :param names: the workers to look at.
+    :return: name -> component names, for the workers trained on part of the state only.
+    """
+    out: dict[str, list[str]] = {}
+    for name in names:
+        env_kwargs = manifest["workers"][name].get("env_kwargs") or {}
+        observe = env_kwargs.get("observe") if isinstance(env_kwargs, dict) else None
+        if observe is not None:
+            if not isinstance(observe, list) or not all(isinstance(c, str) for c in observe):
+                raise ValueError(
+                    f"Worker {name!r}: env_kwargs.observe must be a list of names, actually: {observe!r:.200}"
+                )
+            out[name] = list(observe)
+    return out
+
+
+def states_of(workers: Mapping[str, Any]) -> dict[str, list[str]]:
+    """The state components each worker of ``workers`` sees, where it carries them (a :class:`Workers`)."""
+    return dict(workers.states) if isinstance(workers, Workers) else {}

@@ -1,0 +1,58 @@
+"""
+Rendering without a display: the errors MuJoCo's OpenGL back-ends raise on a headless machine, told apart
+from every other error and reported in one line that names the fix (``MUJOCO_GL=egl``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+
+#: Words in the type or message of an error that only an OpenGL context that could not be made raises:
+#: GLFW without a display (``GLFWError ... not initialized``), OSMesa without its library (PyOpenGL's
+#: ``'NoneType' object has no attribute 'glGetError'``), MuJoCo's own context checks, a bad ``MUJOCO_GL``.
+GL_MARKERS = ("GLFW", "glGetError", "OpenGL", "OSMesa", "MUJOCO_GL", "mjr_makeContext", "opengl_context")
+
+#: The fix, named in every such error and in docs/ENVIRONMENTS.md.
+HEADLESS_HINT = (
+    "on a machine without a display set MUJOCO_GL=egl (e.g. MUJOCO_GL=egl hddpg-cli record ...); "
+    "see docs/ENVIRONMENTS.md, 'Rendering without a display'"
+)
+
+
+class HeadlessRenderingError(RuntimeError):
+    """The env could not make an OpenGL context to render with (no display): not a problem of any file."""
+
+
+def as_rendering_error(error: BaseException) -> HeadlessRenderingError | None:
+    """
+    The one-line rendering error ``error`` is, if it (or an error it was raised from) is an OpenGL
+    context that could not be made.
+
+    :param error: any error.
+    :return: a :class:`HeadlessRenderingError` naming ``MUJOCO_GL=egl``, or ``None`` for any other error.
+    """
+    seen: BaseException | None = error
+    for _ in range(8):  # the chain of causes, bounded
+        if seen is None:
+            return None
+        if isinstance(seen, HeadlessRenderingError):
+            return seen
+        kind = f"{type(seen).__module__}.{type(seen).__name__}"
+        text = " ".join(f"{kind}: {seen}".split())
+        if any(marker in text for marker in GL_MARKERS):
+            return HeadlessRenderingError(f"Cannot render: no OpenGL context ({text[:200]}); {HEADLESS_HINT}")
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
+@contextlib.contextmanager
+def rendering_errors() -> Iterator[None]:
+    """Inside this block an OpenGL context that could not be made is raised as :class:`HeadlessRenderingError`."""
+    try:
+        yield
+    except Exception as error:
+        rendering = as_rendering_error(error)
+        if rendering is None or rendering is error:
+            raise
+        raise rendering from None
