@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from sb3_hddpg import stats
+from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments.benchmark import (
     OUTPUT_FILES,
-    TEST_SEED_BASE,
     BenchmarkSettings,
     Task,
     compute_results,
@@ -50,7 +50,7 @@ def cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
 def summary(reach: float, goal_touch: float = 0.1, collisions: float = 1.0, **extra: Any) -> dict[str, Any]:
     """An evaluation summary with the keys evaluate() produces."""
     return {
-        "episodes": 5,
+        "episodes": 20,  # the development test length: a record of the benchmark's test set
         "mean_reward": reach,
         "std_reward": 1.0,
         "mean_reach_reward": reach,
@@ -242,7 +242,7 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     results = json.loads((out / "results.json").read_text())
     assert set(results["methods"]) == {"hddpg", "ham", "ddpg"}
     assert all(entry["seeds"] == [0, 1] for entry in results["methods"].values())
-    assert results["test_seeds"][0] == TEST_SEED_BASE and results["curve_seeds"][0] == EVAL_SEED_BASE
+    assert results["test_seeds"][0] == DEVELOPMENT.first_seed and results["curve_seeds"][0] == EVAL_SEED_BASE
     # Equal total steps: the manager's 200 decisions of k env steps (the bundled block's options) + 2 x 100.
     k = manager_option_steps()
     assert results["methods"]["ddpg"]["own_timesteps"] == 200 * k + 200

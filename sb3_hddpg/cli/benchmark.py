@@ -284,8 +284,19 @@ def benchmark_command(
     eval_episodes: int = typer.Option(
         5, "--eval-episodes", callback=at_least(1), help="Episodes per learning-curve evaluation."
     ),
-    test_episodes: int = typer.Option(
-        20, "--test-episodes", callback=at_least(1), help="Episodes of the final test evaluation."
+    test_episodes: int | None = typer.Option(
+        None,
+        "--test-episodes",
+        callback=at_least(1),
+        help="Test episodes per trained model (default: 20 development episodes; 100 with --final-test).",
+    ),
+    final_test: bool = typer.Option(
+        False,
+        "--final-test",
+        help=(
+            "Score every run on the final test set (episode seeds from 900000), for the runs of record only: "
+            "never make a choice from it. Default: the development episodes (from 15000)."
+        ),
     ),
     ham_threshold: float | None = typer.Option(
         None,
@@ -384,6 +395,7 @@ def benchmark_command(
                 else None
             ),
             workers_from=str(workers_from.resolve()) if workers_from is not None else None,
+            final_test=final_test,
         )
     with usage_errors("'--workers-from'"):
         check_workers_source(settings)

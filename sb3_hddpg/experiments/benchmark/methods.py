@@ -18,10 +18,11 @@ import gymnasium as gym
 
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
-from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.experiments.benchmark.episodes import episode_rows
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.policy import RandomPolicy
+from sb3_hddpg.policy import Policy, RandomPolicy
 from sb3_hddpg.training.config import MANAGER_KEY
 from sb3_hddpg.training.training import (
     FLAT_ENV_ID,
@@ -36,9 +37,6 @@ if TYPE_CHECKING:
 
 #: The pseudo-method of a seed's two workers, which the methods that need them depend on.
 WORKERS = "workers"
-
-#: First seed of the final test episodes: disjoint from the learning-curve seeds ``EVAL_SEED_BASE + k``.
-TEST_SEED_BASE = EVAL_SEED_BASE + 5_000
 
 
 def _no_blocks(settings: BenchmarkSettings) -> dict[str, Any]:
@@ -115,16 +113,35 @@ def split_key(key: str) -> tuple[str, str | None]:
 
 
 def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
-    """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
+    """
+    The test evaluation of a saved policy, loaded the safe way a user would load it, on the benchmark's test
+    episode set (:attr:`BenchmarkSettings.test_set`): the record's ``test``, ``episodes`` and
+    ``test_episode_set`` fields.
+    """
 
     # Another env is the user's choice: its id may be loaded from the run's files (allowed_env_ids).
     env_id = settings.env["env_id"] if settings.env is not None else None
     loaded = load_policy(policy_path, allowed_env_ids=[env_id] if env_id else None)
     env = loaded.make_env()
     try:
-        return evaluate(loaded.policy, env, n_episodes=settings.test_episodes, seed=TEST_SEED_BASE).summary()
+        return test_fields(loaded.policy, env, settings)
     finally:
         env.close()
+
+
+def test_fields(policy: Policy, env: gym.Env, settings: BenchmarkSettings) -> dict[str, Any]:
+    """
+    A policy's test evaluation on the benchmark's test episodes as a record's fields: ``test`` (the summary),
+    ``episodes`` (every episode's metrics, :func:`~.episodes.episode_rows`) and ``test_episode_set``.
+    """
+    episodes = settings.test_episodes or 1
+    seeds = settings.test_set.seeds(episodes)
+    result = evaluate(policy, env, n_episodes=episodes, seed=seeds.start)
+    return {
+        "test": result.summary(),
+        "episodes": episode_rows(result, env_contract(env).reward_bounds),
+        "test_episode_set": settings.test_episode_set,
+    }
 
 
 def random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
@@ -170,7 +187,7 @@ def _run_manager(
     return {
         "worker_timesteps": offset,
         "history": read_history(run_dir / "evaluations" / "manager.json", steps_per_decision, offset),
-        "test": final_test(run_dir / "hierarchy.zip", settings),
+        **final_test(run_dir / "hierarchy.zip", settings),
     }
 
 
@@ -190,7 +207,7 @@ def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) 
     return {
         "worker_timesteps": 0,
         "history": read_history(run_dir / "evaluations" / f"flat-{algo}.json"),
-        "test": final_test(run_dir / "flat" / f"{algo}.zip", settings),
+        **final_test(run_dir / "flat" / f"{algo}.zip", settings),
     }
 
 
@@ -248,7 +265,7 @@ def _run_ham(tuned: bool, task: Task, settings: BenchmarkSettings, folder: Path)
     return {
         "worker_timesteps": offset,
         "history": [{"timesteps": 0, "total_timesteps": offset, **curve}],
-        "test": final_test(ham_path, settings),
+        **final_test(ham_path, settings),
         "threshold": threshold,
         "hysteresis": settings.ham_hysteresis,
         **({"threshold_grid": grid} if tuned else {}),
@@ -266,13 +283,13 @@ def _run_worker_alone(worker: str, task: Task, settings: BenchmarkSettings, fold
     env = loaded.make_env(FLAT_ENV_ID)
     try:
         curve = evaluate(loaded.policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
-        test = evaluate(loaded.policy, env, n_episodes=settings.test_episodes, seed=TEST_SEED_BASE).summary()
+        test = test_fields(loaded.policy, env, settings)
     finally:
         env.close()
     return {
         "worker_timesteps": offset,
         "history": [{"timesteps": 0, "total_timesteps": offset, **curve}],
-        "test": test,
+        **test,
     }
 
 

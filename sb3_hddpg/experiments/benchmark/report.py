@@ -11,6 +11,7 @@ import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.evaluation import dependence_ratio_text
+from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv
 from sb3_hddpg.experiments.benchmark.methods import WORKERS
 from sb3_hddpg.experiments.benchmark.statistics import curve_bands, with_term_sums
 from sb3_hddpg.media import figures
@@ -71,6 +72,7 @@ OUTPUT_FILES = (
     "results.json",
     "results.md",
     "evaluations.csv",
+    "episodes.csv",
     "learning_curves.png",
     "figure9.png",
     "figure10.png",
@@ -239,7 +241,10 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
 
 
 def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> None:
-    """Write ``results.json``, ``results.md``, ``evaluations.csv`` and the plots into ``out``."""
+    """
+    Write ``results.json``, ``results.md``, ``evaluations.csv``, ``episodes.csv`` (every test episode of the
+    records that hold them) and the plots into ``out``.
+    """
 
     method_records = [r for r in records if r["method"] != WORKERS]
     results["curves"] = {
@@ -249,6 +254,7 @@ def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, An
     atomic_write_json(out / "results.json", results)
     atomic_write(out / "results.md", lambda tmp: tmp.write_text(markdown_report(results)))
     write_csv(out / "evaluations.csv", evaluation_rows(records))
+    write_episodes_csv(out / "episodes.csv", records_episode_rows(records))
     figures.benchmark_learning_curves(results, out / "learning_curves.png")
     figures.figure9(results, out / "figure9.png")
     figures.figure10(results, out / "figure10.png")

@@ -8,8 +8,9 @@ normalised reward, ``mean_reach_reward`` (per step the goal and avoid terms min-
 ``[0, 1]`` and summed; at most 2 per step, 400 per episode), plus goal-touch rate, collisions, success
 and clearance. The learning curves are the in-training evaluations (``evaluations/<name>.json``) on the
 fixed seeds ``EVAL_SEED_BASE + k``; because ``train_agent`` keeps the best model by those evaluations,
-the final scores are measured on a disjoint block of fixed test seeds, ``TEST_SEED_BASE + k``, the same
-for every method and seed (selecting and scoring on the same episodes would flatter the learned methods
+the final scores are measured on a disjoint block of fixed test seeds (the benchmark's test episode set:
+the development episodes, or the final test set in a run of record, :mod:`sb3_hddpg.episode_sets`), the same
+for every method and seed (selecting and scoring on the same episodes would flatter the learned methods).
 """
 
 from __future__ import annotations
@@ -23,10 +24,11 @@ import numpy as np
 
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import TermNormaliser
+from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, state_dependence
+from sb3_hddpg.experiments.benchmark.episodes import seed_metrics
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
-    TEST_SEED_BASE,
     WORKERS,
     method_key,
     split_key,
@@ -82,6 +84,48 @@ def with_term_sums(summary: dict[str, Any]) -> dict[str, Any]:
     return {**summary, "goal_reach_reward": goal, "avoid_reach_reward": avoid}
 
 
+def record_episode_set(record: dict[str, Any]) -> dict[str, Any]:
+    """
+    The episode set a record's test used: as recorded, or for a record from before sets were recorded, the
+    development episodes (then the only test episodes) of its summary's length.
+    """
+    kept = record.get("test_episode_set")
+    if isinstance(kept, dict):
+        return kept
+    return DEVELOPMENT.describe(int(record["test"]["episodes"]))
+
+
+def check_episode_sets(settings: BenchmarkSettings, records: Iterable[dict[str, Any]]) -> None:
+    """
+    Refuse records scored on other episodes than the benchmark's test set: one results table never mixes
+    the final test set with development episodes (or with another number of them).
+
+    :raises ValueError: naming the first run that differs, its episodes and the benchmark's.
+    """
+    expected = settings.test_episode_set
+    for record in records:
+        if record["method"] == WORKERS:
+            continue
+        used = record_episode_set(record)
+        if used != expected:
+            raise ValueError(
+                f"The run {record['method']}/seed-{record['seed']} was tested on {used}, this benchmark tests on "
+                f"{expected}: one benchmark folder holds one test episode set (start a new folder, or --redo "
+                f"{record['method'].partition('@')[0]})"
+            )
+
+
+def test_values(record: dict[str, Any]) -> dict[str, float]:
+    """
+    A run's per-seed test metrics: from its episodes (:func:`~.episodes.seed_metrics`) where the record
+    holds them, else from its test summary (records from before episodes were kept).
+    """
+    rows = record.get("episodes")
+    test = seed_metrics(rows) if rows else with_term_sums(record["test"])
+    # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
+    return {key: float(test[key]) for key in FINAL_METRICS if key in test}
+
+
 def curve_statistics(history: Sequence[dict[str, Any]], window: int) -> dict[str, float]:
     """
     A learning curve's mean and trend slope (paper Figure 9) over the evaluations at own steps <= ``window``.
@@ -106,6 +150,8 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     :param records: finished records (``workers`` records are used for the worker summaries).
     :return: a JSON-ready dict.
     """
+    records = list(records)
+    check_episode_sets(settings, records)
     by_method: dict[str, dict[int, dict[str, Any]]] = {}
     worker_records = {}
     for record in records:
@@ -122,9 +168,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         values: dict[int, dict[str, float]] = {}
         for seed in seeds:
             run = runs[seed]
-            test = with_term_sums(run["test"])
-            # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
-            values[seed] = {key: float(test[key]) for key in FINAL_METRICS if key in test}
+            values[seed] = test_values(run)
             values[seed].update(curve_statistics(run["history"], window))
             values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
         per_seed[method] = values
@@ -174,7 +218,11 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
             if settings.env is not None
             else "goal and avoid terms (max 2 per step)"
         ),
-        "test_seeds": [TEST_SEED_BASE, TEST_SEED_BASE + settings.test_episodes - 1],
+        "test_seeds": [
+            settings.test_set.first_seed,
+            settings.test_set.first_seed + settings.test_episode_set["episodes"] - 1,
+        ],
+        "test_episode_set": settings.test_episode_set,
         "curve_seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + settings.eval_episodes - 1],
         "curve_window": window,
         "slope_unit_steps": SLOPE_UNIT,
