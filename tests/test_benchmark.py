@@ -169,12 +169,23 @@ def test_statistics_use_the_stats_module_on_per_seed_values(constructed):
     comparison = results["comparisons"]["hddpg vs ddpg"]
     a, b = [230.0, 231.0, 232.0], [210.0, 209.0, 208.0]
     assert comparison["seeds"] == [0, 1, 2]
-    point, low, high = stats.paired_difference_ci(a, b)
-    assert comparison["mean_reach_reward"]["difference"] == pytest.approx(point)
-    assert (comparison["mean_reach_reward"]["ci_low"], comparison["mean_reach_reward"]["ci_high"]) == (
-        low,
-        high,
-    )
+    interval = stats.paired_t_interval(a, b)
+    reach = comparison["mean_reach_reward"]
+    assert reach["difference"] == pytest.approx(interval["difference"])
+    assert (reach["ci_low"], reach["ci_high"]) == (interval["ci_low"], interval["ci_high"])
+    # The table compares hddpg with m baselines: each interval again at 1 - 0.05 / m, wider, same centre.
+    m = results["comparison_families"]["hddpg"]["comparisons"]["mean_reach_reward"]
+    assert m == sum(1 for pair in results["comparisons"] if pair.startswith("hddpg vs ")) >= 2
+    assert reach["confidence_adjusted"] == pytest.approx(1 - 0.05 / m)
+    assert reach["ci_low_adjusted"] < reach["ci_low"] < reach["ci_high"] < reach["ci_high_adjusted"]
+    assert reach["p_holm"] >= reach["p_value"]
+    # rliable's aggregates over the per-seed scores (these records hold no episodes).
+    aggregate = results["aggregates"]
+    assert aggregate["unit"] == "seed" and aggregate["tasks"] == 1
+    iqm = aggregate["intervals"]["hddpg"]["iqm"]
+    assert iqm["value"] == pytest.approx(stats.iqm([230.0, 231.0, 232.0]))
+    assert iqm["ci_low"] <= iqm["value"] <= iqm["ci_high"]
+    assert aggregate["probability_of_improvement"]["hddpg vs ddpg"]["value"] == 1.0
     assert comparison["mean_reach_reward"]["relative_gain"] == pytest.approx(np.mean(a) / np.mean(b) - 1)
     assert comparison["mean_reach_reward"]["probability_of_improvement"] == stats.probability_of_improvement(
         a, b

@@ -69,11 +69,11 @@ def test_td3_and_sac_are_compared_with_hddpg_and_reported():
     results = compute_results(settings, records)
     for name, tests in (("td3", [215.0, 217.0, 219.0]), ("sac", [225.0, 224.0, 223.0])):
         comparison = results["comparisons"][f"hddpg vs {name}"]
-        point, low, high = stats.paired_difference_ci([230.0, 231.0, 232.0], tests)
-        assert comparison["mean_reach_reward"]["difference"] == pytest.approx(point)
+        interval = stats.paired_t_interval([230.0, 231.0, 232.0], tests)
+        assert comparison["mean_reach_reward"]["difference"] == pytest.approx(interval["difference"])
         assert (comparison["mean_reach_reward"]["ci_low"], comparison["mean_reach_reward"]["ci_high"]) == (
-            low,
-            high,
+            interval["ci_low"],
+            interval["ci_high"],
         )
         assert results["colours"][name] == METHOD_REGISTRY[name].colour
     report = markdown_report(results)

@@ -95,7 +95,7 @@ def seed_metrics(rows: Iterable[Mapping[str, Any]]) -> dict[str, float]:
 
 def records_episode_rows(records: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """The rows of ``episodes.csv`` from the records that hold test episodes (older records hold none)."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for record in records:
         episodes = record.get("episodes")
         if not episodes:

@@ -26,6 +26,11 @@ from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import TermNormaliser
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, state_dependence
+from sb3_hddpg.experiments.benchmark.aggregates import (
+    aggregate_intervals,
+    improvement_probabilities,
+    score_matrix,
+)
 from sb3_hddpg.experiments.benchmark.episodes import seed_metrics
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
@@ -35,10 +40,13 @@ from sb3_hddpg.experiments.benchmark.methods import (
 )
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, comparison_pairs
 from sb3_hddpg.stats import (
+    bonferroni_confidence,
     bootstrap_ci,
-    paired_difference_ci,
+    holm_adjust,
+    paired_t_interval,
     probability_of_improvement,
     summarise,
+    t_interval,
     trend_slope,
 )
 
@@ -196,10 +204,9 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
         if any(figure is not None for figure in dependence.values()):
             methods[method]["state_dependence"] = dependence
-    comparisons = {}
-    for a, b in comparison_pairs(settings):
-        if a in per_seed and b in per_seed:
-            comparisons[f"{a} vs {b}"] = compare(per_seed[a], per_seed[b])
+    pairs = [(a, b) for a, b in comparison_pairs(settings) if a in per_seed and b in per_seed]
+    comparisons = {f"{a} vs {b}": compare(per_seed[a], per_seed[b]) for a, b in pairs}
+    families = adjust_for_comparisons(comparisons)
     workers = {}
     for name in ("goal", "avoid"):
         finals = [
@@ -219,8 +226,8 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
             else "goal and avoid terms (max 2 per step)"
         ),
         "test_seeds": [
-            settings.test_set.first_seed,
-            settings.test_set.first_seed + settings.test_episode_set["episodes"] - 1,
+            settings.test_set.seeds(settings.test_episodes or 1)[0],
+            settings.test_set.seeds(settings.test_episodes or 1)[-1],
         ],
         "test_episode_set": settings.test_episode_set,
         "curve_seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + settings.eval_episodes - 1],
@@ -228,6 +235,8 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         "slope_unit_steps": SLOPE_UNIT,
         "methods": methods,
         "comparisons": comparisons,
+        "comparison_families": families,
+        "aggregates": aggregates(by_method, pairs),
         "workers": workers,
         "colours": {key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
     }
@@ -361,28 +370,33 @@ def transfer_results(
     return out
 
 
+#: The metrics every paired comparison reports.
+COMPARED_METRICS = ("mean_reach_reward", "curve_mean", "slope", "success_rate", "collisions_per_episode")
+#: The joint coverage of a comparison table's adjusted intervals.
+FAMILY_CONFIDENCE = 0.95
+
+
 def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> dict[str, Any]:
     """
     Paired comparison of two methods over their common seeds (same seed: same workers, same test episodes).
 
     :param a: seed -> metrics of the challenger.
     :param b: seed -> metrics of the baseline.
-    :return: per metric the paired mean difference with its 95 % bootstrap CI, the relative gain of the
-        means, and the probability of improvement; plus the ratio of mean slopes (the paper's
+    :return: per metric the paired mean difference with its 95 % Student t interval and p-value (adjusted
+        for the table by :func:`adjust_for_comparisons`), the relative gain of the means, and the
+        probability of improvement of the per-seed values; plus the ratio of mean slopes (the paper's
         "improvement rate").
     """
     seeds = sorted(set(a) & set(b))
     out: dict[str, Any] = {"seeds": seeds}
-    for key in ("mean_reach_reward", "curve_mean", "slope", "success_rate", "collisions_per_episode"):
+    for key in COMPARED_METRICS:
         if not all(key in a[s] and key in b[s] for s in seeds):
             continue  # a metric the env does not report (the snake's success and collisions)
         xa = np.array([a[s][key] for s in seeds])
         xb = np.array([b[s][key] for s in seeds])
-        diff, low, high = paired_difference_ci(xa, xb)
+        interval = paired_t_interval(xa, xb)
         out[key] = {
-            "difference": diff,
-            "ci_low": low,
-            "ci_high": high,
+            **{k: interval[k] for k in ("difference", "ci_low", "ci_high", "p_value", "standard_error")},
             "relative_gain": float(xa.mean() / xb.mean() - 1.0) if xb.mean() != 0 else None,
             "probability_of_improvement": probability_of_improvement(xa, xb),
         }
@@ -391,6 +405,80 @@ def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> d
         float(np.mean([a[s]["slope"] for s in seeds]) / mean_b_slope) if mean_b_slope != 0 else None
     )
     return out
+
+
+def adjust_for_comparisons(comparisons: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """
+    Adjust each table's comparisons for their number, in place: a table is one challenger against every
+    method it is compared with, per metric. Each comparison gains a Bonferroni-adjusted t interval
+    (``ci_low_adjusted``, ``ci_high_adjusted``: all of the table's hold together with 95 %) and a
+    Holm-adjusted p-value (``p_holm``).
+
+    :param comparisons: ``"A vs B"`` -> :func:`compare`'s result.
+    :return: challenger -> ``{"comparisons": per metric the number m, "adjustment"}``.
+    """
+    families: dict[str, Any] = {}
+    by_challenger: dict[str, list[str]] = {}
+    for pair in comparisons:
+        by_challenger.setdefault(pair.split(" vs ")[0], []).append(pair)
+    for challenger, pair_keys in by_challenger.items():
+        counts = {}
+        for metric in COMPARED_METRICS:
+            members = [k for k in pair_keys if metric in comparisons[k]]
+            if not members:
+                continue
+            counts[metric] = len(members)
+            confidence = bonferroni_confidence(FAMILY_CONFIDENCE, len(members))
+            adjusted_p = holm_adjust([comparisons[k][metric]["p_value"] for k in members])
+            for key, p_holm in zip(members, adjusted_p, strict=True):
+                entry = comparisons[key][metric]
+                low, high = t_interval(
+                    entry["difference"], entry["standard_error"], len(comparisons[key]["seeds"]), confidence
+                )
+                entry["p_holm"] = p_holm
+                entry["ci_low_adjusted"], entry["ci_high_adjusted"] = low, high
+                entry["confidence_adjusted"] = confidence
+        families[challenger] = {
+            "comparisons": counts,
+            "adjustment": (
+                f"paired Student t intervals over seeds, Bonferroni-adjusted for the table's comparisons per "
+                f"metric (each at 1 - {1 - FAMILY_CONFIDENCE:.2f}/m); p-values Holm-adjusted"
+            ),
+        }
+    return families
+
+
+def aggregates(
+    by_method: dict[str, dict[int, dict[str, Any]]], pairs: list[tuple[str, str]]
+) -> dict[str, Any]:
+    """
+    rliable's aggregates of the reach reward (:mod:`~.aggregates`): by episode where every run of every
+    method holds its test episodes (each episode a task), else by seed (one per-seed mean per run).
+
+    :param by_method: run key -> seed -> record.
+    :param pairs: the compared ``(A, B)`` run keys.
+    """
+    if not by_method:
+        return {}
+    by_episode = all(r.get("episodes") for runs in by_method.values() for r in runs.values())
+    scores = {
+        method: score_matrix(
+            {
+                seed: [row["reach_reward"] for row in r["episodes"]]
+                if by_episode
+                else [test_values(r)["mean_reach_reward"]]
+                for seed, r in runs.items()
+            }
+        )
+        for method, runs in by_method.items()
+    }
+    return {
+        "metric": "mean_reach_reward",
+        "unit": "episode" if by_episode else "seed",
+        "tasks": int(next(iter(scores.values())).shape[1]),
+        "intervals": aggregate_intervals(scores),
+        "probability_of_improvement": improvement_probabilities(scores, pairs),
+    }
 
 
 def curve_bands(
