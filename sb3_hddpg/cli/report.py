@@ -1,0 +1,49 @@
+"""``hddpg-cli report RUN_DIR``: the docs' result tables and the README's results sentence, from the records."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import usage_errors
+from sb3_hddpg.experiments.benchmark.pages import TABLES, load_run, update_pages
+
+
+@app.command("report")
+def report_command(
+    run: Path = typer.Argument(
+        ..., help="A benchmark folder (its name is RUN in the page's generated blocks)."
+    ),
+    page: Path = typer.Option(
+        Path("docs/RESULTS.md"),
+        "--page",
+        help=f"The page whose <!-- generated:RUN/NAME --> blocks are rewritten (NAME among {', '.join(TABLES)}).",
+    ),
+    readme: Path | None = typer.Option(
+        None,
+        "--readme",
+        help="Also rewrite the sentence between <!-- results:start --> and <!-- results:end --> (a standard run).",
+    ),
+    check: bool = typer.Option(
+        False, "--check", help="Write nothing; exit 1 if a page differs from its regenerated text."
+    ),
+) -> None:
+    """Regenerate the result tables of a page (and the README's sentence) from a benchmark folder's records."""
+    with usage_errors("'RUN'"):
+        load_run(run)
+    with usage_errors("'--page' / '--readme'"):
+        for path in (page, readme):
+            if path is not None and not path.is_file():
+                raise FileNotFoundError(f"no such page: {str(path)!r}")
+    outcome = update_pages(run, page, readme, check=check)
+    tables = ", ".join(outcome["written"]) or "none (no generated block of this run in the page)"
+    console.print(f"Tables of {run.name}: {tables}")
+    if check and outcome["changed"]:
+        console.print(
+            f"[red]Out of date[/]: {', '.join(outcome['changed'])} (run without --check to rewrite)"
+        )
+        raise typer.Exit(1)
+    verb = "would change" if check else "rewritten"
+    console.print(f"Files {verb}: {', '.join(outcome['changed']) or 'none'}")
