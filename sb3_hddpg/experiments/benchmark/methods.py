@@ -26,6 +26,7 @@ from sb3_hddpg.policy import Policy, RandomPolicy
 from sb3_hddpg.training.config import MANAGER_KEY
 from sb3_hddpg.training.training import (
     FLAT_ENV_ID,
+    FLAT_HER_KEY,
     flat_hyperparams,
     manager_hyperparams,
     train_flat,
@@ -191,8 +192,13 @@ def _run_manager(
     }
 
 
-def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
-    """A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps."""
+def _run_flat(
+    algo: str, task: Task, settings: BenchmarkSettings, folder: Path, block: str | None = None
+) -> dict[str, Any]:
+    """
+    A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps, from
+    its config's block for the env (or ``block``).
+    """
 
     run_dir = folder / task.method
     env = settings.terms_env
@@ -203,6 +209,7 @@ def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) 
         env_kwargs=env.env_kwargs if env is not None else None,
         preferences=task.preferences,
         run=settings.run_options(task.seed, settings.flat_budget, settings.flat_budget),
+        block=block,
     )
     return {
         "worker_timesteps": 0,
@@ -298,11 +305,12 @@ def _manager_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
     return {f"{algo}.yml[{MANAGER_KEY}]": manager_hyperparams(algo).raw}
 
 
-def _flat_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
-    """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads."""
+def _flat_blocks(algo: str, settings: BenchmarkSettings, block: str | None = None) -> dict[str, Any]:
+    """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads (or ``block``)."""
     env = settings.terms_env
     env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (FLAT_ENV_ID, None)
-    return {f"{algo}.yml, flat agent on {env_id}": flat_hyperparams(algo, env_id, env_kwargs).raw}
+    label = f"{algo}.yml[{block}]" if block else f"{algo}.yml, flat agent on {env_id}"
+    return {label: flat_hyperparams(algo, env_id, env_kwargs, block=block).raw}
 
 
 def _manager_cost(settings: BenchmarkSettings) -> int:
@@ -375,6 +383,22 @@ for _algo, _colour in (
             config_blocks=functools.partial(_flat_blocks, _algo),
         )
     )
+for _algo, _colour in (("sac", "darkviolet"), ("ddpg", "navy")):
+    register_method(
+        Method(
+            f"{_algo}-her",
+            functools.partial(_run_flat, _algo, block=FLAT_HER_KEY),
+            _flat_cost,
+            colour=_colour,
+            baseline=True,
+            description=(
+                f"flat {_algo.upper()} with the goal worker's tricks (hindsight relabelling"
+                + (", the action penalty" if _algo == "ddpg" else "")
+                + f"; {_algo}.yml[{FLAT_HER_KEY}]) on the full observation and the reach reward, the flat budget"
+            ),
+            config_blocks=functools.partial(_flat_blocks, _algo, block=FLAT_HER_KEY),
+        )
+    )
 for _worker, _colour in (("goal", "yellowgreen"), ("avoid", "gold")):
     register_method(
         Method(
@@ -424,6 +448,8 @@ METHODS = tuple(METHOD_REGISTRY)
 DEFAULT_METHODS: tuple[str, ...] = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
 #: Flat single-agent baselines (``train_flat``'s algorithms).
 FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
+#: Flat agents with the goal worker's tricks, and the algorithm each trains.
+FLAT_HER_METHODS = {"sac-her": "sac", "ddpg-her": "ddpg"}
 #: The methods defined on any env with several objectives (``BenchmarkSettings.env``), and their default.
 ENV_METHODS = ("hddpg", *FLAT_METHODS)
 DEFAULT_ENV_METHODS = ("hddpg", "ddpg")

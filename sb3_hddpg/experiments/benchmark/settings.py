@@ -15,6 +15,7 @@ from sb3_hddpg.episode_sets import DEVELOPMENT, FINAL_TEST, FINAL_TEST_EPISODES,
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_METHODS,
     ENV_METHODS,
+    FLAT_HER_METHODS,
     FLAT_METHODS,
     METHOD_REGISTRY,
     WORKERS,
@@ -166,8 +167,8 @@ class BenchmarkSettings:
             raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
         self.backend = check_backend(self.backend)
         for method in self.methods:
-            if method in FLAT_METHODS:
-                check_algo(method, self.backend)
+            if method in FLAT_METHODS or method in FLAT_HER_METHODS:
+                check_algo(FLAT_HER_METHODS.get(method, method), self.backend)
         if len(set(self.methods)) != len(self.methods) or not self.methods:
             raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
 
