@@ -8,7 +8,7 @@ import typer
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import usage_errors
-from sb3_hddpg.experiments.benchmark.pages import TABLES, load_run, update_pages
+from sb3_hddpg.experiments.benchmark.pages import TABLES, draw_headline_figures, load_run, update_pages
 
 
 @app.command("report")
@@ -25,6 +25,11 @@ def report_command(
         None,
         "--readme",
         help="Also rewrite the sentence between <!-- results:start --> and <!-- results:end --> (a standard run).",
+    ),
+    figures: bool = typer.Option(
+        False,
+        "--figures",
+        help="Also draw RUN/aggregates.png and RUN/performance_profile.png (rliable's style).",
     ),
     check: bool = typer.Option(
         False, "--check", help="Write nothing; exit 1 if a page differs from its regenerated text."
@@ -47,3 +52,6 @@ def report_command(
         raise typer.Exit(1)
     verb = "would change" if check else "rewritten"
     console.print(f"Files {verb}: {', '.join(outcome['changed']) or 'none'}")
+    if figures and not check:
+        drawn = draw_headline_figures(run)
+        console.print(f"Figures: {', '.join(str(p) for p in drawn) or 'none (no method runs)'}")

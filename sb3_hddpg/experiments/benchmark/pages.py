@@ -20,6 +20,7 @@ import numpy as np
 from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
+from sb3_hddpg.experiments.benchmark.report import headline_figures
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
 from sb3_hddpg.stats import bootstrap_ci
@@ -62,6 +63,12 @@ def run_results(run: Path) -> dict[str, Any]:
     """The results of a benchmark folder, computed from its records (not read from its results.json)."""
     settings, records = load_run(run)
     return compute_results(settings, records)
+
+
+def draw_headline_figures(run: Path) -> list[Path]:
+    """Draw a benchmark folder's rliable-style figures into it from its records."""
+    settings, records = load_run(run)
+    return headline_figures(run, compute_results(settings, records), records)
 
 
 # ------------------------------------------------------------------------------------------------ tables

@@ -11,10 +11,17 @@ import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.evaluation import dependence_ratio_text
+from sb3_hddpg.experiments.benchmark.aggregates import performance_profiles
 from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv
 from sb3_hddpg.experiments.benchmark.methods import WORKERS
-from sb3_hddpg.experiments.benchmark.statistics import curve_bands, with_term_sums
+from sb3_hddpg.experiments.benchmark.statistics import (
+    curve_bands,
+    records_by_method,
+    score_matrices,
+    with_term_sums,
+)
 from sb3_hddpg.media import figures
+from sb3_hddpg.media.aggregate_plots import aggregate_figure
 
 # ---------------------------------------------------------------------------------------------- outputs
 #: Columns of ``evaluations.csv`` before the metrics.
@@ -76,6 +83,8 @@ OUTPUT_FILES = (
     "learning_curves.png",
     "figure9.png",
     "figure10.png",
+    "aggregates.png",
+    "performance_profile.png",
 )
 
 
@@ -258,3 +267,26 @@ def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, An
     figures.benchmark_learning_curves(results, out / "learning_curves.png")
     figures.figure9(results, out / "figure9.png")
     figures.figure10(results, out / "figure10.png")
+    headline_figures(out, results, records)
+
+
+#: Thresholds of the performance profile, in reach reward (0..2 per step, 200 steps).
+PROFILE_STEP = 2.0
+
+
+def headline_figures(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> list[Path]:
+    """
+    The rliable-style figures of a run: the aggregates' intervals (from ``results``) and the performance
+    profile of the reach reward over the score matrices of the records.
+    """
+    by_method = records_by_method(records)
+    if not by_method or not results.get("aggregates"):
+        return []
+    scores, unit = score_matrices(by_method)
+    low = min(float(m.min()) for m in scores.values())
+    high = max(float(m.max()) for m in scores.values())
+    taus = np.arange(np.floor(low / PROFILE_STEP) * PROFILE_STEP, high + PROFILE_STEP, PROFILE_STEP)
+    profiles, bands = performance_profiles(scores, taus)
+    return aggregate_figure(
+        results["aggregates"]["intervals"], profiles, bands, taus, results["colours"], unit, out
+    )

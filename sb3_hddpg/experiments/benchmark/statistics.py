@@ -448,18 +448,14 @@ def adjust_for_comparisons(comparisons: dict[str, dict[str, Any]]) -> dict[str, 
     return families
 
 
-def aggregates(
-    by_method: dict[str, dict[int, dict[str, Any]]], pairs: list[tuple[str, str]]
-) -> dict[str, Any]:
+def score_matrices(by_method: dict[str, dict[int, dict[str, Any]]]) -> tuple[dict[str, np.ndarray], str]:
     """
-    rliable's aggregates of the reach reward (:mod:`~.aggregates`): by episode where every run of every
-    method holds its test episodes (each episode a task), else by seed (one per-seed mean per run).
+    Per run key the reach reward as rliable's runs-by-tasks matrix: by episode where every run of every method
+    holds its test episodes (each episode a task), else by seed (one per-seed mean per run).
 
     :param by_method: run key -> seed -> record.
-    :param pairs: the compared ``(A, B)`` run keys.
+    :return: the matrices and their unit, ``episode`` or ``seed``.
     """
-    if not by_method:
-        return {}
     by_episode = all(r.get("episodes") for runs in by_method.values() for r in runs.values())
     scores = {
         method: score_matrix(
@@ -472,13 +468,37 @@ def aggregates(
         )
         for method, runs in by_method.items()
     }
+    return scores, "episode" if by_episode else "seed"
+
+
+def aggregates(
+    by_method: dict[str, dict[int, dict[str, Any]]], pairs: list[tuple[str, str]]
+) -> dict[str, Any]:
+    """
+    rliable's aggregates of the reach reward (:mod:`~.aggregates`) over :func:`score_matrices`.
+
+    :param by_method: run key -> seed -> record.
+    :param pairs: the compared ``(A, B)`` run keys.
+    """
+    if not by_method:
+        return {}
+    scores, unit = score_matrices(by_method)
     return {
         "metric": "mean_reach_reward",
-        "unit": "episode" if by_episode else "seed",
+        "unit": unit,
         "tasks": int(next(iter(scores.values())).shape[1]),
         "intervals": aggregate_intervals(scores),
         "probability_of_improvement": improvement_probabilities(scores, pairs),
     }
+
+
+def records_by_method(records: Iterable[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]]]:
+    """Finished method records (not the workers') by run key, then seed."""
+    grouped: dict[str, dict[int, dict[str, Any]]] = {}
+    for record in records:
+        if record["method"] != WORKERS:
+            grouped.setdefault(record["method"], {})[record["seed"]] = record
+    return grouped
 
 
 def curve_bands(
