@@ -6,9 +6,33 @@ from pathlib import Path
 
 import typer
 
+from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import usage_errors
 from sb3_hddpg.experiments.benchmark.pages import TABLES, draw_headline_figures, load_run, update_pages
+from sb3_hddpg.experiments.study_export import export_study
+from sb3_hddpg.experiments.study_storage import check_storage_url
+
+
+@app.command("export-study")
+def export_study_command(
+    storage: str = typer.Option(
+        ..., "--storage", help="The study's Optuna storage URL (sqlite:///... or another)."
+    ),
+    study_name: str = typer.Option(..., "--study-name", help="The study's name in the storage."),
+    out: Path = typer.Option(
+        ..., "--out", help="The folder of the export, e.g. docs/results/RUN/studies (STUDY_NAME.json)."
+    ),
+) -> None:
+    """Export a tuning study's trials to JSON, for a benchmark's shipped studies and docs/TUNING.md's table."""
+    with usage_errors("'--storage' / '--study-name'"):
+        check_storage_url(storage)
+        try:
+            export = export_study(storage, study_name)
+        except KeyError as error:
+            raise ValueError(f"no study {study_name!r} in that storage") from error
+    path = atomic_write_json(out / f"{study_name}.json", export)
+    console.print(f"Exported {len(export['trials'])} trials of {study_name!r} to {path}")
 
 
 @app.command("report")
@@ -26,6 +50,11 @@ def report_command(
         "--readme",
         help="Also rewrite the sentence between <!-- results:start --> and <!-- results:end --> (a standard run).",
     ),
+    tuning_page: Path = typer.Option(
+        Path("docs/TUNING.md"),
+        "--tuning-page",
+        help="The page whose <!-- generated:RUN/studies --> block gets the table of RUN/studies/ (if that exists).",
+    ),
     figures: bool = typer.Option(
         False,
         "--figures",
@@ -39,10 +68,12 @@ def report_command(
     with usage_errors("'RUN'"):
         load_run(run)
     with usage_errors("'--page' / '--readme'"):
-        for path in (page, readme):
+        for path in (page, readme, tuning_page if (run / "studies").is_dir() else None):
             if path is not None and not path.is_file():
                 raise FileNotFoundError(f"no such page: {str(path)!r}")
-    outcome = update_pages(run, page, readme, check=check)
+    outcome = update_pages(
+        run, page, readme, check=check, tuning_page=tuning_page if (run / "studies").is_dir() else None
+    )
     tables = ", ".join(outcome["written"]) or "none (no generated block of this run in the page)"
     console.print(f"Tables of {run.name}: {tables}")
     if check and outcome["changed"]:

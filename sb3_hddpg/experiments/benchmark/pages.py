@@ -10,6 +10,7 @@ ships it), so a re-run updates every table, and a test checks that the shipped t
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -23,6 +24,7 @@ from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_c
 from sb3_hddpg.experiments.benchmark.report import headline_figures
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
+from sb3_hddpg.experiments.study_export import read_exports, studies_table
 from sb3_hddpg.stats import bootstrap_ci
 
 #: The README's results sentence markers.
@@ -279,23 +281,30 @@ def _write_text(path: Path, text: str) -> None:
     atomic_write(path, write)
 
 
-def render_page(text: str, run_name: str, results: dict[str, Any]) -> tuple[str, list[str]]:
+def render_page(
+    text: str, run_name: str, results: dict[str, Any], extra: Mapping[str, Callable[[], str]] | None = None
+) -> tuple[str, list[str]]:
     """
-    ``text`` with every generated block of ``run_name`` rewritten from ``results``.
+    ``text`` with every generated block of ``run_name`` rewritten from ``results`` (a block named in ``extra``
+    from its own function, e.g. ``studies``).
 
     :return: the new text and the names of the blocks written.
     :raises ValueError: a block of ``run_name`` that names no known table.
     """
     written: list[str] = []
+    makers: dict[str, Callable[[], str]] = {
+        name: functools.partial(table, results) for name, table in TABLES.items()
+    }
+    makers.update(extra or {})
 
     def replace(match: re.Match[str]) -> str:
         run, _, name = match.group("key").partition("/")
         if run != run_name:
             return match.group(0)
-        if name not in TABLES:
-            raise ValueError(f"Unknown generated table {name!r} in a page; choose from {list(TABLES)}")
+        if name not in makers:
+            raise ValueError(f"Unknown generated table {name!r} in a page; choose from {list(makers)}")
         written.append(name)
-        return f"{match.group(1)}{TABLES[name](results)}\n{match.group(4)}"
+        return f"{match.group(1)}{makers[name]()}\n{match.group(4)}"
 
     return BLOCK.sub(replace, text), written
 
@@ -309,7 +318,7 @@ def render_readme(text: str, sentence: str) -> str:
 
 
 def update_pages(
-    run: Path, page: Path, readme: Path | None = None, check: bool = False
+    run: Path, page: Path, readme: Path | None = None, check: bool = False, tuning_page: Path | None = None
 ) -> dict[str, list[str]]:
     """
     Regenerate ``page``'s blocks of the benchmark folder ``run`` (and ``readme``'s sentence) from its records.
@@ -318,12 +327,22 @@ def update_pages(
     :param page: a Markdown page with generated blocks (e.g. ``docs/RESULTS.md``).
     :param readme: a README with the results markers (the sentence is a standard run's).
     :param check: write nothing; report the files that would change.
+    :param tuning_page: a page whose ``RUN/studies`` block gets the equal-effort table of ``run/studies/``
+        (the study exports, :mod:`sb3_hddpg.experiments.study_export`).
     :return: ``{"written": block names, "changed": files that differ from their regenerated text}``.
     """
     results = run_results(run)
     outputs: dict[Path, str] = {}
     text = page.read_text()
-    outputs[page], written = render_page(text, run.name, results)
+    studies = (
+        {"studies": functools.partial(studies_table, read_exports(run / "studies"))}
+        if (run / "studies").is_dir()
+        else {}
+    )
+    outputs[page], written = render_page(text, run.name, results, studies)
+    if tuning_page is not None and studies:
+        outputs[tuning_page], more = render_page(tuning_page.read_text(), run.name, results, studies)
+        written += more
     if readme is not None and "hddpg" in results["methods"] and results["scenario"] == "standard":
         outputs[readme] = render_readme(readme.read_text(), results_sentence(results, run.name))
     changed = [str(path) for path, new in outputs.items() if new != path.read_text()]
