@@ -254,6 +254,18 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert set(results["methods"]) == {"hddpg", "ham", "ddpg"}
     assert all(entry["seeds"] == [0, 1] for entry in results["methods"].values())
     assert results["test_seeds"][0] == DEVELOPMENT.first_seed and results["curve_seeds"][0] == EVAL_SEED_BASE
+    # Every test episode is shipped, and the per-seed figures are their means.
+    from sb3_hddpg.experiments.benchmark.episodes import read_episodes_csv
+
+    rows = read_episodes_csv(out / "episodes.csv")
+    assert sorted((r["method"], r["seed"], r["episode_seed"]) for r in rows) == sorted(
+        (m, s, DEVELOPMENT.first_seed) for m in ("hddpg", "ham", "ddpg") for s in (0, 1)
+    )
+    hddpg_row = next(r for r in rows if r["method"] == "hddpg" and r["seed"] == 0)
+    assert results["methods"]["hddpg"]["per_seed"]["0"]["mean_reach_reward"] == pytest.approx(
+        hddpg_row["reach_reward"]
+    )
+    assert results["aggregates"]["unit"] == "episode" and results["test_episode_set"]["name"] == "development"
     # Equal total steps: the manager's 200 decisions of k env steps (the bundled block's options) + 2 x 100.
     k = manager_option_steps()
     assert results["methods"]["ddpg"]["own_timesteps"] == 200 * k + 200
