@@ -65,7 +65,8 @@ def results_table(results: dict[str, Any]) -> Table:
     """The per-method table: final test metrics and learning-curve statistics, mean [95 % CI] over seeds."""
     table = Table(
         title=(
-            f"Benchmark: mean [95 % bootstrap CI] over seeds; test episodes from seed {results['test_seeds'][0]}; "
+            f"Benchmark: mean [95 % bootstrap CI] over seeds; {results['test_episode_set']['name']} test episodes "
+            f"from seed {results['test_seeds'][0]}; "
             f"curve window {results['curve_window']} own steps"
         )
     )
@@ -102,9 +103,14 @@ def results_table(results: dict[str, Any]) -> Table:
 
 
 def comparisons_table(results: dict[str, Any]) -> Table:
-    """The paired comparisons: difference [95 % CI], relative gain, probability of improvement."""
-    table = Table(title="Paired comparisons over common seeds (A - B)")
-    for column in ("A vs B", "metric", "difference [95 % CI]", "relative", "P(A > B)"):
+    """The paired comparisons: difference [adjusted t CI], relative gain, probability of improvement."""
+    table = Table(
+        title=(
+            "Paired comparisons over common seeds (A - B): Student t intervals, Bonferroni-adjusted for each "
+            "challenger's comparisons (results.json: comparison_families)"
+        )
+    )
+    for column in ("A vs B", "metric", "difference [adjusted CI]", "relative", "P(A > B)"):
         table.add_column(column, justify="left" if column in ("A vs B", "metric") else "right")
     for pair, comparison in results["comparisons"].items():
         for metric in ("mean_reach_reward", "curve_mean", "slope"):
@@ -113,7 +119,7 @@ def comparisons_table(results: dict[str, Any]) -> Table:
             table.add_row(
                 pair,
                 metric,
-                f"{c['difference']:+.2f} [{c['ci_low']:+.2f}, {c['ci_high']:+.2f}]",
+                f"{c['difference']:+.2f} [{c['ci_low_adjusted']:+.2f}, {c['ci_high_adjusted']:+.2f}]",
                 relative,
                 f"{c['probability_of_improvement']:.2f}",
             )

@@ -133,7 +133,10 @@ def markdown_report(results: dict[str, Any]) -> str:
     if results["comparisons"]:
         lines += [
             "",
-            "| A vs B | metric | A - B [95 % CI], paired by seed | relative | P(A > B) |",
+            "Intervals: Student t over the paired seeds, Bonferroni-adjusted for each challenger's comparisons "
+            "(their number per metric: results.json, comparison_families).",
+            "",
+            "| A vs B | metric | A - B [adjusted CI], paired by seed | relative | P(A > B) |",
             "|---|---|---|---|---|",
         ]
         for pair, comparison in results["comparisons"].items():
@@ -149,7 +152,8 @@ def markdown_report(results: dict[str, Any]) -> str:
                 c = comparison[metric]
                 relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
                 lines.append(
-                    f"| {pair} | {metric} | {c['difference']:+.2f} [{c['ci_low']:+.2f}, {c['ci_high']:+.2f}] "
+                    f"| {pair} | {metric} | {c['difference']:+.2f} "
+                    f"[{c['ci_low_adjusted']:+.2f}, {c['ci_high_adjusted']:+.2f}] "
                     f"| {relative} | {c['probability_of_improvement']:.2f} |"
                 )
             ratio = comparison["slope_ratio"]
