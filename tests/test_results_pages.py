@@ -173,3 +173,19 @@ def test_pages_rewrite_only_their_own_blocks(final_run):
         "new sentence" in new and "old sentence" not in new and new.startswith("a\n") and new.endswith("\nb")
     )
     assert render_readme("no markers", "x") == "no markers"
+
+
+def test_resuming_a_development_folder_as_a_final_run_is_refused(tmp_path):
+    from dataclasses import asdict
+
+    from sb3_hddpg.experiments.benchmark import run_benchmark
+
+    development = BenchmarkSettings(methods=["ham"], seeds=[0], timesteps=1000, worker_timesteps=100)
+    out = tmp_path / "bench"
+    atomic_write_json(out / "benchmark.json", {"settings": asdict(development)})
+    final = BenchmarkSettings(
+        methods=["ham"], seeds=[0], timesteps=1000, worker_timesteps=100, final_test=True
+    )
+    with pytest.raises(ValueError, match="final_test"):
+        run_benchmark(final, out, resume=True)
+    assert not (out / "records").exists()  # refused before anything ran
