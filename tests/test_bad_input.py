@@ -306,6 +306,7 @@ CASES = [
     case("ex-not-a-benchmark", ("export-models", "{folder}", "{tmp}/models"), 2, "a-folder"),
     # ---- tune
     case("tu-unknown-level", ("tune", "--level", "everything", "--out", "{tmp}/o"), 2, "everything"),
+    case("tu-unknown-block", ("tune", "--level", "flat", "--block", "nope", "--out", "{tmp}/o"), 2, "nope"),
     case(
         "tu-budget-fraction",
         ("tune", "--level", "flat", "--budget-fraction", "2", "--final-budget", "100", "--out", "{tmp}/o"),

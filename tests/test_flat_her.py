@@ -95,3 +95,18 @@ def test_train_flat_from_the_her_block(tmp_path, algo, monkeypatch):
     loaded = load_policy(tmp_path / "flat" / f"{algo}.zip")
     env = DummyVecEnv([loaded.make_env])
     assert loaded.policy.predict(env.reset(), deterministic=True)[0].shape == (1, *env.action_space.shape)
+
+
+def test_the_her_block_is_tunable_with_the_same_study_machinery():
+    from sb3_hddpg.experiments.tuning import TuningTarget
+
+    target = TuningTarget(
+        level="flat", algo="sac", block=FLAT_HER_KEY, budget_fraction=0.1, final_budget=340_000
+    )
+    assert target.block_key == FLAT_HER_KEY and target.describe()["block"] == FLAT_HER_KEY
+    assert target.base_block()["replay_buffer_class"] == "GoalRelabelingReplayBuffer"
+    target.check()
+    with pytest.raises(ValueError, match="no such block"):
+        TuningTarget(level="flat", block="nope").check()
+    with pytest.raises(ValueError, match="level 'flat'"):
+        TuningTarget(level="worker", worker="goal", block=FLAT_HER_KEY)

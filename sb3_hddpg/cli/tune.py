@@ -219,6 +219,14 @@ def tune_command(
             "the config's n_timesteps)."
         ),
     ),
+    block: str | None = typer.Option(
+        None,
+        "--block",
+        help=(
+            "Level flat: tune this block of the base config instead of the env's, e.g. flat-her (the benchmark's "
+            "sac-her / ddpg-her). Default: the env's block."
+        ),
+    ),
     budget_fraction: float | None = typer.Option(
         None,
         "--budget-fraction",
@@ -355,6 +363,8 @@ def tune_command(
 
     with usage_errors("'--budget-fraction' / '--final-budget' / '--timesteps'"):
         check_budget_fraction(budget_fraction, final_budget, timesteps)
+    if block is not None and level != "flat":
+        raise typer.BadParameter(f"applies to --level flat only, not {level!r}", param_hint="'--block'")
     target = TuningTarget(
         level=level,
         worker=worker,
@@ -370,6 +380,7 @@ def tune_command(
         n_seeds=seeds_per_trial,
         budget_fraction=budget_fraction,
         final_budget=final_budget,
+        block=block,
     )
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()

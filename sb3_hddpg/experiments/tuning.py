@@ -137,6 +137,8 @@ class TuningTarget:
     :param budget_fraction: each trial's env steps as this share of ``final_budget``, the method's budget in
         the benchmark, so that every method's study spends the same share of what it finally trains with.
     :param final_budget: the method's final budget in env steps (needed with ``budget_fraction``).
+    :param block: level ``flat`` only: another block of the base config to tune instead of the env's, e.g.
+        ``flat-her`` (the benchmark's ``sac-her`` / ``ddpg-her``: the goal worker's tricks on the reach task).
     :param episode_set: the episodes every trial is evaluated on (:mod:`sb3_hddpg.episode_sets`): the tuning
         set, disjoint from the curve episodes the benchmark picks checkpoints on and from every test set;
         ``curve`` resumes a study made before studies had their own episodes.
@@ -174,8 +176,11 @@ class TuningTarget:
     budget_fraction: float | None = None
     final_budget: int | None = None
     episode_set: str = TUNING.name
+    block: str | None = None
 
     def __post_init__(self) -> None:
+        if self.block is not None and self.level != "flat":
+            raise ValueError(f"Expected block only with level 'flat', actually: level {self.level!r}")
         check_budget_fraction(self.budget_fraction, self.final_budget, self.timesteps)
         if self.episode_set not in (TUNING.name, CURVE.name):
             raise ValueError(f"Expected episode_set 'tuning' or 'curve', actually: {self.episode_set!r}")
@@ -220,6 +225,8 @@ class TuningTarget:
     @property
     def block_key(self) -> str | None:
         """The ``zoo_configs`` key of the tuned block (``None`` for HAM, which has none)."""
+        if self.block is not None:
+            return self.block
         if self.level in ("worker", "flat") and self.env is not None:
             return self.env.config_key  # as train-workers and train-flat --env read it
         if self.level == "worker":
@@ -256,6 +263,11 @@ class TuningTarget:
         Otherwise every trial would fail the same way, one after another.
         """
         hyperparams = None
+        # RL Zoo falls back to the `default` block for a key it lacks: a named block must be there.
+        if self.block is not None and self.block not in load_config_file(self.config_path):
+            raise ValueError(
+                f"Expected block {self.block!r} in {str(self.config_path)!r}, actually: no such block"
+            )
         if self.block_key is not None:
             hyperparams = parse_block(
                 dict(self.base_block(), n_envs=1),
@@ -312,6 +324,8 @@ class TuningTarget:
             self.episode_set != CURVE.name
         ):  # studies made before studies had their own episodes stay resumable
             described["episode_set"] = self.episode_set
+        if self.block is not None:  # only when given: studies of the env's block stay resumable
+            described["block"] = self.block
         if self.budget_fraction is not None:  # only when given: studies made before stay resumable
             described["budget_fraction"] = self.budget_fraction
             described["final_budget"] = self.final_budget
