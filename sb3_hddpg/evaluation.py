@@ -15,12 +15,13 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.envs.contract import TermNormaliser, env_contract, proximity_of
+from sb3_hddpg.episode_sets import CURVE
 from sb3_hddpg.metric_labels import summary_rows
 from sb3_hddpg.policy import Policy
 
 #: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
 #: training seeds, and the same for every method so that comparisons are paired.
-EVAL_SEED_BASE = 10_000
+EVAL_SEED_BASE = CURVE.first_seed
 #: An action entry at least this far out in [-1, 1] counts as saturated: a tanh actor there has almost no
 #: gradient left (``1 - 0.99**2`` = 2 % of its slope at 0), so it has stopped learning that output.
 SATURATION_LEVEL = 0.99

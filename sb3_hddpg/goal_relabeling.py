@@ -50,6 +50,10 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
     :param touch_radius: the env's ``touch_radius``.
     :param goal_low: the lower bound of the goal term (the env's ``reward_bounds["goal"][0]``).
     :param relabel_fraction: the share of sampled transitions given a hindsight goal (HER's 0.8 for k = 4).
+    :param goal_scale: ``None``: the reward is the goal term (the goal worker's). A number: the reward is a sum
+        in which the goal term enters as ``goal_scale * (term - goal_low)`` (the reach reward, where it is
+        min-max normalised: ``1 / (high - low)``); a relabelled reward then changes by the normalised change
+        of the goal term and keeps every other term (they do not depend on the goal).
     """
 
     def __init__(
@@ -66,6 +70,7 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         touch_radius: float = 0.1,
         goal_low: float = -1.9,
         relabel_fraction: float = 0.8,
+        goal_scale: float | None = None,
     ) -> None:
         if optimize_memory_usage:
             raise ValueError("GoalRelabelingReplayBuffer does not support optimize_memory_usage=True")
@@ -98,6 +103,7 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         self.touch_radius = float(touch_radius)
         self.goal_low = float(goal_low)
         self.relabel_fraction = float(relabel_fraction)
+        self.goal_scale = None if goal_scale is None else float(goal_scale)
         # Per stored step: its episode's number (to tell a step overwritten by a later episode) and, once
         # that episode has ended, the position of its last step; -1 while it runs. Arrays, so that drawing
         # a "future" step for a whole batch is a few numpy operations.
@@ -112,15 +118,24 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         The env-dependent arguments of this buffer, read from a snake env (or a wrapper of one).
 
         :param env: the goal worker's training env.
-        :return: ``n_joints``, ``observe``, ``touch_radius`` and ``goal_low``.
+        :return: ``n_joints``, ``observe``, ``touch_radius``, ``goal_low`` and ``goal_scale`` (set where the
+            env's reward is the reach reward, the normalised sum of the terms).
+        :raises ValueError: an env whose reward does not hold the goal term (the avoid reward).
         """
         base = env.unwrapped
         observed = getattr(base, "observed_components", None)
+        low, high = base.reward_bounds["goal"]
+        reward = getattr(base, "reward_name", "goal")
+        if reward not in ("goal", "reach"):
+            raise ValueError(
+                f"Goal relabelling needs a reward that holds the goal term, actually: {reward!r}"
+            )
         return {
             "n_joints": base.n_joints,
             "observe": list(observed) if observed is not None else None,
             "touch_radius": base.touch_radius,
-            "goal_low": base.reward_bounds["goal"][0],
+            "goal_low": low,
+            "goal_scale": 1.0 / (high - low) if reward == "reach" else None,
         }
 
     def add(
@@ -188,6 +203,9 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         Give ``rows`` of a batch the goal positions ``goals`` (shape ``(len(rows), 2)``), in place: the
         observations' goal vector and touch flag, and the goal term as the env computes it.
         """
+        if self.goal_scale is not None:  # the stored goal term, read before the goal is replaced
+            stored = np.sqrt(((2.0 * next_obs[rows, self._to_goal]) ** 2).sum(axis=1))
+            old_goal = np.maximum(-stored + next_obs[rows, self._touched], self.goal_low)
         for batch, is_next in ((obs, False), (next_obs, True)):
             tips = batch[rows, self._tip]
             offset = goals - tips
@@ -196,4 +214,8 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
             batch[rows, self._to_goal] = offset / 2.0
             batch[rows, self._touched] = touched
             if is_next:
-                rewards[rows] = np.maximum(-distance + touched, self.goal_low)
+                new_goal = np.maximum(-distance + touched, self.goal_low)
+                if self.goal_scale is None:
+                    rewards[rows] = new_goal
+                else:
+                    rewards[rows] += self.goal_scale * (new_goal - old_goal)

@@ -280,9 +280,37 @@ CASES = [
     ),
     # ---- export-models
     case("ex-missing-run", ("export-models", "{tmp}/nope", "{tmp}/models"), 2, "nope"),
+    # ---- report and export-study: the docs' tables and the shipped studies
+    case("rp-missing-run", ("report", "{tmp}/nope"), 2, "nope"),
+    case("rp-not-a-benchmark", ("report", "{folder}"), 2, "a-folder"),
+    case(
+        "rp-missing-page",
+        ("report", "docs/results/bench-e20", "--page", "{tmp}/nope.md", "--check"),
+        2,
+        "nope.md",
+    ),
+    case(
+        "es-bad-storage",
+        ("export-study", "--storage", "nope://x", "--study-name", "s", "--out", "{tmp}/s"),
+        2,
+        "nope",
+    ),
+    case(
+        "es-missing-study",
+        ("export-study", "--storage", "sqlite:///{tmp}/s.db", "--study-name", "absent", "--out", "{tmp}/s"),
+        2,
+        "absent",
+    ),
     case("ex-not-a-benchmark", ("export-models", "{folder}", "{tmp}/models"), 2, "a-folder"),
     # ---- tune
     case("tu-unknown-level", ("tune", "--level", "everything", "--out", "{tmp}/o"), 2, "everything"),
+    case("tu-unknown-block", ("tune", "--level", "flat", "--block", "nope", "--out", "{tmp}/o"), 2, "nope"),
+    case(
+        "tu-budget-fraction",
+        ("tune", "--level", "flat", "--budget-fraction", "2", "--final-budget", "100", "--out", "{tmp}/o"),
+        2,
+        "budget_fraction",
+    ),
     case("tu-worker-missing", ("tune", "--level", "worker", "--out", "{tmp}/o"), 2, "--worker"),
     case(
         "tu-unknown-worker", ("tune", "--level", "worker", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from sb3_hddpg import stats
+from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments.benchmark import (
     OUTPUT_FILES,
-    TEST_SEED_BASE,
     BenchmarkSettings,
     Task,
     compute_results,
@@ -50,7 +50,7 @@ def cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
 def summary(reach: float, goal_touch: float = 0.1, collisions: float = 1.0, **extra: Any) -> dict[str, Any]:
     """An evaluation summary with the keys evaluate() produces."""
     return {
-        "episodes": 5,
+        "episodes": 20,  # the development test length: a record of the benchmark's test set
         "mean_reward": reach,
         "std_reward": 1.0,
         "mean_reach_reward": reach,
@@ -169,12 +169,23 @@ def test_statistics_use_the_stats_module_on_per_seed_values(constructed):
     comparison = results["comparisons"]["hddpg vs ddpg"]
     a, b = [230.0, 231.0, 232.0], [210.0, 209.0, 208.0]
     assert comparison["seeds"] == [0, 1, 2]
-    point, low, high = stats.paired_difference_ci(a, b)
-    assert comparison["mean_reach_reward"]["difference"] == pytest.approx(point)
-    assert (comparison["mean_reach_reward"]["ci_low"], comparison["mean_reach_reward"]["ci_high"]) == (
-        low,
-        high,
-    )
+    interval = stats.paired_t_interval(a, b)
+    reach = comparison["mean_reach_reward"]
+    assert reach["difference"] == pytest.approx(interval["difference"])
+    assert (reach["ci_low"], reach["ci_high"]) == (interval["ci_low"], interval["ci_high"])
+    # The table compares hddpg with m baselines: each interval again at 1 - 0.05 / m, wider, same centre.
+    m = results["comparison_families"]["hddpg"]["comparisons"]["mean_reach_reward"]
+    assert m == sum(1 for pair in results["comparisons"] if pair.startswith("hddpg vs ")) >= 2
+    assert reach["confidence_adjusted"] == pytest.approx(1 - 0.05 / m)
+    assert reach["ci_low_adjusted"] < reach["ci_low"] < reach["ci_high"] < reach["ci_high_adjusted"]
+    assert reach["p_holm"] >= reach["p_value"]
+    # rliable's aggregates over the per-seed scores (these records hold no episodes).
+    aggregate = results["aggregates"]
+    assert aggregate["unit"] == "seed" and aggregate["tasks"] == 1
+    iqm = aggregate["intervals"]["hddpg"]["iqm"]
+    assert iqm["value"] == pytest.approx(stats.iqm([230.0, 231.0, 232.0]))
+    assert iqm["ci_low"] <= iqm["value"] <= iqm["ci_high"]
+    assert aggregate["probability_of_improvement"]["hddpg vs ddpg"]["value"] == 1.0
     assert comparison["mean_reach_reward"]["relative_gain"] == pytest.approx(np.mean(a) / np.mean(b) - 1)
     assert comparison["mean_reach_reward"]["probability_of_improvement"] == stats.probability_of_improvement(
         a, b
@@ -242,7 +253,19 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     results = json.loads((out / "results.json").read_text())
     assert set(results["methods"]) == {"hddpg", "ham", "ddpg"}
     assert all(entry["seeds"] == [0, 1] for entry in results["methods"].values())
-    assert results["test_seeds"][0] == TEST_SEED_BASE and results["curve_seeds"][0] == EVAL_SEED_BASE
+    assert results["test_seeds"][0] == DEVELOPMENT.first_seed and results["curve_seeds"][0] == EVAL_SEED_BASE
+    # Every test episode is shipped, and the per-seed figures are their means.
+    from sb3_hddpg.experiments.benchmark.episodes import read_episodes_csv
+
+    rows = read_episodes_csv(out / "episodes.csv")
+    assert sorted((r["method"], r["seed"], r["episode_seed"]) for r in rows) == sorted(
+        (m, s, DEVELOPMENT.first_seed) for m in ("hddpg", "ham", "ddpg") for s in (0, 1)
+    )
+    hddpg_row = next(r for r in rows if r["method"] == "hddpg" and r["seed"] == 0)
+    assert results["methods"]["hddpg"]["per_seed"]["0"]["mean_reach_reward"] == pytest.approx(
+        hddpg_row["reach_reward"]
+    )
+    assert results["aggregates"]["unit"] == "episode" and results["test_episode_set"]["name"] == "development"
     # Equal total steps: the manager's 200 decisions of k env steps (the bundled block's options) + 2 x 100.
     k = manager_option_steps()
     assert results["methods"]["ddpg"]["own_timesteps"] == 200 * k + 200

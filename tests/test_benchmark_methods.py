@@ -69,11 +69,11 @@ def test_td3_and_sac_are_compared_with_hddpg_and_reported():
     results = compute_results(settings, records)
     for name, tests in (("td3", [215.0, 217.0, 219.0]), ("sac", [225.0, 224.0, 223.0])):
         comparison = results["comparisons"][f"hddpg vs {name}"]
-        point, low, high = stats.paired_difference_ci([230.0, 231.0, 232.0], tests)
-        assert comparison["mean_reach_reward"]["difference"] == pytest.approx(point)
+        interval = stats.paired_t_interval([230.0, 231.0, 232.0], tests)
+        assert comparison["mean_reach_reward"]["difference"] == pytest.approx(interval["difference"])
         assert (comparison["mean_reach_reward"]["ci_low"], comparison["mean_reach_reward"]["ci_high"]) == (
-            low,
-            high,
+            interval["ci_low"],
+            interval["ci_high"],
         )
         assert results["colours"][name] == METHOD_REGISTRY[name].colour
     report = markdown_report(results)
@@ -353,8 +353,8 @@ def test_workers_from_another_benchmark_are_copied_checked_and_never_retrained(t
 # ------------------------------------------------------------------------------- references without training
 @pytest.mark.slow  # a tiny benchmark plus HAM's 24-threshold grid: ~30 s idle, minutes on a loaded machine
 def test_tuned_ham_and_workers_alone_are_scored_on_the_same_episodes(tmp_path):
+    from sb3_hddpg.episode_sets import DEVELOPMENT
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.experiments.benchmark.methods import TEST_SEED_BASE
     from sb3_hddpg.hierarchy.loading import load_policy
 
     out = tmp_path / "bench"
@@ -379,7 +379,7 @@ def test_tuned_ham_and_workers_alone_are_scored_on_the_same_episodes(tmp_path):
     # The goal worker alone: its own view of the combined task, on the test episodes every method gets.
     loaded = load_policy(out / "seed-0" / "workers" / "goal.zip")
     env = loaded.make_env("hddpg/SnakeReach-v0")
-    expected = evaluate(loaded.policy, env, n_episodes=1, seed=TEST_SEED_BASE).summary()
+    expected = evaluate(loaded.policy, env, n_episodes=1, seed=DEVELOPMENT.first_seed).summary()
     env.close()
     assert record_of["goal-only"]["test"]["mean_reach_reward"] == pytest.approx(expected["mean_reach_reward"])
     # It stands on the two workers' steps (the goal worker's 8-step updates round its 100 up to 104).

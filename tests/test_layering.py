@@ -20,6 +20,7 @@ FLOORS = {
     "sb3_hddpg.policy": 1,
     "sb3_hddpg.algorithms": 1,
     "sb3_hddpg.stats": 1,
+    "sb3_hddpg.episode_sets": 1,
     "sb3_hddpg.metric_labels": 1,
     "sb3_hddpg.artifacts": 2,
     "sb3_hddpg.evaluation": 3,

@@ -38,6 +38,8 @@ from sb3_hddpg.names import PLAIN_NAME
 
 #: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
 MAX_JSON_BYTES = 1 << 20
+#: Largest CSV of records read back (a benchmark's episodes.csv: about 200 bytes per episode).
+MAX_CSV_BYTES = 64 << 20
 #: Deepest nesting of a JSON document or a config value (json.loads recurses; ours are < 10 deep).
 MAX_JSON_DEPTH = 64
 #: Most values (nodes) in one config file after YAML aliases are expanded (ours: a few hundred).

@@ -67,7 +67,8 @@ def results_table(results: dict[str, Any]) -> Table:
     """The per-method table: final test metrics and learning-curve statistics, mean [95 % CI] over seeds."""
     table = Table(
         title=(
-            f"Benchmark: mean [95 % bootstrap CI] over seeds; test episodes from seed {results['test_seeds'][0]}; "
+            f"Benchmark: mean [95 % bootstrap CI] over seeds; {results['test_episode_set']['name']} test episodes "
+            f"from seed {results['test_seeds'][0]}; "
             f"curve window {results['curve_window']} own steps"
         )
     )
@@ -108,9 +109,14 @@ def results_table(results: dict[str, Any]) -> Table:
 
 
 def comparisons_table(results: dict[str, Any]) -> Table:
-    """The paired comparisons: difference [95 % CI], relative gain, probability of improvement."""
-    table = Table(title="Paired comparisons over common seeds (A - B)")
-    for column in ("A vs B", "metric", "difference [95 % CI]", "relative", "P(A > B)"):
+    """The paired comparisons: difference [adjusted t CI], relative gain, probability of improvement."""
+    table = Table(
+        title=(
+            "Paired comparisons over common seeds (A - B): Student t intervals, Bonferroni-adjusted for each "
+            "challenger's comparisons (results.json: comparison_families)"
+        )
+    )
+    for column in ("A vs B", "metric", "difference [adjusted CI]", "relative", "P(A > B)"):
         table.add_column(column, justify="left" if column in ("A vs B", "metric") else "right")
     for pair, comparison in results["comparisons"].items():
         for metric in ("mean_reach_reward", "curve_mean", "slope"):
@@ -119,7 +125,7 @@ def comparisons_table(results: dict[str, Any]) -> Table:
             table.add_row(
                 pair,
                 metric,
-                f"{c['difference']:+.2f} [{c['ci_low']:+.2f}, {c['ci_high']:+.2f}]",
+                f"{c['difference']:+.2f} [{c['ci_low_adjusted']:+.2f}, {c['ci_high_adjusted']:+.2f}]",
                 relative,
                 f"{c['probability_of_improvement']:.2f}",
             )
@@ -294,8 +300,19 @@ def benchmark_command(
     eval_episodes: int = typer.Option(
         5, "--eval-episodes", callback=at_least(1), help="Episodes per learning-curve evaluation."
     ),
-    test_episodes: int = typer.Option(
-        20, "--test-episodes", callback=at_least(1), help="Episodes of the final test evaluation."
+    test_episodes: int | None = typer.Option(
+        None,
+        "--test-episodes",
+        callback=at_least(1),
+        help="Test episodes per trained model (default: 20 development episodes; 100 with --final-test).",
+    ),
+    final_test: bool = typer.Option(
+        False,
+        "--final-test",
+        help=(
+            "Score every run on the final test set (episode seeds from 900000), for the runs of record only: "
+            "never make a choice from it. Default: the development episodes (from 15000)."
+        ),
     ),
     ham_threshold: float | None = typer.Option(
         None,
@@ -399,6 +416,7 @@ def benchmark_command(
                 else None
             ),
             workers_from=str(workers_from.resolve()) if workers_from is not None else None,
+            final_test=final_test,
         )
     with usage_errors("'--workers-from'"):
         check_workers_source(settings)

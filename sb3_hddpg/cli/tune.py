@@ -38,6 +38,7 @@ from sb3_hddpg.experiments.tuning import (
     StudySettings,
     TuningTarget,
     best_trials,
+    check_budget_fraction,
     save_best_config,
     save_plots,
     trial_counts,
@@ -219,6 +220,28 @@ def tune_command(
             "the config's n_timesteps)."
         ),
     ),
+    block: str | None = typer.Option(
+        None,
+        "--block",
+        help=(
+            "Level flat: tune this block of the base config instead of the env's, e.g. flat-her (the benchmark's "
+            "sac-her / ddpg-her). Default: the env's block."
+        ),
+    ),
+    budget_fraction: float | None = typer.Option(
+        None,
+        "--budget-fraction",
+        help=(
+            "Env steps per trial as this share (0, 1] of --final-budget, the method's budget in the benchmark: "
+            "every method's study at the same share (instead of --timesteps). Default: not used."
+        ),
+    ),
+    final_budget: int | None = typer.Option(
+        None,
+        "--final-budget",
+        callback=at_least(1),
+        help="The tuned method's final budget in env steps, for --budget-fraction (e.g. 340000 for a flat agent).",
+    ),
     n_evaluations: int = typer.Option(
         5, "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."
     ),
@@ -341,6 +364,10 @@ def tune_command(
         with usage_errors("'--storage'"):
             check_storage_url(storage)
 
+    with usage_errors("'--budget-fraction' / '--final-budget' / '--timesteps'"):
+        check_budget_fraction(budget_fraction, final_budget, timesteps)
+    if block is not None and level != "flat":
+        raise typer.BadParameter(f"applies to --level flat only, not {level!r}", param_hint="'--block'")
     target = TuningTarget(
         level=level,
         worker=worker,
@@ -354,6 +381,9 @@ def tune_command(
         backend=backend,
         env=shared,
         n_seeds=seeds_per_trial,
+        budget_fraction=budget_fraction,
+        final_budget=final_budget,
+        block=block,
     )
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()

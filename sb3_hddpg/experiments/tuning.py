@@ -47,6 +47,7 @@ from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, HAMSwitch
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
+from sb3_hddpg.episode_sets import CURVE, TUNING, episode_set
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.hyperparams_opt import base_params, sampler_for
@@ -99,6 +100,27 @@ N_STARTUP_TRIALS_PRUNER = 5
 _NAN_MESSAGE = re.compile(r"\bnan\b|non-finite|not finite|\binf\b|infinit", re.IGNORECASE)
 
 
+def check_budget_fraction(fraction: float | None, final_budget: int | None, timesteps: int | None) -> None:
+    """
+    A trial budget given as a share: ``fraction`` in (0, 1] of a ``final_budget`` >= 1, and not with
+    ``timesteps`` too (nothing to check without ``fraction``).
+
+    :raises ValueError: naming the field, the expected and the actual value.
+    """
+    if fraction is None:
+        return
+    if not 0 < fraction <= 1:
+        raise ValueError(f"Expected budget_fraction in (0, 1], actually: {fraction!r}")
+    if final_budget is None or final_budget < 1:
+        raise ValueError(
+            f"Expected final_budget >= 1 env steps with budget_fraction, actually: {final_budget!r}"
+        )
+    if timesteps is not None:
+        raise ValueError(
+            f"Expected timesteps or budget_fraction, not both; actually: {timesteps} and {fraction}"
+        )
+
+
 @dataclass(frozen=True)
 class TuningTarget:
     """
@@ -110,7 +132,16 @@ class TuningTarget:
     :param workers_dir: a ``train-workers`` run folder (levels ``manager`` and ``ham``).
     :param config: the base ``zoo_configs`` file whose block the sampled values override (default: the
         bundled one); its other keys (``learning_starts``, ``env_kwargs``...) are kept.
-    :param timesteps: training steps per trial (default: the base block's ``n_timesteps``).
+    :param timesteps: training steps per trial (default: ``budget_fraction`` of ``final_budget``, else the
+        base block's ``n_timesteps``).
+    :param budget_fraction: each trial's env steps as this share of ``final_budget``, the method's budget in
+        the benchmark, so that every method's study spends the same share of what it finally trains with.
+    :param final_budget: the method's final budget in env steps (needed with ``budget_fraction``).
+    :param block: level ``flat`` only: another block of the base config to tune instead of the env's, e.g.
+        ``flat-her`` (the benchmark's ``sac-her`` / ``ddpg-her``: the goal worker's tricks on the reach task).
+    :param episode_set: the episodes every trial is evaluated on (:mod:`sb3_hddpg.episode_sets`): the tuning
+        set, disjoint from the curve episodes the benchmark picks checkpoints on and from every test set;
+        ``curve`` resumes a study made before studies had their own episodes.
     :param n_evaluations: evaluations per trial, evenly spread, each reported to the pruner.
     :param eval_episodes: episodes per evaluation.
     :param seed: the training seed of every trial (the same for all, so trials differ only by their
@@ -142,8 +173,17 @@ class TuningTarget:
     backend: str | None = None
     env: TermsEnv | None = None
     n_seeds: int = 1
+    budget_fraction: float | None = None
+    final_budget: int | None = None
+    episode_set: str = TUNING.name
+    block: str | None = None
 
     def __post_init__(self) -> None:
+        if self.block is not None and self.level != "flat":
+            raise ValueError(f"Expected block only with level 'flat', actually: level {self.level!r}")
+        check_budget_fraction(self.budget_fraction, self.final_budget, self.timesteps)
+        if self.episode_set not in (TUNING.name, CURVE.name):
+            raise ValueError(f"Expected episode_set 'tuning' or 'curve', actually: {self.episode_set!r}")
         if self.level not in LEVELS:
             raise ValueError(f"Unknown level {self.level!r}; choose from {list(LEVELS)}")
         sampler_for(self.level, self.algo)  # an unknown algorithm, or one for a DDPG-only level, fails here
@@ -185,6 +225,8 @@ class TuningTarget:
     @property
     def block_key(self) -> str | None:
         """The ``zoo_configs`` key of the tuned block (``None`` for HAM, which has none)."""
+        if self.block is not None:
+            return self.block
         if self.level in ("worker", "flat") and self.env is not None:
             return self.env.config_key  # as train-workers and train-flat --env read it
         if self.level == "worker":
@@ -221,6 +263,11 @@ class TuningTarget:
         Otherwise every trial would fail the same way, one after another.
         """
         hyperparams = None
+        # RL Zoo falls back to the `default` block for a key it lacks: a named block must be there.
+        if self.block is not None and self.block not in load_config_file(self.config_path):
+            raise ValueError(
+                f"Expected block {self.block!r} in {str(self.config_path)!r}, actually: no such block"
+            )
         if self.block_key is not None:
             hyperparams = parse_block(
                 dict(self.base_block(), n_envs=1),
@@ -259,6 +306,8 @@ class TuningTarget:
         """Training env steps per trial (a manager's decisions are this divided by its ``option_steps``)."""
         if self.timesteps is not None:
             return int(self.timesteps)
+        if self.budget_fraction is not None and self.final_budget is not None:
+            return max(self.n_evaluations, round(self.budget_fraction * self.final_budget))
         return int(self.base_block().get("n_timesteps", 0)) or 1
 
     def describe(self) -> dict[str, Any]:
@@ -272,6 +321,15 @@ class TuningTarget:
         }
         if self.n_seeds != 1:  # only when not 1: studies made before n_seeds stay resumable
             described["n_seeds"] = self.n_seeds
+        if (
+            self.episode_set != CURVE.name
+        ):  # studies made before studies had their own episodes stay resumable
+            described["episode_set"] = self.episode_set
+        if self.block is not None:  # only when given: studies of the env's block stay resumable
+            described["block"] = self.block
+        if self.budget_fraction is not None:  # only when given: studies made before stay resumable
+            described["budget_fraction"] = self.budget_fraction
+            described["final_budget"] = self.final_budget
         if self.algo != "ddpg":  # DDPG studies made before other algorithms were tunable stay resumable
             described["algo"] = self.algo
         if self.env is not None:  # only when given: snake studies made before --env stay resumable
@@ -491,6 +549,7 @@ def _train_trial_run(
                     n_envs=1,
                     eval_freq=math.ceil(timesteps / target.n_evaluations),
                     eval_episodes=target.eval_episodes,
+                    eval_seed=episode_set(target.episode_set).first_seed,
                     checkpoint_freq=0,
                     keep_best=False,
                     threads=threads,
@@ -872,7 +931,8 @@ def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -
     env = _ham_env(target, manifest)
     try:
         policy = _make_ham(workers, env, threshold, manifest)
-        summary = evaluate(policy, env, n_episodes=target.eval_episodes).summary()
+        first = episode_set(target.episode_set).first_seed
+        summary = evaluate(policy, env, n_episodes=target.eval_episodes, seed=first).summary()
     finally:
         env.close()
     trial.set_user_attr("history", [_jsonable({"timesteps": 0, **summary})])
@@ -945,6 +1005,7 @@ __all__ = [
     "TuningTarget",
     "best_block",
     "best_trials",
+    "check_budget_fraction",
     "make_pruner",
     "make_sampler",
     "objective",

@@ -466,16 +466,21 @@ def worker_hyperparams(
 
 
 def flat_hyperparams(
-    algo: str, env_id: str, env_kwargs: Mapping[str, Any] | None = None, config: str | Path | None = None
+    algo: str,
+    env_id: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    config: str | Path | None = None,
+    block: str | None = None,
 ) -> Hyperparams:
     """
     The block a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` trains from: an adapter's is
     keyed by the env it adapts, as the workers' are.
 
     :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
+    :param block: another block of the file to read instead (e.g. :data:`FLAT_HER_KEY`).
     """
     path = Path(config) if config is not None else default_config(algo)
-    return load_hyperparams(config_key(env_id, env_kwargs), algo_class(algo), path)
+    return load_hyperparams(block or config_key(env_id, env_kwargs), algo_class(algo), path)
 
 
 def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) -> Hyperparams:
@@ -580,6 +585,9 @@ def train_workers(
 FLAT_MANIFEST_VERSION = 1
 #: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
 FLAT_ENV_ID = "hddpg/SnakeReach-v0"
+#: The config block of a flat agent given the goal worker's tricks (hindsight relabelling of the goal, the
+#: action penalty where the algorithm takes it) on the full observation and the reach reward.
+FLAT_HER_KEY = "flat-her"
 
 
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
@@ -594,6 +602,7 @@ def train_flat(
     env_kwargs: dict[str, Any] | None = None,
     name: str | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
+    block: str | None = None,
     **run_changes: Any,
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
@@ -618,13 +627,15 @@ def train_flat(
         factors); ``None``: the env's own reward.
     :param name: the model's name in the manifest and its file name (default: ``algo``).
     :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
+    :param block: the config block to train from instead of the env's (e.g. :data:`FLAT_HER_KEY`: the goal
+        worker's hindsight relabelling and action penalty on the full observation and the env's reward).
     :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
     """
     run = run_options(run, run_changes, "train_flat")
     algo = algo.lower()
     algo_class(algo)  # an unknown algorithm named as such, before its config file is looked for
     config_path = Path(config) if config is not None else default_config(algo)
-    hyperparams = flat_hyperparams(algo, env_id, env_kwargs, config_path)
+    hyperparams = flat_hyperparams(algo, env_id, env_kwargs, config_path, block)
     make_kwargs = check_make_kwargs(env_id, {**hyperparams.env_kwargs, **(env_kwargs or {})}, "env_kwargs")
     budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
     out_dir = Path(out_dir)

@@ -18,14 +18,16 @@ import gymnasium as gym
 from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
-from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.envs.terms_env import config_key
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.experiments.benchmark.episodes import episode_rows
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.policy import RandomPolicy
+from sb3_hddpg.policy import Policy, RandomPolicy
 from sb3_hddpg.training.config import MANAGER_KEY
 from sb3_hddpg.training.training import (
     FLAT_ENV_ID,
+    FLAT_HER_KEY,
     flat_hyperparams,
     manager_hyperparams,
     train_flat,
@@ -37,9 +39,6 @@ if TYPE_CHECKING:
 
 #: The pseudo-method of a seed's two workers, which the methods that need them depend on.
 WORKERS = "workers"
-
-#: First seed of the final test episodes: disjoint from the learning-curve seeds ``EVAL_SEED_BASE + k``.
-TEST_SEED_BASE = EVAL_SEED_BASE + 5_000
 
 
 def _no_blocks(settings: BenchmarkSettings) -> dict[str, Any]:
@@ -116,7 +115,11 @@ def split_key(key: str) -> tuple[str, str | None]:
 
 
 def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
-    """The final test evaluation of a saved policy, loaded the safe way a user would load it."""
+    """
+    The test evaluation of a saved policy, loaded the safe way a user would load it, on the benchmark's test
+    episode set (:attr:`BenchmarkSettings.test_set`): the record's ``test``, ``episodes`` and
+    ``test_episode_set`` fields.
+    """
 
     # Another env is the user's choice: its id may be loaded from the run's files (allowed_env_ids).
     shared = settings.env or {}
@@ -125,9 +128,24 @@ def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]
     loaded = load_policy(policy_path, allowed_env_ids=allowed)
     env = loaded.make_env()
     try:
-        return evaluate(loaded.policy, env, n_episodes=settings.test_episodes, seed=TEST_SEED_BASE).summary()
+        return test_fields(loaded.policy, env, settings)
     finally:
         env.close()
+
+
+def test_fields(policy: Policy, env: gym.Env, settings: BenchmarkSettings) -> dict[str, Any]:
+    """
+    A policy's test evaluation on the benchmark's test episodes as a record's fields: ``test`` (the summary),
+    ``episodes`` (every episode's metrics, :func:`~.episodes.episode_rows`) and ``test_episode_set``.
+    """
+    episodes = settings.test_episodes or 1
+    seeds = settings.test_set.seeds(episodes)
+    result = evaluate(policy, env, n_episodes=episodes, seed=seeds.start)
+    return {
+        "test": result.summary(),
+        "episodes": episode_rows(result, env_contract(env).reward_bounds),
+        "test_episode_set": settings.test_episode_set,
+    }
 
 
 def random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
@@ -177,12 +195,17 @@ def _run_manager(
     return {
         "worker_timesteps": offset,
         "history": read_history(run_dir / "evaluations" / "manager.json", steps_per_decision, offset),
-        "test": final_test(run_dir / "hierarchy.zip", settings),
+        **final_test(run_dir / "hierarchy.zip", settings),
     }
 
 
-def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
-    """A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps."""
+def _run_flat(
+    algo: str, task: Task, settings: BenchmarkSettings, folder: Path, block: str | None = None
+) -> dict[str, Any]:
+    """
+    A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps, from
+    its config's block for the env (or ``block``).
+    """
 
     run_dir = folder / task.method
     env = settings.terms_env
@@ -193,11 +216,12 @@ def _run_flat(algo: str, task: Task, settings: BenchmarkSettings, folder: Path) 
         env_kwargs=env.env_kwargs if env is not None else None,
         preferences=task.preferences,
         run=settings.run_options(task.seed, settings.flat_budget, settings.flat_budget),
+        block=block,
     )
     return {
         "worker_timesteps": 0,
         "history": read_history(run_dir / "evaluations" / f"flat-{algo}.json"),
-        "test": final_test(run_dir / "flat" / f"{algo}.zip", settings),
+        **final_test(run_dir / "flat" / f"{algo}.zip", settings),
     }
 
 
@@ -255,7 +279,7 @@ def _run_ham(tuned: bool, task: Task, settings: BenchmarkSettings, folder: Path)
     return {
         "worker_timesteps": offset,
         "history": [{"timesteps": 0, "total_timesteps": offset, **curve}],
-        "test": final_test(ham_path, settings),
+        **final_test(ham_path, settings),
         "threshold": threshold,
         "hysteresis": settings.ham_hysteresis,
         **({"threshold_grid": grid} if tuned else {}),
@@ -273,13 +297,13 @@ def _run_worker_alone(worker: str, task: Task, settings: BenchmarkSettings, fold
     env = loaded.make_env(FLAT_ENV_ID)
     try:
         curve = evaluate(loaded.policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
-        test = evaluate(loaded.policy, env, n_episodes=settings.test_episodes, seed=TEST_SEED_BASE).summary()
+        test = test_fields(loaded.policy, env, settings)
     finally:
         env.close()
     return {
         "worker_timesteps": offset,
         "history": [{"timesteps": 0, "total_timesteps": offset, **curve}],
-        "test": test,
+        **test,
     }
 
 
@@ -288,11 +312,12 @@ def _manager_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
     return {f"{algo}.yml[{MANAGER_KEY}]": manager_hyperparams(algo).raw}
 
 
-def _flat_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
-    """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads."""
+def _flat_blocks(algo: str, settings: BenchmarkSettings, block: str | None = None) -> dict[str, Any]:
+    """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads (or ``block``)."""
     env = settings.terms_env
     env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (FLAT_ENV_ID, None)
-    return {f"{algo}.yml, flat agent on {env_id}": flat_hyperparams(algo, env_id, env_kwargs).raw}
+    label = f"{algo}.yml[{block}]" if block else f"{algo}.yml, flat agent on {env_id}"
+    return {label: flat_hyperparams(algo, env_id, env_kwargs, block=block).raw}
 
 
 def _manager_cost(settings: BenchmarkSettings) -> int:
@@ -365,6 +390,22 @@ for _algo, _colour in (
             config_blocks=functools.partial(_flat_blocks, _algo),
         )
     )
+for _algo, _colour in (("sac", "darkviolet"), ("ddpg", "navy")):
+    register_method(
+        Method(
+            f"{_algo}-her",
+            functools.partial(_run_flat, _algo, block=FLAT_HER_KEY),
+            _flat_cost,
+            colour=_colour,
+            baseline=True,
+            description=(
+                f"flat {_algo.upper()} with the goal worker's tricks (hindsight relabelling"
+                + (", the action penalty" if _algo == "ddpg" else "")
+                + f"; {_algo}.yml[{FLAT_HER_KEY}]) on the full observation and the reach reward, the flat budget"
+            ),
+            config_blocks=functools.partial(_flat_blocks, _algo, block=FLAT_HER_KEY),
+        )
+    )
 for _worker, _colour in (("goal", "yellowgreen"), ("avoid", "gold")):
     register_method(
         Method(
@@ -414,6 +455,8 @@ METHODS = tuple(METHOD_REGISTRY)
 DEFAULT_METHODS: tuple[str, ...] = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
 #: Flat single-agent baselines (``train_flat``'s algorithms).
 FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
+#: Flat agents with the goal worker's tricks, and the algorithm each trains.
+FLAT_HER_METHODS = {"sac-her": "sac", "ddpg-her": "ddpg"}
 #: The methods defined on any env with several objectives (``BenchmarkSettings.env``), and their default.
 ENV_METHODS = ("hddpg", *FLAT_METHODS)
 DEFAULT_ENV_METHODS = ("hddpg", "ddpg")

@@ -11,9 +11,17 @@ import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.evaluation import dependence_ratio_text
+from sb3_hddpg.experiments.benchmark.aggregates import performance_profiles
+from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv
 from sb3_hddpg.experiments.benchmark.methods import WORKERS
-from sb3_hddpg.experiments.benchmark.statistics import curve_bands, with_term_sums
+from sb3_hddpg.experiments.benchmark.statistics import (
+    curve_bands,
+    records_by_method,
+    score_matrices,
+    with_term_sums,
+)
 from sb3_hddpg.media import figures
+from sb3_hddpg.media.aggregate_plots import aggregate_figure
 
 # ---------------------------------------------------------------------------------------------- outputs
 #: Columns of ``evaluations.csv`` before the metrics.
@@ -71,9 +79,12 @@ OUTPUT_FILES = (
     "results.json",
     "results.md",
     "evaluations.csv",
+    "episodes.csv",
     "learning_curves.png",
     "figure9.png",
     "figure10.png",
+    "aggregates.png",
+    "performance_profile.png",
 )
 
 
@@ -122,7 +133,10 @@ def markdown_report(results: dict[str, Any]) -> str:
     if results["comparisons"]:
         lines += [
             "",
-            "| A vs B | metric | A - B [95 % CI], paired by seed | relative | P(A > B) |",
+            "Intervals: Student t over the paired seeds, Bonferroni-adjusted for each challenger's comparisons "
+            "(their number per metric: results.json, comparison_families).",
+            "",
+            "| A vs B | metric | A - B [adjusted CI], paired by seed | relative | P(A > B) |",
             "|---|---|---|---|---|",
         ]
         for pair, comparison in results["comparisons"].items():
@@ -138,7 +152,8 @@ def markdown_report(results: dict[str, Any]) -> str:
                 c = comparison[metric]
                 relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
                 lines.append(
-                    f"| {pair} | {metric} | {c['difference']:+.2f} [{c['ci_low']:+.2f}, {c['ci_high']:+.2f}] "
+                    f"| {pair} | {metric} | {c['difference']:+.2f} "
+                    f"[{c['ci_low_adjusted']:+.2f}, {c['ci_high_adjusted']:+.2f}] "
                     f"| {relative} | {c['probability_of_improvement']:.2f} |"
                 )
             ratio = comparison["slope_ratio"]
@@ -239,7 +254,10 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
 
 
 def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> None:
-    """Write ``results.json``, ``results.md``, ``evaluations.csv`` and the plots into ``out``."""
+    """
+    Write ``results.json``, ``results.md``, ``evaluations.csv``, ``episodes.csv`` (every test episode of the
+    records that hold them) and the plots into ``out``.
+    """
 
     method_records = [r for r in records if r["method"] != WORKERS]
     results["curves"] = {
@@ -249,6 +267,30 @@ def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, An
     atomic_write_json(out / "results.json", results)
     atomic_write(out / "results.md", lambda tmp: tmp.write_text(markdown_report(results)))
     write_csv(out / "evaluations.csv", evaluation_rows(records))
+    write_episodes_csv(out / "episodes.csv", records_episode_rows(records))
     figures.benchmark_learning_curves(results, out / "learning_curves.png")
     figures.figure9(results, out / "figure9.png")
     figures.figure10(results, out / "figure10.png")
+    headline_figures(out, results, records)
+
+
+#: Thresholds of the performance profile, in reach reward (0..2 per step, 200 steps).
+PROFILE_STEP = 2.0
+
+
+def headline_figures(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> list[Path]:
+    """
+    The rliable-style figures of a run: the aggregates' intervals (from ``results``) and the performance
+    profile of the reach reward over the score matrices of the records.
+    """
+    by_method = records_by_method(records)
+    if not by_method or not results.get("aggregates"):
+        return []
+    scores, unit = score_matrices(by_method)
+    low = min(float(m.min()) for m in scores.values())
+    high = max(float(m.max()) for m in scores.values())
+    taus = np.arange(np.floor(low / PROFILE_STEP) * PROFILE_STEP, high + PROFILE_STEP, PROFILE_STEP)
+    profiles, bands = performance_profiles(scores, taus)
+    return aggregate_figure(
+        results["aggregates"]["intervals"], profiles, bands, taus, results["colours"], unit, out
+    )

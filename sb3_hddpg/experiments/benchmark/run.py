@@ -33,7 +33,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
 )
 from sb3_hddpg.experiments.benchmark.report import write_outputs
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
-from sb3_hddpg.experiments.benchmark.statistics import compute_results
+from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compute_results
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.training.training import train_workers, worker_hyperparams
@@ -471,6 +471,8 @@ def run_benchmark(
         if record is not None:
             records[task] = record
     redone = [t for t in tasks if t.spec is not None and t.spec.name in redo]
+    # Before anything runs: a kept run scored on other episodes would stop the results at the end.
+    check_episode_sets(settings, [r for t, r in records.items() if t not in redone])
     stale = {t: blocks for t, blocks in _stale_runs(settings, records).items() if t not in redone}
     if stale:
         changed_blocks = ", ".join(sorted({b for blocks in stale.values() for b in blocks}))

@@ -11,9 +11,11 @@ from typing import Any
 from stable_baselines3 import DDPG
 
 from sb3_hddpg.envs.terms_env import TermsEnv
+from sb3_hddpg.episode_sets import DEVELOPMENT, FINAL_TEST, FINAL_TEST_EPISODES, EpisodeSet
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_METHODS,
     ENV_METHODS,
+    FLAT_HER_METHODS,
     FLAT_METHODS,
     METHOD_REGISTRY,
     WORKERS,
@@ -51,6 +53,9 @@ def _env_worker_budgets(env_json: str) -> list[int]:
     shared = TermsEnv(env["env_id"], dict(env["env_kwargs"]), tuple(env["terms"]))
     return [block.n_timesteps for block in worker_hyperparams(list(shared.terms), None, shared).values()]
 
+
+#: Test episodes per trained model of a development run (the final test set has its own number).
+DEVELOPMENT_TEST_EPISODES = 20
 
 #: ``standard``: every method once per seed; ``transfer``: managers and flat agents on new preferences.
 SCENARIOS = ("standard", "transfer")
@@ -92,7 +97,8 @@ class BenchmarkSettings:
         that a flat agent uses as many environment steps as the whole hierarchy).
     :param eval_freq: steps between learning-curve evaluations of every run (``None``: ``timesteps // 10``).
     :param eval_episodes: episodes per learning-curve evaluation.
-    :param test_episodes: episodes of the final test evaluation.
+    :param test_episodes: episodes of each trained model's test evaluation (``None``: 20 on the development
+        episodes, :data:`~sb3_hddpg.episode_sets.FINAL_TEST_EPISODES` on the final test set).
     :param ham_threshold: HAM's switching threshold (``None``: its default).
     :param ham_hysteresis: HAM's hysteresis.
     :param bias: the biased managers' extra preference factor.
@@ -109,6 +115,8 @@ class BenchmarkSettings:
         own (they must have been trained with the same config blocks, budget, backend, env and seed: then
         they are the workers this benchmark would train, since a seed's run is deterministic on the CPU).
         The copies are checked against their manifest's sha256 (:func:`~.run.check_workers_source`).
+    :param final_test: score every run on the final test set (:data:`~sb3_hddpg.episode_sets.FINAL_TEST`):
+        for the runs of record only, never for a choice; otherwise on the development episodes.
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -118,7 +126,7 @@ class BenchmarkSettings:
     flat_timesteps: int | None = None
     eval_freq: int | None = None
     eval_episodes: int = 5
-    test_episodes: int = 20
+    test_episodes: int | None = None
     ham_threshold: float | None = None
     ham_hysteresis: float = 0.0
     bias: float = 0.15
@@ -127,6 +135,7 @@ class BenchmarkSettings:
     backend: str = "sb3"
     env: dict[str, Any] | None = None
     workers_from: str | None = None
+    final_test: bool = False
 
     def __post_init__(self) -> None:
         self._check_methods()
@@ -136,6 +145,9 @@ class BenchmarkSettings:
             raise ValueError(f"Expected distinct seeds, at least one, actually: {self.seeds}")
         if not self.timesteps:
             self.timesteps = _config_budgets()[MANAGER_KEY]
+        if self.test_episodes is None:
+            self.test_episodes = FINAL_TEST_EPISODES if self.final_test else DEVELOPMENT_TEST_EPISODES
+        self.test_set.seeds(self.test_episodes)  # within the set's block
         for name in ("timesteps", "worker_timesteps", "eval_episodes", "test_episodes"):
             value = getattr(self, name)
             if value is not None and value < 1:
@@ -155,8 +167,8 @@ class BenchmarkSettings:
             raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
         self.backend = check_backend(self.backend)
         for method in self.methods:
-            if method in FLAT_METHODS:
-                check_algo(method, self.backend)
+            if method in FLAT_METHODS or method in FLAT_HER_METHODS:
+                check_algo(FLAT_HER_METHODS.get(method, method), self.backend)
         if len(set(self.methods)) != len(self.methods) or not self.methods:
             raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
 
@@ -199,6 +211,16 @@ class BenchmarkSettings:
         if self.env is None:
             return None
         return TermsEnv(self.env["env_id"], dict(self.env["env_kwargs"]), tuple(self.env["terms"]))
+
+    @property
+    def test_set(self) -> EpisodeSet:
+        """The episodes every run is scored on: the final test set with :attr:`final_test`, else development."""
+        return FINAL_TEST if self.final_test else DEVELOPMENT
+
+    @property
+    def test_episode_set(self) -> dict[str, int | str]:
+        """The record of the episodes every run is scored on (what a record and ``results.json`` keep)."""
+        return self.test_set.describe(self.test_episodes or 1)
 
     @property
     def method_keys(self) -> list[str]:

@@ -8,8 +8,9 @@ normalised reward, ``mean_reach_reward`` (per step the goal and avoid terms min-
 ``[0, 1]`` and summed; at most 2 per step, 400 per episode), plus goal-touch rate, collisions, success
 and clearance. The learning curves are the in-training evaluations (``evaluations/<name>.json``) on the
 fixed seeds ``EVAL_SEED_BASE + k``; because ``train_agent`` keeps the best model by those evaluations,
-the final scores are measured on a disjoint block of fixed test seeds, ``TEST_SEED_BASE + k``, the same
-for every method and seed (selecting and scoring on the same episodes would flatter the learned methods
+the final scores are measured on a disjoint block of fixed test seeds (the benchmark's test episode set:
+the development episodes, or the final test set in a run of record, :mod:`sb3_hddpg.episode_sets`), the same
+for every method and seed (selecting and scoring on the same episodes would flatter the learned methods).
 """
 
 from __future__ import annotations
@@ -23,20 +24,29 @@ import numpy as np
 
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import TermNormaliser
+from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import DEPENDENCE_WORKER, EVAL_SEED_BASE, state_dependence
+from sb3_hddpg.experiments.benchmark.aggregates import (
+    aggregate_intervals,
+    improvement_probabilities,
+    score_matrix,
+)
+from sb3_hddpg.experiments.benchmark.episodes import seed_metrics
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
-    TEST_SEED_BASE,
     WORKERS,
     method_key,
     split_key,
 )
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, comparison_pairs
 from sb3_hddpg.stats import (
+    bonferroni_confidence,
     bootstrap_ci,
-    paired_difference_ci,
+    holm_adjust,
+    paired_t_interval,
     probability_of_improvement,
     summarise,
+    t_interval,
     trend_slope,
 )
 
@@ -82,6 +92,48 @@ def with_term_sums(summary: dict[str, Any]) -> dict[str, Any]:
     return {**summary, "goal_reach_reward": goal, "avoid_reach_reward": avoid}
 
 
+def record_episode_set(record: dict[str, Any]) -> dict[str, Any]:
+    """
+    The episode set a record's test used: as recorded, or for a record from before sets were recorded, the
+    development episodes (then the only test episodes) of its summary's length.
+    """
+    kept = record.get("test_episode_set")
+    if isinstance(kept, dict):
+        return kept
+    return DEVELOPMENT.describe(int(record["test"]["episodes"]))
+
+
+def check_episode_sets(settings: BenchmarkSettings, records: Iterable[dict[str, Any]]) -> None:
+    """
+    Refuse records scored on other episodes than the benchmark's test set: one results table never mixes
+    the final test set with development episodes (or with another number of them).
+
+    :raises ValueError: naming the first run that differs, its episodes and the benchmark's.
+    """
+    expected = settings.test_episode_set
+    for record in records:
+        if record["method"] == WORKERS:
+            continue
+        used = record_episode_set(record)
+        if used != expected:
+            raise ValueError(
+                f"The run {record['method']}/seed-{record['seed']} was tested on {used}, this benchmark tests on "
+                f"{expected}: one benchmark folder holds one test episode set (start a new folder, or --redo "
+                f"{record['method'].partition('@')[0]})"
+            )
+
+
+def test_values(record: dict[str, Any]) -> dict[str, float]:
+    """
+    A run's per-seed test metrics: from its episodes (:func:`~.episodes.seed_metrics`) where the record
+    holds them, else from its test summary (records from before episodes were kept).
+    """
+    rows = record.get("episodes")
+    test = seed_metrics(rows) if rows else with_term_sums(record["test"])
+    # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
+    return {key: float(test[key]) for key in FINAL_METRICS if key in test}
+
+
 def curve_statistics(history: Sequence[dict[str, Any]], window: int) -> dict[str, float]:
     """
     A learning curve's mean and trend slope (paper Figure 9) over the evaluations at own steps <= ``window``.
@@ -106,6 +158,8 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     :param records: finished records (``workers`` records are used for the worker summaries).
     :return: a JSON-ready dict.
     """
+    records = list(records)
+    check_episode_sets(settings, records)
     by_method: dict[str, dict[int, dict[str, Any]]] = {}
     worker_records = {}
     for record in records:
@@ -122,9 +176,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         values: dict[int, dict[str, float]] = {}
         for seed in seeds:
             run = runs[seed]
-            test = with_term_sums(run["test"])
-            # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
-            values[seed] = {key: float(test[key]) for key in FINAL_METRICS if key in test}
+            values[seed] = test_values(run)
             values[seed].update(curve_statistics(run["history"], window))
             values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
         per_seed[method] = values
@@ -152,10 +204,9 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
         if any(figure is not None for figure in dependence.values()):
             methods[method]["state_dependence"] = dependence
-    comparisons = {}
-    for a, b in comparison_pairs(settings):
-        if a in per_seed and b in per_seed:
-            comparisons[f"{a} vs {b}"] = compare(per_seed[a], per_seed[b])
+    pairs = [(a, b) for a, b in comparison_pairs(settings) if a in per_seed and b in per_seed]
+    comparisons = {f"{a} vs {b}": compare(per_seed[a], per_seed[b]) for a, b in pairs}
+    families = adjust_for_comparisons(comparisons)
     workers = {}
     for name in ("goal", "avoid"):
         finals = [
@@ -174,12 +225,18 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
             if settings.env is not None
             else "goal and avoid terms (max 2 per step)"
         ),
-        "test_seeds": [TEST_SEED_BASE, TEST_SEED_BASE + settings.test_episodes - 1],
+        "test_seeds": [
+            settings.test_set.seeds(settings.test_episodes or 1)[0],
+            settings.test_set.seeds(settings.test_episodes or 1)[-1],
+        ],
+        "test_episode_set": settings.test_episode_set,
         "curve_seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + settings.eval_episodes - 1],
         "curve_window": window,
         "slope_unit_steps": SLOPE_UNIT,
         "methods": methods,
         "comparisons": comparisons,
+        "comparison_families": families,
+        "aggregates": aggregates(by_method, pairs),
         "workers": workers,
         "colours": {key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
     }
@@ -313,28 +370,33 @@ def transfer_results(
     return out
 
 
+#: The metrics every paired comparison reports.
+COMPARED_METRICS = ("mean_reach_reward", "curve_mean", "slope", "success_rate", "collisions_per_episode")
+#: The joint coverage of a comparison table's adjusted intervals.
+FAMILY_CONFIDENCE = 0.95
+
+
 def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> dict[str, Any]:
     """
     Paired comparison of two methods over their common seeds (same seed: same workers, same test episodes).
 
     :param a: seed -> metrics of the challenger.
     :param b: seed -> metrics of the baseline.
-    :return: per metric the paired mean difference with its 95 % bootstrap CI, the relative gain of the
-        means, and the probability of improvement; plus the ratio of mean slopes (the paper's
+    :return: per metric the paired mean difference with its 95 % Student t interval and p-value (adjusted
+        for the table by :func:`adjust_for_comparisons`), the relative gain of the means, and the
+        probability of improvement of the per-seed values; plus the ratio of mean slopes (the paper's
         "improvement rate").
     """
     seeds = sorted(set(a) & set(b))
     out: dict[str, Any] = {"seeds": seeds}
-    for key in ("mean_reach_reward", "curve_mean", "slope", "success_rate", "collisions_per_episode"):
+    for key in COMPARED_METRICS:
         if not all(key in a[s] and key in b[s] for s in seeds):
             continue  # a metric the env does not report (the snake's success and collisions)
         xa = np.array([a[s][key] for s in seeds])
         xb = np.array([b[s][key] for s in seeds])
-        diff, low, high = paired_difference_ci(xa, xb)
+        interval = paired_t_interval(xa, xb)
         out[key] = {
-            "difference": diff,
-            "ci_low": low,
-            "ci_high": high,
+            **{k: interval[k] for k in ("difference", "ci_low", "ci_high", "p_value", "standard_error")},
             "relative_gain": float(xa.mean() / xb.mean() - 1.0) if xb.mean() != 0 else None,
             "probability_of_improvement": probability_of_improvement(xa, xb),
         }
@@ -343,6 +405,100 @@ def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> d
         float(np.mean([a[s]["slope"] for s in seeds]) / mean_b_slope) if mean_b_slope != 0 else None
     )
     return out
+
+
+def adjust_for_comparisons(comparisons: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """
+    Adjust each table's comparisons for their number, in place: a table is one challenger against every
+    method it is compared with, per metric. Each comparison gains a Bonferroni-adjusted t interval
+    (``ci_low_adjusted``, ``ci_high_adjusted``: all of the table's hold together with 95 %) and a
+    Holm-adjusted p-value (``p_holm``).
+
+    :param comparisons: ``"A vs B"`` -> :func:`compare`'s result.
+    :return: challenger -> ``{"comparisons": per metric the number m, "adjustment"}``.
+    """
+    families: dict[str, Any] = {}
+    by_challenger: dict[str, list[str]] = {}
+    for pair in comparisons:
+        by_challenger.setdefault(pair.split(" vs ")[0], []).append(pair)
+    for challenger, pair_keys in by_challenger.items():
+        counts = {}
+        for metric in COMPARED_METRICS:
+            members = [k for k in pair_keys if metric in comparisons[k]]
+            if not members:
+                continue
+            counts[metric] = len(members)
+            confidence = bonferroni_confidence(FAMILY_CONFIDENCE, len(members))
+            adjusted_p = holm_adjust([comparisons[k][metric]["p_value"] for k in members])
+            for key, p_holm in zip(members, adjusted_p, strict=True):
+                entry = comparisons[key][metric]
+                low, high = t_interval(
+                    entry["difference"], entry["standard_error"], len(comparisons[key]["seeds"]), confidence
+                )
+                entry["p_holm"] = p_holm
+                entry["ci_low_adjusted"], entry["ci_high_adjusted"] = low, high
+                entry["confidence_adjusted"] = confidence
+        families[challenger] = {
+            "comparisons": counts,
+            "adjustment": (
+                f"paired Student t intervals over seeds, Bonferroni-adjusted for the table's comparisons per "
+                f"metric (each at 1 - {1 - FAMILY_CONFIDENCE:.2f}/m); p-values Holm-adjusted"
+            ),
+        }
+    return families
+
+
+def score_matrices(by_method: dict[str, dict[int, dict[str, Any]]]) -> tuple[dict[str, np.ndarray], str]:
+    """
+    Per run key the reach reward as rliable's runs-by-tasks matrix: by episode where every run of every method
+    holds its test episodes (each episode a task), else by seed (one per-seed mean per run).
+
+    :param by_method: run key -> seed -> record.
+    :return: the matrices and their unit, ``episode`` or ``seed``.
+    """
+    by_episode = all(r.get("episodes") for runs in by_method.values() for r in runs.values())
+    scores = {
+        method: score_matrix(
+            {
+                seed: [row["reach_reward"] for row in r["episodes"]]
+                if by_episode
+                else [test_values(r)["mean_reach_reward"]]
+                for seed, r in runs.items()
+            }
+        )
+        for method, runs in by_method.items()
+    }
+    return scores, "episode" if by_episode else "seed"
+
+
+def aggregates(
+    by_method: dict[str, dict[int, dict[str, Any]]], pairs: list[tuple[str, str]]
+) -> dict[str, Any]:
+    """
+    rliable's aggregates of the reach reward (:mod:`~.aggregates`) over :func:`score_matrices`.
+
+    :param by_method: run key -> seed -> record.
+    :param pairs: the compared ``(A, B)`` run keys.
+    """
+    if not by_method:
+        return {}
+    scores, unit = score_matrices(by_method)
+    return {
+        "metric": "mean_reach_reward",
+        "unit": unit,
+        "tasks": int(next(iter(scores.values())).shape[1]),
+        "intervals": aggregate_intervals(scores),
+        "probability_of_improvement": improvement_probabilities(scores, pairs),
+    }
+
+
+def records_by_method(records: Iterable[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]]]:
+    """Finished method records (not the workers') by run key, then seed."""
+    grouped: dict[str, dict[int, dict[str, Any]]] = {}
+    for record in records:
+        if record["method"] != WORKERS:
+            grouped.setdefault(record["method"], {})[record["seed"]] = record
+    return grouped
 
 
 def curve_bands(

@@ -1,0 +1,88 @@
+"""``hddpg-cli report RUN_DIR``: the docs' result tables and the README's results sentence, from the records."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import usage_errors
+from sb3_hddpg.experiments.benchmark.pages import TABLES, draw_headline_figures, load_run, update_pages
+from sb3_hddpg.experiments.study_export import export_study
+from sb3_hddpg.experiments.study_storage import check_storage_url
+
+
+@app.command("export-study")
+def export_study_command(
+    storage: str = typer.Option(
+        ..., "--storage", help="The study's Optuna storage URL (sqlite:///... or another)."
+    ),
+    study_name: str = typer.Option(..., "--study-name", help="The study's name in the storage."),
+    out: Path = typer.Option(
+        ..., "--out", help="The folder of the export, e.g. docs/results/RUN/studies (STUDY_NAME.json)."
+    ),
+) -> None:
+    """Export a tuning study's trials to JSON, for a benchmark's shipped studies and docs/TUNING.md's table."""
+    with usage_errors("'--storage' / '--study-name'"):
+        check_storage_url(storage)
+        try:
+            export = export_study(storage, study_name)
+        except KeyError as error:
+            raise ValueError(f"no study {study_name!r} in that storage") from error
+    path = atomic_write_json(out / f"{study_name}.json", export)
+    console.print(f"Exported {len(export['trials'])} trials of {study_name!r} to {path}")
+
+
+@app.command("report")
+def report_command(
+    run: Path = typer.Argument(
+        ..., help="A benchmark folder (its name is RUN in the page's generated blocks)."
+    ),
+    page: Path = typer.Option(
+        Path("docs/RESULTS.md"),
+        "--page",
+        help=f"The page whose <!-- generated:RUN/NAME --> blocks are rewritten (NAME among {', '.join(TABLES)}).",
+    ),
+    readme: Path | None = typer.Option(
+        None,
+        "--readme",
+        help="Also rewrite the sentence between <!-- results:start --> and <!-- results:end --> (a standard run).",
+    ),
+    tuning_page: Path = typer.Option(
+        Path("docs/TUNING.md"),
+        "--tuning-page",
+        help="The page whose <!-- generated:RUN/studies --> block gets the table of RUN/studies/ (if that exists).",
+    ),
+    figures: bool = typer.Option(
+        False,
+        "--figures",
+        help="Also draw RUN/aggregates.png and RUN/performance_profile.png (rliable's style).",
+    ),
+    check: bool = typer.Option(
+        False, "--check", help="Write nothing; exit 1 if a page differs from its regenerated text."
+    ),
+) -> None:
+    """Regenerate the result tables of a page (and the README's sentence) from a benchmark folder's records."""
+    with usage_errors("'RUN'"):
+        load_run(run)
+    with usage_errors("'--page' / '--readme'"):
+        for path in (page, readme, tuning_page if (run / "studies").is_dir() else None):
+            if path is not None and not path.is_file():
+                raise FileNotFoundError(f"no such page: {str(path)!r}")
+    outcome = update_pages(
+        run, page, readme, check=check, tuning_page=tuning_page if (run / "studies").is_dir() else None
+    )
+    tables = ", ".join(outcome["written"]) or "none (no generated block of this run in the page)"
+    console.print(f"Tables of {run.name}: {tables}")
+    if check and outcome["changed"]:
+        console.print(
+            f"[red]Out of date[/]: {', '.join(outcome['changed'])} (run without --check to rewrite)"
+        )
+        raise typer.Exit(1)
+    verb = "would change" if check else "rewritten"
+    console.print(f"Files {verb}: {', '.join(outcome['changed']) or 'none'}")
+    if figures and not check:
+        drawn = draw_headline_figures(run)
+        console.print(f"Figures: {', '.join(str(p) for p in drawn) or 'none (no method runs)'}")

@@ -1,0 +1,173 @@
+"""
+Per-episode records of the benchmark's test evaluations, ``episodes.csv``, and the one function that derives a
+seed's test metrics from them (:func:`seed_metrics`), so that ``results.json`` follows from the episodes.
+
+A row holds the run (method, seed), the episode set and the episode's seed, and every metric the evaluation
+measures, generic over the env's reward terms: the raw episode sum of each term (``raw:<term>``) and of each
+normalised term (``norm:<term>``), their normalised total, and the snake's touch, collision and clearance
+metrics where the env reports them.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.artifacts.limits import MAX_CSV_BYTES
+from sb3_hddpg.envs.contract import TermNormaliser
+from sb3_hddpg.evaluation import EvaluationResult
+
+#: Columns of ``episodes.csv`` before the metrics.
+EPISODE_KEYS = ("method", "seed", "episode_set", "episode_seed")
+#: An episode's metric -> the per-seed metric (the mean over the seed's episodes) it makes.
+SEED_METRIC_OF = {
+    "reward": "mean_reward",
+    "reach_reward": "mean_reach_reward",
+    "length": "mean_length",
+    "goal_touch_rate": "goal_touch_rate",
+    "goal_touched": "goal_reached_rate",
+    "collisions": "collisions_per_episode",
+    "success": "success_rate",
+    "min_clearance": "min_clearance",
+    "action_saturation": "action_saturation",
+}
+#: Prefixes of the per-term columns: a term's raw episode sum, and its normalised episode sum.
+RAW_PREFIX, NORMALISED_PREFIX = "raw:", "norm:"
+
+
+def episode_rows(result: EvaluationResult, bounds: Mapping[str, Sequence[float]]) -> list[dict[str, float]]:
+    """
+    Every episode of an evaluation as a flat row of numbers (booleans as 0/1; metrics the env does not
+    report left out).
+
+    :param result: an evaluation (:func:`sb3_hddpg.evaluation.evaluate`).
+    :param bounds: the env's per-step reward bounds (its contract's ``reward_bounds``), to normalise terms.
+    """
+    normaliser = TermNormaliser(bounds)
+    rows = []
+    for episode in result.episodes:
+        row: dict[str, float] = {"episode_seed": episode.seed}
+        for key in SEED_METRIC_OF:
+            value = getattr(episode, key)
+            if value is not None:
+                row[key] = float(value)
+        for term, raw in episode.term_rewards.items():
+            row[f"{RAW_PREFIX}{term}"] = float(raw)
+            row[f"{NORMALISED_PREFIX}{term}"] = normaliser.episode_sum(term, raw, episode.length)
+        rows.append(row)
+    return rows
+
+
+def seed_metrics(rows: Iterable[Mapping[str, Any]]) -> dict[str, float]:
+    """
+    A seed's test metrics from its episode rows: the mean of each metric over the episodes, under the names of
+    an evaluation summary (``mean_reach_reward``, ``collisions_per_episode``, ``mean_<term>_reward``,
+    ``<term>_reach_reward``...). The one derivation of per-seed test metrics from episodes.
+
+    :param rows: the seed's rows (of one run, one episode set).
+    :raises ValueError: no rows.
+    """
+    rows = list(rows)
+    if not rows:
+        raise ValueError("Expected the episode rows of a run, actually: none")
+    out: dict[str, float] = {"episodes": float(len(rows))}
+    for key in sorted({k for row in rows for k in row} - {*EPISODE_KEYS}):
+        values = [float(row[key]) for row in rows if row.get(key) not in (None, "")]
+        if len(values) != len(rows):
+            continue  # a metric some episodes lack is not averaged over the others
+        if key.startswith(RAW_PREFIX):
+            name = f"mean_{key[len(RAW_PREFIX) :]}_reward"
+        elif key.startswith(NORMALISED_PREFIX):
+            name = f"{key[len(NORMALISED_PREFIX) :]}_reach_reward"
+        elif key in SEED_METRIC_OF:
+            name = SEED_METRIC_OF[key]
+        else:
+            continue
+        out[name] = float(np.mean(values))
+    return out
+
+
+def records_episode_rows(records: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The rows of ``episodes.csv`` from the records that hold test episodes (older records hold none)."""
+    rows: list[dict[str, Any]] = []
+    for record in records:
+        episodes = record.get("episodes")
+        if not episodes:
+            continue
+        base = {
+            "method": record["method"],
+            "seed": record["seed"],
+            "episode_set": record.get("test_episode_set", {}).get("name", ""),
+        }
+        rows.extend({**base, **row} for row in episodes)
+    return rows
+
+
+def write_episodes_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
+    """Write ``episodes.csv`` atomically: the run columns, then every metric column any row has, sorted."""
+    metric_keys = sorted({k for row in rows for k in row} - set(EPISODE_KEYS))
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=[*EPISODE_KEYS, *metric_keys], restval="")
+            writer.writeheader()
+            writer.writerows({k: _cell(v) for k, v in row.items()} for row in rows)
+
+    return atomic_write(path, write)
+
+
+def _cell(value: Any) -> Any:
+    """Floats written with ``repr`` precision, so that a read-back row gives the same means."""
+    return repr(value) if isinstance(value, float) else value
+
+
+def read_episodes_csv(path: Path) -> list[dict[str, Any]]:
+    """
+    Read ``episodes.csv``: ``seed`` and ``episode_seed`` as integers, every metric as a finite float (an empty
+    cell: the metric is not reported there, left out of the row).
+
+    :raises ValueError: a file over :data:`~sb3_hddpg.artifacts.limits.MAX_CSV_BYTES`, a missing run column,
+        or a cell that is not a finite number, naming the file and the line.
+    """
+    if path.stat().st_size > MAX_CSV_BYTES:
+        raise ValueError(f"{str(path)!r} is larger than {MAX_CSV_BYTES} bytes: not an episodes.csv of ours")
+    rows = []
+    with open(path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        missing = [k for k in EPISODE_KEYS if k not in (reader.fieldnames or [])]
+        if missing:
+            raise ValueError(f"{str(path)!r}: expected the columns {list(EPISODE_KEYS)}, missing {missing}")
+        for line, raw in enumerate(reader, start=2):
+            rows.append(_parse_row(raw, f"{path}:{line}"))
+    return rows
+
+
+def _parse_row(raw: Mapping[str, str], where: str) -> dict[str, Any]:
+    row: dict[str, Any] = {"method": raw["method"], "episode_set": raw["episode_set"]}
+    for key, text in raw.items():
+        if key in ("method", "episode_set") or text in ("", None):
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(
+                f"{where}: expected a number in column {key!r}, actually: {text[:40]!r}"
+            ) from None
+        if not math.isfinite(value):
+            raise ValueError(f"{where}: expected a finite number in column {key!r}, actually: {text!r}")
+        row[key] = int(value) if key in ("seed", "episode_seed") else value
+    return row
+
+
+def group_rows(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[int, list[Mapping[str, Any]]]]:
+    """Rows by method, then seed."""
+    grouped: dict[str, dict[int, list[Mapping[str, Any]]]] = {}
+    for row in rows:
+        grouped.setdefault(str(row["method"]), {}).setdefault(int(row["seed"]), []).append(row)
+    return grouped

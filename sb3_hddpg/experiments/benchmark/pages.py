@@ -1,0 +1,353 @@
+"""
+The docs' result tables, generated from a benchmark folder's records: ``hddpg-cli report RUN_DIR``.
+
+A page holds each generated table between ``<!-- generated:RUN/NAME -->`` and ``<!-- /generated:RUN/NAME -->``
+(``RUN``: the folder's name, ``NAME``: one of :data:`TABLES`), and the README its one results sentence between
+``<!-- results:start -->`` and ``<!-- results:end -->``; the prose around them only interprets. The results
+come from the records by :func:`~.statistics.compute_results` (with ``episodes.csv``'s rows where the folder
+ships it), so a re-run updates every table, and a test checks that the shipped tables regenerate exactly.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.artifacts.limits import read_json_file
+from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
+from sb3_hddpg.experiments.benchmark.report import headline_figures
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
+from sb3_hddpg.experiments.benchmark.statistics import compute_results
+from sb3_hddpg.experiments.study_export import read_exports, studies_table
+from sb3_hddpg.stats import bootstrap_ci
+
+#: The README's results sentence markers.
+README_START, README_END = "<!-- results:start -->", "<!-- results:end -->"
+#: A generated block: ``<!-- generated:RUN/NAME -->`` ... ``<!-- /generated:RUN/NAME -->``.
+BLOCK = re.compile(
+    r"(<!-- generated:(?P<key>[\w.-]+/[\w-]+) -->\n)(?P<body>.*?)(<!-- /generated:(?P=key) -->)", re.S
+)
+
+
+def load_run(run: Path) -> tuple[BenchmarkSettings, list[dict[str, Any]]]:
+    """
+    A benchmark folder's settings and finished records; a record's test episodes are ``episodes.csv``'s rows
+    where the folder ships that file (the shipped per-episode data is the source of the per-seed figures).
+
+    :raises FileNotFoundError: not a benchmark folder.
+    """
+    if not (run / "benchmark.json").is_file() or not (run / "records").is_dir():
+        raise FileNotFoundError(f"not a benchmark folder (no benchmark.json and records/): {str(run)!r}")
+    stored = read_json_file(run / "benchmark.json")
+    settings = BenchmarkSettings(**stored["settings"])
+    records = [read_json_file(path) for path in sorted((run / "records").glob("*/seed-*.json"))]
+    records = [r for r in records if isinstance(r, dict) and r.get("status") == "done"]
+    csv_path = run / "episodes.csv"
+    if csv_path.is_file():
+        rows = group_rows(read_episodes_csv(csv_path))
+        for record in records:
+            shipped = rows.get(record["method"], {}).get(record["seed"])
+            if shipped:
+                record["episodes"] = [
+                    {k: v for k, v in row.items() if k not in ("method", "seed", "episode_set")}
+                    for row in shipped
+                ]
+    return settings, records
+
+
+def run_results(run: Path) -> dict[str, Any]:
+    """The results of a benchmark folder, computed from its records (not read from its results.json)."""
+    settings, records = load_run(run)
+    return compute_results(settings, records)
+
+
+def draw_headline_figures(run: Path) -> list[Path]:
+    """Draw a benchmark folder's rliable-style figures into it from its records."""
+    settings, records = load_run(run)
+    return headline_figures(run, compute_results(settings, records), records)
+
+
+# ------------------------------------------------------------------------------------------------ tables
+def _interval(entry: Mapping[str, Any], fmt: str, key: str = "mean") -> str:
+    low, high = entry["ci_low"], entry["ci_high"]
+    return f"{entry[key]:{fmt}} [{low:{fmt}}, {high:{fmt}}]"
+
+
+def _unit_text(results: dict[str, Any]) -> str:
+    aggregate = results["aggregates"]
+    episodes = results["test_episode_set"]
+    where = f"{episodes['episodes']} {episodes['name']} episodes (seeds {results['test_seeds'][0]}-{results['test_seeds'][1]})"
+    if aggregate["unit"] == "episode":
+        return (
+            f"Test on {where} per trained model. Reach reward: rliable's mean and IQM over every (seed, episode) "
+            "score with stratified bootstrap 95 % intervals (seeds resampled within each episode); the other "
+            "columns: mean over seeds with a percentile bootstrap 95 % interval."
+        )
+    return (
+        f"Test on {where} per trained model. This run ships per-seed records only (no per-episode data): every "
+        "interval resamples the per-seed means (rliable's stratified bootstrap for the reach reward's mean and "
+        "IQM, a percentile bootstrap for the others), and no episode-level interval or performance profile can "
+        "be computed from it."
+    )
+
+
+def methods_table(results: dict[str, Any]) -> str:
+    """Per method: the reach reward's mean and IQM with rliable's intervals, touch, contacts, success, choices."""
+    intervals = results["aggregates"]["intervals"]
+    lines = [
+        _unit_text(results),
+        "",
+        "| method | seeds | reach reward: mean [95 % CI] | IQM [95 % CI] | goal touch (% of steps) "
+        "| collisions / episode | success (% of episodes) | worker choices (test) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for method, entry in results["methods"].items():
+        s = entry["stats"]
+        aggregate = intervals[method]
+        cells = [
+            _interval(_percent(s[key]) if percent else s[key], fmt) if key in s else "-"
+            for key, fmt, percent in (
+                ("goal_touch_rate", ".1f", True),
+                ("collisions_per_episode", ".2f", False),
+                ("success_rate", ".0f", True),
+            )
+        ]
+        choices = ", ".join(f"{k} {v:.0%}" for k, v in entry.get("selection_rate", {}).items()) or "-"
+        lines.append(
+            f"| `{method}` | {len(entry['seeds'])} | {_interval(aggregate['mean'], '.1f', 'value')} "
+            f"| {_interval(aggregate['iqm'], '.1f', 'value')} | {' | '.join(cells)} | {choices} |"
+        )
+    return "\n".join(lines)
+
+
+def _percent(stats: Mapping[str, Any]) -> dict[str, float]:
+    return {k: 100 * float(stats[k]) for k in ("mean", "ci_low", "ci_high")}
+
+
+def _signed(entry: Mapping[str, Any], scale: float = 1.0) -> str:
+    """A paired difference with its adjusted interval, bold when that excludes 0."""
+    point, low, high = (scale * entry[k] for k in ("difference", "ci_low_adjusted", "ci_high_adjusted"))
+    text = f"{point:+.2f} [{low:+.2f}, {high:+.2f}]"
+    return f"**{text}**" if low > 0 or high < 0 else text
+
+
+def comparisons_table(results: dict[str, Any], challenger: str) -> str:
+    """One challenger against every method it is compared with: paired differences, adjusted, and P(A > B)."""
+    family = results["comparison_families"][challenger]
+    pairs = {k: v for k, v in results["comparisons"].items() if k.split(" vs ")[0] == challenger}
+    if not pairs:
+        return f"(no comparison of `{challenger}` in this run)"
+    m = family["comparisons"]["mean_reach_reward"]
+    first = next(iter(pairs.values()))
+    seeds = len(first["seeds"])
+    confidence = first["mean_reach_reward"]["confidence_adjusted"]
+    poi = results["aggregates"]["probability_of_improvement"]
+    unit = "episodes and seeds" if results["aggregates"]["unit"] == "episode" else "seeds"
+    lines = [
+        f"{m} comparisons per metric in this table. Differences: paired by seed, mean over the {seeds} seeds with "
+        f"a Student t interval Bonferroni-adjusted for the {m} comparisons (each at {confidence:.2%}, all {m} "
+        f"together at 95 %); bold where it excludes 0. P(A > B): rliable's probability of improvement over "
+        f"{unit}, stratified bootstrap 95 % interval (not adjusted).",
+        "",
+        f"| {challenger} vs | reach reward: difference [CI] | P({challenger} > B) [95 % CI] "
+        "| collisions / episode: difference [CI] | goal touch (points of %) |",
+        "|---|---|---|---|---|",
+    ]
+    for pair, comparison in pairs.items():
+        baseline = pair.split(" vs ")[1]
+        p = poi[pair]
+        collisions = (
+            _signed(comparison["collisions_per_episode"]) if "collisions_per_episode" in comparison else "-"
+        )
+        touch = results["methods"][challenger]["stats"].get("goal_touch_rate")
+        other = results["methods"][baseline]["stats"].get("goal_touch_rate")
+        touch_text = f"{100 * (touch['mean'] - other['mean']):+.1f}" if touch and other else "-"
+        lines.append(
+            f"| `{baseline}` | {_signed(comparison['mean_reach_reward'])} "
+            f"| {p['value']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}] | {collisions} | {touch_text} |"
+        )
+    return "\n".join(lines)
+
+
+def per_seed_table(
+    results: dict[str, Any], key: str = "mean_reach_reward", fmt: str = ".1f", scale: float = 1.0
+) -> str:
+    """One metric (times ``scale``) per method and seed."""
+    seeds = sorted({int(s) for entry in results["methods"].values() for s in entry["per_seed"]})
+    lines = [
+        "| method | " + " | ".join(f"seed {s}" for s in seeds) + " |",
+        "|---|" + "---|" * len(seeds),
+    ]
+    for method, entry in results["methods"].items():
+        values = [entry["per_seed"].get(str(s), {}).get(key) for s in seeds]
+        values = [scale * v if v is not None else None for v in values]
+        lines.append(
+            f"| `{method}` | " + " | ".join(f"{v:{fmt}}" if v is not None else "-" for v in values) + " |"
+        )
+    return "\n".join(lines)
+
+
+def transfer_table(results: dict[str, Any]) -> str:
+    """The transfer ratios per preference and manager: arithmetic mean, geometric mean and median, with CIs."""
+    transfer = results.get("transfer")
+    if not transfer:
+        return "(not a transfer run)"
+    lines = [
+        "Ratio = flat steps / manager steps to 90 % of the way from random to the final score, per seed; 95 % "
+        "percentile bootstrap intervals over the seeds (the geometric mean's on the log ratios). The per-seed "
+        "ratios spread over two orders of magnitude, so the geometric mean and the median are the headline, "
+        "the arithmetic mean is shown for comparison with earlier text.",
+        "",
+        "| preference | manager vs flat | seeds with a ratio | arithmetic mean [95 % CI] | geometric mean "
+        "[95 % CI] | median [95 % CI] | per seed |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for preference, entry in transfer["preferences"].items():
+        for comparison in entry.values():
+            ratios = [v["ratio"] for v in comparison["per_seed"].values() if v["ratio"] is not None]
+            if not ratios:
+                continue
+            arithmetic = bootstrap_ci(ratios)
+            logs = bootstrap_ci(np.log(ratios))
+            median = bootstrap_ci(ratios, np.median)
+            lines.append(
+                f"| `{preference}` | `{comparison['manager']}` vs `{comparison['flat']}` "
+                f"| {len(ratios)}/{len(comparison['per_seed'])} | {_triple(arithmetic)} "
+                f"| {_triple(tuple(float(np.exp(x)) for x in logs))} | {_triple(median)} "
+                f"| {', '.join(f'{r:.1f}' for r in ratios)} |"
+            )
+    return "\n".join(lines)
+
+
+def _triple(values: tuple[float, ...]) -> str:
+    point, low, high = values
+    return f"{point:.1f} [{low:.1f}, {high:.1f}]"
+
+
+#: Every table a page can hold, by name: ``results -> Markdown``.
+TABLES: dict[str, Callable[[dict[str, Any]], str]] = {
+    "methods": methods_table,
+    "comparisons-hddpg": lambda r: comparisons_table(r, "hddpg"),
+    "comparisons-hddpg-sac": lambda r: comparisons_table(r, "hddpg-sac"),
+    "per-seed-reach": per_seed_table,
+    "per-seed-touch": lambda r: per_seed_table(r, "goal_touch_rate", ".1f", 100.0),
+    "per-seed-collisions": lambda r: per_seed_table(r, "collisions_per_episode", ".2f"),
+    "transfer": transfer_table,
+}
+
+
+def results_sentence(results: dict[str, Any], run_name: str) -> str:
+    """
+    The README's one results sentence: HDDPG's reach reward with its interval, and for every method it is
+    compared with whether it is ahead, level or behind by the table's adjusted interval.
+    """
+    hddpg = results["aggregates"]["intervals"]["hddpg"]["mean"]
+    groups: dict[str, list[str]] = {"ahead of": [], "level with": [], "behind": []}
+    for pair, comparison in results["comparisons"].items():
+        challenger, baseline = pair.split(" vs ")
+        if challenger != "hddpg":
+            continue
+        entry = comparison["mean_reach_reward"]
+        word = (
+            "ahead of"
+            if entry["ci_low_adjusted"] > 0
+            else "behind"
+            if entry["ci_high_adjusted"] < 0
+            else "level with"
+        )
+        mean = results["methods"][baseline]["stats"]["mean_reach_reward"]["mean"]
+        groups[word].append(f"`{baseline}` ({mean:.1f})")
+    episodes = results["test_episode_set"]
+    verdict = "; ".join(f"{word} {', '.join(names)}" for word, names in groups.items() if names)
+    seeds = len(results["methods"]["hddpg"]["seeds"])
+    return (
+        f"On the {seeds}-seed benchmark `{run_name}` ({episodes['episodes']} {episodes['name']} episodes per model), "
+        f"HDDPG scores {hddpg['value']:.1f} [{hddpg['ci_low']:.1f}, {hddpg['ci_high']:.1f}] reach reward: {verdict} "
+        "(paired t intervals over seeds, adjusted for the comparisons; docs/RESULTS.md)."
+    )
+
+
+# ------------------------------------------------------------------------------------------------- pages
+def _write_text(path: Path, text: str) -> None:
+    def write(tmp: Path) -> None:
+        tmp.write_text(text)
+
+    atomic_write(path, write)
+
+
+def render_page(
+    text: str, run_name: str, results: dict[str, Any], extra: Mapping[str, Callable[[], str]] | None = None
+) -> tuple[str, list[str]]:
+    """
+    ``text`` with every generated block of ``run_name`` rewritten from ``results`` (a block named in ``extra``
+    from its own function, e.g. ``studies``).
+
+    :return: the new text and the names of the blocks written.
+    :raises ValueError: a block of ``run_name`` that names no known table.
+    """
+    written: list[str] = []
+    makers: dict[str, Callable[[], str]] = {
+        name: functools.partial(table, results) for name, table in TABLES.items()
+    }
+    makers.update(extra or {})
+
+    def replace(match: re.Match[str]) -> str:
+        run, _, name = match.group("key").partition("/")
+        if run != run_name:
+            return match.group(0)
+        if name not in makers:
+            raise ValueError(f"Unknown generated table {name!r} in a page; choose from {list(makers)}")
+        written.append(name)
+        return f"{match.group(1)}{makers[name]()}\n{match.group(4)}"
+
+    return BLOCK.sub(replace, text), written
+
+
+def render_readme(text: str, sentence: str) -> str:
+    """``text`` with the results sentence between the README's markers replaced (unchanged without them)."""
+    start, end = text.find(README_START), text.find(README_END)
+    if start < 0 or end < start:
+        return text
+    return f"{text[: start + len(README_START)]}\n{sentence}\n{text[end:]}"
+
+
+def update_pages(
+    run: Path, page: Path, readme: Path | None = None, check: bool = False, tuning_page: Path | None = None
+) -> dict[str, list[str]]:
+    """
+    Regenerate ``page``'s blocks of the benchmark folder ``run`` (and ``readme``'s sentence) from its records.
+
+    :param run: a benchmark folder; its name is the ``RUN`` of the blocks.
+    :param page: a Markdown page with generated blocks (e.g. ``docs/RESULTS.md``).
+    :param readme: a README with the results markers (the sentence is a standard run's).
+    :param check: write nothing; report the files that would change.
+    :param tuning_page: a page whose ``RUN/studies`` block gets the equal-effort table of ``run/studies/``
+        (the study exports, :mod:`sb3_hddpg.experiments.study_export`).
+    :return: ``{"written": block names, "changed": files that differ from their regenerated text}``.
+    """
+    results = run_results(run)
+    outputs: dict[Path, str] = {}
+    text = page.read_text()
+    studies = (
+        {"studies": functools.partial(studies_table, read_exports(run / "studies"))}
+        if (run / "studies").is_dir()
+        else {}
+    )
+    outputs[page], written = render_page(text, run.name, results, studies)
+    if tuning_page is not None and studies:
+        outputs[tuning_page], more = render_page(tuning_page.read_text(), run.name, results, studies)
+        written += more
+    if readme is not None and "hddpg" in results["methods"] and results["scenario"] == "standard":
+        outputs[readme] = render_readme(readme.read_text(), results_sentence(results, run.name))
+    changed = [str(path) for path, new in outputs.items() if new != path.read_text()]
+    if not check:
+        for path, new in outputs.items():
+            if str(path) in changed:
+                _write_text(path, new)
+    return {"written": written, "changed": changed}

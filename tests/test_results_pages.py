@@ -1,0 +1,191 @@
+"""The docs' result tables regenerate from the shipped records; per-episode records make the per-seed figures."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.episode_sets import FINAL_TEST, FINAL_TEST_EPISODES
+from sb3_hddpg.experiments.benchmark import BenchmarkSettings, compute_results
+from sb3_hddpg.experiments.benchmark.episodes import (
+    read_episodes_csv,
+    records_episode_rows,
+    seed_metrics,
+    write_episodes_csv,
+)
+from sb3_hddpg.experiments.benchmark.pages import (
+    BLOCK,
+    README_END,
+    README_START,
+    load_run,
+    render_page,
+    render_readme,
+    update_pages,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS_PAGE = ROOT / "docs" / "RESULTS.md"
+
+
+def shipped_runs() -> list[str]:
+    """The benchmark folders whose tables RESULTS.md holds."""
+    keys = {m.group("key").split("/")[0] for m in BLOCK.finditer(RESULTS_PAGE.read_text())}
+    return sorted(keys)
+
+
+def test_results_page_has_generated_tables_of_the_shipped_runs():
+    assert {"bench-e20", "transfer-e20"} <= set(shipped_runs())
+
+
+@pytest.mark.parametrize("run", shipped_runs())
+def test_shipped_tables_regenerate_exactly_from_the_shipped_records(run):
+    readme = ROOT / "README.md" if run == "bench-e20" else None
+    outcome = update_pages(ROOT / "docs" / "results" / run, RESULTS_PAGE, readme, check=True)
+    assert outcome["written"], f"no generated table of {run} in RESULTS.md"
+    assert outcome["changed"] == [], f"run `hddpg-cli report docs/results/{run}` to regenerate"
+
+
+# ------------------------------------------------------------------------------------------ constructed run
+def episode_record(method: str, seed: int, rewards: list[float], collisions: list[int]) -> dict:
+    """A finished run's record with its test episodes on the final test set."""
+    episodes = [
+        {
+            "episode_seed": FINAL_TEST.first_seed + k,
+            "reward": r,
+            "reach_reward": r,
+            "length": 200.0,
+            "collisions": float(c),
+            "raw:goal": -40.0,
+            "norm:goal": r / 2,
+        }
+        for k, (r, c) in enumerate(zip(rewards, collisions, strict=True))
+    ]
+    history = [
+        {"timesteps": 1000 * i, "total_timesteps": 1000 * i, "mean_reach_reward": 200.0 + i} for i in (1, 2)
+    ]
+    return {
+        "method": method,
+        "seed": seed,
+        "status": "done",
+        "worker_timesteps": 0,
+        "history": history,
+        "test": {"episodes": len(rewards), "mean_reach_reward": float(np.mean(rewards))},
+        "episodes": episodes,
+        "test_episode_set": FINAL_TEST.describe(len(rewards)),
+    }
+
+
+@pytest.fixture
+def final_run(tmp_path):
+    settings = BenchmarkSettings(methods=["hddpg", "ddpg"], seeds=[0, 1, 2], timesteps=2000, final_test=True)
+    assert settings.test_episodes == FINAL_TEST_EPISODES and settings.test_set is FINAL_TEST
+    rng = np.random.default_rng(0)
+    records = []
+    for seed in settings.seeds:
+        for method, level in (("hddpg", 300.0), ("ddpg", 280.0)):
+            rewards = (level + rng.normal(0, 5, FINAL_TEST_EPISODES)).round(3).tolist()
+            records.append(
+                episode_record(method, seed, rewards, rng.integers(0, 4, FINAL_TEST_EPISODES).tolist())
+            )
+    run = tmp_path / "final-run"
+    atomic_write_json(run / "benchmark.json", {"settings": {**settings.__dict__}})
+    for record in records:
+        atomic_write_json(run / "records" / record["method"] / f"seed-{record['seed']}.json", record)
+    return run, settings, records
+
+
+def test_results_are_derived_from_the_episodes(final_run):
+    run, settings, records = final_run
+    results = compute_results(settings, records)
+    first = next(r for r in records if r["method"] == "hddpg" and r["seed"] == 0)
+    per_seed = results["methods"]["hddpg"]["per_seed"]["0"]
+    assert per_seed["mean_reach_reward"] == pytest.approx(
+        np.mean([e["reach_reward"] for e in first["episodes"]])
+    )
+    assert per_seed["collisions_per_episode"] == pytest.approx(
+        np.mean([e["collisions"] for e in first["episodes"]])
+    )
+    assert per_seed["goal_reach_reward"] == pytest.approx(
+        np.mean([e["norm:goal"] for e in first["episodes"]])
+    )
+    assert results["test_episode_set"] == {"name": "final-test", "first_seed": 900_000, "episodes": 100}
+    assert results["test_seeds"] == [900_000, 900_099]
+    aggregate = results["aggregates"]
+    assert aggregate["unit"] == "episode" and aggregate["tasks"] == FINAL_TEST_EPISODES
+    assert aggregate["probability_of_improvement"]["hddpg vs ddpg"]["value"] > 0.9
+
+    # episodes.csv holds every row, and reading it back gives the same per-seed figures.
+    path = write_episodes_csv(run / "episodes.csv", records_episode_rows(records))
+    rows = read_episodes_csv(path)
+    assert len(rows) == 6 * FINAL_TEST_EPISODES and rows[0]["episode_set"] == "final-test"
+    shipped = [r for r in rows if r["method"] == "hddpg" and r["seed"] == 0]
+    assert seed_metrics(shipped) == pytest.approx(seed_metrics(first["episodes"]))
+    _, loaded = load_run(run)
+    assert compute_results(settings, loaded)["methods"] == results["methods"]
+
+
+def test_a_run_never_mixes_episode_sets(final_run):
+    _, settings, records = final_run
+    development = BenchmarkSettings(methods=["hddpg", "ddpg"], seeds=[0, 1, 2], timesteps=2000)
+    with pytest.raises(ValueError, match="one benchmark folder holds one test episode set"):
+        compute_results(development, records)
+    # A record from before episode sets were recorded counts as 20 development episodes.
+    old = {**records[0], "test": {"episodes": 20, "mean_reach_reward": 1.0}}
+    del old["test_episode_set"], old["episodes"]
+    with pytest.raises(ValueError, match="'development'"):
+        compute_results(settings, [old, *records[1:]])
+
+
+def test_bad_episodes_csv_is_refused_with_the_line(tmp_path):
+    path = tmp_path / "episodes.csv"
+    path.write_text("method,seed,episode_set,episode_seed,reach_reward\nhddpg,0,final-test,900000,nan\n")
+    with pytest.raises(
+        ValueError, match=r"episodes.csv:2: expected a finite number in column 'reach_reward'"
+    ):
+        read_episodes_csv(path)
+    path.write_text("method,seed\nhddpg,0\n")
+    with pytest.raises(ValueError, match="missing"):
+        read_episodes_csv(path)
+
+
+def test_pages_rewrite_only_their_own_blocks(final_run):
+    run, settings, records = final_run
+    results = compute_results(settings, records)
+    page = (
+        "intro\n<!-- generated:final-run/per-seed-reach -->\nold\n<!-- /generated:final-run/per-seed-reach -->\n"
+        "<!-- generated:other/methods -->\nkept\n<!-- /generated:other/methods -->\n"
+    )
+    text, written = render_page(page, "final-run", results)
+    assert written == ["per-seed-reach"] and "old" not in text and "kept" in text
+    assert re.search(r"\| `hddpg` \| 30\d\.\d \|", text)
+    assert render_page(text, "final-run", results)[0] == text  # regenerating changes nothing
+    with pytest.raises(ValueError, match="Unknown generated table 'nope'"):
+        render_page(
+            "<!-- generated:final-run/nope -->\n<!-- /generated:final-run/nope -->", "final-run", results
+        )
+    readme = f"a\n{README_START}\nold sentence\n{README_END}\nb"
+    new = render_readme(readme, "new sentence")
+    assert (
+        "new sentence" in new and "old sentence" not in new and new.startswith("a\n") and new.endswith("\nb")
+    )
+    assert render_readme("no markers", "x") == "no markers"
+
+
+def test_resuming_a_development_folder_as_a_final_run_is_refused(tmp_path):
+    from dataclasses import asdict
+
+    from sb3_hddpg.experiments.benchmark import run_benchmark
+
+    development = BenchmarkSettings(methods=["ham"], seeds=[0], timesteps=1000, worker_timesteps=100)
+    out = tmp_path / "bench"
+    atomic_write_json(out / "benchmark.json", {"settings": asdict(development)})
+    final = BenchmarkSettings(
+        methods=["ham"], seeds=[0], timesteps=1000, worker_timesteps=100, final_test=True
+    )
+    with pytest.raises(ValueError, match="final_test"):
+        run_benchmark(final, out, resume=True)
+    assert not (out / "records").exists()  # refused before anything ran
