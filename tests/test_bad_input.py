@@ -212,7 +212,7 @@ CASES = [
     case("ev-negative-episodes", ("evaluate", "random", "--episodes", "-3"), 2, "-3"),
     case("ev-negative-seed", ("evaluate", "random", "--seed", "-1"), 2, "-1"),
     case("ev-json-is-a-folder", ("evaluate", "random", "--json", "{folder}"), 2, "a-folder"),
-    case("ev-unknown-algo", ("evaluate", "{lonely_zip}", "--trust", "--algo", "ppo"), 2, "PPO"),
+    case("ev-unknown-algo", ("evaluate", "{lonely_zip}", "--trust", "--algo", "a2c"), 2, "A2C"),
     # ---- evaluate: hostile bundles and files (a file someone else made; docs/ROBUSTNESS.md "Limits")
     case("ev-module-prefixed-env", ("evaluate", "{hostile_env_id}"), 2, "env_id"),
     case("ev-env-kwargs-list", ("evaluate", "{hostile_env_kwargs_list}"), 2, "env_kwargs"),

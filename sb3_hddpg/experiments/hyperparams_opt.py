@@ -1,6 +1,6 @@
 """
 Search spaces of ``hddpg-cli tune``: one ``sample_*_params(trial)`` per level, in a registry, as in rl_zoo3's
-``hyperparams_opt.py``; the flat level has one per algorithm (:data:`FLAT_SAMPLERS`: DDPG, TD3, SAC), so that
+``hyperparams_opt.py``; the flat level has one per algorithm (:data:`SAMPLERS`, named by each algorithm record), so that
 every flat baseline can get the same tuning effort (trials and steps per trial) before a benchmark.
 
 Each sampler returns the *changes* to a ``zoo_configs`` block, already in the file's format (``policy_kwargs``
@@ -20,6 +20,7 @@ import functools
 from collections.abc import Callable
 from typing import Any
 
+from sb3_hddpg.algorithms import REGISTRY
 from sb3_hddpg.hierarchy.selection import SELECTORS
 from sb3_hddpg.training.config import parse_policy_kwargs
 
@@ -103,11 +104,104 @@ def sample_sac_params(trial: Any) -> dict[str, Any]:
     return block
 
 
-#: Flat algorithm -> its sampler (``--level flat --algo NAME``).
-FLAT_SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
+def sample_tqc_params(trial: Any) -> dict[str, Any]:
+    """
+    TQC's hyperparameters: SAC's space plus how many of each critic's top quantiles it drops (its control of
+    overestimation; SB3's default 2 of 25).
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    block = sample_sac_params(trial)
+    block["top_quantiles_to_drop_per_net"] = trial.suggest_categorical(
+        "top_quantiles_to_drop_per_net", [2, 0, 1, 3, 5]
+    )
+    return block
+
+
+def sample_crossq_params(trial: Any) -> dict[str, Any]:
+    """
+    CrossQ's hyperparameters: SAC's space without the soft-update rate (CrossQ has no target networks),
+    plus the actor's delay (sb3-contrib's and SBX's default 3 first).
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    block = sample_sac_params(trial)
+    del block["tau"]
+    block["policy_delay"] = trial.suggest_categorical("policy_delay", [3, 1, 2, 5])
+    return block
+
+
+def _sample_q_network(trial: Any, policy_extra: str = "") -> dict[str, Any]:
+    block = _sample_shared(trial)
+    del block["tau"]  # DQN copies its target network every target_update_interval steps
+    net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
+    block["target_update_interval"] = trial.suggest_categorical(
+        "target_update_interval", [1000, 1, 100, 5000]
+    )
+    block["exploration_fraction"] = trial.suggest_float("exploration_fraction", 0.0, 0.5)
+    block["exploration_final_eps"] = trial.suggest_float("exploration_final_eps", 0.0, 0.2)
+    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]}{policy_extra})"
+    return block
+
+
+def sample_dqn_params(trial: Any) -> dict[str, Any]:
+    """
+    DQN's hyperparameters (rl_zoo3's space, narrowed as the others): discount, learning rate, batch and
+    buffer size, update schedule, target update interval, exploration schedule, network size.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    return _sample_q_network(trial)
+
+
+def sample_qrdqn_params(trial: Any) -> dict[str, Any]:
+    """
+    QR-DQN's hyperparameters: DQN's space plus the number of quantiles.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    n_quantiles = trial.suggest_categorical("n_quantiles", [50, 10, 25, 100])
+    return _sample_q_network(trial, f", n_quantiles={n_quantiles}")
+
+
+def sample_ppo_params(trial: Any) -> dict[str, Any]:
+    """
+    PPO's hyperparameters (rl_zoo3's space, narrowed as the others): discount, learning rate, rollout
+    length, minibatch size, epochs, GAE's lambda, clipping, entropy bonus and network size.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
+    return {
+        "gamma": trial.suggest_categorical("gamma", [0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
+        "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
+        "n_steps": trial.suggest_categorical("n_steps", [2048, 256, 512, 1024]),
+        "batch_size": trial.suggest_categorical("batch_size", [64, 32, 128, 256]),
+        "n_epochs": trial.suggest_categorical("n_epochs", [10, 1, 5, 20]),
+        "gae_lambda": trial.suggest_categorical("gae_lambda", [0.95, 0.8, 0.9, 0.98, 1.0]),
+        "clip_range": trial.suggest_categorical("clip_range", [0.2, 0.1, 0.3, 0.4]),
+        "ent_coef": trial.suggest_float("ent_coef", 1e-8, 0.1, log=True),
+        "policy_kwargs": f"dict(net_arch=dict(pi={NET_ARCHS[net_arch]}, vf={NET_ARCHS[net_arch]}))",
+    }
+
+
+#: An algorithm record's ``sampler`` -> its sampler, as rl_zoo3's one ``sample_*_params`` per algorithm.
+SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
     "ddpg": sample_ddpg_params,
     "td3": sample_td3_params,
     "sac": sample_sac_params,
+    "tqc": sample_tqc_params,
+    "crossq": sample_crossq_params,
+    "dqn": sample_dqn_params,
+    "qrdqn": sample_qrdqn_params,
+    "ppo": sample_ppo_params,
+}
+
+#: Flat algorithm -> its sampler (``--level flat --algo NAME``): every algorithm whose record names one.
+FLAT_SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
+    name: SAMPLERS[record.sampler]
+    for name, record in REGISTRY.items()
+    if record.sampler is not None and "flat" in record.roles
 }
 
 

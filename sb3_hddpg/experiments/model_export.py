@@ -19,7 +19,7 @@ from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
-from sb3_hddpg.experiments.benchmark import WORKERS, split_key
+from sb3_hddpg.experiments.benchmark import FLAT_METHODS, WORKERS, split_key
 
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
@@ -31,10 +31,7 @@ INDEX_METHODS = (
     "hddpg-sac",
     "ham",
     "ham-tuned",
-    "ddpg",
-    "td3",
-    "sac",
-    "tqc",
+    *FLAT_METHODS,
 )
 
 
@@ -53,7 +50,7 @@ def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
         return f"{run_key}/hierarchy.zip", []
     if base in ("ham", "ham-tuned"):
         return f"{base}/ham.json", []  # its workers are exported with the seed's workers
-    if base in ("ddpg", "td3", "sac", "tqc"):
+    if base in FLAT_METHODS:
         return f"{run_key}/flat/{base}.zip", [f"{run_key}/flat/manifest.json"]
     return None
 
