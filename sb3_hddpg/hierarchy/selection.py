@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar
 
+import gymnasium as gym
 import numpy as np
 import torch
 
@@ -248,7 +249,10 @@ class FrozenWorker:
         self.worker = worker
         self.obs_indices = obs_indices
         policy = getattr(worker, "policy", None)
-        self._policy = policy if policy is not None and hasattr(policy, "_predict") else None
+        # A Box-acting SB3 policy is run here; a discrete one (DQN, QR-DQN) acts through predict, whose
+        # integer actions need no scaling.
+        acts_in_box = isinstance(getattr(policy, "action_space", None), gym.spaces.Box)
+        self._policy = policy if acts_in_box and hasattr(policy, "_predict") else None
         self._layers: (
             list[tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray] | None]] | None
         ) = None
@@ -259,6 +263,8 @@ class FrozenWorker:
             self._half_range = ((space.high - space.low) / 2.0).astype(np.float32)
             # Unscaling to [-1, 1] (the snake's action space) is the identity: skip it.
             self._squash = self._squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
+            # A Gaussian policy without a squashing tanh (PPO) is clipped to the bounds, as SB3's predict does.
+            self._clip = not getattr(self._policy, "squash_output", False)
             # Freeze copies, never the caller's model: the numpy layers copy the weights, and the torch
             # path runs a frozen deep copy, so the worker (or manager) can go on training elsewhere.
             self._layers = _compile_actor(self._policy)
@@ -279,6 +285,8 @@ class FrozenWorker:
 
     def _unscale(self, action: np.ndarray) -> np.ndarray:
         # The actor outputs [-1, 1]; map to the action space as SB3's unscale_action does.
+        if self._clip:
+            return np.clip(action, self._low, self._low + 2.0 * self._half_range)
         return self._low + (action + 1.0) * self._half_range if self._squash else action
 
     def _act_numpy(self, obs: np.ndarray) -> np.ndarray:
@@ -298,7 +306,8 @@ class FrozenWorker:
 
     def _act_predict(self, obs: np.ndarray) -> np.ndarray:
         action, _ = self.worker.predict(self._select(obs), deterministic=True)
-        return np.asarray(action, dtype=np.float32)
+        action = np.asarray(action)
+        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
     def reset_episode(self) -> None:
         """Forward an episode start to a stateful worker (e.g. a nested hierarchy with options)."""

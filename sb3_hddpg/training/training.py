@@ -219,6 +219,12 @@ def train_agent(
     # override this process's choice.
     torch.set_num_threads(run.threads)
     try:
+        record = algorithm(algo)
+        if not record.takes(eval_env.action_space):
+            raise ValueError(
+                f"Expected an env whose actions {algo} takes ({sorted(record.action_spaces)}), actually "
+                f"{eval_env.action_space}"
+            )
         if run.resume:
             model, state = _resume_model(algo, backend, paths, vec_env)
         else:
@@ -470,6 +476,31 @@ def worker_hyperparams(
         )
         for name in workers
     }
+
+
+def parse_worker_algorithms(text: str, workers: Sequence[str]) -> dict[str, str]:
+    """
+    Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps DDPG), or one algorithm
+    name for every worker (``crossq``).
+
+    :param text: the option's value.
+    :param workers: the workers being trained.
+    :return: worker name -> algorithm, checked by :func:`worker_algorithms`.
+    """
+    parts = [part.strip() for part in text.split(",") if part.strip()]
+    if len(parts) == 1 and "=" not in parts[0]:
+        return worker_algorithms(workers, dict.fromkeys(workers, parts[0]))
+    algos: dict[str, str] = {}
+    for part in parts:
+        name, sep, algo = (piece.strip() for piece in part.partition("="))
+        if not sep or not name or not algo:
+            raise ValueError(
+                f"Expected WORKER=ALGORITHM pairs separated by commas, actually {part!r} in {text!r}"
+            )
+        if name in algos:
+            raise ValueError(f"Expected each worker once, actually {name!r} twice in {text!r}")
+        algos[name] = algo
+    return worker_algorithms(workers, algos)
 
 
 def worker_algorithms(workers: Sequence[str], algos: Mapping[str, str] | None = None) -> dict[str, str]:
