@@ -20,7 +20,7 @@ import functools
 from collections.abc import Callable
 from typing import Any
 
-from sb3_hddpg.algorithms import REGISTRY
+from sb3_hddpg.algorithms import REGISTRY, ROLES, algorithms_for
 from sb3_hddpg.hierarchy.selection import SELECTORS
 from sb3_hddpg.training.config import parse_policy_kwargs
 
@@ -197,16 +197,9 @@ SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
     "ppo": sample_ppo_params,
 }
 
-#: Flat algorithm -> its sampler (``--level flat --algo NAME``): every algorithm whose record names one.
-FLAT_SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
-    name: SAMPLERS[record.sampler]
-    for name, record in REGISTRY.items()
-    if record.sampler is not None and "flat" in record.roles
-}
-
 
 def sample_worker_params(trial: Any) -> dict[str, Any]:
-    """A worker is a plain DDPG on its own reward: :func:`sample_ddpg_params`."""
+    """A worker is a plain DDPG on its own reward (the paper's): :func:`sample_ddpg_params`."""
     return sample_ddpg_params(trial)
 
 
@@ -217,14 +210,14 @@ def sample_flat_params(trial: Any) -> dict[str, Any]:
 
 def sample_manager_params(trial: Any, algo: str = "ddpg") -> dict[str, Any]:
     """
-    The manager's algorithm (DDPG's space, or TD3's or SAC's: :data:`FLAT_SAMPLERS`) plus how its action
+    The manager's algorithm (its record's sampler in :data:`SAMPLERS`) plus how its action
     selects workers (``wrapper_kwargs``): the simplex map's temperature and floor, the selection mode and
     the option length.
 
     :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
     :param algo: the manager's algorithm.
     """
-    block = FLAT_SAMPLERS[algo](trial)
+    block = SAMPLERS[str(REGISTRY[algo].sampler)](trial)
     block["wrapper_kwargs"] = {
         "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
         # Below 1/n for any n <= 9 workers, as SimplexMap requires.
@@ -255,23 +248,28 @@ HYPERPARAMS_SAMPLER: dict[str, Callable[[Any], dict[str, Any]]] = {
 
 def sampler_for(level: str, algo: str = "ddpg") -> Callable[[Any], dict[str, Any]]:
     """
-    The sampler of a level (and, for ``flat`` and ``manager``, of an algorithm among :data:`FLAT_SAMPLERS`).
+    The sampler of a level and, for ``worker``, ``flat`` and ``manager``, of an algorithm whose record plays
+    that role and names a sampler (:data:`SAMPLERS`).
 
-    :raises ValueError: naming the unknown level or algorithm, or an algorithm for a DDPG-only level.
+    :raises ValueError: naming the unknown level or algorithm, or an algorithm for level ``ham``.
     """
     if level not in HYPERPARAMS_SAMPLER:
         raise ValueError(f"Unknown level {level!r}; choose from {list(HYPERPARAMS_SAMPLER)}")
-    if level in ("flat", "manager"):
-        if algo not in FLAT_SAMPLERS:
-            raise ValueError(
-                f"Unknown algorithm {algo!r} for level {level!r}; choose from {list(FLAT_SAMPLERS)}"
-            )
-        return FLAT_SAMPLERS[algo] if level == "flat" else functools.partial(sample_manager_params, algo=algo)
-    if algo != "ddpg":
-        raise ValueError(
-            f"Level {level!r} is tuned for DDPG only; an algorithm applies to levels 'flat' and 'manager'"
-        )
-    return HYPERPARAMS_SAMPLER[level]
+    if level not in ROLES:
+        if algo != "ddpg":
+            raise ValueError(f"Level {level!r} trains nothing; an algorithm applies to levels {list(ROLES)}")
+        return HYPERPARAMS_SAMPLER[level]
+    tunable = tunable_algorithms(level)
+    if algo not in tunable:
+        raise ValueError(f"Unknown algorithm {algo!r} for level {level!r}; choose from {list(tunable)}")
+    if level == "manager":
+        return functools.partial(sample_manager_params, algo=algo)
+    return SAMPLERS[str(REGISTRY[algo].sampler)]
+
+
+def tunable_algorithms(level: str) -> tuple[str, ...]:
+    """The algorithms ``tune --level LEVEL --algo`` takes: those whose record plays the role and has a sampler."""
+    return tuple(name for name in algorithms_for(level) if REGISTRY[name].sampler is not None)
 
 
 class _SpaceRecorder:
