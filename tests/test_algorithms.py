@@ -182,3 +182,33 @@ def test_train_workers_with_a_learner_per_worker(tmp_path):
     }
     workers, _ = load_workers(tmp_path / "run")
     assert type(workers["goal"]).__name__ == "CrossQ" and type(workers["avoid"]).__name__ == "SAC"
+
+
+def test_a_discrete_manager_picks_a_worker_by_index(tmp_path):
+    from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+    from sb3_hddpg.hierarchy.selection import SelectionConfig
+    from sb3_hddpg.wrappers import WorkerSelectionWrapper
+    from tests.helpers import ActionRecorder, ConstantWorker
+
+    goal, avoid = np.full(6, 0.5, np.float32), np.full(6, -0.25, np.float32)
+    inner = ActionRecorder(gym.make("hddpg/SnakeReach-v0"))
+    workers = {"goal": ConstantWorker(goal), "avoid": ConstantWorker(avoid)}
+    env = WorkerSelectionWrapper(inner, workers, selection="discrete")
+    assert env.action_space == gym.spaces.Discrete(2)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.int64(1))
+    assert info["selected_worker"] == "avoid" and info["selection_probabilities"] == {
+        "goal": 0.0,
+        "avoid": 1.0,
+    }
+    np.testing.assert_array_equal(inner.actions[-1], avoid)
+    # A DQN learns on it, and a hierarchy with it as manager acts through the chosen worker.
+    manager = make_model("dqn", "sb3", env, TINY["dqn"], seed=0)
+    manager.learn(120)
+    config = SelectionConfig(preferences={"goal": 1.0, "avoid": 1.0}, selection="discrete")
+    hierarchy = Hierarchy(manager, workers, config, env_id="hddpg/SnakeReach-v0")
+    obs, _ = gym.make("hddpg/SnakeReach-v0").reset(seed=0)
+    action, _ = hierarchy.predict(obs)
+    chosen = int(manager.predict(obs, deterministic=True)[0])
+    np.testing.assert_array_equal(action, (goal, avoid)[chosen])
+    assert sorted(hierarchy.probabilities(obs).values()) == [0.0, 1.0]

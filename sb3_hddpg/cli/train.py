@@ -227,8 +227,9 @@ def train_manager_command(
     algo: str = typer.Option(
         "ddpg",
         "--algo",
-        help=f"The manager's algorithm, one of {list(MANAGER_ALGOS)}: DDPG is the paper's; TD3 and SAC act on "
-        "the same action (default config: the bundled zoo_configs/<algo>.yml).",
+        help=f"The manager's algorithm, one of {list(MANAGER_ALGOS)}: DDPG is the paper's; the others that act "
+        "in Box spaces take the same action, DQN and QR-DQN pick a worker's index (selection 'discrete') "
+        "(default config: the bundled zoo_configs/<algo>.yml).",
     ),
     config: Path | None = typer.Option(
         None, "--config", callback=existing_file, help=CONFIG_HELP + " Its 'manager' block is used."

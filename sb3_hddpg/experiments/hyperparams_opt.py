@@ -222,7 +222,11 @@ def sample_manager_params(trial: Any, algo: str = "ddpg") -> dict[str, Any]:
         "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
         # Below 1/n for any n <= 9 workers, as SimplexMap requires.
         "floor": trial.suggest_float("floor", 0.0, 0.1),
-        "selection": trial.suggest_categorical("selection", list(SELECTORS)),
+        # Only the modes whose manager action this algorithm takes (a DQN manager picks a worker index).
+        "selection": trial.suggest_categorical(
+            "selection",
+            [name for name, mode in SELECTORS.items() if REGISTRY[algo].takes(mode.action_space(2))],
+        ),
         "option_steps": trial.suggest_categorical("option_steps", [1, 2, 4, 8]),
     }
     return block

@@ -114,6 +114,24 @@ class Selector:
     #: The mode's name, as given to ``selection=`` and stored in bundles.
     name: ClassVar[str]
 
+    def action_space(self, n_workers: int) -> gym.spaces.Space:
+        """The manager's action space: one value per worker in ``[-1, 1]``, mapped onto the simplex."""
+        return gym.spaces.Box(-1.0, 1.0, (n_workers,), dtype=np.float32)
+
+    def probabilities(self, simplex: SimplexMap, action: Any) -> list[float]:
+        """
+        The worker probabilities of one manager action.
+
+        :param simplex: the map of a Box action onto the simplex (temperature and floor).
+        :param action: the manager's action for one observation.
+        """
+        values = (
+            action.tolist()
+            if isinstance(action, np.ndarray) and action.ndim == 1
+            else np.asarray(action, dtype=np.float64).ravel().tolist()
+        )
+        return simplex.single(values)
+
     def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
         """
         The index of the worker to run (and to report) for one probability vector.
@@ -197,13 +215,36 @@ class MixSelector(Selector):
         return sum(p * w.act(obs) for p, w in zip(probabilities, workers))  # type: ignore[return-value]
 
 
+@register_selector
+class DiscreteSelector(Selector):
+    """
+    ``discrete``: the manager's action is the index of the worker to run (``Discrete(n)``, for DQN, QR-DQN or
+    PPO managers); its choice is the corner of the simplex, probability 1 on that worker.
+    """
+
+    name = "discrete"
+
+    def action_space(self, n_workers: int) -> gym.spaces.Space:
+        return gym.spaces.Discrete(n_workers)
+
+    def probabilities(self, simplex: SimplexMap, action: Any) -> list[float]:
+        chosen = int(np.asarray(action).reshape(-1)[0])
+        if not 0 <= chosen < simplex.n_workers:
+            raise ValueError(f"Expected a worker index in [0, {simplex.n_workers}), actually: {chosen}")
+        return [1.0 if i == chosen else 0.0 for i in range(simplex.n_workers)]
+
+    def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
+        return int(np.argmax(probabilities))
+
+
 @dataclass
 class SelectionConfig:
     """
     How the manager's action selects workers; the arguments of ``WorkerSelectionWrapper`` that a bundle keeps.
 
     :param preferences: worker name -> preference factor.
-    :param selection: a registered selection mode (``sample``, ``argmax`` or ``mix``; see :data:`SELECTORS`).
+    :param selection: a registered selection mode (``sample``, ``argmax``, ``mix`` or ``discrete``; see
+        :data:`SELECTORS`).
     :param option_steps: env steps per manager decision.
     :param temperature: the simplex map's temperature.
     :param floor: every worker's least probability.

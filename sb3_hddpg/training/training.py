@@ -68,9 +68,10 @@ from sb3_hddpg.training.run_options import RunOptions, run_options
 #: Algorithm names accepted by ``--algo`` (the registry's, in its order).
 ALGO_NAMES = tuple(ALGORITHMS)
 
-#: The algorithms a manager can be: DDPG (the paper's), or another whose record takes the manager role and the
-#: wrapper's Box action, each with a ``manager`` block in its bundled config (``zoo_configs/<algo>.yml``).
-MANAGER_ALGOS = algorithms_for("manager", gym.spaces.Box(-1, 1))
+#: The algorithms a manager can be: DDPG (the paper's), or another whose record takes the manager role, each with
+#: a ``manager`` block in its bundled config (``zoo_configs/<algo>.yml``); one acting in Discrete spaces (DQN)
+#: selects with the ``discrete`` mode, its action the worker's index.
+MANAGER_ALGOS = algorithms_for("manager")
 #: The algorithm of a worker no ``algos`` entry names: the paper's.
 DEFAULT_WORKER_ALGO = "ddpg"
 
