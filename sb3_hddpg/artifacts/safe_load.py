@@ -412,13 +412,13 @@ def _policy_scalar(key: str, value: Any) -> Any:
 
 def model_spec(model: BaseAlgorithm) -> dict[str, Any]:
     """
-    Describe a live SB3 off-policy model as plain JSON, enough to rebuild it without unpickling anything.
+    Describe a live SB3 model as plain JSON, enough to rebuild it without unpickling anything.
 
     Call this from our own code on the live model when saving (e.g. into a bundle manifest); the result is what
     :func:`load_model_safely` needs next to the zip.
 
-    :param model: a DDPG, TD3 or SAC (stable-baselines3) or TQC (sb3-contrib) model with ``MlpPolicy``
-        and ``Box`` observation/action spaces.
+    :param model: a model of exactly a registered algorithm's class (:data:`sb3_hddpg.algorithms.REGISTRY`)
+        with ``MlpPolicy`` and ``Box`` or ``Discrete`` spaces.
     :return: a dict of plain JSON values (str/int/float/bool/None/list/dict); ``json.dumps(spec, allow_nan=False)`` works.
     :raises ValueError: for any part of the model the spec cannot describe safely (the message names it).
     """
@@ -728,8 +728,8 @@ def load_model(
     :param spec: the description from :func:`model_spec`; required unless ``trusted``.
     :param trusted: ``True`` runs the ordinary ``ALGO.load(path)``, which unpickles the zip's ``data`` entry
         and so runs any code in it: only for files you made yourself or fully trust.
-    :param algorithm: with ``trusted`` and no ``spec``, the algorithm name (``"DDPG"``, ``"TD3"``, ``"SAC"``,
-        ``"TQC"``); otherwise taken from ``spec``.
+    :param algorithm: with ``trusted`` and no ``spec``, the algorithm (a registry name or spec class name, any
+        case: ``"ddpg"``, ``"CrossQ"``...); otherwise taken from ``spec``.
     :param device: torch device.
     :param budget: see :func:`load_model_safely` (the safe path only).
     :return: the loaded model.

@@ -68,13 +68,9 @@ def _layers(module: th.nn.Module) -> Iterator[tuple[str, th.nn.Module, str]]:
     """(name in ``module``, layer, its flax name) of every Linear and BatchRenorm, in forward order."""
     counts = {"Dense": 0, "BatchRenorm": 0}
     for name, layer in module.named_modules():
-        kind = (
-            "Dense"
-            if isinstance(layer, th.nn.Linear)
-            else "BatchRenorm"
-            if isinstance(layer, BatchRenorm)
-            else None
-        )
+        kind = "Dense" if isinstance(layer, th.nn.Linear) else None
+        if isinstance(layer, BatchRenorm):
+            kind = "BatchRenorm"
         if kind is not None:
             yield name, layer, f"{kind}_{counts[kind]}"
             counts[kind] += 1
