@@ -212,3 +212,35 @@ def test_a_discrete_manager_picks_a_worker_by_index(tmp_path):
     chosen = int(manager.predict(obs, deterministic=True)[0])
     np.testing.assert_array_equal(action, (goal, avoid)[chosen])
     assert sorted(hierarchy.probabilities(obs).values()) == [0.0, 1.0]
+
+
+TINY_PPO = """\
+default:
+  n_timesteps: 128
+  policy: 'MlpPolicy'
+  n_steps: 64
+  batch_size: 32
+  n_epochs: 1
+  policy_kwargs: "dict(net_arch=dict(pi=[16], vf=[16]))"
+"""
+
+
+def test_an_on_policy_flat_agent_trains_checkpoints_and_resumes(tmp_path):
+    from sb3_hddpg.training.training import check_flat_env, train_flat
+
+    with pytest.raises(ValueError, match=r"dqn takes \(\['Discrete'\]\), actually Box"):
+        check_flat_env("dqn")
+    config = tmp_path / "ppo.yml"
+    config.write_text(TINY_PPO)
+    options = dict(
+        eval_freq=64, eval_episodes=1, checkpoint_freq=64, progress_bar=False, keep_checkpoints=True
+    )
+    manifest, first = train_flat(tmp_path, "ppo", config, **options)
+    assert first is not None and first.num_timesteps == 128 and manifest["models"]["ppo"]["algo"] == "ppo"
+    # Resumed with a larger budget: it continues from its checkpoint (no replay buffer to restore).
+    manifest, resumed = train_flat(tmp_path, "ppo", config, timesteps=256, resume=True, **options)
+    assert resumed is not None and resumed.num_timesteps == 256
+    assert [h["timesteps"] for h in resumed.history][:2] == [64, 128]
+    entry = manifest["models"]["ppo"]
+    loaded = load_model(tmp_path / "flat" / entry["file"], spec=entry["spec"])
+    assert type(loaded).__name__ == "PPO"

@@ -220,12 +220,7 @@ def train_agent(
     # override this process's choice.
     torch.set_num_threads(run.threads)
     try:
-        record = algorithm(algo)
-        if not record.takes(eval_env.action_space):
-            raise ValueError(
-                f"Expected an env whose actions {algo} takes ({sorted(record.action_spaces)}), actually "
-                f"{eval_env.action_space}"
-            )
+        check_takes(algo, eval_env.action_space)
         if run.resume:
             model, state = _resume_model(algo, backend, paths, vec_env)
         else:
@@ -266,6 +261,34 @@ def train_agent(
         with contextlib.suppress(Exception):  # subprocesses may already be gone after Ctrl-C
             vec_env.close()
         eval_env.close()
+
+
+def check_takes(algo: str, action_space: gym.spaces.Space) -> None:
+    """
+    Refuse an algorithm for an env whose action space it does not take (DQN on continuous actions), in one
+    line naming both, before anything trains.
+
+    :param algo: the algorithm.
+    :param action_space: the env's action space.
+    """
+    record = algorithm(algo)
+    if not record.takes(action_space):
+        raise ValueError(
+            f"Expected an env whose actions {record.name} takes ({sorted(record.action_spaces)}), actually "
+            f"{action_space}"
+        )
+
+
+def check_flat_env(algo: str, env_id: str | None = None, env_kwargs: Mapping[str, Any] | None = None) -> None:
+    """
+    :func:`check_takes` for a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` (default: the
+    combined task, :data:`FLAT_ENV_ID`).
+    """
+    probe = make_snake_env(env_id or FLAT_ENV_ID, dict(env_kwargs or {}))
+    try:
+        check_takes(algo, probe.action_space)
+    finally:
+        probe.close()
 
 
 def _remove_stale_temporaries(paths: AgentPaths) -> None:
