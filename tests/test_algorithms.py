@@ -244,3 +244,43 @@ def test_an_on_policy_flat_agent_trains_checkpoints_and_resumes(tmp_path):
     entry = manifest["models"]["ppo"]
     loaded = load_model(tmp_path / "flat" / entry["file"], spec=entry["spec"])
     assert type(loaded).__name__ == "PPO"
+
+
+TINY_DISCRETE = """\
+default: &tiny
+  n_timesteps: 150
+  policy: 'MlpPolicy'
+  learning_starts: 50
+  batch_size: 16
+  buffer_size: 500
+  policy_kwargs: "dict(net_arch=[16])"
+manager:
+  <<: *tiny
+  n_timesteps: 100
+  learning_starts: 20
+  wrapper_kwargs:
+    selection: 'discrete'
+"""
+
+
+def test_discrete_workers_and_a_discrete_manager_on_a_discrete_env(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from sb3_hddpg.envs.terms_env import terms_env
+    from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+    from sb3_hddpg.training.training import train_manager
+
+    shared = terms_env("resource-gathering-v0", terms=["death", "gold", "gem"])
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_DISCRETE)
+    algos = {"death": "dqn", "gold": "qrdqn", "gem": "dqn"}
+    manifest = train_workers(
+        tmp_path / "w", config=config, env=shared, algos=algos, eval_freq=0, eval_episodes=1
+    )
+    assert {name: entry["algo"] for name, entry in manifest["workers"].items()} == algos
+    train_manager(tmp_path / "w", tmp_path / "m", algo="qrdqn", config=config, eval_freq=50, eval_episodes=1)
+    hierarchy = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")  # the safe loader: spec and weights only
+    assert type(hierarchy.manager).__name__ == "QRDQN" and hierarchy.config.selection == "discrete"
+    env = gym.make(hierarchy.env_id, **hierarchy.env_kwargs)
+    obs, _ = env.reset(seed=0)
+    action, _ = hierarchy.predict(obs)  # the chosen discrete worker's action, an index of the env's actions
+    assert env.action_space.contains(int(np.asarray(action).reshape(-1)[0]))

@@ -189,7 +189,9 @@ class Hierarchy:
         probabilities, chosen = self._option_probabilities, self._option_choice
         self.last_selection = self.names[chosen]
         self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
-        return np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs), dtype=np.float32)
+        action = np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs))
+        # A discrete worker's action stays an index; a continuous one is the float32 of the env's Box.
+        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
         """The manager's worker probabilities for one observation."""
