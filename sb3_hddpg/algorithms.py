@@ -1,22 +1,347 @@
 """
-The algorithm registry: the SB3 classes sb3-hddpg trains, rebuilds and exports, which of them the SBX (JAX)
-backend trains too, and the activation functions their networks may use. Everything else (training, safe
-loading, the SBX backend, config parsing, frozen workers) reads these tables instead of keeping its own.
+The algorithm registry: one frozen record per algorithm sb3-hddpg trains, rebuilds and exports, and the
+activation functions their networks may use.
+
+A record holds every fact about its algorithm that the rest of the package needs: the SB3 (or sb3-contrib)
+class, the SBX class and how SBX lays out its networks (which weight conversion applies), what a saved
+model's spec may contain (the safe loader's allow-lists), how many parameters its networks have (the
+limits' rule), its Optuna sampler, its colour in figures, the roles it can play, the action spaces it takes,
+and whether it learns on- or off-policy. Training, safe loading, the SBX backend, config parsing, tuning,
+the benchmark, export and figures read the record instead of branching on the algorithm's name, so adding
+an algorithm is one :class:`Algorithm` in :data:`REGISTRY`, one config block in ``zoo_configs/`` and tests.
 """
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
 import torch as th
-from sb3_contrib import TQC
-from stable_baselines3 import DDPG, SAC, TD3
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from sb3_contrib import QRDQN, TQC, CrossQ
+from stable_baselines3 import DDPG, DQN, PPO, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
 
-#: Algorithm name (as ``--algo`` and configs spell it) -> its SB3 class. Exact classes only: a subclass may
-#: change the networks in ways a rebuild spec cannot describe.
-ALGORITHMS: dict[str, type[OffPolicyAlgorithm]] = {"ddpg": DDPG, "td3": TD3, "sac": SAC, "tqc": TQC}
+#: The roles an algorithm can play in a hierarchy.
+ROLES = ("worker", "flat", "manager")
+#: The action spaces a record may declare (gymnasium class names).
+ACTION_SPACES = ("Box", "Discrete")
 
-#: The algorithms the SBX backend trains and exports (SBX has classes of the same names).
-SBX_ALGORITHMS = ("ddpg", "td3", "sac")
+
+def mlp_parameters(sizes: Sequence[int]) -> int:
+    """Weights and biases of an MLP with these layer sizes (input first, output last)."""
+    return sum((a + 1) * b for a, b in itertools.pairwise(sizes))
+
+
+@dataclass(frozen=True)
+class NetworkShape:
+    """
+    What a parameter-count rule needs to know about the networks a spec or config would build.
+
+    :param obs_dim: flattened observation size.
+    :param act_dim: action dimensions (a Box's size) or actions (a Discrete's ``n``).
+    :param pi: the actor's (or Q-network's) hidden layers.
+    :param qf: the critics' (or value function's) hidden layers.
+    :param n_critics: critics (``None``: the algorithm's default).
+    :param n_quantiles: quantiles per critic output (distributional critics only).
+    """
+
+    obs_dim: int
+    act_dim: int
+    pi: Sequence[int]
+    qf: Sequence[int]
+    n_critics: int | None = None
+    n_quantiles: int = 25
+
+
+def _deterministic_actor_critic(shape: NetworkShape, n_critics: int) -> int:
+    # DDPG/TD3: a tanh actor and Q-critics, each with a target copy.
+    actor = mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim])
+    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, 1])
+    return 2 * (actor + critic)
+
+
+def _gaussian_actor_critic(shape: NetworkShape, n_critics: int) -> int:
+    # SAC: a mean and a log-std head, critics with target copies (the actor has none).
+    actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
+    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, 1])
+    return actor + 2 * critic
+
+
+def _quantile_actor_critic(shape: NetworkShape, n_critics: int) -> int:
+    actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
+    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, shape.n_quantiles])
+    return actor + 2 * critic
+
+
+def _batch_renorm_actor_critic(shape: NetworkShape, n_critics: int) -> int:
+    # CrossQ: no target networks; a batch-renormalisation layer (scale, bias and two running statistics)
+    # before every linear layer.
+    actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
+    actor += 4 * (shape.obs_dim + sum(shape.pi))
+    critic_in = shape.obs_dim + shape.act_dim
+    critic = mlp_parameters([critic_in, *shape.qf, 1]) + 4 * (critic_in + sum(shape.qf))
+    return actor + n_critics * critic
+
+
+def _q_network(shape: NetworkShape, n_critics: int) -> int:
+    # DQN: one Q-network with one output per action, and its target copy.
+    return 2 * mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim])
+
+
+def _quantile_q_network(shape: NetworkShape, n_critics: int) -> int:
+    return 2 * mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim * shape.n_quantiles])
+
+
+def _actor_and_value(shape: NetworkShape, n_critics: int) -> int:
+    # PPO: the policy (a mean per action dimension, or a logit per action, plus a state-independent
+    # log-std) and the value function; no targets.
+    return (
+        mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim])
+        + shape.act_dim
+        + mlp_parameters([shape.obs_dim, *shape.qf, 1])
+    )
+
+
+#: Policy kwargs every ``MlpPolicy`` here understands and a spec may carry. ``use_sde`` is left out on
+#: purpose: the constructors overwrite ``policy_kwargs["use_sde"]`` from their own ``use_sde`` argument, so it
+#: lives with the hyperparameters.
+_MLP_POLICY_KWARGS = frozenset(
+    [
+        "net_arch",
+        "activation_fn",
+        "normalize_images",
+        "optimizer_class",
+        "optimizer_kwargs",
+        "features_extractor_class",
+        "features_extractor_kwargs",
+    ]
+)
+_ACTOR_CRITIC_POLICY_KWARGS = _MLP_POLICY_KWARGS | {"n_critics", "share_features_extractor"}
+_GAUSSIAN_POLICY_KWARGS = _ACTOR_CRITIC_POLICY_KWARGS | {"log_std_init", "use_expln", "clip_mean"}
+
+# Constructor hyperparameters a spec records, with their JSON kind. Only what shapes the rebuilt model or its
+# immediate use; exploration noise, train_freq etc. are training-time choices of whoever continues.
+_COMMON_HPARAMS = {
+    "learning_rate": "float",
+    "gamma": "float",
+    "tau": "float",
+    "buffer_size": "int",
+    "batch_size": "int",
+}
+_ENTROPY_HPARAMS = {
+    "ent_coef": "ent_coef",
+    "target_entropy": "float",
+    "use_sde": "bool",
+    "sde_sample_freq": "int",
+}
+_TD3_HPARAMS = {"policy_delay": "int", "target_policy_noise": "float", "target_noise_clip": "float"}
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    """
+    Everything sb3-hddpg knows about one algorithm.
+
+    :param name: the name ``--algo`` and configs use (lower case).
+    :param cls: the SB3 or sb3-contrib class: the one every saved model is, whichever backend trained it.
+        Exact classes only: a subclass may change the networks in ways a rebuild spec cannot describe.
+    :param colour: its colour in figures (a matplotlib colour name).
+    :param parameter_rule: the parameters (targets included) its networks have, for the limits on files
+        from elsewhere; called with a :class:`NetworkShape` and the critics to count.
+    :param policy_kwargs: the ``policy_kwargs`` keys a saved model's spec may carry.
+    :param hyperparameters: the constructor arguments a spec records, with their JSON kind (``float``,
+        ``int``, ``bool``, ``ent_coef``).
+    :param sampler: the Optuna sampler's key in :data:`sb3_hddpg.experiments.hyperparams_opt.SAMPLERS`
+        (``None``: not tunable).
+    :param sbx: the SBX class's name (``None``: SBX cannot train it here).
+    :param sbx_layout: how SBX lays out its networks, which picks the weight conversion in
+        :mod:`sb3_hddpg.training.backends`: ``deterministic`` (DDPG, TD3), ``gaussian`` (SAC),
+        ``quantile`` (TQC), ``batch_renorm`` (CrossQ).
+    :param roles: of :data:`ROLES`.
+    :param action_spaces: of :data:`ACTION_SPACES`.
+    :param on_policy: learns from rollouts (``n_steps``, a rollout buffer) rather than a replay buffer.
+    :param default_net_arch: the hidden layers SB3 builds when ``net_arch`` is not given.
+    :param default_n_critics: the critics SB3 builds when ``n_critics`` is not given.
+    :param action_penalty: the actor is deterministic and trained through its action, so the
+        ``ActionL2Penalty`` callback applies.
+    :param target_entropy: its ``target_entropy`` may be ``"auto"``, which needs the action space to resolve.
+    :param critic_layers: the key of ``net_arch`` naming the critic's layers (``qf``; PPO: ``vf``).
+    """
+
+    name: str
+    cls: type[BaseAlgorithm]
+    colour: str
+    parameter_rule: Callable[[NetworkShape, int], int]
+    policy_kwargs: frozenset[str]
+    hyperparameters: Mapping[str, str]
+    sampler: str | None = None
+    sbx: str | None = None
+    sbx_layout: str | None = None
+    roles: frozenset[str] = frozenset(ROLES)
+    action_spaces: frozenset[str] = frozenset({"Box"})
+    on_policy: bool = False
+    default_net_arch: tuple[int, ...] = (256, 256)
+    default_n_critics: int = 2
+    action_penalty: bool = False
+    target_entropy: bool = False
+    critic_layers: str = "qf"
+
+    @property
+    def class_name(self) -> str:
+        """The class name a saved spec records (``DDPG``, ``CrossQ``...)."""
+        return self.cls.__name__
+
+    def takes(self, action_space: Any) -> bool:
+        """Whether this algorithm acts in ``action_space`` (a gymnasium space)."""
+        return type(action_space).__name__ in self.action_spaces
+
+    def parameter_count(self, shape: NetworkShape) -> int:
+        """The parameters its networks (and their targets) would have for ``shape``."""
+        n_critics = shape.n_critics if shape.n_critics is not None else self.default_n_critics
+        return self.parameter_rule(shape, n_critics)
+
+
+#: Every algorithm, by name, in the order ``--algo`` lists them.
+REGISTRY: dict[str, Algorithm] = {
+    record.name: record
+    for record in (
+        Algorithm(
+            "ddpg",
+            DDPG,
+            colour="tab:blue",
+            parameter_rule=_deterministic_actor_critic,
+            policy_kwargs=_ACTOR_CRITIC_POLICY_KWARGS,
+            # DDPG's constructor hard-codes policy_delay / target noise, so they are not arguments there.
+            hyperparameters=_COMMON_HPARAMS,
+            sampler="ddpg",
+            sbx="DDPG",
+            sbx_layout="deterministic",
+            default_net_arch=(400, 300),
+            default_n_critics=1,
+            action_penalty=True,
+        ),
+        Algorithm(
+            "td3",
+            TD3,
+            colour="tab:cyan",
+            parameter_rule=_deterministic_actor_critic,
+            policy_kwargs=_ACTOR_CRITIC_POLICY_KWARGS,
+            hyperparameters={**_COMMON_HPARAMS, **_TD3_HPARAMS},
+            sampler="td3",
+            sbx="TD3",
+            sbx_layout="deterministic",
+            default_net_arch=(400, 300),
+            action_penalty=True,
+        ),
+        Algorithm(
+            "sac",
+            SAC,
+            colour="tab:purple",
+            parameter_rule=_gaussian_actor_critic,
+            policy_kwargs=_GAUSSIAN_POLICY_KWARGS,
+            hyperparameters={**_COMMON_HPARAMS, **_ENTROPY_HPARAMS, "target_update_interval": "int"},
+            sampler="sac",
+            sbx="SAC",
+            sbx_layout="gaussian",
+            target_entropy=True,
+        ),
+        Algorithm(
+            "tqc",
+            TQC,
+            colour="tab:brown",
+            parameter_rule=_quantile_actor_critic,
+            policy_kwargs=_GAUSSIAN_POLICY_KWARGS | {"n_quantiles"},
+            hyperparameters={
+                **_COMMON_HPARAMS,
+                **_ENTROPY_HPARAMS,
+                "target_update_interval": "int",
+                "top_quantiles_to_drop_per_net": "int",
+            },
+            sampler="tqc",
+            sbx="TQC",
+            sbx_layout="quantile",
+            target_entropy=True,
+        ),
+        Algorithm(
+            "crossq",
+            CrossQ,
+            colour="tab:olive",
+            parameter_rule=_batch_renorm_actor_critic,
+            policy_kwargs=_GAUSSIAN_POLICY_KWARGS
+            | {"batch_norm", "batch_norm_momentum", "batch_norm_eps", "renorm_warmup_steps"},
+            # No target networks, so no tau.
+            hyperparameters={
+                **{k: v for k, v in _COMMON_HPARAMS.items() if k != "tau"},
+                **_ENTROPY_HPARAMS,
+                "policy_delay": "int",
+            },
+            sampler="crossq",
+            sbx="CrossQ",
+            sbx_layout="batch_renorm",
+            target_entropy=True,
+        ),
+        Algorithm(
+            "dqn",
+            DQN,
+            colour="slategray",
+            parameter_rule=_q_network,
+            policy_kwargs=_MLP_POLICY_KWARGS,
+            hyperparameters={**_COMMON_HPARAMS, "target_update_interval": "int"},
+            sampler="dqn",
+            action_spaces=frozenset({"Discrete"}),
+            default_net_arch=(64, 64),
+            default_n_critics=1,
+        ),
+        Algorithm(
+            "qrdqn",
+            QRDQN,
+            colour="orchid",
+            parameter_rule=_quantile_q_network,
+            policy_kwargs=_MLP_POLICY_KWARGS | {"n_quantiles"},
+            hyperparameters={**_COMMON_HPARAMS, "target_update_interval": "int"},
+            sampler="qrdqn",
+            action_spaces=frozenset({"Discrete"}),
+            default_net_arch=(64, 64),
+            default_n_critics=1,
+        ),
+        Algorithm(
+            "ppo",
+            PPO,
+            colour="teal",
+            parameter_rule=_actor_and_value,
+            policy_kwargs=_MLP_POLICY_KWARGS
+            | {"share_features_extractor", "log_std_init", "ortho_init", "use_expln", "full_std"},
+            hyperparameters={
+                "learning_rate": "float",
+                "gamma": "float",
+                "gae_lambda": "float",
+                "n_steps": "int",
+                "batch_size": "int",
+                "n_epochs": "int",
+                "ent_coef": "float",
+                "vf_coef": "float",
+                "max_grad_norm": "float",
+                "use_sde": "bool",
+                "sde_sample_freq": "int",
+                "normalize_advantage": "bool",
+            },
+            sampler="ppo",
+            action_spaces=frozenset({"Box", "Discrete"}),
+            on_policy=True,
+            default_net_arch=(64, 64),
+            default_n_critics=1,
+            critic_layers="vf",
+        ),
+    )
+}
+
+#: Algorithm name -> its SB3 class (the registry's classes, in its order).
+ALGORITHMS: dict[str, type[BaseAlgorithm]] = {name: record.cls for name, record in REGISTRY.items()}
+
+#: The algorithms the SBX backend trains and exports.
+SBX_ALGORITHMS = tuple(name for name, record in REGISTRY.items() if record.sbx is not None)
 
 #: Activation name -> torch class, for every activation a saved model's spec may name. A name outside this
 #: table is refused rather than looked up in ``torch.nn``: specs and configs are data and must not be able
@@ -45,19 +370,46 @@ ACTIVATIONS: dict[str, type[th.nn.Module]] = {
 CONFIG_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
 
 
-def algorithm_class(name: str) -> type[OffPolicyAlgorithm]:
+def algorithm(name: str) -> Algorithm:
     """
-    The SB3 class of an algorithm name, any case (``ddpg``, ``td3``, ``sac``, ``tqc``).
+    The record of an algorithm: by its name (any case: ``ddpg``, ``crossq``...) or the class name a spec
+    records (``DDPG``, ``CrossQ``...).
+
+    :param name: the algorithm.
+    :return: its record; raises ``ValueError`` naming the choices otherwise.
+    """
+    key = name.lower() if isinstance(name, str) else name
+    if key not in REGISTRY:
+        raise ValueError(f"Unknown algorithm {name!r}; choose from {list(REGISTRY)}")
+    return REGISTRY[key]
+
+
+def algorithm_class(name: str) -> type[BaseAlgorithm]:
+    """
+    The SB3 class of an algorithm name, any case (``ddpg``, ``td3``, ``sac``, ``tqc``, ``crossq``...).
 
     :param name: the algorithm.
     """
-    key = name.lower() if isinstance(name, str) else name
-    if key not in ALGORITHMS:
-        raise ValueError(f"Unknown algorithm {name!r}; choose from {list(ALGORITHMS)}")
-    return ALGORITHMS[key]
+    return algorithm(name).cls
 
 
 def algorithm_name(model_or_class: object) -> str | None:
     """The registry name of an SB3 model or class of exactly a registered type, else ``None``."""
     cls = model_or_class if isinstance(model_or_class, type) else type(model_or_class)
-    return next((name for name, registered in ALGORITHMS.items() if cls is registered), None)
+    return next((name for name, record in REGISTRY.items() if cls is record.cls), None)
+
+
+def algorithms_for(role: str, action_space: Any | None = None) -> tuple[str, ...]:
+    """
+    The algorithms that can play ``role`` (and act in ``action_space``, when given), in registry order.
+
+    :param role: one of :data:`ROLES`.
+    :param action_space: a gymnasium space, or ``None`` for any.
+    """
+    if role not in ROLES:
+        raise ValueError(f"Unknown role {role!r}; choose from {list(ROLES)}")
+    return tuple(
+        name
+        for name, record in REGISTRY.items()
+        if role in record.roles and (action_space is None or record.takes(action_space))
+    )

@@ -462,8 +462,8 @@ def test_api_backend_selection(tmp_path):
     assert manifest["models"]["ddpg"]["backend"] == "sbx"
     with pytest.raises(ValueError, match="trained with backend 'sbx'; resume it with --backend sbx"):
         train_flat(tmp_path, config=config, timesteps=90, eval_freq=0, resume=True, backend="sb3")
-    with pytest.raises(BackendError, match="not 'tqc'"):
-        BenchmarkSettings(methods=["tqc"], backend="sbx")
+    with pytest.raises(BackendError, match="not 'ppo'"):
+        BenchmarkSettings(methods=["ppo"], backend="sbx")
     assert BenchmarkSettings(methods=["ddpg"], backend="SBX").backend == "sbx"
     assert TuningTarget(level="flat", backend="sbx").describe()["backend"] == "sbx"
     assert "backend" not in TuningTarget(level="flat").describe()  # older studies stay resumable

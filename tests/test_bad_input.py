@@ -119,7 +119,7 @@ CASES = [
     case("tm-duplicate-worker", (*TM, "--worker", "goal", "--worker", "goal", "--out", "{tmp}/o"), 2, "goal"),
     case("tm-unknown-worker", (*TM, "--worker", "goal", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"),
     case("tm-unknown-prefer", (*TM, "--prefer", "nope", "--out", "{tmp}/o"), 2, "nope"),
-    case("tm-unknown-algo", (*TM, "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
+    case("tm-unknown-algo", (*TM, "--algo", "a2c", "--out", "{tmp}/o"), 2, "a2c"),
     case("tm-unknown-preference", (*TM, "--preference", "nope=1.2", "--out", "{tmp}/o"), 2, "nope"),
     case("tm-zero-preference", (*TM, "--preference", "goal=0", "--out", "{tmp}/o"), 2, "0"),
     case("tm-negative-preference", (*TM, "--preference", "goal=-1", "--out", "{tmp}/o"), 2, "-1"),
@@ -210,7 +210,7 @@ CASES = [
     case("ev-negative-episodes", ("evaluate", "random", "--episodes", "-3"), 2, "-3"),
     case("ev-negative-seed", ("evaluate", "random", "--seed", "-1"), 2, "-1"),
     case("ev-json-is-a-folder", ("evaluate", "random", "--json", "{folder}"), 2, "a-folder"),
-    case("ev-unknown-algo", ("evaluate", "{lonely_zip}", "--trust", "--algo", "ppo"), 2, "PPO"),
+    case("ev-unknown-algo", ("evaluate", "{lonely_zip}", "--trust", "--algo", "a2c"), 2, "A2C"),
     # ---- evaluate: hostile bundles and files (a file someone else made; docs/ROBUSTNESS.md "Limits")
     case("ev-module-prefixed-env", ("evaluate", "{hostile_env_id}"), 2, "env_id"),
     case("ev-env-kwargs-list", ("evaluate", "{hostile_env_kwargs_list}"), 2, "env_kwargs"),
@@ -230,7 +230,7 @@ CASES = [
     case("ro-unknown-env", ("rollout", "--env", "hddpg/Nope-v0"), 2, "Nope"),
     case("ro-png-is-a-folder", ("rollout", "--png", "{folder}"), 2, "a-folder"),
     # ---- train-flat
-    case("tf-unknown-algo", ("train-flat", "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
+    case("tf-unknown-algo", ("train-flat", "--algo", "a2c", "--out", "{tmp}/o"), 2, "a2c"),
     case("tf-negative-timesteps", ("train-flat", "--timesteps", "-3", "--out", "{tmp}/o"), 2, "-3"),
     case("tf-zero-n-envs", ("train-flat", "--n-envs", "0", "--out", "{tmp}/o"), 2, "got 0"),
     case(
@@ -347,12 +347,12 @@ CASES = [
         2,
         "--executor ray",
     ),
-    case("tu-algo-unknown", ("tune", "--level", "flat", "--algo", "ppo", "--out", "{tmp}/o"), 2, "ppo"),
+    case("tu-algo-unknown", ("tune", "--level", "flat", "--algo", "a2c", "--out", "{tmp}/o"), 2, "a2c"),
     case(
         "tu-algo-not-flat",
         ("tune", "--level", "ham", "--algo", "sac", "--out", "{tmp}/o"),
         2,
-        "--level manager",
+        "--level worker, flat, manager",
     ),
     case(
         "tu-sac-fix-noise",

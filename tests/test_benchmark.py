@@ -135,7 +135,7 @@ def test_plan_trains_workers_once_per_seed_only_when_needed():
 
 def test_settings_reject_unknown_methods_and_default_to_equal_total_steps(per_step_manager):
     with pytest.raises(ValueError, match="Unknown methods"):
-        BenchmarkSettings(methods=["hddpg", "ppo"])
+        BenchmarkSettings(methods=["hddpg", "a2c"])
     settings = BenchmarkSettings(timesteps=1000, worker_timesteps=300)
     assert settings.flat_budget == 1600  # the hierarchy's manager + two workers
     assert settings.eval_freq_for(1600) == settings.eval_freq_for(1000) == 100

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from sb3_hddpg.algorithms import REGISTRY
+
 REPO = Path(__file__).resolve().parents[1]
 # Not shipped, or rebuilt: what a fresh clone does not have either.
 LOCAL = (".git", ".venv", "runs", "build", "dist", "*.egg-info", "__pycache__", ".*_cache", ".hypothesis")
@@ -42,7 +44,7 @@ def test_sdist_and_wheel_install_in_a_fresh_venv(tmp_path):
     with zipfile.ZipFile(wheels[0]) as archive:
         names = set(archive.namelist())
     # Package data (the zoo_configs link at the root is a checkout convenience; the files live in the package).
-    for data in ("version.txt", "py.typed", *(f"zoo_configs/{a}.yml" for a in ("ddpg", "td3", "sac", "tqc"))):
+    for data in ("version.txt", "py.typed", *(f"zoo_configs/{a}.yml" for a in REGISTRY)):
         assert f"sb3_hddpg/{data}" in names, data
     assert not any(name.startswith("tests/") for name in names)
 

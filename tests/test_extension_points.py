@@ -91,7 +91,9 @@ def test_a_registered_selection_mode_drives_a_hierarchy_and_passes_the_file_chec
 
 
 def test_unregistered_and_duplicate_modes_are_refused_by_name():
-    with pytest.raises(ValueError, match=r"one of \['sample', 'argmax', 'mix'\], actually: 'least'"):
+    with pytest.raises(
+        ValueError, match=r"one of \['sample', 'argmax', 'mix', 'discrete'\], actually: 'least'"
+    ):
         get_selector("least")
     with pytest.raises(ValueError, match="'sample' is already registered"):
 
@@ -101,7 +103,7 @@ def test_unregistered_and_duplicate_modes_are_refused_by_name():
 
     with pytest.raises(ValueError, match="least"):
         check_selection_settings({"selection": "least"}, ["goal", "avoid"], "m")
-    assert list(SELECTORS) == ["sample", "argmax", "mix"]
+    assert list(SELECTORS) == ["sample", "argmax", "mix", "discrete"]
 
 
 def run_random(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:

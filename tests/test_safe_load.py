@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch as th
 from sb3_contrib import TQC
-from stable_baselines3 import DDPG, PPO, SAC, TD3
+from stable_baselines3 import A2C, DDPG, SAC, TD3
 
 from sb3_hddpg.artifacts.safe_load import SafeLoadError, load_model, load_model_safely, model_spec
 
@@ -217,7 +217,7 @@ def test_net_arch_mismatch_names_key_and_shapes(trained: dict[str, tuple[Any, Pa
 @pytest.mark.parametrize(
     ("edit", "needle"),
     [
-        (lambda s: s.update(algorithm="PPO"), "PPO"),
+        (lambda s: s.update(algorithm="A2C"), "A2C"),
         (lambda s: s["policy_kwargs"].update(activation_fn="os.system"), "activation_fn"),
         (
             lambda s: s["policy_kwargs"].update(features_extractor_kwargs={"x": 1}),
@@ -247,8 +247,8 @@ def test_model_spec_refuses_what_it_cannot_describe() -> None:
     model.policy_kwargs["optimizer_kwargs"] = {"eps": "tiny"}
     with pytest.raises(ValueError, match=r"optimizer_kwargs\.eps"):
         model_spec(model)
-    with pytest.raises(ValueError, match="PPO"):
-        model_spec(PPO("MlpPolicy", "Pendulum-v1", n_steps=8, batch_size=8))
+    with pytest.raises(ValueError, match="A2C"):
+        model_spec(A2C("MlpPolicy", "Pendulum-v1", n_steps=8))
 
 
 # ---- limits (sb3_hddpg/artifacts/limits.py): a spec or zip that would cost more than a few hundred MB is refused first

@@ -44,14 +44,15 @@ def test_every_flat_algorithm_searches_the_shared_parameters_alike():
     assert "log_std_init" not in sac  # read only with gSDE: a dimension that would change nothing
     with pytest.raises(ValueError, match="Unknown parameter 'noise_std' for level 'flat' \\(sac\\)"):
         check_fixed_params("flat", {"noise_std": 0.2}, "sac")
-    with pytest.raises(ValueError, match="DDPG only"):
-        sampler_for("worker", "sac")
+    with pytest.raises(ValueError, match="trains nothing"):
+        sampler_for("ham", "sac")
+    assert sampler_for("worker", "sac") is sampler_for("flat", "sac")  # a worker takes its record's sampler
     # A manager of another algorithm: that algorithm's space plus the same selection parameters.
     manager_sac, manager_ddpg = search_space("manager", "sac"), search_space("manager", "ddpg")
     wrapper = {"temperature", "floor", "selection", "option_steps"}
     assert set(manager_sac) == set(sac) | wrapper and set(manager_ddpg) == set(ddpg) | wrapper
-    with pytest.raises(ValueError, match="Unknown algorithm 'ppo'"):
-        TuningTarget(level="flat", algo="ppo")
+    with pytest.raises(ValueError, match="Unknown algorithm 'a2c'"):
+        TuningTarget(level="flat", algo="a2c")
 
 
 #: Every block a study tunes: (level, algorithm, bundled config block).
@@ -154,12 +155,22 @@ def test_two_tiny_trials_and_a_saved_config(algo, cls, backend, tmp_path):
 def test_algo_usage_errors_through_the_cli(tmp_path):
     wrong_level, unknown = run_batch(
         [
-            ["tune", "--level", "worker", "--worker", "goal", "--algo", "sac", "--out", str(tmp_path / "a")],
-            ["tune", "--level", "flat", "--algo", "ppo", "--out", str(tmp_path / "b")],
+            [
+                "tune",
+                "--level",
+                "ham",
+                "--workers",
+                str(tmp_path),
+                "--algo",
+                "sac",
+                "--out",
+                str(tmp_path / "a"),
+            ],
+            ["tune", "--level", "flat", "--algo", "a2c", "--out", str(tmp_path / "b")],
         ]
     )
-    assert wrong_level.returncode == 2 and "--level flat" in wrong_level.stderr
-    assert unknown.returncode == 2 and "'ppo'" in unknown.stderr
+    assert wrong_level.returncode == 2 and "--level worker, flat, manager" in wrong_level.stderr
+    assert unknown.returncode == 2 and "'a2c'" in unknown.stderr
     assert "Traceback" not in wrong_level.stderr + unknown.stderr
 
 

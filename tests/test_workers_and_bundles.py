@@ -285,5 +285,5 @@ def test_a_sac_manager_trains_bundles_and_reloads(trained, tmp_path):
     )
     with zipfile.ZipFile(tmp_path / "m" / "hierarchy.zip") as archive:
         SAC.load(io.BytesIO(archive.read("manager.zip")))  # a plain SB3 zip
-    with pytest.raises(ValueError, match="Unknown manager algorithm 'ppo'"):
-        train_manager(root / "w", tmp_path / "m2", algo="ppo", **TINY)
+    with pytest.raises(ValueError, match="Unknown manager algorithm 'a2c'"):
+        train_manager(root / "w", tmp_path / "m2", algo="a2c", **TINY)

@@ -21,7 +21,6 @@ the tests that hold them.
 from __future__ import annotations
 
 import contextlib
-import itertools
 import json
 import re
 import reprlib
@@ -33,6 +32,7 @@ from typing import Any
 
 from gymnasium.envs.registration import registry
 
+from sb3_hddpg.algorithms import NetworkShape, algorithm
 from sb3_hddpg.envs import OWN_ENV_IDS
 from sb3_hddpg.names import PLAIN_NAME
 
@@ -360,35 +360,27 @@ def check_buffer_size(buffer_size: Any, obs_dim: int, act_dim: int, what: str) -
         )
 
 
-def mlp_parameters(sizes: Sequence[int]) -> int:
-    """Weights and biases of an MLP with these layer sizes (input first, output last)."""
-    return sum((a + 1) * b for a, b in itertools.pairwise(sizes))
-
-
 def check_parameter_count(
     algo: str,
     obs_dim: int,
     act_dim: int,
     pi_layers: Sequence[int],
     qf_layers: Sequence[int],
-    n_critics: int = 2,
+    n_critics: int | None = None,
     n_quantiles: int = 25,
     what: str = "policy_kwargs.net_arch",
 ) -> int:
     """
-    The total parameters a spec or config would build (actor, critics, and their targets), refused over
-    :data:`MAX_PARAMETERS` before anything is allocated: each layer may be within bounds and the product
-    still be tens of GB (``net_arch [65536, 65536]``).
+    The total parameters a spec or config would build (actor, critics, and their targets: the algorithm
+    record's rule), refused over :data:`MAX_PARAMETERS` before anything is allocated: each layer may be
+    within bounds and the product still be tens of GB (``net_arch [65536, 65536]``).
 
-    :param algo: ``DDPG``, ``TD3``, ``SAC`` or ``TQC`` (case-insensitive).
+    :param algo: a registered algorithm, by name or spec class name (any case).
+    :param n_critics: the critics (``None``: the algorithm's default).
     :return: the count; raises :class:`LimitError` otherwise.
     """
-    algo = algo.upper()
-    outputs = n_quantiles if algo == "TQC" else 1
-    actor = mlp_parameters([obs_dim, *pi_layers, act_dim * (2 if algo in ("SAC", "TQC") else 1)])
-    critic = n_critics * mlp_parameters([obs_dim + act_dim, *qf_layers, outputs])
-    # DDPG/TD3 keep target copies of actor and critics; SAC/TQC of the critics only.
-    total = 2 * (actor + critic) if algo in ("DDPG", "TD3") else actor + 2 * critic
+    shape = NetworkShape(obs_dim, act_dim, pi_layers, qf_layers, n_critics, n_quantiles)
+    total = algorithm(algo).parameter_count(shape)
     if total > MAX_PARAMETERS:
         raise LimitError(
             f"{what}: the networks would have {total:,} parameters, over the limit of {MAX_PARAMETERS:,}"

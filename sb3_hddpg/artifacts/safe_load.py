@@ -28,11 +28,10 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
-from sb3_hddpg.algorithms import ACTIVATIONS, ALGORITHMS
+from sb3_hddpg.algorithms import ACTIVATIONS, REGISTRY, Algorithm
 from sb3_hddpg.artifacts.limits import (
     MAX_MEMBER_BYTES,
     LoadBudget,
@@ -57,8 +56,10 @@ __all__ = [
 SPEC_FORMAT = "sb3-hddpg/model-spec"
 SPEC_VERSION = 1
 
-#: Algorithms that can be rebuilt from a spec, by the class name a spec records (the registry's classes).
-ALGOS: dict[str, type[OffPolicyAlgorithm]] = {cls.__name__: cls for cls in ALGORITHMS.values()}
+#: Algorithms that can be rebuilt from a spec, by the class name a spec records (the registry's records).
+SPEC_ALGORITHMS: dict[str, Algorithm] = {record.class_name: record for record in REGISTRY.values()}
+#: The same, to their classes.
+ALGOS: dict[str, type[BaseAlgorithm]] = {name: record.cls for name, record in SPEC_ALGORITHMS.items()}
 
 #: Bytes of a zip's ``data`` member read to tell whether SBX saved it, and what says so there.
 SBX_SNIFF_BYTES = 4096
@@ -93,64 +94,13 @@ MAX_LAYER_WIDTH = 1 << 16
 MAX_LAYERS = 64
 MAX_CRITICS = 64
 MAX_QUANTILES = 4096
+#: Most actions of a Discrete action space.
+MAX_DISCRETE_ACTIONS = 1 << 16
 #: Most elements of an observation or action space (ours: 27 and 6).
 MAX_SPACE_SIZE = 1 << 16
 
 POLICY_MEMBER = "policy.pth"
 VARIABLES_MEMBER = "pytorch_variables.pth"
-
-# Policy kwargs each algorithm's ``MlpPolicy`` understands and that a spec may carry. ``use_sde`` is left out on
-# purpose: the off-policy constructor overwrites ``policy_kwargs["use_sde"]`` from its own ``use_sde``
-# argument, so it lives with the hyperparameters.
-_TD3_POLICY_KWARGS = frozenset(
-    [
-        "net_arch",
-        "activation_fn",
-        "n_critics",
-        "share_features_extractor",
-        "normalize_images",
-        "optimizer_class",
-        "optimizer_kwargs",
-        "features_extractor_class",
-        "features_extractor_kwargs",
-    ]
-)
-_SAC_POLICY_KWARGS = _TD3_POLICY_KWARGS | {"log_std_init", "use_expln", "clip_mean"}
-_POLICY_KWARGS: dict[str, frozenset[str]] = {
-    "DDPG": _TD3_POLICY_KWARGS,
-    "TD3": _TD3_POLICY_KWARGS,
-    "SAC": _SAC_POLICY_KWARGS,
-    "TQC": _SAC_POLICY_KWARGS | {"n_quantiles"},
-}
-
-# Constructor hyperparameters recorded per algorithm, with their JSON kind. Only what shapes the rebuilt model
-# or its immediate use; exploration noise, train_freq etc. are training-time choices of whoever continues.
-_COMMON_HPARAMS = {
-    "learning_rate": "float",
-    "gamma": "float",
-    "tau": "float",
-    "buffer_size": "int",
-    "batch_size": "int",
-}
-_SAC_HPARAMS = {
-    "ent_coef": "ent_coef",
-    "target_entropy": "float",
-    "target_update_interval": "int",
-    "use_sde": "bool",
-    "sde_sample_freq": "int",
-}
-_HPARAMS: dict[str, dict[str, str]] = {
-    # DDPG's constructor hard-codes policy_delay / target noise, so they are not arguments there.
-    "DDPG": _COMMON_HPARAMS,
-    "TD3": {
-        **_COMMON_HPARAMS,
-        "policy_delay": "int",
-        "target_policy_noise": "float",
-        "target_noise_clip": "float",
-    },
-    "SAC": {**_COMMON_HPARAMS, **_SAC_HPARAMS},
-    "TQC": {**_COMMON_HPARAMS, **_SAC_HPARAMS, "top_quantiles_to_drop_per_net": "int"},
-}
 
 _SPEC_KEYS = frozenset(
     [
@@ -260,8 +210,12 @@ def _bounds_from_json(key: str, value: Any, shape: tuple[int, ...], dtype: np.dt
 
 
 def _space_to_json(space: spaces.Space, what: str) -> dict[str, Any]:
+    if type(space) is spaces.Discrete:
+        return {"type": "Discrete", "n": int(space.n), "start": int(space.start)}
     if type(space) is not spaces.Box:
-        raise ValueError(f"{what}: unsupported space {space!r}; only gymnasium.spaces.Box can be described")
+        raise ValueError(
+            f"{what}: unsupported space {space!r}; only gymnasium.spaces.Box and Discrete can be described"
+        )
     dtype = np.dtype(space.dtype).name
     if dtype not in DTYPES:
         raise ValueError(f"{what}: unsupported Box dtype {dtype!r}")
@@ -274,12 +228,23 @@ def _space_to_json(space: spaces.Space, what: str) -> dict[str, Any]:
     }
 
 
-def _space_from_json(value: Any, what: str) -> spaces.Box:
+def _discrete_from_json(value: Mapping[str, Any], what: str) -> spaces.Discrete:
+    unknown = set(value) - {"type", "n", "start"}
+    if unknown:
+        raise ValueError(f"{what}: unknown key {brief(sorted(map(str, unknown))[0])} for a Discrete space")
+    n = _as_int(f"{what}.n", value.get("n"), minimum=1, maximum=MAX_DISCRETE_ACTIONS)
+    start = _as_int(f"{what}.start", value.get("start", 0), minimum=-(1 << 31), maximum=1 << 31)
+    return spaces.Discrete(n, start=start)
+
+
+def _space_from_json(value: Any, what: str) -> spaces.Box | spaces.Discrete:
     if not isinstance(value, Mapping):
         raise ValueError(f"{what}: expected an object, got {brief(value)}")
+    if value.get("type") == "Discrete":
+        return _discrete_from_json(value, what)
     if value.get("type") != "Box":
         raise ValueError(
-            f"{what}: unsupported space type {brief(value.get('type'))}; only 'Box' is supported"
+            f"{what}: unsupported space type {brief(value.get('type'))}; only 'Box' and 'Discrete' are supported"
         )
     unknown = set(value) - {"type", "low", "high", "shape", "dtype"}
     if unknown:
@@ -318,7 +283,7 @@ def _layers(key: str, value: Any) -> list[int]:
 
 def _net_arch(value: Any) -> list[int] | dict[str, list[int]]:
     if isinstance(value, Mapping):
-        unknown = set(value) - {"pi", "qf"}
+        unknown = set(value) - {"pi", "qf", "vf"}
         if unknown:
             raise ValueError(f"policy_kwargs.net_arch: unknown key {brief(sorted(map(str, unknown))[0])}")
         return {name: _layers(f"policy_kwargs.net_arch.{name}", layers) for name, layers in value.items()}
@@ -394,7 +359,7 @@ def _policy_kwargs_from_json(algo: str, value: Any) -> dict[str, Any]:
 
 
 def _check_policy_kwarg(algo: str, key: str, value: Any) -> None:
-    if key not in _POLICY_KWARGS[algo]:
+    if key not in SPEC_ALGORITHMS[algo].policy_kwargs:
         raise ValueError(f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(value)})")
 
 
@@ -422,16 +387,22 @@ def _policy_value(key: str, value: Any) -> Any:
     return _policy_scalar(key, value)
 
 
+#: The scalar ``policy_kwargs`` a record may allow, with their kind.
+_BOOL_POLICY_KWARGS = frozenset(
+    ["share_features_extractor", "normalize_images", "use_expln", "ortho_init", "full_std", "batch_norm"]
+)
+_FLOAT_POLICY_KWARGS = frozenset(["log_std_init", "clip_mean", "batch_norm_momentum", "batch_norm_eps"])
+_INT_POLICY_KWARGS = {"n_critics": MAX_CRITICS, "n_quantiles": MAX_QUANTILES, "renorm_warmup_steps": 1 << 40}
+
+
 def _policy_scalar(key: str, value: Any) -> Any:
-    if key in ("share_features_extractor", "normalize_images", "use_expln"):
+    if key in _BOOL_POLICY_KWARGS:
         return _as_bool(f"policy_kwargs.{key}", value)
-    if key == "n_critics":
-        return _as_int(f"policy_kwargs.{key}", value, minimum=1, maximum=MAX_CRITICS)
-    if key == "n_quantiles":
-        return _as_int(f"policy_kwargs.{key}", value, minimum=1, maximum=MAX_QUANTILES)
-    if key in ("log_std_init", "clip_mean"):
+    if key in _INT_POLICY_KWARGS:
+        return _as_int(f"policy_kwargs.{key}", value, minimum=1, maximum=_INT_POLICY_KWARGS[key])
+    if key in _FLOAT_POLICY_KWARGS:
         return _as_float(f"policy_kwargs.{key}", value)
-    raise AssertionError(key)  # pragma: no cover - every allowed key is handled above
+    raise AssertionError(key)  # pragma: no cover - every key a record allows is handled above
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -441,18 +412,18 @@ def _policy_scalar(key: str, value: Any) -> Any:
 
 def model_spec(model: BaseAlgorithm) -> dict[str, Any]:
     """
-    Describe a live SB3 off-policy model as plain JSON, enough to rebuild it without unpickling anything.
+    Describe a live SB3 model as plain JSON, enough to rebuild it without unpickling anything.
 
     Call this from our own code on the live model when saving (e.g. into a bundle manifest); the result is what
     :func:`load_model_safely` needs next to the zip.
 
-    :param model: a DDPG, TD3 or SAC (stable-baselines3) or TQC (sb3-contrib) model with ``MlpPolicy``
-        and ``Box`` observation/action spaces.
+    :param model: a model of exactly a registered algorithm's class (:data:`sb3_hddpg.algorithms.REGISTRY`)
+        with ``MlpPolicy`` and ``Box`` or ``Discrete`` spaces.
     :return: a dict of plain JSON values (str/int/float/bool/None/list/dict); ``json.dumps(spec, allow_nan=False)`` works.
     :raises ValueError: for any part of the model the spec cannot describe safely (the message names it).
     """
     algo = next((name for name, cls in ALGOS.items() if type(model) is cls), None)
-    if algo is None or not isinstance(model, OffPolicyAlgorithm):  # the second tells the type checker
+    if algo is None:
         raise ValueError(f"algorithm: {type(model).__qualname__} is not one of {sorted(ALGOS)}")
     if model.policy_class is not type(model).policy_aliases["MlpPolicy"]:
         raise ValueError(f"policy: only MlpPolicy is supported, got {model.policy_class!r}")
@@ -467,7 +438,7 @@ def model_spec(model: BaseAlgorithm) -> dict[str, Any]:
         if learning_rate_constant
         else model.lr_schedule(model._current_progress_remaining)
     )
-    for key, kind in _HPARAMS[algo].items():
+    for key, kind in SPEC_ALGORITHMS[algo].hyperparameters.items():
         value = learning_rate if key == "learning_rate" else getattr(model, key)
         hparams[key] = _convert(kind, key, value)
 
@@ -484,7 +455,7 @@ def model_spec(model: BaseAlgorithm) -> dict[str, Any]:
     }
 
 
-def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
+def _build_from_spec(spec: Any, device: th.device | str) -> BaseAlgorithm:
     """Validate ``spec`` (untrusted JSON) and build a fresh, untrained model from it; raises ValueError."""
     if not isinstance(spec, Mapping):
         raise ValueError(f"spec: expected an object, got {type(spec).__name__}")
@@ -503,18 +474,15 @@ def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
 
     observation_space = _space_from_json(spec.get("observation_space"), "observation_space")
     action_space = _space_from_json(spec.get("action_space"), "action_space")
-    # SB3 checks these when an env is given; we build without one, so check here.
-    if not np.issubdtype(action_space.dtype, np.floating):
-        raise ValueError(f"action_space: expected a float Box, got dtype {action_space.dtype}")
-    if not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
-        raise ValueError("action_space: bounds must be finite")
+    _check_action_space(SPEC_ALGORITHMS[algo], action_space)
 
     policy_kwargs = _policy_kwargs_from_json(algo, spec.get("policy_kwargs", {}))
 
     raw_hparams = spec.get("hyperparameters")
     if not isinstance(raw_hparams, Mapping):
         raise ValueError(f"hyperparameters: expected an object, got {brief(raw_hparams)}")
-    kinds = _HPARAMS[algo]
+    record = SPEC_ALGORITHMS[algo]
+    kinds = record.hyperparameters
     unknown = set(raw_hparams) - set(kinds)
     if unknown:
         raise ValueError(
@@ -525,31 +493,31 @@ def _build_from_spec(spec: Any, device: th.device | str) -> OffPolicyAlgorithm:
         for key in kinds
         if key in raw_hparams
     }
-    obs_dim, act_dim = math.prod(observation_space.shape), math.prod(action_space.shape)
+    obs_dim, act_dim = _flat_size(observation_space), _flat_size(action_space)
     # Each field has its own cap, but their product can still be tens of GB: bound the totals before
     # SB3 allocates networks and replay buffer.
     _check_network_size(algo, policy_kwargs, obs_dim, act_dim)
-    if "buffer_size" in hparams:
-        check_buffer_size(hparams["buffer_size"], obs_dim, act_dim, "hyperparameters.buffer_size")
-    if algo in ("SAC", "TQC"):
-        # "auto" would make SAC._setup_model read self.env.action_space, and we have no env.
+    # A replay buffer holds buffer_size transitions, a rollout buffer n_steps: both are allocated at build.
+    for key in ("buffer_size", "n_steps"):
+        if key in hparams:
+            check_buffer_size(hparams[key], obs_dim, act_dim, f"hyperparameters.{key}")
+    if record.target_entropy:
+        # "auto" would make _setup_model read self.env.action_space, and we have no env.
         target_entropy = hparams.get("target_entropy")
-        hparams["target_entropy"] = (
-            float(-np.prod(action_space.shape)) if target_entropy is None else target_entropy
-        )
+        hparams["target_entropy"] = float(-act_dim) if target_entropy is None else target_entropy
 
     return build_without_env(ALGOS[algo], observation_space, action_space, hparams, policy_kwargs, device)
 
 
 def build_without_env(
-    cls: type[OffPolicyAlgorithm],
+    cls: type[BaseAlgorithm],
     observation_space: spaces.Space,
     action_space: spaces.Space,
     hparams: Mapping[str, Any],
     policy_kwargs: Mapping[str, Any],
     device: th.device | str = "cpu",
     seed: int | None = None,
-) -> OffPolicyAlgorithm:
+) -> BaseAlgorithm:
     """
     A fresh ``MlpPolicy`` model of ``cls`` with no env, built the way ``BaseAlgorithm.load`` builds one:
     ``env=None`` and ``_init_setup_model=False``, then the spaces (and ``n_envs``, normally taken from the
@@ -580,10 +548,10 @@ def build_without_env(
 
 
 def _check_network_size(algo: str, policy_kwargs: Mapping[str, Any], obs_dim: int, act_dim: int) -> None:
-    default = [400, 300] if algo in ("DDPG", "TD3") else [256, 256]
-    net_arch = policy_kwargs.get("net_arch", default)
+    record = SPEC_ALGORITHMS[algo]
+    net_arch = policy_kwargs.get("net_arch", list(record.default_net_arch))
     if isinstance(net_arch, Mapping):
-        pi, qf = net_arch.get("pi", []), net_arch.get("qf", [])
+        pi, qf = net_arch.get("pi", []), net_arch.get(record.critic_layers, [])
     else:
         pi = qf = net_arch
     check_parameter_count(
@@ -592,9 +560,28 @@ def _check_network_size(algo: str, policy_kwargs: Mapping[str, Any], obs_dim: in
         act_dim,
         pi,
         qf,
-        n_critics=policy_kwargs.get("n_critics", 1 if algo == "DDPG" else 2),
+        n_critics=policy_kwargs.get("n_critics"),
         n_quantiles=policy_kwargs.get("n_quantiles", 25),
     )
+
+
+def _flat_size(space: spaces.Space) -> int:
+    """A Box's elements, a Discrete's actions: what sizes the networks' inputs and outputs."""
+    return int(space.n) if isinstance(space, spaces.Discrete) else math.prod(space.shape or ())
+
+
+def _check_action_space(record: Algorithm, action_space: spaces.Space) -> None:
+    """SB3 checks an action space against its algorithm when an env is given; we build without one."""
+    if not record.takes(action_space):
+        raise ValueError(
+            f"action_space: {record.class_name} acts in {sorted(record.action_spaces)}, "
+            f"got {type(action_space).__name__}"
+        )
+    if isinstance(action_space, spaces.Box):
+        if not np.issubdtype(action_space.dtype, np.floating):
+            raise ValueError(f"action_space: expected a float Box, got dtype {action_space.dtype}")
+        if not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
+            raise ValueError("action_space: bounds must be finite")
 
 
 def _read_member(archive: zipfile.ZipFile, name: str, path: str, budget: LoadBudget | None = None) -> bytes:
@@ -651,7 +638,7 @@ def load_model_safely(
     spec: Mapping[str, Any],
     device: th.device | str = "cpu",
     budget: LoadBudget | None = None,
-) -> OffPolicyAlgorithm:
+) -> BaseAlgorithm:
     """
     Rebuild a model from ``spec`` and load only its tensors from the SB3 zip at ``path``.
 
@@ -733,7 +720,7 @@ def load_model(
     algorithm: str | None = None,
     device: th.device | str = "cpu",
     budget: LoadBudget | None = None,
-) -> OffPolicyAlgorithm:
+) -> BaseAlgorithm:
     """
     Load a model zip: safely from a spec by default, or with SB3's full loader on explicit opt-in.
 
@@ -741,8 +728,8 @@ def load_model(
     :param spec: the description from :func:`model_spec`; required unless ``trusted``.
     :param trusted: ``True`` runs the ordinary ``ALGO.load(path)``, which unpickles the zip's ``data`` entry
         and so runs any code in it: only for files you made yourself or fully trust.
-    :param algorithm: with ``trusted`` and no ``spec``, the algorithm name (``"DDPG"``, ``"TD3"``, ``"SAC"``,
-        ``"TQC"``); otherwise taken from ``spec``.
+    :param algorithm: with ``trusted`` and no ``spec``, the algorithm (a registry name or spec class name, any
+        case: ``"ddpg"``, ``"CrossQ"``...); otherwise taken from ``spec``.
     :param device: torch device.
     :param budget: see :func:`load_model_safely` (the safe path only).
     :return: the loaded model.
@@ -757,12 +744,13 @@ def load_model(
             )
         return load_model_safely(path, spec, device=device, budget=budget)
     name = algorithm if algorithm is not None else (spec or {}).get("algorithm")
-    if name not in ALGOS:
+    record = next((r for r in REGISTRY.values() if isinstance(name, str) and name.lower() == r.name), None)
+    if record is None:
         raise ValueError(f"algorithm: unknown algorithm {brief(name)}; expected one of {sorted(ALGOS)}")
     source = path if isinstance(path, io.BytesIO) else Path(path)
     if _saved_by_sbx(source):
-        return _load_sbx(source, name)
-    return ALGOS[name].load(source, device=device)
+        return _load_sbx(source, record)
+    return record.cls.load(source, device=device)
 
 
 def _saved_by_sbx(source: Path | io.BytesIO) -> bool:
@@ -783,7 +771,7 @@ def _saved_by_sbx(source: Path | io.BytesIO) -> bool:
     return _SBX_POLICY_CLASS.search(head) is not None
 
 
-def _load_sbx(source: Path | io.BytesIO, name: str) -> OffPolicyAlgorithm:
+def _load_sbx(source: Path | io.BytesIO, record: Algorithm) -> BaseAlgorithm:
     """SBX's own loader for a zip SBX saved (SB3's cannot rebuild SBX's JAX policy classes)."""
     try:
         import sbx  # lazy: JAX is an optional extra, and importing it costs over a second
@@ -791,8 +779,8 @@ def _load_sbx(source: Path | io.BytesIO, name: str) -> OffPolicyAlgorithm:
         raise ValueError(
             f'{brief(str(source))}: saved by SBX (JAX), which is not installed: pip install "sb3-hddpg[fast]"'
         ) from None
-    algo_class = getattr(sbx, name, None)
-    if algo_class is None:
-        raise ValueError(f"algorithm: SBX has no {name}; the file was saved by SBX")
-    model: OffPolicyAlgorithm = algo_class.load(source)
+    if record.sbx is None:
+        raise ValueError(f"algorithm: SBX does not train {record.class_name} here; the file was saved by SBX")
+    algo_class = getattr(sbx, record.sbx)  # a name from our own registry, never from the file
+    model: BaseAlgorithm = algo_class.load(source)
     return model

@@ -19,8 +19,11 @@ def parameters_finite(model: BaseAlgorithm) -> bool:
     import jax  # only an SBX model gets here, and then jax is loaded already
 
     policy: Any = model.policy
-    trees = [policy.actor_state.params, policy.qf_state.params, policy.qf_state.target_params]
-    trees += [getattr(policy.actor_state, "target_params", None)]
+    # Every train state of the policy (the actor's and the critics', one or one per critic), and its targets.
+    states = [
+        value for name, value in vars(policy).items() if name.endswith("_state") and hasattr(value, "params")
+    ]
+    trees = [tree for state in states for tree in (state.params, getattr(state, "target_params", None))]
     leaves = [leaf for tree in trees if tree is not None for leaf in jax.tree_util.tree_leaves(tree)]
     return all(bool(np.isfinite(np.asarray(leaf)).all()) for leaf in leaves)
 

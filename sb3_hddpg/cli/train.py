@@ -49,12 +49,15 @@ from sb3_hddpg.metric_labels import (
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.training import (
+    ALGO_NAMES,
     MANAGER_ALGOS,
     TrainingInterrupted,
     TrainingOutcome,
+    parse_worker_algorithms,
     prepare_manager,
     train_manager,
     train_workers,
+    worker_algorithms,
     worker_hyperparams,
 )
 
@@ -133,7 +136,19 @@ def train_workers_command(
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
     episode_steps: EpisodeStepsOpt = None,
-    config: Path | None = typer.Option(None, "--config", callback=existing_file, help=CONFIG_HELP),
+    algo: str | None = typer.Option(
+        None,
+        "--algo",
+        help=f"Each worker's algorithm, e.g. goal=crossq,avoid=sac, or one for all; one of {list(ALGO_NAMES)} "
+        "that acts in the worker's action space (default: ddpg, the paper's; config: the bundled "
+        "zoo_configs/<algo>.yml).",
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        callback=existing_file,
+        help="Hyperparameters in RL Zoo format (default: each worker's algorithm's bundled zoo_configs/<algo>.yml).",
+    ),
     timesteps: int | None = typer.Option(
         None,
         "--timesteps",
@@ -154,7 +169,7 @@ def train_workers_command(
     keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
 ) -> None:
-    """Train each worker as a plain SB3 DDPG on its own reward (paper Algorithm 1, first half)."""
+    """Train each worker as a plain SB3 model (DDPG unless --algo says) on its own reward (paper Algorithm 1)."""
 
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
@@ -164,11 +179,13 @@ def train_workers_command(
     if unknown or duplicates:
         problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
         raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
+    with usage_errors("'--algo'"):
+        algos = parse_worker_algorithms(algo, workers) if algo is not None else worker_algorithms(workers)
     with usage_errors("'--config'"):  # a bad block fails now, not after the first worker has trained
-        blocks = worker_hyperparams(workers, config, shared)
+        blocks = worker_hyperparams(workers, config, shared, algos)
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
-        for block in blocks.values():
-            resolve_backend(backend, block.backend)
+        for name, block in blocks.items():
+            check_algo(algos[name], resolve_backend(backend, block.backend))
     prepare_out_dir(context, out, resume, force)
     summaries: dict[str, dict] = {}
 
@@ -181,7 +198,13 @@ def train_workers_command(
 
     with training_interrupt_exits():
         manifest = train_workers(
-            out, workers=workers, config=config, run=run_options_of(context), on_worker_done=done, env=shared
+            out,
+            workers=workers,
+            config=config,
+            run=run_options_of(context),
+            on_worker_done=done,
+            env=shared,
+            algos=algos,
         )
     rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in workers}
     console.print(metrics_table(f"Workers in {out / 'workers'} (best evaluation)", rows))
@@ -229,8 +252,9 @@ def train_manager_command(
     algo: str = typer.Option(
         "ddpg",
         "--algo",
-        help=f"The manager's algorithm, one of {list(MANAGER_ALGOS)}: DDPG is the paper's; TD3 and SAC act on "
-        "the same action (default config: the bundled zoo_configs/<algo>.yml).",
+        help=f"The manager's algorithm, one of {list(MANAGER_ALGOS)}: DDPG is the paper's; the others that act "
+        "in Box spaces take the same action, DQN and QR-DQN pick a worker's index (selection 'discrete') "
+        "(default config: the bundled zoo_configs/<algo>.yml).",
     ),
     config: Path | None = typer.Option(
         None, "--config", callback=existing_file, help=CONFIG_HELP + " Its 'manager' block is used."

@@ -36,7 +36,7 @@ from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.config import default_config, load_hyperparams
-from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, algo_class, train_flat
+from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, algo_class, check_flat_env, train_flat
 
 
 @app.command("train-flat")
@@ -98,6 +98,8 @@ def train_flat_command(
             config if config is not None else default_config(algo),
         )
 
+    with usage_errors("'--algo'"):
+        check_flat_env(algo, env_id, shared.env_kwargs if shared is not None else None)
     with usage_errors("'--backend'"):
         check_algo(algo, resolve_backend(backend, hyperparams.backend))
     prepare_out_dir(context, out, resume, force)

@@ -9,6 +9,7 @@ import typer
 import yaml
 from rich.table import Table
 
+from sb3_hddpg.algorithms import ROLES
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
@@ -28,7 +29,7 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
-from sb3_hddpg.experiments.hyperparams_opt import FLAT_SAMPLERS, check_fixed_params
+from sb3_hddpg.experiments.hyperparams_opt import check_fixed_params, tunable_algorithms
 from sb3_hddpg.experiments.study_storage import check_storage_url, default_storage_url
 from sb3_hddpg.experiments.tuning import (
     LEVELS,
@@ -92,12 +93,14 @@ def _check_level_options(
     """The options that depend on ``--level`` (``known_workers``: the env's terms): usage errors naming the option."""
     if level not in LEVELS:
         raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
-    if algo != "ddpg" and level not in ("flat", "manager"):
+    if algo != "ddpg" and level not in ROLES:
         raise typer.BadParameter(
-            f"only applies to --level flat and --level manager, not {level!r}", param_hint="'--algo'"
+            f"only applies to --level {', '.join(ROLES)}, not {level!r}", param_hint="'--algo'"
         )
-    if level in ("flat", "manager") and algo not in FLAT_SAMPLERS:
-        raise typer.BadParameter(f"must be one of {list(FLAT_SAMPLERS)}, got {algo!r}", param_hint="'--algo'")
+    if level in ROLES and algo not in tunable_algorithms(level):
+        raise typer.BadParameter(
+            f"must be one of {list(tunable_algorithms(level))}, got {algo!r}", param_hint="'--algo'"
+        )
     if level == "worker" and worker not in known_workers:
         raise typer.BadParameter(
             f"--level worker needs --worker among {known_workers}, got {worker!r}", param_hint="'--worker'"
@@ -199,8 +202,9 @@ def tune_command(
     algo: str = typer.Option(
         "ddpg",
         "--algo",
-        help="The algorithm with --level flat or --level manager: ddpg | td3 | sac (its own search space and "
-        "bundled config zoo_configs/<algo>.yml).",
+        help="The algorithm with --level worker, flat or manager: "
+        f"{' | '.join(tunable_algorithms('flat'))} (its own search space and bundled config "
+        "zoo_configs/<algo>.yml).",
     ),
     n_trials: int = typer.Option(
         20,

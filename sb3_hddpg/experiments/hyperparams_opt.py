@@ -1,6 +1,6 @@
 """
 Search spaces of ``hddpg-cli tune``: one ``sample_*_params(trial)`` per level, in a registry, as in rl_zoo3's
-``hyperparams_opt.py``; the flat level has one per algorithm (:data:`FLAT_SAMPLERS`: DDPG, TD3, SAC), so that
+``hyperparams_opt.py``; the flat level has one per algorithm (:data:`SAMPLERS`, named by each algorithm record), so that
 every flat baseline can get the same tuning effort (trials and steps per trial) before a benchmark.
 
 Each sampler returns the *changes* to a ``zoo_configs`` block, already in the file's format (``policy_kwargs``
@@ -20,6 +20,7 @@ import functools
 from collections.abc import Callable
 from typing import Any
 
+from sb3_hddpg.algorithms import REGISTRY, ROLES, algorithms_for
 from sb3_hddpg.hierarchy.selection import SELECTORS
 from sb3_hddpg.training.config import parse_policy_kwargs
 
@@ -103,16 +104,102 @@ def sample_sac_params(trial: Any) -> dict[str, Any]:
     return block
 
 
-#: Flat algorithm -> its sampler (``--level flat --algo NAME``).
-FLAT_SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
+def sample_tqc_params(trial: Any) -> dict[str, Any]:
+    """
+    TQC's hyperparameters: SAC's space plus how many of each critic's top quantiles it drops (its control of
+    overestimation; SB3's default 2 of 25).
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    block = sample_sac_params(trial)
+    block["top_quantiles_to_drop_per_net"] = trial.suggest_categorical(
+        "top_quantiles_to_drop_per_net", [2, 0, 1, 3, 5]
+    )
+    return block
+
+
+def sample_crossq_params(trial: Any) -> dict[str, Any]:
+    """
+    CrossQ's hyperparameters: SAC's space without the soft-update rate (CrossQ has no target networks),
+    plus the actor's delay (sb3-contrib's and SBX's default 3 first).
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    block = sample_sac_params(trial)
+    del block["tau"]
+    block["policy_delay"] = trial.suggest_categorical("policy_delay", [3, 1, 2, 5])
+    return block
+
+
+def _sample_q_network(trial: Any, policy_extra: str = "") -> dict[str, Any]:
+    block = _sample_shared(trial)
+    del block["tau"]  # DQN copies its target network every target_update_interval steps
+    net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
+    block["target_update_interval"] = trial.suggest_categorical(
+        "target_update_interval", [1000, 1, 100, 5000]
+    )
+    block["exploration_fraction"] = trial.suggest_float("exploration_fraction", 0.0, 0.5)
+    block["exploration_final_eps"] = trial.suggest_float("exploration_final_eps", 0.0, 0.2)
+    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]}{policy_extra})"
+    return block
+
+
+def sample_dqn_params(trial: Any) -> dict[str, Any]:
+    """
+    DQN's hyperparameters (rl_zoo3's space, narrowed as the others): discount, learning rate, batch and
+    buffer size, update schedule, target update interval, exploration schedule, network size.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    return _sample_q_network(trial)
+
+
+def sample_qrdqn_params(trial: Any) -> dict[str, Any]:
+    """
+    QR-DQN's hyperparameters: DQN's space plus the number of quantiles.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    n_quantiles = trial.suggest_categorical("n_quantiles", [50, 10, 25, 100])
+    return _sample_q_network(trial, f", n_quantiles={n_quantiles}")
+
+
+def sample_ppo_params(trial: Any) -> dict[str, Any]:
+    """
+    PPO's hyperparameters (rl_zoo3's space, narrowed as the others): discount, learning rate, rollout
+    length, minibatch size, epochs, GAE's lambda, clipping, entropy bonus and network size.
+
+    :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
+    """
+    net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
+    return {
+        "gamma": trial.suggest_categorical("gamma", [0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
+        "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
+        "n_steps": trial.suggest_categorical("n_steps", [2048, 256, 512, 1024]),
+        "batch_size": trial.suggest_categorical("batch_size", [64, 32, 128, 256]),
+        "n_epochs": trial.suggest_categorical("n_epochs", [10, 1, 5, 20]),
+        "gae_lambda": trial.suggest_categorical("gae_lambda", [0.95, 0.8, 0.9, 0.98, 1.0]),
+        "clip_range": trial.suggest_categorical("clip_range", [0.2, 0.1, 0.3, 0.4]),
+        "ent_coef": trial.suggest_float("ent_coef", 1e-8, 0.1, log=True),
+        "policy_kwargs": f"dict(net_arch=dict(pi={NET_ARCHS[net_arch]}, vf={NET_ARCHS[net_arch]}))",
+    }
+
+
+#: An algorithm record's ``sampler`` -> its sampler, as rl_zoo3's one ``sample_*_params`` per algorithm.
+SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
     "ddpg": sample_ddpg_params,
     "td3": sample_td3_params,
     "sac": sample_sac_params,
+    "tqc": sample_tqc_params,
+    "crossq": sample_crossq_params,
+    "dqn": sample_dqn_params,
+    "qrdqn": sample_qrdqn_params,
+    "ppo": sample_ppo_params,
 }
 
 
 def sample_worker_params(trial: Any) -> dict[str, Any]:
-    """A worker is a plain DDPG on its own reward: :func:`sample_ddpg_params`."""
+    """A worker is a plain DDPG on its own reward (the paper's): :func:`sample_ddpg_params`."""
     return sample_ddpg_params(trial)
 
 
@@ -123,19 +210,23 @@ def sample_flat_params(trial: Any) -> dict[str, Any]:
 
 def sample_manager_params(trial: Any, algo: str = "ddpg") -> dict[str, Any]:
     """
-    The manager's algorithm (DDPG's space, or TD3's or SAC's: :data:`FLAT_SAMPLERS`) plus how its action
+    The manager's algorithm (its record's sampler in :data:`SAMPLERS`) plus how its action
     selects workers (``wrapper_kwargs``): the simplex map's temperature and floor, the selection mode and
     the option length.
 
     :param trial: an ``optuna.Trial`` (or ``FixedTrial``).
     :param algo: the manager's algorithm.
     """
-    block = FLAT_SAMPLERS[algo](trial)
+    block = SAMPLERS[str(REGISTRY[algo].sampler)](trial)
     block["wrapper_kwargs"] = {
         "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
         # Below 1/n for any n <= 9 workers, as SimplexMap requires.
         "floor": trial.suggest_float("floor", 0.0, 0.1),
-        "selection": trial.suggest_categorical("selection", list(SELECTORS)),
+        # Only the modes whose manager action this algorithm takes (a DQN manager picks a worker index).
+        "selection": trial.suggest_categorical(
+            "selection",
+            [name for name, mode in SELECTORS.items() if REGISTRY[algo].takes(mode.action_space(2))],
+        ),
         "option_steps": trial.suggest_categorical("option_steps", [1, 2, 4, 8]),
     }
     return block
@@ -161,23 +252,28 @@ HYPERPARAMS_SAMPLER: dict[str, Callable[[Any], dict[str, Any]]] = {
 
 def sampler_for(level: str, algo: str = "ddpg") -> Callable[[Any], dict[str, Any]]:
     """
-    The sampler of a level (and, for ``flat`` and ``manager``, of an algorithm among :data:`FLAT_SAMPLERS`).
+    The sampler of a level and, for ``worker``, ``flat`` and ``manager``, of an algorithm whose record plays
+    that role and names a sampler (:data:`SAMPLERS`).
 
-    :raises ValueError: naming the unknown level or algorithm, or an algorithm for a DDPG-only level.
+    :raises ValueError: naming the unknown level or algorithm, or an algorithm for level ``ham``.
     """
     if level not in HYPERPARAMS_SAMPLER:
         raise ValueError(f"Unknown level {level!r}; choose from {list(HYPERPARAMS_SAMPLER)}")
-    if level in ("flat", "manager"):
-        if algo not in FLAT_SAMPLERS:
-            raise ValueError(
-                f"Unknown algorithm {algo!r} for level {level!r}; choose from {list(FLAT_SAMPLERS)}"
-            )
-        return FLAT_SAMPLERS[algo] if level == "flat" else functools.partial(sample_manager_params, algo=algo)
-    if algo != "ddpg":
-        raise ValueError(
-            f"Level {level!r} is tuned for DDPG only; an algorithm applies to levels 'flat' and 'manager'"
-        )
-    return HYPERPARAMS_SAMPLER[level]
+    if level not in ROLES:
+        if algo != "ddpg":
+            raise ValueError(f"Level {level!r} trains nothing; an algorithm applies to levels {list(ROLES)}")
+        return HYPERPARAMS_SAMPLER[level]
+    tunable = tunable_algorithms(level)
+    if algo not in tunable:
+        raise ValueError(f"Unknown algorithm {algo!r} for level {level!r}; choose from {list(tunable)}")
+    if level == "manager":
+        return functools.partial(sample_manager_params, algo=algo)
+    return SAMPLERS[str(REGISTRY[algo].sampler)]
+
+
+def tunable_algorithms(level: str) -> tuple[str, ...]:
+    """The algorithms ``tune --level LEVEL --algo`` takes: those whose record plays the role and has a sampler."""
+    return tuple(name for name in algorithms_for(level) if REGISTRY[name].sampler is not None)
 
 
 class _SpaceRecorder:

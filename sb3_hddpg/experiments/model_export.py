@@ -20,7 +20,7 @@ from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
 from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
-from sb3_hddpg.experiments.benchmark import WORKERS, read_record_file, split_key
+from sb3_hddpg.experiments.benchmark import FLAT_METHODS, WORKERS, read_record_file, split_key
 from sb3_hddpg.names import check_plain_name
 from sb3_hddpg.training.run_options import MAX_SEED
 
@@ -34,10 +34,7 @@ INDEX_METHODS = (
     "hddpg-sac",
     "ham",
     "ham-tuned",
-    "ddpg",
-    "td3",
-    "sac",
-    "tqc",
+    *FLAT_METHODS,
 )
 
 
@@ -89,7 +86,7 @@ def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
         return f"{run_key}/hierarchy.zip", []
     if base in ("ham", "ham-tuned"):
         return f"{base}/ham.json", []  # its workers are exported with the seed's workers
-    if base in ("ddpg", "td3", "sac", "tqc"):
+    if base in FLAT_METHODS:
         return f"{run_key}/flat/{base}.zip", [f"{run_key}/flat/manifest.json"]
     return None
 

@@ -2,7 +2,7 @@
 Hyperparameter tuning with Optuna at every level: a worker, the manager, the flat baseline, and HAM's switch.
 
 One trial samples a ``zoo_configs`` block with :func:`~sb3_hddpg.experiments.hyperparams_opt.sampler_for` (one sampler per
-level; for ``flat``, one per algorithm: DDPG, TD3, SAC), trains it with :func:`~sb3_hddpg.training.training.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
+level; per algorithm for the levels that train one, as its record names), trains it with :func:`~sb3_hddpg.training.training.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
 evaluations to the pruner through :class:`~sb3_hddpg.callbacks.TrialPruningCallback`, and returns the last
 evaluation's mean reward (rl_zoo3's objective: the best of several noisy evaluations would favour lucky
 configurations). Which trial is *best* is a separate choice (:data:`RANKINGS`): by that value, or by the
@@ -150,8 +150,8 @@ class TuningTarget:
         them of each run's last evaluation (its ``peak`` score the mean of each run's best), so that a
         configuration is ranked on what it does across seeds rather than on one seed's luck. Each costs
         the trial budget again.
-    :param algo: the algorithm (levels ``flat`` and ``manager``: ``ddpg``, ``td3`` or ``sac``, each with its
-        own search space and bundled base config ``zoo_configs/<algo>.yml``; the workers are DDPG).
+    :param algo: the algorithm (levels ``worker``, ``flat`` and ``manager``: one whose record plays the role,
+        each with its own search space and bundled base config ``zoo_configs/<algo>.yml``).
     :param backend: the trials' training backend, ``sb3`` or ``sbx`` (``None``: the base block's
         ``backend`` key, else ``sb3``).
     :param env: another env with several objectives (:func:`~sb3_hddpg.envs.terms_env.terms_env`, the

@@ -27,7 +27,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.io import atomic_write, json_text
@@ -211,7 +210,7 @@ class Hierarchy:
     def _act(self, obs: np.ndarray, deterministic: bool, keep_option: bool) -> np.ndarray:
         if not keep_option or self._option_left <= 0:
             self.last_manager_action = self._manager.act(obs)
-            probabilities = self.simplex(self.last_manager_action)
+            probabilities = np.asarray(self._selector.probabilities(self.simplex, self.last_manager_action))
             self._option_probabilities = probabilities
             self._option_choice = self._selector.choose(probabilities, self._rng, deterministic)
             self._option_left = self.config.option_steps
@@ -219,13 +218,14 @@ class Hierarchy:
         probabilities, chosen = self._option_probabilities, self._option_choice
         self.last_selection = self.names[chosen]
         self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
-        return np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs), dtype=np.float32)
+        action = np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs))
+        # A discrete worker's action stays an index; a continuous one is the float32 of the env's Box.
+        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
         """The manager's worker probabilities for one observation."""
-        return dict(
-            zip(self.names, self.simplex(self._manager.act(np.asarray(observation, np.float32))).tolist())
-        )
+        action = self._manager.act(np.asarray(observation, np.float32))
+        return dict(zip(self.names, self._selector.probabilities(self.simplex, action)))
 
     # ------------------------------------------------------------------ saving
     def to_bytes(self) -> bytes:
@@ -584,7 +584,7 @@ def check_spaces(
     def subset(components: list[str] | None) -> Any:
         return _subset_space(observation_space, layout.indices(components) if components else None)
 
-    manager_action = spaces.Box(-1.0, 1.0, (len(workers),), dtype=np.float32)
+    manager_action = get_selector(config.selection).action_space(len(workers))
     checks = [("The manager", manager, subset(config.manager_state), manager_action, " (one per worker)")]
     checks += [
         (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")

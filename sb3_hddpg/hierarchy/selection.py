@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar
 
+import gymnasium as gym
 import numpy as np
 import torch
 
@@ -113,6 +114,24 @@ class Selector:
     #: The mode's name, as given to ``selection=`` and stored in bundles.
     name: ClassVar[str]
 
+    def action_space(self, n_workers: int) -> gym.spaces.Space:
+        """The manager's action space: one value per worker in ``[-1, 1]``, mapped onto the simplex."""
+        return gym.spaces.Box(-1.0, 1.0, (n_workers,), dtype=np.float32)
+
+    def probabilities(self, simplex: SimplexMap, action: Any) -> list[float]:
+        """
+        The worker probabilities of one manager action.
+
+        :param simplex: the map of a Box action onto the simplex (temperature and floor).
+        :param action: the manager's action for one observation.
+        """
+        values = (
+            action.tolist()
+            if isinstance(action, np.ndarray) and action.ndim == 1
+            else np.asarray(action, dtype=np.float64).ravel().tolist()
+        )
+        return simplex.single(values)
+
     def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
         """
         The index of the worker to run (and to report) for one probability vector.
@@ -196,13 +215,36 @@ class MixSelector(Selector):
         return sum(p * w.act(obs) for p, w in zip(probabilities, workers))  # type: ignore[return-value]
 
 
+@register_selector
+class DiscreteSelector(Selector):
+    """
+    ``discrete``: the manager's action is the index of the worker to run (``Discrete(n)``, for DQN, QR-DQN or
+    PPO managers); its choice is the corner of the simplex, probability 1 on that worker.
+    """
+
+    name = "discrete"
+
+    def action_space(self, n_workers: int) -> gym.spaces.Space:
+        return gym.spaces.Discrete(n_workers)
+
+    def probabilities(self, simplex: SimplexMap, action: Any) -> list[float]:
+        chosen = int(np.asarray(action).reshape(-1)[0])
+        if not 0 <= chosen < simplex.n_workers:
+            raise ValueError(f"Expected a worker index in [0, {simplex.n_workers}), actually: {chosen}")
+        return [1.0 if i == chosen else 0.0 for i in range(simplex.n_workers)]
+
+    def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
+        return int(np.argmax(probabilities))
+
+
 @dataclass
 class SelectionConfig:
     """
     How the manager's action selects workers; the arguments of ``WorkerSelectionWrapper`` that a bundle keeps.
 
     :param preferences: worker name -> preference factor.
-    :param selection: a registered selection mode (``sample``, ``argmax`` or ``mix``; see :data:`SELECTORS`).
+    :param selection: a registered selection mode (``sample``, ``argmax``, ``mix`` or ``discrete``; see
+        :data:`SELECTORS`).
     :param option_steps: env steps per manager decision.
     :param temperature: the simplex map's temperature.
     :param floor: every worker's least probability.
@@ -248,7 +290,10 @@ class FrozenWorker:
         self.worker = worker
         self.obs_indices = obs_indices
         policy = getattr(worker, "policy", None)
-        self._policy = policy if policy is not None and hasattr(policy, "_predict") else None
+        # A Box-acting SB3 policy is run here; a discrete one (DQN, QR-DQN) acts through predict, whose
+        # integer actions need no scaling.
+        acts_in_box = isinstance(getattr(policy, "action_space", None), gym.spaces.Box)
+        self._policy = policy if acts_in_box and hasattr(policy, "_predict") else None
         self._layers: (
             list[tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray] | None]] | None
         ) = None
@@ -259,6 +304,8 @@ class FrozenWorker:
             self._half_range = ((space.high - space.low) / 2.0).astype(np.float32)
             # Unscaling to [-1, 1] (the snake's action space) is the identity: skip it.
             self._squash = self._squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
+            # A Gaussian policy without a squashing tanh (PPO) is clipped to the bounds, as SB3's predict does.
+            self._clip = not getattr(self._policy, "squash_output", False)
             # Freeze copies, never the caller's model: the numpy layers copy the weights, and the torch
             # path runs a frozen deep copy, so the worker (or manager) can go on training elsewhere.
             self._layers = _compile_actor(self._policy)
@@ -279,6 +326,8 @@ class FrozenWorker:
 
     def _unscale(self, action: np.ndarray) -> np.ndarray:
         # The actor outputs [-1, 1]; map to the action space as SB3's unscale_action does.
+        if self._clip:
+            return np.clip(action, self._low, self._low + 2.0 * self._half_range)
         return self._low + (action + 1.0) * self._half_range if self._squash else action
 
     def _act_numpy(self, obs: np.ndarray) -> np.ndarray:
@@ -298,7 +347,8 @@ class FrozenWorker:
 
     def _act_predict(self, obs: np.ndarray) -> np.ndarray:
         action, _ = self.worker.predict(self._select(obs), deterministic=True)
-        return np.asarray(action, dtype=np.float32)
+        action = np.asarray(action)
+        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
     def reset_episode(self) -> None:
         """Forward an episode start to a stateful worker (e.g. a nested hierarchy with options)."""

@@ -142,7 +142,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             self.layout.indices(self.manager_state) if self.manager_state is not None else None
         )
         self.observation_space = _subset_space(env.observation_space, self._manager_indices)
-        self.action_space = spaces.Box(-1.0, 1.0, (len(names),), dtype=np.float32)
+        self.action_space = selector.action_space(len(names))
 
         known_terms = list(contract.reward_bounds)
         reward_terms = dict(reward_terms or {})
@@ -216,12 +216,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._last_obs is None:
             raise RuntimeError("Call reset() before step()")
-        values = (
-            action.tolist()
-            if isinstance(action, np.ndarray) and action.ndim == 1
-            else np.asarray(action, dtype=np.float64).ravel().tolist()
-        )
-        probabilities = self.simplex.single(values)
+        probabilities = self.selector.probabilities(self.simplex, action)
         chosen = self.selector.choose(probabilities, self._rng, False)
         total = 0.0
         discount = 1.0

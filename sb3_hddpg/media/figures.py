@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_hddpg.algorithms import REGISTRY
 from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.media.overlay import worker_colour
 from sb3_hddpg.media.trace import StepRecord
@@ -293,10 +294,7 @@ COLOURS = {
     "ham-tuned": "black",
     "goal-only": "yellowgreen",
     "avoid-only": "gold",
-    "ddpg": "tab:blue",
-    "td3": "tab:cyan",
-    "sac": "tab:purple",
-    "tqc": "tab:brown",
+    **{name: record.colour for name, record in REGISTRY.items()},
     "hddpg-goal": "tab:green",
     "hddpg-avoid": "tab:orange",
 }

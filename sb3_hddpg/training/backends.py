@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3 import SAC
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_hddpg.algorithms import ALGORITHMS, SBX_ALGORITHMS, algorithm_class
+from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, SBX_ALGORITHMS, Algorithm, algorithm, algorithm_class
 from sb3_hddpg.artifacts.safe_load import build_without_env
+from sb3_hddpg.training.sbx_weights import layout_of, sbx_to_state_dict, state_dict_to_sbx
 
 logger = logging.getLogger(__name__)
 
@@ -51,7 +51,7 @@ DEFAULT_BACKEND = "sb3"
 #: How to install the SBX backend.
 INSTALL_HINT = 'pip install "sb3-hddpg[fast]"'
 #: Algorithms the SBX backend trains and exports (SB3's classes of the same name).
-SBX_ALGOS: dict[str, type[OffPolicyAlgorithm]] = {name: ALGORITHMS[name] for name in SBX_ALGORITHMS}
+SBX_ALGOS: dict[str, type[BaseAlgorithm]] = {name: ALGORITHMS[name] for name in SBX_ALGORITHMS}
 
 
 class BackendError(ValueError):
@@ -148,7 +148,7 @@ def configure_jax_threads(threads: int = 1) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ classes
-def algo_class(name: str, backend: str = "sb3") -> type[OffPolicyAlgorithm]:
+def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
     """
     The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
 
@@ -161,7 +161,7 @@ def algo_class(name: str, backend: str = "sb3") -> type[OffPolicyAlgorithm]:
     return cls
 
 
-def sbx_class(algo: str) -> type[OffPolicyAlgorithm]:
+def sbx_class(algo: str) -> type[BaseAlgorithm]:
     """The SBX class of an algorithm name (imports jax: call :func:`configure_jax_threads` first)."""
     check_algo(algo, "sbx")
     check_backend("sbx")
@@ -169,12 +169,10 @@ def sbx_class(algo: str) -> type[OffPolicyAlgorithm]:
         configure_jax_threads(1)
     import sbx  # lazily: optional (the `fast` extra), and jax adds 1.4 s to an import
 
-    classes: dict[str, type[OffPolicyAlgorithm]] = {
-        "ddpg": _scheduled_sbx_class(sbx.DDPG),
-        "td3": _scheduled_sbx_class(sbx.TD3),
-        "sac": sbx.SAC,
-    }
-    return classes[algo.lower()]
+    record = algorithm(algo)
+    cls = getattr(sbx, str(record.sbx))  # a name from our own registry, never from a file
+    # SBX's deterministic actor-critics keep the schedule's first rate; SAC-like ones follow it themselves.
+    return _scheduled_sbx_class(cls) if record.sbx_layout == "deterministic" else cls
 
 
 @functools.cache
@@ -215,15 +213,22 @@ def is_sbx_model(model: Any) -> bool:
     return type(model).__module__.split(".")[0] == "sbx"
 
 
-def _sbx_algo_name(model: Any) -> str:
+def _sbx_record(model: Any) -> Algorithm:
     import sbx  # lazily: optional, jax adds 1.4 s (only SBX models get here)
 
-    # isinstance, DDPG first (SBX's DDPG is a TD3): a model under the action penalty is a subclass of its
-    # algorithm (callbacks/action_penalty.py), and a tuning trial exports the model it trained as is.
-    for name, cls in (("ddpg", sbx.DDPG), ("td3", sbx.TD3), ("sac", sbx.SAC)):
-        if isinstance(model, cls):
-            return name
-    raise BackendError(f"Cannot export {type(model).__qualname__} to SB3; exportable: {sorted(SBX_ALGOS)}")
+    # isinstance, the most derived class winning (SBX's DDPG is a TD3): a model under the action penalty is a
+    # subclass of its algorithm (callbacks/action_penalty.py), and a tuning trial exports the model it
+    # trained as is.
+    matches = [
+        (len(getattr(sbx, str(record.sbx)).__mro__), record)
+        for record in REGISTRY.values()
+        if record.sbx is not None and isinstance(model, getattr(sbx, record.sbx))
+    ]
+    if not matches:
+        raise BackendError(
+            f"Cannot export {type(model).__qualname__} to SB3; exportable: {sorted(SBX_ALGOS)}"
+        )
+    return max(matches, key=lambda match: match[0])[1]
 
 
 # ---------------------------------------------------------------------------------------- activations
@@ -269,10 +274,11 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """
     Translate SB3 constructor arguments (a config block's) into SBX's, refusing what SBX cannot honour.
 
-    :param algo: ``ddpg``, ``td3`` or ``sac``.
+    :param algo: an algorithm SBX trains (:data:`SBX_ALGOS`).
     :param kwargs: SB3 keyword arguments (``policy_kwargs`` with torch activations).
     :return: the SBX keyword arguments; raises :class:`BackendError` naming the key SBX lacks.
     """
+    record = algorithm(algo)
     cls = sbx_class(algo)
     accepted = set(inspect.signature(cls.__init__).parameters)
     out = dict(kwargs)
@@ -282,185 +288,105 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     policy_kwargs = dict(out.get("policy_kwargs") or {})
     if policy_kwargs.get("use_sde") is False:  # SB3 writes its default into the dict it was given
         del policy_kwargs["use_sde"]
-    extra = sorted(set(policy_kwargs) - _SHARED_POLICY_KWARGS)
+    extra = sorted(set(policy_kwargs) - _SHARED_POLICY_KWARGS - layout_of(record).policy_kwargs)
     if extra:
         raise BackendError(f"The sbx backend cannot honour policy_kwargs {extra}: use --backend sb3")
     if "activation_fn" in policy_kwargs:
         policy_kwargs["activation_fn"] = _to_flax_activation(policy_kwargs["activation_fn"])
+    if "batch_norm_momentum" in policy_kwargs:
+        # torch's BatchRenorm moves its statistics by momentum, flax's keeps momentum of the old ones.
+        policy_kwargs["batch_norm_momentum"] = 1.0 - float(policy_kwargs["batch_norm_momentum"])
+    if "batch_norm" in policy_kwargs:  # one switch for actor and critic in torch, two in SBX
+        policy_kwargs["batch_norm_actor"] = policy_kwargs["batch_norm"]
     out["policy_kwargs"] = policy_kwargs
     if "qf_learning_rate" in accepted:
         # SB3 trains the critic at learning_rate; SBX's DDPG defaults its critic to 1e-3 whatever that is.
         out["qf_learning_rate"] = None
-    if callable(out.get("learning_rate")) and algo.lower() in ("ddpg", "td3"):
-        # SBX's SAC puts its rates into the optimiser state itself; TD3 and DDPG need it asked for.
+    if callable(out.get("learning_rate")) and record.sbx_layout == "deterministic":
+        # SBX's SAC-like algorithms put their rates into the optimiser state themselves; TD3 and DDPG need
+        # it asked for.
         policy_kwargs["optimizer_class"] = scheduled_adam
     return out
 
 
-# ---------------------------------------------------------------------------------- weights, both ways
-def _layer_count(params: Mapping[str, Any]) -> int:
-    return sum(1 for name in params if name.startswith("Dense_"))
+#: SB3 constructor arguments that an SBX model holds as attributes of the same name, exported as they are.
+_EXPORTED_SETTINGS = (
+    "buffer_size",
+    "learning_starts",
+    "batch_size",
+    "tau",
+    "gamma",
+    "gradient_steps",
+    "policy_delay",
+    "target_policy_noise",
+    "target_noise_clip",
+    "target_entropy",
+    "top_quantiles_to_drop_per_net",
+)
 
 
-def _sbx_to_state_dict(model: Any, algo: str) -> dict[str, th.Tensor]:
-    """SB3's ``policy.state_dict()`` keys and tensors, read from an SBX model's flax parameters."""
-    policy = model.policy
-    state: dict[str, th.Tensor] = {}
-
-    def linear(prefix: str, dense: Mapping[str, Any], critic: int | None = None) -> None:
-        kernel, bias = np.asarray(dense["kernel"]), np.asarray(dense["bias"])
-        if critic is not None:
-            kernel, bias = kernel[critic], bias[critic]
-        # flax Dense computes x @ kernel (in, out); torch Linear x @ weight.T with weight (out, in).
-        state[f"{prefix}.weight"] = th.tensor(np.array(kernel.T, dtype=np.float32))
-        state[f"{prefix}.bias"] = th.tensor(np.array(bias, dtype=np.float32))
-
-    def actor(prefix: str, params: Mapping[str, Any]) -> None:
-        n = _layer_count(params)
-        if algo == "sac":  # hidden layers, then the mean's and the log-std's heads
-            for i in range(n - 2):
-                linear(f"{prefix}.latent_pi.{2 * i}", params[f"Dense_{i}"])
-            linear(f"{prefix}.mu", params[f"Dense_{n - 2}"])
-            linear(f"{prefix}.log_std", params[f"Dense_{n - 1}"])
-        else:  # Sequential(Linear, act, ..., Linear, Tanh): Linear modules at even indices
-            for i in range(n):
-                linear(f"{prefix}.mu.{2 * i}", params[f"Dense_{i}"])
-
-    def critics(prefix: str, params: Mapping[str, Any]) -> None:
-        stacked = params["VmapContinuousCritic_0"]
-        n_critics = int(np.asarray(stacked["Dense_0"]["kernel"]).shape[0])
-        for k in range(n_critics):
-            for i in range(_layer_count(stacked)):
-                linear(f"{prefix}.qf{k}.{2 * i}", stacked[f"Dense_{i}"], critic=k)
-
-    actor("actor", policy.actor_state.params["params"])
-    if algo != "sac":
-        actor("actor_target", policy.actor_state.target_params["params"])
-    critics("critic", policy.qf_state.params["params"])
-    critics("critic_target", policy.qf_state.target_params["params"])
-    return state
-
-
-def _state_dict_to_sbx(model: Any, algo: str, state: Mapping[str, th.Tensor]) -> None:
-    """Set an SBX model's flax parameters (and targets) from SB3's ``policy.state_dict()``: the inverse."""
-    # Lazily: optional (the `fast` extra), and jax adds 1.4 s to an import; only SBX models get here.
-    import jax.numpy as jnp
-    from flax.core import freeze, unfreeze
-
-    policy = model.policy
-
-    def dense(prefix: str) -> dict[str, Any]:
-        return {
-            "kernel": jnp.asarray(state[f"{prefix}.weight"].detach().cpu().numpy().T),
-            "bias": jnp.asarray(state[f"{prefix}.bias"].detach().cpu().numpy()),
-        }
-
-    def actor(prefix: str, template: Any) -> Any:
-        params = unfreeze(template)
-        inner = params["params"]
-        n = _layer_count(inner)
-        for i in range(n):
-            if algo == "sac":
-                source = (
-                    f"{prefix}.latent_pi.{2 * i}"
-                    if i < n - 2
-                    else (f"{prefix}.mu", f"{prefix}.log_std")[i - n + 2]
-                )
-            else:
-                source = f"{prefix}.mu.{2 * i}"
-            inner[f"Dense_{i}"] = dense(source)
-        return freeze(params) if not isinstance(template, dict) else params
-
-    def critics(prefix: str, template: Any) -> Any:
-        params = unfreeze(template)
-        stacked = params["params"]["VmapContinuousCritic_0"]
-        n_critics = int(np.asarray(stacked["Dense_0"]["kernel"]).shape[0])
-        for i in range(_layer_count(stacked)):
-            layers = [dense(f"{prefix}.qf{k}.{2 * i}") for k in range(n_critics)]
-            stacked[f"Dense_{i}"] = {
-                key: jnp.stack([layer[key] for layer in layers]) for key in ("kernel", "bias")
-            }
-        return freeze(params) if not isinstance(template, dict) else params
-
-    actor_params = actor("actor", policy.actor_state.params)
-    qf_params = critics("critic", policy.qf_state.params)
-    # New parameters need a matching fresh optimiser state (Adam's moments start at zero, as in torch).
-    policy.actor_state = policy.actor_state.replace(
-        params=actor_params, opt_state=policy.actor_state.tx.init(actor_params)
-    )
-    if algo != "sac":
-        policy.actor_state = policy.actor_state.replace(target_params=actor("actor_target", actor_params))
-    policy.qf_state = policy.qf_state.replace(
-        params=qf_params,
-        target_params=critics("critic_target", qf_params),
-        opt_state=policy.qf_state.tx.init(qf_params),
-    )
-
-
-def _sb3_hyperparams(model: Any, algo: str) -> dict[str, Any]:
+def _sb3_hyperparams(model: Any, record: Algorithm) -> dict[str, Any]:
     """The SB3 constructor arguments that reproduce an SBX model's settings."""
+    accepted = set(inspect.signature(record.cls.__init__).parameters)
     train_freq = model.train_freq
     hparams: dict[str, Any] = {
         "learning_rate": model.learning_rate,
-        "buffer_size": int(model.buffer_size),
-        "learning_starts": int(model.learning_starts),
-        "batch_size": int(model.batch_size),
-        "tau": float(model.tau),
-        "gamma": float(model.gamma),
         # SB3 turns train_freq into a TrainFreq(frequency, unit) named tuple; hand it back as a plain tuple.
         "train_freq": (int(train_freq.frequency), train_freq.unit.value)
         if hasattr(train_freq, "unit")
         else train_freq,
-        "gradient_steps": int(model.gradient_steps),
     }
-    if algo == "td3":
-        hparams.update(
-            policy_delay=int(model.policy_delay),
-            target_policy_noise=float(model.target_policy_noise),
-            target_noise_clip=float(model.target_noise_clip),
-        )
-    if algo == "sac":
-        ent_coef = model.ent_coef_init
-        hparams.update(
-            ent_coef=ent_coef,
-            target_entropy=float(model.target_entropy),
-            # SBX's SAC updates its targets after every gradient step, SB3's target_update_interval=1.
-            target_update_interval=1,
-        )
+    for key in _EXPORTED_SETTINGS:
+        value = getattr(model, key, None)
+        if key in accepted and value is not None:
+            hparams[key] = value.item() if isinstance(value, np.generic) else value
+    if "top_quantiles_to_drop_per_net" in accepted:  # SBX's TQC keeps it among the policy's settings
+        hparams["top_quantiles_to_drop_per_net"] = int(model.policy_kwargs["top_quantiles_to_drop_per_net"])
+    if "ent_coef" in accepted and hasattr(model, "ent_coef_init"):
+        hparams["ent_coef"] = model.ent_coef_init
+        hparams["target_entropy"] = float(model.target_entropy)
+    if "target_update_interval" in accepted:
+        # SBX's SAC and TQC update their targets after every gradient step, SB3's target_update_interval=1.
+        hparams["target_update_interval"] = 1
     return hparams
 
 
-def _sb3_policy_kwargs(model: Any) -> dict[str, Any]:
+def _sb3_policy_kwargs(model: Any, record: Algorithm) -> dict[str, Any]:
     policy_kwargs = dict(model.policy_kwargs)
     if policy_kwargs.get("optimizer_class") is scheduled_adam:
         # SB3's optimiser follows the schedule (learning_rate) by itself.
         del policy_kwargs["optimizer_class"]
+    policy_kwargs.pop("top_quantiles_to_drop_per_net", None)  # an argument of SB3's TQC, not its policy's
     for key, default in _SBX_ONLY_POLICY_DEFAULTS.items():
         if key in policy_kwargs and policy_kwargs.pop(key) != default:
             raise BackendError(f"Cannot export an SBX model with {key}={model.policy_kwargs[key]!r} to SB3")
-    extra = sorted(set(policy_kwargs) - _SHARED_POLICY_KWARGS)
+    if "batch_norm_actor" in policy_kwargs and policy_kwargs.pop("batch_norm_actor") != policy_kwargs.get(
+        "batch_norm", True
+    ):
+        raise BackendError("Cannot export an SBX model with batch_norm_actor != batch_norm to SB3")
+    if "batch_norm_momentum" in policy_kwargs:
+        policy_kwargs["batch_norm_momentum"] = 1.0 - float(policy_kwargs["batch_norm_momentum"])
+    extra = sorted(set(policy_kwargs) - _SHARED_POLICY_KWARGS - layout_of(record).policy_kwargs)
     if extra:
         raise BackendError(f"Cannot export an SBX model with policy_kwargs {extra} to SB3")
     if "activation_fn" in policy_kwargs:
         policy_kwargs["activation_fn"] = _to_torch_activation(policy_kwargs["activation_fn"])
-    if type(model).__name__ == "DDPG" and policy_kwargs.get("n_critics") == 1:
-        # SBX's DDPG writes its default of one critic into policy_kwargs; SB3's DDPG has the same default.
+    if policy_kwargs.get("n_critics") == record.default_n_critics:
+        # SBX's DDPG writes its default of one critic into policy_kwargs; SB3's has the same default.
         policy_kwargs.pop("n_critics")
     return policy_kwargs
 
 
 def _build_sb3(
-    algo: str,
+    record: Algorithm,
     observation_space: Any,
     action_space: Any,
     hparams: Mapping[str, Any],
     policy_kwargs: Mapping[str, Any],
     seed: int | None,
-) -> OffPolicyAlgorithm:
+) -> BaseAlgorithm:
     """A fresh SB3 model without an env (as ``BaseAlgorithm.load`` builds one), seeded like SB3 training."""
-    return build_without_env(
-        SBX_ALGOS[algo], observation_space, action_space, hparams, policy_kwargs, seed=seed
-    )
+    return build_without_env(record.cls, observation_space, action_space, hparams, policy_kwargs, seed=seed)
 
 
 # ------------------------------------------------------------------------------------------- public API
@@ -471,7 +397,7 @@ def make_model(
     kwargs: Mapping[str, Any],
     seed: int | None = None,
     policy: str = "MlpPolicy",
-) -> OffPolicyAlgorithm:
+) -> BaseAlgorithm:
     """
     Build a fresh model of ``algo`` on ``backend``.
 
@@ -493,26 +419,26 @@ def make_model(
     kwargs = {**kwargs, "policy_kwargs": dict(kwargs.get("policy_kwargs") or {})}
     if backend == "sb3":
         return algo_class(algo)(policy, env, seed=seed, device="cpu", verbose=0, **kwargs)
-    algo = algo.lower()
-    # Any: SBX's SAC adds attributes (target_entropy) that OffPolicyAlgorithm does not declare.
+    record = algorithm(algo)
+    # Any: SBX's SAC adds attributes (target_entropy) that BaseAlgorithm does not declare.
     model: Any = sbx_class(algo)(policy, env, seed=seed, device="cpu", verbose=0, **sbx_kwargs(algo, kwargs))
     sb3_kwargs = {k: v for k, v in kwargs.items() if k not in ("action_noise", "policy_kwargs")}
-    if algo == "sac":  # "auto" reads an env the twin does not have; the SBX model has resolved it
+    if record.target_entropy:  # "auto" reads an env the twin does not have; the SBX model has resolved it
         sb3_kwargs["target_entropy"] = float(model.target_entropy)
     twin = _build_sb3(
-        algo,
+        record,
         model.observation_space,
         model.action_space,
         sb3_kwargs,
         kwargs.get("policy_kwargs") or {},
         seed,
     )
-    _state_dict_to_sbx(model, algo, twin.policy.state_dict())
+    state_dict_to_sbx(model, twin, record)
     share_compiled(model)
     return model
 
 
-def load_native(algo: str, backend: str, path: Any, env: Any = None) -> OffPolicyAlgorithm:
+def load_native(algo: str, backend: str, path: Any, env: Any = None) -> BaseAlgorithm:
     """
     Load a model saved by this backend's own ``save`` (a checkpoint or ``best_model.zip`` of a run).
 
@@ -555,7 +481,7 @@ def share_compiled(model: Any) -> None:
         repr(sorted(policy.optimizer_kwargs.items())),
         repr(getattr(model, "ent_coef_init", None)),
     )
-    states = {"actor_state": policy, "qf_state": policy}
+    states = {"actor_state": policy, **{name: policy for name in layout_of(_sbx_record(model)).critic_states}}
     if hasattr(model, "ent_coef_state"):
         states["ent_coef_state"] = model
     shared = _SHARED.setdefault(
@@ -567,7 +493,7 @@ def share_compiled(model: Any) -> None:
         setattr(owner, name, getattr(owner, name).replace(apply_fn=apply_fn, tx=tx))
 
 
-def to_sb3(model: OffPolicyAlgorithm) -> OffPolicyAlgorithm:
+def to_sb3(model: BaseAlgorithm) -> BaseAlgorithm:
     """
     The SB3 model to save and share for a trained model: SB3 models as they are, SBX models exported.
 
@@ -581,21 +507,21 @@ def to_sb3(model: OffPolicyAlgorithm) -> OffPolicyAlgorithm:
     """
     if not is_sbx_model(model):
         return model
-    algo = _sbx_algo_name(model)
-    sb3_model = _build_sb3(
-        algo,
+    record = _sbx_record(model)
+    sb3_model: Any = _build_sb3(
+        record,
         model.observation_space,
         model.action_space,
-        _sb3_hyperparams(model, algo),
-        _sb3_policy_kwargs(model),
+        _sb3_hyperparams(model, record),
+        _sb3_policy_kwargs(model, record),
         None,  # a seed would re-seed the global random state (SB3's set_random_seed) mid-run
     )
     sb3_model.seed = model.seed
-    state = _sbx_to_state_dict(model, algo)
+    state = sbx_to_state_dict(model, sb3_model, record)
     sb3_model.policy.load_state_dict(state, strict=True)
-    if isinstance(sb3_model, SAC) and sb3_model.log_ent_coef is not None:
-        # SBX's SAC keeps its entropy coefficient in a flax train state OffPolicyAlgorithm does not declare.
-        sbx_model: Any = model
+    sbx_model: Any = model
+    if getattr(sb3_model, "log_ent_coef", None) is not None and hasattr(sbx_model, "ent_coef_state"):
+        # SBX keeps a learned entropy coefficient in a flax train state BaseAlgorithm does not declare.
         log_ent_coef = float(np.asarray(sbx_model.ent_coef_state.params["log_ent_coef"]))
         sb3_model.log_ent_coef.data.fill_(log_ent_coef)
     sb3_model.num_timesteps = int(model.num_timesteps)

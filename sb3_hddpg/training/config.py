@@ -27,7 +27,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 from sb3_hddpg.algorithms import ACTIVATIONS as ALL_ACTIVATIONS
-from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS, algorithm_class
+from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS, algorithm, algorithm_class
 from sb3_hddpg.artifacts.limits import (
     MAX_CONFIG_NODES,
     MAX_JSON_BYTES,
@@ -561,8 +561,9 @@ def _check_network_size(policy_kwargs: Any, algo: str, source: str) -> None:
     if not isinstance(policy_kwargs, dict) or "net_arch" not in policy_kwargs:
         return
     net_arch = policy_kwargs["net_arch"]
+    record = algorithm(algo)
     pi, qf = (
-        (net_arch.get("pi", []), net_arch.get("qf", []))
+        (net_arch.get("pi", []), net_arch.get(record.critic_layers, []))
         if isinstance(net_arch, dict)
         else (net_arch, net_arch)
     )
@@ -576,7 +577,7 @@ def _check_network_size(policy_kwargs: Any, algo: str, source: str) -> None:
             f"Expected net_arch in {source} to be lists of at most {MAX_LAYERS} layer sizes in "
             f"[1, {MAX_LAYER_SIZE}], actually: {brief(net_arch)}"
         )
-    n_critics = policy_kwargs.get("n_critics", 1 if algo == "DDPG" else 2)
+    n_critics = policy_kwargs.get("n_critics", record.default_n_critics)
     n_quantiles = policy_kwargs.get("n_quantiles", 25)
     if not all(
         isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 4096 for n in (n_critics, n_quantiles)

@@ -20,7 +20,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
-from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
 from stable_baselines3.common.env_util import make_vec_env
@@ -28,7 +27,7 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-from sb3_hddpg.algorithms import ALGORITHMS
+from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, algorithm, algorithms_for
 from sb3_hddpg.artifacts.io import (
     atomic_write,
     holds_folder_lock,
@@ -71,9 +70,12 @@ from sb3_hddpg.training.run_options import RunOptions, run_options
 #: Algorithm names accepted by ``--algo`` (the registry's, in its order).
 ALGO_NAMES = tuple(ALGORITHMS)
 
-#: The algorithms a manager can be: DDPG (the paper's), or TD3 or SAC on the same Box action, each with a
-#: ``manager`` block in its bundled config (``zoo_configs/<algo>.yml``).
-MANAGER_ALGOS = ("ddpg", "td3", "sac")
+#: The algorithms a manager can be: DDPG (the paper's), or another whose record takes the manager role, each with
+#: a ``manager`` block in its bundled config (``zoo_configs/<algo>.yml``); one acting in Discrete spaces (DQN)
+#: selects with the ``discrete`` mode, its action the worker's index.
+MANAGER_ALGOS = algorithms_for("manager")
+#: The algorithm of a worker no ``algos`` entry names: the paper's.
+DEFAULT_WORKER_ALGO = "ddpg"
 
 
 class TrainingInterrupted(RuntimeError):
@@ -207,9 +209,10 @@ def train_agent(
         configure_jax_threads(run.threads)  # before jax's first import in this process, or it cannot apply
     _remove_stale_temporaries(paths)
     algo_class(algo)  # a clear error for an unknown name before any env starts
-    if hyperparams.action_l2 > 0 and algo.lower() not in ("ddpg", "td3"):
+    if hyperparams.action_l2 > 0 and not algorithm(algo).action_penalty:
+        penalised = [name for name, record in REGISTRY.items() if record.action_penalty]
         raise ValueError(
-            f"The ActionL2Penalty callback applies to DDPG and TD3, not {algo!r}: remove it from the config block"
+            f"The ActionL2Penalty callback applies to {penalised}, not {algo!r}: remove it from the config block"
         )
 
     vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
@@ -219,6 +222,7 @@ def train_agent(
     # override this process's choice.
     torch.set_num_threads(run.threads)
     try:
+        check_takes(algo, eval_env.action_space)
         if run.resume:
             model, state = _resume_model(algo, backend, paths, vec_env)
         else:
@@ -261,6 +265,34 @@ def train_agent(
         eval_env.close()
 
 
+def check_takes(algo: str, action_space: gym.spaces.Space) -> None:
+    """
+    Refuse an algorithm for an env whose action space it does not take (DQN on continuous actions), in one
+    line naming both, before anything trains.
+
+    :param algo: the algorithm.
+    :param action_space: the env's action space.
+    """
+    record = algorithm(algo)
+    if not record.takes(action_space):
+        raise ValueError(
+            f"Expected an env whose actions {record.name} takes ({sorted(record.action_spaces)}), actually "
+            f"{action_space}"
+        )
+
+
+def check_flat_env(algo: str, env_id: str | None = None, env_kwargs: Mapping[str, Any] | None = None) -> None:
+    """
+    :func:`check_takes` for a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` (default: the
+    combined task, :data:`FLAT_ENV_ID`).
+    """
+    probe = make_snake_env(env_id or FLAT_ENV_ID, dict(env_kwargs or {}))
+    try:
+        check_takes(algo, probe.action_space)
+    finally:
+        probe.close()
+
+
 def _remove_stale_temporaries(paths: AgentPaths) -> None:
     """
     A run killed mid-write (SIGKILL, power cut) leaves hidden temporaries; they never hold anything we
@@ -274,7 +306,7 @@ def _remove_stale_temporaries(paths: AgentPaths) -> None:
 
 def _resume_model(
     algo: str, backend: str, paths: AgentPaths, vec_env: Any
-) -> tuple[OffPolicyAlgorithm, dict[str, Any]]:
+) -> tuple[BaseAlgorithm, dict[str, Any]]:
     """The model of the last checkpoint in ``paths.checkpoint_dir``, with its replay buffer, and its state."""
     state = read_checkpoint_state(paths.checkpoint_dir)
     if state is None:
@@ -287,9 +319,11 @@ def _resume_model(
         )
     # Our own checkpoint, written by this library: the full (SB3 or SBX) load is appropriate here.
     model = load_native(algo, backend, state["model_path"], env=vec_env)
+    if not isinstance(model, OffPolicyAlgorithm):
+        return model, state  # an on-policy model collects a fresh rollout: nothing to restore
     if state["replay_buffer_path"] is not None:
         model.load_replay_buffer(state["replay_buffer_path"])
-    elif getattr(model, "replay_buffer", None) is not None:
+    elif model.replay_buffer is not None:
         # A finished run's checkpoint without its buffer: collect learning_starts fresh transitions
         # before the first update, as at the start, rather than train on a handful of them.
         model.learning_starts = int(model.num_timesteps + model.learning_starts)
@@ -334,7 +368,7 @@ def _make_evaluator(
 
 
 def _learn(
-    model: OffPolicyAlgorithm,
+    model: BaseAlgorithm,
     total: int,
     callbacks: BaseCallback,
     checkpointer: ResumableCheckpointCallback,
@@ -367,7 +401,7 @@ def _learn(
 
 
 def _save_outcome(
-    model: OffPolicyAlgorithm,
+    model: BaseAlgorithm,
     evaluator: MetricsEvalCallback,
     paths: AgentPaths,
     algo: str,
@@ -432,14 +466,18 @@ def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> C
 
 
 def worker_hyperparams(
-    workers: Sequence[str], config: str | Path | None = None, env: TermsEnv | None = None
+    workers: Sequence[str],
+    config: str | Path | None = None,
+    env: TermsEnv | None = None,
+    algos: Mapping[str, str] | None = None,
 ) -> dict[str, Hyperparams]:
     """
     Check worker names and read each worker's config block, before anything is trained: a bad block for
     the second worker should not surface after the first one has trained for an hour.
 
     :param workers: worker names among :data:`WORKER_ENV_IDS` (or ``env``'s terms), each at most once.
-    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
+    :param algos: worker name -> its algorithm (:func:`worker_algorithms`; default: DDPG for each).
     :param env: another env with several objectives (default: the snake arm); its blocks are keyed by the
         adapted env's id, else ``default``.
     :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
@@ -455,14 +493,66 @@ def worker_hyperparams(
     duplicates = sorted({w for w in workers if list(workers).count(w) > 1})
     if duplicates:
         raise ValueError(f"Duplicate worker names {duplicates} in {list(workers)}: name each worker once")
+    chosen = worker_algorithms(workers, algos)
     blocks = {
-        name: load_hyperparams(env.config_key if env is not None else WORKER_ENV_IDS[name], DDPG, config)
+        name: load_hyperparams(
+            env.config_key if env is not None else WORKER_ENV_IDS[name],
+            algorithm(chosen[name]).cls,
+            config if config is not None else default_config(chosen[name]),
+        )
         for name in workers
     }
     for name, block in blocks.items():
         env_id, view_kwargs = env.term_view(name) if env is not None else (WORKER_ENV_IDS[name], {})
         check_make_kwargs(env_id, {**view_kwargs, **block.env_kwargs}, f"worker {name!r}: env_kwargs")
     return blocks
+
+
+def parse_worker_algorithms(text: str, workers: Sequence[str]) -> dict[str, str]:
+    """
+    Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps DDPG), or one algorithm
+    name for every worker (``crossq``).
+
+    :param text: the option's value.
+    :param workers: the workers being trained.
+    :return: worker name -> algorithm, checked by :func:`worker_algorithms`.
+    """
+    parts = [part.strip() for part in text.split(",") if part.strip()]
+    if len(parts) == 1 and "=" not in parts[0]:
+        return worker_algorithms(workers, dict.fromkeys(workers, parts[0]))
+    algos: dict[str, str] = {}
+    for part in parts:
+        name, sep, algo = (piece.strip() for piece in part.partition("="))
+        if not sep or not name or not algo:
+            raise ValueError(
+                f"Expected WORKER=ALGORITHM pairs separated by commas, actually {part!r} in {text!r}"
+            )
+        if name in algos:
+            raise ValueError(f"Expected each worker once, actually {name!r} twice in {text!r}")
+        algos[name] = algo
+    return worker_algorithms(workers, algos)
+
+
+def worker_algorithms(workers: Sequence[str], algos: Mapping[str, str] | None = None) -> dict[str, str]:
+    """
+    Each worker's algorithm: the one ``algos`` names, else DDPG (the paper's); checked against the
+    algorithm records (a worker role).
+
+    :param workers: the worker names.
+    :param algos: worker name -> algorithm name (any case); a name not among ``workers`` is refused.
+    :return: worker name -> registry name.
+    """
+    algos = dict(algos or {})
+    unknown = sorted(set(algos) - set(workers))
+    if unknown:
+        raise ValueError(f"Expected algorithms for the workers {list(workers)}, actually also for {unknown}")
+    chosen = {name: algorithm(algos.get(name, DEFAULT_WORKER_ALGO)).name for name in workers}
+    for name, algo in chosen.items():
+        if "worker" not in REGISTRY[algo].roles:
+            raise ValueError(
+                f"Expected a worker algorithm for {name!r}, actually {algo!r}, which cannot be one"
+            )
+    return chosen
 
 
 def flat_hyperparams(
@@ -502,15 +592,18 @@ def train_workers(
     on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     env: TermsEnv | None = None,
+    algos: Mapping[str, str] | None = None,
     **run_changes: Any,
 ) -> dict[str, Any]:
     """
-    Train each named worker as a plain SB3 DDPG on its own registered env id (paper Algorithm 1, first
-    half) and write ``out_dir/workers/<name>.zip`` and ``out_dir/workers/manifest.json``.
+    Train each named worker as a plain SB3 model (DDPG, the paper's, unless ``algos`` names another) on its
+    own registered env id (paper Algorithm 1, first half) and write ``out_dir/workers/<name>.zip`` and
+    ``out_dir/workers/manifest.json``.
 
     :param out_dir: the run folder.
     :param workers: worker names among :data:`WORKER_ENV_IDS`, or ``env``'s terms (``None``: all of them).
-    :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
+    :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
+    :param algos: worker name -> its algorithm (e.g. ``{"goal": "crossq"}``; default: DDPG for each).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -525,7 +618,8 @@ def train_workers(
     shared = env if env is not None else TermsEnv(SNAKE_SHARED_ENV_ID, {}, REWARD_TERMS)
     if workers is None:
         workers = list(shared.terms)
-    blocks = worker_hyperparams(workers, config, env)
+    chosen = worker_algorithms(workers, algos)
+    blocks = worker_hyperparams(workers, config, env, chosen)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest: dict[str, Any] = {"schema_version": WORKER_MANIFEST_VERSION, "workers": {}}
@@ -554,7 +648,7 @@ def train_workers(
             functools.partial(make_term_view, env_id, env_kwargs, name),
             hyperparams,
             paths,
-            algo="ddpg",
+            algo=chosen[name],
             run=_agent_run(run, paths, budget),
             extra_callbacks=extra_callbacks,
         )
@@ -564,10 +658,13 @@ def train_workers(
         manifest["workers"][name] = model_entry(
             name,
             outcome,
-            "ddpg",
+            chosen[name],
             env_id,
             env_kwargs,
-            {"file": str(config) if config else "sb3_hddpg/zoo_configs/ddpg.yml", "block": hyperparams.raw},
+            {
+                "file": str(config) if config else f"sb3_hddpg/zoo_configs/{chosen[name]}.yml",
+                "block": hyperparams.raw,
+            },
             run.seed,
             budget,
             reward_term=name,

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
+from sb3_hddpg.algorithms import REGISTRY, algorithms_for
 from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
@@ -371,18 +372,16 @@ register_method(
         own_settings=("ham_hysteresis",),
     )
 )
-for _algo, _colour in (
-    ("ddpg", "tab:blue"),
-    ("td3", "tab:cyan"),
-    ("sac", "tab:purple"),
-    ("tqc", "tab:brown"),
-):
+#: Every algorithm that can be a flat agent on the combined task's Box action (each a method in its record's
+#: colour): ``train_flat``'s algorithms.
+FLAT_METHODS = algorithms_for("flat", gym.spaces.Box(-1, 1))
+for _algo in FLAT_METHODS:
     register_method(
         Method(
             _algo,
             functools.partial(_run_flat, _algo),
             _flat_cost,
-            colour=_colour,
+            colour=REGISTRY[_algo].colour,
             default=_algo == "ddpg",
             baseline=True,
             takes_preference=True,
@@ -453,8 +452,6 @@ METHODS = tuple(METHOD_REGISTRY)
 #: The methods run by default: the paper's three, the biased managers of Figure 10 and the references that need no
 #: training (HAM tuned, each worker alone).
 DEFAULT_METHODS: tuple[str, ...] = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
-#: Flat single-agent baselines (``train_flat``'s algorithms).
-FLAT_METHODS = ("ddpg", "td3", "sac", "tqc")
 #: Flat agents with the goal worker's tricks, and the algorithm each trains.
 FLAT_HER_METHODS = {"sac-her": "sac", "ddpg-her": "ddpg"}
 #: The methods defined on any env with several objectives (``BenchmarkSettings.env``), and their default.

@@ -1,0 +1,232 @@
+"""
+Time to skill: how long a user waits for a goal worker, per learner and backend.
+
+For each learner given (``ALGO:BACKEND``, e.g. ``crossq:sbx``) and seed, the goal worker trains as
+``hddpg-cli train-workers --workers goal --algo goal=ALGO --backend BACKEND`` does (the algorithm's bundled
+config, or ``--config``), with its periodic evaluation on the curve episodes (the evaluation seeds that pick
+the best model, never the benchmark's test episodes). The run's time to skill is the env steps and the
+wall-clock seconds (since the run's process started, so JAX's compilation and the evaluations count: they
+are part of the wait) at the first evaluation from which the touch rate holds ``>= --threshold`` for
+``--hold`` consecutive evaluations. Runs go seed by seed, each learner in turn, one process each, so a
+machine's drift touches every learner alike; run it with nothing else on the machine. The report gives each
+seed's steps and seconds, the median per learner, and the ratios of those medians to the baseline's (today's
+DDPG goal worker, ``ddpg:sb3``, unless ``--baseline`` says otherwise). A run that never reaches the skill
+counts as its whole budget, marked, so it can only make its learner look faster than it is if the budget is
+too short: give budgets that let the baseline reach it.
+
+    python benchmarks/time_to_skill.py --learners ddpg:sb3,ddpg:sbx,crossq:sbx,sac:sbx,tqc:sbx \
+        [--seeds 5] [--timesteps 150000] [--eval-freq 5000] [--eval-episodes 10] [--out DIR]
+
+A finished run's result is kept in ``--out`` and reused, so an interrupted measurement continues where it
+stopped; wall-clock figures are comparable only within one uninterrupted measurement.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+#: The learner every ratio is taken against: today's goal worker.
+BASELINE = "ddpg:sb3"
+
+
+def parse_learners(text: str) -> list[tuple[str, str]]:
+    """``ddpg:sb3,crossq:sbx`` -> ``[("ddpg", "sb3"), ("crossq", "sbx")]``, each checked against the records."""
+    from sb3_hddpg.algorithms import algorithm
+    from sb3_hddpg.training.backends import BACKENDS, check_algo
+
+    learners = []
+    for part in filter(None, (piece.strip() for piece in text.split(","))):
+        algo, _, backend = part.partition(":")
+        backend = backend or "sb3"
+        if backend not in BACKENDS:
+            raise ValueError(f"Expected a backend among {list(BACKENDS)} in {part!r}, actually {backend!r}")
+        name = algorithm(algo).name
+        check_algo(name, backend)
+        learners.append((name, backend))
+    if not learners:
+        raise ValueError(f"Expected learners as ALGO:BACKEND separated by commas, actually {text!r}")
+    return learners
+
+
+def label(learner: tuple[str, str]) -> str:
+    return f"{learner[0]}:{learner[1]}"
+
+
+def time_to_skill(
+    history: list[dict[str, Any]], clock: dict[int, float], threshold: float, hold: int
+) -> tuple[int | None, float | None]:
+    """
+    The env steps and seconds at the first evaluation from which the touch rate holds ``>= threshold`` for
+    ``hold`` evaluations in a row; ``(None, None)`` if it never does.
+
+    :param history: the evaluations (``timesteps``, ``goal_touch_rate``), in order.
+    :param clock: env steps -> seconds since the run started, taken right after each evaluation.
+    """
+    for i in range(len(history) - hold + 1):
+        window = history[i : i + hold]
+        if all(entry.get("goal_touch_rate", 0.0) >= threshold for entry in window):
+            steps = int(history[i]["timesteps"])
+            return steps, clock.get(steps)
+    return None, None
+
+
+def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[str, Any]:
+    """Train one goal worker, timing each evaluation; returns the result (also saved, and reused)."""
+    started = time.perf_counter()
+    out = Path(args["out"]) / f"{algo}-{backend}" / f"seed-{seed}"
+    result_path = out / "result.json"
+    if result_path.exists():
+        return json.loads(result_path.read_text())
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from sb3_hddpg.artifacts.io import atomic_write_json
+    from sb3_hddpg.training.training import train_workers
+
+    class Clock(BaseCallback):
+        """Seconds since the run started at every evaluation (called after the evaluator on each step)."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.seen: dict[int, float] = {}
+
+        def _on_step(self) -> bool:
+            self.seen.setdefault(int(self.model.num_timesteps), time.perf_counter() - started)
+            return True
+
+    clock = Clock()
+    manifest = train_workers(
+        out,
+        workers=["goal"],
+        config=args["config"],
+        algos={"goal": algo},
+        timesteps=args["timesteps"],
+        seed=seed,
+        eval_freq=args["eval_freq"],
+        eval_episodes=args["eval_episodes"],
+        checkpoint_freq=0,
+        keep_best=False,
+        backend=backend,
+        progress_bar=False,
+        extra_callbacks=[clock],
+    )
+    history = json.loads((out / "evaluations" / "goal.json").read_text())
+    steps, seconds = time_to_skill(history, clock.seen, args["threshold"], args["hold"])
+    if seconds is None:  # never reached, or reached at the closing evaluation after learning stopped
+        seconds = time.perf_counter() - started
+    result = {
+        "algo": algo,
+        "backend": backend,
+        "seed": seed,
+        "reached": steps is not None,
+        "steps": steps if steps is not None else int(manifest["workers"]["goal"]["timesteps_trained"]),
+        "seconds": seconds,
+        "curve": [
+            {
+                "timesteps": e["timesteps"],
+                "goal_touch_rate": e.get("goal_touch_rate"),
+                "seconds": clock.seen.get(e["timesteps"]),
+            }
+            for e in history
+        ],
+    }
+    atomic_write_json(result_path, result)
+    return result
+
+
+def _mark(result: dict[str, Any]) -> str:
+    """``>`` before a run's figures when it never reached the skill: its whole budget, a lower bound."""
+    return "" if result["reached"] else ">"
+
+
+def report(results: list[dict[str, Any]], learners: list[tuple[str, str]], baseline: str) -> str:
+    """A Markdown table: per learner, each seed's steps and seconds, the medians, and their ratios."""
+    rows = [
+        "| learner | seeds reached | steps per seed | seconds per seed | median steps | median s | "
+        f"steps / {baseline} | s / {baseline} |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    medians: dict[str, tuple[float, float]] = {}
+    for learner in learners:
+        mine = sorted((r for r in results if (r["algo"], r["backend"]) == learner), key=lambda r: r["seed"])
+        if mine:
+            medians[label(learner)] = (
+                statistics.median(r["steps"] for r in mine),
+                statistics.median(r["seconds"] for r in mine),
+            )
+    base = medians.get(baseline)
+    for learner in learners:
+        name = label(learner)
+        mine = sorted((r for r in results if (r["algo"], r["backend"]) == learner), key=lambda r: r["seed"])
+        if not mine:
+            continue
+        steps = ", ".join(f"{_mark(r)}{r['steps']}" for r in mine)
+        seconds = ", ".join(f"{_mark(r)}{r['seconds']:.0f}" for r in mine)
+        m_steps, m_seconds = medians[name]
+        ratios = (
+            (f"{m_steps / base[0]:.2f}", f"{m_seconds / base[1]:.2f}")
+            if base and base[0] and base[1]
+            else ("-", "-")
+        )
+        reached = sum(r["reached"] for r in mine)
+        rows.append(
+            f"| {name} | {reached}/{len(mine)} | {steps} | {seconds} | {m_steps:.0f} | {m_seconds:.0f} | "
+            f"{ratios[0]} | {ratios[1]} |"
+        )
+    return "\n".join(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--learners", default=f"{BASELINE},crossq:sbx,sac:sbx,tqc:sbx", help="ALGO:BACKEND, comma-separated."
+    )
+    parser.add_argument("--baseline", default=BASELINE, help="The learner the ratios are taken against.")
+    parser.add_argument("--seeds", type=int, default=5, help="Seeds per learner (0 .. N-1).")
+    parser.add_argument("--timesteps", type=int, default=150_000, help="Budget per run (env steps).")
+    parser.add_argument("--eval-freq", type=int, default=5000, help="Env steps between evaluations.")
+    parser.add_argument("--eval-episodes", type=int, default=10, help="Curve episodes per evaluation.")
+    parser.add_argument("--threshold", type=float, default=0.5, help="The goal touch rate that is the skill.")
+    parser.add_argument("--hold", type=int, default=1, help="Evaluations in a row that must hold it.")
+    parser.add_argument(
+        "--config", default=None, help="A zoo_configs file (default: each algorithm's bundled one)."
+    )
+    parser.add_argument(
+        "--n-jobs", type=int, default=1, help="Runs at a time (1 for clean wall-clock figures)."
+    )
+    parser.add_argument(
+        "--out", default="runs/time_to_skill", help="Results folder (finished runs are reused)."
+    )
+    args = parser.parse_args(argv)
+    for name in ("seeds", "timesteps", "eval_freq", "eval_episodes", "hold", "n_jobs"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if not 0.0 <= args.threshold <= 1.0:
+        parser.error(f"--threshold must be in [0, 1], got {args.threshold}")
+    try:
+        learners = parse_learners(args.learners)
+    except ValueError as error:
+        parser.error(f"--learners: {error}")
+    settings = {
+        key: getattr(args, key)
+        for key in ("out", "config", "timesteps", "eval_freq", "eval_episodes", "threshold", "hold")
+    }
+    # Seed by seed, every learner in turn: drift on the machine touches them alike.
+    jobs = [(algo, backend, seed) for seed in range(args.seeds) for algo, backend in learners]
+    # One fresh process per run: each pays its own start-up and compilation, as a user's run does.
+    with ProcessPoolExecutor(args.n_jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
+        results = list(pool.map(run_one, *zip(*jobs), [settings] * len(jobs)))
+    table = report(results, learners, args.baseline)
+    Path(args.out, "report.md").write_text(table + "\n")
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

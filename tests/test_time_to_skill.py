@@ -1,0 +1,62 @@
+"""The time-to-skill benchmark script, on a tiny budget: it trains, times, reports ratios; no real measurement."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "time_to_skill.py"
+
+
+def _module():
+    # On the path, not only loaded: the script's spawned processes import run_one by the module's name, and
+    # they inherit this process's sys.path.
+    if str(SCRIPT.parent) not in sys.path:
+        sys.path.insert(0, str(SCRIPT.parent))
+    return importlib.import_module("time_to_skill")
+
+
+def test_time_to_skill_is_the_first_evaluation_that_holds():
+    tts = _module()
+    history = [
+        {"timesteps": 100, "goal_touch_rate": 0.6},
+        {"timesteps": 200, "goal_touch_rate": 0.4},
+        {"timesteps": 300, "goal_touch_rate": 0.5},
+        {"timesteps": 400, "goal_touch_rate": 0.7},
+    ]
+    clock = {100: 1.0, 200: 2.0, 300: 3.0, 400: 4.0}
+    assert tts.time_to_skill(history, clock, 0.5, 1) == (100, 1.0)
+    assert tts.time_to_skill(history, clock, 0.5, 2) == (300, 3.0)
+    assert tts.time_to_skill(history, clock, 0.8, 1) == (None, None)
+    assert tts.parse_learners("ddpg:sb3, CrossQ:sb3") == [("ddpg", "sb3"), ("crossq", "sb3")]
+    with pytest.raises(ValueError, match="a2c"):
+        tts.parse_learners("a2c:sb3")
+
+
+def test_report_gives_per_seed_figures_and_ratios_to_the_baseline():
+    tts = _module()
+    results = [
+        {"algo": "ddpg", "backend": "sb3", "seed": s, "reached": True, "steps": 1000, "seconds": 100.0}
+        for s in (0, 1)
+    ] + [
+        {"algo": "crossq", "backend": "sb3", "seed": 0, "reached": True, "steps": 500, "seconds": 80.0},
+        {"algo": "crossq", "backend": "sb3", "seed": 1, "reached": False, "steps": 500, "seconds": 80.0},
+    ]
+    table = tts.report(results, [("ddpg", "sb3"), ("crossq", "sb3")], "ddpg:sb3")
+    row = next(line for line in table.splitlines() if line.startswith("| crossq:sb3"))
+    assert "| 1/2 |" in row and ">500" in row and "| 0.50 | 0.80 |" in row
+
+
+@pytest.mark.slow  # two tiny training runs in fresh processes: tens of seconds on a shared machine
+def test_script_runs_on_a_tiny_budget(tmp_path):
+    tts = _module()
+    out = tmp_path / "tts"
+    argv = ["--learners", "ddpg:sb3,crossq:sb3", "--seeds", "1", "--timesteps", "120", "--eval-freq", "60"]
+    argv += ["--eval-episodes", "1", "--threshold", "0", "--out", str(out)]
+    assert tts.main(argv) == 0
+    report = (out / "report.md").read_text()
+    assert "| ddpg:sb3 | 1/1 |" in report and "| crossq:sb3 | 1/1 |" in report
+    assert (out / "crossq-sb3" / "seed-0" / "result.json").is_file()
