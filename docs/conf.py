@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import importlib
+import inspect
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -84,7 +87,26 @@ def title_records(app: Sphinx, docname: str, source: list[str]) -> None:
         source[0] = f"# Benchmark record: {run}\n\n{source[0]}"
 
 
+MARKDOWN_DOCSTRING = re.compile(r"^<!-- docstring: ([\w.]+) -->$", flags=re.M)
+
+
+def markdown_docstrings(app: Sphinx, docname: str, source: list[str]) -> None:
+    """
+    ``<!-- docstring: module.Name -->`` on a Markdown page becomes that object's docstring, read as Markdown
+    with its headings one level down: the environments follow gymnasium's convention, whose docstrings are
+    Markdown specifications (tables of observations and actions), which reStructuredText cannot read.
+    """
+
+    def docstring(match: re.Match[str]) -> str:
+        module, _, name = match[1].rpartition(".")
+        text = inspect.getdoc(getattr(importlib.import_module(module), name)) or ""
+        return re.sub(r"^(#+) ", r"\1# ", text, flags=re.M)
+
+    source[0] = MARKDOWN_DOCSTRING.sub(docstring, source[0])
+
+
 def setup(app: Sphinx) -> dict[str, Any]:
     app.add_post_transform(FolderLinks)
     app.connect("source-read", title_records)
+    app.connect("source-read", markdown_docstrings)
     return {"parallel_read_safe": True}
