@@ -90,9 +90,12 @@ RUNNABLE = [
 def test_every_python_block_of_a_page_runs_at_a_tiny_budget(page, tiny_bundle, tmp_path):
     folder = tmp_path / "reader"
     shutil.copytree(tiny_bundle, folder)
-    code = "\n\n".join(tiny(block.code) for block in blocks(page, ("python",)) if block.runs)
-    if pending_api(code):
-        pytest.skip(f"{page_id(page)} imports {pending_api(code)} from sb3_hddpg, not in this checkout yet")
+    runnable = [block for block in blocks(page, ("python",)) if block.runs]
+    # A block that imports a name this checkout lacks yet waits for it; the page's other blocks run now.
+    ready = [block for block in runnable if not pending_api(block.code)]
+    if not ready:
+        pytest.skip(f"{page_id(page)} imports names from sb3_hddpg that are not in this checkout yet")
+    code = "\n\n".join(tiny(block.code) for block in ready)
     script = folder / "page.py"
     script.write_text(code)
     path = os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p)
