@@ -24,13 +24,13 @@ INSTALL_TORCH = if [ -n "$(TORCH_INDEX)" ] && $(BIN)/python -c "import sys, urll
 		$(BIN)/python -m pip install --quiet "$(TORCH)"; \
 	fi
 
-.PHONY: quickstart test torch lint clean-venv
+.PHONY: quickstart test torch lint docs clean-venv
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	@$(INSTALL_TORCH)
-	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard,fast,mo,cluster]"
+	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard,fast,mo,cluster,docs]"
 	touch $(STAMP)
 
 # Only a virtual environment with torch (what the packaging test installs the built wheel into).
@@ -59,6 +59,10 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check . && $(BIN)/mypy
+
+# The documentation site, docs/_build/html/index.html; a warning (a broken link or reference) fails the build.
+docs: $(STAMP)
+	$(BIN)/sphinx-build -W --keep-going -q -b html docs docs/_build/html
 
 clean-venv:
 	rm -rf $(VENV)

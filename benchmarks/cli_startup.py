@@ -2,7 +2,7 @@
 ``hddpg-cli --help`` start-up of two checkouts, measured back to back (interleaved rounds, medians).
 
 On a machine shared with other work absolute times drift, so the two checkouts alternate and the ratio is
-the figure to read. Per round and checkout: the wall time of ``python cli.py --help`` and the cumulative
+the figure to read. Per round and checkout: the wall time of ``python -m sb3_hddpg --help`` and the cumulative
 ``python -X importtime`` time of ``import sb3_hddpg.cli``.
 
     git archive REV | tar -x -C /tmp/before
@@ -21,10 +21,12 @@ from pathlib import Path
 
 
 def wall_time(tree: Path) -> float:
-    """Seconds of ``python cli.py --help`` in ``tree`` (its package first on the path)."""
+    """Seconds of ``python -m sb3_hddpg --help`` in ``tree`` (its package first on the path)."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
     started = time.perf_counter()
-    subprocess.run([sys.executable, "cli.py", "--help"], cwd=tree, env=env, check=True, capture_output=True)
+    subprocess.run(
+        [sys.executable, "-m", "sb3_hddpg", "--help"], cwd=tree, env=env, check=True, capture_output=True
+    )
     return time.perf_counter() - started
 
 

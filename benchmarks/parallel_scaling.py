@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-CLI = [sys.executable, str(Path(__file__).resolve().parents[1] / "cli.py")]
+CLI = [sys.executable, "-m", "sb3_hddpg"]
 
 
 def wall_seconds(args: list[str]) -> float:

@@ -26,8 +26,7 @@ from pathlib import Path
 from sb3_hddpg.experiments.ray_executor import ClusterError
 from sb3_hddpg.experiments.ray_head import LOOPBACK_ENV, local_ray_head
 
-REPO = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, str(REPO / "cli.py")]
+CLI = [sys.executable, "-m", "sb3_hddpg"]
 #: A loopback cluster of our own: no token to hand around (keep authentication on a real network).
 ENV = {**os.environ, "COLUMNS": "120", **LOOPBACK_ENV}
 

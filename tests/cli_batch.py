@@ -1,5 +1,5 @@
 """
-Run many ``hddpg-cli`` command lines in ONE subprocess, as ``python cli.py ...`` would run each of them.
+Run many ``hddpg-cli`` command lines in ONE subprocess, as ``python -m sb3_hddpg ...`` would run each of them.
 
 Starting Python, torch and SB3 takes seconds per process on a busy machine, so a table of dozens of
 command lines is run here, in a single fresh interpreter: each command line gets ``sb3_hddpg.cli.main``,

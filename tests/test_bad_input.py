@@ -6,7 +6,7 @@ One table, :data:`CASES`, lists every case. The tiny artifacts they need (worker
 workers for a 4-joint arm, a hierarchy bundle, damaged copies) are built once, in-process. Every case
 then runs through the CLI's entry point in a separate interpreter: all of them in one batch subprocess
 (:mod:`tests.cli_batch`; starting torch once instead of 60 times keeps the file fast), and the cases
-marked ``alone`` also each in their own ``python cli.py`` process, so that real exit codes and stderr are
+marked ``alone`` also each in their own ``python -m sb3_hddpg`` process, so that real exit codes and stderr are
 checked too.
 
 Exit codes: 2 when the command line names something unusable (a bad option value, a missing path or one
@@ -35,7 +35,7 @@ TW = ("train-workers", "--no-progress")
 TM = ("train-manager", "--no-progress", "--workers", "{w}", "--config", "{tiny}")
 
 
-#: Cases also run in their own ``python cli.py`` process (at least one per command).
+#: Cases also run in their own ``python -m sb3_hddpg`` process (at least one per command).
 ALONE = {
     "tw-negative-timesteps",
     "tw-bad-term-bounds",

@@ -6,7 +6,6 @@ import csv
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -29,15 +28,16 @@ from sb3_hddpg.experiments.benchmark import (
     write_outputs,
 )
 from sb3_hddpg.training.config import manager_option_steps
+from tests.cli_runner import CLI
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    """Run ``cli.py`` in a fresh interpreter, as a user would, with this checkout first on the path."""
+    """Run ``python -m sb3_hddpg`` in a fresh interpreter, as a user would, with this checkout first on the path."""
     env = {**os.environ, "PYTHONPATH": str(REPO), "COLUMNS": "200", "SDL_VIDEODRIVER": "dummy"}
     return subprocess.run(
-        [sys.executable, str(REPO / "cli.py"), *args],
+        [*CLI, *args],
         capture_output=True,
         text=True,
         env=env,
@@ -459,7 +459,7 @@ def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
         "--eval-episodes", "1", "--test-episodes", "1", "--out", str(out),
     )  # fmt: skip
     process = subprocess.Popen(
-        [sys.executable, str(REPO / "cli.py"), *args],
+        [*CLI, *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -65,8 +65,7 @@ def test_interrupt_saves_a_checkpoint_and_resume_reaches_the_total(tmp_path):
     env = {**os.environ, "SDL_VIDEODRIVER": "dummy"}
     process = subprocess.Popen(
         [
-            sys.executable,
-            str(CLI),
+            *CLI,
             "train-workers",
             "--workers",
             "goal",

@@ -18,6 +18,7 @@ from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, atomic_write, locked_folder
 from sb3_hddpg.training.training import sigterm_as_interrupt
+from tests.cli_runner import CLI
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -91,7 +92,7 @@ def _train_workers_cli(out: Path, config: Path, worker: str) -> subprocess.Popen
     env = {**os.environ, "SDL_VIDEODRIVER": "dummy", "COLUMNS": "200", "PYTHONPATH": str(ROOT)}
     env.pop("HDDPG_HELD_FOLDERS", None)
     return subprocess.Popen(
-        [sys.executable, str(ROOT / "cli.py"), *args],
+        [*CLI, *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -10,7 +10,6 @@ import os
 import random
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -118,7 +117,7 @@ def test_sigkill_at_any_moment_leaves_a_loadable_checkpoint_and_resume_finishes(
     for round_number, moment in enumerate(moments):
         before, old_debris = state_mtime(state), set(temporaries(checkpoints))
         process = subprocess.Popen(
-            [sys.executable, str(CLI), *command(config, out, resume=round_number > 0)],
+            [*CLI, *command(config, out, resume=round_number > 0)],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             env=env,
@@ -191,7 +190,7 @@ def test_train_manager_survives_sigkill_and_resume_writes_a_verified_bundle(tmp_
     for round_number, moment in enumerate(["mid-write", "random"]):
         before, old_debris = state_mtime(state), set(temporaries(checkpoints))
         process = subprocess.Popen(
-            [sys.executable, str(CLI), *args, *(["--resume"] if round_number else [])],
+            [*CLI, *args, *(["--resume"] if round_number else [])],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
         )

@@ -33,6 +33,7 @@ FLOORS = {
     "sb3_hddpg.training": 5,
     "sb3_hddpg.experiments": 6,
     "sb3_hddpg.cli": 7,
+    "sb3_hddpg.__main__": 7,
 }
 
 

@@ -26,6 +26,7 @@ pytest.importorskip("ray")
 from sb3_hddpg.experiments.ray_executor import ClusterError, RayExecutor, check_address, parse_address
 from sb3_hddpg.experiments.ray_head import LOOPBACK_ENV, local_ray_head
 from sb3_hddpg.experiments.runner import Job, run_jobs
+from tests.cli_runner import CLI
 from tests.jobs import (
     blocked_in_c,
     checkpoint_on_interrupt,
@@ -271,7 +272,7 @@ def records(out: Path) -> dict[str, dict]:
 @pytest.mark.slow  # two tiny benchmarks (local, then Ray with a worker killed): minutes
 def test_benchmark_on_a_ray_cluster_survives_a_killed_worker_and_matches_local(ray_head, tmp_path):
     command = [
-        sys.executable, str(REPO / "cli.py"), "benchmark", *TINY, "--out", str(tmp_path / "ray"),
+        *CLI, "benchmark", *TINY, "--out", str(tmp_path / "ray"),
         "--executor", "ray", "--ray-address", ray_head.address,
     ]  # fmt: skip
     env = {**cli_env(), **LOOPBACK_ENV}
@@ -284,7 +285,7 @@ def test_benchmark_on_a_ray_cluster_survives_a_killed_worker_and_matches_local(r
     assert killed > 0
 
     local = subprocess.run(
-        [sys.executable, str(REPO / "cli.py"), "benchmark", *TINY, "--out", str(tmp_path / "local")],
+        [*CLI, "benchmark", *TINY, "--out", str(tmp_path / "local")],
         capture_output=True, text=True, env=cli_env(), timeout=900, cwd=REPO,
     )  # fmt: skip
     assert local.returncode == 0, local.stdout + local.stderr

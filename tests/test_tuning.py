@@ -28,6 +28,7 @@ from sb3_hddpg.experiments.study_storage import default_storage_url, make_storag
 from sb3_hddpg.experiments.tuning import StudySettings, TuningTarget
 from sb3_hddpg.training.config import load_hyperparams
 from sb3_hddpg.training.training import train_workers
+from tests.cli_runner import CLI
 
 REPO = Path(__file__).resolve().parent.parent
 #: Keep every trial tiny: small nets, a small buffer (the end-of-training checkpoint pickles it whole), and
@@ -84,7 +85,7 @@ def spawn_cli(args: list[str], log: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(REPO), "SDL_VIDEODRIVER": "dummy", "MPLBACKEND": "Agg"}
     with open(log, "w") as handle:
         return subprocess.Popen(
-            [sys.executable, str(REPO / "cli.py"), *args, "--debug"],
+            [*CLI, *args, "--debug"],
             cwd=REPO,
             env=env,
             stdout=handle,
