@@ -12,7 +12,8 @@ from typing import Any
 
 import gymnasium as gym
 
-from sb3_hddpg.artifacts.limits import check_env_id, check_env_kwargs
+from sb3_hddpg.artifacts.limits import check_env_id
+from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID
 
 #: The facts of a workers-manifest entry a bundle keeps about each worker.
