@@ -37,3 +37,24 @@ def check_plain_name(value: Any, what: str) -> str:
         f"{what}: expected a name of ASCII letters, digits, '_' and '-' (starting with a letter or digit, "
         f"at most {MAX_NAME_CHARS}), got {shown}"
     )
+
+
+#: A preference as it appears in a benchmark method's key and folder name (``goal=0.4,avoid=1.6``): term
+#: names, numbers, ``=`` and ``,``; no path separator, and it cannot start with a dot.
+PREFERENCE_TEXT = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_.=,-]{0,199}\Z", re.ASCII)
+
+
+def check_preference_text(value: Any, what: str) -> str:
+    """
+    ``value`` if it is a preference that may be part of a folder name, else :class:`PlainNameError`.
+
+    :param value: the preference text, from a file.
+    :param what: where it comes from, for the message.
+    :return: the text.
+    """
+    if isinstance(value, str) and PREFERENCE_TEXT.match(value):
+        return value
+    shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:79] + "…"
+    raise PlainNameError(
+        f"{what}: expected TERM=WEIGHT pairs joined by ',' (at most 200 characters), got {shown}"
+    )

@@ -180,7 +180,7 @@ def test_train_workers_with_a_learner_per_worker(tmp_path):
         "goal": "crossq",
         "avoid": "sac",
     }
-    workers, _ = load_workers(tmp_path / "run")
+    workers = load_workers(tmp_path / "run")
     assert type(workers["goal"]).__name__ == "CrossQ" and type(workers["avoid"]).__name__ == "SAC"
 
 

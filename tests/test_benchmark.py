@@ -318,7 +318,7 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
 
     # Resuming with other settings would mix budgets: refused.
     changed = cli(*args[:-2], "--timesteps", "300", "--out", str(out), "--resume")
-    assert changed.returncode == 1 and "different settings" in changed.stderr
+    assert changed.returncode == 2 and "different settings" in changed.stderr
 
     # A kept run made from another config block than the bundled one now (here: its record says it trained
     # at another learning rate) is refused, named; --redo runs that method again and keeps the old runs aside.
@@ -328,7 +328,7 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     record["config_blocks"][block]["learning_rate"] = 0.5
     path.write_text(json.dumps(record))
     stale = cli(*grown, "--resume")
-    assert stale.returncode == 1 and "Traceback" not in stale.stderr
+    assert stale.returncode == 2 and "Traceback" not in stale.stderr
     assert "ddpg/seed-0" in stale.stderr and "--redo ddpg" in stale.stderr and block in stale.stderr
     assert cli(*grown, "--redo", "ddpg").returncode == 2  # without --resume
     assert cli(*grown, "--resume", "--redo", "td3").returncode == 2  # not among the methods
@@ -349,7 +349,7 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     # which runs HAM again at the new threshold and nothing else.
     other_threshold = (*grown, "--ham-threshold", "1.5")
     refused = cli(*other_threshold, "--resume")
-    assert refused.returncode == 1 and "ham_threshold" in refused.stderr and "--redo ham" in refused.stderr
+    assert refused.returncode == 2 and "ham_threshold" in refused.stderr and "--redo ham" in refused.stderr
     rethresholded = cli(*other_threshold, "--resume", "--redo", "ham")
     assert rethresholded.returncode == 0, rethresholded.stdout + rethresholded.stderr
     assert rethresholded.stdout.count("started") == 2 and "started  ham/seed-0" in rethresholded.stdout

@@ -180,8 +180,7 @@ def test_a_port_that_accepts_but_is_not_ray_is_refused_within_the_timeout():
 
 def test_the_cli_refuses_a_non_ray_port_in_one_line_and_honours_sigterm(tmp_path):
     command = [
-        sys.executable,
-        str(REPO / "cli.py"),
+        *CLI,
         "benchmark",
         "--executor",
         "ray",

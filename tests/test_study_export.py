@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import optuna
@@ -15,6 +14,7 @@ from optuna.trial import TrialState, create_trial
 from sb3_hddpg.experiments.benchmark.pages import render_page
 from sb3_hddpg.experiments.study_export import export_study, read_exports, studies_table, study_effort
 from sb3_hddpg.experiments.tuning import TuningTarget, check_budget_fraction
+from tests.cli_runner import CLI
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -67,8 +67,7 @@ def test_studies_are_exported_and_summarised(tmp_path):
     for name in ("flat-sac", "flat-ddpg"):
         done = subprocess.run(
             [
-                sys.executable,
-                str(ROOT / "cli.py"),
+                *CLI,
                 "export-study",
                 "--storage",
                 url,
@@ -84,8 +83,7 @@ def test_studies_are_exported_and_summarised(tmp_path):
         assert done.returncode == 0, done.stdout + done.stderr
     missing = subprocess.run(
         [
-            sys.executable,
-            str(ROOT / "cli.py"),
+            *CLI,
             "export-study",
             "--storage",
             url,

@@ -242,7 +242,7 @@ def test_a_resumed_study_must_tune_the_same_thing(tmp_path, tiny_config):
     run_cli(cli_args(tmp_path, tiny_config, 1, "--pruner", "none"))
     with pytest.raises(SystemExit) as exited:
         cli_main([*cli_args(tmp_path, tiny_config, 1), "--n-evaluations", "3"])
-    assert exited.value.code == 1
+    assert exited.value.code == 2
 
 
 def test_ranking_by_peak_picks_the_trial_with_the_best_evaluation(tmp_path):

@@ -135,9 +135,20 @@ HYPERPARAMETERS: dict[str, Bound] = {
     "top_quantiles_to_drop_per_net": Bound(int, 0, 100),
     "relabel_fraction": _UNIT,
     "coefficient": _MAGNITUDE,
+    # On-policy (PPO) and DQN-family arguments.
+    "n_epochs": Bound(int, 1, MAX_GRADIENT_STEPS),
+    "gae_lambda": _UNIT,
+    "clip_range": Bound(float, 0.0, MAX_MAGNITUDE, low_open=True),
+    "clip_range_vf": Bound(float, 0.0, MAX_MAGNITUDE, low_open=True),
+    "vf_coef": _MAGNITUDE,
+    "max_grad_norm": Bound(float, 0.0, MAX_MAGNITUDE, low_open=True),
+    "target_kl": Bound(float, 0.0, MAX_MAGNITUDE, low_open=True),
+    "exploration_fraction": _UNIT,
+    "exploration_initial_eps": _UNIT,
+    "exploration_final_eps": _UNIT,
 }
 #: Arguments that are booleans.
-FLAGS = ("optimize_memory_usage", "use_sde", "use_sde_at_warmup")
+FLAGS = ("optimize_memory_usage", "use_sde", "use_sde_at_warmup", "normalize_advantage")
 #: Arguments whose structured values :mod:`sb3_hddpg.training.config` checks (and bounds) itself.
 STRUCTURED = (
     "policy_kwargs",
@@ -181,7 +192,7 @@ def check_hyperparameters(block: dict[str, Any], source: str) -> None:
     for key in list(block):
         value = block[key]
         if key in HYPERPARAMETERS:
-            if key == "learning_rate" and not isinstance(value, (int, float)):
+            if key in ("learning_rate", "clip_range") and not isinstance(value, (int, float)):
                 continue  # a schedule, parsed and checked by the config reader
             block[key] = HYPERPARAMETERS[key].check(value, f"{source}: {key}")
         elif key in FLAGS:

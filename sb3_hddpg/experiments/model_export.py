@@ -21,7 +21,7 @@ from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
 from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
 from sb3_hddpg.experiments.benchmark import FLAT_METHODS, WORKERS, read_record_file, split_key
-from sb3_hddpg.names import check_plain_name
+from sb3_hddpg.names import check_plain_name, check_preference_text
 from sb3_hddpg.training.run_options import MAX_SEED
 
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
@@ -66,7 +66,7 @@ def _read_record(record_file: Path) -> tuple[str, int, list[str]] | None:
     base, preference = split_key(key)
     check_plain_name(base, f"{what}: method")
     if preference is not None:
-        check_plain_name(preference, f"{what}: method preference")
+        check_preference_text(preference, f"{what}: method preference")
     seed = record.get("seed")
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
         raise ValueError(f"{what}: seed: expected an integer in [0, {MAX_SEED}], got {brief(seed)}")

@@ -204,7 +204,12 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
         if any(figure is not None for figure in dependence.values()):
             methods[method]["state_dependence"] = dependence
-    pairs = [(a, b) for a, b in comparison_pairs(settings) if a in per_seed and b in per_seed]
+    # A paired interval needs two pairs at least: with one seed there is no comparison to report.
+    pairs = [
+        (a, b)
+        for a, b in comparison_pairs(settings)
+        if a in per_seed and b in per_seed and len(set(per_seed[a]) & set(per_seed[b])) >= 2
+    ]
     comparisons = {f"{a} vs {b}": compare(per_seed[a], per_seed[b]) for a, b in pairs}
     families = adjust_for_comparisons(comparisons)
     workers = {}
