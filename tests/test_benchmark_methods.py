@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from sb3_hddpg import stats
+from sb3_hddpg.artifacts.run_folder import RunFolderError
 from sb3_hddpg.experiments.benchmark import (
     DEFAULT_METHODS,
     METHOD_REGISTRY,
@@ -505,6 +506,19 @@ def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
         export_models(run, run / "models")
     with pytest.raises(FileNotFoundError, match="no records"):
         export_models(tmp_path / "models", tmp_path / "elsewhere")
+
+    # A folder of someone's own files is never a destination: nothing of theirs may be replaced.
+    theirs = tmp_path / "theirs"
+    (theirs / "seed-3" / "workers").mkdir(parents=True)
+    (theirs / "seed-3" / "workers" / "goal.zip").write_text("my own model")
+    with pytest.raises(RunFolderError, match="holds other files"):
+        export_models(run, theirs)
+    assert (theirs / "seed-3" / "workers" / "goal.zip").read_text() == "my own model"
+    # An earlier export is replaced in place, and so is an empty folder filled.
+    (tmp_path / "models" / "index.json").write_text(json.dumps(index))
+    assert export_models(run, tmp_path / "models") == index
+    (tmp_path / "empty").mkdir()
+    assert export_models(run, tmp_path / "empty") == index
 
 
 def test_a_task_interrupted_and_resumed_keeps_the_time_of_both_invocations(tmp_path):

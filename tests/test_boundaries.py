@@ -303,6 +303,9 @@ def test_export_models_refuses_a_destination_whose_links_lead_elsewhere(tmp_path
     dest.mkdir()
     elsewhere.mkdir()
     (dest / "seed-0").symlink_to(elsewhere, target_is_directory=True)
+    with pytest.raises(RunFolderError, match="holds other files"):
+        export_models(run, dest)
+    (dest / "index.json").write_text("[]")  # an earlier export, with a link planted in it
     with pytest.raises(ValueError, match="resolves outside"):
         export_models(run, dest)
     assert list(elsewhere.iterdir()) == []
@@ -365,6 +368,38 @@ def test_unusable_study_storages_are_input_errors_without_the_password(tmp_path,
     assert exit_code(refused.value) == 2
     assert "secret" not in str(refused.value) and "\n" not in str(refused.value)
     assert time.monotonic() - started < 30
+
+
+def test_a_file_a_command_writes_is_replaced_only_with_force(tmp_path):
+    """record, plot-selection, evaluate --json and rollout --png never replace an existing file unasked."""
+    from sb3_hddpg.artifacts.run_folder import check_output_file
+
+    mine = tmp_path / "mine.gif"
+    mine.write_bytes(b"my own video")
+    (tmp_path / "folder.png").mkdir()
+    (tmp_path / "link.json").symlink_to(tmp_path / "elsewhere.json")
+    for path in (mine, tmp_path / "folder.png", tmp_path / "link.json"):
+        with pytest.raises(RunFolderError):
+            check_output_file(path, force=False)
+    assert check_output_file(mine, force=True) == mine
+    assert check_output_file(tmp_path / "new.gif", force=False) == tmp_path / "new.gif"
+    (tmp_path / "mine.png").write_bytes(b"my own figure")
+    (tmp_path / "mine.json").write_text("{}")
+    commands = [
+        ["record", str(WORKER), "--out", str(mine), "--max-steps", "2"],
+        ["plot-selection", str(WORKER), "--out", str(tmp_path / "mine.png"), "--max-steps", "2"],
+        ["evaluate", "random", "--episodes", "1", "--json", str(tmp_path / "mine.json")],
+        ["rollout", "--episodes", "1", "--png", str(tmp_path / "mine.png")],
+    ]
+    for argv, done in zip(commands, run_batch(commands)):
+        one_line_exit_2(done)
+        assert "--force" in done.stderr, (argv, done.stderr)
+    assert mine.read_bytes() == b"my own video"
+    assert (tmp_path / "mine.png").read_bytes() == b"my own figure"
+    assert (tmp_path / "mine.json").read_text() == "{}"
+    (replaced,) = run_batch([["evaluate", "random", "--episodes", "1", "--json", str(tmp_path / "mine.json"), "--force"]])
+    assert replaced.returncode == 0, replaced.stderr
+    assert json.loads((tmp_path / "mine.json").read_text()) != {}
 
 
 @pytest.fixture

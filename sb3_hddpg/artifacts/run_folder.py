@@ -75,6 +75,26 @@ def protected_reason(folder: str | os.PathLike[str]) -> str | None:
     return None
 
 
+def check_output_file(path: str | os.PathLike[str], *, force: bool) -> Path:
+    """
+    A single file a command is about to write (a video, a figure, a JSON summary): refused with
+    :class:`RunFolderError` when it is a folder or a symbolic link, or when it exists and ``force`` is not
+    given, so that a second run never replaces a file without being asked to.
+
+    :param path: the file named by the user.
+    :param force: whether the user asked to replace an existing file (``--force``).
+    :return: the path.
+    """
+    path = Path(path)
+    if path.is_symlink():
+        raise RunFolderError(f"Refusing to write through a symbolic link: {str(path)!r}")
+    if path.is_dir():
+        raise RunFolderError(f"Expected a file to write, actually a folder: {str(path)!r}")
+    if path.exists() and not force:
+        raise RunFolderError(f"{str(path)!r} exists; pass --force to replace it")
+    return path
+
+
 def is_run_folder(folder: str | os.PathLike[str]) -> bool:
     """Whether ``folder`` is one of the tool's run folders (its marker, or the lock of an older run)."""
     folder = Path(folder)

@@ -13,9 +13,11 @@ from sb3_hddpg.cli.options import (
     ENV_HELP,
     EpisodeStepsOpt,
     InfoKeyOpt,
+    ReplaceFileOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
+    output_file,
     seed_range,
     terms_env_option,
     usage_errors,
@@ -51,7 +53,7 @@ def evaluate_command(
     ),
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),
     json_path: Path | None = typer.Option(
-        None, "--json", callback=writable_file, help="Also write the metrics (and every episode) as JSON."
+        None, "--json", callback=writable_file, help="Also write the metrics (and every episode) as JSON (an existing file only with --force)."
     ),
     trust: bool = typer.Option(
         False,
@@ -71,6 +73,7 @@ def evaluate_command(
         "--near-clearance",
         help="A choice is 'near an obstacle' at a clearance <= this (default: half the env's sensor range).",
     ),
+    force: ReplaceFileOpt = False,
 ) -> None:
     """
     Evaluate a policy on fixed seeds: the env's own reward, each reward term and the return of the
@@ -80,6 +83,7 @@ def evaluate_command(
 
     # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
     # checked here, as a usage error; what fails during the episodes is not.
+    output_file(json_path, force, "'--json'")
     # Another env with several objectives resolves to the adapter it needs (the snake ids stay as they are).
     shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     with usage_errors("'PATH'"):

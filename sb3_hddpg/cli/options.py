@@ -13,6 +13,7 @@ import typer
 
 from sb3_hddpg.artifacts.io import FolderLockedError, locked_folder
 from sb3_hddpg.artifacts.run_folder import (
+    check_output_file,
     RunFolderError,
     check_clearable,
     clear_run_folder,
@@ -93,6 +94,19 @@ def writable_file(value: Path | None) -> Path | None:
     if value is not None and value.is_dir():
         raise typer.BadParameter(f"expected a file to write, got a folder: {str(value)!r}")
     return value
+
+
+def output_file(path: Path | None, force: bool, param_hint: str) -> Path | None:
+    """
+    The file a command writes, checked before any work starts: an existing file is replaced only with
+    ``--force`` (:func:`~sb3_hddpg.artifacts.run_folder.check_output_file`); ``None`` passes.
+    """
+    if path is None:
+        return None
+    try:
+        return check_output_file(path, force=force)
+    except RunFolderError as error:
+        raise typer.BadParameter(str(error), param_hint=param_hint) from None
 
 
 @contextlib.contextmanager
@@ -211,6 +225,7 @@ KEEP_CHECKPOINTS_HELP = (
 # ones that are RunOptions fields keep the field's name, so that run_options_of_command collects them.
 SeedOpt = Annotated[int, typer.Option("--seed", callback=seed_range, help="Training seed.")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite a folder that already holds results.")]
+ReplaceFileOpt = Annotated[bool, typer.Option("--force", help="Replace the output file if it exists.")]
 NEnvsOpt = Annotated[
     int | None,
     typer.Option("--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."),

@@ -12,7 +12,9 @@ from sb3_hddpg.cli.options import (
     InfoKeyOpt,
     TermBoundsOpt,
     TermsOpt,
+    ReplaceFileOpt,
     at_least,
+    output_file,
     terms_env_option,
     usage_errors,
 )
@@ -37,6 +39,7 @@ def plot_selection_command(
     episode_steps: EpisodeStepsOpt = None,
     max_steps: MaxStepsOpt = None,
     trust: TrustOpt = False,
+    force: ReplaceFileOpt = False,
 ) -> None:
     """
     Per step: the worker chosen and the manager's probabilities, beside obstacle clearance and goal distance
@@ -45,6 +48,7 @@ def plot_selection_command(
 
     if out.suffix.lower() != ".png":
         raise typer.BadParameter(f"expected a .png file, got {str(out)!r}", param_hint="'--out'")
+    output_file(out, force, "'--out'")
     # Another env with several objectives resolves to the adapter it needs, as in evaluate.
     shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     with usage_errors("'PATH'"):  # the model named on the command line is unusable

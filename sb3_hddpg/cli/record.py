@@ -13,9 +13,11 @@ from sb3_hddpg.cli.options import (
     ENV_HELP,
     EpisodeStepsOpt,
     InfoKeyOpt,
+    ReplaceFileOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
+    output_file,
     seed_range,
     terms_env_option,
     usage_errors,
@@ -65,6 +67,7 @@ def record_command(
     algo: str | None = typer.Option(
         None, "--algo", help="Algorithm of a zip without manifest (with --trust)."
     ),
+    force: ReplaceFileOpt = False,
 ) -> None:
     """Render a policy to a GIF or MP4; for a hierarchy or HAM each frame shows the acting worker and the odds."""
 
@@ -72,6 +75,7 @@ def record_command(
         check_video_path(out)
     except ValueError as error:
         raise typer.BadParameter(str(error), param_hint="'--out'") from None
+    output_file(out, force, "'--out'")
     # Another env with several objectives resolves to the adapter it needs, as in evaluate.
     shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     with usage_errors("'PATH'"):  # the model named on the command line is unusable

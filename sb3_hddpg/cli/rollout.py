@@ -14,7 +14,7 @@ from rich.table import Table
 from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.baselines import JacobianReacher
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import usage_errors, writable_file
+from sb3_hddpg.cli.options import ReplaceFileOpt, output_file, usage_errors, writable_file
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.policy import Policy, RandomPolicy
@@ -28,8 +28,10 @@ def rollout(
     png: Path = typer.Option(
         Path("runs/rollout.png"), callback=writable_file, help="Where to save a rendered frame."
     ),
+    force: ReplaceFileOpt = False,
 ) -> None:
     """Roll out a random and a scripted (Jacobian-transpose) policy and print the env's metrics."""
+    output_file(png, force, "'--png'")
     with usage_errors("'--env'"):
         env = gym.make(env_id, render_mode="rgb_array")
     policies: dict[str, Policy] = {

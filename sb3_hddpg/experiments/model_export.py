@@ -100,7 +100,8 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     so that an interrupted export leaves no index that promises missing files.
 
     :param benchmark_dir: the benchmark folder (``--out`` of ``hddpg-cli benchmark``).
-    :param dest: the folder to fill (created if missing; existing files of the same names are replaced).
+    :param dest: the folder to fill: missing, empty, or an earlier export (its ``index.json``), whose files of
+        the same names are replaced; a folder holding anything else is refused, so nobody's files are lost.
     :return: the index's records.
     """
 
@@ -114,6 +115,13 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
         raise RunFolderError(f"Expected an export folder, actually {str(dest)!r} ({reason})")
     if dest.resolve() == root.resolve() or root.resolve() in dest.resolve().parents:
         raise ValueError(f"Expected an export folder outside the benchmark folder, actually: {str(dest)!r}")
+    if dest.is_symlink() or (dest.exists() and not dest.is_dir()):
+        raise RunFolderError(f"Expected an export folder, actually {str(dest)!r} (not a plain folder)")
+    if dest.is_dir() and not (dest / "index.json").is_file() and any(dest.iterdir()):
+        raise RunFolderError(
+            f"Expected a new or empty export folder, or an earlier export (with index.json), actually "
+            f"{str(dest)!r}, which holds other files"
+        )
     index: list[dict[str, Any]] = []
     for record_file in sorted(records_dir.glob("*/seed-*.json")):
         checked = _read_record(record_file)
