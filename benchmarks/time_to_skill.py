@@ -32,6 +32,8 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from sb3_hddpg.artifacts.io import atomic_write_json
+
 #: The learner every ratio is taken against: today's goal worker.
 BASELINE = "ddpg:sb3"
 
@@ -83,10 +85,13 @@ def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[st
     out = Path(args["out"]) / f"{algo}-{backend}" / f"seed-{seed}"
     result_path = out / "result.json"
     if result_path.exists():
-        return json.loads(result_path.read_text())
+        result = json.loads(result_path.read_text())
+        if "development" not in result:  # a run measured before the held-out score was part of it
+            result["development"] = development_score(out, args["development_episodes"])
+            atomic_write_json(result_path, result)
+        return result
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from sb3_hddpg.artifacts.io import atomic_write_json
     from sb3_hddpg.training.training import train_workers
 
     class Clock(BaseCallback):
@@ -136,8 +141,26 @@ def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[st
             for e in history
         ],
     }
+    result["development"] = development_score(out, args["development_episodes"])
     atomic_write_json(result_path, result)
     return result
+
+
+def development_score(out: Path, episodes: int) -> dict[str, Any]:
+    """
+    The trained worker's final model scored on the development episodes (never the final test set): the
+    held-out figure a learner is chosen by, beside the curve's, which picks nothing here.
+    """
+    from sb3_hddpg.episode_sets import DEVELOPMENT
+    from sb3_hddpg.evaluation import evaluate
+    from sb3_hddpg.hierarchy.loading import load_policy
+
+    loaded = load_policy(out / "workers" / "goal.zip")
+    summary = evaluate(
+        loaded.policy, loaded.make_env(), n_episodes=episodes, seed=DEVELOPMENT.seeds(episodes).start
+    ).summary()
+    keys = ("goal_touch_rate", "collisions_per_episode", "action_saturation", "mean_reward")
+    return {"episode_set": DEVELOPMENT.describe(episodes), **{key: summary.get(key) for key in keys}}
 
 
 def _mark(result: dict[str, Any]) -> str:
@@ -149,8 +172,8 @@ def report(results: list[dict[str, Any]], learners: list[tuple[str, str]], basel
     """A Markdown table: per learner, each seed's steps and seconds, the medians, and their ratios."""
     rows = [
         "| learner | seeds reached | steps per seed | seconds per seed | median steps | median s | "
-        f"steps / {baseline} | s / {baseline} |",
-        "|---|---|---|---|---|---|---|---|",
+        f"steps / {baseline} | s / {baseline} | development touch per seed | contacts / episode |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     medians: dict[str, tuple[float, float]] = {}
     for learner in learners:
@@ -175,11 +198,57 @@ def report(results: list[dict[str, Any]], learners: list[tuple[str, str]], basel
             else ("-", "-")
         )
         reached = sum(r["reached"] for r in mine)
+        held_out = [r.get("development") or {} for r in mine]
+        touch = ", ".join(f"{d['goal_touch_rate']:.1%}" if d else "-" for d in held_out)
+        contacts = ", ".join(f"{d['collisions_per_episode']:.1f}" if d else "-" for d in held_out)
         rows.append(
             f"| {name} | {reached}/{len(mine)} | {steps} | {seconds} | {m_steps:.0f} | {m_seconds:.0f} | "
-            f"{ratios[0]} | {ratios[1]} |"
+            f"{ratios[0]} | {ratios[1]} | {touch} | {contacts} |"
         )
     return "\n".join(rows)
+
+
+def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path) -> None:
+    """
+    The learning curves of every learner on its curve episodes: goal touch and contacts per episode over
+    env steps, the mean over seeds with a 95 % t-interval band (seeds are few: a t-interval, not a
+    bootstrap over them).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from scipy import stats
+
+    from sb3_hddpg.algorithms import algorithm
+
+    figure, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    for learner in learners:
+        runs = [
+            json.loads(history.read_text())
+            for history in sorted((out / f"{learner[0]}-{learner[1]}").glob("seed-*/evaluations/goal.json"))
+        ]
+        runs = [run for run in runs if run]
+        if not runs:
+            continue
+        length = min(len(run) for run in runs)
+        steps = np.array([entry["timesteps"] for entry in runs[0][:length]])
+        for axis, key in zip(axes, ("goal_touch_rate", "collisions_per_episode")):
+            values = np.array([[entry.get(key, np.nan) for entry in run[:length]] for run in runs])
+            mean = values.mean(axis=0)
+            colour = algorithm(learner[0]).colour
+            axis.plot(steps, mean, label=f"{label(learner)} ({len(runs)} seeds)", color=colour)
+            if len(runs) > 1:
+                half = stats.t.ppf(0.975, len(runs) - 1) * values.std(axis=0, ddof=1) / np.sqrt(len(runs))
+                axis.fill_between(steps, mean - half, mean + half, color=colour, alpha=0.2)
+    for axis, title in zip(axes, ("goal touch (share of steps)", "contacts per episode")):
+        axis.set_xlabel("env steps")
+        axis.set_title(title)
+        axis.grid(alpha=0.3)
+    axes[0].legend(loc="lower right", fontsize="small")
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -192,10 +261,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timesteps", type=int, default=150_000, help="Budget per run (env steps).")
     parser.add_argument("--eval-freq", type=int, default=5000, help="Env steps between evaluations.")
     parser.add_argument("--eval-episodes", type=int, default=10, help="Curve episodes per evaluation.")
+    parser.add_argument(
+        "--development-episodes",
+        type=int,
+        default=20,
+        help="Development episodes that score each run's final model (held out from the curve).",
+    )
     parser.add_argument("--threshold", type=float, default=0.5, help="The goal touch rate that is the skill.")
     parser.add_argument("--hold", type=int, default=1, help="Evaluations in a row that must hold it.")
     parser.add_argument(
         "--config", default=None, help="A zoo_configs file (default: each algorithm's bundled one)."
+    )
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="Train nothing: report (and draw) the runs already finished in --out.",
     )
     parser.add_argument(
         "--n-jobs", type=int, default=1, help="Runs at a time (1 for clean wall-clock figures)."
@@ -204,7 +284,15 @@ def main(argv: list[str] | None = None) -> int:
         "--out", default="runs/time_to_skill", help="Results folder (finished runs are reused)."
     )
     args = parser.parse_args(argv)
-    for name in ("seeds", "timesteps", "eval_freq", "eval_episodes", "hold", "n_jobs"):
+    for name in (
+        "seeds",
+        "timesteps",
+        "eval_freq",
+        "eval_episodes",
+        "development_episodes",
+        "hold",
+        "n_jobs",
+    ):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if not 0.0 <= args.threshold <= 1.0:
@@ -215,15 +303,32 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--learners: {error}")
     settings = {
         key: getattr(args, key)
-        for key in ("out", "config", "timesteps", "eval_freq", "eval_episodes", "threshold", "hold")
+        for key in (
+            "out",
+            "config",
+            "timesteps",
+            "eval_freq",
+            "eval_episodes",
+            "development_episodes",
+            "threshold",
+            "hold",
+        )
     }
     # Seed by seed, every learner in turn: drift on the machine touches them alike.
     jobs = [(algo, backend, seed) for seed in range(args.seeds) for algo, backend in learners]
-    # One fresh process per run: each pays its own start-up and compilation, as a user's run does.
-    with ProcessPoolExecutor(args.n_jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
-        results = list(pool.map(run_one, *zip(*jobs), [settings] * len(jobs)))
+    if args.report_only:
+        done = [
+            Path(args.out) / f"{algo}-{backend}" / f"seed-{seed}" / "result.json"
+            for algo, backend, seed in jobs
+        ]
+        results = [json.loads(path.read_text()) for path in done if path.is_file()]
+    else:
+        # One fresh process per run: each pays its own start-up and compilation, as a user's run does.
+        with ProcessPoolExecutor(args.n_jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
+            results = list(pool.map(run_one, *zip(*jobs), [settings] * len(jobs)))
     table = report(results, learners, args.baseline)
     Path(args.out, "report.md").write_text(table + "\n")
+    plot_curves(Path(args.out), learners, Path(args.out) / "curves.png")
     print(table)
     return 0
 

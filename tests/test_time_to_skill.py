@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import json
 import sys
 from pathlib import Path
 
@@ -55,8 +56,14 @@ def test_script_runs_on_a_tiny_budget(tmp_path):
     tts = _module()
     out = tmp_path / "tts"
     argv = ["--learners", "ddpg:sb3,crossq:sb3", "--seeds", "1", "--timesteps", "120", "--eval-freq", "60"]
-    argv += ["--eval-episodes", "1", "--threshold", "0", "--out", str(out)]
+    argv += ["--eval-episodes", "1", "--development-episodes", "2", "--threshold", "0", "--out", str(out)]
     assert tts.main(argv) == 0
     report = (out / "report.md").read_text()
     assert "| ddpg:sb3 | 1/1 |" in report and "| crossq:sb3 | 1/1 |" in report
-    assert (out / "crossq-sb3" / "seed-0" / "result.json").is_file()
+    result = json.loads((out / "crossq-sb3" / "seed-0" / "result.json").read_text())
+    assert result["development"]["episode_set"] == {"name": "development", "first_seed": 15000, "episodes": 2}
+    assert 0.0 <= result["development"]["goal_touch_rate"] <= 1.0
+    assert (out / "curves.png").stat().st_size > 0
+    # Reporting again trains nothing and gives the same table.
+    assert tts.main([*argv, "--report-only"]) == 0
+    assert (out / "report.md").read_text() == report
