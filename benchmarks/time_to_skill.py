@@ -1,13 +1,16 @@
 """
-Time to skill: how long a user waits for a goal worker, per learner and backend.
+Time to skill: how long a user waits for a worker's skill, per learner and backend.
 
-For each learner given (``ALGO:BACKEND``, e.g. ``crossq:sbx``) and seed, the goal worker trains as
-``hddpg-cli train-workers --workers goal --algo goal=ALGO --backend BACKEND`` does (the algorithm's bundled
-config, or ``--config``), with its periodic evaluation on the curve episodes (the evaluation seeds that pick
-the best model, never the benchmark's test episodes). The run's time to skill is the env steps and the
-wall-clock seconds (since the run's process started, so JAX's compilation and the evaluations count: they
-are part of the wait) at the first evaluation from which the touch rate holds ``>= --threshold`` for
-``--hold`` consecutive evaluations. Runs go seed by seed, each learner in turn, one process each, so a
+For each learner given (``ALGO:BACKEND``, e.g. ``crossq:sbx``) and seed, the worker (``--worker``, the goal
+worker by default) trains as ``hddpg-cli train-workers --workers goal --algo goal=ALGO --backend BACKEND``
+does (the algorithm's bundled config, or ``--config``), with its periodic evaluation on the curve episodes
+(the evaluation seeds that pick the best model, never the benchmark's test episodes). The run's time to
+skill is the env steps and the wall-clock seconds (since the run's process started, so JAX's compilation
+and the evaluations count: they are part of the wait) at the first evaluation from which the skill holds
+for ``--hold`` consecutive evaluations: the goal worker's touch rate ``>= --threshold``, or the avoid
+worker's contacts per episode ``<= --threshold`` with fewer than ``--max-saturation`` of its outputs
+saturated. Each run's final model is then scored on the development episodes (held out from the curve),
+and ``curves.png`` draws every learner's curves with bands over its seeds. Runs go seed by seed, each learner in turn, one process each, so a
 machine's drift touches every learner alike; run it with nothing else on the machine. The report gives each
 seed's steps and seconds, the median per learner, and the ratios of those medians to the baseline's (today's
 DDPG goal worker, ``ddpg:sb3``, unless ``--baseline`` says otherwise). A run that never reaches the skill
@@ -61,35 +64,57 @@ def label(learner: tuple[str, str]) -> str:
     return f"{learner[0]}:{learner[1]}"
 
 
+#: The default skill threshold of each worker: the goal worker's touch rate, the avoid worker's contacts.
+DEFAULT_THRESHOLDS = {"goal": 0.5, "avoid": 0.3}
+
+
+def has_skill(entry: dict[str, Any], worker: str, threshold: float, max_saturation: float) -> bool:
+    """
+    Whether one evaluation shows the skill: the goal worker touches on ``>= threshold`` of its steps; the
+    avoid worker makes ``<= threshold`` contacts per episode with fewer than ``max_saturation`` of its
+    outputs saturated (keeping clear by pushing every joint to its limit is not the skill).
+    """
+    if worker == "goal":
+        return bool(entry.get("goal_touch_rate", 0.0) >= threshold)
+    contacts = entry.get("collisions_per_episode", float("inf"))
+    return bool(contacts <= threshold and entry.get("action_saturation", 1.0) < max_saturation)
+
+
 def time_to_skill(
-    history: list[dict[str, Any]], clock: dict[int, float], threshold: float, hold: int
+    history: list[dict[str, Any]],
+    clock: dict[int, float],
+    threshold: float,
+    hold: int,
+    worker: str = "goal",
+    max_saturation: float = 0.2,
 ) -> tuple[int | None, float | None]:
     """
-    The env steps and seconds at the first evaluation from which the touch rate holds ``>= threshold`` for
+    The env steps and seconds at the first evaluation from which the skill (:func:`has_skill`) holds for
     ``hold`` evaluations in a row; ``(None, None)`` if it never does.
 
-    :param history: the evaluations (``timesteps``, ``goal_touch_rate``), in order.
+    :param history: the evaluations (``timesteps`` and the metrics), in order.
     :param clock: env steps -> seconds since the run started, taken right after each evaluation.
     """
     for i in range(len(history) - hold + 1):
         window = history[i : i + hold]
-        if all(entry.get("goal_touch_rate", 0.0) >= threshold for entry in window):
+        if all(has_skill(entry, worker, threshold, max_saturation) for entry in window):
             steps = int(history[i]["timesteps"])
             return steps, clock.get(steps)
     return None, None
 
 
 def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[str, Any]:
-    """Train one goal worker, timing each evaluation; returns the result (also saved, and reused)."""
+    """Train one worker, timing each evaluation; returns the result (also saved, and reused)."""
     started = time.perf_counter()
     out = Path(args["out"]) / f"{algo}-{backend}" / f"seed-{seed}"
     result_path = out / "result.json"
     if result_path.exists():
         result = json.loads(result_path.read_text())
         if "development" not in result:  # a run measured before the held-out score was part of it
-            result["development"] = development_score(out, args["development_episodes"])
+            result["development"] = development_score(out, args["development_episodes"], args["worker"])
             atomic_write_json(result_path, result)
         return result
+    worker = args["worker"]
     from stable_baselines3.common.callbacks import BaseCallback
 
     from sb3_hddpg.training.training import train_workers
@@ -108,9 +133,9 @@ def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[st
     clock = Clock()
     manifest = train_workers(
         out,
-        workers=["goal"],
+        workers=[worker],
         config=args["config"],
-        algos={"goal": algo},
+        algos={worker: algo},
         timesteps=args["timesteps"],
         seed=seed,
         eval_freq=args["eval_freq"],
@@ -121,32 +146,37 @@ def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[st
         progress_bar=False,
         extra_callbacks=[clock],
     )
-    history = json.loads((out / "evaluations" / "goal.json").read_text())
-    steps, seconds = time_to_skill(history, clock.seen, args["threshold"], args["hold"])
+    history = json.loads((out / "evaluations" / f"{worker}.json").read_text())
+    steps, seconds = time_to_skill(
+        history, clock.seen, args["threshold"], args["hold"], worker, args["max_saturation"]
+    )
     if seconds is None:  # never reached, or reached at the closing evaluation after learning stopped
         seconds = time.perf_counter() - started
     result = {
+        "worker": worker,
         "algo": algo,
         "backend": backend,
         "seed": seed,
         "reached": steps is not None,
-        "steps": steps if steps is not None else int(manifest["workers"]["goal"]["timesteps_trained"]),
+        "steps": steps if steps is not None else int(manifest["workers"][worker]["timesteps_trained"]),
         "seconds": seconds,
         "curve": [
             {
                 "timesteps": e["timesteps"],
                 "goal_touch_rate": e.get("goal_touch_rate"),
+                "collisions_per_episode": e.get("collisions_per_episode"),
+                "action_saturation": e.get("action_saturation"),
                 "seconds": clock.seen.get(e["timesteps"]),
             }
             for e in history
         ],
     }
-    result["development"] = development_score(out, args["development_episodes"])
+    result["development"] = development_score(out, args["development_episodes"], worker)
     atomic_write_json(result_path, result)
     return result
 
 
-def development_score(out: Path, episodes: int) -> dict[str, Any]:
+def development_score(out: Path, episodes: int, worker: str = "goal") -> dict[str, Any]:
     """
     The trained worker's final model scored on the development episodes (never the final test set): the
     held-out figure a learner is chosen by, beside the curve's, which picks nothing here.
@@ -155,7 +185,7 @@ def development_score(out: Path, episodes: int) -> dict[str, Any]:
     from sb3_hddpg.evaluation import evaluate
     from sb3_hddpg.hierarchy.loading import load_policy
 
-    loaded = load_policy(out / "workers" / "goal.zip")
+    loaded = load_policy(out / "workers" / f"{worker}.zip")
     summary = evaluate(
         loaded.policy, loaded.make_env(), n_episodes=episodes, seed=DEVELOPMENT.seeds(episodes).start
     ).summary()
@@ -172,8 +202,8 @@ def report(results: list[dict[str, Any]], learners: list[tuple[str, str]], basel
     """A Markdown table: per learner, each seed's steps and seconds, the medians, and their ratios."""
     rows = [
         "| learner | seeds reached | steps per seed | seconds per seed | median steps | median s | "
-        f"steps / {baseline} | s / {baseline} | development touch per seed | contacts / episode |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        f"steps / {baseline} | s / {baseline} | development touch per seed | contacts / episode | saturated |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     medians: dict[str, tuple[float, float]] = {}
     for learner in learners:
@@ -201,16 +231,18 @@ def report(results: list[dict[str, Any]], learners: list[tuple[str, str]], basel
         held_out = [r.get("development") or {} for r in mine]
         touch = ", ".join(f"{d['goal_touch_rate']:.1%}" if d else "-" for d in held_out)
         contacts = ", ".join(f"{d['collisions_per_episode']:.1f}" if d else "-" for d in held_out)
+        saturated = ", ".join(f"{d['action_saturation']:.0%}" if d else "-" for d in held_out)
         rows.append(
             f"| {name} | {reached}/{len(mine)} | {steps} | {seconds} | {m_steps:.0f} | {m_seconds:.0f} | "
-            f"{ratios[0]} | {ratios[1]} | {touch} | {contacts} |"
+            f"{ratios[0]} | {ratios[1]} | {touch} | {contacts} | {saturated} |"
         )
     return "\n".join(rows)
 
 
-def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path) -> None:
+def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path, worker: str = "goal") -> None:
     """
-    The learning curves of every learner on its curve episodes: goal touch and contacts per episode over
+    The learning curves of every learner on its curve episodes: goal touch, contacts per episode and the
+    share of saturated outputs over
     env steps, the mean over seeds with a 95 % t-interval band (seeds are few: a t-interval, not a
     bootstrap over them).
     """
@@ -223,18 +255,20 @@ def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path) -> None:
 
     from sb3_hddpg.algorithms import algorithm
 
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    figure, axes = plt.subplots(1, 3, figsize=(15, 4), constrained_layout=True)
     for learner in learners:
         runs = [
             json.loads(history.read_text())
-            for history in sorted((out / f"{learner[0]}-{learner[1]}").glob("seed-*/evaluations/goal.json"))
+            for history in sorted(
+                (out / f"{learner[0]}-{learner[1]}").glob(f"seed-*/evaluations/{worker}.json")
+            )
         ]
         runs = [run for run in runs if run]
         if not runs:
             continue
         length = min(len(run) for run in runs)
         steps = np.array([entry["timesteps"] for entry in runs[0][:length]])
-        for axis, key in zip(axes, ("goal_touch_rate", "collisions_per_episode")):
+        for axis, key in zip(axes, ("goal_touch_rate", "collisions_per_episode", "action_saturation")):
             values = np.array([[entry.get(key, np.nan) for entry in run[:length]] for run in runs])
             mean = values.mean(axis=0)
             colour = algorithm(learner[0]).colour
@@ -242,11 +276,13 @@ def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path) -> None:
             if len(runs) > 1:
                 half = stats.t.ppf(0.975, len(runs) - 1) * values.std(axis=0, ddof=1) / np.sqrt(len(runs))
                 axis.fill_between(steps, mean - half, mean + half, color=colour, alpha=0.2)
-    for axis, title in zip(axes, ("goal touch (share of steps)", "contacts per episode")):
+    titles = ("goal touch (share of steps)", "contacts per episode", "saturated outputs (share)")
+    for axis, title in zip(axes, titles):
         axis.set_xlabel("env steps")
         axis.set_title(title)
         axis.grid(alpha=0.3)
-    axes[0].legend(loc="lower right", fontsize="small")
+    axes[0].legend(loc="best", fontsize="small")
+    figure.suptitle(f"The {worker} worker on its curve episodes")
     figure.savefig(path, dpi=110)
     plt.close(figure)
 
@@ -267,7 +303,22 @@ def main(argv: list[str] | None = None) -> int:
         default=20,
         help="Development episodes that score each run's final model (held out from the curve).",
     )
-    parser.add_argument("--threshold", type=float, default=0.5, help="The goal touch rate that is the skill.")
+    parser.add_argument(
+        "--worker", default="goal", choices=sorted(DEFAULT_THRESHOLDS), help="The worker to train and time."
+    )
+    parser.add_argument(
+        "--threshold",
+        type=float,
+        default=None,
+        help="The skill: the goal worker's touch rate (default 0.5), the avoid worker's contacts per "
+        "episode (default 0.3).",
+    )
+    parser.add_argument(
+        "--max-saturation",
+        type=float,
+        default=0.2,
+        help="The avoid worker's skill also needs fewer saturated outputs than this share.",
+    )
     parser.add_argument("--hold", type=int, default=1, help="Evaluations in a row that must hold it.")
     parser.add_argument(
         "--config", default=None, help="A zoo_configs file (default: each algorithm's bundled one)."
@@ -295,8 +346,12 @@ def main(argv: list[str] | None = None) -> int:
     ):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    if not 0.0 <= args.threshold <= 1.0:
-        parser.error(f"--threshold must be in [0, 1], got {args.threshold}")
+    if args.threshold is None:
+        args.threshold = DEFAULT_THRESHOLDS[args.worker]
+    if not 0.0 <= args.threshold <= (1.0 if args.worker == "goal" else 1e6):
+        parser.error(f"--threshold must be in [0, 1] for the goal worker and >= 0, got {args.threshold}")
+    if not 0.0 < args.max_saturation <= 1.0:
+        parser.error(f"--max-saturation must be in (0, 1], got {args.max_saturation}")
     try:
         learners = parse_learners(args.learners)
     except ValueError as error:
@@ -312,6 +367,8 @@ def main(argv: list[str] | None = None) -> int:
             "development_episodes",
             "threshold",
             "hold",
+            "worker",
+            "max_saturation",
         )
     }
     # Seed by seed, every learner in turn: drift on the machine touches them alike.
@@ -328,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
             results = list(pool.map(run_one, *zip(*jobs), [settings] * len(jobs)))
     table = report(results, learners, args.baseline)
     Path(args.out, "report.md").write_text(table + "\n")
-    plot_curves(Path(args.out), learners, Path(args.out) / "curves.png")
+    plot_curves(Path(args.out), learners, Path(args.out) / "curves.png", args.worker)
     print(table)
     return 0
 

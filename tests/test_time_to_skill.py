@@ -37,6 +37,18 @@ def test_time_to_skill_is_the_first_evaluation_that_holds():
         tts.parse_learners("a2c:sb3")
 
 
+def test_the_avoid_workers_skill_is_few_contacts_without_saturated_joints():
+    tts = _module()
+    history = [
+        {"timesteps": 1000, "collisions_per_episode": 2.0, "action_saturation": 0.0},
+        {"timesteps": 2000, "collisions_per_episode": 0.1, "action_saturation": 0.8},  # clear by saturating
+        {"timesteps": 3000, "collisions_per_episode": 0.2, "action_saturation": 0.1},
+    ]
+    assert tts.time_to_skill(history, {3000: 9.0}, 0.3, 1, "avoid", 0.2) == (3000, 9.0)
+    assert tts.time_to_skill(history, {}, 0.3, 1, "avoid", 0.9) == (2000, None)
+    assert tts.time_to_skill(history, {}, 0.05, 1, "avoid", 0.9) == (None, None)
+
+
 def test_report_gives_per_seed_figures_and_ratios_to_the_baseline():
     tts = _module()
     results = [
