@@ -397,7 +397,9 @@ def test_a_file_a_command_writes_is_replaced_only_with_force(tmp_path):
     assert mine.read_bytes() == b"my own video"
     assert (tmp_path / "mine.png").read_bytes() == b"my own figure"
     assert (tmp_path / "mine.json").read_text() == "{}"
-    (replaced,) = run_batch([["evaluate", "random", "--episodes", "1", "--json", str(tmp_path / "mine.json"), "--force"]])
+    (replaced,) = run_batch(
+        [["evaluate", "random", "--episodes", "1", "--json", str(tmp_path / "mine.json"), "--force"]]
+    )
     assert replaced.returncode == 0, replaced.stderr
     assert json.loads((tmp_path / "mine.json").read_text()) != {}
 

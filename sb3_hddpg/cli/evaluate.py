@@ -53,7 +53,10 @@ def evaluate_command(
     ),
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),
     json_path: Path | None = typer.Option(
-        None, "--json", callback=writable_file, help="Also write the metrics (and every episode) as JSON (an existing file only with --force)."
+        None,
+        "--json",
+        callback=writable_file,
+        help="Also write the metrics (and every episode) as JSON (an existing file only with --force).",
     ),
     trust: bool = typer.Option(
         False,

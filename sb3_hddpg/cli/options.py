@@ -13,9 +13,9 @@ import typer
 
 from sb3_hddpg.artifacts.io import FolderLockedError, locked_folder
 from sb3_hddpg.artifacts.run_folder import (
-    check_output_file,
     RunFolderError,
     check_clearable,
+    check_output_file,
     clear_run_folder,
     mark_run_folder,
     protected_reason,

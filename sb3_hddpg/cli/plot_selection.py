@@ -10,9 +10,9 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     EpisodeStepsOpt,
     InfoKeyOpt,
+    ReplaceFileOpt,
     TermBoundsOpt,
     TermsOpt,
-    ReplaceFileOpt,
     at_least,
     output_file,
     terms_env_option,
