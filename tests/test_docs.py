@@ -113,3 +113,68 @@ def test_blocks_that_do_not_run_are_few_and_say_why():
         assert re.match(r"# doc: not run \(.+\)", block.code.lstrip()), (
             f"{block.name}: say why it does not run"
         )
+
+
+# ----------------------------------------------------------------------------------- no lab notebook in prose
+#: What restates a run log instead of interpreting a record: a date, a clock time, a commit hash. The
+#: records under docs/results/ and the git history hold those; the CHANGELOG is dated by its nature.
+RUN_LOG = {
+    "a date": re.compile(
+        r"\b(?:19|20)\d{2}-[01]\d-[0-3]\d\b"  # 2026-12-01, also inside an ISO time stamp
+        r"|\b20\d{2}[01]\d[0-3]\d-\d{6}\b"  # a folder stamp such as replaced-20261202-045121
+        r"|\b\d{1,2} (?:Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec)[a-z]* 20\d{2}\b"
+        r"|\b(?:Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec)[a-z]* \d{1,2}, 20\d{2}\b"
+    ),
+    "a clock time": re.compile(
+        r"\b[0-2]?\d:[0-5]\d(?::[0-5]\d)?(?:\s*-\s*[0-2]?\d:[0-5]\d(?::[0-5]\d)?)?\s*(?:UTC|GMT)\b"
+        r"|\b(?:UTC|GMT)\s*[0-2]?\d:[0-5]\d\b"
+        r"|\b[0-2]\d:[0-5]\d\s*-\s*[0-2]\d:[0-5]\d\b"  # a span of the clock, 21:56-22:52
+        r"|\b(?:at|from|until|since|by)\s+[0-2]\d:[0-5]\d(?:\s*-\s*[0-2]?\d:[0-5]\d)?(?:\s*(?:UTC|GMT))?"
+    ),
+    "a commit hash": re.compile(
+        r"`[0-9a-f]{7,40}`"  # a code span holding only hex digits, as a hash is quoted (write 1_000_000)
+        r"|\bcommits?\s+`?[0-9a-f]{7,40}\b"
+        r"|\b(?=[0-9a-f]*\d)(?=[0-9a-f]*[a-f])[0-9a-f]{7,40}\b"  # a bare hex word with letters and digits
+    ),
+}
+
+
+def run_log_stamps(text: str) -> list[tuple[int, str, str]]:
+    """Every date, clock time and commit hash of ``text``: ``(line, kind, what)``."""
+    found = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        for kind, pattern in RUN_LOG.items():
+            found.extend((number, kind, match.group(0)) for match in pattern.finditer(line))
+    return found
+
+
+def test_the_run_log_detector_finds_stamps_and_spares_figures():
+    stamped = (
+        "Started on 2026-12-01 at 21:56 UTC (`721f12d`) and resumed at 06:15-07:14 UTC; see commit 43d7648.\n"
+        "Its runs are in `runs/bench-e20/replaced-20261202-045121/`, from `4834694` (c64a145b), 2 December 2026.\n"
+        "Console logs: 23:29-23:50, then 6 min 13 s at 05:06."
+    )
+    kinds = [kind for _, kind, _ in run_log_stamps(stamped)]
+    assert kinds.count("a date") == 3, run_log_stamps(stamped)
+    assert kinds.count("a clock time") == 4
+    assert kinds.count("a commit hash") == 4
+    figures = (
+        "seed 99999999999 (over 2^32 - 1); `buffer_size: 1000000`, `1_000_000`; 100,000 steps; lr 4.7e-3; ratio 4:1;\n"
+        "`--ray-address 6:621`; old runs move to `replaced-<UTC time>/`; a sha256 of 64 hex digits:\n"
+        "0123456789abcdef0123456789abcdef0123456789abcdef0123456789abcdef; seeds 15000-15019; 340k; 2022."
+    )
+    assert run_log_stamps(figures) == []
+
+
+#: The README and every page of the site but the changelog.
+UNDATED_PAGES = [page for page in doc_pages() if page.name.lower() != "changelog.md"]
+
+
+@pytest.mark.parametrize("page", UNDATED_PAGES, ids=lambda page: str(page.relative_to(REPO)))
+def test_docs_interpret_records_and_hold_no_run_log(page):
+    stamps = run_log_stamps(page.read_text())
+    assert stamps == [], (
+        f"{page.relative_to(REPO)} restates a run log (dates, clock times and commit hashes belong in the "
+        f"records and the git history; say what changed and how to reproduce it): "
+        + "; ".join(f"line {line}: {kind} {what!r}" for line, kind, what in stamps)
+    )
