@@ -109,19 +109,7 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     records_dir = root / "records"
     if not records_dir.is_dir():
         raise FileNotFoundError(f"Not a benchmark folder (no records/): {str(benchmark_dir)!r}")
-    dest = Path(dest)
-    reason = "the current folder" if str(dest) in ("", ".") else protected_reason(dest)
-    if reason is not None:  # it replaces files of its own names there: never in such a folder
-        raise RunFolderError(f"Expected an export folder, actually {str(dest)!r} ({reason})")
-    if dest.resolve() == root.resolve() or root.resolve() in dest.resolve().parents:
-        raise ValueError(f"Expected an export folder outside the benchmark folder, actually: {str(dest)!r}")
-    if dest.is_symlink() or (dest.exists() and not dest.is_dir()):
-        raise RunFolderError(f"Expected an export folder, actually {str(dest)!r} (not a plain folder)")
-    if dest.is_dir() and not (dest / "index.json").is_file() and any(dest.iterdir()):
-        raise RunFolderError(
-            f"Expected a new or empty export folder, or an earlier export (with index.json), actually "
-            f"{str(dest)!r}, which holds other files"
-        )
+    dest = _check_destination(root, Path(dest))
     index: list[dict[str, Any]] = []
     for record_file in sorted(records_dir.glob("*/seed-*.json")):
         checked = _read_record(record_file)
@@ -157,6 +145,26 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     index.sort(key=lambda e: (order.get(e["method"], len(order)), e.get("preference") or "", e["seed"]))
     atomic_write_json(dest / "index.json", index)
     return index
+
+
+def _check_destination(root: Path, dest: Path) -> Path:
+    """
+    ``dest`` if an export may fill it: not a protected folder, not inside the benchmark, and new, empty or
+    an earlier export (its ``index.json``), so that no file of anyone else's is replaced.
+    """
+    reason = "the current folder" if str(dest) in ("", ".") else protected_reason(dest)
+    if reason is not None:  # it replaces files of its own names there: never in such a folder
+        raise RunFolderError(f"Expected an export folder, actually {str(dest)!r} ({reason})")
+    if dest.resolve() == root.resolve() or root.resolve() in dest.resolve().parents:
+        raise ValueError(f"Expected an export folder outside the benchmark folder, actually: {str(dest)!r}")
+    if dest.is_symlink() or (dest.exists() and not dest.is_dir()):
+        raise RunFolderError(f"Expected an export folder, actually {str(dest)!r} (not a plain folder)")
+    if dest.is_dir() and not (dest / "index.json").is_file() and any(dest.iterdir()):
+        raise RunFolderError(
+            f"Expected a new or empty export folder, or an earlier export (with index.json), actually "
+            f"{str(dest)!r}, which holds other files"
+        )
+    return dest
 
 
 def _entry(method: str, seed: int, root: Path, dest: Path, relative: Path) -> dict[str, Any]:
