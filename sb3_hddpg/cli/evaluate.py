@@ -13,8 +13,10 @@ from sb3_hddpg.cli.options import (
     ENV_HELP,
     EpisodeStepsOpt,
     InfoKeyOpt,
+    RunPreferenceOpt,
     TermBoundsOpt,
     TermsOpt,
+    apply_run_preference,
     at_least,
     seed_range,
     terms_env_option,
@@ -66,6 +68,7 @@ def evaluate_command(
         "--state-worker",
         help="For a hierarchy: the worker whose share near obstacles vs with none in range is reported.",
     ),
+    preference: RunPreferenceOpt = None,
     near_clearance: float | None = typer.Option(
         None,
         "--near-clearance",
@@ -92,6 +95,7 @@ def evaluate_command(
             algo=algo,
             allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
         )
+    apply_run_preference(loaded.policy, preference, loaded.kind)
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):

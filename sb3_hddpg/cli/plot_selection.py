@@ -10,8 +10,10 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     EpisodeStepsOpt,
     InfoKeyOpt,
+    RunPreferenceOpt,
     TermBoundsOpt,
     TermsOpt,
+    apply_run_preference,
     at_least,
     terms_env_option,
     usage_errors,
@@ -37,6 +39,7 @@ def plot_selection_command(
     episode_steps: EpisodeStepsOpt = None,
     max_steps: MaxStepsOpt = None,
     trust: TrustOpt = False,
+    preference: RunPreferenceOpt = None,
 ) -> None:
     """
     Per step: the worker chosen and the manager's probabilities, beside obstacle clearance and goal distance
@@ -62,6 +65,7 @@ def plot_selection_command(
             f"{path!r} is a {loaded.kind}, which selects no worker; give a hierarchy bundle or a HAM switch",
             param_hint="'PATH'",
         )
+    apply_run_preference(loaded.policy, preference, loaded.kind)
     kwargs = {**(shared.env_kwargs if shared else {})}
     if max_steps:
         kwargs["max_episode_steps"] = max_steps

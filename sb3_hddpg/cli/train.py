@@ -238,6 +238,21 @@ def train_manager_command(
             "(goal=0.4,avoid=1.6, not goal=1,avoid=4, which saturated the bundled block; docs/MANAGER.md)."
         ),
     ),
+    train_preferences: str | None = typer.Option(
+        None,
+        "--preferences",
+        help=(
+            "Train one manager for every preference: 'ratio-sweep' (each worker weighted 1-4 times the "
+            "others: 4:1 ... 1:4), 'dirichlet' or 'dirichlet:ALPHA', or preferences with one sum separated by "
+            "';' (goal=1.6,avoid=0.4;goal=0.4,avoid=1.6). The manager observes the preference; choose it at "
+            "run time with --preference of evaluate, record and plot-selection."
+        ),
+    ),
+    relabel_fraction: float | None = typer.Option(
+        None,
+        "--relabel-fraction",
+        help="With --preferences: the share of replayed steps paid at another preference (default 0.5).",
+    ),
     selection: str | None = typer.Option(
         None,
         "--selection",
@@ -300,6 +315,8 @@ def train_manager_command(
         raise typer.BadParameter(f"must be one of {list(MANAGER_ALGOS)}, got {algo!r}", param_hint="'--algo'")
     with usage_errors("'--preference'"):
         preferences = parse_preferences(preference) if preference is not None else None
+    if relabel_fraction is not None and train_preferences is None:
+        raise typer.BadParameter("applies with --preferences only", param_hint="'--relabel-fraction'")
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     env_id, env_kwargs = (shared.env_id, shared.env_kwargs) if shared is not None else (None, None)
     # The library checks the rest (workers, their hashes and spaces, names, preferences and --bias, the
@@ -319,6 +336,8 @@ def train_manager_command(
             env_id=env_id,
             env_kwargs=env_kwargs,
             algo=algo,
+            manager_preferences=train_preferences,
+            relabel_fraction=0.5 if relabel_fraction is None else relabel_fraction,
         )
     with usage_errors("'--backend'"):
         check_algo(algo, resolve_backend(backend, setup.hyperparams.backend))
@@ -343,3 +362,5 @@ def train_manager_command(
         + (f" of up to {option_steps} env steps each" if option_steps > 1 else " (one env step each)")
         + f". Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}"
     )
+    if hierarchy.preference_space is not None:
+        console.print(f"Conditioned on {hierarchy.preference_space.describe()}")

@@ -252,6 +252,10 @@ class SelectionConfig:
     :param manager_state: state components the manager sees (``None``: all).
     :param worker_states: worker name -> state components it sees.
     :param option_gamma: discount inside an option.
+    :param manager_preferences: a preference-conditioned manager's trained-over preferences
+        (:meth:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace.to_json`): the manager observes the
+        normalised preference weights after its state, and ``preferences`` is the one it acts at now.
+        ``None``: a manager for ``preferences`` only.
     """
 
     preferences: dict[str, float]
@@ -263,6 +267,7 @@ class SelectionConfig:
     manager_state: list[str] | None = None
     worker_states: dict[str, list[str]] = field(default_factory=dict)
     option_gamma: float = 0.99
+    manager_preferences: dict[str, Any] | None = None
 
     def wrapper_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``WorkerSelectionWrapper`` (besides ``env`` and ``workers``)."""
@@ -492,6 +497,7 @@ SELECTION_SETTINGS = (
     "manager_state",
     "worker_states",
     "option_gamma",
+    "manager_preferences",
 )
 
 
@@ -535,6 +541,10 @@ def check_selection_settings(selection: Any, names: Sequence[str], what: str) ->
     state = out.get("manager_state")
     if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
         raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
+    # Its contents are checked where they are read (PreferenceSpace.from_json).
+    recorded = out.get("manager_preferences")
+    if recorded is not None and not isinstance(recorded, Mapping):
+        raise LimitError(f"{what}.manager_preferences: expected a mapping, got {brief(recorded)}")
     return out
 
 

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import signal
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,8 +51,10 @@ from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, config_key, make_term_view
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.preference import make_preference_env
+from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
 from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import WORKER_ENV_IDS
@@ -868,6 +871,8 @@ def prepare_manager(
     env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
     algo: str = "ddpg",
+    manager_preferences: str | PreferenceSpace | None = None,
+    relabel_fraction: float = 0.5,
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
@@ -894,6 +899,12 @@ def prepare_manager(
     factors = preferences_from_bias(names, prefer, bias)
     if preferences:
         factors = check_preferences(preferences, names)
+    if manager_preferences is not None:
+        conditioning = _preference_space(manager_preferences, names)
+        # A conditioned manager acts at the unweighted preference unless one is given (within the space).
+        factors = conditioning.check(preferences or conditioning.default)
+        wrapper_kwargs["manager_preferences"] = conditioning.to_json()
+        hyperparams = _with_preference_relabeling(hyperparams, algo, names, conditioning, relabel_fraction)
     for key, value in (
         ("selection", selection),
         ("option_steps", option_steps),
@@ -952,6 +963,42 @@ def prepare_manager(
     )
 
 
+def _preference_space(given: str | PreferenceSpace, names: list[str]) -> PreferenceSpace:
+    """A conditioned manager's preference space, from its command-line form or as given, for ``names``."""
+    space = PreferenceSpace.parse(given, names) if isinstance(given, str) else given
+    if list(space.names) != names:
+        raise ValueError(f"The preference space names workers {list(space.names)}, the manager {names}")
+    return space
+
+
+def _with_preference_relabeling(
+    hyperparams: Hyperparams, algo: str, names: list[str], space: PreferenceSpace, relabel_fraction: float
+) -> Hyperparams:
+    """
+    The manager's config block with the preference-relabelling replay buffer, for an algorithm with a replay
+    buffer (an on-policy one, PPO, learns from the preference drawn each episode only).
+    """
+    if "replay_buffer_class" not in inspect.signature(algo_class(algo).__init__).parameters:
+        return hyperparams
+    if hyperparams.algo_kwargs.get("replay_buffer_class") is not None:
+        raise ValueError(
+            "A conditioned manager replays its steps with PreferenceRelabelingReplayBuffer: remove "
+            "replay_buffer_class from the manager's config block"
+        )
+    if not 0.0 <= relabel_fraction <= 1.0:
+        raise ValueError(f"Expected the relabel fraction in [0, 1], actually: {relabel_fraction}")
+    kwargs = {
+        **hyperparams.algo_kwargs,
+        "replay_buffer_class": PreferenceRelabelingReplayBuffer,
+        "replay_buffer_kwargs": {
+            "names": names,
+            "space": space.to_json(),
+            "relabel_fraction": relabel_fraction,
+        },
+    }
+    return replace(hyperparams, algo_kwargs=kwargs)
+
+
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_manager(
     workers_dir: str | Path | ManagerSetup,
@@ -969,6 +1016,8 @@ def train_manager(
     env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
     algo: str | None = None,
+    manager_preferences: str | PreferenceSpace | None = None,
+    relabel_fraction: float | None = None,
     *,
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
@@ -1002,6 +1051,15 @@ def train_manager(
     :param env_kwargs: its keyword arguments (default: the manifest's, with the config block's on top).
     :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS` (default ``ddpg``, the paper's);
         its bundled config ``zoo_configs/<algo>.yml`` is the default ``config``.
+    :param manager_preferences: train one manager for every preference (see
+        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace`): ``"ratio-sweep"``,
+        ``"dirichlet[:ALPHA]"``, ``"goal=1.6,avoid=0.4;goal=0.4,avoid=1.6"`` or a space. The manager observes
+        the normalised preference weights, a preference is drawn every episode, and an off-policy manager
+        replays stored steps at other preferences (``PreferenceRelabelingReplayBuffer``). The bundle records
+        the space (``selection.manager_preferences``); ``Hierarchy.set_preference`` picks one at run time.
+        ``preferences`` is then the one the bundle acts at first (default: the unweighted one).
+    :param relabel_fraction: a conditioned off-policy manager's share of replayed steps given another
+        preference (default 0.5).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the manager's DDPG; the bundle holds an SB3 manager whichever ``backend`` trains it.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -1025,6 +1083,8 @@ def train_manager(
             ("env_id", env_id),
             ("env_kwargs", env_kwargs),
             ("algo", algo),
+            ("manager_preferences", manager_preferences),
+            ("relabel_fraction", relabel_fraction),
         )
         if value is not None
     }
