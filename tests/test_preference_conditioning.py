@@ -249,3 +249,15 @@ def test_a_bundle_with_a_hostile_preference_space_is_refused(conditioned, tmp_pa
     with pytest.raises(BundleError, match="manager_preferences") as error:
         Hierarchy.load(out)
     assert "\n" not in str(error.value)
+
+
+@pytest.mark.slow
+def test_a_conditioned_manager_trains_with_sbx_too(workers, tmp_path):
+    pytest.importorskip("sbx")
+    hierarchy, outcome = train_manager(
+        workers / "w", tmp_path / "m", manager_preferences="ratio-sweep", seed=5, backend="sbx", **TINY
+    )
+    assert outcome.backend == "sbx"
+    loaded = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
+    loaded.set_preference(goal=0.4, avoid=1.6)
+    assert loaded.preferences == pytest.approx({"goal": 0.4, "avoid": 1.6})

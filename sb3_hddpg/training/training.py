@@ -46,7 +46,7 @@ from sb3_hddpg.artifacts.manifests import (
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.artifacts.workers import Workers, shared_env_of
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
-from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
+from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback, best_entry
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
@@ -414,16 +414,15 @@ def _save_outcome(
 ) -> TrainingOutcome:
     """Save the chosen model (the best evaluated one when ``keep_best``, else the final one) as plain SB3."""
     chosen = model
-    if keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists():
+    from_best = keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists()
+    if from_best:
         chosen = load_native(algo, backend, evaluator.best_model_path)
     # What a user shares is plain SB3, whichever backend trained it.
     chosen = to_sb3(chosen)
     atomic_write(paths.model_path, lambda tmp: chosen.save(tmp))
-    best_entry = (
-        max(evaluator.history, key=lambda h: h["mean_reward"]) if keep_best else evaluator.history[-1]
-    )
-    metrics = {k: v for k, v in best_entry.items() if k != "timesteps"}
-    metrics["selected_at_timesteps"] = best_entry["timesteps"]
+    kept = best_entry(evaluator.history) if from_best else evaluator.history[-1]
+    metrics = {k: v for k, v in kept.items() if k not in ("timesteps", "updates")}
+    metrics["selected_at_timesteps"] = kept["timesteps"]
     return TrainingOutcome(
         model=chosen,
         model_path=paths.model_path,
