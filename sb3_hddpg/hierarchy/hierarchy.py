@@ -162,6 +162,8 @@ class Hierarchy:
         self._option_choice = 0
         self._option_probabilities = np.full(len(self.names), 1.0 / len(self.names))
         self.last_selection: str | None = None
+        #: Whether the last ``predict`` made a new decision (``False`` inside an option).
+        self.last_decided = False
         #: The manager actor's output at the last decision (in [-1, 1]; how saturated the manager is).
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
@@ -264,7 +266,8 @@ class Hierarchy:
         return self._act(obs, deterministic, keep_option=True), None
 
     def _act(self, obs: np.ndarray, deterministic: bool, keep_option: bool) -> np.ndarray:
-        if not keep_option or self._option_left <= 0:
+        self.last_decided = not keep_option or self._option_left <= 0
+        if self.last_decided:
             self.last_manager_action = self._manager.act(self._manager_input(obs))
             probabilities = np.asarray(self._selector.probabilities(self.simplex, self.last_manager_action))
             self._option_probabilities = probabilities
