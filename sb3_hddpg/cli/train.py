@@ -253,6 +253,16 @@ def train_manager_command(
         "--relabel-fraction",
         help="With --preferences: the share of replayed steps paid at another preference (default 0.5).",
     ),
+    init_from_ham: float | None = typer.Option(
+        None,
+        "--init-from-ham",
+        metavar="THRESHOLD",
+        help=(
+            "Start from the hand-written rule: before RL the manager imitates HAM with this threshold "
+            "(behaviour cloning of its choices; its replay buffer is filled with them), so RL starts at "
+            "HAM's level."
+        ),
+    ),
     selection: str | None = typer.Option(
         None,
         "--selection",
@@ -338,9 +348,15 @@ def train_manager_command(
             algo=algo,
             manager_preferences=train_preferences,
             relabel_fraction=0.5 if relabel_fraction is None else relabel_fraction,
+            init_from_ham=init_from_ham,
         )
     with usage_errors("'--backend'"):
-        check_algo(algo, resolve_backend(backend, setup.hyperparams.backend))
+        resolved = resolve_backend(backend, setup.hyperparams.backend)
+        check_algo(algo, resolved)
+        if init_from_ham is not None and resolved != "sb3":
+            raise ValueError(
+                "the start from HAM (--init-from-ham) fits SB3 (torch) managers: use --backend sb3"
+            )
     prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
         hierarchy, outcome = train_manager(setup, out, run=run_options_of(context))
@@ -362,5 +378,11 @@ def train_manager_command(
         + (f" of up to {option_steps} env steps each" if option_steps > 1 else " (one env step each)")
         + f". Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}"
     )
+    start = hierarchy.metadata.get("init_from_ham")
+    if start:
+        console.print(
+            f"Before RL the manager imitated HAM (threshold {start['threshold']:g}) on {start['decisions']:,} "
+            f"decisions: it agrees with HAM on {start['agreement']:.0%} of them"
+        )
     if hierarchy.preference_space is not None:
         console.print(f"Conditioned on {hierarchy.preference_space.describe()}")

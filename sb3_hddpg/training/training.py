@@ -68,6 +68,7 @@ from sb3_hddpg.training.backends import (
     to_sb3,
 )
 from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart, ham_start_hook
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: Algorithm names accepted by ``--algo`` (the registry's, in its order).
@@ -178,6 +179,7 @@ def train_agent(
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     after_eval: BaseCallback | None = None,
+    prepare_model: Callable[[BaseAlgorithm], None] | None = None,
     **run_changes: Any,
 ) -> TrainingOutcome:
     """
@@ -197,6 +199,8 @@ def train_agent(
     :param extra_callbacks: more SB3 callbacks (e.g. selection statistics).
     :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
         Optuna pruning callback); returning ``False`` stops training.
+    :param prepare_model: called with a freshly built model before it learns (not on resume), e.g. the
+        manager's start from HAM (:mod:`sb3_hddpg.training.ham_start`).
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
@@ -235,6 +239,8 @@ def train_agent(
                 None,
             )
         model.set_logger(_tensorboard_logger(paths))
+        if prepare_model is not None and state is None:
+            prepare_model(model)
         evaluator = _make_evaluator(eval_env, paths, state, n_envs, run, after_eval)
         checkpointer = ResumableCheckpointCallback(
             paths.checkpoint_dir,
@@ -826,6 +832,7 @@ class ManagerSetup:
     :param env_id: the shared env the manager acts in.
     :param env_kwargs: its keyword arguments (from the manager's config block).
     :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS`.
+    :param ham_start: imitate HAM before RL (``None``: start from the random initialisation).
     """
 
     workers: Workers
@@ -837,6 +844,7 @@ class ManagerSetup:
     workers_dir: str = ""
     trusted: bool = False
     algo: str = "ddpg"
+    ham_start: HamStart | None = None
 
     @property
     def names(self) -> list[str]:
@@ -872,6 +880,7 @@ def prepare_manager(
     algo: str = "ddpg",
     manager_preferences: str | PreferenceSpace | None = None,
     relabel_fraction: float = 0.5,
+    init_from_ham: float | HamStart | None = None,
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
@@ -959,7 +968,21 @@ def prepare_manager(
         str(Path(workers_dir)),
         trusted,
         algo,
+        _ham_start(init_from_ham, names, algo),
     )
+
+
+def _ham_start(given: float | HamStart | None, names: list[str], algo: str) -> HamStart | None:
+    """The start from HAM, checked: HAM switches between workers named ``goal`` and ``avoid``."""
+    if given is None:
+        return None
+    if algo not in HAM_START_ALGOS:
+        raise ValueError(f"The start from HAM fits managers of {list(HAM_START_ALGOS)}, not {algo!r}")
+    if not {"goal", "avoid"} <= set(names):
+        raise ValueError(
+            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {names}"
+        )
+    return given if isinstance(given, HamStart) else HamStart(float(given))
 
 
 def _preference_space(given: str | PreferenceSpace, names: list[str]) -> PreferenceSpace:
@@ -1017,6 +1040,7 @@ def train_manager(
     algo: str | None = None,
     manager_preferences: str | PreferenceSpace | None = None,
     relabel_fraction: float | None = None,
+    init_from_ham: float | HamStart | None = None,
     *,
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
@@ -1059,6 +1083,10 @@ def train_manager(
         ``preferences`` is then the one the bundle acts at first (default: the unweighted one).
     :param relabel_fraction: a conditioned off-policy manager's share of replayed steps given another
         preference (default 0.5).
+    :param init_from_ham: start from the hand-written rule: HAM's threshold (or a
+        :class:`~sb3_hddpg.training.ham_start.HamStart`); the manager imitates HAM's choices and its replay
+        buffer is filled with them before RL (:mod:`sb3_hddpg.training.ham_start`). The bundle's metadata
+        keeps the settings and how often the fitted manager agrees with HAM.
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the manager's DDPG; the bundle holds an SB3 manager whichever ``backend`` trains it.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -1084,6 +1112,7 @@ def train_manager(
             ("algo", algo),
             ("manager_preferences", manager_preferences),
             ("relabel_fraction", relabel_fraction),
+            ("init_from_ham", init_from_ham),
         )
         if value is not None
     }
@@ -1100,6 +1129,7 @@ def train_manager(
     factory = setup.env_factory()
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
+    ham_report: dict[str, Any] = {}
     outcome = train_agent(
         factory,
         hyperparams,
@@ -1107,6 +1137,11 @@ def train_manager(
         algo=setup.algo,
         run=_agent_run(run, paths, run.timesteps),
         extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
+        prepare_model=(
+            ham_start_hook(setup.ham_start, factory, run.seed, ham_report)
+            if setup.ham_start is not None
+            else None
+        ),
     )
     hierarchy = Hierarchy(
         outcome.model,
@@ -1121,6 +1156,7 @@ def train_manager(
             "config": hyperparams.raw,
             "metrics": outcome.metrics,
             "backend": outcome.backend,
+            **({"init_from_ham": ham_report} if ham_report else {}),
         },
     )
     hierarchy.save(out_dir / "hierarchy.zip")
