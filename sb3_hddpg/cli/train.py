@@ -274,6 +274,15 @@ def train_manager_command(
         callback=at_least(1),
         help="Env steps per manager decision (default: the config's).",
     ),
+    option_end: str | None = typer.Option(
+        None,
+        "--option-end",
+        help=(
+            "Options that also end by state: distance=0.5 (an obstacle comes within half the sensor range, or "
+            "leaves it; several edges: distance=0.25/0.5), touch (the goal is touched or lost), or both "
+            "(distance=0.5,touch); --option-steps stays the longest option."
+        ),
+    ),
     algo: str = typer.Option(
         "ddpg",
         "--algo",
@@ -349,6 +358,7 @@ def train_manager_command(
             manager_preferences=train_preferences,
             relabel_fraction=0.5 if relabel_fraction is None else relabel_fraction,
             init_from_ham=init_from_ham,
+            option_end=option_end,
         )
     with usage_errors("'--backend'"):
         resolved = resolve_backend(backend, setup.hyperparams.backend)

@@ -50,6 +50,7 @@ from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
+    OptionEnd,
     SelectionConfig,
     SimplexMap,
     check_preferences,
@@ -159,6 +160,8 @@ class Hierarchy:
         self._selector = get_selector(config.selection)
         self._rng = np.random.default_rng(0)
         self._option_left = 0
+        self._band = OptionEnd.from_json(config.option_end).bind(layout) if config.option_end else None
+        self._option_band: tuple[int, bool] | None = None
         self._option_choice = 0
         self._option_probabilities = np.full(len(self.names), 1.0 / len(self.names))
         self.last_selection: str | None = None
@@ -266,8 +269,10 @@ class Hierarchy:
         return self._act(obs, deterministic, keep_option=True), None
 
     def _act(self, obs: np.ndarray, deterministic: bool, keep_option: bool) -> np.ndarray:
-        self.last_decided = not keep_option or self._option_left <= 0
+        band = self._band(obs) if self._band is not None else None
+        self.last_decided = not keep_option or self._option_left <= 0 or band != self._option_band
         if self.last_decided:
+            self._option_band = band
             self.last_manager_action = self._manager.act(self._manager_input(obs))
             probabilities = np.asarray(self._selector.probabilities(self.simplex, self.last_manager_action))
             self._option_probabilities = probabilities

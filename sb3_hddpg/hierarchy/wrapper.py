@@ -17,6 +17,7 @@ from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
+    OptionEnd,
     SelectionConfig,
     SimplexMap,
     check_preferences,
@@ -93,6 +94,9 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         each worker's (unweighted) discounted option reward, so that
         :class:`~sb3_hddpg.hierarchy.relabeling.PreferenceRelabelingReplayBuffer` can pay a stored step for
         another preference. ``None``: one fixed preference, ``preferences``.
+    :param option_end: options that also end by state (an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`
+        or its JSON form): the option ends before ``option_steps`` env steps when the state leaves the band it
+        was chosen in (``info["option_length"]`` is then shorter). ``None``: after ``option_steps`` only.
     """
 
     def __init__(
@@ -109,6 +113,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         worker_states: Mapping[str, Sequence[str]] | None = None,
         option_gamma: float = 0.99,
         manager_preferences: PreferenceSpace | Mapping[str, Any] | None = None,
+        option_end: OptionEnd | Mapping[str, Any] | None = None,
     ) -> None:
         # help(WorkerSelectionWrapper.__init__) shows this (the class docstring, assigned below), not
         # gymnasium's generic Wrapper.__init__ text.
@@ -138,6 +143,10 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self.option_steps = int(option_steps)
         self.option_gamma = float(option_gamma)
         self.simplex = SimplexMap(len(names), temperature=temperature, floor=floor)
+        if option_end is not None and not isinstance(option_end, OptionEnd):
+            option_end = OptionEnd.from_json(option_end)
+        self.option_end: OptionEnd | None = option_end
+        self._band = option_end.bind(self.layout) if option_end is not None else None
         if manager_preferences is not None and not isinstance(manager_preferences, PreferenceSpace):
             manager_preferences = PreferenceSpace.from_json(manager_preferences, names)
         if manager_preferences is not None and list(manager_preferences.names) != names:
@@ -210,6 +219,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             worker_states={name: list(states) for name, states in self.worker_states.items()},
             option_gamma=self.option_gamma,
             manager_preferences=self.preference_space.to_json() if self.preference_space else None,
+            option_end=self.option_end.to_json() if self.option_end else None,
         )
 
     def set_preference(self, preferences: Mapping[str, float] | None = None, **factors: float) -> None:
@@ -298,7 +308,10 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         obs = self._last_obs
         conditioned = self.preference_space is not None
         per_worker = np.zeros(len(self.worker_names)) if conditioned else None
+        start_band = self._band(obs) if self._band is not None else None
         while steps < self.option_steps and not (terminated or truncated):
+            if start_band is not None and steps and self._band is not None and self._band(obs) != start_band:
+                break  # the state left the band the option was chosen in: decide again
             env_action = self.selector.act(probabilities, chosen, self.frozen, obs)
             obs, _, terminated, truncated, info = self.env.step(env_action)
             reward, normalised = self.manager_reward(info["reward_terms"])

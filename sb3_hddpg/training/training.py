@@ -55,7 +55,7 @@ from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
-from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.selection import OptionEnd, SelectionConfig, check_preferences, preferences_from_bias
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import (
@@ -881,6 +881,7 @@ def prepare_manager(
     manager_preferences: str | PreferenceSpace | None = None,
     relabel_fraction: float = 0.5,
     init_from_ham: float | HamStart | None = None,
+    option_end: str | OptionEnd | None = None,
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
@@ -908,11 +909,9 @@ def prepare_manager(
     if preferences:
         factors = check_preferences(preferences, names)
     if manager_preferences is not None:
-        conditioning = _preference_space(manager_preferences, names)
-        # A conditioned manager acts at the unweighted preference unless one is given (within the space).
-        factors = conditioning.check(preferences or conditioning.default)
-        wrapper_kwargs["manager_preferences"] = conditioning.to_json()
-        hyperparams = _with_preference_relabeling(hyperparams, algo, names, conditioning, relabel_fraction)
+        factors, hyperparams = _conditioned(
+            wrapper_kwargs, hyperparams, algo, names, manager_preferences, preferences, relabel_fraction
+        )
     for key, value in (
         ("selection", selection),
         ("option_steps", option_steps),
@@ -922,6 +921,7 @@ def prepare_manager(
         if value is not None:
             wrapper_kwargs[key] = value
     wrapper_kwargs["preferences"] = factors
+    wrapper_kwargs["option_end"] = _option_end_json(option_end, wrapper_kwargs.get("option_end"))
     # A worker trained on part of the state (env_kwargs `observe`) is fed the same components of the
     # manager's full state; a worker_states entry in the config block wins.
     configured = wrapper_kwargs.get("worker_states") or {}
@@ -970,6 +970,32 @@ def prepare_manager(
         algo,
         _ham_start(init_from_ham, names, algo),
     )
+
+
+def _option_end_json(given: str | OptionEnd | None, configured: Any) -> dict[str, Any] | None:
+    """The option end as a bundle records it: the one given, else the config block's (``None``: none)."""
+    if given is None:
+        return configured
+    return (OptionEnd.parse(given) if isinstance(given, str) else given).to_json()
+
+
+def _conditioned(
+    wrapper_kwargs: dict[str, Any],
+    hyperparams: Hyperparams,
+    algo: str,
+    names: list[str],
+    given: str | PreferenceSpace,
+    preferences: dict[str, float] | None,
+    relabel_fraction: float,
+) -> tuple[dict[str, float], Hyperparams]:
+    """
+    A conditioned manager's settings: its space in ``wrapper_kwargs``, the preference it acts at first (the
+    unweighted one unless given, within the space) and its config block with the relabelling buffer.
+    """
+    conditioning = _preference_space(given, names)
+    wrapper_kwargs["manager_preferences"] = conditioning.to_json()
+    factors = conditioning.check(preferences or conditioning.default)
+    return factors, _with_preference_relabeling(hyperparams, algo, names, conditioning, relabel_fraction)
 
 
 def _ham_start(given: float | HamStart | None, names: list[str], algo: str) -> HamStart | None:
@@ -1041,6 +1067,7 @@ def train_manager(
     manager_preferences: str | PreferenceSpace | None = None,
     relabel_fraction: float | None = None,
     init_from_ham: float | HamStart | None = None,
+    option_end: str | OptionEnd | None = None,
     *,
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
@@ -1087,6 +1114,9 @@ def train_manager(
         :class:`~sb3_hddpg.training.ham_start.HamStart`); the manager imitates HAM's choices and its replay
         buffer is filled with them before RL (:mod:`sb3_hddpg.training.ham_start`). The bundle's metadata
         keeps the settings and how often the fitted manager agrees with HAM.
+    :param option_end: options that also end by state: ``"distance=0.5"`` (an obstacle comes within half
+        the sensor range or leaves it), ``"touch"`` (the goal is touched or lost), both (``"distance=0.5,touch"``)
+        or an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`; ``option_steps`` stays the longest option.
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the manager's DDPG; the bundle holds an SB3 manager whichever ``backend`` trains it.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -1113,6 +1143,7 @@ def train_manager(
             ("manager_preferences", manager_preferences),
             ("relabel_fraction", relabel_fraction),
             ("init_from_ham", init_from_ham),
+            ("option_end", option_end),
         )
         if value is not None
     }
