@@ -67,6 +67,16 @@ def test_front_results_compare_members_by_seed():
     assert results["hypervolume"]["ham"]["outcomes"]["mean"] == pytest.approx(0.4 * 14.0)
     one = front_results({0: record(0.0)})
     assert one["comparisons"] == {}  # one seed makes no paired interval
+    # The generated pages' tables (hddpg-cli report): the front and the decides-by-state table.
+    from sb3_hddpg.experiments.benchmark.pages import render_page
+
+    results["decides_by_state"] = {"0": {"goal=1,avoid=1": None}}
+    page = "<!-- generated:run/front -->\n<!-- /generated:run/front -->\n"
+    text, written = render_page(page, "run", {"front": results})
+    assert written == ["front"] and "| conditioned |" in text and "Reference points" in text
+    assert "better in 3 of 3 seeds" in text
+    text, _ = render_page("<!-- generated:run/front -->\n<!-- /generated:run/front -->\n", "run", {})
+    assert "(not a front run)" in text
 
 
 def test_settings_refuse_a_front_scenario_with_other_methods():

@@ -396,11 +396,38 @@ def front_table(front: Mapping[str, Any]) -> list[str]:
             + ". Mean over seeds with the 95 % bootstrap interval."
         )
     for name, entry in front.get("comparisons", {}).items():
-        terms = entry["terms"]
-        lines.append(
-            f"- {name} (terms plane): difference {terms['difference']:.4g} "
-            f"[{terms['ci_low']:.4g}, {terms['ci_high']:.4g}], better in {terms['wins']} of {len(entry['seeds'])} seeds"
-        )
+        for plane in PLANES:
+            c = entry[plane]
+            lines.append(
+                f"- {name} ({plane} plane): difference {c['difference']:.4g} [{c['ci_low']:.4g}, "
+                f"{c['ci_high']:.4g}] (paired t over seeds), better in {c['wins']} of {len(entry['seeds'])} seeds"
+            )
+    return lines
+
+
+def decides_table(front: Mapping[str, Any]) -> list[str]:
+    """
+    The decides-by-state table of the generated pages: per seed and preference, the avoid worker's share of
+    decisions near an obstacle and with none in range, and their ratio with its bootstrap interval.
+    """
+    lines = [
+        "| seed | preference | avoid share near | avoid share clear | ratio [95 % bootstrap CI] | decisions near / clear |",
+        "|---|---|---|---|---|---|",
+    ]
+    for seed, by_preference in front.get("decides_by_state", {}).items():
+        for preference, figure in by_preference.items():
+            if figure is None:
+                continue
+            ratio = "-" if figure["ratio"] is None else f"{figure['ratio']:.2f}"
+            if figure.get("ratio_ci"):
+                ratio += f" [{figure['ratio_ci'][0]:.2f}, {figure['ratio_ci'][1]:.2f}]"
+            shares = [
+                "-" if figure[key] is None else f"{figure[key]:.1%}" for key in ("near_share", "clear_share")
+            ]
+            lines.append(
+                f"| {seed} | `{preference}` | {shares[0]} | {shares[1]} | {ratio} "
+                f"| {figure['near_decisions']} / {figure['clear_decisions']} |"
+            )
     return lines
 
 
