@@ -114,7 +114,10 @@ def test_the_conditioned_wrapper_observes_and_draws_preferences_and_reports_work
         factors = np.array([wrapper.preferences[n] for n in NAMES])
         assert reward == pytest.approx(float(factors @ info["worker_rewards"]), rel=1e-6)
     assert len(seen) > 2
+    # A bundle made while drawing acts at the unweighted preference, not at the last draw.
+    assert wrapper.selection_config().preferences == {"goal": 1.0, "avoid": 1.0}
     wrapper.set_preference(goal=0.4, avoid=1.6)
+    assert wrapper.selection_config().preferences == pytest.approx({"goal": 0.4, "avoid": 1.6})
     for episode in range(3):
         obs, _ = wrapper.reset(seed=100 + episode)
         assert obs[-2:] == pytest.approx([0.2, 0.8])

@@ -208,8 +208,14 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
 
     def selection_config(self) -> SelectionConfig:
         """The selection settings of this wrapper, as a bundle keeps them (see ``Hierarchy``)."""
+        # While drawing a preference every episode, the current one is a random draw: a bundle made from this
+        # wrapper acts at the unweighted preference until told another.
+        space = self.preference_space
+        preferences = (
+            space.default if self.sample_preferences and space is not None else dict(self.preferences)
+        )
         return SelectionConfig(
-            preferences=dict(self.preferences),
+            preferences=preferences,
             selection=self.selection,
             option_steps=self.option_steps,
             temperature=self.simplex.temperature,
