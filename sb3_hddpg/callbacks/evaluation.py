@@ -109,12 +109,22 @@ class MetricsEvalCallback(EvalCallback):
         steps = int(self.model.num_timesteps)
         self.logger.record("time/total_timesteps", steps, exclude="tensorboard")
         self.logger.dump(steps)
-        self.history.append({"timesteps": steps, **summary})
+        updates = model_updates(self.model)
+        self.history.append(
+            {"timesteps": steps, **summary, **({} if updates is None else {"updates": updates})}
+        )
         if self.history_path is not None:
             atomic_write_json(self.history_path, self.history)
 
         continue_training = True
-        if math.isfinite(summary["mean_reward"]) and summary["mean_reward"] > self.best_mean_reward:
+        # A model that has not been updated yet is its random initialisation, whatever it happened to score:
+        # never keep it as the best (a lucky untrained network would otherwise be the run's result).
+        trained = updates is None or updates > 0
+        if (
+            trained
+            and math.isfinite(summary["mean_reward"])
+            and summary["mean_reward"] > self.best_mean_reward
+        ):
             self.best_mean_reward = summary["mean_reward"]
             if self.best_model_path is not None:
                 atomic_write(self.best_model_path, lambda tmp: self.model.save(tmp))
@@ -123,6 +133,23 @@ class MetricsEvalCallback(EvalCallback):
         if self.callback is not None:
             continue_training = continue_training and self._on_event()
         return continue_training
+
+
+def model_updates(model: Any) -> int | None:
+    """The gradient updates an SB3 (or SBX) model has made so far (``None``: the model does not count them)."""
+    updates = getattr(model, "_n_updates", None)
+    return int(updates) if isinstance(updates, (int, np.integer)) else None
+
+
+def best_entry(history: list[dict[str, Any]]) -> dict[str, Any]:
+    """
+    The evaluation whose model a run keeps as its best: the highest mean reward among those taken after at
+    least one update; the last evaluation if none was (the untrained network is then the final model too).
+
+    :param history: the evaluations, as :class:`MetricsEvalCallback` records them.
+    """
+    trained = [entry for entry in history if entry.get("updates", 1) > 0]
+    return max(trained, key=lambda h: h["mean_reward"]) if trained else history[-1]
 
 
 def read_history(path: Path, steps_per_timestep: int = 1, offset: int = 0) -> list[dict[str, Any]]:

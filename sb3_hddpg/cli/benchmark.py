@@ -36,6 +36,7 @@ from sb3_hddpg.experiments.benchmark import (
     DEFAULT_TRANSFER_METHODS,
     DEFAULT_TRANSFER_PREFERENCES,
     ENV_METHODS,
+    FRONT_METHODS,
     METHOD_REGISTRY,
     OUTPUT_FILES,
     SCENARIOS,
@@ -259,7 +260,10 @@ def benchmark_command(
         help=(
             f"One of {list(SCENARIOS)}: 'transfer' trains each seed's workers once, then per --preference a "
             "manager and each flat method from scratch on that preference's reward, and reports the ratio of "
-            "env steps each needs to get 90 % of the way from a random policy's score to its own final score."
+            "env steps each needs to get 90 % of the way from a random policy's score to its own final score; "
+            "'front' trains per seed a preference-conditioned manager and a manager for each of 7 preferences, "
+            "and measures every hierarchy's front (HAM over a threshold sweep, each worker alone) and its "
+            "hypervolume (docs/MANAGER.md)."
         ),
     ),
     preference: list[str] | None = typer.Option(
@@ -389,11 +393,15 @@ def benchmark_command(
         raise typer.BadParameter("applies to --scenario transfer only", param_hint="'--preference'")
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen = _chosen_methods(methods, transfer, other_env=shared is not None)
+    if scenario == "front" and methods is None:
+        chosen = list(FRONT_METHODS)
     if ham_hysteresis < 0:
         raise typer.BadParameter(f"must be >= 0, got {ham_hysteresis}", param_hint="'--ham-hysteresis'")
     preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []
     with usage_errors("'--backend'"):  # e.g. tqc, which the sbx backend does not train
-        BenchmarkSettings(methods=chosen, backend=backend)
+        BenchmarkSettings(
+            methods=chosen, backend=backend, scenario="front" if scenario == "front" else "standard"
+        )
     with usage_errors("'--methods' / '--preference' / '--env'"):
         settings = BenchmarkSettings(
             methods=chosen,

@@ -14,8 +14,10 @@ from sb3_hddpg.cli.options import (
     EpisodeStepsOpt,
     InfoKeyOpt,
     ReplaceFileOpt,
+    RunPreferenceOpt,
     TermBoundsOpt,
     TermsOpt,
+    apply_run_preference,
     at_least,
     output_file,
     seed_range,
@@ -71,6 +73,7 @@ def evaluate_command(
         "--state-worker",
         help="For a hierarchy: the worker whose share near obstacles vs with none in range is reported.",
     ),
+    preference: RunPreferenceOpt = None,
     near_clearance: float | None = typer.Option(
         None,
         "--near-clearance",
@@ -99,6 +102,7 @@ def evaluate_command(
             algo=algo,
             allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
         )
+    apply_run_preference(loaded.policy, preference, loaded.kind)
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):

@@ -380,3 +380,30 @@ def cluster_address(executor: str, ray_address: str | None) -> str | None:
     except ClusterError as error:
         raise typer.BadParameter(str(error), param_hint="'--ray-address'") from None
     return address
+
+
+RUN_PREFERENCE_HELP = (
+    "For a preference-conditioned hierarchy (train-manager --preferences): the trade-off to act at, e.g. "
+    "goal=0.4,avoid=1.6; one outside those it was trained over is refused."
+)
+RunPreferenceOpt = Annotated[str | None, typer.Option("--preference", help=RUN_PREFERENCE_HELP)]
+
+
+def apply_run_preference(policy: Any, text: str | None, kind: str) -> None:
+    """
+    Set ``--preference`` on a loaded policy: a usage error (exit 2) for a policy that takes none, a
+    malformed text, or a preference outside those a conditioned manager was trained over.
+
+    :param policy: the loaded policy.
+    :param text: the option's value (``None``: not given).
+    :param kind: the policy's kind, for the message.
+    """
+    if text is None:
+        return
+    from sb3_hddpg.hierarchy.selection import parse_preferences  # the library only when the option is used
+
+    set_preference = getattr(policy, "set_preference", None)
+    if set_preference is None:
+        raise typer.BadParameter(f"applies to a hierarchy, not a {kind}", param_hint="'--preference'")
+    with usage_errors("'--preference'"):
+        set_preference(parse_preferences(text))

@@ -11,8 +11,10 @@ from sb3_hddpg.cli.options import (
     EpisodeStepsOpt,
     InfoKeyOpt,
     ReplaceFileOpt,
+    RunPreferenceOpt,
     TermBoundsOpt,
     TermsOpt,
+    apply_run_preference,
     at_least,
     output_file,
     terms_env_option,
@@ -40,6 +42,7 @@ def plot_selection_command(
     max_steps: MaxStepsOpt = None,
     trust: TrustOpt = False,
     force: ReplaceFileOpt = False,
+    preference: RunPreferenceOpt = None,
 ) -> None:
     """
     Per step: the worker chosen and the manager's probabilities, beside obstacle clearance and goal distance
@@ -66,6 +69,7 @@ def plot_selection_command(
             f"{path!r} is a {loaded.kind}, which selects no worker; give a hierarchy bundle or a HAM switch",
             param_hint="'PATH'",
         )
+    apply_run_preference(loaded.policy, preference, loaded.kind)
     kwargs = {**(shared.env_kwargs if shared else {})}
     if max_steps:
         kwargs["max_episode_steps"] = max_steps

@@ -14,8 +14,10 @@ from sb3_hddpg.cli.options import (
     EpisodeStepsOpt,
     InfoKeyOpt,
     ReplaceFileOpt,
+    RunPreferenceOpt,
     TermBoundsOpt,
     TermsOpt,
+    apply_run_preference,
     at_least,
     output_file,
     seed_range,
@@ -64,6 +66,7 @@ def record_command(
     max_steps: MaxStepsOpt = None,
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),
     trust: TrustOpt = False,
+    preference: RunPreferenceOpt = None,
     algo: str | None = typer.Option(
         None, "--algo", help="Algorithm of a zip without manifest (with --trust)."
     ),
@@ -88,6 +91,7 @@ def record_command(
             algo=algo,
             allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
         )
+    apply_run_preference(loaded.policy, preference, loaded.kind)
     kwargs = {**(shared.env_kwargs if shared else {})}
     if max_steps:
         kwargs["max_episode_steps"] = max_steps

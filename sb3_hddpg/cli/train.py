@@ -238,6 +238,31 @@ def train_manager_command(
             "(goal=0.4,avoid=1.6, not goal=1,avoid=4, which saturated the bundled block; docs/MANAGER.md)."
         ),
     ),
+    train_preferences: str | None = typer.Option(
+        None,
+        "--preferences",
+        help=(
+            "Train one manager for every preference: 'ratio-sweep' (each worker weighted 1-4 times the "
+            "others: 4:1 ... 1:4), 'dirichlet' or 'dirichlet:ALPHA', or preferences with one sum separated by "
+            "';' (goal=1.6,avoid=0.4;goal=0.4,avoid=1.6). The manager observes the preference; choose it at "
+            "run time with --preference of evaluate, record and plot-selection."
+        ),
+    ),
+    relabel_fraction: float | None = typer.Option(
+        None,
+        "--relabel-fraction",
+        help="With --preferences: the share of replayed steps paid at another preference (default 0.5).",
+    ),
+    init_from_ham: float | None = typer.Option(
+        None,
+        "--init-from-ham",
+        metavar="THRESHOLD",
+        help=(
+            "Start from the hand-written rule: before RL the manager imitates HAM with this threshold "
+            "(behaviour cloning of its choices; its replay buffer is filled with them), so RL starts at "
+            "HAM's level."
+        ),
+    ),
     selection: str | None = typer.Option(
         None,
         "--selection",
@@ -248,6 +273,15 @@ def train_manager_command(
         "--option-steps",
         callback=at_least(1),
         help="Env steps per manager decision (default: the config's).",
+    ),
+    option_end: str | None = typer.Option(
+        None,
+        "--option-end",
+        help=(
+            "Options that also end by state: distance=0.5 (an obstacle comes within half the sensor range, or "
+            "leaves it; several edges: distance=0.25/0.5), touch (the goal is touched or lost), or both "
+            "(distance=0.5,touch); --option-steps stays the longest option."
+        ),
     ),
     algo: str = typer.Option(
         "ddpg",
@@ -300,6 +334,8 @@ def train_manager_command(
         raise typer.BadParameter(f"must be one of {list(MANAGER_ALGOS)}, got {algo!r}", param_hint="'--algo'")
     with usage_errors("'--preference'"):
         preferences = parse_preferences(preference) if preference is not None else None
+    if relabel_fraction is not None and train_preferences is None:
+        raise typer.BadParameter("applies with --preferences only", param_hint="'--relabel-fraction'")
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     env_id, env_kwargs = (shared.env_id, shared.env_kwargs) if shared is not None else (None, None)
     # The library checks the rest (workers, their hashes and spaces, names, preferences and --bias, the
@@ -319,9 +355,18 @@ def train_manager_command(
             env_id=env_id,
             env_kwargs=env_kwargs,
             algo=algo,
+            manager_preferences=train_preferences,
+            relabel_fraction=0.5 if relabel_fraction is None else relabel_fraction,
+            init_from_ham=init_from_ham,
+            option_end=option_end,
         )
     with usage_errors("'--backend'"):
-        check_algo(algo, resolve_backend(backend, setup.hyperparams.backend))
+        resolved = resolve_backend(backend, setup.hyperparams.backend)
+        check_algo(algo, resolved)
+        if init_from_ham is not None and resolved != "sb3":
+            raise ValueError(
+                "the start from HAM (--init-from-ham) fits SB3 (torch) managers: use --backend sb3"
+            )
     prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
         hierarchy, outcome = train_manager(setup, out, run=run_options_of(context))
@@ -343,3 +388,11 @@ def train_manager_command(
         + (f" of up to {option_steps} env steps each" if option_steps > 1 else " (one env step each)")
         + f". Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}"
     )
+    start = hierarchy.metadata.get("init_from_ham")
+    if start:
+        console.print(
+            f"Before RL the manager imitated HAM (threshold {start['threshold']:g}) on {start['decisions']:,} "
+            f"decisions: it agrees with HAM on {start['agreement']:.0%} of them"
+        )
+    if hierarchy.preference_space is not None:
+        console.print(f"Conditioned on {hierarchy.preference_space.describe()}")

@@ -47,15 +47,17 @@ from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.artifacts.workers import Workers, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
+from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
+    OptionEnd,
     SelectionConfig,
     SimplexMap,
     check_preferences,
     check_selection_settings,
     get_selector,
 )
-from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper, _subset_space
+from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper, _subset_space, with_preference_space
 from sb3_hddpg.policy import Policy
 
 #: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
@@ -140,14 +142,31 @@ class Hierarchy:
             FrozenWorker(w, layout.indices(config.worker_states[n]) if n in config.worker_states else None)
             for n, w in self.workers.items()
         ]
-        self._manager = FrozenWorker(manager, self._manager_indices)
+        #: The preferences a conditioned manager was trained over (``None``: a manager for one preference).
+        self.preference_space = (
+            PreferenceSpace.from_json(config.manager_preferences, self.names)
+            if config.manager_preferences is not None
+            else None
+        )
+        self._preference_obs: np.ndarray | None = None
+        if self.preference_space is not None:
+            self.config = config = replace(
+                config, preferences=self.preference_space.check(config.preferences)
+            )
+            self._preference_obs = self.preference_space.weights(config.preferences).astype(np.float32)
+        # A conditioned manager's input is built here (state, then weights), so its frozen copy sees it all.
+        self._manager = FrozenWorker(manager, None if self.preference_space else self._manager_indices)
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
         self._selector = get_selector(config.selection)
         self._rng = np.random.default_rng(0)
         self._option_left = 0
+        self._band = OptionEnd.from_json(config.option_end).bind(layout) if config.option_end else None
+        self._option_band: tuple[int, bool] | None = None
         self._option_choice = 0
         self._option_probabilities = np.full(len(self.names), 1.0 / len(self.names))
         self.last_selection: str | None = None
+        #: Whether the last ``predict`` made a new decision (``False`` inside an option).
+        self.last_decided = False
         #: The manager actor's output at the last decision (in [-1, 1]; how saturated the manager is).
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
@@ -169,6 +188,48 @@ class Hierarchy:
         """This hierarchy's reward as a worker one level up: its preference-weighted mix of its workers' terms."""
         specs = {name: self.config.reward_terms.get(name, name) for name in self.names}
         return mix_terms(specs, self.config.preferences)
+
+    @property
+    def preferences(self) -> dict[str, float]:
+        """The preference the hierarchy acts at (worker name -> factor)."""
+        return dict(self.config.preferences)
+
+    def set_preference(self, preferences: Mapping[str, float] | None = None, **factors: float) -> None:
+        """
+        Tell a preference-conditioned manager the trade-off to act at, e.g.
+        ``hierarchy.set_preference(goal=0.4, avoid=1.6)`` or ``hierarchy.set_preference({"goal": 0.4})``.
+        Only the ratio matters (the factors are rescaled to the sum the manager was trained with); names not
+        given get the unweighted factor.
+
+        :param preferences: worker name -> factor; or give the factors as keywords.
+        :raises PreferenceOutsideError: for a preference outside those the manager was trained over (see
+            ``manager_preferences`` in the bundle's manifest), or any other than its own for a manager
+            trained for one preference.
+        """
+        given = {**dict(preferences or {}), **factors}
+        if self.preference_space is None:
+            own = self.config.preferences
+            checked = check_preferences(given, self.names)
+            ratio = np.array([checked[n] for n in self.names]) / sum(checked.values())
+            trained = np.array([own[n] for n in self.names]) / sum(own.values())
+            if not np.allclose(ratio, trained, atol=1e-6):
+                shown = ",".join(f"{n}={own[n]:g}" for n in self.names)
+                raise PreferenceOutsideError(
+                    f"This manager was trained for the preference {shown} only; train a conditioned manager "
+                    "(train-manager --preferences ratio-sweep) to choose the preference at run time"
+                )
+            return
+        checked = self.preference_space.check(given)
+        self.config = replace(self.config, preferences=checked)
+        self._preference_obs = self.preference_space.weights(checked).astype(np.float32)
+        self._option_left = 0
+
+    def _manager_input(self, obs: np.ndarray) -> np.ndarray:
+        if self._preference_obs is None:
+            return obs
+        state = obs if self._manager_indices is None else obs[..., self._manager_indices]
+        weights = np.broadcast_to(self._preference_obs, (*state.shape[:-1], len(self._preference_obs)))
+        return np.concatenate([state, weights], axis=-1).astype(np.float32, copy=False)
 
     def reset_episode(self) -> None:
         """Forget the current option (call at an episode start when ``option_steps > 1``)."""
@@ -208,8 +269,11 @@ class Hierarchy:
         return self._act(obs, deterministic, keep_option=True), None
 
     def _act(self, obs: np.ndarray, deterministic: bool, keep_option: bool) -> np.ndarray:
-        if not keep_option or self._option_left <= 0:
-            self.last_manager_action = self._manager.act(obs)
+        band = self._band(obs) if self._band is not None else None
+        self.last_decided = not keep_option or self._option_left <= 0 or band != self._option_band
+        if self.last_decided:
+            self._option_band = band
+            self.last_manager_action = self._manager.act(self._manager_input(obs))
             probabilities = np.asarray(self._selector.probabilities(self.simplex, self.last_manager_action))
             self._option_probabilities = probabilities
             self._option_choice = self._selector.choose(probabilities, self._rng, deterministic)
@@ -224,7 +288,7 @@ class Hierarchy:
 
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
         """The manager's worker probabilities for one observation."""
-        action = self._manager.act(np.asarray(observation, np.float32))
+        action = self._manager.act(self._manager_input(np.asarray(observation, np.float32)))
         return dict(zip(self.names, self._selector.probabilities(self.simplex, action)))
 
     # ------------------------------------------------------------------ saving
@@ -313,6 +377,11 @@ class Hierarchy:
                 env_id, manifest.get("env_kwargs"), f"{name}: env_kwargs", allowed_env_ids, trusted
             )
             settings = check_selection_settings(manifest.get("selection"), names, f"{name}: selection")
+            if settings.get("manager_preferences") is not None:
+                space = PreferenceSpace.from_json(
+                    settings["manager_preferences"], names, f"{name}: selection.manager_preferences"
+                )
+                settings["manager_preferences"] = space.to_json()
         except ValueError as error:
             raise BundleError(str(error)) from None
 
@@ -585,7 +654,10 @@ def check_spaces(
         return _subset_space(observation_space, layout.indices(components) if components else None)
 
     manager_action = get_selector(config.selection).action_space(len(workers))
-    checks = [("The manager", manager, subset(config.manager_state), manager_action, " (one per worker)")]
+    manager_obs = subset(config.manager_state)
+    if config.manager_preferences is not None:
+        manager_obs = with_preference_space(manager_obs, len(workers))
+    checks = [("The manager", manager, manager_obs, manager_action, " (one per worker)")]
     checks += [
         (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")
         for name, worker in workers.items()

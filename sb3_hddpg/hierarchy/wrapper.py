@@ -14,8 +14,10 @@ from stable_baselines3.common.utils import check_for_correct_spaces
 from sb3_hddpg.artifacts.workers import states_of
 from sb3_hddpg.envs.contract import env_contract, mix_terms, state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
+    OptionEnd,
     SelectionConfig,
     SimplexMap,
     check_preferences,
@@ -85,6 +87,16 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     :param worker_states: name -> state components that worker sees, over those the workers carry
         (missing: all).
     :param option_gamma: discount inside an option.
+    :param manager_preferences: train one manager for every preference: a
+        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace` (or its JSON form). The manager's
+        observation gains the normalised preference weights after the state, a preference is drawn from the
+        space at every reset (until :meth:`set_preference` fixes one), and ``info["worker_rewards"]`` holds
+        each worker's (unweighted) discounted option reward, so that
+        :class:`~sb3_hddpg.hierarchy.relabeling.PreferenceRelabelingReplayBuffer` can pay a stored step for
+        another preference. ``None``: one fixed preference, ``preferences``.
+    :param option_end: options that also end by state (an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`
+        or its JSON form): the option ends before ``option_steps`` env steps when the state leaves the band it
+        was chosen in (``info["option_length"]`` is then shorter). ``None``: after ``option_steps`` only.
     """
 
     def __init__(
@@ -100,6 +112,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         manager_state: Sequence[str] | None = None,
         worker_states: Mapping[str, Sequence[str]] | None = None,
         option_gamma: float = 0.99,
+        manager_preferences: PreferenceSpace | Mapping[str, Any] | None = None,
+        option_end: OptionEnd | Mapping[str, Any] | None = None,
     ) -> None:
         # help(WorkerSelectionWrapper.__init__) shows this (the class docstring, assigned below), not
         # gymnasium's generic Wrapper.__init__ text.
@@ -129,7 +143,22 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self.option_steps = int(option_steps)
         self.option_gamma = float(option_gamma)
         self.simplex = SimplexMap(len(names), temperature=temperature, floor=floor)
+        if option_end is not None and not isinstance(option_end, OptionEnd):
+            option_end = OptionEnd.from_json(option_end)
+        self.option_end: OptionEnd | None = option_end
+        self._band = option_end.bind(self.layout) if option_end is not None else None
+        if manager_preferences is not None and not isinstance(manager_preferences, PreferenceSpace):
+            manager_preferences = PreferenceSpace.from_json(manager_preferences, names)
+        if manager_preferences is not None and list(manager_preferences.names) != names:
+            raise ValueError(
+                f"The preference space names workers {list(manager_preferences.names)}, the wrapper {names}"
+            )
+        self.preference_space: PreferenceSpace | None = manager_preferences
         self.preferences = check_preferences(dict(preferences or {}), names)
+        if self.preference_space is not None:
+            self.preferences = self.preference_space.check(self.preferences)
+        #: Whether every reset draws a new preference (a conditioned manager in training).
+        self.sample_preferences = self.preference_space is not None
 
         carried = states_of(workers) if isinstance(workers, Mapping) else {}
         worker_states = {**{n: v for n, v in carried.items() if n in names}, **dict(worker_states or {})}
@@ -142,6 +171,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             self.layout.indices(self.manager_state) if self.manager_state is not None else None
         )
         self.observation_space = _subset_space(env.observation_space, self._manager_indices)
+        if self.preference_space is not None:
+            self.observation_space = with_preference_space(self.observation_space, len(names))
         self.action_space = selector.action_space(len(names))
 
         known_terms = list(contract.reward_bounds)
@@ -161,9 +192,15 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         # The reward is linear in the raw terms: precompute sum_w preference_w * weight_wt per term, so a
         # step costs one multiply-add per term (the manager step has a budget of 2x a plain env step).
         self._normalise = contract.normalise_terms
-        coefficients = mix_terms(self.reward_specs, self.preferences)
-        self._term_coefficients = [(term, coefficients.get(term, 0.0)) for term in known_terms]
+        self._known_terms = known_terms
+        self._set_coefficients()
+        # Each worker's own reward per term, for the per-worker rewards a relabelling buffer needs.
+        self._worker_coefficients = [
+            [(term, spec.get(term, 0.0)) for term in known_terms if spec.get(term, 0.0)]
+            for spec in (self.reward_specs[name] for name in names)
+        ]
         self._rng = np.random.default_rng()
+        self._preference_rng = np.random.default_rng()
         self._last_obs: np.ndarray | None = None
 
     # The arguments are documented once, on the class.
@@ -171,8 +208,14 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
 
     def selection_config(self) -> SelectionConfig:
         """The selection settings of this wrapper, as a bundle keeps them (see ``Hierarchy``)."""
+        # While drawing a preference every episode, the current one is a random draw: a bundle made from this
+        # wrapper acts at the unweighted preference until told another.
+        space = self.preference_space
+        preferences = (
+            space.default if self.sample_preferences and space is not None else dict(self.preferences)
+        )
         return SelectionConfig(
-            preferences=dict(self.preferences),
+            preferences=preferences,
             selection=self.selection,
             option_steps=self.option_steps,
             temperature=self.simplex.temperature,
@@ -181,11 +224,50 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             manager_state=self.manager_state,
             worker_states={name: list(states) for name, states in self.worker_states.items()},
             option_gamma=self.option_gamma,
+            manager_preferences=self.preference_space.to_json() if self.preference_space else None,
+            option_end=self.option_end.to_json() if self.option_end else None,
         )
 
+    def set_preference(self, preferences: Mapping[str, float] | None = None, **factors: float) -> None:
+        """
+        Act at one preference from now on: the reward's factors, and for a conditioned manager the
+        preference it observes (which must be among those it trains over). ``set_preference(None)`` on a
+        conditioned wrapper resumes drawing a preference at every reset.
+
+        :param preferences: worker name -> factor; or give the factors as keywords.
+        """
+        given = {**dict(preferences or {}), **factors}
+        if preferences is None and not factors and self.preference_space is not None:
+            self.sample_preferences = True
+            return
+        checked = check_preferences(given, self.worker_names)
+        if self.preference_space is not None:
+            checked = self.preference_space.check(given)
+            self.sample_preferences = False
+        self.preferences = checked
+        self._set_coefficients()
+
     # ------------------------------------------------------------------ helpers
+    def _set_coefficients(self) -> None:
+        # The reward is linear in the raw terms: precompute sum_w preference_w * weight_wt per term, so a
+        # step costs one multiply-add per term (the manager step has a budget of 2x a plain env step).
+        coefficients = mix_terms(self.reward_specs, self.preferences)
+        self._term_coefficients = [(term, coefficients.get(term, 0.0)) for term in self._known_terms]
+        self._preference_obs = (
+            self.preference_space.weights(self.preferences).astype(np.float32)
+            if self.preference_space is not None
+            else None
+        )
+
     def _manager_obs(self, obs: np.ndarray) -> np.ndarray:
-        return obs if self._manager_indices is None else obs[self._manager_indices]
+        state = obs if self._manager_indices is None else obs[self._manager_indices]
+        if self._preference_obs is None:
+            return state
+        return np.concatenate([state, self._preference_obs]).astype(state.dtype, copy=False)
+
+    def worker_rewards(self, normalised: Mapping[str, float]) -> list[float]:
+        """Each worker's own (unweighted) reward from the normalised terms, in worker order."""
+        return [sum(w * normalised[term] for term, w in terms) for terms in self._worker_coefficients]
 
     def manager_reward(self, terms: Mapping[str, float]) -> tuple[float, dict[str, float]]:
         """
@@ -207,6 +289,10 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             # Our own generator for selection, seeded from the episode seed: sampling workers must not
             # consume the env's randomness, or wrapping would change the env's trajectory.
             self._rng = np.random.default_rng([seed, 0x5E1EC7])
+            self._preference_rng = np.random.default_rng([seed, 0x9EF])
+        if self.sample_preferences and self.preference_space is not None:
+            self.preferences = self.preference_space.sample(self._preference_rng)
+            self._set_coefficients()
         obs, info = self.env.reset(seed=seed, options=options)
         for worker in self.frozen:
             worker.reset_episode()
@@ -226,11 +312,18 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         infos: list[dict[str, Any]] = []
         steps = 0
         obs = self._last_obs
+        conditioned = self.preference_space is not None
+        per_worker = np.zeros(len(self.worker_names)) if conditioned else None
+        start_band = self._band(obs) if self._band is not None else None
         while steps < self.option_steps and not (terminated or truncated):
+            if start_band is not None and steps and self._band is not None and self._band(obs) != start_band:
+                break  # the state left the band the option was chosen in: decide again
             env_action = self.selector.act(probabilities, chosen, self.frozen, obs)
             obs, _, terminated, truncated, info = self.env.step(env_action)
             reward, normalised = self.manager_reward(info["reward_terms"])
             total += discount * reward
+            if per_worker is not None:
+                per_worker += discount * np.asarray(self.worker_rewards(normalised))
             discount *= self.option_gamma
             rewards.append(reward)
             infos.append(info)
@@ -243,6 +336,9 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         info["selection_probabilities"] = dict(zip(self.worker_names, probabilities))
         info["normalised_terms"] = normalised
         info["option_length"] = steps
+        if per_worker is not None:
+            info["worker_rewards"] = per_worker
+            info["preferences"] = dict(self.preferences)
         return self._manager_obs(obs), float(total), terminated, truncated, info
 
 
@@ -253,6 +349,15 @@ def _subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Spac
     if not isinstance(space, spaces.Box):
         raise ValueError(f"Selecting state components needs a Box observation space, got {space}")
     return spaces.Box(space.low[indices], space.high[indices], dtype=space.dtype.type)
+
+
+def with_preference_space(space: gym.Space, n_workers: int) -> spaces.Box:
+    """A conditioned manager's observation space: ``space`` followed by ``n_workers`` weights in [0, 1]."""
+    if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+        raise ValueError(f"A preference-conditioned manager needs a flat Box observation, got {space}")
+    low = np.concatenate([space.low, np.zeros(n_workers)]).astype(space.dtype)
+    high = np.concatenate([space.high, np.ones(n_workers)]).astype(space.dtype)
+    return spaces.Box(low, high, dtype=space.dtype.type)
 
 
 def _check_worker_spaces(

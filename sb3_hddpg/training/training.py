@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import signal
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -45,14 +46,16 @@ from sb3_hddpg.artifacts.manifests import (
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.artifacts.workers import Workers, shared_env_of
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
-from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
+from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback, best_entry
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, config_key, make_term_view
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.preference import make_preference_env
-from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
+from sb3_hddpg.hierarchy.selection import OptionEnd, SelectionConfig, check_preferences, preferences_from_bias
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import (
@@ -65,6 +68,7 @@ from sb3_hddpg.training.backends import (
     to_sb3,
 )
 from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart, ham_start_hook
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: Algorithm names accepted by ``--algo`` (the registry's, in its order).
@@ -175,6 +179,7 @@ def train_agent(
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     after_eval: BaseCallback | None = None,
+    prepare_model: Callable[[BaseAlgorithm], None] | None = None,
     **run_changes: Any,
 ) -> TrainingOutcome:
     """
@@ -194,6 +199,8 @@ def train_agent(
     :param extra_callbacks: more SB3 callbacks (e.g. selection statistics).
     :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
         Optuna pruning callback); returning ``False`` stops training.
+    :param prepare_model: called with a freshly built model before it learns (not on resume), e.g. the
+        manager's start from HAM (:mod:`sb3_hddpg.training.ham_start`).
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
@@ -232,6 +239,8 @@ def train_agent(
                 None,
             )
         model.set_logger(_tensorboard_logger(paths))
+        if prepare_model is not None and state is None:
+            prepare_model(model)
         evaluator = _make_evaluator(eval_env, paths, state, n_envs, run, after_eval)
         checkpointer = ResumableCheckpointCallback(
             paths.checkpoint_dir,
@@ -411,16 +420,15 @@ def _save_outcome(
 ) -> TrainingOutcome:
     """Save the chosen model (the best evaluated one when ``keep_best``, else the final one) as plain SB3."""
     chosen = model
-    if keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists():
+    from_best = keep_best and evaluator.best_model_path is not None and evaluator.best_model_path.exists()
+    if from_best:
         chosen = load_native(algo, backend, evaluator.best_model_path)
     # What a user shares is plain SB3, whichever backend trained it.
     chosen = to_sb3(chosen)
     atomic_write(paths.model_path, lambda tmp: chosen.save(tmp))
-    best_entry = (
-        max(evaluator.history, key=lambda h: h["mean_reward"]) if keep_best else evaluator.history[-1]
-    )
-    metrics = {k: v for k, v in best_entry.items() if k != "timesteps"}
-    metrics["selected_at_timesteps"] = best_entry["timesteps"]
+    kept = best_entry(evaluator.history) if from_best else evaluator.history[-1]
+    metrics = {k: v for k, v in kept.items() if k not in ("timesteps", "updates")}
+    metrics["selected_at_timesteps"] = kept["timesteps"]
     return TrainingOutcome(
         model=chosen,
         model_path=paths.model_path,
@@ -824,6 +832,7 @@ class ManagerSetup:
     :param env_id: the shared env the manager acts in.
     :param env_kwargs: its keyword arguments (from the manager's config block).
     :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS`.
+    :param ham_start: imitate HAM before RL (``None``: start from the random initialisation).
     """
 
     workers: Workers
@@ -835,6 +844,7 @@ class ManagerSetup:
     workers_dir: str = ""
     trusted: bool = False
     algo: str = "ddpg"
+    ham_start: HamStart | None = None
 
     @property
     def names(self) -> list[str]:
@@ -868,6 +878,10 @@ def prepare_manager(
     env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
     algo: str = "ddpg",
+    manager_preferences: str | PreferenceSpace | None = None,
+    relabel_fraction: float = 0.5,
+    init_from_ham: float | HamStart | None = None,
+    option_end: str | OptionEnd | None = None,
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
@@ -894,6 +908,10 @@ def prepare_manager(
     factors = preferences_from_bias(names, prefer, bias)
     if preferences:
         factors = check_preferences(preferences, names)
+    if manager_preferences is not None:
+        factors, hyperparams = _conditioned(
+            wrapper_kwargs, hyperparams, algo, names, manager_preferences, preferences, relabel_fraction
+        )
     for key, value in (
         ("selection", selection),
         ("option_steps", option_steps),
@@ -903,6 +921,7 @@ def prepare_manager(
         if value is not None:
             wrapper_kwargs[key] = value
     wrapper_kwargs["preferences"] = factors
+    wrapper_kwargs["option_end"] = _option_end_json(option_end, wrapper_kwargs.get("option_end"))
     # A worker trained on part of the state (env_kwargs `observe`) is fed the same components of the
     # manager's full state; a worker_states entry in the config block wins.
     configured = wrapper_kwargs.get("worker_states") or {}
@@ -949,7 +968,83 @@ def prepare_manager(
         str(Path(workers_dir)),
         trusted,
         algo,
+        _ham_start(init_from_ham, names, algo),
     )
+
+
+def _option_end_json(given: str | OptionEnd | None, configured: Any) -> dict[str, Any] | None:
+    """The option end as a bundle records it: the one given, else the config block's (``None``: none)."""
+    if given is None:
+        return configured
+    return (OptionEnd.parse(given) if isinstance(given, str) else given).to_json()
+
+
+def _conditioned(
+    wrapper_kwargs: dict[str, Any],
+    hyperparams: Hyperparams,
+    algo: str,
+    names: list[str],
+    given: str | PreferenceSpace,
+    preferences: dict[str, float] | None,
+    relabel_fraction: float,
+) -> tuple[dict[str, float], Hyperparams]:
+    """
+    A conditioned manager's settings: its space in ``wrapper_kwargs``, the preference it acts at first (the
+    unweighted one unless given, within the space) and its config block with the relabelling buffer.
+    """
+    conditioning = _preference_space(given, names)
+    wrapper_kwargs["manager_preferences"] = conditioning.to_json()
+    factors = conditioning.check(preferences or conditioning.default)
+    return factors, _with_preference_relabeling(hyperparams, algo, names, conditioning, relabel_fraction)
+
+
+def _ham_start(given: float | HamStart | None, names: list[str], algo: str) -> HamStart | None:
+    """The start from HAM, checked: HAM switches between workers named ``goal`` and ``avoid``."""
+    if given is None:
+        return None
+    if algo not in HAM_START_ALGOS:
+        raise ValueError(f"The start from HAM fits managers of {list(HAM_START_ALGOS)}, not {algo!r}")
+    if not {"goal", "avoid"} <= set(names):
+        raise ValueError(
+            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {names}"
+        )
+    return given if isinstance(given, HamStart) else HamStart(float(given))
+
+
+def _preference_space(given: str | PreferenceSpace, names: list[str]) -> PreferenceSpace:
+    """A conditioned manager's preference space, from its command-line form or as given, for ``names``."""
+    space = PreferenceSpace.parse(given, names) if isinstance(given, str) else given
+    if list(space.names) != names:
+        raise ValueError(f"The preference space names workers {list(space.names)}, the manager {names}")
+    return space
+
+
+def _with_preference_relabeling(
+    hyperparams: Hyperparams, algo: str, names: list[str], space: PreferenceSpace, relabel_fraction: float
+) -> Hyperparams:
+    """
+    The manager's config block with the preference-relabelling replay buffer, for an algorithm with a replay
+    buffer (an on-policy one, PPO, learns from the preference drawn each episode only).
+    """
+    if "replay_buffer_class" not in inspect.signature(algo_class(algo).__init__).parameters:
+        return hyperparams
+    if hyperparams.algo_kwargs.get("replay_buffer_class") is not None:
+        raise ValueError(
+            "A conditioned manager replays its steps with PreferenceRelabelingReplayBuffer: remove "
+            "replay_buffer_class from the manager's config block"
+        )
+    if not 0.0 <= relabel_fraction <= 1.0:
+        raise ValueError(f"Expected the relabel fraction in [0, 1], actually: {relabel_fraction}")
+    kwargs = {
+        **hyperparams.algo_kwargs,
+        "replay_buffer_class": PreferenceRelabelingReplayBuffer,
+        "replay_buffer_kwargs": {
+            "names": names,
+            "space": space.to_json(),
+            "relabel_fraction": relabel_fraction,
+        },
+    }
+    return replace(hyperparams, algo_kwargs=kwargs)
 
 
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
@@ -969,6 +1064,10 @@ def train_manager(
     env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
     algo: str | None = None,
+    manager_preferences: str | PreferenceSpace | None = None,
+    relabel_fraction: float | None = None,
+    init_from_ham: float | HamStart | None = None,
+    option_end: str | OptionEnd | None = None,
     *,
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
@@ -1002,6 +1101,22 @@ def train_manager(
     :param env_kwargs: its keyword arguments (default: the manifest's, with the config block's on top).
     :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS` (default ``ddpg``, the paper's);
         its bundled config ``zoo_configs/<algo>.yml`` is the default ``config``.
+    :param manager_preferences: train one manager for every preference (see
+        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace`): ``"ratio-sweep"``,
+        ``"dirichlet[:ALPHA]"``, ``"goal=1.6,avoid=0.4;goal=0.4,avoid=1.6"`` or a space. The manager observes
+        the normalised preference weights, a preference is drawn every episode, and an off-policy manager
+        replays stored steps at other preferences (``PreferenceRelabelingReplayBuffer``). The bundle records
+        the space (``selection.manager_preferences``); ``Hierarchy.set_preference`` picks one at run time.
+        ``preferences`` is then the one the bundle acts at first (default: the unweighted one).
+    :param relabel_fraction: a conditioned off-policy manager's share of replayed steps given another
+        preference (default 0.5).
+    :param init_from_ham: start from the hand-written rule: HAM's threshold (or a
+        :class:`~sb3_hddpg.training.ham_start.HamStart`); the manager imitates HAM's choices and its replay
+        buffer is filled with them before RL (:mod:`sb3_hddpg.training.ham_start`). The bundle's metadata
+        keeps the settings and how often the fitted manager agrees with HAM.
+    :param option_end: options that also end by state: ``"distance=0.5"`` (an obstacle comes within half
+        the sensor range or leaves it), ``"touch"`` (the goal is touched or lost), both (``"distance=0.5,touch"``)
+        or an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`; ``option_steps`` stays the longest option.
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the manager's DDPG; the bundle holds an SB3 manager whichever ``backend`` trains it.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -1025,6 +1140,10 @@ def train_manager(
             ("env_id", env_id),
             ("env_kwargs", env_kwargs),
             ("algo", algo),
+            ("manager_preferences", manager_preferences),
+            ("relabel_fraction", relabel_fraction),
+            ("init_from_ham", init_from_ham),
+            ("option_end", option_end),
         )
         if value is not None
     }
@@ -1041,6 +1160,7 @@ def train_manager(
     factory = setup.env_factory()
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
+    ham_report: dict[str, Any] = {}
     outcome = train_agent(
         factory,
         hyperparams,
@@ -1048,6 +1168,11 @@ def train_manager(
         algo=setup.algo,
         run=_agent_run(run, paths, run.timesteps),
         extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
+        prepare_model=(
+            ham_start_hook(setup.ham_start, factory, run.seed, ham_report)
+            if setup.ham_start is not None
+            else None
+        ),
     )
     hierarchy = Hierarchy(
         outcome.model,
@@ -1062,6 +1187,7 @@ def train_manager(
             "config": hyperparams.raw,
             "metrics": outcome.metrics,
             "backend": outcome.backend,
+            **({"init_from_ham": ham_report} if ham_report else {}),
         },
     )
     hierarchy.save(out_dir / "hierarchy.zip")

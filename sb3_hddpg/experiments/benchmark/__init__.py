@@ -18,7 +18,9 @@ needs to reach 90 % of its final score. A run on a preference is the method key 
 
 Workers are trained once per seed and shared by that seed's ``hddpg*`` and ``ham`` runs; with
 ``workers_from`` they are copied from another benchmark that trained the same ones (e.g. the transfer
-scenario reusing a standard run's workers, :func:`check_workers_source`). Every run is an
+scenario reusing a standard run's workers, :func:`check_workers_source`). ``front`` measures every hierarchy
+over the whole trade-off (:mod:`.front`): per seed a preference-conditioned manager swept over 7 preferences,
+a manager per preference, HAM over a threshold sweep and each worker alone, with pymoo hypervolumes. Every run is an
 independent process (``n_jobs`` at a time, one torch thread each); a run's dependencies (its seed's
 workers) are scheduled before it. Every finished run writes a record atomically to
 ``DIR/records/<method>/seed-<s>.json``, which :func:`run_benchmark` skips when resuming.
@@ -33,6 +35,15 @@ The package follows the benchmark's sections, each a module: :mod:`.methods` (th
 
 from __future__ import annotations
 
+from sb3_hddpg.experiments.benchmark.front import (
+    FRONT_METHOD,
+    REFERENCE_POINTS,
+    SWEEP,
+    FrontPoint,
+    front_figure,
+    front_results,
+    hypervolume,
+)
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_ENV_METHODS,
     DEFAULT_METHODS,
@@ -72,6 +83,7 @@ from sb3_hddpg.experiments.benchmark.run import (
 from sb3_hddpg.experiments.benchmark.settings import (
     DEFAULT_TRANSFER_METHODS,
     DEFAULT_TRANSFER_PREFERENCES,
+    FRONT_METHODS,
     SCENARIOS,
     BenchmarkSettings,
     Task,
@@ -103,15 +115,20 @@ __all__ = [
     "ENV_METHODS",
     "FINAL_METRICS",
     "FLAT_METHODS",
+    "FRONT_METHOD",
+    "FRONT_METHODS",
     "METHODS",
     "METHOD_REGISTRY",
     "OUTPUT_FILES",
     "RECORD_VERSION",
+    "REFERENCE_POINTS",
     "SCENARIOS",
     "SLOPE_UNIT",
+    "SWEEP",
     "TRANSFER_FRACTION",
     "WORKERS",
     "BenchmarkSettings",
+    "FrontPoint",
     "Method",
     "Task",
     "canonical_preference",
@@ -125,6 +142,9 @@ __all__ = [
     "evaluation_rows",
     "final_scores_text",
     "flat_reaches_text",
+    "front_figure",
+    "front_results",
+    "hypervolume",
     "machine_info",
     "markdown_report",
     "method_key",

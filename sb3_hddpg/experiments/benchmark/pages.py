@@ -21,6 +21,7 @@ import numpy as np
 from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
+from sb3_hddpg.experiments.benchmark.front import decides_table, front_table
 from sb3_hddpg.experiments.benchmark.report import headline_figures
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
@@ -239,6 +240,8 @@ TABLES: dict[str, Callable[[dict[str, Any]], str]] = {
     "per-seed-touch": lambda r: per_seed_table(r, "goal_touch_rate", ".1f", 100.0),
     "per-seed-collisions": lambda r: per_seed_table(r, "collisions_per_episode", ".2f"),
     "transfer": transfer_table,
+    "front": lambda r: "\n".join(front_table(r["front"])) if "front" in r else "(not a front run)",
+    "front-decides": lambda r: "\n".join(decides_table(r["front"])) if "front" in r else "(not a front run)",
 }
 
 

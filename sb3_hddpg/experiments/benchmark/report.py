@@ -13,6 +13,7 @@ from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.aggregates import performance_profiles
 from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv
+from sb3_hddpg.experiments.benchmark.front import front_figure, front_table
 from sb3_hddpg.experiments.benchmark.methods import WORKERS
 from sb3_hddpg.experiments.benchmark.statistics import (
     curve_bands,
@@ -164,6 +165,9 @@ def markdown_report(results: dict[str, Any]) -> str:
             )
     lines += _dependence_lines(results)
     lines += _transfer_lines(results)
+    if "front" in results:
+        lines += ["", "**The front** (hypervolume per member over seeds; `benchmark --scenario front`):", ""]
+        lines += front_table(results["front"])
     return "\n".join(lines) + "\n"
 
 
@@ -272,6 +276,8 @@ def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, An
     figures.figure9(results, out / "figure9.png")
     figures.figure10(results, out / "figure10.png")
     headline_figures(out, results, records)
+    if "front" in results:
+        front_figure(results["front"], out / "fronts.png")
 
 
 #: Thresholds of the performance profile, in reach reward (0..2 per step, 200 steps).

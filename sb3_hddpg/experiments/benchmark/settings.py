@@ -57,8 +57,11 @@ def _env_worker_budgets(env_json: str) -> list[int]:
 #: Test episodes per trained model of a development run (the final test set has its own number).
 DEVELOPMENT_TEST_EPISODES = 20
 
-#: ``standard``: every method once per seed; ``transfer``: managers and flat agents on new preferences.
-SCENARIOS = ("standard", "transfer")
+#: ``standard``: every method once per seed; ``transfer``: managers and flat agents on new preferences;
+#: ``front``: every hierarchy over the whole trade-off (:mod:`.front`).
+SCENARIOS = ("standard", "transfer", "front")
+#: The methods of the front scenario: the one that measures every front of a seed.
+FRONT_METHODS = ("hddpg-front",)
 #: The preferences of the transfer scenario by default: the goal term weighted twice, then the avoid term.
 DEFAULT_TRANSFER_PREFERENCES = ("goal=2,avoid=1", "goal=1,avoid=2")
 #: The methods of the transfer scenario by default: the manager against flat DDPG.
@@ -152,13 +155,23 @@ class BenchmarkSettings:
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise ValueError(f"Expected `{name}` >= 1, actually: {getattr(self, name)}")
+        self._check_scenario()
+
+    def _check_scenario(self) -> None:
+        """A known scenario, with its preferences (transfer) or its one method (front)."""
         if self.scenario not in SCENARIOS:
             raise ValueError(f"Unknown scenario {self.scenario!r}; choose from {list(SCENARIOS)}")
-        if self.scenario == "standard":
-            if self.preferences:
-                raise ValueError("Preferences apply to the transfer scenario only (scenario='transfer')")
-        else:
+        if self.scenario != "transfer" and self.preferences:
+            raise ValueError("Preferences apply to the transfer scenario only (scenario='transfer')")
+        if self.scenario == "transfer":
             self._check_transfer()
+        front_methods = [m for m in self.methods if m in FRONT_METHODS]
+        if self.scenario == "front" and list(self.methods) != list(FRONT_METHODS):
+            raise ValueError(f"The front scenario runs {list(FRONT_METHODS)}, actually: {self.methods}")
+        if self.scenario != "front" and front_methods:
+            raise ValueError(f"Methods {front_methods} belong to the front scenario (scenario='front')")
+        if self.scenario == "front" and self.env is not None:
+            raise ValueError("The 'front' scenario is defined for the snake arm only")
 
     def _check_methods(self) -> None:
         """Known and distinct methods, at least one; the backend, and that it trains each flat method."""

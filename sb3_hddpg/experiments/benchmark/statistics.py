@@ -32,6 +32,7 @@ from sb3_hddpg.experiments.benchmark.aggregates import (
     score_matrix,
 )
 from sb3_hddpg.experiments.benchmark.episodes import seed_metrics
+from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, front_results
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
     WORKERS,
@@ -247,6 +248,8 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     }
     if settings.scenario == "transfer":
         results["transfer"] = transfer_results(settings, by_method)
+    if settings.scenario == "front" and FRONT_METHOD in by_method:
+        results["front"] = front_results(by_method[FRONT_METHOD])
     return results
 
 

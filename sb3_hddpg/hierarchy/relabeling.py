@@ -1,0 +1,134 @@
+"""
+Preference relabelling for a preference-conditioned manager: a stored step replayed for another preference.
+
+A conditioned manager's reward is ``sum_w factor_w * reward_w``, linear in each worker's own option reward
+``reward_w``, which :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` puts in every step's
+``info["worker_rewards"]``. So a stored transition costs nothing to replay as if another preference had been
+asked for: the observed weights (the last ``n_workers`` entries of the observation and of the next one) are
+rewritten and the reward recomputed, as hindsight relabelling rewrites a goal
+(:mod:`sb3_hddpg.goal_relabeling`). The environment's dynamics do not depend on the preference, so every
+relabelled transition is a real one. The samples stay SB3's ``ReplayBufferSamples``, which SBX's algorithms
+read the same way.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+
+
+class PreferenceRelabelingReplayBuffer(ReplayBuffer):
+    """
+    SB3's ``ReplayBuffer`` that replays a share of its samples at a freshly drawn preference.
+
+    Use it for a conditioned manager (``train_manager(..., manager_preferences="ratio-sweep")`` sets it up):
+    ``DDPG(..., replay_buffer_class=PreferenceRelabelingReplayBuffer, replay_buffer_kwargs={"space":
+    space.to_json(), "names": names})``. The stored data are never changed.
+
+    :param buffer_size: as SB3's.
+    :param observation_space: as SB3's: the conditioned manager's observation (state, then weights).
+    :param action_space: as SB3's.
+    :param device: as SB3's.
+    :param n_envs: as SB3's.
+    :param optimize_memory_usage: not supported (next observations are needed as stored).
+    :param handle_timeout_termination: as SB3's.
+    :param names: the workers, in the manager's action order.
+    :param space: the trained-over preferences (:meth:`PreferenceSpace.to_json`).
+    :param relabel_fraction: the share of sampled transitions given another preference.
+    :param seed: the seed of the generator that draws the preferences.
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        names: list[str] | None = None,
+        space: dict[str, Any] | None = None,
+        relabel_fraction: float = 0.5,
+        seed: int | None = None,
+    ) -> None:
+        if optimize_memory_usage:
+            raise ValueError("PreferenceRelabelingReplayBuffer does not support optimize_memory_usage=True")
+        if not 0.0 <= relabel_fraction <= 1.0:
+            raise ValueError(f"Expected `relabel_fraction` in [0, 1], actually: {relabel_fraction!r:.50}")
+        if names is None or space is None:
+            raise ValueError(
+                "PreferenceRelabelingReplayBuffer needs the worker `names` and the preference `space`"
+            )
+        super().__init__(
+            buffer_size,
+            observation_space,
+            action_space,
+            device=device,
+            n_envs=n_envs,
+            optimize_memory_usage=False,
+            handle_timeout_termination=handle_timeout_termination,
+        )
+        self.space = PreferenceSpace.from_json(space, names)
+        self.n_workers = len(names)
+        obs_size = int(np.prod(observation_space.shape or (0,)))
+        if obs_size <= self.n_workers:
+            raise ValueError(
+                f"The observation has {obs_size} values: too few to end with {self.n_workers} preference weights"
+            )
+        self.relabel_fraction = float(relabel_fraction)
+        self.total = self.space.total
+        # Per stored step: each worker's own discounted option reward.
+        self.worker_rewards = np.zeros((self.buffer_size, self.n_envs, self.n_workers), dtype=np.float32)
+        self._rng = np.random.default_rng(seed)
+
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        for env_index, info in enumerate(infos):
+            if "worker_rewards" not in info:
+                raise ValueError(
+                    "A step without info['worker_rewards']: the manager's env is not a conditioned "
+                    "WorkerSelectionWrapper (give it manager_preferences)"
+                )
+            self.worker_rewards[self.pos, env_index] = info["worker_rewards"]
+        super().add(obs, next_obs, action, reward, done, infos)
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+        obs = self.observations[batch_inds, env_indices, :].copy()
+        next_obs = self.next_observations[batch_inds, env_indices, :].copy()
+        rewards = self.rewards[batch_inds, env_indices].reshape(-1, 1).copy()
+        relabel = self._rng.random(len(batch_inds)) < self.relabel_fraction
+        if np.any(relabel):
+            weights = self.space.sample_weights(self._rng, int(relabel.sum())).astype(obs.dtype)
+            n = self.n_workers
+            obs[relabel, -n:] = weights
+            next_obs[relabel, -n:] = weights
+            terms = self.worker_rewards[batch_inds[relabel], env_indices[relabel]]
+            rewards[relabel, 0] = self.total * np.sum(weights * terms, axis=1)
+        dones = (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(
+            -1, 1
+        )
+        data = (
+            self._normalize_obs(obs, env),
+            self.actions[batch_inds, env_indices, :],
+            self._normalize_obs(next_obs, env),
+            dones,
+            self._normalize_reward(rewards, env),
+        )
+        return ReplayBufferSamples(*tuple(map(self.to_torch, data)))  # type: ignore[arg-type]

@@ -1,0 +1,135 @@
+"""The front scenario: fronts over preferences and thresholds, pymoo hypervolumes, statistics, table and figure."""
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from sb3_hddpg.experiments.benchmark import (
+    REFERENCE_POINTS,
+    SWEEP,
+    BenchmarkSettings,
+    FrontPoint,
+    front_results,
+    hypervolume,
+    run_benchmark,
+)
+from sb3_hddpg.experiments.benchmark.front import decision_dependence
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from tests.cli_runner import run_cli
+
+
+def _point(touch, contacts, goal=0.5, avoid=0.5):
+    return FrontPoint("p", touch, contacts, goal, avoid, 0.0)
+
+
+def test_hypervolume_is_the_dominated_area_against_the_fixed_reference():
+    reference = REFERENCE_POINTS["hddpg/SnakeReach-v0"]
+    assert reference == {"outcomes": (0.0, 20.0), "terms": (0.0, 0.0)}
+    # One point: the rectangle to the reference. Touch is maximised, contacts minimised.
+    assert hypervolume([_point(0.5, 10.0)], "outcomes", reference["outcomes"]) == pytest.approx(0.5 * 10.0)
+    # Two points: the union of their rectangles; a dominated third adds nothing.
+    two = [_point(0.5, 10.0), _point(0.2, 2.0)]
+    union = 0.5 * 10.0 + 0.2 * 8.0
+    assert hypervolume(two, "outcomes", reference["outcomes"]) == pytest.approx(union)
+    assert hypervolume([*two, _point(0.1, 15.0)], "outcomes", reference["outcomes"]) == pytest.approx(union)
+    assert hypervolume([_point(0, 0, 0.4, 0.5)], "terms", reference["terms"]) == pytest.approx(0.2)
+    assert hypervolume([], "terms", reference["terms"]) == 0.0
+
+
+def test_the_sweep_has_at_least_seven_preferences_with_one_sum():
+    assert len(SWEEP.points) >= 7
+    assert {round(sum(p), 9) for p in SWEEP.points} == {2.0}
+
+
+def test_front_results_compare_members_by_seed():
+    def record(shift):
+        members = {
+            "conditioned": [_point(0.5 + shift, 5.0), _point(0.3, 1.0)],
+            "ham": [_point(0.4, 6.0)],
+            "per-preference": [_point(0.45, 6.0)],
+            "goal": [_point(0.6, 14.0)],
+            "avoid": [_point(0.1, 0.5)],
+        }
+        reference = REFERENCE_POINTS["hddpg/SnakeReach-v0"]
+        from sb3_hddpg.experiments.benchmark.front import member_fields
+
+        return {
+            "front": {name: member_fields(points, reference) for name, points in members.items()},
+            "references": {k: list(v) for k, v in reference.items()},
+            "decides_by_state": {},
+        }
+
+    results = front_results({0: record(0.0), 1: record(0.05), 2: record(0.02)})
+    comparison = results["comparisons"]["conditioned vs ham"]["outcomes"]
+    assert comparison["wins"] == 3 and comparison["difference"] > 0
+    assert results["hypervolume"]["ham"]["outcomes"]["mean"] == pytest.approx(0.4 * 14.0)
+    one = front_results({0: record(0.0)})
+    assert one["comparisons"] == {}  # one seed makes no paired interval
+    # The generated pages' tables (hddpg-cli report): the front and the decides-by-state table.
+    from sb3_hddpg.experiments.benchmark.pages import render_page
+
+    results["decides_by_state"] = {"0": {"goal=1,avoid=1": None}}
+    page = "<!-- generated:run/front -->\n<!-- /generated:run/front -->\n"
+    text, written = render_page(page, "run", {"front": results})
+    assert written == ["front"] and "| conditioned |" in text and "Reference points" in text
+    assert "better in 3 of 3 seeds" in text
+    text, _ = render_page("<!-- generated:run/front -->\n<!-- /generated:run/front -->\n", "run", {})
+    assert "(not a front run)" in text
+
+
+def test_settings_refuse_a_front_scenario_with_other_methods():
+    with pytest.raises(ValueError, match="front scenario runs"):
+        BenchmarkSettings(methods=["hddpg"], scenario="front")
+    with pytest.raises(ValueError, match="belong to the front scenario"):
+        BenchmarkSettings(methods=["hddpg-front"])
+
+
+@pytest.mark.slow
+def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
+    settings = BenchmarkSettings(
+        methods=["hddpg-front"], seeds=[0, 1], timesteps=120, worker_timesteps=200, eval_episodes=1,
+        test_episodes=1, scenario="front",
+    )  # fmt: skip
+    results = run_benchmark(settings, tmp_path)
+    front = results["front"]
+    assert set(front["members"]) == {"conditioned", "per-preference", "ham", "goal", "avoid"}
+    record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
+    assert len(record["front"]["conditioned"]["points"]) == len(SWEEP.points)
+    assert len(record["front"]["per-preference"]["points"]) == len(SWEEP.points)
+    assert record["front"]["ham"]["points"]
+    # HAM's thresholds come from the curve episodes, never the test episodes.
+    assert all("threshold" in t for t in record["ham_thresholds"])
+    assert record["references"] == {"outcomes": [0.0, 20.0], "terms": [0.0, 0.0]}
+    for plane in ("outcomes", "terms"):
+        assert front["hypervolume_per_seed"]["conditioned"][plane].keys() == {"0", "1"}
+    assert "conditioned vs ham" in front["comparisons"]
+    assert (tmp_path / "fronts.png").stat().st_size > 0
+    assert "The front" in (tmp_path / "results.md").read_text()
+    dependence = next(iter(record["decides_by_state"].values()))
+    assert dependence is None or dependence["unit"] == "decisions"
+    # The conditioned bundle of the run acts at every swept preference.
+    bundle = Hierarchy.load(tmp_path / "seed-0" / "hddpg-front" / "conditioned" / "hierarchy.zip")
+    for point in SWEEP.points:
+        bundle.set_preference(dict(zip(SWEEP.names, point)))
+
+
+def test_decisions_are_counted_once_per_option(tmp_path):
+    pytest.importorskip("pymoo")
+    from sb3_hddpg.training.training import train_manager, train_workers
+
+    train_workers(tmp_path / "w", seed=1, timesteps=200, eval_freq=0, eval_episodes=1)
+    hierarchy, _ = train_manager(tmp_path / "w", tmp_path / "m", option_steps=4, seed=1, timesteps=60,
+                                 eval_freq=0, eval_episodes=1)  # fmt: skip
+    env = gym.make("hddpg/SnakeReach-v0")
+    figure = decision_dependence(hierarchy, env, range(15_000, 15_002))
+    assert figure is not None and figure["unit"] == "decisions"
+    steps = 2 * env.spec.max_episode_steps
+    # A decision every 4 env steps: at most a quarter of the steps fall in either band.
+    assert figure["near_decisions"] + figure["clear_decisions"] <= np.ceil(steps / 4)
+
+
+def test_benchmark_cli_refuses_methods_outside_the_front_scenario(tmp_path):
+    result = run_cli("benchmark", "--scenario", "front", "--methods", "hddpg", "--out", str(tmp_path / "b"))
+    assert result.returncode == 2 and "front scenario runs" in result.stdout + result.stderr
