@@ -80,6 +80,11 @@ def test_decision_states_count_choices_by_time_to_collision():
     assert shares["close_share"] == 1.0 and shares["clear_share"] == 0.0 and shares["ratio"] is None
     assert shares["close_decisions"] == 1 and shares["clear_decisions"] == 2  # 5 s is neither band
     assert counted.threshold == 2.0  # every other attribute is the policy's
+    # By default the road is clear only with no car ahead closing in at all.
+    strict = DecisionStates(TTCSwitch(Constant(3), Constant(4), SCALES), SCALES)
+    for obs in (observation((30.0, 0.0, -5.0)), observation(), observation((200.0, 0.0, -1.0))):
+        strict.predict(obs)
+    assert strict.shares("fast")["clear_decisions"] == 1 and strict.shares("fast")["clear_seconds"] is None
 
 
 def test_scales_from_a_highway_env_through_the_adapter():

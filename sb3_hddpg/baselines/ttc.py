@@ -32,6 +32,8 @@ from sb3_hddpg.policy import Policy
 DEFAULT_TTC_THRESHOLD = 2.0
 #: The thresholds the benchmark tries when it tunes the switch (seconds).
 TTC_GRID = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0)
+#: The benchmark's "car close ahead" band for counting decisions: under this time to collision (seconds).
+CLOSE_SECONDS = 3.0
 #: The features the rule reads; highway-env's default ``Kinematics`` features include them.
 REQUIRED_FEATURES = ("presence", "x", "y", "vx")
 
@@ -288,16 +290,19 @@ class DecisionStates:
         :class:`TTCSwitch`).
     :param scales: the env's Kinematics scales.
     :param close: seconds: a decision with a smaller time to collision is made with a car close ahead.
-    :param clear: seconds: one with at least this (``inf`` included) is made with the road clear.
+    :param clear: seconds: one with at least this is made with the road clear (``None``: only one with no car
+        ahead in the lane closing in, an infinite time to collision).
     """
 
-    def __init__(self, policy: Any, scales: KinematicsScales, close: float, clear: float) -> None:
-        if not (0 < close <= clear):
+    def __init__(
+        self, policy: Any, scales: KinematicsScales, close: float = CLOSE_SECONDS, clear: float | None = None
+    ) -> None:
+        if not (0 < close <= (math.inf if clear is None else clear)):
             raise ValueError(f"Expected 0 < close <= clear (seconds), actually: close={close}, clear={clear}")
         self.policy = policy
         self.scales = scales
         self.close_seconds = float(close)
-        self.clear_seconds = float(clear)
+        self.clear_seconds = None if clear is None else float(clear)
         self.close: Counter[str] = Counter()
         self.clear: Counter[str] = Counter()
         self._last_decision: Any = None
@@ -322,7 +327,7 @@ class DecisionStates:
             ttc = float(time_to_collision(observation, self.scales)[0])
             if ttc < self.close_seconds:
                 self.close[selected] += 1
-            elif ttc >= self.clear_seconds:
+            elif ttc >= (math.inf if self.clear_seconds is None else self.clear_seconds):
                 self.clear[selected] += 1
         return action, state
 
