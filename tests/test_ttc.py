@@ -87,6 +87,31 @@ def test_decision_states_count_choices_by_time_to_collision():
     assert strict.shares("fast")["clear_decisions"] == 1 and strict.shares("fast")["clear_seconds"] is None
 
 
+class HoldingManager:
+    """A hierarchy's shape: it decides (a new ``last_manager_action``) every second step and holds the choice."""
+
+    def __init__(self) -> None:
+        self.steps = 0
+        self.last_manager_action: np.ndarray | None = None
+        self.last_selection: str | None = None
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=False):
+        if self.steps % 2 == 0:
+            self.last_manager_action = np.zeros(1)
+            self.last_selection = "safe" if self.steps % 4 == 0 else "fast"
+        self.steps += 1
+        return np.asarray(0), None
+
+
+def test_decision_states_count_a_held_choice_once():
+    counted = DecisionStates(HoldingManager(), SCALES, close=3.0)
+    close = observation((10.0, 0.0, -5.0))
+    for _ in range(8):  # four decisions, all with a car 1 s ahead
+        counted.predict(close)
+    assert counted.shares("safe")["close_decisions"] == 4
+    assert counted.shares("safe")["close_share"] == 0.5
+
+
 def test_scales_from_a_highway_env_through_the_adapter():
     pytest.importorskip("highway_env")
     from sb3_hddpg.envs.terms_env import terms_env
