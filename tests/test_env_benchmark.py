@@ -112,6 +112,17 @@ def test_benchmark_on_highway_end_to_end(tmp_path):
     assert alone["worker"] == "collision" and "decisions_by_ttc" not in alone
     flat = json.loads((out / "records" / "dqn" / "seed-0.json").read_text())
     assert flat["config_blocks"] and "decisions_by_ttc" not in flat
+    # The models export with index.json like the snake's: the hierarchy, the flat agent and every worker.
+    exported = run_cli("export-models", str(out), str(tmp_path / "models"))
+    assert exported.returncode == 0, exported.stderr
+    index = json.loads((tmp_path / "models" / "index.json").read_text())
+    assert {e["method"] for e in index} == {
+        "hddpg-dqn",
+        "dqn",
+        "worker:speed",
+        "worker:lane",
+        "worker:collision",
+    }
     refused = run_cli("benchmark", "--methods", "hddpg,ttc", "--seeds", "1", "--out", str(tmp_path / "s"))
     assert refused.returncode == 2 and "another env" in refused.stderr and "Traceback" not in refused.stderr
 
