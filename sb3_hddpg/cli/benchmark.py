@@ -29,6 +29,7 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
+from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark import (
     DEFAULT_ENV_METHODS,
@@ -36,6 +37,7 @@ from sb3_hddpg.experiments.benchmark import (
     DEFAULT_TRANSFER_METHODS,
     DEFAULT_TRANSFER_PREFERENCES,
     ENV_METHODS,
+    ENV_ONLY_METHODS,
     FRONT_METHODS,
     METHOD_REGISTRY,
     OUTPUT_FILES,
@@ -44,6 +46,7 @@ from sb3_hddpg.experiments.benchmark import (
     Task,
     check_redo,
     check_workers_source,
+    default_env_methods,
     final_scores_text,
     flat_reaches_text,
     run_benchmark,
@@ -201,10 +204,10 @@ def dependence_table(results: dict[str, Any]) -> Table | None:
     return table
 
 
-def _chosen_methods(methods: str | None, transfer: bool, other_env: bool = False) -> list[str]:
+def _chosen_methods(methods: str | None, transfer: bool, shared: TermsEnv | None = None) -> list[str]:
     """The ``--methods`` list (default: the scenario's, or on another env than the snake its own), each known."""
     if methods is None:
-        defaults = DEFAULT_ENV_METHODS if other_env else DEFAULT_METHODS
+        defaults = default_env_methods(shared) if shared is not None else DEFAULT_METHODS
         methods = ",".join(DEFAULT_TRANSFER_METHODS if transfer else defaults)
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     unknown = [m for m in chosen if m not in METHOD_REGISTRY]
@@ -372,7 +375,15 @@ def benchmark_command(
         "--env",
         help=ENV_HELP
         + SNAKE_DEFAULT
-        + f" There the methods are among {list(ENV_METHODS)} (default: {','.join(DEFAULT_ENV_METHODS)}), standard scenario only.",
+        + f" There the methods are among {list(ENV_METHODS)} (default: {','.join(DEFAULT_ENV_METHODS)} on continuous "
+        "actions; on discrete ones hddpg-dqn, each worker alone, flat dqn and ppo, and on highway-env ttc-tuned), "
+        "standard scenario only.",
+    ),
+    worker_algo: str | None = typer.Option(
+        None,
+        "--worker-algo",
+        help="With --env: every worker's algorithm (default: dqn on discrete actions, ddpg on continuous ones), "
+        "e.g. qrdqn or sac.",
     ),
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
@@ -392,7 +403,8 @@ def benchmark_command(
     if preference and not transfer:
         raise typer.BadParameter("applies to --scenario transfer only", param_hint="'--preference'")
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    chosen = _chosen_methods(methods, transfer, other_env=shared is not None)
+    with usage_errors("'--env'"):
+        chosen = _chosen_methods(methods, transfer, shared)
     if scenario == "front" and methods is None:
         chosen = list(FRONT_METHODS)
     if ham_hysteresis < 0:
@@ -400,7 +412,9 @@ def benchmark_command(
     preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []
     with usage_errors("'--backend'"):  # e.g. tqc, which the sbx backend does not train
         BenchmarkSettings(
-            methods=chosen, backend=backend, scenario="front" if scenario == "front" else "standard"
+            methods=[m for m in chosen if m not in ENV_ONLY_METHODS] or ["hddpg"],
+            backend=backend,
+            scenario="front" if scenario == "front" else "standard",
         )
     with usage_errors("'--methods' / '--preference' / '--env'"):
         settings = BenchmarkSettings(
@@ -425,6 +439,7 @@ def benchmark_command(
             ),
             workers_from=str(workers_from.resolve()) if workers_from is not None else None,
             final_test=final_test,
+            worker_algo=worker_algo,
         )
     with usage_errors("'--workers-from'"):
         check_workers_source(settings)

@@ -20,7 +20,14 @@ from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
 from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
-from sb3_hddpg.experiments.benchmark import FLAT_METHODS, WORKERS, read_record_file, split_key
+from sb3_hddpg.experiments.benchmark import (
+    DISCRETE_FLAT_METHODS,
+    DISCRETE_MANAGERS,
+    FLAT_METHODS,
+    WORKERS,
+    read_record_file,
+    split_key,
+)
 from sb3_hddpg.names import check_plain_name, check_preference_text
 from sb3_hddpg.training.run_options import MAX_SEED
 
@@ -32,9 +39,19 @@ INDEX_METHODS = (
     "hddpg-goal",
     "hddpg-avoid",
     "hddpg-sac",
+    *(f"hddpg-{algo}" for algo in DISCRETE_MANAGERS),
     "ham",
     "ham-tuned",
     *FLAT_METHODS,
+    *DISCRETE_FLAT_METHODS,
+)
+#: The methods whose model is a hierarchy bundle (another env's managers by index among them).
+HIERARCHY_METHODS = (
+    "hddpg",
+    "hddpg-goal",
+    "hddpg-avoid",
+    "hddpg-sac",
+    *(f"hddpg-{a}" for a in DISCRETE_MANAGERS),
 )
 
 
@@ -82,11 +99,11 @@ def _read_record(record_file: Path) -> tuple[str, int, list[str]] | None:
 
 def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
     """The file a run's model is opened by and the files it needs beside it, relative to the seed folder."""
-    if base in ("hddpg", "hddpg-goal", "hddpg-avoid", "hddpg-sac"):
+    if base in HIERARCHY_METHODS:
         return f"{run_key}/hierarchy.zip", []
     if base in ("ham", "ham-tuned"):
         return f"{base}/ham.json", []  # its workers are exported with the seed's workers
-    if base in FLAT_METHODS:
+    if base in FLAT_METHODS or base in DISCRETE_FLAT_METHODS:
         return f"{run_key}/flat/{base}.zip", [f"{run_key}/flat/manifest.json"]
     return None
 

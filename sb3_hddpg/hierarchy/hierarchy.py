@@ -251,7 +251,8 @@ class Hierarchy:
         """
         The action of the selected worker, like SB3's ``predict``.
 
-        :param observation: the shared state, shape ``(obs_dim,)`` or ``(batch, obs_dim)``.
+        :param observation: the shared state, of the env's observation shape (``(obs_dim,)`` for the snake), or a
+            batch of them (one more leading axis).
         :param state: unused (no recurrent state), for SB3 compatibility.
         :param episode_start: for SB3 compatibility; a true entry ends the current option.
         :param deterministic: the most probable worker (``True``) or one sampled from the probabilities. An
@@ -262,7 +263,9 @@ class Hierarchy:
         obs = np.asarray(observation, dtype=np.float32)
         if episode_start is not None and np.any(episode_start):
             self.reset_episode()
-        if obs.ndim == 2:
+        # One observation has the env's own shape (a matrix for highway-env's Kinematics); one more axis is a batch.
+        single_ndim = len(getattr(self.observation_space, "shape", None) or (0,))
+        if obs.ndim == single_ndim + 1:
             # Batched: options apply to a single stream of observations, so each row decides anew.
             actions = [self._act(row, deterministic, keep_option=False) for row in obs]
             return np.stack(actions), None

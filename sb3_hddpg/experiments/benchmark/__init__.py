@@ -8,7 +8,10 @@ workers, how it runs, its budget, its colour); adding a method is one :func:`reg
 - ``hddpg-goal`` / ``hddpg-avoid``: managers preferring one worker by ``bias`` (15 %, paper Figure 10);
 - ``ham``: the hand-written switch over the same workers (:mod:`sb3_hddpg.baselines.ham`), no training;
 - ``ddpg``, ``td3``, ``sac`` (and ``tqc``): one flat agent on the combined reward, each given the
-  hierarchy's total env steps (workers + manager), configured by ``zoo_configs/<algo>.yml``.
+  hierarchy's total env steps (workers + manager), configured by ``zoo_configs/<algo>.yml``;
+- on another env (``--env``, :mod:`.env_methods`): each worker alone (``term1-only``...), flat DQN/QR-DQN,
+  managers in the discrete selection mode (``hddpg-dqn``, ``hddpg-qrdqn``) and, on highway-env, the
+  time-to-collision switch (``ttc``, ``ttc-tuned``).
 
 **Scenarios.** ``standard`` runs every method once per seed. ``transfer`` (the paper's "minimal learning
 period") trains each seed's workers once, then for every given preference (e.g. ``goal=2,avoid=1``) a
@@ -35,6 +38,14 @@ The package follows the benchmark's sections, each a module: :mod:`.methods` (th
 
 from __future__ import annotations
 
+from sb3_hddpg.experiments.benchmark.env_methods import (
+    DISCRETE_FLAT_METHODS,
+    DISCRETE_MANAGERS,
+    ENV_METHODS,
+    ENV_ONLY_METHODS,
+    default_env_methods,
+    ttc_workers,
+)
 from sb3_hddpg.experiments.benchmark.front import (
     FRONT_METHOD,
     REFERENCE_POINTS,
@@ -47,7 +58,6 @@ from sb3_hddpg.experiments.benchmark.front import (
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_ENV_METHODS,
     DEFAULT_METHODS,
-    ENV_METHODS,
     FLAT_METHODS,
     METHOD_REGISTRY,
     METHODS,
@@ -112,7 +122,10 @@ __all__ = [
     "DEFAULT_METHODS",
     "DEFAULT_TRANSFER_METHODS",
     "DEFAULT_TRANSFER_PREFERENCES",
+    "DISCRETE_FLAT_METHODS",
+    "DISCRETE_MANAGERS",
     "ENV_METHODS",
+    "ENV_ONLY_METHODS",
     "FINAL_METRICS",
     "FLAT_METHODS",
     "FRONT_METHOD",
@@ -139,6 +152,7 @@ __all__ = [
     "compute_results",
     "curve_bands",
     "curve_statistics",
+    "default_env_methods",
     "evaluation_rows",
     "final_scores_text",
     "flat_reaches_text",
@@ -163,6 +177,7 @@ __all__ = [
     "task_cost",
     "task_job",
     "transfer_results",
+    "ttc_workers",
     "write_csv",
     "write_outputs",
 ]

@@ -18,6 +18,7 @@ import gymnasium as gym
 from sb3_hddpg.algorithms import REGISTRY, algorithms_for
 from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
+from sb3_hddpg.baselines.ttc import CLOSE_SECONDS, DecisionStates, KinematicsScales
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.envs.terms_env import config_key
@@ -137,16 +138,41 @@ def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]
 def test_fields(policy: Policy, env: gym.Env, settings: BenchmarkSettings) -> dict[str, Any]:
     """
     A policy's test evaluation on the benchmark's test episodes as a record's fields: ``test`` (the summary),
-    ``episodes`` (every episode's metrics, :func:`~.episodes.episode_rows`) and ``test_episode_set``.
+    ``episodes`` (every episode's metrics, :func:`~.episodes.episode_rows`) and ``test_episode_set``; on a
+    highway-env env, for a policy that reports its worker choices, ``decisions_by_ttc`` (per worker, its
+    share of the decisions made with a car close ahead and with the road clear: :func:`_ttc_shares`).
     """
     episodes = settings.test_episodes or 1
     seeds = settings.test_set.seeds(episodes)
-    result = evaluate(policy, env, n_episodes=episodes, seed=seeds.start)
+    counted = _decision_states(policy, env, seeds.start)
+    result = evaluate(policy if counted is None else counted, env, n_episodes=episodes, seed=seeds.start)
     return {
         "test": result.summary(),
         "episodes": episode_rows(result, env_contract(env).reward_bounds),
         "test_episode_set": settings.test_episode_set,
+        **({"decisions_by_ttc": _ttc_shares(counted)} if counted is not None else {}),
     }
+
+
+def _decision_states(policy: Policy, env: gym.Env, seed: int) -> DecisionStates | None:
+    """
+    On a highway-env env (Kinematics observation), ``policy`` wrapped to count its worker choices by the
+    time to collision they were made at; ``None`` on any other env or for a policy without worker choices.
+    """
+    if not hasattr(policy, "last_selection"):
+        return None
+    env.reset(seed=seed)  # highway-env sets the observation's scales at its first reset
+    try:
+        scales = KinematicsScales.from_env(env)
+    except ValueError:
+        return None
+    return DecisionStates(policy, scales, close=CLOSE_SECONDS)
+
+
+def _ttc_shares(counted: DecisionStates) -> dict[str, Any]:
+    """Each worker's share of the decisions with a car close ahead and with the road clear (issue's target)."""
+    names = list(getattr(counted.policy, "names", None) or sorted({*counted.close, *counted.clear}))
+    return {name: counted.shares(name) for name in names}
 
 
 def random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
@@ -454,6 +480,6 @@ METHODS = tuple(METHOD_REGISTRY)
 DEFAULT_METHODS: tuple[str, ...] = tuple(m.name for m in METHOD_REGISTRY.values() if m.default)
 #: Flat agents with the goal worker's tricks, and the algorithm each trains.
 FLAT_HER_METHODS = {"sac-her": "sac", "ddpg-her": "ddpg"}
-#: The methods defined on any env with several objectives (``BenchmarkSettings.env``), and their default.
-ENV_METHODS = ("hddpg", *FLAT_METHODS)
+#: The default methods on another env with several objectives and continuous actions (``BenchmarkSettings.env``;
+#: every method defined there, and the defaults on discrete actions: :mod:`.env_methods`).
 DEFAULT_ENV_METHODS = ("hddpg", "ddpg")

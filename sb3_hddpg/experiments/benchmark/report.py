@@ -164,6 +164,7 @@ def markdown_report(results: dict[str, Any]) -> str:
                 else f"| {pair} | slope ratio A / B | undefined (B's slope is 0) | | |"
             )
     lines += _dependence_lines(results)
+    lines += _ttc_dependence_lines(results)
     lines += _transfer_lines(results)
     if "front" in results:
         lines += ["", "**The front** (hypervolume per member over seeds; `benchmark --scenario front`):", ""]
@@ -173,6 +174,37 @@ def markdown_report(results: dict[str, Any]) -> str:
 
 def _share_text(value: float | None) -> str:
     return f"{value:.1%}" if value is not None else "-"
+
+
+def _ttc_dependence_lines(results: dict[str, Any]) -> list[str]:
+    """
+    On highway-env, per method, seed and worker: its share of the decisions made with a car close ahead and
+    with the road clear (the test episodes' ``decisions_by_ttc``), and their ratio.
+    """
+    rows, close = [], None
+    for method, entry in results["methods"].items():
+        for seed, workers in entry.get("decisions_by_ttc", {}).items():
+            for worker, figure in workers.items():
+                close = figure["close_seconds"]
+                ratio = figure["ratio"]
+                rows.append(
+                    f"| {method} | {seed} | {worker} | {_share_text(figure['close_share'])} "
+                    f"({figure['close_decisions']}) | {_share_text(figure['clear_share'])} "
+                    f"({figure['clear_decisions']}) | {f'{ratio:.2f}' if ratio is not None else '-'} |"
+                )
+    if not rows:
+        return []
+    return [
+        "",
+        f"Decisions by time to collision (test episodes): each worker's share of the decisions made with a car "
+        f"close ahead (time to collision under {close:g} s) and with the road clear (no car ahead in the lane "
+        "closing in); decisions counted in brackets. A manager that decides by state gives the safe worker a "
+        "ratio well above 1.",
+        "",
+        "| method | seed | worker | share close ahead | share road clear | ratio |",
+        "|---|---|---|---|---|---|",
+        *rows,
+    ]
 
 
 def _dependence_lines(results: dict[str, Any]) -> list[str]:

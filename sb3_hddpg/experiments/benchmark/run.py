@@ -165,7 +165,7 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
     budget = settings.worker_timesteps or settings.workers_budget
     run = settings.run_options(task.seed, settings.worker_timesteps, budget)
     # Copied workers are finished ones with this budget: train_workers keeps them (resume) and trains nothing.
-    manifest = train_workers(folder, env=settings.terms_env, run=run)
+    manifest = train_workers(folder, env=settings.terms_env, run=run, algos=settings.worker_algos)
     return {
         **reused,
         "worker_timesteps": workers_steps(folder),
@@ -183,8 +183,9 @@ def task_config_blocks(task: Task, settings: BenchmarkSettings) -> dict[str, Any
     """The bundled config blocks a task trains from, by a label (the workers': one per worker)."""
     if task.spec is not None:
         return task.spec.config_blocks(settings)
-    blocks = worker_hyperparams(_worker_names(settings), None, settings.terms_env)
-    return {f"ddpg.yml, {name} worker": block.raw for name, block in blocks.items()}
+    algos = settings.worker_algos or {}
+    blocks = worker_hyperparams(_worker_names(settings), None, settings.terms_env, algos or None)
+    return {f"{algos.get(name, 'ddpg')}.yml, {name} worker": block.raw for name, block in blocks.items()}
 
 
 def _worker_names(settings: BenchmarkSettings) -> list[str]:
@@ -214,14 +215,14 @@ def check_workers_source(settings: BenchmarkSettings) -> None:
     theirs = theirs.get("settings") if isinstance(theirs, dict) else None
     if not isinstance(theirs, dict):
         raise ValueError(f"Not a benchmark's settings: {str(stored)!r}")
-    for key in ("backend", "env", "worker_timesteps"):
+    for key in ("backend", "env", "worker_timesteps", "worker_algo"):
         if theirs.get(key, getattr(BenchmarkSettings, key, None)) != getattr(settings, key):
             raise ValueError(
                 f"The workers in {str(source)!r} were trained with {key}={theirs.get(key)!r}, this benchmark "
                 f"uses {getattr(settings, key)!r}: train them here instead (without --workers-from)"
             )
     names = _worker_names(settings)
-    blocks = worker_hyperparams(names, None, settings.terms_env)
+    blocks = worker_hyperparams(names, None, settings.terms_env, settings.worker_algos)
     for seed in settings.seeds:
         folder = seed_dir(source, seed)
         manifest_path = folder / "workers" / "manifest.json"

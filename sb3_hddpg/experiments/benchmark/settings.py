@@ -8,13 +8,21 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import gymnasium as gym
 from stable_baselines3 import DDPG
 
+from sb3_hddpg.algorithms import algorithm, algorithms_for
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.episode_sets import DEVELOPMENT, FINAL_TEST, FINAL_TEST_EPISODES, EpisodeSet
+from sb3_hddpg.experiments.benchmark.env_methods import (
+    DISCRETE_FLAT_METHODS,
+    DISCRETE_ONLY_METHODS,
+    ENV_METHODS,
+    ENV_ONLY_METHODS,
+    is_discrete,
+)
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_METHODS,
-    ENV_METHODS,
     FLAT_HER_METHODS,
     FLAT_METHODS,
     METHOD_REGISTRY,
@@ -47,11 +55,21 @@ def _manager_option_steps() -> int:
 
 
 @functools.cache
-def _env_worker_budgets(env_json: str) -> list[int]:
+def _env_worker_budgets(env_json: str, worker_algo: str | None = None) -> list[int]:
     """Each worker's config budget on another env (given as JSON, so that the config is read once per env)."""
     env = json.loads(env_json)
     shared = TermsEnv(env["env_id"], dict(env["env_kwargs"]), tuple(env["terms"]))
-    return [block.n_timesteps for block in worker_hyperparams(list(shared.terms), None, shared).values()]
+    algos = dict.fromkeys(shared.terms, worker_algo) if worker_algo else None
+    return [
+        block.n_timesteps for block in worker_hyperparams(list(shared.terms), None, shared, algos).values()
+    ]
+
+
+@functools.cache
+def _env_is_discrete(env_json: str) -> bool:
+    """Whether another env (given as JSON) acts in a Discrete action space: made once per env and process."""
+    env = json.loads(env_json)
+    return is_discrete(TermsEnv(env["env_id"], dict(env["env_kwargs"]), tuple(env["terms"])))
 
 
 #: Test episodes per trained model of a development run (the final test set has its own number).
@@ -120,6 +138,8 @@ class BenchmarkSettings:
         The copies are checked against their manifest's sha256 (:func:`~.run.check_workers_source`).
     :param final_test: score every run on the final test set (:data:`~sb3_hddpg.episode_sets.FINAL_TEST`):
         for the runs of record only, never for a choice; otherwise on the development episodes.
+    :param worker_algo: the algorithm of every worker on another env (``None``: DDPG on continuous actions,
+        DQN on discrete ones; see :attr:`worker_algos`). The snake arm's workers keep their own.
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -139,6 +159,7 @@ class BenchmarkSettings:
     env: dict[str, Any] | None = None
     workers_from: str | None = None
     final_test: bool = False
+    worker_algo: str | None = None
 
     def __post_init__(self) -> None:
         self._check_methods()
@@ -180,8 +201,16 @@ class BenchmarkSettings:
             raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
         self.backend = check_backend(self.backend)
         for method in self.methods:
-            if method in FLAT_METHODS or method in FLAT_HER_METHODS:
+            if method in FLAT_METHODS or method in FLAT_HER_METHODS or method in DISCRETE_FLAT_METHODS:
                 check_algo(FLAT_HER_METHODS.get(method, method), self.backend)
+        if self.env is None:
+            env_only = [m for m in self.methods if m in ENV_ONLY_METHODS]
+            if env_only:
+                raise ValueError(f"Methods {env_only} are defined on another env than the snake arm (--env)")
+            if self.worker_algo is not None:
+                raise ValueError(
+                    "`worker_algo` applies to another env (--env); the snake's workers keep their own"
+                )
         if len(set(self.methods)) != len(self.methods) or not self.methods:
             raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
 
@@ -217,6 +246,26 @@ class BenchmarkSettings:
             )
         if self.scenario != "standard":
             raise ValueError(f"The {self.scenario!r} scenario is defined for the snake arm only")
+        discrete = _env_is_discrete(json.dumps(self.env, sort_keys=True))
+        space = gym.spaces.Discrete(2) if discrete else gym.spaces.Box(-1, 1)
+        # A flat agent or a worker selection by index that cannot act in the env's action space.
+        misfits = [
+            m
+            for m in self.methods
+            if (m in FLAT_METHODS and not algorithm(m).takes(space))
+            or (not discrete and m in DISCRETE_ONLY_METHODS)
+        ]
+        if misfits:
+            raise ValueError(
+                f"Methods {misfits} cannot act in {env['env_id']!r}'s {type(space).__name__} action space"
+            )
+        if self.worker_algo is not None:
+            self.worker_algo = algorithm(self.worker_algo).name
+            if self.worker_algo not in algorithms_for("worker", space):
+                raise ValueError(
+                    f"Expected a worker algorithm for {env['env_id']!r}'s {type(space).__name__} actions, "
+                    f"actually {self.worker_algo!r}; choose from {list(algorithms_for('worker', space))}"
+                )
 
     @property
     def terms_env(self) -> TermsEnv | None:
@@ -224,6 +273,19 @@ class BenchmarkSettings:
         if self.env is None:
             return None
         return TermsEnv(self.env["env_id"], dict(self.env["env_kwargs"]), tuple(self.env["terms"]))
+
+    @property
+    def worker_algos(self) -> dict[str, str] | None:
+        """
+        Each worker's algorithm on another env: :attr:`worker_algo`, else DQN on discrete actions and DDPG on
+        continuous ones (``None`` on the snake arm: its workers' own).
+        """
+        if self.env is None:
+            return None
+        algo = self.worker_algo
+        if algo is None:
+            algo = "dqn" if _env_is_discrete(json.dumps(self.env, sort_keys=True)) else "ddpg"
+        return dict.fromkeys(self.env["terms"], algo)
 
     @property
     def test_set(self) -> EpisodeSet:
@@ -266,7 +328,9 @@ class BenchmarkSettings:
     def workers_budget(self) -> int:
         """Env steps of a seed's workers together: ``worker_timesteps`` each, or each worker's config budget."""
         workers = (
-            _env_worker_budgets(json.dumps(self.env, sort_keys=True))
+            _env_worker_budgets(
+                json.dumps(self.env, sort_keys=True), next(iter((self.worker_algos or {}).values()), None)
+            )
             if self.env is not None
             else [budget for name, budget in _config_budgets().items() if name != MANAGER_KEY]
         )

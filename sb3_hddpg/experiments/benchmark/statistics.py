@@ -205,6 +205,10 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
         if any(figure is not None for figure in dependence.values()):
             methods[method]["state_dependence"] = dependence
+        # On highway-env: each worker's share of the decisions with a car close ahead and the road clear.
+        by_ttc = {str(s): runs[s]["decisions_by_ttc"] for s in seeds if runs[s].get("decisions_by_ttc")}
+        if by_ttc:
+            methods[method]["decisions_by_ttc"] = by_ttc
     # A paired interval needs two pairs at least: with one seed there is no comparison to report.
     pairs = [
         (a, b)

@@ -1,0 +1,216 @@
+"""The benchmark on environments no one here wrote: highway-env's methods, and MORL-baselines beside it."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.cli_runner import REPO, run_cli
+
+HIGHWAY = {
+    "env_id": "hddpg/MultiObjective-v0",
+    "env_kwargs": {"env_id": "mo-highway-fast-v0", "terms": ["speed", "lane", "collision"]},
+    "terms": ["speed", "lane", "collision"],
+}
+MORL_SCRIPT = REPO / "benchmarks" / "morl_baseline.py"
+
+
+def test_env_methods_are_checked_against_the_env():
+    pytest.importorskip("highway_env")
+    from sb3_hddpg.envs.terms_env import TermsEnv
+    from sb3_hddpg.experiments.benchmark import BenchmarkSettings, default_env_methods
+
+    shared = TermsEnv(HIGHWAY["env_id"], HIGHWAY["env_kwargs"], tuple(HIGHWAY["terms"]))
+    assert default_env_methods(shared) == (
+        "hddpg-dqn",
+        "term1-only",
+        "term2-only",
+        "term3-only",
+        "dqn",
+        "ppo",
+        "ttc-tuned",
+    )
+    settings = BenchmarkSettings(
+        methods=list(default_env_methods(shared)), seeds=[0], timesteps=8, env=HIGHWAY
+    )
+    assert settings.worker_algos == {"speed": "dqn", "lane": "dqn", "collision": "dqn"}
+    assert BenchmarkSettings(
+        methods=["hddpg"], timesteps=8, env=HIGHWAY, worker_algo="QRDQN"
+    ).worker_algos == {"speed": "qrdqn", "lane": "qrdqn", "collision": "qrdqn"}
+    with pytest.raises(ValueError, match=r"\['ddpg'\] cannot act"):
+        BenchmarkSettings(methods=["hddpg", "ddpg"], timesteps=8, env=HIGHWAY)
+    with pytest.raises(ValueError, match="worker algorithm"):
+        BenchmarkSettings(methods=["hddpg"], timesteps=8, env=HIGHWAY, worker_algo="sac")
+    with pytest.raises(ValueError, match="another env than the snake"):
+        BenchmarkSettings(methods=["hddpg", "ttc-tuned"], timesteps=8)
+
+
+def test_discrete_methods_refused_on_continuous_actions():
+    pytest.importorskip("mo_gymnasium")
+    from sb3_hddpg.experiments.benchmark import BenchmarkSettings
+
+    car = {
+        "env_id": "hddpg/MultiObjective-v0",
+        "env_kwargs": {"env_id": "mo-mountaincarcontinuous-v0", "terms": ["time", "fuel"]},
+        "terms": ["time", "fuel"],
+    }
+    with pytest.raises(ValueError, match=r"\['hddpg-dqn', 'dqn'\] cannot act"):
+        BenchmarkSettings(methods=["hddpg-dqn", "dqn"], timesteps=8, env=car)
+    assert BenchmarkSettings(methods=["hddpg"], timesteps=8, env=car).worker_algos == {
+        "time": "ddpg",
+        "fuel": "ddpg",
+    }
+
+
+@pytest.mark.slow
+def test_benchmark_on_highway_end_to_end(tmp_path):
+    pytest.importorskip("highway_env")
+    out = tmp_path / "bench"
+    methods = "hddpg-dqn,term1-only,term3-only,dqn,ttc-tuned"
+    done = run_cli(
+        "benchmark",
+        "--env",
+        "mo-highway-fast-v0",
+        "--terms",
+        "speed,lane,collision",
+        "--methods",
+        methods,
+        "--seeds",
+        "1",
+        "--timesteps",
+        "24",
+        "--worker-timesteps",
+        "24",
+        "--eval-episodes",
+        "1",
+        "--test-episodes",
+        "2",
+        "--n-jobs",
+        "1",
+        "--out",
+        str(out),
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["methods"]) == set(methods.split(","))
+    record = json.loads((out / "records" / "ttc-tuned" / "seed-0.json").read_text())
+    assert record["workers"] == {"fast": "speed", "safe": "collision"}
+    assert [p["threshold"] for p in record["threshold_grid"]][:2] == [0.5, 1.0]
+    assert record["threshold"] in [p["threshold"] for p in record["threshold_grid"]]
+    # The rule's own choices, counted by the time to collision: never the safe worker with the road clear.
+    shares = record["decisions_by_ttc"]["collision"]
+    assert shares["clear_share"] in (0.0, None)
+    manager = json.loads((out / "records" / "hddpg-dqn" / "seed-0.json").read_text())
+    assert set(manager["decisions_by_ttc"]) == {"speed", "lane", "collision"}
+    assert manager["worker_timesteps"] == 72  # three workers of 24 env steps
+    alone = json.loads((out / "records" / "term3-only" / "seed-0.json").read_text())
+    assert alone["worker"] == "collision" and "decisions_by_ttc" not in alone
+    flat = json.loads((out / "records" / "dqn" / "seed-0.json").read_text())
+    assert flat["config_blocks"] and "decisions_by_ttc" not in flat
+    # The models export with index.json like the snake's: the hierarchy, the flat agent and every worker.
+    exported = run_cli("export-models", str(out), str(tmp_path / "models"))
+    assert exported.returncode == 0, exported.stderr
+    index = json.loads((tmp_path / "models" / "index.json").read_text())
+    assert {e["method"] for e in index} == {
+        "hddpg-dqn",
+        "dqn",
+        "worker:speed",
+        "worker:lane",
+        "worker:collision",
+    }
+    refused = run_cli("benchmark", "--methods", "hddpg,ttc", "--seeds", "1", "--out", str(tmp_path / "s"))
+    assert refused.returncode == 2 and "another env" in refused.stderr and "Traceback" not in refused.stderr
+
+
+# ------------------------------------------------------------------------ MORL-baselines beside it
+def _morl_python() -> str | None:
+    """The python of a virtual environment with MORL-baselines (``MORL_PYTHON``), else ``None``."""
+    python = os.environ.get("MORL_PYTHON")
+    return python if python and Path(python).is_file() else None
+
+
+def test_morl_runner_says_where_morl_baselines_must_be(tmp_path):
+    # sb3-hddpg's own environment has no MORL-baselines (it pins its own torch): a one-line error, exit 2.
+    if subprocess.run([sys.executable, "-c", "import morl_baselines"], capture_output=True).returncode == 0:
+        pytest.skip("MORL-baselines is installed in this environment")
+    front = tmp_path / "front.json"
+    front.write_text(json.dumps({"front": [[1.0, -1.0]]}))
+    done = subprocess.run(
+        [sys.executable, str(MORL_SCRIPT), "score", "--front", str(front), "--out", str(tmp_path / "o.json")],
+        capture_output=True,
+        text=True,
+    )
+    assert (
+        done.returncode == 2
+        and "MORL-baselines environment" in done.stderr
+        and "Traceback" not in done.stderr
+    )
+
+
+def test_morl_runner_scores_a_given_front(tmp_path):
+    python = _morl_python()
+    if python is None:
+        pytest.skip("set MORL_PYTHON to the python of a virtual environment with morl-baselines")
+    front = tmp_path / "front.json"
+    # (2, 1) dominates (1, 1): the hypervolume from (0, 0) is that of (2, 1) and (1, 3): 2 + 1*2 = 4.
+    front.write_text(json.dumps({"front": [[1.0, 1.0], [2.0, 1.0], [1.0, 3.0]], "method": "hierarchy"}))
+    out = tmp_path / "scored.json"
+    done = subprocess.run(
+        [python, str(MORL_SCRIPT), "score", "--front", str(front), "--ref-point", "0,0", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    record = json.loads(out.read_text())
+    assert record["hypervolume"] == pytest.approx(4.0)
+    assert sorted(record["non_dominated"]) == [[1.0, 3.0], [2.0, 1.0]] and record["method"] == "hierarchy"
+    assert 1.0 < record["expected_utility"] < 3.0
+    bad = subprocess.run(
+        [python, str(MORL_SCRIPT), "score", "--front", str(front), "--ref-point", "0,0,0", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode != 0 and "Traceback" not in bad.stderr
+
+
+@pytest.mark.slow
+def test_capql_trains_and_scores_its_front(tmp_path):
+    python = _morl_python()
+    if python is None:
+        pytest.skip("set MORL_PYTHON to the python of a virtual environment with morl-baselines and mujoco")
+    out = tmp_path / "capql.json"
+    done = subprocess.run(
+        [
+            python,
+            str(MORL_SCRIPT),
+            "train",
+            "--env",
+            "mo-halfcheetah-v5",
+            "--timesteps",
+            "300",
+            "--learning-starts",
+            "200",
+            "--episode-steps",
+            "50",
+            "--preferences",
+            "3",
+            "--episodes",
+            "1",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    record = json.loads(out.read_text())
+    assert record["algorithm"] == "capql" and record["total_timesteps"] == 300
+    assert len(record["front"]) == 3 and record["preferences"][0] == [0.0, 1.0]
+    assert record["hypervolume"] > 0 and record["wall_time_train_s"] > 0
+    assert record["versions"]["torch"] and record["ref_point"] == [-100.0, -100.0]
