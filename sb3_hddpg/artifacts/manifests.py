@@ -14,7 +14,8 @@ from typing import Any
 from sb3_hddpg.artifacts.io import atomic_write_json, locked_file
 from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify_sha256
-from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.workers import Workers, observed_components, shared_env_of
 from sb3_hddpg.policy import WORKER_ENV_IDS
 

@@ -42,7 +42,8 @@ from sb3_hddpg.artifacts.limits import (
     read_member,
 )
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verify_sha256
-from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.artifacts.workers import Workers, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
