@@ -63,6 +63,13 @@ MAX_NESTING = 4
 MAX_MODELS = 64
 #: Most workers one manager may select between.
 MAX_WORKERS = 32
+#: Most items of a list or mapping value from a file (env kwargs, a list setting, term bounds).
+MAX_ITEMS = 64
+#: Largest seed (numpy's ``SeedSequence`` takes any, SB3's ``set_random_seed`` 32 bits).
+MAX_SEED = 2**32 - 1
+#: Most bytes of a run folder's marker read, and most entries it may list (a package writes about ten).
+MAX_MARKER_BYTES = 1 << 16
+MAX_MARKER_ENTRIES = 256
 #: Longest message fragment showing a value from a file.
 MAX_SHOWN = 200
 

@@ -38,6 +38,7 @@ from sb3_hddpg.artifacts.limits import (
     MAX_EPISODE_LENGTH,
     MAX_EVAL_EPISODES,
     MAX_GRADIENT_STEPS,
+    MAX_ITEMS,
     MAX_LEARNING_STARTS,
     MAX_MAGNITUDE,
     MAX_N_ENVS,
@@ -245,7 +246,6 @@ PATH_KEY = re.compile(r"(file|path|dir|config|xml|asset|url)", re.IGNORECASE)
 #: A string from a file: a short plain token (no separators, no leading dot or tilde).
 PLAIN_STRING = re.compile(r"^[A-Za-z0-9_+-][A-Za-z0-9_.+-]{0,63}$")
 #: Most entries of a list or mapping value.
-MAX_ITEMS = 64
 
 
 def check_env_kwargs(

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
-from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, read_json_file
+from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, MAX_SEED, read_json_file
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.callbacks.evaluation import read_history
@@ -64,7 +64,7 @@ def read_record(out: Path, task: Task) -> dict[str, Any] | None:
 def read_record_file(path: Path) -> dict[str, Any]:
     """
     A task's record file, through the JSON size and depth limits and shape-checked: an object whose
-    ``status`` and ``method`` are strings and whose ``seed`` is a whole number in ``[0, 2**31)``.
+    ``status`` and ``method`` are strings and whose ``seed`` is a whole number in ``[0, MAX_SEED]``.
 
     :raises ValueError: one line naming the file (a ``LimitError`` for one too big or too deep).
     """
@@ -79,9 +79,9 @@ def read_record_file(path: Path) -> dict[str, Any]:
         or not isinstance(record.get("method"), str)
         or isinstance(seed, bool)
         or not isinstance(seed, int)
-        or not 0 <= seed < 2**31
+        or not 0 <= seed <= MAX_SEED
     ):
-        raise ValueError(f"{path}: expected a benchmark record (status, method, seed in [0, 2**31))")
+        raise ValueError(f"{path}: expected a benchmark record (status, method, seed in [0, {MAX_SEED}])")
     return record
 
 
