@@ -168,15 +168,29 @@ def json_text(obj: Any, what: str) -> str:
     """
     ``obj`` as indented strict JSON: the one serialiser of every JSON file we write (also inside zips).
 
-    :param obj: plain JSON values.
+    :param obj: plain JSON values, or records of :mod:`sb3_hddpg.artifacts.records` (written as their
+        ``to_json()``).
     :param what: the file, for the message.
     :return: the text; raises :class:`NotFiniteError` naming the first NaN or infinite value's place.
     """
+    obj = _as_json(obj)
     try:
         return json.dumps(obj, indent=2, sort_keys=False, allow_nan=False)
     except ValueError:
         where = _first_not_finite(obj, "") or "a value"
         raise NotFiniteError(f"{what}: {where} is not a finite number; not written") from None
+
+
+def _as_json(value: Any) -> Any:
+    """``value`` with every record (an object with ``to_json``) replaced by its JSON, at any depth."""
+    to_json = getattr(value, "to_json", None)
+    if callable(to_json):
+        return _as_json(to_json())
+    if isinstance(value, dict):
+        return {key: _as_json(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_as_json(item) for item in value]
+    return value
 
 
 def _first_not_finite(value: Any, where: str) -> str | None:

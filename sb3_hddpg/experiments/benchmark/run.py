@@ -22,6 +22,7 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, MAX_SEED, read_json_file
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import verify_sha256
+from sb3_hddpg.artifacts.records import BENCHMARK_RECORD_VERSION as RECORD_VERSION
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.methods import (
@@ -37,9 +38,6 @@ from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compu
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.training.training import train_workers, worker_hyperparams
-
-#: Bumped when a record's meaning changes.
-RECORD_VERSION = 1
 
 
 def seed_dir(out: Path, seed: int) -> Path:
@@ -171,11 +169,9 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
         "worker_timesteps": workers_steps(folder),
         "workers": {
             name: {"timesteps": entry["timesteps_trained"], "metrics": entry["metrics"]}
-            for name, entry in manifest["workers"].items()
+            for name, entry in manifest.entries.items()
         },
-        "history": {
-            name: read_history(folder / "evaluations" / f"{name}.json") for name in manifest["workers"]
-        },
+        "history": {name: read_history(folder / "evaluations" / f"{name}.json") for name in manifest.entries},
     }
 
 
@@ -227,7 +223,7 @@ def check_workers_source(settings: BenchmarkSettings) -> None:
         manifest_path = folder / "workers" / "manifest.json"
         if read_record(source, Task(WORKERS, seed)) is None or not manifest_path.is_file():
             raise ValueError(f"{str(source)!r} has no finished workers for seed {seed}")
-        entries = read_workers_manifest(manifest_path)["workers"]
+        entries = read_workers_manifest(manifest_path).entries
         for name in names:
             block = blocks[name]
             budget = settings.worker_timesteps or int(block.n_timesteps)
@@ -287,7 +283,7 @@ def _copy_workers(source: Path, folder: Path) -> None:
     seed folder, the manifest last: until it is written, the copy does not count as finished.
     """
     manifest = read_workers_manifest(source / "workers" / "manifest.json")
-    for name, entry in manifest["workers"].items():
+    for name, entry in manifest.entries.items():
         path = source / "workers" / entry["file"]
         if path.stat().st_size > MAX_MEMBER_BYTES:
             raise ValueError(f"{str(path)!r} is larger than {MAX_MEMBER_BYTES} bytes: not a worker of ours")
