@@ -19,10 +19,10 @@ from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
-from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, MAX_SEED, read_json_file
+from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, read_json_file
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import verify_sha256
-from sb3_hddpg.artifacts.records import BENCHMARK_RECORD_VERSION as RECORD_VERSION
+from sb3_hddpg.artifacts.records import benchmark_record, read_benchmark_record
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.methods import (
@@ -61,26 +61,13 @@ def read_record(out: Path, task: Task) -> dict[str, Any] | None:
 
 def read_record_file(path: Path) -> dict[str, Any]:
     """
-    A task's record file, through the JSON size and depth limits and shape-checked: an object whose
-    ``status`` and ``method`` are strings and whose ``seed`` is a whole number in ``[0, MAX_SEED]``.
+    A task's record file as its JSON object, read and checked by
+    :func:`~sb3_hddpg.artifacts.records.read_benchmark_record` (the JSON size and depth limits; ``status``
+    and ``method`` strings, ``seed`` a whole number in ``[0, MAX_SEED]``).
 
     :raises ValueError: one line naming the file (a ``LimitError`` for one too big or too deep).
     """
-    try:
-        record = read_json_file(path)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not a readable benchmark record ({type(error).__name__})") from None
-    seed = record.get("seed") if isinstance(record, dict) else None
-    if (
-        not isinstance(record, dict)
-        or not isinstance(record.get("status"), str)
-        or not isinstance(record.get("method"), str)
-        or isinstance(seed, bool)
-        or not isinstance(seed, int)
-        or not 0 <= seed <= MAX_SEED
-    ):
-        raise ValueError(f"{path}: expected a benchmark record (status, method, seed in [0, {MAX_SEED}])")
-    return record
+    return read_benchmark_record(path).to_json()
 
 
 def elapsed_path(out: Path, task: Task) -> Path:
@@ -131,24 +118,18 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
 def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, Any]:
     """The record of one task, run to the end (without its wall times)."""
     folder = seed_dir(out, task.seed)
-    record: dict[str, Any] = {
-        "record_version": RECORD_VERSION,
-        "method": task.method,
-        "seed": task.seed,
-        "status": "done",
-        # Read before training: the blocks this run trains from, whatever the file holds when it ends.
-        "config_blocks": _plain(task_config_blocks(task, settings)),
-    }
+    # Read before training: the blocks this run trains from, whatever the file holds when it ends.
+    results: dict[str, Any] = {"config_blocks": _plain(task_config_blocks(task, settings))}
     spec = task.spec
     if spec is None:
-        record.update(_run_workers(task, settings, folder))
+        results.update(_run_workers(task, settings, folder))
     else:
-        record.update(spec.run(task, settings, folder))
+        results.update(spec.run(task, settings, folder))
         preference = split_key(task.method)[1]
         if preference is not None:
-            record["preference"] = preference
-            record["reference"] = random_reference(settings)
-    return record
+            results["preference"] = preference
+            results["reference"] = random_reference(settings)
+    return benchmark_record(task.method, task.seed, results).to_json()
 
 
 def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
