@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import re
 import reprlib
 import zipfile
@@ -146,7 +147,7 @@ class LimitError(ValueError):
     """Input from a file exceeds one of this module's limits; the message names the file or field."""
 
 
-def brief(value: Any, limit: int = MAX_SHOWN) -> str:
+def brief(value: object, limit: int = MAX_SHOWN) -> str:
     """
     ``repr(value)``, bounded in time and length: nested containers are cut by :mod:`reprlib` (so a YAML alias
     bomb or a 200k-deep list is never expanded), and the result is truncated to ``limit`` characters.
@@ -158,7 +159,7 @@ def brief(value: Any, limit: int = MAX_SHOWN) -> str:
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
-def check_name(value: Any, what: str) -> str:
+def check_name(value: object, what: str) -> str:
     """
     A name that becomes part of a path or a member name: letters, digits, ``_`` and ``-``, at most 64.
 
@@ -179,7 +180,7 @@ def own_env_ids() -> frozenset[str]:
 
 
 def check_env_id(
-    env_id: Any, what: str, allowed_env_ids: Sequence[str] | None = None, trusted: bool = False
+    env_id: object, what: str, allowed_env_ids: Sequence[str] | None = None, trusted: bool = False
 ) -> str:
     """
     An env id read from a file, before it reaches ``gym.make``: registered already, without a ``module:``
@@ -245,14 +246,14 @@ def parse_json(data: bytes | str, what: str) -> Any:
         raise LimitError(f"{what}: JSON nested too deeply") from None
 
 
-def read_json_file(path: Any, what: str | None = None) -> Any:
+def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any:
     """:func:`parse_json` of a file, reading at most one byte past the limit."""
     with open(path, "rb") as handle:
         data = handle.read(MAX_JSON_BYTES + 1)
     return parse_json(data, what or str(path))
 
 
-def count_nodes(value: Any, limit: int = MAX_CONFIG_NODES) -> int:
+def count_nodes(value: object, limit: int = MAX_CONFIG_NODES) -> int:
     """
     The number of values in ``value`` with shared sub-objects counted every time they appear (what
     printing or copying it would cost), stopping past ``limit``. Shared sub-objects (YAML aliases) are
@@ -260,7 +261,7 @@ def count_nodes(value: Any, limit: int = MAX_CONFIG_NODES) -> int:
     """
     sizes: dict[int, int] = {}
 
-    def size(node: Any, depth: int) -> int:
+    def size(node: object, depth: int) -> int:
         if depth > MAX_JSON_DEPTH:
             return limit + 1
         key = id(node)
@@ -375,7 +376,7 @@ def read_member(
     return b"".join(chunks)
 
 
-def check_buffer_size(buffer_size: Any, obs_dim: int, act_dim: int, what: str) -> None:
+def check_buffer_size(buffer_size: object, obs_dim: int, act_dim: int, what: str) -> None:
     """
     A replay buffer's size, before SB3 allocates it: at most :data:`MAX_BUFFER_SIZE` transitions and
     :data:`MAX_BUFFER_BYTES` (observations, next observations, actions, rewards, dones in float32).
@@ -420,7 +421,7 @@ def check_parameter_count(
 
 def check_network_size(
     algo: str,
-    policy_kwargs: Any,
+    policy_kwargs: object,
     obs_dim: int = STAND_IN_OBS_DIM,
     act_dim: int = STAND_IN_ACT_DIM,
     what: str = "policy_kwargs",
@@ -470,7 +471,7 @@ def check_network_size(
     )
 
 
-def _is_int_in(value: Any, maximum: int) -> bool:
+def _is_int_in(value: object, maximum: int) -> bool:
     """``value`` is an int (not a bool) in ``[1, maximum]``."""
     return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= maximum
 
@@ -480,7 +481,7 @@ FILE_PATTERN = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_-]{0,63}\.zip\Z", re.ASCII)
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 
-def check_file_entry(entry: Any, what: str) -> dict[str, Any]:
+def check_file_entry(entry: object, what: str) -> dict[str, Any]:
     """
     One entry of a ``workers/manifest.json`` or ``flat/manifest.json``: its ``file`` is a plain
     ``NAME.zip`` in the manifest's folder, its ``sha256`` a hex digest, and its ``name`` and ``algo`` (which

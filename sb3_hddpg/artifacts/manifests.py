@@ -9,7 +9,9 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
+
+from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.io import atomic_write_json, locked_file
 from sb3_hddpg.artifacts.limits import brief, read_json_file
@@ -132,16 +134,31 @@ def load_workers(
     return Workers(models, states, env_id, env_kwargs, manifest, folder)
 
 
+class TrainedModel(Protocol):
+    """What :func:`model_entry` reads of a training outcome (``training.TrainingOutcome``)."""
+
+    @property
+    def model(self) -> BaseAlgorithm: ...
+    @property
+    def model_path(self) -> Path: ...
+    @property
+    def num_timesteps(self) -> int: ...
+    @property
+    def backend(self) -> str: ...
+    @property
+    def metrics(self) -> dict[str, Any]: ...
+
+
 def model_entry(
     name: str,
-    outcome: Any,
+    outcome: TrainedModel,
     algo: str,
     env_id: str,
     env_kwargs: dict[str, Any],
     config: dict[str, Any],
     seed: int,
     timesteps_requested: int,
-    **facts: Any,
+    **facts: object,
 ) -> ModelEntry:
     """
     A trained model's manifest entry: the one builder for workers, flat baselines and the quickstart's agents.
@@ -179,7 +196,9 @@ class ResumeMismatch(ValueError):
     """A resumed run asked for an env or term setting other than the one its saved agents were trained with."""
 
 
-def check_resumed_env(stored: Any, env_id: str, env_kwargs: dict[str, Any], what: str = "--resume") -> None:
+def check_resumed_env(
+    stored: object, env_id: str, env_kwargs: dict[str, Any], what: str = "--resume"
+) -> None:
     """
     The one comparison of a run's recorded env settings with the ones a resumed command asks for: the env
     id and every env keyword argument (``episode_steps``, ``terms``, ``term_bounds``, ``observe``...) must
@@ -213,6 +232,6 @@ def check_resumed_env(stored: Any, env_id: str, env_kwargs: dict[str, Any], what
         )
 
 
-def _as_json(value: Any) -> Any:
+def _as_json(value: object) -> Any:
     """``value`` as JSON would store it (tuples become lists), so that a recorded and a new setting compare equal."""
     return json.loads(json.dumps(value, default=str))

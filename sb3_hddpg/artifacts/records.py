@@ -78,7 +78,7 @@ class JsonRecord(Mapping[str, Any]):
         return len(self.to_json())
 
 
-def _check_version(value: Any, newest: int, what: str) -> int:
+def _check_version(value: object, newest: int, what: str) -> int:
     """A schema version: a whole number no newer than ``newest`` (a missing one is version 1)."""
     version = 1 if value is None else value
     if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= newest:
@@ -218,7 +218,7 @@ def models_manifest(
     return manifest
 
 
-def models_manifest_from_json(value: Any, kind: ManifestKind, what: str) -> ModelsManifest:
+def models_manifest_from_json(value: object, kind: ManifestKind, what: str) -> ModelsManifest:
     """
     A models manifest from parsed JSON, checked: an object with its entries under ``kind``, each a plain
     name with a file beside the manifest and its sha256, and a schema version this library reads.
@@ -311,7 +311,7 @@ class BundleManifest(JsonRecord):
         }
 
     @classmethod
-    def from_json(cls, value: Any, what: str) -> BundleManifest:
+    def from_json(cls, value: object, what: str) -> BundleManifest:
         """
         The one reader of a bundle manifest (parsed by the limited JSON reader): its kind and schema
         version, 2 to :data:`~sb3_hddpg.artifacts.limits.MAX_WORKERS` plain worker names that are exactly
@@ -385,7 +385,7 @@ def _check_worker_names(names: list[Any], workers: list[Any], what: str) -> None
 _SHA256_CHARS = frozenset("0123456789abcdef")
 
 
-def _check_member_entry(label: str, entry: Any, what: str) -> None:
+def _check_member_entry(label: str, entry: object, what: str) -> None:
     """
     One member's entry: its file and sha256, and the member name the writer gives it; any other name is
     refused, so a manifest cannot point at an arbitrary member.
@@ -600,7 +600,7 @@ class BenchmarkRecord(JsonRecord):
         }
 
     @classmethod
-    def from_json(cls, value: Any, what: str) -> BenchmarkRecord:
+    def from_json(cls, value: object, what: str) -> BenchmarkRecord:
         """
         The one reader of a record (parsed by the limited JSON reader): an object whose ``status`` and
         ``method`` are strings, whose ``seed`` is a whole number in ``[0, MAX_SEED]`` and whose version

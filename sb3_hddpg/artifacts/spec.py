@@ -100,7 +100,7 @@ _ENT_COEF_AUTO = re.compile(r"^auto(_[0-9.eE+-]+)?$")
 # --------------------------------------------------------------------------------------------------------------
 
 
-def _as_float(key: str, value: Any) -> float:
+def _as_float(key: str, value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{key}: expected a number, got {brief(value)}")
     value = float(value)
@@ -109,7 +109,7 @@ def _as_float(key: str, value: Any) -> float:
     return value
 
 
-def _as_int(key: str, value: Any, minimum: int | None = None, maximum: int | None = None) -> int:
+def _as_int(key: str, value: object, minimum: int | None = None, maximum: int | None = None) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
         raise ValueError(f"{key}: expected an integer, got {brief(value)}")
     value = int(value)
@@ -120,13 +120,13 @@ def _as_int(key: str, value: Any, minimum: int | None = None, maximum: int | Non
     return value
 
 
-def _as_bool(key: str, value: Any) -> bool:
+def _as_bool(key: str, value: object) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise ValueError(f"{key}: expected true/false, got {brief(value)}")
     return bool(value)
 
 
-def _convert(kind: str, key: str, value: Any) -> Any:
+def _convert(kind: str, key: str, value: object) -> Any:
     if kind == "float":
         return _as_float(key, value)
     if kind == "int":
@@ -151,7 +151,7 @@ def _convert(kind: str, key: str, value: Any) -> Any:
 def _bounds_to_json(array: np.ndarray) -> list[Any]:
     # Strict JSON has no Infinity/NaN, and Box bounds are often infinite: write those as strings. Finite float32
     # values survive float -> JSON -> float64 -> float32 exactly.
-    def encode(x: Any) -> Any:
+    def encode(x: object) -> Any:
         if isinstance(x, list):
             return [encode(v) for v in x]
         if isinstance(x, float) and not math.isfinite(x):
@@ -161,8 +161,8 @@ def _bounds_to_json(array: np.ndarray) -> list[Any]:
     return encode(array.tolist())
 
 
-def _bounds_from_json(key: str, value: Any, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
-    def decode(x: Any) -> Any:
+def _bounds_from_json(key: str, value: object, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+    def decode(x: object) -> Any:
         if isinstance(x, list):
             return [decode(v) for v in x]
         if isinstance(x, str):
@@ -209,7 +209,7 @@ def _discrete_from_json(value: Mapping[str, Any], what: str) -> spaces.Discrete:
     return spaces.Discrete(n, start=start)
 
 
-def _space_from_json(value: Any, what: str) -> spaces.Box | spaces.Discrete:
+def _space_from_json(value: object, what: str) -> spaces.Box | spaces.Discrete:
     if not isinstance(value, Mapping):
         raise ValueError(f"{what}: expected an object, got {brief(value)}")
     if value.get("type") == "Discrete":
@@ -245,7 +245,7 @@ def _space_from_json(value: Any, what: str) -> spaces.Box | spaces.Discrete:
 # --------------------------------------------------------------------------------------------------------------
 
 
-def _layers(key: str, value: Any) -> list[int]:
+def _layers(key: str, value: object) -> list[int]:
     if not isinstance(value, (list, tuple)):
         raise ValueError(f"{key}: expected a list of layer sizes, got {brief(value)}")
     if len(value) > MAX_SPEC_LAYERS:
@@ -253,7 +253,7 @@ def _layers(key: str, value: Any) -> list[int]:
     return [_as_int(key, size, minimum=1, maximum=MAX_SPEC_LAYER_WIDTH) for size in value]
 
 
-def _net_arch(value: Any) -> list[int] | dict[str, list[int]]:
+def _net_arch(value: object) -> list[int] | dict[str, list[int]]:
     if isinstance(value, Mapping):
         unknown = set(value) - {"pi", "qf", "vf"}
         if unknown:
@@ -262,7 +262,7 @@ def _net_arch(value: Any) -> list[int] | dict[str, list[int]]:
     return _layers("policy_kwargs.net_arch", value)
 
 
-def _optimizer_kwargs(value: Any, to_json: bool) -> dict[str, Any]:
+def _optimizer_kwargs(value: object, to_json: bool) -> dict[str, Any]:
     if value is None:
         return {}
     if not isinstance(value, Mapping):
@@ -313,7 +313,7 @@ def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, Any]) -> dict[
     return out
 
 
-def _policy_kwargs_from_json(algo: str, value: Any) -> dict[str, Any]:
+def _policy_kwargs_from_json(algo: str, value: object) -> dict[str, Any]:
     if not isinstance(value, Mapping):
         raise ValueError(f"policy_kwargs: expected an object, got {brief(value)}")
     out: dict[str, Any] = {}
@@ -330,12 +330,12 @@ def _policy_kwargs_from_json(algo: str, value: Any) -> dict[str, Any]:
     return out
 
 
-def _check_policy_kwarg(algo: str, key: str, value: Any) -> None:
+def _check_policy_kwarg(algo: str, key: str, value: object) -> None:
     if key not in SPEC_ALGORITHMS[algo].policy_kwargs:
         raise ValueError(f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(value)})")
 
 
-def _class_name(key: str, value: Any) -> str:
+def _class_name(key: str, value: object) -> str:
     """The name a spec records for a class-valued key: the class must be exactly the table's."""
     table = _CLASS_KWARGS[key]
     cls = table.get(getattr(value, "__name__", ""))
@@ -344,7 +344,7 @@ def _class_name(key: str, value: Any) -> str:
     return cls.__name__
 
 
-def _class_named(key: str, name: Any) -> type:
+def _class_named(key: str, name: object) -> type:
     """The class a spec's name stands for, looked up in the table only (a spec is data, not an import)."""
     table = _CLASS_KWARGS[key]
     if not isinstance(name, str) or name not in table:
@@ -352,7 +352,7 @@ def _class_named(key: str, name: Any) -> type:
     return table[name]
 
 
-def _policy_value(key: str, value: Any) -> Any:
+def _policy_value(key: str, value: object) -> Any:
     """``net_arch`` or a scalar setting, the same in a live model and in JSON."""
     if key == "net_arch":
         return _net_arch(value)
@@ -371,7 +371,7 @@ _INT_POLICY_KWARGS = {
 }
 
 
-def _policy_scalar(key: str, value: Any) -> Any:
+def _policy_scalar(key: str, value: object) -> Any:
     if key in _BOOL_POLICY_KWARGS:
         return _as_bool(f"policy_kwargs.{key}", value)
     if key in _INT_POLICY_KWARGS:
@@ -431,7 +431,7 @@ def model_spec(model: BaseAlgorithm) -> dict[str, Any]:
     }
 
 
-def build_from_spec(spec: Any, device: th.device | str) -> BaseAlgorithm:
+def build_from_spec(spec: object, device: th.device | str) -> BaseAlgorithm:
     """Validate ``spec`` (untrusted JSON) and build a fresh, untrained model from it; raises ValueError."""
     if not isinstance(spec, Mapping):
         raise ValueError(f"spec: expected an object, got {type(spec).__name__}")

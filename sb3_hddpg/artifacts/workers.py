@@ -5,7 +5,7 @@ with the shared env they were trained for.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,7 +63,7 @@ class Workers(Mapping[str, Any]):
     def __repr__(self) -> str:
         return f"Workers({list(self.models)}, env_id={self.env_id!r}, folder={str(self.folder)!r})"
 
-    def make_env(self, **overrides: Any) -> gym.Env:
+    def make_env(self, **overrides: object) -> gym.Env:
         """
         The shared env as the workers were trained for it: ``gym.make(env_id, **env_kwargs)``.
 
@@ -95,7 +95,7 @@ def shared_env_of(
     env_id: str | None,
     env_kwargs: dict[str, Any] | None,
     trusted: bool = False,
-    allowed_env_ids: Any = None,
+    allowed_env_ids: Sequence[str] | None = None,
 ) -> tuple[str, dict[str, Any]]:
     """
     The shared env a manager over these workers acts in: ``env_id`` if given, else the manifest's
