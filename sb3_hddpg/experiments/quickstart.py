@@ -201,7 +201,7 @@ def _train_job(
     common: dict[str, Any] = dict(config=config, run=run, extra_callbacks=[_ProgressReporter()])
     if kind == "worker":
         manifest = training.train_workers(run_dir, workers=[name], **common)
-        out: dict[str, Any] = {"entry": manifest.entries[name]}
+        out: dict[str, Any] = {"entry": manifest["workers"][name]}
         steps = out["entry"]["timesteps_trained"]
     elif kind == "manager":
         _, outcome = training.train_manager(run_dir, run_dir, **common)
@@ -210,7 +210,7 @@ def _train_job(
     else:
         # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
         manifest, _ = training.train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
-        out = dict(manifest.entries[name])
+        out = manifest["models"][name]
         steps = out["timesteps_trained"]
     out.update(
         {

@@ -588,7 +588,7 @@ def train_workers(
     env: TermsEnv | None = None,
     algos: Mapping[str, str] | None = None,
     **run_changes: Any,
-) -> ModelsManifest:
+) -> dict[str, Any]:
     """
     Train each named worker as a plain SB3 model (DDPG, the paper's, unless ``algos`` names another) on its
     own registered env id (paper Algorithm 1, first half) and write ``out_dir/workers/<name>.zip`` and
@@ -668,7 +668,7 @@ def train_workers(
         save_manifest(manifest_path, manifest)
         if on_worker_done is not None:
             on_worker_done(name, outcome)
-    return manifest
+    return manifest.to_json()
 
 
 #: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
@@ -692,7 +692,7 @@ def train_flat(
     extra_callbacks: Sequence[BaseCallback] = (),
     block: str | None = None,
     **run_changes: Any,
-) -> tuple[ModelsManifest, TrainingOutcome | None]:
+) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
     "single DDPG", Section 3.3), and write ``out_dir/flat/<name>.zip`` and ``out_dir/flat/manifest.json``.
@@ -735,7 +735,7 @@ def train_flat(
     if run.resume:
         check_resumed_env(manifest.entries.get(name), env_id, make_kwargs)
     if run.resume and _finished(manifest.entries.get(name), budget):
-        return manifest, None  # finished in an earlier run
+        return manifest.to_json(), None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
     factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
     if preferences is not None:
@@ -764,7 +764,7 @@ def train_flat(
     )
     manifest = manifest.with_entry(name, entry)
     save_manifest(manifest_path, manifest)
-    return manifest, outcome
+    return manifest.to_json(), outcome
 
 
 @dataclass

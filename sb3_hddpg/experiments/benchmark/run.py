@@ -150,9 +150,11 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
         "worker_timesteps": workers_steps(folder),
         "workers": {
             name: {"timesteps": entry["timesteps_trained"], "metrics": entry["metrics"]}
-            for name, entry in manifest.entries.items()
+            for name, entry in manifest["workers"].items()
         },
-        "history": {name: read_history(folder / "evaluations" / f"{name}.json") for name in manifest.entries},
+        "history": {
+            name: read_history(folder / "evaluations" / f"{name}.json") for name in manifest["workers"]
+        },
     }
 
 
