@@ -108,6 +108,8 @@ MAX_SPEC_LAYER_WIDTH = 1 << 16
 MAX_SPEC_LAYERS = 64
 #: Most actions of a Discrete action space in a spec.
 MAX_DISCRETE_ACTIONS = 1 << 16
+#: Largest magnitude of a Discrete space's ``start`` in a spec (a 32-bit action index).
+MAX_DISCRETE_START = 1 << 31
 #: Most elements of an observation or action space in a spec (ours: 27 and 6).
 MAX_SPACE_SIZE = 1 << 16
 #: Most warm-up steps of a batch-renormalisation layer (CrossQ's ``renorm_warmup_steps``).

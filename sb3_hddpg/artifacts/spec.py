@@ -26,6 +26,7 @@ from sb3_hddpg.algorithms import ACTIVATIONS, REGISTRY, Algorithm
 from sb3_hddpg.artifacts.limits import (
     MAX_CRITICS,
     MAX_DISCRETE_ACTIONS,
+    MAX_DISCRETE_START,
     MAX_QUANTILES,
     MAX_RENORM_WARMUP_STEPS,
     MAX_SPACE_SIZE,
@@ -205,7 +206,9 @@ def _discrete_from_json(value: Mapping[str, Any], what: str) -> spaces.Discrete:
     if unknown:
         raise ValueError(f"{what}: unknown key {brief(sorted(map(str, unknown))[0])} for a Discrete space")
     n = _as_int(f"{what}.n", value.get("n"), minimum=1, maximum=MAX_DISCRETE_ACTIONS)
-    start = _as_int(f"{what}.start", value.get("start", 0), minimum=-(1 << 31), maximum=1 << 31)
+    start = _as_int(
+        f"{what}.start", value.get("start", 0), minimum=-MAX_DISCRETE_START, maximum=MAX_DISCRETE_START
+    )
     return spaces.Discrete(n, start=start)
 
 
