@@ -36,10 +36,10 @@ class BundleManifest(JsonRecord):
     :param schema_version: the file's schema version.
     """
 
-    env_id: Any
-    env_kwargs: Any
+    env_id: object
+    env_kwargs: object
     worker_names: list[str]
-    selection: Any
+    selection: object
     manager: Mapping[str, Any]
     workers: Mapping[str, Mapping[str, Any]]
     versions: Mapping[str, Any] = field(default_factory=dict)
@@ -122,7 +122,7 @@ def bundle_manifest(
     )
 
 
-def _check_worker_names(names: list[Any], workers: list[Any], what: str) -> None:
+def _check_worker_names(names: list[object], workers: list[object], what: str) -> None:
     """``worker_names``: 2 to ``MAX_WORKERS`` plain names, exactly the keys of ``workers`` in order."""
     if not 2 <= len(names) <= MAX_WORKERS:
         raise ValueError(
