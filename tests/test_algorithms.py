@@ -16,7 +16,8 @@ from stable_baselines3.common.env_util import make_vec_env
 from sb3_hddpg.algorithms import ACTION_SPACES, REGISTRY, ROLES, NetworkShape, algorithm, algorithms_for
 from sb3_hddpg.artifacts.limits import LimitError, check_parameter_count
 from sb3_hddpg.artifacts.manifests import load_workers
-from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.experiments.hyperparams_opt import SAMPLERS, search_space
 from sb3_hddpg.hierarchy.selection import FrozenWorker
 from sb3_hddpg.media.figures import COLOURS

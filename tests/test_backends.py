@@ -245,7 +245,8 @@ def test_a_learning_rate_schedule_reaches_the_jax_optimisers(algo, tmp_path):
 def test_export_acts_like_the_jax_policy(trained, algo, tmp_path):
     from stable_baselines3 import DDPG, SAC, TD3
 
-    from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+    from sb3_hddpg.artifacts.safe_load import load_model
+    from sb3_hddpg.artifacts.spec import model_spec
 
     model, exported, _ = trained[algo]
     sb3_class = {"ddpg": DDPG, "td3": TD3, "sac": SAC}[algo]

@@ -172,7 +172,7 @@ def test_package_writes_nothing_outside_its_folder(tmp_path):
     worker.save(folder / "goal.zip")
     with zipfile.ZipFile(folder / "goal.zip", "a") as archive:
         archive.writestr("../../escaped.txt", "outside")
-    from sb3_hddpg.artifacts.safe_load import model_spec
+    from sb3_hddpg.artifacts.spec import model_spec
 
     for algo in ("../../y", "/tmp/x/y"):
         entry = {
@@ -231,7 +231,7 @@ def test_only_registered_allowed_env_ids_are_used(bundle, tmp_path):
 
 def test_worker_manifest_env_ids_and_ham_files_pass_the_same_gate(tmp_path):
     from sb3_hddpg.artifacts.provenance import sha256_file
-    from sb3_hddpg.artifacts.safe_load import model_spec
+    from sb3_hddpg.artifacts.spec import model_spec
     from sb3_hddpg.baselines.ham import load_ham
 
     folder = tmp_path / "workers"

@@ -11,7 +11,8 @@ import pytest
 from PIL import Image
 from stable_baselines3 import DDPG
 
-from sb3_hddpg.experiments.quickstart import BUDGETS, RESULTS_SCHEMA_VERSION, STAGES
+from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION
+from sb3_hddpg.experiments.quickstart import BUDGETS, STAGES
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.config import load_hyperparams, manager_option_steps
 from tests.cli_runner import run_cli
@@ -35,7 +36,9 @@ def test_prints_the_table_and_the_run_folder(run):
 def test_results_json_schema(run):
     out, _ = run
     results = json.loads((out / "results.json").read_text())
-    assert results["schema_version"] == RESULTS_SCHEMA_VERSION and results["kind"] == "sb3-hddpg-quickstart"
+    assert (
+        results["schema_version"] == QUICKSTART_RESULTS_VERSION and results["kind"] == "sb3-hddpg-quickstart"
+    )
     assert results["budget"]["name"] == "tiny" and results["seed"] == 1
     assert results["eval_seeds"] == list(range(10_000, 10_000 + BUDGETS["tiny"].compare_episodes))
     expected = {"HDDPG", "HAM", "flat DDPG", "goal worker", "avoid worker", "scripted", "random"}

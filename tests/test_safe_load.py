@@ -17,7 +17,8 @@ import torch as th
 from sb3_contrib import TQC
 from stable_baselines3 import A2C, DDPG, SAC, TD3
 
-from sb3_hddpg.artifacts.safe_load import SafeLoadError, load_model, load_model_safely, model_spec
+from sb3_hddpg.artifacts.safe_load import SafeLoadError, load_model, load_model_safely
+from sb3_hddpg.artifacts.spec import model_spec
 
 TINY = {"net_arch": [16, 16]}
 

@@ -13,7 +13,7 @@ import signal
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import IO, Any, TypeVar
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -48,7 +48,7 @@ def deferred_stop_signals() -> Iterator[None]:
     """
     received: list[signal.Signals] = []
 
-    def hold(signum: int, frame: Any) -> None:
+    def hold(signum: int, frame: object) -> None:
         if signum not in received:
             received.append(signal.Signals(signum))
 
@@ -155,7 +155,7 @@ class NotFiniteError(ValueError):
     """A value about to be written to a JSON file is NaN or infinite (JSON has no such numbers)."""
 
 
-def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
+def atomic_write_json(path: str | os.PathLike[str], obj: object) -> Path:
     """
     Write ``obj`` as indented JSON to ``path`` atomically. NaN and infinities are refused (strict JSON has
     none, and a ``NaN`` in a result file is a silently wrong result): :class:`NotFiniteError` names the
@@ -164,14 +164,16 @@ def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
     return atomic_write_bytes(path, (json_text(obj, Path(path).name) + "\n").encode())
 
 
-def json_text(obj: Any, what: str) -> str:
+def json_text(obj: object, what: str) -> str:
     """
     ``obj`` as indented strict JSON: the one serialiser of every JSON file we write (also inside zips).
 
-    :param obj: plain JSON values.
+    :param obj: plain JSON values, or records of :mod:`sb3_hddpg.artifacts.records` (written as their
+        ``to_json()``).
     :param what: the file, for the message.
     :return: the text; raises :class:`NotFiniteError` naming the first NaN or infinite value's place.
     """
+    obj = _as_json(obj)
     try:
         return json.dumps(obj, indent=2, sort_keys=False, allow_nan=False)
     except ValueError:
@@ -179,7 +181,19 @@ def json_text(obj: Any, what: str) -> str:
         raise NotFiniteError(f"{what}: {where} is not a finite number; not written") from None
 
 
-def _first_not_finite(value: Any, where: str) -> str | None:
+def _as_json(value: object) -> Any:
+    """``value`` with every record (an object with ``to_json``) replaced by its JSON, at any depth."""
+    to_json = getattr(value, "to_json", None)
+    if callable(to_json):
+        return _as_json(to_json())
+    if isinstance(value, dict):
+        return {key: _as_json(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_as_json(item) for item in value]
+    return value
+
+
+def _first_not_finite(value: object, where: str) -> str | None:
     """The path (``a.b[2]``) of the first NaN or infinite float in ``value``, else ``None``."""
     if isinstance(value, float) and not math.isfinite(value):
         return where or "the value"
@@ -225,7 +239,7 @@ def holds_lock(folder: str | os.PathLike[str]) -> bool:
     return key in _HELD or _held_by_ancestor(key)
 
 
-def _open_locked(path: Path, blocking: bool) -> Any:
+def _open_locked(path: Path, blocking: bool) -> IO[str]:
     """
     Open ``path`` and ``flock`` it, the file that is at ``path`` once locked: a releasing holder removes
     the file, so a lock taken on a file that was removed meanwhile guards nothing and is taken again.
@@ -249,7 +263,7 @@ def _open_locked(path: Path, blocking: bool) -> Any:
         handle.close()
 
 
-def _release(path: Path, handle: Any) -> None:
+def _release(path: Path, handle: IO[str]) -> None:
     """Remove the lock file, then release it (in this order: see :func:`_open_locked`)."""
     with contextlib.suppress(FileNotFoundError):
         os.unlink(path)
@@ -335,7 +349,7 @@ def holds_folder_lock(folder_of: Callable[[inspect.BoundArguments], Any]) -> Cal
         signature = inspect.signature(function)
 
         @functools.wraps(function)
-        def wrapper(*args: Any, **kwargs: Any) -> Any:
+        def wrapper(*args: object, **kwargs: object) -> Any:
             bound = signature.bind(*args, **kwargs)
             bound.apply_defaults()
             with locked_folder(folder_of(bound)):

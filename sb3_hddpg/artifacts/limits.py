@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import re
 import reprlib
 import zipfile
@@ -63,6 +64,13 @@ MAX_NESTING = 4
 MAX_MODELS = 64
 #: Most workers one manager may select between.
 MAX_WORKERS = 32
+#: Most items of a list or mapping value from a file (env kwargs, a list setting, term bounds).
+MAX_ITEMS = 64
+#: Largest seed (numpy's ``SeedSequence`` takes any, SB3's ``set_random_seed`` 32 bits).
+MAX_SEED = 2**32 - 1
+#: Most bytes of a run folder's marker read, and most entries it may list (a package writes about ten).
+MAX_MARKER_BYTES = 1 << 16
+MAX_MARKER_ENTRIES = 256
 #: Longest message fragment showing a value from a file.
 MAX_SHOWN = 200
 
@@ -79,10 +87,35 @@ MAX_N_ENVS = 64
 MAX_TIMESTEPS = 1_000_000_000
 #: Most warm-up steps before learning starts.
 MAX_LEARNING_STARTS = MAX_BUFFER_SIZE
-#: Widest hidden layer of a network (the parameter count bounds the product).
+#: Widest hidden layer of a network in a config file (the parameter count bounds the product).
 MAX_LAYER_SIZE = 4_096
-#: Most hidden layers of a network.
+#: Most hidden layers of a network in a config file.
 MAX_LAYERS = 16
+#: Most critics of an actor-critic network (``policy_kwargs.n_critics``).
+MAX_CRITICS = 64
+#: Most quantiles of a distributional critic (``policy_kwargs.n_quantiles``).
+MAX_QUANTILES = 4_096
+#: The observation and action widths that stand in for a config's env when its networks are sized
+#: before the env exists (the snake's are 39 and 6); the hidden layers dominate the count.
+STAND_IN_OBS_DIM = 64
+STAND_IN_ACT_DIM = 8
+
+# A saved model's spec (bundles, manifests): far above anything this project trains, so that
+# :data:`MAX_PARAMETERS` is what refuses a network too large, with the total in its message.
+#: Widest hidden layer a spec may describe.
+MAX_SPEC_LAYER_WIDTH = 1 << 16
+#: Most hidden layers a spec may describe.
+MAX_SPEC_LAYERS = 64
+#: Most actions of a Discrete action space in a spec.
+MAX_DISCRETE_ACTIONS = 1 << 16
+#: Largest magnitude of a Discrete space's ``start`` in a spec (a 32-bit action index).
+MAX_DISCRETE_START = 1 << 31
+#: Most elements of an observation or action space in a spec (ours: 27 and 6).
+MAX_SPACE_SIZE = 1 << 16
+#: Most warm-up steps of a batch-renormalisation layer (CrossQ's ``renorm_warmup_steps``).
+MAX_RENORM_WARMUP_STEPS = 1 << 40
+#: Bytes of a zip's ``data`` member read to tell whether SBX saved it.
+SBX_SNIFF_BYTES = 4096
 #: Largest magnitude of a noise parameter, an action penalty or another unbounded float setting.
 MAX_MAGNITUDE = 1e6
 #: Most env steps one manager decision may last (a manager block's ``option_steps``).
@@ -116,7 +149,7 @@ class LimitError(ValueError):
     """Input from a file exceeds one of this module's limits; the message names the file or field."""
 
 
-def brief(value: Any, limit: int = MAX_SHOWN) -> str:
+def brief(value: object, limit: int = MAX_SHOWN) -> str:
     """
     ``repr(value)``, bounded in time and length: nested containers are cut by :mod:`reprlib` (so a YAML alias
     bomb or a 200k-deep list is never expanded), and the result is truncated to ``limit`` characters.
@@ -128,7 +161,7 @@ def brief(value: Any, limit: int = MAX_SHOWN) -> str:
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
-def check_name(value: Any, what: str) -> str:
+def check_name(value: object, what: str) -> str:
     """
     A name that becomes part of a path or a member name: letters, digits, ``_`` and ``-``, at most 64.
 
@@ -149,7 +182,7 @@ def own_env_ids() -> frozenset[str]:
 
 
 def check_env_id(
-    env_id: Any, what: str, allowed_env_ids: Sequence[str] | None = None, trusted: bool = False
+    env_id: object, what: str, allowed_env_ids: Sequence[str] | None = None, trusted: bool = False
 ) -> str:
     """
     An env id read from a file, before it reaches ``gym.make``: registered already, without a ``module:``
@@ -215,14 +248,14 @@ def parse_json(data: bytes | str, what: str) -> Any:
         raise LimitError(f"{what}: JSON nested too deeply") from None
 
 
-def read_json_file(path: Any, what: str | None = None) -> Any:
+def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any:
     """:func:`parse_json` of a file, reading at most one byte past the limit."""
     with open(path, "rb") as handle:
         data = handle.read(MAX_JSON_BYTES + 1)
     return parse_json(data, what or str(path))
 
 
-def count_nodes(value: Any, limit: int = MAX_CONFIG_NODES) -> int:
+def count_nodes(value: object, limit: int = MAX_CONFIG_NODES) -> int:
     """
     The number of values in ``value`` with shared sub-objects counted every time they appear (what
     printing or copying it would cost), stopping past ``limit``. Shared sub-objects (YAML aliases) are
@@ -230,7 +263,7 @@ def count_nodes(value: Any, limit: int = MAX_CONFIG_NODES) -> int:
     """
     sizes: dict[int, int] = {}
 
-    def size(node: Any, depth: int) -> int:
+    def size(node: object, depth: int) -> int:
         if depth > MAX_JSON_DEPTH:
             return limit + 1
         key = id(node)
@@ -345,7 +378,7 @@ def read_member(
     return b"".join(chunks)
 
 
-def check_buffer_size(buffer_size: Any, obs_dim: int, act_dim: int, what: str) -> None:
+def check_buffer_size(buffer_size: object, obs_dim: int, act_dim: int, what: str) -> None:
     """
     A replay buffer's size, before SB3 allocates it: at most :data:`MAX_BUFFER_SIZE` transitions and
     :data:`MAX_BUFFER_BYTES` (observations, next observations, actions, rewards, dones in float32).
@@ -388,12 +421,69 @@ def check_parameter_count(
     return total
 
 
+def check_network_size(
+    algo: str,
+    policy_kwargs: object,
+    obs_dim: int = STAND_IN_OBS_DIM,
+    act_dim: int = STAND_IN_ACT_DIM,
+    what: str = "policy_kwargs",
+    max_layers: int = MAX_LAYERS,
+    max_layer_size: int = MAX_LAYER_SIZE,
+) -> int:
+    """
+    The one check of a network's shape before SB3 allocates it, for config files and saved specs alike:
+    ``net_arch`` (the algorithm's default when absent) is lists of at most ``max_layers`` sizes in
+    ``[1, max_layer_size]``, ``n_critics`` at most :data:`MAX_CRITICS`, ``n_quantiles`` at most
+    :data:`MAX_QUANTILES`, and the networks' total parameters at most :data:`MAX_PARAMETERS`
+    (``net_arch [65536, 65536]`` is 17 GB although each layer may be within bounds).
+
+    :param algo: a registered algorithm, by name or spec class name (any case).
+    :param policy_kwargs: the policy's keyword arguments (anything but a mapping: nothing to check).
+    :param obs_dim: the observation's width (default: a stand-in when the env is not known yet).
+    :param act_dim: the action's width.
+    :param what: where the value comes from, for the message.
+    :param max_layers: most hidden layers (a config's :data:`MAX_LAYERS`, a spec's :data:`MAX_SPEC_LAYERS`).
+    :param max_layer_size: widest hidden layer.
+    :return: the parameter count; raises :class:`LimitError` naming the first value over its limit.
+    """
+    if not isinstance(policy_kwargs, Mapping):
+        return 0
+    record = algorithm(algo)
+    net_arch = policy_kwargs.get("net_arch", list(record.default_net_arch))
+    if isinstance(net_arch, Mapping):
+        pi, qf = net_arch.get("pi", []), net_arch.get(record.critic_layers, [])
+    else:
+        pi = qf = net_arch
+    if not all(
+        isinstance(layers, (list, tuple)) and len(layers) <= max_layers for layers in (pi, qf)
+    ) or not all(_is_int_in(size, max_layer_size) for size in (*pi, *qf)):
+        raise LimitError(
+            f"{what}: expected net_arch to be lists of at most {max_layers} layer sizes in "
+            f"[1, {max_layer_size}], actually: {brief(net_arch)}"
+        )
+    n_critics = policy_kwargs.get("n_critics", record.default_n_critics)
+    n_quantiles = policy_kwargs.get("n_quantiles", 25)
+    if not _is_int_in(n_critics, MAX_CRITICS) or not _is_int_in(n_quantiles, MAX_QUANTILES):
+        raise LimitError(
+            f"{what}: expected n_critics in [1, {MAX_CRITICS}] and n_quantiles in [1, {MAX_QUANTILES}], "
+            f"actually: {brief(n_critics)} and {brief(n_quantiles)}"
+        )
+    return check_parameter_count(
+        algo, obs_dim, act_dim, pi, qf, n_critics=n_critics, n_quantiles=n_quantiles, what=f"{what}.net_arch"
+    )
+
+
+def _is_int_in(value: object, maximum: int) -> bool:
+    """``value`` is an int (not a bool) in ``[1, maximum]``."""
+    return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= maximum
+
+
 #: A model file named in a workers or flat manifest: a name and ``.zip``, in the manifest's own folder.
 FILE_PATTERN = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_-]{0,63}\.zip\Z", re.ASCII)
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 
-def check_file_entry(entry: Any, what: str) -> dict[str, Any]:
+def check_file_entry(entry: object, what: str) -> dict[str, Any]:
     """
     One entry of a ``workers/manifest.json`` or ``flat/manifest.json``: its ``file`` is a plain
     ``NAME.zip`` in the manifest's folder, its ``sha256`` a hex digest, and its ``name`` and ``algo`` (which

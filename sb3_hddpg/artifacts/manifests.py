@@ -7,22 +7,32 @@ verified.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
+
+from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.io import atomic_write_json, locked_file
-from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, check_name, read_json_file
+from sb3_hddpg.artifacts.limits import brief, read_json_file
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify_sha256
-from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.artifacts.records import ModelEntry, ModelsManifest, read_workers_manifest
+from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.workers import Workers, observed_components, shared_env_of
 from sb3_hddpg.policy import WORKER_ENV_IDS
 
-#: The schema version of ``workers/manifest.json``.
-WORKER_MANIFEST_VERSION = 1
+__all__ = [
+    "ResumeMismatch",
+    "check_resumed_env",
+    "load_workers",
+    "model_entry",
+    "read_workers_manifest",
+    "save_manifest",
+]
 
 
-def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
+def save_manifest(path: str | Path, manifest: ModelsManifest | Mapping[str, Any]) -> Path:
     """
     Write a manifest atomically, read-modify-write: the entries (``workers`` or ``models``) already in the
     file are kept unless ``manifest`` replaces them, so two runs writing different agents into one folder
@@ -30,11 +40,12 @@ def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
     listed.
 
     :param path: the manifest file.
-    :param manifest: the new content; its entry mappings win over the file's.
+    :param manifest: the new content (a :class:`~sb3_hddpg.artifacts.records.ModelsManifest` from
+        :func:`~sb3_hddpg.artifacts.records.models_manifest`, or one read back); its entries win over the file's.
     """
 
     path = Path(path)
-    merged = dict(manifest)
+    merged = manifest.to_json() if isinstance(manifest, ModelsManifest) else dict(manifest)
     with locked_file(path):
         try:
             current = read_json_file(path) if path.is_file() else {}
@@ -42,8 +53,8 @@ def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
             current = {}
         if isinstance(current, dict):
             for key in ("workers", "models"):
-                if isinstance(current.get(key), dict) and isinstance(manifest.get(key), dict):
-                    merged[key] = {**current[key], **manifest[key]}
+                if isinstance(current.get(key), dict) and isinstance(merged.get(key), dict):
+                    merged[key] = {**current[key], **merged[key]}
         if isinstance(merged.get("workers"), dict):
             # One order whichever worker finished first (workers trained side by side): the manager's
             # action order follows the manifest's, so it must not depend on timing.
@@ -51,31 +62,6 @@ def save_manifest(path: str | Path, manifest: dict[str, Any]) -> Path:
             known = [n for n in WORKER_ENV_IDS if n in entries]
             merged["workers"] = {n: entries[n] for n in known + sorted(set(entries) - set(known))}
         return atomic_write_json(path, merged)
-
-
-def read_workers_manifest(path: str | Path) -> dict[str, Any]:
-    """
-    Read and shape-check a ``workers/manifest.json``: every entry names its file and sha256.
-
-    :param path: the manifest.
-    :return: the manifest; raises ``ValueError`` naming the file if it is not a valid one.
-    """
-    path = Path(path)
-    try:
-        manifest = read_json_file(path)
-        entries = manifest["workers"]
-        valid = isinstance(entries, dict)
-    except LimitError:
-        raise
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
-        valid = False
-    if not valid:
-        raise ValueError(f"Not a valid workers manifest: {str(path)!r}")
-    # Names and files travel with shared folders: each must be a plain name before it picks a file.
-    for name, entry in entries.items():
-        check_name(name, f"{path}: workers")
-        check_file_entry(entry, f"{path}: workers.{brief(name)}")
-    return manifest
 
 
 def load_workers(
@@ -119,7 +105,7 @@ def load_workers(
             f"No workers manifest in {str(workers_dir)!r} (expected {manifest_path}); run train-workers first"
         )
     manifest = read_workers_manifest(manifest_path)
-    entries = manifest["workers"]
+    entries = manifest.entries
     names = list(names) if names else list(entries)
     duplicates = sorted({n for n in names if names.count(n) > 1})
     if duplicates:
@@ -148,17 +134,32 @@ def load_workers(
     return Workers(models, states, env_id, env_kwargs, manifest, folder)
 
 
+class TrainedModel(Protocol):
+    """What :func:`model_entry` reads of a training outcome (``training.TrainingOutcome``)."""
+
+    @property
+    def model(self) -> BaseAlgorithm: ...
+    @property
+    def model_path(self) -> Path: ...
+    @property
+    def num_timesteps(self) -> int: ...
+    @property
+    def backend(self) -> str: ...
+    @property
+    def metrics(self) -> dict[str, Any]: ...
+
+
 def model_entry(
     name: str,
-    outcome: Any,
+    outcome: TrainedModel,
     algo: str,
     env_id: str,
     env_kwargs: dict[str, Any],
     config: dict[str, Any],
     seed: int,
     timesteps_requested: int,
-    **facts: Any,
-) -> dict[str, Any]:
+    **facts: object,
+) -> ModelEntry:
     """
     A trained model's manifest entry: the one builder for workers, flat baselines and the quickstart's agents.
 
@@ -173,30 +174,31 @@ def model_entry(
     :param facts: more facts for this kind of model (reward term and bounds, preferences, threads...).
     :return: the entry, with the file's sha256, the library versions and the model's rebuild spec.
     """
-    return {
-        "name": name,
-        "file": f"{name}.zip",
-        "sha256": sha256_file(outcome.model_path),
-        "algo": algo,
-        "env_id": env_id,
-        "env_kwargs": env_kwargs,
-        "config": config,
-        "seed": seed,
-        "timesteps_requested": timesteps_requested,
-        "timesteps_trained": outcome.num_timesteps,
-        **facts,
-        "backend": outcome.backend,
-        "versions": library_versions(),
-        "metrics": outcome.metrics,
-        "spec": model_spec(outcome.model),
-    }
+    return ModelEntry(
+        name=name,
+        sha256=sha256_file(outcome.model_path),
+        algo=algo,
+        env_id=env_id,
+        env_kwargs=env_kwargs,
+        config=config,
+        seed=seed,
+        timesteps_requested=timesteps_requested,
+        timesteps_trained=outcome.num_timesteps,
+        backend=outcome.backend,
+        versions=library_versions(),
+        metrics=outcome.metrics,
+        spec=model_spec(outcome.model),
+        facts=facts,
+    )
 
 
 class ResumeMismatch(ValueError):
     """A resumed run asked for an env or term setting other than the one its saved agents were trained with."""
 
 
-def check_resumed_env(stored: Any, env_id: str, env_kwargs: dict[str, Any], what: str = "--resume") -> None:
+def check_resumed_env(
+    stored: object, env_id: str, env_kwargs: dict[str, Any], what: str = "--resume"
+) -> None:
     """
     The one comparison of a run's recorded env settings with the ones a resumed command asks for: the env
     id and every env keyword argument (``episode_steps``, ``terms``, ``term_bounds``, ``observe``...) must
@@ -230,6 +232,6 @@ def check_resumed_env(stored: Any, env_id: str, env_kwargs: dict[str, Any], what
         )
 
 
-def _as_json(value: Any) -> Any:
+def _as_json(value: object) -> Any:
     """``value`` as JSON would store it (tuples become lists), so that a recorded and a new setting compare equal."""
     return json.loads(json.dumps(value, default=str))

@@ -20,13 +20,13 @@ links, never followed.
 from __future__ import annotations
 
 import fcntl
-import json
 import os
 import re
 import shutil
 from pathlib import Path
 
 from sb3_hddpg.artifacts.io import LOCK_FILE, atomic_write_json, holds_lock
+from sb3_hddpg.artifacts.limits import MAX_MARKER_BYTES, MAX_MARKER_ENTRIES, parse_json
 
 #: The hidden file that marks a folder as one of the tool's run folders.
 RUN_MARKER = ".hddpg-run"
@@ -199,10 +199,6 @@ def mark_run_folder(folder: str | os.PathLike[str], command: str, entries: list[
     return atomic_write_json(marker, record)
 
 
-#: Most entries a marker may list (a package writes about ten).
-MAX_MARKER_ENTRIES = 256
-
-
 def _listed_entries(folder: Path) -> frozenset[str]:
     """
     The extra entries the marker lists, read defensively (the marker is a file in a folder anyone may edit):
@@ -210,7 +206,7 @@ def _listed_entries(folder: Path) -> frozenset[str]:
     """
     try:
         with open(folder / RUN_MARKER, "rb") as handle:
-            data = json.loads(handle.read(1 << 16))
+            data = parse_json(handle.read(MAX_MARKER_BYTES), str(folder / RUN_MARKER))
     except (OSError, ValueError):
         return frozenset()
     entries = data.get("entries") if isinstance(data, dict) else None

@@ -38,6 +38,7 @@ from sb3_hddpg.artifacts.limits import (
     MAX_EPISODE_LENGTH,
     MAX_EVAL_EPISODES,
     MAX_GRADIENT_STEPS,
+    MAX_ITEMS,
     MAX_LEARNING_STARTS,
     MAX_MAGNITUDE,
     MAX_N_ENVS,
@@ -81,7 +82,7 @@ class Bound:
         low, high = (int(x) if self.kind is int else x for x in (self.low, self.high))
         return f"{kind} in {left}{low}, {high}{right}{extra}"
 
-    def check(self, value: Any, what: str) -> Any:
+    def check(self, value: object, what: str) -> Any:
         """``value`` as ``kind`` when within the range; raises :class:`LimitError` naming ``what`` otherwise."""
         if not isinstance(value, bool) and value in self.also:
             return value
@@ -96,7 +97,7 @@ class Bound:
         return above and below
 
 
-def _number(value: Any, kind: type) -> int | float | None:
+def _number(value: object, kind: type) -> int | float | None:
     """``value`` as ``kind`` if it is a finite number of that kind (an integral float counts as an int)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
@@ -204,7 +205,7 @@ def check_hyperparameters(block: dict[str, Any], source: str) -> None:
             raise LimitError(f"{source}: {key}: no bounds are declared for this argument; it is not accepted")
 
 
-def _auto_or_number(value: Any, what: str) -> Any:
+def _auto_or_number(value: object, what: str) -> Any:
     """SAC's ``"auto"``, ``"auto_<initial value > 0>"`` or a bounded number."""
     if isinstance(value, str) and _AUTO.match(value):
         _, _, initial = value.partition("_")
@@ -217,7 +218,7 @@ def _auto_or_number(value: Any, what: str) -> Any:
     return Bound(float, -MAX_MAGNITUDE, MAX_MAGNITUDE).check(value, what)
 
 
-def check_train_freq(value: Any, what: str) -> int | tuple[int, str]:
+def check_train_freq(value: object, what: str) -> int | tuple[int, str]:
     """SB3's ``train_freq``: steps, or ``[n, "step" | "episode"]``, with ``n`` in [1, :data:`MAX_TRAIN_FREQ`]."""
     bound = Bound(int, 1, MAX_TRAIN_FREQ)
     if isinstance(value, (list, tuple)):
@@ -245,12 +246,11 @@ PATH_KEY = re.compile(r"(file|path|dir|config|xml|asset|url)", re.IGNORECASE)
 #: A string from a file: a short plain token (no separators, no leading dot or tilde).
 PLAIN_STRING = re.compile(r"^[A-Za-z0-9_+-][A-Za-z0-9_.+-]{0,63}$")
 #: Most entries of a list or mapping value.
-MAX_ITEMS = 64
 
 
 def check_env_kwargs(
     env_id: str,
-    env_kwargs: Any,
+    env_kwargs: object,
     what: str,
     allowed_env_ids: Sequence[str] | None = None,
     trusted: bool = False,
@@ -293,7 +293,7 @@ def check_env_kwargs(
     return checked
 
 
-def check_make_kwargs(env_id: str, env_kwargs: Any, what: str) -> dict[str, Any]:
+def check_make_kwargs(env_id: str, env_kwargs: object, what: str) -> dict[str, Any]:
     """
     A config block's ``env_kwargs`` for ``gym.make(env_id, ...)``: as :func:`check_env_kwargs`, and also
     ``gym.make``'s own ``max_episode_steps`` (bounded). ``env_id`` is trusted (the command chose it).
@@ -352,17 +352,17 @@ def constructor_parameters(env_id: str, what: str) -> tuple[dict[str, Any], bool
     return parameters, bool(functions)
 
 
-def _creator(entry_point: Any, env_id: str, what: str) -> Any:
+def _creator(entry_point: object, env_id: str, what: str) -> Any:
     if callable(entry_point):
         return entry_point
     try:
-        return gym.envs.registration.load_env_creator(entry_point)
+        return gym.envs.registration.load_env_creator(str(entry_point))
     except (ImportError, gym.error.Error) as error:
         first = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise LimitError(f"{what}: {env_id!r} cannot be made here: {brief(first)}") from None
 
 
-def check_env_value(key: str, value: Any, default: Any, what: str) -> Any:
+def check_env_value(key: str, value: object, default: object, what: str) -> Any:
     """
     One env setting: episode lengths bounded, ``render_mode`` only :data:`FILE_RENDER_MODES`, no parameter
     named like a file, a value of the default's type, numbers and strings and lists bounded.
@@ -388,11 +388,11 @@ def check_env_value(key: str, value: Any, default: Any, what: str) -> Any:
     return _plain(value, what, depth=0)
 
 
-def _episode_length(value: Any, what: str) -> int:
+def _episode_length(value: object, what: str) -> int:
     return int(Bound(int, 1, MAX_EPISODE_LENGTH).check(value, what))
 
 
-def _check_kind(value: Any, default: Any, what: str) -> None:
+def _check_kind(value: object, default: object, what: str) -> None:
     """A value whose parameter has a number, boolean or string default must be one too."""
     if value is None or default is inspect.Parameter.empty or default is None:
         return
@@ -409,7 +409,7 @@ def _check_kind(value: Any, default: Any, what: str) -> None:
         raise LimitError(f"{what}: expected a string, got {brief(value)}")
 
 
-def _plain(value: Any, what: str, depth: int) -> Any:
+def _plain(value: object, what: str, depth: int) -> Any:
     """A plain value, bounded: numbers, plain strings, booleans, ``None``, lists and one level of mapping."""
     if value is None or isinstance(value, bool):
         return value
@@ -431,7 +431,7 @@ def _plain(value: Any, what: str, depth: int) -> Any:
     return _refuse(value, what)
 
 
-def _term_bounds(value: Any, what: str) -> dict[str, list[float]]:
+def _term_bounds(value: object, what: str) -> dict[str, list[float]]:
     # Lazily: the env contract's checker is the one rule for bounds (finite, low < high, normalisable).
     from sb3_hddpg.envs.contract import check_bounds
 
@@ -451,7 +451,7 @@ def _term_bounds(value: Any, what: str) -> dict[str, list[float]]:
     return {term: list(pair) for term, pair in checked.items()}
 
 
-def _refuse(value: Any, what: str) -> NoReturn:
+def _refuse(value: object, what: str) -> NoReturn:
     raise LimitError(
         f"{what}: expected a number, a plain string, a boolean, a list of at most {MAX_ITEMS} of them or a "
         f"mapping of names to them, got {brief(value)}"

@@ -5,7 +5,7 @@ with the shared env they were trained for.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -13,6 +13,7 @@ from typing import Any
 import gymnasium as gym
 
 from sb3_hddpg.artifacts.limits import check_env_id
+from sb3_hddpg.artifacts.records import ModelsManifest
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID
 
@@ -46,7 +47,7 @@ class Workers(Mapping[str, Any]):
     states: dict[str, list[str]] = field(default_factory=dict)
     env_id: str | None = SNAKE_SHARED_ENV_ID
     env_kwargs: dict[str, Any] = field(default_factory=dict)
-    manifest: dict[str, Any] = field(default_factory=dict)
+    manifest: ModelsManifest = field(default_factory=lambda: ModelsManifest("workers"))
     folder: Path | None = None
     env_problem: str = ""
 
@@ -62,7 +63,7 @@ class Workers(Mapping[str, Any]):
     def __repr__(self) -> str:
         return f"Workers({list(self.models)}, env_id={self.env_id!r}, folder={str(self.folder)!r})"
 
-    def make_env(self, **overrides: Any) -> gym.Env:
+    def make_env(self, **overrides: object) -> gym.Env:
         """
         The shared env as the workers were trained for it: ``gym.make(env_id, **env_kwargs)``.
 
@@ -78,7 +79,7 @@ class Workers(Mapping[str, Any]):
         metrics and seed, and ``source_sha256``, the hash of the file it came from (the bundle
         re-serialises the model, so its member's own hash differs).
         """
-        entries = self.manifest.get("workers", {})
+        entries = self.manifest.entries
         meta: dict[str, dict[str, Any]] = {}
         for name in self.models:
             entry = entries.get(name, {})
@@ -90,11 +91,11 @@ class Workers(Mapping[str, Any]):
 
 
 def shared_env_of(
-    manifest: dict[str, Any],
+    manifest: ModelsManifest,
     env_id: str | None,
     env_kwargs: dict[str, Any] | None,
     trusted: bool = False,
-    allowed_env_ids: Any = None,
+    allowed_env_ids: Sequence[str] | None = None,
 ) -> tuple[str, dict[str, Any]]:
     """
     The shared env a manager over these workers acts in: ``env_id`` if given, else the manifest's
@@ -110,11 +111,9 @@ def shared_env_of(
     """
     if env_id is not None:
         return env_id, dict(env_kwargs or {})
-    shared = manifest.get("shared_env")
+    shared = manifest.shared_env
     if shared is None:
         return SNAKE_SHARED_ENV_ID, dict(env_kwargs or {})
-    if not isinstance(shared, dict):
-        raise ValueError(f"workers manifest: shared_env must be a mapping, actually: {shared!r:.200}")
     found = check_env_id(
         shared.get("env_id"), "workers manifest: shared_env.env_id", allowed_env_ids, trusted=trusted
     )
@@ -128,7 +127,7 @@ def shared_env_of(
     return found, {**kwargs, **(env_kwargs or {})}
 
 
-def observed_components(manifest: dict[str, Any], names: Any) -> dict[str, list[str]]:
+def observed_components(manifest: ModelsManifest, names: Iterable[str]) -> dict[str, list[str]]:
     """
     The state components each worker was trained on, from its manifest entry's ``env_kwargs["observe"]``.
 
@@ -138,7 +137,7 @@ def observed_components(manifest: dict[str, Any], names: Any) -> dict[str, list[
     """
     out: dict[str, list[str]] = {}
     for name in names:
-        env_kwargs = manifest["workers"][name].get("env_kwargs") or {}
+        env_kwargs = manifest.entries[name].get("env_kwargs") or {}
         observe = env_kwargs.get("observe") if isinstance(env_kwargs, dict) else None
         if observe is not None:
             if not isinstance(observe, list) or not all(isinstance(c, str) for c in observe):

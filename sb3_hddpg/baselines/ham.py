@@ -15,7 +15,6 @@ obstacle within sensor range contributes 1, so with ``n`` links the sum lies in 
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -26,9 +25,8 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.artifacts.limits import brief, check_env_id, check_name, read_json_file
 from sb3_hddpg.artifacts.manifests import load_workers
-from sb3_hddpg.artifacts.values import check_env_kwargs
+from sb3_hddpg.artifacts.records import HamFile, ham_file, read_ham_file
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.policy import Policy
@@ -41,8 +39,6 @@ DISTANCE_COMPONENT = "joint_obstacle_distances"
 #: That is where the avoid reward starts to be lost (it pays clearance up to the sensor range) but
 #: before contact, which the arm cannot undo within one step at full joint speed.
 DEFAULT_MARGIN = 0.5
-#: ``ham.json``'s schema version; :func:`load_ham` refuses newer files.
-HAM_SCHEMA_VERSION = 1
 
 
 class HAMSwitch:
@@ -217,83 +213,38 @@ def save_ham(
     path = Path(path)
     manifest = Path(workers_manifest)
     relative = os.path.relpath(manifest.resolve(), path.parent.resolve())
-    payload = {
-        "schema_version": HAM_SCHEMA_VERSION,
-        "kind": "sb3-hddpg-ham",
-        "threshold": float(threshold),
-        "hysteresis": float(hysteresis),
-        "worker_names": {"goal": names[0], "avoid": names[1]},
-        "workers_manifest": Path(relative).as_posix(),
-        "env_id": env_id,
-        "env_kwargs": dict(env_kwargs or {}),
-        **dict(metadata or {}),
-    }
-    return atomic_write_json(path, payload)
+    record = ham_file(threshold, hysteresis, names, Path(relative).as_posix(), env_id, env_kwargs, metadata)
+    return atomic_write_json(path, record.to_json())
 
 
 def load_ham(
     path: str | os.PathLike[str], trusted: bool = False, allowed_env_ids: Sequence[str] | None = None
-) -> tuple[HAMSwitch, dict[str, Any]]:
+) -> tuple[HAMSwitch, HamFile]:
     """
     Load a switch written by :func:`save_ham`; its workers are verified and loaded by
-    :func:`sb3_hddpg.training.training.load_workers` (weights only unless ``trusted``). Every field is checked
-    first (:mod:`sb3_hddpg.artifacts.limits`): the env id must be registered and allowed, the workers manifest a
-    ``manifest.json`` path, the names plain names.
+    :func:`~sb3_hddpg.artifacts.manifests.load_workers` (weights only unless ``trusted``). Every field is
+    checked first (:func:`~sb3_hddpg.artifacts.records.read_ham_file`): the env id must be registered and
+    allowed, the workers manifest a ``manifest.json`` path, the names plain names.
 
     :param path: the ``ham.json`` file.
     :param trusted: load the workers with SB3's full loader, and accept any registered env id.
     :param allowed_env_ids: registered env ids the file may name besides this package's own.
-    :return: the switch and the file's contents (with ``env_id`` and ``env_kwargs``).
+    :return: the switch and the file's record (:class:`~sb3_hddpg.artifacts.records.HamFile`).
     """
     path = Path(path)
-    try:
-        meta = read_json_file(path)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"No such file: {str(path)!r}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise ValueError(f"Not a valid JSON file: {str(path)!r}") from None
-    if not isinstance(meta, dict) or meta.get("kind") != "sb3-hddpg-ham":
-        raise ValueError(f"{str(path)!r} is not an sb3-hddpg HAM file (expected kind 'sb3-hddpg-ham')")
-    version = meta.get("schema_version")
-    if not isinstance(version, int) or version > HAM_SCHEMA_VERSION:
-        raise ValueError(
-            f"{str(path)!r} has schema_version {version!r}; this sb3-hddpg reads up to {HAM_SCHEMA_VERSION}"
-        )
-    where = str(path)
-    missing = [k for k in ("workers_manifest", "worker_names", "env_id", "threshold") if k not in meta]
-    if missing:
-        raise ValueError(f"{where}: missing field {missing[0]!r}")
-    relative = meta["workers_manifest"]
-    if not isinstance(relative, str) or Path(relative).name != "manifest.json":
-        raise ValueError(
-            f"{where}: workers_manifest must be a path to a manifest.json, got {brief(relative)}"
-        )
-    pair = meta["worker_names"]
-    if not isinstance(pair, dict) or set(pair) != {"goal", "avoid"}:
-        raise ValueError(f"{where}: worker_names must map 'goal' and 'avoid' to names, got {brief(pair)}")
-    names = (
-        check_name(pair["goal"], f"{where}: worker_names.goal"),
-        check_name(pair["avoid"], f"{where}: worker_names.avoid"),
-    )
-    env_id = check_env_id(meta["env_id"], f"{where}: env_id", allowed_env_ids, trusted)
-    env_kwargs = check_env_kwargs(
-        env_id, meta.get("env_kwargs"), f"{where}: env_kwargs", allowed_env_ids, trusted
-    )
-    for key in ("threshold", "hysteresis"):
-        value = meta.get(key, 0.0)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ValueError(f"{where}: {key} must be a finite number, got {brief(value)}")
-    manifest = (path.parent / relative).resolve()
+    meta = read_ham_file(path, trusted, allowed_env_ids)
+    names = meta.names
+    manifest = (path.parent / meta.workers_manifest).resolve()
     workers = load_workers(manifest.parent, names, trusted=trusted)
-    env = gym.make(env_id, **env_kwargs)
+    env = gym.make(meta.env_id, **meta.env_kwargs)
     layout = state_layout_of(env)
     env.close()
     switch = HAMSwitch(
         workers[names[0]],
         workers[names[1]],
         layout,
-        threshold=meta["threshold"],
-        hysteresis=meta.get("hysteresis", 0.0),
+        threshold=meta.threshold,
+        hysteresis=meta.hysteresis,
         names=names,
         worker_states=workers.states,
     )

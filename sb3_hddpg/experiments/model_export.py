@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, read_json_file
+from sb3_hddpg.artifacts.limits import MAX_SEED, MAX_WORKERS, brief, read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
 from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
 from sb3_hddpg.experiments.benchmark import (
@@ -29,7 +29,6 @@ from sb3_hddpg.experiments.benchmark import (
     split_key,
 )
 from sb3_hddpg.names import check_plain_name, check_preference_text
-from sb3_hddpg.training.run_options import MAX_SEED
 
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (

@@ -42,6 +42,7 @@ from sb3_hddpg.artifacts.limits import (
     parse_json,
     read_member,
 )
+from sb3_hddpg.artifacts.records import ManifestKind, models_manifest
 from sb3_hddpg.artifacts.run_folder import (
     RunFolderError,
     check_clearable,
@@ -266,11 +267,10 @@ def _lay_out_model(loaded: LoadedPolicy, source: Path, staging: Path) -> tuple[P
     _unpack_model(model_file, staging / name)
     if loaded.meta:
         # The manifest entry, renamed to the packaged file, keeps the safe (weights-only) loading path.
-        key = "workers" if loaded.kind == "worker" else "models"
+        kind: ManifestKind = "workers" if loaded.kind == "worker" else "models"
         entry = {**loaded.meta, "file": model_file.name}
-        atomic_write_json(
-            staging / "manifest.json", {"schema_version": 1, key: {entry.get("name", name): entry}}
-        )
+        manifest = models_manifest(kind, {entry.get("name", name): entry})
+        atomic_write_json(staging / "manifest.json", manifest.to_json())
     return model_file, _zip_data(model_file)
 
 
@@ -278,17 +278,17 @@ def _lay_out_bundle(source: Path, staging: Path) -> tuple[Path, dict[str, Any]]:
     manifest, members = read_bundle(source)
     model_file = staging / "hierarchy.zip"
     shutil.copyfile(source, model_file)
-    atomic_write_json(staging / "manifest.json", manifest)
+    atomic_write_json(staging / "manifest.json", manifest.to_json())
     config = {
         "kind": "sb3-hddpg-hierarchy",
-        "env_id": manifest["env_id"],
-        "env_kwargs": manifest["env_kwargs"],
-        "worker_names": manifest["worker_names"],
-        "selection": manifest["selection"],
-        "manager": _zip_data(members[manifest["manager"]["file"]]),
+        "env_id": manifest.env_id,
+        "env_kwargs": manifest.env_kwargs,
+        "worker_names": manifest.worker_names,
+        "selection": manifest.selection,
+        "manager": _zip_data(members[manifest.manager["file"]]),
         "workers": {
             name: _zip_data(members[entry["file"]])
-            for name, entry in manifest["workers"].items()
+            for name, entry in manifest.workers.items()
             if entry.get("kind") != "hierarchy"
         },
     }

@@ -36,6 +36,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import library_versions
+from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION, models_manifest
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
@@ -55,8 +56,6 @@ from sb3_hddpg.training.training import WORKER_ENV_IDS
 
 #: The env every method is compared on.
 COMPARISON_ENV_ID = "hddpg/SnakeReach-v0"
-#: ``results.json``'s schema version.
-RESULTS_SCHEMA_VERSION = 2  # 2: no ham_available (HAM is always compared)
 #: The stages, in order; the overall progress bar counts them.
 STAGES = ("train workers", "train manager + flat DDPG", "evaluate on shared seeds", "record GIF", "figures")
 
@@ -376,7 +375,7 @@ def run_quickstart(
     ]
     trained = _run_jobs(worker_jobs, processes, observer, ray_address)
     stage_done(0, trained)
-    manifest = {"schema_version": 1, "workers": {name: trained[name]["entry"] for name in WORKER_ENV_IDS}}
+    manifest = models_manifest("workers", {name: trained[name]["entry"] for name in WORKER_ENV_IDS})
     save_manifest(run_dir / "workers" / "manifest.json", manifest)
 
     # 2. The manager (over the merged workers) and the flat DDPG, side by side.
@@ -498,16 +497,16 @@ def run_quickstart(
     }
     zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
 
-    trained = read_workers_manifest(run_dir / "workers" / "manifest.json")["workers"]
+    entries = read_workers_manifest(run_dir / "workers" / "manifest.json").entries
     zoo_env_kwargs = {
-        env: trained[n].get("env_kwargs") or {} for n, env in WORKER_ENV_IDS.items() if n in trained
+        env: entries[n].get("env_kwargs") or {} for n, env in WORKER_ENV_IDS.items() if n in entries
     }
     files["zoo"] = write_zoo_layout(zoo_models, run_dir / "zoo", env_kwargs=zoo_env_kwargs)
 
     wall = time.monotonic() - started
     files["results"] = run_dir / "results.json"
     results = {
-        "schema_version": RESULTS_SCHEMA_VERSION,
+        "schema_version": QUICKSTART_RESULTS_VERSION,
         "kind": "sb3-hddpg-quickstart",
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "env_id": COMPARISON_ENV_ID,

@@ -42,6 +42,7 @@ from optuna.trial import FrozenTrial, TrialState
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
+from sb3_hddpg.artifacts.records import ModelsManifest
 from sb3_hddpg.artifacts.workers import observed_components, shared_env_of
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, HAMSwitch
 from sb3_hddpg.callbacks.pruning import TrialPruningCallback
@@ -902,7 +903,7 @@ def _env_factory(target: TuningTarget, hyperparams: Any) -> Any:
     )
 
 
-def _shared_env(target: TuningTarget, manifest: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+def _shared_env(target: TuningTarget, manifest: ModelsManifest) -> tuple[str, dict[str, Any]]:
     """The env a manager (or HAM) over the manifest's workers acts in, chosen as train-manager does."""
     env = target.env
     return shared_env_of(manifest, env.env_id if env else None, env.env_kwargs if env else None)
@@ -912,7 +913,7 @@ def _worker_names(workers_dir: str) -> list[str]:
     return list(_workers_manifest(workers_dir)["workers"])
 
 
-def _workers_manifest(workers_dir: str) -> dict[str, Any]:
+def _workers_manifest(workers_dir: str) -> ModelsManifest:
     folder = Path(workers_dir)
     manifest = folder / "workers" / "manifest.json"
     if not manifest.exists():
@@ -943,7 +944,7 @@ def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -
     return value
 
 
-def _ham_env(target: TuningTarget, manifest: dict[str, Any]) -> Any:
+def _ham_env(target: TuningTarget, manifest: ModelsManifest) -> Any:
     """
     The env HAM is evaluated in (as the manager's: ``--env``, else the manifest's shared env), refused
     with one line unless its state layout declares the component HAM's switch rule reads.
@@ -964,7 +965,7 @@ def _ham_default_threshold(env: Any) -> float:
     return float(len(state_layout_of(env).indices([HAM_COMPONENT]))) - DEFAULT_MARGIN
 
 
-def _make_ham(workers: Mapping[str, Any], env: Any, threshold: float, manifest: dict[str, Any]) -> HAMSwitch:
+def _make_ham(workers: Mapping[str, Any], env: Any, threshold: float, manifest: ModelsManifest) -> HAMSwitch:
     """The HAM switch over the goal and avoid workers, each fed the state components it was trained on."""
     return HAMSwitch(
         workers["goal"],

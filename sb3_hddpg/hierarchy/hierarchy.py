@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import io
 import json
-import re
 import zipfile
 import zlib
 from collections.abc import Mapping, Sequence
@@ -32,17 +31,17 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from sb3_hddpg.artifacts.io import atomic_write, json_text
 from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
-    MAX_WORKERS,
     LoadBudget,
     brief,
     check_env_id,
-    check_name,
     check_zip_directory,
     parse_json,
     read_member,
 )
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verify_sha256
-from sb3_hddpg.artifacts.safe_load import load_model, model_spec
+from sb3_hddpg.artifacts.records import BundleManifest, bundle_manifest
+from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.artifacts.workers import Workers, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
@@ -60,8 +59,6 @@ from sb3_hddpg.hierarchy.selection import (
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper, _subset_space, with_preference_space
 from sb3_hddpg.policy import Policy
 
-#: Bump when the manifest's meaning changes; :meth:`Hierarchy.load` refuses newer versions.
-SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
 #: The shared env of a hierarchy when neither ``env_id`` is given nor the models' training envs tell.
 DEFAULT_ENV_ID = "hddpg/SnakeReach-v0"
@@ -319,22 +316,20 @@ class Hierarchy:
             meta.update({"file": member, "sha256": sha256_bytes(members[member])})
             meta.setdefault("reward_term", self.config.reward_terms.get(name, name))
             workers_manifest[name] = meta
-        manifest = {
-            "schema_version": SCHEMA_VERSION,
-            "kind": "sb3-hddpg-hierarchy",
-            "env_id": self.env_id,
-            "env_kwargs": self.env_kwargs,
-            "worker_names": self.names,
-            "selection": asdict(self.config),
-            "manager": {
+        manifest = bundle_manifest(
+            self.env_id,
+            self.env_kwargs,
+            self.names,
+            asdict(self.config),
+            {
                 "file": "manager.zip",
                 "sha256": sha256_bytes(manager_bytes),
                 "spec": model_spec(self.manager),
                 **self.metadata,
             },
-            "workers": workers_manifest,
-            "versions": library_versions(),
-        }
+            workers_manifest,
+            library_versions(),
+        )
         buffer = io.BytesIO()
         with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
             archive.writestr(MANIFEST, json_text(manifest, MANIFEST))
@@ -373,13 +368,13 @@ class Hierarchy:
         name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
         budget = budget if budget is not None else LoadBudget()
         manifest, members = read_bundle(path, budget=budget)
-        names = manifest["worker_names"]
+        names = manifest.worker_names
         try:
-            env_id = check_env_id(manifest.get("env_id"), f"{name}: env_id", allowed_env_ids, trusted)
+            env_id = check_env_id(manifest.env_id, f"{name}: env_id", allowed_env_ids, trusted)
             env_kwargs = check_env_kwargs(
-                env_id, manifest.get("env_kwargs"), f"{name}: env_kwargs", allowed_env_ids, trusted
+                env_id, manifest.env_kwargs, f"{name}: env_kwargs", allowed_env_ids, trusted
             )
-            settings = check_selection_settings(manifest.get("selection"), names, f"{name}: selection")
+            settings = check_selection_settings(manifest.selection, names, f"{name}: selection")
             if settings.get("manager_preferences") is not None:
                 space = PreferenceSpace.from_json(
                     settings["manager_preferences"], names, f"{name}: selection.manager_preferences"
@@ -388,7 +383,7 @@ class Hierarchy:
         except ValueError as error:
             raise BundleError(str(error)) from None
 
-        def model(entry: dict[str, Any]) -> BaseAlgorithm:
+        def model(entry: Mapping[str, Any]) -> BaseAlgorithm:
             data = io.BytesIO(members[entry["file"]])
             try:
                 if trusted:
@@ -400,7 +395,7 @@ class Hierarchy:
         workers: dict[str, Policy] = {}
         worker_meta = {}
         for worker_name in names:
-            entry = manifest["workers"][worker_name]
+            entry = manifest.workers[worker_name]
             if entry.get("kind") == "hierarchy":
                 with budget.nested(name):
                     workers[worker_name] = cls.load(
@@ -411,7 +406,7 @@ class Hierarchy:
             worker_meta[worker_name] = {
                 k: v for k, v in entry.items() if k not in ("file", "sha256", "spec", "kind")
             }
-        manager_entry = manifest["manager"]
+        manager_entry = manifest.manager
         try:
             return cls(
                 model(manager_entry),
@@ -430,7 +425,7 @@ class Hierarchy:
 
 def read_bundle(
     path: str | Path | io.BytesIO, budget: LoadBudget | None = None
-) -> tuple[dict[str, Any], dict[str, bytes]]:
+) -> tuple[BundleManifest, dict[str, bytes]]:
     """
     Open a bundle and verify it: a readable zip with a manifest of a known schema, every member listed
     and present, every sha256 matching. Only the members the manifest lists are read, each within the
@@ -453,7 +448,8 @@ def read_bundle(
                 manifest = parse_json(raw, f"{name}: {MANIFEST}")
             except (json.JSONDecodeError, UnicodeDecodeError):
                 raise BundleError(f"{name}: {MANIFEST} is not valid JSON") from None
-            entries = _check_manifest(manifest, name)
+            record = BundleManifest.from_json(manifest, name)  # its ValueError: a BundleError below
+            entries = record.member_entries()
             members = {}
             for label, entry in entries:
                 member = entry["file"]
@@ -481,70 +477,7 @@ def read_bundle(
             consequence="the bundle was modified or corrupted",
             error=BundleError,
         )
-    return manifest, members
-
-
-_SHA256 = re.compile(r"^[0-9a-f]{64}$")
-
-
-def _check_manifest(manifest: Any, name: str) -> list[tuple[str, dict[str, Any]]]:
-    """The manifest's (label, entry) pairs, after checking its shape and every name that picks a member."""
-    if not isinstance(manifest, dict) or manifest.get("kind") != "sb3-hddpg-hierarchy":
-        raise BundleError(f"{name}: {MANIFEST} is not an sb3-hddpg hierarchy manifest")
-    version = manifest.get("schema_version")
-    if not isinstance(version, int) or isinstance(version, bool) or version > SCHEMA_VERSION:
-        raise BundleError(
-            f"{name}: unsupported bundle schema version {brief(version)} (this library reads <= {SCHEMA_VERSION})"
-        )
-    names, workers, manager = manifest.get("worker_names"), manifest.get("workers"), manifest.get("manager")
-    if not isinstance(names, list) or not isinstance(workers, dict) or not isinstance(manager, dict):
-        raise BundleError(f"{name}: {MANIFEST} lacks the manager, the workers, or the worker_names list")
-    _check_worker_names(names, list(workers), name)
-    entries: list[tuple[str, dict[str, Any]]] = [("manager", manager)]
-    entries.extend((worker, workers[worker]) for worker in names)
-    for label, entry in entries:
-        _check_member_entry(label, entry, name)
-    return entries
-
-
-def _check_worker_names(names: list[Any], workers: list[Any], name: str) -> None:
-    """``worker_names``: 2 to ``MAX_WORKERS`` safe names, exactly the keys of ``workers`` in order."""
-    if not 2 <= len(names) <= MAX_WORKERS:
-        raise BundleError(
-            f"{name}: {MANIFEST} has {len(names)} workers; a manager selects between 2 and {MAX_WORKERS}"
-        )
-    try:
-        for worker in names:
-            check_name(worker, f"{name}: worker_names")
-    except ValueError as error:
-        raise BundleError(str(error)) from None
-    if names != workers:
-        raise BundleError(f"{name}: worker_names {brief(names)} do not match workers {brief(workers)}")
-
-
-def _check_member_entry(label: str, entry: Any, name: str) -> None:
-    """
-    One member's entry: its file and sha256, and the member name the writer (``to_bytes``) gives it; any
-    other name is refused, so a manifest cannot point at an arbitrary member.
-    """
-    if not (
-        isinstance(entry, dict)
-        and isinstance(entry.get("file"), str)
-        and isinstance(entry.get("sha256"), str)
-        and _SHA256.match(entry["sha256"])
-    ):
-        raise BundleError(f"{name}: {MANIFEST} entry {label!r} lacks its member's file and sha256")
-    kind = entry.get("kind", "sb3")
-    if kind not in ("sb3", "hierarchy") or (label == "manager" and kind != "sb3"):
-        raise BundleError(f"{name}: {label!r} has an unknown kind {brief(kind)}")
-    if label == "manager":
-        expected = "manager.zip"
-    else:
-        expected = f"workers/{label}.hierarchy.zip" if kind == "hierarchy" else f"workers/{label}.zip"
-    if entry["file"] != expected:
-        raise BundleError(
-            f"{name}: {label!r} names member {brief(entry['file'])}; a bundle names it {expected!r}"
-        )
+    return record, members
 
 
 def _shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:

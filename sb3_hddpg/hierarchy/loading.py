@@ -20,8 +20,9 @@ from typing import Any
 
 import gymnasium as gym
 
-from sb3_hddpg.artifacts.limits import brief, check_env_id, check_file_entry, read_json_file
+from sb3_hddpg.artifacts.limits import check_env_id, read_json_file
 from sb3_hddpg.artifacts.provenance import verify_sha256
+from sb3_hddpg.artifacts.records import ManifestKind, models_manifest_from_json
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.baselines.ham import load_ham
@@ -109,7 +110,7 @@ def load_policy(
     text = str(path)
     if path.suffix == ".json":
         ham, meta = load_ham(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
-        return LoadedPolicy(ham, meta["env_id"], meta.get("env_kwargs", {}), "ham", path.stem, meta)
+        return LoadedPolicy(ham, meta.env_id, dict(meta.env_kwargs), "ham", path.stem, meta.to_json())
     if _is_bundle(path):
         hierarchy = Hierarchy.load(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(
@@ -167,18 +168,19 @@ def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
     if not manifest_path.exists():
         return None, ""
     try:
-        manifest = read_json_file(manifest_path)
+        value = read_json_file(manifest_path)
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         raise ValueError(f"Invalid JSON in {str(manifest_path)!r}") from None
-    if not isinstance(manifest, dict):
+    if not isinstance(value, dict):
         raise ValueError(f"Not an sb3-hddpg manifest: {str(manifest_path)!r}")
-    for key, kind in (("workers", "worker"), ("models", "flat")):
-        entries = manifest.get(key) or {}
-        if not isinstance(entries, dict):
-            raise ValueError(f"Not an sb3-hddpg manifest: {str(manifest_path)!r} ({key!r} is not a mapping)")
-        for entry_name, entry in entries.items():
-            if isinstance(entry, dict) and entry.get("file") == path.name:
-                return check_file_entry(entry, f"{manifest_path}: {key}.{brief(entry_name)}"), kind
+    kinds: tuple[tuple[ManifestKind, str], ...] = (("workers", "worker"), ("models", "flat"))
+    for kind, label in kinds:
+        if kind not in value:
+            continue
+        manifest = models_manifest_from_json(value, kind, str(manifest_path))
+        for entry in manifest.entries.values():
+            if entry.get("file") == path.name:
+                return dict(entry), label
     return None, ""
 
 

@@ -37,7 +37,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, SBX_ALGORITHMS, Algorithm, algorithm, algorithm_class
-from sb3_hddpg.artifacts.safe_load import build_without_env
+from sb3_hddpg.artifacts.spec import build_without_env
 from sb3_hddpg.training.sbx_weights import layout_of, sbx_to_state_dict, state_dict_to_sbx
 
 logger = logging.getLogger(__name__)

@@ -27,16 +27,14 @@ from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 from sb3_hddpg.algorithms import ACTIVATIONS as ALL_ACTIVATIONS
-from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS, algorithm, algorithm_class
+from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS, algorithm_class
 from sb3_hddpg.artifacts.limits import (
     MAX_CONFIG_NODES,
     MAX_JSON_BYTES,
-    MAX_LAYER_SIZE,
-    MAX_LAYERS,
     LimitError,
     brief,
     check_buffer_size,
-    check_parameter_count,
+    check_network_size,
     count_nodes,
 )
 from sb3_hddpg.artifacts.values import (
@@ -554,36 +552,10 @@ def _safe_value(node: ast.AST, text: str, source: str) -> Any:
 
 def _check_network_size(policy_kwargs: Any, algo: str, source: str) -> None:
     """
-    Refuse a ``net_arch`` whose networks would be too large to build (``[65536, 65536]`` is 17 GB) before
-    SB3 allocates them. The spaces are not known yet: a 64-wide observation and 8-wide action stand in
-    (the snake's are 39 and 6); the hidden layers dominate the count.
+    Refuse networks too large to build (``[65536, 65536]`` is 17 GB) before SB3 allocates them: the one
+    check of :func:`~sb3_hddpg.artifacts.limits.check_network_size`, as this file's kind of error.
     """
-    if not isinstance(policy_kwargs, dict) or "net_arch" not in policy_kwargs:
-        return
-    net_arch = policy_kwargs["net_arch"]
-    record = algorithm(algo)
-    pi, qf = (
-        (net_arch.get("pi", []), net_arch.get(record.critic_layers, []))
-        if isinstance(net_arch, dict)
-        else (net_arch, net_arch)
-    )
-    if not all(
-        isinstance(layers, (list, tuple)) and len(layers) <= MAX_LAYERS for layers in (pi, qf)
-    ) or not all(
-        isinstance(size, int) and not isinstance(size, bool) and 1 <= size <= MAX_LAYER_SIZE
-        for size in (*pi, *qf)
-    ):
-        raise ConfigError(
-            f"Expected net_arch in {source} to be lists of at most {MAX_LAYERS} layer sizes in "
-            f"[1, {MAX_LAYER_SIZE}], actually: {brief(net_arch)}"
-        )
-    n_critics = policy_kwargs.get("n_critics", record.default_n_critics)
-    n_quantiles = policy_kwargs.get("n_quantiles", 25)
-    if not all(
-        isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 4096 for n in (n_critics, n_quantiles)
-    ):
-        raise ConfigError(f"Expected n_critics and n_quantiles in {source} to be integers in [1, 4096]")
     try:
-        check_parameter_count(algo, 64, 8, pi, qf, n_critics=n_critics, n_quantiles=n_quantiles)
-    except ValueError as error:
-        raise ConfigError(f"{source}: {error}") from None
+        check_network_size(algo, policy_kwargs, what=f"{source}: policy_kwargs")
+    except LimitError as error:
+        raise ConfigError(str(error)) from None

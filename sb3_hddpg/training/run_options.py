@@ -10,11 +10,11 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from sb3_hddpg.artifacts.limits import MAX_SEED
 from sb3_hddpg.artifacts.values import RUN_SETTINGS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 
 #: The largest seed SB3 (numpy's legacy seeding) accepts.
-MAX_SEED = 2**32 - 1
 
 
 @dataclass(frozen=True)

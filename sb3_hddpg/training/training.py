@@ -34,15 +34,9 @@ from sb3_hddpg.artifacts.io import (
     holds_folder_lock,
     remove_stale_temporaries,
 )
-from sb3_hddpg.artifacts.limits import brief, read_json_file
-from sb3_hddpg.artifacts.manifests import (
-    WORKER_MANIFEST_VERSION,
-    check_resumed_env,
-    load_workers,
-    model_entry,
-    read_workers_manifest,
-    save_manifest,
-)
+from sb3_hddpg.artifacts.limits import brief
+from sb3_hddpg.artifacts.manifests import check_resumed_env, load_workers, model_entry, save_manifest
+from sb3_hddpg.artifacts.records import ModelsManifest, models_manifest, read_models_manifest
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.artifacts.workers import Workers, shared_env_of
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
@@ -630,26 +624,24 @@ def train_workers(
     blocks = worker_hyperparams(workers, config, env, chosen)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
-    manifest: dict[str, Any] = {"schema_version": WORKER_MANIFEST_VERSION, "workers": {}}
+    manifest = models_manifest("workers")
     if run.resume and manifest_path.exists():
-        manifest = read_workers_manifest(manifest_path)
-        if env is not None or "shared_env" in manifest:
+        manifest = read_models_manifest(manifest_path, "workers")
+        if env is not None or manifest.shared_env is not None:
             check_resumed_env(
-                manifest.get("shared_env", {"env_id": SNAKE_SHARED_ENV_ID}), shared.env_id, shared.env_kwargs
+                manifest.shared_env or {"env_id": SNAKE_SHARED_ENV_ID}, shared.env_id, shared.env_kwargs
             )
         for name in workers:
             env_id, view_kwargs = shared.term_view(name)
-            check_resumed_env(
-                manifest["workers"].get(name), env_id, {**view_kwargs, **blocks[name].env_kwargs}
-            )
+            check_resumed_env(manifest.entries.get(name), env_id, {**view_kwargs, **blocks[name].env_kwargs})
     if env is not None:
-        manifest["shared_env"] = {"env_id": env.env_id, "env_kwargs": env.env_kwargs}
+        manifest = manifest.with_shared_env(env.env_id, env.env_kwargs)
     for name in workers:
         hyperparams = blocks[name]
         env_id, view_kwargs = shared.term_view(name)
         env_kwargs = {**view_kwargs, **hyperparams.env_kwargs}
         budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
-        if run.resume and _finished(manifest["workers"].get(name), budget):
+        if run.resume and _finished(manifest.entries.get(name), budget):
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
         outcome = train_agent(
@@ -663,7 +655,7 @@ def train_workers(
         probe = make_term_view(env_id, env_kwargs, name)
         bounds = env_contract(probe).reward_bounds[name]
         probe.close()
-        manifest["workers"][name] = model_entry(
+        entry = model_entry(
             name,
             outcome,
             chosen[name],
@@ -680,14 +672,13 @@ def train_workers(
             stopped_early=outcome.stopped_early,
             threads=run.threads,
         )
+        manifest = manifest.with_entry(name, entry)
         save_manifest(manifest_path, manifest)
         if on_worker_done is not None:
             on_worker_done(name, outcome)
-    return manifest
+    return manifest.to_json()
 
 
-#: The schema version of ``flat/manifest.json``.
-FLAT_MANIFEST_VERSION = 1
 #: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
 FLAT_ENV_ID = "hddpg/SnakeReach-v0"
 #: The config block of a flat agent given the goal worker's tricks (hindsight relabelling of the goal, the
@@ -745,14 +736,14 @@ def train_flat(
     budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "flat" / "manifest.json"
-    manifest: dict[str, Any] = {"schema_version": FLAT_MANIFEST_VERSION, "models": {}}
-    if manifest_path.exists():
-        manifest = read_json_file(manifest_path)
+    manifest = (
+        read_models_manifest(manifest_path, "models") if manifest_path.exists() else models_manifest("models")
+    )
     name = name or algo
     if run.resume:
-        check_resumed_env(manifest["models"].get(name), env_id, make_kwargs)
-    if run.resume and _finished(manifest["models"].get(name), budget):
-        return manifest, None  # finished in an earlier run
+        check_resumed_env(manifest.entries.get(name), env_id, make_kwargs)
+    if run.resume and _finished(manifest.entries.get(name), budget):
+        return manifest.to_json(), None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
     factory: Callable[[], gym.Env] = functools.partial(make_snake_env, env_id, make_kwargs)
     if preferences is not None:
@@ -766,7 +757,7 @@ def train_flat(
         run=_agent_run(run, paths, budget),
         extra_callbacks=extra_callbacks,
     )
-    manifest["models"][name] = model_entry(
+    entry = model_entry(
         name,
         outcome,
         algo,
@@ -779,8 +770,9 @@ def train_flat(
         preferences=dict(preferences) if preferences is not None else None,
         threads=run.threads,
     )
+    manifest = manifest.with_entry(name, entry)
     save_manifest(manifest_path, manifest)
-    return manifest, outcome
+    return manifest.to_json(), outcome
 
 
 @dataclass
@@ -836,7 +828,7 @@ class ManagerSetup:
     """
 
     workers: Workers
-    manifest: dict[str, Any]
+    manifest: ModelsManifest
     hyperparams: Hyperparams
     selection: SelectionConfig
     env_id: str
@@ -947,7 +939,7 @@ def prepare_manager(
             space = getattr(worker, "observation_space", None)
             sliced = name in selection_config.worker_states  # the wrapper checks the sliced shape itself
             if space is not None and not sliced and space.shape != expected:
-                trained_on = brief(manifest["workers"][name].get("env_kwargs", {}))
+                trained_on = brief(manifest.entries[name].get("env_kwargs", {}))
                 raise ValueError(
                     f"Worker {name!r} was trained on observations of shape {space.shape} (env_kwargs "
                     f"{trained_on}), but the manager's env {env_id} with env_kwargs {env_kwargs} gives "

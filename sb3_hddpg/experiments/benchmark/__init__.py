@@ -38,6 +38,7 @@ The package follows the benchmark's sections, each a module: :mod:`.methods` (th
 
 from __future__ import annotations
 
+from sb3_hddpg.artifacts.records import BENCHMARK_RECORD_VERSION as RECORD_VERSION
 from sb3_hddpg.experiments.benchmark.env_methods import (
     DISCRETE_FLAT_METHODS,
     DISCRETE_MANAGERS,
@@ -78,7 +79,6 @@ from sb3_hddpg.experiments.benchmark.report import (
     write_outputs,
 )
 from sb3_hddpg.experiments.benchmark.run import (
-    RECORD_VERSION,
     check_redo,
     check_workers_source,
     machine_info,

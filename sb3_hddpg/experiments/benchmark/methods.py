@@ -191,7 +191,7 @@ def workers_steps(folder: Path) -> int:
     path = folder / "workers" / "manifest.json"
     manifest = read_workers_manifest(path)
     try:
-        return int(sum(int(entry["timesteps_trained"]) for entry in manifest["workers"].values()))
+        return int(sum(int(entry["timesteps_trained"]) for entry in manifest.entries.values()))
     except (KeyError, TypeError, ValueError, OverflowError):
         raise ValueError(f"{path}: a worker entry has no whole timesteps_trained") from None
 

@@ -22,6 +22,7 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, read_json_file
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import verify_sha256
+from sb3_hddpg.artifacts.records import benchmark_record, read_benchmark_record
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.methods import (
@@ -37,9 +38,6 @@ from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compu
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.training.training import train_workers, worker_hyperparams
-
-#: Bumped when a record's meaning changes.
-RECORD_VERSION = 1
 
 
 def seed_dir(out: Path, seed: int) -> Path:
@@ -63,26 +61,13 @@ def read_record(out: Path, task: Task) -> dict[str, Any] | None:
 
 def read_record_file(path: Path) -> dict[str, Any]:
     """
-    A task's record file, through the JSON size and depth limits and shape-checked: an object whose
-    ``status`` and ``method`` are strings and whose ``seed`` is a whole number in ``[0, 2**31)``.
+    A task's record file as its JSON object, read and checked by
+    :func:`~sb3_hddpg.artifacts.records.read_benchmark_record` (the JSON size and depth limits; ``status``
+    and ``method`` strings, ``seed`` a whole number in ``[0, MAX_SEED]``).
 
     :raises ValueError: one line naming the file (a ``LimitError`` for one too big or too deep).
     """
-    try:
-        record = read_json_file(path)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not a readable benchmark record ({type(error).__name__})") from None
-    seed = record.get("seed") if isinstance(record, dict) else None
-    if (
-        not isinstance(record, dict)
-        or not isinstance(record.get("status"), str)
-        or not isinstance(record.get("method"), str)
-        or isinstance(seed, bool)
-        or not isinstance(seed, int)
-        or not 0 <= seed < 2**31
-    ):
-        raise ValueError(f"{path}: expected a benchmark record (status, method, seed in [0, 2**31))")
-    return record
+    return read_benchmark_record(path).to_json()
 
 
 def elapsed_path(out: Path, task: Task) -> Path:
@@ -133,24 +118,18 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
 def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, Any]:
     """The record of one task, run to the end (without its wall times)."""
     folder = seed_dir(out, task.seed)
-    record: dict[str, Any] = {
-        "record_version": RECORD_VERSION,
-        "method": task.method,
-        "seed": task.seed,
-        "status": "done",
-        # Read before training: the blocks this run trains from, whatever the file holds when it ends.
-        "config_blocks": _plain(task_config_blocks(task, settings)),
-    }
+    # Read before training: the blocks this run trains from, whatever the file holds when it ends.
+    results: dict[str, Any] = {"config_blocks": _plain(task_config_blocks(task, settings))}
     spec = task.spec
     if spec is None:
-        record.update(_run_workers(task, settings, folder))
+        results.update(_run_workers(task, settings, folder))
     else:
-        record.update(spec.run(task, settings, folder))
+        results.update(spec.run(task, settings, folder))
         preference = split_key(task.method)[1]
         if preference is not None:
-            record["preference"] = preference
-            record["reference"] = random_reference(settings)
-    return record
+            results["preference"] = preference
+            results["reference"] = random_reference(settings)
+    return benchmark_record(task.method, task.seed, results).to_json()
 
 
 def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
@@ -228,7 +207,7 @@ def check_workers_source(settings: BenchmarkSettings) -> None:
         manifest_path = folder / "workers" / "manifest.json"
         if read_record(source, Task(WORKERS, seed)) is None or not manifest_path.is_file():
             raise ValueError(f"{str(source)!r} has no finished workers for seed {seed}")
-        entries = read_workers_manifest(manifest_path)["workers"]
+        entries = read_workers_manifest(manifest_path).entries
         for name in names:
             block = blocks[name]
             budget = settings.worker_timesteps or int(block.n_timesteps)
@@ -288,7 +267,7 @@ def _copy_workers(source: Path, folder: Path) -> None:
     seed folder, the manifest last: until it is written, the copy does not count as finished.
     """
     manifest = read_workers_manifest(source / "workers" / "manifest.json")
-    for name, entry in manifest["workers"].items():
+    for name, entry in manifest.entries.items():
         path = source / "workers" / entry["file"]
         if path.stat().st_size > MAX_MEMBER_BYTES:
             raise ValueError(f"{str(path)!r} is larger than {MAX_MEMBER_BYTES} bytes: not a worker of ours")

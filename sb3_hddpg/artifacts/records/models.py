@@ -1,0 +1,193 @@
+"""``workers/manifest.json`` and ``flat/manifest.json``: the models manifest and its entries."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from sb3_hddpg.artifacts.limits import (
+    LimitError,
+    brief,
+    check_file_entry,
+    check_name,
+    read_json_file,
+)
+from sb3_hddpg.artifacts.records.base import (
+    MANIFEST_VERSIONS,
+    JsonObject,
+    JsonRecord,
+    ManifestKind,
+    check_version,
+)
+
+
+@dataclass(frozen=True, eq=False)
+class ModelEntry(JsonRecord):
+    """
+    One trained model's entry in a models manifest: what it is, where its file is, how to rebuild it.
+
+    :param name: the entry's name; the model file is ``NAME.zip`` beside the manifest.
+    :param sha256: the file's hash.
+    :param algo: the algorithm's registry name.
+    :param env_id: the env the model was trained on.
+    :param env_kwargs: its keyword arguments.
+    :param config: ``{"file": ..., "block": ...}``: the config the model was trained with.
+    :param seed: the training seed.
+    :param timesteps_requested: the budget asked for.
+    :param timesteps_trained: the steps trained.
+    :param backend: ``sb3`` or ``sbx``.
+    :param versions: the library versions it was trained with.
+    :param metrics: its evaluation metrics.
+    :param spec: the weights-only rebuild spec (:func:`~sb3_hddpg.artifacts.spec.model_spec`).
+    :param facts: more facts for this kind of model (reward term and bounds, preferences, threads...).
+    """
+
+    name: str
+    sha256: str
+    algo: str
+    env_id: str
+    env_kwargs: Mapping[str, Any]
+    config: Mapping[str, Any]
+    seed: int
+    timesteps_requested: int
+    timesteps_trained: int
+    backend: str
+    versions: Mapping[str, str]
+    metrics: Mapping[str, Any]
+    spec: Mapping[str, Any]
+    facts: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def file(self) -> str:
+        """The model file's name, beside the manifest."""
+        return f"{self.name}.zip"
+
+    def to_json(self) -> JsonObject:
+        return {
+            "name": self.name,
+            "file": self.file,
+            "sha256": self.sha256,
+            "algo": self.algo,
+            "env_id": self.env_id,
+            "env_kwargs": dict(self.env_kwargs),
+            "config": dict(self.config),
+            "seed": self.seed,
+            "timesteps_requested": self.timesteps_requested,
+            "timesteps_trained": self.timesteps_trained,
+            **self.facts,
+            "backend": self.backend,
+            "versions": dict(self.versions),
+            "metrics": dict(self.metrics),
+            "spec": dict(self.spec),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class ModelsManifest(JsonRecord):
+    """
+    ``workers/manifest.json`` (``kind="workers"``) or ``flat/manifest.json`` (``kind="models"``): name ->
+    model entry, in order, and for workers trained on another env than the snake arm, the shared env.
+
+    Entries read from a file stay the JSON objects they are (checked: a plain name, a file beside the
+    manifest and its sha256); the loaders check the rest (spec, env settings) where they use it.
+
+    :param kind: ``workers`` or ``models``.
+    :param entries: name -> entry.
+    :param shared_env: ``{"env_id": ..., "env_kwargs": ...}`` of the env the workers share, if recorded.
+    :param schema_version: the file's schema version.
+    """
+
+    kind: ManifestKind
+    entries: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    shared_env: Mapping[str, Any] | None = None
+    schema_version: int = 1
+
+    @property
+    def names(self) -> list[str]:
+        """The entries' names, in order."""
+        return list(self.entries)
+
+    def with_entry(self, name: str, entry: Mapping[str, Any]) -> ModelsManifest:
+        """This manifest with ``entry`` (a :class:`ModelEntry` or a JSON object) as ``name``'s."""
+        as_json = entry.to_json() if isinstance(entry, JsonRecord) else dict(entry)
+        return replace(self, entries={**self.entries, name: as_json})
+
+    def with_shared_env(self, env_id: str, env_kwargs: Mapping[str, Any]) -> ModelsManifest:
+        """This manifest recording ``env_id`` and ``env_kwargs`` as the workers' shared env."""
+        return replace(self, shared_env={"env_id": env_id, "env_kwargs": dict(env_kwargs)})
+
+    def to_json(self) -> JsonObject:
+        out: JsonObject = {
+            "schema_version": self.schema_version,
+            self.kind: {k: dict(v) for k, v in self.entries.items()},
+        }
+        if self.shared_env is not None:
+            out["shared_env"] = dict(self.shared_env)
+        return out
+
+
+def models_manifest(
+    kind: ManifestKind,
+    entries: Mapping[str, Mapping[str, Any]] | None = None,
+    shared_env: Mapping[str, Any] | None = None,
+) -> ModelsManifest:
+    """
+    The one builder of a models manifest, at this library's schema version.
+
+    :param kind: ``workers`` or ``models``.
+    :param entries: name -> entry (:class:`ModelEntry` or its JSON).
+    :param shared_env: the workers' shared env, ``{"env_id": ..., "env_kwargs": ...}``.
+    """
+    manifest = ModelsManifest(
+        kind, {}, dict(shared_env) if shared_env is not None else None, MANIFEST_VERSIONS[kind]
+    )
+    for name, entry in (entries or {}).items():
+        manifest = manifest.with_entry(name, entry)
+    return manifest
+
+
+def models_manifest_from_json(value: object, kind: ManifestKind, what: str) -> ModelsManifest:
+    """
+    A models manifest from parsed JSON, checked: an object with its entries under ``kind``, each a plain
+    name with a file beside the manifest and its sha256, and a schema version this library reads.
+
+    :raises ValueError: naming ``what`` and the first problem.
+    """
+    if not isinstance(value, dict) or not isinstance(value.get(kind), dict):
+        raise ValueError(f"Not a valid {kind} manifest: {what!r}")
+    version = check_version(value.get("schema_version"), MANIFEST_VERSIONS[kind], what)
+    entries: dict[str, Mapping[str, Any]] = {}
+    # Names and files travel with shared folders: each must be a plain name before it picks a file.
+    for name, entry in value[kind].items():
+        check_name(name, f"{what}: {kind}")
+        entries[name] = check_file_entry(entry, f"{what}: {kind}.{brief(name)}")
+    shared = value.get("shared_env")
+    if shared is not None and not isinstance(shared, dict):
+        raise ValueError(f"{what}: shared_env must be a mapping, actually: {brief(shared)}")
+    return ModelsManifest(kind, entries, shared, version)
+
+
+def read_models_manifest(path: str | Path, kind: ManifestKind) -> ModelsManifest:
+    """
+    The one reader of a models manifest file, through the size- and depth-limited JSON reader.
+
+    :param path: the manifest.
+    :param kind: ``workers`` or ``models``.
+    :return: the manifest; raises ``ValueError`` naming the file if it is not a valid one (a
+        :class:`~sb3_hddpg.artifacts.limits.LimitError` if over a limit).
+    """
+    try:
+        value = read_json_file(Path(path))
+    except LimitError:
+        raise
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        raise ValueError(f"Not a valid {kind} manifest: {str(path)!r}") from None
+    return models_manifest_from_json(value, kind, str(path))
+
+
+def read_workers_manifest(path: str | Path) -> ModelsManifest:
+    """Read and check a ``workers/manifest.json`` (:func:`read_models_manifest`)."""
+    return read_models_manifest(path, "workers")

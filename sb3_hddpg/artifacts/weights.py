@@ -1,0 +1,150 @@
+"""
+The weights of a model zip, read without running code from it: only the tensor members
+(``policy.pth``, ``pytorch_variables.pth``), each within the size limits, through
+``torch.load(weights_only=True)``, and compared key by key and shape by shape with the model the spec built
+before they are put into it.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import zipfile
+from collections.abc import Mapping
+
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.save_util import recursive_getattr
+
+from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, LoadBudget, brief, check_zip_directory, read_member
+
+POLICY_MEMBER = "policy.pth"
+VARIABLES_MEMBER = "pytorch_variables.pth"
+
+
+class SafeLoadError(ValueError):
+    """A model zip or its spec was refused by :func:`load_model_safely`; the message names the file and the cause."""
+
+
+def _read_member(archive: zipfile.ZipFile, name: str, path: str, budget: LoadBudget | None = None) -> bytes:
+    try:
+        return read_member(archive, name, path, limit=MAX_MEMBER_BYTES, budget=budget)
+    except ValueError as e:
+        raise SafeLoadError(str(e)) from None
+
+
+def _load_tensors(raw: bytes, name: str, path: str, device: th.device | str) -> dict[str, th.Tensor]:
+    # weights_only=True: torch's restricted unpickler, which only rebuilds tensors and plain containers and
+    # refuses any other global. This is the same call SB3 itself uses for .pth members.
+    try:
+        obj = th.load(io.BytesIO(raw), map_location=device, weights_only=True)
+    except Exception as e:  # torch raises UnpicklingError, RuntimeError, ... depending on the damage
+        raise SafeLoadError(f"{path}: member {brief(name)} is not a plain tensor file: {e}") from e
+    if not isinstance(obj, Mapping):
+        raise SafeLoadError(
+            f"{path}: member {brief(name)} holds {type(obj).__name__}, expected a dict of tensors"
+        )
+    for key, value in obj.items():
+        if not isinstance(key, str) or not (value is None or isinstance(value, th.Tensor)):
+            raise SafeLoadError(
+                f"{path}: member {brief(name)} entry {brief(key)} is {type(value).__name__}, not a tensor"
+            )
+    return dict(obj)
+
+
+def _check_state_dict(
+    expected: Mapping[str, th.Tensor], found: Mapping[str, th.Tensor], path: str, name: str
+) -> None:
+    """Raise SafeLoadError naming the first key whose presence or shape differs between spec and file."""
+    for key, tensor in expected.items():
+        if key not in found or found[key] is None:
+            raise SafeLoadError(
+                f"{path}: {brief(name)} lacks key {brief(key)} (spec expects shape {list(tensor.shape)}); "
+                "the spec does not describe this model"
+            )
+        if found[key].shape != tensor.shape:
+            raise SafeLoadError(
+                f"{path}: {brief(name)} key {brief(key)} has shape {list(found[key].shape)} but the spec builds "
+                f"{list(tensor.shape)}; the spec does not describe this model"
+            )
+    extra = [key for key in found if key not in expected]
+    if extra:
+        raise SafeLoadError(
+            f"{path}: {brief(name)} has key {brief(extra[0])} (shape {list(found[extra[0]].shape)}) that the spec-built "
+            "model does not; the spec does not describe this model"
+        )
+
+
+def read_weights(
+    source: str | os.PathLike[str] | io.BytesIO, path: str, device: th.device | str, budget: LoadBudget
+) -> tuple[dict[str, th.Tensor], dict[str, th.Tensor]]:
+    """
+    Read a model zip's tensors: ``policy.pth`` (required) and ``pytorch_variables.pth`` (SAC/TQC's entropy
+    coefficient, if present); no other member is opened.
+
+    :param source: the zip, or its bytes.
+    :param path: how messages name it.
+    :param device: where the tensors are mapped.
+    :param budget: the bytes the whole load may still read.
+    :return: the policy's state dict and the variables.
+    :raises SafeLoadError: for a file that is not a (complete) zip, a missing ``policy.pth``, members over
+        the limits or holding anything but tensors.
+    """
+    try:
+        archive = zipfile.ZipFile(source)
+    except zipfile.BadZipFile as e:
+        raise SafeLoadError(f"{path}: not a readable zip file (truncated or not a model?): {e}") from e
+    with archive:
+        try:
+            names = {info.filename for info in check_zip_directory(archive, path)}
+        except ValueError as e:
+            raise SafeLoadError(str(e)) from None
+        if POLICY_MEMBER not in names:
+            raise SafeLoadError(f"{path}: no {POLICY_MEMBER!r} in the zip (members: {brief(sorted(names))})")
+        policy_state = _load_tensors(
+            _read_member(archive, POLICY_MEMBER, path, budget), POLICY_MEMBER, path, device
+        )
+        variables: dict[str, th.Tensor] = {}
+        if VARIABLES_MEMBER in names:
+            variables = _load_tensors(
+                _read_member(archive, VARIABLES_MEMBER, path, budget), VARIABLES_MEMBER, path, device
+            )
+    return policy_state, variables
+
+
+def apply_weights(
+    model: BaseAlgorithm,
+    policy_state: Mapping[str, th.Tensor],
+    variables: Mapping[str, th.Tensor | None],
+    path: str,
+    device: th.device | str,
+) -> None:
+    """
+    Put the tensors :func:`read_weights` read into a model built from its spec, after checking that every
+    key and shape is the one the spec built.
+
+    :param model: the model :func:`~sb3_hddpg.artifacts.spec.build_from_spec` built.
+    :param policy_state: the policy's state dict.
+    :param variables: the other tensors (only those this model declares are accepted).
+    :param path: how messages name the file.
+    :param device: where the tensors go.
+    :raises SafeLoadError: naming the first key whose presence or shape differs.
+    """
+    # Compare before load_state_dict so the error names the key and both shapes instead of torch's long list.
+    _check_state_dict(model.policy.state_dict(), policy_state, path, POLICY_MEMBER)
+    model.policy.load_state_dict(policy_state, strict=True)
+
+    # Only the variables this model declares (log_ent_coef or ent_coef_tensor for SAC/TQC, none for TD3/DDPG)
+    # are accepted, so the names from the file never pick which attribute gets set.
+    _, variable_names = model._get_torch_save_params()
+    expected_vars = {name: recursive_getattr(model, name) for name in variable_names}
+    expected_vars = {name: value for name, value in expected_vars.items() if value is not None}
+    found_vars = {name: value for name, value in variables.items() if value is not None}
+    if expected_vars or found_vars:
+        _check_state_dict(expected_vars, found_vars, path, VARIABLES_MEMBER)
+    for name, value in found_vars.items():
+        # Same as SB3's load: set .data so optimizers keep referencing the same tensor object.
+        recursive_getattr(model, name).data = value.data.to(device)
+
+    if model.use_sde:
+        model.policy.reset_noise()  # type: ignore[operator]
