@@ -24,8 +24,8 @@ import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.callbacks import apply_action_l2
 from sb3_hddpg.evaluation import evaluate, state_dependence
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 
 def main() -> None:

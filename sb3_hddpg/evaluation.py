@@ -151,7 +151,7 @@ def evaluate(
 
     The env must meet the env contract (:mod:`sb3_hddpg.envs.contract`): per-term sums and the normalised
     total are measured on any such env; the snake env's touch, collision and clearance metrics only where
-    the env reports ``goal_touched``, ``collision`` and ``min_clearance`` in ``info``. A :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` also reports the worker it
+    the env reports ``goal_touched``, ``collision`` and ``min_clearance`` in ``info``. A :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` also reports the worker it
     ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` its ``last_selection``: both are
     counted, each also by the state it was made in: with the nearest obstacle within ``near_clearance``
     (the ``min_clearance`` of the observation the policy acted on), or with none within ``clear_clearance``

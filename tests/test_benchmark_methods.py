@@ -31,7 +31,7 @@ from sb3_hddpg.experiments.benchmark import (
     task_cost,
     write_outputs,
 )
-from sb3_hddpg.wrappers import PreferenceReward
+from sb3_hddpg.hierarchy.preference import PreferenceReward
 from tests.cli_batch import run_batch
 from tests.test_benchmark import cli, record, summary
 

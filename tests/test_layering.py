@@ -29,7 +29,6 @@ FLOORS = {
     "sb3_hddpg.media": 3,
     "sb3_hddpg.baselines": 3,
     "sb3_hddpg.hierarchy": 4,
-    "sb3_hddpg.wrappers": 4,
     "sb3_hddpg.training": 5,
     "sb3_hddpg.experiments": 6,
     "sb3_hddpg.cli": 7,

@@ -115,7 +115,7 @@ def test_the_figure_is_absent_without_worker_choices_and_bands_are_checked():
 def test_evaluate_reports_the_figure_for_a_bundle(tmp_path):
     from stable_baselines3 import DDPG
 
-    from sb3_hddpg.wrappers import WorkerSelectionWrapper
+    from sb3_hddpg.hierarchy import WorkerSelectionWrapper
     from tests.cli_batch import run_batch
 
     env = gym.make(ENV_ID)

@@ -16,7 +16,7 @@ from sb3_hddpg.artifacts.limits import LimitError, brief, check_file_entry, chec
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify_sha256
 from sb3_hddpg.artifacts.safe_load import load_model, model_spec
 from sb3_hddpg.artifacts.workers import Workers, observed_components, shared_env_of
-from sb3_hddpg.policy import WORKER_ENV_IDS
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 
 #: The schema version of ``workers/manifest.json``.
 WORKER_MANIFEST_VERSION = 1

@@ -14,7 +14,7 @@ import gymnasium as gym
 
 from sb3_hddpg.artifacts.limits import check_env_id
 from sb3_hddpg.artifacts.values import check_env_kwargs
-from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 
 #: The facts of a workers-manifest entry a bundle keeps about each worker.
 BUNDLED_FACTS = ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
@@ -44,7 +44,7 @@ class Workers(Mapping[str, Any]):
 
     models: dict[str, Any]
     states: dict[str, list[str]] = field(default_factory=dict)
-    env_id: str | None = SNAKE_SHARED_ENV_ID
+    env_id: str | None = SNAKE_REACH_ENV_ID
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     manifest: dict[str, Any] = field(default_factory=dict)
     folder: Path | None = None
@@ -112,7 +112,7 @@ def shared_env_of(
         return env_id, dict(env_kwargs or {})
     shared = manifest.get("shared_env")
     if shared is None:
-        return SNAKE_SHARED_ENV_ID, dict(env_kwargs or {})
+        return SNAKE_REACH_ENV_ID, dict(env_kwargs or {})
     if not isinstance(shared, dict):
         raise ValueError(f"workers manifest: shared_env must be a mapping, actually: {shared!r:.200}")
     found = check_env_id(

@@ -29,6 +29,7 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.experiments.hyperparams_opt import check_fixed_params, tunable_algorithms
 from sb3_hddpg.experiments.study_storage import check_storage_url, default_storage_url
 from sb3_hddpg.experiments.tuning import (
@@ -47,7 +48,7 @@ from sb3_hddpg.experiments.tuning import (
     tune,
 )
 from sb3_hddpg.training.backends import resolve_backend
-from sb3_hddpg.training.training import WORKER_ENV_IDS, TrainingInterrupted
+from sb3_hddpg.training.training import TrainingInterrupted
 
 
 def parse_fixed(items: list[str]) -> dict[str, object]:

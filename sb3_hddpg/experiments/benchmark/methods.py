@@ -18,6 +18,7 @@ import gymnasium as gym
 from sb3_hddpg.algorithms import REGISTRY, algorithms_for
 from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
+from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.envs.terms_env import config_key
@@ -25,7 +26,7 @@ from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.experiments.benchmark.episodes import episode_rows
 from sb3_hddpg.experiments.benchmark.method_inputs import MethodSettings, MethodTask
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.policy import Policy, RandomPolicy
+from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.config import MANAGER_KEY
 from sb3_hddpg.training.training import (
     FLAT_ENV_ID,

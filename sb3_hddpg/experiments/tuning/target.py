@@ -13,6 +13,7 @@ from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
 from sb3_hddpg.artifacts.workers import observed_components, shared_env_of
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, HAMSwitch
 from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.episode_sets import CURVE, TUNING
 from sb3_hddpg.experiments.hyperparams_opt import base_params, sampler_for
@@ -26,7 +27,6 @@ from sb3_hddpg.training.config import (
     select_block,
 )
 from sb3_hddpg.training.training import (
-    WORKER_ENV_IDS,
     ManagerEnvFactory,
     algo_class,
     make_snake_env,
@@ -35,8 +35,6 @@ from sb3_hddpg.training.training import (
 
 #: What can be tuned.
 LEVELS = ("worker", "manager", "flat", "ham")
-#: The env of the manager, the flat baseline and HAM on the snake arm: the combined reward.
-SHARED_ENV_ID = "hddpg/SnakeReach-v0"
 #: The state component HAM's switch rule reads (the snake's per-link obstacle clearances).
 HAM_COMPONENT = "joint_obstacle_distances"
 
@@ -172,7 +170,7 @@ class TuningTarget:
             return self.env.config_key  # as train-workers and train-flat --env read it
         if self.level == "worker":
             return WORKER_ENV_IDS[str(self.worker)]
-        return {"manager": MANAGER_KEY, "flat": SHARED_ENV_ID}.get(self.level)
+        return {"manager": MANAGER_KEY, "flat": SNAKE_REACH_ENV_ID}.get(self.level)
 
     @property
     def config_path(self) -> Path:
@@ -309,7 +307,7 @@ def trial_env_factory(target: TuningTarget, hyperparams: Any) -> Any:
         )
     if target.level == "flat":
         # As train_flat builds it: the block's env_kwargs, the chosen env's on top.
-        env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (SHARED_ENV_ID, {})
+        env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (SNAKE_REACH_ENV_ID, {})
         return functools.partial(make_snake_env, env_id, {**hyperparams.env_kwargs, **env_kwargs})
 
     manifest = workers_manifest(str(target.workers_dir))
