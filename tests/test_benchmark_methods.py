@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_hddpg import stats
+from sb3_hddpg.experiments import stats
 from sb3_hddpg.experiments.benchmark import (
     DEFAULT_METHODS,
     METHOD_REGISTRY,

@@ -19,7 +19,6 @@ FLOORS = {
     "sb3_hddpg.names": 0,
     "sb3_hddpg.policy": 1,
     "sb3_hddpg.algorithms": 1,
-    "sb3_hddpg.stats": 1,
     "sb3_hddpg.episode_sets": 1,
     "sb3_hddpg.metric_labels": 1,
     "sb3_hddpg.artifacts": 2,

@@ -39,7 +39,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     split_key,
 )
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, comparison_pairs
-from sb3_hddpg.stats import (
+from sb3_hddpg.experiments.stats import (
     bonferroni_confidence,
     bootstrap_ci,
     holm_adjust,

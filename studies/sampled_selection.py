@@ -1,7 +1,7 @@
 """
 Post-hoc evaluation for docs/RESULTS.md: each seed's managers with *sampled* worker selection (the paper's
 probabilistic selection) on the benchmark's test episodes. Run from a checkout after the benchmark:
-``python docs/results/sampled_selection.py [RUN_FOLDER]`` (default ``runs/bench``).
+``python studies/sampled_selection.py [RUN_FOLDER]`` (default ``runs/bench``).
 """
 
 import json
@@ -12,8 +12,8 @@ import gymnasium as gym
 
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE, normalised_term_sums
+from sb3_hddpg.experiments.stats import summarise
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-from sb3_hddpg.stats import summarise
 
 RUN = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/bench")
 METRICS = ("mean_reach_reward", "goal_reach_reward", "avoid_reach_reward", "collisions_per_episode")

@@ -1,10 +1,10 @@
 """
 Post-hoc, for docs/MANAGER.md: when does a hierarchy call its avoid worker? Its share of the choices by the
 nearest obstacle's clearance and by the goal distance of the state it decided in, on the benchmark's 20
-test episodes, with the collision and goal-touch rate of the step that followed. Issue 13's state-dependence
+test episodes, with the collision and goal-touch rate of the step that followed. The state-dependence
 figure (``evaluate``) splits the choices into two bands only; this shows where inside them the manager acts.
 
-python docs/results/selection_by_state.py NAME=BUNDLE [NAME=BUNDLE ...] [--out FILE.json]
+python studies/selection_by_state.py NAME=BUNDLE [NAME=BUNDLE ...] [--out FILE.json]
 """
 
 import argparse

@@ -1,6 +1,6 @@
 """Post-hoc: the benchmark run's saved policies scored for action_saturation on its 20 test episodes.
 
-python docs/results/action_saturation.py RUN_FOLDER
+python studies/action_saturation.py RUN_FOLDER
 """
 
 import json
@@ -11,8 +11,8 @@ import gymnasium as gym
 
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE
+from sb3_hddpg.experiments.stats import summarise
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.stats import summarise
 
 run = sys.argv[1]
 out = {}

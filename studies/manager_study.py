@@ -2,7 +2,7 @@
 The manager study of docs/MANAGER.md: a DDPG manager over two saved workers, with or without the actor's
 action penalty, scored on the held-out test episodes (seeds 15000-15019) with the state-dependence figure.
 
-    python examples/manager_study.py --workers runs/w --action-l2 0.5 --steps 20000
+    python studies/manager_study.py --workers runs/w --action-l2 0.5 --steps 20000
 
 ``--workers`` is a ``train-workers`` run folder; each worker sees the state components it was trained on (its
 manifest's ``observe``). Prints one JSON line.
