@@ -45,6 +45,7 @@ from sb3_hddpg.experiments.tuning.study import (
 from sb3_hddpg.experiments.tuning.target import (
     HAM_COMPONENT,
     LEVELS,
+    TargetError,
     TuningTarget,
     check_budget_fraction,
     merge_block,
@@ -59,6 +60,7 @@ __all__ = [
     "RANKINGS",
     "SAMPLERS",
     "StudySettings",
+    "TargetError",
     "TuningTarget",
     "best_block",
     "best_trials",

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sb3_hddpg.algorithms import ROLES
 from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
 from sb3_hddpg.artifacts.workers import observed_components, shared_env_of
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, HAMSwitch
@@ -16,7 +17,7 @@ from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.episode_sets import CURVE, TUNING
-from sb3_hddpg.experiments.hyperparams_opt import base_params, sampler_for
+from sb3_hddpg.experiments.hyperparams_opt import base_params, sampler_for, tunable_algorithms
 from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
 from sb3_hddpg.training.config import (
     DEFAULT_CONFIG,
@@ -58,6 +59,20 @@ def check_budget_fraction(fraction: float | None, final_budget: int | None, time
         raise ValueError(
             f"Expected timesteps or budget_fraction, not both; actually: {timesteps} and {fraction}"
         )
+
+
+class TargetError(ValueError):
+    """
+    A :class:`TuningTarget` that cannot be tuned, naming the field at fault (so that a front end can name
+    its own option for it).
+
+    :param field: the field at fault.
+    :param message: what is wrong, and what was expected.
+    """
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(message)
+        self.field = field
 
 
 @dataclass(frozen=True)
@@ -118,32 +133,67 @@ class TuningTarget:
     block: str | None = None
 
     def __post_init__(self) -> None:
-        if self.block is not None and self.level != "flat":
-            raise ValueError(f"Expected block only with level 'flat', actually: level {self.level!r}")
-        check_budget_fraction(self.budget_fraction, self.final_budget, self.timesteps)
+        self._check_level()
+        try:
+            check_budget_fraction(self.budget_fraction, self.final_budget, self.timesteps)
+        except ValueError as error:
+            raise TargetError("budget_fraction", str(error)) from None
         if self.episode_set not in (TUNING.name, CURVE.name):
-            raise ValueError(f"Expected episode_set 'tuning' or 'curve', actually: {self.episode_set!r}")
-        if self.level not in LEVELS:
-            raise ValueError(f"Unknown level {self.level!r}; choose from {list(LEVELS)}")
-        sampler_for(self.level, self.algo)  # an unknown algorithm, or one for a DDPG-only level, fails here
-        if self.level == "worker" and self.worker not in self.worker_names:
-            raise ValueError(f"Level 'worker' needs a worker among {self.worker_names}, got {self.worker!r}")
-        if self.level != "worker" and self.worker is not None:
-            raise ValueError(f"A worker name only applies to level 'worker', not {self.level!r}")
-        if self.level in ("manager", "ham") and not self.workers_dir:
-            raise ValueError(f"Level {self.level!r} needs the run folder of train-workers (workers_dir)")
+            raise TargetError(
+                "episode_set", f"Expected episode_set 'tuning' or 'curve', actually: {self.episode_set!r}"
+            )
         if isinstance(self.n_seeds, bool) or not isinstance(self.n_seeds, int) or self.n_seeds < 1:
-            raise ValueError(f"Expected n_seeds to be an integer >= 1, actually: {self.n_seeds!r}")
+            raise TargetError(
+                "n_seeds", f"Expected n_seeds to be an integer >= 1, actually: {self.n_seeds!r}"
+            )
         if self.level == "ham" and self.n_seeds != 1:
-            raise ValueError("Level 'ham' trains nothing: its trials have no seed to repeat (n_seeds 1)")
+            raise TargetError(
+                "n_seeds", "Level 'ham' trains nothing: its trials have no seed to repeat (n_seeds 1)"
+            )
         if self.n_evaluations < 1 or self.eval_episodes < 1:
-            raise ValueError(
+            raise TargetError(
+                "n_evaluations",
                 f"Expected n_evaluations >= 1 and eval_episodes >= 1, actually: "
-                f"{self.n_evaluations} and {self.eval_episodes}"
+                f"{self.n_evaluations} and {self.eval_episodes}",
             )
         if self.timesteps is not None and self.timesteps < self.n_evaluations:
-            raise ValueError(
-                f"Expected timesteps >= n_evaluations ({self.n_evaluations}), actually: {self.timesteps}"
+            raise TargetError(
+                "timesteps",
+                f"Expected timesteps >= n_evaluations ({self.n_evaluations}), actually: {self.timesteps}",
+            )
+
+    def _check_level(self) -> None:
+        """The level and the fields that depend on it."""
+        if self.level not in LEVELS:
+            raise TargetError("level", f"Unknown level {self.level!r}; choose from {list(LEVELS)}")
+        if self.algo != "ddpg" and self.level not in ROLES:
+            raise TargetError(
+                "algo", f"An algorithm applies to levels {', '.join(ROLES)}, not {self.level!r}"
+            )
+        if self.level in ROLES and self.algo not in tunable_algorithms(self.level):
+            raise TargetError(
+                "algo",
+                f"Expected an algorithm among {list(tunable_algorithms(self.level))}, got {self.algo!r}",
+            )
+        sampler_for(self.level, self.algo)
+        if self.level == "worker" and self.worker not in self.worker_names:
+            raise TargetError(
+                "worker", f"Level 'worker' needs a worker among {self.worker_names}, got {self.worker!r}"
+            )
+        if self.level != "worker" and self.worker is not None:
+            raise TargetError("worker", f"A worker name only applies to level 'worker', not {self.level!r}")
+        if self.level in ("manager", "ham") and not self.workers_dir:
+            raise TargetError(
+                "workers_dir", f"Level {self.level!r} needs the run folder of train-workers (workers_dir)"
+            )
+        if self.level == "ham" and self.env is not None:
+            raise TargetError(
+                "env",
+                "HAM's switch rule is defined for the snake arm only (it reads its obstacle clearances)",
+            )
+        if self.block is not None and self.level != "flat":
+            raise TargetError(
+                "block", f"Expected block only with level 'flat', actually: level {self.level!r}"
             )
 
     @property
