@@ -357,7 +357,7 @@ def _env_name(env: gym.Env) -> str:
 
 def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -> dict[str, Any] | None:
     """
-    Whether a hierarchy chooses by state (issue 13's target 2): ``worker``'s share of the choices made near
+    Whether a hierarchy chooses by state: ``worker``'s share of the choices made near
     an obstacle (clearance <= ``near_clearance``) against its share where no obstacle is in range
     (clearance >= ``clear_clearance``), and their ratio. A manager that decides by state picks the avoid
     worker far more often near obstacles (ratio well above 1); a fixed mix of workers gives about 1.

@@ -1,4 +1,4 @@
-"""Benchmark methods as records, TD3/SAC baselines, the transfer scenario and the model export (issue 13)."""
+"""Benchmark methods as records, TD3/SAC baselines, the transfer scenario and the model export."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """
-What only the Ray executor (issue 17) does, on a real local Ray cluster: CPUs and working directory,
+What only the Ray executor does, on a real local Ray cluster: CPUs and working directory,
 retries, killing tasks a cancel does not stop, the cluster's address, the CLI on a ``ray start`` head. What
 every executor does (results, failures, progress, interrupts) is in tests/test_runner.py, for both.
 """

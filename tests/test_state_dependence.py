@@ -1,4 +1,4 @@
-"""The state-dependence figure (issue 13, target 2): a hierarchy with fake managers on the real snake env."""
+"""The state-dependence figure: a hierarchy with fake managers on the real snake env."""
 
 from __future__ import annotations
 

@@ -329,7 +329,7 @@ def tune_command(
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Search hyperparameters with Optuna; several processes or machines can share one study."""
-    import matplotlib  # lazily: +0.9 s with pyplot, only when a study runs
+    import matplotlib  # lazily: slow to import with pyplot, only when a study runs
 
     matplotlib.use("Agg")  # plots are files; never open a window
 

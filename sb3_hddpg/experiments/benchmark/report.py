@@ -173,7 +173,7 @@ def _share_text(value: float | None) -> str:
 
 
 def _dependence_lines(results: dict[str, Any]) -> list[str]:
-    """The per-seed state-dependence table (issue 13, target 2), for the methods that report choices."""
+    """The per-seed state-dependence table (does a hierarchy choose by state?), for the methods that report choices."""
     rows = []
     for method, entry in results["methods"].items():
         for seed, figure in entry.get("state_dependence", {}).items():
@@ -219,7 +219,7 @@ def flat_reaches_text(comparison: dict[str, Any]) -> str:
 
 
 def _transfer_lines(results: dict[str, Any]) -> list[str]:
-    """The transfer figure (issue 13, target 5): steps to reach the final score's fraction, and their ratio."""
+    """The transfer figure: steps to reach the final score's fraction, and their ratio."""
     transfer = results.get("transfer")
     if not transfer:
         return []

@@ -121,7 +121,7 @@ def save_plots(study: optuna.Study, out_dir: str | Path) -> dict[str, Path | str
     :param out_dir: the run folder.
     :return: plot name -> the PNG written, or the reason it was skipped.
     """
-    # Lazily: matplotlib and Optuna's plotting add ~0.9 s to an import, and only this function needs them.
+    # Lazily: matplotlib and Optuna's plotting are slow to import, and only this function needs them.
     import matplotlib.pyplot as plt
     from optuna.importance import PedAnovaImportanceEvaluator
     from optuna.visualization.matplotlib import plot_optimization_history, plot_param_importances

@@ -231,8 +231,8 @@ def tune(
 
     Each process gets one torch thread unless ``threads`` says otherwise, as every ``train-*`` command: for
     the small networks tuned here one thread is the faster (docs/PERFORMANCE.md, "Torch threads"), and two
-    threads in a process that shares its cores with other work spin for each other (a trial ran 14x slower
-    that way beside a benchmark). More processes (or machines) can join the same study at any time by
+    threads in a process that shares its cores with other work spin for each other (a trial runs many times slower
+    that way beside other work). More processes (or machines) can join the same study at any time by
     running the same command against the same storage.
 
     :param target: what is tuned.
@@ -309,7 +309,7 @@ def _next_step(study: optuna.Study, n_trials: int) -> str:
 
 def _safe_url(url: str) -> str:
     with contextlib.suppress(Exception):
-        from sqlalchemy.engine import make_url  # lazily: +0.6 s to import (see study_storage)
+        from sqlalchemy.engine import make_url  # lazily: slow to import (see study_storage)
 
         return make_url(url).render_as_string(hide_password=True)
     return url
