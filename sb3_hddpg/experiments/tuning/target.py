@@ -142,14 +142,6 @@ class TuningTarget:
             raise TargetError(
                 "episode_set", f"Expected episode_set 'tuning' or 'curve', actually: {self.episode_set!r}"
             )
-        if isinstance(self.n_seeds, bool) or not isinstance(self.n_seeds, int) or self.n_seeds < 1:
-            raise TargetError(
-                "n_seeds", f"Expected n_seeds to be an integer >= 1, actually: {self.n_seeds!r}"
-            )
-        if self.level == "ham" and self.n_seeds != 1:
-            raise TargetError(
-                "n_seeds", "Level 'ham' trains nothing: its trials have no seed to repeat (n_seeds 1)"
-            )
         if self.n_evaluations < 1 or self.eval_episodes < 1:
             raise TargetError(
                 "n_evaluations",
@@ -166,6 +158,19 @@ class TuningTarget:
         """The level and the fields that depend on it."""
         if self.level not in LEVELS:
             raise TargetError("level", f"Unknown level {self.level!r}; choose from {list(LEVELS)}")
+        if isinstance(self.n_seeds, bool) or not isinstance(self.n_seeds, int) or self.n_seeds < 1:
+            raise TargetError(
+                "n_seeds", f"Expected n_seeds to be an integer >= 1, actually: {self.n_seeds!r}"
+            )
+        if self.level == "ham" and self.n_seeds != 1:
+            raise TargetError(
+                "n_seeds", "Level 'ham' trains nothing: its trials have no seed to repeat (n_seeds 1)"
+            )
+        if self.level == "ham" and self.env is not None:
+            raise TargetError(
+                "env",
+                "HAM's switch rule is defined for the snake arm only (it reads its obstacle clearances)",
+            )
         if self.algo != "ddpg" and self.level not in ROLES:
             raise TargetError(
                 "algo", f"An algorithm applies to levels {', '.join(ROLES)}, not {self.level!r}"
@@ -185,11 +190,6 @@ class TuningTarget:
         if self.level in ("manager", "ham") and not self.workers_dir:
             raise TargetError(
                 "workers_dir", f"Level {self.level!r} needs the run folder of train-workers (workers_dir)"
-            )
-        if self.level == "ham" and self.env is not None:
-            raise TargetError(
-                "env",
-                "HAM's switch rule is defined for the snake arm only (it reads its obstacle clearances)",
             )
         if self.block is not None and self.level != "flat":
             raise TargetError(
