@@ -9,8 +9,8 @@ from pathlib import Path
 
 import gymnasium as gym
 
+from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE
 from sb3_hddpg.experiments.stats import summarise
 from sb3_hddpg.hierarchy.loading import load_policy
 
@@ -24,7 +24,7 @@ for method in ("hddpg", "ham", "ddpg", "hddpg-goal", "hddpg-avoid"):
         )
         lp = load_policy(path)
         env = gym.make("hddpg/SnakeReach-v0")
-        s = evaluate(lp.policy, env, n_episodes=20, seed=TEST_SEED_BASE).summary()
+        s = evaluate(lp.policy, env, n_episodes=20, seed=DEVELOPMENT.first_seed).summary()
         vals.append(s["action_saturation"])
     st = summarise(vals)
     out[method] = {"per_seed": vals, "mean": st["mean"], "ci": [st["ci_low"], st["ci_high"]]}
