@@ -6,7 +6,7 @@ Each (backend, seed) run is ``train_workers(workers=["goal"], backend=...)`` wit
 tested on ``--test-episodes`` fixed episodes, disjoint from the ones that picked the best model, and the
 score is its mean reward. With the same seed both backends start from the same networks and draw the same
 exploration noise and replay batches (see docs/PERFORMANCE.md), so runs are paired by seed and the
-reported statistic is the bootstrap CI of the mean paired difference SBX - SB3 (sb3_hddpg.stats). A CI
+reported statistic is the bootstrap CI of the mean paired difference SBX - SB3 (sb3_hddpg.experiments.stats). A CI
 that includes 0 means no difference was detected at this number of seeds.
 
     python benchmarks/backend_equivalence.py [--seeds 5] [--timesteps 30000] [--n-jobs 2] [--out DIR]
@@ -99,7 +99,7 @@ def main() -> None:
     with ProcessPoolExecutor(args.n_jobs, mp_context=get_context("spawn")) as pool:
         results = list(pool.map(run_one, *zip(*jobs), [settings] * len(jobs)))
 
-    from sb3_hddpg.stats import paired_difference_ci
+    from sb3_hddpg.experiments.stats import paired_difference_ci
 
     by = {(r["backend"], r["seed"]): r for r in results}
     seeds = range(args.seeds)

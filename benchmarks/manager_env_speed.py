@@ -22,8 +22,8 @@ from rich.table import Table
 from stable_baselines3 import DDPG
 
 import sb3_hddpg  # noqa: F401
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.training.config import load_hyperparams
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 
 def seconds_per_step(env: gym.Env, actions: np.ndarray) -> float:

@@ -15,7 +15,7 @@ Backends: ``sb3`` (PyTorch) or ``sbx`` (JAX). The split, by the file of each fra
 - replay sampling: SB3's buffers and our goal relabelling;
 - acting: the policy's forward pass for the next action (SB3 ``predict``; on SBX a jitted call);
 - the env: ``sb3_hddpg/envs`` and pymunk (physics, observation, reward);
-- the manager's selection: ``sb3_hddpg/hierarchy`` and ``sb3_hddpg/wrappers`` (simplex map, frozen workers);
+- the manager's selection: ``sb3_hddpg/hierarchy`` (simplex map, frozen workers);
 - the rest: SB3's collection loop, gymnasium's wrappers, numpy glue.
 
     pip install -e .[profile,fast]   # pyinstrument, sbx
@@ -39,16 +39,16 @@ from stable_baselines3 import DDPG  # noqa: E402
 from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 import sb3_hddpg  # noqa: E402, F401
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper  # noqa: E402
 from sb3_hddpg.training.backends import make_model  # noqa: E402
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams  # noqa: E402
-from sb3_hddpg.wrappers import WorkerSelectionWrapper  # noqa: E402
 
 #: (label, substrings of a frame's file path or function name), first match wins; order matters: SB3's
 #: ``predict``/``_sample_action`` are acting even though they live in SB3's files.
 CATEGORIES: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "the manager's selection (wrapper, simplex map, frozen workers)",
-        ("sb3_hddpg/hierarchy", "sb3_hddpg/wrappers"),
+        ("sb3_hddpg/hierarchy",),
     ),
     ("the env (physics, observation, reward)", ("sb3_hddpg/envs", "pymunk")),
     ("replay sampling (SB3 buffers, goal relabelling)", ("common/buffers.py", "goal_relabeling.py")),

@@ -4,7 +4,7 @@ budgets) run with the local process pool and with ``--executor ray`` on a local 
 wall clock compared (run it on an otherwise idle machine). The head is started before the Ray run is
 timed, as a cluster exists before a user points the benchmark at it; connecting to it is timed.
 
-Target (issue 17): the Ray run takes at most 1.1x the local run's wall time.
+Target: the Ray run takes at most 1.1x the local run's wall time.
 
     python benchmarks/ray_overhead.py [--scale 1.0] [--n-jobs 2]
 
@@ -24,7 +24,11 @@ import time
 from pathlib import Path
 
 from sb3_hddpg.experiments.ray_executor import ClusterError
-from sb3_hddpg.experiments.ray_head import LOOPBACK_ENV, local_ray_head
+
+# The loopback head is test scaffolding (tests/ray_head.py), not part of the library: import it from the
+# repository root.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.ray_head import LOOPBACK_ENV, local_ray_head
 
 CLI = [sys.executable, "-m", "sb3_hddpg"]
 #: A loopback cluster of our own: no token to hand around (keep authentication on a real network).

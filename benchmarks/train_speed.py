@@ -21,8 +21,8 @@ import torch
 from stable_baselines3 import DDPG
 
 import sb3_hddpg  # noqa: F401
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.training.config import Hyperparams, load_hyperparams
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 
 def make_model(env: gym.Env, hyperparams: Hyperparams) -> DDPG:

@@ -151,7 +151,7 @@ def evaluate(
 
     The env must meet the env contract (:mod:`sb3_hddpg.envs.contract`): per-term sums and the normalised
     total are measured on any such env; the snake env's touch, collision and clearance metrics only where
-    the env reports ``goal_touched``, ``collision`` and ``min_clearance`` in ``info``. A :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` also reports the worker it
+    the env reports ``goal_touched``, ``collision`` and ``min_clearance`` in ``info``. A :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` also reports the worker it
     ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` its ``last_selection``: both are
     counted, each also by the state it was made in: with the nearest obstacle within ``near_clearance``
     (the ``min_clearance`` of the observation the policy acted on), or with none within ``clear_clearance``
@@ -357,7 +357,7 @@ def _env_name(env: gym.Env) -> str:
 
 def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -> dict[str, Any] | None:
     """
-    Whether a hierarchy chooses by state (issue 13's target 2): ``worker``'s share of the choices made near
+    Whether a hierarchy chooses by state: ``worker``'s share of the choices made near
     an obstacle (clearance <= ``near_clearance``) against its share where no obstacle is in range
     (clearance >= ``clear_clearance``), and their ratio. A manager that decides by state picks the avoid
     worker far more often near obstacles (ratio well above 1); a fixed mix of workers gives about 1.

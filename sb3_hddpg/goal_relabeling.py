@@ -24,6 +24,7 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
+from sb3_hddpg.envs.snake.rewards import GoalTerm
 
 #: The components relabelling needs in the observation.
 REQUIRED_COMPONENTS = ("joint_positions", "ee_to_goal", "goal_touched")
@@ -102,6 +103,8 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         self._touched = layout["goal_touched"].start
         self.touch_radius = float(touch_radius)
         self.goal_low = float(goal_low)
+        # The env's own goal term: a relabelled reward is what the env would have paid for that goal.
+        self._goal_term = GoalTerm(self.touch_radius, self.goal_low)
         self.relabel_fraction = float(relabel_fraction)
         self.goal_scale = None if goal_scale is None else float(goal_scale)
         # Per stored step: its episode's number (to tell a step overwritten by a later episode) and, once
@@ -205,16 +208,15 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         """
         if self.goal_scale is not None:  # the stored goal term, read before the goal is replaced
             stored = np.sqrt(((2.0 * next_obs[rows, self._to_goal]) ** 2).sum(axis=1))
-            old_goal = np.maximum(-stored + next_obs[rows, self._touched], self.goal_low)
+            old_goal = self._goal_term.of(stored, next_obs[rows, self._touched])
         for batch, is_next in ((obs, False), (next_obs, True)):
             tips = batch[rows, self._tip]
             offset = goals - tips
             distance = np.sqrt((offset**2).sum(axis=1))
-            touched = distance <= self.touch_radius
+            new_goal, touched = self._goal_term.batch(distance)
             batch[rows, self._to_goal] = offset / 2.0
             batch[rows, self._touched] = touched
             if is_next:
-                new_goal = np.maximum(-distance + touched, self.goal_low)
                 if self.goal_scale is None:
                     rewards[rows] = new_goal
                 else:

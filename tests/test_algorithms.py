@@ -186,9 +186,9 @@ def test_train_workers_with_a_learner_per_worker(tmp_path):
 
 
 def test_a_discrete_manager_picks_a_worker_by_index(tmp_path):
+    from sb3_hddpg.hierarchy import WorkerSelectionWrapper
     from sb3_hddpg.hierarchy.hierarchy import Hierarchy
     from sb3_hddpg.hierarchy.selection import SelectionConfig
-    from sb3_hddpg.wrappers import WorkerSelectionWrapper
     from tests.helpers import ActionRecorder, ConstantWorker
 
     goal, avoid = np.full(6, 0.5, np.float32), np.full(6, -0.25, np.float32)

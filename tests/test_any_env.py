@@ -16,6 +16,7 @@ from gymnasium import spaces
 
 from sb3_hddpg.artifacts.limits import LimitError
 from sb3_hddpg.artifacts.values import check_env_kwargs
+from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.envs import (
     InfoTermsEnv,
     MultiObjectiveEnv,
@@ -29,7 +30,6 @@ from sb3_hddpg.envs import (
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.hierarchy import Hierarchy
-from sb3_hddpg.policy import RandomPolicy
 from sb3_hddpg.training import train_manager, train_workers
 from tests.cli_runner import run_cli
 from tests.helpers import TINY_CONFIG

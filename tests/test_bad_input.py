@@ -352,7 +352,7 @@ CASES = [
         "tu-algo-not-flat",
         ("tune", "--level", "ham", "--algo", "sac", "--out", "{tmp}/o"),
         2,
-        "--level worker, flat, manager",
+        "levels worker, flat, manager",
     ),
     case(
         "tu-sac-fix-noise",

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sb3_hddpg import stats
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.experiments import stats
 from sb3_hddpg.experiments.benchmark import (
     OUTPUT_FILES,
     BenchmarkSettings,

@@ -1,4 +1,4 @@
-"""Benchmark methods as records, TD3/SAC baselines, the transfer scenario and the model export (issue 13)."""
+"""Benchmark methods as records, TD3/SAC baselines, the transfer scenario and the model export."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_hddpg import stats
 from sb3_hddpg.artifacts.run_folder import RunFolderError
+from sb3_hddpg.experiments import stats
 from sb3_hddpg.experiments.benchmark import (
     DEFAULT_METHODS,
     METHOD_REGISTRY,
@@ -32,7 +32,7 @@ from sb3_hddpg.experiments.benchmark import (
     task_cost,
     write_outputs,
 )
-from sb3_hddpg.wrappers import PreferenceReward
+from sb3_hddpg.hierarchy.preference import PreferenceReward
 from tests.cli_batch import run_batch
 from tests.test_benchmark import cli, record, summary
 

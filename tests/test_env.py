@@ -318,3 +318,42 @@ def test_a_script_that_never_closes_its_env_exits_without_noise():
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
+
+
+def test_parameters_are_one_frozen_checked_record():
+    from dataclasses import FrozenInstanceError
+
+    from sb3_hddpg.envs.snake import SnakeParams
+
+    env = SnakeArmEnv(n_joints=np.int64(4), dt=1)
+    assert env.params == SnakeParams(n_joints=4, dt=1.0)
+    assert type(env.n_joints) is int and type(env.dt) is float
+    with pytest.raises(FrozenInstanceError):
+        env.params.n_joints = 3  # type: ignore[misc]
+    with pytest.raises(ValueError, match="n_joints"):
+        SnakeParams(n_joints=33)
+
+
+def test_goal_term_is_one_definition_for_a_step_and_a_batch():
+    from sb3_hddpg.envs.snake import GoalTerm
+
+    term = GoalTerm(touch_radius=0.1, low=-1.9)
+    distances = np.array([0.0, 0.05, 0.1, 0.1000001, 0.7, 2.5])
+    batch, touched = term.batch(distances)
+    one_by_one = [term(float(d)) for d in distances]
+    assert batch.tolist() == [value for value, _ in one_by_one]
+    assert touched.tolist() == [flag for _, flag in one_by_one]
+    assert batch[-1] == -1.9  # clipped to the lower bound
+
+
+def test_view_reports_the_state_without_stepping():
+    env = SnakeArmEnv(touch_radius=5.0)
+    env.reset(seed=3)
+    _, _, _, _, info = env.step(np.zeros(6, np.float32))
+    points = env.link_points()
+    view = env.view()
+    assert view.goal_touched == info["goal_touched"] and view.collision == info["collision"]
+    assert view.goal_distance == pytest.approx(info["distance_to_goal"])
+    np.testing.assert_array_equal(view.link_points, points)
+    np.testing.assert_array_equal(env.link_points(), points)
+    assert len(view.touching) == env.n_joints and view.touched_obstacles().shape == (env.n_obstacles,)

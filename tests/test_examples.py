@@ -1,4 +1,4 @@
-"""The examples run as their docstrings say, on tiny trained workers."""
+"""The examples and the studies run as their docstrings say, on tiny trained workers."""
 
 from __future__ import annotations
 
@@ -11,15 +11,19 @@ import pytest
 
 from tests.test_bad_input import TINY_CONFIG
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+ROOT = Path(__file__).resolve().parents[1]
+#: Users' examples, and the studies behind the docs' figures.
+EXAMPLES, STUDIES = ROOT / "examples", ROOT / "studies"
 
 
-def run_example(script: str, args: list[str], timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    """Run an example as its docstring does, in a fresh interpreter, and check that it exits 0."""
+def run_example(
+    script: str, args: list[str], timeout: float = 600, folder: Path = EXAMPLES
+) -> subprocess.CompletedProcess[str]:
+    """Run an example (or a study) as its docstring does, in a fresh interpreter, and check that it exits 0."""
     # One torch thread: the test machine's cores are shared by the test processes.
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     result = subprocess.run(
-        [sys.executable, str(EXAMPLES / script), *args],
+        [sys.executable, str(folder / script), *args],
         capture_output=True,
         text=True,
         timeout=timeout,
@@ -36,7 +40,7 @@ def test_preference_landscape_scores_every_policy_and_names_the_best(tmp_path):
     config.write_text(TINY_CONFIG)
     train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
     args = ["--workers", str(tmp_path / "w"), "--episodes", "1", "--bias", "0.15", "3"]
-    result = run_example("preference_landscape.py", args)
+    result = run_example("preference_landscape.py", args, folder=STUDIES)
     table = [line for line in result.stdout.splitlines() if line.startswith("│")]
     rows = [line for line in table if "mixture" in line or "HAM threshold" in line]
     assert len(rows) == 12, result.stdout  # 5 mixtures + 7 thresholds
@@ -61,7 +65,7 @@ def test_worker_study_trains_with_every_setting_and_saves_a_plain_sb3_zip(tmp_pa
         "--save",
         str(tmp_path / "goal.zip"),
     ]
-    result = run_example("worker_study.py", args)
+    result = run_example("worker_study.py", args, folder=STUDIES)
     lines = [json.loads(line) for line in result.stdout.splitlines() if line.startswith("{")]
     assert lines[0]["steps"] == 300 and "test" in lines[-1]
     assert 0.0 <= lines[-1]["goal_touch_rate"] <= 1.0
@@ -77,7 +81,7 @@ def test_manager_study_reports_the_state_dependence(tmp_path):
     config.write_text(TINY_CONFIG)
     train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
     args = ["--workers", str(tmp_path / "w"), "--steps", "200", "--action-l2", "0.5", "--test-episodes", "1"]
-    result = run_example("manager_study.py", args)
+    result = run_example("manager_study.py", args, folder=STUDIES)
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert report["args"]["action_l2"] == 0.5 and 0.0 <= report["action_saturation"] <= 1.0
     assert report["state_dependence"]["worker"] == "avoid"
@@ -89,7 +93,7 @@ def test_equal_effort_tuning_gives_every_method_the_same_trials_from_its_bundled
 
     args = ["--n-trials", "2", "--timesteps", "200", "--n-evaluations", "2", "--eval-episodes", "1"]
     args += ["--worker-timesteps", "100", "--out", str(tmp_path)]
-    result = run_example("equal_effort_tuning.py", args, timeout=900)
+    result = run_example("equal_effort_tuning.py", args, timeout=900, folder=STUDIES)
     summary = json.loads((tmp_path / "summary.json").read_text())
     names = ["worker-goal", "worker-avoid", "flat", "flat-td3", "flat-sac", "manager", "ham"]
     assert [entry["study"] for entry in summary] == names
@@ -117,7 +121,7 @@ def test_goal_holding_measures_a_worker_and_the_reference_reachers(tmp_path):
     config.write_text(TINY_CONFIG)
     train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
     worker = str(tmp_path / "w" / "workers" / "goal.zip")
-    result = run_example("goal_holding.py", [worker, "ik", "random", "--episodes", "2"])
+    result = run_example("goal_holding.py", [worker, "ik", "random", "--episodes", "2"], folder=STUDIES)
     cells = [
         [cell.strip() for cell in line.strip("│").split("│")]
         for line in result.stdout.splitlines()

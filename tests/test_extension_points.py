@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.experiments.benchmark import (
     METHOD_REGISTRY,
@@ -22,6 +23,7 @@ from sb3_hddpg.experiments.benchmark import (
     register_method,
     run_task,
 )
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import (
     SELECTORS,
@@ -31,8 +33,6 @@ from sb3_hddpg.hierarchy.selection import (
     get_selector,
     register_selector,
 )
-from sb3_hddpg.policy import RandomPolicy
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 from tests.helpers import ActionRecorder, ConstantWorker
 
 ENV_ID = "hddpg/SnakeReach-v0"

@@ -14,8 +14,8 @@ import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.baselines import HAMSwitch, load_ham, save_ham
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN
 from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 GOAL_ACTION = np.full(6, 0.5, dtype=np.float32)
 AVOID_ACTION = np.full(6, -0.5, dtype=np.float32)

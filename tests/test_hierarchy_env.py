@@ -6,8 +6,8 @@ import gymnasium as gym
 import pytest
 from stable_baselines3 import DDPG
 
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig, infer_env
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 CONFIG = SelectionConfig(preferences={"goal": 1.0, "avoid": 1.0})
 

@@ -27,9 +27,9 @@ from stable_baselines3 import DDPG
 
 import sb3_hddpg  # noqa: F401  (registers the ids)
 from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, MAX_MODELS, MAX_NESTING
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy, SelectionConfig
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Address space of a child that loads hostile files: imports take ~0.7 GB, so this leaves ~1.3 GB.

@@ -19,7 +19,6 @@ FLOORS = {
     "sb3_hddpg.names": 0,
     "sb3_hddpg.policy": 1,
     "sb3_hddpg.algorithms": 1,
-    "sb3_hddpg.stats": 1,
     "sb3_hddpg.episode_sets": 1,
     "sb3_hddpg.metric_labels": 1,
     "sb3_hddpg.artifacts": 2,
@@ -29,7 +28,6 @@ FLOORS = {
     "sb3_hddpg.media": 3,
     "sb3_hddpg.baselines": 3,
     "sb3_hddpg.hierarchy": 4,
-    "sb3_hddpg.wrappers": 4,
     "sb3_hddpg.training": 5,
     "sb3_hddpg.experiments": 6,
     "sb3_hddpg.cli": 7,
@@ -50,15 +48,23 @@ def source_path(module: str) -> Path:
     return package if package.is_file() else ROOT.joinpath(*parts[:-1], parts[-1] + ".py") if parts else ROOT
 
 
-def imports_of(module: str) -> set[str]:
-    """Every module of ours that ``module`` imports, at module level or inside functions."""
+def imports_of(module: str, annotations: bool = False) -> set[str]:
+    """
+    Every module of ours that ``module`` imports, at module level or inside functions; with
+    ``annotations``, also those imported under ``if TYPE_CHECKING:`` (for annotations only).
+    """
     path = source_path(module)
     if path == ROOT:
         path = ROOT / "__init__.py"
     tree = ast.parse(path.read_text(), str(path))
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    return imports_in(tree, package, annotations)
+
+
+def imports_in(tree: ast.AST, package: str, annotations: bool = False) -> set[str]:
+    """The modules of ours a parsed module in ``package`` imports (see :func:`imports_of`)."""
     found: set[str] = set()
-    for node in runtime_nodes(tree):
+    for node in ast.walk(tree) if annotations else runtime_nodes(tree):
         if isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -121,11 +127,39 @@ def test_each_module_imports_only_from_its_floor_or_below():
     assert not upward, "\n".join(upward)
 
 
-def test_no_import_cycles():
-    graph = {module: imports_of(module) - {module} for module in modules()}
+def import_graph(annotations: bool = False) -> dict[str, set[str]]:
+    """Module -> the modules of ours it imports, without the packages it sits in."""
+    graph = {module: imports_of(module, annotations) - {module} for module in modules()}
     # A package's __init__ that re-exports its own modules is not a cycle with them.
     for module, targets in graph.items():
         graph[module] = {t for t in targets if not module.startswith(t + ".")}
+    return graph
+
+
+def package_graph(graph: dict[str, set[str]], depth: int) -> dict[str, set[str]]:
+    """
+    The import graph between the packages and modules ``depth`` names deep (``sb3_hddpg.envs`` at depth 2):
+    an import between two of their modules is an edge between them, unless one contains the other.
+    """
+
+    def group(module: str) -> str:
+        return ".".join(module.split(".")[:depth])
+
+    packages: dict[str, set[str]] = {}
+    for module, targets in graph.items():
+        source = group(module)
+        for target in map(group, targets):
+            if (
+                source != target
+                and not (source + ".").startswith(target + ".")
+                and not (target + ".").startswith(source + ".")
+            ):
+                packages.setdefault(source, set()).add(target)
+    return packages
+
+
+def cycles_of(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The cycles a depth-first search meets (at least one per strongly connected part, if any)."""
     state: dict[str, int] = {}
     stack: list[str] = []
     cycles: list[list[str]] = []
@@ -144,4 +178,31 @@ def test_no_import_cycles():
     for module in sorted(graph):
         if module not in state:
             visit(module)
+    return cycles
+
+
+def test_no_import_cycles():
+    cycles = cycles_of(import_graph())
     assert not cycles, "\n".join(" -> ".join(cycle) for cycle in cycles)
+
+
+def test_no_import_cycles_through_annotations_at_any_level():
+    # An import under ``if TYPE_CHECKING:`` never runs, but it still ties two modules into one: neither can
+    # be understood, tested or moved without the other.
+    graph = import_graph(annotations=True)
+    deepest = max(len(module.split(".")) for module in graph)
+    found = []
+    for depth in range(2, deepest + 1):
+        found += [" -> ".join(cycle) for cycle in cycles_of(package_graph(graph, depth))]
+    assert not found, "\n".join(found)
+
+
+def test_the_cycle_check_sees_annotation_imports_and_packages():
+    source = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from sb3_hddpg.envs import layout\n"
+    tree = ast.parse(source)
+    assert imports_in(tree, "sb3_hddpg.media") == set()
+    assert imports_in(tree, "sb3_hddpg.media", annotations=True) == {"sb3_hddpg.envs.layout"}
+    # Two packages whose modules import each other form a cycle, though no module does.
+    graph = {"p.x.m": {"p.y.n"}, "p.y.n": {"p.x.k"}, "p.x.k": set()}
+    assert cycles_of(graph) == []
+    assert cycles_of(package_graph(graph, 2)) == [["p.x", "p.y", "p.x"]]

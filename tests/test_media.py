@@ -16,6 +16,7 @@ from stable_baselines3 import DDPG
 import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.artifacts.run_folder import RUN_MARKER
 from sb3_hddpg.experiments.packaging import RESULTS_KEYS, package_policy, write_zoo_layout
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.media import StepRecorder, record_video
@@ -27,7 +28,6 @@ from sb3_hddpg.media.figures import (
 )
 from sb3_hddpg.media.overlay import PANEL_HEIGHT, WORKER_COLOURS
 from sb3_hddpg.media.trace import trace_episodes
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 from tests.cli_runner import run_cli
 
 STEPS = 15  # per episode: short episodes keep the videos small

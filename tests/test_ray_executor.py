@@ -1,5 +1,5 @@
 """
-What only the Ray executor (issue 17) does, on a real local Ray cluster: CPUs and working directory,
+What only the Ray executor does, on a real local Ray cluster: CPUs and working directory,
 retries, killing tasks a cancel does not stop, the cluster's address, the CLI on a ``ray start`` head. What
 every executor does (results, failures, progress, interrupts) is in tests/test_runner.py, for both.
 """
@@ -24,7 +24,6 @@ import pytest
 pytest.importorskip("ray")
 
 from sb3_hddpg.experiments.ray_executor import ClusterError, RayExecutor, check_address, parse_address
-from sb3_hddpg.experiments.ray_head import LOOPBACK_ENV, local_ray_head
 from sb3_hddpg.experiments.runner import Job, run_jobs
 from tests.cli_runner import CLI
 from tests.jobs import (
@@ -36,6 +35,7 @@ from tests.jobs import (
     started_pids,
     where,
 )
+from tests.ray_head import LOOPBACK_ENV, local_ray_head
 
 
 def test_a_task_gets_its_threads_as_cpus_in_the_drivers_working_directory(ray_cluster, tmp_path, monkeypatch):

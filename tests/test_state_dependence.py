@@ -1,4 +1,4 @@
-"""The state-dependence figure (issue 13, target 2): a hierarchy with fake managers on the real snake env."""
+"""The state-dependence figure: a hierarchy with fake managers on the real snake env."""
 
 from __future__ import annotations
 
@@ -115,7 +115,7 @@ def test_the_figure_is_absent_without_worker_choices_and_bands_are_checked():
 def test_evaluate_reports_the_figure_for_a_bundle(tmp_path):
     from stable_baselines3 import DDPG
 
-    from sb3_hddpg.wrappers import WorkerSelectionWrapper
+    from sb3_hddpg.hierarchy import WorkerSelectionWrapper
     from tests.cli_batch import run_batch
 
     env = gym.make(ENV_ID)

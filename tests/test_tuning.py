@@ -323,7 +323,7 @@ def test_divergence_is_pruned_not_failed(tmp_path, tiny_config, monkeypatch):
     def diverging_training(*args, **kwargs):
         raise ValueError("Expected a finite manager action, actually: [nan, nan]")
 
-    monkeypatch.setattr(tuning, "train_agent", diverging_training)
+    monkeypatch.setattr(tuning.trial, "train_agent", diverging_training)
     target = TuningTarget(level="flat", config=str(tiny_config), timesteps=100, n_evaluations=1)
     study = optuna.create_study(direction="maximize")
     study.optimize(lambda trial: tuning.objective(trial, target, tmp_path), n_trials=1)

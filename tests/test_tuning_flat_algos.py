@@ -1,4 +1,4 @@
-"""``tune --level flat --algo td3|sac``: the same tuning effort for every flat baseline (issue 13, target 4)."""
+"""``tune --level flat --algo td3|sac``: the same tuning effort for every flat baseline."""
 
 from __future__ import annotations
 

@@ -13,9 +13,9 @@ import torch
 from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.provenance import sha256_file
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy, SelectionConfig
 from sb3_hddpg.training.training import train_manager, train_workers
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 TINY = {"timesteps": 400, "eval_freq": 200, "eval_episodes": 1}
 

@@ -4,8 +4,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.selection import SimplexMap, parse_preferences, preferences_from_bias
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 from tests.helpers import ActionRecorder, ConstantWorker
 
 GOAL_ACTION = np.full(6, 0.5, np.float32)

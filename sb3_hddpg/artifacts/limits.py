@@ -506,3 +506,14 @@ def check_file_entry(entry: object, what: str) -> dict[str, Any]:
         if key in entry:
             check_name(entry[key], f"{what}.{key}")
     return dict(entry)
+
+
+# ---------------------------------------------------------------- the snake arm's counts
+# The env checks its own constructor (a direct ``SnakeArmEnv(...)`` call is held to them too) and sits
+# below the artefacts, so it defines them; they are named here with every other limit on input.
+from sb3_hddpg.envs.snake import params as _snake  # noqa: E402
+
+#: The snake arm's most joints, obstacles and physics substeps per step.
+MAX_JOINTS = _snake.MAX_JOINTS
+MAX_OBSTACLES = _snake.MAX_OBSTACLES
+MAX_SUBSTEPS = _snake.MAX_SUBSTEPS

@@ -20,7 +20,7 @@ from sb3_hddpg.artifacts.records import ModelEntry, ModelsManifest, read_workers
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.workers import Workers, observed_components, shared_env_of
-from sb3_hddpg.policy import WORKER_ENV_IDS
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 
 __all__ = [
     "ResumeMismatch",

@@ -15,7 +15,7 @@ import gymnasium as gym
 from sb3_hddpg.artifacts.limits import check_env_id
 from sb3_hddpg.artifacts.records import ModelsManifest
 from sb3_hddpg.artifacts.values import check_env_kwargs
-from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 
 #: The facts of a workers-manifest entry a bundle keeps about each worker.
 BUNDLED_FACTS = ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
@@ -45,7 +45,7 @@ class Workers(Mapping[str, Any]):
 
     models: dict[str, Any]
     states: dict[str, list[str]] = field(default_factory=dict)
-    env_id: str | None = SNAKE_SHARED_ENV_ID
+    env_id: str | None = SNAKE_REACH_ENV_ID
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     manifest: ModelsManifest = field(default_factory=lambda: ModelsManifest("workers"))
     folder: Path | None = None
@@ -113,7 +113,7 @@ def shared_env_of(
         return env_id, dict(env_kwargs or {})
     shared = manifest.shared_env
     if shared is None:
-        return SNAKE_SHARED_ENV_ID, dict(env_kwargs or {})
+        return SNAKE_REACH_ENV_ID, dict(env_kwargs or {})
     found = check_env_id(
         shared.get("env_id"), "workers manifest: shared_env.env_id", allowed_env_ids, trusted=trusted
     )

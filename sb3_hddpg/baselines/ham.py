@@ -5,7 +5,7 @@ Parr & Russell's Hierarchical Abstract Machines choose lower-level machines by h
 The paper's HAM for the snake arm has one transition condition: the sum of the distances from the arm to
 the obstacles. Below a threshold the avoid worker acts, otherwise the goal worker. Nothing is trained: the
 switch is a policy like any other (SB3's ``predict``), so ``evaluate``, the benchmark and even a manager
-(as a worker of :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper`) can use it.
+(as a worker of :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper`) can use it.
 
 The distance signal is the observation's ``joint_obstacle_distances``: per link, its clearance to the
 closest obstacle surface divided by the env's ``sensor_range`` and clipped to ``[0, 1]``. A link with no
@@ -28,6 +28,7 @@ from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.artifacts.records import HamFile, ham_file, read_ham_file
 from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.policy import Policy
 
@@ -193,7 +194,7 @@ def save_ham(
     threshold: float,
     hysteresis: float = 0.0,
     names: tuple[str, str] = ("goal", "avoid"),
-    env_id: str = "hddpg/SnakeReach-v0",
+    env_id: str = SNAKE_REACH_ENV_ID,
     env_kwargs: Mapping[str, Any] | None = None,
     metadata: Mapping[str, Any] | None = None,
 ) -> Path:

@@ -100,7 +100,7 @@ def _penalised_sbx_class(base: type, coefficient: float) -> type:
     ``base`` (SBX's TD3 or DDPG) with the penalty in its jitted actor update. SBX's ``_train`` calls
     ``cls.update_actor`` with the class as a static argument, so a subclass is compiled with its own update.
     """
-    # Lazily: only an SBX model gets here (jax is optional and adds 1.4 s to an import).
+    # Lazily: only an SBX model gets here (jax is optional and slow to import).
     import jax
     import jax.numpy as jnp
 

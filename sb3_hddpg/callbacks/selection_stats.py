@@ -11,7 +11,7 @@ class SelectionStatsCallback(BaseCallback):
     """
     Log, every ``log_freq`` steps, the fraction of steps each worker was chosen (``selection/<name>``) and
     the mean raw and normalised reward terms (``reward_terms/<term>``, ``normalised_terms/<term>``), read
-    from the ``info`` of :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper`.
+    from the ``info`` of :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper`.
 
     :param log_freq: environment steps between log records.
     """

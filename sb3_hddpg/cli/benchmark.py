@@ -30,7 +30,6 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.envs.terms_env import TermsEnv
-from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark import (
     DEFAULT_ENV_METHODS,
     DEFAULT_METHODS,
@@ -47,161 +46,25 @@ from sb3_hddpg.experiments.benchmark import (
     check_redo,
     check_workers_source,
     default_env_methods,
-    final_scores_text,
-    flat_reaches_text,
     run_benchmark,
 )
+from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.metric_labels import metric_label
 
 
-def _all_invocations(results: dict[str, Any]) -> str:
-    """The wall time over every invocation of a resumed benchmark (empty for a benchmark run once)."""
-    count = results.get("invocations", 1)
-    if count <= 1:
-        return ""
-    return f" ({results['wall_time_s_all_invocations'] / 60:.1f} min over its {count} invocations)"
-
-
-def _ci(stats: dict[str, Any], fmt: str = ".1f") -> str:
-    return f"{stats['mean']:{fmt}} [{stats['ci_low']:{fmt}}, {stats['ci_high']:{fmt}}]"
-
-
-def results_table(results: dict[str, Any]) -> Table:
-    """The per-method table: final test metrics and learning-curve statistics, mean [95 % CI] over seeds."""
-    table = Table(
-        title=(
-            f"Benchmark: mean [95 % bootstrap CI] over seeds; {results['test_episode_set']['name']} test episodes "
-            f"from seed {results['test_seeds'][0]}; "
-            f"curve window {results['curve_window']} own steps"
+def _rich_table(table: TextTable) -> Table:
+    """A library table drawn by rich."""
+    drawn = Table(title=table.title)
+    for column in table.columns:
+        drawn.add_column(
+            column,
+            justify="left" if column in table.left else "right",
+            overflow="fold" if table.fold else "ellipsis",
         )
-    )
-    # The snake's own metrics only where some method's env reports them (the snake arm).
-    snake = [
-        (key, header, fmt)
-        for key, header, fmt in (
-            ("goal_touch_rate", "goal touch", ".1%"),
-            ("collisions_per_episode", "contact steps /ep", ".2f"),
-            ("success_rate", "success", ".0%"),
-        )
-        if any(key in entry["stats"] for entry in results["methods"].values())
-    ]
-    columns = (
-        "method",
-        "seeds",
-        f"{metric_label('mean_reach_reward').short} (test)",
-        "IQM",
-        *(header for _, header, _ in snake),
-        "curve mean",
-        f"slope /{results['slope_unit_steps']} steps",
-    )
-    for column in columns:
-        # Folded, not cut, where a column is narrower than a word in an 80-column terminal.
-        table.add_column(column, justify="left" if column == "method" else "right", overflow="fold")
-    for method, entry in results["methods"].items():
-        s = entry["stats"]
-        table.add_row(
-            method,
-            str(len(entry["seeds"])),
-            _ci(s["mean_reach_reward"]),
-            f"{s['mean_reach_reward']['iqm']:.1f}",
-            *(_ci(s[key], fmt) if key in s else "-" for key, _, fmt in snake),
-            _ci(s["curve_mean"]),
-            _ci(s["slope"], ".2f"),
-        )
-    return table
-
-
-def comparisons_table(results: dict[str, Any]) -> Table:
-    """The paired comparisons: difference [adjusted t CI], relative gain, probability of improvement."""
-    table = Table(
-        title=(
-            "Paired comparisons over common seeds (A - B): Student t intervals, Bonferroni-adjusted for each "
-            "challenger's comparisons (results.json: comparison_families)"
-        )
-    )
-    for column in ("A vs B", "metric", "difference [adjusted CI]", "relative", "P(A > B)"):
-        table.add_column(column, justify="left" if column in ("A vs B", "metric") else "right")
-    for pair, comparison in results["comparisons"].items():
-        for metric in ("mean_reach_reward", "curve_mean", "slope"):
-            c = comparison[metric]
-            relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
-            table.add_row(
-                pair,
-                metric,
-                f"{c['difference']:+.2f} [{c['ci_low_adjusted']:+.2f}, {c['ci_high_adjusted']:+.2f}]",
-                relative,
-                f"{c['probability_of_improvement']:.2f}",
-            )
-    return table
-
-
-def _steps(steps: int | None) -> str:
-    return str(steps) if steps is not None else "no gain"  # the curve ended at or below the random score
-
-
-def transfer_table(results: dict[str, Any]) -> Table:
-    """
-    The transfer figure: per preference, manager and flat method, steps to the final score's fraction and
-    their ratio.
-    """
-    transfer = results["transfer"]
-    table = Table(title=f"Transfer: {transfer['definition']}")
-    for column in (
-        "preference",
-        "manager",
-        "flat",
-        "seeds",
-        "ratio flat / manager [95 % CI]",
-        "final score manager / flat",
-        "flat reaches the manager's final",
-        "per seed (flat / manager steps)",
-    ):
-        table.add_column(column, justify="left" if column in ("preference", "manager", "flat") else "right")
-    for preference, entry in transfer["preferences"].items():
-        for comparison in entry.values():
-            ratio = comparison["ratio"]
-            table.add_row(
-                preference,
-                comparison["manager"],
-                comparison["flat"],
-                f"{comparison['seeds_with_ratio']}/{len(comparison['per_seed'])}",
-                _ci(ratio, ".2f") if ratio else "undefined",
-                final_scores_text(comparison),
-                flat_reaches_text(comparison),
-                ", ".join(
-                    f"{_steps(v['flat_steps'])} / {_steps(v['manager_steps'])}"
-                    for v in comparison["per_seed"].values()
-                ),
-            )
-    return table
-
-
-def dependence_table(results: dict[str, Any]) -> Table | None:
-    """Per method and seed: the avoid worker's share near obstacles vs with none in range, and the ratio."""
-    rows = [
-        (method, seed, figure)
-        for method, entry in results["methods"].items()
-        for seed, figure in entry.get("state_dependence", {}).items()
-        if figure is not None
-    ]
-    if not rows:
-        return None
-    worker = rows[0][2]["worker"]
-    table = Table(
-        title=f"State dependence (test): the {worker} worker's share of choices by nearest-obstacle clearance"
-    )
-    for column in ("method", "seed", "near (<= half sensor range)", "none in range", "ratio"):
-        table.add_column(column, justify="left" if column == "method" else "right")
-    for method, seed, figure in rows:
-        table.add_row(
-            method,
-            seed,
-            f"{figure['near_share']:.1%}" if figure["near_share"] is not None else "-",
-            f"{figure['clear_share']:.1%}" if figure["clear_share"] is not None else "-",
-            dependence_ratio_text(figure),
-        )
-    return table
+    for row in table.rows:
+        drawn.add_row(*row)
+    return drawn
 
 
 def _chosen_methods(methods: str | None, transfer: bool, shared: TermsEnv | None = None) -> list[str]:
@@ -459,18 +322,9 @@ def benchmark_command(
         ray_address=address,
         redo=redone,
     )
-    console.print(results_table(results))
-    if results["comparisons"]:
-        console.print(comparisons_table(results))
-    dependence = dependence_table(results)
-    if dependence is not None:
-        console.print(dependence)
-    if "transfer" in results:
-        console.print(transfer_table(results))
-    console.print(
-        f"Wall time: {results['wall_time_s_this_invocation'] / 60:.1f} min{_all_invocations(results)}.  "
-        f"Outputs in {out}: {', '.join(OUTPUT_FILES)}"
-    )
+    for table in console_tables(results):
+        console.print(_rich_table(table))
+    console.print(f"Wall time: {wall_time_text(results)}.  Outputs in {out}: {', '.join(OUTPUT_FILES)}")
     if export_dir is not None:
         _export(out, export_dir)
     if results["failures"]:

@@ -22,6 +22,7 @@ from sb3_hddpg.artifacts.run_folder import (
 )
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.cli.app import console_note
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.training.backends import BackendError, check_backend
 from sb3_hddpg.training.run_options import MAX_SEED, RUN_OPTION_NAMES, RunOptions
@@ -277,7 +278,7 @@ ENV_HELP = (
     "a registered env with per-term rewards in info (docs/ENVIRONMENTS.md)."
 )
 #: The default of ``--env`` where it is the snake arm.
-SNAKE_DEFAULT = " Default: the snake arm (hddpg/SnakeReach-v0)."
+SNAKE_DEFAULT = f" Default: the snake arm ({SNAKE_REACH_ENV_ID})."
 TERMS_HELP = (
     "Comma-separated reward term names, e.g. speed,energy: an MO-Gymnasium env's objectives in order "
     "(default obj0..objN), or the info keys of an env's per-term rewards (required there)."

@@ -20,6 +20,7 @@ from sb3_hddpg.cli.options import (
     prepare_out_dir,
     seed_range,
 )
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments.quickstart import (
     BUDGETS,
@@ -80,7 +81,7 @@ def comparison_table(result: QuickstartResult) -> Table:
     keys = ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode", "success_rate")
     labels = [metric_label(key) for key in keys]
     table = Table(
-        title=f"hddpg/SnakeReach-v0: each method's saved model, mean ± std over the same {episodes} episodes "
+        title=f"{SNAKE_REACH_ENV_ID}: each method's saved model, mean ± std over the same {episodes} episodes "
         f"(seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + episodes - 1})",
         caption=f"{units_caption([*labels, SELECTION_LABEL, TRAIN_STEPS])}. {labels[0].short}: "
         f"{labels[0].label}, the snake's reach reward",

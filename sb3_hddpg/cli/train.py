@@ -38,6 +38,7 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.metric_labels import (
     MANAGER_REWARD_LABEL,
@@ -46,7 +47,6 @@ from sb3_hddpg.metric_labels import (
     same_returns,
     units_caption,
 )
-from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.training import (
     ALGO_NAMES,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import optuna
@@ -9,7 +11,6 @@ import typer
 import yaml
 from rich.table import Table
 
-from sb3_hddpg.algorithms import ROLES
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
@@ -29,6 +30,7 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.experiments.hyperparams_opt import check_fixed_params, tunable_algorithms
 from sb3_hddpg.experiments.study_storage import check_storage_url, default_storage_url
 from sb3_hddpg.experiments.tuning import (
@@ -37,9 +39,9 @@ from sb3_hddpg.experiments.tuning import (
     RANKINGS,
     SAMPLERS,
     StudySettings,
+    TargetError,
     TuningTarget,
     best_trials,
-    check_budget_fraction,
     save_best_config,
     save_plots,
     trial_counts,
@@ -47,7 +49,7 @@ from sb3_hddpg.experiments.tuning import (
     tune,
 )
 from sb3_hddpg.training.backends import resolve_backend
-from sb3_hddpg.training.training import WORKER_ENV_IDS, TrainingInterrupted
+from sb3_hddpg.training.training import TrainingInterrupted
 
 
 def parse_fixed(items: list[str]) -> dict[str, object]:
@@ -82,44 +84,28 @@ def trials_table(title: str, trials: list) -> Table:
     return table
 
 
-def _check_level_options(
-    level: str,
-    algo: str,
-    worker: str | None,
-    workers_dir: Path | None,
-    save_config: Path | None,
-    known_workers: list[str],
-) -> None:
-    """The options that depend on ``--level`` (``known_workers``: the env's terms): usage errors naming the option."""
-    if level not in LEVELS:
-        raise typer.BadParameter(f"must be one of {list(LEVELS)}, got {level!r}", param_hint="'--level'")
-    if algo != "ddpg" and level not in ROLES:
-        raise typer.BadParameter(
-            f"only applies to --level {', '.join(ROLES)}, not {level!r}", param_hint="'--algo'"
-        )
-    if level in ROLES and algo not in tunable_algorithms(level):
-        raise typer.BadParameter(
-            f"must be one of {list(tunable_algorithms(level))}, got {algo!r}", param_hint="'--algo'"
-        )
-    if level == "worker" and worker not in known_workers:
-        raise typer.BadParameter(
-            f"--level worker needs --worker among {known_workers}, got {worker!r}", param_hint="'--worker'"
-        )
-    if level != "worker" and worker is not None:
-        raise typer.BadParameter(f"only applies to --level worker, not {level!r}", param_hint="'--worker'")
-    if level in ("manager", "ham"):
-        if workers_dir is None:
-            raise typer.BadParameter(f"--level {level} needs --workers DIR", param_hint="'--workers'")
-        if (
-            not (workers_dir / "workers" / "manifest.json").exists()
-            and not (workers_dir / "manifest.json").exists()
-        ):
-            raise typer.BadParameter(
-                f"no workers manifest in {str(workers_dir)!r}; run train-workers first",
-                param_hint="'--workers'",
-            )
-    if level == "ham" and save_config is not None:
-        raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
+#: The option of each tuning-target field (the library's errors name the field).
+_TARGET_OPTIONS = {
+    "level": "'--level'",
+    "algo": "'--algo'",
+    "worker": "'--worker'",
+    "workers_dir": "'--workers'",
+    "env": "'--env'",
+    "block": "'--block'",
+    "n_seeds": "'--seeds-per-trial'",
+    "budget_fraction": "'--budget-fraction' / '--final-budget' / '--timesteps'",
+    "timesteps": "'--timesteps'",
+    "n_evaluations": "'--n-evaluations' / '--eval-episodes'",
+}
+
+
+@contextlib.contextmanager
+def _target_errors() -> Iterator[None]:
+    """A target the library refuses, as a usage error naming the option of the field at fault."""
+    try:
+        yield
+    except TargetError as error:
+        raise typer.BadParameter(str(error), param_hint=_TARGET_OPTIONS.get(error.field)) from error
 
 
 def _check_search_options(
@@ -343,52 +329,38 @@ def tune_command(
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Search hyperparameters with Optuna; several processes or machines can share one study."""
-    import matplotlib  # lazily: +0.9 s with pyplot, only when a study runs
+    import matplotlib  # lazily: slow to import with pyplot, only when a study runs
 
     matplotlib.use("Agg")  # plots are files; never open a window
 
-    if level == "ham" and seeds_per_trial != 1:
-        raise typer.BadParameter(
-            "HAM's trials train nothing, so there is no seed to repeat: leave it at 1",
-            param_hint="'--seeds-per-trial'",
-        )
-    if level == "ham" and env is not None:
-        raise typer.BadParameter(
-            "HAM's switch rule is defined for the snake arm only (it reads its obstacle clearances)",
-            param_hint="'--env'",
-        )
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
-    _check_level_options(level, algo, worker, workers_dir, save_config, known)
+    if level == "ham" and save_config is not None:
+        raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
     _check_search_options(sampler, pruner, storage, config, rank_by)
+    with _target_errors():
+        target = TuningTarget(
+            level=level,
+            worker=worker,
+            workers_dir=str(workers_dir) if workers_dir is not None else None,
+            config=str(config) if config is not None else None,
+            timesteps=timesteps,
+            n_evaluations=n_evaluations,
+            eval_episodes=eval_episodes,
+            seed=seed if seed is not None else 0,
+            algo=algo,
+            backend=backend,
+            env=shared,
+            n_seeds=seeds_per_trial,
+            budget_fraction=budget_fraction,
+            final_budget=final_budget,
+            block=block,
+        )
     fixed = parse_fixed(fix)
     with usage_errors("'--fix'"):
         check_fixed_params(level, fixed, algo)
     if storage is not None:
         with usage_errors("'--storage'"):
             check_storage_url(storage)
-
-    with usage_errors("'--budget-fraction' / '--final-budget' / '--timesteps'"):
-        check_budget_fraction(budget_fraction, final_budget, timesteps)
-    if block is not None and level != "flat":
-        raise typer.BadParameter(f"applies to --level flat only, not {level!r}", param_hint="'--block'")
-    target = TuningTarget(
-        level=level,
-        worker=worker,
-        workers_dir=str(workers_dir) if workers_dir is not None else None,
-        config=str(config) if config is not None else None,
-        timesteps=timesteps,
-        n_evaluations=n_evaluations,
-        eval_episodes=eval_episodes,
-        seed=seed if seed is not None else 0,
-        algo=algo,
-        backend=backend,
-        env=shared,
-        n_seeds=seeds_per_trial,
-        budget_fraction=budget_fraction,
-        final_budget=final_budget,
-        block=block,
-    )
     with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
         target.check()
     if level != "ham":

@@ -18,21 +18,20 @@ from sb3_hddpg.envs.contract import (
     proximity_of,
     state_layout_of,
 )
+from sb3_hddpg.envs.ids import (
+    ENV_IDS,
+    SNAKE_AVOID_ENV_ID,
+    SNAKE_GOAL_ENV_ID,
+    SNAKE_MO_ENV_ID,
+    SNAKE_REACH_ENV_ID,
+    WORKER_ENV_IDS,
+)
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 from sb3_hddpg.envs.snake import REWARD_TERMS, SnakeArmEnv
 from sb3_hddpg.envs.snake_mo import SnakeMOEnv
 
 #: Steps per episode of every registered id (20 s of simulated time at the default ``dt``).
 MAX_EPISODE_STEPS = 200
-
-#: Registered id -> the reward it returns. One shared environment, one reward per id (paper spec 1 and 4).
-ENV_IDS = {
-    "hddpg/SnakeGoal-v0": "goal",
-    "hddpg/SnakeAvoid-v0": "avoid",
-    "hddpg/SnakeReach-v0": "reach",
-}
-#: The snake arm with MO-Gymnasium's vector reward and ``reward_space``.
-SNAKE_MO_ENV_ID = "hddpg/SnakeMO-v0"
 
 
 #: Every id this package registers (the default allow-list for env ids read from files).
@@ -76,7 +75,11 @@ __all__ = [
     "MULTI_OBJECTIVE_ENV_ID",
     "OWN_ENV_IDS",
     "REWARD_TERMS",
+    "SNAKE_AVOID_ENV_ID",
+    "SNAKE_GOAL_ENV_ID",
     "SNAKE_MO_ENV_ID",
+    "SNAKE_REACH_ENV_ID",
+    "WORKER_ENV_IDS",
     "InfoTermsEnv",
     "MultiObjectiveEnv",
     "Proximity",

@@ -22,11 +22,8 @@ from sb3_hddpg.envs.adapters import (
     registered_env_id,
 )
 from sb3_hddpg.envs.contract import RewardTermsEnv, check_bounds, env_contract
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.names import check_plain_name
-
-#: The snake arm's shared env and each term's registered view.
-SNAKE_SHARED_ENV_ID = "hddpg/SnakeReach-v0"
-SNAKE_TERM_ENV_IDS = {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0"}
 
 
 @dataclass(frozen=True)
@@ -66,8 +63,8 @@ class TermsEnv:
             raise ValueError(
                 f"Unknown term {term!r}; the env {self.env_id!r} has the terms {list(self.terms)}"
             )
-        if self.env_id == SNAKE_SHARED_ENV_ID and term in SNAKE_TERM_ENV_IDS:
-            return SNAKE_TERM_ENV_IDS[term], dict(self.env_kwargs)
+        if self.env_id == SNAKE_REACH_ENV_ID and term in WORKER_ENV_IDS:
+            return WORKER_ENV_IDS[term], dict(self.env_kwargs)
         if self.env_id in ADAPTER_ENV_IDS:
             return self.env_id, {**self.env_kwargs, "term": term}
         return self.env_id, dict(self.env_kwargs)
@@ -95,7 +92,7 @@ def make_term_view(env_id: str, env_kwargs: Mapping[str, Any], term: str) -> gym
     wrapped in :class:`~sb3_hddpg.envs.adapters.TermReward`.
     """
     env = gym.make(env_id, **env_kwargs)
-    if env_id in SNAKE_TERM_ENV_IDS.values() or env_kwargs.get("term") == term:
+    if env_id in WORKER_ENV_IDS.values() or env_kwargs.get("term") == term:
         return env
     return TermReward(env, term)
 

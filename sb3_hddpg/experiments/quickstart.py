@@ -41,6 +41,7 @@ from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
 from sb3_hddpg.envs.contract import proximity_of, state_layout_of
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.packaging import write_zoo_layout
@@ -52,10 +53,9 @@ from sb3_hddpg.training import training
 from sb3_hddpg.training.backends import check_backend
 from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, manager_option_steps
 from sb3_hddpg.training.run_options import RunOptions
-from sb3_hddpg.training.training import WORKER_ENV_IDS
 
 #: The env every method is compared on.
-COMPARISON_ENV_ID = "hddpg/SnakeReach-v0"
+COMPARISON_ENV_ID = SNAKE_REACH_ENV_ID
 #: The stages, in order; the overall progress bar counts them.
 STAGES = ("train workers", "train manager + flat DDPG", "evaluate on shared seeds", "record GIF", "figures")
 

@@ -1,5 +1,5 @@
 """
-:class:`RayExecutor`: the process runner's jobs as Ray tasks on an existing Ray cluster (issue 17).
+:class:`RayExecutor`: the process runner's jobs as Ray tasks on an existing Ray cluster.
 
 The same four methods as :class:`~sb3_hddpg.experiments.runner.LocalProcessExecutor` (``open``, ``submit``,
 ``wait``, ``stop``), so :func:`~sb3_hddpg.experiments.runner.run_jobs` schedules cluster jobs exactly as local

@@ -59,7 +59,7 @@ def quiet_experimental() -> Iterator[None]:
 
 def sqlite_path(url: str) -> Path | None:
     """The database file of a ``sqlite:///`` URL (``None`` for other URLs and in-memory databases)."""
-    from sqlalchemy.engine import make_url  # lazily: +0.6 s to import, only for a storage URL
+    from sqlalchemy.engine import make_url  # lazily: slow to import, only for a storage URL
 
     parsed = make_url(url)
     if parsed.get_backend_name() != "sqlite" or parsed.database in (None, "", ":memory:"):
@@ -75,7 +75,7 @@ def check_storage_url(url: str) -> None:
     :raises ValueError: for a malformed URL, an unknown dialect or a missing driver (e.g. the
         ``distributed`` extra's psycopg for ``postgresql+psycopg://``).
     """
-    import sqlalchemy.engine  # lazily: +0.6 s to import, only for a storage URL
+    import sqlalchemy.engine  # lazily: slow to import, only for a storage URL
 
     try:
         parsed = sqlalchemy.engine.make_url(url)
@@ -118,7 +118,7 @@ class StorageError(ValueError):
 
 def _shown(url: str) -> str:
     """``url`` without its password, for messages."""
-    from sqlalchemy.engine import make_url  # lazily: +0.6 s to import, only for a storage URL
+    from sqlalchemy.engine import make_url  # lazily: slow to import, only for a storage URL
 
     try:
         return repr(make_url(url).render_as_string(hide_password=True))
@@ -143,7 +143,7 @@ def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int =
     :param max_retry: how often a dead trial is re-queued.
     :return: an ``optuna.storages.RDBStorage``.
     """
-    import sqlalchemy.exc  # lazily: +0.6 s to import, only for a storage URL
+    import sqlalchemy.exc  # lazily: slow to import, only for a storage URL
     from sqlalchemy.engine import make_url
 
     check_storage_url(url)  # refuses in-memory SQLite, which cannot hold a study
@@ -213,7 +213,7 @@ class TrialClaimLock:
     """
 
     def __init__(self, url: str, study_name: str) -> None:
-        from sqlalchemy.engine import make_url  # lazily: +0.6 s to import, only for a storage URL
+        from sqlalchemy.engine import make_url  # lazily: slow to import, only for a storage URL
 
         self.url = url
         self._file: TextIO | None = None
@@ -239,7 +239,7 @@ class TrialClaimLock:
             fcntl.flock(handle, fcntl.LOCK_EX)
             self._file = handle
         elif self._postgres and self._connection is None:
-            # Lazily: +0.6 s to import, only for a PostgreSQL lock.
+            # Lazily: slow to import, only for a PostgreSQL lock.
             import sqlalchemy
             from sqlalchemy.pool import NullPool
 

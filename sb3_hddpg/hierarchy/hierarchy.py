@@ -9,7 +9,7 @@ library versions, each SB3 model's rebuild spec, and the sha256 of every member.
 the manifest's JSON spec and loads only its tensors (``weights_only=True``): opening someone else's
 bundle runs none of their code. ``trusted=True`` uses SB3's full loader instead.
 
-A loaded ``Hierarchy`` is a valid worker of a higher :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper`
+A loaded ``Hierarchy`` is a valid worker of a higher :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper`
 (paper design specification 3), and such a two-level hierarchy saves and loads as one bundle.
 """
 
@@ -46,6 +46,7 @@ from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.artifacts.workers import Workers, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
 from sb3_hddpg.hierarchy.selection import (
     FrozenWorker,
@@ -61,7 +62,7 @@ from sb3_hddpg.policy import Policy
 
 MANIFEST = "manifest.json"
 #: The shared env of a hierarchy when neither ``env_id`` is given nor the models' training envs tell.
-DEFAULT_ENV_ID = "hddpg/SnakeReach-v0"
+DEFAULT_ENV_ID = SNAKE_REACH_ENV_ID
 
 
 class BundleError(ValueError):

@@ -26,12 +26,14 @@ from sb3_hddpg.artifacts.records import ManifestKind, models_manifest_from_json
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.baselines.ham import load_ham
+from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.baselines.scripted import IKReacher, JacobianReacher
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.headless import rendering_errors
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-from sb3_hddpg.policy import Policy, RandomPolicy
+from sb3_hddpg.policy import Policy
 
 #: Names that stand for reference policies instead of files.
 REFERENCE_POLICIES = ("random", "scripted", "ik")
@@ -105,7 +107,7 @@ def load_policy(
 
     text = str(path)
     if text in REFERENCE_POLICIES:
-        return _reference_policy(text, env_id or "hddpg/SnakeReach-v0", dict(env_kwargs or {}))
+        return _reference_policy(text, env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))
     path = _policy_file(Path(path))
     text = str(path)
     if path.suffix == ".json":
@@ -132,7 +134,7 @@ def load_policy(
             "in it; pass --trust (with --algo) only if you trust the file"
         )
     model = load_model(path, trusted=True, algorithm=(algo or "ddpg").upper())
-    return LoadedPolicy(model, env_id or "hddpg/SnakeReach-v0", {}, "flat", path.stem, {})
+    return LoadedPolicy(model, env_id or SNAKE_REACH_ENV_ID, {}, "flat", path.stem, {})
 
 
 def _policy_file(path: Path) -> Path:

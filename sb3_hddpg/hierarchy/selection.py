@@ -2,7 +2,7 @@
 How a manager's action selects workers: the simplex map, the selection settings (:class:`SelectionConfig`), one
 :class:`Selector` per selection mode registered by name, the preference factors, and cheap frozen workers.
 
-Shared by :class:`~sb3_hddpg.wrappers.WorkerSelectionWrapper` (training the manager) and
+Shared by :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` (training the manager) and
 :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` (running a trained one), so both select identically.
 """
 

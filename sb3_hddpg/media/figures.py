@@ -40,7 +40,7 @@ def _save_tight(fig: Any, path: str | Path) -> Path:
 
 
 def _pyplot() -> Any:
-    """pyplot with the file backend. Imported here, not at module level: +0.9 s on every command."""
+    """pyplot with the file backend. Imported here, not at module level: it is slow to import, and most commands draw nothing."""
     import matplotlib
 
     matplotlib.use("Agg")  # files only: never open a window, work without a display

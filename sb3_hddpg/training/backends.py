@@ -136,8 +136,8 @@ def configure_jax_threads(threads: int = 1) -> None:
     os.environ["PJRT_NPROC"] = os.environ["NPROC"] = str(threads)
     # jax's persistent compilation cache, for every compilation however short: a new process (a benchmark
     # task, a quickstart job, a tuning process) then loads the updates and the dozens of small initialiser
-    # programs instead of compiling them again (measured: 22 s -> 7.6 s of CPU for a DDPG's first 80 steps
-    # on a loaded machine). A user's own JAX_COMPILATION_CACHE_DIR wins.
+    # programs instead of compiling them again (a new process would otherwise spend most of its first steps
+    # compiling). A user's own JAX_COMPILATION_CACHE_DIR wins.
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(jax_cache_dir()))
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
     flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if "xla_cpu_multi_thread_eigen" not in f]
@@ -167,7 +167,7 @@ def sbx_class(algo: str) -> type[BaseAlgorithm]:
     check_backend("sbx")
     if _configured_threads is None and "jax" not in sys.modules:
         configure_jax_threads(1)
-    import sbx  # lazily: optional (the `fast` extra), and jax adds 1.4 s to an import
+    import sbx  # lazily: optional (the `fast` extra), and jax is slow to import
 
     record = algorithm(algo)
     cls = getattr(sbx, str(record.sbx))  # a name from our own registry, never from a file
@@ -214,7 +214,7 @@ def is_sbx_model(model: Any) -> bool:
 
 
 def _sbx_record(model: Any) -> Algorithm:
-    import sbx  # lazily: optional, jax adds 1.4 s (only SBX models get here)
+    import sbx  # lazily: optional, and jax is slow to import (only SBX models get here)
 
     # isinstance, the most derived class winning (SBX's DDPG is a TD3): a model under the action penalty is a
     # subclass of its algorithm (callbacks/action_penalty.py), and a tuning trial exports the model it
@@ -234,7 +234,7 @@ def _sbx_record(model: Any) -> Algorithm:
 # ---------------------------------------------------------------------------------------- activations
 def _activation_pairs() -> list[tuple[type[th.nn.Module], Any]]:
     """(torch activation class, the flax function computing the same) for every activation configs may name."""
-    import flax.linen as fnn  # lazily: optional (the `fast` extra), with jax, 1.4 s to import
+    import flax.linen as fnn  # lazily: optional (the `fast` extra), slow to import, with jax
 
     return [
         (th.nn.ReLU, fnn.relu),

@@ -44,14 +44,14 @@ from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback, best_entry
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
-from sb3_hddpg.envs.terms_env import SNAKE_SHARED_ENV_ID, TermsEnv, config_key, make_term_view
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
+from sb3_hddpg.envs.terms_env import TermsEnv, config_key, make_term_view
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
 from sb3_hddpg.hierarchy.selection import OptionEnd, SelectionConfig, check_preferences, preferences_from_bias
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
-from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import (
     algo_class,
     check_algo,
@@ -617,7 +617,7 @@ def train_workers(
     :return: the manifest written.
     """
     run = run_options(run, run_changes, "train_workers")
-    shared = env if env is not None else TermsEnv(SNAKE_SHARED_ENV_ID, {}, REWARD_TERMS)
+    shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
     if workers is None:
         workers = list(shared.terms)
     chosen = worker_algorithms(workers, algos)
@@ -629,7 +629,7 @@ def train_workers(
         manifest = read_models_manifest(manifest_path, "workers")
         if env is not None or manifest.shared_env is not None:
             check_resumed_env(
-                manifest.shared_env or {"env_id": SNAKE_SHARED_ENV_ID}, shared.env_id, shared.env_kwargs
+                manifest.shared_env or {"env_id": SNAKE_REACH_ENV_ID}, shared.env_id, shared.env_kwargs
             )
         for name in workers:
             env_id, view_kwargs = shared.term_view(name)
@@ -680,7 +680,7 @@ def train_workers(
 
 
 #: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
-FLAT_ENV_ID = "hddpg/SnakeReach-v0"
+FLAT_ENV_ID = SNAKE_REACH_ENV_ID
 #: The config block of a flat agent given the goal worker's tricks (hindsight relabelling of the goal, the
 #: action penalty where the algorithm takes it) on the full observation and the reach reward.
 FLAT_HER_KEY = "flat-her"
@@ -719,7 +719,7 @@ def train_flat(
     :param env_kwargs: its keyword arguments, over the config block's; the block read is the adapted env's
         for an adapter (:func:`~sb3_hddpg.envs.terms_env.config_key`), as the workers' is.
     :param preferences: reward term -> factor: learn ``sum_t factor_t * normalised(term_t)`` instead of the
-        env's reward (:class:`~sb3_hddpg.wrappers.PreferenceReward`, the reward of a manager with the same
+        env's reward (:class:`~sb3_hddpg.hierarchy.preference.PreferenceReward`, the reward of a manager with the same
         factors); ``None``: the env's own reward.
     :param name: the model's name in the manifest and its file name (default: ``algo``).
     :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).

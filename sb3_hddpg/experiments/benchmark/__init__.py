@@ -16,7 +16,7 @@ workers, how it runs, its budget, its colour); adding a method is one :func:`reg
 **Scenarios.** ``standard`` runs every method once per seed. ``transfer`` (the paper's "minimal learning
 period") trains each seed's workers once, then for every given preference (e.g. ``goal=2,avoid=1``) a
 manager with those factors and each flat agent from scratch on the same scalarised reward
-(:class:`~sb3_hddpg.wrappers.PreferenceReward`); :func:`transfer_results` compares the env steps each
+(:class:`~sb3_hddpg.hierarchy.preference.PreferenceReward`); :func:`transfer_results` compares the env steps each
 needs to reach 90 % of its final score. A run on a preference is the method key ``<method>@<preference>``.
 
 Workers are trained once per seed and shared by that seed's ``hddpg*`` and ``ham`` runs; with

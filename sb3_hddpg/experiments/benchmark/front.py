@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -33,17 +33,15 @@ from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.episode_sets import CURVE
 from sb3_hddpg.evaluation import clearance_bands, evaluate
+from sb3_hddpg.experiments.benchmark.method_inputs import MethodSettings, MethodTask
 from sb3_hddpg.experiments.benchmark.methods import Method, register_method, test_fields, workers_steps
+from sb3_hddpg.experiments.stats import paired_t_interval, probability_of_improvement, summarise
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
-from sb3_hddpg.stats import paired_t_interval, probability_of_improvement, summarise
 from sb3_hddpg.training.config import MANAGER_KEY
 from sb3_hddpg.training.training import FLAT_ENV_ID, manager_hyperparams, train_manager
-
-if TYPE_CHECKING:
-    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task
 
 #: The preferences every front is swept over: goal:avoid 4:1, 3:1, 2:1, 1:1, 1:2, 1:3, 1:4 at sum 2.
 SWEEP = PreferenceSpace.parse("ratio-sweep", ["goal", "avoid"])
@@ -205,7 +203,7 @@ def decision_dependence(
     }
 
 
-def ham_thresholds(switch: Any, env: gym.Env, settings: BenchmarkSettings) -> list[dict[str, float]]:
+def ham_thresholds(switch: Any, env: gym.Env, settings: MethodSettings) -> list[dict[str, float]]:
     """
     HAM's thresholds for its front: every grid threshold evaluated on the curve episodes, the non-dominated
     ones (goal touch up, contacts down) kept, at most :data:`HAM_FRONT_POINTS` spread over them.
@@ -242,12 +240,12 @@ def ham_thresholds(switch: Any, env: gym.Env, settings: BenchmarkSettings) -> li
     return kept
 
 
-def _test_summary(policy: Policy, env: gym.Env, settings: BenchmarkSettings) -> dict[str, Any]:
+def _test_summary(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, Any]:
     seeds = settings.test_set.seeds(settings.test_episodes or 1)
     return evaluate(policy, env, n_episodes=len(seeds), seed=seeds.start).summary()
 
 
-def run_front(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, Any]:
     """
     The ``front`` scenario's run of one seed (the method ``hddpg-front``): train the conditioned manager and
     one manager per sweep preference over the seed's workers, then measure every member's front on the test
@@ -474,12 +472,12 @@ def front_figure(front: Mapping[str, Any], path: Path, colours: Mapping[str, str
 FRONT_METHOD = "hddpg-front"
 
 
-def _front_cost(settings: BenchmarkSettings) -> int:
+def _front_cost(settings: MethodSettings) -> int:
     # The conditioned manager and one manager per sweep preference, each the manager's env steps.
     return (1 + len(SWEEP.points)) * settings.manager_env_steps
 
 
-def _front_blocks(settings: BenchmarkSettings) -> dict[str, Any]:
+def _front_blocks(settings: MethodSettings) -> dict[str, Any]:
     return {f"ddpg.yml[{MANAGER_KEY}]": manager_hyperparams("ddpg").raw}
 
 

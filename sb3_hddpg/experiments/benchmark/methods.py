@@ -11,21 +11,23 @@ import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 
 from sb3_hddpg.algorithms import REGISTRY, algorithms_for
 from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
+from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.baselines.ttc import CLOSE_SECONDS, DecisionStates, KinematicsScales
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.envs.terms_env import config_key
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.experiments.benchmark.episodes import episode_rows
+from sb3_hddpg.experiments.benchmark.method_inputs import MethodSettings, MethodTask
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.policy import Policy, RandomPolicy
+from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.config import MANAGER_KEY
 from sb3_hddpg.training.training import (
     FLAT_ENV_ID,
@@ -36,14 +38,11 @@ from sb3_hddpg.training.training import (
     train_manager,
 )
 
-if TYPE_CHECKING:
-    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task
-
 #: The pseudo-method of a seed's two workers, which the methods that need them depend on.
 WORKERS = "workers"
 
 
-def _no_blocks(settings: BenchmarkSettings) -> dict[str, Any]:
+def _no_blocks(settings: MethodSettings) -> dict[str, Any]:
     """No config block of its own (HAM's threshold is a setting; a worker alone is the workers' run)."""
     return {}
 
@@ -75,8 +74,8 @@ class Method:
     """
 
     name: str
-    run: Callable[[Task, BenchmarkSettings, Path], dict[str, Any]]
-    cost: Callable[[BenchmarkSettings], int]
+    run: Callable[[MethodTask, MethodSettings, Path], dict[str, Any]]
+    cost: Callable[[MethodSettings], int]
     needs_workers: bool = False
     colour: str = "tab:olive"
     default: bool = False
@@ -84,7 +83,7 @@ class Method:
     takes_preference: bool = False
     challenger: bool = False
     description: str = ""
-    config_blocks: Callable[[BenchmarkSettings], dict[str, Any]] = _no_blocks
+    config_blocks: Callable[[MethodSettings], dict[str, Any]] = _no_blocks
     own_settings: tuple[str, ...] = ()
 
 
@@ -116,10 +115,10 @@ def split_key(key: str) -> tuple[str, str | None]:
     return name, preference or None
 
 
-def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]:
+def final_test(policy_path: Path, settings: MethodSettings) -> dict[str, Any]:
     """
     The test evaluation of a saved policy, loaded the safe way a user would load it, on the benchmark's test
-    episode set (:attr:`BenchmarkSettings.test_set`): the record's ``test``, ``episodes`` and
+    episode set (:attr:`~.settings.BenchmarkSettings.test_set`): the record's ``test``, ``episodes`` and
     ``test_episode_set`` fields.
     """
 
@@ -135,7 +134,7 @@ def final_test(policy_path: Path, settings: BenchmarkSettings) -> dict[str, Any]
         env.close()
 
 
-def test_fields(policy: Policy, env: gym.Env, settings: BenchmarkSettings) -> dict[str, Any]:
+def test_fields(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, Any]:
     """
     A policy's test evaluation on the benchmark's test episodes as a record's fields: ``test`` (the summary),
     ``episodes`` (every episode's metrics, :func:`~.episodes.episode_rows`) and ``test_episode_set``; on a
@@ -175,7 +174,7 @@ def _ttc_shares(counted: DecisionStates) -> dict[str, Any]:
     return {name: counted.shares(name) for name in names}
 
 
-def random_reference(settings: BenchmarkSettings) -> dict[str, Any]:
+def random_reference(settings: MethodSettings) -> dict[str, Any]:
     """A random policy's evaluation on the learning-curve episodes: the floor of the transfer figure."""
 
     env = gym.make(FLAT_ENV_ID)
@@ -197,7 +196,7 @@ def workers_steps(folder: Path) -> int:
 
 
 def _run_manager(
-    prefer: str | None, task: Task, settings: BenchmarkSettings, folder: Path, algo: str = "ddpg"
+    prefer: str | None, task: MethodTask, settings: MethodSettings, folder: Path, algo: str = "ddpg"
 ) -> dict[str, Any]:
     """
     A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors), of
@@ -227,7 +226,7 @@ def _run_manager(
 
 
 def _run_flat(
-    algo: str, task: Task, settings: BenchmarkSettings, folder: Path, block: str | None = None
+    algo: str, task: MethodTask, settings: MethodSettings, folder: Path, block: str | None = None
 ) -> dict[str, Any]:
     """
     A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps, from
@@ -256,7 +255,7 @@ def _run_flat(
 HAM_GRID_STEP = 0.25
 
 
-def _run_ham(tuned: bool, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, Any]:
     """
     Save the seed's HAM switch and evaluate it: one learning-curve point (it does not learn) and the test.
 
@@ -313,7 +312,9 @@ def _run_ham(tuned: bool, task: Task, settings: BenchmarkSettings, folder: Path)
     }
 
 
-def _run_worker_alone(worker: str, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+def _run_worker_alone(
+    worker: str, task: MethodTask, settings: MethodSettings, folder: Path
+) -> dict[str, Any]:
     """
     The seed's ``worker`` alone on the combined task (seeing its own share of the state): what a manager
     over it has to beat, since a manager could always pick that worker.
@@ -334,12 +335,12 @@ def _run_worker_alone(worker: str, task: Task, settings: BenchmarkSettings, fold
     }
 
 
-def _manager_blocks(algo: str, settings: BenchmarkSettings) -> dict[str, Any]:
+def _manager_blocks(algo: str, settings: MethodSettings) -> dict[str, Any]:
     """The manager block of ``algo``'s bundled config."""
     return {f"{algo}.yml[{MANAGER_KEY}]": manager_hyperparams(algo).raw}
 
 
-def _flat_blocks(algo: str, settings: BenchmarkSettings, block: str | None = None) -> dict[str, Any]:
+def _flat_blocks(algo: str, settings: MethodSettings, block: str | None = None) -> dict[str, Any]:
     """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads (or ``block``)."""
     env = settings.terms_env
     env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (FLAT_ENV_ID, None)
@@ -347,15 +348,15 @@ def _flat_blocks(algo: str, settings: BenchmarkSettings, block: str | None = Non
     return {label: flat_hyperparams(algo, env_id, env_kwargs, block=block).raw}
 
 
-def _manager_cost(settings: BenchmarkSettings) -> int:
+def _manager_cost(settings: MethodSettings) -> int:
     return settings.manager_env_steps
 
 
-def _flat_cost(settings: BenchmarkSettings) -> int:
+def _flat_cost(settings: MethodSettings) -> int:
     return settings.flat_budget
 
 
-def _no_cost(settings: BenchmarkSettings) -> int:
+def _no_cost(settings: MethodSettings) -> int:
     return 0
 
 

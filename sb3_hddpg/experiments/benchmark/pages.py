@@ -25,8 +25,8 @@ from sb3_hddpg.experiments.benchmark.front import decides_table, front_table
 from sb3_hddpg.experiments.benchmark.report import headline_figures
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
+from sb3_hddpg.experiments.stats import bootstrap_ci
 from sb3_hddpg.experiments.study_export import read_exports, studies_table
-from sb3_hddpg.stats import bootstrap_ci
 
 #: The README's results sentence markers.
 README_START, README_END = "<!-- results:start -->", "<!-- results:end -->"

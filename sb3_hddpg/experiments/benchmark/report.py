@@ -89,7 +89,8 @@ OUTPUT_FILES = (
 )
 
 
-def _ci_text(stats: dict[str, Any], fmt: str) -> str:
+def ci_text(stats: dict[str, Any], fmt: str) -> str:
+    """``mean [ci_low, ci_high]`` of a statistic, each in ``fmt``."""
     return f"{stats['mean']:{fmt}} [{stats['ci_low']:{fmt}}, {stats['ci_high']:{fmt}}]"
 
 
@@ -113,7 +114,7 @@ def markdown_report(results: dict[str, Any]) -> str:
         saturation = f"{s['action_saturation']['mean']:.0%}" if "action_saturation" in s else "-"
         # The snake's own metrics; "-" on an env that does not report them.
         snake = {
-            key: _ci_text(s[key], fmt) if key in s else "-"
+            key: ci_text(s[key], fmt) if key in s else "-"
             for key, fmt in (
                 ("goal_reach_reward", ".1f"),
                 ("avoid_reach_reward", ".1f"),
@@ -124,12 +125,12 @@ def markdown_report(results: dict[str, Any]) -> str:
         }
         clearance = f"{s['min_clearance']['mean']:.3f}" if "min_clearance" in s else "-"
         lines.append(
-            f"| {method} | {len(entry['seeds'])} | {_ci_text(s['mean_reach_reward'], '.1f')} "
+            f"| {method} | {len(entry['seeds'])} | {ci_text(s['mean_reach_reward'], '.1f')} "
             f"| {s['mean_reach_reward']['iqm']:.1f} | {snake['goal_reach_reward']} "
             f"| {snake['avoid_reach_reward']} | {snake['goal_touch_rate']} "
             f"| {snake['collisions_per_episode']} | {snake['success_rate']} "
-            f"| {clearance} | {saturation} | {_ci_text(s['curve_mean'], '.1f')} "
-            f"| {_ci_text(s['slope'], '.2f')} | {choices} |"
+            f"| {clearance} | {saturation} | {ci_text(s['curve_mean'], '.1f')} "
+            f"| {ci_text(s['slope'], '.2f')} | {choices} |"
         )
     if results["comparisons"]:
         lines += [
@@ -208,7 +209,7 @@ def _ttc_dependence_lines(results: dict[str, Any]) -> list[str]:
 
 
 def _dependence_lines(results: dict[str, Any]) -> list[str]:
-    """The per-seed state-dependence table (issue 13, target 2), for the methods that report choices."""
+    """The per-seed state-dependence table (does a hierarchy choose by state?), for the methods that report choices."""
     rows = []
     for method, entry in results["methods"].items():
         for seed, figure in entry.get("state_dependence", {}).items():
@@ -254,7 +255,7 @@ def flat_reaches_text(comparison: dict[str, Any]) -> str:
 
 
 def _transfer_lines(results: dict[str, Any]) -> list[str]:
-    """The transfer figure (issue 13, target 5): steps to reach the final score's fraction, and their ratio."""
+    """The transfer figure: steps to reach the final score's fraction, and their ratio."""
     transfer = results.get("transfer")
     if not transfer:
         return []
@@ -283,7 +284,7 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
             lines.append(
                 f"| {preference} | {hierarchy} | {flat} | {comparison['seeds_with_ratio']}/{len(seeds)} "
                 f"| {np.mean(manager) if manager else float('nan'):.0f} | {np.mean(agent) if agent else float('nan'):.0f} "
-                f"| {_ci_text(ratio, '.2f') if ratio else 'undefined'} | {final_scores_text(comparison)} "
+                f"| {ci_text(ratio, '.2f') if ratio else 'undefined'} | {final_scores_text(comparison)} "
                 f"| {flat_reaches_text(comparison)} | {per_seed} |"
             )
     return lines

@@ -12,6 +12,7 @@ import gymnasium as gym
 from stable_baselines3 import DDPG
 
 from sb3_hddpg.algorithms import algorithm, algorithms_for
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.episode_sets import DEVELOPMENT, FINAL_TEST, FINAL_TEST_EPISODES, EpisodeSet
 from sb3_hddpg.experiments.benchmark.env_methods import (
@@ -32,7 +33,6 @@ from sb3_hddpg.experiments.benchmark.methods import (
     split_key,
 )
 from sb3_hddpg.hierarchy.selection import parse_preferences
-from sb3_hddpg.policy import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import check_algo, check_backend
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
 from sb3_hddpg.training.run_options import RunOptions

@@ -40,7 +40,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     split_key,
 )
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, comparison_pairs
-from sb3_hddpg.stats import (
+from sb3_hddpg.experiments.stats import (
     bonferroni_confidence,
     bootstrap_ci,
     holm_adjust,
@@ -201,7 +201,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
                 name: float(np.mean([rates.get(name, 0.0) for rates in selection]))
                 for name in sorted(set().union(*selection))
             }
-        # Issue 13's target 2, per seed: does the hierarchy's choice depend on the state?
+        # Per seed: does the hierarchy's choice depend on the state?
         dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
         if any(figure is not None for figure in dependence.values()):
             methods[method]["state_dependence"] = dependence
@@ -312,7 +312,7 @@ def transfer_results(
     settings: BenchmarkSettings, by_method: dict[str, dict[int, dict[str, Any]]]
 ) -> dict[str, Any]:
     """
-    The transfer figure (issue 13, target 5): per preference, hierarchy (``hddpg`` and every challenger,
+    The transfer figure: per preference, hierarchy (``hddpg`` and every challenger,
     e.g. ``hddpg-sac``) and flat method, per seed the own env steps each run needs to reach
     :data:`TRANSFER_FRACTION` of its final score on its learning curve (scored with the preference's
     factors, measured from a random policy's score on the same episodes), their ratio flat / manager (how

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from PIL import Image, ImageDraw
 
-if TYPE_CHECKING:
-    from sb3_hddpg.envs.snake import SnakeArmEnv
+from sb3_hddpg.envs.snake.view import SnakeView
 
 _BACKGROUND = (250, 250, 247)
 _WORKSPACE = (228, 232, 238)
@@ -23,7 +22,7 @@ _OBSTACLE_HIT = (230, 90, 60)
 
 class SnakeRenderer:
     """
-    Draws a :class:`~sb3_hddpg.envs.snake.SnakeArmEnv` state; one per env, created on the first render.
+    Draws a :class:`~sb3_hddpg.envs.snake.view.SnakeView` of a snake arm; one per env, created on the first render.
 
     :param render_mode: ``"rgb_array"`` returns frames; ``"human"`` also shows them in a pygame window.
     :param size: frame width and height in pixels.
@@ -52,28 +51,27 @@ class SnakeRenderer:
         centre = self.size / 2
         return [(centre + scale * x, centre - scale * y) for x, y in np.atleast_2d(points)]
 
-    def draw(self, env: SnakeArmEnv) -> np.ndarray | None:
-        """Draw the env's current state; return the frame for ``rgb_array``, ``None`` for ``human``."""
+    def draw(self, view: SnakeView) -> np.ndarray | None:
+        """Draw a view of the arm (``env.view()``); return the frame for ``rgb_array``, ``None`` for ``human``."""
         scale = self.size / 2.2
         image = Image.new("RGB", (self.size, self.size), _BACKGROUND)
         pen = ImageDraw.Draw(image)
         ((cx, cy),) = self._to_pixels(np.zeros(2))
         pen.ellipse((cx - scale, cy - scale, cx + scale, cy + scale), fill=_WORKSPACE)
 
-        measure = env._measure()
-        for centre, touched in zip(env.obstacles, _touched_obstacles(env)):
+        for centre, touched in zip(view.obstacles, view.touched_obstacles()):
             ((x, y),) = self._to_pixels(centre)
-            r = env.obstacle_radius * scale
+            r = view.obstacle_radius * scale
             pen.ellipse((x - r, y - r, x + r, y + r), fill=_OBSTACLE_HIT if touched else _OBSTACLE)
 
-        ((gx, gy),) = self._to_pixels(env.goal)
-        r = env.touch_radius * scale
-        goal_colour = _GOAL_TOUCHED if measure["goal_touched"] else _GOAL
+        ((gx, gy),) = self._to_pixels(view.goal)
+        r = view.touch_radius * scale
+        goal_colour = _GOAL_TOUCHED if view.goal_touched else _GOAL
         pen.ellipse((gx - r, gy - r, gx + r, gy + r), outline=goal_colour, width=2)
         pen.ellipse((gx - 3, gy - 3, gx + 3, gy + 3), fill=goal_colour)
 
-        points = self._to_pixels(env.link_points())
-        for i, touching in enumerate(measure["touching"]):
+        points = self._to_pixels(view.link_points)
+        for i, touching in enumerate(view.touching):
             pen.line(
                 (points[i], points[i + 1]), fill=_ARM_HIT if touching else _ARM, width=max(2, self.size // 80)
             )
@@ -105,13 +103,3 @@ class SnakeRenderer:
             self._pygame.display.quit()
             self._pygame.quit()
             self._window = None
-
-
-def _touched_obstacles(env: SnakeArmEnv) -> np.ndarray:
-    """Which obstacles some link touches (for highlighting)."""
-    points = env.link_points()
-    starts, seg = points[:-1], points[1:] - points[:-1]
-    rel = env.obstacles[None, :, :] - starts[:, None, :]
-    t = np.clip(np.einsum("lod,ld->lo", rel, seg) / np.einsum("ld,ld->l", seg, seg)[:, None], 0.0, 1.0)
-    gaps = np.linalg.norm(starts[:, None, :] + t[..., None] * seg[:, None, :] - env.obstacles[None], axis=-1)
-    return (gaps <= env.obstacle_radius).any(axis=0)

@@ -1,6 +1,6 @@
 """Can a worker-sized actor represent a good reacher? Behaviour cloning of the IK reacher from the goal view.
 
-    python docs/results/imitation_capacity.py [--net 64,64] [--episodes 200]
+    python studies/imitation_capacity.py [--net 64,64] [--episodes 200]
 
 Collects the :class:`~sb3_hddpg.baselines.IKReacher`'s commands along its own (noise-perturbed) trajectories,
 fits an actor of DDPG's shape (ReLU hidden layers, ``tanh`` output) on the goal worker's 15 observed values

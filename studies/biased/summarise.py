@@ -2,14 +2,14 @@
 Summarise the biased-manager runs of docs/MANAGER.md: per bias, the goal- and avoid-preferred managers'
 test metrics per seed and their paired differences (bootstrap CI over seeds).
 
-    python docs/results/biased/summarise.py RUN_FOLDER     # the folder run.sh wrote (default runs/biased)
+    python studies/biased/summarise.py RUN_FOLDER     # the folder run.sh wrote (default runs/biased)
 """
 
 import json
 import sys
 from pathlib import Path
 
-from sb3_hddpg.stats import paired_difference_ci
+from sb3_hddpg.experiments.stats import paired_difference_ci
 
 RUN = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/biased")
 METRICS = {

@@ -4,7 +4,7 @@ per policy, on the benchmark's held-out test episodes of the goal task, how soon
 how close it stays afterwards (the share of steps with the tip within 1, 1.5, 2 and 3 touch radii, and the
 median distance) and how large its joint commands are.
 
-    python examples/goal_holding.py docs/results/models/seed-0/workers/goal.zip ik
+    python studies/goal_holding.py docs/results/models/seed-0/workers/goal.zip ik
 
 Each argument is what ``hddpg-cli evaluate`` takes: a worker or flat zip with its manifest (loaded
 weights-only, on the env and state view it was trained with), or ``ik`` / ``scripted`` / ``random``.

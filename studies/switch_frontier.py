@@ -1,12 +1,12 @@
 """
-Post-hoc, for docs/RESULTS.md (issue 13, target 3): what can switching between a seed's two workers buy? HAM's
+Post-hoc, for docs/RESULTS.md ("Is a better switch within reach?"): what can switching between a seed's two workers buy? HAM's
 switch over each seed's workers of a benchmark, at every threshold of ``ham-tuned``'s grid (0.25 to the
 number of links), on episodes neither the curves nor the test use (seeds 20000..), with the reach reward,
 goal touch and contact steps per episode. The best reach reward among thresholds that keep the contacts at
 or under a limit says whether "reach >= 350 with <= 2 collisions" is within a state-dependent switch of
 these workers.
 
-python docs/results/switch_frontier.py runs/bench-e20 [--seeds 0 1 2 3 4] [--episodes 20] [--out FILE.json]
+python studies/switch_frontier.py runs/bench-e20 [--seeds 0 1 2 3 4] [--episodes 20] [--out FILE.json]
 """
 
 import argparse

@@ -1,10 +1,10 @@
 """
 Post-hoc, for docs/MANAGER.md: when does a hierarchy call its avoid worker? Its share of the choices by the
 nearest obstacle's clearance and by the goal distance of the state it decided in, on the benchmark's 20
-test episodes, with the collision and goal-touch rate of the step that followed. Issue 13's state-dependence
+test episodes, with the collision and goal-touch rate of the step that followed. The state-dependence
 figure (``evaluate``) splits the choices into two bands only; this shows where inside them the manager acts.
 
-python docs/results/selection_by_state.py NAME=BUNDLE [NAME=BUNDLE ...] [--out FILE.json]
+python studies/selection_by_state.py NAME=BUNDLE [NAME=BUNDLE ...] [--out FILE.json]
 """
 
 import argparse
@@ -15,7 +15,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE
+from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 
 #: Band edges: clearance (negative = in contact; the sensor range is 0.3) and tip-to-goal distance.
@@ -32,7 +32,7 @@ def steps_of(bundle: str) -> np.ndarray:
     env = gym.make(hierarchy.env_id, **hierarchy.env_kwargs)
     rows = []
     for k in range(EPISODES):
-        obs, info = env.reset(seed=TEST_SEED_BASE + k)
+        obs, info = env.reset(seed=DEVELOPMENT.first_seed + k)
         done = False
         while not done:
             before = (info["min_clearance"], info["distance_to_goal"])

@@ -1,9 +1,9 @@
 """
-Equal tuning effort for every method of the benchmark (issue 13, target 4): the same Optuna budget, the same
+Equal tuning effort for every method of the benchmark (docs/TUNING.md): the same Optuna budget, the same
 number of trials of the same env steps each, for the two workers, the manager, HAM's threshold and the flat
 DDPG, TD3 and SAC; every study starts from its method's bundled config (its first trial, ``enqueue_base``).
 
-    python examples/equal_effort_tuning.py --n-trials 10 --timesteps 40000 --backend sbx --n-jobs 2 \\
+    python studies/equal_effort_tuning.py --n-trials 10 --timesteps 40000 --backend sbx --n-jobs 2 \\
         --out runs/equal-tuning
 
 Order: the goal and avoid workers, then the flat agents (each on its own study) while two workers are trained

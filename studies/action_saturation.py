@@ -1,6 +1,6 @@
 """Post-hoc: the benchmark run's saved policies scored for action_saturation on its 20 test episodes.
 
-python docs/results/action_saturation.py RUN_FOLDER
+python studies/action_saturation.py RUN_FOLDER
 """
 
 import json
@@ -9,10 +9,10 @@ from pathlib import Path
 
 import gymnasium as gym
 
+from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE
+from sb3_hddpg.experiments.stats import summarise
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.stats import summarise
 
 run = sys.argv[1]
 out = {}
@@ -24,7 +24,7 @@ for method in ("hddpg", "ham", "ddpg", "hddpg-goal", "hddpg-avoid"):
         )
         lp = load_policy(path)
         env = gym.make("hddpg/SnakeReach-v0")
-        s = evaluate(lp.policy, env, n_episodes=20, seed=TEST_SEED_BASE).summary()
+        s = evaluate(lp.policy, env, n_episodes=20, seed=DEVELOPMENT.first_seed).summary()
         vals.append(s["action_saturation"])
     st = summarise(vals)
     out[method] = {"per_seed": vals, "mean": st["mean"], "ci": [st["ci_low"], st["ci_high"]]}

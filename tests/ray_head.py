@@ -1,6 +1,6 @@
 """
 :func:`local_ray_head`: a throw-away Ray head on loopback, as ``ray start --head`` makes one, for tests and
-benchmarks that point ``--executor ray`` at a real cluster (issue 17).
+benchmarks that point ``--executor ray`` at a real cluster.
 
     >>> with local_ray_head(num_cpus=2, log=Path("head.log")) as head:  # doctest: +SKIP
     ...     subprocess.run(["hddpg-cli", "benchmark", "--executor", "ray", "--ray-address", head.address],

@@ -2,7 +2,7 @@
 The goal-worker study of docs/WORKERS.md: one worker, one set of learning settings, its evaluation curve and
 its score on the held-out test episodes (seeds 15000-15019), printed as JSON lines.
 
-    python examples/worker_study.py --observe goal --noise 0.1 --gamma 0.7 --relabel 0.8 --action-l2 0.5
+    python studies/worker_study.py --observe goal --noise 0.1 --gamma 0.7 --relabel 0.8 --action-l2 0.5
 
 Each flag maps to what the library offers: ``--observe goal`` is the env kwarg ``observe`` (the goal worker's
 15 values), ``--relabel`` the :class:`~sb3_hddpg.goal_relabeling.GoalRelabelingReplayBuffer`, ``--action-l2``

@@ -10,7 +10,7 @@ policy of the sweep is marked. If both preferences pick the same policy, a manag
 has nothing to gain from behaving differently, and biased training cannot separate the managers; the
 smallest bias at which the best policies part shows how strong a preference this env needs.
 
-    python examples/preference_landscape.py --workers runs/workers [--episodes 20] [--bias 0.15 1 3]
+    python studies/preference_landscape.py --workers runs/workers [--episodes 20] [--bias 0.15 1 3]
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 The manager study of docs/MANAGER.md: a DDPG manager over two saved workers, with or without the actor's
 action penalty, scored on the held-out test episodes (seeds 15000-15019) with the state-dependence figure.
 
-    python examples/manager_study.py --workers runs/w --action-l2 0.5 --steps 20000
+    python studies/manager_study.py --workers runs/w --action-l2 0.5 --steps 20000
 
 ``--workers`` is a ``train-workers`` run folder; each worker sees the state components it was trained on (its
 manifest's ``observe``). Prints one JSON line.
@@ -24,8 +24,8 @@ import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.callbacks import apply_action_l2
 from sb3_hddpg.evaluation import evaluate, state_dependence
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
-from sb3_hddpg.wrappers import WorkerSelectionWrapper
 
 
 def main() -> None:

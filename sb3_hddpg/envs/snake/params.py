@@ -1,0 +1,135 @@
+"""The snake arm's parameters: one frozen, checked record of everything its constructor configures."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+#: The reward choices of the snake arm: one per paper worker plus their normalised sum.
+REWARD_CHOICES = ("goal", "avoid", "reach")
+#: The reward terms computed every step (Table 2 of the paper).
+REWARD_TERMS = ("goal", "avoid")
+#: Upper limits of the counts (the work per step and the observation grow with them). Env kwargs can
+#: come from a shared file; far above any sensible arm, they keep such a file from stalling a step.
+#: ``sb3_hddpg.artifacts.limits`` names them with the other limits; they are defined here because the env
+#: checks its own constructor and sits below the artefacts.
+MAX_JOINTS = 32
+MAX_OBSTACLES = 32
+MAX_SUBSTEPS = 100
+
+#: The parameters that must be finite and > 0, then those that must be finite and >= 0 (checked in order).
+_POSITIVE = (
+    "obstacle_radius",
+    "touch_radius",
+    "r_bf",
+    "sensor_range",
+    "max_joint_speed",
+    "joint_limit",
+    "dt",
+    "goal_radius_max",
+    "obstacle_radius_max",
+)
+_NON_NEGATIVE = ("obstacle_speed", "goal_speed", "goal_radius_min", "obstacle_radius_min", "spawn_margin")
+_COUNTS = (("n_joints", 2, MAX_JOINTS), ("n_obstacles", 1, MAX_OBSTACLES), ("substeps", 1, MAX_SUBSTEPS))
+
+
+@dataclass(frozen=True)
+class SnakeParams:
+    """
+    The snake arm's task and physics, checked when built (a bad value is a ``ValueError`` naming it); the
+    counts become ``int`` and the lengths, speeds and factors ``float``. See
+    :class:`~sb3_hddpg.envs.snake.SnakeArmEnv` for the meaning of each.
+
+    :param reward: the step reward: ``"goal"``, ``"avoid"`` or ``"reach"``.
+    :param n_joints: number of revolute joints (and links), 2 to :data:`MAX_JOINTS`.
+    :param n_obstacles: number of moving obstacle discs, 1 to :data:`MAX_OBSTACLES`.
+    :param obstacle_radius: radius of every obstacle disc, in reach units.
+    :param obstacle_speed: the obstacles' top speed, reach units per second.
+    :param goal_speed: the goal's top speed, reach units per second.
+    :param touch_radius: the tip touches the goal within this distance.
+    :param r_bf: the avoid reward's factor on the summed clearances (Table 2's ``r_bf``).
+    :param sensor_range: clearances are clipped to this range in the reward and observation.
+    :param max_joint_speed: joint speed, rad/s, commanded by an action of magnitude 1.
+    :param joint_limit: every joint but the base turns at most this far (rad) either way.
+    :param dt: seconds of simulated time per environment step.
+    :param substeps: pymunk steps per environment step (each ``dt / substeps`` long), 1 to :data:`MAX_SUBSTEPS`.
+    :param goal_radius_min: the goal stays at least this far from the base.
+    :param goal_radius_max: the goal stays at most this far from the base (below 1: reachable).
+    :param obstacle_radius_min: obstacle centres stay at least this far from the base.
+    :param obstacle_radius_max: obstacle centres stay at most this far from the base.
+    :param spawn_margin: at reset, obstacles start at least this far from the arm and the goal.
+    """
+
+    reward: str = "reach"
+    n_joints: int = 6
+    n_obstacles: int = 3
+    obstacle_radius: float = 0.08
+    obstacle_speed: float = 0.15
+    goal_speed: float = 0.08
+    touch_radius: float = 0.1
+    r_bf: float = 0.2
+    sensor_range: float = 0.3
+    max_joint_speed: float = 1.5
+    joint_limit: float = 2.4
+    dt: float = 0.1
+    substeps: int = 2
+    goal_radius_min: float = 0.3
+    goal_radius_max: float = 0.9
+    obstacle_radius_min: float = 0.35
+    obstacle_radius_max: float = 1.0
+    spawn_margin: float = 0.1
+
+    def __post_init__(self) -> None:
+        check_choice("reward", self.reward, REWARD_CHOICES)
+        for name, minimum, maximum in _COUNTS:
+            _check_count(name, getattr(self, name), minimum, maximum)
+        for name in _POSITIVE:
+            _check_positive(name, getattr(self, name))
+        for name in _NON_NEGATIVE:
+            _check_non_negative(name, getattr(self, name))
+        if not self.goal_radius_min < self.goal_radius_max <= 1.0:
+            raise ValueError(
+                "Expected 0 <= goal_radius_min < goal_radius_max <= 1 (the goal must be reachable), "
+                f"actually: goal_radius_min={self.goal_radius_min}, goal_radius_max={self.goal_radius_max}"
+            )
+        if not self.obstacle_radius_min < self.obstacle_radius_max:
+            raise ValueError(
+                "Expected obstacle_radius_min < obstacle_radius_max, actually: "
+                f"obstacle_radius_min={self.obstacle_radius_min}, "
+                f"obstacle_radius_max={self.obstacle_radius_max}"
+            )
+        # Plain Python numbers from here on (a NumPy integer or a float given for an int field are
+        # accepted above): the step's scalar arithmetic is fastest on them.
+        for field in fields(self):
+            if field.name != "reward":
+                kind = int if field.type == "int" else float
+                object.__setattr__(self, field.name, kind(getattr(self, field.name)))
+
+    @property
+    def link_length(self) -> float:
+        """Every link's length: the stretched arm reaches exactly 1."""
+        return 1.0 / self.n_joints
+
+
+def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+    """Raise a ``ValueError`` naming ``name`` unless ``value`` is one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"Expected `{name}` to be one of {list(choices)}, actually: {value!r}")
+
+
+def _check_count(name: str, value: Any, minimum: int, maximum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not minimum <= value <= maximum:
+        raise ValueError(f"Expected `{name}` to be an integer in [{minimum}, {maximum}], actually: {value!r}")
+
+
+def _check_positive(name: str, value: Any) -> None:
+    if not isinstance(value, (int, float, np.number)) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"Expected `{name}` to be a finite number > 0, actually: {value!r}")
+
+
+def _check_non_negative(name: str, value: Any) -> None:
+    if not isinstance(value, (int, float, np.number)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"Expected `{name}` to be a finite number >= 0, actually: {value!r}")

@@ -1,0 +1,71 @@
+"""
+What a benchmark method reads from the run's settings and from its task, as protocols.
+
+The methods (:mod:`.methods`) run on a :class:`~.settings.BenchmarkSettings` and a :class:`~.settings.Task`,
+and the settings check their method names against the methods' registry; typing the methods against these
+protocols instead of the settings' class keeps that dependency one way (settings -> methods).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+from sb3_hddpg.envs.terms_env import TermsEnv
+from sb3_hddpg.episode_sets import EpisodeSet
+from sb3_hddpg.training.run_options import RunOptions
+
+
+class MethodSettings(Protocol):
+    """The part of :class:`~.settings.BenchmarkSettings` a method's functions read."""
+
+    @property
+    def bias(self) -> float: ...
+
+    @property
+    def env(self) -> dict[str, Any] | None: ...
+
+    @property
+    def eval_episodes(self) -> int: ...
+
+    @property
+    def ham_threshold(self) -> float | None: ...
+
+    @property
+    def ham_hysteresis(self) -> float: ...
+
+    @property
+    def test_episodes(self) -> int | None: ...
+
+    @property
+    def terms_env(self) -> TermsEnv | None: ...
+
+    @property
+    def test_set(self) -> EpisodeSet: ...
+
+    @property
+    def test_episode_set(self) -> dict[str, int | str]: ...
+
+    @property
+    def manager_env_steps(self) -> int: ...
+
+    @property
+    def flat_budget(self) -> int: ...
+
+    def option_steps_of(self, algo: str) -> int: ...
+
+    def manager_run_options(self, seed: int, algo: str = "ddpg") -> RunOptions: ...
+
+    def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions: ...
+
+
+class MethodTask(Protocol):
+    """The part of :class:`~.settings.Task` a method's run reads."""
+
+    @property
+    def method(self) -> str: ...
+
+    @property
+    def seed(self) -> int: ...
+
+    @property
+    def preferences(self) -> dict[str, float] | None: ...

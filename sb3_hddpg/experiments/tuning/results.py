@@ -1,0 +1,157 @@
+"""What a study found: trial counts, rankings, the best block as a config file, and Optuna's plots."""
+
+from __future__ import annotations
+
+import datetime
+import functools
+import math
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+import yaml
+from optuna.trial import FrozenTrial, TrialState
+
+from sb3_hddpg.artifacts.io import atomic_write_bytes
+from sb3_hddpg.experiments.study_storage import quiet_experimental
+from sb3_hddpg.experiments.tuning.target import TuningTarget, merge_block
+from sb3_hddpg.training.config import MANAGER_KEY, load_config_file, load_hyperparams
+
+#: How :func:`best_trials` ranks completed trials: ``last`` by the Optuna value, a trial's last evaluation
+#: (rl_zoo3's objective); ``peak`` by its best evaluation, the checkpoint that ``train-*`` and the benchmark
+#: keep. HAM's trial is one evaluation: both are the same there.
+RANKINGS = ("last", "peak")
+
+
+def trial_counts(study: optuna.Study) -> dict[str, int]:
+    """How many trials are in each state, e.g. ``{"COMPLETE": 18, "PRUNED": 2}``."""
+    counts: dict[str, int] = {}
+    for trial in study.get_trials(deepcopy=False):
+        counts[trial.state.name] = counts.get(trial.state.name, 0) + 1
+    return counts
+
+
+def trial_score(trial: FrozenTrial, rank_by: str = "last") -> float:
+    """
+    A completed trial's score under ``rank_by`` (see :data:`RANKINGS`): its value, or its best reported
+    evaluation (its value when it reported none).
+    """
+    if rank_by not in RANKINGS:
+        raise ValueError(f"Unknown ranking {rank_by!r}; choose from {list(RANKINGS)}")
+    value = trial.value if trial.value is not None else -math.inf
+    if rank_by == "peak":
+        peaks = trial.user_attrs.get("seed_peaks")
+        if peaks:  # each seed's best evaluation, averaged: not the luckiest seed's best
+            return float(np.mean(peaks))
+        return max([value, *trial.intermediate_values.values()])
+    return value
+
+
+def best_trials(study: optuna.Study, k: int = 5, rank_by: str = "last") -> list[FrozenTrial]:
+    """The ``k`` best completed trials under ``rank_by`` (:data:`RANKINGS`), best first."""
+    completed = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    return sorted(completed, key=lambda t: trial_score(t, rank_by), reverse=True)[:k]
+
+
+def best_block(study: optuna.Study, target: TuningTarget, rank_by: str = "last") -> dict[str, Any]:
+    """
+    The best trial's config block: the base block with the best parameters, rebuilt by replaying the
+    level's sampler on ``optuna.trial.FixedTrial(best.params)``.
+
+    :param study: a study with at least one completed trial.
+    :param target: what was tuned (not HAM, which has no block).
+    :param rank_by: which trial is best (:data:`RANKINGS`).
+    """
+    if target.level == "ham":
+        raise ValueError("HAM has no DDPG hyperparameters to save; its best threshold is in the study")
+    best = best_trials(study, 1, rank_by)
+    if not best:
+        raise ValueError(f"Study {study.study_name!r} has no completed trial yet: no best parameters")
+    changes = target.sampler(optuna.trial.FixedTrial(best[0].params))
+    return merge_block(target.base_block(), changes)
+
+
+def save_best_config(
+    study: optuna.Study, target: TuningTarget, path: str | Path, rank_by: str = "last"
+) -> Path:
+    """
+    Write the best parameters as a ``zoo_configs`` file that ``train-workers``, ``train-manager`` and
+    ``train-flat --config`` accept as is.
+
+    If ``path`` exists, only the tuned block is replaced (so tuning ``goal`` and then ``avoid`` into one file
+    collects both); otherwise the file starts as a copy of the base config, so that every other block
+    (``default``, the other workers, ``manager``) is still there.
+
+    :param study: the tuned study.
+    :param target: what was tuned.
+    :param path: the YAML file to write.
+    :param rank_by: which trial is best (:data:`RANKINGS`).
+    :return: the path written.
+    """
+    path = Path(path)
+    block = best_block(study, target, rank_by)
+    key = str(target.block_key)
+    config = load_config_file(path) if path.exists() else load_config_file(target.config_path)
+    config[key] = block
+    best = best_trials(study, 1, rank_by)[0]
+    which = "last" if rank_by == "last" else "best"
+    header = (
+        f"# Written by hddpg-cli tune on {datetime.datetime.now().isoformat(timespec='seconds')}: "
+        f"block {key!r} from study {study.study_name!r},\n"
+        f"# trial {best.number}, {which} mean evaluation reward {trial_score(best, rank_by):.4g} "
+        f"in {target.budget()} steps. RL Zoo format (zoo_configs/{target.algo}.yml).\n"
+    )
+    text = header + yaml.safe_dump(config, sort_keys=False, default_flow_style=False)
+    atomic_write_bytes(path, text.encode())
+    # What we promise: the commands read it back as written.
+    load_hyperparams(key, target.algo_class, path, manager=key == MANAGER_KEY)
+    return path
+
+
+def save_plots(study: optuna.Study, out_dir: str | Path) -> dict[str, Path | str]:
+    """
+    Save the optimisation history and the parameter importances as PNG files in ``OUT/plots``.
+
+    Importances are PED-ANOVA's (:class:`optuna.importance.PedAnovaImportanceEvaluator`), which, unlike the
+    default fANOVA, needs no scikit-learn. Use a non-interactive matplotlib backend (``Agg``) on servers.
+
+    :param study: the study.
+    :param out_dir: the run folder.
+    :return: plot name -> the PNG written, or the reason it was skipped.
+    """
+    # Lazily: matplotlib and Optuna's plotting are slow to import, and only this function needs them.
+    import matplotlib.pyplot as plt
+    from optuna.importance import PedAnovaImportanceEvaluator
+    from optuna.visualization.matplotlib import plot_optimization_history, plot_param_importances
+
+    folder = Path(out_dir) / "plots"
+    n_completed = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
+    plots: dict[str, Any] = {
+        "optimization_history": functools.partial(plot_optimization_history, study),
+        "param_importances": functools.partial(
+            plot_param_importances, study, evaluator=PedAnovaImportanceEvaluator()
+        ),
+    }
+    needed = {"optimization_history": 1, "param_importances": 2}
+    results: dict[str, Path | str] = {}
+    for name, plot in plots.items():
+        if n_completed < needed[name]:
+            results[name] = f"needs at least {needed[name]} completed trials, the study has {n_completed}"
+            continue
+        try:
+            # PED-ANOVA warns about the accuracy of importances from few trials; the plot still helps.
+            with quiet_experimental(), warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                axes = plot()
+        except (ValueError, RuntimeError, ZeroDivisionError) as error:
+            results[name] = f"{type(error).__name__}: {error}"
+            continue
+        figure = axes.figure
+        folder.mkdir(parents=True, exist_ok=True)
+        figure.tight_layout()
+        figure.savefig(folder / f"{name}.png", dpi=120)
+        plt.close(figure)
+        results[name] = folder / f"{name}.png"
+    return results
