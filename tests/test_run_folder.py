@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import typer
 from stable_baselines3 import DDPG
 
@@ -97,3 +98,21 @@ def test_a_run_resumed_between_evaluations_keeps_evaluating_on_the_same_grid(tmp
     history = json.loads((tmp_path / "run" / "evaluations" / "goal.json").read_text())
     # Every 100 steps from the run's start, plus the final evaluation each call ends with.
     assert [point["timesteps"] for point in history] == [100, 200, 250, 300, 400, 450]
+
+
+def test_a_resumed_manager_must_act_on_the_same_mdp(tmp_path):
+    """A manager resumed with another option length (or env, workers, algorithm) is refused in one line."""
+    from sb3_hddpg.artifacts.manifests import ResumeMismatch
+    from sb3_hddpg.training.training import train_manager
+
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    run = tmp_path / "run"
+    train_workers(run, config=config, timesteps=150, workers=["goal", "avoid"], eval_freq=0, eval_episodes=1)
+    tiny = {"config": config, "eval_freq": 0, "eval_episodes": 1, "checkpoint_freq": 50}
+    train_manager(run, run, option_steps=2, timesteps=100, **tiny)
+    with pytest.raises(ResumeMismatch, match=r"selection was .* in the run"):
+        train_manager(run, run, option_steps=3, timesteps=150, resume=True, **tiny)
+    # The same settings resume.
+    _, outcome = train_manager(run, run, option_steps=2, timesteps=150, resume=True, **tiny)
+    assert outcome.num_timesteps == 150

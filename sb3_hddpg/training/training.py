@@ -14,7 +14,7 @@ import functools
 import inspect
 import signal
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,10 +31,11 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, algorithm, algorithms_for
 from sb3_hddpg.artifacts.io import (
     atomic_write,
+    atomic_write_json,
     holds_folder_lock,
     remove_stale_temporaries,
 )
-from sb3_hddpg.artifacts.limits import brief
+from sb3_hddpg.artifacts.limits import brief, read_json_file
 from sb3_hddpg.artifacts.manifests import check_resumed_env, load_workers, model_entry, save_manifest
 from sb3_hddpg.artifacts.records import ModelsManifest, models_manifest, read_models_manifest
 from sb3_hddpg.artifacts.values import check_make_kwargs
@@ -1039,6 +1040,37 @@ def _with_preference_relabeling(
     return replace(hyperparams, algo_kwargs=kwargs)
 
 
+#: The manager's env and selection settings, kept beside its model so that a resumed run continues on the
+#: same MDP.
+MANAGER_SETTINGS_FILE = "manager_settings.json"
+
+
+def _check_manager_resume(
+    paths: AgentPaths, resume: bool, setup: ManagerSetup, selection: dict[str, Any]
+) -> None:
+    """
+    Keep the manager's MDP (env, workers, algorithm, selection settings) beside its model; a resumed
+    run whose MDP differs is refused in one line naming the difference
+    (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_env`), since its replay buffer and network were
+    made on the recorded one.
+    """
+    record = {
+        "env_id": setup.env_id,
+        "env_kwargs": {
+            **setup.env_kwargs,
+            "workers": list(setup.workers),
+            "algo": setup.algo,
+            "selection": selection,
+        },
+    }
+    path = paths.model_path.parent / MANAGER_SETTINGS_FILE
+    if resume and read_checkpoint_state(paths.checkpoint_dir) is not None and path.is_file():
+        check_resumed_env(read_json_file(path), setup.env_id, record["env_kwargs"])
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, record)
+
+
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_manager(
     workers_dir: str | Path | ManagerSetup,
@@ -1152,6 +1184,7 @@ def train_manager(
     factory = setup.env_factory()
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
+    _check_manager_resume(paths, run.resume, setup, asdict(selection_config))
     ham_report: dict[str, Any] = {}
     outcome = train_agent(
         factory,
