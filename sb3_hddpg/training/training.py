@@ -1054,21 +1054,18 @@ def _check_manager_resume(
     (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_env`), since its replay buffer and network were
     made on the recorded one.
     """
-    record = {
-        "env_id": setup.env_id,
-        "env_kwargs": {
-            **setup.env_kwargs,
-            "workers": list(setup.workers),
-            "algo": setup.algo,
-            "selection": selection,
-        },
+    mdp: dict[str, Any] = {
+        **setup.env_kwargs,
+        "workers": list(setup.workers),
+        "algo": setup.algo,
+        "selection": selection,
     }
     path = paths.model_path.parent / MANAGER_SETTINGS_FILE
     if resume and read_checkpoint_state(paths.checkpoint_dir) is not None and path.is_file():
-        check_resumed_env(read_json_file(path), setup.env_id, record["env_kwargs"])
+        check_resumed_env(read_json_file(path), setup.env_id, mdp)
         return
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(path, record)
+    atomic_write_json(path, {"env_id": setup.env_id, "env_kwargs": mdp})
 
 
 @holds_folder_lock(lambda call: call.arguments["out_dir"])

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 
@@ -27,6 +27,7 @@ from sb3_hddpg.algorithms import REGISTRY, algorithms_for
 from sb3_hddpg.baselines.ttc import DEFAULT_TTC_THRESHOLD, TTC_GRID, KinematicsScales, TTCSwitch
 from sb3_hddpg.envs.terms_env import TermsEnv, config_key
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
+from sb3_hddpg.experiments.benchmark.method_inputs import MethodSettings, MethodTask
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_ENV_METHODS,
     FLAT_METHODS,
@@ -45,14 +46,11 @@ from sb3_hddpg.experiments.benchmark.methods import (
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
 
-if TYPE_CHECKING:
-    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task
-
 #: Workers alone by position: as many methods as an env may have terms worth comparing one by one.
 MAX_ALONE_WORKERS = 4
 
 
-def _shared_env(settings: BenchmarkSettings, method: str) -> TermsEnv:
+def _shared_env(settings: MethodSettings, method: str) -> TermsEnv:
     env = settings.terms_env
     if env is None:
         raise ValueError(f"Method {method!r} runs on another env than the snake arm (benchmark --env)")
@@ -70,12 +68,12 @@ def _load_worker(folder: Path, env: TermsEnv, name: str) -> Policy:
     return load_policy(folder / "workers" / f"{name}.zip", allowed_env_ids=allowed).policy
 
 
-def _curve_point(policy: Policy, env: gym.Env, settings: BenchmarkSettings) -> dict[str, Any]:
+def _curve_point(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, Any]:
     """One learning-curve evaluation (the learning-curve episodes): a reference that does not learn."""
     return evaluate(policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
 
 
-def _run_term_alone(index: int, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+def _run_term_alone(index: int, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, Any]:
     """The seed's worker of the env's ``index``-th term alone on the scalarised task."""
     shared = _shared_env(settings, task.method)
     if index >= len(shared.terms):
@@ -108,7 +106,7 @@ def ttc_workers(env: TermsEnv) -> tuple[str, str]:
     return env.terms[0], env.terms[-1]
 
 
-def _run_ttc(tuned: bool, task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
+def _run_ttc(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, Any]:
     """
     The time-to-collision switch over the seed's fast and safe workers: one learning-curve point (it does not
     learn) and the test; with ``tuned`` its threshold is the best of :data:`TTC_GRID` on the learning-curve
