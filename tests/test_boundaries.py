@@ -353,12 +353,17 @@ def test_the_exit_code_of_every_kind_of_ending_is_decided_in_one_place(error, co
         "sqlite:///file::memory:?uri=true",
         "sqlite:///file:x?mode=memory&uri=true",
         "sqlite:///{tmp}",
+        "sqlite:///0/",  # a folder path: SQLite would write a file and its journals beside it
+        "sqlite:///{tmp}/new/",
         "sqlite:////dev/null",
         "postgresql+psycopg://u:secret@127.0.0.1:{port}/db",
         "postgresql+psycopg://u:secret@127.0.0.1:{port}/db?sslmode=bogus",
     ],
 )
-def test_unusable_study_storages_are_input_errors_without_the_password(tmp_path, url, unused_port):
+def test_unusable_study_storages_are_input_errors_without_the_password(
+    tmp_path, url, unused_port, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)  # a relative path that slipped through would write here, not in the checkout
     url = url.format(tmp=tmp_path, port=unused_port)
     if "psycopg" in url:
         pytest.importorskip("psycopg")
@@ -368,6 +373,7 @@ def test_unusable_study_storages_are_input_errors_without_the_password(tmp_path,
     assert exit_code(refused.value) == 2
     assert "secret" not in str(refused.value) and "\n" not in str(refused.value)
     assert time.monotonic() - started < 30
+    assert not (tmp_path / "0").exists() and not (tmp_path / "0-shm").exists()
 
 
 def test_a_file_a_command_writes_is_replaced_only_with_force(tmp_path):

@@ -88,6 +88,10 @@ def check_storage_url(url: str) -> None:
             f"SQLite URI filenames (uri=true) cannot hold a study: {_shown(url)}; give a path, e.g. "
             "sqlite:///study.db, or leave --storage out"
         )
+    if parsed.get_backend_name() == "sqlite" and (parsed.database or "").endswith(("/", "\\")):
+        # A path ending in a separator names a folder; SQLite would still open a file beside it, whose
+        # journal files then land where nobody asked for them.
+        raise ValueError(f"Expected a SQLite database file, actually a folder path: {_shown(url)}")
     if parsed.get_backend_name() == "sqlite" and (
         parsed.database in (None, "", ":memory:") or parsed.query.get("mode") == "memory"
     ):
