@@ -252,7 +252,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     }
     if settings.scenario == "transfer":
         results["transfer"] = transfer_results(settings, by_method)
-    if settings.scenario == "front" and FRONT_METHOD in by_method:
+    if FRONT_METHOD in by_method:
         results["front"] = front_results(by_method[FRONT_METHOD])
     return results
 
