@@ -1,6 +1,8 @@
 """The front scenario: fronts over preferences and thresholds, pymoo hypervolumes, statistics, table and figure."""
 
 import json
+import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -15,7 +17,8 @@ from sb3_hddpg.experiments.benchmark import (
     hypervolume,
     run_benchmark,
 )
-from sb3_hddpg.experiments.benchmark.front import decision_dependence
+from sb3_hddpg.experiments.benchmark.front import decision_dependence, sweep_labels
+from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from tests.cli_runner import run_cli
 
@@ -115,6 +118,29 @@ def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
     bundle = Hierarchy.load(tmp_path / "seed-0" / "hddpg-front" / "conditioned" / "hierarchy.zip")
     for point in SWEEP.points:
         bundle.set_preference(dict(zip(SWEEP.names, point)))
+    # Exported: the conditioned bundle with the space it was trained over, every per-preference manager
+    # with its preference; a fresh process loads the exported conditioned bundle and acts at any of them.
+    export = tmp_path.parent / f"{tmp_path.name}-export"
+    index = export_models(tmp_path, export)
+    conditioned = [e for e in index if e["method"] == "hddpg-conditioned"]
+    per_preference = [e for e in index if e["method"] == "hddpg-preference"]
+    assert [e["seed"] for e in conditioned] == [0, 1]
+    assert all(e["manager_preferences"]["points"] for e in conditioned)
+    assert len(per_preference) == 2 * len(SWEEP.points)
+    assert {e["preference"] for e in per_preference} == set(sweep_labels())
+    script = (
+        "import sys, gymnasium as gym, sb3_hddpg\n"
+        "from sb3_hddpg.hierarchy.hierarchy import Hierarchy\n"
+        "h = Hierarchy.load(sys.argv[1])\n"
+        "env = gym.make('hddpg/SnakeReach-v0'); obs, _ = env.reset(seed=900)\n"
+        "for goal in (1.6, 1.0, 0.4):\n"
+        "    h.set_preference({'goal': goal, 'avoid': 2 - goal}); h.predict(obs, deterministic=True)\n"
+        "print('acted')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(export / conditioned[0]["path"])], capture_output=True, text=True
+    )
+    assert done.returncode == 0 and "acted" in done.stdout, done.stderr[-2000:]
 
 
 def test_decisions_are_counted_once_per_option(tmp_path):

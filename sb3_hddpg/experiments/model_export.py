@@ -6,8 +6,9 @@ The folder keeps the benchmark's layout below it (``seed-<s>/workers/``, ``seed-
 every file still finds what it refers to: a worker zip its ``manifest.json`` beside it, a flat zip its
 ``flat/manifest.json``, ``ham.json`` its workers by a relative path; a hierarchy bundle is self-contained.
 ``index.json`` lists one record per model: ``{"method", "seed", "path", "sha256"}`` (plus ``"preference"``
-for the transfer scenario's runs), ``method`` one of :data:`INDEX_METHODS`, ``path`` relative to the folder
-and openable with :func:`sb3_hddpg.hierarchy.loading.load_policy` (``hddpg-cli evaluate PATH``).
+for the transfer scenario's runs and the front's per-preference managers, and ``"manager_preferences"``, the
+space a conditioned bundle was trained over), ``method`` one of :data:`INDEX_METHODS`, ``path`` relative to
+the folder and openable with :func:`sb3_hddpg.hierarchy.loading.load_policy` (``hddpg-cli evaluate PATH``).
 """
 
 from __future__ import annotations
@@ -28,8 +29,14 @@ from sb3_hddpg.experiments.benchmark import (
     read_record_file,
     split_key,
 )
+from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, preference_label
+from sb3_hddpg.hierarchy.hierarchy import read_bundle
 from sb3_hddpg.names import check_plain_name, check_preference_text
 
+#: The front's managers (the benchmark method ``hddpg-front``): its preference-conditioned manager, one
+#: bundle for every preference, and the managers trained for one preference each.
+CONDITIONED = "hddpg-conditioned"
+PER_PREFERENCE = "hddpg-preference"
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
     "worker:goal",
@@ -39,6 +46,8 @@ INDEX_METHODS = (
     "hddpg-avoid",
     "hddpg-sac",
     *(f"hddpg-{algo}" for algo in DISCRETE_MANAGERS),
+    CONDITIONED,
+    PER_PREFERENCE,
     "ham",
     "ham-tuned",
     *FLAT_METHODS,
@@ -145,6 +154,9 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
                 index.append(_entry(f"worker:{name}", seed, root, dest, relative))
             continue
         base, preference = split_key(key)
+        if base == FRONT_METHOD:
+            index += _front_entries(root, dest, seed_folder / base, seed)
+            continue
         files = _model_files(key, base)
         if files is None:
             continue  # a method registered elsewhere, with files this exporter does not know
@@ -161,6 +173,26 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     index.sort(key=lambda e: (order.get(e["method"], len(order)), e.get("preference") or "", e["seed"]))
     atomic_write_json(dest / "index.json", index)
     return index
+
+
+def _front_entries(root: Path, dest: Path, run: Path, seed: int) -> list[dict[str, Any]]:
+    """
+    The front's bundles of one seed: the conditioned manager (with the preference space it was trained
+    over, read from its verified manifest) and each per-preference manager (with its preference).
+    """
+    entries = []
+    for relative in sorted((root / run).glob("*/hierarchy.zip")):
+        relative = relative.relative_to(root)
+        manifest, _ = read_bundle(root / relative)
+        selection = manifest.selection if isinstance(manifest.selection, dict) else {}
+        space = selection.get("manager_preferences")
+        entry = _entry(CONDITIONED if space is not None else PER_PREFERENCE, seed, root, dest, relative)
+        if space is not None:
+            entry["manager_preferences"] = space
+        else:
+            entry["preference"] = preference_label(selection.get("preferences") or {})
+        entries.append(entry)
+    return entries
 
 
 def _check_destination(root: Path, dest: Path) -> Path:

@@ -131,9 +131,14 @@ def member_fields(points: Sequence[FrontPoint], references: Mapping[str, Sequenc
     }
 
 
+def preference_label(factors: Mapping[str, float]) -> str:
+    """A preference as the front's records and exports write it: ``goal=1.6,avoid=0.4``."""
+    return ",".join(f"{name}={float(value):.4g}" for name, value in factors.items())
+
+
 def sweep_labels() -> list[str]:
     """The sweep's preferences as text, ``goal=1.6,avoid=0.4`` ..."""
-    return [",".join(f"{n}={v:.4g}" for n, v in zip(SWEEP.names, p)) for p in SWEEP.points]
+    return [preference_label(dict(zip(SWEEP.names, p))) for p in SWEEP.points]
 
 
 def decision_dependence(
