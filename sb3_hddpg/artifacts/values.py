@@ -136,6 +136,7 @@ HYPERPARAMETERS: dict[str, Bound] = {
     "top_quantiles_to_drop_per_net": Bound(int, 0, 100),
     "relabel_fraction": _UNIT,
     "coefficient": _MAGNITUDE,
+    "margin": Bound(float, 0.0, MAX_MAGNITUDE, low_open=True),
     # On-policy (PPO) and DQN-family arguments.
     "n_epochs": Bound(int, 1, MAX_GRADIENT_STEPS),
     "gae_lambda": _UNIT,

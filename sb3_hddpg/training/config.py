@@ -114,6 +114,7 @@ class Hyperparams:
     :param wrapper_kwargs: manager block only: keyword arguments for ``WorkerSelectionWrapper``.
     :param action_l2: the actor's action penalty (DDPG/TD3; see
         :class:`~sb3_hddpg.callbacks.ActionL2Penalty`), set with RL Zoo's ``callback`` key; 0: none.
+    :param action_l2_margin: the penalty's pre-activation margin (``None``: it penalises the action itself).
     :param backend: the training backend the block asks for (``sb3``, ``sbx``; ``None``: not set).
     :param raw: the block as written, for manifests.
     """
@@ -127,6 +128,7 @@ class Hyperparams:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
     action_l2: float = 0.0
+    action_l2_margin: float | None = None
     backend: str | None = None
     raw: dict[str, Any] = field(default_factory=dict)
 
@@ -152,7 +154,7 @@ class Hyperparams:
     def callbacks(self) -> list[Any]:
         """The SB3 callbacks the block asks for (as RL Zoo would build them from its ``callback`` key)."""
 
-        return [ActionL2Penalty(self.action_l2)] if self.action_l2 > 0 else []
+        return [ActionL2Penalty(self.action_l2, self.action_l2_margin)] if self.action_l2 > 0 else []
 
     def action_noise(self, n_actions: int) -> Any:
         """The SB3 action-noise object for ``n_actions`` dimensions (``None`` without noise)."""
@@ -244,7 +246,8 @@ def _parse_block(block: dict[str, Any], algo_class: type, source: str, manager: 
     noise_type = _pop_noise_type(block, source)
     backend = _pop_backend(block, source)
     noise_std = _pop_noise_std(block, source)
-    action_l2 = _parse_callbacks(block.pop("callback", None), source).get("action_l2", 0.0)
+    penalty = _parse_callbacks(block.pop("callback", None), source)
+    action_l2 = penalty.get("action_l2", 0.0)
     env_kwargs = _pop_mapping(block, "env_kwargs", source)
     for key, value in env_kwargs.items():
         # The values here; the keys against the env's constructor where the env is known (check_make_kwargs).
@@ -265,6 +268,7 @@ def _parse_block(block: dict[str, Any], algo_class: type, source: str, manager: 
         env_kwargs=env_kwargs,
         wrapper_kwargs=wrapper_kwargs,
         action_l2=action_l2,
+        action_l2_margin=penalty.get("action_l2_margin"),
         backend=backend,
         raw=raw,
     )
@@ -397,7 +401,8 @@ def _buffer_size(buffer_size: Any, source: str) -> Any:
 def _parse_callbacks(value: Any, source: str) -> dict[str, float]:
     """
     RL Zoo's ``callback`` key (a class path, or a list of paths or ``{path: kwargs}``), restricted to
-    :data:`CALLBACKS`: the settings they carry, e.g. ``{"action_l2": 0.1}``. Nothing is imported.
+    :data:`CALLBACKS`: the settings they carry, e.g. ``{"action_l2": 0.1}`` (and ``action_l2_margin``
+    when given). Nothing is imported.
     """
     if value is None:
         return {}
@@ -418,14 +423,18 @@ def _parse_callbacks(value: Any, source: str) -> dict[str, float]:
             raise ConfigError(
                 f"Unknown callback {str(path)!r:.200} in {source}; allowed: {sorted(CALLBACKS)}"
             )
-        if not isinstance(kwargs, dict) or set(kwargs) - {"coefficient"}:
+        if not isinstance(kwargs, dict) or set(kwargs) - {"coefficient", "margin"}:
             raise ConfigError(
-                f"Expected {path} in {source} to take only `coefficient`, actually: {kwargs!r:.200}"
+                f"Expected {path} in {source} to take only `coefficient` and `margin`, actually: "
+                f"{kwargs!r:.200}"
             )
         coefficient = HYPERPARAMETERS["coefficient"].check(
             kwargs.get("coefficient", 0.1), f"{source}: {path}.coefficient"
         )
         settings[CALLBACKS[path]] = float(coefficient)
+        if kwargs.get("margin") is not None:
+            margin = HYPERPARAMETERS["margin"].check(kwargs["margin"], f"{source}: {path}.margin")
+            settings[f"{CALLBACKS[path]}_margin"] = float(margin)
     return settings
 
 
