@@ -47,15 +47,12 @@ from sb3_hddpg.metric_labels import (
     same_returns,
     units_caption,
 )
+from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOutcome
 from sb3_hddpg.training.backends import check_algo, resolve_backend
-from sb3_hddpg.training.training import (
-    ALGO_NAMES,
-    MANAGER_ALGOS,
-    TrainingInterrupted,
-    TrainingOutcome,
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, prepare_manager
+from sb3_hddpg.training.workers import (
     parse_worker_algorithms,
-    prepare_manager,
-    train_manager,
     train_workers,
     worker_algorithms,
     worker_hyperparams,

@@ -48,8 +48,8 @@ from sb3_hddpg.experiments.tuning import (
     trial_score,
     tune,
 )
+from sb3_hddpg.training.agent import TrainingInterrupted
 from sb3_hddpg.training.backends import resolve_backend
-from sb3_hddpg.training.training import TrainingInterrupted
 
 
 def parse_fixed(items: list[str]) -> dict[str, object]:

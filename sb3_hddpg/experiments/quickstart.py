@@ -49,10 +49,12 @@ from sb3_hddpg.experiments.runner import Job, report_progress, run_jobs
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
 from sb3_hddpg.media.video import record_video
-from sb3_hddpg.training import training
 from sb3_hddpg.training.backends import check_backend
 from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, manager_option_steps
+from sb3_hddpg.training.flat import train_flat
+from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.run_options import RunOptions
+from sb3_hddpg.training.workers import train_workers
 
 #: The env every method is compared on.
 COMPARISON_ENV_ID = SNAKE_REACH_ENV_ID
@@ -200,16 +202,16 @@ def _train_job(
     )
     common: dict[str, Any] = dict(config=config, run=run, extra_callbacks=[_ProgressReporter()])
     if kind == "worker":
-        manifest = training.train_workers(run_dir, workers=[name], **common)
+        manifest = train_workers(run_dir, workers=[name], **common)
         out: dict[str, Any] = {"entry": manifest["workers"][name]}
         steps = out["entry"]["timesteps_trained"]
     elif kind == "manager":
-        _, outcome = training.train_manager(run_dir, run_dir, **common)
+        _, outcome = train_manager(run_dir, run_dir, **common)
         # Env steps, as every other agent's: each decision runs option_steps of them.
         out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps * manager_option_steps(config)
     else:
         # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
-        manifest, _ = training.train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
+        manifest, _ = train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
         out = manifest["models"][name]
         steps = out["timesteps_trained"]
     out.update(

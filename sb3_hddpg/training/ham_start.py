@@ -210,7 +210,7 @@ def ham_start_hook(
     start: HamStart, env_factory: Callable[[], gym.Env], seed: int, report: dict[str, Any]
 ) -> Callable[[BaseAlgorithm], None]:
     """
-    The function :func:`~sb3_hddpg.training.training.train_agent` calls on a fresh manager: collect HAM's
+    The function :func:`~sb3_hddpg.training.agent.train_agent` calls on a fresh manager: collect HAM's
     decisions, fill the replay buffer and fit the network; ``report`` gets the settings and the agreement.
     """
 

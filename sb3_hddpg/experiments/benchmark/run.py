@@ -37,7 +37,7 @@ from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, pl
 from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compute_results
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Job, run_jobs
-from sb3_hddpg.training.training import train_workers, worker_hyperparams
+from sb3_hddpg.training.workers import train_workers, worker_hyperparams
 
 
 def seed_dir(out: Path, seed: int) -> Path:
