@@ -19,7 +19,7 @@ from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.experiments.hyperparams_opt import SAMPLERS, search_space
-from sb3_hddpg.hierarchy.selection import FrozenWorker
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.media.figures import COLOURS
 from sb3_hddpg.training.backends import make_model, sbx_installed, to_sb3
 from sb3_hddpg.training.config import default_config

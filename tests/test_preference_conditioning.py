@@ -13,8 +13,9 @@ from gymnasium import spaces
 
 from sb3_hddpg.artifacts.limits import LimitError
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
+from sb3_hddpg.hierarchy.bundle import BundleError
 from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
-from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.workers import train_workers

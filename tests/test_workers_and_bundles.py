@@ -14,7 +14,8 @@ from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.provenance import sha256_file
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
-from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy, SelectionConfig
+from sb3_hddpg.hierarchy.bundle import BundleError
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.workers import train_workers
 

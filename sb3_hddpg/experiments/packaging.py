@@ -51,7 +51,7 @@ from sb3_hddpg.artifacts.run_folder import (
     protected_reason,
 )
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.hierarchy.hierarchy import read_bundle
+from sb3_hddpg.hierarchy.bundle import read_bundle
 from sb3_hddpg.hierarchy.loading import LoadedPolicy
 from sb3_hddpg.media.video import record_video
 from sb3_hddpg.metric_labels import summary_rows

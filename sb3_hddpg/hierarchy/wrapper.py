@@ -15,8 +15,8 @@ from sb3_hddpg.artifacts.workers import states_of
 from sb3_hddpg.envs.contract import env_contract, mix_terms, state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.selection import (
-    FrozenWorker,
     OptionEnd,
     SelectionConfig,
     SimplexMap,
