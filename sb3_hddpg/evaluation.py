@@ -198,27 +198,39 @@ def evaluate(
         if reset_episode is not None:
             reset_episode()
         tally = _EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
-        done = False
-        while not done:
-            action, _ = policy.predict(obs, deterministic=deterministic)
-            # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
-            decision = getattr(policy, "last_manager_action", None)
-            tally.add_decision(np.asarray(action if decision is None else decision, dtype=np.float64))
-            obs, reward, terminated, truncated, info = env.step(action)
-            done = terminated or truncated
-            # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
-            selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
-            # A manager's wrapper with options runs several env steps per decision, and its own reward
-            # discounts them: count each env step with its undiscounted reward, as for every other policy.
-            if "option_infos" in info:
-                for step_reward, step_info in zip(info["option_rewards"], info["option_infos"], strict=True):
-                    tally.add_step(float(step_reward), step_info, selected)
-            else:
-                tally.add_step(float(reward), info, selected)
-            if on_step is not None:
-                on_step(env, info)
+        _run_episode(policy, env, obs, tally, deterministic, on_step)
         episodes.append(_finite_episode(tally.metrics(seed + k)))
     return EvaluationResult(episodes, near_clearance, clear_clearance)
+
+
+def _run_episode(
+    policy: Policy,
+    env: gym.Env,
+    obs: Any,
+    tally: _EpisodeTally,
+    deterministic: bool,
+    on_step: Callable[[gym.Env, dict[str, Any]], None] | None,
+) -> None:
+    """Run one episode from its first observation ``obs`` to its end, counting every env step in ``tally``."""
+    done = False
+    while not done:
+        action, _ = policy.predict(obs, deterministic=deterministic)
+        # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
+        decision = getattr(policy, "last_manager_action", None)
+        tally.add_decision(np.asarray(action if decision is None else decision, dtype=np.float64))
+        obs, reward, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+        # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
+        selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
+        # A manager's wrapper with options runs several env steps per decision, and its own reward
+        # discounts them: count each env step with its undiscounted reward, as for every other policy.
+        if "option_infos" in info:
+            for step_reward, step_info in zip(info["option_rewards"], info["option_infos"], strict=True):
+                tally.add_step(float(step_reward), step_info, selected)
+        else:
+            tally.add_step(float(reward), info, selected)
+        if on_step is not None:
+            on_step(env, info)
 
 
 def _finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
