@@ -166,7 +166,7 @@ def evaluate_command(
 
 
 def _summary_table(
-    title: str, summary: Mapping[str, Any], dependence: Mapping[str, Any] | None, worker: str
+    title: str, summary: Mapping[str, Any], dependence: dict[str, Any] | None, worker: str
 ) -> Table:
     """
     The evaluation summary as a table of quantity, value and unit; with ``dependence``, the share of
