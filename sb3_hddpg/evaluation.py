@@ -416,7 +416,7 @@ def dependence_ratio_text(figure: dict[str, Any]) -> str:
     return "inf" if near > 0 else "never chosen"
 
 
-def _worker_names(policy: Any, env: gym.Env) -> list[str]:
+def _worker_names(policy: object, env: gym.Env) -> list[str]:
     """The workers a hierarchy (``policy``) or a manager's env (a ``WorkerSelectionWrapper``) chooses among."""
     names = getattr(policy, "names", None)
     if names is not None:

@@ -140,7 +140,7 @@ _NUMPY_ACTIVATIONS: dict[type, Callable[[torch.nn.Module], Callable[[np.ndarray]
 }
 
 
-def _compile_actor(policy: Any) -> list[tuple[np.ndarray, np.ndarray, Any]] | None:
+def _compile_actor(policy: object) -> list[tuple[np.ndarray, np.ndarray, Any]] | None:
     """The actor's deterministic forward pass as numpy layers, or ``None`` if it has parts we do not mirror."""
     actor = getattr(policy, "actor", None)
     extractor = getattr(actor, "features_extractor", None)

@@ -158,7 +158,7 @@ class Hierarchy:
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
 
-    def make_env(self, **overrides: Any) -> gym.Env:
+    def make_env(self, **overrides: object) -> gym.Env:
         """
         The shared env this hierarchy acts in: ``gym.make(env_id, **env_kwargs)``.
 
@@ -231,7 +231,7 @@ class Hierarchy:
     def predict(
         self,
         observation: np.ndarray,
-        state: Any = None,
+        state: object = None,
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, None]:
@@ -416,7 +416,7 @@ def _shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | N
 
 
 def _selection_config(
-    manager: Any, workers: Mapping[str, Policy], config: SelectionConfig | None
+    manager: object, workers: Mapping[str, Policy], config: SelectionConfig | None
 ) -> SelectionConfig:
     """
     The selection settings of a new hierarchy: ``config``, else those of the ``WorkerSelectionWrapper`` the
@@ -432,7 +432,7 @@ def _selection_config(
     return replace(config, worker_states={**carried, **config.worker_states}) if carried else config
 
 
-def _selection_wrapper(manager: Any) -> WorkerSelectionWrapper | None:
+def _selection_wrapper(manager: object) -> WorkerSelectionWrapper | None:
     """The ``WorkerSelectionWrapper`` a manager trains on, if it still has an in-process env."""
     get_env = getattr(manager, "get_env", None)
     vec_env = get_env() if callable(get_env) else None
@@ -444,7 +444,7 @@ def _selection_wrapper(manager: Any) -> WorkerSelectionWrapper | None:
     return None
 
 
-def infer_env(manager: Any, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
+def infer_env(manager: object, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
     """
     The env a hierarchy acts in, read from its models: the manager's training env (the env under its
     ``WorkerSelectionWrapper``) if the manager still has one, else the env every worker names, if they all
@@ -466,7 +466,7 @@ def infer_env(manager: Any, workers: Mapping[str, Policy]) -> tuple[str, dict[st
     return None
 
 
-def _training_env(model: Any) -> tuple[str, dict[str, Any]] | None:
+def _training_env(model: object) -> tuple[str, dict[str, Any]] | None:
     """``(env_id, env_kwargs)`` of a model's training env (a hierarchy's own env), if it still has one."""
     if isinstance(model, Hierarchy):
         return model.env_id, dict(model.env_kwargs)

@@ -117,7 +117,7 @@ class Selector:
         """The manager's action space: one value per worker in ``[-1, 1]``, mapped onto the simplex."""
         return gym.spaces.Box(-1.0, 1.0, (n_workers,), dtype=np.float32)
 
-    def probabilities(self, simplex: SimplexMap, action: Any) -> list[float]:
+    def probabilities(self, simplex: SimplexMap, action: object) -> list[float]:
         """
         The worker probabilities of one manager action.
 
@@ -169,7 +169,7 @@ def register_selector(cls: type[Selector]) -> type[Selector]:
     return cls
 
 
-def get_selector(mode: Any) -> Selector:
+def get_selector(mode: object) -> Selector:
     """The registered selector of ``mode``; a ``ValueError`` names the registered modes otherwise."""
     if not isinstance(mode, str) or mode not in SELECTORS:
         raise ValueError(f"Expected `selection` to be one of {list(SELECTORS)}, actually: {mode!r}")
@@ -226,7 +226,7 @@ class DiscreteSelector(Selector):
     def action_space(self, n_workers: int) -> gym.spaces.Space:
         return gym.spaces.Discrete(n_workers)
 
-    def probabilities(self, simplex: SimplexMap, action: Any) -> list[float]:
+    def probabilities(self, simplex: SimplexMap, action: object) -> list[float]:
         chosen = int(np.asarray(action).reshape(-1)[0])
         if not 0 <= chosen < simplex.n_workers:
             raise ValueError(f"Expected a worker index in [0, {simplex.n_workers}), actually: {chosen}")
@@ -283,7 +283,7 @@ class OptionEnd:
         return cls(tuple(edges), touch)
 
     @classmethod
-    def from_json(cls, data: Any, what: str = "option_end") -> OptionEnd:
+    def from_json(cls, data: object, what: str = "option_end") -> OptionEnd:
         """The rule a bundle records (:meth:`to_json`), checked; a ``LimitError`` otherwise."""
         if not isinstance(data, Mapping) or set(data) - {"distance_edges", "goal_touch"}:
             raise LimitError(f"{what}: expected distance_edges and goal_touch, got {brief(data)}")
@@ -440,7 +440,7 @@ SELECTION_SETTINGS = (
 )
 
 
-def check_selection_settings(selection: Any, names: Sequence[str], what: str) -> dict[str, Any]:
+def check_selection_settings(selection: object, names: Sequence[str], what: str) -> dict[str, Any]:
     """
     A bundle's selection settings (``SelectionConfig``'s fields), each checked for type and range, so that
     a file's ``temperature: "abc"`` or ``option_steps: -3`` is refused by name instead of failing later.
@@ -493,7 +493,7 @@ def _check_recorded_rules(out: dict[str, Any], what: str) -> None:
         out["option_end"] = OptionEnd.from_json(out["option_end"], f"{what}.option_end").to_json()
 
 
-def _check_number_in_range(value: Any, what: str, low: float, high: float, low_open: bool) -> None:
+def _check_number_in_range(value: object, what: str, low: float, high: float, low_open: bool) -> None:
     """A finite number in ``[low, high]`` (``(low, high]`` when ``low_open``), else a ``LimitError``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise LimitError(f"{what}: expected a finite number, got {brief(value)}")
@@ -502,7 +502,7 @@ def _check_number_in_range(value: Any, what: str, low: float, high: float, low_o
         raise LimitError(f"{what}: expected a number in {bracket}{low}, {high}], got {value!r}")
 
 
-def _check_preference_factors(preferences: Any, names: Sequence[str], what: str) -> None:
+def _check_preference_factors(preferences: object, names: Sequence[str], what: str) -> None:
     """A bundle's preference factors: worker name -> a number in (0, 1e6)."""
     if not isinstance(preferences, Mapping) or set(preferences) - set(names):
         raise LimitError(f"{what}: expected worker name -> factor, got {brief(preferences)}")

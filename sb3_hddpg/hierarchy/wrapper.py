@@ -378,7 +378,7 @@ def with_preference_space(space: gym.Space, n_workers: int) -> spaces.Box:
 
 
 def _check_worker_spaces(
-    name: str, worker: Any, observation_space: gym.Space, action_space: gym.Space, layout: StateLayout
+    name: str, worker: object, observation_space: gym.Space, action_space: gym.Space, layout: StateLayout
 ) -> None:
     """
     SB3's own check (``Observation spaces do not match: A != B``) for workers that declare spaces; a worker

@@ -124,7 +124,7 @@ class TrainingOutcome:
 def sigterm_as_interrupt() -> Iterator[None]:
     """Turn SIGTERM into KeyboardInterrupt for the duration, so both take the same save-and-exit path."""
 
-    def handler(signum: int, frame: Any) -> None:
+    def handler(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
     try:
@@ -149,7 +149,7 @@ def train_agent(
     extra_callbacks: Sequence[BaseCallback] = (),
     after_eval: BaseCallback | None = None,
     prepare_model: Callable[[BaseAlgorithm], None] | None = None,
-    **run_changes: Any,
+    **run_changes: object,
 ) -> TrainingOutcome:
     """
     Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
@@ -453,6 +453,6 @@ def agent_run(run: RunOptions, paths: AgentPaths, budget: int | None) -> RunOpti
     return run.replace(timesteps=budget, resume=resume)
 
 
-def finished_with_budget(entry: Any, budget: int) -> bool:
+def finished_with_budget(entry: object, budget: int) -> bool:
     """Whether a manifest entry is a model that an earlier run finished with this budget."""
     return isinstance(entry, dict) and entry.get("timesteps_requested") == budget

@@ -87,7 +87,7 @@ def train_flat(
     name: str | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
     block: str | None = None,
-    **run_changes: Any,
+    **run_changes: object,
 ) -> tuple[dict[str, Any], TrainingOutcome | None]:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's

@@ -80,7 +80,7 @@ def train_manager(
     *,
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
-    **run_changes: Any,
+    **run_changes: object,
 ) -> tuple[Hierarchy, TrainingOutcome]:
     """
     Train the manager: a plain SB3 DDPG (or TD3 or SAC, ``algo``) on ``WorkerSelectionWrapper`` over

@@ -147,7 +147,7 @@ def train_workers(
     extra_callbacks: Sequence[BaseCallback] = (),
     env: TermsEnv | None = None,
     algos: Mapping[str, str] | None = None,
-    **run_changes: Any,
+    **run_changes: object,
 ) -> dict[str, Any]:
     """
     Train each named worker as a plain SB3 model (DDPG, the paper's, unless ``algos`` names another) on its
