@@ -23,7 +23,7 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.logger import configure
+from stable_baselines3.common.logger import Logger, configure
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
@@ -439,7 +439,7 @@ def _combine_callbacks(callbacks: Sequence[BaseCallback]) -> BaseCallback | None
     return callbacks[0] if len(callbacks) == 1 else CallbackList(list(callbacks))
 
 
-def _tensorboard_logger(paths: AgentPaths) -> Any:
+def _tensorboard_logger(paths: AgentPaths) -> Logger:
     folder = paths.tensorboard_dir / paths.name
     return configure(str(folder), ["tensorboard"])
 
