@@ -40,6 +40,7 @@ from sb3_hddpg.artifacts.workers import Workers, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
+from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.bundle import MANIFEST, BundleError, model_bytes, read_bundle, write_bundle
 from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
@@ -494,9 +495,9 @@ def check_spaces(
     manager: Any,
     workers: Mapping[str, Policy],
     config: SelectionConfig,
-    observation_space: Any,
-    action_space: Any,
-    layout: Any,
+    observation_space: gym.Space,
+    action_space: gym.Space,
+    layout: StateLayout,
     env_name: str,
 ) -> None:
     """
@@ -508,7 +509,7 @@ def check_spaces(
     :raises ValueError: one line naming the model, the expected and the actual space.
     """
 
-    def subset(components: list[str] | None) -> Any:
+    def subset(components: list[str] | None) -> gym.Space:
         return _subset_space(observation_space, layout.indices(components) if components else None)
 
     manager_action = get_selector(config.selection).action_space(len(workers))

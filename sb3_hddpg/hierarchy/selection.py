@@ -18,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.artifacts.limits import LimitError, brief
+from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 
 
@@ -299,7 +300,7 @@ class OptionEnd:
         """The rule as a bundle records it (``selection.option_end``)."""
         return {"distance_edges": list(self.distance_edges), "goal_touch": self.goal_touch}
 
-    def bind(self, layout: Any) -> Callable[[np.ndarray], tuple[int, bool]]:
+    def bind(self, layout: StateLayout) -> Callable[[np.ndarray], tuple[int, bool]]:
         """
         The band of a (full) observation: the option ends when it changes.
 
