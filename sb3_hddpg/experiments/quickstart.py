@@ -491,7 +491,7 @@ def _evaluate_on_shared_seeds(
     total_steps = len(policies) * episodes * _episode_steps()
     done_steps = 0
 
-    def tick(_env: Any, _info: dict[str, Any]) -> None:
+    def tick(_env: gym.Env, _info: dict[str, Any]) -> None:
         nonlocal done_steps
         done_steps += 1
         if done_steps % 50 == 0:
@@ -527,7 +527,7 @@ def _episode_steps() -> int:
     return MAX_EPISODE_STEPS
 
 
-def _relative(path: Any, root: Path) -> Path:
+def _relative(path: Path | str, root: Path) -> Path:
     path = Path(path)
     try:
         return path.relative_to(root)
