@@ -122,7 +122,7 @@ def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None 
 
 
 # The options of `train_workers_command`.
-_WorkersWorkersOpt = Annotated[
+_WorkerNamesOpt = Annotated[
     list[str] | None,
     typer.Option(
         "--workers",
@@ -160,7 +160,7 @@ _WorkersOutOpt = Annotated[Path, typer.Option("--out", help="Run folder; workers
 @app.command("train-workers")
 def train_workers_command(
     context: typer.Context,
-    workers: _WorkersWorkersOpt = None,
+    workers: _WorkerNamesOpt = None,
     env: _WorkersEnvOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
@@ -236,7 +236,7 @@ _ManagerWorkersDirOpt = Annotated[
         help="Run folder of train-workers (holding workers/manifest.json).",
     ),
 ]
-_ManagerNamesOpt = Annotated[
+_ManagerWorkerNamesOpt = Annotated[
     list[str] | None,
     typer.Option(
         "--worker", help="Use only these workers, in this order (repeat; default: all in the manifest)."
@@ -339,7 +339,7 @@ _ManagerEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + MAN
 def train_manager_command(
     context: typer.Context,
     workers_dir: _ManagerWorkersDirOpt = Path("runs/workers"),
-    names: _ManagerNamesOpt = None,
+    names: _ManagerWorkerNamesOpt = None,
     prefer: _ManagerPreferOpt = None,
     bias: _ManagerBiasOpt = 0.15,
     preference: _ManagerPreferenceOpt = None,
