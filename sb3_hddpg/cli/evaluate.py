@@ -28,7 +28,7 @@ from sb3_hddpg.cli.options import (
     writable_file,
 )
 from sb3_hddpg.envs.terms_env import TermsEnv, adapted_env_id
-from sb3_hddpg.evaluation import clearance_bands, dependence_ratio_text, evaluate, state_dependence
+from sb3_hddpg.evaluation import clearance_bands, dependence_rows, evaluate, state_dependence
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.metric_labels import summary_rows
 
@@ -180,26 +180,9 @@ def _summary_table(
     counts = ("selections_near", "selections_clear", "near_clearance", "clear_clearance")
     for label, value, unit in summary_rows({k: v for k, v in summary.items() if k not in counts}):
         table.add_row(label, value, unit)
-    if dependence is not None:
-        table.add_row(
-            f"{worker} share, clearance <= {dependence['near_clearance']:.3g}",
-            _share(dependence["near_share"], dependence["near_choices"]),
-            "of choices",
-        )
-        table.add_row(
-            f"{worker} share, clearance >= {dependence['clear_clearance']:.3g} (none in range)",
-            _share(dependence["clear_share"], dependence["clear_choices"]),
-            "of choices",
-        )
-        table.add_row(
-            f"{worker} share ratio near / none in range", dependence_ratio_text(dependence), "ratio"
-        )
+    for row in dependence_rows(dependence, worker) if dependence is not None else []:
+        table.add_row(*row)
     return table
-
-
-def _share(share: float | None, choices: int) -> str:
-    """A share with the number of choices it is out of (``-`` when no choice fell in the band)."""
-    return f"{share:.1%} of {choices}" if share is not None else "- (0 choices)"
 
 
 def _loaded_policy(

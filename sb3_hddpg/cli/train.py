@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -40,15 +39,10 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
+from sb3_hddpg.evaluation import summaries_table
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import parse_preferences
-from sb3_hddpg.metric_labels import (
-    MANAGER_REWARD_LABEL,
-    MetricLabel,
-    metric_label,
-    same_returns,
-    units_caption,
-)
+from sb3_hddpg.metric_labels import MANAGER_REWARD_LABEL, MetricLabel
 from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOutcome
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.manager import train_manager
@@ -77,47 +71,20 @@ def training_interrupt_exits() -> Iterator[None]:
 
 def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None = None) -> Table:
     """
-    A rich table of evaluation summaries, one row per agent, each column in one unit (named in the caption,
-    so that the table fits an 80-column terminal).
+    The library's table of evaluation summaries (:func:`~sb3_hddpg.evaluation.summaries_table`), drawn by rich.
 
     :param title: the table's title.
     :param rows: agent -> its evaluation summary.
     :param reward: what ``mean_reward`` is for these agents (default: the env's own reward).
     """
-
-    # The closest approach to an obstacle is in the evaluation history (and `evaluate`): 80 columns hold no more.
-    snake = ("goal_touch_rate", "collisions_per_episode", "success_rate")
-    # The snake env's touch and collision metrics where the env reports them, else every reward term.
-    shown = [k for k in snake if any(k in row for row in rows.values())] or [
-        k
-        for row in list(rows.values())[:1]
-        for k in row
-        if k not in ("mean_reward", "mean_reach_reward") and k.startswith("mean_") and k.endswith("_reward")
-    ]
-    # The return of the normalised terms where it is not the reward itself (on the snake's reach env it is).
-    same = all(same_returns(row) for row in rows.values())
-    normalised = [] if same else ["mean_reach_reward"]
-    # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
-    keys = ("mean_reward", *normalised, *shown, "action_saturation")
-    labels = {key: metric_label(key) for key in keys}
-    labels["mean_reward"] = reward or labels["mean_reward"]
-    if same:
-        names = (labels["mean_reward"].short, metric_label("mean_reach_reward").short)
-        labels["mean_reward"] = replace(labels["mean_reward"], short=" = ".join(dict.fromkeys(names)))
-    table = Table(title=title, caption=units_caption(list(labels.values())))
+    summaries = summaries_table(title, rows, reward)
+    table = Table(title=summaries.title, caption=summaries.caption)
     table.add_column("agent")
-    for key in keys:
+    for column in summaries.columns:
         # Folded, not cut, where a header word is wider than the column 80 characters leave it.
-        table.add_column(labels[key].short or labels[key].label, justify="right", overflow="fold")
-    for name, s in rows.items():
-        cells = []
-        for key in keys:
-            label = labels[key]
-            cell = label.format(s[key]) if key in s else "-"
-            if key == "mean_reward" and "std_reward" in s:
-                cell += f" ± {label.format(s['std_reward'])}"
-            cells.append(cell)
-        table.add_row(name, *cells)
+        table.add_column(column, justify="right", overflow="fold")
+    for row in summaries.rows:
+        table.add_row(*row)
     return table
 
 
