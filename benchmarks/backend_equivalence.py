@@ -39,7 +39,7 @@ def run_one(backend: str, seed: int, args: dict[str, Any]) -> dict[str, Any]:
     from sb3_hddpg.evaluation import evaluate
     from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE
     from sb3_hddpg.hierarchy.loading import load_policy
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     started, cpu = time.perf_counter(), time.process_time()
     manifest = train_workers(

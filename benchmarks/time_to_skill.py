@@ -117,7 +117,7 @@ def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[st
     worker = args["worker"]
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     class Clock(BaseCallback):
         """Seconds since the run started at every evaluation (called after the evaluator on each step)."""

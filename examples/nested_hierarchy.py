@@ -22,7 +22,8 @@ from stable_baselines3 import DDPG
 import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg import Hierarchy, SelectionConfig, WorkerSelectionWrapper, evaluate
 from sb3_hddpg.artifacts.manifests import load_workers
-from sb3_hddpg.training.training import train_manager, train_workers
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.workers import train_workers
 
 
 def main() -> None:

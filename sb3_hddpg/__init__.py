@@ -19,10 +19,10 @@ _LAZY = {
     "evaluate": "sb3_hddpg.evaluation",
     "load_policy": "sb3_hddpg.hierarchy.loading",
     "load_workers": "sb3_hddpg.artifacts.manifests",
-    "prepare_manager": "sb3_hddpg.training.training",
-    "train_flat": "sb3_hddpg.training.training",
-    "train_manager": "sb3_hddpg.training.training",
-    "train_workers": "sb3_hddpg.training.training",
+    "prepare_manager": "sb3_hddpg.training.manager_setup",
+    "train_flat": "sb3_hddpg.training.flat",
+    "train_manager": "sb3_hddpg.training.manager",
+    "train_workers": "sb3_hddpg.training.workers",
 }
 
 

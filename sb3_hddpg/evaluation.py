@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import gymnasium as gym
@@ -16,7 +16,7 @@ import numpy as np
 
 from sb3_hddpg.envs.contract import TermNormaliser, env_contract, proximity_of
 from sb3_hddpg.episode_sets import CURVE
-from sb3_hddpg.metric_labels import summary_rows
+from sb3_hddpg.metric_labels import MetricLabel, metric_label, same_returns, summary_rows, units_caption
 from sb3_hddpg.policy import Policy
 
 #: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
@@ -198,27 +198,39 @@ def evaluate(
         if reset_episode is not None:
             reset_episode()
         tally = _EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
-        done = False
-        while not done:
-            action, _ = policy.predict(obs, deterministic=deterministic)
-            # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
-            decision = getattr(policy, "last_manager_action", None)
-            tally.add_decision(np.asarray(action if decision is None else decision, dtype=np.float64))
-            obs, reward, terminated, truncated, info = env.step(action)
-            done = terminated or truncated
-            # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
-            selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
-            # A manager's wrapper with options runs several env steps per decision, and its own reward
-            # discounts them: count each env step with its undiscounted reward, as for every other policy.
-            if "option_infos" in info:
-                for step_reward, step_info in zip(info["option_rewards"], info["option_infos"], strict=True):
-                    tally.add_step(float(step_reward), step_info, selected)
-            else:
-                tally.add_step(float(reward), info, selected)
-            if on_step is not None:
-                on_step(env, info)
+        _run_episode(policy, env, obs, tally, deterministic, on_step)
         episodes.append(_finite_episode(tally.metrics(seed + k)))
     return EvaluationResult(episodes, near_clearance, clear_clearance)
+
+
+def _run_episode(
+    policy: Policy,
+    env: gym.Env,
+    obs: Any,
+    tally: _EpisodeTally,
+    deterministic: bool,
+    on_step: Callable[[gym.Env, dict[str, Any]], None] | None,
+) -> None:
+    """Run one episode from its first observation ``obs`` to its end, counting every env step in ``tally``."""
+    done = False
+    while not done:
+        action, _ = policy.predict(obs, deterministic=deterministic)
+        # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
+        decision = getattr(policy, "last_manager_action", None)
+        tally.add_decision(np.asarray(action if decision is None else decision, dtype=np.float64))
+        obs, reward, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+        # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
+        selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
+        # A manager's wrapper with options runs several env steps per decision, and its own reward
+        # discounts them: count each env step with its undiscounted reward, as for every other policy.
+        if "option_infos" in info:
+            for step_reward, step_info in zip(info["option_rewards"], info["option_infos"], strict=True):
+                tally.add_step(float(step_reward), step_info, selected)
+        else:
+            tally.add_step(float(reward), info, selected)
+        if on_step is not None:
+            on_step(env, info)
 
 
 def _finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
@@ -404,7 +416,97 @@ def dependence_ratio_text(figure: dict[str, Any]) -> str:
     return "inf" if near > 0 else "never chosen"
 
 
-def _worker_names(policy: Any, env: gym.Env) -> list[str]:
+def dependence_rows(figure: dict[str, Any], worker: str) -> list[tuple[str, str, str]]:
+    """
+    A :func:`state_dependence` figure as rows of quantity, value and unit: ``worker``'s share of the choices
+    near an obstacle and with none in range (each with the number of choices it is out of), and their ratio.
+    """
+
+    def share(value: float | None, choices: int) -> str:
+        return f"{value:.1%} of {choices}" if value is not None else "- (0 choices)"
+
+    return [
+        (
+            f"{worker} share, clearance <= {figure['near_clearance']:.3g}",
+            share(figure["near_share"], figure["near_choices"]),
+            "of choices",
+        ),
+        (
+            f"{worker} share, clearance >= {figure['clear_clearance']:.3g} (none in range)",
+            share(figure["clear_share"], figure["clear_choices"]),
+            "of choices",
+        ),
+        (f"{worker} share ratio near / none in range", dependence_ratio_text(figure), "ratio"),
+    ]
+
+
+@dataclass(frozen=True)
+class SummariesTable:
+    """
+    Evaluation summaries as a table of text, one row per agent, each column in one unit (named in the
+    caption, so that the table fits an 80-column terminal); the CLI draws it.
+
+    :param title: the table's title.
+    :param caption: the units of the columns.
+    :param columns: the column headers after the agent's.
+    :param rows: per agent, its name and one text per column.
+    """
+
+    title: str
+    caption: str
+    columns: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+
+
+def summaries_table(
+    title: str, summaries: Mapping[str, Mapping[str, Any]], reward: MetricLabel | None = None
+) -> SummariesTable:
+    """
+    The table of evaluation summaries a training command prints: the reward (with its spread), the return of
+    the normalised terms where it differs from the reward, the snake's touch and collision rates where the env
+    reports them (else every reward term), and the deciding network's saturation.
+
+    :param title: the table's title.
+    :param summaries: agent -> its evaluation summary.
+    :param reward: what ``mean_reward`` is for these agents (default: the env's own reward).
+    """
+    # The closest approach to an obstacle is in the evaluation history (and `evaluate`): 80 columns hold no more.
+    snake = ("goal_touch_rate", "collisions_per_episode", "success_rate")
+    shown = [k for k in snake if any(k in row for row in summaries.values())] or [
+        k
+        for row in list(summaries.values())[:1]
+        for k in row
+        if k not in ("mean_reward", "mean_reach_reward") and k.startswith("mean_") and k.endswith("_reward")
+    ]
+    # The return of the normalised terms where it is not the reward itself (on the snake's reach env it is).
+    same = all(same_returns(row) for row in summaries.values())
+    normalised = [] if same else ["mean_reach_reward"]
+    # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
+    keys = ("mean_reward", *normalised, *shown, "action_saturation")
+    labels = {key: metric_label(key) for key in keys}
+    labels["mean_reward"] = reward or labels["mean_reward"]
+    if same:
+        names = (labels["mean_reward"].short, metric_label("mean_reach_reward").short)
+        labels["mean_reward"] = replace(labels["mean_reward"], short=" = ".join(dict.fromkeys(names)))
+    rows = []
+    for name, summary in summaries.items():
+        cells = [name]
+        for key in keys:
+            label = labels[key]
+            cell = label.format(summary[key]) if key in summary else "-"
+            if key == "mean_reward" and "std_reward" in summary:
+                cell += f" ± {label.format(summary['std_reward'])}"
+            cells.append(cell)
+        rows.append(tuple(cells))
+    return SummariesTable(
+        title,
+        units_caption(list(labels.values())),
+        tuple(labels[key].short or labels[key].label for key in keys),
+        tuple(rows),
+    )
+
+
+def _worker_names(policy: object, env: gym.Env) -> list[str]:
     """The workers a hierarchy (``policy``) or a manager's env (a ``WorkerSelectionWrapper``) chooses among."""
     names = getattr(policy, "names", None)
     if names is not None:

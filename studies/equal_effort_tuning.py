@@ -46,7 +46,7 @@ from sb3_hddpg.experiments.tuning import (
     tune,
 )
 from sb3_hddpg.training.run_options import RunOptions
-from sb3_hddpg.training.training import train_workers
+from sb3_hddpg.training.workers import train_workers
 
 #: The studies of the workers, then of the flat agents: (level, worker, algorithm, file the best block goes to).
 WORKER_STUDIES: list[tuple[str, str | None, str, str]] = [

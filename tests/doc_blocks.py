@@ -207,7 +207,7 @@ def tiny_quickstart_workers(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for 300 steps each), the folder the docs' examples read, as ``hddpg-cli quickstart --out runs/quickstart``
     leaves it.
     """
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     folder = tmp_path_factory.mktemp("docs")
     train_workers(

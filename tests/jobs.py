@@ -56,7 +56,7 @@ def checkpoint_on_interrupt(folder: str) -> int:
     A long job that, like ``train_agent``, turns SIGTERM (the local executor's stop) or a ``KeyboardInterrupt``
     (Ray's non-forced cancel) into saving a checkpoint and stopping.
     """
-    from sb3_hddpg.training.training import sigterm_as_interrupt
+    from sb3_hddpg.training.agent import sigterm_as_interrupt
 
     with sigterm_as_interrupt():
         try:

@@ -19,11 +19,11 @@ from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.experiments.hyperparams_opt import SAMPLERS, search_space
-from sb3_hddpg.hierarchy.selection import FrozenWorker
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.media.figures import COLOURS
 from sb3_hddpg.training.backends import make_model, sbx_installed, to_sb3
 from sb3_hddpg.training.config import default_config
-from sb3_hddpg.training.training import parse_worker_algorithms, train_workers
+from sb3_hddpg.training.workers import parse_worker_algorithms, train_workers
 
 needs_sbx = pytest.mark.skipif(not sbx_installed(), reason='needs SBX: pip install "sb3-hddpg[fast]"')
 
@@ -227,7 +227,7 @@ default:
 
 
 def test_an_on_policy_flat_agent_trains_checkpoints_and_resumes(tmp_path):
-    from sb3_hddpg.training.training import check_flat_env, train_flat
+    from sb3_hddpg.training.flat import check_flat_env, train_flat
 
     with pytest.raises(ValueError, match=r"dqn takes \(\['Discrete'\]\), actually Box"):
         check_flat_env("dqn")
@@ -268,7 +268,7 @@ def test_discrete_workers_and_a_discrete_manager_on_a_discrete_env(tmp_path):
     pytest.importorskip("mo_gymnasium")
     from sb3_hddpg.envs.terms_env import terms_env
     from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-    from sb3_hddpg.training.training import train_manager
+    from sb3_hddpg.training.manager import train_manager
 
     shared = terms_env("resource-gathering-v0", terms=["death", "gold", "gem"])
     config = tmp_path / "tiny.yml"

@@ -446,7 +446,7 @@ def test_api_backend_selection(tmp_path):
     refused."""
     from sb3_hddpg.experiments.benchmark import BenchmarkSettings
     from sb3_hddpg.experiments.tuning import TuningTarget
-    from sb3_hddpg.training.training import train_flat
+    from sb3_hddpg.training.flat import train_flat
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)

@@ -448,7 +448,8 @@ CASES = [
 @pytest.fixture(scope="module")
 def artifacts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     """Tiny trained artifacts and damaged copies of them, built once, in-process (no CLI start-up cost)."""
-    from sb3_hddpg.training.training import train_manager, train_workers
+    from sb3_hddpg.training.manager import train_manager
+    from sb3_hddpg.training.workers import train_workers
 
     root = tmp_path_factory.mktemp("bad-input")
     tiny = root / "tiny.yml"

@@ -69,7 +69,7 @@ def test_every_command_of_the_docs_parses(where, words, tmp_path, monkeypatch):
 @pytest.fixture(scope="module")
 def tiny_bundle(tiny_quickstart_workers: Path) -> Path:  # noqa: F811
     """The tiny workers' folder with a tiny manager's bundle beside them, as ``hierarchy.zip``."""
-    from sb3_hddpg.training.training import train_manager
+    from sb3_hddpg.training.manager import train_manager
 
     run = tiny_quickstart_workers / "runs" / "quickstart"
     train_manager(run, run, timesteps=100, eval_freq=0, eval_episodes=1, checkpoint_freq=0)

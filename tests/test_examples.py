@@ -34,7 +34,7 @@ def run_example(
 
 
 def test_preference_landscape_scores_every_policy_and_names_the_best(tmp_path):
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)
@@ -75,7 +75,7 @@ def test_worker_study_trains_with_every_setting_and_saves_a_plain_sb3_zip(tmp_pa
 def test_manager_study_reports_the_state_dependence(tmp_path):
     import json
 
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)
@@ -115,7 +115,7 @@ def test_equal_effort_tuning_gives_every_method_the_same_trials_from_its_bundled
 
 
 def test_goal_holding_measures_a_worker_and_the_reference_reachers(tmp_path):
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)

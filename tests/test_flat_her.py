@@ -10,7 +10,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from sb3_hddpg.experiments.benchmark import METHOD_REGISTRY, BenchmarkSettings
 from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.training.training import FLAT_ENV_ID, FLAT_HER_KEY, flat_hyperparams, train_flat
+from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, flat_hyperparams, train_flat
 
 
 def reach_buffer(steps: int = 60) -> tuple[GoalRelabelingReplayBuffer, gym.Env]:

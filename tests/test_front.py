@@ -145,7 +145,8 @@ def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
 
 def test_decisions_are_counted_once_per_option(tmp_path):
     pytest.importorskip("pymoo")
-    from sb3_hddpg.training.training import train_manager, train_workers
+    from sb3_hddpg.training.manager import train_manager
+    from sb3_hddpg.training.workers import train_workers
 
     train_workers(tmp_path / "w", seed=1, timesteps=200, eval_freq=0, eval_episodes=1)
     hierarchy, _ = train_manager(tmp_path / "w", tmp_path / "m", option_steps=4, seed=1, timesteps=60,

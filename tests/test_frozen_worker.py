@@ -14,8 +14,8 @@ from stable_baselines3 import DDPG, SAC, TD3
 
 import sb3_hddpg  # noqa: F401  (registers the ids)
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
-from sb3_hddpg.hierarchy.selection import FrozenWorker
 
 SMALL = {"buffer_size": 500, "learning_starts": 20, "batch_size": 16, "seed": 0, "device": "cpu"}
 

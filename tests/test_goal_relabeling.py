@@ -90,7 +90,7 @@ def test_config_key_trains_the_goal_worker_with_relabelling(tmp_path):
 
     from sb3_hddpg.artifacts.manifests import load_workers
     from sb3_hddpg.training.config import DEFAULT_CONFIG
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     config = yaml.safe_load(DEFAULT_CONFIG.read_text())
     block = {k: v for k, v in config["hddpg/SnakeGoal-v0"].items() if k != "<<"}

@@ -137,7 +137,7 @@ def test_ham_is_a_worker_of_a_selection_wrapper(env):
 
 @pytest.fixture(scope="module")
 def workers_dir(tmp_path_factory) -> Path:
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     out = tmp_path_factory.mktemp("ham-workers")
     train_workers(out, timesteps=50, eval_freq=0, eval_episodes=1)

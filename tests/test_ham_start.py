@@ -8,7 +8,9 @@ import pytest
 from stable_baselines3 import DDPG, DQN
 
 from sb3_hddpg.training.ham_start import HamStart, collect_ham_decisions, imitate
-from sb3_hddpg.training.training import prepare_manager, train_manager, train_workers
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.manager_setup import prepare_manager
+from sb3_hddpg.training.workers import train_workers
 from tests.cli_runner import run_cli
 
 

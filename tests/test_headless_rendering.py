@@ -8,7 +8,8 @@ import pytest
 from stable_baselines3 import DDPG
 
 from sb3_hddpg.envs.headless import HeadlessRenderingError, as_rendering_error
-from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy
+from sb3_hddpg.hierarchy.bundle import BundleError
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.media.video import record_video
 

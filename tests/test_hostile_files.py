@@ -28,7 +28,8 @@ from stable_baselines3 import DDPG
 import sb3_hddpg  # noqa: F401  (registers the ids)
 from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, MAX_MODELS, MAX_NESTING
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
-from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy, SelectionConfig
+from sb3_hddpg.hierarchy.bundle import BundleError
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
 from sb3_hddpg.hierarchy.loading import load_policy
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ import pytest
 from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError, atomic_write, locked_folder
-from sb3_hddpg.training.training import sigterm_as_interrupt
+from sb3_hddpg.training.agent import sigterm_as_interrupt
 from tests.cli_runner import CLI
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,7 +47,8 @@ def test_resume_after_a_kill_right_after_the_final_checkpoint_does_not_rewind(tm
     (SIGKILL right after that checkpoint), then --resume. It used to rewrite state.json as step 0, delete
     the step-200 files, and add an evaluation labelled step 0.
     """
-    from sb3_hddpg.training.training import train_manager, train_workers
+    from sb3_hddpg.training.manager import train_manager
+    from sb3_hddpg.training.workers import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY)
@@ -101,7 +102,7 @@ def _train_workers_cli(out: Path, config: Path, worker: str) -> subprocess.Popen
 
 
 def test_a_second_run_into_a_locked_folder_is_refused_with_the_holders_pid(tmp_path: Path) -> None:
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY)
@@ -162,7 +163,7 @@ def test_two_runs_started_together_into_one_folder_lose_nothing(tmp_path: Path) 
 def test_manifests_are_read_modify_write(tmp_path: Path) -> None:
     """Two runs one after the other into one folder (the Python API): both workers stay listed."""
     from sb3_hddpg.artifacts.manifests import load_workers
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY)

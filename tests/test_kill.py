@@ -175,7 +175,7 @@ def test_train_manager_survives_sigkill_and_resume_writes_a_verified_bundle(tmp_
     # The manager goes through the same checkpoint code as the workers, but with its own env (the
     # selection wrapper over loaded workers) and its own outputs (the bundle): kill it for real too.
     from sb3_hddpg import Hierarchy
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     config = tmp_path / "kill.yml"
     config.write_text(CONFIG + "manager:\n" + CONFIG.split("\n", 1)[1])

@@ -10,7 +10,8 @@ import yaml
 from sb3_hddpg.baselines.ham import load_ham, save_ham
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.config import DEFAULT_CONFIG
-from sb3_hddpg.training.training import train_manager, train_workers
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.workers import train_workers
 
 GOAL_VIEW = ["joint_positions", "ee_to_goal", "goal_touched"]
 

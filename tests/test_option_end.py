@@ -12,7 +12,8 @@ from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import OptionEnd
-from sb3_hddpg.training.training import train_manager, train_workers
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.workers import train_workers
 from tests.cli_runner import run_cli
 
 EDGES = "distance=0.2/0.4/0.6/0.8,touch"

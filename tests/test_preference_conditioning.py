@@ -13,10 +13,12 @@ from gymnasium import spaces
 
 from sb3_hddpg.artifacts.limits import LimitError
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
+from sb3_hddpg.hierarchy.bundle import BundleError
 from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
-from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
-from sb3_hddpg.training.training import train_manager, train_workers
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.workers import train_workers
 from tests.cli_runner import run_cli
 
 TINY = {"timesteps": 300, "eval_freq": 150, "eval_episodes": 1}

@@ -13,7 +13,7 @@ import typer
 from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.io import HELD_FOLDERS_ENV
-from sb3_hddpg.training.training import train_workers
+from sb3_hddpg.training.workers import train_workers
 from tests.test_bad_input import TINY_CONFIG
 
 RUN = {"workers": ["goal"], "eval_freq": 0, "eval_episodes": 1, "checkpoint_freq": 100}
@@ -103,7 +103,7 @@ def test_a_run_resumed_between_evaluations_keeps_evaluating_on_the_same_grid(tmp
 def test_a_resumed_manager_must_act_on_the_same_mdp(tmp_path):
     """A manager resumed with another option length (or env, workers, algorithm) is refused in one line."""
     from sb3_hddpg.artifacts.manifests import ResumeMismatch
-    from sb3_hddpg.training.training import train_manager
+    from sb3_hddpg.training.manager import train_manager
 
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)

@@ -27,7 +27,7 @@ from sb3_hddpg.experiments import tuning
 from sb3_hddpg.experiments.study_storage import default_storage_url, make_storage
 from sb3_hddpg.experiments.tuning import StudySettings, TuningTarget
 from sb3_hddpg.training.config import load_hyperparams
-from sb3_hddpg.training.training import train_workers
+from sb3_hddpg.training.workers import train_workers
 from tests.cli_runner import CLI
 
 REPO = Path(__file__).resolve().parent.parent

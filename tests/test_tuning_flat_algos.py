@@ -175,7 +175,7 @@ def test_algo_usage_errors_through_the_cli(tmp_path):
 
 
 def test_a_sac_manager_study_trains_sac_managers_and_saves_their_block(tmp_path):
-    from sb3_hddpg.training.training import train_workers
+    from sb3_hddpg.training.workers import train_workers
 
     config = yaml.safe_load((REPO / "sb3_hddpg" / "zoo_configs" / "sac.yml").read_text())
     for block in config.values():

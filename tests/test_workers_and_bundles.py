@@ -14,8 +14,10 @@ from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.provenance import sha256_file
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
-from sb3_hddpg.hierarchy.hierarchy import BundleError, Hierarchy, SelectionConfig
-from sb3_hddpg.training.training import train_manager, train_workers
+from sb3_hddpg.hierarchy.bundle import BundleError
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.workers import train_workers
 
 TINY = {"timesteps": 400, "eval_freq": 200, "eval_episodes": 1}
 
@@ -216,7 +218,7 @@ def test_action_saturation_of_a_hierarchy_is_its_managers(trained):
 def test_train_manager_loads_each_worker_once(trained, tmp_path, monkeypatch):
     """Each worker's zip is read once per train-manager (the issue measured 6 loads for 2 workers before)."""
     import sb3_hddpg.artifacts.manifests as manifests
-    from sb3_hddpg.training.training import prepare_manager
+    from sb3_hddpg.training.manager_setup import prepare_manager
 
     root = trained[0]
     loaded: list[str] = []

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
@@ -109,132 +109,146 @@ def _event_printer(started: float) -> Callable[[str, Task, dict[str, Any] | None
     return event
 
 
-@app.command("benchmark")
-def benchmark_command(
-    context: typer.Context,
-    methods: str | None = typer.Option(
-        None,
+# The options of `benchmark_command`.
+_MethodsOpt = Annotated[
+    str | None,
+    typer.Option(
         "--methods",
-        help=(
-            f"Comma-separated methods among {list(METHOD_REGISTRY)} (default: {','.join(DEFAULT_METHODS)}; "
-            f"with --scenario transfer: {','.join(DEFAULT_TRANSFER_METHODS)})."
-        ),
+        help=f"Comma-separated methods among {list(METHOD_REGISTRY)} (default: {','.join(DEFAULT_METHODS)}; "
+        f"with --scenario transfer: {','.join(DEFAULT_TRANSFER_METHODS)}).",
     ),
-    scenario: str = typer.Option(
-        "standard",
+]
+_ScenarioOpt = Annotated[
+    str,
+    typer.Option(
         "--scenario",
-        help=(
-            f"One of {list(SCENARIOS)}: 'transfer' trains each seed's workers once, then per --preference a "
-            "manager and each flat method from scratch on that preference's reward, and reports the ratio of "
-            "env steps each needs to get 90 % of the way from a random policy's score to its own final score; "
-            "'front' trains per seed a preference-conditioned manager and a manager for each of 7 preferences, "
-            "and measures every hierarchy's front (HAM over a threshold sweep, each worker alone) and its "
-            "hypervolume (docs/MANAGER.md)."
-        ),
+        help=f"One of {list(SCENARIOS)}: 'transfer' trains each seed's workers once, then per --preference a "
+        "manager and each flat method from scratch on that preference's reward, and reports the ratio of "
+        "env steps each needs to get 90 % of the way from a random policy's score to its own final score; "
+        "'front' trains per seed a preference-conditioned manager and a manager for each of 7 preferences, "
+        "and measures every hierarchy's front (HAM over a threshold sweep, each worker alone) and its "
+        "hypervolume (docs/MANAGER.md).",
     ),
-    preference: list[str] | None = typer.Option(
-        None,
+]
+_PreferenceOpt = Annotated[
+    list[str] | None,
+    typer.Option(
         "--preference",
-        help=(
-            "A preference of the transfer scenario, e.g. goal=2,avoid=1 (repeat the option for more; default: "
-            f"{' and '.join(DEFAULT_TRANSFER_PREFERENCES)})."
-        ),
+        help="A preference of the transfer scenario, e.g. goal=2,avoid=1 (repeat the option for more; default: "
+        f"{' and '.join(DEFAULT_TRANSFER_PREFERENCES)}).",
     ),
-    seeds: int = typer.Option(
-        5, "--seeds", callback=at_least(1), help="Seeds 0..N-1, one run per method each."
-    ),
-    timesteps: int | None = typer.Option(
-        None,
+]
+_SeedsOpt = Annotated[
+    int, typer.Option("--seeds", callback=at_least(1), help="Seeds 0..N-1, one run per method each.")
+]
+_TimestepsOpt = Annotated[
+    int | None,
+    typer.Option(
         "--timesteps",
         callback=at_least(1),
         help="Manager steps (decisions; x option_steps env steps each), whose env steps are the curve window of every method (default: the config's manager n_timesteps).",
     ),
-    worker_timesteps: int | None = typer.Option(
-        None,
+]
+_WorkerTimestepsOpt = Annotated[
+    int | None,
+    typer.Option(
         "--worker-timesteps",
         callback=at_least(1),
         help="Steps per worker, trained once per seed (default: each worker's config n_timesteps).",
     ),
-    flat_timesteps: int | None = typer.Option(
-        None,
+]
+_FlatTimestepsOpt = Annotated[
+    int | None,
+    typer.Option(
         "--flat-timesteps",
         callback=at_least(1),
         help="Flat agents' steps (default: the hierarchy's total, manager's plus every worker's).",
     ),
-    eval_freq: int | None = typer.Option(
-        None,
+]
+_EvalFreqOpt = Annotated[
+    int | None,
+    typer.Option(
         "--eval-freq",
         callback=at_least(1),
         help="Env steps between curve evaluations of every run (default: a tenth of the manager's env steps).",
     ),
-    eval_episodes: int = typer.Option(
-        5, "--eval-episodes", callback=at_least(1), help="Episodes per learning-curve evaluation."
-    ),
-    test_episodes: int | None = typer.Option(
-        None,
+]
+_EvalEpisodesOpt = Annotated[
+    int, typer.Option("--eval-episodes", callback=at_least(1), help="Episodes per learning-curve evaluation.")
+]
+_TestEpisodesOpt = Annotated[
+    int | None,
+    typer.Option(
         "--test-episodes",
         callback=at_least(1),
         help="Test episodes per trained model (default: 20 development episodes; 100 with --final-test).",
     ),
-    final_test: bool = typer.Option(
-        False,
+]
+_FinalTestOpt = Annotated[
+    bool,
+    typer.Option(
         "--final-test",
-        help=(
-            "Score every run on the final test set (episode seeds from 900000), for the runs of record only: "
-            "never make a choice from it. Default: the development episodes (from 15000)."
-        ),
+        help="Score every run on the final test set (episode seeds from 900000), for the runs of record only: "
+        "never make a choice from it. Default: the development episodes (from 15000).",
     ),
-    ham_threshold: float | None = typer.Option(
-        None,
+]
+_HamThresholdOpt = Annotated[
+    float | None,
+    typer.Option(
         "--ham-threshold",
         help="HAM's threshold on the summed joint-obstacle distances (default: n_joints - 0.5).",
     ),
-    ham_hysteresis: float = typer.Option(0.0, "--ham-hysteresis", help="HAM's hysteresis (>= 0)."),
-    bias: float = typer.Option(
-        0.15, "--bias", callback=positive_float, help="The biased managers' extra preference factor."
-    ),
-    n_jobs: int | None = typer.Option(
-        None,
+]
+_HamHysteresisOpt = Annotated[float, typer.Option("--ham-hysteresis", help="HAM's hysteresis (>= 0).")]
+_BiasOpt = Annotated[
+    float,
+    typer.Option("--bias", callback=positive_float, help="The biased managers' extra preference factor."),
+]
+_NJobsOpt = Annotated[
+    int | None,
+    typer.Option(
         "--n-jobs",
         callback=at_least(1),
         help="Runs in parallel, one process each (default: 1; with --executor ray, every CPU of the cluster).",
     ),
-    executor: ExecutorOpt = "local",
-    ray_address: RayAddressOpt = None,
-    out: Path = typer.Option(Path("runs/benchmark"), "--out", help="Benchmark folder."),
-    resume: bool = typer.Option(
-        False,
+]
+_OutOpt = Annotated[Path, typer.Option("--out", help="Benchmark folder.")]
+_ResumeOpt = Annotated[
+    bool,
+    typer.Option(
         "--resume",
         help="Keep finished runs and continue interrupted ones; --methods and --seeds may add runs.",
     ),
-    redo: str | None = typer.Option(
-        None,
+]
+_RedoOpt = Annotated[
+    str | None,
+    typer.Option(
         "--redo",
-        help=(
-            "With --resume: comma-separated methods to run again, e.g. after their config block changed (a "
-            "kept run made from another block is refused otherwise) or with a setting only they read "
-            "(--ham-threshold: --redo ham); their runs so far are moved to OUT/replaced-<UTC time>/. "
-            "Default: none."
-        ),
+        help="With --resume: comma-separated methods to run again, e.g. after their config block changed (a "
+        "kept run made from another block is refused otherwise) or with a setting only they read "
+        "(--ham-threshold: --redo ham); their runs so far are moved to OUT/replaced-<UTC time>/. "
+        "Default: none.",
     ),
-    force: ForceOpt = False,
-    export_dir: Path | None = typer.Option(
-        None,
+]
+_ExportDirOpt = Annotated[
+    Path | None,
+    typer.Option(
         "--export-models",
         help="Afterwards copy the final models into this folder with an index.json (see export-models).",
     ),
-    backend: ExperimentBackendOpt = "sb3",
-    workers_from: Path | None = typer.Option(
-        None,
+]
+_WorkersFromOpt = Annotated[
+    Path | None,
+    typer.Option(
         "--workers-from",
-        help=(
-            "A finished benchmark folder whose workers each seed reuses instead of training its own (they "
-            "must come from the same config, worker budget, backend, env and seeds: then they are the workers "
-            "this run would train, and their sha256 is checked). Default: train them."
-        ),
+        help="A finished benchmark folder whose workers each seed reuses instead of training its own (they "
+        "must come from the same config, worker budget, backend, env and seeds: then they are the workers "
+        "this run would train, and their sha256 is checked). Default: train them.",
     ),
-    env: str | None = typer.Option(
-        None,
+]
+_EnvOpt = Annotated[
+    str | None,
+    typer.Option(
         "--env",
         help=ENV_HELP
         + SNAKE_DEFAULT
@@ -242,12 +256,46 @@ def benchmark_command(
         "actions; on discrete ones hddpg-dqn, each worker alone, flat dqn and ppo, and on highway-env ttc-tuned), "
         "standard scenario only.",
     ),
-    worker_algo: str | None = typer.Option(
-        None,
+]
+_WorkerAlgoOpt = Annotated[
+    str | None,
+    typer.Option(
         "--worker-algo",
         help="With --env: every worker's algorithm (default: dqn on discrete actions, ddpg on continuous ones), "
         "e.g. qrdqn or sac.",
     ),
+]
+
+
+@app.command("benchmark")
+def benchmark_command(
+    context: typer.Context,
+    methods: _MethodsOpt = None,
+    scenario: _ScenarioOpt = "standard",
+    preference: _PreferenceOpt = None,
+    seeds: _SeedsOpt = 5,
+    timesteps: _TimestepsOpt = None,
+    worker_timesteps: _WorkerTimestepsOpt = None,
+    flat_timesteps: _FlatTimestepsOpt = None,
+    eval_freq: _EvalFreqOpt = None,
+    eval_episodes: _EvalEpisodesOpt = 5,
+    test_episodes: _TestEpisodesOpt = None,
+    final_test: _FinalTestOpt = False,
+    ham_threshold: _HamThresholdOpt = None,
+    ham_hysteresis: _HamHysteresisOpt = 0.0,
+    bias: _BiasOpt = 0.15,
+    n_jobs: _NJobsOpt = None,
+    executor: ExecutorOpt = "local",
+    ray_address: RayAddressOpt = None,
+    out: _OutOpt = Path("runs/benchmark"),
+    resume: _ResumeOpt = False,
+    redo: _RedoOpt = None,
+    force: ForceOpt = False,
+    export_dir: _ExportDirOpt = None,
+    backend: ExperimentBackendOpt = "sb3",
+    workers_from: _WorkersFromOpt = None,
+    env: _EnvOpt = None,
+    worker_algo: _WorkerAlgoOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
@@ -258,27 +306,8 @@ def benchmark_command(
     tables compare the return of the normalised terms; goal touches and contacts only where the env reports
     them (the snake arm).
     """
-    if scenario not in SCENARIOS:
-        raise typer.BadParameter(
-            f"unknown scenario {scenario!r}; choose from {list(SCENARIOS)}", param_hint="'--scenario'"
-        )
-    transfer = scenario == "transfer"
-    if preference and not transfer:
-        raise typer.BadParameter("applies to --scenario transfer only", param_hint="'--preference'")
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    with usage_errors("'--env'"):
-        chosen = _chosen_methods(methods, transfer, shared)
-    if scenario == "front" and methods is None:
-        chosen = list(FRONT_METHODS)
-    if ham_hysteresis < 0:
-        raise typer.BadParameter(f"must be >= 0, got {ham_hysteresis}", param_hint="'--ham-hysteresis'")
-    preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []
-    with usage_errors("'--backend'"):  # e.g. tqc, which the sbx backend does not train
-        BenchmarkSettings(
-            methods=[m for m in chosen if m not in ENV_ONLY_METHODS] or ["hddpg"],
-            backend=backend,
-            scenario="front" if scenario == "front" else "standard",
-        )
+    chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
     with usage_errors("'--methods' / '--preference' / '--env'"):
         settings = BenchmarkSettings(
             methods=chosen,
@@ -295,33 +324,81 @@ def benchmark_command(
             scenario=scenario,
             preferences=preferences,
             backend=backend,
-            env=(
-                {"env_id": shared.env_id, "env_kwargs": shared.env_kwargs, "terms": list(shared.terms)}
-                if shared is not None
-                else None
-            ),
+            env=_env_record(shared),
             workers_from=str(workers_from.resolve()) if workers_from is not None else None,
             final_test=final_test,
             worker_algo=worker_algo,
         )
-    with usage_errors("'--workers-from'"):
-        check_workers_source(settings)
-    redone = [m.strip() for m in redo.split(",") if m.strip()] if redo else []
-    with usage_errors("'--redo'"):
-        check_redo(settings, redone, resume)
+    redone = _checked_resume(settings, redo, resume)
     address = cluster_address(executor, ray_address)
     prepare_out_dir(context, out, resume, force)
-    started = time.perf_counter()
-
     results = run_benchmark(
         settings,
         out,
         n_jobs=n_jobs,
         resume=resume,
-        on_event=_event_printer(started),
+        on_event=_event_printer(time.perf_counter()),
         ray_address=address,
         redo=redone,
     )
+    _print_results(results, out, export_dir)
+
+
+def _scenario_methods(
+    scenario: str,
+    methods: str | None,
+    preference: list[str] | None,
+    ham_hysteresis: float,
+    shared: TermsEnv | None,
+    backend: str,
+) -> tuple[list[str], list[str]]:
+    """
+    Check the scenario and the options that depend on it.
+
+    :return: the methods to run (the scenario's default unless ``--methods``), and the transfer preferences.
+    """
+    if scenario not in SCENARIOS:
+        raise typer.BadParameter(
+            f"unknown scenario {scenario!r}; choose from {list(SCENARIOS)}", param_hint="'--scenario'"
+        )
+    transfer = scenario == "transfer"
+    if preference and not transfer:
+        raise typer.BadParameter("applies to --scenario transfer only", param_hint="'--preference'")
+    with usage_errors("'--env'"):
+        chosen = _chosen_methods(methods, transfer, shared)
+    if scenario == "front" and methods is None:
+        chosen = list(FRONT_METHODS)
+    if ham_hysteresis < 0:
+        raise typer.BadParameter(f"must be >= 0, got {ham_hysteresis}", param_hint="'--ham-hysteresis'")
+    preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []
+    with usage_errors("'--backend'"):  # e.g. tqc, which the sbx backend does not train
+        BenchmarkSettings(
+            methods=[m for m in chosen if m not in ENV_ONLY_METHODS] or ["hddpg"],
+            backend=backend,
+            scenario="front" if scenario == "front" else "standard",
+        )
+    return chosen, preferences
+
+
+def _env_record(shared: TermsEnv | None) -> dict[str, Any] | None:
+    """The benchmark settings' record of another env than the snake (``None``: the snake)."""
+    if shared is None:
+        return None
+    return {"env_id": shared.env_id, "env_kwargs": shared.env_kwargs, "terms": list(shared.terms)}
+
+
+def _checked_resume(settings: BenchmarkSettings, redo: str | None, resume: bool) -> list[str]:
+    """Check ``--workers-from`` and ``--redo`` before the folder is touched; return the methods to redo."""
+    with usage_errors("'--workers-from'"):
+        check_workers_source(settings)
+    redone = [m.strip() for m in redo.split(",") if m.strip()] if redo else []
+    with usage_errors("'--redo'"):
+        check_redo(settings, redone, resume)
+    return redone
+
+
+def _print_results(results: dict[str, Any], out: Path, export_dir: Path | None) -> None:
+    """The result tables, the wall time and the outputs; the export; exit 1 naming every failed run."""
     for table in console_tables(results):
         console.print(_rich_table(table))
     console.print(f"Wall time: {wall_time_text(results)}.  Outputs in {out}: {', '.join(OUTPUT_FILES)}")

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
@@ -25,9 +27,9 @@ from sb3_hddpg.cli.options import (
     usage_errors,
     writable_file,
 )
-from sb3_hddpg.envs.terms_env import adapted_env_id
-from sb3_hddpg.evaluation import clearance_bands, dependence_ratio_text, evaluate, state_dependence
-from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.envs.terms_env import TermsEnv, adapted_env_id
+from sb3_hddpg.evaluation import clearance_bands, dependence_rows, evaluate, state_dependence
+from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.metric_labels import summary_rows
 
 #: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
@@ -35,50 +37,75 @@ from sb3_hddpg.metric_labels import summary_rows
 EVAL_SEED_BASE = 10_000
 
 
-@app.command("evaluate")
-def evaluate_command(
-    path: str = typer.Argument(
-        ...,
-        help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK).",
+# The options of `evaluate_command`.
+_PathOpt = Annotated[
+    str,
+    typer.Argument(
+        help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK)."
     ),
-    env_id: str | None = typer.Option(None, "--env", help=ENV_HELP + " Default: the env it was trained on."),
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
-    episodes: int = typer.Option(20, "--episodes", callback=at_least(1), help="Evaluation episodes."),
-    seed: int = typer.Option(
-        EVAL_SEED_BASE,
-        "--seed",
-        callback=seed_range,
-        help="Seed of the first episode (episode k uses seed + k).",
-    ),
-    deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),
-    json_path: Path | None = typer.Option(
-        None,
+]
+_EnvIdOpt = Annotated[
+    str | None, typer.Option("--env", help=ENV_HELP + " Default: the env it was trained on.")
+]
+_EpisodesOpt = Annotated[int, typer.Option("--episodes", callback=at_least(1), help="Evaluation episodes.")]
+_SeedOpt = Annotated[
+    int,
+    typer.Option("--seed", callback=seed_range, help="Seed of the first episode (episode k uses seed + k)."),
+]
+_DeterministicOpt = Annotated[
+    bool, typer.Option("--deterministic/--stochastic", help="Deterministic actions.")
+]
+_JsonPathOpt = Annotated[
+    Path | None,
+    typer.Option(
         "--json",
         callback=writable_file,
         help="Also write the metrics (and every episode) as JSON (an existing file only with --force).",
     ),
-    trust: bool = typer.Option(
-        False,
+]
+_TrustOpt = Annotated[
+    bool,
+    typer.Option(
         "--trust",
         help="Allow SB3's full loader, which runs code stored in the file: only for files you trust.",
     ),
-    algo: str | None = typer.Option(
-        None, "--algo", help="Algorithm of a zip without manifest (with --trust)."
-    ),
-    worker: str = typer.Option(
-        "avoid",
+]
+_AlgoOpt = Annotated[
+    str | None, typer.Option("--algo", help="Algorithm of a zip without manifest (with --trust).")
+]
+_WorkerOpt = Annotated[
+    str,
+    typer.Option(
         "--state-worker",
         help="For a hierarchy: the worker whose share near obstacles vs with none in range is reported.",
     ),
-    preference: RunPreferenceOpt = None,
-    near_clearance: float | None = typer.Option(
-        None,
+]
+_NearClearanceOpt = Annotated[
+    float | None,
+    typer.Option(
         "--near-clearance",
         help="A choice is 'near an obstacle' at a clearance <= this (default: half the env's sensor range).",
     ),
+]
+
+
+@app.command("evaluate")
+def evaluate_command(
+    path: _PathOpt,
+    env_id: _EnvIdOpt = None,
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
+    episodes: _EpisodesOpt = 20,
+    seed: _SeedOpt = EVAL_SEED_BASE,
+    deterministic: _DeterministicOpt = True,
+    json_path: _JsonPathOpt = None,
+    trust: _TrustOpt = False,
+    algo: _AlgoOpt = None,
+    worker: _WorkerOpt = "avoid",
+    preference: RunPreferenceOpt = None,
+    near_clearance: _NearClearanceOpt = None,
     force: ReplaceFileOpt = False,
 ) -> None:
     """
@@ -92,17 +119,7 @@ def evaluate_command(
     output_file(json_path, force, "'--json'")
     # Another env with several objectives resolves to the adapter it needs (the snake ids stay as they are).
     shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
-    with usage_errors("'PATH'"):
-        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
-        loaded = load_policy(
-            path,
-            env_id=shared.env_id if shared else None,
-            env_kwargs=shared.env_kwargs if shared else None,
-            trusted=trust,
-            algo=algo,
-            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
-        )
-    apply_run_preference(loaded.policy, preference, loaded.kind)
+    loaded = _loaded_policy(path, shared, trust, algo, preference)
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):
@@ -118,8 +135,6 @@ def evaluate_command(
 
     summary = result.summary()
     dependence = state_dependence(summary, worker)
-    # Say so rather than print nothing: without the proximity capability choices cannot be split by state.
-    unavailable = "selection_rate" in summary and summary.get("near_clearance") is None
     # The env by the id people know (an adapter's inner env), the policy by its kind and, if it has one, name.
     env_name = (
         adapted_env_id(shared.env_id, shared.env_kwargs)
@@ -127,35 +142,13 @@ def evaluate_command(
         else adapted_env_id(loaded.env_id, loaded.env_kwargs)
     )
     policy_name = loaded.kind if loaded.name in ("", loaded.kind) else f"{loaded.kind} {loaded.name!r}"
-    table = Table(
-        title=f"{policy_name} on {env_name}: mean over {episodes} episodes, "
+    title = (
+        f"{policy_name} on {env_name}: mean over {episodes} episodes, "
         f"seeds {seed}..{seed + episodes - 1} (± standard deviation across episodes)"
     )
-    table.add_column("quantity")
-    table.add_column("value", justify="right")
-    table.add_column("unit")
-    # The counts behind the state-dependence rows below are not rows of their own.
-    counts = ("selections_near", "selections_clear", "near_clearance", "clear_clearance")
-    for label, value, unit in summary_rows({k: v for k, v in summary.items() if k not in counts}):
-        table.add_row(label, value, unit)
-    if dependence is not None:
-        table.add_row(
-            f"{worker} share, clearance <= {dependence['near_clearance']:.3g}",
-            _share(dependence["near_share"], dependence["near_choices"]),
-            "of choices",
-        )
-        table.add_row(
-            f"{worker} share, clearance >= {dependence['clear_clearance']:.3g} (none in range)",
-            _share(dependence["clear_share"], dependence["clear_choices"]),
-            "of choices",
-        )
-        table.add_row(
-            f"{worker} share ratio near / none in range",
-            dependence_ratio_text(dependence),
-            "ratio",
-        )
-    console.print(table)
-    if unavailable:
+    console.print(_summary_table(title, summary, dependence, worker))
+    # Say so rather than print nothing: without the proximity capability choices cannot be split by state.
+    if "selection_rate" in summary and summary.get("near_clearance") is None:
         console.print(
             f"State dependence of the worker choices: not available for {env_name} (it declares "
             "no proximity: no obstacle clearance to split the choices by; see docs/ENVIRONMENTS.md)"
@@ -172,6 +165,39 @@ def evaluate_command(
         console.print(f"Metrics written to {json_path}")
 
 
-def _share(share: float | None, choices: int) -> str:
-    """A share with the number of choices it is out of (``-`` when no choice fell in the band)."""
-    return f"{share:.1%} of {choices}" if share is not None else "- (0 choices)"
+def _summary_table(
+    title: str, summary: Mapping[str, Any], dependence: dict[str, Any] | None, worker: str
+) -> Table:
+    """
+    The evaluation summary as a table of quantity, value and unit; with ``dependence``, the share of
+    ``worker`` among the choices near an obstacle and with none in range, and their ratio.
+    """
+    table = Table(title=title)
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    table.add_column("unit")
+    # The counts behind the state-dependence rows below are not rows of their own.
+    counts = ("selections_near", "selections_clear", "near_clearance", "clear_clearance")
+    for label, value, unit in summary_rows({k: v for k, v in summary.items() if k not in counts}):
+        table.add_row(label, value, unit)
+    for row in dependence_rows(dependence, worker) if dependence is not None else []:
+        table.add_row(*row)
+    return table
+
+
+def _loaded_policy(
+    path: str, shared: TermsEnv | None, trust: bool, algo: str | None, preference: str | None
+) -> LoadedPolicy:
+    """The policy to evaluate, checked (hashes, spaces, env id) as a usage error naming PATH; at ``--preference``."""
+    with usage_errors("'PATH'"):
+        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
+        loaded = load_policy(
+            path,
+            env_id=shared.env_id if shared else None,
+            env_kwargs=shared.env_kwargs if shared else None,
+            trusted=trust,
+            algo=algo,
+            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
+        )
+    apply_run_preference(loaded.policy, preference, loaded.kind)
+    return loaded

@@ -390,7 +390,7 @@ RUN_PREFERENCE_HELP = (
 RunPreferenceOpt = Annotated[str | None, typer.Option("--preference", help=RUN_PREFERENCE_HELP)]
 
 
-def apply_run_preference(policy: Any, text: str | None, kind: str) -> None:
+def apply_run_preference(policy: object, text: str | None, kind: str) -> None:
     """
     Set ``--preference`` on a loaded policy: a usage error (exit 2) for a policy that takes none, a
     malformed text, or a preference outside those a conditioned manager was trained over.

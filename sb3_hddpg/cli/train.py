@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
+from typing import Annotated
 
 import typer
 from rich.table import Table
@@ -39,23 +39,16 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
+from sb3_hddpg.evaluation import summaries_table
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import parse_preferences
-from sb3_hddpg.metric_labels import (
-    MANAGER_REWARD_LABEL,
-    MetricLabel,
-    metric_label,
-    same_returns,
-    units_caption,
-)
+from sb3_hddpg.metric_labels import MANAGER_REWARD_LABEL, MetricLabel
+from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOutcome
 from sb3_hddpg.training.backends import check_algo, resolve_backend
-from sb3_hddpg.training.training import (
-    ALGO_NAMES,
-    MANAGER_ALGOS,
-    TrainingInterrupted,
-    TrainingOutcome,
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, ManagerSetup, setup_manager
+from sb3_hddpg.training.workers import (
     parse_worker_algorithms,
-    prepare_manager,
-    train_manager,
     train_workers,
     worker_algorithms,
     worker_hyperparams,
@@ -78,86 +71,74 @@ def training_interrupt_exits() -> Iterator[None]:
 
 def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None = None) -> Table:
     """
-    A rich table of evaluation summaries, one row per agent, each column in one unit (named in the caption,
-    so that the table fits an 80-column terminal).
+    The library's table of evaluation summaries (:func:`~sb3_hddpg.evaluation.summaries_table`), drawn by rich.
 
     :param title: the table's title.
     :param rows: agent -> its evaluation summary.
     :param reward: what ``mean_reward`` is for these agents (default: the env's own reward).
     """
-
-    # The closest approach to an obstacle is in the evaluation history (and `evaluate`): 80 columns hold no more.
-    snake = ("goal_touch_rate", "collisions_per_episode", "success_rate")
-    # The snake env's touch and collision metrics where the env reports them, else every reward term.
-    shown = [k for k in snake if any(k in row for row in rows.values())] or [
-        k
-        for row in list(rows.values())[:1]
-        for k in row
-        if k not in ("mean_reward", "mean_reach_reward") and k.startswith("mean_") and k.endswith("_reward")
-    ]
-    # The return of the normalised terms where it is not the reward itself (on the snake's reach env it is).
-    same = all(same_returns(row) for row in rows.values())
-    normalised = [] if same else ["mean_reach_reward"]
-    # Share of the deciding network's outputs pinned at +-1 (a saturated actor has stopped learning).
-    keys = ("mean_reward", *normalised, *shown, "action_saturation")
-    labels = {key: metric_label(key) for key in keys}
-    labels["mean_reward"] = reward or labels["mean_reward"]
-    if same:
-        names = (labels["mean_reward"].short, metric_label("mean_reach_reward").short)
-        labels["mean_reward"] = replace(labels["mean_reward"], short=" = ".join(dict.fromkeys(names)))
-    table = Table(title=title, caption=units_caption(list(labels.values())))
+    summaries = summaries_table(title, rows, reward)
+    table = Table(title=summaries.title, caption=summaries.caption)
     table.add_column("agent")
-    for key in keys:
+    for column in summaries.columns:
         # Folded, not cut, where a header word is wider than the column 80 characters leave it.
-        table.add_column(labels[key].short or labels[key].label, justify="right", overflow="fold")
-    for name, s in rows.items():
-        cells = []
-        for key in keys:
-            label = labels[key]
-            cell = label.format(s[key]) if key in s else "-"
-            if key == "mean_reward" and "std_reward" in s:
-                cell += f" ± {label.format(s['std_reward'])}"
-            cells.append(cell)
-        table.add_row(name, *cells)
+        table.add_column(column, justify="right", overflow="fold")
+    for row in summaries.rows:
+        table.add_row(*row)
     return table
 
 
-@app.command("train-workers")
-def train_workers_command(
-    context: typer.Context,
-    workers: list[str] | None = typer.Option(
-        None,
+# The options of `train_workers_command`.
+_WorkerNamesOpt = Annotated[
+    list[str] | None,
+    typer.Option(
         "--workers",
         help=f"Workers to train, one per reward term (repeat the option). Default: every term of the env "
         f"(the snake arm: {sorted(WORKER_ENV_IDS)}).",
     ),
-    env: str | None = typer.Option(None, "--env", help=ENV_HELP + SNAKE_DEFAULT),
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
-    algo: str | None = typer.Option(
-        None,
+]
+_WorkersEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + SNAKE_DEFAULT)]
+_WorkersAlgoOpt = Annotated[
+    str | None,
+    typer.Option(
         "--algo",
         help=f"Each worker's algorithm, e.g. goal=crossq,avoid=sac, or one for all; one of {list(ALGO_NAMES)} "
         "that acts in the worker's action space (default: ddpg, the paper's; config: the bundled "
         "zoo_configs/<algo>.yml).",
     ),
-    config: Path | None = typer.Option(
-        None,
+]
+_WorkersConfigOpt = Annotated[
+    Path | None,
+    typer.Option(
         "--config",
         callback=existing_file,
         help="Hyperparameters in RL Zoo format (default: each worker's algorithm's bundled zoo_configs/<algo>.yml).",
     ),
-    timesteps: int | None = typer.Option(
-        None,
-        "--timesteps",
-        callback=at_least(1),
-        help="Steps per worker (default: the config's n_timesteps).",
+]
+_WorkersTimestepsOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--timesteps", callback=at_least(1), help="Steps per worker (default: the config's n_timesteps)."
     ),
+]
+_WorkersOutOpt = Annotated[Path, typer.Option("--out", help="Run folder; workers go to OUT/workers/.")]
+
+
+@app.command("train-workers")
+def train_workers_command(
+    context: typer.Context,
+    workers: _WorkerNamesOpt = None,
+    env: _WorkersEnvOpt = None,
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
+    algo: _WorkersAlgoOpt = None,
+    config: _WorkersConfigOpt = None,
+    timesteps: _WorkersTimestepsOpt = None,
     seed: SeedOpt = 0,
     n_envs: NEnvsOpt = None,
-    out: Path = typer.Option(Path("runs/workers"), "--out", help="Run folder; workers go to OUT/workers/."),
+    out: _WorkersOutOpt = Path("runs/workers"),
     resume: ResumeOpt = False,
     force: ForceOpt = False,
     stop_on_plateau: StopOnPlateauOpt = False,
@@ -213,98 +194,134 @@ def train_workers_command(
     )
 
 
-@app.command("train-manager")
-def train_manager_command(
-    context: typer.Context,
-    workers_dir: Path = typer.Option(
-        Path("runs/workers"),
+# The options of `train_manager_command`.
+_ManagerWorkersDirOpt = Annotated[
+    Path,
+    typer.Option(
         "--workers",
         callback=existing_dir,
         help="Run folder of train-workers (holding workers/manifest.json).",
     ),
-    names: list[str] | None = typer.Option(
-        None, "--worker", help="Use only these workers, in this order (repeat; default: all in the manifest)."
+]
+_ManagerWorkerNamesOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--worker", help="Use only these workers, in this order (repeat; default: all in the manifest)."
     ),
-    prefer: str | None = typer.Option(
-        None, "--prefer", help="A worker to prefer (paper Section 3.4), e.g. goal."
-    ),
-    bias: float = typer.Option(0.15, "--bias", help="The preferred worker's extra factor, > 0."),
-    preference: str | None = typer.Option(
-        None,
+]
+_ManagerPreferOpt = Annotated[
+    str | None, typer.Option("--prefer", help="A worker to prefer (paper Section 3.4), e.g. goal.")
+]
+_ManagerBiasOpt = Annotated[float, typer.Option("--bias", help="The preferred worker's extra factor, > 0.")]
+_ManagerPreferenceOpt = Annotated[
+    str | None,
+    typer.Option(
         "--preference",
-        help=(
-            "Every factor explicitly, e.g. goal=1.15,avoid=1.0 (wins over --prefer). The factors scale the "
-            "manager's reward too: to change only the trade-off, keep their sum at the number of workers "
-            "(goal=0.4,avoid=1.6, not goal=1,avoid=4, which saturated the bundled block; docs/MANAGER.md)."
-        ),
+        help="Every factor explicitly, e.g. goal=1.15,avoid=1.0 (wins over --prefer). The factors scale the "
+        "manager's reward too: to change only the trade-off, keep their sum at the number of workers "
+        "(goal=0.4,avoid=1.6, not goal=1,avoid=4, which saturated the bundled block; docs/MANAGER.md).",
     ),
-    train_preferences: str | None = typer.Option(
-        None,
+]
+_ManagerTrainPreferencesOpt = Annotated[
+    str | None,
+    typer.Option(
         "--preferences",
-        help=(
-            "Train one manager for every preference: 'ratio-sweep' (each worker weighted 1-4 times the "
-            "others: 4:1 ... 1:4), 'dirichlet' or 'dirichlet:ALPHA', or preferences with one sum separated by "
-            "';' (goal=1.6,avoid=0.4;goal=0.4,avoid=1.6). The manager observes the preference; choose it at "
-            "run time with --preference of evaluate, record and plot-selection."
-        ),
+        help="Train one manager for every preference: 'ratio-sweep' (each worker weighted 1-4 times the "
+        "others: 4:1 ... 1:4), 'dirichlet' or 'dirichlet:ALPHA', or preferences with one sum separated by "
+        "';' (goal=1.6,avoid=0.4;goal=0.4,avoid=1.6). The manager observes the preference; choose it at "
+        "run time with --preference of evaluate, record and plot-selection.",
     ),
-    relabel_fraction: float | None = typer.Option(
-        None,
+]
+_ManagerRelabelFractionOpt = Annotated[
+    float | None,
+    typer.Option(
         "--relabel-fraction",
         help="With --preferences: the share of replayed steps paid at another preference (default 0.5).",
     ),
-    init_from_ham: float | None = typer.Option(
-        None,
+]
+_ManagerInitFromHamOpt = Annotated[
+    float | None,
+    typer.Option(
         "--init-from-ham",
         metavar="THRESHOLD",
-        help=(
-            "Start from the hand-written rule: before RL the manager imitates HAM with this threshold "
-            "(behaviour cloning of its choices; its replay buffer is filled with them), so RL starts at "
-            "HAM's level."
-        ),
+        help="Start from the hand-written rule: before RL the manager imitates HAM with this threshold "
+        "(behaviour cloning of its choices; its replay buffer is filled with them), so RL starts at "
+        "HAM's level.",
     ),
-    selection: str | None = typer.Option(
-        None,
+]
+_ManagerSelectionOpt = Annotated[
+    str | None,
+    typer.Option(
         "--selection",
         help="sample (the paper's), argmax, mix, or another registered mode (default: the config's).",
     ),
-    option_steps: int | None = typer.Option(
-        None,
-        "--option-steps",
-        callback=at_least(1),
-        help="Env steps per manager decision (default: the config's).",
+]
+_ManagerOptionStepsOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--option-steps", callback=at_least(1), help="Env steps per manager decision (default: the config's)."
     ),
-    option_end: str | None = typer.Option(
-        None,
+]
+_ManagerOptionEndOpt = Annotated[
+    str | None,
+    typer.Option(
         "--option-end",
-        help=(
-            "Options that also end by state: distance=0.5 (an obstacle comes within half the sensor range, or "
-            "leaves it; several edges: distance=0.25/0.5), touch (the goal is touched or lost), or both "
-            "(distance=0.5,touch); --option-steps stays the longest option."
-        ),
+        help="Options that also end by state: distance=0.5 (an obstacle comes within half the sensor range, or "
+        "leaves it; several edges: distance=0.25/0.5), touch (the goal is touched or lost), or both "
+        "(distance=0.5,touch); --option-steps stays the longest option.",
     ),
-    algo: str = typer.Option(
-        "ddpg",
+]
+_ManagerAlgoOpt = Annotated[
+    str,
+    typer.Option(
         "--algo",
         help=f"The manager's algorithm, one of {list(MANAGER_ALGOS)}: DDPG is the paper's; the others that act "
         "in Box spaces take the same action, DQN and QR-DQN pick a worker's index (selection 'discrete') "
         "(default config: the bundled zoo_configs/<algo>.yml).",
     ),
-    config: Path | None = typer.Option(
-        None, "--config", callback=existing_file, help=CONFIG_HELP + " Its 'manager' block is used."
-    ),
-    timesteps: int | None = typer.Option(
-        None,
+]
+_ManagerConfigOpt = Annotated[
+    Path | None,
+    typer.Option("--config", callback=existing_file, help=CONFIG_HELP + " Its 'manager' block is used."),
+]
+_ManagerTimestepsOpt = Annotated[
+    int | None,
+    typer.Option(
         "--timesteps",
         callback=at_least(1),
         help="The manager's budget in decisions (SB3 steps of the manager; each runs --option-steps env "
         "steps; default: the config's n_timesteps).",
     ),
+]
+_ManagerOutOpt = Annotated[
+    Path, typer.Option("--out", help="Run folder; the bundle goes to OUT/hierarchy.zip.")
+]
+_ManagerTrustOpt = Annotated[
+    bool, typer.Option("--trust", help="Load the workers with SB3's full loader (runs code in the files).")
+]
+_ManagerEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + MANAGER_ENV_NOTE)]
+
+
+@app.command("train-manager")
+def train_manager_command(
+    context: typer.Context,
+    workers_dir: _ManagerWorkersDirOpt = Path("runs/workers"),
+    names: _ManagerWorkerNamesOpt = None,
+    prefer: _ManagerPreferOpt = None,
+    bias: _ManagerBiasOpt = 0.15,
+    preference: _ManagerPreferenceOpt = None,
+    train_preferences: _ManagerTrainPreferencesOpt = None,
+    relabel_fraction: _ManagerRelabelFractionOpt = None,
+    init_from_ham: _ManagerInitFromHamOpt = None,
+    selection: _ManagerSelectionOpt = None,
+    option_steps: _ManagerOptionStepsOpt = None,
+    option_end: _ManagerOptionEndOpt = None,
+    algo: _ManagerAlgoOpt = "ddpg",
+    config: _ManagerConfigOpt = None,
+    timesteps: _ManagerTimestepsOpt = None,
     seed: SeedOpt = 0,
     n_envs: NEnvsOpt = None,
-    out: Path = typer.Option(
-        Path("runs/manager"), "--out", help="Run folder; the bundle goes to OUT/hierarchy.zip."
-    ),
+    out: _ManagerOutOpt = Path("runs/manager"),
     resume: ResumeOpt = False,
     force: ForceOpt = False,
     stop_on_plateau: StopOnPlateauOpt = False,
@@ -313,12 +330,10 @@ def train_manager_command(
     checkpoint_freq: CheckpointFreqOpt = 10_000,
     threads: ThreadsOpt = 1,
     progress_bar: ProgressOpt = True,
-    trust: bool = typer.Option(
-        False, "--trust", help="Load the workers with SB3's full loader (runs code in the files)."
-    ),
+    trust: _ManagerTrustOpt = False,
     keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
-    env: str | None = typer.Option(None, "--env", help=ENV_HELP + MANAGER_ENV_NOTE),
+    env: _ManagerEnvOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
@@ -337,39 +352,50 @@ def train_manager_command(
     if relabel_fraction is not None and train_preferences is None:
         raise typer.BadParameter("applies with --preferences only", param_hint="'--relabel-fraction'")
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    env_id, env_kwargs = (shared.env_id, shared.env_kwargs) if shared is not None else (None, None)
-    # The library checks the rest (workers, their hashes and spaces, names, preferences and --bias, the
-    # selection mode, config) before any training; run those checks now so that bad input is reported before
-    # the output folder is touched. The checked set-up is what trains: nothing is loaded or checked twice.
-    with usage_errors():
-        setup = prepare_manager(
-            workers_dir,
-            names or None,
-            prefer=prefer,
-            bias=bias,
-            preferences=preferences,
-            selection=selection,
-            option_steps=option_steps,
-            config=config,
-            trusted=trust,
-            env_id=env_id,
-            env_kwargs=env_kwargs,
-            algo=algo,
-            manager_preferences=train_preferences,
-            relabel_fraction=0.5 if relabel_fraction is None else relabel_fraction,
-            init_from_ham=init_from_ham,
-            option_end=option_end,
-        )
-    with usage_errors("'--backend'"):
-        resolved = resolve_backend(backend, setup.hyperparams.backend)
-        check_algo(algo, resolved)
-        if init_from_ham is not None and resolved != "sb3":
-            raise ValueError(
-                "the start from HAM (--init-from-ham) fits SB3 (torch) managers: use --backend sb3"
-            )
+    options = ManagerOptions(
+        worker_names=names or None,
+        prefer=prefer,
+        bias=bias,
+        preferences=preferences,
+        selection=selection,
+        option_steps=option_steps,
+        config=config,
+        trusted=trust,
+        env_id=shared.env_id if shared is not None else None,
+        env_kwargs=shared.env_kwargs if shared is not None else None,
+        algo=algo,
+        manager_preferences=train_preferences,
+        relabel_fraction=0.5 if relabel_fraction is None else relabel_fraction,
+        init_from_ham=init_from_ham,
+        option_end=option_end,
+    )
+    setup = _checked_manager_setup(workers_dir, options, backend)
     prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
         hierarchy, outcome = train_manager(setup, out, run=run_options_of(context))
+    _print_manager(hierarchy, outcome, out)
+
+
+def _checked_manager_setup(workers_dir: Path, options: ManagerOptions, backend: str | None) -> ManagerSetup:
+    """
+    The manager's set-up, checked before the output folder is touched: the library checks the workers,
+    their hashes and spaces, names, preferences and bias, the selection mode and config; here the backend.
+    The checked set-up is what trains: nothing is loaded or checked twice.
+    """
+    with usage_errors():
+        setup = setup_manager(workers_dir, options)
+    with usage_errors("'--backend'"):
+        resolved = resolve_backend(backend, setup.hyperparams.backend)
+        check_algo(options.algo, resolved)
+        if options.init_from_ham is not None and resolved != "sb3":
+            raise ValueError(
+                "the start from HAM (--init-from-ham) fits SB3 (torch) managers: use --backend sb3"
+            )
+    return setup
+
+
+def _print_manager(hierarchy: Hierarchy, outcome: TrainingOutcome, out: Path) -> None:
+    """The trained manager's evaluation, its worker choices, its budget and bundle, and how it started."""
     console.print(
         metrics_table(
             f"Manager over {hierarchy.names} (best evaluation)",

@@ -34,9 +34,10 @@ from sb3_hddpg.cli.options import (
 from sb3_hddpg.cli.train import metrics_table, training_interrupt_exits
 from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.selection import parse_preferences
-from sb3_hddpg.training.backends import check_algo, resolve_backend
+from sb3_hddpg.training.agent import ALGO_NAMES
+from sb3_hddpg.training.backends import algo_class, check_algo, resolve_backend
 from sb3_hddpg.training.config import default_config, load_hyperparams
-from sb3_hddpg.training.training import ALGO_NAMES, FLAT_ENV_ID, algo_class, check_flat_env, train_flat
+from sb3_hddpg.training.flat import FLAT_ENV_ID, check_flat_env, train_flat
 
 
 @app.command("train-flat")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Annotated
 
 import optuna
 import typer
@@ -48,8 +49,8 @@ from sb3_hddpg.experiments.tuning import (
     trial_score,
     tune,
 )
+from sb3_hddpg.training.agent import TrainingInterrupted
 from sb3_hddpg.training.backends import resolve_backend
-from sb3_hddpg.training.training import TrainingInterrupted
 
 
 def parse_fixed(items: list[str]) -> dict[str, object]:
@@ -109,9 +110,17 @@ def _target_errors() -> Iterator[None]:
 
 
 def _check_search_options(
-    sampler: str, pruner: str, storage: str | None, config: Path | None, rank_by: str = "last"
+    sampler: str,
+    pruner: str,
+    storage: str | None,
+    config: Path | None,
+    rank_by: str = "last",
+    level: str = "worker",
+    save_config: Path | None = None,
 ) -> None:
-    """The sampler, pruner, storage URL, config file and ranking: usage errors naming the option."""
+    """The sampler, pruner, storage URL, config file, ranking and saved config: usage errors naming the option."""
+    if level == "ham" and save_config is not None:
+        raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
     if rank_by not in RANKINGS:
         raise typer.BadParameter(
             f"must be one of {list(RANKINGS)}, got {rank_by!r}", param_hint="'--rank-by'"
@@ -174,169 +183,229 @@ def _print_outcome(
     console.print(f"Dashboard: optuna-dashboard {storage or '<your --storage URL>'}")
 
 
-@app.command("tune")
-def tune_command(
-    level: str = typer.Option(..., "--level", help=f"What to tune: {' | '.join(LEVELS)}."),
-    worker: str | None = typer.Option(
-        None,
+# The options of `tune_command`.
+_LevelOpt = Annotated[str, typer.Option("--level", help=f"What to tune: {' | '.join(LEVELS)}.")]
+_WorkerOpt = Annotated[
+    str | None,
+    typer.Option(
         "--worker",
         help=f"The worker to tune with --level worker: {' | '.join(sorted(WORKER_ENV_IDS))}, or a term of --env.",
     ),
-    workers_dir: Path | None = typer.Option(
-        None, "--workers", help="Run folder of train-workers (for --level manager and --level ham)."
-    ),
-    algo: str = typer.Option(
-        "ddpg",
+]
+_WorkersDirOpt = Annotated[
+    Path | None,
+    typer.Option("--workers", help="Run folder of train-workers (for --level manager and --level ham)."),
+]
+_AlgoOpt = Annotated[
+    str,
+    typer.Option(
         "--algo",
         help="The algorithm with --level worker, flat or manager: "
         f"{' | '.join(tunable_algorithms('flat'))} (its own search space and bundled config "
         "zoo_configs/<algo>.yml).",
     ),
-    n_trials: int = typer.Option(
-        20,
+]
+_NTrialsOpt = Annotated[
+    int,
+    typer.Option(
         "--n-trials",
         callback=at_least(1),
         help="Finished (complete or pruned) trials the study should have, over all processes and re-runs.",
     ),
-    timeout: float | None = typer.Option(
-        None, "--timeout", callback=positive_float, help="Start no trial after this many seconds."
-    ),
-    timesteps: int | None = typer.Option(
-        None,
+]
+_TimeoutOpt = Annotated[
+    float | None,
+    typer.Option("--timeout", callback=positive_float, help="Start no trial after this many seconds."),
+]
+_TimestepsOpt = Annotated[
+    int | None,
+    typer.Option(
         "--timesteps",
         callback=at_least(1),
-        help=(
-            "Env steps per trial, at every level (a manager makes this / option_steps decisions; default: "
-            "the config's n_timesteps)."
-        ),
+        help="Env steps per trial, at every level (a manager makes this / option_steps decisions; default: "
+        "the config's n_timesteps).",
     ),
-    block: str | None = typer.Option(
-        None,
+]
+_BlockOpt = Annotated[
+    str | None,
+    typer.Option(
         "--block",
-        help=(
-            "Level flat: tune this block of the base config instead of the env's, e.g. flat-her (the benchmark's "
-            "sac-her / ddpg-her). Default: the env's block."
-        ),
+        help="Level flat: tune this block of the base config instead of the env's, e.g. flat-her (the benchmark's "
+        "sac-her / ddpg-her). Default: the env's block.",
     ),
-    budget_fraction: float | None = typer.Option(
-        None,
+]
+_BudgetFractionOpt = Annotated[
+    float | None,
+    typer.Option(
         "--budget-fraction",
-        help=(
-            "Env steps per trial as this share (0, 1] of --final-budget, the method's budget in the benchmark: "
-            "every method's study at the same share (instead of --timesteps). Default: not used."
-        ),
+        help="Env steps per trial as this share (0, 1] of --final-budget, the method's budget in the benchmark: "
+        "every method's study at the same share (instead of --timesteps). Default: not used.",
     ),
-    final_budget: int | None = typer.Option(
-        None,
+]
+_FinalBudgetOpt = Annotated[
+    int | None,
+    typer.Option(
         "--final-budget",
         callback=at_least(1),
         help="The tuned method's final budget in env steps, for --budget-fraction (e.g. 340000 for a flat agent).",
     ),
-    n_evaluations: int = typer.Option(
-        5, "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."
+]
+_NEvaluationsOpt = Annotated[
+    int,
+    typer.Option(
+        "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."
     ),
-    eval_episodes: EvalEpisodesOpt = 5,
-    seeds_per_trial: int = typer.Option(
-        1,
+]
+_SeedsPerTrialOpt = Annotated[
+    int,
+    typer.Option(
         "--seeds-per-trial",
         callback=at_least(1),
-        help=(
-            "Training seeds per trial (--seed, --seed + 1, ...): a trial's value is the mean over them, so "
-            "configurations are ranked across seeds, not on one seed's luck; each seed costs --timesteps "
-            "again. Give every method's study the same value. Not with --level ham."
-        ),
+        help="Training seeds per trial (--seed, --seed + 1, ...): a trial's value is the mean over them, so "
+        "configurations are ranked across seeds, not on one seed's luck; each seed costs --timesteps "
+        "again. Give every method's study the same value. Not with --level ham.",
     ),
-    n_jobs: int = typer.Option(
-        1,
+]
+_NJobsOpt = Annotated[
+    int,
+    typer.Option(
         "--n-jobs",
         callback=at_least(1),
         help="Trial processes on this machine (one per core is fastest), or Ray tasks with --executor ray.",
     ),
-    threads: int = typer.Option(
-        1,
+]
+_ThreadsOpt = Annotated[
+    int,
+    typer.Option(
         "--threads",
         callback=at_least(1),
         help="Torch threads per trial process: 1 is faster for small networks and never oversubscribes "
         "cores shared with other work.",
     ),
-    executor: ExecutorOpt = "local",
-    ray_address: RayAddressOpt = None,
-    sampler: str = typer.Option("tpe", "--sampler", help=f"Sampler: {' | '.join(SAMPLERS)}."),
-    pruner: str = typer.Option("median", "--pruner", help=f"Pruner: {' | '.join(PRUNERS)}."),
-    storage: str | None = typer.Option(
-        None,
+]
+_SamplerOpt = Annotated[str, typer.Option("--sampler", help=f"Sampler: {' | '.join(SAMPLERS)}.")]
+_PrunerOpt = Annotated[str, typer.Option("--pruner", help=f"Pruner: {' | '.join(PRUNERS)}.")]
+_StorageOpt = Annotated[
+    str | None,
+    typer.Option(
         "--storage",
         help="Optuna storage URL, e.g. postgresql+psycopg://user:pw@host/db (default: sqlite OUT/study.db).",
     ),
-    study_name: str | None = typer.Option(
-        None,
-        "--study-name",
-        help="Study name; an existing study resumes (default: the level, e.g. worker-goal).",
+]
+_StudyNameOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--study-name", help="Study name; an existing study resumes (default: the level, e.g. worker-goal)."
     ),
-    seed: int | None = typer.Option(
-        None,
+]
+_SeedOpt = Annotated[
+    int | None,
+    typer.Option(
         "--seed",
         callback=seed_range,
         help="Seeds training (default 0) and the sampler (default: unseeded, so parallel runs differ).",
     ),
-    out: Path | None = typer.Option(
-        None,
-        "--out",
-        help="Run folder for the study file, plots and trial scratch (default: runs/tune/NAME).",
+]
+_OutOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--out", help="Run folder for the study file, plots and trial scratch (default: runs/tune/NAME)."
     ),
-    save_config: Path | None = typer.Option(
-        None, "--save-config", help="Write the best parameters as a zoo_configs YAML for train-* --config."
+]
+_SaveConfigOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--save-config", help="Write the best parameters as a zoo_configs YAML for train-* --config."
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="Base zoo_configs file whose untuned keys trials keep (default: the bundled one).",
+]
+_ConfigOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--config", help="Base zoo_configs file whose untuned keys trials keep (default: the bundled one)."
     ),
-    fix: list[str] = typer.Option(
-        [], "--fix", help="Hold a parameter fixed, e.g. --fix net_arch=small (repeat)."
-    ),
-    heartbeat: int = typer.Option(
-        30,
+]
+_FixOpt = Annotated[
+    list[str] | None,
+    typer.Option("--fix", help="Hold a parameter fixed, e.g. --fix net_arch=small (repeat)."),
+]
+_HeartbeatOpt = Annotated[
+    int,
+    typer.Option(
         "--heartbeat",
         callback=at_least(1),
         help="Seconds between a running trial's heartbeats; a trial silent for twice that is retried.",
     ),
-    top: int = typer.Option(5, "--top", callback=at_least(1), help="Best trials to show."),
-    rank_by: str = typer.Option(
-        "last",
+]
+_TopOpt = Annotated[int, typer.Option("--top", callback=at_least(1), help="Best trials to show.")]
+_RankByOpt = Annotated[
+    str,
+    typer.Option(
         "--rank-by",
         help="Which trial is best (shown, and saved by --save-config): last = by its last evaluation "
         "(the Optuna value, RL Zoo's objective); peak = by its best evaluation (the checkpoint train-* "
         "and benchmark keep).",
     ),
-    enqueue_base: bool = typer.Option(
-        True,
+]
+_EnqueueBaseOpt = Annotated[
+    bool,
+    typer.Option(
         "--enqueue-base/--no-enqueue-base",
-        help=(
-            "A new study's first trial is the base config's own values (those in the search space), so the "
-            "best trial is never worse than the base config at the trial budget."
-        ),
+        help="A new study's first trial is the base config's own values (those in the search space), so the "
+        "best trial is never worse than the base config at the trial budget.",
     ),
-    backend: BackendOpt = None,
-    env: str | None = typer.Option(
-        None,
+]
+_EnvOpt = Annotated[
+    str | None,
+    typer.Option(
         "--env",
         help=ENV_HELP + " Default: the snake arm; for --level manager, the env of the workers' manifest.",
     ),
+]
+
+
+@app.command("tune")
+def tune_command(
+    level: _LevelOpt,
+    worker: _WorkerOpt = None,
+    workers_dir: _WorkersDirOpt = None,
+    algo: _AlgoOpt = "ddpg",
+    n_trials: _NTrialsOpt = 20,
+    timeout: _TimeoutOpt = None,
+    timesteps: _TimestepsOpt = None,
+    block: _BlockOpt = None,
+    budget_fraction: _BudgetFractionOpt = None,
+    final_budget: _FinalBudgetOpt = None,
+    n_evaluations: _NEvaluationsOpt = 5,
+    eval_episodes: EvalEpisodesOpt = 5,
+    seeds_per_trial: _SeedsPerTrialOpt = 1,
+    n_jobs: _NJobsOpt = 1,
+    threads: _ThreadsOpt = 1,
+    executor: ExecutorOpt = "local",
+    ray_address: RayAddressOpt = None,
+    sampler: _SamplerOpt = "tpe",
+    pruner: _PrunerOpt = "median",
+    storage: _StorageOpt = None,
+    study_name: _StudyNameOpt = None,
+    seed: _SeedOpt = None,
+    out: _OutOpt = None,
+    save_config: _SaveConfigOpt = None,
+    config: _ConfigOpt = None,
+    fix: _FixOpt = None,
+    heartbeat: _HeartbeatOpt = 30,
+    top: _TopOpt = 5,
+    rank_by: _RankByOpt = "last",
+    enqueue_base: _EnqueueBaseOpt = True,
+    backend: BackendOpt = None,
+    env: _EnvOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Search hyperparameters with Optuna; several processes or machines can share one study."""
-    import matplotlib  # lazily: slow to import with pyplot, only when a study runs
-
-    matplotlib.use("Agg")  # plots are files; never open a window
-
+    _files_only_plots()
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    if level == "ham" and save_config is not None:
-        raise typer.BadParameter("HAM has no DDPG hyperparameters to save", param_hint="'--save-config'")
-    _check_search_options(sampler, pruner, storage, config, rank_by)
+    _check_search_options(sampler, pruner, storage, config, rank_by, level, save_config)
     with _target_errors():
         target = TuningTarget(
             level=level,
@@ -355,18 +424,85 @@ def tune_command(
             final_budget=final_budget,
             block=block,
         )
+    fixed = _checked_target(target, fix or [], storage, backend)
+    address = cluster_address(executor, ray_address)
+    settings, out = _study_settings(
+        target,
+        out,
+        storage,
+        study_name,
+        n_trials,
+        timeout,
+        sampler,
+        pruner,
+        seed,
+        fixed,
+        heartbeat,
+        enqueue_base,
+    )
+    _run_study(target, settings, out, storage, n_jobs, threads, address, top, save_config, rank_by)
+
+
+def _checked_target(
+    target: TuningTarget, fix: list[str], storage: str | None, backend: str | None
+) -> dict[str, object]:
+    """
+    Check what the study tunes before anything runs: the fixed parameters, the storage URL, the target's
+    files and the backend.
+
+    :return: the fixed parameters, parsed.
+    """
     fixed = parse_fixed(fix)
     with usage_errors("'--fix'"):
-        check_fixed_params(level, fixed, algo)
+        check_fixed_params(target.level, fixed, target.algo)
     if storage is not None:
         with usage_errors("'--storage'"):
             check_storage_url(storage)
-    with usage_errors("'--workers'" if level in ("manager", "ham") else "'--config'"):
+    with usage_errors("'--workers'" if target.level in ("manager", "ham") else "'--config'"):
         target.check()
-    if level != "ham":
+    if target.level != "ham":
         with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
             resolve_backend(backend, target.base_block().get("backend"))
-    address = cluster_address(executor, ray_address)
+    return fixed
+
+
+def _announce(
+    target: TuningTarget, settings: StudySettings, storage: str | None, n_jobs: int, address: str | None
+) -> None:
+    """One line saying what is tuned, in which study and storage, how many trials of what, and where."""
+    shown_storage = storage.split("@")[-1] if storage else settings.storage
+    per_trial = "one evaluation" if target.level == "ham" else f"{target.budget()} steps"
+    if target.n_seeds > 1:
+        per_trial += f" x {target.n_seeds} seeds ({target.seed}..{target.seed + target.n_seeds - 1})"
+    console.print(
+        f"Tuning [bold]{target.name}[/] in study [bold]{settings.study_name}[/] ({shown_storage}): "
+        f"{settings.n_trials} trials of {per_trial}, {n_jobs} process(es)"
+        + (f" on the Ray cluster at {address}" if address else "")
+    )
+
+
+def _files_only_plots() -> None:
+    """Plots are files: never open a window."""
+    import matplotlib  # lazily: slow to import with pyplot, only when a study runs
+
+    matplotlib.use("Agg")
+
+
+def _study_settings(
+    target: TuningTarget,
+    out: Path | None,
+    storage: str | None,
+    study_name: str | None,
+    n_trials: int,
+    timeout: float | None,
+    sampler: str,
+    pruner: str,
+    seed: int | None,
+    fixed: dict[str, object],
+    heartbeat: int,
+    enqueue_base: bool,
+) -> tuple[StudySettings, Path]:
+    """The study's settings (its storage beside the output folder unless ``--storage``), and that folder."""
     name = study_name or target.name
     out = refuse_protected_out(out or Path("runs") / "tune" / name)
     settings = StudySettings(
@@ -381,21 +517,28 @@ def tune_command(
         heartbeat_interval=heartbeat,
         enqueue_base=enqueue_base,
     )
-    shown_storage = storage.split("@")[-1] if storage else settings.storage
-    per_trial = "one evaluation" if level == "ham" else f"{target.budget()} steps"
-    if seeds_per_trial > 1:
-        per_trial += f" x {seeds_per_trial} seeds ({target.seed}..{target.seed + seeds_per_trial - 1})"
-    console.print(
-        f"Tuning [bold]{target.name}[/] in study [bold]{name}[/] ({shown_storage}): "
-        f"{n_trials} trials of {per_trial}, {n_jobs} process(es)"
-        + (f" on the Ray cluster at {address}" if address else "")
-    )
+    return settings, out
+
+
+def _run_study(
+    target: TuningTarget,
+    settings: StudySettings,
+    out: Path,
+    storage: str | None,
+    n_jobs: int,
+    threads: int,
+    address: str | None,
+    top: int,
+    save_config: Path | None,
+    rank_by: str,
+) -> None:
+    """Say what is tuned, run the study (Ctrl-C: exit 130, the study resumable) and print its outcome."""
+    _announce(target, settings, storage, n_jobs, address)
     try:
         study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
     except TrainingInterrupted as interrupted:
         console.print(f"[yellow]{interrupted}[/] Re-run the same command to resume the study.")
         raise typer.Exit(130) from None
-
     _print_outcome(
         study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
     )

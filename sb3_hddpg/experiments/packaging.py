@@ -51,7 +51,7 @@ from sb3_hddpg.artifacts.run_folder import (
     protected_reason,
 )
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.hierarchy.hierarchy import read_bundle
+from sb3_hddpg.hierarchy.bundle import read_bundle
 from sb3_hddpg.hierarchy.loading import LoadedPolicy
 from sb3_hddpg.media.video import record_video
 from sb3_hddpg.metric_labels import summary_rows
@@ -130,22 +130,7 @@ def package_policy(
     # any other new folder gets (as atomic_write does for files).
     os.chmod(staging, 0o777 & ~_UMASK)
     try:
-        env = loaded.make_env()
-        evaluation = evaluate(
-            loaded.policy, env, n_episodes=n_eval_episodes, seed=seed, deterministic=deterministic
-        )
-        env.close()
-        summary = evaluation.summary()
-        results = {
-            "mean_reward": summary["mean_reward"],
-            "std_reward": summary["std_reward"],
-            "is_deterministic": deterministic,
-            "n_eval_episodes": n_eval_episodes,
-            "eval_datetime": datetime.now(timezone.utc).isoformat(),
-            "env_id": loaded.env_id,
-            "eval_seeds": list(range(seed, seed + n_eval_episodes)),
-            "metrics": summary,
-        }
+        results = _evaluation_results(loaded, n_eval_episodes, seed, deterministic)
         if loaded.kind == "hierarchy":
             model_file, config = _lay_out_bundle(source, staging)
             algo_name = "HDDPG"
@@ -154,20 +139,7 @@ def package_policy(
             algo_name = str(loaded.meta.get("algo", "ddpg")).upper()
         atomic_write_json(staging / "config.json", config)
         atomic_write_json(staging / "results.json", results)
-        env_kwargs: dict[str, Any] = {"render_mode": "rgb_array"}
-        if video_steps:
-            env_kwargs["max_episode_steps"] = video_steps
-        replay_env = loaded.make_env(**env_kwargs)
-        record_video(
-            loaded.policy,
-            replay_env,
-            staging / "replay.mp4",
-            episodes=1,
-            seed=seed,
-            deterministic=deterministic,
-            title=loaded.name,
-        )
-        replay_env.close()
+        _record_replay(loaded, staging / "replay.mp4", video_steps, seed, deterministic)
         card = model_card(loaded, algo_name, model_file.name, results)
         atomic_write_bytes(staging / "README.md", card.encode())
         _move_into_place(staging, out_dir)
@@ -175,6 +147,52 @@ def package_policy(
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return PackageResult(out_dir, out_dir / model_file.name, results)
+
+
+def _evaluation_results(
+    loaded: LoadedPolicy, n_eval_episodes: int, seed: int, deterministic: bool
+) -> dict[str, Any]:
+    """The package's ``results.json``: the policy evaluated on its own env, in huggingface_sb3's keys."""
+    env = loaded.make_env()
+    try:
+        evaluation = evaluate(
+            loaded.policy, env, n_episodes=n_eval_episodes, seed=seed, deterministic=deterministic
+        )
+    finally:
+        env.close()
+    summary = evaluation.summary()
+    return {
+        "mean_reward": summary["mean_reward"],
+        "std_reward": summary["std_reward"],
+        "is_deterministic": deterministic,
+        "n_eval_episodes": n_eval_episodes,
+        "eval_datetime": datetime.now(timezone.utc).isoformat(),
+        "env_id": loaded.env_id,
+        "eval_seeds": list(range(seed, seed + n_eval_episodes)),
+        "metrics": summary,
+    }
+
+
+def _record_replay(
+    loaded: LoadedPolicy, path: Path, video_steps: int | None, seed: int, deterministic: bool
+) -> None:
+    """The package's ``replay.mp4``: one episode, cut to ``video_steps`` when given."""
+    env_kwargs: dict[str, Any] = {"render_mode": "rgb_array"}
+    if video_steps:
+        env_kwargs["max_episode_steps"] = video_steps
+    replay_env = loaded.make_env(**env_kwargs)
+    try:
+        record_video(
+            loaded.policy,
+            replay_env,
+            path,
+            episodes=1,
+            seed=seed,
+            deterministic=deterministic,
+            title=loaded.name,
+        )
+    finally:
+        replay_env.close()
 
 
 def check_package_folder(out_dir: str | Path, force: bool) -> Path:
@@ -306,49 +324,9 @@ def model_card(loaded: LoadedPolicy, algo_name: str, model_file: str, results: d
     :param results: the content of ``results.json``.
     """
     env_id = loaded.env_id
-    tags = [env_id, "deep-reinforcement-learning", "reinforcement-learning", "stable-baselines3", "sb3-hddpg"]
-    if loaded.kind == "hierarchy":
-        tags.append("hierarchical-reinforcement-learning")
     value = f"{results['mean_reward']:.2f} +/- {results['std_reward']:.2f}"
-    metadata = {
-        "library_name": "stable-baselines3",
-        "tags": tags,
-        "model-index": [
-            {
-                "name": algo_name,
-                "results": [
-                    {
-                        "task": {"type": "reinforcement-learning", "name": "reinforcement-learning"},
-                        "dataset": {"name": env_id, "type": env_id},
-                        "metrics": [
-                            {"type": "mean_reward", "value": value, "name": "mean_reward", "verified": False}
-                        ],
-                    }
-                ],
-            }
-        ],
-    }
-    if loaded.kind == "hierarchy":
-        names = list(getattr(loaded.policy, "names", []))
-        what = (
-            f"a **Hierarchical DDPG** (sb3-hddpg): a DDPG manager that picks, at every step, which of the "
-            f"workers {names} acts. Every member is a plain Stable-Baselines3 DDPG; `{model_file}` holds them "
-            "with a manifest of sha256 hashes (`manifest.json` is a copy)."
-        )
-        python = (
-            "from sb3_hddpg.hierarchy.hierarchy import Hierarchy\n\n"
-            f'policy = Hierarchy.load("{model_file}")  # verified; rebuilt without unpickling\n'
-            "action, _ = policy.predict(obs, deterministic=True)"
-        )
-    else:
-        what = f"a **{algo_name}** agent (a plain Stable-Baselines3 model) trained with sb3-hddpg."
-        python = (
-            "from sb3_hddpg.hierarchy.loading import load_policy\n\n"
-            f'loaded = load_policy("{model_file}")  # checks manifest.json; loads weights only\n'
-            "action, _ = loaded.policy.predict(obs, deterministic=True)\n\n"
-            "# or, trusting the file, with SB3 itself:\n"
-            f'# from stable_baselines3 import {algo_name}; model = {algo_name}.load("{model_file}")'
-        )
+    metadata = _card_metadata(loaded, algo_name, value)
+    what, python = _card_usage(loaded, algo_name, model_file)
     front = yaml.safe_dump(metadata, sort_keys=False)
     # Whatever the evaluation measured on this env (the snake's touch and collision rates, another env's
     # own terms), in the words and units every table uses.
@@ -387,6 +365,58 @@ import sb3_hddpg  # registers {env_id}
 
 Files: `{model_file}`, `manifest.json`, `config.json`, `results.json` (huggingface_sb3's keys), `replay.mp4`.
 """
+
+
+def _card_metadata(loaded: LoadedPolicy, algo_name: str, value: str) -> dict[str, Any]:
+    """A model card's YAML metadata, as huggingface_sb3 writes it: library, tags and the mean reward."""
+    env_id = loaded.env_id
+    tags = [env_id, "deep-reinforcement-learning", "reinforcement-learning", "stable-baselines3", "sb3-hddpg"]
+    if loaded.kind == "hierarchy":
+        tags.append("hierarchical-reinforcement-learning")
+    return {
+        "library_name": "stable-baselines3",
+        "tags": tags,
+        "model-index": [
+            {
+                "name": algo_name,
+                "results": [
+                    {
+                        "task": {"type": "reinforcement-learning", "name": "reinforcement-learning"},
+                        "dataset": {"name": env_id, "type": env_id},
+                        "metrics": [
+                            {"type": "mean_reward", "value": value, "name": "mean_reward", "verified": False}
+                        ],
+                    }
+                ],
+            }
+        ],
+    }
+
+
+def _card_usage(loaded: LoadedPolicy, algo_name: str, model_file: str) -> tuple[str, str]:
+    """A model card's description of the policy, and the Python that loads and runs it."""
+    if loaded.kind == "hierarchy":
+        names = list(getattr(loaded.policy, "names", []))
+        what = (
+            f"a **Hierarchical DDPG** (sb3-hddpg): a DDPG manager that picks, at every step, which of the "
+            f"workers {names} acts. Every member is a plain Stable-Baselines3 DDPG; `{model_file}` holds them "
+            "with a manifest of sha256 hashes (`manifest.json` is a copy)."
+        )
+        python = (
+            "from sb3_hddpg.hierarchy.hierarchy import Hierarchy\n\n"
+            f'policy = Hierarchy.load("{model_file}")  # verified; rebuilt without unpickling\n'
+            "action, _ = policy.predict(obs, deterministic=True)"
+        )
+        return what, python
+    what = f"a **{algo_name}** agent (a plain Stable-Baselines3 model) trained with sb3-hddpg."
+    python = (
+        "from sb3_hddpg.hierarchy.loading import load_policy\n\n"
+        f'loaded = load_policy("{model_file}")  # checks manifest.json; loads weights only\n'
+        "action, _ = loaded.policy.predict(obs, deterministic=True)\n\n"
+        "# or, trusting the file, with SB3 itself:\n"
+        f'# from stable_baselines3 import {algo_name}; model = {algo_name}.load("{model_file}")'
+    )
+    return what, python
 
 
 def write_zoo_layout(

@@ -22,7 +22,9 @@ bundle and ``results.json``::
 
 from __future__ import annotations
 
+import functools
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -31,7 +33,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import yaml
-from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
@@ -40,22 +41,22 @@ from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION, models_manif
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
-from sb3_hddpg.envs.contract import proximity_of, state_layout_of
-from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
+from sb3_hddpg.envs.contract import Proximity, proximity_of, state_layout_of
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
-from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.packaging import write_zoo_layout
-from sb3_hddpg.experiments.runner import Job, report_progress, run_jobs
+from sb3_hddpg.experiments.quickstart_jobs import (
+    COMPARISON_ENV_ID,
+    ENV_STEPS_PER_STEP,
+    QuickstartObserver,
+    run_training_jobs,
+)
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
-from sb3_hddpg.media.video import record_video
-from sb3_hddpg.training import training
+from sb3_hddpg.media.video import RecordingResult, record_video
 from sb3_hddpg.training.backends import check_backend
 from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, manager_option_steps
-from sb3_hddpg.training.run_options import RunOptions
 
-#: The env every method is compared on.
-COMPARISON_ENV_ID = SNAKE_REACH_ENV_ID
 #: The stages, in order; the overall progress bar counts them.
 STAGES = ("train workers", "train manager + flat DDPG", "evaluate on shared seeds", "record GIF", "figures")
 
@@ -118,22 +119,6 @@ BUDGETS: dict[str, QuickstartBudget] = {
 }
 
 
-class QuickstartObserver:
-    """
-    What :func:`run_quickstart` reports while it runs; every method does nothing here. The CLI subclasses it
-    with rich progress bars.
-    """
-
-    def on_stage(self, index: int, name: str) -> None:
-        """Stage ``index`` (of :data:`STAGES`) starts."""
-
-    def on_task(self, task: str, completed: float, total: float) -> None:
-        """A task of the current stage (an agent's training, an evaluation) has done ``completed`` of ``total``."""
-
-    def on_message(self, message: str) -> None:
-        """Something worth a line: an agent finished, a file was written."""
-
-
 @dataclass
 class QuickstartResult:
     """
@@ -153,78 +138,6 @@ class QuickstartResult:
     files: dict[str, Path]
     stage_seconds: dict[str, float]
     wall_seconds: float
-
-
-# ---------------------------------------------------------------------------------------- child processes
-class _ProgressReporter(BaseCallback):
-    """Reports the step count at most every ``interval`` seconds (and at the end) to the runner."""
-
-    def __init__(self, interval: float = 0.5) -> None:
-        super().__init__()
-        self.interval = interval
-        self._last = 0.0
-
-    def _on_step(self) -> bool:
-        now = time.monotonic()
-        if now - self._last >= self.interval:
-            self._last = now
-            report_progress(int(self.num_timesteps))
-        return True
-
-    def _on_training_end(self) -> None:
-        report_progress(int(self.num_timesteps))
-
-
-def _train_job(
-    kind: str,
-    name: str,
-    run_dir: str,
-    config: str,
-    timesteps: int,
-    seed: int,
-    eval_freq: int,
-    eval_episodes: int,
-    keep_checkpoints: bool = False,
-    backend: str = "sb3",
-) -> dict[str, Any]:
-    """Train one agent (``kind``: worker, manager or flat); runs in a process of the runner."""
-
-    started, cpu_started = time.monotonic(), time.process_time()
-    run = RunOptions(
-        timesteps=timesteps,
-        seed=seed,
-        eval_freq=eval_freq,
-        eval_episodes=eval_episodes,
-        keep_checkpoints=keep_checkpoints,
-        backend=backend,
-    )
-    common: dict[str, Any] = dict(config=config, run=run, extra_callbacks=[_ProgressReporter()])
-    if kind == "worker":
-        manifest = training.train_workers(run_dir, workers=[name], **common)
-        out: dict[str, Any] = {"entry": manifest["workers"][name]}
-        steps = out["entry"]["timesteps_trained"]
-    elif kind == "manager":
-        _, outcome = training.train_manager(run_dir, run_dir, **common)
-        # Env steps, as every other agent's: each decision runs option_steps of them.
-        out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps * manager_option_steps(config)
-    else:
-        # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
-        manifest, _ = training.train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
-        out = manifest["models"][name]
-        steps = out["timesteps_trained"]
-    out.update(
-        {
-            "timesteps": int(steps),
-            "seconds": time.monotonic() - started,
-            # CPU time: what the job needs on an idle core, whatever else shares the machine.
-            "cpu_seconds": time.process_time() - cpu_started,
-        }
-    )
-    return out
-
-
-#: A training job's env steps per SB3 step (the manager's: its option steps), for progress in env steps.
-ENV_STEPS_PER_STEP = "env_steps_per_step"
 
 
 def flat_budget(budget: QuickstartBudget) -> int:
@@ -247,50 +160,6 @@ def write_config(path: Path, overrides: dict[str, Any]) -> Path:
     header = "# The hyperparameters of this quickstart run (the bundled zoo_configs/ddpg.yml"
     header += f" with {overrides}).\n" if overrides else ").\n"
     return atomic_write_bytes(path, (header + yaml.safe_dump(config, sort_keys=False)).encode())
-
-
-def _run_jobs(
-    jobs: list[dict[str, Any]],
-    processes: int,
-    observer: QuickstartObserver,
-    ray_address: str | None = None,
-) -> dict[str, dict[str, Any]]:
-    """
-    Run training jobs on the process runner, ``processes`` at a time (in this process when 1, or as Ray
-    tasks on the cluster at ``ray_address``), relaying their progress to ``observer`` in env steps (a job's
-    ``env_steps_per_step``: the manager's SB3 steps are decisions of several env steps); the first failure
-    is re-raised.
-    """
-    scale = {job["name"]: int(job.get(ENV_STEPS_PER_STEP, 1)) for job in jobs}
-    totals = {job["name"]: job["timesteps"] * scale[job["name"]] for job in jobs}
-    for name, total in totals.items():
-        observer.on_task(name, 0, total)
-
-    def progress(name: str, steps: float) -> None:
-        observer.on_task(name, min(steps * scale[name], totals[name]), totals[name])
-
-    def event(kind: str, job: Job, result: Any) -> None:
-        if kind == "done":
-            observer.on_task(job.key, totals[job.key], totals[job.key])
-            observer.on_message(f"{job.key}: {result['timesteps']:,} env steps in {result['seconds']:.0f} s")
-
-    def arguments(job: dict[str, Any]) -> dict[str, Any]:
-        return {key: value for key, value in job.items() if key != ENV_STEPS_PER_STEP}
-
-    outcome = run_jobs(
-        [Job(job["name"], _train_job, kwargs=arguments(job), cost=totals[job["name"]]) for job in jobs],
-        # A stopped quickstart is not resumed: a running job is left to end however it ends.
-        make_executor(
-            min(processes, len(jobs)),
-            interrupt_grace=None,
-            inline=processes <= 1,
-            ray_address=ray_address,
-        ),
-        on_event=event,
-        on_progress=progress,
-        fail_fast=True,
-    )
-    return outcome.results
 
 
 # The workers train side by side in this folder: the lock is taken here, once, and shared with them.
@@ -330,57 +199,129 @@ def run_quickstart(
         budget = BUDGETS[budget]
     if processes < 1:
         raise ValueError(f"Expected `processes` >= 1, actually: {processes}")
-
     backend = check_backend(backend)
     observer = observer or QuickstartObserver()
     run_dir = Path(out_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()
-    stage_seconds: dict[str, float] = {}
-    stage_cpu: dict[str, float] = {}
-    files: dict[str, Path] = {}
-    methods: dict[str, dict[str, Any]] = {}
-
-    def stage(index: int) -> None:
-        stage_seconds[STAGES[index]] = time.monotonic()
-        stage_cpu[STAGES[index]] = time.process_time()
-        observer.on_stage(index, STAGES[index])
-
-    def stage_done(index: int, jobs: dict[str, dict[str, Any]] | None = None) -> None:
-        name = STAGES[index]
-        stage_seconds[name] = time.monotonic() - stage_seconds[name]
-        # Side-by-side jobs take as long as the slowest one on an idle machine.
-        stage_cpu[name] = time.process_time() - stage_cpu[name]
-        if jobs and processes > 1:  # in-process jobs are already in this process's CPU time
-            stage_cpu[name] += max(job["cpu_seconds"] for job in jobs.values())
-
-    config = write_config(run_dir / "config.yml", budget.overrides)
-    files["config"] = config
+    clock = _StageClock(observer, processes)
+    files: dict[str, Path] = {"config": write_config(run_dir / "config.yml", budget.overrides)}
     common = dict(
         run_dir=str(run_dir),
-        config=str(config),
+        config=str(files["config"]),
         seed=seed,
         eval_freq=budget.eval_freq,
         eval_episodes=budget.eval_episodes,
         keep_checkpoints=keep_checkpoints,
         backend=backend,
     )
+    launch = functools.partial(
+        run_training_jobs, processes=processes, observer=observer, ray_address=ray_address
+    )
+    trained = _train_stages(run_dir, budget, common, launch, clock)
+    files["bundle"] = run_dir / "hierarchy.zip"
+    option_steps = manager_option_steps(files["config"])
+    clock.start(2)
+    policies, sources = _comparison_policies(run_dir, files)
+    summaries, methods = _compare(policies, sources, trained, run_dir, budget, observer)
+    clock.done(2)
+    clock.start(3)
+    recording, proximity = _record_hierarchy(policies["HDDPG"], run_dir, budget, observer, files)
+    clock.done(3)
+    clock.start(4)
+    names = list(policies["HDDPG"].policy.names)  # type: ignore[attr-defined]
+    _plot_figures(run_dir, budget, recording, proximity, names, summaries, option_steps, files)
+    clock.done(4)
+    files["zoo"] = _write_zoo(run_dir)
+    wall = time.monotonic() - started
+    files["results"] = run_dir / "results.json"
+    results = _results_json(run_dir, budget, seed, processes, summaries, methods, files, clock, wall)
+    atomic_write_json(files["results"], results)
+    return QuickstartResult(run_dir, summaries, methods, files, clock.seconds, wall)
 
-    # 1. Workers, side by side. Each process writes workers/manifest.json with its own entry only; the
-    #    merged manifest is written once both are done.
-    stage(0)
+
+def _results_json(
+    run_dir: Path,
+    budget: QuickstartBudget,
+    seed: int,
+    processes: int,
+    summaries: dict[str, dict[str, Any]],
+    methods: dict[str, dict[str, Any]],
+    files: dict[str, Path],
+    clock: _StageClock,
+    wall: float,
+) -> dict[str, Any]:
+    """``results.json``: every method's metrics on the shared seeds, the budget, the files, timings, versions."""
+    return {
+        "schema_version": QUICKSTART_RESULTS_VERSION,
+        "kind": "sb3-hddpg-quickstart",
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "env_id": COMPARISON_ENV_ID,
+        "budget": {**vars(budget), "flat_timesteps": flat_budget(budget)},
+        "seed": seed,
+        "eval_seeds": list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + budget.compare_episodes)),
+        "deterministic": True,
+        "methods": {label: {**methods[label], "summary": summaries[label]} for label in summaries},
+        "files": {label: str(_relative(path, run_dir)) for label, path in files.items()},
+        "stage_seconds": clock.seconds,
+        # CPU seconds per stage (the slowest job for side-by-side training): the wall time on idle cores.
+        "stage_cpu_seconds": clock.cpu,
+        "wall_seconds": wall,
+        "processes": processes,
+        "versions": library_versions(),
+    }
+
+
+class _StageClock:
+    """Each stage's wall and CPU time, and its start reported to the observer."""
+
+    def __init__(self, observer: QuickstartObserver, processes: int) -> None:
+        self.observer = observer
+        self.processes = processes
+        self.seconds: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+
+    def start(self, index: int) -> None:
+        self.seconds[STAGES[index]] = time.monotonic()
+        self.cpu[STAGES[index]] = time.process_time()
+        self.observer.on_stage(index, STAGES[index])
+
+    def done(self, index: int, jobs: dict[str, dict[str, Any]] | None = None) -> None:
+        name = STAGES[index]
+        self.seconds[name] = time.monotonic() - self.seconds[name]
+        # Side-by-side jobs take as long as the slowest one on an idle machine.
+        self.cpu[name] = time.process_time() - self.cpu[name]
+        if jobs and self.processes > 1:  # in-process jobs are already in this process's CPU time
+            self.cpu[name] += max(job["cpu_seconds"] for job in jobs.values())
+
+
+def _train_stages(
+    run_dir: Path,
+    budget: QuickstartBudget,
+    common: dict[str, Any],
+    launch: Callable[[list[dict[str, Any]]], dict[str, dict[str, Any]]],
+    clock: _StageClock,
+) -> dict[str, dict[str, Any]]:
+    """
+    The two training stages: the workers side by side, then the manager (over the merged workers) and the
+    flat DDPG side by side.
+
+    :param launch: runs a list of training jobs (:func:`run_training_jobs`).
+    :return: agent name -> its training job's result.
+    """
+    # Each worker's process writes workers/manifest.json with its own entry only; the merged manifest is
+    # written once both are done.
+    clock.start(0)
     worker_jobs = [
         {"kind": "worker", "name": name, "timesteps": budget.worker_timesteps, **common}
         for name in WORKER_ENV_IDS
     ]
-    trained = _run_jobs(worker_jobs, processes, observer, ray_address)
-    stage_done(0, trained)
+    trained = launch(worker_jobs)
+    clock.done(0, trained)
     manifest = models_manifest("workers", {name: trained[name]["entry"] for name in WORKER_ENV_IDS})
     save_manifest(run_dir / "workers" / "manifest.json", manifest)
-
-    # 2. The manager (over the merged workers) and the flat DDPG, side by side.
-    stage(1)
-    option_steps = manager_option_steps(config)
+    clock.start(1)
+    option_steps = manager_option_steps(common["config"])
     jobs = [
         # SB3 counts a manager's steps, and its evaluation period, in decisions of option_steps env steps.
         {
@@ -393,13 +334,21 @@ def run_quickstart(
         },
         {"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget), **common},
     ]
-    second = _run_jobs(jobs, processes, observer, ray_address)
+    second = launch(jobs)
     trained.update(second)
-    stage_done(1, second)
-    files["bundle"] = run_dir / "hierarchy.zip"
+    clock.done(1, second)
+    return trained
 
-    # 3. Every method on the same seeds of the same env.
-    stage(2)
+
+def _comparison_policies(
+    run_dir: Path, files: dict[str, Path]
+) -> tuple[dict[str, LoadedPolicy], dict[str, Path | str]]:
+    """
+    Every method compared, loaded with the loaders a user's ``hddpg-cli evaluate`` uses (hashes verified, no
+    pickle); the HAM switch is written here (``files["ham"]``).
+
+    :return: label -> the loaded policy, and label -> where it was loaded from.
+    """
     sources: dict[str, Path | str] = {"HDDPG": run_dir / "hierarchy.zip"}
     files["ham"] = sources["HAM"] = _build_ham(run_dir)
     sources["flat DDPG"] = run_dir / "flat" / "flat-ddpg.zip"
@@ -407,13 +356,26 @@ def run_quickstart(
         sources[f"{name} worker"] = run_dir / "workers" / f"{name}.zip"
     sources["scripted"] = "scripted"
     sources["random"] = "random"
-    # The same loaders a user's `hddpg-cli evaluate` uses: hashes verified, no pickle.
-    policies: dict[str, LoadedPolicy] = {label: load_policy(source) for label, source in sources.items()}
+    return {label: load_policy(source) for label, source in sources.items()}, sources
+
+
+def _compare(
+    policies: dict[str, LoadedPolicy],
+    sources: dict[str, Path | str],
+    trained: dict[str, dict[str, Any]],
+    run_dir: Path,
+    budget: QuickstartBudget,
+    observer: QuickstartObserver,
+) -> tuple[dict[str, dict[str, Any]], dict[str, dict[str, Any]]]:
+    """
+    Every method on the same seeds of the same env.
+
+    :return: label -> its evaluation summary, and label -> facts about it (kind, source, training, episodes).
+    """
     trained_by = {"HDDPG": ["goal", "avoid", "manager"], "flat DDPG": ["flat-ddpg"]}
     trained_by.update({f"{n} worker": [n] for n in WORKER_ENV_IDS})
-
-    steps_per_episode = _episode_steps()
     summaries: dict[str, dict[str, Any]] = {}
+    methods: dict[str, dict[str, Any]] = {}
     for label, result in _evaluate_on_shared_seeds(policies, budget.compare_episodes, observer).items():
         summary = result.summary()
         summary["std_reach_reward"] = float(np.std([e.reach_reward for e in result.episodes]))
@@ -426,35 +388,52 @@ def run_quickstart(
             "train_seconds": sum(trained[a]["seconds"] for a in agents),
             "episodes": [e.reach_reward for e in result.episodes],
         }
-    stage_done(2)
+    return summaries, methods
 
-    # 4. The hierarchy at work: a GIF, and the same episodes as a selection timeline.
-    stage(3)
-    hierarchy = policies["HDDPG"]
+
+def _record_hierarchy(
+    hierarchy: LoadedPolicy,
+    run_dir: Path,
+    budget: QuickstartBudget,
+    observer: QuickstartObserver,
+    files: dict[str, Path],
+) -> tuple[RecordingResult, Proximity | None]:
+    """
+    The hierarchy at work: a GIF (``files["gif"]``), whose records the selection timeline plots.
+
+    :return: the recording, and the snake's sensor range and touch radius as the contract declares them.
+    """
     limit = {"max_episode_steps": budget.gif_max_steps} if budget.gif_max_steps else {}
     gif_env = hierarchy.make_env(COMPARISON_ENV_ID, render_mode="rgb_array", **limit)
-    gif_steps = budget.gif_episodes * (budget.gif_max_steps or steps_per_episode)
+    gif_steps = budget.gif_episodes * (budget.gif_max_steps or _episode_steps())
+    try:
+        recording = record_video(
+            hierarchy.policy,
+            gif_env,
+            run_dir / "hierarchy.gif",
+            episodes=budget.gif_episodes,
+            seed=EVAL_SEED_BASE,
+            fps=10,
+            title="HDDPG",
+        )
+        observer.on_task("GIF", gif_steps, gif_steps)
+        files["gif"] = recording.path
+        return recording, proximity_of(gif_env)
+    finally:
+        gif_env.close()
 
-    recording = record_video(
-        hierarchy.policy,
-        gif_env,
-        run_dir / "hierarchy.gif",
-        episodes=budget.gif_episodes,
-        seed=EVAL_SEED_BASE,
-        fps=10,
-        title="HDDPG",
-    )
-    observer.on_task("GIF", gif_steps, gif_steps)
-    files["gif"] = recording.path
-    proximity = proximity_of(
-        gif_env
-    )  # the snake's sensor range and touch radius, as the contract declares them
-    gif_env.close()
-    stage_done(3)
 
-    # 5. Figures.
-    stage(4)
-    names = list(hierarchy.policy.names)  # type: ignore[attr-defined]
+def _plot_figures(
+    run_dir: Path,
+    budget: QuickstartBudget,
+    recording: RecordingResult,
+    proximity: Proximity | None,
+    names: list[str],
+    summaries: dict[str, dict[str, Any]],
+    option_steps: int,
+    files: dict[str, Path],
+) -> None:
+    """The selection timeline, the learning curves (every curve over env steps) and the comparison."""
     files["selection"] = plot_selection_timeline(
         recording.records,
         run_dir / "selection.png",
@@ -463,7 +442,7 @@ def run_quickstart(
         sensor_range=proximity.sensor_range if proximity else None,
         touch_radius=proximity.touch_radius if proximity else None,
     )
-    # Every curve over env steps: the manager's history counts decisions.
+    # The manager's history counts decisions.
     histories = {
         agent: read_history(path, option_steps if agent == "manager" else 1)
         for agent in ("goal", "avoid", "manager", "flat-ddpg")
@@ -488,44 +467,21 @@ def run_quickstart(
         summaries,
         run_dir / "comparison.png",
         title=f"{COMPARISON_ENV_ID}: {budget.compare_episodes} episodes per method, seeds "
-        f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + budget.compare_episodes - 1}",
+        f"{EVAL_SEED_BASE}..{last_compare_seed}",
     )
-    stage_done(4)
 
+
+def _write_zoo(run_dir: Path) -> Path:
+    """The workers and the flat DDPG in RL Zoo's layout, each under the env it was trained on."""
     zoo_models: dict[str, str | Path] = {
         env: run_dir / "workers" / f"{n}.zip" for n, env in WORKER_ENV_IDS.items()
     }
     zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
-
     entries = read_workers_manifest(run_dir / "workers" / "manifest.json").entries
     zoo_env_kwargs = {
         env: entries[n].get("env_kwargs") or {} for n, env in WORKER_ENV_IDS.items() if n in entries
     }
-    files["zoo"] = write_zoo_layout(zoo_models, run_dir / "zoo", env_kwargs=zoo_env_kwargs)
-
-    wall = time.monotonic() - started
-    files["results"] = run_dir / "results.json"
-    results = {
-        "schema_version": QUICKSTART_RESULTS_VERSION,
-        "kind": "sb3-hddpg-quickstart",
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "env_id": COMPARISON_ENV_ID,
-        "budget": {**vars(budget), "flat_timesteps": flat_budget(budget)},
-        "seed": seed,
-        "eval_seeds": list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + budget.compare_episodes)),
-        "deterministic": True,
-        "methods": {label: {**methods[label], "summary": summaries[label]} for label in summaries},
-        "files": {label: str(_relative(path, run_dir)) for label, path in files.items()},
-        "stage_seconds": stage_seconds,
-        # CPU seconds per stage (the slowest job for side-by-side training): the wall time on idle cores.
-        "stage_cpu_seconds": stage_cpu,
-        "wall_seconds": wall,
-        "processes": processes,
-    }
-
-    results["versions"] = library_versions()
-    atomic_write_json(files["results"], results)
-    return QuickstartResult(run_dir, summaries, methods, files, stage_seconds, wall)
+    return write_zoo_layout(zoo_models, run_dir / "zoo", env_kwargs=zoo_env_kwargs)
 
 
 def _evaluate_on_shared_seeds(
@@ -535,7 +491,7 @@ def _evaluate_on_shared_seeds(
     total_steps = len(policies) * episodes * _episode_steps()
     done_steps = 0
 
-    def tick(_env: Any, _info: dict[str, Any]) -> None:
+    def tick(_env: gym.Env, _info: dict[str, Any]) -> None:
         nonlocal done_steps
         done_steps += 1
         if done_steps % 50 == 0:
@@ -571,7 +527,7 @@ def _episode_steps() -> int:
     return MAX_EPISODE_STEPS
 
 
-def _relative(path: Any, root: Path) -> Path:
+def _relative(path: Path | str, root: Path) -> Path:
     path = Path(path)
     try:
         return path.relative_to(root)

@@ -25,7 +25,7 @@ on the driver's node (fire and forget: a task never waits for it), which the dri
 
 **Interruption.** Ctrl-C or SIGTERM on the driver: running tasks get ``interrupt_grace`` seconds to end,
 then are cancelled with ``ray.cancel`` (a ``KeyboardInterrupt`` in the task, which
-:func:`~sb3_hddpg.training.training.train_agent` turns into a checkpoint and exit). Those still running
+:func:`~sb3_hddpg.training.agent.train_agent` turns into a checkpoint and exit). Those still running
 ``cancel_grace`` seconds later (blocked in C code, or past the interrupt's reach) are killed with
 ``ray.cancel(force=True)``, with one warning: they resume from their last periodic checkpoint (every write
 is atomic, so a kill mid-write leaves the previous one whole). ``--resume`` then continues from the

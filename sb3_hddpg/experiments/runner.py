@@ -23,7 +23,7 @@ short, so no process idles long).
 
 **Interruption.** Ctrl-C or SIGTERM (turned into ``KeyboardInterrupt`` for the duration) stops the scheduler:
 running jobs get ``interrupt_grace`` seconds to stop on their own (a terminal's Ctrl-C reaches them too), are
-then sent SIGTERM (which :func:`~sb3_hddpg.training.training.train_agent` turns into a checkpoint and exit),
+then sent SIGTERM (which :func:`~sb3_hddpg.training.agent.train_agent` turns into a checkpoint and exit),
 and the interrupt is re-raised once they have left; their checkpoints make the run resumable.
 
 **Failures** are reported per job (the error, its traceback logged once): one failed job does not stop the
@@ -48,7 +48,7 @@ from typing import Any, Protocol
 
 import torch
 
-from sb3_hddpg.training.training import sigterm_as_interrupt
+from sb3_hddpg.training.agent import sigterm_as_interrupt
 
 logger = logging.getLogger(__name__)
 

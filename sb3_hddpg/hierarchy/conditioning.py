@@ -142,7 +142,9 @@ class PreferenceSpace:
         return cls(names, "set", own_total, points)
 
     @classmethod
-    def from_json(cls, data: Any, names: Sequence[str], what: str = "manager_preferences") -> PreferenceSpace:
+    def from_json(
+        cls, data: object, names: Sequence[str], what: str = "manager_preferences"
+    ) -> PreferenceSpace:
         """
         The space a bundle records (:meth:`to_json`), checked like any untrusted value.
 

@@ -16,9 +16,6 @@ A loaded ``Hierarchy`` is a valid worker of a higher :class:`~sb3_hddpg.hierarch
 from __future__ import annotations
 
 import io
-import json
-import zipfile
-import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -28,18 +25,14 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_hddpg.artifacts.io import atomic_write, json_text
+from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.artifacts.limits import (
-    MAX_JSON_BYTES,
     LoadBudget,
     brief,
     check_env_id,
-    check_zip_directory,
-    parse_json,
-    read_member,
 )
-from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes, verify_sha256
-from sb3_hddpg.artifacts.records import BundleManifest, bundle_manifest
+from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes
+from sb3_hddpg.artifacts.records import bundle_manifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.values import check_env_kwargs
@@ -47,9 +40,11 @@ from sb3_hddpg.artifacts.workers import Workers, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
+from sb3_hddpg.envs.layout import StateLayout
+from sb3_hddpg.hierarchy.bundle import MANIFEST, BundleError, model_bytes, read_bundle, write_bundle
 from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.selection import (
-    FrozenWorker,
     OptionEnd,
     SelectionConfig,
     SimplexMap,
@@ -60,13 +55,8 @@ from sb3_hddpg.hierarchy.selection import (
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper, _subset_space, with_preference_space
 from sb3_hddpg.policy import Policy
 
-MANIFEST = "manifest.json"
 #: The shared env of a hierarchy when neither ``env_id`` is given nor the models' training envs tell.
 DEFAULT_ENV_ID = SNAKE_REACH_ENV_ID
-
-
-class BundleError(ValueError):
-    """A bundle that cannot be used: not a zip, truncated, tampered with, or inconsistent."""
 
 
 class Hierarchy:
@@ -169,7 +159,7 @@ class Hierarchy:
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
 
-    def make_env(self, **overrides: Any) -> gym.Env:
+    def make_env(self, **overrides: object) -> gym.Env:
         """
         The shared env this hierarchy acts in: ``gym.make(env_id, **env_kwargs)``.
 
@@ -242,7 +232,7 @@ class Hierarchy:
     def predict(
         self,
         observation: np.ndarray,
-        state: Any = None,
+        state: object = None,
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, None]:
@@ -296,7 +286,7 @@ class Hierarchy:
     def to_bytes(self) -> bytes:
         """The bundle as zip bytes (see :meth:`save`)."""
         members: dict[str, bytes] = {}
-        manager_bytes = _model_bytes(self.manager)
+        manager_bytes = model_bytes(self.manager)
         members["manager.zip"] = manager_bytes
         workers_manifest = {}
         for name, worker in self.workers.items():
@@ -307,7 +297,7 @@ class Hierarchy:
                 meta.update({"kind": "hierarchy"})
             elif isinstance(worker, BaseAlgorithm):
                 member = f"workers/{name}.zip"
-                members[member] = _model_bytes(worker)
+                members[member] = model_bytes(worker)
                 meta.update({"kind": "sb3", "spec": model_spec(worker)})
             else:
                 raise BundleError(
@@ -331,12 +321,7 @@ class Hierarchy:
             workers_manifest,
             library_versions(),
         )
-        buffer = io.BytesIO()
-        with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr(MANIFEST, json_text(manifest, MANIFEST))
-            for member, data in members.items():
-                archive.writestr(member, data)
-        return buffer.getvalue()
+        return write_bundle(manifest, members)
 
     def save(self, path: str | Path) -> Path:
         """Write the bundle to ``path`` atomically (a ``.zip``)."""
@@ -424,63 +409,6 @@ class Hierarchy:
             raise BundleError(f"{name}: invalid settings in {MANIFEST}: {brief(str(error), 300)}") from None
 
 
-def read_bundle(
-    path: str | Path | io.BytesIO, budget: LoadBudget | None = None
-) -> tuple[BundleManifest, dict[str, bytes]]:
-    """
-    Open a bundle and verify it: a readable zip with a manifest of a known schema, every member listed
-    and present, every sha256 matching. Only the members the manifest lists are read, each within the
-    limits of :mod:`sb3_hddpg.artifacts.limits` (size declared and actual, compression ratio, total bytes). Nested
-    bundles are verified when they are loaded.
-
-    :param path: the bundle or its bytes.
-    :param budget: what the read may spend (default: a fresh budget).
-    :return: the manifest and the member bytes by name.
-    """
-    name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
-    budget = budget if budget is not None else LoadBudget()
-    try:
-        with zipfile.ZipFile(path) as archive:
-            names = {info.filename for info in check_zip_directory(archive, name)}
-            if MANIFEST not in names:
-                raise BundleError(f"{name} is not a hierarchy bundle: it has no {MANIFEST}")
-            raw = read_member(archive, MANIFEST, name, limit=MAX_JSON_BYTES, budget=budget)
-            try:
-                manifest = parse_json(raw, f"{name}: {MANIFEST}")
-            except (json.JSONDecodeError, UnicodeDecodeError):
-                raise BundleError(f"{name}: {MANIFEST} is not valid JSON") from None
-            record = BundleManifest.from_json(manifest, name)  # its ValueError: a BundleError below
-            entries = record.member_entries()
-            members = {}
-            for label, entry in entries:
-                member = entry["file"]
-                if member not in names:
-                    raise BundleError(f"{name}: member {member!r} of {label!r} is missing")
-                members[member] = read_member(archive, member, name, budget=budget)
-    except BundleError:
-        raise
-    except FileNotFoundError:
-        raise BundleError(f"No such file: {name!r}") from None
-    except IsADirectoryError:
-        raise BundleError(f"Expected a bundle file, got a folder: {name!r}") from None
-    except (zipfile.BadZipFile, EOFError, zipfile.LargeZipFile, zlib.error, NotImplementedError):
-        raise BundleError(f"Not a zip file, or a truncated or corrupted one: {name!r}") from None
-    except OSError as error:  # permission denied, I/O error
-        raise BundleError(f"Cannot read {name!r}: {error.strerror or error}") from None
-    except ValueError as error:  # over a limit, or a corrupt member
-        raise BundleError(str(error)) from None
-    for _label, entry in entries:
-        verify_sha256(
-            members[entry["file"]],
-            entry["sha256"],
-            entry["file"],
-            where=name,
-            consequence="the bundle was modified or corrupted",
-            error=BundleError,
-        )
-    return record, members
-
-
 def _shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
     """The shared env workers from ``load_workers`` name, if usable."""
     if isinstance(workers, Workers) and workers.env_id is not None:
@@ -489,7 +417,7 @@ def _shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | N
 
 
 def _selection_config(
-    manager: Any, workers: Mapping[str, Policy], config: SelectionConfig | None
+    manager: object, workers: Mapping[str, Policy], config: SelectionConfig | None
 ) -> SelectionConfig:
     """
     The selection settings of a new hierarchy: ``config``, else those of the ``WorkerSelectionWrapper`` the
@@ -505,7 +433,7 @@ def _selection_config(
     return replace(config, worker_states={**carried, **config.worker_states}) if carried else config
 
 
-def _selection_wrapper(manager: Any) -> WorkerSelectionWrapper | None:
+def _selection_wrapper(manager: object) -> WorkerSelectionWrapper | None:
     """The ``WorkerSelectionWrapper`` a manager trains on, if it still has an in-process env."""
     get_env = getattr(manager, "get_env", None)
     vec_env = get_env() if callable(get_env) else None
@@ -517,13 +445,7 @@ def _selection_wrapper(manager: Any) -> WorkerSelectionWrapper | None:
     return None
 
 
-def _model_bytes(model: BaseAlgorithm) -> bytes:
-    buffer = io.BytesIO()
-    model.save(buffer)
-    return buffer.getvalue()
-
-
-def infer_env(manager: Any, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
+def infer_env(manager: object, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
     """
     The env a hierarchy acts in, read from its models: the manager's training env (the env under its
     ``WorkerSelectionWrapper``) if the manager still has one, else the env every worker names, if they all
@@ -545,7 +467,7 @@ def infer_env(manager: Any, workers: Mapping[str, Policy]) -> tuple[str, dict[st
     return None
 
 
-def _training_env(model: Any) -> tuple[str, dict[str, Any]] | None:
+def _training_env(model: object) -> tuple[str, dict[str, Any]] | None:
     """``(env_id, env_kwargs)`` of a model's training env (a hierarchy's own env), if it still has one."""
     if isinstance(model, Hierarchy):
         return model.env_id, dict(model.env_kwargs)
@@ -573,9 +495,9 @@ def check_spaces(
     manager: Any,
     workers: Mapping[str, Policy],
     config: SelectionConfig,
-    observation_space: Any,
-    action_space: Any,
-    layout: Any,
+    observation_space: gym.Space,
+    action_space: gym.Space,
+    layout: StateLayout,
     env_name: str,
 ) -> None:
     """
@@ -587,7 +509,7 @@ def check_spaces(
     :raises ValueError: one line naming the model, the expected and the actual space.
     """
 
-    def subset(components: list[str] | None) -> Any:
+    def subset(components: list[str] | None) -> gym.Space:
         return _subset_space(observation_space, layout.indices(components) if components else None)
 
     manager_action = get_selector(config.selection).action_space(len(workers))

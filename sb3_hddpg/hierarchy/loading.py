@@ -59,7 +59,7 @@ class LoadedPolicy:
     name: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
 
-    def make_env(self, env_id: str | None = None, /, **kwargs: Any) -> gym.Env:
+    def make_env(self, env_id: str | None = None, /, **kwargs: object) -> gym.Env:
         """
         The env to run this policy in (``env_id`` overrides the trained-on id), checked to fit the policy.
 

@@ -1,6 +1,7 @@
 """
 How a manager's action selects workers: the simplex map, the selection settings (:class:`SelectionConfig`), one
-:class:`Selector` per selection mode registered by name, the preference factors, and cheap frozen workers.
+:class:`Selector` per selection mode registered by name, and the preference factors
+(the frozen workers they select are in :mod:`~sb3_hddpg.hierarchy.frozen`).
 
 Shared by :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` (training the manager) and
 :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` (running a trained one), so both select identically.
@@ -8,7 +9,6 @@ Shared by :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` (training
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -16,10 +16,10 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
-import torch
 
 from sb3_hddpg.artifacts.limits import LimitError, brief
-from sb3_hddpg.policy import Policy
+from sb3_hddpg.envs.layout import StateLayout
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
 
 
 @dataclass(frozen=True)
@@ -118,7 +118,7 @@ class Selector:
         """The manager's action space: one value per worker in ``[-1, 1]``, mapped onto the simplex."""
         return gym.spaces.Box(-1.0, 1.0, (n_workers,), dtype=np.float32)
 
-    def probabilities(self, simplex: SimplexMap, action: Any) -> list[float]:
+    def probabilities(self, simplex: SimplexMap, action: object) -> list[float]:
         """
         The worker probabilities of one manager action.
 
@@ -170,7 +170,7 @@ def register_selector(cls: type[Selector]) -> type[Selector]:
     return cls
 
 
-def get_selector(mode: Any) -> Selector:
+def get_selector(mode: object) -> Selector:
     """The registered selector of ``mode``; a ``ValueError`` names the registered modes otherwise."""
     if not isinstance(mode, str) or mode not in SELECTORS:
         raise ValueError(f"Expected `selection` to be one of {list(SELECTORS)}, actually: {mode!r}")
@@ -227,7 +227,7 @@ class DiscreteSelector(Selector):
     def action_space(self, n_workers: int) -> gym.spaces.Space:
         return gym.spaces.Discrete(n_workers)
 
-    def probabilities(self, simplex: SimplexMap, action: Any) -> list[float]:
+    def probabilities(self, simplex: SimplexMap, action: object) -> list[float]:
         chosen = int(np.asarray(action).reshape(-1)[0])
         if not 0 <= chosen < simplex.n_workers:
             raise ValueError(f"Expected a worker index in [0, {simplex.n_workers}), actually: {chosen}")
@@ -284,7 +284,7 @@ class OptionEnd:
         return cls(tuple(edges), touch)
 
     @classmethod
-    def from_json(cls, data: Any, what: str = "option_end") -> OptionEnd:
+    def from_json(cls, data: object, what: str = "option_end") -> OptionEnd:
         """The rule a bundle records (:meth:`to_json`), checked; a ``LimitError`` otherwise."""
         if not isinstance(data, Mapping) or set(data) - {"distance_edges", "goal_touch"}:
             raise LimitError(f"{what}: expected distance_edges and goal_touch, got {brief(data)}")
@@ -300,7 +300,7 @@ class OptionEnd:
         """The rule as a bundle records it (``selection.option_end``)."""
         return {"distance_edges": list(self.distance_edges), "goal_touch": self.goal_touch}
 
-    def bind(self, layout: Any) -> Callable[[np.ndarray], tuple[int, bool]]:
+    def bind(self, layout: StateLayout) -> Callable[[np.ndarray], tuple[int, bool]]:
         """
         The band of a (full) observation: the option ends when it changes.
 
@@ -364,159 +364,6 @@ class SelectionConfig:
     def wrapper_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``WorkerSelectionWrapper`` (besides ``env`` and ``workers``)."""
         return asdict(self)
-
-
-class FrozenWorker:
-    """
-    A worker used for inference only, as cheaply as possible.
-
-    An SB3 actor made of ``Linear`` layers and common activations (DDPG/TD3's ``actor.mu``; SAC/TQC's
-    ``latent_pi`` + ``mu`` + tanh without gSDE) is compiled once into numpy matrix products on copies of
-    its frozen weights: for one observation and these small networks that is about 10x faster than a torch
-    forward call (measured in ``benchmarks/manager_env_speed.py``), and exactly the deterministic action.
-    Any other SB3 policy runs a frozen deep copy of its network under ``torch.no_grad()``, skipping
-    ``predict``'s per-call checks. Either way the caller's model is never modified: it can keep training,
-    and the frozen worker keeps acting with the weights it had when wrapped; anything else (a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`, the HAM switch, a test
-    double) is called through ``predict(obs, deterministic=True)``.
-
-    :param worker: the worker.
-    :param obs_indices: which entries of the shared state the worker sees (``None``: all).
-    """
-
-    def __init__(self, worker: Policy, obs_indices: np.ndarray | None = None) -> None:
-        self.worker = worker
-        self.obs_indices = obs_indices
-        policy = getattr(worker, "policy", None)
-        # A Box-acting SB3 policy is run here; a discrete one (DQN, QR-DQN) acts through predict, whose
-        # integer actions need no scaling.
-        acts_in_box = isinstance(getattr(policy, "action_space", None), gym.spaces.Box)
-        self._policy = policy if acts_in_box and hasattr(policy, "_predict") else None
-        self._layers: (
-            list[tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray] | None]] | None
-        ) = None
-        if self._policy is not None:
-            space = self._policy.action_space
-            self._squash = bool(getattr(self._policy, "squash_output", False))
-            self._low = space.low.astype(np.float32)
-            self._half_range = ((space.high - space.low) / 2.0).astype(np.float32)
-            # Unscaling to [-1, 1] (the snake's action space) is the identity: skip it.
-            self._squash = self._squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
-            # A Gaussian policy without a squashing tanh (PPO) is clipped to the bounds, as SB3's predict does.
-            self._clip = not getattr(self._policy, "squash_output", False)
-            # Freeze copies, never the caller's model: the numpy layers copy the weights, and the torch
-            # path runs a frozen deep copy, so the worker (or manager) can go on training elsewhere.
-            self._layers = _compile_actor(self._policy)
-            if self._layers is None:
-                self._policy = _frozen_copy(self._policy)
-                self._policy.set_training_mode(False)
-                for parameter in self._policy.parameters():
-                    parameter.requires_grad_(False)
-        if self._layers is not None:
-            self.act: Callable[[np.ndarray], np.ndarray] = self._act_numpy
-        elif self._policy is not None:
-            self.act = self._act_torch
-        else:
-            self.act = self._act_predict
-
-    def _select(self, obs: np.ndarray) -> np.ndarray:
-        return obs if self.obs_indices is None else obs[..., self.obs_indices]
-
-    def _unscale(self, action: np.ndarray) -> np.ndarray:
-        # The actor outputs [-1, 1]; map to the action space as SB3's unscale_action does.
-        if self._clip:
-            return np.clip(action, self._low, self._low + 2.0 * self._half_range)
-        return self._low + (action + 1.0) * self._half_range if self._squash else action
-
-    def _act_numpy(self, obs: np.ndarray) -> np.ndarray:
-        x = self._select(obs).astype(np.float32, copy=False)
-        for weight, bias, activation in self._layers:  # type: ignore[union-attr]
-            x = np.dot(x, weight)
-            x += bias  # in place: one temporary less per layer
-            if activation is not None:
-                x = activation(x)
-        return self._unscale(x)
-
-    def _act_torch(self, obs: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            tensor = torch.as_tensor(self._select(obs), dtype=torch.float32)
-            action = self._policy._predict(tensor.reshape(-1, tensor.shape[-1]), deterministic=True)  # type: ignore[union-attr]
-        return self._unscale(action.numpy().reshape(*obs.shape[:-1], -1))
-
-    def _act_predict(self, obs: np.ndarray) -> np.ndarray:
-        action, _ = self.worker.predict(self._select(obs), deterministic=True)
-        action = np.asarray(action)
-        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
-
-    def reset_episode(self) -> None:
-        """Forward an episode start to a stateful worker (e.g. a nested hierarchy with options)."""
-        reset = getattr(self.worker, "reset_episode", None)
-        if reset is not None:
-            reset()
-
-
-def _frozen_copy(policy: Any) -> Any:
-    """
-    A copy of an SB3 policy with the same weights, built the way ``BasePolicy.load`` builds one (from its
-    constructor parameters): ``copy.deepcopy`` fails on policies holding non-leaf tensors (gSDE's noise).
-    """
-    try:
-        clone = type(policy)(**policy._get_constructor_parameters()).to(policy.device)
-        clone.load_state_dict(policy.state_dict())
-    except (TypeError, AttributeError, RuntimeError):  # not an SB3 BasePolicy after all
-        return copy.deepcopy(policy)
-    return clone
-
-
-def _leaky_relu(module: torch.nn.Module) -> Callable[[np.ndarray], np.ndarray]:
-    # The table below is keyed by the module's class, so this is a LeakyReLU; the check tells the type checker.
-    if not isinstance(module, torch.nn.LeakyReLU):
-        raise TypeError(f"Expected a LeakyReLU, actually: {module!r}")
-    slope = module.negative_slope
-    return lambda x: np.where(x > 0, x, slope * x)
-
-
-#: numpy versions of the activations an actor may use; others fall back to torch.
-_NUMPY_ACTIVATIONS: dict[type, Callable[[torch.nn.Module], Callable[[np.ndarray], np.ndarray]]] = {
-    # Activations get a fresh layer output, so ReLU and tanh may work in place.
-    torch.nn.ReLU: lambda m: lambda x: np.maximum(x, 0.0, out=x),
-    torch.nn.Tanh: lambda m: lambda x: np.tanh(x, out=x),
-    torch.nn.ELU: lambda m: lambda x: np.where(x > 0, x, m.alpha * np.expm1(np.minimum(x, 0.0))),
-    torch.nn.LeakyReLU: _leaky_relu,
-    torch.nn.Sigmoid: lambda m: lambda x: 1.0 / (1.0 + np.exp(-x)),
-    torch.nn.SiLU: lambda m: lambda x: x / (1.0 + np.exp(-x)),
-}
-
-
-def _compile_actor(policy: Any) -> list[tuple[np.ndarray, np.ndarray, Any]] | None:
-    """The actor's deterministic forward pass as numpy layers, or ``None`` if it has parts we do not mirror."""
-    actor = getattr(policy, "actor", None)
-    extractor = getattr(actor, "features_extractor", None)
-    if actor is None or type(extractor).__name__ != "FlattenExtractor":
-        return None
-    if isinstance(getattr(actor, "mu", None), torch.nn.Sequential):  # DDPG / TD3
-        modules = list(actor.mu)
-    elif (
-        hasattr(actor, "latent_pi")
-        and isinstance(actor.mu, torch.nn.Linear)
-        and not getattr(actor, "use_sde", True)
-    ):
-        modules = [*actor.latent_pi, actor.mu, torch.nn.Tanh()]  # SAC / TQC: deterministic = tanh(mean)
-    else:
-        return None
-    layers: list[tuple[np.ndarray, np.ndarray, Any]] = []
-    for module in modules:
-        if isinstance(module, torch.nn.Linear):
-            weight = module.weight.detach().cpu().numpy().T.copy()
-            bias = (
-                module.bias.detach().cpu().numpy() if module.bias is not None else np.zeros(weight.shape[1])
-            ).copy()
-            layers.append((weight.astype(np.float32), bias.astype(np.float32), None))
-        elif type(module) in _NUMPY_ACTIVATIONS and layers and layers[-1][2] is None:
-            weight, bias, _ = layers[-1]
-            layers[-1] = (weight, bias, _NUMPY_ACTIVATIONS[type(module)](module))
-        else:
-            return None
-    return layers
 
 
 def preferences_from_bias(
@@ -594,7 +441,7 @@ SELECTION_SETTINGS = (
 )
 
 
-def check_selection_settings(selection: Any, names: Sequence[str], what: str) -> dict[str, Any]:
+def check_selection_settings(selection: object, names: Sequence[str], what: str) -> dict[str, Any]:
     """
     A bundle's selection settings (``SelectionConfig``'s fields), each checked for type and range, so that
     a file's ``temperature: "abc"`` or ``option_steps: -3`` is refused by name instead of failing later.
@@ -647,7 +494,7 @@ def _check_recorded_rules(out: dict[str, Any], what: str) -> None:
         out["option_end"] = OptionEnd.from_json(out["option_end"], f"{what}.option_end").to_json()
 
 
-def _check_number_in_range(value: Any, what: str, low: float, high: float, low_open: bool) -> None:
+def _check_number_in_range(value: object, what: str, low: float, high: float, low_open: bool) -> None:
     """A finite number in ``[low, high]`` (``(low, high]`` when ``low_open``), else a ``LimitError``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise LimitError(f"{what}: expected a finite number, got {brief(value)}")
@@ -656,7 +503,7 @@ def _check_number_in_range(value: Any, what: str, low: float, high: float, low_o
         raise LimitError(f"{what}: expected a number in {bracket}{low}, {high}], got {value!r}")
 
 
-def _check_preference_factors(preferences: Any, names: Sequence[str], what: str) -> None:
+def _check_preference_factors(preferences: object, names: Sequence[str], what: str) -> None:
     """A bundle's preference factors: worker name -> a number in (0, 1e6)."""
     if not isinstance(preferences, Mapping) or set(preferences) - set(names):
         raise LimitError(f"{what}: expected worker name -> factor, got {brief(preferences)}")

@@ -12,13 +12,14 @@ from gymnasium import spaces
 from stable_baselines3.common.utils import check_for_correct_spaces
 
 from sb3_hddpg.artifacts.workers import states_of
-from sb3_hddpg.envs.contract import env_contract, mix_terms, state_layout_of
+from sb3_hddpg.envs.contract import RewardTermsEnv, env_contract, mix_terms, state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.selection import (
-    FrozenWorker,
     OptionEnd,
     SelectionConfig,
+    Selector,
     SimplexMap,
     check_preferences,
     get_selector,
@@ -119,22 +120,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         # gymnasium's generic Wrapper.__init__ text.
         pairs = list(workers.items()) if isinstance(workers, Mapping) else list(workers)
         names = [name for name, _ in pairs]
-        if len(names) < 2:
-            raise ValueError(f"Expected at least 2 workers, actually: {len(names)} ({names})")
-        duplicates = sorted({n for n in names if names.count(n) > 1})
-        if duplicates:
-            raise ValueError(f"Expected unique worker names, actually duplicated: {duplicates}")
-        selector = get_selector(selection)
-        if (
-            isinstance(option_steps, bool)
-            or not isinstance(option_steps, (int, np.integer))
-            or option_steps < 1
-        ):
-            raise ValueError(f"Expected `option_steps` to be an integer >= 1, actually: {option_steps!r}")
-        if not 0.0 < option_gamma <= 1.0:
-            raise ValueError(f"Expected `option_gamma` in (0, 1], actually: {option_gamma}")
+        selector = _checked_settings(names, selection, option_steps, option_gamma)
         super().__init__(env)
-
         contract = env_contract(env)
         self.layout = state_layout_of(env)
         self.worker_names = names
@@ -147,6 +134,20 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             option_end = OptionEnd.from_json(option_end)
         self.option_end: OptionEnd | None = option_end
         self._band = option_end.bind(self.layout) if option_end is not None else None
+        self._set_preferences(preferences, manager_preferences)
+        self._set_states(workers, manager_state, worker_states)
+        self._set_workers(pairs, reward_terms, contract)
+        self._rng = np.random.default_rng()
+        self._preference_rng = np.random.default_rng()
+        self._last_obs: np.ndarray | None = None
+
+    def _set_preferences(
+        self,
+        preferences: Mapping[str, float] | None,
+        manager_preferences: PreferenceSpace | Mapping[str, Any] | None,
+    ) -> None:
+        """The preference factors, and the space a conditioned manager's preference is drawn from."""
+        names = self.worker_names
         if manager_preferences is not None and not isinstance(manager_preferences, PreferenceSpace):
             manager_preferences = PreferenceSpace.from_json(manager_preferences, names)
         if manager_preferences is not None and list(manager_preferences.names) != names:
@@ -160,32 +161,51 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         #: Whether every reset draws a new preference (a conditioned manager in training).
         self.sample_preferences = self.preference_space is not None
 
+    def _set_states(
+        self,
+        workers: Mapping[str, Policy] | Sequence[tuple[str, Policy]],
+        manager_state: Sequence[str] | None,
+        worker_states: Mapping[str, Sequence[str]] | None,
+    ) -> None:
+        """The state components the manager and each worker see (the components workers carry by default),
+        and the spaces the manager acts in."""
+        names = self.worker_names
         carried = states_of(workers) if isinstance(workers, Mapping) else {}
-        worker_states = {**{n: v for n, v in carried.items() if n in names}, **dict(worker_states or {})}
-        unknown_state_owners = sorted(set(worker_states) - set(names))
+        states = {**{n: v for n, v in carried.items() if n in names}, **dict(worker_states or {})}
+        unknown_state_owners = sorted(set(states) - set(names))
         if unknown_state_owners:
             raise ValueError(f"worker_states names unknown workers {unknown_state_owners}; workers: {names}")
         self.manager_state = list(manager_state) if manager_state is not None else None
-        self.worker_states = {name: list(worker_states[name]) for name in worker_states}
+        self.worker_states = {name: list(states[name]) for name in states}
         self._manager_indices = (
             self.layout.indices(self.manager_state) if self.manager_state is not None else None
         )
-        self.observation_space = _subset_space(env.observation_space, self._manager_indices)
+        self.observation_space = _subset_space(self.env.observation_space, self._manager_indices)
         if self.preference_space is not None:
             self.observation_space = with_preference_space(self.observation_space, len(names))
-        self.action_space = selector.action_space(len(names))
+        self.action_space = self.selector.action_space(len(names))
 
+    def _set_workers(
+        self,
+        pairs: list[tuple[str, Policy]],
+        reward_terms: Mapping[str, RewardSpec] | None,
+        contract: RewardTermsEnv,
+    ) -> None:
+        """The workers, each checked against the env's spaces and frozen, and the reward terms each stands for."""
         known_terms = list(contract.reward_bounds)
-        reward_terms = dict(reward_terms or {})
-        self.reward_terms = reward_terms
+        self.reward_terms = dict(reward_terms or {})
         self.reward_specs: dict[str, dict[str, float]] = {}
         self.frozen: list[FrozenWorker] = []
         for name, worker in pairs:
             indices = self.layout.indices(self.worker_states[name]) if name in self.worker_states else None
             _check_worker_spaces(
-                name, worker, _subset_space(env.observation_space, indices), env.action_space, self.layout
+                name,
+                worker,
+                _subset_space(self.env.observation_space, indices),
+                self.env.action_space,
+                self.layout,
             )
-            spec = reward_terms.get(name, getattr(worker, "reward_spec", name))
+            spec = self.reward_terms.get(name, getattr(worker, "reward_spec", name))
             self.reward_specs[name] = _term_weights(name, spec, known_terms)
             self.frozen.append(FrozenWorker(worker, indices))
         self.workers = dict(pairs)
@@ -197,11 +217,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         # Each worker's own reward per term, for the per-worker rewards a relabelling buffer needs.
         self._worker_coefficients = [
             [(term, spec.get(term, 0.0)) for term in known_terms if spec.get(term, 0.0)]
-            for spec in (self.reward_specs[name] for name in names)
+            for spec in (self.reward_specs[name] for name in self.worker_names)
         ]
-        self._rng = np.random.default_rng()
-        self._preference_rng = np.random.default_rng()
-        self._last_obs: np.ndarray | None = None
 
     # The arguments are documented once, on the class.
     __init__.__doc__ = __doc__
@@ -361,7 +378,7 @@ def with_preference_space(space: gym.Space, n_workers: int) -> spaces.Box:
 
 
 def _check_worker_spaces(
-    name: str, worker: Any, observation_space: gym.Space, action_space: gym.Space, layout: StateLayout
+    name: str, worker: object, observation_space: gym.Space, action_space: gym.Space, layout: StateLayout
 ) -> None:
     """
     SB3's own check (``Observation spaces do not match: A != B``) for workers that declare spaces; a worker
@@ -401,3 +418,22 @@ def _term_weights(name: str, spec: RewardSpec, known_terms: list[str]) -> dict[s
         )
     # Normalise the weights so that a mixed term, like a single one, stays in [0, 1].
     return {term: w / total for term, w in weights.items()}
+
+
+def _checked_settings(names: list[str], selection: str, option_steps: int, option_gamma: float) -> Selector:
+    """
+    Check the worker names (at least two, each once) and the option settings before the env is wrapped.
+
+    :return: the selection mode's selector.
+    """
+    if len(names) < 2:
+        raise ValueError(f"Expected at least 2 workers, actually: {len(names)} ({names})")
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f"Expected unique worker names, actually duplicated: {duplicates}")
+    selector = get_selector(selection)
+    if isinstance(option_steps, bool) or not isinstance(option_steps, (int, np.integer)) or option_steps < 1:
+        raise ValueError(f"Expected `option_steps` to be an integer >= 1, actually: {option_steps!r}")
+    if not 0.0 < option_gamma <= 1.0:
+        raise ValueError(f"Expected `option_gamma` in (0, 1], actually: {option_gamma}")
+    return selector

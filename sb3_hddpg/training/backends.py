@@ -63,7 +63,7 @@ def sbx_installed() -> bool:
     return all(importlib.util.find_spec(name) is not None for name in ("sbx", "jax", "flax", "optax"))
 
 
-def check_backend(name: Any) -> str:
+def check_backend(name: object) -> str:
     """
     Validate a backend name and that it can run here.
 
@@ -197,7 +197,7 @@ def _scheduled_sbx_class(base: Any) -> type:
     return type(base.__name__, (base,), {"train": train, "__module__": base.__module__})
 
 
-def scheduled_adam(learning_rate: float, **kwargs: Any) -> Any:
+def scheduled_adam(learning_rate: float, **kwargs: object) -> Any:
     """
     optax's Adam with its learning rate in the optimiser state, so that a schedule can set it. A function
     of this module, so that a saved model refers to it by name (SBX pickles ``policy_kwargs``): a reloaded
@@ -208,12 +208,12 @@ def scheduled_adam(learning_rate: float, **kwargs: Any) -> Any:
     return optax.inject_hyperparams(optax.adam)(learning_rate=learning_rate, **kwargs)
 
 
-def is_sbx_model(model: Any) -> bool:
+def is_sbx_model(model: object) -> bool:
     """Whether ``model`` is an SBX (JAX) model rather than an SB3 one."""
     return type(model).__module__.split(".")[0] == "sbx"
 
 
-def _sbx_record(model: Any) -> Algorithm:
+def _sbx_record(model: object) -> Algorithm:
     import sbx  # lazily: optional, and jax is slow to import (only SBX models get here)
 
     # isinstance, the most derived class winning (SBX's DDPG is a TD3): a model under the action penalty is a
@@ -247,14 +247,14 @@ def _activation_pairs() -> list[tuple[type[th.nn.Module], Any]]:
     ]
 
 
-def _to_flax_activation(activation: Any) -> Any:
+def _to_flax_activation(activation: object) -> Any:
     for torch_cls, flax_fn in _activation_pairs():
         if activation is torch_cls:
             return flax_fn
     raise BackendError(f"The sbx backend has no JAX counterpart of activation_fn {activation!r}")
 
 
-def _to_torch_activation(activation: Any) -> type[th.nn.Module]:
+def _to_torch_activation(activation: object) -> type[th.nn.Module]:
     for torch_cls, flax_fn in _activation_pairs():
         if activation is flax_fn or (
             getattr(activation, "func", None) is getattr(flax_fn, "func", flax_fn)

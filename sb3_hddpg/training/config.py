@@ -385,7 +385,7 @@ def _check_replay_buffer(block: dict[str, Any], source: str) -> None:
         )
 
 
-def _buffer_size(buffer_size: Any, source: str) -> Any:
+def _buffer_size(buffer_size: object, source: str) -> Any:
     """``buffer_size`` as an integer (RL Zoo writes ``1e6``), bounded before SB3 allocates it."""
     if isinstance(buffer_size, float) and buffer_size.is_integer():
         buffer_size = int(buffer_size)
@@ -398,7 +398,7 @@ def _buffer_size(buffer_size: Any, source: str) -> Any:
     return buffer_size
 
 
-def _parse_callbacks(value: Any, source: str) -> dict[str, float]:
+def _parse_callbacks(value: object, source: str) -> dict[str, float]:
     """
     RL Zoo's ``callback`` key (a class path, or a list of paths or ``{path: kwargs}``), restricted to
     :data:`CALLBACKS`: the settings they carry, e.g. ``{"action_l2": 0.1}`` (and ``action_l2_margin``
@@ -455,7 +455,7 @@ def load_hyperparams(
 
 
 def agent_kwargs(
-    key: str, env: Any, config: str | Path | None = None, algo_class: type | None = None
+    key: str, env: object, config: str | Path | None = None, algo_class: type | None = None
 ) -> dict[str, Any]:
     """
     The project's hyperparameters for one agent, as keyword arguments of the algorithm's constructor, so
@@ -559,7 +559,7 @@ def _safe_value(node: ast.AST, text: str, source: str) -> Any:
     )
 
 
-def _check_network_size(policy_kwargs: Any, algo: str, source: str) -> None:
+def _check_network_size(policy_kwargs: object, algo: str, source: str) -> None:
     """
     Refuse networks too large to build (``[65536, 65536]`` is 17 GB) before SB3 allocates them: the one
     check of :func:`~sb3_hddpg.artifacts.limits.check_network_size`, as this file's kind of error.

@@ -199,7 +199,7 @@ def _loss(network: Any, obs: th.Tensor, target: th.Tensor, corners: th.Tensor, d
     return margin + th.nn.functional.cross_entropy(q_values, target)
 
 
-def _copy_targets(policy: Any, discrete: bool) -> None:
+def _copy_targets(policy: object, discrete: bool) -> None:
     pairs = [("q_net", "q_net_target")] if discrete else [("actor", "actor_target")]
     for source, target in pairs:
         if hasattr(policy, source) and getattr(policy, target, None) is not None:
@@ -210,7 +210,7 @@ def ham_start_hook(
     start: HamStart, env_factory: Callable[[], gym.Env], seed: int, report: dict[str, Any]
 ) -> Callable[[BaseAlgorithm], None]:
     """
-    The function :func:`~sb3_hddpg.training.training.train_agent` calls on a fresh manager: collect HAM's
+    The function :func:`~sb3_hddpg.training.agent.train_agent` calls on a fresh manager: collect HAM's
     decisions, fill the replay buffer and fit the network; ``report`` gets the settings and the agreement.
     """
 

@@ -1,6 +1,6 @@
 """
 How a training run is run, as opposed to what it trains: the one home of the run-control settings that
-:func:`~sb3_hddpg.training.training.train_agent`, ``train_workers``, ``train_manager`` and ``train_flat``
+:func:`~sb3_hddpg.training.agent.train_agent`, ``train_workers``, ``train_manager`` and ``train_flat``
 share (budget, seed, envs, resume, evaluation, checkpoints, threads, backend).
 """
 

@@ -41,7 +41,9 @@ from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.config import MANAGER_KEY
-from sb3_hddpg.training.training import FLAT_ENV_ID, manager_hyperparams, train_manager
+from sb3_hddpg.training.flat import FLAT_ENV_ID
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.manager_setup import manager_hyperparams
 
 #: The preferences every front is swept over: goal:avoid 4:1, 3:1, 2:1, 1:1, 1:2, 1:3, 1:4 at sum 2.
 SWEEP = PreferenceSpace.parse("ratio-sweep", ["goal", "avoid"])

@@ -29,14 +29,9 @@ from sb3_hddpg.experiments.benchmark.method_inputs import MethodSettings, Method
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.config import MANAGER_KEY
-from sb3_hddpg.training.training import (
-    FLAT_ENV_ID,
-    FLAT_HER_KEY,
-    flat_hyperparams,
-    manager_hyperparams,
-    train_flat,
-    train_manager,
-)
+from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, flat_hyperparams, train_flat
+from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.manager_setup import manager_hyperparams
 
 #: The pseudo-method of a seed's two workers, which the methods that need them depend on.
 WORKERS = "workers"

@@ -7,13 +7,14 @@ statistics and the report.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import math
 import os
 import platform
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
@@ -36,8 +37,8 @@ from sb3_hddpg.experiments.benchmark.report import write_outputs
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
 from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compute_results
 from sb3_hddpg.experiments.executors import make_executor
-from sb3_hddpg.experiments.runner import Job, run_jobs
-from sb3_hddpg.training.training import train_workers, worker_hyperparams
+from sb3_hddpg.experiments.runner import Executor, Job, RunOutcome, run_jobs
+from sb3_hddpg.training.workers import train_workers, worker_hyperparams
 
 
 def seed_dir(out: Path, seed: int) -> Path:
@@ -427,24 +428,72 @@ def run_benchmark(
     out = Path(out)
     notify = on_event or (lambda kind, task, record: None)
     settings_path = out / "benchmark.json"
-    stored = asdict(settings)
     redo = check_redo(settings, redo, resume)
     saved = read_json_file(settings_path) if resume and settings_path.exists() else None
     if saved is not None:
-        changed = _changed_settings(settings, saved, redo)
-        if changed:
-            raise ValueError(
-                f"Cannot resume {str(out)!r} with different settings ({', '.join(changed)} changed); "
-                "run with the same options, or use --force to start over"
-                + "".join(
-                    f"; {key} is read only by {', '.join(owners)}: add --redo {','.join(owners)}"
-                    for key in changed
-                    if (owners := _owners(key, settings, saved))
-                )
-            )
+        _check_same_settings(settings, saved, redo, out)
     check_workers_source(settings)
-
     tasks = plan_tasks(settings)
+    records = _kept_records(settings, tasks, out, resume, redo)
+    for task, record in records.items():
+        notify("skip", task, record)
+    header = {
+        "settings": asdict(settings),
+        "budgets": {"manager_env_steps": settings.manager_env_steps},
+        "machine": machine_info(),
+    }
+    # Every invocation's wall time, so that a benchmark resumed several times still says what it took.
+    previous_invocations = (saved or {}).get("invocations")
+    invocations = list(previous_invocations) if isinstance(previous_invocations, list) else []
+    atomic_write_json(settings_path, {**header, "invocations": invocations})
+    by_label = {task.label: task for task in tasks}
+    outcome, wall = _run_pending(
+        settings,
+        tasks,
+        records,
+        out,
+        functools.partial(make_executor, n_jobs, ray_address=ray_address),
+        notify,
+        header,
+        invocations,
+    )
+    records.update({by_label[label]: record for label, record in outcome.results.items()})
+    failed = {by_label[label]: outcome.failure_message(label) for label in outcome.failures}
+    results = compute_results(settings, [records[t] for t in tasks if t in records])
+    results["wall_time_s_this_invocation"] = wall
+    results["wall_time_s_all_invocations"] = sum(float(i.get("wall_time_s", 0.0)) for i in invocations)
+    results["invocations"] = len(invocations)
+    results["failures"] = {t.label: message for t, message in failed.items()}
+    results["machine"] = machine_info()
+    write_outputs(out, results, [records[t] for t in tasks if t in records])
+    return results
+
+
+def _check_same_settings(
+    settings: BenchmarkSettings, saved: dict[str, Any], redo: Sequence[str], out: Path
+) -> None:
+    """Refuse to resume ``out`` with other settings than it was started with, naming them (and the --redo that
+    would allow a change that only some methods read)."""
+    changed = _changed_settings(settings, saved, redo)
+    if changed:
+        raise ValueError(
+            f"Cannot resume {str(out)!r} with different settings ({', '.join(changed)} changed); "
+            "run with the same options, or use --force to start over"
+            + "".join(
+                f"; {key} is read only by {', '.join(owners)}: add --redo {','.join(owners)}"
+                for key in changed
+                if (owners := _owners(key, settings, saved))
+            )
+        )
+
+
+def _kept_records(
+    settings: BenchmarkSettings, tasks: Sequence[Task], out: Path, resume: bool, redo: Sequence[str]
+) -> dict[Task, dict[str, Any]]:
+    """
+    The finished runs a resumed benchmark keeps: their records, checked against this run's episode sets and
+    config blocks; the runs of the ``redo`` methods are set aside instead.
+    """
     records: dict[Task, dict[str, Any]] = {}
     for task in tasks:
         record = read_record(out, task) if resume else None
@@ -455,33 +504,47 @@ def run_benchmark(
     check_episode_sets(settings, [r for t, r in records.items() if t not in redone])
     stale = {t: blocks for t, blocks in _stale_runs(settings, records).items() if t not in redone}
     if stale:
-        changed_blocks = ", ".join(sorted({b for blocks in stale.values() for b in blocks}))
-        if any(t.spec is None for t in stale):
-            raise ValueError(
-                f"Cannot resume {str(out)!r}: the workers' config blocks changed since they were trained "
-                f"({changed_blocks}); every run of their seed is built on them: start a new benchmark folder "
-                "(or --force)"
-            )
-        methods = sorted({t.spec.name for t in stale if t.spec is not None})
-        raise ValueError(
-            f"Cannot resume {str(out)!r}: the config blocks of {', '.join(t.label for t in stale)} changed since "
-            f"they ran ({changed_blocks}); run them again with --redo {','.join(methods)} (the old runs are "
-            "kept aside), or start over with --force"
-        )
+        _refuse_stale(stale, out)
     if redone:
         _set_aside(out, redone)
         records = {t: r for t, r in records.items() if t not in redone}
-    for task, record in records.items():
-        notify("skip", task, record)
-    header = {
-        "settings": stored,
-        "budgets": {"manager_env_steps": settings.manager_env_steps},
-        "machine": machine_info(),
-    }
-    # Every invocation's wall time, so that a benchmark resumed several times still says what it took.
-    previous_invocations = (saved or {}).get("invocations")
-    invocations = list(previous_invocations) if isinstance(previous_invocations, list) else []
-    atomic_write_json(settings_path, {**header, "invocations": invocations})
+    return records
+
+
+def _refuse_stale(stale: Mapping[Task, Sequence[str]], out: Path) -> None:
+    """Refuse kept runs whose config blocks changed since they ran, saying how to run them again."""
+    changed_blocks = ", ".join(sorted({b for blocks in stale.values() for b in blocks}))
+    if any(t.spec is None for t in stale):
+        raise ValueError(
+            f"Cannot resume {str(out)!r}: the workers' config blocks changed since they were trained "
+            f"({changed_blocks}); every run of their seed is built on them: start a new benchmark folder "
+            "(or --force)"
+        )
+    methods = sorted({t.spec.name for t in stale if t.spec is not None})
+    raise ValueError(
+        f"Cannot resume {str(out)!r}: the config blocks of {', '.join(t.label for t in stale)} changed since "
+        f"they ran ({changed_blocks}); run them again with --redo {','.join(methods)} (the old runs are "
+        "kept aside), or start over with --force"
+    )
+
+
+def _run_pending(
+    settings: BenchmarkSettings,
+    tasks: Sequence[Task],
+    records: Mapping[Task, dict[str, Any]],
+    out: Path,
+    executor: Callable[[], Executor],
+    notify: Callable[[str, Task, dict[str, Any] | None], None],
+    header: dict[str, Any],
+    invocations: list[dict[str, Any]],
+) -> tuple[RunOutcome, float]:
+    """
+    Run every task without a kept record, and add this invocation (its wall time, even when interrupted) to
+    ``benchmark.json``.
+
+    :param executor: makes the executor the tasks run on.
+    :return: the runner's outcome and this invocation's wall time.
+    """
     started_at = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     start = time.perf_counter()
     by_label = {task.label: task for task in tasks}
@@ -491,7 +554,7 @@ def run_benchmark(
     try:
         outcome = run_jobs(
             [replace(job, after=tuple(d for d in job.after if d not in kept)) for job in jobs],
-            make_executor(n_jobs, ray_address=ray_address),
+            executor(),
             on_event=lambda kind, job, value: notify(
                 kind, by_label[job.key], value if kind == "done" else None
             ),
@@ -509,17 +572,8 @@ def run_benchmark(
                 "interrupted": outcome is None,
             }
         )
-        atomic_write_json(settings_path, {**header, "invocations": invocations})
-    records.update({by_label[label]: record for label, record in outcome.results.items()})
-    failed = {by_label[label]: outcome.failure_message(label) for label in outcome.failures}
-    results = compute_results(settings, [records[t] for t in tasks if t in records])
-    results["wall_time_s_this_invocation"] = wall
-    results["wall_time_s_all_invocations"] = sum(float(i.get("wall_time_s", 0.0)) for i in invocations)
-    results["invocations"] = len(invocations)
-    results["failures"] = {t.label: message for t, message in failed.items()}
-    results["machine"] = machine_info()
-    write_outputs(out, results, [records[t] for t in tasks if t in records])
-    return results
+        atomic_write_json(out / "benchmark.json", {**header, "invocations": invocations})
+    return outcome, wall
 
 
 def machine_info() -> dict[str, Any]:

@@ -36,7 +36,7 @@ from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import check_algo, check_backend
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
 from sb3_hddpg.training.run_options import RunOptions
-from sb3_hddpg.training.training import worker_hyperparams
+from sb3_hddpg.training.workers import worker_hyperparams
 
 
 @functools.cache

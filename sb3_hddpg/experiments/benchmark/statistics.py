@@ -172,43 +172,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     methods: dict[str, Any] = {}
     per_seed: dict[str, dict[int, dict[str, float]]] = {}
     for method in [m for m in settings.method_keys if m in by_method]:
-        runs = by_method[method]
-        seeds = sorted(runs)
-        values: dict[int, dict[str, float]] = {}
-        for seed in seeds:
-            run = runs[seed]
-            values[seed] = test_values(run)
-            values[seed].update(curve_statistics(run["history"], window))
-            values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
-        per_seed[method] = values
-        stats = {
-            key: summarise([values[s][key] for s in seeds])
-            for key in (*FINAL_METRICS, "curve_mean", "slope", "final_curve_reward")
-            if all(key in values[s] for s in seeds)
-        }
-        selection = [
-            runs[s]["test"].get("selection_rate") for s in seeds if runs[s]["test"].get("selection_rate")
-        ]
-        methods[method] = {
-            "seeds": seeds,
-            "per_seed": {str(s): values[s] for s in seeds},
-            "stats": stats,
-            "worker_timesteps": int(np.mean([runs[s]["worker_timesteps"] for s in seeds])),
-            "own_timesteps": int(max(runs[seeds[0]]["history"][-1]["timesteps"], 0)),
-        }
-        if selection:
-            methods[method]["selection_rate"] = {
-                name: float(np.mean([rates.get(name, 0.0) for rates in selection]))
-                for name in sorted(set().union(*selection))
-            }
-        # Per seed: does the hierarchy's choice depend on the state?
-        dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
-        if any(figure is not None for figure in dependence.values()):
-            methods[method]["state_dependence"] = dependence
-        # On highway-env: each worker's share of the decisions with a car close ahead and the road clear.
-        by_ttc = {str(s): runs[s]["decisions_by_ttc"] for s in seeds if runs[s].get("decisions_by_ttc")}
-        if by_ttc:
-            methods[method]["decisions_by_ttc"] = by_ttc
+        methods[method], per_seed[method] = method_statistics(by_method[method], window)
     # A paired interval needs two pairs at least: with one seed there is no comparison to report.
     pairs = [
         (a, b)
@@ -217,15 +181,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     ]
     comparisons = {f"{a} vs {b}": compare(per_seed[a], per_seed[b]) for a, b in pairs}
     families = adjust_for_comparisons(comparisons)
-    workers = {}
-    for name in ("goal", "avoid"):
-        finals = [
-            with_term_sums(r["workers"][name]["metrics"])["mean_reach_reward"]
-            for r in worker_records.values()
-            if name in r["workers"]
-        ]
-        if finals:
-            workers[name] = {"validation_mean_reach_reward": summarise(finals)}
+    workers = worker_statistics(worker_records.values())
     results: dict[str, Any] = {
         "settings": asdict(settings),
         "scenario": settings.scenario,
@@ -255,6 +211,69 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     if FRONT_METHOD in by_method:
         results["front"] = front_results(by_method[FRONT_METHOD])
     return results
+
+
+def method_statistics(
+    runs: dict[int, dict[str, Any]], window: int
+) -> tuple[dict[str, Any], dict[int, dict[str, float]]]:
+    """
+    One method's seed statistics: its final test metrics, learning curve and selections over its seeds.
+
+    :param runs: seed -> the method's finished record.
+    :param window: the last own step of the curves counted (the same for every method).
+    :return: the method's results, and seed -> its values (for the paired comparisons).
+    """
+    seeds = sorted(runs)
+    values: dict[int, dict[str, float]] = {}
+    for seed in seeds:
+        run = runs[seed]
+        values[seed] = test_values(run)
+        values[seed].update(curve_statistics(run["history"], window))
+        values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
+    stats = {
+        key: summarise([values[s][key] for s in seeds])
+        for key in (*FINAL_METRICS, "curve_mean", "slope", "final_curve_reward")
+        if all(key in values[s] for s in seeds)
+    }
+    selection = [
+        runs[s]["test"].get("selection_rate") for s in seeds if runs[s]["test"].get("selection_rate")
+    ]
+    result: dict[str, Any] = {
+        "seeds": seeds,
+        "per_seed": {str(s): values[s] for s in seeds},
+        "stats": stats,
+        "worker_timesteps": int(np.mean([runs[s]["worker_timesteps"] for s in seeds])),
+        "own_timesteps": int(max(runs[seeds[0]]["history"][-1]["timesteps"], 0)),
+    }
+    if selection:
+        result["selection_rate"] = {
+            name: float(np.mean([rates.get(name, 0.0) for rates in selection]))
+            for name in sorted(set().union(*selection))
+        }
+    # Per seed: does the hierarchy's choice depend on the state?
+    dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
+    if any(figure is not None for figure in dependence.values()):
+        result["state_dependence"] = dependence
+    # On highway-env: each worker's share of the decisions with a car close ahead and the road clear.
+    by_ttc = {str(s): runs[s]["decisions_by_ttc"] for s in seeds if runs[s].get("decisions_by_ttc")}
+    if by_ttc:
+        result["decisions_by_ttc"] = by_ttc
+    return result, values
+
+
+def worker_statistics(worker_records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """Each snake worker's validation reach reward over the seeds that trained it."""
+    worker_records = list(worker_records)
+    workers = {}
+    for name in ("goal", "avoid"):
+        finals = [
+            with_term_sums(r["workers"][name]["metrics"])["mean_reach_reward"]
+            for r in worker_records
+            if name in r["workers"]
+        ]
+        if finals:
+            workers[name] = {"validation_mean_reach_reward": summarise(finals)}
+    return workers
 
 
 # --------------------------------------------------------------------------------------------- transfer

@@ -18,7 +18,7 @@ from sb3_hddpg.experiments.runner import Job, run_jobs
 from sb3_hddpg.experiments.study_storage import TrialClaimLock, make_storage, quiet_experimental, sqlite_path
 from sb3_hddpg.experiments.tuning.target import TuningTarget
 from sb3_hddpg.experiments.tuning.trial import objective
-from sb3_hddpg.training.training import TrainingInterrupted
+from sb3_hddpg.training.agent import TrainingInterrupted
 
 #: ``--sampler`` choices.
 SAMPLERS = ("tpe", "random")

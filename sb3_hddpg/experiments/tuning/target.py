@@ -20,6 +20,8 @@ from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.episode_sets import CURVE, TUNING
 from sb3_hddpg.experiments.hyperparams_opt import base_params, sampler_for, tunable_algorithms
 from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
+from sb3_hddpg.training.agent import make_snake_env
+from sb3_hddpg.training.backends import algo_class
 from sb3_hddpg.training.config import (
     DEFAULT_CONFIG,
     MANAGER_KEY,
@@ -28,12 +30,8 @@ from sb3_hddpg.training.config import (
     parse_block,
     select_block,
 )
-from sb3_hddpg.training.training import (
-    ManagerEnvFactory,
-    algo_class,
-    make_snake_env,
-    worker_env_factory,
-)
+from sb3_hddpg.training.manager_setup import ManagerEnvFactory
+from sb3_hddpg.training.workers import worker_env_factory
 
 #: What can be tuned.
 LEVELS = ("worker", "manager", "flat", "ham")

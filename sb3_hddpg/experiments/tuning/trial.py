@@ -22,9 +22,9 @@ from sb3_hddpg.experiments.tuning.target import (
     merge_block,
     trial_env_factory,
 )
+from sb3_hddpg.training.agent import AgentPaths, TrainingInterrupted, train_agent
 from sb3_hddpg.training.config import parse_block
 from sb3_hddpg.training.run_options import RunOptions
-from sb3_hddpg.training.training import AgentPaths, TrainingInterrupted, train_agent
 
 _NAN_MESSAGE = re.compile(r"\bnan\b|non-finite|not finite|\binf\b|infinit", re.IGNORECASE)
 

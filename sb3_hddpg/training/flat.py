@@ -1,0 +1,185 @@
+"""
+Training a flat baseline: one SB3 model on the combined reward (the paper's "single DDPG"), and its
+manifest.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_hddpg.artifacts.io import (
+    holds_folder_lock,
+)
+from sb3_hddpg.artifacts.manifests import check_resumed_env, model_entry, save_manifest
+from sb3_hddpg.artifacts.records import ModelsManifest, models_manifest, read_models_manifest
+from sb3_hddpg.artifacts.values import check_make_kwargs
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
+from sb3_hddpg.envs.terms_env import config_key
+from sb3_hddpg.hierarchy.preference import make_preference_env
+from sb3_hddpg.training.agent import (
+    AgentPaths,
+    TrainingOutcome,
+    agent_run,
+    check_takes,
+    finished_with_budget,
+    make_snake_env,
+    train_agent,
+)
+from sb3_hddpg.training.backends import (
+    algo_class,
+)
+from sb3_hddpg.training.config import Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.run_options import RunOptions, run_options
+
+#: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
+FLAT_ENV_ID = SNAKE_REACH_ENV_ID
+#: The config block of a flat agent given the goal worker's tricks (hindsight relabelling of the goal, the
+#: action penalty where the algorithm takes it) on the full observation and the reach reward.
+FLAT_HER_KEY = "flat-her"
+
+
+def check_flat_env(algo: str, env_id: str | None = None, env_kwargs: Mapping[str, Any] | None = None) -> None:
+    """
+    :func:`check_takes` for a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` (default: the
+    combined task, :data:`FLAT_ENV_ID`).
+    """
+    probe = make_snake_env(env_id or FLAT_ENV_ID, dict(env_kwargs or {}))
+    try:
+        check_takes(algo, probe.action_space)
+    finally:
+        probe.close()
+
+
+def flat_hyperparams(
+    algo: str,
+    env_id: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    config: str | Path | None = None,
+    block: str | None = None,
+) -> Hyperparams:
+    """
+    The block a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` trains from: an adapter's is
+    keyed by the env it adapts, as the workers' are.
+
+    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
+    :param block: another block of the file to read instead (e.g. :data:`FLAT_HER_KEY`).
+    """
+    path = Path(config) if config is not None else default_config(algo)
+    return load_hyperparams(block or config_key(env_id, env_kwargs), algo_class(algo), path)
+
+
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
+def train_flat(
+    out_dir: str | Path,
+    algo: str = "ddpg",
+    config: str | Path | None = None,
+    *,
+    run: RunOptions | None = None,
+    env_id: str = FLAT_ENV_ID,
+    preferences: dict[str, float] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    name: str | None = None,
+    extra_callbacks: Sequence[BaseCallback] = (),
+    block: str | None = None,
+    **run_changes: object,
+) -> tuple[dict[str, Any], TrainingOutcome | None]:
+    """
+    Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
+    "single DDPG", Section 3.3), and write ``out_dir/flat/<name>.zip`` and ``out_dir/flat/manifest.json``.
+
+    The manifest's ``models`` mapping has one entry per model name (by default the algorithm), in the workers manifest's format
+    (file, sha256, algo, env id and kwargs, rebuild spec, metrics, config, seed, versions), so that
+    :func:`sb3_hddpg.hierarchy.loading.load_policy` opens the zip without unpickling anything.
+
+    :param out_dir: the run folder.
+    :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
+    :param config: a ``zoo_configs``-format file (default: the bundled ``zoo_configs/<algo>.yml``).
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`); with ``resume`` a model already finished with this budget is kept.
+    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
+        ``seed=3``), over ``run``'s.
+    :param env_id: the env to learn (the combined reward by default).
+    :param env_kwargs: its keyword arguments, over the config block's; the block read is the adapted env's
+        for an adapter (:func:`~sb3_hddpg.envs.terms_env.config_key`), as the workers' is.
+    :param preferences: reward term -> factor: learn ``sum_t factor_t * normalised(term_t)`` instead of the
+        env's reward (:class:`~sb3_hddpg.hierarchy.preference.PreferenceReward`, the reward of a manager with the same
+        factors); ``None``: the env's own reward.
+    :param name: the model's name in the manifest and its file name (default: ``algo``).
+    :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
+    :param block: the config block to train from instead of the env's (e.g. :data:`FLAT_HER_KEY`: the goal
+        worker's hindsight relabelling and action penalty on the full observation and the env's reward).
+    :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
+    """
+    run = run_options(run, run_changes, "train_flat")
+    algo = algo.lower()
+    algo_class(algo)  # an unknown algorithm named as such, before its config file is looked for
+    config_path = Path(config) if config is not None else default_config(algo)
+    hyperparams = flat_hyperparams(algo, env_id, env_kwargs, config_path, block)
+    make_kwargs = check_make_kwargs(env_id, {**hyperparams.env_kwargs, **(env_kwargs or {})}, "env_kwargs")
+    budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
+    out_dir = Path(out_dir)
+    manifest_path = out_dir / "flat" / "manifest.json"
+    name = name or algo
+    manifest = _flat_manifest(manifest_path, name, env_id, make_kwargs, run.resume)
+    if run.resume and finished_with_budget(manifest.entries.get(name), budget):
+        return manifest.to_json(), None  # finished in an earlier run
+    paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
+    factory = _flat_env_factory(env_id, make_kwargs, preferences)
+    outcome = train_agent(
+        factory,
+        hyperparams,
+        paths,
+        algo=algo,
+        run=agent_run(run, paths, budget),
+        extra_callbacks=extra_callbacks,
+    )
+    entry = model_entry(
+        name,
+        outcome,
+        algo,
+        env_id,
+        make_kwargs,
+        {"file": str(config_path), "block": hyperparams.raw},
+        run.seed,
+        budget,
+        stopped_early=outcome.stopped_early,
+        preferences=dict(preferences) if preferences is not None else None,
+        threads=run.threads,
+    )
+    manifest = manifest.with_entry(name, entry)
+    save_manifest(manifest_path, manifest)
+    return manifest.to_json(), outcome
+
+
+def _flat_env_factory(
+    env_id: str, make_kwargs: dict[str, Any], preferences: Mapping[str, float] | None
+) -> Callable[[], gym.Env]:
+    """
+    A picklable factory of the flat agent's env: the env itself, or with ``preferences`` the env whose reward
+    is the weighted sum of its normalised terms (the factors checked here, once, rather than in subprocesses).
+    """
+    if preferences is None:
+        return functools.partial(make_snake_env, env_id, make_kwargs)
+    factory = functools.partial(make_preference_env, env_id, make_kwargs, dict(preferences))
+    factory().close()
+    return factory
+
+
+def _flat_manifest(
+    manifest_path: Path, name: str, env_id: str, make_kwargs: dict[str, Any], resume: bool
+) -> ModelsManifest:
+    """
+    The flat models' manifest the model is added to (the folder's, else a new one); on ``resume`` an earlier
+    model of this name trained on another env is refused in one line.
+    """
+    manifest = (
+        read_models_manifest(manifest_path, "models") if manifest_path.exists() else models_manifest("models")
+    )
+    if resume:
+        check_resumed_env(manifest.entries.get(name), env_id, make_kwargs)
+    return manifest

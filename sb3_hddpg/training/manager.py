@@ -1,0 +1,160 @@
+"""
+Training the manager: a plain SB3 model on ``WorkerSelectionWrapper`` over pre-trained workers (paper
+Algorithm 1, second half), saved as a hierarchy bundle.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_hddpg.artifacts.io import (
+    atomic_write_json,
+    holds_folder_lock,
+)
+from sb3_hddpg.artifacts.limits import read_json_file
+from sb3_hddpg.artifacts.manifests import check_resumed_env
+from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
+from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from sb3_hddpg.hierarchy.selection import OptionEnd
+from sb3_hddpg.training.agent import AgentPaths, TrainingOutcome, agent_run, train_agent
+from sb3_hddpg.training.ham_start import HamStart, ham_start_hook
+from sb3_hddpg.training.manager_setup import MANAGER_OPTION_NAMES, ManagerOptions, ManagerSetup, setup_manager
+from sb3_hddpg.training.run_options import RunOptions, run_options
+
+#: The manager's env and selection settings, kept beside its model so that a resumed run continues on the
+#: same MDP.
+MANAGER_SETTINGS_FILE = "manager_settings.json"
+
+
+def _check_manager_resume(
+    paths: AgentPaths, resume: bool, setup: ManagerSetup, selection: dict[str, Any]
+) -> None:
+    """
+    Keep the manager's MDP (env, workers, algorithm, selection settings) beside its model; a resumed
+    run whose MDP differs is refused in one line naming the difference
+    (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_env`), since its replay buffer and network were
+    made on the recorded one.
+    """
+    mdp: dict[str, Any] = {
+        **setup.env_kwargs,
+        "workers": list(setup.workers),
+        "algo": setup.algo,
+        "selection": selection,
+    }
+    path = paths.model_path.parent / MANAGER_SETTINGS_FILE
+    if resume and read_checkpoint_state(paths.checkpoint_dir) is not None and path.is_file():
+        check_resumed_env(read_json_file(path), setup.env_id, mdp)
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, {"env_id": setup.env_id, "env_kwargs": mdp})
+
+
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
+def train_manager(
+    workers_dir: str | Path | ManagerSetup,
+    out_dir: str | Path,
+    worker_names: Sequence[str] | None = None,
+    prefer: str | None = None,
+    bias: float | None = None,
+    preferences: dict[str, float] | None = None,
+    selection: str | None = None,
+    option_steps: int | None = None,
+    temperature: float | None = None,
+    floor: float | None = None,
+    config: str | Path | None = None,
+    trusted: bool | None = None,
+    env_id: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    algo: str | None = None,
+    manager_preferences: str | PreferenceSpace | None = None,
+    relabel_fraction: float | None = None,
+    init_from_ham: float | HamStart | None = None,
+    option_end: str | OptionEnd | None = None,
+    *,
+    run: RunOptions | None = None,
+    extra_callbacks: Sequence[BaseCallback] = (),
+    **run_changes: object,
+) -> tuple[Hierarchy, TrainingOutcome]:
+    """
+    Train the manager: a plain SB3 DDPG (or TD3 or SAC, ``algo``) on ``WorkerSelectionWrapper`` over
+    pre-trained workers (paper Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
+
+    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder), or the set-up
+        :func:`~sb3_hddpg.training.manager_setup.prepare_manager` returned: then the workers it loaded are
+        used as they are (nothing is loaded or checked twice) and the manager's options must be left out.
+    :param out_dir: the run folder for the manager.
+    :param worker_names: and the arguments after it up to ``option_end``: the manager's options, the fields
+        of :class:`~sb3_hddpg.training.manager_setup.ManagerOptions` (``None``: its default).
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the
+        manager's model; the bundle holds an SB3 manager whichever ``backend`` trains it.
+    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
+        ``seed=3``), over ``run``'s.
+    :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
+    :return: the saved :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` and the training outcome.
+    """
+    given = {
+        name: value for name, value in locals().items() if name in MANAGER_OPTION_NAMES and value is not None
+    }
+    run = run_options(run, run_changes, "train_manager")
+    setup = _setup_of(workers_dir, given)
+    out_dir = Path(out_dir)
+    paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
+    _check_manager_resume(paths, run.resume, setup, asdict(setup.selection))
+    factory = setup.env_factory()
+    ham_report: dict[str, Any] = {}
+    outcome = train_agent(
+        factory,
+        setup.hyperparams,
+        paths,
+        algo=setup.algo,
+        run=agent_run(run, paths, run.timesteps),
+        extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
+        prepare_model=(
+            ham_start_hook(setup.ham_start, factory, run.seed, ham_report)
+            if setup.ham_start is not None
+            else None
+        ),
+    )
+    hierarchy = _manager_bundle(setup, outcome, run.seed, ham_report)
+    hierarchy.save(out_dir / "hierarchy.zip")
+    return hierarchy, outcome
+
+
+def _setup_of(workers_dir: str | Path | ManagerSetup, given: dict[str, Any]) -> ManagerSetup:
+    """The manager's set-up: the one given (then no options may be), else prepared from the options given."""
+    if not isinstance(workers_dir, ManagerSetup):
+        return setup_manager(workers_dir, ManagerOptions(**given))
+    if given:
+        raise ValueError(
+            f"train_manager got a prepared set-up and also {sorted(given)}: give those to prepare_manager"
+        )
+    return workers_dir
+
+
+def _manager_bundle(
+    setup: ManagerSetup, outcome: TrainingOutcome, seed: int, ham_report: dict[str, Any]
+) -> Hierarchy:
+    """The trained manager over its workers as a hierarchy, its metadata saying how it was trained."""
+    return Hierarchy(
+        outcome.model,
+        setup.workers,
+        setup.selection,
+        env_id=setup.env_id,
+        env_kwargs=setup.env_kwargs,
+        worker_meta=setup.workers.bundle_meta(),
+        metadata={
+            "seed": seed,
+            "timesteps_trained": outcome.num_timesteps,
+            "config": setup.hyperparams.raw,
+            "metrics": outcome.metrics,
+            "backend": outcome.backend,
+            **({"init_from_ham": ham_report} if ham_report else {}),
+        },
+    )

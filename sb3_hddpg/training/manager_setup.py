@@ -1,0 +1,414 @@
+"""
+Preparing the manager: load and check its workers, config block, preferences and selection settings, and
+build the factory of its env, before anything trains.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from sb3_hddpg.algorithms import algorithms_for
+from sb3_hddpg.artifacts.limits import brief
+from sb3_hddpg.artifacts.manifests import load_workers
+from sb3_hddpg.artifacts.records import ModelsManifest
+from sb3_hddpg.artifacts.values import check_make_kwargs
+from sb3_hddpg.artifacts.workers import Workers, shared_env_of
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
+from sb3_hddpg.hierarchy.selection import OptionEnd, SelectionConfig, check_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
+from sb3_hddpg.training.agent import make_snake_env
+from sb3_hddpg.training.backends import (
+    algo_class,
+)
+from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart
+
+#: The algorithms a manager can be: DDPG (the paper's), or another whose record takes the manager role, each with
+#: a ``manager`` block in its bundled config (``zoo_configs/<algo>.yml``); one acting in Discrete spaces (DQN)
+#: selects with the ``discrete`` mode, its action the worker's index.
+MANAGER_ALGOS = algorithms_for("manager")
+
+
+def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) -> Hyperparams:
+    """
+    The ``manager`` block a manager of ``algo`` trains from.
+
+    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
+    """
+    return load_hyperparams(MANAGER_KEY, algo_class(algo), config or default_config(algo), manager=True)
+
+
+@dataclass
+class ManagerEnvFactory:
+    """
+    Builds the manager's env: the shared env wrapped in ``WorkerSelectionWrapper`` over the workers.
+
+    The workers are the ones already loaded (``workers``), so a run loads and verifies them once; pickled
+    into a ``SubprocVecEnv`` process the factory drops them and that process loads them from
+    ``workers_dir`` once (hashes verified), for all the envs it builds.
+
+    :param env_id: the shared env.
+    :param env_kwargs: its keyword arguments.
+    :param workers_dir: the workers' folder (for processes that must load them themselves).
+    :param worker_names: the workers, in the manager's action order.
+    :param wrapper_kwargs: the selection settings (``SelectionConfig.wrapper_kwargs()``).
+    :param trusted: load the workers with SB3's full loader.
+    :param workers: name -> worker already loaded in this process (``None``: load on first use).
+    """
+
+    env_id: str
+    env_kwargs: dict[str, Any]
+    workers_dir: str
+    worker_names: Sequence[str]
+    wrapper_kwargs: dict[str, Any]
+    trusted: bool = False
+    workers: Mapping[str, Any] | None = None
+
+    def __call__(self) -> gym.Env:
+        if self.workers is None:
+            self.workers = load_workers(self.workers_dir, self.worker_names, trusted=self.trusted)
+        env = make_snake_env(self.env_id, self.env_kwargs)
+        return WorkerSelectionWrapper(env, self.workers, **self.wrapper_kwargs)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # Models do not cross process boundaries: the receiving process loads them from the files.
+        return {**self.__dict__, "workers": None}
+
+
+@dataclass
+class ManagerSetup:
+    """
+    Everything :func:`train_manager` needs before training starts, checked: see :func:`prepare_manager`.
+
+    :param workers: the loaded workers, in the manager's action order.
+    :param manifest: the workers' manifest.
+    :param hyperparams: the manager's config block.
+    :param selection: the selection settings, preferences included.
+    :param env_id: the shared env the manager acts in.
+    :param env_kwargs: its keyword arguments (from the manager's config block).
+    :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS`.
+    :param ham_start: imitate HAM before RL (``None``: start from the random initialisation).
+    """
+
+    workers: Workers
+    manifest: ModelsManifest
+    hyperparams: Hyperparams
+    selection: SelectionConfig
+    env_id: str
+    env_kwargs: dict[str, Any]
+    workers_dir: str = ""
+    trusted: bool = False
+    algo: str = "ddpg"
+    ham_start: HamStart | None = None
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.workers)
+
+    def env_factory(self) -> ManagerEnvFactory:
+        """The manager's env factory over these (already loaded) workers."""
+        return ManagerEnvFactory(
+            self.env_id,
+            self.env_kwargs,
+            self.workers_dir,
+            self.names,
+            self.selection.wrapper_kwargs(),
+            self.trusted,
+            self.workers,
+        )
+
+
+@dataclass(frozen=True)
+class ManagerOptions:
+    """
+    What a manager is trained from, besides its workers' folder and the run-control settings: the arguments
+    of :func:`prepare_manager` (and :func:`~sb3_hddpg.training.manager.train_manager`), as one record.
+
+    Preference factors (paper Section 3.4): by default every worker's factor is 1; ``prefer=NAME`` makes
+    that worker's ``1 + bias`` (the paper's 15 % by default); ``preferences`` sets every factor explicitly
+    and wins over ``prefer``. A factor multiplies the worker's normalised reward term in the manager's
+    reward, so the manager is paid more for the preferred worker's objective.
+
+    :param worker_names: which workers, in the manager's action order (default: all in the manifest).
+    :param prefer: a worker to prefer.
+    :param bias: the preferred worker's extra factor, > 0.
+    :param preferences: explicit factors, name -> value.
+    :param selection: a registered selection mode (default: the config's ``wrapper_kwargs``).
+    :param option_steps: env steps per manager decision (default: the config's).
+    :param temperature: the simplex map's temperature (default: the config's).
+    :param floor: the probability floor (default: the config's).
+    :param config: a ``zoo_configs`` file; its ``manager`` block is used (default: ``algo``'s bundled one).
+    :param trusted: load the workers with SB3's full loader.
+    :param env_id: the shared env the manager acts in (default: the workers manifest's ``shared_env``,
+        else ``hddpg/SnakeReach-v0``).
+    :param env_kwargs: its keyword arguments (default: the manifest's), under the config block's.
+    :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS` (``ddpg`` is the paper's); its
+        bundled config ``zoo_configs/<algo>.yml`` is the default ``config``.
+    :param manager_preferences: train one manager for every preference (see
+        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace`): ``"ratio-sweep"``,
+        ``"dirichlet[:ALPHA]"``, ``"goal=1.6,avoid=0.4;goal=0.4,avoid=1.6"`` or a space. The manager observes
+        the normalised preference weights, a preference is drawn every episode, and an off-policy manager
+        replays stored steps at other preferences (``PreferenceRelabelingReplayBuffer``). The bundle records
+        the space (``selection.manager_preferences``); ``Hierarchy.set_preference`` picks one at run time.
+        ``preferences`` is then the one the bundle acts at first (default: the unweighted one).
+    :param relabel_fraction: a conditioned off-policy manager's share of replayed steps given another
+        preference.
+    :param init_from_ham: start from the hand-written rule: HAM's threshold (or a
+        :class:`~sb3_hddpg.training.ham_start.HamStart`); the manager imitates HAM's choices and its replay
+        buffer is filled with them before RL (:mod:`sb3_hddpg.training.ham_start`). The bundle's metadata
+        keeps the settings and how often the fitted manager agrees with HAM.
+    :param option_end: options that also end by state: ``"distance=0.5"`` (an obstacle comes within half
+        the sensor range or leaves it), ``"touch"`` (the goal is touched or lost), both (``"distance=0.5,touch"``)
+        or an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`; ``option_steps`` stays the longest option.
+    """
+
+    worker_names: Sequence[str] | None = None
+    prefer: str | None = None
+    bias: float = 0.15
+    preferences: dict[str, float] | None = None
+    selection: str | None = None
+    option_steps: int | None = None
+    temperature: float | None = None
+    floor: float | None = None
+    config: str | Path | None = None
+    trusted: bool = False
+    env_id: str | None = None
+    env_kwargs: dict[str, Any] | None = None
+    algo: str = "ddpg"
+    manager_preferences: str | PreferenceSpace | None = None
+    relabel_fraction: float = 0.5
+    init_from_ham: float | HamStart | None = None
+    option_end: str | OptionEnd | None = None
+
+
+#: The arguments of :func:`prepare_manager` after the workers' folder: :class:`ManagerOptions`' fields.
+MANAGER_OPTION_NAMES = tuple(option.name for option in fields(ManagerOptions))
+
+
+def prepare_manager(
+    workers_dir: str | Path,
+    worker_names: Sequence[str] | None = None,
+    prefer: str | None = None,
+    bias: float = 0.15,
+    preferences: dict[str, float] | None = None,
+    selection: str | None = None,
+    option_steps: int | None = None,
+    temperature: float | None = None,
+    floor: float | None = None,
+    config: str | Path | None = None,
+    trusted: bool = False,
+    env_id: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    algo: str = "ddpg",
+    manager_preferences: str | PreferenceSpace | None = None,
+    relabel_fraction: float = 0.5,
+    init_from_ham: float | HamStart | None = None,
+    option_end: str | OptionEnd | None = None,
+) -> ManagerSetup:
+    """
+    Load and check everything the manager is trained from, without training: the workers (hashes
+    verified), the config block, the preferences and selection settings, and that every worker fits the
+    manager's env. :func:`~sb3_hddpg.training.manager.train_manager` calls it first; call it yourself to
+    validate arguments early (the CLI does, to report bad input before creating the output folder).
+
+    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
+    :param worker_names: and the other arguments: the fields of :class:`ManagerOptions`, documented there.
+    :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
+    """
+    options = {name: value for name, value in locals().items() if name in MANAGER_OPTION_NAMES}
+    return setup_manager(workers_dir, ManagerOptions(**options))
+
+
+def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSetup:
+    """
+    :func:`prepare_manager` with its arguments as one record.
+
+    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
+    :param options: what the manager is trained from.
+    :return: the checked set-up.
+    """
+    names_given = options.worker_names
+    if names_given is not None and isinstance(names_given, str):
+        raise ValueError(f"Expected a sequence of worker names, actually the string {names_given!r}")
+    algo = options.algo
+    if algo not in MANAGER_ALGOS:
+        raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
+    config = options.config if options.config is not None else default_config(algo)
+    hyperparams = manager_hyperparams(algo, config)
+    workers = load_workers(workers_dir, names_given, trusted=options.trusted)
+    manifest = workers.manifest
+    env_id, given_kwargs = shared_env_of(manifest, options.env_id, options.env_kwargs, options.trusted)
+    names = list(workers)
+    wrapper_kwargs, hyperparams = _selection_settings(options, hyperparams, workers)
+    try:
+        selection_config = SelectionConfig(**wrapper_kwargs)
+    except TypeError as error:  # an unknown key in the config's wrapper_kwargs
+        raise ValueError(f"Invalid wrapper_kwargs in the manager's config block: {error}") from None
+    env_kwargs = check_make_kwargs(env_id, {**given_kwargs, **hyperparams.env_kwargs}, "manager env_kwargs")
+    if "observe" in env_kwargs:
+        raise ValueError(
+            "The manager's env must give the full state (its workers slice it): remove `observe` from the "
+            "manager block's env_kwargs; to feed the manager part of the state, set wrapper_kwargs.manager_state"
+        )
+    _check_workers_fit(workers, selection_config, env_id, env_kwargs)
+    return ManagerSetup(
+        workers,
+        manifest,
+        hyperparams,
+        selection_config,
+        env_id,
+        env_kwargs,
+        str(Path(workers_dir)),
+        options.trusted,
+        algo,
+        _ham_start(options.init_from_ham, names, algo),
+    )
+
+
+def _selection_settings(
+    options: ManagerOptions, hyperparams: Hyperparams, workers: Workers
+) -> tuple[dict[str, Any], Hyperparams]:
+    """
+    The selection settings (``SelectionConfig``'s fields): the config block's ``wrapper_kwargs`` with the
+    options given on top, the preference factors, and each worker's slice of the state; and the config
+    block, with the relabelling buffer for a conditioned manager.
+    """
+    names = list(workers)
+    wrapper_kwargs = dict(hyperparams.wrapper_kwargs)
+    factors = preferences_from_bias(names, options.prefer, options.bias)
+    if options.preferences:
+        factors = check_preferences(options.preferences, names)
+    if options.manager_preferences is not None:
+        factors, hyperparams = _conditioned(
+            wrapper_kwargs,
+            hyperparams,
+            options.algo,
+            names,
+            options.manager_preferences,
+            options.preferences,
+            options.relabel_fraction,
+        )
+    for key in ("selection", "option_steps", "temperature", "floor"):
+        value = getattr(options, key)
+        if value is not None:
+            wrapper_kwargs[key] = value
+    wrapper_kwargs["preferences"] = factors
+    wrapper_kwargs["option_end"] = _option_end_json(options.option_end, wrapper_kwargs.get("option_end"))
+    # A worker trained on part of the state (env_kwargs `observe`) is fed the same components of the
+    # manager's full state; a worker_states entry in the config block wins.
+    configured = wrapper_kwargs.get("worker_states") or {}
+    if not isinstance(configured, dict):
+        raise ValueError(
+            f"Expected wrapper_kwargs.worker_states to map worker names to component lists, actually: {configured!r:.200}"
+        )
+    wrapper_kwargs["worker_states"] = {**workers.states, **configured}
+    return wrapper_kwargs, hyperparams
+
+
+def _check_workers_fit(
+    workers: Workers, selection_config: SelectionConfig, env_id: str, env_kwargs: dict[str, Any]
+) -> None:
+    """
+    Check that every worker fits the manager's env: its observation shape, unless the selection settings
+    slice the state for it, and the wrapper's own checks (spaces, reward terms, state names, temperature,
+    floor), run once here in this process, so that they fail with one clear error rather than inside env
+    subprocesses.
+    """
+    probe = make_snake_env(env_id, env_kwargs)
+    try:
+        expected = probe.observation_space.shape
+        for name, worker in workers.items():
+            space = getattr(worker, "observation_space", None)
+            sliced = name in selection_config.worker_states  # the wrapper checks the sliced shape itself
+            if space is not None and not sliced and space.shape != expected:
+                trained_on = brief(workers.manifest.entries[name].get("env_kwargs", {}))
+                raise ValueError(
+                    f"Worker {name!r} was trained on observations of shape {space.shape} (env_kwargs "
+                    f"{trained_on}), but the manager's env {env_id} with env_kwargs {env_kwargs} gives "
+                    f"{expected}: give the manager's config block the workers' env_kwargs"
+                )
+        WorkerSelectionWrapper(probe, workers, **selection_config.wrapper_kwargs())
+    finally:
+        probe.close()
+
+
+def _option_end_json(given: str | OptionEnd | None, configured: Any) -> dict[str, Any] | None:
+    """The option end as a bundle records it: the one given, else the config block's (``None``: none)."""
+    if given is None:
+        return configured
+    return (OptionEnd.parse(given) if isinstance(given, str) else given).to_json()
+
+
+def _conditioned(
+    wrapper_kwargs: dict[str, Any],
+    hyperparams: Hyperparams,
+    algo: str,
+    names: list[str],
+    given: str | PreferenceSpace,
+    preferences: dict[str, float] | None,
+    relabel_fraction: float,
+) -> tuple[dict[str, float], Hyperparams]:
+    """
+    A conditioned manager's settings: its space in ``wrapper_kwargs``, the preference it acts at first (the
+    unweighted one unless given, within the space) and its config block with the relabelling buffer.
+    """
+    conditioning = _preference_space(given, names)
+    wrapper_kwargs["manager_preferences"] = conditioning.to_json()
+    factors = conditioning.check(preferences or conditioning.default)
+    return factors, _with_preference_relabeling(hyperparams, algo, names, conditioning, relabel_fraction)
+
+
+def _ham_start(given: float | HamStart | None, names: list[str], algo: str) -> HamStart | None:
+    """The start from HAM, checked: HAM switches between workers named ``goal`` and ``avoid``."""
+    if given is None:
+        return None
+    if algo not in HAM_START_ALGOS:
+        raise ValueError(f"The start from HAM fits managers of {list(HAM_START_ALGOS)}, not {algo!r}")
+    if not {"goal", "avoid"} <= set(names):
+        raise ValueError(
+            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {names}"
+        )
+    return given if isinstance(given, HamStart) else HamStart(float(given))
+
+
+def _preference_space(given: str | PreferenceSpace, names: list[str]) -> PreferenceSpace:
+    """A conditioned manager's preference space, from its command-line form or as given, for ``names``."""
+    space = PreferenceSpace.parse(given, names) if isinstance(given, str) else given
+    if list(space.names) != names:
+        raise ValueError(f"The preference space names workers {list(space.names)}, the manager {names}")
+    return space
+
+
+def _with_preference_relabeling(
+    hyperparams: Hyperparams, algo: str, names: list[str], space: PreferenceSpace, relabel_fraction: float
+) -> Hyperparams:
+    """
+    The manager's config block with the preference-relabelling replay buffer, for an algorithm with a replay
+    buffer (an on-policy one, PPO, learns from the preference drawn each episode only).
+    """
+    if "replay_buffer_class" not in inspect.signature(algo_class(algo).__init__).parameters:
+        return hyperparams
+    if hyperparams.algo_kwargs.get("replay_buffer_class") is not None:
+        raise ValueError(
+            "A conditioned manager replays its steps with PreferenceRelabelingReplayBuffer: remove "
+            "replay_buffer_class from the manager's config block"
+        )
+    if not 0.0 <= relabel_fraction <= 1.0:
+        raise ValueError(f"Expected the relabel fraction in [0, 1], actually: {relabel_fraction}")
+    kwargs = {
+        **hyperparams.algo_kwargs,
+        "replay_buffer_class": PreferenceRelabelingReplayBuffer,
+        "replay_buffer_kwargs": {
+            "names": names,
+            "space": space.to_json(),
+            "relabel_fraction": relabel_fraction,
+        },
+    }
+    return replace(hyperparams, algo_kwargs=kwargs)
