@@ -59,8 +59,9 @@ from sb3_hddpg.experiments.benchmark.front import (
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
+from sb3_hddpg.training.flat import FLAT_ENV_ID
+from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.run_options import RunOptions
-from sb3_hddpg.training.training import FLAT_ENV_ID, train_manager
 
 
 @dataclass(frozen=True)

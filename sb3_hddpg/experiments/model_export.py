@@ -30,7 +30,7 @@ from sb3_hddpg.experiments.benchmark import (
     split_key,
 )
 from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, preference_label
-from sb3_hddpg.hierarchy.hierarchy import read_bundle
+from sb3_hddpg.hierarchy.bundle import read_bundle
 from sb3_hddpg.names import check_plain_name, check_preference_text
 
 #: The front's managers (the benchmark method ``hddpg-front``): its preference-conditioned manager, one
