@@ -18,12 +18,13 @@ from sb3_hddpg.artifacts.limits import LimitError, check_parameter_count
 from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
+from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.experiments.hyperparams_opt import SAMPLERS, search_space
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.media.figures import COLOURS
 from sb3_hddpg.training.backends import make_model, sbx_installed, to_sb3
 from sb3_hddpg.training.config import default_config
-from sb3_hddpg.training.workers import parse_worker_algorithms, train_workers
+from sb3_hddpg.training.workers import parse_worker_algorithms, train_workers, worker_algorithms
 
 needs_sbx = pytest.mark.skipif(not sbx_installed(), reason='needs SBX: pip install "sb3-hddpg[fast]"')
 
@@ -142,7 +143,11 @@ def test_sbx_crossq_critics_match_the_exported_ones():
 def test_worker_algorithms_are_parsed_and_checked():
     workers = ["goal", "avoid"]
     assert parse_worker_algorithms("goal=crossq,avoid=SAC", workers) == {"goal": "crossq", "avoid": "sac"}
-    assert parse_worker_algorithms("goal=ppo", workers) == {"goal": "ppo", "avoid": "ddpg"}
+    # A worker not named keeps its default: the snake arm's study-chosen learner, DDPG on another env.
+    assert parse_worker_algorithms("goal=ppo", workers) == {"goal": "ppo", "avoid": "sac"}
+    assert worker_algorithms(workers) == {"goal": "ddpg", "avoid": "sac"}
+    other = TermsEnv("hddpg/SnakeReach-v0", {}, ("goal", "avoid"))
+    assert parse_worker_algorithms("goal=ppo", workers, other) == {"goal": "ppo", "avoid": "ddpg"}
     assert parse_worker_algorithms("tqc", workers) == {"goal": "tqc", "avoid": "tqc"}
     for text, needle in (
         ("goal=a2c", "a2c"),

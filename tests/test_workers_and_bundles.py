@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from stable_baselines3 import DDPG
+from stable_baselines3 import DDPG, SAC
 
 from sb3_hddpg.artifacts.provenance import sha256_file
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
@@ -37,7 +37,8 @@ def test_worker_zips_are_plain_sb3_and_manifest_is_complete(trained):
     assert on_disk == json.loads(json.dumps(manifest))
     for name, entry in manifest["workers"].items():
         path = root / "w" / "workers" / entry["file"]
-        model = DDPG.load(path)  # nothing but SB3
+        # Nothing but SB3: the snake arm's default learners, DDPG for the goal and SAC for the avoid worker.
+        model = {"goal": DDPG, "avoid": SAC}[name].load(path)
         # The bundled config feeds the goal worker its 15 goal-relevant values (env kwarg observe).
         assert model.observation_space.shape == {"goal": (15,), "avoid": (39,)}[name]
         assert entry["sha256"] == sha256_file(path)
@@ -56,7 +57,7 @@ def test_worker_zips_are_plain_sb3_and_manifest_is_complete(trained):
         # Each worker's own block, as the config wrote it (the goal worker has larger networks).
         nets = {"goal": "dict(net_arch=[256, 256])", "avoid": "dict(net_arch=[64, 64])"}
         assert entry["config"]["block"]["policy_kwargs"] == nets[name]
-        assert entry["spec"]["algorithm"] == "DDPG"
+        assert entry["spec"]["algorithm"] == {"goal": "DDPG", "avoid": "SAC"}[name]
 
 
 def test_same_seed_gives_identical_weights(tmp_path):
@@ -89,15 +90,15 @@ def test_bundle_round_trip_in_a_fresh_process(trained):
     )
     subprocess.run([sys.executable, "-c", script], check=True)
     np.testing.assert_array_equal(np.load(root / "out.npy"), expected)
-    # Single observations behave like batched ones, and every member still opens with plain DDPG.load.
+    # Single observations behave like batched ones, and every member still opens with plain SB3 loading.
     hierarchy.seed(0)
     hierarchy.reset_episode()  # a new option, as at an episode start (the batch decides every row anew)
     single, _ = hierarchy.predict(obs[0], deterministic=True)
     np.testing.assert_array_equal(single, expected[0])
     with zipfile.ZipFile(path) as archive:
         manifest = json.loads(archive.read("manifest.json"))
-        for member in ("manager.zip", "workers/goal.zip", "workers/avoid.zip"):
-            DDPG.load(io.BytesIO(archive.read(member)))
+        for member, cls in (("manager.zip", DDPG), ("workers/goal.zip", DDPG), ("workers/avoid.zip", SAC)):
+            cls.load(io.BytesIO(archive.read(member)))
     assert manifest["selection"]["preferences"] == {"goal": 1.15, "avoid": 1.0}
     assert manifest["worker_names"] == ["goal", "avoid"]
     assert manifest["workers"]["goal"]["reward_bounds"] == [-1.9, 1.0]
@@ -142,7 +143,7 @@ def test_tampered_bundles_are_refused(trained, tmp_path):
 
 def test_nested_hierarchy_is_a_worker_and_saves_as_one_bundle(trained, tmp_path):
     root, _, hierarchy, _ = trained
-    avoid = DDPG.load(root / "w" / "workers" / "avoid.zip")
+    avoid = SAC.load(root / "w" / "workers" / "avoid.zip")
     env = WorkerSelectionWrapper(
         gym.make("hddpg/SnakeReach-v0"), {"reach": hierarchy, "avoid": avoid}, selection="argmax"
     )

@@ -103,8 +103,8 @@ _WorkersAlgoOpt = Annotated[
     typer.Option(
         "--algo",
         help=f"Each worker's algorithm, e.g. goal=crossq,avoid=sac, or one for all; one of {list(ALGO_NAMES)} "
-        "that acts in the worker's action space (default: ddpg, the paper's; config: the bundled "
-        "zoo_configs/<algo>.yml).",
+        "that acts in the worker's action space (default: the snake arm's goal=ddpg,avoid=sac, chosen by "
+        "the workers study; ddpg on another env; config: the bundled zoo_configs/<algo>.yml).",
     ),
 ]
 _WorkersConfigOpt = Annotated[
@@ -150,7 +150,7 @@ def train_workers_command(
     keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
 ) -> None:
-    """Train each worker as a plain SB3 model (DDPG unless --algo says) on its own reward (paper Algorithm 1)."""
+    """Train each worker as a plain SB3 model (its default learner unless --algo says) on its own reward (paper Algorithm 1)."""
 
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
@@ -161,7 +161,11 @@ def train_workers_command(
         problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
         raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
     with usage_errors("'--algo'"):
-        algos = parse_worker_algorithms(algo, workers) if algo is not None else worker_algorithms(workers)
+        algos = (
+            parse_worker_algorithms(algo, workers, shared)
+            if algo is not None
+            else worker_algorithms(workers, env=shared)
+        )
     with usage_errors("'--config'"):  # a bad block fails now, not after the first worker has trained
         blocks = worker_hyperparams(workers, config, shared, algos)
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed

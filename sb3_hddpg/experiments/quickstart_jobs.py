@@ -84,7 +84,9 @@ def _train_job(
     )
     common: dict[str, Any] = dict(config=config, run=run, extra_callbacks=[_ProgressReporter()])
     if kind == "worker":
-        manifest = train_workers(run_dir, workers=[name], **common)
+        # The paper's DDPG for every worker: the quickstart's config is the bundled ddpg.yml, and its zoo/
+        # layout serves each worker to `rl_zoo3.enjoy --algo ddpg`.
+        manifest = train_workers(run_dir, workers=[name], algos={name: "ddpg"}, **common)
         out: dict[str, Any] = {"entry": manifest["workers"][name]}
         steps = out["entry"]["timesteps_trained"]
     elif kind == "manager":

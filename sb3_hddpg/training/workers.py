@@ -37,6 +37,10 @@ from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: The algorithm of a worker no ``algos`` entry names: the paper's.
 DEFAULT_WORKER_ALGO = "ddpg"
+#: The snake arm's workers' algorithms where ``algos`` names none, chosen by the workers study
+#: (docs/WORKERS.md): DDPG reaches the goal; SAC keeps clear without saturating its joints, which DDPG's
+#: avoid worker does on about 80 % of its outputs.
+SNAKE_WORKER_ALGOS = {"goal": "ddpg", "avoid": "sac"}
 
 
 def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> Callable[[], gym.Env]:
@@ -58,7 +62,7 @@ def worker_hyperparams(
 
     :param workers: worker names among :data:`WORKER_ENV_IDS` (or ``env``'s terms), each at most once.
     :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
-    :param algos: worker name -> its algorithm (:func:`worker_algorithms`; default: DDPG for each).
+    :param algos: worker name -> its algorithm (default: :func:`worker_algorithms`'s).
     :param env: another env with several objectives (default: the snake arm); its blocks are keyed by the
         adapted env's id, else ``default``.
     :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
@@ -74,7 +78,7 @@ def worker_hyperparams(
     duplicates = sorted({w for w in workers if list(workers).count(w) > 1})
     if duplicates:
         raise ValueError(f"Duplicate worker names {duplicates} in {list(workers)}: name each worker once")
-    chosen = worker_algorithms(workers, algos)
+    chosen = worker_algorithms(workers, algos, env)
     blocks = {
         name: load_hyperparams(
             env.config_key if env is not None else WORKER_ENV_IDS[name],
@@ -89,18 +93,19 @@ def worker_hyperparams(
     return blocks
 
 
-def parse_worker_algorithms(text: str, workers: Sequence[str]) -> dict[str, str]:
+def parse_worker_algorithms(text: str, workers: Sequence[str], env: TermsEnv | None = None) -> dict[str, str]:
     """
-    Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps DDPG), or one algorithm
-    name for every worker (``crossq``).
+    Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps its default, see
+    :func:`worker_algorithms`), or one algorithm name for every worker (``crossq``).
 
     :param text: the option's value.
     :param workers: the workers being trained.
+    :param env: the env with several objectives they are trained on (``None``: the snake arm).
     :return: worker name -> algorithm, checked by :func:`worker_algorithms`.
     """
     parts = [part.strip() for part in text.split(",") if part.strip()]
     if len(parts) == 1 and "=" not in parts[0]:
-        return worker_algorithms(workers, dict.fromkeys(workers, parts[0]))
+        return worker_algorithms(workers, dict.fromkeys(workers, parts[0]), env)
     algos: dict[str, str] = {}
     for part in parts:
         name, sep, algo = (piece.strip() for piece in part.partition("="))
@@ -111,23 +116,29 @@ def parse_worker_algorithms(text: str, workers: Sequence[str]) -> dict[str, str]
         if name in algos:
             raise ValueError(f"Expected each worker once, actually {name!r} twice in {text!r}")
         algos[name] = algo
-    return worker_algorithms(workers, algos)
+    return worker_algorithms(workers, algos, env)
 
 
-def worker_algorithms(workers: Sequence[str], algos: Mapping[str, str] | None = None) -> dict[str, str]:
+def worker_algorithms(
+    workers: Sequence[str], algos: Mapping[str, str] | None = None, env: TermsEnv | None = None
+) -> dict[str, str]:
     """
-    Each worker's algorithm: the one ``algos`` names, else DDPG (the paper's); checked against the
-    algorithm records (a worker role).
+    Each worker's algorithm: the one ``algos`` names, else on the snake arm :data:`SNAKE_WORKER_ALGOS`'s
+    and on another env DDPG (the paper's); checked against the algorithm records (a worker role).
 
     :param workers: the worker names.
     :param algos: worker name -> algorithm name (any case); a name not among ``workers`` is refused.
+    :param env: the env with several objectives the workers are trained on (``None``: the snake arm).
     :return: worker name -> registry name.
     """
+    defaults = SNAKE_WORKER_ALGOS if env is None else {}
     algos = dict(algos or {})
     unknown = sorted(set(algos) - set(workers))
     if unknown:
         raise ValueError(f"Expected algorithms for the workers {list(workers)}, actually also for {unknown}")
-    chosen = {name: algorithm(algos.get(name, DEFAULT_WORKER_ALGO)).name for name in workers}
+    chosen = {
+        name: algorithm(algos.get(name, defaults.get(name, DEFAULT_WORKER_ALGO))).name for name in workers
+    }
     for name, algo in chosen.items():
         if "worker" not in REGISTRY[algo].roles:
             raise ValueError(
@@ -150,14 +161,15 @@ def train_workers(
     **run_changes: object,
 ) -> dict[str, Any]:
     """
-    Train each named worker as a plain SB3 model (DDPG, the paper's, unless ``algos`` names another) on its
+    Train each named worker as a plain SB3 model (see :func:`worker_algorithms` for its algorithm) on its
     own registered env id (paper Algorithm 1, first half) and write ``out_dir/workers/<name>.zip`` and
     ``out_dir/workers/manifest.json``.
 
     :param out_dir: the run folder.
     :param workers: worker names among :data:`WORKER_ENV_IDS`, or ``env``'s terms (``None``: all of them).
     :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
-    :param algos: worker name -> its algorithm (e.g. ``{"goal": "crossq"}``; default: DDPG for each).
+    :param algos: worker name -> its algorithm (e.g. ``{"goal": "crossq"}``; default: on the snake arm
+        :data:`SNAKE_WORKER_ALGOS`, DDPG on another env).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -172,7 +184,7 @@ def train_workers(
     shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
     if workers is None:
         workers = list(shared.terms)
-    chosen = worker_algorithms(workers, algos)
+    chosen = worker_algorithms(workers, algos, env)
     blocks = worker_hyperparams(workers, config, env, chosen)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
