@@ -152,6 +152,58 @@ class TtcShares(TypedDict):
     clear_seconds: float | None
 
 
+class FrontDifference(TypedDict):
+    """A paired difference of two members' hypervolumes in one plane over seeds."""
+
+    difference: float
+    ci_low: float
+    ci_high: float
+    p_value: float
+    wins: int
+    probability_of_improvement: float
+
+
+class FrontComparison(TypedDict):
+    """Two members of the front compared in both planes (``outcomes``, ``terms``) over their seeds."""
+
+    seeds: list[int]
+    outcomes: FrontDifference
+    terms: FrontDifference
+
+
+class DecisionFigure(TypedDict):
+    """
+    Whether the conditioned manager decides by state, per decision: the worker's share near an obstacle and
+    with none in range, their ratio with a bootstrap interval over episodes, and the decisions counted.
+    """
+
+    worker: str
+    near_share: float | None
+    clear_share: float | None
+    near_decisions: int
+    clear_decisions: int
+    ratio: float | None
+    ratio_ci: list[float] | None
+    near_clearance: float
+    clear_clearance: float
+    unit: str
+
+
+class FrontResults(TypedDict):
+    """
+    The front scenario's figures over seeds: per member and plane the hypervolumes (per seed and their
+    summary), the paired comparisons, the decides-by-state figures and every seed's points.
+    """
+
+    members: list[str]
+    references: dict[str, list[float]]
+    hypervolume_per_seed: dict[str, dict[str, dict[str, float]]]
+    hypervolume: dict[str, dict[str, Summary]]
+    comparisons: dict[str, FrontComparison]
+    decides_by_state: dict[str, dict[str, DecisionFigure | None]]
+    points: dict[str, dict[str, list[dict[str, float | str]]]]
+
+
 #: A learning curve's band over seeds: ``x``, ``mean``, ``low``, ``high``.
 CurveBand = dict[str, list[float]]
 
@@ -353,7 +405,7 @@ class BenchmarkResults(JsonRecord):
     curve_window: int | None = None
     slope_unit_steps: int = 1000
     transfer: TransferResults | None = None
-    front: Mapping[str, JsonValue] | None = None
+    front: FrontResults | None = None
     run: RunFacts | None = None
     curves: Mapping[str, Mapping[str, CurveBand]] | None = None
     extra: Mapping[str, JsonValue] = field(default_factory=dict)
@@ -466,7 +518,7 @@ class BenchmarkResults(JsonRecord):
             curve_window=None if curve_window is None else _whole(curve_window, f"{what}: curve_window"),
             slope_unit_steps=_whole(data.get("slope_unit_steps", 1000), f"{what}: slope_unit_steps"),
             transfer=cast("TransferResults | None", _optional_object(data, "transfer", what)),
-            front=_optional_object(data, "front", what),
+            front=cast("FrontResults | None", _optional_object(data, "front", what)),
             run=run,
             curves=cast("dict[str, dict[str, CurveBand]] | None", _optional_object(data, "curves", what)),
             extra={k: v for k, v in data.items() if k not in _FIELDS},
@@ -490,7 +542,7 @@ def benchmark_results(
     curve_window: int,
     slope_unit_steps: int,
     transfer: TransferResults | None = None,
-    front: Mapping[str, JsonValue] | None = None,
+    front: FrontResults | None = None,
 ) -> BenchmarkResults:
     """The one builder of a benchmark's results, at this library's version (see :class:`BenchmarkResults`)."""
     return BenchmarkResults(
