@@ -64,13 +64,17 @@ HIERARCHY_METHODS = (
 
 
 class IndexEntry(TypedDict, total=False):
-    """One exported model in ``index.json``: its method (and preference), seed, file and the file's sha256."""
+    """
+    One exported model in ``index.json``: its method (and preference, or for the front's conditioned manager
+    the preference space it was trained over, as its bundle records it), seed, file and the file's sha256.
+    """
 
     method: str
     seed: int
     path: str
     sha256: str
     preference: str
+    manager_preferences: object
 
 
 def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
@@ -185,12 +189,12 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[IndexEntr
     return index
 
 
-def _front_entries(root: Path, dest: Path, run: Path, seed: int) -> list[dict[str, Any]]:
+def _front_entries(root: Path, dest: Path, run: Path, seed: int) -> list[IndexEntry]:
     """
     The front's bundles of one seed: the conditioned manager (with the preference space it was trained
     over, read from its verified manifest) and each per-preference manager (with its preference).
     """
-    entries = []
+    entries: list[IndexEntry] = []
     for relative in sorted((root / run).glob("*/hierarchy.zip")):
         relative = relative.relative_to(root)
         manifest, _ = read_bundle(root / relative)
