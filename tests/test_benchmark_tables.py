@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
 
 
@@ -9,10 +10,11 @@ def _stats(mean: float) -> dict[str, float]:
     return {"mean": mean, "ci_low": mean - 1, "ci_high": mean + 1, "iqm": mean}
 
 
-def _results(with_snake_metrics: bool) -> dict:
+def _results(with_snake_metrics: bool, **run: object) -> BenchmarkResults:
+    """Results as read from a results.json holding only what the tables print."""
     extra = {"goal_touch_rate": _stats(0.4)} if with_snake_metrics else {}
     stats = {"mean_reach_reward": _stats(300.0), "curve_mean": _stats(250.0), "slope": _stats(0.5), **extra}
-    return {
+    value = {
         "test_episode_set": {"name": "development"},
         "test_seeds": [15000],
         "curve_window": 3,
@@ -20,7 +22,9 @@ def _results(with_snake_metrics: bool) -> dict:
         "methods": {"hddpg": {"seeds": [0, 1], "stats": stats}},
         "comparisons": {},
         "wall_time_s_this_invocation": 120.0,
+        **run,
     }
+    return BenchmarkResults.from_json(value, "results.json")
 
 
 def test_tables_hold_text_cells_and_only_the_metrics_reported():
@@ -37,7 +41,6 @@ def test_tables_hold_text_cells_and_only_the_metrics_reported():
 
 
 def test_wall_time_counts_every_invocation_of_a_resumed_run():
-    results = _results(with_snake_metrics=False)
-    assert wall_time_text(results) == "2.0 min"
-    results.update(invocations=2, wall_time_s_all_invocations=600.0)
-    assert wall_time_text(results) == "2.0 min (10.0 min over its 2 invocations)"
+    assert wall_time_text(_results(with_snake_metrics=False)) == "2.0 min"
+    resumed = _results(with_snake_metrics=False, invocations=2, wall_time_s_all_invocations=600.0)
+    assert wall_time_text(resumed) == "2.0 min (10.0 min over its 2 invocations)"

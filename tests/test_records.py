@@ -16,15 +16,21 @@ from sb3_hddpg.artifacts.limits import (
 )
 from sb3_hddpg.artifacts.records import (
     BENCHMARK_RECORD_VERSION,
+    BENCHMARK_RESULTS_VERSION,
     WORKERS_MANIFEST_VERSION,
     BenchmarkRecord,
+    BenchmarkResults,
     BundleManifest,
+    Comparison,
+    MethodResults,
     ModelsManifest,
     benchmark_record,
+    benchmark_results,
     bundle_manifest,
     ham_file,
     models_manifest,
     read_benchmark_record,
+    read_benchmark_results,
     read_ham_file,
     read_models_manifest,
     read_workers_manifest,
@@ -32,6 +38,7 @@ from sb3_hddpg.artifacts.records import (
 from sb3_hddpg.artifacts.run_folder import RUN_MARKER, _listed_entries
 
 SHA = "0" * 64
+SHIPPED_RESULTS = sorted((Path(__file__).parents[1] / "docs" / "results").glob("**/results.json"))
 
 
 def _entry(name: str) -> dict[str, object]:
@@ -197,3 +204,82 @@ def test_a_deep_run_marker_is_read_within_the_json_limits(tmp_path: Path) -> Non
     assert _listed_entries(tmp_path) == frozenset()
     (tmp_path / RUN_MARKER).write_text(json.dumps({"entries": ["report", "../x"]}))
     assert _listed_entries(tmp_path) == frozenset({"report"})
+
+
+@pytest.mark.parametrize("path", SHIPPED_RESULTS, ids=lambda p: p.parent.name)
+def test_every_shipped_results_file_reads_and_writes_back_the_same_json(path: Path) -> None:
+    # Files from before aggregates, episode sets or a version existed read, with those parts empty.
+    results = read_benchmark_results(path)
+    assert isinstance(results, BenchmarkResults) and results.methods
+    assert all(isinstance(entry, MethodResults) for entry in results.methods.values())
+    assert all(isinstance(c, Comparison) for c in results.comparisons.values())
+    written = results.to_json()
+    assert written.pop("results_version") == 1
+    original = json.loads(path.read_text())
+    assert written == original and list(written) == list(original)
+
+
+def _small_results() -> BenchmarkResults:
+    summary = {"mean": 1.0, "std": 0.0, "n": 2, "ci_low": 1.0, "ci_high": 1.0, "iqm": 1.0}
+    return benchmark_results(
+        settings={"seeds": [0, 1]},
+        scenario="standard",
+        metric="mean_reach_reward",
+        methods={"hddpg": MethodResults((0, 1), {"0": {"slope": 1.0}}, {"slope": summary}, 10, 20)},
+        comparisons={"hddpg vs ddpg": Comparison((0, 1), {"slope": {"difference": 0.5}}, 2.0)},
+        comparison_families={"hddpg": {"comparisons": {"slope": 1}, "adjustment": "none"}},
+        aggregates=None,
+        workers={},
+        colours={"hddpg": "tab:red"},
+        test_seeds=(15_000, 15_019),
+        test_episode_set={"name": "development", "first_seed": 15_000, "episodes": 20},
+        curve_seeds=(10_000, 10_004),
+        curve_window=2000,
+        slope_unit_steps=1000,
+    )
+
+
+def test_benchmark_results_round_trip_with_the_run_and_its_curves(tmp_path: Path) -> None:
+    results = _small_results().with_run(60.0, 120.0, 2, {"ddpg/seed-1": "diverged"}, {"nproc": 2})
+    results = results.with_curves(
+        {"own_steps": {"hddpg": {"x": [1.0], "mean": [2.0], "low": [1.0], "high": [3.0]}}}
+    )
+    path = atomic_write_json(tmp_path / "results.json", results.to_json())
+    read = read_benchmark_results(path)
+    assert read.to_json() == results.to_json()
+    assert read.methods["hddpg"].stats["slope"]["mean"] == 1.0 and read.methods["hddpg"].own_timesteps == 20
+    assert read.comparisons["hddpg vs ddpg"].slope_ratio == 2.0
+    assert read.failures == {"ddpg/seed-1": "diverged"} and read["failures"] == {"ddpg/seed-1": "diverged"}
+    assert read.run is not None and read.run.invocations == 2
+    assert "aggregates" not in read  # none computed: left out, not written null
+
+
+@pytest.mark.parametrize(
+    ("change", "needle"),
+    [
+        (lambda v: v.update(results_version=BENCHMARK_RESULTS_VERSION + 1), "unsupported schema version"),
+        (lambda v: v.update(methods=[]), "methods: expected an object"),
+        (lambda v: v["methods"]["hddpg"].update(seeds=["0"]), "'hddpg'.seeds: expected a list of seeds"),
+        (lambda v: v["methods"]["hddpg"].update(stats={"slope": 3}), "stats.'slope': expected an object"),
+        (lambda v: v["comparisons"]["hddpg vs ddpg"].update(slope_ratio="2"), "slope_ratio"),
+        (lambda v: v.update(curve_window=True), "curve_window: expected a whole number"),
+        (lambda v: v.update(wall_time_s_this_invocation="1 min"), "wall_time_s_this_invocation"),
+    ],
+)
+def test_the_results_reader_refuses_what_it_cannot_use(tmp_path: Path, change, needle) -> None:
+    value = _small_results().with_run(1.0).to_json()
+    change(value)
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(value))
+    with pytest.raises(ValueError, match=needle):
+        read_benchmark_results(path)
+
+
+def test_the_results_reader_goes_through_the_json_limits(tmp_path: Path) -> None:
+    path = tmp_path / "results.json"
+    path.write_text('{"methods": ' + "[" * 10_000 + "]" * 10_000 + "}")
+    with pytest.raises(LimitError, match="nested"):
+        read_benchmark_results(path)
+    path.write_text("not json")
+    with pytest.raises(ValueError, match="not readable benchmark results"):
+        read_benchmark_results(path)

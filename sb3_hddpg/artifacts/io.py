@@ -12,6 +12,7 @@ import os
 import signal
 import tempfile
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, TypeVar
 
@@ -181,7 +182,7 @@ def json_text(obj: object, what: str) -> str:
         raise NotFiniteError(f"{what}: {where} is not a finite number; not written") from None
 
 
-def _as_json(value: object) -> Any:
+def _as_json(value: object) -> object:
     """``value`` with every record (an object with ``to_json``) replaced by its JSON, at any depth."""
     to_json = getattr(value, "to_json", None)
     if callable(to_json):
@@ -223,10 +224,18 @@ class FolderLockedError(RuntimeError):
     """Another process holds a run folder's lock; the message names the folder and the holder's pid."""
 
 
-# Locks this process holds, by resolved folder -> [open lock file, depth]: a library function that locks
+@dataclass
+class _HeldLock:
+    """A folder lock this process holds: its open lock file and how many nested callers hold it."""
+
+    handle: IO[str]
+    depth: int
+
+
+# Locks this process holds, by resolved folder: a library function that locks
 # the folder its caller (the CLI) already locked must not deadlock on itself, because flock locks of two
 # open file descriptions conflict even inside one process.
-_HELD: dict[Path, list[Any]] = {}
+_HELD: dict[Path, _HeldLock] = {}
 
 
 def _held_by_ancestor(key: Path) -> bool:
@@ -288,12 +297,12 @@ def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
     key = folder.resolve()
     if key in _HELD or _held_by_ancestor(key):
         if key in _HELD:
-            _HELD[key][1] += 1
+            _HELD[key].depth += 1
         try:
             yield folder
         finally:
             if key in _HELD:
-                _HELD[key][1] -= 1
+                _HELD[key].depth -= 1
         return
     try:
         handle = _open_locked(folder / LOCK_FILE, blocking=False)
@@ -307,14 +316,14 @@ def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
     handle.truncate()
     handle.write(f"{os.getpid()}\n")
     handle.flush()
-    _HELD[key] = [handle, 1]
+    _HELD[key] = _HeldLock(handle, 1)
     inherited = os.environ.get(HELD_FOLDERS_ENV, "")
     os.environ[HELD_FOLDERS_ENV] = os.pathsep.join(filter(None, [inherited, str(key)]))
     try:
         yield folder
     finally:
-        _HELD[key][1] -= 1
-        if _HELD[key][1] == 0:
+        _HELD[key].depth -= 1
+        if _HELD[key].depth == 0:
             del _HELD[key]
             held = [f for f in os.environ.get(HELD_FOLDERS_ENV, "").split(os.pathsep) if f and f != str(key)]
             os.environ[HELD_FOLDERS_ENV] = os.pathsep.join(held)

@@ -9,14 +9,14 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.io import atomic_write_json, locked_file
 from sb3_hddpg.artifacts.limits import brief, read_json_file
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify_sha256
-from sb3_hddpg.artifacts.records import ModelEntry, ModelsManifest, read_workers_manifest
+from sb3_hddpg.artifacts.records import JsonValue, ModelEntry, ModelsManifest, read_workers_manifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.workers import Workers, observed_components, shared_env_of
@@ -32,7 +32,7 @@ __all__ = [
 ]
 
 
-def save_manifest(path: str | Path, manifest: ModelsManifest | Mapping[str, Any]) -> Path:
+def save_manifest(path: str | Path, manifest: ModelsManifest | Mapping[str, object]) -> Path:
     """
     Write a manifest atomically, read-modify-write: the entries (``workers`` or ``models``) already in the
     file are kept unless ``manifest`` replaces them, so two runs writing different agents into one folder
@@ -146,7 +146,7 @@ class TrainedModel(Protocol):
     @property
     def backend(self) -> str: ...
     @property
-    def metrics(self) -> dict[str, Any]: ...
+    def metrics(self) -> Mapping[str, object]: ...
 
 
 def model_entry(
@@ -154,8 +154,8 @@ def model_entry(
     outcome: TrainedModel,
     algo: str,
     env_id: str,
-    env_kwargs: dict[str, Any],
-    config: dict[str, Any],
+    env_kwargs: Mapping[str, object],
+    config: Mapping[str, object],
     seed: int,
     timesteps_requested: int,
     **facts: object,
@@ -197,7 +197,7 @@ class ResumeMismatch(ValueError):
 
 
 def check_resumed_env(
-    stored: object, env_id: str, env_kwargs: dict[str, Any], what: str = "--resume"
+    stored: object, env_id: str, env_kwargs: Mapping[str, object], what: str = "--resume"
 ) -> None:
     """
     The one comparison of a run's recorded env settings with the ones a resumed command asks for: the env
@@ -219,7 +219,7 @@ def check_resumed_env(
         differences.append(f"env was {brief(stored.get('env_id'))} in the run, now {env_id!r}")
     before = _as_json(stored.get("env_kwargs") or {})
     now = _as_json(env_kwargs)
-    if isinstance(before, dict):
+    if isinstance(before, dict) and isinstance(now, dict):
         for key in sorted(set(before) | set(now), key=str):
             if before.get(key) != now.get(key):
                 differences.append(
@@ -232,6 +232,6 @@ def check_resumed_env(
         )
 
 
-def _as_json(value: object) -> Any:
+def _as_json(value: object) -> JsonValue:
     """``value`` as JSON would store it (tuples become lists), so that a recorded and a new setting compare equal."""
     return json.loads(json.dumps(value, default=str))

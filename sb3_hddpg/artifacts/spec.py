@@ -127,7 +127,7 @@ def _as_bool(key: str, value: object) -> bool:
     return bool(value)
 
 
-def _convert(kind: str, key: str, value: object) -> Any:
+def _convert(kind: str, key: str, value: object) -> float | int | bool | str:
     if kind == "float":
         return _as_float(key, value)
     if kind == "int":
@@ -144,15 +144,20 @@ def _convert(kind: str, key: str, value: object) -> Any:
     raise AssertionError(kind)  # pragma: no cover - programming error
 
 
+#: One optimizer keyword argument of a spec: a number, a flag, ``None`` (torch picks) or a list of numbers
+#: (a tuple for torch, a list in JSON).
+OptimizerSetting = float | bool | None | list[float] | tuple[float, ...]
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Spaces
 # --------------------------------------------------------------------------------------------------------------
 
 
-def _bounds_to_json(array: np.ndarray) -> list[Any]:
+def _bounds_to_json(array: np.ndarray) -> object:
     # Strict JSON has no Infinity/NaN, and Box bounds are often infinite: write those as strings. Finite float32
     # values survive float -> JSON -> float64 -> float32 exactly.
-    def encode(x: object) -> Any:
+    def encode(x: object) -> object:
         if isinstance(x, list):
             return [encode(v) for v in x]
         if isinstance(x, float) and not math.isfinite(x):
@@ -163,7 +168,7 @@ def _bounds_to_json(array: np.ndarray) -> list[Any]:
 
 
 def _bounds_from_json(key: str, value: object, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
-    def decode(x: object) -> Any:
+    def decode(x: object) -> object:
         if isinstance(x, list):
             return [decode(v) for v in x]
         if isinstance(x, str):
@@ -182,7 +187,7 @@ def _bounds_from_json(key: str, value: object, shape: tuple[int, ...], dtype: np
     return array.astype(dtype)
 
 
-def _space_to_json(space: spaces.Space, what: str) -> dict[str, Any]:
+def _space_to_json(space: spaces.Space, what: str) -> dict[str, object]:
     if type(space) is spaces.Discrete:
         return {"type": "Discrete", "n": int(space.n), "start": int(space.start)}
     if type(space) is not spaces.Box:
@@ -201,7 +206,7 @@ def _space_to_json(space: spaces.Space, what: str) -> dict[str, Any]:
     }
 
 
-def _discrete_from_json(value: Mapping[str, Any], what: str) -> spaces.Discrete:
+def _discrete_from_json(value: Mapping[str, object], what: str) -> spaces.Discrete:
     unknown = set(value) - {"type", "n", "start"}
     if unknown:
         raise ValueError(f"{what}: unknown key {brief(sorted(map(str, unknown))[0])} for a Discrete space")
@@ -265,12 +270,12 @@ def _net_arch(value: object) -> list[int] | dict[str, list[int]]:
     return _layers("policy_kwargs.net_arch", value)
 
 
-def _optimizer_kwargs(value: object, to_json: bool) -> dict[str, Any]:
+def _optimizer_kwargs(value: object, to_json: bool) -> dict[str, OptimizerSetting]:
     if value is None:
         return {}
     if not isinstance(value, Mapping):
         raise ValueError(f"policy_kwargs.optimizer_kwargs: expected a dict, got {brief(value)}")
-    out: dict[str, Any] = {}
+    out: dict[str, OptimizerSetting] = {}
     for name, item in value.items():
         key = f"policy_kwargs.optimizer_kwargs.{name}"
         if not isinstance(name, str):
@@ -296,8 +301,8 @@ _CLASS_KWARGS: dict[str, Mapping[str, type]] = {
 }
 
 
-def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
+def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, object]) -> dict[str, object]:
+    out: dict[str, object] = {}
     for key, value in policy_kwargs.items():
         if key == "use_sde":
             continue  # recorded as a hyperparameter, see _POLICY_KWARGS
@@ -316,10 +321,10 @@ def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, Any]) -> dict[
     return out
 
 
-def _policy_kwargs_from_json(algo: str, value: object) -> dict[str, Any]:
+def _policy_kwargs_from_json(algo: str, value: object) -> dict[str, object]:
     if not isinstance(value, Mapping):
         raise ValueError(f"policy_kwargs: expected an object, got {brief(value)}")
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     for key, item in value.items():
         _check_policy_kwarg(algo, key, item)
         if key == "features_extractor_kwargs":
@@ -355,7 +360,7 @@ def _class_named(key: str, name: object) -> type:
     return table[name]
 
 
-def _policy_value(key: str, value: object) -> Any:
+def _policy_value(key: str, value: object) -> object:
     """``net_arch`` or a scalar setting, the same in a live model and in JSON."""
     if key == "net_arch":
         return _net_arch(value)
@@ -374,7 +379,7 @@ _INT_POLICY_KWARGS = {
 }
 
 
-def _policy_scalar(key: str, value: object) -> Any:
+def _policy_scalar(key: str, value: object) -> bool | int | float:
     if key in _BOOL_POLICY_KWARGS:
         return _as_bool(f"policy_kwargs.{key}", value)
     if key in _INT_POLICY_KWARGS:
@@ -389,7 +394,7 @@ def _policy_scalar(key: str, value: object) -> Any:
 # --------------------------------------------------------------------------------------------------------------
 
 
-def model_spec(model: BaseAlgorithm) -> dict[str, Any]:
+def model_spec(model: BaseAlgorithm) -> dict[str, object]:
     """
     Describe a live SB3 model as plain JSON, enough to rebuild it without unpickling anything.
 
@@ -407,7 +412,7 @@ def model_spec(model: BaseAlgorithm) -> dict[str, Any]:
     if model.policy_class is not type(model).policy_aliases["MlpPolicy"]:
         raise ValueError(f"policy: only MlpPolicy is supported, got {model.policy_class!r}")
 
-    hparams: dict[str, Any] = {}
+    hparams: dict[str, object] = {}
     learning_rate_constant = isinstance(model.learning_rate, (int, float)) and not isinstance(
         model.learning_rate, bool
     )
@@ -495,7 +500,7 @@ def build_without_env(
     observation_space: spaces.Space,
     action_space: spaces.Space,
     hparams: Mapping[str, Any],
-    policy_kwargs: Mapping[str, Any],
+    policy_kwargs: Mapping[str, object],
     device: th.device | str = "cpu",
     seed: int | None = None,
 ) -> BaseAlgorithm:

@@ -72,7 +72,7 @@ class Bound:
     high: float
     low_open: bool = False
     high_open: bool = False
-    also: tuple[Any, ...] = ()
+    also: tuple[int, ...] = ()
 
     def describe(self) -> str:
         """The range as text, e.g. ``an integer in [1, 65536]``."""
@@ -183,7 +183,7 @@ WRAPPER_SETTINGS: dict[str, Bound] = {
 _AUTO = re.compile(r"^auto(_[0-9.eE+-]{1,32})?$")
 
 
-def check_hyperparameters(block: dict[str, Any], source: str) -> None:
+def check_hyperparameters(block: dict[str, object], source: str) -> None:
     """
     Bound the algorithm arguments of a config block in place (integral floats become ints): every key must
     be in :data:`HYPERPARAMETERS`, :data:`FLAGS` or :data:`STRUCTURED`.
@@ -206,7 +206,7 @@ def check_hyperparameters(block: dict[str, Any], source: str) -> None:
             raise LimitError(f"{source}: {key}: no bounds are declared for this argument; it is not accepted")
 
 
-def _auto_or_number(value: object, what: str) -> Any:
+def _auto_or_number(value: object, what: str) -> str | float:
     """SAC's ``"auto"``, ``"auto_<initial value > 0>"`` or a bounded number."""
     if isinstance(value, str) and _AUTO.match(value):
         _, _, initial = value.partition("_")
@@ -225,11 +225,11 @@ def check_train_freq(value: object, what: str) -> int | tuple[int, str]:
     if isinstance(value, (list, tuple)):
         if len(value) != 2 or value[1] not in ("step", "episode"):
             raise LimitError(f"{what}: expected n or [n, 'step' | 'episode'], got {brief(value)}")
-        return (bound.check(value[0], what), value[1])
-    return bound.check(value, what)
+        return (int(bound.check(value[0], what)), str(value[1]))
+    return int(bound.check(value, what))
 
 
-def check_wrapper_settings(settings: dict[str, Any], source: str) -> None:
+def check_wrapper_settings(settings: dict[str, object], source: str) -> None:
     """Bound the numeric settings of a manager block's ``wrapper_kwargs`` in place (:data:`WRAPPER_SETTINGS`)."""
     for key, bound in WRAPPER_SETTINGS.items():
         if key in settings:

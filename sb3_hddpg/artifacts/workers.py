@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.limits import check_env_id
 from sb3_hddpg.artifacts.records import ModelsManifest
@@ -22,7 +23,7 @@ BUNDLED_FACTS = ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
 
 
 @dataclass(frozen=True)
-class Workers(Mapping[str, Any]):
+class Workers(Mapping[str, BaseAlgorithm]):
     """
     Name -> trained worker (an SB3 model), in the manager's action order, as :func:`load_workers` returns
     them. Each worker knows which state components it was trained on (``states``), and the record knows the
@@ -43,7 +44,7 @@ class Workers(Mapping[str, Any]):
         raised by :meth:`make_env`; the models themselves are usable in any env they fit.
     """
 
-    models: dict[str, Any]
+    models: dict[str, BaseAlgorithm]
     states: dict[str, list[str]] = field(default_factory=dict)
     env_id: str | None = SNAKE_REACH_ENV_ID
     env_kwargs: dict[str, Any] = field(default_factory=dict)
@@ -51,7 +52,7 @@ class Workers(Mapping[str, Any]):
     folder: Path | None = None
     env_problem: str = ""
 
-    def __getitem__(self, name: str) -> Any:
+    def __getitem__(self, name: str) -> BaseAlgorithm:
         return self.models[name]
 
     def __iter__(self) -> Iterator[str]:
@@ -73,16 +74,16 @@ class Workers(Mapping[str, Any]):
             raise ValueError(self.env_problem or "These workers name no shared env: make it yourself")
         return gym.make(self.env_id, **{**self.env_kwargs, **overrides})
 
-    def bundle_meta(self) -> dict[str, dict[str, Any]]:
+    def bundle_meta(self) -> dict[str, dict[str, object]]:
         """
         Name -> the facts a bundle keeps about each worker: its reward term and bounds, training env,
         metrics and seed, and ``source_sha256``, the hash of the file it came from (the bundle
         re-serialises the model, so its member's own hash differs).
         """
         entries = self.manifest.entries
-        meta: dict[str, dict[str, Any]] = {}
+        meta: dict[str, dict[str, object]] = {}
         for name in self.models:
-            entry = entries.get(name, {})
+            entry: Mapping[str, object] = entries.get(name, {})
             facts = {key: entry[key] for key in BUNDLED_FACTS if key in entry}
             if "sha256" in entry:
                 facts["source_sha256"] = entry["sha256"]
@@ -93,7 +94,7 @@ class Workers(Mapping[str, Any]):
 def shared_env_of(
     manifest: ModelsManifest,
     env_id: str | None,
-    env_kwargs: dict[str, Any] | None,
+    env_kwargs: Mapping[str, object] | None,
     trusted: bool = False,
     allowed_env_ids: Sequence[str] | None = None,
 ) -> tuple[str, dict[str, Any]]:
@@ -148,6 +149,6 @@ def observed_components(manifest: ModelsManifest, names: Iterable[str]) -> dict[
     return out
 
 
-def states_of(workers: Mapping[str, Any]) -> dict[str, list[str]]:
+def states_of(workers: Mapping[str, object]) -> dict[str, list[str]]:
     """The state components each worker of ``workers`` sees, where it carries them (a :class:`Workers`)."""
     return dict(workers.states) if isinstance(workers, Workers) else {}

@@ -147,7 +147,7 @@ class HAMSwitch:
     def predict(
         self,
         observation: np.ndarray,
-        state: Any = None,
+        state: tuple[np.ndarray, ...] | None = None,
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, None]:

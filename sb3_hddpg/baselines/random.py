@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import gymnasium as gym
 import numpy as np
 
@@ -16,7 +14,7 @@ class RandomPolicy:
     :param seed: seed of the sampler.
     """
 
-    def __init__(self, action_space: gym.spaces.Space[Any], seed: int | None = None) -> None:
+    def __init__(self, action_space: gym.spaces.Space[np.ndarray], seed: int | None = None) -> None:
         if not isinstance(action_space, gym.spaces.Box):
             raise TypeError(f"RandomPolicy samples Box action spaces, got {action_space}")
         self.action_space = action_space
@@ -25,8 +23,8 @@ class RandomPolicy:
     def predict(
         self,
         observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, None]:
         batch = observation.shape[:-1]

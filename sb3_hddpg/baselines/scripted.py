@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from sb3_hddpg.envs.layout import StateLayout
@@ -27,8 +25,8 @@ class JacobianReacher:
     def predict(
         self,
         observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, None]:
         lever, error = _levers_and_error(self.layout, observation)
@@ -71,8 +69,8 @@ class IKReacher:
     def predict(
         self,
         observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, None]:
         lever, error = _levers_and_error(self.layout, observation)  # (batch, joints, 2), (batch, 2)

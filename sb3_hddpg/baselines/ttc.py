@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Protocol
 
 import gymnasium as gym
 import numpy as np
 
+from sb3_hddpg.artifacts.records.results import TtcShares
 from sb3_hddpg.policy import Policy
 
 #: The default threshold, in seconds: about two seconds is the usual following-distance rule for drivers.
@@ -129,12 +130,21 @@ def _pair(value: Sequence[float]) -> tuple[float, float]:
     return float(low), float(high)
 
 
-def _observation_type(env: Any) -> Any:
+class KinematicObservation(Protocol):
+    """What this module reads of highway-env's ``KinematicObservation`` (highway-env is optional)."""
+
+    features: Sequence[str]
+    features_range: Mapping[str, Sequence[float]] | None
+    normalize: bool
+    env: object
+
+
+def _observation_type(env: object) -> KinematicObservation | None:
     """highway-env's observation object of ``env``, looking through wrappers and adapters' ``inner``."""
     seen = 0
     while env is not None and seen < 32:
         seen += 1
-        observation = getattr(env, "observation_type", None)
+        observation: KinematicObservation | None = getattr(env, "observation_type", None)
         if observation is not None:
             return observation
         unwrapped = getattr(env, "unwrapped", env)
@@ -295,7 +305,11 @@ class DecisionStates:
     """
 
     def __init__(
-        self, policy: Any, scales: KinematicsScales, close: float = CLOSE_SECONDS, clear: float | None = None
+        self,
+        policy: Policy,
+        scales: KinematicsScales,
+        close: float = CLOSE_SECONDS,
+        clear: float | None = None,
     ) -> None:
         if not (0 < close <= (math.inf if clear is None else clear)):
             raise ValueError(f"Expected 0 < close <= clear (seconds), actually: close={close}, clear={clear}")
@@ -305,9 +319,9 @@ class DecisionStates:
         self.clear_seconds = None if clear is None else float(clear)
         self.close: Counter[str] = Counter()
         self.clear: Counter[str] = Counter()
-        self._last_decision: Any = None
+        self._last_decision: object = None
 
-    def __getattr__(self, name: str) -> Any:
+    def __getattr__(self, name: str) -> object:
         return getattr(self.__dict__["policy"], name)
 
     def predict(
@@ -331,7 +345,7 @@ class DecisionStates:
                 self.clear[selected] += 1
         return action, state
 
-    def shares(self, worker: str) -> dict[str, Any]:
+    def shares(self, worker: str) -> TtcShares:
         """
         ``worker``'s share of the decisions made close and clear, their ratio (``None`` where a band had no
         decision or the clear share is 0) and the decisions counted in each band.

@@ -8,6 +8,7 @@ import sys
 from typing import Any
 
 import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.td3.td3 import TD3
 
@@ -98,7 +99,7 @@ def action_penalty(actions: torch.Tensor, margin: float | None) -> torch.Tensor:
     return torch.relu(pre.abs() - margin).pow(2).mean(dim=-1, keepdim=True)
 
 
-def apply_action_l2(model: Any, coefficient: float, margin: float | None = None) -> None:
+def apply_action_l2(model: BaseAlgorithm, coefficient: float, margin: float | None = None) -> None:
     """
     Give a DDPG/TD3 model's actor loss the action penalty (see :class:`ActionL2Penalty`); idempotent.
 
@@ -131,7 +132,7 @@ def apply_action_l2(model: Any, coefficient: float, margin: float | None = None)
     setattr(critic, _MARK, original)
 
 
-def _is_sbx_td3(model: Any) -> bool:
+def _is_sbx_td3(model: object) -> bool:
     """Whether ``model`` is SBX's (JAX) TD3 or DDPG, without importing SBX when it is not in use."""
     sbx = sys.modules.get("sbx")
     return sbx is not None and isinstance(model, sbx.TD3)

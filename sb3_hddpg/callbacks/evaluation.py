@@ -135,7 +135,7 @@ class MetricsEvalCallback(EvalCallback):
         return continue_training
 
 
-def model_updates(model: Any) -> int | None:
+def model_updates(model: object) -> int | None:
     """The gradient updates an SB3 (or SBX) model has made so far (``None``: the model does not count them)."""
     updates = getattr(model, "_n_updates", None)
     return int(updates) if isinstance(updates, (int, np.integer)) else None

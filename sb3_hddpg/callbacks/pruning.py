@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import torch as th
@@ -18,7 +18,7 @@ def parameters_finite(model: BaseAlgorithm) -> bool:
             return all(bool(th.isfinite(p).all()) for p in model.policy.parameters())
     import jax  # only an SBX model gets here, and then jax is loaded already
 
-    policy: Any = model.policy
+    policy: object = model.policy
     # Every train state of the policy (the actor's and the critics', one or one per critic), and its targets.
     states = [
         value for name, value in vars(policy).items() if name.endswith("_state") and hasattr(value, "params")
@@ -26,6 +26,14 @@ def parameters_finite(model: BaseAlgorithm) -> bool:
     trees = [tree for state in states for tree in (state.params, getattr(state, "target_params", None))]
     leaves = [leaf for tree in trees if tree is not None for leaf in jax.tree_util.tree_leaves(tree)]
     return all(bool(np.isfinite(np.asarray(leaf)).all()) for leaf in leaves)
+
+
+class Trial(Protocol):
+    """What the pruner asks of an Optuna trial (``optuna.Trial``)."""
+
+    def report(self, value: float, step: int) -> None: ...
+
+    def should_prune(self) -> bool: ...
 
 
 @runtime_checkable
@@ -55,7 +63,7 @@ class TrialPruningCallback(BaseCallback):
     :param verbose: SB3's verbosity.
     """
 
-    def __init__(self, trial: Any, step_offset: int = 0, verbose: int = 0) -> None:
+    def __init__(self, trial: Trial, step_offset: int = 0, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.trial = trial
         self.step_offset = step_offset

@@ -10,6 +10,7 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
+from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
@@ -48,6 +49,7 @@ from sb3_hddpg.experiments.benchmark import (
     default_env_methods,
     run_benchmark,
 )
+from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
 from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.metric_labels import metric_label
@@ -380,7 +382,7 @@ def _scenario_methods(
     return chosen, preferences
 
 
-def _env_record(shared: TermsEnv | None) -> dict[str, Any] | None:
+def _env_record(shared: TermsEnv | None) -> EnvChoice | None:
     """The benchmark settings' record of another env than the snake (``None``: the snake)."""
     if shared is None:
         return None
@@ -397,15 +399,15 @@ def _checked_resume(settings: BenchmarkSettings, redo: str | None, resume: bool)
     return redone
 
 
-def _print_results(results: dict[str, Any], out: Path, export_dir: Path | None) -> None:
+def _print_results(results: BenchmarkResults, out: Path, export_dir: Path | None) -> None:
     """The result tables, the wall time and the outputs; the export; exit 1 naming every failed run."""
     for table in console_tables(results):
         console.print(_rich_table(table))
     console.print(f"Wall time: {wall_time_text(results)}.  Outputs in {out}: {', '.join(OUTPUT_FILES)}")
     if export_dir is not None:
         _export(out, export_dir)
-    if results["failures"]:
-        for label, message in results["failures"].items():
+    if results.failures:
+        for label, message in results.failures.items():
             console.print(f"[red]failed[/] {label}: {message}")
         raise typer.Exit(1)
 

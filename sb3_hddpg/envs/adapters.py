@@ -23,11 +23,13 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from typing import Any
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.core import RenderFrame
 from gymnasium.envs.registration import EnvSpec
+from numpy.typing import NDArray
 
 from sb3_hddpg.envs.contract import TermNormaliser, check_bounds, env_contract
 from sb3_hddpg.envs.mujoco_log import route_mujoco_warnings
@@ -44,7 +46,7 @@ ESTIMATE_MARGIN = 0.25
 MAX_TERMS = 32
 
 
-def registered_env_id(env_id: Any) -> str:
+def registered_env_id(env_id: object) -> str:
     """
     ``env_id`` if it is a registered id without a ``module:`` prefix (importing MO-Gymnasium, when
     installed, to register its ids); raises ``ValueError`` otherwise.
@@ -89,7 +91,7 @@ def make_adapted(
     return env
 
 
-def _check_terms(terms: Any, count: int | None) -> list[str]:
+def _check_terms(terms: object, count: int | None) -> list[str]:
     if isinstance(terms, str) or not isinstance(terms, Sequence) or not terms:
         raise ValueError(f"Expected `terms` to be a non-empty list of names, actually: {terms!r:.200}")
     names = list(terms)
@@ -104,7 +106,7 @@ def _check_terms(terms: Any, count: int | None) -> list[str]:
     return names
 
 
-class TermsAdapter(gym.Env[Any, Any]):
+class TermsAdapter(gym.Env[object, object]):
     """
     The shared part of the adapters: an inner env, its terms with bounds, and the step reward (the sum of
     the normalised terms, or one raw term with ``term``). Subclasses read the raw terms of a step.
@@ -148,14 +150,18 @@ class TermsAdapter(gym.Env[Any, Any]):
         """Each raw term min-max normalised to [0, 1] with :attr:`reward_bounds`."""
         return self._normaliser(terms)
 
-    def _terms(self, reward: Any, info: dict[str, Any]) -> dict[str, float]:
+    def _terms(
+        self, reward: SupportsFloat | NDArray[np.floating], info: dict[str, object]
+    ) -> dict[str, float]:
         raise NotImplementedError
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, object] | None = None
+    ) -> tuple[object, dict[str, object]]:
         super().reset(seed=seed)
         return self.inner.reset(seed=seed, options=options)
 
-    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+    def step(self, action: object) -> tuple[object, float, bool, bool, dict[str, object]]:
         obs, reward, terminated, truncated, info = self.inner.step(action)
         terms = self._terms(reward, info)
         info["reward_terms"] = terms
@@ -165,7 +171,7 @@ class TermsAdapter(gym.Env[Any, Any]):
             scalar = terms[self.term]
         return obs, float(scalar), terminated, truncated, info
 
-    def render(self) -> Any:
+    def render(self) -> RenderFrame | list[RenderFrame] | None:
         return self.inner.render()
 
     def close(self) -> None:
@@ -203,7 +209,7 @@ class MultiObjectiveEnv(TermsAdapter):
         term: str | None = None,
         episode_steps: int | None = None,
         render_mode: str | None = None,
-        **env_kwargs: Any,
+        **env_kwargs: object,
     ) -> None:
         from mo_gymnasium.wrappers import LinearReward  # lazily: optional (the `mo` extra)
 
@@ -236,8 +242,10 @@ class MultiObjectiveEnv(TermsAdapter):
         self.estimated_bounds = estimated
         self._names = names
 
-    def _terms(self, reward: Any, info: dict[str, Any]) -> dict[str, float]:
-        vector = info["vector_reward"]
+    def _terms(
+        self, reward: SupportsFloat | NDArray[np.floating], info: dict[str, object]
+    ) -> dict[str, float]:
+        vector = np.asarray(info["vector_reward"], dtype=np.float64)
         return {name: float(vector[i]) for i, name in enumerate(self._names)}
 
 
@@ -267,7 +275,7 @@ class InfoTermsEnv(TermsAdapter):
         term: str | None = None,
         episode_steps: int | None = None,
         render_mode: str | None = None,
-        **env_kwargs: Any,
+        **env_kwargs: object,
     ) -> None:
         names = _check_terms(terms, None)
         bounds = check_bounds(term_bounds or {}, "term_bounds")
@@ -280,14 +288,19 @@ class InfoTermsEnv(TermsAdapter):
         inner = make_adapted(env_id, render_mode, episode_steps, **env_kwargs)
         super().__init__(inner, {n: bounds[n] for n in names}, term)
 
-    def _terms(self, reward: Any, info: dict[str, Any]) -> dict[str, float]:
+    def _terms(
+        self, reward: SupportsFloat | NDArray[np.floating], info: dict[str, object]
+    ) -> dict[str, float]:
         source = info if self.info_key is None else info.get(self.info_key, {})
+        where = "info" if self.info_key is None else f"info[{self.info_key!r}]"
+        if not isinstance(source, Mapping):
+            raise ValueError(f"{where} has no reward terms; it is a {type(source).__name__}")
         try:
             return {name: float(source[name]) for name in self.reward_terms}
         except (KeyError, TypeError) as missing:
-            where = "info" if self.info_key is None else f"info[{self.info_key!r}]"
-            have = sorted(map(str, source))[:20] if isinstance(source, Mapping) else type(source).__name__
-            raise ValueError(f"{where} has no reward term {missing}; it has {have}") from None
+            raise ValueError(
+                f"{where} has no reward term {missing}; it has {sorted(map(str, source))[:20]}"
+            ) from None
 
 
 def _estimate_bounds(
@@ -318,7 +331,7 @@ def _estimate_bounds(
     return estimated
 
 
-class TermReward(gym.Wrapper[Any, Any, Any, Any]):
+class TermReward(gym.Wrapper[object, object, object, object]):
     """
     One term of a contract env as its scalar reward: a worker's view of an env that meets the contract
     natively (a user's own env). The adapters' ``term`` argument does the same for adapted envs.
@@ -334,6 +347,6 @@ class TermReward(gym.Wrapper[Any, Any, Any, Any]):
         super().__init__(env)
         self.term = term
 
-    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+    def step(self, action: object) -> tuple[object, float, bool, bool, dict[str, object]]:
         obs, _, terminated, truncated, info = self.env.step(action)
         return obs, float(info["reward_terms"][self.term]), terminated, truncated, info

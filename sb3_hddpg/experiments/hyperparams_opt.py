@@ -17,8 +17,8 @@ config found by hand (docs/WORKERS.md) uses both, and every method's base config
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from typing import Protocol
 
 from sb3_hddpg.algorithms import REGISTRY, ROLES, algorithms_for
 from sb3_hddpg.hierarchy.selection import SELECTORS
@@ -35,12 +35,34 @@ SAC_ENT_COEF_INIT = 1.0
 HAM_THRESHOLD_MAX = 6.0
 
 
-def _sample_shared(trial: Any) -> dict[str, Any]:
+#: A categorical choice Optuna can store (its ``CategoricalChoiceType``).
+Choice = None | bool | int | float | str
+#: The keys of a ``zoo_configs`` block a sampler sets: plain values, and ``wrapper_kwargs`` a mapping of them.
+SampledBlock = dict[str, "Choice | dict[str, Choice]"]
+
+
+class Trial(Protocol):
+    """What a sampler asks of a trial: ``optuna.Trial``, ``optuna.trial.FixedTrial`` and the space recorder."""
+
+    def suggest_categorical(self, name: str, choices: Sequence[Choice]) -> Choice: ...
+
+    def suggest_float(
+        self, name: str, low: float, high: float, *, step: float | None = None, log: bool = False
+    ) -> float: ...
+
+    def suggest_int(self, name: str, low: int, high: int, *, step: int = 1, log: bool = False) -> int: ...
+
+
+#: A sampler: a trial -> the block's sampled keys.
+Sampler = Callable[[Trial], SampledBlock]
+
+
+def _sample_shared(trial: Trial) -> SampledBlock:
     """
     The hyperparameters DDPG, TD3 and SAC share, with the same choices and sampled first, in this order:
     discount, learning rate, batch and buffer size, soft-update rate, update schedule.
     """
-    block = {
+    block: SampledBlock = {
         "gamma": trial.suggest_categorical("gamma", [0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
         "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
         "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512]),
@@ -54,7 +76,7 @@ def _sample_shared(trial: Any) -> dict[str, Any]:
     return block
 
 
-def sample_ddpg_params(trial: Any) -> dict[str, Any]:
+def sample_ddpg_params(trial: Trial) -> SampledBlock:
     """
     DDPG's hyperparameters: discount, learning rate, batch and buffer size, soft-update rate, update
     schedule, exploration noise and network size.
@@ -67,13 +89,13 @@ def sample_ddpg_params(trial: Any) -> dict[str, Any]:
     net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
     # "none" rather than None among the choices: every storage and the dashboard show it plainly.
     block["noise_type"] = None if noise_type == "none" else noise_type
-    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]})"
+    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[str(net_arch)]})"
     if noise_type != "none":
         block["noise_std"] = trial.suggest_float("noise_std", 0.0, 1.0)
     return block
 
 
-def sample_td3_params(trial: Any) -> dict[str, Any]:
+def sample_td3_params(trial: Trial) -> SampledBlock:
     """
     TD3's hyperparameters: DDPG's space (as rl_zoo3's ``sample_td3_params``), so that a difference between
     the tuned DDPG and TD3 is the algorithm's (twin critics, delayed actor, target smoothing), not the
@@ -84,7 +106,7 @@ def sample_td3_params(trial: Any) -> dict[str, Any]:
     return sample_ddpg_params(trial)
 
 
-def sample_sac_params(trial: Any) -> dict[str, Any]:
+def sample_sac_params(trial: Trial) -> SampledBlock:
     """
     SAC's hyperparameters: DDPG's shared ones (discount, learning rate, batch and buffer size, soft-update
     rate, update schedule, network size, same choices) plus, in place of DDPG's action noise, how much it
@@ -100,11 +122,11 @@ def sample_sac_params(trial: Any) -> dict[str, Any]:
     net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
     # 'auto' is 'auto_1.0': the bundled block's spelling is kept where it is the value.
     block["ent_coef"] = "auto" if ent_coef_init == SAC_ENT_COEF_INIT else f"auto_{ent_coef_init!r}"
-    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]})"
+    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[str(net_arch)]})"
     return block
 
 
-def sample_tqc_params(trial: Any) -> dict[str, Any]:
+def sample_tqc_params(trial: Trial) -> SampledBlock:
     """
     TQC's hyperparameters: SAC's space plus how many of each critic's top quantiles it drops (its control of
     overestimation; SB3's default 2 of 25).
@@ -118,7 +140,7 @@ def sample_tqc_params(trial: Any) -> dict[str, Any]:
     return block
 
 
-def sample_crossq_params(trial: Any) -> dict[str, Any]:
+def sample_crossq_params(trial: Trial) -> SampledBlock:
     """
     CrossQ's hyperparameters: SAC's space without the soft-update rate (CrossQ has no target networks),
     plus the actor's delay (sb3-contrib's and SBX's default 3 first).
@@ -131,7 +153,7 @@ def sample_crossq_params(trial: Any) -> dict[str, Any]:
     return block
 
 
-def _sample_q_network(trial: Any, policy_extra: str = "") -> dict[str, Any]:
+def _sample_q_network(trial: Trial, policy_extra: str = "") -> SampledBlock:
     block = _sample_shared(trial)
     del block["tau"]  # DQN copies its target network every target_update_interval steps
     net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
@@ -140,11 +162,11 @@ def _sample_q_network(trial: Any, policy_extra: str = "") -> dict[str, Any]:
     )
     block["exploration_fraction"] = trial.suggest_float("exploration_fraction", 0.0, 0.5)
     block["exploration_final_eps"] = trial.suggest_float("exploration_final_eps", 0.0, 0.2)
-    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[net_arch]}{policy_extra})"
+    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[str(net_arch)]}{policy_extra})"
     return block
 
 
-def sample_dqn_params(trial: Any) -> dict[str, Any]:
+def sample_dqn_params(trial: Trial) -> SampledBlock:
     """
     DQN's hyperparameters (rl_zoo3's space, narrowed as the others): discount, learning rate, batch and
     buffer size, update schedule, target update interval, exploration schedule, network size.
@@ -154,7 +176,7 @@ def sample_dqn_params(trial: Any) -> dict[str, Any]:
     return _sample_q_network(trial)
 
 
-def sample_qrdqn_params(trial: Any) -> dict[str, Any]:
+def sample_qrdqn_params(trial: Trial) -> SampledBlock:
     """
     QR-DQN's hyperparameters: DQN's space plus the number of quantiles.
 
@@ -164,7 +186,7 @@ def sample_qrdqn_params(trial: Any) -> dict[str, Any]:
     return _sample_q_network(trial, f", n_quantiles={n_quantiles}")
 
 
-def sample_ppo_params(trial: Any) -> dict[str, Any]:
+def sample_ppo_params(trial: Trial) -> SampledBlock:
     """
     PPO's hyperparameters (rl_zoo3's space, narrowed as the others): discount, learning rate, rollout
     length, minibatch size, epochs, GAE's lambda, clipping, entropy bonus and network size.
@@ -181,12 +203,12 @@ def sample_ppo_params(trial: Any) -> dict[str, Any]:
         "gae_lambda": trial.suggest_categorical("gae_lambda", [0.95, 0.8, 0.9, 0.98, 1.0]),
         "clip_range": trial.suggest_categorical("clip_range", [0.2, 0.1, 0.3, 0.4]),
         "ent_coef": trial.suggest_float("ent_coef", 1e-8, 0.1, log=True),
-        "policy_kwargs": f"dict(net_arch=dict(pi={NET_ARCHS[net_arch]}, vf={NET_ARCHS[net_arch]}))",
+        "policy_kwargs": f"dict(net_arch=dict(pi={NET_ARCHS[str(net_arch)]}, vf={NET_ARCHS[str(net_arch)]}))",
     }
 
 
 #: An algorithm record's ``sampler`` -> its sampler, as rl_zoo3's one ``sample_*_params`` per algorithm.
-SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
+SAMPLERS: dict[str, Sampler] = {
     "ddpg": sample_ddpg_params,
     "td3": sample_td3_params,
     "sac": sample_sac_params,
@@ -198,17 +220,17 @@ SAMPLERS: dict[str, Callable[[Any], dict[str, Any]]] = {
 }
 
 
-def sample_worker_params(trial: Any) -> dict[str, Any]:
+def sample_worker_params(trial: Trial) -> SampledBlock:
     """A worker is a plain DDPG on its own reward (the paper's): :func:`sample_ddpg_params`."""
     return sample_ddpg_params(trial)
 
 
-def sample_flat_params(trial: Any) -> dict[str, Any]:
+def sample_flat_params(trial: Trial) -> SampledBlock:
     """The flat baseline is a plain DDPG on the combined reward: :func:`sample_ddpg_params`."""
     return sample_ddpg_params(trial)
 
 
-def sample_manager_params(trial: Any, algo: str = "ddpg") -> dict[str, Any]:
+def sample_manager_params(trial: Trial, algo: str = "ddpg") -> SampledBlock:
     """
     The manager's algorithm (its record's sampler in :data:`SAMPLERS`) plus how its action
     selects workers (``wrapper_kwargs``): the simplex map's temperature and floor, the selection mode and
@@ -232,7 +254,7 @@ def sample_manager_params(trial: Any, algo: str = "ddpg") -> dict[str, Any]:
     return block
 
 
-def sample_ham_params(trial: Any) -> dict[str, Any]:
+def sample_ham_params(trial: Trial) -> SampledBlock:
     """
     HAM's switching threshold on the sum of obstacle clearances (paper Section 4); HAM trains nothing.
 
@@ -242,7 +264,7 @@ def sample_ham_params(trial: Any) -> dict[str, Any]:
 
 
 #: Level -> its sampler, as rl_zoo3's ``HYPERPARAMS_SAMPLER``.
-HYPERPARAMS_SAMPLER: dict[str, Callable[[Any], dict[str, Any]]] = {
+HYPERPARAMS_SAMPLER: dict[str, Sampler] = {
     "worker": sample_worker_params,
     "manager": sample_manager_params,
     "flat": sample_flat_params,
@@ -250,7 +272,7 @@ HYPERPARAMS_SAMPLER: dict[str, Callable[[Any], dict[str, Any]]] = {
 }
 
 
-def sampler_for(level: str, algo: str = "ddpg") -> Callable[[Any], dict[str, Any]]:
+def sampler_for(level: str, algo: str = "ddpg") -> Sampler:
     """
     The sampler of a level and, for ``worker``, ``flat`` and ``manager``, of an algorithm whose record plays
     that role and names a sampler (:data:`SAMPLERS`).
@@ -276,26 +298,32 @@ def tunable_algorithms(level: str) -> tuple[str, ...]:
     return tuple(name for name in algorithms_for(level) if REGISTRY[name].sampler is not None)
 
 
+#: A parameter's domain: ``("choices", [...])`` or ``("range", (low, high))``.
+Domain = tuple[str, "list[Choice] | tuple[float, float]"]
+
+
 class _SpaceRecorder:
     """A stand-in trial that records every parameter a sampler asks for and its distribution."""
 
     def __init__(self) -> None:
-        self.space: dict[str, tuple[str, Any]] = {}
+        self.space: dict[str, Domain] = {}
 
-    def suggest_categorical(self, name: str, choices: Any) -> Any:
+    def suggest_categorical(self, name: str, choices: Sequence[Choice]) -> Choice:
         self.space[name] = ("choices", list(choices))
         return choices[0]
 
-    def suggest_float(self, name: str, low: float, high: float, **_: Any) -> float:
+    def suggest_float(
+        self, name: str, low: float, high: float, *, step: float | None = None, log: bool = False
+    ) -> float:
         self.space[name] = ("range", (low, high))
         return low
 
-    def suggest_int(self, name: str, low: int, high: int, **_: Any) -> int:
+    def suggest_int(self, name: str, low: int, high: int, *, step: int = 1, log: bool = False) -> int:
         self.space[name] = ("range", (low, high))
         return low
 
 
-def search_space(level: str, algo: str = "ddpg") -> dict[str, tuple[str, Any]]:
+def search_space(level: str, algo: str = "ddpg") -> dict[str, Domain]:
     """
     The parameters a level's sampler can suggest: name -> ``("choices", [...])`` or ``("range", (low, high))``
     (conditional ones included, as sampled with every earlier choice at its first value).
@@ -305,7 +333,7 @@ def search_space(level: str, algo: str = "ddpg") -> dict[str, tuple[str, Any]]:
     return recorder.space
 
 
-def check_fixed_params(level: str, fixed: dict[str, Any], algo: str = "ddpg") -> None:
+def check_fixed_params(level: str, fixed: Mapping[str, object], algo: str = "ddpg") -> None:
     """
     Validate ``--fix`` values before a study starts: Optuna's ``PartialFixedSampler`` silently ignores
     unknown names, so a typo would tune what the user meant to hold fixed.
@@ -324,8 +352,8 @@ def check_fixed_params(level: str, fixed: dict[str, Any], algo: str = "ddpg") ->
 
 
 def base_params(
-    level: str, block: dict[str, Any], algo: str = "ddpg", ham_threshold: float | None = None
-) -> tuple[dict[str, Any], list[str]]:
+    level: str, block: Mapping[str, object], algo: str = "ddpg", ham_threshold: float | None = None
+) -> tuple[dict[str, object], list[str]]:
     """
     The sampler's parameters that reproduce a base ``zoo_configs`` block: a study's first trial (``tune``
     enqueues it), so that every method's search starts from the config it had and its best trial is never
@@ -341,7 +369,7 @@ def base_params(
         does not (or that the block cannot express, e.g. ``gradient_steps`` other than ``train_freq``):
         the trial samples those.
     """
-    candidates: dict[str, Any] = {
+    candidates: dict[str, object] = {
         key: block[key]
         for key in ("gamma", "learning_rate", "batch_size", "buffer_size", "tau", "train_freq")
         if key in block
@@ -352,11 +380,14 @@ def base_params(
     policy_kwargs = block.get("policy_kwargs", {})
     if isinstance(policy_kwargs, str):
         policy_kwargs = parse_policy_kwargs(policy_kwargs, "the base block")
-    names = [name for name, sizes in NET_ARCHS.items() if sizes == list(policy_kwargs.get("net_arch", []))]
+    net_arch = policy_kwargs.get("net_arch", []) if isinstance(policy_kwargs, Mapping) else []
+    layers = list(net_arch) if isinstance(net_arch, (list, tuple)) else None
+    names = [name for name, sizes in NET_ARCHS.items() if sizes == layers]
     if names:
         candidates["net_arch"] = names[0]
     candidates["ent_coef_init"] = _ent_coef_init(block.get("ent_coef", "auto"))
-    wrapper = block.get("wrapper_kwargs", {})
+    wrapper = block.get("wrapper_kwargs")
+    wrapper = wrapper if isinstance(wrapper, Mapping) else {}
     candidates.update(
         {k: wrapper[k] for k in ("temperature", "floor", "selection", "option_steps") if k in wrapper}
     )
@@ -377,7 +408,7 @@ def base_params(
     return params, outside
 
 
-def _ent_coef_init(ent_coef: Any) -> float | None:
+def _ent_coef_init(ent_coef: object) -> float | None:
     """The starting value of a learned entropy coefficient (``'auto'``, ``'auto_0.1'``); ``None`` for a fixed one."""
     if not isinstance(ent_coef, str) or not ent_coef.startswith("auto"):
         return None
@@ -388,8 +419,15 @@ def _ent_coef_init(ent_coef: Any) -> float | None:
         return None
 
 
-def _in_domain(value: Any, kind: str, domain: Any) -> bool:
+def _in_domain(value: object, kind: str, domain: list[Choice] | tuple[float, float]) -> bool:
     """Whether a value is one of a categorical parameter's choices, or a number in a range's bounds."""
     if kind == "choices":
         return value in domain
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and domain[0] <= value <= domain[1]
+    low, high = domain
+    return (
+        isinstance(value, (int, float))
+        and not isinstance(value, bool)
+        and isinstance(low, (int, float))
+        and isinstance(high, (int, float))
+        and low <= value <= high
+    )

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_SEED, MAX_WORKERS, brief, read_json_file
@@ -61,6 +61,20 @@ HIERARCHY_METHODS = (
     "hddpg-sac",
     *(f"hddpg-{a}" for a in DISCRETE_MANAGERS),
 )
+
+
+class IndexEntry(TypedDict, total=False):
+    """
+    One exported model in ``index.json``: its method (and preference, or for the front's conditioned manager
+    the preference space it was trained over, as its bundle records it), seed, file and the file's sha256.
+    """
+
+    method: str
+    seed: int
+    path: str
+    sha256: str
+    preference: str
+    manager_preferences: object
 
 
 def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
@@ -116,7 +130,7 @@ def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
     return None
 
 
-def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str, Any]]:
+def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[IndexEntry]:
     """
     Copy a finished benchmark's final models into ``dest`` and write ``dest/index.json``.
 
@@ -135,7 +149,7 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     if not records_dir.is_dir():
         raise FileNotFoundError(f"Not a benchmark folder (no records/): {str(benchmark_dir)!r}")
     dest = _check_destination(root, Path(dest))
-    index: list[dict[str, Any]] = []
+    index: list[IndexEntry] = []
     for record_file in sorted(records_dir.glob("*/seed-*.json")):
         checked = _read_record(record_file)
         if checked is None:
@@ -175,12 +189,12 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[dict[str,
     return index
 
 
-def _front_entries(root: Path, dest: Path, run: Path, seed: int) -> list[dict[str, Any]]:
+def _front_entries(root: Path, dest: Path, run: Path, seed: int) -> list[IndexEntry]:
     """
     The front's bundles of one seed: the conditioned manager (with the preference space it was trained
     over, read from its verified manifest) and each per-preference manager (with its preference).
     """
-    entries = []
+    entries: list[IndexEntry] = []
     for relative in sorted((root / run).glob("*/hierarchy.zip")):
         relative = relative.relative_to(root)
         manifest, _ = read_bundle(root / relative)
@@ -215,7 +229,7 @@ def _check_destination(root: Path, dest: Path) -> Path:
     return dest
 
 
-def _entry(method: str, seed: int, root: Path, dest: Path, relative: Path) -> dict[str, Any]:
+def _entry(method: str, seed: int, root: Path, dest: Path, relative: Path) -> IndexEntry:
     source = root / relative
     target = _copy(source, dest, relative)
     digest = sha256_file(target)
@@ -224,7 +238,7 @@ def _entry(method: str, seed: int, root: Path, dest: Path, relative: Path) -> di
     return {"method": method, "seed": seed, "path": relative.as_posix(), "sha256": digest}
 
 
-def read_index(folder: str | Path) -> list[dict[str, Any]]:
+def read_index(folder: str | Path) -> list[IndexEntry]:
     """
     An export's ``index.json``, every file checked against its recorded sha256.
 

@@ -331,7 +331,7 @@ def _run_task(job: Job, sink: Any, cwd: str, held_folders: str) -> Finished:
     """A Ray task: run ``job`` as a local process would, its progress sent to ``sink``."""
     import ray
 
-    sent: list[Any] = []
+    sent: list[object] = []
 
     def report(value: float) -> None:
         sent[:] = [sink.put.remote(job.key, value)]  # fire and forget: training never waits for it
@@ -386,7 +386,7 @@ class RayExecutor:
         self.interrupt_grace = interrupt_grace
         self.cancel_grace = cancel_grace
         self.local_dir = local_dir
-        self._running: dict[Any, str] = {}  # object ref -> job key
+        self._running: dict[object, str] = {}  # object ref -> job key
         self._connected = False
         self._private: contextlib.ExitStack | None = None
 
@@ -424,7 +424,7 @@ class RayExecutor:
     def wait(self, timeout: float) -> list[Finished]:
         ray = self._ray
         refs = list(self._running)
-        ready: list[Any] = []
+        ready: list[object] = []
         if refs:
             ready, rest = ray.wait(refs, num_returns=1, timeout=timeout)
             if rest:  # others that ended meanwhile, without waiting again
@@ -434,7 +434,7 @@ class RayExecutor:
         self._relay_progress(settle=bool(ready))
         return [self._result(ref) for ref in ready]
 
-    def _result(self, ref: Any) -> Finished:
+    def _result(self, ref: object) -> Finished:
         key = self._running.pop(ref)
         try:
             return self._ray.get(ref)
@@ -509,7 +509,7 @@ class RayExecutor:
         )
         self._still_running(refs, KILL_TIMEOUT)
 
-    def _still_running(self, refs: list[Any], timeout: float) -> list[Any]:
+    def _still_running(self, refs: list[object], timeout: float) -> list[object]:
         """Those of ``refs`` that have not ended within ``timeout`` seconds (all ended: at once)."""
         if not refs:
             return refs

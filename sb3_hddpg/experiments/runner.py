@@ -44,6 +44,9 @@ import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
+from multiprocessing.queues import Queue
 from typing import Any, Protocol
 
 import torch
@@ -74,8 +77,8 @@ class Job:
 
     key: str
     fn: Callable[..., Any]
-    args: tuple[Any, ...] = ()
-    kwargs: Mapping[str, Any] = field(default_factory=dict)
+    args: tuple[object, ...] = ()
+    kwargs: Mapping[str, object] = field(default_factory=dict)
     cost: float = 0.0
     group: int = 0
     after: tuple[str, ...] = ()
@@ -95,7 +98,7 @@ class Finished:
 
     key: str
     ok: bool
-    value: Any
+    value: object
     details: str = ""
 
 
@@ -199,10 +202,14 @@ def run_jobs(
                         outcome.results[job.key] = end.value
                         notify("done", job, end.value)
                         continue
-                    logger.error("job %s failed: %s\n%s", job.key, describe(end.value), end.details)
-                    fail(job, end.value)
+                    # An executor reports a failed job's exception; anything else is wrapped as one.
+                    error = (
+                        end.value if isinstance(end.value, BaseException) else RuntimeError(repr(end.value))
+                    )
+                    logger.error("job %s failed: %s\n%s", job.key, describe(error), end.details)
+                    fail(job, error)
                     if fail_fast:
-                        raise end.value
+                        raise error
                 schedule()
             interrupted = False
     finally:
@@ -268,7 +275,7 @@ class InlineExecutor:
 
 
 # ------------------------------------------------------------------------------------------- processes
-def _process_main(connection: Any, progress: Any) -> None:
+def _process_main(connection: Connection, progress: Queue[tuple[str, float]]) -> None:
     """A spawned process: run the jobs it is sent, one at a time, until told to stop (``None``)."""
     global _reporter
     with contextlib.suppress(KeyboardInterrupt, EOFError):  # Ctrl-C while idle, or the parent gone
@@ -284,8 +291,8 @@ def _process_main(connection: Any, progress: Any) -> None:
 
 @dataclass
 class _Slot:
-    process: Any
-    connection: Any
+    process: BaseProcess
+    connection: Connection
     job: Job | None = None
 
 

@@ -13,17 +13,19 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy import stats as scipy_stats
+
+from sb3_hddpg.artifacts.records.results import Summary
 
 #: A statistic maps a 1-D sample to a number. If it accepts an ``axis`` keyword (as ``np.mean``,
 #: ``np.median`` and :func:`iqm` do) the bootstrap evaluates it on many resamples at once.
-Statistic = Callable[..., Any]
+Statistic = Callable[..., float | np.floating | NDArray[np.float64]]
 
 
-def _as_sample(values: Any, name: str = "values") -> np.ndarray:
+def _as_sample(values: ArrayLike, name: str = "values") -> np.ndarray:
     """
     Convert ``values`` to a flat float array and validate it.
 
@@ -50,7 +52,7 @@ def _check_confidence(confidence: float) -> None:
         raise ValueError(f"confidence must lie strictly between 0 and 1, got {confidence}")
 
 
-def iqm(values: Any, axis: int | None = None) -> Any:
+def iqm(values: ArrayLike, axis: int | None = None) -> float | NDArray[np.float64]:
     """
     Interquartile mean: the mean of the middle 50 % of the values, as in rliable.
 
@@ -76,7 +78,7 @@ def iqm(values: Any, axis: int | None = None) -> Any:
 
 
 def bootstrap_ci(
-    values: Any,
+    values: ArrayLike,
     statistic: Statistic = np.mean,
     confidence: float = 0.95,
     n_resamples: int = 10_000,
@@ -122,8 +124,8 @@ def bootstrap_ci(
 
 
 def paired_difference_ci(
-    a: Any,
-    b: Any,
+    a: ArrayLike,
+    b: ArrayLike,
     statistic: Statistic = np.mean,
     confidence: float = 0.95,
     n_resamples: int = 10_000,
@@ -152,7 +154,7 @@ def paired_difference_ci(
     return bootstrap_ci(first - second, statistic, confidence, n_resamples, seed)
 
 
-def probability_of_improvement(a: Any, b: Any) -> float:
+def probability_of_improvement(a: ArrayLike, b: ArrayLike) -> float:
     """
     Probability that a random result of A beats a random result of B, ``P(X > Y)``, ties counting half.
 
@@ -171,7 +173,7 @@ def probability_of_improvement(a: Any, b: Any) -> float:
     return float(u / (first.size * second.size))
 
 
-def trend_slope(x: Any, y: Any) -> float:
+def trend_slope(x: ArrayLike, y: ArrayLike) -> float:
     """
     Least-squares slope of ``y`` against ``x`` (the "reward trend slope" of Figure 9 of the paper).
 
@@ -192,7 +194,7 @@ def trend_slope(x: Any, y: Any) -> float:
     return float(scipy_stats.linregress(xs, ys).slope)
 
 
-def paired_t_interval(a: Any, b: Any, confidence: float = 0.95) -> dict[str, float]:
+def paired_t_interval(a: ArrayLike, b: ArrayLike, confidence: float = 0.95) -> dict[str, float]:
     """
     Student t interval of the mean paired difference ``a - b`` (``scipy.stats.ttest_rel``), with its p-value.
 
@@ -275,11 +277,11 @@ def holm_adjust(p_values: Sequence[float]) -> list[float]:
 
 
 def summarise(
-    values: Any,
+    values: ArrayLike,
     confidence: float = 0.95,
     n_resamples: int = 10_000,
     seed: int | np.random.Generator | None = 0,
-) -> dict[str, float | int]:
+) -> Summary:
     """
     Summary of per-seed results: mean, spread, bootstrap CI of the mean and IQM.
 
@@ -299,7 +301,7 @@ def summarise(
         "n": int(sample.size),
         "ci_low": low,
         "ci_high": high,
-        "iqm": iqm(sample),
+        "iqm": float(iqm(sample)),
     }
 
 

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from sb3_hddpg.artifacts.records.results import Interval
+
 
 def aggregate_figure(
-    intervals: Mapping[str, Any],
+    intervals: Mapping[str, Mapping[str, Interval]],
     profiles: Mapping[str, np.ndarray],
     profile_bands: Mapping[str, np.ndarray],
     taus: np.ndarray,

@@ -2,7 +2,7 @@
 Every figure of sb3-hddpg (matplotlib, Agg backend, one PNG each, written atomically): the selection timeline,
 learning curves and comparisons of a run, and the benchmark's learning curves with CI bands on both step axes,
 the paper's Figure 9 (mean reward and trend slope per method) and Figure 10 (goal vs avoid reward of the goal-
-and avoid-preferred managers), each read from a ``results.json`` dict.
+and avoid-preferred managers), each read from a benchmark's results (:class:`~sb3_hddpg.artifacts.records.BenchmarkResults`).
 """
 
 from __future__ import annotations
@@ -10,22 +10,28 @@ from __future__ import annotations
 import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sb3_hddpg.algorithms import REGISTRY
 from sb3_hddpg.artifacts.io import atomic_write_bytes
+from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.media.overlay import worker_colour
 from sb3_hddpg.media.trace import StepRecord
 from sb3_hddpg.metric_labels import metric_label
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 
 def _colour(name: str, names: Sequence[str] = ()) -> tuple[float, float, float]:
     return tuple(c / 255 for c in worker_colour(name, names))  # type: ignore[return-value]
 
 
-def _save(fig: Any, path: str | Path, dpi: int = 110) -> Path:
+def _save(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
     plt = _pyplot()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=dpi, bbox_inches="tight")
@@ -33,13 +39,13 @@ def _save(fig: Any, path: str | Path, dpi: int = 110) -> Path:
     return atomic_write_bytes(path, buffer.getvalue())
 
 
-def _save_tight(fig: Any, path: str | Path) -> Path:
+def _save_tight(fig: Figure, path: str | Path) -> Path:
     """The benchmark figures' layout (``tight_layout``) saved by :func:`_save`."""
     fig.tight_layout()
     return _save(fig, path)
 
 
-def _pyplot() -> Any:
+def _pyplot() -> ModuleType:
     """pyplot with the file backend. Imported here, not at module level: it is slow to import, and most commands draw nothing."""
     import matplotlib
 
@@ -116,7 +122,9 @@ def _selection_spans(records: Sequence[StepRecord]) -> list[tuple[int, int, str]
     return spans
 
 
-def _shade_selections_and_episodes(axes: Any, records: Sequence[StepRecord], names: Sequence[str]) -> None:
+def _shade_selections_and_episodes(
+    axes: Sequence[Axes], records: Sequence[StepRecord], names: Sequence[str]
+) -> None:
     """Shade each run of the same chosen worker in every panel, and separate episodes by black lines."""
     spans = _selection_spans(records)
     for ax_index, ax in enumerate(axes):
@@ -129,7 +137,9 @@ def _shade_selections_and_episodes(axes: Any, records: Sequence[StepRecord], nam
                 ax.axvline(i - 0.5, color="black", lw=1.2)
 
 
-def _plot_probabilities(top: Any, records: Sequence[StepRecord], x: np.ndarray, names: Sequence[str]) -> None:
+def _plot_probabilities(
+    top: Axes, records: Sequence[StepRecord], x: np.ndarray, names: Sequence[str]
+) -> None:
     """The top panel: each worker's selection probability, and a legend of who acts."""
     from matplotlib.patches import Patch  # lazily, as pyplot (see _pyplot)
 
@@ -152,8 +162,8 @@ def _plot_snake_panels(
     records: Sequence[StepRecord],
     x: np.ndarray,
     clearance: np.ndarray,
-    middle: Any,
-    bottom: Any,
+    middle: Axes,
+    bottom: Axes,
     sensor_range: float | None,
     touch_radius: float | None,
 ) -> None:
@@ -178,7 +188,7 @@ def _plot_snake_panels(
 
 
 def _plot_terms(
-    records: Sequence[StepRecord], x: np.ndarray, middle: Any, bottom: Any, names: Sequence[str]
+    records: Sequence[StepRecord], x: np.ndarray, middle: Axes, bottom: Axes, names: Sequence[str]
 ) -> None:
     """Each reward term per step (middle) and its running sum within the episode (bottom), in the colour of
     the worker of the same name (workers are named after their terms)."""
@@ -200,7 +210,7 @@ def _plot_terms(
 
 
 def plot_learning_curves(
-    histories: Mapping[str, Sequence[Mapping[str, Any]]],
+    histories: Mapping[str, Sequence[Mapping[str, float]]],
     path: str | Path,
     references: Mapping[str, float] | None = None,
     metric: str = "mean_reach_reward",
@@ -245,7 +255,7 @@ def plot_learning_curves(
     return _save(fig, path)
 
 
-def plot_comparison(summaries: Mapping[str, Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
+def plot_comparison(summaries: Mapping[str, Mapping[str, float]], path: str | Path, title: str = "") -> Path:
     """
     The methods side by side on the same evaluation seeds: the combined reach reward (mean and std over
     episodes), the goal-touch rate and collisions per episode.
@@ -300,32 +310,35 @@ COLOURS = {
 }
 
 
-def method_colour(results: dict[str, Any], method: str) -> str | None:
+def method_colour(results: BenchmarkResults, method: str) -> str | None:
     """A method's colour: the one its results record, else :data:`COLOURS`' (``None``: matplotlib's next)."""
-    return results.get("colours", {}).get(method) or COLOURS.get(method.partition("@")[0])
+    return (results.colours or {}).get(method) or COLOURS.get(method.partition("@")[0])
 
 
-def _first_preference(results: dict[str, Any]) -> str:
-    preferences = results["settings"].get("preferences") or [""]
-    return f"@{preferences[0]}"
+def _first_preference(results: BenchmarkResults) -> str:
+    preferences = results.settings.get("preferences")
+    return f"@{preferences[0]}" if isinstance(preferences, list) and preferences else "@"
 
 
-def benchmark_learning_curves(results: dict[str, Any], path: str | Path) -> Path:
+def benchmark_learning_curves(results: BenchmarkResults, path: str | Path) -> Path:
     """
     Mean combined reward over seeds with 95 % bootstrap CI bands, against the agent's own steps (left)
     and against all environment steps including worker pre-training (right). A method that does not learn
     (HAM, a worker alone: one evaluation) is a horizontal line at it (from its workers' steps on the right).
 
-    :param results: a ``results.json`` dict with ``curves``.
+    :param results: the results with their ``curves``.
     :param path: the PNG to write.
     """
     figure, axes = _pyplot().subplots(1, 2, figsize=(12, 4.5), sharey=True)
-    n_seeds = len(results["settings"]["seeds"])
+    seeds = results.settings.get("seeds")
+    n_seeds = (
+        len(seeds) if isinstance(seeds, list) else len({s for m in results.methods.values() for s in m.seeds})
+    )
     for axis, key, label in (
         (axes[0], "own_steps", "agent's own environment steps (manager / flat agent)"),
         (axes[1], "total_steps", "total environment steps (including worker pre-training)"),
     ):
-        bands = results["curves"][key]
+        bands = (results.curves or {}).get(key, {})
         right = max((max(b["x"]) for b in bands.values() if b["x"]), default=1.0)
         for method, band in bands.items():
             line_colour = method_colour(results, method)
@@ -349,19 +362,19 @@ def benchmark_learning_curves(results: dict[str, Any], path: str | Path) -> Path
     return _save(figure, Path(path))
 
 
-def figure9(results: dict[str, Any], path: str | Path) -> Path:
+def figure9(results: BenchmarkResults, path: str | Path) -> Path:
     """
     Paper Figure 9: per method, the mean of the learning curve (dots, with 95 % CI) and its trend slope
     (stars, right axis), over the evaluation window every method shares.
 
-    :param results: a ``results.json`` dict.
+    :param results: the results.
     :param path: the PNG to write.
     """
-    methods = list(results["methods"])
+    methods = list(results.methods)
     figure, axis = _pyplot().subplots(figsize=(1.4 * len(methods) + 3, 4.5))
     slope_axis = axis.twinx()
     for i, method in enumerate(methods):
-        stats = results["methods"][method]["stats"]
+        stats = results.methods[method].stats
         curve, slope = stats["curve_mean"], stats["slope"]
         axis.errorbar(
             i - 0.1,
@@ -382,30 +395,28 @@ def figure9(results: dict[str, Any], path: str | Path) -> Path:
         )
     axis.set_xticks(range(len(methods)), methods)
     axis.set_ylabel("mean combined reward over the curve (red dots)", color="tab:red")
-    slope_axis.set_ylabel(
-        f"trend slope per {results['slope_unit_steps']} steps (blue stars)", color="tab:blue"
-    )
+    slope_axis.set_ylabel(f"trend slope per {results.slope_unit_steps} steps (blue stars)", color="tab:blue")
     slope_axis.axhline(0.0, color="tab:blue", linewidth=0.5, alpha=0.5)
     axis.set_title(
-        f"Average reward and trend slope (first {results['curve_window']} own steps), 95 % CI over seeds"
+        f"Average reward and trend slope (first {results.curve_window} own steps), 95 % CI over seeds"
     )
     axis.grid(alpha=0.3)
     return _save(figure, Path(path))
 
 
-def figure10(results: dict[str, Any], path: str | Path) -> Path:
+def figure10(results: BenchmarkResults, path: str | Path) -> Path:
     """
     Paper Figure 10: the goal and avoid parts of the combined reward (episode sums of the normalised
     terms, final test evaluation) for the goal-preferred, unbiased and avoid-preferred managers.
 
-    :param results: a ``results.json`` dict.
+    :param results: the results.
     :param path: the PNG to write.
     """
     # The snake's goal and avoid parts: absent on another env, where the figure says so.
     methods = [
         m
         for m in ("hddpg-goal", "hddpg", "hddpg-avoid")
-        if m in results["methods"] and "goal_reach_reward" in results["methods"][m]["stats"]
+        if m in results.methods and "goal_reach_reward" in results.methods[m].stats
     ]
     figure, axes = _pyplot().subplots(1, 2, figsize=(10, 4.5))
     if not methods:
@@ -414,7 +425,7 @@ def figure10(results: dict[str, Any], path: str | Path) -> Path:
         return _save(figure, Path(path))
     width = 0.38
     for i, method in enumerate(methods):
-        stats = results["methods"][method]["stats"]
+        stats = results.methods[method].stats
         for j, (key, colour) in enumerate(
             (("goal_reach_reward", "tab:green"), ("avoid_reach_reward", "tab:orange"))
         ):
@@ -441,14 +452,16 @@ def figure10(results: dict[str, Any], path: str | Path) -> Path:
         )
     axes[0].set_xticks(range(len(methods)), methods)
     axes[0].set_ylabel("episode sum of the normalised term (test)")
-    axes[0].set_title(f"Biased managers ({results['settings']['bias']:.0%} preference): reward parts")
+    bias = results.settings.get("bias")
+    bias_text = f"{bias:.0%}" if isinstance(bias, (int, float)) else "?"
+    axes[0].set_title(f"Biased managers ({bias_text} preference): reward parts")
     lows = [
-        results["methods"][m]["stats"][k]["ci_low"]
+        results.methods[m].stats[k]["ci_low"]
         for m in methods
         for k in ("goal_reach_reward", "avoid_reach_reward")
     ]
     highs = [
-        results["methods"][m]["stats"][k]["ci_high"]
+        results.methods[m].stats[k]["ci_high"]
         for m in methods
         for k in ("goal_reach_reward", "avoid_reach_reward")
     ]

@@ -40,7 +40,7 @@ class StepRecord:
     reward_terms: dict[str, float] = field(default_factory=dict)
 
 
-def selected_names(policy: Any) -> list[str]:
+def selected_names(policy: object) -> list[str]:
     """
     The worker names a policy selects among, in its action order: a ``Hierarchy``'s or a HAM switch's
     ``names`` (or ``worker_names``); empty for a policy that selects no worker.
@@ -82,8 +82,8 @@ class StepRecorder(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
         self._step = 0
 
     def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+        self, *, seed: int | None = None, options: dict[str, object] | None = None
+    ) -> tuple[np.ndarray, dict[str, object]]:
         self._episode += 1
         self._step = 0
         return self.env.reset(seed=seed, options=options)

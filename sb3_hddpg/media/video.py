@@ -170,7 +170,7 @@ def record_video(
     )
 
 
-def _rgb(frame: Any) -> np.ndarray:
+def _rgb(frame: object) -> np.ndarray:
     """An env's rendered frame as ``(H, W, 3)`` uint8, or a one-line ``ValueError`` saying what it was."""
     array = np.asarray(frame) if frame is not None else None
     if array is None or array.ndim != 3 or array.shape[2] not in (3, 4) or 0 in array.shape:

@@ -8,6 +8,8 @@ reader, and the schema version of every file it writes, in one place.
   :func:`read_models_manifest`).
 - :class:`BundleManifest`: a hierarchy bundle's ``manifest.json`` (:func:`bundle_manifest`,
   :meth:`BundleManifest.from_json`).
+- :class:`BenchmarkResults`: a benchmark's ``results.json`` (:func:`benchmark_results`,
+  :func:`read_benchmark_results`), its parts :class:`MethodResults` and :class:`Comparison`.
 - :class:`HamFile`: ``ham.json``, the HAM switch's settings (:func:`ham_file`, :func:`read_ham_file`).
 
 Every reader checks what it reads through :mod:`sb3_hddpg.artifacts.limits` (the size- and depth-limited
@@ -18,6 +20,7 @@ written as, so that code reading a manifest as the JSON object it was keeps work
 
 from sb3_hddpg.artifacts.records.base import (
     BENCHMARK_RECORD_VERSION,
+    BENCHMARK_RESULTS_VERSION,
     BUNDLE_MANIFEST_VERSION,
     FLAT_MANIFEST_VERSION,
     HAM_FILE_VERSION,
@@ -25,6 +28,7 @@ from sb3_hddpg.artifacts.records.base import (
     WORKERS_MANIFEST_VERSION,
     JsonObject,
     JsonRecord,
+    JsonValue,
     ManifestKind,
 )
 from sb3_hddpg.artifacts.records.benchmark import BenchmarkRecord, benchmark_record, read_benchmark_record
@@ -38,28 +42,44 @@ from sb3_hddpg.artifacts.records.models import (
     read_models_manifest,
     read_workers_manifest,
 )
+from sb3_hddpg.artifacts.records.results import (
+    BenchmarkResults,
+    Comparison,
+    MethodResults,
+    Summary,
+    benchmark_results,
+    read_benchmark_results,
+)
 
 __all__ = [
     "BENCHMARK_RECORD_VERSION",
+    "BENCHMARK_RESULTS_VERSION",
     "BUNDLE_MANIFEST_VERSION",
     "FLAT_MANIFEST_VERSION",
     "HAM_FILE_VERSION",
     "QUICKSTART_RESULTS_VERSION",
     "WORKERS_MANIFEST_VERSION",
     "BenchmarkRecord",
+    "BenchmarkResults",
     "BundleManifest",
+    "Comparison",
     "HamFile",
     "JsonObject",
     "JsonRecord",
+    "JsonValue",
     "ManifestKind",
+    "MethodResults",
     "ModelEntry",
     "ModelsManifest",
+    "Summary",
     "benchmark_record",
+    "benchmark_results",
     "bundle_manifest",
     "ham_file",
     "models_manifest",
     "models_manifest_from_json",
     "read_benchmark_record",
+    "read_benchmark_results",
     "read_ham_file",
     "read_models_manifest",
     "read_workers_manifest",

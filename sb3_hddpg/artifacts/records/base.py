@@ -18,6 +18,8 @@ BUNDLE_MANIFEST_VERSION = 1
 HAM_FILE_VERSION = 1
 #: Version of a benchmark task's record (``records/METHOD/seed-N.json``).
 BENCHMARK_RECORD_VERSION = 1
+#: Schema version of a benchmark's ``results.json`` (files without one are version 1).
+BENCHMARK_RESULTS_VERSION = 1
 #: Schema version of the quickstart's ``results.json`` (2: no ``ham_available``, HAM is always compared).
 QUICKSTART_RESULTS_VERSION = 2
 
@@ -27,6 +29,10 @@ MANIFEST_VERSIONS: dict[str, int] = {"workers": WORKERS_MANIFEST_VERSION, "model
 
 BUNDLE_KIND = "sb3-hddpg-hierarchy"
 HAM_KIND = "sb3-hddpg-ham"
+
+#: A JSON value: what ``json.loads`` returns, and what a record's JSON fields may hold.
+JsonScalar = str | int | float | bool | None
+JsonValue = JsonScalar | list["JsonValue"] | dict[str, "JsonValue"]
 
 #: A JSON object as read from a file: its values are checked where they are used.
 JsonObject = dict[str, Any]

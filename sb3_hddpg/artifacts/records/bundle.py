@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict, cast
 
 from sb3_hddpg.artifacts.limits import (
     MAX_WORKERS,
@@ -17,6 +17,25 @@ from sb3_hddpg.artifacts.records.base import (
     JsonObject,
     JsonRecord,
 )
+
+
+class BundleMember(TypedDict, total=False):
+    """
+    One member's entry in a bundle manifest: its member file and sha256 (the reader checks both), its kind
+    (``sb3``, or ``hierarchy`` for a nested bundle), the rebuild spec of an SB3 model, and what the bundle
+    keeps about a worker (:meth:`~sb3_hddpg.artifacts.workers.Workers.bundle_meta`).
+    """
+
+    file: str
+    sha256: str
+    kind: str
+    spec: dict[str, object]
+    source_sha256: str
+    reward_term: str
+    reward_bounds: list[float]
+    env_id: str
+    metrics: dict[str, object]
+    seed: int
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,12 +59,12 @@ class BundleManifest(JsonRecord):
     env_kwargs: object
     worker_names: list[str]
     selection: object
-    manager: Mapping[str, Any]
-    workers: Mapping[str, Mapping[str, Any]]
-    versions: Mapping[str, Any] = field(default_factory=dict)
+    manager: BundleMember
+    workers: Mapping[str, BundleMember]
+    versions: Mapping[str, object] = field(default_factory=dict)
     schema_version: int = BUNDLE_MANIFEST_VERSION
 
-    def member_entries(self) -> list[tuple[str, Mapping[str, Any]]]:
+    def member_entries(self) -> list[tuple[str, BundleMember]]:
         """(label, entry) of every member: the manager first, then the workers in order."""
         return [("manager", self.manager), *((name, self.workers[name]) for name in self.worker_names)]
 
@@ -90,8 +109,8 @@ class BundleManifest(JsonRecord):
             value.get("env_kwargs"),
             names,
             value.get("selection"),
-            manager,
-            workers,
+            cast(BundleMember, manager),
+            cast(dict[str, BundleMember], workers),
             versions if isinstance(versions := value.get("versions"), dict) else {},
             version,
         )
@@ -102,12 +121,12 @@ class BundleManifest(JsonRecord):
 
 def bundle_manifest(
     env_id: str,
-    env_kwargs: Mapping[str, Any],
+    env_kwargs: Mapping[str, object],
     worker_names: Sequence[str],
-    selection: Mapping[str, Any],
-    manager: Mapping[str, Any],
-    workers: Mapping[str, Mapping[str, Any]],
-    versions: Mapping[str, Any],
+    selection: Mapping[str, object],
+    manager: Mapping[str, object],
+    workers: Mapping[str, Mapping[str, object]],
+    versions: Mapping[str, object],
 ) -> BundleManifest:
     """The one builder of a bundle manifest, at this library's schema version (see :class:`BundleManifest`)."""
     return BundleManifest(
@@ -115,8 +134,8 @@ def bundle_manifest(
         dict(env_kwargs),
         list(worker_names),
         dict(selection),
-        manager,
-        workers,
+        cast(BundleMember, dict(manager)),
+        {name: cast(BundleMember, dict(entry)) for name, entry in workers.items()},
         versions,
         BUNDLE_MANIFEST_VERSION,
     )

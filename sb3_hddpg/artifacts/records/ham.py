@@ -47,7 +47,7 @@ class HamFile(JsonRecord):
     workers_manifest: str
     env_id: str
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    metadata: Mapping[str, Any] = field(default_factory=dict)
+    metadata: Mapping[str, object] = field(default_factory=dict)
     schema_version: int = HAM_FILE_VERSION
 
     @property
@@ -89,8 +89,8 @@ def ham_file(
     names: Sequence[str],
     workers_manifest: str,
     env_id: str,
-    env_kwargs: Mapping[str, Any] | None = None,
-    metadata: Mapping[str, Any] | None = None,
+    env_kwargs: Mapping[str, object] | None = None,
+    metadata: Mapping[str, object] | None = None,
 ) -> HamFile:
     """The one builder of a ``ham.json`` record, at this library's schema version (see :class:`HamFile`)."""
     extra = {k: v for k, v in (metadata or {}).items() if k not in _HAM_FIELDS}

@@ -6,7 +6,7 @@ import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TypedDict, cast
 
 from sb3_hddpg.artifacts.limits import (
     LimitError,
@@ -22,6 +22,34 @@ from sb3_hddpg.artifacts.records.base import (
     ManifestKind,
     check_version,
 )
+
+
+class ModelEntryJson(TypedDict, total=False):
+    """
+    A model's entry as its manifest holds it (:meth:`ModelEntry.to_json`): the reader checks ``name``,
+    ``file`` and ``sha256`` (and ``algo``); the loaders check the rest where they use it. Entries written
+    before a field existed lack it.
+    """
+
+    name: str
+    file: str
+    sha256: str
+    algo: str
+    env_id: str
+    env_kwargs: dict[str, object]
+    config: dict[str, object]
+    seed: int
+    timesteps_requested: int
+    timesteps_trained: int
+    backend: str
+    versions: dict[str, str]
+    metrics: dict[str, object]
+    spec: dict[str, object]
+    reward_term: str
+    reward_bounds: list[float]
+    stopped_early: bool
+    preferences: dict[str, float] | None
+    threads: int | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,16 +77,16 @@ class ModelEntry(JsonRecord):
     sha256: str
     algo: str
     env_id: str
-    env_kwargs: Mapping[str, Any]
-    config: Mapping[str, Any]
+    env_kwargs: Mapping[str, object]
+    config: Mapping[str, object]
     seed: int
     timesteps_requested: int
     timesteps_trained: int
     backend: str
     versions: Mapping[str, str]
-    metrics: Mapping[str, Any]
-    spec: Mapping[str, Any]
-    facts: Mapping[str, Any] = field(default_factory=dict)
+    metrics: Mapping[str, object]
+    spec: Mapping[str, object]
+    facts: Mapping[str, object] = field(default_factory=dict)
 
     @property
     def file(self) -> str:
@@ -101,8 +129,8 @@ class ModelsManifest(JsonRecord):
     """
 
     kind: ManifestKind
-    entries: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
-    shared_env: Mapping[str, Any] | None = None
+    entries: Mapping[str, ModelEntryJson] = field(default_factory=dict)
+    shared_env: Mapping[str, object] | None = None
     schema_version: int = 1
 
     @property
@@ -110,12 +138,12 @@ class ModelsManifest(JsonRecord):
         """The entries' names, in order."""
         return list(self.entries)
 
-    def with_entry(self, name: str, entry: Mapping[str, Any]) -> ModelsManifest:
+    def with_entry(self, name: str, entry: ModelEntry | Mapping[str, object]) -> ModelsManifest:
         """This manifest with ``entry`` (a :class:`ModelEntry` or a JSON object) as ``name``'s."""
-        as_json = entry.to_json() if isinstance(entry, JsonRecord) else dict(entry)
+        as_json = cast(ModelEntryJson, entry.to_json() if isinstance(entry, JsonRecord) else dict(entry))
         return replace(self, entries={**self.entries, name: as_json})
 
-    def with_shared_env(self, env_id: str, env_kwargs: Mapping[str, Any]) -> ModelsManifest:
+    def with_shared_env(self, env_id: str, env_kwargs: Mapping[str, object]) -> ModelsManifest:
         """This manifest recording ``env_id`` and ``env_kwargs`` as the workers' shared env."""
         return replace(self, shared_env={"env_id": env_id, "env_kwargs": dict(env_kwargs)})
 
@@ -131,8 +159,8 @@ class ModelsManifest(JsonRecord):
 
 def models_manifest(
     kind: ManifestKind,
-    entries: Mapping[str, Mapping[str, Any]] | None = None,
-    shared_env: Mapping[str, Any] | None = None,
+    entries: Mapping[str, ModelEntry | Mapping[str, object]] | None = None,
+    shared_env: Mapping[str, object] | None = None,
 ) -> ModelsManifest:
     """
     The one builder of a models manifest, at this library's schema version.
@@ -159,11 +187,11 @@ def models_manifest_from_json(value: object, kind: ManifestKind, what: str) -> M
     if not isinstance(value, dict) or not isinstance(value.get(kind), dict):
         raise ValueError(f"Not a valid {kind} manifest: {what!r}")
     version = check_version(value.get("schema_version"), MANIFEST_VERSIONS[kind], what)
-    entries: dict[str, Mapping[str, Any]] = {}
+    entries: dict[str, ModelEntryJson] = {}
     # Names and files travel with shared folders: each must be a plain name before it picks a file.
     for name, entry in value[kind].items():
         check_name(name, f"{what}: {kind}")
-        entries[name] = check_file_entry(entry, f"{what}: {kind}.{brief(name)}")
+        entries[name] = cast(ModelEntryJson, check_file_entry(entry, f"{what}: {kind}.{brief(name)}"))
     shared = value.get("shared_env")
     if shared is not None and not isinstance(shared, dict):
         raise ValueError(f"{what}: shared_env must be a mapping, actually: {brief(shared)}")

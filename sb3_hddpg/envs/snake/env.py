@@ -8,7 +8,7 @@ import struct
 import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import fields
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -21,6 +21,11 @@ from sb3_hddpg.envs.snake.params import REWARD_TERMS, SnakeParams, check_choice
 from sb3_hddpg.envs.snake.physics import ArmPhysics, body_angle
 from sb3_hddpg.envs.snake.rewards import GoalTerm, avoid_term, reward_bounds
 from sb3_hddpg.envs.snake.view import SnakeView
+
+if TYPE_CHECKING:
+    import pymunk
+
+    from sb3_hddpg.envs.snake.rendering import SnakeRenderer
 
 
 class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -216,7 +221,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._movers = Movers(params)
         self._ever_touched = False
         self._ever_collided = False
-        self._renderer: Any = None
+        self._renderer: SnakeRenderer | None = None
 
     def _set_rewards(self, params: SnakeParams) -> None:
         """The reward terms' bounds and normaliser, and the step's reward choice."""
@@ -245,7 +250,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             low, high = low[self._observe_index], high[self._observe_index]
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
-    def _observation_slots(self) -> list[tuple[int, Any, int, int, int, int]]:
+    def _observation_slots(self) -> list[tuple[int, object, int, int, int, int]]:
         """
         Per link: its index, its body's Chipmunk pointer, and where its values go in the observation (end
         point x, obstacle vector x, obstacle distance, touch flag; y follows x). Rebuilt with the chain.
@@ -265,17 +270,17 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------------ the arm and the movers
     @property
-    def space(self) -> Any:
+    def space(self) -> pymunk.Space | None:
         """The arm's pymunk space."""
         return self._arm.space
 
     @property
-    def links(self) -> list[Any]:
+    def links(self) -> list[pymunk.Body]:
         """The links' pymunk bodies, base first."""
         return self._arm.links
 
     @property
-    def motors(self) -> list[Any]:
+    def motors(self) -> list[pymunk.SimpleMotor]:
         """The joints' pymunk motors, base first."""
         return self._arm.motors
 
@@ -417,8 +422,8 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+        self, *, seed: int | None = None, options: dict[str, object] | None = None
+    ) -> tuple[np.ndarray, dict[str, object]]:
         super().reset(seed=seed)
         n = self.n_joints
         angles = np.concatenate(
@@ -459,12 +464,12 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
             self.render()
         return self._observed(obs), reward, False, False, info
 
-    def __getstate__(self) -> dict[str, Any]:
+    def __getstate__(self) -> dict[str, object]:
         # The arm pickles its motion state and rebuilds its chain; the env rebuilds what points into it.
         unpicklable = ("_renderer", "_link_slots", "_pack_obs")
         return {k: v for k, v in self.__dict__.items() if k not in unpicklable}
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
+    def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
         self._renderer = None
         self._pack_obs = struct.Struct(f"={self._obs_size}f").pack
@@ -560,7 +565,7 @@ def _closest_obstacle(
     return best_vx, best_vy, best
 
 
-def _check_components(observe: Any, layout: StateLayout) -> tuple[str, ...] | None:
+def _check_components(observe: object, layout: StateLayout) -> tuple[str, ...] | None:
     """``observe`` as a tuple of known, distinct component names (``None``: the whole state)."""
     if observe is None:
         return None

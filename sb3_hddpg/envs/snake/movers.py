@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
@@ -39,7 +38,7 @@ class Movers:
         count = 1 + params.n_obstacles
         self.positions: list[list[float]] = [[0.0, 0.0] for _ in range(count)]
         self.velocities: list[list[float]] = [[0.0, 0.0] for _ in range(count)]
-        self._noise: list[Any] = []
+        self._noise: list[float] = []
         self._noise_index = 0
         self._link_walkers()
 
@@ -131,10 +130,10 @@ class Movers:
             vel[0] = vx
             vel[1] = vy
 
-    def __getstate__(self) -> dict[str, Any]:
+    def __getstate__(self) -> dict[str, object]:
         # The walkers hold the same lists as positions and velocities: rebuilt, so that a copy shares them.
         return {k: v for k, v in self.__dict__.items() if k != "_walkers"}
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
+    def __setstate__(self, state: dict[str, object]) -> None:
         self.__dict__.update(state)
         self._link_walkers()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any
 
 import numpy as np
 
@@ -114,22 +113,22 @@ class SnakeParams:
         return 1.0 / self.n_joints
 
 
-def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+def check_choice(name: str, value: object, choices: tuple[str, ...]) -> None:
     """Raise a ``ValueError`` naming ``name`` unless ``value`` is one of ``choices``."""
     if value not in choices:
         raise ValueError(f"Expected `{name}` to be one of {list(choices)}, actually: {value!r}")
 
 
-def _check_count(name: str, value: Any, minimum: int, maximum: int) -> None:
+def _check_count(name: str, value: object, minimum: int, maximum: int) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not minimum <= value <= maximum:
         raise ValueError(f"Expected `{name}` to be an integer in [{minimum}, {maximum}], actually: {value!r}")
 
 
-def _check_positive(name: str, value: Any) -> None:
+def _check_positive(name: str, value: object) -> None:
     if not isinstance(value, (int, float, np.number)) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"Expected `{name}` to be a finite number > 0, actually: {value!r}")
 
 
-def _check_non_negative(name: str, value: Any) -> None:
+def _check_non_negative(name: str, value: object) -> None:
     if not isinstance(value, (int, float, np.number)) or not math.isfinite(value) or value < 0:
         raise ValueError(f"Expected `{name}` to be a finite number >= 0, actually: {value!r}")

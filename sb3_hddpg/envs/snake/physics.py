@@ -10,7 +10,7 @@ property costs several times more than the C call). See docs/PERFORMANCE.md.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TypedDict, cast
 
 import numpy as np
 import pymunk
@@ -22,6 +22,14 @@ from sb3_hddpg.envs.snake.params import SnakeParams
 body_angle = _chipmunk.cpBodyGetAngle
 _set_motor_rate = _chipmunk.cpSimpleMotorSetRate
 _space_step = _chipmunk.cpSpaceStep
+
+
+class MotionState(TypedDict):
+    """The chain's motion as plain values: per link position, angle, velocity and spin; motor rates; angles."""
+
+    links: list[tuple[tuple[float, float], float, tuple[float, float], float]]
+    motor_rates: list[float]
+    angles: list[float]
 
 
 class ArmPhysics:
@@ -81,7 +89,7 @@ class ArmPhysics:
             parent = body
         # Raw Chipmunk pointers for the step; the pymunk objects in space, links and motors own them and
         # keep them alive.
-        self._space_handle: Any = space._space
+        self._space_handle: object = space._space
         self.link_handles = [body._body for body in self.links]
         self._motor_handles = [motor._constraint for motor in self.motors]
 
@@ -166,17 +174,18 @@ class ArmPhysics:
         absolute = np.array([b.angle for b in self.links])
         return np.diff(absolute, prepend=0.0)
 
-    def motion_state(self) -> dict[str, Any]:
+    def motion_state(self) -> MotionState:
         """The links' motion and the motors' rates as plain values (pymunk objects do not pickle faithfully)."""
         return {
             "links": [
-                (tuple(b.position), b.angle, tuple(b.velocity), b.angular_velocity) for b in self.links
+                ((b.position.x, b.position.y), b.angle, (b.velocity.x, b.velocity.y), b.angular_velocity)
+                for b in self.links
             ],
             "motor_rates": [m.rate for m in self.motors],
             "angles": list(self.angles),
         }
 
-    def restore(self, state: dict[str, Any]) -> None:
+    def restore(self, state: MotionState) -> None:
         """Rebuild the chain in the state :meth:`motion_state` returned."""
         self.build()
         for body, (position, angle, velocity, spin) in zip(self.links, state["links"]):
@@ -185,15 +194,15 @@ class ArmPhysics:
             motor.rate = rate
         self.angles = list(state["angles"])
 
-    def __getstate__(self) -> dict[str, Any]:
+    def __getstate__(self) -> dict[str, object]:
         # pymunk pickles a space with copies of its bodies, which would leave ``links`` and ``motors``
         # pointing at bodies outside the simulation: pickle the links' motion state and rebuild instead.
         kept = {k: v for k, v in self.__dict__.items() if k not in _UNPICKLABLE}
         kept["_motion"] = self.motion_state()
         return kept
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        motion = state.pop("_motion")
+    def __setstate__(self, state: dict[str, object]) -> None:
+        motion = cast(MotionState, state.pop("_motion"))
         self.__dict__.update(state)
         self.space = None
         self.restore(motion)

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from sb3_hddpg.artifacts.records.results import Interval
+
 #: Bootstrap replications of every interval here (rliable's default is 50000, which takes minutes for a
 #: benchmark of ten methods on two shared cores; at 2000 the bounds move by well under the table's precision).
 BOOTSTRAP_REPS = 2_000
@@ -77,7 +79,9 @@ def _interval_estimates(*args: Any, **kwargs: Any) -> Any:
         np.random.set_state(state)
 
 
-def aggregate_intervals(scores: Mapping[str, np.ndarray], confidence: float = 0.95) -> dict[str, Any]:
+def aggregate_intervals(
+    scores: Mapping[str, np.ndarray], confidence: float = 0.95
+) -> dict[str, dict[str, Interval]]:
     """
     Per method the IQM and the mean over every (run, task) score with stratified bootstrap intervals.
 
@@ -107,7 +111,7 @@ def aggregate_intervals(scores: Mapping[str, np.ndarray], confidence: float = 0.
 
 def improvement_probabilities(
     scores: Mapping[str, np.ndarray], pairs: Sequence[tuple[str, str]], confidence: float = 0.95
-) -> dict[str, dict[str, float]]:
+) -> dict[str, Interval]:
     """
     rliable's probability of improvement ``P(A > B)`` for each pair, averaged over tasks, with a stratified
     bootstrap interval (runs of A and of B resampled independently).

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
-from typing import Any
 
 import gymnasium as gym
 
@@ -68,12 +67,14 @@ def _load_worker(folder: Path, env: TermsEnv, name: str) -> Policy:
     return load_policy(folder / "workers" / f"{name}.zip", allowed_env_ids=allowed).policy
 
 
-def _curve_point(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, Any]:
+def _curve_point(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, float]:
     """One learning-curve evaluation (the learning-curve episodes): a reference that does not learn."""
     return evaluate(policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
 
 
-def _run_term_alone(index: int, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, Any]:
+def _run_term_alone(
+    index: int, task: MethodTask, settings: MethodSettings, folder: Path
+) -> dict[str, object]:
     """The seed's worker of the env's ``index``-th term alone on the scalarised task."""
     shared = _shared_env(settings, task.method)
     if index >= len(shared.terms):
@@ -106,7 +107,7 @@ def ttc_workers(env: TermsEnv) -> tuple[str, str]:
     return env.terms[0], env.terms[-1]
 
 
-def _run_ttc(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, Any]:
+def _run_ttc(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, object]:
     """
     The time-to-collision switch over the seed's fast and safe workers: one learning-curve point (it does not
     learn) and the test; with ``tuned`` its threshold is the best of :data:`TTC_GRID` on the learning-curve

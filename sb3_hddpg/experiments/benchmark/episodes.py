@@ -14,12 +14,12 @@ import csv
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.artifacts.limits import MAX_CSV_BYTES
+from sb3_hddpg.artifacts.records import JsonObject
 from sb3_hddpg.envs.contract import TermNormaliser
 from sb3_hddpg.evaluation import EvaluationResult
 
@@ -37,6 +37,9 @@ SEED_METRIC_OF = {
     "min_clearance": "min_clearance",
     "action_saturation": "action_saturation",
 }
+#: One row of ``episodes.csv``: the run's columns (text, whole numbers) and the episode's numbers.
+EpisodeRow = dict[str, str | int | float]
+
 #: Prefixes of the per-term columns: a term's raw episode sum, and its normalised episode sum.
 RAW_PREFIX, NORMALISED_PREFIX = "raw:", "norm:"
 
@@ -64,7 +67,7 @@ def episode_rows(result: EvaluationResult, bounds: Mapping[str, Sequence[float]]
     return rows
 
 
-def seed_metrics(rows: Iterable[Mapping[str, Any]]) -> dict[str, float]:
+def seed_metrics(rows: Iterable[Mapping[str, str | int | float]]) -> dict[str, float]:
     """
     A seed's test metrics from its episode rows: the mean of each metric over the episodes, under the names of
     an evaluation summary (``mean_reach_reward``, ``collisions_per_episode``, ``mean_<term>_reward``,
@@ -93,14 +96,14 @@ def seed_metrics(rows: Iterable[Mapping[str, Any]]) -> dict[str, float]:
     return out
 
 
-def records_episode_rows(records: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def records_episode_rows(records: Iterable[JsonObject]) -> list[EpisodeRow]:
     """The rows of ``episodes.csv`` from the records that hold test episodes (older records hold none)."""
-    rows: list[dict[str, Any]] = []
+    rows: list[EpisodeRow] = []
     for record in records:
         episodes = record.get("episodes")
         if not episodes:
             continue
-        base = {
+        base: EpisodeRow = {
             "method": record["method"],
             "seed": record["seed"],
             "episode_set": record.get("test_episode_set", {}).get("name", ""),
@@ -109,7 +112,7 @@ def records_episode_rows(records: Iterable[Mapping[str, Any]]) -> list[dict[str,
     return rows
 
 
-def write_episodes_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
+def write_episodes_csv(path: Path, rows: Sequence[Mapping[str, str | int | float]]) -> Path:
     """Write ``episodes.csv`` atomically: the run columns, then every metric column any row has, sorted."""
     metric_keys = sorted({k for row in rows for k in row} - set(EPISODE_KEYS))
 
@@ -122,12 +125,12 @@ def write_episodes_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
     return atomic_write(path, write)
 
 
-def _cell(value: Any) -> Any:
+def _cell(value: str | int | float) -> str | int:
     """Floats written with ``repr`` precision, so that a read-back row gives the same means."""
     return repr(value) if isinstance(value, float) else value
 
 
-def read_episodes_csv(path: Path) -> list[dict[str, Any]]:
+def read_episodes_csv(path: Path) -> list[EpisodeRow]:
     """
     Read ``episodes.csv``: ``seed`` and ``episode_seed`` as integers, every metric as a finite float (an empty
     cell: the metric is not reported there, left out of the row).
@@ -148,8 +151,8 @@ def read_episodes_csv(path: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def _parse_row(raw: Mapping[str, str], where: str) -> dict[str, Any]:
-    row: dict[str, Any] = {"method": raw["method"], "episode_set": raw["episode_set"]}
+def _parse_row(raw: Mapping[str, str], where: str) -> EpisodeRow:
+    row: EpisodeRow = {"method": raw["method"], "episode_set": raw["episode_set"]}
     for key, text in raw.items():
         if key in ("method", "episode_set") or text in ("", None):
             continue
@@ -165,9 +168,9 @@ def _parse_row(raw: Mapping[str, str], where: str) -> dict[str, Any]:
     return row
 
 
-def group_rows(rows: Iterable[Mapping[str, Any]]) -> dict[str, dict[int, list[Mapping[str, Any]]]]:
+def group_rows(rows: Iterable[EpisodeRow]) -> dict[str, dict[int, list[EpisodeRow]]]:
     """Rows by method, then seed."""
-    grouped: dict[str, dict[int, list[Mapping[str, Any]]]] = {}
+    grouped: dict[str, dict[int, list[EpisodeRow]]] = {}
     for row in rows:
         grouped.setdefault(str(row["method"]), {}).setdefault(int(row["seed"]), []).append(row)
     return grouped

@@ -23,12 +23,14 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import cast
 
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.baselines.ham import load_ham, save_ham
+from sb3_hddpg.artifacts.records import JsonObject
+from sb3_hddpg.artifacts.records.results import DecisionFigure, FrontComparison, FrontResults
+from sb3_hddpg.baselines.ham import HAMSwitch, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.episode_sets import CURVE
@@ -90,7 +92,9 @@ class FrontPoint:
     mean_reach_reward: float
 
     @classmethod
-    def of(cls, label: str, summary: Mapping[str, Any], bounds: Mapping[str, Sequence[float]]) -> FrontPoint:
+    def of(
+        cls, label: str, summary: Mapping[str, float], bounds: Mapping[str, Sequence[float]]
+    ) -> FrontPoint:
         """The point of an evaluation summary (:meth:`~sb3_hddpg.evaluation.EvaluationResult.summary`)."""
         terms = {}
         for term in ("goal", "avoid"):
@@ -125,7 +129,9 @@ def hypervolume(points: Sequence[FrontPoint], plane: str, reference: Sequence[fl
     return float(HV(ref_point=sign * np.asarray(reference, dtype=np.float64))(values * sign))
 
 
-def member_fields(points: Sequence[FrontPoint], references: Mapping[str, Sequence[float]]) -> dict[str, Any]:
+def member_fields(
+    points: Sequence[FrontPoint], references: Mapping[str, Sequence[float]]
+) -> dict[str, object]:
     """A member's record: its points and its hypervolume in each plane."""
     return {
         "points": [asdict(p) for p in points],
@@ -145,7 +151,7 @@ def sweep_labels() -> list[str]:
 
 def decision_dependence(
     hierarchy: Hierarchy, env: gym.Env, seeds: range, worker: str = "avoid", seed: int = 0
-) -> dict[str, Any] | None:
+) -> DecisionFigure | None:
     """
     Whether the manager decides by state, counted per **decision** (not per env step): ``worker``'s share of
     the decisions made with an obstacle within half the sensor range against its share of those with none
@@ -210,7 +216,7 @@ def decision_dependence(
     }
 
 
-def ham_thresholds(switch: Any, env: gym.Env, settings: MethodSettings) -> list[dict[str, float]]:
+def ham_thresholds(switch: HAMSwitch, env: gym.Env, settings: MethodSettings) -> list[dict[str, float]]:
     """
     HAM's thresholds for its front: every grid threshold evaluated on the curve episodes, the non-dominated
     ones (goal touch up, contacts down) kept, at most :data:`HAM_FRONT_POINTS` spread over them.
@@ -247,12 +253,12 @@ def ham_thresholds(switch: Any, env: gym.Env, settings: MethodSettings) -> list[
     return kept
 
 
-def _test_summary(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, Any]:
+def _test_summary(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, float]:
     seeds = settings.test_set.seeds(settings.test_episodes or 1)
     return evaluate(policy, env, n_episodes=len(seeds), seed=seeds.start).summary()
 
 
-def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, Any]:
+def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, object]:
     """
     The ``front`` scenario's run of one seed (the method ``hddpg-front``): train the conditioned manager and
     one manager per sweep preference over the seed's workers, then measure every member's front on the test
@@ -276,8 +282,8 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
     env = gym.make(FLAT_ENV_ID)
     try:
         bounds = env_contract(env).reward_bounds
-        front: dict[str, Any] = {}
-        dependence: dict[str, Any] = {}
+        front: dict[str, object] = {}
+        dependence: dict[str, DecisionFigure | None] = {}
         points = []
         seeds = settings.test_set.seeds(settings.test_episodes or 1)
         for label in sweep_labels():
@@ -334,7 +340,7 @@ def _factors(label: str) -> dict[str, float]:
     return {name: float(value) for name, _, value in (part.partition("=") for part in label.split(","))}
 
 
-def front_results(runs: Mapping[int, Mapping[str, Any]]) -> dict[str, Any]:
+def front_results(runs: Mapping[int, JsonObject]) -> FrontResults:
     """
     The front scenario's statistics over seeds: per member and plane the per-seed hypervolumes and their
     summary (mean, 95 % bootstrap CI, IQM), the paired differences of :data:`FRONT_PAIRS` (Student t
@@ -354,11 +360,11 @@ def front_results(runs: Mapping[int, Mapping[str, Any]]) -> dict[str, Any]:
         member: {plane: summarise(list(values.values())) for plane, values in planes.items()}
         for member, planes in per_seed.items()
     }
-    comparisons: dict[str, Any] = {}
+    comparisons: dict[str, FrontComparison] = {}
     for a, b in FRONT_PAIRS:
         if a not in per_seed or b not in per_seed or len(seeds) < 2:
             continue  # one seed makes no paired interval
-        entry: dict[str, Any] = {"seeds": seeds}
+        entry: dict[str, object] = {"seeds": seeds}  # a FrontComparison once both planes are in
         for plane in PLANES:
             xa = np.array([per_seed[a][plane][str(s)] for s in seeds])
             xb = np.array([per_seed[b][plane][str(s)] for s in seeds])
@@ -368,7 +374,7 @@ def front_results(runs: Mapping[int, Mapping[str, Any]]) -> dict[str, Any]:
                 "wins": int(np.sum(xa > xb)),
                 "probability_of_improvement": probability_of_improvement(xa, xb),
             }
-        comparisons[f"{a} vs {b}"] = entry
+        comparisons[f"{a} vs {b}"] = cast(FrontComparison, entry)
     return {
         "members": list(per_seed),
         "references": runs[seeds[0]]["references"] if seeds else {},
@@ -380,7 +386,7 @@ def front_results(runs: Mapping[int, Mapping[str, Any]]) -> dict[str, Any]:
     }
 
 
-def front_table(front: Mapping[str, Any]) -> list[str]:
+def front_table(front: FrontResults) -> list[str]:
     """The front table of the generated results pages: Markdown lines."""
     lines = [
         "| member | hypervolume (goal touch, contacts) | hypervolume (goal term, avoid term) |",
@@ -401,8 +407,7 @@ def front_table(front: Mapping[str, Any]) -> list[str]:
             + ". Mean over seeds with the 95 % bootstrap interval."
         )
     for name, entry in front.get("comparisons", {}).items():
-        for plane in PLANES:
-            c = entry[plane]
+        for plane, c in (("outcomes", entry["outcomes"]), ("terms", entry["terms"])):
             lines.append(
                 f"- {name} ({plane} plane): difference {c['difference']:.4g} [{c['ci_low']:.4g}, "
                 f"{c['ci_high']:.4g}] (paired t over seeds), better in {c['wins']} of {len(entry['seeds'])} seeds"
@@ -410,7 +415,7 @@ def front_table(front: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def decides_table(front: Mapping[str, Any]) -> list[str]:
+def decides_table(front: FrontResults) -> list[str]:
     """
     The decides-by-state table of the generated pages: per seed and preference, the avoid worker's share of
     decisions near an obstacle and with none in range, and their ratio with its bootstrap interval.
@@ -424,10 +429,12 @@ def decides_table(front: Mapping[str, Any]) -> list[str]:
             if figure is None:
                 continue
             ratio = "-" if figure["ratio"] is None else f"{figure['ratio']:.2f}"
-            if figure.get("ratio_ci"):
-                ratio += f" [{figure['ratio_ci'][0]:.2f}, {figure['ratio_ci'][1]:.2f}]"
+            interval = figure.get("ratio_ci")
+            if interval:
+                ratio += f" [{interval[0]:.2f}, {interval[1]:.2f}]"
             shares = [
-                "-" if figure[key] is None else f"{figure[key]:.1%}" for key in ("near_share", "clear_share")
+                "-" if share is None else f"{share:.1%}"
+                for share in (figure["near_share"], figure["clear_share"])
             ]
             lines.append(
                 f"| {seed} | `{preference}` | {shares[0]} | {shares[1]} | {ratio} "
@@ -436,7 +443,7 @@ def decides_table(front: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def front_figure(front: Mapping[str, Any], path: Path, colours: Mapping[str, str] | None = None) -> Path:
+def front_figure(front: FrontResults, path: Path, colours: Mapping[str, str] | None = None) -> Path:
     """
     The fronts in both planes, every seed's points, each member's mean over seeds as a line (matplotlib).
 
@@ -484,7 +491,7 @@ def _front_cost(settings: MethodSettings) -> int:
     return (1 + len(SWEEP.points)) * settings.manager_env_steps
 
 
-def _front_blocks(settings: MethodSettings) -> dict[str, Any]:
+def _front_blocks(settings: MethodSettings) -> dict[str, object]:
     return {f"ddpg.yml[{MANAGER_KEY}]": manager_hyperparams("ddpg").raw}
 
 

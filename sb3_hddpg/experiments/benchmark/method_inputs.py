@@ -8,11 +8,19 @@ protocols instead of the settings' class keeps that dependency one way (settings
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Protocol, TypedDict
 
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.episode_sets import EpisodeSet
 from sb3_hddpg.training.run_options import RunOptions
+
+
+class EnvChoice(TypedDict):
+    """Another env than the snake arm (``--env``): a :class:`~sb3_hddpg.envs.terms_env.TermsEnv`'s fields."""
+
+    env_id: str
+    env_kwargs: dict[str, object]
+    terms: list[str]
 
 
 class MethodSettings(Protocol):
@@ -22,7 +30,7 @@ class MethodSettings(Protocol):
     def bias(self) -> float: ...
 
     @property
-    def env(self) -> dict[str, Any] | None: ...
+    def env(self) -> EnvChoice | None: ...
 
     @property
     def eval_episodes(self) -> int: ...

@@ -11,7 +11,6 @@ import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import gymnasium as gym
 
@@ -37,7 +36,7 @@ from sb3_hddpg.training.manager_setup import manager_hyperparams
 WORKERS = "workers"
 
 
-def _no_blocks(settings: MethodSettings) -> dict[str, Any]:
+def _no_blocks(settings: MethodSettings) -> dict[str, object]:
     """No config block of its own (HAM's threshold is a setting; a worker alone is the workers' run)."""
     return {}
 
@@ -69,7 +68,7 @@ class Method:
     """
 
     name: str
-    run: Callable[[MethodTask, MethodSettings, Path], dict[str, Any]]
+    run: Callable[[MethodTask, MethodSettings, Path], dict[str, object]]
     cost: Callable[[MethodSettings], int]
     needs_workers: bool = False
     colour: str = "tab:olive"
@@ -78,7 +77,7 @@ class Method:
     takes_preference: bool = False
     challenger: bool = False
     description: str = ""
-    config_blocks: Callable[[MethodSettings], dict[str, Any]] = _no_blocks
+    config_blocks: Callable[[MethodSettings], dict[str, object]] = _no_blocks
     own_settings: tuple[str, ...] = ()
 
 
@@ -110,7 +109,7 @@ def split_key(key: str) -> tuple[str, str | None]:
     return name, preference or None
 
 
-def final_test(policy_path: Path, settings: MethodSettings) -> dict[str, Any]:
+def final_test(policy_path: Path, settings: MethodSettings) -> dict[str, object]:
     """
     The test evaluation of a saved policy, loaded the safe way a user would load it, on the benchmark's test
     episode set (:attr:`~.settings.BenchmarkSettings.test_set`): the record's ``test``, ``episodes`` and
@@ -118,9 +117,9 @@ def final_test(policy_path: Path, settings: MethodSettings) -> dict[str, Any]:
     """
 
     # Another env is the user's choice: its id may be loaded from the run's files (allowed_env_ids).
-    shared = settings.env or {}
+    shared = settings.env
     # The adapter's own id and the env it adapts, as naming them on the command line allows them.
-    allowed = [shared["env_id"], config_key(shared["env_id"], shared.get("env_kwargs"))] if shared else None
+    allowed = [shared["env_id"], config_key(shared["env_id"], shared["env_kwargs"])] if shared else None
     loaded = load_policy(policy_path, allowed_env_ids=allowed)
     env = loaded.make_env()
     try:
@@ -129,7 +128,7 @@ def final_test(policy_path: Path, settings: MethodSettings) -> dict[str, Any]:
         env.close()
 
 
-def test_fields(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, Any]:
+def test_fields(policy: Policy, env: gym.Env, settings: MethodSettings) -> dict[str, object]:
     """
     A policy's test evaluation on the benchmark's test episodes as a record's fields: ``test`` (the summary),
     ``episodes`` (every episode's metrics, :func:`~.episodes.episode_rows`) and ``test_episode_set``; on a
@@ -163,13 +162,13 @@ def _decision_states(policy: Policy, env: gym.Env, seed: int) -> DecisionStates 
     return DecisionStates(policy, scales, close=CLOSE_SECONDS)
 
 
-def _ttc_shares(counted: DecisionStates) -> dict[str, Any]:
+def _ttc_shares(counted: DecisionStates) -> dict[str, object]:
     """Each worker's share of the decisions with a car close ahead and with the road clear (issue's target)."""
     names = list(getattr(counted.policy, "names", None) or sorted({*counted.close, *counted.clear}))
     return {name: counted.shares(name) for name in names}
 
 
-def random_reference(settings: MethodSettings) -> dict[str, Any]:
+def random_reference(settings: MethodSettings) -> dict[str, object]:
     """A random policy's evaluation on the learning-curve episodes: the floor of the transfer figure."""
 
     env = gym.make(FLAT_ENV_ID)
@@ -192,7 +191,7 @@ def workers_steps(folder: Path) -> int:
 
 def _run_manager(
     prefer: str | None, task: MethodTask, settings: MethodSettings, folder: Path, algo: str = "ddpg"
-) -> dict[str, Any]:
+) -> dict[str, object]:
     """
     A manager over the seed's workers, preferring ``prefer`` by ``bias`` (or with the task's factors), of
     algorithm ``algo`` (its bundled config's manager block), for the manager's env steps.
@@ -222,7 +221,7 @@ def _run_manager(
 
 def _run_flat(
     algo: str, task: MethodTask, settings: MethodSettings, folder: Path, block: str | None = None
-) -> dict[str, Any]:
+) -> dict[str, object]:
     """
     A flat agent on the combined reward (or the task's scalarised one) for the hierarchy's total steps, from
     its config's block for the env (or ``block``).
@@ -250,7 +249,7 @@ def _run_flat(
 HAM_GRID_STEP = 0.25
 
 
-def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, Any]:
+def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, object]:
     """
     Save the seed's HAM switch and evaluate it: one learning-curve point (it does not learn) and the test.
 
@@ -309,7 +308,7 @@ def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Pa
 
 def _run_worker_alone(
     worker: str, task: MethodTask, settings: MethodSettings, folder: Path
-) -> dict[str, Any]:
+) -> dict[str, object]:
     """
     The seed's ``worker`` alone on the combined task (seeing its own share of the state): what a manager
     over it has to beat, since a manager could always pick that worker.
@@ -330,12 +329,12 @@ def _run_worker_alone(
     }
 
 
-def _manager_blocks(algo: str, settings: MethodSettings) -> dict[str, Any]:
+def _manager_blocks(algo: str, settings: MethodSettings) -> dict[str, object]:
     """The manager block of ``algo``'s bundled config."""
     return {f"{algo}.yml[{MANAGER_KEY}]": manager_hyperparams(algo).raw}
 
 
-def _flat_blocks(algo: str, settings: MethodSettings, block: str | None = None) -> dict[str, Any]:
+def _flat_blocks(algo: str, settings: MethodSettings, block: str | None = None) -> dict[str, object]:
     """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads (or ``block``)."""
     env = settings.terms_env
     env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (FLAT_ENV_ID, None)

@@ -14,12 +14,19 @@ import functools
 import re
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.artifacts.limits import read_json_file
+from sb3_hddpg.artifacts.records import JsonObject
+from sb3_hddpg.artifacts.records.results import (
+    Aggregates,
+    BenchmarkResults,
+    Interval,
+    PairedDifference,
+    Summary,
+)
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
 from sb3_hddpg.experiments.benchmark.front import decides_table, front_table
 from sb3_hddpg.experiments.benchmark.report import headline_figures
@@ -36,7 +43,7 @@ BLOCK = re.compile(
 )
 
 
-def load_run(run: Path) -> tuple[BenchmarkSettings, list[dict[str, Any]]]:
+def load_run(run: Path) -> tuple[BenchmarkSettings, list[JsonObject]]:
     """
     A benchmark folder's settings and finished records; a record's test episodes are ``episodes.csv``'s rows
     where the folder ships that file (the shipped per-episode data is the source of the per-seed figures).
@@ -47,8 +54,8 @@ def load_run(run: Path) -> tuple[BenchmarkSettings, list[dict[str, Any]]]:
         raise FileNotFoundError(f"not a benchmark folder (no benchmark.json and records/): {str(run)!r}")
     stored = read_json_file(run / "benchmark.json")
     settings = BenchmarkSettings(**stored["settings"])
-    records = [read_json_file(path) for path in sorted((run / "records").glob("*/seed-*.json"))]
-    records = [r for r in records if isinstance(r, dict) and r.get("status") == "done"]
+    read = [read_json_file(path) for path in sorted((run / "records").glob("*/seed-*.json"))]
+    records: list[JsonObject] = [r for r in read if isinstance(r, dict) and r.get("status") == "done"]
     csv_path = run / "episodes.csv"
     if csv_path.is_file():
         rows = group_rows(read_episodes_csv(csv_path))
@@ -62,7 +69,7 @@ def load_run(run: Path) -> tuple[BenchmarkSettings, list[dict[str, Any]]]:
     return settings, records
 
 
-def run_results(run: Path) -> dict[str, Any]:
+def run_results(run: Path) -> BenchmarkResults:
     """The results of a benchmark folder, computed from its records (not read from its results.json)."""
     settings, records = load_run(run)
     return compute_results(settings, records)
@@ -75,15 +82,25 @@ def draw_headline_figures(run: Path) -> list[Path]:
 
 
 # ------------------------------------------------------------------------------------------------ tables
-def _interval(entry: Mapping[str, Any], fmt: str, key: str = "mean") -> str:
+def _interval(point: float, entry: Summary | Interval | Mapping[str, float], fmt: str) -> str:
     low, high = entry["ci_low"], entry["ci_high"]
-    return f"{entry[key]:{fmt}} [{low:{fmt}}, {high:{fmt}}]"
+    return f"{point:{fmt}} [{low:{fmt}}, {high:{fmt}}]"
 
 
-def _unit_text(results: dict[str, Any]) -> str:
-    aggregate = results["aggregates"]
-    episodes = results["test_episode_set"]
-    where = f"{episodes['episodes']} {episodes['name']} episodes (seeds {results['test_seeds'][0]}-{results['test_seeds'][1]})"
+def _aggregates(results: BenchmarkResults) -> Aggregates:
+    if results.aggregates is None:
+        raise ValueError("no finished method run in this benchmark: no table to write")
+    return results.aggregates
+
+
+def _episodes(results: BenchmarkResults) -> JsonObject:
+    return dict(results.test_episode_set or {})
+
+
+def _unit_text(results: BenchmarkResults) -> str:
+    aggregate = _aggregates(results)
+    episodes = _episodes(results)
+    where = f"{episodes['episodes']} {episodes['name']} episodes (seeds {results.test_seeds[0]}-{results.test_seeds[1]})"
     if aggregate["unit"] == "episode":
         return (
             f"Test on {where} per trained model. Reach reward: rliable's mean and IQM over every (seed, episode) "
@@ -98,9 +115,9 @@ def _unit_text(results: dict[str, Any]) -> str:
     )
 
 
-def methods_table(results: dict[str, Any]) -> str:
+def methods_table(results: BenchmarkResults) -> str:
     """Per method: the reach reward's mean and IQM with rliable's intervals, touch, contacts, success, choices."""
-    intervals = results["aggregates"]["intervals"]
+    intervals = _aggregates(results)["intervals"]
     lines = [
         _unit_text(results),
         "",
@@ -108,48 +125,54 @@ def methods_table(results: dict[str, Any]) -> str:
         "| collisions / episode | success (% of episodes) | worker choices (test) |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for method, entry in results["methods"].items():
-        s = entry["stats"]
+    for method, entry in results.methods.items():
+        s = entry.stats
         aggregate = intervals[method]
         cells = [
-            _interval(_percent(s[key]) if percent else s[key], fmt) if key in s else "-"
+            _interval(_percent(s[key])["mean"], _percent(s[key]), fmt)
+            if percent
+            else _interval(s[key]["mean"], s[key], fmt)
+            if key in s
+            else "-"
             for key, fmt, percent in (
                 ("goal_touch_rate", ".1f", True),
                 ("collisions_per_episode", ".2f", False),
                 ("success_rate", ".0f", True),
             )
         ]
-        choices = ", ".join(f"{k} {v:.0%}" for k, v in entry.get("selection_rate", {}).items()) or "-"
+        choices = ", ".join(f"{k} {v:.0%}" for k, v in (entry.selection_rate or {}).items()) or "-"
+        mean, iqm = aggregate["mean"], aggregate["iqm"]
         lines.append(
-            f"| `{method}` | {len(entry['seeds'])} | {_interval(aggregate['mean'], '.1f', 'value')} "
-            f"| {_interval(aggregate['iqm'], '.1f', 'value')} | {' | '.join(cells)} | {choices} |"
+            f"| `{method}` | {len(entry.seeds)} | {_interval(mean['value'], mean, '.1f')} "
+            f"| {_interval(iqm['value'], iqm, '.1f')} | {' | '.join(cells)} | {choices} |"
         )
     return "\n".join(lines)
 
 
-def _percent(stats: Mapping[str, Any]) -> dict[str, float]:
-    return {k: 100 * float(stats[k]) for k in ("mean", "ci_low", "ci_high")}
+def _percent(stats: Summary) -> dict[str, float]:
+    return {"mean": 100 * stats["mean"], "ci_low": 100 * stats["ci_low"], "ci_high": 100 * stats["ci_high"]}
 
 
-def _signed(entry: Mapping[str, Any], scale: float = 1.0) -> str:
+def _signed(entry: PairedDifference, scale: float = 1.0) -> str:
     """A paired difference with its adjusted interval, bold when that excludes 0."""
     point, low, high = (scale * entry[k] for k in ("difference", "ci_low_adjusted", "ci_high_adjusted"))
     text = f"{point:+.2f} [{low:+.2f}, {high:+.2f}]"
     return f"**{text}**" if low > 0 or high < 0 else text
 
 
-def comparisons_table(results: dict[str, Any], challenger: str) -> str:
+def comparisons_table(results: BenchmarkResults, challenger: str) -> str:
     """One challenger against every method it is compared with: paired differences, adjusted, and P(A > B)."""
-    family = results["comparison_families"][challenger]
-    pairs = {k: v for k, v in results["comparisons"].items() if k.split(" vs ")[0] == challenger}
+    pairs = {k: v for k, v in results.comparisons.items() if k.split(" vs ")[0] == challenger}
     if not pairs:
         return f"(no comparison of `{challenger}` in this run)"
+    family = (results.comparison_families or {})[challenger]
     m = family["comparisons"]["mean_reach_reward"]
     first = next(iter(pairs.values()))
-    seeds = len(first["seeds"])
-    confidence = first["mean_reach_reward"]["confidence_adjusted"]
-    poi = results["aggregates"]["probability_of_improvement"]
-    unit = "episodes and seeds" if results["aggregates"]["unit"] == "episode" else "seeds"
+    seeds = len(first.seeds)
+    confidence = first.metrics["mean_reach_reward"]["confidence_adjusted"]
+    aggregates = _aggregates(results)
+    poi = aggregates["probability_of_improvement"]
+    unit = "episodes and seeds" if aggregates["unit"] == "episode" else "seeds"
     lines = [
         f"{m} comparisons per metric in this table. Differences: paired by seed, mean over the {seeds} seeds with "
         f"a Student t interval Bonferroni-adjusted for the {m} comparisons (each at {confidence:.2%}, all {m} "
@@ -163,40 +186,41 @@ def comparisons_table(results: dict[str, Any], challenger: str) -> str:
     for pair, comparison in pairs.items():
         baseline = pair.split(" vs ")[1]
         p = poi[pair]
+        metrics = comparison.metrics
         collisions = (
-            _signed(comparison["collisions_per_episode"]) if "collisions_per_episode" in comparison else "-"
+            _signed(metrics["collisions_per_episode"]) if "collisions_per_episode" in metrics else "-"
         )
-        touch = results["methods"][challenger]["stats"].get("goal_touch_rate")
-        other = results["methods"][baseline]["stats"].get("goal_touch_rate")
+        touch = results.methods[challenger].stats.get("goal_touch_rate")
+        other = results.methods[baseline].stats.get("goal_touch_rate")
         touch_text = f"{100 * (touch['mean'] - other['mean']):+.1f}" if touch and other else "-"
         lines.append(
-            f"| `{baseline}` | {_signed(comparison['mean_reach_reward'])} "
+            f"| `{baseline}` | {_signed(metrics['mean_reach_reward'])} "
             f"| {p['value']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}] | {collisions} | {touch_text} |"
         )
     return "\n".join(lines)
 
 
 def per_seed_table(
-    results: dict[str, Any], key: str = "mean_reach_reward", fmt: str = ".1f", scale: float = 1.0
+    results: BenchmarkResults, key: str = "mean_reach_reward", fmt: str = ".1f", scale: float = 1.0
 ) -> str:
     """One metric (times ``scale``) per method and seed."""
-    seeds = sorted({int(s) for entry in results["methods"].values() for s in entry["per_seed"]})
+    seeds = sorted({int(s) for entry in results.methods.values() for s in entry.per_seed})
     lines = [
         "| method | " + " | ".join(f"seed {s}" for s in seeds) + " |",
         "|---|" + "---|" * len(seeds),
     ]
-    for method, entry in results["methods"].items():
-        values = [entry["per_seed"].get(str(s), {}).get(key) for s in seeds]
-        values = [scale * v if v is not None else None for v in values]
+    for method, entry in results.methods.items():
+        found = [entry.per_seed.get(str(s), {}).get(key) for s in seeds]
+        values = [scale * v if v is not None else None for v in found]
         lines.append(
             f"| `{method}` | " + " | ".join(f"{v:{fmt}}" if v is not None else "-" for v in values) + " |"
         )
     return "\n".join(lines)
 
 
-def transfer_table(results: dict[str, Any]) -> str:
+def transfer_table(results: BenchmarkResults) -> str:
     """The transfer ratios per preference and manager: arithmetic mean, geometric mean and median, with CIs."""
-    transfer = results.get("transfer")
+    transfer = results.transfer
     if not transfer:
         return "(not a transfer run)"
     lines = [
@@ -232,7 +256,7 @@ def _triple(values: tuple[float, ...]) -> str:
 
 
 #: Every table a page can hold, by name: ``results -> Markdown``.
-TABLES: dict[str, Callable[[dict[str, Any]], str]] = {
+TABLES: dict[str, Callable[[BenchmarkResults], str]] = {
     "methods": methods_table,
     "comparisons-hddpg": lambda r: comparisons_table(r, "hddpg"),
     "comparisons-hddpg-sac": lambda r: comparisons_table(r, "hddpg-sac"),
@@ -240,23 +264,25 @@ TABLES: dict[str, Callable[[dict[str, Any]], str]] = {
     "per-seed-touch": lambda r: per_seed_table(r, "goal_touch_rate", ".1f", 100.0),
     "per-seed-collisions": lambda r: per_seed_table(r, "collisions_per_episode", ".2f"),
     "transfer": transfer_table,
-    "front": lambda r: "\n".join(front_table(r["front"])) if "front" in r else "(not a front run)",
-    "front-decides": lambda r: "\n".join(decides_table(r["front"])) if "front" in r else "(not a front run)",
+    "front": lambda r: "\n".join(front_table(r.front)) if r.front is not None else "(not a front run)",
+    "front-decides": lambda r: (
+        "\n".join(decides_table(r.front)) if r.front is not None else "(not a front run)"
+    ),
 }
 
 
-def results_sentence(results: dict[str, Any], run_name: str) -> str:
+def results_sentence(results: BenchmarkResults, run_name: str) -> str:
     """
     The README's one results sentence: HDDPG's reach reward with its interval, and for every method it is
     compared with whether it is ahead, level or behind by the table's adjusted interval.
     """
-    hddpg = results["aggregates"]["intervals"]["hddpg"]["mean"]
+    hddpg = _aggregates(results)["intervals"]["hddpg"]["mean"]
     groups: dict[str, list[str]] = {"ahead of": [], "level with": [], "behind": []}
-    for pair, comparison in results["comparisons"].items():
+    for pair, comparison in results.comparisons.items():
         challenger, baseline = pair.split(" vs ")
         if challenger != "hddpg":
             continue
-        entry = comparison["mean_reach_reward"]
+        entry = comparison.metrics["mean_reach_reward"]
         word = (
             "ahead of"
             if entry["ci_low_adjusted"] > 0
@@ -264,11 +290,11 @@ def results_sentence(results: dict[str, Any], run_name: str) -> str:
             if entry["ci_high_adjusted"] < 0
             else "level with"
         )
-        mean = results["methods"][baseline]["stats"]["mean_reach_reward"]["mean"]
+        mean = results.methods[baseline].stats["mean_reach_reward"]["mean"]
         groups[word].append(f"`{baseline}` ({mean:.1f})")
-    episodes = results["test_episode_set"]
+    episodes = _episodes(results)
     verdict = "; ".join(f"{word} {', '.join(names)}" for word, names in groups.items() if names)
-    seeds = len(results["methods"]["hddpg"]["seeds"])
+    seeds = len(results.methods["hddpg"].seeds)
     return (
         f"On the {seeds}-seed benchmark `{run_name}` ({episodes['episodes']} {episodes['name']} episodes per model), "
         f"HDDPG scores {hddpg['value']:.1f} [{hddpg['ci_low']:.1f}, {hddpg['ci_high']:.1f}] reach reward: {verdict} "
@@ -285,7 +311,7 @@ def _write_text(path: Path, text: str) -> None:
 
 
 def render_page(
-    text: str, run_name: str, results: dict[str, Any], extra: Mapping[str, Callable[[], str]] | None = None
+    text: str, run_name: str, results: BenchmarkResults, extra: Mapping[str, Callable[[], str]] | None = None
 ) -> tuple[str, list[str]]:
     """
     ``text`` with every generated block of ``run_name`` rewritten from ``results`` (a block named in ``extra``
@@ -346,7 +372,7 @@ def update_pages(
     if tuning_page is not None and studies:
         outputs[tuning_page], more = render_page(tuning_page.read_text(), run.name, results, studies)
         written += more
-    if readme is not None and "hddpg" in results["methods"] and results["scenario"] == "standard":
+    if readme is not None and "hddpg" in results.methods and results.scenario == "standard":
         outputs[readme] = render_readme(readme.read_text(), results_sentence(results, run.name))
     changed = [str(path) for path, new in outputs.items() if new != path.read_text()]
     if not check:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import csv
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
+from sb3_hddpg.artifacts.records import JsonObject
+from sb3_hddpg.artifacts.records.results import BenchmarkResults, Summary, TransferComparison
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.aggregates import performance_profiles
 from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv
@@ -29,11 +30,15 @@ from sb3_hddpg.media.aggregate_plots import aggregate_figure
 CSV_KEYS = ("method", "seed", "kind", "timesteps", "total_timesteps")
 
 
-def evaluation_rows(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
+#: A row of a CSV file: column -> value.
+CsvRow = dict[str, object]
+
+
+def evaluation_rows(records: Iterable[JsonObject]) -> list[CsvRow]:
     """Every evaluation of every run as flat rows (``kind``: ``curve``, ``test`` or ``worker-<name>``)."""
-    rows: list[dict[str, Any]] = []
+    rows: list[CsvRow] = []
     for record in records:
-        base = {"method": record["method"], "seed": record["seed"]}
+        base: CsvRow = {"method": record["method"], "seed": record["seed"]}
         if record["method"] == WORKERS:
             for name, history in record["history"].items():
                 rows.extend({**base, "kind": f"worker-{name}", **_flat(p)} for p in history)
@@ -52,8 +57,8 @@ def evaluation_rows(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     return rows
 
 
-def _flat(point: dict[str, Any]) -> dict[str, Any]:
-    row = {}
+def _flat(point: Mapping[str, object]) -> CsvRow:
+    row: CsvRow = {}
     for key, value in point.items():
         if isinstance(value, dict):
             row.update({f"{key}.{name}": v for name, v in value.items()})
@@ -62,7 +67,7 @@ def _flat(point: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
+def write_csv(path: Path, rows: list[CsvRow]) -> Path:
     """Write rows as CSV atomically, with the union of their keys as columns."""
     metric_keys = sorted({k for row in rows for k in row} - set(CSV_KEYS))
 
@@ -89,27 +94,27 @@ OUTPUT_FILES = (
 )
 
 
-def ci_text(stats: dict[str, Any], fmt: str) -> str:
+def ci_text(stats: Summary, fmt: str) -> str:
     """``mean [ci_low, ci_high]`` of a statistic, each in ``fmt``."""
     return f"{stats['mean']:{fmt}} [{stats['ci_low']:{fmt}}, {stats['ci_high']:{fmt}}]"
 
 
-def markdown_report(results: dict[str, Any]) -> str:
+def markdown_report(results: BenchmarkResults) -> str:
     """
     The results as Markdown tables (for docs): per method the test metrics and curve statistics as
     mean [95 % bootstrap CI] over seeds, then the paired comparisons.
 
-    :param results: a ``results.json`` dict.
+    :param results: the results.
     """
-    unit = results["slope_unit_steps"]
+    unit = results.slope_unit_steps
     lines = [
         "| method | seeds | reach reward (test) | IQM | goal part | avoid part | goal-touch rate | collisions / episode "
         f"| success | min clearance | saturated actions | curve mean | slope / {unit} steps | worker choices (test) |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for method, entry in results["methods"].items():
-        s = entry["stats"]
-        choices = ", ".join(f"{k} {v:.0%}" for k, v in entry.get("selection_rate", {}).items()) or "-"
+    for method, entry in results.methods.items():
+        s = entry.stats
+        choices = ", ".join(f"{k} {v:.0%}" for k, v in (entry.selection_rate or {}).items()) or "-"
         # The deciding network's saturation (the manager's for hierarchies); absent in older results.
         saturation = f"{s['action_saturation']['mean']:.0%}" if "action_saturation" in s else "-"
         # The snake's own metrics; "-" on an env that does not report them.
@@ -125,14 +130,14 @@ def markdown_report(results: dict[str, Any]) -> str:
         }
         clearance = f"{s['min_clearance']['mean']:.3f}" if "min_clearance" in s else "-"
         lines.append(
-            f"| {method} | {len(entry['seeds'])} | {ci_text(s['mean_reach_reward'], '.1f')} "
+            f"| {method} | {len(entry.seeds)} | {ci_text(s['mean_reach_reward'], '.1f')} "
             f"| {s['mean_reach_reward']['iqm']:.1f} | {snake['goal_reach_reward']} "
             f"| {snake['avoid_reach_reward']} | {snake['goal_touch_rate']} "
             f"| {snake['collisions_per_episode']} | {snake['success_rate']} "
             f"| {clearance} | {saturation} | {ci_text(s['curve_mean'], '.1f')} "
             f"| {ci_text(s['slope'], '.2f')} | {choices} |"
         )
-    if results["comparisons"]:
+    if results.comparisons:
         lines += [
             "",
             "Intervals: Student t over the paired seeds, Bonferroni-adjusted for each challenger's comparisons "
@@ -141,7 +146,7 @@ def markdown_report(results: dict[str, Any]) -> str:
             "| A vs B | metric | A - B [adjusted CI], paired by seed | relative | P(A > B) |",
             "|---|---|---|---|---|",
         ]
-        for pair, comparison in results["comparisons"].items():
+        for pair, comparison in results.comparisons.items():
             for metric in (
                 "mean_reach_reward",
                 "curve_mean",
@@ -149,16 +154,16 @@ def markdown_report(results: dict[str, Any]) -> str:
                 "success_rate",
                 "collisions_per_episode",
             ):
-                if metric not in comparison:
+                if metric not in comparison.metrics:
                     continue
-                c = comparison[metric]
+                c = comparison.metrics[metric]
                 relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
                 lines.append(
                     f"| {pair} | {metric} | {c['difference']:+.2f} "
                     f"[{c['ci_low_adjusted']:+.2f}, {c['ci_high_adjusted']:+.2f}] "
                     f"| {relative} | {c['probability_of_improvement']:.2f} |"
                 )
-            ratio = comparison["slope_ratio"]
+            ratio = comparison.slope_ratio
             lines.append(
                 f"| {pair} | slope ratio A / B | {ratio:.2f} | | |"
                 if ratio is not None
@@ -167,9 +172,9 @@ def markdown_report(results: dict[str, Any]) -> str:
     lines += _dependence_lines(results)
     lines += _ttc_dependence_lines(results)
     lines += _transfer_lines(results)
-    if "front" in results:
+    if results.front is not None:
         lines += ["", "**The front** (hypervolume per member over seeds; `benchmark --scenario front`):", ""]
-        lines += front_table(results["front"])
+        lines += front_table(results.front)
     return "\n".join(lines) + "\n"
 
 
@@ -177,14 +182,15 @@ def _share_text(value: float | None) -> str:
     return f"{value:.1%}" if value is not None else "-"
 
 
-def _ttc_dependence_lines(results: dict[str, Any]) -> list[str]:
+def _ttc_dependence_lines(results: BenchmarkResults) -> list[str]:
     """
     On highway-env, per method, seed and worker: its share of the decisions made with a car close ahead and
     with the road clear (the test episodes' ``decisions_by_ttc``), and their ratio.
     """
-    rows, close = [], None
-    for method, entry in results["methods"].items():
-        for seed, workers in entry.get("decisions_by_ttc", {}).items():
+    rows: list[str] = []
+    close = None
+    for method, entry in results.methods.items():
+        for seed, workers in (entry.decisions_by_ttc or {}).items():
             for worker, figure in workers.items():
                 close = figure["close_seconds"]
                 ratio = figure["ratio"]
@@ -208,21 +214,21 @@ def _ttc_dependence_lines(results: dict[str, Any]) -> list[str]:
     ]
 
 
-def _dependence_lines(results: dict[str, Any]) -> list[str]:
+def _dependence_lines(results: BenchmarkResults) -> list[str]:
     """The per-seed state-dependence table (does a hierarchy choose by state?), for the methods that report choices."""
     rows = []
-    for method, entry in results["methods"].items():
-        for seed, figure in entry.get("state_dependence", {}).items():
+    for method, entry in results.methods.items():
+        for seed, figure in (entry.state_dependence or {}).items():
             if figure is None:
                 continue
-            ratio = dependence_ratio_text(figure)
+            ratio = dependence_ratio_text(dict(figure))
             rows.append(
                 f"| {method} | {seed} | {_share_text(figure['near_share'])} ({figure['near_choices']}) "
                 f"| {_share_text(figure['clear_share'])} ({figure['clear_choices']}) | {ratio} |"
             )
     if not rows:
         return []
-    figure = next(f for e in results["methods"].values() for f in e.get("state_dependence", {}).values() if f)
+    figure = next(f for e in results.methods.values() for f in (e.state_dependence or {}).values() if f)
     return [
         "",
         f"State dependence (test episodes): the {figure['worker']} worker's share of the choices made with the "
@@ -236,7 +242,7 @@ def _dependence_lines(results: dict[str, Any]) -> list[str]:
     ]
 
 
-def final_scores_text(comparison: dict[str, Any]) -> str:
+def final_scores_text(comparison: TransferComparison) -> str:
     """A transfer comparison's mean final scores over its seeds, ``manager / flat`` (the preference's score)."""
     seeds = comparison["per_seed"].values()
     manager = np.mean([v["manager_final_score"] for v in seeds])
@@ -244,7 +250,7 @@ def final_scores_text(comparison: dict[str, Any]) -> str:
     return f"{manager:.1f} / {agent:.1f}"
 
 
-def flat_reaches_text(comparison: dict[str, Any]) -> str:
+def flat_reaches_text(comparison: TransferComparison) -> str:
     """In how many seeds the flat agent gets 90 % of the way to the manager's final score, and at which steps."""
     per_seed = comparison["per_seed"].values()
     reached = [
@@ -254,9 +260,9 @@ def flat_reaches_text(comparison: dict[str, Any]) -> str:
     return f"{text} (at {', '.join(str(s) for s in reached)})" if reached else text
 
 
-def _transfer_lines(results: dict[str, Any]) -> list[str]:
+def _transfer_lines(results: BenchmarkResults) -> list[str]:
     """The transfer figure: steps to reach the final score's fraction, and their ratio."""
-    transfer = results.get("transfer")
+    transfer = results.transfer
     if not transfer:
         return []
     lines = [
@@ -290,18 +296,22 @@ def _transfer_lines(results: dict[str, Any]) -> list[str]:
     return lines
 
 
-def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> None:
+def write_outputs(out: Path, results: BenchmarkResults, records: list[JsonObject]) -> BenchmarkResults:
     """
     Write ``results.json``, ``results.md``, ``evaluations.csv``, ``episodes.csv`` (every test episode of the
     records that hold them) and the plots into ``out``.
+
+    :return: the results as written, with the learning curves' bands.
     """
 
     method_records = [r for r in records if r["method"] != WORKERS]
-    results["curves"] = {
-        "own_steps": curve_bands(method_records, "timesteps"),
-        "total_steps": curve_bands(method_records, "total_timesteps"),
-    }
-    atomic_write_json(out / "results.json", results)
+    results = results.with_curves(
+        {
+            "own_steps": curve_bands(method_records, "timesteps"),
+            "total_steps": curve_bands(method_records, "total_timesteps"),
+        }
+    )
+    atomic_write_json(out / "results.json", results.to_json())
     atomic_write(out / "results.md", lambda tmp: tmp.write_text(markdown_report(results)))
     write_csv(out / "evaluations.csv", evaluation_rows(records))
     write_episodes_csv(out / "episodes.csv", records_episode_rows(records))
@@ -309,21 +319,22 @@ def write_outputs(out: Path, results: dict[str, Any], records: list[dict[str, An
     figures.figure9(results, out / "figure9.png")
     figures.figure10(results, out / "figure10.png")
     headline_figures(out, results, records)
-    if "front" in results:
-        front_figure(results["front"], out / "fronts.png")
+    if results.front is not None:
+        front_figure(results.front, out / "fronts.png")
+    return results
 
 
 #: Thresholds of the performance profile, in reach reward (0..2 per step, 200 steps).
 PROFILE_STEP = 2.0
 
 
-def headline_figures(out: Path, results: dict[str, Any], records: list[dict[str, Any]]) -> list[Path]:
+def headline_figures(out: Path, results: BenchmarkResults, records: list[JsonObject]) -> list[Path]:
     """
     The rliable-style figures of a run: the aggregates' intervals (from ``results``) and the performance
     profile of the reach reward over the score matrices of the records.
     """
     by_method = records_by_method(records)
-    if not by_method or not results.get("aggregates"):
+    if not by_method or not results.aggregates:
         return []
     scores, unit = score_matrices(by_method)
     low = min(float(m.min()) for m in scores.values())
@@ -331,5 +342,5 @@ def headline_figures(out: Path, results: dict[str, Any], records: list[dict[str,
     taus = np.arange(np.floor(low / PROFILE_STEP) * PROFILE_STEP, high + PROFILE_STEP, PROFILE_STEP)
     profiles, bands = performance_profiles(scores, taus)
     return aggregate_figure(
-        results["aggregates"]["intervals"], profiles, bands, taus, results["colours"], unit, out
+        results.aggregates["intervals"], profiles, bands, taus, results.colours or {}, unit, out
     )

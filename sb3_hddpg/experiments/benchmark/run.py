@@ -23,7 +23,7 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, read_json_file
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import verify_sha256
-from sb3_hddpg.artifacts.records import benchmark_record, read_benchmark_record
+from sb3_hddpg.artifacts.records import BenchmarkResults, benchmark_record, read_benchmark_record
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.methods import (
@@ -401,7 +401,7 @@ def run_benchmark(
     on_event: Callable[[str, Task, dict[str, Any] | None], None] | None = None,
     ray_address: str | None = None,
     redo: Sequence[str] = (),
-) -> dict[str, Any]:
+) -> BenchmarkResults:
     """
     Run every task not yet finished, ``n_jobs`` at a time, then compute and write the results.
 
@@ -459,14 +459,14 @@ def run_benchmark(
     )
     records.update({by_label[label]: record for label, record in outcome.results.items()})
     failed = {by_label[label]: outcome.failure_message(label) for label in outcome.failures}
-    results = compute_results(settings, [records[t] for t in tasks if t in records])
-    results["wall_time_s_this_invocation"] = wall
-    results["wall_time_s_all_invocations"] = sum(float(i.get("wall_time_s", 0.0)) for i in invocations)
-    results["invocations"] = len(invocations)
-    results["failures"] = {t.label: message for t, message in failed.items()}
-    results["machine"] = machine_info()
-    write_outputs(out, results, [records[t] for t in tasks if t in records])
-    return results
+    results = compute_results(settings, [records[t] for t in tasks if t in records]).with_run(
+        wall_time_s_this_invocation=wall,
+        wall_time_s_all_invocations=sum(float(i.get("wall_time_s", 0.0)) for i in invocations),
+        invocations=len(invocations),
+        failures={t.label: message for t, message in failed.items()},
+        machine=machine_info(),
+    )
+    return write_outputs(out, results, [records[t] for t in tasks if t in records])
 
 
 def _check_same_settings(

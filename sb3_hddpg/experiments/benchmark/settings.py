@@ -6,7 +6,6 @@ import functools
 import json
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import gymnasium as gym
 from stable_baselines3 import DDPG
@@ -22,6 +21,7 @@ from sb3_hddpg.experiments.benchmark.env_methods import (
     ENV_ONLY_METHODS,
     is_discrete,
 )
+from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_METHODS,
     FLAT_HER_METHODS,
@@ -156,7 +156,7 @@ class BenchmarkSettings:
     scenario: str = "standard"
     preferences: list[str] = field(default_factory=list)
     backend: str = "sb3"
-    env: dict[str, Any] | None = None
+    env: EnvChoice | None = None
     workers_from: str | None = None
     final_test: bool = False
     worker_algo: str | None = None
@@ -232,7 +232,7 @@ class BenchmarkSettings:
 
     def _check_env(self) -> None:
         """Another env: its spec as plain JSON (so that ``benchmark.json`` resumes), and methods that apply."""
-        env = self.env if isinstance(self.env, dict) else {}
+        env: dict[str, object] = dict(self.env) if isinstance(self.env, dict) else {}
         if set(env) != {"env_id", "env_kwargs", "terms"} or not isinstance(env["env_id"], str):
             raise ValueError(
                 f"Expected `env` as {{'env_id', 'env_kwargs', 'terms'}}, actually: {str(self.env)[:200]}"

@@ -16,12 +16,28 @@ for every method and seed (selecting and scoring on the same episodes would flat
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict
-from typing import Any
+from typing import cast
 
 import numpy as np
 
+from sb3_hddpg.artifacts.records import JsonObject
+from sb3_hddpg.artifacts.records.results import (
+    Aggregates,
+    BenchmarkResults,
+    Comparison,
+    ComparisonFamily,
+    CurveBand,
+    DependenceFigure,
+    MethodResults,
+    PairedDifference,
+    Summary,
+    TransferComparison,
+    TransferResults,
+    TransferSeed,
+    benchmark_results,
+)
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import TermNormaliser
 from sb3_hddpg.episode_sets import DEVELOPMENT
@@ -72,7 +88,11 @@ FINAL_METRICS = (
 SLOPE_UNIT = 1000
 
 
-def normalised_term_sums(summary: dict[str, Any]) -> tuple[float, float]:
+#: Run key -> seed -> record.
+RecordsByMethod = dict[str, dict[int, JsonObject]]
+
+
+def normalised_term_sums(summary: Mapping[str, float]) -> tuple[float, float]:
     """
     The episode sums of the normalised goal and avoid terms, from an evaluation summary's raw means.
 
@@ -86,14 +106,14 @@ def normalised_term_sums(summary: dict[str, Any]) -> tuple[float, float]:
     return goal, avoid
 
 
-def with_term_sums(summary: dict[str, Any]) -> dict[str, Any]:
+def with_term_sums(summary: JsonObject) -> JsonObject:
     if "mean_goal_reward" not in summary or "mean_avoid_reward" not in summary:
         return summary  # another env: its normalised total is mean_reach_reward already
     goal, avoid = normalised_term_sums(summary)
     return {**summary, "goal_reach_reward": goal, "avoid_reach_reward": avoid}
 
 
-def record_episode_set(record: dict[str, Any]) -> dict[str, Any]:
+def record_episode_set(record: JsonObject) -> JsonObject:
     """
     The episode set a record's test used: as recorded, or for a record from before sets were recorded, the
     development episodes (then the only test episodes) of its summary's length.
@@ -104,7 +124,7 @@ def record_episode_set(record: dict[str, Any]) -> dict[str, Any]:
     return DEVELOPMENT.describe(int(record["test"]["episodes"]))
 
 
-def check_episode_sets(settings: BenchmarkSettings, records: Iterable[dict[str, Any]]) -> None:
+def check_episode_sets(settings: BenchmarkSettings, records: Iterable[JsonObject]) -> None:
     """
     Refuse records scored on other episodes than the benchmark's test set: one results table never mixes
     the final test set with development episodes (or with another number of them).
@@ -124,7 +144,7 @@ def check_episode_sets(settings: BenchmarkSettings, records: Iterable[dict[str, 
             )
 
 
-def test_values(record: dict[str, Any]) -> dict[str, float]:
+def test_values(record: JsonObject) -> dict[str, float]:
     """
     A run's per-seed test metrics: from its episodes (:func:`~.episodes.seed_metrics`) where the record
     holds them, else from its test summary (records from before episodes were kept).
@@ -135,7 +155,7 @@ def test_values(record: dict[str, Any]) -> dict[str, float]:
     return {key: float(test[key]) for key in FINAL_METRICS if key in test}
 
 
-def curve_statistics(history: Sequence[dict[str, Any]], window: int) -> dict[str, float]:
+def curve_statistics(history: Sequence[JsonObject], window: int) -> dict[str, float]:
     """
     A learning curve's mean and trend slope (paper Figure 9) over the evaluations at own steps <= ``window``.
 
@@ -150,18 +170,18 @@ def curve_statistics(history: Sequence[dict[str, Any]], window: int) -> dict[str
     return {"curve_mean": float(y.mean()), "slope": slope}
 
 
-def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+def compute_results(settings: BenchmarkSettings, records: Iterable[JsonObject]) -> BenchmarkResults:
     """
     Seed statistics of finished runs: per method the final test metrics (mean, 95 % bootstrap CI, IQM),
     the learning curve's mean and slope, and the paired comparisons of the paper's claims.
 
     :param settings: the benchmark's settings.
     :param records: finished records (``workers`` records are used for the worker summaries).
-    :return: a JSON-ready dict.
+    :return: the results (``results.json``'s record).
     """
     records = list(records)
     check_episode_sets(settings, records)
-    by_method: dict[str, dict[int, dict[str, Any]]] = {}
+    by_method: RecordsByMethod = {}
     worker_records = {}
     for record in records:
         if record["method"] == WORKERS:
@@ -169,7 +189,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
         else:
             by_method.setdefault(record["method"], {})[record["seed"]] = record
     window = settings.manager_env_steps  # the manager's own env steps: the window every method shares
-    methods: dict[str, Any] = {}
+    methods: dict[str, MethodResults] = {}
     per_seed: dict[str, dict[int, dict[str, float]]] = {}
     for method in [m for m in settings.method_keys if m in by_method]:
         methods[method], per_seed[method] = method_statistics(by_method[method], window)
@@ -182,40 +202,37 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[dict[str, Any
     comparisons = {f"{a} vs {b}": compare(per_seed[a], per_seed[b]) for a, b in pairs}
     families = adjust_for_comparisons(comparisons)
     workers = worker_statistics(worker_records.values())
-    results: dict[str, Any] = {
-        "settings": asdict(settings),
-        "scenario": settings.scenario,
-        "metric": "mean_reach_reward: episode sum of the normalised "
+    return benchmark_results(
+        settings=asdict(settings),
+        scenario=settings.scenario,
+        metric="mean_reach_reward: episode sum of the normalised "
         + (
             f"terms {settings.env['terms']} (max {len(settings.env['terms'])} per step)"
             if settings.env is not None
             else "goal and avoid terms (max 2 per step)"
         ),
-        "test_seeds": [
+        test_seeds=(
             settings.test_set.seeds(settings.test_episodes or 1)[0],
             settings.test_set.seeds(settings.test_episodes or 1)[-1],
-        ],
-        "test_episode_set": settings.test_episode_set,
-        "curve_seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + settings.eval_episodes - 1],
-        "curve_window": window,
-        "slope_unit_steps": SLOPE_UNIT,
-        "methods": methods,
-        "comparisons": comparisons,
-        "comparison_families": families,
-        "aggregates": aggregates(by_method, pairs),
-        "workers": workers,
-        "colours": {key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
-    }
-    if settings.scenario == "transfer":
-        results["transfer"] = transfer_results(settings, by_method)
-    if FRONT_METHOD in by_method:
-        results["front"] = front_results(by_method[FRONT_METHOD])
-    return results
+        ),
+        test_episode_set=settings.test_episode_set,
+        curve_seeds=(EVAL_SEED_BASE, EVAL_SEED_BASE + settings.eval_episodes - 1),
+        curve_window=window,
+        slope_unit_steps=SLOPE_UNIT,
+        methods=methods,
+        comparisons=comparisons,
+        comparison_families=families,
+        aggregates=aggregates(by_method, pairs),
+        workers=workers,
+        colours={key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
+        transfer=transfer_results(settings, by_method) if settings.scenario == "transfer" else None,
+        front=front_results(by_method[FRONT_METHOD]) if FRONT_METHOD in by_method else None,
+    )
 
 
 def method_statistics(
-    runs: dict[int, dict[str, Any]], window: int
-) -> tuple[dict[str, Any], dict[int, dict[str, float]]]:
+    runs: dict[int, JsonObject], window: int
+) -> tuple[MethodResults, dict[int, dict[str, float]]]:
     """
     One method's seed statistics: its final test metrics, learning curve and selections over its seeds.
 
@@ -230,7 +247,7 @@ def method_statistics(
         values[seed] = test_values(run)
         values[seed].update(curve_statistics(run["history"], window))
         values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
-    stats = {
+    stats: dict[str, Summary] = {
         key: summarise([values[s][key] for s in seeds])
         for key in (*FINAL_METRICS, "curve_mean", "slope", "final_curve_reward")
         if all(key in values[s] for s in seeds)
@@ -238,33 +255,35 @@ def method_statistics(
     selection = [
         runs[s]["test"].get("selection_rate") for s in seeds if runs[s]["test"].get("selection_rate")
     ]
-    result: dict[str, Any] = {
-        "seeds": seeds,
-        "per_seed": {str(s): values[s] for s in seeds},
-        "stats": stats,
-        "worker_timesteps": int(np.mean([runs[s]["worker_timesteps"] for s in seeds])),
-        "own_timesteps": int(max(runs[seeds[0]]["history"][-1]["timesteps"], 0)),
+    # Per seed: does the hierarchy's choice depend on the state?
+    dependence = {
+        str(s): cast("DependenceFigure | None", state_dependence(runs[s]["test"], DEPENDENCE_WORKER))
+        for s in seeds
     }
-    if selection:
-        result["selection_rate"] = {
+    # On highway-env: each worker's share of the decisions with a car close ahead and the road clear.
+    by_ttc = {str(s): runs[s]["decisions_by_ttc"] for s in seeds if runs[s].get("decisions_by_ttc")}
+    result = MethodResults(
+        seeds=tuple(seeds),
+        per_seed={str(s): values[s] for s in seeds},
+        stats=stats,
+        worker_timesteps=int(np.mean([runs[s]["worker_timesteps"] for s in seeds])),
+        own_timesteps=int(max(runs[seeds[0]]["history"][-1]["timesteps"], 0)),
+        selection_rate={
             name: float(np.mean([rates.get(name, 0.0) for rates in selection]))
             for name in sorted(set().union(*selection))
         }
-    # Per seed: does the hierarchy's choice depend on the state?
-    dependence = {str(s): state_dependence(runs[s]["test"], DEPENDENCE_WORKER) for s in seeds}
-    if any(figure is not None for figure in dependence.values()):
-        result["state_dependence"] = dependence
-    # On highway-env: each worker's share of the decisions with a car close ahead and the road clear.
-    by_ttc = {str(s): runs[s]["decisions_by_ttc"] for s in seeds if runs[s].get("decisions_by_ttc")}
-    if by_ttc:
-        result["decisions_by_ttc"] = by_ttc
+        if selection
+        else None,
+        state_dependence=dependence if any(figure is not None for figure in dependence.values()) else None,
+        decisions_by_ttc=by_ttc or None,
+    )
     return result, values
 
 
-def worker_statistics(worker_records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+def worker_statistics(worker_records: Iterable[JsonObject]) -> dict[str, dict[str, Summary]]:
     """Each snake worker's validation reach reward over the seeds that trained it."""
     worker_records = list(worker_records)
-    workers = {}
+    workers: dict[str, dict[str, Summary]] = {}
     for name in ("goal", "avoid"):
         finals = [
             with_term_sums(r["workers"][name]["metrics"])["mean_reach_reward"]
@@ -277,7 +296,7 @@ def worker_statistics(worker_records: Iterable[dict[str, Any]]) -> dict[str, Any
 
 
 # --------------------------------------------------------------------------------------------- transfer
-def preference_score(summary: dict[str, Any], preferences: dict[str, float]) -> float:
+def preference_score(summary: Mapping[str, float], preferences: Mapping[str, float]) -> float:
     """
     An evaluation's score under preference factors: ``sum_t factor_t * (episode sum of normalised term t)``,
     the return of the manager (and of the flat agent) trained on that preference.
@@ -294,8 +313,8 @@ def preference_score(summary: dict[str, Any], preferences: dict[str, float]) -> 
 
 
 def steps_to_fraction(
-    history: Sequence[dict[str, Any]],
-    score: Callable[[dict[str, Any]], float],
+    history: Sequence[JsonObject],
+    score: Callable[[JsonObject], float],
     fraction: float = TRANSFER_FRACTION,
     floor: float = 0.0,
     final: float | None = None,
@@ -327,9 +346,7 @@ def steps_to_fraction(
     return next((int(p["timesteps"]) for p, value in zip(history, scores) if value >= target), None)
 
 
-def transfer_results(
-    settings: BenchmarkSettings, by_method: dict[str, dict[int, dict[str, Any]]]
-) -> dict[str, Any]:
+def transfer_results(settings: BenchmarkSettings, by_method: RecordsByMethod) -> TransferResults:
     """
     The transfer figure: per preference, hierarchy (``hddpg`` and every challenger,
     e.g. ``hddpg-sac``) and flat method, per seed the own env steps each run needs to reach
@@ -342,7 +359,7 @@ def transfer_results(
     :param settings: the benchmark's settings (transfer scenario).
     :param by_method: run key -> seed -> record.
     """
-    out: dict[str, Any] = {
+    out: TransferResults = {
         "fraction": TRANSFER_FRACTION,
         "definition": (
             f"own env steps until the learning curve first reaches {TRANSFER_FRACTION:.0%} of the way from a "
@@ -357,14 +374,14 @@ def transfer_results(
     for preference in settings.preferences:
         factors = Task(method_key("hddpg", preference), 0).preferences or {}
 
-        def score(point: dict[str, Any], factors: dict[str, float] = factors) -> float:
+        def score(point: JsonObject, factors: dict[str, float] = factors) -> float:
             return preference_score(point, factors)
 
-        entry: dict[str, Any] = {}
+        entry: dict[str, TransferComparison] = {}
         for hierarchy, flat in ((h, f) for h in hierarchies for f in flats):
             managers = by_method.get(method_key(hierarchy, preference), {})
             agents = by_method.get(method_key(flat, preference), {})
-            per_seed: dict[str, dict[str, Any]] = {}
+            per_seed: dict[str, TransferSeed] = {}
             for seed in sorted(set(managers) & set(agents)):
                 manager, agent = managers[seed], agents[seed]
                 floor = score(manager["reference"])
@@ -407,7 +424,7 @@ COMPARED_METRICS = ("mean_reach_reward", "curve_mean", "slope", "success_rate", 
 FAMILY_CONFIDENCE = 0.95
 
 
-def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> dict[str, Any]:
+def compare(a: Mapping[int, Mapping[str, float]], b: Mapping[int, Mapping[str, float]]) -> Comparison:
     """
     Paired comparison of two methods over their common seeds (same seed: same workers, same test episodes).
 
@@ -419,26 +436,28 @@ def compare(a: dict[int, dict[str, float]], b: dict[int, dict[str, float]]) -> d
         "improvement rate").
     """
     seeds = sorted(set(a) & set(b))
-    out: dict[str, Any] = {"seeds": seeds}
+    metrics: dict[str, PairedDifference] = {}
     for key in COMPARED_METRICS:
         if not all(key in a[s] and key in b[s] for s in seeds):
             continue  # a metric the env does not report (the snake's success and collisions)
         xa = np.array([a[s][key] for s in seeds])
         xb = np.array([b[s][key] for s in seeds])
         interval = paired_t_interval(xa, xb)
-        out[key] = {
-            **{k: interval[k] for k in ("difference", "ci_low", "ci_high", "p_value", "standard_error")},
+        metrics[key] = {
+            "difference": interval["difference"],
+            "ci_low": interval["ci_low"],
+            "ci_high": interval["ci_high"],
+            "p_value": interval["p_value"],
+            "standard_error": interval["standard_error"],
             "relative_gain": float(xa.mean() / xb.mean() - 1.0) if xb.mean() != 0 else None,
             "probability_of_improvement": probability_of_improvement(xa, xb),
         }
     mean_b_slope = float(np.mean([b[s]["slope"] for s in seeds]))
-    out["slope_ratio"] = (
-        float(np.mean([a[s]["slope"] for s in seeds]) / mean_b_slope) if mean_b_slope != 0 else None
-    )
-    return out
+    ratio = float(np.mean([a[s]["slope"] for s in seeds]) / mean_b_slope) if mean_b_slope != 0 else None
+    return Comparison(tuple(seeds), metrics, ratio)
 
 
-def adjust_for_comparisons(comparisons: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def adjust_for_comparisons(comparisons: Mapping[str, Comparison]) -> dict[str, ComparisonFamily]:
     """
     Adjust each table's comparisons for their number, in place: a table is one challenger against every
     method it is compared with, per metric. Each comparison gains a Bonferroni-adjusted t interval
@@ -448,23 +467,23 @@ def adjust_for_comparisons(comparisons: dict[str, dict[str, Any]]) -> dict[str, 
     :param comparisons: ``"A vs B"`` -> :func:`compare`'s result.
     :return: challenger -> ``{"comparisons": per metric the number m, "adjustment"}``.
     """
-    families: dict[str, Any] = {}
+    families: dict[str, ComparisonFamily] = {}
     by_challenger: dict[str, list[str]] = {}
     for pair in comparisons:
         by_challenger.setdefault(pair.split(" vs ")[0], []).append(pair)
     for challenger, pair_keys in by_challenger.items():
-        counts = {}
+        counts: dict[str, int] = {}
         for metric in COMPARED_METRICS:
-            members = [k for k in pair_keys if metric in comparisons[k]]
+            members = [k for k in pair_keys if metric in comparisons[k].metrics]
             if not members:
                 continue
             counts[metric] = len(members)
             confidence = bonferroni_confidence(FAMILY_CONFIDENCE, len(members))
-            adjusted_p = holm_adjust([comparisons[k][metric]["p_value"] for k in members])
+            adjusted_p = holm_adjust([comparisons[k].metrics[metric]["p_value"] for k in members])
             for key, p_holm in zip(members, adjusted_p, strict=True):
-                entry = comparisons[key][metric]
+                entry = comparisons[key].metrics[metric]
                 low, high = t_interval(
-                    entry["difference"], entry["standard_error"], len(comparisons[key]["seeds"]), confidence
+                    entry["difference"], entry["standard_error"], len(comparisons[key].seeds), confidence
                 )
                 entry["p_holm"] = p_holm
                 entry["ci_low_adjusted"], entry["ci_high_adjusted"] = low, high
@@ -479,7 +498,7 @@ def adjust_for_comparisons(comparisons: dict[str, dict[str, Any]]) -> dict[str, 
     return families
 
 
-def score_matrices(by_method: dict[str, dict[int, dict[str, Any]]]) -> tuple[dict[str, np.ndarray], str]:
+def score_matrices(by_method: RecordsByMethod) -> tuple[dict[str, np.ndarray], str]:
     """
     Per run key the reach reward as rliable's runs-by-tasks matrix: by episode where every run of every method
     holds its test episodes (each episode a task), else by seed (one per-seed mean per run).
@@ -502,9 +521,7 @@ def score_matrices(by_method: dict[str, dict[int, dict[str, Any]]]) -> tuple[dic
     return scores, "episode" if by_episode else "seed"
 
 
-def aggregates(
-    by_method: dict[str, dict[int, dict[str, Any]]], pairs: list[tuple[str, str]]
-) -> dict[str, Any]:
+def aggregates(by_method: RecordsByMethod, pairs: list[tuple[str, str]]) -> Aggregates | None:
     """
     rliable's aggregates of the reach reward (:mod:`~.aggregates`) over :func:`score_matrices`.
 
@@ -512,7 +529,7 @@ def aggregates(
     :param pairs: the compared ``(A, B)`` run keys.
     """
     if not by_method:
-        return {}
+        return None
     scores, unit = score_matrices(by_method)
     return {
         "metric": "mean_reach_reward",
@@ -523,18 +540,16 @@ def aggregates(
     }
 
 
-def records_by_method(records: Iterable[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]]]:
+def records_by_method(records: Iterable[JsonObject]) -> RecordsByMethod:
     """Finished method records (not the workers') by run key, then seed."""
-    grouped: dict[str, dict[int, dict[str, Any]]] = {}
+    grouped: RecordsByMethod = {}
     for record in records:
         if record["method"] != WORKERS:
             grouped.setdefault(record["method"], {})[record["seed"]] = record
     return grouped
 
 
-def curve_bands(
-    records: Iterable[dict[str, Any]], x_key: str, confidence: float = 0.95
-) -> dict[str, dict[str, list[float]]]:
+def curve_bands(records: Iterable[JsonObject], x_key: str, confidence: float = 0.95) -> dict[str, CurveBand]:
     """
     Per method, the mean learning curve over seeds with a bootstrap CI band, at the evaluation points at
     least half of the seeds share, within the steps every seed covers. A seed not evaluated at such a point
@@ -552,13 +567,13 @@ def curve_bands(
         curves.setdefault(record["method"], []).append(
             {float(p[x_key]): float(p["mean_reach_reward"]) for p in record["history"]}
         )
-    bands = {}
+    bands: dict[str, CurveBand] = {}
     for method, per_seed in curves.items():
         counts = Counter(x for curve in per_seed for x in curve)
         start, end = max(min(c) for c in per_seed), min(max(c) for c in per_seed)
         xs = sorted(x for x, n in counts.items() if 2 * n >= len(per_seed) and start <= x <= end)
         values = [np.interp(xs, sorted(c), [c[x] for x in sorted(c)]) for c in per_seed]
-        band: dict[str, list[float]] = {"x": xs, "mean": [], "low": [], "high": []}
+        band: CurveBand = {"x": xs, "mean": [], "low": [], "high": []}
         for i in range(len(xs)):
             mean, low, high = bootstrap_ci([v[i] for v in values], confidence=confidence, n_resamples=2000)
             band["mean"].append(mean)

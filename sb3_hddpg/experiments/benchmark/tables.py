@@ -7,8 +7,8 @@ the docs' pages (:mod:`.pages`) are the Markdown views of the same results.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
+from sb3_hddpg.artifacts.records.results import BenchmarkResults, TransferResults
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.report import ci_text, final_scores_text, flat_reaches_text
 from sb3_hddpg.metric_labels import metric_label
@@ -33,21 +33,25 @@ class TextTable:
     fold: bool = False
 
 
-def wall_time_text(results: dict[str, Any]) -> str:
+def wall_time_text(results: BenchmarkResults) -> str:
     """The wall time of this invocation, and over every invocation of a resumed benchmark."""
-    text = f"{results['wall_time_s_this_invocation'] / 60:.1f} min"
-    count = results.get("invocations", 1)
-    if count > 1:
-        text += f" ({results['wall_time_s_all_invocations'] / 60:.1f} min over its {count} invocations)"
+    run = results.run
+    if run is None:
+        return "not recorded"
+    text = f"{run.wall_time_s_this_invocation / 60:.1f} min"
+    count = run.invocations or 1
+    if count > 1 and run.wall_time_s_all_invocations is not None:
+        text += f" ({run.wall_time_s_all_invocations / 60:.1f} min over its {count} invocations)"
     return text
 
 
-def results_table(results: dict[str, Any]) -> TextTable:
+def results_table(results: BenchmarkResults) -> TextTable:
     """The per-method table: final test metrics and learning-curve statistics, mean [95 % CI] over seeds."""
+    episode_set = (results.test_episode_set or {}).get("name", "the")
     title = (
-        f"Benchmark: mean [95 % bootstrap CI] over seeds; {results['test_episode_set']['name']} test episodes "
-        f"from seed {results['test_seeds'][0]}; "
-        f"curve window {results['curve_window']} own steps"
+        f"Benchmark: mean [95 % bootstrap CI] over seeds; {episode_set} test episodes "
+        f"from seed {results.test_seeds[0]}; "
+        f"curve window {results.curve_window} own steps"
     )
     # The snake's own metrics only where some method's env reports them (the snake arm).
     snake = [
@@ -57,7 +61,7 @@ def results_table(results: dict[str, Any]) -> TextTable:
             ("collisions_per_episode", "contact steps /ep", ".2f"),
             ("success_rate", "success", ".0%"),
         )
-        if any(key in entry["stats"] for entry in results["methods"].values())
+        if any(key in entry.stats for entry in results.methods.values())
     ]
     columns = (
         "method",
@@ -66,15 +70,15 @@ def results_table(results: dict[str, Any]) -> TextTable:
         "IQM",
         *(header for _, header, _ in snake),
         "curve mean",
-        f"slope /{results['slope_unit_steps']} steps",
+        f"slope /{results.slope_unit_steps} steps",
     )
     rows = []
-    for method, entry in results["methods"].items():
-        s = entry["stats"]
+    for method, entry in results.methods.items():
+        s = entry.stats
         rows.append(
             (
                 method,
-                str(len(entry["seeds"])),
+                str(len(entry.seeds)),
                 ci_text(s["mean_reach_reward"], ".1f"),
                 f"{s['mean_reach_reward']['iqm']:.1f}",
                 *(ci_text(s[key], fmt) if key in s else "-" for key, _, fmt in snake),
@@ -86,7 +90,7 @@ def results_table(results: dict[str, Any]) -> TextTable:
     return TextTable(title, columns, tuple(rows), left=("method",), fold=True)
 
 
-def comparisons_table(results: dict[str, Any]) -> TextTable:
+def comparisons_table(results: BenchmarkResults) -> TextTable:
     """The paired comparisons: difference [adjusted t CI], relative gain, probability of improvement."""
     title = (
         "Paired comparisons over common seeds (A - B): Student t intervals, Bonferroni-adjusted for each "
@@ -94,9 +98,9 @@ def comparisons_table(results: dict[str, Any]) -> TextTable:
     )
     columns = ("A vs B", "metric", "difference [adjusted CI]", "relative", "P(A > B)")
     rows = []
-    for pair, comparison in results["comparisons"].items():
+    for pair, comparison in results.comparisons.items():
         for metric in ("mean_reach_reward", "curve_mean", "slope"):
-            c = comparison[metric]
+            c = comparison.metrics[metric]
             relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
             rows.append(
                 (
@@ -114,12 +118,11 @@ def _steps(steps: int | None) -> str:
     return str(steps) if steps is not None else "no gain"  # the curve ended at or below the random score
 
 
-def transfer_table(results: dict[str, Any]) -> TextTable:
+def transfer_table(transfer: TransferResults) -> TextTable:
     """
     The transfer figure: per preference, manager and flat method, steps to the final score's fraction and
     their ratio.
     """
-    transfer = results["transfer"]
     columns = (
         "preference",
         "manager",
@@ -154,15 +157,15 @@ def transfer_table(results: dict[str, Any]) -> TextTable:
     return TextTable(title, columns, tuple(rows), left=("preference", "manager", "flat"))
 
 
-def dependence_table(results: dict[str, Any]) -> TextTable | None:
+def dependence_table(results: BenchmarkResults) -> TextTable | None:
     """
     Per method and seed: the avoid worker's share near obstacles vs with none in range, and the ratio
     (``None`` where no run reports it).
     """
     figures = [
         (method, seed, figure)
-        for method, entry in results["methods"].items()
-        for seed, figure in entry.get("state_dependence", {}).items()
+        for method, entry in results.methods.items()
+        for seed, figure in (entry.state_dependence or {}).items()
         if figure is not None
     ]
     if not figures:
@@ -176,24 +179,24 @@ def dependence_table(results: dict[str, Any]) -> TextTable | None:
             str(seed),
             f"{figure['near_share']:.1%}" if figure["near_share"] is not None else "-",
             f"{figure['clear_share']:.1%}" if figure["clear_share"] is not None else "-",
-            dependence_ratio_text(figure),
+            dependence_ratio_text(dict(figure)),
         )
         for method, seed, figure in figures
     )
     return TextTable(title, columns, rows, left=("method",))
 
 
-def console_tables(results: dict[str, Any]) -> list[TextTable]:
+def console_tables(results: BenchmarkResults) -> list[TextTable]:
     """
     Every table of a benchmark's results, in the order ``hddpg-cli benchmark`` prints them: the methods,
     the paired comparisons (if any), the state dependence (where reported) and the transfer (its scenario).
     """
     tables = [results_table(results)]
-    if results["comparisons"]:
+    if results.comparisons:
         tables.append(comparisons_table(results))
     dependence = dependence_table(results)
     if dependence is not None:
         tables.append(dependence)
-    if "transfer" in results:
-        tables.append(transfer_table(results))
+    if results.transfer is not None:
+        tables.append(transfer_table(results.transfer))
     return tables

@@ -6,6 +6,7 @@ import datetime
 import functools
 import math
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -128,7 +129,7 @@ def save_plots(study: optuna.Study, out_dir: str | Path) -> dict[str, Path | str
 
     folder = Path(out_dir) / "plots"
     n_completed = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
-    plots: dict[str, Any] = {
+    plots: dict[str, Callable[[], Any]] = {
         "optimization_history": functools.partial(plot_optimization_history, study),
         "param_importances": functools.partial(
             plot_param_importances, study, evaluator=PedAnovaImportanceEvaluator()

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import optuna
@@ -60,7 +60,7 @@ class StudySettings:
     sampler: str = "tpe"
     pruner: str = "median"
     seed: int | None = None
-    fixed_params: dict[str, Any] = field(default_factory=dict)
+    fixed_params: dict[str, object] = field(default_factory=dict)
     heartbeat_interval: int = 30
     enqueue_base: bool = True
 
@@ -278,7 +278,9 @@ def tune(
     return study
 
 
-def enqueue_base_trial(study: optuna.Study, target: TuningTarget, fixed: dict[str, Any]) -> dict[str, Any]:
+def enqueue_base_trial(
+    study: optuna.Study, target: TuningTarget, fixed: Mapping[str, object]
+) -> dict[str, object]:
     """
     Queue the base config's values (:meth:`TuningTarget.base_params`) as the study's next trial, marked
     with the user attribute ``base_config``; parameters held fixed keep their fixed values, and those the

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import copy
 import functools
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import gymnasium as gym
 
 from sb3_hddpg.algorithms import ROLES
 from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
@@ -18,13 +20,21 @@ from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
 from sb3_hddpg.episode_sets import CURVE, TUNING
-from sb3_hddpg.experiments.hyperparams_opt import base_params, sampler_for, tunable_algorithms
+from sb3_hddpg.experiments.hyperparams_opt import (
+    SampledBlock,
+    Trial,
+    base_params,
+    sampler_for,
+    tunable_algorithms,
+)
 from sb3_hddpg.hierarchy.hierarchy import SelectionConfig
+from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import algo_class
 from sb3_hddpg.training.config import (
     DEFAULT_CONFIG,
     MANAGER_KEY,
+    Hyperparams,
     default_config,
     load_config_file,
     parse_block,
@@ -234,7 +244,7 @@ class TuningTarget:
 
         return algo_class(self.algo)
 
-    def sampler(self, trial: Any) -> dict[str, Any]:
+    def sampler(self, trial: Trial) -> SampledBlock:
         """The changes to the base block a trial samples (:func:`~sb3_hddpg.experiments.hyperparams_opt.sampler_for`)."""
         return sampler_for(self.level, self.algo)(trial)
 
@@ -263,7 +273,7 @@ class TuningTarget:
                 source=f"{self.config_path}[{self.block_key}]",
                 manager=self.level == "manager",
             )
-        if self.level == "manager":
+        if self.level == "manager" and hyperparams is not None:  # a manager always has its block
             trial_env_factory(self, hyperparams)().close()
         elif self.level == "ham":
             workers = load_workers(str(self.workers_dir))
@@ -273,12 +283,12 @@ class TuningTarget:
                 make_ham(workers, env, _ham_default_threshold(env), manifest)
             finally:
                 env.close()
-        elif self.level == "worker" and self.env is not None:
+        elif self.level == "worker" and self.env is not None and hyperparams is not None:
             trial_env_factory(
                 self, hyperparams
             )().close()  # e.g. block env_kwargs the env does not take fail here
 
-    def base_params(self) -> tuple[dict[str, Any], list[str]]:
+    def base_params(self) -> tuple[dict[str, object], list[str]]:
         """
         The base config's values as the sampler's parameters (:func:`~sb3_hddpg.experiments.hyperparams_opt.base_params`;
         for HAM its default threshold), and the names it cannot reproduce: a new study's first trial.
@@ -300,9 +310,9 @@ class TuningTarget:
             return max(self.n_evaluations, round(self.budget_fraction * self.final_budget))
         return int(self.base_block().get("n_timesteps", 0)) or 1
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> dict[str, object]:
         """What makes trials comparable, stored in the study so that a mismatching re-run is refused."""
-        described: dict[str, Any] = {
+        described: dict[str, object] = {
             "level": self.level,
             "worker": self.worker,
             "timesteps": self.budget() if self.level != "ham" else None,
@@ -343,7 +353,7 @@ def merge_block(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]
     return block
 
 
-def trial_env_factory(target: TuningTarget, hyperparams: Any) -> Any:
+def trial_env_factory(target: TuningTarget, hyperparams: Hyperparams) -> Callable[[], gym.Env]:
     """A picklable factory of the training env of ``target``, as the ``train-*`` commands build it."""
     env = target.env
     if target.level == "worker":
@@ -400,7 +410,7 @@ def workers_manifest(workers_dir: str) -> ModelsManifest:
     return read_workers_manifest(manifest)
 
 
-def ham_env(target: TuningTarget, manifest: ModelsManifest) -> Any:
+def ham_env(target: TuningTarget, manifest: ModelsManifest) -> gym.Env:
     """
     The env HAM is evaluated in (as the manager's: ``--env``, else the manifest's shared env), refused
     with one line unless its state layout declares the component HAM's switch rule reads.
@@ -416,12 +426,14 @@ def ham_env(target: TuningTarget, manifest: ModelsManifest) -> Any:
     return env
 
 
-def _ham_default_threshold(env: Any) -> float:
+def _ham_default_threshold(env: gym.Env) -> float:
     """HAM's default threshold in ``env``: the number of links minus the default margin."""
     return float(len(state_layout_of(env).indices([HAM_COMPONENT]))) - DEFAULT_MARGIN
 
 
-def make_ham(workers: Mapping[str, Any], env: Any, threshold: float, manifest: ModelsManifest) -> HAMSwitch:
+def make_ham(
+    workers: Mapping[str, Policy], env: gym.Env, threshold: float, manifest: ModelsManifest
+) -> HAMSwitch:
     """The HAM switch over the goal and avoid workers, each fed the state components it was trained on."""
     return HAMSwitch(
         workers["goal"],

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import re
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ from sb3_hddpg.experiments.tuning.target import (
     trial_env_factory,
 )
 from sb3_hddpg.training.agent import AgentPaths, TrainingInterrupted, train_agent
-from sb3_hddpg.training.config import parse_block
+from sb3_hddpg.training.config import Hyperparams, parse_block
 from sb3_hddpg.training.run_options import RunOptions
 
 _NAN_MESSAGE = re.compile(r"\bnan\b|non-finite|not finite|\binf\b|infinit", re.IGNORECASE)
@@ -42,7 +43,10 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
     """
     changes = target.sampler(trial)
     if target.level == "ham":
-        return _evaluate_ham(trial, target, float(changes["threshold"]))
+        threshold = changes["threshold"]
+        if not isinstance(threshold, (int, float)):
+            raise TypeError(f"HAM's sampler gave a threshold of {threshold!r}")
+        return _evaluate_ham(trial, target, float(threshold))
     block = merge_block(target.base_block(), changes)
     trial.set_user_attr("config_block", block)
     timesteps = target.budget()
@@ -87,7 +91,7 @@ def objective(trial: optuna.Trial, target: TuningTarget, out_dir: str | Path, th
 def _train_trial_run(
     trial: optuna.Trial,
     target: TuningTarget,
-    hyperparams: Any,
+    hyperparams: Hyperparams,
     timesteps: int,
     seed: int,
     pruning: TrialPruningCallback,
@@ -154,9 +158,9 @@ def _evaluate_ham(trial: optuna.Trial, target: TuningTarget, threshold: float) -
     return value
 
 
-def _jsonable(entry: dict[str, Any]) -> dict[str, Any]:
+def _jsonable(entry: Mapping[str, object]) -> dict[str, object]:
     """An evaluation summary with only JSON-safe finite numbers (NaN becomes ``None``)."""
-    out: dict[str, Any] = {}
+    out: dict[str, object] = {}
     for key, value in entry.items():
         if isinstance(value, float):
             out[key] = value if math.isfinite(value) else None
