@@ -26,7 +26,7 @@ from typing import Protocol
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.artifacts.records.results import TtcShares
+from sb3_hddpg.artifacts.records.results_leaves import TtcShares
 from sb3_hddpg.policy import Policy
 
 #: The default threshold, in seconds: about two seconds is the usual following-distance rule for drivers.

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats as scipy_stats
 
-from sb3_hddpg.artifacts.records.results import Summary
+from sb3_hddpg.artifacts.records.results_leaves import Summary
 
 #: A statistic maps a 1-D sample to a number. If it accepts an ``axis`` keyword (as ``np.mean``,
 #: ``np.median`` and :func:`iqm` do) the bootstrap evaluates it on many resamples at once.

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_hddpg.artifacts.records.results import Interval
+from sb3_hddpg.artifacts.records.results_leaves import Interval
 
 
 def aggregate_figure(

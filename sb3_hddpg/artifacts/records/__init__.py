@@ -46,10 +46,10 @@ from sb3_hddpg.artifacts.records.results import (
     BenchmarkResults,
     Comparison,
     MethodResults,
-    Summary,
     benchmark_results,
     read_benchmark_results,
 )
+from sb3_hddpg.artifacts.records.results_leaves import Summary
 
 __all__ = [
     "BENCHMARK_RECORD_VERSION",

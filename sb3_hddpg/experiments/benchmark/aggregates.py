@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_hddpg.artifacts.records.results import Interval
+from sb3_hddpg.artifacts.records.results_leaves import Interval
 
 #: Bootstrap replications of every interval here (rliable's default is 50000, which takes minutes for a
 #: benchmark of ten methods on two shared cores; at 2000 the bounds move by well under the table's precision).

@@ -29,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.artifacts.records import JsonObject
-from sb3_hddpg.artifacts.records.results import DecisionFigure, FrontComparison, FrontResults
+from sb3_hddpg.artifacts.records.results_leaves import DecisionFigure, FrontComparison, FrontResults
 from sb3_hddpg.baselines.ham import HAMSwitch, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of

@@ -20,13 +20,8 @@ import numpy as np
 from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.artifacts.records import JsonObject
-from sb3_hddpg.artifacts.records.results import (
-    Aggregates,
-    BenchmarkResults,
-    Interval,
-    PairedDifference,
-    Summary,
-)
+from sb3_hddpg.artifacts.records.results import BenchmarkResults
+from sb3_hddpg.artifacts.records.results_leaves import Aggregates, Interval, PairedDifference, Summary
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
 from sb3_hddpg.experiments.benchmark.front import decides_table, front_table
 from sb3_hddpg.experiments.benchmark.report import headline_figures

@@ -10,7 +10,8 @@ import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.artifacts.records import JsonObject
-from sb3_hddpg.artifacts.records.results import BenchmarkResults, Summary, TransferComparison
+from sb3_hddpg.artifacts.records.results import BenchmarkResults
+from sb3_hddpg.artifacts.records.results_leaves import Summary, TransferComparison
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.aggregates import performance_profiles
 from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv

@@ -24,19 +24,21 @@ import numpy as np
 
 from sb3_hddpg.artifacts.records import JsonObject
 from sb3_hddpg.artifacts.records.results import (
-    Aggregates,
     BenchmarkResults,
     Comparison,
-    ComparisonFamily,
     CurveBand,
-    DependenceFigure,
     MethodResults,
+    benchmark_results,
+)
+from sb3_hddpg.artifacts.records.results_leaves import (
+    Aggregates,
+    ComparisonFamily,
+    DependenceFigure,
     PairedDifference,
     Summary,
     TransferComparison,
     TransferResults,
     TransferSeed,
-    benchmark_results,
 )
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import TermNormaliser
