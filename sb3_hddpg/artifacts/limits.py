@@ -517,3 +517,14 @@ from sb3_hddpg.envs.snake import params as _snake  # noqa: E402
 MAX_JOINTS = _snake.MAX_JOINTS
 MAX_OBSTACLES = _snake.MAX_OBSTACLES
 MAX_SUBSTEPS = _snake.MAX_SUBSTEPS
+
+# ---------------------------------------------------------------- the other counts of the floors below
+# Enforced where the value is first read (an adapted env's terms, a plain name), below the artefacts;
+# named here with every other limit on input.
+from sb3_hddpg.envs import adapters as _adapters  # noqa: E402
+from sb3_hddpg.names import MAX_NAME_CHARS as _MAX_NAME_CHARS  # noqa: E402
+
+#: The most reward terms of an adapted env (MO-Gymnasium objectives or info terms).
+MAX_TERMS = _adapters.MAX_TERMS
+#: The longest plain name (a worker, a method, a term).
+MAX_NAME_CHARS = _MAX_NAME_CHARS
