@@ -51,6 +51,12 @@ def where(name: str) -> tuple[int, int, str]:
     return os.getpid(), int(ray.get_runtime_context().get_assigned_resources()["CPU"]), os.getcwd()
 
 
+#: How long the long jobs run unless stopped: far beyond what a stop may take on a loaded machine, so a
+#: test that bounds the stop by :data:`STOP_BOUND` tells a stop from a wait for the job's end.
+LONG_JOB_SECONDS = 600
+STOP_BOUND = LONG_JOB_SECONDS / 2
+
+
 def checkpoint_on_interrupt(folder: str) -> int:
     """
     A long job that, like ``train_agent``, turns SIGTERM (the local executor's stop) or a ``KeyboardInterrupt``
@@ -61,7 +67,9 @@ def checkpoint_on_interrupt(folder: str) -> int:
     with sigterm_as_interrupt():
         try:
             (Path(folder) / f"started-{os.getpid()}").touch()
-            for _ in range(1200):  # short sleeps, like training steps: Ray's interrupt lands between them
+            for _ in range(
+                10 * LONG_JOB_SECONDS
+            ):  # short sleeps, like training steps: Ray's interrupt lands between them
                 time.sleep(0.1)
         except KeyboardInterrupt:
             (Path(folder) / f"checkpoint-{os.getpid()}").touch()
@@ -72,7 +80,7 @@ def checkpoint_on_interrupt(folder: str) -> int:
 def blocked_in_c(folder: str) -> int:
     """A long job blocked in C code (one long sleep), which Ray's non-forced cancel cannot interrupt."""
     (Path(folder) / f"started-{os.getpid()}").touch()
-    time.sleep(120)
+    time.sleep(LONG_JOB_SECONDS)
     return 0
 
 
