@@ -59,6 +59,7 @@ from sb3_hddpg.experiments.benchmark.front import (
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
+from sb3_hddpg.training.config import manager_option_steps
 from sb3_hddpg.training.flat import FLAT_ENV_ID
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.run_options import RunOptions
@@ -164,10 +165,12 @@ def run_variant(
     if path.exists():
         return json.loads(path.read_text())
     variant = VARIANTS[name]
+    # SB3 counts a manager's budget and evaluation period in decisions, each ``option_steps`` env steps.
+    option_steps = manager_option_steps(algo=variant.algo)
     run = RunOptions(
-        timesteps=args.timesteps * variant.budget_factor,
+        timesteps=max(1, args.timesteps * variant.budget_factor // option_steps),
         seed=seed,
-        eval_freq=args.eval_freq,
+        eval_freq=max(1, args.eval_freq // option_steps),
         eval_episodes=args.curve_episodes,
         resume=(folder / "manager").exists(),
         backend=args.backend,
@@ -237,7 +240,9 @@ def main() -> None:
     )
     p.add_argument("--variants", default="box,box-ham,box-end,dqn", help=f"among {list(VARIANTS)}")
     p.add_argument("--seeds", type=int, default=2, help="manager seeds 0..N-1 per variant")
-    p.add_argument("--timesteps", type=int, default=40_000, help="manager env steps (the bundled budget)")
+    p.add_argument(
+        "--timesteps", type=int, default=40_000, help="manager env steps (the bundled budget: 10k decisions)"
+    )
     p.add_argument("--eval-freq", type=int, default=5000, help="env steps between curve evaluations")
     p.add_argument("--curve-episodes", type=int, default=5, help="episodes per curve evaluation")
     p.add_argument("--episodes", type=int, default=20, help="frontier episodes per front point")
