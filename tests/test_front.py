@@ -99,6 +99,48 @@ def test_settings_refuse_a_front_scenario_with_other_methods():
     assert BenchmarkSettings(methods=["hddpg", "hddpg-front"]).methods == ["hddpg", "hddpg-front"]
 
 
+def test_the_fronts_managers_are_of_one_algorithm_and_budget():
+    default = BenchmarkSettings(methods=["hddpg-front"], timesteps=1000, scenario="front")
+    assert default.front_manager == "ddpg"
+    assert default.front_run_options(3) == default.manager_run_options(3)
+    settings = BenchmarkSettings(
+        methods=["hddpg-front"], timesteps=1000, scenario="front", front_manager="DQN", front_timesteps=16_000,
+        eval_freq=4000,
+    )  # fmt: skip
+    assert settings.front_manager == "dqn"  # the registry's name
+    run = settings.front_run_options(3)
+    steps = settings.option_steps_of("dqn")
+    assert (run.timesteps, run.eval_freq, run.seed) == (16_000 // steps, 4000 // steps, 3)
+    assert settings.flat_budget == default.flat_budget  # a flat agent's budget does not follow the front's
+    with pytest.raises(ValueError, match="front's manager among"):
+        BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_manager="ppo2")
+    with pytest.raises(ValueError, match="front_timesteps"):
+        BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_timesteps=0)
+
+
+def test_benchmark_cli_refuses_an_unknown_front_manager_in_one_line(tmp_path):
+    result = run_cli(
+        "benchmark", "--scenario", "front", "--front-manager", "ppo2", "--out", str(tmp_path / "b")
+    )
+    assert result.returncode == 2 and "front's manager among" in result.stdout + result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "b").exists()
+
+
+@pytest.mark.slow
+def test_a_front_of_dqn_managers_records_its_algorithm_and_budget(tmp_path):
+    settings = BenchmarkSettings(
+        methods=["hddpg-front"], seeds=[0], timesteps=120, worker_timesteps=200, eval_episodes=1,
+        test_episodes=1, scenario="front", front_manager="dqn", front_timesteps=400,
+    )  # fmt: skip
+    results = run_benchmark(settings, tmp_path)
+    record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
+    assert record["manager"] == {"algo": "dqn", "env_steps": 400}
+    assert results["front"]["manager"] == record["manager"]
+    assert "DQN, 400 env steps each" in (tmp_path / "results.md").read_text()
+    bundle = Hierarchy.load(tmp_path / "seed-0" / "hddpg-front" / "conditioned" / "hierarchy.zip")
+    assert type(bundle.manager).__name__ == "DQN"
+
+
 @pytest.mark.slow
 def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
     settings = BenchmarkSettings(

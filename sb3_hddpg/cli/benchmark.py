@@ -267,6 +267,21 @@ _WorkerAlgoOpt = Annotated[
         "e.g. qrdqn or sac.",
     ),
 ]
+_FrontManagerOpt = Annotated[
+    str,
+    typer.Option(
+        "--front-manager",
+        help="The algorithm of the front's managers (method hddpg-front): ddpg on the simplex as in the paper, "
+        "or e.g. dqn choosing a worker by index.",
+    ),
+]
+_FrontTimestepsOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--front-timesteps",
+        help="Each of the front's managers' budget in env steps (default: the manager's, --timesteps).",
+    ),
+]
 
 
 @app.command("benchmark")
@@ -298,6 +313,8 @@ def benchmark_command(
     workers_from: _WorkersFromOpt = None,
     env: _EnvOpt = None,
     worker_algo: _WorkerAlgoOpt = None,
+    front_manager: _FrontManagerOpt = "ddpg",
+    front_timesteps: _FrontTimestepsOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
@@ -310,7 +327,7 @@ def benchmark_command(
     """
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
-    with usage_errors("'--methods' / '--preference' / '--env'"):
+    with usage_errors("'--methods' / '--preference' / '--env' / '--front-manager'"):
         settings = BenchmarkSettings(
             methods=chosen,
             seeds=list(range(seeds)),
@@ -330,6 +347,8 @@ def benchmark_command(
             workers_from=str(workers_from.resolve()) if workers_from is not None else None,
             final_test=final_test,
             worker_algo=worker_algo,
+            front_manager=front_manager,
+            front_timesteps=front_timesteps,
         )
     redone = _checked_resume(settings, redo, resume)
     address = cluster_address(executor, ray_address)

@@ -6,7 +6,7 @@ object it is written as, typed by its :class:`~typing.TypedDict`.
 
 from __future__ import annotations
 
-from typing import TypedDict
+from typing import NotRequired, TypedDict
 
 
 class Summary(TypedDict):
@@ -167,6 +167,13 @@ class DecisionFigure(TypedDict):
     unit: str
 
 
+class FrontManager(TypedDict):
+    """The front's managers: their algorithm and each one's budget in env steps."""
+
+    algo: str
+    env_steps: int | None
+
+
 class FrontResults(TypedDict):
     """
     The front scenario's figures over seeds: per member and plane the hypervolumes (per seed and their
@@ -180,3 +187,5 @@ class FrontResults(TypedDict):
     comparisons: dict[str, FrontComparison]
     decides_by_state: dict[str, dict[str, DecisionFigure | None]]
     points: dict[str, dict[str, list[dict[str, float | str]]]]
+    #: absent from a front measured before its managers' algorithm was a setting (DDPG, the manager's budget)
+    manager: NotRequired[FrontManager]

@@ -12,6 +12,9 @@ Per seed, over that seed's workers, on the benchmark's test episodes:
   episodes that score it;
 - ``goal`` / ``avoid``: each worker alone (one point each).
 
+The conditioned and per-preference managers are of one algorithm with one budget, the benchmark's
+``front_manager`` and ``front_timesteps`` (by default the paper's DDPG manager on the manager's budget).
+
 Every member is a set of points in two planes: ``outcomes`` (goal touch rate, to maximise; contacts per
 episode, to minimise) and ``terms`` (the per-step means of the normalised goal and avoid terms, both to
 maximise). A set's hypervolume is pymoo's (:class:`pymoo.indicators.hv.HV`) against a reference point fixed
@@ -29,7 +32,12 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.artifacts.records import JsonObject
-from sb3_hddpg.artifacts.records.results_leaves import DecisionFigure, FrontComparison, FrontResults
+from sb3_hddpg.artifacts.records.results_leaves import (
+    DecisionFigure,
+    FrontComparison,
+    FrontManager,
+    FrontResults,
+)
 from sb3_hddpg.baselines.ham import HAMSwitch, load_ham, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
@@ -269,13 +277,15 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
         conditioned manager at each sweep preference) and ``ham_thresholds``.
     """
     run_dir = folder / task.method
-    run = settings.manager_run_options(task.seed)
-    conditioned, _ = train_manager(folder, run_dir / "conditioned", manager_preferences=SWEEP, run=run)
+    run, algo = settings.front_run_options(task.seed), settings.front_manager
+    conditioned, _ = train_manager(
+        folder, run_dir / "conditioned", algo=algo, manager_preferences=SWEEP, run=run
+    )
     per_preference: list[tuple[str, Hierarchy]] = []
     for label, point in zip(sweep_labels(), SWEEP.points):
         factors = dict(zip(SWEEP.names, point))
         name = "manager-" + "-".join(f"{v:.3g}" for v in point)
-        hierarchy, _ = train_manager(folder, run_dir / name, preferences=factors, run=run)
+        hierarchy, _ = train_manager(folder, run_dir / name, algo=algo, preferences=factors, run=run)
         per_preference.append((label, hierarchy))
     offset = workers_steps(folder)
     references = REFERENCE_POINTS[FLAT_ENV_ID]
@@ -327,6 +337,7 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
     steps = conditioned.config.option_steps
     return {
         "worker_timesteps": offset,
+        "manager": {"algo": algo, "env_steps": run.timesteps * steps if run.timesteps else None},
         "history": read_history(run_dir / "conditioned" / "evaluations" / "manager.json", steps, offset),
         **test,
         "front": front,
@@ -375,7 +386,7 @@ def front_results(runs: Mapping[int, JsonObject]) -> FrontResults:
                 "probability_of_improvement": probability_of_improvement(xa, xb),
             }
         comparisons[f"{a} vs {b}"] = cast(FrontComparison, entry)
-    return {
+    results: FrontResults = {
         "members": list(per_seed),
         "references": runs[seeds[0]]["references"] if seeds else {},
         "hypervolume_per_seed": per_seed,
@@ -384,6 +395,9 @@ def front_results(runs: Mapping[int, JsonObject]) -> FrontResults:
         "decides_by_state": {str(s): runs[s].get("decides_by_state", {}) for s in seeds},
         "points": {str(s): {m: runs[s]["front"][m]["points"] for m in per_seed} for s in seeds},
     }
+    if seeds and "manager" in runs[seeds[0]]:
+        results["manager"] = cast(FrontManager, runs[seeds[0]]["manager"])
+    return results
 
 
 def front_table(front: FrontResults) -> list[str]:
@@ -398,6 +412,13 @@ def front_table(front: FrontResults) -> list[str]:
             stats = front["hypervolume"][member][plane]
             cells.append(f"{stats['mean']:.4g} [{stats['ci_low']:.4g}, {stats['ci_high']:.4g}]")
         lines.append(f"| {member} | " + " | ".join(cells) + " |")
+    manager = front.get("manager")
+    if manager is not None:
+        budget = f", {manager['env_steps']:,} env steps each" if manager["env_steps"] else ""
+        lines.append("")
+        lines.append(
+            f"The front's managers (conditioned and per preference): {manager['algo'].upper()}{budget}."
+        )
     references = front.get("references", {})
     if references:
         lines.append("")

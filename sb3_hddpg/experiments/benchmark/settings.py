@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
@@ -140,6 +141,11 @@ class BenchmarkSettings:
         for the runs of record only, never for a choice; otherwise on the development episodes.
     :param worker_algo: the algorithm of every worker on another env (``None``: DDPG on continuous actions,
         DQN on discrete ones; see :attr:`worker_algos`). The snake arm's workers keep their own.
+    :param front_manager: the algorithm of the front's managers (method ``hddpg-front``: the
+        preference-conditioned one and one per sweep preference), any manager algorithm: DDPG on the
+        simplex as in the paper, or e.g. DQN choosing a worker by index.
+    :param front_timesteps: the budget of each of the front's managers, in env steps (``None``: the
+        manager's, :attr:`manager_env_steps`). A flat agent's default budget does not change with it.
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -160,9 +166,12 @@ class BenchmarkSettings:
     workers_from: str | None = None
     final_test: bool = False
     worker_algo: str | None = None
+    front_manager: str = "ddpg"
+    front_timesteps: int | None = None
 
     def __post_init__(self) -> None:
         self._check_methods()
+        self._check_front_manager()
         if self.env is not None:
             self._check_env()
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
@@ -172,7 +181,7 @@ class BenchmarkSettings:
         if self.test_episodes is None:
             self.test_episodes = FINAL_TEST_EPISODES if self.final_test else DEVELOPMENT_TEST_EPISODES
         self.test_set.seeds(self.test_episodes)  # within the set's block
-        for name in ("timesteps", "worker_timesteps", "eval_episodes", "test_episodes"):
+        for name in ("timesteps", "worker_timesteps", "front_timesteps", "eval_episodes", "test_episodes"):
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise ValueError(f"Expected `{name}` >= 1, actually: {getattr(self, name)}")
@@ -213,6 +222,17 @@ class BenchmarkSettings:
                 )
         if len(set(self.methods)) != len(self.methods) or not self.methods:
             raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
+
+    def _check_front_manager(self) -> None:
+        """The front's managers: a manager algorithm the backend trains (written by its registry name)."""
+        managers = algorithms_for("manager")
+        with contextlib.suppress(ValueError):  # an unknown name is refused below, among the managers
+            self.front_manager = algorithm(self.front_manager).name
+        if self.front_manager not in managers:
+            raise ValueError(
+                f"Expected the front's manager among {list(managers)}, actually: {self.front_manager!r}"
+            )
+        check_algo(self.front_manager, self.backend)
 
     def _check_transfer(self) -> None:
         """The transfer scenario's preferences (written one way) and methods: hddpg and flat agents."""
@@ -349,17 +369,24 @@ class BenchmarkSettings:
         """Env steps per decision of a manager of algorithm ``algo`` (its bundled manager block's ``option_steps``)."""
         return self.option_steps if algo == "ddpg" else manager_option_steps(algo=algo)
 
-    def manager_run_options(self, seed: int, algo: str = "ddpg") -> RunOptions:
+    def manager_run_options(self, seed: int, algo: str = "ddpg", env_steps: int | None = None) -> RunOptions:
         """
         :meth:`run_options` of a manager: ``timesteps`` decisions (another algorithm's manager: as many
         decisions as make :attr:`manager_env_steps` with its own ``option_steps``), evaluated every
         :meth:`eval_freq_for` env steps converted to decisions, so that its curve points fall at the same
         env steps as the others'.
+
+        :param env_steps: another budget than :attr:`manager_env_steps`, in env steps.
         """
+        budget = env_steps if env_steps is not None else self.manager_env_steps
         option_steps = self.option_steps_of(algo)
-        decisions = max(self.manager_env_steps // option_steps, 1)  # the DDPG manager's: ``timesteps``
-        every = max(self.eval_freq_for(self.manager_env_steps) // option_steps, 1)
+        decisions = max(budget // option_steps, 1)  # the DDPG manager's: ``timesteps``
+        every = max(self.eval_freq_for(budget) // option_steps, 1)
         return self.run_options(seed, decisions, decisions).replace(eval_freq=every)
+
+    def front_run_options(self, seed: int) -> RunOptions:
+        """:meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_timesteps`."""
+        return self.manager_run_options(seed, self.front_manager, self.front_timesteps)
 
     def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
         """
