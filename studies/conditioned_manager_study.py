@@ -24,7 +24,9 @@ Variants (each a ``train_manager`` setting; ``--timesteps`` env steps unless the
   goal touch changes (``option_end="distance=0.5,touch"``);
 - ``box-long``: ``box`` with three times the budget;
 - ``dqn``: a DQN manager on ``Discrete(n_workers)`` (SMDP Q-learning over options);
-- ``dqn-ham``: ``dqn`` started from HAM's choices.
+- ``dqn-ham``: ``dqn`` started from HAM's choices;
+- ``dqn-long``: ``dqn`` with three times the budget;
+- ``dqn-step``: ``dqn`` deciding at every env step (``option_steps=1``), as HAM does.
 """
 
 from __future__ import annotations
@@ -73,6 +75,7 @@ class Variant:
     ham_start: bool = False
     option_end: str | None = None
     budget_factor: int = 1
+    option_steps: int | None = None
 
 
 VARIANTS = {
@@ -82,6 +85,8 @@ VARIANTS = {
     "box-long": Variant(budget_factor=3),
     "dqn": Variant(algo="dqn"),
     "dqn-ham": Variant(algo="dqn", ham_start=True),
+    "dqn-long": Variant(algo="dqn", budget_factor=3),
+    "dqn-step": Variant(algo="dqn", option_steps=1),
 }
 
 
@@ -166,7 +171,7 @@ def run_variant(
         return json.loads(path.read_text())
     variant = VARIANTS[name]
     # SB3 counts a manager's budget and evaluation period in decisions, each ``option_steps`` env steps.
-    option_steps = manager_option_steps(algo=variant.algo)
+    option_steps = variant.option_steps or manager_option_steps(algo=variant.algo)
     run = RunOptions(
         timesteps=max(1, args.timesteps * variant.budget_factor // option_steps),
         seed=seed,
@@ -183,6 +188,7 @@ def run_variant(
         manager_preferences=SWEEP,
         init_from_ham=args.ham_start if variant.ham_start else None,
         option_end=variant.option_end,
+        option_steps=variant.option_steps,
         run=run,
     )
     seconds = time.perf_counter() - start
@@ -206,15 +212,43 @@ def run_variant(
     return record
 
 
+#: The safe end of the trade-off: the most goal touch a front reaches with at most this many contacts.
+SAFE_CONTACTS = 2.0
+
+
+def safe_touch(points: Sequence[dict[str, object]]) -> float | None:
+    """The most goal touch among ``points`` with at most :data:`SAFE_CONTACTS` contacts (``None``: none)."""
+    touches = [
+        float(p["goal_touch_rate"])  # type: ignore[arg-type]
+        for p in points
+        if float(p["contacts_per_episode"]) <= SAFE_CONTACTS  # type: ignore[arg-type]
+    ]
+    return max(touches) if touches else None
+
+
+def _cell(values: Sequence[float | None], digits: int, scale: float = 1.0) -> str:
+    """Mean and per seed; a seed without a value is ``-`` and left out of the mean."""
+    known = [v * scale for v in values if v is not None]
+    mean = f"{statistics.mean(known):.{digits}f}" if known else "-"
+    each = ", ".join("-" if v is None else f"{v * scale:.{digits}f}" for v in values)
+    return f"{mean} [{each}]"
+
+
 def report(out: Path, names: Sequence[str], seeds: int, base: dict[str, object]) -> str:
-    """A Markdown table: each variant's hypervolume per plane (mean and per seed) beside HAM's and the workers'."""
+    """
+    A Markdown table: each variant's hypervolume per plane and its goal touch at the safe end (mean and per
+    seed) beside HAM's and the workers'.
+    """
     lines = [
-        "| front | seeds | hypervolume (touch, contacts): mean [per seed] | hypervolume (goal, avoid terms) |",
-        "|---|---|---|---|",
+        "| front | seeds | hypervolume (touch, contacts): mean [per seed] | hypervolume (goal, avoid terms) "
+        f"| most goal touch (%) with <= {SAFE_CONTACTS:g} contacts |",
+        "|---|---|---|---|---|",
     ]
     for member in ("ham", "goal", "avoid"):
-        hv = base[member]["hypervolume"]  # type: ignore[index]
-        lines.append(f"| {member} | - | {hv['outcomes']:.4f} | {hv['terms']:.4f} |")
+        record = base[member]
+        hv = record["hypervolume"]  # type: ignore[index]
+        safe = _cell([safe_touch(record["points"])], 1, 100)  # type: ignore[index]
+        lines.append(f"| {member} | - | {hv['outcomes']:.4f} | {hv['terms']:.4f} | {safe} |")
     for name in names:
         runs = [
             json.loads(p.read_text())
@@ -223,10 +257,8 @@ def report(out: Path, names: Sequence[str], seeds: int, base: dict[str, object])
         ]
         if not runs:
             continue
-        cells = []
-        for plane in PLANES:
-            values = [r["hypervolume"][plane] for r in runs]
-            cells.append(f"{statistics.mean(values):.4f} [{', '.join(f'{v:.4f}' for v in values)}]")
+        cells = [_cell([r["hypervolume"][plane] for r in runs], 4) for plane in PLANES]
+        cells.append(_cell([safe_touch(r["points"]) for r in runs], 1, 100))
         lines.append(f"| {name} | {len(runs)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
