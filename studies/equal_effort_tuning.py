@@ -1,26 +1,37 @@
 """
-Equal tuning effort for every method of the benchmark (docs/TUNING.md): the same Optuna budget, the same
-number of trials of the same env steps each, for the two workers, the manager, HAM's threshold and the flat
-DDPG, TD3 and SAC; every study starts from its method's bundled config (its first trial, ``enqueue_base``).
+Equal tuning effort for every method of the benchmark (docs/TUNING.md): one Optuna study per method, each with
+the same number of trials, each trial the same share of what that method finally trains with in the
+benchmark (``--budget-fraction``), or the same env steps for every method (``--timesteps``); every study starts
+from its method's bundled block (its first trial, ``enqueue_base``) and is evaluated on the tuning episodes.
 
-    python studies/equal_effort_tuning.py --n-trials 10 --timesteps 40000 --backend sbx --n-jobs 2 \\
-        --out runs/equal-tuning
+    python studies/equal_effort_tuning.py --n-trials 10 --budget-fraction 0.1 --backend sbx --n-jobs 2 \\
+        --front-manager dqn --front-timesteps 160000 --out runs/record-studies
 
-Order: the goal and avoid workers, then the flat agents (each on its own study) while two workers are trained
-with the tuned worker blocks at their full budget (seed 0); over those the manager and HAM are tuned. A
-manager's trial counts env steps (decisions x ``option_steps``) like every other; a HAM trial trains nothing
-and costs one evaluation. Everything resumes: re-run the same command after an interruption.
-``--seeds-per-trial K`` trains every trial K times (seeds ``--seed`` to ``--seed + K - 1``) and ranks it by
-the mean: a study over one seed picked a manager block that ran the goal worker in that seed and worse mixes
-in three of five others (docs/MANAGER.md).
+Each study is named for the benchmark method it serves:
 
-Writes ``OUT/ddpg.yml`` (the tuned goal, avoid, flat and manager blocks over the bundled file), ``OUT/td3.yml``,
-``OUT/sac.yml``, ``OUT/summary.json`` (per study: trials by state, steps per trial, the base config's value,
-the best value and parameters; HAM's best threshold) and prints the summary as a Markdown table.
+- ``goal``, ``avoid``: the workers, each with its snake-arm algorithm (DDPG reaches, SAC avoids), final
+  budget its block's ``n_timesteps``;
+- ``ddpg``, ``sac``, ``ddpg-her``, ``sac-her`` (``--flat``): the flat agents, final budget the benchmark's
+  flat budget (the hierarchy's env steps); the ``-her`` ones tune the ``flat-her`` block, the goal worker's
+  tricks on the reach task;
+- ``hddpg``: the DDPG manager over workers trained from the tuned worker blocks, final budget the manager's;
+- ``hddpg-front``: the front's managers' algorithm (``--front-manager``, when it is not DDPG), final budget
+  ``--front-timesteps``; tuned at the unweighted preference, as a manager of its own;
+- ``ham``: HAM's threshold over the same workers (its trial is one evaluation, no training).
+
+Order: the workers, then the flat agents while two workers train with the tuned worker blocks at their full
+budget (one more process); then the managers and HAM over those workers. Everything resumes: re-run the same
+command after an interruption. ``--seeds-per-trial K`` trains every trial K times and ranks it by the mean.
+
+Writes the tuned blocks (``OUT/ddpg.yml``, ``OUT/sac.yml``...: each the bundled file with its method's block
+replaced), every study's trials (``OUT/studies/<method>.json``, :func:`~sb3_hddpg.experiments.study_export.
+export_study`, which ``hddpg-cli report`` turns into docs/TUNING.md's table), ``OUT/summary.json`` (per study:
+trials by state, steps per trial, the base config's value, the best value and parameters; HAM's best
+threshold), and prints the summary as a Markdown table.
 
 The best trial of each study is the one with the best evaluation (``--rank-by peak``, the default): the
 benchmark keeps each run's best-evaluated checkpoint, and ranking by the last evaluation let a policy stuck on
-one constant action win the flat DDPG study by 1.4 points (docs/TUNING.md). The summary also names the best
+one constant action win a flat DDPG study by 1.4 points (docs/TUNING.md). The summary also names the best
 trial by the last evaluation.
 """
 
@@ -29,11 +40,15 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
-import shutil
-import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
+
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
+from sb3_hddpg.experiments.benchmark.settings import FLAT_HER_METHODS, BenchmarkSettings
+from sb3_hddpg.experiments.study_export import export_study
 from sb3_hddpg.experiments.study_storage import default_storage_url
 from sb3_hddpg.experiments.tuning import (
     RANKINGS,
@@ -45,74 +60,126 @@ from sb3_hddpg.experiments.tuning import (
     trial_score,
     tune,
 )
+from sb3_hddpg.training.config import load_config_file
+from sb3_hddpg.training.flat import FLAT_HER_KEY
 from sb3_hddpg.training.run_options import RunOptions
-from sb3_hddpg.training.workers import train_workers
+from sb3_hddpg.training.workers import SNAKE_WORKER_ALGOS, train_workers
 
-#: The studies of the workers, then of the flat agents: (level, worker, algorithm, file the best block goes to).
-WORKER_STUDIES: list[tuple[str, str | None, str, str]] = [
-    ("worker", "goal", "ddpg", "ddpg.yml"),
-    ("worker", "avoid", "ddpg", "ddpg.yml"),
-]
-FLAT_STUDIES: list[tuple[str, str | None, str, str]] = [
-    ("flat", None, "ddpg", "ddpg.yml"),
-    ("flat", None, "td3", "td3.yml"),
-    ("flat", None, "sac", "sac.yml"),
-]
-#: The studies over the workers trained with the tuned worker blocks.
-OVER_WORKERS: list[tuple[str, str | None, str, str | None]] = [
-    ("manager", None, "ddpg", "ddpg.yml"),
-    ("ham", None, "ddpg", None),
-]
+#: The flat agents tuned by default: the run of record's.
+DEFAULT_FLAT = ("ddpg", "sac", "ddpg-her", "sac-her")
+
+
+@dataclass(frozen=True)
+class Study:
+    """
+    One method's study.
+
+    :param name: the benchmark method it serves (the study's name, its folder and its export).
+    :param level: the tuning level (``worker``, ``flat``, ``manager`` or ``ham``).
+    :param algo: the algorithm tuned.
+    :param worker: the worker (level ``worker``).
+    :param block: another block of the config than the level's (the ``-her`` flat agents).
+    """
+
+    name: str
+    level: str
+    algo: str
+    worker: str | None = None
+    block: str | None = None
+
+    @property
+    def file(self) -> str | None:
+        """The tuned file this study's best block is written to (``None``: HAM, which has no block)."""
+        return None if self.level == "ham" else f"{self.algo}.yml"
+
+
+def worker_studies() -> list[Study]:
+    """The workers' studies, each with the algorithm the snake arm trains it with."""
+    return [Study(w, "worker", algo, worker=w) for w, algo in SNAKE_WORKER_ALGOS.items()]
+
+
+def flat_studies(methods: list[str]) -> list[Study]:
+    """The flat agents' studies: a ``-her`` method tunes its algorithm's ``flat-her`` block."""
+    return [
+        Study(m, "flat", FLAT_HER_METHODS[m], block=FLAT_HER_KEY)
+        if m in FLAT_HER_METHODS
+        else Study(m, "flat", m)
+        for m in methods
+    ]
+
+
+def over_workers_studies(front_manager: str) -> list[Study]:
+    """The studies over the tuned workers: the DDPG manager, the front's manager (if another), HAM."""
+    studies = [Study("hddpg", "manager", "ddpg")]
+    if front_manager != "ddpg":
+        studies.append(Study("hddpg-front", "manager", front_manager))
+    return [*studies, Study("ham", "ham", "ddpg")]
+
+
+def final_budget(study: Study, settings: BenchmarkSettings) -> int | None:
+    """What the method trains with in the benchmark, in env steps (``None``: HAM, which trains nothing)."""
+    if study.level == "worker":
+        block = TuningTarget(level="worker", worker=study.worker, algo=study.algo).base_block()
+        return settings.worker_timesteps or int(block["n_timesteps"])
+    if study.level == "flat":
+        return settings.flat_budget
+    if study.name == "hddpg-front":
+        return settings.front_timesteps or settings.manager_env_steps
+    if study.level == "manager":
+        return settings.manager_env_steps
+    return None
 
 
 def run_study(
-    args: argparse.Namespace,
-    level: str,
-    worker: str | None,
-    algo: str,
-    config: Path | None,
-    workers: Path | None,
+    args: argparse.Namespace, study: Study, settings: BenchmarkSettings, workers: Path | None
 ) -> tuple[TuningTarget, Any]:
-    """One method's study (resumed if it exists), with the shared budget."""
+    """One method's study (resumed if it exists), with its share of its final budget; its trials exported."""
+    budget = final_budget(study, settings)
+    share = args.budget_fraction is not None and budget is not None
     target = TuningTarget(
-        level=level,
-        worker=worker,
+        level=study.level,
+        worker=study.worker,
         workers_dir=str(workers) if workers is not None else None,
-        config=str(config) if config is not None else None,
-        timesteps=args.timesteps,
+        timesteps=None if share or study.level == "ham" else args.timesteps,
+        budget_fraction=args.budget_fraction if share else None,
+        final_budget=budget if share else None,
+        block=study.block,
         n_evaluations=args.n_evaluations,
         eval_episodes=args.eval_episodes,
         seed=args.seed,
-        algo=algo,
-        backend=args.backend if level != "ham" else None,
-        n_seeds=args.seeds_per_trial if level != "ham" else 1,
+        algo=study.algo,
+        backend=args.backend if study.level != "ham" else None,
+        n_seeds=args.seeds_per_trial if study.level != "ham" else 1,
     )
-    folder = args.out / "studies" / target.name
+    folder = args.out / "tuning" / study.name
     folder.mkdir(parents=True, exist_ok=True)
-    settings = StudySettings(
-        storage=default_storage_url(folder),
-        study_name=target.name,
-        n_trials=args.n_trials,
-        pruner=args.pruner,
-        seed=args.seed,
+    storage = default_storage_url(folder)
+    settings_ = StudySettings(
+        storage=storage, study_name=study.name, n_trials=args.n_trials, pruner=args.pruner, seed=args.seed
     )
-    started = time.perf_counter()
-    study = tune(target, settings, folder, n_jobs=args.n_jobs)
-    print(f"{target.name}: {trial_counts(study)} in {time.perf_counter() - started:.0f} s", flush=True)
-    return target, study
+    tuned = tune(target, settings_, folder, n_jobs=args.n_jobs)
+    exports = args.out / "studies"
+    exports.mkdir(exist_ok=True)
+    (exports / f"{study.name}.json").write_text(
+        json.dumps(export_study(storage, study.name), indent=1) + "\n"
+    )
+    print(f"{study.name}: {trial_counts(tuned)}", flush=True)
+    return target, tuned
 
 
-def summarise(target: TuningTarget, study: Any, args: argparse.Namespace) -> dict[str, Any]:
+def summarise(study: Study, target: TuningTarget, tuned: Any, args: argparse.Namespace) -> dict[str, Any]:
     """What the docs report of a study: its budget, trials by state, the base config's value and the best."""
-    base = [t for t in study.trials if t.user_attrs.get("base_config") and t.value is not None]
-    best = best_trials(study, 1, args.rank_by)
-    by_last = best_trials(study, 1)
+    base = [t for t in tuned.trials if t.user_attrs.get("base_config") and t.value is not None]
+    best = best_trials(tuned, 1, args.rank_by)
+    by_last = best_trials(tuned, 1)
     return {
-        "study": target.name,
+        "study": study.name,
         "level": target.level,
         "algo": target.algo,
-        "trials": trial_counts(study),
-        "env_steps_per_trial": None if target.level == "ham" else args.timesteps,
+        "trials": trial_counts(tuned),
+        "env_steps_per_trial": None if target.level == "ham" else target.budget(),
+        "budget_fraction": target.budget_fraction,
+        "final_budget": target.final_budget,
         "rank_by": args.rank_by,
         "base_value": trial_score(base[0], args.rank_by) if base else None,
         "base_last_value": base[0].value if base else None,
@@ -126,16 +193,39 @@ def summarise(target: TuningTarget, study: Any, args: argparse.Namespace) -> dic
         # What the study cost: its finished trials' own durations, summed (process minutes, not wall time).
         "trial_minutes": sum(
             (t.datetime_complete - t.datetime_start).total_seconds() / 60
-            for t in study.trials
+            for t in tuned.trials
             if t.datetime_complete is not None and t.datetime_start is not None
         ),
     }
 
 
-def main() -> None:
+def workers_config(out: Path, studies: list[Study]) -> Path:
+    """
+    One file with every tuned worker block (each worker's from its algorithm's tuned file), from which the
+    workers the managers are tuned over train: a block names its algorithm's parameters only.
+    """
+    config: dict[str, Any] = {}
+    for study in studies:
+        key = WORKER_ENV_IDS[str(study.worker)]
+        config[key] = load_config_file(out / str(study.file))[key]
+    path = out / "workers.yml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path
+
+
+def parse_args() -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--n-trials", type=int, default=10, help="finished trials per method")
-    p.add_argument("--timesteps", type=int, default=40_000, help="env steps per trial, every method")
+    effort = p.add_mutually_exclusive_group()
+    effort.add_argument("--timesteps", type=int, default=40_000, help="env steps per trial, every method")
+    effort.add_argument(
+        "--budget-fraction", type=float, default=None, help="each trial's share of its method's final budget"
+    )
+    p.add_argument("--flat", default=",".join(DEFAULT_FLAT), help="the flat agents tuned (benchmark methods)")
+    p.add_argument("--front-manager", default="ddpg", help="the front's managers' algorithm (as benchmark's)")
+    p.add_argument(
+        "--front-timesteps", type=int, default=None, help="their budget in env steps (as benchmark's)"
+    )
     p.add_argument("--n-evaluations", type=int, default=5, help="evaluations per trial (for the pruner)")
     p.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation")
     p.add_argument("--pruner", default="median", choices=["median", "halving", "none"], help="Optuna pruner")
@@ -161,43 +251,11 @@ def main() -> None:
         help="which trial is best: by its best evaluation (peak) or its last (last)",
     )
     p.add_argument("--out", type=Path, default=Path("runs/equal-tuning"), help="output folder")
-    args = p.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
-    summary: list[dict[str, Any]] = []
-    for level, worker, algo, file in WORKER_STUDIES:
-        target, study = run_study(args, level, worker, algo, None, None)
-        save_best_config(study, target, args.out / file, args.rank_by)
-        summary.append(summarise(target, study, args))
+    return p.parse_args()
 
-    # The workers the manager and HAM are tuned over train (one process, from their own copy of the tuned
-    # blocks) while the flat studies run, so that no core waits for them.
-    workers_config = args.out / "workers.yml"
-    shutil.copyfile(args.out / "ddpg.yml", workers_config)
-    run = RunOptions(timesteps=args.worker_timesteps, seed=args.seed, backend=args.backend, resume=True)
-    trainer = multiprocessing.get_context("spawn").Process(
-        target=train_workers, args=(args.out / "workers",), kwargs={"config": workers_config, "run": run}
-    )
-    print("training the workers with the tuned blocks, beside the flat studies...", flush=True)
-    trainer.start()
-    for level, worker, algo, file in FLAT_STUDIES:
-        target, study = run_study(args, level, worker, algo, None, None)
-        save_best_config(study, target, args.out / file, args.rank_by)
-        summary.append(summarise(target, study, args))
-    trainer.join()
-    if trainer.exitcode != 0:
-        raise SystemExit(f"training the workers failed (exit code {trainer.exitcode}); re-run to resume")
 
-    workers = args.out / "workers"
-    for level, worker, algo, maybe_file in OVER_WORKERS:
-        # From the bundled manager block, not OUT/ddpg.yml's: once a manager study has saved its best block
-        # there, a study started again (e.g. after deleting it) would start from that block instead.
-        target, study = run_study(args, level, worker, algo, None, workers)
-        if maybe_file is not None:  # HAM has no config block: its threshold is in the summary
-            save_best_config(study, target, args.out / maybe_file, args.rank_by)
-        summary.append(summarise(target, study, args))
-
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    which = "best" if args.rank_by == "peak" else "last"
+def print_summary(summary: list[dict[str, Any]], rank_by: str) -> None:
+    which = "best" if rank_by == "peak" else "last"
     print(
         f"| study | trials (complete / pruned) | env steps per trial | base config ({which} evaluation) | "
         f"best ({which} evaluation) | best trial | best trial by the last evaluation | trial minutes |"
@@ -217,6 +275,50 @@ def main() -> None:
             f"{entry['env_steps_per_trial'] or 'one evaluation'} | {base} | {best} | {entry['best_trial']} | "
             f"{by_last} | {entry['trial_minutes']:.0f} |"
         )
+
+
+def main() -> None:
+    args = parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    flat = [m.strip() for m in args.flat.split(",") if m.strip()]
+    # The benchmark's own budgets (a flat agent's, a manager's, the front's): what each share is taken of.
+    settings = BenchmarkSettings(
+        methods=["hddpg", *flat],
+        backend=args.backend,
+        worker_timesteps=args.worker_timesteps,
+        front_manager=args.front_manager,
+        front_timesteps=args.front_timesteps,
+    )
+    summary: list[dict[str, Any]] = []
+
+    def study_and_save(study: Study, workers: Path | None = None) -> None:
+        target, tuned = run_study(args, study, settings, workers)
+        if study.file is not None:
+            save_best_config(tuned, target, args.out / study.file, args.rank_by)
+        summary.append(summarise(study, target, tuned, args))
+
+    for study in worker_studies():
+        study_and_save(study)
+    # The workers the managers and HAM are tuned over train (one process, from the tuned blocks) while the
+    # flat studies run, so that no core waits for them.
+    config = workers_config(args.out, worker_studies())
+    run = RunOptions(timesteps=args.worker_timesteps, seed=args.seed, backend=args.backend, resume=True)
+    trainer = multiprocessing.get_context("spawn").Process(
+        target=train_workers, args=(args.out / "workers",), kwargs={"config": config, "run": run}
+    )
+    print("training the workers with the tuned blocks, beside the flat studies...", flush=True)
+    trainer.start()
+    for study in flat_studies(flat):
+        study_and_save(study)
+    trainer.join()
+    if trainer.exitcode != 0:
+        raise SystemExit(f"training the workers failed (exit code {trainer.exitcode}); re-run to resume")
+    for study in over_workers_studies(settings.front_manager):
+        # From the bundled manager block, not OUT's: once a manager study has saved its best block there, a
+        # study started again (e.g. after deleting it) would start from that block instead.
+        study_and_save(study, args.out / "workers")
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print_summary(summary, args.rank_by)
 
 
 if __name__ == "__main__":

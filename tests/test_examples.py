@@ -87,31 +87,40 @@ def test_manager_study_reports_the_state_dependence(tmp_path):
     assert report["state_dependence"]["worker"] == "avoid"
 
 
-@pytest.mark.slow  # seven tiny studies and two tiny workers: ~30 s idle
-def test_equal_effort_tuning_gives_every_method_the_same_trials_from_its_bundled_config(tmp_path):
+@pytest.mark.slow  # ten tiny studies and two tiny workers
+def test_equal_effort_tuning_gives_every_method_the_same_share_from_its_bundled_config(tmp_path):
     import json
 
-    args = ["--n-trials", "2", "--timesteps", "200", "--n-evaluations", "2", "--eval-episodes", "1"]
-    args += ["--worker-timesteps", "100", "--out", str(tmp_path)]
-    result = run_example("equal_effort_tuning.py", args, timeout=900, folder=STUDIES)
+    args = ["--n-trials", "2", "--budget-fraction", "0.001", "--n-evaluations", "2", "--eval-episodes", "1"]
+    args += ["--worker-timesteps", "100", "--front-manager", "dqn", "--front-timesteps", "20000"]
+    args += ["--out", str(tmp_path)]
+    result = run_example("equal_effort_tuning.py", args, timeout=1800, folder=STUDIES)
     summary = json.loads((tmp_path / "summary.json").read_text())
-    names = ["worker-goal", "worker-avoid", "flat", "flat-td3", "flat-sac", "manager", "ham"]
+    names = ["goal", "avoid", "ddpg", "sac", "ddpg-her", "sac-her", "hddpg", "hddpg-front", "ham"]
     assert [entry["study"] for entry in summary] == names
+    budgets = {entry["study"]: entry["final_budget"] for entry in summary}
+    assert budgets["goal"] == budgets["avoid"] == 100  # the benchmark's worker budget
+    assert budgets["ddpg"] == budgets["sac-her"] == 40_000 + 2 * 100  # the hierarchy's env steps
+    assert (budgets["hddpg"], budgets["hddpg-front"], budgets["ham"]) == (40_000, 20_000, None)
     for entry in summary:
         assert sum(entry["trials"].values()) == 2, entry
-        assert entry["env_steps_per_trial"] == (None if entry["study"] == "ham" else 200)
+        if entry["study"] != "ham":  # the same share of every method's final budget
+            assert entry["budget_fraction"] == 0.001
+            assert entry["env_steps_per_trial"] == max(2, round(0.001 * entry["final_budget"]))
         assert entry["base_value"] is not None and entry["best_value"] >= entry["base_value"]
         # Ranked by each trial's best evaluation; the pick by the last evaluation is reported beside it.
         assert entry["rank_by"] == "peak" and entry["best_last_value"] >= entry["base_last_value"]
         assert entry["base_sampled_outside_space"] == []  # each bundled block is a point of its space
-    for file in ("ddpg.yml", "td3.yml", "sac.yml"):
+        export = json.loads((tmp_path / "studies" / f"{entry['study']}.json").read_text())
+        assert len(export["trials"]) == 2  # every study's trials are shipped
+    for file in ("ddpg.yml", "sac.yml", "dqn.yml"):
         assert (tmp_path / file).is_file()
-    # The manager and HAM were tuned over workers trained from the tuned worker blocks.
+    # The managers and HAM were tuned over workers trained from the tuned worker blocks.
     manifest = json.loads((tmp_path / "workers" / "workers" / "manifest.json").read_text())
     assert {entry["config"]["file"] for entry in manifest["workers"].values()} == {
         str(tmp_path / "workers.yml")
     }
-    assert "| worker-goal | " in result.stdout
+    assert "| goal | " in result.stdout
 
 
 def test_goal_holding_measures_a_worker_and_the_reference_reachers(tmp_path):

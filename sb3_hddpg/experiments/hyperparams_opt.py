@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol
 
 from sb3_hddpg.algorithms import REGISTRY, ROLES, algorithms_for
-from sb3_hddpg.hierarchy.selection import SELECTORS
+from sb3_hddpg.hierarchy.selection import SELECTORS, DiscreteSelector
 from sb3_hddpg.training.config import parse_policy_kwargs
 
 #: ``net_arch`` choices by name (rl_zoo3's names and sizes).
@@ -154,16 +154,26 @@ def sample_crossq_params(trial: Trial) -> SampledBlock:
 
 
 def _sample_q_network(trial: Trial, policy_extra: str = "") -> SampledBlock:
-    block = _sample_shared(trial)
-    del block["tau"]  # DQN copies its target network every target_update_interval steps
+    """
+    DQN's space: the shared discount, learning rate and batch size; its own buffer sizes (the bundled
+    blocks' 50k among them), update period with one gradient step each (SB3's and the bundled blocks'
+    schedule), target-network period and exploration schedule. No soft-update rate: DQN copies its target.
+    """
     net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
-    block["target_update_interval"] = trial.suggest_categorical(
-        "target_update_interval", [1000, 1, 100, 5000]
-    )
-    block["exploration_fraction"] = trial.suggest_float("exploration_fraction", 0.0, 0.5)
-    block["exploration_final_eps"] = trial.suggest_float("exploration_final_eps", 0.0, 0.2)
-    block["policy_kwargs"] = f"dict(net_arch={NET_ARCHS[str(net_arch)]}{policy_extra})"
-    return block
+    return {
+        "gamma": trial.suggest_categorical("gamma", [0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
+        "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
+        "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512]),
+        "buffer_size": trial.suggest_categorical("buffer_size", [10_000, 50_000, 100_000, 200_000, 300_000]),
+        "train_freq": trial.suggest_categorical("train_freq", [1, 4, 8, 16]),
+        "gradient_steps": 1,
+        "target_update_interval": trial.suggest_categorical(
+            "target_update_interval", [1000, 1, 100, 250, 500, 5000]
+        ),
+        "exploration_fraction": trial.suggest_float("exploration_fraction", 0.0, 0.5),
+        "exploration_final_eps": trial.suggest_float("exploration_final_eps", 0.0, 0.2),
+        "policy_kwargs": f"dict(net_arch={NET_ARCHS[str(net_arch)]}{policy_extra})",
+    }
 
 
 def sample_dqn_params(trial: Trial) -> SampledBlock:
@@ -240,17 +250,16 @@ def sample_manager_params(trial: Trial, algo: str = "ddpg") -> SampledBlock:
     :param algo: the manager's algorithm.
     """
     block = SAMPLERS[str(REGISTRY[algo].sampler)](trial)
-    block["wrapper_kwargs"] = {
-        "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
+    # Only the modes whose manager action this algorithm takes (a DQN manager picks a worker index).
+    modes = [name for name, mode in SELECTORS.items() if REGISTRY[algo].takes(mode.action_space(2))]
+    wrapper: dict[str, Choice] = {}
+    if modes != [DiscreteSelector.name]:  # the simplex map's shape; an index has none
+        wrapper["temperature"] = trial.suggest_float("temperature", 0.1, 2.0, log=True)
         # Below 1/n for any n <= 9 workers, as SimplexMap requires.
-        "floor": trial.suggest_float("floor", 0.0, 0.1),
-        # Only the modes whose manager action this algorithm takes (a DQN manager picks a worker index).
-        "selection": trial.suggest_categorical(
-            "selection",
-            [name for name, mode in SELECTORS.items() if REGISTRY[algo].takes(mode.action_space(2))],
-        ),
-        "option_steps": trial.suggest_categorical("option_steps", [1, 2, 4, 8]),
-    }
+        wrapper["floor"] = trial.suggest_float("floor", 0.0, 0.1)
+    wrapper["selection"] = trial.suggest_categorical("selection", modes)
+    wrapper["option_steps"] = trial.suggest_categorical("option_steps", [1, 2, 4, 8])
+    block["wrapper_kwargs"] = wrapper
     return block
 
 
@@ -323,6 +332,24 @@ class _SpaceRecorder:
         return low
 
 
+class _Replay(_SpaceRecorder):
+    """A stand-in trial that answers with given values (else a parameter's first choice or low end)."""
+
+    def __init__(self, values: Mapping[str, object]) -> None:
+        super().__init__()
+        self.values = values
+
+    def suggest_categorical(self, name: str, choices: Sequence[Choice]) -> Choice:
+        value = self.values.get(name, choices[0])
+        return value if value in choices else choices[0]  # type: ignore[return-value]
+
+    def suggest_float(
+        self, name: str, low: float, high: float, *, step: float | None = None, log: bool = False
+    ) -> float:
+        value = self.values.get(name, low)
+        return float(value) if isinstance(value, (int, float)) else low
+
+
 def search_space(level: str, algo: str = "ddpg") -> dict[str, Domain]:
     """
     The parameters a level's sampler can suggest: name -> ``("choices", [...])`` or ``("range", (low, high))``
@@ -371,7 +398,17 @@ def base_params(
     """
     candidates: dict[str, object] = {
         key: block[key]
-        for key in ("gamma", "learning_rate", "batch_size", "buffer_size", "tau", "train_freq")
+        for key in (
+            "gamma",
+            "learning_rate",
+            "batch_size",
+            "buffer_size",
+            "tau",
+            "train_freq",
+            "target_update_interval",
+            "exploration_fraction",
+            "exploration_final_eps",
+        )
         if key in block
     }
     candidates["noise_type"] = "none" if block.get("noise_type") is None else block["noise_type"]
@@ -400,8 +437,10 @@ def base_params(
         if name in candidates and _in_domain(candidates[name], kind, domain)
     }
     outside = [name for name in space if name not in params]
-    if "train_freq" in params and block.get("gradient_steps", params["train_freq"]) != params["train_freq"]:
-        outside.append("gradient_steps")  # the space ties it to train_freq
+    replayed = sampler_for(level, algo)(_Replay(params))
+    steps = replayed.get("gradient_steps")
+    if steps is not None and block.get("gradient_steps", steps) != steps:
+        outside.append("gradient_steps")  # the space sets it (e.g. tied to train_freq), not the block
     if params.get("noise_type") == "none":  # no noise: noise_std is not a parameter of that trial
         params.pop("noise_std", None)
         outside = [name for name in outside if name != "noise_std"]
