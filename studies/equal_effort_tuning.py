@@ -60,6 +60,7 @@ from sb3_hddpg.experiments.tuning import (
     trial_score,
     tune,
 )
+from sb3_hddpg.training.backends import backend_for
 from sb3_hddpg.training.config import load_config_file
 from sb3_hddpg.training.flat import FLAT_HER_KEY
 from sb3_hddpg.training.run_options import RunOptions
@@ -148,7 +149,7 @@ def run_study(
         eval_episodes=args.eval_episodes,
         seed=args.seed,
         algo=study.algo,
-        backend=args.backend if study.level != "ham" else None,
+        backend=backend_for(study.algo, args.backend) if study.level != "ham" else None,
         n_seeds=args.seeds_per_trial if study.level != "ham" else 1,
     )
     folder = args.out / "tuning" / study.name

@@ -21,6 +21,7 @@ from sb3_hddpg.experiments.benchmark import (
 from sb3_hddpg.experiments.benchmark.front import decision_dependence, sweep_labels
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from sb3_hddpg.training.backends import sbx_installed
 from tests.cli_runner import run_cli
 
 
@@ -112,6 +113,11 @@ def test_the_fronts_managers_are_of_one_algorithm_and_budget():
     steps = settings.option_steps_of("dqn")
     assert (run.timesteps, run.eval_freq, run.seed) == (16_000 // steps, 4000 // steps, 3)
     assert settings.flat_budget == default.flat_budget  # a flat agent's budget does not follow the front's
+    if sbx_installed():  # SBX has no DQN here: the front's DQN managers train on SB3, the others on SBX
+        on_sbx = BenchmarkSettings(
+            methods=["hddpg-front"], scenario="front", front_manager="dqn", backend="sbx"
+        )
+        assert (on_sbx.front_run_options(0).backend, on_sbx.manager_run_options(0).backend) == ("sb3", "sbx")
     with pytest.raises(ValueError, match="front's manager among"):
         BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_manager="ppo2")
     with pytest.raises(ValueError, match="front_timesteps"):
@@ -134,9 +140,9 @@ def test_a_front_of_dqn_managers_records_its_algorithm_and_budget(tmp_path):
     )  # fmt: skip
     results = run_benchmark(settings, tmp_path)
     record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
-    assert record["manager"] == {"algo": "dqn", "env_steps": 400}
+    assert record["manager"] == {"algo": "dqn", "env_steps": 400, "backend": "sb3"}
     assert results["front"]["manager"] == record["manager"]
-    assert "DQN, 400 env steps each" in (tmp_path / "results.md").read_text()
+    assert "DQN (SB3), 400 env steps each" in (tmp_path / "results.md").read_text()
     bundle = Hierarchy.load(tmp_path / "seed-0" / "hddpg-front" / "conditioned" / "hierarchy.zip")
     assert type(bundle.manager).__name__ == "DQN"
 

@@ -168,10 +168,12 @@ class DecisionFigure(TypedDict):
 
 
 class FrontManager(TypedDict):
-    """The front's managers: their algorithm and each one's budget in env steps."""
+    """The front's managers: their algorithm, each one's budget in env steps and the backend that trained them."""
 
     algo: str
     env_steps: int | None
+    #: the backend that trained them (absent from a front recorded before it was kept)
+    backend: NotRequired[str | None]
 
 
 class FrontResults(TypedDict):

@@ -337,7 +337,11 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
     steps = conditioned.config.option_steps
     return {
         "worker_timesteps": offset,
-        "manager": {"algo": algo, "env_steps": run.timesteps * steps if run.timesteps else None},
+        "manager": {
+            "algo": algo,
+            "env_steps": run.timesteps * steps if run.timesteps else None,
+            "backend": run.backend,
+        },
         "history": read_history(run_dir / "conditioned" / "evaluations" / "manager.json", steps, offset),
         **test,
         "front": front,
@@ -415,9 +419,11 @@ def front_table(front: FrontResults) -> list[str]:
     manager = front.get("manager")
     if manager is not None:
         budget = f", {manager['env_steps']:,} env steps each" if manager["env_steps"] else ""
+        backend = f" ({str(manager.get('backend')).upper()})" if manager.get("backend") else ""
         lines.append("")
         lines.append(
-            f"The front's managers (conditioned and per preference): {manager['algo'].upper()}{budget}."
+            "The front's managers (conditioned and per preference): "
+            f"{manager['algo'].upper()}{backend}{budget}."
         )
     references = front.get("references", {})
     if references:

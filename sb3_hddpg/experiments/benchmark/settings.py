@@ -34,7 +34,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     split_key,
 )
 from sb3_hddpg.hierarchy.selection import parse_preferences
-from sb3_hddpg.training.backends import check_algo, check_backend
+from sb3_hddpg.training.backends import backend_for, check_algo, check_backend
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.workers import worker_hyperparams
@@ -143,7 +143,8 @@ class BenchmarkSettings:
         DQN on discrete ones; see :attr:`worker_algos`). The snake arm's workers keep their own.
     :param front_manager: the algorithm of the front's managers (method ``hddpg-front``: the
         preference-conditioned one and one per sweep preference), any manager algorithm: DDPG on the
-        simplex as in the paper, or e.g. DQN choosing a worker by index.
+        simplex as in the paper, or e.g. DQN choosing a worker by index (on SB3 if ``backend`` does not
+        train it).
     :param front_timesteps: the budget of each of the front's managers, in env steps (``None``: the
         manager's, :attr:`manager_env_steps`). A flat agent's default budget does not change with it.
     """
@@ -232,7 +233,6 @@ class BenchmarkSettings:
             raise ValueError(
                 f"Expected the front's manager among {list(managers)}, actually: {self.front_manager!r}"
             )
-        check_algo(self.front_manager, self.backend)
 
     def _check_transfer(self) -> None:
         """The transfer scenario's preferences (written one way) and methods: hddpg and flat agents."""
@@ -385,8 +385,12 @@ class BenchmarkSettings:
         return self.run_options(seed, decisions, decisions).replace(eval_freq=every)
 
     def front_run_options(self, seed: int) -> RunOptions:
-        """:meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_timesteps`."""
-        return self.manager_run_options(seed, self.front_manager, self.front_timesteps)
+        """
+        :meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_timesteps`,
+        on :attr:`backend` if it trains that algorithm, else on SB3 (a DQN manager in an SBX benchmark).
+        """
+        run = self.manager_run_options(seed, self.front_manager, self.front_timesteps)
+        return run.replace(backend=backend_for(self.front_manager, self.backend))
 
     def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
         """
