@@ -255,6 +255,20 @@ def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any
     return parse_json(data, what or str(path))
 
 
+def read_json_record(path: str | os.PathLike[str], unreadable: str) -> Any:
+    """
+    :func:`read_json_file` of a record someone may have handed over: a file that cannot be read, is not
+    UTF-8 or not JSON is one ``ValueError``, ``unreadable`` with the error's kind; one over a limit stays the
+    :class:`LimitError` naming the limit.
+    """
+    try:
+        return read_json_file(path)
+    except LimitError:
+        raise
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{unreadable} ({type(error).__name__})") from None
+
+
 def count_nodes(value: object, limit: int = MAX_CONFIG_NODES) -> int:
     """
     The number of values in ``value`` with shared sub-objects counted every time they appear (what

@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import json
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -20,7 +19,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from sb3_hddpg.artifacts.limits import check_env_id, read_json_file
+from sb3_hddpg.artifacts.limits import check_env_id, read_json_record
 from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.artifacts.records import ManifestKind, models_manifest_from_json
 from sb3_hddpg.artifacts.safe_load import load_model
@@ -169,10 +168,7 @@ def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
     manifest_path = path.parent / "manifest.json"
     if not manifest_path.exists():
         return None, ""
-    try:
-        value = read_json_file(manifest_path)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        raise ValueError(f"Invalid JSON in {str(manifest_path)!r}") from None
+    value = read_json_record(manifest_path, f"Invalid JSON in {str(manifest_path)!r}")
     if not isinstance(value, dict):
         raise ValueError(f"Not an sb3-hddpg manifest: {str(manifest_path)!r}")
     kinds: tuple[tuple[ManifestKind, str], ...] = (("workers", "worker"), ("models", "flat"))

@@ -2,17 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_hddpg.artifacts.limits import (
-    MAX_SEED,
-    LimitError,
-    read_json_file,
-)
+from sb3_hddpg.artifacts.limits import MAX_SEED, read_json_record
 from sb3_hddpg.artifacts.records.base import (
     BENCHMARK_RECORD_VERSION,
     JsonObject,
@@ -88,10 +83,5 @@ def read_benchmark_record(path: str | Path) -> BenchmarkRecord:
 
     :raises ValueError: one line naming the file (a ``LimitError`` for one too big or too deep).
     """
-    try:
-        value = read_json_file(Path(path))
-    except LimitError:
-        raise
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not a readable benchmark record ({type(error).__name__})") from None
+    value = read_json_record(path, f"{path}: not a readable benchmark record")
     return BenchmarkRecord.from_json(value, str(path))

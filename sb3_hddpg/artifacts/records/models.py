@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypedDict, cast
 
 from sb3_hddpg.artifacts.limits import (
-    LimitError,
     brief,
     check_file_entry,
     check_name,
-    read_json_file,
+    read_json_record,
 )
 from sb3_hddpg.artifacts.records.base import (
     MANIFEST_VERSIONS,
@@ -207,12 +205,7 @@ def read_models_manifest(path: str | Path, kind: ManifestKind) -> ModelsManifest
     :return: the manifest; raises ``ValueError`` naming the file if it is not a valid one (a
         :class:`~sb3_hddpg.artifacts.limits.LimitError` if over a limit).
     """
-    try:
-        value = read_json_file(Path(path))
-    except LimitError:
-        raise
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        raise ValueError(f"Not a valid {kind} manifest: {str(path)!r}") from None
+    value = read_json_record(path, f"Not a valid {kind} manifest: {str(path)!r}")
     return models_manifest_from_json(value, kind, str(path))
 
 

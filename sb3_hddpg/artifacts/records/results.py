@@ -11,17 +11,12 @@ leaves' numbers are read by the tables and figures that print them.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import cast
 
-from sb3_hddpg.artifacts.limits import (
-    LimitError,
-    brief,
-    read_json_file,
-)
+from sb3_hddpg.artifacts.limits import brief, read_json_record
 from sb3_hddpg.artifacts.records.base import (
     BENCHMARK_RESULTS_VERSION,
     JsonObject,
@@ -408,12 +403,7 @@ def read_benchmark_results(path: str | Path) -> BenchmarkResults:
 
     :raises ValueError: one line naming the file (a ``LimitError`` for one too big or too deep).
     """
-    try:
-        value = read_json_file(Path(path))
-    except LimitError:
-        raise
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not readable benchmark results ({type(error).__name__})") from None
+    value = read_json_record(path, f"{path}: not readable benchmark results")
     return BenchmarkResults.from_json(value, str(path))
 
 
