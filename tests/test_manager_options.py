@@ -16,11 +16,14 @@ from sb3_hddpg.training.manager_setup import (
 )
 
 
-def test_prepare_manager_takes_exactly_the_records_fields_with_its_defaults():
+def test_prepare_manager_takes_exactly_the_records_fields_and_leaves_their_defaults_to_it():
     parameters = list(inspect.signature(prepare_manager).parameters.values())[1:]
     assert [p.name for p in parameters] == list(MANAGER_OPTION_NAMES)
-    defaults = {f.name: f.default for f in fields(ManagerOptions)}
-    assert {p.name: p.default for p in parameters} == defaults
+    # Every keyword left out is the record's default: a default is spelled in one place only.
+    assert {p.name: p.default for p in parameters} == dict.fromkeys(MANAGER_OPTION_NAMES)
+    train = inspect.signature(train_manager).parameters
+    assert all(train[name].default is None for name in MANAGER_OPTION_NAMES)
+    assert {f.name for f in fields(ManagerOptions) if f.default is not None} >= {"bias", "algo", "trusted"}
 
 
 def test_train_manager_takes_the_records_fields_after_its_folders():

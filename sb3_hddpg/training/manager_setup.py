@@ -196,19 +196,19 @@ def prepare_manager(
     workers_dir: str | Path,
     worker_names: Sequence[str] | None = None,
     prefer: str | None = None,
-    bias: float = 0.15,
+    bias: float | None = None,
     preferences: dict[str, float] | None = None,
     selection: str | None = None,
     option_steps: int | None = None,
     temperature: float | None = None,
     floor: float | None = None,
     config: str | Path | None = None,
-    trusted: bool = False,
+    trusted: bool | None = None,
     env_id: str | None = None,
     env_kwargs: dict[str, Any] | None = None,
-    algo: str = "ddpg",
+    algo: str | None = None,
     manager_preferences: str | PreferenceSpace | None = None,
-    relabel_fraction: float = 0.5,
+    relabel_fraction: float | None = None,
     init_from_ham: float | HamStart | None = None,
     option_end: str | OptionEnd | None = None,
 ) -> ManagerSetup:
@@ -219,10 +219,13 @@ def prepare_manager(
     validate arguments early (the CLI does, to report bad input before creating the output folder).
 
     :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
-    :param worker_names: and the other arguments: the fields of :class:`ManagerOptions`, documented there.
+    :param worker_names: and the other arguments: the fields of :class:`ManagerOptions`, documented there
+        (``None``: its default, which is spelled only there).
     :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
     """
-    options = {name: value for name, value in locals().items() if name in MANAGER_OPTION_NAMES}
+    options = {
+        name: value for name, value in locals().items() if name in MANAGER_OPTION_NAMES and value is not None
+    }
     return setup_manager(workers_dir, ManagerOptions(**options))
 
 
