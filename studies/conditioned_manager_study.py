@@ -161,6 +161,14 @@ def baselines(workers: Path, out: Path, episodes: int, curve_episodes: int) -> d
     return record
 
 
+def read_baselines(out: Path) -> dict[str, object]:
+    """The baselines a study measured (``OUT/baselines.json``)."""
+    path = out / "baselines.json"
+    if not path.is_file():
+        raise SystemExit(f"No baselines in {out}: run the study first")
+    return json.loads(path.read_text())
+
+
 def run_variant(
     workers: Path, out: Path, name: str, seed: int, args: argparse.Namespace
 ) -> dict[str, object]:
@@ -240,15 +248,19 @@ def report(out: Path, names: Sequence[str], seeds: int, base: dict[str, object])
     seed) beside HAM's and the workers'.
     """
     lines = [
-        "| front | seeds | hypervolume (touch, contacts): mean [per seed] | hypervolume (goal, avoid terms) "
-        f"| most goal touch (%) with <= {SAFE_CONTACTS:g} contacts |",
-        "|---|---|---|---|---|",
+        f"# Conditioned managers against HAM's threshold front ({out.name})",
+        "",
+        "Fronts on the frontier episodes; a manager's budget in env steps; HAM and the workers train nothing.",
+        "",
+        "| front | env steps | seeds | hypervolume (touch, contacts): mean [per seed] | hypervolume (goal, "
+        f"avoid terms) | most goal touch (%) with <= {SAFE_CONTACTS:g} contacts |",
+        "|---|---|---|---|---|---|",
     ]
     for member in ("ham", "goal", "avoid"):
         record = base[member]
         hv = record["hypervolume"]  # type: ignore[index]
         safe = _cell([safe_touch(record["points"])], 1, 100)  # type: ignore[index]
-        lines.append(f"| {member} | - | {hv['outcomes']:.4f} | {hv['terms']:.4f} | {safe} |")
+        lines.append(f"| {member} | - | - | {hv['outcomes']:.4f} | {hv['terms']:.4f} | {safe} |")
     for name in names:
         runs = [
             json.loads(p.read_text())
@@ -259,13 +271,14 @@ def report(out: Path, names: Sequence[str], seeds: int, base: dict[str, object])
             continue
         cells = [_cell([r["hypervolume"][plane] for r in runs], 4) for plane in PLANES]
         cells.append(_cell([safe_touch(r["points"]) for r in runs], 1, 100))
-        lines.append(f"| {name} | {len(runs)} | " + " | ".join(cells) + " |")
+        steps = ", ".join(f"{n:,}" for n in sorted({int(r["env_steps"]) for r in runs}))
+        lines.append(f"| {name} | {steps} | {len(runs)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    source = p.add_mutually_exclusive_group(required=True)
+    source = p.add_mutually_exclusive_group()
     source.add_argument("--workers", type=Path, help="a train-workers run folder (goal and avoid workers)")
     source.add_argument(
         "--compose", nargs="+", metavar="NAME=DIR", help="build it from single-worker folders"
@@ -288,13 +301,18 @@ def main() -> None:
     if unknown:
         raise SystemExit(f"Unknown variants {unknown}; choose from {list(VARIANTS)}")
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.report_only:  # from the records alone, e.g. the shipped ones under docs/results/
+        (args.out / "report.md").write_text(report(args.out, names, args.seeds, read_baselines(args.out)))
+        print((args.out / "report.md").read_text())
+        return
+    if not (args.compose or args.workers):
+        p.error("one of the arguments --workers --compose is required")
     workers = compose(args.compose, args.out / "workers" / "workers") if args.compose else args.workers
     base = baselines(workers, args.out, args.episodes, args.curve_episodes)
-    if not args.report_only:
-        for seed in range(args.seeds):  # seed by seed: an early stop leaves every variant compared
-            for name in names:
-                record = run_variant(workers, args.out, name, seed, args)
-                print(name, seed, record["hypervolume"], f"{record['seconds']:.0f} s", flush=True)
+    for seed in range(args.seeds):  # seed by seed: an early stop leaves every variant compared
+        for name in names:
+            record = run_variant(workers, args.out, name, seed, args)
+            print(name, seed, record["hypervolume"], f"{record['seconds']:.0f} s", flush=True)
     text = report(args.out, names, args.seeds, base)
     (args.out / "report.md").write_text(text)
     print(text)

@@ -173,3 +173,20 @@ def test_own_manager_runs_the_readme_snippet_over_loaded_workers(tmp_path):
     assert {name: meta["source_sha256"] for name, meta in bundle.worker_meta.items()} == {
         name: entry["sha256"] for name, entry in workers.manifest["workers"].items()
     }
+
+
+@pytest.mark.parametrize(
+    ("budget", "variants"), [("env-40k", "dqn,dqn-ham,box"), ("env-160k", "dqn,dqn-ham,dqn-long,dqn-step")]
+)
+def test_the_shipped_conditioned_manager_study_reports_regenerate_from_their_records(
+    tmp_path, budget, variants
+):
+    import shutil
+
+    shipped = STUDIES.parent / "docs" / "results" / "manager-study" / budget
+    copy = tmp_path / budget
+    shutil.copytree(shipped, copy)
+    (copy / "report.md").unlink()
+    args = ["--variants", variants, "--seeds", "5", "--out", str(copy), "--report-only"]
+    run_example("conditioned_manager_study.py", args, folder=STUDIES)
+    assert (copy / "report.md").read_text() == (shipped / "report.md").read_text()
