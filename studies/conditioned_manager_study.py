@@ -52,10 +52,12 @@ from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.benchmark.front import (
     PLANES,
     REFERENCE_POINTS,
+    SAFE_CONTACTS,
     SWEEP,
     FrontPoint,
     ham_thresholds,
     hypervolume,
+    safe_touch,
     sweep_labels,
 )
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -218,20 +220,6 @@ def run_variant(
     }
     path.write_text(json.dumps(record, indent=1))
     return record
-
-
-#: The safe end of the trade-off: the most goal touch a front reaches with at most this many contacts.
-SAFE_CONTACTS = 2.0
-
-
-def safe_touch(points: Sequence[dict[str, object]]) -> float | None:
-    """The most goal touch among ``points`` with at most :data:`SAFE_CONTACTS` contacts (``None``: none)."""
-    touches = [
-        float(p["goal_touch_rate"])  # type: ignore[arg-type]
-        for p in points
-        if float(p["contacts_per_episode"]) <= SAFE_CONTACTS  # type: ignore[arg-type]
-    ]
-    return max(touches) if touches else None
 
 
 def _cell(values: Sequence[float | None], digits: int, scale: float = 1.0) -> str:

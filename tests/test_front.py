@@ -77,6 +77,12 @@ def test_front_results_compare_members_by_seed():
     assert results["hypervolume"]["ham"]["outcomes"]["mean"] == pytest.approx(0.4 * 14.0)
     one = front_results({0: record(0.0)})
     assert one["comparisons"] == {}  # one seed makes no paired interval
+    # The safe end: the most touch with <= 2 contacts per seed, None where no point of the front is that safe.
+    safe = results["safe_touch"]
+    assert safe["contacts"] == 2.0
+    assert safe["per_seed"]["conditioned"] == {"0": 0.3, "1": 0.3, "2": 0.3}
+    assert safe["per_seed"]["ham"] == {"0": None, "1": None, "2": None}
+    assert safe["per_seed"]["avoid"]["0"] == 0.1
     # The generated pages' tables (hddpg-cli report): the front and the decides-by-state table.
     from sb3_hddpg.experiments.benchmark.pages import render_page
 
@@ -85,6 +91,7 @@ def test_front_results_compare_members_by_seed():
     text, written = render_page(page, "run", _with_front(results))
     assert written == ["front"] and "| conditioned |" in text and "Reference points" in text
     assert "better in 3 of 3 seeds" in text
+    assert "- conditioned: 30.0 % (reached in 3 of 3 seeds)" in text and "- ham: - (reached in 0 of 3" in text
     text, _ = render_page(
         "<!-- generated:run/front -->\n<!-- /generated:run/front -->\n", "run", _with_front(None)
     )

@@ -176,6 +176,14 @@ class FrontManager(TypedDict):
     backend: NotRequired[str | None]
 
 
+class SafeTouch(TypedDict):
+    """Per member and seed, the most goal touch among its front's points with at most ``contacts`` contacts."""
+
+    contacts: float
+    #: member -> seed -> the touch rate (``None``: no point of that seed's front is that safe)
+    per_seed: dict[str, dict[str, float | None]]
+
+
 class FrontResults(TypedDict):
     """
     The front scenario's figures over seeds: per member and plane the hypervolumes (per seed and their
@@ -191,3 +199,5 @@ class FrontResults(TypedDict):
     points: dict[str, dict[str, list[dict[str, float | str]]]]
     #: absent from a front measured before its managers' algorithm was a setting (DDPG, the manager's budget)
     manager: NotRequired[FrontManager]
+    #: absent from a front measured before the safe end was summarised (its points give it)
+    safe_touch: NotRequired[SafeTouch]

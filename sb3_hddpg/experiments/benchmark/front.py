@@ -75,6 +75,8 @@ HAM_FRONT_POINTS = 9
 MEMBERS = ("conditioned", "per-preference", "ham", "goal", "avoid")
 #: The paired hypervolume comparisons: challenger, baseline.
 FRONT_PAIRS = (("conditioned", "ham"), ("conditioned", "per-preference"), ("conditioned", "goal"))
+#: The safe end of the trade-off: a front's most goal touch with at most this many contacts per episode.
+SAFE_CONTACTS = 2.0
 #: Bootstrap resamples of the decides-by-state interval.
 BOOTSTRAP_SAMPLES = 2000
 
@@ -355,6 +357,19 @@ def _factors(label: str) -> dict[str, float]:
     return {name: float(value) for name, _, value in (part.partition("=") for part in label.split(","))}
 
 
+def safe_touch(points: Sequence[Mapping[str, object]], contacts: float = SAFE_CONTACTS) -> float | None:
+    """
+    The most goal touch among a front's ``points`` with at most ``contacts`` contacts per episode: what the
+    front offers a user who cannot afford more (``None``: no point is that safe).
+    """
+    touches = [
+        float(cast(float, p["goal_touch_rate"]))
+        for p in points
+        if float(cast(float, p["contacts_per_episode"])) <= contacts
+    ]
+    return max(touches) if touches else None
+
+
 def front_results(runs: Mapping[int, JsonObject]) -> FrontResults:
     """
     The front scenario's statistics over seeds: per member and plane the per-seed hypervolumes and their
@@ -401,6 +416,10 @@ def front_results(runs: Mapping[int, JsonObject]) -> FrontResults:
     }
     if seeds and "manager" in runs[seeds[0]]:
         results["manager"] = cast(FrontManager, runs[seeds[0]]["manager"])
+    results["safe_touch"] = {
+        "contacts": SAFE_CONTACTS,
+        "per_seed": {m: {str(s): safe_touch(runs[s]["front"][m]["points"]) for s in seeds} for m in per_seed},
+    }
     return results
 
 
@@ -416,6 +435,7 @@ def front_table(front: FrontResults) -> list[str]:
             stats = front["hypervolume"][member][plane]
             cells.append(f"{stats['mean']:.4g} [{stats['ci_low']:.4g}, {stats['ci_high']:.4g}]")
         lines.append(f"| {member} | " + " | ".join(cells) + " |")
+    lines.extend(_safe_touch_lines(front))
     manager = front.get("manager")
     if manager is not None:
         budget = f", {manager['env_steps']:,} env steps each" if manager["env_steps"] else ""
@@ -439,6 +459,19 @@ def front_table(front: FrontResults) -> list[str]:
                 f"- {name} ({plane} plane): difference {c['difference']:.4g} [{c['ci_low']:.4g}, "
                 f"{c['ci_high']:.4g}] (paired t over seeds), better in {c['wins']} of {len(entry['seeds'])} seeds"
             )
+    return lines
+
+
+def _safe_touch_lines(front: FrontResults) -> list[str]:
+    """The safe end per member: its mean most goal touch over the seeds whose front reaches it, and how many do."""
+    safe = front.get("safe_touch")
+    if safe is None:
+        return []
+    lines = ["", f"Most goal touch with at most {safe['contacts']:g} contacts per episode:"]
+    for member, per_seed in safe["per_seed"].items():
+        reached = [v for v in per_seed.values() if v is not None]
+        mean = f"{100 * sum(reached) / len(reached):.1f} %" if reached else "-"
+        lines.append(f"- {member}: {mean} (reached in {len(reached)} of {len(per_seed)} seeds)")
     return lines
 
 
