@@ -308,21 +308,7 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
             [FrontPoint.of(label, _test_summary(h, env, settings), bounds) for label, h in per_preference],
             references,
         )
-        n_links = state_layout_of(env)["joint_obstacle_distances"]
-        ham_path = save_ham(
-            run_dir / "ham.json",
-            folder / "workers" / "manifest.json",
-            threshold=(n_links.stop - n_links.start) / 2,  # replaced by each swept threshold below
-            env_id=FLAT_ENV_ID,
-            metadata={"seed": task.seed},
-        )
-        switch, _ = load_ham(ham_path)
-        thresholds = ham_thresholds(switch, env, settings)
-        ham_points = []
-        for entry in thresholds:
-            switch.threshold = entry["threshold"]
-            label = f"threshold={entry['threshold']:g}"
-            ham_points.append(FrontPoint.of(label, _test_summary(switch, env, settings), bounds))
+        ham_points, thresholds = _ham_front(folder, run_dir, task.seed, env, settings)
         front["ham"] = member_fields(ham_points, references)
         for worker in ("goal", "avoid"):
             loaded = load_policy(folder / "workers" / f"{worker}.zip")
@@ -351,6 +337,29 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
         "decides_by_state": dependence,
         "ham_thresholds": thresholds,
     }
+
+
+def _ham_front(
+    folder: Path, run_dir: Path, seed: int, env: gym.Env, settings: MethodSettings
+) -> tuple[list[FrontPoint], list[dict[str, float]]]:
+    """HAM over the seed's workers at each threshold :func:`ham_thresholds` keeps: its points, and those thresholds."""
+    n_links = state_layout_of(env)["joint_obstacle_distances"]
+    ham_path = save_ham(
+        run_dir / "ham.json",
+        folder / "workers" / "manifest.json",
+        threshold=(n_links.stop - n_links.start) / 2,  # replaced by each swept threshold below
+        env_id=FLAT_ENV_ID,
+        metadata={"seed": seed},
+    )
+    switch, _ = load_ham(ham_path)
+    thresholds = ham_thresholds(switch, env, settings)
+    bounds = env_contract(env).reward_bounds
+    points = []
+    for entry in thresholds:
+        switch.threshold = entry["threshold"]
+        label = f"threshold={entry['threshold']:g}"
+        points.append(FrontPoint.of(label, _test_summary(switch, env, settings), bounds))
+    return points, thresholds
 
 
 def _factors(label: str) -> dict[str, float]:
