@@ -125,6 +125,7 @@ def test_the_fronts_managers_are_of_one_algorithm_and_budget():
             methods=["hddpg-front"], scenario="front", front_manager="dqn", backend="sbx"
         )
         assert (on_sbx.front_run_options(0).backend, on_sbx.manager_run_options(0).backend) == ("sb3", "sbx")
+        assert on_sbx.manager_run_options(0, "dqn").backend == "sb3"  # the benchmark's hddpg-dqn too
     with pytest.raises(ValueError, match="front's manager among"):
         BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_manager="ppo2")
     with pytest.raises(ValueError, match="front_timesteps"):

@@ -57,15 +57,22 @@ class Trial(Protocol):
 Sampler = Callable[[Trial], SampledBlock]
 
 
+def _sample_learning(trial: Trial) -> SampledBlock:
+    """The discount, learning rate and batch size every off-policy space shares, with the same choices."""
+    return {
+        "gamma": trial.suggest_categorical("gamma", [0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
+        "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
+        "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512]),
+    }
+
+
 def _sample_shared(trial: Trial) -> SampledBlock:
     """
     The hyperparameters DDPG, TD3 and SAC share, with the same choices and sampled first, in this order:
     discount, learning rate, batch and buffer size, soft-update rate, update schedule.
     """
     block: SampledBlock = {
-        "gamma": trial.suggest_categorical("gamma", [0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
-        "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
-        "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512]),
+        **_sample_learning(trial),
         "buffer_size": trial.suggest_categorical("buffer_size", [10_000, 100_000, 200_000, 300_000]),
         "tau": trial.suggest_categorical("tau", [0.001, 0.005, 0.01, 0.02, 0.05, 0.08]),
         "train_freq": trial.suggest_categorical("train_freq", [1, 4, 8, 16, 32, 64]),
@@ -161,9 +168,7 @@ def _sample_q_network(trial: Trial, policy_extra: str = "") -> SampledBlock:
     """
     net_arch = trial.suggest_categorical("net_arch", list(NET_ARCHS))
     return {
-        "gamma": trial.suggest_categorical("gamma", [0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999]),
-        "learning_rate": trial.suggest_float("learning_rate", 1e-5, 1e-2, log=True),
-        "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256, 512]),
+        **_sample_learning(trial),
         "buffer_size": trial.suggest_categorical("buffer_size", [10_000, 50_000, 100_000, 200_000, 300_000]),
         "train_freq": trial.suggest_categorical("train_freq", [1, 4, 8, 16]),
         "gradient_steps": 1,

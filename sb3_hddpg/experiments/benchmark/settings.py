@@ -225,7 +225,7 @@ class BenchmarkSettings:
             raise ValueError(f"Expected distinct methods, at least one, actually: {self.methods}")
 
     def _check_front_manager(self) -> None:
-        """The front's managers: a manager algorithm the backend trains (written by its registry name)."""
+        """The front's managers: a manager algorithm (written by its registry name), whatever the backend."""
         managers = algorithms_for("manager")
         with contextlib.suppress(ValueError):  # an unknown name is refused below, among the managers
             self.front_manager = algorithm(self.front_manager).name
@@ -374,7 +374,8 @@ class BenchmarkSettings:
         :meth:`run_options` of a manager: ``timesteps`` decisions (another algorithm's manager: as many
         decisions as make :attr:`manager_env_steps` with its own ``option_steps``), evaluated every
         :meth:`eval_freq_for` env steps converted to decisions, so that its curve points fall at the same
-        env steps as the others'.
+        env steps as the others'. On :attr:`backend` if it trains ``algo``, else on SB3 (a DQN manager in an
+        SBX benchmark).
 
         :param env_steps: another budget than :attr:`manager_env_steps`, in env steps.
         """
@@ -382,15 +383,12 @@ class BenchmarkSettings:
         option_steps = self.option_steps_of(algo)
         decisions = max(budget // option_steps, 1)  # the DDPG manager's: ``timesteps``
         every = max(self.eval_freq_for(budget) // option_steps, 1)
-        return self.run_options(seed, decisions, decisions).replace(eval_freq=every)
+        run = self.run_options(seed, decisions, decisions)
+        return run.replace(eval_freq=every, backend=backend_for(algo, self.backend))
 
     def front_run_options(self, seed: int) -> RunOptions:
-        """
-        :meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_timesteps`,
-        on :attr:`backend` if it trains that algorithm, else on SB3 (a DQN manager in an SBX benchmark).
-        """
-        run = self.manager_run_options(seed, self.front_manager, self.front_timesteps)
-        return run.replace(backend=backend_for(self.front_manager, self.backend))
+        """:meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_timesteps`."""
+        return self.manager_run_options(seed, self.front_manager, self.front_timesteps)
 
     def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
         """
