@@ -125,7 +125,7 @@ def final_budget(study: Study, settings: BenchmarkSettings) -> int | None:
     if study.level == "flat":
         return settings.flat_budget
     if study.name == "hddpg-front":
-        return settings.front_timesteps or settings.manager_env_steps
+        return settings.front_env_steps
     if study.level == "manager":
         return settings.manager_env_steps
     return None

@@ -19,9 +19,11 @@ from sb3_hddpg.experiments.benchmark import (
     run_benchmark,
 )
 from sb3_hddpg.experiments.benchmark.front import decision_dependence, sweep_labels
+from sb3_hddpg.experiments.benchmark.methods import METHOD_REGISTRY
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.backends import sbx_installed
+from sb3_hddpg.training.config import MANAGER_KEY
 from tests.cli_runner import run_cli
 
 
@@ -120,6 +122,12 @@ def test_the_fronts_managers_are_of_one_algorithm_and_budget():
     steps = settings.option_steps_of("dqn")
     assert (run.timesteps, run.eval_freq, run.seed) == (16_000 // steps, 4000 // steps, 3)
     assert settings.flat_budget == default.flat_budget  # a flat agent's budget does not follow the front's
+    assert (default.front_env_steps, settings.front_env_steps) == (default.manager_env_steps, 16_000)
+    # The scheduler's cost and the record's blocks are the front's managers', not the DDPG manager's.
+    front = METHOD_REGISTRY["hddpg-front"]
+    assert front.cost(settings) == (1 + len(SWEEP.points)) * 16_000
+    assert list(front.config_blocks(settings)) == [f"dqn.yml[{MANAGER_KEY}]"]
+    assert list(front.config_blocks(default)) == [f"ddpg.yml[{MANAGER_KEY}]"]
     if sbx_installed():  # SBX has no DQN here: the front's DQN managers train on SB3, the others on SBX
         on_sbx = BenchmarkSettings(
             methods=["hddpg-front"], scenario="front", front_manager="dqn", backend="sbx"

@@ -556,12 +556,13 @@ FRONT_METHOD = "hddpg-front"
 
 
 def _front_cost(settings: MethodSettings) -> int:
-    # The conditioned manager and one manager per sweep preference, each the manager's env steps.
-    return (1 + len(SWEEP.points)) * settings.manager_env_steps
+    # The conditioned manager and one manager per sweep preference, each the front's env steps.
+    return (1 + len(SWEEP.points)) * settings.front_env_steps
 
 
 def _front_blocks(settings: MethodSettings) -> dict[str, object]:
-    return {f"ddpg.yml[{MANAGER_KEY}]": manager_hyperparams("ddpg").raw}
+    algo = settings.front_manager
+    return {f"{algo}.yml[{MANAGER_KEY}]": manager_hyperparams(algo).raw}
 
 
 register_method(

@@ -59,6 +59,9 @@ class MethodSettings(Protocol):
     @property
     def flat_budget(self) -> int: ...
 
+    @property
+    def front_env_steps(self) -> int: ...
+
     def option_steps_of(self, algo: str) -> int: ...
 
     @property

@@ -338,6 +338,11 @@ class BenchmarkSettings:
         return self.timesteps * self.option_steps
 
     @property
+    def front_env_steps(self) -> int:
+        """Env steps of each of the front's managers: :attr:`front_timesteps`, else :attr:`manager_env_steps`."""
+        return self.front_timesteps if self.front_timesteps is not None else self.manager_env_steps
+
+    @property
     def flat_budget(self) -> int:
         """A flat agent's budget: as many env steps as the hierarchy (workers + manager) by default."""
         if self.flat_timesteps is not None:
@@ -387,8 +392,8 @@ class BenchmarkSettings:
         return run.replace(eval_freq=every, backend=backend_for(algo, self.backend))
 
     def front_run_options(self, seed: int) -> RunOptions:
-        """:meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_timesteps`."""
-        return self.manager_run_options(seed, self.front_manager, self.front_timesteps)
+        """:meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_env_steps`."""
+        return self.manager_run_options(seed, self.front_manager, self.front_env_steps)
 
     def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
         """
