@@ -14,8 +14,10 @@ never in sb3-hddpg's: this script imports nothing from sb3_hddpg and runs with t
     ~/morl-venv/bin/python benchmarks/morl_baseline.py train --env mo-halfcheetah-v5 --algo capql \\
         --timesteps 300000 --seed 0 --out runs/morl/capql-seed-0.json
 
-    # the hierarchy's front (one [speed, energy] vector return per preference) on the same indicators
-    ~/morl-venv/bin/python benchmarks/morl_baseline.py score --front runs/hc-front.json \\
+    # the hierarchy's front on the same indicators: its conditioned manager's vector returns per preference,
+    # from the record of `hddpg-cli benchmark --env mo-halfcheetah-v5 --scenario front` (or --front JSON)
+    ~/morl-venv/bin/python benchmarks/morl_baseline.py score \\
+        --record runs/hc/records/hddpg-front/seed-0.json --member conditioned \\
         --ref-point -100,-100 --out runs/morl/hierarchy-seed-0.json
 
 Both write the same record (:func:`front_record`): the front (vector returns per preference, raw per-episode
@@ -38,6 +40,8 @@ from typing import Any
 
 #: The record's kind and schema version, so that a reader can refuse what it does not know.
 RECORD_KIND = "sb3-hddpg-morl-front"
+#: The largest JSON file read (a front record is a few hundred kilobytes).
+MAX_JSON_BYTES = 64 * 1024 * 1024
 RECORD_VERSION = 1
 #: Weights on which expected utility is averaged (MORL-baselines' own default for its evaluations).
 EU_WEIGHTS = 100
@@ -185,12 +189,45 @@ def _version(distribution: str) -> str | None:
         return None
 
 
-def score(args: argparse.Namespace) -> dict[str, Any]:
-    """Score a front given as JSON: ``{"front": [[...], ...], "preferences": [[...], ...]}`` (any extra keys kept)."""
+def _read_json(path: str, option: str) -> Any:
+    """A JSON file of at most :data:`MAX_JSON_BYTES`, or a one-line error naming ``option``."""
     try:
-        given = json.loads(Path(args.front).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise SystemExit(f"error: --front: cannot read {args.front!r}: {error}") from None
+        if Path(path).stat().st_size > MAX_JSON_BYTES:
+            raise SystemExit(f"error: {option}: {path!r} is larger than {MAX_JSON_BYTES} bytes")
+        return json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
+        raise SystemExit(f"error: {option}: cannot read {path!r}: {error}") from None
+
+
+def front_of_record(record: Any, member: str) -> dict[str, Any]:
+    """
+    One member's front from a benchmark's front record (``records/hddpg-front/seed-N.json`` of
+    ``hddpg-cli benchmark --env ... --scenario front``): each point's vector return, read from its
+    ``returns`` plane (the per-episode sums of the env's objectives, as MORL-baselines evaluates them).
+    """
+    try:
+        objectives = [str(key) for key, _ in record["planes"]["returns"]]
+        points = record["front"][member]["points"]
+        front = [[float(point[key]) for key in objectives] for point in points]
+        labels = [str(point["label"]) for point in points]
+    except (KeyError, TypeError, ValueError) as error:
+        members = list(record.get("front", {})) if isinstance(record, dict) else []
+        raise SystemExit(
+            f"error: --record: not a front record with a returns plane and member {member!r} "
+            f"(members: {members}): {type(error).__name__}: {error}"
+        ) from None
+    return {"front": front, "labels": labels, "member": member, "objectives": objectives}
+
+
+def score(args: argparse.Namespace) -> dict[str, Any]:
+    """
+    Score a front given as JSON, ``{"front": [[...], ...], "preferences": [[...], ...]}`` (any extra keys
+    kept), or one member of a benchmark's front record (:func:`front_of_record`).
+    """
+    if args.record is not None:
+        given = front_of_record(_read_json(args.record, "--record"), args.member)
+    else:
+        given = _read_json(args.front, "--front")
     if not isinstance(given, dict) or not isinstance(given.get("front"), list):
         raise SystemExit('error: --front: expected a JSON object with "front": [[objective values...], ...]')
     front = given["front"]
@@ -224,7 +261,10 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--ref-point", default=None, help="hypervolume reference point, e.g. -100,-100")
     run.add_argument("--out", required=True)
     given = commands.add_parser("score", help="score a given front with the same indicators")
-    given.add_argument("--front", required=True, help='JSON: {"front": [[...], ...], "preferences": [...]}')
+    source = given.add_mutually_exclusive_group(required=True)
+    source.add_argument("--front", help='JSON: {"front": [[...], ...], "preferences": [...]}')
+    source.add_argument("--record", help="a benchmark's front record: records/hddpg-front/seed-N.json")
+    given.add_argument("--member", default="conditioned", help="with --record: the member scored")
     given.add_argument("--ref-point", default=None)
     given.add_argument("--out", required=True)
     args = parser.parse_args(argv)

@@ -37,7 +37,7 @@ import shutil
 import statistics
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
@@ -49,14 +49,13 @@ from sb3_hddpg.baselines.ham import load_ham, save_ham
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.episode_sets import FRONTIER
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.benchmark.front import (
+from sb3_hddpg.experiments.benchmark.front import SWEEP, ham_thresholds
+from sb3_hddpg.experiments.benchmark.front_points import (
     PLANES,
-    REFERENCE_POINTS,
     SAFE_CONTACTS,
-    SWEEP,
+    SNAKE_FRONT,
     FrontPoint,
-    ham_thresholds,
-    hypervolume,
+    member_fields,
     safe_touch,
     sweep_labels,
 )
@@ -122,11 +121,7 @@ def score(policy: Policy, env: gym.Env, label: str, episodes: int) -> FrontPoint
 
 def front_record(points: list[FrontPoint]) -> dict[str, object]:
     """A front's points and its hypervolume in each plane."""
-    references = REFERENCE_POINTS[FLAT_ENV_ID]
-    return {
-        "points": [asdict(p) for p in points],
-        "hypervolume": {plane: hypervolume(points, plane, references[plane]) for plane in PLANES},
-    }
+    return member_fields(points, SNAKE_FRONT)
 
 
 def baselines(workers: Path, out: Path, episodes: int, curve_episodes: int) -> dict[str, object]:

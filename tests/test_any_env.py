@@ -684,3 +684,33 @@ def test_benchmark_on_an_mo_gymnasium_env(tmp_path):
     assert "['time', 'fuel']" in results["metric"]
     assert "| hddpg | 1 |" in (out / "results.md").read_text()
     assert ham.returncode == 2 and "snake arm only" in ham.stderr and "Traceback" not in ham.stderr
+
+
+def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
+    from tests.cli_batch import run_batch
+
+    env_args = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
+    tiny = ["--seeds", "2", "--timesteps", "40", "--worker-timesteps", "50", "--eval-freq", "40"]
+    tiny += ["--eval-episodes", "1", "--test-episodes", "1"]
+    out = tmp_path / "front"
+    (done,) = run_batch([["benchmark", *env_args, "--scenario", "front", *tiny, "--out", str(out)]])
+    assert done.returncode == 0, done.stdout + done.stderr
+    front = json.loads((out / "results.json").read_text())["front"]
+    # No rule on this env: the managers and each worker alone, in the terms and the returns plane.
+    assert front["members"] == ["conditioned", "per-preference", "time", "fuel"]
+    assert list(front["planes"]) == ["terms", "returns"]
+    record = json.loads((out / "records" / "hddpg-front" / "seed-0.json").read_text())
+    assert record["rule"] is None and record["rule_thresholds"] == []
+    bounds = record["planes"]["returns"]
+    assert [key for key, _ in bounds] == ["time_return", "fuel_return"]
+    # The returns plane's reference: each term's least return over a 30-step episode.
+    import mo_gymnasium
+
+    low = mo_gymnasium.make("mo-mountaincarcontinuous-v0").unwrapped.reward_space.low
+    assert record["references"]["returns"] == pytest.approx([30 * float(v) for v in low])
+    points = record["front"]["conditioned"]["points"]
+    assert len(points) == 7 and all(-30.0 <= p["time_return"] <= 0.0 for p in points)
+    assert set(front["comparisons"]) == {f"conditioned vs {m}" for m in ("per-preference", "time", "fuel")}
+    assert set(front["comparisons"]["conditioned vs time"]["planes"]) == {"terms", "returns"}
+    assert (out / "fronts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "hypervolume (time_return, fuel_return)".replace("_", " ") in (out / "results.md").read_text()

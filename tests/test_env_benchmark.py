@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from sb3_hddpg.baselines.ttc import TTC_GRID
 from tests.cli_runner import REPO, run_cli
 
 HIGHWAY = {
@@ -127,6 +128,26 @@ def test_benchmark_on_highway_end_to_end(tmp_path):
     assert refused.returncode == 2 and "another env" in refused.stderr and "Traceback" not in refused.stderr
 
 
+@pytest.mark.slow
+def test_the_front_on_highway_sweeps_the_time_to_collision_switch(tmp_path):
+    pytest.importorskip("highway_env")
+    out = tmp_path / "front"
+    env = ["--env", "mo-highway-fast-v0", "--terms", "speed,lane,collision", "--episode-steps", "8"]
+    tiny = ["--seeds", "1", "--timesteps", "8", "--worker-timesteps", "16", "--front-manager", "dqn"]
+    tiny += ["--front-timesteps", "16", "--eval-episodes", "1", "--test-episodes", "1", "--n-jobs", "1"]
+    done = run_cli("benchmark", *env, "--scenario", "front", *tiny, "--out", str(out))
+    assert done.returncode == 0, done.stdout + done.stderr
+    record = json.loads((out / "records" / "hddpg-front" / "seed-0.json").read_text())
+    assert list(record["front"]) == ["conditioned", "per-preference", "ttc", "speed", "lane", "collision"]
+    # The switch's thresholds come from its grid on the curve episodes, the non-dominated ones kept.
+    assert record["rule"] == "ttc" and record["rule_thresholds"]
+    assert {t["threshold"] for t in record["rule_thresholds"]} <= set(TTC_GRID)
+    assert len(record["front"]["ttc"]["points"]) == len(record["rule_thresholds"])
+    assert len(record["front"]["conditioned"]["points"]) == 10  # three workers: 1 + 3 x 3 preferences
+    assert record["manager"]["algo"] == "dqn" and record["references"]["terms"] == [0.0, 0.0, 0.0]
+    assert "decisions_by_ttc" in record  # the conditioned manager at the unweighted preference
+
+
 # ------------------------------------------------------------------------ MORL-baselines beside it
 def _morl_python() -> str | None:
     """The python of a virtual environment with MORL-baselines (``MORL_PYTHON``), else ``None``."""
@@ -176,6 +197,33 @@ def test_morl_runner_scores_a_given_front(tmp_path):
         text=True,
     )
     assert bad.returncode != 0 and "Traceback" not in bad.stderr
+    # A benchmark's front record: one member's points in its returns plane.
+    record = tmp_path / "seed-0.json"
+    points = [
+        {"label": "a=1,b=3", "a_return": 1.0, "b_return": 3.0},
+        {"label": "a=3,b=1", "a_return": 2.0, "b_return": 1.0},
+    ]
+    record.write_text(
+        json.dumps(
+            {
+                "planes": {"returns": [["a_return", True], ["b_return", True]]},
+                "front": {"conditioned": {"points": points}},
+            }
+        )
+    )
+    scored = subprocess.run(
+        [python, str(MORL_SCRIPT), "score", "--record", str(record), "--ref-point", "0,0", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert scored.returncode == 0, scored.stderr
+    assert json.loads(out.read_text())["hypervolume"] == pytest.approx(4.0)
+    missing = subprocess.run(
+        [python, str(MORL_SCRIPT), "score", "--record", str(record), "--member", "ham", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert missing.returncode != 0 and "member 'ham'" in missing.stderr and "Traceback" not in missing.stderr
 
 
 @pytest.mark.slow

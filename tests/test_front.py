@@ -18,7 +18,8 @@ from sb3_hddpg.experiments.benchmark import (
     hypervolume,
     run_benchmark,
 )
-from sb3_hddpg.experiments.benchmark.front import decision_dependence, sweep_labels
+from sb3_hddpg.experiments.benchmark.front import decision_dependence
+from sb3_hddpg.experiments.benchmark.front_points import PLANES, env_front, member_fields, sweep_labels
 from sb3_hddpg.experiments.benchmark.methods import METHOD_REGISTRY
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -28,21 +29,53 @@ from tests.cli_runner import run_cli
 
 
 def _point(touch, contacts, goal=0.5, avoid=0.5):
-    return FrontPoint("p", touch, contacts, goal, avoid, 0.0)
+    values = {
+        "goal_touch_rate": touch,
+        "contacts_per_episode": contacts,
+        "goal_term": goal,
+        "avoid_term": avoid,
+    }
+    return FrontPoint("p", values)
 
 
 def test_hypervolume_is_the_dominated_area_against_the_fixed_reference():
     reference = REFERENCE_POINTS["hddpg/SnakeReach-v0"]
     assert reference == {"outcomes": (0.0, 20.0), "terms": (0.0, 0.0)}
     # One point: the rectangle to the reference. Touch is maximised, contacts minimised.
-    assert hypervolume([_point(0.5, 10.0)], "outcomes", reference["outcomes"]) == pytest.approx(0.5 * 10.0)
+    outcomes, terms = PLANES["outcomes"], PLANES["terms"]
+    assert hypervolume([_point(0.5, 10.0)], outcomes, reference["outcomes"]) == pytest.approx(0.5 * 10.0)
     # Two points: the union of their rectangles; a dominated third adds nothing.
     two = [_point(0.5, 10.0), _point(0.2, 2.0)]
     union = 0.5 * 10.0 + 0.2 * 8.0
-    assert hypervolume(two, "outcomes", reference["outcomes"]) == pytest.approx(union)
-    assert hypervolume([*two, _point(0.1, 15.0)], "outcomes", reference["outcomes"]) == pytest.approx(union)
-    assert hypervolume([_point(0, 0, 0.4, 0.5)], "terms", reference["terms"]) == pytest.approx(0.2)
-    assert hypervolume([], "terms", reference["terms"]) == 0.0
+    assert hypervolume(two, outcomes, reference["outcomes"]) == pytest.approx(union)
+    assert hypervolume([*two, _point(0.1, 15.0)], outcomes, reference["outcomes"]) == pytest.approx(union)
+    assert hypervolume([_point(0, 0, 0.4, 0.5)], terms, reference["terms"]) == pytest.approx(0.2)
+    assert hypervolume([], terms, reference["terms"]) == 0.0
+
+
+def test_another_envs_front_has_a_terms_plane_and_a_returns_plane_in_as_many_dimensions_as_terms():
+    spec = env_front(
+        ["speed", "lane", "collision"], {"speed": (0, 1), "lane": (0, 1), "collision": (-1, 0)}, 40
+    )
+    assert spec.members == ("conditioned", "per-preference", "speed", "lane", "collision")
+    assert spec.references == {"terms": (0.0, 0.0, 0.0), "returns": (0.0, 0.0, -40.0)}
+    assert len(spec.sweep.points) == 10 and {round(sum(p), 9) for p in spec.sweep.points} == {3.0}
+    summary = {
+        "mean_speed_reward": 20.0, "mean_lane_reward": 10.0, "mean_collision_reward": -1.0,
+        "mean_length": 40.0, "mean_reach_reward": 70.0,
+    }  # fmt: skip
+    point = FrontPoint.of("p", summary, {"speed": (0, 1), "lane": (0, 1), "collision": (-1, 0)}, spec.terms)
+    assert point.values["speed_term"] == 0.5 and point.values["collision_term"] == pytest.approx(1 - 1 / 40)
+    assert point.values["collision_return"] == -1.0 and "goal_touch_rate" not in point.values
+    # The box from the reference: 0.5 * 0.25 * (39/40) in the terms plane, 20 * 10 * 39 in the returns plane.
+    fields = member_fields([point], spec)
+    assert fields["hypervolume"]["terms"] == pytest.approx(0.5 * 0.25 * 39 / 40)
+    assert fields["hypervolume"]["returns"] == pytest.approx(20 * 10 * 39)
+    assert fields["points"] == [{"label": "p", **point.values}]
+    # Episodes of unknown length give no returns plane; a front needs two terms.
+    assert list(env_front(["a", "b"], {"a": (0, 1), "b": (0, 1)}, None).planes) == ["terms"]
+    with pytest.raises(ValueError, match="at least two terms"):
+        env_front(["a"], {"a": (0, 1)}, 10)
 
 
 def test_the_sweep_has_at_least_seven_preferences_with_one_sum():
@@ -65,16 +98,14 @@ def test_front_results_compare_members_by_seed():
             "avoid": [_point(0.1, 0.5)],
         }
         reference = REFERENCE_POINTS["hddpg/SnakeReach-v0"]
-        from sb3_hddpg.experiments.benchmark.front import member_fields
-
         return {
-            "front": {name: member_fields(points, reference) for name, points in members.items()},
+            "front": {name: member_fields(points) for name, points in members.items()},
             "references": {k: list(v) for k, v in reference.items()},
             "decides_by_state": {},
         }
 
     results = front_results({0: record(0.0), 1: record(0.05), 2: record(0.02)})
-    comparison = results["comparisons"]["conditioned vs ham"]["outcomes"]
+    comparison = results["comparisons"]["conditioned vs ham"]["planes"]["outcomes"]
     assert comparison["wins"] == 3 and comparison["difference"] > 0
     assert results["hypervolume"]["ham"]["outcomes"]["mean"] == pytest.approx(0.4 * 14.0)
     one = front_results({0: record(0.0)})
@@ -177,7 +208,7 @@ def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
     assert len(record["front"]["per-preference"]["points"]) == len(SWEEP.points)
     assert record["front"]["ham"]["points"]
     # HAM's thresholds come from the curve episodes, never the test episodes.
-    assert all("threshold" in t for t in record["ham_thresholds"])
+    assert record["rule"] == "ham" and all("threshold" in t for t in record["rule_thresholds"])
     assert record["references"] == {"outcomes": [0.0, 20.0], "terms": [0.0, 0.0]}
     for plane in ("outcomes", "terms"):
         assert front["hypervolume_per_seed"]["conditioned"][plane].keys() == {"0", "1"}

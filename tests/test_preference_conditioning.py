@@ -128,6 +128,16 @@ def test_the_conditioned_wrapper_observes_and_draws_preferences_and_reports_work
     assert wrapper.selection_config().manager_preferences == space.to_json()
 
 
+def test_a_matrix_observation_is_flattened_before_the_weights():
+    from sb3_hddpg.hierarchy.wrapper import with_preference_space
+
+    matrix = spaces.Box(-2.0, 2.0, (5, 5), np.float32)  # e.g. highway-env's Kinematics observation
+    space = with_preference_space(matrix, 3)
+    assert space.shape == (28,) and space.low[0] == -2.0 and space.low[-1] == 0.0 and space.high[-1] == 1.0
+    with pytest.raises(ValueError, match="needs a Box observation"):
+        with_preference_space(spaces.Discrete(4), 3)
+
+
 def test_relabelling_rewrites_the_preference_and_recomputes_the_reward():
     space = PreferenceSpace.parse("ratio-sweep", NAMES)
     obs_space = spaces.Box(-1, 1, (5,), np.float32)

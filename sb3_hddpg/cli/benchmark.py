@@ -127,9 +127,10 @@ _ScenarioOpt = Annotated[
         help=f"One of {list(SCENARIOS)}: 'transfer' trains each seed's workers once, then per --preference a "
         "manager and each flat method from scratch on that preference's reward, and reports the ratio of "
         "env steps each needs to get 90 % of the way from a random policy's score to its own final score; "
-        "'front' trains per seed a preference-conditioned manager and a manager for each of 7 preferences, "
-        "and measures every hierarchy's front (HAM over a threshold sweep, each worker alone) and its "
-        "hypervolume (docs/MANAGER.md).",
+        "'front' trains per seed a preference-conditioned manager and a manager for each preference of the "
+        "ratio sweep (7 for two workers), and measures every hierarchy's front (the env's rule over a "
+        "threshold sweep: HAM on the snake arm, the time-to-collision switch on highway-env; each worker "
+        "alone) and its hypervolumes (docs/MANAGER.md; on another env docs/ENVIRONMENTS.md).",
     ),
 ]
 _PreferenceOpt = Annotated[

@@ -146,6 +146,12 @@ class TermsAdapter(gym.Env[object, object]):
             value = replace(value, kwargs={**value.kwargs, "term_bounds": merged})
         self._spec = value
 
+    @property
+    def episode_steps(self) -> int | None:
+        """The inner env's time limit in steps (``None``: it has none)."""
+        inner_spec = self.inner.spec
+        return inner_spec.max_episode_steps if inner_spec is not None else None
+
     def normalise_terms(self, terms: Mapping[str, float]) -> dict[str, float]:
         """Each raw term min-max normalised to [0, 1] with :attr:`reward_bounds`."""
         return self._normaliser(terms)

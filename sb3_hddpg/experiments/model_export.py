@@ -29,7 +29,8 @@ from sb3_hddpg.experiments.benchmark import (
     read_record_file,
     split_key,
 )
-from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, preference_label
+from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD
+from sb3_hddpg.experiments.benchmark.front_points import preference_label
 from sb3_hddpg.hierarchy.bundle import read_bundle
 from sb3_hddpg.names import check_plain_name, check_preference_text
 

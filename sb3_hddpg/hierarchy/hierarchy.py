@@ -216,8 +216,12 @@ class Hierarchy:
         if self._preference_obs is None:
             return obs
         state = obs if self._manager_indices is None else obs[..., self._manager_indices]
-        weights = np.broadcast_to(self._preference_obs, (*state.shape[:-1], len(self._preference_obs)))
-        return np.concatenate([state, weights], axis=-1).astype(np.float32, copy=False)
+        # One observation has the env's own shape, flattened here as with_preference_space does.
+        single_ndim = len(getattr(self.observation_space, "shape", None) or (0,))
+        batch = state.shape[: max(state.ndim - single_ndim, 0)] if single_ndim else state.shape[:-1]
+        flat = state.reshape(*batch, -1)
+        weights = np.broadcast_to(self._preference_obs, (*batch, len(self._preference_obs)))
+        return np.concatenate([flat, weights], axis=-1).astype(np.float32, copy=False)
 
     def reset_episode(self) -> None:
         """Forget the current option (call at an episode start when ``option_steps > 1``)."""

@@ -280,7 +280,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         state = obs if self._manager_indices is None else obs[self._manager_indices]
         if self._preference_obs is None:
             return state
-        return np.concatenate([state, self._preference_obs]).astype(state.dtype, copy=False)
+        return np.concatenate([state.ravel(), self._preference_obs]).astype(state.dtype, copy=False)
 
     def worker_rewards(self, normalised: Mapping[str, float]) -> list[float]:
         """Each worker's own (unweighted) reward from the normalised terms, in worker order."""
@@ -369,11 +369,14 @@ def _subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Spac
 
 
 def with_preference_space(space: gym.Space, n_workers: int) -> spaces.Box:
-    """A conditioned manager's observation space: ``space`` followed by ``n_workers`` weights in [0, 1]."""
-    if not isinstance(space, spaces.Box) or len(space.shape) != 1:
-        raise ValueError(f"A preference-conditioned manager needs a flat Box observation, got {space}")
-    low = np.concatenate([space.low, np.zeros(n_workers)]).astype(space.dtype)
-    high = np.concatenate([space.high, np.ones(n_workers)]).astype(space.dtype)
+    """
+    A conditioned manager's observation space: ``space`` flattened (a matrix such as highway-env's
+    Kinematics observation row by row), followed by ``n_workers`` weights in [0, 1].
+    """
+    if not isinstance(space, spaces.Box):
+        raise ValueError(f"A preference-conditioned manager needs a Box observation, got {space}")
+    low = np.concatenate([space.low.ravel(), np.zeros(n_workers)]).astype(space.dtype)
+    high = np.concatenate([space.high.ravel(), np.ones(n_workers)]).astype(space.dtype)
     return spaces.Box(low, high, dtype=space.dtype.type)
 
 

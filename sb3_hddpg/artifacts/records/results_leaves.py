@@ -142,11 +142,12 @@ class FrontDifference(TypedDict):
 
 
 class FrontComparison(TypedDict):
-    """Two members of the front compared in both planes (``outcomes``, ``terms``) over their seeds."""
+    """Two members of the front compared in each plane over their seeds."""
 
     seeds: list[int]
-    outcomes: FrontDifference
-    terms: FrontDifference
+    #: plane -> the difference there (``outcomes`` and ``terms`` on the snake arm; ``terms`` and ``returns``
+    #: on another env)
+    planes: dict[str, FrontDifference]
 
 
 class DecisionFigure(TypedDict):
@@ -192,6 +193,8 @@ class FrontResults(TypedDict):
 
     members: list[str]
     references: dict[str, list[float]]
+    #: plane -> its objectives, each ``[key, larger is better]``
+    planes: dict[str, list[list[object]]]
     hypervolume_per_seed: dict[str, dict[str, dict[str, float]]]
     hypervolume: dict[str, dict[str, Summary]]
     comparisons: dict[str, FrontComparison]

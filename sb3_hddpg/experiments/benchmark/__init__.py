@@ -47,13 +47,15 @@ from sb3_hddpg.experiments.benchmark.env_methods import (
     default_env_methods,
     ttc_workers,
 )
-from sb3_hddpg.experiments.benchmark.front import (
-    FRONT_METHOD,
+from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, SWEEP, front_results
+from sb3_hddpg.experiments.benchmark.front_pages import front_figure
+from sb3_hddpg.experiments.benchmark.front_points import (
+    PLANES,
     REFERENCE_POINTS,
-    SWEEP,
+    SNAKE_FRONT,
     FrontPoint,
-    front_figure,
-    front_results,
+    FrontSpec,
+    env_front,
     hypervolume,
 )
 from sb3_hddpg.experiments.benchmark.methods import (
@@ -133,15 +135,18 @@ __all__ = [
     "METHODS",
     "METHOD_REGISTRY",
     "OUTPUT_FILES",
+    "PLANES",
     "RECORD_VERSION",
     "REFERENCE_POINTS",
     "SCENARIOS",
     "SLOPE_UNIT",
+    "SNAKE_FRONT",
     "SWEEP",
     "TRANSFER_FRACTION",
     "WORKERS",
     "BenchmarkSettings",
     "FrontPoint",
+    "FrontSpec",
     "Method",
     "Task",
     "canonical_preference",
@@ -153,6 +158,7 @@ __all__ = [
     "curve_bands",
     "curve_statistics",
     "default_env_methods",
+    "env_front",
     "evaluation_rows",
     "final_scores_text",
     "flat_reaches_text",

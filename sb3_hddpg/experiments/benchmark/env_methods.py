@@ -56,12 +56,12 @@ def _shared_env(settings: MethodSettings, method: str) -> TermsEnv:
     return env
 
 
-def _combined_env(env: TermsEnv) -> gym.Env:
+def combined_env(env: TermsEnv) -> gym.Env:
     """The env with the step reward every method is scored on: the sum of the normalised terms."""
     return gym.make(env.env_id, **env.env_kwargs)
 
 
-def _load_worker(folder: Path, env: TermsEnv, name: str) -> Policy:
+def load_env_worker(folder: Path, env: TermsEnv, name: str) -> Policy:
     """A seed's worker, loaded the safe way, its env id allowed as the benchmark's own."""
     allowed = [env.env_id, config_key(env.env_id, env.env_kwargs)]
     return load_policy(folder / "workers" / f"{name}.zip", allowed_env_ids=allowed).policy
@@ -82,8 +82,8 @@ def _run_term_alone(
             f"Method {task.method!r}: the env has {len(shared.terms)} terms {list(shared.terms)}, no term {index + 1}"
         )
     worker = shared.terms[index]
-    policy = _load_worker(folder, shared, worker)
-    env = _combined_env(shared)
+    policy = load_env_worker(folder, shared, worker)
+    env = combined_env(shared)
     try:
         curve = _curve_point(policy, env, settings)
         test = test_fields(policy, env, settings)
@@ -96,6 +96,28 @@ def _run_term_alone(
         "history": [{"timesteps": 0, "total_timesteps": offset, **curve}],
         **test,
     }
+
+
+def kinematics_scales(env: gym.Env) -> KinematicsScales | None:
+    """The scales of ``env``'s highway-env Kinematics observation (reset at the curve episodes' first seed), else ``None``."""
+    env.reset(seed=EVAL_SEED_BASE)  # highway-env sets the observation's scales at its first reset
+    try:
+        return KinematicsScales.from_env(env)
+    except ValueError:
+        return None
+
+
+def ttc_switch(folder: Path, env: TermsEnv, probe: gym.Env) -> TTCSwitch:
+    """The time-to-collision switch over the seed's fast and safe workers (:func:`ttc_workers`), on ``probe``."""
+    scales = kinematics_scales(probe)
+    if scales is None:
+        raise ValueError(
+            f"The time-to-collision switch needs highway-env's Kinematics observation; {env.env_id!r} has none"
+        )
+    fast, safe = ttc_workers(env)
+    return TTCSwitch(
+        load_env_worker(folder, env, fast), load_env_worker(folder, env, safe), scales, names=(fast, safe)
+    )
 
 
 def ttc_workers(env: TermsEnv) -> tuple[str, str]:
@@ -115,13 +137,9 @@ def _run_ttc(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Pa
     """
     shared = _shared_env(settings, task.method)
     fast, safe = ttc_workers(shared)
-    env = _combined_env(shared)
+    env = combined_env(shared)
     try:
-        env.reset(seed=EVAL_SEED_BASE)
-        scales = KinematicsScales.from_env(env)
-        switch = TTCSwitch(
-            _load_worker(folder, shared, fast), _load_worker(folder, shared, safe), scales, names=(fast, safe)
-        )
+        switch = ttc_switch(folder, shared, env)
         grid: list[dict[str, float]] = []
         if tuned:
             for threshold in TTC_GRID:
@@ -244,15 +262,10 @@ def default_env_methods(env: TermsEnv) -> tuple[str, ...]:
     flat DDPG; on discrete actions the DQN-manager hierarchy, each worker alone, flat DQN and PPO, and on a
     highway-env env the tuned time-to-collision switch.
     """
-    probe = _combined_env(env)
+    probe = combined_env(env)
     try:
-        probe.reset(seed=EVAL_SEED_BASE)
         discrete = isinstance(probe.action_space, gym.spaces.Discrete)
-        try:
-            KinematicsScales.from_env(probe)
-            kinematics = True
-        except ValueError:
-            kinematics = False
+        kinematics = kinematics_scales(probe) is not None
     finally:
         probe.close()
     if not discrete:
@@ -263,7 +276,7 @@ def default_env_methods(env: TermsEnv) -> tuple[str, ...]:
 
 def is_discrete(env: TermsEnv) -> bool:
     """Whether ``env`` acts in a ``Discrete`` action space (its workers are then DQN by default)."""
-    probe = _combined_env(env)
+    probe = combined_env(env)
     try:
         return isinstance(probe.action_space, gym.spaces.Discrete)
     finally:
@@ -278,7 +291,11 @@ __all__ = [
     "ENV_ONLY_METHODS",
     "KINEMATICS_METHODS",
     "MAX_ALONE_WORKERS",
+    "combined_env",
     "default_env_methods",
     "is_discrete",
+    "kinematics_scales",
+    "load_env_worker",
+    "ttc_switch",
     "ttc_workers",
 ]

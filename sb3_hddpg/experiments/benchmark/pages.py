@@ -23,7 +23,7 @@ from sb3_hddpg.artifacts.records import JsonObject
 from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.artifacts.records.results_leaves import Aggregates, Interval, PairedDifference, Summary
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
-from sb3_hddpg.experiments.benchmark.front import decides_table, front_table
+from sb3_hddpg.experiments.benchmark.front_pages import decides_table, front_table
 from sb3_hddpg.experiments.benchmark.report import headline_figures
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results

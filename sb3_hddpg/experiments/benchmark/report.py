@@ -15,7 +15,7 @@ from sb3_hddpg.artifacts.records.results_leaves import Summary, TransferComparis
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.aggregates import performance_profiles
 from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv
-from sb3_hddpg.experiments.benchmark.front import front_figure, front_table
+from sb3_hddpg.experiments.benchmark.front_pages import front_figure, front_table
 from sb3_hddpg.experiments.benchmark.methods import WORKERS
 from sb3_hddpg.experiments.benchmark.statistics import (
     curve_bands,

@@ -7,6 +7,7 @@ import functools
 import json
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import gymnasium as gym
 from stable_baselines3 import DDPG
@@ -131,8 +132,8 @@ class BenchmarkSettings:
     :param env: another env with several objectives, as ``{"env_id", "env_kwargs", "terms"}`` (a
         :class:`~sb3_hddpg.envs.terms_env.TermsEnv`'s fields, see :attr:`terms_env`; ``None``: the snake
         arm): its workers, managers and flat agents are trained and tested on it. Only the methods of
-        :data:`ENV_METHODS` and the standard scenario apply there (HAM's switch rule and the biased
-        managers are the snake's).
+        :data:`ENV_METHODS`, the front's and the standard and front scenarios apply there (HAM's switch rule
+        and the biased managers are the snake's).
     :param workers_from: another benchmark folder whose workers every seed reuses instead of training its
         own (they must have been trained with the same config blocks, budget, backend, env and seed: then
         they are the workers this benchmark would train, since a seed's run is deterministic on the CPU).
@@ -189,20 +190,17 @@ class BenchmarkSettings:
         self._check_scenario()
 
     def _check_scenario(self) -> None:
-        """A known scenario, with its preferences (transfer) or its one method (front); fronts on the snake arm only."""
+        """A known scenario, with its preferences (transfer) or its one method (front)."""
         if self.scenario not in SCENARIOS:
             raise ValueError(f"Unknown scenario {self.scenario!r}; choose from {list(SCENARIOS)}")
         if self.scenario != "transfer" and self.preferences:
             raise ValueError("Preferences apply to the transfer scenario only (scenario='transfer')")
         if self.scenario == "transfer":
             self._check_transfer()
-        front_methods = [m for m in self.methods if m in FRONT_METHODS]
-        if self.scenario == "front" and list(self.methods) != list(FRONT_METHODS):
-            raise ValueError(f"The front scenario runs {list(FRONT_METHODS)}, actually: {self.methods}")
         # The standard scenario may add the front's method to its others, so that one run of record
         # measures every method and every front over the same workers.
-        if front_methods and self.env is not None:
-            raise ValueError("The front (method 'hddpg-front') is defined for the snake arm only")
+        if self.scenario == "front" and list(self.methods) != list(FRONT_METHODS):
+            raise ValueError(f"The front scenario runs {list(FRONT_METHODS)}, actually: {self.methods}")
 
     def _check_methods(self) -> None:
         """Known and distinct methods, at least one; the backend, and that it trains each flat method."""
@@ -258,14 +256,17 @@ class BenchmarkSettings:
                 f"Expected `env` as {{'env_id', 'env_kwargs', 'terms'}}, actually: {str(self.env)[:200]}"
             )
         self.env = json.loads(json.dumps(env))  # tuples become lists, as benchmark.json stores them
-        snake_only = [m for m in self.methods if m not in ENV_METHODS]
+        snake_only = [m for m in self.methods if m not in ENV_METHODS and m not in FRONT_METHODS]
         if snake_only:
             raise ValueError(
                 f"Methods {snake_only} are defined for the snake arm only; on {env['env_id']!r} choose from "
-                f"{list(ENV_METHODS)}"
+                f"{[*ENV_METHODS, *FRONT_METHODS]}"
             )
-        if self.scenario != "standard":
-            raise ValueError(f"The {self.scenario!r} scenario is defined for the snake arm only")
+        terms = cast(list[str], env["terms"])
+        if any(m in FRONT_METHODS for m in self.methods) and len(terms) < 2:
+            raise ValueError(f"A front needs at least two terms, actually: {terms}")
+        if self.scenario == "transfer":
+            raise ValueError("The 'transfer' scenario is defined for the snake arm only")
         discrete = _env_is_discrete(json.dumps(self.env, sort_keys=True))
         space = gym.spaces.Discrete(2) if discrete else gym.spaces.Box(-1, 1)
         # A flat agent or a worker selection by index that cannot act in the env's action space.

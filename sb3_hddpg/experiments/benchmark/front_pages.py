@@ -1,0 +1,167 @@
+"""
+The front scenario's tables and figure, from :func:`~.front.front_results`' output: what the results pages
+and ``fronts.png`` show, on the snake arm or another env (each plane's objectives are in the results).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+
+from sb3_hddpg.artifacts.records.results_leaves import FrontResults
+from sb3_hddpg.experiments.benchmark.front_points import PLANES
+
+#: Colours of the snake's members; another env's members take the next ones of matplotlib's cycle.
+MEMBER_COLOURS = {
+    "conditioned": "tab:red",
+    "per-preference": "tab:purple",
+    "ham": "tab:gray",
+    "ttc": "tab:gray",
+    "goal": "tab:blue",
+    "avoid": "tab:green",
+}
+
+
+def result_planes(front: FrontResults) -> dict[str, list[tuple[str, bool]]]:
+    """The planes of ``front``: plane -> its objectives (a snake front stored before they were: the snake's)."""
+    stored = cast(Mapping[str, Any], front).get("planes")
+    if not stored:
+        return {plane: list(objectives) for plane, objectives in PLANES.items()}
+    return {
+        plane: [(str(key), bool(larger)) for key, larger in objectives]
+        for plane, objectives in stored.items()
+    }
+
+
+def _plane_title(objectives: list[tuple[str, bool]]) -> str:
+    return ", ".join(key.replace("_", " ") for key, _ in objectives)
+
+
+def front_table(front: FrontResults) -> list[str]:
+    """The front table of the generated results pages: Markdown lines."""
+    planes = result_planes(front)
+    lines = [
+        "| member | " + " | ".join(f"hypervolume ({_plane_title(o)})" for o in planes.values()) + " |",
+        "|---|" + "---|" * len(planes),
+    ]
+    for member in front["members"]:
+        cells = []
+        for plane in planes:
+            stats = front["hypervolume"][member][plane]
+            cells.append(f"{stats['mean']:.4g} [{stats['ci_low']:.4g}, {stats['ci_high']:.4g}]")
+        lines.append(f"| {member} | " + " | ".join(cells) + " |")
+    lines.extend(_safe_touch_lines(front))
+    manager = front.get("manager")
+    if manager is not None:
+        budget = f", {manager['env_steps']:,} env steps each" if manager["env_steps"] else ""
+        backend = f" ({str(manager.get('backend')).upper()})" if manager.get("backend") else ""
+        lines.append("")
+        lines.append(
+            "The front's managers (conditioned and per preference): "
+            f"{manager['algo'].upper()}{backend}{budget}."
+        )
+    references = front.get("references", {})
+    if references:
+        lines.append("")
+        lines.append(
+            "Reference points: "
+            + "; ".join(f"{plane} {tuple(point)}" for plane, point in references.items())
+            + ". Mean over seeds with the 95 % bootstrap interval."
+        )
+    for name, entry in front.get("comparisons", {}).items():
+        for plane, c in entry["planes"].items():
+            lines.append(
+                f"- {name} ({plane} plane): difference {c['difference']:.4g} [{c['ci_low']:.4g}, "
+                f"{c['ci_high']:.4g}] (paired t over seeds), better in {c['wins']} of {len(entry['seeds'])} seeds"
+            )
+    return lines
+
+
+def _safe_touch_lines(front: FrontResults) -> list[str]:
+    """The safe end per member: its mean most goal touch over the seeds whose front reaches it, and how many do."""
+    safe = front.get("safe_touch")
+    if safe is None:
+        return []
+    lines = ["", f"Most goal touch with at most {safe['contacts']:g} contacts per episode:"]
+    for member, per_seed in safe["per_seed"].items():
+        reached = [v for v in per_seed.values() if v is not None]
+        mean = f"{100 * sum(reached) / len(reached):.1f} %" if reached else "-"
+        lines.append(f"- {member}: {mean} (reached in {len(reached)} of {len(per_seed)} seeds)")
+    return lines
+
+
+def decides_table(front: FrontResults) -> list[str]:
+    """
+    The decides-by-state table of the generated pages: per seed and preference, the avoid worker's share of
+    decisions near an obstacle and with none in range, and their ratio with its bootstrap interval.
+    """
+    lines = [
+        "| seed | preference | avoid share near | avoid share clear | ratio [95 % bootstrap CI] | decisions near / clear |",
+        "|---|---|---|---|---|---|",
+    ]
+    for seed, by_preference in front.get("decides_by_state", {}).items():
+        for preference, figure in by_preference.items():
+            if figure is None:
+                continue
+            ratio = "-" if figure["ratio"] is None else f"{figure['ratio']:.2f}"
+            interval = figure.get("ratio_ci")
+            if interval:
+                ratio += f" [{interval[0]:.2f}, {interval[1]:.2f}]"
+            shares = [
+                "-" if share is None else f"{share:.1%}"
+                for share in (figure["near_share"], figure["clear_share"])
+            ]
+            lines.append(
+                f"| {seed} | `{preference}` | {shares[0]} | {shares[1]} | {ratio} "
+                f"| {figure['near_decisions']} / {figure['clear_decisions']} |"
+            )
+    return lines
+
+
+def front_figure(front: FrontResults, path: Path, colours: Mapping[str, str] | None = None) -> Path:
+    """
+    The fronts in each plane (its first and last objectives), every seed's points, each member's mean over
+    seeds as a line (matplotlib).
+
+    :param front: :func:`~.front.front_results`' output.
+    :param path: the PNG to write.
+    :param colours: member -> colour.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours = {**MEMBER_COLOURS, **(colours or {})}
+    planes = result_planes(front)
+    figure, axes = plt.subplots(1, len(planes), figsize=(5.5 * len(planes), 4.5), squeeze=False)
+    cycle = iter(plt.rcParams["axes.prop_cycle"].by_key()["color"][4:] * 4)
+    for member in front["members"]:
+        colours.setdefault(member, next(cycle))
+    for axis, (plane, objectives) in zip(axes[0], planes.items()):
+        (x_key, _), (y_key, _) = objectives[0], objectives[-1]
+        for member in front["members"]:
+            rows = [front["points"][s][member] for s in front["points"]]
+            xs = np.array([[float(cast(float, p[x_key])) for p in row] for row in rows])
+            ys = np.array([[float(cast(float, p[y_key])) for p in row] for row in rows])
+            axis.scatter(xs.ravel(), ys.ravel(), s=8, alpha=0.3, color=colours[member])
+            order = np.argsort(xs.mean(axis=0))
+            axis.plot(
+                xs.mean(axis=0)[order], ys.mean(axis=0)[order], "o-", color=colours[member], label=member
+            )
+        axis.set_xlabel(x_key.replace("_", " "))
+        axis.set_ylabel(y_key.replace("_", " "))
+        axis.set_title(f"{plane} plane")
+        axis.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+    return path
+
+
+__all__ = ["MEMBER_COLOURS", "decides_table", "front_figure", "front_table", "result_planes"]
