@@ -693,8 +693,19 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     tiny = ["--seeds", "2", "--timesteps", "40", "--worker-timesteps", "50", "--eval-freq", "40"]
     tiny += ["--eval-episodes", "1", "--test-episodes", "1"]
     out = tmp_path / "front"
-    (done,) = run_batch([["benchmark", *env_args, "--scenario", "front", *tiny, "--out", str(out)]])
+    export = tmp_path / "models"
+    done, exported = run_batch(
+        [
+            ["benchmark", *env_args, "--scenario", "front", *tiny, "--out", str(out)],
+            ["export-models", str(out), str(export)],
+        ]
+    )
     assert done.returncode == 0, done.stdout + done.stderr
+    assert exported.returncode == 0, exported.stderr
+    index = json.loads((export / "index.json").read_text())
+    conditioned = [e for e in index if e["method"] == "hddpg-conditioned"]
+    assert [e["seed"] for e in conditioned] == [0, 1]
+    assert list(conditioned[0]["manager_preferences"]["points"][0]) == ["time", "fuel"]
     front = json.loads((out / "results.json").read_text())["front"]
     # No rule on this env: the managers and each worker alone, in the terms and the returns plane.
     assert front["members"] == ["conditioned", "per-preference", "time", "fuel"]
