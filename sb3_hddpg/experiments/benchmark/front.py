@@ -36,7 +36,7 @@ from sb3_hddpg.artifacts.records.results_leaves import (
     FrontResults,
 )
 from sb3_hddpg.baselines.ham import HAMSwitch, load_ham, save_ham
-from sb3_hddpg.baselines.ttc import TTC_GRID
+from sb3_hddpg.baselines.ttc import TTC_GRID, TTCSwitch
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.episode_sets import CURVE
@@ -340,13 +340,15 @@ def _rule_front(
             env_id=FLAT_ENV_ID,
             metadata={"seed": seed},
         )
-        switch: Any = load_ham(ham_path)[0]
-        thresholds = ham_thresholds(switch, env, settings)
+        ham = load_ham(ham_path)[0]
+        switch: HAMSwitch | TTCSwitch = ham
+        thresholds = ham_thresholds(ham, env, settings)
     else:
         shared = settings.terms_env
         assert shared is not None  # a rule other than HAM belongs to another env
-        switch = ttc_switch(folder, shared, env)
-        thresholds = _ttc_thresholds(switch, env, spec, settings)
+        ttc = ttc_switch(folder, shared, env)
+        switch = ttc
+        thresholds = _ttc_thresholds(ttc, env, spec, settings)
     points = []
     for entry in thresholds:
         switch.threshold = entry["threshold"]
@@ -356,7 +358,7 @@ def _rule_front(
 
 
 def _ttc_thresholds(
-    switch: Any, env: gym.Env, spec: FrontSpec, settings: MethodSettings
+    switch: TTCSwitch, env: gym.Env, spec: FrontSpec, settings: MethodSettings
 ) -> list[dict[str, float]]:
     """The time-to-collision grid's thresholds not dominated in the terms plane on the curve episodes."""
     bounds = env_contract(env).reward_bounds
