@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
-from sb3_hddpg.baselines.scripted import IKReacher
+from sb3_hddpg.baselines import IKReacher
 from sb3_hddpg.evaluation import evaluate
 
 GOAL_VIEW = ["joint_positions", "ee_to_goal", "goal_touched"]

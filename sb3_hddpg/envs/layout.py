@@ -49,6 +49,12 @@ class StateLayout(Mapping[str, slice]):
             raise ValueError(f"State components listed twice: {names}")
         return np.concatenate([np.arange(self.size)[self._slices[n]] for n in names])
 
+    def view(self, names: Iterable[str]) -> StateLayout:
+        """The layout of an observation that holds only the named components, in the order given."""
+        names = list(names)
+        self.indices(names)  # unknown or repeated names are refused there
+        return StateLayout((n, self._slices[n].stop - self._slices[n].start) for n in names)
+
     def __repr__(self) -> str:
         parts = ", ".join(f"{k}={v.start}:{v.stop}" for k, v in self._slices.items())
         return f"StateLayout({parts})"

@@ -26,11 +26,11 @@ from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.baselines.ham import load_ham
 from sb3_hddpg.baselines.random import RandomPolicy
-from sb3_hddpg.baselines.scripted import IKReacher, JacobianReacher
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.headless import rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
+from sb3_hddpg.envs.snake.controllers import IKReacher, JacobianReacher
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.policy import Policy
 

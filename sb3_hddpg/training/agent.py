@@ -225,10 +225,18 @@ def _check_agent(
         configure_jax_threads(run.threads)  # before jax's first import in this process, or it cannot apply
     _remove_stale_temporaries(paths)
     algo_class(algo)  # a clear error for an unknown name before any env starts
-    if hyperparams.action_l2 > 0 and not algorithm(algo).action_penalty:
+    asked = [
+        name
+        for name, present in (
+            ("ActionL2Penalty", hyperparams.action_l2 > 0),
+            ("ControllerPrior", hyperparams.controller_prior is not None),
+        )
+        if present
+    ]
+    if asked and not algorithm(algo).action_penalty:
         penalised = [name for name, record in REGISTRY.items() if record.action_penalty]
         raise ValueError(
-            f"The ActionL2Penalty callback applies to {penalised}, not {algo!r}: remove it from the config block"
+            f"The {' and '.join(asked)} callback applies to {penalised}, not {algo!r}: remove it from the config block"
         )
     return total, n_envs, backend
 

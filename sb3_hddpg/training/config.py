@@ -17,7 +17,7 @@ import inspect
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import yaml
@@ -45,6 +45,8 @@ from sb3_hddpg.artifacts.values import (
     check_wrapper_settings,
 )
 from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
+from sb3_hddpg.callbacks.controller_prior import ControllerPrior
+from sb3_hddpg.envs.snake.controllers import CONTROLLERS
 from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
 from sb3_hddpg.training.backends import BACKENDS
 
@@ -83,7 +85,12 @@ ZOO_KEYS = {
 #: it up here). Their env-dependent arguments are filled in from the training env.
 REPLAY_BUFFERS = ("GoalRelabelingReplayBuffer",)
 #: The callbacks a config's ``callback`` key may name (RL Zoo imports any class path; we import none).
-CALLBACKS = {"sb3_hddpg.callbacks.ActionL2Penalty": "action_l2"}
+CALLBACKS = {
+    "sb3_hddpg.callbacks.ActionL2Penalty": "action_l2",
+    "sb3_hddpg.callbacks.ControllerPrior": "controller_prior",
+}
+#: Each callback's keyword arguments.
+CALLBACK_KWARGS = {"action_l2": {"coefficient", "margin"}, "controller_prior": {"controller", "coefficient"}}
 #: Our own keys (RL Zoo does not know them): ``backend`` picks the training backend, ``sb3`` or ``sbx``.
 OWN_KEYS = {"backend"}
 #: Keys of the manager block only: arguments of WorkerSelectionWrapper.
@@ -115,6 +122,8 @@ class Hyperparams:
     :param action_l2: the actor's action penalty (DDPG/TD3; see
         :class:`~sb3_hddpg.callbacks.ActionL2Penalty`), set with RL Zoo's ``callback`` key; 0: none.
     :param action_l2_margin: the penalty's pre-activation margin (``None``: it penalises the action itself).
+    :param controller_prior: the actor's prior towards a hand-written controller (DDPG/TD3; see
+        :class:`~sb3_hddpg.callbacks.ControllerPrior`) as ``(controller, coefficient)``; ``None``: none.
     :param backend: the training backend the block asks for (``sb3``, ``sbx``; ``None``: not set).
     :param raw: the block as written, for manifests.
     """
@@ -129,6 +138,7 @@ class Hyperparams:
     wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
     action_l2: float = 0.0
     action_l2_margin: float | None = None
+    controller_prior: tuple[str, float] | None = None
     backend: str | None = None
     raw: dict[str, Any] = field(default_factory=dict)
 
@@ -154,7 +164,12 @@ class Hyperparams:
     def callbacks(self) -> list[Any]:
         """The SB3 callbacks the block asks for (as RL Zoo would build them from its ``callback`` key)."""
 
-        return [ActionL2Penalty(self.action_l2, self.action_l2_margin)] if self.action_l2 > 0 else []
+        callbacks: list[Any] = []
+        if self.action_l2 > 0:
+            callbacks.append(ActionL2Penalty(self.action_l2, self.action_l2_margin))
+        if self.controller_prior is not None:
+            callbacks.append(ControllerPrior(*self.controller_prior))
+        return callbacks
 
     def action_noise(self, n_actions: int) -> Any:
         """The SB3 action-noise object for ``n_actions`` dimensions (``None`` without noise)."""
@@ -247,7 +262,7 @@ def _parse_block(block: dict[str, Any], algo_class: type, source: str, manager: 
     backend = _pop_backend(block, source)
     noise_std = _pop_noise_std(block, source)
     penalty = _parse_callbacks(block.pop("callback", None), source)
-    action_l2 = penalty.get("action_l2", 0.0)
+    action_l2 = float(cast(float, penalty.get("action_l2", 0.0)))
     env_kwargs = _pop_mapping(block, "env_kwargs", source)
     for key, value in env_kwargs.items():
         # The values here; the keys against the env's constructor where the env is known (check_make_kwargs).
@@ -268,7 +283,8 @@ def _parse_block(block: dict[str, Any], algo_class: type, source: str, manager: 
         env_kwargs=env_kwargs,
         wrapper_kwargs=wrapper_kwargs,
         action_l2=action_l2,
-        action_l2_margin=penalty.get("action_l2_margin"),
+        action_l2_margin=cast("float | None", penalty.get("action_l2_margin")),
+        controller_prior=cast("tuple[str, float] | None", penalty.get("controller_prior")),
         backend=backend,
         raw=raw,
     )
@@ -398,16 +414,16 @@ def _buffer_size(buffer_size: object, source: str) -> Any:
     return buffer_size
 
 
-def _parse_callbacks(value: object, source: str) -> dict[str, float]:
+def _parse_callbacks(value: object, source: str) -> dict[str, object]:
     """
     RL Zoo's ``callback`` key (a class path, or a list of paths or ``{path: kwargs}``), restricted to
     :data:`CALLBACKS`: the settings they carry, e.g. ``{"action_l2": 0.1}`` (and ``action_l2_margin``
-    when given). Nothing is imported.
+    when given), ``{"controller_prior": ("ik", 5.0)}``. Nothing is imported.
     """
     if value is None:
         return {}
     entries = value if isinstance(value, list) else [value]
-    settings: dict[str, float] = {}
+    settings: dict[str, object] = {}
     for entry in entries:
         kwargs: dict[str, Any]
         if isinstance(entry, str):
@@ -423,15 +439,28 @@ def _parse_callbacks(value: object, source: str) -> dict[str, float]:
             raise ConfigError(
                 f"Unknown callback {str(path)!r:.200} in {source}; allowed: {sorted(CALLBACKS)}"
             )
-        if not isinstance(kwargs, dict) or set(kwargs) - {"coefficient", "margin"}:
+        name = CALLBACKS[path]
+        if not isinstance(kwargs, dict) or set(kwargs) - CALLBACK_KWARGS[name]:
             raise ConfigError(
-                f"Expected {path} in {source} to take only `coefficient` and `margin`, actually: "
+                f"Expected {path} in {source} to take only {sorted(CALLBACK_KWARGS[name])}, actually: "
                 f"{kwargs!r:.200}"
             )
-        coefficient = HYPERPARAMETERS["coefficient"].check(
-            kwargs.get("coefficient", 0.1), f"{source}: {path}.coefficient"
+        coefficient = float(
+            HYPERPARAMETERS["coefficient"].check(
+                kwargs.get("coefficient", 0.1 if name == "action_l2" else 1.0),
+                f"{source}: {path}.coefficient",
+            )
         )
-        settings[CALLBACKS[path]] = float(coefficient)
+        if name == "controller_prior":
+            controller = kwargs.get("controller", "ik")
+            if controller not in CONTROLLERS:
+                raise ConfigError(
+                    f"Unknown controller {brief(controller)} in {source}: {path}; choose from {sorted(CONTROLLERS)}"
+                )
+            if coefficient > 0:
+                settings[name] = (str(controller), coefficient)
+            continue
+        settings[name] = coefficient
         if kwargs.get("margin") is not None:
             margin = HYPERPARAMETERS["margin"].check(kwargs["margin"], f"{source}: {path}.margin")
             settings[f"{CALLBACKS[path]}_margin"] = float(margin)

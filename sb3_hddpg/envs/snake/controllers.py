@@ -1,10 +1,18 @@
-"""A scripted reacher: Jacobian-transpose control of the snake arm toward the goal, blind to obstacles."""
+"""
+The snake arm's hand-written reachers: Jacobian-transpose and damped-least-squares IK control of the tip
+toward the goal, blind to obstacles. They read only the observation (through its state layout), so they
+are the baselines a learned reacher is measured against, and a prior a learner may be pulled towards
+(:class:`~sb3_hddpg.callbacks.ControllerPrior`).
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
 from sb3_hddpg.envs.layout import StateLayout
+
+#: The env's default joint speed at an action of 1 (rad/s), which :class:`IKReacher` scales its rates by.
+DEFAULT_MAX_JOINT_SPEED = 1.5
 
 
 class JacobianReacher:
@@ -57,7 +65,7 @@ class IKReacher:
         layout: StateLayout,
         gain: float = 3.0,
         damping: float = 0.1,
-        max_joint_speed: float = 1.5,
+        max_joint_speed: float = DEFAULT_MAX_JOINT_SPEED,
         bang_bang: bool = False,
     ) -> None:
         self.layout = layout
@@ -94,3 +102,33 @@ def _levers_and_error(layout: StateLayout, observation: np.ndarray) -> tuple[np.
     pivots = np.concatenate((np.zeros((len(obs), 1, 2)), ends[:, :-1]), axis=1)
     error = 2.0 * obs[:, layout["ee_to_goal"]]  # the observation halves it
     return ends[:, -1:, :] - pivots, error
+
+
+#: The reachers by the names configs and commands use.
+CONTROLLERS: dict[str, type[IKReacher] | type[JacobianReacher]] = {
+    "ik": IKReacher,
+    "jacobian": JacobianReacher,
+}
+
+
+def make_controller(
+    name: str, layout: StateLayout, max_joint_speed: float = DEFAULT_MAX_JOINT_SPEED
+) -> IKReacher | JacobianReacher:
+    """
+    The reacher ``name`` (:data:`CONTROLLERS`) for observations of ``layout``.
+
+    :param name: ``ik`` or ``jacobian``.
+    :param layout: the observation's layout (an ``observe`` view's own, :meth:`StateLayout.view`).
+    :param max_joint_speed: the env's joint speed at an action of 1 (the IK reacher scales by it).
+    :raises ValueError: an unknown name, or a layout without the joint positions and the tip-to-goal vector.
+    """
+    if name not in CONTROLLERS:
+        raise ValueError(f"Unknown controller {name!r:.100}; choose from {sorted(CONTROLLERS)}")
+    missing = [c for c in ("joint_positions", "ee_to_goal") if c not in layout]
+    if missing:
+        raise ValueError(
+            f"The {name} reacher reads {missing} from the observation, which holds {list(layout)}"
+        )
+    if name == "ik":
+        return IKReacher(layout, max_joint_speed=max_joint_speed)
+    return JacobianReacher(layout)
