@@ -33,7 +33,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from sb3_hddpg.artifacts.io import atomic_write_json
 
@@ -41,27 +41,65 @@ from sb3_hddpg.artifacts.io import atomic_write_json
 BASELINE = "ddpg:sb3"
 
 
-def parse_learners(text: str) -> list[tuple[str, str]]:
-    """``ddpg:sb3,crossq:sbx`` -> ``[("ddpg", "sb3"), ("crossq", "sbx")]``, each checked against the records."""
+class Learner(NamedTuple):
+    """
+    One learner: an algorithm on a backend, from its bundled config or ``config`` (a zoo_configs file).
+
+    :param algo: the algorithm's registry name.
+    :param backend: ``sb3`` or ``sbx``.
+    :param config: a config file for this learner only (``None``: ``--config``, else the bundled one).
+    """
+
+    algo: str
+    backend: str
+    config: str | None = None
+
+    @property
+    def label(self) -> str:
+        """``ddpg:sbx``, or ``ddpg:sbx@goal-prior`` for a learner of config ``goal-prior/config.yml``."""
+        return f"{self.algo}:{self.backend}" + (f"@{self.config_name}" if self.config else "")
+
+    @property
+    def folder(self) -> str:
+        """Its runs' folder under ``--out``."""
+        return f"{self.algo}-{self.backend}" + (f"-{self.config_name}" if self.config else "")
+
+    @property
+    def config_name(self) -> str:
+        """The config file's name without suffix, or its folder's for a ``config.yml``."""
+        path = Path(self.config or "")
+        return path.parent.name if path.stem == "config" and path.parent.name else path.stem
+
+
+def parse_learners(text: str) -> list[Learner]:
+    """
+    ``ddpg:sb3,crossq:sbx,ddpg:sbx@prior.yml`` -> ``[Learner("ddpg", "sb3"), Learner("crossq", "sbx"),
+    Learner("ddpg", "sbx", "prior.yml")]``, each checked against the records (``@FILE``: that learner's own
+    config file, e.g. to time a variant of a block beside the bundled one).
+    """
     from sb3_hddpg.algorithms import algorithm
     from sb3_hddpg.training.backends import BACKENDS, check_algo
 
     learners = []
     for part in filter(None, (piece.strip() for piece in text.split(","))):
+        part, _, config = part.partition("@")
+        if config and not Path(config).is_file():
+            raise ValueError(f"No config file {config!r} (in {part}@{config})")
         algo, _, backend = part.partition(":")
         backend = backend or "sb3"
         if backend not in BACKENDS:
             raise ValueError(f"Expected a backend among {list(BACKENDS)} in {part!r}, actually {backend!r}")
         name = algorithm(algo).name
         check_algo(name, backend)
-        learners.append((name, backend))
+        learners.append(Learner(name, backend, config or None))
     if not learners:
         raise ValueError(f"Expected learners as ALGO:BACKEND separated by commas, actually {text!r}")
     return learners
 
 
-def label(learner: tuple[str, str]) -> str:
-    return f"{learner[0]}:{learner[1]}"
+def result_label(result: dict[str, Any]) -> str:
+    """The label of the learner that made a run's result."""
+    return Learner(result["algo"], result["backend"], result.get("config")).label
 
 
 #: The default skill threshold of each worker: the goal worker's touch rate, the avoid worker's contacts.
@@ -103,10 +141,11 @@ def time_to_skill(
     return None, None
 
 
-def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[str, Any]:
+def run_one(learner: Learner, seed: int, args: dict[str, Any]) -> dict[str, Any]:
     """Train one worker, timing each evaluation; returns the result (also saved, and reused)."""
     started = time.perf_counter()
-    out = Path(args["out"]) / f"{algo}-{backend}" / f"seed-{seed}"
+    algo, backend = learner.algo, learner.backend
+    out = Path(args["out"]) / learner.folder / f"seed-{seed}"
     result_path = out / "result.json"
     if result_path.exists():
         result = json.loads(result_path.read_text())
@@ -134,7 +173,7 @@ def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[st
     manifest = train_workers(
         out,
         workers=[worker],
-        config=args["config"],
+        config=learner.config or args["config"],
         algos={worker: algo},
         timesteps=args["timesteps"],
         seed=seed,
@@ -156,6 +195,7 @@ def run_one(algo: str, backend: str, seed: int, args: dict[str, Any]) -> dict[st
         "worker": worker,
         "algo": algo,
         "backend": backend,
+        **({"config": learner.config} if learner.config else {}),
         "seed": seed,
         "reached": steps is not None,
         "steps": steps if steps is not None else int(manifest["workers"][worker]["timesteps_trained"]),
@@ -198,7 +238,7 @@ def _mark(result: dict[str, Any]) -> str:
     return "" if result["reached"] else ">"
 
 
-def report(results: list[dict[str, Any]], learners: list[tuple[str, str]], baseline: str) -> str:
+def report(results: list[dict[str, Any]], learners: list[Learner], baseline: str) -> str:
     """A Markdown table: per learner, each seed's steps and seconds, the medians, and their ratios."""
     rows = [
         "| learner | seeds reached | steps per seed | seconds per seed | median steps | median s | "
@@ -207,16 +247,16 @@ def report(results: list[dict[str, Any]], learners: list[tuple[str, str]], basel
     ]
     medians: dict[str, tuple[float, float]] = {}
     for learner in learners:
-        mine = sorted((r for r in results if (r["algo"], r["backend"]) == learner), key=lambda r: r["seed"])
+        mine = sorted((r for r in results if result_label(r) == learner.label), key=lambda r: r["seed"])
         if mine:
-            medians[label(learner)] = (
+            medians[learner.label] = (
                 statistics.median(r["steps"] for r in mine),
                 statistics.median(r["seconds"] for r in mine),
             )
     base = medians.get(baseline)
     for learner in learners:
-        name = label(learner)
-        mine = sorted((r for r in results if (r["algo"], r["backend"]) == learner), key=lambda r: r["seed"])
+        name = learner.label
+        mine = sorted((r for r in results if result_label(r) == name), key=lambda r: r["seed"])
         if not mine:
             continue
         steps = ", ".join(f"{_mark(r)}{r['steps']}" for r in mine)
@@ -239,7 +279,7 @@ def report(results: list[dict[str, Any]], learners: list[tuple[str, str]], basel
     return "\n".join(rows)
 
 
-def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path, worker: str = "goal") -> None:
+def plot_curves(out: Path, learners: list[Learner], path: Path, worker: str = "goal") -> None:
     """
     The learning curves of every learner on its curve episodes: goal touch, contacts per episode and the
     share of saturated outputs over
@@ -259,9 +299,7 @@ def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path, worker: 
     for learner in learners:
         runs = [
             json.loads(history.read_text())
-            for history in sorted(
-                (out / f"{learner[0]}-{learner[1]}").glob(f"seed-*/evaluations/{worker}.json")
-            )
+            for history in sorted((out / learner.folder).glob(f"seed-*/evaluations/{worker}.json"))
         ]
         runs = [run for run in runs if run]
         if not runs:
@@ -271,8 +309,9 @@ def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path, worker: 
         for axis, key in zip(axes, ("goal_touch_rate", "collisions_per_episode", "action_saturation")):
             values = np.array([[entry.get(key, np.nan) for entry in run[:length]] for run in runs])
             mean = values.mean(axis=0)
-            colour = algorithm(learner[0]).colour
-            axis.plot(steps, mean, label=f"{label(learner)} ({len(runs)} seeds)", color=colour)
+            colour = algorithm(learner.algo).colour if not learner.config else None
+            axis.plot(steps, mean, label=f"{learner.label} ({len(runs)} seeds)", color=colour)
+            colour = axis.lines[-1].get_color()
             if len(runs) > 1:
                 half = stats.t.ppf(0.975, len(runs) - 1) * values.std(axis=0, ddof=1) / np.sqrt(len(runs))
                 axis.fill_between(steps, mean - half, mean + half, color=colour, alpha=0.2)
@@ -290,7 +329,9 @@ def plot_curves(out: Path, learners: list[tuple[str, str]], path: Path, worker: 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "--learners", default=f"{BASELINE},crossq:sbx,sac:sbx,tqc:sbx", help="ALGO:BACKEND, comma-separated."
+        "--learners",
+        default=f"{BASELINE},crossq:sbx,sac:sbx,tqc:sbx",
+        help="ALGO:BACKEND[@CONFIG_FILE], comma-separated (@: that learner's own config file).",
     )
     parser.add_argument("--baseline", default=BASELINE, help="The learner the ratios are taken against.")
     parser.add_argument("--seeds", type=int, default=5, help="Seeds per learner (0 .. N-1).")
@@ -372,12 +413,9 @@ def main(argv: list[str] | None = None) -> int:
         )
     }
     # Seed by seed, every learner in turn: drift on the machine touches them alike.
-    jobs = [(algo, backend, seed) for seed in range(args.seeds) for algo, backend in learners]
+    jobs = [(learner, seed) for seed in range(args.seeds) for learner in learners]
     if args.report_only:
-        done = [
-            Path(args.out) / f"{algo}-{backend}" / f"seed-{seed}" / "result.json"
-            for algo, backend, seed in jobs
-        ]
+        done = [Path(args.out) / learner.folder / f"seed-{seed}" / "result.json" for learner, seed in jobs]
         results = [json.loads(path.read_text()) for path in done if path.is_file()]
     else:
         # One fresh process per run: each pays its own start-up and compilation, as a user's run does.

@@ -32,7 +32,21 @@ def test_time_to_skill_is_the_first_evaluation_that_holds():
     assert tts.time_to_skill(history, clock, 0.5, 1) == (100, 1.0)
     assert tts.time_to_skill(history, clock, 0.5, 2) == (300, 3.0)
     assert tts.time_to_skill(history, clock, 0.8, 1) == (None, None)
-    assert tts.parse_learners("ddpg:sb3, CrossQ:sb3") == [("ddpg", "sb3"), ("crossq", "sb3")]
+    assert tts.parse_learners("ddpg:sb3, CrossQ:sb3") == [
+        tts.Learner("ddpg", "sb3"),
+        tts.Learner("crossq", "sb3"),
+    ]
+    # A learner of its own config file: its label and folder name the file (or a config.yml's folder).
+    config = "docs/results/workers/goal-prior/config.yml"
+    (variant,) = tts.parse_learners(f"ddpg:sbx@{config}")
+    assert (variant.config, variant.label, variant.folder) == (
+        config,
+        "ddpg:sbx@goal-prior",
+        "ddpg-sbx-goal-prior",
+    )
+    assert tts.result_label({"algo": "ddpg", "backend": "sbx", "config": config}) == variant.label
+    with pytest.raises(ValueError, match="No config file"):
+        tts.parse_learners("ddpg:sbx@missing.yml")
     with pytest.raises(ValueError, match="a2c"):
         tts.parse_learners("a2c:sb3")
 
@@ -58,7 +72,7 @@ def test_report_gives_per_seed_figures_and_ratios_to_the_baseline():
         {"algo": "crossq", "backend": "sb3", "seed": 0, "reached": True, "steps": 500, "seconds": 80.0},
         {"algo": "crossq", "backend": "sb3", "seed": 1, "reached": False, "steps": 500, "seconds": 80.0},
     ]
-    table = tts.report(results, [("ddpg", "sb3"), ("crossq", "sb3")], "ddpg:sb3")
+    table = tts.report(results, [tts.Learner("ddpg", "sb3"), tts.Learner("crossq", "sb3")], "ddpg:sb3")
     row = next(line for line in table.splitlines() if line.startswith("| crossq:sb3"))
     assert "| 1/2 |" in row and ">500" in row and "| 0.50 | 0.80 |" in row
 
