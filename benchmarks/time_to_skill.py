@@ -395,8 +395,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--max-saturation must be in (0, 1], got {args.max_saturation}")
     try:
         learners = parse_learners(args.learners)
+        (baseline,) = parse_learners(args.baseline)
     except ValueError as error:
-        parser.error(f"--learners: {error}")
+        parser.error(f"--learners or --baseline: {error}")
     settings = {
         key: getattr(args, key)
         for key in (
@@ -421,7 +422,7 @@ def main(argv: list[str] | None = None) -> int:
         # One fresh process per run: each pays its own start-up and compilation, as a user's run does.
         with ProcessPoolExecutor(args.n_jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
             results = list(pool.map(run_one, *zip(*jobs), [settings] * len(jobs)))
-    table = report(results, learners, args.baseline)
+    table = report(results, learners, baseline.label)
     Path(args.out, "report.md").write_text(table + "\n")
     plot_curves(Path(args.out), learners, Path(args.out) / "curves.png", args.worker)
     print(table)

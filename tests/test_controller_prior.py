@@ -9,7 +9,7 @@ from stable_baselines3 import DDPG
 from sb3_hddpg.callbacks import ActionL2Penalty, ControllerPrior, apply_action_l2
 from sb3_hddpg.callbacks.actor_terms import actor_terms
 from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.envs.snake.controllers import IKReacher, make_controller
+from sb3_hddpg.envs.snake.controllers import FieldAvoider, IKReacher, make_controller
 from sb3_hddpg.training.backends import sbx_installed
 from sb3_hddpg.training.config import ConfigError, parse_block
 
@@ -43,6 +43,10 @@ def test_the_view_layout_feeds_the_controller_the_components_it_reads():
         make_controller("ik", layout.view(["joint_positions"]))
     with pytest.raises(ValueError, match="Unknown controller"):
         make_controller("pid", view)
+    with pytest.raises(ValueError, match="field controller reads \\['joint_obstacle_vectors'"):
+        make_controller("field", view)
+    avoid_view = layout.view(["joint_positions", "joint_obstacle_vectors", "joint_obstacle_distances"])
+    assert isinstance(make_controller("field", avoid_view), FieldAvoider)
 
 
 def test_the_prior_is_a_term_of_the_actor_objective_beside_the_action_penalty():

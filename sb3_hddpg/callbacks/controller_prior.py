@@ -16,7 +16,7 @@ class ControllerPrior(BaseCallback):
     """
     Add ``coefficient * mean((a - c(s)) ** 2)`` to the actor's loss of a DDPG or TD3 model: ``c(s)`` is a
     hand-written controller's command for the same observation (the snake arm's ``ik`` or ``jacobian``
-    reacher, :mod:`sb3_hddpg.envs.snake.controllers`), so the actor maximises the critic's value while it is
+    reacher, or its ``field`` avoider: :mod:`sb3_hddpg.envs.snake.controllers`), so the actor maximises the critic's value while it is
     pulled towards what the controller would do, on every replayed observation (with hindsight goals too:
     the controller reads the relabelled goal).
 
@@ -34,7 +34,7 @@ class ControllerPrior(BaseCallback):
     speed. The saved model is a plain SB3 zip. A callback, so that RL Zoo runs it from a config unchanged
     (``callback: [{sb3_hddpg.callbacks.ControllerPrior: {controller: ik, coefficient: 5.0}}]``).
 
-    :param controller: the controller's name (``ik`` or ``jacobian``).
+    :param controller: the controller's name (``ik``, ``jacobian`` or ``field``).
     :param coefficient: the prior's weight, finite and >= 0 (0: no prior).
     :param verbose: SB3's verbosity.
     """

@@ -41,7 +41,7 @@ EVAL_SEED_BASE = 10_000
 _PathOpt = Annotated[
     str,
     typer.Argument(
-        help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK)."
+        help="A worker or flat zip, a hierarchy.zip, a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK) / 'field' (potential-field avoider)."
     ),
 ]
 _EnvIdOpt = Annotated[

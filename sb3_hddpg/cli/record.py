@@ -28,7 +28,7 @@ from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.media.video import check_video_path, make_recording_env, record_video
 
-POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK)."
+POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK) / 'field' (potential-field avoider)."
 TRUST_HELP = "Allow SB3's full loader, which runs code stored in the file: only for files you trust."
 
 # The options of the commands that run a policy for a few episodes (record, plot-selection), spelled once.

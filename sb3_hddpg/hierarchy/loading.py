@@ -30,12 +30,12 @@ from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.headless import rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-from sb3_hddpg.envs.snake.controllers import IKReacher, JacobianReacher
+from sb3_hddpg.envs.snake.controllers import JacobianReacher, make_controller
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.policy import Policy
 
 #: Names that stand for reference policies instead of files.
-REFERENCE_POLICIES = ("random", "scripted", "ik")
+REFERENCE_POLICIES = ("random", "scripted", "ik", "field")
 
 
 @dataclass
@@ -187,11 +187,11 @@ def _reference_policy(name: str, env_id: str, env_kwargs: dict[str, Any]) -> Loa
     layout = state_layout_of(env)
     if name == "random":
         policy: Policy = RandomPolicy(env.action_space, seed=0)
-    elif name == "ik":
+    elif name in ("ik", "field"):
         snake = env.unwrapped
         if not isinstance(snake, SnakeArmEnv):
-            raise ValueError(f"The IK reacher drives the snake arm only, not {env_id!r}")
-        policy = IKReacher(layout, max_joint_speed=snake.max_joint_speed)
+            raise ValueError(f"The {name} controller drives the snake arm only, not {env_id!r}")
+        policy = make_controller(name, layout, max_joint_speed=snake.max_joint_speed)
     else:
         policy = JacobianReacher(layout)
     env.close()

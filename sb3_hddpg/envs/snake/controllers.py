@@ -1,8 +1,8 @@
 """
-The snake arm's hand-written reachers: Jacobian-transpose and damped-least-squares IK control of the tip
-toward the goal, blind to obstacles. They read only the observation (through its state layout), so they
-are the baselines a learned reacher is measured against, and a prior a learner may be pulled towards
-(:class:`~sb3_hddpg.callbacks.ControllerPrior`).
+The snake arm's hand-written controllers: Jacobian-transpose and damped-least-squares IK control of the tip
+toward the goal, blind to obstacles, and a potential-field avoider, blind to the goal. They read only the
+observation (through its state layout), so they are the baselines a learned worker is measured against, and
+a prior a learner may be pulled towards (:class:`~sb3_hddpg.callbacks.ControllerPrior`).
 """
 
 from __future__ import annotations
@@ -92,43 +92,110 @@ class IKReacher:
         return (action if np.ndim(observation) > 1 else action[0]), None
 
 
+class FieldAvoider:
+    """
+    Moves every link away from its obstacle by a repulsive potential field, using only the observation: a
+    link whose clearance ``c`` (a fraction of the sensor range) is below ``margin`` is pushed away from its
+    obstacle with strength ``(margin - c) ** power``, and the pushes map to joint rates by the Jacobian
+    transpose (joint ``j`` turns by the 2-D cross product of ``x_i - p_j`` with link ``i``'s push, for every
+    link ``i`` it moves). The push acts at the link's midpoint: the observation gives the obstacle's
+    direction from the link's closest point but not where on the link that point lies. Blind to the goal,
+    and still when no obstacle is in range, so its commands stay small: it is the avoid worker's
+    counterpart of :class:`IKReacher`, the reference a learned avoider is measured against (docs/WORKERS.md).
+
+    :param layout: the env's ``state_layout``.
+    :param gain: command per unit of the Jacobian-transpose signal (clipped to [-1, 1]).
+    :param margin: the clearance, as a fraction of the sensor range, below which a link is pushed.
+    :param power: the push's growth as the clearance shrinks (2: quadratic, gentle at the range's edge).
+    """
+
+    def __init__(
+        self, layout: StateLayout, gain: float = 4.0, margin: float = 1.0, power: float = 2.0
+    ) -> None:
+        self.layout = layout
+        self.gain = gain
+        self.margin = margin
+        self.power = power
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        obs = np.atleast_2d(observation).astype(np.float64)
+        ends, pivots = _ends_and_pivots(self.layout, obs)
+        towards = obs[:, self.layout["joint_obstacle_vectors"]].reshape(ends.shape)
+        clearance = obs[:, self.layout["joint_obstacle_distances"]]
+        strength = np.clip(self.margin - clearance, 0.0, None) ** self.power
+        norm = np.linalg.norm(towards, axis=-1)
+        # A link with its obstacle at zero distance has no direction to flee in: no push.
+        scale = np.divide(strength, norm, out=np.zeros_like(norm), where=norm > 1e-9)
+        push = -towards * scale[..., None]  # (batch, links, 2)
+        middles = 0.5 * (pivots + ends)
+        # lever[b, i, j] = middle of link i - pivot of joint j, counted only where joint j moves link i (j <= i).
+        lever = middles[:, :, None, :] - pivots[:, None, :, :]
+        moves = np.tril(np.ones((ends.shape[1], ends.shape[1])))[None, :, :]
+        torque = lever[..., 0] * push[:, :, None, 1] - lever[..., 1] * push[:, :, None, 0]
+        rates = (moves * torque).sum(axis=1)
+        action = np.clip(self.gain * rates, -1.0, 1.0).astype(np.float32)
+        return (action if np.ndim(observation) > 1 else action[0]), None
+
+
+def _ends_and_pivots(layout: StateLayout, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each link's far end and its pivot (the base pivot at the origin), ``(batch, links, 2)`` each."""
+    ends = obs[:, layout["joint_positions"]].reshape(len(obs), -1, 2)
+    pivots = np.concatenate((np.zeros((len(obs), 1, 2)), ends[:, :-1]), axis=1)
+    return ends, pivots
+
+
 def _levers_and_error(layout: StateLayout, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     From observations (one or a batch): each joint's lever ``tip - p_i`` (the base pivot at the origin) and
     the tip-to-goal vector, both in reach units.
     """
     obs = np.atleast_2d(observation).astype(np.float64)
-    ends = obs[:, layout["joint_positions"]].reshape(len(obs), -1, 2)
-    pivots = np.concatenate((np.zeros((len(obs), 1, 2)), ends[:, :-1]), axis=1)
+    ends, pivots = _ends_and_pivots(layout, obs)
     error = 2.0 * obs[:, layout["ee_to_goal"]]  # the observation halves it
     return ends[:, -1:, :] - pivots, error
 
 
-#: The reachers by the names configs and commands use.
-CONTROLLERS: dict[str, type[IKReacher] | type[JacobianReacher]] = {
+Controller = IKReacher | JacobianReacher | FieldAvoider
+
+#: The controllers by the names configs and commands use.
+CONTROLLERS: dict[str, type[Controller]] = {
     "ik": IKReacher,
     "jacobian": JacobianReacher,
+    "field": FieldAvoider,
+}
+#: The observation components each controller reads.
+CONTROLLER_INPUTS: dict[str, tuple[str, ...]] = {
+    "ik": ("joint_positions", "ee_to_goal"),
+    "jacobian": ("joint_positions", "ee_to_goal"),
+    "field": ("joint_positions", "joint_obstacle_vectors", "joint_obstacle_distances"),
 }
 
 
 def make_controller(
     name: str, layout: StateLayout, max_joint_speed: float = DEFAULT_MAX_JOINT_SPEED
-) -> IKReacher | JacobianReacher:
+) -> Controller:
     """
-    The reacher ``name`` (:data:`CONTROLLERS`) for observations of ``layout``.
+    The controller ``name`` (:data:`CONTROLLERS`) for observations of ``layout``.
 
-    :param name: ``ik`` or ``jacobian``.
+    :param name: ``ik``, ``jacobian`` or ``field``.
     :param layout: the observation's layout (an ``observe`` view's own, :meth:`StateLayout.view`).
     :param max_joint_speed: the env's joint speed at an action of 1 (the IK reacher scales by it).
-    :raises ValueError: an unknown name, or a layout without the joint positions and the tip-to-goal vector.
+    :raises ValueError: an unknown name, or a layout without a component the controller reads
+        (:data:`CONTROLLER_INPUTS`).
     """
     if name not in CONTROLLERS:
         raise ValueError(f"Unknown controller {name!r:.100}; choose from {sorted(CONTROLLERS)}")
-    missing = [c for c in ("joint_positions", "ee_to_goal") if c not in layout]
+    missing = [c for c in CONTROLLER_INPUTS[name] if c not in layout]
     if missing:
         raise ValueError(
-            f"The {name} reacher reads {missing} from the observation, which holds {list(layout)}"
+            f"The {name} controller reads {missing} from the observation, which holds {list(layout)}"
         )
     if name == "ik":
         return IKReacher(layout, max_joint_speed=max_joint_speed)
-    return JacobianReacher(layout)
+    return CONTROLLERS[name](layout)
