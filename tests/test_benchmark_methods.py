@@ -387,6 +387,27 @@ def test_tuned_ham_and_workers_alone_are_scored_on_the_same_episodes(tmp_path):
     assert record_of["goal-only"]["worker_timesteps"] == record_of["ham"]["worker_timesteps"] == 204
 
 
+def test_the_hand_written_skills_are_a_method_that_trains_nothing(tmp_path):
+    from sb3_hddpg.baselines import HAMSwitch
+    from sb3_hddpg.envs.snake.controllers import make_controller
+    from sb3_hddpg.episode_sets import DEVELOPMENT
+    from sb3_hddpg.evaluation import evaluate
+
+    out = tmp_path / "bench"
+    done = cli("benchmark", "--seeds", "1", "--methods", "controllers", *TINY, "--out", str(out))
+    assert done.returncode == 0, done.stdout + done.stderr
+    record = json.loads((out / "records" / "controllers" / "seed-0.json").read_text())
+    assert record["worker_timesteps"] == 0 and not (out / "seed-0" / "workers").exists()
+    grid = record["threshold_grid"]
+    assert record["threshold"] == max(grid, key=lambda p: p["mean_reward"])["threshold"]
+    # The record's test is the switch over the IK reacher and the field avoider at that threshold.
+    env = gym.make("hddpg/SnakeReach-v0")
+    layout = env.unwrapped.state_layout
+    switch = HAMSwitch(make_controller("ik", layout), make_controller("field", layout), layout, record["threshold"])
+    expected = evaluate(switch, env, n_episodes=1, seed=DEVELOPMENT.first_seed).summary()
+    assert record["test"]["mean_reach_reward"] == pytest.approx(expected["mean_reach_reward"])
+
+
 # ------------------------------------------------------------------------------------------------- export
 @pytest.mark.slow
 def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):

@@ -190,3 +190,23 @@ def test_the_shipped_conditioned_manager_study_reports_regenerate_from_their_rec
     args = ["--variants", variants, "--seeds", "5", "--out", str(copy), "--report-only"]
     run_example("conditioned_manager_study.py", args, folder=STUDIES)
     assert (copy / "report.md").read_text() == (shipped / "report.md").read_text()
+
+
+def test_hand_written_measures_the_controllers_and_the_shipped_table_regenerates(tmp_path):
+    import importlib.util
+    import json
+
+    result = run_example("hand_written.py", ["--episodes", "1", "--out", str(tmp_path)], folder=STUDIES)
+    record = json.loads((tmp_path / "hand_written.json").read_text())
+    thresholds = [point["threshold"] for point in record["switch"]]
+    assert thresholds == [0.25 * k for k in range(1, 25)] and record["switch_threshold"] in thresholds
+    # The switch below every reachable clearance sum never hands over: it is the IK reacher alone.
+    assert record["switch"][0]["mean_reach_reward"] == record["ik"]["mean_reach_reward"]
+    assert "| IK reacher alone |" in result.stdout
+    spec = importlib.util.spec_from_file_location("hand_written", STUDIES / "hand_written.py")
+    assert spec is not None and spec.loader is not None
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    shipped = ROOT / "docs" / "results" / "hand_written"
+    record = json.loads((shipped / "hand_written.json").read_text())
+    assert study.report(record) + "\n" == (shipped / "report.md").read_text()

@@ -16,11 +16,12 @@ import gymnasium as gym
 
 from sb3_hddpg.algorithms import REGISTRY, algorithms_for
 from sb3_hddpg.artifacts.manifests import read_workers_manifest
-from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, load_ham, save_ham
+from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, HAMSwitch, load_ham, save_ham
 from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.baselines.ttc import CLOSE_SECONDS, DecisionStates, KinematicsScales
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
+from sb3_hddpg.envs.snake.controllers import DEFAULT_MAX_JOINT_SPEED, make_controller
 from sb3_hddpg.envs.terms_env import config_key
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.experiments.benchmark.episodes import episode_rows
@@ -276,14 +277,7 @@ def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Pa
         switch, _ = load_ham(ham_path)
         grid: list[dict[str, float]] = []
         if tuned:
-            for step in range(1, round(n_links_count / HAM_GRID_STEP) + 1):
-                switch.threshold = step * HAM_GRID_STEP
-                point = evaluate(
-                    switch, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE
-                ).summary()
-                grid.append({"threshold": switch.threshold, "mean_reward": point["mean_reward"]})
-            # The first best on ties: the smallest threshold, the one that hands over to the avoid worker least.
-            threshold = max(grid, key=lambda point: point["mean_reward"])["threshold"]
+            threshold, grid = _tune_threshold(switch, env, settings)
             ham_path = save_ham(
                 ham_path,
                 folder / "workers" / "manifest.json",
@@ -303,6 +297,57 @@ def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Pa
         "threshold": threshold,
         "hysteresis": settings.ham_hysteresis,
         **({"threshold_grid": grid} if tuned else {}),
+    }
+
+
+def _tune_threshold(
+    switch: HAMSwitch, env: gym.Env, settings: MethodSettings
+) -> tuple[float, list[dict[str, float]]]:
+    """
+    The switch's best threshold on a grid (every :data:`HAM_GRID_STEP` up to the number of links), scored on
+    the learning-curve episodes, and the grid's scores; ``switch`` is left at the best.
+    """
+    n_links = state_layout_of(env)["joint_obstacle_distances"]
+    grid: list[dict[str, float]] = []
+    for step in range(1, round((n_links.stop - n_links.start) / HAM_GRID_STEP) + 1):
+        switch.threshold = step * HAM_GRID_STEP
+        point = evaluate(switch, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
+        grid.append({"threshold": switch.threshold, "mean_reward": point["mean_reward"]})
+    # The first best on ties: the smallest threshold, the one that hands over to the avoid worker least.
+    switch.threshold = max(grid, key=lambda point: point["mean_reward"])["threshold"]
+    return switch.threshold, grid
+
+
+def _run_controllers(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, object]:
+    """
+    HAM's switch over the snake arm's hand-written controllers instead of trained workers: the IK reacher
+    and the potential-field avoider, its threshold tuned as ``ham-tuned``'s. Nothing is trained or saved
+    (the code is the policy), and every seed measures the same policy: what a user who writes both skills
+    and the switch by hand gets, the bar a learned hierarchy is held to on the snake arm.
+    """
+
+    env = gym.make(FLAT_ENV_ID)
+    try:
+        layout = state_layout_of(env)
+        speed = float(getattr(env.unwrapped, "max_joint_speed", DEFAULT_MAX_JOINT_SPEED))
+        switch = HAMSwitch(
+            make_controller("ik", layout, speed),
+            make_controller("field", layout, speed),
+            layout,
+            hysteresis=settings.ham_hysteresis,
+        )
+        threshold, grid = _tune_threshold(switch, env, settings)
+        curve = evaluate(switch, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
+        test = test_fields(switch, env, settings)
+    finally:
+        env.close()
+    return {
+        "worker_timesteps": 0,
+        "history": [{"timesteps": 0, "total_timesteps": 0, **curve}],
+        **test,
+        "threshold": threshold,
+        "hysteresis": settings.ham_hysteresis,
+        "threshold_grid": grid,
     }
 
 
@@ -390,6 +435,17 @@ register_method(
         default=True,
         baseline=True,
         description="the same switch with its threshold the best of a grid on the learning-curve episodes",
+        own_settings=("ham_hysteresis",),
+    )
+)
+register_method(
+    Method(
+        "controllers",
+        _run_controllers,
+        _no_cost,
+        colour="sienna",
+        baseline=True,
+        description="the tuned switch over hand-written skills (the IK reacher, the field avoider), no training",
         own_settings=("ham_hysteresis",),
     )
 )
