@@ -93,3 +93,20 @@ def test_script_runs_on_a_tiny_budget(tmp_path):
     # Reporting again trains nothing and gives the same table.
     assert tts.main([*argv, "--report-only"]) == 0
     assert (out / "report.md").read_text() == report
+
+
+@pytest.mark.parametrize(
+    "study", sorted(p.parent.name for p in (SCRIPT.parent.parent / "docs/results/workers").glob("*/report.md"))
+)
+def test_every_shipped_study_report_regenerates_from_its_records(study):
+    tts = _module()
+    folder = SCRIPT.parent.parent / "docs" / "results" / "workers" / study
+    shipped = (folder / "report.md").read_text()
+    lines = shipped.splitlines()
+    results = [json.loads(path.read_text()) for path in sorted(folder.glob("*/seed-*/result.json"))]
+    labels = {tts.result_label(result): result for result in results}
+    # The learners in the report's order; the baseline is named in the header ("steps / BASELINE").
+    order = [line.split(" | ")[0].removeprefix("| ") for line in lines[2:]]
+    learners = [tts.Learner(labels[o]["algo"], labels[o]["backend"], labels[o].get("config")) for o in order]
+    baseline = lines[0].split("steps / ")[1].split(" |")[0]
+    assert tts.report(results, learners, baseline) + "\n" == shipped
