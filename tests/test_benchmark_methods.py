@@ -403,7 +403,9 @@ def test_the_hand_written_skills_are_a_method_that_trains_nothing(tmp_path):
     # The record's test is the switch over the IK reacher and the field avoider at that threshold.
     env = gym.make("hddpg/SnakeReach-v0")
     layout = env.unwrapped.state_layout
-    switch = HAMSwitch(make_controller("ik", layout), make_controller("field", layout), layout, record["threshold"])
+    switch = HAMSwitch(
+        make_controller("ik", layout), make_controller("field", layout), layout, record["threshold"]
+    )
     expected = evaluate(switch, env, n_episodes=1, seed=DEVELOPMENT.first_seed).summary()
     assert record["test"]["mean_reach_reward"] == pytest.approx(expected["mean_reach_reward"])
 

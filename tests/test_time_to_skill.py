@@ -96,7 +96,8 @@ def test_script_runs_on_a_tiny_budget(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "study", sorted(p.parent.name for p in (SCRIPT.parent.parent / "docs/results/workers").glob("*/report.md"))
+    "study",
+    sorted(p.parent.name for p in (SCRIPT.parent.parent / "docs/results/workers").glob("*/report.md")),
 )
 def test_every_shipped_study_report_regenerates_from_its_records(study):
     tts = _module()
