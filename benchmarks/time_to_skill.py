@@ -296,6 +296,12 @@ def plot_curves(out: Path, learners: list[Learner], path: Path, worker: str = "g
     from sb3_hddpg.algorithms import algorithm
 
     figure, axes = plt.subplots(1, 3, figsize=(15, 4), constrained_layout=True)
+    # A bundled block in its algorithm's colour; a block of its own file in a colour no other learner has.
+    colours = {learner.label: algorithm(learner.algo).colour for learner in learners if not learner.config}
+    spare = iter(c for c in matplotlib.colors.TABLEAU_COLORS if c not in colours.values())
+    for learner in learners:
+        if learner.config:
+            colours[learner.label] = next(spare, "black")
     for learner in learners:
         runs = [
             json.loads(history.read_text())
@@ -309,9 +315,8 @@ def plot_curves(out: Path, learners: list[Learner], path: Path, worker: str = "g
         for axis, key in zip(axes, ("goal_touch_rate", "collisions_per_episode", "action_saturation")):
             values = np.array([[entry.get(key, np.nan) for entry in run[:length]] for run in runs])
             mean = values.mean(axis=0)
-            colour = algorithm(learner.algo).colour if not learner.config else None
+            colour = colours[learner.label]
             axis.plot(steps, mean, label=f"{learner.label} ({len(runs)} seeds)", color=colour)
-            colour = axis.lines[-1].get_color()
             if len(runs) > 1:
                 half = stats.t.ppf(0.975, len(runs) - 1) * values.std(axis=0, ddof=1) / np.sqrt(len(runs))
                 axis.fill_between(steps, mean - half, mean + half, color=colour, alpha=0.2)
