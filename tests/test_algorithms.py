@@ -144,8 +144,8 @@ def test_worker_algorithms_are_parsed_and_checked():
     workers = ["goal", "avoid"]
     assert parse_worker_algorithms("goal=crossq,avoid=SAC", workers) == {"goal": "crossq", "avoid": "sac"}
     # A worker not named keeps its default: the snake arm's study-chosen learner, DDPG on another env.
-    assert parse_worker_algorithms("goal=ppo", workers) == {"goal": "ppo", "avoid": "sac"}
-    assert worker_algorithms(workers) == {"goal": "ddpg", "avoid": "sac"}
+    assert parse_worker_algorithms("goal=ppo", workers) == {"goal": "ppo", "avoid": "ddpg"}
+    assert worker_algorithms(workers) == {"goal": "ddpg", "avoid": "ddpg"}
     other = TermsEnv("hddpg/SnakeReach-v0", {}, ("goal", "avoid"))
     assert parse_worker_algorithms("goal=ppo", workers, other) == {"goal": "ppo", "avoid": "ddpg"}
     assert parse_worker_algorithms("tqc", workers) == {"goal": "tqc", "avoid": "tqc"}

@@ -38,9 +38,10 @@ from sb3_hddpg.training.run_options import RunOptions, run_options
 #: The algorithm of a worker no ``algos`` entry names: the paper's.
 DEFAULT_WORKER_ALGO = "ddpg"
 #: The snake arm's workers' algorithms where ``algos`` names none, chosen by the workers study
-#: (docs/WORKERS.md): DDPG reaches the goal; SAC keeps clear without saturating its joints, which DDPG's
-#: avoid worker does on about 80 % of its outputs.
-SNAKE_WORKER_ALGOS = {"goal": "ddpg", "avoid": "sac"}
+#: (docs/WORKERS.md): DDPG for both, each with its bundled block's prior towards a hand-written controller
+#: (the IK reacher, the field avoider); the avoid worker's prior keeps it clear without the saturated
+#: joints that DDPG's avoid worker kept on about 80 % of its outputs without one, and clearer than SAC's.
+SNAKE_WORKER_ALGOS = {"goal": "ddpg", "avoid": "ddpg"}
 
 
 def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> Callable[[], gym.Env]:
