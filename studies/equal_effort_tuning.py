@@ -9,7 +9,7 @@ from its method's bundled block (its first trial, ``enqueue_base``) and is evalu
 
 Each study is named for the benchmark method it serves:
 
-- ``goal``, ``avoid``: the workers, each with its snake-arm algorithm (DDPG reaches, SAC avoids), final
+- ``goal``, ``avoid``: the workers, each with its snake-arm algorithm (``SNAKE_WORKER_ALGOS``), final
   budget its block's ``n_timesteps``;
 - ``ddpg``, ``sac``, ``ddpg-her``, ``sac-her`` (``--flat``): the flat agents, final budget the benchmark's
   flat budget (the hierarchy's env steps); the ``-her`` ones tune the ``flat-her`` block, the goal worker's
