@@ -476,7 +476,7 @@ for _algo, _colour in (("sac", "darkviolet"), ("ddpg", "navy")):
             baseline=True,
             description=(
                 f"flat {_algo.upper()} with the goal worker's tricks (hindsight relabelling"
-                + (", the action penalty" if _algo == "ddpg" else "")
+                + (", the IK reacher's prior" if _algo == "ddpg" else "")
                 + f"; {_algo}.yml[{FLAT_HER_KEY}]) on the full observation and the reach reward, the flat budget"
             ),
             config_blocks=functools.partial(_flat_blocks, _algo, block=FLAT_HER_KEY),
