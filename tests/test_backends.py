@@ -399,7 +399,7 @@ def test_jax_keeps_to_one_thread():
 )
 def test_every_training_command_trains_on_sbx_and_ships_sb3(tmp_path, timesteps):
     """train-workers, train-manager, train-flat (by option and by config key): SB3 files, SBX recorded."""
-    from stable_baselines3 import DDPG, SAC, TD3
+    from stable_baselines3 import DDPG, TD3
 
     from sb3_hddpg.hierarchy.hierarchy import Hierarchy
     from sb3_hddpg.hierarchy.loading import load_policy
@@ -423,12 +423,12 @@ def test_every_training_command_trains_on_sbx_and_ships_sb3(tmp_path, timesteps)
         assert result.returncode == 0, result.stderr[-3000:]
     workers = json.loads((tmp_path / "w" / "workers" / "manifest.json").read_text())["workers"]
     assert {entry["backend"] for entry in workers.values()} == {"sbx"}
-    for name, cls in (("goal", DDPG), ("avoid", SAC)):  # the snake arm's default learners
+    for name, cls in (("goal", DDPG), ("avoid", DDPG)):  # the snake arm's default learner
         assert type(cls.load(tmp_path / "w" / "workers" / f"{name}.zip", device="cpu")) is cls
     # A bundle with an SBX-trained manager over SBX-trained workers: verified and loaded like any other.
     hierarchy = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
     assert type(hierarchy.manager) is DDPG and hierarchy.metadata["backend"] == "sbx"
-    assert {name: type(worker) for name, worker in hierarchy.workers.items()} == {"goal": DDPG, "avoid": SAC}
+    assert {name: type(worker) for name, worker in hierarchy.workers.items()} == {"goal": DDPG, "avoid": DDPG}
     env = gym.make("hddpg/SnakeReach-v0")
     obs, _ = env.reset(seed=0)
     assert env.action_space.contains(hierarchy.predict(obs, deterministic=True)[0].astype(np.float32))

@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from stable_baselines3 import DDPG, SAC
+from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.provenance import sha256_file
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
@@ -37,8 +37,8 @@ def test_worker_zips_are_plain_sb3_and_manifest_is_complete(trained):
     assert on_disk == json.loads(json.dumps(manifest))
     for name, entry in manifest["workers"].items():
         path = root / "w" / "workers" / entry["file"]
-        # Nothing but SB3: the snake arm's default learners, DDPG for the goal and SAC for the avoid worker.
-        model = {"goal": DDPG, "avoid": SAC}[name].load(path)
+        # Nothing but SB3: the snake arm's default learner, DDPG, for both workers.
+        model = DDPG.load(path)
         # The bundled config feeds the goal worker its 15 goal-relevant values (env kwarg observe).
         assert model.observation_space.shape == {"goal": (15,), "avoid": (39,)}[name]
         assert entry["sha256"] == sha256_file(path)
@@ -57,7 +57,7 @@ def test_worker_zips_are_plain_sb3_and_manifest_is_complete(trained):
         # Each worker's own block, as the config wrote it (the goal worker has larger networks).
         nets = {"goal": "dict(net_arch=[256, 256])", "avoid": "dict(net_arch=[64, 64])"}
         assert entry["config"]["block"]["policy_kwargs"] == nets[name]
-        assert entry["spec"]["algorithm"] == {"goal": "DDPG", "avoid": "SAC"}[name]
+        assert entry["spec"]["algorithm"] == "DDPG"
 
 
 def test_same_seed_gives_identical_weights(tmp_path):
@@ -97,7 +97,7 @@ def test_bundle_round_trip_in_a_fresh_process(trained):
     np.testing.assert_array_equal(single, expected[0])
     with zipfile.ZipFile(path) as archive:
         manifest = json.loads(archive.read("manifest.json"))
-        for member, cls in (("manager.zip", DDPG), ("workers/goal.zip", DDPG), ("workers/avoid.zip", SAC)):
+        for member, cls in (("manager.zip", DDPG), ("workers/goal.zip", DDPG), ("workers/avoid.zip", DDPG)):
             cls.load(io.BytesIO(archive.read(member)))
     assert manifest["selection"]["preferences"] == {"goal": 1.15, "avoid": 1.0}
     assert manifest["worker_names"] == ["goal", "avoid"]
@@ -143,7 +143,7 @@ def test_tampered_bundles_are_refused(trained, tmp_path):
 
 def test_nested_hierarchy_is_a_worker_and_saves_as_one_bundle(trained, tmp_path):
     root, _, hierarchy, _ = trained
-    avoid = SAC.load(root / "w" / "workers" / "avoid.zip")
+    avoid = DDPG.load(root / "w" / "workers" / "avoid.zip")
     env = WorkerSelectionWrapper(
         gym.make("hddpg/SnakeReach-v0"), {"reach": hierarchy, "avoid": avoid}, selection="argmax"
     )
