@@ -7,7 +7,7 @@ import math
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_hddpg.callbacks.actor_terms import ActionL2Term, action_penalty, set_actor_term
+from sb3_hddpg.callbacks.actor_terms import ActionL2Term, action_penalty, checked_coefficient, set_actor_term
 
 
 class ActionL2Penalty(BaseCallback):
@@ -42,15 +42,7 @@ class ActionL2Penalty(BaseCallback):
 
     def __init__(self, coefficient: float = 0.1, margin: float | None = None, verbose: int = 0) -> None:
         super().__init__(verbose)
-        if (
-            isinstance(coefficient, bool)
-            or not isinstance(coefficient, (int, float))
-            or not (math.isfinite(coefficient) and coefficient >= 0)
-        ):
-            raise ValueError(
-                f"Expected `coefficient` to be a finite number >= 0, actually: {coefficient!r:.100}"
-            )
-        self.coefficient = float(coefficient)
+        self.coefficient = checked_coefficient(coefficient)
         self.margin = _checked_margin(margin)
 
     def _on_training_start(self) -> None:

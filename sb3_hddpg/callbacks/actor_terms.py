@@ -17,6 +17,7 @@ them applies together:
 from __future__ import annotations
 
 import functools
+import math
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -110,6 +111,17 @@ def action_penalty(actions: torch.Tensor, margin: float | None) -> torch.Tensor:
         return actions.pow(2).mean(dim=-1, keepdim=True)
     pre = torch.atanh(actions.clamp(-_ATANH_EDGE, _ATANH_EDGE))
     return torch.relu(pre.abs() - margin).pow(2).mean(dim=-1, keepdim=True)
+
+
+def checked_coefficient(coefficient: object) -> float:
+    """An actor term's weight as a float: a finite number >= 0, else a one-line ``ValueError``."""
+    if (
+        isinstance(coefficient, bool)
+        or not isinstance(coefficient, (int, float))
+        or not (math.isfinite(coefficient) and coefficient >= 0)
+    ):
+        raise ValueError(f"Expected `coefficient` to be a finite number >= 0, actually: {coefficient!r:.100}")
+    return float(coefficient)
 
 
 def set_actor_term(model: BaseAlgorithm, kind: str, term: ActorTerm | None, why_not: str = "") -> None:

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_hddpg.callbacks.actor_terms import ControllerTerm, set_actor_term
+from sb3_hddpg.callbacks.actor_terms import ControllerTerm, checked_coefficient, set_actor_term
 from sb3_hddpg.envs.snake.controllers import CONTROLLERS, DEFAULT_MAX_JOINT_SPEED, make_controller
 
 
@@ -43,16 +42,8 @@ class ControllerPrior(BaseCallback):
         super().__init__(verbose)
         if controller not in CONTROLLERS:
             raise ValueError(f"Unknown controller {controller!r:.100}; choose from {sorted(CONTROLLERS)}")
-        if (
-            isinstance(coefficient, bool)
-            or not isinstance(coefficient, (int, float))
-            or not (math.isfinite(coefficient) and coefficient >= 0)
-        ):
-            raise ValueError(
-                f"Expected `coefficient` to be a finite number >= 0, actually: {coefficient!r:.100}"
-            )
         self.controller = controller
-        self.coefficient = float(coefficient)
+        self.coefficient = checked_coefficient(coefficient)
 
     def _on_training_start(self) -> None:
         env = self.model.get_env()
