@@ -400,9 +400,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--max-saturation must be in (0, 1], got {args.max_saturation}")
     try:
         learners = parse_learners(args.learners)
-        (baseline,) = parse_learners(args.baseline)
     except ValueError as error:
-        parser.error(f"--learners or --baseline: {error}")
+        parser.error(f"--learners: {error}")
+    try:
+        baselines = parse_learners(args.baseline)
+    except ValueError as error:
+        parser.error(f"--baseline: {error}")
+    if len(baselines) != 1:
+        parser.error(f"--baseline takes one learner, got {len(baselines)}: {args.baseline!r}")
+    (baseline,) = baselines
     settings = {
         key: getattr(args, key)
         for key in (

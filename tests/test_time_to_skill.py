@@ -111,3 +111,18 @@ def test_every_shipped_study_report_regenerates_from_its_records(study):
     learners = [tts.Learner(labels[o]["algo"], labels[o]["backend"], labels[o].get("config")) for o in order]
     baseline = lines[0].split("steps / ")[1].split(" |")[0]
     assert tts.report(results, learners, baseline) + "\n" == shipped
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--baseline", "ddpg:sbx,sac:sbx", "--baseline takes one learner, got 2"),
+        ("--baseline", "ddpg:nope", "--baseline: Expected a backend"),
+        ("--learners", "ddpg:sbx@missing.yml", "--learners: No config file"),
+    ],
+)
+def test_bad_learner_options_are_one_line_usage_errors(option, value, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        _module().main([option, value])
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
