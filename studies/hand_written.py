@@ -26,8 +26,6 @@ from sb3_hddpg.episode_sets import CURVE, DEVELOPMENT
 from sb3_hddpg.evaluation import evaluate
 
 REACH_ENV_ID = "hddpg/SnakeReach-v0"
-#: The thresholds tried, as ``ham-tuned``'s grid: every 0.25 up to the number of links.
-GRID_STEP = 0.25
 #: The columns of the report, each a key of an evaluation summary.
 COLUMNS = ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode", "action_saturation")
 
@@ -40,8 +38,7 @@ def measure(episodes: int) -> dict[str, object]:
         speed = float(env.unwrapped.max_joint_speed)  # type: ignore[attr-defined]
         ik, field = make_controller("ik", layout, speed), make_controller("field", layout, speed)
         switch = HAMSwitch(ik, field, layout)
-        n_links = layout["joint_obstacle_distances"].stop - layout["joint_obstacle_distances"].start
-        grid = [GRID_STEP * k for k in range(1, round(n_links / GRID_STEP) + 1)]
+        grid = switch.threshold_grid()
         curve, development = {}, {}
         for threshold in grid:
             switch.threshold = threshold

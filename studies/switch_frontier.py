@@ -15,10 +15,9 @@ from pathlib import Path
 
 import gymnasium as gym
 
-from sb3_hddpg.baselines.ham import DISTANCE_COMPONENT, load_ham
-from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.baselines.ham import load_ham
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.benchmark.methods import FLAT_ENV_ID, HAM_GRID_STEP
+from sb3_hddpg.experiments.benchmark.methods import FLAT_ENV_ID
 
 #: Episodes neither the learning curves (10000..) nor the test (15000..) use.
 FRONTIER_SEED = 20000
@@ -30,10 +29,9 @@ def frontier(ham_file: Path, episodes: int, seed: int) -> list[dict[str, float]]
     switch, _ = load_ham(ham_file)
     env = gym.make(FLAT_ENV_ID)
     try:
-        distances = state_layout_of(env)[DISTANCE_COMPONENT]
         points = []
-        for step in range(1, round((distances.stop - distances.start) / HAM_GRID_STEP) + 1):
-            switch.threshold = step * HAM_GRID_STEP
+        for threshold in switch.threshold_grid():
+            switch.threshold = threshold
             summary = evaluate(switch, env, n_episodes=episodes, seed=seed).summary()
             points.append({"threshold": switch.threshold, **{k: float(summary[k]) for k in KEYS}})
     finally:

@@ -12,7 +12,7 @@ import pytest
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.baselines import HAMSwitch, load_ham, save_ham
-from sb3_hddpg.baselines.ham import DEFAULT_MARGIN
+from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, THRESHOLD_STEP
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.loading import load_policy
@@ -181,3 +181,12 @@ def test_load_refuses_other_json(tmp_path):
     path.write_text(json.dumps({"kind": "something-else"}))
     with pytest.raises(ValueError, match="not an sb3-hddpg HAM file"):
         load_ham(path)
+
+
+def test_threshold_grid_spans_the_summed_distances_range(env):
+    grid = switch(env).threshold_grid()
+    assert grid[0] == THRESHOLD_STEP and grid[-1] == 6.0 and len(grid) == round(6 / THRESHOLD_STEP)
+    assert switch(env).threshold_grid(from_zero=True) == [0.0, *grid]
+    # Every threshold of the grid is one the switch accepts.
+    for threshold in grid:
+        assert switch(env, threshold=threshold).threshold == threshold

@@ -40,6 +40,8 @@ DISTANCE_COMPONENT = "joint_obstacle_distances"
 #: That is where the avoid reward starts to be lost (it pays clearance up to the sensor range) but
 #: before contact, which the arm cannot undo within one step at full joint speed.
 DEFAULT_MARGIN = 0.5
+#: Spacing of the thresholds a sweep of the switch tries (:meth:`HAMSwitch.threshold_grid`).
+THRESHOLD_STEP = 0.25
 
 
 class HAMSwitch:
@@ -106,6 +108,19 @@ class HAMSwitch:
         # One flag per observation stream: whether the avoid worker is acting (hysteresis needs memory).
         self._avoiding = np.zeros(1, dtype=bool)
         self.last_selection: str | None = None
+
+    def threshold_grid(self, from_zero: bool = False) -> list[float]:
+        """
+        The thresholds a sweep of this switch tries: every :data:`THRESHOLD_STEP` up to the number of links
+        (24 for six), the range of the summed distances.
+
+        :param from_zero: start at 0 (the goal worker in every state), as a front does; else at the first
+            step, as a tuning that picks one threshold does.
+        :return: the thresholds, increasing.
+        """
+        n_links = self._slice.stop - self._slice.start
+        first = 0 if from_zero else 1
+        return [step * THRESHOLD_STEP for step in range(first, round(n_links / THRESHOLD_STEP) + 1)]
 
     @property
     def reward_spec(self) -> dict[str, float]:

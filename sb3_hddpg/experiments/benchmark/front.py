@@ -78,8 +78,7 @@ from sb3_hddpg.training.manager import train_manager
 
 #: The snake's sweep: goal:avoid 4:1, 3:1, 2:1, 1:1, 1:2, 1:3, 1:4 at sum 2.
 SWEEP = SNAKE_FRONT.sweep
-#: HAM's threshold grid step on the summed distances, and how many non-dominated thresholds a rule keeps.
-HAM_FRONT_STEP = 0.25
+#: How many non-dominated thresholds a rule keeps.
 RULE_FRONT_POINTS = 9
 #: Bootstrap resamples of the decides-by-state interval.
 BOOTSTRAP_SAMPLES = 2000
@@ -181,11 +180,9 @@ def ham_thresholds(switch: HAMSwitch, env: gym.Env, settings: MethodSettings) ->
     HAM's thresholds for its front: every grid threshold evaluated on the curve episodes, the non-dominated
     ones (goal touch up, contacts down) kept, at most :data:`RULE_FRONT_POINTS` spread over them.
     """
-    distances = state_layout_of(env)["joint_obstacle_distances"]
-    n_links = distances.stop - distances.start
     grid = []
-    for step in range(0, round(n_links / HAM_FRONT_STEP) + 1):
-        switch.threshold = step * HAM_FRONT_STEP
+    for threshold in switch.threshold_grid(from_zero=True):
+        switch.threshold = threshold
         summary = evaluate(switch, env, n_episodes=settings.eval_episodes, seed=CURVE.first_seed).summary()
         grid.append(
             {

@@ -246,10 +246,6 @@ def _run_flat(
     }
 
 
-#: Spacing of the thresholds ``ham-tuned`` tries, from ``HAM_GRID_STEP`` to the number of links (24 for six).
-HAM_GRID_STEP = 0.25
-
-
 def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, object]:
     """
     Save the seed's HAM switch and evaluate it: one learning-curve point (it does not learn) and the test.
@@ -304,13 +300,12 @@ def _tune_threshold(
     switch: HAMSwitch, env: gym.Env, settings: MethodSettings
 ) -> tuple[float, list[dict[str, float]]]:
     """
-    The switch's best threshold on a grid (every :data:`HAM_GRID_STEP` up to the number of links), scored on
-    the learning-curve episodes, and the grid's scores; ``switch`` is left at the best.
+    The switch's best threshold on its grid (:meth:`~sb3_hddpg.baselines.ham.HAMSwitch.threshold_grid`),
+    scored on the learning-curve episodes, and the grid's scores; ``switch`` is left at the best.
     """
-    n_links = state_layout_of(env)["joint_obstacle_distances"]
     grid: list[dict[str, float]] = []
-    for step in range(1, round((n_links.stop - n_links.start) / HAM_GRID_STEP) + 1):
-        switch.threshold = step * HAM_GRID_STEP
+    for threshold in switch.threshold_grid():
+        switch.threshold = threshold
         point = evaluate(switch, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
         grid.append({"threshold": switch.threshold, "mean_reward": point["mean_reward"]})
     # The first best on ties: the smallest threshold, the one that hands over to the avoid worker least.
