@@ -251,8 +251,28 @@ def parse_args() -> argparse.Namespace:
         choices=RANKINGS,
         help="which trial is best: by its best evaluation (peak) or its last (last)",
     )
+    p.add_argument(
+        "--only",
+        default=None,
+        help="run only these studies (comma-separated names, e.g. avoid,ddpg,sac), e.g. while another "
+        "method's block is still being decided; a study over the workers also runs the worker studies it "
+        "needs. summary.json is written by a run of every study",
+    )
     p.add_argument("--out", type=Path, default=Path("runs/equal-tuning"), help="output folder")
-    return p.parse_args()
+    args = p.parse_args()
+    if args.only is not None:
+        known = [s.name for s in all_studies(args.flat.split(","), args.front_manager)]
+        args.only = [name.strip() for name in args.only.split(",") if name.strip()]
+        unknown = sorted(set(args.only) - set(known))
+        if unknown or not args.only:
+            p.error(f"--only: expected study names among {known}, got {unknown or args.only}")
+    return args
+
+
+def all_studies(flat: list[str], front_manager: str) -> list[Study]:
+    """Every study of a full run, in its order."""
+    methods = [m.strip() for m in flat if m.strip()]
+    return [*worker_studies(), *flat_studies(methods), *over_workers_studies(front_manager)]
 
 
 def print_summary(summary: list[dict[str, Any]], rank_by: str) -> None:
@@ -298,27 +318,39 @@ def main() -> None:
             save_best_config(tuned, target, args.out / study.file, args.rank_by)
         summary.append(summarise(study, target, tuned, args))
 
+    over_workers = over_workers_studies(settings.front_manager)
+    chosen = set(args.only) if args.only is not None else None
+    if chosen is not None:
+        over_workers = [study for study in over_workers if study.name in chosen]
+        if over_workers:  # the managers and HAM are tuned over workers trained from the tuned blocks
+            chosen |= {study.name for study in worker_studies()}
     for study in worker_studies():
-        study_and_save(study)
-    # The workers the managers and HAM are tuned over train (one process, from the tuned blocks) while the
-    # flat studies run, so that no core waits for them.
-    config = workers_config(args.out, worker_studies())
-    run = RunOptions(timesteps=args.worker_timesteps, seed=args.seed, backend=args.backend, resume=True)
-    trainer = multiprocessing.get_context("spawn").Process(
-        target=train_workers, args=(args.out / "workers",), kwargs={"config": config, "run": run}
-    )
-    print("training the workers with the tuned blocks, beside the flat studies...", flush=True)
-    trainer.start()
+        if chosen is None or study.name in chosen:
+            study_and_save(study)
+    trainer = None
+    if over_workers:
+        # The workers the managers and HAM are tuned over train (one process, from the tuned blocks) while
+        # the flat studies run, so that no core waits for them.
+        config = workers_config(args.out, worker_studies())
+        run = RunOptions(timesteps=args.worker_timesteps, seed=args.seed, backend=args.backend, resume=True)
+        trainer = multiprocessing.get_context("spawn").Process(
+            target=train_workers, args=(args.out / "workers",), kwargs={"config": config, "run": run}
+        )
+        print("training the workers with the tuned blocks, beside the flat studies...", flush=True)
+        trainer.start()
     for study in flat_studies(flat):
-        study_and_save(study)
-    trainer.join()
-    if trainer.exitcode != 0:
-        raise SystemExit(f"training the workers failed (exit code {trainer.exitcode}); re-run to resume")
-    for study in over_workers_studies(settings.front_manager):
+        if chosen is None or study.name in chosen:
+            study_and_save(study)
+    if trainer is not None:
+        trainer.join()
+        if trainer.exitcode != 0:
+            raise SystemExit(f"training the workers failed (exit code {trainer.exitcode}); re-run to resume")
+    for study in over_workers:
         # From the bundled manager block, not OUT's: once a manager study has saved its best block there, a
         # study started again (e.g. after deleting it) would start from that block instead.
         study_and_save(study, args.out / "workers")
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if chosen is None:
+        (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print_summary(summary, args.rank_by)
 
 

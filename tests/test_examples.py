@@ -123,6 +123,32 @@ def test_equal_effort_tuning_gives_every_method_the_same_share_from_its_bundled_
     assert "| goal | " in result.stdout
 
 
+def test_equal_effort_tuning_runs_only_the_named_studies(tmp_path):
+    import json
+
+    args = ["--n-trials", "1", "--budget-fraction", "0.001", "--n-evaluations", "1", "--eval-episodes", "1"]
+    args += ["--flat", "ddpg", "--only", "ddpg", "--out", str(tmp_path)]
+    result = run_example("equal_effort_tuning.py", args, timeout=600, folder=STUDIES)
+    # One study ran; no worker was trained and no summary of a partial run is written.
+    assert [p.stem for p in (tmp_path / "studies").glob("*.json")] == ["ddpg"]
+    assert len(json.loads((tmp_path / "studies" / "ddpg.json").read_text())["trials"]) == 1
+    assert not (tmp_path / "workers").exists() and not (tmp_path / "summary.json").exists()
+    assert "| ddpg | " in result.stdout
+
+
+def test_equal_effort_tuning_refuses_an_unknown_study_name(tmp_path):
+    import subprocess
+
+    result = subprocess.run(
+        [sys.executable, str(STUDIES / "equal_effort_tuning.py"), "--only", "goal,nope", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 2 and "--only: expected study names" in result.stderr
+    assert "Traceback" not in result.stderr and not any(tmp_path.iterdir())
+
+
 def test_goal_holding_measures_a_worker_and_the_reference_reachers(tmp_path):
     from sb3_hddpg.training.workers import train_workers
 
