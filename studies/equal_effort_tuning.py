@@ -298,6 +298,36 @@ def print_summary(summary: list[dict[str, Any]], rank_by: str) -> None:
         )
 
 
+def selected_studies(
+    args: argparse.Namespace, flat: list[str]
+) -> tuple[list[Study], list[Study], list[Study]]:
+    """
+    The worker, flat and over-the-workers studies to run: all, or ``--only``'s, with the worker studies that
+    a selected study over the workers needs (it is tuned over workers trained from the tuned blocks).
+    """
+    workers, flats = worker_studies(), flat_studies(flat)
+    over_workers = over_workers_studies(args.front_manager)
+    if args.only is None:
+        return workers, flats, over_workers
+    chosen = set(args.only)
+    over_workers = [study for study in over_workers if study.name in chosen]
+    if over_workers:
+        chosen |= {study.name for study in workers}
+    return [s for s in workers if s.name in chosen], [s for s in flats if s.name in chosen], over_workers
+
+
+def start_workers_training(args: argparse.Namespace) -> multiprocessing.process.BaseProcess:
+    """Train the workers from the tuned worker blocks in a process of their own (resumed if begun)."""
+    config = workers_config(args.out, worker_studies())
+    run = RunOptions(timesteps=args.worker_timesteps, seed=args.seed, backend=args.backend, resume=True)
+    trainer = multiprocessing.get_context("spawn").Process(
+        target=train_workers, args=(args.out / "workers",), kwargs={"config": config, "run": run}
+    )
+    print("training the workers with the tuned blocks, beside the flat studies...", flush=True)
+    trainer.start()
+    return trainer
+
+
 def main() -> None:
     args = parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -318,29 +348,14 @@ def main() -> None:
             save_best_config(tuned, target, args.out / study.file, args.rank_by)
         summary.append(summarise(study, target, tuned, args))
 
-    over_workers = over_workers_studies(settings.front_manager)
-    chosen = set(args.only) if args.only is not None else None
-    if chosen is not None:
-        over_workers = [study for study in over_workers if study.name in chosen]
-        if over_workers:  # the managers and HAM are tuned over workers trained from the tuned blocks
-            chosen |= {study.name for study in worker_studies()}
-    for study in worker_studies():
-        if chosen is None or study.name in chosen:
-            study_and_save(study)
-    trainer = None
-    if over_workers:
-        # The workers the managers and HAM are tuned over train (one process, from the tuned blocks) while
-        # the flat studies run, so that no core waits for them.
-        config = workers_config(args.out, worker_studies())
-        run = RunOptions(timesteps=args.worker_timesteps, seed=args.seed, backend=args.backend, resume=True)
-        trainer = multiprocessing.get_context("spawn").Process(
-            target=train_workers, args=(args.out / "workers",), kwargs={"config": config, "run": run}
-        )
-        print("training the workers with the tuned blocks, beside the flat studies...", flush=True)
-        trainer.start()
-    for study in flat_studies(flat):
-        if chosen is None or study.name in chosen:
-            study_and_save(study)
+    workers, flats, over_workers = selected_studies(args, flat)
+    for study in workers:
+        study_and_save(study)
+    # The workers the managers and HAM are tuned over train (one process, from the tuned blocks) while the
+    # flat studies run, so that no core waits for them.
+    trainer = start_workers_training(args) if over_workers else None
+    for study in flats:
+        study_and_save(study)
     if trainer is not None:
         trainer.join()
         if trainer.exitcode != 0:
@@ -349,7 +364,7 @@ def main() -> None:
         # From the bundled manager block, not OUT's: once a manager study has saved its best block there, a
         # study started again (e.g. after deleting it) would start from that block instead.
         study_and_save(study, args.out / "workers")
-    if chosen is None:
+    if args.only is None:
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print_summary(summary, args.rank_by)
 

@@ -140,7 +140,14 @@ def test_equal_effort_tuning_refuses_an_unknown_study_name(tmp_path):
     import subprocess
 
     result = subprocess.run(
-        [sys.executable, str(STUDIES / "equal_effort_tuning.py"), "--only", "goal,nope", "--out", str(tmp_path)],
+        [
+            sys.executable,
+            str(STUDIES / "equal_effort_tuning.py"),
+            "--only",
+            "goal,nope",
+            "--out",
+            str(tmp_path),
+        ],
         capture_output=True,
         text=True,
         timeout=120,
