@@ -260,8 +260,9 @@ def parse_args() -> argparse.Namespace:
     )
     p.add_argument("--out", type=Path, default=Path("runs/equal-tuning"), help="output folder")
     args = p.parse_args()
+    args.flat = [m.strip() for m in args.flat.split(",") if m.strip()]
     if args.only is not None:
-        known = [s.name for s in all_studies(args.flat.split(","), args.front_manager)]
+        known = [s.name for s in all_studies(args.flat, args.front_manager)]
         args.only = [name.strip() for name in args.only.split(",") if name.strip()]
         unknown = sorted(set(args.only) - set(known))
         if unknown or not args.only:
@@ -271,8 +272,7 @@ def parse_args() -> argparse.Namespace:
 
 def all_studies(flat: list[str], front_manager: str) -> list[Study]:
     """Every study of a full run, in its order."""
-    methods = [m.strip() for m in flat if m.strip()]
-    return [*worker_studies(), *flat_studies(methods), *over_workers_studies(front_manager)]
+    return [*worker_studies(), *flat_studies(flat), *over_workers_studies(front_manager)]
 
 
 def print_summary(summary: list[dict[str, Any]], rank_by: str) -> None:
@@ -298,14 +298,12 @@ def print_summary(summary: list[dict[str, Any]], rank_by: str) -> None:
         )
 
 
-def selected_studies(
-    args: argparse.Namespace, flat: list[str]
-) -> tuple[list[Study], list[Study], list[Study]]:
+def selected_studies(args: argparse.Namespace) -> tuple[list[Study], list[Study], list[Study]]:
     """
     The worker, flat and over-the-workers studies to run: all, or ``--only``'s, with the worker studies that
     a selected study over the workers needs (it is tuned over workers trained from the tuned blocks).
     """
-    workers, flats = worker_studies(), flat_studies(flat)
+    workers, flats = worker_studies(), flat_studies(args.flat)
     over_workers = over_workers_studies(args.front_manager)
     if args.only is None:
         return workers, flats, over_workers
@@ -331,10 +329,9 @@ def start_workers_training(args: argparse.Namespace) -> multiprocessing.process.
 def main() -> None:
     args = parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    flat = [m.strip() for m in args.flat.split(",") if m.strip()]
     # The benchmark's own budgets (a flat agent's, a manager's, the front's): what each share is taken of.
     settings = BenchmarkSettings(
-        methods=["hddpg", *flat],
+        methods=["hddpg", *args.flat],
         backend=args.backend,
         worker_timesteps=args.worker_timesteps,
         front_manager=args.front_manager,
@@ -348,7 +345,7 @@ def main() -> None:
             save_best_config(tuned, target, args.out / study.file, args.rank_by)
         summary.append(summarise(study, target, tuned, args))
 
-    workers, flats, over_workers = selected_studies(args, flat)
+    workers, flats, over_workers = selected_studies(args)
     for study in workers:
         study_and_save(study)
     # The workers the managers and HAM are tuned over train (one process, from the tuned blocks) while the

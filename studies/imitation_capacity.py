@@ -94,8 +94,9 @@ class ClonedActor:
 
 def input_scale(text: str) -> torch.Tensor:
     """``"ee_to_goal=30"`` -> the goal view's per-input factors (1 where no component is named)."""
-    env = gym.make("hddpg/SnakeGoal-v0", observe=GOAL_VIEW)
+    env = gym.make("hddpg/SnakeGoal-v0")
     view = state_layout_of(env).view(GOAL_VIEW)
+    env.close()
     factors = torch.ones(view.size)
     for part in filter(None, (piece.strip() for piece in text.split(","))):
         name, _, value = part.partition("=")
