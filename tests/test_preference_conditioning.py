@@ -129,7 +129,7 @@ def test_the_conditioned_wrapper_observes_and_draws_preferences_and_reports_work
 
 
 def test_a_matrix_observation_is_flattened_before_the_weights():
-    from sb3_hddpg.hierarchy.wrapper import with_preference_space
+    from sb3_hddpg.hierarchy.manager_input import with_preference_space
 
     matrix = spaces.Box(-2.0, 2.0, (5, 5), np.float32)  # e.g. highway-env's Kinematics observation
     space = with_preference_space(matrix, 3)
@@ -188,7 +188,7 @@ def test_a_conditioned_bundle_records_its_preferences_and_acts_at_any_of_them_in
         hierarchy.set_preference(preference)
         hierarchy.seed(0)
         expected.append(
-            np.stack([hierarchy._manager.act(hierarchy._manager_input(row)) for row in obs])  # the raw actor
+            np.stack([hierarchy._manager.act(hierarchy._manager_obs(row)) for row in obs])  # the raw actor
         )
     # The preference is an input: the manager's output depends on it.
     assert not np.allclose(expected[0], expected[1])

@@ -275,6 +275,16 @@ _ManagerOptionEndOpt = Annotated[
         "(distance=0.5,touch); --option-steps stays the longest option.",
     ),
 ]
+_ManagerMotionOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--manager-motion",
+        min=0.0,
+        help="The manager also sees how its state moved over the last env step, scaled by this factor and "
+        "clipped to [-1, 1] (e.g. 20 for the snake arm, whose obstacles move by at most 0.0075 of their "
+        "range per step); 0: the state only.",
+    ),
+]
 _ManagerAlgoOpt = Annotated[
     str,
     typer.Option(
@@ -320,6 +330,7 @@ def train_manager_command(
     selection: _ManagerSelectionOpt = None,
     option_steps: _ManagerOptionStepsOpt = None,
     option_end: _ManagerOptionEndOpt = None,
+    manager_motion: _ManagerMotionOpt = None,
     algo: _ManagerAlgoOpt = "ddpg",
     config: _ManagerConfigOpt = None,
     timesteps: _ManagerTimestepsOpt = None,
@@ -372,6 +383,7 @@ def train_manager_command(
         relabel_fraction=0.5 if relabel_fraction is None else relabel_fraction,
         init_from_ham=init_from_ham,
         option_end=option_end,
+        manager_motion=manager_motion,
     )
     setup = _checked_manager_setup(workers_dir, options, backend)
     prepare_out_dir(context, out, resume, force)

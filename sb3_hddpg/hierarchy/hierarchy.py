@@ -44,6 +44,7 @@ from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.bundle import MANIFEST, BundleError, model_bytes, read_bundle, write_bundle
 from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
+from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
 from sb3_hddpg.hierarchy.selection import (
     OptionEnd,
     SelectionConfig,
@@ -52,7 +53,7 @@ from sb3_hddpg.hierarchy.selection import (
     check_selection_settings,
     get_selector,
 )
-from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper, _subset_space, with_preference_space
+from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import Policy
 
 #: The shared env of a hierarchy when neither ``env_id`` is given nor the models' training envs tell.
@@ -125,7 +126,6 @@ class Hierarchy:
         check_spaces(
             manager, self.workers, config, self.observation_space, self.action_space, layout, self._env_name()
         )
-        self._manager_indices = layout.indices(config.manager_state) if config.manager_state else None
         self._frozen = [
             FrozenWorker(w, layout.indices(config.worker_states[n]) if n in config.worker_states else None)
             for n, w in self.workers.items()
@@ -142,8 +142,16 @@ class Hierarchy:
                 config, preferences=self.preference_space.check(config.preferences)
             )
             self._preference_obs = self.preference_space.weights(config.preferences).astype(np.float32)
-        # A conditioned manager's input is built here (state, then weights), so its frozen copy sees it all.
-        self._manager = FrozenWorker(manager, None if self.preference_space else self._manager_indices)
+        self._manager_input = ManagerInput(
+            self.observation_space,
+            layout.indices(config.manager_state) if config.manager_state else None,
+            config.manager_motion,
+            len(self.names) if self.preference_space is not None else 0,
+        )
+        # The manager's input is built here (its state, motion and weights), so its frozen copy sees it all.
+        self._manager = FrozenWorker(manager)
+        #: The last observation ``predict`` saw in this episode (a manager that observes motion needs it).
+        self._previous_obs: np.ndarray | None = None
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
         self._selector = get_selector(config.selection)
         self._rng = np.random.default_rng(0)
@@ -212,20 +220,14 @@ class Hierarchy:
         self._preference_obs = self.preference_space.weights(checked).astype(np.float32)
         self._option_left = 0
 
-    def _manager_input(self, obs: np.ndarray) -> np.ndarray:
-        if self._preference_obs is None:
-            return obs
-        state = obs if self._manager_indices is None else obs[..., self._manager_indices]
-        # One observation has the env's own shape, flattened here as with_preference_space does.
-        single_ndim = len(getattr(self.observation_space, "shape", None) or (0,))
-        batch = state.shape[: max(state.ndim - single_ndim, 0)] if single_ndim else state.shape[:-1]
-        flat = state.reshape(*batch, -1)
-        weights = np.broadcast_to(self._preference_obs, (*batch, len(self._preference_obs)))
-        return np.concatenate([flat, weights], axis=-1).astype(np.float32, copy=False)
+    def _manager_obs(self, obs: np.ndarray, previous: np.ndarray | None = None) -> np.ndarray:
+        """The manager's input for ``obs`` (one or a batch), ``previous`` the state one env step earlier."""
+        return self._manager_input(obs, previous, self._preference_obs)
 
     def reset_episode(self) -> None:
-        """Forget the current option (call at an episode start when ``option_steps > 1``)."""
+        """Forget the current option and the last observation (call at an episode start)."""
         self._option_left = 0
+        self._previous_obs = None
         for worker in self._frozen:
             worker.reset_episode()
 
@@ -258,6 +260,11 @@ class Hierarchy:
         # One observation has the env's own shape (a matrix for highway-env's Kinematics); one more axis is a batch.
         single_ndim = len(getattr(self.observation_space, "shape", None) or (0,))
         if obs.ndim == single_ndim + 1:
+            if self._manager_input.motion:
+                raise ValueError(
+                    "This manager observes motion, which needs one stream of observations: call predict with "
+                    "one observation at a time"
+                )
             # Batched: options apply to a single stream of observations, so each row decides anew.
             actions = [self._act(row, deterministic, keep_option=False) for row in obs]
             return np.stack(actions), None
@@ -268,12 +275,15 @@ class Hierarchy:
         self.last_decided = not keep_option or self._option_left <= 0 or band != self._option_band
         if self.last_decided:
             self._option_band = band
-            self.last_manager_action = self._manager.act(self._manager_input(obs))
+            previous = self._previous_obs if keep_option else None
+            self.last_manager_action = self._manager.act(self._manager_obs(obs, previous))
             probabilities = np.asarray(self._selector.probabilities(self.simplex, self.last_manager_action))
             self._option_probabilities = probabilities
             self._option_choice = self._selector.choose(probabilities, self._rng, deterministic)
             self._option_left = self.config.option_steps
         self._option_left -= 1
+        if keep_option:
+            self._previous_obs = obs
         probabilities, chosen = self._option_probabilities, self._option_choice
         self.last_selection = self.names[chosen]
         self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
@@ -282,8 +292,9 @@ class Hierarchy:
         return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
-        """The manager's worker probabilities for one observation."""
-        action = self._manager.act(self._manager_input(np.asarray(observation, np.float32)))
+        """The manager's worker probabilities for one observation (for a manager that observes motion: with
+        nothing moving)."""
+        action = self._manager.act(self._manager_obs(np.asarray(observation, np.float32)))
         return dict(zip(self.names, self._selector.probabilities(self.simplex, action)))
 
     # ------------------------------------------------------------------ saving
@@ -514,12 +525,15 @@ def check_spaces(
     """
 
     def subset(components: list[str] | None) -> gym.Space:
-        return _subset_space(observation_space, layout.indices(components) if components else None)
+        return subset_space(observation_space, layout.indices(components) if components else None)
 
     manager_action = get_selector(config.selection).action_space(len(workers))
-    manager_obs = subset(config.manager_state)
-    if config.manager_preferences is not None:
-        manager_obs = with_preference_space(manager_obs, len(workers))
+    manager_obs = ManagerInput(
+        observation_space,
+        layout.indices(config.manager_state) if config.manager_state else None,
+        config.manager_motion,
+        len(workers) if config.manager_preferences is not None else 0,
+    ).observation_space
     checks = [("The manager", manager, manager_obs, manager_action, " (one per worker)")]
     checks += [
         (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")

@@ -347,6 +347,8 @@ class SelectionConfig:
         ``None``: a manager for ``preferences`` only.
     :param option_end: options that also end by state (:meth:`OptionEnd.to_json`; ``None``: after
         ``option_steps`` only).
+    :param manager_motion: the manager also observes its state's change over the last env step, scaled by
+        this factor (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`; 0: not).
     """
 
     preferences: dict[str, float]
@@ -360,6 +362,7 @@ class SelectionConfig:
     option_gamma: float = 0.99
     manager_preferences: dict[str, Any] | None = None
     option_end: dict[str, Any] | None = None
+    manager_motion: float = 0.0
 
     def wrapper_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``WorkerSelectionWrapper`` (besides ``env`` and ``workers``)."""
@@ -438,6 +441,7 @@ SELECTION_SETTINGS = (
     "option_gamma",
     "manager_preferences",
     "option_end",
+    "manager_motion",
 )
 
 
@@ -470,6 +474,7 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
         "temperature": (0.0, 1e6, True),
         "floor": (0.0, 1.0 / max(len(names), 1), False),
         "option_gamma": (0.0, 1.0, True),
+        "manager_motion": (0.0, 1e6, False),
     }
     for key, (low, high, low_open) in ranges.items():
         if key in out:

@@ -8,7 +8,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from stable_baselines3.common.utils import check_for_correct_spaces
 
 from sb3_hddpg.artifacts.workers import states_of
@@ -16,6 +15,7 @@ from sb3_hddpg.envs.contract import RewardTermsEnv, env_contract, mix_terms, sta
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
+from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
 from sb3_hddpg.hierarchy.selection import (
     OptionEnd,
     SelectionConfig,
@@ -53,7 +53,9 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     the manager ``gamma_manager = gamma_env^k``. ``k = 1`` is the paper's setting and needs no care.
 
     **Observations.** The manager sees the shared state, or the components named in ``manager_state``
-    (names of the env's ``state_layout``, see :func:`~sb3_hddpg.envs.contract.state_layout_of`); each worker
+    (names of the env's ``state_layout``, see :func:`~sb3_hddpg.envs.contract.state_layout_of`), then, with
+    ``manager_motion``, their change over the last env step, then a conditioned manager's preference
+    weights (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`); each worker
     sees its own ``worker_states[name]`` subset (paper design specification 4): by default the components
     it was trained on, which workers from :func:`~sb3_hddpg.artifacts.manifests.load_workers` carry, else
     the whole state.
@@ -98,6 +100,10 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     :param option_end: options that also end by state (an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`
         or its JSON form): the option ends before ``option_steps`` env steps when the state leaves the band it
         was chosen in (``info["option_length"]`` is then shorter). ``None``: after ``option_steps`` only.
+    :param manager_motion: the manager also observes how its state moved over the last env step, scaled by
+        this factor and clipped to [-1, 1] (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`): a
+        threshold on a distance cannot tell an obstacle coming from one going away, a manager that sees
+        motion can. 0: the state only.
     """
 
     def __init__(
@@ -115,6 +121,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         option_gamma: float = 0.99,
         manager_preferences: PreferenceSpace | Mapping[str, Any] | None = None,
         option_end: OptionEnd | Mapping[str, Any] | None = None,
+        manager_motion: float = 0.0,
     ) -> None:
         # help(WorkerSelectionWrapper.__init__) shows this (the class docstring, assigned below), not
         # gymnasium's generic Wrapper.__init__ text.
@@ -135,11 +142,13 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self.option_end: OptionEnd | None = option_end
         self._band = option_end.bind(self.layout) if option_end is not None else None
         self._set_preferences(preferences, manager_preferences)
-        self._set_states(workers, manager_state, worker_states)
+        self._set_states(workers, manager_state, worker_states, manager_motion)
         self._set_workers(pairs, reward_terms, contract)
         self._rng = np.random.default_rng()
         self._preference_rng = np.random.default_rng()
         self._last_obs: np.ndarray | None = None
+        # The shared state one env step before ``_last_obs``, for a manager that observes motion.
+        self._previous_obs: np.ndarray | None = None
 
     def _set_preferences(
         self,
@@ -166,9 +175,10 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         workers: Mapping[str, Policy] | Sequence[tuple[str, Policy]],
         manager_state: Sequence[str] | None,
         worker_states: Mapping[str, Sequence[str]] | None,
+        manager_motion: float,
     ) -> None:
         """The state components the manager and each worker see (the components workers carry by default),
-        and the spaces the manager acts in."""
+        what the manager observes of them, and the spaces the manager acts in."""
         names = self.worker_names
         carried = states_of(workers) if isinstance(workers, Mapping) else {}
         states = {**{n: v for n, v in carried.items() if n in names}, **dict(worker_states or {})}
@@ -177,12 +187,13 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             raise ValueError(f"worker_states names unknown workers {unknown_state_owners}; workers: {names}")
         self.manager_state = list(manager_state) if manager_state is not None else None
         self.worker_states = {name: list(states[name]) for name in states}
-        self._manager_indices = (
-            self.layout.indices(self.manager_state) if self.manager_state is not None else None
+        self.manager_input = ManagerInput(
+            self.env.observation_space,
+            self.layout.indices(self.manager_state) if self.manager_state is not None else None,
+            manager_motion,
+            len(names) if self.preference_space is not None else 0,
         )
-        self.observation_space = _subset_space(self.env.observation_space, self._manager_indices)
-        if self.preference_space is not None:
-            self.observation_space = with_preference_space(self.observation_space, len(names))
+        self.observation_space = self.manager_input.observation_space
         self.action_space = self.selector.action_space(len(names))
 
     def _set_workers(
@@ -201,7 +212,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             _check_worker_spaces(
                 name,
                 worker,
-                _subset_space(self.env.observation_space, indices),
+                subset_space(self.env.observation_space, indices),
                 self.env.action_space,
                 self.layout,
             )
@@ -243,6 +254,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             option_gamma=self.option_gamma,
             manager_preferences=self.preference_space.to_json() if self.preference_space else None,
             option_end=self.option_end.to_json() if self.option_end else None,
+            manager_motion=self.manager_input.motion,
         )
 
     def set_preference(self, preferences: Mapping[str, float] | None = None, **factors: float) -> None:
@@ -277,10 +289,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         )
 
     def _manager_obs(self, obs: np.ndarray) -> np.ndarray:
-        state = obs if self._manager_indices is None else obs[self._manager_indices]
-        if self._preference_obs is None:
-            return state
-        return np.concatenate([state.ravel(), self._preference_obs]).astype(state.dtype, copy=False)
+        return self.manager_input(obs, self._previous_obs, self._preference_obs)
 
     def worker_rewards(self, normalised: Mapping[str, float]) -> list[float]:
         """Each worker's own (unweighted) reward from the normalised terms, in worker order."""
@@ -314,6 +323,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         for worker in self.frozen:
             worker.reset_episode()
         self._last_obs = obs
+        self._previous_obs = None
         return self._manager_obs(obs), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -336,6 +346,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             if start_band is not None and steps and self._band is not None and self._band(obs) != start_band:
                 break  # the state left the band the option was chosen in: decide again
             env_action = self.selector.act(probabilities, chosen, self.frozen, obs)
+            self._previous_obs = obs
             obs, _, terminated, truncated, info = self.env.step(env_action)
             reward, normalised = self.manager_reward(info["reward_terms"])
             total += discount * reward
@@ -357,27 +368,6 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             info["worker_rewards"] = per_worker
             info["preferences"] = dict(self.preferences)
         return self._manager_obs(obs), float(total), terminated, truncated, info
-
-
-def _subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Space[Any]:
-    """The observation space restricted to ``indices`` (``None``: all of it)."""
-    if indices is None:
-        return space
-    if not isinstance(space, spaces.Box):
-        raise ValueError(f"Selecting state components needs a Box observation space, got {space}")
-    return spaces.Box(space.low[indices], space.high[indices], dtype=space.dtype.type)
-
-
-def with_preference_space(space: gym.Space, n_workers: int) -> spaces.Box:
-    """
-    A conditioned manager's observation space: ``space`` flattened (a matrix such as highway-env's
-    Kinematics observation row by row), followed by ``n_workers`` weights in [0, 1].
-    """
-    if not isinstance(space, spaces.Box):
-        raise ValueError(f"A preference-conditioned manager needs a Box observation, got {space}")
-    low = np.concatenate([space.low.ravel(), np.zeros(n_workers)]).astype(space.dtype)
-    high = np.concatenate([space.high.ravel(), np.ones(n_workers)]).astype(space.dtype)
-    return spaces.Box(low, high, dtype=space.dtype.type)
 
 
 def _check_worker_spaces(

@@ -167,6 +167,9 @@ class ManagerOptions:
     :param option_end: options that also end by state: ``"distance=0.5"`` (an obstacle comes within half
         the sensor range or leaves it), ``"touch"`` (the goal is touched or lost), both (``"distance=0.5,touch"``)
         or an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`; ``option_steps`` stays the longest option.
+    :param manager_motion: the manager also observes its state's change over the last env step, scaled by
+        this factor (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`; 0: not; default: the
+        config's).
     """
 
     worker_names: Sequence[str] | None = None
@@ -186,6 +189,7 @@ class ManagerOptions:
     relabel_fraction: float = 0.5
     init_from_ham: float | HamStart | None = None
     option_end: str | OptionEnd | None = None
+    manager_motion: float | None = None
 
 
 #: The arguments of :func:`prepare_manager` after the workers' folder: :class:`ManagerOptions`' fields.
@@ -211,6 +215,7 @@ def prepare_manager(
     relabel_fraction: float | None = None,
     init_from_ham: float | HamStart | None = None,
     option_end: str | OptionEnd | None = None,
+    manager_motion: float | None = None,
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
@@ -298,7 +303,7 @@ def _selection_settings(
             options.preferences,
             options.relabel_fraction,
         )
-    for key in ("selection", "option_steps", "temperature", "floor"):
+    for key in ("selection", "option_steps", "temperature", "floor", "manager_motion"):
         value = getattr(options, key)
         if value is not None:
             wrapper_kwargs[key] = value
