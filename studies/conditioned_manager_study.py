@@ -26,7 +26,14 @@ Variants (each a ``train_manager`` setting; ``--timesteps`` env steps unless the
 - ``dqn``: a DQN manager on ``Discrete(n_workers)`` (SMDP Q-learning over options);
 - ``dqn-ham``: ``dqn`` started from HAM's choices;
 - ``dqn-long``: ``dqn`` with three times the budget;
-- ``dqn-step``: ``dqn`` deciding at every env step (``option_steps=1``), as HAM does.
+- ``dqn-step``: ``dqn`` deciding at every env step (``option_steps=1``), as HAM does;
+- ``dqn-motion``: ``dqn`` that also sees how the state moved over the last env step (``manager_motion=20``):
+  whether an obstacle comes or goes, which no threshold on a distance can tell;
+- ``dqn-wide``: ``dqn`` trained over, and measured at, preferences that reach further towards each end
+  (ratios 1, 2, 4, 8 and 16, 9 preferences), as HAM's threshold sweep runs from the goal worker alone to
+  nearly the avoid worker alone;
+- ``dqn-wide-motion``: both; ``dqn-wide-motion-50`` with motion scaled by 50, ``dqn-wide-motion-k2`` deciding
+  every 2 env steps.
 """
 
 from __future__ import annotations
@@ -59,6 +66,7 @@ from sb3_hddpg.experiments.benchmark.front_points import (
     safe_touch,
     sweep_labels,
 )
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
@@ -77,7 +85,12 @@ class Variant:
     option_end: str | None = None
     budget_factor: int = 1
     option_steps: int | None = None
+    manager_motion: float | None = None
+    sweep: PreferenceSpace = SWEEP
 
+
+#: Each worker in turn weighted 1, 2, 4, 8 and 16 times the other, the factors summing to 2.
+WIDE = PreferenceSpace.parse("ratio-sweep:16", SWEEP.names)
 
 VARIANTS = {
     "box": Variant(),
@@ -88,6 +101,11 @@ VARIANTS = {
     "dqn-ham": Variant(algo="dqn", ham_start=True),
     "dqn-long": Variant(algo="dqn", budget_factor=3),
     "dqn-step": Variant(algo="dqn", option_steps=1),
+    "dqn-motion": Variant(algo="dqn", manager_motion=20.0),
+    "dqn-wide": Variant(algo="dqn", sweep=WIDE),
+    "dqn-wide-motion": Variant(algo="dqn", sweep=WIDE, manager_motion=20.0),
+    "dqn-wide-motion-50": Variant(algo="dqn", sweep=WIDE, manager_motion=50.0),
+    "dqn-wide-motion-k2": Variant(algo="dqn", sweep=WIDE, manager_motion=20.0, option_steps=2),
 }
 
 
@@ -190,10 +208,11 @@ def run_variant(
         workers,
         folder,
         algo=variant.algo,
-        manager_preferences=SWEEP,
+        manager_preferences=variant.sweep,
         init_from_ham=args.ham_start if variant.ham_start else None,
         option_end=variant.option_end,
         option_steps=variant.option_steps,
+        manager_motion=variant.manager_motion,
         run=run,
     )
     seconds = time.perf_counter() - start
@@ -201,8 +220,9 @@ def run_variant(
     env = gym.make(FLAT_ENV_ID)
     try:
         points = []
-        for label, point in zip(sweep_labels(), SWEEP.points):
-            hierarchy.set_preference(dict(zip(SWEEP.names, (float(v) for v in point))))
+        sweep = variant.sweep
+        for label, point in zip(sweep_labels(sweep), sweep.points):
+            hierarchy.set_preference(dict(zip(sweep.names, (float(v) for v in point))))
             points.append(score(hierarchy, env, label, args.episodes))
     finally:
         env.close()

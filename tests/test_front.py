@@ -171,6 +171,20 @@ def test_the_fronts_managers_are_of_one_algorithm_and_budget():
         BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_timesteps=0)
 
 
+def test_the_fronts_sweep_and_motion_are_checked_and_priced():
+    wide = BenchmarkSettings(
+        methods=["hddpg-front"], scenario="front", front_timesteps=1000, front_sweep="ratio-sweep:16", front_motion=20
+    )  # fmt: skip
+    assert (
+        METHOD_REGISTRY["hddpg-front"].cost(wide) == (1 + 9) * 1000
+    )  # 16:1 ... 1:16, and the conditioned one
+    assert wide.front_motion == 20.0
+    for bad in ({"front_sweep": "ratio-sweep:3"}, {"front_sweep": "dirichlet"}, {"front_motion": -1.0},
+                {"front_motion": float("nan")}):  # fmt: skip
+        with pytest.raises(ValueError, match="sweep|motion"):
+            BenchmarkSettings(methods=["hddpg-front"], scenario="front", **bad)
+
+
 def test_benchmark_cli_refuses_an_unknown_front_manager_in_one_line(tmp_path):
     result = run_cli(
         "benchmark", "--scenario", "front", "--front-manager", "ppo2", "--out", str(tmp_path / "b")
@@ -184,14 +198,25 @@ def test_a_front_of_dqn_managers_records_its_algorithm_and_budget(tmp_path):
     settings = BenchmarkSettings(
         methods=["hddpg-front"], seeds=[0], timesteps=120, worker_timesteps=200, eval_episodes=1,
         test_episodes=1, scenario="front", front_manager="dqn", front_timesteps=400,
+        front_sweep="ratio-sweep:16", front_motion=20.0,
     )  # fmt: skip
     results = run_benchmark(settings, tmp_path)
     record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
-    assert record["manager"] == {"algo": "dqn", "env_steps": 400, "backend": "sb3"}
+    assert record["manager"] == {
+        "algo": "dqn", "env_steps": 400, "backend": "sb3", "sweep": "ratio-sweep:16", "motion": 20.0
+    }  # fmt: skip
     assert results["front"]["manager"] == record["manager"]
-    assert "DQN (SB3), 400 env steps each" in (tmp_path / "results.md").read_text()
+    assert (
+        "DQN (SB3), 400 env steps each, over ratio-sweep:16, seeing motion (x20)"
+        in (tmp_path / "results.md").read_text()
+    )
+    # The sweep's extremes, 16:1 and 1:16, are points of the conditioned manager's front.
+    labels = [p["label"] for p in record["front"]["conditioned"]["points"]]
+    assert len(labels) == 9 and labels[0] == "goal=1.882,avoid=0.1176"
     bundle = Hierarchy.load(tmp_path / "seed-0" / "hddpg-front" / "conditioned" / "hierarchy.zip")
     assert type(bundle.manager).__name__ == "DQN"
+    assert bundle.config.manager_motion == 20.0
+    assert bundle.observation_space.shape[0] * 2 + 2 == bundle.manager.observation_space.shape[0]
 
 
 @pytest.mark.slow

@@ -284,6 +284,24 @@ _FrontTimestepsOpt = Annotated[
     ),
 ]
 
+_FrontSweepOpt = Annotated[
+    str,
+    typer.Option(
+        "--front-sweep",
+        help="The preferences the front's managers are trained over and measured at: ratio-sweep (each worker "
+        "weighted 1-4 times the others, 7 preferences) or ratio-sweep:MAX (ratios doubling up to MAX, a power "
+        "of two; ratio-sweep:16 reaches 16:1 and 1:16 with 9 preferences).",
+    ),
+]
+_FrontMotionOpt = Annotated[
+    float,
+    typer.Option(
+        "--front-motion",
+        help="The front's managers also see how their state moved over the last env step, scaled by this "
+        "factor (train-manager --manager-motion); 0: the state only.",
+    ),
+]
+
 
 @app.command("benchmark")
 def benchmark_command(
@@ -316,6 +334,8 @@ def benchmark_command(
     worker_algo: _WorkerAlgoOpt = None,
     front_manager: _FrontManagerOpt = "ddpg",
     front_timesteps: _FrontTimestepsOpt = None,
+    front_sweep: _FrontSweepOpt = "ratio-sweep",
+    front_motion: _FrontMotionOpt = 0.0,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
@@ -328,7 +348,9 @@ def benchmark_command(
     """
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
-    with usage_errors("'--methods' / '--preference' / '--env' / '--front-manager'"):
+    with usage_errors(
+        "'--methods' / '--preference' / '--env' / '--front-manager' / '--front-sweep' / '--front-motion'"
+    ):
         settings = BenchmarkSettings(
             methods=chosen,
             seeds=list(range(seeds)),
@@ -350,6 +372,8 @@ def benchmark_command(
             worker_algo=worker_algo,
             front_manager=front_manager,
             front_timesteps=front_timesteps,
+            front_sweep=front_sweep,
+            front_motion=front_motion,
         )
     redone = _checked_resume(settings, redo, resume)
     address = cluster_address(executor, ray_address)

@@ -231,7 +231,8 @@ _ManagerTrainPreferencesOpt = Annotated[
     typer.Option(
         "--preferences",
         help="Train one manager for every preference: 'ratio-sweep' (each worker weighted 1-4 times the "
-        "others: 4:1 ... 1:4), 'dirichlet' or 'dirichlet:ALPHA', or preferences with one sum separated by "
+        "others: 4:1 ... 1:4), 'ratio-sweep:MAX' (ratios doubling up to MAX, e.g. 16), 'dirichlet' or "
+        "'dirichlet:ALPHA', or preferences with one sum separated by "
         "';' (goal=1.6,avoid=0.4;goal=0.4,avoid=1.6). The manager observes the preference; choose it at "
         "run time with --preference of evaluate, record and plot-selection.",
     ),

@@ -28,6 +28,8 @@ from sb3_hddpg.hierarchy.selection import check_preferences, parse_preferences
 
 #: The ratios of the ``ratio-sweep`` preset: each worker in turn weighted this many times the others.
 RATIO_SWEEP = (1.0, 2.0, 3.0, 4.0)
+#: The largest ratio ``ratio-sweep:MAX`` takes (a weight of 1/1025 is as good as none).
+MAX_SWEEP_RATIO = 1024
 #: The least normalised weight of a ``dirichlet`` space by default (no worker ignored completely).
 DIRICHLET_FLOOR = 0.05
 #: Slack for comparing normalised weights read back from JSON.
@@ -98,6 +100,8 @@ class PreferenceSpace:
 
         - ``ratio-sweep``: every worker in turn weighted 1, 2, 3 and 4 times the others (7 preferences for
           two workers: 4:1, 3:1, 2:1, 1:1, 1:2, 1:3, 1:4);
+        - ``ratio-sweep:MAX``: the ratios double from 1 up to ``MAX``, a power of two from 2 to 1024, to reach
+          further towards each worker alone (``ratio-sweep:16``: 16:1, 8:1, 4:1, 2:1, 1:1, ..., 1:16);
         - ``dirichlet`` or ``dirichlet:ALPHA``: the Dirichlet space;
         - a list of preferences separated by ``;``, e.g. ``goal=1.6,avoid=0.4;goal=0.4,avoid=1.6`` (each
           sums to the same total; names not given get 1).
@@ -110,18 +114,19 @@ class PreferenceSpace:
         names = tuple(names)
         text = text.strip()
         default_total = float(len(names)) if total is None else float(total)
-        if text == "ratio-sweep":
+        kind, _, argument = text.partition(":")
+        if kind == "ratio-sweep":
+            sweep = _sweep_ratios(argument) if argument else RATIO_SWEEP
             ratios = sorted(
                 {
                     tuple(ratio if i == j else 1.0 for j in range(len(names)))
                     for i in range(len(names))
-                    for ratio in RATIO_SWEEP
+                    for ratio in sweep
                 },
                 key=lambda p: [-v / sum(p) for v in p],
             )
             points = tuple(tuple(default_total * v / sum(p) for v in p) for p in ratios)
             return cls(names, "set", default_total, points)
-        kind, _, argument = text.partition(":")
         if kind == "dirichlet":
             try:
                 alpha = float(argument) if argument else 1.0
@@ -135,7 +140,7 @@ class PreferenceSpace:
         ]
         if not parsed:
             raise ValueError(
-                f"Expected ratio-sweep, dirichlet[:ALPHA] or preferences separated by ';', got {text!r}"
+                f"Expected ratio-sweep[:MAX], dirichlet[:ALPHA] or preferences separated by ';', got {text!r}"
             )
         points = tuple(tuple(p[name] for name in names) for p in parsed)
         own_total = sum(points[0]) if total is None else float(total)
@@ -257,3 +262,16 @@ class PreferenceSpace:
             return f"Dirichlet(alpha={self.alpha:g}) over the simplex, weights >= {self.floor:g}, sum {self.total:g}"
         shown = "; ".join(",".join(f"{n}={v:.3g}" for n, v in zip(self.names, p)) for p in self.points)
         return f"{len(self.points)} preferences with sum {self.total:g}: {shown}"
+
+
+def _sweep_ratios(argument: str) -> tuple[float, ...]:
+    """The ratios of ``ratio-sweep:MAX``: 1, 2, 4, ... up to ``MAX``, a power of two in [2, 1024]."""
+    try:
+        largest = int(argument)
+    except ValueError:
+        largest = 0
+    if not 2 <= largest <= MAX_SWEEP_RATIO or largest & (largest - 1):
+        raise ValueError(
+            f"Expected ratio-sweep:MAX with MAX a power of two from 2 to {MAX_SWEEP_RATIO}, got {argument!r:.50}"
+        )
+    return tuple(float(2**k) for k in range(largest.bit_length()))

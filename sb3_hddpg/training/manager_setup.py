@@ -152,7 +152,7 @@ class ManagerOptions:
     :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS` (``ddpg`` is the paper's); its
         bundled config ``zoo_configs/<algo>.yml`` is the default ``config``.
     :param manager_preferences: train one manager for every preference (see
-        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace`): ``"ratio-sweep"``,
+        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace`): ``"ratio-sweep"``, ``"ratio-sweep:16"``,
         ``"dirichlet[:ALPHA]"``, ``"goal=1.6,avoid=0.4;goal=0.4,avoid=1.6"`` or a space. The manager observes
         the normalised preference weights, a preference is drawn every episode, and an off-policy manager
         replays stored steps at other preferences (``PreferenceRelabelingReplayBuffer``). The bundle records

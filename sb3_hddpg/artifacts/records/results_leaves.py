@@ -175,6 +175,10 @@ class FrontManager(TypedDict):
     env_steps: int | None
     #: the backend that trained them (absent from a front recorded before it was kept)
     backend: NotRequired[str | None]
+    #: the preferences they were trained over and measured at (absent before it could change: ratio-sweep)
+    sweep: NotRequired[str]
+    #: their motion scale (absent before they could see motion: 0)
+    motion: NotRequired[float]
 
 
 class SafeTouch(TypedDict):

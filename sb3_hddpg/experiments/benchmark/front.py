@@ -22,6 +22,7 @@ pymoo's against a reference point fixed per env and stated in every record, so r
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -54,7 +55,6 @@ from sb3_hddpg.experiments.benchmark.front_points import (
     FrontPoint,
     FrontSpec,
     env_front,
-    label_factors,
     member_fields,
     non_dominated,
     safe_touch,
@@ -94,12 +94,13 @@ def front_spec(settings: MethodSettings, env: gym.Env) -> FrontSpec:
     """What the front measures on ``env`` (:func:`front_env`): the snake's, or the other env's terms and rule."""
     shared = settings.terms_env
     if shared is None:
-        return SNAKE_FRONT
+        return replace(SNAKE_FRONT, sweep_form=settings.front_sweep)
     # An adapter's time limit is its inner env's (gym.make keeps max_episode_steps for itself).
     steps = env.spec.max_episode_steps if env.spec is not None else None
     steps = steps or getattr(env.unwrapped, "episode_steps", None)
     rule = "ttc" if kinematics_scales(env) is not None else None
-    return env_front(shared.terms, env_contract(env).reward_bounds, steps, rule)
+    spec = env_front(shared.terms, env_contract(env).reward_bounds, steps, rule)
+    return replace(spec, sweep_form=settings.front_sweep)
 
 
 def decision_dependence(
@@ -223,7 +224,7 @@ def _train_managers(
     run, algo = settings.front_run_options(task.seed), settings.front_manager
     shared = settings.terms_env
     # The managers act over the workers in the sweep's order, whatever the manifest's.
-    env_options: dict[str, Any] = {"worker_names": sweep.names}
+    env_options: dict[str, Any] = {"worker_names": sweep.names, "manager_motion": settings.front_motion}
     if shared is not None:
         env_options.update(env_id=shared.env_id, env_kwargs=shared.env_kwargs)
     conditioned, _ = train_manager(
@@ -260,9 +261,11 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
         dependence: dict[str, DecisionFigure | None] = {}
         points = []
         seeds = settings.test_set.seeds(settings.test_episodes or 1)
-        for label in sweep_labels(spec.sweep):
+        # Told the sweep's own factors, not its rounded labels: an extreme of the sweep rounded may lie
+        # just outside the preferences the manager was trained over.
+        for label, point in zip(sweep_labels(spec.sweep), spec.sweep.points):
             hierarchy = Hierarchy.load(run_dir / "conditioned" / "hierarchy.zip")
-            hierarchy.set_preference(label_factors(label))
+            hierarchy.set_preference(dict(zip(spec.sweep.names, point)))
             points.append(_test_point(label, hierarchy, env, settings, spec))
             dependence[label] = decision_dependence(
                 hierarchy, env, seeds, worker=spec.terms[-1], seed=task.seed
@@ -306,6 +309,8 @@ def _manager_fields(settings: MethodSettings, conditioned: Hierarchy) -> FrontMa
         "algo": settings.front_manager,
         "env_steps": run.timesteps * steps if run.timesteps else None,
         "backend": run.backend,
+        "sweep": settings.front_sweep,
+        "motion": settings.front_motion,
     }
 
 
@@ -449,7 +454,8 @@ FRONT_METHOD = "hddpg-front"
 def _front_cost(settings: MethodSettings) -> int:
     # The conditioned manager and one manager per sweep preference, each the front's env steps.
     shared = settings.terms_env
-    sweep = SWEEP if shared is None else PreferenceSpace.parse("ratio-sweep", shared.terms)
+    terms = SWEEP.names if shared is None else shared.terms
+    sweep = PreferenceSpace.parse(settings.front_sweep, terms)
     return (1 + len(sweep.points)) * settings.front_env_steps
 
 
@@ -466,9 +472,10 @@ register_method(
         colour="tab:red",
         description=(
             "the front scenario: a preference-conditioned manager and a manager per preference over the "
-            "ratio sweep (7 preferences for two workers), the env's rule over a threshold sweep (HAM on the "
+            "preference sweep (the ratio sweep's 7 preferences for two workers by default), the env's rule over a threshold sweep (HAM on the "
             "snake arm) and each worker alone, with hypervolumes"
         ),
         config_blocks=_front_blocks,
+        own_settings=("front_manager", "front_timesteps", "front_sweep", "front_motion"),
     )
 )

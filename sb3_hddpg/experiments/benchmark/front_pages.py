@@ -58,10 +58,12 @@ def front_table(front: FrontResults) -> list[str]:
     if manager is not None:
         budget = f", {manager['env_steps']:,} env steps each" if manager["env_steps"] else ""
         backend = f" ({str(manager.get('backend')).upper()})" if manager.get("backend") else ""
+        sweep = f", over {manager['sweep']}" if manager.get("sweep", "ratio-sweep") != "ratio-sweep" else ""
+        motion = f", seeing motion (x{manager['motion']:g})" if manager.get("motion") else ""
         lines.append("")
         lines.append(
             "The front's managers (conditioned and per preference): "
-            f"{manager['algo'].upper()}{backend}{budget}."
+            f"{manager['algo'].upper()}{backend}{budget}{sweep}{motion}."
         )
     references = front.get("references", {})
     if references:

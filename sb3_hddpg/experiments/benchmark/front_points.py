@@ -53,12 +53,15 @@ class FrontSpec:
     :param planes: plane -> its objectives (:data:`Objective`).
     :param references: plane -> its reference point, in the objectives' own units.
     :param rule: the env's hand-written switch whose threshold sweep is a member (``ham``, ``ttc``), if any.
+    :param sweep_form: the preferences the managers are trained over and measured at, as
+        :meth:`PreferenceSpace.parse <sb3_hddpg.hierarchy.conditioning.PreferenceSpace.parse>` reads them.
     """
 
     terms: tuple[str, ...]
     planes: Mapping[str, tuple[Objective, ...]]
     references: Mapping[str, tuple[float, ...]]
     rule: str | None = None
+    sweep_form: str = "ratio-sweep"
     sweep: PreferenceSpace = field(init=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -68,7 +71,7 @@ class FrontSpec:
             raise ValueError(
                 f"Expected a reference per plane {list(self.planes)}, actually: {list(self.references)}"
             )
-        object.__setattr__(self, "sweep", PreferenceSpace.parse("ratio-sweep", self.terms))
+        object.__setattr__(self, "sweep", PreferenceSpace.parse(self.sweep_form, self.terms))
 
     @property
     def members(self) -> tuple[str, ...]:

@@ -34,6 +34,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     method_key,
     split_key,
 )
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import backend_for, check_algo, check_backend
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
@@ -148,6 +149,11 @@ class BenchmarkSettings:
         train it).
     :param front_timesteps: the budget of each of the front's managers, in env steps (``None``: the
         manager's, :attr:`manager_env_steps`). A flat agent's default budget does not change with it.
+    :param front_sweep: the preferences the front's conditioned manager is trained over and its front is
+        measured at, one manager per preference beside it: ``ratio-sweep`` (ratios 1 to 4, 7 preferences
+        for two workers) or ``ratio-sweep:MAX`` (ratios doubling up to ``MAX``; ``ratio-sweep:16``: 9).
+    :param front_motion: the front's managers also see how their state moved over the last env step,
+        scaled by this factor (``manager_motion`` of ``train_manager``; 0: not).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -170,10 +176,13 @@ class BenchmarkSettings:
     worker_algo: str | None = None
     front_manager: str = "ddpg"
     front_timesteps: int | None = None
+    front_sweep: str = "ratio-sweep"
+    front_motion: float = 0.0
 
     def __post_init__(self) -> None:
         self._check_methods()
         self._check_front_manager()
+        self._check_front_inputs()
         if self.env is not None:
             self._check_env()
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
@@ -231,6 +240,20 @@ class BenchmarkSettings:
             raise ValueError(
                 f"Expected the front's manager among {list(managers)}, actually: {self.front_manager!r}"
             )
+
+    def _check_front_inputs(self) -> None:
+        """The front's sweep, a ``ratio-sweep`` form (any env's terms take it), and its managers' motion scale."""
+        if self.front_sweep.partition(":")[0] != "ratio-sweep":
+            raise ValueError(
+                f"Expected the front's sweep to be ratio-sweep[:MAX], actually: {self.front_sweep!r:.60}"
+            )
+        PreferenceSpace.parse(self.front_sweep, ("a", "b"))  # a bad MAX is refused by name
+        motion = self.front_motion
+        if isinstance(motion, bool) or not isinstance(motion, (int, float)) or not 0 <= motion < math.inf:
+            raise ValueError(
+                f"Expected the front's motion scale to be a finite number >= 0, actually: {motion!r}"
+            )
+        self.front_motion = float(motion)
 
     def _check_transfer(self) -> None:
         """The transfer scenario's preferences (written one way) and methods: hddpg and flat agents."""
