@@ -209,7 +209,12 @@ def test_own_manager_runs_the_readme_snippet_over_loaded_workers(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("budget", "variants"), [("env-40k", "dqn,dqn-ham,box"), ("env-160k", "dqn,dqn-ham,dqn-long,dqn-step")]
+    ("budget", "variants"),
+    [
+        ("env-40k", "dqn,dqn-ham,box"),
+        ("env-160k", "dqn,dqn-ham,dqn-long,dqn-step"),
+        ("settled-workers", "dqn,dqn-motion,dqn-wide,dqn-wide-motion,dqn-wide-motion-50,dqn-wide-motion-k2"),
+    ],
 )
 def test_the_shipped_conditioned_manager_study_reports_regenerate_from_their_records(
     tmp_path, budget, variants

@@ -181,7 +181,7 @@ def test_the_fronts_sweep_and_motion_are_checked_and_priced():
     assert wide.front_motion == 20.0
     for bad in ({"front_sweep": "ratio-sweep:3"}, {"front_sweep": "dirichlet"}, {"front_motion": -1.0},
                 {"front_motion": float("nan")}):  # fmt: skip
-        with pytest.raises(ValueError, match="sweep|motion"):
+        with pytest.raises(ValueError, match=r"sweep|motion"):
             BenchmarkSettings(methods=["hddpg-front"], scenario="front", **bad)
 
 
