@@ -20,6 +20,10 @@ too short: give budgets that let the baseline reach it.
     python benchmarks/time_to_skill.py --learners ddpg:sb3,ddpg:sbx,crossq:sbx,sac:sbx,tqc:sbx \
         [--seeds 5] [--timesteps 150000] [--eval-freq 5000] [--eval-episodes 10] [--out DIR]
 
+With ``--stop-at-skill`` a run ends as soon as the skill has held for ``--hold`` evaluations, so the
+measurement costs what the wait does; each run's final model is then the model at that point (its
+development score says what the skill is worth, not what the whole budget would have made).
+
 A finished run's result is kept in ``--out`` and reused, so an interrupted measurement continues where it
 stopped; wall-clock figures are comparable only within one uninterrupted measurement.
 """
@@ -158,16 +162,35 @@ def run_one(learner: Learner, seed: int, args: dict[str, Any]) -> dict[str, Any]
 
     from sb3_hddpg.training.workers import train_workers
 
+    history_path = out / "evaluations" / f"{worker}.json"
+
     class Clock(BaseCallback):
-        """Seconds since the run started at every evaluation (called after the evaluator on each step)."""
+        """
+        Seconds since the run started at every evaluation (called after the evaluator on each step); with
+        ``stop_at_skill``, it ends the run once the evaluations written so far show the skill held.
+        """
 
         def __init__(self) -> None:
             super().__init__()
             self.seen: dict[int, float] = {}
+            self.evaluations = 0
 
         def _on_step(self) -> bool:
             self.seen.setdefault(int(self.model.num_timesteps), time.perf_counter() - started)
-            return True
+            if (
+                not args["stop_at_skill"]
+                or self.model.num_timesteps % args["eval_freq"]
+                or not history_path.exists()
+            ):
+                return True
+            history = json.loads(history_path.read_text())
+            if len(history) == self.evaluations:
+                return True
+            self.evaluations = len(history)
+            steps, _ = time_to_skill(
+                history, self.seen, args["threshold"], args["hold"], worker, args["max_saturation"]
+            )
+            return steps is None
 
     clock = Clock()
     manifest = train_workers(
@@ -197,6 +220,7 @@ def run_one(learner: Learner, seed: int, args: dict[str, Any]) -> dict[str, Any]
         "backend": backend,
         **({"config": learner.config} if learner.config else {}),
         "seed": seed,
+        "stopped_at_skill": bool(args["stop_at_skill"]),
         "reached": steps is not None,
         "steps": steps if steps is not None else int(manifest["workers"][worker]["timesteps_trained"]),
         "seconds": seconds,
@@ -367,6 +391,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--hold", type=int, default=1, help="Evaluations in a row that must hold it.")
     parser.add_argument(
+        "--stop-at-skill",
+        action="store_true",
+        help="End each run once the skill holds (its final model is then the model at that point).",
+    )
+    parser.add_argument(
         "--config", default=None, help="A zoo_configs file (default: each algorithm's bundled one)."
     )
     parser.add_argument(
@@ -422,6 +451,7 @@ def main(argv: list[str] | None = None) -> int:
             "hold",
             "worker",
             "max_saturation",
+            "stop_at_skill",
         )
     }
     # Seed by seed, every learner in turn: drift on the machine touches them alike.

@@ -95,6 +95,20 @@ def test_script_runs_on_a_tiny_budget(tmp_path):
     assert (out / "report.md").read_text() == report
 
 
+@pytest.mark.slow  # one tiny training run in a fresh process
+def test_a_run_stops_once_the_skill_holds(tmp_path):
+    tts = _module()
+    out = tmp_path / "tts"
+    argv = ["--learners", "ddpg:sb3", "--seeds", "1", "--timesteps", "600", "--eval-freq", "60", "--hold", "2"]
+    argv += ["--eval-episodes", "1", "--development-episodes", "1", "--threshold", "0", "--out", str(out)]
+    assert tts.main([*argv, "--stop-at-skill"]) == 0
+    result = json.loads((out / "ddpg-sb3" / "seed-0" / "result.json").read_text())
+    # Every evaluation holds a threshold of 0: the skill holds from the first, and the second ends the run.
+    assert result["stopped_at_skill"] and result["reached"] and result["steps"] == 60
+    assert [e["timesteps"] for e in result["curve"]][:2] == [60, 120]
+    assert len(result["curve"]) <= 3  # the closing evaluation at most, not ten
+
+
 @pytest.mark.parametrize(
     "study",
     sorted(p.parent.name for p in (SCRIPT.parent.parent / "docs/results/workers").glob("*/report.md")),
