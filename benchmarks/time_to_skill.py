@@ -320,12 +320,16 @@ def plot_curves(out: Path, learners: list[Learner], path: Path, worker: str = "g
     from sb3_hddpg.algorithms import algorithm
 
     figure, axes = plt.subplots(1, 3, figsize=(15, 4), constrained_layout=True)
-    # A bundled block in its algorithm's colour; a block of its own file in a colour no other learner has.
-    colours = {learner.label: algorithm(learner.algo).colour for learner in learners if not learner.config}
+    # A bundled block in its algorithm's colour, the first backend of it only; another backend of the same
+    # algorithm, or a block of its own file, in a colour no other learner has.
+    colours: dict[str, str] = {}
+    for learner in learners:
+        own = algorithm(learner.algo).colour
+        if not learner.config and own not in colours.values():
+            colours[learner.label] = own
     spare = iter(c for c in matplotlib.colors.TABLEAU_COLORS if c not in colours.values())
     for learner in learners:
-        if learner.config:
-            colours[learner.label] = next(spare, "black")
+        colours.setdefault(learner.label, next(spare, "black"))
     for learner in learners:
         runs = [
             json.loads(history.read_text())
