@@ -55,6 +55,23 @@ def test_ratio_sweep_keeps_the_sum_and_varies_the_ratio():
         space.check({"goal": 0.1, "avoid": 1.9})
 
 
+def test_a_wider_sweep_doubles_its_ratios_and_takes_its_own_rounded_labels():
+    from sb3_hddpg.experiments.benchmark.front_points import label_factors, sweep_labels
+
+    space = PreferenceSpace.parse("ratio-sweep:16", NAMES)
+    ratios = sorted(round(p[0] / p[1], 4) for p in space.points)
+    assert ratios == [0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0]
+    assert all(sum(p) == pytest.approx(2.0) for p in space.points)
+    # Every label, as tables print it (4 significant digits), is a preference the manager was trained over.
+    for label, point in zip(sweep_labels(space), space.points):
+        assert space.check(label_factors(label)) == pytest.approx(dict(zip(NAMES, point)), rel=1e-3)
+    with pytest.raises(PreferenceOutsideError):
+        space.check({"goal": 1.9, "avoid": 0.1})  # 19:1, beyond 16:1
+    for text in ("ratio-sweep:3", "ratio-sweep:1", "ratio-sweep:2048", "ratio-sweep:x"):
+        with pytest.raises(ValueError, match="power of two"):
+            PreferenceSpace.parse(text, NAMES)
+
+
 def test_lists_must_share_their_sum_and_dirichlet_draws_within_its_floor():
     with pytest.raises(ValueError, match="must sum to 2"):
         PreferenceSpace.parse("goal=1,avoid=1;goal=1,avoid=4", NAMES)
@@ -214,6 +231,9 @@ def test_a_per_preference_manager_refuses_another_preference(workers):
     hierarchy, _ = train_manager(workers / "w", workers / "plain", preferences={"goal": 0.4, "avoid": 1.6},
                                  seed=5, **TINY)  # fmt: skip
     hierarchy.set_preference(goal=1, avoid=4)  # its own ratio
+    hierarchy.set_preference(goal=0.4001, avoid=1.6)  # its own, as a table rounds it
+    with pytest.raises(PreferenceOutsideError):
+        hierarchy.set_preference(goal=0.41, avoid=1.6)
     with pytest.raises(
         PreferenceOutsideError, match=re.escape("trained for the preference goal=0.4,avoid=1.6 only")
     ):

@@ -34,6 +34,10 @@ MAX_SWEEP_RATIO = 1024
 DIRICHLET_FLOOR = 0.05
 #: Slack for comparing normalised weights read back from JSON.
 _TOLERANCE = 1e-6
+#: Slack for a preference as people write it: the labels of tables and records give each factor to 4
+#: significant digits, which moves a normalised weight by up to about 1e-4 (an extreme of ``ratio-sweep:16``
+#: written ``goal=1.882,avoid=0.1176`` is the trained one, not a preference outside them).
+WRITTEN_SLACK = 2e-4
 
 
 class PreferenceOutsideError(ValueError):
@@ -245,7 +249,7 @@ class PreferenceSpace:
         checked = check_preferences(filled, list(self.names))
         weights = self.weights(checked)
         low, high = self.bounds()
-        if np.any(weights < low - _TOLERANCE) or np.any(weights > high + _TOLERANCE):
+        if np.any(weights < low - WRITTEN_SLACK) or np.any(weights > high + WRITTEN_SLACK):
             shown = ",".join(f"{name}={checked[name]:g}" for name in self.names)
             trained = ", ".join(
                 f"{name} in [{lo:.3g}, {hi:.3g}]" for name, lo, hi in zip(self.names, low, high)

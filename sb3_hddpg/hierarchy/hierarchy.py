@@ -42,7 +42,7 @@ from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.bundle import MANIFEST, BundleError, model_bytes, read_bundle, write_bundle
-from sb3_hddpg.hierarchy.conditioning import PreferenceOutsideError, PreferenceSpace
+from sb3_hddpg.hierarchy.conditioning import WRITTEN_SLACK, PreferenceOutsideError, PreferenceSpace
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
 from sb3_hddpg.hierarchy.selection import (
@@ -208,7 +208,7 @@ class Hierarchy:
             checked = check_preferences(given, self.names)
             ratio = np.array([checked[n] for n in self.names]) / sum(checked.values())
             trained = np.array([own[n] for n in self.names]) / sum(own.values())
-            if not np.allclose(ratio, trained, atol=1e-6):
+            if not np.allclose(ratio, trained, rtol=0.0, atol=WRITTEN_SLACK):
                 shown = ",".join(f"{n}={own[n]:g}" for n in self.names)
                 raise PreferenceOutsideError(
                     f"This manager was trained for the preference {shown} only; train a conditioned manager "
