@@ -99,8 +99,9 @@ def test_script_runs_on_a_tiny_budget(tmp_path):
 def test_a_run_stops_once_the_skill_holds(tmp_path):
     tts = _module()
     out = tmp_path / "tts"
-    argv = ["--learners", "ddpg:sb3", "--seeds", "1", "--timesteps", "600", "--eval-freq", "60", "--hold", "2"]
-    argv += ["--eval-episodes", "1", "--development-episodes", "1", "--threshold", "0", "--out", str(out)]
+    argv = ["--learners", "ddpg:sb3", "--seeds", "1", "--timesteps", "600", "--eval-freq", "60"]
+    argv += ["--hold", "2", "--eval-episodes", "1", "--development-episodes", "1", "--threshold", "0"]
+    argv += ["--out", str(out)]
     assert tts.main([*argv, "--stop-at-skill"]) == 0
     result = json.loads((out / "ddpg-sb3" / "seed-0" / "result.json").read_text())
     # Every evaluation holds a threshold of 0: the skill holds from the first, and the second ends the run.
