@@ -248,3 +248,31 @@ def test_hand_written_measures_the_controllers_and_the_shipped_table_regenerates
     shipped = ROOT / "docs" / "results" / "hand_written"
     record = json.loads((shipped / "hand_written.json").read_text())
     assert study.report(record) + "\n" == (shipped / "report.md").read_text()
+
+
+def test_confirm_pick_trains_both_blocks_and_reports_the_seed_pairs(tmp_path):
+    import json
+
+    import yaml
+
+    from sb3_hddpg.training.config import default_config
+
+    # The pick: the bundled flat DDPG block with another learning rate, as a study writes it.
+    config = yaml.safe_load(default_config("ddpg").read_text())
+    config["hddpg/SnakeReach-v0"]["learning_rate"] = 3e-4
+    pick = tmp_path / "ddpg.yml"
+    pick.write_text(yaml.safe_dump(config))
+    out = tmp_path / "confirm"
+    args = ["--method", "ddpg", "--pick", str(pick), "--seeds", "1", "--timesteps", "200", "--backend", "sb3"]
+    result = run_example("confirm_pick.py", [*args, "--n-jobs", "2", "--out", str(out)], folder=STUDIES)
+    records = {
+        arm: json.loads((out / arm / "seed-0" / "record.json").read_text()) for arm in ("base", "pick")
+    }
+    assert records["pick"]["config"] == str(pick) and records["base"]["config"] is None
+    assert {r["test_episode_set"]["name"] for r in records.values()} == {"development"}
+    assert "| 0 |" in result.stdout and "seed pairs and" in result.stdout
+    # The report regenerates from the records alone.
+    again = run_example(
+        "confirm_pick.py", ["--method", "ddpg", "--report-only", "--out", str(out)], folder=STUDIES
+    )
+    assert again.stdout == result.stdout
