@@ -137,6 +137,12 @@ def test_a_loaded_bundle_decides_as_the_manager_did_in_training(workers, tmp_pat
     assert inputs_moved >= 10
     with pytest.raises(ValueError, match="one observation at a time"):
         loaded.predict(np.stack([obs, obs]))
+    # A batch of one, as SB3's evaluate_policy gives on one env, is the same stream.
+    loaded.reset_episode()
+    first, _ = loaded.predict(obs)
+    loaded.reset_episode()
+    batched, _ = loaded.predict(obs[None])
+    assert batched.shape == (1, *first.shape) and np.allclose(batched[0], first)
 
 
 def test_a_bad_motion_setting_is_refused_by_name(workers, tmp_path):

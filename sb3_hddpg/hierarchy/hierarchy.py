@@ -246,7 +246,8 @@ class Hierarchy:
         The action of the selected worker, like SB3's ``predict``.
 
         :param observation: the shared state, of the env's observation shape (``(obs_dim,)`` for the snake), or a
-            batch of them (one more leading axis).
+            batch of them (one more leading axis), each row deciding anew. A manager that observes motion
+            needs one stream of observations: one at a time, or batches of one.
         :param state: unused (no recurrent state), for SB3 compatibility.
         :param episode_start: for SB3 compatibility; a true entry ends the current option.
         :param deterministic: the most probable worker (``True``) or one sampled from the probabilities. An
@@ -261,6 +262,9 @@ class Hierarchy:
         single_ndim = len(getattr(self.observation_space, "shape", None) or (0,))
         if obs.ndim == single_ndim + 1:
             if self._manager_input.motion:
+                # A batch of one (SB3's evaluate_policy on one env) is the stream itself.
+                if len(obs) == 1:
+                    return self._act(obs[0], deterministic, keep_option=True)[None], None
                 raise ValueError(
                     "This manager observes motion, which needs one stream of observations: call predict with "
                     "one observation at a time"
