@@ -378,14 +378,9 @@ def benchmark_command(
     redone = _checked_resume(settings, redo, resume)
     address = cluster_address(executor, ray_address)
     prepare_out_dir(context, out, resume, force)
+    printer = _event_printer(time.perf_counter())
     results = run_benchmark(
-        settings,
-        out,
-        n_jobs=n_jobs,
-        resume=resume,
-        on_event=_event_printer(time.perf_counter()),
-        ray_address=address,
-        redo=redone,
+        settings, out, n_jobs=n_jobs, resume=resume, on_event=printer, ray_address=address, redo=redone
     )
     _print_results(results, out, export_dir)
 
