@@ -18,18 +18,9 @@ from sb3_hddpg.hierarchy.selection import check_selection_settings
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.workers import train_workers
 from tests.cli_runner import run_cli
+from tests.helpers import ConstantWorker
 
 SCALE = 20.0
-
-
-class _Sweep:
-    """A worker that swings the arm, so that the state moves."""
-
-    def __init__(self, sign):
-        self.sign = sign
-
-    def predict(self, obs, deterministic=True):
-        return np.full(6, self.sign, np.float32), None
 
 
 def test_the_input_holds_the_state_its_scaled_clipped_change_and_the_weights():
@@ -63,10 +54,9 @@ def test_the_wrapper_shows_the_change_over_the_last_env_step():
     layout = state_layout_of(env)
     state = ["joint_obstacle_vectors", "joint_obstacle_distances"]
     indices = layout.indices(state)
-    wrapper = WorkerSelectionWrapper(
-        env, {"goal": _Sweep(1.0), "avoid": _Sweep(-1.0)}, option_steps=3, manager_state=state,
-        manager_motion=SCALE,
-    )  # fmt: skip
+    # Workers that swing the arm one way or the other, so that the state moves.
+    swinging = {"goal": ConstantWorker(np.full(6, 1.0)), "avoid": ConstantWorker(np.full(6, -1.0))}
+    wrapper = WorkerSelectionWrapper(env, swinging, option_steps=3, manager_state=state, manager_motion=SCALE)
     n = len(indices)
     assert wrapper.observation_space.shape == (2 * n,)
     obs, _ = wrapper.reset(seed=3)

@@ -15,6 +15,7 @@ from sb3_hddpg.hierarchy.selection import OptionEnd
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.workers import train_workers
 from tests.cli_runner import run_cli
+from tests.helpers import ConstantWorker
 
 EDGES = "distance=0.2/0.4/0.6/0.8,touch"
 
@@ -32,21 +33,14 @@ def test_the_rule_parses_round_trips_and_refuses_bad_input():
             OptionEnd.from_json(data)
 
 
-class _Sweep:
-    """A worker that swings the arm, so that the clearance changes bands."""
-
-    def __init__(self, sign):
-        self.sign = sign
-
-    def predict(self, obs, deterministic=True):
-        return np.full(6, self.sign, np.float32), None
-
-
 def test_an_option_ends_when_the_state_leaves_its_band():
     env = gym.make("hddpg/SnakeReach-v0")
     band = OptionEnd.parse(EDGES).bind(state_layout_of(env))
     wrapper = WorkerSelectionWrapper(
-        env, {"goal": _Sweep(1.0), "avoid": _Sweep(-1.0)}, option_steps=40, option_end=OptionEnd.parse(EDGES)
+        env,
+        {"goal": ConstantWorker(np.full(6, 1.0)), "avoid": ConstantWorker(np.full(6, -1.0))},
+        option_steps=40,
+        option_end=OptionEnd.parse(EDGES),
     )
     lengths = []
     for episode in range(3):
@@ -62,7 +56,11 @@ def test_an_option_ends_when_the_state_leaves_its_band():
             else:
                 assert band(wrapper._last_obs) == start or done or info["option_length"] == 40
     assert min(lengths) < 40  # some options ended by state
-    plain = WorkerSelectionWrapper(env, {"goal": _Sweep(1.0), "avoid": _Sweep(-1.0)}, option_steps=40)
+    plain = WorkerSelectionWrapper(
+        env,
+        {"goal": ConstantWorker(np.full(6, 1.0)), "avoid": ConstantWorker(np.full(6, -1.0))},
+        option_steps=40,
+    )
     plain.reset(seed=0)
     assert plain.step(np.array([1.0, -1.0], np.float32))[-1]["option_length"] == 40
 
