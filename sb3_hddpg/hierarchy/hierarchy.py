@@ -142,12 +142,7 @@ class Hierarchy:
                 config, preferences=self.preference_space.check(config.preferences)
             )
             self._preference_obs = self.preference_space.weights(config.preferences).astype(np.float32)
-        self._manager_input = ManagerInput(
-            self.observation_space,
-            layout.indices(config.manager_state) if config.manager_state else None,
-            config.manager_motion,
-            len(self.names) if self.preference_space is not None else 0,
-        )
+        self._manager_input = manager_input_of(config, self.observation_space, layout, len(self.names))
         # The manager's input is built here (its state, motion and weights), so its frozen copy sees it all.
         self._manager = FrozenWorker(manager)
         #: The last observation ``predict`` saw in this episode (a manager that observes motion needs it).
@@ -510,6 +505,15 @@ def _training_env(model: object) -> tuple[str, dict[str, Any]] | None:
     return spec.id, kwargs
 
 
+def manager_input_of(
+    config: SelectionConfig, observation_space: gym.Space, layout: StateLayout, n_workers: int
+) -> ManagerInput:
+    """What a manager with these selection settings observes of the shared env's ``observation_space``."""
+    indices = layout.indices(config.manager_state) if config.manager_state else None
+    n_preferences = n_workers if config.manager_preferences is not None else 0
+    return ManagerInput(observation_space, indices, config.manager_motion, n_preferences)
+
+
 def check_spaces(
     manager: Any,
     workers: Mapping[str, Policy],
@@ -532,12 +536,7 @@ def check_spaces(
         return subset_space(observation_space, layout.indices(components) if components else None)
 
     manager_action = get_selector(config.selection).action_space(len(workers))
-    manager_obs = ManagerInput(
-        observation_space,
-        layout.indices(config.manager_state) if config.manager_state else None,
-        config.manager_motion,
-        len(workers) if config.manager_preferences is not None else 0,
-    ).observation_space
+    manager_obs = manager_input_of(config, observation_space, layout, len(workers)).observation_space
     checks = [("The manager", manager, manager_obs, manager_action, " (one per worker)")]
     checks += [
         (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")

@@ -472,8 +472,8 @@ register_method(
         colour="tab:red",
         description=(
             "the front scenario: a preference-conditioned manager and a manager per preference over the "
-            "preference sweep (the ratio sweep's 7 preferences for two workers by default), the env's rule over a threshold sweep (HAM on the "
-            "snake arm) and each worker alone, with hypervolumes"
+            "preference sweep (the ratio sweep's 7 preferences for two workers by default), the env's rule "
+            "over a threshold sweep (HAM on the snake arm) and each worker alone, with hypervolumes"
         ),
         config_blocks=_front_blocks,
         own_settings=("front_manager", "front_timesteps", "front_sweep", "front_motion"),
