@@ -22,9 +22,11 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-#: The flat methods a pick can be confirmed for: the benchmark's method -> (algorithm, config block).
-FLAT_PICKS = {"ddpg": ("ddpg", None), "sac": ("sac", None), "ddpg-her": ("ddpg", "flat-her"),
-              "sac-her": ("sac", "flat-her")}  # fmt: skip
+from sb3_hddpg.experiments.benchmark.methods import FLAT_HER_METHODS
+
+#: The flat methods a pick can be confirmed for: the studies of record's (their algorithm: the method's name,
+#: or for a ``-her`` method the algorithm whose ``flat-her`` block it trains).
+FLAT_PICKS = ("ddpg", "sac", *FLAT_HER_METHODS)
 #: The score compared: the mean reach reward per development episode.
 SCORE = "mean_reach_reward"
 ARMS = ("base", "pick")
@@ -35,13 +37,14 @@ def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[
     from sb3_hddpg.artifacts.io import atomic_write_json
     from sb3_hddpg.experiments.benchmark.methods import final_test
     from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
-    from sb3_hddpg.training.flat import FLAT_ENV_ID, train_flat
+    from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, train_flat
 
     folder = Path(options["out"]) / arm / f"seed-{seed}"
     path = folder / "record.json"
     if path.exists():
         return json.loads(path.read_text())
-    algo, block = FLAT_PICKS[method]
+    algo = FLAT_HER_METHODS.get(method, method)
+    block = FLAT_HER_KEY if method in FLAT_HER_METHODS else None
     settings = BenchmarkSettings(methods=[method], seeds=[seed], backend=options["backend"])
     budget = options["timesteps"] or settings.flat_budget
     train_flat(
