@@ -419,7 +419,7 @@ def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
 
     out, models = tmp_path / "bench", tmp_path / "models"
     methods = "hddpg,hddpg-goal,hddpg-avoid,hddpg-sac,ham,ddpg,td3,sac"
-    args = ("benchmark", "--seeds", "1", "--methods", methods, *TINY, "--n-jobs", "2", "--out", str(out))
+    args = ("benchmark", "--seeds", "1", "--methods", methods, *TINY, "--out", str(out))
     done = cli(*args, "--export-models", str(models))
     assert done.returncode == 0, done.stdout + done.stderr
     results = json.loads((out / "results.json").read_text())

@@ -13,12 +13,20 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats as scipy_stats
 
 from sb3_hddpg.artifacts.records.results_leaves import Summary
+
+
+def _scipy_stats() -> ModuleType:
+    """``scipy.stats``, imported on first use: it takes about a second, which every command would pay at start."""
+    from scipy import stats
+
+    return stats
+
 
 #: A statistic maps a 1-D sample to a number. If it accepts an ``axis`` keyword (as ``np.mean``,
 #: ``np.median`` and :func:`iqm` do) the bootstrap evaluates it on many resamples at once.
@@ -73,7 +81,7 @@ def iqm(values: ArrayLike, axis: int | None = None) -> float | NDArray[np.float6
         array = np.asarray(values, dtype=np.float64)
     if array.shape[axis] == 0:
         raise ValueError("values is empty: at least one value is needed")
-    result = scipy_stats.trim_mean(array, 0.25, axis=axis)
+    result = _scipy_stats().trim_mean(array, 0.25, axis=axis)
     return float(result) if np.ndim(result) == 0 else result
 
 
@@ -109,8 +117,8 @@ def bootstrap_ci(
         return point, point, point
     with warnings.catch_warnings():
         # A statistic that is constant on most resamples makes scipy warn of a degenerate distribution.
-        warnings.simplefilter("ignore", scipy_stats.DegenerateDataWarning)
-        result = scipy_stats.bootstrap(
+        warnings.simplefilter("ignore", _scipy_stats().DegenerateDataWarning)
+        result = _scipy_stats().bootstrap(
             (sample,),
             statistic,
             confidence_level=confidence,
@@ -169,7 +177,7 @@ def probability_of_improvement(a: ArrayLike, b: ArrayLike) -> float:
     first = _as_sample(a, "a")
     second = _as_sample(b, "b")
     # Mann-Whitney's U of the first sample counts the pairs it wins, ties as half.
-    u = scipy_stats.mannwhitneyu(first, second, alternative="two-sided", method="asymptotic").statistic
+    u = _scipy_stats().mannwhitneyu(first, second, alternative="two-sided", method="asymptotic").statistic
     return float(u / (first.size * second.size))
 
 
@@ -191,7 +199,7 @@ def trend_slope(x: ArrayLike, y: ArrayLike) -> float:
         raise ValueError("at least two points are needed for a slope")
     if np.ptp(xs) == 0.0:
         raise ValueError("all x values are equal: the slope is undefined")
-    return float(scipy_stats.linregress(xs, ys).slope)
+    return float(_scipy_stats().linregress(xs, ys).slope)
 
 
 def paired_t_interval(a: ArrayLike, b: ArrayLike, confidence: float = 0.95) -> dict[str, float]:
@@ -223,7 +231,9 @@ def paired_t_interval(a: ArrayLike, b: ArrayLike, confidence: float = 0.95) -> d
         }
     standard_error = float(diff.std(ddof=1) / np.sqrt(n))
     # Identical differences: certain unless they are all 0 (the t statistic is undefined there).
-    p_value = float(point == 0) if standard_error == 0 else float(scipy_stats.ttest_rel(first, second).pvalue)
+    p_value = (
+        float(point == 0) if standard_error == 0 else float(_scipy_stats().ttest_rel(first, second).pvalue)
+    )
     low, high = t_interval(point, standard_error, n, confidence)
     return {
         "difference": point,
@@ -243,7 +253,7 @@ def t_interval(mean: float, standard_error: float, n: int, confidence: float = 0
     _check_confidence(confidence)
     if n < 2 or not np.isfinite(standard_error):
         return -np.inf, np.inf
-    half = float(scipy_stats.t.ppf(0.5 + confidence / 2, n - 1)) * standard_error
+    half = float(_scipy_stats().t.ppf(0.5 + confidence / 2, n - 1)) * standard_error
     return mean - half, mean + half
 
 
