@@ -1,11 +1,17 @@
 """
-Confirm a tuning study's pick for a flat agent at the full budget before it replaces the bundled block
-(docs/TUNING.md): the bundled block and the study's written config trained side by side, the benchmark's way
-(its flat budget, run options and kept model), over several seeds, each kept model scored on the
-development episodes. A pick replaces the bundled block only if it scores higher there.
+Confirm a tuning study's pick at the full budget before it replaces the bundled block (docs/TUNING.md): the
+bundled block and the study's written config trained side by side, the benchmark's way (its budget, run
+options and kept model), over several seeds, each kept model scored on the development episodes. A pick
+replaces the bundled block only if it scores higher there.
 
     python studies/confirm_pick.py --method sac --pick runs/record-studies/sac.yml --seeds 5 --backend sbx \\
         --n-jobs 2 --out runs/confirm-sac
+
+The flat methods train as the benchmark's flat agents. The managers (``hddpg``: the DDPG manager;
+``hddpg-front``: the front's managers' algorithm, ``--front-manager``, at ``--front-timesteps`` and seeing
+``--front-motion`` as the front's do) train at the unweighted preference, as their studies did, over one
+set of workers (``--workers``, a ``train-workers`` folder): each seed trains another manager over the same
+workers, so the pairs differ by the manager's block and seed alone.
 
 Writes ``OUT/<base|pick>/seed-<s>/record.json`` per run (kept: an interrupted confirmation continues where it
 stopped) and ``OUT/report.md``: per seed the two scores and their difference, the means, and in how many seed
@@ -27,35 +33,34 @@ from sb3_hddpg.experiments.benchmark.methods import FLAT_HER_METHODS
 #: The flat methods a pick can be confirmed for: the studies of record's (their algorithm: the method's name,
 #: or for a ``-her`` method the algorithm whose ``flat-her`` block it trains).
 FLAT_PICKS = ("ddpg", "sac", *FLAT_HER_METHODS)
+#: The managers a pick can be confirmed for (the benchmark's methods that train one).
+MANAGER_PICKS = ("hddpg", "hddpg-front")
 #: The score compared: the mean reach reward per development episode.
 SCORE = "mean_reach_reward"
 ARMS = ("base", "pick")
 
 
 def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[str, Any]) -> dict[str, Any]:
-    """Train one arm's flat agent for one seed as the benchmark does; its development score (kept)."""
+    """Train one arm's agent for one seed as the benchmark does; its development score (kept)."""
     from sb3_hddpg.artifacts.io import atomic_write_json
     from sb3_hddpg.experiments.benchmark.methods import final_test
     from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
-    from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, train_flat
 
     folder = Path(options["out"]) / arm / f"seed-{seed}"
     path = folder / "record.json"
     if path.exists():
         return json.loads(path.read_text())
-    algo = FLAT_HER_METHODS.get(method, method)
-    block = FLAT_HER_KEY if method in FLAT_HER_METHODS else None
-    settings = BenchmarkSettings(methods=[method], seeds=[seed], backend=options["backend"])
-    budget = options["timesteps"] or settings.flat_budget
-    train_flat(
-        folder,
-        algo=algo,
-        config=config,
-        env_id=FLAT_ENV_ID,
-        run=settings.run_options(seed, budget, budget),
-        block=block,
+    settings = BenchmarkSettings(
+        methods=[method],
+        seeds=[seed],
+        backend=options["backend"],
+        front_manager=options["front_manager"],
+        front_timesteps=options["front_timesteps"],
+        front_motion=options["front_motion"],
     )
-    test = final_test(folder / "flat" / f"{algo}.zip", settings)
+    train = train_manager_arm if method in MANAGER_PICKS else train_flat_arm
+    budget, policy = train(method, config, seed, folder, settings, options)
+    test = final_test(policy, settings)
     record = {
         "method": method,
         "arm": arm,
@@ -68,6 +73,46 @@ def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[
     }
     atomic_write_json(path, record)
     return record
+
+
+def train_flat_arm(
+    method: str, config: str | None, seed: int, folder: Path, settings: Any, options: dict[str, Any]
+) -> tuple[int, Path]:
+    """A flat agent as the benchmark trains ``method``: its env steps and its kept model."""
+    from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, train_flat
+
+    algo = FLAT_HER_METHODS.get(method, method)
+    block = FLAT_HER_KEY if method in FLAT_HER_METHODS else None
+    budget = options["timesteps"] or settings.flat_budget
+    train_flat(
+        folder,
+        algo=algo,
+        config=config,
+        env_id=FLAT_ENV_ID,
+        run=settings.run_options(seed, budget, budget),
+        block=block,
+    )
+    return budget, folder / "flat" / f"{algo}.zip"
+
+
+def train_manager_arm(
+    method: str, config: str | None, seed: int, folder: Path, settings: Any, options: dict[str, Any]
+) -> tuple[int, Path]:
+    """A manager as the benchmark trains ``method``'s, at the unweighted preference: its env steps and bundle."""
+    from sb3_hddpg.training.manager import train_manager
+
+    front = method == "hddpg-front"
+    algo = settings.front_manager if front else "ddpg"
+    budget = options["timesteps"] or (settings.front_env_steps if front else settings.manager_env_steps)
+    train_manager(
+        options["workers"],
+        folder / "manager",
+        algo=algo,
+        config=config,
+        manager_motion=settings.front_motion if front else None,
+        run=settings.manager_run_options(seed, algo, budget),
+    )
+    return budget, folder / "manager" / "hierarchy.zip"
 
 
 def report(out: Path, method: str, seeds: int) -> str:
@@ -107,12 +152,21 @@ def report(out: Path, method: str, seeds: int) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--method", required=True, choices=sorted(FLAT_PICKS), help="The flat method.")
+    parser.add_argument(
+        "--method", required=True, choices=sorted((*FLAT_PICKS, *MANAGER_PICKS)), help="The benchmark method."
+    )
     parser.add_argument("--pick", help="The study's written config file (its method's block is the pick).")
     parser.add_argument("--seeds", type=int, default=5, help="Seed pairs (0 .. N-1).")
     parser.add_argument(
-        "--timesteps", type=int, default=None, help="Env steps a run (default: the flat budget)."
+        "--timesteps",
+        type=int,
+        default=None,
+        help="Env steps a run (default: the method's benchmark budget).",
     )
+    parser.add_argument("--workers", help="A manager's workers: a train-workers folder.")
+    parser.add_argument("--front-manager", default="dqn", help="The front's managers' algorithm.")
+    parser.add_argument("--front-timesteps", type=int, default=None, help="The front's managers' env steps.")
+    parser.add_argument("--front-motion", type=float, default=0.0, help="The front's managers' motion scale.")
     parser.add_argument("--backend", default="sbx", help="sb3 or sbx.")
     parser.add_argument("--n-jobs", type=int, default=1, help="Runs at a time.")
     parser.add_argument("--out", type=Path, required=True, help="Results folder (finished runs are kept).")
@@ -125,7 +179,17 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--pick is required unless --report-only")
         if not Path(args.pick).is_file():
             parser.error(f"--pick: no config file {args.pick!r}")
-        options = {"out": str(args.out), "backend": args.backend, "timesteps": args.timesteps}
+        if args.method in MANAGER_PICKS and (args.workers is None or not Path(args.workers).is_dir()):
+            parser.error(f"--workers: {args.method} trains a manager over a train-workers folder")
+        options = {
+            "out": str(args.out),
+            "backend": args.backend,
+            "timesteps": args.timesteps,
+            "workers": args.workers,
+            "front_manager": args.front_manager,
+            "front_timesteps": args.front_timesteps,
+            "front_motion": args.front_motion,
+        }
         jobs = [
             (arm, config, seed)
             for seed in range(args.seeds)

@@ -276,3 +276,42 @@ def test_confirm_pick_trains_both_blocks_and_reports_the_seed_pairs(tmp_path):
         "confirm_pick.py", ["--method", "ddpg", "--report-only", "--out", str(out)], folder=STUDIES
     )
     assert again.stdout == result.stdout
+
+
+def test_confirm_pick_trains_a_managers_block_over_given_workers(tmp_path):
+    import json
+
+    import yaml
+
+    from sb3_hddpg.training.config import default_config
+    from sb3_hddpg.training.workers import train_workers
+
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    train_workers(tmp_path / "w", config=config, timesteps=150, eval_freq=0, eval_episodes=1)
+    # The pick: the bundled DQN manager block with another learning rate, as the front's study writes it.
+    dqn = yaml.safe_load(default_config("dqn").read_text())
+    dqn["manager"]["learning_rate"] = 3e-4
+    pick = tmp_path / "dqn.yml"
+    pick.write_text(yaml.safe_dump(dqn))
+    out = tmp_path / "confirm"
+    args = ["--method", "hddpg-front", "--pick", str(pick), "--workers", str(tmp_path / "w"), "--seeds", "1"]
+    options = ["--timesteps", "200", "--front-motion", "20", "--backend", "sb3", "--out", str(out)]
+    result = run_example("confirm_pick.py", [*args, *options], folder=STUDIES)
+    for arm in ("base", "pick"):
+        record = json.loads((out / arm / "seed-0" / "record.json").read_text())
+        assert record["env_steps"] == 200 and record["test_episode_set"]["name"] == "development"
+    from sb3_hddpg.hierarchy.loading import load_policy
+
+    loaded = load_policy(out / "pick" / "seed-0" / "manager" / "hierarchy.zip")
+    assert type(loaded.policy.manager).__name__ == "DQN"
+    assert loaded.policy.manager.learning_rate == 3e-4
+    assert "seed pairs and" in result.stdout
+    # A manager without its workers is a usage error, before anything trains.
+    script = str(STUDIES / "confirm_pick.py")
+    refused = subprocess.run(
+        [sys.executable, script, "--method", "hddpg", "--pick", str(pick), "--out", str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+    )
+    assert refused.returncode == 2 and "--workers" in refused.stderr and not (tmp_path / "x").exists()
