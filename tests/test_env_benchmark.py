@@ -82,7 +82,7 @@ def test_benchmark_on_highway_end_to_end(tmp_path):
         "--methods",
         methods,
         "--seeds",
-        "1",
+        "2",
         "--timesteps",
         "24",
         "--worker-timesteps",
@@ -124,6 +124,16 @@ def test_benchmark_on_highway_end_to_end(tmp_path):
         "worker:lane",
         "worker:collision",
     }
+    # The docs' tables regenerate from the records, in the env's own terms (no snake columns).
+    page = tmp_path / "page.md"
+    blocks = ("methods", "comparisons-hddpg-dqn", "decides-ttc")
+    page.write_text("".join(f"<!-- generated:bench/{b} -->\n<!-- /generated:bench/{b} -->\n" for b in blocks))
+    reported = run_cli("report", str(out), "--page", str(page))
+    assert reported.returncode == 0, reported.stdout + reported.stderr
+    text = page.read_text()
+    assert "| method | seeds | norm. return: mean [95 % CI] |" in text and "| collision (normalised sum) |" in text
+    assert "| hddpg-dqn vs | norm. return: difference [CI] |" in text and "`ttc-tuned`" in text
+    assert "goal touch" not in text and "| hddpg-dqn | 0 | collision |" in text
     refused = run_cli("benchmark", "--methods", "hddpg,ttc", "--seeds", "1", "--out", str(tmp_path / "s"))
     assert refused.returncode == 2 and "another env" in refused.stderr and "Traceback" not in refused.stderr
 

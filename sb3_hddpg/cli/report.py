@@ -9,7 +9,13 @@ import typer
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import usage_errors
-from sb3_hddpg.experiments.benchmark.pages import TABLES, draw_headline_figures, load_run, update_pages
+from sb3_hddpg.experiments.benchmark.pages import (
+    COMPARISONS,
+    TABLES,
+    draw_headline_figures,
+    load_run,
+    update_pages,
+)
 from sb3_hddpg.experiments.study_export import export_study
 from sb3_hddpg.experiments.study_storage import check_storage_url
 
@@ -43,7 +49,10 @@ def report_command(
     page: Path = typer.Option(
         Path("docs/RESULTS.md"),
         "--page",
-        help=f"The page whose <!-- generated:RUN/NAME --> blocks are rewritten (NAME among {', '.join(TABLES)}).",
+        help=(
+            "The page whose <!-- generated:RUN/NAME --> blocks are rewritten (NAME among "
+            f"{', '.join(TABLES)}, or {COMPARISONS}METHOD for a method of the run)."
+        ),
     ),
     readme: Path | None = typer.Option(
         None,

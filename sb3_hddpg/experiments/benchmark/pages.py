@@ -2,8 +2,9 @@
 The docs' result tables, generated from a benchmark folder's records: ``hddpg-cli report RUN_DIR``.
 
 A page holds each generated table between ``<!-- generated:RUN/NAME -->`` and ``<!-- /generated:RUN/NAME -->``
-(``RUN``: the folder's name, ``NAME``: one of :data:`TABLES`), and the README its one results sentence between
-``<!-- results:start -->`` and ``<!-- results:end -->``; the prose around them only interprets. The results
+(``RUN``: the folder's name, ``NAME``: one of :data:`TABLES`, or ``comparisons-METHOD`` for a method of the
+run), and the README its one results sentence between ``<!-- results:start -->`` and ``<!-- results:end -->``;
+the prose around them only interprets. The results
 come from the records by :func:`~.statistics.compute_results` (with ``episodes.csv``'s rows where the folder
 ships it), so a re-run updates every table, and a test checks that the shipped tables regenerate exactly.
 """
@@ -24,7 +25,7 @@ from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.artifacts.records.results_leaves import Aggregates, Interval, PairedDifference, Summary
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
 from sb3_hddpg.experiments.benchmark.front_pages import decides_table, front_table
-from sb3_hddpg.experiments.benchmark.report import headline_figures
+from sb3_hddpg.experiments.benchmark.report import headline_figures, ttc_dependence_table
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
 from sb3_hddpg.experiments.stats import bootstrap_ci
@@ -96,29 +97,60 @@ def _unit_text(results: BenchmarkResults) -> str:
     aggregate = _aggregates(results)
     episodes = _episodes(results)
     where = f"{episodes['episodes']} {episodes['name']} episodes (seeds {results.test_seeds[0]}-{results.test_seeds[1]})"
+    name = _score_name(results)
     if aggregate["unit"] == "episode":
         return (
-            f"Test on {where} per trained model. Reach reward: rliable's mean and IQM over every (seed, episode) "
+            f"Test on {where} per trained model. {name.capitalize()}: rliable's mean and IQM over every (seed, episode) "
             "score with stratified bootstrap 95 % intervals (seeds resampled within each episode); the other "
             "columns: mean over seeds with a percentile bootstrap 95 % interval."
         )
     return (
         f"Test on {where} per trained model. This run ships per-seed records only (no per-episode data): every "
-        "interval resamples the per-seed means (rliable's stratified bootstrap for the reach reward's mean and "
+        f"interval resamples the per-seed means (rliable's stratified bootstrap for the {name}'s mean and "
         "IQM, a percentile bootstrap for the others), and no episode-level interval or performance profile can "
         "be computed from it."
     )
 
 
+def _terms(results: BenchmarkResults) -> list[str]:
+    """Another env's reward terms, in order (none on the snake arm)."""
+    env = results.settings.get("env")
+    terms = env.get("terms") if isinstance(env, dict) else None
+    return [str(term) for term in terms] if isinstance(terms, list) else []
+
+
+def _score_name(results: BenchmarkResults) -> str:
+    """What the score is called: the snake arm's reach reward, another env's normalised return."""
+    return "norm. return" if _terms(results) else "reach reward"
+
+
 def methods_table(results: BenchmarkResults) -> str:
-    """Per method: the reach reward's mean and IQM with rliable's intervals, touch, contacts, success, choices."""
+    """
+    Per method: the score's mean and IQM with rliable's intervals; on the snake arm touch, contacts and success,
+    on another env each term's return; the worker choices.
+    """
     intervals = _aggregates(results)["intervals"]
+    terms = _terms(results)
+    columns = (
+        [(f"{term}_reach_reward", ".1f", False) for term in terms]
+        if terms
+        else [
+            ("goal_touch_rate", ".1f", True),
+            ("collisions_per_episode", ".2f", False),
+            ("success_rate", ".0f", True),
+        ]
+    )
+    headers = (
+        [f"{term} (normalised sum)" for term in terms]
+        if terms
+        else ["goal touch (% of steps)", "collisions / episode", "success (% of episodes)"]
+    )
     lines = [
         _unit_text(results),
         "",
-        "| method | seeds | reach reward: mean [95 % CI] | IQM [95 % CI] | goal touch (% of steps) "
-        "| collisions / episode | success (% of episodes) | worker choices (test) |",
-        "|---|---|---|---|---|---|---|---|",
+        f"| method | seeds | {_score_name(results)}: mean [95 % CI] | IQM [95 % CI] | {' | '.join(headers)} "
+        "| worker choices (test) |",
+        "|---|---|---|---|" + "---|" * len(headers) + "---|",
     ]
     for method, entry in results.methods.items():
         s = entry.stats
@@ -129,11 +161,7 @@ def methods_table(results: BenchmarkResults) -> str:
             else _interval(s[key]["mean"], s[key], fmt)
             if key in s
             else "-"
-            for key, fmt, percent in (
-                ("goal_touch_rate", ".1f", True),
-                ("collisions_per_episode", ".2f", False),
-                ("success_rate", ".0f", True),
-            )
+            for key, fmt, percent in columns
         ]
         choices = ", ".join(f"{k} {v:.0%}" for k, v in (entry.selection_rate or {}).items()) or "-"
         mean, iqm = aggregate["mean"], aggregate["iqm"]
@@ -168,15 +196,16 @@ def comparisons_table(results: BenchmarkResults, challenger: str) -> str:
     aggregates = _aggregates(results)
     poi = aggregates["probability_of_improvement"]
     unit = "episodes and seeds" if aggregates["unit"] == "episode" else "seeds"
+    snake = not _terms(results)
     lines = [
         f"{m} comparisons per metric in this table. Differences: paired by seed, mean over the {seeds} seeds with "
         f"a Student t interval Bonferroni-adjusted for the {m} comparisons (each at {confidence:.2%}, all {m} "
         f"together at 95 %); bold where it excludes 0. P(A > B): rliable's probability of improvement over "
         f"{unit}, stratified bootstrap 95 % interval (not adjusted).",
         "",
-        f"| {challenger} vs | reach reward: difference [CI] | P({challenger} > B) [95 % CI] "
-        "| collisions / episode: difference [CI] | goal touch (points of %) |",
-        "|---|---|---|---|---|",
+        f"| {challenger} vs | {_score_name(results)}: difference [CI] | P({challenger} > B) [95 % CI] "
+        + ("| collisions / episode: difference [CI] | goal touch (points of %) |" if snake else "|"),
+        "|---|---|---|" + ("---|---|" if snake else ""),
     ]
     for pair, comparison in pairs.items():
         baseline = pair.split(" vs ")[1]
@@ -188,9 +217,10 @@ def comparisons_table(results: BenchmarkResults, challenger: str) -> str:
         touch = results.methods[challenger].stats.get("goal_touch_rate")
         other = results.methods[baseline].stats.get("goal_touch_rate")
         touch_text = f"{100 * (touch['mean'] - other['mean']):+.1f}" if touch and other else "-"
+        snake_cells = f" {collisions} | {touch_text} |" if snake else ""
         lines.append(
             f"| `{baseline}` | {_signed(metrics['mean_reach_reward'])} "
-            f"| {p['value']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}] | {collisions} | {touch_text} |"
+            f"| {p['value']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}] |{snake_cells}"
         )
     return "\n".join(lines)
 
@@ -253,8 +283,6 @@ def _triple(values: tuple[float, ...]) -> str:
 #: Every table a page can hold, by name: ``results -> Markdown``.
 TABLES: dict[str, Callable[[BenchmarkResults], str]] = {
     "methods": methods_table,
-    "comparisons-hddpg": lambda r: comparisons_table(r, "hddpg"),
-    "comparisons-hddpg-sac": lambda r: comparisons_table(r, "hddpg-sac"),
     "per-seed-reach": per_seed_table,
     "per-seed-touch": lambda r: per_seed_table(r, "goal_touch_rate", ".1f", 100.0),
     "per-seed-collisions": lambda r: per_seed_table(r, "collisions_per_episode", ".2f"),
@@ -263,7 +291,10 @@ TABLES: dict[str, Callable[[BenchmarkResults], str]] = {
     "front-decides": lambda r: (
         "\n".join(decides_table(r.front)) if r.front is not None else "(not a front run)"
     ),
+    "decides-ttc": lambda r: "\n".join(ttc_dependence_table(r)[0]) or "(no decisions by time to collision)",
 }
+#: The tables a page can hold besides :data:`TABLES`: one challenger's comparisons, for each method of the run.
+COMPARISONS = "comparisons-"
 
 
 def results_sentence(results: BenchmarkResults, run_name: str) -> str:
@@ -319,6 +350,12 @@ def render_page(
     makers: dict[str, Callable[[], str]] = {
         name: functools.partial(table, results) for name, table in TABLES.items()
     }
+    makers.update(
+        {
+            COMPARISONS + method: functools.partial(comparisons_table, results, method)
+            for method in results.methods
+        }
+    )
     makers.update(extra or {})
 
     def replace(match: re.Match[str]) -> str:

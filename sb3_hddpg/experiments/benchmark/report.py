@@ -183,10 +183,11 @@ def _share_text(value: float | None) -> str:
     return f"{value:.1%}" if value is not None else "-"
 
 
-def _ttc_dependence_lines(results: BenchmarkResults) -> list[str]:
+def ttc_dependence_table(results: BenchmarkResults) -> tuple[list[str], float | None]:
     """
     On highway-env, per method, seed and worker: its share of the decisions made with a car close ahead and
-    with the road clear (the test episodes' ``decisions_by_ttc``), and their ratio.
+    with the road clear (the test episodes' ``decisions_by_ttc``), and their ratio, as a Markdown table (no
+    lines: no method reports them); and the time to collision, in seconds, under which a car is close.
     """
     rows: list[str] = []
     close = None
@@ -201,6 +202,18 @@ def _ttc_dependence_lines(results: BenchmarkResults) -> list[str]:
                     f"({figure['clear_decisions']}) | {f'{ratio:.2f}' if ratio is not None else '-'} |"
                 )
     if not rows:
+        return [], None
+    header = [
+        "| method | seed | worker | share close ahead | share road clear | ratio |",
+        "|---|---|---|---|---|---|",
+    ]
+    return header + rows, close
+
+
+def _ttc_dependence_lines(results: BenchmarkResults) -> list[str]:
+    """:func:`ttc_dependence_table` with the text that says how to read it (none where it is empty)."""
+    table, close = ttc_dependence_table(results)
+    if not table:
         return []
     return [
         "",
@@ -209,9 +222,7 @@ def _ttc_dependence_lines(results: BenchmarkResults) -> list[str]:
         "closing in); decisions counted in brackets. A manager that decides by state gives the safe worker a "
         "ratio well above 1.",
         "",
-        "| method | seed | worker | share close ahead | share road clear | ratio |",
-        "|---|---|---|---|---|---|",
-        *rows,
+        *table,
     ]
 
 

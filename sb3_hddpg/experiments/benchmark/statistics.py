@@ -86,6 +86,9 @@ FINAL_METRICS = (
 )
 
 
+#: The ending of a term's normalised episode sum in a summary (``<term>_reach_reward``).
+TERM_SUM_SUFFIX = "_reach_reward"
+
 #: Steps per unit of the reported learning-curve slopes.
 SLOPE_UNIT = 1000
 
@@ -154,7 +157,15 @@ def test_values(record: JsonObject) -> dict[str, float]:
     rows = record.get("episodes")
     test = seed_metrics(rows) if rows else with_term_sums(record["test"])
     # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
-    return {key: float(test[key]) for key in FINAL_METRICS if key in test}
+    return {key: float(test[key]) for key in (*FINAL_METRICS, *term_sum_keys(test)) if key in test}
+
+
+def term_sum_keys(values: Mapping[str, object]) -> list[str]:
+    """
+    The keys of each reward term's normalised episode sum (``<term>_reach_reward``) among ``values`` that
+    :data:`FINAL_METRICS` does not name: another env's terms, whose sums add up to its normalised return.
+    """
+    return sorted(k for k in values if k.endswith(TERM_SUM_SUFFIX) and k not in FINAL_METRICS)
 
 
 def curve_statistics(history: Sequence[JsonObject], window: int) -> dict[str, float]:
@@ -251,7 +262,13 @@ def method_statistics(
         values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
     stats: dict[str, Summary] = {
         key: summarise([values[s][key] for s in seeds])
-        for key in (*FINAL_METRICS, "curve_mean", "slope", "final_curve_reward")
+        for key in (
+            *FINAL_METRICS,
+            *term_sum_keys(values[seeds[0]]),
+            "curve_mean",
+            "slope",
+            "final_curve_reward",
+        )
         if all(key in values[s] for s in seeds)
     }
     selection = [
