@@ -350,20 +350,17 @@ def render_page(
     makers: dict[str, Callable[[], str]] = {
         name: functools.partial(table, results) for name, table in TABLES.items()
     }
-    makers.update(
-        {
-            COMPARISONS + method: functools.partial(comparisons_table, results, method)
-            for method in results.methods
-        }
-    )
     makers.update(extra or {})
 
     def replace(match: re.Match[str]) -> str:
         run, _, name = match.group("key").partition("/")
         if run != run_name:
             return match.group(0)
+        if name.startswith(COMPARISONS) and name not in makers:
+            makers[name] = functools.partial(comparisons_table, results, name[len(COMPARISONS) :])
         if name not in makers:
-            raise ValueError(f"Unknown generated table {name!r} in a page; choose from {list(makers)}")
+            choices = [*makers, f"{COMPARISONS}METHOD"]
+            raise ValueError(f"Unknown generated table {name!r} in a page; choose from {choices}")
         written.append(name)
         return f"{match.group(1)}{makers[name]()}\n{match.group(4)}"
 
