@@ -131,7 +131,10 @@ def test_benchmark_on_highway_end_to_end(tmp_path):
     reported = run_cli("report", str(out), "--page", str(page))
     assert reported.returncode == 0, reported.stdout + reported.stderr
     text = page.read_text()
-    assert "| method | seeds | norm. return: mean [95 % CI] |" in text and "| collision (normalised sum) |" in text
+    assert (
+        "| method | seeds | norm. return: mean [95 % CI] |" in text
+        and "| collision (normalised sum) |" in text
+    )
     assert "| hddpg-dqn vs | norm. return: difference [CI] |" in text and "`ttc-tuned`" in text
     assert "goal touch" not in text and "| hddpg-dqn | 0 | collision |" in text
     refused = run_cli("benchmark", "--methods", "hddpg,ttc", "--seeds", "1", "--out", str(tmp_path / "s"))

@@ -119,3 +119,35 @@ def test_studies_are_exported_and_summarised(tmp_path):
     page = "<!-- generated:run/studies -->\nold\n<!-- /generated:run/studies -->\n"
     text, written = render_page(page, "run", {}, {"studies": lambda: table})
     assert written == ["studies"] and table in text
+
+
+def test_the_shipped_studies_table_regenerates_from_the_shipped_exports():
+    from sb3_hddpg.experiments.benchmark.pages import update_tuning_page
+
+    record = ROOT / "docs" / "results" / "record"
+    outcome = update_tuning_page(record, ROOT / "docs" / "TUNING.md", check=True)
+    assert outcome["written"] == ["studies"]
+    assert outcome["changed"] == [], "run `hddpg-cli report docs/results/record` to regenerate"
+    names = {path.stem for path in (record / "studies").glob("*.json")}
+    assert {"goal", "avoid", "ddpg", "sac", "ddpg-her", "sac-her", "hddpg", "hddpg-front", "ham"} <= names
+
+
+def test_report_on_study_exports_alone_writes_only_the_tuning_table(tmp_path):
+    run = tmp_path / "studies-run"
+    (run / "studies").mkdir(parents=True)
+    shipped = ROOT / "docs" / "results" / "record" / "studies"
+    for name in ("ddpg", "ham"):
+        (run / "studies" / f"{name}.json").write_text((shipped / f"{name}.json").read_text())
+    page = tmp_path / "tuning.md"
+    page.write_text(
+        "before\n<!-- generated:studies-run/studies -->\nstale\n<!-- /generated:studies-run/studies -->\n"
+    )
+    done = subprocess.run(
+        [*CLI, "report", str(run), "--tuning-page", str(page)], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    text = page.read_text()
+    assert text.startswith("before\n") and "stale" not in text and "| `ddpg` | flat | ddpg |" in text
+    # A folder that is neither a benchmark folder nor holds study exports: one line, exit 2.
+    refused = subprocess.run([*CLI, "report", str(tmp_path / "empty")], capture_output=True, text=True)
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr

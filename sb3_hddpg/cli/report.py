@@ -15,6 +15,7 @@ from sb3_hddpg.experiments.benchmark.pages import (
     draw_headline_figures,
     load_run,
     update_pages,
+    update_tuning_page,
 )
 from sb3_hddpg.experiments.study_export import export_study
 from sb3_hddpg.experiments.study_storage import check_storage_url
@@ -44,7 +45,11 @@ def export_study_command(
 @app.command("report")
 def report_command(
     run: Path = typer.Argument(
-        ..., help="A benchmark folder (its name is RUN in the page's generated blocks)."
+        ...,
+        help=(
+            "A benchmark folder (its name is RUN in the page's generated blocks), or a folder of study exports "
+            "alone (RUN/studies/: only the tuning page's table)."
+        ),
     ),
     page: Path = typer.Option(
         Path("docs/RESULTS.md"),
@@ -74,15 +79,26 @@ def report_command(
     ),
 ) -> None:
     """Regenerate the result tables of a page (and the README's sentence) from a benchmark folder's records."""
+    # A folder of study exports alone (the benchmark they serve has not run): only the tuning page's table.
+    studies_only = (run / "studies").is_dir() and not (run / "benchmark.json").exists()
     with usage_errors("'RUN'"):
-        load_run(run)
+        if not studies_only:
+            load_run(run)
     with usage_errors("'--page' / '--readme'"):
-        for path in (page, readme, tuning_page if (run / "studies").is_dir() else None):
+        pages = (
+            (tuning_page,)
+            if studies_only
+            else (page, readme, tuning_page if (run / "studies").is_dir() else None)
+        )
+        for path in pages:
             if path is not None and not path.is_file():
                 raise FileNotFoundError(f"no such page: {str(path)!r}")
-    outcome = update_pages(
-        run, page, readme, check=check, tuning_page=tuning_page if (run / "studies").is_dir() else None
-    )
+    if studies_only:
+        outcome = update_tuning_page(run, tuning_page, check=check)
+    else:
+        outcome = update_pages(
+            run, page, readme, check=check, tuning_page=tuning_page if (run / "studies").is_dir() else None
+        )
     tables = ", ".join(outcome["written"]) or "none (no generated block of this run in the page)"
     console.print(f"Tables of {run.name}: {tables}")
     if check and outcome["changed"]:
@@ -92,6 +108,6 @@ def report_command(
         raise typer.Exit(1)
     verb = "would change" if check else "rewritten"
     console.print(f"Files {verb}: {', '.join(outcome['changed']) or 'none'}")
-    if figures and not check:
+    if figures and not check and not studies_only:
         drawn = draw_headline_figures(run)
         console.print(f"Figures: {', '.join(str(p) for p in drawn) or 'none (no method runs)'}")

@@ -64,7 +64,8 @@ def study_effort(export: dict[str, Any]) -> dict[str, Any]:
     return {
         "study": export["study"],
         "level": target.get("level"),
-        "algo": target.get("algo", "ddpg"),
+        # HAM's switch trains nothing: it has no algorithm.
+        "algo": "-" if target.get("level") == "ham" else target.get("algo", "ddpg"),
         "complete": states.count("COMPLETE"),
         "pruned": states.count("PRUNED"),
         "steps_per_trial": steps,

@@ -375,6 +375,33 @@ def render_readme(text: str, sentence: str) -> str:
     return f"{text[: start + len(README_START)]}\n{sentence}\n{text[end:]}"
 
 
+def update_tuning_page(run: Path, tuning_page: Path, check: bool = False) -> dict[str, list[str]]:
+    """
+    Regenerate ``tuning_page``'s ``RUN/studies`` block from the study exports of ``run/studies/`` alone: the
+    equal-effort table before the benchmark that the studies serve has run (its folder holds only
+    ``studies/``). Returns as :func:`update_pages` does.
+
+    :raises FileNotFoundError: ``run`` has no ``studies/`` folder.
+    """
+    if not (run / "studies").is_dir():
+        raise FileNotFoundError(f"neither a benchmark folder nor a folder of study exports: {str(run)!r}")
+    studies = {"studies": functools.partial(studies_table, read_exports(run / "studies"))}
+    text = tuning_page.read_text()
+    written: list[str] = []
+
+    def replace(match: re.Match[str]) -> str:
+        if match.group("key") != f"{run.name}/studies":
+            return match.group(0)
+        written.append("studies")
+        return f"{match.group(1)}{studies['studies']()}\n{match.group(4)}"
+
+    new = BLOCK.sub(replace, text)
+    changed = [str(tuning_page)] if new != text else []
+    if changed and not check:
+        _write_text(tuning_page, new)
+    return {"written": written, "changed": changed}
+
+
 def update_pages(
     run: Path, page: Path, readme: Path | None = None, check: bool = False, tuning_page: Path | None = None
 ) -> dict[str, list[str]]:
