@@ -99,18 +99,26 @@ def train_manager_arm(
     method: str, config: str | None, seed: int, folder: Path, settings: Any, options: dict[str, Any]
 ) -> tuple[int, Path]:
     """A manager as the benchmark trains ``method``'s, at the unweighted preference: its env steps and bundle."""
+    from sb3_hddpg.training.config import manager_option_steps
     from sb3_hddpg.training.manager import train_manager
 
     front = method == "hddpg-front"
     algo = settings.front_manager if front else "ddpg"
     budget = options["timesteps"] or (settings.front_env_steps if front else settings.manager_env_steps)
+    # The same env steps for both arms, as in the study's trials: a block's decisions are the budget over its
+    # own option_steps (a pick may change them), and so are its evaluation periods.
+    option_steps = manager_option_steps(config, algo)
+    run = settings.manager_run_options(seed, algo, budget).replace(
+        timesteps=max(budget // option_steps, 1),
+        eval_freq=max(settings.eval_freq_for(budget) // option_steps, 1),
+    )
     train_manager(
         options["workers"],
         folder / "manager",
         algo=algo,
         config=config,
         manager_motion=settings.front_motion if front else None,
-        run=settings.manager_run_options(seed, algo, budget),
+        run=run,
     )
     return budget, folder / "manager" / "hierarchy.zip"
 

@@ -292,6 +292,8 @@ def test_confirm_pick_trains_a_managers_block_over_given_workers(tmp_path):
     # The pick: the bundled DQN manager block with another learning rate, as the front's study writes it.
     dqn = yaml.safe_load(default_config("dqn").read_text())
     dqn["manager"]["learning_rate"] = 3e-4
+    base_steps = dqn["manager"]["wrapper_kwargs"]["option_steps"]
+    dqn["manager"]["wrapper_kwargs"]["option_steps"] = 2 * base_steps
     pick = tmp_path / "dqn.yml"
     pick.write_text(yaml.safe_dump(dqn))
     out = tmp_path / "confirm"
@@ -306,6 +308,14 @@ def test_confirm_pick_trains_a_managers_block_over_given_workers(tmp_path):
     loaded = load_policy(out / "pick" / "seed-0" / "manager" / "hierarchy.zip")
     assert type(loaded.policy.manager).__name__ == "DQN"
     assert loaded.policy.manager.learning_rate == 3e-4
+    # Both arms get the same env steps: the pick's longer options make half as many decisions.
+    decisions = {
+        arm: json.loads((out / arm / "seed-0" / "manager" / "evaluations" / "manager.json").read_text())[-1]
+        for arm in ("base", "pick")
+    }
+    # SB3 rounds a run up to whole rollouts of train_freq decisions: the env steps match to within one.
+    assert decisions["base"]["timesteps"] * base_steps == pytest.approx(200, rel=0.15)
+    assert decisions["pick"]["timesteps"] * 2 * base_steps == pytest.approx(200, rel=0.15)
     assert "seed pairs and" in result.stdout
     # A manager without its workers is a usage error, before anything trains.
     script = str(STUDIES / "confirm_pick.py")
