@@ -27,7 +27,9 @@ def test_bundled_config_has_every_env_and_the_manager():
     assert avoid.algo_kwargs["policy_kwargs"] == {"net_arch": [64, 64]}
     assert goal.noise_type == "normal" and goal.n_timesteps > 0
     manager = load_hyperparams("manager", DDPG, manager=True)
-    assert manager.wrapper_kwargs["selection"] == "argmax"
+    # The bundled manager block is the confirmed pick of its study: sampled selection over 8-step options.
+    assert manager.wrapper_kwargs["selection"] == "mix" and manager.wrapper_kwargs["option_steps"] == 8
+    assert manager.n_timesteps * manager.wrapper_kwargs["option_steps"] == 40_000  # the manager's env steps
 
 
 def test_env_block_replaces_default_like_rl_zoo(tmp_path):

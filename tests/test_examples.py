@@ -325,3 +325,15 @@ def test_confirm_pick_trains_a_managers_block_over_given_workers(tmp_path):
         text=True,
     )
     assert refused.returncode == 2 and "--workers" in refused.stderr and not (tmp_path / "x").exists()
+
+
+def test_the_shipped_confirmations_regenerate_from_their_records(tmp_path):
+    import shutil
+
+    for shipped in sorted((ROOT / "docs" / "results" / "record" / "confirmations").iterdir()):
+        copy = tmp_path / shipped.name
+        shutil.copytree(shipped, copy)
+        seeds = len(list((copy / "base").glob("seed-*")))
+        args = ["--method", shipped.name, "--report-only", "--seeds", str(seeds), "--out", str(copy)]
+        run_example("confirm_pick.py", args, folder=STUDIES)
+        assert (copy / "report.md").read_text() == (shipped / "report.md").read_text(), shipped.name
