@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from stable_baselines3 import DDPG
 
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
@@ -27,7 +28,7 @@ from sb3_hddpg.experiments.benchmark import (
     task_cost,
     write_outputs,
 )
-from sb3_hddpg.training.config import manager_option_steps
+from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
 from tests.cli_runner import CLI
 
 REPO = Path(__file__).resolve().parents[1]
@@ -142,10 +143,10 @@ def test_settings_reject_unknown_methods_and_default_to_equal_total_steps(per_st
 
 
 def test_settings_default_to_the_configs_budgets():
-    # The bundled config: goal and avoid worker 150k each, the manager 10000 decisions of 4 env steps (40k env
+    # The bundled config: goal and avoid worker 150k each, the manager 5000 decisions of 8 env steps (40k env
     # steps); a flat agent gets the sum.
     settings = BenchmarkSettings(methods=["hddpg", "ddpg"])
-    assert settings.timesteps == 10_000 and settings.option_steps == 4 and settings.worker_timesteps is None
+    assert settings.timesteps == 5_000 and settings.option_steps == 8 and settings.worker_timesteps is None
     assert settings.manager_env_steps == 40_000 and task_cost(Task("hddpg", 0), settings) == 40_000
     assert settings.workers_budget == 300_000 and settings.flat_budget == 340_000
     assert task_cost(Task("workers", 0), settings) == 300_000
@@ -282,9 +283,12 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     rows = list(csv.DictReader((out / "evaluations.csv").read_text().splitlines()))
     hddpg_curve = [r for r in rows if r["method"] == "hddpg" and r["kind"] == "curve" and r["seed"] == "0"]
     # A point every 100 env steps, i.e. every 100 // k decisions, and one at the end (training always ends
-    # with an evaluation), each offset by the workers' steps.
+    # with an evaluation), each offset by the workers' steps. SB3 runs whole rollouts of train_freq decisions:
+    # the 200 decisions end at the first rollout at or past them.
+    rollout = int(load_hyperparams(MANAGER_KEY, DDPG, manager=True).algo_kwargs["train_freq"])
+    decisions = -(-200 // rollout) * rollout
     offsets = [int(r["total_timesteps"]) - int(r["timesteps"]) for r in hddpg_curve]
-    assert offsets == [204] * -(-200 // max(100 // k, 1))
+    assert offsets == [204] * -(-decisions // max(100 // k, 1))
 
     # An occupied folder is refused without --resume or --force.
     refused = cli(*args)

@@ -169,7 +169,13 @@ def test_training_metrics_and_selection_are_reported(trained):
     _, _, hierarchy, outcome = trained
     assert set(outcome.metrics["selection_rate"]) == {"goal", "avoid"}
     assert sum(outcome.metrics["selection_rate"].values()) == pytest.approx(1.0)
-    assert outcome.num_timesteps == 400
+    # SB3 runs whole rollouts of train_freq decisions, so a run ends at the first rollout at or past 400.
+    from stable_baselines3 import DDPG
+
+    from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
+
+    rollout = int(load_hyperparams(MANAGER_KEY, DDPG, manager=True).algo_kwargs["train_freq"])
+    assert outcome.num_timesteps == -(-400 // rollout) * rollout
 
 
 def test_parallel_envs_in_subprocesses(tmp_path):

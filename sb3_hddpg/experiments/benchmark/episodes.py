@@ -67,6 +67,14 @@ def episode_rows(result: EvaluationResult, bounds: Mapping[str, Sequence[float]]
     return rows
 
 
+def term_sum_keys(values: Iterable[str]) -> list[str]:
+    """
+    The keys among ``values`` of each reward term's normalised episode sum (``<term>_reach_reward``, as
+    :func:`seed_metrics` names them): on another env they add up to its normalised return.
+    """
+    return sorted(k for k in values if k.endswith("_reach_reward") and k != "mean_reach_reward")
+
+
 def seed_metrics(rows: Iterable[Mapping[str, str | int | float]]) -> dict[str, float]:
     """
     A seed's test metrics from its episode rows: the mean of each metric over the episodes, under the names of

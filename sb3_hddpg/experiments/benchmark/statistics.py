@@ -49,7 +49,7 @@ from sb3_hddpg.experiments.benchmark.aggregates import (
     improvement_probabilities,
     score_matrix,
 )
-from sb3_hddpg.experiments.benchmark.episodes import seed_metrics
+from sb3_hddpg.experiments.benchmark.episodes import seed_metrics, term_sum_keys
 from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, front_results
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
@@ -85,9 +85,6 @@ FINAL_METRICS = (
     "action_saturation",
 )
 
-
-#: The ending of a term's normalised episode sum in a summary (``<term>_reach_reward``).
-TERM_SUM_SUFFIX = "_reach_reward"
 
 #: Steps per unit of the reported learning-curve slopes.
 SLOPE_UNIT = 1000
@@ -158,14 +155,6 @@ def test_values(record: JsonObject) -> dict[str, float]:
     test = seed_metrics(rows) if rows else with_term_sums(record["test"])
     # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
     return {key: float(test[key]) for key in (*FINAL_METRICS, *term_sum_keys(test)) if key in test}
-
-
-def term_sum_keys(values: Mapping[str, object]) -> list[str]:
-    """
-    The keys of each reward term's normalised episode sum (``<term>_reach_reward``) among ``values`` that
-    :data:`FINAL_METRICS` does not name: another env's terms, whose sums add up to its normalised return.
-    """
-    return sorted(k for k in values if k.endswith(TERM_SUM_SUFFIX) and k not in FINAL_METRICS)
 
 
 def curve_statistics(history: Sequence[JsonObject], window: int) -> dict[str, float]:
