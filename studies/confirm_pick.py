@@ -26,9 +26,12 @@ import statistics
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sb3_hddpg.experiments.benchmark.methods import FLAT_HER_METHODS
+
+if TYPE_CHECKING:
+    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 
 #: The flat methods a pick can be confirmed for: the studies of record's (their algorithm: the method's name,
 #: or for a ``-her`` method the algorithm whose ``flat-her`` block it trains).
@@ -76,7 +79,12 @@ def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[
 
 
 def train_flat_arm(
-    method: str, config: str | None, seed: int, folder: Path, settings: Any, options: dict[str, Any]
+    method: str,
+    config: str | None,
+    seed: int,
+    folder: Path,
+    settings: BenchmarkSettings,
+    options: dict[str, Any],
 ) -> tuple[int, Path]:
     """A flat agent as the benchmark trains ``method``: its env steps and its kept model."""
     from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, train_flat
@@ -96,7 +104,12 @@ def train_flat_arm(
 
 
 def train_manager_arm(
-    method: str, config: str | None, seed: int, folder: Path, settings: Any, options: dict[str, Any]
+    method: str,
+    config: str | None,
+    seed: int,
+    folder: Path,
+    settings: BenchmarkSettings,
+    options: dict[str, Any],
 ) -> tuple[int, Path]:
     """A manager as the benchmark trains ``method``'s, at the unweighted preference: its env steps and bundle."""
     from sb3_hddpg.training.config import manager_option_steps
@@ -105,13 +118,8 @@ def train_manager_arm(
     front = method == "hddpg-front"
     algo = settings.front_manager if front else "ddpg"
     budget = options["timesteps"] or (settings.front_env_steps if front else settings.manager_env_steps)
-    # The same env steps for both arms, as in the study's trials: a block's decisions are the budget over its
-    # own option_steps (a pick may change them), and so are its evaluation periods.
-    option_steps = manager_option_steps(config, algo)
-    run = settings.manager_run_options(seed, algo, budget).replace(
-        timesteps=max(budget // option_steps, 1),
-        eval_freq=max(settings.eval_freq_for(budget) // option_steps, 1),
-    )
+    # The same env steps for both arms, as in the study's trials: each block decides every its own option_steps.
+    run = settings.manager_run_options(seed, algo, budget, option_steps=manager_option_steps(config, algo))
     train_manager(
         options["workers"],
         folder / "manager",

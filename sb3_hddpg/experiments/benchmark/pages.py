@@ -4,9 +4,9 @@ The docs' result tables, generated from a benchmark folder's records: ``hddpg-cl
 A page holds each generated table between ``<!-- generated:RUN/NAME -->`` and ``<!-- /generated:RUN/NAME -->``
 (``RUN``: the folder's name, ``NAME``: one of :data:`TABLES`, or ``comparisons-METHOD`` for a method of the
 run), and the README its one results sentence between ``<!-- results:start -->`` and ``<!-- results:end -->``;
-the prose around them only interprets. The results
-come from the records by :func:`~.statistics.compute_results` (with ``episodes.csv``'s rows where the folder
-ships it), so a re-run updates every table, and a test checks that the shipped tables regenerate exactly.
+the prose around them only interprets. The results come from the records by
+:func:`~.statistics.compute_results` (with ``episodes.csv``'s rows where the folder ships it), so a re-run
+updates every table, and a test checks that the shipped tables regenerate exactly.
 """
 
 from __future__ import annotations
@@ -131,20 +131,17 @@ def methods_table(results: BenchmarkResults) -> str:
     """
     intervals = _aggregates(results)["intervals"]
     terms = _terms(results)
+    # (summary key, format, shown as a percentage, column header)
     columns = (
-        [(f"{term}_reach_reward", ".1f", False) for term in terms]
+        [(f"{term}_reach_reward", ".1f", False, f"{term} (normalised sum)") for term in terms]
         if terms
         else [
-            ("goal_touch_rate", ".1f", True),
-            ("collisions_per_episode", ".2f", False),
-            ("success_rate", ".0f", True),
+            ("goal_touch_rate", ".1f", True, "goal touch (% of steps)"),
+            ("collisions_per_episode", ".2f", False, "collisions / episode"),
+            ("success_rate", ".0f", True, "success (% of episodes)"),
         ]
     )
-    headers = (
-        [f"{term} (normalised sum)" for term in terms]
-        if terms
-        else ["goal touch (% of steps)", "collisions / episode", "success (% of episodes)"]
-    )
+    headers = [column[3] for column in columns]
     lines = [
         _unit_text(results),
         "",
@@ -161,7 +158,7 @@ def methods_table(results: BenchmarkResults) -> str:
             else _interval(s[key]["mean"], s[key], fmt)
             if key in s
             else "-"
-            for key, fmt, percent in columns
+            for key, fmt, percent, _ in columns
         ]
         choices = ", ".join(f"{k} {v:.0%}" for k, v in (entry.selection_rate or {}).items()) or "-"
         mean, iqm = aggregate["mean"], aggregate["iqm"]
@@ -337,26 +334,31 @@ def _write_text(path: Path, text: str) -> None:
 
 
 def render_page(
-    text: str, run_name: str, results: BenchmarkResults, extra: Mapping[str, Callable[[], str]] | None = None
+    text: str,
+    run_name: str,
+    results: BenchmarkResults | None,
+    extra: Mapping[str, Callable[[], str]] | None = None,
 ) -> tuple[str, list[str]]:
     """
     ``text`` with every generated block of ``run_name`` rewritten from ``results`` (a block named in ``extra``
-    from its own function, e.g. ``studies``).
+    from its own function, e.g. ``studies``; ``results`` ``None``: only those, for a folder of study exports).
 
     :return: the new text and the names of the blocks written.
     :raises ValueError: a block of ``run_name`` that names no known table.
     """
     written: list[str] = []
-    makers: dict[str, Callable[[], str]] = {
-        name: functools.partial(table, results) for name, table in TABLES.items()
-    }
+    makers: dict[str, Callable[[], str]] = (
+        {name: functools.partial(table, results) for name, table in TABLES.items()}
+        if results is not None
+        else {}
+    )
     makers.update(extra or {})
 
     def replace(match: re.Match[str]) -> str:
         run, _, name = match.group("key").partition("/")
         if run != run_name:
             return match.group(0)
-        if name.startswith(COMPARISONS) and name not in makers:
+        if results is not None and name.startswith(COMPARISONS) and name not in makers:
             makers[name] = functools.partial(comparisons_table, results, name[len(COMPARISONS) :])
         if name not in makers:
             choices = [*makers, f"{COMPARISONS}METHOD"]
@@ -386,20 +388,18 @@ def update_tuning_page(run: Path, tuning_page: Path, check: bool = False) -> dic
     if not (run / "studies").is_dir():
         raise FileNotFoundError(f"neither a benchmark folder nor a folder of study exports: {str(run)!r}")
     studies = {"studies": functools.partial(studies_table, read_exports(run / "studies"))}
-    text = tuning_page.read_text()
-    written: list[str] = []
+    new, written = render_page(tuning_page.read_text(), run.name, None, studies)
+    return {"written": written, "changed": _write_changed({tuning_page: new}, check)}
 
-    def replace(match: re.Match[str]) -> str:
-        if match.group("key") != f"{run.name}/studies":
-            return match.group(0)
-        written.append("studies")
-        return f"{match.group(1)}{studies['studies']()}\n{match.group(4)}"
 
-    new = BLOCK.sub(replace, text)
-    changed = [str(tuning_page)] if new != text else []
-    if changed and not check:
-        _write_text(tuning_page, new)
-    return {"written": written, "changed": changed}
+def _write_changed(outputs: Mapping[Path, str], check: bool) -> list[str]:
+    """The files whose new text differs from what they hold, written unless ``check``."""
+    changed = [str(path) for path, new in outputs.items() if new != path.read_text()]
+    if not check:
+        for path, new in outputs.items():
+            if str(path) in changed:
+                _write_text(path, new)
+    return changed
 
 
 def update_pages(
@@ -430,9 +430,4 @@ def update_pages(
         written += more
     if readme is not None and "hddpg" in results.methods and results.scenario == "standard":
         outputs[readme] = render_readme(readme.read_text(), results_sentence(results, run.name))
-    changed = [str(path) for path, new in outputs.items() if new != path.read_text()]
-    if not check:
-        for path, new in outputs.items():
-            if str(path) in changed:
-                _write_text(path, new)
-    return {"written": written, "changed": changed}
+    return {"written": written, "changed": _write_changed(outputs, check)}

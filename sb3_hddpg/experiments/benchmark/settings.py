@@ -398,7 +398,9 @@ class BenchmarkSettings:
         """Env steps per decision of a manager of algorithm ``algo`` (its bundled manager block's ``option_steps``)."""
         return self.option_steps if algo == "ddpg" else manager_option_steps(algo=algo)
 
-    def manager_run_options(self, seed: int, algo: str = "ddpg", env_steps: int | None = None) -> RunOptions:
+    def manager_run_options(
+        self, seed: int, algo: str = "ddpg", env_steps: int | None = None, option_steps: int | None = None
+    ) -> RunOptions:
         """
         :meth:`run_options` of a manager: ``timesteps`` decisions (another algorithm's manager: as many
         decisions as make :attr:`manager_env_steps` with its own ``option_steps``), evaluated every
@@ -407,9 +409,11 @@ class BenchmarkSettings:
         SBX benchmark).
 
         :param env_steps: another budget than :attr:`manager_env_steps`, in env steps.
+        :param option_steps: env steps per decision of another block than the bundled one of ``algo`` (a
+            study's pick may change them), so that it gets the same env steps.
         """
         budget = env_steps if env_steps is not None else self.manager_env_steps
-        option_steps = self.option_steps_of(algo)
+        option_steps = option_steps if option_steps is not None else self.option_steps_of(algo)
         decisions = max(budget // option_steps, 1)  # the DDPG manager's: ``timesteps``
         every = max(self.eval_freq_for(budget) // option_steps, 1)
         run = self.run_options(seed, decisions, decisions)

@@ -154,7 +154,12 @@ def test_values(record: JsonObject) -> dict[str, float]:
     rows = record.get("episodes")
     test = seed_metrics(rows) if rows else with_term_sums(record["test"])
     # Records of runs from before a metric existed (resumed) lack it: it is left out, not faked.
-    return {key: float(test[key]) for key in (*FINAL_METRICS, *term_sum_keys(test)) if key in test}
+    return {key: float(test[key]) for key in metric_keys(test) if key in test}
+
+
+def metric_keys(values: Mapping[str, object]) -> tuple[str, ...]:
+    """:data:`FINAL_METRICS`, then another env's per-term normalised sums among ``values`` (each key once)."""
+    return (*FINAL_METRICS, *(key for key in term_sum_keys(values) if key not in FINAL_METRICS))
 
 
 def curve_statistics(history: Sequence[JsonObject], window: int) -> dict[str, float]:
@@ -251,13 +256,7 @@ def method_statistics(
         values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
     stats: dict[str, Summary] = {
         key: summarise([values[s][key] for s in seeds])
-        for key in (
-            *FINAL_METRICS,
-            *term_sum_keys(values[seeds[0]]),
-            "curve_mean",
-            "slope",
-            "final_curve_reward",
-        )
+        for key in (*metric_keys(values[seeds[0]]), "curve_mean", "slope", "final_curve_reward")
         if all(key in values[s] for s in seeds)
     }
     selection = [
