@@ -24,6 +24,7 @@ import argparse
 import json
 import statistics
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -41,6 +42,18 @@ MANAGER_PICKS = ("hddpg", "hddpg-front")
 #: The score compared: the mean reach reward per development episode.
 SCORE = "mean_reach_reward"
 ARMS = ("base", "pick")
+
+
+@dataclass(frozen=True)
+class ArmRun:
+    """One arm's run: the method, its config file (``None``: the bundled block), seed, folder and settings."""
+
+    method: str
+    config: str | None
+    seed: int
+    folder: Path
+    settings: BenchmarkSettings
+    options: dict[str, Any]
 
 
 def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[str, Any]) -> dict[str, Any]:
@@ -62,7 +75,7 @@ def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[
         front_motion=options["front_motion"],
     )
     train = train_manager_arm if method in MANAGER_PICKS else train_flat_arm
-    budget, policy = train(method, config, seed, folder, settings, options)
+    budget, policy = train(ArmRun(method, config, seed, folder, settings, options))
     test = final_test(policy, settings)
     record = {
         "method": method,
@@ -78,57 +91,47 @@ def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[
     return record
 
 
-def train_flat_arm(
-    method: str,
-    config: str | None,
-    seed: int,
-    folder: Path,
-    settings: BenchmarkSettings,
-    options: dict[str, Any],
-) -> tuple[int, Path]:
-    """A flat agent as the benchmark trains ``method``: its env steps and its kept model."""
+def train_flat_arm(arm: ArmRun) -> tuple[int, Path]:
+    """A flat agent as the benchmark trains ``arm.method``: its env steps and its kept model."""
     from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, train_flat
 
-    algo = FLAT_HER_METHODS.get(method, method)
-    block = FLAT_HER_KEY if method in FLAT_HER_METHODS else None
-    budget = options["timesteps"] or settings.flat_budget
+    algo = FLAT_HER_METHODS.get(arm.method, arm.method)
+    block = FLAT_HER_KEY if arm.method in FLAT_HER_METHODS else None
+    budget = arm.options["timesteps"] or arm.settings.flat_budget
     train_flat(
-        folder,
+        arm.folder,
         algo=algo,
-        config=config,
+        config=arm.config,
         env_id=FLAT_ENV_ID,
-        run=settings.run_options(seed, budget, budget),
+        run=arm.settings.run_options(arm.seed, budget, budget),
         block=block,
     )
-    return budget, folder / "flat" / f"{algo}.zip"
+    return budget, arm.folder / "flat" / f"{algo}.zip"
 
 
-def train_manager_arm(
-    method: str,
-    config: str | None,
-    seed: int,
-    folder: Path,
-    settings: BenchmarkSettings,
-    options: dict[str, Any],
-) -> tuple[int, Path]:
-    """A manager as the benchmark trains ``method``'s, at the unweighted preference: its env steps and bundle."""
+def train_manager_arm(arm: ArmRun) -> tuple[int, Path]:
+    """A manager as the benchmark trains ``arm.method``'s, at the unweighted preference: its env steps and bundle."""
     from sb3_hddpg.training.config import manager_option_steps
     from sb3_hddpg.training.manager import train_manager
 
-    front = method == "hddpg-front"
-    algo = settings.front_manager if front else "ddpg"
-    budget = options["timesteps"] or (settings.front_env_steps if front else settings.manager_env_steps)
+    front = arm.method == "hddpg-front"
+    algo = arm.settings.front_manager if front else "ddpg"
+    budget = arm.options["timesteps"] or (
+        arm.settings.front_env_steps if front else arm.settings.manager_env_steps
+    )
     # The same env steps for both arms, as in the study's trials: each block decides every its own option_steps.
-    run = settings.manager_run_options(seed, algo, budget, option_steps=manager_option_steps(config, algo))
+    run = arm.settings.manager_run_options(
+        arm.seed, algo, budget, option_steps=manager_option_steps(arm.config, algo)
+    )
     train_manager(
-        options["workers"],
-        folder / "manager",
+        arm.options["workers"],
+        arm.folder / "manager",
         algo=algo,
-        config=config,
-        manager_motion=settings.front_motion if front else None,
+        config=arm.config,
+        manager_motion=arm.settings.front_motion if front else None,
         run=run,
     )
-    return budget, folder / "manager" / "hierarchy.zip"
+    return budget, arm.folder / "manager" / "hierarchy.zip"
 
 
 def report(out: Path, method: str, seeds: int) -> str:
