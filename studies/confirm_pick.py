@@ -80,7 +80,8 @@ def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[
     record = {
         "method": method,
         "arm": arm,
-        "config": config,
+        # The file's name, not its path: the records are shipped, and a path names this machine's folders.
+        "config": None if config is None else Path(config).name,
         "seed": seed,
         "env_steps": budget,
         "backend": settings.backend,

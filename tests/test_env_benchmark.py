@@ -18,7 +18,8 @@ HIGHWAY = {
     "env_kwargs": {"env_id": "mo-highway-fast-v0", "terms": ["speed", "lane", "collision"]},
     "terms": ["speed", "lane", "collision"],
 }
-MORL_SCRIPT = REPO / "benchmarks" / "morl_baseline.py"
+MORL_SCRIPT = REPO / "sb3_hddpg" / "experiments" / "benchmark" / "morl_runner.py"
+MOUNTAIN_CAR = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
 
 
 def test_env_methods_are_checked_against_the_env():
@@ -275,3 +276,93 @@ def test_capql_trains_and_scores_its_front(tmp_path):
     assert len(record["front"]) == 3 and record["preferences"][0] == [0.0, 1.0]
     assert record["hypervolume"] > 0 and record["wall_time_train_s"] > 0
     assert record["versions"]["torch"] and record["ref_point"] == [-100.0, -100.0]
+
+
+def test_morl_python_is_checked_before_anything_runs(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    front = ["--scenario", "front", "--seeds", "1", "--timesteps", "8", "--out", str(tmp_path / "b")]
+    missing = run_cli("benchmark", *MOUNTAIN_CAR, *front, "--morl-python", str(tmp_path / "none"))
+    assert missing.returncode == 2 and "executable python" in missing.stderr
+    assert "Traceback" not in missing.stderr and not (tmp_path / "b").exists()
+    snake = run_cli("benchmark", *front, "--morl-python", sys.executable)
+    assert snake.returncode == 2 and "MO-Gymnasium env" in snake.stderr
+    standard = run_cli(
+        "benchmark",
+        *MOUNTAIN_CAR,
+        "--methods",
+        "hddpg",
+        "--morl-python",
+        sys.executable,
+        "--out",
+        str(tmp_path),
+    )
+    assert standard.returncode == 2 and "member of the front" in standard.stderr
+
+
+def test_a_morl_runners_front_joins_the_hierarchys_planes():
+    from sb3_hddpg.experiments.benchmark.front_pages import front_table
+    from sb3_hddpg.experiments.benchmark.front_points import env_front
+    from sb3_hddpg.experiments.benchmark.morl import morl_points, morl_results
+
+    bounds = {"time": (-1.0, 0.0), "fuel": (-0.5, 0.0)}
+    spec = env_front(("time", "fuel"), bounds, 30)
+    record = {"preferences": [[1.0, 0.0], [0.0, 1.0]], "front": [[-30.0, -3.0], [-15.0, -15.0]]}
+    points = morl_points({**record, "mean_lengths": [30.0, 15.0]}, spec, bounds)
+    assert [p.label for p in points] == ["time=1,fuel=0", "time=0,fuel=1"]
+    # 30 steps at the least time term; fuel -3 of its least -15: (0 + 0.8) * 30 / 30 per step.
+    assert points[0].values["time_term"] == pytest.approx(0.0)
+    assert points[0].values["fuel_term"] == pytest.approx(0.8)
+    assert points[0].values["mean_reach_reward"] == pytest.approx(0 + 24.0)
+    assert points[1].values["time_return"] == -15.0 and points[1].values["fuel_term"] == pytest.approx(-1.0)
+    with pytest.raises(ValueError, match="2 returns per point"):
+        morl_points({**record, "front": [[1.0], [2.0]], "mean_lengths": [1.0, 1.0]}, spec, bounds)
+
+    def run(seed: int) -> dict:
+        score = {"hypervolume": 10.0 + seed, "expected_utility": -5.0}
+        return {
+            "morl": {
+                "algorithm": "capql",
+                "env_steps": 1000,
+                "ref_point": [-30.0, -15.0],
+                "wall_time_train_s": 100.0 + seed,
+                "wall_time_eval_s": 1.0,
+                "conditioned_train_s": 20.0,
+                "scores": {"capql": score, "conditioned": {**score, "hypervolume": 8.0}},
+                "versions": {"torch": "2"},
+            }
+        }
+
+    workers = {seed: {"wall_time_s_total": 40.0} for seed in (0, 1)}
+    summary = morl_results({0: run(0), 1: run(1)}, workers)
+    assert summary is not None and summary["env_steps"] == [1000, 1000]
+    assert summary["scores"]["capql"]["hypervolume"]["mean"] == pytest.approx(10.5)
+    assert summary["train_seconds"]["conditioned"]["mean"] == pytest.approx(60.0)
+    assert morl_results({0: {}}, workers) is None
+    front = {"members": [], "hypervolume": {}, "morl": summary}
+    table = "\n".join(front_table(front))  # type: ignore[arg-type]
+    assert "| capql | 10.5 [" in table and "1,000 per seed" in table
+
+
+@pytest.mark.slow
+def test_benchmark_runs_capql_beside_the_conditioned_manager(tmp_path):
+    python = _morl_python()
+    if python is None:
+        pytest.skip("set MORL_PYTHON to the python of a virtual environment with morl-baselines")
+    tiny = ["--seeds", "2", "--front-timesteps", "200", "--worker-timesteps", "200", "--eval-freq", "200"]
+    tiny += ["--eval-episodes", "1", "--test-episodes", "2", "--n-jobs", "1"]
+    out = tmp_path / "front"
+    args = [*MOUNTAIN_CAR, "--scenario", "front", *tiny, "--morl-python", python, "--out", str(out)]
+    done = run_cli("benchmark", *args)
+    assert done.returncode == 0, done.stdout + done.stderr
+    record = json.loads((out / "records" / "hddpg-front" / "seed-1.json").read_text())
+    # CAPQL at the hierarchy's env steps for one policy: two workers and the conditioned manager.
+    assert record["morl"]["env_steps"] == 200 + 200 + 200
+    assert len(record["front"]["capql"]["points"]) == len(record["front"]["conditioned"]["points"])
+    assert set(record["morl"]["scores"]) == {"capql", "conditioned"}
+    results = json.loads((out / "results.json").read_text())["front"]
+    assert "capql" in results["members"] and "conditioned vs capql" in results["comparisons"]
+    assert results["morl"]["train_seconds"]["capql"]["mean"] > 0
+    assert "(MORL-baselines) beside the conditioned manager" in (out / "results.md").read_text()
+    # Resumed, the runner's records are read, not trained again.
+    again = run_cli("benchmark", *args, "--resume")
+    assert again.returncode == 0, again.stderr

@@ -268,7 +268,7 @@ def test_confirm_pick_trains_both_blocks_and_reports_the_seed_pairs(tmp_path):
     records = {
         arm: json.loads((out / arm / "seed-0" / "record.json").read_text()) for arm in ("base", "pick")
     }
-    assert records["pick"]["config"] == str(pick) and records["base"]["config"] is None
+    assert records["pick"]["config"] == pick.name and records["base"]["config"] is None
     assert {r["test_episode_set"]["name"] for r in records.values()} == {"development"}
     assert "| 0 |" in result.stdout and "seed pairs and" in result.stdout
     # The report regenerates from the records alone.

@@ -301,6 +301,20 @@ _FrontMotionOpt = Annotated[
         "factor (train-manager --manager-motion); 0: the state only.",
     ),
 ]
+_MorlPythonOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--morl-python",
+        help="The python of a virtual environment with MORL-baselines (it pins its own torch): the front "
+        "scenario on an MO-Gymnasium env then adds its CAPQL, trained for the env steps of the workers and the "
+        "conditioned manager, scored beside the hierarchy with MORL-baselines' indicators.",
+    ),
+]
+#: The options whose values the benchmark's settings check, named in their errors.
+_SETTINGS_OPTIONS = (
+    "'--methods' / '--preference' / '--env' / '--front-manager' / '--front-sweep' / '--front-motion' / "
+    "'--morl-python'"
+)
 
 
 @app.command("benchmark")
@@ -336,6 +350,7 @@ def benchmark_command(
     front_timesteps: _FrontTimestepsOpt = None,
     front_sweep: _FrontSweepOpt = "ratio-sweep",
     front_motion: _FrontMotionOpt = 0.0,
+    morl_python: _MorlPythonOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
@@ -348,9 +363,7 @@ def benchmark_command(
     """
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
-    with usage_errors(
-        "'--methods' / '--preference' / '--env' / '--front-manager' / '--front-sweep' / '--front-motion'"
-    ):
+    with usage_errors(_SETTINGS_OPTIONS):
         settings = BenchmarkSettings(
             methods=chosen,
             seeds=list(range(seeds)),
@@ -374,6 +387,7 @@ def benchmark_command(
             front_timesteps=front_timesteps,
             front_sweep=front_sweep,
             front_motion=front_motion,
+            morl_python=morl_python,
         )
     redone = _checked_resume(settings, redo, resume)
     address = cluster_address(executor, ray_address)

@@ -189,6 +189,23 @@ class SafeTouch(TypedDict):
     per_seed: dict[str, dict[str, float | None]]
 
 
+class MorlResults(TypedDict):
+    """
+    A MORL library's learner beside the conditioned manager over seeds: each front scored by the library's own
+    indicators, and the wall-clock each took to train.
+    """
+
+    algorithm: str
+    #: the learner's training env steps per seed (the hierarchy's workers and conditioned manager together)
+    env_steps: list[int]
+    ref_point: list[float]
+    #: member -> indicator (``hypervolume``, ``expected_utility``) -> its values over seeds
+    scores: dict[str, dict[str, Summary]]
+    #: member -> seconds of training over seeds (the hierarchy: its workers' task and the conditioned manager)
+    train_seconds: dict[str, Summary]
+    versions: dict[str, str | None]
+
+
 class FrontResults(TypedDict):
     """
     The front scenario's figures over seeds: per member and plane the hypervolumes (per seed and their
@@ -208,3 +225,5 @@ class FrontResults(TypedDict):
     manager: NotRequired[FrontManager]
     #: absent from a front measured before the safe end was summarised (its points give it)
     safe_touch: NotRequired[SafeTouch]
+    #: a MORL library's learner beside the hierarchy (``benchmark --morl-python``)
+    morl: NotRequired[MorlResults]

@@ -11,7 +11,9 @@ Per seed, over that seed's workers, on the benchmark's test episodes, on the sna
 - the env's hand-written rule over a threshold sweep: HAM on the snake arm (``ham``), the time-to-collision
   switch on highway-env (``ttc``); the thresholds are those of a grid that are not dominated on the curve
   episodes (:data:`~sb3_hddpg.episode_sets.CURVE`), so no threshold is picked on the episodes that score it;
-- each worker alone (one point each, named for its term).
+- each worker alone (one point each, named for its term);
+- with ``morl_python`` set, on an MO-Gymnasium env: MORL-baselines' CAPQL (``capql``, :mod:`.morl`), trained
+  for the env steps of the workers and the conditioned manager together, at as many preferences.
 
 The conditioned and per-preference managers are of one algorithm with one budget, the benchmark's
 ``front_manager`` and ``front_env_steps`` (by default the paper's DDPG manager on the manager's budget).
@@ -21,6 +23,7 @@ pymoo's against a reference point fixed per env and stated in every record, so r
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -29,6 +32,8 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
+from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.limits import read_json_record
 from sb3_hddpg.artifacts.records import JsonObject
 from sb3_hddpg.artifacts.records.results_leaves import (
     DecisionFigure,
@@ -68,6 +73,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     test_fields,
     workers_steps,
 )
+from sb3_hddpg.experiments.benchmark.morl import MORL_MEMBER, MorlRun, morl_member, morl_results
 from sb3_hddpg.experiments.stats import paired_t_interval, probability_of_improvement, summarise
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -218,8 +224,8 @@ def _test_point(
 
 def _train_managers(
     task: MethodTask, settings: MethodSettings, folder: Path, sweep: PreferenceSpace
-) -> tuple[Hierarchy, list[tuple[str, Hierarchy]]]:
-    """The seed's conditioned manager over ``sweep`` and one manager per preference of it."""
+) -> tuple[Hierarchy, float, list[tuple[str, Hierarchy]]]:
+    """The seed's conditioned manager over ``sweep``, the seconds it trained, and one manager per preference of it."""
     run_dir = folder / task.method
     run, algo = settings.front_run_options(task.seed), settings.front_manager
     shared = settings.terms_env
@@ -227,9 +233,12 @@ def _train_managers(
     env_options: dict[str, Any] = {"worker_names": sweep.names, "manager_motion": settings.front_motion}
     if shared is not None:
         env_options.update(env_id=shared.env_id, env_kwargs=shared.env_kwargs)
+    started = time.perf_counter()
     conditioned, _ = train_manager(
         folder, run_dir / "conditioned", algo=algo, manager_preferences=sweep, run=run, **env_options
     )
+    # A resumed task's conditioned manager trained before: its seconds are those of the earlier invocation.
+    seconds = _conditioned_seconds(run_dir / "conditioned", time.perf_counter() - started)
     per_preference: list[tuple[str, Hierarchy]] = []
     for label, point in zip(sweep_labels(sweep), sweep.points):
         factors = dict(zip(sweep.names, point))
@@ -238,7 +247,18 @@ def _train_managers(
             folder, run_dir / name, algo=algo, preferences=factors, run=run, **env_options
         )
         per_preference.append((label, hierarchy))
-    return conditioned, per_preference
+    return conditioned, seconds, per_preference
+
+
+def _conditioned_seconds(folder: Path, seconds: float) -> float:
+    """The conditioned manager's training seconds: kept in ``folder`` the first time, read when resumed."""
+    path = folder / "train-seconds.json"
+    if path.exists():
+        kept = read_json_record(path, f"{path}: not a seconds record")
+        if isinstance(kept, dict) and isinstance(kept.get("seconds"), (int, float)):
+            return float(kept["seconds"])
+    atomic_write_json(path, {"seconds": seconds})
+    return seconds
 
 
 def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[str, object]:
@@ -256,7 +276,7 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
     env = front_env(settings)
     try:
         spec = front_spec(settings, env)
-        conditioned, per_preference = _train_managers(task, settings, folder, spec.sweep)
+        conditioned, conditioned_seconds, per_preference = _train_managers(task, settings, folder, spec.sweep)
         front: dict[str, object] = {}
         dependence: dict[str, DecisionFigure | None] = {}
         points = []
@@ -280,6 +300,10 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
             front[spec.rule] = member_fields(rule_points, spec)
         for worker in spec.terms:
             front[worker] = member_fields([_alone_point(worker, folder, env, settings, spec)], spec)
+        morl = None
+        if settings.morl_python is not None:
+            morl_front, morl = _morl_front(task, settings, folder, spec, env, points, conditioned_seconds)
+            front[MORL_MEMBER] = member_fields(morl_front, spec)
         test = test_fields(Hierarchy.load(run_dir / "conditioned" / "hierarchy.zip"), env, settings)
     finally:
         env.close()
@@ -298,7 +322,34 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
         "decides_by_state": dependence,
         "rule": spec.rule,
         "rule_thresholds": thresholds,
+        **({"morl": morl} if morl is not None else {}),
     }
+
+
+def _morl_front(
+    task: MethodTask,
+    settings: MethodSettings,
+    folder: Path,
+    spec: FrontSpec,
+    env: gym.Env,
+    conditioned: list[FrontPoint],
+    conditioned_seconds: float,
+) -> tuple[list[FrontPoint], MorlRun]:
+    """MORL-baselines' learner for the env steps of one policy for every preference: workers and conditioned manager."""
+    shared, python = settings.terms_env, settings.morl_python
+    assert shared is not None and python is not None  # the settings allow it on an MO-Gymnasium env only
+    return morl_member(
+        python,
+        shared,
+        spec,
+        env_contract(env).reward_bounds,
+        conditioned,
+        budget=workers_steps(folder) + settings.front_env_steps,
+        seed=task.seed,
+        test_seeds=settings.test_set.seeds(settings.test_episodes or 1),
+        run_dir=folder / task.method,
+        conditioned_train_s=conditioned_seconds,
+    )
 
 
 def _manager_fields(settings: MethodSettings, conditioned: Hierarchy) -> FrontManager:
@@ -384,7 +435,9 @@ def _record_planes(record: Mapping[str, Any]) -> dict[str, list[list[object]]]:
     }
 
 
-def front_results(runs: Mapping[int, JsonObject]) -> FrontResults:
+def front_results(
+    runs: Mapping[int, JsonObject], workers: Mapping[int, JsonObject] | None = None
+) -> FrontResults:
     """
     The front scenario's statistics over seeds: per member and plane the per-seed hypervolumes and their
     summary (mean, 95 % bootstrap CI, IQM), the conditioned manager's paired differences with every other
@@ -392,6 +445,7 @@ def front_results(runs: Mapping[int, JsonObject]) -> FrontResults:
     ratios.
 
     :param runs: seed -> the ``hddpg-front`` record.
+    :param workers: seed -> the workers' task record (for the hierarchy's wall-clock beside a MORL learner's).
     """
     seeds = sorted(runs)
     first: Mapping[str, Any] = runs[seeds[0]] if seeds else {}
@@ -437,6 +491,9 @@ def front_results(runs: Mapping[int, JsonObject]) -> FrontResults:
     }
     if "manager" in first:
         results["manager"] = cast(FrontManager, first["manager"])
+    morl = morl_results(runs, workers or {})
+    if morl is not None:
+        results["morl"] = morl
     if "outcomes" in planes:
         results["safe_touch"] = {
             "contacts": SAFE_CONTACTS,
@@ -476,6 +533,6 @@ register_method(
             "over a threshold sweep (HAM on the snake arm) and each worker alone, with hypervolumes"
         ),
         config_blocks=_front_blocks,
-        own_settings=("front_manager", "front_timesteps", "front_sweep", "front_motion"),
+        own_settings=("front_manager", "front_timesteps", "front_sweep", "front_motion", "morl_python"),
     )
 )

@@ -11,7 +11,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from sb3_hddpg.artifacts.records.results_leaves import FrontResults
+from sb3_hddpg.artifacts.records.results_leaves import FrontResults, Summary
 from sb3_hddpg.experiments.benchmark.front_points import PLANES
 
 #: Colours of the snake's members; another env's members take the next ones of matplotlib's cycle.
@@ -54,6 +54,7 @@ def front_table(front: FrontResults) -> list[str]:
             cells.append(f"{stats['mean']:.4g} [{stats['ci_low']:.4g}, {stats['ci_high']:.4g}]")
         lines.append(f"| {member} | " + " | ".join(cells) + " |")
     lines.extend(_safe_touch_lines(front))
+    lines.extend(_morl_lines(front))
     manager = front.get("manager")
     if manager is not None:
         budget = f", {manager['env_steps']:,} env steps each" if manager["env_steps"] else ""
@@ -92,6 +93,35 @@ def _safe_touch_lines(front: FrontResults) -> list[str]:
         reached = [v for v in per_seed.values() if v is not None]
         mean = f"{100 * sum(reached) / len(reached):.1f} %" if reached else "-"
         lines.append(f"- {member}: {mean} (reached in {len(reached)} of {len(per_seed)} seeds)")
+    return lines
+
+
+def _morl_lines(front: FrontResults) -> list[str]:
+    """A MORL library's learner beside the conditioned manager: the library's indicators and the wall-clock."""
+    morl = front.get("morl")
+    if morl is None:
+        return []
+
+    def cell(stats: Summary) -> str:
+        return f"{stats['mean']:.4g} [{stats['ci_low']:.4g}, {stats['ci_high']:.4g}]"
+
+    steps = sorted(set(morl["env_steps"]))
+    budget = f"{steps[0]:,}" if len(steps) == 1 else f"{steps[0]:,} to {steps[-1]:,}"
+    lines = [
+        "",
+        f"{morl['algorithm'].upper()} (MORL-baselines) beside the conditioned manager, trained for the same env "
+        f"steps ({budget} per seed: the workers' and the conditioned manager's), scored by MORL-baselines' own "
+        f"indicators from the reference point {tuple(morl['ref_point'])}:",
+        "",
+        "| member | hypervolume | expected utility | training wall-clock, s |",
+        "|---|---|---|---|",
+    ]
+    for member, scores in morl["scores"].items():
+        seconds = morl["train_seconds"].get(member)
+        lines.append(
+            f"| {member} | {cell(scores['hypervolume'])} | {cell(scores['expected_utility'])} "
+            f"| {cell(seconds) if seconds else '-'} |"
+        )
     return lines
 
 

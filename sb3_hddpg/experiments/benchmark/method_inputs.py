@@ -62,6 +62,9 @@ class MethodSettings(Protocol):
     @property
     def front_env_steps(self) -> int: ...
 
+    @property
+    def morl_python(self) -> str | None: ...
+
     def option_steps_of(self, algo: str) -> int: ...
 
     @property

@@ -34,6 +34,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     method_key,
     split_key,
 )
+from sb3_hddpg.experiments.benchmark.morl import check_morl_python, mo_gymnasium_env
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import backend_for, check_algo, check_backend
@@ -154,6 +155,8 @@ class BenchmarkSettings:
         for two workers) or ``ratio-sweep:MAX`` (ratios doubling up to ``MAX``; ``ratio-sweep:16``: 9).
     :param front_motion: the front's managers also see how their state moved over the last env step,
         scaled by this factor (``manager_motion`` of ``train_manager``; 0: not).
+    :param morl_python: the python of a virtual environment with MORL-baselines: the front then adds its
+        CAPQL, trained for the hierarchy's env steps (:mod:`.morl`; an MO-Gymnasium env only).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -178,6 +181,7 @@ class BenchmarkSettings:
     front_timesteps: int | None = None
     front_sweep: str = "ratio-sweep"
     front_motion: float = 0.0
+    morl_python: str | None = None
 
     def __post_init__(self) -> None:
         self._check_methods()
@@ -185,6 +189,8 @@ class BenchmarkSettings:
         self._check_front_inputs()
         if self.env is not None:
             self._check_env()
+        if self.morl_python is not None:
+            self._check_morl()
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"Expected distinct seeds, at least one, actually: {self.seeds}")
         if not self.timesteps:
@@ -254,6 +260,16 @@ class BenchmarkSettings:
                 f"Expected the front's motion scale to be a finite number >= 0, actually: {motion!r}"
             )
         self.front_motion = float(motion)
+
+    def _check_morl(self) -> None:
+        """MORL-baselines' python, for the front on an MO-Gymnasium env."""
+        if not any(m in FRONT_METHODS for m in self.methods):
+            raise ValueError(f"MORL-baselines' learner is a member of the front ({list(FRONT_METHODS)})")
+        shared = self.terms_env
+        if shared is None:
+            raise ValueError("MORL-baselines' learner runs on an MO-Gymnasium env (--env), not the snake arm")
+        mo_gymnasium_env(shared)
+        self.morl_python = check_morl_python(self.morl_python or "")
 
     def _check_transfer(self) -> None:
         """The transfer scenario's preferences (written one way) and methods: hddpg and flat agents."""

@@ -233,7 +233,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[JsonObject]) 
         workers=workers,
         colours={key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
         transfer=transfer_results(settings, by_method) if settings.scenario == "transfer" else None,
-        front=front_results(by_method[FRONT_METHOD]) if FRONT_METHOD in by_method else None,
+        front=front_results(by_method[FRONT_METHOD], worker_records) if FRONT_METHOD in by_method else None,
     )
 
 

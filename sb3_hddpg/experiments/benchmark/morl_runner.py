@@ -4,26 +4,31 @@ evaluate its front over a preference sweep, and score it, or any other front, wi
 indicators (hypervolume, expected utility).
 
 MORL-baselines pins its own torch and pulls wandb, pymoo and more, so it lives in its own virtual environment,
-never in sb3-hddpg's: this script imports nothing from sb3_hddpg and runs with that environment's python::
+never in sb3-hddpg's. This file imports nothing from sb3_hddpg and runs with that environment's python, by
+its path: ``hddpg-cli benchmark --scenario front --morl-python PYTHON`` runs it for every seed (:mod:`.morl`),
+or by hand::
 
     python3 -m venv ~/morl-venv
     ~/morl-venv/bin/pip install torch --index-url https://download.pytorch.org/whl/cpu   # CPU wheel first
     ~/morl-venv/bin/pip install morl-baselines "mujoco>=3"
+    RUNNER=$(python -c "import sb3_hddpg.experiments.benchmark as b, pathlib; print(pathlib.Path(b.__file__).with_name('morl_runner.py'))")
 
     # CAPQL for as many env steps as the hierarchy used; its front over 11 preferences, 5 episodes each
-    ~/morl-venv/bin/python benchmarks/morl_baseline.py train --env mo-halfcheetah-v5 --algo capql \\
+    ~/morl-venv/bin/python $RUNNER train --env mo-halfcheetah-v5 --algo capql \\
         --timesteps 300000 --seed 0 --out runs/morl/capql-seed-0.json
 
     # the hierarchy's front on the same indicators: its conditioned manager's vector returns per preference,
     # from the record of `hddpg-cli benchmark --env mo-halfcheetah-v5 --scenario front` (or --front JSON)
-    ~/morl-venv/bin/python benchmarks/morl_baseline.py score \\
+    ~/morl-venv/bin/python $RUNNER score \\
         --record runs/hc/records/hddpg-front/seed-0.json --member conditioned \\
-        --ref-point -100,-100 --out runs/morl/hierarchy-seed-0.json
+        --ref-point=-100,-100 --out runs/morl/hierarchy-seed-0.json
 
 Both write the same record (:func:`front_record`): the front (vector returns per preference, raw per-episode
 sums of the env's objectives), the non-dominated part of it, hypervolume and expected utility from
 ``morl_baselines.common.performance_indicators`` with the reference point and weights named in the record,
-and for ``train`` the wall-clock of training and of the evaluation, the env steps and the library versions.
+and for ``train`` each preference's mean episode length, the wall-clock of training and of the evaluation,
+the env steps and the library versions. Evaluation episode ``i`` of every preference is reset with seed
+``--eval-seed`` + ``i``, as the benchmark's test episodes are.
 """
 
 from __future__ import annotations
@@ -101,10 +106,10 @@ def front_record(
     }
 
 
-def _make_env(env_id: str, episode_steps: int | None) -> Any:
+def _make_env(env_id: str, episode_steps: int | None, env_kwargs: dict[str, Any]) -> Any:
     import mo_gymnasium as mo_gym
 
-    kwargs = {"max_episode_steps": episode_steps} if episode_steps else {}
+    kwargs = {**env_kwargs, **({"max_episode_steps": episode_steps} if episode_steps else {})}
     return mo_gym.make(env_id, **kwargs)
 
 
@@ -116,12 +121,29 @@ def _agent(env: Any, seed: int, args: argparse.Namespace) -> Any:
 
 def _evaluate_front(
     agent: Any, env: Any, preferences: list[Any], episodes: int, seed: int
-) -> list[list[float]]:
-    """Each preference's mean vector return over ``episodes`` (the env seeded once, so the sweep repeats)."""
-    from morl_baselines.common.evaluation import policy_evaluation_mo
+) -> tuple[list[list[float]], list[float]]:
+    """
+    Each preference's mean vector return and mean episode length over ``episodes``, episode ``i`` reset with
+    ``seed + i`` (the same episodes at every preference, as MORL-baselines' ``eval_mo`` plays them).
+    """
+    import numpy as np
 
-    env.reset(seed=seed)
-    return [[float(v) for v in policy_evaluation_mo(agent, env, w, rep=episodes)[2]] for w in preferences]
+    returns, lengths = [], []
+    for weights in preferences:
+        sums, steps = [], []
+        for episode in range(episodes):
+            obs, _ = env.reset(seed=seed + episode)
+            total, length, done = np.zeros(int(env.unwrapped.reward_dim)), 0, False
+            while not done:
+                obs, reward, terminated, truncated, _ = env.step(agent.eval(obs, weights))
+                total = total + np.asarray(reward, dtype=np.float64)
+                length += 1
+                done = terminated or truncated
+            sums.append(total)
+            steps.append(length)
+        returns.append([float(v) for v in np.mean(sums, axis=0)])
+        lengths.append(float(np.mean(steps)))
+    return returns, lengths
 
 
 def train(args: argparse.Namespace) -> dict[str, Any]:
@@ -132,8 +154,9 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     from morl_baselines.common.weights import equally_spaced_weights
 
     torch.set_num_threads(args.threads)
-    env = _make_env(args.env, args.episode_steps)
-    eval_env = _make_env(args.env, args.episode_steps)
+    env_kwargs = _env_kwargs(args.env_kwargs)
+    env = _make_env(args.env, args.episode_steps, env_kwargs)
+    eval_env = _make_env(args.env, args.episode_steps, env_kwargs)
     reward_dim = int(env.unwrapped.reward_dim)
     ref_point = _floats(args.ref_point, "ref-point") if args.ref_point else list(DEFAULT_REF_POINT)
     if len(ref_point) != reward_dim:
@@ -152,7 +175,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     train_seconds = time.perf_counter() - started
     preferences = equally_spaced_weights(reward_dim, args.preferences)
     started = time.perf_counter()
-    front = _evaluate_front(agent, eval_env, preferences, args.episodes, args.eval_seed)
+    front, lengths = _evaluate_front(agent, eval_env, preferences, args.episodes, args.eval_seed)
     eval_seconds = time.perf_counter() - started
     return front_record(
         front,
@@ -162,7 +185,9 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             "source": "morl-baselines",
             "algorithm": args.algo,
             "env_id": args.env,
+            "env_kwargs": env_kwargs,
             "episode_steps": args.episode_steps,
+            "mean_lengths": lengths,
             "total_timesteps": args.timesteps,
             "seed": args.seed,
             "eval_seed": args.eval_seed,
@@ -178,6 +203,19 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             },
         },
     )
+
+
+def _env_kwargs(text: str | None) -> dict[str, Any]:
+    """The inner env's keyword arguments, a JSON object of plain values, or a one-line error."""
+    if not text:
+        return {}
+    try:
+        kwargs = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as error:
+        raise SystemExit(f"error: --env-kwargs: not JSON: {error}") from None
+    if not isinstance(kwargs, dict):
+        raise SystemExit(f"error: --env-kwargs: expected a JSON object, got {text[:80]!r}")
+    return kwargs
 
 
 def _version(distribution: str) -> str | None:
@@ -240,7 +278,17 @@ def score(args: argparse.Namespace) -> dict[str, Any]:
         raise SystemExit(f"error: --front: {error}") from None
 
 
+def _unshadow_standard_library() -> None:
+    """
+    Run by its path, this file's folder is first on ``sys.path``, where its neighbours (``statistics.py``)
+    would shadow the standard library's modules of those names for everything MORL-baselines imports.
+    """
+    here = Path(__file__).resolve().parent
+    sys.path[:] = [entry for entry in sys.path if Path(entry or ".").resolve() != here]
+
+
 def main(argv: list[str] | None = None) -> int:
+    _unshadow_standard_library()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("train", help="train CAPQL, evaluate its front, score it")
@@ -253,10 +301,16 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument(
         "--episode-steps", type=int, default=None, help="the env's time limit (default: its own)"
     )
+    run.add_argument("--env-kwargs", default=None, help="the env's keyword arguments, a JSON object")
     run.add_argument("--learning-starts", type=int, default=1000, help="CAPQL's random steps before learning")
     run.add_argument("--preferences", type=int, default=11, help="equally spaced preferences of the front")
     run.add_argument("--episodes", type=int, default=5, help="evaluation episodes per preference")
-    run.add_argument("--eval-seed", type=int, default=10_000, help="seed of the evaluation env")
+    run.add_argument(
+        "--eval-seed",
+        type=int,
+        default=10_000,
+        help="seed of the first evaluation episode (then + 1, + 2...)",
+    )
     run.add_argument("--threads", type=int, default=1, help="torch threads")
     run.add_argument("--ref-point", default=None, help="hypervolume reference point, e.g. -100,-100")
     run.add_argument("--out", required=True)

@@ -1,0 +1,267 @@
+"""
+MORL-baselines' CAPQL as a member of the front scenario (``benchmark --scenario front --morl-python PYTHON``).
+
+MORL-baselines pins its own torch, so it runs in its own virtual environment: per seed, :data:`RUNNER` (a
+script that imports nothing from sb3_hddpg) is run with that environment's python. It trains CAPQL, one
+preference-conditioned policy, for the env steps the hierarchy spent on one policy for every preference (the
+seed's workers and its conditioned manager), evaluates it at as many equally spaced preferences as the front's
+sweep has, on the same test episodes, and scores its front and the conditioned manager's with MORL-baselines'
+own indicators (hypervolume, expected utility). Its points join the front as the member ``capql``: the pymoo
+hypervolumes and the paired comparisons treat it as every other member.
+
+The runner's records are written next to the seed's managers and reused when the task resumes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, TypedDict
+
+from sb3_hddpg.artifacts.limits import read_json_record
+from sb3_hddpg.artifacts.records.results_leaves import MorlResults
+from sb3_hddpg.envs.adapters import MULTI_OBJECTIVE_ENV_ID
+from sb3_hddpg.envs.terms_env import TermsEnv
+from sb3_hddpg.experiments.benchmark.front_points import FrontPoint, FrontSpec, preference_label
+from sb3_hddpg.experiments.stats import summarise
+
+#: The script run with MORL-baselines' python.
+RUNNER = Path(__file__).with_name("morl_runner.py")
+#: The front member MORL-baselines' learner adds.
+MORL_MEMBER = "capql"
+#: The adapter's own keyword arguments; the rest are the MO-Gymnasium env's.
+_ADAPTER_KWARGS = ("env_id", "terms", "term_bounds", "term", "episode_steps", "render_mode")
+
+
+class MorlScore(TypedDict):
+    """One front scored by MORL-baselines' indicators, from the runner's record."""
+
+    hypervolume: float
+    expected_utility: float
+
+
+class MorlRun(TypedDict):
+    """What a seed's front record keeps of MORL-baselines' run (key ``morl``)."""
+
+    algorithm: str
+    #: CAPQL's training env steps: the seed's workers' and conditioned manager's together
+    env_steps: int
+    #: the reference point of both scores (the ``returns`` plane's)
+    ref_point: list[float]
+    wall_time_train_s: float
+    wall_time_eval_s: float
+    #: seconds the conditioned manager trained (the workers' seconds are in their own record)
+    conditioned_train_s: float
+    #: member (``capql``, ``conditioned``) -> its front scored by MORL-baselines' indicators
+    scores: dict[str, MorlScore]
+    versions: dict[str, str | None]
+
+
+def check_morl_python(path: str) -> str:
+    """
+    The python of MORL-baselines' environment, as an absolute path.
+
+    :raises ValueError: it is not an executable file.
+    """
+    resolved = Path(path).expanduser()
+    if not resolved.is_file() or not os.access(resolved, os.X_OK):
+        raise ValueError(f"Expected --morl-python to be an executable python, actually: {path!r:.200}")
+    return str(resolved.absolute())
+
+
+def mo_gymnasium_env(env: TermsEnv) -> tuple[str, int | None, dict[str, Any]]:
+    """
+    The MO-Gymnasium env behind ``env`` (``hddpg/MultiObjective-v0``): its id, time limit and keyword arguments.
+
+    :raises ValueError: ``env`` adapts no MO-Gymnasium env (MORL-baselines learns on MO-Gymnasium's vector reward).
+    """
+    if env.env_id != MULTI_OBJECTIVE_ENV_ID or not isinstance(env.env_kwargs.get("env_id"), str):
+        raise ValueError(
+            f"MORL-baselines learns on an MO-Gymnasium env; {env.env_id!r} is not one (use --env with an "
+            "MO-Gymnasium id)"
+        )
+    steps = env.env_kwargs.get("episode_steps")
+    inner = {k: v for k, v in env.env_kwargs.items() if k not in _ADAPTER_KWARGS}
+    return str(env.env_kwargs["env_id"]), int(steps) if steps is not None else None, inner
+
+
+def _run(python: str, arguments: Sequence[str], out: Path) -> dict[str, Any]:
+    """The runner's record at ``out``: read if an earlier invocation wrote it, else run the runner to write it."""
+    if not out.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        # One thread: the benchmark's other process shares the machine's cores.
+        environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+        done = subprocess.run(
+            [python, str(RUNNER), *arguments, "--out", str(out)],
+            capture_output=True,
+            text=True,
+            env=environment,
+            check=False,
+        )
+        if done.returncode != 0:
+            lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
+            raise RuntimeError(f"MORL-baselines' runner failed (exit {done.returncode}): {lines[-1][:300]}")
+    record = read_json_record(out, f"{out}: not a MORL runner's record")
+    if not isinstance(record, dict) or not isinstance(record.get("front"), list):
+        raise ValueError(f"{out}: not a MORL runner's record")
+    return record
+
+
+def _score(record: Mapping[str, Any]) -> MorlScore:
+    return {
+        "hypervolume": float(record["hypervolume"]),
+        "expected_utility": float(record["expected_utility"]),
+    }
+
+
+def morl_points(
+    record: Mapping[str, Any], spec: FrontSpec, bounds: Mapping[str, Sequence[float]]
+) -> list[FrontPoint]:
+    """
+    The front points of a runner's ``train`` record: per preference, its vector return as each term's episode
+    sum and the normalised return the benchmark scores (each term's per-step value normalised by ``bounds``).
+    """
+    points = []
+    for weights, returns, length in zip(record["preferences"], record["front"], record["mean_lengths"]):
+        if len(returns) != len(spec.terms) or length <= 0:
+            raise ValueError(f"Expected {len(spec.terms)} returns per point and episodes of >= 1 step")
+        summary = {f"mean_{t}_reward": float(r) for t, r in zip(spec.terms, returns)}
+        summary["mean_length"] = float(length)
+        summary["mean_reach_reward"] = sum(
+            (float(r) - bounds[t][0] * length) / (bounds[t][1] - bounds[t][0])
+            for t, r in zip(spec.terms, returns)
+        )
+        label = preference_label(dict(zip(spec.terms, weights)))
+        points.append(FrontPoint.of(label, summary, bounds, spec.terms))
+    return points
+
+
+def morl_member(
+    python: str,
+    env: TermsEnv,
+    spec: FrontSpec,
+    bounds: Mapping[str, Sequence[float]],
+    conditioned: Sequence[FrontPoint],
+    budget: int,
+    seed: int,
+    test_seeds: range,
+    run_dir: Path,
+    conditioned_train_s: float,
+) -> tuple[list[FrontPoint], MorlRun]:
+    """
+    CAPQL's front for one seed, trained for ``budget`` env steps, and both fronts' MORL-baselines scores.
+
+    :param python: MORL-baselines' python (:func:`check_morl_python`).
+    :param env: the benchmark's env (an MO-Gymnasium env's adapter).
+    :param spec: the front's spec (its ``returns`` plane's reference is the scores' reference point).
+    :param bounds: the env's per-step term bounds.
+    :param conditioned: the conditioned manager's points.
+    :param budget: CAPQL's env steps.
+    :param seed: the training seed.
+    :param test_seeds: the test episodes' seeds (consecutive).
+    :param run_dir: where the runner's records go.
+    :param conditioned_train_s: seconds the conditioned manager trained, kept beside CAPQL's.
+    :return: CAPQL's points, and what the seed's record keeps of the run.
+    """
+    if "returns" not in spec.references:
+        raise ValueError(
+            "MORL-baselines' scores need the returns plane: an env whose episodes have a time limit"
+        )
+    env_id, steps, kwargs = mo_gymnasium_env(env)
+    reference = ",".join(f"{v:.17g}" for v in spec.references["returns"])
+    options: dict[str, object] = {
+        "env": env_id,
+        "episode-steps": steps,
+        "env-kwargs": json.dumps(kwargs) if kwargs else None,
+        "timesteps": budget,
+        "seed": seed,
+        "preferences": len(spec.sweep.points),
+        "episodes": len(test_seeds),
+        "eval-seed": test_seeds.start,
+        "ref-point": reference,
+    }
+    # --option=value: one argument each, so that a negative reference point does not read as an option.
+    arguments = ["train", *(f"--{k}={v}" for k, v in options.items() if v is not None)]
+    trained = _run(python, arguments, run_dir / f"{MORL_MEMBER}.json")
+    front = run_dir / "conditioned-returns.json"
+    objectives = [key for key, _ in spec.planes["returns"]]
+    front.write_text(
+        json.dumps(
+            {
+                "front": [[float(p.values[k]) for k in objectives] for p in conditioned],
+                "labels": [p.label for p in conditioned],
+            }
+        )
+    )
+    scored = _run(
+        python,
+        ["score", "--front", str(front), f"--ref-point={reference}"],
+        run_dir / "conditioned-morl.json",
+    )
+    run: MorlRun = {
+        "algorithm": str(trained.get("algorithm", MORL_MEMBER)),
+        "env_steps": budget,
+        "ref_point": [float(v) for v in spec.references["returns"]],
+        "wall_time_train_s": float(trained["wall_time_train_s"]),
+        "wall_time_eval_s": float(trained["wall_time_eval_s"]),
+        "conditioned_train_s": conditioned_train_s,
+        "scores": {MORL_MEMBER: _score(trained), "conditioned": _score(scored)},
+        "versions": {
+            str(k): None if v is None else str(v) for k, v in (trained.get("versions") or {}).items()
+        },
+    }
+    return morl_points(trained, spec, bounds), run
+
+
+def morl_results(
+    runs: Mapping[int, Mapping[str, Any]], workers: Mapping[int, Mapping[str, Any]]
+) -> MorlResults | None:
+    """
+    The MORL learner's figures over the seeds whose front records have them (``None``: none has): each
+    member's indicators, and the seconds each side trained, the hierarchy's being its workers' task (its
+    record's ``wall_time_s_total``) and its conditioned manager's.
+
+    :param runs: seed -> the ``hddpg-front`` record.
+    :param workers: seed -> the workers' task record.
+    """
+    seeds = [s for s in sorted(runs) if "morl" in runs[s] and s in workers]
+    if not seeds:
+        return None
+    kept: list[Mapping[str, Any]] = [runs[s]["morl"] for s in seeds]
+    members = list(kept[0]["scores"])
+    hierarchy_seconds = [
+        float(workers[s]["wall_time_s_total"]) + float(runs[s]["morl"]["conditioned_train_s"]) for s in seeds
+    ]
+    return {
+        "algorithm": str(kept[0]["algorithm"]),
+        "env_steps": [int(m["env_steps"]) for m in kept],
+        "ref_point": [float(v) for v in kept[0]["ref_point"]],
+        "scores": {
+            member: {
+                indicator: summarise([float(m["scores"][member][indicator]) for m in kept])
+                for indicator in ("hypervolume", "expected_utility")
+            }
+            for member in members
+        },
+        "train_seconds": {
+            MORL_MEMBER: summarise([float(m["wall_time_train_s"]) for m in kept]),
+            "conditioned": summarise(hierarchy_seconds),
+        },
+        "versions": dict(kept[0].get("versions") or {}),
+    }
+
+
+__all__ = [
+    "MORL_MEMBER",
+    "RUNNER",
+    "MorlRun",
+    "MorlScore",
+    "check_morl_python",
+    "mo_gymnasium_env",
+    "morl_member",
+    "morl_points",
+    "morl_results",
+]
