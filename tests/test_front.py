@@ -28,10 +28,11 @@ from sb3_hddpg.training.config import MANAGER_KEY
 from tests.cli_runner import run_cli
 
 
-def _point(touch, contacts, goal=0.5, avoid=0.5):
+def _point(touch, contacts, goal=0.5, avoid=0.5, reach=340.0):
     values = {
         "goal_touch_rate": touch,
         "contacts_per_episode": contacts,
+        "mean_reach_reward": reach,
         "goal_term": goal,
         "avoid_term": avoid,
     }
@@ -91,7 +92,7 @@ def _with_front(front):
 def test_front_results_compare_members_by_seed():
     def record(shift):
         members = {
-            "conditioned": [_point(0.5 + shift, 5.0), _point(0.3, 1.0)],
+            "conditioned": [_point(0.5 + shift, 5.0), _point(0.3, 1.0), _point(0.2, 2.0, reach=345.0)],
             "ham": [_point(0.4, 6.0)],
             "per-preference": [_point(0.45, 6.0)],
             "goal": [_point(0.6, 14.0)],
@@ -116,6 +117,9 @@ def test_front_results_compare_members_by_seed():
     assert safe["per_seed"]["conditioned"] == {"0": 0.3, "1": 0.3, "2": 0.3}
     assert safe["per_seed"]["ham"] == {"0": None, "1": None, "2": None}
     assert safe["per_seed"]["avoid"]["0"] == 0.1
+    # Its reward: the safe point of highest reach reward (not the one of most touch), and that point's touch.
+    assert safe["best_reach"]["conditioned"]["1"] == {"reach": 345.0, "touch": 0.2}
+    assert safe["best_reach"]["ham"]["0"] is None
     # The generated pages' tables (hddpg-cli report): the front and the decides-by-state table.
     from sb3_hddpg.experiments.benchmark.pages import render_page
 
@@ -124,7 +128,11 @@ def test_front_results_compare_members_by_seed():
     text, written = render_page(page, "run", _with_front(results))
     assert written == ["front"] and "| conditioned |" in text and "Reference points" in text
     assert "better in 3 of 3 seeds" in text
-    assert "- conditioned: 30.0 % (reached in 3 of 3 seeds)" in text and "- ham: - (reached in 0 of 3" in text
+    assert (
+        "- conditioned: most goal touch 30.0 % (reached in 3 of 3 seeds); highest reach reward 345.0, with 20.0 %"
+        in text
+    )
+    assert "- ham: most goal touch - (reached in 0 of 3" in text
     text, _ = render_page(
         "<!-- generated:run/front -->\n<!-- /generated:run/front -->\n", "run", _with_front(None)
     )

@@ -187,6 +187,8 @@ class SafeTouch(TypedDict):
     contacts: float
     #: member -> seed -> the touch rate (``None``: no point of that seed's front is that safe)
     per_seed: dict[str, dict[str, float | None]]
+    #: member -> seed -> the safe point of highest reach reward, ``{"reach", "touch"}`` (absent before kept)
+    best_reach: NotRequired[dict[str, dict[str, dict[str, float] | None]]]
 
 
 class MorlResults(TypedDict):

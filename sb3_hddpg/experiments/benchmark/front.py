@@ -62,6 +62,7 @@ from sb3_hddpg.experiments.benchmark.front_points import (
     env_front,
     member_fields,
     non_dominated,
+    safe_best_reach,
     safe_touch,
     sweep_labels,
 )
@@ -499,6 +500,9 @@ def front_results(
             "contacts": SAFE_CONTACTS,
             "per_seed": {
                 m: {str(s): safe_touch(runs[s]["front"][m]["points"]) for s in seeds} for m in per_seed
+            },
+            "best_reach": {
+                m: {str(s): safe_best_reach(runs[s]["front"][m]["points"]) for s in seeds} for m in per_seed
             },
         }
     return results

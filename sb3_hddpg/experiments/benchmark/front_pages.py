@@ -88,11 +88,18 @@ def _safe_touch_lines(front: FrontResults) -> list[str]:
     safe = front.get("safe_touch")
     if safe is None:
         return []
-    lines = ["", f"Most goal touch with at most {safe['contacts']:g} contacts per episode:"]
+    lines = ["", f"The safe end, at most {safe['contacts']:g} contacts per episode:"]
+    best = safe.get("best_reach", {})
     for member, per_seed in safe["per_seed"].items():
         reached = [v for v in per_seed.values() if v is not None]
         mean = f"{100 * sum(reached) / len(reached):.1f} %" if reached else "-"
-        lines.append(f"- {member}: {mean} (reached in {len(reached)} of {len(per_seed)} seeds)")
+        line = f"- {member}: most goal touch {mean} (reached in {len(reached)} of {len(per_seed)} seeds)"
+        points = [p for p in best.get(member, {}).values() if p is not None]
+        if points:
+            reach = sum(p["reach"] for p in points) / len(points)
+            touch = sum(p["touch"] for p in points) / len(points)
+            line += f"; highest reach reward {reach:.1f}, with {100 * touch:.1f} % touch at that point"
+        lines.append(line)
     return lines
 
 

@@ -233,6 +233,28 @@ def safe_touch(points: Sequence[Mapping[str, object]], contacts: float = SAFE_CO
     return max(touches) if touches else None
 
 
+def safe_best_reach(
+    points: Sequence[Mapping[str, object]], contacts: float = SAFE_CONTACTS
+) -> dict[str, float] | None:
+    """
+    The point of highest reach reward among a snake front's ``points`` with at most ``contacts`` contacts per
+    episode, as ``{"reach": ..., "touch": ...}``: what the safe end costs in reward, and the touch it keeps
+    (``None``: no point is that safe, or not a snake front).
+    """
+    safe = [
+        p
+        for p in points
+        if "contacts_per_episode" in p and float(cast(float, p["contacts_per_episode"])) <= contacts
+    ]
+    if not safe:
+        return None
+    best = max(safe, key=lambda p: float(cast(float, p["mean_reach_reward"])))
+    return {
+        "reach": float(cast(float, best["mean_reach_reward"])),
+        "touch": float(cast(float, best["goal_touch_rate"])),
+    }
+
+
 __all__ = [
     "PLANES",
     "REFERENCE_POINTS",
@@ -247,6 +269,7 @@ __all__ = [
     "member_fields",
     "non_dominated",
     "preference_label",
+    "safe_best_reach",
     "safe_touch",
     "sweep_labels",
 ]
