@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypedDict
 
+from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import read_json_record
 from sb3_hddpg.artifacts.records.results_leaves import MorlResults
 from sb3_hddpg.envs.adapters import MULTI_OBJECTIVE_ENV_ID
@@ -34,6 +35,8 @@ RUNNER = Path(__file__).with_name("morl_runner.py")
 MORL_MEMBER = "capql"
 #: The adapter's own keyword arguments; the rest are the MO-Gymnasium env's.
 _ADAPTER_KWARGS = ("env_id", "terms", "term_bounds", "term", "episode_steps", "render_mode")
+#: A runner's record's scores (MORL-baselines' indicators).
+_SCORES = ("hypervolume", "expected_utility")
 
 
 class MorlScore(TypedDict):
@@ -88,8 +91,12 @@ def mo_gymnasium_env(env: TermsEnv) -> tuple[str, int | None, dict[str, Any]]:
     return str(env.env_kwargs["env_id"]), int(steps) if steps is not None else None, inner
 
 
-def _run(python: str, arguments: Sequence[str], out: Path) -> dict[str, Any]:
-    """The runner's record at ``out``: read if an earlier invocation wrote it, else run the runner to write it."""
+def _run(python: str, arguments: Sequence[str], out: Path, keys: Sequence[str]) -> dict[str, Any]:
+    """
+    The runner's record at ``out``: read if an earlier invocation wrote it, else run the runner to write it.
+
+    :raises ValueError: the record lacks one of ``keys`` or holds a non-number where a score goes.
+    """
     if not out.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
         # One thread: the benchmark's other process shares the machine's cores.
@@ -105,8 +112,10 @@ def _run(python: str, arguments: Sequence[str], out: Path) -> dict[str, Any]:
             lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
             raise RuntimeError(f"MORL-baselines' runner failed (exit {done.returncode}): {lines[-1][:300]}")
     record = read_json_record(out, f"{out}: not a MORL runner's record")
-    if not isinstance(record, dict) or not isinstance(record.get("front"), list):
-        raise ValueError(f"{out}: not a MORL runner's record")
+    if not isinstance(record, dict) or any(k not in record for k in ("front", *keys)):
+        raise ValueError(f"{out}: not a MORL runner's record with {['front', *keys]}")
+    if not all(isinstance(record[k], (int, float)) for k in _SCORES):
+        raise ValueError(f"{out}: a MORL runner's scores are numbers")
     return record
 
 
@@ -185,22 +194,13 @@ def morl_member(
     }
     # --option=value: one argument each, so that a negative reference point does not read as an option.
     arguments = ["train", *(f"--{k}={v}" for k, v in options.items() if v is not None)]
-    trained = _run(python, arguments, run_dir / f"{MORL_MEMBER}.json")
-    front = run_dir / "conditioned-returns.json"
-    objectives = [key for key, _ in spec.planes["returns"]]
-    front.write_text(
-        json.dumps(
-            {
-                "front": [[float(p.values[k]) for k in objectives] for p in conditioned],
-                "labels": [p.label for p in conditioned],
-            }
-        )
-    )
-    scored = _run(
+    trained = _run(
         python,
-        ["score", "--front", str(front), f"--ref-point={reference}"],
-        run_dir / "conditioned-morl.json",
+        arguments,
+        run_dir / f"{MORL_MEMBER}.json",
+        ("preferences", "mean_lengths", "wall_time_train_s", "wall_time_eval_s", *_SCORES),
     )
+    scored = _score_front(python, spec, conditioned, reference, run_dir)
     run: MorlRun = {
         "algorithm": str(trained.get("algorithm", MORL_MEMBER)),
         "env_steps": budget,
@@ -214,6 +214,23 @@ def morl_member(
         },
     }
     return morl_points(trained, spec, bounds), run
+
+
+def _score_front(
+    python: str, spec: FrontSpec, points: Sequence[FrontPoint], reference: str, run_dir: Path
+) -> dict[str, Any]:
+    """The conditioned manager's ``points`` in the returns plane, scored by the runner's ``score``."""
+    front = run_dir / "conditioned-returns.json"
+    objectives = [key for key, _ in spec.planes["returns"]]
+    atomic_write_json(
+        front,
+        {
+            "front": [[float(p.values[k]) for k in objectives] for p in points],
+            "labels": [p.label for p in points],
+        },
+    )
+    arguments = ["score", "--front", str(front), f"--ref-point={reference}"]
+    return _run(python, arguments, run_dir / "conditioned-morl.json", _SCORES)
 
 
 def morl_results(
@@ -242,7 +259,7 @@ def morl_results(
         "scores": {
             member: {
                 indicator: summarise([float(m["scores"][member][indicator]) for m in kept])
-                for indicator in ("hypervolume", "expected_utility")
+                for indicator in _SCORES
             }
             for member in members
         },
