@@ -252,7 +252,10 @@ def _train_managers(
 
 
 def _conditioned_seconds(folder: Path, seconds: float) -> float:
-    """The conditioned manager's training seconds: kept in ``folder`` the first time, read when resumed."""
+    """
+    The conditioned manager's training seconds: kept in ``folder`` the first time, read when resumed (a
+    training interrupted and resumed counts only the invocation that finished it).
+    """
     path = folder / "train-seconds.json"
     if path.exists():
         kept = read_json_record(path, f"{path}: not a seconds record")

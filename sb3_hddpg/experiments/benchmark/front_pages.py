@@ -118,7 +118,9 @@ def _morl_lines(front: FrontResults) -> list[str]:
         "",
         f"{morl['algorithm'].upper()} (MORL-baselines) beside the conditioned manager, trained for the same env "
         f"steps ({budget} per seed: the workers' and the conditioned manager's), scored by MORL-baselines' own "
-        f"indicators from the reference point {tuple(morl['ref_point'])}:",
+        f"indicators from the reference point {tuple(morl['ref_point'])}. The hierarchy's wall-clock (its "
+        "workers' task and its conditioned manager) includes their learning-curve evaluations; CAPQL's is "
+        "training alone:",
         "",
         "| member | hypervolume | expected utility | training wall-clock, s |",
         "|---|---|---|---|",
