@@ -463,3 +463,10 @@ def test_mujoco_warnings_go_to_logging_not_to_a_file_in_the_current_folder(tmp_p
         installed[0]("Nan, Inf or huge value in QACC at DOF 0.\n")
     assert "MuJoCo: Nan, Inf or huge value in QACC" in caplog.text
     assert list(tmp_path.iterdir()) == []
+    # A model's compile warning comes again with every env made: logged once per process, others still logged.
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="sb3_hddpg.mujoco"):
+        for _ in range(3):
+            installed[0]("compiler attribute 'settotalmass' is deprecated\n")
+        installed[0]("Nan, Inf or huge value in QACC at DOF 1.\n")
+    assert caplog.text.count("settotalmass") == 1 and "DOF 1" in caplog.text

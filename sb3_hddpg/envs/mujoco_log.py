@@ -13,10 +13,16 @@ import logging
 import sys
 
 logger = logging.getLogger("sb3_hddpg.mujoco")
+#: The warnings logged in this process: MuJoCo repeats a model's compile warnings (a deprecated attribute of
+#: the env's XML) every time an env is made, which a benchmark does hundreds of times; once says it.
+_logged: set[str] = set()
 
 
 def _log_warning(message: str) -> None:
-    logger.warning("MuJoCo: %s", str(message).strip())
+    text = str(message).strip()
+    if text not in _logged:
+        _logged.add(text)
+        logger.warning("MuJoCo: %s", text)
 
 
 def route_mujoco_warnings() -> bool:
