@@ -692,6 +692,8 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     env_args = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
     tiny = ["--seeds", "2", "--timesteps", "40", "--worker-timesteps", "50", "--eval-freq", "40"]
     tiny += ["--eval-episodes", "1", "--test-episodes", "1"]
+    # The conditioned manager alone: the snake's front tests train the per-preference references.
+    tiny += ["--no-front-per-preference"]
     out = tmp_path / "front"
     export = tmp_path / "models"
     done, exported = run_batch(
@@ -708,7 +710,9 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     assert list(conditioned[0]["manager_preferences"]["points"][0]) == ["time", "fuel"]
     front = json.loads((out / "results.json").read_text())["front"]
     # No rule on this env: the managers and each worker alone, in the terms and the returns plane.
-    assert front["members"] == ["conditioned", "per-preference", "time", "fuel"]
+    assert front["members"] == ["conditioned", "time", "fuel"]
+    assert not list((out / "seed-0" / "hddpg-front").glob("manager-*"))
+    assert front["manager"]["per_preference"] is False
     assert list(front["planes"]) == ["terms", "returns"]
     record = json.loads((out / "records" / "hddpg-front" / "seed-0.json").read_text())
     assert record["rule"] is None and record["rule_thresholds"] == []
@@ -721,7 +725,9 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     assert record["references"]["returns"] == pytest.approx([30 * float(v) for v in low])
     points = record["front"]["conditioned"]["points"]
     assert len(points) == 7 and all(-30.0 <= p["time_return"] <= 0.0 for p in points)
-    assert set(front["comparisons"]) == {f"conditioned vs {m}" for m in ("per-preference", "time", "fuel")}
+    assert set(front["comparisons"]) == {f"conditioned vs {m}" for m in ("time", "fuel")}
     assert set(front["comparisons"]["conditioned vs time"]["planes"]) == {"terms", "returns"}
     assert (out / "fronts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "hypervolume (time_return, fuel_return)".replace("_", " ") in (out / "results.md").read_text()
+    page = (out / "results.md").read_text()
+    assert "hypervolume (time_return, fuel_return)".replace("_", " ") in page
+    assert "The front's managers (conditioned only)" in page

@@ -187,6 +187,11 @@ def test_the_fronts_sweep_and_motion_are_checked_and_priced():
         METHOD_REGISTRY["hddpg-front"].cost(wide) == (1 + 9) * 1000
     )  # 16:1 ... 1:16, and the conditioned one
     assert wide.front_motion == 20.0
+    alone = BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_timesteps=1000,
+                              front_sweep="ratio-sweep:16", front_per_preference=False)  # fmt: skip
+    assert METHOD_REGISTRY["hddpg-front"].cost(alone) == 1000  # the conditioned manager alone
+    with pytest.raises(ValueError, match="front_per_preference"):
+        BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_per_preference="no")
     for bad in ({"front_sweep": "ratio-sweep:3"}, {"front_sweep": "dirichlet"}, {"front_motion": -1.0},
                 {"front_motion": float("nan")}):  # fmt: skip
         with pytest.raises(ValueError, match=r"sweep|motion"):
@@ -211,7 +216,8 @@ def test_a_front_of_dqn_managers_records_its_algorithm_and_budget(tmp_path):
     results = run_benchmark(settings, tmp_path)
     record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
     assert record["manager"] == {
-        "algo": "dqn", "env_steps": 400, "backend": "sb3", "sweep": "ratio-sweep:16", "motion": 20.0
+        "algo": "dqn", "env_steps": 400, "backend": "sb3", "sweep": "ratio-sweep:16", "motion": 20.0,
+        "per_preference": True,
     }  # fmt: skip
     assert results["front"]["manager"] == record["manager"]
     assert (

@@ -301,6 +301,15 @@ _FrontMotionOpt = Annotated[
         "factor (train-manager --manager-motion); 0: the state only.",
     ),
 ]
+_FrontPerPreferenceOpt = Annotated[
+    bool,
+    typer.Option(
+        "--front-per-preference/--no-front-per-preference",
+        help="The front also trains one manager per sweep preference, the conditioned manager's reference; "
+        "--no-front-per-preference trains the conditioned manager alone (what one policy for every "
+        "preference costs).",
+    ),
+]
 _MorlPythonOpt = Annotated[
     str | None,
     typer.Option(
@@ -350,6 +359,7 @@ def benchmark_command(
     front_timesteps: _FrontTimestepsOpt = None,
     front_sweep: _FrontSweepOpt = "ratio-sweep",
     front_motion: _FrontMotionOpt = 0.0,
+    front_per_preference: _FrontPerPreferenceOpt = True,
     morl_python: _MorlPythonOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
@@ -357,9 +367,8 @@ def benchmark_command(
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """
-    Train and evaluate every method on every seed; write results.json, evaluations.csv and plots. The
-    tables compare the return of the normalised terms; goal touches and contacts only where the env reports
-    them (the snake arm).
+    Train and evaluate every method on every seed; write results.json, evaluations.csv and plots. The tables
+    compare the return of the normalised terms; goal touches and contacts where the env reports them (the snake).
     """
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
@@ -387,6 +396,7 @@ def benchmark_command(
             front_timesteps=front_timesteps,
             front_sweep=front_sweep,
             front_motion=front_motion,
+            front_per_preference=front_per_preference,
             morl_python=morl_python,
         )
     redone = _checked_resume(settings, redo, resume)

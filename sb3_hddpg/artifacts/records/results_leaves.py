@@ -179,6 +179,8 @@ class FrontManager(TypedDict):
     sweep: NotRequired[str]
     #: their motion scale (absent before they could see motion: 0)
     motion: NotRequired[float]
+    #: whether a manager per preference was trained beside the conditioned one (absent before optional: yes)
+    per_preference: NotRequired[bool]
 
 
 class SafeTouch(TypedDict):

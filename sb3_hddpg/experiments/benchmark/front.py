@@ -7,7 +7,8 @@ Per seed, over that seed's workers, on the benchmark's test episodes, on the sna
 - ``conditioned``: one preference-conditioned manager (``train_manager(manager_preferences=...)``) trained
   over the env's ``ratio-sweep`` (each worker in turn weighted 1 to 4 times the others; 7 preferences for
   two workers) and evaluated at each of its preferences;
-- ``per-preference``: one manager trained for each preference of the sweep, each at its own preference;
+- ``per-preference``: one manager trained for each preference of the sweep, each at its own preference
+  (the reference; not trained when ``front_per_preference`` is off);
 - the env's hand-written rule over a threshold sweep: HAM on the snake arm (``ham``), the time-to-collision
   switch on highway-env (``ttc``); the thresholds are those of a grid that are not dominated on the curve
   episodes (:data:`~sb3_hddpg.episode_sets.CURVE`), so no threshold is picked on the episodes that score it;
@@ -226,7 +227,10 @@ def _test_point(
 def _train_managers(
     task: MethodTask, settings: MethodSettings, folder: Path, sweep: PreferenceSpace
 ) -> tuple[Hierarchy, float, list[tuple[str, Hierarchy]]]:
-    """The seed's conditioned manager over ``sweep``, the seconds it trained, and one manager per preference of it."""
+    """
+    The seed's conditioned manager over ``sweep``, the seconds it trained, and one manager per preference of it
+    (none when the settings' ``front_per_preference`` is off).
+    """
     run_dir = folder / task.method
     run, algo = settings.front_run_options(task.seed), settings.front_manager
     shared = settings.terms_env
@@ -241,7 +245,7 @@ def _train_managers(
     # A resumed task's conditioned manager trained before: its seconds are those of the earlier invocation.
     seconds = _conditioned_seconds(run_dir / "conditioned", time.perf_counter() - started)
     per_preference: list[tuple[str, Hierarchy]] = []
-    for label, point in zip(sweep_labels(sweep), sweep.points):
+    for label, point in zip(sweep_labels(sweep), sweep.points) if settings.front_per_preference else ():
         factors = dict(zip(sweep.names, point))
         name = "manager-" + "-".join(f"{v:.3g}" for v in point)
         hierarchy, _ = train_manager(
@@ -295,9 +299,10 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
                 hierarchy, env, seeds, worker=spec.terms[-1], seed=task.seed
             )
         front["conditioned"] = member_fields(points, spec)
-        front["per-preference"] = member_fields(
-            [_test_point(label, h, env, settings, spec) for label, h in per_preference], spec
-        )
+        if per_preference:
+            front["per-preference"] = member_fields(
+                [_test_point(label, h, env, settings, spec) for label, h in per_preference], spec
+            )
         thresholds: list[dict[str, float]] = []
         if spec.rule is not None:
             rule_points, thresholds = _rule_front(spec, folder, run_dir, task.seed, env, settings)
@@ -366,6 +371,7 @@ def _manager_fields(settings: MethodSettings, conditioned: Hierarchy) -> FrontMa
         "backend": run.backend,
         "sweep": settings.front_sweep,
         "motion": settings.front_motion,
+        "per_preference": settings.front_per_preference,
     }
 
 
@@ -516,11 +522,12 @@ FRONT_METHOD = "hddpg-front"
 
 
 def _front_cost(settings: MethodSettings) -> int:
-    # The conditioned manager and one manager per sweep preference, each the front's env steps.
+    # The conditioned manager and, unless left out, one manager per sweep preference, each the front's env steps.
     shared = settings.terms_env
     terms = SWEEP.names if shared is None else shared.terms
     sweep = PreferenceSpace.parse(settings.front_sweep, terms)
-    return (1 + len(sweep.points)) * settings.front_env_steps
+    references = len(sweep.points) if settings.front_per_preference else 0
+    return (1 + references) * settings.front_env_steps
 
 
 def _front_blocks(settings: MethodSettings) -> dict[str, object]:
@@ -540,6 +547,13 @@ register_method(
             "over a threshold sweep (HAM on the snake arm) and each worker alone, with hypervolumes"
         ),
         config_blocks=_front_blocks,
-        own_settings=("front_manager", "front_timesteps", "front_sweep", "front_motion", "morl_python"),
+        own_settings=(
+            "front_manager",
+            "front_timesteps",
+            "front_sweep",
+            "front_motion",
+            "front_per_preference",
+            "morl_python",
+        ),
     )
 )

@@ -62,9 +62,11 @@ def front_table(front: FrontResults) -> list[str]:
         sweep = f", over {manager['sweep']}" if manager.get("sweep", "ratio-sweep") != "ratio-sweep" else ""
         motion = f", seeing motion (x{manager['motion']:g})" if manager.get("motion") else ""
         lines.append("")
+        trained = (
+            "conditioned and per preference" if manager.get("per_preference", True) else "conditioned only"
+        )
         lines.append(
-            "The front's managers (conditioned and per preference): "
-            f"{manager['algo'].upper()}{backend}{budget}{sweep}{motion}."
+            f"The front's managers ({trained}): {manager['algo'].upper()}{backend}{budget}{sweep}{motion}."
         )
     references = front.get("references", {})
     if references:

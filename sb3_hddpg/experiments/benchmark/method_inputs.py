@@ -76,6 +76,9 @@ class MethodSettings(Protocol):
     @property
     def front_motion(self) -> float: ...
 
+    @property
+    def front_per_preference(self) -> bool: ...
+
     def manager_run_options(
         self, seed: int, algo: str = "ddpg", env_steps: int | None = None
     ) -> RunOptions: ...

@@ -155,6 +155,9 @@ class BenchmarkSettings:
         for two workers) or ``ratio-sweep:MAX`` (ratios doubling up to ``MAX``; ``ratio-sweep:16``: 9).
     :param front_motion: the front's managers also see how their state moved over the last env step,
         scaled by this factor (``manager_motion`` of ``train_manager``; 0: not).
+    :param front_per_preference: the front also trains one manager per sweep preference, the reference the
+        conditioned manager is measured against (``False``: the conditioned manager alone, which is what one
+        policy for every preference costs; on a slow env it saves most of the front's training).
     :param morl_python: the python of a virtual environment with MORL-baselines: the front then adds its
         CAPQL, trained for the hierarchy's env steps (:mod:`.morl`; an MO-Gymnasium env only).
     """
@@ -181,6 +184,7 @@ class BenchmarkSettings:
     front_timesteps: int | None = None
     front_sweep: str = "ratio-sweep"
     front_motion: float = 0.0
+    front_per_preference: bool = True
     morl_python: str | None = None
 
     def __post_init__(self) -> None:
@@ -260,6 +264,10 @@ class BenchmarkSettings:
                 f"Expected the front's motion scale to be a finite number >= 0, actually: {motion!r}"
             )
         self.front_motion = float(motion)
+        if not isinstance(self.front_per_preference, bool):
+            raise ValueError(
+                f"Expected `front_per_preference` true or false, actually: {self.front_per_preference!r:.60}"
+            )
 
     def _check_morl(self) -> None:
         """MORL-baselines' python, for the front on an MO-Gymnasium env."""
