@@ -68,6 +68,8 @@ MAX_WORKERS = 32
 MAX_ITEMS = 64
 #: Largest seed (numpy's ``SeedSequence`` takes any, SB3's ``set_random_seed`` 32 bits).
 MAX_SEED = 2**32 - 1
+#: Most seeds of one benchmark (each a run of every method; a run of record has 10).
+MAX_BENCHMARK_SEEDS = 1_000
 #: Most bytes of a run folder's marker read, and most entries it may list (a package writes about ten).
 MAX_MARKER_BYTES = 1 << 16
 MAX_MARKER_ENTRIES = 256

@@ -10,6 +10,7 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
+from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS
 from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
@@ -24,6 +25,7 @@ from sb3_hddpg.cli.options import (
     TermBoundsOpt,
     TermsOpt,
     at_least,
+    between,
     cluster_address,
     positive_float,
     prepare_out_dir,
@@ -142,7 +144,10 @@ _PreferenceOpt = Annotated[
     ),
 ]
 _SeedsOpt = Annotated[
-    int, typer.Option("--seeds", callback=at_least(1), help="Seeds 0..N-1, one run per method each.")
+    int,
+    typer.Option(
+        "--seeds", callback=between(1, MAX_BENCHMARK_SEEDS), help="Seeds 0..N-1, one run per method each."
+    ),
 ]
 _TimestepsOpt = Annotated[
     int | None,
@@ -322,7 +327,8 @@ _MorlPythonOpt = Annotated[
 #: The options whose values the benchmark's settings check, named in their errors.
 _SETTINGS_OPTIONS = (
     "'--methods' / '--preference' / '--env' / '--front-manager' / '--front-sweep' / '--front-motion' / "
-    "'--morl-python'"
+    "'--morl-python' / '--timesteps' / '--worker-timesteps' / '--flat-timesteps' / '--front-timesteps' / "
+    "'--eval-episodes'"
 )
 
 

@@ -50,6 +50,17 @@ def at_least(minimum: int) -> Callable[[int | None], int | None]:
     return check
 
 
+def between(minimum: int, maximum: int) -> Callable[[int | None], int | None]:
+    """A typer callback that accepts integers in ``[minimum, maximum]`` (``None`` passes)."""
+
+    def check(value: int | None) -> int | None:
+        if value is not None and not minimum <= value <= maximum:
+            raise typer.BadParameter(f"must be in [{minimum}, {maximum}], got {value}")
+        return value
+
+    return check
+
+
 def seed_range(value: int | None) -> int | None:
     """A typer callback for seeds: integers in ``[0, 2**32 - 1]`` (SB3's range; ``None`` passes)."""
     if value is not None and not 0 <= value <= MAX_SEED:

@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write
-from sb3_hddpg.artifacts.limits import read_json_file
-from sb3_hddpg.artifacts.records import JsonObject
+from sb3_hddpg.artifacts.records import JsonObject, read_benchmark_record
 from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.artifacts.records.results_leaves import Aggregates, Interval, PairedDifference, Summary
+from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_settings
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
 from sb3_hddpg.experiments.benchmark.front_pages import decides_table, front_table
 from sb3_hddpg.experiments.benchmark.report import headline_figures, ttc_dependence_table
@@ -48,10 +48,10 @@ def load_run(run: Path) -> tuple[BenchmarkSettings, list[JsonObject]]:
     """
     if not (run / "benchmark.json").is_file() or not (run / "records").is_dir():
         raise FileNotFoundError(f"not a benchmark folder (no benchmark.json and records/): {str(run)!r}")
-    stored = read_json_file(run / "benchmark.json")
-    settings = BenchmarkSettings(**stored["settings"])
-    read = [read_json_file(path) for path in sorted((run / "records").glob("*/seed-*.json"))]
-    records: list[JsonObject] = [r for r in read if isinstance(r, dict) and r.get("status") == "done"]
+    settings = read_benchmark_settings(run / "benchmark.json")
+    # Through the one reader of a record (its size, depth, status, method, seed and version checked).
+    read = [read_benchmark_record(path).to_json() for path in sorted((run / "records").glob("*/seed-*.json"))]
+    records: list[JsonObject] = [r for r in read if r.get("status") == "done"]
     csv_path = run / "episodes.csv"
     if csv_path.is_file():
         rows = group_rows(read_episodes_csv(csv_path))

@@ -26,6 +26,7 @@ from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.artifacts.records import BenchmarkResults, benchmark_record, read_benchmark_record
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
+from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_file
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
     WORKERS,
@@ -191,10 +192,7 @@ def check_workers_source(settings: BenchmarkSettings) -> None:
     stored = source / "benchmark.json"
     if not stored.is_file():
         raise FileNotFoundError(f"not a benchmark folder (no benchmark.json): {str(source)!r}")
-    theirs = read_json_file(stored)
-    theirs = theirs.get("settings") if isinstance(theirs, dict) else None
-    if not isinstance(theirs, dict):
-        raise ValueError(f"Not a benchmark's settings: {str(stored)!r}")
+    theirs = read_benchmark_file(stored)["settings"]
     for key in ("backend", "env", "worker_timesteps", "worker_algo"):
         if theirs.get(key, getattr(BenchmarkSettings, key, None)) != getattr(settings, key):
             raise ValueError(
@@ -429,7 +427,7 @@ def run_benchmark(
     notify = on_event or (lambda kind, task, record: None)
     settings_path = out / "benchmark.json"
     redo = check_redo(settings, redo, resume)
-    saved = read_json_file(settings_path) if resume and settings_path.exists() else None
+    saved = read_benchmark_file(settings_path) if resume and settings_path.exists() else None
     if saved is not None:
         _check_same_settings(settings, saved, redo, out)
     check_workers_source(settings)

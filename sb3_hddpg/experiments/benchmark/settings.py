@@ -7,12 +7,20 @@ import functools
 import json
 import math
 from dataclasses import dataclass, field
-from typing import cast
 
 import gymnasium as gym
 from stable_baselines3 import DDPG
 
 from sb3_hddpg.algorithms import algorithm, algorithms_for
+from sb3_hddpg.artifacts.limits import (
+    MAX_BENCHMARK_SEEDS,
+    MAX_SEED,
+    MAX_TERMS,
+    brief,
+    check_env_id,
+    check_name,
+)
+from sb3_hddpg.artifacts.values import RUN_SETTINGS, check_env_kwargs, check_field_types
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.episode_sets import DEVELOPMENT, FINAL_TEST, FINAL_TEST_EPISODES, EpisodeSet
@@ -188,6 +196,8 @@ class BenchmarkSettings:
     morl_python: str | None = None
 
     def __post_init__(self) -> None:
+        # Every field's kind first: settings read back from a benchmark.json someone may have edited.
+        check_field_types(self, "benchmark settings")
         self._check_methods()
         self._check_front_manager()
         self._check_front_inputs()
@@ -195,8 +205,12 @@ class BenchmarkSettings:
             self._check_env()
         if self.morl_python is not None:
             self._check_morl()
-        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
-            raise ValueError(f"Expected distinct seeds, at least one, actually: {self.seeds}")
+        if not 1 <= len(self.seeds) <= MAX_BENCHMARK_SEEDS or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(
+                f"Expected distinct seeds, 1 to {MAX_BENCHMARK_SEEDS} of them, actually: {brief(self.seeds)}"
+            )
+        if not all(0 <= seed <= MAX_SEED for seed in self.seeds):
+            raise ValueError(f"Expected seeds in [0, {MAX_SEED}], actually: {brief(self.seeds)}")
         if not self.timesteps:
             self.timesteps = _config_budgets()[MANAGER_KEY]
         if self.test_episodes is None:
@@ -207,6 +221,28 @@ class BenchmarkSettings:
             if value is not None and value < 1:
                 raise ValueError(f"Expected `{name}` >= 1, actually: {getattr(self, name)}")
         self._check_scenario()
+        self._check_budgets()
+
+    def _check_budgets(self) -> None:
+        """
+        Every budget a task trains for, in env steps, and the evaluation settings, within the bounds of the run
+        options the tasks build: checked here, a budget too large is refused before anything trains, not by
+        the task that reaches it after the seed's workers have trained.
+        """
+        flat = any(
+            m in FLAT_METHODS or m in FLAT_HER_METHODS or m in DISCRETE_FLAT_METHODS for m in self.methods
+        )
+        budgets = {
+            "timesteps": self.manager_env_steps,
+            "worker_timesteps": self.worker_timesteps,
+            "front_timesteps": self.front_env_steps,
+            "flat_timesteps": self.flat_budget if flat else self.flat_timesteps,
+        }
+        for name, steps in budgets.items():
+            if steps is not None:
+                RUN_SETTINGS["timesteps"].check(steps, f"`{name}` (env steps)")
+        RUN_SETTINGS["eval_freq"].check(self.eval_freq or 0, "`eval_freq`")
+        RUN_SETTINGS["eval_episodes"].check(self.eval_episodes, "`eval_episodes`")
 
     def _check_scenario(self) -> None:
         """A known scenario, with its preferences (transfer) or its one method (front)."""
@@ -303,13 +339,23 @@ class BenchmarkSettings:
                 f"Expected `env` as {{'env_id', 'env_kwargs', 'terms'}}, actually: {str(self.env)[:200]}"
             )
         self.env = json.loads(json.dumps(env))  # tuples become lists, as benchmark.json stores them
+        # As the --env option's are: no module prefix (gym.make would import it), kwargs bounded and path-free.
+        check_env_kwargs(
+            check_env_id(env["env_id"], "env.env_id", trusted=True), env["env_kwargs"], "env", trusted=True
+        )
+        terms = self.env["terms"]
+        if not isinstance(terms, list) or not 1 <= len(terms) <= MAX_TERMS:
+            raise ValueError(
+                f"Expected `env.terms` to be a list of 1 to {MAX_TERMS} names, actually: {brief(terms)}"
+            )
+        for term in terms:
+            check_name(term, "env.terms")
         snake_only = [m for m in self.methods if m not in ENV_METHODS and m not in FRONT_METHODS]
         if snake_only:
             raise ValueError(
                 f"Methods {snake_only} are defined for the snake arm only; on {env['env_id']!r} choose from "
                 f"{[*ENV_METHODS, *FRONT_METHODS]}"
             )
-        terms = cast(list[str], env["terms"])
         if any(m in FRONT_METHODS for m in self.methods) and len(terms) < 2:
             raise ValueError(f"A front needs at least two terms, actually: {terms}")
         if self.scenario == "transfer":

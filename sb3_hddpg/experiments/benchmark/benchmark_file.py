@@ -1,0 +1,81 @@
+"""
+The one reader of a benchmark folder's ``benchmark.json``: its header (settings, budgets, invocations) checked
+before a resumed benchmark, ``report`` or ``--workers-from`` reads a field of it, and its settings made into
+:class:`~.settings.BenchmarkSettings` (every field's kind and bound checked there).
+
+A folder may come from someone else, or have been edited: a field of the wrong kind is one ``ValueError`` line
+naming the file, never a ``KeyError`` or ``TypeError`` at the end of a run that already trained everything.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+from sb3_hddpg.artifacts.limits import brief, read_json_record
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
+
+
+def read_benchmark_file(path: str | Path) -> dict[str, Any]:
+    """
+    ``benchmark.json`` through the JSON size and depth limits, with the shape its readers rely on: an object
+    whose ``settings`` is an object (its ``methods`` a list of names), ``budgets`` an object, and
+    ``invocations`` a list of objects whose ``wall_time_s`` is a finite number >= 0.
+
+    :raises ValueError: one line naming the file and the field.
+    """
+    value = read_json_record(path, f"{path}: not a readable benchmark.json")
+    settings = value.get("settings") if isinstance(value, dict) else None
+    if not isinstance(settings, dict):
+        raise ValueError(f"{path}: expected an object with the benchmark's settings, got {brief(value)}")
+    methods = settings.get("methods", [])
+    if not isinstance(methods, list) or not all(isinstance(m, str) for m in methods):
+        raise ValueError(f"{path}: settings.methods: expected a list of names, got {brief(methods)}")
+    if not isinstance(value.get("budgets", {}), dict):
+        raise ValueError(f"{path}: budgets: expected an object, got {brief(value['budgets'])}")
+    invocations = value.get("invocations", [])
+    if not isinstance(invocations, list) or not all(_is_invocation(i) for i in invocations):
+        raise ValueError(
+            f"{path}: invocations: expected a list of objects with wall_time_s a finite number >= 0, got "
+            f"{brief(invocations)}"
+        )
+    return value
+
+
+def _is_invocation(entry: object) -> bool:
+    seconds = entry.get("wall_time_s", 0.0) if isinstance(entry, dict) else None
+    return (
+        isinstance(seconds, (int, float))
+        and not isinstance(seconds, bool)
+        and math.isfinite(seconds)
+        and seconds >= 0
+    )
+
+
+def settings_from_json(value: object, what: str) -> BenchmarkSettings:
+    """
+    :class:`~.settings.BenchmarkSettings` from their JSON (``benchmark.json``'s ``settings``): an object of the
+    class's fields only, each checked by the class itself (kinds, bounds, env id and kwargs).
+
+    :raises ValueError: one line naming ``what``.
+    """
+    names = {f.name for f in fields(BenchmarkSettings)}
+    if not isinstance(value, dict):
+        raise ValueError(f"{what}: expected an object of the benchmark's settings, got {brief(value)}")
+    unknown = sorted(str(key) for key in value if key not in names)
+    if unknown:
+        raise ValueError(f"{what}: unknown settings {brief(unknown)}")
+    try:
+        return BenchmarkSettings(**value)
+    except ValueError as error:
+        raise ValueError(f"{what}: {error}") from None
+
+
+def read_benchmark_settings(path: str | Path) -> BenchmarkSettings:
+    """The settings of the ``benchmark.json`` at ``path`` (:func:`read_benchmark_file`, :func:`settings_from_json`)."""
+    return settings_from_json(read_benchmark_file(path)["settings"], str(path))
+
+
+__all__ = ["read_benchmark_file", "read_benchmark_settings", "settings_from_json"]
