@@ -146,3 +146,69 @@ def test_a_benchmark_of_too_many_seeds_is_refused_before_it_allocates_them(tmp_p
     (done,) = run_batch([["benchmark", "--seeds", "300000000", "--out", str(tmp_path / "b")]])
     one_line_exit_2(done)
     assert "--seeds" in done.stderr and not (tmp_path / "b").exists()
+
+
+# ------------------------------------------------------------------------------------ records and episodes.csv
+HEADER = "method,seed,episode_set,episode_seed,reach_reward,reward,length\n"
+ROW = "hddpg,0,development,15000,300.0,300.0,200\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "named"),
+    [
+        (HEADER + ROW + "hddpg,0,development,15001,1,2,3,4,5\n", ":3: expected as many cells"),
+        (HEADER + ROW + "hddpg,0\n", ":3: expected as many cells"),
+        (HEADER + ROW + "hddpg,0,development,15001," + "1" * 200_000 + ",2,3\n", "not a CSV row"),
+        (HEADER + ROW.replace(",0,", ",0.5,"), "whole number in column 'seed'"),
+        (HEADER + ROW.replace("300.0,", "inf,", 1), "finite number"),
+    ],
+)
+def test_episodes_csv_rows_that_are_not_ours_are_one_line(text, named, tmp_path):
+    # Cells past the header's were a TypeError and a field over csv's size limit a csv.Error: exit 1.
+    from sb3_hddpg.experiments.benchmark.episodes import read_episodes_csv
+
+    path = tmp_path / "episodes.csv"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=r"episodes\.csv") as error:
+        read_episodes_csv(path)
+    assert named in str(error.value)
+
+
+def test_an_episodes_csv_is_read_within_a_budget_of_cells(tmp_path):
+    # 64 MiB of one-digit cells passed the size limit and took 2 GB to read.
+    from sb3_hddpg.artifacts.limits import MAX_CSV_CELLS
+    from sb3_hddpg.experiments.benchmark.episodes import read_episodes_csv
+
+    columns = 34
+    path = tmp_path / "episodes.csv"
+    header = "method,seed,episode_set,episode_seed," + ",".join(f"m{i}" for i in range(columns - 4))
+    path.write_text(
+        header + "\n" + ("h,0,d,1," + ",".join("0" * (columns - 4)) + "\n") * (MAX_CSV_CELLS // columns + 2)
+    )
+    with pytest.raises(ValueError, match=f"more than {MAX_CSV_CELLS} cells"):
+        read_episodes_csv(path)
+
+
+def test_report_over_records_that_lack_what_the_tables_read_is_one_line(tmp_path):
+    def edit_record(run: Path, change: dict[str, Any]) -> Path:
+        path = run / "records" / "hddpg" / "seed-0.json"
+        path.write_text(json.dumps({**json.loads(path.read_text()), **change}))
+        return run
+
+    runs = [
+        edit_record(edited_run(tmp_path, "test"), {"test": "x"}),
+        edit_record(edited_run(tmp_path, "history"), {"history": []}),
+        edit_record(edited_run(tmp_path, "seed"), {"seed": -1}),
+        edit_record(edited_run(tmp_path, "version"), {"record_version": 99}),
+    ]
+    csv_run = edited_run(tmp_path, "csv")  # a snake run's episodes without the snake's metrics
+    (csv_run / "episodes.csv").write_text(HEADER + ROW)
+    (csv_run / "records" / "hddpg" / "seed-1.json").write_bytes(b"\xff\xfe")
+    runs += [csv_run, edited_run(tmp_path, "csv-only")]
+    (runs[-1] / "episodes.csv").write_text(HEADER + ROW)
+    done = run_batch([["report", str(run), "--page", str(run.parent / "page.md")] for run in runs])
+    for result in done:
+        # numpy may warn first (the mean of an empty curve); the error is one line, the last.
+        assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+        assert result.stderr.splitlines()[-1].startswith("error:") and result.stderr.count("error:") == 1
+    assert "goal_touch_rate" in done[-1].stderr

@@ -41,6 +41,9 @@ from sb3_hddpg.names import PLAIN_NAME
 MAX_JSON_BYTES = 1 << 20
 #: Largest CSV of records read back (a benchmark's episodes.csv: about 200 bytes per episode).
 MAX_CSV_BYTES = 64 << 20
+#: Most cells of such a CSV read into memory (a cell costs ~65 bytes there; a run of record: ~60,000
+#: episodes of ~40 columns). A file of MAX_CSV_BYTES holds ~30 M one-digit cells: 2 GB read.
+MAX_CSV_CELLS = 4_000_000
 #: Deepest nesting of a JSON document or a config value (json.loads recurses; ours are < 10 deep).
 MAX_JSON_DEPTH = 64
 #: Most values (nodes) in one config file after YAML aliases are expanded (ours: a few hundred).

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write
-from sb3_hddpg.artifacts.limits import MAX_CSV_BYTES
+from sb3_hddpg.artifacts.limits import MAX_CSV_BYTES, MAX_CSV_CELLS
 from sb3_hddpg.artifacts.records import JsonObject
 from sb3_hddpg.envs.contract import TermNormaliser
 from sb3_hddpg.evaluation import EvaluationResult
@@ -148,21 +148,37 @@ def read_episodes_csv(path: Path) -> list[EpisodeRow]:
     """
     if path.stat().st_size > MAX_CSV_BYTES:
         raise ValueError(f"{str(path)!r} is larger than {MAX_CSV_BYTES} bytes: not an episodes.csv of ours")
-    rows = []
+    rows: list[EpisodeRow] = []
+    cells = 0
     with open(path, newline="") as handle:
         reader = csv.DictReader(handle)
-        missing = [k for k in EPISODE_KEYS if k not in (reader.fieldnames or [])]
-        if missing:
-            raise ValueError(f"{str(path)!r}: expected the columns {list(EPISODE_KEYS)}, missing {missing}")
-        for line, raw in enumerate(reader, start=2):
-            rows.append(_parse_row(raw, f"{path}:{line}"))
+        try:
+            missing = [k for k in EPISODE_KEYS if k not in (reader.fieldnames or [])]
+            if missing:
+                raise ValueError(
+                    f"{str(path)!r}: expected the columns {list(EPISODE_KEYS)}, missing {missing}"
+                )
+            for raw in reader:
+                rows.append(_parse_row(raw, f"{path}:{reader.line_num}"))
+                cells += len(rows[-1])
+                if cells > MAX_CSV_CELLS:
+                    raise ValueError(
+                        f"{str(path)!r}: more than {MAX_CSV_CELLS} cells by line {reader.line_num}: not an "
+                        "episodes.csv of ours"
+                    )
+        except (csv.Error, UnicodeDecodeError) as error:  # a NUL byte, a field over csv's limit, not UTF-8
+            raise ValueError(f"{path}:{reader.line_num}: not a CSV row ({error})") from None
     return rows
 
 
-def _parse_row(raw: Mapping[str, str], where: str) -> EpisodeRow:
-    row: EpisodeRow = {"method": raw["method"], "episode_set": raw["episode_set"]}
+def _parse_row(raw: Mapping[str | None, str | list[str] | None], where: str) -> EpisodeRow:
+    if (
+        None in raw or None in raw.values()
+    ):  # csv's key for cells past the header's, its value for missing ones
+        raise ValueError(f"{where}: expected as many cells as the header has columns")
+    row: EpisodeRow = {"method": str(raw["method"]), "episode_set": str(raw["episode_set"])}
     for key, text in raw.items():
-        if key in ("method", "episode_set") or text in ("", None):
+        if key in ("method", "episode_set") or key is None or not isinstance(text, str) or text == "":
             continue
         try:
             value = float(text)
@@ -170,9 +186,11 @@ def _parse_row(raw: Mapping[str, str], where: str) -> EpisodeRow:
             raise ValueError(
                 f"{where}: expected a number in column {key!r}, actually: {text[:40]!r}"
             ) from None
-        if not math.isfinite(value):
-            raise ValueError(f"{where}: expected a finite number in column {key!r}, actually: {text!r}")
-        row[key] = int(value) if key in ("seed", "episode_seed") else value
+        whole = key in ("seed", "episode_seed")
+        if not math.isfinite(value) or (whole and not value.is_integer()):
+            kind = "a whole number" if whole else "a finite number"
+            raise ValueError(f"{where}: expected {kind} in column {key!r}, actually: {text[:40]!r}")
+        row[key] = int(value) if whole else value
     return row
 
 

@@ -11,14 +11,16 @@ updates every table, and a test checks that the shipped tables regenerate exactl
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.artifacts.limits import MAX_SHOWN
 from sb3_hddpg.artifacts.records import JsonObject, read_benchmark_record
 from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.artifacts.records.results_leaves import Aggregates, Interval, PairedDifference, Summary
@@ -68,13 +70,33 @@ def load_run(run: Path) -> tuple[BenchmarkSettings, list[JsonObject]]:
 def run_results(run: Path) -> BenchmarkResults:
     """The results of a benchmark folder, computed from its records (not read from its results.json)."""
     settings, records = load_run(run)
-    return compute_results(settings, records)
+    with made_from(run):
+        return compute_results(settings, records)
 
 
 def draw_headline_figures(run: Path) -> list[Path]:
     """Draw a benchmark folder's rliable-style figures into it from its records."""
     settings, records = load_run(run)
-    return headline_figures(run, compute_results(settings, records), records)
+    with made_from(run):
+        return headline_figures(run, compute_results(settings, records), records)
+
+
+@contextlib.contextmanager
+def made_from(run: Path) -> Iterator[None]:
+    """
+    Results, tables and figures made from a benchmark folder's files, which may come from someone else: each
+    file passed its reader (size, depth, a record's run fields, ``episodes.csv``'s cells), but a record or a
+    row may still lack a field the tables read, or hold it in another shape. That is the folder's fault, not
+    this library's: one ``ValueError`` naming the folder (exit 2 at the CLI), not an internal ``KeyError``.
+    """
+    try:
+        yield
+    except (KeyError, TypeError, IndexError, AttributeError) as error:
+        shown = repr(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
+        raise ValueError(
+            f"{run}: its records do not hold what the results are made of ({type(error).__name__}: "
+            f"{shown[:MAX_SHOWN]})"
+        ) from error
 
 
 # ------------------------------------------------------------------------------------------------ tables
@@ -416,18 +438,19 @@ def update_pages(
         (the study exports, :mod:`sb3_hddpg.experiments.study_export`).
     :return: ``{"written": block names, "changed": files that differ from their regenerated text}``.
     """
-    results = run_results(run)
+    settings, records = load_run(run)
     outputs: dict[Path, str] = {}
-    text = page.read_text()
     studies = (
         {"studies": functools.partial(studies_table, read_exports(run / "studies"))}
         if (run / "studies").is_dir()
         else {}
     )
-    outputs[page], written = render_page(text, run.name, results, studies)
-    if tuning_page is not None and studies:
-        outputs[tuning_page], more = render_page(tuning_page.read_text(), run.name, results, studies)
-        written += more
-    if readme is not None and "hddpg" in results.methods and results.scenario == "standard":
-        outputs[readme] = render_readme(readme.read_text(), results_sentence(results, run.name))
+    with made_from(run):
+        results = compute_results(settings, records)
+        outputs[page], written = render_page(page.read_text(), run.name, results, studies)
+        if tuning_page is not None and studies:
+            outputs[tuning_page], more = render_page(tuning_page.read_text(), run.name, results, studies)
+            written += more
+        if readme is not None and "hddpg" in results.methods and results.scenario == "standard":
+            outputs[readme] = render_readme(readme.read_text(), results_sentence(results, run.name))
     return {"written": written, "changed": _write_changed(outputs, check)}
