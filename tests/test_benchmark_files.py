@@ -212,3 +212,35 @@ def test_report_over_records_that_lack_what_the_tables_read_is_one_line(tmp_path
         assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
         assert result.stderr.splitlines()[-1].startswith("error:") and result.stderr.count("error:") == 1
     assert "goal_touch_rate" in done[-1].stderr
+
+
+# ------------------------------------------------------------------------------------------------ pages
+def test_a_page_of_unclosed_markers_is_searched_in_linear_time():
+    import time
+
+    from sb3_hddpg.experiments.benchmark.pages import BLOCK, render_page
+
+    # Opening markers without their closing ones: each was searched to the page's end, quadratic in all.
+    page = "<!-- generated:bench-e20/methods -->\n" * 30_000
+    started = time.perf_counter()
+    assert render_page(page, "bench-e20", None) == (page, [])
+    assert time.perf_counter() - started < 5
+    block = "<!-- generated:r/methods -->\nold\n<!-- /generated:r/methods -->"
+    assert [m.group("body") for m in BLOCK.finditer(f"a\n{block}\nb\n{block}")] == ["old\n", "old\n"]
+
+
+def test_report_refuses_to_replace_a_linked_page_by_a_file(tmp_path):
+    run = edited_run(tmp_path, "linked")
+    real = tmp_path / "linked" / "real.md"
+    stale = (
+        (tmp_path / "linked" / "page.md")
+        .read_text()
+        .replace("<!-- generated:bench-e20/methods -->\n", "<!-- generated:bench-e20/methods -->\nSTALE\n")
+    )
+    real.write_text(stale)
+    link = tmp_path / "linked" / "link.md"
+    link.symlink_to(real)
+    (done,) = run_batch([["report", str(run), "--page", str(link)]])
+    one_line_exit_2(done)
+    # The link was replaced by a regular file holding the new tables, and the page it named kept STALE.
+    assert "symbolic link" in done.stderr and link.is_symlink() and real.read_text() == stale

@@ -24,6 +24,7 @@ from sb3_hddpg.artifacts.limits import MAX_SHOWN
 from sb3_hddpg.artifacts.records import JsonObject, read_benchmark_record
 from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.artifacts.records.results_leaves import Aggregates, Interval, PairedDifference, Summary
+from sb3_hddpg.artifacts.run_folder import check_output_file
 from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_settings
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
 from sb3_hddpg.experiments.benchmark.front_pages import decides_table, front_table
@@ -35,9 +36,13 @@ from sb3_hddpg.experiments.study_export import read_exports, studies_table
 
 #: The README's results sentence markers.
 README_START, README_END = "<!-- results:start -->", "<!-- results:end -->"
-#: A generated block: ``<!-- generated:RUN/NAME -->`` ... ``<!-- /generated:RUN/NAME -->``.
+#: A generated block: ``<!-- generated:RUN/NAME -->`` ... ``<!-- /generated:RUN/NAME -->``. Its body never
+#: holds another opening marker: a search from each opening marker stops at the next one, so a page of many
+#: unclosed markers costs time linear in its length (searched to the page's end, it was quadratic).
 BLOCK = re.compile(
-    r"(<!-- generated:(?P<key>[\w.-]+/[\w-]+) -->\n)(?P<body>.*?)(<!-- /generated:(?P=key) -->)", re.S
+    r"(<!-- generated:(?P<key>[\w.-]+/[\w-]+) -->\n)(?P<body>(?:(?!<!-- generated:).)*?)"
+    r"(<!-- /generated:(?P=key) -->)",
+    re.S,
 )
 
 
@@ -418,6 +423,10 @@ def _write_changed(outputs: Mapping[Path, str], check: bool) -> list[str]:
     """The files whose new text differs from what they hold, written unless ``check``."""
     changed = [str(path) for path, new in outputs.items() if new != path.read_text()]
     if not check:
+        for path in outputs:  # each before any is written
+            if str(path) in changed:
+                # Rewritten in place, a link would become a file, and the page it names stay as it was.
+                check_output_file(path, force=True)
         for path, new in outputs.items():
             if str(path) in changed:
                 _write_text(path, new)
