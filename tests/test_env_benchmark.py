@@ -226,18 +226,122 @@ def test_morl_runner_scores_a_given_front(tmp_path):
         )
     )
     scored = subprocess.run(
-        [python, str(MORL_SCRIPT), "score", "--record", str(record), "--ref-point", "0,0", "--out", str(out)],
+        [
+            python,
+            str(MORL_SCRIPT),
+            "score",
+            "--record",
+            str(record),
+            "--ref-point=0,0",
+            "--out",
+            str(out),
+            "--force",
+        ],
         capture_output=True,
         text=True,
     )
     assert scored.returncode == 0, scored.stderr
     assert json.loads(out.read_text())["hypervolume"] == pytest.approx(4.0)
     missing = subprocess.run(
-        [python, str(MORL_SCRIPT), "score", "--record", str(record), "--member", "ham", "--out", str(out)],
+        [
+            python,
+            str(MORL_SCRIPT),
+            "score",
+            "--record",
+            str(record),
+            "--member",
+            "ham",
+            "--out",
+            str(out),
+            "--force",
+        ],
         capture_output=True,
         text=True,
     )
     assert missing.returncode != 0 and "member 'ham'" in missing.stderr and "Traceback" not in missing.stderr
+
+
+def test_morl_runner_refuses_what_it_cannot_score_in_one_line(tmp_path):
+    python = _morl_python()
+    if python is None:
+        pytest.skip("set MORL_PYTHON to the python of a virtual environment with morl-baselines")
+
+    def score(front: object, *options: str, out: str = "o.json") -> subprocess.CompletedProcess:
+        path = tmp_path / "front.json"
+        path.write_text(front if isinstance(front, str) else json.dumps(front))
+        args = ["score", "--front", str(path), "--ref-point=0,0", "--out", str(tmp_path / out), *options]
+        return subprocess.run([python, str(MORL_SCRIPT), *args], capture_output=True, text=True)
+
+    # A given front's own fields never stand in for the scores computed from it (they used to win).
+    done = score({"front": [[1.0, 2.0], [2.0, 1.0]], "hypervolume": 1e9, "kind": "x", "method": "m"})
+    assert done.returncode == 0, done.stderr
+    record = json.loads((tmp_path / "o.json").read_text())
+    assert record["hypervolume"] == pytest.approx(3.0) and record["kind"] == "sb3-hddpg-morl-front"
+    assert record["method"] == "m"
+    # Each was a traceback, a NaN written into the output's JSON, or 20 GB for MORL-baselines' Pareto filter.
+    refused = [
+        score('{"front": [[NaN, 2.0], [2.0, 1.0]]}', out="a.json"),
+        score({"front": [[1.0, 2.0]], "preferences": 5}, out="b.json"),
+        score({"front": [{"a": 1}]}, out="c.json"),
+        score({"front": [[i, -i] for i in range(5000)]}, out="d.json"),
+        score({"front": [[1.0, 2.0]]}, out="o.json"),  # exists: only with --force
+        score({"front": [[1.0, 2.0]]}, out="."),
+    ]
+    zero = [python, str(MORL_SCRIPT), "score", "--front", "/dev/zero", "--out", str(tmp_path / "z.json")]
+    refused.append(subprocess.run(zero, capture_output=True, text=True, timeout=60))
+    for done in refused:
+        assert done.returncode == 2, done.stderr
+        assert done.stderr.count("\n") == 1 and done.stderr.startswith("error:"), done.stderr
+    assert json.loads((tmp_path / "o.json").read_text()) == record
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["front.json", "o.json"]
+    assert score({"front": [[1.0, 2.0]]}, "--force").returncode == 0
+
+
+def test_morl_runner_bounds_its_training_options_before_anything_runs(tmp_path):
+    out = str(tmp_path / "o.json")
+    for option in (["--preferences", "100000000"], ["--episodes", "0"], ["--timesteps", "10000000000"]):
+        done = subprocess.run(
+            [sys.executable, str(MORL_SCRIPT), "train", "--timesteps", "300", *option, "--out", out],
+            capture_output=True,
+            text=True,
+        )
+        assert done.returncode == 2 and "must be in" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_morl_runners_record_is_read_through_one_reader(tmp_path):
+    from sb3_hddpg.experiments.benchmark.morl import read_morl_record
+
+    keys = ("preferences", "mean_lengths", "wall_time_train_s", "hypervolume", "expected_utility")
+    good = {
+        "kind": "sb3-hddpg-morl-front",
+        "record_version": 1,
+        "front": [[1.0, 2.0], [2.0, 1.0]],
+        "preferences": [[1.0, 0.0], [0.0, 1.0]],
+        "mean_lengths": [30.0, 30.0],
+        "wall_time_train_s": 10.0,
+        "hypervolume": 3.0,
+        "expected_utility": 1.5,
+    }
+    path = tmp_path / "capql.json"
+    path.write_text(json.dumps(good))
+    assert read_morl_record(path, keys) == good
+    # A record left by an earlier invocation is read back on --resume: NaN and booleans passed as scores,
+    # and a front of text or one point short went on into the front's points.
+    for change in (
+        {"hypervolume": float("nan")},
+        {"expected_utility": True},
+        {"front": [["a", "b"], [2.0, 1.0]]},
+        {"front": [[1.0, 2.0], [2.0]]},
+        {"mean_lengths": [30.0]},
+        {"mean_lengths": [30.0, float("nan")]},
+        {"preferences": [[1.0, 0.0], "x"]},
+        {"wall_time_train_s": -1.0},
+        {"kind": "other"},
+        {"record_version": 99},
+    ):
+        path.write_text(json.dumps({**good, **change}))
+        with pytest.raises(ValueError, match=r"capql\.json"):
+            read_morl_record(path, keys)
 
 
 @pytest.mark.slow

@@ -15,18 +15,21 @@ The runner's records are written next to the seed's managers and reused when the
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypedDict
 
 from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.artifacts.limits import read_json_record
+from sb3_hddpg.artifacts.limits import MAX_TERMS, brief, read_json_record
+from sb3_hddpg.artifacts.records.base import check_version
 from sb3_hddpg.artifacts.records.results_leaves import MorlResults
 from sb3_hddpg.envs.adapters import MULTI_OBJECTIVE_ENV_ID
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.experiments.benchmark.front_points import FrontPoint, FrontSpec, preference_label
+from sb3_hddpg.experiments.benchmark.morl_runner import MAX_FRONT_POINTS, RECORD_KIND, RECORD_VERSION
 from sb3_hddpg.experiments.stats import summarise
 
 #: The script run with MORL-baselines' python.
@@ -35,8 +38,9 @@ RUNNER = Path(__file__).with_name("morl_runner.py")
 MORL_MEMBER = "capql"
 #: The adapter's own keyword arguments; the rest are the MO-Gymnasium env's.
 _ADAPTER_KWARGS = ("env_id", "terms", "term_bounds", "term", "episode_steps", "render_mode")
-#: A runner's record's scores (MORL-baselines' indicators).
+#: A runner's record's scores (MORL-baselines' indicators), and its wall times.
 _SCORES = ("hypervolume", "expected_utility")
+_SECONDS = ("wall_time_train_s", "wall_time_eval_s")
 
 
 class MorlScore(TypedDict):
@@ -111,11 +115,52 @@ def _run(python: str, arguments: Sequence[str], out: Path, keys: Sequence[str]) 
         if done.returncode != 0:
             lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
             raise RuntimeError(f"MORL-baselines' runner failed (exit {done.returncode}): {lines[-1][:300]}")
-    record = read_json_record(out, f"{out}: not a MORL runner's record")
-    if not isinstance(record, dict) or any(k not in record for k in ("front", *keys)):
-        raise ValueError(f"{out}: not a MORL runner's record with {['front', *keys]}")
-    if not all(isinstance(record[k], (int, float)) for k in _SCORES):
-        raise ValueError(f"{out}: a MORL runner's scores are numbers")
+    return read_morl_record(out, keys)
+
+
+#: A runner's record's fields that are lists of one entry per point of its front, each checked as ``check``.
+_PER_POINT: dict[str, Callable[[Any], bool]] = {
+    "preferences": lambda w: isinstance(w, list) and len(w) <= MAX_TERMS and all(map(_finite, w)),
+    "mean_lengths": lambda length: _finite(length) and length > 0,
+}
+
+
+def _finite(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def read_morl_record(path: Path, keys: Sequence[str]) -> dict[str, Any]:
+    """
+    The one reader of a runner's record (:data:`RUNNER` writes it, a resumed task reads it back): through the
+    JSON size and depth limits, of the runner's kind and a version this library reads, holding ``keys``; its
+    ``front`` 1 to :data:`MAX_FRONT_POINTS` points of as many finite numbers each, the scores and wall times
+    finite numbers, ``preferences`` and ``mean_lengths`` (when present) one finite entry per point.
+
+    :raises ValueError: one line naming the file and the field (the task fails, and says why).
+    """
+    record = read_json_record(path, f"{path}: not a readable MORL runner's record")
+    if not isinstance(record, dict) or record.get("kind") != RECORD_KIND:
+        raise ValueError(f"{path}: not a MORL runner's record (kind {RECORD_KIND!r})")
+    check_version(record.get("record_version"), RECORD_VERSION, str(path))
+    missing = [k for k in ("front", *keys) if k not in record]
+    front = record.get("front")
+    if missing or not isinstance(front, list) or not 1 <= len(front) <= MAX_FRONT_POINTS:
+        raise ValueError(f"{path}: expected a front of 1 to {MAX_FRONT_POINTS} points and {list(keys)}")
+    width = len(front[0]) if isinstance(front[0], list) else 0
+    if not 1 <= width <= MAX_TERMS or not all(
+        isinstance(p, list) and len(p) == width and all(map(_finite, p)) for p in front
+    ):
+        raise ValueError(f"{path}: front: expected points of as many finite numbers each, got {brief(front)}")
+    for key in keys:
+        value = record[key]
+        if key in _PER_POINT:
+            shaped = isinstance(value, list) and len(value) == len(front) and all(map(_PER_POINT[key], value))
+        elif key in _SCORES or key in _SECONDS:
+            shaped = _finite(value) and (key in _SCORES or value >= 0)
+        else:
+            shaped = True
+        if not shaped:
+            raise ValueError(f"{path}: {key}: not what a MORL runner writes, got {brief(value)}")
     return record
 
 
@@ -200,6 +245,11 @@ def morl_member(
         run_dir / f"{MORL_MEMBER}.json",
         ("preferences", "mean_lengths", "wall_time_train_s", "wall_time_eval_s", *_SCORES),
     )
+    if len(trained["front"]) != len(spec.sweep.points):
+        raise ValueError(
+            f"{run_dir / MORL_MEMBER}.json: expected a front at the sweep's {len(spec.sweep.points)} preferences, "
+            f"got {len(trained['front'])} points"
+        )
     scored = _score_front(python, spec, conditioned, reference, run_dir)
     run: MorlRun = {
         "algorithm": str(trained.get("algorithm", MORL_MEMBER)),

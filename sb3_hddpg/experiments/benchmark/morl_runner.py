@@ -39,15 +39,25 @@ import math
 import os
 import platform
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 #: The record's kind and schema version, so that a reader can refuse what it does not know.
 RECORD_KIND = "sb3-hddpg-morl-front"
-#: The largest JSON file read (a front record is a few hundred kilobytes).
-MAX_JSON_BYTES = 64 * 1024 * 1024
+#: The largest JSON file read: sb3-hddpg's limit for the same records (a front record is about 100 kB).
+MAX_JSON_BYTES = 1 << 20
 RECORD_VERSION = 1
+#: Most points of a front scored. MORL-baselines' Pareto filter compares every pair of points at once
+#: (n x n x objectives booleans): 100,000 points of a 1 MB file would take 20 GB.
+MAX_FRONT_POINTS = 1_000
+#: Most objectives. The hypervolume's cost grows exponentially with them (100 points in 10 objectives
+#: already take the better part of a minute); MO-Gymnasium's envs have 2 to 6.
+MAX_OBJECTIVES = 6
+#: Most evaluation episodes per preference, and most env steps of training (sb3-hddpg's limits).
+MAX_EPISODES = 10_000
+MAX_TIMESTEPS = 1_000_000_000
 #: Weights on which expected utility is averaged (MORL-baselines' own default for its evaluations).
 EU_WEIGHTS = 100
 #: CAPQL's batch size (its default): learning cannot start before the buffer holds a batch.
@@ -56,14 +66,50 @@ CAPQL_BATCH = 128
 DEFAULT_REF_POINT = (-100.0, -100.0)
 
 
+class InputError(Exception):
+    """A command line or a file this script cannot use: one line on stderr, exit 2 (never a traceback)."""
+
+
 def _floats(text: str, name: str) -> list[float]:
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
-        raise SystemExit(f"error: --{name}: expected comma-separated numbers, got {text!r}") from None
-    if not values or not all(math.isfinite(v) for v in values):
-        raise SystemExit(f"error: --{name}: expected finite numbers, got {text!r}")
+        raise InputError(f"--{name}: expected comma-separated numbers, got {text[:80]!r}") from None
+    if not 1 <= len(values) <= MAX_OBJECTIVES or not all(math.isfinite(v) for v in values):
+        raise InputError(f"--{name}: expected 1 to {MAX_OBJECTIVES} finite numbers, got {text[:80]!r}")
     return values
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_front(front: object, preferences: object, objectives: int) -> None:
+    """
+    The one check of a front before it is scored, given or trained: 1 to :data:`MAX_FRONT_POINTS` points of
+    ``objectives`` finite numbers each, and one preference (a list of finite numbers) per point.
+
+    :raises InputError: naming what is wrong.
+    """
+    if (
+        not isinstance(front, list)
+        or not 1 <= len(front) <= MAX_FRONT_POINTS
+        or not all(isinstance(p, list) and len(p) == objectives and all(map(_is_number, p)) for p in front)
+    ):
+        raise InputError(
+            f"expected a front of 1 to {MAX_FRONT_POINTS} points of {objectives} finite numbers each (one "
+            f"per objective of the reference point), got {str(front)[:200]}"
+        )
+    if (
+        not isinstance(preferences, list)
+        or len(preferences) != len(front)
+        or not all(
+            isinstance(w, list) and len(w) <= MAX_OBJECTIVES and all(map(_is_number, w)) for w in preferences
+        )
+    ):
+        raise InputError(
+            f"expected one preference (a list of finite numbers) per point, got {str(preferences)[:200]}"
+        )
 
 
 def front_record(
@@ -86,12 +132,13 @@ def front_record(
     from morl_baselines.common.performance_indicators import expected_utility, hypervolume
     from morl_baselines.common.weights import equally_spaced_weights
 
+    _check_front(front, preferences, len(ref_point))
     points = [np.asarray(p, dtype=np.float64) for p in front]
-    if not points or any(p.shape != (len(ref_point),) for p in points):
-        raise ValueError(f"Expected a front of {len(ref_point)}-objective points, actually {front!r:.200}")
     kept = [np.asarray(p) for p in filter_pareto_dominated(points)]
     weights = equally_spaced_weights(len(ref_point), EU_WEIGHTS)
+    # The extra fields first: a field of a given front never stands in for a score computed here.
     return {
+        **(extra or {}),
         "kind": RECORD_KIND,
         "record_version": RECORD_VERSION,
         "front": [p.tolist() for p in points],
@@ -102,7 +149,6 @@ def front_record(
         "expected_utility": float(expected_utility(kept, weights_set=weights)),
         "expected_utility_weights": EU_WEIGHTS,
         "indicators": "morl_baselines.common.performance_indicators (hypervolume, expected_utility)",
-        **(extra or {}),
     }
 
 
@@ -160,9 +206,7 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     reward_dim = int(env.unwrapped.reward_dim)
     ref_point = _floats(args.ref_point, "ref-point") if args.ref_point else list(DEFAULT_REF_POINT)
     if len(ref_point) != reward_dim:
-        raise SystemExit(
-            f"error: --ref-point: {args.env} has {reward_dim} objectives, got {len(ref_point)} values"
-        )
+        raise InputError(f"--ref-point: {args.env} has {reward_dim} objectives, got {len(ref_point)} values")
     agent = _agent(env, args.seed, args)
     started = time.perf_counter()
     # No evaluation inside training (its eval_freq beyond the budget): the wall-clock is training's alone.
@@ -212,9 +256,9 @@ def _env_kwargs(text: str | None) -> dict[str, Any]:
     try:
         kwargs = json.loads(text)
     except (json.JSONDecodeError, RecursionError) as error:
-        raise SystemExit(f"error: --env-kwargs: not JSON: {error}") from None
+        raise InputError(f"--env-kwargs: not JSON: {error}") from None
     if not isinstance(kwargs, dict):
-        raise SystemExit(f"error: --env-kwargs: expected a JSON object, got {text[:80]!r}")
+        raise InputError(f"--env-kwargs: expected a JSON object, got {text[:80]!r}")
     return kwargs
 
 
@@ -228,13 +272,53 @@ def _version(distribution: str) -> str | None:
 
 
 def _read_json(path: str, option: str) -> Any:
-    """A JSON file of at most :data:`MAX_JSON_BYTES`, or a one-line error naming ``option``."""
+    """
+    A JSON file of at most :data:`MAX_JSON_BYTES` (counted as read: a device or a pipe says nothing of its size
+    beforehand), strict (no ``NaN`` or ``Infinity``), or a one-line error naming ``option``.
+    """
     try:
-        if Path(path).stat().st_size > MAX_JSON_BYTES:
-            raise SystemExit(f"error: {option}: {path!r} is larger than {MAX_JSON_BYTES} bytes")
-        return json.loads(Path(path).read_text())
+        with open(path, "rb") as handle:
+            data = handle.read(MAX_JSON_BYTES + 1)
+        if len(data) > MAX_JSON_BYTES:
+            raise InputError(f"{option}: {path!r} is larger than {MAX_JSON_BYTES} bytes")
+        return json.loads(data.decode(), parse_constant=_not_a_number)
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
-        raise SystemExit(f"error: {option}: cannot read {path!r}: {error}") from None
+        raise InputError(f"{option}: cannot read {path!r}: {type(error).__name__}: {error}") from None
+
+
+def _not_a_number(name: str) -> Any:
+    raise json.JSONDecodeError(f"{name} is not a finite number", name, 0)
+
+
+def _write_json(path: Path, record: dict[str, Any], force: bool, check_only: bool = False) -> None:
+    """
+    ``record`` as strict JSON at ``path``, atomically (a temporary file of its own in the same folder, then
+    renamed): never a half-written file, never through a link, and an existing file only with ``--force``.
+
+    :param check_only: only check that ``path`` may be written.
+    """
+    if path.is_symlink() or path.is_dir():
+        raise InputError(f"--out: {str(path)!r} is a folder or a symbolic link; name a file")
+    if path.exists() and not force:
+        raise InputError(f"--out: {str(path)!r} exists; pass --force to replace it")
+    if check_only:
+        return
+    try:
+        text = json.dumps(record, indent=2, allow_nan=False) + "\n"
+    except ValueError:
+        raise InputError("a score or a field is not a finite number; nothing written") from None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
 
 
 def front_of_record(record: Any, member: str) -> dict[str, Any]:
@@ -248,11 +332,12 @@ def front_of_record(record: Any, member: str) -> dict[str, Any]:
         points = record["front"][member]["points"]
         front = [[float(point[key]) for key in objectives] for point in points]
         labels = [str(point["label"]) for point in points]
-    except (KeyError, TypeError, ValueError) as error:
-        members = list(record.get("front", {})) if isinstance(record, dict) else []
-        raise SystemExit(
-            f"error: --record: not a front record with a returns plane and member {member!r} "
-            f"(members: {members}): {type(error).__name__}: {error}"
+    except (KeyError, TypeError, ValueError, AttributeError) as error:
+        fronts = record.get("front") if isinstance(record, dict) else None
+        members = [str(m)[:64] for m in fronts][:20] if isinstance(fronts, dict) else []
+        raise InputError(
+            f"--record: not a front record with a returns plane and member {member[:64]!r} "
+            f"(members: {members}): {type(error).__name__}: {str(error)[:200]}"
         ) from None
     return {"front": front, "labels": labels, "member": member, "objectives": objectives}
 
@@ -267,15 +352,15 @@ def score(args: argparse.Namespace) -> dict[str, Any]:
     else:
         given = _read_json(args.front, "--front")
     if not isinstance(given, dict) or not isinstance(given.get("front"), list):
-        raise SystemExit('error: --front: expected a JSON object with "front": [[objective values...], ...]')
+        raise InputError('--front: expected a JSON object with "front": [[objective values...], ...]')
     front = given["front"]
     ref_point = _floats(args.ref_point, "ref-point") if args.ref_point else list(DEFAULT_REF_POINT)
     preferences = given.get("preferences") or [[] for _ in front]
     extra = {k: v for k, v in given.items() if k not in ("front", "preferences")}
     try:
         return front_record(front, preferences, ref_point, {"source": "given front", **extra})
-    except ValueError as error:
-        raise SystemExit(f"error: --front: {error}") from None
+    except InputError as error:
+        raise InputError(f"{'--record' if args.record is not None else '--front'}: {error}") from None
 
 
 def _unshadow_standard_library() -> None:
@@ -287,8 +372,7 @@ def _unshadow_standard_library() -> None:
     sys.path[:] = [entry for entry in sys.path if Path(entry or ".").resolve() != here]
 
 
-def main(argv: list[str] | None = None) -> int:
-    _unshadow_standard_library()
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("train", help="train CAPQL, evaluate its front, score it")
@@ -313,25 +397,46 @@ def main(argv: list[str] | None = None) -> int:
     )
     run.add_argument("--threads", type=int, default=1, help="torch threads")
     run.add_argument("--ref-point", default=None, help="hypervolume reference point, e.g. -100,-100")
-    run.add_argument("--out", required=True)
     given = commands.add_parser("score", help="score a given front with the same indicators")
     source = given.add_mutually_exclusive_group(required=True)
     source.add_argument("--front", help='JSON: {"front": [[...], ...], "preferences": [...]}')
     source.add_argument("--record", help="a benchmark's front record: records/hddpg-front/seed-N.json")
     given.add_argument("--member", default="conditioned", help="with --record: the member scored")
     given.add_argument("--ref-point", default=None)
-    given.add_argument("--out", required=True)
+    for command in (run, given):
+        command.add_argument("--out", required=True)
+        command.add_argument("--force", action="store_true", help="replace --out if it exists")
+    return parser
+
+
+#: The ranges of train's integer options (the seeds are numpy's and torch's 32-bit ones).
+_TRAIN_RANGES = {
+    "timesteps": (1, MAX_TIMESTEPS),
+    "preferences": (1, MAX_FRONT_POINTS),
+    "episodes": (1, MAX_EPISODES),
+    "threads": (1, 256),
+    "learning_starts": (CAPQL_BATCH, MAX_TIMESTEPS),
+    "seed": (0, 2**32 - 1),
+    "eval_seed": (0, 2**32 - 1 - MAX_EPISODES),
+}
+
+
+def _check_train(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """train's options in their ranges, before anything is imported or trained."""
+    for name, (low, high) in _TRAIN_RANGES.items():
+        if not low <= getattr(args, name) <= high:
+            reason = "; CAPQL samples batches of that size from then on" if name == "learning_starts" else ""
+            parser.error(f"--{name.replace('_', '-')} must be in [{low}, {high}]{reason}")
+    if args.episode_steps is not None and not 1 <= args.episode_steps <= 100_000:
+        parser.error("--episode-steps must be in [1, 100000]")
+
+
+def main(argv: list[str] | None = None) -> int:
+    _unshadow_standard_library()
+    parser = _parser()
     args = parser.parse_args(argv)
     if args.command == "train":
-        for name in ("timesteps", "preferences", "episodes", "threads"):
-            if getattr(args, name) < 1:
-                parser.error(f"--{name.replace('_', '-')} must be >= 1")
-        if args.learning_starts < CAPQL_BATCH:
-            parser.error(
-                f"--learning-starts must be >= {CAPQL_BATCH}: CAPQL samples batches of that size from then on"
-            )
-        if args.episode_steps is not None and args.episode_steps < 1:
-            parser.error("--episode-steps must be >= 1")
+        _check_train(parser, args)
     try:
         import morl_baselines  # noqa: F401
     except ImportError:
@@ -341,12 +446,14 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    record = train(args) if args.command == "train" else score(args)
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    temporary = out.with_suffix(out.suffix + ".tmp")
-    temporary.write_text(json.dumps(record, indent=2) + "\n")
-    os.replace(temporary, out)
+    try:
+        _write_json(out, {}, args.force, check_only=True)  # before the work: an hour of training is not lost
+        record = train(args) if args.command == "train" else score(args)
+        _write_json(out, record, args.force)
+    except InputError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     print(
         f"{record.get('algorithm', 'front')}: hypervolume {record['hypervolume']:.6g}, expected utility "
         f"{record['expected_utility']:.6g}"
