@@ -21,7 +21,7 @@ pairs the pick is higher. ``--report-only`` writes the report from the records a
 from __future__ import annotations
 
 import argparse
-import json
+import math
 import statistics
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -65,7 +65,7 @@ def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[
     folder = Path(options["out"]) / arm / f"seed-{seed}"
     path = folder / "record.json"
     if path.exists():
-        return json.loads(path.read_text())
+        return read_arm_record(path)
     settings = BenchmarkSettings(
         methods=[method],
         seeds=[seed],
@@ -135,10 +135,62 @@ def train_manager_arm(arm: ArmRun) -> tuple[int, Path]:
     return budget, arm.folder / "manager" / "hierarchy.zip"
 
 
+def read_arm_record(path: Path) -> dict[str, Any]:
+    """
+    An arm's record (kept, or shipped with a confirmation and regenerated from): through the JSON size and
+    depth limits, its development score a finite number.
+
+    :raises ValueError: one line naming the file.
+    """
+    from sb3_hddpg.artifacts.limits import read_json_record
+
+    record = read_json_record(path, f"{path}: not a readable record of confirm_pick")
+    development = record.get("development") if isinstance(record, dict) else None
+    if not isinstance(development, dict) or not _finite(development.get(SCORE)):
+        raise ValueError(f"{path}: expected a record with development.{SCORE} a finite number")
+    return record
+
+
+def _finite(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_inputs(args: argparse.Namespace) -> None:
+    """
+    Everything an arm reads, checked before any arm runs: the settings it is made with, the pick's block as
+    the arm reads it and the workers. A pick that cannot train was refused by its arm's process,
+    a traceback after the bundled block's arm had trained for the whole budget.
+
+    :raises ValueError: one line naming the option.
+    """
+    from sb3_hddpg.artifacts.manifests import load_workers
+    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
+    from sb3_hddpg.training.config import manager_option_steps
+    from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, flat_hyperparams
+    from sb3_hddpg.training.manager_setup import manager_hyperparams
+
+    settings = BenchmarkSettings(
+        methods=[args.method],
+        seeds=list(range(args.seeds)),
+        backend=args.backend,
+        front_manager=args.front_manager,
+        front_timesteps=args.front_timesteps,
+        front_motion=args.front_motion,
+    )
+    if args.method in MANAGER_PICKS:
+        algo = settings.front_manager if args.method == "hddpg-front" else "ddpg"
+        manager_hyperparams(algo, args.pick)
+        manager_option_steps(args.pick, algo)
+        load_workers(args.workers)  # as the arm loads them: the manifest, every hash
+    else:
+        block = FLAT_HER_KEY if args.method in FLAT_HER_METHODS else None
+        flat_hyperparams(FLAT_HER_METHODS.get(args.method, args.method), FLAT_ENV_ID, None, args.pick, block)
+
+
 def report(out: Path, method: str, seeds: int) -> str:
     """Per seed the base and pick scores and their difference; the means; the seed pairs the pick wins."""
     records = {
-        (arm, seed): json.loads(p.read_text())
+        (arm, seed): read_arm_record(p)
         for arm in ARMS
         for seed in range(seeds)
         if (p := out / arm / f"seed-{seed}" / "record.json").exists()
@@ -201,6 +253,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--pick: no config file {args.pick!r}")
         if args.method in MANAGER_PICKS and (args.workers is None or not Path(args.workers).is_dir()):
             parser.error(f"--workers: {args.method} trains a manager over a train-workers folder")
+        try:
+            check_inputs(args)
+        except (ValueError, OSError) as error:  # a missing workers manifest too
+            parser.error(str(error))
         options = {
             "out": str(args.out),
             "backend": args.backend,
@@ -222,9 +278,13 @@ def main(argv: list[str] | None = None) -> int:
                     run_one, *zip(*[(args.method, arm, config, seed, options) for arm, config, seed in jobs])
                 )
             )
-    args.out.mkdir(parents=True, exist_ok=True)
-    text = report(args.out, args.method, args.seeds)
-    (args.out / "report.md").write_text(text)
+    from sb3_hddpg.artifacts.io import atomic_write_bytes
+
+    try:
+        text = report(args.out, args.method, args.seeds)
+    except ValueError as error:
+        parser.error(str(error))
+    atomic_write_bytes(args.out / "report.md", text.encode())  # never half a report
     print(text)
     return 0
 

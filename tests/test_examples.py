@@ -327,6 +327,46 @@ def test_confirm_pick_trains_a_managers_block_over_given_workers(tmp_path):
     assert refused.returncode == 2 and "--workers" in refused.stderr and not (tmp_path / "x").exists()
 
 
+def test_confirm_pick_refuses_what_its_arms_cannot_use_before_any_arm_runs(tmp_path):
+    import json
+
+    script = str(STUDIES / "confirm_pick.py")
+    flat = tmp_path / "flat.yml"
+    flat.write_text("hddpg/SnakeReach-v0:\n  n_timesteps: 3000\n  policy: MlpPolicy\n  batch_size: -5\n")
+    manager = tmp_path / "manager.yml"
+    manager.write_text(
+        "manager:\n  n_timesteps: 3000\n  policy: MlpPolicy\n  wrapper_kwargs:\n    option_steps: -3\n"
+    )
+    good = tmp_path / "good.yml"
+    good.write_text("hddpg/SnakeReach-v0:\n  n_timesteps: 3000\n  policy: MlpPolicy\n")
+    (tmp_path / "w").mkdir()
+    runs = [
+        # The bundled block's arm trained for the whole budget, then the pick's arm failed: a traceback, exit 1.
+        ["--method", "sac", "--pick", str(flat), "--timesteps", "200"],
+        ["--method", "hddpg", "--pick", str(manager), "--workers", str(tmp_path / "w")],
+        ["--method", "sac", "--pick", str(good), "--backend", "nosuch"],
+    ]
+    environment = {**os.environ, "PYTHONPATH": str(ROOT)}  # this checkout's package, as the tests import it
+    for args in runs:
+        out = tmp_path / "out"
+        done = subprocess.run(
+            [sys.executable, script, *args, "--seeds", "1", "--out", str(out)],
+            capture_output=True,
+            text=True,
+            env=environment,
+        )
+        assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+        assert not out.exists()
+    # A record read back (kept, or shipped with a report) that lacks its score: one line, no report written.
+    record = tmp_path / "kept" / "base" / "seed-0" / "record.json"
+    record.parent.mkdir(parents=True)
+    record.write_text(json.dumps({"development": {"mean_reach_reward": "high"}}))
+    args = ["--method", "sac", "--report-only", "--seeds", "1", "--out", str(tmp_path / "kept")]
+    done = subprocess.run([sys.executable, script, *args], capture_output=True, text=True, env=environment)
+    assert done.returncode == 2 and "record.json" in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "kept" / "report.md").exists()
+
+
 def test_the_shipped_confirmations_regenerate_from_their_records(tmp_path):
     import shutil
 
