@@ -300,10 +300,6 @@ class BenchmarkSettings:
                 f"Expected the front's motion scale to be a finite number >= 0, actually: {motion!r}"
             )
         self.front_motion = float(motion)
-        if not isinstance(self.front_per_preference, bool):
-            raise ValueError(
-                f"Expected `front_per_preference` true or false, actually: {self.front_per_preference!r:.60}"
-            )
 
     def _check_morl(self) -> None:
         """MORL-baselines' python, for the front on an MO-Gymnasium env."""
