@@ -373,8 +373,8 @@ def benchmark_command(
     episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """
-    Train and evaluate every method on every seed; write results.json, evaluations.csv and plots. The tables
-    compare the return of the normalised terms; goal touches and contacts where the env reports them (the snake).
+    Train and evaluate every method on every seed; write results.json, evaluations.csv and plots. Tables
+    compare the normalised terms' return; goal touches and contacts only where the env reports them (the snake).
     """
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
