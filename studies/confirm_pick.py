@@ -21,7 +21,6 @@ pairs the pick is higher. ``--report-only`` writes the report from the records a
 from __future__ import annotations
 
 import argparse
-import math
 import statistics
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -143,16 +142,13 @@ def read_arm_record(path: Path) -> dict[str, Any]:
     :raises ValueError: one line naming the file.
     """
     from sb3_hddpg.artifacts.limits import read_json_record
+    from sb3_hddpg.artifacts.values import is_finite_number
 
     record = read_json_record(path, f"{path}: not a readable record of confirm_pick")
     development = record.get("development") if isinstance(record, dict) else None
-    if not isinstance(development, dict) or not _finite(development.get(SCORE)):
+    if not isinstance(development, dict) or not is_finite_number(development.get(SCORE)):
         raise ValueError(f"{path}: expected a record with development.{SCORE} a finite number")
     return record
-
-
-def _finite(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def check_inputs(args: argparse.Namespace) -> None:

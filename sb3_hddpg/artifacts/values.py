@@ -113,6 +113,11 @@ def _number(value: object, kind: type) -> int | float | None:
     return float(value)
 
 
+def is_finite_number(value: object) -> bool:
+    """``value`` is an ``int`` or ``float`` (never a ``bool``) and finite: a number as a JSON record may hold it."""
+    return _number(value, float) is not None
+
+
 _UNIT = Bound(float, 0.0, 1.0)
 _MAGNITUDE = Bound(float, 0.0, MAX_MAGNITUDE)
 

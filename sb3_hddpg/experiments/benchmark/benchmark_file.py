@@ -9,12 +9,12 @@ naming the file, never a ``KeyError`` or ``TypeError`` at the end of a run that 
 
 from __future__ import annotations
 
-import math
 from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from sb3_hddpg.artifacts.limits import brief, read_json_record
+from sb3_hddpg.artifacts.values import is_finite_number
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 
 
@@ -46,12 +46,7 @@ def read_benchmark_file(path: str | Path) -> dict[str, Any]:
 
 def _is_invocation(entry: object) -> bool:
     seconds = entry.get("wall_time_s", 0.0) if isinstance(entry, dict) else None
-    return (
-        isinstance(seconds, (int, float))
-        and not isinstance(seconds, bool)
-        and math.isfinite(seconds)
-        and seconds >= 0
-    )
+    return is_finite_number(seconds) and cast(float, seconds) >= 0
 
 
 def settings_from_json(value: object, what: str) -> BenchmarkSettings:

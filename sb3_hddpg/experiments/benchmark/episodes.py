@@ -14,6 +14,7 @@ import csv
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -172,13 +173,13 @@ def read_episodes_csv(path: Path) -> list[EpisodeRow]:
 
 
 def _parse_row(raw: Mapping[str | None, str | list[str] | None], where: str) -> EpisodeRow:
-    if (
-        None in raw or None in raw.values()
-    ):  # csv's key for cells past the header's, its value for missing ones
+    # csv's key for the cells past the header's, and its value for the missing ones.
+    if None in raw or None in raw.values():
         raise ValueError(f"{where}: expected as many cells as the header has columns")
-    row: EpisodeRow = {"method": str(raw["method"]), "episode_set": str(raw["episode_set"])}
-    for key, text in raw.items():
-        if key in ("method", "episode_set") or key is None or not isinstance(text, str) or text == "":
+    cells = cast(Mapping[str, str], raw)
+    row: EpisodeRow = {"method": cells["method"], "episode_set": cells["episode_set"]}
+    for key, text in cells.items():
+        if key in ("method", "episode_set") or text == "":
             continue
         try:
             value = float(text)

@@ -15,7 +15,6 @@ The runner's records are written next to the seed's managers and reused when the
 from __future__ import annotations
 
 import json
-import math
 import os
 import subprocess
 from collections.abc import Callable, Mapping, Sequence
@@ -26,6 +25,7 @@ from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_TERMS, brief, read_json_record
 from sb3_hddpg.artifacts.records.base import check_version
 from sb3_hddpg.artifacts.records.results_leaves import MorlResults
+from sb3_hddpg.artifacts.values import is_finite_number
 from sb3_hddpg.envs.adapters import MULTI_OBJECTIVE_ENV_ID
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.experiments.benchmark.front_points import FrontPoint, FrontSpec, preference_label
@@ -120,13 +120,9 @@ def _run(python: str, arguments: Sequence[str], out: Path, keys: Sequence[str]) 
 
 #: A runner's record's fields that are lists of one entry per point of its front, each checked as ``check``.
 _PER_POINT: dict[str, Callable[[Any], bool]] = {
-    "preferences": lambda w: isinstance(w, list) and len(w) <= MAX_TERMS and all(map(_finite, w)),
-    "mean_lengths": lambda length: _finite(length) and length > 0,
+    "preferences": lambda w: isinstance(w, list) and len(w) <= MAX_TERMS and all(map(is_finite_number, w)),
+    "mean_lengths": lambda length: is_finite_number(length) and length > 0,
 }
-
-
-def _finite(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def read_morl_record(path: Path, keys: Sequence[str]) -> dict[str, Any]:
@@ -148,7 +144,7 @@ def read_morl_record(path: Path, keys: Sequence[str]) -> dict[str, Any]:
         raise ValueError(f"{path}: expected a front of 1 to {MAX_FRONT_POINTS} points and {list(keys)}")
     width = len(front[0]) if isinstance(front[0], list) else 0
     if not 1 <= width <= MAX_TERMS or not all(
-        isinstance(p, list) and len(p) == width and all(map(_finite, p)) for p in front
+        isinstance(p, list) and len(p) == width and all(map(is_finite_number, p)) for p in front
     ):
         raise ValueError(f"{path}: front: expected points of as many finite numbers each, got {brief(front)}")
     for key in keys:
@@ -156,7 +152,7 @@ def read_morl_record(path: Path, keys: Sequence[str]) -> dict[str, Any]:
         if key in _PER_POINT:
             shaped = isinstance(value, list) and len(value) == len(front) and all(map(_PER_POINT[key], value))
         elif key in _SCORES or key in _SECONDS:
-            shaped = _finite(value) and (key in _SCORES or value >= 0)
+            shaped = is_finite_number(value) and (key in _SCORES or value >= 0)
         else:
             shaped = True
         if not shaped:

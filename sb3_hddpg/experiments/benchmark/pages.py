@@ -421,16 +421,14 @@ def update_tuning_page(run: Path, tuning_page: Path, check: bool = False) -> dic
 
 def _write_changed(outputs: Mapping[Path, str], check: bool) -> list[str]:
     """The files whose new text differs from what they hold, written unless ``check``."""
-    changed = [str(path) for path, new in outputs.items() if new != path.read_text()]
+    changed = {path: new for path, new in outputs.items() if new != path.read_text()}
     if not check:
-        for path in outputs:  # each before any is written
-            if str(path) in changed:
-                # Rewritten in place, a link would become a file, and the page it names stay as it was.
-                check_output_file(path, force=True)
-        for path, new in outputs.items():
-            if str(path) in changed:
-                _write_text(path, new)
-    return changed
+        for path in changed:  # each before any is written
+            # Rewritten in place, a link would become a file, and the page it names stay as it was.
+            check_output_file(path, force=True)
+        for path, new in changed.items():
+            _write_text(path, new)
+    return [str(path) for path in changed]
 
 
 def update_pages(

@@ -115,6 +115,11 @@ def canonical_preference(text: str) -> str:
     return ",".join(f"{name}={value:g}" for name, value in factors.items())
 
 
+def _is_flat(method: str) -> bool:
+    """A flat agent's method (continuous, with the goal worker's tricks, or discrete), trained by its algorithm."""
+    return method in FLAT_METHODS or method in FLAT_HER_METHODS or method in DISCRETE_FLAT_METHODS
+
+
 @dataclass
 class BenchmarkSettings:
     """
@@ -229,9 +234,7 @@ class BenchmarkSettings:
         options the tasks build: checked here, a budget too large is refused before anything trains, not by
         the task that reaches it after the seed's workers have trained.
         """
-        flat = any(
-            m in FLAT_METHODS or m in FLAT_HER_METHODS or m in DISCRETE_FLAT_METHODS for m in self.methods
-        )
+        flat = any(_is_flat(m) for m in self.methods)
         budgets = {
             "timesteps": self.manager_env_steps,
             "worker_timesteps": self.worker_timesteps,
@@ -264,7 +267,7 @@ class BenchmarkSettings:
             raise ValueError(f"Unknown methods {unknown}; choose from {list(METHOD_REGISTRY)}")
         self.backend = check_backend(self.backend)
         for method in self.methods:
-            if method in FLAT_METHODS or method in FLAT_HER_METHODS or method in DISCRETE_FLAT_METHODS:
+            if _is_flat(method):
                 check_algo(FLAT_HER_METHODS.get(method, method), self.backend)
         if self.env is None:
             env_only = [m for m in self.methods if m in ENV_ONLY_METHODS]
