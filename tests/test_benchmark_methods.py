@@ -350,6 +350,21 @@ def test_workers_from_another_benchmark_are_copied_checked_and_never_retrained(t
     for refused, folder in ((other_budget, "c"), (missing_seed, "d"), (not_a_run, "e"), (other_curve, "f")):
         assert "Traceback" not in refused.stderr and not (tmp_path / folder).exists()
 
+    # Both folders copied elsewhere (another machine): the copy resumes with the new path, its runs kept;
+    # a run that trained its own workers is not resumed onto copied ones.
+    moved = tmp_path / "moved"
+    shutil.copytree(first, moved / "first")
+    shutil.copytree(second, moved / "second")
+    resumed, mixed = run_batch(
+        [
+            [*args, "--workers-from", str(moved / "first"), "--out", str(moved / "second"), "--resume"],
+            [*args, "--workers-from", str(moved / "second"), "--out", str(moved / "first"), "--resume"],
+        ]
+    )
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert "started" not in resumed.stdout and resumed.stdout.count("kept") == 2
+    assert mixed.returncode == 2 and "workers_from changed" in mixed.stderr
+
 
 # ------------------------------------------------------------------------------- references without training
 @pytest.mark.slow  # a tiny benchmark plus HAM's 24-threshold grid: ~30 s idle, minutes on a loaded machine

@@ -296,6 +296,10 @@ def task_job(task: Task, settings: BenchmarkSettings, out: Path) -> Job:
 
 #: Settings a resumed benchmark may change (every other must be as the folder's ``benchmark.json`` says).
 RESUME_MAY_CHANGE = ("methods", "seeds")
+#: Settings that say where something is on this machine: a folder copied to another machine resumes there
+#: with its own paths (the reused workers are checked against their manifests whatever their path), but
+#: one given or left out only on resume would mix two kinds of runs.
+MACHINE_PATHS = ("workers_from", "morl_python")
 #: Where ``redo`` moves the runs it replaces: ``DIR/replaced-<UTC time>/`` (records and seed folders).
 REPLACED_PREFIX = "replaced-"
 
@@ -324,7 +328,12 @@ def _changed_settings(
         owners = _owners(key, settings, saved)
         return bool(owners) and set(owners) <= set(redo)
 
-    return [k for k in changed if not (k == "timesteps" and same_env_steps) and not redone(k)]
+    def moved(key: str) -> bool:
+        return key in MACHINE_PATHS and previous[key] is not None and stored[key] is not None
+
+    return [
+        k for k in changed if not (k == "timesteps" and same_env_steps) and not redone(k) and not moved(k)
+    ]
 
 
 def _owners(key: str, settings: BenchmarkSettings, saved: dict[str, Any]) -> list[str]:
