@@ -494,6 +494,8 @@ def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
         "seed-3/ham/ham.json": "ham",
         "seed-3/td3/flat/td3.zip": "td3",
         "seed-3/td3/flat/manifest.json": "{}",
+        "seed-3/sac-her/flat/sac.zip": "sac with the goal worker's tricks",
+        "seed-3/sac-her/flat/manifest.json": "{}",
         "seed-3/ddpg@goal=2,avoid=1/flat/ddpg.zip": "transfer",
         "seed-3/ddpg@goal=2,avoid=1/flat/manifest.json": "{}",
         "seed-3/sac/flat/sac.zip": "unfinished",
@@ -506,6 +508,7 @@ def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
         "hddpg": {},
         "ham": {},
         "td3": {},
+        "sac-her": {},
         "ddpg@goal=2,avoid=1": {},
         "sac": {"status": "running"},  # not finished: not exported
     }
@@ -527,6 +530,7 @@ def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
         ("ham", "seed-3/ham/ham.json"),
         ("ddpg", "seed-3/ddpg@goal=2,avoid=1/flat/ddpg.zip"),
         ("td3", "seed-3/td3/flat/td3.zip"),
+        ("sac-her", "seed-3/sac-her/flat/sac.zip"),
     ]
     assert index[4]["preference"] == "goal=2,avoid=1" and "preference" not in index[5]
     for entry in index:

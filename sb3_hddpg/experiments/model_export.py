@@ -24,6 +24,7 @@ from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
 from sb3_hddpg.experiments.benchmark import (
     DISCRETE_FLAT_METHODS,
     DISCRETE_MANAGERS,
+    FLAT_HER_METHODS,
     FLAT_METHODS,
     WORKERS,
     read_record_file,
@@ -52,6 +53,7 @@ INDEX_METHODS = (
     "ham",
     "ham-tuned",
     *FLAT_METHODS,
+    *FLAT_HER_METHODS,
     *DISCRETE_FLAT_METHODS,
 )
 #: The methods whose model is a hierarchy bundle (another env's managers by index among them).
@@ -126,8 +128,10 @@ def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
         return f"{run_key}/hierarchy.zip", []
     if base in ("ham", "ham-tuned"):
         return f"{base}/ham.json", []  # its workers are exported with the seed's workers
-    if base in FLAT_METHODS or base in DISCRETE_FLAT_METHODS:
-        return f"{run_key}/flat/{base}.zip", [f"{run_key}/flat/manifest.json"]
+    if base in FLAT_METHODS or base in DISCRETE_FLAT_METHODS or base in FLAT_HER_METHODS:
+        # A flat agent's zip is named after its algorithm (``ddpg-her`` trains a ``ddpg.zip``).
+        algo = FLAT_HER_METHODS.get(base, base)
+        return f"{run_key}/flat/{algo}.zip", [f"{run_key}/flat/manifest.json"]
     return None
 
 

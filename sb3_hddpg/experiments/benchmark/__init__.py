@@ -61,6 +61,7 @@ from sb3_hddpg.experiments.benchmark.front_points import (
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_ENV_METHODS,
     DEFAULT_METHODS,
+    FLAT_HER_METHODS,
     FLAT_METHODS,
     METHOD_REGISTRY,
     METHODS,
@@ -129,6 +130,7 @@ __all__ = [
     "ENV_METHODS",
     "ENV_ONLY_METHODS",
     "FINAL_METRICS",
+    "FLAT_HER_METHODS",
     "FLAT_METHODS",
     "FRONT_METHOD",
     "FRONT_METHODS",
