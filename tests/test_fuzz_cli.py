@@ -214,7 +214,7 @@ def _outputs(argv: list[str]) -> list[str]:
     SQLite file a ``--storage`` URL names (the user named each of them).
     """
     named = [argv[argv.index(flag) + 1] for flag in ("--out", "--json") if flag in argv[:-1]]
-    if argv and argv[0] == "export-models" and len(argv) > 2:
+    if argv and argv[0] in ("export-models", "snapshot") and len(argv) > 2:
         named.append(argv[2])
     if "--storage" in argv[:-1] and argv[argv.index("--storage") + 1].startswith("sqlite:///"):
         database = argv[argv.index("--storage") + 1].removeprefix("sqlite:///").split("?")[0]
@@ -456,6 +456,35 @@ def test_export_models_keeps_the_invariants(server, tmp_path, case):
     run_case(server, tmp_path, build)
 
 
+SETTINGS = st.one_of(
+    st.just({"methods": ["ham"], "seeds": [0]}),
+    st.fixed_dictionaries(
+        {
+            "methods": st.lists(st.sampled_from(["ham", "hddpg"]) | HOSTILE_TEXT, max_size=2),
+            "seeds": JSON_VALUES,
+        }
+    ),
+    JSON_VALUES,
+)
+
+
+@fuzz(st.tuples(SETTINGS, st.lists(RECORDS, min_size=1, max_size=3), JSON_VALUES, OUT_PATHS))
+def test_snapshot_keeps_the_invariants(server, tmp_path, case):
+    settings, records, invocations, dest = case
+
+    def build(box: Path) -> list[str]:
+        bench = box / "inputs" / "bench"
+        bench.mkdir(parents=True)
+        (bench / "benchmark.json").write_text(json.dumps({"settings": settings, "invocations": invocations}))
+        # Where the settings' runs keep their records first, then elsewhere.
+        for name, record in zip(("workers", "ham", "other"), records, strict=False):
+            (bench / "records" / name).mkdir(parents=True)
+            (bench / "records" / name / "seed-0.json").write_text(json.dumps(record))
+        return ["snapshot", str(bench), dest]
+
+    run_case(server, tmp_path, build)
+
+
 @fuzz(st.tuples(MODELS, st.integers(-3, 2), HOSTILE_TEXT))
 def test_evaluate_keeps_the_invariants(server, tmp_path, case):
     model, episodes, json_name = case
@@ -556,6 +585,7 @@ def test_storage_urls_keep_the_invariants(server, tmp_path, case):
 test_package_keeps_the_invariants_long = long_twin(test_package_keeps_the_invariants)
 test_train_workers_force_keeps_the_invariants_long = long_twin(test_train_workers_force_keeps_the_invariants)
 test_export_models_keeps_the_invariants_long = long_twin(test_export_models_keeps_the_invariants)
+test_snapshot_keeps_the_invariants_long = long_twin(test_snapshot_keeps_the_invariants)
 test_evaluate_keeps_the_invariants_long = long_twin(test_evaluate_keeps_the_invariants)
 test_train_manager_with_hostile_workers_keeps_the_invariants_long = long_twin(
     test_train_manager_with_hostile_workers_keeps_the_invariants

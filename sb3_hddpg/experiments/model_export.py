@@ -14,6 +14,7 @@ the folder and openable with :func:`sb3_hddpg.hierarchy.loading.load_policy` (``
 from __future__ import annotations
 
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TypedDict
 
@@ -80,17 +81,78 @@ class IndexEntry(TypedDict, total=False):
     manager_preferences: object
 
 
-def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
-    if not source.is_file():
-        raise FileNotFoundError(f"Expected a finished run's file, missing: {str(source)!r}")
+@dataclass(frozen=True)
+class ModelFile:
+    """
+    One model of a finished run, as a benchmark folder lays it out: what ``index.json`` says of it (but the
+    digest) and the files it is opened through, every path relative to the folder.
+
+    :param method: one of :data:`INDEX_METHODS`.
+    :param seed: the run's seed.
+    :param path: the file the model is opened by.
+    :param needs: the files it opens through (a worker's or a flat agent's manifest), copied first.
+    :param preference: a transfer run's or a per-preference manager's preference.
+    :param manager_preferences: the preference space a conditioned manager was trained over.
+    """
+
+    method: str
+    seed: int
+    path: Path
+    needs: tuple[Path, ...] = ()
+    preference: str | None = None
+    manager_preferences: object = None
+
+    def index_entry(self, digest: str) -> IndexEntry:
+        """Its record in ``index.json``, given its file's sha256."""
+        entry: IndexEntry = {
+            "method": self.method,
+            "seed": self.seed,
+            "path": self.path.as_posix(),
+            "sha256": digest,
+        }
+        if self.preference is not None:
+            entry["preference"] = self.preference
+        if self.manager_preferences is not None:
+            entry["manager_preferences"] = self.manager_preferences
+        return entry
+
+
+def destination(dest_root: Path, relative: Path) -> Path:
+    """
+    The path a file of an export (or a snapshot) is written to, its folders made: refused unless it resolves
+    inside ``dest_root``. Defence in depth at the writers: every name was checked where it was read, and a
+    symbolic link planted in the destination could still point elsewhere.
+    """
     target = dest_root / relative
-    # Defence in depth at the one writer: every name was checked where it was read, and the final path
-    # must still resolve inside the destination (a symlink planted in it could point elsewhere).
     if dest_root.resolve() not in target.resolve().parents:
         raise ValueError(f"Refusing to write {relative.as_posix()!r}: it resolves outside {str(dest_root)!r}")
     target.parent.mkdir(parents=True, exist_ok=True)
+    return target
+
+
+def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
+    if not source.is_file():
+        raise FileNotFoundError(f"Expected a finished run's file, missing: {str(source)!r}")
+    target = destination(dest_root, relative)
     shutil.copy2(source, target)
     return target
+
+
+def copy_model(model: ModelFile, root: Path, dest: Path) -> IndexEntry:
+    """
+    Copy one model (the files it needs first) from the benchmark folder ``root`` into ``dest``, at the same
+    relative paths, checking the copy's sha256 against its source.
+
+    :return: its record in ``index.json``.
+    """
+    for extra in model.needs:
+        _copy(root / extra, dest, extra)
+    source = root / model.path
+    target = _copy(source, dest, model.path)
+    digest = sha256_file(target)
+    if digest != sha256_file(source):
+        raise OSError(f"Copy of {str(source)!r} differs from its source (sha256): disk full or changing?")
+    return model.index_entry(digest)
 
 
 def _read_record(record_file: Path) -> tuple[str, int, list[str]] | None:
@@ -135,6 +197,73 @@ def _model_files(run_key: str, base: str) -> tuple[str, list[str]] | None:
     return None
 
 
+def run_models(root: Path, record_file: Path, *, per_preference: bool = True) -> list[ModelFile]:
+    """
+    The models of the run whose record is ``record_file``, in the benchmark folder ``root``: none for a run
+    that is not finished, or of a method registered elsewhere whose files this exporter does not know.
+
+    :param root: the benchmark folder.
+    :param record_file: ``root/records/<run>/seed-<s>.json``.
+    :param per_preference: with the front's run, its managers trained for one preference each too (else its
+        conditioned manager alone).
+    """
+    checked = _read_record(record_file)
+    if checked is None:
+        return []
+    key, seed, workers = checked
+    seed_folder = Path(f"seed-{seed}")
+    if key == WORKERS:
+        # The manifest first: a worker zip is opened through it.
+        manifest = seed_folder / "workers" / "manifest.json"
+        return [
+            ModelFile(f"worker:{name}", seed, seed_folder / "workers" / f"{name}.zip", (manifest,))
+            for name in sorted(workers)
+        ]
+    base, preference = split_key(key)
+    if base == FRONT_METHOD:
+        return _front_models(root, seed_folder / base, seed, per_preference)
+    files = _model_files(key, base)
+    if files is None:
+        return []
+    model, extras = files
+    needs = tuple(seed_folder / extra for extra in extras)
+    return [ModelFile(base, seed, seed_folder / model, needs, preference)]
+
+
+def _front_models(root: Path, run: Path, seed: int, per_preference: bool) -> list[ModelFile]:
+    """
+    The front's bundles of one seed: the conditioned manager (with the preference space it was trained
+    over, read from its verified manifest) and each per-preference manager (with its preference).
+    """
+    models: list[ModelFile] = []
+    for relative in sorted((root / run).glob("*/hierarchy.zip")):
+        relative = relative.relative_to(root)
+        manifest, _ = read_bundle(root / relative)
+        selection = manifest.selection if isinstance(manifest.selection, dict) else {}
+        space = selection.get("manager_preferences")
+        if space is not None:
+            models.append(ModelFile(CONDITIONED, seed, relative, manager_preferences=space))
+        elif per_preference:
+            label = preference_label(selection.get("preferences") or {})
+            models.append(ModelFile(PER_PREFERENCE, seed, relative, preference=label))
+    return models
+
+
+def write_index(folder: Path, index: list[IndexEntry]) -> list[IndexEntry]:
+    """
+    Write ``folder/index.json`` atomically, its records in :data:`INDEX_METHODS` order (then preference and
+    seed), after every file they name is in place.
+
+    :return: the records as written.
+    """
+    order = {name: i for i, name in enumerate(INDEX_METHODS)}
+    index = sorted(
+        index, key=lambda e: (order.get(e["method"], len(order)), e.get("preference") or "", e["seed"])
+    )
+    atomic_write_json(folder / "index.json", index)
+    return index
+
+
 def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[IndexEntry]:
     """
     Copy a finished benchmark's final models into ``dest`` and write ``dest/index.json``.
@@ -154,64 +283,14 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[IndexEntr
     if not records_dir.is_dir():
         raise FileNotFoundError(f"Not a benchmark folder (no records/): {str(benchmark_dir)!r}")
     dest = _check_destination(root, Path(dest))
-    index: list[IndexEntry] = []
-    for record_file in sorted(records_dir.glob("*/seed-*.json")):
-        checked = _read_record(record_file)
-        if checked is None:
-            continue
-        key, seed, workers = checked
-        seed_folder = Path(f"seed-{seed}")
-        if key == WORKERS:
-            # The manifest first: a worker zip is opened through it.
-            _copy(
-                root / seed_folder / "workers" / "manifest.json",
-                dest,
-                seed_folder / "workers" / "manifest.json",
-            )
-            for name in sorted(workers):
-                relative = seed_folder / "workers" / f"{name}.zip"
-                index.append(_entry(f"worker:{name}", seed, root, dest, relative))
-            continue
-        base, preference = split_key(key)
-        if base == FRONT_METHOD:
-            index += _front_entries(root, dest, seed_folder / base, seed)
-            continue
-        files = _model_files(key, base)
-        if files is None:
-            continue  # a method registered elsewhere, with files this exporter does not know
-        model, extras = files
-        for extra in extras:
-            _copy(root / seed_folder / extra, dest, seed_folder / extra)
-        entry = _entry(base, seed, root, dest, seed_folder / model)
-        if preference is not None:
-            entry["preference"] = preference
-        index.append(entry)
+    index = [
+        copy_model(model, root, dest)
+        for record_file in sorted(records_dir.glob("*/seed-*.json"))
+        for model in run_models(root, record_file)
+    ]
     if not index:
         raise ValueError(f"No finished runs to export in {str(benchmark_dir)!r}")
-    order = {name: i for i, name in enumerate(INDEX_METHODS)}
-    index.sort(key=lambda e: (order.get(e["method"], len(order)), e.get("preference") or "", e["seed"]))
-    atomic_write_json(dest / "index.json", index)
-    return index
-
-
-def _front_entries(root: Path, dest: Path, run: Path, seed: int) -> list[IndexEntry]:
-    """
-    The front's bundles of one seed: the conditioned manager (with the preference space it was trained
-    over, read from its verified manifest) and each per-preference manager (with its preference).
-    """
-    entries: list[IndexEntry] = []
-    for relative in sorted((root / run).glob("*/hierarchy.zip")):
-        relative = relative.relative_to(root)
-        manifest, _ = read_bundle(root / relative)
-        selection = manifest.selection if isinstance(manifest.selection, dict) else {}
-        space = selection.get("manager_preferences")
-        entry = _entry(CONDITIONED if space is not None else PER_PREFERENCE, seed, root, dest, relative)
-        if space is not None:
-            entry["manager_preferences"] = space
-        else:
-            entry["preference"] = preference_label(selection.get("preferences") or {})
-        entries.append(entry)
-    return entries
+    return write_index(dest, index)
 
 
 def _check_destination(root: Path, dest: Path) -> Path:
@@ -232,15 +311,6 @@ def _check_destination(root: Path, dest: Path) -> Path:
             f"{str(dest)!r}, which holds other files"
         )
     return dest
-
-
-def _entry(method: str, seed: int, root: Path, dest: Path, relative: Path) -> IndexEntry:
-    source = root / relative
-    target = _copy(source, dest, relative)
-    digest = sha256_file(target)
-    if digest != sha256_file(source):
-        raise OSError(f"Copy of {str(source)!r} differs from its source (sha256): disk full or changing?")
-    return {"method": method, "seed": seed, "path": relative.as_posix(), "sha256": digest}
 
 
 def read_index(folder: str | Path) -> list[IndexEntry]:

@@ -82,6 +82,7 @@ from sb3_hddpg.experiments.benchmark.report import (
     write_outputs,
 )
 from sb3_hddpg.experiments.benchmark.run import (
+    changed_settings,
     check_redo,
     check_workers_source,
     machine_info,
@@ -152,6 +153,7 @@ __all__ = [
     "Method",
     "Task",
     "canonical_preference",
+    "changed_settings",
     "check_redo",
     "check_workers_source",
     "compare",

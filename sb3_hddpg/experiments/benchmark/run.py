@@ -304,7 +304,7 @@ MACHINE_PATHS = ("workers_from", "morl_python")
 REPLACED_PREFIX = "replaced-"
 
 
-def _changed_settings(
+def changed_settings(
     settings: BenchmarkSettings, saved: dict[str, Any], redo: Sequence[str] = ()
 ) -> list[str]:
     """
@@ -481,7 +481,7 @@ def _check_same_settings(
 ) -> None:
     """Refuse to resume ``out`` with other settings than it was started with, naming them (and the --redo that
     would allow a change that only some methods read)."""
-    changed = _changed_settings(settings, saved, redo)
+    changed = changed_settings(settings, saved, redo)
     if changed:
         raise ValueError(
             f"Cannot resume {str(out)!r} with different settings ({', '.join(changed)} changed); "

@@ -1,0 +1,133 @@
+"""``hddpg-cli snapshot``: a benchmark's finished seeds copied into a folder that resumes and serves its workers."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+from sb3_hddpg.experiments.model_export import read_index
+from tests.cli_batch import run_batch
+from tests.test_benchmark import cli
+from tests.test_benchmark_methods import TINY
+
+ARGS = ("benchmark", "--seeds", "2", "--methods", "goal-only,hddpg", *TINY)
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(tmp_path):
+    bench, snap = tmp_path / "bench", tmp_path / "snap"
+    done = cli(*ARGS, "--out", str(bench))
+    assert done.returncode == 0, done.stdout + done.stderr
+    # Seed 1 as if its manager were still training.
+    unfinished = bench / "records" / "hddpg" / "seed-1.json"
+    aside = tmp_path / "hddpg-seed-1.json"
+    shutil.move(unfinished, aside)
+
+    first = cli("snapshot", str(bench), str(snap))
+    assert first.returncode == 0, first.stdout + first.stderr
+    assert "3 runs copied" in first.stdout and "finished seeds: 0;" in first.stdout
+    assert "not finished: 1" in first.stdout
+    assert sorted(p.relative_to(snap).as_posix() for p in snap.glob("records/*/*.json")) == [
+        "records/goal-only/seed-0.json",
+        "records/hddpg/seed-0.json",
+        "records/workers/seed-0.json",
+    ]
+    for name in ("goal", "avoid"):  # what --workers-from checks besides the zips
+        assert (snap / "seed-0" / "evaluations" / f"{name}.json").read_bytes() == (
+            bench / "seed-0" / "evaluations" / f"{name}.json"
+        ).read_bytes()
+    assert not list(snap.rglob("checkpoints")) and not list(snap.rglob("tensorboard"))
+    assert not (snap / "seed-1").exists()
+    index = read_index(snap)  # every file checked against its sha256
+    assert [(e["method"], e["seed"]) for e in index] == [
+        ("worker:goal", 0),
+        ("worker:avoid", 0),
+        ("hddpg", 0),
+    ]
+    assert json.loads((snap / "benchmark.json").read_text()) == json.loads(
+        (bench / "benchmark.json").read_text()
+    )
+
+    # Taken again once seed 1 finished: only its runs are added, the others are left as they are.
+    grown = tmp_path / "grown"
+    shutil.copytree(snap, grown)
+    shutil.move(aside, unfinished)
+    before = _files(grown)
+    again = cli("snapshot", str(bench), str(grown))
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "3 runs copied" in again.stdout and "finished seeds: 0, 1;" in again.stdout
+    after = _files(grown)
+    assert {k: v for k, v in after.items() if k in before and k != "index.json"} == {
+        k: v for k, v in before.items() if k != "index.json"
+    }
+    assert len(read_index(grown)) == 6
+
+    # What would replace a run or anyone's files, or write outside DEST, is refused.
+    other = tmp_path / "other"
+    shutil.copytree(snap, other)
+    record_file = other / "records" / "goal-only" / "seed-0.json"
+    record = json.loads(record_file.read_text())
+    record["test"]["mean_reach_reward"] += 1.0
+    record_file.write_text(json.dumps(record))
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "notes.txt").write_text("mine")
+    untouched = {folder: _files(folder) for folder in (other, theirs)}
+    # A link planted in an earlier snapshot never sends a file elsewhere.
+    linked, elsewhere = tmp_path / "linked", tmp_path / "elsewhere"
+    shutil.copytree(snap, linked)
+    shutil.move(linked / "records" / "hddpg", elsewhere)
+    (linked / "records" / "hddpg").symlink_to(elsewhere)
+    refused = run_batch(
+        [
+            ["snapshot", str(bench), str(other)],
+            ["snapshot", str(bench), str(theirs)],
+            ["snapshot", str(bench), str(bench / "inside")],
+            ["snapshot", str(theirs), str(tmp_path / "new")],
+            ["snapshot", str(bench), str(linked)],
+        ]
+    )
+    expected_errors = (
+        "holds another run of goal-only/seed-0",
+        "holds other files",
+        "apart from the benchmark",
+        "no benchmark.json",
+        "resolves outside",
+    )
+    for result, expected in zip(refused, expected_errors, strict=True):
+        assert result.returncode == 2 and expected in result.stderr, result.stderr
+        assert "Traceback" not in result.stderr
+    assert {folder: _files(folder) for folder in (other, theirs)} == untouched
+    assert not (bench / "inside").exists() and not (tmp_path / "new").exists()
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["seed-0.json"]
+
+    # The snapshot resumes the benchmark (its runs kept, seed 1's run) and serves its workers.
+    resumed, reused = run_batch(
+        [
+            [*ARGS, "--out", str(snap), "--resume"],
+            [
+                "benchmark",
+                "--seeds",
+                "2",
+                "--methods",
+                "goal-only",
+                *TINY,
+                "--workers-from",
+                str(grown),
+                "--out",
+                str(tmp_path / "reused"),
+            ],
+        ]
+    )
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert resumed.stdout.count("kept") == 3 and resumed.stdout.count("started") == 3
+    assert reused.returncode == 0, reused.stdout + reused.stderr
+    # Resumed on its own, the snapshot is no longer one of the benchmark: never overwritten.
+    overwrite = cli("snapshot", str(bench), str(snap))
+    assert overwrite.returncode == 2 and "run on its own" in overwrite.stderr
