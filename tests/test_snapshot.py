@@ -131,3 +131,38 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
     # Resumed on its own, the snapshot is no longer one of the benchmark: never overwritten.
     overwrite = cli("snapshot", str(bench), str(snap))
     assert overwrite.returncode == 2 and "run on its own" in overwrite.stderr
+
+
+def test_a_benchmark_snapshots_each_seed_as_it_finishes(tmp_path):
+    bench, snap, theirs = tmp_path / "bench", tmp_path / "snap", tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "notes.txt").write_text("mine")
+    args = ["benchmark", "--seeds", "2", "--methods", "goal-only", *TINY]
+    refused, done = run_batch(
+        [
+            [*args, "--out", str(tmp_path / "never"), "--snapshot", str(theirs)],
+            [*args, "--out", str(bench), "--snapshot", str(snap)],
+        ]
+    )
+    # A folder it may not fill is refused before anything runs.
+    assert (
+        refused.returncode == 2 and "'--snapshot'" in refused.stderr and "holds other files" in refused.stderr
+    )
+    assert not (tmp_path / "never").exists() and _files(theirs) == {"notes.txt": b"mine"}
+
+    assert done.returncode == 0, done.stdout + done.stderr
+    # One snapshot as each seed's last run finishes, one at the end (the invocation's wall time in it).
+    assert done.stdout.count("snapshot: finished seeds 0 in") == 1
+    assert done.stdout.count("snapshot: finished seeds 0, 1 in") == 2
+    assert json.loads((snap / "benchmark.json").read_text()) == json.loads(
+        (bench / "benchmark.json").read_text()
+    )
+    assert sorted(p.relative_to(snap).as_posix() for p in snap.glob("records/*/*.json")) == [
+        f"records/{method}/seed-{seed}.json" for method in ("goal-only", "workers") for seed in (0, 1)
+    ]
+    assert [(e["method"], e["seed"]) for e in read_index(snap)] == [
+        ("worker:goal", 0),
+        ("worker:goal", 1),
+        ("worker:avoid", 0),
+        ("worker:avoid", 1),
+    ]

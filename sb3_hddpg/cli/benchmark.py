@@ -32,6 +32,7 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
+from sb3_hddpg.cli.snapshot import check_snapshot_option, snapshotting, take_snapshot
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.experiments.benchmark import (
     DEFAULT_ENV_METHODS,
@@ -245,6 +246,14 @@ _ExportDirOpt = Annotated[
         help="Afterwards copy the final models into this folder with an index.json (see export-models).",
     ),
 ]
+_SnapshotOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--snapshot",
+        help="Each time a seed's last run finishes, and at the end, copy the finished seeds into this folder "
+        "(see snapshot): it resumes the benchmark on any machine.",
+    ),
+]
 _WorkersFromOpt = Annotated[
     Path | None,
     typer.Option(
@@ -357,6 +366,7 @@ def benchmark_command(
     redo: _RedoOpt = None,
     force: ForceOpt = False,
     export_dir: _ExportDirOpt = None,
+    snapshot_dir: _SnapshotOpt = None,
     backend: ExperimentBackendOpt = "sb3",
     workers_from: _WorkersFromOpt = None,
     env: _EnvOpt = None,
@@ -405,14 +415,13 @@ def benchmark_command(
             front_per_preference=front_per_preference,
             morl_python=morl_python,
         )
-    redone = _checked_resume(settings, redo, resume)
-    address = cluster_address(executor, ray_address)
+    redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
-    printer = _event_printer(time.perf_counter())
+    printer = snapshotting(_event_printer(time.perf_counter()), out, snapshot_dir, settings)
     results = run_benchmark(
         settings, out, n_jobs=n_jobs, resume=resume, on_event=printer, ray_address=address, redo=redone
     )
-    _print_results(results, out, export_dir)
+    _print_results(results, out, export_dir, snapshot_dir)
 
 
 def _scenario_methods(
@@ -458,23 +467,39 @@ def _env_record(shared: TermsEnv | None) -> EnvChoice | None:
     return {"env_id": shared.env_id, "env_kwargs": shared.env_kwargs, "terms": list(shared.terms)}
 
 
-def _checked_resume(settings: BenchmarkSettings, redo: str | None, resume: bool) -> list[str]:
-    """Check ``--workers-from`` and ``--redo`` before the folder is touched; return the methods to redo."""
+def _checked_options(
+    settings: BenchmarkSettings,
+    redo: str | None,
+    resume: bool,
+    out: Path,
+    snapshot_dir: Path | None,
+    executor: tuple[str, str | None],
+) -> tuple[list[str], str | None]:
+    """
+    Check ``--workers-from``, ``--redo``, ``--snapshot`` and the executor before the folder is touched.
+
+    :return: the methods to redo, and the Ray cluster's address (``None``: local processes).
+    """
     with usage_errors("'--workers-from'"):
         check_workers_source(settings)
     redone = [m.strip() for m in redo.split(",") if m.strip()] if redo else []
     with usage_errors("'--redo'"):
         check_redo(settings, redone, resume)
-    return redone
+    check_snapshot_option(settings, out, snapshot_dir, resume)
+    return redone, cluster_address(*executor)
 
 
-def _print_results(results: BenchmarkResults, out: Path, export_dir: Path | None) -> None:
-    """The result tables, the wall time and the outputs; the export; exit 1 naming every failed run."""
+def _print_results(
+    results: BenchmarkResults, out: Path, export_dir: Path | None, snapshot_dir: Path | None
+) -> None:
+    """The result tables, the wall time and the outputs; the export and snapshot; exit 1 naming every failed run."""
     for table in console_tables(results):
         console.print(_rich_table(table))
     console.print(f"Wall time: {wall_time_text(results)}.  Outputs in {out}: {', '.join(OUTPUT_FILES)}")
     if export_dir is not None:
         _export(out, export_dir)
+    if snapshot_dir is not None:
+        take_snapshot(out, snapshot_dir)
     if results.failures:
         for label, message in results.failures.items():
             console.print(f"[red]failed[/] {label}: {message}")

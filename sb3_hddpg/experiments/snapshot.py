@@ -23,7 +23,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_json, locked_folder
 from sb3_hddpg.artifacts.limits import read_json_file
@@ -105,7 +104,7 @@ def snapshot_benchmark(run: str | Path, dest: str | Path, *, per_preference: boo
         raise FileNotFoundError(f"Not a benchmark folder (no benchmark.json): {str(run)!r}")
     saved = read_benchmark_file(settings_path)
     settings = settings_from_json(saved["settings"], str(settings_path))
-    _check_destination(run, dest, settings, saved)
+    check_destination(run, dest, settings, saved.get("invocations", []))
     finished, pending = finished_seeds(run, settings)
     with locked_folder(dest):
         mark_run_folder(dest, SNAPSHOT_COMMAND)
@@ -171,12 +170,22 @@ def _in_place(model: ModelFile, folder: Path) -> IndexEntry:
     return model.index_entry(sha256_file(folder / model.path))
 
 
-def _check_destination(run: Path, dest: Path, settings: BenchmarkSettings, saved: dict[str, Any]) -> None:
+def check_destination(
+    run: str | Path, dest: str | Path, settings: BenchmarkSettings, invocations: Sequence[object] = ()
+) -> None:
     """
     Refuse a ``dest`` that is not missing, empty or an earlier snapshot of this benchmark: one whose
     settings are the benchmark's (but for those a resume may change) and whose invocations are the first of
-    the benchmark's, so that a folder resumed on its own since is never overwritten.
+    the benchmark's, so that a folder resumed on its own since is never overwritten. A benchmark checks its
+    ``--snapshot`` folder with it before it starts.
+
+    :param run: the benchmark folder.
+    :param dest: the snapshot's folder.
+    :param settings: the benchmark's settings.
+    :param invocations: the benchmark's invocations so far (its ``benchmark.json``; none for a new one).
+    :raises ValueError: naming the folder and why (:class:`RunFolderError` for a folder never to be written).
     """
+    run, dest = Path(run), Path(dest)
     reason = "the current folder" if str(dest) in ("", ".") else protected_reason(dest)
     if reason is not None:
         raise RunFolderError(f"Expected a snapshot folder, actually {str(dest)!r} ({reason})")
@@ -202,7 +211,7 @@ def _check_destination(run: Path, dest: Path, settings: BenchmarkSettings, saved
             f"{str(dest)!r} holds another benchmark than {str(run)!r} ({', '.join(changed)} differ): take the "
             "snapshot into a new folder"
         )
-    if not _is_prefix(earlier.get("invocations", []), saved.get("invocations", [])):
+    if not _is_prefix(earlier.get("invocations", []), invocations):
         raise ValueError(
             f"{str(dest)!r} was run on its own since it was taken from {str(run)!r} (its invocations differ): "
             "take the snapshot into a new folder"
@@ -213,4 +222,4 @@ def _is_prefix(first: Sequence[object], whole: Sequence[object]) -> bool:
     return len(first) <= len(whole) and list(first) == list(whole[: len(first)])
 
 
-__all__ = ["SNAPSHOT_COMMAND", "Snapshot", "finished_seeds", "snapshot_benchmark"]
+__all__ = ["SNAPSHOT_COMMAND", "Snapshot", "check_destination", "finished_seeds", "snapshot_benchmark"]
