@@ -302,6 +302,16 @@ CASES = [
         "absent",
     ),
     case("ex-not-a-benchmark", ("export-models", "{folder}", "{tmp}/models"), 2, "a-folder"),
+    # ---- snapshot, and the benchmark's --snapshot
+    case("sn-missing-run", ("snapshot", "{tmp}/nope", "{tmp}/snap"), 2, "nope"),
+    case("sn-not-a-benchmark", ("snapshot", "{folder}", "{tmp}/snap"), 2, "a-folder"),
+    case("sn-dest-current-folder", ("snapshot", "docs/results/record", "."), 2, "the current folder"),
+    case(
+        "bm-snapshot-current-folder",
+        ("benchmark", "--seeds", "1", "--methods", "ham", "--out", "{tmp}/o", "--snapshot", "."),
+        2,
+        "the current folder",
+    ),
     # ---- tune
     case("tu-unknown-level", ("tune", "--level", "everything", "--out", "{tmp}/o"), 2, "everything"),
     case("tu-unknown-block", ("tune", "--level", "flat", "--block", "nope", "--out", "{tmp}/o"), 2, "nope"),
