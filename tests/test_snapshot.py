@@ -151,6 +151,7 @@ def test_a_benchmark_snapshots_each_seed_as_it_finishes(tmp_path):
     assert not (tmp_path / "never").exists() and _files(theirs) == {"notes.txt": b"mine"}
 
     assert done.returncode == 0, done.stdout + done.stderr
+    assert "left at this pace" in done.stdout and "4/4 runs done" in done.stdout  # the progress lines
     # One snapshot as each seed's last run finishes, one at the end (the invocation's wall time in it).
     assert done.stdout.count("snapshot: finished seeds 0 in") == 1
     assert done.stdout.count("snapshot: finished seeds 0, 1 in") == 2

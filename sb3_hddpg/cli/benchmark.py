@@ -53,6 +53,7 @@ from sb3_hddpg.experiments.benchmark import (
     run_benchmark,
 )
 from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
+from sb3_hddpg.experiments.benchmark.progress import Progress
 from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.metric_labels import metric_label
@@ -87,12 +88,23 @@ def _chosen_methods(methods: str | None, transfer: bool, shared: TermsEnv | None
     return chosen
 
 
-def _event_printer(started: float) -> Callable[[str, Task, dict[str, Any] | None], None]:
-    """One line per task event (started, kept, failed, finished), stamped with the minutes since ``started``."""
+def _event_printer(
+    settings: BenchmarkSettings, n_jobs: int | None, ray_address: str | None
+) -> Callable[[str, Task, dict[str, Any] | None], None]:
+    """
+    One line per task event (started, kept, failed, finished), stamped with the minutes since now; a
+    finished run's line ends with the benchmark's progress and, run locally or on ``n_jobs`` Ray tasks, its
+    estimated time left.
+    """
+    started = time.perf_counter()
+    jobs = n_jobs or (1 if ray_address is None else None)  # a whole Ray cluster: its size is not known here
+    progress = Progress(settings, jobs or 1)
 
     def event(kind: str, task: Task, record: dict[str, Any] | None) -> None:
         elapsed = time.perf_counter() - started
         stamp = f"[dim]{elapsed / 60:6.1f} min[/]"
+        if record is not None:
+            progress.finished(task, record)
         if kind == "start":
             console.print(f"{stamp} started  {task.label}")
         elif kind == "skip":
@@ -109,7 +121,8 @@ def _event_printer(started: float) -> Callable[[str, Task, dict[str, Any] | None
             wall, total = record["wall_time_s"], record["wall_time_s_total"]
             # A task resumed after an interruption: its time in this invocation, and in all of them.
             spent = f"{wall:.0f} s" + (f", {total:.0f} s in all" if total - wall >= 1 else "")
-            console.print(f"{stamp} [green]finished[/] {task.label}: {detail} ({spent})")
+            shown = progress.summary() if jobs is not None else f"{progress.done}/{progress.total} runs done"
+            console.print(f"{stamp} [green]finished[/] {task.label}: {detail} ({spent}); [dim]{shown}[/]")
 
     return event
 
@@ -417,7 +430,7 @@ def benchmark_command(
         )
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
-    printer = snapshotting(_event_printer(time.perf_counter()), out, snapshot_dir, settings)
+    printer = snapshotting(_event_printer(settings, n_jobs, address), out, snapshot_dir, settings)
     results = run_benchmark(
         settings, out, n_jobs=n_jobs, resume=resume, on_event=printer, ray_address=address, redo=redone
     )
