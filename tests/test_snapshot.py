@@ -67,6 +67,12 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
         k: v for k, v in before.items() if k != "index.json"
     }
     assert len(read_index(grown)) == 6
+    # The docs' tables come from a snapshot's records as from the benchmark's own folder.
+    page = tmp_path / "page.md"
+    page.write_text("<!-- generated:grown/methods -->\n<!-- /generated:grown/methods -->\n")
+    reported = cli("report", str(grown), "--page", str(page), "--tuning-page", str(page))
+    assert reported.returncode == 0, reported.stdout + reported.stderr
+    assert "goal-only" in page.read_text() and "hddpg" in page.read_text()
 
     # What would replace a run or anyone's files, or write outside DEST, is refused.
     other = tmp_path / "other"
