@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
@@ -13,6 +11,7 @@ from rich.table import Table
 from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS
 from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.benchmark_events import check_snapshot_option, event_printer, snapshotting, take_snapshot
 from sb3_hddpg.cli.options import (
     ENV_HELP,
     SNAKE_DEFAULT,
@@ -32,7 +31,6 @@ from sb3_hddpg.cli.options import (
     terms_env_option,
     usage_errors,
 )
-from sb3_hddpg.cli.snapshot import check_snapshot_option, snapshotting, take_snapshot
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.experiments.benchmark import (
     DEFAULT_ENV_METHODS,
@@ -46,17 +44,14 @@ from sb3_hddpg.experiments.benchmark import (
     OUTPUT_FILES,
     SCENARIOS,
     BenchmarkSettings,
-    Task,
     check_redo,
     check_workers_source,
     default_env_methods,
     run_benchmark,
 )
 from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
-from sb3_hddpg.experiments.benchmark.progress import Progress
 from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
 from sb3_hddpg.experiments.model_export import export_models
-from sb3_hddpg.metric_labels import metric_label
 
 
 def _rich_table(table: TextTable) -> Table:
@@ -86,45 +81,6 @@ def _chosen_methods(methods: str | None, transfer: bool, shared: TermsEnv | None
             param_hint="'--methods'",
         )
     return chosen
-
-
-def _event_printer(
-    settings: BenchmarkSettings, n_jobs: int | None, ray_address: str | None
-) -> Callable[[str, Task, dict[str, Any] | None], None]:
-    """
-    One line per task event (started, kept, failed, finished), stamped with the minutes since now; a
-    finished run's line ends with the benchmark's progress and, run locally or on ``n_jobs`` Ray tasks, its
-    estimated time left.
-    """
-    started = time.perf_counter()
-    jobs = n_jobs or (1 if ray_address is None else None)  # a whole Ray cluster: its size is not known here
-    progress = Progress(settings, jobs or 1)
-
-    def event(kind: str, task: Task, record: dict[str, Any] | None) -> None:
-        elapsed = time.perf_counter() - started
-        stamp = f"[dim]{elapsed / 60:6.1f} min[/]"
-        if record is not None:
-            progress.finished(task, record)
-        if kind == "start":
-            console.print(f"{stamp} started  {task.label}")
-        elif kind == "skip":
-            console.print(f"{stamp} [dim]kept     {task.label} (finished earlier)[/]")
-        elif kind == "failed":
-            console.print(f"{stamp} [red]failed   {task.label}[/] (see the log above; --resume retries)")
-        elif record is not None:
-            score = record.get("test", {}).get("mean_reach_reward")
-            detail = (
-                f"test {metric_label('mean_reach_reward').short} {score:.1f}"
-                if score is not None
-                else "workers trained"
-            )
-            wall, total = record["wall_time_s"], record["wall_time_s_total"]
-            # A task resumed after an interruption: its time in this invocation, and in all of them.
-            spent = f"{wall:.0f} s" + (f", {total:.0f} s in all" if total - wall >= 1 else "")
-            shown = progress.summary() if jobs is not None else f"{progress.done}/{progress.total} runs done"
-            console.print(f"{stamp} [green]finished[/] {task.label}: {detail} ({spent}); [dim]{shown}[/]")
-
-    return event
 
 
 # The options of `benchmark_command`.
@@ -430,7 +386,7 @@ def benchmark_command(
         )
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
-    printer = snapshotting(_event_printer(settings, n_jobs, address), out, snapshot_dir, settings)
+    printer = snapshotting(event_printer(settings, n_jobs, address), out, snapshot_dir, settings)
     results = run_benchmark(
         settings, out, n_jobs=n_jobs, resume=resume, on_event=printer, ray_address=address, redo=redone
     )
