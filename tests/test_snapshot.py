@@ -90,8 +90,13 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
     shutil.copytree(snap, linked)
     shutil.move(linked / "records" / "hddpg", elsewhere)
     (linked / "records" / "hddpg").symlink_to(elsewhere)
+    # A record moved to another run's place would copy that run's models under its name.
+    moved = tmp_path / "moved"
+    shutil.copytree(bench, moved, ignore=shutil.ignore_patterns("checkpoints", "tensorboard", "best"))
+    shutil.copy(moved / "records" / "hddpg" / "seed-0.json", moved / "records" / "goal-only" / "seed-0.json")
     refused = run_batch(
         [
+            ["snapshot", str(moved), str(tmp_path / "new")],
             ["snapshot", str(bench), str(other)],
             ["snapshot", str(bench), str(theirs)],
             ["snapshot", str(bench), str(bench / "inside")],
@@ -100,6 +105,7 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
         ]
     )
     expected_errors = (
+        "expected the record of goal-only/seed-0",
         "holds another run of goal-only/seed-0",
         "holds other files",
         "apart from the benchmark",

@@ -23,7 +23,8 @@ def snapshot_command(
     per_preference: bool = typer.Option(
         False,
         "--per-preference-models",
-        help="Copy the front's managers trained for one preference each too (their records are always copied).",
+        help="Copy the front's managers trained for one preference each too (their records are always copied), "
+        "for the seeds copied this time.",
     ),
 ) -> None:
     """

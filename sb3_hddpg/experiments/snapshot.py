@@ -93,7 +93,8 @@ def snapshot_benchmark(run: str | Path, dest: str | Path, *, per_preference: boo
 
     :param run: the benchmark folder (``--out`` of ``hddpg-cli benchmark``), finished or running.
     :param dest: the snapshot's folder: missing, empty, or an earlier snapshot of the same benchmark.
-    :param per_preference: copy the front's managers trained for one preference each too.
+    :param per_preference: copy the front's managers trained for one preference each too (of the front's runs
+        copied this time: a run already in ``dest`` is left as it is).
     :return: what the snapshot holds.
     :raises FileNotFoundError: ``run`` is not a benchmark folder.
     :raises ValueError: ``dest`` may not be written (:class:`RunFolderError`), or holds another run.
@@ -106,15 +107,22 @@ def snapshot_benchmark(run: str | Path, dest: str | Path, *, per_preference: boo
     settings = settings_from_json(saved["settings"], str(settings_path))
     check_destination(run, dest, settings, saved.get("invocations", []))
     finished, pending = finished_seeds(run, settings)
+    # Every run is checked before any is copied (a refused snapshot writes nothing, not even its folder),
+    # and again once the folder is locked, in case another process wrote it meanwhile.
+    _runs_to_copy(run, dest, settings, finished)
     with locked_folder(dest):
+        todo = _runs_to_copy(run, dest, settings, finished)
         mark_run_folder(dest, SNAPSHOT_COMMAND)
-        # Every run is checked before any is copied: a refused snapshot writes nothing.
-        todo = [task for task in plan_tasks(settings) if task.seed in finished and _is_new(run, dest, task)]
         for task in todo:
             _copy_run(run, dest, task, per_preference)
         index = write_index(dest, [_in_place(model, dest) for model in _models(dest)])
         atomic_write_json(dest / "benchmark.json", saved)
     return Snapshot(dest, tuple(finished), tuple(pending), tuple(t.label for t in todo), len(index))
+
+
+def _runs_to_copy(run: Path, dest: Path, settings: BenchmarkSettings, seeds: Sequence[int]) -> list[Task]:
+    """The finished runs of ``seeds`` not yet in ``dest`` (:func:`_is_new`), in the benchmark's order."""
+    return [task for task in plan_tasks(settings) if task.seed in seeds and _is_new(run, dest, task)]
 
 
 def _is_new(run: Path, dest: Path, task: Task) -> bool:
