@@ -21,6 +21,7 @@ from sb3_hddpg.experiments.benchmark import (
 from sb3_hddpg.experiments.benchmark.front import decision_dependence
 from sb3_hddpg.experiments.benchmark.front_points import PLANES, env_front, member_fields, sweep_labels
 from sb3_hddpg.experiments.benchmark.methods import METHOD_REGISTRY
+from sb3_hddpg.experiments.benchmark.settings import comparison_pairs
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.backends import sbx_installed
@@ -145,7 +146,13 @@ def test_settings_refuse_a_front_scenario_with_other_methods():
     with pytest.raises(ValueError, match="cannot learn a given preference"):
         BenchmarkSettings(methods=["hddpg-front"], scenario="transfer", preferences=["goal=2,avoid=1"])
     # One run of record may measure the fronts beside the standard methods, on the snake arm.
-    assert BenchmarkSettings(methods=["hddpg", "hddpg-front"]).methods == ["hddpg", "hddpg-front"]
+    beside = BenchmarkSettings(methods=["hddpg", "ham-tuned", "goal-only", "ddpg", "hddpg-front"])
+    assert beside.methods == ["hddpg", "ham-tuned", "goal-only", "ddpg", "hddpg-front"]
+    # There its conditioned manager, tested at the unweighted preference, is paired with every baseline and
+    # with hddpg, as a challenger is; hddpg is not paired with it.
+    pairs = comparison_pairs(beside)
+    assert {("hddpg-front", b) for b in ("ham-tuned", "goal-only", "ddpg", "hddpg")} <= set(pairs)
+    assert ("hddpg", "hddpg-front") not in pairs
 
 
 def test_the_fronts_managers_are_of_one_algorithm_and_budget():

@@ -541,6 +541,9 @@ register_method(
         _front_cost,
         needs_workers=True,
         colour="tab:red",
+        # Its test is the conditioned manager at the unweighted preference: the hierarchy a user runs without
+        # choosing a trade-off, so it is paired with every baseline as hddpg is.
+        challenger=True,
         description=(
             "the front scenario: a preference-conditioned manager and a manager per preference over the "
             "preference sweep (the ratio sweep's 7 preferences for two workers by default), the env's rule "
