@@ -61,6 +61,7 @@ def episode_record(method: str, seed: int, rewards: list[float], collisions: lis
             "collisions": float(c),
             "raw:goal": -40.0,
             "norm:goal": r / 2,
+            "action_saturation": 0.25 if method == "ddpg" else 1.0,
         }
         for k, (r, c) in enumerate(zip(rewards, collisions, strict=True))
     ]
@@ -163,6 +164,10 @@ def test_pages_rewrite_only_their_own_blocks(final_run):
     assert written == ["per-seed-reach"] and "old" not in text and "kept" in text
     assert re.search(r"\| `hddpg` \| 30\d\.\d \|", text)
     assert render_page(text, "final-run", results)[0] == text  # regenerating changes nothing
+    saturation = (
+        "<!-- generated:final-run/per-seed-saturation -->\n<!-- /generated:final-run/per-seed-saturation -->"
+    )
+    assert "| `ddpg` | 25.0 | 25.0 | 25.0 |" in render_page(saturation, "final-run", results)[0]
     with pytest.raises(ValueError, match="Unknown generated table 'nope'"):
         render_page(
             "<!-- generated:final-run/nope -->\n<!-- /generated:final-run/nope -->", "final-run", results

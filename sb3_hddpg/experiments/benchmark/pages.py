@@ -310,6 +310,8 @@ TABLES: dict[str, Callable[[BenchmarkResults], str]] = {
     "per-seed-reach": per_seed_table,
     "per-seed-touch": lambda r: per_seed_table(r, "goal_touch_rate", ".1f", 100.0),
     "per-seed-collisions": lambda r: per_seed_table(r, "collisions_per_episode", ".2f"),
+    # A policy's outputs pinned at +-1: an actor's joint commands, a hierarchy's manager output.
+    "per-seed-saturation": lambda r: per_seed_table(r, "action_saturation", ".1f", 100.0),
     "transfer": transfer_table,
     "front": lambda r: "\n".join(front_table(r.front)) if r.front is not None else "(not a front run)",
     "front-decides": lambda r: (
