@@ -134,6 +134,19 @@ def test_front_results_compare_members_by_seed():
         in text
     )
     assert "- ham: most goal touch - (reached in 0 of 3" in text
+
+    # In short: a seed a row, a preference a column, bold where the interval's lower end is at least 2.
+    def figure(ratio, interval):
+        return {"ratio": ratio, "ratio_ci": interval}
+
+    results["decides_by_state"] = {
+        "0": {"goal=1.6,avoid=0.4": figure(0.5, [0.2, 0.9]), "goal=1,avoid=1": figure(3.0, [2.1, 4.0])},
+        "1": {"goal=1.6,avoid=0.4": figure(None, None), "goal=1,avoid=1": figure(2.5, [1.5, 3.5])},
+    }
+    ratios = "<!-- generated:run/front-decides-ratios -->\n<!-- /generated:run/front-decides-ratios -->\n"
+    text, _ = render_page(ratios, "run", _with_front(results))
+    assert "| seed | 4:1 | 1:1 |" in text
+    assert "| 0 | 0.5 | **3** |" in text and "| 1 | - | 2.5 |" in text
     text, _ = render_page(
         "<!-- generated:run/front -->\n<!-- /generated:run/front -->\n", "run", _with_front(None)
     )
