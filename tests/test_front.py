@@ -21,6 +21,7 @@ from sb3_hddpg.experiments.benchmark import (
 from sb3_hddpg.experiments.benchmark.front import decision_dependence
 from sb3_hddpg.experiments.benchmark.front_points import PLANES, env_front, member_fields, sweep_labels
 from sb3_hddpg.experiments.benchmark.methods import METHOD_REGISTRY
+from sb3_hddpg.experiments.benchmark.report import markdown_report
 from sb3_hddpg.experiments.benchmark.settings import comparison_pairs
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -134,6 +135,26 @@ def test_front_results_compare_members_by_seed():
         in text
     )
     assert "- ham: most goal touch - (reached in 0 of 3" in text
+
+    # In short: a seed a row, a preference a column, bold where the interval's lower end is at least 2.
+    def figure(ratio, interval):
+        shares = {"near_share": 0.3, "clear_share": 0.1, "near_decisions": 10, "clear_decisions": 30}
+        return {"ratio": ratio, "ratio_ci": interval, **shares}
+
+    results["decides_by_state"] = {
+        "0": {"goal=1.6,avoid=0.4": figure(0.5, [0.2, 0.9]), "goal=1,avoid=1": figure(3.0, [2.1, 4.0])},
+        "1": {"goal=1.6,avoid=0.4": figure(None, None), "goal=1,avoid=1": figure(2.5, [1.5, 3.5])},
+    }
+    ratios = "<!-- generated:run/front-decides-ratios -->\n<!-- /generated:run/front-decides-ratios -->\n"
+    text, _ = render_page(ratios, "run", _with_front(results))
+    assert "| seed | 4:1 | 1:1 |" in text
+    assert "| 0 | 0.5 | **3** |" in text and "| 1 | - | 2.5 |" in text
+    # The run's results.md holds the whole table.
+    full = markdown_report(_with_front(results))
+    assert (
+        "decisions by state" in full
+        and "| 0 | `goal=1,avoid=1` | 30.0% | 10.0% | 3.00 [2.10, 4.00] | 10 / 30 |" in full
+    )
     text, _ = render_page(
         "<!-- generated:run/front -->\n<!-- /generated:run/front -->\n", "run", _with_front(None)
     )

@@ -12,7 +12,7 @@ from typing import Any, cast
 import numpy as np
 
 from sb3_hddpg.artifacts.records.results_leaves import FrontResults, Summary
-from sb3_hddpg.experiments.benchmark.front_points import PLANES
+from sb3_hddpg.experiments.benchmark.front_points import PLANES, label_factors
 
 #: Colours of the snake's members; another env's members take the next ones of matplotlib's cycle.
 MEMBER_COLOURS = {
@@ -164,6 +164,53 @@ def decides_table(front: FrontResults) -> list[str]:
     return lines
 
 
+#: The ratio a manager that decides by state reaches: the avoid worker chosen at least twice as often near
+#: an obstacle as on a clear path.
+DECIDES_RATIO = 2.0
+
+
+def _ratio_heading(preference: str) -> str:
+    """A two-worker preference as its ratio (``goal=1.6,avoid=0.4`` -> ``4:1``); any other as written."""
+    factors = list(label_factors(preference).values())
+    if len(factors) != 2 or min(factors) <= 0:
+        return f"`{preference}`"
+    first, second = factors
+    return f"{first / second:.3g}:1" if first >= second else f"1:{second / first:.3g}"
+
+
+def decides_matrix(front: FrontResults) -> list[str]:
+    """
+    The decides-by-state table in short: one row per seed, one column per preference, each cell the ratio of
+    the avoid worker's share of decisions near an obstacle to its share on a clear path, in bold where its
+    bootstrap interval's lower end is at least :data:`DECIDES_RATIO`.
+    """
+    by_seed = front.get("decides_by_state", {})
+    preferences = list(dict.fromkeys(p for by_preference in by_seed.values() for p in by_preference))
+    if not preferences:
+        return []
+    lines = [
+        f"Ratio of the avoid worker's share of decisions near an obstacle to its share on a clear path, per seed "
+        f"(rows) and preference (columns, goal:avoid); bold where its 95 % bootstrap interval lies at or above "
+        f"{DECIDES_RATIO:g} (a ratio without an interval is one whose bootstrap draws mostly never chose the "
+        "avoid worker on a clear path); '-' where it was never chosen there, so there is no ratio.",
+        "",
+        "| seed | " + " | ".join(_ratio_heading(p) for p in preferences) + " |",
+        "|---|" + "---|" * len(preferences),
+    ]
+    for seed, by_preference in by_seed.items():
+        cells = []
+        for preference in preferences:
+            figure = by_preference.get(preference)
+            if figure is None or figure["ratio"] is None:
+                cells.append("-")
+                continue
+            text = f"{figure['ratio']:.3g}"
+            interval = figure.get("ratio_ci")
+            cells.append(f"**{text}**" if interval and interval[0] >= DECIDES_RATIO else text)
+        lines.append(f"| {seed} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def front_figure(front: FrontResults, path: Path, colours: Mapping[str, str] | None = None) -> Path:
     """
     The fronts in each plane (its first and last objectives), every seed's points, each member's mean over
@@ -207,4 +254,12 @@ def front_figure(front: FrontResults, path: Path, colours: Mapping[str, str] | N
     return path
 
 
-__all__ = ["MEMBER_COLOURS", "decides_table", "front_figure", "front_table", "result_planes"]
+__all__ = [
+    "DECIDES_RATIO",
+    "MEMBER_COLOURS",
+    "decides_matrix",
+    "decides_table",
+    "front_figure",
+    "front_table",
+    "result_planes",
+]

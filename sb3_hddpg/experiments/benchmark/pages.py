@@ -27,7 +27,7 @@ from sb3_hddpg.artifacts.records.results_leaves import Aggregates, Interval, Pai
 from sb3_hddpg.artifacts.run_folder import check_output_file
 from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_settings
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
-from sb3_hddpg.experiments.benchmark.front_pages import decides_table, front_table
+from sb3_hddpg.experiments.benchmark.front_pages import decides_matrix, decides_table, front_table
 from sb3_hddpg.experiments.benchmark.report import headline_figures, ttc_dependence_table
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
@@ -316,6 +316,11 @@ TABLES: dict[str, Callable[[BenchmarkResults], str]] = {
     "front": lambda r: "\n".join(front_table(r.front)) if r.front is not None else "(not a front run)",
     "front-decides": lambda r: (
         "\n".join(decides_table(r.front)) if r.front is not None else "(not a front run)"
+    ),
+    "front-decides-ratios": lambda r: (
+        "\n".join(decides_matrix(r.front)) or "(no decisions by state)"
+        if r.front is not None
+        else "(not a front run)"
     ),
     "decides-ttc": lambda r: "\n".join(ttc_dependence_table(r)[0]) or "(no decisions by time to collision)",
 }

@@ -15,7 +15,7 @@ from sb3_hddpg.artifacts.records.results_leaves import Summary, TransferComparis
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.aggregates import performance_profiles
 from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv
-from sb3_hddpg.experiments.benchmark.front_pages import front_figure, front_table
+from sb3_hddpg.experiments.benchmark.front_pages import decides_table, front_figure, front_table
 from sb3_hddpg.experiments.benchmark.methods import WORKERS
 from sb3_hddpg.experiments.benchmark.statistics import (
     curve_bands,
@@ -176,6 +176,10 @@ def markdown_report(results: BenchmarkResults) -> str:
     if results.front is not None:
         lines += ["", "**The front** (hypervolume per member over seeds; `benchmark --scenario front`):", ""]
         lines += front_table(results.front)
+        decides = decides_table(results.front)
+        if len(decides) > 2:
+            lines += ["", "**The conditioned manager's decisions by state**, per seed and preference:", ""]
+            lines += decides
     return "\n".join(lines) + "\n"
 
 
