@@ -12,7 +12,7 @@ from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS
 from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.benchmark_events import check_snapshot_option, event_printer, snapshotting, take_snapshot
-from sb3_hddpg.cli.errors import INTERRUPTED_EXIT
+from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
     SNAKE_DEFAULT,
@@ -410,12 +410,10 @@ def _run_until_stopped(
             settings, out, n_jobs=n_jobs, resume=resume, on_event=printer, ray_address=address, redo=redo
         )
     except KeyboardInterrupt:
-        console.print(
-            f"[yellow]Stopped: the finished runs are kept and the running ones checkpointed; the same command "
-            f"with --resume continues it in {out}.[/]",
-            soft_wrap=True,
-        )
-        raise typer.Exit(INTERRUPTED_EXIT) from None
+        raise CommandStopped(
+            "Stopped: the finished runs are kept and the running ones checkpointed; the same command with "
+            f"--resume continues it in {out}."
+        ) from None
 
 
 def _scenario_methods(
