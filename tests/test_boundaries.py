@@ -34,7 +34,7 @@ from sb3_hddpg.artifacts.run_folder import (
     clear_run_folder,
     mark_run_folder,
 )
-from sb3_hddpg.cli.errors import error_line, exit_code
+from sb3_hddpg.cli.errors import CommandStopped, error_line, exit_code
 from sb3_hddpg.envs.terms_env import parse_terms
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.experiments.study_storage import StorageError, make_storage
@@ -335,6 +335,7 @@ def test_export_models_refuses_a_destination_whose_links_lead_elsewhere(tmp_path
         (ZeroDivisionError("division by zero"), 1),
         (KeyboardInterrupt(), 130),
         (typer.Abort(), 130),
+        (CommandStopped("Stopped: the same command with --resume continues it."), 130),
         (typer.Exit(3), 3),
     ],
 )
@@ -345,6 +346,33 @@ def test_the_exit_code_of_every_kind_of_ending_is_decided_in_one_place(error, co
         assert line and "\n" not in line
     if isinstance(error, KeyError):
         assert error_line(error) == "KeyError: 'x'"  # a bare key says nothing without its type
+
+
+def test_an_interrupted_command_says_so_in_one_line_and_exits_130(monkeypatch, capsys, tmp_path):
+    # typer turns the KeyboardInterrupt into an exit code before the CLI's own handler sees it.
+    from sb3_hddpg import cli
+    from sb3_hddpg.cli import snapshot
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "benchmark.json").write_text("{}")
+    monkeypatch.setattr(snapshot, "snapshot_benchmark", interrupted)
+    with pytest.raises(SystemExit) as ended:
+        cli.main(["snapshot", str(tmp_path / "run"), str(tmp_path / "copy")])
+    assert ended.value.code == 130
+    assert capsys.readouterr().err.strip() == "error: interrupted"
+
+    # A command that saved its work first says how to continue instead, on its output.
+    def stopped(*args, **kwargs):
+        raise CommandStopped("Stopped: run it again to continue.")
+
+    monkeypatch.setattr(snapshot, "snapshot_benchmark", stopped)
+    with pytest.raises(SystemExit) as ended:
+        cli.main(["snapshot", str(tmp_path / "run"), str(tmp_path / "copy")])
+    out, err = capsys.readouterr()
+    assert ended.value.code == 130 and out.strip() == "Stopped: run it again to continue." and err == ""
 
 
 @pytest.mark.parametrize(

@@ -178,3 +178,11 @@ def test_docs_interpret_records_and_hold_no_run_log(page):
         f"records and the git history; say what changed and how to reproduce it): "
         + "; ".join(f"line {line}: {kind} {what!r}" for line, kind, what in stamps)
     )
+
+
+def test_the_benchmark_guide_lists_every_registered_method():
+    from sb3_hddpg.experiments.benchmark import METHOD_REGISTRY
+
+    section = (DOCS / "guide" / "benchmark.md").read_text().split("## The methods", 1)[1].split("\n## ", 1)[0]
+    missing = [name for name in METHOD_REGISTRY if f"`{name}`" not in section]
+    assert not missing, f"docs/guide/benchmark.md's methods table lacks {missing}"

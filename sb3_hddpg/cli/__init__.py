@@ -12,10 +12,11 @@ import os
 import sys
 
 import typer
+from rich.markup import escape
 from typer.main import get_command
 
-from sb3_hddpg.cli.app import app, console_error
-from sb3_hddpg.cli.errors import error_line, exit_code
+from sb3_hddpg.cli.app import app, console, console_error
+from sb3_hddpg.cli.errors import INTERRUPTED_EXIT, CommandStopped, error_line, exit_code
 from sb3_hddpg.envs.headless import as_rendering_error
 
 # Importing a command module registers its commands on ``app``.
@@ -52,6 +53,9 @@ def main(argv: list[str] | None = None) -> None:
             raise
         console_error(error_line(error))
         sys.exit(exit_code(error))
+    except CommandStopped as stopped:
+        console.print(f"[yellow]{escape(str(stopped))}[/]", soft_wrap=True)
+        sys.exit(exit_code(stopped))
     except (KeyboardInterrupt, typer.Abort) as error:
         console_error(error_line(error))
         sys.exit(exit_code(error))
@@ -62,6 +66,10 @@ def main(argv: list[str] | None = None) -> None:
         error = as_rendering_error(error) or error
         console_error(error_line(error))
         sys.exit(exit_code(error))
+    if code == INTERRUPTED_EXIT:
+        # typer turns Ctrl-C (and SIGTERM, which the long commands turn into it) into this code before the
+        # handler above can see it; a command that saved its work raised CommandStopped instead.
+        console_error("interrupted")
     sys.exit(code if isinstance(code, int) else 0)
 
 

@@ -12,6 +12,7 @@ from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS
 from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.benchmark_events import check_snapshot_option, event_printer, snapshotting, take_snapshot
+from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
     SNAKE_DEFAULT,
@@ -386,11 +387,33 @@ def benchmark_command(
         )
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
-    printer = snapshotting(event_printer(settings, n_jobs, address), out, snapshot_dir, settings)
-    results = run_benchmark(
-        settings, out, n_jobs=n_jobs, resume=resume, on_event=printer, ray_address=address, redo=redone
-    )
+    results = _run_until_stopped(settings, out, n_jobs, resume, redone, address, snapshot_dir)
     _print_results(results, out, export_dir, snapshot_dir)
+
+
+def _run_until_stopped(
+    settings: BenchmarkSettings,
+    out: Path,
+    n_jobs: int | None,
+    resume: bool,
+    redo: list[str],
+    address: str | None,
+    snapshot_dir: Path | None,
+) -> BenchmarkResults:
+    """
+    Run the benchmark, printing each run's start and end. Ctrl-C or SIGTERM stops it with every finished
+    run kept and every running one checkpointed: say how to continue, and exit 130.
+    """
+    printer = snapshotting(event_printer(settings, n_jobs, address), out, snapshot_dir, settings)
+    try:
+        return run_benchmark(
+            settings, out, n_jobs=n_jobs, resume=resume, on_event=printer, ray_address=address, redo=redo
+        )
+    except KeyboardInterrupt:
+        raise CommandStopped(
+            "Stopped: the finished runs are kept and the running ones checkpointed; the same command with "
+            f"--resume continues it in {out}."
+        ) from None
 
 
 def _scenario_methods(

@@ -7,7 +7,8 @@ The one place that decides a command's exit code and its one error line, from wh
   ``RunFolderError``, ``StorageError``, ``ClusterError``...), a missing path or one of the wrong kind,
   gymnasium's errors for an env that cannot be made, a run folder another run holds, and an ``OSError``
   saying a path cannot be one (too long, through a file, a loop of links).
-- **130**: Ctrl-C or SIGTERM.
+- **130**: Ctrl-C or SIGTERM. A command that saved its work first raises :class:`CommandStopped`, whose
+  message (how to continue) is printed instead of the error line.
 - **1**: anything else, an internal failure while working.
 
 The library raises; :func:`sb3_hddpg.cli.main` calls :func:`exit_code` and :func:`error_line` once, and no
@@ -41,6 +42,10 @@ INTERNAL_EXIT = 1
 INTERRUPTED_EXIT = 130
 
 
+class CommandStopped(Exception):
+    """A command stopped by Ctrl-C or SIGTERM once its work was saved; the message says how to continue."""
+
+
 #: ``OSError`` numbers that mean a path the user named cannot be one (a full disk is not among them).
 INPUT_ERRNOS = frozenset(
     {errno.ENAMETOOLONG, errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.EEXIST, errno.ELOOP}
@@ -49,7 +54,7 @@ INPUT_ERRNOS = frozenset(
 
 def exit_code(error: BaseException) -> int:
     """The exit code for a command that ended with ``error``."""
-    if isinstance(error, (KeyboardInterrupt, typer.Abort)):
+    if isinstance(error, (KeyboardInterrupt, typer.Abort, CommandStopped)):
         return INTERRUPTED_EXIT
     if isinstance(error, (typer.Exit, typer.TyperException)):
         return int(error.exit_code)

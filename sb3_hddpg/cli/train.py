@@ -11,6 +11,7 @@ import typer
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
     SNAKE_DEFAULT,
@@ -61,12 +62,11 @@ CONFIG_HELP = "Hyperparameters in RL Zoo format (default: the bundled zoo_config
 
 @contextlib.contextmanager
 def training_interrupt_exits() -> Iterator[None]:
-    """Training stopped by Ctrl-C or SIGTERM (its checkpoint saved): say where, and exit 130 (128 + SIGINT)."""
+    """Training stopped by Ctrl-C or SIGTERM (its checkpoint saved): say where (exit 130, as main decides)."""
     try:
         yield
     except TrainingInterrupted as interrupted:
-        console.print(f"[yellow]{interrupted}[/]")
-        raise typer.Exit(130) from None
+        raise CommandStopped(str(interrupted)) from None
 
 
 def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None = None) -> Table:

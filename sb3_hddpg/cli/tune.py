@@ -13,6 +13,7 @@ import yaml
 from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
     BackendOpt,
@@ -537,8 +538,7 @@ def _run_study(
     try:
         study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
     except TrainingInterrupted as interrupted:
-        console.print(f"[yellow]{interrupted}[/] Re-run the same command to resume the study.")
-        raise typer.Exit(130) from None
+        raise CommandStopped(f"{interrupted} Re-run the same command to resume the study.") from None
     _print_outcome(
         study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
     )

@@ -188,7 +188,7 @@ for _algo in DISCRETE_FLAT_METHODS:
             colour=REGISTRY[_algo].colour,
             baseline=True,
             takes_preference=True,
-            description=f"flat {_algo.upper()} on the scalarised reward for the hierarchy's total env steps",
+            description=f"flat {REGISTRY[_algo].class_name} on the scalarised reward for the hierarchy's total env steps",
             config_blocks=functools.partial(_flat_blocks, _algo),
         )
     )
@@ -210,7 +210,7 @@ for _algo in DISCRETE_MANAGERS:
             challenger=True,
             takes_preference=True,
             description=(
-                f"the hierarchy with a {_algo.upper()} manager picking a worker by index ({_algo}.yml's manager "
+                f"the hierarchy with a {REGISTRY[_algo].class_name} manager picking a worker by index ({_algo}.yml's manager "
                 "block: the discrete selection mode), the same env steps"
             ),
             config_blocks=functools.partial(_manager_blocks, _algo),

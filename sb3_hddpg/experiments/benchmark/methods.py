@@ -457,7 +457,7 @@ for _algo in FLAT_METHODS:
             default=_algo == "ddpg",
             baseline=True,
             takes_preference=True,
-            description=f"flat {_algo.upper()} on the combined reward for the hierarchy's total env steps",
+            description=f"flat {REGISTRY[_algo].class_name} on the combined reward for the hierarchy's total env steps",
             config_blocks=functools.partial(_flat_blocks, _algo),
         )
     )
@@ -470,7 +470,7 @@ for _algo, _colour in (("sac", "darkviolet"), ("ddpg", "navy")):
             colour=_colour,
             baseline=True,
             description=(
-                f"flat {_algo.upper()} with the goal worker's tricks (hindsight relabelling"
+                f"flat {REGISTRY[_algo].class_name} with the goal worker's tricks (hindsight relabelling"
                 + (", the IK reacher's prior" if _algo == "ddpg" else "")
                 + f"; {_algo}.yml[{FLAT_HER_KEY}]) on the full observation and the reach reward, the flat budget"
             ),
