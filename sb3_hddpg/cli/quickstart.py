@@ -163,8 +163,9 @@ def quickstart_command(
     # One seed at a quickstart budget says little about the method; say where the real comparison is.
     console.print(
         "One seed at a small budget: a check that the pipeline works, not a comparison of the methods. "
-        "The 5-seed benchmark at the full budget (HDDPG against HAM, its workers alone and flat DDPG, TD3 "
-        "and SAC, with confidence intervals) is in docs/RESULTS.md; run it with hddpg-cli benchmark."
+        "The 10-seed run of record at the full budget (the hierarchies against HAM, hand-written skills, "
+        "each worker alone and flat agents, on test episodes no choice used, with rliable's intervals) is in "
+        "docs/RESULTS.md; run it with hddpg-cli benchmark."
     )
     for label in ("bundle", "gif", "selection", "comparison", "learning_curves", "results"):
         if label in result.files:
