@@ -173,14 +173,21 @@ def markdown_report(results: BenchmarkResults) -> str:
     lines += _dependence_lines(results)
     lines += _ttc_dependence_lines(results)
     lines += _transfer_lines(results)
-    if results.front is not None:
-        lines += ["", "**The front** (hypervolume per member over seeds; `benchmark --scenario front`):", ""]
-        lines += front_table(results.front)
-        decides = decides_table(results.front)
-        if len(decides) > 2:
-            lines += ["", "**The conditioned manager's decisions by state**, per seed and preference:", ""]
-            lines += decides
+    lines += _front_lines(results)
     return "\n".join(lines) + "\n"
+
+
+def _front_lines(results: BenchmarkResults) -> list[str]:
+    """The front's table and, where it counted them, the conditioned manager's decisions by state."""
+    if results.front is None:
+        return []
+    lines = ["", "**The front** (hypervolume per member over seeds; `benchmark --scenario front`):", ""]
+    lines += front_table(results.front)
+    decides = decides_table(results.front)
+    if len(decides) > 2:  # more than its heading
+        lines += ["", "**The conditioned manager's decisions by state**, per seed and preference:", ""]
+        lines += decides
+    return lines
 
 
 def _share_text(value: float | None) -> str:
