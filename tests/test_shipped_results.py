@@ -1,8 +1,9 @@
 """
-The final run's shipped models (docs/results/models) are what docs/RESULTS.md reports: each file matches its
-index entry, every benchmarked method is there for every seed, and a model evaluated again on the run's test
-episodes gives the figures its record holds. A change to how a policy acts (e.g. how selection breaks ties)
-that would make the published table unreproducible fails here.
+The run of record's shipped models (docs/results/record, an export with index.json) are what docs/RESULTS.md
+reports: each file matches its index entry, every method with a model of its own is there for every seed,
+and a model evaluated again on the first final-test episodes gives the figures its record holds for them. A
+change to how a policy acts (e.g. how selection breaks ties) that would make the published table
+unreproducible fails here.
 """
 
 from __future__ import annotations
@@ -11,45 +12,61 @@ import json
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from sb3_hddpg.episode_sets import DEVELOPMENT
+from sb3_hddpg.episode_sets import FINAL_TEST
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.model_export import INDEX_METHODS, read_index
+from sb3_hddpg.experiments.model_export import read_index
 from sb3_hddpg.hierarchy.loading import load_policy
 
 ROOT = Path(__file__).resolve().parents[1]
-MODELS = ROOT / "docs" / "results" / "models"
-RECORDS = ROOT / "docs" / "results" / "bench-e20" / "records"
-# The exported methods of the shipped run: every method its records hold that has a model of its own (the
-# untrained references "goal-only"/"avoid-only" have none), each worker under its index name.
-_RECORDED = {folder.name for folder in RECORDS.iterdir() if folder.is_dir()}
-METHODS = (_RECORDED & set(INDEX_METHODS)) | {"worker:goal", "worker:avoid"}
-assert "workers" in _RECORDED and len(METHODS) == 11, sorted(METHODS)
+RECORD = ROOT / "docs" / "results" / "record"
+SEEDS = json.loads((RECORD / "benchmark.json").read_text())["settings"]["seeds"]
+#: Every model of the run: the workers, the hierarchies (the front's as its conditioned manager), the switches'
+#: thresholds and the flat agents; the references that train nothing (each worker alone, the hand-written
+#: skills) have none.
+METHODS = ("worker:goal", "worker:avoid", "hddpg", "hddpg-conditioned", "ham", "ham-tuned")
+METHODS += ("ddpg", "sac", "ddpg-her", "sac-her")
+#: Episodes evaluated again per model: the first of the final test set, whose figures each record keeps.
+EPISODES = 10
 
 
 def test_every_shipped_model_matches_its_index_and_every_method_has_every_seed():
-    entries = read_index(MODELS)  # checks every file's sha256
-    assert Counter(entry["method"] for entry in entries) == dict.fromkeys(METHODS, 5)
-    assert {entry["seed"] for entry in entries} == set(range(5))
+    entries = read_index(RECORD)  # checks every file's sha256
+    assert Counter(entry["method"] for entry in entries) == dict.fromkeys(METHODS, len(SEEDS))
+    assert {entry["seed"] for entry in entries} == set(SEEDS)
 
 
-@pytest.mark.parametrize("method", ["hddpg", "hddpg-sac", "ham", "ddpg"])
-def test_a_shipped_model_reproduces_its_recorded_test_figures(method):
-    entry = next(e for e in read_index(MODELS) if e["method"] == method and e["seed"] == 0)
-    expected = json.loads((RECORDS / method / "seed-0.json").read_text())["test"]
-    loaded = load_policy(MODELS / entry["path"])
+@pytest.mark.parametrize(
+    ("method", "record"),
+    [
+        ("hddpg", "hddpg"),
+        ("hddpg-conditioned", "hddpg-front"),
+        ("ham", "ham"),
+        ("ddpg", "ddpg"),
+        ("ddpg-her", "ddpg-her"),
+    ],
+)
+def test_a_shipped_model_reproduces_its_recorded_test_episodes(method, record):
+    entry = next(e for e in read_index(RECORD) if e["method"] == method and e["seed"] == 0)
+    expected = json.loads((RECORD / "records" / record / "seed-0.json").read_text())["episodes"][:EPISODES]
+    assert [e["episode_seed"] for e in expected] == [FINAL_TEST.first_seed + k for k in range(EPISODES)]
+    loaded = load_policy(RECORD / entry["path"])
     env = loaded.make_env()
     try:
-        summary = evaluate(
-            loaded.policy, env, n_episodes=expected["episodes"], seed=DEVELOPMENT.first_seed
-        ).summary()
+        summary = evaluate(loaded.policy, env, n_episodes=EPISODES, seed=FINAL_TEST.first_seed).summary()
     finally:
         env.close()
     # The machine that made them reproduces them exactly. Another CPU's kernels round a policy's output
-    # differently in the last bits, and the arm's dynamics can carry that into another episode: on such
-    # a machine HAM's and the flat agents' figures moved by up to 0.27 reward, 0.2 % touch and 0.15
-    # contacts, far below the differences between methods that the results report.
-    tolerance = {"mean_reach_reward": 0.5, "goal_touch_rate": 0.01, "collisions_per_episode": 0.25}
+    # differently in the last bits, and the arm's dynamics can carry that into another episode: on such a
+    # machine the figures of 20 episodes moved by up to 0.27 reward, 0.2 % touch and 0.15 contacts, far below
+    # the differences between methods that the results report; over 10 episodes, allow twice that and more.
+    recorded = {
+        "mean_reach_reward": np.mean([e["reach_reward"] for e in expected]),
+        "goal_touch_rate": np.mean([e["goal_touch_rate"] for e in expected]),
+        "collisions_per_episode": np.mean([e["collisions"] for e in expected]),
+    }
+    tolerance = {"mean_reach_reward": 1.0, "goal_touch_rate": 0.02, "collisions_per_episode": 0.5}
     for key, within in tolerance.items():
-        assert summary[key] == pytest.approx(expected[key], abs=within), key
+        assert summary[key] == pytest.approx(recorded[key], abs=within), key
