@@ -161,6 +161,30 @@ def test_front_results_compare_members_by_seed():
     assert "(not a front run)" in text
 
 
+def test_the_fronts_figure_draws_a_rule_that_keeps_another_number_of_thresholds_in_each_seed(tmp_path):
+    from sb3_hddpg.experiments.benchmark.front_pages import front_figure
+
+    def record(ham_points):
+        members = {
+            "conditioned": [_point(0.5, 5.0), _point(0.3, 1.0)],
+            "ham": ham_points,
+            "goal": [_point(0.6, 14.0)],
+        }
+        reference = REFERENCE_POINTS["hddpg/SnakeReach-v0"]
+        return {
+            "front": {name: member_fields(points) for name, points in members.items()},
+            "references": {k: list(v) for k, v in reference.items()},
+            "decides_by_state": {},
+        }
+
+    # HAM keeps the thresholds not dominated on each seed's curve episodes: three in one seed, one in the other.
+    results = front_results(
+        {0: record([_point(0.4, 6.0), _point(0.3, 2.0), _point(0.1, 0.5)]), 1: record([_point(0.4, 6.0)])}
+    )
+    path = front_figure(results, tmp_path / "fronts.png")
+    assert path.stat().st_size > 0
+
+
 def test_settings_refuse_a_front_scenario_with_other_methods():
     with pytest.raises(ValueError, match="front scenario runs"):
         BenchmarkSettings(methods=["hddpg"], scenario="front")

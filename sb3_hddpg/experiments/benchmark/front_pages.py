@@ -211,6 +211,22 @@ def decides_matrix(front: FrontResults) -> list[str]:
     return lines
 
 
+def _draw_member(axis: Any, xs: list[np.ndarray], ys: list[np.ndarray], colour: str, member: str) -> None:
+    """
+    One member's front on ``axis``: the mean over seeds point by point where every seed has the same points
+    (a preference sweep, a worker alone), else each seed's own front (a rule keeps as many thresholds as are
+    not dominated in that seed, so its points do not pair up across seeds).
+    """
+    if len({len(x) for x in xs}) == 1:
+        mean_x, mean_y = np.mean(xs, axis=0), np.mean(ys, axis=0)
+        order = np.argsort(mean_x)
+        axis.plot(mean_x[order], mean_y[order], "o-", color=colour, label=member)
+        return
+    for seed, (x, y) in enumerate(zip(xs, ys, strict=True)):
+        order = np.argsort(x)
+        axis.plot(x[order], y[order], "-", color=colour, alpha=0.5, label=member if seed == 0 else None)
+
+
 def front_figure(front: FrontResults, path: Path, colours: Mapping[str, str] | None = None) -> Path:
     """
     The fronts in each plane (its first and last objectives), every seed's points, each member's mean over
@@ -235,13 +251,10 @@ def front_figure(front: FrontResults, path: Path, colours: Mapping[str, str] | N
         (x_key, _), (y_key, _) = objectives[0], objectives[-1]
         for member in front["members"]:
             rows = [front["points"][s][member] for s in front["points"]]
-            xs = np.array([[float(cast(float, p[x_key])) for p in row] for row in rows])
-            ys = np.array([[float(cast(float, p[y_key])) for p in row] for row in rows])
-            axis.scatter(xs.ravel(), ys.ravel(), s=8, alpha=0.3, color=colours[member])
-            order = np.argsort(xs.mean(axis=0))
-            axis.plot(
-                xs.mean(axis=0)[order], ys.mean(axis=0)[order], "o-", color=colours[member], label=member
-            )
+            xs = [np.array([float(cast(float, p[x_key])) for p in row]) for row in rows]
+            ys = [np.array([float(cast(float, p[y_key])) for p in row]) for row in rows]
+            axis.scatter(np.concatenate(xs), np.concatenate(ys), s=8, alpha=0.3, color=colours[member])
+            _draw_member(axis, xs, ys, colours[member], member)
         axis.set_xlabel(x_key.replace("_", " "))
         axis.set_ylabel(y_key.replace("_", " "))
         axis.set_title(f"{plane} plane")
