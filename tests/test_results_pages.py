@@ -194,3 +194,12 @@ def test_resuming_a_development_folder_as_a_final_run_is_refused(tmp_path):
     with pytest.raises(ValueError, match="final_test"):
         run_benchmark(final, out, resume=True)
     assert not (out / "records").exists()  # refused before anything ran
+
+
+def test_the_headline_figures_are_drawn_from_the_records(final_run):
+    from sb3_hddpg.experiments.benchmark.pages import draw_headline_figures
+
+    run, _, _ = final_run
+    paths = draw_headline_figures(run)
+    assert [p.name for p in paths] == ["aggregates.png", "performance_profile.png"]
+    assert all(p.stat().st_size > 0 for p in paths)

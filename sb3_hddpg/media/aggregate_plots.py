@@ -17,6 +17,7 @@ def aggregate_figure(
     taus: np.ndarray,
     colours: Mapping[str, str],
     unit: str,
+    score: str,
     out: Path,
 ) -> list[Path]:
     """
@@ -30,6 +31,7 @@ def aggregate_figure(
     :param taus: the thresholds.
     :param colours: method -> colour.
     :param unit: what a score is, ``episode`` or ``seed`` (the profile's label).
+    :param score: what the score is called (the snake arm's ``reach reward``, another env's return).
     :param out: the folder of the two PNGs, ``aggregates.png`` and ``performance_profile.png``.
     :return: their paths.
     """
@@ -48,14 +50,19 @@ def aggregate_figure(
         m: np.array([[intervals[m][n]["ci_low"] for n in names], [intervals[m][n]["ci_high"] for n in names]])
         for m in methods
     }
-    fig, _ = plot_utils.plot_interval_estimates(
+    fig, axes = plot_utils.plot_interval_estimates(
         points,
         bounds,
         metric_names=["Mean", "IQM"],
         algorithms=methods,
         colors=dict(colours),
-        xlabel="reach reward (test)",
+        xlabel=f"{score} (test)",
     )
+    # rliable's axes end at the extreme estimates: a method with no spread there (a policy that trains
+    # nothing scores the same in every seed) would sit on the border, unseen.
+    for axis in np.atleast_1d(axes):
+        low, high = axis.get_xlim()
+        axis.set_xlim(low - 0.04 * (high - low), high + 0.04 * (high - low))
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "aggregates.png", out / "performance_profile.png"]
     fig.savefig(paths[0], dpi=120, bbox_inches="tight")
@@ -66,7 +73,7 @@ def aggregate_figure(
         taus,
         performance_profile_cis=dict(profile_bands),
         colors=dict(colours),
-        xlabel=r"reach reward ($\tau$)",
+        xlabel=rf"{score} ($\tau$)",
         ylabel=rf"fraction of {unit}s with score $> \tau$",
         ax=ax,
     )

@@ -540,7 +540,7 @@ register_method(
         run_front,
         _front_cost,
         needs_workers=True,
-        colour="tab:red",
+        colour="deeppink",
         # Its test is the conditioned manager at the unweighted preference: the hierarchy a user runs without
         # choosing a trade-off, so it is paired with every baseline as hddpg is.
         challenger=True,

@@ -28,7 +28,12 @@ from sb3_hddpg.artifacts.run_folder import check_output_file
 from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_settings
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
 from sb3_hddpg.experiments.benchmark.front_pages import decides_matrix, decides_table, front_table
-from sb3_hddpg.experiments.benchmark.report import headline_figures, ttc_dependence_table
+from sb3_hddpg.experiments.benchmark.report import (
+    env_terms,
+    headline_figures,
+    score_name,
+    ttc_dependence_table,
+)
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
 from sb3_hddpg.experiments.stats import bootstrap_ci
@@ -124,7 +129,7 @@ def _unit_text(results: BenchmarkResults) -> str:
     aggregate = _aggregates(results)
     episodes = _episodes(results)
     where = f"{episodes['episodes']} {episodes['name']} episodes (seeds {results.test_seeds[0]}-{results.test_seeds[1]})"
-    name = _score_name(results)
+    name = score_name(results)
     if aggregate["unit"] == "episode":
         return (
             f"Test on {where} per trained model. {name.capitalize()}: rliable's mean and IQM over every (seed, episode) "
@@ -139,25 +144,13 @@ def _unit_text(results: BenchmarkResults) -> str:
     )
 
 
-def _terms(results: BenchmarkResults) -> list[str]:
-    """Another env's reward terms, in order (none on the snake arm)."""
-    env = results.settings.get("env")
-    terms = env.get("terms") if isinstance(env, dict) else None
-    return [str(term) for term in terms] if isinstance(terms, list) else []
-
-
-def _score_name(results: BenchmarkResults) -> str:
-    """What the score is called: the snake arm's reach reward, another env's normalised return."""
-    return "norm. return" if _terms(results) else "reach reward"
-
-
 def methods_table(results: BenchmarkResults) -> str:
     """
     Per method: the score's mean and IQM with rliable's intervals; on the snake arm touch, contacts and success,
     on another env each term's return; the worker choices.
     """
     intervals = _aggregates(results)["intervals"]
-    terms = _terms(results)
+    terms = env_terms(results)
     # (summary key, format, shown as a percentage, column header)
     columns = (
         [(f"{term}_reach_reward", ".1f", False, f"{term} (normalised sum)") for term in terms]
@@ -172,7 +165,7 @@ def methods_table(results: BenchmarkResults) -> str:
     lines = [
         _unit_text(results),
         "",
-        f"| method | seeds | {_score_name(results)}: mean [95 % CI] | IQM [95 % CI] | {' | '.join(headers)} "
+        f"| method | seeds | {score_name(results)}: mean [95 % CI] | IQM [95 % CI] | {' | '.join(headers)} "
         "| worker choices (test) |",
         "|---|---|---|---|" + "---|" * len(headers) + "---|",
     ]
@@ -220,14 +213,14 @@ def comparisons_table(results: BenchmarkResults, challenger: str) -> str:
     aggregates = _aggregates(results)
     poi = aggregates["probability_of_improvement"]
     unit = "episodes and seeds" if aggregates["unit"] == "episode" else "seeds"
-    snake = not _terms(results)
+    snake = not env_terms(results)
     lines = [
         f"{m} comparisons per metric in this table. Differences: paired by seed, mean over the {seeds} seeds with "
         f"a Student t interval Bonferroni-adjusted for the {m} comparisons (each at {confidence:.2%}, all {m} "
         f"together at 95 %); bold where it excludes 0. P(A > B): rliable's probability of improvement over "
         f"{unit}, stratified bootstrap 95 % interval (not adjusted).",
         "",
-        f"| {challenger} vs | {_score_name(results)}: difference [CI] | P({challenger} > B) [95 % CI] "
+        f"| {challenger} vs | {score_name(results)}: difference [CI] | P({challenger} > B) [95 % CI] "
         + ("| collisions / episode: difference [CI] | goal touch (points of %) |" if snake else "|"),
         "|---|---|---|" + ("---|---|" if snake else ""),
     ]

@@ -347,6 +347,18 @@ def write_outputs(out: Path, results: BenchmarkResults, records: list[JsonObject
     return results
 
 
+def env_terms(results: BenchmarkResults) -> list[str]:
+    """Another env's reward terms, in order (none on the snake arm)."""
+    env = results.settings.get("env")
+    terms = env.get("terms") if isinstance(env, dict) else None
+    return [str(term) for term in terms] if isinstance(terms, list) else []
+
+
+def score_name(results: BenchmarkResults) -> str:
+    """What the score is called: the snake arm's reach reward, another env's normalised return."""
+    return "norm. return" if env_terms(results) else "reach reward"
+
+
 #: Thresholds of the performance profile, in reach reward (0..2 per step, 200 steps).
 PROFILE_STEP = 2.0
 
@@ -365,5 +377,12 @@ def headline_figures(out: Path, results: BenchmarkResults, records: list[JsonObj
     taus = np.arange(np.floor(low / PROFILE_STEP) * PROFILE_STEP, high + PROFILE_STEP, PROFILE_STEP)
     profiles, bands = performance_profiles(scores, taus)
     return aggregate_figure(
-        results.aggregates["intervals"], profiles, bands, taus, results.colours or {}, unit, out
+        results.aggregates["intervals"],
+        profiles,
+        bands,
+        taus,
+        results.colours or {},
+        unit,
+        score_name(results),
+        out,
     )
