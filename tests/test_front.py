@@ -91,21 +91,27 @@ def _with_front(front):
     return BenchmarkResults(settings={}, scenario="front", metric="", methods={}, front=front)
 
 
+def _front_record(members):
+    """A seed's front record on the snake arm, from each member's points."""
+    reference = REFERENCE_POINTS["hddpg/SnakeReach-v0"]
+    return {
+        "front": {name: member_fields(points) for name, points in members.items()},
+        "references": {k: list(v) for k, v in reference.items()},
+        "decides_by_state": {},
+    }
+
+
 def test_front_results_compare_members_by_seed():
     def record(shift):
-        members = {
-            "conditioned": [_point(0.5 + shift, 5.0), _point(0.3, 1.0), _point(0.2, 2.0, reach=345.0)],
-            "ham": [_point(0.4, 6.0)],
-            "per-preference": [_point(0.45, 6.0)],
-            "goal": [_point(0.6, 14.0)],
-            "avoid": [_point(0.1, 0.5)],
-        }
-        reference = REFERENCE_POINTS["hddpg/SnakeReach-v0"]
-        return {
-            "front": {name: member_fields(points) for name, points in members.items()},
-            "references": {k: list(v) for k, v in reference.items()},
-            "decides_by_state": {},
-        }
+        return _front_record(
+            {
+                "conditioned": [_point(0.5 + shift, 5.0), _point(0.3, 1.0), _point(0.2, 2.0, reach=345.0)],
+                "ham": [_point(0.4, 6.0)],
+                "per-preference": [_point(0.45, 6.0)],
+                "goal": [_point(0.6, 14.0)],
+                "avoid": [_point(0.1, 0.5)],
+            }
+        )
 
     results = front_results({0: record(0.0), 1: record(0.05), 2: record(0.02)})
     comparison = results["comparisons"]["conditioned vs ham"]["planes"]["outcomes"]
@@ -165,17 +171,13 @@ def test_the_fronts_figure_draws_a_rule_that_keeps_another_number_of_thresholds_
     from sb3_hddpg.experiments.benchmark.front_pages import front_figure
 
     def record(ham_points):
-        members = {
-            "conditioned": [_point(0.5, 5.0), _point(0.3, 1.0)],
-            "ham": ham_points,
-            "goal": [_point(0.6, 14.0)],
-        }
-        reference = REFERENCE_POINTS["hddpg/SnakeReach-v0"]
-        return {
-            "front": {name: member_fields(points) for name, points in members.items()},
-            "references": {k: list(v) for k, v in reference.items()},
-            "decides_by_state": {},
-        }
+        return _front_record(
+            {
+                "conditioned": [_point(0.5, 5.0), _point(0.3, 1.0)],
+                "ham": ham_points,
+                "goal": [_point(0.6, 14.0)],
+            }
+        )
 
     # HAM keeps the thresholds not dominated on each seed's curve episodes: three in one seed, one in the other.
     results = front_results(
