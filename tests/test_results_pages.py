@@ -180,6 +180,27 @@ def test_pages_rewrite_only_their_own_blocks(final_run):
     assert render_readme("no markers", "x") == "no markers"
 
 
+def test_the_readme_sentence_gives_every_challenger_its_verdicts(final_run):
+    from sb3_hddpg.experiments.benchmark.pages import results_sentence
+
+    _, settings, records = final_run
+    sentence = results_sentence(compute_results(settings, records), "final-run")
+    assert sentence.startswith(
+        "On the 3-seed benchmark `final-run` (100 final-test episodes per model; reach reward"
+    )
+    assert re.search(
+        r"`hddpg` scores 30\d\.\d \[\d{3}\.\d, \d{3}\.\d\]: ahead of `ddpg` \(2[78]\d\.\d\)\.$", sentence
+    )
+    # A run whose hierarchy is another challenger than `hddpg` (another env's, say) has its sentence too.
+    renamed = [{**r, "method": "hddpg-sac"} if r["method"] == "hddpg" else r for r in records]
+    other = BenchmarkSettings(methods=["hddpg-sac", "ddpg"], seeds=[0, 1, 2], timesteps=2000, final_test=True)
+    sentence = results_sentence(compute_results(other, renamed), "final-run")
+    assert "`hddpg-sac` scores" in sentence and "`hddpg` scores" not in sentence
+    flat = BenchmarkSettings(methods=["ddpg"], seeds=[0, 1, 2], timesteps=2000, final_test=True)
+    with pytest.raises(ValueError, match="no method of this benchmark is compared"):
+        results_sentence(compute_results(flat, [r for r in records if r["method"] == "ddpg"]), "final-run")
+
+
 def test_resuming_a_development_folder_as_a_final_run_is_refused(tmp_path):
     from dataclasses import asdict
 

@@ -323,15 +323,17 @@ COMPARISONS = "comparisons-"
 
 def results_sentence(results: BenchmarkResults, run_name: str) -> str:
     """
-    The README's one results sentence: HDDPG's reach reward with its interval, and for every method it is
-    compared with whether it is ahead, level or behind by the table's adjusted interval.
+    The README's results sentence: each challenger's score with its interval (``hddpg``, ``hddpg-front``, ...:
+    every method the run compares with the others), and for every method it is compared with whether it is
+    ahead, level or behind by the table's adjusted interval.
+
+    :raises ValueError: the run compares no challenger with another method.
     """
-    hddpg = _aggregates(results)["intervals"]["hddpg"]["mean"]
-    groups: dict[str, list[str]] = {"ahead of": [], "level with": [], "behind": []}
+    intervals = _aggregates(results)["intervals"]
+    verdicts: dict[str, dict[str, list[str]]] = {}
     for pair, comparison in results.comparisons.items():
         challenger, baseline = pair.split(" vs ")
-        if challenger != "hddpg":
-            continue
+        groups = verdicts.setdefault(challenger, {"ahead of": [], "level with": [], "behind": []})
         entry = comparison.metrics["mean_reach_reward"]
         word = (
             "ahead of"
@@ -342,13 +344,21 @@ def results_sentence(results: BenchmarkResults, run_name: str) -> str:
         )
         mean = results.methods[baseline].stats["mean_reach_reward"]["mean"]
         groups[word].append(f"`{baseline}` ({mean:.1f})")
+    if not verdicts:
+        raise ValueError("no method of this benchmark is compared with another: no results sentence to write")
+    clauses = []
+    for challenger, groups in verdicts.items():
+        score = intervals[challenger]["mean"]
+        verdict = "; ".join(f"{word} {', '.join(names)}" for word, names in groups.items() if names)
+        clauses.append(
+            f"`{challenger}` scores {score['value']:.1f} [{score['ci_low']:.1f}, {score['ci_high']:.1f}]: {verdict}."
+        )
     episodes = _episodes(results)
-    verdict = "; ".join(f"{word} {', '.join(names)}" for word, names in groups.items() if names)
-    seeds = len(results.methods["hddpg"].seeds)
+    seeds = max(len(results.methods[challenger].seeds) for challenger in verdicts)
     return (
-        f"On the {seeds}-seed benchmark `{run_name}` ({episodes['episodes']} {episodes['name']} episodes per model), "
-        f"HDDPG scores {hddpg['value']:.1f} [{hddpg['ci_low']:.1f}, {hddpg['ci_high']:.1f}] reach reward: {verdict} "
-        "(paired t intervals over seeds, adjusted for the comparisons; docs/RESULTS.md)."
+        f"On the {seeds}-seed benchmark `{run_name}` ({episodes['episodes']} {episodes['name']} episodes per model; "
+        f"{score_name(results)}, paired t intervals over seeds adjusted for the comparisons, docs/RESULTS.md): "
+        + " ".join(clauses)
     )
 
 
