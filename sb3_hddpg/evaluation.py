@@ -50,8 +50,9 @@ class EpisodeMetrics:
     min_clearance: float | None = None
     selections: dict[str, int] = field(default_factory=dict)
     #: Fraction of the deciding network's output entries with ``|a| >= SATURATION_LEVEL``: the manager's
-    #: action for a hierarchy (its ``last_manager_action``), the action given to the env otherwise.
-    action_saturation: float = 0.0
+    #: action for a hierarchy (its ``last_manager_action``), the action given to the env otherwise. ``None``
+    #: where that output is an index (a DQN manager's worker, a discrete action): an index has no saturation.
+    action_saturation: float | None = None
     #: Worker choices made in a state whose nearest obstacle was within ``near_clearance`` (see
     #: :func:`evaluate`), and in a state with no obstacle within ``clear_clearance``.
     selections_near: dict[str, int] = field(default_factory=dict)
@@ -105,10 +106,10 @@ class EvaluationResult:
             out["success_rate"] = float(np.mean([e.success for e in eps]))
         if eps[0].min_clearance is not None:
             out["min_clearance"] = float(np.mean([e.min_clearance for e in eps]))
-        out |= {
-            "action_saturation": float(np.mean([e.action_saturation for e in eps])),
-            "mean_length": float(np.mean([e.length for e in eps])),
-        }
+        saturation = [e.action_saturation for e in eps if e.action_saturation is not None]
+        if saturation:
+            out["action_saturation"] = float(np.mean(saturation))
+        out["mean_length"] = float(np.mean([e.length for e in eps]))
         total: Counter[str] = Counter()
         for e in eps:
             total.update(e.selections)
@@ -217,7 +218,7 @@ def _run_episode(
         action, _ = policy.predict(obs, deterministic=deterministic)
         # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
         decision = getattr(policy, "last_manager_action", None)
-        tally.add_decision(np.asarray(action if decision is None else decision, dtype=np.float64))
+        tally.add_decision(np.asarray(action if decision is None else decision))
         obs, reward, terminated, truncated, info = env.step(action)
         done = terminated or truncated
         # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
@@ -278,7 +279,9 @@ class _EpisodeTally:
         self.clearance = float(reset_info.get("min_clearance", math.nan))
 
     def add_decision(self, decision: np.ndarray) -> None:
-        """The deciding network's output: how many of its entries are saturated."""
+        """The deciding network's output: how many of its entries are saturated (none counted for an index)."""
+        if not np.issubdtype(decision.dtype, np.floating):
+            return
         self.saturated += int(np.count_nonzero(np.abs(decision) >= SATURATION_LEVEL))
         self.entries += decision.size
 
@@ -321,7 +324,7 @@ class _EpisodeTally:
             success=self.touches > 0 and self.collisions == 0 if touched else None,
             min_clearance=float(self.min_clearance) if self.reports_clearance else None,
             selections=dict(self.selections),
-            action_saturation=self.saturated / max(self.entries, 1),
+            action_saturation=self.saturated / self.entries if self.entries else None,
             selections_near=dict(self.near),
             selections_clear=dict(self.clear),
             collisions_by_worker=dict(self.contacts) if touched else {},

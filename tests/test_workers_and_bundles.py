@@ -203,6 +203,22 @@ def test_action_saturation_of_a_flat_policy(value, expected):
     assert summary["action_saturation"] == expected
 
 
+class _IndexManager(_Constant):
+    """A hierarchy-like policy whose manager picks a worker by index, as a DQN manager does."""
+
+    last_manager_action = np.array(1)
+
+
+def test_an_index_has_no_action_saturation():
+    # A worker's index (a DQN manager's choice, a discrete action) is no network output pinned at +-1: it
+    # is left out, not counted as "saturated" whenever it is 1.
+    from sb3_hddpg.evaluation import evaluate
+
+    result = evaluate(_IndexManager(1.0), gym.make("hddpg/SnakeReach-v0"), n_episodes=1)
+    assert result.episodes[0].action_saturation is None
+    assert "action_saturation" not in result.summary()
+
+
 def test_action_saturation_of_a_hierarchy_is_its_managers(trained):
     # For a hierarchy the deciding network is the manager: its raw action, not the worker's env action.
     from sb3_hddpg.evaluation import SATURATION_LEVEL, evaluate
