@@ -1,6 +1,6 @@
 """
 ``export_models``: a finished benchmark's final models copied into one folder with an ``index.json``, so that
-anyone can re-evaluate them on episodes of their own (as ``docs/results/models/`` ships the final run's).
+anyone can re-evaluate them on episodes of their own (as ``docs/results/record/`` ships the run of record's).
 
 The folder keeps the benchmark's layout below it (``seed-<s>/workers/``, ``seed-<s>/<method>/...``), so that
 every file still finds what it refers to: a worker zip its ``manifest.json`` beside it, a flat zip its
