@@ -114,12 +114,13 @@ def has_skill(entry: dict[str, Any], worker: str, threshold: float, max_saturati
     """
     Whether one evaluation shows the skill: the goal worker touches on ``>= threshold`` of its steps; the
     avoid worker makes ``<= threshold`` contacts per episode with fewer than ``max_saturation`` of its
-    outputs saturated (keeping clear by pushing every joint to its limit is not the skill).
+    outputs saturated (keeping clear by pushing every joint to its limit is not the skill). An evaluation
+    without ``action_saturation`` is of a discrete action, which has no limit to be pinned at.
     """
     if worker == "goal":
         return bool(entry.get("goal_touch_rate", 0.0) >= threshold)
     contacts = entry.get("collisions_per_episode", float("inf"))
-    return bool(contacts <= threshold and entry.get("action_saturation", 1.0) < max_saturation)
+    return bool(contacts <= threshold and entry.get("action_saturation", 0.0) < max_saturation)
 
 
 def time_to_skill(
@@ -295,7 +296,10 @@ def report(results: list[dict[str, Any]], learners: list[Learner], baseline: str
         held_out = [r.get("development") or {} for r in mine]
         touch = ", ".join(f"{d['goal_touch_rate']:.1%}" if d else "-" for d in held_out)
         contacts = ", ".join(f"{d['collisions_per_episode']:.1f}" if d else "-" for d in held_out)
-        saturated = ", ".join(f"{d['action_saturation']:.0%}" if d else "-" for d in held_out)
+        saturated = ", ".join(
+            f"{d['action_saturation']:.0%}" if d.get("action_saturation") is not None else "-"
+            for d in held_out
+        )
         rows.append(
             f"| {name} | {reached}/{len(mine)} | {steps} | {seconds} | {m_steps:.0f} | {m_seconds:.0f} | "
             f"{ratios[0]} | {ratios[1]} | {touch} | {contacts} | {saturated} |"

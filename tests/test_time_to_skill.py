@@ -63,6 +63,29 @@ def test_the_avoid_workers_skill_is_few_contacts_without_saturated_joints():
     assert tts.time_to_skill(history, {}, 0.05, 1, "avoid", 0.9) == (None, None)
 
 
+def test_a_discrete_workers_evaluation_has_no_saturation_to_fail_or_print():
+    tts = _module()
+    # Evaluation leaves action_saturation out for a discrete action: no limit can be pinned there.
+    entry = {"timesteps": 1000, "collisions_per_episode": 0.1, "goal_touch_rate": 0.0}
+    assert tts.has_skill(entry, "avoid", 0.3, 0.2)
+    assert not tts.has_skill({**entry, "action_saturation": 0.5}, "avoid", 0.3, 0.2)
+    development = {"goal_touch_rate": 0.0, "collisions_per_episode": 0.1}
+    results = [
+        {
+            "algo": "ddpg",
+            "backend": "sb3",
+            "seed": 0,
+            "reached": True,
+            "steps": 1000,
+            "seconds": 100.0,
+            "development": development,
+        },
+    ]
+    table = tts.report(results, [tts.Learner("ddpg", "sb3")], "ddpg:sb3")
+    row = next(line for line in table.splitlines() if line.startswith("| ddpg:sb3"))
+    assert row.rstrip().endswith("| 0.0% | 0.1 | - |")
+
+
 def test_report_gives_per_seed_figures_and_ratios_to_the_baseline():
     tts = _module()
     results = [
