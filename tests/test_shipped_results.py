@@ -1,7 +1,8 @@
 """
-The run of record's shipped models (docs/results/record, an export with index.json) are what docs/RESULTS.md
-reports: each file matches its index entry, every method with a model of its own is there for every seed,
-and a model evaluated again on the first final-test episodes gives the figures its record holds for them. A
+The runs of record's shipped models (docs/results/record and docs/results/transfer-record, exports with
+index.json) are what docs/RESULTS.md reports: each file matches its index entry, every method with a model of
+its own is there for every seed, the transfer run's workers are the run of record's, and a model evaluated
+again on the first final-test episodes gives the figures its record holds for them. A
 change to how a policy acts (e.g. how selection breaks ties) that would make the published table
 unreproducible fails here.
 """
@@ -22,6 +23,7 @@ from sb3_hddpg.hierarchy.loading import load_policy
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = ROOT / "docs" / "results" / "record"
+TRANSFER = ROOT / "docs" / "results" / "transfer-record"
 SEEDS = json.loads((RECORD / "benchmark.json").read_text())["settings"]["seeds"]
 #: Every model of the run: the workers, the hierarchies (the front's as its conditioned manager), the switches'
 #: thresholds and the flat agents; the references that train nothing (each worker alone, the hand-written
@@ -50,9 +52,40 @@ def test_every_shipped_model_matches_its_index_and_every_method_has_every_seed()
 )
 def test_a_shipped_model_reproduces_its_recorded_test_episodes(method, record):
     entry = next(e for e in read_index(RECORD) if e["method"] == method and e["seed"] == 0)
-    expected = json.loads((RECORD / "records" / record / "seed-0.json").read_text())["episodes"][:EPISODES]
+    _assert_reproduces(RECORD, entry["path"], RECORD / "records" / record / "seed-0.json")
+
+
+def test_the_transfer_run_reuses_the_record_workers_and_has_every_model():
+    transfer = read_index(TRANSFER)
+    record_workers = {
+        (e["method"], e["seed"]): e["sha256"] for e in read_index(RECORD) if e["method"].startswith("worker:")
+    }
+    transfer_workers = {
+        (e["method"], e["seed"]): e["sha256"] for e in transfer if e["method"].startswith("worker:")
+    }
+    assert transfer_workers == record_workers
+    seeds = json.loads((TRANSFER / "benchmark.json").read_text())["settings"]["seeds"]
+    preferences = {e.get("preference") for e in transfer if not e["method"].startswith("worker:")}
+    assert len(preferences) == 2
+    trained = Counter(e["method"] for e in transfer if not e["method"].startswith("worker:"))
+    assert trained == dict.fromkeys(("hddpg", "hddpg-sac", "ddpg"), len(preferences) * len(seeds))
+
+
+@pytest.mark.parametrize("run", ["hddpg@goal=2,avoid=1", "ddpg@goal=1,avoid=2"])
+def test_a_transfer_model_reproduces_its_recorded_test_episodes(run):
+    method, preference = run.split("@")
+    entry = next(
+        e
+        for e in read_index(TRANSFER)
+        if e["method"] == method and e.get("preference") == preference and e["seed"] == 0
+    )
+    _assert_reproduces(TRANSFER, entry["path"], TRANSFER / "records" / run / "seed-0.json")
+
+
+def _assert_reproduces(export: Path, model: str, record: Path) -> None:
+    expected = json.loads(record.read_text())["episodes"][:EPISODES]
     assert [e["episode_seed"] for e in expected] == [FINAL_TEST.first_seed + k for k in range(EPISODES)]
-    loaded = load_policy(RECORD / entry["path"])
+    loaded = load_policy(export / model)
     env = loaded.make_env()
     try:
         summary = evaluate(loaded.policy, env, n_episodes=EPISODES, seed=FINAL_TEST.first_seed).summary()
