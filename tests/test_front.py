@@ -247,9 +247,22 @@ def test_the_fronts_sweep_and_motion_are_checked_and_priced():
     with pytest.raises(ValueError, match="front_per_preference"):
         BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_per_preference="no")
     for bad in ({"front_sweep": "ratio-sweep:3"}, {"front_sweep": "dirichlet"}, {"front_motion": -1.0},
-                {"front_motion": float("nan")}):  # fmt: skip
-        with pytest.raises(ValueError, match=r"sweep|motion"):
+                {"front_motion": float("nan")}, {"front_option_steps": 0},
+                {"front_option_steps": 10**6}):  # fmt: skip
+        with pytest.raises(ValueError, match=r"sweep|motion|option steps"):
             BenchmarkSettings(methods=["hddpg-front"], scenario="front", **bad)
+
+
+def test_the_fronts_option_steps_set_its_managers_decisions_at_the_same_env_steps():
+    common = {
+        "methods": ["hddpg-front"],
+        "scenario": "front",
+        "front_manager": "dqn",
+        "front_timesteps": 4000,
+    }
+    # The DQN manager block holds each choice for 4 env steps; deciding every step makes 4 times the decisions.
+    assert BenchmarkSettings(**common).front_run_options(0).timesteps == 1000
+    assert BenchmarkSettings(**common, front_option_steps=1).front_run_options(0).timesteps == 4000
 
 
 def test_benchmark_cli_refuses_an_unknown_front_manager_in_one_line(tmp_path):
@@ -260,12 +273,20 @@ def test_benchmark_cli_refuses_an_unknown_front_manager_in_one_line(tmp_path):
     assert "Traceback" not in result.stderr and not (tmp_path / "b").exists()
 
 
+def test_benchmark_cli_refuses_zero_option_steps_in_one_line(tmp_path):
+    result = run_cli(
+        "benchmark", "--scenario", "front", "--front-option-steps", "0", "--out", str(tmp_path / "b")
+    )
+    assert result.returncode == 2 and "option steps in [1," in result.stdout + result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "b").exists()
+
+
 @pytest.mark.slow
 def test_a_front_of_dqn_managers_records_its_algorithm_and_budget(tmp_path):
     settings = BenchmarkSettings(
         methods=["hddpg-front"], seeds=[0], timesteps=120, worker_timesteps=200, eval_episodes=1,
         test_episodes=1, scenario="front", front_manager="dqn", front_timesteps=400,
-        front_sweep="ratio-sweep:16", front_motion=20.0,
+        front_sweep="ratio-sweep:16", front_motion=20.0, front_option_steps=2,
     )  # fmt: skip
     results = run_benchmark(settings, tmp_path)
     record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
@@ -284,6 +305,7 @@ def test_a_front_of_dqn_managers_records_its_algorithm_and_budget(tmp_path):
     bundle = Hierarchy.load(tmp_path / "seed-0" / "hddpg-front" / "conditioned" / "hierarchy.zip")
     assert type(bundle.manager).__name__ == "DQN"
     assert bundle.config.manager_motion == 20.0
+    assert bundle.config.option_steps == 2
     assert bundle.observation_space.shape[0] * 2 + 2 == bundle.manager.observation_space.shape[0]
 
 

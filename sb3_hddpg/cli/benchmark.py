@@ -285,6 +285,14 @@ _FrontMotionOpt = Annotated[
         "factor (train-manager --manager-motion); 0: the state only.",
     ),
 ]
+_FrontOptionStepsOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--front-option-steps",
+        help="Env steps per decision of the front's managers (default: their manager block's option_steps; "
+        "1 decides every env step, as a rule reading the state each step does).",
+    ),
+]
 _FrontPerPreferenceOpt = Annotated[
     bool,
     typer.Option(
@@ -306,6 +314,7 @@ _MorlPythonOpt = Annotated[
 #: The options whose values the benchmark's settings check, named in their errors.
 _SETTINGS_OPTIONS = (
     "'--methods' / '--preference' / '--env' / '--front-manager' / '--front-sweep' / '--front-motion' / "
+    "'--front-option-steps' / "
     "'--morl-python' / '--timesteps' / '--worker-timesteps' / '--flat-timesteps' / '--front-timesteps' / "
     "'--eval-episodes'"
 )
@@ -345,6 +354,7 @@ def benchmark_command(
     front_timesteps: _FrontTimestepsOpt = None,
     front_sweep: _FrontSweepOpt = "ratio-sweep",
     front_motion: _FrontMotionOpt = 0.0,
+    front_option_steps: _FrontOptionStepsOpt = None,
     front_per_preference: _FrontPerPreferenceOpt = True,
     morl_python: _MorlPythonOpt = None,
     terms: TermsOpt = None,
@@ -382,6 +392,7 @@ def benchmark_command(
             front_timesteps=front_timesteps,
             front_sweep=front_sweep,
             front_motion=front_motion,
+            front_option_steps=front_option_steps,
             front_per_preference=front_per_preference,
             morl_python=morl_python,
         )

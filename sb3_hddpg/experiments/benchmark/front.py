@@ -235,7 +235,11 @@ def _train_managers(
     run, algo = settings.front_run_options(task.seed), settings.front_manager
     shared = settings.terms_env
     # The managers act over the workers in the sweep's order, whatever the manifest's.
-    env_options: dict[str, Any] = {"worker_names": sweep.names, "manager_motion": settings.front_motion}
+    env_options: dict[str, Any] = {
+        "worker_names": sweep.names,
+        "manager_motion": settings.front_motion,
+        "option_steps": settings.front_option_steps,
+    }
     if shared is not None:
         env_options.update(env_id=shared.env_id, env_kwargs=shared.env_kwargs)
     started = time.perf_counter()
@@ -555,6 +559,7 @@ register_method(
             "front_timesteps",
             "front_sweep",
             "front_motion",
+            "front_option_steps",
             "front_per_preference",
             "morl_python",
         ),

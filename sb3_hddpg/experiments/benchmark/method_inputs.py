@@ -77,6 +77,9 @@ class MethodSettings(Protocol):
     def front_motion(self) -> float: ...
 
     @property
+    def front_option_steps(self) -> int | None: ...
+
+    @property
     def front_per_preference(self) -> bool: ...
 
     def manager_run_options(

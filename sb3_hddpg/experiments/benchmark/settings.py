@@ -14,6 +14,7 @@ from stable_baselines3 import DDPG
 from sb3_hddpg.algorithms import algorithm, algorithms_for
 from sb3_hddpg.artifacts.limits import (
     MAX_BENCHMARK_SEEDS,
+    MAX_OPTION_STEPS,
     MAX_SEED,
     MAX_TERMS,
     brief,
@@ -168,6 +169,9 @@ class BenchmarkSettings:
         for two workers) or ``ratio-sweep:MAX`` (ratios doubling up to ``MAX``; ``ratio-sweep:16``: 9).
     :param front_motion: the front's managers also see how their state moved over the last env step,
         scaled by this factor (``manager_motion`` of ``train_manager``; 0: not).
+    :param front_option_steps: env steps per decision of the front's managers (``None``: their manager
+        block's ``option_steps``). An env whose state changes faster than the block's options last (a
+        car closing in within a few steps) needs its manager to decide more often.
     :param front_per_preference: the front also trains one manager per sweep preference, the reference the
         conditioned manager is measured against (``False``: the conditioned manager alone, which is what one
         policy for every preference costs; on a slow env it saves most of the front's training).
@@ -197,6 +201,7 @@ class BenchmarkSettings:
     front_timesteps: int | None = None
     front_sweep: str = "ratio-sweep"
     front_motion: float = 0.0
+    front_option_steps: int | None = None
     front_per_preference: bool = True
     morl_python: str | None = None
 
@@ -291,7 +296,10 @@ class BenchmarkSettings:
             )
 
     def _check_front_inputs(self) -> None:
-        """The front's sweep, a ``ratio-sweep`` form (any env's terms take it), and its managers' motion scale."""
+        """
+        The front's sweep, a ``ratio-sweep`` form (any env's terms take it), its managers' motion scale and
+        option steps.
+        """
         if self.front_sweep.partition(":")[0] != "ratio-sweep":
             raise ValueError(
                 f"Expected the front's sweep to be ratio-sweep[:MAX], actually: {self.front_sweep!r:.60}"
@@ -303,6 +311,11 @@ class BenchmarkSettings:
                 f"Expected the front's motion scale to be a finite number >= 0, actually: {motion!r}"
             )
         self.front_motion = float(motion)
+        steps = self.front_option_steps
+        if steps is not None and not 1 <= steps <= MAX_OPTION_STEPS:
+            raise ValueError(
+                f"Expected the front's option steps in [1, {MAX_OPTION_STEPS}], actually: {steps!r}"
+            )
 
     def _check_morl(self) -> None:
         """MORL-baselines' python, for the front on an MO-Gymnasium env."""
@@ -490,7 +503,9 @@ class BenchmarkSettings:
 
     def front_run_options(self, seed: int) -> RunOptions:
         """:meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_env_steps`."""
-        return self.manager_run_options(seed, self.front_manager, self.front_env_steps)
+        return self.manager_run_options(
+            seed, self.front_manager, self.front_env_steps, option_steps=self.front_option_steps
+        )
 
     def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
         """
