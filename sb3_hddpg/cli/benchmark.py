@@ -314,9 +314,8 @@ _MorlPythonOpt = Annotated[
 #: The options whose values the benchmark's settings check, named in their errors.
 _SETTINGS_OPTIONS = (
     "'--methods' / '--preference' / '--env' / '--front-manager' / '--front-sweep' / '--front-motion' / "
-    "'--front-option-steps' / "
-    "'--morl-python' / '--timesteps' / '--worker-timesteps' / '--flat-timesteps' / '--front-timesteps' / "
-    "'--eval-episodes'"
+    "'--front-option-steps' / '--morl-python' / '--timesteps' / '--worker-timesteps' / '--flat-timesteps' / "
+    "'--front-timesteps' / '--eval-episodes'"
 )
 
 
