@@ -731,3 +731,10 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     page = (out / "results.md").read_text()
     assert "hypervolume (time_return, fuel_return)".replace("_", " ") in page
     assert "The front's managers (conditioned only)" in page
+    # How often they decide: the DDPG manager block's options, as the bundles hold them.
+    from sb3_hddpg import Hierarchy
+
+    bundle = out / "seed-0" / "hddpg-front" / "conditioned" / "hierarchy.zip"
+    options = Hierarchy.load(bundle).config.option_steps
+    assert front["manager"]["option_steps"] == options
+    assert f"deciding every {options} env step" in page

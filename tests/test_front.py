@@ -7,6 +7,7 @@ import sys
 import gymnasium as gym
 import numpy as np
 import pytest
+from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.experiments.benchmark import (
@@ -26,7 +27,8 @@ from sb3_hddpg.experiments.benchmark.settings import comparison_pairs
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.backends import sbx_installed
-from sb3_hddpg.training.config import MANAGER_KEY
+from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
+from sb3_hddpg.training.manager_setup import horizon_gamma
 from tests.cli_runner import run_cli
 
 
@@ -265,6 +267,18 @@ def test_the_fronts_option_steps_set_its_managers_decisions_at_the_same_env_step
     assert BenchmarkSettings(**common, front_option_steps=1).front_run_options(0).timesteps == 4000
 
 
+def test_shorter_options_keep_the_manager_blocks_horizon_in_env_steps():
+    # DQN's manager block: gamma 0.9 over 4-step options, about 40 env steps ahead.
+    assert horizon_gamma(4, "dqn") == pytest.approx(0.9)
+    assert horizon_gamma(1, "dqn") == pytest.approx(0.9**0.25)
+    assert horizon_gamma(1, "dqn") ** 4 == pytest.approx(horizon_gamma(4, "dqn"))
+    # Any block: its own options give its own discount, twice as long ones its square.
+    ddpg_block = load_hyperparams(MANAGER_KEY, DDPG, manager=True)
+    steps, gamma = ddpg_block.wrapper_kwargs["option_steps"], ddpg_block.algo_kwargs["gamma"]
+    assert horizon_gamma(steps, "ddpg") == pytest.approx(gamma)
+    assert horizon_gamma(2 * steps, "ddpg") == pytest.approx(gamma**2)
+
+
 def test_benchmark_cli_refuses_an_unknown_front_manager_in_one_line(tmp_path):
     result = run_cli(
         "benchmark", "--scenario", "front", "--front-manager", "ppo2", "--out", str(tmp_path / "b")
@@ -290,14 +304,16 @@ def test_a_front_of_dqn_managers_records_its_algorithm_and_budget(tmp_path):
     )  # fmt: skip
     results = run_benchmark(settings, tmp_path)
     record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
+    # Half the block's 4-step options: the discount's square root keeps its horizon in env steps.
+    assert record["manager"].pop("gamma") == pytest.approx(0.9**0.5)
     assert record["manager"] == {
         "algo": "dqn", "env_steps": 400, "backend": "sb3", "sweep": "ratio-sweep:16", "motion": 20.0,
-        "per_preference": True,
+        "per_preference": True, "option_steps": 2,
     }  # fmt: skip
-    assert results["front"]["manager"] == record["manager"]
+    assert results["front"]["manager"] == {**record["manager"], "gamma": pytest.approx(0.9**0.5)}
     assert (
-        "DQN (SB3), 400 env steps each, over ratio-sweep:16, seeing motion (x20)"
-        in (tmp_path / "results.md").read_text()
+        "DQN (SB3), 400 env steps each, deciding every 2 env steps (discount 0.949 a decision), over "
+        "ratio-sweep:16, seeing motion (x20)" in (tmp_path / "results.md").read_text()
     )
     # The sweep's extremes, 16:1 and 1:16, are points of the conditioned manager's front.
     labels = [p["label"] for p in record["front"]["conditioned"]["points"]]

@@ -7,6 +7,7 @@ from dataclasses import fields
 
 import pytest
 
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import (
     MANAGER_OPTION_NAMES,
@@ -39,8 +40,31 @@ def test_train_manager_takes_the_records_fields_after_its_folders():
             "Expected a sequence of worker names, actually the string 'goal'",
         ),
         (ManagerOptions(algo="nope"), "Unknown manager algorithm 'nope'"),
+        (ManagerOptions(gamma=0.0), r"manager's gamma in \(0, 1\], actually: 0.0"),
+        (ManagerOptions(gamma=1.5), r"manager's gamma in \(0, 1\], actually: 1.5"),
+        (ManagerOptions(gamma=float("nan")), r"manager's gamma in \(0, 1\], actually: nan"),
+        (ManagerOptions(gamma=True), r"manager's gamma in \(0, 1\], actually: True"),
     ],
 )
 def test_setup_manager_refuses_bad_options_before_loading_anything(tmp_path, options, message):
     with pytest.raises(ValueError, match=message):
         setup_manager(tmp_path / "no-workers-here", options)
+
+
+def test_a_managers_gamma_replaces_its_blocks_and_the_bundle_says_so(tmp_path):
+    from sb3_hddpg.training.workers import train_workers
+    from tests.cli_runner import run_cli
+
+    train_workers(tmp_path / "w", seed=2, timesteps=100, eval_freq=0, eval_episodes=1)
+    common = ["train-manager", "--workers", tmp_path / "w", "--algo", "dqn", "--option-steps", "1"]
+    refused = run_cli(*common, "--gamma", "0", "--out", tmp_path / "refused")
+    output = refused.stdout + refused.stderr
+    assert refused.returncode == 2 and "--gamma" in output and "Traceback" not in output
+    assert not (tmp_path / "refused").exists()
+    done = run_cli(*common, "--gamma", "0.97", "--timesteps", "60", "--eval-freq", "60", "--eval-episodes",
+                   "1", "--no-progress", "--out", tmp_path / "m")  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    bundle = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
+    # The model keeps the discount it trained with; the bundle's config is the block as written.
+    assert bundle.manager.gamma == pytest.approx(0.97) and bundle.config.option_steps == 1
+    assert bundle.metadata["config"]["gamma"] == pytest.approx(0.9)

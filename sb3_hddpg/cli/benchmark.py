@@ -290,7 +290,8 @@ _FrontOptionStepsOpt = Annotated[
     typer.Option(
         "--front-option-steps",
         help="Env steps per decision of the front's managers (default: their manager block's option_steps; "
-        "1 decides every env step, as a rule reading the state each step does).",
+        "1 decides every env step, as a rule reading the state each step does). Their budget and their "
+        "horizon stay in env steps: the block's discount becomes gamma ** (N / its option_steps).",
     ),
 ]
 _FrontPerPreferenceOpt = Annotated[

@@ -75,6 +75,13 @@ def positive_float(value: float | None) -> float | None:
     return value
 
 
+def discount(value: float | None) -> float | None:
+    """A typer callback for a discount: a number in ``(0, 1]`` (``None`` passes)."""
+    if value is not None and not 0 < value <= 1:
+        raise typer.BadParameter(f"must be in (0, 1], got {value}")
+    return value
+
+
 def existing_file(value: Path | None) -> Path | None:
     """
     A typer callback for a file to read: it must exist and be a file (``None`` passes). Checked by kind,

@@ -32,6 +32,7 @@ from sb3_hddpg.cli.options import (
     TermsOpt,
     ThreadsOpt,
     at_least,
+    discount,
     existing_dir,
     existing_file,
     prepare_out_dir,
@@ -286,6 +287,16 @@ _ManagerMotionOpt = Annotated[
         "range per step); 0: the state only.",
     ),
 ]
+_ManagerGammaOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--gamma",
+        callback=discount,
+        help="The manager's discount per decision (default: the config block's). The bundled blocks' discounts "
+        "fit their options' length: with shorter --option-steps, a discount closer to 1 keeps the horizon in "
+        "env steps (0.9 over 4-step options is about 0.974 over 1-step ones).",
+    ),
+]
 _ManagerAlgoOpt = Annotated[
     str,
     typer.Option(
@@ -332,6 +343,7 @@ def train_manager_command(
     option_steps: _ManagerOptionStepsOpt = None,
     option_end: _ManagerOptionEndOpt = None,
     manager_motion: _ManagerMotionOpt = None,
+    gamma: _ManagerGammaOpt = None,
     algo: _ManagerAlgoOpt = "ddpg",
     config: _ManagerConfigOpt = None,
     timesteps: _ManagerTimestepsOpt = None,
@@ -385,6 +397,7 @@ def train_manager_command(
         init_from_ham=init_from_ham,
         option_end=option_end,
         manager_motion=manager_motion,
+        gamma=gamma,
     )
     setup = _checked_manager_setup(workers_dir, options, backend)
     prepare_out_dir(context, out, resume, force)

@@ -78,6 +78,7 @@ def train_manager(
     init_from_ham: float | HamStart | None = None,
     option_end: str | OptionEnd | None = None,
     manager_motion: float | None = None,
+    gamma: float | None = None,
     *,
     run: RunOptions | None = None,
     extra_callbacks: Sequence[BaseCallback] = (),
@@ -91,7 +92,7 @@ def train_manager(
         :func:`~sb3_hddpg.training.manager_setup.prepare_manager` returned: then the workers it loaded are
         used as they are (nothing is loaded or checked twice) and the manager's options must be left out.
     :param out_dir: the run folder for the manager.
-    :param worker_names: and the arguments after it up to ``manager_motion``: the manager's options, the fields
+    :param worker_names: and the arguments after it up to ``gamma``: the manager's options, the fields
         of :class:`~sb3_hddpg.training.manager_setup.ManagerOptions` (``None``: its default).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the
         manager's model; the bundle holds an SB3 manager whichever ``backend`` trains it.

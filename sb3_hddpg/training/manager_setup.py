@@ -45,6 +45,23 @@ def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) ->
     return load_hyperparams(MANAGER_KEY, algo_class(algo), config or default_config(algo), manager=True)
 
 
+def horizon_gamma(option_steps: int, algo: str = "ddpg", config: str | Path | None = None) -> float:
+    """
+    The discount per decision that keeps a manager block's horizon in env steps over options of another
+    length: the block's ``gamma ** (option_steps / block option_steps)``. A discount is tuned for the
+    block's options: DQN's 0.9 over 4-step options looks about 40 env steps ahead, and over 1-step options
+    only 10 unless it becomes ``0.9 ** 0.25``, about 0.974.
+
+    :param option_steps: env steps per decision of the manager to be trained.
+    :param algo: the manager's algorithm.
+    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
+    """
+    hyperparams = manager_hyperparams(algo, config)
+    block_steps = int(hyperparams.wrapper_kwargs.get("option_steps", 1))
+    default = inspect.signature(algo_class(algo).__init__).parameters["gamma"].default
+    return float(hyperparams.algo_kwargs.get("gamma", default)) ** (option_steps / block_steps)
+
+
 @dataclass
 class ManagerEnvFactory:
     """
@@ -170,6 +187,9 @@ class ManagerOptions:
     :param manager_motion: the manager also observes its state's change over the last env step, scaled by
         this factor (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`; 0: not; default: the
         config's).
+    :param gamma: the manager's discount per decision, in (0, 1] (default: the config block's). A block's
+        discount is tuned for its options' length: shorter options at the same discount see fewer env steps
+        ahead.
     """
 
     worker_names: Sequence[str] | None = None
@@ -190,6 +210,7 @@ class ManagerOptions:
     init_from_ham: float | HamStart | None = None
     option_end: str | OptionEnd | None = None
     manager_motion: float | None = None
+    gamma: float | None = None
 
 
 #: The arguments of :func:`prepare_manager` after the workers' folder: :class:`ManagerOptions`' fields.
@@ -216,6 +237,7 @@ def prepare_manager(
     init_from_ham: float | HamStart | None = None,
     option_end: str | OptionEnd | None = None,
     manager_motion: float | None = None,
+    gamma: float | None = None,
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
@@ -249,7 +271,7 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
     if algo not in MANAGER_ALGOS:
         raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
     config = options.config if options.config is not None else default_config(algo)
-    hyperparams = manager_hyperparams(algo, config)
+    hyperparams = _with_gamma(manager_hyperparams(algo, config), options.gamma)
     workers = load_workers(workers_dir, names_given, trusted=options.trusted)
     manifest = workers.manifest
     env_id, given_kwargs = shared_env_of(manifest, options.env_id, options.env_kwargs, options.trusted)
@@ -392,6 +414,18 @@ def _preference_space(given: str | PreferenceSpace, names: list[str]) -> Prefere
     if list(space.names) != names:
         raise ValueError(f"The preference space names workers {list(space.names)}, the manager {names}")
     return space
+
+
+def _with_gamma(hyperparams: Hyperparams, gamma: float | None) -> Hyperparams:
+    """
+    The manager's config block with ``gamma`` as its discount (``None``: as it is). ``raw`` stays the block as
+    written, as with the other options given over it; the model saves the discount it trained with.
+    """
+    if gamma is None:
+        return hyperparams
+    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0.0 < gamma <= 1.0:
+        raise ValueError(f"Expected the manager's gamma in (0, 1], actually: {gamma!r:.60}")
+    return replace(hyperparams, algo_kwargs={**hyperparams.algo_kwargs, "gamma": float(gamma)})
 
 
 def _with_preference_relabeling(

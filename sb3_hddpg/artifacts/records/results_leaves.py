@@ -181,6 +181,10 @@ class FrontManager(TypedDict):
     motion: NotRequired[float]
     #: whether a manager per preference was trained beside the conditioned one (absent before optional: yes)
     per_preference: NotRequired[bool]
+    #: env steps per decision, each option's length (absent from a front recorded before it was kept)
+    option_steps: NotRequired[int]
+    #: their discount per decision (absent from a front recorded before it was kept)
+    gamma: NotRequired[float]
 
 
 class SafeTouch(TypedDict):

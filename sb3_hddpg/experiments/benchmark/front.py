@@ -83,6 +83,7 @@ from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.flat import FLAT_ENV_ID
 from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.manager_setup import horizon_gamma
 
 #: The snake's sweep: goal:avoid 4:1, 3:1, 2:1, 1:1, 1:2, 1:3, 1:4 at sum 2.
 SWEEP = SNAKE_FRONT.sweep
@@ -234,11 +235,14 @@ def _train_managers(
     run_dir = folder / task.method
     run, algo = settings.front_run_options(task.seed), settings.front_manager
     shared = settings.terms_env
-    # The managers act over the workers in the sweep's order, whatever the manifest's.
+    steps = settings.front_option_steps
+    # The managers act over the workers in the sweep's order, whatever the manifest's; options of another
+    # length than the block's keep its horizon in env steps, as their budget is.
     env_options: dict[str, Any] = {
         "worker_names": sweep.names,
         "manager_motion": settings.front_motion,
-        "option_steps": settings.front_option_steps,
+        "option_steps": steps,
+        "gamma": horizon_gamma(steps, algo) if steps is not None else None,
     }
     if shared is not None:
         env_options.update(env_id=shared.env_id, env_kwargs=shared.env_kwargs)
@@ -366,7 +370,7 @@ def _morl_front(
 
 
 def _manager_fields(settings: MethodSettings, conditioned: Hierarchy) -> FrontManager:
-    """The front's managers as the record states them: algorithm, env steps each, backend."""
+    """The front's managers as the record states them: algorithm, env steps each, options, discount, backend."""
     run = settings.front_run_options(0)
     steps = conditioned.config.option_steps
     return {
@@ -376,6 +380,9 @@ def _manager_fields(settings: MethodSettings, conditioned: Hierarchy) -> FrontMa
         "sweep": settings.front_sweep,
         "motion": settings.front_motion,
         "per_preference": settings.front_per_preference,
+        "option_steps": steps,
+        # Every manager algorithm, off- or on-policy, has the discount BaseAlgorithm does not declare.
+        "gamma": float(cast(Any, conditioned.manager).gamma),
     }
 
 

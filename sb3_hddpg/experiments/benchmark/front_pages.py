@@ -61,12 +61,15 @@ def front_table(front: FrontResults) -> list[str]:
         backend = f" ({str(manager.get('backend')).upper()})" if manager.get("backend") else ""
         sweep = f", over {manager['sweep']}" if manager.get("sweep", "ratio-sweep") != "ratio-sweep" else ""
         motion = f", seeing motion (x{manager['motion']:g})" if manager.get("motion") else ""
+        options = manager.get("option_steps")
+        deciding = "" if options is None else f", deciding every {options} env step" + "s" * (options != 1)
+        deciding += f" (discount {manager['gamma']:.3g} a decision)" if "gamma" in manager else ""
         lines.append("")
         trained = (
             "conditioned and per preference" if manager.get("per_preference", True) else "conditioned only"
         )
         lines.append(
-            f"The front's managers ({trained}): {manager['algo'].upper()}{backend}{budget}{sweep}{motion}."
+            f"The front's managers ({trained}): {manager['algo'].upper()}{backend}{budget}{deciding}{sweep}{motion}."
         )
     references = front.get("references", {})
     if references:

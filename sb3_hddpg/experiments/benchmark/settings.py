@@ -171,7 +171,8 @@ class BenchmarkSettings:
         scaled by this factor (``manager_motion`` of ``train_manager``; 0: not).
     :param front_option_steps: env steps per decision of the front's managers (``None``: their manager
         block's ``option_steps``). On an env whose state changes faster than the block's options last (a
-        car closing in within a few steps) a manager holding a choice that long cannot react in time.
+        car closing in within a few steps) a manager holding a choice that long cannot react in time. The
+        block's discount is scaled to keep its horizon in env steps (``horizon_gamma``).
     :param front_per_preference: the front also trains one manager per sweep preference, the reference the
         conditioned manager is measured against (``False``: the conditioned manager alone, which is what one
         policy for every preference costs; on a slow env it saves most of the front's training).
