@@ -7,7 +7,6 @@ import sys
 import gymnasium as gym
 import numpy as np
 import pytest
-from stable_baselines3 import DDPG
 
 from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.experiments.benchmark import (
@@ -27,8 +26,8 @@ from sb3_hddpg.experiments.benchmark.settings import comparison_pairs
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.backends import sbx_installed
-from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
-from sb3_hddpg.training.manager_setup import horizon_gamma
+from sb3_hddpg.training.config import MANAGER_KEY
+from sb3_hddpg.training.manager_setup import horizon_gamma, manager_hyperparams
 from tests.cli_runner import run_cli
 
 
@@ -273,7 +272,7 @@ def test_shorter_options_keep_the_manager_blocks_horizon_in_env_steps():
     assert horizon_gamma(1, "dqn") == pytest.approx(0.9**0.25)
     assert horizon_gamma(1, "dqn") ** 4 == pytest.approx(horizon_gamma(4, "dqn"))
     # Any block: its own options give its own discount, twice as long ones its square.
-    ddpg_block = load_hyperparams(MANAGER_KEY, DDPG, manager=True)
+    ddpg_block = manager_hyperparams("ddpg")
     steps, gamma = ddpg_block.wrapper_kwargs["option_steps"], ddpg_block.algo_kwargs["gamma"]
     assert horizon_gamma(steps, "ddpg") == pytest.approx(gamma)
     assert horizon_gamma(2 * steps, "ddpg") == pytest.approx(gamma**2)

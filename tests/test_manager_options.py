@@ -51,7 +51,7 @@ def test_setup_manager_refuses_bad_options_before_loading_anything(tmp_path, opt
         setup_manager(tmp_path / "no-workers-here", options)
 
 
-def test_a_managers_gamma_replaces_its_blocks_and_the_bundle_says_so(tmp_path):
+def test_a_managers_gamma_replaces_its_blocks_and_its_saved_model_keeps_it(tmp_path):
     from sb3_hddpg.training.workers import train_workers
     from tests.cli_runner import run_cli
 
