@@ -116,3 +116,25 @@ def test_a_resumed_manager_must_act_on_the_same_mdp(tmp_path):
     # The same settings resume.
     _, outcome = train_manager(run, run, option_steps=2, timesteps=150, resume=True, **tiny)
     assert outcome.num_timesteps == 150
+
+
+def test_a_resumed_manager_must_keep_its_learner_and_a_folder_without_that_record_still_resumes(tmp_path):
+    """A resumed model keeps the discount it was saved with: another ``gamma`` is refused, not ignored."""
+    from sb3_hddpg.artifacts.manifests import ResumeMismatch
+    from sb3_hddpg.training.manager import MANAGER_SETTINGS_FILE, train_manager
+
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_CONFIG)
+    run = tmp_path / "run"
+    train_workers(run, config=config, timesteps=150, workers=["goal", "avoid"], eval_freq=0, eval_episodes=1)
+    tiny = {"config": config, "option_steps": 2, "eval_freq": 0, "eval_episodes": 1, "checkpoint_freq": 50}
+    train_manager(run, run, gamma=0.9, timesteps=100, **tiny)
+    with pytest.raises(ResumeMismatch, match=r"learner was .*0\.9.* in the run, now .*0\.5"):
+        train_manager(run, run, gamma=0.5, timesteps=150, resume=True, **tiny)
+    settings = run / "manager" / MANAGER_SETTINGS_FILE
+    recorded = json.loads(settings.read_text())
+    del recorded["env_kwargs"]["learner"]
+    settings.write_text(json.dumps(recorded))
+    # Without the learner's record the MDP alone is compared: such a folder resumes as it did.
+    _, outcome = train_manager(run, run, gamma=0.9, timesteps=150, resume=True, **tiny)
+    assert outcome.num_timesteps == 150

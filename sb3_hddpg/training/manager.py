@@ -37,23 +37,40 @@ def _check_manager_resume(
     paths: AgentPaths, resume: bool, setup: ManagerSetup, selection: dict[str, Any]
 ) -> None:
     """
-    Keep the manager's MDP (env, workers, algorithm, selection settings) beside its model; a resumed
-    run whose MDP differs is refused in one line naming the difference
+    Keep the manager's MDP (env, workers, algorithm, selection settings) and its learner's settings (the
+    config block's constructor arguments with ``--gamma`` applied, policy, noise) beside its model; a resumed
+    run whose MDP or learner differs is refused in one line naming the difference
     (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_env`), since its replay buffer and network were
-    made on the recorded one.
+    made on the recorded ones, and a resumed model keeps the discount it was saved with whatever is asked.
     """
     mdp: dict[str, Any] = {
         **setup.env_kwargs,
         "workers": list(setup.workers),
         "algo": setup.algo,
         "selection": selection,
+        "learner": _learner_settings(setup),
     }
     path = paths.model_path.parent / MANAGER_SETTINGS_FILE
     if resume and read_checkpoint_state(paths.checkpoint_dir) is not None and path.is_file():
-        check_resumed_env(read_json_file(path), setup.env_id, mdp)
+        stored = read_json_file(path)
+        recorded = stored.get("env_kwargs") if isinstance(stored, dict) else None
+        if isinstance(recorded, dict) and "learner" not in recorded:
+            # A folder that does not record the learner's settings is compared on what it records.
+            del mdp["learner"]
+        check_resumed_env(stored, setup.env_id, mdp)
         return
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, {"env_id": setup.env_id, "env_kwargs": mdp})
+
+
+def _learner_settings(setup: ManagerSetup) -> dict[str, Any]:
+    """The manager's learner as its config block sets it, less the budget (a resumed run may extend it)."""
+    hyperparams = setup.hyperparams
+    return {
+        "algo_kwargs": hyperparams.algo_kwargs,
+        "policy": hyperparams.policy,
+        "noise": [hyperparams.noise_type, hyperparams.noise_std],
+    }
 
 
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
