@@ -8,7 +8,8 @@ from stable_baselines3 import DDPG, SAC, TD3
 
 from sb3_hddpg.callbacks import ActionL2Penalty, apply_action_l2
 from sb3_hddpg.callbacks.action_penalty import action_penalty
-from sb3_hddpg.training.config import ConfigError, parse_block
+from sb3_hddpg.training.config import parse_block
+from sb3_hddpg.training.config_values import ConfigError
 
 PATH = "sb3_hddpg.callbacks.ActionL2Penalty"
 

@@ -454,13 +454,35 @@ def _tune_once(tmp_path, target):
     return study
 
 
+def test_a_worker_reads_its_own_block_before_its_envs(tmp_path, tiny):
+    """An easy skill can get a smaller budget than its siblings: the block ``<env id>/<term>`` is its own."""
+    from sb3_hddpg.training.workers import worker_hyperparams
+
+    tiny.write_text(TINY_CONFIG + "test/ThreeTerms-v0/calm:\n  <<: *tiny\n  n_timesteps: 120\n")
+    env = terms_env("test/ThreeTerms-v0")
+    blocks = worker_hyperparams(list(env.terms), tiny, env)
+    assert {name: block.n_timesteps for name, block in blocks.items()} == {
+        "near": 150,
+        "calm": 120,
+        "right": 150,
+    }
+    manifest = train_workers(tmp_path / "w", ["near", "calm"], tiny, env=env, eval_freq=0, eval_episodes=1)
+    assert {name: entry["timesteps_trained"] for name, entry in manifest["workers"].items()} == {
+        "near": 150,
+        "calm": 120,
+    }
+    # The manifest records the block the worker read.
+    assert manifest["workers"]["calm"]["config"]["block"]["n_timesteps"] == 120
+
+
 def test_tune_a_worker_and_a_flat_agent_on_other_envs(tmp_path, tiny):
     from sb3_hddpg.experiments.tuning import TuningTarget
 
     mountain_car = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
     budget = {"config": str(tiny), "timesteps": 100, "n_evaluations": 1, "eval_episodes": 1}
     worker = TuningTarget(level="worker", worker="time", env=mountain_car, **budget)
-    assert worker.name == "worker-time" and worker.block_key == "mo-mountaincarcontinuous-v0"
+    # A worker's tuned block is its own, read by train-workers before the env's.
+    assert worker.name == "worker-time" and worker.block_key == "mo-mountaincarcontinuous-v0/time"
     study = _tune_once(tmp_path / "worker", worker)
     # The trial learned on the `time` term's view: -1 per step, 30 steps (the flag is out of reach).
     assert study.best_value == pytest.approx(-30.0)

@@ -196,7 +196,7 @@ def test_a_learning_rate_schedule_reaches_the_jax_optimisers(algo, tmp_path):
     from stable_baselines3.common.env_util import make_vec_env
 
     from sb3_hddpg.training.backends import load_native, make_model, to_sb3
-    from sb3_hddpg.training.config import parse_schedule
+    from sb3_hddpg.training.config_values import parse_schedule
 
     class RecordRates(BaseCallback):
         def __init__(self) -> None:

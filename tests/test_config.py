@@ -5,14 +5,8 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
-from sb3_hddpg.training.config import (
-    DEFAULT_CONFIG,
-    ConfigError,
-    load_config_file,
-    load_hyperparams,
-    parse_block,
-    parse_policy_kwargs,
-)
+from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, load_hyperparams, parse_block
+from sb3_hddpg.training.config_values import ConfigError, parse_policy_kwargs
 
 
 def test_bundled_config_has_every_env_and_the_manager():

@@ -11,7 +11,8 @@ from sb3_hddpg.callbacks.actor_terms import actor_terms
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.snake.controllers import FieldAvoider, IKReacher, make_controller
 from sb3_hddpg.training.backends import sbx_installed
-from sb3_hddpg.training.config import ConfigError, parse_block
+from sb3_hddpg.training.config import parse_block
+from sb3_hddpg.training.config_values import ConfigError
 
 PATH = "sb3_hddpg.callbacks.ControllerPrior"
 GOAL_VIEW = ["joint_positions", "ee_to_goal", "goal_touched"]

@@ -37,7 +37,8 @@ from sb3_hddpg.artifacts.values import (
 )
 from sb3_hddpg.envs.contract import TermNormaliser, check_bounds
 from sb3_hddpg.envs.terms_env import parse_term_bounds
-from sb3_hddpg.training.config import ConfigError, load_hyperparams, parse_block
+from sb3_hddpg.training.config import load_hyperparams, parse_block
+from sb3_hddpg.training.config_values import ConfigError
 from tests.helpers import TINY_CONFIG
 
 #: The longest message a refusal may print (a value shown is cut to MAX_SHOWN; the rest is words).

@@ -116,7 +116,8 @@ def test_config_key_trains_the_goal_worker_with_relabelling(tmp_path):
     ],
 )
 def test_config_refuses_other_buffers(extra, message):
-    from sb3_hddpg.training.config import ConfigError, parse_block
+    from sb3_hddpg.training.config import parse_block
+    from sb3_hddpg.training.config_values import ConfigError
 
     with pytest.raises(ConfigError, match=message):
         parse_block({"n_timesteps": 10, **extra}, DDPG)

@@ -217,8 +217,8 @@ def check_resumed_env(
     differences = []
     if stored.get("env_id") != env_id:
         differences.append(f"env was {brief(stored.get('env_id'))} in the run, now {env_id!r}")
-    before = _as_json(stored.get("env_kwargs") or {})
-    now = _as_json(env_kwargs)
+    before = as_json(stored.get("env_kwargs") or {})
+    now = as_json(env_kwargs)
     if isinstance(before, dict) and isinstance(now, dict):
         for key in sorted(set(before) | set(now), key=str):
             if before.get(key) != now.get(key):
@@ -232,6 +232,6 @@ def check_resumed_env(
         )
 
 
-def _as_json(value: object) -> JsonValue:
+def as_json(value: object) -> JsonValue:
     """``value`` as JSON would store it (tuples become lists), so that a recorded and a new setting compare equal."""
     return json.loads(json.dumps(value, default=str))

@@ -49,6 +49,14 @@ class TermsEnv:
         """
         return config_key(self.env_id, self.env_kwargs)
 
+    def worker_config_keys(self, term: str) -> tuple[str, str]:
+        """
+        The ``zoo_configs`` blocks a worker on ``term`` reads, most specific first: its own,
+        ``<config_key>/<term>`` (e.g. ``mo-halfcheetah-v5/energy``: a skill that needs another budget or
+        network than its siblings), else the env's, :attr:`config_key`.
+        """
+        return f"{self.config_key}/{term}", self.config_key
+
     def make(self, **extra: Any) -> gym.Env:
         """The shared env (``extra``: e.g. ``render_mode``)."""
         return gym.make(self.env_id, **self.env_kwargs, **extra)

@@ -22,7 +22,7 @@ from typing import Protocol
 
 from sb3_hddpg.algorithms import REGISTRY, ROLES, algorithms_for
 from sb3_hddpg.hierarchy.selection import SELECTORS, DiscreteSelector
-from sb3_hddpg.training.config import parse_policy_kwargs
+from sb3_hddpg.training.config_values import parse_policy_kwargs
 
 #: ``net_arch`` choices by name (rl_zoo3's names and sizes).
 NET_ARCHS: dict[str, list[int]] = {"small": [64, 64], "medium": [256, 256], "big": [400, 300]}

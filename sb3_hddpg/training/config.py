@@ -4,17 +4,15 @@ Hyperparameters in RL Zoo's format: ``zoo_configs/*.yml`` -> keyword arguments f
 A config file maps an env id (or ``default``, or ``manager`` for the manager's DDPG) to a block of
 hyperparameters, exactly as in rl-baselines3-zoo's ``hyperparams/*.yml``: the env's own block if present,
 else ``default`` (blocks are not merged, as in RL Zoo; YAML anchors and ``<<:`` merge keys share values).
-Files are parsed with a safe YAML loader, and ``policy_kwargs`` strings such as
-``"dict(net_arch=[64, 64], activation_fn=nn.ReLU)"`` with a small AST evaluator, never ``eval``.
-``learning_rate`` may be RL Zoo's linear schedule, ``lin_<initial value>`` (:func:`parse_schedule`).
+A worker on one term of another env first looks for its own block, ``<env id>/<term>``.
+Files are parsed with a safe YAML loader; ``policy_kwargs`` strings and ``lin_<initial value>`` schedules
+with :mod:`~sb3_hddpg.training.config_values`, never ``eval``.
 """
 
 from __future__ import annotations
 
-import ast
 import copy
 import inspect
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -24,10 +22,8 @@ import yaml
 from stable_baselines3 import DDPG
 from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.utils import LinearSchedule
-from torch import nn
 
-from sb3_hddpg.algorithms import ACTIVATIONS as ALL_ACTIVATIONS
-from sb3_hddpg.algorithms import CONFIG_ACTIVATIONS, algorithm_class
+from sb3_hddpg.algorithms import algorithm_class
 from sb3_hddpg.artifacts.limits import (
     MAX_CONFIG_NODES,
     MAX_JSON_BYTES,
@@ -49,6 +45,7 @@ from sb3_hddpg.callbacks.controller_prior import ControllerPrior
 from sb3_hddpg.envs.snake.controllers import CONTROLLERS
 from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
 from sb3_hddpg.training.backends import BACKENDS
+from sb3_hddpg.training.config_values import ConfigError, parse_policy_kwargs, parse_schedule
 
 #: The bundled config, also reachable as ``zoo_configs/ddpg.yml`` in a checkout.
 DEFAULT_CONFIG = Path(__file__).parent.parent / "zoo_configs" / "ddpg.yml"
@@ -97,13 +94,6 @@ OWN_KEYS = {"backend"}
 MANAGER_ONLY_KEYS = {"wrapper_kwargs"}
 #: Algorithm arguments that the training code sets itself and a config must not.
 RESERVED_KEYS = {"env", "seed", "device", "verbose", "tensorboard_log", "action_noise", "_init_setup_model"}
-
-#: Activation functions a ``policy_kwargs`` string may name (the registry's, the subset both backends compute).
-ACTIVATIONS: dict[str, type[nn.Module]] = {name: ALL_ACTIVATIONS[name] for name in CONFIG_ACTIVATIONS}
-
-
-class ConfigError(ValueError):
-    """A config file or block that cannot be used; the message names the file and the offending value."""
 
 
 @dataclass
@@ -220,15 +210,21 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def select_block(config: dict[str, Any], key: str, source: str = "config") -> dict[str, Any]:
-    """The block for ``key``, else the ``default`` block (RL Zoo's rule), as a deep copy."""
-    if key in config:
-        return copy.deepcopy(config[key])
-    if "default" in config:
-        return copy.deepcopy(config["default"])
-    raise ConfigError(
-        f"No block for {key!r} and no 'default' block in {source}; blocks: {brief(sorted(map(str, config)))}"
-    )
+def block_name(config: dict[str, Any], key: str | tuple[str, ...]) -> str | None:
+    """The first of ``key`` (one or several, most specific first) in ``config``, else ``default`` (RL Zoo's rule)."""
+    return next((k for k in ((key,) if isinstance(key, str) else key) + ("default",) if k in config), None)
+
+
+def select_block(
+    config: dict[str, Any], key: str | tuple[str, ...], source: str = "config"
+) -> dict[str, Any]:
+    """The block :func:`block_name` selects, as a deep copy."""
+    name = block_name(config, key)
+    if name is None:
+        first = key if isinstance(key, str) else key[0]
+        blocks = brief(sorted(map(str, config)))
+        raise ConfigError(f"No block for {first!r} and no 'default' block in {source}; blocks: {blocks}")
+    return copy.deepcopy(config[name])
 
 
 def parse_block(
@@ -360,29 +356,6 @@ def _check_algo_kwargs(block: dict[str, Any], algo: str, source: str) -> None:
             raise ConfigError(f"Expected {key} in {source} to be a number, actually: {brief(block[key])}")
 
 
-def parse_schedule(text: str, name: str, source: str = "config") -> LinearSchedule:
-    """
-    An RL Zoo schedule string, ``lin_<initial value>``: the value falls linearly from its initial value at
-    the start of training to 0 at its end (RL Zoo's ``linear_schedule``; SB3's :class:`LinearSchedule`, which
-    saves as a value, not code).
-
-    :param text: e.g. ``"lin_1e-3"``.
-    :param name: the key, for messages.
-    :param source: a name for messages.
-    """
-    kind, _, initial = text.partition("_")
-    try:
-        value = float(initial)
-    except ValueError:
-        value = math.nan
-    if kind != "lin" or not (math.isfinite(value) and 0 < value <= 1):
-        raise ConfigError(
-            f"Expected {name} in {source} to be a number or a schedule 'lin_<initial value in (0, 1]>' "
-            f"(RL Zoo's linear schedule), actually: {brief(text)}"
-        )
-    return LinearSchedule(value, 0.0, 1.0)
-
-
 def _check_replay_buffer(block: dict[str, Any], source: str) -> None:
     """A named replay buffer must be one of :data:`REPLAY_BUFFERS`, with only the arguments it takes."""
     buffer = block.get("replay_buffer_class")
@@ -468,19 +441,20 @@ def _parse_callbacks(value: object, source: str) -> dict[str, object]:
 
 
 def load_hyperparams(
-    key: str, algo_class: type, path: str | Path | None = None, manager: bool = False
+    key: str | tuple[str, ...], algo_class: type, path: str | Path | None = None, manager: bool = False
 ) -> Hyperparams:
     """
     Load, select and validate the block for ``key`` (an env id or ``"manager"``).
 
-    :param key: the block to use.
+    :param key: the block to use, or several: the first the file holds (:func:`select_block`).
     :param algo_class: the algorithm the block configures.
     :param path: the config file; the bundled ``zoo_configs/ddpg.yml`` by default.
     :param manager: whether this is the manager's block.
     """
     path = Path(path) if path is not None else DEFAULT_CONFIG
-    block = select_block(load_config_file(path), key, source=str(path))
-    return parse_block(block, algo_class, source=f"{path}[{key}]", manager=manager)
+    config = load_config_file(path)
+    block = select_block(config, key, source=str(path))
+    return parse_block(block, algo_class, source=f"{path}[{block_name(config, key)}]", manager=manager)
 
 
 def agent_kwargs(
@@ -541,51 +515,6 @@ def manager_option_steps(config: str | Path | None = None, algo: str = "ddpg") -
     :param algo: the manager's algorithm (``ddpg``, ``td3`` or ``sac``).
     """
     return int(wrapper_kwargs(config, algo).get("option_steps", 1))
-
-
-def parse_policy_kwargs(text: str, source: str = "config") -> dict[str, Any]:
-    """
-    Evaluate an RL Zoo ``policy_kwargs`` string safely: literals, lists, dicts, ``dict(...)`` calls and the
-    activation names of :data:`ACTIVATIONS` (as ``nn.X``, ``th.nn.X`` or ``torch.nn.X``); nothing else.
-    """
-    try:
-        tree = ast.parse(text.strip(), mode="eval")
-    except SyntaxError:
-        raise ConfigError(f"Cannot parse policy_kwargs in {source}: {brief(text)}") from None
-    value = _safe_value(tree.body, text, source)
-    if not isinstance(value, dict):
-        raise ConfigError(f"Expected policy_kwargs in {source} to be a dict, actually: {brief(text)}")
-    return value
-
-
-def _safe_value(node: ast.AST, text: str, source: str) -> Any:
-    if isinstance(node, ast.Constant):
-        return node.value
-    if isinstance(node, ast.List):
-        return [_safe_value(e, text, source) for e in node.elts]
-    if isinstance(node, ast.Tuple):
-        return tuple(_safe_value(e, text, source) for e in node.elts)
-    if isinstance(node, ast.Dict):
-        pairs = [(k, v) for k, v in zip(node.keys, node.values) if k is not None]
-        if len(pairs) == len(node.keys):  # no ``**spread``
-            return {_safe_value(k, text, source): _safe_value(v, text, source) for k, v in pairs}
-    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
-        return -_safe_value(node.operand, text, source)
-    if (
-        isinstance(node, ast.Call)
-        and isinstance(node.func, ast.Name)
-        and node.func.id == "dict"
-        and not node.args
-    ):
-        return {kw.arg: _safe_value(kw.value, text, source) for kw in node.keywords if kw.arg is not None}
-    if isinstance(node, ast.Attribute):
-        dotted = ast.unparse(node)
-        name = dotted.rsplit(".", 1)[-1]
-        if dotted in (f"nn.{name}", f"th.nn.{name}", f"torch.nn.{name}") and name in ACTIVATIONS:
-            return ACTIVATIONS[name]
-    raise ConfigError(
-        f"Unsupported expression {brief(ast.unparse(node))} in policy_kwargs of {source}: {brief(text)}"
-    )
 
 
 def _check_network_size(policy_kwargs: object, algo: str, source: str) -> None:

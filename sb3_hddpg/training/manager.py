@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from stable_baselines3.common.callbacks import BaseCallback
 
@@ -17,7 +17,7 @@ from sb3_hddpg.artifacts.io import (
     holds_folder_lock,
 )
 from sb3_hddpg.artifacts.limits import read_json_file
-from sb3_hddpg.artifacts.manifests import check_resumed_env
+from sb3_hddpg.artifacts.manifests import as_json, check_resumed_env
 from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
@@ -64,13 +64,17 @@ def _check_manager_resume(
 
 
 def _learner_settings(setup: ManagerSetup) -> dict[str, Any]:
-    """The manager's learner as its config block sets it, less the budget (a resumed run may extend it)."""
+    """
+    The manager's learner as its config block sets it, less the budget (a resumed run may extend it), as
+    JSON stores it (a class, e.g. an activation, by its name).
+    """
     hyperparams = setup.hyperparams
-    return {
+    learner = {
         "algo_kwargs": hyperparams.algo_kwargs,
         "policy": hyperparams.policy,
         "noise": [hyperparams.noise_type, hyperparams.noise_std],
     }
+    return cast(dict[str, Any], as_json(learner))
 
 
 @holds_folder_lock(lambda call: call.arguments["out_dir"])

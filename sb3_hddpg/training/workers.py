@@ -64,8 +64,9 @@ def worker_hyperparams(
     :param workers: worker names among :data:`WORKER_ENV_IDS` (or ``env``'s terms), each at most once.
     :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
     :param algos: worker name -> its algorithm (default: :func:`worker_algorithms`'s).
-    :param env: another env with several objectives (default: the snake arm); its blocks are keyed by the
-        adapted env's id, else ``default``.
+    :param env: another env with several objectives (default: the snake arm); a worker's block is the one
+        keyed ``<adapted env id>/<term>``, else the adapted env's id, else ``default``
+        (:meth:`~sb3_hddpg.envs.terms_env.TermsEnv.worker_config_keys`).
     :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
     """
     known = list(env.terms) if env is not None else sorted(WORKER_ENV_IDS)
@@ -82,7 +83,7 @@ def worker_hyperparams(
     chosen = worker_algorithms(workers, algos, env)
     blocks = {
         name: load_hyperparams(
-            env.config_key if env is not None else WORKER_ENV_IDS[name],
+            env.worker_config_keys(name) if env is not None else WORKER_ENV_IDS[name],
             algorithm(chosen[name]).cls,
             config if config is not None else default_config(chosen[name]),
         )

@@ -221,15 +221,27 @@ class TuningTarget:
         return f"{self.level}-{self.algo}" if self.algo != "ddpg" else self.level
 
     @property
-    def block_key(self) -> str | None:
-        """The ``zoo_configs`` key of the tuned block (``None`` for HAM, which has none)."""
+    def block_keys(self) -> tuple[str, ...]:
+        """
+        The ``zoo_configs`` keys the tuned agent's block is read from, most specific first, as the training
+        commands read them (empty for HAM, which has none): a worker on another env has a block of its own,
+        ``<env id>/<term>``, over the env's.
+        """
         if self.block is not None:
-            return self.block
-        if self.level in ("worker", "flat") and self.env is not None:
-            return self.env.config_key  # as train-workers and train-flat --env read it
+            return (self.block,)
+        if self.level == "worker" and self.env is not None:
+            return self.env.worker_config_keys(str(self.worker))
+        if self.level == "flat" and self.env is not None:
+            return (self.env.config_key,)
         if self.level == "worker":
-            return WORKER_ENV_IDS[str(self.worker)]
-        return {"manager": MANAGER_KEY, "flat": SNAKE_REACH_ENV_ID}.get(self.level)
+            return (WORKER_ENV_IDS[str(self.worker)],)
+        key = {"manager": MANAGER_KEY, "flat": SNAKE_REACH_ENV_ID}.get(self.level)
+        return (key,) if key is not None else ()
+
+    @property
+    def block_key(self) -> str | None:
+        """The ``zoo_configs`` key the tuned block is saved under (``None`` for HAM, which has none)."""
+        return self.block_keys[0] if self.block_keys else None
 
     @property
     def config_path(self) -> Path:
@@ -249,10 +261,10 @@ class TuningTarget:
         return sampler_for(self.level, self.algo)(trial)
 
     def base_block(self) -> dict[str, Any]:
-        """The base config's block for :attr:`block_key` (empty for HAM)."""
-        if self.block_key is None:
+        """The base config's block for :attr:`block_keys` (empty for HAM)."""
+        if not self.block_keys:
             return {}
-        return select_block(load_config_file(self.config_path), self.block_key, source=str(self.config_path))
+        return select_block(load_config_file(self.config_path), self.block_keys, source=str(self.config_path))
 
     def check(self) -> None:
         """
