@@ -704,7 +704,11 @@ def test_benchmark_on_an_mo_gymnasium_env(tmp_path):
     assert set(results["methods"]["hddpg"]["selection_rate"]) <= {"time", "fuel"}
     assert "hddpg vs ddpg" not in results["comparisons"]  # one seed: no paired interval to report
     assert "['time', 'fuel']" in results["metric"]
-    assert "| hddpg | 1 |" in (out / "results.md").read_text()
+    page = (out / "results.md").read_text()
+    assert "| hddpg | 1 |" in page
+    # The env's own words: its return and each term's part, none of the snake arm's columns.
+    assert "| norm. return (test) | IQM | time part | fuel part | saturated actions |" in page
+    assert "goal part" not in page and "reach reward" not in page and "min clearance" not in page
     assert ham.returncode == 2 and "snake arm only" in ham.stderr and "Traceback" not in ham.stderr
 
 

@@ -107,37 +107,7 @@ def markdown_report(results: BenchmarkResults) -> str:
 
     :param results: the results.
     """
-    unit = results.slope_unit_steps
-    lines = [
-        "| method | seeds | reach reward (test) | IQM | goal part | avoid part | goal-touch rate | collisions / episode "
-        f"| success | min clearance | saturated actions | curve mean | slope / {unit} steps | worker choices (test) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for method, entry in results.methods.items():
-        s = entry.stats
-        choices = ", ".join(f"{k} {v:.0%}" for k, v in (entry.selection_rate or {}).items()) or "-"
-        # The deciding network's saturation (the manager's for hierarchies); absent in older results.
-        saturation = f"{s['action_saturation']['mean']:.0%}" if "action_saturation" in s else "-"
-        # The snake's own metrics; "-" on an env that does not report them.
-        snake = {
-            key: ci_text(s[key], fmt) if key in s else "-"
-            for key, fmt in (
-                ("goal_reach_reward", ".1f"),
-                ("avoid_reach_reward", ".1f"),
-                ("goal_touch_rate", ".3f"),
-                ("collisions_per_episode", ".2f"),
-                ("success_rate", ".2f"),
-            )
-        }
-        clearance = f"{s['min_clearance']['mean']:.3f}" if "min_clearance" in s else "-"
-        lines.append(
-            f"| {method} | {len(entry.seeds)} | {ci_text(s['mean_reach_reward'], '.1f')} "
-            f"| {s['mean_reach_reward']['iqm']:.1f} | {snake['goal_reach_reward']} "
-            f"| {snake['avoid_reach_reward']} | {snake['goal_touch_rate']} "
-            f"| {snake['collisions_per_episode']} | {snake['success_rate']} "
-            f"| {clearance} | {saturation} | {ci_text(s['curve_mean'], '.1f')} "
-            f"| {ci_text(s['slope'], '.2f')} | {choices} |"
-        )
+    lines = _methods_lines(results)
     if results.comparisons:
         lines += [
             "",
@@ -175,6 +145,49 @@ def markdown_report(results: BenchmarkResults) -> str:
     lines += _transfer_lines(results)
     lines += _front_lines(results)
     return "\n".join(lines) + "\n"
+
+
+def _methods_lines(results: BenchmarkResults) -> list[str]:
+    """
+    Per method its test score and IQM, the score's parts (the snake's goal and avoid parts with touch, contacts
+    and success; on another env each term's normalised sum), saturation, the curve's statistics and choices.
+    """
+    unit = results.slope_unit_steps
+    terms = env_terms(results)
+    # (summary key, format, column header)
+    parts = (
+        [(f"{term}_reach_reward", ".1f", f"{term} part") for term in terms]
+        if terms
+        else [
+            ("goal_reach_reward", ".1f", "goal part"),
+            ("avoid_reach_reward", ".1f", "avoid part"),
+            ("goal_touch_rate", ".3f", "goal-touch rate"),
+            ("collisions_per_episode", ".2f", "collisions / episode"),
+            ("success_rate", ".2f", "success"),
+        ]
+    )
+    # Clearance needs an env that declares obstacles (the snake arm, or a user's env with `proximity`).
+    clearance = not terms or any("min_clearance" in entry.stats for entry in results.methods.values())
+    headers = [header for _, _, header in parts] + (["min clearance"] if clearance else [])
+    lines = [
+        f"| method | seeds | {score_name(results)} (test) | IQM | {' | '.join(headers)} | saturated actions "
+        f"| curve mean | slope / {unit} steps | worker choices (test) |",
+        "|---|---|---|---|" + "---|" * len(headers) + "---|---|---|---|",
+    ]
+    for method, entry in results.methods.items():
+        s = entry.stats
+        choices = ", ".join(f"{k} {v:.0%}" for k, v in (entry.selection_rate or {}).items()) or "-"
+        # The deciding network's saturation (the manager's for hierarchies); absent in older results.
+        saturation = f"{s['action_saturation']['mean']:.0%}" if "action_saturation" in s else "-"
+        cells = [ci_text(s[key], fmt) if key in s else "-" for key, fmt, _ in parts]
+        if clearance:
+            cells.append(f"{s['min_clearance']['mean']:.3f}" if "min_clearance" in s else "-")
+        lines.append(
+            f"| {method} | {len(entry.seeds)} | {ci_text(s['mean_reach_reward'], '.1f')} "
+            f"| {s['mean_reach_reward']['iqm']:.1f} | {' | '.join(cells)} | {saturation} "
+            f"| {ci_text(s['curve_mean'], '.1f')} | {ci_text(s['slope'], '.2f')} | {choices} |"
+        )
+    return lines
 
 
 def _front_lines(results: BenchmarkResults) -> list[str]:
