@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import time
 from typing import Any
 
 from sb3_hddpg.training.backends import configure_jax_threads
@@ -27,6 +26,7 @@ from sb3_hddpg.training.backends import configure_jax_threads
 configure_jax_threads(1)  # before jax's first import, as train_agent does
 
 import torch  # noqa: E402
+from backend_speed import measure  # noqa: E402  (this folder is on sys.path when a script here runs)
 from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 from sb3_hddpg.algorithms import algorithm  # noqa: E402
@@ -61,13 +61,6 @@ def build(case: str, backend: str) -> Any:
     model = make_model(algo, backend, make_vec_env(factory, n_envs=1, seed=0), kwargs, seed=0)
     model.learn(1_200)
     return model
-
-
-def measure(model: Any, steps: int) -> tuple[float, float]:
-    """(steps per wall second, steps per CPU second of this process) over ``learn(steps)``."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    model.learn(steps, reset_num_timesteps=False)
-    return steps / (time.perf_counter() - wall), steps / (time.process_time() - cpu)
 
 
 def main() -> None:
