@@ -18,6 +18,7 @@ from sb3_hddpg.artifacts.limits import LimitError
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.envs import (
+    EnvUnavailableError,
     InfoTermsEnv,
     MultiObjectiveEnv,
     Proximity,
@@ -29,6 +30,7 @@ from sb3_hddpg.envs import (
 )
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.hierarchy import Hierarchy
 from sb3_hddpg.training import train_manager, train_workers
 from tests.cli_runner import run_cli
@@ -308,6 +310,27 @@ def test_adapted_ids_from_a_file_are_allow_listed():
     )
     with pytest.raises(LimitError, match="term_bounds"):
         check_env_kwargs("hddpg/MultiObjective-v0", {"term_bounds": {"a": [[1]]}}, "f")
+
+
+def test_a_run_on_an_env_whose_package_is_missing_is_read_but_not_made():
+    """Its records can be read (a report needs no env); making it is one line naming the missing package."""
+    if "test/PackageMissing-v0" not in gym.registry:
+        gym.register("test/PackageMissing-v0", entry_point="hddpg_no_such_package.envs:Env")
+    env = {"env_id": "test/PackageMissing-v0", "terms": ["fast", "safe"], "lanes_count": 4}
+    assert check_env_kwargs("hddpg/MultiObjective-v0", env, "f", trusted=True)["lanes_count"] == 4
+    # Still no file names, unplain strings or unbounded numbers, with no constructor to check them against.
+    for bad in ({"config_path": "x"}, {"name": "../x"}, {"n": 1e300}, {"not an identifier": 1}):
+        with pytest.raises(LimitError):
+            check_env_kwargs("hddpg/MultiObjective-v0", {**env, **bad}, "f", trusted=True)
+    settings = BenchmarkSettings(
+        env={"env_id": "hddpg/MultiObjective-v0", "env_kwargs": env, "terms": ["fast", "safe"]},
+        methods=["hddpg", "dqn"],
+        worker_timesteps=100,
+    )
+    assert settings.flat_budget == settings.manager_env_steps + 200
+    assert settings.terms_env is not None
+    with pytest.raises(EnvUnavailableError, match=r"cannot be made here.*hddpg_no_such_package"):
+        gym.make("hddpg/MultiObjective-v0", **env)
 
 
 # ------------------------------------------------------------------------ end to end

@@ -54,7 +54,7 @@ from sb3_hddpg.artifacts.limits import (
     check_env_id,
     check_name,
 )
-from sb3_hddpg.envs import ADAPTER_ENV_IDS
+from sb3_hddpg.envs import ADAPTER_ENV_IDS, EnvUnavailableError
 
 
 @dataclass(frozen=True)
@@ -369,7 +369,12 @@ def check_make_kwargs(env_id: str, env_kwargs: object, what: str) -> dict[str, A
 
 
 def _check_constructor_kwargs(env_id: str, kwargs: dict[str, Any], what: str) -> dict[str, Any]:
-    parameters, open_ended = constructor_parameters(env_id, what)
+    try:
+        parameters, open_ended = constructor_parameters(env_id, what)
+    except EnvUnavailableError:
+        # Its package is not installed: nothing here can make the env (making it fails in one line), but its
+        # records can be read, so its settings are checked as values of unknown parameters.
+        parameters, open_ended = {}, True
     checked: dict[str, Any] = {}
     for key, value in kwargs.items():
         if not isinstance(key, str) or not (key in parameters or (open_ended and key.isidentifier())):
@@ -385,7 +390,7 @@ def constructor_parameters(env_id: str, what: str) -> tuple[dict[str, Any], bool
     The named parameters of ``env_id``'s constructor with their defaults (``inspect.Parameter.empty``
     when none), over the classes whose ``__init__`` passes ``**kwargs`` on to the next, and whether the
     chain stays open-ended (accepts any keyword). An env whose module cannot be imported (a missing
-    optional dependency) is a :class:`LimitError` naming it.
+    optional dependency) is an :class:`~sb3_hddpg.envs.EnvUnavailableError` naming it.
     """
     spec = gym.spec(env_id)
     if spec.entry_point is None:  # registered without one: gym.make could not build it either
@@ -419,7 +424,7 @@ def _creator(entry_point: object, env_id: str, what: str) -> Any:
         return gym.envs.registration.load_env_creator(str(entry_point))
     except (ImportError, gym.error.Error) as error:
         first = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise LimitError(f"{what}: {env_id!r} cannot be made here: {brief(first)}") from None
+        raise EnvUnavailableError(f"{what}: {env_id!r} cannot be made here: {brief(first)}") from None
 
 
 def check_env_value(key: str, value: object, default: object, what: str) -> Any:

@@ -46,6 +46,13 @@ ESTIMATE_MARGIN = 0.25
 MAX_TERMS = 32
 
 
+class EnvUnavailableError(ValueError):
+    """
+    An env that cannot be made here because an optional package it needs is not installed (highway-env,
+    MuJoCo...): the user's setup, not a bad input. Records of runs on it can still be read.
+    """
+
+
 def registered_env_id(env_id: object) -> str:
     """
     ``env_id`` if it is a registered id without a ``module:`` prefix (importing MO-Gymnasium, when
@@ -86,7 +93,9 @@ def make_adapted(
         except (ImportError, gym.error.DependencyNotInstalled) as error:
             # A missing optional dependency of the adapted env (highway-env, MuJoCo...) is the user's setup.
             first = (str(error).splitlines() or [type(error).__name__])[0][:200]
-            raise ValueError(f"{env_id!r} cannot be made here, a dependency is missing: {first}") from None
+            raise EnvUnavailableError(
+                f"{env_id!r} cannot be made here, a dependency is missing: {first}"
+            ) from None
     route_mujoco_warnings()  # not MUJOCO_LOG.TXT in the user's current folder
     return env
 

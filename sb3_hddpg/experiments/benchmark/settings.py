@@ -22,6 +22,7 @@ from sb3_hddpg.artifacts.limits import (
     check_name,
 )
 from sb3_hddpg.artifacts.values import RUN_SETTINGS, check_env_kwargs, check_field_types
+from sb3_hddpg.envs import EnvUnavailableError
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.episode_sets import DEVELOPMENT, FINAL_TEST, FINAL_TEST_EPISODES, EpisodeSet
@@ -373,7 +374,12 @@ class BenchmarkSettings:
             raise ValueError(f"A front needs at least two terms, actually: {terms}")
         if self.scenario == "transfer":
             raise ValueError("The 'transfer' scenario is defined for the snake arm only")
-        discrete = _env_is_discrete(json.dumps(self.env, sort_keys=True))
+        if self.worker_algo is not None:
+            self.worker_algo = algorithm(self.worker_algo).name
+        try:
+            discrete = _env_is_discrete(json.dumps(self.env, sort_keys=True))
+        except EnvUnavailableError:
+            return  # its package is missing here: its records can be read, and running it fails in one line
         space = gym.spaces.Discrete(2) if discrete else gym.spaces.Box(-1, 1)
         # A flat agent or a worker selection by index that cannot act in the env's action space.
         misfits = [
@@ -386,13 +392,11 @@ class BenchmarkSettings:
             raise ValueError(
                 f"Methods {misfits} cannot act in {env['env_id']!r}'s {type(space).__name__} action space"
             )
-        if self.worker_algo is not None:
-            self.worker_algo = algorithm(self.worker_algo).name
-            if self.worker_algo not in algorithms_for("worker", space):
-                raise ValueError(
-                    f"Expected a worker algorithm for {env['env_id']!r}'s {type(space).__name__} actions, "
-                    f"actually {self.worker_algo!r}; choose from {list(algorithms_for('worker', space))}"
-                )
+        if self.worker_algo is not None and self.worker_algo not in algorithms_for("worker", space):
+            raise ValueError(
+                f"Expected a worker algorithm for {env['env_id']!r}'s {type(space).__name__} actions, "
+                f"actually {self.worker_algo!r}; choose from {list(algorithms_for('worker', space))}"
+            )
 
     @property
     def terms_env(self) -> TermsEnv | None:
@@ -459,13 +463,13 @@ class BenchmarkSettings:
     @property
     def workers_budget(self) -> int:
         """Env steps of a seed's workers together: ``worker_timesteps`` each, or each worker's config budget."""
-        workers = (
-            _env_worker_budgets(
-                json.dumps(self.env, sort_keys=True), next(iter((self.worker_algos or {}).values()), None)
-            )
-            if self.env is not None
-            else [budget for name, budget in _config_budgets().items() if name != MANAGER_KEY]
-        )
+        if self.env is None:
+            workers = [budget for name, budget in _config_budgets().items() if name != MANAGER_KEY]
+        elif self.worker_timesteps is not None:  # one per term; no config (or env) to read
+            return self.worker_timesteps * len(self.env["terms"])
+        else:
+            algo = next(iter((self.worker_algos or {}).values()), None)
+            workers = _env_worker_budgets(json.dumps(self.env, sort_keys=True), algo)
         if self.worker_timesteps is not None:
             return self.worker_timesteps * len(workers)
         return sum(workers)
