@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -306,6 +308,27 @@ def test_morl_runner_bounds_its_training_options_before_anything_runs(tmp_path):
             text=True,
         )
         assert done.returncode == 2 and "must be in" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_stopped_benchmark_takes_the_morl_runner_with_it(tmp_path):
+    """SIGTERM to the process waiting on the runner (a benchmark being stopped) ends the runner as well."""
+    fake = tmp_path / "python"  # stands for MORL-baselines' python: records its pid, then trains a while
+    fake.write_text(f"#!/bin/sh\necho $$ > {tmp_path / 'runner.pid'}\nexec sleep 300\n")
+    fake.chmod(0o755)
+    code = (
+        "from pathlib import Path; from sb3_hddpg.experiments.benchmark.morl import _run; "
+        f"_run({str(fake)!r}, [], Path({str(tmp_path / 'out.json')!r}), [])"
+    )
+    waiting = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stderr=subprocess.DEVNULL)
+    pid_file = tmp_path / "runner.pid"
+    deadline = time.monotonic() + 120
+    while not (pid_file.exists() and pid_file.read_text().strip()) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    runner = int(pid_file.read_text())
+    waiting.send_signal(signal.SIGTERM)
+    assert waiting.wait(60) != 0
+    with pytest.raises(ProcessLookupError):  # killed and reaped by the process that started it
+        os.kill(runner, 0)
 
 
 def test_a_morl_runners_record_is_read_through_one_reader(tmp_path):

@@ -31,6 +31,7 @@ from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.experiments.benchmark.front_points import FrontPoint, FrontSpec, preference_label
 from sb3_hddpg.experiments.benchmark.morl_runner import MAX_FRONT_POINTS, RECORD_KIND, RECORD_VERSION
 from sb3_hddpg.experiments.stats import summarise
+from sb3_hddpg.training.agent import sigterm_as_interrupt
 
 #: The script run with MORL-baselines' python.
 RUNNER = Path(__file__).with_name("morl_runner.py")
@@ -105,13 +106,16 @@ def _run(python: str, arguments: Sequence[str], out: Path, keys: Sequence[str]) 
         out.parent.mkdir(parents=True, exist_ok=True)
         # One thread: the benchmark's other process shares the machine's cores.
         environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-        done = subprocess.run(
-            [python, str(RUNNER), *arguments, "--out", str(out)],
-            capture_output=True,
-            text=True,
-            env=environment,
-            check=False,
-        )
+        # A benchmark being stopped (SIGTERM to its pool's processes) must not leave the runner training on:
+        # subprocess.run kills its child on the KeyboardInterrupt this turns SIGTERM into.
+        with sigterm_as_interrupt():
+            done = subprocess.run(
+                [python, str(RUNNER), *arguments, "--out", str(out)],
+                capture_output=True,
+                text=True,
+                env=environment,
+                check=False,
+            )
         if done.returncode != 0:
             lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
             raise RuntimeError(f"MORL-baselines' runner failed (exit {done.returncode}): {lines[-1][:300]}")
