@@ -463,16 +463,12 @@ class BenchmarkSettings:
     @property
     def workers_budget(self) -> int:
         """Env steps of a seed's workers together: ``worker_timesteps`` each, or each worker's config budget."""
+        if self.worker_timesteps is not None:  # one worker per term: no config (or env) to read
+            return self.worker_timesteps * len(self.env["terms"] if self.env is not None else WORKER_ENV_IDS)
         if self.env is None:
-            workers = [budget for name, budget in _config_budgets().items() if name != MANAGER_KEY]
-        elif self.worker_timesteps is not None:  # one per term; no config (or env) to read
-            return self.worker_timesteps * len(self.env["terms"])
-        else:
-            algo = next(iter((self.worker_algos or {}).values()), None)
-            workers = _env_worker_budgets(json.dumps(self.env, sort_keys=True), algo)
-        if self.worker_timesteps is not None:
-            return self.worker_timesteps * len(workers)
-        return sum(workers)
+            return sum(budget for name, budget in _config_budgets().items() if name != MANAGER_KEY)
+        algo = next(iter((self.worker_algos or {}).values()), None)
+        return sum(_env_worker_budgets(json.dumps(self.env, sort_keys=True), algo))
 
     def eval_freq_for(self, budget: int) -> int:
         """
