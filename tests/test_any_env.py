@@ -329,6 +329,10 @@ def test_a_run_on_an_env_whose_package_is_missing_is_read_but_not_made():
     )
     assert settings.flat_budget == settings.manager_env_steps + 200
     assert settings.terms_env is not None
+    # With the workers' budgets from the config, which needs the env: read all the same, budgets unknown.
+    from_config = BenchmarkSettings(env=settings.env, methods=["hddpg", "dqn"])
+    with pytest.raises(EnvUnavailableError, match="hddpg_no_such_package"):
+        _ = from_config.flat_budget
     with pytest.raises(EnvUnavailableError, match=r"cannot be made here.*hddpg_no_such_package"):
         gym.make("hddpg/MultiObjective-v0", **env)
 

@@ -241,12 +241,17 @@ class BenchmarkSettings:
         options the tasks build: checked here, a budget too large is refused before anything trains, not by
         the task that reaches it after the seed's workers have trained.
         """
-        flat = any(_is_flat(m) for m in self.methods)
+        flat_timesteps = self.flat_timesteps
+        if flat_timesteps is None and any(_is_flat(m) for m in self.methods):
+            # The workers' config budgets need the env; where its package is missing, its records can still
+            # be read, and running it fails in one line.
+            with contextlib.suppress(EnvUnavailableError):
+                flat_timesteps = self.flat_budget
         budgets = {
             "timesteps": self.manager_env_steps,
             "worker_timesteps": self.worker_timesteps,
             "front_timesteps": self.front_env_steps,
-            "flat_timesteps": self.flat_budget if flat else self.flat_timesteps,
+            "flat_timesteps": flat_timesteps,
         }
         for name, steps in budgets.items():
             if steps is not None:
