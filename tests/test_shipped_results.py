@@ -92,14 +92,17 @@ def _assert_reproduces(export: Path, model: str, record: Path) -> None:
     finally:
         env.close()
     # The machine that made them reproduces them exactly. Another CPU's kernels round a policy's output
-    # differently in the last bits, and the arm's dynamics can carry that into another episode: on such a
-    # machine the figures of 20 episodes moved by up to 0.27 reward, 0.2 % touch and 0.15 contacts, far below
-    # the differences between methods that the results report; over 10 episodes, allow twice that and more.
+    # differently in the last bits, and the arm's dynamics can carry that into another episode. On one such
+    # machine the figures of 20 episodes moved by up to 0.27 reward, 0.2 % touch and 0.15 contacts. On
+    # another (an AMD CPU, where the record was made on an Intel one) the hierarchies, HAM and DDPG+HER
+    # reproduced exactly, but flat DDPG's 10 episodes moved by 0.83 reward and 0.7 contacts (one episode
+    # went from 35 contacts to 29). The tolerances allow about twice that: still far below the differences
+    # between methods that the results report.
     recorded = {
         "mean_reach_reward": np.mean([e["reach_reward"] for e in expected]),
         "goal_touch_rate": np.mean([e["goal_touch_rate"] for e in expected]),
         "collisions_per_episode": np.mean([e["collisions"] for e in expected]),
     }
-    tolerance = {"mean_reach_reward": 1.0, "goal_touch_rate": 0.02, "collisions_per_episode": 0.5}
+    tolerance = {"mean_reach_reward": 2.0, "goal_touch_rate": 0.02, "collisions_per_episode": 1.5}
     for key, within in tolerance.items():
         assert summary[key] == pytest.approx(recorded[key], abs=within), key
