@@ -24,6 +24,7 @@ from sb3_hddpg.experiments.benchmark import (
     curve_bands,
     evaluation_rows,
     normalised_term_sums,
+    output_files_in,
     plan_tasks,
     task_cost,
     write_outputs,
@@ -114,6 +115,18 @@ def constructed(per_step_manager: None) -> tuple[BenchmarkSettings, list[dict[st
         # ddpg trains longer (flat budget): points beyond the 3000-step window must not count.
         records.append(record("ddpg", seed, [190.0, 195.0, 200.0 + seed, 400.0], 210.0 - seed))
     return settings, records
+
+
+def test_figure10_is_not_drawn_without_the_snakes_managers(constructed, tmp_path):
+    """Figure 10 compares the snake's managers: a run without any writes no empty figure."""
+    _, records = constructed
+    flat = [r for r in records if not r["method"].startswith("hddpg")]
+    results = compute_results(
+        BenchmarkSettings(methods=["ham", "ddpg"], seeds=[0, 1, 2], timesteps=3000), flat
+    )
+    write_outputs(tmp_path, results, flat)
+    assert not (tmp_path / "figure10.png").exists()
+    assert "figure10.png" not in output_files_in(tmp_path) and "figure9.png" in output_files_in(tmp_path)
 
 
 def test_plan_trains_workers_once_per_seed_only_when_needed():
@@ -230,7 +243,9 @@ def test_outputs_from_constructed_records(constructed, tmp_path):
     settings, records = constructed
     results = compute_results(settings, records)
     write_outputs(tmp_path, results, records)
-    for name in OUTPUT_FILES:
+    # Every output but the front's figure: these records hold no front.
+    assert output_files_in(tmp_path) == [name for name in OUTPUT_FILES if name != "fronts.png"]
+    for name in output_files_in(tmp_path):
         assert (tmp_path / name).stat().st_size > 0, name
     rows = list(csv.DictReader((tmp_path / "evaluations.csv").read_text().splitlines()))
     assert len(rows) == len(evaluation_rows(records)) == 3 * 3 * (3 + 1) + 3 * (1 + 1) + 3 * (4 + 1)
@@ -251,8 +266,11 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     args = ("benchmark", "--seeds", "2", "--methods", "hddpg,ham,ddpg", *TINY, "--out", str(out))
     done = cli(*args)
     assert done.returncode == 0, done.stdout + done.stderr
-    for name in (*OUTPUT_FILES, "benchmark.json"):
+    # Every output but the front's figure (no front here), and the last lines name the ones written.
+    for name in ("benchmark.json", *(name for name in OUTPUT_FILES if name != "fronts.png")):
         assert (out / name).exists(), name
+    assert not (out / "fronts.png").exists() and "fronts.png" not in done.stdout
+    assert "figure10.png" in done.stdout
     results = json.loads((out / "results.json").read_text())
     assert set(results["methods"]) == {"hddpg", "ham", "ddpg"}
     assert all(entry["seeds"] == [0, 1] for entry in results["methods"].values())

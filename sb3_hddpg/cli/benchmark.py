@@ -42,12 +42,12 @@ from sb3_hddpg.experiments.benchmark import (
     ENV_ONLY_METHODS,
     FRONT_METHODS,
     METHOD_REGISTRY,
-    OUTPUT_FILES,
     SCENARIOS,
     BenchmarkSettings,
     check_redo,
     check_workers_source,
     default_env_methods,
+    output_files_in,
     run_benchmark,
 )
 from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
@@ -498,7 +498,9 @@ def _print_results(
     """The result tables, the wall time and the outputs; the export and snapshot; exit 1 naming every failed run."""
     for table in console_tables(results):
         console.print(_rich_table(table))
-    console.print(f"Wall time: {wall_time_text(results)}.  Outputs in {out}: {', '.join(OUTPUT_FILES)}")
+    console.print(
+        f"Wall time: {wall_time_text(results)}.  Outputs in {out}: {', '.join(output_files_in(out))}"
+    )
     if export_dir is not None:
         _export(out, export_dir)
     if snapshot_dir is not None:

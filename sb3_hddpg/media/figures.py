@@ -404,25 +404,24 @@ def figure9(results: BenchmarkResults, path: str | Path) -> Path:
     return _save(figure, Path(path))
 
 
-def figure10(results: BenchmarkResults, path: str | Path) -> Path:
+def figure10(results: BenchmarkResults, path: str | Path) -> Path | None:
     """
     Paper Figure 10: the goal and avoid parts of the combined reward (episode sums of the normalised
     terms, final test evaluation) for the goal-preferred, unbiased and avoid-preferred managers.
 
     :param results: the results.
     :param path: the PNG to write.
+    :return: the PNG, or ``None`` (nothing written) when the run has none of those managers, as on another
+        env, whose managers have no goal and avoid parts.
     """
-    # The snake's goal and avoid parts: absent on another env, where the figure says so.
     methods = [
         m
         for m in ("hddpg-goal", "hddpg", "hddpg-avoid")
         if m in results.methods and "goal_reach_reward" in results.methods[m].stats
     ]
-    figure, axes = _pyplot().subplots(1, 2, figsize=(10, 4.5))
     if not methods:
-        for axis in axes:
-            axis.text(0.5, 0.5, "no hddpg-goal / hddpg-avoid runs (snake arm only)", ha="center", va="center")
-        return _save(figure, Path(path))
+        return None
+    figure, axes = _pyplot().subplots(1, 2, figsize=(10, 4.5))
     width = 0.38
     for i, method in enumerate(methods):
         stats = results.methods[method].stats

@@ -78,6 +78,7 @@ from sb3_hddpg.experiments.benchmark.report import (
     final_scores_text,
     flat_reaches_text,
     markdown_report,
+    output_files_in,
     write_csv,
     write_outputs,
 )
@@ -173,6 +174,7 @@ __all__ = [
     "markdown_report",
     "method_key",
     "normalised_term_sums",
+    "output_files_in",
     "plan_tasks",
     "preference_score",
     "read_record",

@@ -81,7 +81,8 @@ def write_csv(path: Path, rows: list[CsvRow]) -> Path:
     return atomic_write(path, write)
 
 
-#: The files :func:`write_outputs` produces in the benchmark folder.
+#: The files :func:`write_outputs` produces in the benchmark folder: every one on the snake arm's standard
+#: run, some only where the run has what they show (Figure 10 the snake's managers, ``fronts.png`` a front).
 OUTPUT_FILES = (
     "results.json",
     "results.md",
@@ -92,7 +93,13 @@ OUTPUT_FILES = (
     "figure10.png",
     "aggregates.png",
     "performance_profile.png",
+    "fronts.png",
 )
+
+
+def output_files_in(out: Path) -> list[str]:
+    """The files of :data:`OUTPUT_FILES` in the benchmark folder ``out``, in that order."""
+    return [name for name in OUTPUT_FILES if (out / name).is_file()]
 
 
 def ci_text(stats: Summary, fmt: str) -> str:
