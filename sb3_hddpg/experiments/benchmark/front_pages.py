@@ -12,6 +12,7 @@ from typing import Any, cast
 import numpy as np
 
 from sb3_hddpg.artifacts.records.results_leaves import FrontResults, Summary
+from sb3_hddpg.experiments.benchmark.front_mixtures import points_beyond
 from sb3_hddpg.experiments.benchmark.front_points import PLANES, label_factors
 
 #: Colours of the snake's members; another env's members take the next ones of matplotlib's cycle.
@@ -136,7 +137,47 @@ def _morl_lines(front: FrontResults) -> list[str]:
             f"| {member} | {cell(scores['hypervolume'])} | {cell(scores['expected_utility'])} "
             f"| {cell(seconds) if seconds else '-'} |"
         )
-    return lines
+    return lines + _beyond_mixture_lines(front, str(morl["algorithm"]))
+
+
+#: The margin below which a point counts as reached by a mixture: the linear programme's round-off.
+MIXTURE_TOLERANCE = 1e-6
+
+
+def _beyond_mixture_lines(front: FrontResults, learner: str) -> list[str]:
+    """
+    Per seed, the learner's points beyond every mixture of the other members' points in the first plane (the
+    normalised terms, where a margin is comparable across objectives), and the largest margin.
+    """
+    plane, objectives = next(iter(result_planes(front).items()))
+    keys, larger = [key for key, _ in objectives], [better for _, better in objectives]
+    counts: list[str] = []
+    widest: tuple[float, str, str] | None = None
+    for seed, members in front.get("points", {}).items():
+        own = members.get(learner, [])
+        others = [point for member, points in members.items() if member != learner for point in points]
+        if not own or not others:
+            continue
+        margins = points_beyond(
+            [[float(p[k]) for k in keys] for p in own], [[float(p[k]) for k in keys] for p in others], larger
+        )
+        counts.append(f"{sum(m > MIXTURE_TOLERANCE for m in margins)} of {len(margins)}")
+        best = int(np.argmax(margins))
+        if margins[best] > MIXTURE_TOLERANCE and (widest is None or margins[best] > widest[0]):
+            widest = (margins[best], seed, str(own[best].get("label", best)))
+    if not counts:
+        return []
+    line = (
+        f"{learner.upper()}'s points beyond every mixture of the hierarchy's (the convex combinations of the "
+        f"other members' points, which a manager switching between those policies reaches to first order), "
+        f"{plane} plane, per seed: {', '.join(counts)}"
+    )
+    if widest is not None:
+        line += (
+            f"; the farthest lies {widest[0]:.3g} beyond the best mixture on every objective at once "
+            f"(seed {widest[1]}, preference `{widest[2]}`)"
+        )
+    return ["", line + "."]
 
 
 def decides_table(front: FrontResults) -> list[str]:
