@@ -146,10 +146,13 @@ MIXTURE_TOLERANCE = 1e-6
 
 def _beyond_mixture_lines(front: FrontResults, learner: str) -> list[str]:
     """
-    Per seed, the learner's points beyond every mixture of the other members' points in the first plane (the
-    normalised terms, where a margin is comparable across objectives), and the largest margin.
+    Per seed, the learner's points beyond every mixture of the other members' points in the ``terms`` plane
+    (the normalised terms, where one margin is comparable across objectives), and the largest margin.
     """
-    plane, objectives = next(iter(result_planes(front).items()))
+    plane = "terms"
+    objectives = result_planes(front).get(plane)
+    if not objectives:
+        return []
     keys, larger = [key for key, _ in objectives], [better for _, better in objectives]
     counts: list[str] = []
     widest: tuple[float, str, str] | None = None
