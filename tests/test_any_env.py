@@ -782,7 +782,7 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     assert set(front["comparisons"]["conditioned vs time"]["planes"]) == {"terms", "returns"}
     assert (out / "fronts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     page = (out / "results.md").read_text()
-    assert "hypervolume (time_return, fuel_return)".replace("_", " ") in page
+    assert "hypervolume, returns plane (time return, fuel return)" in page
     assert "The front's managers (conditioned only)" in page
     # How often they decide: the DDPG manager block's options, as the bundles hold them.
     from sb3_hddpg import Hierarchy

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from stable_baselines3 import DDPG
 
+from sb3_hddpg.artifacts.provenance import code_provenance
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments import stats
@@ -187,12 +188,18 @@ def test_statistics_use_the_stats_module_on_per_seed_values(constructed):
     reach = comparison["mean_reach_reward"]
     assert reach["difference"] == pytest.approx(interval["difference"])
     assert (reach["ci_low"], reach["ci_high"]) == (interval["ci_low"], interval["ci_high"])
-    # The table compares hddpg with m baselines: each interval again at 1 - 0.05 / m, wider, same centre.
+    # The table compares hddpg with m baselines under Holm: each interval at its Holm-consistent level, between
+    # 1 - 0.05 and 1 - 0.05 / m, wider than the unadjusted one, same centre, and it excludes 0 exactly where
+    # the Holm-adjusted p-value is below 0.05.
     m = results["comparison_families"]["hddpg"]["comparisons"]["mean_reach_reward"]
     assert m == sum(1 for pair in results["comparisons"] if pair.startswith("hddpg vs ")) >= 2
-    assert reach["confidence_adjusted"] == pytest.approx(1 - 0.05 / m)
-    assert reach["ci_low_adjusted"] < reach["ci_low"] < reach["ci_high"] < reach["ci_high_adjusted"]
+    assert 0.95 <= reach["confidence_adjusted"] <= 1 - 0.05 / m
+    assert reach["ci_low_adjusted"] <= reach["ci_low"] < reach["ci_high"] <= reach["ci_high_adjusted"]
     assert reach["p_holm"] >= reach["p_value"]
+    assert reach["seeds_higher"] == 3 and reach["equivalence_margin"] == pytest.approx(0.01 * np.mean(b))
+    for entry in (c["mean_reach_reward"] for c in results["comparisons"].values()):
+        excludes = entry["ci_low_adjusted"] > 0 or entry["ci_high_adjusted"] < 0
+        assert excludes == (entry["p_holm"] < 0.05)
     # rliable's aggregates over the per-seed scores (these records hold no episodes).
     aggregate = results["aggregates"]
     assert aggregate["unit"] == "seed" and aggregate["tasks"] == 1
@@ -286,7 +293,8 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert results["methods"]["hddpg"]["per_seed"]["0"]["mean_reach_reward"] == pytest.approx(
         hddpg_row["reach_reward"]
     )
-    assert results["aggregates"]["unit"] == "episode" and results["test_episode_set"]["name"] == "development"
+    # The seed is the unit of the aggregates' intervals, whatever the records hold.
+    assert results["aggregates"]["unit"] == "seed" and results["test_episode_set"]["name"] == "development"
     # Equal total steps: the manager's 200 decisions of k env steps (the bundled block's options) + 2 x 100.
     k = manager_option_steps()
     assert results["methods"]["ddpg"]["own_timesteps"] == 200 * k + 200
@@ -324,6 +332,8 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     invocations = json.loads((out / "benchmark.json").read_text())["invocations"]
     assert [(i["runs_kept"], i["runs_to_do"], i["runs_done"]) for i in invocations] == [(0, 8, 8), (7, 1, 1)]
     assert all(i["wall_time_s"] > 0 and not i["interrupted"] for i in invocations)
+    # Each invocation keeps the code it ran; both ran this checkout's, so nothing was mixed.
+    assert all(i["code"] == code_provenance().to_json() and i["mixed_commits"] is False for i in invocations)
     total = json.loads((out / "results.json").read_text())["wall_time_s_all_invocations"]
     assert total == pytest.approx(sum(i["wall_time_s"] for i in invocations))
     assert "over its 2 invocations" in resumed.stdout

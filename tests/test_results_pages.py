@@ -122,7 +122,16 @@ def test_results_are_derived_from_the_episodes(final_run):
     assert results["test_episode_set"] == {"name": "final-test", "first_seed": 900_000, "episodes": 100}
     assert results["test_seeds"] == [900_000, 900_099]
     aggregate = results["aggregates"]
-    assert aggregate["unit"] == "episode" and aggregate["tasks"] == FINAL_TEST_EPISODES
+    # The seed is the unit: one task (the env), each cell a seed's mean over its episodes; the episodes'
+    # spread is a separate figure.
+    assert aggregate["unit"] == "seed" and aggregate["tasks"] == 1
+    seed_means = [
+        results["methods"]["hddpg"]["per_seed"][str(s)]["mean_reach_reward"] for s in settings.seeds
+    ]
+    assert aggregate["intervals"]["hddpg"]["mean"]["value"] == pytest.approx(np.mean(seed_means))
+    assert aggregate["episode_spread"]["hddpg"] == pytest.approx(
+        np.sqrt(np.mean([np.var([e["reach_reward"] for e in r["episodes"]], ddof=1) for r in records[::2]]))
+    )
     assert aggregate["probability_of_improvement"]["hddpg vs ddpg"]["value"] > 0.9
 
     # episodes.csv holds every row, and reading it back gives the same per-seed figures.
@@ -195,7 +204,8 @@ def test_the_readme_sentence_gives_every_challenger_its_verdicts(final_run):
         "On the 3-seed benchmark `final-run` (100 final-test episodes per model; reach reward"
     )
     assert re.search(
-        r"`hddpg` scores 30\d\.\d \[\d{3}\.\d, \d{3}\.\d\]: ahead of `ddpg` \(2[78]\d\.\d\)\.$", sentence
+        r"`hddpg` scores 30\d\.\d: ahead of `ddpg` \(2[78]\d\.\d; \+\d+\.\d \[\+\d+\.\d, \+\d+\.\d\]\)\.$",
+        sentence,
     )
     # A run whose hierarchy is another challenger than `hddpg` (another env's, say) has its sentence too.
     renamed = [{**r, "method": "hddpg-sac"} if r["method"] == "hddpg" else r for r in records]

@@ -1,9 +1,13 @@
-"""Provenance: the sha256 of files and bytes, the one check of a hash against its record, library versions."""
+"""
+Provenance: the sha256 of files and bytes, the one check of a hash against its record, library versions, and
+the code a run ran (:func:`code_provenance`: version, git commit, clean tree).
+"""
 
 from __future__ import annotations
 
 import hashlib
 import platform
+import subprocess
 from pathlib import Path
 
 import gymnasium
@@ -13,6 +17,12 @@ import stable_baselines3
 import torch
 
 from sb3_hddpg import __version__
+from sb3_hddpg.artifacts.records.benchmark import CodeProvenance
+
+#: The package's source folder: the git tree asked for the commit is the one that holds it.
+_SOURCE = Path(__file__).resolve().parents[1]
+#: Seconds a ``git`` call may take before the commit counts as not recorded (a hung network filesystem).
+GIT_TIMEOUT_S = 10.0
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -69,3 +79,36 @@ def library_versions() -> dict[str, str]:
         "numpy": np.__version__,
         "python": platform.python_version(),
     }
+
+
+def _git(*args: str, cwd: Path) -> str | None:
+    """``git ARGS`` in ``cwd``: its output, or ``None`` where git is missing, fails or takes too long."""
+    try:
+        done = subprocess.run(
+            ["git", *args], cwd=cwd, capture_output=True, text=True, timeout=GIT_TIMEOUT_S, check=False
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout if done.returncode == 0 else None
+
+
+def code_provenance(source: str | Path | None = None) -> CodeProvenance:
+    """
+    The code this process runs: the package's version and, where the package's source lies in a git work
+    tree, its ``HEAD`` commit and whether tracked files differ from it. Never fails: an installed wheel, a
+    copy without ``.git`` or a machine without ``git`` gives ``commit=None, clean=None``.
+
+    :param source: the folder whose tree is asked (default: this package's source folder).
+    """
+    where = Path(source) if source is not None else _SOURCE
+    if not where.is_dir():
+        return CodeProvenance(__version__)
+    # The source must be tracked by the tree: a wheel installed in a virtual env inside some other repository
+    # is not that repository's code.
+    tracked = _git("ls-files", "--error-unmatch", "__init__.py", cwd=where)
+    commit = _git("rev-parse", "HEAD", cwd=where)
+    if tracked is None or commit is None:
+        return CodeProvenance(__version__)
+    # Only this package's files and the repository's own count: untracked scratch files change no code.
+    status = _git("status", "--porcelain", "--untracked-files=no", cwd=where)
+    return CodeProvenance(__version__, commit.strip(), None if status is None else status.strip() == "")

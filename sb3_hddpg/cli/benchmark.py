@@ -209,6 +209,14 @@ _RedoOpt = Annotated[
         "Default: none.",
     ),
 ]
+_AllowMixedOpt = Annotated[
+    bool,
+    typer.Option(
+        "--allow-mixed-commits",
+        help="With --resume: continue a benchmark whose earlier invocations ran another version or git commit "
+        "(or one not recorded); refused otherwise. benchmark.json's invocations record the code each ran.",
+    ),
+]
 _ExportDirOpt = Annotated[
     Path | None,
     typer.Option(
@@ -343,6 +351,7 @@ def benchmark_command(
     out: _OutOpt = Path("runs/benchmark"),
     resume: _ResumeOpt = False,
     redo: _RedoOpt = None,
+    allow_mixed_commits: _AllowMixedOpt = False,
     force: ForceOpt = False,
     export_dir: _ExportDirOpt = None,
     snapshot_dir: _SnapshotOpt = None,
@@ -398,7 +407,9 @@ def benchmark_command(
         )
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
-    results = _run_until_stopped(settings, out, n_jobs, resume, redone, address, snapshot_dir)
+    results = _run_until_stopped(
+        settings, out, n_jobs, resume, redone, address, snapshot_dir, allow_mixed_commits
+    )
     _print_results(results, out, export_dir, snapshot_dir)
 
 
@@ -410,6 +421,7 @@ def _run_until_stopped(
     redo: list[str],
     address: str | None,
     snapshot_dir: Path | None,
+    allow_mixed_commits: bool = False,
 ) -> BenchmarkResults:
     """
     Run the benchmark, printing each run's start and end. Ctrl-C or SIGTERM stops it with every finished
@@ -418,7 +430,14 @@ def _run_until_stopped(
     printer = snapshotting(event_printer(settings, n_jobs, address), out, snapshot_dir, settings)
     try:
         return run_benchmark(
-            settings, out, n_jobs=n_jobs, resume=resume, on_event=printer, ray_address=address, redo=redo
+            settings,
+            out,
+            n_jobs=n_jobs,
+            resume=resume,
+            on_event=printer,
+            ray_address=address,
+            redo=redo,
+            allow_mixed_commits=allow_mixed_commits,
         )
     except KeyboardInterrupt:
         raise CommandStopped(

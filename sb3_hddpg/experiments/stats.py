@@ -3,8 +3,12 @@
 Per-seed results are small samples (typically 5-20 seeds). Summaries carry a percentile bootstrap interval
 (``scipy.stats.bootstrap``) and the interquartile mean of rliable (Agarwal et al., NeurIPS 2021,
 ``scipy.stats.trim_mean``); paired differences carry a Student t interval (``scipy.stats.ttest_rel``), which
-holds at 10 seeds where a percentile bootstrap of the mean under-covers, optionally Bonferroni-adjusted for
-the comparisons a table makes. :func:`trend_slope` is the "reward trend slope" of Figure 9 of the paper.
+holds at 10 seeds where a percentile bootstrap of the mean under-covers. A table's comparisons follow one
+decision rule (:func:`holm_family`): Holm's step-down test on the paired t p-values, each interval at the
+Holm-consistent level of its comparison (so an interval excludes 0 exactly where Holm rejects), and words
+generated from that (:func:`verdict_word`): ahead, behind, level (only where the adjusted interval lies within a
+stated equivalence margin: a TOST at the same level), else not distinguishable. :func:`trend_slope` is the
+"reward trend slope" of Figure 9 of the paper.
 The aggregates over runs and episodes (stratified bootstrap, probability of improvement with intervals,
 performance profiles) are rliable's own: :mod:`sb3_hddpg.experiments.benchmark.aggregates`.
 """
@@ -286,6 +290,105 @@ def holm_adjust(p_values: Sequence[float]) -> list[float]:
     return adjusted.tolist()
 
 
+#: The equivalence margin of "level": a share of the baseline's mean. Two methods are called level only where
+#: the comparison's adjusted interval lies within +- this share of the baseline's mean (:func:`verdict_word`).
+EQUIVALENCE_MARGIN = 0.01
+
+#: The family-wise error rate of a table's comparisons: every decision of :func:`holm_family` holds together
+#: with probability ``1 - FAMILY_ALPHA``.
+FAMILY_ALPHA = 0.05
+
+
+def holm_confidences(p_values: Sequence[float], alpha: float = FAMILY_ALPHA) -> list[float]:
+    """
+    The confidence level of each comparison's interval that matches Holm's step-down decisions: the ``k``-th
+    smallest p-value (``k`` from 0) is tested at ``alpha / (m - k)`` while every smaller one was rejected; from
+    the first that is not, every later comparison keeps that first one's level. An interval at ``1 - level``
+    then excludes 0 exactly where Holm rejects (a t interval excludes 0 iff its two-sided p < its level, and a
+    later p-value is at least the first retained one, which is at or above that level).
+
+    :param p_values: one two-sided p-value per comparison of the family.
+    :param alpha: the family-wise error rate.
+    :return: per comparison, in the given order, its interval's confidence level.
+    """
+    _check_confidence(1.0 - alpha)
+    m = len(p_values)
+    levels = np.empty(m)
+    retained_level: float | None = None
+    for rank, index in enumerate(np.argsort(p_values, kind="stable")):
+        level = alpha / (m - rank)
+        if retained_level is None and not float(p_values[index]) < level:
+            retained_level = level
+        levels[index] = retained_level if retained_level is not None else level
+    return (1.0 - levels).tolist()
+
+
+def holm_family(differences: Sequence[ArrayLike], alpha: float = FAMILY_ALPHA) -> list[dict[str, float]]:
+    """
+    One table's paired comparisons under one decision rule: per comparison the paired Student t test over
+    seeds, Holm's adjusted p-value over the family, and the t interval at the Holm-consistent level
+    (:func:`holm_confidences`), so that ``p_holm < alpha`` and "the interval excludes 0" never disagree.
+
+    :param differences: per comparison, the per-seed differences ``a - b``.
+    :param alpha: the family-wise error rate.
+    :return: per comparison ``{"difference", "standard_error", "n", "p_value", "p_holm", "confidence",
+        "ci_low", "ci_high", "higher"}`` (``higher``: the seeds where ``a > b``).
+    """
+    tests = [paired_t_interval(np.asarray(d, dtype=np.float64), np.zeros(np.size(d))) for d in differences]
+    p_values = [t["p_value"] for t in tests]
+    adjusted = holm_adjust(p_values)
+    confidences = holm_confidences(p_values, alpha)
+    out = []
+    for diff, test, p_holm, confidence in zip(differences, tests, adjusted, confidences, strict=True):
+        low, high = t_interval(test["difference"], test["standard_error"], int(test["n"]), confidence)
+        out.append(
+            {
+                "difference": test["difference"],
+                "standard_error": test["standard_error"],
+                "n": test["n"],
+                "p_value": test["p_value"],
+                "p_holm": p_holm,
+                "confidence": confidence,
+                "ci_low": low,
+                "ci_high": high,
+                "higher": float(np.sum(np.asarray(diff, dtype=np.float64) > 0)),
+            }
+        )
+    return out
+
+
+def verdict_word(
+    difference: float,
+    ci_low: float,
+    ci_high: float,
+    p_holm: float,
+    n: int,
+    higher: int,
+    margin: float | None = None,
+    alpha: float = FAMILY_ALPHA,
+) -> str:
+    """
+    The words a comparison's test allows, for A against B: ``ahead`` or ``behind`` where Holm rejects (its
+    interval then excludes 0 on that side); ``level`` only where the Holm-consistent interval lies within
+    ``[-margin, margin]`` (an equivalence test, TOST, at that interval's level); else ``not distinguishable
+    (n seeds; higher in k of n)``.
+
+    :param difference: the mean paired difference A - B.
+    :param ci_low: the comparison's adjusted interval (:func:`holm_family`).
+    :param ci_high: its upper bound.
+    :param p_holm: the Holm-adjusted p-value.
+    :param n: the seeds.
+    :param higher: the seeds where A scored above B.
+    :param margin: the equivalence margin (``None``: no equivalence is claimed).
+    :param alpha: the family-wise error rate.
+    """
+    if p_holm < alpha:
+        return "ahead" if difference > 0 else "behind"
+    if margin is not None and -margin <= ci_low and ci_high <= margin:
+        return "level"
+    return f"not distinguishable ({n} seeds; higher in {higher} of {n})"
+
+
 def summarise(
     values: ArrayLike,
     confidence: float = 0.95,
@@ -316,9 +419,13 @@ def summarise(
 
 
 __all__ = [
+    "EQUIVALENCE_MARGIN",
+    "FAMILY_ALPHA",
     "bonferroni_confidence",
     "bootstrap_ci",
     "holm_adjust",
+    "holm_confidences",
+    "holm_family",
     "iqm",
     "paired_difference_ci",
     "paired_t_interval",
@@ -326,4 +433,5 @@ __all__ = [
     "summarise",
     "t_interval",
     "trend_slope",
+    "verdict_word",
 ]

@@ -31,7 +31,12 @@ from sb3_hddpg.artifacts.records.base import (
     JsonValue,
     ManifestKind,
 )
-from sb3_hddpg.artifacts.records.benchmark import BenchmarkRecord, benchmark_record, read_benchmark_record
+from sb3_hddpg.artifacts.records.benchmark import (
+    BenchmarkRecord,
+    CodeProvenance,
+    benchmark_record,
+    read_benchmark_record,
+)
 from sb3_hddpg.artifacts.records.bundle import BundleManifest, bundle_manifest
 from sb3_hddpg.artifacts.records.ham import HamFile, ham_file, read_ham_file
 from sb3_hddpg.artifacts.records.models import (
@@ -62,6 +67,7 @@ __all__ = [
     "BenchmarkRecord",
     "BenchmarkResults",
     "BundleManifest",
+    "CodeProvenance",
     "Comparison",
     "HamFile",
     "JsonObject",

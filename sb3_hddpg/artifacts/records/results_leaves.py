@@ -31,7 +31,8 @@ class Interval(TypedDict):
 class PairedDifference(TypedDict, total=False):
     """
     One metric of a paired comparison over seeds: the mean difference with its Student t interval and
-    p-value, and once the table is adjusted (Bonferroni interval, Holm p-value); files written before a
+    p-value, and once the table is adjusted (Holm p-value, the interval at its Holm-consistent level), the seeds
+    where A scored higher and the equivalence margin of "level"; files written before a
     field existed lack it.
     """
 
@@ -46,6 +47,8 @@ class PairedDifference(TypedDict, total=False):
     ci_low_adjusted: float
     ci_high_adjusted: float
     confidence_adjusted: float
+    seeds_higher: int
+    equivalence_margin: float
 
 
 class ComparisonFamily(TypedDict):
@@ -63,6 +66,7 @@ class Aggregates(TypedDict):
     tasks: int
     intervals: dict[str, dict[str, Interval]]
     probability_of_improvement: dict[str, Interval]
+    episode_spread: NotRequired[dict[str, float]]
 
 
 class TransferSeed(TypedDict):
@@ -76,6 +80,11 @@ class TransferSeed(TypedDict):
     flat_final_score: float
     random_score: float
     worker_timesteps: int
+    target_score: NotRequired[float | None]
+    manager_steps_to_target: NotRequired[int | None]
+    flat_steps_to_target: NotRequired[int | None]
+    ratio_to_target: NotRequired[float | None]
+    censored: NotRequired[str]
 
 
 class TransferComparison(TypedDict):
@@ -139,6 +148,12 @@ class FrontDifference(TypedDict):
     p_value: float
     wins: int
     probability_of_improvement: float
+    standard_error: NotRequired[float]
+    equivalence_margin: NotRequired[float]
+    p_holm: NotRequired[float]
+    confidence_adjusted: NotRequired[float]
+    ci_low_adjusted: NotRequired[float]
+    ci_high_adjusted: NotRequired[float]
 
 
 class FrontComparison(TypedDict):

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from sb3_hddpg.artifacts.limits import brief, read_json_record
+from sb3_hddpg.artifacts.records import CodeProvenance
 from sb3_hddpg.artifacts.values import is_finite_number
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 
@@ -22,7 +23,8 @@ def read_benchmark_file(path: str | Path) -> dict[str, Any]:
     """
     ``benchmark.json`` through the JSON size and depth limits, with the shape its readers rely on: an object
     whose ``settings`` is an object (its ``methods`` a list of names), ``budgets`` an object, and
-    ``invocations`` a list of objects whose ``wall_time_s`` is a finite number >= 0.
+    ``invocations`` a list of objects whose ``wall_time_s`` is a finite number >= 0 (their ``code``:
+    :func:`invocation_codes`).
 
     :raises ValueError: one line naming the file and the field.
     """
@@ -42,6 +44,51 @@ def read_benchmark_file(path: str | Path) -> dict[str, Any]:
             f"{brief(invocations)}"
         )
     return value
+
+
+def invocation_codes(header: dict[str, Any], what: str) -> list[CodeProvenance | None]:
+    """
+    The code each earlier invocation of a benchmark ran (its ``code`` field, checked), ``None`` for an
+    invocation written before the field existed (not recorded).
+
+    :param header: ``benchmark.json`` as :func:`read_benchmark_file` returns it.
+    :param what: the file, for errors.
+    :raises ValueError: one line naming the file and the invocation.
+    """
+    return [
+        CodeProvenance.from_json(entry["code"], f"{what}: invocations[{i}].code") if "code" in entry else None
+        for i, entry in enumerate(header.get("invocations", []))
+    ]
+
+
+def check_same_code(
+    earlier: list[CodeProvenance | None], code: CodeProvenance, allow_mixed: bool, what: str
+) -> bool:
+    """
+    Refuse to resume a benchmark with other code than its earlier invocations ran (another version or commit,
+    or earlier invocations whose commit was not recorded), unless ``allow_mixed``: one benchmark's records
+    then come from code that no single commit holds.
+
+    :param earlier: :func:`invocation_codes`.
+    :param code: the code of this invocation (:func:`~sb3_hddpg.artifacts.provenance.code_provenance`).
+    :param allow_mixed: resume anyway (the invocation's record says so).
+    :param what: the benchmark folder, for the error.
+    :return: whether the benchmark's invocations now mix code.
+    :raises ValueError: one line naming the folder, the codes and ``--allow-mixed-commits``.
+    """
+    others = sorted(
+        {
+            "not recorded" if c is None else c.describe()
+            for c in earlier
+            if c is None or c.code_id != code.code_id
+        }
+    )
+    if others and not allow_mixed:
+        raise ValueError(
+            f"{what} was run by {', '.join(others)}; this is {code.describe()}: one benchmark's records come "
+            "from one commit (check out that commit, or pass --allow-mixed-commits, which the record keeps)"
+        )
+    return bool(others)
 
 
 def _is_invocation(entry: object) -> bool:
@@ -73,4 +120,10 @@ def read_benchmark_settings(path: str | Path) -> BenchmarkSettings:
     return settings_from_json(read_benchmark_file(path)["settings"], str(path))
 
 
-__all__ = ["read_benchmark_file", "read_benchmark_settings", "settings_from_json"]
+__all__ = [
+    "check_same_code",
+    "invocation_codes",
+    "read_benchmark_file",
+    "read_benchmark_settings",
+    "settings_from_json",
+]

@@ -41,6 +41,10 @@ SEED_METRIC_OF = {
 #: One row of ``episodes.csv``: the run's columns (text, whole numbers) and the episode's numbers.
 EpisodeRow = dict[str, str | int | float]
 
+#: The term that is negative only in an episode that ends in a crash (MO-Gymnasium's highway envs pay it -1 on
+#: a crash, which ends the episode, and 0 otherwise): its episodes with a negative raw sum make ``crash_rate``.
+CRASH_TERM = "collision"
+
 #: Prefixes of the per-term columns: a term's raw episode sum, and its normalised episode sum.
 RAW_PREFIX, NORMALISED_PREFIX = "raw:", "norm:"
 
@@ -102,6 +106,9 @@ def seed_metrics(rows: Iterable[Mapping[str, str | int | float]]) -> dict[str, f
         else:
             continue
         out[name] = float(np.mean(values))
+    crash = f"{RAW_PREFIX}{CRASH_TERM}"
+    if all(row.get(crash) not in (None, "") for row in rows):
+        out["crash_rate"] = float(np.mean([float(row[crash]) < 0 for row in rows]))
     return out
 
 

@@ -54,6 +54,7 @@ from sb3_hddpg.experiments.benchmark.env_methods import (
     load_env_worker,
     ttc_switch,
 )
+from sb3_hddpg.experiments.benchmark.episodes import CRASH_TERM
 from sb3_hddpg.experiments.benchmark.front_points import (
     PLANES,
     SAFE_CONTACTS,
@@ -61,6 +62,7 @@ from sb3_hddpg.experiments.benchmark.front_points import (
     FrontPoint,
     FrontSpec,
     env_front,
+    hypervolume,
     member_fields,
     non_dominated,
     safe_best_reach,
@@ -76,7 +78,16 @@ from sb3_hddpg.experiments.benchmark.methods import (
     workers_steps,
 )
 from sb3_hddpg.experiments.benchmark.morl import MORL_MEMBER, MorlRun, morl_member, morl_results
-from sb3_hddpg.experiments.stats import paired_t_interval, probability_of_improvement, summarise
+from sb3_hddpg.experiments.stats import (
+    EQUIVALENCE_MARGIN,
+    FAMILY_ALPHA,
+    holm_adjust,
+    holm_confidences,
+    paired_t_interval,
+    probability_of_improvement,
+    summarise,
+    t_interval,
+)
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
@@ -456,6 +467,33 @@ def _record_planes(record: Mapping[str, Any]) -> dict[str, list[list[object]]]:
     }
 
 
+#: The episode-outcome plane of an env whose collision term marks crashes (MO-Gymnasium's highway envs).
+CRASH_PLANE = "crashes"
+#: A point's crash rate, in its plane: the share of its episodes that ended in a crash.
+CRASH_RATE = "crash_rate"
+
+
+def crash_plane(record: Mapping[str, Any]) -> tuple[list[tuple[str, bool]], tuple[float, float]] | None:
+    """
+    The episode-outcome plane of a front record whose points hold the crash term's return
+    (:data:`~.episodes.CRASH_TERM`, -1 per crashed episode, 0 otherwise): the env's first other term's return
+    (on highway its speed), to maximise, against the crash rate, to minimise; reference (0 return, every
+    episode crashed). ``None`` for an env without that term.
+    """
+    terms = [str(key)[: -len("_term")] for key, _ in _record_planes(record).get("terms", [])]
+    crash_key = f"{CRASH_TERM}_return"
+    points = [p for member in record.get("front", {}).values() for p in member.get("points", [])]
+    if CRASH_TERM not in terms or not points or not all(crash_key in p for p in points):
+        return None
+    first = next(term for term in terms if term != CRASH_TERM)
+    return [(f"{first}_return", True), (CRASH_RATE, False)], (0.0, 1.0)
+
+
+def with_crash_rate(point: Mapping[str, Any]) -> dict[str, Any]:
+    """A front point with its crash rate: minus its crash term's mean return per episode (one crash at most)."""
+    return {**point, CRASH_RATE: -float(point[f"{CRASH_TERM}_return"])}
+
+
 def front_results(
     runs: Mapping[int, JsonObject], workers: Mapping[int, JsonObject] | None = None
 ) -> FrontResults:
@@ -471,6 +509,7 @@ def front_results(
     seeds = sorted(runs)
     first: Mapping[str, Any] = runs[seeds[0]] if seeds else {}
     planes = _record_planes(first)
+    references = dict(first.get("references", {}))
     members = [m for m in first.get("front", {}) if all(m in runs[s]["front"] for s in seeds)]
     per_seed = {
         member: {
@@ -478,6 +517,20 @@ def front_results(
         }
         for member in members
     }
+    points = {str(s): {m: runs[s]["front"][m]["points"] for m in per_seed} for s in seeds}
+    crash = crash_plane(first)
+    if crash is not None:
+        # Per-step terms hide how often an episode ends in a crash: the episode-outcome plane shows it.
+        objectives, reference = crash
+        planes = {**planes, CRASH_PLANE: [list(o) for o in objectives]}
+        references[CRASH_PLANE] = list(reference)
+        for seed in points:
+            for member in per_seed:
+                points[seed][member] = [with_crash_rate(p) for p in points[seed][member]]
+                per_seed[member][CRASH_PLANE] = {
+                    **per_seed[member].get(CRASH_PLANE, {}),
+                    seed: hypervolume(points[seed][member], objectives, reference),
+                }
     summaries = {
         member: {plane: summarise(list(values.values())) for plane, values in by_plane.items()}
         for member, by_plane in per_seed.items()
@@ -498,17 +551,20 @@ def front_results(
                 "p_value": interval["p_value"],
                 "wins": int(np.sum(xa > xb)),
                 "probability_of_improvement": probability_of_improvement(xa, xb),
+                "standard_error": interval["standard_error"],
+                "equivalence_margin": float(EQUIVALENCE_MARGIN * abs(xb.mean())),
             }
         comparisons[f"conditioned vs {other}"] = entry
+    _adjust_front_comparisons(comparisons)
     results: FrontResults = {
         "members": members,
-        "references": first.get("references", {}),
+        "references": references,
         "planes": planes,
         "hypervolume_per_seed": per_seed,
         "hypervolume": summaries,
         "comparisons": comparisons,
         "decides_by_state": {str(s): runs[s].get("decides_by_state", {}) for s in seeds},
-        "points": {str(s): {m: runs[s]["front"][m]["points"] for m in per_seed} for s in seeds},
+        "points": points,
     }
     if "manager" in first:
         results["manager"] = cast(FrontManager, first["manager"])
@@ -526,6 +582,30 @@ def front_results(
             },
         }
     return results
+
+
+def _adjust_front_comparisons(comparisons: Mapping[str, FrontComparison]) -> None:
+    """
+    The benchmark's one decision rule on the front's table, in place: per plane the conditioned manager's
+    comparisons are one family, Holm-adjusted, each with the t interval at its Holm-consistent level
+    (:func:`~sb3_hddpg.experiments.stats.holm_confidences`).
+    """
+    planes = {plane for entry in comparisons.values() for plane in entry["planes"]}
+    for plane in sorted(planes):
+        members = [entry["planes"][plane] for entry in comparisons.values() if plane in entry["planes"]]
+        p_values = [c["p_value"] for c in members]
+        for c, p_holm, confidence, n in zip(
+            members,
+            holm_adjust(p_values),
+            holm_confidences(p_values, FAMILY_ALPHA),
+            [len(entry["seeds"]) for entry in comparisons.values() if plane in entry["planes"]],
+            strict=True,
+        ):
+            c["p_holm"] = p_holm
+            c["confidence_adjusted"] = confidence
+            c["ci_low_adjusted"], c["ci_high_adjusted"] = t_interval(
+                c["difference"], c["standard_error"], n, confidence
+            )
 
 
 #: The front scenario's method: one seed's conditioned and per-preference managers and every front.

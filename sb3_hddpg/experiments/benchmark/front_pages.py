@@ -14,6 +14,7 @@ import numpy as np
 from sb3_hddpg.artifacts.records.results_leaves import FrontResults, Summary
 from sb3_hddpg.experiments.benchmark.front_mixtures import points_beyond
 from sb3_hddpg.experiments.benchmark.front_points import PLANES, label_factors
+from sb3_hddpg.experiments.stats import EQUIVALENCE_MARGIN, verdict_word
 
 #: Colours of the snake's members; another env's members take the next ones of matplotlib's cycle.
 MEMBER_COLOURS = {
@@ -45,7 +46,9 @@ def front_table(front: FrontResults) -> list[str]:
     """The front table of the generated results pages: Markdown lines."""
     planes = result_planes(front)
     lines = [
-        "| member | " + " | ".join(f"hypervolume ({_plane_title(o)})" for o in planes.values()) + " |",
+        "| member | "
+        + " | ".join(f"hypervolume, {plane} plane ({_plane_title(o)})" for plane, o in planes.items())
+        + " |",
         "|---|" + "---|" * len(planes),
     ]
     for member in front["members"]:
@@ -80,11 +83,36 @@ def front_table(front: FrontResults) -> list[str]:
             + "; ".join(f"{plane} {tuple(point)}" for plane, point in references.items())
             + ". Mean over seeds with the 95 % bootstrap interval."
         )
-    for name, entry in front.get("comparisons", {}).items():
+    comparisons = front.get("comparisons", {})
+    if any("p_holm" in c for entry in comparisons.values() for c in entry["planes"].values()):
+        lines.append(
+            "Comparisons: per plane, the conditioned manager against each other member, paired by seed; a paired "
+            "t test each, Holm's step-down over the plane's comparisons, each interval at its Holm-consistent "
+            "level (it excludes 0 exactly where the word is ahead or behind); level only where it lies within "
+            f"+-{EQUIVALENCE_MARGIN:.0%} of the other member's mean."
+        )
+    for name, entry in comparisons.items():
+        seeds = len(entry["seeds"])
         for plane, c in entry["planes"].items():
+            if "p_holm" not in c:  # results written before the rule: the unadjusted interval, no word
+                lines.append(
+                    f"- {name} ({plane} plane): difference {c['difference']:.4g} [{c['ci_low']:.4g}, "
+                    f"{c['ci_high']:.4g}] (paired t over seeds), better in {c['wins']} of {seeds} seeds"
+                )
+                continue
+            word = verdict_word(
+                c["difference"],
+                c["ci_low_adjusted"],
+                c["ci_high_adjusted"],
+                c["p_holm"],
+                seeds,
+                c["wins"],
+                c.get("equivalence_margin"),
+            )
             lines.append(
-                f"- {name} ({plane} plane): difference {c['difference']:.4g} [{c['ci_low']:.4g}, "
-                f"{c['ci_high']:.4g}] (paired t over seeds), better in {c['wins']} of {len(entry['seeds'])} seeds"
+                f"- {name} ({plane} plane): {word}; difference {c['difference']:.4g} "
+                f"[{c['ci_low_adjusted']:.4g}, {c['ci_high_adjusted']:.4g}], Holm p {c['p_holm']:.3f}, "
+                f"better in {c['wins']} of {seeds} seeds"
             )
     return lines
 

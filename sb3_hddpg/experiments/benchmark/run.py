@@ -22,11 +22,15 @@ from typing import Any
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, read_json_file
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
-from sb3_hddpg.artifacts.provenance import verify_sha256
+from sb3_hddpg.artifacts.provenance import code_provenance, verify_sha256
 from sb3_hddpg.artifacts.records import BenchmarkResults, benchmark_record, read_benchmark_record
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
-from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_file
+from sb3_hddpg.experiments.benchmark.benchmark_file import (
+    check_same_code,
+    invocation_codes,
+    read_benchmark_file,
+)
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
     WORKERS,
@@ -408,6 +412,7 @@ def run_benchmark(
     on_event: Callable[[str, Task, dict[str, Any] | None], None] | None = None,
     ray_address: str | None = None,
     redo: Sequence[str] = (),
+    allow_mixed_commits: bool = False,
 ) -> BenchmarkResults:
     """
     Run every task not yet finished, ``n_jobs`` at a time, then compute and write the results.
@@ -428,6 +433,10 @@ def run_benchmark(
     :param redo: with ``resume``, methods to run again: their runs so far are moved to
         ``out/replaced-<UTC time>/``. A kept run whose bundled config block has changed since it ran is
         refused otherwise, so that one benchmark never mixes runs of two configs unawares.
+    :param allow_mixed_commits: with ``resume``, continue a benchmark whose earlier invocations ran other code
+        (another version or git commit, or one not recorded); refused otherwise
+        (:func:`~.benchmark_file.check_same_code`). Every invocation records its code in ``benchmark.json``
+        (``invocations[].code``) and whether it mixed.
     :return: the results (also written to ``out/results.json``).
     """
     if n_jobs is not None and n_jobs < 1:
@@ -437,8 +446,13 @@ def run_benchmark(
     settings_path = out / "benchmark.json"
     redo = check_redo(settings, redo, resume)
     saved = read_benchmark_file(settings_path) if resume and settings_path.exists() else None
+    code = code_provenance()
+    mixed = False
     if saved is not None:
         _check_same_settings(settings, saved, redo, out)
+        mixed = check_same_code(
+            invocation_codes(saved, str(settings_path)), code, allow_mixed_commits, str(out)
+        )
     check_workers_source(settings)
     tasks = plan_tasks(settings)
     records = _kept_records(settings, tasks, out, resume, redo)
@@ -463,6 +477,7 @@ def run_benchmark(
         notify,
         header,
         invocations,
+        {"code": code.to_json(), "mixed_commits": mixed},
     )
     records.update({by_label[label]: record for label, record in outcome.results.items()})
     failed = {by_label[label]: outcome.failure_message(label) for label in outcome.failures}
@@ -544,10 +559,11 @@ def _run_pending(
     notify: Callable[[str, Task, dict[str, Any] | None], None],
     header: dict[str, Any],
     invocations: list[dict[str, Any]],
+    provenance: dict[str, Any],
 ) -> tuple[RunOutcome, float]:
     """
-    Run every task without a kept record, and add this invocation (its wall time, even when interrupted) to
-    ``benchmark.json``.
+    Run every task without a kept record, and add this invocation (its wall time, even when interrupted, and
+    ``provenance``: the code it ran and whether that mixes commits) to ``benchmark.json``.
 
     :param executor: makes the executor the tasks run on.
     :return: the runner's outcome and this invocation's wall time.
@@ -577,6 +593,7 @@ def _run_pending(
                 "runs_to_do": len(jobs),
                 "runs_done": len(outcome.results) if outcome is not None else None,
                 "interrupted": outcome is None,
+                **provenance,
             }
         )
         atomic_write_json(out / "benchmark.json", {**header, "invocations": invocations})

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict
-from typing import cast
+from typing import TypedDict, cast
 
 import numpy as np
 
@@ -59,9 +59,11 @@ from sb3_hddpg.experiments.benchmark.methods import (
 )
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, comparison_pairs
 from sb3_hddpg.experiments.stats import (
-    bonferroni_confidence,
+    EQUIVALENCE_MARGIN,
+    FAMILY_ALPHA,
     bootstrap_ci,
     holm_adjust,
+    holm_confidences,
     paired_t_interval,
     probability_of_improvement,
     summarise,
@@ -83,6 +85,7 @@ FINAL_METRICS = (
     "min_clearance",
     "mean_reward",
     "action_saturation",
+    "crash_rate",
 )
 
 
@@ -254,9 +257,18 @@ def method_statistics(
         values[seed] = test_values(run)
         values[seed].update(curve_statistics(run["history"], window))
         values[seed]["final_curve_reward"] = float(run["history"][-1]["mean_reach_reward"])
+        # The score the test reports (the normalised return), at the curve's best evaluation: what the kept
+        # checkpoint promised on the curve episodes, beside what it scored on the test episodes.
+        values[seed]["best_curve_reward"] = float(max(p["mean_reach_reward"] for p in run["history"]))
     stats: dict[str, Summary] = {
         key: summarise([values[s][key] for s in seeds])
-        for key in (*metric_keys(values[seeds[0]]), "curve_mean", "slope", "final_curve_reward")
+        for key in (
+            *metric_keys(values[seeds[0]]),
+            "curve_mean",
+            "slope",
+            "final_curve_reward",
+            "best_curve_reward",
+        )
         if all(key in values[s] for s in seeds)
     }
     selection = [
@@ -353,6 +365,51 @@ def steps_to_fraction(
     return next((int(p["timesteps"]) for p, value in zip(history, scores) if value >= target), None)
 
 
+class CensoredRatio(TypedDict):
+    """A transfer comparison's steps to the common target and their ratio (:func:`censored_ratio`)."""
+
+    manager_steps_to_target: int | None
+    flat_steps_to_target: int | None
+    ratio_to_target: float | None
+    censored: str
+
+
+def censored_ratio(
+    manager_steps: int | None,
+    flat_steps: int | None,
+    manager_history: Sequence[JsonObject],
+    flat_history: Sequence[JsonObject],
+) -> CensoredRatio:
+    """
+    The transfer ratio to a common target, flat steps / manager steps, with a run that never reaches it
+    censored at its curve's last evaluation: the ratio is then a bound, not a value.
+
+    :param manager_steps: the manager's steps to the target (``None``: never).
+    :param flat_steps: the flat agent's.
+    :param manager_history: the manager's curve (its last evaluation: where a miss is censored).
+    :param flat_history: the flat agent's curve.
+    :return: ``manager_steps_to_target``, ``flat_steps_to_target``, ``ratio_to_target`` (at the censoring
+        bound where one missed; ``None`` where both did or there is nothing to reach) and ``censored``:
+        ``none``, ``flat`` (the ratio is at least the value), ``manager`` (at most) or ``both``.
+    """
+    censored = {
+        (False, False): "none",
+        (False, True): "flat",
+        (True, False): "manager",
+        (True, True): "both",
+    }[(manager_steps is None, flat_steps is None)]
+    manager_end = int(manager_history[-1]["timesteps"])
+    flat_end = int(flat_history[-1]["timesteps"])
+    manager_at = manager_end if manager_steps is None else manager_steps
+    flat_at = flat_end if flat_steps is None else flat_steps
+    return {
+        "manager_steps_to_target": manager_steps,
+        "flat_steps_to_target": flat_steps,
+        "ratio_to_target": flat_at / manager_at if censored != "both" and manager_at > 0 else None,
+        "censored": censored,
+    }
+
+
 def transfer_results(settings: BenchmarkSettings, by_method: RecordsByMethod) -> TransferResults:
     """
     The transfer figure: per preference, hierarchy (``hddpg`` and every challenger,
@@ -369,9 +426,11 @@ def transfer_results(settings: BenchmarkSettings, by_method: RecordsByMethod) ->
     out: TransferResults = {
         "fraction": TRANSFER_FRACTION,
         "definition": (
-            f"own env steps until the learning curve first reaches {TRANSFER_FRACTION:.0%} of the way from a "
-            "random policy's score to the run's final score (both scored with the preference's factors); "
-            "ratio = flat steps / manager steps (the manager's workers are trained once, before)"
+            f"own env steps until the learning curve (its evaluations on the curve episodes) first reaches "
+            f"{TRANSFER_FRACTION:.0%} of the way from a random policy's score to the better of the two runs' "
+            "final scores (both scored with the preference's factors); a run that never gets there is censored "
+            "at its last evaluation; ratio = flat steps / manager steps (the manager's workers are trained "
+            "once, before)"
         ),
         "eval_freq": settings.eval_freq_for(settings.manager_env_steps),
         "preferences": {},
@@ -395,6 +454,12 @@ def transfer_results(settings: BenchmarkSettings, by_method: RecordsByMethod) ->
                 manager_steps = steps_to_fraction(manager["history"], score, floor=floor)
                 flat_steps = steps_to_fraction(agent["history"], score, floor=floor)
                 manager_final = score(manager["history"][-1])
+                flat_final = score(agent["history"][-1])
+                # One target for both: 90 % of the way to the better final score, so that a run that never gets
+                # there cannot win by it (a miss is censored at the run's last evaluation).
+                target = max(manager_final, flat_final)
+                manager_hit = steps_to_fraction(manager["history"], score, floor=floor, final=target)
+                flat_hit = steps_to_fraction(agent["history"], score, floor=floor, final=target)
                 per_seed[str(seed)] = {
                     "manager_steps": manager_steps,
                     "flat_steps": flat_steps,
@@ -408,6 +473,8 @@ def transfer_results(settings: BenchmarkSettings, by_method: RecordsByMethod) ->
                     "flat_final_score": score(agent["history"][-1]),
                     "random_score": floor,
                     "worker_timesteps": manager["worker_timesteps"],
+                    **censored_ratio(manager_hit, flat_hit, manager["history"], agent["history"]),
+                    "target_score": floor + TRANSFER_FRACTION * (target - floor) if target > floor else None,
                 }
             ratios = [v["ratio"] for v in per_seed.values() if v["ratio"] is not None]
             # Keyed by the flat method against hddpg (as before other hierarchies took part), else "flat vs M".
@@ -427,8 +494,6 @@ def transfer_results(settings: BenchmarkSettings, by_method: RecordsByMethod) ->
 
 #: The metrics every paired comparison reports.
 COMPARED_METRICS = ("mean_reach_reward", "curve_mean", "slope", "success_rate", "collisions_per_episode")
-#: The joint coverage of a comparison table's adjusted intervals.
-FAMILY_CONFIDENCE = 0.95
 
 
 def compare(a: Mapping[int, Mapping[str, float]], b: Mapping[int, Mapping[str, float]]) -> Comparison:
@@ -458,6 +523,8 @@ def compare(a: Mapping[int, Mapping[str, float]], b: Mapping[int, Mapping[str, f
             "standard_error": interval["standard_error"],
             "relative_gain": float(xa.mean() / xb.mean() - 1.0) if xb.mean() != 0 else None,
             "probability_of_improvement": probability_of_improvement(xa, xb),
+            "seeds_higher": int(np.sum(xa > xb)),
+            "equivalence_margin": float(EQUIVALENCE_MARGIN * abs(xb.mean())),
         }
     mean_b_slope = float(np.mean([b[s]["slope"] for s in seeds]))
     ratio = float(np.mean([a[s]["slope"] for s in seeds]) / mean_b_slope) if mean_b_slope != 0 else None
@@ -466,10 +533,11 @@ def compare(a: Mapping[int, Mapping[str, float]], b: Mapping[int, Mapping[str, f
 
 def adjust_for_comparisons(comparisons: Mapping[str, Comparison]) -> dict[str, ComparisonFamily]:
     """
-    Adjust each table's comparisons for their number, in place: a table is one challenger against every
-    method it is compared with, per metric. Each comparison gains a Bonferroni-adjusted t interval
-    (``ci_low_adjusted``, ``ci_high_adjusted``: all of the table's hold together with 95 %) and a
-    Holm-adjusted p-value (``p_holm``).
+    Apply the one decision rule to each table's comparisons, in place: a table is one challenger against every
+    method it is compared with, per metric. Each comparison gains its Holm-adjusted p-value (``p_holm``) and
+    the t interval at its Holm-consistent level (``ci_low_adjusted``, ``ci_high_adjusted``,
+    ``confidence_adjusted``: :func:`~sb3_hddpg.experiments.stats.holm_confidences`), which excludes 0 exactly
+    where ``p_holm < FAMILY_ALPHA``; :func:`~sb3_hddpg.experiments.stats.verdict_word` makes the words.
 
     :param comparisons: ``"A vs B"`` -> :func:`compare`'s result.
     :return: challenger -> ``{"comparisons": per metric the number m, "adjustment"}``.
@@ -485,9 +553,10 @@ def adjust_for_comparisons(comparisons: Mapping[str, Comparison]) -> dict[str, C
             if not members:
                 continue
             counts[metric] = len(members)
-            confidence = bonferroni_confidence(FAMILY_CONFIDENCE, len(members))
-            adjusted_p = holm_adjust([comparisons[k].metrics[metric]["p_value"] for k in members])
-            for key, p_holm in zip(members, adjusted_p, strict=True):
+            p_values = [comparisons[k].metrics[metric]["p_value"] for k in members]
+            adjusted_p = holm_adjust(p_values)
+            confidences = holm_confidences(p_values, FAMILY_ALPHA)
+            for key, p_holm, confidence in zip(members, adjusted_p, confidences, strict=True):
                 entry = comparisons[key].metrics[metric]
                 low, high = t_interval(
                     entry["difference"], entry["standard_error"], len(comparisons[key].seeds), confidence
@@ -498,8 +567,10 @@ def adjust_for_comparisons(comparisons: Mapping[str, Comparison]) -> dict[str, C
         families[challenger] = {
             "comparisons": counts,
             "adjustment": (
-                f"paired Student t intervals over seeds, Bonferroni-adjusted for the table's comparisons per "
-                f"metric (each at 1 - {1 - FAMILY_CONFIDENCE:.2f}/m); p-values Holm-adjusted"
+                f"paired Student t tests over seeds, Holm's step-down over the table's comparisons per metric "
+                f"(family-wise error {FAMILY_ALPHA:.2f}); each interval at its Holm-consistent level, so it "
+                f"excludes 0 exactly where the Holm-adjusted p-value is below {FAMILY_ALPHA:.2f}; level: the "
+                f"interval within +-{EQUIVALENCE_MARGIN:.0%} of the baseline's mean (TOST at the same level)"
             ),
         }
     return families
@@ -507,30 +578,43 @@ def adjust_for_comparisons(comparisons: Mapping[str, Comparison]) -> dict[str, C
 
 def score_matrices(by_method: RecordsByMethod) -> tuple[dict[str, np.ndarray], str]:
     """
-    Per run key the reach reward as rliable's runs-by-tasks matrix: by episode where every run of every method
-    holds its test episodes (each episode a task), else by seed (one per-seed mean per run).
+    Per run key the score as rliable's runs-by-tasks matrix, with the seed (the independent training run) as
+    the run and the benchmark's env as its one task: each cell is a seed's mean over its test episodes. The
+    episodes of one seed share its workers and its trained model, so they are not independent tasks: a matrix
+    with them as tasks resamples seeds per episode, loses the per-seed effect and gives intervals several
+    times too narrow. Their spread is :func:`episode_spread`, a separate figure.
 
     :param by_method: run key -> seed -> record.
-    :return: the matrices and their unit, ``episode`` or ``seed``.
+    :return: the matrices (seeds x 1) and their unit, ``seed``.
     """
-    by_episode = all(r.get("episodes") for runs in by_method.values() for r in runs.values())
     scores = {
-        method: score_matrix(
-            {
-                seed: [row["reach_reward"] for row in r["episodes"]]
-                if by_episode
-                else [test_values(r)["mean_reach_reward"]]
-                for seed, r in runs.items()
-            }
-        )
+        method: score_matrix({seed: [test_values(r)["mean_reach_reward"]] for seed, r in runs.items()})
         for method, runs in by_method.items()
     }
-    return scores, "episode" if by_episode else "seed"
+    return scores, "seed"
+
+
+def episode_spread(by_method: RecordsByMethod) -> dict[str, float]:
+    """
+    Per run key the spread of the score from episode to episode within a seed: the root mean over seeds of
+    the per-seed variance over test episodes (a description of the episodes, not an interval about the
+    method); absent for a run key whose records hold no episodes.
+
+    :param by_method: run key -> seed -> record.
+    """
+    spread: dict[str, float] = {}
+    for method, runs in by_method.items():
+        rows = [r.get("episodes") for r in runs.values()]
+        if rows and all(len(e or ()) >= 2 for e in rows):
+            variances = [np.var([row["reach_reward"] for row in e or ()], ddof=1) for e in rows]
+            spread[method] = float(np.sqrt(np.mean(variances)))
+    return spread
 
 
 def aggregates(by_method: RecordsByMethod, pairs: list[tuple[str, str]]) -> Aggregates | None:
     """
-    rliable's aggregates of the reach reward (:mod:`~.aggregates`) over :func:`score_matrices`.
+    rliable's aggregates of the score (:mod:`~.aggregates`) over :func:`score_matrices` (seeds as runs), and
+    the episode-level spread beside them.
 
     :param by_method: run key -> seed -> record.
     :param pairs: the compared ``(A, B)`` run keys.
@@ -538,13 +622,17 @@ def aggregates(by_method: RecordsByMethod, pairs: list[tuple[str, str]]) -> Aggr
     if not by_method:
         return None
     scores, unit = score_matrices(by_method)
-    return {
+    out: Aggregates = {
         "metric": "mean_reach_reward",
         "unit": unit,
         "tasks": int(next(iter(scores.values())).shape[1]),
         "intervals": aggregate_intervals(scores),
         "probability_of_improvement": improvement_probabilities(scores, pairs),
     }
+    spread = episode_spread(by_method)
+    if spread:
+        out["episode_spread"] = spread
+    return out
 
 
 def records_by_method(records: Iterable[JsonObject]) -> RecordsByMethod:
