@@ -59,7 +59,10 @@ class ComparisonFamily(TypedDict):
 
 
 class Aggregates(TypedDict):
-    """rliable's aggregates of the reach reward: per method IQM and mean, per compared pair P(A > B)."""
+    """
+    rliable's aggregates of the score over seeds (``unit``: the runs of the matrix; ``tasks``: its columns): per
+    method IQM and mean, per compared pair P(A > B); and per method the episodes' spread within a seed.
+    """
 
     metric: str
     unit: str

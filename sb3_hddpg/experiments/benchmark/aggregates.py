@@ -2,10 +2,10 @@
 rliable's aggregates of a benchmark's test scores: IQM and mean with stratified bootstrap intervals, the
 probability of improvement with intervals, and performance profiles (Agarwal et al., NeurIPS 2021).
 
-A method's scores are a matrix of runs (training seeds) by tasks. With per-episode records each test episode
-is a task: its seed gives every method the same start, so the bootstrap resamples seeds within each episode
-(rliable's stratified bootstrap); without them (older runs) the matrix is one column of per-seed means, and
-the intervals speak for the seeds only.
+A method's scores are a matrix of runs (training seeds) by tasks, a task being an environment (or a
+preference): the benchmark's matrices (:func:`~.statistics.score_matrices`) hold one column, each seed's mean
+over its test episodes. The episodes of one seed are not tasks: they share its trained model, and a matrix
+with them as tasks resamples seeds per episode and gives intervals several times too narrow.
 """
 
 from __future__ import annotations

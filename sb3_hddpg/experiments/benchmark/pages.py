@@ -39,8 +39,8 @@ from sb3_hddpg.experiments.benchmark.report import (
     ttc_dependence_table,
 )
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
-from sb3_hddpg.experiments.benchmark.statistics import TRANSFER_FRACTION, compute_results
-from sb3_hddpg.experiments.stats import EQUIVALENCE_MARGIN, FAMILY_ALPHA, bootstrap_ci, verdict_word
+from sb3_hddpg.experiments.benchmark.statistics import TRANSFER_FRACTION, compute_results, verdict
+from sb3_hddpg.experiments.stats import EQUIVALENCE_MARGIN, FAMILY_ALPHA, bootstrap_ci
 from sb3_hddpg.experiments.study_export import read_exports, studies_table
 
 #: The README's results sentence markers.
@@ -274,19 +274,6 @@ def _signed(entry: PairedDifference) -> str:
 def _difference_text(entry: PairedDifference, fmt: str = ".2f") -> str:
     point, low, high = (entry[k] for k in ("difference", "ci_low_adjusted", "ci_high_adjusted"))
     return f"{point:+{fmt}} [{low:+{fmt}}, {high:+{fmt}}]"
-
-
-def verdict(entry: PairedDifference, seeds: int) -> str:
-    """The words a comparison's test allows (:func:`~sb3_hddpg.experiments.stats.verdict_word`)."""
-    return verdict_word(
-        entry["difference"],
-        entry["ci_low_adjusted"],
-        entry["ci_high_adjusted"],
-        entry["p_holm"],
-        seeds,
-        int(entry["seeds_higher"]),
-        entry.get("equivalence_margin"),
-    )
 
 
 def rule_text(seeds: int, m: int) -> str:

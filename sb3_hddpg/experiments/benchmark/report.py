@@ -21,6 +21,7 @@ from sb3_hddpg.experiments.benchmark.statistics import (
     curve_bands,
     records_by_method,
     score_matrices,
+    verdict,
     with_term_sums,
 )
 from sb3_hddpg.media import figures
@@ -118,11 +119,12 @@ def markdown_report(results: BenchmarkResults) -> str:
     if results.comparisons:
         lines += [
             "",
-            "Intervals: Student t over the paired seeds, Bonferroni-adjusted for each challenger's comparisons "
-            "(their number per metric: results.json, comparison_families).",
+            "Comparisons: paired Student t tests over seeds, Holm-adjusted over each challenger's comparisons per "
+            "metric (their number: results.json, comparison_families); each interval at its Holm-consistent "
+            "level, so it excludes 0 exactly where A is ahead or behind; level only within +-1 % of B's mean.",
             "",
-            "| A vs B | metric | A - B [adjusted CI], paired by seed | relative | P(A > B) |",
-            "|---|---|---|---|---|",
+            "| A vs B | metric | A is | A - B [adjusted CI], paired by seed | relative | P(A > B) |",
+            "|---|---|---|---|---|---|",
         ]
         for pair, comparison in results.comparisons.items():
             for metric in (
@@ -136,16 +138,17 @@ def markdown_report(results: BenchmarkResults) -> str:
                     continue
                 c = comparison.metrics[metric]
                 relative = f"{c['relative_gain']:+.1%}" if c["relative_gain"] is not None else "-"
+                word = verdict(c, len(comparison.seeds)) if "p_holm" in c else "-"
                 lines.append(
-                    f"| {pair} | {metric} | {c['difference']:+.2f} "
+                    f"| {pair} | {metric} | {word} | {c['difference']:+.2f} "
                     f"[{c['ci_low_adjusted']:+.2f}, {c['ci_high_adjusted']:+.2f}] "
                     f"| {relative} | {c['probability_of_improvement']:.2f} |"
                 )
             ratio = comparison.slope_ratio
             lines.append(
-                f"| {pair} | slope ratio A / B | {ratio:.2f} | | |"
+                f"| {pair} | slope ratio A / B | | {ratio:.2f} | | |"
                 if ratio is not None
-                else f"| {pair} | slope ratio A / B | undefined (B's slope is 0) | | |"
+                else f"| {pair} | slope ratio A / B | | undefined (B's slope is 0) | | |"
             )
     lines += _dependence_lines(results)
     lines += _ttc_dependence_lines(results)

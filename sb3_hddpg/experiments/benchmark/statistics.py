@@ -69,6 +69,7 @@ from sb3_hddpg.experiments.stats import (
     summarise,
     t_interval,
     trend_slope,
+    verdict_word,
 )
 
 #: The share of its final score (measured from a random policy's) a run must reach in the transfer figure.
@@ -574,6 +575,19 @@ def adjust_for_comparisons(comparisons: Mapping[str, Comparison]) -> dict[str, C
             ),
         }
     return families
+
+
+def verdict(entry: PairedDifference, seeds: int) -> str:
+    """The words a comparison's test allows (:func:`~sb3_hddpg.experiments.stats.verdict_word`)."""
+    return verdict_word(
+        entry["difference"],
+        entry["ci_low_adjusted"],
+        entry["ci_high_adjusted"],
+        entry["p_holm"],
+        seeds,
+        int(entry["seeds_higher"]),
+        entry.get("equivalence_margin"),
+    )
 
 
 def score_matrices(by_method: RecordsByMethod) -> tuple[dict[str, np.ndarray], str]:

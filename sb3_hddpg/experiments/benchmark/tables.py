@@ -12,6 +12,7 @@ from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.artifacts.records.results_leaves import TransferResults
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.report import ci_text, final_scores_text, flat_reaches_text
+from sb3_hddpg.experiments.benchmark.statistics import verdict
 from sb3_hddpg.metric_labels import metric_label
 
 
@@ -94,10 +95,10 @@ def results_table(results: BenchmarkResults) -> TextTable:
 def comparisons_table(results: BenchmarkResults) -> TextTable:
     """The paired comparisons: difference [adjusted t CI], relative gain, probability of improvement."""
     title = (
-        "Paired comparisons over common seeds (A - B): Student t intervals, Bonferroni-adjusted for each "
-        "challenger's comparisons (results.json: comparison_families)"
+        "Paired comparisons over common seeds (A - B): Student t tests, Holm-adjusted over each challenger's "
+        "comparisons, each interval at its Holm-consistent level (results.json: comparison_families)"
     )
-    columns = ("A vs B", "metric", "difference [adjusted CI]", "relative", "P(A > B)")
+    columns = ("A vs B", "metric", "A is", "difference [adjusted CI]", "relative", "P(A > B)")
     rows = []
     for pair, comparison in results.comparisons.items():
         for metric in ("mean_reach_reward", "curve_mean", "slope"):
@@ -107,6 +108,7 @@ def comparisons_table(results: BenchmarkResults) -> TextTable:
                 (
                     pair,
                     metric,
+                    verdict(c, len(comparison.seeds)),
                     f"{c['difference']:+.2f} [{c['ci_low_adjusted']:+.2f}, {c['ci_high_adjusted']:+.2f}]",
                     relative,
                     f"{c['probability_of_improvement']:.2f}",
