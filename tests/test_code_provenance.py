@@ -107,3 +107,22 @@ def test_the_cli_refuses_mixed_commits_with_one_line_and_exit_2(tmp_path):
     assert "--allow-mixed-commits" in result.stderr and "0.0.1 at 000000000000" in result.stderr
     assert "Traceback" not in result.stderr
     assert (out / "benchmark.json").read_bytes() == before  # nothing of the folder touched
+
+
+def test_a_resume_allowed_to_mix_commits_runs_and_says_so(tmp_path):
+    import json
+
+    from sb3_hddpg.experiments.benchmark import run_benchmark
+
+    out, settings = _folder(tmp_path, {"version": "0.0.1", "commit": OTHER, "clean": True})
+    settings = BenchmarkSettings(
+        methods=["ham"], seeds=[0], timesteps=1000, worker_timesteps=100, test_episodes=2, eval_episodes=1
+    )
+    atomic_write_json(
+        out / "benchmark.json",
+        {**json.loads((out / "benchmark.json").read_text()), "settings": asdict(settings)},
+    )
+    run_benchmark(settings, out, resume=True, allow_mixed_commits=True)
+    earlier, this = json.loads((out / "benchmark.json").read_text())["invocations"]
+    assert earlier["code"]["commit"] == OTHER and "mixed_commits" not in earlier
+    assert this["mixed_commits"] is True and this["code"] == code_provenance().to_json()
