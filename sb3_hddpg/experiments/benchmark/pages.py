@@ -31,7 +31,12 @@ from sb3_hddpg.experiments.benchmark.benchmark_file import (
     read_benchmark_settings,
 )
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
-from sb3_hddpg.experiments.benchmark.front_pages import decides_matrix, decides_table, front_table
+from sb3_hddpg.experiments.benchmark.front_pages import (
+    decides_matrix,
+    decides_table,
+    front_figure,
+    front_table,
+)
 from sb3_hddpg.experiments.benchmark.report import (
     env_terms,
     headline_figures,
@@ -89,10 +94,14 @@ def run_results(run: Path) -> BenchmarkResults:
 
 
 def draw_headline_figures(run: Path) -> list[Path]:
-    """Draw a benchmark folder's rliable-style figures into it from its records."""
+    """Draw a benchmark folder's rliable-style figures into it from its records, and its fronts if it has one."""
     settings, records = load_run(run)
     with made_from(run):
-        return headline_figures(run, compute_results(settings, records), records)
+        results = compute_results(settings, records)
+        drawn = headline_figures(run, results, records)
+        if results.front is not None:
+            drawn.append(front_figure(results.front, run / "fronts.png"))
+        return drawn
 
 
 @contextlib.contextmanager
