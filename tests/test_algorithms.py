@@ -214,7 +214,7 @@ def test_a_discrete_manager_picks_a_worker_by_index(tmp_path):
     config = SelectionConfig(preferences={"goal": 1.0, "avoid": 1.0}, selection="discrete")
     hierarchy = Hierarchy(manager, workers, config, env_id="hddpg/SnakeReach-v0")
     obs, _ = gym.make("hddpg/SnakeReach-v0").reset(seed=0)
-    action, _ = hierarchy.predict(obs)
+    action, _ = hierarchy.predict(obs, deterministic=True)
     chosen = int(manager.predict(obs, deterministic=True)[0])
     np.testing.assert_array_equal(action, (goal, avoid)[chosen])
     assert sorted(hierarchy.probabilities(obs).values()) == [0.0, 1.0]
@@ -288,5 +288,6 @@ def test_discrete_workers_and_a_discrete_manager_on_a_discrete_env(tmp_path):
     assert type(hierarchy.manager).__name__ == "QRDQN" and hierarchy.config.selection == "discrete"
     env = gym.make(hierarchy.env_id, **hierarchy.env_kwargs)
     obs, _ = env.reset(seed=0)
-    action, _ = hierarchy.predict(obs)  # the chosen discrete worker's action, an index of the env's actions
+    # The chosen discrete worker's action, an index of the env's actions.
+    action, _ = hierarchy.predict(obs, deterministic=True)
     assert env.action_space.contains(int(np.asarray(action).reshape(-1)[0]))

@@ -85,7 +85,7 @@ def test_a_bundle_keeps_the_rule_and_decides_when_the_band_changes(workers, tmp_
     loaded.reset_episode()
     previous, since = None, 0
     for _ in range(100):
-        action, _ = loaded.predict(obs)
+        action, _ = loaded.predict(obs, deterministic=True)
         current = band(obs)
         if previous is not None and current != previous:
             assert loaded.last_decided  # a new decision as soon as the band changes
