@@ -66,9 +66,6 @@ from sb3_hddpg.hierarchy.selection import (
 )
 from sb3_hddpg.policy import Policy
 
-#: The shared env of a hierarchy when neither ``env_id`` is given nor the models' training envs tell.
-DEFAULT_ENV_ID = SNAKE_REACH_ENV_ID
-
 
 class Hierarchy:
     """
@@ -116,7 +113,7 @@ class Hierarchy:
             # Without an env id the bundle would record the snake env whatever the models were trained on,
             # and fail only much later (in evaluate); the models' own training envs say which env it is.
             shared = shared_env(workers)
-            env_id, inferred_kwargs = infer_env(manager, self.workers) or shared or (DEFAULT_ENV_ID, {})
+            env_id, inferred_kwargs = infer_env(manager, self.workers) or shared or (SNAKE_REACH_ENV_ID, {})
             env_kwargs = inferred_kwargs if env_kwargs is None else env_kwargs
         self.env_id = env_id
         self.env_kwargs = dict(env_kwargs or {})
