@@ -448,20 +448,30 @@ register_method(
 #: Every algorithm that can be a flat agent on the combined task's Box action (each a method in its record's
 #: colour): ``train_flat``'s algorithms.
 FLAT_METHODS = algorithms_for("flat", gym.spaces.Box(-1, 1))
-for _algo in FLAT_METHODS:
-    register_method(
-        Method(
-            _algo,
-            functools.partial(_run_flat, _algo),
-            _flat_cost,
-            colour=REGISTRY[_algo].colour,
-            default=_algo == "ddpg",
-            baseline=True,
-            takes_preference=True,
-            description=f"flat {REGISTRY[_algo].class_name} on the combined reward for the hierarchy's total env steps",
-            config_blocks=functools.partial(_flat_blocks, _algo),
-        )
+
+
+def flat_method(algo: str, reward: str, default: bool = False) -> Method:
+    """
+    The flat agent of ``algo`` as a method, in its record's colour, for the hierarchy's total env steps.
+
+    :param reward: what it learns, as its description says it (``combined``, ``scalarised``).
+    :param default: whether the benchmark runs it unless ``--methods`` says otherwise.
+    """
+    return Method(
+        algo,
+        functools.partial(_run_flat, algo),
+        _flat_cost,
+        colour=REGISTRY[algo].colour,
+        default=default,
+        baseline=True,
+        takes_preference=True,
+        description=f"flat {REGISTRY[algo].class_name} on the {reward} reward for the hierarchy's total env steps",
+        config_blocks=functools.partial(_flat_blocks, algo),
     )
+
+
+for _algo in FLAT_METHODS:
+    register_method(flat_method(_algo, "combined", default=_algo == "ddpg"))
 for _algo, _colour in (("sac", "darkviolet"), ("ddpg", "navy")):
     register_method(
         Method(
