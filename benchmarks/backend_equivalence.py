@@ -42,7 +42,7 @@ def run_one(backend: str, seed: int, args: dict[str, Any]) -> dict[str, Any]:
     from sb3_hddpg.training.workers import train_workers
 
     started, cpu = time.perf_counter(), time.process_time()
-    manifest = train_workers(
+    trained = train_workers(
         out,
         workers=["goal"],
         config=args["config"],
@@ -63,7 +63,7 @@ def run_one(backend: str, seed: int, args: dict[str, Any]) -> dict[str, Any]:
     result = {
         "backend": backend,
         "seed": seed,
-        "timesteps": manifest["workers"]["goal"]["timesteps_trained"],
+        "timesteps": trained.manifest["workers"]["goal"]["timesteps_trained"],
         "test_mean_reward": test["mean_reward"],
         "test_goal_touch_rate": test["goal_touch_rate"],
         "wall_seconds": time.perf_counter() - started,

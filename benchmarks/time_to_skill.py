@@ -194,7 +194,7 @@ def run_one(learner: Learner, seed: int, args: dict[str, Any]) -> dict[str, Any]
             return steps is None
 
     clock = Clock()
-    manifest = train_workers(
+    trained = train_workers(
         out,
         workers=[worker],
         config=learner.config or args["config"],
@@ -207,8 +207,9 @@ def run_one(learner: Learner, seed: int, args: dict[str, Any]) -> dict[str, Any]
         keep_best=False,
         backend=backend,
         progress_bar=False,
-        extra_callbacks=[clock],
+        callback=clock,
     )
+    trained_steps = int(trained.manifest["workers"][worker]["timesteps_trained"])
     history = json.loads((out / "evaluations" / f"{worker}.json").read_text())
     steps, seconds = time_to_skill(
         history, clock.seen, args["threshold"], args["hold"], worker, args["max_saturation"]
@@ -223,7 +224,7 @@ def run_one(learner: Learner, seed: int, args: dict[str, Any]) -> dict[str, Any]
         "seed": seed,
         "stopped_at_skill": bool(args["stop_at_skill"]),
         "reached": steps is not None,
-        "steps": steps if steps is not None else int(manifest["workers"][worker]["timesteps_trained"]),
+        "steps": steps if steps is not None else trained_steps,
         "seconds": seconds,
         "curve": [
             {

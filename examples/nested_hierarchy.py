@@ -42,7 +42,7 @@ def main() -> None:
     if args.hierarchy is None:
         scratch = Path(tempfile.mkdtemp(prefix="nested-"))
         train_workers(scratch / "w", timesteps=1000, eval_freq=0, eval_episodes=1)
-        _, _ = train_manager(scratch / "w", scratch / "m", timesteps=1000, eval_freq=0, eval_episodes=1)
+        train_manager(scratch / "w", scratch / "m", timesteps=1000, eval_freq=0, eval_episodes=1)
         args.hierarchy, args.workers = scratch / "m" / "hierarchy.zip", scratch / "w"
 
     lower = Hierarchy.load(args.hierarchy)

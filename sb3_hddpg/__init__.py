@@ -5,6 +5,7 @@ import os
 from typing import Any
 
 from sb3_hddpg.envs import ENV_IDS, SnakeArmEnv
+from sb3_hddpg.policy_loaders import register_policy_loader
 
 with open(os.path.join(os.path.dirname(__file__), "version.txt")) as _file:
     __version__ = _file.read().strip()
@@ -24,6 +25,16 @@ _LAZY = {
     "train_manager": "sb3_hddpg.training.manager",
     "train_workers": "sb3_hddpg.training.workers",
 }
+
+
+# The policies a path may name besides bundles and SB3 zips, registered by entry point as the env ids are:
+# the core imports none of them, and a module is imported only when its loader is first used.
+register_policy_loader("ham", "sb3_hddpg.baselines.ham:load_ham_policy", suffixes=(".json",))
+register_policy_loader(
+    "reference",
+    "sb3_hddpg.baselines.reference:load_reference_policy",
+    names=("random", "scripted", "ik", "field"),
+)
 
 
 def __getattr__(name: str) -> Any:

@@ -9,10 +9,11 @@ import math
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
 from sb3_hddpg.envs.contract import TermNormaliser, env_contract, proximity_of
 from sb3_hddpg.episode_sets import CURVE
@@ -139,7 +140,7 @@ class EvaluationResult:
 
 def evaluate(
     policy: Policy,
-    env: gym.Env | None = None,
+    env: gym.Env | VecEnv | None = None,
     n_episodes: int = 20,
     seed: int = EVAL_SEED_BASE,
     deterministic: bool = True,
@@ -159,9 +160,13 @@ def evaluate(
     (see :func:`state_dependence`). The policy must act in ``env``'s action space.
 
     :param policy: anything with SB3's ``predict``.
-    :param env: a single (not vectorised) environment, time-limited (default, for a policy that knows its
-        env such as a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`: one from its ``make_env()``,
-        closed afterwards).
+    :param env: an environment, time-limited (default, for a policy that knows its env such as a
+        :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`: one from its ``make_env()``, closed afterwards); or
+        a ``DummyVecEnv`` (also under VecEnv wrappers) of such envs, which runs ``num_envs`` episodes at a
+        time, each env of a round reset with its episode's seed, ``predict`` given the batch with its
+        ``state`` and ``episode_start`` (a hierarchy keeps an option per env), and ``on_step`` the env that
+        stepped. Episodes and seeds are those of a single env; the summed reward differs from it only by the
+        float32 a VecEnv stores rewards in.
     :param n_episodes: how many episodes, at least 1.
     :param seed: the first episode's seed.
     :param deterministic: passed to ``predict``.
@@ -189,6 +194,10 @@ def evaluate(
             )
         finally:
             own_env.close()
+    if isinstance(env, VecEnv):
+        return _evaluate_vec_env(
+            policy, env, n_episodes, seed, deterministic, on_step, near_clearance, clear_clearance
+        )
     near_clearance, clear_clearance = clearance_bands(env, near_clearance, clear_clearance)
     normaliser = TermNormaliser(env_contract(env).reward_bounds)
     episodes = []
@@ -221,17 +230,70 @@ def _run_episode(
         tally.add_decision(np.asarray(action if decision is None else decision))
         obs, reward, terminated, truncated, info = env.step(action)
         done = terminated or truncated
-        # A wrapper reports the worker it ran; a Hierarchy used directly remembers its last choice.
-        selected = info.get("selected_worker") or getattr(policy, "last_selection", None)
-        # A manager's wrapper with options runs several env steps per decision, and its own reward
-        # discounts them: count each env step with its undiscounted reward, as for every other policy.
-        if "option_infos" in info:
-            for step_reward, step_info in zip(info["option_rewards"], info["option_infos"], strict=True):
-                tally.add_step(float(step_reward), step_info, selected)
-        else:
-            tally.add_step(float(reward), info, selected)
+        tally.add_env_step(float(reward), info, getattr(policy, "last_selection", None))
         if on_step is not None:
             on_step(env, info)
+
+
+def _evaluate_vec_env(
+    policy: Policy,
+    vec_env: VecEnv,
+    n_episodes: int,
+    seed: int,
+    deterministic: bool,
+    on_step: Callable[[gym.Env, dict[str, Any]], None] | None,
+    near_clearance: float | None,
+    clear_clearance: float | None,
+) -> EvaluationResult:
+    """:func:`evaluate` on a VecEnv: ``num_envs`` episodes a round, episode ``k`` with seed ``seed + k``."""
+    envs = _in_process_envs(vec_env)
+    near_clearance, clear_clearance = clearance_bands(envs[0], near_clearance, clear_clearance)
+    normaliser = TermNormaliser(env_contract(envs[0]).reward_bounds)
+    worker_names = _worker_names(policy, envs[0])
+    n_envs = vec_env.num_envs
+    episodes: list[EpisodeMetrics] = []
+    state: Any = None
+    for first in range(0, n_episodes, n_envs):
+        vec_env.seed(seed + first)  # env i's next reset: seed + first + i
+        # The env contract's observations are arrays (a Box); SB3 types a VecEnv's more widely.
+        obs = cast(np.ndarray, vec_env.reset())
+        tallies = [
+            _EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, vec_env.reset_infos[i])
+            for i in range(min(n_envs, n_episodes - first))
+        ]
+        # Envs past this round's last episode step along (a VecEnv steps all) but are not counted.
+        running = np.arange(n_envs) < len(tallies)
+        starts = np.ones(n_envs, dtype=bool)
+        while running.any():
+            action, state = policy.predict(
+                obs, state=state, episode_start=starts, deterministic=deterministic
+            )
+            selections = getattr(policy, "last_selections", None) or [None] * n_envs
+            decisions = getattr(policy, "last_manager_actions", None)
+            step_obs, rewards, dones, infos = vec_env.step(action)
+            obs = cast(np.ndarray, step_obs)
+            for i in np.flatnonzero(running):
+                tallies[i].add_decision(np.asarray(action[i] if decisions is None else decisions[i]))
+                tallies[i].add_env_step(float(rewards[i]), infos[i], selections[i])
+                if on_step is not None:
+                    on_step(envs[i], infos[i])
+            running &= ~dones
+            starts = dones
+        episodes += [_finite_episode(t.metrics(seed + first + i)) for i, t in enumerate(tallies)]
+    return EvaluationResult(episodes, near_clearance, clear_clearance)
+
+
+def _in_process_envs(vec_env: VecEnv) -> list[gym.Env]:
+    """The envs of a ``DummyVecEnv`` (under any VecEnv wrappers): their declared terms are read in this process."""
+    inner: VecEnv = vec_env
+    while isinstance(inner, VecEnvWrapper):
+        inner = inner.venv
+    if not isinstance(inner, DummyVecEnv):
+        raise ValueError(
+            f"evaluate() reads the reward terms each env declares, so it needs a DummyVecEnv (its envs run in "
+            f"this process), actually: {type(inner).__name__}"
+        )
+    return list(inner.envs)
 
 
 def _finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
@@ -284,6 +346,21 @@ class _EpisodeTally:
             return
         self.saturated += int(np.count_nonzero(np.abs(decision) >= SATURATION_LEVEL))
         self.entries += decision.size
+
+    def add_env_step(self, reward: float, info: dict[str, Any], selected: str | None) -> None:
+        """
+        One ``env.step``: a manager's wrapper with options runs several env steps per decision, and its own
+        reward discounts them, so each is counted with its undiscounted reward, as for every other policy.
+
+        :param selected: the worker a hierarchy chose (``None``: not a hierarchy); a wrapper's ``info`` says
+            which it ran.
+        """
+        selected = info.get("selected_worker") or selected
+        if "option_infos" in info:
+            for step_reward, step_info in zip(info["option_rewards"], info["option_infos"], strict=True):
+                self.add_step(float(step_reward), step_info, selected)
+        else:
+            self.add_step(reward, info, selected)
 
     def add_step(self, reward: float, info: dict[str, Any], selected: str | None) -> None:
         """One env step: its reward, the env's ``info`` and the worker that acted (``None``: not a hierarchy)."""

@@ -54,6 +54,7 @@ from sb3_hddpg.artifacts.manifests import save_manifest
 from sb3_hddpg.artifacts.records.models import models_manifest, read_workers_manifest
 from sb3_hddpg.baselines.ham import load_ham, save_ham
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.episode_sets import FRONTIER
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.experiments.benchmark.front import SWEEP, ham_thresholds
@@ -71,7 +72,6 @@ from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.config import manager_option_steps
-from sb3_hddpg.training.flat import FLAT_ENV_ID
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.run_options import RunOptions
 
@@ -147,14 +147,14 @@ def baselines(workers: Path, out: Path, episodes: int, curve_episodes: int) -> d
     path = out / "baselines.json"
     if path.exists():
         return json.loads(path.read_text())
-    env = gym.make(FLAT_ENV_ID)
+    env = gym.make(SNAKE_REACH_ENV_ID)
     try:
         n_links = state_layout_of(env)["joint_obstacle_distances"]
         ham_path = save_ham(
             out / "ham.json",
             workers / "workers" / "manifest.json",
             threshold=(n_links.stop - n_links.start) / 2,
-            env_id=FLAT_ENV_ID,
+            env_id=SNAKE_REACH_ENV_ID,
         )
         switch, _ = load_ham(ham_path)
         thresholds = ham_thresholds(switch, env, CurveSettings(curve_episodes))  # type: ignore[arg-type]
@@ -165,7 +165,7 @@ def baselines(workers: Path, out: Path, episodes: int, curve_episodes: int) -> d
         record: dict[str, object] = {"ham": front_record(ham_points), "ham_thresholds": thresholds}
         for worker in ("goal", "avoid"):
             loaded = load_policy(workers / "workers" / f"{worker}.zip")
-            worker_env = loaded.make_env(FLAT_ENV_ID)
+            worker_env = loaded.make_env(SNAKE_REACH_ENV_ID)
             try:
                 record[worker] = front_record([score(loaded.policy, worker_env, worker, episodes)])
             finally:
@@ -217,7 +217,7 @@ def run_variant(
     )
     seconds = time.perf_counter() - start
     hierarchy = Hierarchy.load(folder / "hierarchy.zip")
-    env = gym.make(FLAT_ENV_ID)
+    env = gym.make(SNAKE_REACH_ENV_ID)
     try:
         points = []
         sweep = variant.sweep

@@ -93,7 +93,8 @@ def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[
 
 def train_flat_arm(arm: ArmRun) -> tuple[int, Path]:
     """A flat agent as the benchmark trains ``arm.method``: its env steps and its kept model."""
-    from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, train_flat
+    from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
+    from sb3_hddpg.training.flat import FLAT_HER_KEY, train_flat
 
     algo = FLAT_HER_METHODS.get(arm.method, arm.method)
     block = FLAT_HER_KEY if arm.method in FLAT_HER_METHODS else None
@@ -102,7 +103,7 @@ def train_flat_arm(arm: ArmRun) -> tuple[int, Path]:
         arm.folder,
         algo=algo,
         config=arm.config,
-        env_id=FLAT_ENV_ID,
+        env_id=SNAKE_REACH_ENV_ID,
         run=arm.settings.run_options(arm.seed, budget, budget),
         block=block,
     )
@@ -160,9 +161,10 @@ def check_inputs(args: argparse.Namespace) -> None:
     :raises ValueError: one line naming the option.
     """
     from sb3_hddpg.artifacts.manifests import load_workers
+    from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
     from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
     from sb3_hddpg.training.config import manager_option_steps
-    from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, flat_hyperparams
+    from sb3_hddpg.training.flat import FLAT_HER_KEY, flat_hyperparams
     from sb3_hddpg.training.manager_setup import manager_hyperparams
 
     settings = BenchmarkSettings(
@@ -180,7 +182,9 @@ def check_inputs(args: argparse.Namespace) -> None:
         load_workers(args.workers)  # as the arm loads them: the manifest, every hash
     else:
         block = FLAT_HER_KEY if args.method in FLAT_HER_METHODS else None
-        flat_hyperparams(FLAT_HER_METHODS.get(args.method, args.method), FLAT_ENV_ID, None, args.pick, block)
+        flat_hyperparams(
+            FLAT_HER_METHODS.get(args.method, args.method), SNAKE_REACH_ENV_ID, None, args.pick, block
+        )
 
 
 def report(out: Path, method: str, seeds: int) -> str:

@@ -16,8 +16,8 @@ from pathlib import Path
 import gymnasium as gym
 
 from sb3_hddpg.baselines.ham import load_ham
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.benchmark.methods import FLAT_ENV_ID
 
 #: Episodes neither the learning curves (10000..) nor the test (15000..) use.
 FRONTIER_SEED = 20000
@@ -27,7 +27,7 @@ KEYS = ("mean_reach_reward", "goal_touch_rate", "collisions_per_episode")
 def frontier(ham_file: Path, episodes: int, seed: int) -> list[dict[str, float]]:
     """Per threshold of the grid: the switch's reach reward, goal touch and contact steps per episode."""
     switch, _ = load_ham(ham_file)
-    env = gym.make(FLAT_ENV_ID)
+    env = gym.make(SNAKE_REACH_ENV_ID)
     try:
         points = []
         for threshold in switch.threshold_grid():

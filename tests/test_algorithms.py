@@ -181,7 +181,7 @@ def test_train_workers_with_a_learner_per_worker(tmp_path):
         eval_freq=60,
         eval_episodes=1,
         progress_bar=False,
-    )
+    ).manifest
     assert {name: entry["algo"] for name, entry in manifest["workers"].items()} == {
         "goal": "crossq",
         "avoid": "sac",
@@ -214,7 +214,7 @@ def test_a_discrete_manager_picks_a_worker_by_index(tmp_path):
     config = SelectionConfig(preferences={"goal": 1.0, "avoid": 1.0}, selection="discrete")
     hierarchy = Hierarchy(manager, workers, config, env_id="hddpg/SnakeReach-v0")
     obs, _ = gym.make("hddpg/SnakeReach-v0").reset(seed=0)
-    action, _ = hierarchy.predict(obs)
+    action, _ = hierarchy.predict(obs, deterministic=True)
     chosen = int(manager.predict(obs, deterministic=True)[0])
     np.testing.assert_array_equal(action, (goal, avoid)[chosen])
     assert sorted(hierarchy.probabilities(obs).values()) == [0.0, 1.0]
@@ -241,10 +241,12 @@ def test_an_on_policy_flat_agent_trains_checkpoints_and_resumes(tmp_path):
     options = dict(
         eval_freq=64, eval_episodes=1, checkpoint_freq=64, progress_bar=False, keep_checkpoints=True
     )
-    manifest, first = train_flat(tmp_path, "ppo", config, **options)
+    result = train_flat(tmp_path, "ppo", config, **options)
+    manifest, first = result.manifest, result.outcome
     assert first is not None and first.num_timesteps == 128 and manifest["models"]["ppo"]["algo"] == "ppo"
     # Resumed with a larger budget: it continues from its checkpoint (no replay buffer to restore).
-    manifest, resumed = train_flat(tmp_path, "ppo", config, timesteps=256, resume=True, **options)
+    result = train_flat(tmp_path, "ppo", config, timesteps=256, resume=True, **options)
+    manifest, resumed = result.manifest, result.outcome
     assert resumed is not None and resumed.num_timesteps == 256
     assert [h["timesteps"] for h in resumed.history][:2] == [64, 128]
     entry = manifest["models"]["ppo"]
@@ -281,12 +283,13 @@ def test_discrete_workers_and_a_discrete_manager_on_a_discrete_env(tmp_path):
     algos = {"death": "dqn", "gold": "qrdqn", "gem": "dqn"}
     manifest = train_workers(
         tmp_path / "w", config=config, env=shared, algos=algos, eval_freq=0, eval_episodes=1
-    )
+    ).manifest
     assert {name: entry["algo"] for name, entry in manifest["workers"].items()} == algos
     train_manager(tmp_path / "w", tmp_path / "m", algo="qrdqn", config=config, eval_freq=50, eval_episodes=1)
     hierarchy = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")  # the safe loader: spec and weights only
     assert type(hierarchy.manager).__name__ == "QRDQN" and hierarchy.config.selection == "discrete"
     env = gym.make(hierarchy.env_id, **hierarchy.env_kwargs)
     obs, _ = env.reset(seed=0)
-    action, _ = hierarchy.predict(obs)  # the chosen discrete worker's action, an index of the env's actions
+    # The chosen discrete worker's action, an index of the env's actions.
+    action, _ = hierarchy.predict(obs, deterministic=True)
     assert env.action_space.contains(int(np.asarray(action).reshape(-1)[0]))

@@ -341,13 +341,13 @@ def test_a_run_on_an_env_whose_package_is_missing_is_read_but_not_made():
 def test_mo_gymnasium_end_to_end_and_load_in_a_fresh_process(tmp_path, tiny):
     """Workers -> manager -> bundle (API, tiny), then a fresh process loads the bundle and evaluates it."""
     env = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=50)
-    manifest = train_workers(tmp_path / "w", config=tiny, seed=1, env=env, **TINY)
+    manifest = train_workers(tmp_path / "w", config=tiny, seed=1, env=env, **TINY).manifest
     assert manifest["shared_env"]["env_kwargs"]["env_id"] == "mo-mountaincarcontinuous-v0"
     assert {n: e["env_kwargs"]["term"] for n, e in manifest["workers"].items()} == {
         "time": "time",
         "fuel": "fuel",
     }
-    hierarchy, _ = train_manager(tmp_path / "w", tmp_path / "m", config=tiny, seed=1, **TINY)
+    hierarchy = train_manager(tmp_path / "w", tmp_path / "m", config=tiny, seed=1, **TINY).hierarchy
     assert hierarchy.env_id == "hddpg/MultiObjective-v0"
     out = tmp_path / "eval.json"
     run_cli("evaluate", tmp_path / "m" / "hierarchy.zip", "--episodes", "2", "--json", out, check=True)
@@ -365,13 +365,13 @@ def test_mo_gymnasium_end_to_end_and_load_in_a_fresh_process(tmp_path, tiny):
 def test_three_workers_on_a_users_own_env(tmp_path, tiny):
     env = terms_env("test/ThreeTerms-v0")
     assert env.terms == ("near", "calm", "right")
-    manifest = train_workers(tmp_path / "w", config=tiny, seed=2, env=env, **TINY)
+    manifest = train_workers(tmp_path / "w", config=tiny, seed=2, env=env, **TINY).manifest
     assert list(manifest["workers"]) == ["near", "calm", "right"]
     assert manifest["workers"]["right"]["reward_bounds"] == [0.0, 1.0]
     # The workers' manifest names a user's id: the user opts in by naming the env (the CLI's --env).
     with pytest.raises(ValueError, match="allowed_env_ids"):
         train_manager(tmp_path / "w", tmp_path / "m", config=tiny, **TINY)
-    hierarchy, _ = train_manager(
+    hierarchy = train_manager(
         tmp_path / "w",
         tmp_path / "m",
         config=tiny,
@@ -379,7 +379,7 @@ def test_three_workers_on_a_users_own_env(tmp_path, tiny):
         preferences={"near": 2.0},
         env_id="test/ThreeTerms-v0",
         **TINY,
-    )
+    ).hierarchy
     assert sorted(hierarchy.names) == ["calm", "near", "right"] and hierarchy.env_id == "test/ThreeTerms-v0"
     # A user's own id loads once they opt in to it.
     with pytest.raises(ValueError, match="allowed_env_ids"):
@@ -493,7 +493,9 @@ def test_a_worker_reads_its_own_block_before_its_envs(tmp_path, tiny):
         "calm": 120,
         "right": 150,
     }
-    manifest = train_workers(tmp_path / "w", ["near", "calm"], tiny, env=env, eval_freq=0, eval_episodes=1)
+    manifest = train_workers(
+        tmp_path / "w", ["near", "calm"], tiny, env=env, eval_freq=0, eval_episodes=1
+    ).manifest
     assert {name: entry["timesteps_trained"] for name, entry in manifest["workers"].items()} == {
         "near": 150,
         "calm": 120,

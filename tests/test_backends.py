@@ -451,15 +451,14 @@ def test_api_backend_selection(tmp_path):
     config = tmp_path / "tiny.yml"
     config.write_text(TINY_CONFIG)
     # Fewer steps than learning_starts: the SBX path end to end, without compiling the update.
-    manifest, outcome = train_flat(
-        tmp_path, config=config, timesteps=60, eval_freq=0, eval_episodes=1, backend="sbx"
-    )
+    result = train_flat(tmp_path, config=config, timesteps=60, eval_freq=0, eval_episodes=1, backend="sbx")
+    manifest, outcome = result.manifest, result.outcome
     assert outcome is not None and outcome.backend == "sbx"
     assert manifest["models"]["ddpg"]["backend"] == "sbx"
     assert type(outcome.model).__module__.startswith("stable_baselines3")
     by_key = tmp_path / "sbx.yml"
     by_key.write_text(SBX_CONFIG)
-    manifest, _ = train_flat(tmp_path / "k", config=by_key, timesteps=60, eval_freq=0, eval_episodes=1)
+    manifest = train_flat(tmp_path / "k", config=by_key, timesteps=60, eval_freq=0, eval_episodes=1).manifest
     assert manifest["models"]["ddpg"]["backend"] == "sbx"
     with pytest.raises(ValueError, match="trained with backend 'sbx'; resume it with --backend sbx"):
         train_flat(tmp_path, config=config, timesteps=90, eval_freq=0, resume=True, backend="sb3")

@@ -431,12 +431,12 @@ def test_train_flat_writes_a_model_that_opens_with_ddpg_load(tmp_path):
 # TD3's block is its equal-effort study's pick (docs/TUNING.md); SAC's study kept DDPG's values, and TQC has none.
 @pytest.mark.parametrize("algo", ["sac", "tqc"])
 def test_flat_configs_give_every_algorithm_the_same_care(algo):
+    from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
     from sb3_hddpg.training.backends import algo_class
     from sb3_hddpg.training.config import default_config, load_hyperparams
-    from sb3_hddpg.training.flat import FLAT_ENV_ID
 
-    ddpg = load_hyperparams(FLAT_ENV_ID, algo_class("ddpg"), default_config("ddpg"))
-    other = load_hyperparams(FLAT_ENV_ID, algo_class(algo), default_config(algo))
+    ddpg = load_hyperparams(SNAKE_REACH_ENV_ID, algo_class("ddpg"), default_config("ddpg"))
+    other = load_hyperparams(SNAKE_REACH_ENV_ID, algo_class(algo), default_config(algo))
     assert other.n_timesteps == ddpg.n_timesteps
     assert other.algo_kwargs["policy_kwargs"]["net_arch"] == ddpg.algo_kwargs["policy_kwargs"]["net_arch"]
     for key in (

@@ -83,7 +83,7 @@ def test_a_registered_selection_mode_drives_a_hierarchy_and_passes_the_file_chec
     config = SelectionConfig(preferences={"goal": 1.0, "avoid": 1.0}, selection=least_mode)
     hierarchy = Hierarchy(FixedManager(), workers, config, env_id=ENV_ID)
     obs, _ = gym.make(ENV_ID).reset(seed=0)
-    action, _ = hierarchy.predict(obs)
+    action, _ = hierarchy.predict(obs, deterministic=True)
     np.testing.assert_array_equal(action, AVOID_ACTION)
     assert hierarchy.last_selection == "avoid"
     # A bundle's manifest naming the mode is accepted while it is registered, refused by name otherwise.

@@ -7,15 +7,16 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.experiments.benchmark import METHOD_REGISTRY, BenchmarkSettings
 from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
 from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, flat_hyperparams, train_flat
+from sb3_hddpg.training.flat import FLAT_HER_KEY, flat_hyperparams, train_flat
 
 
 def reach_buffer(steps: int = 60) -> tuple[GoalRelabelingReplayBuffer, gym.Env]:
     """A relabelling buffer filled with random steps of the reach env (one episode boundary included)."""
-    env = gym.make(FLAT_ENV_ID, max_episode_steps=25)
+    env = gym.make(SNAKE_REACH_ENV_ID, max_episode_steps=25)
     buffer = GoalRelabelingReplayBuffer(
         200,
         env.observation_space,
@@ -73,7 +74,7 @@ def test_the_her_methods_are_flat_baselines_with_the_flat_budget():
         assert method.baseline and method.cost(settings) == settings.flat_budget
         (label,) = method.config_blocks(settings)
         assert label.endswith(f"[{FLAT_HER_KEY}]")
-    assert flat_hyperparams("ddpg", FLAT_ENV_ID, block=FLAT_HER_KEY).raw["callback"]
+    assert flat_hyperparams("ddpg", SNAKE_REACH_ENV_ID, block=FLAT_HER_KEY).raw["callback"]
 
 
 @pytest.mark.parametrize("algo", ["sac", "ddpg"])
@@ -86,9 +87,9 @@ def test_train_flat_from_the_her_block(tmp_path, algo, monkeypatch):
         original(self, *args, **kwargs)
 
     monkeypatch.setattr(GoalRelabelingReplayBuffer, "__init__", spy)
-    manifest, _ = train_flat(
+    manifest = train_flat(
         tmp_path, algo=algo, block=FLAT_HER_KEY, timesteps=200, eval_freq=200, eval_episodes=1
-    )
+    ).manifest
     assert seen["relabel_fraction"] == 0.8 and seen["goal_scale"] is not None and seen["observe"] is None
     entry = manifest["models"][algo]
     assert entry["config"]["block"]["gamma"] == 0.7

@@ -382,8 +382,8 @@ def test_decisions_are_counted_once_per_option(tmp_path):
     from sb3_hddpg.training.workers import train_workers
 
     train_workers(tmp_path / "w", seed=1, timesteps=200, eval_freq=0, eval_episodes=1)
-    hierarchy, _ = train_manager(tmp_path / "w", tmp_path / "m", option_steps=4, seed=1, timesteps=60,
-                                 eval_freq=0, eval_episodes=1)  # fmt: skip
+    hierarchy = train_manager(tmp_path / "w", tmp_path / "m", option_steps=4, seed=1, timesteps=60,
+                                 eval_freq=0, eval_episodes=1).hierarchy  # fmt: skip
     env = gym.make("hddpg/SnakeReach-v0")
     figure = decision_dependence(hierarchy, env, range(15_000, 15_002))
     assert figure is not None and figure["unit"] == "decisions"

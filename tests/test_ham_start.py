@@ -40,8 +40,8 @@ def test_the_fitted_manager_agrees_with_ham_and_its_buffer_holds_hams_decisions(
 
 
 def test_train_manager_starts_from_ham_and_records_it(workers, tmp_path):
-    hierarchy, _ = train_manager(workers / "w", tmp_path / "m", init_from_ham=HamStart(5.0, decisions=200, epochs=20),
-                                 seed=2, timesteps=100, eval_freq=50, eval_episodes=1)  # fmt: skip
+    hierarchy = train_manager(workers / "w", tmp_path / "m", init_from_ham=HamStart(5.0, decisions=200, epochs=20),
+                                 seed=2, timesteps=100, eval_freq=50, eval_episodes=1).hierarchy  # fmt: skip
     report = hierarchy.metadata["init_from_ham"]
     assert report["threshold"] == 5.0 and report["decisions"] == 200 and report["agreement"] >= 0.8
     with zipfile.ZipFile(tmp_path / "m" / "hierarchy.zip") as archive:

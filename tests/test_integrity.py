@@ -62,7 +62,7 @@ def test_resume_after_a_kill_right_after_the_final_checkpoint_does_not_rewind(tm
     (out / "workers" / "goal.zip").unlink()
     history_before = json.loads((out / "evaluations" / "goal.json").read_text())
 
-    manifest = train_workers(out, workers=["goal"], resume=True, **quick)
+    manifest = train_workers(out, workers=["goal"], resume=True, **quick).manifest
 
     state = _state(checkpoints)
     assert state["num_timesteps"] == 200 and state["model"] == "model_200.zip"
@@ -169,7 +169,7 @@ def test_manifests_are_read_modify_write(tmp_path: Path) -> None:
     config.write_text(TINY)
     quick = {"config": config, "timesteps": 60, "eval_freq": 0, "eval_episodes": 1, "checkpoint_freq": 0}
     train_workers(tmp_path / "w", workers=["goal"], **quick)
-    manifest = train_workers(tmp_path / "w", workers=["avoid"], **quick)
+    manifest = train_workers(tmp_path / "w", workers=["avoid"], **quick).manifest
     on_disk = json.loads((tmp_path / "w" / "workers" / "manifest.json").read_text())
     assert set(on_disk["workers"]) == {"goal", "avoid"} and set(manifest["workers"]) >= {"avoid"}
     workers = load_workers(tmp_path / "w")

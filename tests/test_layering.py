@@ -17,6 +17,7 @@ FLOORS = {
     "sb3_hddpg": 0,
     "sb3_hddpg.envs": 0,
     "sb3_hddpg.names": 0,
+    "sb3_hddpg.policy_loaders": 0,
     "sb3_hddpg.policy": 1,
     "sb3_hddpg.algorithms": 1,
     "sb3_hddpg.episode_sets": 1,

@@ -116,7 +116,7 @@ def test_a_loaded_bundle_decides_as_the_manager_did_in_training(workers, tmp_pat
         chosen_by_wrapper.append(info["selected_worker"])
         inputs_moved += bool(np.abs(manager_obs[-len(manager_obs) // 2 :]).max() > 0)
         for step in range(info["option_length"]):
-            env_action, _ = loaded.predict(obs)
+            env_action, _ = loaded.predict(obs, deterministic=True)
             assert loaded.last_decided == (step == 0)
             if step == 0:
                 chosen_by_bundle.append(loaded.last_selection)
@@ -125,13 +125,23 @@ def test_a_loaded_bundle_decides_as_the_manager_did_in_training(workers, tmp_pat
     assert chosen_by_bundle == chosen_by_wrapper
     assert set(chosen_by_wrapper) == {"goal", "avoid"}
     assert inputs_moved >= 10
-    with pytest.raises(ValueError, match="one observation at a time"):
-        loaded.predict(np.stack([obs, obs]))
+    # A batch keeps one stream per row, motion included: two envs stepped together decide as each alone.
+    envs = [loaded.make_env() for _ in range(2)]
+    rows = np.stack([env.reset(seed=seed)[0] for env, seed in zip(envs, (11, 12))])
+    alone, together = [loaded.initial_state() for _ in envs], loaded.initial_state(2)
+    for _ in range(12):
+        batched, together = loaded.predict(rows, together, deterministic=True)
+        for i in range(2):
+            single, alone[i] = loaded.predict(rows[i], alone[i], deterministic=True)
+            np.testing.assert_array_equal(batched[i], single)
+            assert together.choice[i] == alone[i].choice[0] and together.left[i] == alone[i].left[0]
+        rows = np.stack([env.step(action)[0] for env, action in zip(envs, batched)])
+    assert together.previous[0] is not None and not np.array_equal(together.previous[0], together.previous[1])
     # A batch of one, as SB3's evaluate_policy gives on one env, is the same stream.
     loaded.reset_episode()
-    first, _ = loaded.predict(obs)
+    first, _ = loaded.predict(obs, deterministic=True)
     loaded.reset_episode()
-    batched, _ = loaded.predict(obs[None])
+    batched, _ = loaded.predict(obs[None], deterministic=True)
     assert batched.shape == (1, *first.shape) and np.allclose(batched[0], first)
 
 

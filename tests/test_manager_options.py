@@ -12,24 +12,28 @@ from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import (
     MANAGER_OPTION_NAMES,
     ManagerOptions,
+    manager_options,
     prepare_manager,
     setup_manager,
 )
+from sb3_hddpg.training.run_options import RUN_OPTION_NAMES
 
 
-def test_prepare_manager_takes_exactly_the_records_fields_and_leaves_their_defaults_to_it():
-    parameters = list(inspect.signature(prepare_manager).parameters.values())[1:]
-    assert [p.name for p in parameters] == list(MANAGER_OPTION_NAMES)
-    # Every keyword left out is the record's default: a default is spelled in one place only.
-    assert {p.name: p.default for p in parameters} == dict.fromkeys(MANAGER_OPTION_NAMES)
-    train = inspect.signature(train_manager).parameters
-    assert all(train[name].default is None for name in MANAGER_OPTION_NAMES)
+def test_prepare_manager_and_train_manager_take_one_options_record():
+    assert list(inspect.signature(prepare_manager).parameters) == ["workers_dir", "options", "option_changes"]
+    assert list(inspect.signature(train_manager).parameters) == [
+        "workers_dir", "out_dir", "options", "run", "callback", "changes"
+    ]  # fmt: skip
+    # Keywords are the record's fields over the record given; None keeps the field, whose default is the record's.
+    assert manager_options(None, {"prefer": "goal", "bias": None}, "f") == ManagerOptions(prefer="goal")
+    assert manager_options(ManagerOptions(algo="sac"), {"gamma": 0.9}, "f") == ManagerOptions(
+        algo="sac", gamma=0.9
+    )
+    with pytest.raises(TypeError, match="prepare_manager\\(\\) got an unexpected keyword argument 'prefr'"):
+        prepare_manager("no-workers-here", prefr="goal")
+    # train_manager sends each keyword to the record that has the field: the two share none.
+    assert not set(MANAGER_OPTION_NAMES) & RUN_OPTION_NAMES
     assert {f.name for f in fields(ManagerOptions) if f.default is not None} >= {"bias", "algo", "trusted"}
-
-
-def test_train_manager_takes_the_records_fields_after_its_folders():
-    names = list(inspect.signature(train_manager).parameters)
-    assert names[2 : 2 + len(MANAGER_OPTION_NAMES)] == list(MANAGER_OPTION_NAMES)
 
 
 @pytest.mark.parametrize(

@@ -60,8 +60,8 @@ def partial_run(tmp_path_factory):
     path = root / "config.yml"
     path.write_text(yaml.safe_dump(config))
     tiny = {"timesteps": 300, "eval_freq": 0, "eval_episodes": 1}
-    manifest = train_workers(root / "w", seed=1, config=path, **tiny)
-    hierarchy, _ = train_manager(root / "w", root / "m", seed=1, config=path, **tiny)
+    manifest = train_workers(root / "w", seed=1, config=path, **tiny).manifest
+    hierarchy = train_manager(root / "w", root / "m", seed=1, config=path, **tiny).hierarchy
     return root, manifest, hierarchy
 
 

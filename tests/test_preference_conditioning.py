@@ -34,9 +34,8 @@ def workers(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def conditioned(workers):
-    hierarchy, outcome = train_manager(
-        workers / "w", workers / "m", manager_preferences="ratio-sweep", seed=5, **TINY
-    )
+    result = train_manager(workers / "w", workers / "m", manager_preferences="ratio-sweep", seed=5, **TINY)
+    hierarchy, outcome = result.hierarchy, result.outcome
     return workers / "m" / "hierarchy.zip", hierarchy, outcome
 
 
@@ -228,8 +227,8 @@ def test_a_conditioned_bundle_records_its_preferences_and_acts_at_any_of_them_in
 
 
 def test_a_per_preference_manager_refuses_another_preference(workers):
-    hierarchy, _ = train_manager(workers / "w", workers / "plain", preferences={"goal": 0.4, "avoid": 1.6},
-                                 seed=5, **TINY)  # fmt: skip
+    hierarchy = train_manager(workers / "w", workers / "plain", preferences={"goal": 0.4, "avoid": 1.6},
+                                 seed=5, **TINY).hierarchy  # fmt: skip
     hierarchy.set_preference(goal=1, avoid=4)  # its own ratio
     hierarchy.set_preference(goal=0.4001, avoid=1.6)  # its own, as a table rounds it
     with pytest.raises(PreferenceOutsideError):
@@ -289,9 +288,9 @@ def test_a_bundle_with_a_hostile_preference_space_is_refused(conditioned, tmp_pa
 @pytest.mark.slow
 def test_a_conditioned_manager_trains_with_sbx_too(workers, tmp_path):
     pytest.importorskip("sbx")
-    hierarchy, outcome = train_manager(
+    outcome = train_manager(
         workers / "w", tmp_path / "m", manager_preferences="ratio-sweep", seed=5, backend="sbx", **TINY
-    )
+    ).outcome
     assert outcome.backend == "sbx"
     loaded = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
     loaded.set_preference(goal=0.4, avoid=1.6)

@@ -35,7 +35,7 @@ def test_a_finished_run_drops_the_buffer_and_still_resumes_to_a_larger_budget(tm
 
     # Resuming the finished run with a larger budget continues from its model, refilling the buffer
     # (learning_starts fresh steps) before the first update.
-    manifest = train_workers(tmp_path / "run", config=config, timesteps=450, resume=True, **RUN)
+    manifest = train_workers(tmp_path / "run", config=config, timesteps=450, resume=True, **RUN).manifest
     assert manifest["workers"]["goal"]["timesteps_trained"] == 450
     resumed = DDPG.load(tmp_path / "run" / "checkpoints" / "goal" / "model_450.zip", device="cpu")
     assert resumed.learning_starts == 300 + 100
@@ -93,7 +93,7 @@ def test_a_run_resumed_between_evaluations_keeps_evaluating_on_the_same_grid(tmp
     config.write_text(TINY_CONFIG)
     run = {**RUN, "eval_freq": 100}
     train_workers(tmp_path / "run", config=config, timesteps=250, **run)
-    manifest = train_workers(tmp_path / "run", config=config, timesteps=450, resume=True, **run)
+    manifest = train_workers(tmp_path / "run", config=config, timesteps=450, resume=True, **run).manifest
     assert manifest["workers"]["goal"]["timesteps_trained"] == 450
     history = json.loads((tmp_path / "run" / "evaluations" / "goal.json").read_text())
     # Every 100 steps from the run's start, plus the final evaluation each call ends with.
@@ -114,7 +114,7 @@ def test_a_resumed_manager_must_act_on_the_same_mdp(tmp_path):
     with pytest.raises(ResumeMismatch, match=r"selection was .* in the run"):
         train_manager(run, run, option_steps=3, timesteps=150, resume=True, **tiny)
     # The same settings resume.
-    _, outcome = train_manager(run, run, option_steps=2, timesteps=150, resume=True, **tiny)
+    outcome = train_manager(run, run, option_steps=2, timesteps=150, resume=True, **tiny).outcome
     assert outcome.num_timesteps == 150
 
 
@@ -136,5 +136,5 @@ def test_a_resumed_manager_must_keep_its_learner_and_a_folder_without_that_recor
     del recorded["env_kwargs"]["learner"]
     settings.write_text(json.dumps(recorded))
     # Without the learner's record the MDP alone is compared: such a folder resumes as it did.
-    _, outcome = train_manager(run, run, gamma=0.9, timesteps=150, resume=True, **tiny)
+    outcome = train_manager(run, run, gamma=0.9, timesteps=150, resume=True, **tiny).outcome
     assert outcome.num_timesteps == 150

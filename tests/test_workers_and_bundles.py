@@ -25,8 +25,9 @@ TINY = {"timesteps": 400, "eval_freq": 200, "eval_episodes": 1}
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     root = tmp_path_factory.mktemp("run")
-    manifest = train_workers(root / "w", seed=3, **TINY)
-    hierarchy, outcome = train_manager(root / "w", root / "m", prefer="goal", bias=0.15, seed=3, **TINY)
+    manifest = train_workers(root / "w", seed=3, **TINY).manifest
+    result = train_manager(root / "w", root / "m", prefer="goal", bias=0.15, seed=3, **TINY)
+    hierarchy, outcome = result.hierarchy, result.outcome
     return root, manifest, hierarchy, outcome
 
 
@@ -61,9 +62,15 @@ def test_worker_zips_are_plain_sb3_and_manifest_is_complete(trained):
 
 
 def test_same_seed_gives_identical_weights(tmp_path):
-    a = train_workers(tmp_path / "a", workers=["goal"], seed=11, timesteps=300, eval_freq=0, eval_episodes=1)
-    b = train_workers(tmp_path / "b", workers=["goal"], seed=11, timesteps=300, eval_freq=0, eval_episodes=1)
-    c = train_workers(tmp_path / "c", workers=["goal"], seed=12, timesteps=300, eval_freq=0, eval_episodes=1)
+    a = train_workers(
+        tmp_path / "a", workers=["goal"], seed=11, timesteps=300, eval_freq=0, eval_episodes=1
+    ).manifest
+    b = train_workers(
+        tmp_path / "b", workers=["goal"], seed=11, timesteps=300, eval_freq=0, eval_episodes=1
+    ).manifest
+    c = train_workers(
+        tmp_path / "c", workers=["goal"], seed=12, timesteps=300, eval_freq=0, eval_episodes=1
+    ).manifest
     weights = [
         DDPG.load(p / "workers" / "goal.zip").policy.state_dict()
         for p in (tmp_path / "a", tmp_path / "b", tmp_path / "c")
@@ -160,7 +167,9 @@ def test_nested_hierarchy_is_a_worker_and_saves_as_one_bundle(trained, tmp_path)
     loaded = Hierarchy.load(tmp_path / "nested.zip")
     assert isinstance(loaded.workers["reach"], Hierarchy)
     obs = np.stack([gym.make("hddpg/SnakeReach-v0").reset(seed=s)[0] for s in range(5)])
-    np.testing.assert_array_equal(loaded.predict(obs)[0], nested.predict(obs)[0])
+    np.testing.assert_array_equal(
+        loaded.predict(obs, deterministic=True)[0], nested.predict(obs, deterministic=True)[0]
+    )
     with zipfile.ZipFile(tmp_path / "nested.zip") as archive:
         assert "workers/reach.hierarchy.zip" in archive.namelist()
 
@@ -181,7 +190,7 @@ def test_training_metrics_and_selection_are_reported(trained):
 def test_parallel_envs_in_subprocesses(tmp_path):
     manifest = train_workers(
         tmp_path, workers=["avoid"], n_envs=2, timesteps=400, eval_freq=200, eval_episodes=1
-    )
+    ).manifest
     assert manifest["workers"]["avoid"]["timesteps_trained"] == 400
 
 
@@ -295,7 +304,8 @@ def test_a_sac_manager_trains_bundles_and_reloads(trained, tmp_path):
     from sb3_hddpg.training.config import manager_option_steps
 
     root = trained[0]
-    hierarchy, outcome = train_manager(root / "w", tmp_path / "m", algo="sac", seed=3, **TINY)
+    result = train_manager(root / "w", tmp_path / "m", algo="sac", seed=3, **TINY)
+    hierarchy, outcome = result.hierarchy, result.outcome
     assert type(hierarchy.manager) is SAC and outcome.num_timesteps >= TINY["timesteps"]
     # The bundled sac.yml's manager block, not ddpg.yml's: its own selection settings.
     assert hierarchy.config.option_steps == manager_option_steps(algo="sac")

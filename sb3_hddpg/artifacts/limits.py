@@ -527,6 +527,11 @@ def check_file_entry(entry: object, what: str) -> dict[str, Any]:
     return dict(entry)
 
 
+# ---------------------------------------------------------------- a conditioned manager's preferences
+#: The largest ratio ``ratio-sweep:MAX`` takes (a weight of 1/1025 is as good as none).
+MAX_SWEEP_RATIO = 1024
+
+
 # ---------------------------------------------------------------- the snake arm's counts
 # The env checks its own constructor (a direct ``SnakeArmEnv(...)`` call is held to them too) and sits
 # below the artefacts, so it defines them; they are named here with every other limit on input.

@@ -31,6 +31,7 @@ from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.policy import Policy
+from sb3_hddpg.policy_loaders import LoadedPolicy
 
 #: The component of the shared state that the switch reads.
 DISTANCE_COMPONENT = "joint_obstacle_distances"
@@ -265,3 +266,9 @@ def load_ham(
         worker_states=workers.states,
     )
     return switch, meta
+
+
+def load_ham_policy(path: Path, trusted: bool, allowed_env_ids: Sequence[str] | None) -> LoadedPolicy:
+    """A ``ham.json`` as a policy with its env (the loader :mod:`sb3_hddpg.policy_loaders` registers for ``.json``)."""
+    ham, meta = load_ham(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
+    return LoadedPolicy(ham, meta.env_id, dict(meta.env_kwargs), "ham", Path(path).stem, meta.to_json())

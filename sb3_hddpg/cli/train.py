@@ -191,7 +191,7 @@ def train_workers_command(
             on_worker_done=done,
             env=shared,
             algos=algos,
-        )
+        ).manifest
     rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in workers}
     console.print(metrics_table(f"Workers in {out / 'workers'} (best evaluation)", rows))
     console.print(
@@ -402,8 +402,8 @@ def train_manager_command(
     setup = _checked_manager_setup(workers_dir, options, backend)
     prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
-        hierarchy, outcome = train_manager(setup, out, run=run_options_of(context))
-    _print_manager(hierarchy, outcome, out)
+        result = train_manager(setup, out, run=run_options_of(context))
+    _print_manager(result.hierarchy, result.outcome, out)
 
 
 def _checked_manager_setup(workers_dir: Path, options: ManagerOptions, backend: str | None) -> ManagerSetup:

@@ -32,12 +32,13 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.cli.train import metrics_table, training_interrupt_exits
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.hierarchy.preference import make_preference_env
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.agent import ALGO_NAMES
 from sb3_hddpg.training.backends import algo_class, check_algo, resolve_backend
 from sb3_hddpg.training.config import default_config, load_hyperparams
-from sb3_hddpg.training.flat import FLAT_ENV_ID, check_flat_env, train_flat
+from sb3_hddpg.training.flat import check_flat_env, train_flat
 
 
 @app.command("train-flat")
@@ -80,7 +81,7 @@ def train_flat_command(
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    env_id = shared.env_id if shared is not None else FLAT_ENV_ID
+    env_id = shared.env_id if shared is not None else SNAKE_REACH_ENV_ID
     with usage_errors("'--preference'"):
         preferences = parse_preferences(preference) if preference is not None else None
         if preferences is not None:
@@ -105,7 +106,7 @@ def train_flat_command(
         check_algo(algo, resolve_backend(backend, hyperparams.backend))
     prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
-        manifest, outcome = train_flat(
+        result = train_flat(
             out,
             algo=algo,
             config=config,
@@ -114,8 +115,8 @@ def train_flat_command(
             env_kwargs=shared.env_kwargs if shared is not None else None,
             preferences=preferences,
         )
-    entry = manifest["models"][algo]
-    if outcome is None:
+    entry = result.manifest["models"][algo]
+    if result.outcome is None:
         console.print(f"{algo} was already trained for {entry['timesteps_requested']} steps; kept it.")
     console.print(metrics_table(f"Flat {algo} on {env_id} (best evaluation)", {algo: entry["metrics"]}))
     console.print(f"Model: {out / 'flat' / entry['file']}   Manifest: {out / 'flat' / 'manifest.json'}")

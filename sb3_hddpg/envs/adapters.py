@@ -274,11 +274,8 @@ class InfoTermsEnv(TermsAdapter):
     :param terms: the info keys that are reward terms.
     :param term_bounds: term name -> ``[low, high]`` per step, for every term.
     :param info_key: the ``info`` entry holding the terms (default: the terms are top-level ``info`` keys).
-    :param term: the term that is the step reward (a worker's view); ``None``: the sum of normalised terms.
-    :param episode_steps: the inner env's time limit (default: its registered one; named so because
-        ``gym.make`` keeps ``max_episode_steps`` for itself).
-    :param render_mode: passed to the inner env.
-    :param env_kwargs: more keyword arguments of the inner env.
+    :param term: as :class:`MultiObjectiveEnv`'s (a worker's view), and so are ``episode_steps``,
+        ``render_mode`` and ``env_kwargs``.
     """
 
     def __init__(

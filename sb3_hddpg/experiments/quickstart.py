@@ -42,11 +42,10 @@ from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
 from sb3_hddpg.envs.contract import Proximity, proximity_of, state_layout_of
-from sb3_hddpg.envs.ids import WORKER_ENV_IDS
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.experiments.packaging import write_zoo_layout
 from sb3_hddpg.experiments.quickstart_jobs import (
-    COMPARISON_ENV_ID,
     ENV_STEPS_PER_STEP,
     QuickstartObserver,
     run_training_jobs,
@@ -256,7 +255,7 @@ def _results_json(
         "schema_version": QUICKSTART_RESULTS_VERSION,
         "kind": "sb3-hddpg-quickstart",
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "env_id": COMPARISON_ENV_ID,
+        "env_id": SNAKE_REACH_ENV_ID,
         "budget": {**vars(budget), "flat_timesteps": flat_budget(budget)},
         "seed": seed,
         "eval_seeds": list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + budget.compare_episodes)),
@@ -404,7 +403,7 @@ def _record_hierarchy(
     :return: the recording, and the snake's sensor range and touch radius as the contract declares them.
     """
     limit = {"max_episode_steps": budget.gif_max_steps} if budget.gif_max_steps else {}
-    gif_env = hierarchy.make_env(COMPARISON_ENV_ID, render_mode="rgb_array", **limit)
+    gif_env = hierarchy.make_env(SNAKE_REACH_ENV_ID, render_mode="rgb_array", **limit)
     gif_steps = budget.gif_episodes * (budget.gif_max_steps or _episode_steps())
     try:
         recording = record_video(
@@ -438,7 +437,7 @@ def _plot_figures(
         recording.records,
         run_dir / "selection.png",
         names=names,
-        title=f"HDDPG on {COMPARISON_ENV_ID}, seed {EVAL_SEED_BASE}: which worker acts, and why",
+        title=f"HDDPG on {SNAKE_REACH_ENV_ID}, seed {EVAL_SEED_BASE}: which worker acts, and why",
         sensor_range=proximity.sensor_range if proximity else None,
         touch_radius=proximity.touch_radius if proximity else None,
     )
@@ -466,7 +465,7 @@ def _plot_figures(
     files["comparison"] = plot_comparison(
         summaries,
         run_dir / "comparison.png",
-        title=f"{COMPARISON_ENV_ID}: {budget.compare_episodes} episodes per method, seeds "
+        title=f"{SNAKE_REACH_ENV_ID}: {budget.compare_episodes} episodes per method, seeds "
         f"{EVAL_SEED_BASE}..{last_compare_seed}",
     )
 
@@ -476,7 +475,7 @@ def _write_zoo(run_dir: Path) -> Path:
     zoo_models: dict[str, str | Path] = {
         env: run_dir / "workers" / f"{n}.zip" for n, env in WORKER_ENV_IDS.items()
     }
-    zoo_models[COMPARISON_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
+    zoo_models[SNAKE_REACH_ENV_ID] = run_dir / "flat" / "flat-ddpg.zip"
     entries = read_workers_manifest(run_dir / "workers" / "manifest.json").entries
     zoo_env_kwargs = {
         env: entries[n].get("env_kwargs") or {} for n, env in WORKER_ENV_IDS.items() if n in entries
@@ -499,7 +498,7 @@ def _evaluate_on_shared_seeds(
 
     results = {}
     for label, loaded in policies.items():
-        env = loaded.make_env(COMPARISON_ENV_ID)
+        env = loaded.make_env(SNAKE_REACH_ENV_ID)
         try:
             results[label] = evaluate(
                 loaded.policy, env, n_episodes=episodes, seed=EVAL_SEED_BASE, on_step=tick
@@ -512,7 +511,7 @@ def _evaluate_on_shared_seeds(
 
 def _build_ham(run_dir: Path) -> Path:
     """Write the HAM switch over the run's workers to ``run_dir/ham.json``, with its default threshold."""
-    probe = gym.make(COMPARISON_ENV_ID)
+    probe = gym.make(SNAKE_REACH_ENV_ID)
     n_joints = len(state_layout_of(probe).indices(["joint_obstacle_distances"]))
     probe.close()
     return save_ham(

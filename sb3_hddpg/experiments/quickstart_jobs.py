@@ -19,9 +19,6 @@ from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.workers import train_workers
 
-#: The env every method is compared on.
-COMPARISON_ENV_ID = SNAKE_REACH_ENV_ID
-
 
 class QuickstartObserver:
     """
@@ -82,21 +79,21 @@ def _train_job(
         keep_checkpoints=keep_checkpoints,
         backend=backend,
     )
-    common: dict[str, Any] = dict(config=config, run=run, extra_callbacks=[_ProgressReporter()])
+    common: dict[str, Any] = dict(config=config, run=run, callback=_ProgressReporter())
     if kind == "worker":
         # The paper's DDPG for every worker: the quickstart's config is the bundled ddpg.yml, and its zoo/
         # layout serves each worker to `rl_zoo3.enjoy --algo ddpg`.
-        manifest = train_workers(run_dir, workers=[name], algos={name: "ddpg"}, **common)
-        out: dict[str, Any] = {"entry": manifest["workers"][name]}
+        workers = train_workers(run_dir, workers=[name], algos={name: "ddpg"}, **common)
+        out: dict[str, Any] = {"entry": workers.manifest["workers"][name]}
         steps = out["entry"]["timesteps_trained"]
     elif kind == "manager":
-        _, outcome = train_manager(run_dir, run_dir, **common)
+        outcome = train_manager(run_dir, run_dir, **common).outcome
         # Env steps, as every other agent's: each decision runs option_steps of them.
         out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps * manager_option_steps(config)
     else:
         # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
-        manifest, _ = train_flat(run_dir, algo="ddpg", name=name, env_id=COMPARISON_ENV_ID, **common)
-        out = manifest["models"][name]
+        flat = train_flat(run_dir, algo="ddpg", name=name, env_id=SNAKE_REACH_ENV_ID, **common)
+        out = flat.manifest["models"][name]
         steps = out["timesteps_trained"]
     out.update(
         {

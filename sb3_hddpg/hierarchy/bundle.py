@@ -13,7 +13,9 @@ import zlib
 from collections.abc import Mapping
 from pathlib import Path
 
+import gymnasium as gym
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.save_util import data_to_json
 
 from sb3_hddpg.artifacts.io import json_text
 from sb3_hddpg.artifacts.limits import (
@@ -28,6 +30,9 @@ from sb3_hddpg.artifacts.records import BundleManifest
 
 #: The manifest's member name.
 MANIFEST = "manifest.json"
+
+#: What SB3's ``load`` says of a bundle: ``ValueError: Policy {this} unknown`` (see :func:`sb3_refusal`).
+SB3_REFUSAL = "of an sb3-hddpg hierarchy bundle, which sb3_hddpg.Hierarchy.load opens (not an SB3 class), is"
 
 
 class BundleError(ValueError):
@@ -104,6 +109,39 @@ def read_bundle(
             error=BundleError,
         )
     return record, members
+
+
+def sb3_refusal(observation_space: gym.Space, action_space: gym.Space) -> bytes:
+    """
+    The ``data`` member of a bundle: what SB3's ``load`` reads first of a zip. Without it ``SAC.load`` of a
+    bundle fails with ``AssertionError: No data found in the saved file``; with it SB3 checks the spaces
+    (given an env) and then names the policy class, which is :data:`SB3_REFUSAL`, in a one-line
+    ``ValueError``. Nothing of ours reads it, so it is outside the manifest's hashes and carries nothing a
+    bundle's verification depends on.
+
+    :param observation_space: the hierarchy's observation space (SB3 compares it with a given env's).
+    :param action_space: the hierarchy's action space.
+    """
+    return data_to_json(
+        {
+            "policy_class": SB3_REFUSAL,
+            "observation_space": observation_space,
+            "action_space": action_space,
+            "verbose": 0,
+        }
+    ).encode()
+
+
+def bundle_path(path: str | Path | io.BytesIO) -> Path | io.BytesIO:
+    """
+    The file to open for ``path``, as SB3's ``load`` finds a model: ``path`` itself, or ``path.zip`` when
+    ``path`` has no suffix and does not exist but that does.
+    """
+    if isinstance(path, io.BytesIO):
+        return path
+    path = Path(path)
+    with_zip = path.with_name(f"{path.name}.zip")
+    return with_zip if not path.suffix and not path.exists() and with_zip.exists() else path
 
 
 def model_bytes(model: BaseAlgorithm) -> bytes:

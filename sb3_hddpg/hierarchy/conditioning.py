@@ -23,13 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from sb3_hddpg.artifacts.limits import LimitError, brief
+from sb3_hddpg.artifacts.limits import MAX_SWEEP_RATIO, LimitError, brief
 from sb3_hddpg.hierarchy.selection import check_preferences, parse_preferences
 
 #: The ratios of the ``ratio-sweep`` preset: each worker in turn weighted this many times the others.
 RATIO_SWEEP = (1.0, 2.0, 3.0, 4.0)
-#: The largest ratio ``ratio-sweep:MAX`` takes (a weight of 1/1025 is as good as none).
-MAX_SWEEP_RATIO = 1024
 #: The least normalised weight of a ``dirichlet`` space by default (no worker ignored completely).
 DIRICHLET_FLOOR = 0.05
 #: Slack for comparing normalised weights read back from JSON.

@@ -39,6 +39,9 @@ class FrozenWorker:
     def __init__(self, worker: Policy, obs_indices: np.ndarray | None = None) -> None:
         self.worker = worker
         self.obs_indices = obs_indices
+        #: The state given to a stateful worker's ``predict`` (a nested hierarchy's options of the env that acts
+        #: now; the hierarchy acting above sets it per env); ``None``: the worker keeps its own.
+        self.state: Any = None
         policy = getattr(worker, "policy", None)
         # A Box-acting SB3 policy is run here; a discrete one (DQN, QR-DQN) acts through predict, whose
         # integer actions need no scaling.
@@ -91,12 +94,15 @@ class FrozenWorker:
 
     def _act_torch(self, obs: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            tensor = torch.as_tensor(self._select(obs), dtype=torch.float32)
+            tensor = torch.as_tensor(self._select(obs), dtype=torch.float32, device=self._policy.device)  # type: ignore[union-attr]
             action = self._policy._predict(tensor.reshape(-1, tensor.shape[-1]), deterministic=True)  # type: ignore[union-attr]
-        return self._unscale(action.numpy().reshape(*obs.shape[:-1], -1))
+        return self._unscale(action.cpu().numpy().reshape(*obs.shape[:-1], -1))
 
     def _act_predict(self, obs: np.ndarray) -> np.ndarray:
-        action, _ = self.worker.predict(self._select(obs), deterministic=True)
+        if self.state is None:
+            action, _ = self.worker.predict(self._select(obs), deterministic=True)
+        else:
+            action, _ = self.worker.predict(self._select(obs), state=self.state, deterministic=True)
         action = np.asarray(action)
         return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 

@@ -24,6 +24,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.type_aliases import GymEnv
+from stable_baselines3.common.utils import check_for_correct_spaces, get_device
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.artifacts.limits import (
@@ -32,19 +35,27 @@ from sb3_hddpg.artifacts.limits import (
     check_env_id,
 )
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes
-from sb3_hddpg.artifacts.records import bundle_manifest
+from sb3_hddpg.artifacts.records import BundleManifest, bundle_manifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.values import check_env_kwargs
-from sb3_hddpg.artifacts.workers import Workers, states_of
+from sb3_hddpg.artifacts.workers import Workers
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-from sb3_hddpg.envs.layout import StateLayout
-from sb3_hddpg.hierarchy.bundle import MANIFEST, BundleError, model_bytes, read_bundle, write_bundle
+from sb3_hddpg.hierarchy.bundle import (
+    MANIFEST,
+    BundleError,
+    bundle_path,
+    model_bytes,
+    read_bundle,
+    sb3_refusal,
+    write_bundle,
+)
 from sb3_hddpg.hierarchy.conditioning import WRITTEN_SLACK, PreferenceOutsideError, PreferenceSpace
+from sb3_hddpg.hierarchy.fit import check_spaces, manager_input_of, selection_config_of, shared_env
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
-from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
+from sb3_hddpg.hierarchy.options import OptionState
 from sb3_hddpg.hierarchy.selection import (
     OptionEnd,
     SelectionConfig,
@@ -53,17 +64,14 @@ from sb3_hddpg.hierarchy.selection import (
     check_selection_settings,
     get_selector,
 )
-from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import Policy
-
-#: The shared env of a hierarchy when neither ``env_id`` is given nor the models' training envs tell.
-DEFAULT_ENV_ID = SNAKE_REACH_ENV_ID
 
 
 class Hierarchy:
     """
-    A manager and its workers, acting like an SB3 model: ``predict(obs, deterministic=True)`` returns the
-    action of the worker the manager selects (single or batched observations).
+    A manager and its workers, acting like an SB3 model: ``predict(obs, state, episode_start, deterministic)``
+    returns the action of the worker the manager selects (single or batched observations, an option per env
+    of a batch).
 
     Example, over workers from :func:`~sb3_hddpg.artifacts.manifests.load_workers` and a manager of your own::
 
@@ -99,13 +107,13 @@ class Hierarchy:
         self.manager = manager
         self.workers = dict(workers)
         self.names = list(self.workers)
-        config = _selection_config(manager, workers, config)
+        config = selection_config_of(manager, workers, config)
         self.config = config
         if env_id is None:
             # Without an env id the bundle would record the snake env whatever the models were trained on,
             # and fail only much later (in evaluate); the models' own training envs say which env it is.
-            shared = _shared_env(workers)
-            env_id, inferred_kwargs = infer_env(manager, self.workers) or shared or (DEFAULT_ENV_ID, {})
+            shared = shared_env(workers)
+            env_id, inferred_kwargs = infer_env(manager, self.workers) or shared or (SNAKE_REACH_ENV_ID, {})
             env_kwargs = inferred_kwargs if env_kwargs is None else env_kwargs
         self.env_id = env_id
         self.env_kwargs = dict(env_kwargs or {})
@@ -145,22 +153,24 @@ class Hierarchy:
         self._manager_input = manager_input_of(config, self.observation_space, layout, len(self.names))
         # The manager's input is built here (its state, motion and weights), so its frozen copy sees it all.
         self._manager = FrozenWorker(manager)
-        #: The last observation ``predict`` saw in this episode (a manager that observes motion needs it).
-        self._previous_obs: np.ndarray | None = None
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
         self._selector = get_selector(config.selection)
         self._rng = np.random.default_rng(0)
-        self._option_left = 0
         self._band = OptionEnd.from_json(config.option_end).bind(layout) if config.option_end else None
-        self._option_band: tuple[int, bool] | None = None
-        self._option_choice = 0
-        self._option_probabilities = np.full(len(self.names), 1.0 / len(self.names))
+        #: The options of the observations ``predict`` sees without a ``state`` (one stream per env of a batch).
+        self._stream: OptionState | None = None
+        #: The env set by :meth:`set_env` or ``load(env=...)`` (``None``: none; see :meth:`make_env`).
+        self.env: VecEnv | None = None
         self.last_selection: str | None = None
-        #: Whether the last ``predict`` made a new decision (``False`` inside an option).
+        #: Whether the last ``predict`` made a new decision (``False`` inside an option; of the last env in a batch).
         self.last_decided = False
         #: The manager actor's output at the last decision (in [-1, 1]; how saturated the manager is).
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
+        #: Per env of the last ``predict``'s batch (one for a single observation): the worker in charge and
+        #: the manager's output at that env's last decision.
+        self.last_selections: list[str] = []
+        self.last_manager_actions: list[np.ndarray | None] = []
 
     def make_env(self, **overrides: object) -> gym.Env:
         """
@@ -169,6 +179,21 @@ class Hierarchy:
         :param overrides: keyword arguments over ``env_kwargs`` (e.g. ``render_mode="rgb_array"``).
         """
         return gym.make(self.env_id, **{**self.env_kwargs, **overrides})
+
+    def set_env(self, env: GymEnv) -> None:
+        """
+        Give the hierarchy an env to act in, as SB3's ``set_env`` (checked against the hierarchy's spaces; a
+        single env is wrapped in a ``DummyVecEnv``).
+
+        :param env: a gymnasium env or a VecEnv with this hierarchy's observation and action spaces.
+        """
+        vec_env = env if isinstance(env, VecEnv) else DummyVecEnv([lambda: env])
+        check_for_correct_spaces(vec_env, self.observation_space, self.action_space)
+        self.env = vec_env
+
+    def get_env(self) -> VecEnv | None:
+        """The env given by :meth:`set_env` or ``load(env=...)``, as SB3's ``get_env``."""
+        return self.env
 
     def _env_name(self) -> str:
         return f"{self.env_id!r}" + (f" with env_kwargs {self.env_kwargs}" if self.env_kwargs else "")
@@ -213,16 +238,18 @@ class Hierarchy:
         checked = self.preference_space.check(given)
         self.config = replace(self.config, preferences=checked)
         self._preference_obs = self.preference_space.weights(checked).astype(np.float32)
-        self._option_left = 0
+        if self._stream is not None:
+            self._stream.end_options()
 
     def _manager_obs(self, obs: np.ndarray, previous: np.ndarray | None = None) -> np.ndarray:
         """The manager's input for ``obs`` (one or a batch), ``previous`` the state one env step earlier."""
         return self._manager_input(obs, previous, self._preference_obs)
 
     def reset_episode(self) -> None:
-        """Forget the current option and the last observation (call at an episode start)."""
-        self._option_left = 0
-        self._previous_obs = None
+        """Forget the current options and the last observations of ``predict`` without a ``state`` (call at an
+        episode start; with a ``state``, ``episode_start`` says which envs start)."""
+        if self._stream is not None:
+            self._stream.reset()
         for worker in self._frozen:
             worker.reset_episode()
 
@@ -230,62 +257,90 @@ class Hierarchy:
         """Seed the generator used to sample workers in stochastic prediction and to break exact ties."""
         self._rng = np.random.default_rng(seed)
 
+    def initial_state(self, n_envs: int = 1) -> OptionState:
+        """The options of ``n_envs`` envs at their episodes' start (what ``predict`` takes as ``state``)."""
+        nested = {j: w.worker for j, w in enumerate(self._frozen) if isinstance(w.worker, Hierarchy)}
+        return OptionState.initial(
+            n_envs, len(self.names), lambda: {j: h.initial_state() for j, h in nested.items()}
+        )
+
     def predict(
         self,
         observation: np.ndarray,
-        state: object = None,
+        state: OptionState | None = None,
         episode_start: np.ndarray | None = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, OptionState]:
         """
-        The action of the selected worker, like SB3's ``predict``.
+        The action of the selected worker, like SB3's ``predict`` (of a recurrent policy: the option each env
+        is in is the state).
 
         :param observation: the shared state, of the env's observation shape (``(obs_dim,)`` for the snake), or a
-            batch of them (one more leading axis), each row deciding anew. A manager that observes motion
-            needs one stream of observations: one at a time, or batches of one.
-        :param state: unused (no recurrent state), for SB3 compatibility.
-        :param episode_start: for SB3 compatibility; a true entry ends the current option.
-        :param deterministic: the most probable worker (``True``) or one sampled from the probabilities. An
-            exact tie among the most probable is drawn from the hierarchy's generator either way (see
-            :meth:`seed`): the manager prefers neither, and the worker order must not decide.
-        :return: the env action(s) and ``None``.
+            batch of them (one more leading axis, one row per env of a VecEnv).
+        :param state: the options returned by the previous call (see :meth:`initial_state`); ``None``: the
+            hierarchy's own, kept from call to call for as many envs as the batch has rows (a new batch size
+            starts afresh). ``predict`` updates it in place.
+        :param episode_start: one flag per env (or one for a single observation); a true entry ends that env's
+            option and forgets its last observation, as at an episode's start.
+        :param deterministic: the most probable worker (``True``) or one sampled from the probabilities
+            (``False``, as SB3's default). An exact tie among the most probable is drawn from the hierarchy's
+            generator either way (see :meth:`seed`): the manager prefers neither, and the worker order must
+            not decide.
+        :return: the env action(s) and the state to pass at the next step.
         """
         obs = np.asarray(observation, dtype=np.float32)
-        if episode_start is not None and np.any(episode_start):
-            self.reset_episode()
         # One observation has the env's own shape (a matrix for highway-env's Kinematics); one more axis is a batch.
         single_ndim = len(getattr(self.observation_space, "shape", None) or (0,))
-        if obs.ndim == single_ndim + 1:
-            if self._manager_input.motion:
-                # A batch of one (SB3's evaluate_policy on one env) is the stream itself.
-                if len(obs) == 1:
-                    return self._act(obs[0], deterministic, keep_option=True)[None], None
-                raise ValueError(
-                    "This manager observes motion, which needs one stream of observations: call predict with "
-                    "one observation at a time"
-                )
-            # Batched: options apply to a single stream of observations, so each row decides anew.
-            actions = [self._act(row, deterministic, keep_option=False) for row in obs]
-            return np.stack(actions), None
-        return self._act(obs, deterministic, keep_option=True), None
+        batched = obs.ndim == single_ndim + 1
+        rows = obs if batched else obs[None]
+        if state is None:
+            if self._stream is None or self._stream.n_envs != len(rows):
+                self._stream = self.initial_state(len(rows))
+            state = self._stream
+        elif state.n_envs != len(rows):
+            raise ValueError(
+                f"Expected a state for {len(rows)} envs (one per row of the observation), actually for {state.n_envs}"
+            )
+        if episode_start is not None:
+            self._start_episodes(state, episode_start)
+        actions = [self._act(row, deterministic, state, i) for i, row in enumerate(rows)]
+        self.last_selections = [self.names[int(choice)] for choice in state.choice]
+        self.last_manager_actions = list(state.manager_action)
+        return (np.stack(actions) if batched else actions[0]), state
 
-    def _act(self, obs: np.ndarray, deterministic: bool, keep_option: bool) -> np.ndarray:
+    def _start_episodes(self, state: OptionState, episode_start: np.ndarray) -> None:
+        starts = np.asarray(episode_start, dtype=bool).reshape(-1)
+        if starts.size not in (1, state.n_envs):
+            raise ValueError(
+                f"Expected `episode_start` to hold {state.n_envs} flags, actually: {starts.size}"
+            )
+        for index in np.flatnonzero(np.broadcast_to(starts, (state.n_envs,))):
+            state.reset(int(index))
+        if starts.any():
+            # Stateful workers other than hierarchies (the HAM switch) keep one stream of their own.
+            for worker in self._frozen:
+                if not isinstance(worker.worker, Hierarchy):
+                    worker.reset_episode()
+
+    def _act(self, obs: np.ndarray, deterministic: bool, state: OptionState, env: int) -> np.ndarray:
         band = self._band(obs) if self._band is not None else None
-        self.last_decided = not keep_option or self._option_left <= 0 or band != self._option_band
+        self.last_decided = state.left[env] <= 0 or band != state.band[env]
         if self.last_decided:
-            self._option_band = band
-            previous = self._previous_obs if keep_option else None
-            self.last_manager_action = self._manager.act(self._manager_obs(obs, previous))
-            probabilities = np.asarray(self._selector.probabilities(self.simplex, self.last_manager_action))
-            self._option_probabilities = probabilities
-            self._option_choice = self._selector.choose(probabilities, self._rng, deterministic)
-            self._option_left = self.config.option_steps
-        self._option_left -= 1
-        if keep_option:
-            self._previous_obs = obs
-        probabilities, chosen = self._option_probabilities, self._option_choice
+            state.band[env] = band
+            state.manager_action[env] = self._manager.act(self._manager_obs(obs, state.previous[env]))
+            probabilities = np.asarray(self._selector.probabilities(self.simplex, state.manager_action[env]))
+            state.probabilities[env] = probabilities
+            state.choice[env] = self._selector.choose(probabilities, self._rng, deterministic)
+            state.left[env] = self.config.option_steps
+        state.left[env] -= 1
+        if self._manager_input.motion:
+            state.previous[env] = obs.copy()
+        probabilities, chosen = state.probabilities[env], int(state.choice[env])
+        self.last_manager_action = state.manager_action[env]
         self.last_selection = self.names[chosen]
         self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
+        for index, nested in state.workers[env].items():
+            self._frozen[index].state = nested
         action = np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs))
         # A discrete worker's action stays an index; a continuous one is the float32 of the env's Box.
         return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
@@ -335,27 +390,44 @@ class Hierarchy:
             workers_manifest,
             library_versions(),
         )
+        # An SB3 class pointed at the bundle reads this entry and says what the file is (see sb3_refusal).
+        members["data"] = sb3_refusal(self.observation_space, self.action_space)
         return write_bundle(manifest, members)
 
     def save(self, path: str | Path) -> Path:
-        """Write the bundle to ``path`` atomically (a ``.zip``)."""
+        """
+        Write the bundle atomically, as SB3's ``save`` names files: ``path`` without a suffix gets ``.zip``.
+
+        :param path: the bundle's file (``"hierarchy"`` writes ``hierarchy.zip``).
+        :return: the file written.
+        """
         data = self.to_bytes()
-        return atomic_write(path, lambda tmp: tmp.write_bytes(data))
+        path = Path(path)
+        return atomic_write(
+            path if path.suffix else path.with_name(f"{path.name}.zip"), lambda tmp: tmp.write_bytes(data)
+        )
 
     # ------------------------------------------------------------------ loading
     @classmethod
     def load(
         cls,
         path: str | Path | io.BytesIO,
+        env: GymEnv | None = None,
+        device: str = "auto",
         trusted: bool = False,
         allowed_env_ids: Sequence[str] | None = None,
         *,
         budget: LoadBudget | None = None,
     ) -> Hierarchy:
         """
-        Load and verify a bundle.
+        Load and verify a bundle, as SB3's ``load`` opens a model.
 
-        :param path: a ``hierarchy.zip`` (or its bytes).
+        :param path: a ``hierarchy.zip`` (or its bytes); a path without a suffix that does not exist is tried
+            with ``.zip``, as SB3 does.
+        :param env: an env to act in (see :meth:`set_env`), checked against the bundle's spaces; ``None``:
+            :meth:`make_env` makes the bundle's own.
+        :param device: the torch device of the models (``"auto"``: CUDA when available, as SB3); frozen workers
+            compiled to numpy act on the CPU either way.
         :param trusted: ``False`` (default): rebuild every model from the manifest's JSON spec and load only
             its tensors, so no code from the file runs. ``True``: SB3's full loader, which unpickles
             objects stored in the model zips (only for files you trust), and any registered env id.
@@ -364,42 +436,35 @@ class Hierarchy:
             parent's (see :mod:`sb3_hddpg.artifacts.limits`).
         :return: the hierarchy; raises :class:`BundleError` naming the problem otherwise.
         """
-
+        path = bundle_path(path)
         name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
         budget = budget if budget is not None else LoadBudget()
         manifest, members = read_bundle(path, budget=budget)
-        names = manifest.worker_names
-        try:
-            env_id = check_env_id(manifest.env_id, f"{name}: env_id", allowed_env_ids, trusted)
-            env_kwargs = check_env_kwargs(
-                env_id, manifest.env_kwargs, f"{name}: env_kwargs", allowed_env_ids, trusted
-            )
-            settings = check_selection_settings(manifest.selection, names, f"{name}: selection")
-            if settings.get("manager_preferences") is not None:
-                space = PreferenceSpace.from_json(
-                    settings["manager_preferences"], names, f"{name}: selection.manager_preferences"
-                )
-                settings["manager_preferences"] = space.to_json()
-        except ValueError as error:
-            raise BundleError(str(error)) from None
+        env_id, env_kwargs, settings = _checked_settings(manifest, name, trusted, allowed_env_ids)
 
         def model(entry: Mapping[str, Any]) -> BaseAlgorithm:
             data = io.BytesIO(members[entry["file"]])
             try:
                 if trusted:
                     budget.spend_model(name)
-                return load_model(data, spec=entry.get("spec"), trusted=trusted, budget=budget)
+                return load_model(
+                    data, spec=entry.get("spec"), trusted=trusted, device=get_device(device), budget=budget
+                )
             except ValueError as error:
                 raise BundleError(f"{name}: cannot load {entry['file']}: {error}") from None
 
         workers: dict[str, Policy] = {}
         worker_meta = {}
-        for worker_name in names:
+        for worker_name in manifest.worker_names:
             entry = manifest.workers[worker_name]
             if entry.get("kind") == "hierarchy":
                 with budget.nested(name):
                     workers[worker_name] = cls.load(
-                        io.BytesIO(members[entry["file"]]), trusted, allowed_env_ids, budget=budget
+                        io.BytesIO(members[entry["file"]]),
+                        device=device,
+                        trusted=trusted,
+                        allowed_env_ids=allowed_env_ids,
+                        budget=budget,
                     )
             else:
                 workers[worker_name] = model(entry)
@@ -408,7 +473,7 @@ class Hierarchy:
             }
         manager_entry = manifest.manager
         try:
-            return cls(
+            hierarchy = cls(
                 model(manager_entry),
                 workers,
                 SelectionConfig(**settings),
@@ -421,42 +486,9 @@ class Hierarchy:
             raise
         except (ValueError, KeyError, TypeError, AttributeError) as error:
             raise BundleError(f"{name}: invalid settings in {MANIFEST}: {brief(str(error), 300)}") from None
-
-
-def _shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
-    """The shared env workers from ``load_workers`` name, if usable."""
-    if isinstance(workers, Workers) and workers.env_id is not None:
-        return workers.env_id, workers.env_kwargs
-    return None
-
-
-def _selection_config(
-    manager: object, workers: Mapping[str, Policy], config: SelectionConfig | None
-) -> SelectionConfig:
-    """
-    The selection settings of a new hierarchy: ``config``, else those of the ``WorkerSelectionWrapper`` the
-    manager was trained on (if it still has its env), else the wrapper's defaults; the state components the
-    workers carry are the default of ``worker_states`` either way.
-    """
-    if config is None:
-        wrapper = _selection_wrapper(manager)
-        if wrapper is not None:
-            return wrapper.selection_config()
-        config = SelectionConfig(preferences=check_preferences({}, list(workers)))
-    carried = {name: states for name, states in states_of(workers).items() if name in workers}
-    return replace(config, worker_states={**carried, **config.worker_states}) if carried else config
-
-
-def _selection_wrapper(manager: object) -> WorkerSelectionWrapper | None:
-    """The ``WorkerSelectionWrapper`` a manager trains on, if it still has an in-process env."""
-    get_env = getattr(manager, "get_env", None)
-    vec_env = get_env() if callable(get_env) else None
-    env = (getattr(vec_env, "envs", None) or [None])[0]
-    while isinstance(env, gym.Wrapper):
-        if isinstance(env, WorkerSelectionWrapper):
-            return env
-        env = env.env
-    return None
+        if env is not None:
+            hierarchy.set_env(env)
+        return hierarchy
 
 
 def infer_env(manager: object, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
@@ -505,59 +537,22 @@ def _training_env(model: object) -> tuple[str, dict[str, Any]] | None:
     return spec.id, kwargs
 
 
-def manager_input_of(
-    config: SelectionConfig, observation_space: gym.Space, layout: StateLayout, n_workers: int
-) -> ManagerInput:
-    """What a manager with these selection settings observes of the shared env's ``observation_space``."""
-    indices = layout.indices(config.manager_state) if config.manager_state else None
-    n_preferences = n_workers if config.manager_preferences is not None else 0
-    return ManagerInput(observation_space, indices, config.manager_motion, n_preferences)
-
-
-def check_spaces(
-    manager: Any,
-    workers: Mapping[str, Policy],
-    config: SelectionConfig,
-    observation_space: gym.Space,
-    action_space: gym.Space,
-    layout: StateLayout,
-    env_name: str,
-) -> None:
-    """
-    Check that the manager and every worker that declares its spaces fit the env: the manager sees the
-    env's observation (or its ``manager_state`` components) and outputs one value per worker; each worker
-    sees the env's observation (or its ``worker_states`` components) and outputs the env's action.
-
-    :param env_name: the env as named in messages.
-    :raises ValueError: one line naming the model, the expected and the actual space.
-    """
-
-    def subset(components: list[str] | None) -> gym.Space:
-        return subset_space(observation_space, layout.indices(components) if components else None)
-
-    manager_action = get_selector(config.selection).action_space(len(workers))
-    manager_obs = manager_input_of(config, observation_space, layout, len(workers)).observation_space
-    checks = [("The manager", manager, manager_obs, manager_action, " (one per worker)")]
-    checks += [
-        (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")
-        for name, worker in workers.items()
-    ]
-    hint = "pass the env they were trained on as env_id= (and env_kwargs=)"
-    for label, model, expected_obs, expected_action, action_note in checks:
-        for kind, expected, actual, note in (
-            ("observations", expected_obs, getattr(model, "observation_space", None), ""),
-            ("actions", expected_action, getattr(model, "action_space", None), action_note),
-        ):
-            if actual is None or actual == expected:
-                continue
-            if getattr(actual, "shape", None) != getattr(expected, "shape", None):
-                raise ValueError(
-                    f"{label} has {kind} of shape {actual.shape}, but the hierarchy's env {env_name} needs "
-                    f"{expected.shape}{note}: {hint}"
-                )
-            # A Box with per-entry bounds prints its arrays over several lines: keep the message on one.
-            shown = " ".join(f"{actual} != {expected}".split())
-            raise ValueError(
-                f"{label} has {kind} of shape {actual.shape} like the hierarchy's env {env_name}, but other "
-                f"bounds or dtype ({shown}): {hint}"
+def _checked_settings(
+    manifest: BundleManifest, name: str, trusted: bool, allowed_env_ids: Sequence[str] | None
+) -> tuple[str, dict[str, Any], dict[str, Any]]:
+    """A bundle's env id, env kwargs and selection settings, each checked (a :class:`BundleError` otherwise)."""
+    names = manifest.worker_names
+    try:
+        env_id = check_env_id(manifest.env_id, f"{name}: env_id", allowed_env_ids, trusted)
+        env_kwargs = check_env_kwargs(
+            env_id, manifest.env_kwargs, f"{name}: env_kwargs", allowed_env_ids, trusted
+        )
+        settings = check_selection_settings(manifest.selection, names, f"{name}: selection")
+        if settings.get("manager_preferences") is not None:
+            space = PreferenceSpace.from_json(
+                settings["manager_preferences"], names, f"{name}: selection.manager_preferences"
             )
+            settings["manager_preferences"] = space.to_json()
+    except ValueError as error:
+        raise BundleError(str(error)) from None
+    return env_id, env_kwargs, settings

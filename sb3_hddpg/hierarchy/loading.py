@@ -4,8 +4,8 @@
 - a hierarchy bundle (``hierarchy.zip``): verified and rebuilt by :meth:`Hierarchy.load`;
 - an SB3 zip written by ``train-workers`` / ``train-flat``: found in the ``manifest.json`` beside it,
   whose sha256 and rebuild spec make the weights-only load possible;
-- a HAM switch (``ham.json``);
-- ``random`` or ``scripted``: reference policies that need no file;
+- a file or a name a registered loader opens (:mod:`sb3_hddpg.policy_loaders`: the HAM switch's
+  ``ham.json``; ``random``, ``scripted``, ``ik``, ``field``: reference policies that need no file);
 - any other SB3 zip only with ``trusted=True`` (SB3's full loader runs code stored in the file).
 """
 
@@ -13,72 +13,19 @@ from __future__ import annotations
 
 import zipfile
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import gymnasium as gym
 
 from sb3_hddpg.artifacts.limits import check_env_id, read_json_record
 from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.artifacts.records import ManifestKind, models_manifest_from_json
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.values import check_env_kwargs
-from sb3_hddpg.baselines.ham import load_ham
-from sb3_hddpg.baselines.random import RandomPolicy
-from sb3_hddpg.envs import SnakeArmEnv
-from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.envs.headless import rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-from sb3_hddpg.envs.snake.controllers import JacobianReacher, make_controller
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-from sb3_hddpg.policy import Policy
+from sb3_hddpg.policy_loaders import LoadedPolicy, file_loader, named_loader
 
-#: Names that stand for reference policies instead of files.
-REFERENCE_POLICIES = ("random", "scripted", "ik", "field")
-
-
-@dataclass
-class LoadedPolicy:
-    """
-    A policy and where it acts.
-
-    :param policy: anything with SB3's ``predict``.
-    :param env_id: the env id it was trained on (the one to evaluate it on by default).
-    :param env_kwargs: that env's keyword arguments.
-    :param kind: ``hierarchy``, ``worker``, ``flat``, ``ham``, ``random`` or ``scripted``.
-    :param name: a display name.
-    :param meta: what the manifest says about it.
-    """
-
-    policy: Policy
-    env_id: str
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    kind: str = "worker"
-    name: str = ""
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    def make_env(self, env_id: str | None = None, /, **kwargs: object) -> gym.Env:
-        """
-        The env to run this policy in (``env_id`` overrides the trained-on id), checked to fit the policy.
-
-        :param env_id: the env id (default: the one the policy was trained on).
-        :param kwargs: env keyword arguments over the trained-on ones.
-        :return: the env; raises ``ValueError`` if its spaces are not the policy's.
-        """
-        env_id = env_id or self.env_id
-        with rendering_errors():  # MuJoCo's OpenGL may fail on import, before any frame is asked for
-            env = gym.make(env_id, **{**self.env_kwargs, **kwargs})
-        for kind in ("observation", "action"):
-            expected = getattr(self.policy, f"{kind}_space", None)
-            actual = getattr(env, f"{kind}_space")
-            if expected is not None and getattr(expected, "shape", None) != actual.shape:
-                env.close()
-                raise ValueError(
-                    f"{self.kind} {self.name!r} expects {kind}s of shape {expected.shape}, but {env_id} with "
-                    f"env_kwargs {self.env_kwargs | kwargs} has {actual.shape}"
-                )
-        return env
+__all__ = ["LoadedPolicy", "load_policy"]
 
 
 def load_policy(
@@ -105,13 +52,14 @@ def load_policy(
     """
 
     text = str(path)
-    if text in REFERENCE_POLICIES:
-        return _reference_policy(text, env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))
+    named = named_loader(text)
+    if named is not None:
+        return named.load()(text, env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))
     path = _policy_file(Path(path))
     text = str(path)
-    if path.suffix == ".json":
-        ham, meta = load_ham(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
-        return LoadedPolicy(ham, meta.env_id, dict(meta.env_kwargs), "ham", path.stem, meta.to_json())
+    registered = file_loader(path.suffix)
+    if registered is not None:
+        return registered.load()(path, trusted, allowed_env_ids)
     if _is_bundle(path):
         hierarchy = Hierarchy.load(path, trusted=trusted, allowed_env_ids=allowed_env_ids)
         return LoadedPolicy(
@@ -180,19 +128,3 @@ def _manifest_entry(path: Path) -> tuple[dict[str, Any] | None, str]:
             if entry.get("file") == path.name:
                 return dict(entry), label
     return None, ""
-
-
-def _reference_policy(name: str, env_id: str, env_kwargs: dict[str, Any]) -> LoadedPolicy:
-    env = gym.make(env_id, **env_kwargs)
-    layout = state_layout_of(env)
-    if name == "random":
-        policy: Policy = RandomPolicy(env.action_space, seed=0)
-    elif name in ("ik", "field"):
-        snake = env.unwrapped
-        if not isinstance(snake, SnakeArmEnv):
-            raise ValueError(f"The {name} controller drives the snake arm only, not {env_id!r}")
-        policy = make_controller(name, layout, max_joint_speed=snake.max_joint_speed)
-    else:
-        policy = JacobianReacher(layout)
-    env.close()
-    return LoadedPolicy(policy, env_id, env_kwargs, name, name)

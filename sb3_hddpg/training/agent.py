@@ -21,10 +21,16 @@ import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList, StopTrainingOnNoModelImprovement
+from stable_baselines3.common.callbacks import (
+    BaseCallback,
+    CallbackList,
+    ConvertCallback,
+    StopTrainingOnNoModelImprovement,
+)
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import Logger, configure
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, algorithm
@@ -146,7 +152,7 @@ def train_agent(
     algo: str = "ddpg",
     *,
     run: RunOptions | None = None,
-    extra_callbacks: Sequence[BaseCallback] = (),
+    callback: MaybeCallback = None,
     after_eval: BaseCallback | None = None,
     prepare_model: Callable[[BaseAlgorithm], None] | None = None,
     **run_changes: object,
@@ -165,7 +171,8 @@ def train_agent(
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`: budget, seed,
         envs, resume, plateau rule, evaluation, checkpoints, threads, backend); ``resume`` continues from the
         last checkpoint in ``paths.checkpoint_dir``.
-    :param extra_callbacks: more SB3 callbacks (e.g. selection statistics).
+    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them (a callback, a list, or a function of
+        ``(locals, globals)``), run after the package's own (e.g. selection statistics).
     :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
         Optuna pruning callback); returning ``False`` stops training.
     :param prepare_model: called with a freshly built model before it learns (not on resume), e.g. the
@@ -189,7 +196,9 @@ def train_agent(
             prepare_model(model)
         evaluator = _make_evaluator(eval_env, paths, state, n_envs, run, after_eval)
         checkpointer = _make_checkpointer(paths, run, total, backend, evaluator, state)
-        callbacks = CallbackList([*hyperparams.callbacks(), evaluator, checkpointer, *extra_callbacks])
+        callbacks = CallbackList(
+            [*hyperparams.callbacks(), evaluator, checkpointer, *callback_list(callback)]
+        )
         _learn(
             model, total, callbacks, checkpointer, paths, fresh=state is None, progress_bar=run.progress_bar
         )
@@ -464,3 +473,21 @@ def agent_run(run: RunOptions, paths: AgentPaths, budget: int | None) -> RunOpti
 def finished_with_budget(entry: object, budget: int) -> bool:
     """Whether a manifest entry is a model that an earlier run finished with this budget."""
     return isinstance(entry, dict) and entry.get("timesteps_requested") == budget
+
+
+def callback_list(callback: MaybeCallback) -> list[BaseCallback]:
+    """
+    ``callback`` as SB3's ``learn`` takes it (``None``, a callback, a list of them, or a function of
+    ``(locals, globals)``), as a list of callbacks to run after the package's own.
+    """
+    if callback is None:
+        return []
+    if isinstance(callback, list):
+        return [item for entry in callback for item in callback_list(entry)]
+    if isinstance(callback, BaseCallback):
+        return [callback]
+    if callable(callback):
+        return [ConvertCallback(callback)]
+    raise TypeError(
+        f"Expected `callback` to be an SB3 callback, a list of them or a function, actually: {callback!r}"
+    )

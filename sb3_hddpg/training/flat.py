@@ -6,12 +6,13 @@ manifest.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_hddpg.artifacts.io import (
     holds_folder_lock,
@@ -37,8 +38,6 @@ from sb3_hddpg.training.backends import (
 from sb3_hddpg.training.config import Hyperparams, default_config, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
-#: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
-FLAT_ENV_ID = SNAKE_REACH_ENV_ID
 #: The config block of a flat agent given the goal worker's tricks (hindsight relabelling of the goal, the
 #: action penalty where the algorithm takes it) on the full observation and the reach reward.
 FLAT_HER_KEY = "flat-her"
@@ -47,9 +46,9 @@ FLAT_HER_KEY = "flat-her"
 def check_flat_env(algo: str, env_id: str | None = None, env_kwargs: Mapping[str, Any] | None = None) -> None:
     """
     :func:`check_takes` for a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` (default: the
-    combined task, :data:`FLAT_ENV_ID`).
+    combined task, :data:`~sb3_hddpg.envs.ids.SNAKE_REACH_ENV_ID`).
     """
-    probe = make_snake_env(env_id or FLAT_ENV_ID, dict(env_kwargs or {}))
+    probe = make_snake_env(env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))
     try:
         check_takes(algo, probe.action_space)
     finally:
@@ -81,14 +80,14 @@ def train_flat(
     config: str | Path | None = None,
     *,
     run: RunOptions | None = None,
-    env_id: str = FLAT_ENV_ID,
+    env_id: str = SNAKE_REACH_ENV_ID,
     preferences: dict[str, float] | None = None,
     env_kwargs: dict[str, Any] | None = None,
     name: str | None = None,
-    extra_callbacks: Sequence[BaseCallback] = (),
+    callback: MaybeCallback = None,
     block: str | None = None,
     **run_changes: object,
-) -> tuple[dict[str, Any], TrainingOutcome | None]:
+) -> FlatResult:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
     "single DDPG", Section 3.3), and write ``out_dir/flat/<name>.zip`` and ``out_dir/flat/manifest.json``.
@@ -110,10 +109,11 @@ def train_flat(
         env's reward (:class:`~sb3_hddpg.hierarchy.preference.PreferenceReward`, the reward of a manager with the same
         factors); ``None``: the env's own reward.
     :param name: the model's name in the manifest and its file name (default: ``algo``).
-    :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
+    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them (e.g. progress reporting).
     :param block: the config block to train from instead of the env's (e.g. :data:`FLAT_HER_KEY`: the goal
         worker's hindsight relabelling and action penalty on the full observation and the env's reward).
-    :return: the manifest written, and the training outcome (``None`` when a finished model was kept).
+    :return: the manifest written, the model's file and the training outcome (``None`` when a finished model
+        was kept).
     """
     run = run_options(run, run_changes, "train_flat")
     algo = algo.lower()
@@ -126,9 +126,9 @@ def train_flat(
     manifest_path = out_dir / "flat" / "manifest.json"
     name = name or algo
     manifest = _flat_manifest(manifest_path, name, env_id, make_kwargs, run.resume)
-    if run.resume and finished_with_budget(manifest.entries.get(name), budget):
-        return manifest.to_json(), None  # finished in an earlier run
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
+    if run.resume and finished_with_budget(manifest.entries.get(name), budget):
+        return FlatResult(manifest.to_json(), paths.model_path, None)  # finished in an earlier run
     factory = _flat_env_factory(env_id, make_kwargs, preferences)
     outcome = train_agent(
         factory,
@@ -136,7 +136,7 @@ def train_flat(
         paths,
         algo=algo,
         run=agent_run(run, paths, budget),
-        extra_callbacks=extra_callbacks,
+        callback=callback,
     )
     entry = model_entry(
         name,
@@ -153,7 +153,22 @@ def train_flat(
     )
     manifest = manifest.with_entry(name, entry)
     save_manifest(manifest_path, manifest)
-    return manifest.to_json(), outcome
+    return FlatResult(manifest.to_json(), paths.model_path, outcome)
+
+
+@dataclass(frozen=True)
+class FlatResult:
+    """
+    What :func:`train_flat` made.
+
+    :param manifest: the flat models' manifest written (its JSON).
+    :param model_path: the model's zip (``out_dir/flat/<name>.zip``).
+    :param outcome: the training outcome; ``None`` when ``resume`` kept a model finished with this budget.
+    """
+
+    manifest: dict[str, Any]
+    model_path: Path
+    outcome: TrainingOutcome | None
 
 
 def _flat_env_factory(

@@ -5,12 +5,11 @@ Algorithm 1, second half), saved as a hierarchy bundle.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, cast
 
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_hddpg.artifacts.io import (
     atomic_write_json,
@@ -20,12 +19,16 @@ from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.artifacts.manifests import as_json, check_resumed_env
 from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
-from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-from sb3_hddpg.hierarchy.selection import OptionEnd
-from sb3_hddpg.training.agent import AgentPaths, TrainingOutcome, agent_run, train_agent
-from sb3_hddpg.training.ham_start import HamStart, ham_start_hook
-from sb3_hddpg.training.manager_setup import MANAGER_OPTION_NAMES, ManagerOptions, ManagerSetup, setup_manager
+from sb3_hddpg.training.agent import AgentPaths, TrainingOutcome, agent_run, callback_list, train_agent
+from sb3_hddpg.training.ham_start import ham_start_hook
+from sb3_hddpg.training.manager_setup import (
+    MANAGER_OPTION_NAMES,
+    ManagerOptions,
+    ManagerSetup,
+    manager_options,
+    setup_manager,
+)
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: The manager's env and selection settings, kept beside its model so that a resumed run continues on the
@@ -77,56 +80,51 @@ def _learner_settings(setup: ManagerSetup) -> dict[str, Any]:
     return cast(dict[str, Any], as_json(learner))
 
 
+@dataclass(frozen=True)
+class ManagerResult:
+    """
+    What :func:`train_manager` made.
+
+    :param hierarchy: the trained manager over its workers, as saved.
+    :param path: the bundle's file (``out_dir/hierarchy.zip``).
+    :param outcome: the manager's training outcome.
+    """
+
+    hierarchy: Hierarchy
+    path: Path
+    outcome: TrainingOutcome
+
+
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_manager(
     workers_dir: str | Path | ManagerSetup,
     out_dir: str | Path,
-    worker_names: Sequence[str] | None = None,
-    prefer: str | None = None,
-    bias: float | None = None,
-    preferences: dict[str, float] | None = None,
-    selection: str | None = None,
-    option_steps: int | None = None,
-    temperature: float | None = None,
-    floor: float | None = None,
-    config: str | Path | None = None,
-    trusted: bool | None = None,
-    env_id: str | None = None,
-    env_kwargs: dict[str, Any] | None = None,
-    algo: str | None = None,
-    manager_preferences: str | PreferenceSpace | None = None,
-    relabel_fraction: float | None = None,
-    init_from_ham: float | HamStart | None = None,
-    option_end: str | OptionEnd | None = None,
-    manager_motion: float | None = None,
-    gamma: float | None = None,
+    options: ManagerOptions | None = None,
     *,
     run: RunOptions | None = None,
-    extra_callbacks: Sequence[BaseCallback] = (),
-    **run_changes: object,
-) -> tuple[Hierarchy, TrainingOutcome]:
+    callback: MaybeCallback = None,
+    **changes: Any,
+) -> ManagerResult:
     """
-    Train the manager: a plain SB3 DDPG (or TD3 or SAC, ``algo``) on ``WorkerSelectionWrapper`` over
-    pre-trained workers (paper Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
+    Train the manager: a plain SB3 DDPG (or another algorithm, ``options.algo``) on ``WorkerSelectionWrapper``
+    over pre-trained workers (paper Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
 
     :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder), or the set-up
         :func:`~sb3_hddpg.training.manager_setup.prepare_manager` returned: then the workers it loaded are
-        used as they are (nothing is loaded or checked twice) and the manager's options must be left out.
+        used as they are (nothing is loaded or checked twice) and no manager options may be given.
     :param out_dir: the run folder for the manager.
-    :param worker_names: and the arguments after it up to ``gamma``: the manager's options, the fields
-        of :class:`~sb3_hddpg.training.manager_setup.ManagerOptions` (``None``: its default).
+    :param options: what the manager is trained from
+        (:class:`~sb3_hddpg.training.manager_setup.ManagerOptions`; default: its defaults).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the
         manager's model; the bundle holds an SB3 manager whichever ``backend`` trains it.
-    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
-        ``seed=3``), over ``run``'s.
-    :param extra_callbacks: more SB3 callbacks (e.g. progress reporting).
-    :return: the saved :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` and the training outcome.
+    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them (e.g. progress reporting).
+    :param changes: fields of ``ManagerOptions`` or of ``RunOptions`` as keywords, over ``options``' and
+        ``run``'s (``train_manager(w, out, prefer="goal", seed=3)``).
+    :return: the saved hierarchy, its file and the training outcome.
     """
-    given = {
-        name: value for name, value in locals().items() if name in MANAGER_OPTION_NAMES and value is not None
-    }
-    run = run_options(run, run_changes, "train_manager")
-    setup = _setup_of(workers_dir, given)
+    manager_changes = {name: value for name, value in changes.items() if name in MANAGER_OPTION_NAMES}
+    run = run_options(run, {k: v for k, v in changes.items() if k not in manager_changes}, "train_manager")
+    setup = _setup_of(workers_dir, options, manager_changes)
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
     _check_manager_resume(paths, run.resume, setup, asdict(setup.selection))
@@ -138,7 +136,7 @@ def train_manager(
         paths,
         algo=setup.algo,
         run=agent_run(run, paths, run.timesteps),
-        extra_callbacks=[SelectionStatsCallback(), *extra_callbacks],
+        callback=[SelectionStatsCallback(), *callback_list(callback)],
         prepare_model=(
             ham_start_hook(setup.ham_start, factory, run.seed, ham_report)
             if setup.ham_start is not None
@@ -146,17 +144,19 @@ def train_manager(
         ),
     )
     hierarchy = _manager_bundle(setup, outcome, run.seed, ham_report)
-    hierarchy.save(out_dir / "hierarchy.zip")
-    return hierarchy, outcome
+    return ManagerResult(hierarchy, hierarchy.save(out_dir / "hierarchy.zip"), outcome)
 
 
-def _setup_of(workers_dir: str | Path | ManagerSetup, given: dict[str, Any]) -> ManagerSetup:
+def _setup_of(
+    workers_dir: str | Path | ManagerSetup, options: ManagerOptions | None, changes: dict[str, Any]
+) -> ManagerSetup:
     """The manager's set-up: the one given (then no options may be), else prepared from the options given."""
     if not isinstance(workers_dir, ManagerSetup):
-        return setup_manager(workers_dir, ManagerOptions(**given))
-    if given:
+        return setup_manager(workers_dir, manager_options(options, changes, "train_manager"))
+    given = sorted(name for name, value in changes.items() if value is not None)
+    if options is not None or given:
         raise ValueError(
-            f"train_manager got a prepared set-up and also {sorted(given)}: give those to prepare_manager"
+            f"train_manager got a prepared set-up and also {given or 'options'}: give those to prepare_manager"
         )
     return workers_dir
 

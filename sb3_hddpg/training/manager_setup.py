@@ -218,26 +218,7 @@ MANAGER_OPTION_NAMES = tuple(option.name for option in fields(ManagerOptions))
 
 
 def prepare_manager(
-    workers_dir: str | Path,
-    worker_names: Sequence[str] | None = None,
-    prefer: str | None = None,
-    bias: float | None = None,
-    preferences: dict[str, float] | None = None,
-    selection: str | None = None,
-    option_steps: int | None = None,
-    temperature: float | None = None,
-    floor: float | None = None,
-    config: str | Path | None = None,
-    trusted: bool | None = None,
-    env_id: str | None = None,
-    env_kwargs: dict[str, Any] | None = None,
-    algo: str | None = None,
-    manager_preferences: str | PreferenceSpace | None = None,
-    relabel_fraction: float | None = None,
-    init_from_ham: float | HamStart | None = None,
-    option_end: str | OptionEnd | None = None,
-    manager_motion: float | None = None,
-    gamma: float | None = None,
+    workers_dir: str | Path, options: ManagerOptions | None = None, **option_changes: Any
 ) -> ManagerSetup:
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
@@ -246,14 +227,27 @@ def prepare_manager(
     validate arguments early (the CLI does, to report bad input before creating the output folder).
 
     :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
-    :param worker_names: and the other arguments: the fields of :class:`ManagerOptions`, documented there
-        (``None``: its default, which is spelled only there).
+    :param options: what the manager is trained from (default: :class:`ManagerOptions`' defaults).
+    :param option_changes: :class:`ManagerOptions` fields as keywords, over ``options``' (``None``: keep it),
+        so that ``prepare_manager(w, prefer="goal")`` is ``prepare_manager(w, ManagerOptions(prefer="goal"))``.
     :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
     """
-    options = {
-        name: value for name, value in locals().items() if name in MANAGER_OPTION_NAMES and value is not None
-    }
-    return setup_manager(workers_dir, ManagerOptions(**options))
+    return setup_manager(workers_dir, manager_options(options, option_changes, "prepare_manager"))
+
+
+def manager_options(options: ManagerOptions | None, changes: dict[str, Any], caller: str) -> ManagerOptions:
+    """
+    ``options`` (default: :class:`ManagerOptions`' defaults) with the fields given as keywords on top; a
+    ``None`` keyword keeps the field, and a keyword that is not a field is a ``TypeError`` naming it.
+
+    :param caller: the function's name, for the error.
+    """
+    unknown = sorted(set(changes) - set(MANAGER_OPTION_NAMES))
+    if unknown:
+        raise TypeError(f"{caller}() got an unexpected keyword argument {unknown[0]!r}")
+    given = {name: value for name, value in changes.items() if value is not None}
+    base = options if options is not None else ManagerOptions()
+    return replace(base, **given) if given else base
 
 
 def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSetup:

@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_hddpg.algorithms import REGISTRY, algorithm
 from sb3_hddpg.artifacts.io import (
@@ -157,11 +158,11 @@ def train_workers(
     *,
     run: RunOptions | None = None,
     on_worker_done: Callable[[str, TrainingOutcome], None] | None = None,
-    extra_callbacks: Sequence[BaseCallback] = (),
+    callback: MaybeCallback = None,
     env: TermsEnv | None = None,
     algos: Mapping[str, str] | None = None,
     **run_changes: object,
-) -> dict[str, Any]:
+) -> WorkersResult:
     """
     Train each named worker as a plain SB3 model (see :func:`worker_algorithms` for its algorithm) on its
     own registered env id (paper Algorithm 1, first half) and write ``out_dir/workers/<name>.zip`` and
@@ -176,11 +177,12 @@ def train_workers(
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
     :param on_worker_done: called after each worker with its outcome.
-    :param extra_callbacks: more SB3 callbacks for every worker (e.g. progress reporting).
+    :param callback: more SB3 callbacks for every worker, as SB3's ``learn`` takes them (e.g. progress
+        reporting).
     :param env: another env with several objectives (:func:`~sb3_hddpg.envs.terms_env.terms_env`; default:
         the snake arm): one worker per named term, each on that term's view; the manifest records the
         shared env (``shared_env``) so that ``train_manager`` acts in it.
-    :return: the manifest written.
+    :return: the manifest written and the outcome of each worker trained.
     """
     run = run_options(run, run_changes, "train_workers")
     shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
@@ -191,6 +193,7 @@ def train_workers(
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest = _start_manifest(manifest_path, shared, env, workers, blocks, run.resume)
+    outcomes: dict[str, TrainingOutcome] = {}
     for name in workers:
         hyperparams = blocks[name]
         env_id, view_kwargs = shared.term_view(name)
@@ -205,8 +208,9 @@ def train_workers(
             paths,
             algo=chosen[name],
             run=agent_run(run, paths, budget),
-            extra_callbacks=extra_callbacks,
+            callback=callback,
         )
+        outcomes[name] = outcome
         source = str(config) if config else f"sb3_hddpg/zoo_configs/{chosen[name]}.yml"
         entry = _worker_entry(
             name, outcome, chosen[name], (env_id, env_kwargs), hyperparams, source, run, budget
@@ -215,7 +219,23 @@ def train_workers(
         save_manifest(manifest_path, manifest)
         if on_worker_done is not None:
             on_worker_done(name, outcome)
-    return manifest.to_json()
+    return WorkersResult(manifest.to_json(), manifest_path, outcomes)
+
+
+@dataclass(frozen=True)
+class WorkersResult:
+    """
+    What :func:`train_workers` made.
+
+    :param manifest: the workers' manifest written (its JSON), every worker of the folder in it.
+    :param manifest_path: where it was written (``out_dir/workers/manifest.json``, beside the workers' zips).
+    :param outcomes: worker name -> its training outcome, for the workers this call trained (one kept from
+        an earlier run on ``resume`` has none).
+    """
+
+    manifest: dict[str, Any]
+    manifest_path: Path
+    outcomes: dict[str, TrainingOutcome]
 
 
 def _start_manifest(

@@ -40,26 +40,9 @@ class SnakeParams:
     """
     The snake arm's task and physics, checked when built (a bad value is a ``ValueError`` naming it); the
     counts become ``int`` and the lengths, speeds and factors ``float``. See
-    :class:`~sb3_hddpg.envs.snake.SnakeArmEnv` for the meaning of each.
-
-    :param reward: the step reward: ``"goal"``, ``"avoid"`` or ``"reach"``.
-    :param n_joints: number of revolute joints (and links), 2 to :data:`MAX_JOINTS`.
-    :param n_obstacles: number of moving obstacle discs, 1 to :data:`MAX_OBSTACLES`.
-    :param obstacle_radius: radius of every obstacle disc, in reach units.
-    :param obstacle_speed: the obstacles' top speed, reach units per second.
-    :param goal_speed: the goal's top speed, reach units per second.
-    :param touch_radius: the tip touches the goal within this distance.
-    :param r_bf: the avoid reward's factor on the summed clearances (Table 2's ``r_bf``).
-    :param sensor_range: clearances are clipped to this range in the reward and observation.
-    :param max_joint_speed: joint speed, rad/s, commanded by an action of magnitude 1.
-    :param joint_limit: every joint but the base turns at most this far (rad) either way.
-    :param dt: seconds of simulated time per environment step.
-    :param substeps: pymunk steps per environment step (each ``dt / substeps`` long), 1 to :data:`MAX_SUBSTEPS`.
-    :param goal_radius_min: the goal stays at least this far from the base.
-    :param goal_radius_max: the goal stays at most this far from the base (below 1: reachable).
-    :param obstacle_radius_min: obstacle centres stay at least this far from the base.
-    :param obstacle_radius_max: obstacle centres stay at most this far from the base.
-    :param spawn_margin: at reset, obstacles start at least this far from the arm and the goal.
+    :class:`~sb3_hddpg.envs.snake.SnakeArmEnv` for the meaning of each (its constructor's parameters, one
+    per field, are the one description), and :data:`MAX_JOINTS`, :data:`MAX_OBSTACLES`, :data:`MAX_SUBSTEPS`
+    for the largest counts.
     """
 
     reward: str = "reach"

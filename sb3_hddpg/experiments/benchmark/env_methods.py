@@ -31,13 +31,11 @@ from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_ENV_METHODS,
     FLAT_METHODS,
     Method,
-    _flat_blocks,
-    _flat_cost,
     _manager_blocks,
     _manager_cost,
     _no_cost,
-    _run_flat,
     _run_manager,
+    flat_method,
     register_method,
     test_fields,
     workers_steps,
@@ -180,18 +178,7 @@ DISCRETE_FLAT_METHODS = tuple(
     a for a in algorithms_for("flat", gym.spaces.Discrete(2)) if a not in FLAT_METHODS
 )
 for _algo in DISCRETE_FLAT_METHODS:
-    register_method(
-        Method(
-            _algo,
-            functools.partial(_run_flat, _algo),
-            _flat_cost,
-            colour=REGISTRY[_algo].colour,
-            baseline=True,
-            takes_preference=True,
-            description=f"flat {REGISTRY[_algo].class_name} on the scalarised reward for the hierarchy's total env steps",
-            config_blocks=functools.partial(_flat_blocks, _algo),
-        )
-    )
+    register_method(flat_method(_algo, "scalarised"))
 
 #: Managers in the ``discrete`` selection mode (their bundled manager block's ``wrapper_kwargs``).
 DISCRETE_MANAGERS = tuple(

@@ -46,6 +46,7 @@ from sb3_hddpg.baselines.ham import HAMSwitch, load_ham, save_ham
 from sb3_hddpg.baselines.ttc import TTC_GRID, TTCSwitch
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.episode_sets import CURVE
 from sb3_hddpg.evaluation import clearance_bands, evaluate
 from sb3_hddpg.experiments.benchmark.env_methods import (
@@ -92,7 +93,6 @@ from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
-from sb3_hddpg.training.flat import FLAT_ENV_ID
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import horizon_gamma
 
@@ -107,7 +107,7 @@ BOOTSTRAP_SAMPLES = 2000
 def front_env(settings: MethodSettings) -> gym.Env:
     """The env a front is measured on: the snake arm, or the benchmark's other env with its combined reward."""
     shared = settings.terms_env
-    return gym.make(FLAT_ENV_ID) if shared is None else combined_env(shared)
+    return gym.make(SNAKE_REACH_ENV_ID) if shared is None else combined_env(shared)
 
 
 def front_spec(settings: MethodSettings, env: gym.Env) -> FrontSpec:
@@ -258,18 +258,18 @@ def _train_managers(
     if shared is not None:
         env_options.update(env_id=shared.env_id, env_kwargs=shared.env_kwargs)
     started = time.perf_counter()
-    conditioned, _ = train_manager(
+    conditioned = train_manager(
         folder, run_dir / "conditioned", algo=algo, manager_preferences=sweep, run=run, **env_options
-    )
+    ).hierarchy
     # A resumed task's conditioned manager trained before: its seconds are those of the earlier invocation.
     seconds = _conditioned_seconds(run_dir / "conditioned", time.perf_counter() - started)
     per_preference: list[tuple[str, Hierarchy]] = []
     for label, point in zip(sweep_labels(sweep), sweep.points) if settings.front_per_preference else ():
         factors = dict(zip(sweep.names, point))
         name = "manager-" + "-".join(f"{v:.3g}" for v in point)
-        hierarchy, _ = train_manager(
+        hierarchy = train_manager(
             folder, run_dir / name, algo=algo, preferences=factors, run=run, **env_options
-        )
+        ).hierarchy
         per_preference.append((label, hierarchy))
     return conditioned, seconds, per_preference
 
@@ -405,7 +405,7 @@ def _alone_point(
     if shared is not None:
         return _test_point(worker, load_env_worker(folder, shared, worker), env, settings, spec)
     loaded = load_policy(folder / "workers" / f"{worker}.zip")
-    worker_env = loaded.make_env(FLAT_ENV_ID)
+    worker_env = loaded.make_env(SNAKE_REACH_ENV_ID)
     try:
         return _test_point(worker, loaded.policy, worker_env, settings, spec)
     finally:
@@ -422,7 +422,7 @@ def _rule_front(
             run_dir / "ham.json",
             folder / "workers" / "manifest.json",
             threshold=(n_links.stop - n_links.start) / 2,  # replaced by each swept threshold below
-            env_id=FLAT_ENV_ID,
+            env_id=SNAKE_REACH_ENV_ID,
             metadata={"seed": seed},
         )
         ham = load_ham(ham_path)[0]

@@ -23,8 +23,8 @@ from typing import cast
 
 import numpy as np
 
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
-from sb3_hddpg.training.flat import FLAT_ENV_ID
 
 #: One objective of a plane: the point's key, and whether larger is better.
 Objective = tuple[str, bool]
@@ -38,7 +38,7 @@ PLANES: dict[str, tuple[Objective, ...]] = {
 #: runs. The snake: no touch and 20 contacts per episode (the goal worker alone makes about 14); both
 #: normalised terms at 0 (their least value per step).
 REFERENCE_POINTS: dict[str, dict[str, tuple[float, ...]]] = {
-    FLAT_ENV_ID: {"outcomes": (0.0, 20.0), "terms": (0.0, 0.0)},
+    SNAKE_REACH_ENV_ID: {"outcomes": (0.0, 20.0), "terms": (0.0, 0.0)},
 }
 #: The safe end of the snake's trade-off: a front's most goal touch with at most this many contacts.
 SAFE_CONTACTS = 2.0
@@ -85,7 +85,7 @@ class FrontSpec:
 
 
 #: The snake arm's front: HAM's threshold sweep as its rule.
-SNAKE_FRONT = FrontSpec(("goal", "avoid"), PLANES, REFERENCE_POINTS[FLAT_ENV_ID], rule="ham")
+SNAKE_FRONT = FrontSpec(("goal", "avoid"), PLANES, REFERENCE_POINTS[SNAKE_REACH_ENV_ID], rule="ham")
 
 
 def env_front(

@@ -21,6 +21,7 @@ from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.baselines.ttc import CLOSE_SECONDS, DecisionStates, KinematicsScales
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.snake.controllers import DEFAULT_MAX_JOINT_SPEED, make_controller
 from sb3_hddpg.envs.terms_env import config_key
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
@@ -29,7 +30,7 @@ from sb3_hddpg.experiments.benchmark.method_inputs import MethodSettings, Method
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.config import MANAGER_KEY
-from sb3_hddpg.training.flat import FLAT_ENV_ID, FLAT_HER_KEY, flat_hyperparams, train_flat
+from sb3_hddpg.training.flat import FLAT_HER_KEY, flat_hyperparams, train_flat
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import manager_hyperparams
 
@@ -172,7 +173,7 @@ def _ttc_shares(counted: DecisionStates) -> dict[str, object]:
 def random_reference(settings: MethodSettings) -> dict[str, object]:
     """A random policy's evaluation on the learning-curve episodes: the floor of the transfer figure."""
 
-    env = gym.make(FLAT_ENV_ID)
+    env = gym.make(SNAKE_REACH_ENV_ID)
     try:
         policy = RandomPolicy(env.action_space, seed=0)
         return evaluate(policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
@@ -233,7 +234,7 @@ def _run_flat(
     train_flat(
         run_dir,
         algo=algo,
-        env_id=env.env_id if env is not None else FLAT_ENV_ID,
+        env_id=env.env_id if env is not None else SNAKE_REACH_ENV_ID,
         env_kwargs=env.env_kwargs if env is not None else None,
         preferences=task.preferences,
         run=settings.run_options(task.seed, settings.flat_budget, settings.flat_budget),
@@ -254,7 +255,7 @@ def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Pa
     other method's best model is picked on), never on the test episodes; otherwise ``--ham-threshold``.
     """
 
-    env = gym.make(FLAT_ENV_ID)
+    env = gym.make(SNAKE_REACH_ENV_ID)
     try:
         n_links = state_layout_of(env)["joint_obstacle_distances"]
         n_links_count = n_links.stop - n_links.start
@@ -267,7 +268,7 @@ def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Pa
             folder / "workers" / "manifest.json",
             threshold=threshold,
             hysteresis=settings.ham_hysteresis,
-            env_id=FLAT_ENV_ID,
+            env_id=SNAKE_REACH_ENV_ID,
             metadata={"seed": task.seed, "worker_timesteps": offset},
         )
         switch, _ = load_ham(ham_path)
@@ -279,7 +280,7 @@ def _run_ham(tuned: bool, task: MethodTask, settings: MethodSettings, folder: Pa
                 folder / "workers" / "manifest.json",
                 threshold=threshold,
                 hysteresis=settings.ham_hysteresis,
-                env_id=FLAT_ENV_ID,
+                env_id=SNAKE_REACH_ENV_ID,
                 metadata={"seed": task.seed, "worker_timesteps": offset, "threshold_grid": grid},
             )
             switch.threshold = threshold
@@ -321,7 +322,7 @@ def _run_controllers(task: MethodTask, settings: MethodSettings, folder: Path) -
     and the switch by hand gets, the bar a learned hierarchy is held to on the snake arm.
     """
 
-    env = gym.make(FLAT_ENV_ID)
+    env = gym.make(SNAKE_REACH_ENV_ID)
     try:
         layout = state_layout_of(env)
         speed = float(getattr(env.unwrapped, "max_joint_speed", DEFAULT_MAX_JOINT_SPEED))
@@ -356,7 +357,7 @@ def _run_worker_alone(
 
     offset = workers_steps(folder)
     loaded = load_policy(folder / "workers" / f"{worker}.zip")
-    env = loaded.make_env(FLAT_ENV_ID)
+    env = loaded.make_env(SNAKE_REACH_ENV_ID)
     try:
         curve = evaluate(loaded.policy, env, n_episodes=settings.eval_episodes, seed=EVAL_SEED_BASE).summary()
         test = test_fields(loaded.policy, env, settings)
@@ -377,7 +378,7 @@ def _manager_blocks(algo: str, settings: MethodSettings) -> dict[str, object]:
 def _flat_blocks(algo: str, settings: MethodSettings, block: str | None = None) -> dict[str, object]:
     """The block of ``algo``'s bundled config that a flat agent on the benchmark's env reads (or ``block``)."""
     env = settings.terms_env
-    env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (FLAT_ENV_ID, None)
+    env_id, env_kwargs = (env.env_id, env.env_kwargs) if env is not None else (SNAKE_REACH_ENV_ID, None)
     label = f"{algo}.yml[{block}]" if block else f"{algo}.yml, flat agent on {env_id}"
     return {label: flat_hyperparams(algo, env_id, env_kwargs, block=block).raw}
 
@@ -447,20 +448,30 @@ register_method(
 #: Every algorithm that can be a flat agent on the combined task's Box action (each a method in its record's
 #: colour): ``train_flat``'s algorithms.
 FLAT_METHODS = algorithms_for("flat", gym.spaces.Box(-1, 1))
-for _algo in FLAT_METHODS:
-    register_method(
-        Method(
-            _algo,
-            functools.partial(_run_flat, _algo),
-            _flat_cost,
-            colour=REGISTRY[_algo].colour,
-            default=_algo == "ddpg",
-            baseline=True,
-            takes_preference=True,
-            description=f"flat {REGISTRY[_algo].class_name} on the combined reward for the hierarchy's total env steps",
-            config_blocks=functools.partial(_flat_blocks, _algo),
-        )
+
+
+def flat_method(algo: str, reward: str, default: bool = False) -> Method:
+    """
+    The flat agent of ``algo`` as a method, in its record's colour, for the hierarchy's total env steps.
+
+    :param reward: what it learns, as its description says it (``combined``, ``scalarised``).
+    :param default: whether the benchmark runs it unless ``--methods`` says otherwise.
+    """
+    return Method(
+        algo,
+        functools.partial(_run_flat, algo),
+        _flat_cost,
+        colour=REGISTRY[algo].colour,
+        default=default,
+        baseline=True,
+        takes_preference=True,
+        description=f"flat {REGISTRY[algo].class_name} on the {reward} reward for the hierarchy's total env steps",
+        config_blocks=functools.partial(_flat_blocks, algo),
     )
+
+
+for _algo in FLAT_METHODS:
+    register_method(flat_method(_algo, "combined", default=_algo == "ddpg"))
 for _algo, _colour in (("sac", "darkviolet"), ("ddpg", "navy")):
     register_method(
         Method(

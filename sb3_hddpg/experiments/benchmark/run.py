@@ -150,7 +150,7 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[
     budget = settings.worker_timesteps or settings.workers_budget
     run = settings.run_options(task.seed, settings.worker_timesteps, budget)
     # Copied workers are finished ones with this budget: train_workers keeps them (resume) and trains nothing.
-    manifest = train_workers(folder, env=settings.terms_env, run=run, algos=settings.worker_algos)
+    manifest = train_workers(folder, env=settings.terms_env, run=run, algos=settings.worker_algos).manifest
     return {
         **reused,
         "worker_timesteps": workers_steps(folder),

@@ -1,0 +1,114 @@
+"""
+What a new :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` takes from its models (the selection settings
+of the wrapper its manager trained on, the env its workers share), what its manager observes, and the checks
+that its models fit its env.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import replace
+from typing import Any
+
+import gymnasium as gym
+
+from sb3_hddpg.artifacts.workers import Workers, states_of
+from sb3_hddpg.envs.layout import StateLayout
+from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
+from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, get_selector
+from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
+from sb3_hddpg.policy import Policy
+
+
+def shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
+    """The shared env workers from ``load_workers`` name, if usable."""
+    if isinstance(workers, Workers) and workers.env_id is not None:
+        return workers.env_id, workers.env_kwargs
+    return None
+
+
+def selection_config_of(
+    manager: object, workers: Mapping[str, Policy], config: SelectionConfig | None
+) -> SelectionConfig:
+    """
+    The selection settings of a new hierarchy: ``config``, else those of the ``WorkerSelectionWrapper`` the
+    manager was trained on (if it still has its env), else the wrapper's defaults; the state components the
+    workers carry are the default of ``worker_states`` either way.
+    """
+    if config is None:
+        wrapper = selection_wrapper(manager)
+        if wrapper is not None:
+            return wrapper.selection_config()
+        config = SelectionConfig(preferences=check_preferences({}, list(workers)))
+    carried = {name: states for name, states in states_of(workers).items() if name in workers}
+    return replace(config, worker_states={**carried, **config.worker_states}) if carried else config
+
+
+def selection_wrapper(manager: object) -> WorkerSelectionWrapper | None:
+    """The ``WorkerSelectionWrapper`` a manager trains on, if it still has an in-process env."""
+    get_env = getattr(manager, "get_env", None)
+    vec_env = get_env() if callable(get_env) else None
+    env = (getattr(vec_env, "envs", None) or [None])[0]
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, WorkerSelectionWrapper):
+            return env
+        env = env.env
+    return None
+
+
+def manager_input_of(
+    config: SelectionConfig, observation_space: gym.Space, layout: StateLayout, n_workers: int
+) -> ManagerInput:
+    """What a manager with these selection settings observes of the shared env's ``observation_space``."""
+    indices = layout.indices(config.manager_state) if config.manager_state else None
+    n_preferences = n_workers if config.manager_preferences is not None else 0
+    return ManagerInput(observation_space, indices, config.manager_motion, n_preferences)
+
+
+def check_spaces(
+    manager: Any,
+    workers: Mapping[str, Policy],
+    config: SelectionConfig,
+    observation_space: gym.Space,
+    action_space: gym.Space,
+    layout: StateLayout,
+    env_name: str,
+) -> None:
+    """
+    Check that the manager and every worker that declares its spaces fit the env: the manager sees the
+    env's observation (or its ``manager_state`` components) and outputs one value per worker; each worker
+    sees the env's observation (or its ``worker_states`` components) and outputs the env's action.
+
+    :param env_name: the env as named in messages.
+    :raises ValueError: one line naming the model, the expected and the actual space.
+    """
+
+    def subset(components: list[str] | None) -> gym.Space:
+        return subset_space(observation_space, layout.indices(components) if components else None)
+
+    manager_action = get_selector(config.selection).action_space(len(workers))
+    manager_obs = manager_input_of(config, observation_space, layout, len(workers)).observation_space
+    checks = [("The manager", manager, manager_obs, manager_action, " (one per worker)")]
+    checks += [
+        (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")
+        for name, worker in workers.items()
+    ]
+    hint = "pass the env they were trained on as env_id= (and env_kwargs=)"
+    for label, model, expected_obs, expected_action, action_note in checks:
+        for kind, expected, actual, note in (
+            ("observations", expected_obs, getattr(model, "observation_space", None), ""),
+            ("actions", expected_action, getattr(model, "action_space", None), action_note),
+        ):
+            if actual is None or actual == expected:
+                continue
+            if getattr(actual, "shape", None) != getattr(expected, "shape", None):
+                raise ValueError(
+                    f"{label} has {kind} of shape {actual.shape}, but the hierarchy's env {env_name} needs "
+                    f"{expected.shape}{note}: {hint}"
+                )
+            # A Box with per-entry bounds prints its arrays over several lines: keep the message on one.
+            shown = " ".join(f"{actual} != {expected}".split())
+            raise ValueError(
+                f"{label} has {kind} of shape {actual.shape} like the hierarchy's env {env_name}, but other "
+                f"bounds or dtype ({shown}): {hint}"
+            )
