@@ -206,3 +206,13 @@ def test_the_command_names_a_bad_option_in_one_line(arguments, named, tmp_path):
     assert done.returncode == 2, done.stderr
     assert named in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_deep_sea_treasures_constant_time_gets_bounds_and_costs_no_steps(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from sb3_hddpg.experiments.benchmark.morl_sides import SideRun, pinned_env, train_conditioned
+
+    shared, steps = pinned_env("deep-sea-treasure-concave-v0")
+    assert steps == 0 and shared.env_kwargs["term_bounds"]["obj1"] == [-2.0, -1.0]
+    with pytest.raises(ValueError, match="trains no model"):
+        train_conditioned(SideRun("deep-sea-treasure-concave-v0", True, 0.99, 2, 0, tmp_path))

@@ -111,31 +111,26 @@ def register_protocol_method(method: ProtocolMethod) -> ProtocolMethod:
 
 def pinned_env(env_id: str) -> tuple[TermsEnv, int]:
     """
-    The env's adapter with its term bounds fixed once: bounds its ``reward_space`` leaves infinite are
-    estimated by one random rollout, whose env steps are returned to be counted, then written into the
-    adapter's arguments, so that no env made from it estimates them again. An objective the env declares
-    constant (deep-sea-treasure's time, -1 every step: low = high) is given the bounds ``(low - 1, high)``,
-    so that it normalises to 1 every step: a constant in the manager's reward.
+    The env's adapter with its term bounds fixed once, and the env steps that cost: bounds its
+    ``reward_space`` leaves infinite are estimated by one random rollout of :data:`ESTIMATE_STEPS` steps
+    when the adapter is resolved, which keeps them in its arguments, so that no env made from it estimates
+    them again. An objective the env declares constant (deep-sea-treasure's time, -1 every step: low = high)
+    is given the bounds ``(low - 1, high)``, so that it normalises to 1 every step: a constant in the
+    manager's reward.
     """
     inner = make_adapted(env_id)
     try:
         space = inner.unwrapped.reward_space  # type: ignore[attr-defined]
-        constant = {
-            f"obj{i}": [float(low) - 1.0, float(high)]
-            for i, (low, high) in enumerate(zip(space.low, space.high))
-            if math.isfinite(low) and low >= high
-        }
+        lows, highs = np.asarray(space.low, dtype=np.float64), np.asarray(space.high, dtype=np.float64)
     finally:
         inner.close()
-    shared = terms_env(env_id, term_bounds=constant or None)
-    probe = shared.make()
-    try:
-        estimated = dict(getattr(probe.unwrapped, "estimated_bounds", {}) or {})
-        bounds = {t: [float(v) for v in b] for t, b in probe.unwrapped.reward_bounds.items()}  # type: ignore[attr-defined]
-    finally:
-        probe.close()
-    pinned = TermsEnv(shared.env_id, {**shared.env_kwargs, "term_bounds": bounds}, shared.terms)
-    return pinned, ESTIMATE_STEPS if estimated else 0
+    constant = {
+        f"obj{i}": [float(low) - 1.0, float(high)]
+        for i, (low, high) in enumerate(zip(lows, highs))
+        if math.isfinite(low) and low >= high
+    }
+    estimated = not (np.isfinite(lows).all() and np.isfinite(highs).all())
+    return terms_env(env_id, term_bounds=constant or None), ESTIMATE_STEPS if estimated else 0
 
 
 class ConditionedHierarchy:
@@ -164,15 +159,19 @@ def train_conditioned(run: SideRun) -> TrainedSide:
     started = time.perf_counter()
     shared, bounds_steps = pinned_env(run.env_id)
     terms = list(shared.terms)
-    per_worker = int(run.budget * WORKER_SHARE) // len(terms)
+    # The bounds' rollout is paid first; the workers and the manager share what is left.
+    available = run.budget - bounds_steps
+    per_worker = int(available * WORKER_SHARE) // len(terms)
+    manager_steps = available - per_worker * len(terms)
+    if per_worker < 1 or manager_steps < 1:
+        raise ValueError(
+            f"A budget of {run.budget} env steps ({bounds_steps} to estimate bounds) trains no model"
+        )
     algo = "dqn" if run.discrete else "ddpg"
     run_options = {"seed": run.seed, "eval_freq": 0, "eval_episodes": 1, "keep_best": False}
     train_workers(
         run.folder, env=shared, algos=dict.fromkeys(terms, algo), timesteps=per_worker, **run_options
     )
-    manager_steps = run.budget - per_worker * len(terms) - bounds_steps
-    if manager_steps < 1:
-        raise ValueError(f"A budget of {run.budget} env steps leaves the manager none")
     space = PreferenceSpace(tuple(terms), "dirichlet", float(len(terms)), floor=PREFERENCE_FLOOR)
     hierarchy, _ = train_manager(
         run.folder,
