@@ -25,6 +25,7 @@ from sb3_hddpg.envs.terms_env import TermsEnv, terms_env
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.manager import train_manager
+from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.workers import train_workers
 
 #: The share of the budget the per-term workers train on, together; the conditioned manager takes the rest.
@@ -168,9 +169,9 @@ def train_conditioned(run: SideRun) -> TrainedSide:
             f"A budget of {run.budget} env steps ({bounds_steps} to estimate bounds) trains no model"
         )
     algo = "dqn" if run.discrete else "ddpg"
-    run_options = {"seed": run.seed, "eval_freq": 0, "eval_episodes": 1, "keep_best": False}
+    options = RunOptions(seed=run.seed, eval_freq=0, eval_episodes=1, keep_best=False)
     train_workers(
-        run.folder, env=shared, algos=dict.fromkeys(terms, algo), timesteps=per_worker, **run_options
+        run.folder, env=shared, algos=dict.fromkeys(terms, algo), run=options.replace(timesteps=per_worker)
     )
     space = PreferenceSpace(tuple(terms), "dirichlet", float(len(terms)), floor=PREFERENCE_FLOOR)
     hierarchy, _ = train_manager(
@@ -182,8 +183,7 @@ def train_conditioned(run: SideRun) -> TrainedSide:
         manager_preferences=space,
         env_id=shared.env_id,
         env_kwargs=dict(shared.env_kwargs),
-        timesteps=manager_steps,
-        **run_options,
+        run=options.replace(timesteps=manager_steps),
     )
     steps = {f"workers/{t}": per_worker for t in terms}
     steps.update(manager=manager_steps, bounds=bounds_steps)
