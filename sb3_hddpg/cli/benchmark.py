@@ -12,6 +12,7 @@ from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS
 from sb3_hddpg.artifacts.records import BenchmarkResults
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.benchmark_events import check_snapshot_option, event_printer, snapshotting, take_snapshot
+from sb3_hddpg.cli.benchmark_protocol import ProtocolOpt, protocol_command
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
@@ -370,11 +371,12 @@ def benchmark_command(
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
     episode_steps: EpisodeStepsOpt = None,
+    protocol: ProtocolOpt = None,
 ) -> None:
-    """
-    Train and evaluate every method on every seed; write results.json, evaluations.csv and plots. Tables
-    compare the normalised terms' return; goal touches and contacts only where the env reports them (the snake).
-    """
+    """Train and evaluate every method on every seed; write results.json, evaluations.csv and plots. Tables
+    compare the normalised terms' return; goal touches and contacts only where the env reports them (the snake)."""
+    if protocol is not None:
+        return protocol_command(context)
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
     with usage_errors(_SETTINGS_OPTIONS):

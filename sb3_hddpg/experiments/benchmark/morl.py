@@ -104,8 +104,8 @@ def _run(python: str, arguments: Sequence[str], out: Path, keys: Sequence[str]) 
     """
     if not out.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
-        # One thread: the benchmark's other process shares the machine's cores.
-        environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+        # One thread: the benchmark's other process shares the machine's cores. wandb off: no network call, no folder.
+        environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "WANDB_MODE": "disabled"}
         # A benchmark being stopped (SIGTERM to its pool's processes) must not leave the runner training on:
         # subprocess.run kills its child on the KeyboardInterrupt this turns SIGTERM into.
         with sigterm_as_interrupt():

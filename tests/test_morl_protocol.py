@@ -1,0 +1,218 @@
+"""MORL-baselines' protocol: its settings, its runner's arguments, its records, its indicators and its page."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sb3_hddpg.experiments.benchmark.morl_page import morl_page, write_morl_page
+from sb3_hddpg.experiments.benchmark.morl_protocol import PROTOCOL_ENVS, ProtocolSettings
+from sb3_hddpg.experiments.benchmark.morl_protocol_run import (
+    PROTOCOL_RUNNER,
+    protocol_weights,
+    read_protocol_record,
+    read_protocol_run,
+)
+
+#: A development run made by a real (tiny) run of `benchmark --protocol morl-baselines` (see its protocol.json).
+SHIPPED = Path(__file__).parent / "data" / "morl_protocol" / "deep-sea-treasure-concave-v0"
+MORL_PYTHON = os.environ.get("MORL_PYTHON")
+COMMAND = [sys.executable, "-m", "sb3_hddpg", "benchmark", "--protocol", "morl-baselines"]
+COMMAND += ["--env", "deep-sea-treasure-concave-v0", "--seeds", "1"]
+needs_morl = pytest.mark.skipif(not MORL_PYTHON, reason="MORL_PYTHON (MORL-baselines' python) is not set")
+
+
+@pytest.mark.parametrize(
+    ("changes", "option"),
+    [
+        ({"env_id": "mo-halfcheetah-v5"}, "--env"),
+        ({"seeds": (0, 0)}, "--seeds"),
+        ({"peers": ("capql",)}, "--methods"),
+        ({"methods": ("hddpg-gpi",)}, "--methods"),
+        ({"timesteps": 200_001}, "--timesteps"),
+        ({"eval_weights": 0}, "--eval-weights"),
+        ({"morl_python": None}, "--morl-python"),
+    ],
+)
+def test_settings_refuse_what_the_protocol_does_not_allow(changes, option):
+    given = {"env_id": "deep-sea-treasure-concave-v0", "seeds": (0, 1), "morl_python": "python", **changes}
+    with pytest.raises(ValueError, match=option):
+        ProtocolSettings(**given)
+
+
+def test_a_run_of_record_takes_the_protocols_budget_ten_seeds_and_the_final_test():
+    record = ProtocolSettings("minecart-v0", tuple(range(10)), final_test=True, morl_python="python")
+    assert record.of_record and record.budget == 150_000 and record.peers == ("gpi-pd", "envelope")
+    pilot = ProtocolSettings(
+        "minecart-v0", tuple(range(10)), timesteps=3000, final_test=True, morl_python="p"
+    )
+    assert not pilot.of_record
+    written = json.dumps(record.to_json())
+    assert "python" not in written.replace('"protocol"', "")  # no interpreter path of this machine
+
+
+def test_the_protocols_time_limits_are_the_registered_ones():
+    gym = pytest.importorskip("gymnasium")
+    pytest.importorskip("mo_gymnasium")
+    for env in PROTOCOL_ENVS.values():
+        assert gym.spec(env.env_id).max_episode_steps == env.episode_steps, env.env_id
+
+
+@pytest.mark.parametrize(
+    "arguments",
+    [
+        ["train", "--algo", "pgmorl", "--timesteps", "10", "--env", "minecart-v0", "--ref-point=0,0,-200"],
+        ["train", "--algo", "envelope", "--timesteps", "0", "--env", "minecart-v0", "--ref-point=0,0,-200"],
+        ["score", "--returns", "r.json", "--env", "minecart-v0", "--ref-point=0,0,-200", "--gamma", "1.5"],
+        [
+            "score",
+            "--returns",
+            "r.json",
+            "--env",
+            "minecart-v0",
+            "--ref-point=0,0,-200",
+            "--eval-weights",
+            "0",
+        ],
+    ],
+)
+def test_the_runner_refuses_bad_options_before_anything_is_imported(arguments, tmp_path):
+    # Our python has no MORL-baselines: the options are checked before it is needed.
+    done = subprocess.run(
+        [sys.executable, str(PROTOCOL_RUNNER), *arguments, "--out", str(tmp_path / "o.json")],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr and "--" in done.stderr.splitlines()[-1]
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_the_weights_are_the_protocols():
+    weights = np.asarray(protocol_weights(2, 100))
+    assert weights.shape == (100, 2)
+    np.testing.assert_allclose(weights.sum(axis=1), 1.0)
+    assert {tuple(weights.min(axis=0)), tuple(weights.max(axis=0))} == {(0.0, 0.0), (1.0, 1.0)}
+
+
+def test_a_shipped_record_reads_and_a_broken_one_is_named(tmp_path):
+    settings, records = read_protocol_run(SHIPPED)
+    assert settings["env_id"] == "deep-sea-treasure-concave-v0" and not settings["of_record"]
+    assert {r.side for by in records.values() for r in by.values()} == {"hierarchy", "peer"}
+    for by in records.values():
+        for record in by.values():
+            assert len(record.discounted_returns) == len(record.weights) == settings["eval_weights"]
+            assert all(len(episodes) == settings["eval_episodes"] for episodes in record.returns)
+            assert record.total_env_steps >= settings["budget"] - 1 and "igd" in record.indicators
+    path = next((SHIPPED / "records").glob("*/seed-0.json"))
+    broken = json.loads(path.read_text())
+    broken["discounted_returns"] = broken["discounted_returns"][:-1]
+    (tmp_path / "r.json").write_text(json.dumps(broken))
+    with pytest.raises(ValueError, match="discounted_returns"):
+        read_protocol_record(tmp_path / "r.json")
+
+
+def test_the_page_replays_the_shipped_records(tmp_path):
+    page = tmp_path / "MORL.md"
+    assert write_morl_page([SHIPPED], page)
+    text = page.read_text()
+    assert "## deep-sea-treasure-concave-v0" in text and "**Not a result**" in text
+    assert "No run of record exists yet" in text and "ahead" not in text and "behind" not in text
+    _, records = read_protocol_run(SHIPPED)
+    for method, by in records.items():
+        row = next(line for line in text.splitlines() if line.startswith(f"| {method} |"))
+        assert f"{by[0].indicators['hypervolume']:.4g}" in row
+    assert (tmp_path / "results" / "morl-deep-sea-treasure-concave-v0.png").stat().st_size > 1000
+    assert not write_morl_page([SHIPPED], page, check=True)  # regenerated: the same text
+
+
+def test_the_page_without_runs_says_no_result_exists(tmp_path):
+    text = morl_page([], tmp_path / "MORL.md")
+    assert "No run of record exists yet" in text and "## Results" in text
+
+
+@needs_morl
+def test_morl_baselines_indicators_of_a_fixed_front(tmp_path):
+    from sb3_hddpg.experiments.benchmark.front_points import hypervolume
+
+    returns = {"discounted_returns": [[[1.0, -1.0], [1.0, -1.0]], [[8.2, -3.0]], [[0.5, -0.5]]]}
+    (tmp_path / "r.json").write_text(json.dumps(returns))
+    out = tmp_path / "s.json"
+    arguments = ["score", "--returns", str(tmp_path / "r.json"), "--env", "deep-sea-treasure-concave-v0"]
+    subprocess.run(
+        [MORL_PYTHON, str(PROTOCOL_RUNNER), *arguments, "--ref-point=0,-50", "--out", str(out)],
+        check=True,
+        capture_output=True,
+        env={**os.environ, "WANDB_MODE": "disabled"},
+    )
+    scored = json.loads(out.read_text())["indicators"]
+    # By hand: the three points' boxes above (0, -50) and pymoo's hypervolume agree with MORL-baselines'.
+    assert scored["hypervolume"] == pytest.approx(1 * 49 + 7.2 * 47 + 0.5 * 0.5)
+    points = [{"a": 1.0, "b": -1.0}, {"a": 8.2, "b": -3.0}, {"a": 0.5, "b": -0.5}]
+    mine = hypervolume(points, [("a", True), ("b", True)], (0.0, -50.0))
+    assert scored["hypervolume"] == pytest.approx(mine)
+    assert scored["cardinality"] == 3 and scored["maximum_utility_loss"] > 0 and scored["igd"] > 0
+
+
+@needs_morl
+def test_a_tiny_protocol_run_end_to_end(tmp_path):
+    out = tmp_path / "run"
+    arguments = ["--timesteps", "1200", "--methods", "envelope", "--test-episodes", "1"]
+    done = subprocess.run(
+        [*COMMAND, *arguments, "--morl-python", str(MORL_PYTHON), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    settings, records = read_protocol_run(out)
+    assert set(records) == {"hddpg-conditioned", "envelope"} and settings["budget"] == 1200
+    assert str(Path.home()) not in (out / "protocol.json").read_text()
+    shutil.rmtree(out / "runs")
+
+
+def test_the_shipped_page_is_current():
+    page = Path(__file__).parents[1] / "docs" / "MORL.md"
+    assert not write_morl_page([], page, check=True)
+
+
+@pytest.mark.parametrize(
+    ("arguments", "named"),
+    [
+        (["--protocol", "morl-baseline", "--env", "minecart-v0"], "--protocol"),
+        (
+            ["--protocol", "morl-baselines", "--env", "mo-halfcheetah-v5", "--morl-python", sys.executable],
+            "--env",
+        ),
+        (["--protocol", "morl-baselines", "--env", "minecart-v0", "--methods", "capql"], "--methods"),
+        (["--protocol", "morl-baselines", "--env", "minecart-v0"], "--morl-python"),
+    ],
+)
+def test_the_command_names_a_bad_option_in_one_line(arguments, named, tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "sb3_hddpg", "benchmark", *arguments, "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 2, done.stderr
+    assert named in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_deep_sea_treasures_constant_time_gets_bounds_and_costs_no_steps(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from sb3_hddpg.experiments.benchmark.morl_sides import SideRun, pinned_env, train_conditioned
+
+    shared, steps = pinned_env("deep-sea-treasure-concave-v0")
+    assert steps == 0 and shared.env_kwargs["term_bounds"]["obj1"] == [-2.0, -1.0]
+    with pytest.raises(ValueError, match="trains no model"):
+        train_conditioned(SideRun("deep-sea-treasure-concave-v0", True, 0.99, 2, 0, tmp_path))
