@@ -64,6 +64,21 @@ def default_config(algo: str = "ddpg") -> Path:
     return path
 
 
+def config_source(path: str | Path) -> str:
+    """
+    How a manifest names the config file a block was read from, with no path of this machine in it (a record
+    states what ran; reading it must not need the machine that wrote it): a bundled config as
+    ``sb3_hddpg/zoo_configs/<algo>.yml``, a relative path as given, any other absolute path by its file name
+    (the block itself is recorded beside it).
+
+    :param path: the config file the block was read from.
+    """
+    path = Path(path)
+    if path.is_absolute() and path.parent.resolve() == DEFAULT_CONFIG.parent.resolve():
+        return f"sb3_hddpg/zoo_configs/{path.name}"
+    return path.as_posix() if not path.is_absolute() else path.name
+
+
 #: The config block of the manager's DDPG (it has no registered env id of its own).
 MANAGER_KEY = "manager"
 

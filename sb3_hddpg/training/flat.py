@@ -34,7 +34,7 @@ from sb3_hddpg.training.agent import (
 from sb3_hddpg.training.backends import (
     algo_class,
 )
-from sb3_hddpg.training.config import Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.config import Hyperparams, config_source, default_config, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: The env a flat baseline learns: both objectives in one reward (the normalised sum of the terms).
@@ -144,7 +144,7 @@ def train_flat(
         algo,
         env_id,
         make_kwargs,
-        {"file": str(config_path), "block": hyperparams.raw},
+        {"file": config_source(config_path), "block": hyperparams.raw},
         run.seed,
         budget,
         stopped_early=outcome.stopped_early,

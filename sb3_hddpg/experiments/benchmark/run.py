@@ -35,7 +35,16 @@ from sb3_hddpg.experiments.benchmark.methods import (
     workers_steps,
 )
 from sb3_hddpg.experiments.benchmark.report import write_outputs
-from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
+from sb3_hddpg.experiments.benchmark.settings import (
+    MACHINE_PATHS,
+    BenchmarkSettings,
+    Task,
+    check_machine_paths,
+    plan_tasks,
+    relative_to_run,
+    settings_record,
+    task_cost,
+)
 from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compute_results
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Executor, Job, RunOutcome, run_jobs
@@ -124,7 +133,7 @@ def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, A
     results: dict[str, Any] = {"config_blocks": _plain(task_config_blocks(task, settings))}
     spec = task.spec
     if spec is None:
-        results.update(_run_workers(task, settings, folder))
+        results.update(_run_workers(task, settings, folder, out))
     else:
         results.update(spec.run(task, settings, folder))
         preference = split_key(task.method)[1]
@@ -134,15 +143,18 @@ def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, A
     return benchmark_record(task.method, task.seed, results).to_json()
 
 
-def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
-    """Train (or finish) a seed's two workers, or copy them from ``settings.workers_from``."""
+def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path, out: Path) -> dict[str, Any]:
+    """
+    Train (or finish) a seed's two workers, or copy them from ``settings.workers_from`` (recorded relative to
+    the benchmark's folder ``out``).
+    """
 
     reused: dict[str, Any] = {}
     if settings.workers_from is not None:
         source = seed_dir(Path(settings.workers_from), task.seed)
         if not (folder / "workers" / "manifest.json").exists():  # else copied before an interruption
             _copy_workers(source, folder)
-        reused = {"workers_from": str(source)}
+        reused = {"workers_from": relative_to_run(str(source), out)}
     budget = settings.worker_timesteps or settings.workers_budget
     run = settings.run_options(task.seed, settings.worker_timesteps, budget)
     # Copied workers are finished ones with this budget: train_workers keeps them (resume) and trains nothing.
@@ -296,10 +308,6 @@ def task_job(task: Task, settings: BenchmarkSettings, out: Path) -> Job:
 
 #: Settings a resumed benchmark may change (every other must be as the folder's ``benchmark.json`` says).
 RESUME_MAY_CHANGE = ("methods", "seeds")
-#: Settings that say where something is on this machine: a folder copied to another machine resumes there
-#: with its own paths (the reused workers are checked against their manifests whatever their path), but
-#: one given or left out only on resume would mix two kinds of runs.
-MACHINE_PATHS = ("workers_from", "morl_python")
 #: Where ``redo`` moves the runs it replaces: ``DIR/replaced-<UTC time>/`` (records and seed folders).
 REPLACED_PREFIX = "replaced-"
 
@@ -439,13 +447,14 @@ def run_benchmark(
     saved = read_benchmark_file(settings_path) if resume and settings_path.exists() else None
     if saved is not None:
         _check_same_settings(settings, saved, redo, out)
+    settings = check_machine_paths(settings)
     check_workers_source(settings)
     tasks = plan_tasks(settings)
     records = _kept_records(settings, tasks, out, resume, redo)
     for task, record in records.items():
         notify("skip", task, record)
     header = {
-        "settings": asdict(settings),
+        "settings": settings_record(settings, out),
         "budgets": {"manager_env_steps": settings.manager_env_steps},
         "machine": machine_info(),
     }
@@ -466,7 +475,8 @@ def run_benchmark(
     )
     records.update({by_label[label]: record for label, record in outcome.results.items()})
     failed = {by_label[label]: outcome.failure_message(label) for label in outcome.failures}
-    results = compute_results(settings, [records[t] for t in tasks if t in records]).with_run(
+    computed = compute_results(settings, [records[t] for t in tasks if t in records])
+    results = replace(computed, settings=header["settings"]).with_run(
         wall_time_s_this_invocation=wall,
         wall_time_s_all_invocations=sum(float(i.get("wall_time_s", 0.0)) for i in invocations),
         invocations=len(invocations),
