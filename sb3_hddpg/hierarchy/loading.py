@@ -28,7 +28,7 @@ from sb3_hddpg.baselines.ham import load_ham
 from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.envs import SnakeArmEnv
 from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.envs.headless import rendering_errors
+from sb3_hddpg.envs.headless import private_runtime_dir, rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.snake.controllers import JacobianReacher, make_controller
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -67,6 +67,8 @@ class LoadedPolicy:
         :return: the env; raises ``ValueError`` if its spaces are not the policy's.
         """
         env_id = env_id or self.env_id
+        if kwargs.get("render_mode") is not None:
+            private_runtime_dir()  # else SDL and GLFW print an alarming line on a machine without a session
         with rendering_errors():  # MuJoCo's OpenGL may fail on import, before any frame is asked for
             env = gym.make(env_id, **{**self.env_kwargs, **kwargs})
         for kind in ("observation", "action"):
