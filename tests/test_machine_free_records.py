@@ -11,7 +11,11 @@ import pytest
 
 from sb3_hddpg.experiments.benchmark import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_settings
-from sb3_hddpg.experiments.benchmark.settings import check_machine_paths, relative_to_run, settings_record
+from sb3_hddpg.experiments.benchmark.machine_paths import (
+    check_machine_paths,
+    relative_to_run,
+    settings_record,
+)
 from sb3_hddpg.training.config import config_source, default_config
 
 ROOT = Path(__file__).resolve().parents[1]

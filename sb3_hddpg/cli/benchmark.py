@@ -50,8 +50,8 @@ from sb3_hddpg.experiments.benchmark import (
     output_files_in,
     run_benchmark,
 )
+from sb3_hddpg.experiments.benchmark.machine_paths import check_machine_paths
 from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
-from sb3_hddpg.experiments.benchmark.settings import check_machine_paths
 from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
 from sb3_hddpg.experiments.model_export import export_models
 

@@ -27,6 +27,12 @@ from sb3_hddpg.artifacts.records import BenchmarkResults, benchmark_record, read
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_file
+from sb3_hddpg.experiments.benchmark.machine_paths import (
+    MACHINE_PATHS,
+    check_machine_paths,
+    relative_to_run,
+    settings_record,
+)
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
     WORKERS,
@@ -35,16 +41,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     workers_steps,
 )
 from sb3_hddpg.experiments.benchmark.report import write_outputs
-from sb3_hddpg.experiments.benchmark.settings import (
-    MACHINE_PATHS,
-    BenchmarkSettings,
-    Task,
-    check_machine_paths,
-    plan_tasks,
-    relative_to_run,
-    settings_record,
-    task_cost,
-)
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
 from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compute_results
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Executor, Job, RunOutcome, run_jobs
@@ -144,10 +141,7 @@ def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, A
 
 
 def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path, out: Path) -> dict[str, Any]:
-    """
-    Train (or finish) a seed's two workers, or copy them from ``settings.workers_from`` (recorded relative to
-    the benchmark's folder ``out``).
-    """
+    """Train (or finish) a seed's workers, or copy them from ``settings.workers_from`` (recorded relative to ``out``)."""
 
     reused: dict[str, Any] = {}
     if settings.workers_from is not None:

@@ -6,10 +6,7 @@ import contextlib
 import functools
 import json
 import math
-import os
-from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass, field
 
 import gymnasium as gym
 from stable_baselines3 import DDPG
@@ -47,7 +44,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     method_key,
     split_key,
 )
-from sb3_hddpg.experiments.benchmark.morl import check_morl_python, mo_gymnasium_env, morl_python_version
+from sb3_hddpg.experiments.benchmark.morl import mo_gymnasium_env
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import backend_for, check_algo, check_backend
@@ -158,7 +155,7 @@ class BenchmarkSettings:
         own (they must have been trained with the same config blocks, budget, backend, env and seed: then
         they are the workers this benchmark would train, since a seed's run is deterministic on the CPU).
         The copies are checked against their manifest's sha256 (:func:`~.run.check_workers_source`).
-        Records state it relative to the benchmark's folder (:func:`settings_record`).
+        Records state it relative to the benchmark's folder (:func:`~.machine_paths.settings_record`).
     :param final_test: score every run on the final test set (:data:`~sb3_hddpg.episode_sets.FINAL_TEST`):
         for the runs of record only, never for a choice; otherwise on the development episodes.
     :param worker_algo: the algorithm of every worker on another env (``None``: DDPG on continuous actions,
@@ -183,7 +180,7 @@ class BenchmarkSettings:
         policy for every preference costs; on a slow env it saves most of the front's training).
     :param morl_python: the python of a virtual environment with MORL-baselines: the front then adds its
         CAPQL, trained for the hierarchy's env steps (:mod:`.morl`; an MO-Gymnasium env only). Records state
-        its version instead of its path (:func:`settings_record`).
+        its version instead of its path (:func:`~.machine_paths.settings_record`).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -337,12 +334,8 @@ class BenchmarkSettings:
         if shared is None:
             raise ValueError("MORL-baselines' learner runs on an MO-Gymnasium env (--env), not the snake arm")
         mo_gymnasium_env(shared)
-        # Its file is checked where the benchmark runs (check_machine_paths), not here: settings read from a
-        # record state what ran, and the python of the machine that wrote them is not on this one.
-        if not isinstance(self.morl_python, str) or not self.morl_python:
-            raise ValueError(
-                f"Expected `morl_python` to be a python's path, actually: {self.morl_python!r:.200}"
-            )
+        # Its file is checked where the benchmark runs (.machine_paths), not here: settings read from a record
+        # state what ran, and the python of the machine that wrote them is not on this one.
 
     def _check_transfer(self) -> None:
         """The transfer scenario's preferences (written one way) and methods: hddpg and flat agents."""
@@ -537,51 +530,6 @@ class BenchmarkSettings:
             eval_episodes=self.eval_episodes,
             backend=self.backend,
         )
-
-
-#: Settings that say where something is on this machine: a folder copied to another machine resumes there
-#: with its own paths (the reused workers are checked against their manifests whatever their path), but
-#: one given or left out only on resume would mix two kinds of runs.
-MACHINE_PATHS = ("workers_from", "morl_python")
-
-
-def relative_to_run(path: str, run_dir: str | Path) -> str:
-    """
-    ``path`` as a record states it: relative to the run folder ``run_dir`` (a relative path is kept as given),
-    so that no record holds an absolute path of the machine that wrote it.
-    """
-    if not os.path.isabs(path):
-        return path
-    return Path(os.path.relpath(path, Path(run_dir).absolute())).as_posix()
-
-
-def check_machine_paths(settings: BenchmarkSettings) -> BenchmarkSettings:
-    """
-    The settings with their paths of this machine (:data:`MACHINE_PATHS`) checked and made absolute, before
-    the benchmark runs: MORL-baselines' python must be an executable file here.
-
-    :raises ValueError: naming the setting.
-    """
-    if settings.morl_python is None:
-        return settings
-    return replace(settings, morl_python=check_morl_python(settings.morl_python))
-
-
-def settings_record(settings: BenchmarkSettings, run_dir: str | Path) -> dict[str, Any]:
-    """
-    The settings as ``benchmark.json`` and ``results.json`` record them: what ran, readable on any machine.
-    ``workers_from`` is relative to the benchmark's folder ``run_dir``; MORL-baselines' python is its version
-    (``python 3.11.7``), not its path.
-
-    :param settings: settings whose machine paths are checked (:func:`check_machine_paths`).
-    :param run_dir: the benchmark's folder.
-    """
-    record = asdict(settings)
-    if settings.workers_from is not None:
-        record["workers_from"] = relative_to_run(settings.workers_from, run_dir)
-    if settings.morl_python is not None and os.path.isabs(settings.morl_python):
-        record["morl_python"] = f"python {morl_python_version(settings.morl_python)}"
-    return record
 
 
 @dataclass(frozen=True)
