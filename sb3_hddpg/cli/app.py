@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
-import click
 import typer
 import typer.core
 import typer.main
@@ -58,16 +58,17 @@ class LazyCommands(typer.core.TyperGroup):
     and each command's module imported when the command is asked for.
     """
 
-    def list_commands(self, ctx: click.Context) -> list[str]:
+    # click's types as typer vendors them (typer._click) are private: the signatures say Any.
+    def list_commands(self, ctx: Any) -> list[str]:
         return list(COMMANDS)
 
-    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
         if cmd_name not in self.commands and cmd_name in COMMANDS:
             importlib.import_module(f"sb3_hddpg.cli.{COMMANDS[cmd_name][0]}")
             self.commands.update(typer.main.get_command(app).commands)  # type: ignore[attr-defined]
         return self.commands.get(cmd_name)
 
-    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+    def format_commands(self, ctx: Any, formatter: Any) -> None:
         # Each line whole (wrapped, never cut with an ellipsis), without importing any command's module.
         with formatter.section("Commands"):
             formatter.write_dl([(name, line) for name, (_, line) in COMMANDS.items()])

@@ -45,10 +45,11 @@ from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION, models_manif
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
-from sb3_hddpg.envs.contract import Proximity, proximity_of, state_layout_of
+from sb3_hddpg.envs.contract import Proximity, state_layout_of
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.experiments.packaging import write_zoo_layout
+from sb3_hddpg.experiments.quickstart_figures import record_hierarchy, shown_episode
 from sb3_hddpg.experiments.quickstart_jobs import (
     COMPARISON_ENV_ID,
     ENV_STEPS_PER_STEP,
@@ -57,7 +58,7 @@ from sb3_hddpg.experiments.quickstart_jobs import (
 )
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
-from sb3_hddpg.media.video import RecordingResult, record_video
+from sb3_hddpg.media.video import RecordingResult
 from sb3_hddpg.training.backends import backend_for, check_backend
 from sb3_hddpg.training.config import default_config, load_config_file, manager_option_steps
 
@@ -71,8 +72,8 @@ PAPER_HIERARCHY = "HDDPG"
 #: The main manager: DQN choosing a worker by index, trained over the ratio sweep of preferences up to 16:1
 #: (told the preference as an input, so that one manager answers every trade-off at run time) and seeing how
 #: its state moved (an obstacle coming or going), the recipe of docs/MANAGER.md. At the small budget it calls
-#: the avoid worker near obstacles many times as often as on a clear path; over ``ratio-sweep`` without the
-#: motion it chose less by state (development episodes of the quickstart).
+#: the avoid worker more often near obstacles than on a clear path; over ``ratio-sweep`` without the motion it
+#: chose less by state (on the quickstart's own evaluation episodes).
 MAIN_MANAGER: dict[str, Any] = {
     "algo": "dqn",
     "manager_preferences": "ratio-sweep:16",
@@ -244,20 +245,19 @@ def run_quickstart(
     trained = _train_stages(run_dir, budget, common, launch, clock)
     files["bundle"] = run_dir / "hierarchy.zip"
     files["paper_bundle"] = run_dir / "simplex" / "hierarchy.zip"
-    option_steps = {
-        "manager": manager_option_steps(files["main_config"], MAIN_MANAGER["algo"]),
-        "simplex manager": manager_option_steps(files["config"]),
-    }
     clock.start(2)
     policies, sources = _comparison_policies(run_dir, files)
     summaries, methods = _compare(policies, sources, trained, run_dir, budget, observer)
     clock.done(2)
     clock.start(3)
-    recording, proximity = _record_hierarchy(policies[MAIN_HIERARCHY], run_dir, budget, observer, files)
+    shown, title = shown_episode(methods[MAIN_HIERARCHY], COMPARISON_ENV_ID)
+    recording, proximity = record_hierarchy(
+        policies[MAIN_HIERARCHY], run_dir, (shown, budget.gif_episodes, budget.gif_max_steps), observer, files
+    )
     clock.done(3)
     clock.start(4)
     names = list(policies[MAIN_HIERARCHY].policy.names)  # type: ignore[attr-defined]
-    _plot_figures(run_dir, budget, recording, proximity, names, summaries, option_steps, files)
+    _plot_figures(run_dir, (budget, title), recording, proximity, names, summaries, files)
     clock.done(4)
     files["zoo"] = _write_zoo(run_dir)
     wall = time.monotonic() - started
@@ -432,61 +432,39 @@ def _compare(
             "train_seconds": sum(trained[a]["seconds"] for a in agents),
             "episodes": [e.reach_reward for e in result.episodes],
         }
+        if result.episodes[0].selections:  # a hierarchy: the episodes in which it called several workers
+            both = [i for i, e in enumerate(result.episodes) if sum(n > 0 for n in e.selections.values()) > 1]
+            methods[label]["switching_episodes"] = [EVAL_SEED_BASE + i for i in both]
     return summaries, methods
-
-
-def _record_hierarchy(
-    hierarchy: LoadedPolicy,
-    run_dir: Path,
-    budget: QuickstartBudget,
-    observer: QuickstartObserver,
-    files: dict[str, Path],
-) -> tuple[RecordingResult, Proximity | None]:
-    """
-    The hierarchy at work: a GIF (``files["gif"]``), whose records the selection timeline plots.
-
-    :return: the recording, and the snake's sensor range and touch radius as the contract declares them.
-    """
-    limit = {"max_episode_steps": budget.gif_max_steps} if budget.gif_max_steps else {}
-    gif_env = hierarchy.make_env(COMPARISON_ENV_ID, render_mode="rgb_array", **limit)
-    gif_steps = budget.gif_episodes * (budget.gif_max_steps or _episode_steps())
-    try:
-        recording = record_video(
-            hierarchy.policy,
-            gif_env,
-            run_dir / "hierarchy.gif",
-            episodes=budget.gif_episodes,
-            seed=EVAL_SEED_BASE,
-            fps=10,
-            title="hierarchy",
-        )
-        observer.on_task("GIF", gif_steps, gif_steps)
-        files["gif"] = recording.path
-        return recording, proximity_of(gif_env)
-    finally:
-        gif_env.close()
 
 
 def _plot_figures(
     run_dir: Path,
-    budget: QuickstartBudget,
+    shown: tuple[QuickstartBudget, str],
     recording: RecordingResult,
     proximity: Proximity | None,
     names: list[str],
     summaries: dict[str, dict[str, Any]],
-    option_steps: dict[str, int],
     files: dict[str, Path],
 ) -> None:
-    """The selection timeline, the learning curves (every curve over env steps) and the comparison."""
+    """
+    The selection timeline (titled by ``shown``), the learning curves (every curve over env steps) and the
+    comparison.
+    """
+    budget, title = shown
     files["selection"] = plot_selection_timeline(
         recording.records,
         run_dir / "selection.png",
         names=names,
-        title=f"The hierarchy on {COMPARISON_ENV_ID}, seed {EVAL_SEED_BASE}: which worker acts, and why",
+        title=title,
         sensor_range=proximity.sensor_range if proximity else None,
         touch_radius=proximity.touch_radius if proximity else None,
     )
     # A manager's history counts decisions.
+    option_steps = {
+        "manager": manager_option_steps(files["main_config"], MAIN_MANAGER["algo"]),
+        "simplex manager": manager_option_steps(files["config"]),
+    }
     curves = {
         "goal": run_dir / "evaluations" / "goal.json",
         "avoid": run_dir / "evaluations" / "avoid.json",
