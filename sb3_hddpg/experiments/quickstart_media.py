@@ -14,7 +14,7 @@ from typing import Any
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import read_json_record
 from sb3_hddpg.artifacts.provenance import sha256_file
-from sb3_hddpg.experiments.quickstart import BUDGETS, MAIN_MANAGER, flat_budget
+from sb3_hddpg.experiments.quickstart import BUDGETS, MAIN_HIERARCHY, MAIN_MANAGER, flat_budget
 
 #: Run-folder file -> its name in the docs folder.
 MEDIA = {"hierarchy.gif": "quickstart-hierarchy.gif", "selection.png": "quickstart-selection.png"}
@@ -59,7 +59,10 @@ def publish_media(run_dir: str | Path, docs_dir: str | Path) -> Path:
         **quickstart_settings(budget),
         "seed": results["seed"],
         "backend": backends.pop() if len(backends) == 1 else sorted(map(str, backends)),
-        "eval_seed": results["eval_seeds"][0],
+        # The episode the media show (quickstart_figures.shown_episode), of the table's evaluation episodes.
+        "shown_episode_seed": results["methods"][MAIN_HIERARCHY].get(
+            "shown_episode_seed", results["eval_seeds"][0]
+        ),
         "files": files,
     }
     return atomic_write_json(docs_dir / MEDIA_RECORD, record)
