@@ -85,3 +85,4 @@ def test_manifests_name_a_config_by_what_it_is_not_where_it_was(tmp_path):
     assert config_source(default_config("sac")) == "sb3_hddpg/zoo_configs/sac.yml"
     assert config_source("configs/mine.yml") == "configs/mine.yml"
     assert config_source(tmp_path / "mine.yml") == "mine.yml"
+    assert config_source(tmp_path / "mine.yml", tmp_path / "run") == "../mine.yml"

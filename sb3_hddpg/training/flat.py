@@ -144,7 +144,7 @@ def train_flat(
         algo,
         env_id,
         make_kwargs,
-        {"file": config_source(config_path), "block": hyperparams.raw},
+        {"file": config_source(config_path, out_dir), "block": hyperparams.raw},
         run.seed,
         budget,
         stopped_early=outcome.stopped_early,

@@ -207,7 +207,7 @@ def train_workers(
             run=agent_run(run, paths, budget),
             extra_callbacks=extra_callbacks,
         )
-        source = config_source(config) if config else f"sb3_hddpg/zoo_configs/{chosen[name]}.yml"
+        source = config_source(config, out_dir) if config else f"sb3_hddpg/zoo_configs/{chosen[name]}.yml"
         entry = _worker_entry(
             name, outcome, chosen[name], (env_id, env_kwargs), hyperparams, source, run, budget
         )
