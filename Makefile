@@ -24,7 +24,7 @@ INSTALL_TORCH = if [ -n "$(TORCH_INDEX)" ] && $(BIN)/python -c "import sys, urll
 		$(BIN)/python -m pip install --quiet "$(TORCH)"; \
 	fi
 
-.PHONY: quickstart test torch lint docs clean-venv
+.PHONY: quickstart media test torch lint docs clean-venv
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,6 +52,11 @@ quickstart: $(STAMP)
 	@echo "  source $(BIN)/activate"
 	@echo "  hddpg-cli evaluate $(QUICKSTART_OUT)/hierarchy.zip --episodes 5"
 	@echo "  python examples/own_manager.py $(QUICKSTART_OUT)/workers   # your own SAC manager over its workers"
+
+# The README's GIF and the docs' selection figure from the quickstart's run folder, with their record
+# (docs/quickstart-media.json, which a test checks against the files and the quickstart's settings).
+media: $(STAMP)
+	$(BIN)/python -c "import sys; from sb3_hddpg.experiments.quickstart_media import publish_media; publish_media(sys.argv[1], 'docs')" $(QUICKSTART_OUT)
 
 # The tests in TEST_WORKERS processes, then the 15 slowest.
 test: $(STAMP)

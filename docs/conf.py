@@ -77,6 +77,58 @@ class FolderLinks(SphinxPostTransform):
                 node.replace_self(nodes.literal(node["reftarget"], node["reftarget"]))
 
 
+#: A page named by its path in the checkout, as docstrings and the README name pages (``docs/MANAGER.md``).
+DOCS_PATH = re.compile(r"\bdocs/((?:[A-Za-z0-9_-]+/)*[A-Za-z0-9_.-]+)\.md\b")
+
+
+class DocsPathLinks(SphinxPostTransform):
+    """
+    ``docs/MANAGER.md`` in running text or as inline code, in a page or a docstring, links to that page: the
+    checkout's path is how the docstrings, the CLI and the README name a page, and on the site it is a link.
+    """
+
+    default_priority = 20
+
+    def _uri(self, path: str) -> str | None:
+        match = DOCS_PATH.fullmatch(path)
+        if match is None or match[1] not in self.env.found_docs:
+            return None
+        return self.app.builder.get_relative_uri(self.env.docname, match[1])
+
+    def run(self, **kwargs: Any) -> None:
+        skip = (nodes.reference, nodes.literal_block, nodes.title, nodes.raw, addnodes.desc_signature)
+        for node in list(self.document.findall(nodes.Text)):
+            parent = node.parent
+            if parent is None or "docs/" not in node or any(isinstance(a, skip) for a in _ancestors(parent)):
+                continue
+            if isinstance(parent, nodes.literal):
+                uri = self._uri(str(node).strip())
+                if uri is not None:
+                    parent.replace_self(nodes.reference("", "", parent.deepcopy(), refuri=uri, internal=True))
+                continue
+            pieces: list[nodes.Node] = []
+            text, last = str(node), 0
+            for match in DOCS_PATH.finditer(text):
+                uri = self._uri(match[0])
+                if uri is None:
+                    continue
+                pieces += [
+                    nodes.Text(text[last : match.start()]),
+                    nodes.reference(match[0], match[0], refuri=uri),
+                ]
+                last = match.end()
+            if pieces:
+                parent.replace(node, [*pieces, nodes.Text(text[last:])])
+
+
+def _ancestors(node: nodes.Node) -> list[nodes.Node]:
+    found = []
+    while node is not None:
+        found.append(node)
+        node = node.parent
+    return found
+
+
 def title_records(app: Sphinx, docname: str, source: list[str]) -> None:
     """
     A benchmark's generated table (``results/<run>/results.md``) starts with the table, not a heading: its
@@ -107,6 +159,7 @@ def markdown_docstrings(app: Sphinx, docname: str, source: list[str]) -> None:
 
 def setup(app: Sphinx) -> dict[str, Any]:
     app.add_post_transform(FolderLinks)
+    app.add_post_transform(DocsPathLinks)
     app.connect("source-read", title_records)
     app.connect("source-read", markdown_docstrings)
     return {"parallel_read_safe": True}

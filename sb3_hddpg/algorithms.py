@@ -366,7 +366,7 @@ ACTIVATIONS: dict[str, type[th.nn.Module]] = {
     )
 }
 
-#: The activations a training config may name: those both backends compute alike (SBX has each in flax).
+#: The activations a training config may name, those both backends compute alike (SBX has each in flax).
 CONFIG_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
 
 

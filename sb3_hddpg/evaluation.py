@@ -39,10 +39,10 @@ class EpisodeMetrics:
     length: int
     #: Per reward term, its raw episode sum.
     term_rewards: dict[str, float]
-    #: Combined normalised reward: per step every reward term min-max normalised to [0, 1] with the env's
+    #: The combined normalised reward, per step every reward term min-max normalised to [0, 1] with the env's
     #: bounds and summed (on the snake the SnakeReach reward; the benchmark's common metric).
     reach_reward: float
-    #: The snake env's touch and collision metrics: ``None`` where the env does not report them in ``info``
+    #: The snake env's touch and collision metrics, ``None`` where the env does not report them in ``info``
     #: (``goal_touched``, ``collision``, ``min_clearance``).
     goal_touch_rate: float | None = None
     goal_touched: bool | None = None
@@ -50,7 +50,7 @@ class EpisodeMetrics:
     success: bool | None = None
     min_clearance: float | None = None
     selections: dict[str, int] = field(default_factory=dict)
-    #: Fraction of the deciding network's output entries with ``|a| >= SATURATION_LEVEL``: the manager's
+    #: The fraction of the deciding network's output entries with ``|a| >= SATURATION_LEVEL``, of the manager's
     #: action for a hierarchy (its ``last_manager_action``), the action given to the env otherwise. ``None``
     #: where that output is an index (a DQN manager's worker, a discrete action): an index has no saturation.
     action_saturation: float | None = None
@@ -81,7 +81,7 @@ class EvaluationResult:
     """Metrics over several episodes; :meth:`summary` gives means."""
 
     episodes: list[EpisodeMetrics]
-    #: The clearance bands of ``selections_near`` / ``selections_clear`` (``None``: not measured).
+    #: The clearance bands of ``selections_near`` / ``selections_clear`` (``None`` when not measured).
     near_clearance: float | None = None
     clear_clearance: float | None = None
 

@@ -58,15 +58,23 @@ METRIC_LABELS: dict[str, MetricLabel] = {
     # Rates of steps matter at one decimal (3.0 % against 0.1 % goal touch).
     "goal_touch_rate": MetricLabel("touching the goal", "% of steps", percent=True, short="goal touch"),
     "goal_reached_rate": MetricLabel("goal touched at least once", "% of episodes", percent=True, digits=0),
-    "collisions_per_episode": MetricLabel("steps touching an obstacle", "per episode", short="contact steps"),
+    # One name wherever it is shown (evaluate, record, tables): contact steps, the steps the arm touches an obstacle.
+    "collisions_per_episode": MetricLabel(
+        "contact steps (steps touching an obstacle)", "per episode", short="contact steps"
+    ),
     "success_rate": MetricLabel(
         "success: goal touched, no contact", "% of episodes", percent=True, digits=0, short="success"
     ),
     "min_clearance": MetricLabel(
         "min clearance to an obstacle", "arm lengths", digits=3, short="min clearance"
     ),
+    # A tanh actor's output at ±1 sits where its gradient vanishes: it has stopped adjusting that output.
     "action_saturation": MetricLabel(
-        "actor outputs pinned at ±1", "% of outputs", percent=True, digits=0, short="saturated"
+        "actor outputs pinned at ±1 (the ends of the tanh range: no longer learning)",
+        "% of outputs",
+        percent=True,
+        digits=0,
+        short="saturated",
     ),
     "mean_length": MetricLabel("episode length", "steps", digits=0),
 }
@@ -82,8 +90,43 @@ SELECTION_LABEL = MetricLabel(
 )
 #: How the contact steps made while one worker acted (``collisions_by_worker``) are shown.
 CONTACTS_LABEL = MetricLabel(
-    "steps touching an obstacle while the {name} worker acts", "per episode", short="contacts by worker"
+    "contact steps while the {name} worker acts", "per episode", short="contacts by worker"
 )
+
+
+#: A manager whose one worker runs this share of the steps or more acts as that worker alone.
+COLLAPSED_SHARE = 0.99
+#: A manager whose outputs are pinned at ±1 this often or more no longer weighs its workers (a tanh actor there
+#: has almost no gradient left to move it).
+SATURATED_SHARE = 0.5
+
+
+def manager_warnings(summary: Mapping[str, Any]) -> list[str]:
+    """
+    What a hierarchy's evaluation says about its manager, in words, where it does not decide between its
+    workers: it chose one worker on (nearly) every step, or its outputs sit at the ends of their range.
+
+    :param summary: :meth:`~sb3_hddpg.evaluation.EvaluationResult.summary` of a hierarchy (or any policy: no
+        ``selection_rate``, no warning).
+    :return: one sentence per finding (none: the manager switches between its workers).
+    """
+    warnings: list[str] = []
+    rates = summary.get("selection_rate")
+    if not isinstance(rates, Mapping) or not rates:
+        return warnings  # not a hierarchy: its saturation is an actor's, said by the table
+    # Only the workers chosen at least once are counted: one name alone is a manager that never switched.
+    name, share = max(rates.items(), key=lambda item: item[1])
+    if share >= COLLAPSED_SHARE:
+        warnings.append(
+            f"the manager chose {name} on {100 * share:.0f} % of steps: it acts as the {name} worker alone"
+        )
+    saturation = summary.get("action_saturation")
+    if isinstance(saturation, (int, float)) and saturation >= SATURATED_SHARE:
+        warnings.append(
+            f"{100 * saturation:.0f} % of the manager's outputs are pinned at ±1, the ends of its tanh range "
+            "where the gradient vanishes: it has stopped weighing its workers and repeats one choice"
+        )
+    return warnings
 
 
 def units_caption(labels: Sequence[MetricLabel]) -> str:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
-from sb3_hddpg.envs.headless import rendering_errors
+from sb3_hddpg.envs.headless import private_runtime_dir, rendering_errors
 
 if TYPE_CHECKING:
     from sb3_hddpg.policy import Policy
@@ -52,6 +52,8 @@ class LoadedPolicy:
         :return: the env; raises ``ValueError`` if its spaces are not the policy's.
         """
         env_id = env_id or self.env_id
+        if kwargs.get("render_mode") is not None:
+            private_runtime_dir()  # else SDL and GLFW print an alarming line on a machine without a session
         with rendering_errors():  # MuJoCo's OpenGL may fail on import, before any frame is asked for
             env = gym.make(env_id, **{**self.env_kwargs, **kwargs})
         for kind in ("observation", "action"):

@@ -332,7 +332,9 @@ def test_workers_from_another_benchmark_are_copied_checked_and_never_retrained(t
         assert copied == (first / "seed-0" / "workers" / name).read_bytes()
     assert not (second / "seed-0" / "checkpoints").exists()  # nothing was trained again
     record = json.loads((second / "records" / "workers" / "seed-0.json").read_text())
-    assert record["workers_from"] == str((first / "seed-0").resolve())
+    # Recorded relative to the benchmark's folder: the record holds no path of this machine.
+    assert record["workers_from"] == "../first/seed-0"
+    assert json.loads((second / "benchmark.json").read_text())["settings"]["workers_from"] == "../first"
     original = json.loads((first / "records" / "workers" / "seed-0.json").read_text())
     assert record["history"] == original["history"] and record["worker_timesteps"] == 204
     scores = [

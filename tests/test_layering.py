@@ -22,6 +22,7 @@ FLOORS = {
     "sb3_hddpg.algorithms": 1,
     "sb3_hddpg.episode_sets": 1,
     "sb3_hddpg.metric_labels": 1,
+    "sb3_hddpg.threads": 1,
     "sb3_hddpg.artifacts": 2,
     "sb3_hddpg.evaluation": 3,
     "sb3_hddpg.callbacks": 3,

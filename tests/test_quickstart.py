@@ -15,6 +15,7 @@ from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION
 from sb3_hddpg.experiments.quickstart import BUDGETS, STAGES
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.config import load_hyperparams, manager_option_steps
+from tests.cli_batch import run_batch
 from tests.cli_runner import run_cli
 
 
@@ -78,6 +79,28 @@ def test_bundle_and_models_load(run):
     manifest = json.loads((out / "workers" / "manifest.json").read_text())
     assert set(manifest["workers"]) == {"goal", "avoid"}  # merged from the two processes
     assert DDPG.load(out / "zoo" / "ddpg" / "hddpg-SnakeReach-v0_1" / "hddpg-SnakeReach-v0.zip")
+
+
+def test_the_main_hierarchy_answers_a_preference_and_the_papers_stands_beside(run):
+    out, result = run
+    assert (
+        Hierarchy.load(out / "hierarchy.zip").preference_space is not None
+    )  # told the preference at run time
+    assert Hierarchy.load(out / "simplex" / "hierarchy.zip").preference_space is None
+    results = json.loads((out / "results.json").read_text())
+    assert {"hierarchy", "HDDPG"} <= set(results["methods"])
+    assert results["methods"]["hierarchy"]["source"] == "hierarchy.zip"
+    assert results["methods"]["HDDPG"]["source"] == "simplex/hierarchy.zip"
+    main, paper = run_batch(
+        [
+            ["evaluate", str(out / bundle), "--episodes", "1", "--preference", "goal=1,avoid=3"]
+            for bundle in ("hierarchy.zip", "simplex/hierarchy.zip")
+        ]
+    )
+    assert main.returncode == 0, main.stderr
+    assert "Preference: goal=0.5,avoid=1.5 (given with --preference" in main.stdout
+    assert "each term's raw sum" in main.stdout  # how the reward rows relate
+    assert paper.returncode == 2 and "trained for the preference" in paper.stderr
 
 
 def test_a_finished_run_keeps_models_and_drops_replay_buffers(run):

@@ -65,7 +65,7 @@ def test_the_readme_python_example_runs_at_a_tiny_budget(tiny_quickstart_workers
     script = tiny_quickstart_workers / "example.py"
     script.write_text(code)
     names = runpy.run_path(str(script), run_name="__main__")
-    assert (tiny_quickstart_workers / "my-hierarchy.zip").is_file()
+    assert (tiny_quickstart_workers / "runs" / "my-hierarchy.zip").is_file()  # under runs/, which git ignores
     # One episode evaluated, however the summary is printed (a dict or a table of words).
     assert re.search(r"'episodes': 1\b|\b1 episodes?\b", capsys.readouterr().out)
     assert names["hierarchy"].env_id == "hddpg/SnakeReach-v0"

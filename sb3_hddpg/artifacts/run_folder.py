@@ -35,11 +35,12 @@ RUN_MARKER = ".hddpg-run"
 RUN_LAYOUT = re.compile(
     r"\A(?:"
     # folders: training runs, benchmarks, tuning, quickstart
-    r"workers|manager|flat|checkpoints|best|tensorboard|evaluations|records|worker-curves|zoo|trials|plots"
+    r"workers|manager|simplex|flat|checkpoints|best|tensorboard|evaluations|records|worker-curves|zoo|trials"
+    r"|plots"
     r"|seed-[0-9]{1,10}|replaced-[0-9]{8}-[0-9]{6}"
     # files: results, records, configs, studies, the package's card and replay
     r"|hierarchy\.zip|ham\.json|results\.json|results\.md|benchmark\.json|index\.json|manifest\.json"
-    r"|config\.json|config\.yml|switch_frontier\.json|evaluations\.csv|README\.md|replay\.mp4"
+    r"|config\.json|config(?:-[a-z]{1,20})?\.yml|switch_frontier\.json|evaluations\.csv|README\.md|replay\.mp4"
     r"|study\.db(?:-journal|-wal|-shm)?"
     r"|[A-Za-z0-9][A-Za-z0-9_.-]{0,200}\.(?:png|gif|mp4|zip)"
     # temporaries of atomic writes and short locks (hidden)

@@ -15,21 +15,9 @@ import typer
 from rich.markup import escape
 from typer.main import get_command
 
-from sb3_hddpg.cli.app import app, console, console_error
+from sb3_hddpg.cli.app import COMMANDS, app, console, console_error
 from sb3_hddpg.cli.errors import INTERRUPTED_EXIT, CommandStopped, error_line, exit_code
 from sb3_hddpg.envs.headless import as_rendering_error
-
-# Importing a command module registers its commands on ``app``.
-from sb3_hddpg.cli import rollout, train, evaluate  # noqa: F401  isort: skip
-from sb3_hddpg.cli import train_flat  # noqa: F401  isort: skip
-from sb3_hddpg.cli import benchmark  # noqa: F401  isort: skip
-from sb3_hddpg.cli import tune  # noqa: F401  isort: skip
-from sb3_hddpg.cli import quickstart  # noqa: F401  isort: skip
-from sb3_hddpg.cli import record  # noqa: F401  isort: skip
-from sb3_hddpg.cli import plot_selection  # noqa: F401  isort: skip
-from sb3_hddpg.cli import package  # noqa: F401  isort: skip
-from sb3_hddpg.cli import report  # noqa: F401  isort: skip
-from sb3_hddpg.cli import snapshot  # noqa: F401  isort: skip
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -73,4 +61,4 @@ def main(argv: list[str] | None = None) -> None:
     sys.exit(code if isinstance(code, int) else 0)
 
 
-__all__ = ["app", "main"]
+__all__ = ["COMMANDS", "app", "main"]

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import importlib
+from typing import Any
+
 import typer
 import typer.core
+import typer.main
 from rich.console import Console
 from rich.markup import escape
 
@@ -25,8 +29,54 @@ def _usage_name(argument: typer.core.TyperArgument) -> str:
 if hasattr(typer.core.TyperArgument, "_usage_display_name"):
     typer.core.TyperArgument._usage_display_name = _usage_name  # type: ignore[method-assign,assignment]
 
+#: Every command, in the order the help lists them (a first run, training, looking at a policy, experiments,
+#: sharing): its name -> the module of this package that registers it, and its line in ``hddpg-cli --help``.
+#: A command's module (and with it torch, SB3, JAX) is imported only when that command runs or shows its help,
+#: so that ``hddpg-cli --help`` answers at once.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "quickstart": ("quickstart", "The whole method at a small budget, every method compared."),
+    "train-workers": ("train", "Train one worker (a plain SB3 model) per reward term."),
+    "train-manager": ("train", "Train a manager that selects a worker, over trained workers."),
+    "train-flat": ("train_flat", "Train one SB3 agent on every objective (the flat baseline)."),
+    "evaluate": ("evaluate", "Evaluate a policy: reward, each term, worker choices."),
+    "record": ("record", "Render a policy to a GIF or MP4, showing the acting worker."),
+    "plot-selection": ("plot_selection", "Plot which worker acts at each step, and why."),
+    "rollout": ("rollout", "Roll out a random and a scripted policy: the env's metrics."),
+    "benchmark": ("benchmark", "Train and evaluate every method on every seed."),
+    "report": ("report", "Regenerate a page's result tables from a benchmark."),
+    "export-models": ("benchmark", "Copy a benchmark's final models into a folder."),
+    "snapshot": ("snapshot", "Copy a benchmark's finished seeds, to resume it elsewhere."),
+    "tune": ("tune", "Tune hyperparameters with Optuna, in one or many processes."),
+    "export-study": ("report", "Export a tuning study's trials to JSON."),
+    "package": ("package", "Package a model, card and replay as a Hugging Face folder."),
+}
+
+
+class LazyCommands(typer.core.TyperGroup):
+    """
+    The command group of ``hddpg-cli``: commands listed in :data:`COMMANDS`' order with their lines from it,
+    and each command's module imported when the command is asked for.
+    """
+
+    # click's types as typer vendors them (typer._click) are private: the signatures say Any.
+    def list_commands(self, ctx: Any) -> list[str]:
+        return list(COMMANDS)
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        if cmd_name not in self.commands and cmd_name in COMMANDS:
+            importlib.import_module(f"sb3_hddpg.cli.{COMMANDS[cmd_name][0]}")
+            self.commands.update(typer.main.get_command(app).commands)  # type: ignore[attr-defined]
+        return self.commands.get(cmd_name)
+
+    def format_commands(self, ctx: Any, formatter: Any) -> None:
+        # Each line whole (wrapped, never cut with an ellipsis), without importing any command's module.
+        with formatter.section("Commands"):
+            formatter.write_dl([(name, line) for name, (_, line) in COMMANDS.items()])
+
+
 app = typer.Typer(
     name="hddpg-cli",
+    cls=LazyCommands,
     help="Hierarchical DDPG on Stable-Baselines3: train workers, a manager that selects them, and compare.",
     no_args_is_help=True,
     add_completion=False,

@@ -51,6 +51,7 @@ from sb3_hddpg.experiments.benchmark import (
     output_files_in,
     run_benchmark,
 )
+from sb3_hddpg.experiments.benchmark.machine_paths import check_machine_paths
 from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
 from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
 from sb3_hddpg.experiments.model_export import export_models
@@ -407,6 +408,7 @@ def benchmark_command(
             front_per_preference=front_per_preference,
             morl_python=morl_python,
         )
+        settings = check_machine_paths(settings)
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
     results = _run_until_stopped(

@@ -30,7 +30,7 @@ from sb3_hddpg.cli.options import (
 from sb3_hddpg.envs.terms_env import TermsEnv, adapted_env_id
 from sb3_hddpg.evaluation import clearance_bands, dependence_rows, evaluate, state_dependence
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
-from sb3_hddpg.metric_labels import summary_rows
+from sb3_hddpg.metric_labels import manager_warnings, summary_rows
 
 #: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
 #: and usage errors need not import the library).
@@ -146,7 +146,11 @@ def evaluate_command(
         f"{policy_name} on {env_name}: mean over {episodes} episodes, "
         f"seeds {seed}..{seed + episodes - 1} (± standard deviation across episodes)"
     )
+    _print_preference(loaded, given=preference is not None)
     console.print(_summary_table(title, summary, dependence, worker))
+    console.print(_reward_note(summary))
+    for warning in manager_warnings(summary):
+        console.print(f"[yellow]Note:[/] {warning}")
     # Say so rather than print nothing: without the proximity capability choices cannot be split by state.
     if "selection_rate" in summary and summary.get("near_clearance") is None:
         console.print(
@@ -163,6 +167,36 @@ def evaluate_command(
         }
         atomic_write_json(json_path, payload)
         console.print(f"Metrics written to {json_path}")
+
+
+def _print_preference(loaded: LoadedPolicy, given: bool) -> None:
+    """The preference a hierarchy acted at, and whether ``--preference`` gave it."""
+    preferences = getattr(loaded.policy, "preferences", None)
+    if isinstance(preferences, dict) and preferences:
+        shown = ",".join(f"{name}={factor:g}" for name, factor in preferences.items())
+        source = "given with --preference" if given else "the bundle's own"
+        console.print(f"Preference: {shown} ({source}; only the ratio matters)")
+
+
+def _reward_note(summary: Mapping[str, Any]) -> str:
+    """How the reward rows relate: the env's own reward, each term's raw sum, and the normalised return."""
+    terms = [
+        key[len("mean_") : -len("_reward")]
+        for key in summary
+        if key.startswith("mean_") and key.endswith("_reward")
+    ]
+    terms = [t for t in terms if t not in ("", "reach")]
+    note = "reward: the env's own, summed over the episode"
+    if terms:
+        note += (
+            f"; {', '.join(terms)} reward: each term's raw sum (in its own units, so they need not add up to the "
+            "reward)"
+        )
+    note += (
+        "; return (normalised terms): each term min-max normalised to [0, 1] by the env's bounds, summed over "
+        "terms and steps (the benchmark's score; on hddpg/SnakeReach-v0 it is the reward itself)"
+    )
+    return note
 
 
 def _summary_table(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from datetime import datetime
 from pathlib import Path
 
 import typer
@@ -24,12 +23,20 @@ from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments.quickstart import (
     BUDGETS,
+    MAIN_HIERARCHY,
+    PAPER_HIERARCHY,
     STAGES,
     QuickstartObserver,
     QuickstartResult,
     run_quickstart,
 )
-from sb3_hddpg.metric_labels import SELECTION_LABEL, MetricLabel, metric_label, units_caption
+from sb3_hddpg.metric_labels import (
+    SELECTION_LABEL,
+    MetricLabel,
+    manager_warnings,
+    metric_label,
+    units_caption,
+)
 
 #: The training budget column: every agent's in env steps (a manager's decisions run several each).
 TRAIN_STEPS = MetricLabel("training", "env steps", digits=0, short="trained")
@@ -84,7 +91,9 @@ def comparison_table(result: QuickstartResult) -> Table:
         title=f"{SNAKE_REACH_ENV_ID}: each method's saved model, mean ± std over the same {episodes} episodes "
         f"(seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + episodes - 1})",
         caption=f"{units_caption([*labels, SELECTION_LABEL, TRAIN_STEPS])}. {labels[0].short}: "
-        f"{labels[0].label}, the snake's reach reward",
+        f"{labels[0].label}, the snake's reach reward. {MAIN_HIERARCHY}: a DQN manager choosing a worker by "
+        f"state, told the preference (here goal=1,avoid=1; any other with evaluate --preference); "
+        f"{PAPER_HIERARCHY}: the paper's simplex DDPG manager",
     )
     table.add_column("method")
     for label in labels:
@@ -108,8 +117,10 @@ def comparison_table(result: QuickstartResult) -> Table:
 @app.command("quickstart")
 def quickstart_command(
     context: typer.Context,
-    out: Path | None = typer.Option(
-        None, "--out", help="Run folder (default: runs/quickstart-<date>-<time>)."
+    out: Path = typer.Option(
+        Path("runs/quickstart"),
+        "--out",
+        help="Run folder (with --force, an earlier quickstart's is replaced).",
     ),
     budget: str = typer.Option(
         "small", "--budget", help="small (about 10 min on 2 CPU cores) or tiny (seconds; for tests)."
@@ -132,7 +143,6 @@ def quickstart_command(
     """Train both workers, a manager, a flat DDPG (and HAM), compare them on the same seeds, save everything."""
     if budget not in BUDGETS:
         raise typer.BadParameter(f"must be one of {list(BUDGETS)}, got {budget!r}", param_hint="'--budget'")
-    out = out or Path("runs") / f"quickstart-{datetime.now():%Y%m%d-%H%M%S}"
     address = cluster_address(executor, ray_address)
     prepare_out_dir(context, out, resume=False, force=force)
     console.print(
@@ -160,6 +170,9 @@ def quickstart_command(
         )
         observer.finish()
     console.print(comparison_table(result))
+    for name, summary in result.summaries.items():
+        for warning in manager_warnings(summary):
+            console.print(f"[yellow]{name}[/]: {warning}")
     # One seed at a quickstart budget says little about the method; say where the real comparison is.
     console.print(
         "One seed at a small budget: a check that the pipeline works, not a comparison of the methods. "
@@ -167,7 +180,7 @@ def quickstart_command(
         "each worker alone and flat agents, on test episodes no choice used, with rliable's intervals) is in "
         "docs/RESULTS.md; run it with hddpg-cli benchmark."
     )
-    for label in ("bundle", "gif", "selection", "comparison", "learning_curves", "results"):
+    for label in ("bundle", "paper_bundle", "gif", "selection", "comparison", "learning_curves", "results"):
         if label in result.files:
             console.print(f"  {label:16} {result.files[label]}")
     console.print(f"Done in {result.wall_seconds / 60:.1f} min. Everything is in [bold]{result.run_dir}[/]")

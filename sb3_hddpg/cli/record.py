@@ -115,7 +115,7 @@ def record_command(
     if "goal_touch_rate" in summary:  # the snake arm's own metrics
         details = (
             f"goal touch {summary['goal_touch_rate']:.1%}, "
-            f"collisions/ep {summary['collisions_per_episode']:.1f}"
+            f"contact steps {summary['collisions_per_episode']:.1f} per episode"
         )
     else:  # any env of the contract: its reward terms summed per episode
         details = ", ".join(

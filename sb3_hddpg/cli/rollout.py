@@ -41,7 +41,7 @@ def rollout(
         "scripted reacher": JacobianReacher(state_layout_of(env)),
     }
     table = Table(title=f"{env_id}: {episodes} episodes, seeds {seed}..{seed + episodes - 1}")
-    for column in ("policy", "reward", "goal touch rate", "collisions/ep", "success", "min clearance"):
+    for column in ("policy", "reward", "goal touch rate", "contact steps/ep", "success", "min clearance"):
         table.add_column(column, justify="right" if column != "policy" else "left")
     for name, policy in policies.items():
         s = evaluate(policy, env, n_episodes=episodes, seed=seed).summary()

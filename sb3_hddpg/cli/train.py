@@ -44,7 +44,7 @@ from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.evaluation import summaries_table
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import parse_preferences
-from sb3_hddpg.metric_labels import MANAGER_REWARD_LABEL, MetricLabel
+from sb3_hddpg.metric_labels import MANAGER_REWARD_LABEL, MetricLabel, manager_warnings
 from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOutcome
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.manager import train_manager
@@ -438,6 +438,8 @@ def _print_manager(hierarchy: Hierarchy, outcome: TrainingOutcome, out: Path) ->
         console.print(
             "Worker choices (% of steps): " + ", ".join(f"{n} {100 * r:.0f}" for n, r in rates.items())
         )
+    for warning in manager_warnings(outcome.metrics):
+        console.print(f"[yellow]Note:[/] {warning}")
     option_steps = hierarchy.config.option_steps
     console.print(
         f"Trained {outcome.num_timesteps:,} decisions"

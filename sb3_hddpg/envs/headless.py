@@ -1,11 +1,17 @@
 """
 Rendering without a display: the errors MuJoCo's OpenGL back-ends raise on a headless machine, told apart
-from every other error and reported in one line that names the fix (``MUJOCO_GL=egl``).
+from every other error and reported in one line that names the fix (``MUJOCO_GL=egl``); and a private runtime
+folder for the libraries that want one (:func:`private_runtime_dir`).
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
+import os
+import shutil
+import stat
+import tempfile
 from collections.abc import Iterator
 
 #: Words in the type or message of an error that only an OpenGL context that could not be made raises:
@@ -56,3 +62,25 @@ def rendering_errors() -> Iterator[None]:
         if rendering is None or rendering is error:
             raise
         raise rendering from None
+
+
+def private_runtime_dir() -> str | None:
+    """
+    Give this process (and the processes it starts) a private ``XDG_RUNTIME_DIR`` when it has no usable one, before
+    an env renders: SDL, GLFW and Wayland print "error: XDG_RUNTIME_DIR is invalid or not set" without one (as
+    root in a container, over ssh without a session) and then render all the same, so the line only alarms.
+    The folder is a new temporary one, readable by its owner only and removed when the process ends; a usable
+    folder the user set is kept, and nothing of the user's is touched.
+
+    :return: the folder made, or ``None`` when the user's own is kept.
+    """
+    current = os.environ.get("XDG_RUNTIME_DIR")
+    if current:
+        with contextlib.suppress(OSError):
+            info = os.stat(current)
+            if stat.S_ISDIR(info.st_mode) and info.st_uid == os.getuid() and not info.st_mode & 0o077:
+                return None
+    folder = tempfile.mkdtemp(prefix="hddpg-runtime-")  # mode 0700
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    os.environ["XDG_RUNTIME_DIR"] = folder
+    return folder

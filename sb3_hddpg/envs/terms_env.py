@@ -44,7 +44,7 @@ class TermsEnv:
     @property
     def config_key(self) -> str:
         """
-        The ``zoo_configs`` block its agents read: the adapted env's id for an adapter (so that a block for
+        The ``zoo_configs`` block its agents read, the adapted env's id for an adapter (so that a block for
         ``mo-halfcheetah-v5`` applies to it), else :attr:`env_id` (RL Zoo's rule: else ``default``).
         """
         return config_key(self.env_id, self.env_kwargs)

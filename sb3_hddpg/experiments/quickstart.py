@@ -1,16 +1,20 @@
 """
 ``run_quickstart``: the whole method on a small budget, in one run folder.
 
-Both workers are trained side by side (one process each), then the manager and the flat DDPG baseline side
-by side; the HAM switch needs no training. Every method is then evaluated on the same seeds of
-``hddpg/SnakeReach-v0``, and the run folder receives the figures, a GIF of the hierarchy at work, the
-bundle and ``results.json``::
+Both workers are trained side by side (one process each), then the two managers and the flat DDPG baseline;
+the HAM switch needs no training. The main hierarchy's manager is the selector that decides by state: a DQN
+choosing a worker by index, told the preference at run time (trained over the ``ratio-sweep:16`` preferences,
+so ``evaluate --preference goal=1,avoid=3`` answers) and seeing how its state moved, with the paper's simplex DDPG manager beside it as its
+own row. Every method is then evaluated on the same seeds of ``hddpg/SnakeReach-v0``, and the run folder
+receives the figures, a GIF of the hierarchy at work, the bundles and ``results.json``::
 
     RUN/
-      config.yml              the hyperparameters used (RL Zoo format)
+      config.yml              the hyperparameters used (RL Zoo format): workers, flat DDPG, simplex manager
+      config-dqn.yml          the main manager's (the bundled dqn.yml, with the budget's overrides)
       workers/                goal.zip, avoid.zip, manifest.json
-      manager/manager.zip     the manager alone
-      hierarchy.zip           the bundle: manager + workers + manifest (load with Hierarchy.load)
+      manager/manager.zip     the main manager alone
+      hierarchy.zip           the bundle: main manager + workers + manifest (load with Hierarchy.load)
+      simplex/                the paper's simplex DDPG manager: hierarchy.zip, manager/, evaluations/...
       flat/                   flat-ddpg.zip, manifest.json (the single-DDPG baseline)
       ham.json                the HAM switch (when the HAM baseline is installed)
       zoo/                    the workers and flat DDPG in RL Zoo's layout (rl_zoo3.enjoy -f RUN/zoo)
@@ -41,10 +45,11 @@ from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION, models_manif
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
-from sb3_hddpg.envs.contract import Proximity, proximity_of, state_layout_of
+from sb3_hddpg.envs.contract import Proximity, state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.experiments.packaging import write_zoo_layout
+from sb3_hddpg.experiments.quickstart_figures import record_hierarchy, shown_episode
 from sb3_hddpg.experiments.quickstart_jobs import (
     ENV_STEPS_PER_STEP,
     QuickstartObserver,
@@ -52,12 +57,27 @@ from sb3_hddpg.experiments.quickstart_jobs import (
 )
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
-from sb3_hddpg.media.video import RecordingResult, record_video
-from sb3_hddpg.training.backends import check_backend
-from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, manager_option_steps
+from sb3_hddpg.media.video import RecordingResult
+from sb3_hddpg.training.backends import backend_for, check_backend
+from sb3_hddpg.training.config import default_config, load_config_file, manager_option_steps
 
 #: The stages, in order; the overall progress bar counts them.
-STAGES = ("train workers", "train manager + flat DDPG", "evaluate on shared seeds", "record GIF", "figures")
+STAGES = ("train workers", "train managers + flat DDPG", "evaluate on shared seeds", "record GIF", "figures")
+
+#: The comparison's label of the main hierarchy (its manager decides by state, for any preference) and of the
+#: paper's (a DDPG manager on the simplex, for the one preference it was trained with).
+MAIN_HIERARCHY = "hierarchy"
+PAPER_HIERARCHY = "HDDPG"
+#: The main manager: DQN choosing a worker by index, trained over the ratio sweep of preferences up to 16:1
+#: (told the preference as an input, so that one manager answers every trade-off at run time) and seeing how
+#: its state moved (an obstacle coming or going), the recipe of docs/MANAGER.md. At the small budget it calls
+#: the avoid worker more often near obstacles than on a clear path; over ``ratio-sweep`` without the motion it
+#: chose less by state (on the quickstart's own evaluation episodes).
+MAIN_MANAGER: dict[str, Any] = {
+    "algo": "dqn",
+    "manager_preferences": "ratio-sweep:16",
+    "manager_motion": 20.0,
+}
 
 
 @dataclass(frozen=True)
@@ -150,13 +170,16 @@ def flat_budget(budget: QuickstartBudget) -> int:
 
 
 # ---------------------------------------------------------------------------------------- the parent
-def write_config(path: Path, overrides: dict[str, Any]) -> Path:
-    """The bundled config with ``overrides`` applied to every block, written to ``path`` (RL Zoo format)."""
+def write_config(path: Path, overrides: dict[str, Any], algo: str = "ddpg") -> Path:
+    """
+    The bundled config of ``algo`` with ``overrides`` applied to every block, written to ``path`` (RL Zoo
+    format).
+    """
 
-    config = load_config_file(DEFAULT_CONFIG)
+    config = load_config_file(default_config(algo))
     for block in config.values():
         block.update(overrides)
-    header = "# The hyperparameters of this quickstart run (the bundled zoo_configs/ddpg.yml"
+    header = f"# The hyperparameters of this quickstart run (the bundled zoo_configs/{algo}.yml"
     header += f" with {overrides}).\n" if overrides else ").\n"
     return atomic_write_bytes(path, (header + yaml.safe_dump(config, sort_keys=False)).encode())
 
@@ -205,6 +228,7 @@ def run_quickstart(
     started = time.monotonic()
     clock = _StageClock(observer, processes)
     files: dict[str, Path] = {"config": write_config(run_dir / "config.yml", budget.overrides)}
+    files["main_config"] = write_config(run_dir / "config-dqn.yml", budget.overrides, MAIN_MANAGER["algo"])
     common = dict(
         run_dir=str(run_dir),
         config=str(files["config"]),
@@ -219,17 +243,20 @@ def run_quickstart(
     )
     trained = _train_stages(run_dir, budget, common, launch, clock)
     files["bundle"] = run_dir / "hierarchy.zip"
-    option_steps = manager_option_steps(files["config"])
+    files["paper_bundle"] = run_dir / "simplex" / "hierarchy.zip"
     clock.start(2)
     policies, sources = _comparison_policies(run_dir, files)
     summaries, methods = _compare(policies, sources, trained, run_dir, budget, observer)
     clock.done(2)
     clock.start(3)
-    recording, proximity = _record_hierarchy(policies["HDDPG"], run_dir, budget, observer, files)
+    shown, title = shown_episode(methods[MAIN_HIERARCHY], SNAKE_REACH_ENV_ID)
+    recording, proximity = record_hierarchy(
+        policies[MAIN_HIERARCHY], run_dir, (shown, budget.gif_episodes, budget.gif_max_steps), observer, files
+    )
     clock.done(3)
     clock.start(4)
-    names = list(policies["HDDPG"].policy.names)  # type: ignore[attr-defined]
-    _plot_figures(run_dir, budget, recording, proximity, names, summaries, option_steps, files)
+    names = list(policies[MAIN_HIERARCHY].policy.names)  # type: ignore[attr-defined]
+    _plot_figures(run_dir, (budget, title), recording, proximity, names, summaries, files)
     clock.done(4)
     files["zoo"] = _write_zoo(run_dir)
     wall = time.monotonic() - started
@@ -320,19 +347,29 @@ def _train_stages(
     manifest = models_manifest("workers", {name: trained[name]["entry"] for name in WORKER_ENV_IDS})
     save_manifest(run_dir / "workers" / "manifest.json", manifest)
     clock.start(1)
-    option_steps = manager_option_steps(common["config"])
-    jobs = [
+    managers: dict[str, dict[str, Any]] = {
+        "manager": {**MAIN_MANAGER, "config": str(run_dir / "config-dqn.yml")},
+        "simplex manager": {"out_dir": str(run_dir / "simplex")},
+    }
+    jobs = []
+    for name, options in managers.items():
+        config = options.get("config", common["config"])
+        option_steps = manager_option_steps(config, options.get("algo", "ddpg"))
         # SB3 counts a manager's steps, and its evaluation period, in decisions of option_steps env steps.
-        {
-            "kind": "manager",
-            "name": "manager",
-            **common,
-            "timesteps": max(1, budget.manager_timesteps // option_steps),
-            "eval_freq": max(1, budget.eval_freq // option_steps),
-            ENV_STEPS_PER_STEP: option_steps,
-        },
-        {"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget), **common},
-    ]
+        jobs.append(
+            {
+                "kind": "manager",
+                "name": name,
+                **common,
+                # SBX trains no DQN: that manager trains on SB3 whatever the other agents train on.
+                "backend": backend_for(options.get("algo", "ddpg"), common["backend"]),
+                "manager": options,
+                "timesteps": max(1, budget.manager_timesteps // option_steps),
+                "eval_freq": max(1, budget.eval_freq // option_steps),
+                ENV_STEPS_PER_STEP: option_steps,
+            }
+        )
+    jobs.append({"kind": "flat", "name": "flat-ddpg", "timesteps": flat_budget(budget), **common})
     second = launch(jobs)
     trained.update(second)
     clock.done(1, second)
@@ -348,7 +385,10 @@ def _comparison_policies(
 
     :return: label -> the loaded policy, and label -> where it was loaded from.
     """
-    sources: dict[str, Path | str] = {"HDDPG": run_dir / "hierarchy.zip"}
+    sources: dict[str, Path | str] = {
+        MAIN_HIERARCHY: run_dir / "hierarchy.zip",
+        PAPER_HIERARCHY: run_dir / "simplex" / "hierarchy.zip",
+    }
     files["ham"] = sources["HAM"] = _build_ham(run_dir)
     sources["flat DDPG"] = run_dir / "flat" / "flat-ddpg.zip"
     for name in WORKER_ENV_IDS:
@@ -371,7 +411,11 @@ def _compare(
 
     :return: label -> its evaluation summary, and label -> facts about it (kind, source, training, episodes).
     """
-    trained_by = {"HDDPG": ["goal", "avoid", "manager"], "flat DDPG": ["flat-ddpg"]}
+    trained_by = {
+        MAIN_HIERARCHY: ["goal", "avoid", "manager"],
+        PAPER_HIERARCHY: ["goal", "avoid", "simplex manager"],
+        "flat DDPG": ["flat-ddpg"],
+    }
     trained_by.update({f"{n} worker": [n] for n in WORKER_ENV_IDS})
     summaries: dict[str, dict[str, Any]] = {}
     methods: dict[str, dict[str, Any]] = {}
@@ -387,65 +431,50 @@ def _compare(
             "train_seconds": sum(trained[a]["seconds"] for a in agents),
             "episodes": [e.reach_reward for e in result.episodes],
         }
+        if result.episodes[0].selections:  # a hierarchy: the episodes in which it called several workers
+            both = [i for i, e in enumerate(result.episodes) if sum(n > 0 for n in e.selections.values()) > 1]
+            methods[label]["switching_episodes"] = [EVAL_SEED_BASE + i for i in both]
     return summaries, methods
-
-
-def _record_hierarchy(
-    hierarchy: LoadedPolicy,
-    run_dir: Path,
-    budget: QuickstartBudget,
-    observer: QuickstartObserver,
-    files: dict[str, Path],
-) -> tuple[RecordingResult, Proximity | None]:
-    """
-    The hierarchy at work: a GIF (``files["gif"]``), whose records the selection timeline plots.
-
-    :return: the recording, and the snake's sensor range and touch radius as the contract declares them.
-    """
-    limit = {"max_episode_steps": budget.gif_max_steps} if budget.gif_max_steps else {}
-    gif_env = hierarchy.make_env(SNAKE_REACH_ENV_ID, render_mode="rgb_array", **limit)
-    gif_steps = budget.gif_episodes * (budget.gif_max_steps or _episode_steps())
-    try:
-        recording = record_video(
-            hierarchy.policy,
-            gif_env,
-            run_dir / "hierarchy.gif",
-            episodes=budget.gif_episodes,
-            seed=EVAL_SEED_BASE,
-            fps=10,
-            title="HDDPG",
-        )
-        observer.on_task("GIF", gif_steps, gif_steps)
-        files["gif"] = recording.path
-        return recording, proximity_of(gif_env)
-    finally:
-        gif_env.close()
 
 
 def _plot_figures(
     run_dir: Path,
-    budget: QuickstartBudget,
+    shown: tuple[QuickstartBudget, str],
     recording: RecordingResult,
     proximity: Proximity | None,
     names: list[str],
     summaries: dict[str, dict[str, Any]],
-    option_steps: int,
     files: dict[str, Path],
 ) -> None:
-    """The selection timeline, the learning curves (every curve over env steps) and the comparison."""
+    """
+    The selection timeline (titled by ``shown``), the learning curves (every curve over env steps) and the
+    comparison.
+    """
+    budget, title = shown
     files["selection"] = plot_selection_timeline(
         recording.records,
         run_dir / "selection.png",
         names=names,
-        title=f"HDDPG on {SNAKE_REACH_ENV_ID}, seed {EVAL_SEED_BASE}: which worker acts, and why",
+        title=title,
         sensor_range=proximity.sensor_range if proximity else None,
         touch_radius=proximity.touch_radius if proximity else None,
     )
-    # The manager's history counts decisions.
+    # A manager's history counts decisions.
+    option_steps = {
+        "manager": manager_option_steps(files["main_config"], MAIN_MANAGER["algo"]),
+        "simplex manager": manager_option_steps(files["config"]),
+    }
+    curves = {
+        "goal": run_dir / "evaluations" / "goal.json",
+        "avoid": run_dir / "evaluations" / "avoid.json",
+        "manager": run_dir / "evaluations" / "manager.json",
+        "simplex manager": run_dir / "simplex" / "evaluations" / "manager.json",
+        "flat-ddpg": run_dir / "evaluations" / "flat-ddpg.json",
+    }
     histories = {
-        agent: read_history(path, option_steps if agent == "manager" else 1)
-        for agent in ("goal", "avoid", "manager", "flat-ddpg")
-        if (path := run_dir / "evaluations" / f"{agent}.json").exists()
+        agent: read_history(path, option_steps.get(agent, 1))
+        for agent, path in curves.items()
+        if path.exists()
     }
     references = {
         f"{label} (untrained)": summaries[label]["mean_reach_reward"]
@@ -457,7 +486,8 @@ def _plot_figures(
         f"Each point: the agent at that step, mean over {budget.eval_episodes} evaluation episodes (seeds "
         f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + budget.eval_episodes - 1}). Horizontal lines and the printed "
         f"table: {budget.compare_episodes} episodes (seeds {EVAL_SEED_BASE}..{last_compare_seed}); the table "
-        "scores each agent's saved (best-evaluated) model, so its HDDPG row need not equal the manager's last point."
+        "scores each agent's saved (best-evaluated) model, so a hierarchy's row need not equal its manager's "
+        "last point."
     )
     files["learning_curves"] = plot_learning_curves(
         histories, run_dir / "learning_curves.png", references, note=note

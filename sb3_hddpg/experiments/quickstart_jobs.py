@@ -67,8 +67,15 @@ def _train_job(
     eval_episodes: int,
     keep_checkpoints: bool = False,
     backend: str = "sb3",
+    manager: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Train one agent (``kind``: worker, manager or flat); runs in a process of the runner."""
+    """
+    Train one agent (``kind``: worker, manager or flat); runs in a process of the runner.
+
+    :param manager: a manager's own options: ``out_dir`` (its run folder, default ``run_dir``), ``config`` (its
+        config file, default ``config``) and :func:`~sb3_hddpg.training.manager.train_manager`'s options
+        (``algo``, ``manager_preferences``...).
+    """
 
     started, cpu_started = time.monotonic(), time.process_time()
     run = RunOptions(
@@ -87,9 +94,13 @@ def _train_job(
         out: dict[str, Any] = {"entry": workers.manifest["workers"][name]}
         steps = out["entry"]["timesteps_trained"]
     elif kind == "manager":
-        outcome = train_manager(run_dir, run_dir, **common).outcome
+        options = dict(manager or {})
+        out_dir = options.pop("out_dir", run_dir)
+        common["config"] = options.pop("config", config)
+        outcome = train_manager(run_dir, out_dir, **options, **common).outcome
         # Env steps, as every other agent's: each decision runs option_steps of them.
-        out, steps = {"metrics": outcome.metrics}, outcome.num_timesteps * manager_option_steps(config)
+        steps = outcome.num_timesteps * manager_option_steps(common["config"], options.get("algo", "ddpg"))
+        out = {"metrics": outcome.metrics}
     else:
         # The single-DDPG baseline on the comparison env (both terms, normalised and summed).
         flat = train_flat(run_dir, algo="ddpg", name=name, env_id=SNAKE_REACH_ENV_ID, **common)

@@ -138,7 +138,7 @@ class Hierarchy:
             FrozenWorker(w, layout.indices(config.worker_states[n]) if n in config.worker_states else None)
             for n, w in self.workers.items()
         ]
-        #: The preferences a conditioned manager was trained over (``None``: a manager for one preference).
+        #: The preferences a conditioned manager was trained over (``None`` for a manager of one preference).
         self.preference_space = (
             PreferenceSpace.from_json(config.manager_preferences, self.names)
             if config.manager_preferences is not None
@@ -201,7 +201,7 @@ class Hierarchy:
     # ------------------------------------------------------------------ acting
     @property
     def reward_spec(self) -> dict[str, float]:
-        """This hierarchy's reward as a worker one level up: its preference-weighted mix of its workers' terms."""
+        """This hierarchy's reward as a worker one level up, the preference-weighted mix of its workers' terms."""
         specs = {name: self.config.reward_terms.get(name, name) for name in self.names}
         return mix_terms(specs, self.config.preferences)
 

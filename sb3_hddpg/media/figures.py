@@ -467,7 +467,7 @@ def figure10(results: BenchmarkResults, path: str | Path) -> Path | None:
     span = max(highs) - min(lows)
     axes[0].set_ylim(max(0.0, min(lows) - 0.5 * span - 1e-6), max(highs) + 0.3 * span + 1e-6)
     axes[0].legend(fontsize=8)
-    axes[1].set_xlabel("collisions per episode (test)")
+    axes[1].set_xlabel("contact steps per episode (test)")
     axes[1].set_ylabel("goal-touch rate (test)")
     axes[1].set_title("Objectives traded off")
     axes[1].legend(fontsize=8)

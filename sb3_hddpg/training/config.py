@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import inspect
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -62,6 +63,26 @@ def default_config(algo: str = "ddpg") -> Path:
         known = sorted(p.stem for p in DEFAULT_CONFIG.parent.glob("*.yml"))
         raise ConfigError(f"No bundled config for algorithm {algo!r}; bundled: {known}")
     return path
+
+
+def config_source(path: str | Path, run_dir: str | Path | None = None) -> str:
+    """
+    How a manifest names the config file a block was read from, with no path of this machine in it (a record
+    states what ran; reading it must not need the machine that wrote it): a bundled config as
+    ``sb3_hddpg/zoo_configs/<algo>.yml``, a relative path as given, any other absolute path relative to the
+    run folder ``run_dir`` (by its file name without one). The block itself is recorded beside it.
+
+    :param path: the config file the block was read from.
+    :param run_dir: the run folder the manifest belongs to.
+    """
+    path = Path(path)
+    if not path.is_absolute():
+        return path.as_posix()
+    if path.parent.resolve() == DEFAULT_CONFIG.parent.resolve():
+        return f"sb3_hddpg/zoo_configs/{path.name}"
+    if run_dir is None:
+        return path.name
+    return Path(os.path.relpath(path, Path(run_dir).absolute())).as_posix()
 
 
 #: The config block of the manager's DDPG (it has no registered env id of its own).

@@ -35,7 +35,7 @@ from sb3_hddpg.training.agent import (
 from sb3_hddpg.training.backends import (
     algo_class,
 )
-from sb3_hddpg.training.config import Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.config import Hyperparams, config_source, default_config, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: The config block of a flat agent given the goal worker's tricks (hindsight relabelling of the goal, the
@@ -144,7 +144,7 @@ def train_flat(
         algo,
         env_id,
         make_kwargs,
-        {"file": str(config_path), "block": hyperparams.raw},
+        {"file": config_source(config_path, out_dir), "block": hyperparams.raw},
         run.seed,
         budget,
         stopped_early=outcome.stopped_early,

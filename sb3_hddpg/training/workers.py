@@ -33,7 +33,7 @@ from sb3_hddpg.training.agent import (
     make_snake_env,
     train_agent,
 )
-from sb3_hddpg.training.config import Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.config import Hyperparams, config_source, default_config, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: The algorithm of a worker no ``algos`` entry names: the paper's.
@@ -211,7 +211,7 @@ def train_workers(
             callback=callback,
         )
         outcomes[name] = outcome
-        source = str(config) if config else f"sb3_hddpg/zoo_configs/{chosen[name]}.yml"
+        source = config_source(config, out_dir) if config else f"sb3_hddpg/zoo_configs/{chosen[name]}.yml"
         entry = _worker_entry(
             name, outcome, chosen[name], (env_id, env_kwargs), hyperparams, source, run, budget
         )

@@ -80,6 +80,28 @@ def check_morl_python(path: str) -> str:
     return str(resolved.absolute())
 
 
+def morl_python_version(python: str) -> str:
+    """
+    The version of MORL-baselines' python (e.g. ``3.11.7``): what a record states of it in place of its path,
+    which is the writer machine's.
+
+    :raises ValueError: it does not run as a python.
+    """
+    try:
+        done = subprocess.run(
+            [python, "-c", "import platform; print(platform.python_version())"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=True,
+        )
+    except (OSError, subprocess.SubprocessError):
+        raise ValueError(
+            f"Expected --morl-python to be a python that runs, actually: {python!r:.200}"
+        ) from None
+    return done.stdout.strip()[:40]
+
+
 def mo_gymnasium_env(env: TermsEnv) -> tuple[str, int | None, dict[str, Any]]:
     """
     The MO-Gymnasium env behind ``env`` (``hddpg/MultiObjective-v0``): its id, time limit and keyword arguments.
@@ -330,5 +352,6 @@ __all__ = [
     "mo_gymnasium_env",
     "morl_member",
     "morl_points",
+    "morl_python_version",
     "morl_results",
 ]

@@ -174,7 +174,7 @@ def train_conditioned(run: SideRun) -> TrainedSide:
         run.folder, env=shared, algos=dict.fromkeys(terms, algo), run=options.replace(timesteps=per_worker)
     )
     space = PreferenceSpace(tuple(terms), "dirichlet", float(len(terms)), floor=PREFERENCE_FLOOR)
-    hierarchy, _ = train_manager(
+    hierarchy = train_manager(
         run.folder,
         run.folder / "conditioned",
         algo="dqn",
@@ -184,7 +184,7 @@ def train_conditioned(run: SideRun) -> TrainedSide:
         env_id=shared.env_id,
         env_kwargs=dict(shared.env_kwargs),
         run=options.replace(timesteps=manager_steps),
-    )
+    ).hierarchy
     steps = {f"workers/{t}": per_worker for t in terms}
     steps.update(manager=manager_steps, bounds=bounds_steps)
     return TrainedSide(ConditionedHierarchy(hierarchy), shared, steps, time.perf_counter() - started)

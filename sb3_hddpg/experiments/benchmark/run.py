@@ -31,6 +31,12 @@ from sb3_hddpg.experiments.benchmark.benchmark_file import (
     invocation_codes,
     read_benchmark_file,
 )
+from sb3_hddpg.experiments.benchmark.machine_paths import (
+    MACHINE_PATHS,
+    check_machine_paths,
+    relative_to_run,
+    settings_record,
+)
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
     WORKERS,
@@ -128,7 +134,7 @@ def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, A
     results: dict[str, Any] = {"config_blocks": _plain(task_config_blocks(task, settings))}
     spec = task.spec
     if spec is None:
-        results.update(_run_workers(task, settings, folder))
+        results.update(_run_workers(task, settings, folder, out))
     else:
         results.update(spec.run(task, settings, folder))
         preference = split_key(task.method)[1]
@@ -138,15 +144,15 @@ def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, A
     return benchmark_record(task.method, task.seed, results).to_json()
 
 
-def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path) -> dict[str, Any]:
-    """Train (or finish) a seed's two workers, or copy them from ``settings.workers_from``."""
+def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path, out: Path) -> dict[str, Any]:
+    """Train (or finish) a seed's workers, or copy them from ``settings.workers_from`` (recorded relative to ``out``)."""
 
     reused: dict[str, Any] = {}
     if settings.workers_from is not None:
         source = seed_dir(Path(settings.workers_from), task.seed)
         if not (folder / "workers" / "manifest.json").exists():  # else copied before an interruption
             _copy_workers(source, folder)
-        reused = {"workers_from": str(source)}
+        reused = {"workers_from": relative_to_run(str(source), out)}
     budget = settings.worker_timesteps or settings.workers_budget
     run = settings.run_options(task.seed, settings.worker_timesteps, budget)
     # Copied workers are finished ones with this budget: train_workers keeps them (resume) and trains nothing.
@@ -300,10 +306,6 @@ def task_job(task: Task, settings: BenchmarkSettings, out: Path) -> Job:
 
 #: Settings a resumed benchmark may change (every other must be as the folder's ``benchmark.json`` says).
 RESUME_MAY_CHANGE = ("methods", "seeds")
-#: Settings that say where something is on this machine: a folder copied to another machine resumes there
-#: with its own paths (the reused workers are checked against their manifests whatever their path), but
-#: one given or left out only on resume would mix two kinds of runs.
-MACHINE_PATHS = ("workers_from", "morl_python")
 #: Where ``redo`` moves the runs it replaces: ``DIR/replaced-<UTC time>/`` (records and seed folders).
 REPLACED_PREFIX = "replaced-"
 
@@ -453,13 +455,14 @@ def run_benchmark(
         mixed = check_same_code(
             invocation_codes(saved, str(settings_path)), code, allow_mixed_commits, str(out)
         )
+    settings = check_machine_paths(settings)
     check_workers_source(settings)
     tasks = plan_tasks(settings)
     records = _kept_records(settings, tasks, out, resume, redo)
     for task, record in records.items():
         notify("skip", task, record)
     header = {
-        "settings": asdict(settings),
+        "settings": settings_record(settings, out),
         "budgets": {"manager_env_steps": settings.manager_env_steps},
         "machine": machine_info(),
     }
@@ -481,7 +484,8 @@ def run_benchmark(
     )
     records.update({by_label[label]: record for label, record in outcome.results.items()})
     failed = {by_label[label]: outcome.failure_message(label) for label in outcome.failures}
-    results = compute_results(settings, [records[t] for t in tasks if t in records]).with_run(
+    computed = compute_results(settings, [records[t] for t in tasks if t in records])
+    results = replace(computed, settings=header["settings"]).with_run(
         wall_time_s_this_invocation=wall,
         wall_time_s_all_invocations=sum(float(i.get("wall_time_s", 0.0)) for i in invocations),
         invocations=len(invocations),

@@ -44,7 +44,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     method_key,
     split_key,
 )
-from sb3_hddpg.experiments.benchmark.morl import check_morl_python, mo_gymnasium_env
+from sb3_hddpg.experiments.benchmark.morl import mo_gymnasium_env
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.training.backends import backend_for, check_algo, check_backend
@@ -155,6 +155,7 @@ class BenchmarkSettings:
         own (they must have been trained with the same config blocks, budget, backend, env and seed: then
         they are the workers this benchmark would train, since a seed's run is deterministic on the CPU).
         The copies are checked against their manifest's sha256 (:func:`~.run.check_workers_source`).
+        Records state it relative to the benchmark's folder (:func:`~.machine_paths.settings_record`).
     :param final_test: score every run on the final test set (:data:`~sb3_hddpg.episode_sets.FINAL_TEST`):
         for the runs of record only, never for a choice; otherwise on the development episodes.
     :param worker_algo: the algorithm of every worker on another env (``None``: DDPG on continuous actions,
@@ -178,7 +179,8 @@ class BenchmarkSettings:
         conditioned manager is measured against (``False``: the conditioned manager alone, which is what one
         policy for every preference costs; on a slow env it saves most of the front's training).
     :param morl_python: the python of a virtual environment with MORL-baselines: the front then adds its
-        CAPQL, trained for the hierarchy's env steps (:mod:`.morl`; an MO-Gymnasium env only).
+        CAPQL, trained for the hierarchy's env steps (:mod:`.morl`; an MO-Gymnasium env only). Records state
+        its version instead of its path (:func:`~.machine_paths.settings_record`).
     """
 
     methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
@@ -332,7 +334,8 @@ class BenchmarkSettings:
         if shared is None:
             raise ValueError("MORL-baselines' learner runs on an MO-Gymnasium env (--env), not the snake arm")
         mo_gymnasium_env(shared)
-        self.morl_python = check_morl_python(self.morl_python or "")
+        # Its file is checked where the benchmark runs (.machine_paths), not here: settings read from a record
+        # state what ran, and the python of the machine that wrote them is not on this one.
 
     def _check_transfer(self) -> None:
         """The transfer scenario's preferences (written one way) and methods: hddpg and flat agents."""
