@@ -44,6 +44,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "rollout": ("rollout", "Roll out a random and a scripted policy: the env's metrics."),
     "benchmark": ("benchmark", "Train and evaluate every method on every seed."),
     "report": ("report", "Regenerate a page's result tables from a benchmark."),
+    "morl-report": ("benchmark_protocol", "Write docs/MORL.md from MORL-baselines protocol runs."),
     "export-models": ("benchmark", "Copy a benchmark's final models into a folder."),
     "snapshot": ("snapshot", "Copy a benchmark's finished seeds, to resume it elsewhere."),
     "tune": ("tune", "Tune hyperparameters with Optuna, in one or many processes."),
