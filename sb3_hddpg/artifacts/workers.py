@@ -19,7 +19,7 @@ from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 
 #: The facts of a workers-manifest entry a bundle keeps about each worker.
-BUNDLED_FACTS = ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
+BUNDLED_FACTS = ("reward_term", "reward_weights", "reward_bounds", "env_id", "metrics", "seed")
 
 
 @dataclass(frozen=True)
@@ -152,3 +152,28 @@ def observed_components(manifest: ModelsManifest, names: Iterable[str]) -> dict[
 def states_of(workers: Mapping[str, object]) -> dict[str, list[str]]:
     """The state components each worker of ``workers`` sees, where it carries them (a :class:`Workers`)."""
     return dict(workers.states) if isinstance(workers, Workers) else {}
+
+
+def reward_specs_of(workers: Mapping[str, object]) -> dict[str, dict[str, float]]:
+    """
+    The reward of each weighted worker of ``workers`` (term -> weight), where they carry their manifest (a
+    :class:`Workers`); a per-term worker's reward is its name, so it is absent.
+
+    :raises ValueError: one line naming the worker whose recorded ``reward_weights`` are not term -> number.
+    """
+    if not isinstance(workers, Workers):
+        return {}
+    specs: dict[str, dict[str, float]] = {}
+    for name in workers:
+        weights = workers.manifest.entries.get(name, {}).get("reward_weights")
+        if weights is None:
+            continue
+        if not isinstance(weights, dict) or not all(
+            isinstance(t, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+            for t, v in weights.items()
+        ):
+            raise ValueError(
+                f"Worker {name!r}: reward_weights must map term names to numbers, actually: {weights!r:.200}"
+            )
+        specs[name] = {t: float(v) for t, v in weights.items()}
+    return specs

@@ -36,7 +36,7 @@ from sb3_hddpg.artifacts.records import bundle_manifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.values import check_env_kwargs
-from sb3_hddpg.artifacts.workers import Workers, states_of
+from sb3_hddpg.artifacts.workers import Workers, reward_specs_of, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
@@ -444,7 +444,10 @@ def _selection_config(
             return wrapper.selection_config()
         config = SelectionConfig(preferences=check_preferences({}, list(workers)))
     carried = {name: states for name, states in states_of(workers).items() if name in workers}
-    return replace(config, worker_states={**carried, **config.worker_states}) if carried else config
+    if carried:
+        config = replace(config, worker_states={**carried, **config.worker_states})
+    rewards = reward_specs_of(workers)
+    return replace(config, reward_terms={**rewards, **config.reward_terms}) if rewards else config
 
 
 def _selection_wrapper(manager: object) -> WorkerSelectionWrapper | None:
