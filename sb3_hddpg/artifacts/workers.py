@@ -15,6 +15,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.limits import check_env_id
 from sb3_hddpg.artifacts.records import ModelsManifest
+from sb3_hddpg.artifacts.term_critic import TermCritic
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 
@@ -42,6 +43,7 @@ class Workers(Mapping[str, BaseAlgorithm]):
     :param folder: the folder holding that manifest.
     :param env_problem: why the manifest's shared env is not usable (e.g. an env id outside the allow-list),
         raised by :meth:`make_env`; the models themselves are usable in any env they fit.
+    :param critics: name -> the worker's per-term critic, for the workers that have one.
     """
 
     models: dict[str, BaseAlgorithm]
@@ -51,6 +53,7 @@ class Workers(Mapping[str, BaseAlgorithm]):
     manifest: ModelsManifest = field(default_factory=lambda: ModelsManifest("workers"))
     folder: Path | None = None
     env_problem: str = ""
+    critics: dict[str, TermCritic] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> BaseAlgorithm:
         return self.models[name]

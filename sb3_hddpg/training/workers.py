@@ -15,12 +15,12 @@ import gymnasium as gym
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_hddpg.algorithms import REGISTRY, algorithm
-from sb3_hddpg.artifacts.io import (
-    holds_folder_lock,
-)
+from sb3_hddpg.artifacts.io import atomic_write, holds_folder_lock
 from sb3_hddpg.artifacts.manifests import check_resumed_env, model_entry, save_manifest
 from sb3_hddpg.artifacts.records import ModelEntry, ModelsManifest, models_manifest, read_models_manifest
+from sb3_hddpg.artifacts.term_critic import TERM_CRITIC_MEMBER, with_term_critic
 from sb3_hddpg.artifacts.values import check_make_kwargs
+from sb3_hddpg.callbacks.term_record import TermRecorder
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
@@ -36,6 +36,7 @@ from sb3_hddpg.training.agent import (
 )
 from sb3_hddpg.training.config import Hyperparams, default_config, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions, run_options
+from sb3_hddpg.training.term_critic import TermCriticOptions, fit_term_critic, recorded_transitions
 
 #: The algorithm of a worker no ``algos`` entry names: the paper's.
 DEFAULT_WORKER_ALGO = "ddpg"
@@ -256,6 +257,7 @@ def train_workers(
     env: TermsEnv | None = None,
     algos: Mapping[str, str] | None = None,
     weights: Sequence[Mapping[str, object]] = (),
+    term_critic: TermCriticOptions | None = TermCriticOptions(),
     **run_changes: object,
 ) -> dict[str, Any]:
     """
@@ -273,6 +275,9 @@ def train_workers(
     :param weights: weightings of the terms, one worker each (e.g. ``[{"goal": 0.7, "avoid": 0.3}]``): finite
         weights >= 0 with a positive sum, kept over their sum; the worker reads its heaviest term's config
         block and is named by :func:`~sb3_hddpg.envs.weighted.weighted_name` (``mix-goal70-avoid30``).
+    :param term_critic: how each off-policy worker's per-term critic is trained on the transitions it
+        collected (:mod:`sb3_hddpg.training.term_critic`; stored in its zip, recorded as ``term_critic`` in
+        its entry); ``None``: no critic.
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -289,27 +294,63 @@ def train_workers(
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest = _start_manifest(manifest_path, shared, env, planned, run.resume)
+    bounds = _shared_bounds(shared)
     for worker in planned:
         name, hyperparams = worker.name, worker.hyperparams
         budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
         if run.resume and finished_with_budget(manifest.entries.get(name), budget):
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
+        recorder = (
+            TermRecorder(bounds) if term_critic is not None and not REGISTRY[worker.algo].on_policy else None
+        )
         outcome = train_agent(
             worker.env_factory(),
             hyperparams,
             paths,
             algo=worker.algo,
             run=agent_run(run, paths, budget),
-            extra_callbacks=extra_callbacks,
+            extra_callbacks=[*extra_callbacks, *([recorder] if recorder is not None else [])],
+        )
+        critic_facts = (
+            add_term_critic(outcome, recorder, term_critic, run.seed) if recorder is not None else None
         )
         source = str(config) if config else f"sb3_hddpg/zoo_configs/{worker.algo}.yml"
-        entry = _worker_entry(worker, outcome, source, run, budget)
+        entry = _worker_entry(worker, outcome, source, run, budget, critic_facts)
         manifest = manifest.with_entry(name, entry)
         save_manifest(manifest_path, manifest)
         if on_worker_done is not None:
             on_worker_done(name, outcome)
     return manifest.to_json()
+
+
+def _shared_bounds(shared: TermsEnv) -> dict[str, tuple[float, float]]:
+    """The shared env's per-term bounds, in term order (what a worker's critic normalises by)."""
+    probe = shared.make()
+    try:
+        return dict(env_contract(probe).reward_bounds)
+    finally:
+        probe.close()
+
+
+def add_term_critic(
+    outcome: TrainingOutcome, recorder: TermRecorder, options: TermCriticOptions | None, seed: int
+) -> dict[str, object] | None:
+    """
+    Train the per-term critic of a trained worker on the transitions ``recorder`` kept and write it into the
+    worker's zip (atomically; the manifest's hash is taken after).
+
+    :return: the facts its manifest entry records (member, term order, steps, transitions, last TD loss), or
+        ``None`` when no transition was recorded (a resumed worker that had already finished).
+    """
+    if not recorder.filled.any():
+        return None
+    critic, facts = fit_term_critic(
+        outcome.model, recorded_transitions(recorder), recorder.term_names, options, seed=seed
+    )
+    data = with_term_critic(outcome.model_path.read_bytes(), critic)
+    atomic_write(outcome.model_path, lambda tmp: tmp.write_bytes(data))
+    return {"member": TERM_CRITIC_MEMBER, "terms": list(recorder.term_names), **facts}
 
 
 def _start_manifest(
@@ -338,7 +379,12 @@ def _start_manifest(
 
 
 def _worker_entry(
-    worker: PlannedWorker, outcome: TrainingOutcome, config_file: str, run: RunOptions, budget: int
+    worker: PlannedWorker,
+    outcome: TrainingOutcome,
+    config_file: str,
+    run: RunOptions,
+    budget: int,
+    critic: Mapping[str, object] | None = None,
 ) -> ModelEntry:
     """
     A trained worker's manifest entry, with the bounds of its reward (the manager normalises by them): a
@@ -366,6 +412,7 @@ def _worker_entry(
         run.seed,
         budget,
         **reward,
+        **({"term_critic": dict(critic)} if critic is not None else {}),
         stopped_early=outcome.stopped_early,
         threads=run.threads,
     )
