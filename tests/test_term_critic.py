@@ -19,8 +19,9 @@ from sb3_hddpg.artifacts.term_critic import (
     read_term_critic,
     with_term_critic,
 )
+from sb3_hddpg.artifacts.transitions import Transitions
 from sb3_hddpg.envs.contract import state_layout_of
-from sb3_hddpg.training.term_critic import TermCriticOptions, Transitions, fit_term_critic
+from sb3_hddpg.training.term_critic import TermCriticOptions, fit_term_critic
 from sb3_hddpg.training.workers import train_workers
 
 TINY = {"timesteps": 300, "eval_freq": 0, "eval_episodes": 1}

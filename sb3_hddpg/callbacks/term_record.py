@@ -62,3 +62,14 @@ class TermRecorder(BaseCallback):
             self.terms[position, index] = [normalised[name] for name in self.term_names]
             self.filled[position, index] = True
         return True
+
+    def preload(self, buffer: ReplayBuffer, terms: np.ndarray) -> None:
+        """
+        Record the terms of transitions put into ``buffer`` before training (a warm start's relabelled
+        replay, in rows ``0..len(terms)-1`` of env 0), so that the critic learns from them too.
+        """
+        self.buffer = buffer
+        self.terms = np.zeros((buffer.buffer_size, buffer.n_envs, len(self.term_names)), dtype=np.float32)
+        self.filled = np.zeros((buffer.buffer_size, buffer.n_envs), dtype=bool)
+        self.terms[: len(terms), 0] = terms
+        self.filled[: len(terms), 0] = True

@@ -30,6 +30,7 @@ from sb3_hddpg.cli import plot_selection  # noqa: F401  isort: skip
 from sb3_hddpg.cli import package  # noqa: F401  isort: skip
 from sb3_hddpg.cli import report  # noqa: F401  isort: skip
 from sb3_hddpg.cli import snapshot  # noqa: F401  isort: skip
+from sb3_hddpg.cli import grow  # noqa: F401  isort: skip
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -50,6 +50,7 @@ from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOu
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, ManagerSetup, setup_manager
+from sb3_hddpg.training.term_critic import TermCriticOptions
 from sb3_hddpg.training.workers import (
     parse_worker_algorithms,
     plan_workers,
@@ -99,6 +100,22 @@ _WorkerNamesOpt = Annotated[
     ),
 ]
 _WorkersEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + SNAKE_DEFAULT)]
+_TermCriticOpt = Annotated[
+    bool,
+    typer.Option(
+        "--term-critic/--no-term-critic",
+        help="Train each off-policy worker's per-term critic (one Q head per term, for GPI and grow) on the "
+        "transitions it collected, after it trains: gradient steps, no env steps.",
+    ),
+]
+_KeepTransitionsOpt = Annotated[
+    bool,
+    typer.Option(
+        "--keep-transitions",
+        help="Also write each worker's transitions with their terms (NAME.transitions.npz), which grow "
+        "warm-starts a neighbouring worker with.",
+    ),
+]
 _WorkersWeightsOpt = Annotated[
     list[str] | None,
     typer.Option(
@@ -139,6 +156,8 @@ def train_workers_command(
     context: typer.Context,
     workers: _WorkerNamesOpt = None,
     weights: _WorkersWeightsOpt = None,
+    term_critic: _TermCriticOpt = True,
+    keep_transitions: _KeepTransitionsOpt = False,
     env: _WorkersEnvOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
@@ -202,6 +221,8 @@ def train_workers_command(
             env=shared,
             algos=algos,
             weights=weightings,
+            term_critic=TermCriticOptions() if term_critic else None,
+            keep_transitions=keep_transitions,
         )
     trained = [worker.name for worker in planned]
     rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in trained}

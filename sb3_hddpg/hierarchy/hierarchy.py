@@ -35,16 +35,29 @@ from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes
 from sb3_hddpg.artifacts.records import bundle_manifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
+from sb3_hddpg.artifacts.term_critic import TermCritic, with_term_critic
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.artifacts.workers import Workers, reward_specs_of, states_of
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
 from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-from sb3_hddpg.envs.layout import StateLayout
-from sb3_hddpg.hierarchy.bundle import MANIFEST, BundleError, model_bytes, read_bundle, write_bundle
+from sb3_hddpg.hierarchy.bundle import (
+    MANIFEST,
+    BundleError,
+    member_critics,
+    model_bytes,
+    read_bundle,
+    write_bundle,
+)
 from sb3_hddpg.hierarchy.conditioning import WRITTEN_SLACK, PreferenceOutsideError, PreferenceSpace
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
-from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
+from sb3_hddpg.hierarchy.gpi import (
+    GPI_SELECTION,
+    GpiSelector,
+    check_gpi_manager,
+    check_gpi_preference,
+    gpi_of,
+)
 from sb3_hddpg.hierarchy.selection import (
     OptionEnd,
     SelectionConfig,
@@ -53,6 +66,7 @@ from sb3_hddpg.hierarchy.selection import (
     check_selection_settings,
     get_selector,
 )
+from sb3_hddpg.hierarchy.spaces import check_spaces, manager_input_of
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import Policy
 
@@ -88,19 +102,22 @@ class Hierarchy:
 
     def __init__(
         self,
-        manager: BaseAlgorithm,
+        manager: BaseAlgorithm | None,
         workers: Mapping[str, Policy],
         config: SelectionConfig | None = None,
         env_id: str | None = None,
         env_kwargs: dict[str, Any] | None = None,
         worker_meta: dict[str, dict[str, Any]] | None = None,
         metadata: dict[str, Any] | None = None,
+        critics: Mapping[str, TermCritic] | None = None,
     ) -> None:
         self.manager = manager
         self.workers = dict(workers)
         self.names = list(self.workers)
         config = _selection_config(manager, workers, config)
         self.config = config
+        self.critics = dict(critics if critics is not None else getattr(workers, "critics", {}))  # GPI's
+        check_gpi_manager(manager, config.selection)
         if env_id is None:
             # Without an env id the bundle would record the snake env whatever the models were trained on,
             # and fail only much later (in evaluate); the models' own training envs say which env it is.
@@ -144,11 +161,13 @@ class Hierarchy:
             self._preference_obs = self.preference_space.weights(config.preferences).astype(np.float32)
         self._manager_input = manager_input_of(config, self.observation_space, layout, len(self.names))
         # The manager's input is built here (its state, motion and weights), so its frozen copy sees it all.
-        self._manager = FrozenWorker(manager)
+        self._manager = FrozenWorker(manager) if manager is not None else None
+        self._gpi, config = _with_gpi(manager, self._frozen, self.critics, config, self.names)
+        self.config = config
         #: The last observation ``predict`` saw in this episode (a manager that observes motion needs it).
         self._previous_obs: np.ndarray | None = None
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
-        self._selector = get_selector(config.selection)
+        self._selector = get_selector(config.selection) if manager is not None else None
         self._rng = np.random.default_rng(0)
         self._option_left = 0
         self._band = OptionEnd.from_json(config.option_end).bind(layout) if config.option_end else None
@@ -161,6 +180,29 @@ class Hierarchy:
         #: The manager actor's output at the last decision (in [-1, 1]; how saturated the manager is).
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
+
+    @classmethod
+    def gpi(
+        cls,
+        workers: Mapping[str, Policy],
+        preference: Mapping[str, float] | None = None,
+        env_id: str | None = None,
+        env_kwargs: dict[str, Any] | None = None,
+        critics: Mapping[str, TermCritic] | None = None,
+    ) -> Hierarchy:
+        """
+        A hierarchy that acts by generalized policy improvement (:mod:`~sb3_hddpg.hierarchy.gpi`), with no
+        manager: ``Hierarchy.gpi(load_workers("runs/w"), {"goal": 0.7, "avoid": 0.3})``.
+
+        :param workers: the workers, each with a per-term critic (``load_workers`` gives both).
+        :param preference: term -> weight (see :func:`~sb3_hddpg.hierarchy.gpi.check_gpi_preference`);
+            :meth:`set_preference` changes it at any time, without training.
+        :param env_id: the shared env (default: the workers').
+        :param env_kwargs: its keyword arguments.
+        :param critics: name -> per-term critic (default: the critics the workers carry).
+        """
+        config = SelectionConfig(preferences=dict(preference or {}), selection=GPI_SELECTION)
+        return cls(None, workers, config, env_id=env_id, env_kwargs=env_kwargs, critics=critics)
 
     def make_env(self, **overrides: object) -> gym.Env:
         """
@@ -177,6 +219,8 @@ class Hierarchy:
     @property
     def reward_spec(self) -> dict[str, float]:
         """This hierarchy's reward as a worker one level up: its preference-weighted mix of its workers' terms."""
+        if self._gpi is not None:  # the preference weighs the terms themselves
+            return dict(self.config.preferences)
         specs = {name: self.config.reward_terms.get(name, name) for name in self.names}
         return mix_terms(specs, self.config.preferences)
 
@@ -198,6 +242,9 @@ class Hierarchy:
             trained for one preference.
         """
         given = {**dict(preferences or {}), **factors}
+        if self._gpi is not None:
+            self.config = replace(self.config, preferences=check_gpi_preference(given, self._gpi.terms))
+            return
         if self.preference_space is None:
             own = self.config.preferences
             checked = check_preferences(given, self.names)
@@ -270,6 +317,9 @@ class Hierarchy:
         return self._act(obs, deterministic, keep_option=True), None
 
     def _act(self, obs: np.ndarray, deterministic: bool, keep_option: bool) -> np.ndarray:
+        if self._gpi is not None:
+            return self._act_gpi(obs)
+        assert self._manager is not None and self._selector is not None  # every other mode has both
         band = self._band(obs) if self._band is not None else None
         self.last_decided = not keep_option or self._option_left <= 0 or band != self._option_band
         if self.last_decided:
@@ -290,9 +340,22 @@ class Hierarchy:
         # A discrete worker's action stays an index; a continuous one is the float32 of the env's Box.
         return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
+    def _act_gpi(self, obs: np.ndarray) -> np.ndarray:
+        """GPI's action for one observation at the current preference: every step decides anew."""
+        assert self._gpi is not None
+        chosen, action = self._gpi.select(obs, self.config.preferences)
+        self.last_decided = True
+        self.last_selection = self.names[chosen]
+        self.last_probabilities = {name: float(i == chosen) for i, name in enumerate(self.names)}
+        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
+
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
         """The manager's worker probabilities for one observation (for a manager that observes motion: with
-        nothing moving)."""
+        nothing moving); GPI's choice as probability 1."""
+        if self._gpi is not None:
+            chosen, _ = self._gpi.select(np.asarray(observation, np.float32), self.config.preferences)
+            return {name: float(i == chosen) for i, name in enumerate(self.names)}
+        assert self._manager is not None and self._selector is not None
         action = self._manager.act(self._manager_obs(np.asarray(observation, np.float32)))
         return dict(zip(self.names, self._selector.probabilities(self.simplex, action)))
 
@@ -300,8 +363,15 @@ class Hierarchy:
     def to_bytes(self) -> bytes:
         """The bundle as zip bytes (see :meth:`save`)."""
         members: dict[str, bytes] = {}
-        manager_bytes = model_bytes(self.manager)
-        members["manager.zip"] = manager_bytes
+        manager_entry: dict[str, Any] | None = None
+        if self.manager is not None:  # a GPI hierarchy has none
+            members["manager.zip"] = manager_bytes = model_bytes(self.manager)
+            manager_entry = {
+                "file": "manager.zip",
+                "sha256": sha256_bytes(manager_bytes),
+                "spec": model_spec(self.manager),
+                **self.metadata,
+            }
         workers_manifest = {}
         for name, worker in self.workers.items():
             meta = dict(self.worker_meta.get(name, {}))
@@ -313,6 +383,9 @@ class Hierarchy:
                 member = f"workers/{name}.zip"
                 members[member] = model_bytes(worker)
                 meta.update({"kind": "sb3", "spec": model_spec(worker)})
+                if name in self.critics:  # inside the worker's zip, as train-workers writes it
+                    members[member] = with_term_critic(members[member], self.critics[name])
+                    meta["term_critic"] = {"terms": list(self.critics[name].spec.terms)}
             else:
                 raise BundleError(
                     f"Worker {name!r} of type {type(worker).__name__} cannot be bundled: only SB3 models and "
@@ -326,12 +399,7 @@ class Hierarchy:
             self.env_kwargs,
             self.names,
             asdict(self.config),
-            {
-                "file": "manager.zip",
-                "sha256": sha256_bytes(manager_bytes),
-                "spec": model_spec(self.manager),
-                **self.metadata,
-            },
+            manager_entry,
             workers_manifest,
             library_versions(),
         )
@@ -409,18 +477,35 @@ class Hierarchy:
         manager_entry = manifest.manager
         try:
             return cls(
-                model(manager_entry),
+                model(manager_entry) if manager_entry is not None else None,
                 workers,
                 SelectionConfig(**settings),
                 env_id=env_id,
                 env_kwargs=env_kwargs,
                 worker_meta=worker_meta,
-                metadata={k: v for k, v in manager_entry.items() if k not in ("file", "sha256", "spec")},
+                metadata={
+                    k: v for k, v in (manager_entry or {}).items() if k not in ("file", "sha256", "spec")
+                },
+                critics=member_critics(manifest, members, name),
             )
         except (BundleError, HeadlessRenderingError):
             raise
         except (ValueError, KeyError, TypeError, AttributeError) as error:
             raise BundleError(f"{name}: invalid settings in {MANIFEST}: {brief(str(error), 300)}") from None
+
+
+def _with_gpi(
+    manager: object | None,
+    frozen: list[FrozenWorker],
+    critics: Mapping[str, TermCritic],
+    config: SelectionConfig,
+    names: list[str],
+) -> tuple[GpiSelector | None, SelectionConfig]:
+    """A hierarchy's GPI selector (``None`` with a manager) and its settings with the preference checked."""
+    if manager is not None:
+        return None, config
+    gpi = gpi_of(frozen, critics, names)
+    return gpi, replace(config, preferences=check_gpi_preference(config.preferences, gpi.terms))
 
 
 def _shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
@@ -506,61 +591,3 @@ def _training_env(model: object) -> tuple[str, dict[str, Any]] | None:
         if key != "render_mode" and (key not in registered or registered[key] != value)
     }
     return spec.id, kwargs
-
-
-def manager_input_of(
-    config: SelectionConfig, observation_space: gym.Space, layout: StateLayout, n_workers: int
-) -> ManagerInput:
-    """What a manager with these selection settings observes of the shared env's ``observation_space``."""
-    indices = layout.indices(config.manager_state) if config.manager_state else None
-    n_preferences = n_workers if config.manager_preferences is not None else 0
-    return ManagerInput(observation_space, indices, config.manager_motion, n_preferences)
-
-
-def check_spaces(
-    manager: Any,
-    workers: Mapping[str, Policy],
-    config: SelectionConfig,
-    observation_space: gym.Space,
-    action_space: gym.Space,
-    layout: StateLayout,
-    env_name: str,
-) -> None:
-    """
-    Check that the manager and every worker that declares its spaces fit the env: the manager sees the
-    env's observation (or its ``manager_state`` components) and outputs one value per worker; each worker
-    sees the env's observation (or its ``worker_states`` components) and outputs the env's action.
-
-    :param env_name: the env as named in messages.
-    :raises ValueError: one line naming the model, the expected and the actual space.
-    """
-
-    def subset(components: list[str] | None) -> gym.Space:
-        return subset_space(observation_space, layout.indices(components) if components else None)
-
-    manager_action = get_selector(config.selection).action_space(len(workers))
-    manager_obs = manager_input_of(config, observation_space, layout, len(workers)).observation_space
-    checks = [("The manager", manager, manager_obs, manager_action, " (one per worker)")]
-    checks += [
-        (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")
-        for name, worker in workers.items()
-    ]
-    hint = "pass the env they were trained on as env_id= (and env_kwargs=)"
-    for label, model, expected_obs, expected_action, action_note in checks:
-        for kind, expected, actual, note in (
-            ("observations", expected_obs, getattr(model, "observation_space", None), ""),
-            ("actions", expected_action, getattr(model, "action_space", None), action_note),
-        ):
-            if actual is None or actual == expected:
-                continue
-            if getattr(actual, "shape", None) != getattr(expected, "shape", None):
-                raise ValueError(
-                    f"{label} has {kind} of shape {actual.shape}, but the hierarchy's env {env_name} needs "
-                    f"{expected.shape}{note}: {hint}"
-                )
-            # A Box with per-entry bounds prints its arrays over several lines: keep the message on one.
-            shown = " ".join(f"{actual} != {expected}".split())
-            raise ValueError(
-                f"{label} has {kind} of shape {actual.shape} like the hierarchy's env {env_name}, but other "
-                f"bounds or dtype ({shown}): {hint}"
-            )

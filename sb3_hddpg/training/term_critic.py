@@ -17,6 +17,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.limits import MAX_BATCH_SIZE
 from sb3_hddpg.artifacts.term_critic import TermCritic, TermCriticSpec
+from sb3_hddpg.artifacts.transitions import Transitions
 from sb3_hddpg.callbacks.term_record import TermRecorder
 
 #: The most gradient steps a critic takes by default (fewer when fewer transitions were collected).
@@ -52,28 +53,6 @@ class TermCriticOptions:
             raise ValueError(
                 f"Expected `learning_rate` and `tau` in (0, 1), actually: {self.learning_rate}, {self.tau}"
             )
-
-
-@dataclass(frozen=True)
-class Transitions:
-    """
-    Stored transitions with their normalised terms, flat (one row per env step), as a critic learns them.
-
-    :param obs: observations, ``(n, obs_dim)``.
-    :param actions: the actions as the buffer stores them (scaled to [-1, 1], or indices).
-    :param next_obs: the next observations.
-    :param terms: normalised terms, ``(n, n_terms)``.
-    :param continues: ``1 - done`` (a time-limit truncation continues).
-    """
-
-    obs: np.ndarray
-    actions: np.ndarray
-    next_obs: np.ndarray
-    terms: np.ndarray
-    continues: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.obs)
 
 
 def recorded_transitions(recorder: TermRecorder) -> Transitions:

@@ -12,20 +12,29 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_hddpg.algorithms import REGISTRY, algorithm
 from sb3_hddpg.artifacts.io import atomic_write, holds_folder_lock
 from sb3_hddpg.artifacts.manifests import check_resumed_env, model_entry, save_manifest
+from sb3_hddpg.artifacts.provenance import sha256_file
 from sb3_hddpg.artifacts.records import ModelEntry, ModelsManifest, models_manifest, read_models_manifest
 from sb3_hddpg.artifacts.term_critic import TERM_CRITIC_MEMBER, with_term_critic
+from sb3_hddpg.artifacts.transitions import TRANSITIONS_SUFFIX
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.callbacks.term_record import TermRecorder
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
-from sb3_hddpg.envs.weighted import check_term_weights, corner_term, make_weighted_view, weighted_name
+from sb3_hddpg.envs.weighted import (
+    WEIGHTED_PREFIX,
+    check_term_weights,
+    corner_term,
+    make_weighted_view,
+    weighted_name,
+)
 from sb3_hddpg.training.agent import (
     AgentPaths,
     TrainingOutcome,
@@ -37,6 +46,7 @@ from sb3_hddpg.training.agent import (
 from sb3_hddpg.training.config import Hyperparams, default_config, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions, run_options
 from sb3_hddpg.training.term_critic import TermCriticOptions, fit_term_critic, recorded_transitions
+from sb3_hddpg.training.warm_start import WarmStart
 
 #: The algorithm of a worker no ``algos`` entry names: the paper's.
 DEFAULT_WORKER_ALGO = "ddpg"
@@ -160,7 +170,8 @@ class PlannedWorker:
     :param name: the worker's name (its term, or :func:`~sb3_hddpg.envs.weighted.weighted_name`'s).
     :param weights: term -> weight over their sum; a per-term worker's is its corner.
     :param algo: its algorithm's registry name.
-    :param hyperparams: its config block (a weighted worker's is its heaviest term's).
+    :param hyperparams: its config block (a weighted worker's: the shared env's ``<env>/mix`` block, else the
+        env's, else ``default``).
     :param env_id: the env id of its view.
     :param env_kwargs: that view's keyword arguments.
     """
@@ -199,7 +210,8 @@ def plan_workers(
     :param weights: weightings of the terms (term -> weight, finite, >= 0, positive sum), one worker each.
     :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
     :param env: another env with several objectives (default: the snake arm).
-    :param algos: worker name -> algorithm; a weighted worker not named takes its heaviest term's.
+    :param algos: worker name -> algorithm; a weighted worker not named takes its heaviest term's (so
+        that a support of DQN workers stays discrete).
     :return: the workers in order; raises ``ValueError`` naming the problem.
     """
     shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
@@ -228,7 +240,9 @@ def plan_workers(
     chosen = worker_algorithms(sources, {k: v for k, v in algos.items() if k in sources}, env)
     for name in mixed:
         chosen[name] = worker_algorithms([name], {name: algos.get(name, chosen[heaviest[name]])}, env)[name]
-    blocks = worker_hyperparams(sources, config, env, {k: chosen[k] for k in sources}) if sources else {}
+    blocks = (
+        worker_hyperparams(term_names, config, env, {k: chosen[k] for k in term_names}) if term_names else {}
+    )
     planned = []
     for name in term_names:
         env_id, view_kwargs = shared.term_view(name)
@@ -238,7 +252,14 @@ def plan_workers(
             PlannedWorker(name, corner, chosen[name], block, env_id, {**view_kwargs, **block.env_kwargs})
         )
     for name, w in mixed.items():
-        block = blocks[heaviest[name]]
+        # Not its heaviest term's block: that one may observe part of the state only, or relabel by that
+        # term alone (the snake's goal worker); a weighted worker learns the shared env's whole task.
+        key = shared.config_key
+        block = load_hyperparams(
+            (f"{key}/{WEIGHTED_PREFIX}", key),
+            algorithm(chosen[name]).cls,
+            config or default_config(chosen[name]),
+        )
         kwargs = {**shared.env_kwargs, **block.env_kwargs}
         check_make_kwargs(shared.env_id, kwargs, f"worker {name!r}: env_kwargs")
         planned.append(PlannedWorker(name, w, chosen[name], block, shared.env_id, kwargs))
@@ -258,6 +279,8 @@ def train_workers(
     algos: Mapping[str, str] | None = None,
     weights: Sequence[Mapping[str, object]] = (),
     term_critic: TermCriticOptions | None = TermCriticOptions(),
+    keep_transitions: bool = False,
+    warm_starts: Mapping[str, WarmStart] | None = None,
     **run_changes: object,
 ) -> dict[str, Any]:
     """
@@ -273,11 +296,15 @@ def train_workers(
     :param algos: worker name -> its algorithm (e.g. ``{"goal": "crossq"}``; default: on the snake arm
         :data:`SNAKE_WORKER_ALGOS`, DDPG on another env; a weighted worker: its heaviest term's).
     :param weights: weightings of the terms, one worker each (e.g. ``[{"goal": 0.7, "avoid": 0.3}]``): finite
-        weights >= 0 with a positive sum, kept over their sum; the worker reads its heaviest term's config
-        block and is named by :func:`~sb3_hddpg.envs.weighted.weighted_name` (``mix-goal70-avoid30``).
+        weights >= 0 with a positive sum, kept over their sum; the worker reads the config block keyed
+        ``<env id>/mix``, else the env's (the snake arm: ``hddpg/SnakeReach-v0``), and is named by :func:`~sb3_hddpg.envs.weighted.weighted_name` (``mix-goal70-avoid30``).
     :param term_critic: how each off-policy worker's per-term critic is trained on the transitions it
         collected (:mod:`sb3_hddpg.training.term_critic`; stored in its zip, recorded as ``term_critic`` in
         its entry); ``None``: no critic.
+    :param keep_transitions: also write each off-policy worker's transitions with their normalised terms
+        (``<name>.transitions.npz``, hashed in its entry): what ``grow`` warm-starts a neighbour with.
+    :param warm_starts: worker name -> what it starts from (:class:`~sb3_hddpg.training.warm_start.WarmStart`,
+        for a fresh start; a resumed worker continues from its checkpoint).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -301,27 +328,74 @@ def train_workers(
         if run.resume and finished_with_budget(manifest.entries.get(name), budget):
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
-        recorder = (
-            TermRecorder(bounds) if term_critic is not None and not REGISTRY[worker.algo].on_policy else None
-        )
-        outcome = train_agent(
-            worker.env_factory(),
-            hyperparams,
+        outcome, facts = _train_worker(
+            worker,
             paths,
-            algo=worker.algo,
-            run=agent_run(run, paths, budget),
-            extra_callbacks=[*extra_callbacks, *([recorder] if recorder is not None else [])],
-        )
-        critic_facts = (
-            add_term_critic(outcome, recorder, term_critic, run.seed) if recorder is not None else None
+            agent_run(run, paths, budget),
+            bounds,
+            extra_callbacks,
+            term_critic,
+            keep_transitions,
+            (warm_starts or {}).get(name),
         )
         source = str(config) if config else f"sb3_hddpg/zoo_configs/{worker.algo}.yml"
-        entry = _worker_entry(worker, outcome, source, run, budget, critic_facts)
+        entry = _worker_entry(worker, outcome, source, run, budget, facts)
         manifest = manifest.with_entry(name, entry)
         save_manifest(manifest_path, manifest)
         if on_worker_done is not None:
             on_worker_done(name, outcome)
     return manifest.to_json()
+
+
+def _train_worker(
+    worker: PlannedWorker,
+    paths: AgentPaths,
+    run: RunOptions,
+    bounds: Mapping[str, tuple[float, float]],
+    extra_callbacks: Sequence[BaseCallback],
+    term_critic: TermCriticOptions | None,
+    keep_transitions: bool,
+    warm: WarmStart | None,
+) -> tuple[TrainingOutcome, dict[str, object]]:
+    """
+    Train one worker, recording the terms of its transitions where something needs them (its critic, its
+    kept transitions), then its critic; return the outcome and the facts its entry records about them.
+    """
+    wanted = term_critic is not None or keep_transitions
+    recorder = TermRecorder(bounds) if wanted and not REGISTRY[worker.algo].on_policy else None
+    facts: dict[str, object] = {}
+
+    def prepare(model: BaseAlgorithm) -> None:
+        if warm is not None:
+            facts["warm_start"] = {"from": warm.neighbour, **warm.prepare(model, recorder)}
+
+    outcome = train_agent(
+        worker.env_factory(),
+        worker.hyperparams,
+        paths,
+        algo=worker.algo,
+        run=run,
+        extra_callbacks=[*extra_callbacks, *([recorder] if recorder is not None else [])],
+        prepare_model=prepare,
+    )
+    if recorder is None or not recorder.filled.any():
+        return outcome, facts
+    transitions = recorded_transitions(recorder)
+    if term_critic is not None:
+        critic, critic_facts = fit_term_critic(
+            outcome.model, transitions, recorder.term_names, term_critic, run.seed
+        )
+        data = with_term_critic(outcome.model_path.read_bytes(), critic)
+        atomic_write(outcome.model_path, lambda tmp: tmp.write_bytes(data))
+        facts["term_critic"] = {
+            "member": TERM_CRITIC_MEMBER,
+            "terms": list(recorder.term_names),
+            **critic_facts,
+        }
+    if keep_transitions:
+        path = transitions.save(outcome.model_path.with_name(f"{worker.name}{TRANSITIONS_SUFFIX}"))
+        facts["transitions"] = {"file": path.name, "sha256": sha256_file(path), "count": len(transitions)}
+    return outcome, facts
 
 
 def _shared_bounds(shared: TermsEnv) -> dict[str, tuple[float, float]]:
@@ -331,26 +405,6 @@ def _shared_bounds(shared: TermsEnv) -> dict[str, tuple[float, float]]:
         return dict(env_contract(probe).reward_bounds)
     finally:
         probe.close()
-
-
-def add_term_critic(
-    outcome: TrainingOutcome, recorder: TermRecorder, options: TermCriticOptions | None, seed: int
-) -> dict[str, object] | None:
-    """
-    Train the per-term critic of a trained worker on the transitions ``recorder`` kept and write it into the
-    worker's zip (atomically; the manifest's hash is taken after).
-
-    :return: the facts its manifest entry records (member, term order, steps, transitions, last TD loss), or
-        ``None`` when no transition was recorded (a resumed worker that had already finished).
-    """
-    if not recorder.filled.any():
-        return None
-    critic, facts = fit_term_critic(
-        outcome.model, recorded_transitions(recorder), recorder.term_names, options, seed=seed
-    )
-    data = with_term_critic(outcome.model_path.read_bytes(), critic)
-    atomic_write(outcome.model_path, lambda tmp: tmp.write_bytes(data))
-    return {"member": TERM_CRITIC_MEMBER, "terms": list(recorder.term_names), **facts}
 
 
 def _start_manifest(
@@ -384,7 +438,7 @@ def _worker_entry(
     config_file: str,
     run: RunOptions,
     budget: int,
-    critic: Mapping[str, object] | None = None,
+    facts: Mapping[str, object] | None = None,
 ) -> ModelEntry:
     """
     A trained worker's manifest entry, with the bounds of its reward (the manager normalises by them): a
@@ -392,6 +446,7 @@ def _worker_entry(
     weights.
 
     :param config_file: the config file its block was read from, as recorded.
+    :param facts: what else it records (its critic, kept transitions, warm start).
     """
     if worker.term is not None:
         probe = make_term_view(worker.env_id, worker.env_kwargs, worker.term)
@@ -412,7 +467,7 @@ def _worker_entry(
         run.seed,
         budget,
         **reward,
-        **({"term_critic": dict(critic)} if critic is not None else {}),
+        **dict(facts or {}),
         stopped_early=outcome.stopped_early,
         threads=run.threads,
     )
