@@ -332,9 +332,12 @@ def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
     )  # fmt: skip
     results = run_benchmark(settings, tmp_path)
     front = results["front"]
-    assert set(front["members"]) == {"conditioned", "per-preference", "ham", "goal", "avoid"}
+    assert set(front["members"]) == {"conditioned", "per-preference", "ham", "goal", "avoid", "gpi"}
     record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
     assert len(record["front"]["conditioned"]["points"]) == len(SWEEP.points)
+    # GPI over the same workers, at every preference of the sweep, with no manager of its own.
+    assert [p["label"] for p in record["front"]["gpi"]["points"]] == sweep_labels()
+    assert "conditioned vs gpi" in front["comparisons"]
     assert len(record["front"]["per-preference"]["points"]) == len(SWEEP.points)
     assert record["front"]["ham"]["points"]
     # HAM's thresholds come from the curve episodes, never the test episodes.

@@ -235,6 +235,7 @@ class Hierarchy:
         ``hierarchy.set_preference(goal=0.4, avoid=1.6)`` or ``hierarchy.set_preference({"goal": 0.4})``.
         Only the ratio matters (the factors are rescaled to the sum the manager was trained with); names not
         given get the unweighted factor.
+        A GPI hierarchy (:meth:`gpi`) takes any weighting of the env's terms (term -> weight >= 0).
 
         :param preferences: worker name -> factor; or give the factors as keywords.
         :raises PreferenceOutsideError: for a preference outside those the manager was trained over (see

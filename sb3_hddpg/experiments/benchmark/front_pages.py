@@ -19,6 +19,7 @@ from sb3_hddpg.experiments.benchmark.front_points import PLANES, label_factors
 MEMBER_COLOURS = {
     "conditioned": "tab:red",
     "per-preference": "tab:purple",
+    "gpi": "tab:brown",
     "ham": "tab:gray",
     "ttc": "tab:gray",
     "goal": "tab:blue",
