@@ -363,6 +363,9 @@ def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
     assert [e["seed"] for e in conditioned] == [0, 1]
     assert all(e["manager_preferences"]["points"] for e in conditioned)
     assert len(per_preference) == 2 * len(SWEEP.points)
+    gpi = [e for e in index if e["method"] == "hddpg-gpi"]
+    assert [e["seed"] for e in gpi] == [0, 1]
+    assert Hierarchy.load(export / gpi[0]["path"]).manager is None
     assert {e["preference"] for e in per_preference} == set(sweep_labels())
     script = (
         "import sys, gymnasium as gym, sb3_hddpg\n"

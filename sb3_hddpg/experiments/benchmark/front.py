@@ -320,7 +320,12 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
             front[spec.rule] = member_fields(rule_points, spec)
         for worker in spec.terms:
             front[worker] = member_fields([_alone_point(worker, folder, env, settings, spec)], spec)
-        gpi = gpi_points(folder, spec, lambda label, policy: _test_point(label, policy, env, settings, spec))
+        gpi = gpi_points(
+            folder,
+            spec,
+            lambda label, policy: _test_point(label, policy, env, settings, spec),
+            run_dir / "gpi.zip",
+        )
         if gpi is not None:  # GPI over the same workers: no manager, no env steps of its own
             front[GPI_MEMBER] = member_fields(gpi, spec)
         morl = None

@@ -19,7 +19,7 @@ GPI_MEMBER = "gpi"
 
 
 def gpi_points(
-    folder: Path, spec: FrontSpec, point: Callable[[str, Policy], FrontPoint]
+    folder: Path, spec: FrontSpec, point: Callable[[str, Policy], FrontPoint], bundle: Path | None = None
 ) -> list[FrontPoint] | None:
     """
     GPI's points over the seed's workers, one per preference of ``spec``'s sweep (the sweep's names are the
@@ -29,6 +29,7 @@ def gpi_points(
     :param folder: the seed's folder (its ``workers/``).
     :param spec: what the front measures.
     :param point: a policy's test point under a label (the front's own measure).
+    :param bundle: where to save the GPI bundle (the one model that re-evaluates this member), if anywhere.
     """
     workers = load_workers(folder)
     if set(workers.critics) != set(workers) or not set(spec.sweep.names) <= set(
@@ -36,6 +37,9 @@ def gpi_points(
     ):
         return None
     gpi = Hierarchy.gpi(workers)
+    if bundle is not None:
+        bundle.parent.mkdir(parents=True, exist_ok=True)
+        gpi.save(bundle)
     points = []
     for label, preference in zip(sweep_labels(spec.sweep), spec.sweep.points):
         gpi.set_preference(dict(zip(spec.sweep.names, preference)))
