@@ -83,6 +83,9 @@ def test_gpi_refuses_critics_that_do_not_fit():
     other = TermCritic(TermCriticSpec(("speed", "energy"), 3, 0, (-1.0, -1.0), (1.0, 1.0), (4,), 0.9))
     with pytest.raises(ValueError, match="terms"):
         GpiSelector([worker, worker], [constant_critic([1, 1]), other])
+    other_discount = TermCritic(TermCriticSpec(("goal", "avoid"), 3, 0, (-1.0, -1.0), (1.0, 1.0), (4,), 0.5))
+    with pytest.raises(ValueError, match="one discount"):
+        GpiSelector([worker, worker], [constant_critic([1, 1]), other_discount])
     with pytest.raises(ValueError, match="one critic per worker"):
         GpiSelector([worker, worker], [constant_critic([1, 1])])
 

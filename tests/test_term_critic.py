@@ -40,13 +40,14 @@ def _transitions(obs, actions, terms, continues):
 
 
 def test_td_reaches_the_discounted_sum_of_constant_terms():
-    # Continuing with constant terms (0.5, 0.1): Q = r / (1 - gamma) = (1.0, 0.2) at gamma 0.5, whatever pi is.
+    # Continuing with constant terms (0.5, 0.1): Q = r / (1 - gamma) = (1.0, 0.2) at the critic's gamma 0.5,
+    # whatever pi is and whatever the worker's own discount (0.9 here).
     env = gym.make("Pendulum-v1")
-    policy = DDPG("MlpPolicy", env, gamma=0.5, policy_kwargs={"net_arch": [16]}, seed=0)
+    policy = DDPG("MlpPolicy", env, gamma=0.9, policy_kwargs={"net_arch": [16]}, seed=0)
     rng = np.random.default_rng(0)
     obs = rng.uniform(-1, 1, (256, 3))
     actions = rng.uniform(-1, 1, (256, 1)).astype(np.float32)
-    options = TermCriticOptions(steps=1500, batch_size=64, net_arch=(32,), tau=0.1)
+    options = TermCriticOptions(steps=1500, batch_size=64, net_arch=(32,), tau=0.1, gamma=0.5)
     critic, facts = fit_term_critic(policy, _transitions(obs, actions, (0.5, 0.1), 1.0), ["a", "b"], options)
     env_actions = rng.uniform(-2, 2, (16, 1))
     values = critic.values(obs[:16], env_actions)

@@ -48,6 +48,11 @@ class GpiSelector:
                 raise ValueError(
                     f"Expected every critic over the terms {list(terms)}, actually one over {list(critic.spec.terms)}"
                 )
+        if len({critic.spec.gamma for critic in critics}) > 1:
+            raise ValueError(
+                f"Expected every critic of one discount, actually {sorted({c.spec.gamma for c in critics})}: "
+                "their values would not compare"
+            )
         if len({critic.spec.discrete for critic in critics}) > 1:
             raise ValueError("Expected all workers' critics discrete or all continuous, actually a mix")
         for index, (worker, critic) in enumerate(zip(workers, critics)):

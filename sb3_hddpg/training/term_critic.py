@@ -34,6 +34,9 @@ class TermCriticOptions:
     :param net_arch: hidden layer sizes.
     :param learning_rate: Adam's step size.
     :param tau: the target network's Polyak coefficient.
+    :param gamma: the discount of the values: one for every worker of a support, not each worker's own
+        (the snake's goal worker learns at 0.7, its avoid worker at 0.9), so that GPI and the support compare
+        values of one kind.
     """
 
     steps: int | None = None
@@ -41,8 +44,11 @@ class TermCriticOptions:
     net_arch: tuple[int, ...] = (64, 64)
     learning_rate: float = 1e-3
     tau: float = 0.02
+    gamma: float = 0.99
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.gamma < 1.0:
+            raise ValueError(f"Expected `gamma` in [0, 1), actually: {self.gamma}")
         if self.steps is not None and (
             isinstance(self.steps, bool) or not 1 <= int(self.steps) <= 10_000_000
         ):
@@ -85,7 +91,7 @@ def fit_term_critic(
     """
     Train a per-term critic of ``policy`` on ``transitions``.
 
-    :param policy: the worker (an SB3 model; its ``predict`` gives ``pi(s')``, its ``gamma`` the discount).
+    :param policy: the worker (an SB3 model; its ``predict`` gives ``pi(s')``).
     :param transitions: its stored transitions with their normalised terms.
     :param terms: the terms' names, in the order of ``transitions.terms``' columns.
     :param options: the training settings.
@@ -98,7 +104,7 @@ def fit_term_critic(
         policy.observation_space,
         policy.action_space,
         options.net_arch,
-        float(getattr(policy, "gamma", 0.99)),
+        options.gamma,
     )
     generator = torch.Generator().manual_seed(seed)
     with torch.random.fork_rng():
