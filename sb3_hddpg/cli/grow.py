@@ -22,7 +22,7 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.cli.train import training_interrupt_exits
-from sb3_hddpg.training.grow import SUPPORT_FILE, SupportOptions, grow
+from sb3_hddpg.training.grow import SUPPORT_FILE, SupportOptions, check_growable, grow
 
 _GrowWorkersOpt = Annotated[
     Path,
@@ -82,7 +82,9 @@ def grow_command(
         )
     root = workers if (workers / "workers" / "manifest.json").is_file() else workers.parent
     run = run_options_of(context)
-    with usage_errors("'--workers'"), training_interrupt_exits():
+    with usage_errors("'--workers'"):  # before anything trains; a failure while training is no usage error
+        check_growable(root, resume)
+    with training_interrupt_exits():
         record = grow(root, options, run=run, config=config)
     table = Table(title=f"Support in {root / 'workers'}")
     for column in ("worker", "weights", "gain", "env steps", "warm start"):

@@ -109,6 +109,35 @@ def policy_values(workers: Workers, start_states: int) -> dict[str, np.ndarray]:
     return values
 
 
+def check_growable(out_dir: str | Path, resume: bool = False) -> tuple[Workers, list[str]]:
+    """
+    Check, before anything trains, that a folder's workers can start a support: every worker has a per-term
+    critic, there is a per-term worker for every term, and a support record is only continued with ``resume``.
+
+    :return: the loaded workers and the critics' terms; raises ``ValueError`` (``FileExistsError`` for a
+        record without ``resume``) naming the problem.
+    """
+    root = Path(out_dir)
+    workers = load_workers(root)
+    missing = [name for name in workers if name not in workers.critics]
+    if missing:
+        raise ValueError(
+            f"grow needs every worker's per-term critic; {missing} have none (retrain them with train-workers)"
+        )
+    terms = list(next(iter(workers.critics.values())).spec.terms)
+    visited = support_weights(workers, terms)
+    corners_missing = [
+        t for i, t in enumerate(terms) if not any(np.isclose(w[i], 1.0) for w in visited.values())
+    ]
+    if corners_missing:
+        raise ValueError(f"grow starts from a per-term worker for every term; none for {corners_missing}")
+    if (root / "workers" / SUPPORT_FILE).exists() and not resume:
+        raise FileExistsError(
+            f"{root / 'workers' / SUPPORT_FILE} exists: continue it with --resume, or grow in another folder"
+        )
+    return workers, terms
+
+
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def grow(
     out_dir: str | Path,
@@ -137,25 +166,12 @@ def grow(
     """
     run = run_options(run, run_changes, "grow")
     root = Path(out_dir)
-    workers = load_workers(root)
-    missing = [name for name in workers if name not in workers.critics]
-    if missing:
-        raise ValueError(
-            f"grow needs every worker's per-term critic; {missing} have none (retrain them with train-workers)"
-        )
-    terms = list(next(iter(workers.critics.values())).spec.terms)
-    if env is None and workers.env_id not in (
-        None,
-        SNAKE_REACH_ENV_ID,
-    ):  # the shared env the manifest records
+    workers, terms = check_growable(root, run.resume)
+    # Not the snake arm: the shared env the workers manifest records.
+    if env is None and workers.env_id not in (None, SNAKE_REACH_ENV_ID):
         env = TermsEnv(str(workers.env_id), dict(workers.env_kwargs), tuple(terms))
     record = _start_record(root, workers, terms, options, run.resume)
     visited = support_weights(workers, terms)
-    corners_missing = [
-        t for i, t in enumerate(terms) if not any(np.isclose(w[i], 1.0) for w in visited.values())
-    ]
-    if corners_missing:
-        raise ValueError(f"grow starts from a per-term worker for every term; none for {corners_missing}")
     values = policy_values(workers, options.start_states)
     while True:
         stop, corner = _next_corner(record, options, workers, values, visited)
@@ -305,9 +321,7 @@ def _start_record(
 ) -> SupportRecord:
     """A new record, or on ``resume`` the folder's; an existing record is never replaced without ``resume``."""
     path = root / "workers" / SUPPORT_FILE
-    if path.exists():
-        if not resume:
-            raise FileExistsError(f"{path} exists: continue it with --resume, or grow in another folder")
+    if path.exists() and resume:
         record = read_support_record(path)
         if list(record.terms) != terms:
             raise ValueError(
