@@ -156,3 +156,27 @@ def test_evaluate_takes_a_preference_for_a_gpi_bundle(support, tmp_path):
     assert result.returncode == 0, result.stderr
     result = run_cli("evaluate", path, "--episodes", "1", "--preference", "goal=nan")
     assert result.returncode == 2 and "Traceback" not in result.stderr
+
+
+def test_gpi_over_dqn_workers_of_an_mo_gymnasium_env(tmp_path):
+    """Discrete-action workers (DQN) get critics over every action; GPI acts, saves and loads over them."""
+    pytest.importorskip("mo_gymnasium")
+    from sb3_hddpg.envs.terms_env import terms_env
+
+    # mo-mountaincar's time term is -1 at every step: its bounds are widened so that they have a width.
+    env = terms_env("mo-mountaincar-v0", episode_steps=30, term_bounds={"obj0": [-2.0, 0.0]})
+    critic = TermCriticOptions(steps=50, batch_size=16, net_arch=(8,))
+    algos = dict.fromkeys(env.terms, "dqn")
+    train_workers(
+        tmp_path, env=env, algos=algos, timesteps=200, eval_freq=0, eval_episodes=1, term_critic=critic
+    )
+    workers = load_workers(tmp_path)
+    assert {name: c.spec.n_actions for name, c in workers.critics.items()} == dict.fromkeys(env.terms, 3)
+    gpi = Hierarchy.gpi(workers, {"obj0": 0.0, "obj1": 1.0, "obj2": 0.0})
+    obs = gpi.make_env().reset(seed=0)[0]
+    scores, _ = gpi._gpi.scores(obs, gpi.preferences)
+    action, _ = gpi.predict(obs)
+    # GPI over actions: the action of the largest w . Q_i(s, a) over every worker and action.
+    assert int(action) == int(np.unravel_index(np.argmax(scores), scores.shape)[1])
+    loaded = Hierarchy.load(gpi.save(tmp_path / "gpi.zip"))
+    assert int(loaded.predict(obs)[0]) == int(action)
