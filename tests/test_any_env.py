@@ -523,7 +523,7 @@ def test_tune_a_worker_and_a_flat_agent_on_other_envs(tmp_path, tiny):
         "test/InfoRewards-v0",
         terms=["reward_near", "reward_calm"],
         term_bounds={"reward_near": (-2, 0), "reward_calm": (-1, 0)},
-    )
+    ).manifest
     flat = TuningTarget(level="flat", env=info, **budget)
     assert flat.block_key == "test/InfoRewards-v0"
     value = _tune_once(tmp_path / "flat", flat).best_value
@@ -764,8 +764,8 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     assert [e["seed"] for e in conditioned] == [0, 1]
     assert list(conditioned[0]["manager_preferences"]["points"][0]) == ["time", "fuel"]
     front = json.loads((out / "results.json").read_text())["front"]
-    # No rule on this env: the managers and each worker alone, in the terms and the returns plane.
-    assert front["members"] == ["conditioned", "time", "fuel"]
+    # No rule on this env: the managers, each worker alone and GPI over them, in the terms and the returns plane.
+    assert front["members"] == ["conditioned", "time", "fuel", "gpi"]
     assert not list((out / "seed-0" / "hddpg-front").glob("manager-*"))
     assert front["manager"]["per_preference"] is False
     assert list(front["planes"]) == ["terms", "returns"]
@@ -780,7 +780,8 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     assert record["references"]["returns"] == pytest.approx([30 * float(v) for v in low])
     points = record["front"]["conditioned"]["points"]
     assert len(points) == 7 and all(-30.0 <= p["time_return"] <= 0.0 for p in points)
-    assert set(front["comparisons"]) == {f"conditioned vs {m}" for m in ("time", "fuel")}
+    assert set(front["comparisons"]) == {f"conditioned vs {m}" for m in ("time", "fuel", "gpi")}
+    assert [e["seed"] for e in index if e["method"] == "hddpg-gpi"] == [0, 1]
     assert set(front["comparisons"]["conditioned vs time"]["planes"]) == {"terms", "returns"}
     assert (out / "fronts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     page = (out / "results.md").read_text()

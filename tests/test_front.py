@@ -332,9 +332,12 @@ def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
     )  # fmt: skip
     results = run_benchmark(settings, tmp_path)
     front = results["front"]
-    assert set(front["members"]) == {"conditioned", "per-preference", "ham", "goal", "avoid"}
+    assert set(front["members"]) == {"conditioned", "per-preference", "ham", "goal", "avoid", "gpi"}
     record = json.loads((tmp_path / "records" / "hddpg-front" / "seed-0.json").read_text())
     assert len(record["front"]["conditioned"]["points"]) == len(SWEEP.points)
+    # GPI over the same workers, at every preference of the sweep, with no manager of its own.
+    assert [p["label"] for p in record["front"]["gpi"]["points"]] == sweep_labels()
+    assert "conditioned vs gpi" in front["comparisons"]
     assert len(record["front"]["per-preference"]["points"]) == len(SWEEP.points)
     assert record["front"]["ham"]["points"]
     # HAM's thresholds come from the curve episodes, never the test episodes.
@@ -360,6 +363,9 @@ def test_the_front_scenario_runs_end_to_end_at_a_tiny_budget(tmp_path):
     assert [e["seed"] for e in conditioned] == [0, 1]
     assert all(e["manager_preferences"]["points"] for e in conditioned)
     assert len(per_preference) == 2 * len(SWEEP.points)
+    gpi = [e for e in index if e["method"] == "hddpg-gpi"]
+    assert [e["seed"] for e in gpi] == [0, 1]
+    assert Hierarchy.load(export / gpi[0]["path"]).manager is None
     assert {e["preference"] for e in per_preference} == set(sweep_labels())
     script = (
         "import sys, gymnasium as gym, sb3_hddpg\n"

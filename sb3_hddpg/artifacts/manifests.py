@@ -19,6 +19,7 @@ from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify
 from sb3_hddpg.artifacts.records import JsonValue, ModelEntry, ModelsManifest, read_workers_manifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
+from sb3_hddpg.artifacts.term_critic import TermCritic, read_term_critic
 from sb3_hddpg.artifacts.workers import Workers, observed_components, shared_env_of
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 
@@ -87,7 +88,8 @@ def load_workers(
     :param allowed_env_ids: registered env ids the manifest's shared env may be besides this package's own
         (a user's env; otherwise ``make_env()`` says how to allow it, and the models load all the same).
     :return: name -> SB3 model, a :class:`~sb3_hddpg.artifacts.workers.Workers` mapping that also holds
-        each worker's observed components, the shared env and the manifest.
+        each worker's observed components, the shared env, the manifest and each worker's per-term critic
+        (read from its hash-verified zip, where it has one).
     """
 
     folder = Path(workers_dir)
@@ -114,6 +116,7 @@ def load_workers(
     if unknown:
         raise ValueError(f"Unknown workers {unknown} in {str(manifest_path)!r}; it has {list(entries)}")
     models = {}
+    critics: dict[str, TermCritic] = {}
     for name in names:
         entry = entries[name]
         if Path(entry["file"]).name != entry["file"]:
@@ -126,12 +129,15 @@ def load_workers(
             raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
         verify_sha256(path, entry["sha256"], str(path))
         models[name] = load_model(path, spec=entry.get("spec"), trusted=trusted)
+        critic = read_term_critic(path, str(path))
+        if critic is not None:
+            critics[name] = critic
     states = observed_components(manifest, names)
     try:
         env_id, env_kwargs = shared_env_of(manifest, None, None, trusted, allowed_env_ids)
     except ValueError as error:  # an env outside the allow-list: the caller may name the env itself
-        return Workers(models, states, None, {}, manifest, folder, env_problem=str(error))
-    return Workers(models, states, env_id, env_kwargs, manifest, folder)
+        return Workers(models, states, None, {}, manifest, folder, env_problem=str(error), critics=critics)
+    return Workers(models, states, env_id, env_kwargs, manifest, folder, critics=critics)
 
 
 class TrainedModel(Protocol):

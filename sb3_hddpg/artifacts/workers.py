@@ -15,11 +15,12 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.limits import check_env_id
 from sb3_hddpg.artifacts.records import ModelsManifest
+from sb3_hddpg.artifacts.term_critic import TermCritic
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 
 #: The facts of a workers-manifest entry a bundle keeps about each worker.
-BUNDLED_FACTS = ("reward_term", "reward_bounds", "env_id", "metrics", "seed")
+BUNDLED_FACTS = ("reward_term", "reward_weights", "reward_bounds", "env_id", "metrics", "seed")
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,7 @@ class Workers(Mapping[str, BaseAlgorithm]):
     :param folder: the folder holding that manifest.
     :param env_problem: why the manifest's shared env is not usable (e.g. an env id outside the allow-list),
         raised by :meth:`make_env`; the models themselves are usable in any env they fit.
+    :param critics: name -> the worker's per-term critic, for the workers that have one.
     """
 
     models: dict[str, BaseAlgorithm]
@@ -51,6 +53,7 @@ class Workers(Mapping[str, BaseAlgorithm]):
     manifest: ModelsManifest = field(default_factory=lambda: ModelsManifest("workers"))
     folder: Path | None = None
     env_problem: str = ""
+    critics: dict[str, TermCritic] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> BaseAlgorithm:
         return self.models[name]
@@ -152,3 +155,28 @@ def observed_components(manifest: ModelsManifest, names: Iterable[str]) -> dict[
 def states_of(workers: Mapping[str, object]) -> dict[str, list[str]]:
     """The state components each worker of ``workers`` sees, where it carries them (a :class:`Workers`)."""
     return dict(workers.states) if isinstance(workers, Workers) else {}
+
+
+def reward_specs_of(workers: Mapping[str, object]) -> dict[str, dict[str, float]]:
+    """
+    The reward of each weighted worker of ``workers`` (term -> weight), where they carry their manifest (a
+    :class:`Workers`); a per-term worker's reward is its name, so it is absent.
+
+    :raises ValueError: one line naming the worker whose recorded ``reward_weights`` are not term -> number.
+    """
+    if not isinstance(workers, Workers):
+        return {}
+    specs: dict[str, dict[str, float]] = {}
+    for name in workers:
+        weights = workers.manifest.entries.get(name, {}).get("reward_weights")
+        if weights is None:
+            continue
+        if not isinstance(weights, dict) or not all(
+            isinstance(t, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+            for t, v in weights.items()
+        ):
+            raise ValueError(
+                f"Worker {name!r}: reward_weights must map term names to numbers, actually: {weights!r:.200}"
+            )
+        specs[name] = {t: float(v) for t, v in weights.items()}
+    return specs

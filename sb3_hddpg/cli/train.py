@@ -41,6 +41,7 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
+from sb3_hddpg.envs.weighted import parse_term_weights
 from sb3_hddpg.evaluation import summaries_table
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import parse_preferences
@@ -49,11 +50,11 @@ from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOu
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, ManagerSetup, setup_manager
+from sb3_hddpg.training.term_critic import TermCriticOptions
 from sb3_hddpg.training.workers import (
     parse_worker_algorithms,
+    plan_workers,
     train_workers,
-    worker_algorithms,
-    worker_hyperparams,
 )
 
 #: train-manager's --env: where its default comes from.
@@ -99,6 +100,31 @@ _WorkerNamesOpt = Annotated[
     ),
 ]
 _WorkersEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + SNAKE_DEFAULT)]
+_TermCriticOpt = Annotated[
+    bool,
+    typer.Option(
+        "--term-critic/--no-term-critic",
+        help="Train each off-policy worker's per-term critic (one Q head per term, for GPI and grow) on the "
+        "transitions it collected, after it trains: gradient steps, no env steps.",
+    ),
+]
+_KeepTransitionsOpt = Annotated[
+    bool,
+    typer.Option(
+        "--keep-transitions",
+        help="Also write each worker's transitions with their terms (NAME.transitions.npz), which grow "
+        "warm-starts a neighbouring worker with.",
+    ),
+]
+_WorkersWeightsOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--weights",
+        help="A worker on a weighting of the terms, e.g. goal=0.7,avoid=0.3 (repeat the option for more): "
+        "trained on the weighted sum of the normalised terms, named mix-goal70-avoid30. With --weights and "
+        "no --workers only the weighted workers train.",
+    ),
+]
 _WorkersAlgoOpt = Annotated[
     str | None,
     typer.Option(
@@ -129,6 +155,9 @@ _WorkersOutOpt = Annotated[Path, typer.Option("--out", help="Run folder; workers
 def train_workers_command(
     context: typer.Context,
     workers: _WorkerNamesOpt = None,
+    weights: _WorkersWeightsOpt = None,
+    term_critic: _TermCriticOpt = True,
+    keep_transitions: _KeepTransitionsOpt = False,
     env: _WorkersEnvOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
@@ -155,23 +184,23 @@ def train_workers_command(
 
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
-    workers = list(workers) if workers else list(known)
-    unknown = [w for w in workers if w not in known]
-    duplicates = sorted({w for w in workers if workers.count(w) > 1})
+    names = list(workers) if workers else ([] if weights else list(known))
+    unknown = [w for w in names if w not in known]
+    duplicates = sorted({w for w in names if names.count(w) > 1})
     if unknown or duplicates:
         problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
         raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
+    with usage_errors("'--weights'"):
+        weightings = [parse_term_weights(text) for text in weights or []]
+        # Names and weights only here; --algo and --config are checked below, each under its own option.
+        all_names = [worker.name for worker in plan_workers(names, weightings, None, shared)]
     with usage_errors("'--algo'"):
-        algos = (
-            parse_worker_algorithms(algo, workers, shared)
-            if algo is not None
-            else worker_algorithms(workers, env=shared)
-        )
+        algos = parse_worker_algorithms(algo, all_names, shared) if algo is not None else {}
     with usage_errors("'--config'"):  # a bad block fails now, not after the first worker has trained
-        blocks = worker_hyperparams(workers, config, shared, algos)
+        planned = plan_workers(names, weightings, config, shared, algos)
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
-        for name, block in blocks.items():
-            check_algo(algos[name], resolve_backend(backend, block.backend))
+        for worker in planned:
+            check_algo(worker.algo, resolve_backend(backend, worker.hyperparams.backend))
     prepare_out_dir(context, out, resume, force)
     summaries: dict[str, dict] = {}
 
@@ -185,14 +214,18 @@ def train_workers_command(
     with training_interrupt_exits():
         manifest = train_workers(
             out,
-            workers=workers,
+            workers=names,
             config=config,
             run=run_options_of(context),
             on_worker_done=done,
             env=shared,
             algos=algos,
+            weights=weightings,
+            term_critic=TermCriticOptions() if term_critic else None,
+            keep_transitions=keep_transitions,
         ).manifest
-    rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in workers}
+    trained = [worker.name for worker in planned]
+    rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in trained}
     console.print(metrics_table(f"Workers in {out / 'workers'} (best evaluation)", rows))
     console.print(
         f"Manifest: {out / 'workers' / 'manifest.json'}   TensorBoard: tensorboard --logdir {out / 'tensorboard'}"

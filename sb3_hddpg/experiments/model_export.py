@@ -40,6 +40,8 @@ from sb3_hddpg.names import check_plain_name, check_preference_text
 #: bundle for every preference, and the managers trained for one preference each.
 CONDITIONED = "hddpg-conditioned"
 PER_PREFERENCE = "hddpg-preference"
+#: The front's GPI over the seed's workers (no manager; any preference at run time).
+GPI = "hddpg-gpi"
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
     "worker:goal",
@@ -51,6 +53,7 @@ INDEX_METHODS = (
     *(f"hddpg-{algo}" for algo in DISCRETE_MANAGERS),
     CONDITIONED,
     PER_PREFERENCE,
+    GPI,
     "ham",
     "ham-tuned",
     *FLAT_METHODS,
@@ -233,7 +236,7 @@ def run_models(root: Path, record_file: Path, *, per_preference: bool = True) ->
 def _front_models(root: Path, run: Path, seed: int, per_preference: bool) -> list[ModelFile]:
     """
     The front's bundles of one seed: the conditioned manager (with the preference space it was trained
-    over, read from its verified manifest) and each per-preference manager (with its preference).
+    over, read from its verified manifest), each per-preference manager (with its preference) and GPI's.
     """
     models: list[ModelFile] = []
     for relative in sorted((root / run).glob("*/hierarchy.zip")):
@@ -246,6 +249,10 @@ def _front_models(root: Path, run: Path, seed: int, per_preference: bool) -> lis
         elif per_preference:
             label = preference_label(selection.get("preferences") or {})
             models.append(ModelFile(PER_PREFERENCE, seed, relative, preference=label))
+    if (
+        root / run / "gpi.zip"
+    ).is_file():  # the front's GPI member, a bundle of the workers with their critics
+        models.append(ModelFile(GPI, seed, run / "gpi.zip"))
     return models
 
 

@@ -303,7 +303,7 @@ def _lay_out_bundle(source: Path, staging: Path) -> tuple[Path, dict[str, Any]]:
         "env_kwargs": manifest.env_kwargs,
         "worker_names": manifest.worker_names,
         "selection": manifest.selection,
-        "manager": _zip_data(members[manifest.manager["file"]]),
+        "manager": _zip_data(members[manifest.manager["file"]]) if manifest.manager is not None else None,
         "workers": {
             name: _zip_data(members[entry["file"]])
             for name, entry in manifest.workers.items()

@@ -27,6 +27,7 @@ from sb3_hddpg.artifacts.limits import (
 )
 from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.artifacts.records import BundleManifest
+from sb3_hddpg.artifacts.term_critic import TermCritic, read_term_critic
 
 #: The manifest's member name.
 MANIFEST = "manifest.json"
@@ -149,3 +150,26 @@ def model_bytes(model: BaseAlgorithm) -> bytes:
     buffer = io.BytesIO()
     model.save(buffer)
     return buffer.getvalue()
+
+
+def member_critics(
+    manifest: BundleManifest, members: Mapping[str, bytes], where: str
+) -> dict[str, TermCritic]:
+    """
+    The per-term critics inside a verified bundle's SB3 worker members (a worker zip carries its critic as
+    :data:`~sb3_hddpg.artifacts.term_critic.TERM_CRITIC_MEMBER`), by worker name.
+
+    :raises BundleError: for a critic member over the limits or not one this library wrote.
+    """
+    critics = {}
+    for name in manifest.worker_names:
+        entry = manifest.workers[name]
+        if entry.get("kind", "sb3") != "sb3":
+            continue
+        try:
+            critic = read_term_critic(members[entry["file"]], f"{where}: {entry['file']}")
+        except (ValueError, zipfile.BadZipFile) as error:
+            raise BundleError(str(error)) from None
+        if critic is not None:
+            critics[name] = critic
+    return critics

@@ -12,7 +12,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from sb3_hddpg.artifacts.workers import Workers, states_of
+from sb3_hddpg.artifacts.workers import Workers, reward_specs_of, states_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
 from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, get_selector
@@ -41,7 +41,10 @@ def selection_config_of(
             return wrapper.selection_config()
         config = SelectionConfig(preferences=check_preferences({}, list(workers)))
     carried = {name: states for name, states in states_of(workers).items() if name in workers}
-    return replace(config, worker_states={**carried, **config.worker_states}) if carried else config
+    if carried:
+        config = replace(config, worker_states={**carried, **config.worker_states})
+    rewards = reward_specs_of(workers)
+    return replace(config, reward_terms={**rewards, **config.reward_terms}) if rewards else config
 
 
 def selection_wrapper(manager: object) -> WorkerSelectionWrapper | None:
@@ -86,9 +89,11 @@ def check_spaces(
     def subset(components: list[str] | None) -> gym.Space:
         return subset_space(observation_space, layout.indices(components) if components else None)
 
-    manager_action = get_selector(config.selection).action_space(len(workers))
-    manager_obs = manager_input_of(config, observation_space, layout, len(workers)).observation_space
-    checks = [("The manager", manager, manager_obs, manager_action, " (one per worker)")]
+    checks = []
+    if manager is not None:  # a GPI hierarchy has none
+        manager_action = get_selector(config.selection).action_space(len(workers))
+        manager_obs = manager_input_of(config, observation_space, layout, len(workers)).observation_space
+        checks.append(("The manager", manager, manager_obs, manager_action, " (one per worker)"))
     checks += [
         (f"Worker {name!r}", worker, subset(config.worker_states.get(name)), action_space, "")
         for name, worker in workers.items()

@@ -38,6 +38,7 @@ from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes
 from sb3_hddpg.artifacts.records import BundleManifest, bundle_manifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
+from sb3_hddpg.artifacts.term_critic import TermCritic, with_term_critic
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.artifacts.workers import Workers
 from sb3_hddpg.envs.contract import mix_terms, state_layout_of
@@ -47,6 +48,7 @@ from sb3_hddpg.hierarchy.bundle import (
     MANIFEST,
     BundleError,
     bundle_path,
+    member_critics,
     model_bytes,
     read_bundle,
     sb3_refusal,
@@ -55,6 +57,13 @@ from sb3_hddpg.hierarchy.bundle import (
 from sb3_hddpg.hierarchy.conditioning import WRITTEN_SLACK, PreferenceOutsideError, PreferenceSpace
 from sb3_hddpg.hierarchy.fit import check_spaces, manager_input_of, selection_config_of, shared_env
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
+from sb3_hddpg.hierarchy.gpi import (
+    GPI_SELECTION,
+    GpiSelector,
+    check_gpi_manager,
+    check_gpi_preference,
+    gpi_of,
+)
 from sb3_hddpg.hierarchy.options import OptionState
 from sb3_hddpg.hierarchy.selection import (
     OptionEnd,
@@ -96,19 +105,22 @@ class Hierarchy:
 
     def __init__(
         self,
-        manager: BaseAlgorithm,
+        manager: BaseAlgorithm | None,
         workers: Mapping[str, Policy],
         config: SelectionConfig | None = None,
         env_id: str | None = None,
         env_kwargs: dict[str, Any] | None = None,
         worker_meta: dict[str, dict[str, Any]] | None = None,
         metadata: dict[str, Any] | None = None,
+        critics: Mapping[str, TermCritic] | None = None,
     ) -> None:
         self.manager = manager
         self.workers = dict(workers)
         self.names = list(self.workers)
         config = selection_config_of(manager, workers, config)
         self.config = config
+        self.critics = dict(critics if critics is not None else getattr(workers, "critics", {}))  # GPI's
+        check_gpi_manager(manager, config.selection)
         if env_id is None:
             # Without an env id the bundle would record the snake env whatever the models were trained on,
             # and fail only much later (in evaluate); the models' own training envs say which env it is.
@@ -152,9 +164,11 @@ class Hierarchy:
             self._preference_obs = self.preference_space.weights(config.preferences).astype(np.float32)
         self._manager_input = manager_input_of(config, self.observation_space, layout, len(self.names))
         # The manager's input is built here (its state, motion and weights), so its frozen copy sees it all.
-        self._manager = FrozenWorker(manager)
+        self._manager = FrozenWorker(manager) if manager is not None else None
+        self._gpi, config = _with_gpi(manager, self._frozen, self.critics, config, self.names)
+        self.config = config
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
-        self._selector = get_selector(config.selection)
+        self._selector = get_selector(config.selection) if manager is not None else None
         self._rng = np.random.default_rng(0)
         self._band = OptionEnd.from_json(config.option_end).bind(layout) if config.option_end else None
         #: The options of the observations ``predict`` sees without a ``state`` (one stream per env of a batch).
@@ -171,6 +185,29 @@ class Hierarchy:
         #: the manager's output at that env's last decision.
         self.last_selections: list[str] = []
         self.last_manager_actions: list[np.ndarray | None] = []
+
+    @classmethod
+    def gpi(
+        cls,
+        workers: Mapping[str, Policy],
+        preference: Mapping[str, float] | None = None,
+        env_id: str | None = None,
+        env_kwargs: dict[str, Any] | None = None,
+        critics: Mapping[str, TermCritic] | None = None,
+    ) -> Hierarchy:
+        """
+        A hierarchy that acts by generalized policy improvement (:mod:`~sb3_hddpg.hierarchy.gpi`), with no
+        manager: ``Hierarchy.gpi(load_workers("runs/w"), {"goal": 0.7, "avoid": 0.3})``.
+
+        :param workers: the workers, each with a per-term critic (``load_workers`` gives both).
+        :param preference: term -> weight (see :func:`~sb3_hddpg.hierarchy.gpi.check_gpi_preference`);
+            :meth:`set_preference` changes it at any time, without training.
+        :param env_id: the shared env (default: the workers').
+        :param env_kwargs: its keyword arguments.
+        :param critics: name -> per-term critic (default: the critics the workers carry).
+        """
+        config = SelectionConfig(preferences=dict(preference or {}), selection=GPI_SELECTION)
+        return cls(None, workers, config, env_id=env_id, env_kwargs=env_kwargs, critics=critics)
 
     def make_env(self, **overrides: object) -> gym.Env:
         """
@@ -201,7 +238,9 @@ class Hierarchy:
     # ------------------------------------------------------------------ acting
     @property
     def reward_spec(self) -> dict[str, float]:
-        """This hierarchy's reward as a worker one level up, the preference-weighted mix of its workers' terms."""
+        """This hierarchy's reward as a worker one level up: its preference-weighted mix of its workers' terms."""
+        if self._gpi is not None:  # the preference weighs the terms themselves
+            return dict(self.config.preferences)
         specs = {name: self.config.reward_terms.get(name, name) for name in self.names}
         return mix_terms(specs, self.config.preferences)
 
@@ -216,6 +255,7 @@ class Hierarchy:
         ``hierarchy.set_preference(goal=0.4, avoid=1.6)`` or ``hierarchy.set_preference({"goal": 0.4})``.
         Only the ratio matters (the factors are rescaled to the sum the manager was trained with); names not
         given get the unweighted factor.
+        A GPI hierarchy (:meth:`gpi`) takes any weighting of the env's terms (term -> weight >= 0).
 
         :param preferences: worker name -> factor; or give the factors as keywords.
         :raises PreferenceOutsideError: for a preference outside those the manager was trained over (see
@@ -223,6 +263,9 @@ class Hierarchy:
             trained for one preference.
         """
         given = {**dict(preferences or {}), **factors}
+        if self._gpi is not None:
+            self.config = replace(self.config, preferences=check_gpi_preference(given, self._gpi.terms))
+            return
         if self.preference_space is None:
             own = self.config.preferences
             checked = check_preferences(given, self.names)
@@ -323,6 +366,9 @@ class Hierarchy:
                     worker.reset_episode()
 
     def _act(self, obs: np.ndarray, deterministic: bool, state: OptionState, env: int) -> np.ndarray:
+        if self._gpi is not None:
+            return self._act_gpi(obs, state, env)
+        assert self._manager is not None and self._selector is not None  # every other mode has both
         band = self._band(obs) if self._band is not None else None
         self.last_decided = state.left[env] <= 0 or band != state.band[env]
         if self.last_decided:
@@ -345,9 +391,26 @@ class Hierarchy:
         # A discrete worker's action stays an index; a continuous one is the float32 of the env's Box.
         return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
+    def _act_gpi(self, obs: np.ndarray, state: OptionState, env: int) -> np.ndarray:
+        """GPI's action for one observation of env ``env`` at the current preference: every step decides anew."""
+        assert self._gpi is not None
+        for index, nested in state.workers[env].items():
+            self._frozen[index].state = nested
+        chosen, action = self._gpi.select(obs, self.config.preferences)
+        state.choice[env] = chosen
+        state.probabilities[env] = np.eye(len(self.names))[chosen]
+        self.last_decided = True
+        self.last_selection = self.names[chosen]
+        self.last_probabilities = {name: float(i == chosen) for i, name in enumerate(self.names)}
+        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
+
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
         """The manager's worker probabilities for one observation (for a manager that observes motion: with
-        nothing moving)."""
+        nothing moving); GPI's choice as probability 1."""
+        if self._gpi is not None:
+            chosen, _ = self._gpi.select(np.asarray(observation, np.float32), self.config.preferences)
+            return {name: float(i == chosen) for i, name in enumerate(self.names)}
+        assert self._manager is not None and self._selector is not None
         action = self._manager.act(self._manager_obs(np.asarray(observation, np.float32)))
         return dict(zip(self.names, self._selector.probabilities(self.simplex, action)))
 
@@ -355,8 +418,15 @@ class Hierarchy:
     def to_bytes(self) -> bytes:
         """The bundle as zip bytes (see :meth:`save`)."""
         members: dict[str, bytes] = {}
-        manager_bytes = model_bytes(self.manager)
-        members["manager.zip"] = manager_bytes
+        manager_entry: dict[str, Any] | None = None
+        if self.manager is not None:  # a GPI hierarchy has none
+            members["manager.zip"] = manager_bytes = model_bytes(self.manager)
+            manager_entry = {
+                "file": "manager.zip",
+                "sha256": sha256_bytes(manager_bytes),
+                "spec": model_spec(self.manager),
+                **self.metadata,
+            }
         workers_manifest = {}
         for name, worker in self.workers.items():
             meta = dict(self.worker_meta.get(name, {}))
@@ -368,6 +438,9 @@ class Hierarchy:
                 member = f"workers/{name}.zip"
                 members[member] = model_bytes(worker)
                 meta.update({"kind": "sb3", "spec": model_spec(worker)})
+                if name in self.critics:  # inside the worker's zip, as train-workers writes it
+                    members[member] = with_term_critic(members[member], self.critics[name])
+                    meta["term_critic"] = {"terms": list(self.critics[name].spec.terms)}
             else:
                 raise BundleError(
                     f"Worker {name!r} of type {type(worker).__name__} cannot be bundled: only SB3 models and "
@@ -381,12 +454,7 @@ class Hierarchy:
             self.env_kwargs,
             self.names,
             asdict(self.config),
-            {
-                "file": "manager.zip",
-                "sha256": sha256_bytes(manager_bytes),
-                "spec": model_spec(self.manager),
-                **self.metadata,
-            },
+            manager_entry,
             workers_manifest,
             library_versions(),
         )
@@ -474,13 +542,16 @@ class Hierarchy:
         manager_entry = manifest.manager
         try:
             hierarchy = cls(
-                model(manager_entry),
+                model(manager_entry) if manager_entry is not None else None,
                 workers,
                 SelectionConfig(**settings),
                 env_id=env_id,
                 env_kwargs=env_kwargs,
                 worker_meta=worker_meta,
-                metadata={k: v for k, v in manager_entry.items() if k not in ("file", "sha256", "spec")},
+                metadata={
+                    k: v for k, v in (manager_entry or {}).items() if k not in ("file", "sha256", "spec")
+                },
+                critics=member_critics(manifest, members, name),
             )
         except (BundleError, HeadlessRenderingError):
             raise
@@ -489,6 +560,20 @@ class Hierarchy:
         if env is not None:
             hierarchy.set_env(env)
         return hierarchy
+
+
+def _with_gpi(
+    manager: object | None,
+    frozen: list[FrozenWorker],
+    critics: Mapping[str, TermCritic],
+    config: SelectionConfig,
+    names: list[str],
+) -> tuple[GpiSelector | None, SelectionConfig]:
+    """A hierarchy's GPI selector (``None`` with a manager) and its settings with the preference checked."""
+    if manager is not None:
+        return None, config
+    gpi = gpi_of(frozen, critics, names)
+    return gpi, replace(config, preferences=check_gpi_preference(config.preferences, gpi.terms))
 
 
 def infer_env(manager: object, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:

@@ -17,9 +17,10 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.artifacts.limits import LimitError, brief
+from sb3_hddpg.artifacts.limits import MAX_ITEMS, LimitError, brief, check_name
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
+from sb3_hddpg.hierarchy.gpi import GPI_SELECTION
 
 
 @dataclass(frozen=True)
@@ -461,9 +462,9 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
     if unknown:
         raise LimitError(f"{what}: unknown key {brief(unknown[0])}")
     out = dict(selection)
-    if "selection" in out and out["selection"] not in SELECTORS:
+    if "selection" in out and out["selection"] not in [*SELECTORS, GPI_SELECTION]:
         raise LimitError(
-            f"{what}.selection: expected one of {list(SELECTORS)}, got {brief(out['selection'])}"
+            f"{what}.selection: expected one of {[*SELECTORS, GPI_SELECTION]}, got {brief(out['selection'])}"
         )
     if "option_steps" in out:
         steps = out["option_steps"]
@@ -479,7 +480,10 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
     for key, (low, high, low_open) in ranges.items():
         if key in out:
             _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open)
-    _check_preference_factors(out.get("preferences", {}), names, f"{what}.preferences")
+    if out.get("selection") == GPI_SELECTION:  # GPI's preference weighs the terms, not the workers
+        _check_term_weights(out.get("preferences", {}), f"{what}.preferences")
+    else:
+        _check_preference_factors(out.get("preferences", {}), names, f"{what}.preferences")
     for key in ("reward_terms", "worker_states"):
         if not isinstance(out.get(key, {}), Mapping):
             raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
@@ -515,3 +519,13 @@ def _check_preference_factors(preferences: object, names: Sequence[str], what: s
     for name, value in preferences.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e6:
             raise LimitError(f"{what}.{name}: expected a finite number > 0, got {brief(value)}")
+
+
+def _check_term_weights(weights: object, what: str) -> None:
+    """A GPI bundle's preference: term name -> a number in [0, 1e6), at most ``MAX_ITEMS`` terms."""
+    if not isinstance(weights, Mapping) or len(weights) > MAX_ITEMS:
+        raise LimitError(f"{what}: expected term name -> weight, got {brief(weights)}")
+    for name, value in weights.items():
+        check_name(name, what)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1e6:
+            raise LimitError(f"{what}.{name}: expected a finite number >= 0, got {brief(value)}")

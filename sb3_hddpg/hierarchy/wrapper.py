@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.utils import check_for_correct_spaces
 
-from sb3_hddpg.artifacts.workers import states_of
+from sb3_hddpg.artifacts.workers import reward_specs_of, states_of
 from sb3_hddpg.envs.contract import RewardTermsEnv, env_contract, mix_terms, state_layout_of
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
@@ -148,7 +148,9 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self._band = option_end.bind(self.layout) if option_end is not None else None
         self._set_preferences(preferences, manager_preferences)
         self._set_states(workers, manager_state, worker_states, manager_motion)
-        self._set_workers(pairs, reward_terms, contract)
+        # Weighted workers from load_workers carry their weights: the bundle keeps them as reward_terms.
+        carried = reward_specs_of(workers) if isinstance(workers, Mapping) else {}
+        self._set_workers(pairs, {**carried, **dict(reward_terms or {})}, contract)
         self._rng = np.random.default_rng()
         self._preference_rng = np.random.default_rng()
         self._last_obs: np.ndarray | None = None

@@ -12,29 +12,42 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_hddpg.algorithms import REGISTRY, algorithm
-from sb3_hddpg.artifacts.io import (
-    holds_folder_lock,
-)
+from sb3_hddpg.artifacts.io import atomic_write, holds_folder_lock
 from sb3_hddpg.artifacts.manifests import check_resumed_env, model_entry, save_manifest
+from sb3_hddpg.artifacts.provenance import sha256_file
 from sb3_hddpg.artifacts.records import ModelEntry, ModelsManifest, models_manifest, read_models_manifest
+from sb3_hddpg.artifacts.term_critic import TERM_CRITIC_MEMBER, with_term_critic
+from sb3_hddpg.artifacts.transitions import TRANSITIONS_SUFFIX
 from sb3_hddpg.artifacts.values import check_make_kwargs
+from sb3_hddpg.callbacks.term_record import TermRecorder
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv, make_term_view
+from sb3_hddpg.envs.weighted import (
+    WEIGHTED_PREFIX,
+    check_term_weights,
+    corner_term,
+    make_weighted_view,
+    weighted_name,
+)
 from sb3_hddpg.training.agent import (
     AgentPaths,
     TrainingOutcome,
     agent_run,
+    callback_list,
     finished_with_budget,
     make_snake_env,
     train_agent,
 )
 from sb3_hddpg.training.config import Hyperparams, config_source, default_config, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions, run_options
+from sb3_hddpg.training.term_critic import TermCriticOptions, fit_term_critic, recorded_transitions
+from sb3_hddpg.training.warm_start import WarmStart
 
 #: The algorithm of a worker no ``algos`` entry names: the paper's.
 DEFAULT_WORKER_ALGO = "ddpg"
@@ -150,6 +163,110 @@ def worker_algorithms(
     return chosen
 
 
+@dataclass(frozen=True)
+class PlannedWorker:
+    """
+    One worker :func:`train_workers` is about to train: its reward, algorithm, config block and view.
+
+    :param name: the worker's name (its term, or :func:`~sb3_hddpg.envs.weighted.weighted_name`'s).
+    :param weights: term -> weight over their sum; a per-term worker's is its corner.
+    :param algo: its algorithm's registry name.
+    :param hyperparams: its config block (a weighted worker's: the shared env's ``<env>/mix`` block, else the
+        env's, else ``default``).
+    :param env_id: the env id of its view.
+    :param env_kwargs: that view's keyword arguments.
+    """
+
+    name: str
+    weights: dict[str, float]
+    algo: str
+    hyperparams: Hyperparams
+    env_id: str
+    env_kwargs: dict[str, Any]
+
+    @property
+    def term(self) -> str | None:
+        """The term of a per-term worker (trained on that raw term), else ``None``."""
+        return corner_term(self.weights) if corner_term(self.weights) == self.name else None
+
+    def env_factory(self) -> Callable[[], gym.Env]:
+        """A picklable factory of its view: the raw term's env, or the weighted normalised sum's."""
+        if self.term is not None:
+            return functools.partial(make_term_view, self.env_id, self.env_kwargs, self.term)
+        return functools.partial(make_weighted_view, self.env_id, self.env_kwargs, self.weights)
+
+
+def plan_workers(
+    workers: Sequence[str] | None = None,
+    weights: Sequence[Mapping[str, object]] = (),
+    config: str | Path | None = None,
+    env: TermsEnv | None = None,
+    algos: Mapping[str, str] | None = None,
+) -> list[PlannedWorker]:
+    """
+    Check what :func:`train_workers` is asked to train, before anything is trained: per-term workers by
+    name and weighted workers by their weights (a corner weight is the per-term worker of its term).
+
+    :param workers: per-term worker names (``None``: every term, unless ``weights`` are given).
+    :param weights: weightings of the terms (term -> weight, finite, >= 0, positive sum), one worker each.
+    :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
+    :param env: another env with several objectives (default: the snake arm).
+    :param algos: worker name -> algorithm; a weighted worker not named takes its heaviest term's (so
+        that a support of DQN workers stays discrete).
+    :return: the workers in order; raises ``ValueError`` naming the problem.
+    """
+    shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
+    terms = list(shared.terms)
+    if isinstance(weights, Mapping):
+        raise ValueError(f"Expected a sequence of weightings, actually one mapping: {dict(weights)!r:.200}")
+    weighted: dict[str, dict[str, float]] = {}
+    for index, given in enumerate(weights):
+        checked = check_term_weights(given, terms, f"weights[{index}]")
+        name = weighted_name(checked)
+        if name in weighted:
+            raise ValueError(f"Expected each weighting once, actually {name!r} twice in the weights")
+        weighted[name] = checked
+    names = list(workers) if workers is not None else ([] if weighted else terms)
+    corners = [name for name in weighted if corner_term(weighted[name]) == name]
+    term_names = names + [name for name in corners if name not in names]
+    mixed = {name: w for name, w in weighted.items() if name not in corners}
+    heaviest = {name: max(w, key=lambda term: w[term]) for name, w in mixed.items()}
+    sources = term_names + [t for t in dict.fromkeys(heaviest.values()) if t not in term_names]
+    algos = dict(algos or {})
+    unknown = sorted(set(algos) - set(term_names) - set(mixed))
+    if unknown:
+        raise ValueError(
+            f"Expected algorithms for the workers {term_names + list(mixed)}, actually also for {unknown}"
+        )
+    chosen = worker_algorithms(sources, {k: v for k, v in algos.items() if k in sources}, env)
+    for name in mixed:
+        chosen[name] = worker_algorithms([name], {name: algos.get(name, chosen[heaviest[name]])}, env)[name]
+    blocks = (
+        worker_hyperparams(term_names, config, env, {k: chosen[k] for k in term_names}) if term_names else {}
+    )
+    planned = []
+    for name in term_names:
+        env_id, view_kwargs = shared.term_view(name)
+        block = blocks[name]
+        corner = {term: float(term == name) for term in terms}
+        planned.append(
+            PlannedWorker(name, corner, chosen[name], block, env_id, {**view_kwargs, **block.env_kwargs})
+        )
+    for name, w in mixed.items():
+        # Not its heaviest term's block: that one may observe part of the state only, or relabel by that
+        # term alone (the snake's goal worker); a weighted worker learns the shared env's whole task.
+        key = shared.config_key
+        block = load_hyperparams(
+            (f"{key}/{WEIGHTED_PREFIX}", key),
+            algorithm(chosen[name]).cls,
+            config or default_config(chosen[name]),
+        )
+        kwargs = {**shared.env_kwargs, **block.env_kwargs}
+        check_make_kwargs(shared.env_id, kwargs, f"worker {name!r}: env_kwargs")
+        planned.append(PlannedWorker(name, w, chosen[name], block, shared.env_id, kwargs))
+    return planned
+
+
 @holds_folder_lock(lambda call: call.arguments["out_dir"])
 def train_workers(
     out_dir: str | Path,
@@ -161,18 +278,34 @@ def train_workers(
     callback: MaybeCallback = None,
     env: TermsEnv | None = None,
     algos: Mapping[str, str] | None = None,
+    weights: Sequence[Mapping[str, object]] = (),
+    term_critic: TermCriticOptions | None = TermCriticOptions(),
+    keep_transitions: bool = False,
+    warm_starts: Mapping[str, WarmStart] | None = None,
     **run_changes: object,
 ) -> WorkersResult:
     """
     Train each named worker as a plain SB3 model (see :func:`worker_algorithms` for its algorithm) on its
-    own registered env id (paper Algorithm 1, first half) and write ``out_dir/workers/<name>.zip`` and
-    ``out_dir/workers/manifest.json``.
+    own registered env id (paper Algorithm 1, first half), and a worker per weighting of the terms on the
+    weighted normalised sum (:mod:`sb3_hddpg.envs.weighted`), and write ``out_dir/workers/<name>.zip`` and
+    ``out_dir/workers/manifest.json`` (a weighted worker's entry records its ``reward_weights``).
 
     :param out_dir: the run folder.
-    :param workers: worker names among :data:`WORKER_ENV_IDS`, or ``env``'s terms (``None``: all of them).
+    :param workers: worker names among :data:`WORKER_ENV_IDS`, or ``env``'s terms (``None``: all of them,
+        unless ``weights`` are given: then only the weighted workers).
     :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
     :param algos: worker name -> its algorithm (e.g. ``{"goal": "crossq"}``; default: on the snake arm
-        :data:`SNAKE_WORKER_ALGOS`, DDPG on another env).
+        :data:`SNAKE_WORKER_ALGOS`, DDPG on another env; a weighted worker: its heaviest term's).
+    :param weights: weightings of the terms, one worker each (e.g. ``[{"goal": 0.7, "avoid": 0.3}]``): finite
+        weights >= 0 with a positive sum, kept over their sum; the worker reads the config block keyed
+        ``<env id>/mix``, else the env's (the snake arm: ``hddpg/SnakeReach-v0``), and is named by :func:`~sb3_hddpg.envs.weighted.weighted_name` (``mix-goal70-avoid30``).
+    :param term_critic: how each off-policy worker's per-term critic is trained on the transitions it
+        collected (:mod:`sb3_hddpg.training.term_critic`; stored in its zip, recorded as ``term_critic`` in
+        its entry); ``None``: no critic.
+    :param keep_transitions: also write each off-policy worker's transitions with their normalised terms
+        (``<name>.transitions.npz``, hashed in its entry): what ``grow`` warm-starts a neighbour with.
+    :param warm_starts: worker name -> what it starts from (:class:`~sb3_hddpg.training.warm_start.WarmStart`,
+        for a fresh start; a resumed worker continues from its checkpoint).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
@@ -186,35 +319,31 @@ def train_workers(
     """
     run = run_options(run, run_changes, "train_workers")
     shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
-    if workers is None:
-        workers = list(shared.terms)
-    chosen = worker_algorithms(workers, algos, env)
-    blocks = worker_hyperparams(workers, config, env, chosen)
+    planned = plan_workers(workers, weights, config, env, algos)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
-    manifest = _start_manifest(manifest_path, shared, env, workers, blocks, run.resume)
+    manifest = _start_manifest(manifest_path, shared, env, planned, run.resume)
+    bounds = _shared_bounds(shared)
     outcomes: dict[str, TrainingOutcome] = {}
-    for name in workers:
-        hyperparams = blocks[name]
-        env_id, view_kwargs = shared.term_view(name)
-        env_kwargs = {**view_kwargs, **hyperparams.env_kwargs}
+    for worker in planned:
+        name, hyperparams = worker.name, worker.hyperparams
         budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
         if run.resume and finished_with_budget(manifest.entries.get(name), budget):
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
-        outcome = train_agent(
-            functools.partial(make_term_view, env_id, env_kwargs, name),
-            hyperparams,
+        outcome, facts = _train_worker(
+            worker,
             paths,
-            algo=chosen[name],
-            run=agent_run(run, paths, budget),
-            callback=callback,
+            agent_run(run, paths, budget),
+            bounds,
+            callback,
+            term_critic,
+            keep_transitions,
+            (warm_starts or {}).get(name),
         )
         outcomes[name] = outcome
-        source = config_source(config, out_dir) if config else f"sb3_hddpg/zoo_configs/{chosen[name]}.yml"
-        entry = _worker_entry(
-            name, outcome, chosen[name], (env_id, env_kwargs), hyperparams, source, run, budget
-        )
+        source = config_source(config, out_dir) if config else f"sb3_hddpg/zoo_configs/{worker.algo}.yml"
+        entry = _worker_entry(worker, outcome, source, run, budget, facts)
         manifest = manifest.with_entry(name, entry)
         save_manifest(manifest_path, manifest)
         if on_worker_done is not None:
@@ -238,12 +367,71 @@ class WorkersResult:
     outcomes: dict[str, TrainingOutcome]
 
 
+def _train_worker(
+    worker: PlannedWorker,
+    paths: AgentPaths,
+    run: RunOptions,
+    bounds: Mapping[str, tuple[float, float]],
+    callback: MaybeCallback,
+    term_critic: TermCriticOptions | None,
+    keep_transitions: bool,
+    warm: WarmStart | None,
+) -> tuple[TrainingOutcome, dict[str, object]]:
+    """
+    Train one worker, recording the terms of its transitions where something needs them (its critic, its
+    kept transitions), then its critic; return the outcome and the facts its entry records about them.
+    """
+    wanted = term_critic is not None or keep_transitions
+    recorder = TermRecorder(bounds) if wanted and not REGISTRY[worker.algo].on_policy else None
+    facts: dict[str, object] = {}
+
+    def prepare(model: BaseAlgorithm) -> None:
+        if warm is not None:
+            facts["warm_start"] = {"from": warm.neighbour, **warm.prepare(model, recorder)}
+
+    outcome = train_agent(
+        worker.env_factory(),
+        worker.hyperparams,
+        paths,
+        algo=worker.algo,
+        run=run,
+        callback=[*callback_list(callback), *([recorder] if recorder is not None else [])],
+        prepare_model=prepare,
+    )
+    if recorder is None or not recorder.filled.any():
+        return outcome, facts
+    transitions = recorded_transitions(recorder)
+    if term_critic is not None:
+        critic, critic_facts = fit_term_critic(
+            outcome.model, transitions, recorder.term_names, term_critic, run.seed
+        )
+        data = with_term_critic(outcome.model_path.read_bytes(), critic)
+        atomic_write(outcome.model_path, lambda tmp: tmp.write_bytes(data))
+        facts["term_critic"] = {
+            "member": TERM_CRITIC_MEMBER,
+            "terms": list(recorder.term_names),
+            **critic_facts,
+        }
+    if keep_transitions:
+        path = transitions.save(outcome.model_path.with_name(f"{worker.name}{TRANSITIONS_SUFFIX}"))
+        facts["transitions"] = {"file": path.name, "sha256": sha256_file(path), "count": len(transitions)}
+    return outcome, facts
+
+
+def _shared_bounds(shared: TermsEnv) -> dict[str, tuple[float, float]]:
+    """The shared env's per-term bounds, in term order (what a worker's critic normalises by)."""
+    probe = shared.make()
+    try:
+        return dict(env_contract(probe).reward_bounds)
+    finally:
+        probe.close()
+
+
 def _start_manifest(
     manifest_path: Path,
     shared: TermsEnv,
     env: TermsEnv | None,
-    workers: Sequence[str],
-    blocks: Mapping[str, Hyperparams],
+    planned: Sequence[PlannedWorker],
     resume: bool,
 ) -> ModelsManifest:
     """
@@ -257,47 +445,49 @@ def _start_manifest(
             check_resumed_env(
                 manifest.shared_env or {"env_id": SNAKE_REACH_ENV_ID}, shared.env_id, shared.env_kwargs
             )
-        for name in workers:
-            env_id, view_kwargs = shared.term_view(name)
-            check_resumed_env(manifest.entries.get(name), env_id, {**view_kwargs, **blocks[name].env_kwargs})
+        for worker in planned:
+            check_resumed_env(manifest.entries.get(worker.name), worker.env_id, worker.env_kwargs)
     if env is not None:
         manifest = manifest.with_shared_env(env.env_id, env.env_kwargs)
     return manifest
 
 
 def _worker_entry(
-    name: str,
+    worker: PlannedWorker,
     outcome: TrainingOutcome,
-    algo: str,
-    made: tuple[str, dict[str, Any]],
-    hyperparams: Hyperparams,
     config_file: str,
     run: RunOptions,
     budget: int,
+    facts: Mapping[str, object] | None = None,
 ) -> ModelEntry:
     """
-    A trained worker's manifest entry, with the bounds of its reward term (the manager normalises by them).
+    A trained worker's manifest entry, with the bounds of its reward (the manager normalises by them): a
+    per-term worker's raw term's, a weighted worker's [0, 1] (a convex mix of normalised terms) with its
+    weights.
 
-    :param made: the env id and keyword arguments of the worker's view.
     :param config_file: the config file its block was read from, as recorded.
+    :param facts: what else it records (its critic, kept transitions, warm start).
     """
-    env_id, env_kwargs = made
-    probe = make_term_view(env_id, env_kwargs, name)
-    try:
-        bounds = env_contract(probe).reward_bounds[name]
-    finally:
-        probe.close()
+    if worker.term is not None:
+        probe = make_term_view(worker.env_id, worker.env_kwargs, worker.term)
+        try:
+            bounds = env_contract(probe).reward_bounds[worker.term]
+        finally:
+            probe.close()
+        reward: dict[str, object] = {"reward_term": worker.term, "reward_bounds": list(bounds)}
+    else:
+        reward = {"reward_weights": dict(worker.weights), "reward_bounds": [0.0, 1.0]}
     return model_entry(
-        name,
+        worker.name,
         outcome,
-        algo,
-        env_id,
-        env_kwargs,
-        {"file": config_file, "block": hyperparams.raw},
+        worker.algo,
+        worker.env_id,
+        worker.env_kwargs,
+        {"file": config_file, "block": worker.hyperparams.raw},
         run.seed,
         budget,
-        reward_term=name,
-        reward_bounds=list(bounds),
+        **reward,
+        **dict(facts or {}),
         stopped_early=outcome.stopped_early,
         threads=run.threads,
     )

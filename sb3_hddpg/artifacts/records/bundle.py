@@ -49,7 +49,8 @@ class BundleManifest(JsonRecord):
     :param env_kwargs: its keyword arguments.
     :param worker_names: the workers, in the manager's action order.
     :param selection: the selection settings (checked when loaded).
-    :param manager: the manager's entry (file ``manager.zip``, sha256, spec, metadata).
+    :param manager: the manager's entry (file ``manager.zip``, sha256, spec, metadata); ``None`` for a
+        hierarchy that selects by GPI (``selection.selection`` ``gpi``), which has no manager.
     :param workers: name -> the worker's entry (``kind`` ``sb3`` or ``hierarchy``).
     :param versions: the library versions that wrote it.
     :param schema_version: the file's schema version.
@@ -59,14 +60,15 @@ class BundleManifest(JsonRecord):
     env_kwargs: object
     worker_names: list[str]
     selection: object
-    manager: BundleMember
+    manager: BundleMember | None
     workers: Mapping[str, BundleMember]
     versions: Mapping[str, object] = field(default_factory=dict)
     schema_version: int = BUNDLE_MANIFEST_VERSION
 
     def member_entries(self) -> list[tuple[str, BundleMember]]:
-        """(label, entry) of every member: the manager first, then the workers in order."""
-        return [("manager", self.manager), *((name, self.workers[name]) for name in self.worker_names)]
+        """(label, entry) of every member: the manager first (if any), then the workers in order."""
+        manager = [("manager", self.manager)] if self.manager is not None else []
+        return [*manager, *((name, self.workers[name]) for name in self.worker_names)]
 
     def to_json(self) -> JsonObject:
         return {
@@ -76,7 +78,7 @@ class BundleManifest(JsonRecord):
             "env_kwargs": self.env_kwargs,
             "worker_names": list(self.worker_names),
             "selection": self.selection,
-            "manager": dict(self.manager),
+            "manager": dict(self.manager) if self.manager is not None else None,
             "workers": {name: dict(entry) for name, entry in self.workers.items()},
             "versions": dict(self.versions),
         }
@@ -99,7 +101,14 @@ class BundleManifest(JsonRecord):
                 f"(this library reads <= {BUNDLE_MANIFEST_VERSION})"
             )
         names, workers, manager = value.get("worker_names"), value.get("workers"), value.get("manager")
-        if not isinstance(names, list) or not isinstance(workers, dict) or not isinstance(manager, dict):
+        selection = value.get("selection")
+        # Only a GPI hierarchy acts without a manager (its workers' critics select).
+        managerless = manager is None and isinstance(selection, dict) and selection.get("selection") == "gpi"
+        if (
+            not isinstance(names, list)
+            or not isinstance(workers, dict)
+            or not (isinstance(manager, dict) or managerless)
+        ):
             raise ValueError(
                 f"{what}: manifest.json lacks the manager, the workers, or the worker_names list"
             )
@@ -109,7 +118,7 @@ class BundleManifest(JsonRecord):
             value.get("env_kwargs"),
             names,
             value.get("selection"),
-            cast(BundleMember, manager),
+            cast(BundleMember, manager) if manager is not None else None,
             cast(dict[str, BundleMember], workers),
             versions if isinstance(versions := value.get("versions"), dict) else {},
             version,
@@ -124,7 +133,7 @@ def bundle_manifest(
     env_kwargs: Mapping[str, object],
     worker_names: Sequence[str],
     selection: Mapping[str, object],
-    manager: Mapping[str, object],
+    manager: Mapping[str, object] | None,
     workers: Mapping[str, Mapping[str, object]],
     versions: Mapping[str, object],
 ) -> BundleManifest:
@@ -134,7 +143,7 @@ def bundle_manifest(
         dict(env_kwargs),
         list(worker_names),
         dict(selection),
-        cast(BundleMember, dict(manager)),
+        cast(BundleMember, dict(manager)) if manager is not None else None,
         {name: cast(BundleMember, dict(entry)) for name, entry in workers.items()},
         versions,
         BUNDLE_MANIFEST_VERSION,

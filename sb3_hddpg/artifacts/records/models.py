@@ -45,6 +45,7 @@ class ModelEntryJson(TypedDict, total=False):
     spec: dict[str, object]
     reward_term: str
     reward_bounds: list[float]
+    reward_weights: dict[str, float]
     stopped_early: bool
     preferences: dict[str, float] | None
     threads: int | None

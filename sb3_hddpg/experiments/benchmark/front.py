@@ -13,6 +13,8 @@ Per seed, over that seed's workers, on the benchmark's test episodes, on the sna
   switch on highway-env (``ttc``); the thresholds are those of a grid that are not dominated on the curve
   episodes (:data:`~sb3_hddpg.episode_sets.CURVE`), so no threshold is picked on the episodes that score it;
 - each worker alone (one point each, named for its term);
+- ``gpi``: generalized policy improvement over the same workers with their per-term critics, at each
+  preference of the sweep (:mod:`.front_gpi`; no manager, so no env steps beyond the workers');
 - with ``morl_python`` set, on an MO-Gymnasium env: MORL-baselines' CAPQL (``capql``, :mod:`.morl`), trained
   for the env steps of the workers and the conditioned manager together, at as many preferences.
 
@@ -56,6 +58,7 @@ from sb3_hddpg.experiments.benchmark.env_methods import (
     ttc_switch,
 )
 from sb3_hddpg.experiments.benchmark.episodes import CRASH_TERM
+from sb3_hddpg.experiments.benchmark.front_gpi import GPI_MEMBER, gpi_points
 from sb3_hddpg.experiments.benchmark.front_points import (
     PLANES,
     SAFE_CONTACTS,
@@ -328,6 +331,14 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
             front[spec.rule] = member_fields(rule_points, spec)
         for worker in spec.terms:
             front[worker] = member_fields([_alone_point(worker, folder, env, settings, spec)], spec)
+        gpi = gpi_points(
+            folder,
+            spec,
+            lambda label, policy: _test_point(label, policy, env, settings, spec),
+            run_dir / "gpi.zip",
+        )
+        if gpi is not None:  # GPI over the same workers: no manager, no env steps of its own
+            front[GPI_MEMBER] = member_fields(gpi, spec)
         morl = None
         if settings.morl_python is not None:
             morl_front, morl = _morl_front(task, settings, folder, spec, env, points, conditioned_seconds)

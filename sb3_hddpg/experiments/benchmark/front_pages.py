@@ -20,6 +20,7 @@ from sb3_hddpg.experiments.stats import EQUIVALENCE_MARGIN, verdict_word
 MEMBER_COLOURS = {
     "conditioned": "tab:red",
     "per-preference": "tab:purple",
+    "gpi": "tab:brown",
     "ham": "tab:gray",
     "ttc": "tab:gray",
     "goal": "tab:blue",

@@ -1,0 +1,138 @@
+"""
+Generalized policy improvement (GPI; Barreto et al. 2017, "Successor features for transfer in RL"): acting
+for a weighting ``w`` of the reward terms with the workers' per-term critics, without training a manager.
+
+For continuous-action workers the worker ``i`` maximising ``w . Q_i(s, pi_i(s))`` acts; for discrete-action
+workers the action ``argmax_a max_i w . Q_i(s, a)`` is taken (GPI over actions). For every ``w`` the result
+is at least as good as each worker alone, up to the critics' errors. :class:`GpiSelector` is the one
+implementation; :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` uses it for ``selection="gpi"``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from sb3_hddpg.artifacts.term_critic import TermCritic
+from sb3_hddpg.envs.weighted import check_term_weights
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
+
+#: The selection mode of a hierarchy that acts by GPI (no manager; the preference weighs the terms).
+GPI_SELECTION = "gpi"
+
+
+class GpiSelector:
+    """
+    GPI over workers that each carry a per-term critic.
+
+    Example, over workers trained with critics (``train-workers``'s default)::
+
+        workers = load_workers("runs/w")
+        gpi = GpiSelector.of(workers, workers.critics, obs_indices)
+        index, action = gpi.select(obs, {"goal": 0.7, "avoid": 0.3})
+
+    :param workers: the frozen workers (each with the observation indices it sees).
+    :param critics: each worker's critic, in the same order; all over the same terms, all continuous or all
+        discrete.
+    """
+
+    def __init__(self, workers: Sequence[FrozenWorker], critics: Sequence[TermCritic]) -> None:
+        if len(workers) != len(critics) or not workers:
+            raise ValueError(
+                f"Expected one critic per worker, actually {len(critics)} for {len(workers)} workers"
+            )
+        terms = critics[0].spec.terms
+        for critic in critics:
+            if critic.spec.terms != terms:
+                raise ValueError(
+                    f"Expected every critic over the terms {list(terms)}, actually one over {list(critic.spec.terms)}"
+                )
+        if len({critic.spec.gamma for critic in critics}) > 1:
+            raise ValueError(
+                f"Expected every critic of one discount, actually {sorted({c.spec.gamma for c in critics})}: "
+                "their values would not compare"
+            )
+        if len({critic.spec.discrete for critic in critics}) > 1:
+            raise ValueError("Expected all workers' critics discrete or all continuous, actually a mix")
+        for index, (worker, critic) in enumerate(zip(workers, critics)):
+            space = getattr(worker.worker, "observation_space", None)
+            size = int(np.prod(space.shape)) if space is not None and space.shape else None
+            if size is not None and size != critic.spec.obs_dim:
+                raise ValueError(
+                    f"Worker {index} observes {size} values, its critic {critic.spec.obs_dim}: not its critic"
+                )
+        self.workers = list(workers)
+        self.critics = list(critics)
+        #: The terms the preference weighs, in the critics' order.
+        self.terms = tuple(terms)
+        self.discrete = critics[0].spec.discrete
+
+    def weights(self, preference: Mapping[str, float]) -> np.ndarray:
+        """The preference as a vector over :attr:`terms` (a term not named weighs 0)."""
+        return np.array([float(preference.get(term, 0.0)) for term in self.terms], dtype=np.float32)
+
+    def scores(self, obs: np.ndarray, preference: Mapping[str, float]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """
+        ``w . Q_i`` of every worker for one observation: shape ``(n_workers,)`` for continuous workers (of
+        each one's own action), ``(n_workers, n_actions)`` for discrete ones; and each worker's own action.
+        """
+        w = self.weights(preference)
+        actions = [worker.act(obs) for worker in self.workers]
+        rows = []
+        for worker, critic, action in zip(self.workers, self.critics, actions):
+            seen = obs if worker.obs_indices is None else obs[..., worker.obs_indices]
+            values = critic.values(seen[None], None if self.discrete else np.asarray(action)[None])
+            rows.append(values[0] @ w)
+        return np.stack(rows), actions
+
+    def select(self, obs: np.ndarray, preference: Mapping[str, float]) -> tuple[int, np.ndarray]:
+        """
+        The worker GPI picks for one observation at ``preference`` (term -> weight), and the env action.
+
+        :return: the worker's index and the action (for discrete workers the GPI action, which may differ
+            from that worker's own greedy one).
+        """
+        scores, actions = self.scores(obs, preference)
+        if self.discrete:
+            worker, action = np.unravel_index(int(np.argmax(scores)), scores.shape)
+            return int(worker), np.asarray(action, dtype=np.int64)
+        best = int(np.argmax(scores))
+        return best, np.asarray(actions[best])
+
+
+def check_gpi_preference(preference: Mapping[str, object], terms: Sequence[str]) -> dict[str, float]:
+    """
+    A GPI hierarchy's preference: term -> weight, finite and >= 0 with a positive sum; a term not named gets
+    the unweighted 1 (as a conditioned manager's names do). Only the ratio matters.
+
+    :raises ValueError: one line naming the problem.
+    """
+    return check_term_weights({**dict.fromkeys(terms, 1.0), **dict(preference)}, list(terms), "preference")
+
+
+def gpi_of(
+    workers: Sequence[FrozenWorker], critics: Mapping[str, TermCritic], names: Sequence[str]
+) -> GpiSelector:
+    """
+    The GPI selector over named workers and their critics.
+
+    :raises ValueError: naming the workers without a per-term critic.
+    """
+    missing = [name for name in names if name not in critics]
+    if missing:
+        raise ValueError(
+            f"GPI needs a per-term critic for every worker; {missing} have none (train-workers trains one for "
+            "every off-policy worker)"
+        )
+    return GpiSelector(workers, [critics[name] for name in names])
+
+
+def check_gpi_manager(manager: object | None, selection: str) -> None:
+    """A hierarchy has a manager unless it selects by GPI, which acts with its workers' critics only."""
+    if (manager is None) != (selection == GPI_SELECTION):
+        raise ValueError(
+            f"Expected a manager for selection {selection!r}, or none for {GPI_SELECTION!r}"
+            if manager is None
+            else f"Selection {GPI_SELECTION!r} acts with the workers' critics: it takes no manager"
+        )

@@ -1,0 +1,182 @@
+"""Generalized policy improvement: the selector on known critics, and GPI bundles over trained workers."""
+
+import io
+import subprocess
+import sys
+import zipfile
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import DDPG
+
+from sb3_hddpg.artifacts.manifests import load_workers
+from sb3_hddpg.artifacts.term_critic import TERM_CRITIC_MEMBER, TermCritic, TermCriticSpec
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
+from sb3_hddpg.hierarchy.gpi import GpiSelector
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from sb3_hddpg.training.term_critic import TermCriticOptions
+from sb3_hddpg.training.workers import train_workers
+from tests.cli_runner import run_cli
+
+
+def constant_critic(values, n_actions=0):
+    """A critic whose output is ``values`` whatever its input (its last layer's bias)."""
+    spec = TermCriticSpec(
+        ("goal", "avoid"),
+        3,
+        n_actions,
+        () if n_actions else (-1.0, -1.0),
+        () if n_actions else (1.0, 1.0),
+        (4,),
+        0.9,
+    )
+    critic = TermCritic(spec)
+    with torch.no_grad():
+        last = critic.net[-1]
+        last.weight.zero_()
+        last.bias.copy_(torch.as_tensor(np.ravel(values), dtype=torch.float32))
+    return critic
+
+
+class Fixed:
+    """A worker that always takes one action (an index for discrete actions)."""
+
+    def __init__(self, action):
+        self.action = np.asarray(action)
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        return self.action.copy(), None
+
+
+def test_gpi_picks_the_worker_whose_values_weigh_most():
+    workers = [
+        FrozenWorker(Fixed(np.float32([0.5, 0.5]))),
+        FrozenWorker(Fixed(np.float32([-0.5, 0.0]))),
+    ]
+    gpi = GpiSelector(workers, [constant_critic([10.0, 2.0]), constant_critic([4.0, 6.0])])
+    obs = np.zeros(3, dtype=np.float32)
+    chosen, action = gpi.select(obs, {"goal": 0.9, "avoid": 0.1})
+    assert chosen == 0 and np.allclose(action, [0.5, 0.5])
+    chosen, action = gpi.select(obs, {"goal": 0.2, "avoid": 0.8})
+    assert chosen == 1 and np.allclose(action, [-0.5, 0.0])
+
+
+def test_gpi_over_actions_for_discrete_workers():
+    workers = [
+        FrozenWorker(Fixed(np.int64(0))),
+        FrozenWorker(Fixed(np.int64(1))),
+    ]
+    # Worker 0 values action 2 most for goal; worker 1 values action 1 most for avoid.
+    first = constant_critic([[0, 0], [0, 0], [5, 0]], n_actions=3)
+    second = constant_critic([[0, 0], [0, 4], [1, 1]], n_actions=3)
+    gpi = GpiSelector(workers, [first, second])
+    obs = np.zeros(3, dtype=np.float32)
+    assert gpi.select(obs, {"goal": 1.0, "avoid": 0.0}) == (0, 2)  # not worker 0's own action 0
+    chosen, action = gpi.select(obs, {"goal": 0.1, "avoid": 0.9})
+    assert (chosen, int(action)) == (1, 1)
+
+
+def test_gpi_refuses_critics_that_do_not_fit():
+    worker = FrozenWorker(Fixed(np.zeros(2, np.float32)))
+    other = TermCritic(TermCriticSpec(("speed", "energy"), 3, 0, (-1.0, -1.0), (1.0, 1.0), (4,), 0.9))
+    with pytest.raises(ValueError, match="terms"):
+        GpiSelector([worker, worker], [constant_critic([1, 1]), other])
+    other_discount = TermCritic(TermCriticSpec(("goal", "avoid"), 3, 0, (-1.0, -1.0), (1.0, 1.0), (4,), 0.5))
+    with pytest.raises(ValueError, match="one discount"):
+        GpiSelector([worker, worker], [constant_critic([1, 1]), other_discount])
+    with pytest.raises(ValueError, match="one critic per worker"):
+        GpiSelector([worker, worker], [constant_critic([1, 1])])
+
+
+@pytest.fixture(scope="module")
+def support(tmp_path_factory):
+    root = tmp_path_factory.mktemp("support")
+    critic = TermCriticOptions(steps=200, batch_size=32, net_arch=(16,))
+    train_workers(
+        root,
+        weights=[{"goal": 1}, {"avoid": 1}, {"goal": 0.7, "avoid": 0.3}],
+        seed=4,
+        timesteps=300,
+        eval_freq=0,
+        eval_episodes=1,
+        term_critic=critic,
+    )
+    return root
+
+
+def test_a_gpi_bundle_acts_at_any_preference_in_a_fresh_process(support, tmp_path):
+    workers = load_workers(support)
+    gpi = Hierarchy.gpi(workers, {"goal": 0.7, "avoid": 0.3})
+    assert gpi.manager is None and gpi.preferences == pytest.approx({"goal": 0.7, "avoid": 0.3})
+    path = gpi.save(tmp_path / "gpi.zip")
+    env = gym.make("hddpg/SnakeReach-v0")
+    obs = np.stack([env.reset(seed=s)[0] for s in range(6)])
+    np.save(tmp_path / "obs.npy", obs)
+    expected = {}
+    for text, preference in (("a", {"goal": 0.9, "avoid": 0.1}), ("b", {"goal": 0.05, "avoid": 0.95})):
+        gpi.set_preference(preference)
+        expected[text] = (gpi.predict(obs)[0], [gpi.probabilities(o) for o in obs])
+    script = (
+        "import numpy as np; from sb3_hddpg import Hierarchy;"
+        f"h = Hierarchy.load({str(path)!r}); obs = np.load({str(tmp_path / 'obs.npy')!r});"
+        "h.set_preference(goal=0.9, avoid=0.1); np.save('a.npy', h.predict(obs)[0]);"
+        "h.set_preference({'goal': 0.05, 'avoid': 0.95}); np.save('b.npy', h.predict(obs)[0])"
+    )
+    subprocess.run([sys.executable, "-c", script], check=True, cwd=tmp_path)
+    for text in ("a", "b"):
+        np.testing.assert_allclose(np.load(tmp_path / f"{text}.npy"), expected[text][0], rtol=1e-6)
+    # Each worker of the bundle is still a plain SB3 zip that carries its critic.
+    with zipfile.ZipFile(path) as archive:
+        for name in workers:
+            member = archive.read(f"workers/{name}.zip")
+            with zipfile.ZipFile(io.BytesIO(member)) as inner:
+                assert TERM_CRITIC_MEMBER in inner.namelist()
+            DDPG.load(io.BytesIO(member))
+    loaded = Hierarchy.load(path)
+    assert set(loaded.critics) == set(workers) and loaded.reward_spec == pytest.approx(
+        {"goal": 0.7, "avoid": 0.3}
+    )
+    with pytest.raises(ValueError, match="finite number >= 0"):
+        loaded.set_preference(goal=-1.0)
+
+
+def test_gpi_needs_every_critic_and_no_manager(support):
+    workers = load_workers(support)
+    with pytest.raises(ValueError, match="per-term critic for every worker"):
+        Hierarchy.gpi(workers, critics={"goal": workers.critics["goal"]})
+    with pytest.raises(ValueError, match="takes no manager"):
+        Hierarchy(workers["goal"], workers, Hierarchy.gpi(workers).config)
+
+
+def test_evaluate_takes_a_preference_for_a_gpi_bundle(support, tmp_path):
+    path = Hierarchy.gpi(load_workers(support)).save(tmp_path / "gpi.zip")
+    result = run_cli("evaluate", path, "--episodes", "1", "--preference", "goal=0.2,avoid=0.8")
+    assert result.returncode == 0, result.stderr
+    result = run_cli("evaluate", path, "--episodes", "1", "--preference", "goal=nan")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+
+
+def test_gpi_over_dqn_workers_of_an_mo_gymnasium_env(tmp_path):
+    """Discrete-action workers (DQN) get critics over every action; GPI acts, saves and loads over them."""
+    pytest.importorskip("mo_gymnasium")
+    from sb3_hddpg.envs.terms_env import terms_env
+
+    # mo-mountaincar's time term is -1 at every step: its bounds are widened so that they have a width.
+    env = terms_env("mo-mountaincar-v0", episode_steps=30, term_bounds={"obj0": [-2.0, 0.0]})
+    critic = TermCriticOptions(steps=50, batch_size=16, net_arch=(8,))
+    algos = dict.fromkeys(env.terms, "dqn")
+    train_workers(
+        tmp_path, env=env, algos=algos, timesteps=200, eval_freq=0, eval_episodes=1, term_critic=critic
+    )
+    workers = load_workers(tmp_path)
+    assert {name: c.spec.n_actions for name, c in workers.critics.items()} == dict.fromkeys(env.terms, 3)
+    gpi = Hierarchy.gpi(workers, {"obj0": 0.0, "obj1": 1.0, "obj2": 0.0})
+    obs = gpi.make_env().reset(seed=0)[0]
+    scores, _ = gpi._gpi.scores(obs, gpi.preferences)
+    action, _ = gpi.predict(obs)
+    # GPI over actions: the action of the largest w . Q_i(s, a) over every worker and action.
+    assert int(action) == int(np.unravel_index(np.argmax(scores), scores.shape)[1])
+    loaded = Hierarchy.load(gpi.save(tmp_path / "gpi.zip"))
+    assert int(loaded.predict(obs)[0]) == int(action)

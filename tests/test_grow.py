@@ -1,0 +1,109 @@
+"""The support that grows where the front gains most: the corner weights, their gains, and grow on tiny budgets."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sb3_hddpg.artifacts.manifests import load_workers
+from sb3_hddpg.artifacts.records.support import read_support_record
+from sb3_hddpg.artifacts.transitions import Transitions
+from sb3_hddpg.training.grow import SupportOptions, grow
+from sb3_hddpg.training.linear_support import corner_weights, ranked_corners
+from sb3_hddpg.training.term_critic import TermCriticOptions
+from sb3_hddpg.training.workers import train_workers
+
+CRITIC = TermCriticOptions(steps=100, batch_size=32, net_arch=(16,))
+RUN = {"eval_freq": 0, "eval_episodes": 1, "seed": 5}
+
+
+def test_the_corner_of_two_policies_is_where_their_values_cross():
+    values = np.array([[10.0, 2.0], [3.0, 8.0]])
+    corners = ranked_corners(values, [np.array([1.0, 0.0]), np.array([0.0, 1.0])])
+    best = corners[0]
+    # w.(10, 2) = w.(3, 8) at w = (6/13, 7/13); OLS's bound there is w.(10, 8) (each term's best).
+    assert best.weights == pytest.approx((6 / 13, 7 / 13))
+    assert best.value == pytest.approx(6 / 13 * 10 + 7 / 13 * 2)
+    assert best.gain == pytest.approx(6 / 13 * 10 + 7 / 13 * 8 - best.value)
+    assert [c.gain for c in corners[1:]] == pytest.approx([0.0, 0.0])
+    # A third policy at the corner that reaches the bound leaves no gain anywhere.
+    full = np.vstack([values, [10.0, 8.0]])
+    visited = [np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([6 / 13, 7 / 13])]
+    assert max(c.gain for c in ranked_corners(full, visited)) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_corners_in_three_terms_include_the_simplex_and_the_centre():
+    corners = corner_weights(np.eye(3))
+    assert any(np.allclose(c, [1 / 3, 1 / 3, 1 / 3]) for c in corners)
+    assert all(c.min() >= 0 and np.isclose(c.sum(), 1.0) for c in corners)
+
+
+@pytest.fixture(scope="module")
+def corners_trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("grow")
+    train_workers(root, timesteps=300, term_critic=CRITIC, keep_transitions=True, **RUN)
+    return root
+
+
+def test_grow_adds_a_warm_started_worker_at_the_corner_and_records_it(corners_trained, tmp_path):
+    import shutil
+
+    root = tmp_path / "run"
+    shutil.copytree(corners_trained, root)
+    record = grow(
+        root, SupportOptions(size=3, budget=250, tolerance=0.0, start_states=4), term_critic=CRITIC, **RUN
+    )
+    assert len(record.added) == 1 and record.stopped == "reached 3 workers"
+    step = record.added[0]
+    assert step.name.startswith("mix-") and step.gain > 0 and step.steps >= 250
+    # The goal worker sees part of the state only: the nearest worker that fits is the avoid worker.
+    assert step.warm_start == "avoid" and step.replay == 300  # the neighbour's kept transitions
+    workers = load_workers(root)
+    assert list(workers) == ["goal", "avoid", step.name] and step.name in workers.critics
+    entry = workers.manifest.entries[step.name]
+    assert entry["reward_weights"] == pytest.approx(step.weights)
+    assert entry["warm_start"] == {"from": step.warm_start, "parameters": True, "replay": 300}
+    assert len(Transitions.load(root / "workers" / entry["transitions"]["file"])) >= 250
+    on_disk = read_support_record(root / "workers" / "support.json")
+    assert on_disk.added[0].name == step.name and set(on_disk.worker_values) == set(workers)
+    # Nothing is overwritten without --resume; with it, a finished support stays as it is.
+    with pytest.raises(FileExistsError, match="--resume"):
+        grow(root, SupportOptions(size=3, budget=250), **RUN)
+    again = grow(root, SupportOptions(size=3, budget=250), resume=True, **RUN)
+    assert [s.name for s in again.added] == [step.name]
+
+
+def test_grow_refuses_workers_without_critics_and_bad_options(tmp_path):
+    train_workers(tmp_path, timesteps=150, term_critic=None, **RUN)
+    with pytest.raises(ValueError, match="per-term critic"):
+        grow(tmp_path, SupportOptions(size=3, budget=100), **RUN)
+    for bad in (
+        {"size": 1, "budget": 10},
+        {"size": 3, "budget": 0},
+        {"size": 3, "budget": 10, "tolerance": -1},
+    ):
+        with pytest.raises(ValueError):
+            SupportOptions(**bad)
+    (tmp_path / "workers" / "support.json").write_text(json.dumps({"schema_version": 1, "terms": "x"}))
+    with pytest.raises(ValueError, match=r"support\.json"):
+        read_support_record(tmp_path / "workers" / "support.json")
+
+
+def test_the_grow_command_adds_a_worker_and_refuses_bad_options(corners_trained, tmp_path):
+    import shutil
+
+    from tests.cli_runner import run_cli
+
+    root = tmp_path / "run"
+    shutil.copytree(corners_trained, root)
+    tiny = ("--eval-freq", "0", "--eval-episodes", "1", "--no-progress", "--start-states", "2")
+    result = run_cli(
+        "grow", "--workers", root, "--support", "3", "--budget", "150", "--tolerance", "0", *tiny
+    )
+    assert result.returncode == 0, result.stderr
+    assert "reached 3 workers" in result.stdout and len(load_workers(root)) == 3
+    for args, option in ((("--support", "1"), "--support"), (("--workers", tmp_path / "none"), "--workers")):
+        bad = run_cli("grow", "--workers", root, "--budget", "10", *args, *tiny)
+        assert bad.returncode == 2 and option in bad.stderr and "Traceback" not in bad.stderr
+    again = run_cli("grow", "--workers", root, "--support", "4", "--budget", "150", *tiny)
+    assert again.returncode == 2 and "--resume" in again.stderr
