@@ -523,7 +523,7 @@ def test_tune_a_worker_and_a_flat_agent_on_other_envs(tmp_path, tiny):
         "test/InfoRewards-v0",
         terms=["reward_near", "reward_calm"],
         term_bounds={"reward_near": (-2, 0), "reward_calm": (-1, 0)},
-    ).manifest
+    )
     flat = TuningTarget(level="flat", env=info, **budget)
     assert flat.block_key == "test/InfoRewards-v0"
     value = _tune_once(tmp_path / "flat", flat).best_value
