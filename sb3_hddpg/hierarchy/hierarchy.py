@@ -173,7 +173,7 @@ class Hierarchy:
         self._band = OptionEnd.from_json(config.option_end).bind(layout) if config.option_end else None
         #: The options of the observations ``predict`` sees without a ``state`` (one stream per env of a batch).
         self._stream: OptionState | None = None
-        #: The env set by :meth:`set_env` or ``load(env=...)`` (``None``: none; see :meth:`make_env`).
+        #: The env set by :meth:`set_env` or ``load(env=...)``, or ``None`` (see :meth:`make_env`).
         self.env: VecEnv | None = None
         self.last_selection: str | None = None
         #: Whether the last ``predict`` made a new decision (``False`` inside an option; of the last env in a batch).
@@ -181,7 +181,7 @@ class Hierarchy:
         #: The manager actor's output at the last decision (in [-1, 1]; how saturated the manager is).
         self.last_manager_action: np.ndarray | None = None
         self.last_probabilities: dict[str, float] = {}
-        #: Per env of the last ``predict``'s batch (one for a single observation): the worker in charge and
+        #: Per env of the last ``predict``'s batch (one for a single observation), the worker in charge and
         #: the manager's output at that env's last decision.
         self.last_selections: list[str] = []
         self.last_manager_actions: list[np.ndarray | None] = []
@@ -238,7 +238,7 @@ class Hierarchy:
     # ------------------------------------------------------------------ acting
     @property
     def reward_spec(self) -> dict[str, float]:
-        """This hierarchy's reward as a worker one level up: its preference-weighted mix of its workers' terms."""
+        """This hierarchy's reward as a worker one level up, the preference-weighted mix of its workers' terms."""
         if self._gpi is not None:  # the preference weighs the terms themselves
             return dict(self.config.preferences)
         specs = {name: self.config.reward_terms.get(name, name) for name in self.names}
