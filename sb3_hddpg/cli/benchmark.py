@@ -26,6 +26,7 @@ from sb3_hddpg.cli.options import (
     TermsOpt,
     at_least,
     between,
+    check_jobs,
     cluster_address,
     positive_float,
     prepare_out_dir,
@@ -396,6 +397,7 @@ def benchmark_command(
             front_per_preference=front_per_preference,
             morl_python=morl_python,
         )
+    check_jobs(n_jobs, executor)
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
     results = _run_until_stopped(settings, out, n_jobs, resume, redone, address, snapshot_dir)

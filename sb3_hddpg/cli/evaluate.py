@@ -20,7 +20,7 @@ from sb3_hddpg.cli.options import (
     TermBoundsOpt,
     TermsOpt,
     apply_run_preference,
-    at_least,
+    count,
     output_file,
     seed_range,
     terms_env_option,
@@ -47,7 +47,9 @@ _PathOpt = Annotated[
 _EnvIdOpt = Annotated[
     str | None, typer.Option("--env", help=ENV_HELP + " Default: the env it was trained on.")
 ]
-_EpisodesOpt = Annotated[int, typer.Option("--episodes", callback=at_least(1), help="Evaluation episodes.")]
+_EpisodesOpt = Annotated[
+    int, typer.Option("--episodes", callback=count("episodes"), help="Evaluation episodes.")
+]
 _SeedOpt = Annotated[
     int,
     typer.Option("--seed", callback=seed_range, help="Seed of the first episode (episode k uses seed + k)."),

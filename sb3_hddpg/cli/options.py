@@ -12,13 +12,16 @@ import gymnasium as gym
 import typer
 
 from sb3_hddpg.artifacts.io import FolderLockedError, locked_folder
+from sb3_hddpg.artifacts.limits import LimitError, check_count, count_bounds
 from sb3_hddpg.artifacts.run_folder import (
     RunFolderError,
     check_clearable,
+    check_out_folder,
     check_output_file,
     clear_run_folder,
     mark_run_folder,
     protected_reason,
+    record_written,
 )
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.cli.app import console_note
@@ -59,6 +62,41 @@ def between(minimum: int, maximum: int) -> Callable[[int | None], int | None]:
         return value
 
     return check
+
+
+def count(name: str) -> Callable[[int | None], int | None]:
+    """
+    A typer callback for a count of :data:`~sb3_hddpg.artifacts.limits.COUNTS` (``episodes``,
+    ``video_steps``, ``n_jobs``...): the same bounds as a Python caller's keyword or a file's field, from the
+    one table (``None`` passes).
+    """
+
+    def check(value: int | None) -> int | None:
+        if value is not None:
+            try:
+                check_count(name, value, "value")
+            except LimitError:
+                low, high = count_bounds(name)
+                raise typer.BadParameter(f"must be in [{low}, {high}], got {value}") from None
+        return value
+
+    return check
+
+
+def check_jobs(n_jobs: int | None, executor: str) -> None:
+    """
+    ``--n-jobs`` against what runs them: on this machine, at most its usable cores (each job is a process
+    with its own torch: 200 of them took 3.4 GB); on a Ray cluster, what the cluster schedules.
+    """
+    if n_jobs is not None and executor == "local":
+        try:
+            check_count("n_jobs", n_jobs, "--n-jobs")
+        except LimitError:
+            low, high = count_bounds("n_jobs")
+            raise typer.BadParameter(
+                f"must be in [{low}, {high}] (the usable cores of this machine) with --executor local, got {n_jobs}",
+                param_hint="'--n-jobs'",
+            ) from None
 
 
 def seed_range(value: int | None) -> int | None:
@@ -162,8 +200,9 @@ def refuse_protected_out(out: Path) -> Path:
 def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool) -> Path:
     """
     Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a folder above
-    it, the home or root folder, a path through a file, and a folder that already holds results unless
-    ``--resume`` or ``--force``; then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the
+    it, the home or root folder, a path through a file, a symbolic link, a folder of the user's
+    (:func:`~sb3_hddpg.artifacts.run_folder.check_out_folder`), and a run folder that already holds results
+    unless ``--resume`` or ``--force``; then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the
     command ends, so a second run into the same folder stops at once with the holder's pid. ``--force``
     clears it through :func:`sb3_hddpg.artifacts.run_folder.clear_run_folder`, which deletes only what the
     tool wrote; this function only reports.
@@ -174,6 +213,10 @@ def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool
     """
 
     refuse_protected_out(out)
+    try:
+        check_out_folder(out)
+    except RunFolderError as error:
+        raise typer.BadParameter(str(error), param_hint="'--out'") from None
     if out.exists() and not out.is_dir():
         raise typer.BadParameter(f"is a file, not a folder: {str(out)!r}", param_hint="'--out'")
     blocking = next((p for p in out.parents if p.exists() and not p.is_dir()), None)
@@ -209,6 +252,8 @@ def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool
                 f"--force kept {len(kept)} entries the tool did not write in {str(out)!r}: {kept[:5]}"
             )
     mark_run_folder(out, context.info_name or "hddpg-cli")
+    # Registered after the lock's release, so run before it (click closes in reverse order).
+    context.call_on_close(lambda: record_written(out))
     return out
 
 

@@ -32,6 +32,7 @@ from sb3_hddpg.cli.options import (
     TermsOpt,
     ThreadsOpt,
     at_least,
+    count,
     discount,
     existing_dir,
     existing_file,
@@ -265,7 +266,9 @@ _ManagerSelectionOpt = Annotated[
 _ManagerOptionStepsOpt = Annotated[
     int | None,
     typer.Option(
-        "--option-steps", callback=at_least(1), help="Env steps per manager decision (default: the config's)."
+        "--option-steps",
+        callback=count("option_steps"),
+        help="Env steps per manager decision (default: the config's).",
     ),
 ]
 _ManagerOptionEndOpt = Annotated[

@@ -12,6 +12,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+#: Largest scale of the motion a manager observes (the snake arm uses 20; the change is clipped to [-1, 1],
+#: so a larger scale only makes every motion a sign, and 1e308 made infinities).
+MAX_MANAGER_MOTION = 1e6
+
 
 def subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Space[Any]:
     """The observation space restricted to ``indices`` (``None``: all of it)."""
@@ -73,8 +77,10 @@ class ManagerInput:
         motion: float = 0.0,
         n_preferences: int = 0,
     ) -> None:
-        if not (np.isfinite(motion) and motion >= 0):
-            raise ValueError(f"Expected manager_motion to be a finite number >= 0, actually: {motion!r}")
+        if not (np.isfinite(motion) and 0 <= motion <= MAX_MANAGER_MOTION):
+            raise ValueError(
+                f"Expected manager_motion to be a finite number in [0, {MAX_MANAGER_MOTION:g}], actually: {motion!r}"
+            )
         self.indices = indices
         self.motion = float(motion)
         self.n_preferences = int(n_preferences)

@@ -84,6 +84,32 @@ class SimplexMap:
 Probabilities = Sequence[float] | np.ndarray
 
 
+#: How far a probability vector's sum may be from 1 (float rounding of a softmax over 32 workers is ~1e-15).
+SIMPLEX_TOLERANCE = 1e-6
+
+
+def check_probabilities(probabilities: Probabilities, n_workers: int) -> None:
+    """
+    The one check of what any selector made of a manager's action, before a worker acts on it: one
+    finite, non-negative probability per worker, summing to 1 within :data:`SIMPLEX_TOLERANCE`.
+
+    :param probabilities: a selector's :meth:`Selector.probabilities`.
+    :param n_workers: the workers there are.
+    :raises ValueError: naming the shape or the sum.
+    """
+    values = np.asarray(probabilities, dtype=np.float64)
+    if values.shape != (n_workers,):
+        raise ValueError(f"Expected {n_workers} worker probabilities, actually: shape {values.shape}")
+    if (
+        not (np.all(np.isfinite(values)) and np.all(values >= 0))
+        or abs(float(values.sum()) - 1.0) > SIMPLEX_TOLERANCE
+    ):
+        raise ValueError(
+            f"Expected worker probabilities >= 0 summing to 1 (within {SIMPLEX_TOLERANCE}), actually: "
+            f"{np.array2string(values, precision=4, threshold=8)} (sum {values.sum():.6g})"
+        )
+
+
 def most_probable(probabilities: Probabilities, rng: np.random.Generator) -> int:
     """
     The index of the most probable worker; an exact tie is broken at random with ``rng``, never by position.
@@ -125,10 +151,16 @@ class Selector:
         :param simplex: the map of a Box action onto the simplex (temperature and floor).
         :param action: the manager's action for one observation.
         """
+        shape = np.shape(action)  # type: ignore[arg-type]
+        if shape != (simplex.n_workers,):
+            raise ValueError(
+                f"Expected a manager action of shape ({simplex.n_workers},), one value per worker, actually: "
+                f"shape {shape}"
+            )
         values = (
             action.tolist()
-            if isinstance(action, np.ndarray) and action.ndim == 1
-            else np.asarray(action, dtype=np.float64).ravel().tolist()
+            if isinstance(action, np.ndarray)
+            else np.asarray(action, dtype=np.float64).tolist()
         )
         return simplex.single(values)
 
@@ -228,7 +260,16 @@ class DiscreteSelector(Selector):
         return gym.spaces.Discrete(n_workers)
 
     def probabilities(self, simplex: SimplexMap, action: object) -> list[float]:
-        chosen = int(np.asarray(action).reshape(-1)[0])
+        index = np.asarray(action)
+        if index.shape not in ((), (1,)) or not (
+            np.issubdtype(index.dtype, np.integer)
+            or (np.issubdtype(index.dtype, np.floating) and float(index.reshape(-1)[0]).is_integer())
+        ):
+            raise ValueError(
+                f"Expected one worker index (a scalar integer) in [0, {simplex.n_workers}), actually: "
+                f"{np.array2string(index, threshold=8)} of shape {index.shape}"
+            )
+        chosen = int(index.reshape(-1)[0])
         if not 0 <= chosen < simplex.n_workers:
             raise ValueError(f"Expected a worker index in [0, {simplex.n_workers}), actually: {chosen}")
         return [1.0 if i == chosen else 0.0 for i in range(simplex.n_workers)]
@@ -383,8 +424,15 @@ def preferences_from_bias(
         raise ValueError(f"Unknown worker {prefer!r} to prefer; workers: {names}")
     # A preference raises the preferred worker's factor (the paper's 15 %); no preference is ``prefer=None``,
     # and any other factors (a smaller one too) are given explicitly as ``preferences``.
-    if isinstance(bias, bool) or not isinstance(bias, (int, float)) or not math.isfinite(bias) or bias <= 0:
-        raise ValueError(f"Expected `bias` to be a finite number > 0, actually: {bias}")
+    if (
+        isinstance(bias, bool)
+        or not isinstance(bias, (int, float))
+        or not math.isfinite(bias)
+        or not 0 < bias <= MAX_PREFERENCE - 1
+    ):
+        raise ValueError(
+            f"Expected `bias` to be a finite number in (0, {MAX_PREFERENCE - 1:g}], actually: {bias}"
+        )
     return {name: (1.0 + bias if name == prefer else 1.0) for name in names}
 
 
@@ -407,8 +455,23 @@ def parse_preferences(text: str) -> dict[str, float]:
     return result
 
 
-def check_preferences(preferences: dict[str, Any], names: list[str]) -> dict[str, float]:
-    """Validate preference factors: known names, finite and > 0; missing names default to 1."""
+#: Largest preference factor a reward is weighted by: the manager's (and a flat agent's) reward is up to
+#: the factors' sum per env step, summed over an option and an episode, and must stay far from overflow.
+MAX_PREFERENCE = 1e6
+
+
+def check_preferences(
+    preferences: dict[str, Any], names: list[str], max_factor: float | None = MAX_PREFERENCE
+) -> dict[str, float]:
+    """
+    Validate preference factors: known names, finite and > 0, and at most ``max_factor`` where they weight a
+    reward (so that a weighted reward cannot overflow); missing names default to 1.
+
+    :param preferences: name -> factor.
+    :param names: the known names, in order.
+    :param max_factor: the largest factor (``None``: only the ratio is used, e.g. a conditioned manager's
+        run-time preference, which is normalised without overflow).
+    """
     unknown = sorted(set(preferences) - set(names))
     if unknown:
         raise ValueError(f"Preferences name unknown workers {unknown}; workers: {names}")
@@ -423,6 +486,11 @@ def check_preferences(preferences: dict[str, Any], names: list[str]) -> dict[str
         ):
             raise ValueError(
                 f"Expected preference of {name!r} to be a finite number > 0, actually: {value!r}"
+            )
+        if max_factor is not None and value > max_factor:
+            raise ValueError(
+                f"Expected preference of {name!r} to be at most {max_factor:g} (it weights a reward that "
+                f"is summed over steps; only the ratio between factors matters), actually: {value!r}"
             )
         checked[name] = float(value)
     return checked

@@ -14,11 +14,9 @@ import gymnasium as gym
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_hddpg.algorithms import REGISTRY, algorithm
-from sb3_hddpg.artifacts.io import (
-    holds_folder_lock,
-)
-from sb3_hddpg.artifacts.manifests import check_resumed_env, model_entry, save_manifest
+from sb3_hddpg.artifacts.manifests import check_resumed_agent, check_resumed_env, model_entry, save_manifest
 from sb3_hddpg.artifacts.records import ModelEntry, ModelsManifest, models_manifest, read_models_manifest
+from sb3_hddpg.artifacts.run_folder import holds_run_folder
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
@@ -149,7 +147,7 @@ def worker_algorithms(
     return chosen
 
 
-@holds_folder_lock(lambda call: call.arguments["out_dir"])
+@holds_run_folder(lambda call: call.arguments["out_dir"], "train_workers")
 def train_workers(
     out_dir: str | Path,
     workers: Sequence[str] | None = None,
@@ -190,7 +188,7 @@ def train_workers(
     blocks = worker_hyperparams(workers, config, env, chosen)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
-    manifest = _start_manifest(manifest_path, shared, env, workers, blocks, run.resume)
+    manifest = _start_manifest(manifest_path, shared, env, workers, blocks, run.resume, (chosen, run.seed))
     for name in workers:
         hyperparams = blocks[name]
         env_id, view_kwargs = shared.term_view(name)
@@ -225,14 +223,21 @@ def _start_manifest(
     workers: Sequence[str],
     blocks: Mapping[str, Hyperparams],
     resume: bool,
+    asked: tuple[Mapping[str, str], int],
 ) -> ModelsManifest:
     """
     The manifest the workers are added to: a new one, or on ``resume`` the earlier run's, refused in one line
-    when its env differs from this run's (a finished worker is kept only for the same env).
+    when its env, or a worker's algorithm, seed or config block, differs from this run's (a worker is
+    continued only with what it was trained with).
+
+    :param asked: each worker's algorithm and the seed this run asks for.
     """
     manifest = models_manifest("workers")
     if resume and manifest_path.exists():
         manifest = read_models_manifest(manifest_path, "workers")
+        algos, seed = asked
+        for name in workers:
+            check_resumed_agent(manifest.entries.get(name), name, algos[name], seed, blocks[name].raw)
         if env is not None or manifest.shared_env is not None:
             check_resumed_env(
                 manifest.shared_env or {"env_id": SNAKE_REACH_ENV_ID}, shared.env_id, shared.env_kwargs
