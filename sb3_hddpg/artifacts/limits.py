@@ -37,6 +37,7 @@ from typing import Any
 from gymnasium.envs.registration import registry
 
 from sb3_hddpg.algorithms import NetworkShape, algorithm
+from sb3_hddpg.artifacts.io import first_not_finite
 from sb3_hddpg.envs import OWN_ENV_IDS
 from sb3_hddpg.names import PLAIN_NAME
 
@@ -371,8 +372,17 @@ def file_inside(root: str | os.PathLike[str], relative: str | os.PathLike[str]) 
 
 
 def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any:
-    """:func:`parse_json` of a file, read by :func:`read_file_bytes` (a regular file within the limit)."""
-    return parse_json(read_file_bytes(path, MAX_JSON_BYTES, what), what or str(path))
+    """
+    :func:`parse_json` of a file, read by :func:`read_file_bytes` (a regular file within the limit). A
+    NaN or infinity (which Python's JSON reader accepts and this library never writes) is refused naming
+    the file and the field, before it reaches a table or a statistic (``y contains NaN``).
+    """
+    name = what or str(path)
+    value = parse_json(read_file_bytes(path, MAX_JSON_BYTES, what), name)
+    where = first_not_finite(value)
+    if where is not None:
+        raise LimitError(f"{name}: {where} is not a finite number")
+    return value
 
 
 def read_json_record(path: str | os.PathLike[str], unreadable: str) -> Any:

@@ -270,7 +270,9 @@ def clear_run_folder(folder: str | os.PathLike[str]) -> list[str]:
     return kept
 
 
-def mark_run_folder(folder: str | os.PathLike[str], command: str, entries: list[str] | None = None) -> Path:
+def mark_run_folder(
+    folder: str | os.PathLike[str], command: str, entries: list[str] | None = None, reopen: bool = False
+) -> Path:
     """
     Mark ``folder`` as one of the tool's run folders (created if missing), so that a later ``--force`` may
     clear what the tool wrote into it. The marker is left open (see :func:`record_written`) and records the
@@ -280,10 +282,14 @@ def mark_run_folder(folder: str | os.PathLike[str], command: str, entries: list[
     :param command: the command that writes it, recorded for whoever looks.
     :param entries: top-level names the command wrote beyond :data:`RUN_LAYOUT` (a package's unpacked
         model folder); a later ``--force`` deletes them too.
+    :param reopen: open an existing marker again (a command that will record its inventory when it ends);
+        otherwise an existing marker is kept when ``entries`` is ``None``.
     :return: the marker file.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    if (folder / RUN_MARKER).is_file() and entries is None and not reopen:
+        return folder / RUN_MARKER
     marker = _read_marker(folder)
     ours = tool_entries(folder)
     present = {entry.name for entry in folder.iterdir()} - {LOCK_FILE, RUN_MARKER}

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -183,6 +184,40 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
         raise typer.BadParameter(message, param_hint=param_hint) from error
 
 
+def build_settings(record: Callable[..., Any], options: Mapping[str, str], **values: Any) -> Any:
+    """
+    Build a settings record from a command's options, a refusal naming the one option at fault: the one
+    whose value, put back to the record's default, makes the error go away (a record's message names its
+    field, or nothing a user typed; a list of every option that feeds the record left the user to guess).
+
+    :param record: the settings dataclass (its fields' defaults are used to find the option at fault).
+    :param options: field -> the option that sets it, e.g. ``{"ham_threshold": "--ham-threshold"}``.
+    :param values: the record's keyword arguments.
+    :return: the record; raises ``typer.BadParameter`` naming the option.
+    """
+    try:
+        return record(**values)
+    except (ValueError, TypeError) as error:
+        message = str(error) or type(error).__name__
+        defaults = {
+            f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+            for f in dataclasses.fields(record)  # type: ignore[arg-type]
+            if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+        }
+        for field, option in options.items():
+            if field not in values or field not in defaults or values[field] == defaults[field]:
+                continue
+            try:
+                record(**{**values, field: defaults[field]})
+            except (ValueError, TypeError) as other:
+                if str(other) == message:
+                    continue
+            raise typer.BadParameter(message, param_hint=f"'{option}'") from None
+        raise typer.BadParameter(
+            message, param_hint=" / ".join(f"'{o}'" for o in dict.fromkeys(options.values()))
+        ) from None
+
+
 def refuse_protected_out(out: Path) -> Path:
     """
     Refuse, as a usage error, an output folder that may never hold a run: the current folder (``--out ""``
@@ -251,7 +286,7 @@ def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool
             console_note(
                 f"--force kept {len(kept)} entries the tool did not write in {str(out)!r}: {kept[:5]}"
             )
-    mark_run_folder(out, context.info_name or "hddpg-cli")
+    mark_run_folder(out, context.info_name or "hddpg-cli", reopen=True)
     # Registered after the lock's release, so run before it (click closes in reverse order).
     context.call_on_close(lambda: record_written(out))
     return out

@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from sb3_hddpg.artifacts.limits import MAX_MANAGER_MOTION
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
@@ -285,6 +286,7 @@ _ManagerMotionOpt = Annotated[
     typer.Option(
         "--manager-motion",
         min=0.0,
+        max=MAX_MANAGER_MOTION,
         help="The manager also sees how its state moved over the last env step, scaled by this factor and "
         "clipped to [-1, 1] (e.g. 20 for the snake arm, whose obstacles move by at most 0.0075 of their "
         "range per step); 0: the state only.",

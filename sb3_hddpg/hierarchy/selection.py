@@ -431,7 +431,7 @@ def preferences_from_bias(
         or not 0 < bias <= MAX_PREFERENCE - 1
     ):
         raise ValueError(
-            f"Expected `bias` to be a finite number in (0, {MAX_PREFERENCE - 1:g}], actually: {bias}"
+            f"Expected `bias` to be a finite number at most {MAX_PREFERENCE - 1:g} and > 0, actually: {bias}"
         )
     return {name: (1.0 + bias if name == prefer else 1.0) for name in names}
 

@@ -109,7 +109,7 @@ def save_best_config(
     if path.exists():
         old = load_config_file(path)
         text = replace_block(read_file_bytes(path, MAX_JSON_BYTES).decode("utf-8"), key, tuned)
-        check_only_block_changed(old, yaml.safe_load(text), key, str(path))
+        check_only_block_changed(old, text, key, str(path))
     else:
         config = load_config_file(target.config_path)
         config[key] = block
@@ -155,11 +155,25 @@ def replace_block(text: str, key: str, tuned: str) -> str:
     return "".join(lines[:start]) + tuned + "".join(lines[end:])
 
 
-def check_only_block_changed(before: Any, after: Any, key: str, what: str) -> None:
+def check_only_block_changed(before: Any, text: str, key: str, what: str) -> None:
     """
     Refuse (``ValueError`` naming the file) a rewrite of a config that changed any block but ``key``: a
-    YAML anchor of the replaced block used elsewhere would have changed another block.
+    YAML anchor of the replaced block used elsewhere would have changed another block, or left its alias
+    undefined.
+
+    :param before: the config as it was, parsed.
+    :param text: the rewritten file's text.
+    :param key: the block that was replaced.
+    :param what: the file, for the message.
     """
+    try:
+        after = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise ValueError(
+            f"--save-config: replacing block {key!r} of {what!r} would break the file "
+            f"({' '.join(str(error).split())[:200]}: an anchor of the block used elsewhere?); not written: "
+            "name another file"
+        ) from None
     if not isinstance(after, dict):
         raise ValueError(f"--save-config: {what!r} would no longer be a mapping of blocks; not written")
     changed = sorted(k for k in set(before) | set(after) if k != key and before.get(k) != after.get(k))
