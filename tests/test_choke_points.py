@@ -509,3 +509,62 @@ def test_the_issues_reproductions_end_in_one_line_naming_what_is_at_fault(tmp_pa
     assert contents(mine) == before and not (mine / RUN_MARKER).exists() and not (mine / LOCK_FILE).exists()
     assert not (tmp_path / "escaped").exists() and not bundle.exists()
     assert not (tmp_path / "nosuch.db").exists()
+
+
+def test_a_resumed_train_workers_with_another_algo_seed_or_config_is_refused_naming_the_option(tmp_path):
+    from tests.helpers import TINY_CONFIG
+
+    tiny = tmp_path / "tiny.yml"
+    tiny.write_text(TINY_CONFIG)
+    other = tmp_path / "other.yml"
+    other.write_text(TINY_CONFIG.replace("  batch_size: 16\n", "  batch_size: 16\n  learning_rate: 0.01\n"))
+    out = tmp_path / "w"
+    base = ["train-workers", "--no-progress", "--workers", "goal", "--algo", "goal=ddpg", "--eval-freq", "0"]
+    first = [*base, "--config", str(tiny), "--timesteps", "150", "--out", str(out)]
+    resumed = ["train-workers", "--no-progress", "--workers", "goal", "--eval-freq", "0", "--resume"]
+    cases = [
+        (
+            [*resumed, "--algo", "goal=td3", "--config", str(tiny), "--timesteps", "300"],
+            "--algo of 'goal' was 'ddpg'",
+        ),
+        (
+            [*resumed, "--algo", "goal=ddpg", "--config", str(tiny), "--seed", "5", "--timesteps", "300"],
+            "--seed was 0",
+        ),
+        (
+            [*resumed, "--algo", "goal=ddpg", "--config", str(other), "--timesteps", "300"],
+            "learning_rate was",
+        ),
+    ]
+    results = run_batch([first, *[[*argv, "--out", str(out)] for argv, _ in cases]])
+    assert results[0].returncode == 0, results[0].stderr
+    manifest = (out / "workers" / "manifest.json").read_bytes()
+    for (argv, needle), done in zip(cases, results[1:]):
+        assert done.returncode == 2 and needle in done.stderr, (argv, done.stderr)
+        assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert (out / "workers" / "manifest.json").read_bytes() == manifest
+
+
+@pytest.mark.parametrize(
+    ("reward_terms", "needle"),
+    [
+        ({"goal": {"goal": float("nan")}}, "reward_terms.goal.goal: expected a finite weight"),
+        ({"goal": {"goal": {"deeper": 1}}}, "reward_terms.goal.goal: expected a finite weight"),
+        ({"nobody": "goal"}, "'nobody' is not one of the bundle's workers"),
+        ({"goal": "../goal"}, "reward_terms.goal: expected a term name"),
+        ({"goal": {"goal": 0.0}}, "positive sum"),
+    ],
+)
+def test_a_bundles_reward_terms_are_checked_when_read(reward_terms, needle):
+    from sb3_hddpg.hierarchy.selection import check_selection_settings
+
+    with pytest.raises(LimitError, match=needle):
+        check_selection_settings({"reward_terms": reward_terms}, ["goal", "avoid"], "b.zip: selection")
+
+
+@pytest.mark.parametrize("value", [5e-324, -1e-300, 1e-10])
+def test_env_settings_an_env_divides_by_are_normal_sized(value):
+    from sb3_hddpg.artifacts.values import check_env_kwargs
+
+    with pytest.raises(LimitError, match="sensor_range: expected 0 or a magnitude of at least 1e-09"):
+        check_env_kwargs("hddpg/SnakeReach-v0", {"sensor_range": value}, "b.zip: env_kwargs")

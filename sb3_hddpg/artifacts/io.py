@@ -71,7 +71,9 @@ def deferred_stop_signals() -> Iterator[None]:
             signal.raise_signal(signum)
 
 
-def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) -> Path:
+def atomic_write(
+    path: str | os.PathLike[str], write: Callable[[Path], object], hold_signals: bool = True
+) -> Path:
     """
     Produce ``path`` atomically: ``write`` fills a temporary path in the same folder, which is then renamed
     over ``path``. A reader (or a run killed at any moment, even with SIGKILL) sees the old file or the new
@@ -80,6 +82,9 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) 
 
     :param path: the final file.
     :param write: called with the temporary path; must create that file.
+    :param hold_signals: hold Ctrl-C and SIGTERM while ``write`` runs (:func:`deferred_stop_signals`), for
+        short writes inside libraries that misreport an interruption; ``False`` for a long ``write`` (a
+        video recorded while the policy acts) that must stay interruptible: its temporary is removed.
     :return: the final path.
     """
     path = Path(path)
@@ -95,8 +100,11 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) 
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        with deferred_stop_signals():
+        if not hold_signals:
             write(tmp)
+        with deferred_stop_signals():
+            if hold_signals:
+                write(tmp)
             with open(tmp, "rb+") as handle:
                 os.fsync(handle.fileno())
             # mkstemp creates the file readable by its owner only; give results the permissions any other

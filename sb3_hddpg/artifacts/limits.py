@@ -133,6 +133,16 @@ MAX_OPTION_STEPS = 10_000
 MAX_EVAL_EPISODES = 10_000
 #: Most torch threads of one process.
 MAX_THREADS = 256
+#: Largest preference factor that weights a reward: the manager's (and a flat agent's) reward is up to the
+#: factors' sum per env step, summed over an option and an episode, and must stay far from overflow (a
+#: conditioned manager's run-time preference is a ratio, normalised by its largest factor: not bounded).
+MAX_PREFERENCE = 1e6
+#: Largest scale of the motion a manager observes (``--manager-motion``; the snake arm uses 20). The change
+#: is clipped to [-1, 1], so a larger scale only makes every motion a sign, and 1e308 made infinities.
+MAX_MANAGER_MOTION = 1e6
+#: How far the worker probabilities of one manager action may sum from 1 (a softmax over 32 workers
+#: rounds by ~1e-15).
+SIMPLEX_TOLERANCE = 1e-6
 #: Largest model file (a worker or flat zip, a bundle) read into memory to be hashed and loaded from the
 #: same bytes: what one load may read at most.
 MAX_MODEL_FILE_BYTES = MAX_LOAD_BYTES
@@ -151,6 +161,9 @@ MAX_EPISODE_LENGTH = 100_000
 MAX_ENV_INTEGER = 1_000
 #: Largest magnitude of a float env setting (a speed, a radius, a time step...).
 MAX_ENV_FLOAT = 1e6
+#: Least magnitude of a float env setting other than 0: an env divides by its settings (a sensor range
+#: normalises distances), and ``5e-324`` made infinite, then NaN, observations.
+MIN_ENV_FLOAT = 1e-9
 #: The render modes a file may ask for (a window is the command's choice, never a file's).
 FILE_RENDER_MODES = (None, "rgb_array")
 
@@ -681,16 +694,3 @@ from sb3_hddpg.names import MAX_NAME_CHARS as _MAX_NAME_CHARS  # noqa: E402
 MAX_TERMS = _adapters.MAX_TERMS
 #: The longest plain name (a worker, a method, a term).
 MAX_NAME_CHARS = _MAX_NAME_CHARS
-
-# ---------------------------------------------------------------- the hierarchy's own ranges
-# Checked where the hierarchy takes them (a bundle's, a config's and the CLI's values all pass there).
-from sb3_hddpg.hierarchy.manager_input import MAX_MANAGER_MOTION as _MAX_MANAGER_MOTION  # noqa: E402
-from sb3_hddpg.hierarchy.selection import MAX_PREFERENCE as _MAX_PREFERENCE  # noqa: E402
-from sb3_hddpg.hierarchy.selection import SIMPLEX_TOLERANCE as _SIMPLEX_TOLERANCE  # noqa: E402
-
-#: Largest preference factor that weights a reward (a conditioned manager's run-time ratio is not bounded).
-MAX_PREFERENCE = _MAX_PREFERENCE
-#: Largest scale of the manager's observed motion (``--manager-motion``).
-MAX_MANAGER_MOTION = _MAX_MANAGER_MOTION
-#: How far the worker probabilities of one manager action may sum from 1.
-SIMPLEX_TOLERANCE = _SIMPLEX_TOLERANCE

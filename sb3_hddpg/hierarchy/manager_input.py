@@ -12,9 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-#: Largest scale of the motion a manager observes (the snake arm uses 20; the change is clipped to [-1, 1],
-#: so a larger scale only makes every motion a sign, and 1e308 made infinities).
-MAX_MANAGER_MOTION = 1e6
+from sb3_hddpg.artifacts.limits import MAX_MANAGER_MOTION
 
 
 def subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Space[Any]:

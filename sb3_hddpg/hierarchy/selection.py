@@ -17,9 +17,10 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.artifacts.limits import LimitError, brief
+from sb3_hddpg.artifacts.limits import MAX_ITEMS, MAX_PREFERENCE, SIMPLEX_TOLERANCE, LimitError, brief
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
+from sb3_hddpg.names import PLAIN_NAME
 
 
 @dataclass(frozen=True)
@@ -82,10 +83,6 @@ class SimplexMap:
 
 #: A probability vector: a list (the wrapper's fast path) or an array (``Hierarchy``).
 Probabilities = Sequence[float] | np.ndarray
-
-
-#: How far a probability vector's sum may be from 1 (float rounding of a softmax over 32 workers is ~1e-15).
-SIMPLEX_TOLERANCE = 1e-6
 
 
 def check_probabilities(probabilities: Probabilities, n_workers: int) -> None:
@@ -455,11 +452,6 @@ def parse_preferences(text: str) -> dict[str, float]:
     return result
 
 
-#: Largest preference factor a reward is weighted by: the manager's (and a flat agent's) reward is up to
-#: the factors' sum per env step, summed over an option and an episode, and must stay far from overflow.
-MAX_PREFERENCE = 1e6
-
-
 def check_preferences(
     preferences: dict[str, Any], names: list[str], max_factor: float | None = MAX_PREFERENCE
 ) -> dict[str, float]:
@@ -551,11 +543,45 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
     for key in ("reward_terms", "worker_states"):
         if not isinstance(out.get(key, {}), Mapping):
             raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
+    for name, spec in out.get("reward_terms", {}).items():
+        _check_reward_spec(name, spec, names, f"{what}.reward_terms")
     state = out.get("manager_state")
     if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
         raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
     _check_recorded_rules(out, what)
     return out
+
+
+def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: str) -> None:
+    """
+    One worker's reward in a bundle: a known worker, paid one term (a plain name) or a weighting of terms
+    (plain names -> finite numbers >= 0 with a positive sum), so that NaN weights or nested mappings are
+    refused when the bundle is read, not when the reward is computed.
+    """
+    if name not in names:
+        raise LimitError(
+            f"{what}: {brief(name)} is not one of the bundle's workers {list(names)[:MAX_ITEMS]}"
+        )
+    if isinstance(spec, str):
+        if not PLAIN_NAME.match(spec):
+            raise LimitError(f"{what}.{name}: expected a term name, got {brief(spec)}")
+        return
+    if not isinstance(spec, Mapping) or not spec:
+        raise LimitError(f"{what}.{name}: expected a term name or term -> weight, got {brief(spec)}")
+    for term, weight in spec.items():
+        if not isinstance(term, str) or not PLAIN_NAME.match(term):
+            raise LimitError(f"{what}.{name}: expected term names, got {brief(term)}")
+        if (
+            isinstance(weight, bool)
+            or not isinstance(weight, (int, float))
+            or not math.isfinite(weight)
+            or not 0 <= weight <= MAX_PREFERENCE
+        ):
+            raise LimitError(
+                f"{what}.{name}.{term}: expected a finite weight in [0, {MAX_PREFERENCE:g}], got {brief(weight)}"
+            )
+    if not sum(spec.values()) > 0:
+        raise LimitError(f"{what}.{name}: expected weights with a positive sum, got {brief(dict(spec))}")
 
 
 def _check_recorded_rules(out: dict[str, Any], what: str) -> None:
