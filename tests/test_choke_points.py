@@ -568,3 +568,44 @@ def test_env_settings_an_env_divides_by_are_normal_sized(value):
 
     with pytest.raises(LimitError, match="sensor_range: expected 0 or a magnitude of at least 1e-09"):
         check_env_kwargs("hddpg/SnakeReach-v0", {"sensor_range": value}, "b.zip: env_kwargs")
+
+
+def test_a_trial_stopped_by_the_user_is_not_reported_with_a_traceback():
+    import logging
+
+    import optuna
+
+    from sb3_hddpg.experiments.tuning.study import _quiet_interruptions
+    from sb3_hddpg.training.agent import TrainingInterrupted
+
+    records: list[logging.LogRecord] = []
+    collect = logging.Handler()
+    collect.emit = records.append  # type: ignore[method-assign]
+    logging.getLogger("optuna").addHandler(collect)
+
+    def interrupted(trial: optuna.Trial) -> float:
+        raise TrainingInterrupted("trial: interrupted at 10 of 100 steps")
+
+    def broken(trial: optuna.Trial) -> float:
+        raise ValueError("a real failure")
+
+    try:
+        study = optuna.create_study()
+        with _quiet_interruptions(), pytest.raises(TrainingInterrupted):
+            study.optimize(interrupted, n_trials=1)
+        assert not [r for r in records if r.exc_info]
+        with _quiet_interruptions(), pytest.raises(ValueError):
+            study.optimize(broken, n_trials=1)
+        assert [r for r in records if r.exc_info]  # a real failure still comes with its traceback
+    finally:
+        logging.getLogger("optuna").removeHandler(collect)
+
+
+def test_a_write_that_cannot_start_names_the_file_asked_for_not_a_temporary(tmp_path):
+    from sb3_hddpg.artifacts.io import atomic_write_json
+
+    (tmp_path / "a-file").write_text("x")
+    target = tmp_path / "a-file" / "summary.json"
+    with pytest.raises(OSError) as raised:
+        atomic_write_json(target, {"a": 1})
+    assert f"Cannot write {str(target)!r}" in str(raised.value) and ".tmp" not in str(raised.value)
