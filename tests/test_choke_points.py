@@ -64,6 +64,7 @@ from tests.helpers import ConstantWorker
 
 REPO = Path(__file__).resolve().parents[1]
 WORKERS = REPO / "docs" / "results" / "models" / "seed-0" / "workers"
+HIERARCHY = REPO / "docs" / "results" / "models" / "seed-0" / "hddpg" / "hierarchy.zip"
 
 
 def contents(folder: Path) -> dict[str, bytes | None]:
@@ -470,6 +471,7 @@ def test_the_issues_reproductions_end_in_one_line_naming_what_is_at_fault(tmp_pa
         ),
         (["train-manager", "--workers", str(WORKERS), "--manager-motion", "1e308"], "'--manager-motion'", ""),
         (["evaluate", "/dev/zero"], "", "device or pipe"),
+        (["evaluate", str(HIERARCHY), "--state-worker", "../../etc"], "'--state-worker'", "its workers are"),
         (["train-manager", "--workers", str(WORKERS), "--prefer", "goal", "--bias", "1e308"], "", "bias"),
         (["train-flat", "--preference", "goal=1e308,avoid=1e308", "--out", str(bundle)], "", "at most 1e+06"),
         (["benchmark", "--ham-threshold", "nan", "--out", str(bundle)], "'--ham-threshold'", "nan"),

@@ -141,7 +141,7 @@ def replace_block(text: str, key: str, tuned: str) -> str:
     """
     lines = text.splitlines(keepends=True)
     heads = [i for i, line in enumerate(lines) if _TOP_LEVEL.match(line) and line.strip()]
-    start = next((i for i in heads if re.match(rf"{re.escape(key)}\s*:", lines[i])), None)
+    start = next((i for i in heads if re.match(rf"""(['"]?){re.escape(key)}\1\s*:""", lines[i])), None)
     if start is None:
         return text + ("" if not text or text.endswith("\n") else "\n") + tuned
     end = next((i for i in heads if i > start), len(lines))
