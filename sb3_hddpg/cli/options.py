@@ -200,7 +200,7 @@ def build_settings(record: Callable[..., Any], options: Mapping[str, str], **val
     except (ValueError, TypeError) as error:
         message = str(error) or type(error).__name__
         defaults = {
-            f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+            f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc,operator]
             for f in dataclasses.fields(record)  # type: ignore[arg-type]
             if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
         }

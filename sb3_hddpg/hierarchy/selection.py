@@ -148,7 +148,7 @@ class Selector:
         :param simplex: the map of a Box action onto the simplex (temperature and floor).
         :param action: the manager's action for one observation.
         """
-        shape = np.shape(action)  # type: ignore[arg-type]
+        shape = np.shape(action)  # type: ignore[call-overload]
         if shape != (simplex.n_workers,):
             raise ValueError(
                 f"Expected a manager action of shape ({simplex.n_workers},), one value per worker, actually: "
