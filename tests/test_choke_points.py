@@ -429,6 +429,10 @@ def test_a_resumed_agent_keeps_its_algorithm_seed_and_config():
     ):
         with pytest.raises(ResumeMismatch, match=needle):
             check_resumed_agent(entry, "goal", *asked)
+    # Said on purpose, a difference is accepted (the manifest then records the new value).
+    check_resumed_agent(entry, "goal", "td3", 5, {"learning_rate": 0.1}, accept=["algo", "seed", "config"])
+    with pytest.raises(ResumeMismatch, match="--seed was 0"):
+        check_resumed_agent(entry, "goal", "td3", 5, {"learning_rate": 0.001}, accept=["algo"])
 
 
 # ------------------------------------------------------------------ the reproductions, through the CLI

@@ -236,8 +236,18 @@ def check_resumed_env(
         )
 
 
+#: What a resumed agent may be asked to change on purpose (``resume_changes``, ``--resume-changing``).
+RESUME_CHANGES = ("algo", "seed", "config")
+
+
 def check_resumed_agent(
-    stored: object, name: str, algo: str, seed: int, block: Mapping[str, object], what: str = "--resume"
+    stored: object,
+    name: str,
+    algo: str,
+    seed: int,
+    block: Mapping[str, object],
+    what: str = "--resume",
+    accept: Sequence[str] = (),
 ) -> None:
     """
     The one comparison of what an agent of a run was trained with and what a resumed command asks for: its
@@ -251,23 +261,28 @@ def check_resumed_agent(
     :param seed: the seed asked for now.
     :param block: the config block asked for now (as read, before defaults).
     :param what: the option named in the message.
+    :param accept: which of :data:`RESUME_CHANGES` the user asked to change on purpose (not compared).
     :raises ResumeMismatch: one line naming the option and both values.
     """
+    unknown = sorted(set(accept) - set(RESUME_CHANGES))
+    if unknown:
+        raise ValueError(f"--resume-changing: expected some of {list(RESUME_CHANGES)}, got {brief(unknown)}")
     if not isinstance(stored, Mapping):
         return
-    if "algo" in stored and stored["algo"] != algo:
+    accepting = " (or accept the change with --resume-changing {}), or start a new run"
+    if "algo" not in accept and "algo" in stored and stored["algo"] != algo:
         raise ResumeMismatch(
             f"{what}: --algo of {name!r} was {brief(stored['algo'])} in the run, now {algo!r}; resume with "
-            f"--algo {name}={brief(stored['algo'])}, or start a new run"
+            f"--algo {name}={brief(stored['algo'])}" + accepting.format("algo")
         )
-    if "seed" in stored and stored["seed"] != seed:
+    if "seed" not in accept and "seed" in stored and stored["seed"] != seed:
         raise ResumeMismatch(
             f"{what}: --seed was {brief(stored['seed'])} in the run ({name!r}), now {seed!r}; resume with "
-            f"--seed {brief(stored['seed'])}, or start a new run"
+            f"--seed {brief(stored['seed'])}" + accepting.format("seed")
         )
     config = stored.get("config")
     before = config.get("block") if isinstance(config, Mapping) else None
-    if before is not None and as_json(before) != as_json(dict(block)):
+    if "config" not in accept and before is not None and as_json(before) != as_json(dict(block)):
         now = as_json(dict(block))
         keys = sorted(
             {str(k) for k in (*before, *now)}
@@ -286,7 +301,8 @@ def check_resumed_agent(
             else "the block differs"
         )
         raise ResumeMismatch(
-            f"{what}: --config block of {name!r}: {shown}; resume with the run's config, or start a new run"
+            f"{what}: --config block of {name!r}: {shown}; resume with the run's config"
+            + accepting.format("config")
         )
 
 

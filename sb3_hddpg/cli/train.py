@@ -11,6 +11,7 @@ import typer
 from rich.table import Table
 
 from sb3_hddpg.artifacts.limits import MAX_MANAGER_MOTION
+from sb3_hddpg.artifacts.manifests import RESUME_CHANGES
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
@@ -125,6 +126,14 @@ _WorkersTimestepsOpt = Annotated[
     ),
 ]
 _WorkersOutOpt = Annotated[Path, typer.Option("--out", help="Run folder; workers go to OUT/workers/.")]
+_ResumeChangingOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--resume-changing",
+        help="With --resume: continue although the run's algo, seed or config differs from this command's "
+        "(repeat for several; refused by default); the manifest then records the new value.",
+    ),
+]
 
 
 @app.command("train-workers")
@@ -152,6 +161,7 @@ def train_workers_command(
     progress_bar: ProgressOpt = True,
     keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
+    resume_changing: _ResumeChangingOpt = None,
 ) -> None:
     """Train each worker as a plain SB3 model (its default learner unless --algo says) on its own reward (paper Algorithm 1)."""
 
@@ -174,6 +184,12 @@ def train_workers_command(
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
         for name, block in blocks.items():
             check_algo(algos[name], resolve_backend(backend, block.backend))
+    unknown = [c for c in resume_changing or [] if c not in RESUME_CHANGES]
+    if unknown or (resume_changing and not resume):
+        problem = (
+            f"expected some of {list(RESUME_CHANGES)}, got {unknown[0]!r}" if unknown else "needs --resume"
+        )
+        raise typer.BadParameter(problem, param_hint="'--resume-changing'")
     prepare_out_dir(context, out, resume, force)
     summaries: dict[str, dict] = {}
 
@@ -193,6 +209,7 @@ def train_workers_command(
             on_worker_done=done,
             env=shared,
             algos=algos,
+            resume_changes=resume_changing or (),
         )
     rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in workers}
     console.print(metrics_table(f"Workers in {out / 'workers'} (best evaluation)", rows))

@@ -158,6 +158,7 @@ def train_workers(
     extra_callbacks: Sequence[BaseCallback] = (),
     env: TermsEnv | None = None,
     algos: Mapping[str, str] | None = None,
+    resume_changes: Sequence[str] = (),
     **run_changes: object,
 ) -> dict[str, Any]:
     """
@@ -171,6 +172,9 @@ def train_workers(
     :param algos: worker name -> its algorithm (e.g. ``{"goal": "crossq"}``; default: on the snake arm
         :data:`SNAKE_WORKER_ALGOS`, DDPG on another env).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
+    :param resume_changes: with ``resume``, which of the run's ``algo``, ``seed`` and ``config`` may differ
+        on purpose (by default a difference is refused: the worker would continue with other settings and
+        be recorded with them while trained mostly with the old); the manifest records the new ones.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
     :param on_worker_done: called after each worker with its outcome.
@@ -188,7 +192,9 @@ def train_workers(
     blocks = worker_hyperparams(workers, config, env, chosen)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
-    manifest = _start_manifest(manifest_path, shared, env, workers, blocks, run.resume, (chosen, run.seed))
+    manifest = _start_manifest(
+        manifest_path, shared, env, workers, blocks, run.resume, (chosen, run.seed, resume_changes)
+    )
     for name in workers:
         hyperparams = blocks[name]
         env_id, view_kwargs = shared.term_view(name)
@@ -223,21 +229,22 @@ def _start_manifest(
     workers: Sequence[str],
     blocks: Mapping[str, Hyperparams],
     resume: bool,
-    asked: tuple[Mapping[str, str], int],
+    asked: tuple[Mapping[str, str], int, Sequence[str]],
 ) -> ModelsManifest:
     """
     The manifest the workers are added to: a new one, or on ``resume`` the earlier run's, refused in one line
     when its env, or a worker's algorithm, seed or config block, differs from this run's (a worker is
     continued only with what it was trained with).
 
-    :param asked: each worker's algorithm and the seed this run asks for.
+    :param asked: each worker's algorithm, the seed this run asks for, and what may differ on purpose.
     """
     manifest = models_manifest("workers")
     if resume and manifest_path.exists():
         manifest = read_models_manifest(manifest_path, "workers")
-        algos, seed = asked
+        algos, seed, accept = asked
         for name in workers:
-            check_resumed_agent(manifest.entries.get(name), name, algos[name], seed, blocks[name].raw)
+            entry = manifest.entries.get(name)
+            check_resumed_agent(entry, name, algos[name], seed, blocks[name].raw, accept=accept)
         if env is not None or manifest.shared_env is not None:
             check_resumed_env(
                 manifest.shared_env or {"env_id": SNAKE_REACH_ENV_ID}, shared.env_id, shared.env_kwargs
