@@ -299,7 +299,7 @@ CASES = [
         "es-missing-study",
         ("export-study", "--storage", "sqlite:///{tmp}/s.db", "--study-name", "absent", "--out", "{tmp}/s"),
         2,
-        "absent",
+        "s.db' does not exist",
     ),
     case("ex-not-a-benchmark", ("export-models", "{folder}", "{tmp}/models"), 2, "a-folder"),
     # ---- snapshot, and the benchmark's --snapshot

@@ -35,7 +35,7 @@ from sb3_hddpg.artifacts.records import (
     read_models_manifest,
     read_workers_manifest,
 )
-from sb3_hddpg.artifacts.run_folder import RUN_MARKER, _listed_entries
+from sb3_hddpg.artifacts.run_folder import RUN_MARKER, _names, _read_marker
 
 SHA = "0" * 64
 SHIPPED_RESULTS = sorted((Path(__file__).parents[1] / "docs" / "results").glob("**/results.json"))
@@ -201,9 +201,9 @@ def test_one_network_check_for_configs_and_specs() -> None:
 
 def test_a_deep_run_marker_is_read_within_the_json_limits(tmp_path: Path) -> None:
     (tmp_path / RUN_MARKER).write_text("[" * 50_000 + "]" * 50_000)
-    assert _listed_entries(tmp_path) == frozenset()
+    assert _read_marker(tmp_path) == {}
     (tmp_path / RUN_MARKER).write_text(json.dumps({"entries": ["report", "../x"]}))
-    assert _listed_entries(tmp_path) == frozenset({"report"})
+    assert _names(_read_marker(tmp_path).get("entries")) == frozenset({"report"})
 
 
 @pytest.mark.parametrize("path", SHIPPED_RESULTS, ids=lambda p: p.parent.name)

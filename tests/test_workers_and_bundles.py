@@ -258,7 +258,8 @@ def test_train_manager_loads_each_worker_once(trained, tmp_path, monkeypatch):
     real_load, real_make = manifests.load_model, gym.make
 
     def counting_load(path, *args, **kwargs):
-        loaded.append(str(path))
+        # The zip is read once into memory, hashed and loaded from those bytes, which carry its name.
+        loaded.append(getattr(path, "name", str(path)))
         return real_load(path, *args, **kwargs)
 
     def counting_make(env_id, *args, **kwargs):

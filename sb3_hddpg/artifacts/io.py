@@ -71,7 +71,9 @@ def deferred_stop_signals() -> Iterator[None]:
             signal.raise_signal(signum)
 
 
-def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) -> Path:
+def atomic_write(
+    path: str | os.PathLike[str], write: Callable[[Path], object], hold_signals: bool = True
+) -> Path:
     """
     Produce ``path`` atomically: ``write`` fills a temporary path in the same folder, which is then renamed
     over ``path``. A reader (or a run killed at any moment, even with SIGKILL) sees the old file or the new
@@ -80,19 +82,29 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], object]) 
 
     :param path: the final file.
     :param write: called with the temporary path; must create that file.
+    :param hold_signals: hold Ctrl-C and SIGTERM while ``write`` runs (:func:`deferred_stop_signals`), for
+        short writes inside libraries that misreport an interruption; ``False`` for a long ``write`` (a
+        video recorded while the policy acts) that must stay interruptible: its temporary is removed.
     :return: the final path.
     """
     path = Path(path)
     if path.is_dir():
         # Checked first so that the error names the target rather than a temporary file.
         raise IsADirectoryError(f"Cannot write {str(path)!r}: it is a folder")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)
+    except OSError as error:
+        # A read-only folder's error names the hidden temporary, which means nothing to a user.
+        raise type(error)(error.errno, f"Cannot write {str(path)!r}: {error.strerror or error}") from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        with deferred_stop_signals():
+        if not hold_signals:
             write(tmp)
+        with deferred_stop_signals():
+            if hold_signals:
+                write(tmp)
             with open(tmp, "rb+") as handle:
                 os.fsync(handle.fileno())
             # mkstemp creates the file readable by its owner only; give results the permissions any other
@@ -178,7 +190,7 @@ def json_text(obj: object, what: str) -> str:
     try:
         return json.dumps(obj, indent=2, sort_keys=False, allow_nan=False)
     except ValueError:
-        where = _first_not_finite(obj, "") or "a value"
+        where = first_not_finite(obj) or "a value"
         raise NotFiniteError(f"{what}: {where} is not a finite number; not written") from None
 
 
@@ -194,7 +206,7 @@ def _as_json(value: object) -> object:
     return value
 
 
-def _first_not_finite(value: object, where: str) -> str | None:
+def first_not_finite(value: object, where: str = "") -> str | None:
     """The path (``a.b[2]``) of the first NaN or infinite float in ``value``, else ``None``."""
     if isinstance(value, float) and not math.isfinite(value):
         return where or "the value"
@@ -206,7 +218,7 @@ def _first_not_finite(value: object, where: str) -> str | None:
         else ()
     )
     for key, item in items:
-        found = _first_not_finite(
+        found = first_not_finite(
             item, f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}".lstrip(".")
         )
         if found:

@@ -21,19 +21,23 @@ the tests that hold them.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import re
 import reprlib
+import stat
 import zipfile
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from gymnasium.envs.registration import registry
 
 from sb3_hddpg.algorithms import NetworkShape, algorithm
+from sb3_hddpg.artifacts.io import first_not_finite
 from sb3_hddpg.envs import OWN_ENV_IDS
 from sb3_hddpg.names import PLAIN_NAME
 
@@ -129,6 +133,26 @@ MAX_OPTION_STEPS = 10_000
 MAX_EVAL_EPISODES = 10_000
 #: Most torch threads of one process.
 MAX_THREADS = 256
+#: Largest preference factor that weights a reward: the manager's (and a flat agent's) reward is up to the
+#: factors' sum per env step, summed over an option and an episode, and must stay far from overflow (a
+#: conditioned manager's run-time preference is a ratio, normalised by its largest factor: not bounded).
+MAX_PREFERENCE = 1e6
+#: Largest scale of the motion a manager observes (``--manager-motion``; the snake arm uses 20). The change
+#: is clipped to [-1, 1], so a larger scale only makes every motion a sign, and 1e308 made infinities.
+MAX_MANAGER_MOTION = 1e6
+#: How far the worker probabilities of one manager action may sum from 1 (a softmax over 32 workers
+#: rounds by ~1e-15).
+SIMPLEX_TOLERANCE = 1e-6
+#: Largest model file (a worker or flat zip, a bundle) read into memory to be hashed and loaded from the
+#: same bytes: what one load may read at most.
+MAX_MODEL_FILE_BYTES = MAX_LOAD_BYTES
+#: Most frames of one video (``package --video-steps``, ``record``): 100,000 RGB frames of the snake's
+#: 400x400 render are encoded one at a time, but take hours.
+MAX_VIDEO_STEPS = 100_000
+#: Most seeds one tuning trial trains (each a full training run).
+MAX_SEEDS_PER_TRIAL = 100
+#: Most trials of one tuning invocation.
+MAX_TRIALS = 100_000
 
 # Env settings (env kwargs from a file, a manifest's ``shared_env``, a bundle, ``--env`` options).
 #: Longest episode (``episode_steps``, ``max_episode_steps``): ours are 200 steps.
@@ -137,8 +161,58 @@ MAX_EPISODE_LENGTH = 100_000
 MAX_ENV_INTEGER = 1_000
 #: Largest magnitude of a float env setting (a speed, a radius, a time step...).
 MAX_ENV_FLOAT = 1e6
+#: Least magnitude of a float env setting other than 0: an env divides by its settings (a sensor range
+#: normalises distances), and ``5e-324`` made infinite, then NaN, observations.
+MIN_ENV_FLOAT = 1e-9
 #: The render modes a file may ask for (a window is the command's choice, never a file's).
 FILE_RENDER_MODES = (None, "rgb_array")
+
+
+def max_processes() -> int:
+    """Most processes one command starts side by side (``--n-jobs``, ``--processes``): the usable cores."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+#: The one table of counts: each count a user, a config, a bundle or a manifest may ask for, by name, with
+#: its least and largest value (a callable for the bounds that depend on the machine). Every route that
+#: takes a count (a CLI option, a Python keyword, a field of a file) checks it here, through
+#: :func:`check_count`, where it enters.
+COUNTS: dict[str, tuple[int, int | Any]] = {
+    "episodes": (1, MAX_EVAL_EPISODES),
+    "video_steps": (1, MAX_VIDEO_STEPS),
+    "seeds_per_trial": (1, MAX_SEEDS_PER_TRIAL),
+    "n_trials": (1, MAX_TRIALS),
+    "n_jobs": (1, max_processes),
+    "processes": (1, max_processes),
+    "option_steps": (1, MAX_OPTION_STEPS),
+    "workers": (2, MAX_WORKERS),
+    "manifest_entries": (0, MAX_MODELS),
+}
+
+
+def count_bounds(name: str) -> tuple[int, int]:
+    """The least and largest value of the count ``name`` of :data:`COUNTS`."""
+    low, high = COUNTS[name]
+    return low, int(high() if callable(high) else high)
+
+
+def check_count(name: str, value: object, what: str | None = None) -> int:
+    """
+    A count of :data:`COUNTS`, wherever it comes from: an integer (not a bool) within its bounds.
+
+    :param name: the count's name in :data:`COUNTS`.
+    :param value: the value asked for.
+    :param what: the option or field, for the message (default: ``name``).
+    :return: the value; raises :class:`LimitError` naming ``what``, the bounds and the value otherwise.
+    """
+    low, high = count_bounds(name)
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise LimitError(f"{what or name}: expected an integer in [{low}, {high}], actually: {brief(value)}")
+    return value
+
 
 #: Worker names, algorithm names: what may become part of a file name (the one plain-name rule).
 NAME_PATTERN = PLAIN_NAME
@@ -253,11 +327,75 @@ def parse_json(data: bytes | str, what: str) -> Any:
         raise LimitError(f"{what}: JSON nested too deeply") from None
 
 
+def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None = None) -> bytes:
+    """
+    The bytes of a file someone else may have made, read once: it must be a regular file (a FIFO would
+    block the read forever, ``/dev/zero`` never ends) of at most ``limit`` bytes, both checked on the open
+    descriptor before reading, so that what is checked is what is read. Open without blocking, so that
+    opening a FIFO returns at once; the bytes read are counted too (a file growing meanwhile).
+
+    :param path: the file.
+    :param limit: the largest size accepted.
+    :param what: how messages name the file (default: its path).
+    :return: the bytes; raises :class:`LimitError` (not a regular file, too big), ``FileNotFoundError``,
+        ``IsADirectoryError``, or another ``OSError``.
+    """
+    name = what or str(path)
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise IsADirectoryError(errno.EISDIR, f"Expected a file, got a folder: {name!r}")
+        if not stat.S_ISREG(info.st_mode):
+            raise LimitError(f"{name}: expected a regular file, got a FIFO, socket or device; refused")
+        if info.st_size > limit:
+            raise LimitError(f"{name}: {info.st_size} bytes is over the {limit}-byte limit for this file")
+        chunks, total = [], 0
+        while chunk := os.read(fd, min(1 << 20, limit + 1 - total)):
+            total += len(chunk)
+            if total > limit:
+                raise LimitError(f"{name}: grew past the {limit}-byte limit for this file while being read")
+            chunks.append(chunk)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def file_inside(root: str | os.PathLike[str], relative: str | os.PathLike[str]) -> Path:
+    """
+    A file of a folder someone else may have made (a benchmark or run folder), named by its path inside it:
+    refused with :class:`LimitError` when any part of that path is a symbolic link or it resolves outside
+    ``root``, so that a model replaced by a link to ``~/secret`` is never read, copied or listed.
+
+    :param root: the folder.
+    :param relative: the file's path inside it.
+    :return: the path (its type and size are :func:`read_file_bytes`'s to check).
+    """
+    root = Path(root)
+    current = root
+    for part in Path(relative).parts:
+        current = current / part
+        if current.is_symlink():
+            raise LimitError(
+                f"{str(current)!r} is a symbolic link inside {str(root)!r}; refused (it may lead anywhere)"
+            )
+    if root.resolve() not in current.resolve().parents:
+        raise LimitError(f"{str(current)!r} resolves outside {str(root)!r}; refused")
+    return current
+
+
 def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any:
-    """:func:`parse_json` of a file, reading at most one byte past the limit."""
-    with open(path, "rb") as handle:
-        data = handle.read(MAX_JSON_BYTES + 1)
-    return parse_json(data, what or str(path))
+    """
+    :func:`parse_json` of a file, read by :func:`read_file_bytes` (a regular file within the limit). A
+    NaN or infinity (which Python's JSON reader accepts and this library never writes) is refused naming
+    the file and the field, before it reaches a table or a statistic (``y contains NaN``).
+    """
+    name = what or str(path)
+    value = parse_json(read_file_bytes(path, MAX_JSON_BYTES, what), name)
+    where = first_not_finite(value)
+    if where is not None:
+        raise LimitError(f"{name}: {where} is not a finite number")
+    return value
 
 
 def read_json_record(path: str | os.PathLike[str], unreadable: str) -> Any:
@@ -344,10 +482,19 @@ class LoadBudget:
 
 
 def check_zip_directory(archive: zipfile.ZipFile, what: str) -> list[zipfile.ZipInfo]:
-    """The members of ``archive``, refused when there are more than :data:`MAX_ZIP_MEMBERS`."""
+    """
+    The members of ``archive``, refused when there are more than :data:`MAX_ZIP_MEMBERS` or when two share
+    a name: ``zipfile`` reads the last of them, ``unzip`` shows the first, so what is checked and what is
+    loaded could differ.
+    """
     infos = archive.infolist()
     if len(infos) > MAX_ZIP_MEMBERS:
         raise LimitError(f"{what}: {len(infos)} members is more than the limit of {MAX_ZIP_MEMBERS}")
+    seen: set[str] = set()
+    for info in infos:
+        if info.filename in seen:
+            raise LimitError(f"{what}: two members are named {brief(info.filename)}; refused as ambiguous")
+        seen.add(info.filename)
     return infos
 
 

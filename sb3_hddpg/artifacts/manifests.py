@@ -14,8 +14,8 @@ from typing import Protocol
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.artifacts.io import atomic_write_json, locked_file
-from sb3_hddpg.artifacts.limits import brief, read_json_file
-from sb3_hddpg.artifacts.provenance import library_versions, sha256_file, verify_sha256
+from sb3_hddpg.artifacts.limits import brief, check_count, read_json_file
+from sb3_hddpg.artifacts.provenance import library_versions, read_verified, sha256_file
 from sb3_hddpg.artifacts.records import JsonValue, ModelEntry, ModelsManifest, read_workers_manifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
@@ -25,6 +25,7 @@ from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 
 __all__ = [
     "ResumeMismatch",
+    "check_resumed_agent",
     "check_resumed_env",
     "load_workers",
     "model_entry",
@@ -115,6 +116,8 @@ def load_workers(
     unknown = [n for n in names if n not in entries]
     if unknown:
         raise ValueError(f"Unknown workers {unknown} in {str(manifest_path)!r}; it has {list(entries)}")
+    # The count is checked before any model is read: a manifest of 400 entries costs nothing.
+    check_count("manifest_entries", len(names), f"{str(manifest_path)!r}: workers listed")
     models = {}
     critics: dict[str, TermCritic] = {}
     for name in names:
@@ -127,9 +130,9 @@ def load_workers(
         path = folder / entry["file"]
         if not path.is_file():
             raise FileNotFoundError(f"Worker file missing: {str(path)!r}")
-        verify_sha256(path, entry["sha256"], str(path))
-        models[name] = load_model(path, spec=entry.get("spec"), trusted=trusted)
-        critic = read_term_critic(path, str(path))
+        verified = read_verified(path, entry["sha256"])
+        models[name] = load_model(verified, spec=entry.get("spec"), trusted=trusted)
+        critic = read_term_critic(verified.getvalue(), str(path))
         if critic is not None:
             critics[name] = critic
     states = observed_components(manifest, names)
@@ -235,6 +238,76 @@ def check_resumed_env(
         more = f" (and {len(differences) - 2} more)" if len(differences) > 2 else ""
         raise ResumeMismatch(
             f"{what}: {'; '.join(differences[:2])}{more}; resume with the run's settings, or start a new run"
+        )
+
+
+#: What a resumed agent may be asked to change on purpose (``resume_changes``, ``--resume-changing``).
+RESUME_CHANGES = ("algo", "seed", "config")
+
+
+def check_resumed_agent(
+    stored: object,
+    name: str,
+    algo: str,
+    seed: int,
+    block: Mapping[str, object],
+    what: str = "--resume",
+    accept: Sequence[str] = (),
+) -> None:
+    """
+    The one comparison of what an agent of a run was trained with and what a resumed command asks for: its
+    algorithm (``--algo``), seed (``--seed``) and config block (``--config``) must be the ones recorded, else
+    the agent would go on with other settings and be recorded with the new ones while trained mostly with
+    the old.
+
+    :param stored: the agent's manifest entry (anything but a mapping: nothing recorded, nothing to compare).
+    :param name: the agent, for the message.
+    :param algo: the algorithm asked for now.
+    :param seed: the seed asked for now.
+    :param block: the config block asked for now (as read, before defaults).
+    :param what: the option named in the message.
+    :param accept: which of :data:`RESUME_CHANGES` the user asked to change on purpose (not compared).
+    :raises ResumeMismatch: one line naming the option and both values.
+    """
+    unknown = sorted(set(accept) - set(RESUME_CHANGES))
+    if unknown:
+        raise ValueError(f"--resume-changing: expected some of {list(RESUME_CHANGES)}, got {brief(unknown)}")
+    if not isinstance(stored, Mapping):
+        return
+    accepting = " (or accept the change with --resume-changing {}), or start a new run"
+    if "algo" not in accept and "algo" in stored and stored["algo"] != algo:
+        raise ResumeMismatch(
+            f"{what}: --algo of {name!r} was {brief(stored['algo'])} in the run, now {algo!r}; resume with "
+            f"--algo {name}={brief(stored['algo'])}" + accepting.format("algo")
+        )
+    if "seed" not in accept and "seed" in stored and stored["seed"] != seed:
+        raise ResumeMismatch(
+            f"{what}: --seed was {brief(stored['seed'])} in the run ({name!r}), now {seed!r}; resume with "
+            f"--seed {brief(stored['seed'])}" + accepting.format("seed")
+        )
+    config = stored.get("config")
+    before = config.get("block") if isinstance(config, Mapping) else None
+    if "config" not in accept and before is not None and as_json(before) != as_json(dict(block)):
+        now = as_json(dict(block))
+        keys = sorted(
+            {str(k) for k in (*before, *now)}
+            if isinstance(before, Mapping) and isinstance(now, dict)
+            else {"block"}
+        )
+        changed = [
+            k
+            for k in keys
+            if not isinstance(before, Mapping) or not isinstance(now, dict) or before.get(k) != now.get(k)
+        ]
+        key = changed[0] if changed else "block"
+        shown = (
+            f"{key} was {brief(before.get(key))} in the run, now {brief(now.get(key))}"
+            if isinstance(before, Mapping) and isinstance(now, dict)
+            else "the block differs"
+        )
+        raise ResumeMismatch(
+            f"{what}: --config block of {name!r}: {shown}; resume with the run's config"
+            + accepting.format("config")
         )
 
 

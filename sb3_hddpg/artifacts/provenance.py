@@ -6,6 +6,7 @@ the code a run ran (:func:`code_provenance`: version, git commit, clean tree).
 from __future__ import annotations
 
 import hashlib
+import io
 import platform
 import subprocess
 from pathlib import Path
@@ -17,6 +18,7 @@ import stable_baselines3
 import torch
 
 from sb3_hddpg import __version__
+from sb3_hddpg.artifacts.limits import MAX_MODEL_FILE_BYTES, read_file_bytes
 from sb3_hddpg.artifacts.records.benchmark import CodeProvenance
 
 #: The package's source folder: the git tree asked for the commit is the one that holds it.
@@ -66,6 +68,25 @@ def verify_sha256(
             + (f": {consequence}" if consequence else "")
         )
     return actual
+
+
+def read_verified(path: str | Path, expected: str, what: str | None = None) -> io.BytesIO:
+    """
+    A model file someone else may have made, read once and checked against the sha256 its manifest
+    recorded: the bytes returned are the bytes hashed, so a file swapped between the check and the load
+    cannot give unverified weights. The file must be regular and within :data:`MAX_MODEL_FILE_BYTES`,
+    checked before anything is read or hashed (a 16 GiB sparse file is refused by its size).
+
+    :param path: the file.
+    :param expected: the recorded hex digest.
+    :param what: how messages name it (default: the path).
+    :return: the verified bytes, ready for a loader.
+    """
+    data = read_file_bytes(path, MAX_MODEL_FILE_BYTES, what)
+    verify_sha256(data, expected, what or str(path))
+    source = io.BytesIO(data)
+    source.name = str(path)  # type: ignore[attr-defined]  # how loaders' messages name it
+    return source
 
 
 def library_versions() -> dict[str, str]:

@@ -11,22 +11,33 @@ user-named folder. A folder is cleared only when all of these hold:
   when a command takes a folder) or, for folders made before the marker existed, the run lock file;
 - no other live process holds its lock (the message names the holder's pid).
 
-Then only the entries of the tool's own run layout (:data:`RUN_LAYOUT`: ``workers/``, ``checkpoints/``,
-``hierarchy.zip``, figures, records...) are deleted; anything else in the folder (a user's notes, data
-they put there) is kept and returned, so that the caller can say so. Symbolic links inside are removed as
-links, never followed.
+Then only the entries the tool wrote are deleted: those its marker's inventory lists (recorded by
+:func:`record_written` when a command ends), or, for a run that ended without recording (killed) and for
+folders from before the inventory, the entries of the tool's own run layout (:data:`RUN_LAYOUT`) that were
+not there when the tool took the folder. Anything else (a user's notes, data they put there) is kept and
+returned, so that the caller can say so. Symbolic links inside are removed as links, never followed.
+
+Writing is decided by one rule too, :func:`check_out_folder`: only a new folder, an empty one, or one of
+the tool's run folders is written into, never a symbolic link, and a run folder only while nothing the tool
+did not write there has a name the tool may write over.
 """
 
 from __future__ import annotations
 
 import fcntl
+import functools
+import inspect
 import os
 import re
 import shutil
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
-from sb3_hddpg.artifacts.io import LOCK_FILE, atomic_write_json, holds_lock
-from sb3_hddpg.artifacts.limits import MAX_MARKER_BYTES, MAX_MARKER_ENTRIES, parse_json
+from sb3_hddpg.artifacts.io import LOCK_FILE, atomic_write_json, holds_lock, locked_folder
+from sb3_hddpg.artifacts.limits import MAX_MARKER_BYTES, MAX_MARKER_ENTRIES, parse_json, read_file_bytes
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 #: The hidden file that marks a folder as one of the tool's run folders.
 RUN_MARKER = ".hddpg-run"
@@ -96,10 +107,26 @@ def check_output_file(path: str | os.PathLike[str], *, force: bool) -> Path:
     return path
 
 
+#: Files only this tool writes, by which a run folder made before the marker existed is recognised.
+TOOL_FILES = (
+    "workers/manifest.json",
+    "flat/manifest.json",
+    "manager/manager_settings.json",
+    "benchmark.json",
+)
+
+
 def is_run_folder(folder: str | os.PathLike[str]) -> bool:
-    """Whether ``folder`` is one of the tool's run folders (its marker, or the lock of an older run)."""
+    """
+    Whether ``folder`` is one of the tool's run folders: its marker, or for a folder made before the marker
+    existed, the lock of a run or one of the manifests only this tool writes (:data:`TOOL_FILES`).
+    """
     folder = Path(folder)
-    return (folder / RUN_MARKER).is_file() or (folder / LOCK_FILE).is_file()
+    return (
+        (folder / RUN_MARKER).is_file()
+        or (folder / LOCK_FILE).is_file()
+        or any((folder / name).is_file() for name in TOOL_FILES)
+    )
 
 
 def lock_holder(folder: str | os.PathLike[str]) -> str | None:
@@ -130,10 +157,7 @@ def check_clearable(folder: str | os.PathLike[str]) -> Path:
     """
     folder = Path(folder)
     if folder.is_symlink():
-        raise RunFolderError(
-            f"{str(folder)!r} is a symbolic link (to {os.readlink(folder)!r}); refusing to clear what it points "
-            "to: name the folder itself"
-        )
+        raise _symlink_refusal(folder)
     if not folder.exists():
         return folder
     if not folder.is_dir():
@@ -156,6 +180,72 @@ def check_clearable(folder: str | os.PathLike[str]) -> Path:
     return folder
 
 
+def _symlink_refusal(folder: Path) -> RunFolderError:
+    return RunFolderError(
+        f"{str(folder)!r} is a symbolic link (to {os.readlink(folder)!r}); refusing to write or clear what it "
+        "points to: name the folder itself"
+    )
+
+
+def tool_entries(folder: str | os.PathLike[str]) -> frozenset[str]:
+    """
+    The top-level entries of ``folder`` the tool wrote, by its marker: the inventory a finished command
+    recorded and the entries it listed; while the last command has not recorded its inventory (it was
+    killed, or the folder predates inventories), also every entry of :data:`RUN_LAYOUT` that was not there
+    when the tool took the folder.
+    """
+    folder = Path(folder)
+    marker = _read_marker(folder)
+    present = {entry.name for entry in folder.iterdir()} - {LOCK_FILE, RUN_MARKER}
+    listed = _names(marker.get("entries")) | _names(marker.get("written"))
+    if "written" in marker and not marker.get("open", False):
+        return frozenset(present & listed)
+    foreign = _names(marker.get("foreign"))
+    return frozenset(
+        name for name in present if name in listed or (RUN_LAYOUT.match(name) and name not in foreign)
+    )
+
+
+def check_out_folder(folder: str | os.PathLike[str]) -> Path:
+    """
+    The one rule for a folder a command is about to write (``train-*``, ``benchmark``, ``quickstart``,
+    ``package``, ``export-study``, ``snapshot``): a new folder, an empty one, or one of the tool's run
+    folders whose entries the tool did not write have no name the tool may write over. Refused, with
+    :class:`RunFolderError` naming the folder and what is in the way: a symbolic link (its target may be
+    anyone's), a protected folder (:func:`protected_reason`), a file, a folder of the user's.
+
+    :param folder: the folder named by the user.
+    :return: the folder.
+    """
+    folder = Path(folder)
+    if folder.is_symlink():
+        raise _symlink_refusal(folder)
+    reason = protected_reason(folder) if folder.exists() else None
+    if reason is not None:
+        raise RunFolderError(f"refusing to write into {str(folder)!r}: it is {reason}")
+    if not folder.exists():
+        return folder
+    if not folder.is_dir():
+        raise RunFolderError(f"{str(folder)!r} is a file, not a folder")
+    entries = sorted(entry.name for entry in folder.iterdir() if entry.name not in (LOCK_FILE, RUN_MARKER))
+    if not entries and not is_run_folder(folder):
+        return folder
+    if not is_run_folder(folder):
+        raise RunFolderError(
+            f"refusing to write into {str(folder)!r}: it holds {len(entries)} entries this tool did not write "
+            f"(e.g. {entries[0]!r}) and is not one of its run folders (no {RUN_MARKER}); choose a new or empty "
+            "folder"
+        )
+    ours = tool_entries(folder)
+    in_the_way = [name for name in entries if name not in ours and RUN_LAYOUT.match(name)]
+    if in_the_way:
+        raise RunFolderError(
+            f"refusing to write into {str(folder)!r}: {in_the_way[0]!r} there was not written by this tool and "
+            f"a run may write over it ({len(in_the_way)} such entries); move it out of the folder first"
+        )
+    return folder
+
+
 def clear_run_folder(folder: str | os.PathLike[str]) -> list[str]:
     """
     Delete the tool's own entries of a run folder (``--force``), after :func:`check_clearable`; the lock
@@ -167,12 +257,12 @@ def clear_run_folder(folder: str | os.PathLike[str]) -> list[str]:
     folder = check_clearable(folder)
     if not folder.exists():
         return []
-    listed = _listed_entries(folder)
+    ours = tool_entries(folder)
     kept = []
     for entry in sorted(folder.iterdir()):
         if entry.name in (LOCK_FILE, RUN_MARKER):
             continue
-        if not (RUN_LAYOUT.match(entry.name) or entry.name in listed):
+        if entry.name not in ours:
             kept.append(entry.name)
         elif entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry)
@@ -181,40 +271,113 @@ def clear_run_folder(folder: str | os.PathLike[str]) -> list[str]:
     return kept
 
 
-def mark_run_folder(folder: str | os.PathLike[str], command: str, entries: list[str] | None = None) -> Path:
+def mark_run_folder(
+    folder: str | os.PathLike[str], command: str, entries: list[str] | None = None, reopen: bool = False
+) -> Path:
     """
     Mark ``folder`` as one of the tool's run folders (created if missing), so that a later ``--force`` may
-    clear what the tool wrote into it.
+    clear what the tool wrote into it. The marker is left open (see :func:`record_written`) and records the
+    entries present that the tool did not write, which are never taken for the tool's.
 
     :param folder: the folder.
     :param command: the command that writes it, recorded for whoever looks.
     :param entries: top-level names the command wrote beyond :data:`RUN_LAYOUT` (a package's unpacked
-        model folder); a later ``--force`` deletes them too. An existing marker is kept when ``None``.
+        model folder); a later ``--force`` deletes them too.
+    :param reopen: open an existing marker again (a command that will record its inventory when it ends);
+        otherwise an existing marker is kept when ``entries`` is ``None``.
     :return: the marker file.
     """
     folder = Path(folder)
-    marker = folder / RUN_MARKER
-    if marker.is_file() and entries is None:
-        return marker
-    record = {"tool": "sb3-hddpg", "command": command, "entries": sorted(entries or [])}
-    return atomic_write_json(marker, record)
+    folder.mkdir(parents=True, exist_ok=True)
+    if (folder / RUN_MARKER).is_file() and entries is None and not reopen:
+        return folder / RUN_MARKER
+    marker = _read_marker(folder)
+    ours = tool_entries(folder)
+    present = {entry.name for entry in folder.iterdir()} - {LOCK_FILE, RUN_MARKER}
+    record = {
+        "tool": "sb3-hddpg",
+        "command": command,
+        "entries": sorted(set(entries or []) | _names(marker.get("entries"))),
+        "written": sorted(ours),
+        "foreign": sorted(present - ours),
+        "open": True,
+    }
+    return atomic_write_json(folder / RUN_MARKER, record)
 
 
-def _listed_entries(folder: Path) -> frozenset[str]:
+def record_written(folder: str | os.PathLike[str]) -> None:
     """
-    The extra entries the marker lists, read defensively (the marker is a file in a folder anyone may edit):
-    only plain top-level names, never ``.``, ``..`` or anything with a separator.
+    Close a run folder's marker when the command that took it ends: its inventory becomes every entry now
+    present that was not there, the user's, when the tool took it. A later ``--force`` deletes only those,
+    and a file the user puts there afterwards is theirs, whatever its name. No-op without a marker.
+
+    :param folder: the run folder.
     """
-    try:
-        with open(folder / RUN_MARKER, "rb") as handle:
-            data = parse_json(handle.read(MAX_MARKER_BYTES), str(folder / RUN_MARKER))
-    except (OSError, ValueError):
-        return frozenset()
-    entries = data.get("entries") if isinstance(data, dict) else None
-    if not isinstance(entries, list):
+    folder = Path(folder)
+    if folder.is_symlink() or not (folder / RUN_MARKER).is_file():
+        return
+    marker = _read_marker(folder)
+    foreign = _names(marker.get("foreign"))
+    present = {entry.name for entry in folder.iterdir()} - {LOCK_FILE, RUN_MARKER}
+    written = {name for name in present - foreign if RUN_ENTRY.match(name) or name.startswith(".")}
+    atomic_write_json(folder / RUN_MARKER, {**marker, "written": sorted(written), "open": False})
+
+
+def holds_run_folder(folder_of: Callable[[inspect.BoundArguments], Any], command: str) -> Callable[[F], F]:
+    """
+    Decorate a library function that writes a run folder (``train_workers``...): it runs under the folder's
+    lock (:func:`~sb3_hddpg.artifacts.io.holds_folder_lock`), and a folder it takes without a marker (a
+    Python caller's new folder) is marked and its inventory recorded when the function returns, as the
+    CLI does, so that a later ``--force`` or ``--resume`` recognises it. Nested calls change nothing.
+
+    :param folder_of: picks the folder from the call's bound arguments (defaults applied).
+    :param command: recorded in the marker.
+    """
+
+    def decorate(function: F) -> F:
+        signature = inspect.signature(function)
+
+        @functools.wraps(function)
+        def wrapper(*args: object, **kwargs: object) -> Any:
+            bound = signature.bind(*args, **kwargs)
+            bound.apply_defaults()
+            folder = Path(folder_of(bound))
+            with locked_folder(folder):
+                fresh = not (folder / RUN_MARKER).is_file()
+                if fresh:
+                    mark_run_folder(folder, command)
+                try:
+                    return function(*args, **kwargs)
+                finally:
+                    if fresh:
+                        record_written(folder)
+
+        return wrapper  # type: ignore[return-value]
+
+    return decorate
+
+
+def _names(value: object) -> frozenset[str]:
+    """Plain top-level names from a marker's list (never ``.``, ``..`` or anything with a separator)."""
+    if not isinstance(value, list):
         return frozenset()
     return frozenset(
         e
-        for e in entries[:MAX_MARKER_ENTRIES]
-        if isinstance(e, str) and RUN_ENTRY.match(e) and e not in (".", "..")
+        for e in value[:MAX_MARKER_ENTRIES]
+        if isinstance(e, str)
+        and (RUN_ENTRY.match(e) or RUN_LAYOUT.match(e))
+        and "/" not in e
+        and e not in (".", "..")
     )
+
+
+def _read_marker(folder: Path) -> dict[str, object]:
+    """
+    The marker, read defensively (a file in a folder anyone may edit; regular, within its size); ``{}``
+    when missing or unreadable.
+    """
+    try:
+        data = parse_json(read_file_bytes(folder / RUN_MARKER, MAX_MARKER_BYTES), str(folder / RUN_MARKER))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}

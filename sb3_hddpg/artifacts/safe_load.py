@@ -60,7 +60,7 @@ def load_model_safely(
         zip, a missing ``policy.pth``, or weights whose keys/shapes do not match the spec.
     :raises FileNotFoundError: if ``path`` does not exist.
     """
-    path_str = "<bytes>" if isinstance(path, io.BytesIO) else os.fspath(path)
+    path_str = getattr(path, "name", "<bytes>") if isinstance(path, io.BytesIO) else os.fspath(path)
     budget = budget if budget is not None else LoadBudget()
     try:
         budget.spend_model(path_str)
@@ -103,7 +103,7 @@ def load_model(
     if not trusted:
         if spec is None:
             raise ValueError(
-                f"{path if isinstance(path, io.BytesIO) else os.fspath(path)}: a model spec is required to load without running code from the file; "
+                f"{getattr(path, 'name', '<bytes>') if isinstance(path, io.BytesIO) else os.fspath(path)}: a model spec is required to load without running code from the file; "
                 "pass spec=... or, only for a file you trust, trusted=True"
             )
         return load_model_safely(path, spec, device=device, budget=budget)

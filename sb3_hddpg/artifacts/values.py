@@ -49,6 +49,7 @@ from sb3_hddpg.artifacts.limits import (
     MAX_THREADS,
     MAX_TIMESTEPS,
     MAX_TRAIN_FREQ,
+    MIN_ENV_FLOAT,
     LimitError,
     brief,
     check_env_id,
@@ -457,6 +458,17 @@ def _episode_length(value: object, what: str) -> int:
     return int(Bound(int, 1, MAX_EPISODE_LENGTH).check(value, what))
 
 
+def _env_float(value: object, what: str) -> Any:
+    """A float env setting: within :data:`MAX_ENV_FLOAT`, and 0 or at least :data:`MIN_ENV_FLOAT` in magnitude."""
+    checked = Bound(float, -MAX_ENV_FLOAT, MAX_ENV_FLOAT).check(value, what)
+    if checked and abs(checked) < MIN_ENV_FLOAT:
+        raise LimitError(
+            f"{what}: expected 0 or a magnitude of at least {MIN_ENV_FLOAT:g} (an env divides by its settings), "
+            f"actually: {checked!r}"
+        )
+    return checked
+
+
 def _check_kind(value: object, default: object, what: str) -> None:
     """A value whose parameter has a number, boolean or string default must be one too."""
     if value is None or default is inspect.Parameter.empty or default is None:
@@ -469,7 +481,7 @@ def _check_kind(value: object, default: object, what: str) -> None:
         # (``goal_velocity=0``), within the same magnitude.
         Bound(float, -MAX_ENV_INTEGER, MAX_ENV_INTEGER).check(value, what)
     elif isinstance(default, float):
-        Bound(float, -MAX_ENV_FLOAT, MAX_ENV_FLOAT).check(value, what)
+        _env_float(value, what)
     elif isinstance(default, str) and not isinstance(value, str):
         raise LimitError(f"{what}: expected a string, got {brief(value)}")
 
@@ -481,7 +493,7 @@ def _plain(value: object, what: str, depth: int) -> Any:
     if isinstance(value, int):
         return Bound(int, -MAX_ENV_INTEGER, MAX_ENV_INTEGER).check(value, what)
     if isinstance(value, float):
-        return Bound(float, -MAX_ENV_FLOAT, MAX_ENV_FLOAT).check(value, what)
+        return _env_float(value, what)
     if isinstance(value, str):
         if not PLAIN_STRING.match(value):
             raise LimitError(

@@ -27,6 +27,8 @@ from sb3_hddpg.cli.options import (
     TermsOpt,
     at_least,
     between,
+    build_settings,
+    check_jobs,
     cluster_address,
     positive_float,
     prepare_out_dir,
@@ -323,11 +325,33 @@ _MorlPythonOpt = Annotated[
     ),
 ]
 #: The options whose values the benchmark's settings check, named in their errors.
-_SETTINGS_OPTIONS = (
-    "'--methods' / '--preference' / '--env' / '--front-manager' / '--front-sweep' / '--front-motion' / "
-    "'--front-option-steps' / '--morl-python' / '--timesteps' / '--worker-timesteps' / '--flat-timesteps' / "
-    "'--front-timesteps' / '--eval-episodes'"
-)
+_SETTINGS_OPTIONS = {
+    "methods": "--methods",
+    "seeds": "--seeds",
+    "timesteps": "--timesteps",
+    "worker_timesteps": "--worker-timesteps",
+    "flat_timesteps": "--flat-timesteps",
+    "eval_freq": "--eval-freq",
+    "eval_episodes": "--eval-episodes",
+    "test_episodes": "--test-episodes",
+    "ham_threshold": "--ham-threshold",
+    "ham_hysteresis": "--ham-hysteresis",
+    "bias": "--bias",
+    "scenario": "--scenario",
+    "preferences": "--preference",
+    "backend": "--backend",
+    "env": "--env",
+    "workers_from": "--workers-from",
+    "final_test": "--final-test",
+    "worker_algo": "--worker-algo",
+    "front_manager": "--front-manager",
+    "front_timesteps": "--front-timesteps",
+    "front_sweep": "--front-sweep",
+    "front_motion": "--front-motion",
+    "front_option_steps": "--front-option-steps",
+    "front_per_preference": "--front-per-preference",
+    "morl_python": "--morl-python",
+}
 
 
 @app.command("benchmark")
@@ -380,35 +404,37 @@ def benchmark_command(
         return protocol_command(context)
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
-    with usage_errors(_SETTINGS_OPTIONS):
-        settings = BenchmarkSettings(
-            methods=chosen,
-            seeds=list(range(seeds)),
-            timesteps=timesteps or 0,
-            worker_timesteps=worker_timesteps,
-            flat_timesteps=flat_timesteps,
-            eval_freq=eval_freq,
-            eval_episodes=eval_episodes,
-            test_episodes=test_episodes,
-            ham_threshold=ham_threshold,
-            ham_hysteresis=ham_hysteresis,
-            bias=bias,
-            scenario=scenario,
-            preferences=preferences,
-            backend=backend,
-            env=_env_record(shared),
-            workers_from=str(workers_from.resolve()) if workers_from is not None else None,
-            final_test=final_test,
-            worker_algo=worker_algo,
-            front_manager=front_manager,
-            front_timesteps=front_timesteps,
-            front_sweep=front_sweep,
-            front_motion=front_motion,
-            front_option_steps=front_option_steps,
-            front_per_preference=front_per_preference,
-            morl_python=morl_python,
-        )
-        settings = check_machine_paths(settings)
+    settings = build_settings(
+        BenchmarkSettings,
+        _SETTINGS_OPTIONS,
+        methods=chosen,
+        seeds=list(range(seeds)),
+        timesteps=timesteps or 0,
+        worker_timesteps=worker_timesteps,
+        flat_timesteps=flat_timesteps,
+        eval_freq=eval_freq,
+        eval_episodes=eval_episodes,
+        test_episodes=test_episodes,
+        ham_threshold=ham_threshold,
+        ham_hysteresis=ham_hysteresis,
+        bias=bias,
+        scenario=scenario,
+        preferences=preferences,
+        backend=backend,
+        env=_env_record(shared),
+        workers_from=str(workers_from.resolve()) if workers_from is not None else None,
+        final_test=final_test,
+        worker_algo=worker_algo,
+        front_manager=front_manager,
+        front_timesteps=front_timesteps,
+        front_sweep=front_sweep,
+        front_motion=front_motion,
+        front_option_steps=front_option_steps,
+        front_per_preference=front_per_preference,
+        morl_python=morl_python,
+    )
+    settings = check_machine_paths(settings)
+    check_jobs(n_jobs, executor)
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
     results = _run_until_stopped(

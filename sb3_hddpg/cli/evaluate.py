@@ -20,7 +20,7 @@ from sb3_hddpg.cli.options import (
     TermBoundsOpt,
     TermsOpt,
     apply_run_preference,
-    at_least,
+    count,
     output_file,
     seed_range,
     terms_env_option,
@@ -28,8 +28,15 @@ from sb3_hddpg.cli.options import (
     writable_file,
 )
 from sb3_hddpg.envs.terms_env import TermsEnv, adapted_env_id
-from sb3_hddpg.evaluation import clearance_bands, dependence_rows, evaluate, state_dependence
+from sb3_hddpg.evaluation import (
+    DEPENDENCE_WORKER,
+    clearance_bands,
+    dependence_rows,
+    evaluate,
+    state_dependence,
+)
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
+from sb3_hddpg.media.trace import selected_names
 from sb3_hddpg.metric_labels import manager_warnings, summary_rows
 
 #: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
@@ -47,7 +54,9 @@ _PathOpt = Annotated[
 _EnvIdOpt = Annotated[
     str | None, typer.Option("--env", help=ENV_HELP + " Default: the env it was trained on.")
 ]
-_EpisodesOpt = Annotated[int, typer.Option("--episodes", callback=at_least(1), help="Evaluation episodes.")]
+_EpisodesOpt = Annotated[
+    int, typer.Option("--episodes", callback=count("episodes"), help="Evaluation episodes.")
+]
 _SeedOpt = Annotated[
     int,
     typer.Option("--seed", callback=seed_range, help="Seed of the first episode (episode k uses seed + k)."),
@@ -74,10 +83,11 @@ _AlgoOpt = Annotated[
     str | None, typer.Option("--algo", help="Algorithm of a zip without manifest (with --trust).")
 ]
 _WorkerOpt = Annotated[
-    str,
+    str | None,
     typer.Option(
         "--state-worker",
-        help="For a hierarchy: the worker whose share near obstacles vs with none in range is reported.",
+        help="For a hierarchy: the worker whose share near obstacles vs with none in range is reported "
+        "(default: avoid, where the hierarchy has it).",
     ),
 ]
 _NearClearanceOpt = Annotated[
@@ -103,7 +113,7 @@ def evaluate_command(
     json_path: _JsonPathOpt = None,
     trust: _TrustOpt = False,
     algo: _AlgoOpt = None,
-    worker: _WorkerOpt = "avoid",
+    worker: _WorkerOpt = None,
     preference: RunPreferenceOpt = None,
     near_clearance: _NearClearanceOpt = None,
     force: ReplaceFileOpt = False,
@@ -120,6 +130,7 @@ def evaluate_command(
     # Another env with several objectives resolves to the adapter it needs (the snake ids stay as they are).
     shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     loaded = _loaded_policy(path, shared, trust, algo, preference)
+    worker = _state_worker(worker, selected_names(loaded.policy))
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):
@@ -217,6 +228,21 @@ def _summary_table(
     for row in dependence_rows(dependence, worker) if dependence is not None else []:
         table.add_row(*row)
     return table
+
+
+def _state_worker(worker: str | None, names: list[str]) -> str:
+    """
+    ``--state-worker``: one of the policy's workers when given (a name it does not have silently dropped
+    the rows it asked for), else the default.
+    """
+    if worker is None:
+        return DEPENDENCE_WORKER
+    if worker not in names:
+        shown = f"its workers are {names}" if names else "it selects no worker"
+        raise typer.BadParameter(
+            f"{worker!r} is not a worker of this policy: {shown}", param_hint="'--state-worker'"
+        )
+    return worker
 
 
 def _loaded_policy(

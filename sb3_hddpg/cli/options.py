@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -12,13 +13,16 @@ import gymnasium as gym
 import typer
 
 from sb3_hddpg.artifacts.io import FolderLockedError, locked_folder
+from sb3_hddpg.artifacts.limits import LimitError, check_count, count_bounds
 from sb3_hddpg.artifacts.run_folder import (
     RunFolderError,
     check_clearable,
+    check_out_folder,
     check_output_file,
     clear_run_folder,
     mark_run_folder,
     protected_reason,
+    record_written,
 )
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.cli.app import console_note
@@ -59,6 +63,41 @@ def between(minimum: int, maximum: int) -> Callable[[int | None], int | None]:
         return value
 
     return check
+
+
+def count(name: str) -> Callable[[int | None], int | None]:
+    """
+    A typer callback for a count of :data:`~sb3_hddpg.artifacts.limits.COUNTS` (``episodes``,
+    ``video_steps``, ``n_jobs``...): the same bounds as a Python caller's keyword or a file's field, from the
+    one table (``None`` passes).
+    """
+
+    def check(value: int | None) -> int | None:
+        if value is not None:
+            try:
+                check_count(name, value, "value")
+            except LimitError:
+                low, high = count_bounds(name)
+                raise typer.BadParameter(f"must be in [{low}, {high}], got {value}") from None
+        return value
+
+    return check
+
+
+def check_jobs(n_jobs: int | None, executor: str) -> None:
+    """
+    ``--n-jobs`` against what runs them: on this machine, at most its usable cores (each job is a process
+    with its own torch: 200 of them took 3.4 GB); on a Ray cluster, what the cluster schedules.
+    """
+    if n_jobs is not None and executor == "local":
+        try:
+            check_count("n_jobs", n_jobs, "--n-jobs")
+        except LimitError:
+            low, high = count_bounds("n_jobs")
+            raise typer.BadParameter(
+                f"must be in [{low}, {high}] (the usable cores of this machine) with --executor local, got {n_jobs}",
+                param_hint="'--n-jobs'",
+            ) from None
 
 
 def seed_range(value: int | None) -> int | None:
@@ -145,6 +184,40 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
         raise typer.BadParameter(message, param_hint=param_hint) from error
 
 
+def build_settings(record: Callable[..., Any], options: Mapping[str, str], **values: Any) -> Any:
+    """
+    Build a settings record from a command's options, a refusal naming the one option at fault: the one
+    whose value, put back to the record's default, makes the error go away (a record's message names its
+    field, or nothing a user typed; a list of every option that feeds the record left the user to guess).
+
+    :param record: the settings dataclass (its fields' defaults are used to find the option at fault).
+    :param options: field -> the option that sets it, e.g. ``{"ham_threshold": "--ham-threshold"}``.
+    :param values: the record's keyword arguments.
+    :return: the record; raises ``typer.BadParameter`` naming the option.
+    """
+    try:
+        return record(**values)
+    except (ValueError, TypeError) as error:
+        message = str(error) or type(error).__name__
+        defaults = {
+            f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc,operator]
+            for f in dataclasses.fields(record)  # type: ignore[arg-type]
+            if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+        }
+        for field, option in options.items():
+            if field not in values or field not in defaults or values[field] == defaults[field]:
+                continue
+            try:
+                record(**{**values, field: defaults[field]})
+            except (ValueError, TypeError) as other:
+                if str(other) == message:
+                    continue
+            raise typer.BadParameter(message, param_hint=f"'{option}'") from None
+        raise typer.BadParameter(
+            message, param_hint=" / ".join(f"'{o}'" for o in dict.fromkeys(options.values()))
+        ) from None
+
+
 def refuse_protected_out(out: Path) -> Path:
     """
     Refuse, as a usage error, an output folder that may never hold a run: the current folder (``--out ""``
@@ -162,8 +235,9 @@ def refuse_protected_out(out: Path) -> Path:
 def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool) -> Path:
     """
     Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a folder above
-    it, the home or root folder, a path through a file, and a folder that already holds results unless
-    ``--resume`` or ``--force``; then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the
+    it, the home or root folder, a path through a file, a symbolic link, a folder of the user's
+    (:func:`~sb3_hddpg.artifacts.run_folder.check_out_folder`), and a run folder that already holds results
+    unless ``--resume`` or ``--force``; then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the
     command ends, so a second run into the same folder stops at once with the holder's pid. ``--force``
     clears it through :func:`sb3_hddpg.artifacts.run_folder.clear_run_folder`, which deletes only what the
     tool wrote; this function only reports.
@@ -174,6 +248,10 @@ def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool
     """
 
     refuse_protected_out(out)
+    try:
+        check_out_folder(out)
+    except RunFolderError as error:
+        raise typer.BadParameter(str(error), param_hint="'--out'") from None
     if out.exists() and not out.is_dir():
         raise typer.BadParameter(f"is a file, not a folder: {str(out)!r}", param_hint="'--out'")
     blocking = next((p for p in out.parents if p.exists() and not p.is_dir()), None)
@@ -208,7 +286,9 @@ def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool
             console_note(
                 f"--force kept {len(kept)} entries the tool did not write in {str(out)!r}: {kept[:5]}"
             )
-    mark_run_folder(out, context.info_name or "hddpg-cli")
+    mark_run_folder(out, context.info_name or "hddpg-cli", reopen=True)
+    # Registered after the lock's release, so run before it (click closes in reverse order).
+    context.call_on_close(lambda: record_written(out))
     return out
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import at_least, seed_range, usage_errors
+from sb3_hddpg.cli.options import count, seed_range, usage_errors
 from sb3_hddpg.cli.record import TrustOpt
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.experiments.packaging import check_package_folder, package_policy
@@ -18,14 +18,14 @@ from sb3_hddpg.hierarchy.loading import load_policy
 def package_command(
     path: str = typer.Argument(..., help="A worker or flat zip, or a hierarchy.zip (or its folder)."),
     out: Path = typer.Option(..., "--out", help="The package folder to create."),
-    episodes: int = typer.Option(10, "--episodes", callback=at_least(1), help="Evaluation episodes."),
+    episodes: int = typer.Option(10, "--episodes", callback=count("episodes"), help="Evaluation episodes."),
     seed: int = typer.Option(
         EVAL_SEED_BASE, "--seed", callback=seed_range, help="Seed of the first evaluation episode."
     ),
     video_steps: int | None = typer.Option(
         None,
         "--video-steps",
-        callback=at_least(1),
+        callback=count("video_steps"),
         help="Length of replay.mp4 in steps (default: one episode).",
     ),
     force: bool = typer.Option(False, "--force", help="Replace a folder that is not empty."),

@@ -15,7 +15,7 @@ from sb3_hddpg.cli.options import (
     TermBoundsOpt,
     TermsOpt,
     apply_run_preference,
-    at_least,
+    count,
     output_file,
     terms_env_option,
     usage_errors,
@@ -32,7 +32,9 @@ from sb3_hddpg.media.trace import selected_names, trace_episodes
 def plot_selection_command(
     path: str = typer.Argument(..., help="A hierarchy.zip (or its folder) or a ham.json."),
     out: Path = typer.Option(Path("selection.png"), "--out", help="The PNG to write."),
-    episodes: int = typer.Option(1, "--episodes", callback=at_least(1), help="Episodes, one after another."),
+    episodes: int = typer.Option(
+        1, "--episodes", callback=count("episodes"), help="Episodes, one after another."
+    ),
     seed: EpisodeSeedOpt = EVAL_SEED_BASE,
     env_id: ActInEnvOpt = None,
     terms: TermsOpt = None,

@@ -14,8 +14,8 @@ from sb3_hddpg.cli.options import (
     ExperimentBackendOpt,
     ForceOpt,
     RayAddressOpt,
-    at_least,
     cluster_address,
+    count,
     prepare_out_dir,
     seed_range,
 )
@@ -128,7 +128,7 @@ def quickstart_command(
     seed: int = typer.Option(0, "--seed", callback=seed_range, help="Training seed of every agent."),
     force: ForceOpt = False,
     processes: int = typer.Option(
-        2, "--processes", callback=at_least(1), help="Agents trained at a time, one process each."
+        2, "--processes", callback=count("processes"), help="Agents trained at a time, one process each."
     ),
     keep_checkpoints: bool = typer.Option(
         False,

@@ -19,6 +19,7 @@ from sb3_hddpg.cli.options import (
     TermsOpt,
     apply_run_preference,
     at_least,
+    count,
     output_file,
     seed_range,
     terms_env_option,
@@ -53,7 +54,7 @@ TrustOpt = Annotated[bool, typer.Option("--trust", help=TRUST_HELP)]
 def record_command(
     path: str = typer.Argument(..., help=POLICY_HELP),
     out: Path = typer.Option(..., "--out", help="The video to write: FILE.gif or FILE.mp4."),
-    episodes: int = typer.Option(1, "--episodes", callback=at_least(1), help="Episodes to record."),
+    episodes: int = typer.Option(1, "--episodes", callback=count("episodes"), help="Episodes to record."),
     seed: EpisodeSeedOpt = EVAL_SEED_BASE,
     fps: int = typer.Option(
         10, "--fps", callback=at_least(1), help="Frames per second (the env runs at 10)."

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import typer
 
-from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import usage_errors
 from sb3_hddpg.experiments.benchmark.pages import (
@@ -17,8 +16,9 @@ from sb3_hddpg.experiments.benchmark.pages import (
     update_pages,
     update_tuning_page,
 )
-from sb3_hddpg.experiments.study_export import export_study
+from sb3_hddpg.experiments.study_export import export_study, write_export
 from sb3_hddpg.experiments.study_storage import check_storage_url
+from sb3_hddpg.names import check_plain_name
 
 
 @app.command("export-study")
@@ -32,13 +32,16 @@ def export_study_command(
     ),
 ) -> None:
     """Export a tuning study's trials to JSON, for a benchmark's shipped studies and docs/TUNING.md's table."""
+    with usage_errors("'--study-name'"):
+        check_plain_name(study_name, "--study-name")
     with usage_errors("'--storage' / '--study-name'"):
         check_storage_url(storage)
         try:
             export = export_study(storage, study_name)
         except KeyError as error:
             raise ValueError(f"no study {study_name!r} in that storage") from error
-    path = atomic_write_json(out / f"{study_name}.json", export)
+    with usage_errors("'--out'"):
+        path = write_export(out, export)
     console.print(f"Exported {len(export['trials'])} trials of {study_name!r} to {path}")
 
 

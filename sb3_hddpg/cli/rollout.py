@@ -15,7 +15,7 @@ from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.baselines import JacobianReacher
 from sb3_hddpg.baselines.random import RandomPolicy
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import ReplaceFileOpt, output_file, usage_errors, writable_file
+from sb3_hddpg.cli.options import ReplaceFileOpt, count, output_file, usage_errors, writable_file
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.evaluation import evaluate
@@ -25,7 +25,7 @@ from sb3_hddpg.policy import Policy
 @app.command()
 def rollout(
     env_id: str = typer.Option(SNAKE_REACH_ENV_ID, "--env", help="Registered environment id."),
-    episodes: int = typer.Option(5, min=1, help="Episodes per policy."),
+    episodes: int = typer.Option(5, callback=count("episodes"), help="Episodes per policy."),
     seed: int = typer.Option(0, min=0, help="Seed of the first episode (episode k uses seed + k)."),
     png: Path = typer.Option(
         Path("runs/rollout.png"), callback=writable_file, help="Where to save a rendered frame."

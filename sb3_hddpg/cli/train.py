@@ -10,6 +10,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from sb3_hddpg.artifacts.limits import MAX_MANAGER_MOTION
+from sb3_hddpg.artifacts.manifests import RESUME_CHANGES
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
@@ -32,6 +34,7 @@ from sb3_hddpg.cli.options import (
     TermsOpt,
     ThreadsOpt,
     at_least,
+    count,
     discount,
     existing_dir,
     existing_file,
@@ -149,6 +152,14 @@ _WorkersTimestepsOpt = Annotated[
     ),
 ]
 _WorkersOutOpt = Annotated[Path, typer.Option("--out", help="Run folder; workers go to OUT/workers/.")]
+_ResumeChangingOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--resume-changing",
+        help="With --resume: continue although the run's algo, seed or config differs from this command's "
+        "(repeat for several; refused by default); the manifest then records the new value.",
+    ),
+]
 
 
 @app.command("train-workers")
@@ -179,6 +190,7 @@ def train_workers_command(
     progress_bar: ProgressOpt = True,
     keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
+    resume_changing: _ResumeChangingOpt = None,
 ) -> None:
     """Train each worker as a plain SB3 model (its default learner unless --algo says) on its own reward (paper Algorithm 1)."""
 
@@ -201,6 +213,12 @@ def train_workers_command(
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
         for worker in planned:
             check_algo(worker.algo, resolve_backend(backend, worker.hyperparams.backend))
+    unknown = [c for c in resume_changing or [] if c not in RESUME_CHANGES]
+    if unknown or (resume_changing and not resume):
+        problem = (
+            f"expected some of {list(RESUME_CHANGES)}, got {unknown[0]!r}" if unknown else "needs --resume"
+        )
+        raise typer.BadParameter(problem, param_hint="'--resume-changing'")
     prepare_out_dir(context, out, resume, force)
     summaries: dict[str, dict] = {}
 
@@ -223,6 +241,7 @@ def train_workers_command(
             weights=weightings,
             term_critic=TermCriticOptions() if term_critic else None,
             keep_transitions=keep_transitions,
+            resume_changes=resume_changing or (),
         ).manifest
     trained = [worker.name for worker in planned]
     rows = {name: entry["metrics"] for name, entry in manifest["workers"].items() if name in trained}
@@ -298,7 +317,9 @@ _ManagerSelectionOpt = Annotated[
 _ManagerOptionStepsOpt = Annotated[
     int | None,
     typer.Option(
-        "--option-steps", callback=at_least(1), help="Env steps per manager decision (default: the config's)."
+        "--option-steps",
+        callback=count("option_steps"),
+        help="Env steps per manager decision (default: the config's).",
     ),
 ]
 _ManagerOptionEndOpt = Annotated[
@@ -315,6 +336,7 @@ _ManagerMotionOpt = Annotated[
     typer.Option(
         "--manager-motion",
         min=0.0,
+        max=MAX_MANAGER_MOTION,
         help="The manager also sees how its state moved over the last env step, scaled by this factor and "
         "clipped to [-1, 1] (e.g. 20 for the snake arm, whose obstacles move by at most 0.0075 of their "
         "range per step); 0: the state only.",

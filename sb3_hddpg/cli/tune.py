@@ -25,7 +25,9 @@ from sb3_hddpg.cli.options import (
     TermBoundsOpt,
     TermsOpt,
     at_least,
+    check_jobs,
     cluster_address,
+    count,
     positive_float,
     refuse_protected_out,
     seed_range,
@@ -50,6 +52,7 @@ from sb3_hddpg.experiments.tuning import (
     trial_score,
     tune,
 )
+from sb3_hddpg.names import check_plain_name
 from sb3_hddpg.training.agent import TrainingInterrupted
 from sb3_hddpg.training.backends import resolve_backend
 
@@ -210,7 +213,7 @@ _NTrialsOpt = Annotated[
     int,
     typer.Option(
         "--n-trials",
-        callback=at_least(1),
+        callback=count("n_trials"),
         help="Finished (complete or pruned) trials the study should have, over all processes and re-runs.",
     ),
 ]
@@ -261,7 +264,7 @@ _SeedsPerTrialOpt = Annotated[
     int,
     typer.Option(
         "--seeds-per-trial",
-        callback=at_least(1),
+        callback=count("seeds_per_trial"),
         help="Training seeds per trial (--seed, --seed + 1, ...): a trial's value is the mean over them, so "
         "configurations are ranked across seeds, not on one seed's luck; each seed costs --timesteps "
         "again. Give every method's study the same value. Not with --level ham.",
@@ -426,6 +429,7 @@ def tune_command(
             block=block,
         )
     fixed = _checked_target(target, fix or [], storage, backend)
+    check_jobs(n_jobs, executor)
     address = cluster_address(executor, ray_address)
     settings, out = _study_settings(
         target,
@@ -504,7 +508,9 @@ def _study_settings(
     enqueue_base: bool,
 ) -> tuple[StudySettings, Path]:
     """The study's settings (its storage beside the output folder unless ``--storage``), and that folder."""
-    name = study_name or target.name
+    with usage_errors("'--study-name'"):
+        # The name becomes the default folder's and an export's file name: a plain name, never a path.
+        name = check_plain_name(study_name or target.name, "--study-name")
     out = refuse_protected_out(out or Path("runs") / "tune" / name)
     settings = StudySettings(
         storage=storage or default_storage_url(out),
@@ -537,8 +543,12 @@ def _run_study(
     _announce(target, settings, storage, n_jobs, address)
     try:
         study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
-    except TrainingInterrupted as interrupted:
-        raise CommandStopped(f"{interrupted} Re-run the same command to resume the study.") from None
+    except TrainingInterrupted:
+        # The trial's own message advises --resume, an option of train-*, not of tune: say what holds here.
+        raise CommandStopped(
+            f"tuning interrupted; study {settings.study_name!r} keeps its finished trials and queues the "
+            "interrupted one again: re-run the same command to resume the study"
+        ) from None
     _print_outcome(
         study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
     )

@@ -13,14 +13,21 @@ the folder and openable with :func:`sb3_hddpg.hierarchy.loading.load_policy` (``
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TypedDict
 
-from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.artifacts.limits import MAX_SEED, MAX_WORKERS, brief, read_json_file
-from sb3_hddpg.artifacts.provenance import sha256_file, verify_sha256
+from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
+from sb3_hddpg.artifacts.limits import (
+    MAX_MODEL_FILE_BYTES,
+    MAX_SEED,
+    MAX_WORKERS,
+    brief,
+    file_inside,
+    read_file_bytes,
+    read_json_file,
+)
+from sb3_hddpg.artifacts.provenance import sha256_bytes, sha256_file, verify_sha256
 from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
 from sb3_hddpg.experiments.benchmark import (
     DISCRETE_FLAT_METHODS,
@@ -133,12 +140,17 @@ def destination(dest_root: Path, relative: Path) -> Path:
     return target
 
 
-def _copy(source: Path, dest_root: Path, relative: Path) -> Path:
+def _copy(root: Path, dest_root: Path, relative: Path) -> str:
+    """
+    Copy ``root/relative`` to ``dest_root/relative``: read once (a regular file inside ``root``, no link
+    on the way, within the size limit), written atomically from those bytes. Returns their sha256.
+    """
+    source = file_inside(root, relative)
     if not source.is_file():
         raise FileNotFoundError(f"Expected a finished run's file, missing: {str(source)!r}")
-    target = destination(dest_root, relative)
-    shutil.copy2(source, target)
-    return target
+    data = read_file_bytes(source, MAX_MODEL_FILE_BYTES)
+    atomic_write_bytes(destination(dest_root, relative), data)
+    return sha256_bytes(data)
 
 
 def copy_model(model: ModelFile, root: Path, dest: Path) -> IndexEntry:
@@ -149,12 +161,11 @@ def copy_model(model: ModelFile, root: Path, dest: Path) -> IndexEntry:
     :return: its record in ``index.json``.
     """
     for extra in model.needs:
-        _copy(root / extra, dest, extra)
-    source = root / model.path
-    target = _copy(source, dest, model.path)
-    digest = sha256_file(target)
-    if digest != sha256_file(source):
-        raise OSError(f"Copy of {str(source)!r} differs from its source (sha256): disk full or changing?")
+        _copy(root, dest, extra)
+    digest = _copy(root, dest, model.path)
+    # The copy is checked against the bytes read, not the source again (which may have changed since).
+    if sha256_file(dest / model.path) != digest:
+        raise OSError(f"Copy of {str(root / model.path)!r} differs from what was read (sha256): disk full?")
     return model.index_entry(digest)
 
 

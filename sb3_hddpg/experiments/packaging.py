@@ -37,6 +37,7 @@ from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
     LoadBudget,
     brief,
+    check_count,
     check_name,
     check_zip_directory,
     parse_json,
@@ -46,6 +47,7 @@ from sb3_hddpg.artifacts.records import ManifestKind, models_manifest
 from sb3_hddpg.artifacts.run_folder import (
     RunFolderError,
     check_clearable,
+    check_out_folder,
     clear_run_folder,
     mark_run_folder,
     protected_reason,
@@ -120,6 +122,9 @@ def package_policy(
             f"Expected an SB3 model zip or a hierarchy bundle to package, actually a {loaded.kind!r} "
             f"({str(source)!r})"
         )
+    check_count("episodes", n_eval_episodes, "n_eval_episodes")
+    if video_steps is not None:
+        check_count("video_steps", video_steps, "video_steps")
     source = Path(source)
     if source.is_dir():
         source = source / "hierarchy.zip"
@@ -210,6 +215,8 @@ def check_package_folder(out_dir: str | Path, force: bool) -> Path:
     reason = "the current folder" if str(out_dir) in ("", ".") else protected_reason(out_dir)
     if reason is not None:
         raise RunFolderError(f"Expected a folder for the package, actually {str(out_dir)!r} ({reason})")
+    if out_dir.is_symlink():
+        check_out_folder(out_dir)  # the one refusal of a symbolic link, naming where it leads
     if out_dir.exists() and not out_dir.is_dir():
         raise RunFolderError(f"Expected a folder for the package, actually a file: {str(out_dir)!r}")
     if out_dir.exists() and any(out_dir.iterdir()):

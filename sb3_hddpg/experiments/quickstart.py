@@ -38,10 +38,11 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
-from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json, holds_folder_lock
+from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
 from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION, models_manifest
+from sb3_hddpg.artifacts.run_folder import holds_run_folder
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
@@ -185,7 +186,7 @@ def write_config(path: Path, overrides: dict[str, Any], algo: str = "ddpg") -> P
 
 
 # The workers train side by side in this folder: the lock is taken here, once, and shared with them.
-@holds_folder_lock(lambda call: call.arguments["out_dir"])
+@holds_run_folder(lambda call: call.arguments["out_dir"], "quickstart")
 def run_quickstart(
     out_dir: str | Path,
     budget: str | QuickstartBudget = "small",

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sb3_hddpg.artifacts.io import atomic_write_json, locked_folder
-from sb3_hddpg.artifacts.limits import read_json_file
-from sb3_hddpg.artifacts.provenance import sha256_file
+from sb3_hddpg.artifacts.limits import MAX_MODEL_FILE_BYTES, file_inside, read_file_bytes, read_json_file
+from sb3_hddpg.artifacts.provenance import sha256_bytes
 from sb3_hddpg.artifacts.run_folder import RunFolderError, mark_run_folder, protected_reason
 from sb3_hddpg.experiments.benchmark import (
     WORKERS,
@@ -159,7 +159,7 @@ def _copy_run(run: Path, dest: Path, task: Task, per_preference: bool) -> None:
     if task.method == WORKERS:
         for model in models:
             curve = model.path.parent.parent / "evaluations" / f"{model.method.split(':', 1)[1]}.json"
-            atomic_write_json(destination(dest, curve), read_json_file(run / curve))
+            atomic_write_json(destination(dest, curve), read_json_file(file_inside(run, curve)))
     record = record_path(dest, task).relative_to(dest)
     atomic_write_json(destination(dest, record), read_record_file(source))
 
@@ -175,7 +175,9 @@ def _models(folder: Path) -> list[ModelFile]:
 
 def _in_place(model: ModelFile, folder: Path) -> IndexEntry:
     """A model's ``index.json`` record, from its file in ``folder``."""
-    return model.index_entry(sha256_file(folder / model.path))
+    return model.index_entry(
+        sha256_bytes(read_file_bytes(file_inside(folder, model.path), MAX_MODEL_FILE_BYTES))
+    )
 
 
 def check_destination(

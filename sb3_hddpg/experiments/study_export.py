@@ -12,8 +12,11 @@ from typing import Any
 
 import optuna
 
+from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import read_json_file
+from sb3_hddpg.artifacts.run_folder import RunFolderError, check_output_file
 from sb3_hddpg.experiments.study_storage import make_storage
+from sb3_hddpg.names import check_plain_name
 
 #: Bumped when an export's meaning changes.
 EXPORT_VERSION = 1
@@ -30,7 +33,8 @@ def export_study(storage: str, study_name: str) -> dict[str, Any]:
     :param study_name: its name there.
     :raises KeyError: no such study in the storage (Optuna's message).
     """
-    study = optuna.load_study(study_name=study_name, storage=make_storage(storage, heartbeat_interval=None))
+    storage_ = make_storage(storage, heartbeat_interval=None, create=False)
+    study = optuna.load_study(study_name=study_name, storage=storage_)
     trials = [
         {
             "number": trial.number,
@@ -47,6 +51,35 @@ def export_study(storage: str, study_name: str) -> dict[str, Any]:
         "target": study.user_attrs.get("target", {}),
         "trials": trials,
     }
+
+
+def write_export(out: str | Path, export: dict[str, Any]) -> Path:
+    """
+    Write a study's export as ``OUT/STUDY.json``: the study's name must be a plain name (it becomes the
+    file's), ``OUT`` a folder that is not a symbolic link, and an existing ``STUDY.json`` an earlier export
+    (a file of the user's of that name is never replaced).
+
+    :param out: the folder of exports (created if missing).
+    :param export: what :func:`export_study` returned.
+    :return: the file written; raises ``ValueError`` (:class:`RunFolderError`) naming what is in the way.
+    """
+    out = Path(out)
+    name = check_plain_name(export["study"], "--study-name")
+    if out.is_symlink():
+        raise RunFolderError(f"--out: {str(out)!r} is a symbolic link; name the folder itself")
+    if out.exists() and not out.is_dir():
+        raise RunFolderError(f"--out: {str(out)!r} exists and is a file; name a folder for the export")
+    path = check_output_file(out / f"{name}.json", force=True)
+    if path.exists():
+        try:
+            earlier = read_json_file(path)
+        except (OSError, ValueError):
+            earlier = None
+        if not isinstance(earlier, dict) or "export_version" not in earlier:
+            raise RunFolderError(
+                f"--out: {str(path)!r} exists and is not a study export; move it away or choose another --out"
+            )
+    return atomic_write_json(path, export)
 
 
 def study_effort(export: dict[str, Any]) -> dict[str, Any]:

@@ -136,7 +136,9 @@ def _first_line(error: BaseException) -> str:
     return " ".join(str(origin).split("\n")[0].split())[:300]
 
 
-def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int = MAX_RETRY) -> Any:
+def make_storage(
+    url: str, heartbeat_interval: int | None = 30, max_retry: int = MAX_RETRY, create: bool = True
+) -> Any:
     """
     An Optuna storage for ``url`` with heartbeats and retry of trials whose process died.
 
@@ -145,6 +147,8 @@ def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int =
     :param heartbeat_interval: seconds between a running trial's heartbeats (``None``: no heartbeat, so a
         killed trial stays ``RUNNING``); a trial is declared dead after twice this without one.
     :param max_retry: how often a dead trial is re-queued.
+    :param create: make a SQLite database file that does not exist yet (``False`` for a reader: a missing
+        file is a :class:`StorageError`, and no empty database is left behind).
     :return: an ``optuna.storages.RDBStorage``.
     """
     import sqlalchemy.exc  # lazily: slow to import, only for a storage URL
@@ -157,6 +161,8 @@ def make_storage(url: str, heartbeat_interval: int | None = 30, max_retry: int =
     if path is not None:
         if path.exists() and not path.is_file():
             raise StorageError(f"Cannot hold a study in {_shown(url)}: {str(path)!r} is not a regular file")
+        if not create and not path.is_file():
+            raise StorageError(f"No study database at {_shown(url)}: {str(path)!r} does not exist")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             # WAL is a property of the file, set once; it must be set outside SQLAlchemy's transactions.

@@ -20,9 +20,11 @@ from stable_baselines3.common.save_util import data_to_json
 from sb3_hddpg.artifacts.io import json_text
 from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
+    MAX_MODEL_FILE_BYTES,
     LoadBudget,
     check_zip_directory,
     parse_json,
+    read_file_bytes,
     read_member,
 )
 from sb3_hddpg.artifacts.provenance import verify_sha256
@@ -71,7 +73,12 @@ def read_bundle(
     name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
     budget = budget if budget is not None else LoadBudget()
     try:
-        with zipfile.ZipFile(path) as archive:
+        # Read once, within the limit and only from a regular file (not a FIFO, not /dev/zero): the
+        # members are verified and loaded from these very bytes, so a file swapped meanwhile changes nothing.
+        source = (
+            path if isinstance(path, io.BytesIO) else io.BytesIO(read_file_bytes(path, MAX_MODEL_FILE_BYTES))
+        )
+        with zipfile.ZipFile(source) as archive:
             names = {info.filename for info in check_zip_directory(archive, name)}
             if MANIFEST not in names:
                 raise BundleError(f"{name} is not a hierarchy bundle: it has no {MANIFEST}")

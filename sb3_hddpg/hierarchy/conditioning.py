@@ -225,6 +225,9 @@ class PreferenceSpace:
     def weights(self, preferences: Mapping[str, float]) -> np.ndarray:
         """The normalised weights ``factor / sum`` in ``names`` order (what the manager observes)."""
         values = np.array([float(preferences[name]) for name in self.names], dtype=np.float64)
+        # Scaled by the largest first: factors near the largest float are a valid ratio, and their sum
+        # would overflow.
+        values = values / values.max()
         return values / values.sum()
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -244,7 +247,8 @@ class PreferenceSpace:
         :raises PreferenceOutsideError: one line naming the preference and the trained-over range.
         """
         filled = {**self.default, **dict(preferences)}
-        checked = check_preferences(filled, list(self.names))
+        # Only the ratio is observed (rescaled to ``total`` below): no bound on the factors' size.
+        checked = check_preferences(filled, list(self.names), max_factor=None)
         weights = self.weights(checked)
         low, high = self.bounds()
         if np.any(weights < low - WRITTEN_SLACK) or np.any(weights > high + WRITTEN_SLACK):

@@ -11,6 +11,7 @@ from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from sb3_hddpg.artifacts.workers import Workers, reward_specs_of, states_of
 from sb3_hddpg.envs.layout import StateLayout
@@ -111,9 +112,31 @@ def check_spaces(
                     f"{label} has {kind} of shape {actual.shape}, but the hierarchy's env {env_name} needs "
                     f"{expected.shape}{note}: {hint}"
                 )
-            # A Box with per-entry bounds prints its arrays over several lines: keep the message on one.
-            shown = " ".join(f"{actual} != {expected}".split())
             raise ValueError(
-                f"{label} has {kind} of shape {actual.shape} like the hierarchy's env {env_name}, but other "
-                f"bounds or dtype ({shown}): {hint}"
+                f"{label} has {kind} of shape {actual.shape} like the hierarchy's env {env_name}, but "
+                f"{space_difference(actual, expected)}: {hint}"
             )
+
+
+def space_difference(actual: gym.Space, expected: gym.Space) -> str:
+    """
+    The first difference of two spaces of one shape, short enough for one line whatever their size: the
+    type, the dtype, or the first bound that differs with its index (a Box's full arrays ran past the
+    message's length and were cut, shapes and all).
+    """
+    if type(actual) is not type(expected):
+        return f"a {type(actual).__name__} space where it needs a {type(expected).__name__}"
+    if getattr(actual, "dtype", None) != getattr(expected, "dtype", None):
+        return f"dtype {getattr(actual, 'dtype', None)} where it needs {getattr(expected, 'dtype', None)}"
+    if isinstance(actual, gym.spaces.Box) and isinstance(expected, gym.spaces.Box):
+        for bound in ("low", "high"):
+            mine, theirs = getattr(actual, bound).ravel(), getattr(expected, bound).ravel()
+            differs = np.flatnonzero(~((mine == theirs) | (np.isnan(mine) & np.isnan(theirs))))
+            if differs.size:
+                i = int(differs[0])
+                return (
+                    f"{bound}[{i}] = {mine[i]:g} where it needs {theirs[i]:g} ({differs.size} of {mine.size} "
+                    f"{bound} bounds differ)"
+                )
+    shown = " ".join(f"{actual} != {expected}".split())
+    return f"other bounds ({shown[:300]})"

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.limits import check_env_id, read_json_record
-from sb3_hddpg.artifacts.provenance import verify_sha256
+from sb3_hddpg.artifacts.provenance import read_verified
 from sb3_hddpg.artifacts.records import ManifestKind, models_manifest_from_json
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.values import check_env_kwargs
@@ -67,13 +67,13 @@ def load_policy(
         )
     entry, kind = _manifest_entry(path)
     if entry is not None:
-        verify_sha256(path, entry["sha256"], text)
+        data = read_verified(path, entry["sha256"], text)
         where = f"{text}: manifest entry"
         entry_env = check_env_id(entry.get("env_id"), f"{where} env_id", allowed_env_ids, trusted)
         env_kwargs = check_env_kwargs(
             entry_env, entry.get("env_kwargs"), f"{where} env_kwargs", allowed_env_ids, trusted
         )
-        model = load_model(path, spec=entry.get("spec"), trusted=trusted)
+        model = load_model(data, spec=entry.get("spec"), trusted=trusted)
         return LoadedPolicy(model, entry_env, env_kwargs, kind, entry.get("name", path.stem), entry)
     if not trusted:
         raise ValueError(

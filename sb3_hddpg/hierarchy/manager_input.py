@@ -12,6 +12,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sb3_hddpg.artifacts.limits import MAX_MANAGER_MOTION
+
 
 def subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Space[Any]:
     """The observation space restricted to ``indices`` (``None``: all of it)."""
@@ -73,8 +75,10 @@ class ManagerInput:
         motion: float = 0.0,
         n_preferences: int = 0,
     ) -> None:
-        if not (np.isfinite(motion) and motion >= 0):
-            raise ValueError(f"Expected manager_motion to be a finite number >= 0, actually: {motion!r}")
+        if not (np.isfinite(motion) and 0 <= motion <= MAX_MANAGER_MOTION):
+            raise ValueError(
+                f"Expected manager_motion to be a finite number in [0, {MAX_MANAGER_MOTION:g}], actually: {motion!r}"
+            )
         self.indices = indices
         self.motion = float(motion)
         self.n_preferences = int(n_preferences)

@@ -17,10 +17,18 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.artifacts.limits import MAX_ITEMS, LimitError, brief, check_name
+from sb3_hddpg.artifacts.limits import (
+    MAX_ITEMS,
+    MAX_PREFERENCE,
+    SIMPLEX_TOLERANCE,
+    LimitError,
+    brief,
+    check_name,
+)
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.gpi import GPI_SELECTION
+from sb3_hddpg.names import PLAIN_NAME
 
 
 @dataclass(frozen=True)
@@ -85,6 +93,28 @@ class SimplexMap:
 Probabilities = Sequence[float] | np.ndarray
 
 
+def check_probabilities(probabilities: Probabilities, n_workers: int) -> None:
+    """
+    The one check of what any selector made of a manager's action, before a worker acts on it: one
+    finite, non-negative probability per worker, summing to 1 within :data:`SIMPLEX_TOLERANCE`.
+
+    :param probabilities: a selector's :meth:`Selector.probabilities`.
+    :param n_workers: the workers there are.
+    :raises ValueError: naming the shape or the sum.
+    """
+    values = np.asarray(probabilities, dtype=np.float64)
+    if values.shape != (n_workers,):
+        raise ValueError(f"Expected {n_workers} worker probabilities, actually: shape {values.shape}")
+    if (
+        not (np.all(np.isfinite(values)) and np.all(values >= 0))
+        or abs(float(values.sum()) - 1.0) > SIMPLEX_TOLERANCE
+    ):
+        raise ValueError(
+            f"Expected worker probabilities >= 0 summing to 1 (within {SIMPLEX_TOLERANCE}), actually: "
+            f"{np.array2string(values, precision=4, threshold=8)} (sum {values.sum():.6g})"
+        )
+
+
 def most_probable(probabilities: Probabilities, rng: np.random.Generator) -> int:
     """
     The index of the most probable worker; an exact tie is broken at random with ``rng``, never by position.
@@ -126,10 +156,16 @@ class Selector:
         :param simplex: the map of a Box action onto the simplex (temperature and floor).
         :param action: the manager's action for one observation.
         """
+        shape = np.shape(action)  # type: ignore[call-overload]
+        if shape != (simplex.n_workers,):
+            raise ValueError(
+                f"Expected a manager action of shape ({simplex.n_workers},), one value per worker, actually: "
+                f"shape {shape}"
+            )
         values = (
             action.tolist()
-            if isinstance(action, np.ndarray) and action.ndim == 1
-            else np.asarray(action, dtype=np.float64).ravel().tolist()
+            if isinstance(action, np.ndarray)
+            else np.asarray(action, dtype=np.float64).tolist()
         )
         return simplex.single(values)
 
@@ -229,7 +265,16 @@ class DiscreteSelector(Selector):
         return gym.spaces.Discrete(n_workers)
 
     def probabilities(self, simplex: SimplexMap, action: object) -> list[float]:
-        chosen = int(np.asarray(action).reshape(-1)[0])
+        index = np.asarray(action)
+        if index.shape not in ((), (1,)) or not (
+            np.issubdtype(index.dtype, np.integer)
+            or (np.issubdtype(index.dtype, np.floating) and float(index.reshape(-1)[0]).is_integer())
+        ):
+            raise ValueError(
+                f"Expected one worker index (a scalar integer) in [0, {simplex.n_workers}), actually: "
+                f"{np.array2string(index, threshold=8)} of shape {index.shape}"
+            )
+        chosen = int(index.reshape(-1)[0])
         if not 0 <= chosen < simplex.n_workers:
             raise ValueError(f"Expected a worker index in [0, {simplex.n_workers}), actually: {chosen}")
         return [1.0 if i == chosen else 0.0 for i in range(simplex.n_workers)]
@@ -384,8 +429,15 @@ def preferences_from_bias(
         raise ValueError(f"Unknown worker {prefer!r} to prefer; workers: {names}")
     # A preference raises the preferred worker's factor (the paper's 15 %); no preference is ``prefer=None``,
     # and any other factors (a smaller one too) are given explicitly as ``preferences``.
-    if isinstance(bias, bool) or not isinstance(bias, (int, float)) or not math.isfinite(bias) or bias <= 0:
-        raise ValueError(f"Expected `bias` to be a finite number > 0, actually: {bias}")
+    if (
+        isinstance(bias, bool)
+        or not isinstance(bias, (int, float))
+        or not math.isfinite(bias)
+        or not 0 < bias <= MAX_PREFERENCE - 1
+    ):
+        raise ValueError(
+            f"Expected `bias` to be a finite number at most {MAX_PREFERENCE - 1:g} and > 0, actually: {bias}"
+        )
     return {name: (1.0 + bias if name == prefer else 1.0) for name in names}
 
 
@@ -408,8 +460,18 @@ def parse_preferences(text: str) -> dict[str, float]:
     return result
 
 
-def check_preferences(preferences: dict[str, Any], names: list[str]) -> dict[str, float]:
-    """Validate preference factors: known names, finite and > 0; missing names default to 1."""
+def check_preferences(
+    preferences: dict[str, Any], names: list[str], max_factor: float | None = MAX_PREFERENCE
+) -> dict[str, float]:
+    """
+    Validate preference factors: known names, finite and > 0, and at most ``max_factor`` where they weight a
+    reward (so that a weighted reward cannot overflow); missing names default to 1.
+
+    :param preferences: name -> factor.
+    :param names: the known names, in order.
+    :param max_factor: the largest factor (``None``: only the ratio is used, e.g. a conditioned manager's
+        run-time preference, which is normalised without overflow).
+    """
     unknown = sorted(set(preferences) - set(names))
     if unknown:
         raise ValueError(f"Preferences name unknown workers {unknown}; workers: {names}")
@@ -424,6 +486,11 @@ def check_preferences(preferences: dict[str, Any], names: list[str]) -> dict[str
         ):
             raise ValueError(
                 f"Expected preference of {name!r} to be a finite number > 0, actually: {value!r}"
+            )
+        if max_factor is not None and value > max_factor:
+            raise ValueError(
+                f"Expected preference of {name!r} to be at most {max_factor:g} (it weights a reward that "
+                f"is summed over steps; only the ratio between factors matters), actually: {value!r}"
             )
         checked[name] = float(value)
     return checked
@@ -466,20 +533,7 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
         raise LimitError(
             f"{what}.selection: expected one of {[*SELECTORS, GPI_SELECTION]}, got {brief(out['selection'])}"
         )
-    if "option_steps" in out:
-        steps = out["option_steps"]
-        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10_000:
-            raise LimitError(f"{what}.option_steps: expected an integer in [1, 10000], got {brief(steps)}")
-    # key -> (low, high, whether low itself is excluded)
-    ranges = {
-        "temperature": (0.0, 1e6, True),
-        "floor": (0.0, 1.0 / max(len(names), 1), False),
-        "option_gamma": (0.0, 1.0, True),
-        "manager_motion": (0.0, 1e6, False),
-    }
-    for key, (low, high, low_open) in ranges.items():
-        if key in out:
-            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open)
+    _check_numbers(out, len(names), what)
     if out.get("selection") == GPI_SELECTION:  # GPI's preference weighs the terms, not the workers
         _check_term_weights(out.get("preferences", {}), f"{what}.preferences")
     else:
@@ -487,11 +541,63 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
     for key in ("reward_terms", "worker_states"):
         if not isinstance(out.get(key, {}), Mapping):
             raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
+    for name, spec in out.get("reward_terms", {}).items():
+        _check_reward_spec(name, spec, names, f"{what}.reward_terms")
     state = out.get("manager_state")
     if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
         raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
     _check_recorded_rules(out, what)
     return out
+
+
+def _check_numbers(out: Mapping[str, Any], n_workers: int, what: str) -> None:
+    """The numeric selection settings of a bundle, each within its range (one line naming the field)."""
+    if "option_steps" in out:
+        steps = out["option_steps"]
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10_000:
+            raise LimitError(f"{what}.option_steps: expected an integer in [1, 10000], got {brief(steps)}")
+    # key -> (low, high, whether low itself is excluded)
+    ranges = {
+        "temperature": (0.0, 1e6, True),
+        "floor": (0.0, 1.0 / max(n_workers, 1), False),
+        "option_gamma": (0.0, 1.0, True),
+        "manager_motion": (0.0, 1e6, False),
+    }
+    for key, (low, high, low_open) in ranges.items():
+        if key in out:
+            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open)
+
+
+def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: str) -> None:
+    """
+    One worker's reward in a bundle: a known worker, paid one term (a plain name) or a weighting of terms
+    (plain names -> finite numbers >= 0 with a positive sum), so that NaN weights or nested mappings are
+    refused when the bundle is read, not when the reward is computed.
+    """
+    if name not in names:
+        raise LimitError(
+            f"{what}: {brief(name)} is not one of the bundle's workers {list(names)[:MAX_ITEMS]}"
+        )
+    if isinstance(spec, str):
+        if not PLAIN_NAME.match(spec):
+            raise LimitError(f"{what}.{name}: expected a term name, got {brief(spec)}")
+        return
+    if not isinstance(spec, Mapping) or not spec:
+        raise LimitError(f"{what}.{name}: expected a term name or term -> weight, got {brief(spec)}")
+    for term, weight in spec.items():
+        if not isinstance(term, str) or not PLAIN_NAME.match(term):
+            raise LimitError(f"{what}.{name}: expected term names, got {brief(term)}")
+        if (
+            isinstance(weight, bool)
+            or not isinstance(weight, (int, float))
+            or not math.isfinite(weight)
+            or not 0 <= weight <= MAX_PREFERENCE
+        ):
+            raise LimitError(
+                f"{what}.{name}.{term}: expected a finite weight in [0, {MAX_PREFERENCE:g}], got {brief(weight)}"
+            )
+    if not sum(spec.values()) > 0:
+        raise LimitError(f"{what}.{name}: expected weights with a positive sum, got {brief(dict(spec))}")
 
 
 def _check_recorded_rules(out: dict[str, Any], what: str) -> None:

@@ -22,6 +22,7 @@ from sb3_hddpg.hierarchy.selection import (
     Selector,
     SimplexMap,
     check_preferences,
+    check_probabilities,
     get_selector,
 )
 from sb3_hddpg.policy import Policy
@@ -337,6 +338,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         if self._last_obs is None:
             raise RuntimeError("Call reset() before step()")
         probabilities = self.selector.probabilities(self.simplex, action)
+        check_probabilities(probabilities, len(self.worker_names))
         chosen = self.selector.choose(probabilities, self._rng, False)
         total = 0.0
         discount = 1.0

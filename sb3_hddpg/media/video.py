@@ -160,7 +160,8 @@ def record_video(
 
     result: dict[str, EvaluationResult] = {}
     with rendering_errors():
-        atomic_write(path, lambda tmp: result.setdefault("evaluation", run(tmp)))
+        # Recording runs the policy for as long as asked: Ctrl-C and SIGTERM must reach it at once.
+        atomic_write(path, lambda tmp: result.setdefault("evaluation", run(tmp)), hold_signals=False)
     return RecordingResult(
         path=path,
         frames=state["frames"],

@@ -33,6 +33,7 @@ from sb3_hddpg.artifacts.limits import (
     check_buffer_size,
     check_network_size,
     count_nodes,
+    read_file_bytes,
 )
 from sb3_hddpg.artifacts.values import (
     HYPERPARAMETERS,
@@ -201,9 +202,12 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
     """
     path = Path(path)
     try:
-        text = path.read_text()
+        # A regular file within the limit, checked before reading (a FIFO would block, /dev/zero never end).
+        text = read_file_bytes(path, MAX_JSON_BYTES + 1).decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"Config file not found: {str(path)!r}") from None
+    except LimitError as error:
+        raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
         raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
     if len(text) > MAX_JSON_BYTES:

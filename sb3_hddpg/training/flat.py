@@ -14,11 +14,9 @@ from typing import Any
 import gymnasium as gym
 from stable_baselines3.common.type_aliases import MaybeCallback
 
-from sb3_hddpg.artifacts.io import (
-    holds_folder_lock,
-)
 from sb3_hddpg.artifacts.manifests import check_resumed_env, model_entry, save_manifest
 from sb3_hddpg.artifacts.records import ModelsManifest, models_manifest, read_models_manifest
+from sb3_hddpg.artifacts.run_folder import holds_run_folder
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.terms_env import config_key
@@ -73,7 +71,7 @@ def flat_hyperparams(
     return load_hyperparams(block or config_key(env_id, env_kwargs), algo_class(algo), path)
 
 
-@holds_folder_lock(lambda call: call.arguments["out_dir"])
+@holds_run_folder(lambda call: call.arguments["out_dir"], "train_flat")
 def train_flat(
     out_dir: str | Path,
     algo: str = "ddpg",

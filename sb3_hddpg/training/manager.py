@@ -13,10 +13,10 @@ from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_hddpg.artifacts.io import (
     atomic_write_json,
-    holds_folder_lock,
 )
 from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.artifacts.manifests import as_json, check_resumed_env
+from sb3_hddpg.artifacts.run_folder import holds_run_folder
 from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -95,7 +95,7 @@ class ManagerResult:
     outcome: TrainingOutcome
 
 
-@holds_folder_lock(lambda call: call.arguments["out_dir"])
+@holds_run_folder(lambda call: call.arguments["out_dir"], "train_manager")
 def train_manager(
     workers_dir: str | Path | ManagerSetup,
     out_dir: str | Path,

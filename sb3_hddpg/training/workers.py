@@ -16,10 +16,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_hddpg.algorithms import REGISTRY, algorithm
-from sb3_hddpg.artifacts.io import atomic_write, holds_folder_lock
-from sb3_hddpg.artifacts.manifests import check_resumed_env, model_entry, save_manifest
+from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.artifacts.manifests import check_resumed_agent, check_resumed_env, model_entry, save_manifest
 from sb3_hddpg.artifacts.provenance import sha256_file
 from sb3_hddpg.artifacts.records import ModelEntry, ModelsManifest, models_manifest, read_models_manifest
+from sb3_hddpg.artifacts.run_folder import holds_run_folder
 from sb3_hddpg.artifacts.term_critic import TERM_CRITIC_MEMBER, with_term_critic
 from sb3_hddpg.artifacts.transitions import TRANSITIONS_SUFFIX
 from sb3_hddpg.artifacts.values import check_make_kwargs
@@ -267,7 +268,7 @@ def plan_workers(
     return planned
 
 
-@holds_folder_lock(lambda call: call.arguments["out_dir"])
+@holds_run_folder(lambda call: call.arguments["out_dir"], "train_workers")
 def train_workers(
     out_dir: str | Path,
     workers: Sequence[str] | None = None,
@@ -282,6 +283,7 @@ def train_workers(
     term_critic: TermCriticOptions | None = TermCriticOptions(),
     keep_transitions: bool = False,
     warm_starts: Mapping[str, WarmStart] | None = None,
+    resume_changes: Sequence[str] = (),
     **run_changes: object,
 ) -> WorkersResult:
     """
@@ -307,6 +309,9 @@ def train_workers(
     :param warm_starts: worker name -> what it starts from (:class:`~sb3_hddpg.training.warm_start.WarmStart`,
         for a fresh start; a resumed worker continues from its checkpoint).
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
+    :param resume_changes: with ``resume``, which of the run's ``algo``, ``seed`` and ``config`` may differ
+        on purpose (by default a difference is refused: the worker would continue with other settings and
+        be recorded with them while trained mostly with the old); the manifest records the new ones.
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
     :param on_worker_done: called after each worker with its outcome.
@@ -322,7 +327,7 @@ def train_workers(
     planned = plan_workers(workers, weights, config, env, algos)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
-    manifest = _start_manifest(manifest_path, shared, env, planned, run.resume)
+    manifest = _start_manifest(manifest_path, shared, env, planned, run.resume, (run.seed, resume_changes))
     bounds = _shared_bounds(shared)
     outcomes: dict[str, TrainingOutcome] = {}
     for worker in planned:
@@ -433,14 +438,22 @@ def _start_manifest(
     env: TermsEnv | None,
     planned: Sequence[PlannedWorker],
     resume: bool,
+    asked: tuple[int, Sequence[str]],
 ) -> ModelsManifest:
     """
     The manifest the workers are added to: a new one, or on ``resume`` the earlier run's, refused in one line
-    when its env differs from this run's (a finished worker is kept only for the same env).
+    when its env, or a worker's algorithm, seed or config block, differs from this run's (a worker is
+    continued only with what it was trained with).
+
+    :param asked: the seed this run asks for, and what may differ on purpose.
     """
     manifest = models_manifest("workers")
     if resume and manifest_path.exists():
         manifest = read_models_manifest(manifest_path, "workers")
+        seed, accept = asked
+        for worker in planned:
+            entry = manifest.entries.get(worker.name)
+            check_resumed_agent(entry, worker.name, worker.algo, seed, worker.hyperparams.raw, accept=accept)
         if env is not None or manifest.shared_env is not None:
             check_resumed_env(
                 manifest.shared_env or {"env_id": SNAKE_REACH_ENV_ID}, shared.env_id, shared.env_kwargs

@@ -9,6 +9,7 @@ from typing import TypedDict, cast
 
 from sb3_hddpg.artifacts.limits import (
     brief,
+    check_count,
     check_file_entry,
     check_name,
     read_json_record,
@@ -20,6 +21,7 @@ from sb3_hddpg.artifacts.records.base import (
     ManifestKind,
     check_version,
 )
+from sb3_hddpg.envs.contract import check_bounds
 
 
 class ModelEntryJson(TypedDict, total=False):
@@ -187,10 +189,20 @@ def models_manifest_from_json(value: object, kind: ManifestKind, what: str) -> M
         raise ValueError(f"Not a valid {kind} manifest: {what!r}")
     version = check_version(value.get("schema_version"), MANIFEST_VERSIONS[kind], what)
     entries: dict[str, ModelEntryJson] = {}
+    # Counted before any entry is looked at, let alone loaded.
+    check_count("manifest_entries", len(value[kind]), f"{what}: the number of {kind} entries")
     # Names and files travel with shared folders: each must be a plain name before it picks a file.
     for name, entry in value[kind].items():
         check_name(name, f"{what}: {kind}")
-        entries[name] = cast(ModelEntryJson, check_file_entry(entry, f"{what}: {kind}.{brief(name)}"))
+        field_of = f"{what}: {kind}.{brief(name)}"
+        entries[name] = cast(ModelEntryJson, check_file_entry(entry, field_of))
+        if "reward_bounds" in entry:
+            # The one bounds checker (finite, low < high, normalisable), so NaN or inf is refused here
+            # rather than when a manager trained on them writes its bundle.
+            bounds = entry["reward_bounds"]
+            check_bounds({str(entry.get("reward_term", name)): bounds}, f"{field_of}.reward_bounds")
+            if not isinstance(bounds, list) or len(bounds) != 2:
+                raise ValueError(f"{field_of}.reward_bounds: expected [low, high], actually: {brief(bounds)}")
     shared = value.get("shared_env")
     if shared is not None and not isinstance(shared, dict):
         raise ValueError(f"{what}: shared_env must be a mapping, actually: {brief(shared)}")

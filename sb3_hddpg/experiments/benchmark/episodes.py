@@ -11,6 +11,7 @@ metrics where the env reports them.
 from __future__ import annotations
 
 import csv
+import io
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -19,7 +20,7 @@ from typing import cast
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write
-from sb3_hddpg.artifacts.limits import MAX_CSV_BYTES, MAX_CSV_CELLS
+from sb3_hddpg.artifacts.limits import MAX_CSV_BYTES, MAX_CSV_CELLS, LimitError, read_file_bytes
 from sb3_hddpg.artifacts.records import JsonObject
 from sb3_hddpg.envs.contract import TermNormaliser
 from sb3_hddpg.evaluation import EvaluationResult
@@ -154,11 +155,16 @@ def read_episodes_csv(path: Path) -> list[EpisodeRow]:
     :raises ValueError: a file over :data:`~sb3_hddpg.artifacts.limits.MAX_CSV_BYTES`, a missing run column,
         or a cell that is not a finite number, naming the file and the line.
     """
-    if path.stat().st_size > MAX_CSV_BYTES:
-        raise ValueError(f"{str(path)!r} is larger than {MAX_CSV_BYTES} bytes: not an episodes.csv of ours")
+    try:
+        # A regular file within the limit, read once (a FIFO would block the reader forever).
+        text = read_file_bytes(path, MAX_CSV_BYTES).decode("utf-8")
+    except LimitError as error:
+        raise ValueError(f"{error}: not an episodes.csv of ours") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{str(path)!r} is not UTF-8 text: not an episodes.csv of ours") from None
     rows: list[EpisodeRow] = []
     cells = 0
-    with open(path, newline="") as handle:
+    with io.StringIO(text, newline="") as handle:
         reader = csv.DictReader(handle)
         try:
             missing = [k for k in EPISODE_KEYS if k not in (reader.fieldnames or [])]

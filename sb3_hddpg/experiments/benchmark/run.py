@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
-from sb3_hddpg.artifacts.limits import MAX_MEMBER_BYTES, read_json_file
+from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
-from sb3_hddpg.artifacts.provenance import code_provenance, verify_sha256
+from sb3_hddpg.artifacts.provenance import code_provenance, read_verified
 from sb3_hddpg.artifacts.records import BenchmarkResults, benchmark_record, read_benchmark_record
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import REWARD_TERMS
@@ -278,10 +278,7 @@ def _copy_workers(source: Path, folder: Path) -> None:
     manifest = read_workers_manifest(source / "workers" / "manifest.json")
     for name, entry in manifest.entries.items():
         path = source / "workers" / entry["file"]
-        if path.stat().st_size > MAX_MEMBER_BYTES:
-            raise ValueError(f"{str(path)!r} is larger than {MAX_MEMBER_BYTES} bytes: not a worker of ours")
-        data = path.read_bytes()
-        verify_sha256(data, entry["sha256"], str(path))
+        data = read_verified(path, entry["sha256"]).getvalue()
         atomic_write_bytes(folder / "workers" / entry["file"], data)
         history = source / "evaluations" / f"{name}.json"
         atomic_write_json(folder / "evaluations" / f"{name}.json", read_json_file(history))

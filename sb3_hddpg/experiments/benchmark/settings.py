@@ -46,7 +46,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
 )
 from sb3_hddpg.experiments.benchmark.morl import mo_gymnasium_env
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
-from sb3_hddpg.hierarchy.selection import parse_preferences
+from sb3_hddpg.hierarchy.selection import parse_preferences, preferences_from_bias
 from sb3_hddpg.training.backends import backend_for, check_algo, check_backend
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
 from sb3_hddpg.training.run_options import RunOptions
@@ -219,6 +219,9 @@ class BenchmarkSettings:
             self._check_env()
         if self.morl_python is not None:
             self._check_morl()
+        # The biased managers' factor passes the hierarchy's own rule (finite, and small enough that a
+        # weighted reward cannot overflow) before anything trains.
+        preferences_from_bias(["a", "b"], "a", self.bias)
         if not 1 <= len(self.seeds) <= MAX_BENCHMARK_SEEDS or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(
                 f"Expected distinct seeds, 1 to {MAX_BENCHMARK_SEEDS} of them, actually: {brief(self.seeds)}"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime
 import functools
 import math
+import re
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -16,6 +17,7 @@ import yaml
 from optuna.trial import FrozenTrial, TrialState
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes
+from sb3_hddpg.artifacts.limits import MAX_JSON_BYTES, read_file_bytes
 from sb3_hddpg.experiments.study_storage import quiet_experimental
 from sb3_hddpg.experiments.tuning.target import TuningTarget, merge_block
 from sb3_hddpg.training.config import MANAGER_KEY, load_config_file, load_hyperparams
@@ -81,8 +83,8 @@ def save_best_config(
     Write the best parameters as a ``zoo_configs`` file that ``train-workers``, ``train-manager`` and
     ``train-flat --config`` accept as is.
 
-    If ``path`` exists, only the tuned block is replaced (so tuning ``goal`` and then ``avoid`` into one file
-    collects both); otherwise the file starts as a copy of the base config, so that every other block
+    If ``path`` exists, only the tuned block's lines are replaced, every other line (comments included) kept
+    as it was (so tuning ``goal`` and then ``avoid`` into one file collects both); otherwise the file starts as a copy of the base config, so that every other block
     (``default``, the other workers, ``manager``) is still there.
 
     :param study: the tuned study.
@@ -92,23 +94,94 @@ def save_best_config(
     :return: the path written.
     """
     path = Path(path)
+    if path.is_symlink():
+        raise ValueError(f"--save-config: {str(path)!r} is a symbolic link; name the file itself")
     block = best_block(study, target, rank_by)
     key = str(target.block_key)
-    config = load_config_file(path) if path.exists() else load_config_file(target.config_path)
-    config[key] = block
     best = best_trials(study, 1, rank_by)[0]
     which = "last" if rank_by == "last" else "best"
-    header = (
-        f"# Written by hddpg-cli tune on {datetime.datetime.now().isoformat(timespec='seconds')}: "
-        f"block {key!r} from study {study.study_name!r},\n"
-        f"# trial {best.number}, {which} mean evaluation reward {trial_score(best, rank_by):.4g} "
-        f"in {target.budget()} steps. RL Zoo format (zoo_configs/{target.algo}.yml).\n"
+    note = (
+        f"{TUNED_NOTE} block {key!r} from study {study.study_name!r}, trial {best.number}, {which} mean "
+        f"evaluation reward {trial_score(best, rank_by):.4g} in {target.budget()} steps "
+        f"({datetime.datetime.now().isoformat(timespec='seconds')})\n"
     )
-    text = header + yaml.safe_dump(config, sort_keys=False, default_flow_style=False)
+    tuned = note + yaml.safe_dump({key: block}, sort_keys=False, default_flow_style=False)
+    if path.exists():
+        old = load_config_file(path)
+        text = replace_block(read_file_bytes(path, MAX_JSON_BYTES).decode("utf-8"), key, tuned)
+        check_only_block_changed(old, text, key, str(path))
+    else:
+        config = load_config_file(target.config_path)
+        config[key] = block
+        header = f"# RL Zoo format (zoo_configs/{target.algo}.yml), from {target.config_path.name}.\n"
+        text = header + replace_block(
+            yaml.safe_dump(config, sort_keys=False, default_flow_style=False), key, tuned
+        )
     atomic_write_bytes(path, text.encode())
     # What we promise: the commands read it back as written.
     load_hyperparams(key, target.algo_class, path, manager=key == MANAGER_KEY)
     return path
+
+
+#: The comment line the tuned block carries (and that the next ``--save-config`` replaces with it).
+TUNED_NOTE = "# hddpg-cli tune:"
+#: A top-level key of a YAML mapping: a line starting with neither a space, a comment nor a list item.
+_TOP_LEVEL = re.compile(r"\A(?![\s#-])")
+
+
+def replace_block(text: str, key: str, tuned: str) -> str:
+    """
+    ``text`` (a YAML config) with the top-level block ``key`` (its line, the lines indented below it, and
+    the tuning note just above it) replaced by ``tuned``, or ``tuned`` appended if there is no such block;
+    every other line, comments included, is kept as it was.
+
+    :param text: the config file's text.
+    :param key: the block's top-level key.
+    :param tuned: the new block's text (a note line and ``key: ...``).
+    """
+    lines = text.splitlines(keepends=True)
+    heads = [i for i, line in enumerate(lines) if _TOP_LEVEL.match(line) and line.strip()]
+    start = next((i for i in heads if re.match(rf"""(['"]?){re.escape(key)}\1\s*:""", lines[i])), None)
+    if start is None:
+        return text + ("" if not text or text.endswith("\n") else "\n") + tuned
+    end = next((i for i in heads if i > start), len(lines))
+    # Comments and blank lines just above the next block belong to it.
+    while end > start + 1 and (not lines[end - 1].strip() or lines[end - 1].lstrip().startswith("#")):
+        if lines[end - 1].startswith(" ") and lines[end - 1].strip():
+            break
+        end -= 1
+    if start > 0 and lines[start - 1].startswith(TUNED_NOTE):
+        start -= 1
+    return "".join(lines[:start]) + tuned + "".join(lines[end:])
+
+
+def check_only_block_changed(before: Any, text: str, key: str, what: str) -> None:
+    """
+    Refuse (``ValueError`` naming the file) a rewrite of a config that changed any block but ``key``: a
+    YAML anchor of the replaced block used elsewhere would have changed another block, or left its alias
+    undefined.
+
+    :param before: the config as it was, parsed.
+    :param text: the rewritten file's text.
+    :param key: the block that was replaced.
+    :param what: the file, for the message.
+    """
+    try:
+        after = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise ValueError(
+            f"--save-config: replacing block {key!r} of {what!r} would break the file "
+            f"({' '.join(str(error).split())[:200]}: an anchor of the block used elsewhere?); not written: "
+            "name another file"
+        ) from None
+    if not isinstance(after, dict):
+        raise ValueError(f"--save-config: {what!r} would no longer be a mapping of blocks; not written")
+    changed = sorted(k for k in set(before) | set(after) if k != key and before.get(k) != after.get(k))
+    if changed:
+        raise ValueError(
+            f"--save-config: replacing block {key!r} of {what!r} would change {changed} too (a YAML anchor of "
+            "the block used there?); not written: name another file"
+        )
 
 
 def save_plots(study: optuna.Study, out_dir: str | Path) -> dict[str, Path | str]:

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -159,6 +160,37 @@ def open_study(target: TuningTarget, settings: StudySettings, process_index: int
     return study
 
 
+class _DropInterruptions(logging.Filter):
+    """Drop Optuna's "Trial N failed ... Traceback" record for a trial stopped by Ctrl-C or SIGTERM."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        error = record.exc_info[1] if record.exc_info else None
+        return not isinstance(error, (TrainingInterrupted, KeyboardInterrupt))
+
+
+@contextlib.contextmanager
+def _quiet_interruptions() -> Iterator[None]:
+    """
+    While a trial runs: a stop by the user is not a failure to report with a traceback (each process
+    printed one, and SIGTERM to ``tune`` gave 61 lines); the command says in one line how to resume.
+    """
+    # A logger's filter sees only what is logged to it, not what its children propagate: filter where
+    # Optuna logs a trial's failure, and at the handlers of its root logger.
+    optuna.logging.get_verbosity()  # makes Optuna set up its root logger and handler
+    places: list[logging.Logger | logging.Handler] = [
+        logging.getLogger("optuna.study._optimize"),
+        *logging.getLogger("optuna").handlers,
+    ]
+    dropping = _DropInterruptions()
+    for place in places:
+        place.addFilter(dropping)
+    try:
+        yield
+    finally:
+        for place in places:
+            place.removeFilter(dropping)
+
+
 def run_trials(
     target: TuningTarget,
     settings: StudySettings,
@@ -205,7 +237,7 @@ def run_trials(
                     lock.release()
                     time.sleep(poll)
                     continue
-                with quiet_experimental():
+                with quiet_experimental(), _quiet_interruptions():
                     study.optimize(claimed_objective, n_trials=1, gc_after_trial=True)
                 ran += 1
             finally:
