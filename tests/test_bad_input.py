@@ -278,6 +278,10 @@ CASES = [
         2,
         "ham",
     ),
+    # ---- grow and morl-report
+    case("gr-missing-workers", ("grow", "--workers", "{tmp}/nope"), 2, "nope"),
+    case("gr-zero-support", ("grow", "--workers", "{tmp}/nope", "--support", "0"), 2, "--support"),
+    case("mr-missing-run", ("morl-report", "{tmp}/nope"), 2, "nope"),
     # ---- export-models
     case("ex-missing-run", ("export-models", "{tmp}/nope", "{tmp}/models"), 2, "nope"),
     # ---- report and export-study: the docs' tables and the shipped studies

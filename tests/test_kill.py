@@ -15,6 +15,7 @@ from pathlib import Path
 
 from stable_baselines3 import DDPG
 
+from sb3_hddpg.artifacts.run_folder import mark_run_folder
 from tests.cli_runner import CLI, run_cli
 
 # A large replay buffer on purpose: its checkpoint takes long enough to write that a kill lands mid-write.
@@ -151,6 +152,7 @@ def test_a_crash_before_the_first_checkpoint_needs_no_cleanup(tmp_path):
     config = tmp_path / "kill.yml"
     config.write_text(CONFIG.replace("n_timesteps: 1200", "n_timesteps: 300"))
     out = tmp_path / "run"
+    mark_run_folder(out, "train-workers")  # the first thing the command writes, before any of these
     for folder in ("checkpoints/goal", "best/goal", "workers", "evaluations"):
         (out / folder).mkdir(parents=True)
     junk = [

@@ -30,7 +30,7 @@ from sb3_hddpg.experiments.benchmark.benchmark_file import (
     read_benchmark_file,
     read_benchmark_settings,
 )
-from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
+from sb3_hddpg.experiments.benchmark.episodes import SEED_METRIC_OF, group_rows, read_episodes_csv
 from sb3_hddpg.experiments.benchmark.front_pages import (
     decides_matrix,
     decides_table,
@@ -79,6 +79,16 @@ def load_run(run: Path) -> tuple[BenchmarkSettings, list[JsonObject]]:
         for record in records:
             shipped = rows.get(record["method"], {}).get(record["seed"])
             if shipped:
+                # The shipped rows stand for the record's test episodes: they must make every per-seed
+                # metric its summary holds, or the pages would mix the two sources.
+                summary = record.get("test") or {}
+                missing = sorted(m for m, seed_metric in SEED_METRIC_OF.items() if seed_metric in summary)
+                missing = [m for m in missing if m not in shipped[0]]
+                if missing:
+                    raise ValueError(
+                        f"{str(csv_path)!r}: {record['method']} seed {record['seed']} lacks {missing[:3]}, "
+                        "which its record's test summary holds"
+                    )
                 record["episodes"] = [
                     {k: v for k, v in row.items() if k not in ("method", "seed", "episode_set")}
                     for row in shipped
