@@ -104,6 +104,11 @@ MAX_LAYERS = 16
 MAX_CRITICS = 64
 #: Most quantiles of a distributional critic (``policy_kwargs.n_quantiles``).
 MAX_QUANTILES = 4_096
+#: The largest per-term critic member read from a worker's zip (its parameters are bounded by
+#: :data:`MAX_PARAMETERS` too).
+MAX_CRITIC_BYTES = 64 << 20
+#: The most observation or action entries a per-term critic reads.
+MAX_CRITIC_INPUTS = 1 << 16
 #: The observation and action widths that stand in for a config's env when its networks are sized
 #: before the env exists (the snake's are 39 and 6); the hidden layers dominate the count.
 STAND_IN_OBS_DIM = 64
