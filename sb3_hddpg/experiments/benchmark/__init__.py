@@ -39,6 +39,7 @@ The package follows the benchmark's sections, each a module: :mod:`.methods` (th
 from __future__ import annotations
 
 from sb3_hddpg.artifacts.records import BENCHMARK_RECORD_VERSION as RECORD_VERSION
+from sb3_hddpg.experiments.benchmark.comparisons import compare
 from sb3_hddpg.experiments.benchmark.env_methods import (
     DISCRETE_FLAT_METHODS,
     DISCRETE_MANAGERS,
@@ -111,7 +112,6 @@ from sb3_hddpg.experiments.benchmark.statistics import (
     FINAL_METRICS,
     SLOPE_UNIT,
     TRANSFER_FRACTION,
-    compare,
     compute_results,
     curve_bands,
     curve_statistics,

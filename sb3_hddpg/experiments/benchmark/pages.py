@@ -30,6 +30,7 @@ from sb3_hddpg.experiments.benchmark.benchmark_file import (
     read_benchmark_file,
     read_benchmark_settings,
 )
+from sb3_hddpg.experiments.benchmark.comparisons import verdict
 from sb3_hddpg.experiments.benchmark.episodes import group_rows, read_episodes_csv
 from sb3_hddpg.experiments.benchmark.front_pages import (
     decides_matrix,
@@ -44,7 +45,7 @@ from sb3_hddpg.experiments.benchmark.report import (
     ttc_dependence_table,
 )
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
-from sb3_hddpg.experiments.benchmark.statistics import TRANSFER_FRACTION, compute_results, verdict
+from sb3_hddpg.experiments.benchmark.statistics import TRANSFER_FRACTION, compute_results
 from sb3_hddpg.experiments.stats import EQUIVALENCE_MARGIN, FAMILY_ALPHA, bootstrap_ci
 from sb3_hddpg.experiments.study_export import read_exports, studies_table
 
