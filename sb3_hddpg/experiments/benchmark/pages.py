@@ -2,8 +2,9 @@
 The docs' result tables, generated from a benchmark folder's records: ``hddpg-cli report RUN_DIR``.
 
 A page holds each generated table between ``<!-- generated:RUN/NAME -->`` and ``<!-- /generated:RUN/NAME -->``
-(``RUN``: the folder's name, ``NAME``: one of :data:`~.page_blocks.TABLES`, or ``comparisons-METHOD`` for a method of the
-run), and the README its one results sentence between ``<!-- results:start -->`` and ``<!-- results:end -->``;
+(``RUN``: the folder's name, ``NAME``: one of :data:`~.page_blocks.TABLES`, or ``comparisons-METHOD`` for a
+method of the run), and the README its one results sentence between ``<!-- results:start -->`` and
+``<!-- results:end -->``;
 the prose around them only interprets. The results come from the records by
 :func:`~.statistics.compute_results` (with ``episodes.csv``'s rows where the folder ships it), so a re-run
 updates every table, and a test checks that the shipped tables regenerate exactly.
