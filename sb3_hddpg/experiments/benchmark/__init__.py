@@ -48,7 +48,7 @@ from sb3_hddpg.experiments.benchmark.env_methods import (
     default_env_methods,
     ttc_workers,
 )
-from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, SWEEP, front_results
+from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, SWEEP
 from sb3_hddpg.experiments.benchmark.front_pages import front_figure
 from sb3_hddpg.experiments.benchmark.front_points import (
     PLANES,
@@ -59,6 +59,7 @@ from sb3_hddpg.experiments.benchmark.front_points import (
     env_front,
     hypervolume,
 )
+from sb3_hddpg.experiments.benchmark.front_statistics import front_results
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_ENV_METHODS,
     DEFAULT_METHODS,

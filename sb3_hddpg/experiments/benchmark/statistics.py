@@ -48,7 +48,8 @@ from sb3_hddpg.experiments.benchmark.aggregates import (
 )
 from sb3_hddpg.experiments.benchmark.comparisons import adjust_for_comparisons, compare
 from sb3_hddpg.experiments.benchmark.episodes import seed_metrics, term_sum_keys
-from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, front_results
+from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD
+from sb3_hddpg.experiments.benchmark.front_statistics import front_results
 from sb3_hddpg.experiments.benchmark.methods import (
     METHOD_REGISTRY,
     WORKERS,
