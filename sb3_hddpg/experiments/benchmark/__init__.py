@@ -73,6 +73,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     register_method,
     split_key,
 )
+from sb3_hddpg.experiments.benchmark.record_files import read_record, read_record_file, record_path, seed_dir
 from sb3_hddpg.experiments.benchmark.report import (
     CSV_KEYS,
     OUTPUT_FILES,
@@ -87,14 +88,9 @@ from sb3_hddpg.experiments.benchmark.report import (
 from sb3_hddpg.experiments.benchmark.run import (
     changed_settings,
     check_redo,
-    check_workers_source,
     machine_info,
-    read_record,
-    read_record_file,
-    record_path,
     run_benchmark,
     run_task,
-    seed_dir,
     task_job,
 )
 from sb3_hddpg.experiments.benchmark.settings import (
@@ -121,6 +117,7 @@ from sb3_hddpg.experiments.benchmark.statistics import (
     steps_to_fraction,
     transfer_results,
 )
+from sb3_hddpg.experiments.benchmark.workers_source import check_workers_source
 
 __all__ = [
     "CSV_KEYS",

@@ -154,7 +154,7 @@ class BenchmarkSettings:
     :param workers_from: another benchmark folder whose workers every seed reuses instead of training its
         own (they must have been trained with the same config blocks, budget, backend, env and seed: then
         they are the workers this benchmark would train, since a seed's run is deterministic on the CPU).
-        The copies are checked against their manifest's sha256 (:func:`~.run.check_workers_source`).
+        The copies are checked against their manifest's sha256 (:func:`~.workers_source.check_workers_source`).
         Records state it relative to the benchmark's folder (:func:`~.machine_paths.settings_record`).
     :param final_test: score every run on the final test set (:data:`~sb3_hddpg.episode_sets.FINAL_TEST`):
         for the runs of record only, never for a choice; otherwise on the development episodes.
