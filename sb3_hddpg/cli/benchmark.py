@@ -404,36 +404,7 @@ def benchmark_command(
         return protocol_command(context)
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
-    settings = build_settings(
-        BenchmarkSettings,
-        _SETTINGS_OPTIONS,
-        methods=chosen,
-        seeds=list(range(seeds)),
-        timesteps=timesteps or 0,
-        worker_timesteps=worker_timesteps,
-        flat_timesteps=flat_timesteps,
-        eval_freq=eval_freq,
-        eval_episodes=eval_episodes,
-        test_episodes=test_episodes,
-        ham_threshold=ham_threshold,
-        ham_hysteresis=ham_hysteresis,
-        bias=bias,
-        scenario=scenario,
-        preferences=preferences,
-        backend=backend,
-        env=_env_record(shared),
-        workers_from=str(workers_from.resolve()) if workers_from is not None else None,
-        final_test=final_test,
-        worker_algo=worker_algo,
-        front_manager=front_manager,
-        front_timesteps=front_timesteps,
-        front_sweep=front_sweep,
-        front_motion=front_motion,
-        front_option_steps=front_option_steps,
-        front_per_preference=front_per_preference,
-        morl_python=morl_python,
-    )
-    settings = check_machine_paths(settings)
+    settings = check_machine_paths(_settings_of(context, chosen, preferences, shared))
     check_jobs(n_jobs, executor)
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
@@ -441,6 +412,57 @@ def benchmark_command(
         settings, out, n_jobs, resume, redone, address, snapshot_dir, allow_mixed_commits
     )
     _print_results(results, out, export_dir, snapshot_dir)
+
+
+#: The settings fields the command passes on as given, each from the option of its own name.
+_GIVEN_SETTINGS = (
+    "worker_timesteps",
+    "flat_timesteps",
+    "eval_freq",
+    "eval_episodes",
+    "test_episodes",
+    "ham_threshold",
+    "ham_hysteresis",
+    "bias",
+    "scenario",
+    "backend",
+    "final_test",
+    "worker_algo",
+    "front_manager",
+    "front_timesteps",
+    "front_sweep",
+    "front_motion",
+    "front_option_steps",
+    "front_per_preference",
+    "morl_python",
+)
+
+
+def _settings_of(
+    context: typer.Context, methods: list[str], preferences: list[str], shared: TermsEnv | None
+) -> BenchmarkSettings:
+    """
+    The benchmark's settings from the command's options, a refusal naming the option at fault
+    (:func:`~sb3_hddpg.cli.options.build_settings`).
+
+    :param context: the command's context (its parameters: the options as given).
+    :param methods: the methods the scenario runs.
+    :param preferences: the transfer scenario's preferences.
+    :param shared: the env with several objectives chosen by ``--env`` and its term options, if any.
+    """
+    params = context.params
+    workers_from = params["workers_from"]
+    return build_settings(
+        BenchmarkSettings,
+        _SETTINGS_OPTIONS,
+        methods=methods,
+        seeds=list(range(params["seeds"])),
+        timesteps=params["timesteps"] or 0,
+        preferences=preferences,
+        env=_env_record(shared),
+        workers_from=str(workers_from.resolve()) if workers_from is not None else None,
+        **{name: params[name] for name in _GIVEN_SETTINGS},
+    )
 
 
 def _run_until_stopped(
