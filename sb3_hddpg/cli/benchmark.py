@@ -14,6 +14,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.benchmark_events import check_snapshot_option, event_printer, snapshotting, take_snapshot
 from sb3_hddpg.cli.benchmark_protocol import ProtocolOpt, protocol_command
 from sb3_hddpg.cli.errors import CommandStopped
+from sb3_hddpg.cli.export_models import export_run
 from sb3_hddpg.cli.options import (
     ENV_HELP,
     SNAKE_DEFAULT,
@@ -56,7 +57,6 @@ from sb3_hddpg.experiments.benchmark import (
 from sb3_hddpg.experiments.benchmark.machine_paths import check_machine_paths
 from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
 from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
-from sb3_hddpg.experiments.model_export import export_models
 
 
 def _rich_table(table: TextTable) -> Table:
@@ -573,32 +573,10 @@ def _print_results(
         f"Wall time: {wall_time_text(results)}.  Outputs in {out}: {', '.join(output_files_in(out))}"
     )
     if export_dir is not None:
-        _export(out, export_dir)
+        export_run(out, export_dir)
     if snapshot_dir is not None:
         take_snapshot(out, snapshot_dir)
     if results.failures:
         for label, message in results.failures.items():
             console.print(f"[red]failed[/] {label}: {message}")
         raise typer.Exit(1)
-
-
-def _export(run: Path, dest: Path) -> None:
-    index = export_models(run, dest)
-    console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
-
-
-@app.command("export-models")
-def export_models_command(
-    run: Path = typer.Argument(..., help="A benchmark folder (the --out of hddpg-cli benchmark)."),
-    dest: Path = typer.Argument(..., help="The folder to copy the final models into, with index.json."),
-) -> None:
-    """
-    Copy a benchmark's final models (worker zips, hierarchy bundles, ham.json, flat zips) into DEST, in the
-    benchmark's layout, with DEST/index.json: {"method", "seed", "path", "sha256"} per model.
-    """
-    with usage_errors("'RUN'"):
-        if not (run / "records").is_dir():
-            raise FileNotFoundError(f"not a benchmark folder (no records/): {str(run)!r}")
-
-        index = export_models(run, dest)
-    console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
