@@ -99,11 +99,7 @@ from sb3_hddpg.experiments.benchmark.settings import (
     FRONT_METHODS,
     SCENARIOS,
     BenchmarkSettings,
-    Task,
     canonical_preference,
-    comparison_pairs,
-    plan_tasks,
-    task_cost,
 )
 from sb3_hddpg.experiments.benchmark.statistics import (
     FINAL_METRICS,
@@ -117,6 +113,7 @@ from sb3_hddpg.experiments.benchmark.statistics import (
     steps_to_fraction,
     transfer_results,
 )
+from sb3_hddpg.experiments.benchmark.tasks import Task, comparison_pairs, plan_tasks, task_cost
 from sb3_hddpg.experiments.benchmark.workers_source import check_workers_source
 
 __all__ = [

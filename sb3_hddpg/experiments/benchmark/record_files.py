@@ -13,7 +13,7 @@ from typing import Any
 
 from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.artifacts.records import read_benchmark_record
-from sb3_hddpg.experiments.benchmark.settings import Task
+from sb3_hddpg.experiments.benchmark.tasks import Task
 
 
 def seed_dir(out: Path, seed: int) -> Path:

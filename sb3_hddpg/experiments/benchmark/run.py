@@ -48,8 +48,9 @@ from sb3_hddpg.experiments.benchmark.record_files import (
     time_spent_before,
 )
 from sb3_hddpg.experiments.benchmark.report import write_outputs
-from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compute_results
+from sb3_hddpg.experiments.benchmark.tasks import Task, plan_tasks, task_cost
 from sb3_hddpg.experiments.benchmark.workers_source import check_workers_source, copy_workers, worker_names
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Executor, Job, RunOutcome, run_jobs

@@ -56,7 +56,8 @@ from sb3_hddpg.experiments.benchmark.methods import (
     method_key,
     split_key,
 )
-from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, comparison_pairs
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
+from sb3_hddpg.experiments.benchmark.tasks import Task, comparison_pairs
 from sb3_hddpg.experiments.stats import (
     bootstrap_ci,
     summarise,

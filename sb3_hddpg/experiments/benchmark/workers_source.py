@@ -20,7 +20,8 @@ from sb3_hddpg.experiments.benchmark.methods import (
     WORKERS,
 )
 from sb3_hddpg.experiments.benchmark.record_files import as_stored, read_record, seed_dir
-from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
+from sb3_hddpg.experiments.benchmark.tasks import Task
 from sb3_hddpg.training.workers import worker_hyperparams
 
 
