@@ -71,14 +71,9 @@ from sb3_hddpg.hierarchy.gpi import (
     check_gpi_preference,
     gpi_of,
 )
+from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.options import OptionState
-from sb3_hddpg.hierarchy.selection import (
-    OptionEnd,
-    SelectionConfig,
-    SimplexMap,
-    check_preferences,
-    get_selector,
-)
+from sb3_hddpg.hierarchy.selection import SelectionConfig, SimplexMap, check_preferences, get_selector
 from sb3_hddpg.policy import Policy
 
 
