@@ -14,8 +14,11 @@ import torch
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_hddpg.algorithms import ACTION_SPACES, REGISTRY, ROLES, NetworkShape, algorithm, algorithms_for
-from sb3_hddpg.artifacts.limits import LimitError, check_parameter_count
+from sb3_hddpg.artifacts.limits import (
+    LimitError,
+)
 from sb3_hddpg.artifacts.manifests import load_workers
+from sb3_hddpg.artifacts.network_limits import check_parameter_count
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.envs.terms_env import TermsEnv

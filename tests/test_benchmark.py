@@ -486,7 +486,7 @@ def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
     SIGTERM mid-run: the invocation is logged as interrupted, and the task keeps the time it spent, for the
     --resume that finishes it to add.
     """
-    from sb3_hddpg.experiments.benchmark.run import elapsed_path
+    from sb3_hddpg.experiments.benchmark.record_files import elapsed_path
     from tests.helpers import sigterm_once_written
 
     out = tmp_path / "bench"

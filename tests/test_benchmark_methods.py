@@ -566,7 +566,8 @@ def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
 
 
 def test_a_task_interrupted_and_resumed_keeps_the_time_of_both_invocations(tmp_path):
-    from sb3_hddpg.experiments.benchmark.run import elapsed_path, run_task
+    from sb3_hddpg.experiments.benchmark.record_files import elapsed_path
+    from sb3_hddpg.experiments.benchmark.run import run_task
 
     calls: list[int] = []
 

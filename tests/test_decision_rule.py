@@ -61,7 +61,7 @@ def record():
 
 
 def test_the_shipped_record_replays_to_the_words_of_the_audit(record):
-    from sb3_hddpg.experiments.benchmark.pages import verdict
+    from sb3_hddpg.experiments.benchmark.comparisons import verdict
 
     def word(pair: str) -> str:
         comparison = record.comparisons[pair]

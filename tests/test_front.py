@@ -22,7 +22,7 @@ from sb3_hddpg.experiments.benchmark.front import decision_dependence
 from sb3_hddpg.experiments.benchmark.front_points import PLANES, env_front, member_fields, sweep_labels
 from sb3_hddpg.experiments.benchmark.methods import METHOD_REGISTRY
 from sb3_hddpg.experiments.benchmark.report import markdown_report
-from sb3_hddpg.experiments.benchmark.settings import comparison_pairs
+from sb3_hddpg.experiments.benchmark.tasks import comparison_pairs
 from sb3_hddpg.experiments.model_export import export_models
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.backends import sbx_installed

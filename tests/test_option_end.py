@@ -11,7 +11,7 @@ from sb3_hddpg.artifacts.limits import LimitError
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-from sb3_hddpg.hierarchy.selection import OptionEnd
+from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.workers import train_workers
 from tests.cli_runner import run_cli

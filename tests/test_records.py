@@ -12,8 +12,8 @@ from sb3_hddpg.artifacts.limits import (
     MAX_CRITICS,
     MAX_QUANTILES,
     LimitError,
-    check_network_size,
 )
+from sb3_hddpg.artifacts.network_limits import check_network_size
 from sb3_hddpg.artifacts.records import (
     BENCHMARK_RECORD_VERSION,
     BENCHMARK_RESULTS_VERSION,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sb3_hddpg.experiments.benchmark.episodes import seed_metrics
-from sb3_hddpg.experiments.benchmark.front import CRASH_PLANE, crash_plane, with_crash_rate
+from sb3_hddpg.experiments.benchmark.front_statistics import CRASH_PLANE, crash_plane, with_crash_rate
 from sb3_hddpg.experiments.benchmark.statistics import censored_ratio, steps_to_fraction
 
 ROOT = Path(__file__).resolve().parents[1]

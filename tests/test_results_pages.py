@@ -196,7 +196,7 @@ def test_pages_rewrite_only_their_own_blocks(final_run):
 
 
 def test_the_readme_sentence_gives_every_challenger_its_verdicts(final_run):
-    from sb3_hddpg.experiments.benchmark.pages import results_sentence
+    from sb3_hddpg.experiments.benchmark.page_blocks import results_sentence
 
     _, settings, records = final_run
     sentence = results_sentence(compute_results(settings, records), "final-run")

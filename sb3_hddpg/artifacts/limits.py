@@ -36,7 +36,6 @@ from typing import Any
 
 from gymnasium.envs.registration import registry
 
-from sb3_hddpg.algorithms import NetworkShape, algorithm
 from sb3_hddpg.artifacts.io import first_not_finite
 from sb3_hddpg.envs import OWN_ENV_IDS
 from sb3_hddpg.names import PLAIN_NAME
@@ -104,6 +103,11 @@ MAX_LAYERS = 16
 MAX_CRITICS = 64
 #: Most quantiles of a distributional critic (``policy_kwargs.n_quantiles``).
 MAX_QUANTILES = 4_096
+#: The largest per-term critic member read from a worker's zip (its parameters are bounded by
+#: :data:`MAX_PARAMETERS` too).
+MAX_CRITIC_BYTES = 64 << 20
+#: The most observation or action entries a per-term critic reads.
+MAX_CRITIC_INPUTS = 1 << 16
 #: The observation and action widths that stand in for a config's env when its networks are sized
 #: before the env exists (the snake's are 39 and 6); the hidden layers dominate the count.
 STAND_IN_OBS_DIM = 64
@@ -542,136 +546,6 @@ def read_member(
     except (zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError, RuntimeError) as error:
         raise ValueError(f"{what}: member {name!r} is corrupt or unreadable: {error}") from None
     return b"".join(chunks)
-
-
-def check_buffer_size(buffer_size: object, obs_dim: int, act_dim: int, what: str) -> None:
-    """
-    A replay buffer's size, before SB3 allocates it: at most :data:`MAX_BUFFER_SIZE` transitions and
-    :data:`MAX_BUFFER_BYTES` (observations, next observations, actions, rewards, dones in float32).
-    """
-    if isinstance(buffer_size, bool) or not isinstance(buffer_size, int) or buffer_size < 1:
-        raise LimitError(f"{what}: expected an integer >= 1, got {brief(buffer_size)}")
-    size = buffer_size * (2 * obs_dim + act_dim + 3) * 4
-    if buffer_size > MAX_BUFFER_SIZE or size > MAX_BUFFER_BYTES:
-        raise LimitError(
-            f"{what}: {buffer_size} transitions ({size / 2**30:.1f} GiB) is over the limit of "
-            f"{MAX_BUFFER_SIZE} transitions and {MAX_BUFFER_BYTES >> 30} GiB"
-        )
-
-
-def check_parameter_count(
-    algo: str,
-    obs_dim: int,
-    act_dim: int,
-    pi_layers: Sequence[int],
-    qf_layers: Sequence[int],
-    n_critics: int | None = None,
-    n_quantiles: int = 25,
-    what: str = "policy_kwargs.net_arch",
-) -> int:
-    """
-    The total parameters a spec or config would build (actor, critics, and their targets: the algorithm
-    record's rule), refused over :data:`MAX_PARAMETERS` before anything is allocated: each layer may be
-    within bounds and the product still be tens of GB (``net_arch [65536, 65536]``).
-
-    :param algo: a registered algorithm, by name or spec class name (any case).
-    :param n_critics: the critics (``None``: the algorithm's default).
-    :return: the count; raises :class:`LimitError` otherwise.
-    """
-    shape = NetworkShape(obs_dim, act_dim, pi_layers, qf_layers, n_critics, n_quantiles)
-    total = algorithm(algo).parameter_count(shape)
-    if total > MAX_PARAMETERS:
-        raise LimitError(
-            f"{what}: the networks would have {total:,} parameters, over the limit of {MAX_PARAMETERS:,}"
-        )
-    return total
-
-
-def check_network_size(
-    algo: str,
-    policy_kwargs: object,
-    obs_dim: int = STAND_IN_OBS_DIM,
-    act_dim: int = STAND_IN_ACT_DIM,
-    what: str = "policy_kwargs",
-    max_layers: int = MAX_LAYERS,
-    max_layer_size: int = MAX_LAYER_SIZE,
-) -> int:
-    """
-    The one check of a network's shape before SB3 allocates it, for config files and saved specs alike:
-    ``net_arch`` (the algorithm's default when absent) is lists of at most ``max_layers`` sizes in
-    ``[1, max_layer_size]``, ``n_critics`` at most :data:`MAX_CRITICS`, ``n_quantiles`` at most
-    :data:`MAX_QUANTILES`, and the networks' total parameters at most :data:`MAX_PARAMETERS`
-    (``net_arch [65536, 65536]`` is 17 GB although each layer may be within bounds).
-
-    :param algo: a registered algorithm, by name or spec class name (any case).
-    :param policy_kwargs: the policy's keyword arguments (anything but a mapping: nothing to check).
-    :param obs_dim: the observation's width (default: a stand-in when the env is not known yet).
-    :param act_dim: the action's width.
-    :param what: where the value comes from, for the message.
-    :param max_layers: most hidden layers (a config's :data:`MAX_LAYERS`, a spec's :data:`MAX_SPEC_LAYERS`).
-    :param max_layer_size: widest hidden layer.
-    :return: the parameter count; raises :class:`LimitError` naming the first value over its limit.
-    """
-    if not isinstance(policy_kwargs, Mapping):
-        return 0
-    record = algorithm(algo)
-    net_arch = policy_kwargs.get("net_arch", list(record.default_net_arch))
-    if isinstance(net_arch, Mapping):
-        pi, qf = net_arch.get("pi", []), net_arch.get(record.critic_layers, [])
-    else:
-        pi = qf = net_arch
-    if not all(
-        isinstance(layers, (list, tuple)) and len(layers) <= max_layers for layers in (pi, qf)
-    ) or not all(_is_int_in(size, max_layer_size) for size in (*pi, *qf)):
-        raise LimitError(
-            f"{what}: expected net_arch to be lists of at most {max_layers} layer sizes in "
-            f"[1, {max_layer_size}], actually: {brief(net_arch)}"
-        )
-    n_critics = policy_kwargs.get("n_critics", record.default_n_critics)
-    n_quantiles = policy_kwargs.get("n_quantiles", 25)
-    if not _is_int_in(n_critics, MAX_CRITICS) or not _is_int_in(n_quantiles, MAX_QUANTILES):
-        raise LimitError(
-            f"{what}: expected n_critics in [1, {MAX_CRITICS}] and n_quantiles in [1, {MAX_QUANTILES}], "
-            f"actually: {brief(n_critics)} and {brief(n_quantiles)}"
-        )
-    return check_parameter_count(
-        algo, obs_dim, act_dim, pi, qf, n_critics=n_critics, n_quantiles=n_quantiles, what=f"{what}.net_arch"
-    )
-
-
-def _is_int_in(value: object, maximum: int) -> bool:
-    """``value`` is an int (not a bool) in ``[1, maximum]``."""
-    return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= maximum
-
-
-#: A model file named in a workers or flat manifest: a name and ``.zip``, in the manifest's own folder.
-FILE_PATTERN = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_-]{0,63}\.zip\Z", re.ASCII)
-_SHA256 = re.compile(r"^[0-9a-f]{64}$")
-
-
-def check_file_entry(entry: object, what: str) -> dict[str, Any]:
-    """
-    One entry of a ``workers/manifest.json`` or ``flat/manifest.json``: its ``file`` is a plain
-    ``NAME.zip`` in the manifest's folder, its ``sha256`` a hex digest, and its ``name`` and ``algo`` (which
-    become parts of file names when packaged) match :data:`NAME_PATTERN`.
-
-    :param entry: the entry from the file.
-    :param what: where it is, for the message.
-    :return: the entry; raises :class:`LimitError` naming the field otherwise.
-    """
-    if not isinstance(entry, Mapping):
-        raise LimitError(f"{what}: expected an object, got {brief(entry)}")
-    file = entry.get("file")
-    if not isinstance(file, str) or not FILE_PATTERN.match(file):
-        raise LimitError(
-            f"{what}.file: expected a file name 'NAME.zip' in the same folder, got {brief(file)}"
-        )
-    if not isinstance(entry.get("sha256"), str) or not _SHA256.match(entry["sha256"]):
-        raise LimitError(f"{what}.sha256: expected a sha256 hex digest, got {brief(entry.get('sha256'))}")
-    for key in ("name", "algo"):
-        if key in entry:
-            check_name(entry[key], f"{what}.{key}")
-    return dict(entry)
 
 
 # ---------------------------------------------------------------- a conditioned manager's preferences

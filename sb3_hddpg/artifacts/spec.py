@@ -33,9 +33,8 @@ from sb3_hddpg.artifacts.limits import (
     MAX_SPEC_LAYER_WIDTH,
     MAX_SPEC_LAYERS,
     brief,
-    check_buffer_size,
-    check_network_size,
 )
+from sb3_hddpg.artifacts.network_limits import check_buffer_size, check_network_size
 
 __all__ = [
     "ACTIVATIONS",

@@ -25,6 +25,8 @@ import torch
 from torch import nn
 
 from sb3_hddpg.artifacts.limits import (
+    MAX_CRITIC_BYTES,
+    MAX_CRITIC_INPUTS,
     MAX_LAYER_SIZE,
     MAX_LAYERS,
     MAX_PARAMETERS,
@@ -37,10 +39,6 @@ from sb3_hddpg.names import check_plain_name
 
 #: The worker zip's member that holds its per-term critic.
 TERM_CRITIC_MEMBER = "term_critic.npz"
-#: The largest critic member read (its parameters are bounded by :data:`MAX_PARAMETERS` too).
-MAX_CRITIC_BYTES = 64 << 20
-#: The most observation or action entries a critic reads.
-MAX_CRITIC_INPUTS = 1 << 16
 
 
 @dataclass(frozen=True)

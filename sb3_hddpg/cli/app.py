@@ -46,7 +46,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "benchmark": ("benchmark", "Train and evaluate every method on every seed."),
     "report": ("report", "Regenerate a page's result tables from a benchmark."),
     "morl-report": ("benchmark_protocol", "Write docs/MORL.md from MORL-baselines protocol runs."),
-    "export-models": ("benchmark", "Copy a benchmark's final models into a folder."),
+    "export-models": ("export_models", "Copy a benchmark's final models into a folder."),
     "snapshot": ("snapshot", "Copy a benchmark's finished seeds, to resume it elsewhere."),
     "tune": ("tune", "Tune hyperparameters with Optuna, in one or many processes."),
     "export-study": ("report", "Export a tuning study's trials to JSON."),

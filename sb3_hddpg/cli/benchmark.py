@@ -14,6 +14,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.benchmark_events import check_snapshot_option, event_printer, snapshotting, take_snapshot
 from sb3_hddpg.cli.benchmark_protocol import ProtocolOpt, protocol_command
 from sb3_hddpg.cli.errors import CommandStopped
+from sb3_hddpg.cli.export_models import export_run
 from sb3_hddpg.cli.options import (
     ENV_HELP,
     SNAKE_DEFAULT,
@@ -56,7 +57,6 @@ from sb3_hddpg.experiments.benchmark import (
 from sb3_hddpg.experiments.benchmark.machine_paths import check_machine_paths
 from sb3_hddpg.experiments.benchmark.method_inputs import EnvChoice
 from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
-from sb3_hddpg.experiments.model_export import export_models
 
 
 def _rich_table(table: TextTable) -> Table:
@@ -404,36 +404,7 @@ def benchmark_command(
         return protocol_command(context)
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
     chosen, preferences = _scenario_methods(scenario, methods, preference, ham_hysteresis, shared, backend)
-    settings = build_settings(
-        BenchmarkSettings,
-        _SETTINGS_OPTIONS,
-        methods=chosen,
-        seeds=list(range(seeds)),
-        timesteps=timesteps or 0,
-        worker_timesteps=worker_timesteps,
-        flat_timesteps=flat_timesteps,
-        eval_freq=eval_freq,
-        eval_episodes=eval_episodes,
-        test_episodes=test_episodes,
-        ham_threshold=ham_threshold,
-        ham_hysteresis=ham_hysteresis,
-        bias=bias,
-        scenario=scenario,
-        preferences=preferences,
-        backend=backend,
-        env=_env_record(shared),
-        workers_from=str(workers_from.resolve()) if workers_from is not None else None,
-        final_test=final_test,
-        worker_algo=worker_algo,
-        front_manager=front_manager,
-        front_timesteps=front_timesteps,
-        front_sweep=front_sweep,
-        front_motion=front_motion,
-        front_option_steps=front_option_steps,
-        front_per_preference=front_per_preference,
-        morl_python=morl_python,
-    )
-    settings = check_machine_paths(settings)
+    settings = check_machine_paths(_settings_of(context, chosen, preferences, shared))
     check_jobs(n_jobs, executor)
     redone, address = _checked_options(settings, redo, resume, out, snapshot_dir, (executor, ray_address))
     prepare_out_dir(context, out, resume, force)
@@ -441,6 +412,57 @@ def benchmark_command(
         settings, out, n_jobs, resume, redone, address, snapshot_dir, allow_mixed_commits
     )
     _print_results(results, out, export_dir, snapshot_dir)
+
+
+#: The settings fields the command passes on as given, each from the option of its own name.
+_GIVEN_SETTINGS = (
+    "worker_timesteps",
+    "flat_timesteps",
+    "eval_freq",
+    "eval_episodes",
+    "test_episodes",
+    "ham_threshold",
+    "ham_hysteresis",
+    "bias",
+    "scenario",
+    "backend",
+    "final_test",
+    "worker_algo",
+    "front_manager",
+    "front_timesteps",
+    "front_sweep",
+    "front_motion",
+    "front_option_steps",
+    "front_per_preference",
+    "morl_python",
+)
+
+
+def _settings_of(
+    context: typer.Context, methods: list[str], preferences: list[str], shared: TermsEnv | None
+) -> BenchmarkSettings:
+    """
+    The benchmark's settings from the command's options, a refusal naming the option at fault
+    (:func:`~sb3_hddpg.cli.options.build_settings`).
+
+    :param context: the command's context (its parameters: the options as given).
+    :param methods: the methods the scenario runs.
+    :param preferences: the transfer scenario's preferences.
+    :param shared: the env with several objectives chosen by ``--env`` and its term options, if any.
+    """
+    params = context.params
+    workers_from = params["workers_from"]
+    return build_settings(
+        BenchmarkSettings,
+        _SETTINGS_OPTIONS,
+        methods=methods,
+        seeds=list(range(params["seeds"])),
+        timesteps=params["timesteps"] or 0,
+        preferences=preferences,
+        env=_env_record(shared),
+        workers_from=str(workers_from.resolve()) if workers_from is not None else None,
+        **{name: params[name] for name in _GIVEN_SETTINGS},
+    )
 
 
 def _run_until_stopped(
@@ -551,32 +573,10 @@ def _print_results(
         f"Wall time: {wall_time_text(results)}.  Outputs in {out}: {', '.join(output_files_in(out))}"
     )
     if export_dir is not None:
-        _export(out, export_dir)
+        export_run(out, export_dir)
     if snapshot_dir is not None:
         take_snapshot(out, snapshot_dir)
     if results.failures:
         for label, message in results.failures.items():
             console.print(f"[red]failed[/] {label}: {message}")
         raise typer.Exit(1)
-
-
-def _export(run: Path, dest: Path) -> None:
-    index = export_models(run, dest)
-    console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
-
-
-@app.command("export-models")
-def export_models_command(
-    run: Path = typer.Argument(..., help="A benchmark folder (the --out of hddpg-cli benchmark)."),
-    dest: Path = typer.Argument(..., help="The folder to copy the final models into, with index.json."),
-) -> None:
-    """
-    Copy a benchmark's final models (worker zips, hierarchy bundles, ham.json, flat zips) into DEST, in the
-    benchmark's layout, with DEST/index.json: {"method", "seed", "path", "sha256"} per model.
-    """
-    with usage_errors("'RUN'"):
-        if not (run / "records").is_dir():
-            raise FileNotFoundError(f"not a benchmark folder (no records/): {str(run)!r}")
-
-        index = export_models(run, dest)
-    console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")

@@ -8,9 +8,8 @@ import typer
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import usage_errors
+from sb3_hddpg.experiments.benchmark.page_blocks import COMPARISONS, TABLES
 from sb3_hddpg.experiments.benchmark.pages import (
-    COMPARISONS,
-    TABLES,
     draw_headline_figures,
     load_run,
     update_pages,

@@ -44,6 +44,7 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
+from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.envs.weighted import parse_term_weights
 from sb3_hddpg.evaluation import summaries_table
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -195,13 +196,7 @@ def train_workers_command(
     """Train each worker as a plain SB3 model (its default learner unless --algo says) on its own reward (paper Algorithm 1)."""
 
     shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
-    names = list(workers) if workers else ([] if weights else list(known))
-    unknown = [w for w in names if w not in known]
-    duplicates = sorted({w for w in names if names.count(w) > 1})
-    if unknown or duplicates:
-        problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
-        raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
+    names = _worker_names_of(workers, weights, shared)
     with usage_errors("'--weights'"):
         weightings = [parse_term_weights(text) for text in weights or []]
         # Names and weights only here; --algo and --config are checked below, each under its own option.
@@ -213,12 +208,7 @@ def train_workers_command(
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
         for worker in planned:
             check_algo(worker.algo, resolve_backend(backend, worker.hyperparams.backend))
-    unknown = [c for c in resume_changing or [] if c not in RESUME_CHANGES]
-    if unknown or (resume_changing and not resume):
-        problem = (
-            f"expected some of {list(RESUME_CHANGES)}, got {unknown[0]!r}" if unknown else "needs --resume"
-        )
-        raise typer.BadParameter(problem, param_hint="'--resume-changing'")
+    _check_resume_changing(resume_changing, resume)
     prepare_out_dir(context, out, resume, force)
     summaries: dict[str, dict] = {}
 
@@ -249,6 +239,37 @@ def train_workers_command(
     console.print(
         f"Manifest: {out / 'workers' / 'manifest.json'}   TensorBoard: tensorboard --logdir {out / 'tensorboard'}"
     )
+
+
+def _worker_names_of(
+    workers: list[str] | None, weights: list[str] | None, shared: TermsEnv | None
+) -> list[str]:
+    """
+    The workers ``--workers`` names, each known and given once (default: one per term of the env, none when
+    ``--weights`` gives the workers).
+
+    :param workers: the ``--workers`` given.
+    :param weights: the ``--weights`` given.
+    :param shared: the env with several objectives chosen by ``--env``, if any (else the snake arm's terms).
+    """
+    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
+    names = list(workers) if workers else ([] if weights else list(known))
+    unknown = [w for w in names if w not in known]
+    duplicates = sorted({w for w in names if names.count(w) > 1})
+    if unknown or duplicates:
+        problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
+        raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
+    return names
+
+
+def _check_resume_changing(resume_changing: list[str] | None, resume: bool) -> None:
+    """``--resume-changing``: known changes only, and only with ``--resume``."""
+    unknown = [c for c in resume_changing or [] if c not in RESUME_CHANGES]
+    if unknown or (resume_changing and not resume):
+        problem = (
+            f"expected some of {list(RESUME_CHANGES)}, got {unknown[0]!r}" if unknown else "needs --resume"
+        )
+        raise typer.BadParameter(problem, param_hint="'--resume-changing'")
 
 
 # The options of `train_manager_command`.

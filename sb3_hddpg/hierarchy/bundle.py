@@ -10,18 +10,21 @@ import io
 import json
 import zipfile
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.save_util import data_to_json
+from stable_baselines3.common.utils import get_device
 
 from sb3_hddpg.artifacts.io import json_text
 from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
     MAX_MODEL_FILE_BYTES,
     LoadBudget,
+    check_env_id,
     check_zip_directory,
     parse_json,
     read_file_bytes,
@@ -29,7 +32,11 @@ from sb3_hddpg.artifacts.limits import (
 )
 from sb3_hddpg.artifacts.provenance import verify_sha256
 from sb3_hddpg.artifacts.records import BundleManifest
+from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.term_critic import TermCritic, read_term_critic
+from sb3_hddpg.artifacts.values import check_env_kwargs
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+from sb3_hddpg.hierarchy.selection import check_selection_settings
 
 #: The manifest's member name.
 MANIFEST = "manifest.json"
@@ -180,3 +187,55 @@ def member_critics(
         if critic is not None:
             critics[name] = critic
     return critics
+
+
+def member_model(
+    members: Mapping[str, bytes],
+    entry: Mapping[str, Any],
+    *,
+    name: str,
+    trusted: bool,
+    device: str,
+    budget: LoadBudget,
+) -> BaseAlgorithm:
+    """
+    The SB3 model of one bundle member, loaded as :meth:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy.load` says.
+
+    :param members: member name -> its verified bytes.
+    :param entry: the member's manifest entry (its ``file`` and rebuild ``spec``).
+    :param name: the bundle, as errors name it.
+    :param trusted: SB3's full loader (``True``) or the spec's rebuild with tensors only (``False``).
+    :param device: the torch device (``"auto"``: CUDA when available).
+    :param budget: what the load may spend.
+    :return: the model; raises :class:`BundleError` naming the member otherwise.
+    """
+    data = io.BytesIO(members[entry["file"]])
+    try:
+        if trusted:
+            budget.spend_model(name)
+        return load_model(
+            data, spec=entry.get("spec"), trusted=trusted, device=get_device(device), budget=budget
+        )
+    except ValueError as error:
+        raise BundleError(f"{name}: cannot load {entry['file']}: {error}") from None
+
+
+def checked_settings(
+    manifest: BundleManifest, name: str, trusted: bool, allowed_env_ids: Sequence[str] | None
+) -> tuple[str, dict[str, Any], dict[str, Any]]:
+    """A bundle's env id, env kwargs and selection settings, each checked (a :class:`BundleError` otherwise)."""
+    names = manifest.worker_names
+    try:
+        env_id = check_env_id(manifest.env_id, f"{name}: env_id", allowed_env_ids, trusted)
+        env_kwargs = check_env_kwargs(
+            env_id, manifest.env_kwargs, f"{name}: env_kwargs", allowed_env_ids, trusted
+        )
+        settings = check_selection_settings(manifest.selection, names, f"{name}: selection")
+        if settings.get("manager_preferences") is not None:
+            space = PreferenceSpace.from_json(
+                settings["manager_preferences"], names, f"{name}: selection.manager_preferences"
+            )
+            settings["manager_preferences"] = space.to_json()
+    except ValueError as error:
+        raise BundleError(str(error)) from None
+    return env_id, env_kwargs, settings

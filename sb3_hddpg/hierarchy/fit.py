@@ -14,6 +14,8 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.artifacts.workers import Workers, reward_specs_of, states_of
+from sb3_hddpg.envs.contract import state_layout_of
+from sb3_hddpg.envs.headless import rendering_errors
 from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
 from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, get_selector
@@ -26,6 +28,47 @@ def shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | No
     if isinstance(workers, Workers) and workers.env_id is not None:
         return workers.env_id, workers.env_kwargs
     return None
+
+
+def training_env(model: object) -> tuple[str, dict[str, Any]] | None:
+    """``(env_id, env_kwargs)`` of an SB3 model's training env (kwargs beyond the registered ones), if it still
+    has one."""
+    get_env = getattr(model, "get_env", None)
+    vec_env = get_env() if callable(get_env) else None
+    if vec_env is None:
+        return None
+    try:
+        envs = getattr(vec_env, "envs", None)  # in-process envs: read the spec without copying it
+        spec = envs[0].unwrapped.spec if envs else vec_env.get_attr("spec", [0])[0]
+    except Exception:  # an env in a subprocess that cannot answer: the model does not tell
+        return None
+    if spec is None:
+        return None
+    registered = gym.spec(spec.id).kwargs if spec.id in gym.registry else {}
+    kwargs = {
+        key: value
+        for key, value in (spec.kwargs or {}).items()
+        if key != "render_mode" and (key not in registered or registered[key] != value)
+    }
+    return spec.id, kwargs
+
+
+def probe_env(env_id: str, env_kwargs: dict[str, Any]) -> tuple[StateLayout, gym.Space, gym.Space]:
+    """
+    The state layout and the spaces of a hierarchy's env, read from one env made for the purpose.
+
+    :param env_id: the registered id of the shared env.
+    :param env_kwargs: its keyword arguments.
+    :return: ``(layout, observation_space, action_space)``.
+    """
+    with rendering_errors():  # MuJoCo's OpenGL may fail on import: a problem of this machine, not the bundle
+        probe = gym.make(env_id, **env_kwargs)
+    # Absent a declared layout the whole observation is one component: naming any other is refused
+    # by StateLayout.indices with the known names.
+    layout = state_layout_of(probe)
+    observation_space, action_space = probe.observation_space, probe.action_space
+    probe.close()
+    return layout, observation_space, action_space
 
 
 def selection_config_of(

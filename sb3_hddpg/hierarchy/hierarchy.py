@@ -18,6 +18,7 @@ from __future__ import annotations
 import io
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -25,37 +26,43 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.type_aliases import GymEnv
-from stable_baselines3.common.utils import check_for_correct_spaces, get_device
+from stable_baselines3.common.utils import check_for_correct_spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from sb3_hddpg.artifacts.io import atomic_write
 from sb3_hddpg.artifacts.limits import (
     LoadBudget,
     brief,
-    check_env_id,
 )
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes
-from sb3_hddpg.artifacts.records import BundleManifest, bundle_manifest
-from sb3_hddpg.artifacts.safe_load import load_model
+from sb3_hddpg.artifacts.records import bundle_manifest
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.artifacts.term_critic import TermCritic, with_term_critic
-from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.artifacts.workers import Workers
-from sb3_hddpg.envs.contract import mix_terms, state_layout_of
-from sb3_hddpg.envs.headless import HeadlessRenderingError, rendering_errors
+from sb3_hddpg.envs.contract import mix_terms
+from sb3_hddpg.envs.headless import HeadlessRenderingError
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.hierarchy.bundle import (
     MANIFEST,
     BundleError,
     bundle_path,
+    checked_settings,
     member_critics,
+    member_model,
     model_bytes,
     read_bundle,
     sb3_refusal,
     write_bundle,
 )
 from sb3_hddpg.hierarchy.conditioning import WRITTEN_SLACK, PreferenceOutsideError, PreferenceSpace
-from sb3_hddpg.hierarchy.fit import check_spaces, manager_input_of, selection_config_of, shared_env
+from sb3_hddpg.hierarchy.fit import (
+    check_spaces,
+    manager_input_of,
+    probe_env,
+    selection_config_of,
+    shared_env,
+    training_env,
+)
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.gpi import (
     GPI_SELECTION,
@@ -64,15 +71,9 @@ from sb3_hddpg.hierarchy.gpi import (
     check_gpi_preference,
     gpi_of,
 )
+from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.options import OptionState
-from sb3_hddpg.hierarchy.selection import (
-    OptionEnd,
-    SelectionConfig,
-    SimplexMap,
-    check_preferences,
-    check_selection_settings,
-    get_selector,
-)
+from sb3_hddpg.hierarchy.selection import SelectionConfig, SimplexMap, check_preferences, get_selector
 from sb3_hddpg.policy import Policy
 
 
@@ -133,16 +134,7 @@ class Hierarchy:
             worker_meta = workers.bundle_meta()
         self.worker_meta = dict(worker_meta or {})
         self.metadata = dict(metadata or {})
-        with (
-            rendering_errors()
-        ):  # MuJoCo's OpenGL may fail on import: a problem of this machine, not the bundle
-            probe = gym.make(env_id, **self.env_kwargs)
-        # Absent a declared layout the whole observation is one component: naming any other is refused
-        # by StateLayout.indices with the known names.
-        layout = state_layout_of(probe)
-        self.observation_space = probe.observation_space
-        self.action_space = probe.action_space
-        probe.close()
+        layout, self.observation_space, self.action_space = probe_env(env_id, self.env_kwargs)
         check_spaces(
             manager, self.workers, config, self.observation_space, self.action_space, layout, self._env_name()
         )
@@ -508,18 +500,8 @@ class Hierarchy:
         name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
         budget = budget if budget is not None else LoadBudget()
         manifest, members = read_bundle(path, budget=budget)
-        env_id, env_kwargs, settings = _checked_settings(manifest, name, trusted, allowed_env_ids)
-
-        def model(entry: Mapping[str, Any]) -> BaseAlgorithm:
-            data = io.BytesIO(members[entry["file"]])
-            try:
-                if trusted:
-                    budget.spend_model(name)
-                return load_model(
-                    data, spec=entry.get("spec"), trusted=trusted, device=get_device(device), budget=budget
-                )
-            except ValueError as error:
-                raise BundleError(f"{name}: cannot load {entry['file']}: {error}") from None
+        env_id, env_kwargs, settings = checked_settings(manifest, name, trusted, allowed_env_ids)
+        model = partial(member_model, members, name=name, trusted=trusted, device=device, budget=budget)
 
         workers: dict[str, Policy] = {}
         worker_meta = {}
@@ -602,42 +584,4 @@ def _training_env(model: object) -> tuple[str, dict[str, Any]] | None:
     """``(env_id, env_kwargs)`` of a model's training env (a hierarchy's own env), if it still has one."""
     if isinstance(model, Hierarchy):
         return model.env_id, dict(model.env_kwargs)
-    get_env = getattr(model, "get_env", None)
-    vec_env = get_env() if callable(get_env) else None
-    if vec_env is None:
-        return None
-    try:
-        envs = getattr(vec_env, "envs", None)  # in-process envs: read the spec without copying it
-        spec = envs[0].unwrapped.spec if envs else vec_env.get_attr("spec", [0])[0]
-    except Exception:  # an env in a subprocess that cannot answer: the model does not tell
-        return None
-    if spec is None:
-        return None
-    registered = gym.spec(spec.id).kwargs if spec.id in gym.registry else {}
-    kwargs = {
-        key: value
-        for key, value in (spec.kwargs or {}).items()
-        if key != "render_mode" and (key not in registered or registered[key] != value)
-    }
-    return spec.id, kwargs
-
-
-def _checked_settings(
-    manifest: BundleManifest, name: str, trusted: bool, allowed_env_ids: Sequence[str] | None
-) -> tuple[str, dict[str, Any], dict[str, Any]]:
-    """A bundle's env id, env kwargs and selection settings, each checked (a :class:`BundleError` otherwise)."""
-    names = manifest.worker_names
-    try:
-        env_id = check_env_id(manifest.env_id, f"{name}: env_id", allowed_env_ids, trusted)
-        env_kwargs = check_env_kwargs(
-            env_id, manifest.env_kwargs, f"{name}: env_kwargs", allowed_env_ids, trusted
-        )
-        settings = check_selection_settings(manifest.selection, names, f"{name}: selection")
-        if settings.get("manager_preferences") is not None:
-            space = PreferenceSpace.from_json(
-                settings["manager_preferences"], names, f"{name}: selection.manager_preferences"
-            )
-            settings["manager_preferences"] = space.to_json()
-    except ValueError as error:
-        raise BundleError(str(error)) from None
-    return env_id, env_kwargs, settings
+    return training_env(model)

@@ -16,8 +16,8 @@ from sb3_hddpg.envs.layout import StateLayout
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
+from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.selection import (
-    OptionEnd,
     SelectionConfig,
     Selector,
     SimplexMap,
@@ -102,7 +102,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         each worker's (unweighted) discounted option reward, so that
         :class:`~sb3_hddpg.hierarchy.relabeling.PreferenceRelabelingReplayBuffer` can pay a stored step for
         another preference. ``None``: one fixed preference, ``preferences``.
-    :param option_end: options that also end by state (an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`
+    :param option_end: options that also end by state (an :class:`~sb3_hddpg.hierarchy.option_end.OptionEnd`
         or its JSON form): the option ends before ``option_steps`` env steps when the state leaves the band it
         was chosen in (``info["option_length"]`` is then shorter). ``None``: after ``option_steps`` only.
     :param manager_motion: the manager also observes how its state moved over the last env step, scaled by

@@ -30,11 +30,10 @@ from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
     LimitError,
     brief,
-    check_buffer_size,
-    check_network_size,
     count_nodes,
     read_file_bytes,
 )
+from sb3_hddpg.artifacts.network_limits import check_buffer_size, check_network_size
 from sb3_hddpg.artifacts.values import (
     HYPERPARAMETERS,
     check_env_value,
@@ -545,7 +544,7 @@ def manager_option_steps(config: str | Path | None = None, algo: str = "ddpg") -
 def _check_network_size(policy_kwargs: object, algo: str, source: str) -> None:
     """
     Refuse networks too large to build (``[65536, 65536]`` is 17 GB) before SB3 allocates them: the one
-    check of :func:`~sb3_hddpg.artifacts.limits.check_network_size`, as this file's kind of error.
+    check of :func:`~sb3_hddpg.artifacts.network_limits.check_network_size`, as this file's kind of error.
     """
     try:
         check_network_size(algo, policy_kwargs, what=f"{source}: policy_kwargs")

@@ -20,8 +20,9 @@ from sb3_hddpg.artifacts.records import ModelsManifest
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.artifacts.workers import Workers, shared_env_of
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
-from sb3_hddpg.hierarchy.selection import OptionEnd, SelectionConfig, check_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import (
@@ -183,7 +184,7 @@ class ManagerOptions:
         keeps the settings and how often the fitted manager agrees with HAM.
     :param option_end: options that also end by state: ``"distance=0.5"`` (an obstacle comes within half
         the sensor range or leaves it), ``"touch"`` (the goal is touched or lost), both (``"distance=0.5,touch"``)
-        or an :class:`~sb3_hddpg.hierarchy.selection.OptionEnd`; ``option_steps`` stays the longest option.
+        or an :class:`~sb3_hddpg.hierarchy.option_end.OptionEnd`; ``option_steps`` stays the longest option.
     :param manager_motion: the manager also observes its state's change over the last env step, scaled by
         this factor (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`; 0: not; default: the
         config's).

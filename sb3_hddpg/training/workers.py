@@ -328,7 +328,7 @@ def train_workers(
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest = _start_manifest(manifest_path, shared, env, planned, run.resume, (run.seed, resume_changes))
-    bounds = _shared_bounds(shared)
+    extras = _WorkerExtras(_shared_bounds(shared), callback, term_critic, keep_transitions)
     outcomes: dict[str, TrainingOutcome] = {}
     for worker in planned:
         name, hyperparams = worker.name, worker.hyperparams
@@ -337,14 +337,7 @@ def train_workers(
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
         outcome, facts = _train_worker(
-            worker,
-            paths,
-            agent_run(run, paths, budget),
-            bounds,
-            callback,
-            term_critic,
-            keep_transitions,
-            (warm_starts or {}).get(name),
+            worker, paths, agent_run(run, paths, budget), extras, (warm_starts or {}).get(name)
         )
         outcomes[name] = outcome
         source = config_source(config, out_dir) if config else f"sb3_hddpg/zoo_configs/{worker.algo}.yml"
@@ -372,20 +365,36 @@ class WorkersResult:
     outcomes: dict[str, TrainingOutcome]
 
 
+@dataclass(frozen=True)
+class _WorkerExtras:
+    """
+    What every worker of one ``train_workers`` call is trained with beside its own settings.
+
+    :param bounds: the shared env's per-term bounds (what a worker's critic normalises by).
+    :param callback: more SB3 callbacks for every worker.
+    :param term_critic: how each off-policy worker's per-term critic is trained (``None``: no critic).
+    :param keep_transitions: also write each off-policy worker's transitions with their normalised terms.
+    """
+
+    bounds: Mapping[str, tuple[float, float]]
+    callback: MaybeCallback
+    term_critic: TermCriticOptions | None
+    keep_transitions: bool
+
+
 def _train_worker(
     worker: PlannedWorker,
     paths: AgentPaths,
     run: RunOptions,
-    bounds: Mapping[str, tuple[float, float]],
-    callback: MaybeCallback,
-    term_critic: TermCriticOptions | None,
-    keep_transitions: bool,
+    extras: _WorkerExtras,
     warm: WarmStart | None,
 ) -> tuple[TrainingOutcome, dict[str, object]]:
     """
     Train one worker, recording the terms of its transitions where something needs them (its critic, its
     kept transitions), then its critic; return the outcome and the facts its entry records about them.
     """
+    bounds, callback = extras.bounds, extras.callback
+    term_critic, keep_transitions = extras.term_critic, extras.keep_transitions
     wanted = term_critic is not None or keep_transitions
     recorder = TermRecorder(bounds) if wanted and not REGISTRY[worker.algo].on_policy else None
     facts: dict[str, object] = {}

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TypedDict, cast
+from typing import Any, TypedDict, cast
 
 from sb3_hddpg.artifacts.limits import (
+    LimitError,
     brief,
     check_count,
-    check_file_entry,
     check_name,
     read_json_record,
 )
@@ -22,6 +23,35 @@ from sb3_hddpg.artifacts.records.base import (
     check_version,
 )
 from sb3_hddpg.envs.contract import check_bounds
+
+#: A model file named in a workers or flat manifest: a name and ``.zip``, in the manifest's own folder.
+FILE_PATTERN = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_-]{0,63}\.zip\Z", re.ASCII)
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
+
+
+def check_file_entry(entry: object, what: str) -> dict[str, Any]:
+    """
+    One entry of a ``workers/manifest.json`` or ``flat/manifest.json``: its ``file`` is a plain
+    ``NAME.zip`` in the manifest's folder, its ``sha256`` a hex digest, and its ``name`` and ``algo`` (which
+    become parts of file names when packaged) match :data:`NAME_PATTERN`.
+
+    :param entry: the entry from the file.
+    :param what: where it is, for the message.
+    :return: the entry; raises :class:`LimitError` naming the field otherwise.
+    """
+    if not isinstance(entry, Mapping):
+        raise LimitError(f"{what}: expected an object, got {brief(entry)}")
+    file = entry.get("file")
+    if not isinstance(file, str) or not FILE_PATTERN.match(file):
+        raise LimitError(
+            f"{what}.file: expected a file name 'NAME.zip' in the same folder, got {brief(file)}"
+        )
+    if not isinstance(entry.get("sha256"), str) or not _SHA256.match(entry["sha256"]):
+        raise LimitError(f"{what}.sha256: expected a sha256 hex digest, got {brief(entry.get('sha256'))}")
+    for key in ("name", "algo"):
+        if key in entry:
+            check_name(entry[key], f"{what}.{key}")
+    return dict(entry)
 
 
 class ModelEntryJson(TypedDict, total=False):

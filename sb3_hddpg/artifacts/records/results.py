@@ -214,7 +214,7 @@ class BenchmarkResults(JsonRecord):
     :param curve_window: the own steps every method's curve statistics cover.
     :param slope_unit_steps: steps per unit of the slopes.
     :param transfer: the transfer scenario's figure.
-    :param front: the front scenario's hypervolumes and comparisons (:func:`~sb3_hddpg.experiments.benchmark.front.front_results`).
+    :param front: the front scenario's hypervolumes and comparisons (:func:`~sb3_hddpg.experiments.benchmark.front_statistics.front_results`).
     :param run: wall times, failures and machine (``None`` until the run adds them).
     :param curves: x key (``timesteps``, ``total_timesteps``) -> run key -> the curve's band.
     :param extra: fields this version does not know, kept as read.

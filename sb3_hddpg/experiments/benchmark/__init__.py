@@ -39,6 +39,7 @@ The package follows the benchmark's sections, each a module: :mod:`.methods` (th
 from __future__ import annotations
 
 from sb3_hddpg.artifacts.records import BENCHMARK_RECORD_VERSION as RECORD_VERSION
+from sb3_hddpg.experiments.benchmark.comparisons import compare
 from sb3_hddpg.experiments.benchmark.env_methods import (
     DISCRETE_FLAT_METHODS,
     DISCRETE_MANAGERS,
@@ -47,7 +48,7 @@ from sb3_hddpg.experiments.benchmark.env_methods import (
     default_env_methods,
     ttc_workers,
 )
-from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, SWEEP, front_results
+from sb3_hddpg.experiments.benchmark.front import FRONT_METHOD, SWEEP
 from sb3_hddpg.experiments.benchmark.front_pages import front_figure
 from sb3_hddpg.experiments.benchmark.front_points import (
     PLANES,
@@ -58,6 +59,7 @@ from sb3_hddpg.experiments.benchmark.front_points import (
     env_front,
     hypervolume,
 )
+from sb3_hddpg.experiments.benchmark.front_statistics import front_results
 from sb3_hddpg.experiments.benchmark.methods import (
     DEFAULT_ENV_METHODS,
     DEFAULT_METHODS,
@@ -71,6 +73,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     register_method,
     split_key,
 )
+from sb3_hddpg.experiments.benchmark.record_files import read_record, read_record_file, record_path, seed_dir
 from sb3_hddpg.experiments.benchmark.report import (
     CSV_KEYS,
     OUTPUT_FILES,
@@ -85,14 +88,9 @@ from sb3_hddpg.experiments.benchmark.report import (
 from sb3_hddpg.experiments.benchmark.run import (
     changed_settings,
     check_redo,
-    check_workers_source,
     machine_info,
-    read_record,
-    read_record_file,
-    record_path,
     run_benchmark,
     run_task,
-    seed_dir,
     task_job,
 )
 from sb3_hddpg.experiments.benchmark.settings import (
@@ -101,17 +99,12 @@ from sb3_hddpg.experiments.benchmark.settings import (
     FRONT_METHODS,
     SCENARIOS,
     BenchmarkSettings,
-    Task,
     canonical_preference,
-    comparison_pairs,
-    plan_tasks,
-    task_cost,
 )
 from sb3_hddpg.experiments.benchmark.statistics import (
     FINAL_METRICS,
     SLOPE_UNIT,
     TRANSFER_FRACTION,
-    compare,
     compute_results,
     curve_bands,
     curve_statistics,
@@ -120,6 +113,8 @@ from sb3_hddpg.experiments.benchmark.statistics import (
     steps_to_fraction,
     transfer_results,
 )
+from sb3_hddpg.experiments.benchmark.tasks import Task, comparison_pairs, plan_tasks, task_cost
+from sb3_hddpg.experiments.benchmark.workers_source import check_workers_source
 
 __all__ = [
     "CSV_KEYS",

@@ -1,5 +1,5 @@
 """
-The front scenario's tables and figure, from :func:`~.front.front_results`' output: what the results pages
+The front scenario's tables and figure, from :func:`~.front_statistics.front_results`' output: what the results pages
 and ``fronts.png`` show, on the snake arm or another env (each plane's objectives are in the results).
 """
 
@@ -308,7 +308,7 @@ def front_figure(front: FrontResults, path: Path, colours: Mapping[str, str] | N
     The fronts in each plane (its first and last objectives), every seed's points, each member's mean over
     seeds as a line (matplotlib).
 
-    :param front: :func:`~.front.front_results`' output.
+    :param front: :func:`~.front_statistics.front_results`' output.
     :param path: the PNG to write.
     :param colours: member -> colour.
     """

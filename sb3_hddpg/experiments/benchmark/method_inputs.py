@@ -1,7 +1,7 @@
 """
 What a benchmark method reads from the run's settings and from its task, as protocols.
 
-The methods (:mod:`.methods`) run on a :class:`~.settings.BenchmarkSettings` and a :class:`~.settings.Task`,
+The methods (:mod:`.methods`) run on a :class:`~.settings.BenchmarkSettings` and a :class:`~.tasks.Task`,
 and the settings check their method names against the methods' registry; typing the methods against these
 protocols instead of the settings' class keeps that dependency one way (settings -> methods).
 """
@@ -92,7 +92,7 @@ class MethodSettings(Protocol):
 
 
 class MethodTask(Protocol):
-    """The part of :class:`~.settings.Task` a method's run reads."""
+    """The part of :class:`~.tasks.Task` a method's run reads."""
 
     @property
     def method(self) -> str: ...

@@ -9,7 +9,8 @@ from collections.abc import Mapping
 from statistics import fmean
 from typing import Any
 
-from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
+from sb3_hddpg.experiments.benchmark.tasks import Task, plan_tasks, task_cost
 
 
 class Progress:

@@ -14,6 +14,7 @@ from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.artifacts.records.results_leaves import Summary, TransferComparison
 from sb3_hddpg.evaluation import dependence_ratio_text
 from sb3_hddpg.experiments.benchmark.aggregates import performance_profiles
+from sb3_hddpg.experiments.benchmark.comparisons import verdict
 from sb3_hddpg.experiments.benchmark.episodes import records_episode_rows, write_episodes_csv
 from sb3_hddpg.experiments.benchmark.front_pages import decides_table, front_figure, front_table
 from sb3_hddpg.experiments.benchmark.methods import WORKERS
@@ -21,7 +22,6 @@ from sb3_hddpg.experiments.benchmark.statistics import (
     curve_bands,
     records_by_method,
     score_matrices,
-    verdict,
     with_term_sums,
 )
 from sb3_hddpg.media import figures

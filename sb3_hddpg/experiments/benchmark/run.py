@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import json
-import math
 import os
 import platform
 import shutil
@@ -19,13 +17,10 @@ from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
 
-from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
-from sb3_hddpg.artifacts.limits import read_json_file
-from sb3_hddpg.artifacts.manifests import read_workers_manifest, save_manifest
-from sb3_hddpg.artifacts.provenance import code_provenance, read_verified
-from sb3_hddpg.artifacts.records import BenchmarkResults, benchmark_record, read_benchmark_record
+from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.provenance import CodeProvenance, code_provenance
+from sb3_hddpg.artifacts.records import BenchmarkResults, benchmark_record
 from sb3_hddpg.callbacks.evaluation import read_history
-from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.experiments.benchmark.benchmark_file import (
     check_same_code,
     invocation_codes,
@@ -44,57 +39,22 @@ from sb3_hddpg.experiments.benchmark.methods import (
     split_key,
     workers_steps,
 )
+from sb3_hddpg.experiments.benchmark.record_files import (
+    as_stored,
+    elapsed_path,
+    read_record,
+    record_path,
+    seed_dir,
+    time_spent_before,
+)
 from sb3_hddpg.experiments.benchmark.report import write_outputs
-from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings, Task, plan_tasks, task_cost
+from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import check_episode_sets, compute_results
+from sb3_hddpg.experiments.benchmark.tasks import Task, plan_tasks, task_cost
+from sb3_hddpg.experiments.benchmark.workers_source import check_workers_source, copy_workers, worker_names
 from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Executor, Job, RunOutcome, run_jobs
 from sb3_hddpg.training.workers import train_workers, worker_hyperparams
-
-
-def seed_dir(out: Path, seed: int) -> Path:
-    """The folder of one seed's models."""
-    return out / f"seed-{seed}"
-
-
-def record_path(out: Path, task: Task) -> Path:
-    """Where a finished task's record goes."""
-    return out / "records" / task.method / f"seed-{task.seed}.json"
-
-
-def read_record(out: Path, task: Task) -> dict[str, Any] | None:
-    """A finished task's record, or ``None``."""
-    path = record_path(out, task)
-    if not path.exists():
-        return None
-    record = read_record_file(path)
-    return record if record.get("status") == "done" else None
-
-
-def read_record_file(path: Path) -> dict[str, Any]:
-    """
-    A task's record file as its JSON object, read and checked by
-    :func:`~sb3_hddpg.artifacts.records.read_benchmark_record` (the JSON size and depth limits; ``status``
-    and ``method`` strings, ``seed`` a whole number in ``[0, MAX_SEED]``).
-
-    :raises ValueError: one line naming the file (a ``LimitError`` for one too big or too deep).
-    """
-    return read_benchmark_record(path).to_json()
-
-
-def elapsed_path(out: Path, task: Task) -> Path:
-    """Where an interrupted task keeps the wall time it has spent so far, until an invocation finishes it."""
-    return seed_dir(out, task.seed) / f".elapsed-{task.method}.json"
-
-
-def _time_spent_before(out: Path, task: Task) -> float:
-    """The wall time earlier, interrupted invocations spent on ``task`` (0 if none, or if unreadable)."""
-    try:
-        kept = read_json_file(elapsed_path(out, task))
-    except (OSError, ValueError):
-        return 0.0
-    spent = kept.get("wall_time_s") if isinstance(kept, dict) else None
-    return float(spent) if isinstance(spent, (int, float)) and spent >= 0 and math.isfinite(spent) else 0.0
 
 
 def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[str, Any]:
@@ -111,7 +71,7 @@ def run_task(task: Task, settings: BenchmarkSettings, out: str | Path) -> dict[s
     :return: the record written.
     """
     out = Path(out)
-    before = _time_spent_before(out, task)
+    before = time_spent_before(out, task)
     start = time.perf_counter()
     try:
         record = _run_task(task, settings, out)
@@ -131,7 +91,7 @@ def _run_task(task: Task, settings: BenchmarkSettings, out: Path) -> dict[str, A
     """The record of one task, run to the end (without its wall times)."""
     folder = seed_dir(out, task.seed)
     # Read before training: the blocks this run trains from, whatever the file holds when it ends.
-    results: dict[str, Any] = {"config_blocks": _plain(task_config_blocks(task, settings))}
+    results: dict[str, Any] = {"config_blocks": as_stored(task_config_blocks(task, settings))}
     spec = task.spec
     if spec is None:
         results.update(_run_workers(task, settings, folder, out))
@@ -151,7 +111,7 @@ def _run_workers(task: Task, settings: BenchmarkSettings, folder: Path, out: Pat
     if settings.workers_from is not None:
         source = seed_dir(Path(settings.workers_from), task.seed)
         if not (folder / "workers" / "manifest.json").exists():  # else copied before an interruption
-            _copy_workers(source, folder)
+            copy_workers(source, folder)
         reused = {"workers_from": relative_to_run(str(source), out)}
     budget = settings.worker_timesteps or settings.workers_budget
     run = settings.run_options(task.seed, settings.worker_timesteps, budget)
@@ -175,114 +135,8 @@ def task_config_blocks(task: Task, settings: BenchmarkSettings) -> dict[str, Any
     if task.spec is not None:
         return task.spec.config_blocks(settings)
     algos = settings.worker_algos or {}
-    blocks = worker_hyperparams(_worker_names(settings), None, settings.terms_env, algos or None)
+    blocks = worker_hyperparams(worker_names(settings), None, settings.terms_env, algos or None)
     return {f"{algos.get(name, 'ddpg')}.yml, {name} worker": block.raw for name, block in blocks.items()}
-
-
-def _worker_names(settings: BenchmarkSettings) -> list[str]:
-    """The workers a seed trains: one per reward term of the env."""
-    return list(settings.terms_env.terms) if settings.terms_env is not None else list(REWARD_TERMS)
-
-
-def check_workers_source(settings: BenchmarkSettings) -> None:
-    """
-    Check that ``settings.workers_from`` holds, for every seed, the workers this benchmark would train: a
-    finished workers record, a manifest whose every worker was trained from the same config block, with the
-    same budget, backend and seed, and its learning curve on the same evaluation schedule (which picked
-    the checkpoint kept). Then copying them changes nothing but the time
-    (on the CPU a seed's training is deterministic), and a mismatch is refused before anything runs.
-
-    :param settings: the benchmark's settings (nothing to check when ``workers_from`` is ``None``).
-    :raises ValueError: naming the folder, the seed and what differs (``FileNotFoundError`` when the
-        folder is not a benchmark folder).
-    """
-    if settings.workers_from is None:
-        return
-    source = Path(settings.workers_from)
-    stored = source / "benchmark.json"
-    if not stored.is_file():
-        raise FileNotFoundError(f"not a benchmark folder (no benchmark.json): {str(source)!r}")
-    theirs = read_benchmark_file(stored)["settings"]
-    for key in ("backend", "env", "worker_timesteps", "worker_algo"):
-        if theirs.get(key, getattr(BenchmarkSettings, key, None)) != getattr(settings, key):
-            raise ValueError(
-                f"The workers in {str(source)!r} were trained with {key}={theirs.get(key)!r}, this benchmark "
-                f"uses {getattr(settings, key)!r}: train them here instead (without --workers-from)"
-            )
-    names = _worker_names(settings)
-    blocks = worker_hyperparams(names, None, settings.terms_env, settings.worker_algos)
-    for seed in settings.seeds:
-        folder = seed_dir(source, seed)
-        manifest_path = folder / "workers" / "manifest.json"
-        if read_record(source, Task(WORKERS, seed)) is None or not manifest_path.is_file():
-            raise ValueError(f"{str(source)!r} has no finished workers for seed {seed}")
-        entries = read_workers_manifest(manifest_path).entries
-        for name in names:
-            block = blocks[name]
-            budget = settings.worker_timesteps or int(block.n_timesteps)
-            entry = entries.get(name)
-            entry = entry if isinstance(entry, dict) else {}
-            config = entry.get("config")
-            expected = {
-                "config block": _plain(block.raw),
-                "timesteps_requested": budget,
-                "backend": settings.backend,
-                "seed": seed,
-            }
-            actual = {
-                "config block": _plain(config.get("block")) if isinstance(config, dict) else None,
-                **{key: entry.get(key) for key in ("timesteps_requested", "backend", "seed")},
-            }
-            differ = [key for key in expected if actual[key] != expected[key]]
-            if differ:
-                raise ValueError(
-                    f"{str(manifest_path)!r}: worker {name!r} was not trained as this benchmark trains it "
-                    f"({', '.join(differ)} differ): train them here instead (without --workers-from)"
-                )
-            _check_worker_curve(folder / "evaluations" / f"{name}.json", settings, name, seed)
-
-
-def _check_worker_curve(path: Path, settings: BenchmarkSettings, name: str, seed: int) -> None:
-    """
-    A reused worker's learning curve must come from this benchmark's evaluation schedule: a worker is its
-    best checkpoint on that curve, so other evaluation steps or episodes would have picked another one.
-    """
-    if not path.is_file():
-        raise ValueError(f"{str(path)!r}: worker {name!r} of seed {seed} has no learning curve")
-    curve = read_json_file(path)
-    every = settings.eval_freq_for(settings.worker_timesteps or settings.workers_budget)
-    points = curve if isinstance(curve, list) else []
-    first = (
-        (points[0].get("timesteps"), points[0].get("episodes"))
-        if points and isinstance(points[0], dict)
-        else None
-    )
-    if first != (every, settings.eval_episodes):
-        shown = f"every {first[0]} steps on {first[1]} episodes" if first else "without a readable curve"
-        raise ValueError(
-            f"{str(path)!r}: worker {name!r} was evaluated {shown}, this benchmark evaluates every {every} "
-            f"on {settings.eval_episodes}: its best checkpoint would differ; train the workers here instead"
-        )
-
-
-def _plain(value: Any) -> Any:
-    """A value as JSON stores it (tuples become lists), so a config block compares with its stored copy."""
-    return json.loads(json.dumps(value))
-
-
-def _copy_workers(source: Path, folder: Path) -> None:
-    """
-    Copy a seed's workers (zips checked against their sha256, learning curves) from another benchmark's
-    seed folder, the manifest last: until it is written, the copy does not count as finished.
-    """
-    manifest = read_workers_manifest(source / "workers" / "manifest.json")
-    for name, entry in manifest.entries.items():
-        path = source / "workers" / entry["file"]
-        data = read_verified(path, entry["sha256"]).getvalue()
-        atomic_write_bytes(folder / "workers" / entry["file"], data)
-        history = source / "evaluations" / f"{name}.json"
-        atomic_write_json(folder / "evaluations" / f"{name}.json", read_json_file(history))
-    save_manifest(folder / "workers" / "manifest.json", manifest)
 
 
 def task_job(task: Task, settings: BenchmarkSettings, out: Path) -> Job:
@@ -361,7 +215,7 @@ def _stale_runs(settings: BenchmarkSettings, records: dict[Task, dict[str, Any]]
             continue
         name = task.method if task.spec is None else task.spec.name
         if name not in current:
-            current[name] = _plain(task_config_blocks(task, settings))
+            current[name] = as_stored(task_config_blocks(task, settings))
         differ = sorted(k for k in {*kept, *current[name]} if kept.get(k) != current[name].get(k))
         if differ:
             stale[task] = differ
@@ -443,17 +297,7 @@ def run_benchmark(
     out = Path(out)
     notify = on_event or (lambda kind, task, record: None)
     settings_path = out / "benchmark.json"
-    redo = check_redo(settings, redo, resume)
-    saved = read_benchmark_file(settings_path) if resume and settings_path.exists() else None
-    code = code_provenance()
-    mixed = False
-    if saved is not None:
-        _check_same_settings(settings, saved, redo, out)
-        mixed = check_same_code(
-            invocation_codes(saved, str(settings_path)), code, allow_mixed_commits, str(out)
-        )
-    settings = check_machine_paths(settings)
-    check_workers_source(settings)
+    settings, redo, saved, code, mixed = _checked_start(settings, out, resume, redo, allow_mixed_commits)
     tasks = plan_tasks(settings)
     records = _kept_records(settings, tasks, out, resume, redo)
     for task, record in records.items():
@@ -490,6 +334,33 @@ def run_benchmark(
         machine=machine_info(),
     )
     return write_outputs(out, results, [records[t] for t in tasks if t in records])
+
+
+def _checked_start(
+    settings: BenchmarkSettings, out: Path, resume: bool, redo: Sequence[str], allow_mixed_commits: bool
+) -> tuple[BenchmarkSettings, list[str], dict[str, Any] | None, CodeProvenance, bool]:
+    """
+    What an invocation starts from, each checked before anything runs (see :func:`run_benchmark`): the
+    methods to redo, the folder's saved ``benchmark.json`` when resuming (the same settings and, unless
+    allowed, the same code), this machine's paths and the workers source.
+
+    :return: the settings with this machine's paths checked, the methods to redo, the saved
+        ``benchmark.json`` (``None`` when not resuming one), the code this process runs and whether it
+        differs from earlier invocations'.
+    """
+    settings_path = out / "benchmark.json"
+    checked_redo = check_redo(settings, redo, resume)
+    saved = read_benchmark_file(settings_path) if resume and settings_path.exists() else None
+    code = code_provenance()
+    mixed = False
+    if saved is not None:
+        _check_same_settings(settings, saved, checked_redo, out)
+        mixed = check_same_code(
+            invocation_codes(saved, str(settings_path)), code, allow_mixed_commits, str(out)
+        )
+    settings = check_machine_paths(settings)
+    check_workers_source(settings)
+    return settings, checked_redo, saved, code, mixed
 
 
 def _check_same_settings(

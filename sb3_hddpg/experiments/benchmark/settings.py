@@ -1,4 +1,4 @@
-"""The benchmark's settings (``benchmark.json``), its tasks (one run of a method on a seed) and their plan."""
+"""The benchmark's settings (``benchmark.json``), each checked when built; its tasks are planned by :mod:`~.tasks`."""
 
 from __future__ import annotations
 
@@ -39,10 +39,7 @@ from sb3_hddpg.experiments.benchmark.methods import (
     FLAT_HER_METHODS,
     FLAT_METHODS,
     METHOD_REGISTRY,
-    WORKERS,
-    Method,
     method_key,
-    split_key,
 )
 from sb3_hddpg.experiments.benchmark.morl import mo_gymnasium_env
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
@@ -154,7 +151,7 @@ class BenchmarkSettings:
     :param workers_from: another benchmark folder whose workers every seed reuses instead of training its
         own (they must have been trained with the same config blocks, budget, backend, env and seed: then
         they are the workers this benchmark would train, since a seed's run is deterministic on the CPU).
-        The copies are checked against their manifest's sha256 (:func:`~.run.check_workers_source`).
+        The copies are checked against their manifest's sha256 (:func:`~.workers_source.check_workers_source`).
         Records state it relative to the benchmark's folder (:func:`~.machine_paths.settings_record`).
     :param final_test: score every run on the final test set (:data:`~sb3_hddpg.episode_sets.FINAL_TEST`):
         for the runs of record only, never for a choice; otherwise on the development episodes.
@@ -533,69 +530,3 @@ class BenchmarkSettings:
             eval_episodes=self.eval_episodes,
             backend=self.backend,
         )
-
-
-@dataclass(frozen=True)
-class Task:
-    """
-    One unit of work in its own process.
-
-    :param method: a run's key (a method, or ``<method>@<preference>``), or ``workers`` (a seed's two workers).
-    :param seed: the training seed.
-    """
-
-    method: str
-    seed: int
-
-    @property
-    def spec(self) -> Method | None:
-        """The method's record (``None`` for the workers)."""
-        return None if self.method == WORKERS else METHOD_REGISTRY[split_key(self.method)[0]]
-
-    @property
-    def preferences(self) -> dict[str, float] | None:
-        """The preference factors of a transfer run (``None``: the method's own)."""
-
-        preference = split_key(self.method)[1]
-        return parse_preferences(preference) if preference else None
-
-    @property
-    def needs_workers(self) -> bool:
-        return self.spec is not None and self.spec.needs_workers
-
-    @property
-    def label(self) -> str:
-        return f"{self.method}/seed-{self.seed}"
-
-
-def plan_tasks(settings: BenchmarkSettings) -> list[Task]:
-    """Every task of a benchmark: per seed its workers (if any method needs them) and every run."""
-    tasks = []
-    for seed in settings.seeds:
-        runs = [Task(key, seed) for key in settings.method_keys]
-        if any(t.needs_workers for t in runs):
-            tasks.append(Task(WORKERS, seed))
-        tasks.extend(runs)
-    return tasks
-
-
-def comparison_pairs(settings: BenchmarkSettings) -> list[tuple[str, str]]:
-    """
-    The paired comparisons of the paper's claims, as (challenger, baseline) run keys: ``hddpg`` against
-    every baseline method that ran (in the transfer scenario, on each preference), and so does every other
-    challenger (e.g. ``hddpg-sac``), which is also paired with ``hddpg``.
-    """
-    suffixes = [f"@{p}" for p in settings.preferences] if settings.scenario == "transfer" else [""]
-    baselines = [m for m in settings.methods if METHOD_REGISTRY[m].baseline]
-    challengers = [m for m in settings.methods if m == "hddpg" or METHOD_REGISTRY[m].challenger]
-    pairs = [(c, b) for c in challengers for b in baselines if b != c]
-    pairs += [(c, "hddpg") for c in challengers if c != "hddpg" and "hddpg" in settings.methods]
-    return [(f"{c}{s}", f"{b}{s}") for s in suffixes for c, b in pairs]
-
-
-# ------------------------------------------------------------------------------------------- scheduling
-def task_cost(task: Task, settings: BenchmarkSettings) -> int:
-    """A task's training budget in environment steps (HAM trains nothing), for scheduling."""
-    if task.spec is None:
-        return settings.workers_budget
-    return task.spec.cost(settings)

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from sb3_hddpg.artifacts.records.results import BenchmarkResults
 from sb3_hddpg.artifacts.records.results_leaves import TransferResults
 from sb3_hddpg.evaluation import dependence_ratio_text
+from sb3_hddpg.experiments.benchmark.comparisons import verdict
 from sb3_hddpg.experiments.benchmark.report import ci_text, final_scores_text, flat_reaches_text
-from sb3_hddpg.experiments.benchmark.statistics import verdict
 from sb3_hddpg.metric_labels import metric_label
 
 
