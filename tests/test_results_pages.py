@@ -240,3 +240,24 @@ def test_the_headline_figures_are_drawn_from_the_records(final_run):
     paths = draw_headline_figures(run)
     assert [p.name for p in paths] == ["aggregates.png", "performance_profile.png"]
     assert all(p.stat().st_size > 0 for p in paths)
+
+
+def test_report_rewrites_a_shipped_runs_own_results_from_its_records(tmp_path):
+    import json
+    import shutil
+
+    from sb3_hddpg.experiments.benchmark.pages import run_results
+    from sb3_hddpg.experiments.benchmark.report import markdown_report
+    from tests.cli_runner import run_cli
+
+    run = tmp_path / "bench-e20"
+    shutil.copytree(ROOT / "docs" / "results" / "bench-e20", run)
+    records = {p: p.read_bytes() for p in (run / "records").rglob("*.json")}
+    (tmp_path / "page.md").write_text("no generated block\n")
+    result = run_cli("report", run, "--page", tmp_path / "page.md", "--results", check=True)
+    assert "results.json" in result.stdout
+    written = json.loads((run / "results.json").read_text())
+    assert written == json.loads(json.dumps(run_results(run).to_json()))
+    assert (run / "results.md").read_text() == markdown_report(run_results(run))
+    # The records the results come from are left as they were.
+    assert {p: p.read_bytes() for p in (run / "records").rglob("*.json")} == records

@@ -12,6 +12,7 @@ from sb3_hddpg.experiments.benchmark.page_blocks import COMPARISONS, TABLES
 from sb3_hddpg.experiments.benchmark.pages import (
     draw_headline_figures,
     load_run,
+    rewrite_results,
     update_pages,
     update_tuning_page,
 )
@@ -76,6 +77,11 @@ def report_command(
         "--figures",
         help="Also draw RUN/aggregates.png and RUN/performance_profile.png (rliable's style).",
     ),
+    results: bool = typer.Option(
+        False,
+        "--results",
+        help="Also rewrite RUN/results.json and RUN/results.md from its records (its records stay as they are).",
+    ),
     check: bool = typer.Option(
         False, "--check", help="Write nothing; exit 1 if a page differs from its regenerated text."
     ),
@@ -110,6 +116,8 @@ def report_command(
         raise typer.Exit(1)
     verb = "would change" if check else "rewritten"
     console.print(f"Files {verb}: {', '.join(outcome['changed']) or 'none'}")
+    if results and not check and not studies_only:
+        console.print(f"Results: {', '.join(str(p) for p in rewrite_results(run))}")
     if figures and not check and not studies_only:
         drawn = draw_headline_figures(run)
         console.print(f"Figures: {', '.join(str(p) for p in drawn) or 'none (no method runs)'}")

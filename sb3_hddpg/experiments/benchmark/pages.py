@@ -18,7 +18,7 @@ import re
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
-from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
 from sb3_hddpg.artifacts.limits import MAX_SHOWN
 from sb3_hddpg.artifacts.records import JsonObject, read_benchmark_record
 from sb3_hddpg.artifacts.records.results import BenchmarkResults
@@ -40,6 +40,7 @@ from sb3_hddpg.experiments.benchmark.page_blocks import (
 )
 from sb3_hddpg.experiments.benchmark.report import (
     headline_figures,
+    markdown_report,
 )
 from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.experiments.benchmark.statistics import compute_results
@@ -109,6 +110,20 @@ def draw_headline_figures(run: Path) -> list[Path]:
         if results.front is not None:
             drawn.append(front_figure(results.front, run / "fronts.png"))
         return drawn
+
+
+def rewrite_results(run: Path) -> list[Path]:
+    """
+    Rewrite a benchmark folder's own ``results.json`` and ``results.md`` from its records, with today's
+    statistics (a folder shipped by an older version keeps its records and its per-episode files untouched).
+
+    :return: the files written.
+    """
+    results = run_results(run)
+    return [
+        atomic_write_json(run / "results.json", results.to_json()),
+        atomic_write(run / "results.md", lambda tmp: tmp.write_text(markdown_report(results))),
+    ]
 
 
 @contextlib.contextmanager
