@@ -504,8 +504,13 @@ def _plot_figures(
         "simplex manager": run_dir / "simplex" / "evaluations" / "manager.json",
         "flat-ddpg": run_dir / "evaluations" / "flat-ddpg.json",
     }
+    # The main manager's RL starts after HAM's decisions, which are env steps of its budget too.
+    ham_steps = {"manager": budget.ham_start_decisions * option_steps["manager"]}
     histories = {
-        agent: read_history(path, option_steps.get(agent, 1))
+        agent: [
+            {**point, "timesteps": point["timesteps"] + ham_steps.get(agent, 0)}
+            for point in read_history(path, option_steps.get(agent, 1))
+        ]
         for agent, path in curves.items()
         if path.exists()
     }
