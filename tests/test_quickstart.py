@@ -83,9 +83,14 @@ def test_bundle_and_models_load(run):
 
 def test_the_main_hierarchy_answers_a_preference_and_the_papers_stands_beside(run):
     out, result = run
-    assert (
-        Hierarchy.load(out / "hierarchy.zip").preference_space is not None
-    )  # told the preference at run time
+    main_bundle = Hierarchy.load(out / "hierarchy.zip")
+    assert main_bundle.preference_space is not None  # told the preference at run time
+    # It started from HAM's switch, whose decisions are part of its budget of env steps.
+    start = main_bundle.metadata["init_from_ham"]
+    assert start["decisions"] == BUDGETS["tiny"].ham_start_decisions and 0 <= start["agreement"] <= 1
+    k = manager_option_steps(out / "config-dqn.yml", "dqn")
+    trained = json.loads((out / "results.json").read_text())["methods"]["hierarchy"]["train_timesteps"]
+    assert trained == 604 + (start["decisions"] + main_bundle.metadata["timesteps_trained"]) * k
     assert Hierarchy.load(out / "simplex" / "hierarchy.zip").preference_space is None
     results = json.loads((out / "results.json").read_text())
     assert {"hierarchy", "HDDPG"} <= set(results["methods"])

@@ -92,7 +92,8 @@ def comparison_table(result: QuickstartResult) -> Table:
         f"(seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + episodes - 1})",
         caption=f"{units_caption([*labels, SELECTION_LABEL, TRAIN_STEPS])}. {labels[0].short}: "
         f"{labels[0].label}, the snake's reach reward. {MAIN_HIERARCHY}: a DQN manager choosing a worker by "
-        f"state, told the preference (here goal=1,avoid=1; any other with evaluate --preference); "
+        f"state, started from HAM's switch, told the preference (here goal=1,avoid=1; any other with "
+        f"evaluate --preference); "
         f"{PAPER_HIERARCHY}: the paper's simplex DDPG manager",
     )
     table.add_column("method")

@@ -15,6 +15,7 @@ from sb3_hddpg.experiments.executors import make_executor
 from sb3_hddpg.experiments.runner import Job, report_progress, run_jobs
 from sb3_hddpg.training.config import manager_option_steps
 from sb3_hddpg.training.flat import train_flat
+from sb3_hddpg.training.ham_start import HamStart
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.workers import train_workers
@@ -98,8 +99,10 @@ def _train_job(
         out_dir = options.pop("out_dir", run_dir)
         common["config"] = options.pop("config", config)
         outcome = train_manager(run_dir, out_dir, **options, **common).outcome
-        # Env steps, as every other agent's: each decision runs option_steps of them.
-        steps = outcome.num_timesteps * manager_option_steps(common["config"], options.get("algo", "ddpg"))
+        # Env steps, as every other agent's: each decision runs option_steps of them, HAM's before RL too.
+        start = options.get("init_from_ham")
+        decisions = outcome.num_timesteps + (start.decisions if isinstance(start, HamStart) else 0)
+        steps = decisions * manager_option_steps(common["config"], options.get("algo", "ddpg"))
         out = {"metrics": outcome.metrics}
     else:
         # The single-DDPG baseline on the comparison env (both terms, normalised and summed).

@@ -8,13 +8,14 @@ one, or a quickstart whose settings have changed since, means the media are stal
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import read_json_record
 from sb3_hddpg.artifacts.provenance import sha256_file
-from sb3_hddpg.experiments.quickstart import BUDGETS, MAIN_HIERARCHY, MAIN_MANAGER, flat_budget
+from sb3_hddpg.experiments.quickstart import BUDGETS, MAIN_HIERARCHY, flat_budget, main_manager_options
 
 #: Run-folder file -> its name in the docs folder.
 MEDIA = {"hierarchy.gif": "quickstart-hierarchy.gif", "selection.png": "quickstart-selection.png"}
@@ -25,12 +26,13 @@ MEDIA_RECORD = "quickstart-media.json"
 def quickstart_settings(budget: str = "small") -> dict[str, Any]:
     """
     What a quickstart at ``budget`` trains, as its media record states it: the budget (as ``results.json``
-    writes it) and the main manager's algorithm and preferences.
+    writes it) and the main manager's options (its algorithm, preferences and start from HAM).
     """
     chosen = BUDGETS[budget]
+    manager = main_manager_options(chosen)
     return {
         "budget": {**vars(chosen), "flat_timesteps": flat_budget(chosen)},
-        "main_manager": dict(MAIN_MANAGER),
+        "main_manager": {**manager, "init_from_ham": asdict(manager["init_from_ham"])},
     }
 
 
