@@ -9,13 +9,13 @@ import math
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, cast
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_hddpg.envs.contract import TermNormaliser, env_contract, proximity_of
+from sb3_hddpg.envs.contract import Proximity, TermNormaliser, env_contract, proximity_of
 from sb3_hddpg.episode_sets import CURVE
 from sb3_hddpg.metric_labels import MetricLabel, metric_label, same_returns, summary_rows, units_caption
 from sb3_hddpg.policy import Policy
@@ -162,11 +162,12 @@ def evaluate(
     :param policy: anything with SB3's ``predict``.
     :param env: an environment, time-limited (default, for a policy that knows its env such as a
         :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`: one from its ``make_env()``, closed afterwards); or
-        a ``DummyVecEnv`` (also under VecEnv wrappers) of such envs, which runs ``num_envs`` episodes at a
-        time, each env of a round reset with its episode's seed, ``predict`` given the batch with its
-        ``state`` and ``episode_start`` (a hierarchy keeps an option per env), and ``on_step`` the env that
-        stepped. Episodes and seeds are those of a single env; the summed reward differs from it only by the
-        float32 a VecEnv stores rewards in.
+        a VecEnv of such envs (a ``DummyVecEnv`` or a ``SubprocVecEnv``, also under VecEnv wrappers), which
+        runs ``num_envs`` episodes at a time, each env of a round reset with its episode's seed, ``predict``
+        given the batch with its ``state`` and ``episode_start`` (a hierarchy keeps an option per env). What
+        the env declares (reward terms, proximity) is read with ``get_attr``; ``on_step`` needs the env
+        objects, so only a ``DummyVecEnv`` takes it. Episodes and seeds are those of a single env; the summed
+        reward differs from it only by the float32 a VecEnv stores rewards in.
     :param n_episodes: how many episodes, at least 1.
     :param seed: the first episode's seed.
     :param deterministic: passed to ``predict``.
@@ -195,7 +196,10 @@ def evaluate(
         finally:
             own_env.close()
     if isinstance(env, VecEnv):
-        return _evaluate_vec_env(
+        # Its own module builds on this one's tally: imported here, when a VecEnv is given.
+        from sb3_hddpg.vec_evaluation import evaluate_vec_env
+
+        return evaluate_vec_env(
             policy, env, n_episodes, seed, deterministic, on_step, near_clearance, clear_clearance
         )
     near_clearance, clear_clearance = clearance_bands(env, near_clearance, clear_clearance)
@@ -207,9 +211,9 @@ def evaluate(
         reset_episode = getattr(policy, "reset_episode", None)
         if reset_episode is not None:
             reset_episode()
-        tally = _EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
+        tally = EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
         _run_episode(policy, env, obs, tally, deterministic, on_step)
-        episodes.append(_finite_episode(tally.metrics(seed + k)))
+        episodes.append(finite_episode(tally.metrics(seed + k)))
     return EvaluationResult(episodes, near_clearance, clear_clearance)
 
 
@@ -217,7 +221,7 @@ def _run_episode(
     policy: Policy,
     env: gym.Env,
     obs: Any,
-    tally: _EpisodeTally,
+    tally: EpisodeTally,
     deterministic: bool,
     on_step: Callable[[gym.Env, dict[str, Any]], None] | None,
 ) -> None:
@@ -235,68 +239,7 @@ def _run_episode(
             on_step(env, info)
 
 
-def _evaluate_vec_env(
-    policy: Policy,
-    vec_env: VecEnv,
-    n_episodes: int,
-    seed: int,
-    deterministic: bool,
-    on_step: Callable[[gym.Env, dict[str, Any]], None] | None,
-    near_clearance: float | None,
-    clear_clearance: float | None,
-) -> EvaluationResult:
-    """:func:`evaluate` on a VecEnv: ``num_envs`` episodes a round, episode ``k`` with seed ``seed + k``."""
-    envs = _in_process_envs(vec_env)
-    near_clearance, clear_clearance = clearance_bands(envs[0], near_clearance, clear_clearance)
-    normaliser = TermNormaliser(env_contract(envs[0]).reward_bounds)
-    worker_names = _worker_names(policy, envs[0])
-    n_envs = vec_env.num_envs
-    episodes: list[EpisodeMetrics] = []
-    state: Any = None
-    for first in range(0, n_episodes, n_envs):
-        vec_env.seed(seed + first)  # env i's next reset: seed + first + i
-        # The env contract's observations are arrays (a Box); SB3 types a VecEnv's more widely.
-        obs = cast(np.ndarray, vec_env.reset())
-        tallies = [
-            _EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, vec_env.reset_infos[i])
-            for i in range(min(n_envs, n_episodes - first))
-        ]
-        # Envs past this round's last episode step along (a VecEnv steps all) but are not counted.
-        running = np.arange(n_envs) < len(tallies)
-        starts = np.ones(n_envs, dtype=bool)
-        while running.any():
-            action, state = policy.predict(
-                obs, state=state, episode_start=starts, deterministic=deterministic
-            )
-            selections = getattr(policy, "last_selections", None) or [None] * n_envs
-            decisions = getattr(policy, "last_manager_actions", None)
-            step_obs, rewards, dones, infos = vec_env.step(action)
-            obs = cast(np.ndarray, step_obs)
-            for i in np.flatnonzero(running):
-                tallies[i].add_decision(np.asarray(action[i] if decisions is None else decisions[i]))
-                tallies[i].add_env_step(float(rewards[i]), infos[i], selections[i])
-                if on_step is not None:
-                    on_step(envs[i], infos[i])
-            running &= ~dones
-            starts = dones
-        episodes += [_finite_episode(t.metrics(seed + first + i)) for i, t in enumerate(tallies)]
-    return EvaluationResult(episodes, near_clearance, clear_clearance)
-
-
-def _in_process_envs(vec_env: VecEnv) -> list[gym.Env]:
-    """The envs of a ``DummyVecEnv`` (under any VecEnv wrappers): their declared terms are read in this process."""
-    inner: VecEnv = vec_env
-    while isinstance(inner, VecEnvWrapper):
-        inner = inner.venv
-    if not isinstance(inner, DummyVecEnv):
-        raise ValueError(
-            f"evaluate() reads the reward terms each env declares, so it needs a DummyVecEnv (its envs run in "
-            f"this process), actually: {type(inner).__name__}"
-        )
-    return list(inner.envs)
-
-
-def _finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
+def finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
     """
     ``metrics`` if its rewards are finite numbers; else a ``ValueError`` naming the first that is not: a NaN
     or infinite reward is a broken env or term bounds, to be reported, never averaged into a result file.
@@ -311,7 +254,7 @@ def _finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
     return metrics
 
 
-class _EpisodeTally:
+class EpisodeTally:
     """One episode's sums for :func:`evaluate`, one env step (and one decision) at a time."""
 
     def __init__(
@@ -419,14 +362,20 @@ def clearance_bands(
     :raises ValueError: a band that is negative or not finite, ``near > clear``, or a band given for an env
         without the proximity capability (it would count no choice at all, silently).
     """
-    proximity = proximity_of(env)
+    return bands_of(proximity_of(env), _env_name(env), near, clear)
+
+
+def bands_of(
+    proximity: Proximity | None, env_name: str, near: float | None, clear: float | None
+) -> tuple[float | None, float | None]:
+    """:func:`clearance_bands` of an env that declares ``proximity`` (``None``: none), named ``env_name``."""
     if proximity is None:
         given = next(
             (n for n, v in (("near_clearance", near), ("clear_clearance", clear)) if v is not None), None
         )
         if given is not None:
             raise ValueError(
-                f"`{given}` is not available for this env: {_env_name(env)} declares no proximity (no "
+                f"`{given}` is not available for this env: {env_name} declares no proximity (no "
                 "`proximity` with a sensor range, no info['min_clearance']; see sb3_hddpg.envs.contract)"
             )
         return None, None
