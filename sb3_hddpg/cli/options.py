@@ -127,23 +127,22 @@ def existing_file(value: Path | None) -> Path | None:
     not by permission bits, because root reads anything and a folder where a file belongs is the common
     mistake.
     """
-    if value is None:
-        return None
-    if not value.exists():
-        raise typer.BadParameter(f"no such file: {str(value)!r}")
-    if not value.is_file():
-        raise typer.BadParameter(f"expected a file, got a folder: {str(value)!r}")
-    return value
+    return _existing(value, Path.is_file, "file", "folder")
 
 
 def existing_dir(value: Path | None) -> Path | None:
     """A typer callback for a folder to read: it must exist and be a folder (``None`` passes)."""
+    return _existing(value, Path.is_dir, "folder", "file")
+
+
+def _existing(value: Path | None, is_kind: Callable[[Path], bool], kind: str, other: str) -> Path | None:
+    """``value`` if it exists and ``is_kind`` (a ``kind``, not an ``other``); ``None`` passes."""
     if value is None:
         return None
     if not value.exists():
-        raise typer.BadParameter(f"no such folder: {str(value)!r}")
-    if not value.is_dir():
-        raise typer.BadParameter(f"expected a folder, got a file: {str(value)!r}")
+        raise typer.BadParameter(f"no such {kind}: {str(value)!r}")
+    if not is_kind(value):
+        raise typer.BadParameter(f"expected a {kind}, got a {other}: {str(value)!r}")
     return value
 
 
