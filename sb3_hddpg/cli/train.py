@@ -16,6 +16,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
+    RUN_OPTION_PARAMETERS,
     SNAKE_DEFAULT,
     BackendOpt,
     EpisodeStepsOpt,
@@ -156,17 +157,7 @@ _ResumeChangingOpt = Annotated[
 
 
 @app.command("train-workers")
-@takes_run_options(
-    "seed",
-    "n_envs",
-    "stop_on_plateau",
-    "eval_freq",
-    "eval_episodes",
-    "checkpoint_freq",
-    "threads",
-    "progress_bar",
-    "keep_checkpoints",
-)
+@takes_run_options(*RUN_OPTION_PARAMETERS)
 def train_workers_command(
     context: typer.Context,
     workers: _WorkerNamesOpt = None,
@@ -399,17 +390,7 @@ _ManagerEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + MAN
 
 
 @app.command("train-manager")
-@takes_run_options(
-    "seed",
-    "n_envs",
-    "stop_on_plateau",
-    "eval_freq",
-    "eval_episodes",
-    "checkpoint_freq",
-    "threads",
-    "progress_bar",
-    "keep_checkpoints",
-)
+@takes_run_options(*RUN_OPTION_PARAMETERS)
 def train_manager_command(
     context: typer.Context,
     workers_dir: _ManagerWorkersDirOpt = Path("runs/workers"),
