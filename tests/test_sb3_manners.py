@@ -115,6 +115,13 @@ def test_load_takes_env_and_device_as_sb3(bundle):
         Hierarchy.load(bundle, env=gym.make("Pendulum-v1"))
 
 
+def test_load_and_set_env_take_a_vec_env_as_sb3(bundle, vec_env):
+    loaded = Hierarchy.load(bundle, env=vec_env)
+    assert loaded.get_env() is vec_env
+    loaded.set_env(_make_env())  # a single env is wrapped, as SB3 does
+    assert isinstance(loaded.get_env(), DummyVecEnv) and loaded.get_env().num_envs == 1
+
+
 @pytest.mark.parametrize("algorithm", [SAC, DDPG, DQN, PPO, TQC])
 def test_an_sb3_class_pointed_at_a_bundle_says_what_the_file_is(bundle, algorithm):
     with pytest.raises(
