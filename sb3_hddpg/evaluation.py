@@ -8,14 +8,16 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
-from sb3_hddpg.envs.contract import TermNormaliser, env_contract, proximity_of
+from sb3_hddpg.envs.contract import Proximity, TermNormaliser, env_contract, proximity_of
+from sb3_hddpg.episode_metrics import SATURATION_LEVEL as SATURATION_LEVEL
+from sb3_hddpg.episode_metrics import EpisodeMetrics, EpisodeTally, finite_episode
 from sb3_hddpg.episode_sets import CURVE
 from sb3_hddpg.metric_labels import MetricLabel, metric_label, same_returns, summary_rows, units_caption
 from sb3_hddpg.policy import Policy
@@ -23,43 +25,8 @@ from sb3_hddpg.policy import Policy
 #: The evaluation seeds are ``EVAL_SEED_BASE + k`` for episode ``k`` unless a seed is given: far from
 #: training seeds, and the same for every method so that comparisons are paired.
 EVAL_SEED_BASE = CURVE.first_seed
-#: An action entry at least this far out in [-1, 1] counts as saturated: a tanh actor there has almost no
-#: gradient left (``1 - 0.99**2`` = 2 % of its slope at 0), so it has stopped learning that output.
-SATURATION_LEVEL = 0.99
 #: The worker whose share :func:`state_dependence` reports by default: the snake env's obstacle avoider.
 DEPENDENCE_WORKER = "avoid"
-
-
-@dataclass
-class EpisodeMetrics:
-    """The metrics of one episode."""
-
-    seed: int
-    reward: float
-    length: int
-    #: Per reward term, its raw episode sum.
-    term_rewards: dict[str, float]
-    #: The combined normalised reward, per step every reward term min-max normalised to [0, 1] with the env's
-    #: bounds and summed (on the snake the SnakeReach reward; the benchmark's common metric).
-    reach_reward: float
-    #: The snake env's touch and collision metrics, ``None`` where the env does not report them in ``info``
-    #: (``goal_touched``, ``collision``, ``min_clearance``).
-    goal_touch_rate: float | None = None
-    goal_touched: bool | None = None
-    collisions: int | None = None
-    success: bool | None = None
-    min_clearance: float | None = None
-    selections: dict[str, int] = field(default_factory=dict)
-    #: The fraction of the deciding network's output entries with ``|a| >= SATURATION_LEVEL``, of the manager's
-    #: action for a hierarchy (its ``last_manager_action``), the action given to the env otherwise. ``None``
-    #: where that output is an index (a DQN manager's worker, a discrete action): an index has no saturation.
-    action_saturation: float | None = None
-    #: Worker choices made in a state whose nearest obstacle was within ``near_clearance`` (see
-    #: :func:`evaluate`), and in a state with no obstacle within ``clear_clearance``.
-    selections_near: dict[str, int] = field(default_factory=dict)
-    selections_clear: dict[str, int] = field(default_factory=dict)
-    #: A hierarchy's contact steps by the worker that acted in them (where the env reports collisions).
-    collisions_by_worker: dict[str, int] = field(default_factory=dict)
 
 
 class EvaluationSummary(dict[str, Any]):
@@ -162,11 +129,12 @@ def evaluate(
     :param policy: anything with SB3's ``predict``.
     :param env: an environment, time-limited (default, for a policy that knows its env such as a
         :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`: one from its ``make_env()``, closed afterwards); or
-        a ``DummyVecEnv`` (also under VecEnv wrappers) of such envs, which runs ``num_envs`` episodes at a
-        time, each env of a round reset with its episode's seed, ``predict`` given the batch with its
-        ``state`` and ``episode_start`` (a hierarchy keeps an option per env), and ``on_step`` the env that
-        stepped. Episodes and seeds are those of a single env; the summed reward differs from it only by the
-        float32 a VecEnv stores rewards in.
+        a VecEnv of such envs (a ``DummyVecEnv`` or a ``SubprocVecEnv``, also under VecEnv wrappers), which
+        runs ``num_envs`` episodes at a time, each env of a round reset with its episode's seed, ``predict``
+        given the batch with its ``state`` and ``episode_start`` (a hierarchy keeps an option per env). What
+        the env declares (reward terms, proximity) is read with ``get_attr``; ``on_step`` needs the env
+        objects, so only a ``DummyVecEnv`` takes it. Episodes and seeds are those of a single env; the summed
+        reward differs from it only by the float32 a VecEnv stores rewards in.
     :param n_episodes: how many episodes, at least 1.
     :param seed: the first episode's seed.
     :param deterministic: passed to ``predict``.
@@ -207,9 +175,9 @@ def evaluate(
         reset_episode = getattr(policy, "reset_episode", None)
         if reset_episode is not None:
             reset_episode()
-        tally = _EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
+        tally = EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
         _run_episode(policy, env, obs, tally, deterministic, on_step)
-        episodes.append(_finite_episode(tally.metrics(seed + k)))
+        episodes.append(finite_episode(tally.metrics(seed + k)))
     return EvaluationResult(episodes, near_clearance, clear_clearance)
 
 
@@ -217,7 +185,7 @@ def _run_episode(
     policy: Policy,
     env: gym.Env,
     obs: Any,
-    tally: _EpisodeTally,
+    tally: EpisodeTally,
     deterministic: bool,
     on_step: Callable[[gym.Env, dict[str, Any]], None] | None,
 ) -> None:
@@ -245,11 +213,18 @@ def _evaluate_vec_env(
     near_clearance: float | None,
     clear_clearance: float | None,
 ) -> EvaluationResult:
-    """:func:`evaluate` on a VecEnv: ``num_envs`` episodes a round, episode ``k`` with seed ``seed + k``."""
+    """:func:`~sb3_hddpg.evaluation.evaluate` on a VecEnv: episode ``k`` with seed ``seed + k``."""
     envs = _in_process_envs(vec_env)
-    near_clearance, clear_clearance = clearance_bands(envs[0], near_clearance, clear_clearance)
-    normaliser = TermNormaliser(env_contract(envs[0]).reward_bounds)
-    worker_names = _worker_names(policy, envs[0])
+    if on_step is not None and envs is None:
+        raise ValueError(
+            f"evaluate(): `on_step` is given the env that stepped, which a {type(vec_env.unwrapped).__name__} runs in "
+            "another process; use a DummyVecEnv to record"
+        )
+    normaliser, proximity, name = _declared_terms(vec_env)
+    near_clearance, clear_clearance = _bands_of(proximity, name, near_clearance, clear_clearance)
+    names = getattr(policy, "names", None)
+    if names is None:  # a manager's env (a WorkerSelectionWrapper) names the workers it chooses among
+        names = vec_env.get_attr("worker_names", [0])[0] if vec_env.has_attr("worker_names") else []
     n_envs = vec_env.num_envs
     episodes: list[EpisodeMetrics] = []
     state: Any = None
@@ -258,7 +233,7 @@ def _evaluate_vec_env(
         # The env contract's observations are arrays (a Box); SB3 types a VecEnv's more widely.
         obs = cast(np.ndarray, vec_env.reset())
         tallies = [
-            _EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, vec_env.reset_infos[i])
+            EpisodeTally(normaliser, list(names), near_clearance, clear_clearance, vec_env.reset_infos[i])
             for i in range(min(n_envs, n_episodes - first))
         ]
         # Envs past this round's last episode step along (a VecEnv steps all) but are not counted.
@@ -275,137 +250,38 @@ def _evaluate_vec_env(
             for i in np.flatnonzero(running):
                 tallies[i].add_decision(np.asarray(action[i] if decisions is None else decisions[i]))
                 tallies[i].add_env_step(float(rewards[i]), infos[i], selections[i])
-                if on_step is not None:
+                if on_step is not None and envs is not None:
                     on_step(envs[i], infos[i])
             running &= ~dones
             starts = dones
-        episodes += [_finite_episode(t.metrics(seed + first + i)) for i, t in enumerate(tallies)]
+        episodes += [finite_episode(t.metrics(seed + first + i)) for i, t in enumerate(tallies)]
     return EvaluationResult(episodes, near_clearance, clear_clearance)
 
 
-def _in_process_envs(vec_env: VecEnv) -> list[gym.Env]:
-    """The envs of a ``DummyVecEnv`` (under any VecEnv wrappers): their declared terms are read in this process."""
-    inner: VecEnv = vec_env
-    while isinstance(inner, VecEnvWrapper):
-        inner = inner.venv
-    if not isinstance(inner, DummyVecEnv):
+def _declared_terms(vec_env: VecEnv) -> tuple[TermNormaliser, Proximity | None, str]:
+    """
+    What the first env of ``vec_env`` declares of the env contract (:mod:`sb3_hddpg.envs.contract`): its
+    reward terms' normaliser, its proximity (``None``: none) and its name. Asked through ``get_attr``, which
+    reaches envs in other processes too, so that only these picklable values cross.
+
+    :raises ValueError: one line, when the envs do not declare their reward terms.
+    """
+    spec = vec_env.get_attr("spec", [0])[0]
+    name = repr(spec.id) if spec is not None else "the VecEnv's first env"
+    if not (vec_env.has_attr("reward_bounds") and vec_env.has_attr("normalise_terms")):
         raise ValueError(
-            f"evaluate() reads the reward terms each env declares, so it needs a DummyVecEnv (its envs run in "
-            f"this process), actually: {type(inner).__name__}"
+            f"Expected envs that declare their reward terms (`reward_bounds` and `normalise_terms`, see "
+            f"sb3_hddpg.envs.contract), actually: {name}; wrap them with sb3_hddpg.envs.adapters"
         )
-    return list(inner.envs)
+    proximity = vec_env.get_attr("proximity", [0])[0] if vec_env.has_attr("proximity") else None
+    normaliser = TermNormaliser(vec_env.get_attr("reward_bounds", [0])[0])
+    return normaliser, proximity if isinstance(proximity, Proximity) else None, name
 
 
-def _finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
-    """
-    ``metrics`` if its rewards are finite numbers; else a ``ValueError`` naming the first that is not: a NaN
-    or infinite reward is a broken env or term bounds, to be reported, never averaged into a result file.
-    """
-    values = {"reward": metrics.reward, "reach_reward": metrics.reach_reward, **metrics.term_rewards}
-    for name, value in values.items():
-        if not math.isfinite(value):
-            raise ValueError(
-                f"evaluation: episode with seed {metrics.seed} has {name} = {value} (the env's rewards or its "
-                "term bounds give non-finite values); nothing was written"
-            )
-    return metrics
-
-
-class _EpisodeTally:
-    """One episode's sums for :func:`evaluate`, one env step (and one decision) at a time."""
-
-    def __init__(
-        self,
-        normaliser: TermNormaliser,
-        worker_names: list[str],
-        near_clearance: float | None,
-        clear_clearance: float | None,
-        reset_info: dict[str, Any],
-    ) -> None:
-        self.normaliser = normaliser
-        self.every_term = [(term, 1.0) for term in normaliser.bounds]
-        self.near_clearance = near_clearance
-        self.clear_clearance = clear_clearance
-        self.reward = self.reach = 0.0
-        self.term_sums = dict.fromkeys(normaliser.bounds, 0.0)
-        self.touches = self.collisions = self.steps = self.saturated = self.entries = 0
-        # The snake env's metrics, counted only where the env reports them.
-        self.reports_touches = self.reports_clearance = False
-        self.min_clearance = np.inf
-        # A hierarchy's every worker gets a share, 0 for one never chosen (an argmax manager may pick one).
-        self.selections: Counter[str] = Counter(dict.fromkeys(worker_names, 0))
-        self.near: Counter[str] = Counter()
-        self.clear: Counter[str] = Counter()
-        self.contacts: Counter[str] = Counter()
-        # The clearance of the state the policy acts in: the previous step's (or the reset's) info.
-        self.clearance = float(reset_info.get("min_clearance", math.nan))
-
-    def add_decision(self, decision: np.ndarray) -> None:
-        """The deciding network's output: how many of its entries are saturated (none counted for an index)."""
-        if not np.issubdtype(decision.dtype, np.floating):
-            return
-        self.saturated += int(np.count_nonzero(np.abs(decision) >= SATURATION_LEVEL))
-        self.entries += decision.size
-
-    def add_env_step(self, reward: float, info: dict[str, Any], selected: str | None) -> None:
-        """
-        One ``env.step``: a manager's wrapper with options runs several env steps per decision, and its own
-        reward discounts them, so each is counted with its undiscounted reward, as for every other policy.
-
-        :param selected: the worker a hierarchy chose (``None``: not a hierarchy); a wrapper's ``info`` says
-            which it ran.
-        """
-        selected = info.get("selected_worker") or selected
-        if "option_infos" in info:
-            for step_reward, step_info in zip(info["option_rewards"], info["option_infos"], strict=True):
-                self.add_step(float(step_reward), step_info, selected)
-        else:
-            self.add_step(reward, info, selected)
-
-    def add_step(self, reward: float, info: dict[str, Any], selected: str | None) -> None:
-        """One env step: its reward, the env's ``info`` and the worker that acted (``None``: not a hierarchy)."""
-        self.steps += 1
-        self.reward += reward
-        terms = info["reward_terms"]
-        for term in self.term_sums:
-            self.term_sums[term] += terms[term]
-        self.reach += self.normaliser.weighted_sum(terms, self.every_term)
-        if "goal_touched" in info and "collision" in info:
-            self.reports_touches = True
-            self.touches += bool(info["goal_touched"])
-            self.collisions += bool(info["collision"])
-        if "min_clearance" in info:
-            self.reports_clearance = True
-            self.min_clearance = min(self.min_clearance, info["min_clearance"])
-        if selected is not None:
-            self.selections[selected] += 1
-            self.contacts[selected] += bool(info.get("collision", False))
-            if self.near_clearance is not None and self.clearance <= self.near_clearance:
-                self.near[selected] += 1
-            if self.clear_clearance is not None and self.clearance >= self.clear_clearance:
-                self.clear[selected] += 1
-        self.clearance = float(info.get("min_clearance", math.nan))
-
-    def metrics(self, seed: int) -> EpisodeMetrics:
-        """The episode's metrics."""
-        touched = self.reports_touches
-        return EpisodeMetrics(
-            seed=seed,
-            reward=self.reward,
-            length=self.steps,
-            term_rewards={term: float(v) for term, v in self.term_sums.items()},
-            reach_reward=self.reach,
-            goal_touch_rate=self.touches / self.steps if touched else None,
-            goal_touched=self.touches > 0 if touched else None,
-            collisions=self.collisions if touched else None,
-            success=self.touches > 0 and self.collisions == 0 if touched else None,
-            min_clearance=float(self.min_clearance) if self.reports_clearance else None,
-            selections=dict(self.selections),
-            action_saturation=self.saturated / self.entries if self.entries else None,
-            selections_near=dict(self.near),
-            selections_clear=dict(self.clear),
-            collisions_by_worker=dict(self.contacts) if touched else {},
-        )
+def _in_process_envs(vec_env: VecEnv) -> list[gym.Env] | None:
+    """The envs of a ``DummyVecEnv`` (under any VecEnv wrappers); ``None`` for envs in other processes."""
+    inner = vec_env.unwrapped
+    return list(inner.envs) if isinstance(inner, DummyVecEnv) else None
 
 
 def clearance_bands(
@@ -419,14 +295,20 @@ def clearance_bands(
     :raises ValueError: a band that is negative or not finite, ``near > clear``, or a band given for an env
         without the proximity capability (it would count no choice at all, silently).
     """
-    proximity = proximity_of(env)
+    return _bands_of(proximity_of(env), _env_name(env), near, clear)
+
+
+def _bands_of(
+    proximity: Proximity | None, env_name: str, near: float | None, clear: float | None
+) -> tuple[float | None, float | None]:
+    """:func:`clearance_bands` of an env that declares ``proximity`` (``None``: none), named ``env_name``."""
     if proximity is None:
         given = next(
             (n for n, v in (("near_clearance", near), ("clear_clearance", clear)) if v is not None), None
         )
         if given is not None:
             raise ValueError(
-                f"`{given}` is not available for this env: {_env_name(env)} declares no proximity (no "
+                f"`{given}` is not available for this env: {env_name} declares no proximity (no "
                 "`proximity` with a sensor range, no info['min_clearance']; see sb3_hddpg.envs.contract)"
             )
         return None, None

@@ -50,18 +50,9 @@ def test_penalty_shrinks_a_saturating_actor():
 
 def test_penalty_in_sbx_adds_exactly_its_term_to_the_actor_loss_and_is_removable():
     sbx = pytest.importorskip("sbx")
-    import jax
-
-    model = sbx.DDPG("MlpPolicy", gym.make("Pendulum-v1"), policy_kwargs={"net_arch": [8]}, seed=0)
-    observations = np.stack([model.observation_space.sample() for _ in range(32)]).astype(np.float32)
-    key = jax.random.PRNGKey(0)
-    state = model.policy.actor_state, model.policy.qf_state
-    _, _, plain_loss, _ = type(model).update_actor(*state, observations, key)
-    for _ in range(2):  # idempotent
-        apply_action_l2(model, 0.5)
+    model, observations, plain_loss, penalised_loss = _sbx_actor_losses(0.5, None, times=2)  # idempotent
     assert isinstance(model, sbx.DDPG) and type(model) is not sbx.DDPG
     assert type(model).__module__.startswith("sbx")  # still told apart from SB3 models by module
-    _, _, penalised_loss, _ = type(model).update_actor(*state, observations, key)
     actions = np.asarray(model.policy.actor_state.apply_fn(model.policy.actor_state.params, observations))
     assert float(penalised_loss) - float(plain_loss) == pytest.approx(
         0.5 * float((actions**2).mean()), rel=1e-4
@@ -95,16 +86,8 @@ def test_a_margin_reaches_the_actor_loss_on_both_backends():
     penalised = model.critic.q1_forward(obs, actions).detach()
     torch.testing.assert_close(penalised, plain - 2.0 * action_penalty(actions, 1.0))
     assert float((plain - penalised)[0]) == 0.0 and float((plain - penalised)[3]) == 0.0
-    sbx = pytest.importorskip("sbx")
-    import jax
-
-    model = sbx.DDPG("MlpPolicy", gym.make("Pendulum-v1"), policy_kwargs={"net_arch": [8]}, seed=0)
-    observations = np.stack([model.observation_space.sample() for _ in range(32)]).astype(np.float32)
-    key = jax.random.PRNGKey(0)
-    state = model.policy.actor_state, model.policy.qf_state
-    _, _, plain_loss, _ = type(model).update_actor(*state, observations, key)
-    apply_action_l2(model, 0.5, margin=0.1)
-    _, _, penalised_loss, _ = type(model).update_actor(*state, observations, key)
+    pytest.importorskip("sbx")
+    model, observations, plain_loss, penalised_loss = _sbx_actor_losses(0.5, 0.1)
     sampled = np.asarray(model.policy.actor_state.apply_fn(model.policy.actor_state.params, observations))
     expected = 0.5 * float(action_penalty(torch.as_tensor(sampled), 0.1).mean())
     assert expected > 0  # some of the untrained actor's actions lie beyond tanh(0.1)
@@ -158,3 +141,20 @@ def test_config_callback_key_sets_the_penalty(callback, expected):
 def test_bad_callback_entries_are_refused(callback, message):
     with pytest.raises(ConfigError, match=message):
         parse_block({"n_timesteps": 10, "callback": callback}, DDPG)
+
+
+def _sbx_actor_losses(coefficient: float, margin: float | None, times: int = 1):
+    """An untrained SBX DDPG on Pendulum, its actor's loss on fixed observations before and after the
+    penalty was applied ``times`` times (the same parameters and key both times)."""
+    import jax
+    import sbx
+
+    model = sbx.DDPG("MlpPolicy", gym.make("Pendulum-v1"), policy_kwargs={"net_arch": [8]}, seed=0)
+    observations = np.stack([model.observation_space.sample() for _ in range(32)]).astype(np.float32)
+    key = jax.random.PRNGKey(0)
+    state = model.policy.actor_state, model.policy.qf_state
+    _, _, plain_loss, _ = type(model).update_actor(*state, observations, key)
+    for _ in range(times):
+        apply_action_l2(model, coefficient, margin=margin)
+    _, _, penalised_loss, _ = type(model).update_actor(*state, observations, key)
+    return model, observations, plain_loss, penalised_loss

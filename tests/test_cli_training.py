@@ -60,22 +60,28 @@ def test_workers_manager_evaluate_end_to_end(tmp_path):
     assert "Traceback" not in refused.stderr
 
 
+#: The goal worker alone, evaluated often on one episode: what the interrupted run and its resume share.
+_GOAL_WORKER = (
+    "train-workers",
+    "--workers",
+    "goal",
+    "--eval-freq",
+    "500",
+    "--eval-episodes",
+    "1",
+    "--no-progress",
+)
+
+
 def test_interrupt_saves_a_checkpoint_and_resume_reaches_the_total(tmp_path):
     out = tmp_path / "run"
     env = {**os.environ, "SDL_VIDEODRIVER": "dummy"}
     process = subprocess.Popen(
         [
             *CLI,
-            "train-workers",
-            "--workers",
-            "goal",
+            *_GOAL_WORKER,
             "--timesteps",
             "20000",
-            "--eval-freq",
-            "500",
-            "--eval-episodes",
-            "1",
-            "--no-progress",
             "--out",
             str(out),
         ],
@@ -91,16 +97,9 @@ def test_interrupt_saves_a_checkpoint_and_resume_reaches_the_total(tmp_path):
     assert 0 < state["num_timesteps"] < 20000
     DDPG.load(out / "checkpoints" / "goal" / state["model"])
     resumed = run_cli(
-        "train-workers",
-        "--workers",
-        "goal",
+        *_GOAL_WORKER,
         "--timesteps",
         str(state["num_timesteps"] + 304),  # the goal worker trains in blocks of train_freq = 8 steps
-        "--eval-freq",
-        "500",
-        "--eval-episodes",
-        "1",
-        "--no-progress",
         "--out",
         out,
         "--resume",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+from functools import partial
 
 import gymnasium as gym
 import numpy as np
@@ -10,13 +11,13 @@ import pytest
 from sb3_contrib import TQC
 from stable_baselines3 import DDPG, DQN, PPO, SAC
 from stable_baselines3.common.evaluation import evaluate_policy
-from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 
 from sb3_hddpg import evaluate
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import SelectionConfig
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
+from sb3_hddpg.training.agent import make_snake_env
 
 ENV_ID = "hddpg/SnakeReach-v0"
 OPTION_STEPS = 3
@@ -42,6 +43,18 @@ def bundle(tmp_path_factory):
 
 def _make_env() -> gym.Env:
     return gym.make(ENV_ID)
+
+
+@pytest.fixture(params=[(DummyVecEnv, 4), (SubprocVecEnv, 2)], ids=["dummy4", "subproc2"])
+def vec_env(request):
+    """A VecEnv of the snake: 4 envs in this process, or 2 in processes of their own (started by forkserver:
+    forking a process that runs torch is unsafe), whose observations are all the hierarchy sees."""
+    cls, n_envs = request.param
+    kwargs = {"start_method": "forkserver"} if cls is SubprocVecEnv else {}
+    # A module-level factory: a SubprocVecEnv pickles it into its processes.
+    envs = VecMonitor(cls([partial(make_snake_env, ENV_ID)] * n_envs, **kwargs))
+    yield envs
+    envs.close()
 
 
 def test_save_appends_zip_and_load_finds_it_as_sb3_does(bundle, tmp_path):
@@ -102,6 +115,13 @@ def test_load_takes_env_and_device_as_sb3(bundle):
         Hierarchy.load(bundle, env=gym.make("Pendulum-v1"))
 
 
+def test_load_and_set_env_take_a_vec_env_as_sb3(bundle, vec_env):
+    loaded = Hierarchy.load(bundle, env=vec_env)
+    assert loaded.get_env() is vec_env
+    loaded.set_env(_make_env())  # a single env is wrapped, as SB3 does
+    assert isinstance(loaded.get_env(), DummyVecEnv) and loaded.get_env().num_envs == 1
+
+
 @pytest.mark.parametrize("algorithm", [SAC, DDPG, DQN, PPO, TQC])
 def test_an_sb3_class_pointed_at_a_bundle_says_what_the_file_is(bundle, algorithm):
     with pytest.raises(
@@ -112,9 +132,8 @@ def test_an_sb3_class_pointed_at_a_bundle_says_what_the_file_is(bundle, algorith
     Hierarchy.load(bundle)  # the entry SB3 reads leaves the bundle verifiable
 
 
-def test_sb3_evaluate_policy_scores_a_hierarchy_on_a_vec_env_with_options(bundle):
+def test_sb3_evaluate_policy_scores_a_hierarchy_on_a_vec_env_with_options(bundle, vec_env):
     loaded = Hierarchy.load(bundle)
-    vec_env = DummyVecEnv([lambda: Monitor(_make_env())] * 4)
     lefts: list[np.ndarray] = []
 
     class Watched:
@@ -133,23 +152,35 @@ def test_sb3_evaluate_policy_scores_a_hierarchy_on_a_vec_env_with_options(bundle
     steps = np.array(lefts)
     # Options intact: every env decides every OPTION_STEPS steps (its counter cycles 2, 1, 0), never anew each step.
     expected = [(OPTION_STEPS - 1 - t % OPTION_STEPS) for t in range(200)]
-    np.testing.assert_array_equal(steps[:200], np.tile(np.array(expected)[:, None], (1, 4)))
+    np.testing.assert_array_equal(steps[:200], np.tile(np.array(expected)[:, None], (1, vec_env.num_envs)))
     vec_env.seed(0)
     mean, _ = evaluate_policy(loaded, vec_env, n_eval_episodes=4, deterministic=True)
     assert mean == pytest.approx(np.mean(rewards))
 
 
-def test_sb3_hddpg_evaluate_scores_a_hierarchy_on_a_vec_env_like_one_env(bundle):
+def test_sb3_hddpg_evaluate_scores_a_hierarchy_on_a_vec_env_like_one_env(bundle, vec_env):
     loaded = Hierarchy.load(bundle)
     on_one = evaluate(loaded, _make_env(), n_episodes=5, seed=7)
-    on_four = evaluate(loaded, DummyVecEnv([_make_env] * 4), n_episodes=5, seed=7)
-    assert [e.seed for e in on_four.episodes] == [7, 8, 9, 10, 11]
-    for one, four in zip(on_one.episodes, on_four.episodes):
-        assert four.length == one.length
-        assert four.reward == pytest.approx(one.reward, rel=1e-5)  # the VecEnv stores float32 rewards
-        assert four.term_rewards == pytest.approx(one.term_rewards, rel=1e-6)
+    on_vec = evaluate(loaded, vec_env, n_episodes=5, seed=7)
+    assert [e.seed for e in on_vec.episodes] == [7, 8, 9, 10, 11]
+    assert (on_vec.near_clearance, on_vec.clear_clearance) == (on_one.near_clearance, on_one.clear_clearance)
+    for one, vec in zip(on_one.episodes, on_vec.episodes):
+        assert vec.length == one.length
+        assert vec.reward == pytest.approx(one.reward, rel=1e-5)  # the VecEnv stores float32 rewards
+        assert vec.term_rewards == pytest.approx(one.term_rewards, rel=1e-6)
         # Options intact: the same workers for as many steps as on one env.
-        assert four.selections == one.selections
-    # Under a VecEnv wrapper too.
-    monitored = evaluate(loaded, VecMonitor(DummyVecEnv([_make_env] * 2)), n_episodes=2, seed=7)
-    assert [e.selections for e in monitored.episodes] == [e.selections for e in on_one.episodes[:2]]
+        assert vec.selections == one.selections
+        assert (vec.selections_near, vec.collisions) == (one.selections_near, one.collisions)
+
+
+def test_evaluate_records_only_envs_of_this_process(bundle, vec_env):
+    loaded, seen = Hierarchy.load(bundle), []
+    if isinstance(vec_env.unwrapped, DummyVecEnv):
+        evaluate(loaded, vec_env, n_episodes=1, on_step=lambda env, info: seen.append(env))
+        assert len(seen) == 200 and all(isinstance(env, gym.Env) for env in seen)
+    else:
+        with pytest.raises(
+            ValueError, match="SubprocVecEnv runs in another process; use a DummyVecEnv"
+        ) as info:
+            evaluate(loaded, vec_env, n_episodes=1, on_step=lambda env, info: seen.append(env))
+        assert "\n" not in str(info.value) and not seen

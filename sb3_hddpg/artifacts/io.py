@@ -365,6 +365,17 @@ def holds_folder_lock(folder_of: Callable[[inspect.BoundArguments], Any]) -> Cal
 
     :param folder_of: picks the folder from the call's bound arguments (defaults applied).
     """
+    return runs_within(lambda call: locked_folder(folder_of(call)))
+
+
+def runs_within(
+    context_of: Callable[[inspect.BoundArguments], contextlib.AbstractContextManager[object]],
+) -> Callable[[F], F]:
+    """
+    Decorate a function so that every call runs inside the context manager ``context_of`` makes of it.
+
+    :param context_of: the context of one call, from its bound arguments (defaults applied).
+    """
 
     def decorate(function: F) -> F:
         signature = inspect.signature(function)
@@ -373,7 +384,7 @@ def holds_folder_lock(folder_of: Callable[[inspect.BoundArguments], Any]) -> Cal
         def wrapper(*args: object, **kwargs: object) -> Any:
             bound = signature.bind(*args, **kwargs)
             bound.apply_defaults()
-            with locked_folder(folder_of(bound)):
+            with context_of(bound):
                 return function(*args, **kwargs)
 
         return wrapper  # type: ignore[return-value]

@@ -24,17 +24,17 @@ did not write there has a name the tool may write over.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
-import functools
 import inspect
 import os
 import re
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
-from sb3_hddpg.artifacts.io import LOCK_FILE, atomic_write_json, holds_lock, locked_folder
+from sb3_hddpg.artifacts.io import LOCK_FILE, atomic_write_json, holds_lock, locked_folder, runs_within
 from sb3_hddpg.artifacts.limits import MAX_MARKER_BYTES, MAX_MARKER_ENTRIES, parse_json, read_file_bytes
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -333,28 +333,21 @@ def holds_run_folder(folder_of: Callable[[inspect.BoundArguments], Any], command
     :param folder_of: picks the folder from the call's bound arguments (defaults applied).
     :param command: recorded in the marker.
     """
+    return runs_within(lambda call: _held_run_folder(Path(folder_of(call)), command))
 
-    def decorate(function: F) -> F:
-        signature = inspect.signature(function)
 
-        @functools.wraps(function)
-        def wrapper(*args: object, **kwargs: object) -> Any:
-            bound = signature.bind(*args, **kwargs)
-            bound.apply_defaults()
-            folder = Path(folder_of(bound))
-            with locked_folder(folder):
-                fresh = not (folder / RUN_MARKER).is_file()
-                if fresh:
-                    mark_run_folder(folder, command)
-                try:
-                    return function(*args, **kwargs)
-                finally:
-                    if fresh:
-                        record_written(folder)
-
-        return wrapper  # type: ignore[return-value]
-
-    return decorate
+@contextlib.contextmanager
+def _held_run_folder(folder: Path, command: str) -> Iterator[None]:
+    """:func:`holds_run_folder`'s context: the folder locked, and marked if it had no marker."""
+    with locked_folder(folder):
+        fresh = not (folder / RUN_MARKER).is_file()
+        if fresh:
+            mark_run_folder(folder, command)
+        try:
+            yield
+        finally:
+            if fresh:
+                record_written(folder)
 
 
 def _names(value: object) -> frozenset[str]:

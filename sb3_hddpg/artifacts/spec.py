@@ -300,38 +300,27 @@ _CLASS_KWARGS: dict[str, Mapping[str, type]] = {
 }
 
 
-def _policy_kwargs_to_json(algo: str, policy_kwargs: Mapping[str, object]) -> dict[str, object]:
-    out: dict[str, object] = {}
-    for key, value in policy_kwargs.items():
-        if key == "use_sde":
-            continue  # recorded as a hyperparameter, see _POLICY_KWARGS
-        _check_policy_kwarg(algo, key, value)
-        if key == "features_extractor_kwargs":
-            if value:
-                raise ValueError(
-                    f"policy_kwargs.features_extractor_kwargs: must be empty, got {brief(value)}"
-                )
-        elif key in _CLASS_KWARGS:
-            out[key] = _class_name(key, value)
-        elif key == "optimizer_kwargs":
-            out[key] = _optimizer_kwargs(value, to_json=True)
-        else:
-            out[key] = _policy_value(key, value)
-    return out
-
-
-def _policy_kwargs_from_json(algo: str, value: object) -> dict[str, object]:
+def _policy_kwargs(algo: str, value: object, to_json: bool) -> dict[str, object]:
+    """
+    ``policy_kwargs`` checked and converted one way: a model's to a spec's JSON (``to_json``), classes
+    written by name, or a spec's back to a model's.
+    """
     if not isinstance(value, Mapping):
         raise ValueError(f"policy_kwargs: expected an object, got {brief(value)}")
     out: dict[str, object] = {}
     for key, item in value.items():
+        if key == "use_sde" and to_json:
+            continue  # recorded as a hyperparameter, see _POLICY_KWARGS
         _check_policy_kwarg(algo, key, item)
         if key == "features_extractor_kwargs":
-            raise ValueError("policy_kwargs.features_extractor_kwargs: not supported in a spec")
-        if key in _CLASS_KWARGS:
-            out[key] = _class_named(key, item)
+            if not to_json:
+                raise ValueError("policy_kwargs.features_extractor_kwargs: not supported in a spec")
+            if item:  # a model's empty ones are SB3's default, which a spec leaves out
+                raise ValueError(f"policy_kwargs.features_extractor_kwargs: must be empty, got {brief(item)}")
+        elif key in _CLASS_KWARGS:
+            out[key] = _class_name(key, item) if to_json else _class_named(key, item)
         elif key == "optimizer_kwargs":
-            out[key] = _optimizer_kwargs(item, to_json=False)
+            out[key] = _optimizer_kwargs(item, to_json=to_json)
         else:
             out[key] = _policy_value(key, item)
     return out
@@ -432,7 +421,7 @@ def model_spec(model: BaseAlgorithm) -> dict[str, object]:
         "policy": "MlpPolicy",
         "observation_space": _space_to_json(model.observation_space, "observation_space"),
         "action_space": _space_to_json(model.action_space, "action_space"),
-        "policy_kwargs": _policy_kwargs_to_json(algo, model.policy_kwargs),
+        "policy_kwargs": _policy_kwargs(algo, model.policy_kwargs, to_json=True),
         "hyperparameters": hparams,
         "learning_rate_constant": learning_rate_constant,
     }
@@ -459,7 +448,7 @@ def build_from_spec(spec: object, device: th.device | str) -> BaseAlgorithm:
     action_space = _space_from_json(spec.get("action_space"), "action_space")
     _check_action_space(SPEC_ALGORITHMS[algo], action_space)
 
-    policy_kwargs = _policy_kwargs_from_json(algo, spec.get("policy_kwargs", {}))
+    policy_kwargs = _policy_kwargs(algo, spec.get("policy_kwargs", {}), to_json=False)
 
     raw_hparams = spec.get("hyperparameters")
     if not isinstance(raw_hparams, Mapping):

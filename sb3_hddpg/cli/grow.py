@@ -10,15 +10,9 @@ from rich.table import Table
 
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
-    CheckpointFreqOpt,
-    EvalEpisodesOpt,
-    EvalFreqOpt,
-    NEnvsOpt,
-    ProgressOpt,
     ResumeOpt,
-    SeedOpt,
-    ThreadsOpt,
     run_options_of,
+    takes_run_options,
     usage_errors,
 )
 from sb3_hddpg.cli.train import training_interrupt_exits
@@ -56,6 +50,9 @@ _ConfigOpt = Annotated[
 
 
 @app.command("grow")
+@takes_run_options(
+    "seed", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq", "threads", "progress_bar"
+)
 def grow_command(
     context: typer.Context,
     workers: _GrowWorkersOpt = Path("runs/workers"),
@@ -64,14 +61,7 @@ def grow_command(
     tolerance: _ToleranceOpt = 0.01,
     start_states: _StartStatesOpt = 32,
     config: _ConfigOpt = None,
-    seed: SeedOpt = 0,
-    n_envs: NEnvsOpt = None,
     resume: ResumeOpt = False,
-    eval_freq: EvalFreqOpt = 5000,
-    eval_episodes: EvalEpisodesOpt = 5,
-    checkpoint_freq: CheckpointFreqOpt = 10_000,
-    threads: ThreadsOpt = 1,
-    progress_bar: ProgressOpt = True,
 ) -> None:
     """Add workers on weightings of the terms where the front gains most (optimistic linear support), each warm-started from its nearest neighbour."""
     with usage_errors("'--support'"):

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
+import inspect
 import math
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 import gymnasium as gym
 import typer
@@ -30,6 +32,8 @@ from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.training.backends import BackendError, check_backend
 from sb3_hddpg.training.run_options import MAX_SEED, RUN_OPTION_NAMES, RunOptions
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 #: Files whose presence means a folder already holds results of ours.
 RESULT_MARKERS = (
@@ -127,23 +131,22 @@ def existing_file(value: Path | None) -> Path | None:
     not by permission bits, because root reads anything and a folder where a file belongs is the common
     mistake.
     """
-    if value is None:
-        return None
-    if not value.exists():
-        raise typer.BadParameter(f"no such file: {str(value)!r}")
-    if not value.is_file():
-        raise typer.BadParameter(f"expected a file, got a folder: {str(value)!r}")
-    return value
+    return _existing(value, Path.is_file, "file", "folder")
 
 
 def existing_dir(value: Path | None) -> Path | None:
     """A typer callback for a folder to read: it must exist and be a folder (``None`` passes)."""
+    return _existing(value, Path.is_dir, "folder", "file")
+
+
+def _existing(value: Path | None, is_kind: Callable[[Path], bool], kind: str, other: str) -> Path | None:
+    """``value`` if it exists and ``is_kind`` (a ``kind``, not an ``other``); ``None`` passes."""
     if value is None:
         return None
     if not value.exists():
-        raise typer.BadParameter(f"no such folder: {str(value)!r}")
-    if not value.is_dir():
-        raise typer.BadParameter(f"expected a folder, got a file: {str(value)!r}")
+        raise typer.BadParameter(f"no such {kind}: {str(value)!r}")
+    if not is_kind(value):
+        raise typer.BadParameter(f"expected a {kind}, got a {other}: {str(value)!r}")
     return value
 
 
@@ -355,6 +358,52 @@ ExperimentBackendOpt = Annotated[
         "--backend", callback=backend_name, help=BACKEND_HELP.split(" Default:")[0] + " Default: sb3."
     ),
 ]
+
+
+#: The run options a training command may take without using them itself (it reads them from its context
+#: with :func:`run_options_of`): field name -> its option and the commands' default.
+RUN_OPTION_PARAMETERS: dict[str, tuple[object, object]] = {
+    "seed": (SeedOpt, 0),
+    "n_envs": (NEnvsOpt, None),
+    "stop_on_plateau": (StopOnPlateauOpt, False),
+    "eval_freq": (EvalFreqOpt, 5000),
+    "eval_episodes": (EvalEpisodesOpt, 5),
+    "checkpoint_freq": (CheckpointFreqOpt, 10_000),
+    "threads": (ThreadsOpt, 1),
+    "progress_bar": (ProgressOpt, True),
+    "keep_checkpoints": (KeepCheckpointsOpt, False),
+}
+
+
+def takes_run_options(*names: str) -> Callable[[F], F]:
+    """
+    Give a typer command the run options ``names`` (:data:`RUN_OPTION_PARAMETERS`) as parameters, placed
+    before its ``--resume`` (else last), so that the training commands do not each spell them again. The
+    command itself is called without them: it reads them with :func:`run_options_of`.
+
+    :param names: fields of :class:`~sb3_hddpg.training.run_options.RunOptions`.
+    """
+
+    def decorate(command: F) -> F:
+        # Evaluated annotations: typer reads the options from this signature, not from the strings of
+        # a module with postponed annotations.
+        own = list(inspect.signature(command, eval_str=True).parameters.values())
+        added = [
+            inspect.Parameter(
+                name, inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=option, default=default
+            )
+            for name, (option, default) in ((n, RUN_OPTION_PARAMETERS[n]) for n in names)
+        ]
+        at = next((i for i, p in enumerate(own) if p.name == "resume"), len(own))
+
+        @functools.wraps(command)
+        def wrapper(**kwargs: object) -> Any:
+            return command(**{key: value for key, value in kwargs.items() if key not in names})
+
+        wrapper.__signature__ = inspect.Signature(own[:at] + added + own[at:])  # type: ignore[attr-defined]
+        return wrapper  # type: ignore[return-value]
+
+    return decorate
 
 
 def run_options_of(context: typer.Context) -> RunOptions:

@@ -16,23 +16,15 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
+    RUN_OPTION_PARAMETERS,
     SNAKE_DEFAULT,
     BackendOpt,
-    CheckpointFreqOpt,
     EpisodeStepsOpt,
-    EvalEpisodesOpt,
-    EvalFreqOpt,
     ForceOpt,
     InfoKeyOpt,
-    KeepCheckpointsOpt,
-    NEnvsOpt,
-    ProgressOpt,
     ResumeOpt,
-    SeedOpt,
-    StopOnPlateauOpt,
     TermBoundsOpt,
     TermsOpt,
-    ThreadsOpt,
     at_least,
     count,
     discount,
@@ -40,6 +32,7 @@ from sb3_hddpg.cli.options import (
     existing_file,
     prepare_out_dir,
     run_options_of,
+    takes_run_options,
     terms_env_option,
     usage_errors,
 )
@@ -164,6 +157,7 @@ _ResumeChangingOpt = Annotated[
 
 
 @app.command("train-workers")
+@takes_run_options(*RUN_OPTION_PARAMETERS)
 def train_workers_command(
     context: typer.Context,
     workers: _WorkerNamesOpt = None,
@@ -178,18 +172,9 @@ def train_workers_command(
     algo: _WorkersAlgoOpt = None,
     config: _WorkersConfigOpt = None,
     timesteps: _WorkersTimestepsOpt = None,
-    seed: SeedOpt = 0,
-    n_envs: NEnvsOpt = None,
     out: _WorkersOutOpt = Path("runs/workers"),
     resume: ResumeOpt = False,
     force: ForceOpt = False,
-    stop_on_plateau: StopOnPlateauOpt = False,
-    eval_freq: EvalFreqOpt = 5000,
-    eval_episodes: EvalEpisodesOpt = 5,
-    checkpoint_freq: CheckpointFreqOpt = 10_000,
-    threads: ThreadsOpt = 1,
-    progress_bar: ProgressOpt = True,
-    keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
     resume_changing: _ResumeChangingOpt = None,
 ) -> None:
@@ -405,6 +390,7 @@ _ManagerEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + MAN
 
 
 @app.command("train-manager")
+@takes_run_options(*RUN_OPTION_PARAMETERS)
 def train_manager_command(
     context: typer.Context,
     workers_dir: _ManagerWorkersDirOpt = Path("runs/workers"),
@@ -423,19 +409,10 @@ def train_manager_command(
     algo: _ManagerAlgoOpt = "ddpg",
     config: _ManagerConfigOpt = None,
     timesteps: _ManagerTimestepsOpt = None,
-    seed: SeedOpt = 0,
-    n_envs: NEnvsOpt = None,
     out: _ManagerOutOpt = Path("runs/manager"),
     resume: ResumeOpt = False,
     force: ForceOpt = False,
-    stop_on_plateau: StopOnPlateauOpt = False,
-    eval_freq: EvalFreqOpt = 5000,
-    eval_episodes: EvalEpisodesOpt = 5,
-    checkpoint_freq: CheckpointFreqOpt = 10_000,
-    threads: ThreadsOpt = 1,
-    progress_bar: ProgressOpt = True,
     trust: _ManagerTrustOpt = False,
-    keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
     env: _ManagerEnvOpt = None,
     terms: TermsOpt = None,

@@ -12,22 +12,15 @@ from sb3_hddpg.cli.options import (
     SNAKE_DEFAULT,
     BackendOpt,
     EpisodeStepsOpt,
-    EvalEpisodesOpt,
-    EvalFreqOpt,
     ForceOpt,
     InfoKeyOpt,
-    KeepCheckpointsOpt,
-    NEnvsOpt,
-    ProgressOpt,
     ResumeOpt,
-    SeedOpt,
-    StopOnPlateauOpt,
     TermBoundsOpt,
     TermsOpt,
-    ThreadsOpt,
     at_least,
     prepare_out_dir,
     run_options_of,
+    takes_run_options,
     terms_env_option,
     usage_errors,
 )
@@ -42,6 +35,16 @@ from sb3_hddpg.training.flat import check_flat_env, train_flat
 
 
 @app.command("train-flat")
+@takes_run_options(
+    "seed",
+    "n_envs",
+    "stop_on_plateau",
+    "eval_freq",
+    "eval_episodes",
+    "threads",
+    "progress_bar",
+    "keep_checkpoints",
+)
 def train_flat_command(
     context: typer.Context,
     algo: str = typer.Option("ddpg", "--algo", help=f"Algorithm, one of {list(ALGO_NAMES)}."),
@@ -53,19 +56,11 @@ def train_flat_command(
     timesteps: int | None = typer.Option(
         None, "--timesteps", callback=at_least(1), help="Training steps (default: the config's n_timesteps)."
     ),
-    seed: SeedOpt = 0,
-    n_envs: NEnvsOpt = None,
     out: Path = typer.Option(
         Path("runs/flat"), "--out", help="Run folder; the model goes to OUT/flat/<algo>.zip."
     ),
     resume: ResumeOpt = False,
     force: ForceOpt = False,
-    stop_on_plateau: StopOnPlateauOpt = False,
-    eval_freq: EvalFreqOpt = 5000,
-    eval_episodes: EvalEpisodesOpt = 5,
-    threads: ThreadsOpt = 1,
-    progress_bar: ProgressOpt = True,
-    keep_checkpoints: KeepCheckpointsOpt = False,
     backend: BackendOpt = None,
     preference: str | None = typer.Option(
         None,

@@ -11,7 +11,7 @@ its per-term critic. A policy's vector value is its critic at the start states o
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -334,28 +334,12 @@ def _start_record(
 
 
 def _stopped(record: SupportRecord, reason: str) -> SupportRecord:
-    return SupportRecord(
-        record.terms,
-        record.budget,
-        record.size,
-        record.tolerance,
-        record.start,
-        record.added,
-        record.worker_values,
-        reason,
-    )
+    return replace(record, stopped=reason)
 
 
 def _save(root: Path, record: SupportRecord, values: Mapping[str, np.ndarray]) -> SupportRecord:
-    record = SupportRecord(
-        record.terms,
-        record.budget,
-        record.size,
-        record.tolerance,
-        record.start,
-        record.added,
-        {name: [float(v) for v in value] for name, value in values.items()},
-        record.stopped,
+    record = replace(
+        record, worker_values={name: [float(v) for v in value] for name, value in values.items()}
     )
     atomic_write_json(root / "workers" / SUPPORT_FILE, record.to_json())
     return record

@@ -15,7 +15,27 @@ from sb3_hddpg.envs.layout import StateLayout
 DEFAULT_MAX_JOINT_SPEED = 1.5
 
 
-class JacobianReacher:
+class _ObservationController:
+    """A controller that reads only the observation (one or a batch) and keeps no state."""
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """The command(s) for ``observation`` (one or a batch), like SB3's ``predict``: no state."""
+        obs = np.atleast_2d(observation).astype(np.float64)
+        action = np.clip(self._command(obs), -1.0, 1.0).astype(np.float32)
+        return (action if np.ndim(observation) > 1 else action[0]), None
+
+    def _command(self, obs: np.ndarray) -> np.ndarray:
+        """The commands for a batch of observations ``(batch, obs_dim)``, before clipping to [-1, 1]."""
+        raise NotImplementedError
+
+
+class JacobianReacher(_ObservationController):
     """
     Moves the tip toward the goal by Jacobian-transpose control, using only the observation: for a planar
     chain the tip velocity from joint ``i`` is ``w_i x (tip - p_i)``, so joint ``i`` turns by the 2-D cross
@@ -30,20 +50,12 @@ class JacobianReacher:
         self.layout = layout
         self.gain = gain
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
-        lever, error = _levers_and_error(self.layout, observation)
-        signal = lever[..., 0] * error[:, None, 1] - lever[..., 1] * error[:, None, 0]
-        action = np.clip(self.gain * signal, -1.0, 1.0).astype(np.float32)
-        return (action if observation.ndim > 1 else action[0]), None
+    def _command(self, obs: np.ndarray) -> np.ndarray:
+        lever, error = _levers_and_error(self.layout, obs)
+        return self.gain * (lever[..., 0] * error[:, None, 1] - lever[..., 1] * error[:, None, 0])
 
 
-class IKReacher:
+class IKReacher(_ObservationController):
     """
     Moves the tip toward the goal by damped-least-squares inverse kinematics, using only the observation:
     joint rates ``J^T (J J^T + damping^2 I)^-1 (gain * error)``, with ``J``'s column ``i`` the tip velocity
@@ -74,25 +86,16 @@ class IKReacher:
         self.max_joint_speed = max_joint_speed
         self.bang_bang = bang_bang
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
-        lever, error = _levers_and_error(self.layout, observation)  # (batch, joints, 2), (batch, 2)
+    def _command(self, obs: np.ndarray) -> np.ndarray:
+        lever, error = _levers_and_error(self.layout, obs)  # (batch, joints, 2), (batch, 2)
         jacobian = np.stack((-lever[..., 1], lever[..., 0]), axis=1)  # (batch, 2, joints)
         damped = jacobian @ jacobian.transpose(0, 2, 1) + self.damping**2 * np.eye(2)
         task = np.linalg.solve(damped, self.gain * error[..., None])  # (batch, 2, 1)
         rates = (jacobian.transpose(0, 2, 1) @ task)[..., 0] / self.max_joint_speed
-        if self.bang_bang:
-            rates = np.sign(rates)
-        action = np.clip(rates, -1.0, 1.0).astype(np.float32)
-        return (action if np.ndim(observation) > 1 else action[0]), None
+        return np.sign(rates) if self.bang_bang else rates
 
 
-class FieldAvoider:
+class FieldAvoider(_ObservationController):
     """
     Moves every link away from its obstacle by a repulsive potential field, using only the observation: a
     link whose clearance ``c`` (a fraction of the sensor range) is below ``margin`` is pushed away from its
@@ -117,14 +120,7 @@ class FieldAvoider:
         self.margin = margin
         self.power = power
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
-        obs = np.atleast_2d(observation).astype(np.float64)
+    def _command(self, obs: np.ndarray) -> np.ndarray:
         ends, pivots = _ends_and_pivots(self.layout, obs)
         towards = obs[:, self.layout["joint_obstacle_vectors"]].reshape(ends.shape)
         clearance = obs[:, self.layout["joint_obstacle_distances"]]
@@ -138,9 +134,7 @@ class FieldAvoider:
         lever = middles[:, :, None, :] - pivots[:, None, :, :]
         moves = np.tril(np.ones((ends.shape[1], ends.shape[1])))[None, :, :]
         torque = lever[..., 0] * push[:, :, None, 1] - lever[..., 1] * push[:, :, None, 0]
-        rates = (moves * torque).sum(axis=1)
-        action = np.clip(self.gain * rates, -1.0, 1.0).astype(np.float32)
-        return (action if np.ndim(observation) > 1 else action[0]), None
+        return self.gain * (moves * torque).sum(axis=1)
 
 
 def _ends_and_pivots(layout: StateLayout, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -150,12 +144,11 @@ def _ends_and_pivots(layout: StateLayout, obs: np.ndarray) -> tuple[np.ndarray, 
     return ends, pivots
 
 
-def _levers_and_error(layout: StateLayout, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _levers_and_error(layout: StateLayout, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
-    From observations (one or a batch): each joint's lever ``tip - p_i`` (the base pivot at the origin) and
-    the tip-to-goal vector, both in reach units.
+    From a batch of observations: each joint's lever ``tip - p_i`` (the base pivot at the origin) and the
+    tip-to-goal vector, both in reach units.
     """
-    obs = np.atleast_2d(observation).astype(np.float64)
     ends, pivots = _ends_and_pivots(layout, obs)
     error = 2.0 * obs[:, layout["ee_to_goal"]]  # the observation halves it
     return ends[:, -1:, :] - pivots, error
