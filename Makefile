@@ -56,7 +56,7 @@ quickstart: $(STAMP)
 # The README's GIF and the docs' selection figure from the quickstart's run folder, with their record
 # (docs/quickstart-media.json, which a test checks against the files and the quickstart's settings).
 media: $(STAMP)
-	$(BIN)/python -c "import sys; from sb3_hddpg.experiments.quickstart_media import publish_media; publish_media(sys.argv[1], 'docs')" $(QUICKSTART_OUT)
+	$(BIN)/python -c "import sys; from hddpg_zoo.quickstart_media import publish_media; publish_media(sys.argv[1], 'docs')" $(QUICKSTART_OUT)
 
 # The tests in TEST_WORKERS processes, then the 15 slowest.
 test: $(STAMP)

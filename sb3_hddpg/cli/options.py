@@ -471,7 +471,7 @@ def cluster_address(executor: str, ray_address: str | None) -> str | None:
             raise typer.BadParameter("applies to --executor ray only", param_hint="'--ray-address'")
         return None
     # Lazily: Ray is optional (the `cluster` extra) and only --executor ray needs it.
-    from sb3_hddpg.experiments.ray_executor import ClusterError, connect
+    from hddpg_zoo.ray_executor import ClusterError, connect
 
     address = ray_address or "auto"
     try:
