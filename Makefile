@@ -30,7 +30,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	@$(INSTALL_TORCH)
-	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard,fast,mo,cluster,docs]"
+	$(BIN)/python -m pip install --quiet -e ".[test,bench,distributed,zoo,render,dashboard,fast,mo,cluster,docs]"
 	touch $(STAMP)
 
 # Only a virtual environment with torch (what the packaging test installs the built wheel into).

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated
@@ -488,6 +489,10 @@ def _announce(
 
 def _files_only_plots() -> None:
     """Plots are files: never open a window."""
+    if (
+        importlib.util.find_spec("matplotlib") is None
+    ):  # no plots without the bench extra (save_plots says so)
+        return
     import matplotlib  # lazily: slow to import with pyplot, only when a study runs
 
     matplotlib.use("Agg")

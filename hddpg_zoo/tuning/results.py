@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime
 import functools
+import importlib.util
 import math
 import re
 import warnings
@@ -20,6 +21,7 @@ from hddpg_zoo.study_storage import quiet_experimental
 from hddpg_zoo.tuning.target import TuningTarget, merge_block
 from sb3_hddpg.artifacts.io import atomic_write_bytes
 from sb3_hddpg.artifacts.limits import MAX_JSON_BYTES, read_file_bytes
+from sb3_hddpg.extras import INSTALL_EXTRA
 from sb3_hddpg.training.config import MANAGER_KEY, load_config_file, load_hyperparams
 
 #: How :func:`best_trials` ranks completed trials: ``last`` by the Optuna value, a trial's last evaluation
@@ -184,6 +186,10 @@ def check_only_block_changed(before: Any, text: str, key: str, what: str) -> Non
         )
 
 
+#: The plots a study saves, in ``OUT/plots/NAME.png``.
+PLOT_NAMES = ("optimization_history", "param_importances")
+
+
 def save_plots(study: optuna.Study, out_dir: str | Path) -> dict[str, Path | str]:
     """
     Save the optimisation history and the parameter importances as PNG files in ``OUT/plots``.
@@ -195,7 +201,10 @@ def save_plots(study: optuna.Study, out_dir: str | Path) -> dict[str, Path | str
     :param out_dir: the run folder.
     :return: plot name -> the PNG written, or the reason it was skipped.
     """
-    # Lazily: matplotlib and Optuna's plotting are slow to import, and only this function needs them.
+    # Lazily: matplotlib and Optuna's plotting are slow to import, and only this function needs them; without
+    # the bench extra a study runs all the same, without its plots.
+    if importlib.util.find_spec("matplotlib") is None:
+        return {name: f"matplotlib is not installed: {INSTALL_EXTRA}" for name in PLOT_NAMES}
     import matplotlib.pyplot as plt
     from optuna.importance import PedAnovaImportanceEvaluator
     from optuna.visualization.matplotlib import plot_optimization_history, plot_param_importances
@@ -208,7 +217,7 @@ def save_plots(study: optuna.Study, out_dir: str | Path) -> dict[str, Path | str
             plot_param_importances, study, evaluator=PedAnovaImportanceEvaluator()
         ),
     }
-    needed = {"optimization_history": 1, "param_importances": 2}
+    needed = dict(zip(PLOT_NAMES, (1, 2)))
     results: dict[str, Path | str] = {}
     for name, plot in plots.items():
         if n_completed < needed[name]:

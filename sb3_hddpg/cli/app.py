@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 
 import sb3_hddpg
+from sb3_hddpg.extras import INSTALL_EXTRA, MissingExtraError
 
 #: Where commands print their tables and progress.
 console = Console()
@@ -58,15 +59,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "package": ("hddpg_zoo.cli.package", "Package a model, card and replay as a Hugging Face folder."),
 }
 
-#: The packages of the ``zoo`` extra (``pip install "sb3-hddpg[zoo]"``): a harness command that needs one that
-#: is missing stops with one line naming the extra, not a traceback.
-ZOO_EXTRA_MODULES = frozenset(
+#: The packages of the ``bench`` extra (:mod:`sb3_hddpg.extras`): a harness command that needs one that is
+#: missing stops with one line naming the extra (exit 2), not a traceback.
+BENCH_MODULES = frozenset(
     {"rliable", "pymoo", "scipy", "pandas", "matplotlib", "imageio", "imageio_ffmpeg", "PIL", "tensorboard"}
 )
-
-
-class MissingExtraError(typer.BadParameter):
-    """A command needs a package of an extra that is not installed (exit 2, one line naming the extra)."""
 
 
 def command_module(name: str) -> str:
@@ -79,15 +76,17 @@ def import_command(name: str) -> None:
     """
     Import the module of command ``name``.
 
-    :raises MissingExtraError: the command needs a package of the ``zoo`` extra that is not installed.
+    :raises MissingExtraError: the command needs a package of the ``bench`` extra that is not installed.
     """
     try:
         importlib.import_module(command_module(name))
+    except MissingExtraError:
+        raise
     except ModuleNotFoundError as error:
         missing = (error.name or "").split(".")[0]
-        if missing in ZOO_EXTRA_MODULES or missing == "hddpg_zoo":
+        if missing in BENCH_MODULES or missing == "hddpg_zoo":
             raise MissingExtraError(
-                f'{name} needs {missing}, which is not installed: pip install "sb3-hddpg[zoo]"'
+                f"{name} needs {missing}, which is not installed: {INSTALL_EXTRA}"
             ) from error
         raise
 
