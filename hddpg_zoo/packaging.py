@@ -33,7 +33,7 @@ import yaml
 
 from hddpg_zoo.media.video import record_video
 from sb3_hddpg import __version__ as version
-from sb3_hddpg.artifacts.io import _UMASK, atomic_write_bytes, atomic_write_json
+from sb3_hddpg.artifacts.io import UMASK, atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
     LoadBudget,
@@ -133,7 +133,7 @@ def package_policy(
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     # mkdtemp makes the folder private (0700); the package is meant to be shared: give it the permissions
     # any other new folder gets (as atomic_write does for files).
-    os.chmod(staging, 0o777 & ~_UMASK)
+    os.chmod(staging, 0o777 & ~UMASK)
     try:
         results = _evaluation_results(loaded, n_eval_episodes, seed, deterministic)
         if loaded.kind == "hierarchy":

@@ -31,6 +31,16 @@ from hddpg_zoo.benchmark.tables import TextTable, console_tables, wall_time_text
 from hddpg_zoo.cli.benchmark_events import check_snapshot_option, event_printer, snapshotting, take_snapshot
 from hddpg_zoo.cli.benchmark_protocol import ProtocolOpt, protocol_command
 from hddpg_zoo.cli.export_models import export_run
+from hddpg_zoo.cli.options import (
+    ExecutorOpt,
+    ExperimentBackendOpt,
+    RayAddressOpt,
+    between,
+    build_settings,
+    check_jobs,
+    cluster_address,
+    positive_float,
+)
 from hddpg_zoo.records import BenchmarkResults
 from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS
 from sb3_hddpg.cli.app import app, console
@@ -39,19 +49,11 @@ from sb3_hddpg.cli.options import (
     ENV_HELP,
     SNAKE_DEFAULT,
     EpisodeStepsOpt,
-    ExecutorOpt,
-    ExperimentBackendOpt,
     ForceOpt,
     InfoKeyOpt,
-    RayAddressOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
-    between,
-    build_settings,
-    check_jobs,
-    cluster_address,
-    positive_float,
     prepare_out_dir,
     terms_env_option,
     usage_errors,

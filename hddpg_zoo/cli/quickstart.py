@@ -8,6 +8,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from hddpg_zoo.cli.options import ExecutorOpt, ExperimentBackendOpt, RayAddressOpt, cluster_address
 from hddpg_zoo.quickstart import (
     BUDGETS,
     MAIN_HIERARCHY,
@@ -18,16 +19,7 @@ from hddpg_zoo.quickstart import (
     run_quickstart,
 )
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import (
-    ExecutorOpt,
-    ExperimentBackendOpt,
-    ForceOpt,
-    RayAddressOpt,
-    cluster_address,
-    count,
-    prepare_out_dir,
-    seed_range,
-)
+from sb3_hddpg.cli.options import ForceOpt, count, prepare_out_dir, seed_range
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.metric_labels import (

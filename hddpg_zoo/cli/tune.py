@@ -13,6 +13,7 @@ import typer
 import yaml
 from rich.table import Table
 
+from hddpg_zoo.cli.options import ExecutorOpt, RayAddressOpt, check_jobs, cluster_address, positive_float
 from hddpg_zoo.hyperparams_opt import check_fixed_params, tunable_algorithms
 from hddpg_zoo.study_storage import check_storage_url, default_storage_url
 from hddpg_zoo.tuning import (
@@ -37,16 +38,11 @@ from sb3_hddpg.cli.options import (
     BackendOpt,
     EpisodeStepsOpt,
     EvalEpisodesOpt,
-    ExecutorOpt,
     InfoKeyOpt,
-    RayAddressOpt,
     TermBoundsOpt,
     TermsOpt,
     at_least,
-    check_jobs,
-    cluster_address,
     count,
-    positive_float,
     refuse_protected_out,
     seed_range,
     terms_env_option,
