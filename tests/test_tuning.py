@@ -24,7 +24,7 @@ from stable_baselines3 import DDPG
 from hddpg_zoo import tuning
 from hddpg_zoo.study_storage import default_storage_url, make_storage
 from hddpg_zoo.tuning import StudySettings, TuningTarget
-from sb3_hddpg.callbacks.pruning import TrialPruningCallback
+from hddpg_zoo.tuning.pruning import TrialPruningCallback
 from sb3_hddpg.cli import main as cli_main
 from sb3_hddpg.training.config import load_hyperparams
 from sb3_hddpg.training.workers import train_workers

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import optuna
 
+from hddpg_zoo.tuning.pruning import TrialPruningCallback
 from hddpg_zoo.tuning.target import (
     TuningTarget,
     ham_env,
@@ -20,7 +21,6 @@ from hddpg_zoo.tuning.target import (
     trial_env_factory,
 )
 from sb3_hddpg.artifacts.manifests import load_workers
-from sb3_hddpg.callbacks.pruning import TrialPruningCallback
 from sb3_hddpg.episode_sets import episode_set
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.training.agent import AgentPaths, TrainingInterrupted, train_agent

@@ -26,7 +26,7 @@ import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.manifests import load_workers
-from sb3_hddpg.artifacts.records import HamFile, ham_file, read_ham_file
+from sb3_hddpg.artifacts.records.ham import HamFile, ham_file, read_ham_file
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.layout import StateLayout

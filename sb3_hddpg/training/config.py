@@ -44,7 +44,6 @@ from sb3_hddpg.artifacts.values import (
 from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
 from sb3_hddpg.callbacks.controller_prior import ControllerPrior
 from sb3_hddpg.envs.snake.controllers import CONTROLLERS
-from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
 from sb3_hddpg.training.backends import BACKENDS
 from sb3_hddpg.training.config_values import ConfigError, parse_policy_kwargs, parse_schedule
 
@@ -163,6 +162,8 @@ class Hyperparams:
         """
         kwargs = dict(self.algo_kwargs)
         if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
+            from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer  # only for a block that names it
+
             kwargs["replay_buffer_class"] = GoalRelabelingReplayBuffer
             kwargs["replay_buffer_kwargs"] = {
                 **GoalRelabelingReplayBuffer.env_kwargs(env),

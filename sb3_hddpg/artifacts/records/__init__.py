@@ -8,7 +8,8 @@ reader, and the schema version of every file it writes, in one place.
   :func:`read_models_manifest`).
 - :class:`BundleManifest`: a hierarchy bundle's ``manifest.json`` (:func:`bundle_manifest`,
   :meth:`BundleManifest.from_json`).
-- :class:`HamFile`: ``ham.json``, the HAM switch's settings (:func:`ham_file`, :func:`read_ham_file`).
+- :class:`~sb3_hddpg.artifacts.records.ham.HamFile`: ``ham.json``, the HAM switch's settings (its own module,
+  loaded with the HAM baseline).
 
 Every reader checks what it reads through :mod:`sb3_hddpg.artifacts.limits` (the size- and depth-limited
 JSON reader, plain names, file entries) and :mod:`sb3_hddpg.artifacts.values` (env settings), and refuses
@@ -30,7 +31,6 @@ from sb3_hddpg.artifacts.records.base import (
     ManifestKind,
 )
 from sb3_hddpg.artifacts.records.bundle import BundleManifest, bundle_manifest
-from sb3_hddpg.artifacts.records.ham import HamFile, ham_file, read_ham_file
 from sb3_hddpg.artifacts.records.models import (
     ModelEntry,
     ModelsManifest,
@@ -49,7 +49,6 @@ __all__ = [
     "QUICKSTART_RESULTS_VERSION",
     "WORKERS_MANIFEST_VERSION",
     "BundleManifest",
-    "HamFile",
     "JsonObject",
     "JsonRecord",
     "JsonValue",
@@ -57,10 +56,8 @@ __all__ = [
     "ModelEntry",
     "ModelsManifest",
     "bundle_manifest",
-    "ham_file",
     "models_manifest",
     "models_manifest_from_json",
-    "read_ham_file",
     "read_models_manifest",
     "read_workers_manifest",
 ]
