@@ -31,12 +31,11 @@ from sb3_hddpg.artifacts.records import (
     BundleManifest,
     ModelsManifest,
     bundle_manifest,
-    ham_file,
     models_manifest,
-    read_ham_file,
     read_models_manifest,
     read_workers_manifest,
 )
+from sb3_hddpg.artifacts.records.ham import ham_file, read_ham_file
 from sb3_hddpg.artifacts.run_folder import RUN_MARKER, _names, _read_marker
 
 SHA = "0" * 64
