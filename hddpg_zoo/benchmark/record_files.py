@@ -38,7 +38,7 @@ def read_record(out: Path, task: Task) -> dict[str, Any] | None:
 def read_record_file(path: Path) -> dict[str, Any]:
     """
     A task's record file as its JSON object, read and checked by
-    :func:`~sb3_hddpg.artifacts.records.read_benchmark_record` (the JSON size and depth limits; ``status``
+    :func:`~hddpg_zoo.records.read_benchmark_record` (the JSON size and depth limits; ``status``
     and ``method`` strings, ``seed`` a whole number in ``[0, MAX_SEED]``).
 
     :raises ValueError: one line naming the file (a ``LimitError`` for one too big or too deep).

@@ -445,7 +445,7 @@ def _settings_of(
 ) -> BenchmarkSettings:
     """
     The benchmark's settings from the command's options, a refusal naming the option at fault
-    (:func:`~sb3_hddpg.cli.options.build_settings`).
+    (:func:`~hddpg_zoo.cli.options.build_settings`).
 
     :param context: the command's context (its parameters: the options as given).
     :param methods: the methods the scenario runs.

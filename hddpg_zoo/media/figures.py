@@ -2,7 +2,7 @@
 Every figure of sb3-hddpg (matplotlib, Agg backend, one PNG each, written atomically): the selection timeline,
 learning curves and comparisons of a run, and the benchmark's learning curves with CI bands on both step axes,
 the paper's Figure 9 (mean reward and trend slope per method) and Figure 10 (goal vs avoid reward of the goal-
-and avoid-preferred managers), each read from a benchmark's results (:class:`~sb3_hddpg.artifacts.records.BenchmarkResults`).
+and avoid-preferred managers), each read from a benchmark's results (:class:`~hddpg_zoo.records.BenchmarkResults`).
 """
 
 from __future__ import annotations

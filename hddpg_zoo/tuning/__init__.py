@@ -3,7 +3,7 @@ Hyperparameter tuning with Optuna at every level: a worker, the manager, the fla
 
 One trial samples a ``zoo_configs`` block with :func:`~hddpg_zoo.hyperparams_opt.sampler_for` (one sampler per
 level; per algorithm for the levels that train one, as its record names), trains it with :func:`~sb3_hddpg.training.agent.train_agent` (the same code as ``train-*``), reports ``n_evaluations``
-evaluations to the pruner through :class:`~sb3_hddpg.callbacks.TrialPruningCallback`, and returns the last
+evaluations to the pruner through :class:`~hddpg_zoo.tuning.pruning.TrialPruningCallback`, and returns the last
 evaluation's mean reward (rl_zoo3's objective: the best of several noisy evaluations would favour lucky
 configurations). Which trial is *best* is a separate choice (:data:`RANKINGS`): by that value, or by the
 trial's best evaluation, the checkpoint every ``train-*`` command keeps. A policy stuck on one constant
