@@ -20,7 +20,7 @@ HIGHWAY = {
     "env_kwargs": {"env_id": "mo-highway-fast-v0", "terms": ["speed", "lane", "collision"]},
     "terms": ["speed", "lane", "collision"],
 }
-MORL_SCRIPT = REPO / "sb3_hddpg" / "experiments" / "benchmark" / "morl_runner.py"
+MORL_SCRIPT = REPO / "hddpg_zoo" / "benchmark" / "morl_runner.py"
 MOUNTAIN_CAR = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
 
 
