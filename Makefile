@@ -30,7 +30,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	@$(INSTALL_TORCH)
-	$(BIN)/python -m pip install --quiet -e ".[test,distributed,zoo,render,dashboard,fast,mo,cluster,docs]"
+	$(BIN)/python -m pip install --quiet -e ".[test,bench,distributed,zoo,render,dashboard,fast,mo,cluster,docs]"
 	touch $(STAMP)
 
 # Only a virtual environment with torch (what the packaging test installs the built wheel into).
@@ -56,7 +56,7 @@ quickstart: $(STAMP)
 # The README's GIF and the docs' selection figure from the quickstart's run folder, with their record
 # (docs/quickstart-media.json, which a test checks against the files and the quickstart's settings).
 media: $(STAMP)
-	$(BIN)/python -c "import sys; from sb3_hddpg.experiments.quickstart_media import publish_media; publish_media(sys.argv[1], 'docs')" $(QUICKSTART_OUT)
+	$(BIN)/python -c "import sys; from hddpg_zoo.quickstart_media import publish_media; publish_media(sys.argv[1], 'docs')" $(QUICKSTART_OUT)
 
 # The tests in TEST_WORKERS processes, then the 15 slowest.
 test: $(STAMP)

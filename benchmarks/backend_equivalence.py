@@ -6,7 +6,7 @@ Each (backend, seed) run is ``train_workers(workers=["goal"], backend=...)`` wit
 tested on ``--test-episodes`` fixed episodes, disjoint from the ones that picked the best model, and the
 score is its mean reward. With the same seed both backends start from the same networks and draw the same
 exploration noise and replay batches (see docs/PERFORMANCE.md), so runs are paired by seed and the
-reported statistic is the bootstrap CI of the mean paired difference SBX - SB3 (sb3_hddpg.experiments.stats). A CI
+reported statistic is the bootstrap CI of the mean paired difference SBX - SB3 (hddpg_zoo.stats). A CI
 that includes 0 means no difference was detected at this number of seeds.
 
     python benchmarks/backend_equivalence.py [--seeds 5] [--timesteps 30000] [--n-jobs 2] [--out DIR]
@@ -35,9 +35,9 @@ def run_one(backend: str, seed: int, args: dict[str, Any]) -> dict[str, Any]:
     result_path = out / "result.json"
     if result_path.exists():
         return json.loads(result_path.read_text())
+    from hddpg_zoo.benchmark import TEST_SEED_BASE
     from sb3_hddpg.artifacts.io import atomic_write_json
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.experiments.benchmark import TEST_SEED_BASE
     from sb3_hddpg.hierarchy.loading import load_policy
     from sb3_hddpg.training.workers import train_workers
 
@@ -99,7 +99,7 @@ def main() -> None:
     with ProcessPoolExecutor(args.n_jobs, mp_context=get_context("spawn")) as pool:
         results = list(pool.map(run_one, *zip(*jobs), [settings] * len(jobs)))
 
-    from sb3_hddpg.experiments.stats import paired_difference_ci
+    from hddpg_zoo.stats import paired_difference_ci
 
     by = {(r["backend"], r["seed"]): r for r in results}
     seeds = range(args.seeds)

@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from sb3_hddpg.experiments.ray_executor import ClusterError
+from hddpg_zoo.ray_executor import ClusterError
 
 # The loopback head is test scaffolding (tests/ray_head.py), not part of the library: import it from the
 # repository root.

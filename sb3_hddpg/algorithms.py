@@ -153,7 +153,7 @@ class Algorithm:
     :param policy_kwargs: the ``policy_kwargs`` keys a saved model's spec may carry.
     :param hyperparameters: the constructor arguments a spec records, with their JSON kind (``float``,
         ``int``, ``bool``, ``ent_coef``).
-    :param sampler: the Optuna sampler's key in :data:`sb3_hddpg.experiments.hyperparams_opt.SAMPLERS`
+    :param sampler: the Optuna sampler's key in :data:`hddpg_zoo.hyperparams_opt.SAMPLERS`
         (``None``: not tunable).
     :param sbx: the SBX class's name (``None``: SBX cannot train it here).
     :param sbx_layout: how SBX lays out its networks, which picks the weight conversion in

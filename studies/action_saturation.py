@@ -9,9 +9,9 @@ from pathlib import Path
 
 import gymnasium as gym
 
+from hddpg_zoo.stats import summarise
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.stats import summarise
 from sb3_hddpg.hierarchy.loading import load_policy
 
 run = sys.argv[1]

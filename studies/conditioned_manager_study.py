@@ -50,15 +50,8 @@ from pathlib import Path
 import gymnasium as gym
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
-from sb3_hddpg.artifacts.manifests import save_manifest
-from sb3_hddpg.artifacts.records.models import models_manifest, read_workers_manifest
-from sb3_hddpg.baselines.ham import load_ham, save_ham
-from sb3_hddpg.envs.contract import env_contract, state_layout_of
-from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-from sb3_hddpg.episode_sets import FRONTIER
-from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.benchmark.front import SWEEP, ham_thresholds
-from sb3_hddpg.experiments.benchmark.front_points import (
+from hddpg_zoo.benchmark.front import SWEEP, ham_thresholds
+from hddpg_zoo.benchmark.front_points import (
     PLANES,
     SAFE_CONTACTS,
     SNAKE_FRONT,
@@ -67,6 +60,13 @@ from sb3_hddpg.experiments.benchmark.front_points import (
     safe_touch,
     sweep_labels,
 )
+from sb3_hddpg.artifacts.manifests import save_manifest
+from sb3_hddpg.artifacts.records.models import models_manifest, read_workers_manifest
+from sb3_hddpg.baselines.ham import load_ham, save_ham
+from sb3_hddpg.envs.contract import env_contract, state_layout_of
+from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
+from sb3_hddpg.episode_sets import FRONTIER
+from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy

@@ -28,10 +28,10 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_hddpg.experiments.benchmark.methods import FLAT_HER_METHODS
+from hddpg_zoo.benchmark.methods import FLAT_HER_METHODS
 
 if TYPE_CHECKING:
-    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
+    from hddpg_zoo.benchmark.settings import BenchmarkSettings
 
 #: The flat methods a pick can be confirmed for: the studies of record's (their algorithm: the method's name,
 #: or for a ``-her`` method the algorithm whose ``flat-her`` block it trains).
@@ -57,9 +57,9 @@ class ArmRun:
 
 def run_one(method: str, arm: str, config: str | None, seed: int, options: dict[str, Any]) -> dict[str, Any]:
     """Train one arm's agent for one seed as the benchmark does; its development score (kept)."""
+    from hddpg_zoo.benchmark.methods import final_test
+    from hddpg_zoo.benchmark.settings import BenchmarkSettings
     from sb3_hddpg.artifacts.io import atomic_write_json
-    from sb3_hddpg.experiments.benchmark.methods import final_test
-    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 
     folder = Path(options["out"]) / arm / f"seed-{seed}"
     path = folder / "record.json"
@@ -160,9 +160,9 @@ def check_inputs(args: argparse.Namespace) -> None:
 
     :raises ValueError: one line naming the option.
     """
+    from hddpg_zoo.benchmark.settings import BenchmarkSettings
     from sb3_hddpg.artifacts.manifests import load_workers
     from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-    from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
     from sb3_hddpg.training.config import manager_option_steps
     from sb3_hddpg.training.flat import FLAT_HER_KEY, flat_hyperparams
     from sb3_hddpg.training.manager_setup import manager_hyperparams

@@ -24,7 +24,7 @@ budget (one more process); then the managers and HAM over those workers. Everyth
 command after an interruption. ``--seeds-per-trial K`` trains every trial K times and ranks it by the mean.
 
 Writes the tuned blocks (``OUT/ddpg.yml``, ``OUT/sac.yml``...: each the bundled file with its method's block
-replaced), every study's trials (``OUT/studies/<method>.json``, :func:`~sb3_hddpg.experiments.study_export.
+replaced), every study's trials (``OUT/studies/<method>.json``, :func:`~hddpg_zoo.study_export.
 export_study`, which ``hddpg-cli report`` turns into docs/TUNING.md's table), ``OUT/summary.json`` (per study:
 trials by state, steps per trial, the base config's value, the best value and parameters; HAM's best
 threshold), and prints the summary as a Markdown table.
@@ -46,11 +46,10 @@ from typing import Any
 
 import yaml
 
-from sb3_hddpg.envs.ids import WORKER_ENV_IDS
-from sb3_hddpg.experiments.benchmark.settings import FLAT_HER_METHODS, BenchmarkSettings
-from sb3_hddpg.experiments.study_export import export_study
-from sb3_hddpg.experiments.study_storage import default_storage_url
-from sb3_hddpg.experiments.tuning import (
+from hddpg_zoo.benchmark.settings import FLAT_HER_METHODS, BenchmarkSettings
+from hddpg_zoo.study_export import export_study
+from hddpg_zoo.study_storage import default_storage_url
+from hddpg_zoo.tuning import (
     RANKINGS,
     StudySettings,
     TuningTarget,
@@ -60,6 +59,7 @@ from sb3_hddpg.experiments.tuning import (
     trial_score,
     tune,
 )
+from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.training.backends import backend_for
 from sb3_hddpg.training.config import load_config_file
 from sb3_hddpg.training.flat import FLAT_HER_KEY

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import gymnasium as gym
 
+from hddpg_zoo.benchmark import normalised_term_sums
+from hddpg_zoo.stats import summarise
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.benchmark import normalised_term_sums
-from sb3_hddpg.experiments.stats import summarise
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 
 RUN = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/bench")

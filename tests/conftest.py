@@ -40,14 +40,14 @@ def ray_cluster(tmp_path_factory: pytest.TempPathFactory):
     A local Ray cluster of 2 CPUs in this process, no dashboard, for one test module (seconds to start);
     skipped without Ray. Started with SIGINT ignored, as when the tests run in the background (``nohup``,
     ``make test &``, CI runners): Ray's workers inherit that, the case in which a non-forced ``ray.cancel``
-    once reached no running task (sb3_hddpg/experiments/ray_executor.py, "Interruption").
+    once reached no running task (hddpg_zoo/ray_executor.py, "Interruption").
 
-    It is the library's :func:`~sb3_hddpg.experiments.ray_executor.private_ray`, run with ``HOME`` pointing
+    It is the library's :func:`~hddpg_zoo.ray_executor.private_ray`, run with ``HOME`` pointing
     at an empty folder of the test's own, which must still be empty when the cluster is gone: Ray's
     temporary files and authentication token go to folders the caller controls, never to ``~/.ray``.
     """
     ray = pytest.importorskip("ray")
-    from sb3_hddpg.experiments.ray_executor import private_ray
+    from hddpg_zoo.ray_executor import private_ray
     from tests import jobs
 
     ray.cloudpickle.register_pickle_by_value(jobs)  # Ray's workers cannot import the tests by name

@@ -11,7 +11,7 @@ import threading
 import time
 from pathlib import Path
 
-from sb3_hddpg.experiments.runner import report_progress
+from hddpg_zoo.runner import report_progress
 
 
 def square(x: int) -> int:

@@ -24,7 +24,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from sb3_hddpg.experiments.ray_executor import INSTALL_HINT, ClusterError
+from hddpg_zoo.ray_executor import INSTALL_HINT, ClusterError
 
 #: The environment of a loopback head and of the drivers that connect to it: no token to hand around
 #: (Ray turns token authentication on by default since 2.5x; keep it on any network).

@@ -13,6 +13,8 @@ import pytest
 import torch
 from stable_baselines3.common.env_util import make_vec_env
 
+from hddpg_zoo.hyperparams_opt import SAMPLERS, search_space
+from hddpg_zoo.media.figures import COLOURS
 from sb3_hddpg.algorithms import ACTION_SPACES, REGISTRY, ROLES, NetworkShape, algorithm, algorithms_for
 from sb3_hddpg.artifacts.limits import (
     LimitError,
@@ -22,9 +24,7 @@ from sb3_hddpg.artifacts.network_limits import check_parameter_count
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.envs.terms_env import TermsEnv
-from sb3_hddpg.experiments.hyperparams_opt import SAMPLERS, search_space
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
-from sb3_hddpg.media.figures import COLOURS
 from sb3_hddpg.training.backends import make_model, sbx_installed, to_sb3
 from sb3_hddpg.training.config import default_config
 from sb3_hddpg.training.workers import parse_worker_algorithms, train_workers, worker_algorithms

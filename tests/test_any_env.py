@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
+from hddpg_zoo.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.artifacts.limits import LimitError
 from sb3_hddpg.artifacts.values import check_env_kwargs
 from sb3_hddpg.baselines.random import RandomPolicy
@@ -30,7 +31,6 @@ from sb3_hddpg.envs import (
 )
 from sb3_hddpg.envs.terms_env import parse_term_bounds, parse_terms, terms_env
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.benchmark.settings import BenchmarkSettings
 from sb3_hddpg.hierarchy import Hierarchy
 from sb3_hddpg.training import train_manager, train_workers
 from tests.cli_runner import run_cli
@@ -237,7 +237,7 @@ def test_an_info_terms_bundle_evaluates_and_packages_with_its_own_env(tmp_path, 
     evaluated through the CLI with --env naming the env it adapts (a user's id: the opt-in)."""
     from types import SimpleNamespace
 
-    from sb3_hddpg.experiments.benchmark.methods import final_test
+    from hddpg_zoo.benchmark.methods import final_test
     from sb3_hddpg.hierarchy.loading import load_policy
     from tests.cli_batch import run_one
 
@@ -446,7 +446,7 @@ def test_mujoco_half_cheetah_with_estimated_bounds_end_to_end(tmp_path, tiny):
 
 def test_selection_timeline_of_an_env_without_the_snakes_panels(tmp_path):
     """plot-selection's figure on any env: its reward terms stand where the snake's clearance would."""
-    from sb3_hddpg.media.figures import plot_selection_timeline
+    from hddpg_zoo.media.figures import plot_selection_timeline
     from sb3_hddpg.media.trace import trace_episodes
 
     env = gym.make("test/ThreeTerms-v0")
@@ -465,8 +465,8 @@ TUNE_FIXED = {"net_arch": "small", "buffer_size": 10_000, "batch_size": 32}
 
 
 def _tune_once(tmp_path, target):
-    from sb3_hddpg.experiments.study_storage import default_storage_url
-    from sb3_hddpg.experiments.tuning import StudySettings, tune
+    from hddpg_zoo.study_storage import default_storage_url
+    from hddpg_zoo.tuning import StudySettings, tune
 
     settings = StudySettings(
         storage=default_storage_url(tmp_path),
@@ -505,7 +505,7 @@ def test_a_worker_reads_its_own_block_before_its_envs(tmp_path, tiny):
 
 
 def test_tune_a_worker_and_a_flat_agent_on_other_envs(tmp_path, tiny):
-    from sb3_hddpg.experiments.tuning import TuningTarget
+    from hddpg_zoo.tuning import TuningTarget
 
     mountain_car = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
     budget = {"config": str(tiny), "timesteps": 100, "n_evaluations": 1, "eval_episodes": 1}
@@ -532,7 +532,7 @@ def test_tune_a_worker_and_a_flat_agent_on_other_envs(tmp_path, tiny):
 
 
 def test_tune_the_manager_over_workers_of_another_env(tmp_path, tiny):
-    from sb3_hddpg.experiments.tuning import TuningTarget
+    from hddpg_zoo.tuning import TuningTarget
 
     env = terms_env("mo-mountaincarcontinuous-v0", terms=["time", "fuel"], episode_steps=30)
     train_workers(tmp_path / "w", config=tiny, seed=0, env=env, timesteps=100, eval_freq=0, eval_episodes=1)
@@ -623,7 +623,7 @@ def test_record_a_hierarchy_on_an_mo_gymnasium_env(mountain_car_bundle, tmp_path
 
 
 def test_package_an_mo_bundle_reports_the_envs_own_metrics(mountain_car_bundle, tmp_path):
-    from sb3_hddpg.experiments.packaging import package_policy
+    from hddpg_zoo.packaging import package_policy
     from sb3_hddpg.hierarchy.loading import load_policy
 
     loaded = load_policy(mountain_car_bundle)
@@ -636,7 +636,7 @@ def test_package_an_mo_bundle_reports_the_envs_own_metrics(mountain_car_bundle, 
 def test_record_refuses_an_env_that_cannot_render(tmp_path, tiny):
     import functools
 
-    from sb3_hddpg.media import make_recording_env
+    from hddpg_zoo.media import make_recording_env
     from tests.cli_batch import run_one
 
     with pytest.raises(ValueError, match=r"test/ThreeTerms-v0 cannot render frames.*'rgb_array'"):

@@ -444,8 +444,8 @@ def test_every_training_command_trains_on_sbx_and_ships_sb3(tmp_path, timesteps)
 def test_api_backend_selection(tmp_path):
     """The library functions take ``backend=`` (or the config key) too; resuming with the other backend is
     refused."""
-    from sb3_hddpg.experiments.benchmark import BenchmarkSettings
-    from sb3_hddpg.experiments.tuning import TuningTarget
+    from hddpg_zoo.benchmark import BenchmarkSettings
+    from hddpg_zoo.tuning import TuningTarget
     from sb3_hddpg.training.flat import train_flat
 
     config = tmp_path / "tiny.yml"

@@ -13,11 +13,8 @@ import numpy as np
 import pytest
 from stable_baselines3 import DDPG
 
-from sb3_hddpg.artifacts.provenance import code_provenance
-from sb3_hddpg.episode_sets import DEVELOPMENT
-from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.experiments import stats
-from sb3_hddpg.experiments.benchmark import (
+from hddpg_zoo import stats
+from hddpg_zoo.benchmark import (
     OUTPUT_FILES,
     BenchmarkSettings,
     Task,
@@ -30,6 +27,9 @@ from sb3_hddpg.experiments.benchmark import (
     task_cost,
     write_outputs,
 )
+from sb3_hddpg.artifacts.provenance import code_provenance
+from sb3_hddpg.episode_sets import DEVELOPMENT
+from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
 from tests.cli_runner import CLI
 
@@ -98,7 +98,7 @@ def per_step_manager(monkeypatch: pytest.MonkeyPatch) -> None:
     Managers deciding every env step (``option_steps`` 1), whatever the bundled manager block holds: the
     constructed records' curves and the budget arithmetic below count one env step per decision.
     """
-    from sb3_hddpg.experiments.benchmark import settings as settings_module
+    from hddpg_zoo.benchmark import settings as settings_module
 
     monkeypatch.setattr(settings_module, "_manager_option_steps", lambda: 1)
 
@@ -283,7 +283,7 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert all(entry["seeds"] == [0, 1] for entry in results["methods"].values())
     assert results["test_seeds"][0] == DEVELOPMENT.first_seed and results["curve_seeds"][0] == EVAL_SEED_BASE
     # Every test episode is shipped, and the per-seed figures are their means.
-    from sb3_hddpg.experiments.benchmark.episodes import read_episodes_csv
+    from hddpg_zoo.benchmark.episodes import read_episodes_csv
 
     rows = read_episodes_csv(out / "episodes.csv")
     assert sorted((r["method"], r["seed"], r["episode_seed"]) for r in rows) == sorted(
@@ -454,8 +454,8 @@ def test_flat_configs_give_every_algorithm_the_same_care(algo):
 def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_path, monkeypatch):
     # With options of k env steps a manager's `timesteps` are decisions: k times as many env steps, which the
     # flat agents' equal budget, the curve window and the curve points must count.
+    from hddpg_zoo.benchmark import settings as settings_module
     from sb3_hddpg.callbacks.evaluation import read_history
-    from sb3_hddpg.experiments.benchmark import settings as settings_module
 
     monkeypatch.setattr(settings_module, "_manager_option_steps", lambda: 4)
     settings = BenchmarkSettings(methods=["hddpg", "ddpg"], timesteps=1000, worker_timesteps=300)
@@ -486,7 +486,7 @@ def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
     SIGTERM mid-run: the invocation is logged as interrupted, and the task keeps the time it spent, for the
     --resume that finishes it to add.
     """
-    from sb3_hddpg.experiments.benchmark.record_files import elapsed_path
+    from hddpg_zoo.benchmark.record_files import elapsed_path
     from tests.helpers import sigterm_once_written
 
     out = tmp_path / "bench"

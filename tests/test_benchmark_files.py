@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
-from sb3_hddpg.experiments.benchmark import BenchmarkSettings
-from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_file, settings_from_json
+from hddpg_zoo.benchmark import BenchmarkSettings
+from hddpg_zoo.benchmark.benchmark_file import read_benchmark_file, settings_from_json
 from tests.cli_batch import run_batch
 
 REPO = Path(__file__).resolve().parents[1]
@@ -172,7 +172,7 @@ ROW = "hddpg,0,development,15000,300.0,300.0,200\n"
 )
 def test_episodes_csv_rows_that_are_not_ours_are_one_line(text, named, tmp_path):
     # Cells past the header's were a TypeError and a field over csv's size limit a csv.Error: exit 1.
-    from sb3_hddpg.experiments.benchmark.episodes import read_episodes_csv
+    from hddpg_zoo.benchmark.episodes import read_episodes_csv
 
     path = tmp_path / "episodes.csv"
     path.write_text(text)
@@ -183,8 +183,8 @@ def test_episodes_csv_rows_that_are_not_ours_are_one_line(text, named, tmp_path)
 
 def test_an_episodes_csv_is_read_within_a_budget_of_cells(tmp_path):
     # 64 MiB of one-digit cells passed the size limit and took 2 GB to read.
+    from hddpg_zoo.benchmark.episodes import read_episodes_csv
     from sb3_hddpg.artifacts.limits import MAX_CSV_CELLS
-    from sb3_hddpg.experiments.benchmark.episodes import read_episodes_csv
 
     columns = 34
     path = tmp_path / "episodes.csv"
@@ -225,7 +225,7 @@ def test_report_over_records_that_lack_what_the_tables_read_is_one_line(tmp_path
 def test_a_page_of_unclosed_markers_is_searched_in_linear_time():
     import time
 
-    from sb3_hddpg.experiments.benchmark.pages import BLOCK, render_page
+    from hddpg_zoo.benchmark.pages import BLOCK, render_page
 
     # Opening markers without their closing ones: each was searched to the page's end, quadratic in all.
     page = "<!-- generated:bench-e20/methods -->\n" * 30_000

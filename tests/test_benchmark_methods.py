@@ -13,9 +13,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_hddpg.artifacts.run_folder import RunFolderError
-from sb3_hddpg.experiments import stats
-from sb3_hddpg.experiments.benchmark import (
+from hddpg_zoo import stats
+from hddpg_zoo.benchmark import (
     DEFAULT_METHODS,
     METHOD_REGISTRY,
     METHODS,
@@ -32,6 +31,7 @@ from sb3_hddpg.experiments.benchmark import (
     task_cost,
     write_outputs,
 )
+from sb3_hddpg.artifacts.run_folder import RunFolderError
 from sb3_hddpg.hierarchy.preference import PreferenceReward
 from tests.cli_batch import run_batch
 from tests.test_benchmark import cli, record, summary
@@ -430,8 +430,8 @@ def test_the_hand_written_skills_are_a_method_that_trains_nothing(tmp_path):
 # ------------------------------------------------------------------------------------------------- export
 @pytest.mark.slow
 def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
+    from hddpg_zoo.model_export import read_index
     from sb3_hddpg.evaluation import evaluate
-    from sb3_hddpg.experiments.model_export import read_index
     from sb3_hddpg.hierarchy.loading import load_policy
 
     out, models = tmp_path / "bench", tmp_path / "models"
@@ -484,8 +484,8 @@ def test_every_method_runs_and_its_exported_models_re_evaluate(tmp_path):
 
 def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
     """The exporter on a benchmark folder's layout (files stand in for models: only copying is tested here)."""
+    from hddpg_zoo.model_export import export_models, read_index
     from sb3_hddpg.artifacts.provenance import sha256_file
-    from sb3_hddpg.experiments.model_export import export_models, read_index
 
     run = tmp_path / "bench"
     files = {
@@ -566,8 +566,8 @@ def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
 
 
 def test_a_task_interrupted_and_resumed_keeps_the_time_of_both_invocations(tmp_path):
-    from sb3_hddpg.experiments.benchmark.record_files import elapsed_path
-    from sb3_hddpg.experiments.benchmark.run import run_task
+    from hddpg_zoo.benchmark.record_files import elapsed_path
+    from hddpg_zoo.benchmark.run import run_task
 
     calls: list[int] = []
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from sb3_hddpg.artifacts.records import BenchmarkResults
-from sb3_hddpg.experiments.benchmark.tables import TextTable, console_tables, wall_time_text
+from hddpg_zoo.benchmark.tables import TextTable, console_tables, wall_time_text
+from hddpg_zoo.records import BenchmarkResults
 
 
 def _stats(mean: float) -> dict[str, float]:

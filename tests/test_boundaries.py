@@ -25,6 +25,8 @@ import typer
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hddpg_zoo.model_export import export_models
+from hddpg_zoo.study_storage import StorageError, make_storage
 from sb3_hddpg.artifacts.io import LOCK_FILE, FolderLockedError
 from sb3_hddpg.artifacts.limits import LimitError
 from sb3_hddpg.artifacts.run_folder import (
@@ -36,8 +38,6 @@ from sb3_hddpg.artifacts.run_folder import (
 )
 from sb3_hddpg.cli.errors import CommandStopped, error_line, exit_code
 from sb3_hddpg.envs.terms_env import parse_terms
-from sb3_hddpg.experiments.model_export import export_models
-from sb3_hddpg.experiments.study_storage import StorageError, make_storage
 from sb3_hddpg.names import PlainNameError, check_plain_name
 from tests.cli_batch import run_batch
 
@@ -350,8 +350,8 @@ def test_the_exit_code_of_every_kind_of_ending_is_decided_in_one_place(error, co
 
 def test_an_interrupted_command_says_so_in_one_line_and_exits_130(monkeypatch, capsys, tmp_path):
     # typer turns the KeyboardInterrupt into an exit code before the CLI's own handler sees it.
+    from hddpg_zoo.cli import snapshot
     from sb3_hddpg import cli
-    from sb3_hddpg.cli import snapshot
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

@@ -47,6 +47,8 @@ def test_sdist_and_wheel_install_in_a_fresh_venv(tmp_path):
     for data in ("version.txt", "py.typed", *(f"zoo_configs/{a}.yml" for a in REGISTRY)):
         assert f"sb3_hddpg/{data}" in names, data
     assert not any(name.startswith("tests/") for name in names)
+    # One install, two packages: the harness beside the library.
+    assert {"hddpg_zoo/__init__.py", "hddpg_zoo/py.typed", "hddpg_zoo/cli/benchmark.py"} <= names
 
     # A fresh venv made the Makefile's way (CPU torch first), then the wheel with its dependencies.
     venv = tmp_path / "venv"
@@ -75,6 +77,15 @@ def test_sdist_and_wheel_install_in_a_fresh_venv(tmp_path):
         venv / "bin" / "hddpg-cli", "evaluate", "scripted", "--episodes", "1", cwd=outside, env=env
     )
     assert "touching the goal" in printed
+    # The wheel's own dependencies hold no harness package: a harness command names the extra in one line.
+    harness = subprocess.run(
+        [venv / "bin" / "hddpg-cli", "benchmark", "--help"],
+        cwd=outside,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert harness.returncode == 2 and 'pip install "sb3-hddpg[bench]"' in harness.stderr, harness.stderr
 
     # The sdist installs too (built into a wheel by pip), with the same package data.
     _run(python, "-m", "pip", "install", "--quiet", "--force-reinstall", "--no-deps", sdists[0])

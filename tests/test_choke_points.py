@@ -30,6 +30,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import sb3_hddpg  # noqa: F401  (registers the ids)
+from hddpg_zoo.study_storage import StorageError, make_storage
+from hddpg_zoo.tuning.results import check_only_block_changed, replace_block
 from sb3_hddpg.artifacts import limits
 from sb3_hddpg.artifacts.io import LOCK_FILE
 from sb3_hddpg.artifacts.limits import (
@@ -52,8 +54,6 @@ from sb3_hddpg.artifacts.run_folder import (
     mark_run_folder,
     record_written,
 )
-from sb3_hddpg.experiments.study_storage import StorageError, make_storage
-from sb3_hddpg.experiments.tuning.results import check_only_block_changed, replace_block
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.bundle import BundleError
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
@@ -581,7 +581,7 @@ def test_a_trial_stopped_by_the_user_is_not_reported_with_a_traceback():
 
     import optuna
 
-    from sb3_hddpg.experiments.tuning.study import _quiet_interruptions
+    from hddpg_zoo.tuning.study import _quiet_interruptions
     from sb3_hddpg.training.agent import TrainingInterrupted
 
     records: list[logging.LogRecord] = []

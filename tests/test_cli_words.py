@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 from rich.console import Console
 
-from sb3_hddpg.cli.quickstart import comparison_table
+from hddpg_zoo.cli.quickstart import comparison_table
 from sb3_hddpg.cli.train import metrics_table
 from sb3_hddpg.envs.terms_env import adapted_env_id
 from sb3_hddpg.evaluation import EvaluationSummary

@@ -8,16 +8,15 @@ from dataclasses import asdict
 import pytest
 from cli_runner import REPO, run_cli
 
-from sb3_hddpg import __version__
-from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.artifacts.provenance import code_provenance
-from sb3_hddpg.artifacts.records import CodeProvenance
-from sb3_hddpg.experiments.benchmark import BenchmarkSettings
-from sb3_hddpg.experiments.benchmark.benchmark_file import (
+from hddpg_zoo.benchmark import BenchmarkSettings
+from hddpg_zoo.benchmark.benchmark_file import (
     check_same_code,
     invocation_codes,
     read_benchmark_file,
 )
+from sb3_hddpg import __version__
+from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.provenance import CodeProvenance, code_provenance
 
 OTHER = "0" * 40
 
@@ -88,7 +87,7 @@ def test_a_folder_records_each_invocations_code(tmp_path):
 
 
 def test_the_library_refuses_before_anything_runs(tmp_path):
-    from sb3_hddpg.experiments.benchmark import run_benchmark
+    from hddpg_zoo.benchmark import run_benchmark
 
     out, settings = _folder(tmp_path, {"version": "0.0.1", "commit": OTHER, "clean": True})
     with pytest.raises(ValueError, match="allow-mixed-commits"):
@@ -112,7 +111,7 @@ def test_the_cli_refuses_mixed_commits_with_one_line_and_exit_2(tmp_path):
 def test_a_resume_allowed_to_mix_commits_runs_and_says_so(tmp_path):
     import json
 
-    from sb3_hddpg.experiments.benchmark import run_benchmark
+    from hddpg_zoo.benchmark import run_benchmark
 
     out, settings = _folder(tmp_path, {"version": "0.0.1", "commit": OTHER, "clean": True})
     settings = BenchmarkSettings(

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_hddpg.experiments.stats import (
+from hddpg_zoo.stats import (
     holm_adjust,
     holm_confidences,
     holm_family,
@@ -55,13 +55,13 @@ def test_the_words_follow_the_test():
 # ---------------------------------------------------------------------------------- the shipped records
 @pytest.fixture(scope="module")
 def record():
-    from sb3_hddpg.experiments.benchmark.pages import run_results
+    from hddpg_zoo.benchmark.pages import run_results
 
     return run_results(ROOT / "docs" / "results" / "record")
 
 
 def test_the_shipped_record_replays_to_the_words_of_the_audit(record):
-    from sb3_hddpg.experiments.benchmark.comparisons import verdict
+    from hddpg_zoo.benchmark.comparisons import verdict
 
     def word(pair: str) -> str:
         comparison = record.comparisons[pair]
@@ -93,7 +93,7 @@ def _rows(block: str) -> list[list[str]]:
 
 
 def _blocks(text: str) -> list[tuple[str, str]]:
-    from sb3_hddpg.experiments.benchmark.pages import BLOCK
+    from hddpg_zoo.benchmark.pages import BLOCK
 
     return [(m.group("key"), m.group("body")) for m in BLOCK.finditer(text)]
 

@@ -181,7 +181,7 @@ def test_docs_interpret_records_and_hold_no_run_log(page):
 
 
 def test_the_benchmark_guide_lists_every_registered_method():
-    from sb3_hddpg.experiments.benchmark import METHOD_REGISTRY
+    from hddpg_zoo.benchmark import METHOD_REGISTRY
 
     section = (DOCS / "guide" / "benchmark.md").read_text().split("## The methods", 1)[1].split("\n## ", 1)[0]
     missing = [name for name in METHOD_REGISTRY if f"`{name}`" not in section]

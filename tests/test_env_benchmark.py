@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_hddpg.baselines.ttc import TTC_GRID
+from hddpg_zoo.baselines.ttc import TTC_GRID
 from tests.cli_runner import REPO, run_cli
 
 HIGHWAY = {
@@ -20,14 +20,14 @@ HIGHWAY = {
     "env_kwargs": {"env_id": "mo-highway-fast-v0", "terms": ["speed", "lane", "collision"]},
     "terms": ["speed", "lane", "collision"],
 }
-MORL_SCRIPT = REPO / "sb3_hddpg" / "experiments" / "benchmark" / "morl_runner.py"
+MORL_SCRIPT = REPO / "hddpg_zoo" / "benchmark" / "morl_runner.py"
 MOUNTAIN_CAR = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]
 
 
 def test_env_methods_are_checked_against_the_env():
     pytest.importorskip("highway_env")
+    from hddpg_zoo.benchmark import BenchmarkSettings, default_env_methods
     from sb3_hddpg.envs.terms_env import TermsEnv
-    from sb3_hddpg.experiments.benchmark import BenchmarkSettings, default_env_methods
 
     shared = TermsEnv(HIGHWAY["env_id"], HIGHWAY["env_kwargs"], tuple(HIGHWAY["terms"]))
     assert default_env_methods(shared) == (
@@ -56,7 +56,7 @@ def test_env_methods_are_checked_against_the_env():
 
 def test_discrete_methods_refused_on_continuous_actions():
     pytest.importorskip("mo_gymnasium")
-    from sb3_hddpg.experiments.benchmark import BenchmarkSettings
+    from hddpg_zoo.benchmark import BenchmarkSettings
 
     car = {
         "env_id": "hddpg/MultiObjective-v0",
@@ -316,7 +316,7 @@ def test_a_stopped_benchmark_takes_the_morl_runner_with_it(tmp_path):
     fake.write_text(f"#!/bin/sh\necho $$ > {tmp_path / 'runner.pid'}\nexec sleep 300\n")
     fake.chmod(0o755)
     code = (
-        "from pathlib import Path; from sb3_hddpg.experiments.benchmark.morl import _run; "
+        "from pathlib import Path; from hddpg_zoo.benchmark.morl import _run; "
         f"_run({str(fake)!r}, [], Path({str(tmp_path / 'out.json')!r}), [])"
     )
     waiting = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stderr=subprocess.DEVNULL)
@@ -332,7 +332,7 @@ def test_a_stopped_benchmark_takes_the_morl_runner_with_it(tmp_path):
 
 
 def test_a_morl_runners_record_is_read_through_one_reader(tmp_path):
-    from sb3_hddpg.experiments.benchmark.morl import read_morl_record
+    from hddpg_zoo.benchmark.morl import read_morl_record
 
     keys = ("preferences", "mean_lengths", "wall_time_train_s", "hypervolume", "expected_utility")
     good = {
@@ -427,9 +427,9 @@ def test_morl_python_is_checked_before_anything_runs(tmp_path):
 
 
 def test_a_morl_runners_front_joins_the_hierarchys_planes():
-    from sb3_hddpg.experiments.benchmark.front_pages import front_table
-    from sb3_hddpg.experiments.benchmark.front_points import env_front
-    from sb3_hddpg.experiments.benchmark.morl import morl_points, morl_results
+    from hddpg_zoo.benchmark.front_pages import front_table
+    from hddpg_zoo.benchmark.front_points import env_front
+    from hddpg_zoo.benchmark.morl import morl_points, morl_results
 
     bounds = {"time": (-1.0, 0.0), "fuel": (-0.5, 0.0)}
     spec = env_front(("time", "fuel"), bounds, 30)

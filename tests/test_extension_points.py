@@ -10,9 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_hddpg.baselines.random import RandomPolicy
-from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
-from sb3_hddpg.experiments.benchmark import (
+from hddpg_zoo.benchmark import (
     METHOD_REGISTRY,
     BenchmarkSettings,
     Method,
@@ -23,6 +21,8 @@ from sb3_hddpg.experiments.benchmark import (
     register_method,
     run_task,
 )
+from sb3_hddpg.baselines.random import RandomPolicy
+from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.selection import (

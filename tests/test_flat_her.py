@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from hddpg_zoo.benchmark import METHOD_REGISTRY, BenchmarkSettings
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-from sb3_hddpg.experiments.benchmark import METHOD_REGISTRY, BenchmarkSettings
 from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.training.flat import FLAT_HER_KEY, flat_hyperparams, train_flat
@@ -99,7 +99,7 @@ def test_train_flat_from_the_her_block(tmp_path, algo, monkeypatch):
 
 
 def test_the_her_block_is_tunable_with_the_same_study_machinery():
-    from sb3_hddpg.experiments.tuning import TuningTarget
+    from hddpg_zoo.tuning import TuningTarget
 
     target = TuningTarget(
         level="flat", algo="sac", block=FLAT_HER_KEY, budget_fraction=0.1, final_budget=340_000

@@ -8,8 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_hddpg.artifacts.records import BenchmarkResults
-from sb3_hddpg.experiments.benchmark import (
+from hddpg_zoo.benchmark import (
     REFERENCE_POINTS,
     SWEEP,
     BenchmarkSettings,
@@ -18,12 +17,13 @@ from sb3_hddpg.experiments.benchmark import (
     hypervolume,
     run_benchmark,
 )
-from sb3_hddpg.experiments.benchmark.front import decision_dependence
-from sb3_hddpg.experiments.benchmark.front_points import PLANES, env_front, member_fields, sweep_labels
-from sb3_hddpg.experiments.benchmark.methods import METHOD_REGISTRY
-from sb3_hddpg.experiments.benchmark.report import markdown_report
-from sb3_hddpg.experiments.benchmark.tasks import comparison_pairs
-from sb3_hddpg.experiments.model_export import export_models
+from hddpg_zoo.benchmark.front import decision_dependence
+from hddpg_zoo.benchmark.front_points import PLANES, env_front, member_fields, sweep_labels
+from hddpg_zoo.benchmark.methods import METHOD_REGISTRY
+from hddpg_zoo.benchmark.report import markdown_report
+from hddpg_zoo.benchmark.tasks import comparison_pairs
+from hddpg_zoo.model_export import export_models
+from hddpg_zoo.records import BenchmarkResults
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.backends import sbx_installed
 from sb3_hddpg.training.config import MANAGER_KEY
@@ -130,7 +130,7 @@ def test_front_results_compare_members_by_seed():
     assert safe["best_reach"]["conditioned"]["1"] == {"reach": 345.0, "touch": 0.2}
     assert safe["best_reach"]["ham"]["0"] is None
     # The generated pages' tables (hddpg-cli report): the front and the decides-by-state table.
-    from sb3_hddpg.experiments.benchmark.pages import render_page
+    from hddpg_zoo.benchmark.pages import render_page
 
     results["decides_by_state"] = {"0": {"goal=1,avoid=1": None}}
     page = "<!-- generated:run/front -->\n<!-- /generated:run/front -->\n"
@@ -169,7 +169,7 @@ def test_front_results_compare_members_by_seed():
 
 
 def test_the_fronts_figure_draws_a_rule_that_keeps_another_number_of_thresholds_in_each_seed(tmp_path):
-    from sb3_hddpg.experiments.benchmark.front_pages import front_figure
+    from hddpg_zoo.benchmark.front_pages import front_figure
 
     def record(ham_points):
         return _front_record(

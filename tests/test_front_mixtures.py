@@ -2,7 +2,7 @@
 
 import pytest
 
-from sb3_hddpg.experiments.benchmark.front_mixtures import mixture_shortfall, points_beyond
+from hddpg_zoo.benchmark.front_mixtures import mixture_shortfall, points_beyond
 
 # Two gaits: fast and costly, still and free (speed and energy, both to maximise).
 GAITS = [[1.0, 0.0], [0.0, 1.0]]

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from stable_baselines3 import DDPG
 
+from hddpg_zoo.media.video import record_video
 from sb3_hddpg.envs.headless import HeadlessRenderingError, as_rendering_error
 from sb3_hddpg.hierarchy.bundle import BundleError
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
-from sb3_hddpg.media.video import record_video
 
 OSMESA = "'NoneType' object has no attribute 'glGetError'"
 

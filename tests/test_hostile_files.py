@@ -164,8 +164,8 @@ def test_names_from_a_bundle_are_checked_before_they_pick_a_member(bundle, tmp_p
 
 def test_package_writes_nothing_outside_its_folder(tmp_path):
     """A worker entry whose algo is a path, and a zip with a ``../`` member: nothing lands outside ``--out``."""
+    from hddpg_zoo.packaging import _unpack_model
     from sb3_hddpg.artifacts.provenance import sha256_file
-    from sb3_hddpg.experiments.packaging import _unpack_model
 
     folder = tmp_path / "shared" / "workers"
     folder.mkdir(parents=True)

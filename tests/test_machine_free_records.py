@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from sb3_hddpg.experiments.benchmark import BenchmarkSettings
-from sb3_hddpg.experiments.benchmark.benchmark_file import read_benchmark_settings
-from sb3_hddpg.experiments.benchmark.machine_paths import (
+from hddpg_zoo.benchmark import BenchmarkSettings
+from hddpg_zoo.benchmark.benchmark_file import read_benchmark_settings
+from hddpg_zoo.benchmark.machine_paths import (
     check_machine_paths,
     relative_to_run,
     settings_record,

@@ -14,19 +14,20 @@ from PIL import Image
 from stable_baselines3 import DDPG
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
-from sb3_hddpg.artifacts.run_folder import RUN_MARKER
-from sb3_hddpg.experiments.packaging import RESULTS_KEYS, package_policy, write_zoo_layout
-from sb3_hddpg.hierarchy import WorkerSelectionWrapper
-from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
-from sb3_hddpg.hierarchy.loading import load_policy
-from sb3_hddpg.media import StepRecorder, record_video
-from sb3_hddpg.media.figures import (
+from hddpg_zoo.media import record_video
+from hddpg_zoo.media.figures import (
     plot_comparison,
     plot_learning_curves,
     plot_selection_timeline,
     step_axis_label,
 )
-from sb3_hddpg.media.overlay import PANEL_HEIGHT, WORKER_COLOURS
+from hddpg_zoo.media.overlay import PANEL_HEIGHT, WORKER_COLOURS
+from hddpg_zoo.packaging import RESULTS_KEYS, package_policy, write_zoo_layout
+from sb3_hddpg.artifacts.run_folder import RUN_MARKER
+from sb3_hddpg.hierarchy import WorkerSelectionWrapper
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
+from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.media import StepRecorder
 from sb3_hddpg.media.trace import trace_episodes
 from tests.cli_runner import run_cli
 

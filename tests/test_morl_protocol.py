@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_hddpg.experiments.benchmark.morl_page import morl_page, write_morl_page
-from sb3_hddpg.experiments.benchmark.morl_protocol import PROTOCOL_ENVS, ProtocolSettings
-from sb3_hddpg.experiments.benchmark.morl_protocol_run import (
+from hddpg_zoo.benchmark.morl_page import morl_page, write_morl_page
+from hddpg_zoo.benchmark.morl_protocol import PROTOCOL_ENVS, ProtocolSettings
+from hddpg_zoo.benchmark.morl_protocol_run import (
     PROTOCOL_RUNNER,
     protocol_weights,
     read_protocol_record,
@@ -141,7 +141,7 @@ def test_the_page_without_runs_says_no_result_exists(tmp_path):
 
 @needs_morl
 def test_morl_baselines_indicators_of_a_fixed_front(tmp_path):
-    from sb3_hddpg.experiments.benchmark.front_points import hypervolume
+    from hddpg_zoo.benchmark.front_points import hypervolume
 
     returns = {"discounted_returns": [[[1.0, -1.0], [1.0, -1.0]], [[8.2, -3.0]], [[0.5, -0.5]]]}
     (tmp_path / "r.json").write_text(json.dumps(returns))
@@ -210,7 +210,7 @@ def test_the_command_names_a_bad_option_in_one_line(arguments, named, tmp_path):
 
 def test_deep_sea_treasures_constant_time_gets_bounds_and_costs_no_steps(tmp_path):
     pytest.importorskip("mo_gymnasium")
-    from sb3_hddpg.experiments.benchmark.morl_sides import SideRun, pinned_env, train_conditioned
+    from hddpg_zoo.benchmark.morl_sides import SideRun, pinned_env, train_conditioned
 
     shared, steps = pinned_env("deep-sea-treasure-concave-v0")
     assert steps == 0 and shared.env_kwargs["term_bounds"]["obj1"] == [-2.0, -1.0]

@@ -55,7 +55,7 @@ def test_ratio_sweep_keeps_the_sum_and_varies_the_ratio():
 
 
 def test_a_wider_sweep_doubles_its_ratios_and_takes_its_own_rounded_labels():
-    from sb3_hddpg.experiments.benchmark.front_points import label_factors, sweep_labels
+    from hddpg_zoo.benchmark.front_points import label_factors, sweep_labels
 
     space = PreferenceSpace.parse("ratio-sweep:16", NAMES)
     ratios = sorted(round(p[0] / p[1], 4) for p in space.points)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from sb3_hddpg.experiments.benchmark import WORKERS, BenchmarkSettings, Task, task_cost
-from sb3_hddpg.experiments.benchmark.progress import Progress
+from hddpg_zoo.benchmark import WORKERS, BenchmarkSettings, Task, task_cost
+from hddpg_zoo.benchmark.progress import Progress
 
 
 def test_time_left_at_the_pace_of_each_methods_finished_runs():

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from hddpg_zoo.quickstart_media import MEDIA, MEDIA_RECORD, publish_media, quickstart_settings
 from sb3_hddpg.artifacts.provenance import sha256_file
-from sb3_hddpg.experiments.quickstart_media import MEDIA, MEDIA_RECORD, publish_media, quickstart_settings
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 

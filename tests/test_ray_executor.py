@@ -23,8 +23,8 @@ import pytest
 
 pytest.importorskip("ray")
 
-from sb3_hddpg.experiments.ray_executor import ClusterError, RayExecutor, check_address, parse_address
-from sb3_hddpg.experiments.runner import Job, run_jobs
+from hddpg_zoo.ray_executor import ClusterError, RayExecutor, check_address, parse_address
+from hddpg_zoo.runner import Job, run_jobs
 from tests.cli_runner import CLI
 from tests.jobs import (
     STOP_BOUND,
@@ -67,7 +67,7 @@ def test_a_task_a_cancel_does_not_stop_is_killed_after_the_grace_with_one_warnin
     sigterm_once_started(tmp_path, 2)
     started = time.monotonic()
     with (
-        caplog.at_level(logging.WARNING, logger="sb3_hddpg.experiments.ray_executor"),
+        caplog.at_level(logging.WARNING, logger="hddpg_zoo.ray_executor"),
         pytest.raises(KeyboardInterrupt),
     ):
         run_jobs(jobs, RayExecutor(cancel_grace=2.0))

@@ -7,6 +7,16 @@ from pathlib import Path
 
 import pytest
 
+from hddpg_zoo.records import (
+    BenchmarkRecord,
+    BenchmarkResults,
+    Comparison,
+    MethodResults,
+    benchmark_record,
+    benchmark_results,
+    read_benchmark_record,
+    read_benchmark_results,
+)
 from sb3_hddpg.artifacts.io import atomic_write_json, json_text
 from sb3_hddpg.artifacts.limits import (
     MAX_CRITICS,
@@ -18,23 +28,14 @@ from sb3_hddpg.artifacts.records import (
     BENCHMARK_RECORD_VERSION,
     BENCHMARK_RESULTS_VERSION,
     WORKERS_MANIFEST_VERSION,
-    BenchmarkRecord,
-    BenchmarkResults,
     BundleManifest,
-    Comparison,
-    MethodResults,
     ModelsManifest,
-    benchmark_record,
-    benchmark_results,
     bundle_manifest,
-    ham_file,
     models_manifest,
-    read_benchmark_record,
-    read_benchmark_results,
-    read_ham_file,
     read_models_manifest,
     read_workers_manifest,
 )
+from sb3_hddpg.artifacts.records.ham import ham_file, read_ham_file
 from sb3_hddpg.artifacts.run_folder import RUN_MARKER, _names, _read_marker
 
 SHA = "0" * 64

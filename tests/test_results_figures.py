@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_hddpg.experiments.benchmark.episodes import seed_metrics
-from sb3_hddpg.experiments.benchmark.front_statistics import CRASH_PLANE, crash_plane, with_crash_rate
-from sb3_hddpg.experiments.benchmark.statistics import censored_ratio, steps_to_fraction
+from hddpg_zoo.benchmark.episodes import seed_metrics
+from hddpg_zoo.benchmark.front_statistics import CRASH_PLANE, crash_plane, with_crash_rate
+from hddpg_zoo.benchmark.statistics import censored_ratio, steps_to_fraction
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,7 +45,7 @@ def test_a_run_that_never_reaches_the_common_target_is_censored_and_cannot_win()
 
 @pytest.fixture(scope="module")
 def transfer():
-    from sb3_hddpg.experiments.benchmark.pages import run_results
+    from hddpg_zoo.benchmark.pages import run_results
 
     return run_results(ROOT / "docs" / "results" / "transfer-record")
 
@@ -75,7 +75,7 @@ def test_the_crash_rate_counts_episodes_that_end_in_a_crash():
 
 @pytest.fixture(scope="module")
 def highway():
-    from sb3_hddpg.experiments.benchmark.pages import run_results
+    from hddpg_zoo.benchmark.pages import run_results
 
     return run_results(ROOT / "docs" / "results" / "highway")
 

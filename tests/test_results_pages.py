@@ -8,16 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.episode_sets import FINAL_TEST, FINAL_TEST_EPISODES
-from sb3_hddpg.experiments.benchmark import BenchmarkSettings, compute_results
-from sb3_hddpg.experiments.benchmark.episodes import (
+from hddpg_zoo.benchmark import BenchmarkSettings, compute_results
+from hddpg_zoo.benchmark.episodes import (
     read_episodes_csv,
     records_episode_rows,
     seed_metrics,
     write_episodes_csv,
 )
-from sb3_hddpg.experiments.benchmark.pages import (
+from hddpg_zoo.benchmark.pages import (
     BLOCK,
     README_END,
     README_START,
@@ -26,6 +24,8 @@ from sb3_hddpg.experiments.benchmark.pages import (
     render_readme,
     update_pages,
 )
+from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.episode_sets import FINAL_TEST, FINAL_TEST_EPISODES
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS_PAGE = ROOT / "docs" / "RESULTS.md"
@@ -196,7 +196,7 @@ def test_pages_rewrite_only_their_own_blocks(final_run):
 
 
 def test_the_readme_sentence_gives_every_challenger_its_verdicts(final_run):
-    from sb3_hddpg.experiments.benchmark.page_blocks import results_sentence
+    from hddpg_zoo.benchmark.page_blocks import results_sentence
 
     _, settings, records = final_run
     sentence = results_sentence(compute_results(settings, records), "final-run")
@@ -220,7 +220,7 @@ def test_the_readme_sentence_gives_every_challenger_its_verdicts(final_run):
 def test_resuming_a_development_folder_as_a_final_run_is_refused(tmp_path):
     from dataclasses import asdict
 
-    from sb3_hddpg.experiments.benchmark import run_benchmark
+    from hddpg_zoo.benchmark import run_benchmark
 
     development = BenchmarkSettings(methods=["ham"], seeds=[0], timesteps=1000, worker_timesteps=100)
     out = tmp_path / "bench"
@@ -234,7 +234,7 @@ def test_resuming_a_development_folder_as_a_final_run_is_refused(tmp_path):
 
 
 def test_the_headline_figures_are_drawn_from_the_records(final_run):
-    from sb3_hddpg.experiments.benchmark.pages import draw_headline_figures
+    from hddpg_zoo.benchmark.pages import draw_headline_figures
 
     run, _, _ = final_run
     paths = draw_headline_figures(run)
@@ -246,8 +246,8 @@ def test_report_rewrites_a_shipped_runs_own_results_from_its_records(tmp_path):
     import json
     import shutil
 
-    from sb3_hddpg.experiments.benchmark.pages import run_results
-    from sb3_hddpg.experiments.benchmark.report import markdown_report
+    from hddpg_zoo.benchmark.pages import run_results
+    from hddpg_zoo.benchmark.report import markdown_report
     from tests.cli_runner import run_cli
 
     run = tmp_path / "bench-e20"

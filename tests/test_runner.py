@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-from sb3_hddpg.experiments.runner import Executor, InlineExecutor, Job, LocalProcessExecutor, run_jobs
+from hddpg_zoo.runner import Executor, InlineExecutor, Job, LocalProcessExecutor, run_jobs
 from tests.jobs import (
     STOP_BOUND,
     broken,
@@ -39,7 +39,7 @@ def process_executor(request: pytest.FixtureRequest) -> Executor:
     if request.param == "local":
         return LocalProcessExecutor(2)
     request.getfixturevalue("ray_cluster")
-    from sb3_hddpg.experiments.ray_executor import RayExecutor
+    from hddpg_zoo.ray_executor import RayExecutor
 
     return RayExecutor(max_retries=0)
 

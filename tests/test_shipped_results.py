@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hddpg_zoo.model_export import read_index
 from sb3_hddpg.episode_sets import FINAL_TEST
 from sb3_hddpg.evaluation import evaluate
-from sb3_hddpg.experiments.model_export import read_index
 from sb3_hddpg.hierarchy.loading import load_policy
 
 ROOT = Path(__file__).resolve().parents[1]

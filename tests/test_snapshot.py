@@ -6,7 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
-from sb3_hddpg.experiments.model_export import read_index
+from hddpg_zoo.model_export import read_index
 from tests.cli_batch import run_batch
 from tests.test_benchmark import cli
 from tests.test_benchmark_methods import TINY

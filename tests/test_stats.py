@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sb3_hddpg.experiments.stats import (
+from hddpg_zoo.stats import (
     bootstrap_ci,
     iqm,
     paired_difference_ci,
@@ -144,7 +144,7 @@ def test_bad_input_raises(call, message):
 def test_paired_t_interval_is_scipys_and_wider_than_the_bootstrap_at_five_seeds():
     from scipy import stats as scipy_stats
 
-    from sb3_hddpg.experiments.stats import paired_t_interval
+    from hddpg_zoo.stats import paired_t_interval
 
     # The case: HDDPG's and HAM's collisions on five seeds; the percentile bootstrap gave
     # [-8.16, -0.54], the t interval includes 0.
@@ -164,7 +164,7 @@ def test_paired_t_interval_is_scipys_and_wider_than_the_bootstrap_at_five_seeds(
 
 
 def test_holm_and_bonferroni():
-    from sb3_hddpg.experiments.stats import bonferroni_confidence, holm_adjust
+    from hddpg_zoo.stats import bonferroni_confidence, holm_adjust
 
     assert holm_adjust([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
     assert holm_adjust([0.5, 0.9]) == pytest.approx([1.0, 1.0])
@@ -176,7 +176,7 @@ def test_holm_and_bonferroni():
 def test_aggregates_are_rliables():
     from rliable import metrics
 
-    from sb3_hddpg.experiments.benchmark.aggregates import (
+    from hddpg_zoo.benchmark.aggregates import (
         aggregate_intervals,
         improvement_probabilities,
         iqm_and_mean,

@@ -11,9 +11,9 @@ import pytest
 from optuna.distributions import FloatDistribution
 from optuna.trial import TrialState, create_trial
 
-from sb3_hddpg.experiments.benchmark.pages import render_page
-from sb3_hddpg.experiments.study_export import export_study, read_exports, studies_table, study_effort
-from sb3_hddpg.experiments.tuning import TuningTarget, check_budget_fraction
+from hddpg_zoo.benchmark.pages import render_page
+from hddpg_zoo.study_export import export_study, read_exports, studies_table, study_effort
+from hddpg_zoo.tuning import TuningTarget, check_budget_fraction
 from tests.cli_runner import CLI
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,7 +122,7 @@ def test_studies_are_exported_and_summarised(tmp_path):
 
 
 def test_the_shipped_studies_table_regenerates_from_the_shipped_exports():
-    from sb3_hddpg.experiments.benchmark.pages import update_tuning_page
+    from hddpg_zoo.benchmark.pages import update_tuning_page
 
     record = ROOT / "docs" / "results" / "record"
     outcome = update_tuning_page(record, ROOT / "docs" / "TUNING.md", check=True)

@@ -1,4 +1,4 @@
-"""The time-to-collision switch (sb3_hddpg.baselines.ttc): the rule, its reading of highway-env's observation."""
+"""The time-to-collision switch (hddpg_zoo.baselines.ttc): the rule, its reading of highway-env's observation."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_hddpg.baselines.ttc import DecisionStates, KinematicsScales, TTCSwitch, time_to_collision
+from hddpg_zoo.baselines.ttc import DecisionStates, KinematicsScales, TTCSwitch, time_to_collision
 
 SCALES = KinematicsScales(
     features=("presence", "x", "y", "vx", "vy"),

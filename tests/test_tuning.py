@@ -21,11 +21,11 @@ from optuna.trial import TrialState
 from postgres_server import postgres_url  # noqa: F401  (fixture)
 from stable_baselines3 import DDPG
 
-from sb3_hddpg.callbacks.pruning import TrialPruningCallback
+from hddpg_zoo import tuning
+from hddpg_zoo.study_storage import default_storage_url, make_storage
+from hddpg_zoo.tuning import StudySettings, TuningTarget
+from hddpg_zoo.tuning.pruning import TrialPruningCallback
 from sb3_hddpg.cli import main as cli_main
-from sb3_hddpg.experiments import tuning
-from sb3_hddpg.experiments.study_storage import default_storage_url, make_storage
-from sb3_hddpg.experiments.tuning import StudySettings, TuningTarget
 from sb3_hddpg.training.config import load_hyperparams
 from sb3_hddpg.training.workers import train_workers
 from tests.cli_runner import CLI
@@ -427,7 +427,7 @@ def test_processes_opening_a_new_postgresql_database_at_once_all_get_the_storage
     start_at = time.time() + 6.0  # each process imports first, then all open the storage at this instant
     script = (
         "import sys, time\n"
-        "from sb3_hddpg.experiments.study_storage import make_storage\n"
+        "from hddpg_zoo.study_storage import make_storage\n"
         "time.sleep(max(0.0, float(sys.argv[2]) - time.time()))\n"
         "make_storage(sys.argv[1], heartbeat_interval=None)\n"
     )

@@ -10,16 +10,16 @@ import pytest
 import yaml
 from stable_baselines3 import DDPG, SAC, TD3
 
-from sb3_hddpg.experiments import tuning
-from sb3_hddpg.experiments.hyperparams_opt import (
+from hddpg_zoo import tuning
+from hddpg_zoo.hyperparams_opt import (
     base_params,
     check_fixed_params,
     sample_sac_params,
     sampler_for,
     search_space,
 )
-from sb3_hddpg.experiments.study_storage import default_storage_url
-from sb3_hddpg.experiments.tuning import StudySettings, TuningTarget
+from hddpg_zoo.study_storage import default_storage_url
+from hddpg_zoo.tuning import StudySettings, TuningTarget
 from sb3_hddpg.training.backends import sbx_kwargs
 from sb3_hddpg.training.config import (
     default_config,

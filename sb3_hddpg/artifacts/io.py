@@ -30,7 +30,7 @@ def _read_umask() -> int:
     return mask
 
 
-_UMASK = _read_umask()
+UMASK = _read_umask()
 
 #: The signals that stop a run cleanly (Ctrl-C, and SIGTERM turned into Ctrl-C while training).
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -109,7 +109,7 @@ def atomic_write(
                 os.fsync(handle.fileno())
             # mkstemp creates the file readable by its owner only; give results the permissions any other
             # file would get, so that shared run folders stay readable.
-            os.chmod(tmp, 0o666 & ~_UMASK)
+            os.chmod(tmp, 0o666 & ~UMASK)
             os.replace(tmp, path)
     except OSError as error:
         tmp.unlink(missing_ok=True)

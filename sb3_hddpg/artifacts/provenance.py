@@ -9,6 +9,7 @@ import hashlib
 import io
 import platform
 import subprocess
+from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium
@@ -18,13 +19,64 @@ import stable_baselines3
 import torch
 
 from sb3_hddpg import __version__
-from sb3_hddpg.artifacts.limits import MAX_MODEL_FILE_BYTES, read_file_bytes
-from sb3_hddpg.artifacts.records.benchmark import CodeProvenance
+from sb3_hddpg.artifacts.limits import MAX_MODEL_FILE_BYTES, brief, read_file_bytes
+from sb3_hddpg.artifacts.records.base import JsonObject
 
 #: The package's source folder: the git tree asked for the commit is the one that holds it.
 _SOURCE = Path(__file__).resolve().parents[1]
 #: Seconds a ``git`` call may take before the commit counts as not recorded (a hung network filesystem).
 GIT_TIMEOUT_S = 10.0
+
+
+@dataclass(frozen=True)
+class CodeProvenance:
+    """
+    The code a benchmark invocation ran: the package's version, the git commit of its source tree and whether
+    that tree was clean. ``commit`` and ``clean`` are ``None`` where there is no git repository to ask (an
+    installed wheel, a copy without ``.git``, no ``git`` on the machine): not recorded, never guessed.
+
+    :param version: ``sb3_hddpg.__version__``.
+    :param commit: the full hash of ``HEAD``, or ``None``.
+    :param clean: ``True`` when the tree had no uncommitted change to tracked files, ``None`` when unknown.
+    """
+
+    version: str
+    commit: str | None = None
+    clean: bool | None = None
+
+    def to_json(self) -> JsonObject:
+        return {"version": self.version, "commit": self.commit, "clean": self.clean}
+
+    @classmethod
+    def from_json(cls, value: object, what: str) -> CodeProvenance:
+        """
+        An invocation's ``code`` field, checked: ``version`` a string, ``commit`` 40 hex digits or null,
+        ``clean`` a boolean or null.
+
+        :raises ValueError: one line naming ``what``.
+        """
+        if not isinstance(value, dict) or not isinstance(value.get("version"), str):
+            raise ValueError(f"{what}: expected an object with the package version, got {brief(value)}")
+        commit, clean = value.get("commit"), value.get("clean")
+        if commit is not None and not (
+            isinstance(commit, str) and len(commit) == 40 and all(c in "0123456789abcdef" for c in commit)
+        ):
+            raise ValueError(f"{what}.commit: expected 40 lower-case hex digits or null, got {brief(commit)}")
+        if clean is not None and not isinstance(clean, bool):
+            raise ValueError(f"{what}.clean: expected true, false or null, got {brief(clean)}")
+        return cls(value["version"], commit, clean)
+
+    @property
+    def code_id(self) -> tuple[str, str | None]:
+        """What two invocations must share to have run the same code: the version and the commit."""
+        return self.version, self.commit
+
+    def describe(self) -> str:
+        """``VERSION at COMMIT`` (12 digits, ``+ uncommitted changes`` for a dirty tree) or ``not recorded``."""
+        if self.commit is None:
+            return f"{self.version} (commit not recorded)"
+        dirty = " + uncommitted changes" if self.clean is False else ""
+        return f"{self.version} at {self.commit[:12]}{dirty}"
 
 
 def sha256_bytes(data: bytes) -> str:

@@ -26,7 +26,7 @@ import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.manifests import load_workers
-from sb3_hddpg.artifacts.records import HamFile, ham_file, read_ham_file
+from sb3_hddpg.artifacts.records.ham import HamFile, ham_file, read_ham_file
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.layout import StateLayout
@@ -240,13 +240,13 @@ def load_ham(
     """
     Load a switch written by :func:`save_ham`; its workers are verified and loaded by
     :func:`~sb3_hddpg.artifacts.manifests.load_workers` (weights only unless ``trusted``). Every field is
-    checked first (:func:`~sb3_hddpg.artifacts.records.read_ham_file`): the env id must be registered and
+    checked first (:func:`~sb3_hddpg.artifacts.records.ham.read_ham_file`): the env id must be registered and
     allowed, the workers manifest a ``manifest.json`` path, the names plain names.
 
     :param path: the ``ham.json`` file.
     :param trusted: load the workers with SB3's full loader, and accept any registered env id.
     :param allowed_env_ids: registered env ids the file may name besides this package's own.
-    :return: the switch and the file's record (:class:`~sb3_hddpg.artifacts.records.HamFile`).
+    :return: the switch and the file's record (:class:`~sb3_hddpg.artifacts.records.ham.HamFile`).
     """
     path = Path(path)
     meta = read_ham_file(path, trusted, allowed_env_ids)

@@ -1,11 +1,26 @@
 """SB3 callbacks of sb3-hddpg."""
 
-from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty, apply_action_l2
-from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
-from sb3_hddpg.callbacks.controller_prior import ControllerPrior
-from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback
-from sb3_hddpg.callbacks.pruning import TrialPruningCallback, parameters_finite
-from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
+import importlib
+from typing import Any
+
+# Each module loads with its first use: a run that asks for no actor term (the action penalty, the
+# controller prior) never loads the actor-loss machinery.
+_LAZY = {
+    "ActionL2Penalty": "sb3_hddpg.callbacks.action_penalty",
+    "apply_action_l2": "sb3_hddpg.callbacks.action_penalty",
+    "ResumableCheckpointCallback": "sb3_hddpg.callbacks.checkpoint",
+    "read_checkpoint_state": "sb3_hddpg.callbacks.checkpoint",
+    "ControllerPrior": "sb3_hddpg.callbacks.controller_prior",
+    "MetricsEvalCallback": "sb3_hddpg.callbacks.evaluation",
+    "SelectionStatsCallback": "sb3_hddpg.callbacks.selection_stats",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'sb3_hddpg.callbacks' has no attribute {name!r}")
+
 
 __all__ = [
     "ActionL2Penalty",
@@ -13,8 +28,6 @@ __all__ = [
     "MetricsEvalCallback",
     "ResumableCheckpointCallback",
     "SelectionStatsCallback",
-    "TrialPruningCallback",
     "apply_action_l2",
-    "parameters_finite",
     "read_checkpoint_state",
 ]

@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 
 import sb3_hddpg
+from sb3_hddpg.extras import INSTALL_EXTRA, MissingExtraError
 
 #: Where commands print their tables and progress.
 console = Console()
@@ -30,28 +31,64 @@ if hasattr(typer.core.TyperArgument, "_usage_display_name"):
     typer.core.TyperArgument._usage_display_name = _usage_name  # type: ignore[method-assign,assignment]
 
 #: Every command, in the order the help lists them (a first run, training, looking at a policy, experiments,
-#: sharing): its name -> the module of this package that registers it, and its line in ``hddpg-cli --help``.
-#: A command's module (and with it torch, SB3, JAX) is imported only when that command runs or shows its help,
-#: so that ``hddpg-cli --help`` answers at once.
+#: sharing): its name -> the module that registers it, and its line in ``hddpg-cli --help``. A bare name is a
+#: module of this package (the library's commands); a dotted one is the harness's (``hddpg_zoo.cli``), which
+#: the library names here but never imports until its command runs. A command's module (and with it torch,
+#: SB3, JAX) is imported only when that command runs or shows its help, so that ``hddpg-cli --help`` answers
+#: at once.
 COMMANDS: dict[str, tuple[str, str]] = {
-    "quickstart": ("quickstart", "The whole method at a small budget, every method compared."),
+    "quickstart": ("hddpg_zoo.cli.quickstart", "The whole method at a small budget, every method compared."),
     "train-workers": ("train", "Train one worker (a plain SB3 model) per reward term."),
     "train-manager": ("train", "Train a manager that selects a worker, over trained workers."),
     "grow": ("grow", "Add workers where the front gains most (optimistic linear support)."),
     "train-flat": ("train_flat", "Train one SB3 agent on every objective (the flat baseline)."),
     "evaluate": ("evaluate", "Evaluate a policy: reward, each term, worker choices."),
-    "record": ("record", "Render a policy to a GIF or MP4, showing the acting worker."),
-    "plot-selection": ("plot_selection", "Plot which worker acts at each step, and why."),
+    "record": ("hddpg_zoo.cli.record", "Render a policy to a GIF or MP4, showing the acting worker."),
+    "plot-selection": ("hddpg_zoo.cli.plot_selection", "Plot which worker acts at each step, and why."),
     "rollout": ("rollout", "Roll out a random and a scripted policy: the env's metrics."),
-    "benchmark": ("benchmark", "Train and evaluate every method on every seed."),
-    "report": ("report", "Regenerate a page's result tables from a benchmark."),
-    "morl-report": ("benchmark_protocol", "Write docs/MORL.md from MORL-baselines protocol runs."),
-    "export-models": ("export_models", "Copy a benchmark's final models into a folder."),
-    "snapshot": ("snapshot", "Copy a benchmark's finished seeds, to resume it elsewhere."),
-    "tune": ("tune", "Tune hyperparameters with Optuna, in one or many processes."),
-    "export-study": ("report", "Export a tuning study's trials to JSON."),
-    "package": ("package", "Package a model, card and replay as a Hugging Face folder."),
+    "benchmark": ("hddpg_zoo.cli.benchmark", "Train and evaluate every method on every seed."),
+    "report": ("hddpg_zoo.cli.report", "Regenerate a page's result tables from a benchmark."),
+    "morl-report": (
+        "hddpg_zoo.cli.benchmark_protocol",
+        "Write docs/MORL.md from MORL-baselines protocol runs.",
+    ),
+    "export-models": ("hddpg_zoo.cli.export_models", "Copy a benchmark's final models into a folder."),
+    "snapshot": ("hddpg_zoo.cli.snapshot", "Copy a benchmark's finished seeds, to resume it elsewhere."),
+    "tune": ("hddpg_zoo.cli.tune", "Tune hyperparameters with Optuna, in one or many processes."),
+    "export-study": ("hddpg_zoo.cli.report", "Export a tuning study's trials to JSON."),
+    "package": ("hddpg_zoo.cli.package", "Package a model, card and replay as a Hugging Face folder."),
 }
+
+#: The packages of the ``bench`` extra (:mod:`sb3_hddpg.extras`): a harness command that needs one that is
+#: missing stops with one line naming the extra (exit 2), not a traceback.
+BENCH_MODULES = frozenset(
+    {"rliable", "pymoo", "scipy", "pandas", "matplotlib", "imageio", "imageio_ffmpeg", "PIL", "tensorboard"}
+)
+
+
+def command_module(name: str) -> str:
+    """The module that registers command ``name`` (its entry in :data:`COMMANDS`), as an import path."""
+    module = COMMANDS[name][0]
+    return module if "." in module else f"sb3_hddpg.cli.{module}"
+
+
+def import_command(name: str) -> None:
+    """
+    Import the module of command ``name``.
+
+    :raises MissingExtraError: the command needs a package of the ``bench`` extra that is not installed.
+    """
+    try:
+        importlib.import_module(command_module(name))
+    except MissingExtraError:
+        raise
+    except ModuleNotFoundError as error:
+        missing = (error.name or "").split(".")[0]
+        if missing in BENCH_MODULES or missing == "hddpg_zoo":
+            raise MissingExtraError(
+                f"{name} needs {missing}, which is not installed: {INSTALL_EXTRA}"
+            ) from error
+        raise
 
 
 class LazyCommands(typer.core.TyperGroup):
@@ -66,7 +103,7 @@ class LazyCommands(typer.core.TyperGroup):
 
     def get_command(self, ctx: Any, cmd_name: str) -> Any:
         if cmd_name not in self.commands and cmd_name in COMMANDS:
-            importlib.import_module(f"sb3_hddpg.cli.{COMMANDS[cmd_name][0]}")
+            import_command(cmd_name)
             self.commands.update(typer.main.get_command(app).commands)  # type: ignore[attr-defined]
         return self.commands.get(cmd_name)
 

@@ -5,7 +5,8 @@ The one place that decides a command's exit code and its one error line, from wh
   errors, and the library's input errors: the ``ValueError`` family (every check of the library raises one
   of its subclasses: ``LimitError``, ``ConfigError``, ``BundleError``, ``PlainNameError``,
   ``RunFolderError``, ``StorageError``, ``ClusterError``...), a missing path or one of the wrong kind,
-  gymnasium's errors for an env that cannot be made, a run folder another run holds, and an ``OSError``
+  gymnasium's errors for an env that cannot be made, a run folder another run holds, a package of
+  an extra that is not installed, and an ``OSError``
   saying a path cannot be one (too long, through a file, a loop of links).
 - **130**: Ctrl-C or SIGTERM. A command that saved its work first raises :class:`CommandStopped`, whose
   message (how to continue) is printed instead of the error line.
@@ -23,6 +24,7 @@ import gymnasium as gym
 import typer
 
 from sb3_hddpg.artifacts.io import FolderLockedError
+from sb3_hddpg.extras import MissingExtraError
 
 #: The exceptions that mean "the input cannot be used" wherever they are raised.
 INPUT_ERRORS: tuple[type[BaseException], ...] = (
@@ -33,6 +35,7 @@ INPUT_ERRORS: tuple[type[BaseException], ...] = (
     IsADirectoryError,
     gym.error.Error,
     FolderLockedError,
+    MissingExtraError,
 )
 #: Exit code of a usage or input error (click's own for usage errors).
 USAGE_EXIT = 2

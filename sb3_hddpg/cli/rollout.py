@@ -8,7 +8,6 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import typer
-from PIL import Image
 from rich.table import Table
 
 from sb3_hddpg.artifacts.io import atomic_write_bytes
@@ -19,6 +18,7 @@ from sb3_hddpg.cli.options import ReplaceFileOpt, count, output_file, usage_erro
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.evaluation import evaluate
+from sb3_hddpg.extras import Image
 from sb3_hddpg.policy import Policy
 
 

@@ -1,13 +1,5 @@
-"""Seeing a policy work: per-step traces, frames with a selection overlay, GIF/MP4 recordings and figures."""
+"""Seeing a policy work: per-step traces (recordings and figures are the harness's, :mod:`hddpg_zoo.media`)."""
 
 from sb3_hddpg.media.trace import StepRecord, StepRecorder, selected_names
-from sb3_hddpg.media.video import RecordingResult, make_recording_env, record_video
 
-__all__ = [
-    "RecordingResult",
-    "StepRecord",
-    "StepRecorder",
-    "make_recording_env",
-    "record_video",
-    "selected_names",
-]
+__all__ = ["StepRecord", "StepRecorder", "selected_names"]

@@ -38,7 +38,6 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, SBX_ALGORITHMS, Algorithm, algorithm, algorithm_class
 from sb3_hddpg.artifacts.spec import build_without_env
-from sb3_hddpg.training.sbx_weights import layout_of, sbx_to_state_dict, state_dict_to_sbx
 
 logger = logging.getLogger(__name__)
 
@@ -286,6 +285,8 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     :param kwargs: SB3 keyword arguments (``policy_kwargs`` with torch activations).
     :return: the SBX keyword arguments; raises :class:`BackendError` naming the key SBX lacks.
     """
+    from sb3_hddpg.training.sbx_weights import layout_of  # SBX only
+
     record = algorithm(algo)
     cls = sbx_class(algo)
     accepted = set(inspect.signature(cls.__init__).parameters)
@@ -360,6 +361,8 @@ def _sb3_hyperparams(model: Any, record: Algorithm) -> dict[str, Any]:
 
 
 def _sb3_policy_kwargs(model: Any, record: Algorithm) -> dict[str, Any]:
+    from sb3_hddpg.training.sbx_weights import layout_of  # SBX only
+
     policy_kwargs = dict(model.policy_kwargs)
     if policy_kwargs.get("optimizer_class") is scheduled_adam:
         # SB3's optimiser follows the schedule (learning_rate) by itself.
@@ -430,6 +433,8 @@ def make_model(
     record = algorithm(algo)
     # Any: SBX's SAC adds attributes (target_entropy) that BaseAlgorithm does not declare.
     model: Any = sbx_class(algo)(policy, env, seed=seed, device="cpu", verbose=0, **sbx_kwargs(algo, kwargs))
+    from sb3_hddpg.training.sbx_weights import state_dict_to_sbx  # SBX only
+
     sb3_kwargs = {k: v for k, v in kwargs.items() if k not in ("action_noise", "policy_kwargs")}
     if record.target_entropy:  # "auto" reads an env the twin does not have; the SBX model has resolved it
         sb3_kwargs["target_entropy"] = float(model.target_entropy)
@@ -478,6 +483,8 @@ def share_compiled(model: Any) -> None:
 
     :param model: an SBX model (modified in place).
     """
+    from sb3_hddpg.training.sbx_weights import layout_of  # SBX only
+
     policy = model.policy
     key = (
         type(model).__qualname__,
@@ -513,6 +520,8 @@ def to_sb3(model: BaseAlgorithm) -> BaseAlgorithm:
     :param model: an SB3 or SBX model.
     :return: an SB3 model (``DDPG``, ``TD3`` or ``SAC``).
     """
+    from sb3_hddpg.training.sbx_weights import sbx_to_state_dict  # SBX only
+
     if not is_sbx_model(model):
         return model
     record = _sbx_record(model)

@@ -41,10 +41,7 @@ from sb3_hddpg.artifacts.values import (
     check_train_freq,
     check_wrapper_settings,
 )
-from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
-from sb3_hddpg.callbacks.controller_prior import ControllerPrior
 from sb3_hddpg.envs.snake.controllers import CONTROLLERS
-from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
 from sb3_hddpg.training.backends import BACKENDS
 from sb3_hddpg.training.config_values import ConfigError, parse_policy_kwargs, parse_schedule
 
@@ -163,6 +160,8 @@ class Hyperparams:
         """
         kwargs = dict(self.algo_kwargs)
         if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
+            from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer  # only for a block that names it
+
             kwargs["replay_buffer_class"] = GoalRelabelingReplayBuffer
             kwargs["replay_buffer_kwargs"] = {
                 **GoalRelabelingReplayBuffer.env_kwargs(env),
@@ -176,6 +175,10 @@ class Hyperparams:
         """The SB3 callbacks the block asks for (as RL Zoo would build them from its ``callback`` key)."""
 
         callbacks: list[Any] = []
+        # Only a block that asks for an actor term loads the actor-loss machinery.
+        from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
+        from sb3_hddpg.callbacks.controller_prior import ControllerPrior
+
         if self.action_l2 > 0:
             callbacks.append(ActionL2Penalty(self.action_l2, self.action_l2_margin))
         if self.controller_prior is not None:

@@ -20,15 +20,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_hddpg.baselines.ham import HAMSwitch
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
+
+if TYPE_CHECKING:
+    from sb3_hddpg.baselines.ham import HAMSwitch
 
 #: The manager algorithms whose network the start from HAM fits: a deterministic or squashed actor, or a Q-net.
 HAM_START_ALGOS = ("ddpg", "td3", "sac", "tqc", "crossq", "dqn")
@@ -78,6 +80,8 @@ def ham_of(wrapper: WorkerSelectionWrapper, start: HamStart) -> tuple[HAMSwitch,
         raise ValueError(
             f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {wrapper.worker_names}"
         )
+    from sb3_hddpg.baselines.ham import HAMSwitch  # the hand-written switch, only for a start from it
+
     switch = HAMSwitch(
         wrapper.workers["goal"],
         wrapper.workers["avoid"],

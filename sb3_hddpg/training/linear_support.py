@@ -18,7 +18,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linprog
+
+from sb3_hddpg.extras import linprog
 
 #: Tolerance of the vertex and feasibility checks.
 EPSILON = 1e-9

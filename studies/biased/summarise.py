@@ -9,7 +9,7 @@ import json
 import sys
 from pathlib import Path
 
-from sb3_hddpg.experiments.stats import paired_difference_ci
+from hddpg_zoo.stats import paired_difference_ci
 
 RUN = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/biased")
 METRICS = {

@@ -8,9 +8,8 @@ reader, and the schema version of every file it writes, in one place.
   :func:`read_models_manifest`).
 - :class:`BundleManifest`: a hierarchy bundle's ``manifest.json`` (:func:`bundle_manifest`,
   :meth:`BundleManifest.from_json`).
-- :class:`BenchmarkResults`: a benchmark's ``results.json`` (:func:`benchmark_results`,
-  :func:`read_benchmark_results`), its parts :class:`MethodResults` and :class:`Comparison`.
-- :class:`HamFile`: ``ham.json``, the HAM switch's settings (:func:`ham_file`, :func:`read_ham_file`).
+- :class:`~sb3_hddpg.artifacts.records.ham.HamFile`: ``ham.json``, the HAM switch's settings (its own module,
+  loaded with the HAM baseline).
 
 Every reader checks what it reads through :mod:`sb3_hddpg.artifacts.limits` (the size- and depth-limited
 JSON reader, plain names, file entries) and :mod:`sb3_hddpg.artifacts.values` (env settings), and refuses
@@ -31,14 +30,7 @@ from sb3_hddpg.artifacts.records.base import (
     JsonValue,
     ManifestKind,
 )
-from sb3_hddpg.artifacts.records.benchmark import (
-    BenchmarkRecord,
-    CodeProvenance,
-    benchmark_record,
-    read_benchmark_record,
-)
 from sb3_hddpg.artifacts.records.bundle import BundleManifest, bundle_manifest
-from sb3_hddpg.artifacts.records.ham import HamFile, ham_file, read_ham_file
 from sb3_hddpg.artifacts.records.models import (
     ModelEntry,
     ModelsManifest,
@@ -47,14 +39,6 @@ from sb3_hddpg.artifacts.records.models import (
     read_models_manifest,
     read_workers_manifest,
 )
-from sb3_hddpg.artifacts.records.results import (
-    BenchmarkResults,
-    Comparison,
-    MethodResults,
-    benchmark_results,
-    read_benchmark_results,
-)
-from sb3_hddpg.artifacts.records.results_leaves import Summary
 
 __all__ = [
     "BENCHMARK_RECORD_VERSION",
@@ -64,29 +48,16 @@ __all__ = [
     "HAM_FILE_VERSION",
     "QUICKSTART_RESULTS_VERSION",
     "WORKERS_MANIFEST_VERSION",
-    "BenchmarkRecord",
-    "BenchmarkResults",
     "BundleManifest",
-    "CodeProvenance",
-    "Comparison",
-    "HamFile",
     "JsonObject",
     "JsonRecord",
     "JsonValue",
     "ManifestKind",
-    "MethodResults",
     "ModelEntry",
     "ModelsManifest",
-    "Summary",
-    "benchmark_record",
-    "benchmark_results",
     "bundle_manifest",
-    "ham_file",
     "models_manifest",
     "models_manifest_from_json",
-    "read_benchmark_record",
-    "read_benchmark_results",
-    "read_ham_file",
     "read_models_manifest",
     "read_workers_manifest",
 ]

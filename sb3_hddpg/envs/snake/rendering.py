@@ -5,9 +5,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from PIL import Image, ImageDraw
 
 from sb3_hddpg.envs.snake.view import SnakeView
+from sb3_hddpg.extras import Image, ImageDraw
 
 _BACKGROUND = (250, 250, 247)
 _WORKSPACE = (228, 232, 238)

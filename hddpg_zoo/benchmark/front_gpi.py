@@ -1,0 +1,47 @@
+"""
+The front's GPI member (``gpi``): generalized policy improvement over a seed's workers with their per-term
+critics (:mod:`sb3_hddpg.hierarchy.gpi`), at every preference of the front's sweep. It trains nothing: its
+env steps are the workers' (counted once, as every member over them), and a preference costs none.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from hddpg_zoo.benchmark.front_points import FrontPoint, FrontSpec, sweep_labels
+from sb3_hddpg.artifacts.manifests import load_workers
+from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+from sb3_hddpg.policy import Policy
+
+#: The member's name in a front record.
+GPI_MEMBER = "gpi"
+
+
+def gpi_points(
+    folder: Path, spec: FrontSpec, point: Callable[[str, Policy], FrontPoint], bundle: Path | None = None
+) -> list[FrontPoint] | None:
+    """
+    GPI's points over the seed's workers, one per preference of ``spec``'s sweep (the sweep's names are the
+    env's terms: GPI weighs the terms), or ``None`` when a worker has no per-term critic (workers trained
+    with ``--no-term-critic``, or on-policy ones).
+
+    :param folder: the seed's folder (its ``workers/``).
+    :param spec: what the front measures.
+    :param point: a policy's test point under a label (the front's own measure).
+    :param bundle: where to save the GPI bundle (the one model that re-evaluates this member), if anywhere.
+    """
+    workers = load_workers(folder)
+    if set(workers.critics) != set(workers) or not set(spec.sweep.names) <= set(
+        next(iter(workers.critics.values())).spec.terms
+    ):
+        return None
+    gpi = Hierarchy.gpi(workers)
+    if bundle is not None:
+        bundle.parent.mkdir(parents=True, exist_ok=True)
+        gpi.save(bundle)
+    points = []
+    for label, preference in zip(sweep_labels(spec.sweep), spec.sweep.points):
+        gpi.set_preference(dict(zip(spec.sweep.names, preference)))
+        points.append(point(label, gpi))
+    return points

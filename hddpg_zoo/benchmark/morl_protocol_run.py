@@ -1,0 +1,312 @@
+"""
+One run of MORL-baselines' protocol (:mod:`.morl_protocol`): every side on every seed, each task's record
+(:class:`ProtocolRecord`) written as it finishes, kept when the run resumes.
+
+The peers train and are played and scored in MORL-baselines' own environment by
+``morl_protocol_runner.py``; the hierarchy's methods (:mod:`.morl_sides`) train and are played here, on the
+same weights and the same episodes, and their per-episode returns are scored by the same script, so that
+every indicator of both sides is computed by MORL-baselines' own functions. Both sides' records have one
+schema, per-episode vector returns included.
+
+Layout of ``out``: ``protocol.json`` (the settings), ``records/<side>/seed-<n>.json`` (the records),
+``runs/<method>/seed-<n>/`` (the hierarchy's models).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from hddpg_zoo.benchmark.morl_protocol import EU_WEIGHTS, GAMMA, PEERS, ProtocolSettings
+from hddpg_zoo.benchmark.morl_protocol_runner import RECORD_KIND, RECORD_VERSION, WEIGHTS_SEED
+from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun, play_front
+from sb3_hddpg.artifacts.io import atomic_write_json
+from sb3_hddpg.artifacts.limits import brief, read_json_record
+from sb3_hddpg.artifacts.values import is_finite_number
+from sb3_hddpg.training.agent import sigterm_as_interrupt
+
+logger = logging.getLogger(__name__)
+
+#: The script run with MORL-baselines' python.
+PROTOCOL_RUNNER = Path(__file__).with_name("morl_protocol_runner.py")
+#: The indicators every record holds; those of an env whose true front is known.
+INDICATORS = ("hypervolume", "expected_utility", "cardinality")
+KNOWN_FRONT_INDICATORS = ("igd", "maximum_utility_loss")
+
+
+@dataclass(frozen=True)
+class ProtocolRecord:
+    """
+    One side's run on one seed under the protocol: the same schema for a peer and for a hierarchy.
+
+    :param side: ``"peer"`` or ``"hierarchy"``.
+    :param method: the peer's or the method's name.
+    :param weights: the front's weights.
+    :param discounted_returns: per weight, per episode, the discounted vector return.
+    :param returns: per weight, per episode, the undiscounted vector return.
+    :param front: per weight, the mean discounted return (the protocol's front).
+    :param indicators: MORL-baselines' indicators of the front's non-dominated part.
+    :param env_steps: model or phase -> its env steps of training.
+    """
+
+    side: str
+    method: str
+    env_id: str
+    seed: int
+    gamma: float
+    ref_point: tuple[float, ...]
+    eval_seed: int
+    weights: list[list[float]]
+    discounted_returns: list[list[list[float]]]
+    returns: list[list[list[float]]]
+    front: list[list[float]]
+    indicators: dict[str, float]
+    env_steps: dict[str, int]
+    wall_time_train_s: float
+    wall_time_eval_s: float
+    versions: dict[str, str | None]
+
+    @property
+    def total_env_steps(self) -> int:
+        """Env steps of every model and phase together."""
+        return sum(self.env_steps.values())
+
+    def to_json(self) -> dict[str, Any]:
+        return {"kind": RECORD_KIND, "record_version": RECORD_VERSION, **asdict(self)}
+
+
+def _numbers(value: object, depth: int, width: int | None = None) -> bool:
+    """Whether ``value`` is a list nested ``depth`` deep of finite numbers (the innermost of ``width``)."""
+    if not isinstance(value, list):
+        return False
+    if depth == 1:
+        return (width is None or len(value) == width) and all(map(is_finite_number, value))
+    return len(value) >= 1 and all(_numbers(v, depth - 1, width) for v in value)
+
+
+def read_protocol_record(path: Path) -> ProtocolRecord:
+    """
+    The one reader of a protocol record (written here or by the runner): through the JSON limits, of the
+    record's kind and version, every field of its type, one front point and one list of episodes per weight.
+
+    :raises ValueError: one line naming the file and the field.
+    """
+    data = read_json_record(path, f"{path}: not a readable protocol record")
+    if (
+        not isinstance(data, dict)
+        or data.get("kind") != RECORD_KIND
+        or data.get("record_version") != RECORD_VERSION
+    ):
+        raise ValueError(f"{path}: not a protocol record (kind {RECORD_KIND!r}, version {RECORD_VERSION})")
+    ref = data.get("ref_point")
+    width = len(ref) if isinstance(ref, list) else 0
+    checks: dict[str, Callable[[Any], bool]] = {
+        "ref_point": lambda v: _numbers(v, 1) and 1 <= len(v) <= 6,
+        "weights": lambda v: _numbers(v, 2, width),
+        "discounted_returns": lambda v: _numbers(v, 3, width) and len(v) == len(data.get("weights") or []),
+        "returns": lambda v: _numbers(v, 3, width) and len(v) == len(data.get("weights") or []),
+        "front": lambda v: _numbers(v, 2, width) and len(v) == len(data.get("weights") or []),
+        "indicators": lambda v: (
+            isinstance(v, dict) and all(map(is_finite_number, v.values())) and all(k in v for k in INDICATORS)
+        ),
+        "env_steps": lambda v: isinstance(v, dict) and all(isinstance(n, int) and n >= 0 for n in v.values()),
+        "seed": lambda v: isinstance(v, int) and v >= 0,
+        "eval_seed": lambda v: isinstance(v, int) and v >= 0,
+        "gamma": lambda v: is_finite_number(v) and 0 < v <= 1,
+        "wall_time_train_s": lambda v: is_finite_number(v) and v >= 0,
+        "wall_time_eval_s": lambda v: is_finite_number(v) and v >= 0,
+        "side": lambda v: v in ("peer", "hierarchy"),
+        "method": lambda v: isinstance(v, str) and 0 < len(v) <= 64,
+        "env_id": lambda v: isinstance(v, str) and 0 < len(v) <= 128,
+        "versions": lambda v: isinstance(v, dict),
+    }
+    for key, check in checks.items():
+        if key not in data or not check(data[key]):
+            raise ValueError(f"{path}: {key}: not what a protocol record holds, got {brief(data.get(key))}")
+    return ProtocolRecord(
+        side=data["side"],
+        method=data["method"],
+        env_id=data["env_id"],
+        seed=data["seed"],
+        gamma=float(data["gamma"]),
+        ref_point=tuple(float(v) for v in data["ref_point"]),
+        eval_seed=data["eval_seed"],
+        weights=data["weights"],
+        discounted_returns=data["discounted_returns"],
+        returns=data["returns"],
+        front=data["front"],
+        indicators={str(k): float(v) for k, v in data["indicators"].items()},
+        env_steps={str(k): int(v) for k, v in data["env_steps"].items()},
+        wall_time_train_s=float(data["wall_time_train_s"]),
+        wall_time_eval_s=float(data["wall_time_eval_s"]),
+        versions={str(k): None if v is None else str(v) for k, v in data["versions"].items()},
+    )
+
+
+def protocol_weights(objectives: int, n: int) -> list[list[float]]:
+    """
+    The protocol's equally spaced weights: pymoo's Riesz energy directions with seed 42, the function
+    MORL-baselines' ``equally_spaced_weights`` calls (its runner refuses returns played at other weights).
+    """
+    from pymoo.util.ref_dirs import get_reference_directions  # lazily: pymoo loads slowly
+
+    return get_reference_directions("energy", objectives, n, seed=WEIGHTS_SEED).tolist()
+
+
+def _invoke(python: str, arguments: Sequence[str], out: Path) -> None:
+    """Run the protocol runner with MORL-baselines' python to write ``out``."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # One thread each; wandb off: a run of record makes no network call and no wandb folder.
+    environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "WANDB_MODE": "disabled"}
+    with sigterm_as_interrupt():
+        done = subprocess.run(
+            [python, str(PROTOCOL_RUNNER), *arguments, "--out", str(out), "--force"],
+            capture_output=True,
+            text=True,
+            env=environment,
+            check=False,
+        )
+    if done.returncode != 0:
+        lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
+        raise RuntimeError(
+            f"MORL-baselines' protocol runner failed (exit {done.returncode}): {lines[-1][:300]}"
+        )
+
+
+def _common_arguments(settings: ProtocolSettings) -> list[str]:
+    reference = ",".join(f"{v:.17g}" for v in settings.env.ref_point)
+    return [
+        f"--env={settings.env_id}",
+        f"--gamma={GAMMA}",
+        f"--ref-point={reference}",
+        f"--eval-weights={settings.eval_weights}",
+        f"--eval-episodes={settings.eval_episodes}",
+        f"--eu-weights={EU_WEIGHTS}",
+        f"--eval-seed={settings.eval_seed}",
+    ]
+
+
+def run_peer(settings: ProtocolSettings, peer: str, seed: int, out: Path) -> None:
+    """Train, play and score one peer on one seed in MORL-baselines' environment; its record at ``out``."""
+    assert settings.morl_python is not None  # the settings refuse peers without it
+    arguments = ["train", f"--algo={PEERS[peer].algo}", f"--timesteps={settings.budget}", f"--seed={seed}"]
+    _invoke(settings.morl_python, [*arguments, *_common_arguments(settings)], out)
+    record = read_json_record(out, f"{out}: not readable")
+    # The runner names the learner by MORL-baselines' key; the record by the name ``--peers`` takes.
+    atomic_write_json(out, {**record, "method": peer})
+
+
+def run_method(settings: ProtocolSettings, method: str, seed: int, out: Path, folder: Path) -> None:
+    """Train one hierarchy method on one seed, play it over the protocol's weights, score it; its record at ``out``."""
+    run = SideRun(settings.env_id, settings.env.actions == "discrete", GAMMA, settings.budget, seed, folder)
+    trained = PROTOCOL_METHODS[method].train(run)
+    weights = protocol_weights(settings.env.objectives, settings.eval_weights)
+    env = trained.env.make()
+    started = time.perf_counter()
+    try:
+        discounted, returns = play_front(
+            trained.policy, env, weights, settings.eval_episodes, settings.eval_seed, GAMMA
+        )
+    finally:
+        env.close()
+    eval_seconds = time.perf_counter() - started
+    played = folder / "protocol-returns.json"
+    atomic_write_json(played, {"weights": weights, "discounted_returns": discounted})
+    scored_path = folder / "protocol-scored.json"
+    if settings.morl_python is None:
+        raise ValueError("--morl-python: the hierarchy's fronts are scored by MORL-baselines' own indicators")
+    _invoke(settings.morl_python, ["score", f"--returns={played}", *_common_arguments(settings)], scored_path)
+    scored = read_json_record(scored_path, f"{scored_path}: not readable")
+    from importlib.metadata import version
+
+    record = {
+        **{
+            k: scored[k]
+            for k in ("kind", "record_version", "ref_point", "front", "non_dominated", "indicators")
+        },
+        **{k: scored[k] for k in ("known_front", "episode_steps", "evaluator", "mul_weights")},
+        "side": "hierarchy",
+        "method": method,
+        "env_id": settings.env_id,
+        "seed": seed,
+        "gamma": GAMMA,
+        "eval_seed": settings.eval_seed,
+        "weights": weights,
+        "discounted_returns": discounted,
+        "returns": returns,
+        "env_steps": trained.env_steps,
+        "wall_time_train_s": trained.wall_time_train_s,
+        "wall_time_eval_s": eval_seconds,
+        "versions": {"sb3_hddpg": version("sb3-hddpg"), **scored.get("versions", {})},
+    }
+    atomic_write_json(out, record)
+
+
+def record_path(out: Path, side: str, seed: int) -> Path:
+    """Where a side's record of a seed goes."""
+    return out / "records" / side / f"seed-{seed}.json"
+
+
+def run_protocol(settings: ProtocolSettings, out: str | Path) -> list[Path]:
+    """
+    Every side of ``settings`` on every seed, one task at a time, each record written when its task ends;
+    a record already there (a resumed run) is read, not run again.
+
+    :raises ValueError: ``out`` holds a run of other settings (nothing of it is touched).
+    :return: the records, in task order.
+    """
+    out = Path(out)
+    saved = out / "protocol.json"
+    if saved.exists():
+        kept = read_json_record(saved, f"{saved}: not readable")
+        if kept != settings.to_json():
+            raise ValueError(f"{out}: holds a protocol run of other settings; choose another --out")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(saved, settings.to_json())
+    done: list[Path] = []
+    for seed in settings.seeds:
+        for side in (*settings.methods, *(settings.peers or ())):
+            path = record_path(out, side, seed)
+            if not path.exists():
+                logger.info("protocol: %s, seed %d", side, seed)
+                if side in PEERS:
+                    run_peer(settings, side, seed, path)
+                else:
+                    run_method(settings, side, seed, path, out / "runs" / side / f"seed-{seed}")
+            read_protocol_record(path)
+            done.append(path)
+    return done
+
+
+def read_protocol_run(out: Path) -> tuple[dict[str, Any], dict[str, dict[int, ProtocolRecord]]]:
+    """A protocol run's settings and its records: side -> seed -> record."""
+    settings = read_json_record(out / "protocol.json", f"{out / 'protocol.json'}: not readable")
+    if not isinstance(settings, dict) or settings.get("protocol") != "morl-baselines":
+        raise ValueError(f"{out / 'protocol.json'}: not a protocol run's settings")
+    records: dict[str, dict[int, ProtocolRecord]] = {}
+    for path in sorted((out / "records").glob("*/seed-*.json")):
+        record = read_protocol_record(path)
+        records.setdefault(record.method, {})[record.seed] = record
+    return settings, records
+
+
+__all__ = [
+    "INDICATORS",
+    "KNOWN_FRONT_INDICATORS",
+    "PROTOCOL_RUNNER",
+    "ProtocolRecord",
+    "protocol_weights",
+    "read_protocol_record",
+    "read_protocol_run",
+    "record_path",
+    "run_method",
+    "run_peer",
+    "run_protocol",
+]

@@ -1,0 +1,132 @@
+"""``hddpg-cli record PATH --out FILE.gif|FILE.mp4``: watch any policy, with the manager's choices drawn."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hddpg_zoo.media.video import check_video_path, make_recording_env, record_video
+from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.options import (
+    ENV_HELP,
+    EpisodeStepsOpt,
+    InfoKeyOpt,
+    ReplaceFileOpt,
+    RunPreferenceOpt,
+    TermBoundsOpt,
+    TermsOpt,
+    apply_run_preference,
+    at_least,
+    count,
+    output_file,
+    seed_range,
+    terms_env_option,
+    usage_errors,
+)
+from sb3_hddpg.evaluation import EVAL_SEED_BASE
+from sb3_hddpg.hierarchy.loading import load_policy
+
+POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK) / 'field' (potential-field avoider)."
+TRUST_HELP = "Allow SB3's full loader, which runs code stored in the file: only for files you trust."
+
+# The options of the commands that run a policy for a few episodes (record, plot-selection), spelled once.
+EpisodeSeedOpt = Annotated[
+    int,
+    typer.Option("--seed", callback=seed_range, help="Seed of the first episode (episode k uses seed + k)."),
+]
+ActInEnvOpt = Annotated[
+    str | None,
+    typer.Option("--env", help=ENV_HELP + " Default: the env it was trained on."),
+]
+MaxStepsOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--max-steps", callback=at_least(1), help="Cut every episode to this many steps (default: full)."
+    ),
+]
+TrustOpt = Annotated[bool, typer.Option("--trust", help=TRUST_HELP)]
+
+
+@app.command("record")
+def record_command(
+    path: str = typer.Argument(..., help=POLICY_HELP),
+    out: Path = typer.Option(..., "--out", help="The video to write: FILE.gif or FILE.mp4."),
+    episodes: int = typer.Option(1, "--episodes", callback=count("episodes"), help="Episodes to record."),
+    seed: EpisodeSeedOpt = EVAL_SEED_BASE,
+    fps: int = typer.Option(
+        10, "--fps", callback=at_least(1), help="Frames per second (the env runs at 10)."
+    ),
+    env_id: ActInEnvOpt = None,
+    terms: TermsOpt = None,
+    term_bounds: TermBoundsOpt = None,
+    info_key: InfoKeyOpt = None,
+    episode_steps: EpisodeStepsOpt = None,
+    max_steps: MaxStepsOpt = None,
+    deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Deterministic actions."),
+    trust: TrustOpt = False,
+    preference: RunPreferenceOpt = None,
+    algo: str | None = typer.Option(
+        None, "--algo", help="Algorithm of a zip without manifest (with --trust)."
+    ),
+    force: ReplaceFileOpt = False,
+) -> None:
+    """Render a policy to a GIF or MP4; for a hierarchy or HAM each frame shows the acting worker and the odds."""
+
+    try:
+        check_video_path(out)
+    except ValueError as error:
+        raise typer.BadParameter(str(error), param_hint="'--out'") from None
+    output_file(out, force, "'--out'")
+    # Another env with several objectives resolves to the adapter it needs, as in evaluate.
+    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
+    with usage_errors("'PATH'"):  # the model named on the command line is unusable
+        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
+        loaded = load_policy(
+            path,
+            env_id=shared.env_id if shared else None,
+            env_kwargs=shared.env_kwargs if shared else None,
+            trusted=trust,
+            algo=algo,
+            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
+        )
+    apply_run_preference(loaded.policy, preference, loaded.kind)
+    kwargs = {**(shared.env_kwargs if shared else {})}
+    if max_steps:
+        kwargs["max_episode_steps"] = max_steps
+    make = functools.partial(loaded.make_env, shared.env_id if shared else None, **kwargs)
+    # The env the policy acts in must render frames; one that cannot is named in one line.
+    with usage_errors("'--env'" if shared else "'PATH'"):
+        env = make_recording_env(make, shared.env_id if shared else loaded.env_id)
+    with console.status(f"Recording {episodes} episode(s) of {loaded.kind} {loaded.name!r}…"):
+        result = record_video(
+            loaded.policy,
+            env,
+            out,
+            episodes=episodes,
+            seed=seed,
+            fps=fps,
+            deterministic=deterministic,
+            title=loaded.name if loaded.name == loaded.kind else f"{loaded.kind}: {loaded.name}",
+        )
+    env.close()
+    summary = result.evaluation.summary()
+    if "goal_touch_rate" in summary:  # the snake arm's own metrics
+        details = (
+            f"goal touch {summary['goal_touch_rate']:.1%}, "
+            f"contact steps {summary['collisions_per_episode']:.1f} per episode"
+        )
+    else:  # any env of the contract: its reward terms summed per episode
+        details = ", ".join(
+            f"{key[len('mean_') : -len('_reward')]} {value:.1f}"
+            for key, value in summary.items()
+            if key.startswith("mean_")
+            and key.endswith("_reward")
+            and key not in ("mean_reward", "mean_reach_reward")
+        )
+    console.print(
+        f"[green]✓[/] {result.frames} frames ({result.size[0]}×{result.size[1]}, {fps} fps) -> [bold]{result.path}[/]"
+        f"   mean reward {summary['mean_reward']:.1f}{', ' + details if details else ''}"
+    )

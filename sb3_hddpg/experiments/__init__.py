@@ -1,1 +1,0 @@
-"""Experiments built on the library: benchmark, tuning, quickstart, packaging and model export."""
