@@ -36,6 +36,7 @@ from typing import Any
 
 from gymnasium.envs.registration import registry
 
+from sb3_hddpg.artifacts.containment import run_folder_escape
 from sb3_hddpg.artifacts.io import first_not_finite
 from sb3_hddpg.envs import OWN_ENV_IDS
 from sb3_hddpg.names import PLAIN_NAME
@@ -336,7 +337,8 @@ def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None =
     The bytes of a file someone else may have made, read once: it must be a regular file (a FIFO would
     block the read forever, ``/dev/zero`` never ends) of at most ``limit`` bytes, both checked on the open
     descriptor before reading, so that what is checked is what is read. Open without blocking, so that
-    opening a FIFO returns at once; the bytes read are counted too (a file growing meanwhile).
+    opening a FIFO returns at once; the bytes read are counted too (a file growing meanwhile). A file inside
+    one of the tool's run folders must not lead outside it through a link (:func:`check_run_file`).
 
     :param path: the file.
     :param limit: the largest size accepted.
@@ -345,6 +347,7 @@ def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None =
         ``IsADirectoryError``, or another ``OSError``.
     """
     name = what or str(path)
+    check_run_file(path)
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
     try:
         info = os.fstat(fd)
@@ -363,6 +366,17 @@ def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None =
         return b"".join(chunks)
     finally:
         os.close(fd)
+
+
+def check_run_file(path: str | os.PathLike[str]) -> None:
+    """
+    Refuse (:class:`LimitError`, one line naming the file) a file inside one of the tool's run folders that
+    leads outside it through a symbolic link: the one rule of every read from a run or benchmark folder
+    (:func:`read_file_bytes` applies it; readers that open a path themselves call it first).
+    """
+    reason = run_folder_escape(path)
+    if reason is not None:
+        raise LimitError(reason)
 
 
 def file_inside(root: str | os.PathLike[str], relative: str | os.PathLike[str]) -> Path:

@@ -34,13 +34,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
+from sb3_hddpg.artifacts.containment import RUN_MARKER, is_run_folder
 from sb3_hddpg.artifacts.io import LOCK_FILE, atomic_write_json, holds_lock, locked_folder
 from sb3_hddpg.artifacts.limits import MAX_MARKER_BYTES, MAX_MARKER_ENTRIES, parse_json, read_file_bytes
 
 F = TypeVar("F", bound=Callable[..., Any])
-
-#: The hidden file that marks a folder as one of the tool's run folders.
-RUN_MARKER = ".hddpg-run"
 
 #: The top-level names the tool writes into a run or package folder: the only entries ``--force`` deletes.
 RUN_LAYOUT = re.compile(
@@ -105,28 +103,6 @@ def check_output_file(path: str | os.PathLike[str], *, force: bool) -> Path:
     if path.exists() and not force:
         raise RunFolderError(f"{str(path)!r} exists; pass --force to replace it")
     return path
-
-
-#: Files only this tool writes, by which a run folder made before the marker existed is recognised.
-TOOL_FILES = (
-    "workers/manifest.json",
-    "flat/manifest.json",
-    "manager/manager_settings.json",
-    "benchmark.json",
-)
-
-
-def is_run_folder(folder: str | os.PathLike[str]) -> bool:
-    """
-    Whether ``folder`` is one of the tool's run folders: its marker, or for a folder made before the marker
-    existed, the lock of a run or one of the manifests only this tool writes (:data:`TOOL_FILES`).
-    """
-    folder = Path(folder)
-    return (
-        (folder / RUN_MARKER).is_file()
-        or (folder / LOCK_FILE).is_file()
-        or any((folder / name).is_file() for name in TOOL_FILES)
-    )
 
 
 def lock_holder(folder: str | os.PathLike[str]) -> str | None:
