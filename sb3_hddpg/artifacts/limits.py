@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import numbers
 import os
 import re
 import reprlib
@@ -214,9 +215,10 @@ def check_count(name: str, value: object, what: str | None = None) -> int:
     :return: the value; raises :class:`LimitError` naming ``what``, the bounds and the value otherwise.
     """
     low, high = count_bounds(name)
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+    # numbers.Integral: numpy's integers too (a count computed from an array is one)
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
         raise LimitError(f"{what or name}: expected an integer in [{low}, {high}], actually: {brief(value)}")
-    return value
+    return int(value)
 
 
 #: Worker names, algorithm names: what may become part of a file name (the one plain-name rule).

@@ -11,6 +11,7 @@ plateau, and log to TensorBoard. :mod:`~sb3_hddpg.training.workers`, :mod:`~sb3_
 from __future__ import annotations
 
 import contextlib
+import json
 import signal
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -195,7 +196,7 @@ def train_agent(
         if prepare_model is not None and state is None:
             prepare_model(model)
         evaluator = _make_evaluator(eval_env, paths, state, n_envs, run, after_eval)
-        checkpointer = _make_checkpointer(paths, run, total, backend, evaluator, state)
+        checkpointer = _make_checkpointer(paths, run, (total, algo, hyperparams), backend, evaluator, state)
         callbacks = CallbackList(
             [*hyperparams.callbacks(), evaluator, checkpointer, *callback_list(callback)]
         )
@@ -273,17 +274,27 @@ def _start_model(
 def _make_checkpointer(
     paths: AgentPaths,
     run: RunOptions,
-    total: int,
+    planned: tuple[int, str, Hyperparams],
     backend: str,
     evaluator: MetricsEvalCallback,
     state: dict[str, Any] | None,
 ) -> ResumableCheckpointCallback:
-    """The resumable checkpoints, each with what a resumed run needs: its budget, seed, backend and history."""
+    """
+    The resumable checkpoints, each with what a resumed run needs: its budget, seed, backend and history,
+    and what it was trained with (algorithm, config block), so that a resume of an agent killed before its
+    manifest entry is compared with them (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_agent`).
+
+    :param planned: the total budget, the algorithm and the config block.
+    """
+    total, algo, hyperparams = planned
+    block = json.loads(json.dumps(dict(hyperparams.raw), default=str))
     return ResumableCheckpointCallback(
         paths.checkpoint_dir,
         save_freq=run.checkpoint_freq,
         extra_state=lambda: {
             "total_timesteps": total,
+            "algo": algo,
+            "config": {"block": block},
             "seed": run.seed,
             "backend": backend,
             "history": evaluator.history,
