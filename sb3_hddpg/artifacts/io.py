@@ -34,6 +34,23 @@ _UMASK = _read_umask()
 
 #: The signals that stop a run cleanly (Ctrl-C, and SIGTERM turned into Ctrl-C while training).
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: The last signal turned into ``KeyboardInterrupt`` in this process (empty: none, or Ctrl-C itself).
+_STOPPED_BY: list[int] = []
+
+
+def note_stop_signal(signum: int) -> None:
+    """Record that ``signum`` (SIGTERM) is what stops this process, for its exit code (128 + the signal)."""
+    _STOPPED_BY[:] = [signum]
+
+
+def forget_stop_signal() -> None:
+    """Forget the recorded stop signal (a command starting in a process that ran one before)."""
+    _STOPPED_BY.clear()
+
+
+def stop_signal() -> int:
+    """The signal that stopped this process: the last one :func:`note_stop_signal` recorded, else SIGINT."""
+    return _STOPPED_BY[-1] if _STOPPED_BY else int(signal.SIGINT)
 
 
 @contextlib.contextmanager

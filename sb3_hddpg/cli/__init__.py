@@ -15,17 +15,19 @@ import typer
 from rich.markup import escape
 from typer.main import get_command
 
+from sb3_hddpg.artifacts.io import forget_stop_signal
 from sb3_hddpg.cli.app import COMMANDS, app, console, console_error
-from sb3_hddpg.cli.errors import INTERRUPTED_EXIT, CommandStopped, error_line, exit_code
+from sb3_hddpg.cli.errors import INTERRUPTED_EXIT, CommandStopped, error_line, exit_code, interrupted_exit
 from sb3_hddpg.envs.headless import as_rendering_error
 
 
 def main(argv: list[str] | None = None) -> None:
     """
     Console-script entry point: run ``app``; whatever ends it becomes one error line and an exit code,
-    both decided by :mod:`sb3_hddpg.cli.errors` (2 usage or input error, 1 internal, 130 interrupted).
+    both decided by :mod:`sb3_hddpg.cli.errors` (2 usage or input error, 1 internal, 130 after Ctrl-C, 143 after SIGTERM).
     """
     args = list(sys.argv[1:] if argv is None else argv)
+    forget_stop_signal()  # an earlier command of this process (a test's batch) may have been stopped
     debug = "--debug" in args or os.environ.get("HDDPG_DEBUG") == "1"
     args = [a for a in args if a != "--debug"]
     command = get_command(app)
@@ -58,6 +60,7 @@ def main(argv: list[str] | None = None) -> None:
         # typer turns Ctrl-C (and SIGTERM, which the long commands turn into it) into this code before the
         # handler above can see it; a command that saved its work raised CommandStopped instead.
         console_error("interrupted")
+        code = interrupted_exit()
     sys.exit(code if isinstance(code, int) else 0)
 
 

@@ -38,6 +38,7 @@ from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, algorithm
 from sb3_hddpg.artifacts.io import (
     atomic_write,
     holds_folder_lock,
+    note_stop_signal,
     remove_stale_temporaries,
 )
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
@@ -132,6 +133,7 @@ def sigterm_as_interrupt() -> Iterator[None]:
     """Turn SIGTERM into KeyboardInterrupt for the duration, so both take the same save-and-exit path."""
 
     def handler(signum: int, frame: object) -> None:
+        note_stop_signal(signum)  # the command exits 143, not Ctrl-C's 130
         raise KeyboardInterrupt
 
     try:

@@ -5,6 +5,7 @@ The third pass's leftovers, each tested at its choke point (docs/ROBUSTNESS.md, 
    ``artifacts/limits.py::read_file_bytes`` / ``check_run_file``;
 2. a bundle's reward terms against the env's declared terms: ``hierarchy/bundle.py::checked_settings``;
 3. the library's episode and frame counts: ``limits.COUNTS`` in ``evaluate`` and ``record_video``;
+4. ``tune`` stopped by SIGTERM in a trial: exit 143, one line, its study still readable;
 5. a resumed worker killed before its manifest entry: its checkpoint's record through ``check_resumed_agent``.
 """
 
@@ -12,7 +13,13 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -168,9 +175,13 @@ def test_the_librarys_evaluate_and_record_video_take_the_clis_bounds(tmp_path, c
         with pytest.raises(ValueError, match=r"n_episodes: expected an integer in \[1, 10000\]"):
             evaluate(ConstantWorker(env.action_space.sample() * 0), env, n_episodes=count)
         with pytest.raises(ValueError, match=r"episodes: expected an integer in \[1, 10000\]"):
-            record_video(ConstantWorker(env.action_space.sample() * 0), env, tmp_path / "v.gif", episodes=count)
+            record_video(
+                ConstantWorker(env.action_space.sample() * 0), env, tmp_path / "v.gif", episodes=count
+            )
         with pytest.raises(ValueError, match=r"max_frames: expected an integer in \[1, 100000\]"):
-            record_video(ConstantWorker(env.action_space.sample() * 0), env, tmp_path / "v.gif", max_frames=10**9)
+            record_video(
+                ConstantWorker(env.action_space.sample() * 0), env, tmp_path / "v.gif", max_frames=10**9
+            )
     finally:
         env.close()
     assert not (tmp_path / "v.gif").exists()
@@ -206,3 +217,42 @@ def test_a_worker_killed_before_its_manifest_entry_is_checked_against_its_checkp
         assert result.returncode == 2 and needle in result.stderr, (argv, result.stderr)
         assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
     assert not (out / "workers" / "goal.zip").exists()
+
+
+# ------------------------------------------------------------------ 4. tune under SIGTERM
+def test_tune_stopped_by_sigterm_in_a_trial_exits_143_in_one_line_and_keeps_its_study(tmp_path):
+    from tests.helpers import TINY_CONFIG
+
+    tiny = tmp_path / "tiny.yml"
+    tiny.write_text(TINY_CONFIG)
+    out = tmp_path / "t"
+    argv = ["tune", "--level", "flat", "--n-trials", "3", "--timesteps", "6000", "--n-evaluations", "3"]
+    argv += ["--eval-episodes", "1", "--config", str(tiny), "--out", str(out)]
+    env = {**os.environ, "PYTHONPATH": str(REPO), "COLUMNS": "300"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sb3_hddpg", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        # a trial has started once its first evaluation is written (its scratch folder's curve)
+        deadline = time.monotonic() + 600
+        while not list(out.glob("trials/*/evaluations/*.json")) and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)
+        out_text, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143, err  # 128 + SIGTERM
+    # stderr: only Optuna's own progress lines ("[I ...] A new study created"), no trial failure, no traceback
+    assert [line for line in err.splitlines() if line.strip() and not line.startswith("[I ")] == [], err
+    stopped = out_text.strip().splitlines()[-1]
+    assert stopped.startswith("tuning interrupted") and "re-run the same command" in stopped, out_text
+    assert "Traceback" not in out_text + err and "--resume" not in out_text + err
+    with sqlite3.connect(f"file:{out / 'study.db'}?mode=ro", uri=True) as db:
+        states = [row[0] for row in db.execute("SELECT state FROM trials")]
+    assert states and "RUNNING" not in states, states
