@@ -216,7 +216,7 @@ def check_count(name: str, value: object, what: str | None = None) -> int:
     """
     low, high = count_bounds(name)
     # numbers.Integral: numpy's integers too (a count computed from an array is one)
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= value <= high:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= int(value) <= high:
         raise LimitError(f"{what or name}: expected an integer in [{low}, {high}], actually: {brief(value)}")
     return int(value)
 

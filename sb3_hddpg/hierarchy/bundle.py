@@ -226,7 +226,7 @@ def checked_settings(
     name: str,
     trusted: bool,
     allowed_env_ids: Sequence[str] | None,
-    env: gym.Env | None = None,
+    env: object = None,
 ) -> tuple[str, dict[str, Any], dict[str, Any]]:
     """
     A bundle's env id, env kwargs and selection settings, each checked (a :class:`BundleError` otherwise);
@@ -254,13 +254,13 @@ def checked_settings(
     return env_id, env_kwargs, settings
 
 
-def declared_terms(env: gym.Env | None, env_id: str, env_kwargs: Mapping[str, Any]) -> list[str] | None:
+def declared_terms(env: object, env_id: str, env_kwargs: Mapping[str, Any]) -> list[str] | None:
     """
-    The reward terms ``env`` declares, or (``None`` given) the bundle's env does, made once and closed;
+    The reward terms ``env`` declares, or (``None`` or a VecEnv given) the bundle's env does, made once and closed;
     ``None`` when that env cannot be made here (a missing optional dependency): the wrapper checks the
     terms again when the hierarchy is given an env.
     """
-    if env is None:
+    if not isinstance(env, gym.Env):
         key = (env_id, json.dumps(env_kwargs, sort_keys=True, default=str))
         if key not in _DECLARED_TERMS:
             try:
