@@ -256,9 +256,9 @@ def checked_settings(
 
 def declared_terms(env: object, env_id: str, env_kwargs: Mapping[str, Any]) -> list[str] | None:
     """
-    The reward terms ``env`` declares, or (``None`` or a VecEnv given) the bundle's env does, made once and closed;
-    ``None`` when that env cannot be made here (a missing optional dependency): the wrapper checks the
-    terms again when the hierarchy is given an env.
+    The reward terms ``env`` declares, or (``None`` or a VecEnv given) the bundle's env does, made once
+    and closed; ``None`` when that env cannot be made here (a missing optional dependency): the wrapper
+    checks the terms again when the hierarchy is given an env.
     """
     if not isinstance(env, gym.Env):
         key = (env_id, json.dumps(env_kwargs, sort_keys=True, default=str))
