@@ -30,6 +30,7 @@ TOOL_FILES = (
     "flat/manifest.json",
     "manager/manager_settings.json",
     "benchmark.json",
+    "study.db",  # tune's study, in the folders tune wrote before the marker
 )
 
 

@@ -137,6 +137,8 @@ MAX_MAGNITUDE = 1e6
 MAX_OPTION_STEPS = 10_000
 #: Most episodes of one evaluation.
 MAX_EVAL_EPISODES = 10_000
+#: Most evaluations of one training run or tuning trial (``--n-evaluations``: ours use 5 to 20).
+MAX_EVALUATIONS = 10_000
 #: Most torch threads of one process.
 MAX_THREADS = 256
 #: Largest preference factor that weights a reward: the manager's (and a flat agent's) reward is up to the
@@ -188,6 +190,7 @@ def max_processes() -> int:
 #: :func:`check_count`, where it enters.
 COUNTS: dict[str, tuple[int, int | Any]] = {
     "episodes": (1, MAX_EVAL_EPISODES),
+    "evaluations": (1, MAX_EVALUATIONS),
     "video_steps": (1, MAX_VIDEO_STEPS),
     "seeds_per_trial": (1, MAX_SEEDS_PER_TRIAL),
     "n_trials": (1, MAX_TRIALS),

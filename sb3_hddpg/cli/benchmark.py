@@ -31,6 +31,7 @@ from sb3_hddpg.cli.options import (
     build_settings,
     check_jobs,
     cluster_address,
+    count,
     positive_float,
     prepare_out_dir,
     terms_env_option,
@@ -157,13 +158,16 @@ _EvalFreqOpt = Annotated[
     ),
 ]
 _EvalEpisodesOpt = Annotated[
-    int, typer.Option("--eval-episodes", callback=at_least(1), help="Episodes per learning-curve evaluation.")
+    int,
+    typer.Option(
+        "--eval-episodes", callback=count("episodes"), help="Episodes per learning-curve evaluation."
+    ),
 ]
 _TestEpisodesOpt = Annotated[
     int | None,
     typer.Option(
         "--test-episodes",
-        callback=at_least(1),
+        callback=count("episodes"),
         help="Test episodes per trained model (default: 20 development episodes; 100 with --final-test).",
     ),
 ]

@@ -337,7 +337,7 @@ EvalFreqOpt = Annotated[
     int, typer.Option("--eval-freq", callback=at_least(0), help="Steps between evaluations.")
 ]
 EvalEpisodesOpt = Annotated[
-    int, typer.Option("--eval-episodes", callback=at_least(1), help="Episodes per evaluation.")
+    int, typer.Option("--eval-episodes", callback=count("episodes"), help="Episodes per evaluation.")
 ]
 CheckpointFreqOpt = Annotated[
     int, typer.Option("--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP)

@@ -12,6 +12,7 @@ import typer
 import yaml
 from rich.table import Table
 
+from sb3_hddpg.artifacts.run_folder import check_out_folder, mark_run_folder, record_written
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
@@ -100,7 +101,8 @@ _TARGET_OPTIONS = {
     "n_seeds": "'--seeds-per-trial'",
     "budget_fraction": "'--budget-fraction' / '--final-budget' / '--timesteps'",
     "timesteps": "'--timesteps'",
-    "n_evaluations": "'--n-evaluations' / '--eval-episodes'",
+    "n_evaluations": "'--n-evaluations'",
+    "eval_episodes": "'--eval-episodes'",
 }
 
 
@@ -257,7 +259,9 @@ _FinalBudgetOpt = Annotated[
 _NEvaluationsOpt = Annotated[
     int,
     typer.Option(
-        "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."
+        "--n-evaluations",
+        callback=count("evaluations"),
+        help="Evaluations per trial, reported to the pruner.",
     ),
 ]
 _SeedsPerTrialOpt = Annotated[
@@ -512,6 +516,8 @@ def _study_settings(
         # The name becomes the default folder's and an export's file name: a plain name, never a path.
         name = check_plain_name(study_name or target.name, "--study-name")
     out = refuse_protected_out(out or Path("runs") / "tune" / name)
+    with usage_errors("'--out'"):
+        check_out_folder(out)  # a folder of the user's is never taken over (its study, plots, scratch)
     settings = StudySettings(
         storage=storage or default_storage_url(out),
         study_name=name,
@@ -541,6 +547,7 @@ def _run_study(
 ) -> None:
     """Say what is tuned, run the study (Ctrl-C: exit 130, the study resumable) and print its outcome."""
     _announce(target, settings, storage, n_jobs, address)
+    mark_run_folder(out, "tune", reopen=True)
     try:
         study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
     except TrainingInterrupted:
@@ -549,6 +556,8 @@ def _run_study(
             f"tuning interrupted; study {settings.study_name!r} keeps its finished trials and queues the "
             "interrupted one again: re-run the same command to resume the study"
         ) from None
+    finally:
+        record_written(out)
     _print_outcome(
         study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
     )
