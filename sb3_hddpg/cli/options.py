@@ -131,8 +131,10 @@ def existing_file(value: Path | None) -> Path | None:
         return None
     if not value.exists():
         raise typer.BadParameter(f"no such file: {str(value)!r}")
-    if not value.is_file():
+    if value.is_dir():
         raise typer.BadParameter(f"expected a file, got a folder: {str(value)!r}")
+    if not value.is_file():
+        raise typer.BadParameter(f"expected a regular file, got a FIFO, socket or device: {str(value)!r}")
     return value
 
 

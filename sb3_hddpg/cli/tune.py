@@ -29,6 +29,7 @@ from sb3_hddpg.cli.options import (
     check_jobs,
     cluster_address,
     count,
+    existing_file,
     positive_float,
     refuse_protected_out,
     seed_range,
@@ -142,8 +143,10 @@ def _check_search_options(
             f"expected a URL such as sqlite:///path/study.db or postgresql+psycopg://user@host/db, got {storage!r}",
             param_hint="'--storage'",
         )
-    if config is not None and not config.is_file():
-        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    try:
+        existing_file(config)
+    except typer.BadParameter as error:
+        raise typer.BadParameter(error.message, param_hint="'--config'") from None
 
 
 def _print_outcome(
