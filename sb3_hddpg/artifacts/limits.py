@@ -191,6 +191,7 @@ def max_processes() -> int:
 COUNTS: dict[str, tuple[int, int | Any]] = {
     "episodes": (1, MAX_EVAL_EPISODES),
     "evaluations": (1, MAX_EVALUATIONS),
+    "episode_steps": (1, lambda: MAX_EPISODE_LENGTH),  # defined below, with the env settings
     "video_steps": (1, MAX_VIDEO_STEPS),
     "seeds_per_trial": (1, MAX_SEEDS_PER_TRIAL),
     "n_trials": (1, MAX_TRIALS),

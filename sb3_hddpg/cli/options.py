@@ -398,7 +398,7 @@ TermsOpt = Annotated[str | None, typer.Option("--terms", help=TERMS_HELP)]
 TermBoundsOpt = Annotated[str | None, typer.Option("--term-bounds", help=TERM_BOUNDS_HELP)]
 InfoKeyOpt = Annotated[str | None, typer.Option("--info-key", help=INFO_KEY_HELP)]
 EpisodeStepsOpt = Annotated[
-    int | None, typer.Option("--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP)
+    int | None, typer.Option("--episode-steps", callback=count("episode_steps"), help=EPISODE_STEPS_HELP)
 ]
 
 
