@@ -256,3 +256,75 @@ def test_tune_stopped_by_sigterm_in_a_trial_exits_143_in_one_line_and_keeps_its_
     with sqlite3.connect(f"file:{out / 'study.db'}?mode=ro", uri=True) as db:
         states = [row[0] for row in db.execute("SELECT state FROM trials")]
     assert states and "RUNNING" not in states, states
+
+
+# ------------------------------------------------------------------ held-out variants the probe found
+def test_held_out_variants_end_in_one_line_naming_what_is_at_fault(tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "README.md").write_text("# mine\n")
+    fifo = tmp_path / "c.yml"
+    os.mkfifo(fifo)
+    cases = [
+        (
+            ["tune", "--level", "flat", "--n-trials", "1", "--out", str(mine)],
+            "'--out'",
+            "this tool did not write",
+        ),
+        (["tune", "--level", "flat", "--eval-episodes", "1000000"], "'--eval-episodes'", "[1, 10000]"),
+        (["tune", "--level", "flat", "--n-evaluations", "1000000000"], "'--n-evaluations'", "[1, 10000]"),
+        (
+            ["record", str(HIERARCHY), "--max-steps", "1000000000", "--out", str(tmp_path / "r.gif")],
+            "",
+            "100000",
+        ),
+        (["tune", "--level", "flat", "--config", str(fifo)], "'--config'", "FIFO, socket or device"),
+        (["train-flat", "--config", "/dev/zero", "--out", str(tmp_path / "f")], "'--config'", "FIFO, socket"),
+    ]
+    results = run_batch([argv for argv, _, _ in cases])
+    for (argv, option, needle), done in zip(cases, results):
+        assert done.returncode == 2 and option in done.stderr and needle in done.stderr, (argv, done.stderr)
+        assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert sorted(p.name for p in mine.iterdir()) == ["README.md"]
+    assert not (tmp_path / "f").exists() and not (tmp_path / "r.gif").exists()
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "needle"),
+    [
+        ("seed", -5, "seed: expected an integer in [0, 4294967295]"),
+        ("seed", 2.5, "seed: expected an integer"),
+        (
+            "env_kwargs",
+            {"sensor_range": 1e-300},
+            "env_kwargs.'sensor_range': expected 0 or a finite magnitude",
+        ),
+        ("env_kwargs", {"dt": float("inf")}, "env_kwargs.'dt': expected 0 or a finite magnitude"),
+    ],
+)
+def test_a_workers_manifests_seed_and_env_numbers_are_checked_when_read(field, value, needle):
+    from sb3_hddpg.artifacts.records.models import models_manifest_from_json
+
+    manifest = json.loads((RUN / "workers" / "manifest.json").read_text())
+    manifest["workers"]["goal"][field] = value
+    with pytest.raises(LimitError, match=needle.replace("[", r"\[").replace("]", r"\]")):
+        models_manifest_from_json(manifest, "workers", "m.json")
+
+
+def test_sigterm_to_any_command_ends_it_in_one_line_with_143(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(REPO), "SDL_VIDEODRIVER": "dummy"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sb3_hddpg", "rollout", "--episodes", "10000"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        time.sleep(12)  # started and rolling out (the command loads torch and SB3 first)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143 and err.strip() == "error: interrupted", err
