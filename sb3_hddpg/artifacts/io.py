@@ -108,6 +108,9 @@ def atomic_write(
     if path.is_dir():
         # Checked first so that the error names the target rather than a temporary file.
         raise IsADirectoryError(f"Cannot write {str(path)!r}: it is a folder")
+    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:  # mkdir would say "[Errno 17] File exists", which names no file
+        raise NotADirectoryError(f"Cannot write {str(path)!r}: {str(blocking)!r} is a file, not a folder")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)

@@ -102,6 +102,9 @@ def check_output_file(path: str | os.PathLike[str], *, force: bool) -> Path:
         raise RunFolderError(f"Expected a file to write, actually a folder: {str(path)!r}")
     if path.exists() and not force:
         raise RunFolderError(f"{str(path)!r} exists; pass --force to replace it")
+    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:  # known now, not after the episodes it would have written
+        raise RunFolderError(f"cannot write {str(path)!r}: {str(blocking)!r} is a file, not a folder")
     return path
 
 
