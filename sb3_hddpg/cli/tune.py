@@ -552,15 +552,16 @@ def _run_study(
     _announce(target, settings, storage, n_jobs, address)
     mark_run_folder(out, "tune", reopen=True)
     try:
-        study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
-    except TrainingInterrupted:
-        # The trial's own message advises --resume, an option of train-*, not of tune: say what holds here.
-        raise CommandStopped(
-            f"tuning interrupted; study {settings.study_name!r} keeps its finished trials and queues the "
-            "interrupted one again: re-run the same command to resume the study"
-        ) from None
-    finally:
+        try:
+            study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
+        except TrainingInterrupted:
+            # The trial's own message advises --resume, an option of train-*, not of tune: say what holds.
+            raise CommandStopped(
+                f"tuning interrupted; study {settings.study_name!r} keeps its finished trials and queues the "
+                "interrupted one again: re-run the same command to resume the study"
+            ) from None
+        _print_outcome(
+            study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
+        )
+    finally:  # its plots too: a re-run resumes the study into the same folder
         record_written(out)
-    _print_outcome(
-        study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
-    )
