@@ -245,10 +245,11 @@ def checked_settings(
             )
             settings["manager_preferences"] = space.to_json()
         terms = declared_terms(env, env_id, env_kwargs)
+        rewards = settings.get("reward_terms", {})
+        # a nested hierarchy without an entry is paid its own preference's mix of the terms
+        paid = [n for n in names if n in rewards or manifest.workers[n].get("kind") != "hierarchy"]
         if terms is not None:
-            check_reward_terms(
-                settings.get("reward_terms", {}), names, terms, f"{name}: selection.reward_terms"
-            )
+            check_reward_terms(rewards, paid, terms, f"{name}: selection.reward_terms")
     except ValueError as error:
         raise BundleError(str(error)) from None
     return env_id, env_kwargs, settings
