@@ -36,12 +36,15 @@ from sb3_hddpg import __version__ as version
 from sb3_hddpg.artifacts.io import UMASK, atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import (
     MAX_JSON_BYTES,
+    MAX_MODEL_FILE_BYTES,
     LoadBudget,
     brief,
     check_count,
     check_name,
+    check_run_file,
     check_zip_directory,
     parse_json,
+    read_file_bytes,
     read_member,
 )
 from sb3_hddpg.artifacts.records import ManifestKind, models_manifest
@@ -274,6 +277,7 @@ def _unpack_model(model_file: Path, folder: Path) -> None:
     """
     budget = LoadBudget()
     folder.mkdir()
+    check_run_file(model_file)
     with zipfile.ZipFile(model_file) as archive:
         present = {info.filename for info in check_zip_directory(archive, str(model_file))}
         for member in SB3_MEMBERS:
@@ -449,7 +453,7 @@ def write_zoo_layout(
     folder = Path(folder)
     for env_id, path in models.items():
         name = hub_env_name(env_id)
-        data = Path(path).read_bytes()
+        data = read_file_bytes(path, MAX_MODEL_FILE_BYTES)
         run = folder / algo / f"{name}_{exp_id}"
         atomic_write_bytes(run / f"{name}.zip", data)
         kwargs = (env_kwargs or {}).get(env_id)

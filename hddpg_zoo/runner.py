@@ -51,7 +51,7 @@ from typing import Any, Protocol
 
 import torch
 
-from sb3_hddpg.training.agent import sigterm_as_interrupt
+from sb3_hddpg.training.agent import TrainingInterrupted, sigterm_as_interrupt
 
 logger = logging.getLogger(__name__)
 
@@ -206,7 +206,9 @@ def run_jobs(
                     error = (
                         end.value if isinstance(end.value, BaseException) else RuntimeError(repr(end.value))
                     )
-                    logger.error("job %s failed: %s\n%s", job.key, describe(error), end.details)
+                    if not isinstance(error, (TrainingInterrupted, KeyboardInterrupt)):
+                        # a job stopped by Ctrl-C or SIGTERM did not fail: the command says so in one line
+                        logger.error("job %s failed: %s\n%s", job.key, describe(error), end.details)
                     fail(job, error)
                     if fail_fast:
                         raise error

@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
+from sb3_hddpg.artifacts.limits import check_count
 from sb3_hddpg.envs.contract import Proximity, TermNormaliser, env_contract, proximity_of
 from sb3_hddpg.episode_metrics import SATURATION_LEVEL as SATURATION_LEVEL
 from sb3_hddpg.episode_metrics import EpisodeMetrics, EpisodeTally, finite_episode
@@ -135,7 +136,8 @@ def evaluate(
         the env declares (reward terms, proximity) is read with ``get_attr``; ``on_step`` needs the env
         objects, so only a ``DummyVecEnv`` takes it. Episodes and seeds are those of a single env; the summed
         reward differs from it only by the float32 a VecEnv stores rewards in.
-    :param n_episodes: how many episodes, at least 1.
+    :param n_episodes: how many episodes, in ``limits.COUNTS["episodes"]`` (1 to 10,000; a ``ValueError``
+        naming ``n_episodes`` otherwise).
     :param seed: the first episode's seed.
     :param deterministic: passed to ``predict``.
     :param on_step: called after every step with the env and its ``info`` (for recording).
@@ -146,8 +148,8 @@ def evaluate(
         env's ``sensor_range``: every proximity sensor reads its maximum).
     :return: per-episode metrics.
     """
-    if n_episodes < 1:
-        raise ValueError(f"Expected `n_episodes` to be >= 1, actually: {n_episodes}")
+    # the same bound as the CLI's --episodes, from the one table of counts (a LimitError is a ValueError)
+    check_count("episodes", n_episodes, "n_episodes")
     if env is None:
         make_env = getattr(policy, "make_env", None)
         if not callable(make_env):

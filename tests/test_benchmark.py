@@ -504,7 +504,7 @@ def test_an_interrupted_benchmark_keeps_the_time_it_spent(tmp_path):
     )
     curve = out / "seed-0" / "ddpg" / "evaluations" / "flat-ddpg.json"
     stdout, stderr = sigterm_once_written(process, curve, "the flat agent's first evaluation")
-    assert process.returncode == 130, stdout + stderr
+    assert process.returncode == 143, stdout + stderr  # 128 + SIGTERM
     assert "the same command with --resume continues it" in stdout and "Traceback" not in stderr
     (invocation,) = json.loads((out / "benchmark.json").read_text())["invocations"]
     assert invocation["interrupted"] and invocation["runs_done"] is None and invocation["wall_time_s"] > 0

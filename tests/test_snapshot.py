@@ -110,7 +110,7 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
         "holds other files",
         "apart from the benchmark",
         "no benchmark.json",
-        "resolves outside",
+        "leads outside it",  # a record linked out of the run folder: refused by every read (containment)
     )
     for result, expected in zip(refused, expected_errors, strict=True):
         assert result.returncode == 2 and expected in result.stderr, result.stderr

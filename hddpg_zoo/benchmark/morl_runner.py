@@ -38,6 +38,7 @@ import json
 import math
 import os
 import platform
+import stat
 import sys
 import tempfile
 import time
@@ -277,7 +278,10 @@ def _read_json(path: str, option: str) -> Any:
     beforehand), strict (no ``NaN`` or ``Infinity``), or a one-line error naming ``option``.
     """
     try:
-        with open(path, "rb") as handle:
+        # without blocking, and only a regular file: open() of a FIFO would wait for a writer forever
+        with os.fdopen(os.open(path, os.O_RDONLY | os.O_NONBLOCK), "rb") as handle:
+            if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+                raise InputError(f"{option}: {path!r} is not a regular file (a FIFO, socket or device?)")
             data = handle.read(MAX_JSON_BYTES + 1)
         if len(data) > MAX_JSON_BYTES:
             raise InputError(f"{option}: {path!r} is larger than {MAX_JSON_BYTES} bytes")

@@ -54,6 +54,7 @@ from sb3_hddpg.cli.options import (
     TermBoundsOpt,
     TermsOpt,
     at_least,
+    count,
     prepare_out_dir,
     terms_env_option,
     usage_errors,
@@ -159,13 +160,16 @@ _EvalFreqOpt = Annotated[
     ),
 ]
 _EvalEpisodesOpt = Annotated[
-    int, typer.Option("--eval-episodes", callback=at_least(1), help="Episodes per learning-curve evaluation.")
+    int,
+    typer.Option(
+        "--eval-episodes", callback=count("episodes"), help="Episodes per learning-curve evaluation."
+    ),
 ]
 _TestEpisodesOpt = Annotated[
     int | None,
     typer.Option(
         "--test-episodes",
-        callback=at_least(1),
+        callback=count("episodes"),
         help="Test episodes per trained model (default: 20 development episodes; 100 with --final-test).",
     ),
 ]

@@ -44,7 +44,9 @@ ActInEnvOpt = Annotated[
 MaxStepsOpt = Annotated[
     int | None,
     typer.Option(
-        "--max-steps", callback=at_least(1), help="Cut every episode to this many steps (default: full)."
+        "--max-steps",
+        callback=count("episode_steps"),
+        help="Cut every episode to this many steps (default: full).",
     ),
 ]
 TrustOpt = Annotated[bool, typer.Option("--trust", help=TRUST_HELP)]

@@ -31,6 +31,7 @@ from hddpg_zoo.tuning import (
     trial_score,
     tune,
 )
+from sb3_hddpg.artifacts.run_folder import check_out_folder, mark_run_folder, record_written
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
@@ -43,6 +44,7 @@ from sb3_hddpg.cli.options import (
     TermsOpt,
     at_least,
     count,
+    existing_file,
     refuse_protected_out,
     seed_range,
     terms_env_option,
@@ -97,7 +99,8 @@ _TARGET_OPTIONS = {
     "n_seeds": "'--seeds-per-trial'",
     "budget_fraction": "'--budget-fraction' / '--final-budget' / '--timesteps'",
     "timesteps": "'--timesteps'",
-    "n_evaluations": "'--n-evaluations' / '--eval-episodes'",
+    "n_evaluations": "'--n-evaluations'",
+    "eval_episodes": "'--eval-episodes'",
 }
 
 
@@ -137,8 +140,10 @@ def _check_search_options(
             f"expected a URL such as sqlite:///path/study.db or postgresql+psycopg://user@host/db, got {storage!r}",
             param_hint="'--storage'",
         )
-    if config is not None and not config.is_file():
-        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    try:
+        existing_file(config)
+    except typer.BadParameter as error:
+        raise typer.BadParameter(error.message, param_hint="'--config'") from None
 
 
 def _print_outcome(
@@ -254,7 +259,9 @@ _FinalBudgetOpt = Annotated[
 _NEvaluationsOpt = Annotated[
     int,
     typer.Option(
-        "--n-evaluations", callback=at_least(1), help="Evaluations per trial, reported to the pruner."
+        "--n-evaluations",
+        callback=count("evaluations"),
+        help="Evaluations per trial, reported to the pruner.",
     ),
 ]
 _SeedsPerTrialOpt = Annotated[
@@ -513,6 +520,8 @@ def _study_settings(
         # The name becomes the default folder's and an export's file name: a plain name, never a path.
         name = check_plain_name(study_name or target.name, "--study-name")
     out = refuse_protected_out(out or Path("runs") / "tune" / name)
+    with usage_errors("'--out'"):
+        check_out_folder(out)  # a folder of the user's is never taken over (its study, plots, scratch)
     settings = StudySettings(
         storage=storage or default_storage_url(out),
         study_name=name,
@@ -542,14 +551,18 @@ def _run_study(
 ) -> None:
     """Say what is tuned, run the study (Ctrl-C: exit 130, the study resumable) and print its outcome."""
     _announce(target, settings, storage, n_jobs, address)
+    mark_run_folder(out, "tune", reopen=True)
     try:
-        study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
-    except TrainingInterrupted:
-        # The trial's own message advises --resume, an option of train-*, not of tune: say what holds here.
-        raise CommandStopped(
-            f"tuning interrupted; study {settings.study_name!r} keeps its finished trials and queues the "
-            "interrupted one again: re-run the same command to resume the study"
-        ) from None
-    _print_outcome(
-        study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
-    )
+        try:
+            study = tune(target, settings, out, n_jobs=n_jobs, threads=threads, ray_address=address)
+        except TrainingInterrupted:
+            # The trial's own message advises --resume, an option of train-*, not of tune: say what holds.
+            raise CommandStopped(
+                f"tuning interrupted; study {settings.study_name!r} keeps its finished trials and queues the "
+                "interrupted one again: re-run the same command to resume the study"
+            ) from None
+        _print_outcome(
+            study, target, out, top, save_config, settings.storage if storage is None else None, rank_by
+        )
+    finally:  # its plots too: a re-run resumes the study into the same folder
+        record_written(out)

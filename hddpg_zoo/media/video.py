@@ -16,6 +16,7 @@ from PIL import Image
 
 from hddpg_zoo.media.overlay import compose_frame
 from sb3_hddpg.artifacts.io import atomic_write
+from sb3_hddpg.artifacts.limits import check_count
 from sb3_hddpg.envs.headless import rendering_errors
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.media.trace import StepRecord, StepRecorder, selected_names
@@ -118,21 +119,24 @@ def record_video(
     :param policy: anything with SB3's ``predict`` acting in ``env``.
     :param env: an env made with ``render_mode="rgb_array"`` (see :func:`make_recording_env`).
     :param path: the output, ending in ``.gif`` or ``.mp4``.
-    :param episodes: how many episodes, at least 1.
+    :param episodes: how many episodes, 1 to 10,000 (``limits.COUNTS["episodes"]``).
     :param seed: the first episode's seed.
     :param fps: frames per second of the video.
     :param deterministic: passed to ``predict``.
     :param title: a label drawn in the overlay.
     :param names: the workers the policy selects among (default: the policy's own ``names``).
     :param stride: keep every ``stride``-th step (a shorter GIF for documentation).
-    :param max_frames: stop writing frames after this many (the episodes still run to the end).
+    :param max_frames: stop writing frames after this many (the episodes still run to the end), at most
+        100,000 (``limits.COUNTS["video_steps"]``).
     :param scale: resize frames by this factor (sizes rounded to multiples of 16).
     :return: the path, the frame count and the episodes' metrics; an env that cannot make an OpenGL
         context (MuJoCo without a display) raises :class:`~sb3_hddpg.envs.headless.HeadlessRenderingError`.
     """
     path = check_video_path(path)
-    if episodes < 1:
-        raise ValueError(f"Expected `episodes` to be >= 1, actually: {episodes}")
+    # the CLI's bounds, from the one table of counts (a LimitError is a ValueError naming the keyword)
+    check_count("episodes", episodes, "episodes")
+    if max_frames is not None:
+        check_count("video_steps", max_frames, "max_frames")
     if fps < 1:
         raise ValueError(f"Expected `fps` to be >= 1, actually: {fps}")
     if stride < 1:

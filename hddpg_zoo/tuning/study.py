@@ -161,11 +161,22 @@ def open_study(target: TuningTarget, settings: StudySettings, process_index: int
 
 
 class _DropInterruptions(logging.Filter):
-    """Drop Optuna's "Trial N failed ... Traceback" record for a trial stopped by Ctrl-C or SIGTERM."""
+    """
+    Drop Optuna's "Trial N failed ... Traceback" record for a trial stopped by Ctrl-C or SIGTERM, and the
+    "Trial N failed with value None" that follows it.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stopped: set[str] = set()
 
     def filter(self, record: logging.LogRecord) -> bool:
         error = record.exc_info[1] if record.exc_info else None
-        return not isinstance(error, (TrainingInterrupted, KeyboardInterrupt))
+        message = record.getMessage()
+        if isinstance(error, (TrainingInterrupted, KeyboardInterrupt)):
+            self.stopped.add(" ".join(message.split()[:2]))  # "Trial 3"
+            return False
+        return not any(message.startswith(f"{trial} failed with value") for trial in self.stopped)
 
 
 @contextlib.contextmanager

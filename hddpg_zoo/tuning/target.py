@@ -19,6 +19,7 @@ from hddpg_zoo.hyperparams_opt import (
     tunable_algorithms,
 )
 from sb3_hddpg.algorithms import ROLES
+from sb3_hddpg.artifacts.limits import LimitError, check_count
 from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
 from sb3_hddpg.artifacts.records import ModelsManifest
 from sb3_hddpg.artifacts.workers import observed_components, shared_env_of
@@ -151,12 +152,11 @@ class TuningTarget:
             raise TargetError(
                 "episode_set", f"Expected episode_set 'tuning' or 'curve', actually: {self.episode_set!r}"
             )
-        if self.n_evaluations < 1 or self.eval_episodes < 1:
-            raise TargetError(
-                "n_evaluations",
-                f"Expected n_evaluations >= 1 and eval_episodes >= 1, actually: "
-                f"{self.n_evaluations} and {self.eval_episodes}",
-            )
+        for field_name, count in (("n_evaluations", "evaluations"), ("eval_episodes", "episodes")):
+            try:  # the one table of counts, as the CLI's options
+                check_count(count, getattr(self, field_name), field_name)
+            except LimitError as error:
+                raise TargetError(field_name, str(error)) from None
         if self.timesteps is not None and self.timesteps < self.n_evaluations:
             raise TargetError(
                 "timesteps",

@@ -34,6 +34,23 @@ UMASK = _read_umask()
 
 #: The signals that stop a run cleanly (Ctrl-C, and SIGTERM turned into Ctrl-C while training).
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: The last signal turned into ``KeyboardInterrupt`` in this process (empty: none, or Ctrl-C itself).
+_STOPPED_BY: list[int] = []
+
+
+def note_stop_signal(signum: int) -> None:
+    """Record that ``signum`` (SIGTERM) is what stops this process, for its exit code (128 + the signal)."""
+    _STOPPED_BY[:] = [signum]
+
+
+def forget_stop_signal() -> None:
+    """Forget the recorded stop signal (a command starting in a process that ran one before)."""
+    _STOPPED_BY.clear()
+
+
+def stop_signal() -> int:
+    """The signal that stopped this process: the last one :func:`note_stop_signal` recorded, else SIGINT."""
+    return _STOPPED_BY[-1] if _STOPPED_BY else int(signal.SIGINT)
 
 
 @contextlib.contextmanager
@@ -91,6 +108,9 @@ def atomic_write(
     if path.is_dir():
         # Checked first so that the error names the target rather than a temporary file.
         raise IsADirectoryError(f"Cannot write {str(path)!r}: it is a folder")
+    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:  # mkdir would say "[Errno 17] File exists", which names no file
+        raise NotADirectoryError(f"Cannot write {str(path)!r}: {str(blocking)!r} is a file, not a folder")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=path.parent)

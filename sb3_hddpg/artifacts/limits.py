@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import numbers
 import os
 import re
 import reprlib
@@ -36,6 +37,7 @@ from typing import Any
 
 from gymnasium.envs.registration import registry
 
+from sb3_hddpg.artifacts.containment import run_folder_escape
 from sb3_hddpg.artifacts.io import first_not_finite
 from sb3_hddpg.envs import OWN_ENV_IDS
 from sb3_hddpg.names import PLAIN_NAME
@@ -135,6 +137,8 @@ MAX_MAGNITUDE = 1e6
 MAX_OPTION_STEPS = 10_000
 #: Most episodes of one evaluation.
 MAX_EVAL_EPISODES = 10_000
+#: Most evaluations of one training run or tuning trial (``--n-evaluations``: ours use 5 to 20).
+MAX_EVALUATIONS = 10_000
 #: Most torch threads of one process.
 MAX_THREADS = 256
 #: Largest preference factor that weights a reward: the manager's (and a flat agent's) reward is up to the
@@ -186,6 +190,8 @@ def max_processes() -> int:
 #: :func:`check_count`, where it enters.
 COUNTS: dict[str, tuple[int, int | Any]] = {
     "episodes": (1, MAX_EVAL_EPISODES),
+    "evaluations": (1, MAX_EVALUATIONS),
+    "episode_steps": (1, lambda: MAX_EPISODE_LENGTH),  # defined below, with the env settings
     "video_steps": (1, MAX_VIDEO_STEPS),
     "seeds_per_trial": (1, MAX_SEEDS_PER_TRIAL),
     "n_trials": (1, MAX_TRIALS),
@@ -213,9 +219,10 @@ def check_count(name: str, value: object, what: str | None = None) -> int:
     :return: the value; raises :class:`LimitError` naming ``what``, the bounds and the value otherwise.
     """
     low, high = count_bounds(name)
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+    # numbers.Integral: numpy's integers too (a count computed from an array is one)
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not low <= int(value) <= high:
         raise LimitError(f"{what or name}: expected an integer in [{low}, {high}], actually: {brief(value)}")
-    return value
+    return int(value)
 
 
 #: Worker names, algorithm names: what may become part of a file name (the one plain-name rule).
@@ -336,7 +343,8 @@ def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None =
     The bytes of a file someone else may have made, read once: it must be a regular file (a FIFO would
     block the read forever, ``/dev/zero`` never ends) of at most ``limit`` bytes, both checked on the open
     descriptor before reading, so that what is checked is what is read. Open without blocking, so that
-    opening a FIFO returns at once; the bytes read are counted too (a file growing meanwhile).
+    opening a FIFO returns at once; the bytes read are counted too (a file growing meanwhile). A file inside
+    one of the tool's run folders must not lead outside it through a link (:func:`check_run_file`).
 
     :param path: the file.
     :param limit: the largest size accepted.
@@ -345,6 +353,7 @@ def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None =
         ``IsADirectoryError``, or another ``OSError``.
     """
     name = what or str(path)
+    check_run_file(path)
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
     try:
         info = os.fstat(fd)
@@ -363,6 +372,17 @@ def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None =
         return b"".join(chunks)
     finally:
         os.close(fd)
+
+
+def check_run_file(path: str | os.PathLike[str]) -> None:
+    """
+    Refuse (:class:`LimitError`, one line naming the file) a file inside one of the tool's run folders that
+    leads outside it through a symbolic link: the one rule of every read from a run or benchmark folder
+    (:func:`read_file_bytes` applies it; readers that open a path themselves call it first).
+    """
+    reason = run_folder_escape(path)
+    if reason is not None:
+        raise LimitError(reason)
 
 
 def file_inside(root: str | os.PathLike[str], relative: str | os.PathLike[str]) -> Path:

@@ -19,7 +19,7 @@ import stable_baselines3
 import torch
 
 from sb3_hddpg import __version__
-from sb3_hddpg.artifacts.limits import MAX_MODEL_FILE_BYTES, brief, read_file_bytes
+from sb3_hddpg.artifacts.limits import MAX_MODEL_FILE_BYTES, brief, check_run_file, read_file_bytes
 from sb3_hddpg.artifacts.records.base import JsonObject
 
 #: The package's source folder: the git tree asked for the commit is the one that holds it.
@@ -86,6 +86,7 @@ def sha256_bytes(data: bytes) -> str:
 
 def sha256_file(path: str | Path) -> str:
     """The sha256 hex digest of a file, read in 1 MiB blocks."""
+    check_run_file(path)
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
         for block in iter(lambda: handle.read(1 << 20), b""):

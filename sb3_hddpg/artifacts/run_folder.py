@@ -34,13 +34,11 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
+from sb3_hddpg.artifacts.containment import RUN_MARKER, is_run_folder
 from sb3_hddpg.artifacts.io import LOCK_FILE, atomic_write_json, holds_lock, locked_folder, runs_within
 from sb3_hddpg.artifacts.limits import MAX_MARKER_BYTES, MAX_MARKER_ENTRIES, parse_json, read_file_bytes
 
 F = TypeVar("F", bound=Callable[..., Any])
-
-#: The hidden file that marks a folder as one of the tool's run folders.
-RUN_MARKER = ".hddpg-run"
 
 #: The top-level names the tool writes into a run or package folder: the only entries ``--force`` deletes.
 RUN_LAYOUT = re.compile(
@@ -104,29 +102,10 @@ def check_output_file(path: str | os.PathLike[str], *, force: bool) -> Path:
         raise RunFolderError(f"Expected a file to write, actually a folder: {str(path)!r}")
     if path.exists() and not force:
         raise RunFolderError(f"{str(path)!r} exists; pass --force to replace it")
+    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:  # known now, not after the episodes it would have written
+        raise RunFolderError(f"cannot write {str(path)!r}: {str(blocking)!r} is a file, not a folder")
     return path
-
-
-#: Files only this tool writes, by which a run folder made before the marker existed is recognised.
-TOOL_FILES = (
-    "workers/manifest.json",
-    "flat/manifest.json",
-    "manager/manager_settings.json",
-    "benchmark.json",
-)
-
-
-def is_run_folder(folder: str | os.PathLike[str]) -> bool:
-    """
-    Whether ``folder`` is one of the tool's run folders: its marker, or for a folder made before the marker
-    existed, the lock of a run or one of the manifests only this tool writes (:data:`TOOL_FILES`).
-    """
-    folder = Path(folder)
-    return (
-        (folder / RUN_MARKER).is_file()
-        or (folder / LOCK_FILE).is_file()
-        or any((folder / name).is_file() for name in TOOL_FILES)
-    )
 
 
 def lock_holder(folder: str | os.PathLike[str]) -> str | None:

@@ -27,7 +27,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.algorithms import REGISTRY, Algorithm
-from sb3_hddpg.artifacts.limits import SBX_SNIFF_BYTES, LoadBudget, brief
+from sb3_hddpg.artifacts.limits import SBX_SNIFF_BYTES, LoadBudget, brief, check_run_file
 from sb3_hddpg.artifacts.spec import ALGOS, build_from_spec
 from sb3_hddpg.artifacts.weights import SafeLoadError, apply_weights, read_weights
 
@@ -100,6 +100,8 @@ def load_model(
     :raises ValueError: if neither a spec nor ``trusted=True`` is given, or the algorithm is unknown; see
         :func:`load_model_safely` for the safe path's errors.
     """
+    if not isinstance(path, io.BytesIO):
+        check_run_file(path)  # SB3's loader and zipfile open the path themselves
     if not trusted:
         if spec is None:
             raise ValueError(

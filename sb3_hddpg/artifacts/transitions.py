@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from sb3_hddpg.artifacts.io import atomic_write
-from sb3_hddpg.artifacts.limits import MAX_BUFFER_BYTES, LimitError, brief
+from sb3_hddpg.artifacts.limits import MAX_BUFFER_BYTES, LimitError, brief, check_run_file
 
 #: A worker's transitions file beside its zip: ``<name>.transitions.npz``.
 TRANSITIONS_SUFFIX = ".transitions.npz"
@@ -66,6 +66,7 @@ class Transitions:
 
         :raises LimitError: naming the file and the problem.
         """
+        check_run_file(path)
         try:
             with zipfile.ZipFile(path) as archive:
                 size = sum(info.file_size for info in archive.infolist())

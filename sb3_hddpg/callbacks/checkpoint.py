@@ -109,3 +109,14 @@ def read_checkpoint_state(checkpoint_dir: str | Path) -> dict[str, Any] | None:
         if state[key] is not None and not state[key].is_file():
             raise FileNotFoundError(f"Checkpoint {str(path)!r} names a missing file: {str(state[key])!r}")
     return state
+
+
+def checkpoint_record(checkpoint_dir: str | Path) -> dict[str, Any] | None:
+    """
+    What an agent's last checkpoint records it was trained with (``algo``, ``seed``, ``config``, as a
+    manifest entry would), for an agent killed before its manifest entry was written; ``None`` without one.
+    """
+    state = read_checkpoint_state(checkpoint_dir)
+    if state is None:
+        return None
+    return {key: state[key] for key in ("algo", "seed", "config") if key in state}

@@ -8,24 +8,44 @@ errors); ``--debug`` (or ``HDDPG_DEBUG=1``) shows the traceback instead.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import sys
 
 import typer
 from rich.markup import escape
 from typer.main import get_command
 
+from sb3_hddpg.artifacts.io import forget_stop_signal, note_stop_signal
 from sb3_hddpg.cli.app import COMMANDS, app, console, console_error
-from sb3_hddpg.cli.errors import INTERRUPTED_EXIT, CommandStopped, error_line, exit_code
+from sb3_hddpg.cli.errors import INTERRUPTED_EXIT, CommandStopped, error_line, exit_code, interrupted_exit
 from sb3_hddpg.envs.headless import as_rendering_error
+
+
+def _sigterm(signum: int, frame: object) -> None:
+    note_stop_signal(signum)
+    raise KeyboardInterrupt
+
+
+def _stop_on_sigterm() -> None:
+    """
+    SIGTERM ends every command as Ctrl-C does, with one line and exit 143, rather than killing it silently
+    (the commands that save their work first install their own handler for the duration, then restore this).
+    """
+    with contextlib.suppress(ValueError):  # not the main thread (an embedding program's): leave it alone
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, _sigterm)
 
 
 def main(argv: list[str] | None = None) -> None:
     """
     Console-script entry point: run ``app``; whatever ends it becomes one error line and an exit code,
-    both decided by :mod:`sb3_hddpg.cli.errors` (2 usage or input error, 1 internal, 130 interrupted).
+    both decided by :mod:`sb3_hddpg.cli.errors` (2 usage or input error, 1 internal, 130 after Ctrl-C, 143 after SIGTERM).
     """
     args = list(sys.argv[1:] if argv is None else argv)
+    forget_stop_signal()  # an earlier command of this process (a test's batch) may have been stopped
+    _stop_on_sigterm()
     debug = "--debug" in args or os.environ.get("HDDPG_DEBUG") == "1"
     args = [a for a in args if a != "--debug"]
     command = get_command(app)
@@ -58,6 +78,7 @@ def main(argv: list[str] | None = None) -> None:
         # typer turns Ctrl-C (and SIGTERM, which the long commands turn into it) into this code before the
         # handler above can see it; a command that saved its work raised CommandStopped instead.
         console_error("interrupted")
+        code = interrupted_exit()
     sys.exit(code if isinstance(code, int) else 0)
 
 

@@ -8,8 +8,9 @@ The one place that decides a command's exit code and its one error line, from wh
   gymnasium's errors for an env that cannot be made, a run folder another run holds, a package of
   an extra that is not installed, and an ``OSError``
   saying a path cannot be one (too long, through a file, a loop of links).
-- **130**: Ctrl-C or SIGTERM. A command that saved its work first raises :class:`CommandStopped`, whose
-  message (how to continue) is printed instead of the error line.
+- **130** after Ctrl-C, **143** after SIGTERM (128 + the signal, as a shell reports a process the signal
+  ended). A command that saved its work first raises :class:`CommandStopped`, whose message (how to
+  continue) is printed instead of the error line.
 - **1**: anything else, an internal failure while working.
 
 The library raises; :func:`sb3_hddpg.cli.main` calls :func:`exit_code` and :func:`error_line` once, and no
@@ -23,7 +24,7 @@ import errno
 import gymnasium as gym
 import typer
 
-from sb3_hddpg.artifacts.io import FolderLockedError
+from sb3_hddpg.artifacts.io import FolderLockedError, stop_signal
 from sb3_hddpg.extras import MissingExtraError
 
 #: The exceptions that mean "the input cannot be used" wherever they are raised.
@@ -41,8 +42,13 @@ INPUT_ERRORS: tuple[type[BaseException], ...] = (
 USAGE_EXIT = 2
 #: Exit code of an internal failure.
 INTERNAL_EXIT = 1
-#: Exit code after Ctrl-C or SIGTERM (128 + SIGINT).
+#: Exit code after Ctrl-C (128 + SIGINT); after SIGTERM it is 143 (:func:`interrupted_exit`).
 INTERRUPTED_EXIT = 130
+
+
+def interrupted_exit() -> int:
+    """The exit code of a command stopped by a signal: 128 + the signal that stopped it (130, 143)."""
+    return 128 + stop_signal()
 
 
 class CommandStopped(Exception):
@@ -58,7 +64,7 @@ INPUT_ERRNOS = frozenset(
 def exit_code(error: BaseException) -> int:
     """The exit code for a command that ended with ``error``."""
     if isinstance(error, (KeyboardInterrupt, typer.Abort, CommandStopped)):
-        return INTERRUPTED_EXIT
+        return interrupted_exit()
     if isinstance(error, (typer.Exit, typer.TyperException)):
         return int(error.exit_code)
     if isinstance(error, INPUT_ERRORS) or (isinstance(error, OSError) and error.errno in INPUT_ERRNOS):

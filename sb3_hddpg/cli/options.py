@@ -95,22 +95,26 @@ def existing_file(value: Path | None) -> Path | None:
     not by permission bits, because root reads anything and a folder where a file belongs is the common
     mistake.
     """
-    return _existing(value, Path.is_file, "file", "folder")
+    return _existing(value, Path.is_file, "file")
 
 
 def existing_dir(value: Path | None) -> Path | None:
     """A typer callback for a folder to read: it must exist and be a folder (``None`` passes)."""
-    return _existing(value, Path.is_dir, "folder", "file")
+    return _existing(value, Path.is_dir, "folder")
 
 
-def _existing(value: Path | None, is_kind: Callable[[Path], bool], kind: str, other: str) -> Path | None:
-    """``value`` if it exists and ``is_kind`` (a ``kind``, not an ``other``); ``None`` passes."""
+def _existing(value: Path | None, is_kind: Callable[[Path], bool], kind: str) -> Path | None:
+    """``value`` if it exists and ``is_kind`` (a ``kind``); ``None`` passes. A refusal names what it found."""
     if value is None:
         return None
     if not value.exists():
         raise typer.BadParameter(f"no such {kind}: {str(value)!r}")
     if not is_kind(value):
-        raise typer.BadParameter(f"expected a {kind}, got a {other}: {str(value)!r}")
+        if value.is_dir() or value.is_file():
+            found = "folder" if value.is_dir() else "file"
+            raise typer.BadParameter(f"expected a {kind}, got a {found}: {str(value)!r}")
+        wanted = "regular file" if kind == "file" else kind
+        raise typer.BadParameter(f"expected a {wanted}, got a FIFO, socket or device: {str(value)!r}")
     return value
 
 
@@ -270,7 +274,7 @@ EvalFreqOpt = Annotated[
     int, typer.Option("--eval-freq", callback=at_least(0), help="Steps between evaluations.")
 ]
 EvalEpisodesOpt = Annotated[
-    int, typer.Option("--eval-episodes", callback=at_least(1), help="Episodes per evaluation.")
+    int, typer.Option("--eval-episodes", callback=count("episodes"), help="Episodes per evaluation.")
 ]
 CheckpointFreqOpt = Annotated[
     int, typer.Option("--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP)
@@ -368,7 +372,7 @@ TermsOpt = Annotated[str | None, typer.Option("--terms", help=TERMS_HELP)]
 TermBoundsOpt = Annotated[str | None, typer.Option("--term-bounds", help=TERM_BOUNDS_HELP)]
 InfoKeyOpt = Annotated[str | None, typer.Option("--info-key", help=INFO_KEY_HELP)]
 EpisodeStepsOpt = Annotated[
-    int | None, typer.Option("--episode-steps", callback=at_least(1), help=EPISODE_STEPS_HELP)
+    int | None, typer.Option("--episode-steps", callback=count("episode_steps"), help=EPISODE_STEPS_HELP)
 ]
 
 

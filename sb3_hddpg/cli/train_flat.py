@@ -18,6 +18,7 @@ from sb3_hddpg.cli.options import (
     TermBoundsOpt,
     TermsOpt,
     at_least,
+    existing_file,
     prepare_out_dir,
     run_options_of,
     takes_run_options,
@@ -85,8 +86,10 @@ def train_flat_command(
     algo = algo.lower()
     if algo not in ALGO_NAMES:
         raise typer.BadParameter(f"must be one of {list(ALGO_NAMES)}, got {algo!r}", param_hint="'--algo'")
-    if config is not None and not config.is_file():
-        raise typer.BadParameter(f"no such file: {str(config)!r}", param_hint="'--config'")
+    try:
+        existing_file(config)
+    except typer.BadParameter as error:
+        raise typer.BadParameter(error.message, param_hint="'--config'") from None
 
     with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
         hyperparams = load_hyperparams(

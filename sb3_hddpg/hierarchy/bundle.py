@@ -35,8 +35,9 @@ from sb3_hddpg.artifacts.records import BundleManifest
 from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.term_critic import TermCritic, read_term_critic
 from sb3_hddpg.artifacts.values import check_env_kwargs
+from sb3_hddpg.envs.contract import env_contract
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
-from sb3_hddpg.hierarchy.selection import check_selection_settings
+from sb3_hddpg.hierarchy.selection import check_reward_terms, check_selection_settings
 
 #: The manifest's member name.
 MANIFEST = "manifest.json"
@@ -221,9 +222,16 @@ def member_model(
 
 
 def checked_settings(
-    manifest: BundleManifest, name: str, trusted: bool, allowed_env_ids: Sequence[str] | None
+    manifest: BundleManifest,
+    name: str,
+    trusted: bool,
+    allowed_env_ids: Sequence[str] | None,
+    env: object = None,
 ) -> tuple[str, dict[str, Any], dict[str, Any]]:
-    """A bundle's env id, env kwargs and selection settings, each checked (a :class:`BundleError` otherwise)."""
+    """
+    A bundle's env id, env kwargs and selection settings, each checked (a :class:`BundleError` otherwise);
+    each worker's reward terms among those the env declares (``env``, or the bundle's own env made once).
+    """
     names = manifest.worker_names
     try:
         env_id = check_env_id(manifest.env_id, f"{name}: env_id", allowed_env_ids, trusted)
@@ -236,6 +244,42 @@ def checked_settings(
                 settings["manager_preferences"], names, f"{name}: selection.manager_preferences"
             )
             settings["manager_preferences"] = space.to_json()
+        terms = declared_terms(env, env_id, env_kwargs)
+        rewards = settings.get("reward_terms", {})
+        # a nested hierarchy without an entry is paid its own preference's mix of the terms
+        paid = [n for n in names if n in rewards or manifest.workers[n].get("kind") != "hierarchy"]
+        if terms is not None:
+            check_reward_terms(rewards, paid, terms, f"{name}: selection.reward_terms")
     except ValueError as error:
         raise BundleError(str(error)) from None
     return env_id, env_kwargs, settings
+
+
+def declared_terms(env: object, env_id: str, env_kwargs: Mapping[str, Any]) -> list[str] | None:
+    """
+    The reward terms ``env`` declares, or (``None`` or a VecEnv given) the bundle's env does, made once
+    and closed; ``None`` when that env cannot be made here (a missing optional dependency): the wrapper
+    checks the terms again when the hierarchy is given an env.
+    """
+    if not isinstance(env, gym.Env):
+        key = (env_id, json.dumps(env_kwargs, sort_keys=True, default=str))
+        if key not in _DECLARED_TERMS:
+            try:
+                made = gym.make(env_id, **env_kwargs)
+            except Exception:  # any failure of a third-party env: the wrapper checks later, with an env
+                return None
+            try:
+                _DECLARED_TERMS[key] = list(env_contract(made).reward_bounds)
+            except ValueError:
+                _DECLARED_TERMS[key] = None
+            finally:
+                made.close()
+        return _DECLARED_TERMS[key]
+    try:
+        return list(env_contract(env).reward_bounds)
+    except ValueError:
+        return None
+
+
+#: The terms each (env id, env kwargs) declares, so that loading many bundles makes each env once.
+_DECLARED_TERMS: dict[tuple[str, str], list[str] | None] = {}

@@ -500,7 +500,7 @@ class Hierarchy:
         name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
         budget = budget if budget is not None else LoadBudget()
         manifest, members = read_bundle(path, budget=budget)
-        env_id, env_kwargs, settings = checked_settings(manifest, name, trusted, allowed_env_ids)
+        env_id, env_kwargs, settings = checked_settings(manifest, name, trusted, allowed_env_ids, env)
         model = partial(member_model, members, name=name, trusted=trusted, device=device, budget=budget)
 
         workers: dict[str, Policy] = {}

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_hddpg.artifacts.limits import check_env_id, read_json_record
+from sb3_hddpg.artifacts.limits import check_env_id, check_run_file, read_json_record
 from sb3_hddpg.artifacts.provenance import read_verified
 from sb3_hddpg.artifacts.records import ManifestKind, models_manifest_from_json
 from sb3_hddpg.artifacts.safe_load import load_model
@@ -56,6 +56,7 @@ def load_policy(
     if named is not None:
         return named.load()(text, env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))
     path = _policy_file(Path(path))
+    check_run_file(path)  # every loader below opens it: never through a link out of a run folder
     text = str(path)
     registered = file_loader(path.suffix)
     if registered is not None:

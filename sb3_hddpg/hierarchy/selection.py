@@ -511,6 +511,28 @@ def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: s
         raise LimitError(f"{what}.{name}: expected weights with a positive sum, got {brief(dict(spec))}")
 
 
+def check_reward_terms(
+    reward_terms: Mapping[str, Any], names: Sequence[str], terms: Sequence[str], what: str
+) -> None:
+    """
+    Each worker's reward among the env's declared terms: its ``reward_terms`` entry (a term, or term ->
+    weight), or, with no entry, the term of its own name; one line naming the worker and the term otherwise.
+
+    :param reward_terms: worker -> its reward (already checked for form by :func:`check_selection_settings`).
+    :param names: the workers.
+    :param terms: the env's declared reward terms.
+    :param what: the field, for the message.
+    """
+    for name in names:
+        spec = reward_terms.get(name, name)
+        for term in [spec] if isinstance(spec, str) else list(spec):
+            if term not in terms:
+                field = f"{what}.{name}" if name in reward_terms else f"{what} (no entry for worker {name!r})"
+                raise LimitError(
+                    f"{field}: {brief(term)} is not one of the env's reward terms {list(terms)[:MAX_ITEMS]}"
+                )
+
+
 def _check_recorded_rules(out: dict[str, Any], what: str) -> None:
     """A bundle's conditioned-manager preferences (a mapping, read by ``PreferenceSpace``) and option end."""
     recorded = out.get("manager_preferences")

@@ -11,6 +11,7 @@ plateau, and log to TensorBoard. :mod:`~sb3_hddpg.training.workers`, :mod:`~sb3_
 from __future__ import annotations
 
 import contextlib
+import json
 import signal
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +38,7 @@ from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, algorithm
 from sb3_hddpg.artifacts.io import (
     atomic_write,
     holds_folder_lock,
+    note_stop_signal,
     remove_stale_temporaries,
 )
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
@@ -132,6 +134,7 @@ def sigterm_as_interrupt() -> Iterator[None]:
     """Turn SIGTERM into KeyboardInterrupt for the duration, so both take the same save-and-exit path."""
 
     def handler(signum: int, frame: object) -> None:
+        note_stop_signal(signum)  # the command exits 143, not Ctrl-C's 130
         raise KeyboardInterrupt
 
     try:
@@ -196,7 +199,7 @@ def train_agent(
         if prepare_model is not None and state is None:
             prepare_model(model)
         evaluator = _make_evaluator(eval_env, paths, state, n_envs, run, after_eval)
-        checkpointer = _make_checkpointer(paths, run, total, backend, evaluator, state)
+        checkpointer = _make_checkpointer(paths, run, (total, algo, hyperparams), backend, evaluator, state)
         callbacks = CallbackList(
             [*hyperparams.callbacks(), evaluator, checkpointer, *callback_list(callback)]
         )
@@ -274,17 +277,27 @@ def _start_model(
 def _make_checkpointer(
     paths: AgentPaths,
     run: RunOptions,
-    total: int,
+    planned: tuple[int, str, Hyperparams],
     backend: str,
     evaluator: MetricsEvalCallback,
     state: dict[str, Any] | None,
 ) -> ResumableCheckpointCallback:
-    """The resumable checkpoints, each with what a resumed run needs: its budget, seed, backend and history."""
+    """
+    The resumable checkpoints, each with what a resumed run needs: its budget, seed, backend and history,
+    and what it was trained with (algorithm, config block), so that a resume of an agent killed before its
+    manifest entry is compared with them (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_agent`).
+
+    :param planned: the total budget, the algorithm and the config block.
+    """
+    total, algo, hyperparams = planned
+    block = json.loads(json.dumps(dict(hyperparams.raw), default=str))
     return ResumableCheckpointCallback(
         paths.checkpoint_dir,
         save_freq=run.checkpoint_freq,
         extra_state=lambda: {
             "total_timesteps": total,
+            "algo": algo,
+            "config": {"block": block},
             "seed": run.seed,
             "backend": backend,
             "history": evaluator.history,

@@ -37,6 +37,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, SBX_ALGORITHMS, Algorithm, algorithm, algorithm_class
+from sb3_hddpg.artifacts.limits import check_run_file
 from sb3_hddpg.artifacts.spec import build_without_env
 
 logger = logging.getLogger(__name__)
@@ -461,6 +462,7 @@ def load_native(algo: str, backend: str, path: Any, env: Any = None) -> BaseAlgo
     :param env: the env to attach (to continue training), or ``None``.
     """
     cls = algo_class(algo, backend)
+    check_run_file(path)
     model = cls.load(path, env=env, device="cpu")
     if is_sbx_model(model):
         share_compiled(model)

@@ -24,6 +24,7 @@ from sb3_hddpg.artifacts.run_folder import holds_run_folder
 from sb3_hddpg.artifacts.term_critic import TERM_CRITIC_MEMBER, with_term_critic
 from sb3_hddpg.artifacts.transitions import TRANSITIONS_SUFFIX
 from sb3_hddpg.artifacts.values import check_make_kwargs
+from sb3_hddpg.callbacks.checkpoint import checkpoint_record
 from sb3_hddpg.callbacks.term_record import TermRecorder
 from sb3_hddpg.envs import REWARD_TERMS
 from sb3_hddpg.envs.contract import env_contract
@@ -456,13 +457,16 @@ def _start_manifest(
 
     :param asked: the seed this run asks for, and what may differ on purpose.
     """
-    manifest = models_manifest("workers")
-    if resume and manifest_path.exists():
-        manifest = read_models_manifest(manifest_path, "workers")
+    earlier = resume and manifest_path.exists()
+    manifest = read_models_manifest(manifest_path, "workers") if earlier else models_manifest("workers")
+    if resume:
         seed, accept = asked
+        checkpoints = manifest_path.parent.parent / "checkpoints"
         for worker in planned:
-            entry = manifest.entries.get(worker.name)
+            # a worker killed before its first entry is compared with what its checkpoint recorded
+            entry = manifest.entries.get(worker.name) or checkpoint_record(checkpoints / worker.name)
             check_resumed_agent(entry, worker.name, worker.algo, seed, worker.hyperparams.raw, accept=accept)
+    if earlier:
         if env is not None or manifest.shared_env is not None:
             check_resumed_env(
                 manifest.shared_env or {"env_id": SNAKE_REACH_ENV_ID}, shared.env_id, shared.env_kwargs

@@ -9,6 +9,9 @@ from pathlib import Path
 from typing import Any, TypedDict, cast
 
 from sb3_hddpg.artifacts.limits import (
+    MAX_ENV_FLOAT,
+    MAX_SEED,
+    MIN_ENV_FLOAT,
     LimitError,
     brief,
     check_count,
@@ -51,7 +54,31 @@ def check_file_entry(entry: object, what: str) -> dict[str, Any]:
     for key in ("name", "algo"):
         if key in entry:
             check_name(entry[key], f"{what}.{key}")
+    seed = entry.get("seed")
+    if "seed" in entry and (isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED):
+        raise LimitError(f"{what}.seed: expected an integer in [0, {MAX_SEED}], got {brief(seed)}")
+    _check_env_numbers(entry.get("env_kwargs"), f"{what}.env_kwargs")
     return dict(entry)
+
+
+def _check_env_numbers(env_kwargs: object, what: str) -> None:
+    """
+    The numbers of an entry's env settings, by the env settings' one rule (their keys and types are the
+    loader's, with the env): finite, at most MAX_ENV_FLOAT, and 0 or at least MIN_ENV_FLOAT in magnitude
+    (``sensor_range: 1e-300`` made NaN observations).
+    """
+    if env_kwargs is None:
+        return
+    if not isinstance(env_kwargs, Mapping):
+        raise LimitError(f"{what}: expected a mapping, got {brief(env_kwargs)}")
+    for key, value in env_kwargs.items():
+        if isinstance(value, float) and not (
+            value == 0 or MIN_ENV_FLOAT <= abs(value) <= MAX_ENV_FLOAT  # NaN fails both comparisons
+        ):
+            raise LimitError(
+                f"{what}.{brief(key)}: expected 0 or a finite magnitude in [{MIN_ENV_FLOAT:g}, "
+                f"{MAX_ENV_FLOAT:g}], got {value!r}"
+            )
 
 
 class ModelEntryJson(TypedDict, total=False):
