@@ -24,6 +24,7 @@ FLOORS = {
     "sb3_hddpg": 0,
     "sb3_hddpg.envs": 0,
     "sb3_hddpg.names": 0,
+    "sb3_hddpg.lazy": 0,
     "sb3_hddpg.policy_loaders": 0,
     "sb3_hddpg.extras": 0,
     "sb3_hddpg.policy": 1,

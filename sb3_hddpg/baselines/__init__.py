@@ -1,7 +1,6 @@
 """Hand-written policies to compare learned ones against."""
 
-import importlib
-from typing import Any
+from sb3_hddpg.lazy import lazy_attributes
 
 # Each loads with its first use: the training and evaluation commands need none of them.
 _LAZY = {
@@ -13,11 +12,7 @@ _LAZY = {
     "JacobianReacher": "sb3_hddpg.envs.snake.controllers",
 }
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'sb3_hddpg.baselines' has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _LAZY)
 
 
 __all__ = ["HAMSwitch", "IKReacher", "JacobianReacher", "RandomPolicy", "load_ham", "save_ham"]

@@ -1,7 +1,6 @@
 """SB3 callbacks of sb3-hddpg."""
 
-import importlib
-from typing import Any
+from sb3_hddpg.lazy import lazy_attributes
 
 # Each module loads with its first use: a run that asks for no actor term (the action penalty, the
 # controller prior) never loads the actor-loss machinery.
@@ -15,11 +14,7 @@ _LAZY = {
     "SelectionStatsCallback": "sb3_hddpg.callbacks.selection_stats",
 }
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'sb3_hddpg.callbacks' has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _LAZY)
 
 
 __all__ = [
