@@ -136,6 +136,26 @@ def _first_line(error: BaseException) -> str:
     return " ".join(str(origin).split("\n")[0].split())[:300]
 
 
+def _set_wal(path: Path) -> None:
+    """
+    Put the database at ``path`` in WAL mode, once. Switching the mode needs the database to itself, which
+    SQLite's busy timeout does not wait for: a second process opening the study at the same moment gets
+    "database is locked". So the mode is read first (no lock needed), and a switch that meets a lock is
+    tried again while another process may be making the same switch.
+    """
+    for attempt in range(20):
+        with contextlib.closing(sqlite3.connect(path, timeout=SQLITE_BUSY_TIMEOUT)) as connection:
+            if connection.execute("PRAGMA journal_mode").fetchone()[0].lower() == "wal":
+                return
+            try:
+                connection.execute("PRAGMA journal_mode=WAL")
+                return
+            except sqlite3.OperationalError as error:
+                if "locked" not in str(error) or attempt == 19:
+                    raise
+        time.sleep(0.05 * (attempt + 1))
+
+
 def make_storage(
     url: str, heartbeat_interval: int | None = 30, max_retry: int = MAX_RETRY, create: bool = True
 ) -> Any:
@@ -166,8 +186,7 @@ def make_storage(
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             # WAL is a property of the file, set once; it must be set outside SQLAlchemy's transactions.
-            with contextlib.closing(sqlite3.connect(path, timeout=SQLITE_BUSY_TIMEOUT)) as connection:
-                connection.execute("PRAGMA journal_mode=WAL")
+            _set_wal(path)
         except (OSError, sqlite3.Error) as error:
             raise StorageError(f"Cannot open the study storage {_shown(url)}: {error}") from None
         engine_kwargs["connect_args"] = {"timeout": SQLITE_BUSY_TIMEOUT}

@@ -138,3 +138,16 @@ def test_a_resumed_manager_must_keep_its_learner_and_a_folder_without_that_recor
     # Without the learner's record the MDP alone is compared: such a folder resumes as it did.
     outcome = train_manager(run, run, gamma=0.9, timesteps=150, resume=True, **tiny).outcome
     assert outcome.num_timesteps == 150
+
+
+def test_a_marker_half_written_by_another_process_is_the_tools_not_the_users(tmp_path):
+    """Two commands sharing a folder (two tune processes on one study): one's marker being written is no user file."""
+    from sb3_hddpg.artifacts.run_folder import RunFolderError, check_out_folder
+
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    (shared / "..hddpg-run.k2x9a.tmp").write_text("{")
+    assert check_out_folder(shared) == shared
+    (shared / "notes.tmp").write_text("mine")
+    with pytest.raises(RunFolderError, match=r"notes\.tmp"):
+        check_out_folder(shared)

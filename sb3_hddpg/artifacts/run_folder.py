@@ -35,7 +35,14 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from sb3_hddpg.artifacts.containment import RUN_MARKER, is_run_folder
-from sb3_hddpg.artifacts.io import LOCK_FILE, atomic_write_json, holds_lock, locked_folder, runs_within
+from sb3_hddpg.artifacts.io import (
+    LOCK_FILE,
+    TMP_SUFFIX,
+    atomic_write_json,
+    holds_lock,
+    locked_folder,
+    runs_within,
+)
 from sb3_hddpg.artifacts.limits import MAX_MARKER_BYTES, MAX_MARKER_ENTRIES, parse_json, read_file_bytes
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -185,6 +192,17 @@ def tool_entries(folder: str | os.PathLike[str]) -> frozenset[str]:
     )
 
 
+def _marks_run_folder(name: str) -> bool:
+    """
+    Whether an entry named ``name`` is the tool's own mark of a run folder: its lock, its marker, or one of
+    them half-written (``.NAME.*.tmp`` of an atomic write), as when another process shares the folder (two
+    ``tune`` commands on one study) and is marking it at this moment.
+    """
+    return name in (LOCK_FILE, RUN_MARKER) or any(
+        name.startswith(f".{mark}.") and name.endswith(TMP_SUFFIX) for mark in (LOCK_FILE, RUN_MARKER)
+    )
+
+
 def check_out_folder(folder: str | os.PathLike[str]) -> Path:
     """
     The one rule for a folder a command is about to write (``train-*``, ``benchmark``, ``quickstart``,
@@ -206,7 +224,7 @@ def check_out_folder(folder: str | os.PathLike[str]) -> Path:
         return folder
     if not folder.is_dir():
         raise RunFolderError(f"{str(folder)!r} is a file, not a folder")
-    entries = sorted(entry.name for entry in folder.iterdir() if entry.name not in (LOCK_FILE, RUN_MARKER))
+    entries = sorted(entry.name for entry in folder.iterdir() if not _marks_run_folder(entry.name))
     if not entries and not is_run_folder(folder):
         return folder
     if not is_run_folder(folder):
