@@ -1,27 +1,16 @@
 """
-Limits on input from files someone else made, and the checks that enforce them.
-
-Every file a user may receive (a ``hierarchy.zip`` bundle, a ``workers/manifest.json``, a worker or flat
-zip, a ``ham.json``, a config file) passes through the functions here before its content reaches memory,
-a path, an import or a constructor. Each limit is far above what this project writes, and low enough that
-no small file can cost more than a few hundred MB or minutes of work. docs/ROBUSTNESS.md lists them with
-the tests that hold them.
-
-- **Names** (worker names, file names, algorithm names) match a strict pattern before they become paths.
-- **Env ids** are used only when registered, without a ``module:`` prefix (``gym.make("mod:id")`` imports
-  ``mod``), and by default only this package's ids.
-- **Env kwargs** are only the env constructor's own named parameters, with plain values; the env checks
-  their ranges itself (``SnakeArmEnv`` has upper limits on every count).
-- **Sizes**: JSON files, zip members (declared and actual, compression ratio), member counts, the total
-  bytes one load may read, the total parameters of a network, a replay buffer, nesting depth and the
-  number of models one load may build.
-- **Messages** never format an unbounded value: :func:`brief` truncates.
+Limits on input from files someone else made (bundles, manifests, model zips, ``ham.json``, configs), and the
+checks that enforce them before the content reaches memory, a path, an import or a constructor. Each limit is
+far above what this project writes and low enough that no small file costs more than a few hundred MB or
+minutes of work; docs/ROBUSTNESS.md lists them with the tests that hold them. Messages never format an
+unbounded value (:func:`brief`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import itertools
 import json
 import numbers
 import os
@@ -40,14 +29,16 @@ from gymnasium.envs.registration import registry
 from sb3_hddpg.artifacts.containment import run_folder_escape
 from sb3_hddpg.artifacts.io import first_not_finite
 from sb3_hddpg.envs import OWN_ENV_IDS
+from sb3_hddpg.envs import adapters as _adapters
+from sb3_hddpg.envs.snake import params as _snake
+from sb3_hddpg.names import MAX_NAME_CHARS as _MAX_NAME_CHARS
 from sb3_hddpg.names import PLAIN_NAME
 
 #: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
 MAX_JSON_BYTES = 1 << 20
 #: Largest CSV of records read back (a benchmark's episodes.csv: about 200 bytes per episode).
 MAX_CSV_BYTES = 64 << 20
-#: Most cells of such a CSV read into memory (a cell costs ~65 bytes there; a run of record: ~60,000
-#: episodes of ~40 columns). A file of MAX_CSV_BYTES holds ~30 M one-digit cells: 2 GB read.
+#: Most cells of such a CSV read into memory (a run of record: ~60,000 episodes of ~40 columns).
 MAX_CSV_CELLS = 4_000_000
 #: Deepest nesting of a JSON document or a config value (json.loads recurses; ours are < 10 deep).
 MAX_JSON_DEPTH = 64
@@ -105,18 +96,16 @@ MAX_LAYERS = 16
 MAX_CRITICS = 64
 #: Most quantiles of a distributional critic (``policy_kwargs.n_quantiles``).
 MAX_QUANTILES = 4_096
-#: The largest per-term critic member read from a worker's zip (its parameters are bounded by
-#: :data:`MAX_PARAMETERS` too).
+#: The largest per-term critic member read from a worker's zip.
 MAX_CRITIC_BYTES = 64 << 20
 #: The most observation or action entries a per-term critic reads.
 MAX_CRITIC_INPUTS = 1 << 16
 #: The observation and action widths that stand in for a config's env when its networks are sized
-#: before the env exists (the snake's are 39 and 6); the hidden layers dominate the count.
+#: before the env exists (the snake's are 39 and 6).
 STAND_IN_OBS_DIM = 64
 STAND_IN_ACT_DIM = 8
 
-# A saved model's spec (bundles, manifests): far above anything this project trains, so that
-# :data:`MAX_PARAMETERS` is what refuses a network too large, with the total in its message.
+# A saved model's spec: far above anything trained here, so that MAX_PARAMETERS refuses a network too large.
 #: Widest hidden layer a spec may describe.
 MAX_SPEC_LAYER_WIDTH = 1 << 16
 #: Most hidden layers a spec may describe.
@@ -141,21 +130,15 @@ MAX_EVAL_EPISODES = 10_000
 MAX_EVALUATIONS = 10_000
 #: Most torch threads of one process.
 MAX_THREADS = 256
-#: Largest preference factor that weights a reward: the manager's (and a flat agent's) reward is up to the
-#: factors' sum per env step, summed over an option and an episode, and must stay far from overflow (a
-#: conditioned manager's run-time preference is a ratio, normalised by its largest factor: not bounded).
+#: Largest preference factor that weights a reward (summed over options and episodes, far from overflow).
 MAX_PREFERENCE = 1e6
-#: Largest scale of the motion a manager observes (``--manager-motion``; the snake arm uses 20). The change
-#: is clipped to [-1, 1], so a larger scale only makes every motion a sign, and 1e308 made infinities.
+#: Largest scale of the motion a manager observes (``--manager-motion``; the snake arm uses 20).
 MAX_MANAGER_MOTION = 1e6
-#: How far the worker probabilities of one manager action may sum from 1 (a softmax over 32 workers
-#: rounds by ~1e-15).
+#: How far the worker probabilities of one manager action may sum from 1.
 SIMPLEX_TOLERANCE = 1e-6
-#: Largest model file (a worker or flat zip, a bundle) read into memory to be hashed and loaded from the
-#: same bytes: what one load may read at most.
+#: Largest model file (a worker or flat zip, a bundle) read into memory to be hashed and loaded.
 MAX_MODEL_FILE_BYTES = MAX_LOAD_BYTES
-#: Most frames of one video (``package --video-steps``, ``record``): 100,000 RGB frames of the snake's
-#: 400x400 render are encoded one at a time, but take hours.
+#: Most frames of one video (``package --video-steps``, ``record``).
 MAX_VIDEO_STEPS = 100_000
 #: Most seeds one tuning trial trains (each a full training run).
 MAX_SEEDS_PER_TRIAL = 100
@@ -169,8 +152,7 @@ MAX_EPISODE_LENGTH = 100_000
 MAX_ENV_INTEGER = 1_000
 #: Largest magnitude of a float env setting (a speed, a radius, a time step...).
 MAX_ENV_FLOAT = 1e6
-#: Least magnitude of a float env setting other than 0: an env divides by its settings (a sensor range
-#: normalises distances), and ``5e-324`` made infinite, then NaN, observations.
+#: Least magnitude of a float env setting other than 0: an env divides by its settings.
 MIN_ENV_FLOAT = 1e-9
 #: The render modes a file may ask for (a window is the command's choice, never a file's).
 FILE_RENDER_MODES = (None, "rgb_array")
@@ -184,10 +166,8 @@ def max_processes() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-#: The one table of counts: each count a user, a config, a bundle or a manifest may ask for, by name, with
-#: its least and largest value (a callable for the bounds that depend on the machine). Every route that
-#: takes a count (a CLI option, a Python keyword, a field of a file) checks it here, through
-#: :func:`check_count`, where it enters.
+#: The one table of counts a user, a config or a file may ask for: name -> least and largest value (a
+#: callable for bounds that depend on the machine), checked by :func:`check_count` where the count enters.
 COUNTS: dict[str, tuple[int, int | Any]] = {
     "episodes": (1, MAX_EVAL_EPISODES),
     "evaluations": (1, MAX_EVALUATIONS),
@@ -211,7 +191,7 @@ def count_bounds(name: str) -> tuple[int, int]:
 
 def check_count(name: str, value: object, what: str | None = None) -> int:
     """
-    A count of :data:`COUNTS`, wherever it comes from: an integer (not a bool) within its bounds.
+    A count of :data:`COUNTS`: an integer (not a bool) within its bounds.
 
     :param name: the count's name in :data:`COUNTS`.
     :param value: the value asked for.
@@ -235,14 +215,18 @@ _REPR.maxlevel, _REPR.maxdict, _REPR.maxlist, _REPR.maxtuple = 3, 6, 8, 8
 _REPR.maxstring, _REPR.maxother, _REPR.maxlong = 80, 80, 40
 
 
+#: What :func:`parse_json` strips before counting brackets: strings (an unterminated one runs to the end)
+#: and everything else but brackets.
+_NOT_BRACKETS = re.compile(r'"(?:[^"\\]|\\.)*"?|[^\[\]{}"]+', re.DOTALL)
+
+
 class LimitError(ValueError):
     """Input from a file exceeds one of this module's limits; the message names the file or field."""
 
 
 def brief(value: object, limit: int = MAX_SHOWN) -> str:
     """
-    ``repr(value)``, bounded in time and length: nested containers are cut by :mod:`reprlib` (so a YAML alias
-    bomb or a 200k-deep list is never expanded), and the result is truncated to ``limit`` characters.
+    ``repr(value)`` bounded in time (:mod:`reprlib` cuts nested containers) and truncated to ``limit``.
 
     :param value: anything, typically a value read from a file.
     :param limit: the longest result.
@@ -266,11 +250,6 @@ def check_name(value: object, what: str) -> str:
     return value
 
 
-def own_env_ids() -> frozenset[str]:
-    """The env ids this package registers (the default allow-list for ids read from files)."""
-    return frozenset(OWN_ENV_IDS)
-
-
 def check_env_id(
     env_id: object, what: str, allowed_env_ids: Sequence[str] | None = None, trusted: bool = False
 ) -> str:
@@ -290,7 +269,7 @@ def check_env_id(
         )
     if env_id not in registry:
         raise LimitError(f"{what}: env id {env_id!r} is not registered")
-    allowed = own_env_ids() | frozenset(allowed_env_ids or ())
+    allowed = frozenset(OWN_ENV_IDS) | frozenset(allowed_env_ids or ())
     if not trusted and env_id not in allowed:
         raise LimitError(
             f"{what}: env id {env_id!r} is not one of the {len(allowed)} allowed ids (this package's, and "
@@ -313,23 +292,8 @@ def parse_json(data: bytes | str, what: str) -> Any:
         raise LimitError(f"{what}: {len(data)} bytes is more than the {MAX_JSON_BYTES}-byte limit for JSON")
     text = data.decode("utf-8") if isinstance(data, bytes) else data
     # Brackets outside strings bound the depth; counting them first keeps json.loads from recursing deep.
-    depth = deepest = 0
-    in_string = escaped = False
-    for char in text:
-        if in_string:
-            if escaped:
-                escaped = False
-            elif char == "\\":
-                escaped = True
-            elif char == '"':
-                in_string = False
-        elif char == '"':
-            in_string = True
-        elif char in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif char in "]}":
-            depth -= 1
+    brackets = _NOT_BRACKETS.sub("", text)
+    deepest = max(itertools.accumulate((1 if char in "[{" else -1 for char in brackets), initial=0))
     if deepest > MAX_JSON_DEPTH:
         raise LimitError(f"{what}: JSON nested {deepest} deep, more than the limit of {MAX_JSON_DEPTH}")
     try:
@@ -340,11 +304,9 @@ def parse_json(data: bytes | str, what: str) -> Any:
 
 def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None = None) -> bytes:
     """
-    The bytes of a file someone else may have made, read once: it must be a regular file (a FIFO would
-    block the read forever, ``/dev/zero`` never ends) of at most ``limit`` bytes, both checked on the open
-    descriptor before reading, so that what is checked is what is read. Open without blocking, so that
-    opening a FIFO returns at once; the bytes read are counted too (a file growing meanwhile). A file inside
-    one of the tool's run folders must not lead outside it through a link (:func:`check_run_file`).
+    The bytes of a file someone else may have made, read once: a regular file (a FIFO would block forever,
+    ``/dev/zero`` never ends) of at most ``limit`` bytes, both checked on the open descriptor so that what is
+    checked is what is read, and not leading out of its run folder (:func:`check_run_file`).
 
     :param path: the file.
     :param limit: the largest size accepted.
@@ -376,9 +338,8 @@ def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None =
 
 def check_run_file(path: str | os.PathLike[str]) -> None:
     """
-    Refuse (:class:`LimitError`, one line naming the file) a file inside one of the tool's run folders that
-    leads outside it through a symbolic link: the one rule of every read from a run or benchmark folder
-    (:func:`read_file_bytes` applies it; readers that open a path themselves call it first).
+    Refuse (:class:`LimitError`) a file inside one of the tool's run folders that leads outside it through a
+    symbolic link: readers that open a path themselves call this first.
     """
     reason = run_folder_escape(path)
     if reason is not None:
@@ -387,13 +348,12 @@ def check_run_file(path: str | os.PathLike[str]) -> None:
 
 def file_inside(root: str | os.PathLike[str], relative: str | os.PathLike[str]) -> Path:
     """
-    A file of a folder someone else may have made (a benchmark or run folder), named by its path inside it:
-    refused with :class:`LimitError` when any part of that path is a symbolic link or it resolves outside
-    ``root``, so that a model replaced by a link to ``~/secret`` is never read, copied or listed.
+    A file of a folder someone else may have made, by its path inside it: refused with :class:`LimitError`
+    when any part of that path is a symbolic link or it resolves outside ``root``.
 
     :param root: the folder.
     :param relative: the file's path inside it.
-    :return: the path (its type and size are :func:`read_file_bytes`'s to check).
+    :return: the path.
     """
     root = Path(root)
     current = root
@@ -410,9 +370,8 @@ def file_inside(root: str | os.PathLike[str], relative: str | os.PathLike[str]) 
 
 def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any:
     """
-    :func:`parse_json` of a file, read by :func:`read_file_bytes` (a regular file within the limit). A
-    NaN or infinity (which Python's JSON reader accepts and this library never writes) is refused naming
-    the file and the field, before it reaches a table or a statistic (``y contains NaN``).
+    :func:`parse_json` of a file read by :func:`read_file_bytes`; a NaN or infinity (which Python's JSON
+    reader accepts and this library never writes) is refused naming the file and the field.
     """
     name = what or str(path)
     value = parse_json(read_file_bytes(path, MAX_JSON_BYTES, what), name)
@@ -424,9 +383,8 @@ def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any
 
 def read_json_record(path: str | os.PathLike[str], unreadable: str) -> Any:
     """
-    :func:`read_json_file` of a record someone may have handed over: a file that cannot be read, is not
-    UTF-8 or not JSON is one ``ValueError``, ``unreadable`` with the error's kind; one over a limit stays the
-    :class:`LimitError` naming the limit.
+    :func:`read_json_file` of a record: a file that cannot be read, is not UTF-8 or not JSON is one
+    ``ValueError``, ``unreadable`` with the error's kind; one over a limit stays a :class:`LimitError`.
     """
     try:
         return read_json_file(path)
@@ -438,9 +396,8 @@ def read_json_record(path: str | os.PathLike[str], unreadable: str) -> Any:
 
 def count_nodes(value: object, limit: int = MAX_CONFIG_NODES) -> int:
     """
-    The number of values in ``value`` with shared sub-objects counted every time they appear (what
-    printing or copying it would cost), stopping past ``limit``. Shared sub-objects (YAML aliases) are
-    sized once, so this takes time linear in the distinct objects even for an alias bomb.
+    The number of values in ``value``, shared sub-objects (YAML aliases) counted every time they appear
+    but sized once (linear time even for an alias bomb), stopping past ``limit``.
     """
     sizes: dict[int, int] = {}
 
@@ -469,8 +426,7 @@ def count_nodes(value: object, limit: int = MAX_CONFIG_NODES) -> int:
 @dataclass
 class LoadBudget:
     """
-    What one load (a bundle with all its nested bundles) may still spend: one object, shared by the
-    nested loads, so that a member reused by many entries cannot multiply the work.
+    What one load (a bundle with all its nested bundles) may still spend, shared by the nested loads.
 
     :param bytes_left: uncompressed bytes that may still be read.
     :param models_left: models that may still be built.
@@ -507,9 +463,8 @@ class LoadBudget:
 
 def check_zip_directory(archive: zipfile.ZipFile, what: str) -> list[zipfile.ZipInfo]:
     """
-    The members of ``archive``, refused when there are more than :data:`MAX_ZIP_MEMBERS` or when two share
-    a name: ``zipfile`` reads the last of them, ``unzip`` shows the first, so what is checked and what is
-    loaded could differ.
+    The members of ``archive``, refused past :data:`MAX_ZIP_MEMBERS` or when two share a name (``zipfile``
+    reads the last, ``unzip`` shows the first).
     """
     infos = archive.infolist()
     if len(infos) > MAX_ZIP_MEMBERS:
@@ -530,9 +485,8 @@ def read_member(
     budget: LoadBudget | None = None,
 ) -> bytes:
     """
-    Read one zip member within limits: its declared size and compression ratio are checked before
-    reading, and the actual bytes are counted while reading in 1 MiB chunks, so a member whose header
-    lies costs no more than the limit.
+    Read one zip member within limits: its declared size and compression ratio before reading, the actual
+    bytes while reading (a member whose header lies costs no more than the limit).
 
     :param archive: the open zip.
     :param name: the member.
@@ -568,27 +522,15 @@ def read_member(
     return b"".join(chunks)
 
 
-# ---------------------------------------------------------------- a conditioned manager's preferences
 #: The largest ratio ``ratio-sweep:MAX`` takes (a weight of 1/1025 is as good as none).
 MAX_SWEEP_RATIO = 1024
 
-
-# ---------------------------------------------------------------- the snake arm's counts
-# The env checks its own constructor (a direct ``SnakeArmEnv(...)`` call is held to them too) and sits
-# below the artefacts, so it defines them; they are named here with every other limit on input.
-from sb3_hddpg.envs.snake import params as _snake  # noqa: E402
-
+# Limits enforced below the artefacts, where the value is first read (the snake env's constructor, an adapted
+# env's terms, a plain name), named here with every other limit on input.
 #: The snake arm's most joints, obstacles and physics substeps per step.
 MAX_JOINTS = _snake.MAX_JOINTS
 MAX_OBSTACLES = _snake.MAX_OBSTACLES
 MAX_SUBSTEPS = _snake.MAX_SUBSTEPS
-
-# ---------------------------------------------------------------- the other counts of the floors below
-# Enforced where the value is first read (an adapted env's terms, a plain name), below the artefacts;
-# named here with every other limit on input.
-from sb3_hddpg.envs import adapters as _adapters  # noqa: E402
-from sb3_hddpg.names import MAX_NAME_CHARS as _MAX_NAME_CHARS  # noqa: E402
-
 #: The most reward terms of an adapted env (MO-Gymnasium objectives or info terms).
 MAX_TERMS = _adapters.MAX_TERMS
 #: The longest plain name (a worker, a method, a term).

@@ -1,19 +1,16 @@
 """
 The model spec: a small, strictly validated JSON description of an SB3 model, enough to rebuild it without
-unpickling anything.
-
-:func:`model_spec` writes it from a live model (our own code, at save time: a manifest entry, a bundle's
-manifest); :func:`build_from_spec` validates one from a file (untrusted: every name is resolved through an
-allow-list, never through ``getattr``/import, every size against :mod:`sb3_hddpg.artifacts.limits`) and builds
-a fresh, untrained model from it, with no env. :mod:`sb3_hddpg.artifacts.safe_load` then fills it with the
-weights from the zip (:mod:`sb3_hddpg.artifacts.weights`).
+unpickling anything. :func:`model_spec` writes it from a live model at save time; :func:`build_from_spec`
+validates one from a file (every name through an allow-list, every size against
+:mod:`sb3_hddpg.artifacts.limits`) and builds a fresh, untrained model from it, with no env.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -60,24 +57,9 @@ OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {
 }
 
 #: Box dtypes accepted in a spec (numpy names).
-DTYPES = frozenset(
-    [
-        "float16",
-        "float32",
-        "float64",
-        "int8",
-        "int16",
-        "int32",
-        "int64",
-        "uint8",
-        "uint16",
-        "uint32",
-        "uint64",
-        "bool",
-    ]
-)
-
-
+DTYPES = frozenset({"bool", "float16", "float32", "float64"})
+DTYPES |= {f"{sign}int{bits}" for sign in ("", "u") for bits in (8, 16, 32, 64)}
+#: The keys of a spec.
 _SPEC_KEYS = frozenset(
     [
         "format",
@@ -91,13 +73,9 @@ _SPEC_KEYS = frozenset(
         "learning_rate_constant",
     ]
 )
-
 _ENT_COEF_AUTO = re.compile(r"^auto(_[0-9.eE+-]+)?$")
 
-
-# --------------------------------------------------------------------------------------------------------------
-# Small strict converters. ``bool`` is a subclass of ``int`` in Python, so it is excluded explicitly everywhere.
-# --------------------------------------------------------------------------------------------------------------
+# Strict converters: ``bool`` is a subclass of ``int``, so it is excluded explicitly everywhere.
 
 
 def _as_float(key: str, value: object) -> float:
@@ -126,31 +104,27 @@ def _as_bool(key: str, value: object) -> bool:
     return bool(value)
 
 
-def _convert(kind: str, key: str, value: object) -> float | int | bool | str:
-    if kind == "float":
-        return _as_float(key, value)
-    if kind == "int":
-        return _as_int(key, value)
-    if kind == "bool":
-        return _as_bool(key, value)
-    if kind == "ent_coef":
-        # SAC/TQC accept a float or "auto" / "auto_<initial value>".
-        if isinstance(value, str):
-            if not _ENT_COEF_AUTO.match(value):
-                raise ValueError(f"{key}: expected a number, 'auto' or 'auto_<float>', got {brief(value)}")
-            return value
-        return _as_float(key, value)
-    raise AssertionError(kind)  # pragma: no cover - programming error
+def _as_ent_coef(key: str, value: object) -> float | str:
+    """SAC/TQC's ``ent_coef``: a float, ``"auto"`` or ``"auto_<initial value>"``."""
+    if isinstance(value, str):
+        if not _ENT_COEF_AUTO.match(value):
+            raise ValueError(f"{key}: expected a number, 'auto' or 'auto_<float>', got {brief(value)}")
+        return value
+    return _as_float(key, value)
+
+
+#: A hyperparameter's kind (:attr:`Algorithm.hyperparameters`) -> its converter.
+_CONVERTERS: dict[str, Callable[[str, object], float | int | bool | str]] = {
+    "float": _as_float,
+    "int": _as_int,
+    "bool": _as_bool,
+    "ent_coef": _as_ent_coef,
+}
 
 
 #: One optimizer keyword argument of a spec: a number, a flag, ``None`` (torch picks) or a list of numbers
 #: (a tuple for torch, a list in JSON).
 OptimizerSetting = float | bool | None | list[float] | tuple[float, ...]
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Spaces
-# --------------------------------------------------------------------------------------------------------------
 
 
 def _bounds_to_json(array: np.ndarray) -> object:
@@ -247,11 +221,6 @@ def _space_from_json(value: object, what: str) -> spaces.Box | spaces.Discrete:
     return spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
 
 
-# --------------------------------------------------------------------------------------------------------------
-# Policy kwargs
-# --------------------------------------------------------------------------------------------------------------
-
-
 def _layers(key: str, value: object) -> list[int]:
     if not isinstance(value, (list, tuple)):
         raise ValueError(f"{key}: expected a list of layer sizes, got {brief(value)}")
@@ -311,7 +280,10 @@ def _policy_kwargs(algo: str, value: object, to_json: bool) -> dict[str, object]
     for key, item in value.items():
         if key == "use_sde" and to_json:
             continue  # recorded as a hyperparameter, see _POLICY_KWARGS
-        _check_policy_kwarg(algo, key, item)
+        if key not in SPEC_ALGORITHMS[algo].policy_kwargs:
+            raise ValueError(
+                f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(item)})"
+            )
         if key == "features_extractor_kwargs":
             if not to_json:
                 raise ValueError("policy_kwargs.features_extractor_kwargs: not supported in a spec")
@@ -321,14 +293,11 @@ def _policy_kwargs(algo: str, value: object, to_json: bool) -> dict[str, object]
             out[key] = _class_name(key, item) if to_json else _class_named(key, item)
         elif key == "optimizer_kwargs":
             out[key] = _optimizer_kwargs(item, to_json=to_json)
+        elif key == "net_arch":
+            out[key] = _net_arch(item)
         else:
-            out[key] = _policy_value(key, item)
+            out[key] = _POLICY_SCALARS[key](f"policy_kwargs.{key}", item)
     return out
-
-
-def _check_policy_kwarg(algo: str, key: str, value: object) -> None:
-    if key not in SPEC_ALGORITHMS[algo].policy_kwargs:
-        raise ValueError(f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(value)})")
 
 
 def _class_name(key: str, value: object) -> str:
@@ -348,50 +317,26 @@ def _class_named(key: str, name: object) -> type:
     return table[name]
 
 
-def _policy_value(key: str, value: object) -> object:
-    """``net_arch`` or a scalar setting, the same in a live model and in JSON."""
-    if key == "net_arch":
-        return _net_arch(value)
-    return _policy_scalar(key, value)
-
-
-#: The scalar ``policy_kwargs`` a record may allow, with their kind.
-_BOOL_POLICY_KWARGS = frozenset(
-    ["share_features_extractor", "normalize_images", "use_expln", "ortho_init", "full_std", "batch_norm"]
-)
-_FLOAT_POLICY_KWARGS = frozenset(["log_std_init", "clip_mean", "batch_norm_momentum", "batch_norm_eps"])
-_INT_POLICY_KWARGS = {
-    "n_critics": MAX_CRITICS,
-    "n_quantiles": MAX_QUANTILES,
-    "renorm_warmup_steps": MAX_RENORM_WARMUP_STEPS,
+#: The scalar ``policy_kwargs`` a record may allow -> their converter.
+_POLICY_SCALARS: dict[str, Callable[[str, object], bool | int | float]] = {
+    **dict.fromkeys(
+        ("share_features_extractor", "normalize_images", "use_expln", "ortho_init", "full_std", "batch_norm"),
+        _as_bool,
+    ),
+    **dict.fromkeys(("log_std_init", "clip_mean", "batch_norm_momentum", "batch_norm_eps"), _as_float),
+    "n_critics": functools.partial(_as_int, minimum=1, maximum=MAX_CRITICS),
+    "n_quantiles": functools.partial(_as_int, minimum=1, maximum=MAX_QUANTILES),
+    "renorm_warmup_steps": functools.partial(_as_int, minimum=1, maximum=MAX_RENORM_WARMUP_STEPS),
 }
-
-
-def _policy_scalar(key: str, value: object) -> bool | int | float:
-    if key in _BOOL_POLICY_KWARGS:
-        return _as_bool(f"policy_kwargs.{key}", value)
-    if key in _INT_POLICY_KWARGS:
-        return _as_int(f"policy_kwargs.{key}", value, minimum=1, maximum=_INT_POLICY_KWARGS[key])
-    if key in _FLOAT_POLICY_KWARGS:
-        return _as_float(f"policy_kwargs.{key}", value)
-    raise AssertionError(key)  # pragma: no cover - every key a record allows is handled above
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Public API
-# --------------------------------------------------------------------------------------------------------------
 
 
 def model_spec(model: BaseAlgorithm) -> dict[str, object]:
     """
     Describe a live SB3 model as plain JSON, enough to rebuild it without unpickling anything.
 
-    Call this from our own code on the live model when saving (e.g. into a bundle manifest); the result is what
-    :func:`load_model_safely` needs next to the zip.
-
     :param model: a model of exactly a registered algorithm's class (:data:`sb3_hddpg.algorithms.REGISTRY`)
         with ``MlpPolicy`` and ``Box`` or ``Discrete`` spaces.
-    :return: a dict of plain JSON values (str/int/float/bool/None/list/dict); ``json.dumps(spec, allow_nan=False)`` works.
+    :return: a dict of strict JSON values.
     :raises ValueError: for any part of the model the spec cannot describe safely (the message names it).
     """
     algo = next((name for name, cls in ALGOS.items() if type(model) is cls), None)
@@ -400,20 +345,15 @@ def model_spec(model: BaseAlgorithm) -> dict[str, object]:
     if model.policy_class is not type(model).policy_aliases["MlpPolicy"]:
         raise ValueError(f"policy: only MlpPolicy is supported, got {model.policy_class!r}")
 
-    hparams: dict[str, object] = {}
-    learning_rate_constant = isinstance(model.learning_rate, (int, float)) and not isinstance(
-        model.learning_rate, bool
-    )
-    # A schedule is code, which the spec cannot carry: record its current value instead and say so.
-    learning_rate = (
-        model.learning_rate
-        if learning_rate_constant
-        else model.lr_schedule(model._current_progress_remaining)
-    )
-    for key, kind in SPEC_ALGORITHMS[algo].hyperparameters.items():
-        value = learning_rate if key == "learning_rate" else getattr(model, key)
-        hparams[key] = _convert(kind, key, value)
-
+    learning_rate = model.learning_rate
+    learning_rate_constant = isinstance(learning_rate, (int, float)) and not isinstance(learning_rate, bool)
+    if not learning_rate_constant:
+        # A schedule is code, which the spec cannot carry: record its current value instead and say so.
+        learning_rate = model.lr_schedule(model._current_progress_remaining)
+    hparams = {
+        key: _CONVERTERS[kind](key, learning_rate if key == "learning_rate" else getattr(model, key))
+        for key, kind in SPEC_ALGORITHMS[algo].hyperparameters.items()
+    }
     return {
         "format": SPEC_FORMAT,
         "version": SPEC_VERSION,
@@ -461,7 +401,7 @@ def build_from_spec(spec: object, device: th.device | str) -> BaseAlgorithm:
             f"hyperparameters.{sorted(map(str, unknown))[0]}: not a {algo} hyperparameter in the spec"
         )
     hparams = {
-        key: _convert(kinds[key], f"hyperparameters.{key}", raw_hparams[key])
+        key: _CONVERTERS[kinds[key]](f"hyperparameters.{key}", raw_hparams[key])
         for key in kinds
         if key in raw_hparams
     }
@@ -493,9 +433,8 @@ def build_without_env(
     seed: int | None = None,
 ) -> BaseAlgorithm:
     """
-    A fresh ``MlpPolicy`` model of ``cls`` with no env, built the way ``BaseAlgorithm.load`` builds one:
-    ``env=None`` and ``_init_setup_model=False``, then the spaces (and ``n_envs``, normally taken from the
-    env) set by hand before the networks are created.
+    A fresh ``MlpPolicy`` model of ``cls`` with no env, built as ``BaseAlgorithm.load`` builds one: the spaces
+    (and ``n_envs``) set by hand before the networks are created.
 
     :param cls: the SB3 algorithm class.
     :param observation_space: the policy's observation space.

@@ -1,20 +1,8 @@
 """
-Bounded values from files and the command line: the one schema of hyperparameters and env settings.
-
-Every value that reaches an SB3/SBX constructor or an env constructor from a config file, a manifest, a
-bundle or an option passes a check here first:
-
-- :data:`HYPERPARAMETERS`: one :class:`Bound` per algorithm argument the project passes (a config block
-  key the schema does not bound is refused, so a new SB3 argument cannot slip through unchecked);
-  :func:`check_hyperparameters` applies it to a block, :func:`check_wrapper_settings` to a manager block's
-  ``wrapper_kwargs``.
-- :func:`check_env_kwargs`: env keyword arguments, checked against the constructor of the env they are for
-  (an adapter's inner env too: its own signature, walked up the class hierarchy while ``__init__`` passes
-  ``**kwargs`` on), with values of the type the constructor's default has, numbers bounded, episode lengths
-  bounded, no file paths, and ``render_mode`` only ``None`` or ``"rgb_array"``.
-
-Every limit is a constant of :mod:`sb3_hddpg.artifacts.limits`. Errors are :class:`LimitError` (a
-``ValueError``), one line naming the field with the expected and the actual value.
+Bounded values from files and the command line: the one schema of hyperparameters (:data:`HYPERPARAMETERS`,
+a key it does not bound is refused) and env settings (:func:`check_env_kwargs`, against the constructor of
+the env they are for). Every limit is a constant of :mod:`sb3_hddpg.artifacts.limits`; errors are one-line
+:class:`LimitError` naming the field with the expected and the actual value.
 """
 
 from __future__ import annotations
@@ -184,11 +172,9 @@ RUN_SETTINGS: dict[str, Bound] = {
 
 def check_field_types(record: Any, what: str) -> None:
     """
-    The fields of a dataclass instance have the kinds their annotations name (``int``, ``float``, ``str``,
-    ``bool``, ``None``, ``list[...]``, a ``TypedDict`` or ``dict``, and unions of them), checked before any is
-    used: settings read back from a file someone may have edited (``benchmark.json``) are then refused in one
-    line naming the field, instead of failing as a ``TypeError`` deep in the work. A ``float`` is a finite
-    number (an integer counts); an ``int`` or a ``float`` is never a boolean.
+    The fields of a dataclass instance read back from a file have the kinds their annotations name (``int``,
+    ``float``: finite, never a bool, ``str``, ``bool``, ``None``, ``list[...]``, a ``TypedDict`` or ``dict``,
+    and unions of them), so that a bad one is refused in one line naming the field.
 
     :param record: a dataclass instance.
     :param what: where it comes from, for the message.
@@ -306,7 +292,6 @@ EPISODE_LENGTH_KEYS = ("episode_steps", "max_episode_steps")
 PATH_KEY = re.compile(r"(file|path|dir|config|xml|asset|url)", re.IGNORECASE)
 #: A string from a file: a short plain token (no separators, no leading dot or tilde).
 PLAIN_STRING = re.compile(r"^[A-Za-z0-9_+-][A-Za-z0-9_.+-]{0,63}$")
-#: Most entries of a list or mapping value.
 
 
 def check_env_kwargs(
@@ -318,13 +303,9 @@ def check_env_kwargs(
 ) -> dict[str, Any]:
     """
     Env keyword arguments from a file or an option, before ``gym.make`` sees them: each key a parameter of
-    the env's constructor (for an adapter, its own keys and the inner env's parameters), each value of the
-    type of that parameter's default, numbers within :data:`~sb3_hddpg.artifacts.limits.MAX_ENV_INTEGER` /
-    :data:`~sb3_hddpg.artifacts.limits.MAX_ENV_FLOAT`, episode lengths within
-    :data:`~sb3_hddpg.artifacts.limits.MAX_EPISODE_LENGTH`, strings plain tokens (no file paths; a
-    parameter named like a file is refused), ``render_mode`` only ``None`` or ``"rgb_array"``. An adapter's
-    ``env_id`` passes :func:`~sb3_hddpg.artifacts.limits.check_env_id` (its allow-list there also holds
-    Gymnasium's and MO-Gymnasium's ids, :func:`adaptable_env_ids`).
+    the env's constructor (for an adapter, its own keys and the inner env's), each value checked by
+    :func:`check_env_value`. An adapter's ``env_id`` passes :func:`~sb3_hddpg.artifacts.limits.check_env_id`
+    with :func:`adaptable_env_ids` allowed too.
 
     :param env_id: the (checked) env id they are for.
     :param env_kwargs: the value from the file.
@@ -388,10 +369,9 @@ def _check_constructor_kwargs(env_id: str, kwargs: dict[str, Any], what: str) ->
 
 def constructor_parameters(env_id: str, what: str) -> tuple[dict[str, Any], bool]:
     """
-    The named parameters of ``env_id``'s constructor with their defaults (``inspect.Parameter.empty``
-    when none), over the classes whose ``__init__`` passes ``**kwargs`` on to the next, and whether the
-    chain stays open-ended (accepts any keyword). An env whose module cannot be imported (a missing
-    optional dependency) is an :class:`~sb3_hddpg.envs.EnvUnavailableError` naming it.
+    The named parameters of ``env_id``'s constructor with their defaults, over the classes whose ``__init__``
+    passes ``**kwargs`` on, and whether the chain accepts any keyword; raises
+    :class:`~sb3_hddpg.envs.EnvUnavailableError` when the env's module cannot be imported.
     """
     spec = gym.spec(env_id)
     if spec.entry_point is None:  # registered without one: gym.make could not build it either
@@ -536,11 +516,7 @@ def _refuse(value: object, what: str) -> NoReturn:
 
 
 def adaptable_env_ids() -> list[str]:
-    """
-    The ids an adapter may adapt by default: Gymnasium's own (``HalfCheetah-v5``'s ``reward_ctrl``...)
-    and MO-Gymnasium's (when installed). Their constructors are the ones :func:`check_env_kwargs` checks
-    the settings against; another registered env needs ``allowed_env_ids`` (naming it with ``--env``).
-    """
+    """The ids an adapter may adapt by default: Gymnasium's own and MO-Gymnasium's (when installed)."""
     with contextlib.suppress(ImportError):
         # Lazily: optional (the `mo` extra); importing it registers its ids.
         import mo_gymnasium  # noqa: F401
