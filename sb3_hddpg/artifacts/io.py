@@ -1,4 +1,4 @@
-"""Atomic file writes: a temporary file in the same folder, flushed to disk, then renamed over the target."""
+"""Atomic file writes (a temporary file in the same folder, flushed, renamed over the target) and folder locks."""
 
 from __future__ import annotations
 
@@ -22,15 +22,10 @@ F = TypeVar("F", bound=Callable[..., Any])
 TMP_SUFFIX = ".tmp"
 
 
-def _read_umask() -> int:
-    # os.umask can only be read by setting it; set it straight back. Done once at import, because the
-    # brief window with a zero umask would race with threads creating files.
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-UMASK = _read_umask()
+# os.umask can only be read by setting it; set it straight back, once at import, because the brief window
+# with a zero umask would race with threads creating files.
+UMASK = os.umask(0)
+os.umask(UMASK)
 
 #: The signals that stop a run cleanly (Ctrl-C, and SIGTERM turned into Ctrl-C while training).
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -56,13 +51,9 @@ def stop_signal() -> int:
 @contextlib.contextmanager
 def deferred_stop_signals() -> Iterator[None]:
     """
-    Hold Ctrl-C and SIGTERM until the block ends, then deliver them to the handlers that were in place.
-
-    An exception raised by a signal handler inside a library's writer does not always arrive as itself:
-    torch's zip writer, interrupted between two of its writes, reports ``unexpected pos`` as a
-    ``RuntimeError``, so a stopped run failed instead of saving its checkpoint. Writes are short; the
-    signal waits for the write to end, then takes its usual path. Outside the main thread (where handlers
-    cannot be set) the block runs as is.
+    Hold Ctrl-C and SIGTERM until the block ends, then deliver them to the handlers that were in place:
+    torch's zip writer, interrupted between two writes, reports a ``RuntimeError`` instead of the signal's
+    exception. Outside the main thread (where handlers cannot be set) the block runs as is.
     """
     received: list[signal.Signals] = []
 
@@ -93,15 +84,13 @@ def atomic_write(
 ) -> Path:
     """
     Produce ``path`` atomically: ``write`` fills a temporary path in the same folder, which is then renamed
-    over ``path``. A reader (or a run killed at any moment, even with SIGKILL) sees the old file or the new
-    one, never half. A kill can leave a hidden ``.NAME.*.tmp`` file behind; nothing reads those, and
-    :func:`remove_stale_temporaries` clears them.
+    over ``path``, so that a reader (or a run killed at any moment) sees the old file or the new one, never
+    half. A kill can leave a hidden ``.NAME.*.tmp`` file behind (:func:`remove_stale_temporaries`).
 
     :param path: the final file.
     :param write: called with the temporary path; must create that file.
-    :param hold_signals: hold Ctrl-C and SIGTERM while ``write`` runs (:func:`deferred_stop_signals`), for
-        short writes inside libraries that misreport an interruption; ``False`` for a long ``write`` (a
-        video recorded while the policy acts) that must stay interruptible: its temporary is removed.
+    :param hold_signals: hold Ctrl-C and SIGTERM while ``write`` runs (:func:`deferred_stop_signals`);
+        ``False`` for a long ``write`` (a video) that must stay interruptible.
     :return: the final path.
     """
     path = Path(path)
@@ -157,14 +146,11 @@ def _fsync_folder(folder: Path) -> None:
 
 def remove_stale_temporaries(folder: str | os.PathLike[str], target: str | None = None) -> list[Path]:
     """
-    Delete the temporary files a killed :func:`atomic_write` left in ``folder`` (not recursive).
-
-    Only call this when no other process is writing the same files: a live writer's temporary file looks
-    the same. ``target`` narrows the cleaning to one file's temporaries, for folders that several agents
-    share.
+    Delete the temporary files a killed :func:`atomic_write` left in ``folder`` (not recursive), only when no
+    other process writes the same files: a live writer's temporary looks the same.
 
     :param folder: the folder to clean (missing folders are fine).
-    :param target: only the temporaries of this final file name (default: all).
+    :param target: only the temporaries of this final file name (default: all), for shared folders.
     :return: the files removed.
     """
     folder = Path(folder)
@@ -189,11 +175,7 @@ class NotFiniteError(ValueError):
 
 
 def atomic_write_json(path: str | os.PathLike[str], obj: object) -> Path:
-    """
-    Write ``obj`` as indented JSON to ``path`` atomically. NaN and infinities are refused (strict JSON has
-    none, and a ``NaN`` in a result file is a silently wrong result): :class:`NotFiniteError` names the
-    first such value's place, and nothing is written.
-    """
+    """Write ``obj`` as indented strict JSON to ``path`` atomically (:func:`json_text`)."""
     return atomic_write_bytes(path, (json_text(obj, Path(path).name) + "\n").encode())
 
 
@@ -201,8 +183,7 @@ def json_text(obj: object, what: str) -> str:
     """
     ``obj`` as indented strict JSON: the one serialiser of every JSON file we write (also inside zips).
 
-    :param obj: plain JSON values, or records of :mod:`sb3_hddpg.artifacts.records` (written as their
-        ``to_json()``).
+    :param obj: plain JSON values, or records (objects with ``to_json()``) at any depth.
     :param what: the file, for the message.
     :return: the text; raises :class:`NotFiniteError` naming the first NaN or infinite value's place.
     """
@@ -264,9 +245,8 @@ class _HeldLock:
     depth: int
 
 
-# Locks this process holds, by resolved folder: a library function that locks
-# the folder its caller (the CLI) already locked must not deadlock on itself, because flock locks of two
-# open file descriptions conflict even inside one process.
+# Locks this process holds, by resolved folder: flock locks of two open files conflict even inside one
+# process, so a function locking the folder its caller already locked would deadlock on itself.
 _HELD: dict[Path, _HeldLock] = {}
 
 
@@ -315,11 +295,8 @@ def _release(path: Path, handle: IO[str]) -> None:
 def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
     """
     Hold an exclusive lock on a run folder for the duration (``flock`` on ``FOLDER/.hddpg.lock``, which
-    records the holder's pid). Another run asking for the same folder gets :class:`FolderLockedError` at
-    once, naming the holder, instead of silently interleaving its writes. Re-entrant within a process, and
-    shared with the processes this one starts (quickstart trains its workers side by side in one folder):
-    the held folders are listed in the environment variable ``HDDPG_HELD_FOLDERS`` that they inherit. The
-    operating system releases the lock when the process ends, even after SIGKILL.
+    records the holder's pid): another run asking for it gets :class:`FolderLockedError` at once. Re-entrant
+    within a process, and shared with the processes it starts through :data:`HELD_FOLDERS_ENV`.
 
     :param folder: the run folder (created if missing).
     :return: the folder.
@@ -365,9 +342,8 @@ def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
 @contextlib.contextmanager
 def locked_file(path: str | os.PathLike[str]) -> Iterator[None]:
     """
-    A short exclusive lock for a read-modify-write of ``path`` (``flock`` on a hidden ``.NAME.lock``
-    beside it, waiting for the holder, and removed after): processes of one run that share a folder update
-    its manifest one after the other, and none loses another's entry.
+    A short exclusive lock for a read-modify-write of ``path`` (``flock`` on a hidden ``.NAME.lock`` beside
+    it, waiting for the holder), so that processes sharing a folder lose none of each other's entries.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,25 +1,12 @@
 """
-The one owner of "clear a folder this tool wrote": what ``--force`` may delete, and what it must refuse.
+The one owner of "clear or write a folder this tool wrote": what ``--force`` may delete, and what it must refuse.
 
-Every command that replaces earlier results (``train-workers``, ``train-manager``, ``train-flat``,
-``benchmark``, ``quickstart``, ``package``) calls :func:`clear_run_folder`; nothing else in the package deletes a
-user-named folder. A folder is cleared only when all of these hold:
-
-- it is not the root, the home folder, the current folder or any folder above the current one, and it is
-  not reached through a symbolic link (whose target may be anyone's);
-- it is one of the tool's run folders: it carries :data:`RUN_MARKER` (written by :func:`mark_run_folder`
-  when a command takes a folder) or, for folders made before the marker existed, the run lock file;
-- no other live process holds its lock (the message names the holder's pid).
-
-Then only the entries the tool wrote are deleted: those its marker's inventory lists (recorded by
-:func:`record_written` when a command ends), or, for a run that ended without recording (killed) and for
-folders from before the inventory, the entries of the tool's own run layout (:data:`RUN_LAYOUT`) that were
-not there when the tool took the folder. Anything else (a user's notes, data they put there) is kept and
-returned, so that the caller can say so. Symbolic links inside are removed as links, never followed.
-
-Writing is decided by one rule too, :func:`check_out_folder`: only a new folder, an empty one, or one of
-the tool's run folders is written into, never a symbolic link, and a run folder only while nothing the tool
-did not write there has a name the tool may write over.
+A folder is cleared (:func:`clear_run_folder`) only when it is not protected (root, home, the current folder
+or one above it), not a symbolic link, one of the tool's run folders (:data:`RUN_MARKER`, or the run lock for
+older folders) and not locked by another live process; then only the entries the tool wrote are deleted (its
+marker's inventory, or the entries of :data:`RUN_LAYOUT` that were not there when it took the folder), and
+anything else is kept and returned. A folder is written (:func:`check_out_folder`) only when it is new,
+empty, or a run folder where nothing the tool did not write has a name the tool may write over.
 """
 
 from __future__ import annotations
@@ -74,9 +61,7 @@ class RunFolderError(ValueError):
 
 
 def protected_reason(folder: str | os.PathLike[str]) -> str | None:
-    """
-    Why ``folder`` may never be a run folder, whatever it holds (``"the current folder"``...), or ``None``.
-    """
+    """Why ``folder`` may never be a run folder, whatever it holds (``"the current folder"``...), or ``None``."""
     resolved = Path(folder).resolve()
     if resolved == Path(resolved.anchor):
         return "the root folder"
@@ -95,8 +80,7 @@ def protected_reason(folder: str | os.PathLike[str]) -> str | None:
 def check_output_file(path: str | os.PathLike[str], *, force: bool) -> Path:
     """
     A single file a command is about to write (a video, a figure, a JSON summary): refused with
-    :class:`RunFolderError` when it is a folder or a symbolic link, or when it exists and ``force`` is not
-    given, so that a second run never replaces a file without being asked to.
+    :class:`RunFolderError` when it is a folder or a symbolic link, or when it exists and ``force`` is not given.
 
     :param path: the file named by the user.
     :param force: whether the user asked to replace an existing file (``--force``).
@@ -116,10 +100,7 @@ def check_output_file(path: str | os.PathLike[str], *, force: bool) -> Path:
 
 
 def lock_holder(folder: str | os.PathLike[str]) -> str | None:
-    """
-    The pid (as recorded) of another live process holding ``folder``'s run lock, or ``None``: the lock is
-    free, missing, or held by this process (or the run it belongs to).
-    """
+    """The pid (as recorded) of another live process holding ``folder``'s run lock, or ``None``."""
     folder = Path(folder)
     lock = folder / LOCK_FILE
     if not lock.is_file() or holds_lock(folder):
@@ -136,21 +117,14 @@ def lock_holder(folder: str | os.PathLike[str]) -> str | None:
 def check_clearable(folder: str | os.PathLike[str]) -> Path:
     """
     Refuse, with :class:`RunFolderError` naming the folder and the reason, to clear ``folder`` (see the
-    module's rules); a missing or empty folder is always fine.
+    module's rules).
 
     :param folder: the folder a command was asked to overwrite.
     :return: the folder.
     """
     folder = Path(folder)
-    if folder.is_symlink():
-        raise _symlink_refusal(folder)
-    if not folder.exists():
+    if not _existing_folder(folder, "clear"):
         return folder
-    if not folder.is_dir():
-        raise RunFolderError(f"{str(folder)!r} is a file, not a folder")
-    reason = protected_reason(folder)
-    if reason is not None:
-        raise RunFolderError(f"refusing to clear {str(folder)!r}: it is {reason}")
     entries = [entry.name for entry in folder.iterdir()]
     if entries and not is_run_folder(folder):
         raise RunFolderError(
@@ -166,19 +140,28 @@ def check_clearable(folder: str | os.PathLike[str]) -> Path:
     return folder
 
 
-def _symlink_refusal(folder: Path) -> RunFolderError:
-    return RunFolderError(
-        f"{str(folder)!r} is a symbolic link (to {os.readlink(folder)!r}); refusing to write or clear what it "
-        "points to: name the folder itself"
-    )
+def _existing_folder(folder: Path, verb: str) -> bool:
+    """Whether ``folder`` exists; refused when it is a symbolic link, a file or protected (to ``verb``)."""
+    if folder.is_symlink():
+        raise RunFolderError(
+            f"{str(folder)!r} is a symbolic link (to {os.readlink(folder)!r}); refusing to write or clear what "
+            "it points to: name the folder itself"
+        )
+    if not folder.exists():
+        return False
+    if not folder.is_dir():
+        raise RunFolderError(f"{str(folder)!r} is a file, not a folder")
+    reason = protected_reason(folder)
+    if reason is not None:
+        raise RunFolderError(f"refusing to {verb} {str(folder)!r}: it is {reason}")
+    return True
 
 
 def tool_entries(folder: str | os.PathLike[str]) -> frozenset[str]:
     """
     The top-level entries of ``folder`` the tool wrote, by its marker: the inventory a finished command
-    recorded and the entries it listed; while the last command has not recorded its inventory (it was
-    killed, or the folder predates inventories), also every entry of :data:`RUN_LAYOUT` that was not there
-    when the tool took the folder.
+    recorded and the entries it listed; while that is not recorded, also every entry of :data:`RUN_LAYOUT`
+    that was not there when the tool took the folder.
     """
     folder = Path(folder)
     marker = _read_marker(folder)
@@ -194,9 +177,8 @@ def tool_entries(folder: str | os.PathLike[str]) -> frozenset[str]:
 
 def _marks_run_folder(name: str) -> bool:
     """
-    Whether an entry named ``name`` is the tool's own mark of a run folder: its lock, its marker, or one of
-    them half-written (``.NAME.*.tmp`` of an atomic write), as when another process shares the folder (two
-    ``tune`` commands on one study) and is marking it at this moment.
+    Whether an entry is the tool's own mark of a run folder: its lock, its marker, or one of them
+    half-written by another process sharing the folder.
     """
     return name in (LOCK_FILE, RUN_MARKER) or any(
         name.startswith(f".{mark}.") and name.endswith(TMP_SUFFIX) for mark in (LOCK_FILE, RUN_MARKER)
@@ -205,25 +187,15 @@ def _marks_run_folder(name: str) -> bool:
 
 def check_out_folder(folder: str | os.PathLike[str]) -> Path:
     """
-    The one rule for a folder a command is about to write (``train-*``, ``benchmark``, ``quickstart``,
-    ``package``, ``export-study``, ``snapshot``): a new folder, an empty one, or one of the tool's run
-    folders whose entries the tool did not write have no name the tool may write over. Refused, with
-    :class:`RunFolderError` naming the folder and what is in the way: a symbolic link (its target may be
-    anyone's), a protected folder (:func:`protected_reason`), a file, a folder of the user's.
+    The one rule for a folder a command is about to write (see the module's rules): refused with
+    :class:`RunFolderError` naming the folder and what is in the way.
 
     :param folder: the folder named by the user.
     :return: the folder.
     """
     folder = Path(folder)
-    if folder.is_symlink():
-        raise _symlink_refusal(folder)
-    reason = protected_reason(folder) if folder.exists() else None
-    if reason is not None:
-        raise RunFolderError(f"refusing to write into {str(folder)!r}: it is {reason}")
-    if not folder.exists():
+    if not _existing_folder(folder, "write into"):
         return folder
-    if not folder.is_dir():
-        raise RunFolderError(f"{str(folder)!r} is a file, not a folder")
     entries = sorted(entry.name for entry in folder.iterdir() if not _marks_run_folder(entry.name))
     if not entries and not is_run_folder(folder):
         return folder
@@ -246,7 +218,7 @@ def check_out_folder(folder: str | os.PathLike[str]) -> Path:
 def clear_run_folder(folder: str | os.PathLike[str]) -> list[str]:
     """
     Delete the tool's own entries of a run folder (``--force``), after :func:`check_clearable`; the lock
-    file and the marker stay (removing a held lock would let another run take the folder meanwhile).
+    and the marker stay (removing a held lock would let another run take the folder meanwhile).
 
     :param folder: the run folder.
     :return: the names of the entries kept because the tool did not write them.
@@ -272,9 +244,8 @@ def mark_run_folder(
     folder: str | os.PathLike[str], command: str, entries: list[str] | None = None, reopen: bool = False
 ) -> Path:
     """
-    Mark ``folder`` as one of the tool's run folders (created if missing), so that a later ``--force`` may
-    clear what the tool wrote into it. The marker is left open (see :func:`record_written`) and records the
-    entries present that the tool did not write, which are never taken for the tool's.
+    Mark ``folder`` as one of the tool's run folders (created if missing), open until
+    :func:`record_written`, recording the entries present that the tool did not write.
 
     :param folder: the folder.
     :param command: the command that writes it, recorded for whoever looks.
@@ -305,8 +276,7 @@ def mark_run_folder(
 def record_written(folder: str | os.PathLike[str]) -> None:
     """
     Close a run folder's marker when the command that took it ends: its inventory becomes every entry now
-    present that was not there, the user's, when the tool took it. A later ``--force`` deletes only those,
-    and a file the user puts there afterwards is theirs, whatever its name. No-op without a marker.
+    present that was not the user's when the tool took it. No-op without a marker.
 
     :param folder: the run folder.
     """
@@ -323,9 +293,8 @@ def record_written(folder: str | os.PathLike[str]) -> None:
 def holds_run_folder(folder_of: Callable[[inspect.BoundArguments], Any], command: str) -> Callable[[F], F]:
     """
     Decorate a library function that writes a run folder (``train_workers``...): it runs under the folder's
-    lock (:func:`~sb3_hddpg.artifacts.io.holds_folder_lock`), and a folder it takes without a marker (a
-    Python caller's new folder) is marked and its inventory recorded when the function returns, as the
-    CLI does, so that a later ``--force`` or ``--resume`` recognises it. Nested calls change nothing.
+    lock, and a folder it takes without a marker is marked and its inventory recorded when it returns, as
+    the CLI does.
 
     :param folder_of: picks the folder from the call's bound arguments (defaults applied).
     :param command: recorded in the marker.
@@ -362,10 +331,7 @@ def _names(value: object) -> frozenset[str]:
 
 
 def _read_marker(folder: Path) -> dict[str, object]:
-    """
-    The marker, read defensively (a file in a folder anyone may edit; regular, within its size); ``{}``
-    when missing or unreadable.
-    """
+    """The marker, read within its limits; ``{}`` when missing or unreadable."""
     try:
         data = parse_json(read_file_bytes(folder / RUN_MARKER, MAX_MARKER_BYTES), str(folder / RUN_MARKER))
     except (OSError, ValueError):
