@@ -23,29 +23,15 @@ from sb3_hddpg.artifacts.term_critic import TermCritic, read_term_critic
 from sb3_hddpg.artifacts.workers import Workers, observed_components, shared_env_of
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 
-__all__ = [
-    "ResumeMismatch",
-    "check_resumed_agent",
-    "check_resumed_env",
-    "load_workers",
-    "model_entry",
-    "read_workers_manifest",
-    "save_manifest",
-]
-
 
 def save_manifest(path: str | Path, manifest: ModelsManifest | Mapping[str, object]) -> Path:
     """
-    Write a manifest atomically, read-modify-write: the entries (``workers`` or ``models``) already in the
-    file are kept unless ``manifest`` replaces them, so two runs writing different agents into one folder
-    one after the other (each under the folder's lock, see :func:`~sb3_hddpg.artifacts.io.locked_folder`) both stay
-    listed.
+    Write a manifest atomically, read-modify-write under a lock: the entries (``workers`` or ``models``)
+    already in the file are kept unless ``manifest`` replaces them.
 
     :param path: the manifest file.
-    :param manifest: the new content (a :class:`~sb3_hddpg.artifacts.records.ModelsManifest` from
-        :func:`~sb3_hddpg.artifacts.records.models_manifest`, or one read back); its entries win over the file's.
+    :param manifest: the new content; its entries win over the file's.
     """
-
     path = Path(path)
     merged = manifest.to_json() if isinstance(manifest, ModelsManifest) else dict(manifest)
     with locked_file(path):
@@ -89,10 +75,8 @@ def load_workers(
     :param allowed_env_ids: registered env ids the manifest's shared env may be besides this package's own
         (a user's env; otherwise ``make_env()`` says how to allow it, and the models load all the same).
     :return: name -> SB3 model, a :class:`~sb3_hddpg.artifacts.workers.Workers` mapping that also holds
-        each worker's observed components, the shared env, the manifest and each worker's per-term critic
-        (read from its hash-verified zip, where it has one).
+        each worker's observed components, the shared env, the manifest and per-term critics.
     """
-
     folder = Path(workers_dir)
     if not folder.exists():
         raise FileNotFoundError(f"No such folder: {str(workers_dir)!r}")
@@ -173,7 +157,7 @@ def model_entry(
     A trained model's manifest entry: the one builder for workers, flat baselines and the quickstart's agents.
 
     :param name: the entry's name; the model file is ``NAME.zip`` beside the manifest.
-    :param outcome: the training outcome (``model``, ``model_path``, ``num_timesteps``, ``metrics``, ``backend``).
+    :param outcome: the training outcome.
     :param algo: the algorithm name.
     :param env_id: the env the model was trained on.
     :param env_kwargs: its keyword arguments.
@@ -210,8 +194,7 @@ def check_resumed_env(
 ) -> None:
     """
     The one comparison of a run's recorded env settings with the ones a resumed command asks for: the env
-    id and every env keyword argument (``episode_steps``, ``terms``, ``term_bounds``, ``observe``...) must
-    be the same, else agents trained on two different envs would end up in one manifest.
+    id and every env keyword argument must be the same, else agents of two envs would share one manifest.
 
     :param stored: the recorded ``{"env_id": ..., "env_kwargs": ...}`` (a manifest's ``shared_env`` or a
         model entry); ``None``: nothing recorded, nothing to compare.
@@ -256,9 +239,7 @@ def check_resumed_agent(
 ) -> None:
     """
     The one comparison of what an agent of a run was trained with and what a resumed command asks for: its
-    algorithm (``--algo``), seed (``--seed``) and config block (``--config``) must be the ones recorded, else
-    the agent would go on with other settings and be recorded with the new ones while trained mostly with
-    the old.
+    algorithm (``--algo``), seed (``--seed``) and config block (``--config``) must be the ones recorded.
 
     :param stored: the agent's manifest entry (anything but a mapping: nothing recorded, nothing to compare).
     :param name: the agent, for the message.
@@ -287,24 +268,13 @@ def check_resumed_agent(
         )
     config = stored.get("config")
     before = config.get("block") if isinstance(config, Mapping) else None
-    if "config" not in accept and before is not None and as_json(before) != as_json(dict(block)):
-        now = as_json(dict(block))
-        keys = sorted(
-            {str(k) for k in (*before, *now)}
-            if isinstance(before, Mapping) and isinstance(now, dict)
-            else {"block"}
-        )
-        changed = [
-            k
-            for k in keys
-            if not isinstance(before, Mapping) or not isinstance(now, dict) or before.get(k) != now.get(k)
-        ]
-        key = changed[0] if changed else "block"
-        shown = (
-            f"{key} was {brief(before.get(key))} in the run, now {brief(now.get(key))}"
-            if isinstance(before, Mapping) and isinstance(now, dict)
-            else "the block differs"
-        )
+    now = as_json(dict(block))
+    if "config" not in accept and before is not None and as_json(before) != now:
+        shown = "the block differs"
+        if isinstance(before, Mapping) and isinstance(now, dict):
+            keys = sorted({str(k) for k in (*before, *now)})
+            key = next((k for k in keys if before.get(k) != now.get(k)), "block")
+            shown = f"{key} was {brief(before.get(key))} in the run, now {brief(now.get(key))}"
         raise ResumeMismatch(
             f"{what}: --config block of {name!r}: {shown}; resume with the run's config"
             + accepting.format("config")

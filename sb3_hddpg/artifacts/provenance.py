@@ -32,8 +32,7 @@ GIT_TIMEOUT_S = 10.0
 class CodeProvenance:
     """
     The code a benchmark invocation ran: the package's version, the git commit of its source tree and whether
-    that tree was clean. ``commit`` and ``clean`` are ``None`` where there is no git repository to ask (an
-    installed wheel, a copy without ``.git``, no ``git`` on the machine): not recorded, never guessed.
+    that tree was clean (``None`` where there is no git repository to ask: not recorded, never guessed).
 
     :param version: ``sb3_hddpg.__version__``.
     :param commit: the full hash of ``HEAD``, or ``None``.
@@ -125,10 +124,8 @@ def verify_sha256(
 
 def read_verified(path: str | Path, expected: str, what: str | None = None) -> io.BytesIO:
     """
-    A model file someone else may have made, read once and checked against the sha256 its manifest
-    recorded: the bytes returned are the bytes hashed, so a file swapped between the check and the load
-    cannot give unverified weights. The file must be regular and within :data:`MAX_MODEL_FILE_BYTES`,
-    checked before anything is read or hashed (a 16 GiB sparse file is refused by its size).
+    A model file someone else may have made (regular, within :data:`MAX_MODEL_FILE_BYTES`), read once and
+    checked against the sha256 its manifest recorded: the bytes returned are the bytes hashed.
 
     :param path: the file.
     :param expected: the recorded hex digest.
@@ -168,9 +165,8 @@ def _git(*args: str, cwd: Path) -> str | None:
 
 def code_provenance(source: str | Path | None = None) -> CodeProvenance:
     """
-    The code this process runs: the package's version and, where the package's source lies in a git work
-    tree, its ``HEAD`` commit and whether tracked files differ from it. Never fails: an installed wheel, a
-    copy without ``.git`` or a machine without ``git`` gives ``commit=None, clean=None``.
+    The code this process runs: the package's version and, where its source lies in a git work tree, its
+    ``HEAD`` commit and whether tracked files differ from it (else ``None``: never fails).
 
     :param source: the folder whose tree is asked (default: this package's source folder).
     """

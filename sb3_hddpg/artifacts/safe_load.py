@@ -1,16 +1,9 @@
 """
 Load shared Stable-Baselines3 model zips without running code from them.
 
-An SB3 zip (see ``stable_baselines3/common/save_util.py``) holds a ``data`` JSON entry in which several values
-(``policy_class``, the spaces, ``lr_schedule``, ...) are base64 cloudpickle blobs. ``DDPG.load`` unpickles them, so
-opening a zip from someone else runs whatever code they put there. The tensors (``policy.pth`` and friends) are
-loaded by SB3 with ``torch.load(..., weights_only=True)`` and are not the problem.
-
-The idea here: describe the model with a small, strictly validated JSON document (:func:`~sb3_hddpg.artifacts.spec.model_spec`, written by
-our own code from the live model at save time, e.g. into a hierarchy bundle's ``manifest.json``), rebuild the
-algorithm from that description, and take only the weights from the zip (:func:`load_model_safely`). The ``data``
-entry is never read. The spec itself travels with the shared files, so it is treated as untrusted input too:
-every name in it is resolved through an explicit allow-list, never through ``getattr``/import.
+An SB3 zip's ``data`` entry holds cloudpickle blobs that ``DDPG.load`` unpickles, running whatever code they
+hold. Here the model is rebuilt from its spec (:func:`~sb3_hddpg.artifacts.spec.model_spec`, written at save
+time and validated as untrusted input), and only the tensors are taken from the zip; ``data`` is never read.
 """
 
 from __future__ import annotations
@@ -44,20 +37,16 @@ def load_model_safely(
     budget: LoadBudget | None = None,
 ) -> BaseAlgorithm:
     """
-    Rebuild a model from ``spec`` and load only its tensors from the SB3 zip at ``path``.
-
-    Nothing from the zip is unpickled except through ``torch.load(weights_only=True)``: the ``data`` entry (with
-    its cloudpickle blobs) is never read, and the architecture comes from ``spec``, which is validated against
-    allow-lists. Reads ``policy.pth`` (required) and ``pytorch_variables.pth`` (SAC/TQC entropy coefficient,
-    if present). Optimizer states are not restored (fresh optimizers), and training counters start at zero.
+    Rebuild a model from ``spec`` and load only its tensors from the SB3 zip at ``path``
+    (``torch.load(weights_only=True)``). Optimizer states are fresh and training counters start at zero.
 
     :param path: the model zip, or its bytes (a member of a bundle).
-    :param spec: the description from :func:`~sb3_hddpg.artifacts.spec.model_spec` (e.g. parsed from a bundle manifest).
+    :param spec: the description from :func:`~sb3_hddpg.artifacts.spec.model_spec`.
     :param device: torch device to build the model on and map the tensors to.
     :param budget: the bytes and models a whole load may still spend (a bundle's; default: a fresh one).
     :return: the model, ready for ``predict``.
-    :raises SafeLoadError: (a ValueError) for an invalid spec, sizes over :mod:`sb3_hddpg.artifacts.limits`, unknown algorithm, a file that is not a (complete)
-        zip, a missing ``policy.pth``, or weights whose keys/shapes do not match the spec.
+    :raises SafeLoadError: (a ValueError) for an invalid spec or file, sizes over the limits, or weights whose
+        keys or shapes do not match the spec.
     :raises FileNotFoundError: if ``path`` does not exist.
     """
     path_str = getattr(path, "name", "<bytes>") if isinstance(path, io.BytesIO) else os.fspath(path)
@@ -121,10 +110,8 @@ def load_model(
 
 def _saved_by_sbx(source: Path | io.BytesIO) -> bool:
     """
-    Whether a model zip was saved by SBX (SB3's JAX sibling: the same zip layout, its own policy classes):
-    the ``data`` member's ``policy_class`` entry, which SB3 writes first, names an ``sbx.`` module. Only
-    its first bytes are read, as text (the member can be megabytes: SBX keeps the weights in it); ``False``
-    if that cannot be told, and SB3's loader then reports what is wrong with the file.
+    Whether a model zip was saved by SBX: the ``policy_class`` entry, which SB3 writes first in ``data``,
+    names an ``sbx.`` module (only the first bytes are read); ``False`` if that cannot be told.
     """
     try:
         with zipfile.ZipFile(source) as archive, archive.open("data") as member:

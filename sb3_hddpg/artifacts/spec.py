@@ -33,16 +33,6 @@ from sb3_hddpg.artifacts.limits import (
 )
 from sb3_hddpg.artifacts.network_limits import check_buffer_size, check_network_size
 
-__all__ = [
-    "ACTIVATIONS",
-    "ALGOS",
-    "SPEC_FORMAT",
-    "SPEC_VERSION",
-    "build_from_spec",
-    "build_without_env",
-    "model_spec",
-]
-
 SPEC_FORMAT = "sb3-hddpg/model-spec"
 SPEC_VERSION = 1
 

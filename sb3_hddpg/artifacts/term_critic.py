@@ -1,11 +1,7 @@
 """
-A worker's per-term critic: one Q head per reward term for the worker's own policy (successor-feature style
-policy evaluation), its network and its place in the worker's zip.
-
-The critic travels inside the worker's SB3 zip as the member :data:`TERM_CRITIC_MEMBER`, an ``.npz`` of
-plain arrays (read with ``allow_pickle=False``) whose ``spec`` array holds its JSON description. It is not a
-``.pth``: SB3's ``load`` reads every ``.pth`` member as a parameter set with ``exact_match``, so one more
-would break ``DDPG.load("worker.zip")``; SB3 ignores any other member, so the zip stays a plain SB3 model.
+A worker's per-term critic: one Q head per reward term for the worker's own policy, its network and its place
+in the worker's zip: the member :data:`TERM_CRITIC_MEMBER`, an ``.npz`` of plain arrays whose ``spec`` array
+holds its JSON description (not a ``.pth``, which SB3's ``load`` would take for a parameter set).
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """
-The weights of a model zip, read without running code from it: only the tensor members
-(``policy.pth``, ``pytorch_variables.pth``), each within the size limits, through
-``torch.load(weights_only=True)``, and compared key by key and shape by shape with the model the spec built
-before they are put into it.
+The weights of a model zip, read without running code from it: only the tensor members, within the size
+limits, through ``torch.load(weights_only=True)``, compared key by key and shape by shape with the model the
+spec built before they are put into it.
 """
 
 from __future__ import annotations
@@ -26,14 +25,14 @@ class SafeLoadError(ValueError):
     """A model zip or its spec was refused by :func:`load_model_safely`; the message names the file and the cause."""
 
 
-def _read_member(archive: zipfile.ZipFile, name: str, path: str, budget: LoadBudget | None = None) -> bytes:
+def _read_tensors(
+    archive: zipfile.ZipFile, name: str, path: str, device: th.device | str, budget: LoadBudget
+) -> dict[str, th.Tensor]:
+    """The member ``name`` of a model zip: within the limits, and a mapping of names to tensors only."""
     try:
-        return read_member(archive, name, path, limit=MAX_MEMBER_BYTES, budget=budget)
+        raw = read_member(archive, name, path, limit=MAX_MEMBER_BYTES, budget=budget)
     except ValueError as e:
         raise SafeLoadError(str(e)) from None
-
-
-def _load_tensors(raw: bytes, name: str, path: str, device: th.device | str) -> dict[str, th.Tensor]:
     # weights_only=True: torch's restricted unpickler, which only rebuilds tensors and plain containers and
     # refuses any other global. This is the same call SB3 itself uses for .pth members.
     try:
@@ -101,14 +100,10 @@ def read_weights(
             raise SafeLoadError(str(e)) from None
         if POLICY_MEMBER not in names:
             raise SafeLoadError(f"{path}: no {POLICY_MEMBER!r} in the zip (members: {brief(sorted(names))})")
-        policy_state = _load_tensors(
-            _read_member(archive, POLICY_MEMBER, path, budget), POLICY_MEMBER, path, device
-        )
+        policy_state = _read_tensors(archive, POLICY_MEMBER, path, device, budget)
         variables: dict[str, th.Tensor] = {}
         if VARIABLES_MEMBER in names:
-            variables = _load_tensors(
-                _read_member(archive, VARIABLES_MEMBER, path, budget), VARIABLES_MEMBER, path, device
-            )
+            variables = _read_tensors(archive, VARIABLES_MEMBER, path, device, budget)
     return policy_state, variables
 
 
@@ -120,8 +115,8 @@ def apply_weights(
     device: th.device | str,
 ) -> None:
     """
-    Put the tensors :func:`read_weights` read into a model built from its spec, after checking that every
-    key and shape is the one the spec built.
+    Put the tensors :func:`read_weights` read into a model built from its spec, after checking every key and
+    shape.
 
     :param model: the model :func:`~sb3_hddpg.artifacts.spec.build_from_spec` built.
     :param policy_state: the policy's state dict.

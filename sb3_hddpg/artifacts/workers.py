@@ -27,11 +27,9 @@ BUNDLED_FACTS = ("reward_term", "reward_weights", "reward_bounds", "env_id", "me
 class Workers(Mapping[str, BaseAlgorithm]):
     """
     Name -> trained worker (an SB3 model), in the manager's action order, as :func:`load_workers` returns
-    them. Each worker knows which state components it was trained on (``states``), and the record knows the
-    shared env the manager acts in (``env_id``, ``env_kwargs``; :meth:`make_env` builds it), so that
-    ``WorkerSelectionWrapper(workers.make_env(), workers)`` and ``Hierarchy(manager, workers)`` feed every
-    worker what it saw in training without being told. It is a read-only mapping: anywhere a dict of
-    workers is accepted, this is too.
+    them: a read-only mapping that also knows the state components each worker saw in training and the
+    shared env the manager acts in (:meth:`make_env`), so that ``Hierarchy(manager, workers)`` needs nothing
+    more.
 
     :param models: name -> loaded model, in order.
     :param states: name -> the state components that worker sees (workers trained on the full state are
@@ -79,9 +77,8 @@ class Workers(Mapping[str, BaseAlgorithm]):
 
     def bundle_meta(self) -> dict[str, dict[str, object]]:
         """
-        Name -> the facts a bundle keeps about each worker: its reward term and bounds, training env,
-        metrics and seed, and ``source_sha256``, the hash of the file it came from (the bundle
-        re-serialises the model, so its member's own hash differs).
+        Name -> the facts a bundle keeps about each worker (:data:`BUNDLED_FACTS`), and ``source_sha256``,
+        the hash of the file it came from (the bundle re-serialises the model).
         """
         entries = self.manifest.entries
         meta: dict[str, dict[str, object]] = {}
@@ -103,8 +100,7 @@ def shared_env_of(
 ) -> tuple[str, dict[str, Any]]:
     """
     The shared env a manager over these workers acts in: ``env_id`` if given, else the manifest's
-    ``shared_env`` (written by ``train_workers`` for an env other than the snake arm; its id and kwargs pass
-    the safe-loading checks), else ``hddpg/SnakeReach-v0``.
+    ``shared_env`` (checked as any env read from a file), else the snake arm's.
 
     :param manifest: the workers manifest.
     :param env_id: an env id given by the caller, which wins.

@@ -1,20 +1,7 @@
 """
-The records this package writes beside trained models, each a frozen dataclass with one builder and one
-reader, and the schema version of every file it writes, in one place.
-
-- :class:`ModelEntry`: one trained model's entry in a models manifest (built by
-  :func:`~sb3_hddpg.artifacts.manifests.model_entry`, which hashes the file and describes the model).
-- :class:`ModelsManifest`: ``workers/manifest.json`` and ``flat/manifest.json`` (:func:`models_manifest`,
-  :func:`read_models_manifest`).
-- :class:`BundleManifest`: a hierarchy bundle's ``manifest.json`` (:func:`bundle_manifest`,
-  :meth:`BundleManifest.from_json`).
-- :class:`~sb3_hddpg.artifacts.records.ham.HamFile`: ``ham.json``, the HAM switch's settings (its own module,
-  loaded with the HAM baseline).
-
-Every reader checks what it reads through :mod:`sb3_hddpg.artifacts.limits` (the size- and depth-limited
-JSON reader, plain names, file entries) and :mod:`sb3_hddpg.artifacts.values` (env settings), and refuses
-a schema version newer than the one here. Each record is also a read-only mapping of the JSON it is
-written as, so that code reading a manifest as the JSON object it was keeps working.
+The records this package writes beside trained models (frozen dataclasses, each with one builder and one reader
+that checks what it reads through :mod:`sb3_hddpg.artifacts.limits`) and the schema version of every file it
+writes. Each record is also a read-only mapping of the JSON it is written as.
 """
 
 from sb3_hddpg.artifacts.records.base import (

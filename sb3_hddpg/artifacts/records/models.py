@@ -6,7 +6,7 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, TypedDict, cast
+from typing import Any
 
 from sb3_hddpg.artifacts.limits import (
     MAX_ENV_FLOAT,
@@ -34,9 +34,8 @@ _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 def check_file_entry(entry: object, what: str) -> dict[str, Any]:
     """
-    One entry of a ``workers/manifest.json`` or ``flat/manifest.json``: its ``file`` is a plain
-    ``NAME.zip`` in the manifest's folder, its ``sha256`` a hex digest, and its ``name`` and ``algo`` (which
-    become parts of file names when packaged) match :data:`NAME_PATTERN`.
+    One entry of a models manifest: its ``file`` a plain ``NAME.zip`` in the manifest's folder, its ``sha256``
+    a hex digest, its ``name`` and ``algo`` plain names, its seed and env numbers within their limits.
 
     :param entry: the entry from the file.
     :param what: where it is, for the message.
@@ -62,11 +61,7 @@ def check_file_entry(entry: object, what: str) -> dict[str, Any]:
 
 
 def _check_env_numbers(env_kwargs: object, what: str) -> None:
-    """
-    The numbers of an entry's env settings, by the env settings' one rule (their keys and types are the
-    loader's, with the env): finite, at most MAX_ENV_FLOAT, and 0 or at least MIN_ENV_FLOAT in magnitude
-    (``sensor_range: 1e-300`` made NaN observations).
-    """
+    """The floats of an entry's env settings: 0 or a finite magnitude within the env settings' limits."""
     if env_kwargs is None:
         return
     if not isinstance(env_kwargs, Mapping):
@@ -79,35 +74,6 @@ def _check_env_numbers(env_kwargs: object, what: str) -> None:
                 f"{what}.{brief(key)}: expected 0 or a finite magnitude in [{MIN_ENV_FLOAT:g}, "
                 f"{MAX_ENV_FLOAT:g}], got {value!r}"
             )
-
-
-class ModelEntryJson(TypedDict, total=False):
-    """
-    A model's entry as its manifest holds it (:meth:`ModelEntry.to_json`): the reader checks ``name``,
-    ``file`` and ``sha256`` (and ``algo``); the loaders check the rest where they use it. Entries written
-    before a field existed lack it.
-    """
-
-    name: str
-    file: str
-    sha256: str
-    algo: str
-    env_id: str
-    env_kwargs: dict[str, object]
-    config: dict[str, object]
-    seed: int
-    timesteps_requested: int
-    timesteps_trained: int
-    backend: str
-    versions: dict[str, str]
-    metrics: dict[str, object]
-    spec: dict[str, object]
-    reward_term: str
-    reward_bounds: list[float]
-    reward_weights: dict[str, float]
-    stopped_early: bool
-    preferences: dict[str, float] | None
-    threads: int | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,10 +141,7 @@ class ModelEntry(JsonRecord):
 class ModelsManifest(JsonRecord):
     """
     ``workers/manifest.json`` (``kind="workers"``) or ``flat/manifest.json`` (``kind="models"``): name ->
-    model entry, in order, and for workers trained on another env than the snake arm, the shared env.
-
-    Entries read from a file stay the JSON objects they are (checked: a plain name, a file beside the
-    manifest and its sha256); the loaders check the rest (spec, env settings) where they use it.
+    model entry (as JSON, :func:`check_file_entry`), in order, and the workers' shared env if recorded.
 
     :param kind: ``workers`` or ``models``.
     :param entries: name -> entry.
@@ -187,7 +150,7 @@ class ModelsManifest(JsonRecord):
     """
 
     kind: ManifestKind
-    entries: Mapping[str, ModelEntryJson] = field(default_factory=dict)
+    entries: Mapping[str, JsonObject] = field(default_factory=dict)
     shared_env: Mapping[str, object] | None = None
     schema_version: int = 1
 
@@ -198,7 +161,7 @@ class ModelsManifest(JsonRecord):
 
     def with_entry(self, name: str, entry: ModelEntry | Mapping[str, object]) -> ModelsManifest:
         """This manifest with ``entry`` (a :class:`ModelEntry` or a JSON object) as ``name``'s."""
-        as_json = cast(ModelEntryJson, entry.to_json() if isinstance(entry, JsonRecord) else dict(entry))
+        as_json = entry.to_json() if isinstance(entry, JsonRecord) else dict(entry)
         return replace(self, entries={**self.entries, name: as_json})
 
     def with_shared_env(self, env_id: str, env_kwargs: Mapping[str, object]) -> ModelsManifest:
@@ -236,23 +199,18 @@ def models_manifest(
 
 
 def models_manifest_from_json(value: object, kind: ManifestKind, what: str) -> ModelsManifest:
-    """
-    A models manifest from parsed JSON, checked: an object with its entries under ``kind``, each a plain
-    name with a file beside the manifest and its sha256, and a schema version this library reads.
-
-    :raises ValueError: naming ``what`` and the first problem.
-    """
+    """A models manifest from parsed JSON, checked; raises ``ValueError`` naming ``what`` and the first problem."""
     if not isinstance(value, dict) or not isinstance(value.get(kind), dict):
         raise ValueError(f"Not a valid {kind} manifest: {what!r}")
     version = check_version(value.get("schema_version"), MANIFEST_VERSIONS[kind], what)
-    entries: dict[str, ModelEntryJson] = {}
+    entries: dict[str, JsonObject] = {}
     # Counted before any entry is looked at, let alone loaded.
     check_count("manifest_entries", len(value[kind]), f"{what}: the number of {kind} entries")
     # Names and files travel with shared folders: each must be a plain name before it picks a file.
     for name, entry in value[kind].items():
         check_name(name, f"{what}: {kind}")
         field_of = f"{what}: {kind}.{brief(name)}"
-        entries[name] = cast(ModelEntryJson, check_file_entry(entry, field_of))
+        entries[name] = check_file_entry(entry, field_of)
         if "reward_bounds" in entry:
             # The one bounds checker (finite, low < high, normalisable), so NaN or inf is refused here
             # rather than when a manager trained on them writes its bundle.
@@ -268,12 +226,11 @@ def models_manifest_from_json(value: object, kind: ManifestKind, what: str) -> M
 
 def read_models_manifest(path: str | Path, kind: ManifestKind) -> ModelsManifest:
     """
-    The one reader of a models manifest file, through the size- and depth-limited JSON reader.
+    The one reader of a models manifest file.
 
     :param path: the manifest.
     :param kind: ``workers`` or ``models``.
-    :return: the manifest; raises ``ValueError`` naming the file if it is not a valid one (a
-        :class:`~sb3_hddpg.artifacts.limits.LimitError` if over a limit).
+    :return: the manifest; raises ``ValueError`` naming the file if it is not a valid one.
     """
     value = read_json_record(path, f"Not a valid {kind} manifest: {str(path)!r}")
     return models_manifest_from_json(value, kind, str(path))
