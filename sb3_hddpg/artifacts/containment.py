@@ -1,17 +1,7 @@
 """
-Which run folder a file belongs to, and whether its path leaves that folder: the one rule for every file
-read from a folder someone may have edited (records, manifests, models, curves).
-
-A file is *inside a run folder* when one of the folders above it (as named, links not resolved) is one of
-the tool's run folders: its :data:`RUN_MARKER`, its run lock, or one of the manifests only this tool writes
-(:data:`TOOL_FILES`). Such a file must resolve inside the outermost of them: a record or a model replaced
-by a symbolic link to ``~/secret`` (or a folder of it replaced by a link) is refused, whichever command
-reads it, before a byte is read. A link that stays inside the folder is harmless and allowed.
-
-:func:`sb3_hddpg.artifacts.limits.read_file_bytes` applies it to every file it reads, and
-:func:`sb3_hddpg.artifacts.limits.check_run_file` to the files other readers open by path (SB3's loader,
-``zipfile``, ``numpy``). This module imports nothing of the package but :mod:`sb3_hddpg.artifacts.io`, so
-that the limits can use it.
+Which run folder a file belongs to, and whether its path leaves that folder: the one rule for every file read
+from a folder someone may have edited. A file inside one of the tool's run folders must resolve inside the
+outermost of them (a record replaced by a symbolic link to ``~/secret`` is refused before a byte is read).
 """
 
 from __future__ import annotations
@@ -35,10 +25,7 @@ TOOL_FILES = (
 
 
 def is_run_folder(folder: str | os.PathLike[str]) -> bool:
-    """
-    Whether ``folder`` is one of the tool's run folders: its marker, or for a folder made before the marker
-    existed, the lock of a run or one of the manifests only this tool writes (:data:`TOOL_FILES`).
-    """
+    """Whether ``folder`` is one of the tool's run folders: its marker, a run's lock, or one of :data:`TOOL_FILES`."""
     folder = Path(folder)
     return (
         (folder / RUN_MARKER).is_file()
@@ -49,8 +36,8 @@ def is_run_folder(folder: str | os.PathLike[str]) -> bool:
 
 def enclosing_run_folder(path: str | os.PathLike[str]) -> Path | None:
     """
-    The outermost run folder above ``path`` (as named: ``..`` collapsed, links not resolved), or ``None``.
-    The outermost, because a benchmark's seed folders are run folders too and may link to each other.
+    The outermost run folder above ``path`` (as named: links not resolved), or ``None``: the outermost,
+    because a benchmark's seed folders are run folders too and may link to each other.
     """
     found = None
     for parent in Path(os.path.abspath(path)).parents:
@@ -60,10 +47,7 @@ def enclosing_run_folder(path: str | os.PathLike[str]) -> Path | None:
 
 
 def run_folder_escape(path: str | os.PathLike[str]) -> str | None:
-    """
-    Why reading ``path`` would leave the run folder it is in (one line naming the file, the folder and
-    where the path leads), or ``None`` when it is in no run folder or stays inside it.
-    """
+    """Why reading ``path`` would leave the run folder it is in (one line), or ``None``."""
     root = enclosing_run_folder(path)
     if root is None:
         return None

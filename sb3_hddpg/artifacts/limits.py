@@ -19,7 +19,7 @@ import reprlib
 import stat
 import zipfile
 import zlib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -325,15 +325,24 @@ def read_file_bytes(path: str | os.PathLike[str], limit: int, what: str | None =
             raise LimitError(f"{name}: expected a regular file, got a FIFO, socket or device; refused")
         if info.st_size > limit:
             raise LimitError(f"{name}: {info.st_size} bytes is over the {limit}-byte limit for this file")
-        chunks, total = [], 0
-        while chunk := os.read(fd, min(1 << 20, limit + 1 - total)):
-            total += len(chunk)
-            if total > limit:
-                raise LimitError(f"{name}: grew past the {limit}-byte limit for this file while being read")
-            chunks.append(chunk)
-        return b"".join(chunks)
+        return _read_within(
+            lambda size: os.read(fd, size),
+            limit,
+            f"{name}: grew past the {limit}-byte limit while being read",
+        )
     finally:
         os.close(fd)
+
+
+def _read_within(read: Callable[[int], bytes], limit: int, refusal: str) -> bytes:
+    """All that ``read`` gives, in chunks of at most 1 MiB, refused with ``refusal`` past ``limit`` bytes."""
+    chunks, total = [], 0
+    while chunk := read(min(1 << 20, limit + 1 - total)):
+        total += len(chunk)
+        if total > limit:
+            raise LimitError(refusal)
+        chunks.append(chunk)
+    return b"".join(chunks)
 
 
 def check_run_file(path: str | os.PathLike[str]) -> None:
@@ -509,17 +518,12 @@ def read_member(
         )
     if budget is not None:
         budget.spend_bytes(declared, what)
-    chunks, total = [], 0
+    refusal = f"{what}: member {name!r} holds more than its declared {declared} bytes"
     try:
         with archive.open(info) as handle:
-            while chunk := handle.read(1 << 20):
-                total += len(chunk)
-                if total > min(limit, declared):
-                    raise LimitError(f"{what}: member {name!r} holds more than its declared {declared} bytes")
-                chunks.append(chunk)
+            return _read_within(handle.read, declared, refusal)
     except (zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError, RuntimeError) as error:
         raise ValueError(f"{what}: member {name!r} is corrupt or unreadable: {error}") from None
-    return b"".join(chunks)
 
 
 #: The largest ratio ``ratio-sweep:MAX`` takes (a weight of 1/1025 is as good as none).

@@ -1,9 +1,4 @@
-"""
-The limits on a network and its replay buffer, checked from a config file or a saved spec before SB3
-allocates anything: layer counts and widths, critics and quantiles, the total parameter count (by each
-algorithm record's rule) and the buffer's transitions and bytes. The limits themselves are named in
-:mod:`sb3_hddpg.artifacts.limits` with every other.
-"""
+"""The limits on a network and its replay buffer, checked from a config file or a saved spec before SB3 allocates."""
 
 from __future__ import annotations
 
@@ -26,10 +21,7 @@ from sb3_hddpg.artifacts.limits import (
 
 
 def check_buffer_size(buffer_size: object, obs_dim: int, act_dim: int, what: str) -> None:
-    """
-    A replay buffer's size, before SB3 allocates it: at most :data:`MAX_BUFFER_SIZE` transitions and
-    :data:`MAX_BUFFER_BYTES` (observations, next observations, actions, rewards, dones in float32).
-    """
+    """A replay buffer's size: at most :data:`MAX_BUFFER_SIZE` transitions and :data:`MAX_BUFFER_BYTES` (float32)."""
     if isinstance(buffer_size, bool) or not isinstance(buffer_size, int) or buffer_size < 1:
         raise LimitError(f"{what}: expected an integer >= 1, got {brief(buffer_size)}")
     size = buffer_size * (2 * obs_dim + act_dim + 3) * 4
@@ -51,9 +43,8 @@ def check_parameter_count(
     what: str = "policy_kwargs.net_arch",
 ) -> int:
     """
-    The total parameters a spec or config would build (actor, critics, and their targets: the algorithm
-    record's rule), refused over :data:`MAX_PARAMETERS` before anything is allocated: each layer may be
-    within bounds and the product still be tens of GB (``net_arch [65536, 65536]``).
+    The total parameters a spec or config would build (by the algorithm record's rule), refused over
+    :data:`MAX_PARAMETERS`: each layer may be within bounds and the product still be tens of GB.
 
     :param algo: a registered algorithm, by name or spec class name (any case).
     :param n_critics: the critics (``None``: the algorithm's default).
@@ -78,11 +69,8 @@ def check_network_size(
     max_layer_size: int = MAX_LAYER_SIZE,
 ) -> int:
     """
-    The one check of a network's shape before SB3 allocates it, for config files and saved specs alike:
-    ``net_arch`` (the algorithm's default when absent) is lists of at most ``max_layers`` sizes in
-    ``[1, max_layer_size]``, ``n_critics`` at most :data:`MAX_CRITICS`, ``n_quantiles`` at most
-    :data:`MAX_QUANTILES`, and the networks' total parameters at most :data:`MAX_PARAMETERS`
-    (``net_arch [65536, 65536]`` is 17 GB although each layer may be within bounds).
+    The one check of a network's shape before SB3 allocates it, for config files and saved specs alike: the
+    layers, ``n_critics``, ``n_quantiles`` and the total parameters (:func:`check_parameter_count`).
 
     :param algo: a registered algorithm, by name or spec class name (any case).
     :param policy_kwargs: the policy's keyword arguments (anything but a mapping: nothing to check).

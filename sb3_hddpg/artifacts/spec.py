@@ -118,16 +118,9 @@ OptimizerSetting = float | bool | None | list[float] | tuple[float, ...]
 
 
 def _bounds_to_json(array: np.ndarray) -> object:
-    # Strict JSON has no Infinity/NaN, and Box bounds are often infinite: write those as strings. Finite float32
-    # values survive float -> JSON -> float64 -> float32 exactly.
-    def encode(x: object) -> object:
-        if isinstance(x, list):
-            return [encode(v) for v in x]
-        if isinstance(x, float) and not math.isfinite(x):
-            return str(x)  # "inf", "-inf", "nan"
-        return x
-
-    return encode(array.tolist())
+    # Strict JSON has no Infinity/NaN, and Box bounds are often infinite: write those as strings ("inf"...).
+    # Finite float32 values survive float -> JSON -> float64 -> float32 exactly.
+    return np.where(np.isfinite(array), array.astype(object), array.astype(str)).tolist()
 
 
 def _bounds_from_json(key: str, value: object, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:

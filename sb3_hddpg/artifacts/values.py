@@ -16,7 +16,7 @@ import types
 import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, NoReturn
+from typing import Any
 
 import gymnasium as gym
 from gymnasium.envs.registration import registry
@@ -91,15 +91,11 @@ class Bound:
 
 def _number(value: object, kind: type) -> int | float | None:
     """``value`` as ``kind`` if it is a finite number of that kind (an integral float counts as an int)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         return None
-    if not math.isfinite(value):
+    if kind is int and isinstance(value, float) and not value.is_integer():
         return None
-    if kind is int:
-        if isinstance(value, float) and not value.is_integer():
-            return None
-        return int(value)
-    return float(value)
+    return int(value) if kind is int else float(value)
 
 
 def is_finite_number(value: object) -> bool:
@@ -110,9 +106,7 @@ def is_finite_number(value: object) -> bool:
 _UNIT = Bound(float, 0.0, 1.0)
 _MAGNITUDE = Bound(float, 0.0, MAX_MAGNITUDE)
 
-#: Numeric config keys (algorithm arguments and RL Zoo's own) -> their range. Arguments whose values are
-#: structures (``policy_kwargs``, ``replay_buffer_*``, ``train_freq``, ``buffer_size``) are listed in
-#: :data:`STRUCTURED`, and bounded by :mod:`sb3_hddpg.training.config` with the constants here.
+#: Numeric config keys (algorithm arguments and RL Zoo's own) -> their range (structures: :data:`STRUCTURED`).
 HYPERPARAMETERS: dict[str, Bound] = {
     "n_timesteps": Bound(int, 1, MAX_TIMESTEPS),
     "n_envs": Bound(int, 1, MAX_N_ENVS),
@@ -195,12 +189,10 @@ def _is_kind(value: object, hint: Any) -> bool:
         return isinstance(value, list) and all(_is_kind(item, args[0]) for item in value)
     if hint is type(None):
         return value is None
-    if hint is bool:
-        return isinstance(value, bool)
+    if hint in (bool, str):
+        return isinstance(value, hint)
     if hint in (int, float):
         return _number(value, hint) is not None and (hint is float or isinstance(value, int))
-    if hint is str:
-        return isinstance(value, str)
     if typing.is_typeddict(hint) or hint is dict or origin is dict:
         return isinstance(value, dict)
     raise TypeError(f"check_field_types cannot check the annotation {hint!r}")
@@ -410,8 +402,8 @@ def _creator(entry_point: object, env_id: str, what: str) -> Any:
 
 def check_env_value(key: str, value: object, default: object, what: str) -> Any:
     """
-    One env setting: episode lengths bounded, ``render_mode`` only :data:`FILE_RENDER_MODES`, no parameter
-    named like a file, a value of the default's type, numbers and strings and lists bounded.
+    One env setting: episode lengths bounded, ``render_mode`` only :data:`FILE_RENDER_MODES`, no parameter named
+    like a file, a value of the default's type, numbers, plain strings and lists bounded.
 
     :param key: the parameter.
     :param value: the value from the file.
@@ -485,7 +477,10 @@ def _plain(value: object, what: str, depth: int) -> Any:
         return [_plain(item, what, depth + 1) for item in value]
     if depth < 1 and isinstance(value, Mapping) and len(value) <= MAX_ITEMS:
         return {check_name(k, what): _plain(v, f"{what}.{k}", depth + 1) for k, v in value.items()}
-    return _refuse(value, what)
+    raise LimitError(
+        f"{what}: expected a number, a plain string, a boolean, a list of at most {MAX_ITEMS} of them or a "
+        f"mapping of names to them, got {brief(value)}"
+    )
 
 
 def _term_bounds(value: object, what: str) -> dict[str, list[float]]:
@@ -506,13 +501,6 @@ def _term_bounds(value: object, what: str) -> dict[str, list[float]]:
     except ValueError as error:
         raise LimitError(f"{what}: {error}") from None
     return {term: list(pair) for term, pair in checked.items()}
-
-
-def _refuse(value: object, what: str) -> NoReturn:
-    raise LimitError(
-        f"{what}: expected a number, a plain string, a boolean, a list of at most {MAX_ITEMS} of them or a "
-        f"mapping of names to them, got {brief(value)}"
-    )
 
 
 def adaptable_env_ids() -> list[str]:

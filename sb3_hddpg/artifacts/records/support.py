@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,15 +38,7 @@ class SupportStep:
     replay: int = 0
 
     def to_json(self) -> JsonObject:
-        return {
-            "name": self.name,
-            "weights": dict(self.weights),
-            "gain": self.gain,
-            "value": self.value,
-            "steps": self.steps,
-            "warm_start": self.warm_start,
-            "replay": self.replay,
-        }
+        return asdict(self)
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,11 +91,7 @@ class SupportRecord(JsonRecord):
 
 
 def read_support_record(path: str | Path) -> SupportRecord:
-    """
-    Read ``support.json``, checked: names plain, numbers finite, at most :data:`MAX_WORKERS` workers.
-
-    :raises ValueError: naming the file and the first problem.
-    """
+    """Read ``support.json``, checked (names plain, numbers finite, at most :data:`MAX_WORKERS` workers)."""
     what = str(path)
     data = read_json_record(path, f"{what}: not a readable JSON file")
     if not isinstance(data, dict):
@@ -113,7 +101,7 @@ def read_support_record(path: str | Path) -> SupportRecord:
         added = [_step(item, f"{what}: added") for item in _list(data.get("added", []), what)]
         terms = [check_name(t, f"{what}: terms") for t in _list(data.get("terms"), what)]
         start = [check_name(n, f"{what}: start") for n in _list(data.get("start"), what)]
-        record = SupportRecord(
+        return SupportRecord(
             terms,
             _int(data.get("budget"), what),
             _int(data.get("size"), what),
@@ -126,7 +114,6 @@ def read_support_record(path: str | Path) -> SupportRecord:
         )
     except (TypeError, KeyError) as error:
         raise ValueError(f"{what}: not a support record ({brief(str(error))})") from None
-    return record
 
 
 def _list(value: object, what: str) -> list[Any]:
