@@ -61,15 +61,11 @@ def deferred_stop_signals() -> Iterator[None]:
         if signum not in received:
             received.append(signal.Signals(signum))
 
-    current = {signum: signal.getsignal(signum) for signum in _STOP_SIGNALS}
-    if any(handler is None for handler in current.values()):  # set outside Python: cannot be restored
-        yield
-        return
-    try:
-        previous = {signum: signal.signal(signum, hold) for signum in _STOP_SIGNALS}
-    except ValueError:  # not the main thread
-        yield
-        return
+    previous: dict[int, Any] = {}
+    # A handler set outside Python (None) cannot be restored; outside the main thread none can be set.
+    if all(signal.getsignal(signum) is not None for signum in _STOP_SIGNALS):
+        with contextlib.suppress(ValueError):
+            previous = {signum: signal.signal(signum, hold) for signum in _STOP_SIGNALS}
     try:
         yield
     finally:

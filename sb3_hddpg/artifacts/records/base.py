@@ -5,9 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 from typing import Any, Literal
 
-from sb3_hddpg.artifacts.limits import (
-    brief,
-)
+from sb3_hddpg.artifacts.limits import brief
 
 WORKERS_MANIFEST_VERSION = 1
 #: Schema version of ``flat/manifest.json``.

@@ -6,17 +6,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TypedDict, cast
 
-from sb3_hddpg.artifacts.limits import (
-    MAX_WORKERS,
-    brief,
-    check_name,
-)
-from sb3_hddpg.artifacts.records.base import (
-    BUNDLE_KIND,
-    BUNDLE_MANIFEST_VERSION,
-    JsonObject,
-    JsonRecord,
-)
+from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, check_name
+from sb3_hddpg.artifacts.records.base import BUNDLE_KIND, BUNDLE_MANIFEST_VERSION, JsonObject, JsonRecord
 
 
 class BundleMember(TypedDict, total=False):

@@ -9,18 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_hddpg.artifacts.limits import (
-    brief,
-    check_env_id,
-    check_name,
-    read_json_file,
-)
-from sb3_hddpg.artifacts.records.base import (
-    HAM_FILE_VERSION,
-    HAM_KIND,
-    JsonObject,
-    JsonRecord,
-)
+from sb3_hddpg.artifacts.limits import brief, check_env_id, check_name, read_json_file
+from sb3_hddpg.artifacts.records.base import HAM_FILE_VERSION, HAM_KIND, JsonObject, JsonRecord
 from sb3_hddpg.artifacts.values import check_env_kwargs
 
 
