@@ -7,13 +7,9 @@ writes. Each record is also a read-only mapping of the JSON it is written as.
 from sb3_hddpg.artifacts.records.base import (
     BENCHMARK_RECORD_VERSION,
     BENCHMARK_RESULTS_VERSION,
-    BUNDLE_MANIFEST_VERSION,
-    FLAT_MANIFEST_VERSION,
-    HAM_FILE_VERSION,
     QUICKSTART_RESULTS_VERSION,
     WORKERS_MANIFEST_VERSION,
     JsonObject,
-    JsonRecord,
     JsonValue,
     ManifestKind,
 )
@@ -30,14 +26,10 @@ from sb3_hddpg.artifacts.records.models import (
 __all__ = [
     "BENCHMARK_RECORD_VERSION",
     "BENCHMARK_RESULTS_VERSION",
-    "BUNDLE_MANIFEST_VERSION",
-    "FLAT_MANIFEST_VERSION",
-    "HAM_FILE_VERSION",
     "QUICKSTART_RESULTS_VERSION",
     "WORKERS_MANIFEST_VERSION",
     "BundleManifest",
     "JsonObject",
-    "JsonRecord",
     "JsonValue",
     "ManifestKind",
     "ModelEntry",
