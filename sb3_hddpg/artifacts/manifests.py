@@ -209,14 +209,7 @@ def check_resumed_env(
     differences = []
     if stored.get("env_id") != env_id:
         differences.append(f"env was {brief(stored.get('env_id'))} in the run, now {env_id!r}")
-    before = as_json(stored.get("env_kwargs") or {})
-    now = as_json(env_kwargs)
-    if isinstance(before, dict) and isinstance(now, dict):
-        for key in sorted(set(before) | set(now), key=str):
-            if before.get(key) != now.get(key):
-                differences.append(
-                    f"{str(key)[:64]} was {brief(before.get(key))} in the run, now {brief(now.get(key))}"
-                )
+    differences += _changes(as_json(stored.get("env_kwargs") or {}), as_json(env_kwargs))
     if differences:
         more = f" (and {len(differences) - 2} more)" if len(differences) > 2 else ""
         raise ResumeMismatch(
@@ -270,15 +263,23 @@ def check_resumed_agent(
     before = config.get("block") if isinstance(config, Mapping) else None
     now = as_json(dict(block))
     if "config" not in accept and before is not None and as_json(before) != now:
-        shown = "the block differs"
-        if isinstance(before, Mapping) and isinstance(now, dict):
-            keys = sorted({str(k) for k in (*before, *now)})
-            key = next((k for k in keys if before.get(k) != now.get(k)), "block")
-            shown = f"{key} was {brief(before.get(key))} in the run, now {brief(now.get(key))}"
+        shown = next(iter(_changes(as_json(before), now)), "the block differs")
         raise ResumeMismatch(
             f"{what}: --config block of {name!r}: {shown}; resume with the run's config"
             + accepting.format("config")
         )
+
+
+def _changes(before: JsonValue, now: JsonValue) -> list[str]:
+    """``KEY was X in the run, now Y`` for each key whose value differs between two JSON objects."""
+    if not isinstance(before, dict) or not isinstance(now, dict):
+        return []
+    keys = sorted(set(before) | set(now))
+    return [
+        f"{k[:64]} was {brief(before.get(k))} in the run, now {brief(now.get(k))}"
+        for k in keys
+        if before.get(k) != now.get(k)
+    ]
 
 
 def as_json(value: object) -> JsonValue:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 import math
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from typing import Any
 
 import numpy as np
@@ -162,10 +162,14 @@ def _space_to_json(space: spaces.Space, what: str) -> dict[str, object]:
     }
 
 
-def _discrete_from_json(value: Mapping[str, object], what: str) -> spaces.Discrete:
-    unknown = set(value) - {"type", "n", "start"}
+def _check_keys(value: Mapping[str, object], allowed: Collection[str], what: str) -> None:
+    unknown = sorted(map(str, set(value) - set(allowed)))
     if unknown:
-        raise ValueError(f"{what}: unknown key {brief(sorted(map(str, unknown))[0])} for a Discrete space")
+        raise ValueError(f"{what}: unknown key {brief(unknown[0])}")
+
+
+def _discrete_from_json(value: Mapping[str, object], what: str) -> spaces.Discrete:
+    _check_keys(value, ("type", "n", "start"), what)
     n = _as_int(f"{what}.n", value.get("n"), minimum=1, maximum=MAX_DISCRETE_ACTIONS)
     start = _as_int(
         f"{what}.start", value.get("start", 0), minimum=-MAX_DISCRETE_START, maximum=MAX_DISCRETE_START
@@ -182,9 +186,7 @@ def _space_from_json(value: object, what: str) -> spaces.Box | spaces.Discrete:
         raise ValueError(
             f"{what}: unsupported space type {brief(value.get('type'))}; only 'Box' and 'Discrete' are supported"
         )
-    unknown = set(value) - {"type", "low", "high", "shape", "dtype"}
-    if unknown:
-        raise ValueError(f"{what}: unknown key {brief(sorted(map(str, unknown))[0])}")
+    _check_keys(value, ("type", "low", "high", "shape", "dtype"), what)
     dtype_name = value.get("dtype")
     if dtype_name not in DTYPES:
         raise ValueError(f"{what}.dtype: unsupported dtype {brief(dtype_name)}")
@@ -214,9 +216,7 @@ def _layers(key: str, value: object) -> list[int]:
 
 def _net_arch(value: object) -> list[int] | dict[str, list[int]]:
     if isinstance(value, Mapping):
-        unknown = set(value) - {"pi", "qf", "vf"}
-        if unknown:
-            raise ValueError(f"policy_kwargs.net_arch: unknown key {brief(sorted(map(str, unknown))[0])}")
+        _check_keys(value, ("pi", "qf", "vf"), "policy_kwargs.net_arch")
         return {name: _layers(f"policy_kwargs.net_arch.{name}", layers) for name, layers in value.items()}
     return _layers("policy_kwargs.net_arch", value)
 
@@ -358,9 +358,7 @@ def build_from_spec(spec: object, device: th.device | str) -> BaseAlgorithm:
         raise ValueError(
             f"spec: format/version {brief(spec.get('format'))}/{brief(spec.get('version'))} is not {SPEC_FORMAT!r}/{SPEC_VERSION}"
         )
-    unknown_top = set(spec) - _SPEC_KEYS
-    if unknown_top:
-        raise ValueError(f"spec: unknown key {brief(sorted(map(str, unknown_top))[0])}")
+    _check_keys(spec, _SPEC_KEYS, "spec")
     algo = spec.get("algorithm")
     if not isinstance(algo, str) or algo not in ALGOS:
         raise ValueError(f"algorithm: unknown algorithm {brief(algo)}; expected one of {sorted(ALGOS)}")
