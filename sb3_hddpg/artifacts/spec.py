@@ -77,15 +77,12 @@ def _as_float(key: str, value: object) -> float:
     return value
 
 
-def _as_int(key: str, value: object, minimum: int | None = None, maximum: int | None = None) -> int:
+def _as_int(key: str, value: object, minimum: float = -math.inf, maximum: float = math.inf) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
         raise ValueError(f"{key}: expected an integer, got {brief(value)}")
-    value = int(value)
-    if minimum is not None and value < minimum:
-        raise ValueError(f"{key}: expected an integer >= {minimum}, got {brief(value)}")
-    if maximum is not None and value > maximum:
-        raise ValueError(f"{key}: expected an integer <= {maximum}, got {brief(value)}")
-    return value
+    if not minimum <= value <= maximum:
+        raise ValueError(f"{key}: expected an integer in [{minimum}, {maximum}], got {brief(value)}")
+    return int(value)
 
 
 def _as_bool(key: str, value: object) -> bool:
@@ -169,7 +166,7 @@ def _check_keys(value: Mapping[str, object], allowed: Collection[str], what: str
 
 
 def _discrete_from_json(value: Mapping[str, object], what: str) -> spaces.Discrete:
-    _check_keys(value, ("type", "n", "start"), what)
+    _check_keys(value, ("type", "n", "start"), f"{what} (a Discrete space)")
     n = _as_int(f"{what}.n", value.get("n"), minimum=1, maximum=MAX_DISCRETE_ACTIONS)
     start = _as_int(
         f"{what}.start", value.get("start", 0), minimum=-MAX_DISCRETE_START, maximum=MAX_DISCRETE_START

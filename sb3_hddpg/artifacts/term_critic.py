@@ -18,6 +18,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
+from stable_baselines3.common.torch_layers import create_mlp
 from torch import nn
 
 from sb3_hddpg.artifacts.limits import (
@@ -119,9 +120,7 @@ class TermCriticSpec:
         return len(self.terms) * (self.n_actions if self.discrete else 1)
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            key: list(value) if isinstance(value, tuple) else value for key, value in asdict(self).items()
-        }
+        return asdict(self)  # tuples are JSON lists
 
     @classmethod
     def from_json(cls, data: object, what: str) -> TermCriticSpec:
@@ -150,13 +149,7 @@ class TermCritic(nn.Module):
     def __init__(self, spec: TermCriticSpec) -> None:
         super().__init__()
         self.spec = spec
-        layers: list[nn.Module] = []
-        width = spec.input_dim
-        for size in spec.net_arch:
-            layers += [nn.Linear(width, size), nn.ReLU()]
-            width = size
-        layers.append(nn.Linear(width, spec.output_dim))
-        self.net = nn.Sequential(*layers)
+        self.net = nn.Sequential(*create_mlp(spec.input_dim, spec.output_dim, list(spec.net_arch)))
         if sum(p.numel() for p in self.parameters()) > MAX_PARAMETERS:
             raise LimitError(
                 f"A term critic of {spec.net_arch} over {spec.input_dim} inputs is over the size limit"

@@ -4,45 +4,24 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TypedDict, cast
 
 from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, check_name
 from sb3_hddpg.artifacts.records.base import BUNDLE_KIND, BUNDLE_MANIFEST_VERSION, JsonObject, JsonRecord
 
 
-class BundleMember(TypedDict, total=False):
-    """
-    One member's entry in a bundle manifest: its member file and sha256 (the reader checks both), its kind
-    (``sb3``, or ``hierarchy`` for a nested bundle), the rebuild spec of an SB3 model, and what the bundle
-    keeps about a worker (:meth:`~sb3_hddpg.artifacts.workers.Workers.bundle_meta`).
-    """
-
-    file: str
-    sha256: str
-    kind: str
-    spec: dict[str, object]
-    source_sha256: str
-    reward_term: str
-    reward_bounds: list[float]
-    env_id: str
-    metrics: dict[str, object]
-    seed: int
-
-
 @dataclass(frozen=True, eq=False)
 class BundleManifest(JsonRecord):
     """
-    A hierarchy bundle's ``manifest.json``: the shared env, the workers in the manager's action order,
-    the selection settings, and one entry per member (the manager's, each worker's) with its file, sha256
-    and rebuild spec.
+    A hierarchy bundle's ``manifest.json``.
 
     :param env_id: the shared env (checked against the allow-list when the bundle is loaded).
     :param env_kwargs: its keyword arguments.
     :param worker_names: the workers, in the manager's action order.
     :param selection: the selection settings (checked when loaded).
-    :param manager: the manager's entry (file ``manager.zip``, sha256, spec, metadata); ``None`` for a
-        hierarchy that selects by GPI (``selection.selection`` ``gpi``), which has no manager.
-    :param workers: name -> the worker's entry (``kind`` ``sb3`` or ``hierarchy``).
+    :param manager: the manager's entry (its member file, sha256, rebuild spec and metadata); ``None`` for a
+        hierarchy that selects by GPI, which has no manager.
+    :param workers: name -> the worker's entry (as the manager's, with ``kind`` ``sb3`` or ``hierarchy`` and
+        :meth:`~sb3_hddpg.artifacts.workers.Workers.bundle_meta`).
     :param versions: the library versions that wrote it.
     :param schema_version: the file's schema version.
     """
@@ -51,12 +30,12 @@ class BundleManifest(JsonRecord):
     env_kwargs: object
     worker_names: list[str]
     selection: object
-    manager: BundleMember | None
-    workers: Mapping[str, BundleMember]
+    manager: JsonObject | None
+    workers: Mapping[str, JsonObject]
     versions: Mapping[str, object] = field(default_factory=dict)
     schema_version: int = BUNDLE_MANIFEST_VERSION
 
-    def member_entries(self) -> list[tuple[str, BundleMember]]:
+    def member_entries(self) -> list[tuple[str, JsonObject]]:
         """(label, entry) of every member: the manager first (if any), then the workers in order."""
         manager = [("manager", self.manager)] if self.manager is not None else []
         return [*manager, *((name, self.workers[name]) for name in self.worker_names)]
@@ -77,11 +56,9 @@ class BundleManifest(JsonRecord):
     @classmethod
     def from_json(cls, value: object, what: str) -> BundleManifest:
         """
-        The one reader of a bundle manifest (parsed by the limited JSON reader): its kind and schema
-        version, 2 to :data:`~sb3_hddpg.artifacts.limits.MAX_WORKERS` plain worker names that are exactly
-        the workers' keys in order, and every member entry naming the member its writer gives it.
-
-        :raises ValueError: naming ``what`` and the first problem.
+        The one reader of a bundle manifest: its kind and schema version, 2 to
+        :data:`~sb3_hddpg.artifacts.limits.MAX_WORKERS` plain worker names that are exactly the workers' keys
+        in order, and every member entry naming the member its writer gives it; raises ``ValueError``.
         """
         if not isinstance(value, dict) or value.get("kind") != BUNDLE_KIND:
             raise ValueError(f"{what}: manifest.json is not an sb3-hddpg hierarchy manifest")
@@ -109,8 +86,8 @@ class BundleManifest(JsonRecord):
             value.get("env_kwargs"),
             names,
             value.get("selection"),
-            cast(BundleMember, manager) if manager is not None else None,
-            cast(dict[str, BundleMember], workers),
+            manager,
+            workers,
             versions if isinstance(versions := value.get("versions"), dict) else {},
             version,
         )
@@ -134,8 +111,8 @@ def bundle_manifest(
         dict(env_kwargs),
         list(worker_names),
         dict(selection),
-        cast(BundleMember, dict(manager)) if manager is not None else None,
-        {name: cast(BundleMember, dict(entry)) for name, entry in workers.items()},
+        dict(manager) if manager is not None else None,
+        {name: dict(entry) for name, entry in workers.items()},
         versions,
         BUNDLE_MANIFEST_VERSION,
     )
@@ -157,10 +134,7 @@ _SHA256_CHARS = frozenset("0123456789abcdef")
 
 
 def _check_member_entry(label: str, entry: object, what: str) -> None:
-    """
-    One member's entry: its file and sha256, and the member name the writer gives it; any other name is
-    refused, so a manifest cannot point at an arbitrary member.
-    """
+    """One member's entry: its sha256, and the member name the writer gives it (never an arbitrary member)."""
     sha = entry.get("sha256") if isinstance(entry, dict) else None
     if not (
         isinstance(entry, dict)

@@ -18,7 +18,7 @@ SUPPORT_VERSION = 1
 @dataclass(frozen=True)
 class SupportStep:
     """
-    One worker the support gained: where, why, and what it cost.
+    One worker the support gained.
 
     :param name: the worker's name.
     :param weights: its weighting of the terms.
