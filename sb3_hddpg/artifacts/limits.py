@@ -19,6 +19,7 @@ import reprlib
 import stat
 import zipfile
 import zlib
+from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -171,7 +172,7 @@ def max_processes() -> int:
 COUNTS: dict[str, tuple[int, int | Any]] = {
     "episodes": (1, MAX_EVAL_EPISODES),
     "evaluations": (1, MAX_EVALUATIONS),
-    "episode_steps": (1, lambda: MAX_EPISODE_LENGTH),  # defined below, with the env settings
+    "episode_steps": (1, MAX_EPISODE_LENGTH),
     "video_steps": (1, MAX_VIDEO_STEPS),
     "seeds_per_trial": (1, MAX_SEEDS_PER_TRIAL),
     "n_trials": (1, MAX_TRIALS),
@@ -478,11 +479,9 @@ def check_zip_directory(archive: zipfile.ZipFile, what: str) -> list[zipfile.Zip
     infos = archive.infolist()
     if len(infos) > MAX_ZIP_MEMBERS:
         raise LimitError(f"{what}: {len(infos)} members is more than the limit of {MAX_ZIP_MEMBERS}")
-    seen: set[str] = set()
-    for info in infos:
-        if info.filename in seen:
-            raise LimitError(f"{what}: two members are named {brief(info.filename)}; refused as ambiguous")
-        seen.add(info.filename)
+    twice = [name for name, count in Counter(info.filename for info in infos).items() if count > 1]
+    if twice:
+        raise LimitError(f"{what}: two members are named {brief(twice[0])}; refused as ambiguous")
     return infos
 
 

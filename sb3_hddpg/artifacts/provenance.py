@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import io
 import platform
+import re
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,9 +58,7 @@ class CodeProvenance:
         if not isinstance(value, dict) or not isinstance(value.get("version"), str):
             raise ValueError(f"{what}: expected an object with the package version, got {brief(value)}")
         commit, clean = value.get("commit"), value.get("clean")
-        if commit is not None and not (
-            isinstance(commit, str) and len(commit) == 40 and all(c in "0123456789abcdef" for c in commit)
-        ):
+        if commit is not None and not (isinstance(commit, str) and re.fullmatch("[0-9a-f]{40}", commit)):
             raise ValueError(f"{what}.commit: expected 40 lower-case hex digits or null, got {brief(commit)}")
         if clean is not None and not isinstance(clean, bool):
             raise ValueError(f"{what}.clean: expected true, false or null, got {brief(clean)}")

@@ -373,11 +373,7 @@ def build_from_spec(spec: object, device: th.device | str) -> BaseAlgorithm:
         raise ValueError(f"hyperparameters: expected an object, got {brief(raw_hparams)}")
     record = SPEC_ALGORITHMS[algo]
     kinds = record.hyperparameters
-    unknown = set(raw_hparams) - set(kinds)
-    if unknown:
-        raise ValueError(
-            f"hyperparameters.{sorted(map(str, unknown))[0]}: not a {algo} hyperparameter in the spec"
-        )
+    _check_keys(raw_hparams, kinds, f"hyperparameters (of {algo})")
     hparams = {
         key: _CONVERTERS[kinds[key]](f"hyperparameters.{key}", raw_hparams[key])
         for key in kinds

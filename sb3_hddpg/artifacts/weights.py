@@ -55,23 +55,17 @@ def _check_state_dict(
     expected: Mapping[str, th.Tensor], found: Mapping[str, th.Tensor], path: str, name: str
 ) -> None:
     """Raise SafeLoadError naming the first key whose presence or shape differs between spec and file."""
-    for key, tensor in expected.items():
-        if key not in found or found[key] is None:
+
+    def shape(tensors: Mapping[str, th.Tensor | None], key: str) -> object:
+        tensor = tensors.get(key)
+        return list(tensor.shape) if tensor is not None else "none" if key in tensors else "no such key"
+
+    for key in dict.fromkeys([*expected, *found]):
+        if shape(found, key) != shape(expected, key):
             raise SafeLoadError(
-                f"{path}: {brief(name)} lacks key {brief(key)} (spec expects shape {list(tensor.shape)}); "
-                "the spec does not describe this model"
+                f"{path}: {brief(name)} key {brief(key)} has shape {shape(found, key)} but the spec builds "
+                f"{shape(expected, key)}; the spec does not describe this model"
             )
-        if found[key].shape != tensor.shape:
-            raise SafeLoadError(
-                f"{path}: {brief(name)} key {brief(key)} has shape {list(found[key].shape)} but the spec builds "
-                f"{list(tensor.shape)}; the spec does not describe this model"
-            )
-    extra = [key for key in found if key not in expected]
-    if extra:
-        raise SafeLoadError(
-            f"{path}: {brief(name)} has key {brief(extra[0])} (shape {list(found[extra[0]].shape)}) that the spec-built "
-            "model does not; the spec does not describe this model"
-        )
 
 
 def read_weights(
