@@ -201,8 +201,7 @@ def check_resumed_env(
     :param env_id: the env id asked for now.
     :param env_kwargs: its keyword arguments.
     :param what: the option named in the message.
-    :raises ResumeMismatch: one line naming the first differences, e.g.
-        ``--resume: episode_steps was 30 in the run, now 500``.
+    :raises ResumeMismatch: one line naming the first differences.
     """
     if not isinstance(stored, dict):
         return

@@ -43,12 +43,8 @@ def check_parameter_count(
     what: str = "policy_kwargs.net_arch",
 ) -> int:
     """
-    The total parameters a spec or config would build (by the algorithm record's rule), refused over
-    :data:`MAX_PARAMETERS`: each layer may be within bounds and the product still be tens of GB.
-
-    :param algo: a registered algorithm, by name or spec class name (any case).
-    :param n_critics: the critics (``None``: the algorithm's default).
-    :return: the count; raises :class:`LimitError` otherwise.
+    The total parameters a spec or config would build (by the algorithm record's rule, ``n_critics=None``:
+    its default), refused over :data:`MAX_PARAMETERS`: each layer may be within bounds and the product not.
     """
     shape = NetworkShape(obs_dim, act_dim, pi_layers, qf_layers, n_critics, n_quantiles)
     total = algorithm(algo).parameter_count(shape)

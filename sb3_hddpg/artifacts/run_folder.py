@@ -115,13 +115,7 @@ def lock_holder(folder: str | os.PathLike[str]) -> str | None:
 
 
 def check_clearable(folder: str | os.PathLike[str]) -> Path:
-    """
-    Refuse, with :class:`RunFolderError` naming the folder and the reason, to clear ``folder`` (see the
-    module's rules).
-
-    :param folder: the folder a command was asked to overwrite.
-    :return: the folder.
-    """
+    """Refuse, with :class:`RunFolderError` naming the reason, to clear ``folder`` (see the module's rules)."""
     folder = Path(folder)
     if not _existing_folder(folder, "clear"):
         return folder
@@ -186,13 +180,7 @@ def _marks_run_folder(name: str) -> bool:
 
 
 def check_out_folder(folder: str | os.PathLike[str]) -> Path:
-    """
-    The one rule for a folder a command is about to write (see the module's rules): refused with
-    :class:`RunFolderError` naming the folder and what is in the way.
-
-    :param folder: the folder named by the user.
-    :return: the folder.
-    """
+    """The one rule for a folder a command is about to write (see the module's rules): a :class:`RunFolderError`."""
     folder = Path(folder)
     if not _existing_folder(folder, "write into"):
         return folder

@@ -45,10 +45,8 @@ class TermCriticSpec:
 
     :param terms: the reward terms, in the order of its heads.
     :param obs_dim: the flat size of the worker's observation.
-    :param n_actions: a discrete worker's number of actions (its critic outputs ``Q_k(s, a)`` for every
-        action); 0 for a continuous worker (its critic takes ``(s, a)``).
-    :param action_low: a continuous worker's action bounds (actions are scaled to [-1, 1] as SB3's replay
-        buffer stores them).
+    :param n_actions: a discrete worker's number of actions; 0 for a continuous worker.
+    :param action_low: a continuous worker's action bounds (actions are scaled to [-1, 1] as SB3 stores them).
     :param action_high: the upper bounds.
     :param net_arch: the hidden layers' sizes.
     :param gamma: the discount its values are for.
@@ -140,8 +138,7 @@ class TermCriticSpec:
 class TermCritic(nn.Module):
     """
     One Q head per reward term for one worker's policy: ``Q(s, a) -> (n_terms,)`` for a continuous worker,
-    ``Q(s) -> (n_actions, n_terms)`` for a discrete one. Values are of the normalised terms (each in [0, 1]
-    per step), discounted by ``spec.gamma``.
+    ``Q(s) -> (n_actions, n_terms)`` for a discrete one, of the normalised terms discounted by ``spec.gamma``.
 
     :param spec: what it evaluates and its layers.
     """

@@ -72,16 +72,9 @@ def read_weights(
     source: str | os.PathLike[str] | io.BytesIO, path: str, device: th.device | str, budget: LoadBudget
 ) -> tuple[dict[str, th.Tensor], dict[str, th.Tensor]]:
     """
-    Read a model zip's tensors: ``policy.pth`` (required) and ``pytorch_variables.pth`` (SAC/TQC's entropy
-    coefficient, if present); no other member is opened.
-
-    :param source: the zip, or its bytes.
-    :param path: how messages name it.
-    :param device: where the tensors are mapped.
-    :param budget: the bytes the whole load may still read.
-    :return: the policy's state dict and the variables.
-    :raises SafeLoadError: for a file that is not a (complete) zip, a missing ``policy.pth``, members over
-        the limits or holding anything but tensors.
+    The policy's state dict (``policy.pth``, required) and the variables (``pytorch_variables.pth``, SAC's
+    entropy coefficient) of a model zip (a path or its bytes), the only members opened; a
+    :class:`SafeLoadError` naming ``path`` for anything but plain tensors within the limits.
     """
     try:
         archive = zipfile.ZipFile(source)
@@ -109,15 +102,8 @@ def apply_weights(
     device: th.device | str,
 ) -> None:
     """
-    Put the tensors :func:`read_weights` read into a model built from its spec, after checking every key and
-    shape.
-
-    :param model: the model :func:`~sb3_hddpg.artifacts.spec.build_from_spec` built.
-    :param policy_state: the policy's state dict.
-    :param variables: the other tensors (only those this model declares are accepted).
-    :param path: how messages name the file.
-    :param device: where the tensors go.
-    :raises SafeLoadError: naming the first key whose presence or shape differs.
+    Put the tensors :func:`read_weights` read into the model :func:`~sb3_hddpg.artifacts.spec.build_from_spec`
+    built, after checking every key and shape (a :class:`SafeLoadError` naming ``path`` otherwise).
     """
     # Compare before load_state_dict so the error names the key and both shapes instead of torch's long list.
     _check_state_dict(model.policy.state_dict(), policy_state, path, POLICY_MEMBER)

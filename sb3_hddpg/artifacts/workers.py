@@ -32,15 +32,12 @@ class Workers(Mapping[str, BaseAlgorithm]):
     more.
 
     :param models: name -> loaded model, in order.
-    :param states: name -> the state components that worker sees (workers trained on the full state are
-        absent).
-    :param env_id: the shared env's registered id (``None``: the manifest's is not usable here, see
-        ``env_problem``).
+    :param states: name -> the state components that worker sees (absent: the full state).
+    :param env_id: the shared env's registered id (``None``: the manifest's is not usable, see ``env_problem``).
     :param env_kwargs: its keyword arguments.
     :param manifest: the workers manifest the models were loaded from.
     :param folder: the folder holding that manifest.
-    :param env_problem: why the manifest's shared env is not usable (e.g. an env id outside the allow-list),
-        raised by :meth:`make_env`; the models themselves are usable in any env they fit.
+    :param env_problem: why the manifest's shared env is not usable, raised by :meth:`make_env`.
     :param critics: name -> the worker's per-term critic, for the workers that have one.
     """
 
@@ -128,13 +125,7 @@ def shared_env_of(
 
 
 def observed_components(manifest: ModelsManifest, names: Iterable[str]) -> dict[str, list[str]]:
-    """
-    The state components each worker was trained on, from its manifest entry's ``env_kwargs["observe"]``.
-
-    :param manifest: a workers manifest.
-    :param names: the workers to look at.
-    :return: name -> component names, for the workers trained on part of the state only.
-    """
+    """Name -> the state components a worker of ``names`` was trained on, where only part (``observe``)."""
     out: dict[str, list[str]] = {}
     for name in names:
         env_kwargs = manifest.entries[name].get("env_kwargs") or {}

@@ -14,10 +14,10 @@ class BundleManifest(JsonRecord):
     """
     A hierarchy bundle's ``manifest.json``.
 
-    :param env_id: the shared env (checked against the allow-list when the bundle is loaded).
+    :param env_id: the shared env.
     :param env_kwargs: its keyword arguments.
     :param worker_names: the workers, in the manager's action order.
-    :param selection: the selection settings (checked when loaded).
+    :param selection: the selection settings.
     :param manager: the manager's entry (its member file, sha256, rebuild spec and metadata); ``None`` for a
         hierarchy that selects by GPI, which has no manager.
     :param workers: name -> the worker's entry (as the manager's, with ``kind`` ``sb3`` or ``hierarchy`` and

@@ -79,22 +79,10 @@ def _check_env_numbers(env_kwargs: object, what: str) -> None:
 @dataclass(frozen=True, eq=False)
 class ModelEntry(JsonRecord):
     """
-    One trained model's entry in a models manifest: what it is, where its file is, how to rebuild it.
-
-    :param name: the entry's name; the model file is ``NAME.zip`` beside the manifest.
-    :param sha256: the file's hash.
-    :param algo: the algorithm's registry name.
-    :param env_id: the env the model was trained on.
-    :param env_kwargs: its keyword arguments.
-    :param config: ``{"file": ..., "block": ...}``: the config the model was trained with.
-    :param seed: the training seed.
-    :param timesteps_requested: the budget asked for.
-    :param timesteps_trained: the steps trained.
-    :param backend: ``sb3`` or ``sbx``.
-    :param versions: the library versions it was trained with.
-    :param metrics: its evaluation metrics.
-    :param spec: the weights-only rebuild spec (:func:`~sb3_hddpg.artifacts.spec.model_spec`).
-    :param facts: more facts for this kind of model (reward term and bounds, preferences, threads...).
+    One trained model's entry in a models manifest, as :func:`~sb3_hddpg.artifacts.manifests.model_entry`
+    builds it from its arguments and the outcome: the file's ``sha256``, the ``timesteps_trained``, the
+    ``backend`` (``sb3`` or ``sbx``), the library ``versions``, the evaluation ``metrics`` and the
+    weights-only rebuild ``spec``.
     """
 
     name: str
@@ -183,13 +171,7 @@ def models_manifest(
     entries: Mapping[str, ModelEntry | Mapping[str, object]] | None = None,
     shared_env: Mapping[str, object] | None = None,
 ) -> ModelsManifest:
-    """
-    The one builder of a models manifest, at this library's schema version.
-
-    :param kind: ``workers`` or ``models``.
-    :param entries: name -> entry (:class:`ModelEntry` or its JSON).
-    :param shared_env: the workers' shared env, ``{"env_id": ..., "env_kwargs": ...}``.
-    """
+    """The one builder of a models manifest, at this library's schema version (see :class:`ModelsManifest`)."""
     manifest = ModelsManifest(
         kind, {}, dict(shared_env) if shared_env is not None else None, MANIFEST_VERSIONS[kind]
     )
