@@ -35,128 +35,75 @@ from sb3_hddpg.envs.snake import params as _snake
 from sb3_hddpg.names import MAX_NAME_CHARS as _MAX_NAME_CHARS
 from sb3_hddpg.names import PLAIN_NAME
 
-#: Largest JSON document read from a file someone else made (a manifest, ham.json): ours are a few KB.
-MAX_JSON_BYTES = 1 << 20
-#: Largest CSV of records read back (a benchmark's episodes.csv: about 200 bytes per episode).
-MAX_CSV_BYTES = 64 << 20
-#: Most cells of such a CSV read into memory (a run of record: ~60,000 episodes of ~40 columns).
-MAX_CSV_CELLS = 4_000_000
-#: Deepest nesting of a JSON document or a config value (json.loads recurses; ours are < 10 deep).
-MAX_JSON_DEPTH = 64
-#: Most values (nodes) in one config file after YAML aliases are expanded (ours: a few hundred).
-MAX_CONFIG_NODES = 100_000
-#: Most members in one zip (a bundle: manifest, manager and one per worker).
-MAX_ZIP_MEMBERS = 256
-#: Largest zip member we read (uncompressed; declared and actual). A 256x256 worker's policy.pth is ~1 MB.
-MAX_MEMBER_BYTES = 128 << 20
-#: Most uncompressed bytes one load may read, over all members and nested bundles.
-MAX_LOAD_BYTES = 256 << 20
-#: Largest compression ratio of a member over 1 MiB (weights compress ~1.1x; a zip bomb ~1000x).
-MAX_COMPRESSION_RATIO = 100
-#: Most trainable parameters one model spec may describe, targets and critics included (ours: ~0.2 M).
-MAX_PARAMETERS = 20_000_000
+MAX_JSON_BYTES = 1 << 20  #: Largest JSON document read from a file (a manifest, ham.json): ours are a few KB.
+MAX_CSV_BYTES = 64 << 20  #: Largest CSV of records read back (episodes.csv: ~200 bytes per episode).
+MAX_CSV_CELLS = 4_000_000  #: Most cells of such a CSV read (a run of record: ~60,000 x ~40).
+MAX_JSON_DEPTH = 64  #: Deepest nesting of a JSON document or a config value (json.loads recurses).
+MAX_CONFIG_NODES = 100_000  #: Most values in one config file, YAML aliases expanded (ours: a few hundred).
+MAX_ZIP_MEMBERS = 256  #: Most members in one zip (a bundle: manifest, manager and one per worker).
+MAX_MEMBER_BYTES = 128 << 20  #: Largest zip member read, uncompressed (a 256x256 worker's policy: ~1 MB).
+MAX_LOAD_BYTES = 256 << 20  #: Most uncompressed bytes one load may read, over all members and nested bundles.
+MAX_COMPRESSION_RATIO = 100  #: Largest compression ratio of a member over 1 MiB (weights: ~1.1x).
+MAX_PARAMETERS = 20_000_000  #: Most parameters of one model, targets and critics included (ours: ~0.2 M).
 #: Largest replay buffer a spec or config may ask for, in transitions and in (lazily committed) bytes.
 MAX_BUFFER_SIZE = 10_000_000
 MAX_BUFFER_BYTES = 4 << 30
-#: Deepest nesting of bundles (a hierarchy of hierarchies: ours are 2 deep).
-MAX_NESTING = 4
-#: Most models (manager and workers, over all nested bundles) one load may build.
-MAX_MODELS = 64
-#: Most workers one manager may select between.
-MAX_WORKERS = 32
-#: Most items of a list or mapping value from a file (env kwargs, a list setting, term bounds).
-MAX_ITEMS = 64
-#: Largest seed (numpy's ``SeedSequence`` takes any, SB3's ``set_random_seed`` 32 bits).
-MAX_SEED = 2**32 - 1
-#: Most seeds of one benchmark (each a run of every method; a run of record has 10).
-MAX_BENCHMARK_SEEDS = 1_000
+MAX_NESTING = 4  #: Deepest nesting of bundles (a hierarchy of hierarchies: ours are 2 deep).
+MAX_MODELS = 64  #: Most models (manager and workers, over all nested bundles) one load may build.
+MAX_WORKERS = 32  #: Most workers one manager may select between.
+MAX_ITEMS = 64  #: Most items of a list or mapping value from a file (env kwargs, a list, term bounds).
+MAX_SEED = 2**32 - 1  #: Largest seed (numpy's ``SeedSequence`` takes any, SB3's ``set_random_seed`` 32 bits).
+MAX_BENCHMARK_SEEDS = 1_000  #: Most seeds of one benchmark (each a run of every method; a run of record: 10).
 #: Most bytes of a run folder's marker read, and most entries it may list (a package writes about ten).
 MAX_MARKER_BYTES = 1 << 16
 MAX_MARKER_ENTRIES = 256
-#: Longest message fragment showing a value from a file.
-MAX_SHOWN = 200
+MAX_SHOWN = 200  #: Longest message fragment showing a value from a file.
 
 # Hyperparameters (a config block, a bundle's saved spec): each far above what the bundled configs use.
-#: Largest minibatch (a 65536 x 64-float batch is 16 MB per tensor).
-MAX_BATCH_SIZE = 65_536
-#: Most gradient steps per rollout (SB3's -1, "as many as env steps", is allowed too).
-MAX_GRADIENT_STEPS = 1_000
-#: Longest rollout between updates, in steps or episodes.
-MAX_TRAIN_FREQ = 100_000
-#: Most parallel training environments (each a process with ``SubprocVecEnv``).
-MAX_N_ENVS = 64
-#: Largest training budget of one agent, in timesteps.
-MAX_TIMESTEPS = 1_000_000_000
-#: Most warm-up steps before learning starts.
-MAX_LEARNING_STARTS = MAX_BUFFER_SIZE
-#: Widest hidden layer of a network in a config file (the parameter count bounds the product).
-MAX_LAYER_SIZE = 4_096
-#: Most hidden layers of a network in a config file.
-MAX_LAYERS = 16
-#: Most critics of an actor-critic network (``policy_kwargs.n_critics``).
-MAX_CRITICS = 64
-#: Most quantiles of a distributional critic (``policy_kwargs.n_quantiles``).
-MAX_QUANTILES = 4_096
-#: The largest per-term critic member read from a worker's zip.
-MAX_CRITIC_BYTES = 64 << 20
-#: The most observation or action entries a per-term critic reads.
-MAX_CRITIC_INPUTS = 1 << 16
+MAX_BATCH_SIZE = 65_536  #: Largest minibatch (a 65536 x 64-float batch is 16 MB per tensor).
+MAX_GRADIENT_STEPS = 1_000  #: Most gradient steps per rollout (SB3's -1, "as many as env steps", too).
+MAX_TRAIN_FREQ = 100_000  #: Longest rollout between updates, in steps or episodes.
+MAX_N_ENVS = 64  #: Most parallel training environments (each a process with ``SubprocVecEnv``).
+MAX_TIMESTEPS = 1_000_000_000  #: Largest training budget of one agent, in timesteps.
+MAX_LEARNING_STARTS = MAX_BUFFER_SIZE  #: Most warm-up steps before learning starts.
+MAX_LAYER_SIZE = 4_096  #: Widest hidden layer of a network in a config file.
+MAX_LAYERS = 16  #: Most hidden layers of a network in a config file.
+MAX_CRITICS = 64  #: Most critics of an actor-critic network (``policy_kwargs.n_critics``).
+MAX_QUANTILES = 4_096  #: Most quantiles of a distributional critic (``policy_kwargs.n_quantiles``).
+MAX_CRITIC_BYTES = 64 << 20  #: The largest per-term critic member read from a worker's zip.
+MAX_CRITIC_INPUTS = 1 << 16  #: The most observation or action entries a per-term critic reads.
 #: The observation and action widths that stand in for a config's env when its networks are sized
 #: before the env exists (the snake's are 39 and 6).
 STAND_IN_OBS_DIM = 64
 STAND_IN_ACT_DIM = 8
 
 # A saved model's spec: far above anything trained here, so that MAX_PARAMETERS refuses a network too large.
-#: Widest hidden layer a spec may describe.
-MAX_SPEC_LAYER_WIDTH = 1 << 16
-#: Most hidden layers a spec may describe.
-MAX_SPEC_LAYERS = 64
-#: Most actions of a Discrete action space in a spec.
-MAX_DISCRETE_ACTIONS = 1 << 16
-#: Largest magnitude of a Discrete space's ``start`` in a spec (a 32-bit action index).
-MAX_DISCRETE_START = 1 << 31
-#: Most elements of an observation or action space in a spec (ours: 27 and 6).
-MAX_SPACE_SIZE = 1 << 16
-#: Most warm-up steps of a batch-renormalisation layer (CrossQ's ``renorm_warmup_steps``).
-MAX_RENORM_WARMUP_STEPS = 1 << 40
-#: Bytes of a zip's ``data`` member read to tell whether SBX saved it.
-SBX_SNIFF_BYTES = 4096
-#: Largest magnitude of a noise parameter, an action penalty or another unbounded float setting.
-MAX_MAGNITUDE = 1e6
-#: Most env steps one manager decision may last (a manager block's ``option_steps``).
-MAX_OPTION_STEPS = 10_000
-#: Most episodes of one evaluation.
-MAX_EVAL_EPISODES = 10_000
-#: Most evaluations of one training run or tuning trial (``--n-evaluations``: ours use 5 to 20).
-MAX_EVALUATIONS = 10_000
-#: Most torch threads of one process.
-MAX_THREADS = 256
-#: Largest preference factor that weights a reward (summed over options and episodes, far from overflow).
-MAX_PREFERENCE = 1e6
-#: Largest scale of the motion a manager observes (``--manager-motion``; the snake arm uses 20).
-MAX_MANAGER_MOTION = 1e6
-#: How far the worker probabilities of one manager action may sum from 1.
-SIMPLEX_TOLERANCE = 1e-6
-#: Largest model file (a worker or flat zip, a bundle) read into memory to be hashed and loaded.
-MAX_MODEL_FILE_BYTES = MAX_LOAD_BYTES
-#: Most frames of one video (``package --video-steps``, ``record``).
-MAX_VIDEO_STEPS = 100_000
-#: Most seeds one tuning trial trains (each a full training run).
-MAX_SEEDS_PER_TRIAL = 100
-#: Most trials of one tuning invocation.
-MAX_TRIALS = 100_000
+MAX_SPEC_LAYER_WIDTH = 1 << 16  #: Widest hidden layer a spec may describe.
+MAX_SPEC_LAYERS = 64  #: Most hidden layers a spec may describe.
+MAX_DISCRETE_ACTIONS = 1 << 16  #: Most actions of a Discrete action space in a spec.
+MAX_DISCRETE_START = 1 << 31  #: Largest magnitude of a Discrete space's ``start`` in a spec.
+MAX_SPACE_SIZE = 1 << 16  #: Most elements of an observation or action space in a spec (ours: 27 and 6).
+MAX_RENORM_WARMUP_STEPS = 1 << 40  #: Most warm-up steps of CrossQ's batch renormalisation.
+SBX_SNIFF_BYTES = 4096  #: Bytes of a zip's ``data`` member read to tell whether SBX saved it.
+MAX_MAGNITUDE = 1e6  #: Largest magnitude of a noise parameter, an action penalty or another float setting.
+MAX_OPTION_STEPS = 10_000  #: Most env steps one manager decision may last (``option_steps``).
+MAX_EVAL_EPISODES = 10_000  #: Most episodes of one evaluation.
+MAX_EVALUATIONS = 10_000  #: Most evaluations of one training run or tuning trial (``--n-evaluations``).
+MAX_THREADS = 256  #: Most torch threads of one process.
+MAX_PREFERENCE = 1e6  #: Largest preference factor that weights a reward (its sums stay far from overflow).
+MAX_MANAGER_MOTION = 1e6  #: Largest scale of the motion a manager observes (``--manager-motion``).
+SIMPLEX_TOLERANCE = 1e-6  #: How far the worker probabilities of one manager action may sum from 1.
+MAX_MODEL_FILE_BYTES = MAX_LOAD_BYTES  #: Largest model file read into memory to be hashed and loaded.
+MAX_VIDEO_STEPS = 100_000  #: Most frames of one video (``package --video-steps``, ``record``).
+MAX_SEEDS_PER_TRIAL = 100  #: Most seeds one tuning trial trains (each a full training run).
+MAX_TRIALS = 100_000  #: Most trials of one tuning invocation.
 
 # Env settings (env kwargs from a file, a manifest's ``shared_env``, a bundle, ``--env`` options).
-#: Longest episode (``episode_steps``, ``max_episode_steps``): ours are 200 steps.
-MAX_EPISODE_LENGTH = 100_000
-#: Largest integer env setting (a count or size: ``n_obstacles``, ``size``, ``frame_skip``...).
-MAX_ENV_INTEGER = 1_000
-#: Largest magnitude of a float env setting (a speed, a radius, a time step...).
-MAX_ENV_FLOAT = 1e6
-#: Least magnitude of a float env setting other than 0: an env divides by its settings.
-MIN_ENV_FLOAT = 1e-9
-#: The render modes a file may ask for (a window is the command's choice, never a file's).
-FILE_RENDER_MODES = (None, "rgb_array")
+MAX_EPISODE_LENGTH = 100_000  #: Longest episode (``episode_steps``, ``max_episode_steps``): ours are 200.
+MAX_ENV_INTEGER = 1_000  #: Largest integer env setting (a count or size: ``n_obstacles``, ``frame_skip``...).
+MAX_ENV_FLOAT = 1e6  #: Largest magnitude of a float env setting (a speed, a radius, a time step...).
+MIN_ENV_FLOAT = 1e-9  #: Least magnitude of a float env setting other than 0: an env divides by its settings.
+FILE_RENDER_MODES = (None, "rgb_array")  #: The render modes a file may ask for (never a window).
 
 
 def max_processes() -> int:
@@ -206,8 +153,7 @@ def check_count(name: str, value: object, what: str | None = None) -> int:
     return int(value)
 
 
-#: Worker names, algorithm names: what may become part of a file name (the one plain-name rule).
-NAME_PATTERN = PLAIN_NAME
+NAME_PATTERN = PLAIN_NAME  #: Worker names, algorithm names: what may become part of a file name.
 #: Env ids: gymnasium's ``[namespace/]name-vN`` without a ``module:`` prefix.
 ENV_ID_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}(/[A-Za-z0-9_.-]{1,64})?$")
 
@@ -530,11 +476,9 @@ MAX_SWEEP_RATIO = 1024
 
 # Limits enforced below the artefacts, where the value is first read (the snake env's constructor, an adapted
 # env's terms, a plain name), named here with every other limit on input.
-#: The snake arm's most joints, obstacles and physics substeps per step.
-MAX_JOINTS = _snake.MAX_JOINTS
+MAX_JOINTS = _snake.MAX_JOINTS  #: The snake arm's most joints, obstacles and physics substeps per step.
 MAX_OBSTACLES = _snake.MAX_OBSTACLES
 MAX_SUBSTEPS = _snake.MAX_SUBSTEPS
 #: The most reward terms of an adapted env (MO-Gymnasium objectives or info terms).
 MAX_TERMS = _adapters.MAX_TERMS
-#: The longest plain name (a worker, a method, a term).
-MAX_NAME_CHARS = _MAX_NAME_CHARS
+MAX_NAME_CHARS = _MAX_NAME_CHARS  #: The longest plain name (a worker, a method, a term).

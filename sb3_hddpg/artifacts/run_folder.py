@@ -115,7 +115,12 @@ def lock_holder(folder: str | os.PathLike[str]) -> str | None:
 
 
 def check_clearable(folder: str | os.PathLike[str]) -> Path:
-    """Refuse, with :class:`RunFolderError` naming the reason, to clear ``folder`` (see the module's rules)."""
+    """
+    Refuse, with :class:`RunFolderError` naming the reason, to clear ``folder`` (see the module's rules).
+
+    :param folder: the folder a command was asked to overwrite.
+    :return: the folder.
+    """
     folder = Path(folder)
     if not _existing_folder(folder, "clear"):
         return folder
@@ -180,7 +185,12 @@ def _marks_run_folder(name: str) -> bool:
 
 
 def check_out_folder(folder: str | os.PathLike[str]) -> Path:
-    """The one rule for a folder a command is about to write (see the module's rules): a :class:`RunFolderError`."""
+    """
+    The one rule for a folder a command is about to write (see the module's rules): a :class:`RunFolderError`.
+
+    :param folder: the folder named by the user.
+    :return: the folder.
+    """
     folder = Path(folder)
     if not _existing_folder(folder, "write into"):
         return folder

@@ -44,10 +44,8 @@ def load_model_safely(
     :param spec: the description from :func:`~sb3_hddpg.artifacts.spec.model_spec`.
     :param device: torch device to build the model on and map the tensors to.
     :param budget: the bytes and models a whole load may still spend (a bundle's; default: a fresh one).
-    :return: the model, ready for ``predict``.
-    :raises SafeLoadError: (a ValueError) for an invalid spec or file, sizes over the limits, or weights whose
-        keys or shapes do not match the spec.
-    :raises FileNotFoundError: if ``path`` does not exist.
+    :return: the model, ready for ``predict``; a :class:`SafeLoadError` for an invalid spec or file, sizes over
+        the limits or weights that do not match the spec, a ``FileNotFoundError`` for a missing file.
     """
     path_str = getattr(path, "name", "<bytes>") if isinstance(path, io.BytesIO) else os.fspath(path)
     budget = budget if budget is not None else LoadBudget()
@@ -81,13 +79,10 @@ def load_model(
     :param spec: the description from :func:`~sb3_hddpg.artifacts.spec.model_spec`; required unless ``trusted``.
     :param trusted: ``True`` runs the ordinary ``ALGO.load(path)``, which unpickles the zip's ``data`` entry
         and so runs any code in it: only for files you made yourself or fully trust.
-    :param algorithm: with ``trusted`` and no ``spec``, the algorithm (a registry name or spec class name, any
-        case: ``"ddpg"``, ``"CrossQ"``...); otherwise taken from ``spec``.
+    :param algorithm: with ``trusted`` and no ``spec``, the algorithm (``"ddpg"``, ``"CrossQ"``..., any case).
     :param device: torch device.
     :param budget: see :func:`load_model_safely` (the safe path only).
-    :return: the loaded model.
-    :raises ValueError: if neither a spec nor ``trusted=True`` is given, or the algorithm is unknown; see
-        :func:`load_model_safely` for the safe path's errors.
+    :return: the loaded model; a ``ValueError`` without a spec or ``trusted``, or for an unknown algorithm.
     """
     if not isinstance(path, io.BytesIO):
         check_run_file(path)  # SB3's loader and zipfile open the path themselves

@@ -250,10 +250,7 @@ _CLASS_KWARGS: dict[str, Mapping[str, type]] = {
 
 
 def _policy_kwargs(algo: str, value: object, to_json: bool) -> dict[str, object]:
-    """
-    ``policy_kwargs`` checked and converted one way: a model's to a spec's JSON (``to_json``), classes
-    written by name, or a spec's back to a model's.
-    """
+    """``policy_kwargs`` checked and converted from a model's to a spec's (``to_json``: classes by name) or back."""
     if not isinstance(value, Mapping):
         raise ValueError(f"policy_kwargs: expected an object, got {brief(value)}")
     out: dict[str, object] = {}

@@ -190,10 +190,8 @@ class TermCritic(nn.Module):
     @classmethod
     def from_bytes(cls, data: bytes, what: str) -> TermCritic:
         """
-        A critic from its member's bytes, without running code from them: plain arrays only, the spec
-        checked, every parameter's name and shape exactly the spec-built network's.
-
-        :raises LimitError: naming ``what`` and the problem.
+        A critic from its member's bytes, without running code from them: plain arrays only, the spec checked,
+        every parameter's name and shape the spec-built network's (a ``LimitError`` naming ``what`` otherwise).
         """
         try:
             with np.load(io.BytesIO(data), allow_pickle=False) as npz:
@@ -235,10 +233,8 @@ def with_term_critic(zip_bytes: bytes, critic: TermCritic) -> bytes:
 
 def read_term_critic(source: str | Path | bytes, what: str) -> TermCritic | None:
     """
-    The per-term critic in a worker's zip (a path or its bytes), or ``None`` when it has none.
-
-    :param what: the file, for messages.
-    :raises LimitError: for a member over the limits or not a critic this library wrote.
+    The per-term critic in a worker's zip (a path or its bytes), or ``None`` when it has none; a ``LimitError``
+    naming ``what`` for a member over the limits or not a critic this library wrote.
     """
     opened = zipfile.ZipFile(io.BytesIO(source) if isinstance(source, bytes) else source)
     with opened as archive:

@@ -61,11 +61,7 @@ class Transitions:
 
     @classmethod
     def load(cls, path: str | Path) -> Transitions:
-        """
-        Read a transitions file: plain numeric arrays only, within :data:`MAX_BUFFER_BYTES` uncompressed.
-
-        :raises LimitError: naming the file and the problem.
-        """
+        """Read a transitions file: plain numeric arrays within :data:`MAX_BUFFER_BYTES`, else a ``LimitError``."""
         check_run_file(path)
         try:
             with zipfile.ZipFile(path) as archive:

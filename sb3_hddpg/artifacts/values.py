@@ -171,8 +171,7 @@ def check_field_types(record: Any, what: str) -> None:
     and unions of them), so that a bad one is refused in one line naming the field.
 
     :param record: a dataclass instance.
-    :param what: where it comes from, for the message.
-    :raises LimitError: naming the first field of another kind.
+    :param what: where it comes from, for the :class:`LimitError` naming the first field of another kind.
     """
     hints = typing.get_type_hints(type(record))
     for field in dataclasses.fields(record):
@@ -303,7 +302,7 @@ def check_env_kwargs(
     :param env_kwargs: the value from the file.
     :param what: the field, for the message.
     :param allowed_env_ids: more ids an adapter may adapt (as in ``check_env_id``).
-    :param trusted: an adapter may adapt any registered id (still no module prefix).
+    :param trusted: an adapter may adapt any registered id.
     :return: a copy; raises :class:`LimitError` naming the key otherwise.
     """
     if env_kwargs is None:

@@ -171,7 +171,13 @@ def models_manifest(
     entries: Mapping[str, ModelEntry | Mapping[str, object]] | None = None,
     shared_env: Mapping[str, object] | None = None,
 ) -> ModelsManifest:
-    """The one builder of a models manifest, at this library's schema version (see :class:`ModelsManifest`)."""
+    """
+    The one builder of a models manifest, at this library's schema version.
+
+    :param kind: ``workers`` or ``models``.
+    :param entries: name -> entry (:class:`ModelEntry` or its JSON).
+    :param shared_env: the workers' shared env, ``{"env_id": ..., "env_kwargs": ...}``.
+    """
     manifest = ModelsManifest(
         kind, {}, dict(shared_env) if shared_env is not None else None, MANIFEST_VERSIONS[kind]
     )
