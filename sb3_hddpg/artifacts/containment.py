@@ -11,8 +11,7 @@ from pathlib import Path
 
 from sb3_hddpg.artifacts.io import LOCK_FILE
 
-#: The hidden file that marks a folder as one of the tool's run folders.
-RUN_MARKER = ".hddpg-run"
+RUN_MARKER = ".hddpg-run"  #: The hidden file that marks a folder as one of the tool's run folders.
 
 #: Files only this tool writes, by which a run folder made before the marker existed is recognised.
 TOOL_FILES = (

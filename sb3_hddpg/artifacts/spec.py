@@ -46,8 +46,7 @@ OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {
     cls.__name__: cls for cls in (th.optim.Adam, th.optim.AdamW, th.optim.SGD, th.optim.RMSprop)
 }
 
-#: Box dtypes accepted in a spec (numpy names).
-DTYPES = frozenset({"bool", "float16", "float32", "float64"})
+DTYPES = frozenset({"bool", "float16", "float32", "float64"})  #: Box dtypes accepted in a spec (numpy names).
 DTYPES |= {f"{sign}int{bits}" for sign in ("", "u") for bits in (8, 16, 32, 64)}
 #: The keys of a spec.
 _SPEC_KEYS = frozenset(

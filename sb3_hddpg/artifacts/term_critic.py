@@ -34,8 +34,7 @@ from sb3_hddpg.artifacts.limits import (
 )
 from sb3_hddpg.names import check_plain_name
 
-#: The worker zip's member that holds its per-term critic.
-TERM_CRITIC_MEMBER = "term_critic.npz"
+TERM_CRITIC_MEMBER = "term_critic.npz"  #: The worker zip's member that holds its per-term critic.
 
 
 @dataclass(frozen=True)

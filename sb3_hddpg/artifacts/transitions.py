@@ -18,8 +18,7 @@ from sb3_hddpg.artifacts.limits import MAX_BUFFER_BYTES, LimitError, brief, chec
 
 #: A worker's transitions file beside its zip: ``<name>.transitions.npz``.
 TRANSITIONS_SUFFIX = ".transitions.npz"
-#: The arrays of a transitions file, in order.
-FIELDS = ("obs", "actions", "next_obs", "terms", "continues")
+FIELDS = ("obs", "actions", "next_obs", "terms", "continues")  #: The arrays of a transitions file, in order.
 
 
 @dataclass(frozen=True)

@@ -8,21 +8,16 @@ from typing import Any, Literal
 from sb3_hddpg.artifacts.limits import brief
 
 WORKERS_MANIFEST_VERSION = 1
-#: Schema version of ``flat/manifest.json``.
-FLAT_MANIFEST_VERSION = 1
-#: Schema version of a hierarchy bundle's ``manifest.json``.
-BUNDLE_MANIFEST_VERSION = 1
-#: Schema version of ``ham.json``.
-HAM_FILE_VERSION = 1
-#: Version of a benchmark task's record (``records/METHOD/seed-N.json``).
-BENCHMARK_RECORD_VERSION = 1
+FLAT_MANIFEST_VERSION = 1  #: Schema version of ``flat/manifest.json``.
+BUNDLE_MANIFEST_VERSION = 1  #: Schema version of a hierarchy bundle's ``manifest.json``.
+HAM_FILE_VERSION = 1  #: Schema version of ``ham.json``.
+BENCHMARK_RECORD_VERSION = 1  #: Version of a benchmark task's record (``records/METHOD/seed-N.json``).
 #: Schema version of a benchmark's ``results.json`` (files without one are version 1).
 BENCHMARK_RESULTS_VERSION = 1
 #: Schema version of the quickstart's ``results.json`` (2: no ``ham_available``, HAM is always compared).
 QUICKSTART_RESULTS_VERSION = 2
 
-#: A models manifest's kind: the key its entries are under.
-ManifestKind = Literal["workers", "models"]
+ManifestKind = Literal["workers", "models"]  #: A models manifest's kind: the key its entries are under.
 MANIFEST_VERSIONS: dict[str, int] = {"workers": WORKERS_MANIFEST_VERSION, "models": FLAT_MANIFEST_VERSION}
 
 BUNDLE_KIND = "sb3-hddpg-hierarchy"
@@ -32,8 +27,7 @@ HAM_KIND = "sb3-hddpg-ham"
 JsonScalar = str | int | float | bool | None
 JsonValue = JsonScalar | list["JsonValue"] | dict[str, "JsonValue"]
 
-#: A JSON object as read from a file: its values are checked where they are used.
-JsonObject = dict[str, Any]
+JsonObject = dict[str, Any]  #: A JSON object as read from a file: its values are checked where they are used.
 
 
 class JsonRecord(Mapping[str, Any]):

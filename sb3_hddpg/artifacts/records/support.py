@@ -11,8 +11,7 @@ from typing import Any
 from sb3_hddpg.artifacts.limits import MAX_WORKERS, brief, check_name, read_json_record
 from sb3_hddpg.artifacts.records.base import JsonObject, JsonRecord, check_version
 
-#: Schema version of ``support.json``.
-SUPPORT_VERSION = 1
+SUPPORT_VERSION = 1  #: Schema version of ``support.json``.
 
 
 @dataclass(frozen=True)
