@@ -22,8 +22,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 TMP_SUFFIX = ".tmp"
 
 
-# os.umask can only be read by setting it; set it straight back, once at import, because the brief window
-# with a zero umask would race with threads creating files.
+# os.umask can only be read by setting it: once, at import, before threads create files meanwhile.
 UMASK = os.umask(0)
 os.umask(UMASK)
 
@@ -112,16 +111,14 @@ def atomic_write(
                 write(tmp)
             with open(tmp, "rb+") as handle:
                 os.fsync(handle.fileno())
-            # mkstemp creates the file readable by its owner only; give results the permissions any other
-            # file would get, so that shared run folders stay readable.
+            # mkstemp makes it readable by its owner only: give it a new file's usual permissions.
             os.chmod(tmp, 0o666 & ~UMASK)
             os.replace(tmp, path)
     except OSError as error:
         tmp.unlink(missing_ok=True)
         if error.errno is None:
             raise
-        # A full disk says "[Errno 28] No space left on device" without a file name, and the temporary's
-        # name means nothing to a user: name the file being written.
+        # "No space left on device" names no file, and the temporary's name means nothing to a user.
         raise type(error)(error.errno, f"Cannot write {str(path)!r}: {error.strerror or error}") from error
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -241,8 +238,7 @@ class _HeldLock:
     depth: int
 
 
-# Locks this process holds, by resolved folder: flock locks of two open files conflict even inside one
-# process, so a function locking the folder its caller already locked would deadlock on itself.
+# Locks this process holds, by folder: two flocks of one folder would deadlock even inside one process.
 _HELD: dict[Path, _HeldLock] = {}
 
 

@@ -162,8 +162,7 @@ _REPR.maxlevel, _REPR.maxdict, _REPR.maxlist, _REPR.maxtuple = 3, 6, 8, 8
 _REPR.maxstring, _REPR.maxother, _REPR.maxlong = 80, 80, 40
 
 
-#: What :func:`parse_json` strips before counting brackets: strings (an unterminated one runs to the end)
-#: and everything else but brackets.
+#: What :func:`parse_json` strips before counting brackets: strings (to the end if unterminated), the rest.
 _NOT_BRACKETS = re.compile(r'"(?:[^"\\]|\\.)*"?|[^\[\]{}"]+', re.DOTALL)
 
 
@@ -474,8 +473,7 @@ def read_member(
 #: The largest ratio ``ratio-sweep:MAX`` takes (a weight of 1/1025 is as good as none).
 MAX_SWEEP_RATIO = 1024
 
-# Limits enforced below the artefacts, where the value is first read (the snake env's constructor, an adapted
-# env's terms, a plain name), named here with every other limit on input.
+# Limits enforced below the artefacts, where the value is first read, named here with every other.
 MAX_JOINTS = _snake.MAX_JOINTS  #: The snake arm's most joints, obstacles and physics substeps per step.
 MAX_OBSTACLES = _snake.MAX_OBSTACLES
 MAX_SUBSTEPS = _snake.MAX_SUBSTEPS

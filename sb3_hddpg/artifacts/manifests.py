@@ -44,8 +44,7 @@ def save_manifest(path: str | Path, manifest: ModelsManifest | Mapping[str, obje
                 if isinstance(current.get(key), dict) and isinstance(merged.get(key), dict):
                     merged[key] = {**current[key], **merged[key]}
         if isinstance(merged.get("workers"), dict):
-            # One order whichever worker finished first (workers trained side by side): the manager's
-            # action order follows the manifest's, so it must not depend on timing.
+            # One order whichever worker finished first: the manager's action order follows it.
             entries = merged["workers"]
             known = [n for n in WORKER_ENV_IDS if n in entries]
             merged["workers"] = {n: entries[n] for n in known + sorted(set(entries) - set(known))}

@@ -167,8 +167,7 @@ def code_provenance(source: str | Path | None = None) -> CodeProvenance:
     where = Path(source) if source is not None else _SOURCE
     if not where.is_dir():
         return CodeProvenance(__version__)
-    # The source must be tracked by the tree: a wheel installed in a virtual env inside some other repository
-    # is not that repository's code.
+    # The source must be tracked: a wheel installed in a venv inside another repository is not its code.
     tracked = _git("ls-files", "--error-unmatch", "__init__.py", cwd=where)
     commit = _git("rev-parse", "HEAD", cwd=where)
     if tracked is None or commit is None:

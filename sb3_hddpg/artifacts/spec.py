@@ -108,14 +108,12 @@ _CONVERTERS: dict[str, Callable[[str, object], float | int | bool | str]] = {
 }
 
 
-#: One optimizer keyword argument of a spec: a number, a flag, ``None`` (torch picks) or a list of numbers
-#: (a tuple for torch, a list in JSON).
+#: One optimizer keyword argument of a spec: a number, a flag, ``None`` (torch picks) or numbers (betas).
 OptimizerSetting = float | bool | None | list[float] | tuple[float, ...]
 
 
 def _bounds_to_json(array: np.ndarray) -> object:
-    # Strict JSON has no Infinity/NaN, and Box bounds are often infinite: write those as strings ("inf"...).
-    # Finite float32 values survive float -> JSON -> float64 -> float32 exactly.
+    # Strict JSON has no Infinity/NaN, and Box bounds often are: those are written as strings ("inf"...).
     return np.where(np.isfinite(array), array.astype(object), array.astype(str)).tolist()
 
 
@@ -192,8 +190,7 @@ def _space_from_json(value: object, what: str) -> spaces.Box | spaces.Discrete:
         raise ValueError(f"{what}.shape: expected a list of integers, got {brief(raw_shape)}")
     if not 1 <= len(raw_shape) <= 8:
         raise ValueError(f"{what}.shape: expected 1 to 8 dimensions, got {brief(raw_shape)}")
-    # Dimensions of 0 make an empty space that SB3 cannot act in; the product is bounded before numpy
-    # allocates the bounds.
+    # Dimensions of 0 make a space SB3 cannot act in; the product is bounded before numpy allocates.
     shape = tuple(_as_int(f"{what}.shape", dim, minimum=1, maximum=MAX_SPACE_SIZE) for dim in raw_shape)
     if math.prod(shape) > MAX_SPACE_SIZE:
         raise ValueError(f"{what}.shape: {list(shape)} has more than {MAX_SPACE_SIZE} elements")
@@ -376,8 +373,7 @@ def build_from_spec(spec: object, device: th.device | str) -> BaseAlgorithm:
         if key in raw_hparams
     }
     obs_dim, act_dim = _flat_size(observation_space), _flat_size(action_space)
-    # Each field has its own cap, but their product can still be tens of GB: bound the totals before
-    # SB3 allocates networks and replay buffer.
+    # Each field has its own cap, but their product can still be tens of GB: bound the totals too.
     check_network_size(
         algo, policy_kwargs, obs_dim, act_dim, "policy_kwargs", MAX_SPEC_LAYERS, MAX_SPEC_LAYER_WIDTH
     )

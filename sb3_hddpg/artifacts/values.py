@@ -345,8 +345,7 @@ def _check_constructor_kwargs(env_id: str, kwargs: dict[str, Any], what: str) ->
     try:
         parameters, open_ended = constructor_parameters(env_id, what)
     except EnvUnavailableError:
-        # Its package is not installed: nothing here can make the env (making it fails in one line), but its
-        # records can be read, so its settings are checked as values of unknown parameters.
+        # Its package is not installed: its records can still be read, as values of unknown parameters.
         parameters, open_ended = {}, True
     checked: dict[str, Any] = {}
     for key, value in kwargs.items():
@@ -448,8 +447,7 @@ def _check_kind(value: object, default: object, what: str) -> None:
         if not isinstance(value, bool):
             raise LimitError(f"{what}: expected true or false, got {brief(value)}")
     elif isinstance(default, int):
-        # A count or size (an integer default); a float is allowed where the default merely looks whole
-        # (``goal_velocity=0``), within the same magnitude.
+        # A float is allowed where the default merely looks whole (``goal_velocity=0``).
         Bound(float, -MAX_ENV_INTEGER, MAX_ENV_INTEGER).check(value, what)
     elif isinstance(default, float):
         _env_float(value, what)

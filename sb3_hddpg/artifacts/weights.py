@@ -33,8 +33,7 @@ def _read_tensors(
         raw = read_member(archive, name, path, limit=MAX_MEMBER_BYTES, budget=budget)
     except ValueError as e:
         raise SafeLoadError(str(e)) from None
-    # weights_only=True: torch's restricted unpickler, which only rebuilds tensors and plain containers and
-    # refuses any other global. This is the same call SB3 itself uses for .pth members.
+    # weights_only=True: torch's restricted unpickler (tensors and plain containers only), as SB3 uses it.
     try:
         obj = th.load(io.BytesIO(raw), map_location=device, weights_only=True)
     except Exception as e:  # torch raises UnpicklingError, RuntimeError, ... depending on the damage
@@ -109,8 +108,7 @@ def apply_weights(
     _check_state_dict(model.policy.state_dict(), policy_state, path, POLICY_MEMBER)
     model.policy.load_state_dict(policy_state, strict=True)
 
-    # Only the variables this model declares (log_ent_coef or ent_coef_tensor for SAC/TQC, none for TD3/DDPG)
-    # are accepted, so the names from the file never pick which attribute gets set.
+    # Only the variables this model declares, so the names from the file never pick the attribute set.
     _, variable_names = model._get_torch_save_params()
     expected_vars = {name: recursive_getattr(model, name) for name in variable_names}
     expected_vars = {name: value for name, value in expected_vars.items() if value is not None}

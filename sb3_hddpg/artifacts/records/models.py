@@ -200,8 +200,7 @@ def models_manifest_from_json(value: object, kind: ManifestKind, what: str) -> M
         field_of = f"{what}: {kind}.{brief(name)}"
         entries[name] = check_file_entry(entry, field_of)
         if "reward_bounds" in entry:
-            # The one bounds checker (finite, low < high, normalisable), so NaN or inf is refused here
-            # rather than when a manager trained on them writes its bundle.
+            # The one bounds checker, here rather than when a manager trained on them writes its bundle.
             bounds = entry["reward_bounds"]
             check_bounds({str(entry.get("reward_term", name)): bounds}, f"{field_of}.reward_bounds")
             if not isinstance(bounds, list) or len(bounds) != 2:
