@@ -1,8 +1,4 @@
-"""
-Which run folder a file belongs to, and whether its path leaves that folder: the one rule for every file read
-from a folder someone may have edited. A file inside one of the tool's run folders must resolve inside the
-outermost of them (a record replaced by a symbolic link to ``~/secret`` is refused before a byte is read).
-"""
+"""Which run folder a file belongs to, and whether its path leaves it (checked on every read from one)."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
 """
-Limits on input from files someone else made (bundles, manifests, model zips, ``ham.json``, configs), and the
-checks that enforce them before the content reaches memory, a path, an import or a constructor. Each limit is
-far above what this project writes and low enough that no small file costs more than a few hundred MB or
-minutes of work; docs/ROBUSTNESS.md lists them with the tests that hold them. Messages never format an
-unbounded value (:func:`brief`).
+Limits on input from files someone else made, and the checks that enforce them before the content reaches
+memory, a path, an import or a constructor (docs/ROBUSTNESS.md lists them with the tests that hold them).
 """
 
 from __future__ import annotations

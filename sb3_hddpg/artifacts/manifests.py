@@ -1,8 +1,4 @@
-"""
-The manifests beside trained models: one builder of a model's entry, writing (read-modify-write under a lock),
-reading and shape-checking ``workers/manifest.json``, and loading the workers it lists with their hashes
-verified.
-"""
+"""The manifests beside trained models: an entry built, written under a lock, the workers listed loaded."""
 
 from __future__ import annotations
 

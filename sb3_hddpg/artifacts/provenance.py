@@ -1,7 +1,4 @@
-"""
-Provenance: the sha256 of files and bytes, the one check of a hash against its record, library versions, and
-the code a run ran (:func:`code_provenance`: version, git commit, clean tree).
-"""
+"""Provenance: sha256 of files checked against their record, library versions, the code a run ran."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
 """
-Load shared Stable-Baselines3 model zips without running code from them.
-
-An SB3 zip's ``data`` entry holds cloudpickle blobs that ``DDPG.load`` unpickles, running whatever code they
-hold. Here the model is rebuilt from its spec (:func:`~sb3_hddpg.artifacts.spec.model_spec`, written at save
-time and validated as untrusted input), and only the tensors are taken from the zip; ``data`` is never read.
+Load shared SB3 model zips without running code from them: the model is rebuilt from its spec and only the
+tensors are taken from the zip (``DDPG.load`` would unpickle the ``data`` entry, running any code in it).
 """
 
 from __future__ import annotations

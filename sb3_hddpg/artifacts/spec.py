@@ -1,8 +1,6 @@
 """
-The model spec: a small, strictly validated JSON description of an SB3 model, enough to rebuild it without
-unpickling anything. :func:`model_spec` writes it from a live model at save time; :func:`build_from_spec`
-validates one from a file (every name through an allow-list, every size against
-:mod:`sb3_hddpg.artifacts.limits`) and builds a fresh, untrained model from it, with no env.
+The model spec: a strictly validated JSON description of an SB3 model, enough to rebuild it without unpickling
+(every name through an allow-list, every size against :mod:`sb3_hddpg.artifacts.limits`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,6 @@
 """
-A worker's per-term critic: one Q head per reward term for the worker's own policy, its network and its place
-in the worker's zip: the member :data:`TERM_CRITIC_MEMBER`, an ``.npz`` of plain arrays whose ``spec`` array
-holds its JSON description (not a ``.pth``, which SB3's ``load`` would take for a parameter set).
+A worker's per-term critic (one Q head per reward term for its policy), stored in the worker's zip as
+:data:`TERM_CRITIC_MEMBER`, an ``.npz`` of plain arrays (SB3's ``load`` would take a ``.pth`` for parameters).
 """
 
 from __future__ import annotations

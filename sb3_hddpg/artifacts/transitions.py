@@ -1,8 +1,4 @@
-"""
-A worker's stored transitions with the normalised reward terms of each (``<name>.transitions.npz`` beside
-the worker's zip): what its per-term critic learns from, and what a new worker on another weighting of the
-terms is warm-started with, relabelled (the reward of a weighting is ``terms @ weights``).
-"""
+"""A worker's stored transitions with their normalised reward terms, for its critic and for warm starts."""
 
 from __future__ import annotations
 

@@ -1,8 +1,6 @@
 """
-Bounded values from files and the command line: the one schema of hyperparameters (:data:`HYPERPARAMETERS`,
-a key it does not bound is refused) and env settings (:func:`check_env_kwargs`, against the constructor of
-the env they are for). Every limit is a constant of :mod:`sb3_hddpg.artifacts.limits`; errors are one-line
-:class:`LimitError` naming the field with the expected and the actual value.
+Bounded values from files and the command line: the one schema of hyperparameters and env settings, each
+refused in one line (:class:`LimitError`) naming the field with the expected and the actual value.
 """
 
 from __future__ import annotations

@@ -1,8 +1,4 @@
-"""
-The weights of a model zip, read without running code from it: only the tensor members, within the size
-limits, through ``torch.load(weights_only=True)``, compared key by key and shape by shape with the model the
-spec built before they are put into it.
-"""
+"""The tensors of a model zip, read without running code, checked against the spec-built model, put in it."""
 
 from __future__ import annotations
 

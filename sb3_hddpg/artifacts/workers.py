@@ -1,7 +1,4 @@
-"""
-``Workers``: trained workers as loaded from a workers folder, each carrying the state components it sees,
-with the shared env they were trained for.
-"""
+"""``Workers``: trained workers as loaded, each with the state components it sees, and their shared env."""
 
 from __future__ import annotations
 

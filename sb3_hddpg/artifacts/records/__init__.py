@@ -1,8 +1,4 @@
-"""
-The records this package writes beside trained models (frozen dataclasses, each with one builder and one reader
-that checks what it reads through :mod:`sb3_hddpg.artifacts.limits`) and the schema version of every file it
-writes. Each record is also a read-only mapping of the JSON it is written as.
-"""
+"""The records written beside trained models (one builder, one limited reader each), every schema version."""
 
 from sb3_hddpg.artifacts.records.base import (
     BENCHMARK_RECORD_VERSION,
