@@ -30,10 +30,7 @@ def is_run_folder(folder: str | os.PathLike[str]) -> bool:
 
 
 def enclosing_run_folder(path: str | os.PathLike[str]) -> Path | None:
-    """
-    The outermost run folder above ``path`` (as named: links not resolved), or ``None``: the outermost,
-    because a benchmark's seed folders are run folders too and may link to each other.
-    """
+    """The outermost run folder above ``path`` (as named), or ``None`` (a benchmark's seeds are some too)."""
     found = None
     for parent in Path(os.path.abspath(path)).parents:
         if parent.parent != parent and is_run_folder(parent):

@@ -50,9 +50,8 @@ def stop_signal() -> int:
 @contextlib.contextmanager
 def deferred_stop_signals() -> Iterator[None]:
     """
-    Hold Ctrl-C and SIGTERM until the block ends, then deliver them to the handlers that were in place:
-    torch's zip writer, interrupted between two writes, reports a ``RuntimeError`` instead of the signal's
-    exception. Outside the main thread (where handlers cannot be set) the block runs as is.
+    Hold Ctrl-C and SIGTERM until the block ends, then deliver them: torch's zip writer, interrupted between
+    two writes, reports a ``RuntimeError`` instead of the signal's exception.
     """
     received: list[signal.Signals] = []
 
@@ -333,10 +332,7 @@ def locked_folder(folder: str | os.PathLike[str]) -> Iterator[Path]:
 
 @contextlib.contextmanager
 def locked_file(path: str | os.PathLike[str]) -> Iterator[None]:
-    """
-    A short exclusive lock for a read-modify-write of ``path`` (``flock`` on a hidden ``.NAME.lock`` beside
-    it, waiting for the holder), so that processes sharing a folder lose none of each other's entries.
-    """
+    """A short exclusive lock for a read-modify-write of ``path`` (on a hidden ``.NAME.lock`` beside it)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     lock = path.parent / f".{path.name}.lock"

@@ -289,10 +289,7 @@ def _read_within(read: Callable[[int], bytes], limit: int, refusal: str) -> byte
 
 
 def check_run_file(path: str | os.PathLike[str]) -> None:
-    """
-    Refuse (:class:`LimitError`) a file inside one of the tool's run folders that leads outside it through a
-    symbolic link: readers that open a path themselves call this first.
-    """
+    """Refuse (:class:`LimitError`) a file inside one of the tool's run folders that leads outside it."""
     reason = run_folder_escape(path)
     if reason is not None:
         raise LimitError(reason)
@@ -321,10 +318,7 @@ def file_inside(root: str | os.PathLike[str], relative: str | os.PathLike[str]) 
 
 
 def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any:
-    """
-    :func:`parse_json` of a file read by :func:`read_file_bytes`; a NaN or infinity (which Python's JSON
-    reader accepts and this library never writes) is refused naming the file and the field.
-    """
+    """:func:`parse_json` of a file read by :func:`read_file_bytes`; NaN and infinities refused."""
     name = what or str(path)
     value = parse_json(read_file_bytes(path, MAX_JSON_BYTES, what), name)
     where = first_not_finite(value)
@@ -334,10 +328,7 @@ def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any
 
 
 def read_json_record(path: str | os.PathLike[str], unreadable: str) -> Any:
-    """
-    :func:`read_json_file` of a record: a file that cannot be read, is not UTF-8 or not JSON is one
-    ``ValueError``, ``unreadable`` with the error's kind; one over a limit stays a :class:`LimitError`.
-    """
+    """:func:`read_json_file`; a file that cannot be read, decoded or parsed: ``ValueError(unreadable)``."""
     try:
         return read_json_file(path)
     except LimitError:
@@ -414,10 +405,7 @@ class LoadBudget:
 
 
 def check_zip_directory(archive: zipfile.ZipFile, what: str) -> list[zipfile.ZipInfo]:
-    """
-    The members of ``archive``, refused past :data:`MAX_ZIP_MEMBERS` or when two share a name (``zipfile``
-    reads the last, ``unzip`` shows the first).
-    """
+    """The members of ``archive``, refused past :data:`MAX_ZIP_MEMBERS` or when two share a name."""
     infos = archive.infolist()
     if len(infos) > MAX_ZIP_MEMBERS:
         raise LimitError(f"{what}: {len(infos)} members is more than the limit of {MAX_ZIP_MEMBERS}")

@@ -175,10 +175,7 @@ def tool_entries(folder: str | os.PathLike[str]) -> frozenset[str]:
 
 
 def _marks_run_folder(name: str) -> bool:
-    """
-    Whether an entry is the tool's own mark of a run folder: its lock, its marker, or one of them
-    half-written by another process sharing the folder.
-    """
+    """Whether an entry is the tool's lock or marker, or one of them half-written by another process."""
     return name in (LOCK_FILE, RUN_MARKER) or any(
         name.startswith(f".{mark}.") and name.endswith(TMP_SUFFIX) for mark in (LOCK_FILE, RUN_MARKER)
     )

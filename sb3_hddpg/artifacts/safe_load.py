@@ -101,10 +101,7 @@ def load_model(
 
 
 def _saved_by_sbx(source: Path | io.BytesIO) -> bool:
-    """
-    Whether a model zip was saved by SBX: the ``policy_class`` entry, which SB3 writes first in ``data``,
-    names an ``sbx.`` module (only the first bytes are read); ``False`` if that cannot be told.
-    """
+    """Whether ``data``'s first entry, ``policy_class``, names an ``sbx.`` module (``False``: unknown)."""
     try:
         with zipfile.ZipFile(source) as archive, archive.open("data") as member:
             head = member.read(SBX_SNIFF_BYTES).decode("utf-8", "replace")

@@ -167,10 +167,7 @@ class TermCritic(nn.Module):
 
     @torch.no_grad()
     def values(self, obs: np.ndarray, env_actions: np.ndarray | None = None) -> np.ndarray:
-        """
-        The per-term values of observations (numpy in, numpy out): of the given env actions for a continuous
-        worker, ``(batch, n_terms)``; of every action for a discrete one, ``(batch, n_actions, n_terms)``.
-        """
+        """The per-term values (numpy): of the given env actions, or of every action of a discrete worker."""
         tensor = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(-1, self.spec.obs_dim))
         if self.spec.discrete:
             return self(tensor).numpy()

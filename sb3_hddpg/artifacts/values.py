@@ -325,10 +325,7 @@ def check_env_kwargs(
 
 
 def check_make_kwargs(env_id: str, env_kwargs: object, what: str) -> dict[str, Any]:
-    """
-    A config block's ``env_kwargs`` for ``gym.make(env_id, ...)``: as :func:`check_env_kwargs`, and also
-    ``gym.make``'s own ``max_episode_steps`` (bounded). ``env_id`` is trusted (the command chose it).
-    """
+    """A config block's ``env_kwargs``: :func:`check_env_kwargs` (trusted) and ``max_episode_steps``."""
     if not isinstance(env_kwargs, Mapping):
         raise LimitError(f"{what}: expected a mapping of keyword arguments, got {brief(env_kwargs)}")
     kwargs = dict(env_kwargs)

@@ -70,10 +70,7 @@ class Workers(Mapping[str, BaseAlgorithm]):
         return gym.make(self.env_id, **{**self.env_kwargs, **overrides})
 
     def bundle_meta(self) -> dict[str, dict[str, object]]:
-        """
-        Name -> the facts a bundle keeps about each worker (:data:`BUNDLED_FACTS`), and ``source_sha256``,
-        the hash of the file it came from (the bundle re-serialises the model).
-        """
+        """Name -> the facts a bundle keeps about each worker, with ``source_sha256``, its file's hash."""
         entries = self.manifest.entries
         meta: dict[str, dict[str, object]] = {}
         for name in self.models:
