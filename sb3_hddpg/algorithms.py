@@ -1,14 +1,8 @@
 """
 The algorithm registry: one frozen record per algorithm sb3-hddpg trains, rebuilds and exports, and the
-activation functions their networks may use.
-
-A record holds every fact about its algorithm that the rest of the package needs: the SB3 (or sb3-contrib)
-class, the SBX class and how SBX lays out its networks (which weight conversion applies), what a saved
-model's spec may contain (the safe loader's allow-lists), how many parameters its networks have (the
-limits' rule), its Optuna sampler, its colour in figures, the roles it can play, the action spaces it takes,
-and whether it learns on- or off-policy. Training, safe loading, the SBX backend, config parsing, tuning,
-the benchmark, export and figures read the record instead of branching on the algorithm's name, so adding
-an algorithm is one :class:`Algorithm` in :data:`REGISTRY`, one config block in ``zoo_configs/`` and tests.
+activation functions their networks may use. The rest of the package reads the record instead of branching
+on the algorithm's name, so adding an algorithm is one :class:`Algorithm` in :data:`REGISTRY`, one config
+block in ``zoo_configs/`` and tests.
 """
 
 from __future__ import annotations
@@ -62,17 +56,15 @@ def _deterministic_actor_critic(shape: NetworkShape, n_critics: int) -> int:
     return 2 * (actor + critic)
 
 
-def _gaussian_actor_critic(shape: NetworkShape, n_critics: int) -> int:
-    # SAC: a mean and a log-std head, critics with target copies (the actor has none).
+def _gaussian_actor_critic(shape: NetworkShape, n_critics: int, critic_outputs: int = 1) -> int:
+    # SAC (TQC: a quantile per critic output): a mean and a log-std head, critics with target copies.
     actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
-    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, 1])
+    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, critic_outputs])
     return actor + 2 * critic
 
 
 def _quantile_actor_critic(shape: NetworkShape, n_critics: int) -> int:
-    actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
-    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, shape.n_quantiles])
-    return actor + 2 * critic
+    return _gaussian_actor_critic(shape, n_critics, shape.n_quantiles)
 
 
 def _batch_renorm_actor_critic(shape: NetworkShape, n_critics: int) -> int:
@@ -108,15 +100,8 @@ def _actor_and_value(shape: NetworkShape, n_critics: int) -> int:
 #: purpose: the constructors overwrite ``policy_kwargs["use_sde"]`` from their own ``use_sde`` argument, so it
 #: lives with the hyperparameters.
 _MLP_POLICY_KWARGS = frozenset(
-    [
-        "net_arch",
-        "activation_fn",
-        "normalize_images",
-        "optimizer_class",
-        "optimizer_kwargs",
-        "features_extractor_class",
-        "features_extractor_kwargs",
-    ]
+    {"net_arch", "activation_fn", "normalize_images", "optimizer_class", "optimizer_kwargs"}
+    | {"features_extractor_class", "features_extractor_kwargs"}
 )
 _ACTOR_CRITIC_POLICY_KWARGS = _MLP_POLICY_KWARGS | {"n_critics", "share_features_extractor"}
 _GAUSSIAN_POLICY_KWARGS = _ACTOR_CRITIC_POLICY_KWARGS | {"log_std_init", "use_expln", "clip_mean"}
@@ -124,9 +109,7 @@ _GAUSSIAN_POLICY_KWARGS = _ACTOR_CRITIC_POLICY_KWARGS | {"log_std_init", "use_ex
 # Constructor hyperparameters a spec records, with their JSON kind. Only what shapes the rebuilt model or its
 # immediate use; exploration noise, train_freq etc. are training-time choices of whoever continues.
 _COMMON_HPARAMS = {
-    "learning_rate": "float",
-    "gamma": "float",
-    "tau": "float",
+    **dict.fromkeys(("learning_rate", "gamma", "tau"), "float"),
     "buffer_size": "int",
     "batch_size": "int",
 }
@@ -314,18 +297,11 @@ REGISTRY: dict[str, Algorithm] = {
             policy_kwargs=_MLP_POLICY_KWARGS
             | {"share_features_extractor", "log_std_init", "ortho_init", "use_expln", "full_std"},
             hyperparameters={
-                "learning_rate": "float",
-                "gamma": "float",
-                "gae_lambda": "float",
-                "n_steps": "int",
-                "batch_size": "int",
-                "n_epochs": "int",
-                "ent_coef": "float",
-                "vf_coef": "float",
-                "max_grad_norm": "float",
-                "use_sde": "bool",
-                "sde_sample_freq": "int",
-                "normalize_advantage": "bool",
+                **dict.fromkeys(
+                    ("learning_rate", "gamma", "gae_lambda", "ent_coef", "vf_coef", "max_grad_norm"), "float"
+                ),
+                **dict.fromkeys(("n_steps", "batch_size", "n_epochs", "sde_sample_freq"), "int"),
+                **dict.fromkeys(("use_sde", "normalize_advantage"), "bool"),
             },
             sampler="ppo",
             action_spaces=frozenset({"Box", "Discrete"}),
@@ -343,31 +319,15 @@ ALGORITHMS: dict[str, type[BaseAlgorithm]] = {name: record.cls for name, record 
 #: The algorithms the SBX backend trains and exports.
 SBX_ALGORITHMS = tuple(name for name, record in REGISTRY.items() if record.sbx is not None)
 
+#: The activations a training config may name, those both backends compute alike (SBX has each in flax).
+CONFIG_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
 #: Activation name -> torch class, for every activation a saved model's spec may name. A name outside this
 #: table is refused rather than looked up in ``torch.nn``: specs and configs are data and must not be able
 #: to pick arbitrary callables.
 ACTIVATIONS: dict[str, type[th.nn.Module]] = {
-    cls.__name__: cls
-    for cls in (
-        th.nn.ReLU,
-        th.nn.Tanh,
-        th.nn.ELU,
-        th.nn.LeakyReLU,
-        th.nn.SiLU,
-        th.nn.GELU,
-        th.nn.Sigmoid,
-        th.nn.Softplus,
-        th.nn.Mish,
-        th.nn.SELU,
-        th.nn.CELU,
-        th.nn.Hardtanh,
-        th.nn.ReLU6,
-        th.nn.Identity,
-    )
+    name: getattr(th.nn, name)
+    for name in (*CONFIG_ACTIVATIONS, "Softplus", "Mish", "SELU", "CELU", "Hardtanh", "ReLU6", "Identity")
 }
-
-#: The activations a training config may name, those both backends compute alike (SBX has each in flax).
-CONFIG_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
 
 
 def algorithm(name: str) -> Algorithm:
@@ -391,12 +351,6 @@ def algorithm_class(name: str) -> type[BaseAlgorithm]:
     :param name: the algorithm.
     """
     return algorithm(name).cls
-
-
-def algorithm_name(model_or_class: object) -> str | None:
-    """The registry name of an SB3 model or class of exactly a registered type, else ``None``."""
-    cls = model_or_class if isinstance(model_or_class, type) else type(model_or_class)
-    return next((name for name, record in REGISTRY.items() if cls is record.cls), None)
 
 
 def algorithms_for(role: str, action_space: Any | None = None) -> tuple[str, ...]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import json
 import signal
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,7 +29,6 @@ from stable_baselines3.common.callbacks import (
     StopTrainingOnNoModelImprovement,
 )
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
@@ -162,25 +161,19 @@ def train_agent(
     **run_changes: object,
 ) -> TrainingOutcome:
     """
-    Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
-
-    With ``backend="sbx"`` the agent trains on JAX (:mod:`sb3_hddpg.training.backends`); its checkpoints and best
-    model stay in SBX's format inside the run folder, and the model saved to ``paths.model_path`` and
-    returned is exported to the same SB3 algorithm.
+    Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume. With ``backend="sbx"``
+    the checkpoints stay in SBX's format, and the model saved and returned is exported to SB3.
 
     :param env_factory: builds one (unwrapped by Monitor) training env; picklable when ``n_envs > 1``.
     :param hyperparams: the config block (see :mod:`sb3_hddpg.training.config`).
     :param paths: where the agent's files go.
     :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
-    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`: budget, seed,
-        envs, resume, plateau rule, evaluation, checkpoints, threads, backend); ``resume`` continues from the
-        last checkpoint in ``paths.checkpoint_dir``.
-    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them (a callback, a list, or a function of
-        ``(locals, globals)``), run after the package's own (e.g. selection statistics).
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`); ``resume``
+        continues from the last checkpoint in ``paths.checkpoint_dir``.
+    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them, run after the package's own.
     :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
         Optuna pruning callback); returning ``False`` stops training.
-    :param prepare_model: called with a freshly built model before it learns (not on resume), e.g. the
-        manager's start from HAM (:mod:`sb3_hddpg.training.ham_start`).
+    :param prepare_model: called with a freshly built model before it learns (not on resume).
     :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
         ``seed=3``), over ``run``'s.
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
@@ -236,16 +229,13 @@ def _check_agent(
     check_algo(algo, backend)
     if backend == "sbx":
         configure_jax_threads(run.threads)  # before jax's first import in this process, or it cannot apply
-    _remove_stale_temporaries(paths)
+    # A run killed mid-write leaves hidden temporaries that hold nothing we read: clear this agent's.
+    for folder in (paths.checkpoint_dir, paths.best_dir):
+        remove_stale_temporaries(folder)
+    for path in (paths.model_path, paths.history_path):
+        remove_stale_temporaries(path.parent, target=path.name)
     algo_class(algo)  # a clear error for an unknown name before any env starts
-    asked = [
-        name
-        for name, present in (
-            ("ActionL2Penalty", hyperparams.action_l2 > 0),
-            ("ControllerPrior", hyperparams.controller_prior is not None),
-        )
-        if present
-    ]
+    asked = [type(callback).__name__ for callback in hyperparams.callbacks()]
     if asked and not algorithm(algo).action_penalty:
         penalised = [name for name, record in REGISTRY.items() if record.action_penalty]
         raise ValueError(
@@ -270,7 +260,7 @@ def _start_model(
         kwargs = hyperparams.model_kwargs(eval_env)
         model = make_model(algo, backend, vec_env, kwargs, seed=run.seed, policy=hyperparams.policy)
         state = None
-    model.set_logger(_tensorboard_logger(paths))
+    model.set_logger(configure(str(paths.tensorboard_dir / paths.name), ["tensorboard"]))
     return model, state
 
 
@@ -283,9 +273,9 @@ def _make_checkpointer(
     state: dict[str, Any] | None,
 ) -> ResumableCheckpointCallback:
     """
-    The resumable checkpoints, each with what a resumed run needs: its budget, seed, backend and history,
-    and what it was trained with (algorithm, config block), so that a resume of an agent killed before its
-    manifest entry is compared with them (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_agent`).
+    The resumable checkpoints, each with what a resumed run needs (budget, seed, backend, history) and what
+    it was trained with (algorithm, config block), to compare with when an agent killed before its manifest
+    entry is resumed.
 
     :param planned: the total budget, the algorithm and the config block.
     """
@@ -323,17 +313,6 @@ def check_takes(algo: str, action_space: gym.spaces.Space) -> None:
             f"Expected an env whose actions {record.name} takes ({sorted(record.action_spaces)}), actually "
             f"{action_space}"
         )
-
-
-def _remove_stale_temporaries(paths: AgentPaths) -> None:
-    """
-    A run killed mid-write (SIGKILL, power cut) leaves hidden temporaries; they never hold anything we
-    read, so clear this agent's before they pile up (a replay buffer's can be large).
-    """
-    remove_stale_temporaries(paths.checkpoint_dir)
-    remove_stale_temporaries(paths.best_dir)
-    remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
-    remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
 
 
 def _resume_model(
@@ -388,7 +367,9 @@ def _make_evaluator(
         eval_seed=run.eval_seed,
         best_model_save_path=paths.best_dir if run.keep_best else None,
         history_path=paths.history_path,
-        callback_after_eval=_combine_callbacks(after_eval_callbacks),
+        callback_after_eval=CallbackList(after_eval_callbacks)
+        if len(after_eval_callbacks) > 1
+        else next(iter(after_eval_callbacks), None),
         history=state.get("history", []) if state is not None else [],
         best_mean_reward=best if best is not None else -np.inf,
     )
@@ -461,18 +442,6 @@ def _save_outcome(
         stopped_early=stopped_early,
         backend=backend,
     )
-
-
-def _combine_callbacks(callbacks: Sequence[BaseCallback]) -> BaseCallback | None:
-    """One callback for a slot that takes one: ``None``, the callback itself, or a ``CallbackList``."""
-    if not callbacks:
-        return None
-    return callbacks[0] if len(callbacks) == 1 else CallbackList(list(callbacks))
-
-
-def _tensorboard_logger(paths: AgentPaths) -> Logger:
-    folder = paths.tensorboard_dir / paths.name
-    return configure(str(folder), ["tensorboard"])
 
 
 def agent_run(run: RunOptions, paths: AgentPaths, budget: int | None) -> RunOptions:

@@ -64,10 +64,9 @@ def default_config(algo: str = "ddpg") -> Path:
 
 def config_source(path: str | Path, run_dir: str | Path | None = None) -> str:
     """
-    How a manifest names the config file a block was read from, with no path of this machine in it (a record
-    states what ran; reading it must not need the machine that wrote it): a bundled config as
-    ``sb3_hddpg/zoo_configs/<algo>.yml``, a relative path as given, any other absolute path relative to the
-    run folder ``run_dir`` (by its file name without one). The block itself is recorded beside it.
+    How a manifest names the config file a block was read from, with no path of this machine in it: a bundled
+    config as ``sb3_hddpg/zoo_configs/<algo>.yml``, a relative path as given, any other absolute path relative
+    to the run folder ``run_dir`` (by its file name without one).
 
     :param path: the config file the block was read from.
     :param run_dir: the run folder the manifest belongs to.
@@ -208,9 +207,7 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         text = read_file_bytes(path, MAX_JSON_BYTES + 1).decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"Config file not found: {str(path)!r}") from None
-    except LimitError as error:
-        raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
+    except (LimitError, IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
         raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
     if len(text) > MAX_JSON_BYTES:
         raise ConfigError(
@@ -280,10 +277,10 @@ def _parse_block(block: dict[str, Any], algo_class: type, source: str, manager: 
     # Each _pop_* takes its key out of ``block``: what is left are the algorithm's constructor arguments.
     n_timesteps = HYPERPARAMETERS["n_timesteps"].check(block.pop("n_timesteps"), f"{source}: n_timesteps")
     n_envs = HYPERPARAMETERS["n_envs"].check(block.pop("n_envs", 1), f"{source}: n_envs")
-    policy = _pop_policy(block, source)
-    noise_type = _pop_noise_type(block, source)
-    backend = _pop_backend(block, source)
-    noise_std = _pop_noise_std(block, source)
+    policy = _pop_choice(block, "policy", ("MlpPolicy",), source) or "MlpPolicy"
+    noise_type = _pop_choice(block, "noise_type", ("normal", "ornstein-uhlenbeck"), source)
+    backend = _pop_choice(block, "backend", BACKENDS, source)
+    noise_std = float(HYPERPARAMETERS["noise_std"].check(block.pop("noise_std", 0.1), f"{source}: noise_std"))
     penalty = _parse_callbacks(block.pop("callback", None), source)
     action_l2 = float(cast(float, penalty.get("action_l2", 0.0)))
     env_kwargs = _pop_mapping(block, "env_kwargs", source)
@@ -322,36 +319,15 @@ def _check_keys(block: dict[str, Any], algo_class: type, source: str, manager: b
         raise ConfigError(f"Unknown keys in {source}: {brief(unknown)} (allowed: {sorted(allowed)})")
 
 
-def _pop_policy(block: dict[str, Any], source: str) -> str:
-    policy = block.pop("policy", "MlpPolicy")
-    if policy != "MlpPolicy":
-        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {brief(policy)}")
-    return "MlpPolicy"
-
-
-def _pop_noise_type(block: dict[str, Any], source: str) -> str | None:
-    noise_type = block.pop("noise_type", None)
-    if noise_type is None:
+def _pop_choice(block: dict[str, Any], key: str, choices: tuple[str, ...], source: str) -> str | None:
+    """``block[key]`` (taken out), one of ``choices`` (or its lower case); ``None`` when absent or null."""
+    value = block.pop(key, None)
+    if value is None:
         return None
-    noise_type = str(noise_type).strip()
-    if noise_type not in ("normal", "ornstein-uhlenbeck"):
-        raise ConfigError(
-            f"Unknown noise_type in {source}: {brief(noise_type)} (use 'normal' or 'ornstein-uhlenbeck')"
-        )
-    return noise_type
-
-
-def _pop_backend(block: dict[str, Any], source: str) -> str | None:
-    backend = block.pop("backend", None)
-    if backend is None:
-        return None
-    if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
-        raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")
-    return backend.strip().lower()
-
-
-def _pop_noise_std(block: dict[str, Any], source: str) -> float:
-    return float(HYPERPARAMETERS["noise_std"].check(block.pop("noise_std", 0.1), f"{source}: noise_std"))
+    text = value.strip() if isinstance(value, str) else ""
+    if text not in choices and text.lower() not in choices:
+        raise ConfigError(f"Unknown {key} in {source}: {brief(value)} (use one of {list(choices)})")
+    return text if text in choices else text.lower()
 
 
 def _pop_mapping(block: dict[str, Any], name: str, source: str) -> dict[str, Any]:
@@ -370,7 +346,8 @@ def _check_algo_kwargs(block: dict[str, Any], algo: str, source: str) -> None:
     if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
         block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
     _check_replay_buffer(block, source)
-    _check_network_size(block.get("policy_kwargs"), algo, source)
+    # Networks too large to build ([65536, 65536] is 17 GB) are refused before SB3 allocates them.
+    check_network_size(algo, block.get("policy_kwargs"), what=f"{source}: policy_kwargs")
     if "train_freq" in block:
         block["train_freq"] = check_train_freq(block["train_freq"], f"{source}: train_freq")
     if "buffer_size" in block:
@@ -405,12 +382,9 @@ def _buffer_size(buffer_size: object, source: str) -> Any:
     """``buffer_size`` as an integer (RL Zoo writes ``1e6``), bounded before SB3 allocates it."""
     if isinstance(buffer_size, float) and buffer_size.is_integer():
         buffer_size = int(buffer_size)
-    try:
-        # The dimensions are not known yet, so a 64-wide observation stands in (the snake's is 27): the
-        # transition count is the real limit.
-        check_buffer_size(buffer_size, 64, 8, "buffer_size")
-    except ValueError as error:
-        raise ConfigError(f"{source}: {error}") from None
+    # The dimensions are not known yet, so a 64-wide observation stands in (the snake's is 27): the
+    # transition count is the real limit.
+    check_buffer_size(buffer_size, 64, 8, f"{source}: buffer_size")
     return buffer_size
 
 
@@ -542,14 +516,3 @@ def manager_option_steps(config: str | Path | None = None, algo: str = "ddpg") -
     :param algo: the manager's algorithm (``ddpg``, ``td3`` or ``sac``).
     """
     return int(wrapper_kwargs(config, algo).get("option_steps", 1))
-
-
-def _check_network_size(policy_kwargs: object, algo: str, source: str) -> None:
-    """
-    Refuse networks too large to build (``[65536, 65536]`` is 17 GB) before SB3 allocates them: the one
-    check of :func:`~sb3_hddpg.artifacts.network_limits.check_network_size`, as this file's kind of error.
-    """
-    try:
-        check_network_size(algo, policy_kwargs, what=f"{source}: policy_kwargs")
-    except LimitError as error:
-        raise ConfigError(str(error)) from None

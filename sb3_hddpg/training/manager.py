@@ -11,9 +11,7 @@ from typing import Any, cast
 
 from stable_baselines3.common.type_aliases import MaybeCallback
 
-from sb3_hddpg.artifacts.io import (
-    atomic_write_json,
-)
+from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.artifacts.manifests import as_json, check_resumed_env
 from sb3_hddpg.artifacts.run_folder import holds_run_folder
@@ -40,11 +38,9 @@ def _check_manager_resume(
     paths: AgentPaths, resume: bool, setup: ManagerSetup, selection: dict[str, Any]
 ) -> None:
     """
-    Keep the manager's MDP (env, workers, algorithm, selection settings) and its learner's settings (the
-    config block's constructor arguments with ``--gamma`` applied, policy, noise) beside its model; a resumed
-    run whose MDP or learner differs is refused in one line naming the difference
-    (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_env`), since its replay buffer and network were
-    made on the recorded ones, and a resumed model keeps the discount it was saved with whatever is asked.
+    Keep the manager's MDP (env, workers, algorithm, selection settings) and its learner's settings beside
+    its model; a resumed run whose MDP or learner differs is refused in one line naming the difference, since
+    its replay buffer and network were made on the recorded ones.
     """
     mdp: dict[str, Any] = {
         **setup.env_kwargs,
@@ -67,16 +63,10 @@ def _check_manager_resume(
 
 
 def _learner_settings(setup: ManagerSetup) -> dict[str, Any]:
-    """
-    The manager's learner as its config block sets it, less the budget (a resumed run may extend it), as
-    JSON stores it (a class, e.g. an activation, by its name).
-    """
+    """The manager's learner as its config block sets it, as JSON, less the budget (a resume may extend it)."""
     hyperparams = setup.hyperparams
-    learner = {
-        "algo_kwargs": hyperparams.algo_kwargs,
-        "policy": hyperparams.policy,
-        "noise": [hyperparams.noise_type, hyperparams.noise_std],
-    }
+    noise = [hyperparams.noise_type, hyperparams.noise_std]
+    learner = {"algo_kwargs": hyperparams.algo_kwargs, "policy": hyperparams.policy, "noise": noise}
     return cast(dict[str, Any], as_json(learner))
 
 
@@ -106,18 +96,16 @@ def train_manager(
     **changes: Any,
 ) -> ManagerResult:
     """
-    Train the manager: a plain SB3 DDPG (or another algorithm, ``options.algo``) on ``WorkerSelectionWrapper``
-    over pre-trained workers (paper Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
+    Train the manager: a plain SB3 model on ``WorkerSelectionWrapper`` over pre-trained workers (paper
+    Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
 
     :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder), or the set-up
-        :func:`~sb3_hddpg.training.manager_setup.prepare_manager` returned: then the workers it loaded are
-        used as they are (nothing is loaded or checked twice) and no manager options may be given.
+        :func:`~sb3_hddpg.training.manager_setup.prepare_manager` returned (then no manager options).
     :param out_dir: the run folder for the manager.
     :param options: what the manager is trained from
         (:class:`~sb3_hddpg.training.manager_setup.ManagerOptions`; default: its defaults).
-    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the
-        manager's model; the bundle holds an SB3 manager whichever ``backend`` trains it.
-    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them (e.g. progress reporting).
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`).
+    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them.
     :param changes: fields of ``ManagerOptions`` or of ``RunOptions`` as keywords, over ``options``' and
         ``run``'s (``train_manager(w, out, prefer="goal", seed=3)``).
     :return: the saved hierarchy, its file and the training outcome.
