@@ -68,8 +68,7 @@ def _quantile_actor_critic(shape: NetworkShape, n_critics: int) -> int:
 
 
 def _batch_renorm_actor_critic(shape: NetworkShape, n_critics: int) -> int:
-    # CrossQ: no target networks; a batch-renormalisation layer (scale, bias and two running statistics)
-    # before every linear layer.
+    # CrossQ: no target networks; a batch renormalisation (4 values per input) before every linear layer.
     actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
     actor += 4 * (shape.obs_dim + sum(shape.pi))
     critic_in = shape.obs_dim + shape.act_dim
@@ -87,8 +86,7 @@ def _quantile_q_network(shape: NetworkShape, n_critics: int) -> int:
 
 
 def _actor_and_value(shape: NetworkShape, n_critics: int) -> int:
-    # PPO: the policy (a mean per action dimension, or a logit per action, plus a state-independent
-    # log-std) and the value function; no targets.
+    # PPO: the policy (a mean or logit per action, plus a log-std) and the value function; no targets.
     return (
         mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim])
         + shape.act_dim
@@ -96,9 +94,8 @@ def _actor_and_value(shape: NetworkShape, n_critics: int) -> int:
     )
 
 
-#: Policy kwargs every ``MlpPolicy`` here understands and a spec may carry. ``use_sde`` is left out on
-#: purpose: the constructors overwrite ``policy_kwargs["use_sde"]`` from their own ``use_sde`` argument, so it
-#: lives with the hyperparameters.
+#: Policy kwargs every ``MlpPolicy`` here understands and a spec may carry (not ``use_sde``: the constructors
+#: overwrite it from their own argument, so it lives with the hyperparameters).
 _MLP_POLICY_KWARGS = frozenset(
     {"net_arch", "activation_fn", "normalize_images", "optimizer_class", "optimizer_kwargs"}
     | {"features_extractor_class", "features_extractor_kwargs"}
@@ -106,8 +103,8 @@ _MLP_POLICY_KWARGS = frozenset(
 _ACTOR_CRITIC_POLICY_KWARGS = _MLP_POLICY_KWARGS | {"n_critics", "share_features_extractor"}
 _GAUSSIAN_POLICY_KWARGS = _ACTOR_CRITIC_POLICY_KWARGS | {"log_std_init", "use_expln", "clip_mean"}
 
-# Constructor hyperparameters a spec records, with their JSON kind. Only what shapes the rebuilt model or its
-# immediate use; exploration noise, train_freq etc. are training-time choices of whoever continues.
+# Constructor hyperparameters a spec records, with their JSON kind: what shapes the rebuilt model, not
+# training-time choices of whoever continues (exploration noise, train_freq...).
 _COMMON_HPARAMS = {
     **dict.fromkeys(("learning_rate", "gamma", "tau"), "float"),
     "buffer_size": "int",
@@ -128,27 +125,23 @@ class Algorithm:
     Everything sb3-hddpg knows about one algorithm.
 
     :param name: the name ``--algo`` and configs use (lower case).
-    :param cls: the SB3 or sb3-contrib class: the one every saved model is, whichever backend trained it.
-        Exact classes only: a subclass may change the networks in ways a rebuild spec cannot describe.
+    :param cls: the SB3 or sb3-contrib class every saved model is, whichever backend trained it.
     :param colour: its colour in figures (a matplotlib colour name).
-    :param parameter_rule: the parameters (targets included) its networks have, for the limits on files
-        from elsewhere; called with a :class:`NetworkShape` and the critics to count.
+    :param parameter_rule: the parameters (targets included) its networks have, given a
+        :class:`NetworkShape` and the critics to count.
     :param policy_kwargs: the ``policy_kwargs`` keys a saved model's spec may carry.
     :param hyperparameters: the constructor arguments a spec records, with their JSON kind (``float``,
         ``int``, ``bool``, ``ent_coef``).
-    :param sampler: the Optuna sampler's key in :data:`hddpg_zoo.hyperparams_opt.SAMPLERS`
-        (``None``: not tunable).
+    :param sampler: the Optuna sampler's key (``None``: not tunable).
     :param sbx: the SBX class's name (``None``: SBX cannot train it here).
-    :param sbx_layout: how SBX lays out its networks, which picks the weight conversion in
-        :mod:`sb3_hddpg.training.backends`: ``deterministic`` (DDPG, TD3), ``gaussian`` (SAC),
-        ``quantile`` (TQC), ``batch_renorm`` (CrossQ).
+    :param sbx_layout: how SBX lays out its networks (the weight conversion): ``deterministic``,
+        ``gaussian``, ``quantile`` or ``batch_renorm``.
     :param roles: of :data:`ROLES`.
     :param action_spaces: of :data:`ACTION_SPACES`.
     :param on_policy: learns from rollouts (``n_steps``, a rollout buffer) rather than a replay buffer.
     :param default_net_arch: the hidden layers SB3 builds when ``net_arch`` is not given.
     :param default_n_critics: the critics SB3 builds when ``n_critics`` is not given.
-    :param action_penalty: the actor is deterministic and trained through its action, so the
-        ``ActionL2Penalty`` callback applies.
+    :param action_penalty: the actor is deterministic, so the ``ActionL2Penalty`` callback applies.
     :param target_entropy: its ``target_entropy`` may be ``"auto"``, which needs the action space to resolve.
     :param critic_layers: the key of ``net_arch`` naming the critic's layers (``qf``; PPO: ``vf``).
     """
@@ -321,9 +314,8 @@ SBX_ALGORITHMS = tuple(name for name, record in REGISTRY.items() if record.sbx i
 
 #: The activations a training config may name, those both backends compute alike (SBX has each in flax).
 CONFIG_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
-#: Activation name -> torch class, for every activation a saved model's spec may name. A name outside this
-#: table is refused rather than looked up in ``torch.nn``: specs and configs are data and must not be able
-#: to pick arbitrary callables.
+#: Activation name -> torch class, for every activation a saved model's spec may name: a name outside this
+#: table is refused, so that specs and configs (data) cannot pick arbitrary callables.
 ACTIVATIONS: dict[str, type[th.nn.Module]] = {
     name: getattr(th.nn, name)
     for name in (*CONFIG_ACTIVATIONS, "Softplus", "Mish", "SELU", "CELU", "Hardtanh", "ReLU6", "Identity")

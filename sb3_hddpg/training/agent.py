@@ -34,12 +34,7 @@ from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, algorithm
-from sb3_hddpg.artifacts.io import (
-    atomic_write,
-    holds_folder_lock,
-    note_stop_signal,
-    remove_stale_temporaries,
-)
+from sb3_hddpg.artifacts.io import atomic_write, holds_folder_lock, note_stop_signal, remove_stale_temporaries
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback, best_entry
 from sb3_hddpg.extras import configure

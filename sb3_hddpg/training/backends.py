@@ -67,11 +67,8 @@ def check_backend(name: object) -> str:
 
 def resolve_backend(requested: str | None, configured: str | None = None) -> str:
     """
-    The backend to train with: the one requested (``--backend``), else the config's, else :data:`DEFAULT_BACKEND`.
-
-    :param requested: from the command line or the API (``None``: not given).
-    :param configured: the config block's ``backend`` key (``None``: not set).
-    :return: a checked backend name.
+    The backend to train with, checked: the one requested (``--backend``), else the config block's, else
+    :data:`DEFAULT_BACKEND`.
     """
     return check_backend(requested or configured or DEFAULT_BACKEND)
 
@@ -132,7 +129,6 @@ def configure_jax_threads(threads: int = 1) -> None:
     _configured_threads = threads
 
 
-# ------------------------------------------------------------------------------------------------ classes
 def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
     """
     The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
@@ -195,8 +191,7 @@ def _sbx_record(model: object) -> Algorithm:
     import sbx  # lazily: optional, and jax is slow to import (only SBX models get here)
 
     # isinstance, the most derived class winning (SBX's DDPG is a TD3): a model under the action penalty is a
-    # subclass of its algorithm (callbacks/action_penalty.py), and a tuning trial exports the model it
-    # trained as is.
+    # subclass of its algorithm.
     matches = [
         (len(getattr(sbx, str(record.sbx)).__mro__), record)
         for record in REGISTRY.values()
@@ -209,7 +204,6 @@ def _sbx_record(model: object) -> Algorithm:
     return max(matches, key=lambda match: match[0])[1]
 
 
-# ---------------------------------------------------------------------------------------- activations
 def _activation_pairs() -> list[tuple[type[th.nn.Module], Any]]:
     """(torch activation class, the flax function computing the same) for every activation configs may name."""
     import flax.linen as fnn  # lazily: optional (the `fast` extra), slow to import, with jax
@@ -253,7 +247,7 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     Translate SB3 constructor arguments (a config block's) into SBX's, refusing what SBX cannot honour.
 
     :param algo: an algorithm SBX trains (:data:`SBX_ALGOS`).
-    :param kwargs: SB3 keyword arguments (``policy_kwargs`` with torch activations).
+    :param kwargs: SB3 keyword arguments.
     :return: the SBX keyword arguments; raises :class:`BackendError` naming the key SBX lacks.
     """
     from sb3_hddpg.training.sbx_weights import layout_of  # SBX only
@@ -283,8 +277,7 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
         # SB3 trains the critic at learning_rate; SBX's DDPG defaults its critic to 1e-3 whatever that is.
         out["qf_learning_rate"] = None
     if callable(out.get("learning_rate")) and record.sbx_layout == "deterministic":
-        # SBX's SAC-like algorithms put their rates into the optimiser state themselves; TD3 and DDPG need
-        # it asked for.
+        # SBX's SAC-like algorithms keep their rates in the optimiser state, TD3 and DDPG on request.
         policy_kwargs["optimizer_class"] = scheduled_adam
     return out
 
@@ -359,7 +352,6 @@ def _sb3_policy_kwargs(model: Any, record: Algorithm) -> dict[str, Any]:
     return policy_kwargs
 
 
-# ------------------------------------------------------------------------------------------- public API
 def make_model(
     algo: str,
     backend: str,
@@ -410,14 +402,7 @@ def make_model(
 
 
 def load_native(algo: str, backend: str, path: Any, env: Any = None) -> BaseAlgorithm:
-    """
-    Load a model saved by this backend's own ``save`` (a checkpoint or ``best_model.zip`` of a run).
-
-    :param algo: the algorithm name.
-    :param backend: ``sb3`` or ``sbx``.
-    :param path: the zip.
-    :param env: the env to attach (to continue training), or ``None``.
-    """
+    """Load a model a backend saved in a run folder (a checkpoint or ``best_model.zip``) onto ``env``."""
     cls = algo_class(algo, backend)
     check_run_file(path)
     model = cls.load(path, env=env, device="cpu")

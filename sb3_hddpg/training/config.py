@@ -1,12 +1,9 @@
 """
 Hyperparameters in RL Zoo's format: ``zoo_configs/*.yml`` -> keyword arguments for an SB3 algorithm.
 
-A config file maps an env id (or ``default``, or ``manager`` for the manager's DDPG) to a block of
-hyperparameters, exactly as in rl-baselines3-zoo's ``hyperparams/*.yml``: the env's own block if present,
-else ``default`` (blocks are not merged, as in RL Zoo; YAML anchors and ``<<:`` merge keys share values).
-A worker on one term of another env first looks for its own block, ``<env id>/<term>``.
-Files are parsed with a safe YAML loader; ``policy_kwargs`` strings and ``lin_<initial value>`` schedules
-with :mod:`~sb3_hddpg.training.config_values`, never ``eval``.
+A config file maps an env id (or ``default``, or ``manager``) to a block of hyperparameters, as RL Zoo's
+``hyperparams/*.yml`` do: the env's own block if present, else ``default`` (blocks are not merged). Files are
+parsed with a safe YAML loader, and ``policy_kwargs`` strings without ``eval``.
 """
 
 from __future__ import annotations
@@ -463,14 +460,10 @@ def agent_kwargs(
 ) -> dict[str, Any]:
     """
     The project's hyperparameters for one agent, as keyword arguments of the algorithm's constructor, so
-    that the Python API trains with what the CLI uses (``zoo_configs/ddpg.yml``: [64, 64] networks,
-    Gaussian action noise, gamma 0.9...) rather than SB3's defaults::
+    that the Python API trains with what the CLI uses rather than SB3's defaults (the budget and the block's
+    ``env_kwargs`` are not applied here)::
 
         goal = DDPG(**agent_kwargs("hddpg/SnakeGoal-v0", gym.make("hddpg/SnakeGoal-v0")))
-        manager = DDPG(**agent_kwargs("manager", WorkerSelectionWrapper(...)))
-
-    The budget (``n_timesteps``) is not a constructor argument: pass it to ``learn``. A block's
-    ``env_kwargs`` are for making ``env``: they are not applied here.
 
     :param key: the config block: an env id (``hddpg/SnakeGoal-v0``...) or ``"manager"``.
     :param env: the training env (it sizes the action noise and is passed on as ``env``).
@@ -486,8 +479,7 @@ def agent_kwargs(
 
 def agent_callbacks(key: str, config: str | Path | None = None) -> list[Any]:
     """
-    The SB3 callbacks a config block asks for (e.g. the actor's ``ActionL2Penalty``), to pass to ``learn``
-    with :func:`agent_kwargs`'s model: ``model.learn(n, callback=agent_callbacks("manager"))``.
+    The SB3 callbacks a config block asks for, to pass to ``learn`` with :func:`agent_kwargs`'s model.
 
     :param key: the config block: an env id or ``"manager"``.
     :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
@@ -497,22 +489,30 @@ def agent_callbacks(key: str, config: str | Path | None = None) -> list[Any]:
 
 def wrapper_kwargs(config: str | Path | None = None, algo: str = "ddpg") -> dict[str, Any]:
     """
-    The manager block's ``wrapper_kwargs`` (selection mode, temperature, floor, option steps): keyword
-    arguments for ``WorkerSelectionWrapper`` and ``SelectionConfig``, as the CLI's manager gets them.
+    The manager block's ``wrapper_kwargs``: keyword arguments for ``WorkerSelectionWrapper`` and
+    ``SelectionConfig``, as the CLI's manager gets them.
 
     :param config: a ``zoo_configs``-format file (default: the bundled config of ``algo``).
-    :param algo: the manager's algorithm (``ddpg``, ``td3`` or ``sac``).
+    :param algo: the manager's algorithm.
     """
-    path = config if config is not None else default_config(algo)
-    return dict(load_hyperparams(MANAGER_KEY, algorithm_class(algo), path, manager=True).wrapper_kwargs)
+    return dict(manager_hyperparams(algo, config).wrapper_kwargs)
+
+
+def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) -> Hyperparams:
+    """
+    The ``manager`` block a manager of ``algo`` trains from.
+
+    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
+    """
+    return load_hyperparams(MANAGER_KEY, algorithm_class(algo), config or default_config(algo), manager=True)
 
 
 def manager_option_steps(config: str | Path | None = None, algo: str = "ddpg") -> int:
     """
-    Env steps per manager decision: the manager block's ``option_steps`` (1 when it sets none). SB3 counts a
-    manager's timesteps and evaluation period in decisions; budgets and curves in env steps multiply by it.
+    Env steps per manager decision: the manager block's ``option_steps`` (1 when it sets none), by which a
+    manager's timesteps (decisions) multiply into env steps.
 
     :param config: a ``zoo_configs``-format file (default: the bundled config of ``algo``).
-    :param algo: the manager's algorithm (``ddpg``, ``td3`` or ``sac``).
+    :param algo: the manager's algorithm.
     """
     return int(wrapper_kwargs(config, algo).get("option_steps", 1))

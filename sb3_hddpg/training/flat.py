@@ -5,6 +5,7 @@ manifest.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -44,11 +45,8 @@ def check_flat_env(algo: str, env_id: str | None = None, env_kwargs: Mapping[str
     :func:`check_takes` for a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` (default: the
     combined task, :data:`~sb3_hddpg.envs.ids.SNAKE_REACH_ENV_ID`).
     """
-    probe = make_snake_env(env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))
-    try:
+    with contextlib.closing(make_snake_env(env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))) as probe:
         check_takes(algo, probe.action_space)
-    finally:
-        probe.close()
 
 
 def flat_hyperparams(

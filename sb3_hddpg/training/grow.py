@@ -9,6 +9,7 @@ critic at the start states of the development episodes, ``mean_s0 Q(s0, pi(s0))`
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -83,12 +84,9 @@ def support_weights(workers: Workers, terms: Sequence[str]) -> dict[str, np.ndar
 
 def policy_values(workers: Workers, start_states: int) -> dict[str, np.ndarray]:
     """Each worker's vector value: its critic of its own action at ``start_states`` development starts."""
-    env = workers.make_env()
-    try:
+    with contextlib.closing(workers.make_env()) as env:
         layout = state_layout_of(env)
         starts = np.stack([env.reset(seed=seed)[0] for seed in DEVELOPMENT.seeds(start_states)])
-    finally:
-        env.close()
     values = {}
     for name, model in workers.items():
         critic: TermCritic = workers.critics[name]
@@ -285,11 +283,8 @@ def _spaces_of(
     weights: dict[str, float], config: str | Path | None, env: TermsEnv | None
 ) -> tuple[object, object]:
     """The observation and action spaces of a new worker on ``weights``: its view, made once."""
-    probe = plan_workers([], [weights], config, env)[0].env_factory()()
-    try:
+    with contextlib.closing(plan_workers([], [weights], config, env)[0].env_factory()()) as probe:
         return probe.observation_space, probe.action_space
-    finally:
-        probe.close()
 
 
 def _only(workers: Workers, name: str) -> Workers:

@@ -10,6 +10,7 @@ decisions go into the replay buffer with their real rewards, so RL starts at HAM
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
@@ -209,11 +210,8 @@ def ham_start_hook(
     def prepare(model: BaseAlgorithm) -> None:
         if not isinstance(model.policy, th.nn.Module):
             raise ValueError("The start from HAM fits SB3 (torch) managers: use --backend sb3")
-        env = env_factory()
-        try:
+        with contextlib.closing(env_factory()) as env:
             observations, choices = collect_ham_decisions(env, start, model, seed=seed)
-        finally:
-            env.close()
         agreement = imitate(model, observations, choices, start)
         report.update({**asdict(start), "agreement": agreement})
 

@@ -5,6 +5,7 @@ build the factory of its env, before anything trains.
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
@@ -26,21 +27,12 @@ from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, pr
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import algo_class
-from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
+from sb3_hddpg.training.config import Hyperparams, default_config, manager_hyperparams
 from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart
 
 #: The algorithms a manager can be (DDPG is the paper's), each with a ``manager`` block in its bundled config;
 #: one acting in Discrete spaces (DQN) selects with the ``discrete`` mode, its action the worker's index.
 MANAGER_ALGOS = algorithms_for("manager")
-
-
-def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) -> Hyperparams:
-    """
-    The ``manager`` block a manager of ``algo`` trains from.
-
-    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
-    """
-    return load_hyperparams(MANAGER_KEY, algo_class(algo), config or default_config(algo), manager=True)
 
 
 def horizon_gamma(option_steps: int, algo: str = "ddpg", config: str | Path | None = None) -> float:
@@ -319,8 +311,7 @@ def _check_workers_fit(
     Check that every worker fits the manager's env: its observation shape, unless the selection settings
     slice the state for it, and the wrapper's own checks, run once here rather than inside env subprocesses.
     """
-    probe = make_snake_env(env_id, env_kwargs)
-    try:
+    with contextlib.closing(make_snake_env(env_id, env_kwargs)) as probe:
         expected = probe.observation_space.shape
         for name, worker in workers.items():
             space = getattr(worker, "observation_space", None)
@@ -333,8 +324,6 @@ def _check_workers_fit(
                     f"{expected}: give the manager's config block the workers' env_kwargs"
                 )
         WorkerSelectionWrapper(probe, workers, **selection_config.wrapper_kwargs())
-    finally:
-        probe.close()
 
 
 def _option_end_json(given: str | OptionEnd | None, configured: Any) -> dict[str, Any] | None:

@@ -5,6 +5,7 @@ half), and the workers manifest beside them.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -313,7 +314,9 @@ def train_workers(
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest = _start_manifest(manifest_path, shared, env, planned, run.resume, (run.seed, resume_changes))
-    extras = _WorkerExtras(_shared_bounds(shared), callback, term_critic, keep_transitions)
+    with contextlib.closing(shared.make()) as probe:  # the bounds a worker's critic normalises by
+        bounds = dict(env_contract(probe).reward_bounds)
+    extras = _WorkerExtras(bounds, callback, term_critic, keep_transitions)
     outcomes: dict[str, TrainingOutcome] = {}
     for worker in planned:
         name, hyperparams = worker.name, worker.hyperparams
@@ -411,15 +414,6 @@ def _train_worker(
     return outcome, facts
 
 
-def _shared_bounds(shared: TermsEnv) -> dict[str, tuple[float, float]]:
-    """The shared env's per-term bounds, in term order (what a worker's critic normalises by)."""
-    probe = shared.make()
-    try:
-        return dict(env_contract(probe).reward_bounds)
-    finally:
-        probe.close()
-
-
 def _start_manifest(
     manifest_path: Path,
     shared: TermsEnv,
@@ -471,11 +465,8 @@ def _worker_entry(
     :param facts: what else it records (its critic, kept transitions, warm start).
     """
     if worker.term is not None:
-        probe = make_term_view(worker.env_id, worker.env_kwargs, worker.term)
-        try:
+        with contextlib.closing(make_term_view(worker.env_id, worker.env_kwargs, worker.term)) as probe:
             bounds = env_contract(probe).reward_bounds[worker.term]
-        finally:
-            probe.close()
         reward: dict[str, object] = {"reward_term": worker.term, "reward_bounds": list(bounds)}
     else:
         reward = {"reward_weights": dict(worker.weights), "reward_bounds": [0.0, 1.0]}
