@@ -76,13 +76,13 @@ def _batch_renorm_actor_critic(shape: NetworkShape, n_critics: int) -> int:
     return actor + n_critics * critic
 
 
-def _q_network(shape: NetworkShape, n_critics: int) -> int:
-    # DQN: one Q-network with one output per action, and its target copy.
-    return 2 * mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim])
+def _q_network(shape: NetworkShape, n_critics: int, outputs_per_action: int = 1) -> int:
+    # DQN (QR-DQN: a quantile per output): one Q-network with one output per action, and its target copy.
+    return 2 * mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim * outputs_per_action])
 
 
 def _quantile_q_network(shape: NetworkShape, n_critics: int) -> int:
-    return 2 * mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim * shape.n_quantiles])
+    return _q_network(shape, n_critics, shape.n_quantiles)
 
 
 def _actor_and_value(shape: NetworkShape, n_critics: int) -> int:

@@ -14,12 +14,4 @@ _LAZY = {
 }
 
 __getattr__ = lazy_attributes(__name__, _LAZY)
-__all__ = [
-    "ActionL2Penalty",
-    "ControllerPrior",
-    "MetricsEvalCallback",
-    "ResumableCheckpointCallback",
-    "SelectionStatsCallback",
-    "apply_action_l2",
-    "read_checkpoint_state",
-]
+__all__ = sorted(_LAZY)

@@ -57,8 +57,7 @@ class ResumableCheckpointCallback(BaseCallback):
         :param replay_buffer: also write the replay buffer; without it the checkpoint resumes with an empty
             one (how a finished run drops it).
         """
-        # The model's own count: the callback's copy is only updated inside learn(), so a save after
-        # init_callback without learn() (resuming a run that had already finished) would say 0.
+        # The model's own count: the callback's copy is only updated inside learn().
         steps = int(self.model.num_timesteps)
         if steps < self.min_timesteps:
             raise RuntimeError(

@@ -72,9 +72,8 @@ class MetricsEvalCallback(EvalCallback):
         pass  # EvalCallback's own compares env types and makes folders this one does not use
 
     def _on_step(self) -> bool:
-        # Calls counted from the run's first step, not from this learn() call's: a run resumed from a
-        # checkpoint taken between evaluations (Ctrl-C, SIGTERM) keeps evaluating on the same grid, so the
-        # curves of different seeds share their points and can be averaged point by point.
+        # Calls counted from the run's first step, not this learn() call's: a resumed run keeps evaluating on
+        # the same grid, so the curves of different seeds share their points.
         calls = self.num_timesteps // self.model.n_envs
         if self.eval_freq > 0 and calls % self.eval_freq == 0:
             return self.run_evaluation()
@@ -97,8 +96,7 @@ class MetricsEvalCallback(EvalCallback):
             elif isinstance(value, dict):
                 for name, rate in value.items():
                     self.logger.record(f"eval/{key}/{name}", rate)
-        # The model's own count: the callback's copy is only updated inside learn(), so an evaluation run
-        # after init_callback without learn() (the final one of a resumed, finished run) would say 0.
+        # The model's own count: the callback's copy is only updated inside learn().
         steps = int(self.model.num_timesteps)
         self.logger.record("time/total_timesteps", steps, exclude="tensorboard")
         self.logger.dump(steps)

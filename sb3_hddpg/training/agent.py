@@ -1,11 +1,7 @@
 """
-Training one agent of the hierarchy (a worker, the manager, or a flat baseline) as a plain SB3 model.
-
-:func:`train_agent` does what every ``hddpg-cli train-*`` command needs: build the vectorised env and the
-model from a config block, evaluate periodically with the env's metrics and keep the best model, checkpoint
-so that Ctrl-C, SIGTERM or even SIGKILL lose little, resume to the requested total, optionally stop on a
-plateau, and log to TensorBoard. :mod:`~sb3_hddpg.training.workers`, :mod:`~sb3_hddpg.training.manager` and
-:mod:`~sb3_hddpg.training.flat` build on it.
+Training one agent of the hierarchy (a worker, the manager, or a flat baseline) as a plain SB3 model, with
+periodic evaluation, the best model kept, checkpoints that Ctrl-C, SIGTERM or SIGKILL lose little of, and
+resume: what every ``hddpg-cli train-*`` command builds on.
 """
 
 from __future__ import annotations
@@ -92,10 +88,6 @@ class AgentPaths:
         return self.root / "best" / self.name
 
     @property
-    def tensorboard_dir(self) -> Path:
-        return self.root / "tensorboard"
-
-    @property
     def history_path(self) -> Path:
         return self.root / "evaluations" / f"{self.name}.json"
 
@@ -160,17 +152,16 @@ def train_agent(
     the checkpoints stay in SBX's format, and the model saved and returned is exported to SB3.
 
     :param env_factory: builds one (unwrapped by Monitor) training env; picklable when ``n_envs > 1``.
-    :param hyperparams: the config block (see :mod:`sb3_hddpg.training.config`).
+    :param hyperparams: the config block.
     :param paths: where the agent's files go.
-    :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
+    :param algo: the algorithm.
     :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`); ``resume``
         continues from the last checkpoint in ``paths.checkpoint_dir``.
     :param callback: more SB3 callbacks, as SB3's ``learn`` takes them, run after the package's own.
     :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
         Optuna pruning callback); returning ``False`` stops training.
     :param prepare_model: called with a freshly built model before it learns (not on resume).
-    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
-        ``seed=3``), over ``run``'s.
+    :param run_changes: ``RunOptions`` fields as keywords, over ``run``'s.
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
     """
     run = run_options(run, run_changes, "train_agent")
@@ -255,7 +246,7 @@ def _start_model(
         kwargs = hyperparams.model_kwargs(eval_env)
         model = make_model(algo, backend, vec_env, kwargs, seed=run.seed, policy=hyperparams.policy)
         state = None
-    model.set_logger(configure(str(paths.tensorboard_dir / paths.name), ["tensorboard"]))
+    model.set_logger(configure(str(paths.root / "tensorboard" / paths.name), ["tensorboard"]))
     return model, state
 
 
@@ -295,13 +286,7 @@ def _make_checkpointer(
 
 
 def check_takes(algo: str, action_space: gym.spaces.Space) -> None:
-    """
-    Refuse an algorithm for an env whose action space it does not take (DQN on continuous actions), in one
-    line naming both, before anything trains.
-
-    :param algo: the algorithm.
-    :param action_space: the env's action space.
-    """
+    """Refuse, in one line naming both, an algorithm for an env whose ``action_space`` it does not take."""
     record = algorithm(algo)
     if not record.takes(action_space):
         raise ValueError(
@@ -344,10 +329,7 @@ def _make_evaluator(
     run: RunOptions,
     after_eval: BaseCallback | None,
 ) -> MetricsEvalCallback:
-    """
-    The periodic evaluator, continuing a resumed run's history and best reward, with the plateau rule
-    (when ``run.stop_on_plateau``) and ``after_eval`` run after each evaluation.
-    """
+    """The periodic evaluator, continuing a resumed run's, with the plateau rule and ``after_eval``."""
     plateau = (
         StopTrainingOnNoModelImprovement(max_no_improvement_evals=run.plateau_patience, min_evals=1)
         if run.stop_on_plateau
@@ -362,14 +344,11 @@ def _make_evaluator(
         eval_seed=run.eval_seed,
         best_model_save_path=paths.best_dir if run.keep_best else None,
         history_path=paths.history_path,
-        callback_after_eval=CallbackList(after_eval_callbacks)
-        if len(after_eval_callbacks) > 1
-        else next(iter(after_eval_callbacks), None),
+        callback_after_eval=CallbackList(after_eval_callbacks) if after_eval_callbacks else None,
         history=state.get("history", []) if state is not None else [],
         best_mean_reward=best if best is not None else -np.inf,
     )
-    # SB3 makes only the direct after-eval callback a child of the evaluator; the plateau rule and the
-    # pruner both read the evaluator's results through ``parent``, also when combined in a list.
+    # The plateau rule and the pruner read the evaluator's results through ``parent``, also in a list.
     for callback in after_eval_callbacks:
         callback.parent = evaluator
     return evaluator
@@ -384,10 +363,7 @@ def _learn(
     fresh: bool,
     progress_bar: bool,
 ) -> None:
-    """
-    Learn up to ``total`` steps in all; on Ctrl-C or SIGTERM save a checkpoint and raise
-    :class:`TrainingInterrupted`.
-    """
+    """Learn up to ``total`` steps; on Ctrl-C or SIGTERM save a checkpoint and raise TrainingInterrupted."""
     remaining = total - model.num_timesteps
     if remaining <= 0:
         return
@@ -454,10 +430,7 @@ def finished_with_budget(entry: object, budget: int) -> bool:
 
 
 def callback_list(callback: MaybeCallback) -> list[BaseCallback]:
-    """
-    ``callback`` as SB3's ``learn`` takes it (``None``, a callback, a list of them, or a function of
-    ``(locals, globals)``), as a list of callbacks to run after the package's own.
-    """
+    """``callback`` as SB3's ``learn`` takes it (a callback, a list, a function or ``None``), as a list."""
     if callback is None:
         return []
     if isinstance(callback, list):

@@ -190,18 +190,15 @@ def is_sbx_model(model: object) -> bool:
 def _sbx_record(model: object) -> Algorithm:
     import sbx  # lazily: optional, and jax is slow to import (only SBX models get here)
 
-    # isinstance, the most derived class winning (SBX's DDPG is a TD3): a model under the action penalty is a
-    # subclass of its algorithm.
-    matches = [
-        (len(getattr(sbx, str(record.sbx)).__mro__), record)
-        for record in REGISTRY.values()
-        if record.sbx is not None and isinstance(model, getattr(sbx, record.sbx))
-    ]
-    if not matches:
+    # The first registered class in the model's MRO, the most derived (SBX's DDPG is a TD3; a model under the
+    # action penalty is a subclass of its algorithm).
+    records = {getattr(sbx, record.sbx): record for record in REGISTRY.values() if record.sbx is not None}
+    found = next((records[cls] for cls in type(model).__mro__ if cls in records), None)
+    if found is None:
         raise BackendError(
             f"Cannot export {type(model).__qualname__} to SB3; exportable: {sorted(SBX_ALGOS)}"
         )
-    return max(matches, key=lambda match: match[0])[1]
+    return found
 
 
 def _activation_pairs() -> list[tuple[type[th.nn.Module], Any]]:
@@ -294,7 +291,6 @@ _EXPORTED_SETTINGS = (
     "target_policy_noise",
     "target_noise_clip",
     "target_entropy",
-    "top_quantiles_to_drop_per_net",
 )
 
 

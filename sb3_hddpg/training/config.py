@@ -164,7 +164,11 @@ class Hyperparams:
                 **(kwargs.get("replay_buffer_kwargs") or {}),
             }
         if self.noise_type is not None:
-            kwargs["action_noise"] = self.action_noise(int(np.prod(env.action_space.shape)))
+            n_actions = int(np.prod(env.action_space.shape))
+            noise = NormalActionNoise if self.noise_type == "normal" else OrnsteinUhlenbeckActionNoise
+            kwargs["action_noise"] = noise(
+                mean=np.zeros(n_actions), sigma=self.noise_std * np.ones(n_actions)
+            )
         return kwargs
 
     def callbacks(self) -> list[Any]:
@@ -180,15 +184,6 @@ class Hyperparams:
         if self.controller_prior is not None:
             callbacks.append(ControllerPrior(*self.controller_prior))
         return callbacks
-
-    def action_noise(self, n_actions: int) -> Any:
-        """The SB3 action-noise object for ``n_actions`` dimensions (``None`` without noise)."""
-        if self.noise_type is None:
-            return None
-        mean, sigma = np.zeros(n_actions), self.noise_std * np.ones(n_actions)
-        if self.noise_type == "normal":
-            return NormalActionNoise(mean=mean, sigma=sigma)
-        return OrnsteinUhlenbeckActionNoise(mean=mean, sigma=sigma)
 
 
 def load_config_file(path: str | Path) -> dict[str, Any]:
@@ -219,8 +214,7 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         line = f" at line {where.line + 1}" if where is not None else ""
         problem = getattr(error, "problem", None) or type(error).__name__
         raise ConfigError(f"Invalid YAML in {str(path)!r}{line}: {problem}") from None
-    # Anchors and aliases share one object, so loading is cheap, but an alias bomb ("billion laughs")
-    # expands to billions of values when printed or copied: budget the expanded size here, once.
+    # An alias bomb ("billion laughs") loads cheaply but expands to billions of values when copied.
     nodes = count_nodes(data)
     if nodes > MAX_CONFIG_NODES:
         raise ConfigError(
@@ -347,8 +341,11 @@ def _check_algo_kwargs(block: dict[str, Any], algo: str, source: str) -> None:
     check_network_size(algo, block.get("policy_kwargs"), what=f"{source}: policy_kwargs")
     if "train_freq" in block:
         block["train_freq"] = check_train_freq(block["train_freq"], f"{source}: train_freq")
-    if "buffer_size" in block:
-        block["buffer_size"] = _buffer_size(block["buffer_size"], source)
+    if "buffer_size" in block:  # RL Zoo writes 1e6
+        size = block["buffer_size"]
+        block["buffer_size"] = size = int(size) if isinstance(size, float) and size.is_integer() else size
+        # Bounded before SB3 allocates it; a 64-wide observation stands in for the dimensions not known yet.
+        check_buffer_size(size, 64, 8, f"{source}: buffer_size")
     if isinstance(block.get("learning_rate"), str):
         block["learning_rate"] = parse_schedule(block["learning_rate"], "learning_rate", source)
     for key in ("learning_rate", "gamma", "tau"):
@@ -373,16 +370,6 @@ def _check_replay_buffer(block: dict[str, Any], source: str) -> None:
         buffer_kwargs["relabel_fraction"] = HYPERPARAMETERS["relabel_fraction"].check(
             buffer_kwargs["relabel_fraction"], f"{source}: replay_buffer_kwargs.relabel_fraction"
         )
-
-
-def _buffer_size(buffer_size: object, source: str) -> Any:
-    """``buffer_size`` as an integer (RL Zoo writes ``1e6``), bounded before SB3 allocates it."""
-    if isinstance(buffer_size, float) and buffer_size.is_integer():
-        buffer_size = int(buffer_size)
-    # The dimensions are not known yet, so a 64-wide observation stands in (the snake's is 27): the
-    # transition count is the real limit.
-    check_buffer_size(buffer_size, 64, 8, f"{source}: buffer_size")
-    return buffer_size
 
 
 def _parse_callbacks(value: object, source: str) -> dict[str, object]:

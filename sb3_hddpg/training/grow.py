@@ -200,7 +200,8 @@ def _add_worker(
     config, env, term_critic = settings
     weights = dict(zip(terms, corner.weights))
     name = weighted_name(weights)
-    spaces = _spaces_of(weights, config, env)
+    with contextlib.closing(plan_workers([], [weights], config, env)[0].env_factory()()) as probe:
+        spaces = (probe.observation_space, probe.action_space)
     warm = _warm_start(root, workers, visited, np.asarray(corner.weights), weights, spaces)
     manifest = train_workers(
         root,
@@ -279,24 +280,11 @@ def _warm_start(
     return WarmStart(neighbour, workers[neighbour], weights, transitions)
 
 
-def _spaces_of(
-    weights: dict[str, float], config: str | Path | None, env: TermsEnv | None
-) -> tuple[object, object]:
-    """The observation and action spaces of a new worker on ``weights``: its view, made once."""
-    with contextlib.closing(plan_workers([], [weights], config, env)[0].env_factory()()) as probe:
-        return probe.observation_space, probe.action_space
-
-
 def _only(workers: Workers, name: str) -> Workers:
     """``workers`` reduced to one (to value only the new worker)."""
-    return Workers(
-        {name: workers[name]},
-        {k: v for k, v in workers.states.items() if k == name},
-        workers.env_id,
-        workers.env_kwargs,
-        workers.manifest,
-        workers.folder,
-        critics={name: workers.critics[name]},
+    states = {k: v for k, v in workers.states.items() if k == name}
+    return replace(
+        workers, models={name: workers[name]}, states=states, critics={name: workers.critics[name]}
     )
 
 

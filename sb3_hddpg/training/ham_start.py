@@ -11,7 +11,7 @@ decisions go into the replay buffer with their real rewards, so RL starts at HAM
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -63,12 +63,17 @@ class HamStart:
                 )
 
 
+def check_ham_workers(names: Sequence[str]) -> None:
+    """Refuse workers without HAM's two, named ``goal`` and ``avoid``, in one line."""
+    if not {"goal", "avoid"} <= set(names):
+        raise ValueError(
+            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {list(names)}"
+        )
+
+
 def ham_of(wrapper: WorkerSelectionWrapper, start: HamStart) -> tuple[HAMSwitch, int]:
     """The HAM switch over the wrapper's goal and avoid workers, and the avoid worker's index."""
-    if not {"goal", "avoid"} <= set(wrapper.worker_names):
-        raise ValueError(
-            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {wrapper.worker_names}"
-        )
+    check_ham_workers(wrapper.worker_names)
     from sb3_hddpg.baselines.ham import HAMSwitch  # the hand-written switch, only for a start from it
 
     switch = HAMSwitch(

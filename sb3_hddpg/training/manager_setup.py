@@ -27,8 +27,8 @@ from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, pr
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import algo_class
-from sb3_hddpg.training.config import Hyperparams, default_config, manager_hyperparams
-from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart
+from sb3_hddpg.training.config import Hyperparams, manager_hyperparams
+from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart, check_ham_workers
 
 #: The algorithms a manager can be (DDPG is the paper's), each with a ``manager`` block in its bundled config;
 #: one acting in Discrete spaces (DQN) selects with the ``discrete`` mode, its action the worker's index.
@@ -226,18 +226,16 @@ def manager_options(options: ManagerOptions | None, changes: dict[str, Any], cal
 
 def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSetup:
     """:func:`prepare_manager` with its arguments as one record."""
-    names_given = options.worker_names
-    if names_given is not None and isinstance(names_given, str):
-        raise ValueError(f"Expected a sequence of worker names, actually the string {names_given!r}")
+    if isinstance(options.worker_names, str):
+        raise ValueError(f"Expected a sequence of worker names, actually the string {options.worker_names!r}")
     algo = options.algo
     if algo not in MANAGER_ALGOS:
         raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
-    config = options.config if options.config is not None else default_config(algo)
-    hyperparams = _with_gamma(manager_hyperparams(algo, config), options.gamma)
-    workers = load_workers(workers_dir, names_given, trusted=options.trusted)
-    manifest = workers.manifest
-    env_id, given_kwargs = shared_env_of(manifest, options.env_id, options.env_kwargs, options.trusted)
-    names = list(workers)
+    hyperparams = _with_gamma(manager_hyperparams(algo, options.config), options.gamma)
+    workers = load_workers(workers_dir, options.worker_names, trusted=options.trusted)
+    env_id, given_kwargs = shared_env_of(
+        workers.manifest, options.env_id, options.env_kwargs, options.trusted
+    )
     wrapper_kwargs, hyperparams = _selection_settings(options, hyperparams, workers)
     try:
         selection_config = SelectionConfig(**wrapper_kwargs)
@@ -252,7 +250,7 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
     _check_workers_fit(workers, selection_config, env_id, env_kwargs)
     return ManagerSetup(
         workers,
-        manifest,
+        workers.manifest,
         hyperparams,
         selection_config,
         env_id,
@@ -260,7 +258,7 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
         str(Path(workers_dir)),
         options.trusted,
         algo,
-        _ham_start(options.init_from_ham, names, algo),
+        _ham_start(options.init_from_ham, list(workers), algo),
     )
 
 
@@ -292,7 +290,9 @@ def _selection_settings(
         if value is not None:
             wrapper_kwargs[key] = value
     wrapper_kwargs["preferences"] = factors
-    wrapper_kwargs["option_end"] = _option_end_json(options.option_end, wrapper_kwargs.get("option_end"))
+    if options.option_end is not None:  # else the config block's
+        end = options.option_end
+        wrapper_kwargs["option_end"] = (OptionEnd.parse(end) if isinstance(end, str) else end).to_json()
     # A worker trained on part of the state (env_kwargs `observe`) is fed the same components of the
     # manager's full state; a worker_states entry in the config block wins.
     configured = wrapper_kwargs.get("worker_states") or {}
@@ -326,23 +326,13 @@ def _check_workers_fit(
         WorkerSelectionWrapper(probe, workers, **selection_config.wrapper_kwargs())
 
 
-def _option_end_json(given: str | OptionEnd | None, configured: Any) -> dict[str, Any] | None:
-    """The option end as a bundle records it: the one given, else the config block's (``None``: none)."""
-    if given is None:
-        return configured
-    return (OptionEnd.parse(given) if isinstance(given, str) else given).to_json()
-
-
 def _ham_start(given: float | HamStart | None, names: list[str], algo: str) -> HamStart | None:
     """The start from HAM, checked: HAM switches between workers named ``goal`` and ``avoid``."""
     if given is None:
         return None
     if algo not in HAM_START_ALGOS:
         raise ValueError(f"The start from HAM fits managers of {list(HAM_START_ALGOS)}, not {algo!r}")
-    if not {"goal", "avoid"} <= set(names):
-        raise ValueError(
-            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {names}"
-        )
+    check_ham_workers(names)
     return given if isinstance(given, HamStart) else HamStart(float(given))
 
 

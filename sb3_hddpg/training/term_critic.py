@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.utils import polyak_update
 
 from sb3_hddpg.artifacts.limits import MAX_BATCH_SIZE
 from sb3_hddpg.artifacts.term_critic import TermCritic, TermCriticSpec
@@ -131,9 +132,7 @@ def fit_term_critic(
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-        with torch.no_grad():
-            for p, p_target in zip(critic.parameters(), target.parameters()):
-                p_target.mul_(1.0 - options.tau).add_(options.tau * p)
+        polyak_update(critic.parameters(), target.parameters(), options.tau)
         loss_value = float(loss.detach())
     critic.eval()
     return critic, {"steps": steps, "transitions": len(transitions), "td_loss": loss_value}

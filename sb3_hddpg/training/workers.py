@@ -73,8 +73,7 @@ def worker_hyperparams(
     algos: Mapping[str, str] | None = None,
 ) -> dict[str, Hyperparams]:
     """
-    Check worker names and read each worker's config block, before anything is trained: a bad block for
-    the second worker should not surface after the first one has trained for an hour.
+    Check worker names and read each worker's config block, before anything is trained.
 
     :param workers: worker names among :data:`WORKER_ENV_IDS` (or ``env``'s terms), each at most once.
     :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
@@ -111,13 +110,8 @@ def worker_hyperparams(
 
 def parse_worker_algorithms(text: str, workers: Sequence[str], env: TermsEnv | None = None) -> dict[str, str]:
     """
-    Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps its default, see
-    :func:`worker_algorithms`), or one algorithm name for every worker (``crossq``).
-
-    :param text: the option's value.
-    :param workers: the workers being trained.
-    :param env: the env with several objectives they are trained on (``None``: the snake arm).
-    :return: worker name -> algorithm, checked by :func:`worker_algorithms`.
+    Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps its default), or one
+    algorithm name for every worker (``crossq``); checked by :func:`worker_algorithms`.
     """
     parts = [part.strip() for part in text.split(",") if part.strip()]
     if len(parts) == 1 and "=" not in parts[0]:
@@ -139,13 +133,8 @@ def worker_algorithms(
     workers: Sequence[str], algos: Mapping[str, str] | None = None, env: TermsEnv | None = None
 ) -> dict[str, str]:
     """
-    Each worker's algorithm: the one ``algos`` names, else on the snake arm :data:`SNAKE_WORKER_ALGOS`'s
-    and on another env DDPG (the paper's); checked against the algorithm records (a worker role).
-
-    :param workers: the worker names.
-    :param algos: worker name -> algorithm name (any case); a name not among ``workers`` is refused.
-    :param env: the env with several objectives the workers are trained on (``None``: the snake arm).
-    :return: worker name -> registry name.
+    Each worker's algorithm (its registry name): the one ``algos`` names, else on the snake arm
+    (``env=None``) :data:`SNAKE_WORKER_ALGOS`'s and on another env DDPG; refused if it cannot be a worker.
     """
     defaults = SNAKE_WORKER_ALGOS if env is None else {}
     algos = dict(algos or {})
