@@ -337,11 +337,7 @@ def algorithm(name: str) -> Algorithm:
 
 
 def algorithm_class(name: str) -> type[BaseAlgorithm]:
-    """
-    The SB3 class of an algorithm name, any case (``ddpg``, ``td3``, ``sac``, ``tqc``, ``crossq``...).
-
-    :param name: the algorithm.
-    """
+    """The SB3 class of an algorithm name, any case (``ddpg``, ``crossq``...)."""
     return algorithm(name).cls
 
 

@@ -123,12 +123,10 @@ class Hyperparams:
     :param noise_std: the exploration noise's standard deviation.
     :param env_kwargs: keyword arguments for ``gym.make``.
     :param wrapper_kwargs: manager block only: keyword arguments for ``WorkerSelectionWrapper``.
-    :param action_l2: the actor's action penalty (DDPG/TD3; see
-        :class:`~sb3_hddpg.callbacks.ActionL2Penalty`), set with RL Zoo's ``callback`` key; 0: none.
+    :param action_l2: the coefficient of :class:`~sb3_hddpg.callbacks.ActionL2Penalty` (0: none).
     :param action_l2_margin: the penalty's pre-activation margin (``None``: it penalises the action itself).
-    :param controller_prior: the actor's prior towards a hand-written controller (DDPG/TD3; see
-        :class:`~sb3_hddpg.callbacks.ControllerPrior`) as ``(controller, coefficient)``; ``None``: none.
-    :param backend: the training backend the block asks for (``sb3``, ``sbx``; ``None``: not set).
+    :param controller_prior: :class:`~sb3_hddpg.callbacks.ControllerPrior`'s ``(controller, coefficient)``.
+    :param backend: the training backend the block asks for (``None``: not set).
     :param raw: the block as written, for manifests.
     """
 
@@ -149,10 +147,7 @@ class Hyperparams:
     def model_kwargs(self, env: Any) -> dict[str, Any]:
         """
         The algorithm's constructor arguments for ``env``: the block's, with the action noise sized to the
-        env and a named replay buffer (``GoalRelabelingReplayBuffer``) resolved, its env-dependent arguments
-        read from ``env``.
-
-        :param env: the training env (or a ``VecEnv``'s single env, for the buffer's arguments).
+        env and a named replay buffer resolved, its env-dependent arguments read from ``env``.
         """
         kwargs = dict(self.algo_kwargs)
         if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
@@ -378,37 +373,27 @@ def _parse_callbacks(value: object, source: str) -> dict[str, object]:
     :data:`CALLBACKS`: the settings they carry, e.g. ``{"action_l2": 0.1}`` (and ``action_l2_margin``
     when given), ``{"controller_prior": ("ik", 5.0)}``. Nothing is imported.
     """
-    if value is None:
-        return {}
-    entries = value if isinstance(value, list) else [value]
     settings: dict[str, object] = {}
-    for entry in entries:
-        kwargs: dict[str, Any]
-        if isinstance(entry, str):
-            path, kwargs = entry, {}
-        elif isinstance(entry, dict) and len(entry) == 1:
-            path, kwargs = next(iter(entry.items()))
-            kwargs = kwargs or {}
-        else:
+    kwargs: Any
+    for entry in [] if value is None else value if isinstance(value, list) else [value]:
+        if not isinstance(entry, str) and not (isinstance(entry, dict) and len(entry) == 1):
             raise ConfigError(
                 f"Expected callback entries in {source} to be class paths or {{path: kwargs}}, actually: {entry!r:.200}"
             )
+        path, kwargs = (entry, {}) if isinstance(entry, str) else next(iter(entry.items()))
         if path not in CALLBACKS:
             raise ConfigError(
                 f"Unknown callback {str(path)!r:.200} in {source}; allowed: {sorted(CALLBACKS)}"
             )
-        name = CALLBACKS[path]
+        name, kwargs = CALLBACKS[path], kwargs or {}
         if not isinstance(kwargs, dict) or set(kwargs) - CALLBACK_KWARGS[name]:
             raise ConfigError(
                 f"Expected {path} in {source} to take only {sorted(CALLBACK_KWARGS[name])}, actually: "
                 f"{kwargs!r:.200}"
             )
-        coefficient = float(
-            HYPERPARAMETERS["coefficient"].check(
-                kwargs.get("coefficient", 0.1 if name == "action_l2" else 1.0),
-                f"{source}: {path}.coefficient",
-            )
-        )
+        default = 0.1 if name == "action_l2" else 1.0
+        check = HYPERPARAMETERS["coefficient"].check
+        coefficient = float(check(kwargs.get("coefficient", default), f"{source}: {path}.coefficient"))
         if name == "controller_prior":
             controller = kwargs.get("controller", "ik")
             if controller not in CONTROLLERS:
@@ -421,7 +406,7 @@ def _parse_callbacks(value: object, source: str) -> dict[str, object]:
         settings[name] = coefficient
         if kwargs.get("margin") is not None:
             margin = HYPERPARAMETERS["margin"].check(kwargs["margin"], f"{source}: {path}.margin")
-            settings[f"{CALLBACKS[path]}_margin"] = float(margin)
+            settings[f"{name}_margin"] = float(margin)
     return settings
 
 

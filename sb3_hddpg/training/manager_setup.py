@@ -27,7 +27,7 @@ from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, pr
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import algo_class
-from sb3_hddpg.training.config import Hyperparams, manager_hyperparams
+from sb3_hddpg.training.config import Hyperparams, default_config, manager_hyperparams
 from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart, check_ham_workers
 
 #: The algorithms a manager can be (DDPG is the paper's), each with a ``manager`` block in its bundled config;
@@ -231,7 +231,8 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
     algo = options.algo
     if algo not in MANAGER_ALGOS:
         raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
-    hyperparams = _with_gamma(manager_hyperparams(algo, options.config), options.gamma)
+    config = options.config if options.config is not None else default_config(algo)
+    hyperparams = _with_gamma(manager_hyperparams(algo, config), options.gamma)
     workers = load_workers(workers_dir, options.worker_names, trusted=options.trusted)
     env_id, given_kwargs = shared_env_of(
         workers.manifest, options.env_id, options.env_kwargs, options.trusted

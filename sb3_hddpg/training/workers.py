@@ -444,7 +444,7 @@ def _worker_entry(
     config_file: str,
     run: RunOptions,
     budget: int,
-    facts: Mapping[str, object] | None = None,
+    facts: Mapping[str, object],
 ) -> ModelEntry:
     """
     A trained worker's manifest entry, with the bounds of its reward (the manager normalises by them): a
@@ -469,7 +469,7 @@ def _worker_entry(
         run.seed,
         budget,
         **reward,
-        **dict(facts or {}),
+        **facts,
         stopped_early=outcome.stopped_early,
         threads=run.threads,
     )
