@@ -34,20 +34,22 @@ from sb3_hddpg.training.run_options import RunOptions, run_options
 MANAGER_SETTINGS_FILE = "manager_settings.json"
 
 
-def _check_manager_resume(
-    paths: AgentPaths, resume: bool, setup: ManagerSetup, selection: dict[str, Any]
-) -> None:
+def _check_manager_resume(paths: AgentPaths, resume: bool, setup: ManagerSetup) -> None:
     """
-    Keep the manager's MDP (env, workers, algorithm, selection settings) and its learner's settings beside
-    its model; a resumed run whose MDP or learner differs is refused in one line naming the difference, since
-    its replay buffer and network were made on the recorded ones.
+    Keep the manager's MDP (env, workers, algorithm, selection settings) and its learner's settings (less
+    the budget, which a resume may extend) beside its model; a resumed run whose MDP or learner differs is
+    refused in one line naming the difference, since its replay buffer and network were made on the
+    recorded ones.
     """
+    block = setup.hyperparams
+    noise = [block.noise_type, block.noise_std]
+    learner = {"algo_kwargs": block.algo_kwargs, "policy": block.policy, "noise": noise}
     mdp: dict[str, Any] = {
         **setup.env_kwargs,
         "workers": list(setup.workers),
         "algo": setup.algo,
-        "selection": selection,
-        "learner": _learner_settings(setup),
+        "selection": asdict(setup.selection),
+        "learner": cast(dict[str, Any], as_json(learner)),
     }
     path = paths.model_path.parent / MANAGER_SETTINGS_FILE
     if resume and read_checkpoint_state(paths.checkpoint_dir) is not None and path.is_file():
@@ -60,14 +62,6 @@ def _check_manager_resume(
         return
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, {"env_id": setup.env_id, "env_kwargs": mdp})
-
-
-def _learner_settings(setup: ManagerSetup) -> dict[str, Any]:
-    """The manager's learner as its config block sets it, as JSON, less the budget (a resume may extend it)."""
-    hyperparams = setup.hyperparams
-    noise = [hyperparams.noise_type, hyperparams.noise_std]
-    learner = {"algo_kwargs": hyperparams.algo_kwargs, "policy": hyperparams.policy, "noise": noise}
-    return cast(dict[str, Any], as_json(learner))
 
 
 @dataclass(frozen=True)
@@ -115,7 +109,7 @@ def train_manager(
     setup = _setup_of(workers_dir, options, manager_changes)
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
-    _check_manager_resume(paths, run.resume, setup, asdict(setup.selection))
+    _check_manager_resume(paths, run.resume, setup)
     factory = setup.env_factory()
     ham_report: dict[str, Any] = {}
     outcome = train_agent(

@@ -305,16 +305,22 @@ def train_workers(
     manifest = _start_manifest(manifest_path, shared, env, planned, run.resume, (run.seed, resume_changes))
     with contextlib.closing(shared.make()) as probe:  # the bounds a worker's critic normalises by
         bounds = dict(env_contract(probe).reward_bounds)
-    extras = _WorkerExtras(bounds, callback, term_critic, keep_transitions)
     outcomes: dict[str, TrainingOutcome] = {}
     for worker in planned:
-        name, hyperparams = worker.name, worker.hyperparams
-        budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
+        name = worker.name
+        budget = int(run.timesteps if run.timesteps is not None else worker.hyperparams.n_timesteps)
         if run.resume and finished_with_budget(manifest.entries.get(name), budget):
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
         outcome, facts = _train_worker(
-            worker, paths, agent_run(run, paths, budget), extras, (warm_starts or {}).get(name)
+            worker,
+            paths,
+            agent_run(run, paths, budget),
+            (warm_starts or {}).get(name),
+            bounds,
+            callback,
+            term_critic,
+            keep_transitions,
         )
         outcomes[name] = outcome
         source = config_source(config, out_dir) if config else f"sb3_hddpg/zoo_configs/{worker.algo}.yml"
@@ -341,33 +347,24 @@ class WorkersResult:
     outcomes: dict[str, TrainingOutcome]
 
 
-@dataclass(frozen=True)
-class _WorkerExtras:
-    """
-    What every worker of one ``train_workers`` call is trained with beside its own settings: its arguments,
-    and ``bounds``, the shared env's per-term bounds.
-    """
-
-    bounds: Mapping[str, tuple[float, float]]
-    callback: MaybeCallback
-    term_critic: TermCriticOptions | None
-    keep_transitions: bool
-
-
 def _train_worker(
     worker: PlannedWorker,
     paths: AgentPaths,
     run: RunOptions,
-    extras: _WorkerExtras,
     warm: WarmStart | None,
+    bounds: Mapping[str, tuple[float, float]],
+    callback: MaybeCallback,
+    term_critic: TermCriticOptions | None,
+    keep_transitions: bool,
 ) -> tuple[TrainingOutcome, dict[str, object]]:
     """
     Train one worker, recording the terms of its transitions where something needs them (its critic, its
     kept transitions), then its critic; return the outcome and the facts its entry records about them.
+
+    :param bounds: the shared env's per-term bounds; the other arguments are ``train_workers``'.
     """
-    term_critic = extras.term_critic
-    wanted = term_critic is not None or extras.keep_transitions
-    recorder = TermRecorder(extras.bounds) if wanted and not REGISTRY[worker.algo].on_policy else None
+    wanted = term_critic is not None or keep_transitions
+    recorder = TermRecorder(bounds) if wanted and not REGISTRY[worker.algo].on_policy else None
     facts: dict[str, object] = {}
 
     def prepare(model: BaseAlgorithm) -> None:
@@ -380,7 +377,7 @@ def _train_worker(
         paths,
         algo=worker.algo,
         run=run,
-        callback=[*callback_list(extras.callback), *([recorder] if recorder is not None else [])],
+        callback=[*callback_list(callback), *([recorder] if recorder is not None else [])],
         prepare_model=prepare,
     )
     if recorder is None or not recorder.filled.any():
@@ -397,7 +394,7 @@ def _train_worker(
             "terms": list(recorder.term_names),
             **critic_facts,
         }
-    if extras.keep_transitions:
+    if keep_transitions:
         path = transitions.save(outcome.model_path.with_name(f"{worker.name}{TRANSITIONS_SUFFIX}"))
         facts["transitions"] = {"file": path.name, "sha256": sha256_file(path), "count": len(transitions)}
     return outcome, facts
