@@ -94,8 +94,8 @@ def _actor_and_value(shape: NetworkShape, n_critics: int) -> int:
     )
 
 
-#: Policy kwargs every ``MlpPolicy`` here understands and a spec may carry (not ``use_sde``: the constructors
-#: overwrite it from their own argument, so it lives with the hyperparameters).
+#: Policy kwargs every ``MlpPolicy`` here understands and a spec may carry; not ``use_sde``, which the
+#: constructors overwrite from their own argument, so it lives with the hyperparameters.
 _MLP_POLICY_KWARGS = frozenset(
     {"net_arch", "activation_fn", "normalize_images", "optimizer_class", "optimizer_kwargs"}
     | {"features_extractor_class", "features_extractor_kwargs"}
@@ -314,7 +314,7 @@ SBX_ALGORITHMS = tuple(name for name, record in REGISTRY.items() if record.sbx i
 
 #: The activations a training config may name, those both backends compute alike (SBX has each in flax).
 CONFIG_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
-#: Activation name -> torch class, for every activation a saved model's spec may name: a name outside this
+#: Activation name -> torch class, for every activation a saved model's spec may name; a name outside this
 #: table is refused, so that specs and configs (data) cannot pick arbitrary callables.
 ACTIVATIONS: dict[str, type[th.nn.Module]] = {
     name: getattr(th.nn, name)
