@@ -1,14 +1,8 @@
 """
 The algorithm registry: one frozen record per algorithm sb3-hddpg trains, rebuilds and exports, and the
-activation functions their networks may use.
-
-A record holds every fact about its algorithm that the rest of the package needs: the SB3 (or sb3-contrib)
-class, the SBX class and how SBX lays out its networks (which weight conversion applies), what a saved
-model's spec may contain (the safe loader's allow-lists), how many parameters its networks have (the
-limits' rule), its Optuna sampler, its colour in figures, the roles it can play, the action spaces it takes,
-and whether it learns on- or off-policy. Training, safe loading, the SBX backend, config parsing, tuning,
-the benchmark, export and figures read the record instead of branching on the algorithm's name, so adding
-an algorithm is one :class:`Algorithm` in :data:`REGISTRY`, one config block in ``zoo_configs/`` and tests.
+activation functions their networks may use. The rest of the package reads the record instead of branching
+on the algorithm's name, so adding an algorithm is one :class:`Algorithm` in :data:`REGISTRY`, one config
+block in ``zoo_configs/`` and tests.
 """
 
 from __future__ import annotations
@@ -62,22 +56,19 @@ def _deterministic_actor_critic(shape: NetworkShape, n_critics: int) -> int:
     return 2 * (actor + critic)
 
 
-def _gaussian_actor_critic(shape: NetworkShape, n_critics: int) -> int:
-    # SAC: a mean and a log-std head, critics with target copies (the actor has none).
+def _gaussian_actor_critic(shape: NetworkShape, n_critics: int, critic_outputs: int = 1) -> int:
+    # SAC (TQC: a quantile per critic output): a mean and a log-std head, critics with target copies.
     actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
-    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, 1])
+    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, critic_outputs])
     return actor + 2 * critic
 
 
 def _quantile_actor_critic(shape: NetworkShape, n_critics: int) -> int:
-    actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
-    critic = n_critics * mlp_parameters([shape.obs_dim + shape.act_dim, *shape.qf, shape.n_quantiles])
-    return actor + 2 * critic
+    return _gaussian_actor_critic(shape, n_critics, shape.n_quantiles)
 
 
 def _batch_renorm_actor_critic(shape: NetworkShape, n_critics: int) -> int:
-    # CrossQ: no target networks; a batch-renormalisation layer (scale, bias and two running statistics)
-    # before every linear layer.
+    # CrossQ: no target networks; a batch renormalisation (4 values per input) before every linear layer.
     actor = mlp_parameters([shape.obs_dim, *shape.pi, 2 * shape.act_dim])
     actor += 4 * (shape.obs_dim + sum(shape.pi))
     critic_in = shape.obs_dim + shape.act_dim
@@ -85,18 +76,17 @@ def _batch_renorm_actor_critic(shape: NetworkShape, n_critics: int) -> int:
     return actor + n_critics * critic
 
 
-def _q_network(shape: NetworkShape, n_critics: int) -> int:
-    # DQN: one Q-network with one output per action, and its target copy.
-    return 2 * mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim])
+def _q_network(shape: NetworkShape, n_critics: int, outputs_per_action: int = 1) -> int:
+    # DQN (QR-DQN: a quantile per output): one Q-network with one output per action, and its target copy.
+    return 2 * mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim * outputs_per_action])
 
 
 def _quantile_q_network(shape: NetworkShape, n_critics: int) -> int:
-    return 2 * mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim * shape.n_quantiles])
+    return _q_network(shape, n_critics, shape.n_quantiles)
 
 
 def _actor_and_value(shape: NetworkShape, n_critics: int) -> int:
-    # PPO: the policy (a mean per action dimension, or a logit per action, plus a state-independent
-    # log-std) and the value function; no targets.
+    # PPO: the policy (a mean or logit per action, plus a log-std) and the value function; no targets.
     return (
         mlp_parameters([shape.obs_dim, *shape.pi, shape.act_dim])
         + shape.act_dim
@@ -104,29 +94,19 @@ def _actor_and_value(shape: NetworkShape, n_critics: int) -> int:
     )
 
 
-#: Policy kwargs every ``MlpPolicy`` here understands and a spec may carry. ``use_sde`` is left out on
-#: purpose: the constructors overwrite ``policy_kwargs["use_sde"]`` from their own ``use_sde`` argument, so it
-#: lives with the hyperparameters.
+#: Policy kwargs every ``MlpPolicy`` here understands and a spec may carry; not ``use_sde``, which the
+#: constructors overwrite from their own argument, so it lives with the hyperparameters.
 _MLP_POLICY_KWARGS = frozenset(
-    [
-        "net_arch",
-        "activation_fn",
-        "normalize_images",
-        "optimizer_class",
-        "optimizer_kwargs",
-        "features_extractor_class",
-        "features_extractor_kwargs",
-    ]
+    {"net_arch", "activation_fn", "normalize_images", "optimizer_class", "optimizer_kwargs"}
+    | {"features_extractor_class", "features_extractor_kwargs"}
 )
 _ACTOR_CRITIC_POLICY_KWARGS = _MLP_POLICY_KWARGS | {"n_critics", "share_features_extractor"}
 _GAUSSIAN_POLICY_KWARGS = _ACTOR_CRITIC_POLICY_KWARGS | {"log_std_init", "use_expln", "clip_mean"}
 
-# Constructor hyperparameters a spec records, with their JSON kind. Only what shapes the rebuilt model or its
-# immediate use; exploration noise, train_freq etc. are training-time choices of whoever continues.
+# Constructor hyperparameters a spec records, with their JSON kind: what shapes the rebuilt model, not
+# training-time choices of whoever continues (exploration noise, train_freq...).
 _COMMON_HPARAMS = {
-    "learning_rate": "float",
-    "gamma": "float",
-    "tau": "float",
+    **dict.fromkeys(("learning_rate", "gamma", "tau"), "float"),
     "buffer_size": "int",
     "batch_size": "int",
 }
@@ -145,27 +125,23 @@ class Algorithm:
     Everything sb3-hddpg knows about one algorithm.
 
     :param name: the name ``--algo`` and configs use (lower case).
-    :param cls: the SB3 or sb3-contrib class: the one every saved model is, whichever backend trained it.
-        Exact classes only: a subclass may change the networks in ways a rebuild spec cannot describe.
+    :param cls: the SB3 or sb3-contrib class every saved model is, whichever backend trained it.
     :param colour: its colour in figures (a matplotlib colour name).
-    :param parameter_rule: the parameters (targets included) its networks have, for the limits on files
-        from elsewhere; called with a :class:`NetworkShape` and the critics to count.
+    :param parameter_rule: the parameters (targets included) its networks have, given a
+        :class:`NetworkShape` and the critics to count.
     :param policy_kwargs: the ``policy_kwargs`` keys a saved model's spec may carry.
     :param hyperparameters: the constructor arguments a spec records, with their JSON kind (``float``,
         ``int``, ``bool``, ``ent_coef``).
-    :param sampler: the Optuna sampler's key in :data:`hddpg_zoo.hyperparams_opt.SAMPLERS`
-        (``None``: not tunable).
+    :param sampler: the Optuna sampler's key (``None``: not tunable).
     :param sbx: the SBX class's name (``None``: SBX cannot train it here).
-    :param sbx_layout: how SBX lays out its networks, which picks the weight conversion in
-        :mod:`sb3_hddpg.training.backends`: ``deterministic`` (DDPG, TD3), ``gaussian`` (SAC),
-        ``quantile`` (TQC), ``batch_renorm`` (CrossQ).
+    :param sbx_layout: how SBX lays out its networks (the weight conversion): ``deterministic``,
+        ``gaussian``, ``quantile`` or ``batch_renorm``.
     :param roles: of :data:`ROLES`.
     :param action_spaces: of :data:`ACTION_SPACES`.
     :param on_policy: learns from rollouts (``n_steps``, a rollout buffer) rather than a replay buffer.
     :param default_net_arch: the hidden layers SB3 builds when ``net_arch`` is not given.
     :param default_n_critics: the critics SB3 builds when ``n_critics`` is not given.
-    :param action_penalty: the actor is deterministic and trained through its action, so the
-        ``ActionL2Penalty`` callback applies.
+    :param action_penalty: the actor is deterministic, so the ``ActionL2Penalty`` callback applies.
     :param target_entropy: its ``target_entropy`` may be ``"auto"``, which needs the action space to resolve.
     :param critic_layers: the key of ``net_arch`` naming the critic's layers (``qf``; PPO: ``vf``).
     """
@@ -314,18 +290,11 @@ REGISTRY: dict[str, Algorithm] = {
             policy_kwargs=_MLP_POLICY_KWARGS
             | {"share_features_extractor", "log_std_init", "ortho_init", "use_expln", "full_std"},
             hyperparameters={
-                "learning_rate": "float",
-                "gamma": "float",
-                "gae_lambda": "float",
-                "n_steps": "int",
-                "batch_size": "int",
-                "n_epochs": "int",
-                "ent_coef": "float",
-                "vf_coef": "float",
-                "max_grad_norm": "float",
-                "use_sde": "bool",
-                "sde_sample_freq": "int",
-                "normalize_advantage": "bool",
+                **dict.fromkeys(
+                    ("learning_rate", "gamma", "gae_lambda", "ent_coef", "vf_coef", "max_grad_norm"), "float"
+                ),
+                **dict.fromkeys(("n_steps", "batch_size", "n_epochs", "sde_sample_freq"), "int"),
+                **dict.fromkeys(("use_sde", "normalize_advantage"), "bool"),
             },
             sampler="ppo",
             action_spaces=frozenset({"Box", "Discrete"}),
@@ -343,31 +312,14 @@ ALGORITHMS: dict[str, type[BaseAlgorithm]] = {name: record.cls for name, record 
 #: The algorithms the SBX backend trains and exports.
 SBX_ALGORITHMS = tuple(name for name, record in REGISTRY.items() if record.sbx is not None)
 
-#: Activation name -> torch class, for every activation a saved model's spec may name. A name outside this
-#: table is refused rather than looked up in ``torch.nn``: specs and configs are data and must not be able
-#: to pick arbitrary callables.
-ACTIVATIONS: dict[str, type[th.nn.Module]] = {
-    cls.__name__: cls
-    for cls in (
-        th.nn.ReLU,
-        th.nn.Tanh,
-        th.nn.ELU,
-        th.nn.LeakyReLU,
-        th.nn.SiLU,
-        th.nn.GELU,
-        th.nn.Sigmoid,
-        th.nn.Softplus,
-        th.nn.Mish,
-        th.nn.SELU,
-        th.nn.CELU,
-        th.nn.Hardtanh,
-        th.nn.ReLU6,
-        th.nn.Identity,
-    )
-}
-
 #: The activations a training config may name, those both backends compute alike (SBX has each in flax).
 CONFIG_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid")
+#: Activation name -> torch class, for every activation a saved model's spec may name; a name outside this
+#: table is refused, so that specs and configs (data) cannot pick arbitrary callables.
+ACTIVATIONS: dict[str, type[th.nn.Module]] = {
+    name: getattr(th.nn, name)
+    for name in (*CONFIG_ACTIVATIONS, "Softplus", "Mish", "SELU", "CELU", "Hardtanh", "ReLU6", "Identity")
+}
 
 
 def algorithm(name: str) -> Algorithm:
@@ -385,18 +337,8 @@ def algorithm(name: str) -> Algorithm:
 
 
 def algorithm_class(name: str) -> type[BaseAlgorithm]:
-    """
-    The SB3 class of an algorithm name, any case (``ddpg``, ``td3``, ``sac``, ``tqc``, ``crossq``...).
-
-    :param name: the algorithm.
-    """
+    """The SB3 class of an algorithm name, any case (``ddpg``, ``crossq``...)."""
     return algorithm(name).cls
-
-
-def algorithm_name(model_or_class: object) -> str | None:
-    """The registry name of an SB3 model or class of exactly a registered type, else ``None``."""
-    cls = model_or_class if isinstance(model_or_class, type) else type(model_or_class)
-    return next((name for name, record in REGISTRY.items() if cls is record.cls), None)
 
 
 def algorithms_for(role: str, action_space: Any | None = None) -> tuple[str, ...]:

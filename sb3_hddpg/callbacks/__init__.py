@@ -2,8 +2,7 @@
 
 from sb3_hddpg.lazy import lazy_attributes
 
-# Each module loads with its first use: a run that asks for no actor term (the action penalty, the
-# controller prior) never loads the actor-loss machinery.
+# Each module loads with its first use: a run that asks for no actor term never loads the actor-loss code.
 _LAZY = {
     "ActionL2Penalty": "sb3_hddpg.callbacks.action_penalty",
     "apply_action_l2": "sb3_hddpg.callbacks.action_penalty",
@@ -15,14 +14,4 @@ _LAZY = {
 }
 
 __getattr__ = lazy_attributes(__name__, _LAZY)
-
-
-__all__ = [
-    "ActionL2Penalty",
-    "ControllerPrior",
-    "MetricsEvalCallback",
-    "ResumableCheckpointCallback",
-    "SelectionStatsCallback",
-    "apply_action_l2",
-    "read_checkpoint_state",
-]
+__all__ = sorted(_LAZY)

@@ -17,12 +17,9 @@ STATE_FILE = "state.json"
 
 class ResumableCheckpointCallback(BaseCallback):
     """
-    Save a resumable checkpoint every ``save_freq`` environment steps (and on demand, e.g. at Ctrl-C).
-
-    A checkpoint is ``model_<t>.zip`` and ``replay_buffer_<t>.pkl``, each written atomically, and then
-    ``state.json`` naming them, also atomically: ``state.json`` only ever points at complete files, so a
-    run killed with SIGKILL at any moment leaves the previous checkpoint loadable. Older files are removed
-    after the new state is in place.
+    Save a resumable checkpoint every ``save_freq`` environment steps (and on demand, e.g. at Ctrl-C):
+    ``model_<t>.zip`` and ``replay_buffer_<t>.pkl``, then ``state.json`` naming them, each atomically, so a
+    run killed at any moment leaves the previous checkpoint loadable; older files go after.
 
     :param checkpoint_dir: the folder for this agent's checkpoints.
     :param save_freq: environment steps between checkpoints (0: only on demand).
@@ -57,12 +54,10 @@ class ResumableCheckpointCallback(BaseCallback):
         """
         Write a checkpoint of the current model and replay buffer now; return the state file's path.
 
-        :param replay_buffer: also write the replay buffer (``buffer_size`` transitions, tens of MB at our
-            configs' sizes). Without it the checkpoint still resumes, from the model with an empty buffer;
-            a finished run drops it this way (the older checkpoint's buffer is removed as usual).
+        :param replay_buffer: also write the replay buffer; without it the checkpoint resumes with an empty
+            one (how a finished run drops it).
         """
-        # The model's own count: the callback's copy is only updated inside learn(), so a save after
-        # init_callback without learn() (resuming a run that had already finished) would say 0.
+        # The model's own count: the callback's copy is only updated inside learn().
         steps = int(self.model.num_timesteps)
         if steps < self.min_timesteps:
             raise RuntimeError(
@@ -74,7 +69,6 @@ class ResumableCheckpointCallback(BaseCallback):
         model_name = f"model_{steps}.zip"
         atomic_write(self.checkpoint_dir / model_name, lambda tmp: model.save(tmp))
         buffer_name: str | None = None
-        # Every algorithm trained here is off-policy (SBX's too); the check also tells the type checker.
         if replay_buffer and isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
             buffer_name = f"replay_buffer_{steps}.pkl"
             atomic_write(self.checkpoint_dir / buffer_name, model.save_replay_buffer)

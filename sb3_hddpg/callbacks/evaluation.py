@@ -17,18 +17,13 @@ from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 
 class MetricsEvalCallback(EvalCallback):
     """
-    SB3's :class:`~stable_baselines3.common.callbacks.EvalCallback` with the snake env's metrics.
-
-    Every ``eval_freq`` calls it runs :func:`sb3_hddpg.evaluation.evaluate` on its own single env, over the
-    same fixed seeds every time (so successive evaluations differ only by the policy), logs every metric
-    under ``eval/`` (TensorBoard), appends them to a JSON history, and saves the best model atomically.
-    Because it is an ``EvalCallback``, SB3's ``StopTrainingOnNoModelImprovement`` and
-    ``callback_on_new_best`` work with it unchanged.
+    SB3's :class:`~stable_baselines3.common.callbacks.EvalCallback` with the env's metrics: every
+    ``eval_freq`` calls it runs :func:`sb3_hddpg.evaluation.evaluate` on the same fixed seeds, logs every
+    metric under ``eval/``, appends them to a JSON history, and saves the best model atomically.
 
     :param eval_env: a single (not vectorised) environment with the snake env's ``info``.
     :param n_eval_episodes: episodes per evaluation.
-    :param eval_freq: evaluate every this many calls (one call is one step of the vectorised env), counted
-        from the run's first step, also in a resumed run.
+    :param eval_freq: evaluate every this many calls (steps of the vectorised env), from the run's first step.
     :param eval_seed: seed of the first evaluation episode.
     :param best_model_save_path: where ``best_model.zip`` goes (``None``: not saved).
     :param history_path: a JSON file for the evaluation history (``None``: not written).
@@ -74,13 +69,11 @@ class MetricsEvalCallback(EvalCallback):
         self.last_summary: dict[str, Any] = {}
 
     def _init_callback(self) -> None:
-        # EvalCallback's own check compares env types and makes folders we do not use; nothing to do.
-        pass
+        pass  # EvalCallback's own compares env types and makes folders this one does not use
 
     def _on_step(self) -> bool:
-        # Calls counted from the run's first step, not from this learn() call's: a run resumed from a
-        # checkpoint taken between evaluations (Ctrl-C, SIGTERM) keeps evaluating on the same grid, so the
-        # curves of different seeds share their points and can be averaged point by point.
+        # Calls counted from the run's first step, not this learn() call's: a resumed run keeps evaluating on
+        # the same grid, so the curves of different seeds share their points.
         calls = self.num_timesteps // self.model.n_envs
         if self.eval_freq > 0 and calls % self.eval_freq == 0:
             return self.run_evaluation()
@@ -95,8 +88,7 @@ class MetricsEvalCallback(EvalCallback):
             seed=self.eval_seed,
             deterministic=self.deterministic,
         )
-        summary = result.summary()
-        self.last_summary = summary
+        self.last_summary = summary = result.summary()
         self.last_mean_reward = summary["mean_reward"]
         for key, value in summary.items():
             if isinstance(value, float):
@@ -104,8 +96,7 @@ class MetricsEvalCallback(EvalCallback):
             elif isinstance(value, dict):
                 for name, rate in value.items():
                     self.logger.record(f"eval/{key}/{name}", rate)
-        # The model's own count: the callback's copy is only updated inside learn(), so an evaluation run
-        # after init_callback without learn() (the final one of a resumed, finished run) would say 0.
+        # The model's own count: the callback's copy is only updated inside learn().
         steps = int(self.model.num_timesteps)
         self.logger.record("time/total_timesteps", steps, exclude="tensorboard")
         self.logger.dump(steps)
@@ -117,8 +108,7 @@ class MetricsEvalCallback(EvalCallback):
             atomic_write_json(self.history_path, self.history)
 
         continue_training = True
-        # A model that has not been updated yet is its random initialisation, whatever it happened to score:
-        # never keep it as the best (a lucky untrained network would otherwise be the run's result).
+        # A model not updated yet is its random initialisation, whatever it scored: never the best.
         trained = updates is None or updates > 0
         if (
             trained
@@ -144,7 +134,7 @@ def model_updates(model: object) -> int | None:
 def best_entry(history: list[dict[str, Any]]) -> dict[str, Any]:
     """
     The evaluation whose model a run keeps as its best: the highest mean reward among those taken after at
-    least one update; the last evaluation if none was (the untrained network is then the final model too).
+    least one update, else the last.
 
     :param history: the evaluations, as :class:`MetricsEvalCallback` records them.
     """

@@ -23,9 +23,7 @@ class TermRecorder(BaseCallback):
     Records ``normalise(info["reward_terms"])`` of each env step at the replay buffer's position it is
     about to be stored at (SB3's off-policy loop calls ``on_step`` just before ``_store_transition``), so
     ``terms[i, e]`` belongs to the transition at ``buffer.observations[i, e]``; ``filled`` marks the rows
-    this run wrote (a buffer restored from a checkpoint has none before them).
-
-    Works for SB3 and SBX off-policy learners alike (both store into SB3's ``ReplayBuffer``).
+    this run wrote. SB3 and SBX learners alike.
 
     :param bounds: term name -> per-step ``(low, high)``: the env contract's bounds, in term order.
     """
@@ -40,18 +38,14 @@ class TermRecorder(BaseCallback):
 
     def _on_training_start(self) -> None:
         buffer = getattr(self.model, "replay_buffer", None)
-        if not isinstance(buffer, ReplayBuffer):
-            # A dict-observation buffer stores rows differently: no aligned record, no critic. (The goal
-            # relabelling buffer is a ReplayBuffer: it stores each transition in one row and relabels on sampling.)
+        if not isinstance(buffer, ReplayBuffer):  # a dict-observation buffer stores rows differently
             logger.warning(
                 "No per-term record for a %s: its worker gets no per-term critic", type(buffer).__name__
             )
             self.buffer = None
             return
         if buffer is not self.buffer:
-            self.buffer = buffer
-            self.terms = np.zeros((buffer.buffer_size, buffer.n_envs, len(self.term_names)), dtype=np.float32)
-            self.filled = np.zeros((buffer.buffer_size, buffer.n_envs), dtype=bool)
+            self._attach(buffer)
 
     def _on_step(self) -> bool:
         if self.buffer is None:
@@ -68,8 +62,11 @@ class TermRecorder(BaseCallback):
         Record the terms of transitions put into ``buffer`` before training (a warm start's relabelled
         replay, in rows ``0..len(terms)-1`` of env 0), so that the critic learns from them too.
         """
+        self._attach(buffer)
+        self.terms[: len(terms), 0] = terms
+        self.filled[: len(terms), 0] = True
+
+    def _attach(self, buffer: ReplayBuffer) -> None:
         self.buffer = buffer
         self.terms = np.zeros((buffer.buffer_size, buffer.n_envs, len(self.term_names)), dtype=np.float32)
         self.filled = np.zeros((buffer.buffer_size, buffer.n_envs), dtype=bool)
-        self.terms[: len(terms), 0] = terms
-        self.filled[: len(terms), 0] = True

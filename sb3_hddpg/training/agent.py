@@ -1,11 +1,7 @@
 """
-Training one agent of the hierarchy (a worker, the manager, or a flat baseline) as a plain SB3 model.
-
-:func:`train_agent` does what every ``hddpg-cli train-*`` command needs: build the vectorised env and the
-model from a config block, evaluate periodically with the env's metrics and keep the best model, checkpoint
-so that Ctrl-C, SIGTERM or even SIGKILL lose little, resume to the requested total, optionally stop on a
-plateau, and log to TensorBoard. :mod:`~sb3_hddpg.training.workers`, :mod:`~sb3_hddpg.training.manager` and
-:mod:`~sb3_hddpg.training.flat` build on it.
+Training one agent of the hierarchy (a worker, the manager, or a flat baseline) as a plain SB3 model, with
+periodic evaluation, the best model kept, checkpoints that Ctrl-C, SIGTERM or SIGKILL lose little of, and
+resume: what every ``hddpg-cli train-*`` command builds on.
 """
 
 from __future__ import annotations
@@ -13,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import signal
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,18 +25,12 @@ from stable_baselines3.common.callbacks import (
     StopTrainingOnNoModelImprovement,
 )
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from sb3_hddpg.algorithms import ALGORITHMS, REGISTRY, algorithm
-from sb3_hddpg.artifacts.io import (
-    atomic_write,
-    holds_folder_lock,
-    note_stop_signal,
-    remove_stale_temporaries,
-)
+from sb3_hddpg.artifacts.io import atomic_write, holds_folder_lock, note_stop_signal, remove_stale_temporaries
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback, best_entry
 from sb3_hddpg.extras import configure
@@ -96,10 +86,6 @@ class AgentPaths:
     @property
     def best_dir(self) -> Path:
         return self.root / "best" / self.name
-
-    @property
-    def tensorboard_dir(self) -> Path:
-        return self.root / "tensorboard"
 
     @property
     def history_path(self) -> Path:
@@ -162,27 +148,20 @@ def train_agent(
     **run_changes: object,
 ) -> TrainingOutcome:
     """
-    Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume.
-
-    With ``backend="sbx"`` the agent trains on JAX (:mod:`sb3_hddpg.training.backends`); its checkpoints and best
-    model stay in SBX's format inside the run folder, and the model saved to ``paths.model_path`` and
-    returned is exported to the same SB3 algorithm.
+    Train one SB3 agent with evaluation, best-model keeping, checkpoints and resume. With ``backend="sbx"``
+    the checkpoints stay in SBX's format, and the model saved and returned is exported to SB3.
 
     :param env_factory: builds one (unwrapped by Monitor) training env; picklable when ``n_envs > 1``.
-    :param hyperparams: the config block (see :mod:`sb3_hddpg.training.config`).
+    :param hyperparams: the config block.
     :param paths: where the agent's files go.
-    :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
-    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`: budget, seed,
-        envs, resume, plateau rule, evaluation, checkpoints, threads, backend); ``resume`` continues from the
-        last checkpoint in ``paths.checkpoint_dir``.
-    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them (a callback, a list, or a function of
-        ``(locals, globals)``), run after the package's own (e.g. selection statistics).
+    :param algo: the algorithm.
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`); ``resume``
+        continues from the last checkpoint in ``paths.checkpoint_dir``.
+    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them, run after the package's own.
     :param after_eval: a callback run after every evaluation, with the evaluator as its ``parent`` (e.g. the
         Optuna pruning callback); returning ``False`` stops training.
-    :param prepare_model: called with a freshly built model before it learns (not on resume), e.g. the
-        manager's start from HAM (:mod:`sb3_hddpg.training.ham_start`).
-    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
-        ``seed=3``), over ``run``'s.
+    :param prepare_model: called with a freshly built model before it learns (not on resume).
+    :param run_changes: ``RunOptions`` fields as keywords, over ``run``'s.
     :return: the outcome; raises :class:`TrainingInterrupted` after saving on Ctrl-C or SIGTERM.
     """
     run = run_options(run, run_changes, "train_agent")
@@ -236,16 +215,13 @@ def _check_agent(
     check_algo(algo, backend)
     if backend == "sbx":
         configure_jax_threads(run.threads)  # before jax's first import in this process, or it cannot apply
-    _remove_stale_temporaries(paths)
+    # A run killed mid-write leaves hidden temporaries that hold nothing we read: clear this agent's.
+    for folder in (paths.checkpoint_dir, paths.best_dir):
+        remove_stale_temporaries(folder)
+    for path in (paths.model_path, paths.history_path):
+        remove_stale_temporaries(path.parent, target=path.name)
     algo_class(algo)  # a clear error for an unknown name before any env starts
-    asked = [
-        name
-        for name, present in (
-            ("ActionL2Penalty", hyperparams.action_l2 > 0),
-            ("ControllerPrior", hyperparams.controller_prior is not None),
-        )
-        if present
-    ]
+    asked = [type(callback).__name__ for callback in hyperparams.callbacks()]
     if asked and not algorithm(algo).action_penalty:
         penalised = [name for name, record in REGISTRY.items() if record.action_penalty]
         raise ValueError(
@@ -270,7 +246,7 @@ def _start_model(
         kwargs = hyperparams.model_kwargs(eval_env)
         model = make_model(algo, backend, vec_env, kwargs, seed=run.seed, policy=hyperparams.policy)
         state = None
-    model.set_logger(_tensorboard_logger(paths))
+    model.set_logger(configure(str(paths.root / "tensorboard" / paths.name), ["tensorboard"]))
     return model, state
 
 
@@ -283,9 +259,9 @@ def _make_checkpointer(
     state: dict[str, Any] | None,
 ) -> ResumableCheckpointCallback:
     """
-    The resumable checkpoints, each with what a resumed run needs: its budget, seed, backend and history,
-    and what it was trained with (algorithm, config block), so that a resume of an agent killed before its
-    manifest entry is compared with them (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_agent`).
+    The resumable checkpoints, each with what a resumed run needs (budget, seed, backend, history) and what
+    it was trained with (algorithm, config block), to compare with when an agent killed before its manifest
+    entry is resumed.
 
     :param planned: the total budget, the algorithm and the config block.
     """
@@ -310,30 +286,13 @@ def _make_checkpointer(
 
 
 def check_takes(algo: str, action_space: gym.spaces.Space) -> None:
-    """
-    Refuse an algorithm for an env whose action space it does not take (DQN on continuous actions), in one
-    line naming both, before anything trains.
-
-    :param algo: the algorithm.
-    :param action_space: the env's action space.
-    """
+    """Refuse, in one line naming both, an algorithm for an env whose ``action_space`` it does not take."""
     record = algorithm(algo)
     if not record.takes(action_space):
         raise ValueError(
             f"Expected an env whose actions {record.name} takes ({sorted(record.action_spaces)}), actually "
             f"{action_space}"
         )
-
-
-def _remove_stale_temporaries(paths: AgentPaths) -> None:
-    """
-    A run killed mid-write (SIGKILL, power cut) leaves hidden temporaries; they never hold anything we
-    read, so clear this agent's before they pile up (a replay buffer's can be large).
-    """
-    remove_stale_temporaries(paths.checkpoint_dir)
-    remove_stale_temporaries(paths.best_dir)
-    remove_stale_temporaries(paths.model_path.parent, target=paths.model_path.name)
-    remove_stale_temporaries(paths.history_path.parent, target=paths.history_path.name)
 
 
 def _resume_model(
@@ -370,10 +329,7 @@ def _make_evaluator(
     run: RunOptions,
     after_eval: BaseCallback | None,
 ) -> MetricsEvalCallback:
-    """
-    The periodic evaluator, continuing a resumed run's history and best reward, with the plateau rule
-    (when ``run.stop_on_plateau``) and ``after_eval`` run after each evaluation.
-    """
+    """The periodic evaluator, continuing a resumed run's, with the plateau rule and ``after_eval``."""
     plateau = (
         StopTrainingOnNoModelImprovement(max_no_improvement_evals=run.plateau_patience, min_evals=1)
         if run.stop_on_plateau
@@ -388,12 +344,11 @@ def _make_evaluator(
         eval_seed=run.eval_seed,
         best_model_save_path=paths.best_dir if run.keep_best else None,
         history_path=paths.history_path,
-        callback_after_eval=_combine_callbacks(after_eval_callbacks),
+        callback_after_eval=CallbackList(after_eval_callbacks) if after_eval_callbacks else None,
         history=state.get("history", []) if state is not None else [],
         best_mean_reward=best if best is not None else -np.inf,
     )
-    # SB3 makes only the direct after-eval callback a child of the evaluator; the plateau rule and the
-    # pruner both read the evaluator's results through ``parent``, also when combined in a list.
+    # The plateau rule and the pruner read the evaluator's results through ``parent``, also in a list.
     for callback in after_eval_callbacks:
         callback.parent = evaluator
     return evaluator
@@ -408,10 +363,7 @@ def _learn(
     fresh: bool,
     progress_bar: bool,
 ) -> None:
-    """
-    Learn up to ``total`` steps in all; on Ctrl-C or SIGTERM save a checkpoint and raise
-    :class:`TrainingInterrupted`.
-    """
+    """Learn up to ``total`` steps; on Ctrl-C or SIGTERM save a checkpoint and raise TrainingInterrupted."""
     remaining = total - model.num_timesteps
     if remaining <= 0:
         return
@@ -463,18 +415,6 @@ def _save_outcome(
     )
 
 
-def _combine_callbacks(callbacks: Sequence[BaseCallback]) -> BaseCallback | None:
-    """One callback for a slot that takes one: ``None``, the callback itself, or a ``CallbackList``."""
-    if not callbacks:
-        return None
-    return callbacks[0] if len(callbacks) == 1 else CallbackList(list(callbacks))
-
-
-def _tensorboard_logger(paths: AgentPaths) -> Logger:
-    folder = paths.tensorboard_dir / paths.name
-    return configure(str(folder), ["tensorboard"])
-
-
 def agent_run(run: RunOptions, paths: AgentPaths, budget: int | None) -> RunOptions:
     """
     One agent's options within a command's ``run``: its own budget, and resume only when asked to and a
@@ -490,10 +430,7 @@ def finished_with_budget(entry: object, budget: int) -> bool:
 
 
 def callback_list(callback: MaybeCallback) -> list[BaseCallback]:
-    """
-    ``callback`` as SB3's ``learn`` takes it (``None``, a callback, a list of them, or a function of
-    ``(locals, globals)``), as a list of callbacks to run after the package's own.
-    """
+    """``callback`` as SB3's ``learn`` takes it (a callback, a list, a function or ``None``), as a list."""
     if callback is None:
         return []
     if isinstance(callback, list):

@@ -1,23 +1,11 @@
 """
 Training backends: SB3 (PyTorch, the default) and SBX (JAX), behind the one algorithm registry.
 
-SBX (``sbx-rl``) is the SB3 maintainers' JAX implementation of the same algorithms with SB3's API: the same
-``learn``, callbacks, ``VecEnv``s, replay buffer and action noise classes. Its jitted updates cost far less
-per gradient step on small networks than torch's eager mode (docs/PERFORMANCE.md), so training can run on
-it while everything a user shares stays plain SB3:
-
-- :func:`make_model` builds an SBX model whose initial weights are those SB3 would draw with the same seed
-  (copied from a freshly built SB3 policy), so both backends start from the same networks;
-- :func:`to_sb3` exports a trained SBX model to an ordinary SB3 model of the same algorithm (actor,
-  critic and target weights, entropy coefficient), so ``DDPG.load``, the safe loader and bundles work
-  unchanged and the exported policy acts exactly like the JAX one;
-- :func:`configure_jax_threads` pins XLA's CPU thread pool like ``torch.set_num_threads`` (one
-  intra-op thread per process by default), which only works before ``jax`` is first imported;
-- :func:`share_compiled` lets every model of one architecture reuse the same jitted update, so a process
-  compiles it once, not once per model (each worker, trial or reloaded best model).
-
-Resumable checkpoints and ``best_model.zip`` stay in SBX's own format inside a run folder; only the final
-model is exported. Nothing here imports ``jax`` or ``sbx`` at import time.
+SBX (``sbx-rl``) is the SB3 maintainers' JAX implementation of the same algorithms with SB3's API; its jitted
+updates cost far less per gradient step on small networks (docs/PERFORMANCE.md). An SBX model starts from the
+weights SB3 would draw with the same seed (:func:`make_model`) and is exported to an ordinary SB3 model of the
+same algorithm when saved (:func:`to_sb3`), so everything a user shares stays plain SB3. Nothing here imports
+``jax`` or ``sbx`` at import time.
 """
 
 from __future__ import annotations
@@ -44,9 +32,8 @@ logger = logging.getLogger(__name__)
 
 #: Backend names accepted by ``--backend`` and the config key ``backend``.
 BACKENDS = ("sb3", "sbx")
-#: The backend used when neither the command line nor the config names one. SB3 stays the default even
-#: where SBX is installed: the same command then gives the same result on every machine, and the backends
-#: do not learn bit for bit alike (see docs/PERFORMANCE.md, "The JAX backend").
+#: The backend used when neither the command line nor the config names one, also where SBX is installed: the
+#: backends do not learn bit for bit alike, and the same command should give the same result everywhere.
 DEFAULT_BACKEND = "sb3"
 #: How to install the SBX backend.
 INSTALL_HINT = 'pip install "sb3-hddpg[fast]"'
@@ -80,11 +67,8 @@ def check_backend(name: object) -> str:
 
 def resolve_backend(requested: str | None, configured: str | None = None) -> str:
     """
-    The backend to train with: the one requested (``--backend``), else the config's, else :data:`DEFAULT_BACKEND`.
-
-    :param requested: from the command line or the API (``None``: not given).
-    :param configured: the config block's ``backend`` key (``None``: not set).
-    :return: a checked backend name.
+    The backend to train with, checked: the one requested (``--backend``), else the config block's, else
+    :data:`DEFAULT_BACKEND`.
     """
     return check_backend(requested or configured or DEFAULT_BACKEND)
 
@@ -105,12 +89,6 @@ def check_algo(algo: str, backend: str) -> None:
         )
 
 
-# ------------------------------------------------------------------------------------------------ threads
-def jax_cache_dir() -> Path:
-    """Where jax's compilation cache goes by default: ``$XDG_CACHE_HOME/sb3-hddpg/jax`` (``~/.cache/...``)."""
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "sb3-hddpg" / "jax"
-
-
 #: The thread count XLA was configured with in this process (``None``: jax not configured by us).
 _configured_threads: int | None = None
 
@@ -119,12 +97,9 @@ def configure_jax_threads(threads: int = 1) -> None:
     """
     Size XLA's CPU thread pool like ``torch.set_num_threads(threads)``.
 
-    XLA reads its pool size once, when jax creates its CPU client, from the environment: ``PJRT_NPROC``
-    (and ``NPROC``) set the intra-op pool; with one thread, ``--xla_cpu_multi_thread_eigen=false`` also
-    keeps Eigen's own pool out. (The often-quoted ``intra_op_parallelism_threads=1`` in ``XLA_FLAGS`` is
-    silently ignored by XLA; measured with per-thread CPU times, only ``PJRT_NPROC`` confines a jitted
-    matrix product to one thread.) Call this before jax is imported; afterwards a different count cannot
-    take effect, which is logged as a warning.
+    XLA reads its pool size from the environment once, when jax creates its CPU client: call this before jax
+    is imported (afterwards a different count is logged as a warning). ``PJRT_NPROC`` sets the intra-op pool;
+    ``intra_op_parallelism_threads`` in ``XLA_FLAGS`` is silently ignored by XLA.
 
     :param threads: threads for jitted computations in this process (>= 1).
     """
@@ -143,10 +118,9 @@ def configure_jax_threads(threads: int = 1) -> None:
         return
     os.environ["PJRT_NPROC"] = os.environ["NPROC"] = str(threads)
     # jax's persistent compilation cache, for every compilation however short: a new process (a benchmark
-    # task, a quickstart job, a tuning process) then loads the updates and the dozens of small initialiser
-    # programs instead of compiling them again (a new process would otherwise spend most of its first steps
-    # compiling). A user's own JAX_COMPILATION_CACHE_DIR wins.
-    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(jax_cache_dir()))
+    # task, a tuning process) then loads its updates instead of spending its first steps compiling them.
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "sb3-hddpg" / "jax"
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(cache))
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
     flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if "xla_cpu_multi_thread_eigen" not in f]
     if threads == 1:
@@ -155,18 +129,15 @@ def configure_jax_threads(threads: int = 1) -> None:
     _configured_threads = threads
 
 
-# ------------------------------------------------------------------------------------------------ classes
 def algo_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
     """
     The class for an algorithm name (``ddpg``, ``td3``, ``sac``, ``tqc``) on a training backend.
 
     :param name: the algorithm.
-    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX, see :mod:`sb3_hddpg.training.backends`).
+    :param backend: ``sb3`` (PyTorch) or ``sbx`` (JAX).
     """
     cls = algorithm_class(name)
-    if backend != "sb3" and check_backend(backend) == "sbx":
-        return sbx_class(name)
-    return cls
+    return sbx_class(name) if backend != "sb3" and check_backend(backend) == "sbx" else cls
 
 
 def sbx_class(algo: str) -> type[BaseAlgorithm]:
@@ -186,13 +157,9 @@ def sbx_class(algo: str) -> type[BaseAlgorithm]:
 @functools.cache
 def _scheduled_sbx_class(base: Any) -> type:
     """
-    SBX's TD3 or DDPG, following a learning-rate schedule as SB3's and SBX's SAC do.
-
-    SBX's TD3 and DDPG build their optimisers with the schedule's initial value and never update it. With
-    an optimiser whose rate lives in its state (``optax.inject_hyperparams``, which :func:`sbx_kwargs` puts
-    in ``policy_kwargs`` when ``learning_rate`` is a schedule), this class sets actor's and critic's rate
-    from ``lr_schedule`` before each training call, as SB3 does. A model built with a plain optimiser (a
-    constant rate, or a checkpoint from before schedules) trains exactly as SBX's own class.
+    SBX's TD3 or DDPG, following a learning-rate schedule as SB3's and SBX's SAC do: SBX's own keep the
+    schedule's initial value. With an optimiser whose rate lives in its state (:func:`scheduled_adam`) it
+    sets the rate from ``lr_schedule`` before each training call; with a plain one it trains as SBX's class.
     """
 
     def train(self: Any, gradient_steps: int, batch_size: int) -> None:
@@ -207,9 +174,8 @@ def _scheduled_sbx_class(base: Any) -> type:
 
 def scheduled_adam(learning_rate: float, **kwargs: object) -> Any:
     """
-    optax's Adam with its learning rate in the optimiser state, so that a schedule can set it. A function
-    of this module, so that a saved model refers to it by name (SBX pickles ``policy_kwargs``): a reloaded
-    model still has this very optimiser class, which :func:`share_compiled` and :func:`to_sb3` recognise.
+    optax's Adam with its learning rate in the optimiser state, so that a schedule can set it; a function of
+    this module, so that a saved model (SBX pickles ``policy_kwargs``) refers to it by name.
     """
     import optax  # lazily: optional, with SBX
 
@@ -224,22 +190,17 @@ def is_sbx_model(model: object) -> bool:
 def _sbx_record(model: object) -> Algorithm:
     import sbx  # lazily: optional, and jax is slow to import (only SBX models get here)
 
-    # isinstance, the most derived class winning (SBX's DDPG is a TD3): a model under the action penalty is a
-    # subclass of its algorithm (callbacks/action_penalty.py), and a tuning trial exports the model it
-    # trained as is.
-    matches = [
-        (len(getattr(sbx, str(record.sbx)).__mro__), record)
-        for record in REGISTRY.values()
-        if record.sbx is not None and isinstance(model, getattr(sbx, record.sbx))
-    ]
-    if not matches:
+    # The first registered class in the model's MRO, the most derived (SBX's DDPG is a TD3; a model under the
+    # action penalty is a subclass of its algorithm).
+    records = {getattr(sbx, record.sbx): record for record in REGISTRY.values() if record.sbx is not None}
+    found = next((records[cls] for cls in type(model).__mro__ if cls in records), None)
+    if found is None:
         raise BackendError(
             f"Cannot export {type(model).__qualname__} to SB3; exportable: {sorted(SBX_ALGOS)}"
         )
-    return max(matches, key=lambda match: match[0])[1]
+    return found
 
 
-# ---------------------------------------------------------------------------------------- activations
 def _activation_pairs() -> list[tuple[type[th.nn.Module], Any]]:
     """(torch activation class, the flax function computing the same) for every activation configs may name."""
     import flax.linen as fnn  # lazily: optional (the `fast` extra), slow to import, with jax
@@ -283,7 +244,7 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     Translate SB3 constructor arguments (a config block's) into SBX's, refusing what SBX cannot honour.
 
     :param algo: an algorithm SBX trains (:data:`SBX_ALGOS`).
-    :param kwargs: SB3 keyword arguments (``policy_kwargs`` with torch activations).
+    :param kwargs: SB3 keyword arguments.
     :return: the SBX keyword arguments; raises :class:`BackendError` naming the key SBX lacks.
     """
     from sb3_hddpg.training.sbx_weights import layout_of  # SBX only
@@ -313,8 +274,7 @@ def sbx_kwargs(algo: str, kwargs: Mapping[str, Any]) -> dict[str, Any]:
         # SB3 trains the critic at learning_rate; SBX's DDPG defaults its critic to 1e-3 whatever that is.
         out["qf_learning_rate"] = None
     if callable(out.get("learning_rate")) and record.sbx_layout == "deterministic":
-        # SBX's SAC-like algorithms put their rates into the optimiser state themselves; TD3 and DDPG need
-        # it asked for.
+        # SBX's SAC-like algorithms keep their rates in the optimiser state, TD3 and DDPG on request.
         policy_kwargs["optimizer_class"] = scheduled_adam
     return out
 
@@ -331,7 +291,6 @@ _EXPORTED_SETTINGS = (
     "target_policy_noise",
     "target_noise_clip",
     "target_entropy",
-    "top_quantiles_to_drop_per_net",
 )
 
 
@@ -389,19 +348,6 @@ def _sb3_policy_kwargs(model: Any, record: Algorithm) -> dict[str, Any]:
     return policy_kwargs
 
 
-def _build_sb3(
-    record: Algorithm,
-    observation_space: Any,
-    action_space: Any,
-    hparams: Mapping[str, Any],
-    policy_kwargs: Mapping[str, Any],
-    seed: int | None,
-) -> BaseAlgorithm:
-    """A fresh SB3 model without an env (as ``BaseAlgorithm.load`` builds one), seeded like SB3 training."""
-    return build_without_env(record.cls, observation_space, action_space, hparams, policy_kwargs, seed=seed)
-
-
-# ------------------------------------------------------------------------------------------- public API
 def make_model(
     algo: str,
     backend: str,
@@ -414,11 +360,10 @@ def make_model(
     Build a fresh model of ``algo`` on ``backend``.
 
     With ``sbx``, the networks start from the weights SB3 draws for the same seed (copied from a freshly
-    built SB3 policy; flax's own initialisation differs, see docs/PERFORMANCE.md), and the global NumPy
-    and action-space random states are left as SB3's constructor leaves them, so that exploration noise
-    and replay sampling follow the same random streams on both backends.
+    built SB3 policy), and the random states are left as SB3's constructor leaves them, so that exploration
+    noise and replay sampling follow the same random streams on both backends.
 
-    :param algo: ``ddpg``, ``td3``, ``sac`` (and ``tqc`` on ``sb3``).
+    :param algo: the algorithm.
     :param backend: ``sb3`` or ``sbx``.
     :param env: the (vectorised) training env.
     :param kwargs: SB3 constructor arguments (from the config block, ``action_noise`` included).
@@ -439,13 +384,13 @@ def make_model(
     sb3_kwargs = {k: v for k, v in kwargs.items() if k not in ("action_noise", "policy_kwargs")}
     if record.target_entropy:  # "auto" reads an env the twin does not have; the SBX model has resolved it
         sb3_kwargs["target_entropy"] = float(model.target_entropy)
-    twin = _build_sb3(
-        record,
+    twin = build_without_env(
+        record.cls,
         model.observation_space,
         model.action_space,
         sb3_kwargs,
-        kwargs.get("policy_kwargs") or {},
-        seed,
+        kwargs["policy_kwargs"],
+        seed=seed,
     )
     state_dict_to_sbx(model, twin, record)
     share_compiled(model)
@@ -453,14 +398,7 @@ def make_model(
 
 
 def load_native(algo: str, backend: str, path: Any, env: Any = None) -> BaseAlgorithm:
-    """
-    Load a model saved by this backend's own ``save`` (a checkpoint or ``best_model.zip`` of a run).
-
-    :param algo: the algorithm name.
-    :param backend: ``sb3`` or ``sbx``.
-    :param path: the zip.
-    :param env: the env to attach (to continue training), or ``None``.
-    """
+    """Load a model a backend saved in a run folder (a checkpoint or ``best_model.zip``) onto ``env``."""
     cls = algo_class(algo, backend)
     check_run_file(path)
     model = cls.load(path, env=env, device="cpu")
@@ -477,11 +415,9 @@ def share_compiled(model: Any) -> None:
     """
     Make ``model`` reuse the apply functions and optimisers of an earlier model of the same architecture.
 
-    SBX's jitted update takes its train states as arguments; their ``apply_fn`` and ``tx`` are static parts
-    of the jit's cache key, and every SBX model creates its own (new closures), so each new model would
-    recompile the whole update (seconds to tens of seconds on a loaded machine). Both are pure functions of
-    the architecture and the optimiser's settings (the optimiser's state lives in ``opt_state``), so
-    models that agree on those can share them, and jax's cache then serves every later model.
+    The ``apply_fn`` and ``tx`` of SBX's train states are static parts of the jitted update's cache key, and
+    every model creates its own, so each new model would recompile the update. Both are pure functions of
+    the architecture and the optimiser's settings, so models that agree on those can share them.
 
     :param model: an SBX model (modified in place).
     """
@@ -514,26 +450,25 @@ def to_sb3(model: BaseAlgorithm) -> BaseAlgorithm:
     """
     The SB3 model to save and share for a trained model: SB3 models as they are, SBX models exported.
 
-    The export builds an SB3 model of the same algorithm with the same settings (no env attached, as after
-    ``DDPG.load``) and copies the actor, the critics, their targets and (SAC) the entropy coefficient.
-    Its deterministic actions equal the JAX policy's to float rounding (tests/test_backends.py checks
-    1e-5). Optimiser moments are not copied: continue training from the run's native checkpoint.
+    The export builds an SB3 model of the same algorithm and settings (no env attached) and copies the
+    actor, the critics, their targets and the entropy coefficient; optimiser moments are not copied
+    (continue training from the run's native checkpoint).
 
     :param model: an SB3 or SBX model.
-    :return: an SB3 model (``DDPG``, ``TD3`` or ``SAC``).
+    :return: an SB3 model.
     """
     from sb3_hddpg.training.sbx_weights import sbx_to_state_dict  # SBX only
 
     if not is_sbx_model(model):
         return model
     record = _sbx_record(model)
-    sb3_model: Any = _build_sb3(
-        record,
+    # No seed: it would re-seed the global random state (SB3's set_random_seed) mid-run.
+    sb3_model: Any = build_without_env(
+        record.cls,
         model.observation_space,
         model.action_space,
         _sb3_hyperparams(model, record),
         _sb3_policy_kwargs(model, record),
-        None,  # a seed would re-seed the global random state (SB3's set_random_seed) mid-run
     )
     sb3_model.seed = model.seed
     state = sbx_to_state_dict(model, sb3_model, record)

@@ -1,12 +1,9 @@
 """
 Hyperparameters in RL Zoo's format: ``zoo_configs/*.yml`` -> keyword arguments for an SB3 algorithm.
 
-A config file maps an env id (or ``default``, or ``manager`` for the manager's DDPG) to a block of
-hyperparameters, exactly as in rl-baselines3-zoo's ``hyperparams/*.yml``: the env's own block if present,
-else ``default`` (blocks are not merged, as in RL Zoo; YAML anchors and ``<<:`` merge keys share values).
-A worker on one term of another env first looks for its own block, ``<env id>/<term>``.
-Files are parsed with a safe YAML loader; ``policy_kwargs`` strings and ``lin_<initial value>`` schedules
-with :mod:`~sb3_hddpg.training.config_values`, never ``eval``.
+A config file maps an env id (or ``default``, or ``manager``) to a block of hyperparameters, as RL Zoo's
+``hyperparams/*.yml`` do: the env's own block if present, else ``default`` (blocks are not merged). Files are
+parsed with a safe YAML loader, and ``policy_kwargs`` strings without ``eval``.
 """
 
 from __future__ import annotations
@@ -64,10 +61,9 @@ def default_config(algo: str = "ddpg") -> Path:
 
 def config_source(path: str | Path, run_dir: str | Path | None = None) -> str:
     """
-    How a manifest names the config file a block was read from, with no path of this machine in it (a record
-    states what ran; reading it must not need the machine that wrote it): a bundled config as
-    ``sb3_hddpg/zoo_configs/<algo>.yml``, a relative path as given, any other absolute path relative to the
-    run folder ``run_dir`` (by its file name without one). The block itself is recorded beside it.
+    How a manifest names the config file a block was read from, with no path of this machine in it: a bundled
+    config as ``sb3_hddpg/zoo_configs/<algo>.yml``, a relative path as given, any other absolute path relative
+    to the run folder ``run_dir`` (by its file name without one).
 
     :param path: the config file the block was read from.
     :param run_dir: the run folder the manifest belongs to.
@@ -127,12 +123,10 @@ class Hyperparams:
     :param noise_std: the exploration noise's standard deviation.
     :param env_kwargs: keyword arguments for ``gym.make``.
     :param wrapper_kwargs: manager block only: keyword arguments for ``WorkerSelectionWrapper``.
-    :param action_l2: the actor's action penalty (DDPG/TD3; see
-        :class:`~sb3_hddpg.callbacks.ActionL2Penalty`), set with RL Zoo's ``callback`` key; 0: none.
+    :param action_l2: the coefficient of :class:`~sb3_hddpg.callbacks.ActionL2Penalty` (0: none).
     :param action_l2_margin: the penalty's pre-activation margin (``None``: it penalises the action itself).
-    :param controller_prior: the actor's prior towards a hand-written controller (DDPG/TD3; see
-        :class:`~sb3_hddpg.callbacks.ControllerPrior`) as ``(controller, coefficient)``; ``None``: none.
-    :param backend: the training backend the block asks for (``sb3``, ``sbx``; ``None``: not set).
+    :param controller_prior: :class:`~sb3_hddpg.callbacks.ControllerPrior`'s ``(controller, coefficient)``.
+    :param backend: the training backend the block asks for (``None``: not set).
     :param raw: the block as written, for manifests.
     """
 
@@ -153,10 +147,7 @@ class Hyperparams:
     def model_kwargs(self, env: Any) -> dict[str, Any]:
         """
         The algorithm's constructor arguments for ``env``: the block's, with the action noise sized to the
-        env and a named replay buffer (``GoalRelabelingReplayBuffer``) resolved, its env-dependent arguments
-        read from ``env``.
-
-        :param env: the training env (or a ``VecEnv``'s single env, for the buffer's arguments).
+        env and a named replay buffer resolved, its env-dependent arguments read from ``env``.
         """
         kwargs = dict(self.algo_kwargs)
         if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
@@ -168,7 +159,11 @@ class Hyperparams:
                 **(kwargs.get("replay_buffer_kwargs") or {}),
             }
         if self.noise_type is not None:
-            kwargs["action_noise"] = self.action_noise(int(np.prod(env.action_space.shape)))
+            n_actions = int(np.prod(env.action_space.shape))
+            noise = NormalActionNoise if self.noise_type == "normal" else OrnsteinUhlenbeckActionNoise
+            kwargs["action_noise"] = noise(
+                mean=np.zeros(n_actions), sigma=self.noise_std * np.ones(n_actions)
+            )
         return kwargs
 
     def callbacks(self) -> list[Any]:
@@ -185,15 +180,6 @@ class Hyperparams:
             callbacks.append(ControllerPrior(*self.controller_prior))
         return callbacks
 
-    def action_noise(self, n_actions: int) -> Any:
-        """The SB3 action-noise object for ``n_actions`` dimensions (``None`` without noise)."""
-        if self.noise_type is None:
-            return None
-        mean, sigma = np.zeros(n_actions), self.noise_std * np.ones(n_actions)
-        if self.noise_type == "normal":
-            return NormalActionNoise(mean=mean, sigma=sigma)
-        return OrnsteinUhlenbeckActionNoise(mean=mean, sigma=sigma)
-
 
 def load_config_file(path: str | Path) -> dict[str, Any]:
     """
@@ -208,9 +194,7 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         text = read_file_bytes(path, MAX_JSON_BYTES + 1).decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"Config file not found: {str(path)!r}") from None
-    except LimitError as error:
-        raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
+    except (LimitError, IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
         raise ConfigError(f"Cannot read config file {str(path)!r}: {error}") from None
     if len(text) > MAX_JSON_BYTES:
         raise ConfigError(
@@ -225,8 +209,7 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         line = f" at line {where.line + 1}" if where is not None else ""
         problem = getattr(error, "problem", None) or type(error).__name__
         raise ConfigError(f"Invalid YAML in {str(path)!r}{line}: {problem}") from None
-    # Anchors and aliases share one object, so loading is cheap, but an alias bomb ("billion laughs")
-    # expands to billions of values when printed or copied: budget the expanded size here, once.
+    # An alias bomb ("billion laughs") loads cheaply but expands to billions of values when copied.
     nodes = count_nodes(data)
     if nodes > MAX_CONFIG_NODES:
         raise ConfigError(
@@ -280,10 +263,10 @@ def _parse_block(block: dict[str, Any], algo_class: type, source: str, manager: 
     # Each _pop_* takes its key out of ``block``: what is left are the algorithm's constructor arguments.
     n_timesteps = HYPERPARAMETERS["n_timesteps"].check(block.pop("n_timesteps"), f"{source}: n_timesteps")
     n_envs = HYPERPARAMETERS["n_envs"].check(block.pop("n_envs", 1), f"{source}: n_envs")
-    policy = _pop_policy(block, source)
-    noise_type = _pop_noise_type(block, source)
-    backend = _pop_backend(block, source)
-    noise_std = _pop_noise_std(block, source)
+    policy = _pop_choice(block, "policy", ("MlpPolicy",), source) or "MlpPolicy"
+    noise_type = _pop_choice(block, "noise_type", ("normal", "ornstein-uhlenbeck"), source)
+    backend = _pop_choice(block, "backend", BACKENDS, source)
+    noise_std = float(HYPERPARAMETERS["noise_std"].check(block.pop("noise_std", 0.1), f"{source}: noise_std"))
     penalty = _parse_callbacks(block.pop("callback", None), source)
     action_l2 = float(cast(float, penalty.get("action_l2", 0.0)))
     env_kwargs = _pop_mapping(block, "env_kwargs", source)
@@ -322,36 +305,15 @@ def _check_keys(block: dict[str, Any], algo_class: type, source: str, manager: b
         raise ConfigError(f"Unknown keys in {source}: {brief(unknown)} (allowed: {sorted(allowed)})")
 
 
-def _pop_policy(block: dict[str, Any], source: str) -> str:
-    policy = block.pop("policy", "MlpPolicy")
-    if policy != "MlpPolicy":
-        raise ConfigError(f"Only policy 'MlpPolicy' is supported, {source} has: {brief(policy)}")
-    return "MlpPolicy"
-
-
-def _pop_noise_type(block: dict[str, Any], source: str) -> str | None:
-    noise_type = block.pop("noise_type", None)
-    if noise_type is None:
+def _pop_choice(block: dict[str, Any], key: str, choices: tuple[str, ...], source: str) -> str | None:
+    """``block[key]`` (taken out), one of ``choices`` (or its lower case); ``None`` when absent or null."""
+    value = block.pop(key, None)
+    if value is None:
         return None
-    noise_type = str(noise_type).strip()
-    if noise_type not in ("normal", "ornstein-uhlenbeck"):
-        raise ConfigError(
-            f"Unknown noise_type in {source}: {brief(noise_type)} (use 'normal' or 'ornstein-uhlenbeck')"
-        )
-    return noise_type
-
-
-def _pop_backend(block: dict[str, Any], source: str) -> str | None:
-    backend = block.pop("backend", None)
-    if backend is None:
-        return None
-    if not isinstance(backend, str) or backend.strip().lower() not in BACKENDS:
-        raise ConfigError(f"Unknown backend in {source}: {backend!r} (use one of {list(BACKENDS)})")
-    return backend.strip().lower()
-
-
-def _pop_noise_std(block: dict[str, Any], source: str) -> float:
-    return float(HYPERPARAMETERS["noise_std"].check(block.pop("noise_std", 0.1), f"{source}: noise_std"))
+    text = value.strip() if isinstance(value, str) else ""
+    if text not in choices and text.lower() not in choices:
+        raise ConfigError(f"Unknown {key} in {source}: {brief(value)} (use one of {list(choices)})")
+    return text if text in choices else text.lower()
 
 
 def _pop_mapping(block: dict[str, Any], name: str, source: str) -> dict[str, Any]:
@@ -370,11 +332,15 @@ def _check_algo_kwargs(block: dict[str, Any], algo: str, source: str) -> None:
     if "policy_kwargs" in block and isinstance(block["policy_kwargs"], str):
         block["policy_kwargs"] = parse_policy_kwargs(block["policy_kwargs"], source)
     _check_replay_buffer(block, source)
-    _check_network_size(block.get("policy_kwargs"), algo, source)
+    # Networks too large to build ([65536, 65536] is 17 GB) are refused before SB3 allocates them.
+    check_network_size(algo, block.get("policy_kwargs"), what=f"{source}: policy_kwargs")
     if "train_freq" in block:
         block["train_freq"] = check_train_freq(block["train_freq"], f"{source}: train_freq")
-    if "buffer_size" in block:
-        block["buffer_size"] = _buffer_size(block["buffer_size"], source)
+    if "buffer_size" in block:  # RL Zoo writes 1e6
+        size = block["buffer_size"]
+        block["buffer_size"] = size = int(size) if isinstance(size, float) and size.is_integer() else size
+        # Bounded before SB3 allocates it; a 64-wide observation stands in for the dimensions not known yet.
+        check_buffer_size(size, 64, 8, f"{source}: buffer_size")
     if isinstance(block.get("learning_rate"), str):
         block["learning_rate"] = parse_schedule(block["learning_rate"], "learning_rate", source)
     for key in ("learning_rate", "gamma", "tau"):
@@ -401,56 +367,33 @@ def _check_replay_buffer(block: dict[str, Any], source: str) -> None:
         )
 
 
-def _buffer_size(buffer_size: object, source: str) -> Any:
-    """``buffer_size`` as an integer (RL Zoo writes ``1e6``), bounded before SB3 allocates it."""
-    if isinstance(buffer_size, float) and buffer_size.is_integer():
-        buffer_size = int(buffer_size)
-    try:
-        # The dimensions are not known yet, so a 64-wide observation stands in (the snake's is 27): the
-        # transition count is the real limit.
-        check_buffer_size(buffer_size, 64, 8, "buffer_size")
-    except ValueError as error:
-        raise ConfigError(f"{source}: {error}") from None
-    return buffer_size
-
-
 def _parse_callbacks(value: object, source: str) -> dict[str, object]:
     """
     RL Zoo's ``callback`` key (a class path, or a list of paths or ``{path: kwargs}``), restricted to
     :data:`CALLBACKS`: the settings they carry, e.g. ``{"action_l2": 0.1}`` (and ``action_l2_margin``
     when given), ``{"controller_prior": ("ik", 5.0)}``. Nothing is imported.
     """
-    if value is None:
-        return {}
-    entries = value if isinstance(value, list) else [value]
     settings: dict[str, object] = {}
-    for entry in entries:
-        kwargs: dict[str, Any]
-        if isinstance(entry, str):
-            path, kwargs = entry, {}
-        elif isinstance(entry, dict) and len(entry) == 1:
-            path, kwargs = next(iter(entry.items()))
-            kwargs = kwargs or {}
-        else:
+    kwargs: Any
+    for entry in [] if value is None else value if isinstance(value, list) else [value]:
+        if not isinstance(entry, str) and not (isinstance(entry, dict) and len(entry) == 1):
             raise ConfigError(
                 f"Expected callback entries in {source} to be class paths or {{path: kwargs}}, actually: {entry!r:.200}"
             )
+        path, kwargs = (entry, {}) if isinstance(entry, str) else next(iter(entry.items()))
         if path not in CALLBACKS:
             raise ConfigError(
                 f"Unknown callback {str(path)!r:.200} in {source}; allowed: {sorted(CALLBACKS)}"
             )
-        name = CALLBACKS[path]
+        name, kwargs = CALLBACKS[path], kwargs or {}
         if not isinstance(kwargs, dict) or set(kwargs) - CALLBACK_KWARGS[name]:
             raise ConfigError(
                 f"Expected {path} in {source} to take only {sorted(CALLBACK_KWARGS[name])}, actually: "
                 f"{kwargs!r:.200}"
             )
-        coefficient = float(
-            HYPERPARAMETERS["coefficient"].check(
-                kwargs.get("coefficient", 0.1 if name == "action_l2" else 1.0),
-                f"{source}: {path}.coefficient",
-            )
-        )
+        default = 0.1 if name == "action_l2" else 1.0
+        check = HYPERPARAMETERS["coefficient"].check
+        coefficient = float(check(kwargs.get("coefficient", default), f"{source}: {path}.coefficient"))
         if name == "controller_prior":
             controller = kwargs.get("controller", "ik")
             if controller not in CONTROLLERS:
@@ -463,7 +406,7 @@ def _parse_callbacks(value: object, source: str) -> dict[str, object]:
         settings[name] = coefficient
         if kwargs.get("margin") is not None:
             margin = HYPERPARAMETERS["margin"].check(kwargs["margin"], f"{source}: {path}.margin")
-            settings[f"{CALLBACKS[path]}_margin"] = float(margin)
+            settings[f"{name}_margin"] = float(margin)
     return settings
 
 
@@ -489,14 +432,10 @@ def agent_kwargs(
 ) -> dict[str, Any]:
     """
     The project's hyperparameters for one agent, as keyword arguments of the algorithm's constructor, so
-    that the Python API trains with what the CLI uses (``zoo_configs/ddpg.yml``: [64, 64] networks,
-    Gaussian action noise, gamma 0.9...) rather than SB3's defaults::
+    that the Python API trains with what the CLI uses rather than SB3's defaults (the budget and the block's
+    ``env_kwargs`` are not applied here)::
 
         goal = DDPG(**agent_kwargs("hddpg/SnakeGoal-v0", gym.make("hddpg/SnakeGoal-v0")))
-        manager = DDPG(**agent_kwargs("manager", WorkerSelectionWrapper(...)))
-
-    The budget (``n_timesteps``) is not a constructor argument: pass it to ``learn``. A block's
-    ``env_kwargs`` are for making ``env``: they are not applied here.
 
     :param key: the config block: an env id (``hddpg/SnakeGoal-v0``...) or ``"manager"``.
     :param env: the training env (it sizes the action noise and is passed on as ``env``).
@@ -512,8 +451,7 @@ def agent_kwargs(
 
 def agent_callbacks(key: str, config: str | Path | None = None) -> list[Any]:
     """
-    The SB3 callbacks a config block asks for (e.g. the actor's ``ActionL2Penalty``), to pass to ``learn``
-    with :func:`agent_kwargs`'s model: ``model.learn(n, callback=agent_callbacks("manager"))``.
+    The SB3 callbacks a config block asks for, to pass to ``learn`` with :func:`agent_kwargs`'s model.
 
     :param key: the config block: an env id or ``"manager"``.
     :param config: a ``zoo_configs``-format file (default: the bundled ``ddpg.yml``).
@@ -523,33 +461,30 @@ def agent_callbacks(key: str, config: str | Path | None = None) -> list[Any]:
 
 def wrapper_kwargs(config: str | Path | None = None, algo: str = "ddpg") -> dict[str, Any]:
     """
-    The manager block's ``wrapper_kwargs`` (selection mode, temperature, floor, option steps): keyword
-    arguments for ``WorkerSelectionWrapper`` and ``SelectionConfig``, as the CLI's manager gets them.
+    The manager block's ``wrapper_kwargs``: keyword arguments for ``WorkerSelectionWrapper`` and
+    ``SelectionConfig``, as the CLI's manager gets them.
 
     :param config: a ``zoo_configs``-format file (default: the bundled config of ``algo``).
-    :param algo: the manager's algorithm (``ddpg``, ``td3`` or ``sac``).
+    :param algo: the manager's algorithm.
     """
-    path = config if config is not None else default_config(algo)
-    return dict(load_hyperparams(MANAGER_KEY, algorithm_class(algo), path, manager=True).wrapper_kwargs)
+    return dict(manager_hyperparams(algo, config).wrapper_kwargs)
+
+
+def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) -> Hyperparams:
+    """
+    The ``manager`` block a manager of ``algo`` trains from.
+
+    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
+    """
+    return load_hyperparams(MANAGER_KEY, algorithm_class(algo), config or default_config(algo), manager=True)
 
 
 def manager_option_steps(config: str | Path | None = None, algo: str = "ddpg") -> int:
     """
-    Env steps per manager decision: the manager block's ``option_steps`` (1 when it sets none). SB3 counts a
-    manager's timesteps and evaluation period in decisions; budgets and curves in env steps multiply by it.
+    Env steps per manager decision: the manager block's ``option_steps`` (1 when it sets none), by which a
+    manager's timesteps (decisions) multiply into env steps.
 
     :param config: a ``zoo_configs``-format file (default: the bundled config of ``algo``).
-    :param algo: the manager's algorithm (``ddpg``, ``td3`` or ``sac``).
+    :param algo: the manager's algorithm.
     """
     return int(wrapper_kwargs(config, algo).get("option_steps", 1))
-
-
-def _check_network_size(policy_kwargs: object, algo: str, source: str) -> None:
-    """
-    Refuse networks too large to build (``[65536, 65536]`` is 17 GB) before SB3 allocates them: the one
-    check of :func:`~sb3_hddpg.artifacts.network_limits.check_network_size`, as this file's kind of error.
-    """
-    try:
-        check_network_size(algo, policy_kwargs, what=f"{source}: policy_kwargs")
-    except LimitError as error:
-        raise ConfigError(str(error)) from None

@@ -27,9 +27,8 @@ class ConfigError(ValueError):
 
 def parse_schedule(text: str, name: str, source: str = "config") -> LinearSchedule:
     """
-    An RL Zoo schedule string, ``lin_<initial value>``: the value falls linearly from its initial value at
-    the start of training to 0 at its end (RL Zoo's ``linear_schedule``; SB3's :class:`LinearSchedule`, which
-    saves as a value, not code).
+    An RL Zoo schedule string, ``lin_<initial value>``: the value falls linearly from its initial value to 0
+    at the end of training (SB3's :class:`LinearSchedule`, which saves as a value, not code).
 
     :param text: e.g. ``"lin_1e-3"``.
     :param name: the key, for messages.

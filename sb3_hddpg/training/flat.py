@@ -5,6 +5,7 @@ manifest.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -15,7 +16,7 @@ import gymnasium as gym
 from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_hddpg.artifacts.manifests import check_resumed_env, model_entry, save_manifest
-from sb3_hddpg.artifacts.records import ModelsManifest, models_manifest, read_models_manifest
+from sb3_hddpg.artifacts.records import models_manifest, read_models_manifest
 from sb3_hddpg.artifacts.run_folder import holds_run_folder
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
@@ -30,9 +31,7 @@ from sb3_hddpg.training.agent import (
     make_snake_env,
     train_agent,
 )
-from sb3_hddpg.training.backends import (
-    algo_class,
-)
+from sb3_hddpg.training.backends import algo_class
 from sb3_hddpg.training.config import Hyperparams, config_source, default_config, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
@@ -46,11 +45,8 @@ def check_flat_env(algo: str, env_id: str | None = None, env_kwargs: Mapping[str
     :func:`check_takes` for a flat agent of ``algo`` on ``gym.make(env_id, **env_kwargs)`` (default: the
     combined task, :data:`~sb3_hddpg.envs.ids.SNAKE_REACH_ENV_ID`).
     """
-    probe = make_snake_env(env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))
-    try:
+    with contextlib.closing(make_snake_env(env_id or SNAKE_REACH_ENV_ID, dict(env_kwargs or {}))) as probe:
         check_takes(algo, probe.action_space)
-    finally:
-        probe.close()
 
 
 def flat_hyperparams(
@@ -88,30 +84,23 @@ def train_flat(
 ) -> FlatResult:
     """
     Train a flat baseline: one SB3 model on the combined reward of ``hddpg/SnakeReach-v0`` (the paper's
-    "single DDPG", Section 3.3), and write ``out_dir/flat/<name>.zip`` and ``out_dir/flat/manifest.json``.
-
-    The manifest's ``models`` mapping has one entry per model name (by default the algorithm), in the workers manifest's format
-    (file, sha256, algo, env id and kwargs, rebuild spec, metrics, config, seed, versions), so that
-    :func:`sb3_hddpg.hierarchy.loading.load_policy` opens the zip without unpickling anything.
+    "single DDPG", Section 3.3), and write ``out_dir/flat/<name>.zip`` and ``out_dir/flat/manifest.json``
+    (in the workers manifest's format, so that the zip opens without unpickling anything).
 
     :param out_dir: the run folder.
-    :param algo: ``ddpg``, ``td3``, ``sac`` or ``tqc``.
+    :param algo: the algorithm.
     :param config: a ``zoo_configs``-format file (default: the bundled ``zoo_configs/<algo>.yml``).
-    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`); with ``resume`` a model already finished with this budget is kept.
-    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
-        ``seed=3``), over ``run``'s.
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`); with
+        ``resume`` a model already finished with this budget is kept.
     :param env_id: the env to learn (the combined reward by default).
-    :param env_kwargs: its keyword arguments, over the config block's; the block read is the adapted env's
-        for an adapter (:func:`~sb3_hddpg.envs.terms_env.config_key`), as the workers' is.
     :param preferences: reward term -> factor: learn ``sum_t factor_t * normalised(term_t)`` instead of the
-        env's reward (:class:`~sb3_hddpg.hierarchy.preference.PreferenceReward`, the reward of a manager with the same
-        factors); ``None``: the env's own reward.
+        env's reward (the reward of a manager with the same factors); ``None``: the env's own reward.
+    :param env_kwargs: its keyword arguments, over the config block's.
     :param name: the model's name in the manifest and its file name (default: ``algo``).
-    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them (e.g. progress reporting).
-    :param block: the config block to train from instead of the env's (e.g. :data:`FLAT_HER_KEY`: the goal
-        worker's hindsight relabelling and action penalty on the full observation and the env's reward).
-    :return: the manifest written, the model's file and the training outcome (``None`` when a finished model
-        was kept).
+    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them.
+    :param block: the config block to train from instead of the env's (e.g. :data:`FLAT_HER_KEY`).
+    :param run_changes: ``RunOptions`` fields as keywords, over ``run``'s.
+    :return: the manifest written, the model's file and the training outcome.
     """
     run = run_options(run, run_changes, "train_flat")
     algo = algo.lower()
@@ -123,18 +112,16 @@ def train_flat(
     out_dir = Path(out_dir)
     manifest_path = out_dir / "flat" / "manifest.json"
     name = name or algo
-    manifest = _flat_manifest(manifest_path, name, env_id, make_kwargs, run.resume)
+    exists = manifest_path.exists()
+    manifest = read_models_manifest(manifest_path, "models") if exists else models_manifest("models")
+    if run.resume:  # an earlier model of this name trained on another env is refused
+        check_resumed_env(manifest.entries.get(name), env_id, make_kwargs)
     paths = AgentPaths(out_dir, f"flat-{algo}", out_dir / "flat" / f"{name}.zip")
     if run.resume and finished_with_budget(manifest.entries.get(name), budget):
         return FlatResult(manifest.to_json(), paths.model_path, None)  # finished in an earlier run
     factory = _flat_env_factory(env_id, make_kwargs, preferences)
     outcome = train_agent(
-        factory,
-        hyperparams,
-        paths,
-        algo=algo,
-        run=agent_run(run, paths, budget),
-        callback=callback,
+        factory, hyperparams, paths, algo=algo, run=agent_run(run, paths, budget), callback=callback
     )
     entry = model_entry(
         name,
@@ -161,7 +148,7 @@ class FlatResult:
 
     :param manifest: the flat models' manifest written (its JSON).
     :param model_path: the model's zip (``out_dir/flat/<name>.zip``).
-    :param outcome: the training outcome; ``None`` when ``resume`` kept a model finished with this budget.
+    :param outcome: the training outcome; ``None`` when ``resume`` kept a finished model.
     """
 
     manifest: dict[str, Any]
@@ -181,18 +168,3 @@ def _flat_env_factory(
     factory = functools.partial(make_preference_env, env_id, make_kwargs, dict(preferences))
     factory().close()
     return factory
-
-
-def _flat_manifest(
-    manifest_path: Path, name: str, env_id: str, make_kwargs: dict[str, Any], resume: bool
-) -> ModelsManifest:
-    """
-    The flat models' manifest the model is added to (the folder's, else a new one); on ``resume`` an earlier
-    model of this name trained on another env is refused in one line.
-    """
-    manifest = (
-        read_models_manifest(manifest_path, "models") if manifest_path.exists() else models_manifest("models")
-    )
-    if resume:
-        check_resumed_env(manifest.entries.get(name), env_id, make_kwargs)
-    return manifest

@@ -3,13 +3,13 @@
 :mod:`~sb3_hddpg.training.linear_support`), each new worker on a corner weighting of the terms, warm-started
 from its nearest neighbour, within one total env-step budget.
 
-It starts from a workers folder holding a per-term worker for every term (the simplex's corners), each with
-its per-term critic. A policy's vector value is its critic at the start states of the development episodes
-(:data:`~sb3_hddpg.episode_sets.DEVELOPMENT`; never the final test set), ``mean_s0 Q(s0, pi(s0))``: no env step.
+It starts from a per-term worker with its per-term critic for every term. A policy's vector value is its
+critic at the start states of the development episodes, ``mean_s0 Q(s0, pi(s0))``: no env step.
 """
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -83,16 +83,10 @@ def support_weights(workers: Workers, terms: Sequence[str]) -> dict[str, np.ndar
 
 
 def policy_values(workers: Workers, start_states: int) -> dict[str, np.ndarray]:
-    """
-    Each worker's vector value: its critic of its own action at the start states of the first
-    ``start_states`` development episodes (discounted normalised terms, in its critic's term order).
-    """
-    env = workers.make_env()
-    try:
+    """Each worker's vector value: its critic of its own action at ``start_states`` development starts."""
+    with contextlib.closing(workers.make_env()) as env:
         layout = state_layout_of(env)
         starts = np.stack([env.reset(seed=seed)[0] for seed in DEVELOPMENT.seeds(start_states)])
-    finally:
-        env.close()
     values = {}
     for name, model in workers.items():
         critic: TermCritic = workers.critics[name]
@@ -114,8 +108,7 @@ def check_growable(out_dir: str | Path, resume: bool = False) -> tuple[Workers, 
     Check, before anything trains, that a folder's workers can start a support: every worker has a per-term
     critic, there is a per-term worker for every term, and a support record is only continued with ``resume``.
 
-    :return: the loaded workers and the critics' terms; raises ``ValueError`` (``FileExistsError`` for a
-        record without ``resume``) naming the problem.
+    :return: the loaded workers and the critics' terms.
     """
     root = Path(out_dir)
     workers = load_workers(root)
@@ -152,13 +145,12 @@ def grow(
     """
     Grow the support of a workers folder one worker at a time at the corner weight of largest optimistic
     gain, until it holds ``options.size`` workers, the gain falls below ``options.tolerance`` or the budget is
-    spent; record it in ``workers/support.json`` after every worker (atomically).
+    spent; record it in ``workers/support.json`` after every worker.
 
     :param out_dir: the run folder of ``train-workers`` (per-term workers with critics for every term).
     :param options: size, budget, tolerance, start states.
-    :param run: the run-control settings (seed, envs, evaluation, threads...); ``timesteps`` is ignored (each
-        new worker's budget is its share of what is left), ``resume`` continues a support and its
-        interrupted worker.
+    :param run: the run-control settings; ``timesteps`` is ignored (each new worker's budget is its share of
+        what is left), ``resume`` continues a support and its interrupted worker.
     :param config: a ``zoo_configs``-format file for the new workers (block ``<env>/mix``, else the env's).
     :param env: the env with several objectives (``None``: the shared env the workers manifest records).
     :param term_critic: how each new worker's critic is trained (default settings).
@@ -191,7 +183,7 @@ def grow(
         visited[step.name] = np.asarray(corner.weights)
         values.update(policy_values(_only(workers, step.name), options.start_states))
         record = _save(root, record.with_step(step), values)
-    return _save(root, _stopped(record, stop), values)
+    return _save(root, replace(record, stopped=stop), values)
 
 
 def _add_worker(
@@ -208,7 +200,8 @@ def _add_worker(
     config, env, term_critic = settings
     weights = dict(zip(terms, corner.weights))
     name = weighted_name(weights)
-    spaces = _spaces_of(weights, config, env)
+    with contextlib.closing(plan_workers([], [weights], config, env)[0].env_factory()()) as probe:
+        spaces = (probe.observation_space, probe.action_space)
     warm = _warm_start(root, workers, visited, np.asarray(corner.weights), weights, spaces)
     manifest = train_workers(
         root,
@@ -269,50 +262,29 @@ def _warm_start(
     spaces: tuple[object, object],
 ) -> WarmStart | None:
     """
-    The new worker's start: the nearest worker that acts in the same spaces (its parameters and, when kept,
-    its transitions), else ``None`` (a cold start: a worker that sees part of the state only fits no other).
-
-    :param spaces: the new worker's observation and action spaces.
+    The new worker's start: the nearest worker that acts in the same ``spaces`` (its parameters and, when
+    kept, its transitions), else ``None``.
     """
     fitting = [n for n in visited if (workers[n].observation_space, workers[n].action_space) == spaces]
     if not fitting:
         return None
     neighbour = min(fitting, key=lambda name: float(np.abs(visited[name] - corner).sum()))
     kept = workers.manifest.entries[neighbour].get("transitions")
-    transitions = None
-    if (
-        isinstance(kept, dict)
-        and isinstance(kept.get("file"), str)
-        and Path(kept["file"]).name == kept["file"]
-    ):
-        path = root / "workers" / kept["file"]
+    kept = kept if isinstance(kept, dict) else {}
+    file, transitions = kept.get("file"), None
+    if isinstance(file, str) and Path(file).name == file:  # a bare file name: nothing outside the folder
+        path = root / "workers" / file
         if path.is_file():
             verify_sha256(path, str(kept.get("sha256")), str(path))
             transitions = Transitions.load(path)
     return WarmStart(neighbour, workers[neighbour], weights, transitions)
 
 
-def _spaces_of(
-    weights: dict[str, float], config: str | Path | None, env: TermsEnv | None
-) -> tuple[object, object]:
-    """The observation and action spaces of a new worker on ``weights``: its view, made once."""
-    probe = plan_workers([], [weights], config, env)[0].env_factory()()
-    try:
-        return probe.observation_space, probe.action_space
-    finally:
-        probe.close()
-
-
 def _only(workers: Workers, name: str) -> Workers:
     """``workers`` reduced to one (to value only the new worker)."""
-    return Workers(
-        {name: workers[name]},
-        {k: v for k, v in workers.states.items() if k == name},
-        workers.env_id,
-        workers.env_kwargs,
-        workers.manifest,
-        workers.folder,
-        critics={name: workers.critics[name]},
+    states = {k: v for k, v in workers.states.items() if k == name}
+    return replace(
+        workers, models={name: workers[name]}, states=states, critics={name: workers.critics[name]}
     )
 
 
@@ -331,10 +303,6 @@ def _start_record(
             terms, options.budget, options.size, options.tolerance, record.start, record.added
         )
     return SupportRecord(terms, options.budget, options.size, options.tolerance, list(workers))
-
-
-def _stopped(record: SupportRecord, reason: str) -> SupportRecord:
-    return replace(record, stopped=reason)
 
 
 def _save(root: Path, record: SupportRecord, values: Mapping[str, np.ndarray]) -> SupportRecord:

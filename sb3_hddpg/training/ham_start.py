@@ -1,24 +1,17 @@
 """
 A manager's start from the hand-written rule: behaviour cloning on HAM's choices before RL.
 
-A freshly initialised manager starts far below HAM's threshold switch (a random mix of workers) and spends
-much of its budget getting back to it. Here the manager first imitates HAM: the switch drives the manager's
-own env (:class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper`) for a number of decisions, each
-decision's manager observation and HAM's choice are kept, and the manager's network is fitted to the choices:
-
-- a simplex manager (DDPG, TD3, SAC, TQC, CrossQ): its deterministic actor regressed (mean squared error)
-  onto the choice as an action, ``+1`` for HAM's worker and ``-1`` for the others (the simplex map turns
-  that into about 98 % on HAM's worker); target networks are copied from the fitted ones;
-- a discrete manager (DQN): DQfD's large-margin loss on the Q-values (HAM's choice above every other
-  by a margin) plus their cross-entropy, the target network copied.
-
-The same decisions are stored in the replay buffer with their real rewards, so the critic's first updates
-learn the value of acting like HAM. RL then starts at HAM's level. SB3 (torch) managers only.
+A freshly initialised manager starts far below HAM's threshold switch and spends much of its budget getting
+back to it. Here HAM first drives the manager's own env for a number of decisions, and the manager's network
+is fitted to its choices: a simplex manager's actor regressed onto ``+1`` for HAM's worker and ``-1`` for
+the others; a discrete manager's Q-values by DQfD's large-margin loss plus their cross-entropy. The same
+decisions go into the replay buffer with their real rewards, so RL starts at HAM's level. SB3 managers only.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -70,16 +63,17 @@ class HamStart:
                 )
 
 
-def ham_of(wrapper: WorkerSelectionWrapper, start: HamStart) -> tuple[HAMSwitch, int]:
-    """
-    The HAM switch over the wrapper's goal and avoid workers, and the avoid worker's index.
-
-    :raises ValueError: a manager without workers named ``goal`` and ``avoid``.
-    """
-    if not {"goal", "avoid"} <= set(wrapper.worker_names):
+def check_ham_workers(names: Sequence[str]) -> None:
+    """Refuse workers without HAM's two, named ``goal`` and ``avoid``, in one line."""
+    if not {"goal", "avoid"} <= set(names):
         raise ValueError(
-            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {wrapper.worker_names}"
+            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {list(names)}"
         )
+
+
+def ham_of(wrapper: WorkerSelectionWrapper, start: HamStart) -> tuple[HAMSwitch, int]:
+    """The HAM switch over the wrapper's goal and avoid workers, and the avoid worker's index."""
+    check_ham_workers(wrapper.worker_names)
     from sb3_hddpg.baselines.ham import HAMSwitch  # the hand-written switch, only for a start from it
 
     switch = HAMSwitch(
@@ -109,7 +103,7 @@ def collect_ham_decisions(
     Let HAM drive the manager's env for ``start.decisions`` decisions; store them in ``model``'s replay
     buffer if it has one.
 
-    :param env: the manager's env (a ``WorkerSelectionWrapper``, possibly under other wrappers).
+    :param env: the manager's env (a ``WorkerSelectionWrapper``, possibly wrapped).
     :param start: the settings.
     :param model: the manager (``None``: only collect).
     :param seed: the first episode's seed.
@@ -155,7 +149,7 @@ def imitate(model: BaseAlgorithm, observations: np.ndarray, choices: np.ndarray,
     """
     Fit the manager's network to HAM's choices (see the module's note).
 
-    :return: the share of the decisions on which the fitted manager's most probable worker is HAM's.
+    :return: the share of the decisions on which the fitted manager's choice is HAM's.
     """
     policy: Any = model.policy
     policy.set_training_mode(True)
@@ -221,11 +215,8 @@ def ham_start_hook(
     def prepare(model: BaseAlgorithm) -> None:
         if not isinstance(model.policy, th.nn.Module):
             raise ValueError("The start from HAM fits SB3 (torch) managers: use --backend sb3")
-        env = env_factory()
-        try:
+        with contextlib.closing(env_factory()) as env:
             observations, choices = collect_ham_decisions(env, start, model, seed=seed)
-        finally:
-            env.close()
         agreement = imitate(model, observations, choices, start)
         report.update({**asdict(start), "agreement": agreement})
 

@@ -3,12 +3,9 @@ Optimistic linear support (OLS; Roijers 2015, the weight choice of GPI-LS, Alegr
 ``multi_policy/linear_support/linear_support.py``): where on the simplex of term weightings a convex coverage
 set of policies gains most from one more policy.
 
-Given each policy's vector value ``V_i`` (one entry per term), the scalarised front ``max_i w . V_i`` is a
-piecewise-linear convex function of the weighting ``w``; its corner weights are the vertices of the region
-above it. At a corner ``w`` the most any new policy can reach is bounded by the optimistic value
-``max_v w . v`` subject to ``w_j . v <= max_i w_j . V_i`` at every weighting ``w_j`` a policy was already
-trained for (OLS's assumption: a policy trained for ``w_j`` is optimal there); the optimistic gain is that
-bound minus the front at ``w``. The support grows at the corner of largest gain.
+The scalarised front ``max_i w . V_i`` of the policies' vector values is piecewise-linear and convex in the
+weighting ``w``; at each of its corner weights the optimistic gain is OLS's bound on a new policy's value
+minus the front there, and the support grows at the corner of largest gain.
 """
 
 from __future__ import annotations
@@ -99,8 +96,8 @@ def ranked_corners(values: np.ndarray, visited: Sequence[np.ndarray]) -> list[Co
     :param visited: the weightings the support's policies were trained for.
     """
     values = np.atleast_2d(np.asarray(values, dtype=np.float64))
-    corners = []
-    for w in corner_weights(values):
-        front = float(np.max(values @ w))
-        corners.append(Corner(tuple(float(v) for v in w), front, optimistic_value(w, visited, values)))
+    corners = [
+        Corner(tuple(float(v) for v in w), float(np.max(values @ w)), optimistic_value(w, visited, values))
+        for w in corner_weights(values)
+    ]
     return sorted(corners, key=lambda corner: -corner.gain)

@@ -11,9 +11,7 @@ from typing import Any, cast
 
 from stable_baselines3.common.type_aliases import MaybeCallback
 
-from sb3_hddpg.artifacts.io import (
-    atomic_write_json,
-)
+from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.artifacts.manifests import as_json, check_resumed_env
 from sb3_hddpg.artifacts.run_folder import holds_run_folder
@@ -36,22 +34,22 @@ from sb3_hddpg.training.run_options import RunOptions, run_options
 MANAGER_SETTINGS_FILE = "manager_settings.json"
 
 
-def _check_manager_resume(
-    paths: AgentPaths, resume: bool, setup: ManagerSetup, selection: dict[str, Any]
-) -> None:
+def _check_manager_resume(paths: AgentPaths, resume: bool, setup: ManagerSetup) -> None:
     """
-    Keep the manager's MDP (env, workers, algorithm, selection settings) and its learner's settings (the
-    config block's constructor arguments with ``--gamma`` applied, policy, noise) beside its model; a resumed
-    run whose MDP or learner differs is refused in one line naming the difference
-    (:func:`~sb3_hddpg.artifacts.manifests.check_resumed_env`), since its replay buffer and network were
-    made on the recorded ones, and a resumed model keeps the discount it was saved with whatever is asked.
+    Keep the manager's MDP (env, workers, algorithm, selection settings) and its learner's settings (less
+    the budget, which a resume may extend) beside its model; a resumed run whose MDP or learner differs is
+    refused in one line naming the difference, since its replay buffer and network were made on the
+    recorded ones.
     """
+    block = setup.hyperparams
+    noise = [block.noise_type, block.noise_std]
+    learner = {"algo_kwargs": block.algo_kwargs, "policy": block.policy, "noise": noise}
     mdp: dict[str, Any] = {
         **setup.env_kwargs,
         "workers": list(setup.workers),
         "algo": setup.algo,
-        "selection": selection,
-        "learner": _learner_settings(setup),
+        "selection": asdict(setup.selection),
+        "learner": cast(dict[str, Any], as_json(learner)),
     }
     path = paths.model_path.parent / MANAGER_SETTINGS_FILE
     if resume and read_checkpoint_state(paths.checkpoint_dir) is not None and path.is_file():
@@ -64,20 +62,6 @@ def _check_manager_resume(
         return
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, {"env_id": setup.env_id, "env_kwargs": mdp})
-
-
-def _learner_settings(setup: ManagerSetup) -> dict[str, Any]:
-    """
-    The manager's learner as its config block sets it, less the budget (a resumed run may extend it), as
-    JSON stores it (a class, e.g. an activation, by its name).
-    """
-    hyperparams = setup.hyperparams
-    learner = {
-        "algo_kwargs": hyperparams.algo_kwargs,
-        "policy": hyperparams.policy,
-        "noise": [hyperparams.noise_type, hyperparams.noise_std],
-    }
-    return cast(dict[str, Any], as_json(learner))
 
 
 @dataclass(frozen=True)
@@ -106,18 +90,16 @@ def train_manager(
     **changes: Any,
 ) -> ManagerResult:
     """
-    Train the manager: a plain SB3 DDPG (or another algorithm, ``options.algo``) on ``WorkerSelectionWrapper``
-    over pre-trained workers (paper Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
+    Train the manager: a plain SB3 model on ``WorkerSelectionWrapper`` over pre-trained workers (paper
+    Algorithm 1, second half), and write ``out_dir/hierarchy.zip``.
 
     :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder), or the set-up
-        :func:`~sb3_hddpg.training.manager_setup.prepare_manager` returned: then the workers it loaded are
-        used as they are (nothing is loaded or checked twice) and no manager options may be given.
+        :func:`~sb3_hddpg.training.manager_setup.prepare_manager` returned (then no manager options).
     :param out_dir: the run folder for the manager.
     :param options: what the manager is trained from
         (:class:`~sb3_hddpg.training.manager_setup.ManagerOptions`; default: its defaults).
-    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`) for the
-        manager's model; the bundle holds an SB3 manager whichever ``backend`` trains it.
-    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them (e.g. progress reporting).
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`).
+    :param callback: more SB3 callbacks, as SB3's ``learn`` takes them.
     :param changes: fields of ``ManagerOptions`` or of ``RunOptions`` as keywords, over ``options``' and
         ``run``'s (``train_manager(w, out, prefer="goal", seed=3)``).
     :return: the saved hierarchy, its file and the training outcome.
@@ -127,7 +109,7 @@ def train_manager(
     setup = _setup_of(workers_dir, options, manager_changes)
     out_dir = Path(out_dir)
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
-    _check_manager_resume(paths, run.resume, setup, asdict(setup.selection))
+    _check_manager_resume(paths, run.resume, setup)
     factory = setup.env_factory()
     ham_report: dict[str, Any] = {}
     outcome = train_agent(

@@ -5,6 +5,7 @@ build the factory of its env, before anything trains.
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
@@ -25,33 +26,20 @@ from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
 from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
-from sb3_hddpg.training.backends import (
-    algo_class,
-)
-from sb3_hddpg.training.config import MANAGER_KEY, Hyperparams, default_config, load_hyperparams
-from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart
+from sb3_hddpg.training.backends import algo_class
+from sb3_hddpg.training.config import Hyperparams, default_config, manager_hyperparams
+from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart, check_ham_workers
 
-#: The algorithms a manager can be: DDPG (the paper's), or another whose record takes the manager role, each with
-#: a ``manager`` block in its bundled config (``zoo_configs/<algo>.yml``); one acting in Discrete spaces (DQN)
-#: selects with the ``discrete`` mode, its action the worker's index.
+#: The algorithms a manager can be (DDPG is the paper's), each with a ``manager`` block in its bundled config;
+#: one acting in Discrete spaces (DQN) selects with the ``discrete`` mode, its action the worker's index.
 MANAGER_ALGOS = algorithms_for("manager")
-
-
-def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) -> Hyperparams:
-    """
-    The ``manager`` block a manager of ``algo`` trains from.
-
-    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
-    """
-    return load_hyperparams(MANAGER_KEY, algo_class(algo), config or default_config(algo), manager=True)
 
 
 def horizon_gamma(option_steps: int, algo: str = "ddpg", config: str | Path | None = None) -> float:
     """
     The discount per decision that keeps a manager block's horizon in env steps over options of another
-    length: the block's ``gamma ** (option_steps / block option_steps)``. A discount is tuned for the
-    block's options: DQN's 0.9 over 4-step options looks about 40 env steps ahead, and over 1-step options
-    only 10 unless it becomes ``0.9 ** 0.25``, about 0.974.
+    length: the block's ``gamma ** (option_steps / block option_steps)`` (DQN's 0.9 over 4-step options
+    becomes ``0.9 ** 0.25`` over 1-step ones).
 
     :param option_steps: env steps per decision of the manager to be trained.
     :param algo: the manager's algorithm.
@@ -66,11 +54,9 @@ def horizon_gamma(option_steps: int, algo: str = "ddpg", config: str | Path | No
 @dataclass
 class ManagerEnvFactory:
     """
-    Builds the manager's env: the shared env wrapped in ``WorkerSelectionWrapper`` over the workers.
-
-    The workers are the ones already loaded (``workers``), so a run loads and verifies them once; pickled
-    into a ``SubprocVecEnv`` process the factory drops them and that process loads them from
-    ``workers_dir`` once (hashes verified), for all the envs it builds.
+    Builds the manager's env: the shared env wrapped in ``WorkerSelectionWrapper`` over the workers already
+    loaded; pickled into a ``SubprocVecEnv`` process it drops them, and that process loads them from
+    ``workers_dir`` once (hashes verified).
 
     :param env_id: the shared env.
     :param env_kwargs: its keyword arguments.
@@ -111,6 +97,8 @@ class ManagerSetup:
     :param selection: the selection settings, preferences included.
     :param env_id: the shared env the manager acts in.
     :param env_kwargs: its keyword arguments (from the manager's config block).
+    :param workers_dir: the workers' folder.
+    :param trusted: load the workers with SB3's full loader.
     :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS`.
     :param ham_start: imitate HAM before RL (``None``: start from the random initialisation).
     """
@@ -146,18 +134,15 @@ class ManagerSetup:
 @dataclass(frozen=True)
 class ManagerOptions:
     """
-    What a manager is trained from, besides its workers' folder and the run-control settings: the arguments
-    of :func:`prepare_manager` (and :func:`~sb3_hddpg.training.manager.train_manager`), as one record.
+    What a manager is trained from, besides its workers' folder and the run-control settings.
 
-    Preference factors (paper Section 3.4): by default every worker's factor is 1; ``prefer=NAME`` makes
-    that worker's ``1 + bias`` (the paper's 15 % by default); ``preferences`` sets every factor explicitly
-    and wins over ``prefer``. A factor multiplies the worker's normalised reward term in the manager's
-    reward, so the manager is paid more for the preferred worker's objective.
+    Preference factors (paper Section 3.4) multiply each worker's normalised reward term in the manager's
+    reward: 1 by default; ``prefer=NAME`` makes that worker's ``1 + bias``; ``preferences`` sets every one.
 
     :param worker_names: which workers, in the manager's action order (default: all in the manifest).
     :param prefer: a worker to prefer.
-    :param bias: the preferred worker's extra factor, > 0.
-    :param preferences: explicit factors, name -> value.
+    :param bias: the preferred worker's extra factor, > 0 (the paper's 15 %).
+    :param preferences: explicit factors, name -> value (over ``prefer``).
     :param selection: a registered selection mode (default: the config's ``wrapper_kwargs``).
     :param option_steps: env steps per manager decision (default: the config's).
     :param temperature: the simplex map's temperature (default: the config's).
@@ -167,30 +152,20 @@ class ManagerOptions:
     :param env_id: the shared env the manager acts in (default: the workers manifest's ``shared_env``,
         else ``hddpg/SnakeReach-v0``).
     :param env_kwargs: its keyword arguments (default: the manifest's), under the config block's.
-    :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS` (``ddpg`` is the paper's); its
-        bundled config ``zoo_configs/<algo>.yml`` is the default ``config``.
-    :param manager_preferences: train one manager for every preference (see
-        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace`): ``"ratio-sweep"``, ``"ratio-sweep:16"``,
-        ``"dirichlet[:ALPHA]"``, ``"goal=1.6,avoid=0.4;goal=0.4,avoid=1.6"`` or a space. The manager observes
-        the normalised preference weights, a preference is drawn every episode, and an off-policy manager
-        replays stored steps at other preferences (``PreferenceRelabelingReplayBuffer``). The bundle records
-        the space (``selection.manager_preferences``); ``Hierarchy.set_preference`` picks one at run time.
-        ``preferences`` is then the one the bundle acts at first (default: the unweighted one).
+    :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS` (``ddpg`` is the paper's).
+    :param manager_preferences: train one manager for every preference of a
+        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace` (``"ratio-sweep[:N]"``,
+        ``"dirichlet[:ALPHA]"``, ``"goal=1.6,avoid=0.4;goal=0.4,avoid=1.6"`` or a space): it observes the
+        preference, drawn every episode; ``preferences`` is then the one the bundle acts at first.
     :param relabel_fraction: a conditioned off-policy manager's share of replayed steps given another
         preference.
-    :param init_from_ham: start from the hand-written rule: HAM's threshold (or a
-        :class:`~sb3_hddpg.training.ham_start.HamStart`); the manager imitates HAM's choices and its replay
-        buffer is filled with them before RL (:mod:`sb3_hddpg.training.ham_start`). The bundle's metadata
-        keeps the settings and how often the fitted manager agrees with HAM.
-    :param option_end: options that also end by state: ``"distance=0.5"`` (an obstacle comes within half
-        the sensor range or leaves it), ``"touch"`` (the goal is touched or lost), both (``"distance=0.5,touch"``)
-        or an :class:`~sb3_hddpg.hierarchy.option_end.OptionEnd`; ``option_steps`` stays the longest option.
+    :param init_from_ham: imitate HAM's choices before RL: HAM's threshold or a
+        :class:`~sb3_hddpg.training.ham_start.HamStart`.
+    :param option_end: options that also end by state: ``"distance=0.5"``, ``"touch"``, both
+        (``"distance=0.5,touch"``) or an :class:`~sb3_hddpg.hierarchy.option_end.OptionEnd`.
     :param manager_motion: the manager also observes its state's change over the last env step, scaled by
-        this factor (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`; 0: not; default: the
-        config's).
-    :param gamma: the manager's discount per decision, in (0, 1] (default: the config block's). A block's
-        discount is tuned for its options' length: shorter options at the same discount see fewer env steps
-        ahead.
+        this factor (0: not; default: the config's).
+    :param gamma: the manager's discount per decision, in (0, 1] (default: the config block's).
     """
 
     worker_names: Sequence[str] | None = None
@@ -224,13 +199,11 @@ def prepare_manager(
     """
     Load and check everything the manager is trained from, without training: the workers (hashes
     verified), the config block, the preferences and selection settings, and that every worker fits the
-    manager's env. :func:`~sb3_hddpg.training.manager.train_manager` calls it first; call it yourself to
-    validate arguments early (the CLI does, to report bad input before creating the output folder).
+    manager's env. Call it to validate arguments early; ``train_manager`` takes the set-up it returns.
 
     :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
     :param options: what the manager is trained from (default: :class:`ManagerOptions`' defaults).
-    :param option_changes: :class:`ManagerOptions` fields as keywords, over ``options``' (``None``: keep it),
-        so that ``prepare_manager(w, prefer="goal")`` is ``prepare_manager(w, ManagerOptions(prefer="goal"))``.
+    :param option_changes: :class:`ManagerOptions` fields as keywords, over ``options``' (``None``: keep it).
     :return: the checked set-up; raises ``ValueError`` (or ``FileNotFoundError``) naming the problem.
     """
     return setup_manager(workers_dir, manager_options(options, option_changes, "prepare_manager"))
@@ -252,25 +225,18 @@ def manager_options(options: ManagerOptions | None, changes: dict[str, Any], cal
 
 
 def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSetup:
-    """
-    :func:`prepare_manager` with its arguments as one record.
-
-    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
-    :param options: what the manager is trained from.
-    :return: the checked set-up.
-    """
-    names_given = options.worker_names
-    if names_given is not None and isinstance(names_given, str):
-        raise ValueError(f"Expected a sequence of worker names, actually the string {names_given!r}")
+    """:func:`prepare_manager` with its arguments as one record."""
+    if isinstance(options.worker_names, str):
+        raise ValueError(f"Expected a sequence of worker names, actually the string {options.worker_names!r}")
     algo = options.algo
     if algo not in MANAGER_ALGOS:
         raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
     config = options.config if options.config is not None else default_config(algo)
     hyperparams = _with_gamma(manager_hyperparams(algo, config), options.gamma)
-    workers = load_workers(workers_dir, names_given, trusted=options.trusted)
-    manifest = workers.manifest
-    env_id, given_kwargs = shared_env_of(manifest, options.env_id, options.env_kwargs, options.trusted)
-    names = list(workers)
+    workers = load_workers(workers_dir, options.worker_names, trusted=options.trusted)
+    env_id, given_kwargs = shared_env_of(
+        workers.manifest, options.env_id, options.env_kwargs, options.trusted
+    )
     wrapper_kwargs, hyperparams = _selection_settings(options, hyperparams, workers)
     try:
         selection_config = SelectionConfig(**wrapper_kwargs)
@@ -285,7 +251,7 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
     _check_workers_fit(workers, selection_config, env_id, env_kwargs)
     return ManagerSetup(
         workers,
-        manifest,
+        workers.manifest,
         hyperparams,
         selection_config,
         env_id,
@@ -293,7 +259,7 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
         str(Path(workers_dir)),
         options.trusted,
         algo,
-        _ham_start(options.init_from_ham, names, algo),
+        _ham_start(options.init_from_ham, list(workers), algo),
     )
 
 
@@ -311,21 +277,23 @@ def _selection_settings(
     if options.preferences:
         factors = check_preferences(options.preferences, names)
     if options.manager_preferences is not None:
-        factors, hyperparams = _conditioned(
-            wrapper_kwargs,
-            hyperparams,
-            options.algo,
-            names,
-            options.manager_preferences,
-            options.preferences,
-            options.relabel_fraction,
+        given = options.manager_preferences
+        space = PreferenceSpace.parse(given, names) if isinstance(given, str) else given
+        if list(space.names) != names:
+            raise ValueError(f"The preference space names workers {list(space.names)}, the manager {names}")
+        wrapper_kwargs["manager_preferences"] = space.to_json()
+        factors = space.check(options.preferences or space.default)
+        hyperparams = _with_preference_relabeling(
+            hyperparams, options.algo, names, space, options.relabel_fraction
         )
     for key in ("selection", "option_steps", "temperature", "floor", "manager_motion"):
         value = getattr(options, key)
         if value is not None:
             wrapper_kwargs[key] = value
     wrapper_kwargs["preferences"] = factors
-    wrapper_kwargs["option_end"] = _option_end_json(options.option_end, wrapper_kwargs.get("option_end"))
+    if options.option_end is not None:  # else the config block's
+        end = options.option_end
+        wrapper_kwargs["option_end"] = (OptionEnd.parse(end) if isinstance(end, str) else end).to_json()
     # A worker trained on part of the state (env_kwargs `observe`) is fed the same components of the
     # manager's full state; a worker_states entry in the config block wins.
     configured = wrapper_kwargs.get("worker_states") or {}
@@ -342,12 +310,9 @@ def _check_workers_fit(
 ) -> None:
     """
     Check that every worker fits the manager's env: its observation shape, unless the selection settings
-    slice the state for it, and the wrapper's own checks (spaces, reward terms, state names, temperature,
-    floor), run once here in this process, so that they fail with one clear error rather than inside env
-    subprocesses.
+    slice the state for it, and the wrapper's own checks, run once here rather than inside env subprocesses.
     """
-    probe = make_snake_env(env_id, env_kwargs)
-    try:
+    with contextlib.closing(make_snake_env(env_id, env_kwargs)) as probe:
         expected = probe.observation_space.shape
         for name, worker in workers.items():
             space = getattr(worker, "observation_space", None)
@@ -360,34 +325,6 @@ def _check_workers_fit(
                     f"{expected}: give the manager's config block the workers' env_kwargs"
                 )
         WorkerSelectionWrapper(probe, workers, **selection_config.wrapper_kwargs())
-    finally:
-        probe.close()
-
-
-def _option_end_json(given: str | OptionEnd | None, configured: Any) -> dict[str, Any] | None:
-    """The option end as a bundle records it: the one given, else the config block's (``None``: none)."""
-    if given is None:
-        return configured
-    return (OptionEnd.parse(given) if isinstance(given, str) else given).to_json()
-
-
-def _conditioned(
-    wrapper_kwargs: dict[str, Any],
-    hyperparams: Hyperparams,
-    algo: str,
-    names: list[str],
-    given: str | PreferenceSpace,
-    preferences: dict[str, float] | None,
-    relabel_fraction: float,
-) -> tuple[dict[str, float], Hyperparams]:
-    """
-    A conditioned manager's settings: its space in ``wrapper_kwargs``, the preference it acts at first (the
-    unweighted one unless given, within the space) and its config block with the relabelling buffer.
-    """
-    conditioning = _preference_space(given, names)
-    wrapper_kwargs["manager_preferences"] = conditioning.to_json()
-    factors = conditioning.check(preferences or conditioning.default)
-    return factors, _with_preference_relabeling(hyperparams, algo, names, conditioning, relabel_fraction)
 
 
 def _ham_start(given: float | HamStart | None, names: list[str], algo: str) -> HamStart | None:
@@ -396,26 +333,12 @@ def _ham_start(given: float | HamStart | None, names: list[str], algo: str) -> H
         return None
     if algo not in HAM_START_ALGOS:
         raise ValueError(f"The start from HAM fits managers of {list(HAM_START_ALGOS)}, not {algo!r}")
-    if not {"goal", "avoid"} <= set(names):
-        raise ValueError(
-            f"The start from HAM needs workers named 'goal' and 'avoid' (HAM's two), actually: {names}"
-        )
+    check_ham_workers(names)
     return given if isinstance(given, HamStart) else HamStart(float(given))
 
 
-def _preference_space(given: str | PreferenceSpace, names: list[str]) -> PreferenceSpace:
-    """A conditioned manager's preference space, from its command-line form or as given, for ``names``."""
-    space = PreferenceSpace.parse(given, names) if isinstance(given, str) else given
-    if list(space.names) != names:
-        raise ValueError(f"The preference space names workers {list(space.names)}, the manager {names}")
-    return space
-
-
 def _with_gamma(hyperparams: Hyperparams, gamma: float | None) -> Hyperparams:
-    """
-    The manager's config block with ``gamma`` as its discount (``None``: as it is). ``raw`` stays the block as
-    written, as with the other options given over it; the model saves the discount it trained with.
-    """
+    """The manager's config block with ``gamma`` as its discount (``None``: as it is), ``raw`` as written."""
     if gamma is None:
         return hyperparams
     if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0.0 < gamma <= 1.0:
@@ -426,10 +349,7 @@ def _with_gamma(hyperparams: Hyperparams, gamma: float | None) -> Hyperparams:
 def _with_preference_relabeling(
     hyperparams: Hyperparams, algo: str, names: list[str], space: PreferenceSpace, relabel_fraction: float
 ) -> Hyperparams:
-    """
-    The manager's config block with the preference-relabelling replay buffer, for an algorithm with a replay
-    buffer (an on-policy one, PPO, learns from the preference drawn each episode only).
-    """
+    """The manager's config block with the preference-relabelling replay buffer, for an algorithm with one."""
     if "replay_buffer_class" not in inspect.signature(algo_class(algo).__init__).parameters:
         return hyperparams
     if hyperparams.algo_kwargs.get("replay_buffer_class") is not None:

@@ -1,8 +1,4 @@
-"""
-How a training run is run, as opposed to what it trains: the one home of the run-control settings that
-:func:`~sb3_hddpg.training.agent.train_agent`, ``train_workers``, ``train_manager`` and ``train_flat``
-share (budget, seed, envs, resume, evaluation, checkpoints, threads, backend).
-"""
+"""The run-control settings every training function shares (budget, seed, envs, resume, evaluation...)."""
 
 from __future__ import annotations
 
@@ -14,22 +10,16 @@ from sb3_hddpg.artifacts.limits import MAX_SEED
 from sb3_hddpg.artifacts.values import RUN_SETTINGS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 
-#: The largest seed SB3 (numpy's legacy seeding) accepts.
-
 
 @dataclass(frozen=True)
 class RunOptions:
     """
     The run-control settings of one training run, checked when built.
 
-    Build it once (the CLI does, from its options) and pass it through; a function that trains several
-    agents derives each agent's with :meth:`replace` (e.g. its own budget or whether it resumes).
-
     :param timesteps: the total budget (default: the config block's ``n_timesteps``).
     :param seed: seeds the model, the training envs and the exploration noise.
     :param n_envs: parallel training envs, run in subprocesses when more than one (default: the config's).
-    :param resume: continue from the last checkpoint to ``timesteps`` in total; what a function keeps of a
-        finished run is said in its docstring.
+    :param resume: continue from the last checkpoint to ``timesteps`` in total.
     :param stop_on_plateau: stop when ``plateau_patience`` evaluations in a row bring no new best.
     :param plateau_patience: see ``stop_on_plateau``.
     :param eval_freq: environment steps between evaluations (0: none until the end).
@@ -40,11 +30,9 @@ class RunOptions:
     :param keep_best: save the best evaluated model as the result (else the final one).
     :param progress_bar: show SB3's rich progress bar.
     :param threads: torch threads for this process (1 is fastest for small MLPs on CPU; see docs).
-    :param keep_checkpoints: keep the replay buffer in the last checkpoint of a finished run, so that a
-        later ``resume`` with a larger budget continues exactly as if never stopped. By default a finished
-        run drops it (``buffer_size`` x (2 x obs + action + 3) float32 values: 70 MB for a worker of the
-        bundled config) and keeps the model checkpoint; resuming that refills the buffer before training on.
-        Interrupted runs always keep their buffer.
+    :param keep_checkpoints: keep the replay buffer in the last checkpoint of a finished run (70 MB for a
+        worker of the bundled config), so that a later ``resume`` continues exactly as if never stopped;
+        without it resuming refills the buffer first. Interrupted runs always keep theirs.
     :param backend: ``sb3`` or ``sbx`` (default: the config block's ``backend``, else ``sb3``); the saved
         model is an SB3 zip either way.
     """
@@ -66,7 +54,6 @@ class RunOptions:
     backend: str | None = None
 
     def __post_init__(self) -> None:
-        # The numbers through the one value schema (the CLI's options and a Python caller's alike).
         for name, bound in RUN_SETTINGS.items():
             value = getattr(self, name)
             if value is not None:
@@ -85,9 +72,8 @@ RUN_OPTION_NAMES = frozenset(field.name for field in dataclasses.fields(RunOptio
 
 def run_options(run: RunOptions | None, changes: dict[str, Any], caller: str) -> RunOptions:
     """
-    The options a training function runs with: ``run`` (default: :class:`RunOptions`'s defaults) with the
-    fields given to it as keywords on top, so that ``train_workers(out, seed=3)`` and
-    ``train_workers(out, run=RunOptions(seed=3))`` mean the same.
+    ``run`` (default: :class:`RunOptions`'s defaults) with the fields given as keywords on top, so that
+    ``train_workers(out, seed=3)`` and ``train_workers(out, run=RunOptions(seed=3))`` mean the same.
 
     :param run: the options passed as one object, if any.
     :param changes: the function's other keyword arguments, each a :class:`RunOptions` field.

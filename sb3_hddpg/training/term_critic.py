@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.utils import polyak_update
 
 from sb3_hddpg.artifacts.limits import MAX_BATCH_SIZE
 from sb3_hddpg.artifacts.term_critic import TermCritic, TermCriticSpec
@@ -34,9 +35,8 @@ class TermCriticOptions:
     :param net_arch: hidden layer sizes.
     :param learning_rate: Adam's step size.
     :param tau: the target network's Polyak coefficient.
-    :param gamma: the discount of the values: one for every worker of a support, not each worker's own
-        (the snake's goal worker learns at 0.7, its avoid worker at 0.9), so that GPI and the support compare
-        values of one kind.
+    :param gamma: the discount of the values: one for every worker of a support, not each worker's own, so
+        that GPI and the support compare values of one kind.
     """
 
     steps: int | None = None
@@ -100,11 +100,7 @@ def fit_term_critic(
     """
     options = options or TermCriticOptions()
     spec = TermCriticSpec.for_spaces(
-        terms,
-        policy.observation_space,
-        policy.action_space,
-        options.net_arch,
-        options.gamma,
+        terms, policy.observation_space, policy.action_space, options.net_arch, options.gamma
     )
     generator = torch.Generator().manual_seed(seed)
     with torch.random.fork_rng():
@@ -136,9 +132,7 @@ def fit_term_critic(
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-        with torch.no_grad():
-            for p, p_target in zip(critic.parameters(), target.parameters()):
-                p_target.mul_(1.0 - options.tau).add_(options.tau * p)
+        polyak_update(critic.parameters(), target.parameters(), options.tau)
         loss_value = float(loss.detach())
     critic.eval()
     return critic, {"steps": steps, "transitions": len(transitions), "td_loss": loss_value}
@@ -149,15 +143,12 @@ def _td_loss(
 ) -> torch.Tensor:
     """The mean squared TD error over every term head of one batch."""
     rows = torch.arange(len(batch["obs"]))
+
+    def q(network: TermCritic, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        return network(obs)[rows, actions] if critic.spec.discrete else network(obs, actions)
+
     with torch.no_grad():
-        if critic.spec.discrete:
-            next_values = target(batch["next_obs"])[rows, batch["next_actions"]]
-        else:
-            next_values = target(batch["next_obs"], batch["next_actions"])
-        targets = batch["terms"] + gamma * batch["continues"] * next_values
-    values = (
-        critic(batch["obs"])[rows, batch["actions"]]
-        if critic.spec.discrete
-        else critic(batch["obs"], batch["actions"])
-    )
-    return torch.nn.functional.mse_loss(values, targets)
+        targets = batch["terms"] + gamma * batch["continues"] * q(
+            target, batch["next_obs"], batch["next_actions"]
+        )
+    return torch.nn.functional.mse_loss(q(critic, batch["obs"], batch["actions"]), targets)

@@ -5,6 +5,7 @@ half), and the workers manifest beside them.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -54,9 +55,7 @@ from sb3_hddpg.training.warm_start import WarmStart
 #: The algorithm of a worker no ``algos`` entry names: the paper's.
 DEFAULT_WORKER_ALGO = "ddpg"
 #: The snake arm's workers' algorithms where ``algos`` names none, chosen by the workers study
-#: (docs/WORKERS.md): DDPG for both, each with its bundled block's prior towards a hand-written controller
-#: (the IK reacher, the field avoider); the avoid worker's prior keeps it clear without the saturated
-#: joints that DDPG's avoid worker kept on about 80 % of its outputs without one, and clearer than SAC's.
+#: (docs/WORKERS.md): DDPG for both, each with its bundled block's prior towards a hand-written controller.
 SNAKE_WORKER_ALGOS = {"goal": "ddpg", "avoid": "ddpg"}
 
 
@@ -74,16 +73,14 @@ def worker_hyperparams(
     algos: Mapping[str, str] | None = None,
 ) -> dict[str, Hyperparams]:
     """
-    Check worker names and read each worker's config block, before anything is trained: a bad block for
-    the second worker should not surface after the first one has trained for an hour.
+    Check worker names and read each worker's config block, before anything is trained.
 
     :param workers: worker names among :data:`WORKER_ENV_IDS` (or ``env``'s terms), each at most once.
     :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
-    :param algos: worker name -> its algorithm (default: :func:`worker_algorithms`'s).
     :param env: another env with several objectives (default: the snake arm); a worker's block is the one
-        keyed ``<adapted env id>/<term>``, else the adapted env's id, else ``default``
-        (:meth:`~sb3_hddpg.envs.terms_env.TermsEnv.worker_config_keys`).
-    :return: name -> its parsed block; raises ``ValueError`` (``ConfigError`` for the file) naming the problem.
+        :meth:`~sb3_hddpg.envs.terms_env.TermsEnv.worker_config_keys` names.
+    :param algos: worker name -> its algorithm (default: :func:`worker_algorithms`'s).
+    :return: name -> its parsed block; raises ``ValueError`` naming the problem.
     """
     known = list(env.terms) if env is not None else sorted(WORKER_ENV_IDS)
     if isinstance(workers, str):
@@ -113,13 +110,8 @@ def worker_hyperparams(
 
 def parse_worker_algorithms(text: str, workers: Sequence[str], env: TermsEnv | None = None) -> dict[str, str]:
     """
-    Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps its default, see
-    :func:`worker_algorithms`), or one algorithm name for every worker (``crossq``).
-
-    :param text: the option's value.
-    :param workers: the workers being trained.
-    :param env: the env with several objectives they are trained on (``None``: the snake arm).
-    :return: worker name -> algorithm, checked by :func:`worker_algorithms`.
+    Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps its default), or one
+    algorithm name for every worker (``crossq``); checked by :func:`worker_algorithms`.
     """
     parts = [part.strip() for part in text.split(",") if part.strip()]
     if len(parts) == 1 and "=" not in parts[0]:
@@ -141,13 +133,8 @@ def worker_algorithms(
     workers: Sequence[str], algos: Mapping[str, str] | None = None, env: TermsEnv | None = None
 ) -> dict[str, str]:
     """
-    Each worker's algorithm: the one ``algos`` names, else on the snake arm :data:`SNAKE_WORKER_ALGOS`'s
-    and on another env DDPG (the paper's); checked against the algorithm records (a worker role).
-
-    :param workers: the worker names.
-    :param algos: worker name -> algorithm name (any case); a name not among ``workers`` is refused.
-    :param env: the env with several objectives the workers are trained on (``None``: the snake arm).
-    :return: worker name -> registry name.
+    Each worker's algorithm (its registry name): the one ``algos`` names, else on the snake arm
+    (``env=None``) :data:`SNAKE_WORKER_ALGOS`'s and on another env DDPG; refused if it cannot be a worker.
     """
     defaults = SNAKE_WORKER_ALGOS if env is None else {}
     algos = dict(algos or {})
@@ -168,13 +155,12 @@ def worker_algorithms(
 @dataclass(frozen=True)
 class PlannedWorker:
     """
-    One worker :func:`train_workers` is about to train: its reward, algorithm, config block and view.
+    One worker :func:`train_workers` is about to train.
 
     :param name: the worker's name (its term, or :func:`~sb3_hddpg.envs.weighted.weighted_name`'s).
     :param weights: term -> weight over their sum; a per-term worker's is its corner.
     :param algo: its algorithm's registry name.
-    :param hyperparams: its config block (a weighted worker's: the shared env's ``<env>/mix`` block, else the
-        env's, else ``default``).
+    :param hyperparams: its config block.
     :param env_id: the env id of its view.
     :param env_kwargs: that view's keyword arguments.
     """
@@ -206,15 +192,9 @@ def plan_workers(
     algos: Mapping[str, str] | None = None,
 ) -> list[PlannedWorker]:
     """
-    Check what :func:`train_workers` is asked to train, before anything is trained: per-term workers by
-    name and weighted workers by their weights (a corner weight is the per-term worker of its term).
+    Check what :func:`train_workers` is asked to train, before anything is trained (its arguments; a corner
+    weight is the per-term worker of its term).
 
-    :param workers: per-term worker names (``None``: every term, unless ``weights`` are given).
-    :param weights: weightings of the terms (term -> weight, finite, >= 0, positive sum), one worker each.
-    :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
-    :param env: another env with several objectives (default: the snake arm).
-    :param algos: worker name -> algorithm; a weighted worker not named takes its heaviest term's (so
-        that a support of DQN workers stays discrete).
     :return: the workers in order; raises ``ValueError`` naming the problem.
     """
     shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
@@ -288,39 +268,33 @@ def train_workers(
     **run_changes: object,
 ) -> WorkersResult:
     """
-    Train each named worker as a plain SB3 model (see :func:`worker_algorithms` for its algorithm) on its
-    own registered env id (paper Algorithm 1, first half), and a worker per weighting of the terms on the
-    weighted normalised sum (:mod:`sb3_hddpg.envs.weighted`), and write ``out_dir/workers/<name>.zip`` and
-    ``out_dir/workers/manifest.json`` (a weighted worker's entry records its ``reward_weights``).
+    Train each named worker as a plain SB3 model on its own reward (paper Algorithm 1, first half), and a
+    worker per weighting of the terms on their weighted normalised sum, and write
+    ``out_dir/workers/<name>.zip`` and ``out_dir/workers/manifest.json``.
 
     :param out_dir: the run folder.
     :param workers: worker names among :data:`WORKER_ENV_IDS`, or ``env``'s terms (``None``: all of them,
         unless ``weights`` are given: then only the weighted workers).
     :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
+    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`), the same for
+        every worker; ``resume`` keeps finished workers and continues interrupted ones.
+    :param on_worker_done: called after each worker with its outcome.
+    :param callback: more SB3 callbacks for every worker, as SB3's ``learn`` takes them.
+    :param env: another env with several objectives (:func:`~sb3_hddpg.envs.terms_env.terms_env`; default:
+        the snake arm): one worker per named term, on that term's view.
     :param algos: worker name -> its algorithm (e.g. ``{"goal": "crossq"}``; default: on the snake arm
         :data:`SNAKE_WORKER_ALGOS`, DDPG on another env; a weighted worker: its heaviest term's).
-    :param weights: weightings of the terms, one worker each (e.g. ``[{"goal": 0.7, "avoid": 0.3}]``): finite
-        weights >= 0 with a positive sum, kept over their sum; the worker reads the config block keyed
-        ``<env id>/mix``, else the env's (the snake arm: ``hddpg/SnakeReach-v0``), and is named by :func:`~sb3_hddpg.envs.weighted.weighted_name` (``mix-goal70-avoid30``).
+    :param weights: weightings of the terms, one worker each (e.g. ``[{"goal": 0.7, "avoid": 0.3}]``), named
+        by :func:`~sb3_hddpg.envs.weighted.weighted_name`; their config block is ``<env id>/mix``, else the
+        env's.
     :param term_critic: how each off-policy worker's per-term critic is trained on the transitions it
-        collected (:mod:`sb3_hddpg.training.term_critic`; stored in its zip, recorded as ``term_critic`` in
-        its entry); ``None``: no critic.
+        collected (:mod:`sb3_hddpg.training.term_critic`); ``None``: no critic.
     :param keep_transitions: also write each off-policy worker's transitions with their normalised terms
-        (``<name>.transitions.npz``, hashed in its entry): what ``grow`` warm-starts a neighbour with.
-    :param warm_starts: worker name -> what it starts from (:class:`~sb3_hddpg.training.warm_start.WarmStart`,
-        for a fresh start; a resumed worker continues from its checkpoint).
-    :param run: the run-control settings (:class:`~sb3_hddpg.training.run_options.RunOptions`): the same for every worker; ``timesteps`` is per worker, and ``resume`` keeps finished workers and continues interrupted ones.
+        (``<name>.transitions.npz``): what ``grow`` warm-starts a neighbour with.
+    :param warm_starts: worker name -> what it starts from, for a fresh start.
     :param resume_changes: with ``resume``, which of the run's ``algo``, ``seed`` and ``config`` may differ
-        on purpose (by default a difference is refused: the worker would continue with other settings and
-        be recorded with them while trained mostly with the old); the manifest records the new ones.
-    :param run_changes: :class:`~sb3_hddpg.training.run_options.RunOptions` fields as keywords (e.g.
-        ``seed=3``), over ``run``'s.
-    :param on_worker_done: called after each worker with its outcome.
-    :param callback: more SB3 callbacks for every worker, as SB3's ``learn`` takes them (e.g. progress
-        reporting).
-    :param env: another env with several objectives (:func:`~sb3_hddpg.envs.terms_env.terms_env`; default:
-        the snake arm): one worker per named term, each on that term's view; the manifest records the
-        shared env (``shared_env``) so that ``train_manager`` acts in it.
+        on purpose (by default a difference is refused).
+    :param run_changes: ``RunOptions`` fields as keywords, over ``run``'s.
     :return: the manifest written and the outcome of each worker trained.
     """
     run = run_options(run, run_changes, "train_workers")
@@ -329,16 +303,24 @@ def train_workers(
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
     manifest = _start_manifest(manifest_path, shared, env, planned, run.resume, (run.seed, resume_changes))
-    extras = _WorkerExtras(_shared_bounds(shared), callback, term_critic, keep_transitions)
+    with contextlib.closing(shared.make()) as probe:  # the bounds a worker's critic normalises by
+        bounds = dict(env_contract(probe).reward_bounds)
     outcomes: dict[str, TrainingOutcome] = {}
     for worker in planned:
-        name, hyperparams = worker.name, worker.hyperparams
-        budget = int(run.timesteps if run.timesteps is not None else hyperparams.n_timesteps)
+        name = worker.name
+        budget = int(run.timesteps if run.timesteps is not None else worker.hyperparams.n_timesteps)
         if run.resume and finished_with_budget(manifest.entries.get(name), budget):
             continue  # finished in an earlier run
         paths = AgentPaths(out_dir, name, out_dir / "workers" / f"{name}.zip")
         outcome, facts = _train_worker(
-            worker, paths, agent_run(run, paths, budget), extras, (warm_starts or {}).get(name)
+            worker,
+            paths,
+            agent_run(run, paths, budget),
+            (warm_starts or {}).get(name),
+            bounds,
+            callback,
+            term_critic,
+            keep_transitions,
         )
         outcomes[name] = outcome
         source = config_source(config, out_dir) if config else f"sb3_hddpg/zoo_configs/{worker.algo}.yml"
@@ -356,9 +338,8 @@ class WorkersResult:
     What :func:`train_workers` made.
 
     :param manifest: the workers' manifest written (its JSON), every worker of the folder in it.
-    :param manifest_path: where it was written (``out_dir/workers/manifest.json``, beside the workers' zips).
-    :param outcomes: worker name -> its training outcome, for the workers this call trained (one kept from
-        an earlier run on ``resume`` has none).
+    :param manifest_path: where it was written.
+    :param outcomes: worker name -> its training outcome, for the workers this call trained.
     """
 
     manifest: dict[str, Any]
@@ -366,36 +347,22 @@ class WorkersResult:
     outcomes: dict[str, TrainingOutcome]
 
 
-@dataclass(frozen=True)
-class _WorkerExtras:
-    """
-    What every worker of one ``train_workers`` call is trained with beside its own settings.
-
-    :param bounds: the shared env's per-term bounds (what a worker's critic normalises by).
-    :param callback: more SB3 callbacks for every worker.
-    :param term_critic: how each off-policy worker's per-term critic is trained (``None``: no critic).
-    :param keep_transitions: also write each off-policy worker's transitions with their normalised terms.
-    """
-
-    bounds: Mapping[str, tuple[float, float]]
-    callback: MaybeCallback
-    term_critic: TermCriticOptions | None
-    keep_transitions: bool
-
-
 def _train_worker(
     worker: PlannedWorker,
     paths: AgentPaths,
     run: RunOptions,
-    extras: _WorkerExtras,
     warm: WarmStart | None,
+    bounds: Mapping[str, tuple[float, float]],
+    callback: MaybeCallback,
+    term_critic: TermCriticOptions | None,
+    keep_transitions: bool,
 ) -> tuple[TrainingOutcome, dict[str, object]]:
     """
     Train one worker, recording the terms of its transitions where something needs them (its critic, its
     kept transitions), then its critic; return the outcome and the facts its entry records about them.
+
+    :param bounds: the shared env's per-term bounds; the other arguments are ``train_workers``'.
     """
-    bounds, callback = extras.bounds, extras.callback
-    term_critic, keep_transitions = extras.term_critic, extras.keep_transitions
     wanted = term_critic is not None or keep_transitions
     recorder = TermRecorder(bounds) if wanted and not REGISTRY[worker.algo].on_policy else None
     facts: dict[str, object] = {}
@@ -433,15 +400,6 @@ def _train_worker(
     return outcome, facts
 
 
-def _shared_bounds(shared: TermsEnv) -> dict[str, tuple[float, float]]:
-    """The shared env's per-term bounds, in term order (what a worker's critic normalises by)."""
-    probe = shared.make()
-    try:
-        return dict(env_contract(probe).reward_bounds)
-    finally:
-        probe.close()
-
-
 def _start_manifest(
     manifest_path: Path,
     shared: TermsEnv,
@@ -452,8 +410,7 @@ def _start_manifest(
 ) -> ModelsManifest:
     """
     The manifest the workers are added to: a new one, or on ``resume`` the earlier run's, refused in one line
-    when its env, or a worker's algorithm, seed or config block, differs from this run's (a worker is
-    continued only with what it was trained with).
+    when its env, or a worker's algorithm, seed or config block, differs from this run's.
 
     :param asked: the seed this run asks for, and what may differ on purpose.
     """
@@ -484,22 +441,18 @@ def _worker_entry(
     config_file: str,
     run: RunOptions,
     budget: int,
-    facts: Mapping[str, object] | None = None,
+    facts: Mapping[str, object],
 ) -> ModelEntry:
     """
     A trained worker's manifest entry, with the bounds of its reward (the manager normalises by them): a
-    per-term worker's raw term's, a weighted worker's [0, 1] (a convex mix of normalised terms) with its
-    weights.
+    per-term worker's raw term's, a weighted worker's [0, 1] (a convex mix of normalised terms).
 
     :param config_file: the config file its block was read from, as recorded.
     :param facts: what else it records (its critic, kept transitions, warm start).
     """
     if worker.term is not None:
-        probe = make_term_view(worker.env_id, worker.env_kwargs, worker.term)
-        try:
+        with contextlib.closing(make_term_view(worker.env_id, worker.env_kwargs, worker.term)) as probe:
             bounds = env_contract(probe).reward_bounds[worker.term]
-        finally:
-            probe.close()
         reward: dict[str, object] = {"reward_term": worker.term, "reward_bounds": list(bounds)}
     else:
         reward = {"reward_weights": dict(worker.weights), "reward_bounds": [0.0, 1.0]}
@@ -513,7 +466,7 @@ def _worker_entry(
         run.seed,
         budget,
         **reward,
-        **dict(facts or {}),
+        **facts,
         stopped_early=outcome.stopped_early,
         threads=run.threads,
     )
