@@ -1,16 +1,11 @@
 """
 ``Hierarchy``: a trained manager with its workers, as one verifiable bundle that acts like an SB3 model.
 
-A bundle (``hierarchy.zip``) holds ``manager.zip``, one member per worker (an SB3 zip, or a nested
-bundle), and ``manifest.json``: schema version, env id and kwargs, worker names with their reward
-terms and bounds, preferences, selection mode, temperature and floor, option steps, state selections,
-library versions, each SB3 model's rebuild spec, and the sha256 of every member.
-:meth:`Hierarchy.load` verifies every hash before using anything, and by default rebuilds each model from
-the manifest's JSON spec and loads only its tensors (``weights_only=True``): opening someone else's
-bundle runs none of their code. ``trusted=True`` uses SB3's full loader instead.
-
-A loaded ``Hierarchy`` is a valid worker of a higher :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper`
-(paper design specification 3), and such a two-level hierarchy saves and loads as one bundle.
+A bundle (``hierarchy.zip``) holds ``manager.zip``, one member per worker (an SB3 zip or a nested bundle)
+and ``manifest.json`` (env, selection settings, library versions, each model's rebuild spec and every
+member's sha256). :meth:`Hierarchy.load` verifies every hash first and by default rebuilds each model from
+its JSON spec with tensors only, so opening someone else's bundle runs none of their code. A ``Hierarchy``
+can itself be a worker one level up (paper design specification 3), and saves and loads as one bundle.
 """
 
 from __future__ import annotations
@@ -30,10 +25,7 @@ from stable_baselines3.common.utils import check_for_correct_spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from sb3_hddpg.artifacts.io import atomic_write
-from sb3_hddpg.artifacts.limits import (
-    LoadBudget,
-    brief,
-)
+from sb3_hddpg.artifacts.limits import LoadBudget, brief
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes
 from sb3_hddpg.artifacts.records import bundle_manifest
 from sb3_hddpg.artifacts.spec import model_spec
@@ -64,13 +56,7 @@ from sb3_hddpg.hierarchy.fit import (
     training_env,
 )
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
-from sb3_hddpg.hierarchy.gpi import (
-    GPI_SELECTION,
-    GpiSelector,
-    check_gpi_manager,
-    check_gpi_preference,
-    gpi_of,
-)
+from sb3_hddpg.hierarchy.gpi import GPI_SELECTION, check_gpi_manager, check_gpi_preference, gpi_of
 from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.options import OptionState
 from sb3_hddpg.hierarchy.selection import SelectionConfig, SimplexMap, check_preferences, get_selector
@@ -119,7 +105,6 @@ class Hierarchy:
         self.workers = dict(workers)
         self.names = list(self.workers)
         config = selection_config_of(manager, workers, config)
-        self.config = config
         self.critics = dict(critics if critics is not None else getattr(workers, "critics", {}))  # GPI's
         check_gpi_manager(manager, config.selection)
         if env_id is None:
@@ -150,14 +135,14 @@ class Hierarchy:
         )
         self._preference_obs: np.ndarray | None = None
         if self.preference_space is not None:
-            self.config = config = replace(
-                config, preferences=self.preference_space.check(config.preferences)
-            )
+            config = replace(config, preferences=self.preference_space.check(config.preferences))
             self._preference_obs = self.preference_space.weights(config.preferences).astype(np.float32)
         self._manager_input = manager_input_of(config, self.observation_space, layout, len(self.names))
         # The manager's input is built here (its state, motion and weights), so its frozen copy sees it all.
         self._manager = FrozenWorker(manager) if manager is not None else None
-        self._gpi, config = _with_gpi(manager, self._frozen, self.critics, config, self.names)
+        self._gpi = gpi_of(self._frozen, self.critics, self.names) if manager is None else None
+        if self._gpi is not None:
+            config = replace(config, preferences=check_gpi_preference(config.preferences, self._gpi.terms))
         self.config = config
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
         self._selector = get_selector(config.selection) if manager is not None else None
@@ -358,42 +343,33 @@ class Hierarchy:
                     worker.reset_episode()
 
     def _act(self, obs: np.ndarray, deterministic: bool, state: OptionState, env: int) -> np.ndarray:
-        if self._gpi is not None:
-            return self._act_gpi(obs, state, env)
-        assert self._manager is not None and self._selector is not None  # every other mode has both
-        band = self._band(obs) if self._band is not None else None
-        self.last_decided = state.left[env] <= 0 or band != state.band[env]
-        if self.last_decided:
-            state.band[env] = band
-            state.manager_action[env] = self._manager.act(self._manager_obs(obs, state.previous[env]))
-            probabilities = np.asarray(self._selector.probabilities(self.simplex, state.manager_action[env]))
-            state.probabilities[env] = probabilities
-            state.choice[env] = self._selector.choose(probabilities, self._rng, deterministic)
-            state.left[env] = self.config.option_steps
-        state.left[env] -= 1
-        if self._manager_input.motion:
-            state.previous[env] = obs.copy()
-        probabilities, chosen = state.probabilities[env], int(state.choice[env])
-        self.last_manager_action = state.manager_action[env]
-        self.last_selection = self.names[chosen]
-        self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
         for index, nested in state.workers[env].items():
             self._frozen[index].state = nested
-        action = np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs))
+        if self._gpi is not None:  # GPI decides anew at every step
+            chosen, action = self._gpi.select(obs, self.config.preferences)
+            state.choice[env] = chosen
+            state.probabilities[env] = np.eye(len(self.names))[chosen]
+            self.last_decided = True
+        else:
+            assert self._manager is not None and self._selector is not None  # every other mode has both
+            band = self._band(obs) if self._band is not None else None
+            self.last_decided = state.left[env] <= 0 or band != state.band[env]
+            if self.last_decided:
+                state.band[env] = band
+                state.manager_action[env] = self._manager.act(self._manager_obs(obs, state.previous[env]))
+                probabilities = self._selector.probabilities(self.simplex, state.manager_action[env])
+                state.probabilities[env] = probabilities
+                state.choice[env] = self._selector.choose(probabilities, self._rng, deterministic)
+                state.left[env] = self.config.option_steps
+            state.left[env] -= 1
+            if self._manager_input.motion:
+                state.previous[env] = obs.copy()
+            chosen = int(state.choice[env])
+            self.last_manager_action = state.manager_action[env]
+            action = np.asarray(self._selector.act(state.probabilities[env], chosen, self._frozen, obs))
+        self.last_selection = self.names[chosen]
+        self.last_probabilities = dict(zip(self.names, state.probabilities[env].tolist()))
         # A discrete worker's action stays an index; a continuous one is the float32 of the env's Box.
-        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
-
-    def _act_gpi(self, obs: np.ndarray, state: OptionState, env: int) -> np.ndarray:
-        """GPI's action for one observation of env ``env`` at the current preference: every step decides anew."""
-        assert self._gpi is not None
-        for index, nested in state.workers[env].items():
-            self._frozen[index].state = nested
-        chosen, action = self._gpi.select(obs, self.config.preferences)
-        state.choice[env] = chosen
-        state.probabilities[env] = np.eye(len(self.names))[chosen]
-        self.last_decided = True
-        self.last_selection = self.names[chosen]
-        self.last_probabilities = {name: float(i == chosen) for i, name in enumerate(self.names)}
         return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
@@ -544,20 +520,6 @@ class Hierarchy:
         return hierarchy
 
 
-def _with_gpi(
-    manager: object | None,
-    frozen: list[FrozenWorker],
-    critics: Mapping[str, TermCritic],
-    config: SelectionConfig,
-    names: list[str],
-) -> tuple[GpiSelector | None, SelectionConfig]:
-    """A hierarchy's GPI selector (``None`` with a manager) and its settings with the preference checked."""
-    if manager is not None:
-        return None, config
-    gpi = gpi_of(frozen, critics, names)
-    return gpi, replace(config, preferences=check_gpi_preference(config.preferences, gpi.terms))
-
-
 def infer_env(manager: object, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
     """
     The env a hierarchy acts in, read from its models: the manager's training env (the env under its
@@ -570,18 +532,12 @@ def infer_env(manager: object, workers: Mapping[str, Policy]) -> tuple[str, dict
     :return: ``(env_id, env_kwargs)`` (kwargs beyond the registered ones), or ``None`` when the models do not
         tell or the workers disagree.
     """
-    found = _training_env(manager)
+
+    def env_of(model: object) -> tuple[str, dict[str, Any]] | None:
+        return (model.env_id, dict(model.env_kwargs)) if isinstance(model, Hierarchy) else training_env(model)
+
+    found = env_of(manager)
     if found is not None:
         return found
-    named = [_training_env(worker) for worker in workers.values()]
-    known = [env for env in named if env is not None]
-    if known and all(env == known[0] for env in known):
-        return known[0]
-    return None
-
-
-def _training_env(model: object) -> tuple[str, dict[str, Any]] | None:
-    """``(env_id, env_kwargs)`` of a model's training env (a hierarchy's own env), if it still has one."""
-    if isinstance(model, Hierarchy):
-        return model.env_id, dict(model.env_kwargs)
-    return training_env(model)
+    known = [env for env in map(env_of, workers.values()) if env is not None]
+    return known[0] if known and all(env == known[0] for env in known) else None

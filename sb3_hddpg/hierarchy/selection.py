@@ -1,17 +1,14 @@
 """
-How a manager's action selects workers: the simplex map, the selection settings (:class:`SelectionConfig`), one
-:class:`Selector` per selection mode registered by name, and the preference factors
-(the frozen workers they select are in :mod:`~sb3_hddpg.hierarchy.frozen`).
-
-Shared by :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` (training the manager) and
-:class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` (running a trained one), so both select identically.
+How a manager's action selects workers: the simplex map, one :class:`Selector` per registered mode, the
+selection settings (:class:`SelectionConfig`) and the preference factors; shared by the training wrapper and
+the loaded ``Hierarchy``, so that both select identically.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -40,8 +37,7 @@ class SimplexMap:
     Because ``a`` is bounded, the softmax cannot saturate: with ``n`` workers the largest probability is
     at most ``e^(2/T) / (e^(2/T) + n - 1)`` (0.98 for two workers at the default ``T = 0.5``), and the
     floor keeps every worker selectable, so sampling keeps exploring and the manager's gradient through
-    the critic never vanishes at a corner. Uniform warm-up actions give well-spread probabilities.
-    Actions outside ``[-1, 1]`` (SB3 clips noisy actions, but a user may not) are clipped first.
+    the critic never vanishes at a corner. Actions outside ``[-1, 1]`` are clipped first.
 
     :param n_workers: number of workers, at least 2.
     :param temperature: softmax temperature, > 0; lower is sharper.
@@ -65,15 +61,8 @@ class SimplexMap:
     def __call__(self, action: np.ndarray) -> np.ndarray:
         """Probabilities for an action of shape ``(n,)`` or ``(batch, n)``; rows sum to 1."""
         action = np.asarray(action, dtype=np.float64)
-        if action.ndim == 1:
-            return np.array(self.single(action.tolist()))
-        logits = np.clip(action, -1.0, 1.0) / self.temperature
-        if not np.all(np.isfinite(logits)):
-            raise ValueError(f"Expected a finite manager action, actually: {action.tolist()}")
-        weights = np.exp(logits - logits.max(axis=-1, keepdims=True))
-        return self.floor + (1.0 - self.n_workers * self.floor) * weights / weights.sum(
-            axis=-1, keepdims=True
-        )
+        rows = [self.single(row) for row in action.reshape(-1, action.shape[-1]).tolist()]
+        return np.array(rows).reshape(action.shape)
 
     def single(self, action: list[float]) -> list[float]:
         """The same map for one action given as a list: plain Python, several times faster for a few workers."""
@@ -95,12 +84,8 @@ Probabilities = Sequence[float] | np.ndarray
 
 def check_probabilities(probabilities: Probabilities, n_workers: int) -> None:
     """
-    The one check of what any selector made of a manager's action, before a worker acts on it: one
-    finite, non-negative probability per worker, summing to 1 within :data:`SIMPLEX_TOLERANCE`.
-
-    :param probabilities: a selector's :meth:`Selector.probabilities`.
-    :param n_workers: the workers there are.
-    :raises ValueError: naming the shape or the sum.
+    Check a selector's probabilities before a worker acts on them: one finite probability >= 0 per worker,
+    summing to 1 within :data:`SIMPLEX_TOLERANCE` (a ``ValueError`` naming the shape or the sum otherwise).
     """
     values = np.asarray(probabilities, dtype=np.float64)
     if values.shape != (n_workers,):
@@ -117,15 +102,9 @@ def check_probabilities(probabilities: Probabilities, n_workers: int) -> None:
 
 def most_probable(probabilities: Probabilities, rng: np.random.Generator) -> int:
     """
-    The index of the most probable worker; an exact tie is broken at random with ``rng``, never by position.
-
-    A manager whose actor saturates at ``(+1, +1)`` gives its two workers 0.5 each: it states no preference,
-    and running the first-listed worker on every step would pass that indecision off as a choice of that
-    worker (and make a manager's worker order change its score). Only a tie draws from ``rng``, so seeded
-    runs stay reproducible and untied choices never consume randomness.
-
-    :param probabilities: shape ``(n,)``.
-    :param rng: the caller's generator (the wrapper's or the hierarchy's own, never the env's).
+    The index of the most probable worker; an exact tie is drawn from ``rng``, never broken by position (a
+    saturated manager's 0.5/0.5 states no preference, and the worker order must not decide). Only a tie draws,
+    so untied choices consume no randomness.
     """
     top = max(probabilities)
     tied = [index for index, p in enumerate(probabilities) if p == top]
@@ -135,11 +114,8 @@ def most_probable(probabilities: Probabilities, rng: np.random.Generator) -> int
 class Selector:
     """
     One selection mode: which worker a probability vector chooses, and what the env receives. The base class
-    is the ``argmax`` behaviour (the most probable worker acts alone, an exact tie broken at random: see
-    :func:`most_probable`); a mode overrides what differs.
-
-    A new mode is one subclass with a ``name``, decorated with :func:`register_selector`: the wrapper, the
-    bundle, the CLI's ``--selection``, the file checks and the tuner's search space all read the registry.
+    is ``argmax`` (see :func:`most_probable`). A new mode is a subclass with a ``name`` decorated with
+    :func:`register_selector`: the wrapper, bundles, the CLI and the tuner all read the registry.
     """
 
     #: The mode's name, as given to ``selection=`` and stored in bundles.
@@ -150,46 +126,23 @@ class Selector:
         return gym.spaces.Box(-1.0, 1.0, (n_workers,), dtype=np.float32)
 
     def probabilities(self, simplex: SimplexMap, action: object) -> list[float]:
-        """
-        The worker probabilities of one manager action.
-
-        :param simplex: the map of a Box action onto the simplex (temperature and floor).
-        :param action: the manager's action for one observation.
-        """
+        """The worker probabilities of one manager action, through ``simplex``."""
         shape = np.shape(action)  # type: ignore[call-overload]
         if shape != (simplex.n_workers,):
             raise ValueError(
                 f"Expected a manager action of shape ({simplex.n_workers},), one value per worker, actually: "
                 f"shape {shape}"
             )
-        values = (
-            action.tolist()
-            if isinstance(action, np.ndarray)
-            else np.asarray(action, dtype=np.float64).tolist()
-        )
-        return simplex.single(values)
+        return simplex.single(np.asarray(action, dtype=np.float64).tolist())
 
     def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
-        """
-        The index of the worker to run (and to report) for one probability vector.
-
-        :param probabilities: shape ``(n,)``, summing to 1.
-        :param rng: the generator to draw with (the wrapper's or the hierarchy's own, never the env's).
-        :param deterministic: the caller asks for no sampling (an exact tie is still drawn from ``rng``).
-        """
+        """The index of the worker to run (and report); ``rng`` is the caller's own, never the env's."""
         return most_probable(probabilities, rng)
 
     def act(
         self, probabilities: Probabilities, chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
     ) -> np.ndarray:
-        """
-        The env action for one observation.
-
-        :param probabilities: the worker probabilities.
-        :param chosen: what :meth:`choose` returned.
-        :param workers: the frozen workers, in the manager's action order.
-        :param obs: the shared state.
-        """
+        """The env action for the shared state ``obs``, ``chosen`` being what :meth:`choose` returned."""
         return workers[chosen].act(obs)
 
 
@@ -338,8 +291,6 @@ def preferences_from_bias(
     """
     if prefer is not None and prefer not in names:
         raise ValueError(f"Unknown worker {prefer!r} to prefer; workers: {names}")
-    # A preference raises the preferred worker's factor (the paper's 15 %); no preference is ``prefer=None``,
-    # and any other factors (a smaller one too) are given explicitly as ``preferences``.
     if (
         isinstance(bias, bool)
         or not isinstance(bias, (int, float))
@@ -357,15 +308,16 @@ def parse_preferences(text: str) -> dict[str, float]:
     result: dict[str, float] = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
         name, sep, value = part.partition("=")
-        if not sep or not name.strip():
+        name = name.strip()
+        if not sep or not name:
             raise ValueError(f"Expected NAME=VALUE pairs separated by commas, got {part!r} in {text!r}")
         try:
             number = float(value)
         except ValueError:
-            raise ValueError(f"Expected a number for preference {name.strip()!r}, got {value!r}") from None
-        if name.strip() in result:
-            raise ValueError(f"Preference {name.strip()!r} given twice in {text!r}")
-        result[name.strip()] = number
+            raise ValueError(f"Expected a number for preference {name!r}, got {value!r}") from None
+        if name in result:
+            raise ValueError(f"Preference {name!r} given twice in {text!r}")
+        result[name] = number
     if not result:
         raise ValueError(f"No preferences in {text!r}")
     return result
@@ -408,20 +360,7 @@ def check_preferences(
 
 
 #: The keys of a bundle's selection settings.
-SELECTION_SETTINGS = (
-    "preferences",
-    "selection",
-    "option_steps",
-    "temperature",
-    "floor",
-    "reward_terms",
-    "manager_state",
-    "worker_states",
-    "option_gamma",
-    "manager_preferences",
-    "option_end",
-    "manager_motion",
-)
+SELECTION_SETTINGS = tuple(f.name for f in fields(SelectionConfig))
 
 
 def check_selection_settings(selection: object, names: Sequence[str], what: str) -> dict[str, Any]:
@@ -457,7 +396,11 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
     state = out.get("manager_state")
     if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
         raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
-    _check_recorded_rules(out, what)
+    recorded = out.get("manager_preferences")  # read by PreferenceSpace.from_json
+    if recorded is not None and not isinstance(recorded, Mapping):
+        raise LimitError(f"{what}.manager_preferences: expected a mapping, got {brief(recorded)}")
+    if out.get("option_end") is not None:
+        out["option_end"] = OptionEnd.from_json(out["option_end"], f"{what}.option_end").to_json()
     return out
 
 
@@ -476,7 +419,7 @@ def _check_numbers(out: Mapping[str, Any], n_workers: int, what: str) -> None:
     }
     for key, (low, high, low_open) in ranges.items():
         if key in out:
-            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open)
+            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open=low_open)
 
 
 def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: str) -> None:
@@ -533,22 +476,15 @@ def check_reward_terms(
                 )
 
 
-def _check_recorded_rules(out: dict[str, Any], what: str) -> None:
-    """A bundle's conditioned-manager preferences (a mapping, read by ``PreferenceSpace``) and option end."""
-    recorded = out.get("manager_preferences")
-    if recorded is not None and not isinstance(recorded, Mapping):
-        raise LimitError(f"{what}.manager_preferences: expected a mapping, got {brief(recorded)}")
-    if out.get("option_end") is not None:
-        out["option_end"] = OptionEnd.from_json(out["option_end"], f"{what}.option_end").to_json()
-
-
-def _check_number_in_range(value: object, what: str, low: float, high: float, low_open: bool) -> None:
-    """A finite number in ``[low, high]`` (``(low, high]`` when ``low_open``), else a ``LimitError``."""
+def _check_number_in_range(
+    value: object, what: str, low: float, high: float, low_open: bool = False, high_open: bool = False
+) -> None:
+    """A finite number from ``low`` to ``high`` (each end open or closed), else a ``LimitError``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise LimitError(f"{what}: expected a finite number, got {brief(value)}")
-    if value < low or value > high or (low_open and value == low):
-        bracket = "(" if low_open else "["
-        raise LimitError(f"{what}: expected a number in {bracket}{low}, {high}], got {value!r}")
+    if value < low or value > high or (low_open and value == low) or (high_open and value == high):
+        bracket = ("(" if low_open else "[") + f"{low:g}, {high:g}" + (")" if high_open else "]")
+        raise LimitError(f"{what}: expected a number in {bracket}, got {value!r}")
 
 
 def _check_preference_factors(preferences: object, names: Sequence[str], what: str) -> None:
@@ -556,8 +492,7 @@ def _check_preference_factors(preferences: object, names: Sequence[str], what: s
     if not isinstance(preferences, Mapping) or set(preferences) - set(names):
         raise LimitError(f"{what}: expected worker name -> factor, got {brief(preferences)}")
     for name, value in preferences.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e6:
-            raise LimitError(f"{what}.{name}: expected a finite number > 0, got {brief(value)}")
+        _check_number_in_range(value, f"{what}.{name}", 0.0, 1e6, low_open=True, high_open=True)
 
 
 def _check_term_weights(weights: object, what: str) -> None:
@@ -566,5 +501,4 @@ def _check_term_weights(weights: object, what: str) -> None:
         raise LimitError(f"{what}: expected term name -> weight, got {brief(weights)}")
     for name, value in weights.items():
         check_name(name, what)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1e6:
-            raise LimitError(f"{what}.{name}: expected a finite number >= 0, got {brief(value)}")
+        _check_number_in_range(value, f"{what}.{name}", 0.0, 1e6, high_open=True)
