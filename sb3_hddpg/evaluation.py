@@ -31,10 +31,7 @@ DEPENDENCE_WORKER = "avoid"
 
 
 class EvaluationSummary(dict[str, Any]):
-    """
-    The means of an evaluation: a plain dict for programs (JSON-ready; rates as fractions), printed as a
-    table in words with units (rates as percentages; see :mod:`sb3_hddpg.metric_labels`).
-    """
+    """The means of an evaluation: a JSON-ready dict (rates as fractions), printed as a table with units."""
 
     def __str__(self) -> str:
         rows = summary_rows(self)
@@ -54,10 +51,7 @@ class EvaluationResult:
     clear_clearance: float | None = None
 
     def summary(self) -> EvaluationSummary:
-        """
-        Means (and the reward's std) over episodes, plus how often each worker acted, as a fraction; a
-        dict that prints as a readable table.
-        """
+        """Means (and the reward's std) over episodes, and how often each worker acted, as a fraction."""
         eps = self.episodes
         rewards = np.array([e.reward for e in eps])
         out: dict[str, Any] = {
@@ -119,36 +113,27 @@ def evaluate(
     """
     Run ``policy`` for ``n_episodes`` on ``env``, resetting episode ``k`` with seed ``seed + k``.
 
-    The env must meet the env contract (:mod:`sb3_hddpg.envs.contract`): per-term sums and the normalised
-    total are measured on any such env; the snake env's touch, collision and clearance metrics only where
-    the env reports ``goal_touched``, ``collision`` and ``min_clearance`` in ``info``. A :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` also reports the worker it
-    ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` its ``last_selection``: both are
-    counted, each also by the state it was made in: with the nearest obstacle within ``near_clearance``
-    (the ``min_clearance`` of the observation the policy acted on), or with none within ``clear_clearance``
-    (see :func:`state_dependence`). The policy must act in ``env``'s action space.
+    The env meets the env contract (:mod:`sb3_hddpg.envs.contract`): per-term sums and the normalised total
+    are measured on any such env, touches, collisions and clearance where ``info`` reports them. The worker a
+    hierarchy or a manager's wrapper chose is counted, also by the state it chose in: nearest obstacle within
+    ``near_clearance``, or none within ``clear_clearance`` (see :func:`state_dependence`).
 
     :param policy: anything with SB3's ``predict``.
-    :param env: an environment, time-limited (default, for a policy that knows its env such as a
-        :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`: one from its ``make_env()``, closed afterwards); or
-        a VecEnv of such envs (a ``DummyVecEnv`` or a ``SubprocVecEnv``, also under VecEnv wrappers), which
-        runs ``num_envs`` episodes at a time, each env of a round reset with its episode's seed, ``predict``
-        given the batch with its ``state`` and ``episode_start`` (a hierarchy keeps an option per env). What
-        the env declares (reward terms, proximity) is read with ``get_attr``; ``on_step`` needs the env
-        objects, so only a ``DummyVecEnv`` takes it. Episodes and seeds are those of a single env; the summed
-        reward differs from it only by the float32 a VecEnv stores rewards in.
-    :param n_episodes: how many episodes, in ``limits.COUNTS["episodes"]`` (1 to 10,000; a ``ValueError``
-        naming ``n_episodes`` otherwise).
+    :param env: a time-limited env (default, for a policy with ``make_env()`` such as a ``Hierarchy``: its
+        own, closed afterwards); or a VecEnv of such envs, which runs ``num_envs`` episodes at a time with the
+        same seeds, ``predict`` given the batch with its ``state`` and ``episode_start``.
+    :param n_episodes: how many episodes, 1 to 10,000.
     :param seed: the first episode's seed.
     :param deterministic: passed to ``predict``.
-    :param on_step: called after every step with the env and its ``info`` (for recording).
+    :param on_step: called after every step with the env and its ``info`` (for recording; of a VecEnv only
+        a ``DummyVecEnv``).
     :param near_clearance: a choice counts as "near an obstacle" at a clearance <= this (default: half the
         ``sensor_range`` of the env's declared :class:`~sb3_hddpg.envs.contract.Proximity`; an env that
-        declares none has its choices not split by state, and refuses a band given here).
+        declares none refuses a band).
     :param clear_clearance: a choice counts as "no obstacle in range" at a clearance >= this (default: the
-        env's ``sensor_range``: every proximity sensor reads its maximum).
+        env's ``sensor_range``).
     :return: per-episode metrics.
     """
-    # the same bound as the CLI's --episodes, from the one table of counts (a LimitError is a ValueError)
     check_count("episodes", n_episodes, "n_episodes")
     if env is None:
         make_env = getattr(policy, "make_env", None)
@@ -216,7 +201,8 @@ def _evaluate_vec_env(
     clear_clearance: float | None,
 ) -> EvaluationResult:
     """:func:`~sb3_hddpg.evaluation.evaluate` on a VecEnv: episode ``k`` with seed ``seed + k``."""
-    envs = _in_process_envs(vec_env)
+    inner = vec_env.unwrapped
+    envs = list(inner.envs) if isinstance(inner, DummyVecEnv) else None  # None: envs in other processes
     if on_step is not None and envs is None:
         raise ValueError(
             f"evaluate(): `on_step` is given the env that stepped, which a {type(vec_env.unwrapped).__name__} runs in "
@@ -262,11 +248,8 @@ def _evaluate_vec_env(
 
 def _declared_terms(vec_env: VecEnv) -> tuple[TermNormaliser, Proximity | None, str]:
     """
-    What the first env of ``vec_env`` declares of the env contract (:mod:`sb3_hddpg.envs.contract`): its
-    reward terms' normaliser, its proximity (``None``: none) and its name. Asked through ``get_attr``, which
-    reaches envs in other processes too, so that only these picklable values cross.
-
-    :raises ValueError: one line, when the envs do not declare their reward terms.
+    The first env's reward terms' normaliser, proximity (``None``: none) and name, asked through ``get_attr``
+    (which reaches envs in other processes); a one-line ``ValueError`` for envs that declare no terms.
     """
     spec = vec_env.get_attr("spec", [0])[0]
     name = repr(spec.id) if spec is not None else "the VecEnv's first env"
@@ -280,12 +263,6 @@ def _declared_terms(vec_env: VecEnv) -> tuple[TermNormaliser, Proximity | None, 
     return normaliser, proximity if isinstance(proximity, Proximity) else None, name
 
 
-def _in_process_envs(vec_env: VecEnv) -> list[gym.Env] | None:
-    """The envs of a ``DummyVecEnv`` (under any VecEnv wrappers); ``None`` for envs in other processes."""
-    inner = vec_env.unwrapped
-    return list(inner.envs) if isinstance(inner, DummyVecEnv) else None
-
-
 def clearance_bands(
     env: gym.Env, near: float | None, clear: float | None
 ) -> tuple[float | None, float | None]:
@@ -297,7 +274,8 @@ def clearance_bands(
     :raises ValueError: a band that is negative or not finite, ``near > clear``, or a band given for an env
         without the proximity capability (it would count no choice at all, silently).
     """
-    return _bands_of(proximity_of(env), _env_name(env), near, clear)
+    spec = env.unwrapped.spec
+    return _bands_of(proximity_of(env), repr(spec.id) if spec else type(env.unwrapped).__name__, near, clear)
 
 
 def _bands_of(
@@ -314,21 +292,14 @@ def _bands_of(
                 "`proximity` with a sensor range, no info['min_clearance']; see sb3_hddpg.envs.contract)"
             )
         return None, None
-    if near is None:
-        near = 0.5 * proximity.sensor_range
-    if clear is None:
-        clear = proximity.sensor_range
+    near = 0.5 * proximity.sensor_range if near is None else near
+    clear = proximity.sensor_range if clear is None else clear
     for name, value in (("near_clearance", near), ("clear_clearance", clear)):
-        if value is not None and not (math.isfinite(value) and value >= 0):
+        if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"Expected `{name}` to be a finite number >= 0, actually: {value}")
-    if near is not None and clear is not None and near > clear:
+    if near > clear:
         raise ValueError(f"Expected `near_clearance` <= `clear_clearance`, actually: {near} > {clear}")
     return near, clear
-
-
-def _env_name(env: gym.Env) -> str:
-    spec = env.unwrapped.spec
-    return repr(spec.id) if spec is not None else type(env.unwrapped).__name__
 
 
 def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -> dict[str, Any] | None:
@@ -385,23 +356,17 @@ def dependence_rows(figure: dict[str, Any], worker: str) -> list[tuple[str, str,
     A :func:`state_dependence` figure as rows of quantity, value and unit: ``worker``'s share of the choices
     near an obstacle and with none in range (each with the number of choices it is out of), and their ratio.
     """
-
-    def share(value: float | None, choices: int) -> str:
-        return f"{value:.1%} of {choices}" if value is not None else "- (0 choices)"
-
-    return [
-        (
-            f"{worker} share, clearance <= {figure['near_clearance']:.3g}",
-            share(figure["near_share"], figure["near_choices"]),
-            "of choices",
-        ),
-        (
-            f"{worker} share, clearance >= {figure['clear_clearance']:.3g} (none in range)",
-            share(figure["clear_share"], figure["clear_choices"]),
-            "of choices",
-        ),
-        (f"{worker} share ratio near / none in range", dependence_ratio_text(figure), "ratio"),
-    ]
+    rows = []
+    for band, sign, note in (("near", "<=", ""), ("clear", ">=", " (none in range)")):
+        share, choices = figure[f"{band}_share"], figure[f"{band}_choices"]
+        rows.append(
+            (
+                f"{worker} share, clearance {sign} {figure[f'{band}_clearance']:.3g}{note}",
+                f"{share:.1%} of {choices}" if share is not None else "- (0 choices)",
+                "of choices",
+            )
+        )
+    return [*rows, (f"{worker} share ratio near / none in range", dependence_ratio_text(figure), "ratio")]
 
 
 @dataclass(frozen=True)
@@ -409,11 +374,6 @@ class SummariesTable:
     """
     Evaluation summaries as a table of text, one row per agent, each column in one unit (named in the
     caption, so that the table fits an 80-column terminal); the CLI draws it.
-
-    :param title: the table's title.
-    :param caption: the units of the columns.
-    :param columns: the column headers after the agent's.
-    :param rows: per agent, its name and one text per column.
     """
 
     title: str
