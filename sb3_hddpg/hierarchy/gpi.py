@@ -3,9 +3,8 @@ Generalized policy improvement (GPI; Barreto et al. 2017, "Successor features fo
 for a weighting ``w`` of the reward terms with the workers' per-term critics, without training a manager.
 
 For continuous-action workers the worker ``i`` maximising ``w . Q_i(s, pi_i(s))`` acts; for discrete-action
-workers the action ``argmax_a max_i w . Q_i(s, a)`` is taken (GPI over actions). For every ``w`` the result
-is at least as good as each worker alone, up to the critics' errors. :class:`GpiSelector` is the one
-implementation; :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` uses it for ``selection="gpi"``.
+workers the action ``argmax_a max_i w . Q_i(s, a)`` is taken. For every ``w`` the result is at least as good
+as each worker alone, up to the critics' errors; ``Hierarchy`` uses it for ``selection="gpi"``.
 """
 
 from __future__ import annotations
@@ -68,16 +67,12 @@ class GpiSelector:
         self.terms = tuple(terms)
         self.discrete = critics[0].spec.discrete
 
-    def weights(self, preference: Mapping[str, float]) -> np.ndarray:
-        """The preference as a vector over :attr:`terms` (a term not named weighs 0)."""
-        return np.array([float(preference.get(term, 0.0)) for term in self.terms], dtype=np.float32)
-
     def scores(self, obs: np.ndarray, preference: Mapping[str, float]) -> tuple[np.ndarray, list[np.ndarray]]:
         """
         ``w . Q_i`` of every worker for one observation: shape ``(n_workers,)`` for continuous workers (of
         each one's own action), ``(n_workers, n_actions)`` for discrete ones; and each worker's own action.
         """
-        w = self.weights(preference)
+        w = np.array([float(preference.get(term, 0.0)) for term in self.terms], dtype=np.float32)
         actions = [worker.act(obs) for worker in self.workers]
         rows = []
         for worker, critic, action in zip(self.workers, self.critics, actions):
@@ -114,11 +109,7 @@ def check_gpi_preference(preference: Mapping[str, object], terms: Sequence[str])
 def gpi_of(
     workers: Sequence[FrozenWorker], critics: Mapping[str, TermCritic], names: Sequence[str]
 ) -> GpiSelector:
-    """
-    The GPI selector over named workers and their critics.
-
-    :raises ValueError: naming the workers without a per-term critic.
-    """
+    """The GPI selector over named workers and their critics (a ``ValueError`` naming any without one)."""
     missing = [name for name in names if name not in critics]
     if missing:
         raise ValueError(

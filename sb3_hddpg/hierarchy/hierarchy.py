@@ -52,7 +52,6 @@ from sb3_hddpg.hierarchy.fit import (
     manager_input_of,
     probe_env,
     selection_config_of,
-    shared_env,
     training_env,
 )
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
@@ -110,7 +109,11 @@ class Hierarchy:
         if env_id is None:
             # Without an env id the bundle would record the snake env whatever the models were trained on,
             # and fail only much later (in evaluate); the models' own training envs say which env it is.
-            shared = shared_env(workers)
+            shared = (
+                (workers.env_id, workers.env_kwargs)
+                if isinstance(workers, Workers) and workers.env_id
+                else None
+            )
             env_id, inferred_kwargs = infer_env(manager, self.workers) or shared or (SNAKE_REACH_ENV_ID, {})
             env_kwargs = inferred_kwargs if env_kwargs is None else env_kwargs
         self.env_id = env_id

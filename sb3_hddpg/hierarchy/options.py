@@ -44,8 +44,6 @@ class OptionState:
         """
         The state of ``n_envs`` envs at their episodes' start: no option, nothing seen.
 
-        :param n_envs: the number of envs (rows of a batch; 1 for one observation).
-        :param n_workers: the number of workers.
         :param worker_states: a fresh state for each worker that is a hierarchy, called once per env.
         """
         if n_envs < 1:
@@ -70,8 +68,7 @@ class OptionState:
         End the option of env ``index`` (``None``: of every env) and forget what its manager saw, as at an
         episode's start; nested hierarchies' options end with it.
         """
-        indices = range(self.n_envs) if index is None else (index,)
-        for i in indices:
+        for i in range(self.n_envs) if index is None else (index,):
             self.left[i] = 0
             self.band[i] = None
             self.previous[i] = None
