@@ -26,7 +26,7 @@ class StepRecord:
     :param distance_to_goal: the tip-to-goal distance.
     :param goal_touched: the tip touches the goal.
     :param collision: a link touches an obstacle.
-    :param reward_terms: the env's raw reward terms of the step (any env of the contract).
+    :param reward_terms: the env's raw reward terms of the step.
     """
 
     episode: int
@@ -41,10 +41,7 @@ class StepRecord:
 
 
 def selected_names(policy: object) -> list[str]:
-    """
-    The worker names a policy selects among, in its action order: a ``Hierarchy``'s or a HAM switch's
-    ``names`` (or ``worker_names``); empty for a policy that selects no worker.
-    """
+    """The worker names a policy selects among (its ``names`` or ``worker_names``), in its action order."""
     for attribute in ("names", "worker_names"):
         names = getattr(policy, attribute, None)
         if names:
@@ -116,7 +113,7 @@ def trace_episodes(
     policy: Policy, env: gym.Env, n_episodes: int = 1, seed: int | None = None, deterministic: bool = True
 ) -> tuple[list[StepRecord], Any]:
     """
-    Run ``policy`` for ``n_episodes`` through :func:`~sb3_hddpg.evaluation.evaluate` and keep every step.
+    Run ``policy`` through :func:`~sb3_hddpg.evaluation.evaluate` and keep every step.
 
     :param policy: anything with SB3's ``predict``.
     :param env: a snake env (no rendering needed).
@@ -125,7 +122,6 @@ def trace_episodes(
     :param deterministic: passed to ``predict``.
     :return: the step records and the :class:`~sb3_hddpg.evaluation.EvaluationResult`.
     """
-
     recorder = StepRecorder(env, policy)
     result = evaluate(
         policy,
