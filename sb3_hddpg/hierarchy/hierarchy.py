@@ -123,9 +123,8 @@ class Hierarchy:
         self.worker_meta = dict(worker_meta or {})
         self.metadata = dict(metadata or {})
         layout, self.observation_space, self.action_space = probe_env(env_id, self.env_kwargs)
-        check_spaces(
-            manager, self.workers, config, self.observation_space, self.action_space, layout, self._env_name()
-        )
+        name = f"{env_id!r}" + (f" with env_kwargs {self.env_kwargs}" if self.env_kwargs else "")
+        check_spaces(manager, self.workers, config, self.observation_space, self.action_space, layout, name)
         self._frozen = [
             FrozenWorker(w, layout.indices(config.worker_states[n]) if n in config.worker_states else None)
             for n, w in self.workers.items()
@@ -212,10 +211,6 @@ class Hierarchy:
         """The env given by :meth:`set_env` or ``load(env=...)``, as SB3's ``get_env``."""
         return self.env
 
-    def _env_name(self) -> str:
-        return f"{self.env_id!r}" + (f" with env_kwargs {self.env_kwargs}" if self.env_kwargs else "")
-
-    # ------------------------------------------------------------------ acting
     @property
     def reward_spec(self) -> dict[str, float]:
         """This hierarchy's reward as a worker one level up, the preference-weighted mix of its workers' terms."""
@@ -232,15 +227,12 @@ class Hierarchy:
     def set_preference(self, preferences: Mapping[str, float] | None = None, **factors: float) -> None:
         """
         Tell a preference-conditioned manager the trade-off to act at, e.g.
-        ``hierarchy.set_preference(goal=0.4, avoid=1.6)`` or ``hierarchy.set_preference({"goal": 0.4})``.
-        Only the ratio matters (the factors are rescaled to the sum the manager was trained with); names not
-        given get the unweighted factor.
-        A GPI hierarchy (:meth:`gpi`) takes any weighting of the env's terms (term -> weight >= 0).
+        ``hierarchy.set_preference(goal=0.4, avoid=1.6)``: only the ratio matters, names not given get the
+        unweighted factor. A GPI hierarchy (:meth:`gpi`) takes any weighting of the env's terms.
 
         :param preferences: worker name -> factor; or give the factors as keywords.
-        :raises PreferenceOutsideError: for a preference outside those the manager was trained over (see
-            ``manager_preferences`` in the bundle's manifest), or any other than its own for a manager
-            trained for one preference.
+        :raises PreferenceOutsideError: for a preference outside those the manager was trained over, or any
+            other than its own for a manager trained for one preference.
         """
         given = {**dict(preferences or {}), **factors}
         if self._gpi is not None:
@@ -263,10 +255,6 @@ class Hierarchy:
         self._preference_obs = self.preference_space.weights(checked).astype(np.float32)
         if self._stream is not None:
             self._stream.end_options()
-
-    def _manager_obs(self, obs: np.ndarray, previous: np.ndarray | None = None) -> np.ndarray:
-        """The manager's input for ``obs`` (one or a batch), ``previous`` the state one env step earlier."""
-        return self._manager_input(obs, previous, self._preference_obs)
 
     def reset_episode(self) -> None:
         """Forget the current options and the last observations of ``predict`` without a ``state`` (call at an
@@ -359,7 +347,9 @@ class Hierarchy:
             self.last_decided = state.left[env] <= 0 or band != state.band[env]
             if self.last_decided:
                 state.band[env] = band
-                state.manager_action[env] = self._manager.act(self._manager_obs(obs, state.previous[env]))
+                state.manager_action[env] = self._manager.act(
+                    self._manager_input(obs, state.previous[env], self._preference_obs)
+                )
                 probabilities = self._selector.probabilities(self.simplex, state.manager_action[env])
                 state.probabilities[env] = probabilities
                 state.choice[env] = self._selector.choose(probabilities, self._rng, deterministic)
@@ -382,10 +372,10 @@ class Hierarchy:
             chosen, _ = self._gpi.select(np.asarray(observation, np.float32), self.config.preferences)
             return {name: float(i == chosen) for i, name in enumerate(self.names)}
         assert self._manager is not None and self._selector is not None
-        action = self._manager.act(self._manager_obs(np.asarray(observation, np.float32)))
+        obs = np.asarray(observation, np.float32)
+        action = self._manager.act(self._manager_input(obs, None, self._preference_obs))
         return dict(zip(self.names, self._selector.probabilities(self.simplex, action)))
 
-    # ------------------------------------------------------------------ saving
     def to_bytes(self) -> bytes:
         """The bundle as zip bytes (see :meth:`save`)."""
         members: dict[str, bytes] = {}
@@ -446,7 +436,6 @@ class Hierarchy:
             path if path.suffix else path.with_name(f"{path.name}.zip"), lambda tmp: tmp.write_bytes(data)
         )
 
-    # ------------------------------------------------------------------ loading
     @classmethod
     def load(
         cls,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeGuard
 
 import gymnasium as gym
 import numpy as np
@@ -239,11 +239,11 @@ class DiscreteSelector(Selector):
 @dataclass
 class SelectionConfig:
     """
-    How the manager's action selects workers; the arguments of ``WorkerSelectionWrapper`` that a bundle keeps.
+    How the manager's action selects workers: the arguments of ``WorkerSelectionWrapper`` that a bundle keeps
+    (see there), in JSON form.
 
-    :param preferences: worker name -> preference factor.
-    :param selection: a registered selection mode (``sample``, ``argmax``, ``mix`` or ``discrete``; see
-        :data:`SELECTORS`).
+    :param preferences: worker name -> preference factor (a conditioned manager's: the one it acts at now).
+    :param selection: a registered selection mode (see :data:`SELECTORS`).
     :param option_steps: env steps per manager decision.
     :param temperature: the simplex map's temperature.
     :param floor: every worker's least probability.
@@ -251,14 +251,9 @@ class SelectionConfig:
     :param manager_state: state components the manager sees (``None``: all).
     :param worker_states: worker name -> state components it sees.
     :param option_gamma: discount inside an option.
-    :param manager_preferences: a preference-conditioned manager's trained-over preferences
-        (:meth:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace.to_json`): the manager observes the
-        normalised preference weights after its state, and ``preferences`` is the one it acts at now.
-        ``None``: a manager for ``preferences`` only.
-    :param option_end: options that also end by state (:meth:`OptionEnd.to_json`; ``None``: after
-        ``option_steps`` only).
-    :param manager_motion: the manager also observes its state's change over the last env step, scaled by
-        this factor (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`; 0: not).
+    :param manager_preferences: a conditioned manager's :meth:`PreferenceSpace.to_json` (``None``: none).
+    :param option_end: :meth:`OptionEnd.to_json` (``None``: options end after ``option_steps`` only).
+    :param manager_motion: the scale of the state's change the manager observes (0: none).
     """
 
     preferences: dict[str, float]
@@ -291,12 +286,7 @@ def preferences_from_bias(
     """
     if prefer is not None and prefer not in names:
         raise ValueError(f"Unknown worker {prefer!r} to prefer; workers: {names}")
-    if (
-        isinstance(bias, bool)
-        or not isinstance(bias, (int, float))
-        or not math.isfinite(bias)
-        or not 0 < bias <= MAX_PREFERENCE - 1
-    ):
+    if not _finite(bias) or not 0 < bias <= MAX_PREFERENCE - 1:
         raise ValueError(
             f"Expected `bias` to be a finite number at most {MAX_PREFERENCE - 1:g} and > 0, actually: {bias}"
         )
@@ -323,6 +313,11 @@ def parse_preferences(text: str) -> dict[str, float]:
     return result
 
 
+def _finite(value: object) -> TypeGuard[float]:
+    """Whether ``value`` is a finite int or float (a bool is not a number here)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def check_preferences(
     preferences: dict[str, Any], names: list[str], max_factor: float | None = MAX_PREFERENCE
 ) -> dict[str, float]:
@@ -341,12 +336,7 @@ def check_preferences(
     checked = {}
     for name in names:
         value = preferences.get(name, 1.0)
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, (int, float))
-            or not math.isfinite(value)
-            or value <= 0
-        ):
+        if not _finite(value) or value <= 0:
             raise ValueError(
                 f"Expected preference of {name!r} to be a finite number > 0, actually: {value!r}"
             )
@@ -441,12 +431,7 @@ def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: s
     for term, weight in spec.items():
         if not isinstance(term, str) or not PLAIN_NAME.match(term):
             raise LimitError(f"{what}.{name}: expected term names, got {brief(term)}")
-        if (
-            isinstance(weight, bool)
-            or not isinstance(weight, (int, float))
-            or not math.isfinite(weight)
-            or not 0 <= weight <= MAX_PREFERENCE
-        ):
+        if not _finite(weight) or not 0 <= weight <= MAX_PREFERENCE:
             raise LimitError(
                 f"{what}.{name}.{term}: expected a finite weight in [0, {MAX_PREFERENCE:g}], got {brief(weight)}"
             )
@@ -480,7 +465,7 @@ def _check_number_in_range(
     value: object, what: str, low: float, high: float, low_open: bool = False, high_open: bool = False
 ) -> None:
     """A finite number from ``low`` to ``high`` (each end open or closed), else a ``LimitError``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not _finite(value):
         raise LimitError(f"{what}: expected a finite number, got {brief(value)}")
     if value < low or value > high or (low_open and value == low) or (high_open and value == high):
         bracket = ("(" if low_open else "[") + f"{low:g}, {high:g}" + (")" if high_open else "]")
