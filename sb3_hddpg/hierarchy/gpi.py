@@ -23,17 +23,11 @@ GPI_SELECTION = "gpi"
 
 class GpiSelector:
     """
-    GPI over workers that each carry a per-term critic.
-
-    Example, over workers trained with critics (``train-workers``'s default)::
-
-        workers = load_workers("runs/w")
-        gpi = GpiSelector.of(workers, workers.critics, obs_indices)
-        index, action = gpi.select(obs, {"goal": 0.7, "avoid": 0.3})
+    GPI over workers that each carry a per-term critic (``Hierarchy.gpi`` builds one over loaded workers).
 
     :param workers: the frozen workers (each with the observation indices it sees).
-    :param critics: each worker's critic, in the same order; all over the same terms, all continuous or all
-        discrete.
+    :param critics: each worker's critic, in the same order: over the same terms, of one discount, all
+        continuous or all discrete.
     """
 
     def __init__(self, workers: Sequence[FrozenWorker], critics: Sequence[TermCritic]) -> None:
@@ -41,19 +35,15 @@ class GpiSelector:
             raise ValueError(
                 f"Expected one critic per worker, actually {len(critics)} for {len(workers)} workers"
             )
-        terms = critics[0].spec.terms
-        for critic in critics:
-            if critic.spec.terms != terms:
-                raise ValueError(
-                    f"Expected every critic over the terms {list(terms)}, actually one over {list(critic.spec.terms)}"
-                )
-        if len({critic.spec.gamma for critic in critics}) > 1:
-            raise ValueError(
-                f"Expected every critic of one discount, actually {sorted({c.spec.gamma for c in critics})}: "
-                "their values would not compare"
-            )
-        if len({critic.spec.discrete for critic in critics}) > 1:
-            raise ValueError("Expected all workers' critics discrete or all continuous, actually a mix")
+        specs = [critic.spec for critic in critics]
+        for what, values in (
+            ("over the same terms", [s.terms for s in specs]),
+            ("of one discount (their values would not compare)", [s.gamma for s in specs]),
+            ("discrete or all continuous", [s.discrete for s in specs]),
+        ):
+            if any(value != values[0] for value in values):
+                raise ValueError(f"Expected every critic {what}, actually: {values}")
+        terms = specs[0].terms
         for index, (worker, critic) in enumerate(zip(workers, critics)):
             space = getattr(worker.worker, "observation_space", None)
             size = int(np.prod(space.shape)) if space is not None and space.shape else None

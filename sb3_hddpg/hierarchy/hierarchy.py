@@ -74,19 +74,17 @@ class Hierarchy:
         hierarchy.save("my-hierarchy.zip")
         evaluate(Hierarchy.load("my-hierarchy.zip"), n_episodes=5)
 
-    :param manager: the manager's SB3 model (trained on ``WorkerSelectionWrapper``).
+    :param manager: the manager's SB3 model (trained on ``WorkerSelectionWrapper``; ``None`` for GPI).
     :param workers: name -> worker, in the manager's action order; workers from ``load_workers`` also give
-        each worker's state components, the shared env and the facts the bundle keeps about them.
-    :param config: the selection settings the manager was trained with (default: those of the
-        ``WorkerSelectionWrapper`` the manager still has as its env, else the wrapper's defaults with the
-        state components the workers carry).
-    :param env_id: the registered id of the shared env (default: the env the manager was trained on, else
-        the one every worker was trained on, else the workers' shared env, else ``hddpg/SnakeReach-v0``; see
-        :func:`infer_env`).
+        their state components, the shared env and the facts the bundle keeps about them.
+    :param config: the selection settings the manager was trained with (default: those of the wrapper the
+        manager still has as its env, else the wrapper's defaults).
+    :param env_id: the shared env's registered id (default: the manager's or every worker's training env,
+        else the workers' shared env, else ``hddpg/SnakeReach-v0``; see :func:`infer_env`).
     :param env_kwargs: its keyword arguments (default: those of the inferred env; ``{}`` with ``env_id``).
-    :param worker_meta: name -> JSON-able facts about each worker (reward bounds, metrics...; default: from
-        the workers' manifest, for workers from ``load_workers``).
+    :param worker_meta: name -> JSON-able facts about each worker (default: from the workers' manifest).
     :param metadata: JSON-able facts about the manager (metrics, seed, config...).
+    :param critics: name -> per-term critic, for GPI (default: those the workers carry).
     """
 
     def __init__(
@@ -198,8 +196,7 @@ class Hierarchy:
 
     def set_env(self, env: GymEnv) -> None:
         """
-        Give the hierarchy an env to act in, as SB3's ``set_env`` (checked against the hierarchy's spaces; a
-        single env is wrapped in a ``DummyVecEnv``).
+        Give the hierarchy an env to act in, as SB3's ``set_env`` (a single env is wrapped in a ``DummyVecEnv``).
 
         :param env: a gymnasium env or a VecEnv with this hierarchy's observation and action spaces.
         """
@@ -257,8 +254,7 @@ class Hierarchy:
             self._stream.end_options()
 
     def reset_episode(self) -> None:
-        """Forget the current options and the last observations of ``predict`` without a ``state`` (call at an
-        episode start; with a ``state``, ``episode_start`` says which envs start)."""
+        """Forget the options of ``predict`` without a ``state`` (call at an episode start)."""
         if self._stream is not None:
             self._stream.reset()
         for worker in self._frozen:
@@ -283,20 +279,15 @@ class Hierarchy:
         deterministic: bool = False,
     ) -> tuple[np.ndarray, OptionState]:
         """
-        The action of the selected worker, like SB3's ``predict`` (of a recurrent policy: the option each env
-        is in is the state).
+        The action of the selected worker, like a recurrent SB3 policy's ``predict`` (the state is the option
+        each env is in).
 
-        :param observation: the shared state, of the env's observation shape (``(obs_dim,)`` for the snake), or a
-            batch of them (one more leading axis, one row per env of a VecEnv).
-        :param state: the options returned by the previous call (see :meth:`initial_state`); ``None``: the
-            hierarchy's own, kept from call to call for as many envs as the batch has rows (a new batch size
-            starts afresh). ``predict`` updates it in place.
-        :param episode_start: one flag per env (or one for a single observation); a true entry ends that env's
-            option and forgets its last observation, as at an episode's start.
-        :param deterministic: the most probable worker (``True``) or one sampled from the probabilities
-            (``False``, as SB3's default). An exact tie among the most probable is drawn from the hierarchy's
-            generator either way (see :meth:`seed`): the manager prefers neither, and the worker order must
-            not decide.
+        :param observation: the shared state, or a batch of them (one row per env of a VecEnv).
+        :param state: the options returned by the previous call (see :meth:`initial_state`), updated in place;
+            ``None``: the hierarchy's own, kept from call to call (a new batch size starts afresh).
+        :param episode_start: one flag per env; a true entry ends that env's option, as at an episode's start.
+        :param deterministic: the most probable worker, or one sampled from the probabilities (SB3's default).
+            An exact tie is drawn from the hierarchy's generator either way (see :meth:`seed`).
         :return: the env action(s) and the state to pass at the next step.
         """
         obs = np.asarray(observation, dtype=np.float32)
@@ -450,18 +441,14 @@ class Hierarchy:
         """
         Load and verify a bundle, as SB3's ``load`` opens a model.
 
-        :param path: a ``hierarchy.zip`` (or its bytes); a path without a suffix that does not exist is tried
-            with ``.zip``, as SB3 does.
-        :param env: an env to act in (see :meth:`set_env`), checked against the bundle's spaces; ``None``:
-            :meth:`make_env` makes the bundle's own.
-        :param device: the torch device of the models (``"auto"``: CUDA when available, as SB3); frozen workers
-            compiled to numpy act on the CPU either way.
-        :param trusted: ``False`` (default): rebuild every model from the manifest's JSON spec and load only
-            its tensors, so no code from the file runs. ``True``: SB3's full loader, which unpickles
-            objects stored in the model zips (only for files you trust), and any registered env id.
+        :param path: a ``hierarchy.zip`` or its bytes (without a suffix, ``.zip`` is tried, as SB3 does).
+        :param env: an env to act in (see :meth:`set_env`); ``None``: :meth:`make_env` makes the bundle's own.
+        :param device: the torch device of the models (``"auto"``: CUDA when available, as SB3).
+        :param trusted: ``False`` (default): rebuild every model from its JSON spec and load only tensors, so
+            no code from the file runs. ``True``: SB3's full loader, which unpickles objects stored in the
+            model zips (only for files you trust), and any registered env id.
         :param allowed_env_ids: registered env ids the bundle may name besides this package's own.
-        :param budget: what the load may spend (bytes, models, nesting); nested bundles share their
-            parent's (see :mod:`sb3_hddpg.artifacts.limits`).
+        :param budget: what the load may spend (see :mod:`sb3_hddpg.artifacts.limits`); nested bundles share it.
         :return: the hierarchy; raises :class:`BundleError` naming the problem otherwise.
         """
         path = bundle_path(path)
