@@ -159,35 +159,20 @@ def evaluate(
     worker_names = _worker_names(policy, env)
     for k in range(n_episodes):
         obs, info = env.reset(seed=seed + k)
-        reset_episode = getattr(policy, "reset_episode", None)
-        if reset_episode is not None:
-            reset_episode()
+        getattr(policy, "reset_episode", lambda: None)()
         tally = EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
-        _run_episode(policy, env, obs, tally, deterministic, on_step)
+        done = False
+        while not done:
+            action, _ = policy.predict(obs, deterministic=deterministic)
+            decision = getattr(policy, "last_manager_action", None)  # a hierarchy's manager decided
+            tally.add_decision(np.asarray(action if decision is None else decision))
+            obs, reward, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            tally.add_env_step(float(reward), info, getattr(policy, "last_selection", None))
+            if on_step is not None:
+                on_step(env, info)
         episodes.append(finite_episode(tally.metrics(seed + k)))
     return EvaluationResult(episodes, near_clearance, clear_clearance)
-
-
-def _run_episode(
-    policy: Policy,
-    env: gym.Env,
-    obs: Any,
-    tally: EpisodeTally,
-    deterministic: bool,
-    on_step: Callable[[gym.Env, dict[str, Any]], None] | None,
-) -> None:
-    """Run one episode from its first observation ``obs`` to its end, counting every env step in ``tally``."""
-    done = False
-    while not done:
-        action, _ = policy.predict(obs, deterministic=deterministic)
-        # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
-        decision = getattr(policy, "last_manager_action", None)
-        tally.add_decision(np.asarray(action if decision is None else decision))
-        obs, reward, terminated, truncated, info = env.step(action)
-        done = terminated or truncated
-        tally.add_env_step(float(reward), info, getattr(policy, "last_selection", None))
-        if on_step is not None:
-            on_step(env, info)
 
 
 def _evaluate_vec_env(
