@@ -252,12 +252,11 @@ def clearance_bands(
     env: gym.Env, near: float | None, clear: float | None
 ) -> tuple[float | None, float | None]:
     """
-    The clearance bands of :func:`evaluate`, checked, defaulting to the ``sensor_range`` of the env's
-    declared :class:`~sb3_hddpg.envs.contract.Proximity` (half and full); both ``None`` for an env that
-    declares none (it reports no clearance, so choices cannot be split by it).
+    The clearance bands of :func:`evaluate`, checked, defaulting to half and all the ``sensor_range`` of the
+    env's declared :class:`~sb3_hddpg.envs.contract.Proximity`; both ``None`` for an env that declares none.
 
     :raises ValueError: a band that is negative or not finite, ``near > clear``, or a band given for an env
-        without the proximity capability (it would count no choice at all, silently).
+        without a proximity (it would count no choice at all, silently).
     """
     spec = env.unwrapped.spec
     return _bands_of(proximity_of(env), repr(spec.id) if spec else type(env.unwrapped).__name__, near, clear)
@@ -289,17 +288,15 @@ def _bands_of(
 
 def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -> dict[str, Any] | None:
     """
-    Whether a hierarchy chooses by state: ``worker``'s share of the choices made near
-    an obstacle (clearance <= ``near_clearance``) against its share where no obstacle is in range
-    (clearance >= ``clear_clearance``), and their ratio. A manager that decides by state picks the avoid
-    worker far more often near obstacles (ratio well above 1); a fixed mix of workers gives about 1.
+    Whether a hierarchy chooses by state: ``worker``'s share of the choices made near an obstacle against
+    its share where none is in range, and their ratio (well above 1 for a manager that decides by state,
+    about 1 for a fixed mix).
 
     :param summary: an :meth:`EvaluationResult.summary` (of a policy that reports its worker choices).
     :param worker: the worker whose share is compared.
-    :return: ``near_share``, ``clear_share`` (``None`` where no choice fell in that band), ``ratio``
-        (``None`` where undefined: a band without choices, or a clear share of 0), the choices counted in
-        each band, the bands and the worker; ``None`` when the policy reported no choices, has no
-        ``worker``, or the env has no clearance bands (it declares no proximity: not available there).
+    :return: ``near_share``, ``clear_share`` and ``ratio`` (each ``None`` where a band had no choices or the
+        clear share is 0), the choices in each band, the bands and the worker; ``None`` without choices,
+        without ``worker`` or without clearance bands.
     """
     near, clear = summary.get("selections_near"), summary.get("selections_clear")
     if near is None or clear is None or worker not in summary.get("selection_rate", {}):
@@ -371,13 +368,9 @@ def summaries_table(
     title: str, summaries: Mapping[str, Mapping[str, Any]], reward: MetricLabel | None = None
 ) -> SummariesTable:
     """
-    The table of evaluation summaries a training command prints: the reward (with its spread), the return of
-    the normalised terms where it differs from the reward, the snake's touch and collision rates where the env
-    reports them (else every reward term), and the deciding network's saturation.
-
-    :param title: the table's title.
-    :param summaries: agent -> its evaluation summary.
-    :param reward: what ``mean_reward`` is for these agents (default: the env's own reward).
+    The table of evaluation summaries (agent -> summary) a training command prints: the reward with its
+    spread, the normalised return where it differs, the snake's touch and collision rates (else every
+    reward term) and the deciding network's saturation; ``reward`` says what ``mean_reward`` is.
     """
     # The closest approach to an obstacle is in the evaluation history (and `evaluate`): 80 columns hold no more.
     snake = ("goal_touch_rate", "collisions_per_episode", "success_rate")

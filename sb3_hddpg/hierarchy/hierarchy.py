@@ -501,15 +501,11 @@ class Hierarchy:
 
 def infer_env(manager: object, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
     """
-    The env a hierarchy acts in, read from its models: the manager's training env (the env under its
-    ``WorkerSelectionWrapper``) if the manager still has one, else the env every worker names, if they all
-    name the same (a nested hierarchy names its ``env_id``; an SB3 model its training env). Models loaded
-    from files carry no env, so this may find nothing.
+    The env a hierarchy acts in, read from its models: the manager's training env if it still has one, else
+    the env every worker names (a nested hierarchy its ``env_id``, an SB3 model its training env).
 
-    :param manager: the manager.
-    :param workers: name -> worker.
     :return: ``(env_id, env_kwargs)`` (kwargs beyond the registered ones), or ``None`` when the models do not
-        tell or the workers disagree.
+        tell (models loaded from files carry no env) or the workers disagree.
     """
 
     def env_of(model: object) -> tuple[str, dict[str, Any]] | None:

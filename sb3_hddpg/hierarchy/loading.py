@@ -1,11 +1,9 @@
 """
 ``load_policy(path)``: any policy a user can point the CLI at, loaded safely, with the env it acts in.
 
-- a hierarchy bundle (``hierarchy.zip``): verified and rebuilt by :meth:`Hierarchy.load`;
-- an SB3 zip written by ``train-workers`` / ``train-flat``: found in the ``manifest.json`` beside it,
-  whose sha256 and rebuild spec make the weights-only load possible;
-- a file or a name a registered loader opens (:mod:`sb3_hddpg.policy_loaders`: the HAM switch's
-  ``ham.json``; ``random``, ``scripted``, ``ik``, ``field``: reference policies that need no file);
+- a hierarchy bundle (``hierarchy.zip``), verified by :meth:`Hierarchy.load`;
+- an SB3 zip listed in the ``manifest.json`` beside it (its sha256 and rebuild spec: a weights-only load);
+- a file or a name a registered loader opens (:mod:`sb3_hddpg.policy_loaders`: ``ham.json``, ``random``...);
 - any other SB3 zip only with ``trusted=True`` (SB3's full loader runs code stored in the file).
 """
 

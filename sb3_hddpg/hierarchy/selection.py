@@ -126,7 +126,12 @@ class Selector:
         return gym.spaces.Box(-1.0, 1.0, (n_workers,), dtype=np.float32)
 
     def probabilities(self, simplex: SimplexMap, action: object) -> list[float]:
-        """The worker probabilities of one manager action, through ``simplex``."""
+        """
+        The worker probabilities of one manager action.
+
+        :param simplex: the map of a Box action onto the simplex (temperature and floor).
+        :param action: the manager's action for one observation.
+        """
         shape = np.shape(action)  # type: ignore[call-overload]
         if shape != (simplex.n_workers,):
             raise ValueError(
@@ -136,13 +141,26 @@ class Selector:
         return simplex.single(np.asarray(action, dtype=np.float64).tolist())
 
     def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
-        """The index of the worker to run (and report); ``rng`` is the caller's own, never the env's."""
+        """
+        The index of the worker to run (and to report) for one probability vector.
+
+        :param probabilities: shape ``(n,)``, summing to 1.
+        :param rng: the generator to draw with (the caller's own, never the env's).
+        :param deterministic: the caller asks for no sampling (an exact tie is still drawn from ``rng``).
+        """
         return most_probable(probabilities, rng)
 
     def act(
         self, probabilities: Probabilities, chosen: int, workers: Sequence[FrozenWorker], obs: np.ndarray
     ) -> np.ndarray:
-        """The env action for the shared state ``obs``, ``chosen`` being what :meth:`choose` returned."""
+        """
+        The env action for one observation.
+
+        :param probabilities: the worker probabilities.
+        :param chosen: what :meth:`choose` returned.
+        :param workers: the frozen workers, in the manager's action order.
+        :param obs: the shared state.
+        """
         return workers[chosen].act(obs)
 
 
@@ -322,13 +340,12 @@ def check_preferences(
     preferences: dict[str, Any], names: list[str], max_factor: float | None = MAX_PREFERENCE
 ) -> dict[str, float]:
     """
-    Validate preference factors: known names, finite and > 0, and at most ``max_factor`` where they weight a
-    reward (so that a weighted reward cannot overflow); missing names default to 1.
+    Validate preference factors: known names, finite and > 0, and at most ``max_factor`` so that a weighted
+    reward cannot overflow (``None``: only the ratio is used); missing names default to 1.
 
     :param preferences: name -> factor.
     :param names: the known names, in order.
-    :param max_factor: the largest factor (``None``: only the ratio is used, e.g. a conditioned manager's
-        run-time preference, which is normalised without overflow).
+    :param max_factor: the largest factor.
     """
     unknown = sorted(set(preferences) - set(names))
     if unknown:
@@ -355,12 +372,9 @@ SELECTION_SETTINGS = tuple(f.name for f in fields(SelectionConfig))
 
 def check_selection_settings(selection: object, names: Sequence[str], what: str) -> dict[str, Any]:
     """
-    A bundle's selection settings (``SelectionConfig``'s fields), each checked for type and range, so that
-    a file's ``temperature: "abc"`` or ``option_steps: -3`` is refused by name instead of failing later.
+    A bundle's selection settings (``SelectionConfig``'s fields from the manifest), each checked for type and
+    range, so that ``temperature: "abc"`` is refused by name (``what``) instead of failing later.
 
-    :param selection: the mapping from the manifest.
-    :param names: the bundle's worker names.
-    :param what: the field, for the message.
     :return: the checked mapping.
     """
     if not isinstance(selection, Mapping):
@@ -443,13 +457,8 @@ def check_reward_terms(
     reward_terms: Mapping[str, Any], names: Sequence[str], terms: Sequence[str], what: str
 ) -> None:
     """
-    Each worker's reward among the env's declared terms: its ``reward_terms`` entry (a term, or term ->
-    weight), or, with no entry, the term of its own name; one line naming the worker and the term otherwise.
-
-    :param reward_terms: worker -> its reward (already checked for form by :func:`check_selection_settings`).
-    :param names: the workers.
-    :param terms: the env's declared reward terms.
-    :param what: the field, for the message.
+    Check that each worker's reward (its ``reward_terms`` entry, a term or term -> weight, else the term of its
+    own name) is among the env's declared ``terms``: a ``LimitError`` naming the worker and the term otherwise.
     """
     for name in names:
         spec = reward_terms.get(name, name)

@@ -51,10 +51,8 @@ def selected_names(policy: object) -> list[str]:
 
 class StepRecorder(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     """
-    Record every step of a snake env: the ``info`` values of :class:`StepRecord`, the worker the policy
-    selected (from the wrapper's ``info["selected_worker"]`` or the policy's ``last_selection``), and
-    optionally the rendered frame. Wrap the env given to :func:`~sb3_hddpg.evaluation.evaluate`; the
-    episode counter advances at every ``reset``.
+    Record every step of a snake env as a :class:`StepRecord` (and optionally its rendered frame): wrap the
+    env given to :func:`~sb3_hddpg.evaluation.evaluate`.
 
     :param env: a snake env (``render_mode="rgb_array"`` when ``on_frame`` is given).
     :param policy: the policy that will act, read for ``last_selection`` / ``last_probabilities``.
