@@ -123,24 +123,6 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             option_end = OptionEnd.from_json(option_end)
         self.option_end: OptionEnd | None = option_end
         self._band = option_end.bind(self.layout) if option_end is not None else None
-        self._set_preferences(preferences, manager_preferences)
-        self._set_states(workers, manager_state, worker_states, manager_motion)
-        # Weighted workers from load_workers carry their weights: the bundle keeps them as reward_terms.
-        carried = reward_specs_of(workers) if isinstance(workers, Mapping) else {}
-        self._set_workers(pairs, {**carried, **dict(reward_terms or {})}, contract)
-        self._rng = np.random.default_rng()
-        self._preference_rng = np.random.default_rng()
-        self._last_obs: np.ndarray | None = None
-        # The shared state one env step before ``_last_obs``, for a manager that observes motion.
-        self._previous_obs: np.ndarray | None = None
-
-    def _set_preferences(
-        self,
-        preferences: Mapping[str, float] | None,
-        manager_preferences: PreferenceSpace | Mapping[str, Any] | None,
-    ) -> None:
-        """The preference factors, and the space a conditioned manager's preference is drawn from."""
-        names = self.worker_names
         if manager_preferences is not None and not isinstance(manager_preferences, PreferenceSpace):
             manager_preferences = PreferenceSpace.from_json(manager_preferences, names)
         if manager_preferences is not None and list(manager_preferences.names) != names:
@@ -149,10 +131,18 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             )
         self.preference_space: PreferenceSpace | None = manager_preferences
         self.preferences = check_preferences(dict(preferences or {}), names)
-        if self.preference_space is not None:
-            self.preferences = self.preference_space.check(self.preferences)
+        if manager_preferences is not None:
+            self.preferences = manager_preferences.check(self.preferences)
         #: Whether every reset draws a new preference (a conditioned manager in training).
-        self.sample_preferences = self.preference_space is not None
+        self.sample_preferences = manager_preferences is not None
+        self._set_states(workers, manager_state, worker_states, manager_motion)
+        # Weighted workers from load_workers carry their weights: the bundle keeps them as reward_terms.
+        carried = reward_specs_of(workers) if isinstance(workers, Mapping) else {}
+        self._set_workers(pairs, {**carried, **dict(reward_terms or {})}, contract)
+        self._rng = np.random.default_rng()
+        self._preference_rng = np.random.default_rng()
+        self._last_obs: np.ndarray | None = None
+        self._previous_obs: np.ndarray | None = None  # the state one env step earlier, for motion
 
     def _set_states(
         self,
