@@ -42,7 +42,7 @@ class PreferenceOutsideError(ValueError):
 @dataclass(frozen=True)
 class PreferenceSpace:
     """
-    A distribution over preference factors with a fixed sum (see the module's note).
+    A distribution over preference factors with a fixed sum.
 
     :param names: the workers, in the manager's action order.
     :param kind: ``"set"`` or ``"dirichlet"``.
@@ -96,13 +96,10 @@ class PreferenceSpace:
         """
         A space from its command-line form.
 
-        - ``ratio-sweep``: every worker in turn weighted 1, 2, 3 and 4 times the others (7 preferences for
-          two workers: 4:1, 3:1, 2:1, 1:1, 1:2, 1:3, 1:4);
-        - ``ratio-sweep:MAX``: the ratios double from 1 up to ``MAX``, a power of two from 2 to 1024, to reach
-          further towards each worker alone (``ratio-sweep:16``: 16:1, 8:1, 4:1, 2:1, 1:1, ..., 1:16);
+        - ``ratio-sweep``: every worker in turn weighted 1, 2, 3 and 4 times the others (4:1 ... 1:4);
+        - ``ratio-sweep:MAX``: the ratios double from 1 up to ``MAX``, a power of two from 2 to 1024;
         - ``dirichlet`` or ``dirichlet:ALPHA``: the Dirichlet space;
-        - a list of preferences separated by ``;``, e.g. ``goal=1.6,avoid=0.4;goal=0.4,avoid=1.6`` (each
-          sums to the same total; names not given get 1).
+        - preferences separated by ``;``, e.g. ``goal=1.6,avoid=0.4;goal=0.4,avoid=1.6`` (names not given get 1).
 
         :param text: the form above.
         :param names: the workers, in the manager's action order.

@@ -18,9 +18,7 @@ from sb3_hddpg.policy import Policy
 
 class FrozenWorker:
     """
-    A worker used for inference only, as cheaply as possible.
-
-    An SB3 actor of ``Linear`` layers and common activations (DDPG/TD3's ``actor.mu``; SAC/TQC's
+    A worker used for inference only, as cheaply as possible. An SB3 actor of ``Linear`` layers and common activations (DDPG/TD3's ``actor.mu``; SAC/TQC's
     ``latent_pi`` + ``mu`` + tanh without gSDE) is compiled into numpy products on copies of its weights,
     about 10x faster than torch for one observation (``benchmarks/manager_env_speed.py``); any other SB3
     policy runs a frozen copy under ``torch.no_grad()``. Either way the caller's model can keep training.
@@ -33,12 +31,11 @@ class FrozenWorker:
     def __init__(self, worker: Policy, obs_indices: np.ndarray | None = None) -> None:
         self.worker = worker
         self.obs_indices = obs_indices
-        #: The state given to a stateful worker's ``predict`` (a nested hierarchy's options of the env that acts
-        #: now; the hierarchy acting above sets it per env); ``None``: the worker keeps its own.
+        #: The state given to a stateful worker's ``predict`` (a nested hierarchy's options of the env acting
+        #: now); ``None``: the worker keeps its own.
         self.state: Any = None
         policy = getattr(worker, "policy", None)
-        # A Box-acting SB3 policy is run here; a discrete one (DQN, QR-DQN) acts through predict, whose
-        # integer actions need no scaling.
+        # A discrete SB3 policy (DQN) acts through predict: its integer actions need no scaling.
         acts_in_box = isinstance(getattr(policy, "action_space", None), gym.spaces.Box)
         self._policy = policy if acts_in_box and hasattr(policy, "_predict") else None
         self._layers: (
@@ -46,13 +43,12 @@ class FrozenWorker:
         ) = None
         if self._policy is not None:
             space = self._policy.action_space
-            self._squash = bool(getattr(self._policy, "squash_output", False))
+            squash = bool(getattr(self._policy, "squash_output", False))
             self._low = space.low.astype(np.float32)
             self._half_range = ((space.high - space.low) / 2.0).astype(np.float32)
             # Unscaling to [-1, 1] (the snake's action space) is the identity: skip it.
-            self._squash = self._squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
-            # A Gaussian policy without a squashing tanh (PPO) is clipped to the bounds, as SB3's predict does.
-            self._clip = not getattr(self._policy, "squash_output", False)
+            self._squash = squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
+            self._clip = not squash  # a Gaussian policy without tanh (PPO) is clipped, as SB3's predict does
             self._layers = _compile_actor(self._policy)
             if self._layers is None:
                 self._policy = _frozen_copy(self._policy)
