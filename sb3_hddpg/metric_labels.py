@@ -1,9 +1,6 @@
 """
-How evaluation metrics are named and shown to people: words instead of keys, one unit per quantity.
-
-:meth:`~sb3_hddpg.evaluation.EvaluationResult.summary` keeps rates as fractions (0..1) for programs; every
-printed table shows them as percentages of what they count (steps, episodes, actor outputs), with the
-unit in its own column or header, so that no table mixes ``0.070`` with ``99.4%``.
+How evaluation metrics are shown to people: words instead of keys, one unit per quantity. Summaries keep
+rates as fractions for programs; printed tables show percentages, with the unit in a header or a caption.
 """
 
 from __future__ import annotations
@@ -60,7 +57,6 @@ METRIC_LABELS: dict[str, MetricLabel] = {
     "min_clearance": MetricLabel(
         "min clearance to an obstacle", "arm lengths", digits=3, short="min clearance"
     ),
-    # A tanh actor's output at ±1 sits where its gradient vanishes: it has stopped adjusting that output.
     "action_saturation": MetricLabel(
         "actor outputs pinned at ±1 (the ends of the tanh range: no longer learning)",
         "% of outputs",
@@ -88,8 +84,7 @@ CONTACTS_LABEL = MetricLabel(
 
 #: A manager whose one worker runs this share of the steps or more acts as that worker alone.
 COLLAPSED_SHARE = 0.99
-#: A manager whose outputs are pinned at ±1 this often or more no longer weighs its workers (a tanh actor there
-#: has almost no gradient left to move it).
+#: A manager whose outputs are pinned at ±1 this often or more no longer weighs its workers.
 SATURATED_SHARE = 0.5
 
 
