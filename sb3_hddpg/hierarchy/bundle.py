@@ -64,12 +64,9 @@ def read_bundle(
     path: str | Path | io.BytesIO, budget: LoadBudget | None = None
 ) -> tuple[BundleManifest, dict[str, bytes]]:
     """
-    Open a bundle and verify it: a zip with a manifest of a known schema, every member it lists present and
-    of its sha256, each read within the limits of :mod:`sb3_hddpg.artifacts.limits` (nested bundles are
-    verified when they are loaded).
+    Open a bundle (a path or its bytes) and verify it: a manifest of a known schema, every member it lists
+    present and of its sha256, each read within ``budget`` and the limits of :mod:`sb3_hddpg.artifacts.limits`.
 
-    :param path: the bundle or its bytes.
-    :param budget: what the read may spend (default: a fresh budget).
     :return: the manifest and the member bytes by name.
     """
     name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
@@ -159,10 +156,8 @@ def member_critics(
     manifest: BundleManifest, members: Mapping[str, bytes], where: str
 ) -> dict[str, TermCritic]:
     """
-    The per-term critics inside a verified bundle's SB3 worker members (a worker zip carries its critic as
-    :data:`~sb3_hddpg.artifacts.term_critic.TERM_CRITIC_MEMBER`), by worker name.
-
-    :raises BundleError: for a critic member over the limits or not one this library wrote.
+    Worker name -> the per-term critic inside its SB3 member, from a verified bundle (a ``BundleError`` for
+    a critic over the limits or not one this library wrote).
     """
     critics = {}
     for name in manifest.worker_names:

@@ -73,10 +73,8 @@ class GpiSelector:
 
     def select(self, obs: np.ndarray, preference: Mapping[str, float]) -> tuple[int, np.ndarray]:
         """
-        The worker GPI picks for one observation at ``preference`` (term -> weight), and the env action.
-
-        :return: the worker's index and the action (for discrete workers the GPI action, which may differ
-            from that worker's own greedy one).
+        The index of the worker GPI picks for one observation at ``preference`` (term -> weight), and the env
+        action (for discrete workers GPI's, which may differ from that worker's own greedy one).
         """
         scores, actions = self.scores(obs, preference)
         if self.discrete:

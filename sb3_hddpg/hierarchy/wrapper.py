@@ -304,13 +304,16 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         info: dict[str, Any] = {}
         rewards: list[float] = []
         infos: list[dict[str, Any]] = []
-        steps = 0
         obs = self._last_obs
-        conditioned = self.preference_space is not None
-        per_worker = np.zeros(len(self.worker_names)) if conditioned else None
+        per_worker = np.zeros(len(self.worker_names)) if self.preference_space is not None else None
         start_band = self._band(obs) if self._band is not None else None
-        while steps < self.option_steps and not (terminated or truncated):
-            if start_band is not None and steps and self._band is not None and self._band(obs) != start_band:
+        while len(rewards) < self.option_steps and not (terminated or truncated):
+            if (
+                start_band is not None
+                and rewards
+                and self._band is not None
+                and self._band(obs) != start_band
+            ):
                 break  # the state left the band the option was chosen in: decide again
             env_action = self.selector.act(probabilities, chosen, self.frozen, obs)
             self._previous_obs = obs
@@ -322,7 +325,6 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             discount *= self.option_gamma
             rewards.append(reward)
             infos.append(info)
-            steps += 1
         self._last_obs = obs
         info = dict(info)  # the last step's, without a reference to itself in option_infos
         info["option_rewards"] = rewards
@@ -330,7 +332,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         info["selected_worker"] = self.worker_names[chosen]
         info["selection_probabilities"] = dict(zip(self.worker_names, probabilities))
         info["normalised_terms"] = normalised
-        info["option_length"] = steps
+        info["option_length"] = len(rewards)
         if per_worker is not None:
             info["worker_rewards"] = per_worker
             info["preferences"] = dict(self.preferences)
