@@ -85,8 +85,7 @@ class EvaluationResult:
                     counts.update(getattr(e, f"selections_{band}"))
                 out[f"selections_{band}"] = {name: counts.get(name, 0) for name in sorted(total)}
             if eps[0].collisions is not None:
-                # Which worker was acting when the arm touched an obstacle: a manager that leaves the goal
-                # worker in charge near obstacles shows here, whatever its share of the choices.
+                # Which worker acted at each contact: a goal worker left in charge near obstacles shows here.
                 out["collisions_by_worker"] = {
                     name: float(np.mean([e.collisions_by_worker.get(name, 0) for e in eps]))
                     for name in sorted(total)

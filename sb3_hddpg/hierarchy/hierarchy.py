@@ -105,8 +105,7 @@ class Hierarchy:
         self.critics = dict(critics if critics is not None else getattr(workers, "critics", {}))  # GPI's
         check_gpi_manager(manager, config.selection)
         if env_id is None:
-            # Without an env id the bundle would record the snake env whatever the models were trained on,
-            # and fail only much later (in evaluate); the models' own training envs say which env it is.
+            # The models' training envs say which env it is (a default env would fail only in evaluate).
             shared = (
                 (workers.env_id, workers.env_kwargs)
                 if isinstance(workers, Workers) and workers.env_id

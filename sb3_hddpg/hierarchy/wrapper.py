@@ -208,8 +208,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
 
     def selection_config(self) -> SelectionConfig:
         """The selection settings of this wrapper, as a bundle keeps them (see ``Hierarchy``)."""
-        # While drawing a preference every episode, the current one is a random draw: a bundle made from this
-        # wrapper acts at the unweighted preference until told another.
+        # While preferences are drawn, the current one is random: a bundle acts at the unweighted one.
         space = self.preference_space
         preferences = (
             space.default if self.sample_preferences and space is not None else dict(self.preferences)
@@ -249,8 +248,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self._set_coefficients()
 
     def _set_coefficients(self) -> None:
-        # The reward is linear in the raw terms: precompute sum_w preference_w * weight_wt per term, so a
-        # step costs one multiply-add per term (the manager step has a budget of 2x a plain env step).
+        # The reward is linear in the terms: one coefficient per term keeps a step cheap.
         coefficients = mix_terms(self.reward_specs, self.preferences)
         self._term_coefficients = [(term, coefficients.get(term, 0.0)) for term in self._known_terms]
         self._preference_obs = (
@@ -278,8 +276,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict]:
         if seed is not None:
-            # Our own generator for selection, seeded from the episode seed: sampling workers must not
-            # consume the env's randomness, or wrapping would change the env's trajectory.
+            # Generators of our own: sampling workers must not consume the env's randomness.
             self._rng = np.random.default_rng([seed, 0x5E1EC7])
             self._preference_rng = np.random.default_rng([seed, 0x9EF])
         if self.sample_preferences and self.preference_space is not None:
