@@ -80,9 +80,7 @@ class EvaluationResult:
             steps = sum(total.values())
             out["selection_rate"] = {name: count / steps for name, count in sorted(total.items())}
             for band in ("near", "clear"):
-                counts: Counter[str] = Counter()
-                for e in eps:
-                    counts.update(getattr(e, f"selections_{band}"))
+                counts = sum((Counter(getattr(e, f"selections_{band}")) for e in eps), Counter[str]())
                 out[f"selections_{band}"] = {name: counts.get(name, 0) for name in sorted(total)}
             if eps[0].collisions is not None:
                 # Which worker acted at each contact: a goal worker left in charge near obstacles shows here.
