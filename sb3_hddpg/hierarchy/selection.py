@@ -6,6 +6,8 @@ the loaded ``Hierarchy``, so that both select identically.
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
@@ -195,13 +197,8 @@ class SampleSelector(Selector):
         if deterministic:
             return most_probable(probabilities, rng)
         # Inverse-CDF sampling with one uniform draw (no Generator.choice overhead).
-        u = rng.random()
-        cumulative = 0.0
-        for index, p in enumerate(probabilities):
-            cumulative += p
-            if u < cumulative:
-                return index
-        return len(probabilities) - 1
+        index = bisect.bisect_right(list(itertools.accumulate(probabilities)), rng.random())
+        return min(index, len(probabilities) - 1)
 
 
 @register_selector
