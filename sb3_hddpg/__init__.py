@@ -1,10 +1,9 @@
 """sb3-hddpg: Hierarchical DDPG (Um, Nethala & Shin, AI 2022) on Stable-Baselines3."""
 
-import importlib
 import os
-from typing import Any
 
 from sb3_hddpg.envs import ENV_IDS, SnakeArmEnv
+from sb3_hddpg.lazy import lazy_attributes
 from sb3_hddpg.policy_loaders import register_policy_loader
 
 with open(os.path.join(os.path.dirname(__file__), "version.txt")) as _file:
@@ -36,11 +35,7 @@ register_policy_loader(
     names=("random", "scripted", "ik", "field"),
 )
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'sb3_hddpg' has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _LAZY)
 
 
 __all__ = ["ENV_IDS", "SnakeArmEnv", "__version__", *_LAZY]

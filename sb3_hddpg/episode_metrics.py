@@ -1,8 +1,4 @@
-"""
-One episode's metrics (:class:`EpisodeMetrics`) and their count, one env step at a time
-(:class:`EpisodeTally`): what :func:`~sb3_hddpg.evaluation.evaluate` sums on a single env and on every
-env of a VecEnv alike.
-"""
+"""One episode's metrics (:class:`EpisodeMetrics`), counted one env step at a time (:class:`EpisodeTally`)."""
 
 from __future__ import annotations
 
@@ -29,23 +25,20 @@ class EpisodeMetrics:
     length: int
     #: Per reward term, its raw episode sum.
     term_rewards: dict[str, float]
-    #: The combined normalised reward, per step every reward term min-max normalised to [0, 1] with the env's
-    #: bounds and summed (on the snake the SnakeReach reward; the benchmark's common metric).
+    #: Per step every reward term normalised to [0, 1] with the env's bounds and summed (the common metric).
     reach_reward: float
-    #: The snake env's touch and collision metrics, ``None`` where the env does not report them in ``info``
-    #: (``goal_touched``, ``collision``, ``min_clearance``).
+    #: The snake env's touch and collision metrics, ``None`` where ``info`` does not report them.
     goal_touch_rate: float | None = None
     goal_touched: bool | None = None
     collisions: int | None = None
     success: bool | None = None
     min_clearance: float | None = None
     selections: dict[str, int] = field(default_factory=dict)
-    #: The fraction of the deciding network's output entries with ``|a| >= SATURATION_LEVEL``, of the manager's
-    #: action for a hierarchy (its ``last_manager_action``), the action given to the env otherwise. ``None``
-    #: where that output is an index (a DQN manager's worker, a discrete action): an index has no saturation.
+    #: The share of the deciding network's outputs (a hierarchy's manager's) with ``|a| >= SATURATION_LEVEL``;
+    #: ``None`` where that output is an index.
     action_saturation: float | None = None
-    #: Worker choices made in a state whose nearest obstacle was within ``near_clearance`` (see
-    #: :func:`~sb3_hddpg.evaluation.evaluate`), and in a state with no obstacle within ``clear_clearance``.
+    #: Worker choices made with the nearest obstacle within ``near_clearance``, and with none within
+    #: ``clear_clearance`` (see :func:`~sb3_hddpg.evaluation.evaluate`).
     selections_near: dict[str, int] = field(default_factory=dict)
     selections_clear: dict[str, int] = field(default_factory=dict)
     #: A hierarchy's contact steps by the worker that acted in them (where the env reports collisions).
@@ -53,10 +46,7 @@ class EpisodeMetrics:
 
 
 def finite_episode(metrics: EpisodeMetrics) -> EpisodeMetrics:
-    """
-    ``metrics`` if its rewards are finite numbers; else a ``ValueError`` naming the first that is not: a NaN
-    or infinite reward is a broken env or term bounds, to be reported, never averaged into a result file.
-    """
+    """``metrics`` if its rewards are finite; else a ``ValueError`` naming the first that is not (never averaged)."""
     values = {"reward": metrics.reward, "reach_reward": metrics.reach_reward, **metrics.term_rewards}
     for name, value in values.items():
         if not math.isfinite(value):
@@ -105,11 +95,9 @@ class EpisodeTally:
 
     def add_env_step(self, reward: float, info: dict[str, Any], selected: str | None) -> None:
         """
-        One ``env.step``: a manager's wrapper with options runs several env steps per decision, and its own
-        reward discounts them, so each is counted with its undiscounted reward, as for every other policy.
+        One ``env.step``: each env step of a manager's option is counted with its undiscounted reward.
 
-        :param selected: the worker a hierarchy chose (``None``: not a hierarchy); a wrapper's ``info`` says
-            which it ran.
+        :param selected: the worker a hierarchy chose (``None``: not a hierarchy; a wrapper's ``info`` says).
         """
         selected = info.get("selected_worker") or selected
         if "option_infos" in info:

@@ -1,9 +1,7 @@
 """
-The named sets of evaluation episodes: which seeds each kind of decision or score is measured on.
-
-Every evaluation resets episode ``k`` of a set with seed ``first_seed + k``. The sets are far apart so that
-no choice (a checkpoint, a hyperparameter, a config value, a threshold) is ever made on the episodes that
-score the result of record: the final test set is evaluated only by a benchmark run with ``final_test``.
+The named sets of evaluation episodes: which seeds each kind of decision or score is measured on. Episode
+``k`` of a set is reset with seed ``first_seed + k``; the sets are far apart, so that no choice is ever made
+on the episodes that score the result of record (the final test set, scored only with ``final_test``).
 """
 
 from __future__ import annotations
@@ -45,22 +43,16 @@ class EpisodeSet:
         return {"name": self.name, "first_seed": seeds.start, "episodes": len(seeds)}
 
 
-#: Learning curves and each learner's checkpoint choice (its best-evaluated checkpoint is kept).
 CURVE = EpisodeSet(
     "curve", 10_000, "learning curves; each learner's kept checkpoint; ham-tuned's threshold grid"
 )
-#: Development scores: benchmark runs that are not the run of record, and every choice made from them.
 DEVELOPMENT = EpisodeSet(
     "development",
     15_000,
-    "development scores (called the test episodes before the final test set existed): config values such as "
-    "action penalties, study re-runs and every benchmark run made without --final-test",
+    "development scores: config values, study re-runs, benchmark runs without --final-test",
 )
-#: Post-hoc studies of the switch (HAM's threshold frontier).
 FRONTIER = EpisodeSet("frontier", 20_000, "post-hoc studies: the switch frontier over each seed's workers")
-#: Hyperparameter studies: each trial's evaluations.
 TUNING = EpisodeSet("tuning", 30_000, "hyperparameter studies: every trial's evaluations and pruning")
-#: The final test set: evaluated once, by the benchmark runs of record, never for a choice.
 FINAL_TEST = EpisodeSet(
     "final-test", 900_000, "the final test set: scored once by the runs of record (benchmark --final-test)"
 )

@@ -31,10 +31,7 @@ DEPENDENCE_WORKER = "avoid"
 
 
 class EvaluationSummary(dict[str, Any]):
-    """
-    The means of an evaluation: a plain dict for programs (JSON-ready; rates as fractions), printed as a
-    table in words with units (rates as percentages; see :mod:`sb3_hddpg.metric_labels`).
-    """
+    """The means of an evaluation: a JSON-ready dict (rates as fractions), printed as a table with units."""
 
     def __str__(self) -> str:
         rows = summary_rows(self)
@@ -54,10 +51,7 @@ class EvaluationResult:
     clear_clearance: float | None = None
 
     def summary(self) -> EvaluationSummary:
-        """
-        Means (and the reward's std) over episodes, plus how often each worker acted, as a fraction; a
-        dict that prints as a readable table.
-        """
+        """Means (and the reward's std) over episodes, and how often each worker acted, as a fraction."""
         eps = self.episodes
         rewards = np.array([e.reward for e in eps])
         out: dict[str, Any] = {
@@ -86,13 +80,10 @@ class EvaluationResult:
             steps = sum(total.values())
             out["selection_rate"] = {name: count / steps for name, count in sorted(total.items())}
             for band in ("near", "clear"):
-                counts: Counter[str] = Counter()
-                for e in eps:
-                    counts.update(getattr(e, f"selections_{band}"))
+                counts = sum((Counter(getattr(e, f"selections_{band}")) for e in eps), Counter[str]())
                 out[f"selections_{band}"] = {name: counts.get(name, 0) for name in sorted(total)}
             if eps[0].collisions is not None:
-                # Which worker was acting when the arm touched an obstacle: a manager that leaves the goal
-                # worker in charge near obstacles shows here, whatever its share of the choices.
+                # Which worker acted at each contact: a goal worker left in charge near obstacles shows here.
                 out["collisions_by_worker"] = {
                     name: float(np.mean([e.collisions_by_worker.get(name, 0) for e in eps]))
                     for name in sorted(total)
@@ -119,36 +110,27 @@ def evaluate(
     """
     Run ``policy`` for ``n_episodes`` on ``env``, resetting episode ``k`` with seed ``seed + k``.
 
-    The env must meet the env contract (:mod:`sb3_hddpg.envs.contract`): per-term sums and the normalised
-    total are measured on any such env; the snake env's touch, collision and clearance metrics only where
-    the env reports ``goal_touched``, ``collision`` and ``min_clearance`` in ``info``. A :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` also reports the worker it
-    ran (``selected_worker``), and a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` its ``last_selection``: both are
-    counted, each also by the state it was made in: with the nearest obstacle within ``near_clearance``
-    (the ``min_clearance`` of the observation the policy acted on), or with none within ``clear_clearance``
-    (see :func:`state_dependence`). The policy must act in ``env``'s action space.
+    The env meets the env contract (:mod:`sb3_hddpg.envs.contract`): per-term sums and the normalised total
+    are measured on any such env, touches, collisions and clearance where ``info`` reports them. The worker a
+    hierarchy or a manager's wrapper chose is counted, also by the state it chose in: nearest obstacle within
+    ``near_clearance``, or none within ``clear_clearance`` (see :func:`state_dependence`).
 
     :param policy: anything with SB3's ``predict``.
-    :param env: an environment, time-limited (default, for a policy that knows its env such as a
-        :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`: one from its ``make_env()``, closed afterwards); or
-        a VecEnv of such envs (a ``DummyVecEnv`` or a ``SubprocVecEnv``, also under VecEnv wrappers), which
-        runs ``num_envs`` episodes at a time, each env of a round reset with its episode's seed, ``predict``
-        given the batch with its ``state`` and ``episode_start`` (a hierarchy keeps an option per env). What
-        the env declares (reward terms, proximity) is read with ``get_attr``; ``on_step`` needs the env
-        objects, so only a ``DummyVecEnv`` takes it. Episodes and seeds are those of a single env; the summed
-        reward differs from it only by the float32 a VecEnv stores rewards in.
-    :param n_episodes: how many episodes, in ``limits.COUNTS["episodes"]`` (1 to 10,000; a ``ValueError``
-        naming ``n_episodes`` otherwise).
+    :param env: a time-limited env (default, for a policy with ``make_env()`` such as a ``Hierarchy``: its
+        own, closed afterwards); or a VecEnv of such envs, which runs ``num_envs`` episodes at a time with the
+        same seeds, ``predict`` given the batch with its ``state`` and ``episode_start``.
+    :param n_episodes: how many episodes, 1 to 10,000.
     :param seed: the first episode's seed.
     :param deterministic: passed to ``predict``.
-    :param on_step: called after every step with the env and its ``info`` (for recording).
+    :param on_step: called after every step with the env and its ``info`` (for recording; of a VecEnv only
+        a ``DummyVecEnv``).
     :param near_clearance: a choice counts as "near an obstacle" at a clearance <= this (default: half the
         ``sensor_range`` of the env's declared :class:`~sb3_hddpg.envs.contract.Proximity`; an env that
-        declares none has its choices not split by state, and refuses a band given here).
+        declares none refuses a band).
     :param clear_clearance: a choice counts as "no obstacle in range" at a clearance >= this (default: the
-        env's ``sensor_range``: every proximity sensor reads its maximum).
+        env's ``sensor_range``).
     :return: per-episode metrics.
     """
-    # the same bound as the CLI's --episodes, from the one table of counts (a LimitError is a ValueError)
     check_count("episodes", n_episodes, "n_episodes")
     if env is None:
         make_env = getattr(policy, "make_env", None)
@@ -174,35 +156,20 @@ def evaluate(
     worker_names = _worker_names(policy, env)
     for k in range(n_episodes):
         obs, info = env.reset(seed=seed + k)
-        reset_episode = getattr(policy, "reset_episode", None)
-        if reset_episode is not None:
-            reset_episode()
+        getattr(policy, "reset_episode", lambda: None)()
         tally = EpisodeTally(normaliser, worker_names, near_clearance, clear_clearance, info)
-        _run_episode(policy, env, obs, tally, deterministic, on_step)
+        done = False
+        while not done:
+            action, _ = policy.predict(obs, deterministic=deterministic)
+            decision = getattr(policy, "last_manager_action", None)  # a hierarchy's manager decided
+            tally.add_decision(np.asarray(action if decision is None else decision))
+            obs, reward, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            tally.add_env_step(float(reward), info, getattr(policy, "last_selection", None))
+            if on_step is not None:
+                on_step(env, info)
         episodes.append(finite_episode(tally.metrics(seed + k)))
     return EvaluationResult(episodes, near_clearance, clear_clearance)
-
-
-def _run_episode(
-    policy: Policy,
-    env: gym.Env,
-    obs: Any,
-    tally: EpisodeTally,
-    deterministic: bool,
-    on_step: Callable[[gym.Env, dict[str, Any]], None] | None,
-) -> None:
-    """Run one episode from its first observation ``obs`` to its end, counting every env step in ``tally``."""
-    done = False
-    while not done:
-        action, _ = policy.predict(obs, deterministic=deterministic)
-        # Saturation of the network that decided: a hierarchy's manager, else the acting policy.
-        decision = getattr(policy, "last_manager_action", None)
-        tally.add_decision(np.asarray(action if decision is None else decision))
-        obs, reward, terminated, truncated, info = env.step(action)
-        done = terminated or truncated
-        tally.add_env_step(float(reward), info, getattr(policy, "last_selection", None))
-        if on_step is not None:
-            on_step(env, info)
 
 
 def _evaluate_vec_env(
@@ -216,7 +183,8 @@ def _evaluate_vec_env(
     clear_clearance: float | None,
 ) -> EvaluationResult:
     """:func:`~sb3_hddpg.evaluation.evaluate` on a VecEnv: episode ``k`` with seed ``seed + k``."""
-    envs = _in_process_envs(vec_env)
+    inner = vec_env.unwrapped
+    envs = list(inner.envs) if isinstance(inner, DummyVecEnv) else None  # None: envs in other processes
     if on_step is not None and envs is None:
         raise ValueError(
             f"evaluate(): `on_step` is given the env that stepped, which a {type(vec_env.unwrapped).__name__} runs in "
@@ -262,11 +230,8 @@ def _evaluate_vec_env(
 
 def _declared_terms(vec_env: VecEnv) -> tuple[TermNormaliser, Proximity | None, str]:
     """
-    What the first env of ``vec_env`` declares of the env contract (:mod:`sb3_hddpg.envs.contract`): its
-    reward terms' normaliser, its proximity (``None``: none) and its name. Asked through ``get_attr``, which
-    reaches envs in other processes too, so that only these picklable values cross.
-
-    :raises ValueError: one line, when the envs do not declare their reward terms.
+    The first env's reward terms' normaliser, proximity (``None``: none) and name, asked through ``get_attr``
+    (which reaches envs in other processes); a one-line ``ValueError`` for envs that declare no terms.
     """
     spec = vec_env.get_attr("spec", [0])[0]
     name = repr(spec.id) if spec is not None else "the VecEnv's first env"
@@ -280,24 +245,18 @@ def _declared_terms(vec_env: VecEnv) -> tuple[TermNormaliser, Proximity | None, 
     return normaliser, proximity if isinstance(proximity, Proximity) else None, name
 
 
-def _in_process_envs(vec_env: VecEnv) -> list[gym.Env] | None:
-    """The envs of a ``DummyVecEnv`` (under any VecEnv wrappers); ``None`` for envs in other processes."""
-    inner = vec_env.unwrapped
-    return list(inner.envs) if isinstance(inner, DummyVecEnv) else None
-
-
 def clearance_bands(
     env: gym.Env, near: float | None, clear: float | None
 ) -> tuple[float | None, float | None]:
     """
-    The clearance bands of :func:`evaluate`, checked, defaulting to the ``sensor_range`` of the env's
-    declared :class:`~sb3_hddpg.envs.contract.Proximity` (half and full); both ``None`` for an env that
-    declares none (it reports no clearance, so choices cannot be split by it).
+    The clearance bands of :func:`evaluate`, checked, defaulting to half and all the ``sensor_range`` of the
+    env's declared :class:`~sb3_hddpg.envs.contract.Proximity`; both ``None`` for an env that declares none.
 
     :raises ValueError: a band that is negative or not finite, ``near > clear``, or a band given for an env
-        without the proximity capability (it would count no choice at all, silently).
+        without a proximity (it would count no choice at all, silently).
     """
-    return _bands_of(proximity_of(env), _env_name(env), near, clear)
+    spec = env.unwrapped.spec
+    return _bands_of(proximity_of(env), repr(spec.id) if spec else type(env.unwrapped).__name__, near, clear)
 
 
 def _bands_of(
@@ -314,36 +273,27 @@ def _bands_of(
                 "`proximity` with a sensor range, no info['min_clearance']; see sb3_hddpg.envs.contract)"
             )
         return None, None
-    if near is None:
-        near = 0.5 * proximity.sensor_range
-    if clear is None:
-        clear = proximity.sensor_range
+    near = 0.5 * proximity.sensor_range if near is None else near
+    clear = proximity.sensor_range if clear is None else clear
     for name, value in (("near_clearance", near), ("clear_clearance", clear)):
-        if value is not None and not (math.isfinite(value) and value >= 0):
+        if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"Expected `{name}` to be a finite number >= 0, actually: {value}")
-    if near is not None and clear is not None and near > clear:
+    if near > clear:
         raise ValueError(f"Expected `near_clearance` <= `clear_clearance`, actually: {near} > {clear}")
     return near, clear
 
 
-def _env_name(env: gym.Env) -> str:
-    spec = env.unwrapped.spec
-    return repr(spec.id) if spec is not None else type(env.unwrapped).__name__
-
-
 def state_dependence(summary: dict[str, Any], worker: str = DEPENDENCE_WORKER) -> dict[str, Any] | None:
     """
-    Whether a hierarchy chooses by state: ``worker``'s share of the choices made near
-    an obstacle (clearance <= ``near_clearance``) against its share where no obstacle is in range
-    (clearance >= ``clear_clearance``), and their ratio. A manager that decides by state picks the avoid
-    worker far more often near obstacles (ratio well above 1); a fixed mix of workers gives about 1.
+    Whether a hierarchy chooses by state: ``worker``'s share of the choices made near an obstacle against
+    its share where none is in range, and their ratio (well above 1 for a manager that decides by state,
+    about 1 for a fixed mix).
 
     :param summary: an :meth:`EvaluationResult.summary` (of a policy that reports its worker choices).
     :param worker: the worker whose share is compared.
-    :return: ``near_share``, ``clear_share`` (``None`` where no choice fell in that band), ``ratio``
-        (``None`` where undefined: a band without choices, or a clear share of 0), the choices counted in
-        each band, the bands and the worker; ``None`` when the policy reported no choices, has no
-        ``worker``, or the env has no clearance bands (it declares no proximity: not available there).
+    :return: ``near_share``, ``clear_share`` and ``ratio`` (each ``None`` where a band had no choices or the
+        clear share is 0), the choices in each band, the bands and the worker; ``None`` without choices,
+        without ``worker`` or without clearance bands.
     """
     near, clear = summary.get("selections_near"), summary.get("selections_clear")
     if near is None or clear is None or worker not in summary.get("selection_rate", {}):
@@ -385,23 +335,17 @@ def dependence_rows(figure: dict[str, Any], worker: str) -> list[tuple[str, str,
     A :func:`state_dependence` figure as rows of quantity, value and unit: ``worker``'s share of the choices
     near an obstacle and with none in range (each with the number of choices it is out of), and their ratio.
     """
-
-    def share(value: float | None, choices: int) -> str:
-        return f"{value:.1%} of {choices}" if value is not None else "- (0 choices)"
-
-    return [
-        (
-            f"{worker} share, clearance <= {figure['near_clearance']:.3g}",
-            share(figure["near_share"], figure["near_choices"]),
-            "of choices",
-        ),
-        (
-            f"{worker} share, clearance >= {figure['clear_clearance']:.3g} (none in range)",
-            share(figure["clear_share"], figure["clear_choices"]),
-            "of choices",
-        ),
-        (f"{worker} share ratio near / none in range", dependence_ratio_text(figure), "ratio"),
-    ]
+    rows = []
+    for band, sign, note in (("near", "<=", ""), ("clear", ">=", " (none in range)")):
+        share, choices = figure[f"{band}_share"], figure[f"{band}_choices"]
+        rows.append(
+            (
+                f"{worker} share, clearance {sign} {figure[f'{band}_clearance']:.3g}{note}",
+                f"{share:.1%} of {choices}" if share is not None else "- (0 choices)",
+                "of choices",
+            )
+        )
+    return [*rows, (f"{worker} share ratio near / none in range", dependence_ratio_text(figure), "ratio")]
 
 
 @dataclass(frozen=True)
@@ -409,11 +353,6 @@ class SummariesTable:
     """
     Evaluation summaries as a table of text, one row per agent, each column in one unit (named in the
     caption, so that the table fits an 80-column terminal); the CLI draws it.
-
-    :param title: the table's title.
-    :param caption: the units of the columns.
-    :param columns: the column headers after the agent's.
-    :param rows: per agent, its name and one text per column.
     """
 
     title: str
@@ -426,13 +365,9 @@ def summaries_table(
     title: str, summaries: Mapping[str, Mapping[str, Any]], reward: MetricLabel | None = None
 ) -> SummariesTable:
     """
-    The table of evaluation summaries a training command prints: the reward (with its spread), the return of
-    the normalised terms where it differs from the reward, the snake's touch and collision rates where the env
-    reports them (else every reward term), and the deciding network's saturation.
-
-    :param title: the table's title.
-    :param summaries: agent -> its evaluation summary.
-    :param reward: what ``mean_reward`` is for these agents (default: the env's own reward).
+    The table of evaluation summaries (agent -> summary) a training command prints: the reward with its
+    spread, the normalised return where it differs, the snake's touch and collision rates (else every
+    reward term) and the deciding network's saturation; ``reward`` says what ``mean_reward`` is.
     """
     # The closest approach to an obstacle is in the evaluation history (and `evaluate`): 80 columns hold no more.
     snake = ("goal_touch_rate", "collisions_per_episode", "success_rate")

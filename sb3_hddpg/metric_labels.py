@@ -1,9 +1,6 @@
 """
-How evaluation metrics are named and shown to people: words instead of keys, one unit per quantity.
-
-:meth:`~sb3_hddpg.evaluation.EvaluationResult.summary` keeps rates as fractions (0..1) for programs; every
-printed table shows them as percentages of what they count (steps, episodes, actor outputs), with the
-unit in its own column or header, so that no table mixes ``0.070`` with ``99.4%``.
+How evaluation metrics are shown to people: words instead of keys, one unit per quantity. Summaries keep
+rates as fractions for programs; printed tables show percentages, with the unit in a header or a caption.
 """
 
 from __future__ import annotations
@@ -40,25 +37,17 @@ class MetricLabel:
         name = self.short or self.label
         return f"{name} ({self.unit})" if self.unit else name
 
-    @property
-    def column(self) -> str:
-        """The short name over its unit: a narrow two-line column header."""
-        name = self.short or self.label
-        return f"{name}\n({self.unit})" if self.unit else name
-
 
 #: Summary key -> how it is shown. Keys not listed are shown by name, with three decimals.
 METRIC_LABELS: dict[str, MetricLabel] = {
     "mean_reward": MetricLabel("reward (the env's own)", "per episode", short="reward"),
-    # Any env's reward terms, each min-max normalised to [0, 1] with the env's bounds and summed over the
-    # episode's steps: one name on every env (on the snake arm it is the SnakeReach reward, "reach reward").
+    # The reward terms, each normalised to [0, 1] and summed over the episode: one name on every env.
     "mean_reach_reward": MetricLabel("return (normalised terms)", "per episode", short="norm. return"),
     "mean_goal_reward": MetricLabel("goal reward", "per episode"),
     "mean_avoid_reward": MetricLabel("avoid reward", "per episode"),
     # Rates of steps matter at one decimal (3.0 % against 0.1 % goal touch).
     "goal_touch_rate": MetricLabel("touching the goal", "% of steps", percent=True, short="goal touch"),
     "goal_reached_rate": MetricLabel("goal touched at least once", "% of episodes", percent=True, digits=0),
-    # One name wherever it is shown (evaluate, record, tables): contact steps, the steps the arm touches an obstacle.
     "collisions_per_episode": MetricLabel(
         "contact steps (steps touching an obstacle)", "per episode", short="contact steps"
     ),
@@ -68,7 +57,6 @@ METRIC_LABELS: dict[str, MetricLabel] = {
     "min_clearance": MetricLabel(
         "min clearance to an obstacle", "arm lengths", digits=3, short="min clearance"
     ),
-    # A tanh actor's output at ±1 sits where its gradient vanishes: it has stopped adjusting that output.
     "action_saturation": MetricLabel(
         "actor outputs pinned at ±1 (the ends of the tanh range: no longer learning)",
         "% of outputs",
@@ -96,25 +84,20 @@ CONTACTS_LABEL = MetricLabel(
 
 #: A manager whose one worker runs this share of the steps or more acts as that worker alone.
 COLLAPSED_SHARE = 0.99
-#: A manager whose outputs are pinned at ±1 this often or more no longer weighs its workers (a tanh actor there
-#: has almost no gradient left to move it).
+#: A manager whose outputs are pinned at ±1 this often or more no longer weighs its workers.
 SATURATED_SHARE = 0.5
 
 
 def manager_warnings(summary: Mapping[str, Any]) -> list[str]:
     """
-    What a hierarchy's evaluation says about its manager, in words, where it does not decide between its
-    workers: it chose one worker on (nearly) every step, or its outputs sit at the ends of their range.
-
-    :param summary: :meth:`~sb3_hddpg.evaluation.EvaluationResult.summary` of a hierarchy (or any policy: no
-        ``selection_rate``, no warning).
-    :return: one sentence per finding (none: the manager switches between its workers).
+    One sentence per way a hierarchy's manager does not decide between its workers, from its evaluation
+    :meth:`~sb3_hddpg.evaluation.EvaluationResult.summary`: one worker on (nearly) every step, or its outputs
+    pinned at the ends of their range. None for a policy without ``selection_rate``.
     """
     warnings: list[str] = []
     rates = summary.get("selection_rate")
     if not isinstance(rates, Mapping) or not rates:
         return warnings  # not a hierarchy: its saturation is an actor's, said by the table
-    # Only the workers chosen at least once are counted: one name alone is a manager that never switched.
     name, share = max(rates.items(), key=lambda item: item[1])
     if share >= COLLAPSED_SHARE:
         warnings.append(
@@ -130,12 +113,7 @@ def manager_warnings(summary: Mapping[str, Any]) -> list[str]:
 
 
 def units_caption(labels: Sequence[MetricLabel]) -> str:
-    """
-    The units of a table's columns in one line (``"per episode: reward, return; % of steps: goal touch"``), so
-    that the headers can be short names and the table fits an 80-column terminal.
-
-    :param labels: the columns' labels, in order.
-    """
+    """The units of a table's columns in one line (``"per episode: reward; % of steps: goal touch"``)."""
     by_unit: dict[str, list[str]] = {}
     for label in labels:
         if label.unit:
@@ -155,11 +133,8 @@ def metric_label(key: str) -> MetricLabel:
 
 def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
     """
-    An evaluation summary as ``(quantity, value, unit)`` rows: the reward with its spread across episodes,
-    rates as percentages, each worker's share of the steps.
-
-    :param summary: :meth:`~sb3_hddpg.evaluation.EvaluationResult.summary`.
-    :return: the rows, in the summary's order.
+    An evaluation :meth:`~sb3_hddpg.evaluation.EvaluationResult.summary` as ``(quantity, value, unit)`` rows,
+    in its order: the reward with its spread, rates as percentages, each worker's share of the steps.
     """
     rows: list[tuple[str, str, str]] = []
     same = same_returns(summary)
@@ -168,12 +143,13 @@ def summary_rows(summary: Mapping[str, Any]) -> list[tuple[str, str, str]]:
             continue  # the episodes are in the title; a std is shown with its mean; one number once
         by_worker = {"selection_rate": SELECTION_LABEL, "collisions_by_worker": CONTACTS_LABEL}.get(key)
         if by_worker is not None and isinstance(value, Mapping):
-            for name, item in value.items():
-                rows.append((by_worker.label.format(name=name), by_worker.format(item), by_worker.unit))
+            rows += [
+                (by_worker.label.format(name=n), by_worker.format(v), by_worker.unit)
+                for n, v in value.items()
+            ]
             continue
         if isinstance(value, Mapping):
-            for name, item in value.items():
-                rows.append((f"{key.replace('_', ' ')}: {name}", _plain(item), ""))
+            rows += [(f"{key.replace('_', ' ')}: {name}", _plain(item), "") for name, item in value.items()]
             continue
         if not isinstance(value, (int, float)) or isinstance(value, bool):
             rows.append((key.replace("_", " "), str(value), ""))

@@ -30,13 +30,8 @@ def check_plain_name(value: Any, what: str) -> str:
     :param what: where it comes from (an option or a field), for the message.
     :return: the name.
     """
-    if isinstance(value, str) and PLAIN_NAME.match(value):
-        return value
-    shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:79] + "…"
-    raise PlainNameError(
-        f"{what}: expected a name of ASCII letters, digits, '_' and '-' (starting with a letter or digit, "
-        f"at most {MAX_NAME_CHARS}), got {shown}"
-    )
+    expected = "a name of ASCII letters, digits, '_' and '-' (starting with a letter or digit, at most"
+    return _matching(PLAIN_NAME, value, what, f"{expected} {MAX_NAME_CHARS})")
 
 
 #: A preference as it appears in a benchmark method's key and folder name (``goal=0.4,avoid=1.6``): term
@@ -52,9 +47,11 @@ def check_preference_text(value: Any, what: str) -> str:
     :param what: where it comes from, for the message.
     :return: the text.
     """
-    if isinstance(value, str) and PREFERENCE_TEXT.match(value):
+    return _matching(PREFERENCE_TEXT, value, what, "TERM=WEIGHT pairs joined by ',' (at most 200 characters)")
+
+
+def _matching(pattern: re.Pattern[str], value: Any, what: str, expected: str) -> str:
+    if isinstance(value, str) and pattern.match(value):
         return value
     shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:79] + "…"
-    raise PlainNameError(
-        f"{what}: expected TERM=WEIGHT pairs joined by ',' (at most 200 characters), got {shown}"
-    )
+    raise PlainNameError(f"{what}: expected {expected}, got {shown}")

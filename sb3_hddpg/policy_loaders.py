@@ -1,10 +1,7 @@
 """
 The registry of policy loaders: what :func:`~sb3_hddpg.hierarchy.loading.load_policy` opens besides bundles
-and SB3 zips (a HAM switch's ``ham.json``, reference policies named instead of a file), registered by entry
-point as gymnasium registers env ids, so that the core imports no baseline.
-
-Only code registers a loader: a file someone else made can pick one only by the suffix or the name the user
-gave, never name a module, so nothing from a file reaches an import without passing this allow-list.
+and SB3 zips, registered by entry point as gymnasium registers env ids, so that the core imports no baseline.
+Only code registers a loader: a file can pick one only by its suffix, never name a module.
 """
 
 from __future__ import annotations
@@ -45,11 +42,10 @@ class LoadedPolicy:
 
     def make_env(self, env_id: str | None = None, /, **kwargs: object) -> gym.Env:
         """
-        The env to run this policy in (``env_id`` overrides the trained-on id), checked to fit the policy.
+        The env to run this policy in, checked to fit it (a ``ValueError`` otherwise).
 
         :param env_id: the env id (default: the one the policy was trained on).
         :param kwargs: env keyword arguments over the trained-on ones.
-        :return: the env; raises ``ValueError`` if its spaces are not the policy's.
         """
         env_id = env_id or self.env_id
         if kwargs.get("render_mode") is not None:
@@ -76,15 +72,7 @@ NamedLoader = Callable[[str, str, dict[str, Any]], LoadedPolicy]
 
 @dataclass(frozen=True)
 class PolicyLoader:
-    """
-    One registered loader.
-
-    :param kind: its name in the registry.
-    :param entry_point: ``"module:function"`` (imported on first use) or the function itself: a
-        :data:`FileLoader` for ``suffixes``, a :data:`NamedLoader` for ``names``.
-    :param suffixes: the file suffixes it opens (``".json"``).
-    :param names: the policy names it makes without a file (``"random"``).
-    """
+    """One registered loader (see :func:`register_policy_loader`)."""
 
     kind: str
     entry_point: str | Callable[..., LoadedPolicy]
@@ -114,7 +102,8 @@ def register_policy_loader(
     Register a loader of policy files (by suffix) or of policies named instead of a file.
 
     :param kind: the loader's name (unique).
-    :param entry_point: ``"module:function"``, or the function (see :class:`PolicyLoader`).
+    :param entry_point: ``"module:function"`` (imported on first use) or the function: a :data:`FileLoader`
+        for ``suffixes``, a :data:`NamedLoader` for ``names``.
     :param suffixes: file suffixes it opens, each starting with a dot and claimed by no other loader.
     :param names: policy names it makes, each claimed by no other loader.
     :return: the registered record.

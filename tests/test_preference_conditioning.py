@@ -203,9 +203,8 @@ def test_a_conditioned_bundle_records_its_preferences_and_acts_at_any_of_them_in
     for preference in preferences:
         hierarchy.set_preference(preference)
         hierarchy.seed(0)
-        expected.append(
-            np.stack([hierarchy._manager.act(hierarchy._manager_obs(row)) for row in obs])  # the raw actor
-        )
+        manager_obs = [hierarchy._manager_input(row, None, hierarchy._preference_obs) for row in obs]
+        expected.append(np.stack([hierarchy._manager.act(row) for row in manager_obs]))  # the raw actor
     # The preference is an input: the manager's output depends on it.
     assert not np.allclose(expected[0], expected[1])
     script = (

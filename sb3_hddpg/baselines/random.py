@@ -8,7 +8,7 @@ import numpy as np
 
 class RandomPolicy:
     """
-    Uniform random actions: the floor every learned policy must beat.
+    Uniform random actions.
 
     :param action_space: the space to sample from: a ``Box``.
     :param seed: seed of the sampler.

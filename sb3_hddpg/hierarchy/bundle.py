@@ -51,12 +51,7 @@ class BundleError(ValueError):
 
 
 def write_bundle(manifest: BundleManifest, members: Mapping[str, bytes]) -> bytes:
-    """
-    A bundle's zip bytes: the manifest and every member.
-
-    :param manifest: the bundle's manifest (its members' files and hashes).
-    :param members: member name -> its bytes.
-    """
+    """A bundle's zip bytes: the manifest and every member (name -> bytes)."""
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
         archive.writestr(MANIFEST, json_text(manifest, MANIFEST))
@@ -69,13 +64,9 @@ def read_bundle(
     path: str | Path | io.BytesIO, budget: LoadBudget | None = None
 ) -> tuple[BundleManifest, dict[str, bytes]]:
     """
-    Open a bundle and verify it: a readable zip with a manifest of a known schema, every member listed
-    and present, every sha256 matching. Only the members the manifest lists are read, each within the
-    limits of :mod:`sb3_hddpg.artifacts.limits` (size declared and actual, compression ratio, total bytes). Nested
-    bundles are verified when they are loaded.
+    Open a bundle (a path or its bytes) and verify it: a manifest of a known schema, every member it lists
+    present and of its sha256, each read within ``budget`` and the limits of :mod:`sb3_hddpg.artifacts.limits`.
 
-    :param path: the bundle or its bytes.
-    :param budget: what the read may spend (default: a fresh budget).
     :return: the manifest and the member bytes by name.
     """
     name = str(path) if not isinstance(path, io.BytesIO) else "<bytes>"
@@ -99,10 +90,9 @@ def read_bundle(
             entries = record.member_entries()
             members = {}
             for label, entry in entries:
-                member = entry["file"]
-                if member not in names:
-                    raise BundleError(f"{name}: member {member!r} of {label!r} is missing")
-                members[member] = read_member(archive, member, name, budget=budget)
+                if entry["file"] not in names:
+                    raise BundleError(f"{name}: member {entry['file']!r} of {label!r} is missing")
+                members[entry["file"]] = read_member(archive, entry["file"], name, budget=budget)
     except BundleError:
         raise
     except FileNotFoundError:
@@ -129,14 +119,9 @@ def read_bundle(
 
 def sb3_refusal(observation_space: gym.Space, action_space: gym.Space) -> bytes:
     """
-    The ``data`` member of a bundle: what SB3's ``load`` reads first of a zip. Without it ``SAC.load`` of a
-    bundle fails with ``AssertionError: No data found in the saved file``; with it SB3 checks the spaces
-    (given an env) and then names the policy class, which is :data:`SB3_REFUSAL`, in a one-line
-    ``ValueError``. Nothing of ours reads it, so it is outside the manifest's hashes and carries nothing a
-    bundle's verification depends on.
-
-    :param observation_space: the hierarchy's observation space (SB3 compares it with a given env's).
-    :param action_space: the hierarchy's action space.
+    The ``data`` member of a bundle, which SB3's ``load`` reads first: SB3 then checks the spaces (given an
+    env) and names the policy class, :data:`SB3_REFUSAL`, in a one-line ``ValueError`` (without it:
+    ``AssertionError: No data found``). Nothing of ours reads it, so it is outside the manifest's hashes.
     """
     return data_to_json(
         {
@@ -171,10 +156,8 @@ def member_critics(
     manifest: BundleManifest, members: Mapping[str, bytes], where: str
 ) -> dict[str, TermCritic]:
     """
-    The per-term critics inside a verified bundle's SB3 worker members (a worker zip carries its critic as
-    :data:`~sb3_hddpg.artifacts.term_critic.TERM_CRITIC_MEMBER`), by worker name.
-
-    :raises BundleError: for a critic member over the limits or not one this library wrote.
+    Worker name -> the per-term critic inside its SB3 member, from a verified bundle (a ``BundleError`` for
+    a critic over the limits or not one this library wrote).
     """
     critics = {}
     for name in manifest.worker_names:
@@ -200,15 +183,8 @@ def member_model(
     budget: LoadBudget,
 ) -> BaseAlgorithm:
     """
-    The SB3 model of one bundle member, loaded as :meth:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy.load` says.
-
-    :param members: member name -> its verified bytes.
-    :param entry: the member's manifest entry (its ``file`` and rebuild ``spec``).
-    :param name: the bundle, as errors name it.
-    :param trusted: SB3's full loader (``True``) or the spec's rebuild with tensors only (``False``).
-    :param device: the torch device (``"auto"``: CUDA when available).
-    :param budget: what the load may spend.
-    :return: the model; raises :class:`BundleError` naming the member otherwise.
+    The SB3 model of the member of manifest ``entry`` (its ``file`` and rebuild ``spec``), loaded as
+    :meth:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy.load` says; a :class:`BundleError` naming it otherwise.
     """
     data = io.BytesIO(members[entry["file"]])
     try:
@@ -261,20 +237,22 @@ def declared_terms(env: object, env_id: str, env_kwargs: Mapping[str, Any]) -> l
     and closed; ``None`` when that env cannot be made here (a missing optional dependency): the wrapper
     checks the terms again when the hierarchy is given an env.
     """
-    if not isinstance(env, gym.Env):
-        key = (env_id, json.dumps(env_kwargs, sort_keys=True, default=str))
-        if key not in _DECLARED_TERMS:
-            try:
-                made = gym.make(env_id, **env_kwargs)
-            except Exception:  # any failure of a third-party env: the wrapper checks later, with an env
-                return None
-            try:
-                _DECLARED_TERMS[key] = list(env_contract(made).reward_bounds)
-            except ValueError:
-                _DECLARED_TERMS[key] = None
-            finally:
-                made.close()
-        return _DECLARED_TERMS[key]
+    if isinstance(env, gym.Env):
+        return _terms_of(env)
+    key = (env_id, json.dumps(env_kwargs, sort_keys=True, default=str))
+    if key not in _DECLARED_TERMS:
+        try:
+            made = gym.make(env_id, **env_kwargs)
+        except Exception:  # any failure of a third-party env: the wrapper checks later, with an env
+            return None
+        try:
+            _DECLARED_TERMS[key] = _terms_of(made)
+        finally:
+            made.close()
+    return _DECLARED_TERMS[key]
+
+
+def _terms_of(env: gym.Env) -> list[str] | None:
     try:
         return list(env_contract(env).reward_bounds)
     except ValueError:

@@ -1,16 +1,13 @@
 """
 ``PreferenceSpace``: the preferences a preference-conditioned manager is trained over and may be asked for.
 
-A conditioned manager observes its state together with the normalised preference weights
-``w / sum(w)`` and is trained with a preference drawn afresh every episode, so one network serves every
-trade-off. The factors of every drawn preference keep one fixed sum (``total``): a DDPG manager's reward is
-``sum_w factor_w * reward_w``, so the sum scales the reward as well as weighing it (a larger sum saturates
-the critic's targets), and only the ratio is what the preference means. Two kinds:
+A conditioned manager observes the normalised weights ``w / sum(w)`` after its state and trains with a
+preference drawn every episode, so one network serves every trade-off. Every preference keeps one sum
+(``total``), since the sum would scale the manager's reward: only the ratio is the preference. Two kinds:
 
-- ``set``: a finite set of preferences (``ratio-sweep``, or a list), drawn uniformly; at run time any
-  preference within the trained weights' range (per worker, the least and largest normalised weight
-  trained on) is accepted, so a manager trained at 4:1 and 1:4 also acts at 2:1 with no training;
-- ``dirichlet``: ``floor + (1 - n * floor) * Dirichlet(alpha)`` scaled to ``total``; every preference whose
+- ``set``: preferences drawn uniformly from a list (``ratio-sweep``); at run time any preference within
+  each worker's trained range of weights is accepted (trained at 4:1 and 1:4, it acts at 2:1 too);
+- ``dirichlet``: ``floor + (1 - n * floor) * Dirichlet(alpha)`` scaled to ``total``; any preference whose
   normalised weights are at least ``floor`` is accepted.
 """
 
@@ -45,7 +42,7 @@ class PreferenceOutsideError(ValueError):
 @dataclass(frozen=True)
 class PreferenceSpace:
     """
-    A distribution over preference factors with a fixed sum (see the module's note).
+    A distribution over preference factors with a fixed sum.
 
     :param names: the workers, in the manager's action order.
     :param kind: ``"set"`` or ``"dirichlet"``.
@@ -94,19 +91,15 @@ class PreferenceSpace:
         else:
             raise ValueError(f"Unknown preference space kind {self.kind!r}; expected 'set' or 'dirichlet'")
 
-    # ------------------------------------------------------------------ building
     @classmethod
     def parse(cls, text: str, names: Sequence[str], total: float | None = None) -> PreferenceSpace:
         """
         A space from its command-line form.
 
-        - ``ratio-sweep``: every worker in turn weighted 1, 2, 3 and 4 times the others (7 preferences for
-          two workers: 4:1, 3:1, 2:1, 1:1, 1:2, 1:3, 1:4);
-        - ``ratio-sweep:MAX``: the ratios double from 1 up to ``MAX``, a power of two from 2 to 1024, to reach
-          further towards each worker alone (``ratio-sweep:16``: 16:1, 8:1, 4:1, 2:1, 1:1, ..., 1:16);
+        - ``ratio-sweep``: every worker in turn weighted 1, 2, 3 and 4 times the others (4:1 ... 1:4);
+        - ``ratio-sweep:MAX``: the ratios double from 1 up to ``MAX``, a power of two from 2 to 1024;
         - ``dirichlet`` or ``dirichlet:ALPHA``: the Dirichlet space;
-        - a list of preferences separated by ``;``, e.g. ``goal=1.6,avoid=0.4;goal=0.4,avoid=1.6`` (each
-          sums to the same total; names not given get 1).
+        - preferences separated by ``;``, e.g. ``goal=1.6,avoid=0.4;goal=0.4,avoid=1.6`` (names not given get 1).
 
         :param text: the form above.
         :param names: the workers, in the manager's action order.
@@ -152,11 +145,7 @@ class PreferenceSpace:
     def from_json(
         cls, data: object, names: Sequence[str], what: str = "manager_preferences"
     ) -> PreferenceSpace:
-        """
-        The space a bundle records (:meth:`to_json`), checked like any untrusted value.
-
-        :raises LimitError: one line naming what is wrong.
-        """
+        """The space a bundle records (:meth:`to_json`), checked (a one-line ``LimitError`` otherwise)."""
         if not isinstance(data, Mapping):
             raise LimitError(f"{what}: expected a mapping, got {brief(data)}")
         unknown = sorted(str(k) for k in set(data) - {"kind", "total", "points", "alpha", "floor"})
@@ -198,7 +187,6 @@ class PreferenceSpace:
             }
         return {"kind": "dirichlet", "total": self.total, "alpha": self.alpha, "floor": self.floor}
 
-    # ------------------------------------------------------------------ using
     @property
     def default(self) -> dict[str, float]:
         """The unweighted preference at this space's sum (every factor ``total / n``)."""
@@ -225,9 +213,7 @@ class PreferenceSpace:
     def weights(self, preferences: Mapping[str, float]) -> np.ndarray:
         """The normalised weights ``factor / sum`` in ``names`` order (what the manager observes)."""
         values = np.array([float(preferences[name]) for name in self.names], dtype=np.float64)
-        # Scaled by the largest first: factors near the largest float are a valid ratio, and their sum
-        # would overflow.
-        values = values / values.max()
+        values = values / values.max()  # first: the sum of factors near the largest float would overflow
         return values / values.sum()
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -241,13 +227,12 @@ class PreferenceSpace:
     def check(self, preferences: Mapping[str, float]) -> dict[str, float]:
         """
         A run-time preference for a manager trained over this space, rescaled to ``total`` (only the ratio is
-        observed).
+        observed, so the factors' size is not bounded).
 
         :param preferences: worker name -> factor (finite, > 0); names not given get ``total / n``.
         :raises PreferenceOutsideError: one line naming the preference and the trained-over range.
         """
         filled = {**self.default, **dict(preferences)}
-        # Only the ratio is observed (rescaled to ``total`` below): no bound on the factors' size.
         checked = check_preferences(filled, list(self.names), max_factor=None)
         weights = self.weights(checked)
         low, high = self.bounds()

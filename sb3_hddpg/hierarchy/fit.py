@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sb3_hddpg.artifacts.workers import Workers, reward_specs_of, states_of
+from sb3_hddpg.artifacts.workers import reward_specs_of, states_of
 from sb3_hddpg.envs.contract import state_layout_of
 from sb3_hddpg.envs.headless import rendering_errors
 from sb3_hddpg.envs.layout import StateLayout
@@ -21,13 +21,6 @@ from sb3_hddpg.hierarchy.manager_input import ManagerInput, subset_space
 from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, get_selector
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.policy import Policy
-
-
-def shared_env(workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
-    """The shared env workers from ``load_workers`` name, if usable."""
-    if isinstance(workers, Workers) and workers.env_id is not None:
-        return workers.env_id, workers.env_kwargs
-    return None
 
 
 def training_env(model: object) -> tuple[str, dict[str, Any]] | None:
@@ -54,17 +47,9 @@ def training_env(model: object) -> tuple[str, dict[str, Any]] | None:
 
 
 def probe_env(env_id: str, env_kwargs: dict[str, Any]) -> tuple[StateLayout, gym.Space, gym.Space]:
-    """
-    The state layout and the spaces of a hierarchy's env, read from one env made for the purpose.
-
-    :param env_id: the registered id of the shared env.
-    :param env_kwargs: its keyword arguments.
-    :return: ``(layout, observation_space, action_space)``.
-    """
+    """``(layout, observation_space, action_space)`` of a hierarchy's env, from one env made for the purpose."""
     with rendering_errors():  # MuJoCo's OpenGL may fail on import: a problem of this machine, not the bundle
         probe = gym.make(env_id, **env_kwargs)
-    # Absent a declared layout the whole observation is one component: naming any other is refused
-    # by StateLayout.indices with the known names.
     layout = state_layout_of(probe)
     observation_space, action_space = probe.observation_space, probe.action_space
     probe.close()
@@ -122,12 +107,8 @@ def check_spaces(
     env_name: str,
 ) -> None:
     """
-    Check that the manager and every worker that declares its spaces fit the env: the manager sees the
-    env's observation (or its ``manager_state`` components) and outputs one value per worker; each worker
-    sees the env's observation (or its ``worker_states`` components) and outputs the env's action.
-
-    :param env_name: the env as named in messages.
-    :raises ValueError: one line naming the model, the expected and the actual space.
+    Check that the manager and every worker that declares its spaces fit the env (named ``env_name``), each
+    seeing its components of the state: a one-line ``ValueError`` naming the model and both spaces otherwise.
     """
 
     def subset(components: list[str] | None) -> gym.Space:
@@ -164,8 +145,7 @@ def check_spaces(
 def space_difference(actual: gym.Space, expected: gym.Space) -> str:
     """
     The first difference of two spaces of one shape, short enough for one line whatever their size: the
-    type, the dtype, or the first bound that differs with its index (a Box's full arrays ran past the
-    message's length and were cut, shapes and all).
+    type, the dtype, or the first bound that differs with its index.
     """
     if type(actual) is not type(expected):
         return f"a {type(actual).__name__} space where it needs a {type(expected).__name__}"

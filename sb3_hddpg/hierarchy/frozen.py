@@ -1,9 +1,6 @@
 """
 Cheap frozen workers: a trained policy used for inference only, as a copy that never changes the caller's
 model, acting through plain numpy where its actor is a small MLP.
-
-Shared by :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` (training the manager) and
-:class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` (running a trained one).
 """
 
 from __future__ import annotations
@@ -21,16 +18,11 @@ from sb3_hddpg.policy import Policy
 
 class FrozenWorker:
     """
-    A worker used for inference only, as cheaply as possible.
-
-    An SB3 actor made of ``Linear`` layers and common activations (DDPG/TD3's ``actor.mu``; SAC/TQC's
-    ``latent_pi`` + ``mu`` + tanh without gSDE) is compiled once into numpy matrix products on copies of
-    its frozen weights: for one observation and these small networks that is about 10x faster than a torch
-    forward call (measured in ``benchmarks/manager_env_speed.py``), and exactly the deterministic action.
-    Any other SB3 policy runs a frozen deep copy of its network under ``torch.no_grad()``, skipping
-    ``predict``'s per-call checks. Either way the caller's model is never modified: it can keep training,
-    and the frozen worker keeps acting with the weights it had when wrapped; anything else (a :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy`, the HAM switch, a test
-    double) is called through ``predict(obs, deterministic=True)``.
+    A worker used for inference only, as cheaply as possible. An SB3 actor of ``Linear`` layers and common activations (DDPG/TD3's ``actor.mu``; SAC/TQC's
+    ``latent_pi`` + ``mu`` + tanh without gSDE) is compiled into numpy products on copies of its weights,
+    about 10x faster than torch for one observation (``benchmarks/manager_env_speed.py``); any other SB3
+    policy runs a frozen copy under ``torch.no_grad()``. Either way the caller's model can keep training.
+    Anything else (a ``Hierarchy``, the HAM switch) is called through ``predict(obs, deterministic=True)``.
 
     :param worker: the worker.
     :param obs_indices: which entries of the shared state the worker sees (``None``: all).
@@ -39,12 +31,11 @@ class FrozenWorker:
     def __init__(self, worker: Policy, obs_indices: np.ndarray | None = None) -> None:
         self.worker = worker
         self.obs_indices = obs_indices
-        #: The state given to a stateful worker's ``predict`` (a nested hierarchy's options of the env that acts
-        #: now; the hierarchy acting above sets it per env); ``None``: the worker keeps its own.
+        #: The state given to a stateful worker's ``predict`` (a nested hierarchy's options of the env acting
+        #: now); ``None``: the worker keeps its own.
         self.state: Any = None
         policy = getattr(worker, "policy", None)
-        # A Box-acting SB3 policy is run here; a discrete one (DQN, QR-DQN) acts through predict, whose
-        # integer actions need no scaling.
+        # A discrete SB3 policy (DQN) acts through predict: its integer actions need no scaling.
         acts_in_box = isinstance(getattr(policy, "action_space", None), gym.spaces.Box)
         self._policy = policy if acts_in_box and hasattr(policy, "_predict") else None
         self._layers: (
@@ -52,15 +43,12 @@ class FrozenWorker:
         ) = None
         if self._policy is not None:
             space = self._policy.action_space
-            self._squash = bool(getattr(self._policy, "squash_output", False))
+            squash = bool(getattr(self._policy, "squash_output", False))
             self._low = space.low.astype(np.float32)
             self._half_range = ((space.high - space.low) / 2.0).astype(np.float32)
             # Unscaling to [-1, 1] (the snake's action space) is the identity: skip it.
-            self._squash = self._squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
-            # A Gaussian policy without a squashing tanh (PPO) is clipped to the bounds, as SB3's predict does.
-            self._clip = not getattr(self._policy, "squash_output", False)
-            # Freeze copies, never the caller's model: the numpy layers copy the weights, and the torch
-            # path runs a frozen deep copy, so the worker (or manager) can go on training elsewhere.
+            self._squash = squash and not (np.all(space.low == -1.0) and np.all(space.high == 1.0))
+            self._clip = not squash  # a Gaussian policy without tanh (PPO) is clipped, as SB3's predict does
             self._layers = _compile_actor(self._policy)
             if self._layers is None:
                 self._policy = _frozen_copy(self._policy)
@@ -126,21 +114,13 @@ def _frozen_copy(policy: Any) -> Any:
     return clone
 
 
-def _leaky_relu(module: torch.nn.Module) -> Callable[[np.ndarray], np.ndarray]:
-    # The table below is keyed by the module's class, so this is a LeakyReLU; the check tells the type checker.
-    if not isinstance(module, torch.nn.LeakyReLU):
-        raise TypeError(f"Expected a LeakyReLU, actually: {module!r}")
-    slope = module.negative_slope
-    return lambda x: np.where(x > 0, x, slope * x)
-
-
 #: numpy versions of the activations an actor may use; others fall back to torch.
 _NUMPY_ACTIVATIONS: dict[type, Callable[[torch.nn.Module], Callable[[np.ndarray], np.ndarray]]] = {
     # Activations get a fresh layer output, so ReLU and tanh may work in place.
     torch.nn.ReLU: lambda m: lambda x: np.maximum(x, 0.0, out=x),
     torch.nn.Tanh: lambda m: lambda x: np.tanh(x, out=x),
     torch.nn.ELU: lambda m: lambda x: np.where(x > 0, x, m.alpha * np.expm1(np.minimum(x, 0.0))),
-    torch.nn.LeakyReLU: _leaky_relu,
+    torch.nn.LeakyReLU: lambda m: lambda x: np.where(x > 0, x, m.negative_slope * x),
     torch.nn.Sigmoid: lambda m: lambda x: 1.0 / (1.0 + np.exp(-x)),
     torch.nn.SiLU: lambda m: lambda x: x / (1.0 + np.exp(-x)),
 }

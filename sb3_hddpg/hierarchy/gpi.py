@@ -3,9 +3,8 @@ Generalized policy improvement (GPI; Barreto et al. 2017, "Successor features fo
 for a weighting ``w`` of the reward terms with the workers' per-term critics, without training a manager.
 
 For continuous-action workers the worker ``i`` maximising ``w . Q_i(s, pi_i(s))`` acts; for discrete-action
-workers the action ``argmax_a max_i w . Q_i(s, a)`` is taken (GPI over actions). For every ``w`` the result
-is at least as good as each worker alone, up to the critics' errors. :class:`GpiSelector` is the one
-implementation; :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` uses it for ``selection="gpi"``.
+workers the action ``argmax_a max_i w . Q_i(s, a)`` is taken. For every ``w`` the result is at least as good
+as each worker alone, up to the critics' errors; ``Hierarchy`` uses it for ``selection="gpi"``.
 """
 
 from __future__ import annotations
@@ -24,17 +23,11 @@ GPI_SELECTION = "gpi"
 
 class GpiSelector:
     """
-    GPI over workers that each carry a per-term critic.
-
-    Example, over workers trained with critics (``train-workers``'s default)::
-
-        workers = load_workers("runs/w")
-        gpi = GpiSelector.of(workers, workers.critics, obs_indices)
-        index, action = gpi.select(obs, {"goal": 0.7, "avoid": 0.3})
+    GPI over workers that each carry a per-term critic (``Hierarchy.gpi`` builds one over loaded workers).
 
     :param workers: the frozen workers (each with the observation indices it sees).
-    :param critics: each worker's critic, in the same order; all over the same terms, all continuous or all
-        discrete.
+    :param critics: each worker's critic, in the same order: over the same terms, of one discount, all
+        continuous or all discrete.
     """
 
     def __init__(self, workers: Sequence[FrozenWorker], critics: Sequence[TermCritic]) -> None:
@@ -42,19 +35,15 @@ class GpiSelector:
             raise ValueError(
                 f"Expected one critic per worker, actually {len(critics)} for {len(workers)} workers"
             )
-        terms = critics[0].spec.terms
-        for critic in critics:
-            if critic.spec.terms != terms:
-                raise ValueError(
-                    f"Expected every critic over the terms {list(terms)}, actually one over {list(critic.spec.terms)}"
-                )
-        if len({critic.spec.gamma for critic in critics}) > 1:
-            raise ValueError(
-                f"Expected every critic of one discount, actually {sorted({c.spec.gamma for c in critics})}: "
-                "their values would not compare"
-            )
-        if len({critic.spec.discrete for critic in critics}) > 1:
-            raise ValueError("Expected all workers' critics discrete or all continuous, actually a mix")
+        specs = [critic.spec for critic in critics]
+        for what, values in (
+            ("over the same terms", [s.terms for s in specs]),
+            ("of one discount (their values would not compare)", [s.gamma for s in specs]),
+            ("discrete or all continuous", [s.discrete for s in specs]),
+        ):
+            if any(value != values[0] for value in values):
+                raise ValueError(f"Expected every critic {what}, actually: {values}")
+        terms = specs[0].terms
         for index, (worker, critic) in enumerate(zip(workers, critics)):
             space = getattr(worker.worker, "observation_space", None)
             size = int(np.prod(space.shape)) if space is not None and space.shape else None
@@ -68,16 +57,12 @@ class GpiSelector:
         self.terms = tuple(terms)
         self.discrete = critics[0].spec.discrete
 
-    def weights(self, preference: Mapping[str, float]) -> np.ndarray:
-        """The preference as a vector over :attr:`terms` (a term not named weighs 0)."""
-        return np.array([float(preference.get(term, 0.0)) for term in self.terms], dtype=np.float32)
-
     def scores(self, obs: np.ndarray, preference: Mapping[str, float]) -> tuple[np.ndarray, list[np.ndarray]]:
         """
         ``w . Q_i`` of every worker for one observation: shape ``(n_workers,)`` for continuous workers (of
         each one's own action), ``(n_workers, n_actions)`` for discrete ones; and each worker's own action.
         """
-        w = self.weights(preference)
+        w = np.array([float(preference.get(term, 0.0)) for term in self.terms], dtype=np.float32)
         actions = [worker.act(obs) for worker in self.workers]
         rows = []
         for worker, critic, action in zip(self.workers, self.critics, actions):
@@ -88,10 +73,8 @@ class GpiSelector:
 
     def select(self, obs: np.ndarray, preference: Mapping[str, float]) -> tuple[int, np.ndarray]:
         """
-        The worker GPI picks for one observation at ``preference`` (term -> weight), and the env action.
-
-        :return: the worker's index and the action (for discrete workers the GPI action, which may differ
-            from that worker's own greedy one).
+        The index of the worker GPI picks for one observation at ``preference`` (term -> weight), and the env
+        action (for discrete workers GPI's, which may differ from that worker's own greedy one).
         """
         scores, actions = self.scores(obs, preference)
         if self.discrete:
@@ -114,11 +97,7 @@ def check_gpi_preference(preference: Mapping[str, object], terms: Sequence[str])
 def gpi_of(
     workers: Sequence[FrozenWorker], critics: Mapping[str, TermCritic], names: Sequence[str]
 ) -> GpiSelector:
-    """
-    The GPI selector over named workers and their critics.
-
-    :raises ValueError: naming the workers without a per-term critic.
-    """
+    """The GPI selector over named workers and their critics (a ``ValueError`` naming any without one)."""
     missing = [name for name in names if name not in critics]
     if missing:
         raise ValueError(

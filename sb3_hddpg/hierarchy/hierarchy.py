@@ -1,16 +1,11 @@
 """
 ``Hierarchy``: a trained manager with its workers, as one verifiable bundle that acts like an SB3 model.
 
-A bundle (``hierarchy.zip``) holds ``manager.zip``, one member per worker (an SB3 zip, or a nested
-bundle), and ``manifest.json``: schema version, env id and kwargs, worker names with their reward
-terms and bounds, preferences, selection mode, temperature and floor, option steps, state selections,
-library versions, each SB3 model's rebuild spec, and the sha256 of every member.
-:meth:`Hierarchy.load` verifies every hash before using anything, and by default rebuilds each model from
-the manifest's JSON spec and loads only its tensors (``weights_only=True``): opening someone else's
-bundle runs none of their code. ``trusted=True`` uses SB3's full loader instead.
-
-A loaded ``Hierarchy`` is a valid worker of a higher :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper`
-(paper design specification 3), and such a two-level hierarchy saves and loads as one bundle.
+A bundle (``hierarchy.zip``) holds ``manager.zip``, one member per worker (an SB3 zip or a nested bundle)
+and ``manifest.json`` (env, selection settings, library versions, each model's rebuild spec and every
+member's sha256). :meth:`Hierarchy.load` verifies every hash first and by default rebuilds each model from
+its JSON spec with tensors only, so opening someone else's bundle runs none of their code. A ``Hierarchy``
+can itself be a worker one level up (paper design specification 3), and saves and loads as one bundle.
 """
 
 from __future__ import annotations
@@ -30,10 +25,7 @@ from stable_baselines3.common.utils import check_for_correct_spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from sb3_hddpg.artifacts.io import atomic_write
-from sb3_hddpg.artifacts.limits import (
-    LoadBudget,
-    brief,
-)
+from sb3_hddpg.artifacts.limits import LoadBudget, brief
 from sb3_hddpg.artifacts.provenance import library_versions, sha256_bytes
 from sb3_hddpg.artifacts.records import bundle_manifest
 from sb3_hddpg.artifacts.spec import model_spec
@@ -60,17 +52,10 @@ from sb3_hddpg.hierarchy.fit import (
     manager_input_of,
     probe_env,
     selection_config_of,
-    shared_env,
     training_env,
 )
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
-from sb3_hddpg.hierarchy.gpi import (
-    GPI_SELECTION,
-    GpiSelector,
-    check_gpi_manager,
-    check_gpi_preference,
-    gpi_of,
-)
+from sb3_hddpg.hierarchy.gpi import GPI_SELECTION, check_gpi_manager, check_gpi_preference, gpi_of
 from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.options import OptionState
 from sb3_hddpg.hierarchy.selection import SelectionConfig, SimplexMap, check_preferences, get_selector
@@ -89,19 +74,17 @@ class Hierarchy:
         hierarchy.save("my-hierarchy.zip")
         evaluate(Hierarchy.load("my-hierarchy.zip"), n_episodes=5)
 
-    :param manager: the manager's SB3 model (trained on ``WorkerSelectionWrapper``).
+    :param manager: the manager's SB3 model (trained on ``WorkerSelectionWrapper``; ``None`` for GPI).
     :param workers: name -> worker, in the manager's action order; workers from ``load_workers`` also give
-        each worker's state components, the shared env and the facts the bundle keeps about them.
-    :param config: the selection settings the manager was trained with (default: those of the
-        ``WorkerSelectionWrapper`` the manager still has as its env, else the wrapper's defaults with the
-        state components the workers carry).
-    :param env_id: the registered id of the shared env (default: the env the manager was trained on, else
-        the one every worker was trained on, else the workers' shared env, else ``hddpg/SnakeReach-v0``; see
-        :func:`infer_env`).
+        their state components, the shared env and the facts the bundle keeps about them.
+    :param config: the selection settings the manager was trained with (default: those of the wrapper the
+        manager still has as its env, else the wrapper's defaults).
+    :param env_id: the shared env's registered id (default: the manager's or every worker's training env,
+        else the workers' shared env, else ``hddpg/SnakeReach-v0``; see :func:`infer_env`).
     :param env_kwargs: its keyword arguments (default: those of the inferred env; ``{}`` with ``env_id``).
-    :param worker_meta: name -> JSON-able facts about each worker (reward bounds, metrics...; default: from
-        the workers' manifest, for workers from ``load_workers``).
+    :param worker_meta: name -> JSON-able facts about each worker (default: from the workers' manifest).
     :param metadata: JSON-able facts about the manager (metrics, seed, config...).
+    :param critics: name -> per-term critic, for GPI (default: those the workers carry).
     """
 
     def __init__(
@@ -119,13 +102,15 @@ class Hierarchy:
         self.workers = dict(workers)
         self.names = list(self.workers)
         config = selection_config_of(manager, workers, config)
-        self.config = config
         self.critics = dict(critics if critics is not None else getattr(workers, "critics", {}))  # GPI's
         check_gpi_manager(manager, config.selection)
         if env_id is None:
-            # Without an env id the bundle would record the snake env whatever the models were trained on,
-            # and fail only much later (in evaluate); the models' own training envs say which env it is.
-            shared = shared_env(workers)
+            # The models' training envs say which env it is (a default env would fail only in evaluate).
+            shared = (
+                (workers.env_id, workers.env_kwargs)
+                if isinstance(workers, Workers) and workers.env_id
+                else None
+            )
             env_id, inferred_kwargs = infer_env(manager, self.workers) or shared or (SNAKE_REACH_ENV_ID, {})
             env_kwargs = inferred_kwargs if env_kwargs is None else env_kwargs
         self.env_id = env_id
@@ -135,9 +120,8 @@ class Hierarchy:
         self.worker_meta = dict(worker_meta or {})
         self.metadata = dict(metadata or {})
         layout, self.observation_space, self.action_space = probe_env(env_id, self.env_kwargs)
-        check_spaces(
-            manager, self.workers, config, self.observation_space, self.action_space, layout, self._env_name()
-        )
+        name = f"{env_id!r}" + (f" with env_kwargs {self.env_kwargs}" if self.env_kwargs else "")
+        check_spaces(manager, self.workers, config, self.observation_space, self.action_space, layout, name)
         self._frozen = [
             FrozenWorker(w, layout.indices(config.worker_states[n]) if n in config.worker_states else None)
             for n, w in self.workers.items()
@@ -150,14 +134,14 @@ class Hierarchy:
         )
         self._preference_obs: np.ndarray | None = None
         if self.preference_space is not None:
-            self.config = config = replace(
-                config, preferences=self.preference_space.check(config.preferences)
-            )
+            config = replace(config, preferences=self.preference_space.check(config.preferences))
             self._preference_obs = self.preference_space.weights(config.preferences).astype(np.float32)
         self._manager_input = manager_input_of(config, self.observation_space, layout, len(self.names))
         # The manager's input is built here (its state, motion and weights), so its frozen copy sees it all.
         self._manager = FrozenWorker(manager) if manager is not None else None
-        self._gpi, config = _with_gpi(manager, self._frozen, self.critics, config, self.names)
+        self._gpi = gpi_of(self._frozen, self.critics, self.names) if manager is None else None
+        if self._gpi is not None:
+            config = replace(config, preferences=check_gpi_preference(config.preferences, self._gpi.terms))
         self.config = config
         self.simplex = SimplexMap(len(self.names), temperature=config.temperature, floor=config.floor)
         self._selector = get_selector(config.selection) if manager is not None else None
@@ -211,8 +195,7 @@ class Hierarchy:
 
     def set_env(self, env: GymEnv) -> None:
         """
-        Give the hierarchy an env to act in, as SB3's ``set_env`` (checked against the hierarchy's spaces; a
-        single env is wrapped in a ``DummyVecEnv``).
+        Give the hierarchy an env to act in, as SB3's ``set_env`` (a single env is wrapped in a ``DummyVecEnv``).
 
         :param env: a gymnasium env or a VecEnv with this hierarchy's observation and action spaces.
         """
@@ -224,10 +207,6 @@ class Hierarchy:
         """The env given by :meth:`set_env` or ``load(env=...)``, as SB3's ``get_env``."""
         return self.env
 
-    def _env_name(self) -> str:
-        return f"{self.env_id!r}" + (f" with env_kwargs {self.env_kwargs}" if self.env_kwargs else "")
-
-    # ------------------------------------------------------------------ acting
     @property
     def reward_spec(self) -> dict[str, float]:
         """This hierarchy's reward as a worker one level up, the preference-weighted mix of its workers' terms."""
@@ -244,15 +223,12 @@ class Hierarchy:
     def set_preference(self, preferences: Mapping[str, float] | None = None, **factors: float) -> None:
         """
         Tell a preference-conditioned manager the trade-off to act at, e.g.
-        ``hierarchy.set_preference(goal=0.4, avoid=1.6)`` or ``hierarchy.set_preference({"goal": 0.4})``.
-        Only the ratio matters (the factors are rescaled to the sum the manager was trained with); names not
-        given get the unweighted factor.
-        A GPI hierarchy (:meth:`gpi`) takes any weighting of the env's terms (term -> weight >= 0).
+        ``hierarchy.set_preference(goal=0.4, avoid=1.6)``: only the ratio matters, names not given get the
+        unweighted factor. A GPI hierarchy (:meth:`gpi`) takes any weighting of the env's terms.
 
         :param preferences: worker name -> factor; or give the factors as keywords.
-        :raises PreferenceOutsideError: for a preference outside those the manager was trained over (see
-            ``manager_preferences`` in the bundle's manifest), or any other than its own for a manager
-            trained for one preference.
+        :raises PreferenceOutsideError: for a preference outside those the manager was trained over, or any
+            other than its own for a manager trained for one preference.
         """
         given = {**dict(preferences or {}), **factors}
         if self._gpi is not None:
@@ -276,13 +252,8 @@ class Hierarchy:
         if self._stream is not None:
             self._stream.end_options()
 
-    def _manager_obs(self, obs: np.ndarray, previous: np.ndarray | None = None) -> np.ndarray:
-        """The manager's input for ``obs`` (one or a batch), ``previous`` the state one env step earlier."""
-        return self._manager_input(obs, previous, self._preference_obs)
-
     def reset_episode(self) -> None:
-        """Forget the current options and the last observations of ``predict`` without a ``state`` (call at an
-        episode start; with a ``state``, ``episode_start`` says which envs start)."""
+        """Forget the options of ``predict`` without a ``state`` (call at an episode start)."""
         if self._stream is not None:
             self._stream.reset()
         for worker in self._frozen:
@@ -307,20 +278,15 @@ class Hierarchy:
         deterministic: bool = False,
     ) -> tuple[np.ndarray, OptionState]:
         """
-        The action of the selected worker, like SB3's ``predict`` (of a recurrent policy: the option each env
-        is in is the state).
+        The action of the selected worker, like a recurrent SB3 policy's ``predict`` (the state is the option
+        each env is in).
 
-        :param observation: the shared state, of the env's observation shape (``(obs_dim,)`` for the snake), or a
-            batch of them (one more leading axis, one row per env of a VecEnv).
-        :param state: the options returned by the previous call (see :meth:`initial_state`); ``None``: the
-            hierarchy's own, kept from call to call for as many envs as the batch has rows (a new batch size
-            starts afresh). ``predict`` updates it in place.
-        :param episode_start: one flag per env (or one for a single observation); a true entry ends that env's
-            option and forgets its last observation, as at an episode's start.
-        :param deterministic: the most probable worker (``True``) or one sampled from the probabilities
-            (``False``, as SB3's default). An exact tie among the most probable is drawn from the hierarchy's
-            generator either way (see :meth:`seed`): the manager prefers neither, and the worker order must
-            not decide.
+        :param observation: the shared state, or a batch of them (one row per env of a VecEnv).
+        :param state: the options returned by the previous call (see :meth:`initial_state`), updated in place;
+            ``None``: the hierarchy's own, kept from call to call (a new batch size starts afresh).
+        :param episode_start: one flag per env; a true entry ends that env's option, as at an episode's start.
+        :param deterministic: the most probable worker, or one sampled from the probabilities (SB3's default).
+            An exact tie is drawn from the hierarchy's generator either way (see :meth:`seed`).
         :return: the env action(s) and the state to pass at the next step.
         """
         obs = np.asarray(observation, dtype=np.float32)
@@ -358,42 +324,35 @@ class Hierarchy:
                     worker.reset_episode()
 
     def _act(self, obs: np.ndarray, deterministic: bool, state: OptionState, env: int) -> np.ndarray:
-        if self._gpi is not None:
-            return self._act_gpi(obs, state, env)
-        assert self._manager is not None and self._selector is not None  # every other mode has both
-        band = self._band(obs) if self._band is not None else None
-        self.last_decided = state.left[env] <= 0 or band != state.band[env]
-        if self.last_decided:
-            state.band[env] = band
-            state.manager_action[env] = self._manager.act(self._manager_obs(obs, state.previous[env]))
-            probabilities = np.asarray(self._selector.probabilities(self.simplex, state.manager_action[env]))
-            state.probabilities[env] = probabilities
-            state.choice[env] = self._selector.choose(probabilities, self._rng, deterministic)
-            state.left[env] = self.config.option_steps
-        state.left[env] -= 1
-        if self._manager_input.motion:
-            state.previous[env] = obs.copy()
-        probabilities, chosen = state.probabilities[env], int(state.choice[env])
-        self.last_manager_action = state.manager_action[env]
-        self.last_selection = self.names[chosen]
-        self.last_probabilities = dict(zip(self.names, probabilities.tolist()))
         for index, nested in state.workers[env].items():
             self._frozen[index].state = nested
-        action = np.asarray(self._selector.act(probabilities, chosen, self._frozen, obs))
+        if self._gpi is not None:  # GPI decides anew at every step
+            chosen, action = self._gpi.select(obs, self.config.preferences)
+            state.choice[env] = chosen
+            state.probabilities[env] = np.eye(len(self.names))[chosen]
+            self.last_decided = True
+        else:
+            assert self._manager is not None and self._selector is not None  # every other mode has both
+            band = self._band(obs) if self._band is not None else None
+            self.last_decided = state.left[env] <= 0 or band != state.band[env]
+            if self.last_decided:
+                state.band[env] = band
+                state.manager_action[env] = self._manager.act(
+                    self._manager_input(obs, state.previous[env], self._preference_obs)
+                )
+                probabilities = self._selector.probabilities(self.simplex, state.manager_action[env])
+                state.probabilities[env] = probabilities
+                state.choice[env] = self._selector.choose(probabilities, self._rng, deterministic)
+                state.left[env] = self.config.option_steps
+            state.left[env] -= 1
+            if self._manager_input.motion:
+                state.previous[env] = obs.copy()
+            chosen = int(state.choice[env])
+            self.last_manager_action = state.manager_action[env]
+            action = np.asarray(self._selector.act(state.probabilities[env], chosen, self._frozen, obs))
+        self.last_selection = self.names[chosen]
+        self.last_probabilities = dict(zip(self.names, state.probabilities[env].tolist()))
         # A discrete worker's action stays an index; a continuous one is the float32 of the env's Box.
-        return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
-
-    def _act_gpi(self, obs: np.ndarray, state: OptionState, env: int) -> np.ndarray:
-        """GPI's action for one observation of env ``env`` at the current preference: every step decides anew."""
-        assert self._gpi is not None
-        for index, nested in state.workers[env].items():
-            self._frozen[index].state = nested
-        chosen, action = self._gpi.select(obs, self.config.preferences)
-        state.choice[env] = chosen
-        state.probabilities[env] = np.eye(len(self.names))[chosen]
-        self.last_decided = True
-        self.last_selection = self.names[chosen]
-        self.last_probabilities = {name: float(i == chosen) for i, name in enumerate(self.names)}
         return action if np.issubdtype(action.dtype, np.integer) else action.astype(np.float32)
 
     def probabilities(self, observation: np.ndarray) -> dict[str, float]:
@@ -403,10 +362,10 @@ class Hierarchy:
             chosen, _ = self._gpi.select(np.asarray(observation, np.float32), self.config.preferences)
             return {name: float(i == chosen) for i, name in enumerate(self.names)}
         assert self._manager is not None and self._selector is not None
-        action = self._manager.act(self._manager_obs(np.asarray(observation, np.float32)))
+        obs = np.asarray(observation, np.float32)
+        action = self._manager.act(self._manager_input(obs, None, self._preference_obs))
         return dict(zip(self.names, self._selector.probabilities(self.simplex, action)))
 
-    # ------------------------------------------------------------------ saving
     def to_bytes(self) -> bytes:
         """The bundle as zip bytes (see :meth:`save`)."""
         members: dict[str, bytes] = {}
@@ -467,7 +426,6 @@ class Hierarchy:
             path if path.suffix else path.with_name(f"{path.name}.zip"), lambda tmp: tmp.write_bytes(data)
         )
 
-    # ------------------------------------------------------------------ loading
     @classmethod
     def load(
         cls,
@@ -482,18 +440,14 @@ class Hierarchy:
         """
         Load and verify a bundle, as SB3's ``load`` opens a model.
 
-        :param path: a ``hierarchy.zip`` (or its bytes); a path without a suffix that does not exist is tried
-            with ``.zip``, as SB3 does.
-        :param env: an env to act in (see :meth:`set_env`), checked against the bundle's spaces; ``None``:
-            :meth:`make_env` makes the bundle's own.
-        :param device: the torch device of the models (``"auto"``: CUDA when available, as SB3); frozen workers
-            compiled to numpy act on the CPU either way.
-        :param trusted: ``False`` (default): rebuild every model from the manifest's JSON spec and load only
-            its tensors, so no code from the file runs. ``True``: SB3's full loader, which unpickles
-            objects stored in the model zips (only for files you trust), and any registered env id.
+        :param path: a ``hierarchy.zip`` or its bytes (without a suffix, ``.zip`` is tried, as SB3 does).
+        :param env: an env to act in (see :meth:`set_env`); ``None``: :meth:`make_env` makes the bundle's own.
+        :param device: the torch device of the models (``"auto"``: CUDA when available, as SB3).
+        :param trusted: ``False`` (default): rebuild every model from its JSON spec and load only tensors, so
+            no code from the file runs. ``True``: SB3's full loader, which unpickles objects stored in the
+            model zips (only for files you trust), and any registered env id.
         :param allowed_env_ids: registered env ids the bundle may name besides this package's own.
-        :param budget: what the load may spend (bytes, models, nesting); nested bundles share their
-            parent's (see :mod:`sb3_hddpg.artifacts.limits`).
+        :param budget: what the load may spend (see :mod:`sb3_hddpg.artifacts.limits`); nested bundles share it.
         :return: the hierarchy; raises :class:`BundleError` naming the problem otherwise.
         """
         path = bundle_path(path)
@@ -544,44 +498,20 @@ class Hierarchy:
         return hierarchy
 
 
-def _with_gpi(
-    manager: object | None,
-    frozen: list[FrozenWorker],
-    critics: Mapping[str, TermCritic],
-    config: SelectionConfig,
-    names: list[str],
-) -> tuple[GpiSelector | None, SelectionConfig]:
-    """A hierarchy's GPI selector (``None`` with a manager) and its settings with the preference checked."""
-    if manager is not None:
-        return None, config
-    gpi = gpi_of(frozen, critics, names)
-    return gpi, replace(config, preferences=check_gpi_preference(config.preferences, gpi.terms))
-
-
 def infer_env(manager: object, workers: Mapping[str, Policy]) -> tuple[str, dict[str, Any]] | None:
     """
-    The env a hierarchy acts in, read from its models: the manager's training env (the env under its
-    ``WorkerSelectionWrapper``) if the manager still has one, else the env every worker names, if they all
-    name the same (a nested hierarchy names its ``env_id``; an SB3 model its training env). Models loaded
-    from files carry no env, so this may find nothing.
+    The env a hierarchy acts in, read from its models: the manager's training env if it still has one, else
+    the env every worker names (a nested hierarchy its ``env_id``, an SB3 model its training env).
 
-    :param manager: the manager.
-    :param workers: name -> worker.
     :return: ``(env_id, env_kwargs)`` (kwargs beyond the registered ones), or ``None`` when the models do not
-        tell or the workers disagree.
+        tell (models loaded from files carry no env) or the workers disagree.
     """
-    found = _training_env(manager)
+
+    def env_of(model: object) -> tuple[str, dict[str, Any]] | None:
+        return (model.env_id, dict(model.env_kwargs)) if isinstance(model, Hierarchy) else training_env(model)
+
+    found = env_of(manager)
     if found is not None:
         return found
-    named = [_training_env(worker) for worker in workers.values()]
-    known = [env for env in named if env is not None]
-    if known and all(env == known[0] for env in known):
-        return known[0]
-    return None
-
-
-def _training_env(model: object) -> tuple[str, dict[str, Any]] | None:
-    """``(env_id, env_kwargs)`` of a model's training env (a hierarchy's own env), if it still has one."""
-    if isinstance(model, Hierarchy):
-        return model.env_id, dict(model.env_kwargs)
-    return training_env(model)
+    known = [env for env in map(env_of, workers.values()) if env is not None]
+    return known[0] if known and all(env == known[0] for env in known) else None

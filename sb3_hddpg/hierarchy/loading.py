@@ -1,11 +1,9 @@
 """
 ``load_policy(path)``: any policy a user can point the CLI at, loaded safely, with the env it acts in.
 
-- a hierarchy bundle (``hierarchy.zip``): verified and rebuilt by :meth:`Hierarchy.load`;
-- an SB3 zip written by ``train-workers`` / ``train-flat``: found in the ``manifest.json`` beside it,
-  whose sha256 and rebuild spec make the weights-only load possible;
-- a file or a name a registered loader opens (:mod:`sb3_hddpg.policy_loaders`: the HAM switch's
-  ``ham.json``; ``random``, ``scripted``, ``ik``, ``field``: reference policies that need no file);
+- a hierarchy bundle (``hierarchy.zip``), verified by :meth:`Hierarchy.load`;
+- an SB3 zip listed in the ``manifest.json`` beside it (its sha256 and rebuild spec: a weights-only load);
+- a file or a name a registered loader opens (:mod:`sb3_hddpg.policy_loaders`: ``ham.json``, ``random``...);
 - any other SB3 zip only with ``trusted=True`` (SB3's full loader runs code stored in the file).
 """
 
@@ -37,11 +35,9 @@ def load_policy(
     env_kwargs: dict[str, Any] | None = None,
 ) -> LoadedPolicy:
     """
-    Load the policy at ``path`` (see the module docstring for what it may be).
-
-    An env id read from a file is used only if it is registered, has no ``module:`` prefix (which
-    ``gym.make`` would import) and is one of this package's ids or of ``allowed_env_ids`` (any registered
-    id with ``trusted``); its env kwargs must be the env's own parameters (:mod:`sb3_hddpg.artifacts.limits`).
+    Load the policy at ``path`` (see the module docstring for what it may be). An env id read from a file
+    must be this package's or in ``allowed_env_ids`` (any registered id with ``trusted``), with the env's own
+    parameters as kwargs (:mod:`sb3_hddpg.artifacts.limits`).
 
     :param path: a file, or ``random`` / ``scripted``.
     :param env_id: the env to act in, for reference policies and untracked zips (default SnakeReach).
@@ -50,7 +46,6 @@ def load_policy(
     :param allowed_env_ids: registered env ids a file may name besides this package's own.
     :param env_kwargs: ``env_id``'s keyword arguments, for reference policies (an adapter's ``env_id``...).
     """
-
     text = str(path)
     named = named_loader(text)
     if named is not None:

@@ -1,7 +1,6 @@
 """
 What the manager observes: its slice of the shared state, optionally how that slice moved over the last env
-step, and a conditioned manager's preference weights. One owner for the training wrapper and the loaded
-hierarchy, so that a manager acts on the input it was trained on.
+step, and a conditioned manager's preference weights; one owner for training and acting.
 """
 
 from __future__ import annotations
@@ -25,28 +24,17 @@ def subset_space(space: gym.Space[Any], indices: np.ndarray | None) -> gym.Space
 
 
 def with_preference_space(space: gym.Space, n_workers: int) -> spaces.Box:
-    """
-    A conditioned manager's observation space: ``space`` flattened (a matrix such as highway-env's
-    Kinematics observation row by row), followed by ``n_workers`` weights in [0, 1].
-    """
-    if not isinstance(space, spaces.Box):
-        raise ValueError(f"A preference-conditioned manager needs a Box observation, got {space}")
-    low = np.concatenate([space.low.ravel(), np.zeros(n_workers)]).astype(space.dtype)
-    high = np.concatenate([space.high.ravel(), np.ones(n_workers)]).astype(space.dtype)
-    return spaces.Box(low, high, dtype=space.dtype.type)
+    """A conditioned manager's observation space: ``space`` flattened, then ``n_workers`` weights in [0, 1]."""
+    return _appended(space, 0.0, n_workers, "A preference-conditioned manager")
 
 
-def with_motion_space(space: gym.Space) -> spaces.Box:
-    """
-    The observation space of a manager that also sees motion: ``space`` flattened, followed by one value in
-    [-1, 1] per entry (its scaled change over the last env step).
-    """
+def _appended(space: gym.Space, low: float, size: int, who: str) -> spaces.Box:
+    """``space`` flattened (a matrix row by row), followed by ``size`` entries in ``[low, 1]``."""
     if not isinstance(space, spaces.Box):
-        raise ValueError(f"A manager that observes motion needs a Box observation, got {space}")
-    size = int(np.prod(space.shape))
-    low = np.concatenate([space.low.ravel(), -np.ones(size)]).astype(space.dtype)
-    high = np.concatenate([space.high.ravel(), np.ones(size)]).astype(space.dtype)
-    return spaces.Box(low, high, dtype=space.dtype.type)
+        raise ValueError(f"{who} needs a Box observation, got {space}")
+    low_bounds = np.concatenate([space.low.ravel(), np.full(size, low)]).astype(space.dtype)
+    high_bounds = np.concatenate([space.high.ravel(), np.ones(size)]).astype(space.dtype)
+    return spaces.Box(low_bounds, high_bounds, dtype=space.dtype.type)
 
 
 class ManagerInput:
@@ -54,10 +42,9 @@ class ManagerInput:
     Build the manager's observation from the shared state: ``[state, motion, preference weights]``.
 
     - *state*: the components of ``indices`` (``None``: the whole observation);
-    - *motion* (``motion > 0``): ``clip(motion * (state - previous state), -1, 1)``, the state one env step
-      earlier; at an episode's first step the previous state is the state itself (no motion). Most of the
-      shared state moves little per step (the snake arm's obstacles by at most 0.0075 of their range), so
-      ``motion`` scales the change to where a network sees it;
+    - *motion* (``motion > 0``): ``clip(motion * (state - previous state), -1, 1)``, 0 at an episode's first
+      step; the scale brings the small change per step (the snake's obstacles: 0.0075 of their range at
+      most) to where a network sees it;
     - *preference weights*: a conditioned manager's normalised weights, the last ``n_workers`` entries.
 
     With neither motion nor weights the state keeps its own shape; otherwise every part is flattened.
@@ -84,7 +71,12 @@ class ManagerInput:
         self.n_preferences = int(n_preferences)
         state_space = subset_space(observation_space, indices)
         self._single_ndim = len(state_space.shape or ())
-        space = with_motion_space(state_space) if self.motion else state_space
+        size = int(np.prod(state_space.shape or ()))
+        space = (
+            _appended(state_space, -1.0, size, "A manager that observes motion")
+            if self.motion
+            else state_space
+        )
         if self.n_preferences:
             space = with_preference_space(space, self.n_preferences)
         self.observation_space: gym.Space = space
@@ -98,13 +90,11 @@ class ManagerInput:
         self, obs: np.ndarray, previous: np.ndarray | None = None, weights: np.ndarray | None = None
     ) -> np.ndarray:
         """
-        The manager's observation.
+        The manager's observation (a batch for a batch).
 
         :param obs: the shared state, one observation or a batch of them.
-        :param previous: the shared state one env step earlier, of ``obs``'s shape (``None``: no motion, as
-            at an episode's first step).
+        :param previous: the shared state one env step earlier (``None``: no motion, as at an episode's start).
         :param weights: a conditioned manager's preference weights (required when it observes them).
-        :return: the manager's observation (a batch for a batch).
         """
         state = self.state(obs)
         if not self.motion and not self.n_preferences:

@@ -1,8 +1,4 @@
-"""
-``OptionEnd``: options that end by state, when the state leaves the band the option was chosen in (a
-nearest obstacle's clearance crossing an edge, the goal touched or lost), read from the observation the same
-way in training and at run time.
-"""
+"""``OptionEnd``: options that end when the state leaves the band the option was chosen in."""
 
 from __future__ import annotations
 
@@ -19,17 +15,13 @@ from sb3_hddpg.envs.layout import StateLayout
 @dataclass(frozen=True)
 class OptionEnd:
     """
-    Options that end by state: besides after ``option_steps`` env steps, an option ends as soon as the state
-    leaves the band it was chosen in, so the manager decides again when the situation changes rather than on
-    a fixed clock. Read from the observation (the same rule in training and at run time):
+    Options that also end, before ``option_steps`` env steps, as soon as the state leaves the band they were
+    chosen in, so that the manager decides again when the situation changes. Read from the observation:
 
-    - ``distance_edges``: edges on the nearest obstacle's clearance as a fraction of the sensor range (the
-      least entry of ``joint_obstacle_distances``), e.g. ``(0.5,)``: the option ends when an obstacle comes
-      within half the sensor range, or leaves it;
-    - ``goal_touch``: the option ends when the goal is touched or lost (``goal_touched`` changes).
-
-    :param distance_edges: increasing edges in ``(0, 1)``.
-    :param goal_touch: end on a change of the goal touch.
+    :param distance_edges: increasing edges in ``(0, 1)`` on the nearest obstacle's clearance as a fraction
+        of the sensor range (the least ``joint_obstacle_distances``); ``(0.5,)``: the option ends when an
+        obstacle comes within half the range, or leaves it.
+    :param goal_touch: end when the goal is touched or lost (``goal_touched`` changes).
     """
 
     distance_edges: tuple[float, ...] = ()
@@ -80,12 +72,7 @@ class OptionEnd:
         return {"distance_edges": list(self.distance_edges), "goal_touch": self.goal_touch}
 
     def bind(self, layout: StateLayout) -> Callable[[np.ndarray], tuple[int, bool]]:
-        """
-        The band of a (full) observation: the option ends when it changes.
-
-        :param layout: the env's state layout (it must name ``joint_obstacle_distances`` for distance edges
-            and ``goal_touched`` for ``goal_touch``).
-        """
+        """The band of a (full) observation of an env of this state ``layout``: the option ends when it changes."""
         try:
             distances = layout["joint_obstacle_distances"] if self.distance_edges else None
             touched = layout["goal_touched"].start if self.goal_touch else None

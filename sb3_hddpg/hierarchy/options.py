@@ -1,8 +1,4 @@
-"""
-``OptionState``: where each env of a batch stands in its option, the state a
-:class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` passes through ``predict`` as SB3's recurrent policies pass
-their hidden state (``predict(obs, state, episode_start)`` returns the state to give back at the next step).
-"""
+"""``OptionState``: the option each env is in, what ``Hierarchy.predict`` passes as a recurrent policy's state."""
 
 from __future__ import annotations
 
@@ -15,18 +11,15 @@ import numpy as np
 @dataclass
 class OptionState:
     """
-    Per env of a batch: the option it is in and what its manager saw last. ``predict`` updates it in place
-    and returns it.
+    Per env of a batch: the option it is in and what its manager saw last (``predict`` updates it in place).
 
     :param left: env steps left in each env's option (0: decide at the next step).
     :param choice: the index of each env's chosen worker.
     :param probabilities: each env's worker probabilities at its last decision, shape ``(n_envs, n_workers)``.
     :param band: each env's option-end band at its last decision (``None``: no band rule, or none yet).
-    :param previous: each env's last observation (kept for a manager that observes motion; ``None`` at an
-        episode's start).
+    :param previous: each env's last observation, for a manager that observes motion (``None``: none yet).
     :param manager_action: each env's manager output at its last decision (``None``: none yet).
-    :param workers: per env, worker index -> the state of that worker when it is itself a hierarchy, so that
-        a nested hierarchy keeps an option per env too.
+    :param workers: per env, worker index -> the state of a worker that is itself a hierarchy.
     """
 
     left: np.ndarray
@@ -44,8 +37,6 @@ class OptionState:
         """
         The state of ``n_envs`` envs at their episodes' start: no option, nothing seen.
 
-        :param n_envs: the number of envs (rows of a batch; 1 for one observation).
-        :param n_workers: the number of workers.
         :param worker_states: a fresh state for each worker that is a hierarchy, called once per env.
         """
         if n_envs < 1:
@@ -70,8 +61,7 @@ class OptionState:
         End the option of env ``index`` (``None``: of every env) and forget what its manager saw, as at an
         episode's start; nested hierarchies' options end with it.
         """
-        indices = range(self.n_envs) if index is None else (index,)
-        for i in indices:
+        for i in range(self.n_envs) if index is None else (index,):
             self.left[i] = 0
             self.band[i] = None
             self.previous[i] = None

@@ -14,12 +14,9 @@ from sb3_hddpg.hierarchy.selection import check_preferences
 
 class PreferenceReward(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     """
-    Replace the env's reward by ``sum_t preference[t] * normalised(term_t)``: each reward term min-max
-    normalised to [0, 1] with the env's fixed ``reward_bounds``, weighted by its factor. It is the reward a
-    manager with the same preference factors is paid (``WorkerSelectionWrapper`` with one worker per term,
-    ``option_steps = 1``), so that a flat agent trained on it learns the same scalarised objective from
-    scratch (the transfer benchmark). With every factor 1 on ``hddpg/SnakeReach-v0`` it is that env's own
-    reward.
+    Replace the env's reward by ``sum_t preference[t] * normalised(term_t)``, the reward a manager with one
+    worker per term is paid at these factors, so that a flat agent learns the same scalarised objective from
+    scratch (with every factor 1 on ``hddpg/SnakeReach-v0``: that env's own reward).
 
     :param env: the shared env, which meets the env contract (:mod:`sb3_hddpg.envs.contract`).
     :param preferences: term name -> factor (finite, > 0); terms not named get 1.

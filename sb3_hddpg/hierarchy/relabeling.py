@@ -1,14 +1,10 @@
 """
 Preference relabelling for a preference-conditioned manager: a stored step replayed for another preference.
 
-A conditioned manager's reward is ``sum_w factor_w * reward_w``, linear in each worker's own option reward
-``reward_w``, which :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` puts in every step's
-``info["worker_rewards"]``. So a stored transition costs nothing to replay as if another preference had been
-asked for: the observed weights (the last ``n_workers`` entries of the observation and of the next one) are
-rewritten and the reward recomputed, as hindsight relabelling rewrites a goal
-(:mod:`sb3_hddpg.goal_relabeling`). The environment's dynamics do not depend on the preference, so every
-relabelled transition is a real one. The samples stay SB3's ``ReplayBufferSamples``, which SBX's algorithms
-read the same way.
+A conditioned manager's reward ``sum_w factor_w * reward_w`` is linear in each worker's option reward, which
+the wrapper puts in ``info["worker_rewards"]``; the dynamics do not depend on the preference. So a stored
+step replays as a real one for any preference: its observed weights (the last ``n_workers`` entries) are
+rewritten and its reward recomputed, as hindsight relabelling rewrites a goal.
 """
 
 from __future__ import annotations
@@ -27,19 +23,12 @@ from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 
 class PreferenceRelabelingReplayBuffer(ReplayBuffer):
     """
-    SB3's ``ReplayBuffer`` that replays a share of its samples at a freshly drawn preference.
+    SB3's ``ReplayBuffer`` that replays a share of its samples at a freshly drawn preference (the stored data
+    never change); ``train_manager(..., manager_preferences="ratio-sweep")`` sets it up.
 
-    Use it for a conditioned manager (``train_manager(..., manager_preferences="ratio-sweep")`` sets it up):
-    ``DDPG(..., replay_buffer_class=PreferenceRelabelingReplayBuffer, replay_buffer_kwargs={"space":
-    space.to_json(), "names": names})``. The stored data are never changed.
-
-    :param buffer_size: as SB3's.
-    :param observation_space: as SB3's: the conditioned manager's observation (state, then weights).
-    :param action_space: as SB3's.
-    :param device: as SB3's.
-    :param n_envs: as SB3's.
+    :param buffer_size: as SB3's; so are ``observation_space``, ``action_space``, ``device``, ``n_envs`` and
+        ``handle_timeout_termination``.
     :param optimize_memory_usage: not supported (next observations are needed as stored).
-    :param handle_timeout_termination: as SB3's.
     :param names: the workers, in the manager's action order.
     :param space: the trained-over preferences (:meth:`PreferenceSpace.to_json`).
     :param relabel_fraction: the share of sampled transitions given another preference.

@@ -1,18 +1,17 @@
 """
-How a manager's action selects workers: the simplex map, the selection settings (:class:`SelectionConfig`), one
-:class:`Selector` per selection mode registered by name, and the preference factors
-(the frozen workers they select are in :mod:`~sb3_hddpg.hierarchy.frozen`).
-
-Shared by :class:`~sb3_hddpg.hierarchy.wrapper.WorkerSelectionWrapper` (training the manager) and
-:class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` (running a trained one), so both select identically.
+How a manager's action selects workers: the simplex map, one :class:`Selector` per registered mode, the
+selection settings (:class:`SelectionConfig`) and the preference factors; shared by the training wrapper and
+the loaded ``Hierarchy``, so that both select identically.
 """
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
-from typing import Any, ClassVar
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, ClassVar, TypeGuard
 
 import gymnasium as gym
 import numpy as np
@@ -40,8 +39,7 @@ class SimplexMap:
     Because ``a`` is bounded, the softmax cannot saturate: with ``n`` workers the largest probability is
     at most ``e^(2/T) / (e^(2/T) + n - 1)`` (0.98 for two workers at the default ``T = 0.5``), and the
     floor keeps every worker selectable, so sampling keeps exploring and the manager's gradient through
-    the critic never vanishes at a corner. Uniform warm-up actions give well-spread probabilities.
-    Actions outside ``[-1, 1]`` (SB3 clips noisy actions, but a user may not) are clipped first.
+    the critic never vanishes at a corner. Actions outside ``[-1, 1]`` are clipped first.
 
     :param n_workers: number of workers, at least 2.
     :param temperature: softmax temperature, > 0; lower is sharper.
@@ -65,15 +63,8 @@ class SimplexMap:
     def __call__(self, action: np.ndarray) -> np.ndarray:
         """Probabilities for an action of shape ``(n,)`` or ``(batch, n)``; rows sum to 1."""
         action = np.asarray(action, dtype=np.float64)
-        if action.ndim == 1:
-            return np.array(self.single(action.tolist()))
-        logits = np.clip(action, -1.0, 1.0) / self.temperature
-        if not np.all(np.isfinite(logits)):
-            raise ValueError(f"Expected a finite manager action, actually: {action.tolist()}")
-        weights = np.exp(logits - logits.max(axis=-1, keepdims=True))
-        return self.floor + (1.0 - self.n_workers * self.floor) * weights / weights.sum(
-            axis=-1, keepdims=True
-        )
+        rows = [self.single(row) for row in action.reshape(-1, action.shape[-1]).tolist()]
+        return np.array(rows).reshape(action.shape)
 
     def single(self, action: list[float]) -> list[float]:
         """The same map for one action given as a list: plain Python, several times faster for a few workers."""
@@ -95,12 +86,8 @@ Probabilities = Sequence[float] | np.ndarray
 
 def check_probabilities(probabilities: Probabilities, n_workers: int) -> None:
     """
-    The one check of what any selector made of a manager's action, before a worker acts on it: one
-    finite, non-negative probability per worker, summing to 1 within :data:`SIMPLEX_TOLERANCE`.
-
-    :param probabilities: a selector's :meth:`Selector.probabilities`.
-    :param n_workers: the workers there are.
-    :raises ValueError: naming the shape or the sum.
+    Check a selector's probabilities before a worker acts on them: one finite probability >= 0 per worker,
+    summing to 1 within :data:`SIMPLEX_TOLERANCE` (a ``ValueError`` naming the shape or the sum otherwise).
     """
     values = np.asarray(probabilities, dtype=np.float64)
     if values.shape != (n_workers,):
@@ -117,15 +104,9 @@ def check_probabilities(probabilities: Probabilities, n_workers: int) -> None:
 
 def most_probable(probabilities: Probabilities, rng: np.random.Generator) -> int:
     """
-    The index of the most probable worker; an exact tie is broken at random with ``rng``, never by position.
-
-    A manager whose actor saturates at ``(+1, +1)`` gives its two workers 0.5 each: it states no preference,
-    and running the first-listed worker on every step would pass that indecision off as a choice of that
-    worker (and make a manager's worker order change its score). Only a tie draws from ``rng``, so seeded
-    runs stay reproducible and untied choices never consume randomness.
-
-    :param probabilities: shape ``(n,)``.
-    :param rng: the caller's generator (the wrapper's or the hierarchy's own, never the env's).
+    The index of the most probable worker; an exact tie is drawn from ``rng``, never broken by position (a
+    saturated manager's 0.5/0.5 states no preference, and the worker order must not decide). Only a tie draws,
+    so untied choices consume no randomness.
     """
     top = max(probabilities)
     tied = [index for index, p in enumerate(probabilities) if p == top]
@@ -135,11 +116,8 @@ def most_probable(probabilities: Probabilities, rng: np.random.Generator) -> int
 class Selector:
     """
     One selection mode: which worker a probability vector chooses, and what the env receives. The base class
-    is the ``argmax`` behaviour (the most probable worker acts alone, an exact tie broken at random: see
-    :func:`most_probable`); a mode overrides what differs.
-
-    A new mode is one subclass with a ``name``, decorated with :func:`register_selector`: the wrapper, the
-    bundle, the CLI's ``--selection``, the file checks and the tuner's search space all read the registry.
+    is ``argmax`` (see :func:`most_probable`). A new mode is a subclass with a ``name`` decorated with
+    :func:`register_selector`: the wrapper, bundles, the CLI and the tuner all read the registry.
     """
 
     #: The mode's name, as given to ``selection=`` and stored in bundles.
@@ -162,19 +140,14 @@ class Selector:
                 f"Expected a manager action of shape ({simplex.n_workers},), one value per worker, actually: "
                 f"shape {shape}"
             )
-        values = (
-            action.tolist()
-            if isinstance(action, np.ndarray)
-            else np.asarray(action, dtype=np.float64).tolist()
-        )
-        return simplex.single(values)
+        return simplex.single(np.asarray(action, dtype=np.float64).tolist())
 
     def choose(self, probabilities: Probabilities, rng: np.random.Generator, deterministic: bool) -> int:
         """
         The index of the worker to run (and to report) for one probability vector.
 
         :param probabilities: shape ``(n,)``, summing to 1.
-        :param rng: the generator to draw with (the wrapper's or the hierarchy's own, never the env's).
+        :param rng: the generator to draw with (the caller's own, never the env's).
         :param deterministic: the caller asks for no sampling (an exact tie is still drawn from ``rng``).
         """
         return most_probable(probabilities, rng)
@@ -224,13 +197,8 @@ class SampleSelector(Selector):
         if deterministic:
             return most_probable(probabilities, rng)
         # Inverse-CDF sampling with one uniform draw (no Generator.choice overhead).
-        u = rng.random()
-        cumulative = 0.0
-        for index, p in enumerate(probabilities):
-            cumulative += p
-            if u < cumulative:
-                return index
-        return len(probabilities) - 1
+        index = bisect.bisect_right(list(itertools.accumulate(probabilities)), rng.random())
+        return min(index, len(probabilities) - 1)
 
 
 @register_selector
@@ -286,11 +254,11 @@ class DiscreteSelector(Selector):
 @dataclass
 class SelectionConfig:
     """
-    How the manager's action selects workers; the arguments of ``WorkerSelectionWrapper`` that a bundle keeps.
+    How the manager's action selects workers: the arguments of ``WorkerSelectionWrapper`` that a bundle keeps
+    (see there), in JSON form.
 
-    :param preferences: worker name -> preference factor.
-    :param selection: a registered selection mode (``sample``, ``argmax``, ``mix`` or ``discrete``; see
-        :data:`SELECTORS`).
+    :param preferences: worker name -> preference factor (a conditioned manager's: the one it acts at now).
+    :param selection: a registered selection mode (see :data:`SELECTORS`).
     :param option_steps: env steps per manager decision.
     :param temperature: the simplex map's temperature.
     :param floor: every worker's least probability.
@@ -298,14 +266,9 @@ class SelectionConfig:
     :param manager_state: state components the manager sees (``None``: all).
     :param worker_states: worker name -> state components it sees.
     :param option_gamma: discount inside an option.
-    :param manager_preferences: a preference-conditioned manager's trained-over preferences
-        (:meth:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace.to_json`): the manager observes the
-        normalised preference weights after its state, and ``preferences`` is the one it acts at now.
-        ``None``: a manager for ``preferences`` only.
-    :param option_end: options that also end by state (:meth:`OptionEnd.to_json`; ``None``: after
-        ``option_steps`` only).
-    :param manager_motion: the manager also observes its state's change over the last env step, scaled by
-        this factor (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`; 0: not).
+    :param manager_preferences: a conditioned manager's :meth:`PreferenceSpace.to_json` (``None``: none).
+    :param option_end: :meth:`OptionEnd.to_json` (``None``: options end after ``option_steps`` only).
+    :param manager_motion: the scale of the state's change the manager observes (0: none).
     """
 
     preferences: dict[str, float]
@@ -338,14 +301,7 @@ def preferences_from_bias(
     """
     if prefer is not None and prefer not in names:
         raise ValueError(f"Unknown worker {prefer!r} to prefer; workers: {names}")
-    # A preference raises the preferred worker's factor (the paper's 15 %); no preference is ``prefer=None``,
-    # and any other factors (a smaller one too) are given explicitly as ``preferences``.
-    if (
-        isinstance(bias, bool)
-        or not isinstance(bias, (int, float))
-        or not math.isfinite(bias)
-        or not 0 < bias <= MAX_PREFERENCE - 1
-    ):
+    if not _finite(bias) or not 0 < bias <= MAX_PREFERENCE - 1:
         raise ValueError(
             f"Expected `bias` to be a finite number at most {MAX_PREFERENCE - 1:g} and > 0, actually: {bias}"
         )
@@ -357,31 +313,36 @@ def parse_preferences(text: str) -> dict[str, float]:
     result: dict[str, float] = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
         name, sep, value = part.partition("=")
-        if not sep or not name.strip():
+        name = name.strip()
+        if not sep or not name:
             raise ValueError(f"Expected NAME=VALUE pairs separated by commas, got {part!r} in {text!r}")
         try:
             number = float(value)
         except ValueError:
-            raise ValueError(f"Expected a number for preference {name.strip()!r}, got {value!r}") from None
-        if name.strip() in result:
-            raise ValueError(f"Preference {name.strip()!r} given twice in {text!r}")
-        result[name.strip()] = number
+            raise ValueError(f"Expected a number for preference {name!r}, got {value!r}") from None
+        if name in result:
+            raise ValueError(f"Preference {name!r} given twice in {text!r}")
+        result[name] = number
     if not result:
         raise ValueError(f"No preferences in {text!r}")
     return result
+
+
+def _finite(value: object) -> TypeGuard[float]:
+    """Whether ``value`` is a finite int or float (a bool is not a number here)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def check_preferences(
     preferences: dict[str, Any], names: list[str], max_factor: float | None = MAX_PREFERENCE
 ) -> dict[str, float]:
     """
-    Validate preference factors: known names, finite and > 0, and at most ``max_factor`` where they weight a
-    reward (so that a weighted reward cannot overflow); missing names default to 1.
+    Validate preference factors: known names, finite and > 0, and at most ``max_factor`` so that a weighted
+    reward cannot overflow (``None``: only the ratio is used); missing names default to 1.
 
     :param preferences: name -> factor.
     :param names: the known names, in order.
-    :param max_factor: the largest factor (``None``: only the ratio is used, e.g. a conditioned manager's
-        run-time preference, which is normalised without overflow).
+    :param max_factor: the largest factor.
     """
     unknown = sorted(set(preferences) - set(names))
     if unknown:
@@ -389,12 +350,7 @@ def check_preferences(
     checked = {}
     for name in names:
         value = preferences.get(name, 1.0)
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, (int, float))
-            or not math.isfinite(value)
-            or value <= 0
-        ):
+        if not _finite(value) or value <= 0:
             raise ValueError(
                 f"Expected preference of {name!r} to be a finite number > 0, actually: {value!r}"
             )
@@ -408,30 +364,14 @@ def check_preferences(
 
 
 #: The keys of a bundle's selection settings.
-SELECTION_SETTINGS = (
-    "preferences",
-    "selection",
-    "option_steps",
-    "temperature",
-    "floor",
-    "reward_terms",
-    "manager_state",
-    "worker_states",
-    "option_gamma",
-    "manager_preferences",
-    "option_end",
-    "manager_motion",
-)
+SELECTION_SETTINGS = tuple(f.name for f in fields(SelectionConfig))
 
 
 def check_selection_settings(selection: object, names: Sequence[str], what: str) -> dict[str, Any]:
     """
-    A bundle's selection settings (``SelectionConfig``'s fields), each checked for type and range, so that
-    a file's ``temperature: "abc"`` or ``option_steps: -3`` is refused by name instead of failing later.
+    A bundle's selection settings (``SelectionConfig``'s fields from the manifest), each checked for type and
+    range, so that ``temperature: "abc"`` is refused by name (``what``) instead of failing later.
 
-    :param selection: the mapping from the manifest.
-    :param names: the bundle's worker names.
-    :param what: the field, for the message.
     :return: the checked mapping.
     """
     if not isinstance(selection, Mapping):
@@ -457,7 +397,11 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
     state = out.get("manager_state")
     if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
         raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
-    _check_recorded_rules(out, what)
+    recorded = out.get("manager_preferences")  # read by PreferenceSpace.from_json
+    if recorded is not None and not isinstance(recorded, Mapping):
+        raise LimitError(f"{what}.manager_preferences: expected a mapping, got {brief(recorded)}")
+    if out.get("option_end") is not None:
+        out["option_end"] = OptionEnd.from_json(out["option_end"], f"{what}.option_end").to_json()
     return out
 
 
@@ -476,7 +420,7 @@ def _check_numbers(out: Mapping[str, Any], n_workers: int, what: str) -> None:
     }
     for key, (low, high, low_open) in ranges.items():
         if key in out:
-            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open)
+            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open=low_open)
 
 
 def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: str) -> None:
@@ -498,12 +442,7 @@ def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: s
     for term, weight in spec.items():
         if not isinstance(term, str) or not PLAIN_NAME.match(term):
             raise LimitError(f"{what}.{name}: expected term names, got {brief(term)}")
-        if (
-            isinstance(weight, bool)
-            or not isinstance(weight, (int, float))
-            or not math.isfinite(weight)
-            or not 0 <= weight <= MAX_PREFERENCE
-        ):
+        if not _finite(weight) or not 0 <= weight <= MAX_PREFERENCE:
             raise LimitError(
                 f"{what}.{name}.{term}: expected a finite weight in [0, {MAX_PREFERENCE:g}], got {brief(weight)}"
             )
@@ -515,13 +454,8 @@ def check_reward_terms(
     reward_terms: Mapping[str, Any], names: Sequence[str], terms: Sequence[str], what: str
 ) -> None:
     """
-    Each worker's reward among the env's declared terms: its ``reward_terms`` entry (a term, or term ->
-    weight), or, with no entry, the term of its own name; one line naming the worker and the term otherwise.
-
-    :param reward_terms: worker -> its reward (already checked for form by :func:`check_selection_settings`).
-    :param names: the workers.
-    :param terms: the env's declared reward terms.
-    :param what: the field, for the message.
+    Check that each worker's reward (its ``reward_terms`` entry, a term or term -> weight, else the term of its
+    own name) is among the env's declared ``terms``: a ``LimitError`` naming the worker and the term otherwise.
     """
     for name in names:
         spec = reward_terms.get(name, name)
@@ -533,22 +467,15 @@ def check_reward_terms(
                 )
 
 
-def _check_recorded_rules(out: dict[str, Any], what: str) -> None:
-    """A bundle's conditioned-manager preferences (a mapping, read by ``PreferenceSpace``) and option end."""
-    recorded = out.get("manager_preferences")
-    if recorded is not None and not isinstance(recorded, Mapping):
-        raise LimitError(f"{what}.manager_preferences: expected a mapping, got {brief(recorded)}")
-    if out.get("option_end") is not None:
-        out["option_end"] = OptionEnd.from_json(out["option_end"], f"{what}.option_end").to_json()
-
-
-def _check_number_in_range(value: object, what: str, low: float, high: float, low_open: bool) -> None:
-    """A finite number in ``[low, high]`` (``(low, high]`` when ``low_open``), else a ``LimitError``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+def _check_number_in_range(
+    value: object, what: str, low: float, high: float, low_open: bool = False, high_open: bool = False
+) -> None:
+    """A finite number from ``low`` to ``high`` (each end open or closed), else a ``LimitError``."""
+    if not _finite(value):
         raise LimitError(f"{what}: expected a finite number, got {brief(value)}")
-    if value < low or value > high or (low_open and value == low):
-        bracket = "(" if low_open else "["
-        raise LimitError(f"{what}: expected a number in {bracket}{low}, {high}], got {value!r}")
+    if value < low or value > high or (low_open and value == low) or (high_open and value == high):
+        bracket = ("(" if low_open else "[") + f"{low:g}, {high:g}" + (")" if high_open else "]")
+        raise LimitError(f"{what}: expected a number in {bracket}, got {value!r}")
 
 
 def _check_preference_factors(preferences: object, names: Sequence[str], what: str) -> None:
@@ -556,8 +483,7 @@ def _check_preference_factors(preferences: object, names: Sequence[str], what: s
     if not isinstance(preferences, Mapping) or set(preferences) - set(names):
         raise LimitError(f"{what}: expected worker name -> factor, got {brief(preferences)}")
     for name, value in preferences.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e6:
-            raise LimitError(f"{what}.{name}: expected a finite number > 0, got {brief(value)}")
+        _check_number_in_range(value, f"{what}.{name}", 0.0, 1e6, low_open=True, high_open=True)
 
 
 def _check_term_weights(weights: object, what: str) -> None:
@@ -566,5 +492,4 @@ def _check_term_weights(weights: object, what: str) -> None:
         raise LimitError(f"{what}: expected term name -> weight, got {brief(weights)}")
     for name, value in weights.items():
         check_name(name, what)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1e6:
-            raise LimitError(f"{what}.{name}: expected a finite number >= 0, got {brief(value)}")
+        _check_number_in_range(value, f"{what}.{name}", 0.0, 1e6, high_open=True)

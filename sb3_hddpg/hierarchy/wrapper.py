@@ -36,31 +36,22 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
     """
     Turn the shared env into the manager's MDP: the manager's action chooses which worker acts.
 
-    **Action.** ``Box(-1, 1, (n_workers,), float32)``, mapped to worker probabilities by
-    :class:`~sb3_hddpg.hierarchy.selection.SimplexMap` (``softmax(a / temperature)`` mixed with a probability floor),
-    so SB3's noisy, clipped actions and its uniform warm-up actions are all valid. Then, per
-    ``selection`` (a registered :class:`~sb3_hddpg.hierarchy.selection.Selector`): ``"sample"`` (the paper's) draws one worker from the probabilities and applies its
-    action; ``"argmax"`` applies the most probable worker's action; ``"mix"`` applies the
-    probability-weighted blend of all workers' actions. In sample and argmax modes only the chosen worker
-    is run.
+    **Action.** ``Box(-1, 1, (n_workers,))`` mapped to worker probabilities by
+    :class:`~sb3_hddpg.hierarchy.selection.SimplexMap`, so SB3's noisy, clipped and warm-up actions are all
+    valid; ``selection`` (a registered :class:`~sb3_hddpg.hierarchy.selection.Selector`) then runs one drawn
+    worker (``"sample"``, the paper's), the most probable one (``"argmax"``) or the weighted blend (``"mix"``).
 
-    **Reward.** ``sum_w preference[w] * normalised(term_w)``: each worker's reward term min-max normalised to
-    [0, 1] with the env's fixed ``reward_bounds`` (not running statistics, so the manager's reward means
-    the same at every step of training), weighted by its preference factor (default 1; paper Section 3.4).
+    **Reward.** ``sum_w preference[w] * normalised(term_w)``, each term min-max normalised to [0, 1] with the
+    env's fixed ``reward_bounds`` (not running statistics, so a reward means the same all through training).
 
-    **Options.** With ``option_steps = k`` the chosen worker (or, in mix mode, the probabilities) is kept
-    for ``k`` env steps (fewer if the episode ends) and the manager's reward is the discounted sum
-    ``sum_j option_gamma^j r_j`` of those steps (semi-MDP, paper Section 2.3). SB3 discounts the next
-    manager decision by its own fixed ``gamma``, not by ``gamma^k``: for the same horizon in env steps, give
-    the manager ``gamma_manager = gamma_env^k``. ``k = 1`` is the paper's setting and needs no care.
+    **Options.** The choice is kept for ``option_steps = k`` env steps and the reward is their discounted sum
+    ``sum_j option_gamma^j r_j`` (semi-MDP, paper Section 2.3). SB3 discounts the next decision by its own
+    ``gamma``, not ``gamma^k``: give the manager ``gamma_env^k`` for the same horizon.
 
-    **Observations.** The manager sees the shared state, or the components named in ``manager_state``
-    (names of the env's ``state_layout``, see :func:`~sb3_hddpg.envs.contract.state_layout_of`), then, with
-    ``manager_motion``, their change over the last env step, then a conditioned manager's preference
-    weights (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`); each worker
-    sees its own ``worker_states[name]`` subset (paper design specification 4): by default the components
-    it was trained on, which workers from :func:`~sb3_hddpg.artifacts.manifests.load_workers` carry, else
-    the whole state.
+    **Observations.** The manager sees the shared state (or its ``manager_state`` components), then with
+    ``manager_motion`` their change over the last env step, then a conditioned manager's preference weights
+    (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`); each worker sees its ``worker_states`` subset,
+    by default the components it was trained on (workers from ``load_workers`` carry them).
 
     Example, your own manager over trained workers::
 
@@ -68,47 +59,34 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         env = WorkerSelectionWrapper(workers.make_env(), workers)
         manager = SAC("MlpPolicy", env).learn(2_000)
 
-    **Threads.** Building the wrapper sets torch to one thread in this process, as the CLI trains, unless you
-    chose its threads (:mod:`sb3_hddpg.threads`): small networks learn several times faster on one.
+    Building the wrapper sets torch to one thread unless you chose its threads (:mod:`sb3_hddpg.threads`).
 
-    **Info.** ``selected_worker``, ``selection_probabilities`` (name -> probability),
-    ``reward_terms`` (raw, from the env), ``normalised_terms`` and ``option_length``; plus the env's own (of
-    the option's last env step). ``option_rewards`` and ``option_infos`` hold each env step of the option:
-    its undiscounted manager reward and the env's info. :func:`~sb3_hddpg.evaluation.evaluate` counts
-    those, so a manager's metrics are per env step, as every other method's.
+    **Info.** ``selected_worker``, ``selection_probabilities``, ``normalised_terms``, ``option_length``, the
+    env's own info of the option's last step, and per env step of the option ``option_rewards`` (undiscounted)
+    and ``option_infos``, which :func:`~sb3_hddpg.evaluation.evaluate` counts per env step.
 
-    :param env: the shared env (e.g. ``gym.make("hddpg/SnakeReach-v0")``), which meets the env contract
-        (:class:`~sb3_hddpg.envs.contract.RewardTermsEnv`; an MO-Gymnasium env through
-        :mod:`sb3_hddpg.envs.adapters`).
-    :param workers: the workers :func:`~sb3_hddpg.artifacts.manifests.load_workers` returns (each carries the
-        state components it sees), or name -> worker (an SB3 model, a loaded ``Hierarchy``, or anything
-        with SB3's ``predict``), or a sequence of ``(name, worker)`` pairs.
+    :param env: the shared env, which meets the env contract (:mod:`sb3_hddpg.envs.contract`).
+    :param workers: the workers ``load_workers`` returns, or name -> worker (an SB3 model, a ``Hierarchy``,
+        anything with SB3's ``predict``), or ``(name, worker)`` pairs.
     :param preferences: name -> preference factor (finite, > 0); missing names get 1.
-    :param selection: a registered selection mode: ``"sample"``, ``"argmax"``, ``"mix"`` or one of yours.
+    :param selection: a registered selection mode.
     :param option_steps: env steps per manager decision, >= 1.
     :param temperature: the simplex map's softmax temperature.
     :param floor: every worker's least probability.
-    :param reward_terms: name -> the worker's reward: an env term name, or a mapping of term names to weights
-        (normalised terms mixed by those weights over their sum). Default: the worker's name, or a
-        hierarchy worker's own ``reward_spec``.
+    :param reward_terms: name -> the worker's reward: an env term, or term -> weight (normalised terms mixed
+        by those weights over their sum). Default: the worker's name, or a hierarchy worker's ``reward_spec``.
     :param manager_state: state components the manager sees (``None``: all).
-    :param worker_states: name -> state components that worker sees, over those the workers carry
-        (missing: all).
+    :param worker_states: name -> state components that worker sees (missing: those it carries, else all).
     :param option_gamma: discount inside an option.
-    :param manager_preferences: train one manager for every preference: a
-        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace` (or its JSON form). The manager's
-        observation gains the normalised preference weights after the state, a preference is drawn from the
-        space at every reset (until :meth:`set_preference` fixes one), and ``info["worker_rewards"]`` holds
-        each worker's (unweighted) discounted option reward, so that
-        :class:`~sb3_hddpg.hierarchy.relabeling.PreferenceRelabelingReplayBuffer` can pay a stored step for
-        another preference. ``None``: one fixed preference, ``preferences``.
-    :param option_end: options that also end by state (an :class:`~sb3_hddpg.hierarchy.option_end.OptionEnd`
-        or its JSON form): the option ends before ``option_steps`` env steps when the state leaves the band it
-        was chosen in (``info["option_length"]`` is then shorter). ``None``: after ``option_steps`` only.
-    :param manager_motion: the manager also observes how its state moved over the last env step, scaled by
-        this factor and clipped to [-1, 1] (:class:`~sb3_hddpg.hierarchy.manager_input.ManagerInput`): a
-        threshold on a distance cannot tell an obstacle coming from one going away, a manager that sees
-        motion can. 0: the state only.
+    :param manager_preferences: train one manager for every preference of this
+        :class:`~sb3_hddpg.hierarchy.conditioning.PreferenceSpace` (or its JSON form): the manager observes
+        the normalised weights, a preference is drawn at every reset (until :meth:`set_preference`), and
+        ``info["worker_rewards"]`` holds each worker's discounted option reward for
+        :class:`~sb3_hddpg.hierarchy.relabeling.PreferenceRelabelingReplayBuffer`.
+    :param option_end: options that also end when the state leaves the band they were chosen in (an
+        :class:`~sb3_hddpg.hierarchy.option_end.OptionEnd` or its JSON form; ``None``: by ``option_steps`` only).
+    :param manager_motion: the manager also observes its state's change over the last env step, scaled by
+        this factor and clipped to [-1, 1], to tell an obstacle coming from one going away (0: not).
     """
 
     def __init__(
@@ -128,8 +106,6 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         option_end: OptionEnd | Mapping[str, Any] | None = None,
         manager_motion: float = 0.0,
     ) -> None:
-        # help(WorkerSelectionWrapper.__init__) shows this (the class docstring, assigned below), not
-        # gymnasium's generic Wrapper.__init__ text.
         pairs = list(workers.items()) if isinstance(workers, Mapping) else list(workers)
         names = [name for name, _ in pairs]
         selector = _checked_settings(names, selection, option_steps, option_gamma)
@@ -147,24 +123,6 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             option_end = OptionEnd.from_json(option_end)
         self.option_end: OptionEnd | None = option_end
         self._band = option_end.bind(self.layout) if option_end is not None else None
-        self._set_preferences(preferences, manager_preferences)
-        self._set_states(workers, manager_state, worker_states, manager_motion)
-        # Weighted workers from load_workers carry their weights: the bundle keeps them as reward_terms.
-        carried = reward_specs_of(workers) if isinstance(workers, Mapping) else {}
-        self._set_workers(pairs, {**carried, **dict(reward_terms or {})}, contract)
-        self._rng = np.random.default_rng()
-        self._preference_rng = np.random.default_rng()
-        self._last_obs: np.ndarray | None = None
-        # The shared state one env step before ``_last_obs``, for a manager that observes motion.
-        self._previous_obs: np.ndarray | None = None
-
-    def _set_preferences(
-        self,
-        preferences: Mapping[str, float] | None,
-        manager_preferences: PreferenceSpace | Mapping[str, Any] | None,
-    ) -> None:
-        """The preference factors, and the space a conditioned manager's preference is drawn from."""
-        names = self.worker_names
         if manager_preferences is not None and not isinstance(manager_preferences, PreferenceSpace):
             manager_preferences = PreferenceSpace.from_json(manager_preferences, names)
         if manager_preferences is not None and list(manager_preferences.names) != names:
@@ -173,10 +131,18 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             )
         self.preference_space: PreferenceSpace | None = manager_preferences
         self.preferences = check_preferences(dict(preferences or {}), names)
-        if self.preference_space is not None:
-            self.preferences = self.preference_space.check(self.preferences)
+        if manager_preferences is not None:
+            self.preferences = manager_preferences.check(self.preferences)
         #: Whether every reset draws a new preference (a conditioned manager in training).
-        self.sample_preferences = self.preference_space is not None
+        self.sample_preferences = manager_preferences is not None
+        self._set_states(workers, manager_state, worker_states, manager_motion)
+        # Weighted workers from load_workers carry their weights: the bundle keeps them as reward_terms.
+        carried = reward_specs_of(workers) if isinstance(workers, Mapping) else {}
+        self._set_workers(pairs, {**carried, **dict(reward_terms or {})}, contract)
+        self._rng = np.random.default_rng()
+        self._preference_rng = np.random.default_rng()
+        self._last_obs: np.ndarray | None = None
+        self._previous_obs: np.ndarray | None = None  # the state one env step earlier, for motion
 
     def _set_states(
         self,
@@ -228,8 +194,6 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             self.reward_specs[name] = _term_weights(name, spec, known_terms)
             self.frozen.append(FrozenWorker(worker, indices))
         self.workers = dict(pairs)
-        # The reward is linear in the raw terms: precompute sum_w preference_w * weight_wt per term, so a
-        # step costs one multiply-add per term (the manager step has a budget of 2x a plain env step).
         self._normalise = contract.normalise_terms
         self._known_terms = known_terms
         self._set_coefficients()
@@ -244,8 +208,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
 
     def selection_config(self) -> SelectionConfig:
         """The selection settings of this wrapper, as a bundle keeps them (see ``Hierarchy``)."""
-        # While drawing a preference every episode, the current one is a random draw: a bundle made from this
-        # wrapper acts at the unweighted preference until told another.
+        # While preferences are drawn, the current one is random: a bundle acts at the unweighted one.
         space = self.preference_space
         preferences = (
             space.default if self.sample_preferences and space is not None else dict(self.preferences)
@@ -284,10 +247,8 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         self.preferences = checked
         self._set_coefficients()
 
-    # ------------------------------------------------------------------ helpers
     def _set_coefficients(self) -> None:
-        # The reward is linear in the raw terms: precompute sum_w preference_w * weight_wt per term, so a
-        # step costs one multiply-add per term (the manager step has a budget of 2x a plain env step).
+        # The reward is linear in the terms: one coefficient per term keeps a step cheap.
         coefficients = mix_terms(self.reward_specs, self.preferences)
         self._term_coefficients = [(term, coefficients.get(term, 0.0)) for term in self._known_terms]
         self._preference_obs = (
@@ -304,24 +265,18 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         return [sum(w * normalised[term] for term, w in terms) for terms in self._worker_coefficients]
 
     def manager_reward(self, terms: Mapping[str, float]) -> tuple[float, dict[str, float]]:
-        """
-        The manager's one-step reward from the env's raw terms.
-
-        :return: the reward and the normalised terms.
-        """
+        """The manager's one-step reward from the env's raw terms, and the normalised terms."""
         normalised = self._normalise(terms)
         reward = 0.0
         for term, coefficient in self._term_coefficients:
             reward += coefficient * normalised[term]
         return reward, normalised
 
-    # ------------------------------------------------------------------ gymnasium API
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict]:
         if seed is not None:
-            # Our own generator for selection, seeded from the episode seed: sampling workers must not
-            # consume the env's randomness, or wrapping would change the env's trajectory.
+            # Generators of our own: sampling workers must not consume the env's randomness.
             self._rng = np.random.default_rng([seed, 0x5E1EC7])
             self._preference_rng = np.random.default_rng([seed, 0x9EF])
         if self.sample_preferences and self.preference_space is not None:
@@ -346,13 +301,16 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         info: dict[str, Any] = {}
         rewards: list[float] = []
         infos: list[dict[str, Any]] = []
-        steps = 0
         obs = self._last_obs
-        conditioned = self.preference_space is not None
-        per_worker = np.zeros(len(self.worker_names)) if conditioned else None
+        per_worker = np.zeros(len(self.worker_names)) if self.preference_space is not None else None
         start_band = self._band(obs) if self._band is not None else None
-        while steps < self.option_steps and not (terminated or truncated):
-            if start_band is not None and steps and self._band is not None and self._band(obs) != start_band:
+        while len(rewards) < self.option_steps and not (terminated or truncated):
+            if (
+                start_band is not None
+                and rewards
+                and self._band is not None
+                and self._band(obs) != start_band
+            ):
                 break  # the state left the band the option was chosen in: decide again
             env_action = self.selector.act(probabilities, chosen, self.frozen, obs)
             self._previous_obs = obs
@@ -364,7 +322,6 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
             discount *= self.option_gamma
             rewards.append(reward)
             infos.append(info)
-            steps += 1
         self._last_obs = obs
         info = dict(info)  # the last step's, without a reference to itself in option_infos
         info["option_rewards"] = rewards
@@ -372,7 +329,7 @@ class WorkerSelectionWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.
         info["selected_worker"] = self.worker_names[chosen]
         info["selection_probabilities"] = dict(zip(self.worker_names, probabilities))
         info["normalised_terms"] = normalised
-        info["option_length"] = steps
+        info["option_length"] = len(rewards)
         if per_worker is not None:
             info["worker_rewards"] = per_worker
             info["preferences"] = dict(self.preferences)

@@ -26,7 +26,7 @@ class StepRecord:
     :param distance_to_goal: the tip-to-goal distance.
     :param goal_touched: the tip touches the goal.
     :param collision: a link touches an obstacle.
-    :param reward_terms: the env's raw reward terms of the step (any env of the contract).
+    :param reward_terms: the env's raw reward terms of the step.
     """
 
     episode: int
@@ -41,10 +41,7 @@ class StepRecord:
 
 
 def selected_names(policy: object) -> list[str]:
-    """
-    The worker names a policy selects among, in its action order: a ``Hierarchy``'s or a HAM switch's
-    ``names`` (or ``worker_names``); empty for a policy that selects no worker.
-    """
+    """The worker names a policy selects among (its ``names`` or ``worker_names``), in its action order."""
     for attribute in ("names", "worker_names"):
         names = getattr(policy, attribute, None)
         if names:
@@ -54,10 +51,8 @@ def selected_names(policy: object) -> list[str]:
 
 class StepRecorder(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     """
-    Record every step of a snake env: the ``info`` values of :class:`StepRecord`, the worker the policy
-    selected (from the wrapper's ``info["selected_worker"]`` or the policy's ``last_selection``), and
-    optionally the rendered frame. Wrap the env given to :func:`~sb3_hddpg.evaluation.evaluate`; the
-    episode counter advances at every ``reset``.
+    Record every step of a snake env as a :class:`StepRecord` (and optionally its rendered frame): wrap the
+    env given to :func:`~sb3_hddpg.evaluation.evaluate`.
 
     :param env: a snake env (``render_mode="rgb_array"`` when ``on_frame`` is given).
     :param policy: the policy that will act, read for ``last_selection`` / ``last_probabilities``.
@@ -116,7 +111,7 @@ def trace_episodes(
     policy: Policy, env: gym.Env, n_episodes: int = 1, seed: int | None = None, deterministic: bool = True
 ) -> tuple[list[StepRecord], Any]:
     """
-    Run ``policy`` for ``n_episodes`` through :func:`~sb3_hddpg.evaluation.evaluate` and keep every step.
+    Run ``policy`` through :func:`~sb3_hddpg.evaluation.evaluate` and keep every step.
 
     :param policy: anything with SB3's ``predict``.
     :param env: a snake env (no rendering needed).
@@ -125,7 +120,6 @@ def trace_episodes(
     :param deterministic: passed to ``predict``.
     :return: the step records and the :class:`~sb3_hddpg.evaluation.EvaluationResult`.
     """
-
     recorder = StepRecorder(env, policy)
     result = evaluate(
         policy,
