@@ -23,10 +23,9 @@ class StateLayout(Mapping[str, slice]):
         self.size = start
 
     def __getitem__(self, name: str) -> slice:
-        try:
-            return self._slices[name]
-        except KeyError:
-            raise KeyError(f"Unknown state component {name!r}; known: {list(self._slices)}") from None
+        if name not in self._slices:
+            raise KeyError(f"Unknown state component {name!r}; known: {list(self._slices)}")
+        return self._slices[name]
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._slices)

@@ -6,27 +6,7 @@ the gymnasium env over them (:mod:`.env`), a read-only view of its state (:mod:`
 """
 
 from sb3_hddpg.envs.snake.env import SnakeArmEnv
-from sb3_hddpg.envs.snake.params import (
-    MAX_JOINTS,
-    MAX_OBSTACLES,
-    MAX_SUBSTEPS,
-    REWARD_CHOICES,
-    REWARD_TERMS,
-    SnakeParams,
-)
-from sb3_hddpg.envs.snake.rewards import GoalTerm, avoid_term, reward_bounds
-from sb3_hddpg.envs.snake.view import SnakeView
+from sb3_hddpg.envs.snake.params import REWARD_TERMS, SnakeParams
+from sb3_hddpg.envs.snake.rewards import GoalTerm
 
-__all__ = [
-    "MAX_JOINTS",
-    "MAX_OBSTACLES",
-    "MAX_SUBSTEPS",
-    "REWARD_CHOICES",
-    "REWARD_TERMS",
-    "GoalTerm",
-    "SnakeArmEnv",
-    "SnakeParams",
-    "SnakeView",
-    "avoid_term",
-    "reward_bounds",
-]
+__all__ = ["REWARD_TERMS", "GoalTerm", "SnakeArmEnv", "SnakeParams"]
