@@ -57,11 +57,7 @@ def at_least(minimum: int) -> Callable[[int | None], int | None]:
 
 
 def count(name: str) -> Callable[[int | None], int | None]:
-    """
-    A typer callback for a count of :data:`~sb3_hddpg.artifacts.limits.COUNTS` (``episodes``,
-    ``video_steps``, ``n_jobs``...): the same bounds as a Python caller's keyword or a file's field, from the
-    one table (``None`` passes).
-    """
+    """A typer callback for a count of :data:`~sb3_hddpg.artifacts.limits.COUNTS` (``None`` passes)."""
 
     def check(value: int | None) -> int | None:
         if value is not None:
@@ -90,11 +86,7 @@ def discount(value: float | None) -> float | None:
 
 
 def existing_file(value: Path | None) -> Path | None:
-    """
-    A typer callback for a file to read: it must exist and be a file (``None`` passes). Checked by kind,
-    not by permission bits, because root reads anything and a folder where a file belongs is the common
-    mistake.
-    """
+    """A typer callback for a file to read: it must exist and be a file (``None`` passes)."""
     return _existing(value, Path.is_file, "file")
 
 
@@ -126,10 +118,7 @@ def writable_file(value: Path | None) -> Path | None:
 
 
 def output_file(path: Path | None, force: bool, param_hint: str) -> Path | None:
-    """
-    The file a command writes, checked before any work starts: an existing file is replaced only with
-    ``--force`` (:func:`~sb3_hddpg.artifacts.run_folder.check_output_file`); ``None`` passes.
-    """
+    """The file a command writes, checked before any work: an existing one only with ``--force``."""
     if path is None:
         return None
     try:
@@ -141,10 +130,8 @@ def output_file(path: Path | None, force: bool, param_hint: str) -> Path | None:
 @contextlib.contextmanager
 def usage_errors(param_hint: str | None = None) -> Iterator[None]:
     """
-    Report the library's input validation as a usage error (exit code 2): inside this block a
-    ``ValueError`` (``ConfigError``, ``BundleError``...) or a missing or wrong-kind path means the command
-    line named something unusable. Use it only around the checks and loads before any work starts, so that
-    a failure during the work itself stays an ordinary error (exit code 1).
+    Report the library's input errors (``ValueError``, a missing or wrong-kind path) as a usage error (exit
+    code 2): only around the checks before any work starts, so that a failure while working stays exit 1.
 
     :param param_hint: the option the problem comes from, e.g. ``"'--config'"`` (``None``: not named).
     """
@@ -156,11 +143,7 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
 
 
 def refuse_protected_out(out: Path) -> Path:
-    """
-    Refuse, as a usage error, an output folder that may never hold a run: the current folder (``--out ""``
-    or ``.``), one above it, the home or root folder
-    (:func:`~sb3_hddpg.artifacts.run_folder.protected_reason`).
-    """
+    """Refuse, as a usage error, an output folder that may never hold a run (the current one, home, root...)."""
     reason = "the current folder" if str(out) in ("", ".") else protected_reason(out)
     if reason is not None:
         raise typer.BadParameter(
@@ -171,19 +154,13 @@ def refuse_protected_out(out: Path) -> Path:
 
 def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool) -> Path:
     """
-    Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a folder above
-    it, the home or root folder, a path through a file, a symbolic link, a folder of the user's
-    (:func:`~sb3_hddpg.artifacts.run_folder.check_out_folder`), and a run folder that already holds results
-    unless ``--resume`` or ``--force``; then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the
-    command ends, so a second run into the same folder stops at once with the holder's pid. ``--force``
-    clears it through :func:`sb3_hddpg.artifacts.run_folder.clear_run_folder`, which deletes only what the
-    tool wrote; this function only reports.
+    Take the run folder for this command: refuse a protected folder, a path through a file, a link, a
+    folder of the user's, and one that already holds results unless ``--resume`` or ``--force`` (which
+    clears only what the tool wrote); then lock it until the command ends.
 
-    :param context: the command's context (a ``typer.Context`` parameter): the lock is released when it
-        closes. Passed in because typer keeps its own copy of click, whose current context
-        ``click.get_current_context`` does not see.
+    :param context: the command's context, whose closing releases the lock (typer's own copy of click
+        hides it from ``click.get_current_context``).
     """
-
     refuse_protected_out(out)
     try:
         check_out_folder(out)
@@ -240,7 +217,6 @@ def backend_name(value: str | None) -> str | None:
     """A typer callback for ``--backend``: ``sb3`` or ``sbx``, and installed (``None`` passes)."""
     if value is None:
         return None
-
     try:
         return check_backend(value)
     except BackendError as error:
@@ -304,16 +280,14 @@ RUN_OPTION_PARAMETERS: dict[str, tuple[object, object]] = {
 
 def takes_run_options(*names: str) -> Callable[[F], F]:
     """
-    Give a typer command the run options ``names`` (:data:`RUN_OPTION_PARAMETERS`) as parameters, placed
-    before its ``--resume`` (else last), so that the training commands do not each spell them again. The
-    command itself is called without them: it reads them with :func:`run_options_of`.
+    Give a typer command the run options ``names`` (:data:`RUN_OPTION_PARAMETERS`) as parameters, before its
+    ``--resume`` (else last); the command is called without them and reads them with :func:`run_options_of`.
 
     :param names: fields of :class:`~sb3_hddpg.training.run_options.RunOptions`.
     """
 
     def decorate(command: F) -> F:
-        # Evaluated annotations: typer reads the options from this signature, not from the strings of
-        # a module with postponed annotations.
+        # Evaluated annotations: typer reads this signature, not a postponed annotation's string.
         own = list(inspect.signature(command, eval_str=True).parameters.values())
         added = [
             inspect.Parameter(
@@ -335,9 +309,8 @@ def takes_run_options(*names: str) -> Callable[[F], F]:
 
 def run_options_of(context: typer.Context) -> RunOptions:
     """
-    The :class:`~sb3_hddpg.training.run_options.RunOptions` of a running command: its parameters named as
-    the fields (``--seed`` -> ``seed``, ``--progress`` -> ``progress_bar``...); fields it has no option for
-    keep their defaults. Built once here, then passed through the library.
+    The :class:`~sb3_hddpg.training.run_options.RunOptions` of a running command, from its parameters named
+    as the fields (fields it has no option for keep their defaults).
 
     :param context: the command's context (a ``typer.Context`` parameter of the command).
     """
@@ -345,7 +318,6 @@ def run_options_of(context: typer.Context) -> RunOptions:
         return RunOptions(**{k: v for k, v in context.params.items() if k in RUN_OPTION_NAMES})
 
 
-#: Help of the options that choose an env with several objectives (train-workers, train-manager, evaluate).
 #: What ``--env`` accepts; each command adds its one default.
 ENV_HELP = (
     "Env id with several objectives: one of ours, an MO-Gymnasium id (the mo extra, which make installs), or "
@@ -366,8 +338,6 @@ INFO_KEY_HELP = (
 )
 EPISODE_STEPS_HELP = "Time limit of an adapted env (default: its registered max_episode_steps)."
 
-
-# The options that name another env's terms, declared once for every command that takes them.
 TermsOpt = Annotated[str | None, typer.Option("--terms", help=TERMS_HELP)]
 TermBoundsOpt = Annotated[str | None, typer.Option("--term-bounds", help=TERM_BOUNDS_HELP)]
 InfoKeyOpt = Annotated[str | None, typer.Option("--info-key", help=INFO_KEY_HELP)]
@@ -384,24 +354,15 @@ def terms_env_option(
     episode_steps: int | None = None,
 ) -> Any:
     """
-    The :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the env options name (``None`` when ``--env`` is not
-    given and no other option needs it); the library's errors become usage errors naming the option.
+    The :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the env options name (``None`` without ``--env``); the
+    library's errors become usage errors naming the option.
     """
     if env is None:
-        given = [
-            n
-            for n, v in (
-                ("--terms", terms),
-                ("--term-bounds", term_bounds),
-                ("--info-key", info_key),
-                ("--episode-steps", episode_steps),
-            )
-            if v is not None
-        ]
-        if given:
-            raise typer.BadParameter(
-                f"{given[0]} needs --env (the env whose terms it names)", param_hint="'--env'"
-            )
+        options = ("--terms", terms), ("--term-bounds", term_bounds), ("--info-key", info_key)
+        for name, value in (*options, ("--episode-steps", episode_steps)):
+            if value is not None:
+                message = f"{name} needs --env (the env whose terms it names)"
+                raise typer.BadParameter(message, param_hint="'--env'")
         return None
     with usage_errors("'--terms'"):
         names = parse_terms(terms) if terms is not None else None
@@ -423,8 +384,8 @@ RunPreferenceOpt = Annotated[str | None, typer.Option("--preference", help=RUN_P
 
 def apply_run_preference(policy: object, text: str | None, kind: str) -> None:
     """
-    Set ``--preference`` on a loaded policy: a usage error (exit 2) for a policy that takes none, a
-    malformed text, or a preference outside those a conditioned manager was trained over.
+    Set ``--preference`` on a loaded policy: a usage error for a policy that takes none, a malformed text,
+    or a preference outside those a conditioned manager was trained over.
 
     :param policy: the loaded policy.
     :param text: the option's value (``None``: not given).
