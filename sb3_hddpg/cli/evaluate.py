@@ -13,17 +13,15 @@ from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
-    EpisodeStepsOpt,
-    InfoKeyOpt,
+    ENV_OPTIONS,
     ReplaceFileOpt,
     RunPreferenceOpt,
-    TermBoundsOpt,
-    TermsOpt,
     apply_run_preference,
     count,
     output_file,
     seed_range,
-    terms_env_option,
+    takes_options,
+    terms_env_of,
     usage_errors,
     writable_file,
 )
@@ -100,13 +98,11 @@ _NearClearanceOpt = Annotated[
 
 
 @app.command("evaluate")
+@takes_options(*ENV_OPTIONS)
 def evaluate_command(
+    context: typer.Context,
     path: _PathOpt,
     env_id: _EnvIdOpt = None,
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
     episodes: _EpisodesOpt = 20,
     seed: _SeedOpt = EVAL_SEED_BASE,
     deterministic: _DeterministicOpt = True,
@@ -124,11 +120,9 @@ def evaluate_command(
     snake arm); a hierarchy's worker choices.
     """
 
-    # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
-    # checked here, as a usage error; what fails during the episodes is not.
+    # What depends only on the arguments is checked first, as a usage error; a failing episode is not one.
     output_file(json_path, force, "'--json'")
-    # Another env with several objectives resolves to the adapter it needs (the snake ids stay as they are).
-    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
+    shared = terms_env_of(context, env_id)
     loaded = _loaded_policy(path, shared, trust, algo, preference)
     worker = _state_worker(worker, selected_names(loaded.policy))
     with usage_errors("'--env'"):

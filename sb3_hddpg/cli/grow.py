@@ -12,7 +12,7 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ResumeOpt,
     run_options_of,
-    takes_run_options,
+    takes_options,
     usage_errors,
 )
 from sb3_hddpg.cli.train import training_interrupt_exits
@@ -50,9 +50,7 @@ _ConfigOpt = Annotated[
 
 
 @app.command("grow")
-@takes_run_options(
-    "seed", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq", "threads", "progress_bar"
-)
+@takes_options("seed", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq", "threads", "progress_bar")
 def grow_command(
     context: typer.Context,
     workers: _GrowWorkersOpt = Path("runs/workers"),

@@ -263,61 +263,6 @@ KeepCheckpointsOpt = Annotated[bool, typer.Option("--keep-checkpoints", help=KEE
 BackendOpt = Annotated[str | None, typer.Option("--backend", callback=backend_name, help=BACKEND_HELP)]
 
 
-#: The run options a training command may take without using them itself (it reads them from its context
-#: with :func:`run_options_of`): field name -> its option and the commands' default.
-RUN_OPTION_PARAMETERS: dict[str, tuple[object, object]] = {
-    "seed": (SeedOpt, 0),
-    "n_envs": (NEnvsOpt, None),
-    "stop_on_plateau": (StopOnPlateauOpt, False),
-    "eval_freq": (EvalFreqOpt, 5000),
-    "eval_episodes": (EvalEpisodesOpt, 5),
-    "checkpoint_freq": (CheckpointFreqOpt, 10_000),
-    "threads": (ThreadsOpt, 1),
-    "progress_bar": (ProgressOpt, True),
-    "keep_checkpoints": (KeepCheckpointsOpt, False),
-}
-
-
-def takes_run_options(*names: str) -> Callable[[F], F]:
-    """
-    Give a typer command the run options ``names`` (:data:`RUN_OPTION_PARAMETERS`) as parameters, before its
-    ``--resume`` (else last); the command is called without them and reads them with :func:`run_options_of`.
-
-    :param names: fields of :class:`~sb3_hddpg.training.run_options.RunOptions`.
-    """
-
-    def decorate(command: F) -> F:
-        # Evaluated annotations: typer reads this signature, not a postponed annotation's string.
-        own = list(inspect.signature(command, eval_str=True).parameters.values())
-        added = [
-            inspect.Parameter(
-                name, inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=option, default=default
-            )
-            for name, (option, default) in ((n, RUN_OPTION_PARAMETERS[n]) for n in names)
-        ]
-        at = next((i for i, p in enumerate(own) if p.name == "resume"), len(own))
-
-        @functools.wraps(command)
-        def wrapper(**kwargs: object) -> Any:
-            return command(**{key: value for key, value in kwargs.items() if key not in names})
-
-        wrapper.__signature__ = inspect.Signature(own[:at] + added + own[at:])  # type: ignore[attr-defined]
-        return wrapper  # type: ignore[return-value]
-
-    return decorate
-
-
-def run_options_of(context: typer.Context) -> RunOptions:
-    """
-    The :class:`~sb3_hddpg.training.run_options.RunOptions` of a running command, from its parameters named
-    as the fields (fields it has no option for keep their defaults).
-
-    :param context: the command's context (a ``typer.Context`` parameter of the command).
-    """
-    with usage_errors():
-        return RunOptions(**{k: v for k, v in context.params.items() if k in RUN_OPTION_NAMES})
-
-
 #: What ``--env`` accepts; each command adds its one default.
 ENV_HELP = (
     "Env id with several objectives: one of ours, an MO-Gymnasium id (the mo extra, which make installs), or "
@@ -344,6 +289,74 @@ InfoKeyOpt = Annotated[str | None, typer.Option("--info-key", help=INFO_KEY_HELP
 EpisodeStepsOpt = Annotated[
     int | None, typer.Option("--episode-steps", callback=count("episode_steps"), help=EPISODE_STEPS_HELP)
 ]
+
+
+#: The options a command may take without using them itself (it reads them from its context with
+#: :func:`run_options_of` or :func:`terms_env_of`): parameter name -> its option and the commands' default.
+SHARED_OPTIONS: dict[str, tuple[object, object]] = {
+    "seed": (SeedOpt, 0),
+    "n_envs": (NEnvsOpt, None),
+    "stop_on_plateau": (StopOnPlateauOpt, False),
+    "eval_freq": (EvalFreqOpt, 5000),
+    "eval_episodes": (EvalEpisodesOpt, 5),
+    "checkpoint_freq": (CheckpointFreqOpt, 10_000),
+    "threads": (ThreadsOpt, 1),
+    "progress_bar": (ProgressOpt, True),
+    "keep_checkpoints": (KeepCheckpointsOpt, False),
+    "terms": (TermsOpt, None),
+    "term_bounds": (TermBoundsOpt, None),
+    "info_key": (InfoKeyOpt, None),
+    "episode_steps": (EpisodeStepsOpt, None),
+}
+#: The options that name another env's terms, beside ``--env`` (:func:`terms_env_of`).
+ENV_OPTIONS = ("terms", "term_bounds", "info_key", "episode_steps")
+#: The options that are :class:`~sb3_hddpg.training.run_options.RunOptions` fields.
+RUN_OPTIONS = tuple(name for name in SHARED_OPTIONS if name not in ENV_OPTIONS)
+
+
+def takes_options(*names: str) -> Callable[[F], F]:
+    """
+    Give a typer command the options ``names`` (:data:`SHARED_OPTIONS`) as parameters, before its
+    ``--resume`` (else last); the command is called without them and reads them from its context.
+
+    :param names: keys of :data:`SHARED_OPTIONS`.
+    """
+
+    def decorate(command: F) -> F:
+        # Evaluated annotations: typer reads this signature, not a postponed annotation's string.
+        own = list(inspect.signature(command, eval_str=True).parameters.values())
+        added = [
+            inspect.Parameter(
+                name, inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=option, default=default
+            )
+            for name, (option, default) in ((n, SHARED_OPTIONS[n]) for n in names)
+        ]
+        at = next((i for i, p in enumerate(own) if p.name == "resume"), len(own))
+
+        @functools.wraps(command)
+        def wrapper(**kwargs: object) -> Any:
+            return command(**{key: value for key, value in kwargs.items() if key not in names})
+
+        wrapper.__signature__ = inspect.Signature(own[:at] + added + own[at:])  # type: ignore[attr-defined]
+        return wrapper  # type: ignore[return-value]
+
+    return decorate
+
+
+def run_options_of(context: typer.Context) -> RunOptions:
+    """
+    The :class:`~sb3_hddpg.training.run_options.RunOptions` of a running command, from its parameters named
+    as the fields (fields it has no option for keep their defaults).
+
+    :param context: the command's context (a ``typer.Context`` parameter of the command).
+    """
+    with usage_errors():
+        return RunOptions(**{k: v for k, v in context.params.items() if k in RUN_OPTION_NAMES})
+
+
+def terms_env_of(context: typer.Context, env: str | None) -> Any:
+    """:func:`terms_env_option` of ``env`` and the :data:`ENV_OPTIONS` a command took with :func:`takes_options`."""
+    return terms_env_option(env, *(context.params[name] for name in ENV_OPTIONS))
 
 
 def terms_env_option(

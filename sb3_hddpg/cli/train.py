@@ -16,15 +16,12 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
-    RUN_OPTION_PARAMETERS,
+    ENV_OPTIONS,
+    RUN_OPTIONS,
     SNAKE_DEFAULT,
     BackendOpt,
-    EpisodeStepsOpt,
     ForceOpt,
-    InfoKeyOpt,
     ResumeOpt,
-    TermBoundsOpt,
-    TermsOpt,
     at_least,
     count,
     discount,
@@ -32,8 +29,8 @@ from sb3_hddpg.cli.options import (
     existing_file,
     prepare_out_dir,
     run_options_of,
-    takes_run_options,
-    terms_env_option,
+    takes_options,
+    terms_env_of,
     usage_errors,
 )
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
@@ -70,7 +67,7 @@ def training_interrupt_exits() -> Iterator[None]:
 
 def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None = None) -> Table:
     """
-    The library's table of evaluation summaries (:func:`~sb3_hddpg.evaluation.summaries_table`), drawn by rich.
+    :func:`~sb3_hddpg.evaluation.summaries_table` drawn by rich.
 
     :param title: the table's title.
     :param rows: agent -> its evaluation summary.
@@ -79,8 +76,7 @@ def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None 
     summaries = summaries_table(title, rows, reward)
     table = Table(title=summaries.title, caption=summaries.caption)
     table.add_column("agent")
-    for column in summaries.columns:
-        # Folded, not cut, where a header word is wider than the column 80 characters leave it.
+    for column in summaries.columns:  # folded, not cut, where a header word is wider than 80 columns allow
         table.add_column(column, justify="right", overflow="fold")
     for row in summaries.rows:
         table.add_row(*row)
@@ -157,7 +153,7 @@ _ResumeChangingOpt = Annotated[
 
 
 @app.command("train-workers")
-@takes_run_options(*RUN_OPTION_PARAMETERS)
+@takes_options(*ENV_OPTIONS, *RUN_OPTIONS)
 def train_workers_command(
     context: typer.Context,
     workers: _WorkerNamesOpt = None,
@@ -165,10 +161,6 @@ def train_workers_command(
     term_critic: _TermCriticOpt = True,
     keep_transitions: _KeepTransitionsOpt = False,
     env: _WorkersEnvOpt = None,
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
     algo: _WorkersAlgoOpt = None,
     config: _WorkersConfigOpt = None,
     timesteps: _WorkersTimestepsOpt = None,
@@ -180,7 +172,7 @@ def train_workers_command(
 ) -> None:
     """Train each worker as a plain SB3 model (its default learner unless --algo says) on its own reward (paper Algorithm 1)."""
 
-    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
+    shared = terms_env_of(context, env)
     names = _worker_names_of(workers, weights, shared)
     with usage_errors("'--weights'"):
         weightings = [parse_term_weights(text) for text in weights or []]
@@ -195,10 +187,8 @@ def train_workers_command(
             check_algo(worker.algo, resolve_backend(backend, worker.hyperparams.backend))
     _check_resume_changing(resume_changing, resume)
     prepare_out_dir(context, out, resume, force)
-    summaries: dict[str, dict] = {}
 
     def done(name: str, outcome: TrainingOutcome) -> None:
-        summaries[name] = outcome.metrics
         console.print(
             f"[green]✓[/] worker [bold]{name}[/]: {outcome.num_timesteps} steps"
             f"{' (stopped on plateau)' if outcome.stopped_early else ''} -> {outcome.model_path}"
@@ -230,12 +220,8 @@ def _worker_names_of(
     workers: list[str] | None, weights: list[str] | None, shared: TermsEnv | None
 ) -> list[str]:
     """
-    The workers ``--workers`` names, each known and given once (default: one per term of the env, none when
-    ``--weights`` gives the workers).
-
-    :param workers: the ``--workers`` given.
-    :param weights: the ``--weights`` given.
-    :param shared: the env with several objectives chosen by ``--env``, if any (else the snake arm's terms).
+    The workers ``--workers`` names, each known and given once (default: one per term of the env ``shared``
+    or the snake arm, none when ``--weights`` gives the workers).
     """
     known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
     names = list(workers) if workers else ([] if weights else list(known))
@@ -390,7 +376,7 @@ _ManagerEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + MAN
 
 
 @app.command("train-manager")
-@takes_run_options(*RUN_OPTION_PARAMETERS)
+@takes_options(*RUN_OPTIONS, *ENV_OPTIONS)
 def train_manager_command(
     context: typer.Context,
     workers_dir: _ManagerWorkersDirOpt = Path("runs/workers"),
@@ -415,10 +401,6 @@ def train_manager_command(
     trust: _ManagerTrustOpt = False,
     backend: BackendOpt = None,
     env: _ManagerEnvOpt = None,
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """
     Train the manager: a plain SB3 DDPG (or TD3, SAC) whose action selects a worker (paper Algorithm 1). Its
@@ -432,7 +414,7 @@ def train_manager_command(
         preferences = parse_preferences(preference) if preference is not None else None
     if relabel_fraction is not None and train_preferences is None:
         raise typer.BadParameter("applies with --preferences only", param_hint="'--relabel-fraction'")
-    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
+    shared = terms_env_of(context, env)
     options = ManagerOptions(
         worker_names=names or None,
         prefer=prefer,
@@ -460,11 +442,7 @@ def train_manager_command(
 
 
 def _checked_manager_setup(workers_dir: Path, options: ManagerOptions, backend: str | None) -> ManagerSetup:
-    """
-    The manager's set-up, checked before the output folder is touched: the library checks the workers,
-    their hashes and spaces, names, preferences and bias, the selection mode and config; here the backend.
-    The checked set-up is what trains: nothing is loaded or checked twice.
-    """
+    """The manager's set-up, checked (by the library, and here its backend) before the output folder is touched."""
     with usage_errors():
         setup = setup_manager(workers_dir, options)
     with usage_errors("'--backend'"):
