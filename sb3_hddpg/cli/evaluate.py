@@ -119,7 +119,6 @@ def evaluate_command(
     normalised terms; goal touches, contacts, success and clearance only where the env reports them (the
     snake arm); a hierarchy's worker choices.
     """
-
     # What depends only on the arguments is checked first, as a usage error; a failing episode is not one.
     output_file(json_path, force, "'--json'")
     shared = terms_env_of(context, env_id)
@@ -137,15 +136,11 @@ def evaluate_command(
         deterministic=deterministic,
         near_clearance=near_clearance,
     )
-
     summary = result.summary()
     dependence = state_dependence(summary, worker)
     # The env by the id people know (an adapter's inner env), the policy by its kind and, if it has one, name.
-    env_name = (
-        adapted_env_id(shared.env_id, shared.env_kwargs)
-        if shared
-        else adapted_env_id(loaded.env_id, loaded.env_kwargs)
-    )
+    source = shared or loaded
+    env_name = adapted_env_id(source.env_id, source.env_kwargs)
     policy_name = loaded.kind if loaded.name in ("", loaded.kind) else f"{loaded.kind} {loaded.name!r}"
     title = (
         f"{policy_name} on {env_name}: mean over {episodes} episodes, "
@@ -163,14 +158,8 @@ def evaluate_command(
             "no proximity: no obstacle clearance to split the choices by; see docs/ENVIRONMENTS.md)"
         )
     if json_path is not None:
-        payload = {
-            "path": str(path),
-            "kind": loaded.kind,
-            "env_id": env_id or loaded.env_id,
-            **result.to_dict(),
-            "state_dependence": dependence,
-        }
-        atomic_write_json(json_path, payload)
+        ids = {"path": str(path), "kind": loaded.kind, "env_id": env_id or loaded.env_id}
+        atomic_write_json(json_path, {**ids, **result.to_dict(), "state_dependence": dependence})
         console.print(f"Metrics written to {json_path}")
 
 
@@ -185,11 +174,7 @@ def _print_preference(loaded: LoadedPolicy, given: bool) -> None:
 
 def _reward_note(summary: Mapping[str, Any]) -> str:
     """How the reward rows relate: the env's own reward, each term's raw sum, and the normalised return."""
-    terms = [
-        key[len("mean_") : -len("_reward")]
-        for key in summary
-        if key.startswith("mean_") and key.endswith("_reward")
-    ]
+    terms = [key[5:-7] for key in summary if key.startswith("mean_") and key.endswith("_reward")]
     terms = [t for t in terms if t not in ("", "reach")]
     note = "reward: the env's own, summed over the episode"
     if terms:

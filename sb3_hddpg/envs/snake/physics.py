@@ -7,7 +7,7 @@ layers, which cost several times more (docs/PERFORMANCE.md).
 from __future__ import annotations
 
 import math
-from typing import TypedDict, cast
+from typing import Any
 
 import numpy as np
 import pymunk
@@ -19,14 +19,6 @@ from sb3_hddpg.envs.snake.params import SnakeParams
 body_angle = _chipmunk.cpBodyGetAngle
 _set_motor_rate = _chipmunk.cpSimpleMotorSetRate
 _space_step = _chipmunk.cpSpaceStep
-
-
-class MotionState(TypedDict):
-    """The chain's motion as plain values: per link position, angle, velocity and spin; motor rates; angles."""
-
-    links: list[tuple[tuple[float, float], float, tuple[float, float], float]]
-    motor_rates: list[float]
-    angles: list[float]
 
 
 class ArmPhysics:
@@ -164,37 +156,25 @@ class ArmPhysics:
         absolute = np.array([b.angle for b in self.links])
         return np.diff(absolute, prepend=0.0)
 
-    def motion_state(self) -> MotionState:
-        """The links' motion and the motors' rates as plain values (pymunk objects do not pickle faithfully)."""
-        return {
-            "links": [
-                ((b.position.x, b.position.y), b.angle, (b.velocity.x, b.velocity.y), b.angular_velocity)
-                for b in self.links
-            ],
-            "motor_rates": [m.rate for m in self.motors],
-            "angles": list(self.angles),
-        }
-
-    def restore(self, state: MotionState) -> None:
-        """Rebuild the chain in the state :meth:`motion_state` returned."""
-        self.build()
-        for body, (position, angle, velocity, spin) in zip(self.links, state["links"]):
-            body.position, body.angle, body.velocity, body.angular_velocity = position, angle, velocity, spin
-        for motor, rate in zip(self.motors, state["motor_rates"]):
-            motor.rate = rate
-        self.angles = list(state["angles"])
-
     def __getstate__(self) -> dict[str, object]:
-        # pymunk pickles a space with copies of its bodies, outside the simulation: rebuild instead.
+        # pymunk pickles a space with copies of its bodies, outside the simulation: keep the motion, rebuild.
         kept = {k: v for k, v in self.__dict__.items() if k not in _UNPICKLABLE}
-        kept["_motion"] = self.motion_state()
+        kept["_links"] = [
+            ((b.position.x, b.position.y), b.angle, (b.velocity.x, b.velocity.y), b.angular_velocity)
+            for b in self.links
+        ]
+        kept["_motor_rates"] = [m.rate for m in self.motors]
         return kept
 
-    def __setstate__(self, state: dict[str, object]) -> None:
-        motion = cast(MotionState, state.pop("_motion"))
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        links, rates = state.pop("_links"), state.pop("_motor_rates")
         self.__dict__.update(state)
         self.space = None
-        self.restore(motion)
+        self.build()
+        for body, (position, angle, velocity, spin) in zip(self.links, links):
+            body.position, body.angle, body.velocity, body.angular_velocity = position, angle, velocity, spin
+        for motor, rate in zip(self.motors, rates):
+            motor.rate = rate
 
     def release(self) -> None:
         """
