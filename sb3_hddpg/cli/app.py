@@ -37,7 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "quickstart": ("hddpg_zoo.cli.quickstart", "The whole method at a small budget, every method compared."),
     "train-workers": ("train", "Train one worker (a plain SB3 model) per reward term."),
     "train-manager": ("train", "Train a manager that selects a worker, over trained workers."),
-    "grow": ("grow", "Add workers where the front gains most (optimistic linear support)."),
+    "grow": ("train", "Add workers where the front gains most (optimistic linear support)."),
     "train-flat": ("train_flat", "Train one SB3 agent on every objective (the flat baseline)."),
     "evaluate": ("evaluate", "Evaluate a policy: reward, each term, worker choices."),
     "record": ("hddpg_zoo.cli.record", "Render a policy to a GIF or MP4, showing the acting worker."),

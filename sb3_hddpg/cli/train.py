@@ -1,4 +1,4 @@
-"""``hddpg-cli train-workers`` and ``train-manager``: the two halves of the hierarchy (paper Algorithm 1)."""
+"""``hddpg-cli train-workers``, ``grow`` and ``train-manager``: the two halves of the hierarchy (paper Algorithm 1)."""
 
 from __future__ import annotations
 
@@ -42,6 +42,7 @@ from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.metric_labels import MANAGER_REWARD_LABEL, MetricLabel, manager_warnings
 from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOutcome
 from sb3_hddpg.training.backends import check_algo, resolve_backend
+from sb3_hddpg.training.grow import SUPPORT_FILE, SupportOptions, check_growable, grow
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, ManagerSetup, setup_manager
 from sb3_hddpg.training.term_critic import TermCriticOptions
@@ -485,3 +486,54 @@ def _print_manager(hierarchy: Hierarchy, outcome: TrainingOutcome, out: Path) ->
         )
     if hierarchy.preference_space is not None:
         console.print(f"Conditioned on {hierarchy.preference_space.describe()}")
+
+
+@app.command("grow")
+@takes_options("seed", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq", "threads", "progress_bar")
+def grow_command(
+    context: typer.Context,
+    workers: Path = typer.Option(
+        Path("runs/workers"),
+        "--workers",
+        help="Run folder of train-workers holding a per-term worker with its critic for every term; the new "
+        "workers are added to it.",
+    ),
+    support: int = typer.Option(
+        4, "--support", help="The most workers the support holds, per-term ones included."
+    ),
+    budget: int = typer.Option(150_000, "--budget", help="Env steps all new workers may train together."),
+    tolerance: float = typer.Option(
+        0.01,
+        "--tolerance",
+        help="Stop when the largest optimistic gain is below this fraction of the front's value.",
+    ),
+    start_states: int = typer.Option(
+        32, "--start-states", help="Development episodes whose start states value each worker."
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="Hyperparameters in RL Zoo format for the new workers (block <env>/mix, else the env's).",
+    ),
+    resume: ResumeOpt = False,
+) -> None:
+    """Add workers on weightings of the terms where the front gains most (optimistic linear support), each warm-started from its nearest neighbour."""
+    with usage_errors("'--support'"):
+        options = SupportOptions(support, budget, tolerance, start_states)
+    if not (workers / "workers" / "manifest.json").is_file() and not (workers / "manifest.json").is_file():
+        raise typer.BadParameter(
+            f"no workers manifest in {str(workers)!r}; run train-workers first", param_hint="'--workers'"
+        )
+    root = workers if (workers / "workers" / "manifest.json").is_file() else workers.parent
+    with usage_errors("'--workers'"):  # before anything trains; a failure while training is no usage error
+        check_growable(root, resume)
+    with training_interrupt_exits():
+        record = grow(root, options, run=run_options_of(context), config=config)
+    table = Table(title=f"Support in {root / 'workers'}")
+    for column in ("worker", "weights", "gain", "env steps", "warm start"):
+        table.add_column(column)
+    for step in record.added:
+        weights = ", ".join(f"{t}={w:.3g}" for t, w in step.weights.items())
+        table.add_row(step.name, weights, f"{step.gain:.4g}", str(step.steps), step.warm_start or "-")
+    console.print(table)
+    console.print(f"Stopped: {record.stopped}.  Record: {root / 'workers' / SUPPORT_FILE}")

@@ -43,9 +43,9 @@ class StateLayout(Mapping[str, slice]):
         names = list(names)
         unknown = [n for n in names if n not in self._slices]
         if unknown:
-            raise ValueError(f"Unknown state components {unknown}; known: {list(self._slices)}")
+            raise ValueError(f"Unknown state components {unknown!r:.200}; known: {list(self._slices)}")
         if len(set(names)) != len(names):
-            raise ValueError(f"State components listed twice: {names}")
+            raise ValueError(f"Expected each state component named once, actually: {names!r:.200}")
         return np.concatenate([np.arange(self.size)[self._slices[n]] for n in names])
 
     def view(self, names: Iterable[str]) -> StateLayout:

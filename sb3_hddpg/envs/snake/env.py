@@ -528,15 +528,10 @@ def _check_components(observe: object, layout: StateLayout) -> tuple[str, ...] |
     """``observe`` as a tuple of known, distinct component names (``None``: the whole state)."""
     if observe is None:
         return None
-    if isinstance(observe, str) or not isinstance(observe, (list, tuple)) or not observe:
+    if not isinstance(observe, (list, tuple)) or not observe or not all(isinstance(n, str) for n in observe):
         raise ValueError(
             f"Expected `observe` to be a non-empty list of state components {list(layout)}, actually: "
             f"{observe!r:.200}"
         )
-    names = tuple(observe)
-    unknown = [n for n in names if not isinstance(n, str) or n not in layout]
-    if unknown:
-        raise ValueError(f"Unknown state components in `observe`: {unknown!r:.200}; known: {list(layout)}")
-    if len(set(names)) != len(names):
-        raise ValueError(f"Expected `observe` to name each state component once, actually: {list(names)}")
-    return names
+    layout.indices(observe)  # unknown or repeated names are refused there
+    return tuple(observe)
