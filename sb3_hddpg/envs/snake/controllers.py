@@ -6,6 +6,8 @@ a potential-field avoider blind to the goal; baselines for the learned workers, 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from sb3_hddpg.envs.layout import StateLayout
@@ -34,6 +36,7 @@ class _ObservationController:
         raise NotImplementedError
 
 
+@dataclass(eq=False)
 class JacobianReacher(_ObservationController):
     """
     Moves the tip toward the goal by Jacobian-transpose control: joint ``i`` turns by the 2-D cross product
@@ -43,15 +46,15 @@ class JacobianReacher(_ObservationController):
     :param gain: command per unit of the Jacobian-transpose signal (clipped to [-1, 1]).
     """
 
-    def __init__(self, layout: StateLayout, gain: float = 8.0) -> None:
-        self.layout = layout
-        self.gain = gain
+    layout: StateLayout
+    gain: float = 8.0
 
     def _command(self, obs: np.ndarray) -> np.ndarray:
         lever, error = _levers_and_error(self.layout, obs)
         return self.gain * (lever[..., 0] * error[:, None, 1] - lever[..., 1] * error[:, None, 0])
 
 
+@dataclass(eq=False)
 class IKReacher(_ObservationController):
     """
     Moves the tip toward the goal by damped-least-squares inverse kinematics: joint rates
@@ -66,19 +69,11 @@ class IKReacher(_ObservationController):
     :param bang_bang: replace every command by its sign.
     """
 
-    def __init__(
-        self,
-        layout: StateLayout,
-        gain: float = 3.0,
-        damping: float = 0.1,
-        max_joint_speed: float = DEFAULT_MAX_JOINT_SPEED,
-        bang_bang: bool = False,
-    ) -> None:
-        self.layout = layout
-        self.gain = gain
-        self.damping = damping
-        self.max_joint_speed = max_joint_speed
-        self.bang_bang = bang_bang
+    layout: StateLayout
+    gain: float = 3.0
+    damping: float = 0.1
+    max_joint_speed: float = DEFAULT_MAX_JOINT_SPEED
+    bang_bang: bool = False
 
     def _command(self, obs: np.ndarray) -> np.ndarray:
         lever, error = _levers_and_error(self.layout, obs)  # (batch, joints, 2), (batch, 2)
@@ -89,6 +84,7 @@ class IKReacher(_ObservationController):
         return np.sign(rates) if self.bang_bang else rates
 
 
+@dataclass(eq=False)
 class FieldAvoider(_ObservationController):
     """
     Moves every link away from its obstacle by a repulsive potential field: a link whose clearance ``c`` (a
@@ -102,13 +98,10 @@ class FieldAvoider(_ObservationController):
     :param power: the push's growth as the clearance shrinks (2: quadratic, gentle at the range's edge).
     """
 
-    def __init__(
-        self, layout: StateLayout, gain: float = 4.0, margin: float = 1.0, power: float = 2.0
-    ) -> None:
-        self.layout = layout
-        self.gain = gain
-        self.margin = margin
-        self.power = power
+    layout: StateLayout
+    gain: float = 4.0
+    margin: float = 1.0
+    power: float = 2.0
 
     def _command(self, obs: np.ndarray) -> np.ndarray:
         ends, pivots = _ends_and_pivots(self.layout, obs)
