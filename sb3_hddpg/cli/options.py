@@ -233,33 +233,13 @@ KEEP_CHECKPOINTS_HELP = (
     "the model checkpoint stays (resuming it refills the buffer first)."
 )
 
-# The options the training commands (train-workers, train-manager, train-flat) share, spelled once; the
-# ones that are RunOptions fields keep the field's name, so that run_options_of_command collects them.
-SeedOpt = Annotated[int, typer.Option("--seed", callback=seed_range, help="Training seed.")]
+# The options the commands share, spelled once.
 ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite a folder that already holds results.")]
 ReplaceFileOpt = Annotated[bool, typer.Option("--force", help="Replace the output file if it exists.")]
-NEnvsOpt = Annotated[
-    int | None,
-    typer.Option("--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."),
-]
 ResumeOpt = Annotated[bool, typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")]
-StopOnPlateauOpt = Annotated[
-    bool, typer.Option("--stop-on-plateau", help="Stop after 3 evaluations without a new best.")
-]
-EvalFreqOpt = Annotated[
-    int, typer.Option("--eval-freq", callback=at_least(0), help="Steps between evaluations.")
-]
 EvalEpisodesOpt = Annotated[
     int, typer.Option("--eval-episodes", callback=count("episodes"), help="Episodes per evaluation.")
 ]
-CheckpointFreqOpt = Annotated[
-    int, typer.Option("--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP)
-]
-ThreadsOpt = Annotated[
-    int, typer.Option("--threads", callback=at_least(1), help="Torch threads (1 is fastest here).")
-]
-ProgressOpt = Annotated[bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")]
-KeepCheckpointsOpt = Annotated[bool, typer.Option("--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP)]
 BackendOpt = Annotated[str | None, typer.Option("--backend", callback=backend_name, help=BACKEND_HELP)]
 
 
@@ -292,17 +272,33 @@ EpisodeStepsOpt = Annotated[
 
 
 #: The options a command may take without using them itself (it reads them from its context with
-#: :func:`run_options_of` or :func:`terms_env_of`): parameter name -> its option and the commands' default.
+#: :func:`run_options_of` or :func:`terms_env_of`): parameter name -> its annotation and default, the run
+#: options named as the :class:`~sb3_hddpg.training.run_options.RunOptions` fields.
 SHARED_OPTIONS: dict[str, tuple[object, object]] = {
-    "seed": (SeedOpt, 0),
-    "n_envs": (NEnvsOpt, None),
-    "stop_on_plateau": (StopOnPlateauOpt, False),
-    "eval_freq": (EvalFreqOpt, 5000),
+    "seed": (int, typer.Option(0, "--seed", callback=seed_range, help="Training seed.")),
+    "n_envs": (
+        int | None,
+        typer.Option(None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."),
+    ),
+    "stop_on_plateau": (
+        bool,
+        typer.Option(False, "--stop-on-plateau", help="Stop after 3 evaluations without a new best."),
+    ),
+    "eval_freq": (
+        int,
+        typer.Option(5000, "--eval-freq", callback=at_least(0), help="Steps between evaluations."),
+    ),
     "eval_episodes": (EvalEpisodesOpt, 5),
-    "checkpoint_freq": (CheckpointFreqOpt, 10_000),
-    "threads": (ThreadsOpt, 1),
-    "progress_bar": (ProgressOpt, True),
-    "keep_checkpoints": (KeepCheckpointsOpt, False),
+    "checkpoint_freq": (
+        int,
+        typer.Option(10_000, "--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP),
+    ),
+    "threads": (
+        int,
+        typer.Option(1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."),
+    ),
+    "progress_bar": (bool, typer.Option(True, "--progress/--no-progress", help="Show a progress bar.")),
+    "keep_checkpoints": (bool, typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP)),
     "terms": (TermsOpt, None),
     "term_bounds": (TermBoundsOpt, None),
     "info_key": (InfoKeyOpt, None),
@@ -327,9 +323,9 @@ def takes_options(*names: str) -> Callable[[F], F]:
         own = list(inspect.signature(command, eval_str=True).parameters.values())
         added = [
             inspect.Parameter(
-                name, inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=option, default=default
+                name, inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=annotation, default=default
             )
-            for name, (option, default) in ((n, SHARED_OPTIONS[n]) for n in names)
+            for name, (annotation, default) in ((n, SHARED_OPTIONS[n]) for n in names)
         ]
         at = next((i for i, p in enumerate(own) if p.name == "resume"), len(own))
 
