@@ -28,6 +28,7 @@ from sb3_hddpg.cli.options import (
 from sb3_hddpg.envs.terms_env import TermsEnv, adapted_env_id
 from sb3_hddpg.evaluation import (
     DEPENDENCE_WORKER,
+    EVAL_SEED_BASE,
     clearance_bands,
     dependence_rows,
     evaluate,
@@ -36,11 +37,6 @@ from sb3_hddpg.evaluation import (
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.media.trace import selected_names
 from sb3_hddpg.metric_labels import manager_warnings, summary_rows
-
-#: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
-#: and usage errors need not import the library).
-EVAL_SEED_BASE = 10_000
-
 
 # The options of `evaluate_command`.
 _PathOpt = Annotated[

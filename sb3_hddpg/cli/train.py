@@ -124,8 +124,8 @@ _WorkersAlgoOpt = Annotated[
     typer.Option(
         "--algo",
         help=f"Each worker's algorithm, e.g. goal=crossq,avoid=sac, or one for all; one of {list(ALGO_NAMES)} "
-        "that acts in the worker's action space (default: the snake arm's goal=ddpg,avoid=sac, chosen by "
-        "the workers study; ddpg on another env; config: the bundled zoo_configs/<algo>.yml).",
+        "that acts in the worker's action space (default: the snake arm's goal=ddpg,avoid=sac; ddpg on "
+        "another env).",
     ),
 ]
 _WorkersConfigOpt = Annotated[
@@ -269,7 +269,7 @@ _ManagerPreferenceOpt = Annotated[
         "--preference",
         help="Every factor explicitly, e.g. goal=1.15,avoid=1.0 (wins over --prefer). The factors scale the "
         "manager's reward too: to change only the trade-off, keep their sum at the number of workers "
-        "(goal=0.4,avoid=1.6, not goal=1,avoid=4, which saturated the bundled block; docs/MANAGER.md).",
+        "(docs/MANAGER.md).",
     ),
 ]
 _ManagerTrainPreferencesOpt = Annotated[
@@ -296,8 +296,7 @@ _ManagerInitFromHamOpt = Annotated[
         "--init-from-ham",
         metavar="THRESHOLD",
         help="Start from the hand-written rule: before RL the manager imitates HAM with this threshold "
-        "(behaviour cloning of its choices; its replay buffer is filled with them), so RL starts at "
-        "HAM's level.",
+        "(its replay buffer filled with HAM's choices), so RL starts at HAM's level.",
     ),
 ]
 _ManagerSelectionOpt = Annotated[
@@ -331,8 +330,7 @@ _ManagerMotionOpt = Annotated[
         min=0.0,
         max=MAX_MANAGER_MOTION,
         help="The manager also sees how its state moved over the last env step, scaled by this factor and "
-        "clipped to [-1, 1] (e.g. 20 for the snake arm, whose obstacles move by at most 0.0075 of their "
-        "range per step); 0: the state only.",
+        "clipped to [-1, 1] (e.g. 20 for the snake arm); 0: the state only.",
     ),
 ]
 _ManagerGammaOpt = Annotated[
@@ -340,9 +338,8 @@ _ManagerGammaOpt = Annotated[
     typer.Option(
         "--gamma",
         callback=discount,
-        help="The manager's discount per decision (default: the config block's). The bundled blocks' discounts "
-        "fit their options' length: with shorter --option-steps, a discount closer to 1 keeps the horizon in "
-        "env steps (0.9 over 4-step options is about 0.974 over 1-step ones).",
+        help="The manager's discount per decision (default: the config block's, which fits its options' "
+        "length: with shorter --option-steps, a discount closer to 1 keeps the horizon in env steps).",
     ),
 ]
 _ManagerAlgoOpt = Annotated[
