@@ -35,7 +35,6 @@ from sb3_hddpg.evaluation import (
     state_dependence,
 )
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
-from sb3_hddpg.media.trace import selected_names
 from sb3_hddpg.metric_labels import manager_warnings, summary_rows
 
 # The options of `evaluate_command`.
@@ -119,7 +118,7 @@ def evaluate_command(
     output_file(json_path, force, "'--json'")
     shared = terms_env_of(context, env_id)
     loaded = _loaded_policy(path, shared, trust, algo, preference)
-    worker = _state_worker(worker, selected_names(loaded.policy))
+    worker = _state_worker(worker, loaded.policy)
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):
@@ -205,13 +204,13 @@ def _summary_table(
     return table
 
 
-def _state_worker(worker: str | None, names: list[str]) -> str:
-    """
-    ``--state-worker``: one of the policy's workers when given (a name it does not have silently dropped
-    the rows it asked for), else the default.
-    """
+def _state_worker(worker: str | None, policy: object) -> str:
+    """``--state-worker``: one of the workers ``policy`` selects among (a hierarchy's or HAM's ``names``)."""
     if worker is None:
         return DEPENDENCE_WORKER
+    names = [
+        str(name) for name in getattr(policy, "names", None) or getattr(policy, "worker_names", None) or []
+    ]
     if worker not in names:
         shown = f"its workers are {names}" if names else "it selects no worker"
         raise typer.BadParameter(

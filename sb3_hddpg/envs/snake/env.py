@@ -56,7 +56,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Observation Space
 
-    ``Box(low, high, (5 * n_joints + 3,), float32)``, the paper's shared state (Table 1). "Link ``i``" is the
+    ``Box(low, high, (6 * n_joints + 3,), float32)``, the paper's shared state (Table 1). "Link ``i``" is the
     link that joint ``i`` drives; its *obstacle* is the obstacle whose disc is closest to the link segment.
     With ``n = n_joints``:
 
