@@ -196,12 +196,9 @@ def mix_terms(
     specs: Mapping[str, str | Mapping[str, float]], preferences: Mapping[str, float]
 ) -> dict[str, float]:
     """
-    The weight of every term in a preference-weighted scalarisation of workers' rewards.
-
-    A worker's reward is one term (its name as a string) or a mix of normalised terms (term -> weight, the
-    weights taken over their sum so that the mix stays in [0, 1]); the scalarisation is
-    ``sum_w preference_w * reward_w``, linear in the normalised terms: this returns each term's coefficient,
-    so that :meth:`TermNormaliser.weighted_sum` computes it in one pass.
+    Each term's coefficient in ``sum_w preference_w * reward_w``, the preference-weighted scalarisation of
+    workers' rewards (each one term, or a mix of normalised terms over their weights' sum), so that
+    :meth:`TermNormaliser.weighted_sum` computes it in one pass.
 
     :param specs: worker name -> its reward (a term name, or term -> weight >= 0 with a positive sum).
     :param preferences: worker name -> preference factor; missing names get 1.

@@ -52,11 +52,8 @@ class Movers:
 
     def spawn(self, rng: np.random.Generator, points: np.ndarray) -> None:
         """
-        Place the goal uniform in its annulus and every obstacle uniform in its own, at least
-        ``spawn_margin`` from the arm's links and from the goal (re-drawn until so), all at rest.
-
-        :param rng: the env's generator.
-        :param points: the arm's chain points, base to tip.
+        Place the goal and the obstacles at rest, uniform in their annuli, the obstacles at least
+        ``spawn_margin`` from the arm's chain ``points`` and the goal (re-drawn until so), with ``rng``.
         """
         p = self.params
         goal = sample_annulus(rng, p.goal_radius_min, p.goal_radius_max)
