@@ -68,21 +68,6 @@ def command_module(name: str) -> str:
     return module if "." in module else f"sb3_hddpg.cli.{module}"
 
 
-def import_command(name: str) -> None:
-    """Import the module of command ``name``, or raise :class:`MissingExtraError` naming a missing extra."""
-    try:
-        importlib.import_module(command_module(name))
-    except MissingExtraError:
-        raise
-    except ModuleNotFoundError as error:
-        missing = (error.name or "").split(".")[0]
-        if missing in BENCH_MODULES or missing == "hddpg_zoo":
-            raise MissingExtraError(
-                f"{name} needs {missing}, which is not installed: {INSTALL_EXTRA}"
-            ) from error
-        raise
-
-
 class LazyCommands(typer.core.TyperGroup):
     """The command group of ``hddpg-cli``: :data:`COMMANDS`, each module imported when its command is asked for."""
 
@@ -92,7 +77,15 @@ class LazyCommands(typer.core.TyperGroup):
 
     def get_command(self, ctx: Any, cmd_name: str) -> Any:
         if cmd_name not in self.commands and cmd_name in COMMANDS:
-            import_command(cmd_name)
+            try:
+                importlib.import_module(command_module(cmd_name))
+            except ModuleNotFoundError as error:
+                missing = (error.name or "").split(".")[0]
+                if isinstance(error, MissingExtraError) or missing not in {*BENCH_MODULES, "hddpg_zoo"}:
+                    raise
+                raise MissingExtraError(
+                    f"{cmd_name} needs {missing}, which is not installed: {INSTALL_EXTRA}"
+                ) from error
             self.commands.update(typer.main.get_command(app).commands)  # type: ignore[attr-defined]
         return self.commands.get(cmd_name)
 

@@ -141,7 +141,11 @@ def evaluate_command(
         f"{policy_name} on {env_name}: mean over {episodes} episodes, "
         f"seeds {seed}..{seed + episodes - 1} (± standard deviation across episodes)"
     )
-    _print_preference(loaded, given=preference is not None)
+    preferences = getattr(loaded.policy, "preferences", None)  # the one a hierarchy acted at
+    if isinstance(preferences, dict) and preferences:
+        shown = ",".join(f"{name}={factor:g}" for name, factor in preferences.items())
+        source = "given with --preference" if preference is not None else "the bundle's own"
+        console.print(f"Preference: {shown} ({source}; only the ratio matters)")
     console.print(_summary_table(title, summary, dependence, worker))
     console.print(_reward_note(summary))
     for warning in manager_warnings(summary):
@@ -156,15 +160,6 @@ def evaluate_command(
         ids = {"path": str(path), "kind": loaded.kind, "env_id": env_id or loaded.env_id}
         atomic_write_json(json_path, {**ids, **result.to_dict(), "state_dependence": dependence})
         console.print(f"Metrics written to {json_path}")
-
-
-def _print_preference(loaded: LoadedPolicy, given: bool) -> None:
-    """The preference a hierarchy acted at, and whether ``--preference`` gave it."""
-    preferences = getattr(loaded.policy, "preferences", None)
-    if isinstance(preferences, dict) and preferences:
-        shown = ",".join(f"{name}={factor:g}" for name, factor in preferences.items())
-        source = "given with --preference" if given else "the bundle's own"
-        console.print(f"Preference: {shown} ({source}; only the ratio matters)")
 
 
 def _reward_note(summary: Mapping[str, Any]) -> str:

@@ -172,7 +172,6 @@ def train_workers_command(
     resume_changing: _ResumeChangingOpt = None,
 ) -> None:
     """Train each worker as a plain SB3 model (its default learner unless --algo says) on its own reward (paper Algorithm 1)."""
-
     shared = terms_env_of(context, env)
     names = _worker_names_of(workers, weights, shared)
     with usage_errors("'--weights'"):
@@ -186,7 +185,12 @@ def train_workers_command(
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
         for worker in planned:
             check_algo(worker.algo, resolve_backend(backend, worker.hyperparams.backend))
-    _check_resume_changing(resume_changing, resume)
+    unknown = [c for c in resume_changing or [] if c not in RESUME_CHANGES]
+    if unknown or (resume_changing and not resume):
+        problem = (
+            f"expected some of {list(RESUME_CHANGES)}, got {unknown[0]!r}" if unknown else "needs --resume"
+        )
+        raise typer.BadParameter(problem, param_hint="'--resume-changing'")
     prepare_out_dir(context, out, resume, force)
 
     def done(name: str, outcome: TrainingOutcome) -> None:
@@ -232,16 +236,6 @@ def _worker_names_of(
         problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
         raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
     return names
-
-
-def _check_resume_changing(resume_changing: list[str] | None, resume: bool) -> None:
-    """``--resume-changing``: known changes only, and only with ``--resume``."""
-    unknown = [c for c in resume_changing or [] if c not in RESUME_CHANGES]
-    if unknown or (resume_changing and not resume):
-        problem = (
-            f"expected some of {list(RESUME_CHANGES)}, got {unknown[0]!r}" if unknown else "needs --resume"
-        )
-        raise typer.BadParameter(problem, param_hint="'--resume-changing'")
 
 
 # The options of `train_manager_command`.
