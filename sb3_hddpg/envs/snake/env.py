@@ -533,5 +533,8 @@ def _check_components(observe: object, layout: StateLayout) -> tuple[str, ...] |
             f"Expected `observe` to be a non-empty list of state components {list(layout)}, actually: "
             f"{observe!r:.200}"
         )
-    layout.indices(observe)  # unknown or repeated names are refused there
+    try:
+        layout.indices(observe)  # unknown or repeated names are refused there
+    except ValueError as error:
+        raise ValueError(f"`observe`: {error}") from None
     return tuple(observe)
