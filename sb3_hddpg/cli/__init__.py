@@ -25,18 +25,14 @@ def _sigterm(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def _stop_on_sigterm() -> None:
-    """SIGTERM ends every command as Ctrl-C does, with one line and exit 143, rather than silently."""
-    with contextlib.suppress(ValueError):  # not the main thread (an embedding program's): leave it alone
-        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-            signal.signal(signal.SIGTERM, _sigterm)
-
-
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: run ``app``; whatever ends it becomes one line and an exit code."""
     args = list(sys.argv[1:] if argv is None else argv)
     forget_stop_signal()  # an earlier command of this process (a test's batch) may have been stopped
-    _stop_on_sigterm()
+    # SIGTERM ends every command as Ctrl-C does (one line, exit 143), not silently; not in another thread.
+    with contextlib.suppress(ValueError):
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, _sigterm)
     debug = "--debug" in args or os.environ.get("HDDPG_DEBUG") == "1"
     args = [a for a in args if a != "--debug"]
     command = get_command(app)

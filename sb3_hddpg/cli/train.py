@@ -44,7 +44,7 @@ from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOu
 from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.grow import SUPPORT_FILE, SupportOptions, check_growable, grow
 from sb3_hddpg.training.manager import train_manager
-from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, ManagerSetup, setup_manager
+from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, setup_manager
 from sb3_hddpg.training.term_critic import TermCriticOptions
 from sb3_hddpg.training.workers import (
     parse_worker_algorithms,
@@ -426,15 +426,7 @@ def train_manager_command(
         manager_motion=manager_motion,
         gamma=gamma,
     )
-    setup = _checked_manager_setup(workers_dir, options, backend)
-    prepare_out_dir(context, out, resume, force)
-    with training_interrupt_exits():
-        result = train_manager(setup, out, run=run_options_of(context))
-    _print_manager(result.hierarchy, result.outcome, out)
-
-
-def _checked_manager_setup(workers_dir: Path, options: ManagerOptions, backend: str | None) -> ManagerSetup:
-    """The manager's set-up, checked (by the library, and here its backend) before the output folder is touched."""
+    # Checked before the output folder is touched: the library checks the set-up, here its backend.
     with usage_errors():
         setup = setup_manager(workers_dir, options)
     with usage_errors("'--backend'"):
@@ -444,7 +436,10 @@ def _checked_manager_setup(workers_dir: Path, options: ManagerOptions, backend: 
             raise ValueError(
                 "the start from HAM (--init-from-ham) fits SB3 (torch) managers: use --backend sb3"
             )
-    return setup
+    prepare_out_dir(context, out, resume, force)
+    with training_interrupt_exits():
+        result = train_manager(setup, out, run=run_options_of(context))
+    _print_manager(result.hierarchy, result.outcome, out)
 
 
 def _print_manager(hierarchy: Hierarchy, outcome: TrainingOutcome, out: Path) -> None:
