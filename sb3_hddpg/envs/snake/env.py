@@ -266,11 +266,12 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def joint_gaps(self) -> np.ndarray:
         """How far each simulated pivot has come apart (reach units; small, not zero: pymunk iterates)."""
-        return self._arm.joint_gaps()
+        ends = [(0.0, 0.0)] + [body.local_to_world((self.link_length, 0.0)) for body in self._arm.links[:-1]]
+        return np.array([abs(body.position - end) for body, end in zip(self._arm.links, ends)])
 
     def joint_angles(self) -> np.ndarray:
         """Relative joint angles (rad); index 0 is the base joint's absolute angle."""
-        return self._arm.joint_angles()
+        return np.diff([body.angle for body in self._arm.links], prepend=0.0)
 
     @property
     def goal(self) -> np.ndarray:

@@ -142,20 +142,6 @@ class ArmPhysics:
             ys.append(y)
         return xs, ys
 
-    def joint_gaps(self) -> np.ndarray:
-        """How far each simulated pivot has come apart (reach units); see ``SnakeArmEnv.joint_gaps``."""
-        gaps = []
-        parent_end = pymunk.Vec2d(0.0, 0.0)
-        for body in self.links:
-            gaps.append(abs(body.position - parent_end))
-            parent_end = body.local_to_world((self.link_length, 0.0))
-        return np.array(gaps)
-
-    def joint_angles(self) -> np.ndarray:
-        """Relative joint angles (rad); index 0 is the base joint's absolute angle."""
-        absolute = np.array([b.angle for b in self.links])
-        return np.diff(absolute, prepend=0.0)
-
     def __getstate__(self) -> dict[str, object]:
         # pymunk pickles a space with copies of its bodies, outside the simulation: keep the motion, rebuild.
         kept = {k: v for k, v in self.__dict__.items() if k not in _UNPICKLABLE}
