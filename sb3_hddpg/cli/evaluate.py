@@ -182,10 +182,7 @@ def _reward_note(summary: Mapping[str, Any]) -> str:
 def _summary_table(
     title: str, summary: Mapping[str, Any], dependence: dict[str, Any] | None, worker: str
 ) -> Table:
-    """
-    The evaluation summary as a table of quantity, value and unit; with ``dependence``, the share of
-    ``worker`` among the choices near an obstacle and with none in range, and their ratio.
-    """
+    """The evaluation summary as a table of quantity, value and unit, with ``worker``'s state ``dependence``."""
     table = Table(title=title)
     table.add_column("quantity")
     table.add_column("value", justify="right")

@@ -1,7 +1,6 @@
 """
-:func:`terms_env`: any env with several objectives, named by id, resolved once to the shared env that a
-manager acts in and one scalar-reward view per term that a worker learns on, all rebuilt from
-``(env_id, env_kwargs)`` as recorded in manifests.
+:func:`terms_env`: any env with several objectives resolved once to the shared env a manager acts in and a
+view per term a worker learns on, each rebuilt from ``(env_id, env_kwargs)`` as manifests record them.
 """
 
 from __future__ import annotations
