@@ -189,7 +189,8 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         #: The checked parameters; each is also an attribute of the env (``reward`` as ``reward_name``).
         self.params = params
         for field in fields(params):
-            setattr(self, _ATTRIBUTE.get(field.name, field.name), getattr(params, field.name))
+            name = "reward_name" if field.name == "reward" else field.name
+            setattr(self, name, getattr(params, field.name))
         self.render_mode = render_mode
         self.link_length = params.link_length
         self.state_layout: StateLayout = build_state_layout(params.n_joints)
@@ -474,9 +475,6 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         except Exception:
             pass
 
-
-#: The env attribute of a parameter, where it is not the parameter's name.
-_ATTRIBUTE = {"reward": "reward_name"}
 
 #: Every SnakeArmEnv not yet garbage-collected (weakly held, so it keeps none alive).
 _LIVE_ENVS: weakref.WeakSet[SnakeArmEnv] = weakref.WeakSet()
