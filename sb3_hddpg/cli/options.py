@@ -312,28 +312,31 @@ RUN_OPTIONS = tuple(name for name in SHARED_OPTIONS if name not in ENV_OPTIONS)
 
 def takes_options(*names: str) -> Callable[[F], F]:
     """
-    Give a typer command the options ``names`` (:data:`SHARED_OPTIONS`) as parameters, before its
-    ``--resume`` (else last); the command is called without them and reads them from its context.
+    Give a typer command the options ``names`` (:data:`SHARED_OPTIONS`) as parameters, the env options
+    after its ``--env`` and the others before its ``--resume`` (else last); the command is called without
+    them and reads them from its context.
 
     :param names: keys of :data:`SHARED_OPTIONS`.
     """
 
     def decorate(command: F) -> F:
         # Evaluated annotations: typer reads this signature, not a postponed annotation's string.
-        own = list(inspect.signature(command, eval_str=True).parameters.values())
-        added = [
-            inspect.Parameter(
-                name, inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=annotation, default=default
+        params = list(inspect.signature(command, eval_str=True).parameters.values())
+        for name in names:
+            annotation, default = SHARED_OPTIONS[name]
+            anchors = ("env", "env_id", *ENV_OPTIONS) if name in ENV_OPTIONS else ()
+            after = [i + 1 for i, p in enumerate(params) if p.name in anchors]
+            at = max(
+                after, default=next((i for i, p in enumerate(params) if p.name == "resume"), len(params))
             )
-            for name, (annotation, default) in ((n, SHARED_OPTIONS[n]) for n in names)
-        ]
-        at = next((i for i, p in enumerate(own) if p.name == "resume"), len(own))
+            kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
+            params.insert(at, inspect.Parameter(name, kind, annotation=annotation, default=default))
 
         @functools.wraps(command)
         def wrapper(**kwargs: object) -> Any:
             return command(**{key: value for key, value in kwargs.items() if key not in names})
 
-        wrapper.__signature__ = inspect.Signature(own[:at] + added + own[at:])  # type: ignore[attr-defined]
+        wrapper.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
         return wrapper  # type: ignore[return-value]
 
     return decorate
