@@ -6,9 +6,6 @@ Adapters: any Gymnasium env with several objectives as an env of the contract (:
 ``info``. Both are made by id, so a manifest's env id and keyword arguments rebuild them::
 
     env = gym.make("hddpg/MultiObjective-v0", env_id="mo-mountaincarcontinuous-v0", terms=["time", "fuel"])
-
-Without ``term`` the step reward is the sum of the normalised terms; with ``term`` it is that raw term (a
-worker's reward).
 """
 
 from __future__ import annotations
@@ -107,8 +104,7 @@ def _check_terms(terms: object, count: int | None) -> list[str]:
 
 class TermsAdapter(gym.Env[object, object]):
     """
-    The shared part of the adapters: an inner env, its terms with bounds, and the step reward. Subclasses
-    read the raw terms of a step.
+    The shared part of the adapters; subclasses read the raw terms of a step.
 
     :param inner: the env adapted.
     :param bounds: term name -> per-step ``(low, high)``, finite.

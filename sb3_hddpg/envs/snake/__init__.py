@@ -1,9 +1,4 @@
-"""
-The snake arm (the paper's Figure 2 task): its parameters (:mod:`.params`), its pymunk body
-(:mod:`.physics`), the goal's and the obstacles' motion (:mod:`.movers`), the reward terms (:mod:`.rewards`),
-the gymnasium env over them (:mod:`.env`), a read-only view of its state (:mod:`.view`) and its renderer
-(:mod:`.rendering`, loaded only when drawing).
-"""
+"""The snake arm (the paper's Figure 2 task): its parameters, physics, movers, rewards, env, view and renderer."""
 
 from sb3_hddpg.envs.snake.env import SnakeArmEnv
 from sb3_hddpg.envs.snake.params import REWARD_TERMS, SnakeParams
