@@ -13,7 +13,7 @@ import gymnasium as gym
 import typer
 
 from sb3_hddpg.artifacts.io import FolderLockedError, locked_folder
-from sb3_hddpg.artifacts.limits import LimitError, check_count, count_bounds
+from sb3_hddpg.artifacts.limits import count_bounds
 from sb3_hddpg.artifacts.run_folder import (
     RunFolderError,
     check_clearable,
@@ -60,12 +60,9 @@ def count(name: str) -> Callable[[int | None], int | None]:
     """A typer callback for a count of :data:`~sb3_hddpg.artifacts.limits.COUNTS` (``None`` passes)."""
 
     def check(value: int | None) -> int | None:
-        if value is not None:
-            try:
-                check_count(name, value, "value")
-            except LimitError:
-                low, high = count_bounds(name)
-                raise typer.BadParameter(f"must be in [{low}, {high}], got {value}") from None
+        low, high = count_bounds(name)
+        if value is not None and not low <= value <= high:
+            raise typer.BadParameter(f"must be in [{low}, {high}], got {value}")
         return value
 
     return check
