@@ -118,7 +118,14 @@ def evaluate_command(
     output_file(json_path, force, "'--json'")
     shared = terms_env_of(context, env_id)
     loaded = _loaded_policy(path, shared, trust, algo, preference)
-    worker = _state_worker(worker, loaded.policy)
+    # --state-worker: one of the workers the policy selects among (a hierarchy's or HAM's names).
+    policy_names = getattr(loaded.policy, "names", None) or getattr(loaded.policy, "worker_names", None) or []
+    names = [str(name) for name in policy_names]
+    if worker is not None and worker not in names:
+        shown = f"its workers are {names}" if names else "it selects no worker"
+        message = f"{worker!r} is not a worker of this policy: {shown}"
+        raise typer.BadParameter(message, param_hint="'--state-worker'")
+    worker = worker or DEPENDENCE_WORKER
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):
@@ -194,21 +201,6 @@ def _summary_table(
     for row in dependence_rows(dependence, worker) if dependence is not None else []:
         table.add_row(*row)
     return table
-
-
-def _state_worker(worker: str | None, policy: object) -> str:
-    """``--state-worker``: one of the workers ``policy`` selects among (a hierarchy's or HAM's ``names``)."""
-    if worker is None:
-        return DEPENDENCE_WORKER
-    names = [
-        str(name) for name in getattr(policy, "names", None) or getattr(policy, "worker_names", None) or []
-    ]
-    if worker not in names:
-        shown = f"its workers are {names}" if names else "it selects no worker"
-        raise typer.BadParameter(
-            f"{worker!r} is not a worker of this policy: {shown}", param_hint="'--state-worker'"
-        )
-    return worker
 
 
 def _loaded_policy(

@@ -34,7 +34,6 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
-from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.envs.weighted import parse_term_weights
 from sb3_hddpg.evaluation import summaries_table
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -173,7 +172,14 @@ def train_workers_command(
 ) -> None:
     """Train each worker as a plain SB3 model (its default learner unless --algo says) on its own reward (paper Algorithm 1)."""
     shared = terms_env_of(context, env)
-    names = _worker_names_of(workers, weights, shared)
+    # Each known and given once; default: one per term of the env, none when --weights gives the workers.
+    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
+    names = list(workers) if workers else ([] if weights else list(known))
+    unknown = [w for w in names if w not in known]
+    duplicates = sorted({w for w in names if names.count(w) > 1})
+    if unknown or duplicates:
+        problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
+        raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
     with usage_errors("'--weights'"):
         weightings = [parse_term_weights(text) for text in weights or []]
         # Names and weights only here; --algo and --config are checked below, each under its own option.
@@ -219,23 +225,6 @@ def train_workers_command(
     console.print(
         f"Manifest: {out / 'workers' / 'manifest.json'}   TensorBoard: tensorboard --logdir {out / 'tensorboard'}"
     )
-
-
-def _worker_names_of(
-    workers: list[str] | None, weights: list[str] | None, shared: TermsEnv | None
-) -> list[str]:
-    """
-    The workers ``--workers`` names, each known and given once (default: one per term of the env ``shared``
-    or the snake arm, none when ``--weights`` gives the workers).
-    """
-    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
-    names = list(workers) if workers else ([] if weights else list(known))
-    unknown = [w for w in names if w not in known]
-    duplicates = sorted({w for w in names if names.count(w) > 1})
-    if unknown or duplicates:
-        problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
-        raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
-    return names
 
 
 # The options of `train_manager_command`.
