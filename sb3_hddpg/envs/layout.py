@@ -34,12 +34,7 @@ class StateLayout(Mapping[str, slice]):
         return len(self._slices)
 
     def indices(self, names: Iterable[str]) -> np.ndarray:
-        """
-        The observation indices of the named components, in the order given.
-
-        :param names: component names, e.g. ``["joint_positions", "ee_to_goal"]``.
-        :return: an integer index array that selects those components from an observation.
-        """
+        """The indices that select the components ``names`` (e.g. ``["ee_to_goal"]``) from an observation."""
         names = list(names)
         unknown = [n for n in names if n not in self._slices]
         if unknown:
