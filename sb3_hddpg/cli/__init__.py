@@ -1,9 +1,6 @@
 """
-``hddpg-cli``: the command line of sb3-hddpg.
-
-Each command lives in its own module of this package and only parses, calls the library and prints (rich).
-Errors a user can cause end in one line naming the problem and the value, and a non-zero exit (2 for usage
-errors); ``--debug`` (or ``HDDPG_DEBUG=1``) shows the traceback instead.
+``hddpg-cli``: the command line of sb3-hddpg. Each command's module only parses, calls the library and
+prints; an error ends in one line and a non-zero exit, or with ``--debug`` (``HDDPG_DEBUG=1``) a traceback.
 """
 
 from __future__ import annotations
@@ -28,24 +25,14 @@ def _sigterm(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def _stop_on_sigterm() -> None:
-    """
-    SIGTERM ends every command as Ctrl-C does, with one line and exit 143, rather than killing it silently
-    (the commands that save their work first install their own handler for the duration, then restore this).
-    """
-    with contextlib.suppress(ValueError):  # not the main thread (an embedding program's): leave it alone
-        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-            signal.signal(signal.SIGTERM, _sigterm)
-
-
 def main(argv: list[str] | None = None) -> None:
-    """
-    Console-script entry point: run ``app``; whatever ends it becomes one error line and an exit code,
-    both decided by :mod:`sb3_hddpg.cli.errors` (2 usage or input error, 1 internal, 130 after Ctrl-C, 143 after SIGTERM).
-    """
+    """Console-script entry point: run ``app``; whatever ends it becomes one line and an exit code."""
     args = list(sys.argv[1:] if argv is None else argv)
     forget_stop_signal()  # an earlier command of this process (a test's batch) may have been stopped
-    _stop_on_sigterm()
+    # SIGTERM ends every command as Ctrl-C does (one line, exit 143), not silently; not in another thread.
+    with contextlib.suppress(ValueError):
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, _sigterm)
     debug = "--debug" in args or os.environ.get("HDDPG_DEBUG") == "1"
     args = [a for a in args if a != "--debug"]
     command = get_command(app)
@@ -70,13 +57,11 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as error:  # the one place that turns any failure into a clean line
         if debug:
             raise
-        # An OpenGL context that could not be made, from whichever library: named with its fix.
-        error = as_rendering_error(error) or error
+        error = as_rendering_error(error) or error  # an OpenGL context that could not be made: with its fix
         console_error(error_line(error))
         sys.exit(exit_code(error))
     if code == INTERRUPTED_EXIT:
-        # typer turns Ctrl-C (and SIGTERM, which the long commands turn into it) into this code before the
-        # handler above can see it; a command that saved its work raised CommandStopped instead.
+        # typer turns Ctrl-C (and so SIGTERM) into this code before the handlers above see it.
         console_error("interrupted")
         code = interrupted_exit()
     sys.exit(code if isinstance(code, int) else 0)

@@ -30,17 +30,14 @@ def _usage_name(argument: typer.core.TyperArgument) -> str:
 if hasattr(typer.core.TyperArgument, "_usage_display_name"):
     typer.core.TyperArgument._usage_display_name = _usage_name  # type: ignore[method-assign,assignment]
 
-#: Every command, in the order the help lists them (a first run, training, looking at a policy, experiments,
-#: sharing): its name -> the module that registers it, and its line in ``hddpg-cli --help``. A bare name is a
-#: module of this package (the library's commands); a dotted one is the harness's (``hddpg_zoo.cli``), which
-#: the library names here but never imports until its command runs. A command's module (and with it torch,
-#: SB3, JAX) is imported only when that command runs or shows its help, so that ``hddpg-cli --help`` answers
-#: at once.
+#: Every command, in the order the help lists them: its name -> the module that registers it (a bare name
+#: is this package's, a dotted one the harness's), and its line in ``hddpg-cli --help``. A command's module
+#: (and with it torch) is imported only when it runs or shows its help, so ``hddpg-cli --help`` is instant.
 COMMANDS: dict[str, tuple[str, str]] = {
     "quickstart": ("hddpg_zoo.cli.quickstart", "The whole method at a small budget, every method compared."),
     "train-workers": ("train", "Train one worker (a plain SB3 model) per reward term."),
     "train-manager": ("train", "Train a manager that selects a worker, over trained workers."),
-    "grow": ("grow", "Add workers where the front gains most (optimistic linear support)."),
+    "grow": ("train", "Add workers where the front gains most (optimistic linear support)."),
     "train-flat": ("train_flat", "Train one SB3 agent on every objective (the flat baseline)."),
     "evaluate": ("evaluate", "Evaluate a policy: reward, each term, worker choices."),
     "record": ("hddpg_zoo.cli.record", "Render a policy to a GIF or MP4, showing the acting worker."),
@@ -59,8 +56,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "package": ("hddpg_zoo.cli.package", "Package a model, card and replay as a Hugging Face folder."),
 }
 
-#: The packages of the ``bench`` extra (:mod:`sb3_hddpg.extras`): a harness command that needs one that is
-#: missing stops with one line naming the extra (exit 2), not a traceback.
+#: The packages of the ``bench`` extra: a command that misses one stops with one line naming the extra.
 BENCH_MODULES = frozenset(
     {"rliable", "pymoo", "scipy", "pandas", "matplotlib", "imageio", "imageio_ffmpeg", "PIL", "tensorboard"}
 )
@@ -72,30 +68,8 @@ def command_module(name: str) -> str:
     return module if "." in module else f"sb3_hddpg.cli.{module}"
 
 
-def import_command(name: str) -> None:
-    """
-    Import the module of command ``name``.
-
-    :raises MissingExtraError: the command needs a package of the ``bench`` extra that is not installed.
-    """
-    try:
-        importlib.import_module(command_module(name))
-    except MissingExtraError:
-        raise
-    except ModuleNotFoundError as error:
-        missing = (error.name or "").split(".")[0]
-        if missing in BENCH_MODULES or missing == "hddpg_zoo":
-            raise MissingExtraError(
-                f"{name} needs {missing}, which is not installed: {INSTALL_EXTRA}"
-            ) from error
-        raise
-
-
 class LazyCommands(typer.core.TyperGroup):
-    """
-    The command group of ``hddpg-cli``: commands listed in :data:`COMMANDS`' order with their lines from it,
-    and each command's module imported when the command is asked for.
-    """
+    """The command group of ``hddpg-cli``: :data:`COMMANDS`, each module imported when its command is asked for."""
 
     # click's types as typer vendors them (typer._click) are private: the signatures say Any.
     def list_commands(self, ctx: Any) -> list[str]:
@@ -103,7 +77,15 @@ class LazyCommands(typer.core.TyperGroup):
 
     def get_command(self, ctx: Any, cmd_name: str) -> Any:
         if cmd_name not in self.commands and cmd_name in COMMANDS:
-            import_command(cmd_name)
+            try:
+                importlib.import_module(command_module(cmd_name))
+            except ModuleNotFoundError as error:
+                missing = (error.name or "").split(".")[0]
+                if isinstance(error, MissingExtraError) or missing not in {*BENCH_MODULES, "hddpg_zoo"}:
+                    raise
+                raise MissingExtraError(
+                    f"{cmd_name} needs {missing}, which is not installed: {INSTALL_EXTRA}"
+                ) from error
             self.commands.update(typer.main.get_command(app).commands)  # type: ignore[attr-defined]
         return self.commands.get(cmd_name)
 

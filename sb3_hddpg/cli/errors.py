@@ -1,20 +1,9 @@
 """
-The one place that decides a command's exit code and its one error line, from what ended it.
-
-- **2**, a usage or input error: the command line or a file it named cannot be used. typer's own usage
-  errors, and the library's input errors: the ``ValueError`` family (every check of the library raises one
-  of its subclasses: ``LimitError``, ``ConfigError``, ``BundleError``, ``PlainNameError``,
-  ``RunFolderError``, ``StorageError``, ``ClusterError``...), a missing path or one of the wrong kind,
-  gymnasium's errors for an env that cannot be made, a run folder another run holds, a package of
-  an extra that is not installed, and an ``OSError``
-  saying a path cannot be one (too long, through a file, a loop of links).
-- **130** after Ctrl-C, **143** after SIGTERM (128 + the signal, as a shell reports a process the signal
-  ended). A command that saved its work first raises :class:`CommandStopped`, whose message (how to
-  continue) is printed instead of the error line.
-- **1**: anything else, an internal failure while working.
-
-The library raises; :func:`sb3_hddpg.cli.main` calls :func:`exit_code` and :func:`error_line` once, and no
-command chooses a code of its own.
+The one place that decides a command's exit code and its one error line, from what ended it: **2** for a
+usage or input error (typer's, the library's ``ValueError`` family, a missing or wrong-kind path, an env
+that cannot be made, a locked run folder, a missing extra), **130** after Ctrl-C and **143** after SIGTERM
+(a command that saved its work raises :class:`CommandStopped` saying how to continue), **1** for anything
+else. Only :func:`sb3_hddpg.cli.main` calls :func:`exit_code` and :func:`error_line`.
 """
 
 from __future__ import annotations
@@ -74,8 +63,8 @@ def exit_code(error: BaseException) -> int:
 
 def error_line(error: BaseException) -> str:
     """
-    The error line's text for ``error``: the library's own message for its errors (they are sentences
-    naming the value); for anything else its type too, since ``KeyError('x')`` alone says nothing.
+    The error line's text for ``error``: the library's own message for its errors, else with its type too,
+    since ``KeyError('x')`` alone says nothing.
     """
     if isinstance(error, (KeyboardInterrupt, typer.Abort)):
         return "interrupted"
@@ -88,10 +77,7 @@ def error_line(error: BaseException) -> str:
 
 
 def _offending_input(error: Exception) -> str:
-    """
-    ``", got 'ten'"`` when typer's type conversion rejected a value: its messages (from pydantic, e.g.
-    "Input should be a valid integer") do not repeat the value, which the user should see.
-    """
+    """``", got 'ten'"`` when typer's type conversion rejected a value its message does not repeat."""
     errors = getattr(error.__cause__, "errors", None)
     if not callable(errors):
         return ""

@@ -13,36 +13,29 @@ from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
-    EpisodeStepsOpt,
-    InfoKeyOpt,
+    ENV_OPTIONS,
     ReplaceFileOpt,
     RunPreferenceOpt,
-    TermBoundsOpt,
-    TermsOpt,
     apply_run_preference,
     count,
     output_file,
     seed_range,
-    terms_env_option,
+    takes_options,
+    terms_env_of,
     usage_errors,
     writable_file,
 )
 from sb3_hddpg.envs.terms_env import TermsEnv, adapted_env_id
 from sb3_hddpg.evaluation import (
     DEPENDENCE_WORKER,
+    EVAL_SEED_BASE,
     clearance_bands,
     dependence_rows,
     evaluate,
     state_dependence,
 )
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
-from sb3_hddpg.media.trace import selected_names
 from sb3_hddpg.metric_labels import manager_warnings, summary_rows
-
-#: The first evaluation seed (``sb3_hddpg.evaluation.EVAL_SEED_BASE``, repeated here so that ``--help``
-#: and usage errors need not import the library).
-EVAL_SEED_BASE = 10_000
-
 
 # The options of `evaluate_command`.
 _PathOpt = Annotated[
@@ -100,13 +93,11 @@ _NearClearanceOpt = Annotated[
 
 
 @app.command("evaluate")
+@takes_options(*ENV_OPTIONS)
 def evaluate_command(
+    context: typer.Context,
     path: _PathOpt,
     env_id: _EnvIdOpt = None,
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
     episodes: _EpisodesOpt = 20,
     seed: _SeedOpt = EVAL_SEED_BASE,
     deterministic: _DeterministicOpt = True,
@@ -123,14 +114,18 @@ def evaluate_command(
     normalised terms; goal touches, contacts, success and clearance only where the env reports them (the
     snake arm); a hierarchy's worker choices.
     """
-
-    # Everything that depends only on the arguments (the file, its hashes and spaces, the env id) is
-    # checked here, as a usage error; what fails during the episodes is not.
+    # What depends only on the arguments is checked first, as a usage error; a failing episode is not one.
     output_file(json_path, force, "'--json'")
-    # Another env with several objectives resolves to the adapter it needs (the snake ids stay as they are).
-    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
+    shared = terms_env_of(context, env_id)
     loaded = _loaded_policy(path, shared, trust, algo, preference)
-    worker = _state_worker(worker, selected_names(loaded.policy))
+    # --state-worker: one of the workers the policy selects among (a hierarchy's or HAM's names).
+    policy_names = getattr(loaded.policy, "names", None) or getattr(loaded.policy, "worker_names", None) or []
+    names = [str(name) for name in policy_names]
+    if worker is not None and worker not in names:
+        shown = f"its workers are {names}" if names else "it selects no worker"
+        message = f"{worker!r} is not a worker of this policy: {shown}"
+        raise typer.BadParameter(message, param_hint="'--state-worker'")
+    worker = worker or DEPENDENCE_WORKER
     with usage_errors("'--env'"):
         env = loaded.make_env(shared.env_id, **shared.env_kwargs) if shared else loaded.make_env()
     with usage_errors("'--near-clearance'"):
@@ -143,21 +138,21 @@ def evaluate_command(
         deterministic=deterministic,
         near_clearance=near_clearance,
     )
-
     summary = result.summary()
     dependence = state_dependence(summary, worker)
     # The env by the id people know (an adapter's inner env), the policy by its kind and, if it has one, name.
-    env_name = (
-        adapted_env_id(shared.env_id, shared.env_kwargs)
-        if shared
-        else adapted_env_id(loaded.env_id, loaded.env_kwargs)
-    )
+    source = shared or loaded
+    env_name = adapted_env_id(source.env_id, source.env_kwargs)
     policy_name = loaded.kind if loaded.name in ("", loaded.kind) else f"{loaded.kind} {loaded.name!r}"
     title = (
         f"{policy_name} on {env_name}: mean over {episodes} episodes, "
         f"seeds {seed}..{seed + episodes - 1} (± standard deviation across episodes)"
     )
-    _print_preference(loaded, given=preference is not None)
+    preferences = getattr(loaded.policy, "preferences", None)  # the one a hierarchy acted at
+    if isinstance(preferences, dict) and preferences:
+        shown = ",".join(f"{name}={factor:g}" for name, factor in preferences.items())
+        source = "given with --preference" if preference is not None else "the bundle's own"
+        console.print(f"Preference: {shown} ({source}; only the ratio matters)")
     console.print(_summary_table(title, summary, dependence, worker))
     console.print(_reward_note(summary))
     for warning in manager_warnings(summary):
@@ -169,33 +164,14 @@ def evaluate_command(
             "no proximity: no obstacle clearance to split the choices by; see docs/ENVIRONMENTS.md)"
         )
     if json_path is not None:
-        payload = {
-            "path": str(path),
-            "kind": loaded.kind,
-            "env_id": env_id or loaded.env_id,
-            **result.to_dict(),
-            "state_dependence": dependence,
-        }
-        atomic_write_json(json_path, payload)
+        ids = {"path": str(path), "kind": loaded.kind, "env_id": env_id or loaded.env_id}
+        atomic_write_json(json_path, {**ids, **result.to_dict(), "state_dependence": dependence})
         console.print(f"Metrics written to {json_path}")
-
-
-def _print_preference(loaded: LoadedPolicy, given: bool) -> None:
-    """The preference a hierarchy acted at, and whether ``--preference`` gave it."""
-    preferences = getattr(loaded.policy, "preferences", None)
-    if isinstance(preferences, dict) and preferences:
-        shown = ",".join(f"{name}={factor:g}" for name, factor in preferences.items())
-        source = "given with --preference" if given else "the bundle's own"
-        console.print(f"Preference: {shown} ({source}; only the ratio matters)")
 
 
 def _reward_note(summary: Mapping[str, Any]) -> str:
     """How the reward rows relate: the env's own reward, each term's raw sum, and the normalised return."""
-    terms = [
-        key[len("mean_") : -len("_reward")]
-        for key in summary
-        if key.startswith("mean_") and key.endswith("_reward")
-    ]
+    terms = [key[5:-7] for key in summary if key.startswith("mean_") and key.endswith("_reward")]
     terms = [t for t in terms if t not in ("", "reach")]
     note = "reward: the env's own, summed over the episode"
     if terms:
@@ -213,10 +189,7 @@ def _reward_note(summary: Mapping[str, Any]) -> str:
 def _summary_table(
     title: str, summary: Mapping[str, Any], dependence: dict[str, Any] | None, worker: str
 ) -> Table:
-    """
-    The evaluation summary as a table of quantity, value and unit; with ``dependence``, the share of
-    ``worker`` among the choices near an obstacle and with none in range, and their ratio.
-    """
+    """The evaluation summary as a table of quantity, value and unit, with ``worker``'s state ``dependence``."""
     table = Table(title=title)
     table.add_column("quantity")
     table.add_column("value", justify="right")
@@ -228,21 +201,6 @@ def _summary_table(
     for row in dependence_rows(dependence, worker) if dependence is not None else []:
         table.add_row(*row)
     return table
-
-
-def _state_worker(worker: str | None, names: list[str]) -> str:
-    """
-    ``--state-worker``: one of the policy's workers when given (a name it does not have silently dropped
-    the rows it asked for), else the default.
-    """
-    if worker is None:
-        return DEPENDENCE_WORKER
-    if worker not in names:
-        shown = f"its workers are {names}" if names else "it selects no worker"
-        raise typer.BadParameter(
-            f"{worker!r} is not a worker of this policy: {shown}", param_hint="'--state-worker'"
-        )
-    return worker
 
 
 def _loaded_policy(

@@ -13,7 +13,7 @@ import gymnasium as gym
 import typer
 
 from sb3_hddpg.artifacts.io import FolderLockedError, locked_folder
-from sb3_hddpg.artifacts.limits import LimitError, check_count, count_bounds
+from sb3_hddpg.artifacts.limits import count_bounds
 from sb3_hddpg.artifacts.run_folder import (
     RunFolderError,
     check_clearable,
@@ -57,19 +57,12 @@ def at_least(minimum: int) -> Callable[[int | None], int | None]:
 
 
 def count(name: str) -> Callable[[int | None], int | None]:
-    """
-    A typer callback for a count of :data:`~sb3_hddpg.artifacts.limits.COUNTS` (``episodes``,
-    ``video_steps``, ``n_jobs``...): the same bounds as a Python caller's keyword or a file's field, from the
-    one table (``None`` passes).
-    """
+    """A typer callback for a count of :data:`~sb3_hddpg.artifacts.limits.COUNTS` (``None`` passes)."""
 
     def check(value: int | None) -> int | None:
-        if value is not None:
-            try:
-                check_count(name, value, "value")
-            except LimitError:
-                low, high = count_bounds(name)
-                raise typer.BadParameter(f"must be in [{low}, {high}], got {value}") from None
+        low, high = count_bounds(name)
+        if value is not None and not low <= value <= high:
+            raise typer.BadParameter(f"must be in [{low}, {high}], got {value}")
         return value
 
     return check
@@ -90,11 +83,7 @@ def discount(value: float | None) -> float | None:
 
 
 def existing_file(value: Path | None) -> Path | None:
-    """
-    A typer callback for a file to read: it must exist and be a file (``None`` passes). Checked by kind,
-    not by permission bits, because root reads anything and a folder where a file belongs is the common
-    mistake.
-    """
+    """A typer callback for a file to read: it must exist and be a file (``None`` passes)."""
     return _existing(value, Path.is_file, "file")
 
 
@@ -126,10 +115,7 @@ def writable_file(value: Path | None) -> Path | None:
 
 
 def output_file(path: Path | None, force: bool, param_hint: str) -> Path | None:
-    """
-    The file a command writes, checked before any work starts: an existing file is replaced only with
-    ``--force`` (:func:`~sb3_hddpg.artifacts.run_folder.check_output_file`); ``None`` passes.
-    """
+    """The file a command writes, checked before any work: an existing one only with ``--force``."""
     if path is None:
         return None
     try:
@@ -141,10 +127,8 @@ def output_file(path: Path | None, force: bool, param_hint: str) -> Path | None:
 @contextlib.contextmanager
 def usage_errors(param_hint: str | None = None) -> Iterator[None]:
     """
-    Report the library's input validation as a usage error (exit code 2): inside this block a
-    ``ValueError`` (``ConfigError``, ``BundleError``...) or a missing or wrong-kind path means the command
-    line named something unusable. Use it only around the checks and loads before any work starts, so that
-    a failure during the work itself stays an ordinary error (exit code 1).
+    Report the library's input errors (``ValueError``, a missing or wrong-kind path) as a usage error (exit
+    code 2): only around the checks before any work starts, so that a failure while working stays exit 1.
 
     :param param_hint: the option the problem comes from, e.g. ``"'--config'"`` (``None``: not named).
     """
@@ -156,11 +140,7 @@ def usage_errors(param_hint: str | None = None) -> Iterator[None]:
 
 
 def refuse_protected_out(out: Path) -> Path:
-    """
-    Refuse, as a usage error, an output folder that may never hold a run: the current folder (``--out ""``
-    or ``.``), one above it, the home or root folder
-    (:func:`~sb3_hddpg.artifacts.run_folder.protected_reason`).
-    """
+    """Refuse, as a usage error, an output folder that may never hold a run (the current one, home, root...)."""
     reason = "the current folder" if str(out) in ("", ".") else protected_reason(out)
     if reason is not None:
         raise typer.BadParameter(
@@ -171,19 +151,13 @@ def refuse_protected_out(out: Path) -> Path:
 
 def prepare_out_dir(context: typer.Context, out: Path, resume: bool, force: bool) -> Path:
     """
-    Take the run folder for this command: refuse the current folder (``--out ""`` or ``.``), a folder above
-    it, the home or root folder, a path through a file, a symbolic link, a folder of the user's
-    (:func:`~sb3_hddpg.artifacts.run_folder.check_out_folder`), and a run folder that already holds results
-    unless ``--resume`` or ``--force``; then lock it (:func:`sb3_hddpg.artifacts.io.locked_folder`) until the
-    command ends, so a second run into the same folder stops at once with the holder's pid. ``--force``
-    clears it through :func:`sb3_hddpg.artifacts.run_folder.clear_run_folder`, which deletes only what the
-    tool wrote; this function only reports.
+    Take the run folder for this command: refuse a protected folder, a path through a file, a link, a
+    folder of the user's, and one that already holds results unless ``--resume`` or ``--force`` (which
+    clears only what the tool wrote); then lock it until the command ends.
 
-    :param context: the command's context (a ``typer.Context`` parameter): the lock is released when it
-        closes. Passed in because typer keeps its own copy of click, whose current context
-        ``click.get_current_context`` does not see.
+    :param context: the command's context, whose closing releases the lock (typer's own copy of click
+        hides it from ``click.get_current_context``).
     """
-
     refuse_protected_out(out)
     try:
         check_out_folder(out)
@@ -240,7 +214,6 @@ def backend_name(value: str | None) -> str | None:
     """A typer callback for ``--backend``: ``sb3`` or ``sbx``, and installed (``None`` passes)."""
     if value is None:
         return None
-
     try:
         return check_backend(value)
     except BackendError as error:
@@ -257,95 +230,16 @@ KEEP_CHECKPOINTS_HELP = (
     "the model checkpoint stays (resuming it refills the buffer first)."
 )
 
-# The options the training commands (train-workers, train-manager, train-flat) share, spelled once; the
-# ones that are RunOptions fields keep the field's name, so that run_options_of_command collects them.
-SeedOpt = Annotated[int, typer.Option("--seed", callback=seed_range, help="Training seed.")]
+# The options the commands share, spelled once.
 ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite a folder that already holds results.")]
 ReplaceFileOpt = Annotated[bool, typer.Option("--force", help="Replace the output file if it exists.")]
-NEnvsOpt = Annotated[
-    int | None,
-    typer.Option("--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."),
-]
 ResumeOpt = Annotated[bool, typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")]
-StopOnPlateauOpt = Annotated[
-    bool, typer.Option("--stop-on-plateau", help="Stop after 3 evaluations without a new best.")
-]
-EvalFreqOpt = Annotated[
-    int, typer.Option("--eval-freq", callback=at_least(0), help="Steps between evaluations.")
-]
 EvalEpisodesOpt = Annotated[
     int, typer.Option("--eval-episodes", callback=count("episodes"), help="Episodes per evaluation.")
 ]
-CheckpointFreqOpt = Annotated[
-    int, typer.Option("--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP)
-]
-ThreadsOpt = Annotated[
-    int, typer.Option("--threads", callback=at_least(1), help="Torch threads (1 is fastest here).")
-]
-ProgressOpt = Annotated[bool, typer.Option("--progress/--no-progress", help="Show a progress bar.")]
-KeepCheckpointsOpt = Annotated[bool, typer.Option("--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP)]
 BackendOpt = Annotated[str | None, typer.Option("--backend", callback=backend_name, help=BACKEND_HELP)]
 
 
-#: The run options a training command may take without using them itself (it reads them from its context
-#: with :func:`run_options_of`): field name -> its option and the commands' default.
-RUN_OPTION_PARAMETERS: dict[str, tuple[object, object]] = {
-    "seed": (SeedOpt, 0),
-    "n_envs": (NEnvsOpt, None),
-    "stop_on_plateau": (StopOnPlateauOpt, False),
-    "eval_freq": (EvalFreqOpt, 5000),
-    "eval_episodes": (EvalEpisodesOpt, 5),
-    "checkpoint_freq": (CheckpointFreqOpt, 10_000),
-    "threads": (ThreadsOpt, 1),
-    "progress_bar": (ProgressOpt, True),
-    "keep_checkpoints": (KeepCheckpointsOpt, False),
-}
-
-
-def takes_run_options(*names: str) -> Callable[[F], F]:
-    """
-    Give a typer command the run options ``names`` (:data:`RUN_OPTION_PARAMETERS`) as parameters, placed
-    before its ``--resume`` (else last), so that the training commands do not each spell them again. The
-    command itself is called without them: it reads them with :func:`run_options_of`.
-
-    :param names: fields of :class:`~sb3_hddpg.training.run_options.RunOptions`.
-    """
-
-    def decorate(command: F) -> F:
-        # Evaluated annotations: typer reads the options from this signature, not from the strings of
-        # a module with postponed annotations.
-        own = list(inspect.signature(command, eval_str=True).parameters.values())
-        added = [
-            inspect.Parameter(
-                name, inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=option, default=default
-            )
-            for name, (option, default) in ((n, RUN_OPTION_PARAMETERS[n]) for n in names)
-        ]
-        at = next((i for i, p in enumerate(own) if p.name == "resume"), len(own))
-
-        @functools.wraps(command)
-        def wrapper(**kwargs: object) -> Any:
-            return command(**{key: value for key, value in kwargs.items() if key not in names})
-
-        wrapper.__signature__ = inspect.Signature(own[:at] + added + own[at:])  # type: ignore[attr-defined]
-        return wrapper  # type: ignore[return-value]
-
-    return decorate
-
-
-def run_options_of(context: typer.Context) -> RunOptions:
-    """
-    The :class:`~sb3_hddpg.training.run_options.RunOptions` of a running command: its parameters named as
-    the fields (``--seed`` -> ``seed``, ``--progress`` -> ``progress_bar``...); fields it has no option for
-    keep their defaults. Built once here, then passed through the library.
-
-    :param context: the command's context (a ``typer.Context`` parameter of the command).
-    """
-    with usage_errors():
-        return RunOptions(**{k: v for k, v in context.params.items() if k in RUN_OPTION_NAMES})
-
-
-#: Help of the options that choose an env with several objectives (train-workers, train-manager, evaluate).
 #: What ``--env`` accepts; each command adds its one default.
 ENV_HELP = (
     "Env id with several objectives: one of ours, an MO-Gymnasium id (the mo extra, which make installs), or "
@@ -366,14 +260,99 @@ INFO_KEY_HELP = (
 )
 EPISODE_STEPS_HELP = "Time limit of an adapted env (default: its registered max_episode_steps)."
 
-
-# The options that name another env's terms, declared once for every command that takes them.
 TermsOpt = Annotated[str | None, typer.Option("--terms", help=TERMS_HELP)]
 TermBoundsOpt = Annotated[str | None, typer.Option("--term-bounds", help=TERM_BOUNDS_HELP)]
 InfoKeyOpt = Annotated[str | None, typer.Option("--info-key", help=INFO_KEY_HELP)]
 EpisodeStepsOpt = Annotated[
     int | None, typer.Option("--episode-steps", callback=count("episode_steps"), help=EPISODE_STEPS_HELP)
 ]
+
+
+#: The options a command may take without using them itself (it reads them from its context with
+#: :func:`run_options_of` or :func:`terms_env_of`): parameter name -> its annotation and default, the run
+#: options named as the :class:`~sb3_hddpg.training.run_options.RunOptions` fields.
+SHARED_OPTIONS: dict[str, tuple[object, object]] = {
+    "seed": (int, typer.Option(0, "--seed", callback=seed_range, help="Training seed.")),
+    "n_envs": (
+        int | None,
+        typer.Option(None, "--n-envs", callback=at_least(1), help="Training envs, in subprocesses when > 1."),
+    ),
+    "stop_on_plateau": (
+        bool,
+        typer.Option(False, "--stop-on-plateau", help="Stop after 3 evaluations without a new best."),
+    ),
+    "eval_freq": (
+        int,
+        typer.Option(5000, "--eval-freq", callback=at_least(0), help="Steps between evaluations."),
+    ),
+    "eval_episodes": (EvalEpisodesOpt, 5),
+    "checkpoint_freq": (
+        int,
+        typer.Option(10_000, "--checkpoint-freq", callback=at_least(0), help=CHECKPOINT_HELP),
+    ),
+    "threads": (
+        int,
+        typer.Option(1, "--threads", callback=at_least(1), help="Torch threads (1 is fastest here)."),
+    ),
+    "progress_bar": (bool, typer.Option(True, "--progress/--no-progress", help="Show a progress bar.")),
+    "keep_checkpoints": (bool, typer.Option(False, "--keep-checkpoints", help=KEEP_CHECKPOINTS_HELP)),
+    "terms": (TermsOpt, None),
+    "term_bounds": (TermBoundsOpt, None),
+    "info_key": (InfoKeyOpt, None),
+    "episode_steps": (EpisodeStepsOpt, None),
+}
+#: The options that name another env's terms, beside ``--env`` (:func:`terms_env_of`).
+ENV_OPTIONS = ("terms", "term_bounds", "info_key", "episode_steps")
+#: The options that are :class:`~sb3_hddpg.training.run_options.RunOptions` fields.
+RUN_OPTIONS = tuple(name for name in SHARED_OPTIONS if name not in ENV_OPTIONS)
+
+
+def takes_options(*names: str) -> Callable[[F], F]:
+    """
+    Give a typer command the options ``names`` (:data:`SHARED_OPTIONS`) as parameters, the env options
+    after its ``--env`` and the others before its ``--resume`` (else last); the command is called without
+    them and reads them from its context.
+
+    :param names: keys of :data:`SHARED_OPTIONS`.
+    """
+
+    def decorate(command: F) -> F:
+        # Evaluated annotations: typer reads this signature, not a postponed annotation's string.
+        params = list(inspect.signature(command, eval_str=True).parameters.values())
+        for name in names:
+            annotation, default = SHARED_OPTIONS[name]
+            anchors = ("env", "env_id", *ENV_OPTIONS) if name in ENV_OPTIONS else ()
+            after = [i + 1 for i, p in enumerate(params) if p.name in anchors]
+            at = max(
+                after, default=next((i for i, p in enumerate(params) if p.name == "resume"), len(params))
+            )
+            kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
+            params.insert(at, inspect.Parameter(name, kind, annotation=annotation, default=default))
+
+        @functools.wraps(command)
+        def wrapper(**kwargs: object) -> Any:
+            return command(**{key: value for key, value in kwargs.items() if key not in names})
+
+        wrapper.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+        return wrapper  # type: ignore[return-value]
+
+    return decorate
+
+
+def run_options_of(context: typer.Context) -> RunOptions:
+    """
+    The :class:`~sb3_hddpg.training.run_options.RunOptions` of a running command, from its parameters named
+    as the fields (fields it has no option for keep their defaults).
+
+    :param context: the command's context (a ``typer.Context`` parameter of the command).
+    """
+    with usage_errors():
+        return RunOptions(**{k: v for k, v in context.params.items() if k in RUN_OPTION_NAMES})
+
+
+def terms_env_of(context: typer.Context, env: str | None) -> Any:
+    """:func:`terms_env_option` of ``env`` and the :data:`ENV_OPTIONS` a command took with :func:`takes_options`."""
+    return terms_env_option(env, *(context.params[name] for name in ENV_OPTIONS))
 
 
 def terms_env_option(
@@ -384,24 +363,15 @@ def terms_env_option(
     episode_steps: int | None = None,
 ) -> Any:
     """
-    The :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the env options name (``None`` when ``--env`` is not
-    given and no other option needs it); the library's errors become usage errors naming the option.
+    The :class:`~sb3_hddpg.envs.terms_env.TermsEnv` the env options name (``None`` without ``--env``); the
+    library's errors become usage errors naming the option.
     """
     if env is None:
-        given = [
-            n
-            for n, v in (
-                ("--terms", terms),
-                ("--term-bounds", term_bounds),
-                ("--info-key", info_key),
-                ("--episode-steps", episode_steps),
-            )
-            if v is not None
-        ]
-        if given:
-            raise typer.BadParameter(
-                f"{given[0]} needs --env (the env whose terms it names)", param_hint="'--env'"
-            )
+        options = ("--terms", terms), ("--term-bounds", term_bounds), ("--info-key", info_key)
+        for name, value in (*options, ("--episode-steps", episode_steps)):
+            if value is not None:
+                message = f"{name} needs --env (the env whose terms it names)"
+                raise typer.BadParameter(message, param_hint="'--env'")
         return None
     with usage_errors("'--terms'"):
         names = parse_terms(terms) if terms is not None else None
@@ -423,8 +393,8 @@ RunPreferenceOpt = Annotated[str | None, typer.Option("--preference", help=RUN_P
 
 def apply_run_preference(policy: object, text: str | None, kind: str) -> None:
     """
-    Set ``--preference`` on a loaded policy: a usage error (exit 2) for a policy that takes none, a
-    malformed text, or a preference outside those a conditioned manager was trained over.
+    Set ``--preference`` on a loaded policy: a usage error for a policy that takes none, a malformed text,
+    or a preference outside those a conditioned manager was trained over.
 
     :param policy: the loaded policy.
     :param text: the option's value (``None``: not given).

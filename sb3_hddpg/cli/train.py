@@ -1,4 +1,4 @@
-"""``hddpg-cli train-workers`` and ``train-manager``: the two halves of the hierarchy (paper Algorithm 1)."""
+"""``hddpg-cli train-workers``, ``grow`` and ``train-manager``: the two halves of the hierarchy (paper Algorithm 1)."""
 
 from __future__ import annotations
 
@@ -16,15 +16,12 @@ from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.errors import CommandStopped
 from sb3_hddpg.cli.options import (
     ENV_HELP,
-    RUN_OPTION_PARAMETERS,
+    ENV_OPTIONS,
+    RUN_OPTIONS,
     SNAKE_DEFAULT,
     BackendOpt,
-    EpisodeStepsOpt,
     ForceOpt,
-    InfoKeyOpt,
     ResumeOpt,
-    TermBoundsOpt,
-    TermsOpt,
     at_least,
     count,
     discount,
@@ -32,12 +29,11 @@ from sb3_hddpg.cli.options import (
     existing_file,
     prepare_out_dir,
     run_options_of,
-    takes_run_options,
-    terms_env_option,
+    takes_options,
+    terms_env_of,
     usage_errors,
 )
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
-from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.envs.weighted import parse_term_weights
 from sb3_hddpg.evaluation import summaries_table
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
@@ -45,8 +41,9 @@ from sb3_hddpg.hierarchy.selection import parse_preferences
 from sb3_hddpg.metric_labels import MANAGER_REWARD_LABEL, MetricLabel, manager_warnings
 from sb3_hddpg.training.agent import ALGO_NAMES, TrainingInterrupted, TrainingOutcome
 from sb3_hddpg.training.backends import check_algo, resolve_backend
+from sb3_hddpg.training.grow import SUPPORT_FILE, SupportOptions, check_growable, grow
 from sb3_hddpg.training.manager import train_manager
-from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, ManagerSetup, setup_manager
+from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, setup_manager
 from sb3_hddpg.training.term_critic import TermCriticOptions
 from sb3_hddpg.training.workers import (
     parse_worker_algorithms,
@@ -70,7 +67,7 @@ def training_interrupt_exits() -> Iterator[None]:
 
 def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None = None) -> Table:
     """
-    The library's table of evaluation summaries (:func:`~sb3_hddpg.evaluation.summaries_table`), drawn by rich.
+    :func:`~sb3_hddpg.evaluation.summaries_table` drawn by rich.
 
     :param title: the table's title.
     :param rows: agent -> its evaluation summary.
@@ -79,8 +76,7 @@ def metrics_table(title: str, rows: dict[str, dict], reward: MetricLabel | None 
     summaries = summaries_table(title, rows, reward)
     table = Table(title=summaries.title, caption=summaries.caption)
     table.add_column("agent")
-    for column in summaries.columns:
-        # Folded, not cut, where a header word is wider than the column 80 characters leave it.
+    for column in summaries.columns:  # folded, not cut, where a header word is wider than 80 columns allow
         table.add_column(column, justify="right", overflow="fold")
     for row in summaries.rows:
         table.add_row(*row)
@@ -127,8 +123,8 @@ _WorkersAlgoOpt = Annotated[
     typer.Option(
         "--algo",
         help=f"Each worker's algorithm, e.g. goal=crossq,avoid=sac, or one for all; one of {list(ALGO_NAMES)} "
-        "that acts in the worker's action space (default: the snake arm's goal=ddpg,avoid=sac, chosen by "
-        "the workers study; ddpg on another env; config: the bundled zoo_configs/<algo>.yml).",
+        "that acts in the worker's action space (default: the snake arm's goal=ddpg,avoid=sac; ddpg on "
+        "another env).",
     ),
 ]
 _WorkersConfigOpt = Annotated[
@@ -157,7 +153,7 @@ _ResumeChangingOpt = Annotated[
 
 
 @app.command("train-workers")
-@takes_run_options(*RUN_OPTION_PARAMETERS)
+@takes_options(*ENV_OPTIONS, *RUN_OPTIONS)
 def train_workers_command(
     context: typer.Context,
     workers: _WorkerNamesOpt = None,
@@ -165,10 +161,6 @@ def train_workers_command(
     term_critic: _TermCriticOpt = True,
     keep_transitions: _KeepTransitionsOpt = False,
     env: _WorkersEnvOpt = None,
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
     algo: _WorkersAlgoOpt = None,
     config: _WorkersConfigOpt = None,
     timesteps: _WorkersTimestepsOpt = None,
@@ -179,9 +171,15 @@ def train_workers_command(
     resume_changing: _ResumeChangingOpt = None,
 ) -> None:
     """Train each worker as a plain SB3 model (its default learner unless --algo says) on its own reward (paper Algorithm 1)."""
-
-    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    names = _worker_names_of(workers, weights, shared)
+    shared = terms_env_of(context, env)
+    # Each known and given once; default: one per term of the env, none when --weights gives the workers.
+    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
+    names = list(workers) if workers else ([] if weights else list(known))
+    unknown = [w for w in names if w not in known]
+    duplicates = sorted({w for w in names if names.count(w) > 1})
+    if unknown or duplicates:
+        problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
+        raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
     with usage_errors("'--weights'"):
         weightings = [parse_term_weights(text) for text in weights or []]
         # Names and weights only here; --algo and --config are checked below, each under its own option.
@@ -193,12 +191,15 @@ def train_workers_command(
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed
         for worker in planned:
             check_algo(worker.algo, resolve_backend(backend, worker.hyperparams.backend))
-    _check_resume_changing(resume_changing, resume)
+    unknown = [c for c in resume_changing or [] if c not in RESUME_CHANGES]
+    if unknown or (resume_changing and not resume):
+        problem = (
+            f"expected some of {list(RESUME_CHANGES)}, got {unknown[0]!r}" if unknown else "needs --resume"
+        )
+        raise typer.BadParameter(problem, param_hint="'--resume-changing'")
     prepare_out_dir(context, out, resume, force)
-    summaries: dict[str, dict] = {}
 
     def done(name: str, outcome: TrainingOutcome) -> None:
-        summaries[name] = outcome.metrics
         console.print(
             f"[green]✓[/] worker [bold]{name}[/]: {outcome.num_timesteps} steps"
             f"{' (stopped on plateau)' if outcome.stopped_early else ''} -> {outcome.model_path}"
@@ -226,37 +227,6 @@ def train_workers_command(
     )
 
 
-def _worker_names_of(
-    workers: list[str] | None, weights: list[str] | None, shared: TermsEnv | None
-) -> list[str]:
-    """
-    The workers ``--workers`` names, each known and given once (default: one per term of the env, none when
-    ``--weights`` gives the workers).
-
-    :param workers: the ``--workers`` given.
-    :param weights: the ``--weights`` given.
-    :param shared: the env with several objectives chosen by ``--env``, if any (else the snake arm's terms).
-    """
-    known = list(shared.terms) if shared is not None else sorted(WORKER_ENV_IDS)
-    names = list(workers) if workers else ([] if weights else list(known))
-    unknown = [w for w in names if w not in known]
-    duplicates = sorted({w for w in names if names.count(w) > 1})
-    if unknown or duplicates:
-        problem = f"unknown worker {unknown[0]!r}" if unknown else f"worker {duplicates[0]!r} given twice"
-        raise typer.BadParameter(f"{problem}; choose from {known}", param_hint="'--workers'")
-    return names
-
-
-def _check_resume_changing(resume_changing: list[str] | None, resume: bool) -> None:
-    """``--resume-changing``: known changes only, and only with ``--resume``."""
-    unknown = [c for c in resume_changing or [] if c not in RESUME_CHANGES]
-    if unknown or (resume_changing and not resume):
-        problem = (
-            f"expected some of {list(RESUME_CHANGES)}, got {unknown[0]!r}" if unknown else "needs --resume"
-        )
-        raise typer.BadParameter(problem, param_hint="'--resume-changing'")
-
-
 # The options of `train_manager_command`.
 _ManagerWorkersDirOpt = Annotated[
     Path,
@@ -282,7 +252,7 @@ _ManagerPreferenceOpt = Annotated[
         "--preference",
         help="Every factor explicitly, e.g. goal=1.15,avoid=1.0 (wins over --prefer). The factors scale the "
         "manager's reward too: to change only the trade-off, keep their sum at the number of workers "
-        "(goal=0.4,avoid=1.6, not goal=1,avoid=4, which saturated the bundled block; docs/MANAGER.md).",
+        "(docs/MANAGER.md).",
     ),
 ]
 _ManagerTrainPreferencesOpt = Annotated[
@@ -309,8 +279,7 @@ _ManagerInitFromHamOpt = Annotated[
         "--init-from-ham",
         metavar="THRESHOLD",
         help="Start from the hand-written rule: before RL the manager imitates HAM with this threshold "
-        "(behaviour cloning of its choices; its replay buffer is filled with them), so RL starts at "
-        "HAM's level.",
+        "(its replay buffer filled with HAM's choices), so RL starts at HAM's level.",
     ),
 ]
 _ManagerSelectionOpt = Annotated[
@@ -344,8 +313,7 @@ _ManagerMotionOpt = Annotated[
         min=0.0,
         max=MAX_MANAGER_MOTION,
         help="The manager also sees how its state moved over the last env step, scaled by this factor and "
-        "clipped to [-1, 1] (e.g. 20 for the snake arm, whose obstacles move by at most 0.0075 of their "
-        "range per step); 0: the state only.",
+        "clipped to [-1, 1] (e.g. 20 for the snake arm); 0: the state only.",
     ),
 ]
 _ManagerGammaOpt = Annotated[
@@ -353,9 +321,8 @@ _ManagerGammaOpt = Annotated[
     typer.Option(
         "--gamma",
         callback=discount,
-        help="The manager's discount per decision (default: the config block's). The bundled blocks' discounts "
-        "fit their options' length: with shorter --option-steps, a discount closer to 1 keeps the horizon in "
-        "env steps (0.9 over 4-step options is about 0.974 over 1-step ones).",
+        help="The manager's discount per decision (default: the config block's, which fits its options' "
+        "length: with shorter --option-steps, a discount closer to 1 keeps the horizon in env steps).",
     ),
 ]
 _ManagerAlgoOpt = Annotated[
@@ -390,7 +357,7 @@ _ManagerEnvOpt = Annotated[str | None, typer.Option("--env", help=ENV_HELP + MAN
 
 
 @app.command("train-manager")
-@takes_run_options(*RUN_OPTION_PARAMETERS)
+@takes_options(*RUN_OPTIONS, *ENV_OPTIONS)
 def train_manager_command(
     context: typer.Context,
     workers_dir: _ManagerWorkersDirOpt = Path("runs/workers"),
@@ -415,10 +382,6 @@ def train_manager_command(
     trust: _ManagerTrustOpt = False,
     backend: BackendOpt = None,
     env: _ManagerEnvOpt = None,
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """
     Train the manager: a plain SB3 DDPG (or TD3, SAC) whose action selects a worker (paper Algorithm 1). Its
@@ -432,7 +395,7 @@ def train_manager_command(
         preferences = parse_preferences(preference) if preference is not None else None
     if relabel_fraction is not None and train_preferences is None:
         raise typer.BadParameter("applies with --preferences only", param_hint="'--relabel-fraction'")
-    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
+    shared = terms_env_of(context, env)
     options = ManagerOptions(
         worker_names=names or None,
         prefer=prefer,
@@ -452,19 +415,7 @@ def train_manager_command(
         manager_motion=manager_motion,
         gamma=gamma,
     )
-    setup = _checked_manager_setup(workers_dir, options, backend)
-    prepare_out_dir(context, out, resume, force)
-    with training_interrupt_exits():
-        result = train_manager(setup, out, run=run_options_of(context))
-    _print_manager(result.hierarchy, result.outcome, out)
-
-
-def _checked_manager_setup(workers_dir: Path, options: ManagerOptions, backend: str | None) -> ManagerSetup:
-    """
-    The manager's set-up, checked before the output folder is touched: the library checks the workers,
-    their hashes and spaces, names, preferences and bias, the selection mode and config; here the backend.
-    The checked set-up is what trains: nothing is loaded or checked twice.
-    """
+    # Checked before the output folder is touched: the library checks the set-up, here its backend.
     with usage_errors():
         setup = setup_manager(workers_dir, options)
     with usage_errors("'--backend'"):
@@ -474,7 +425,10 @@ def _checked_manager_setup(workers_dir: Path, options: ManagerOptions, backend: 
             raise ValueError(
                 "the start from HAM (--init-from-ham) fits SB3 (torch) managers: use --backend sb3"
             )
-    return setup
+    prepare_out_dir(context, out, resume, force)
+    with training_interrupt_exits():
+        result = train_manager(setup, out, run=run_options_of(context))
+    _print_manager(result.hierarchy, result.outcome, out)
 
 
 def _print_manager(hierarchy: Hierarchy, outcome: TrainingOutcome, out: Path) -> None:
@@ -507,3 +461,54 @@ def _print_manager(hierarchy: Hierarchy, outcome: TrainingOutcome, out: Path) ->
         )
     if hierarchy.preference_space is not None:
         console.print(f"Conditioned on {hierarchy.preference_space.describe()}")
+
+
+@app.command("grow")
+@takes_options("seed", "n_envs", "eval_freq", "eval_episodes", "checkpoint_freq", "threads", "progress_bar")
+def grow_command(
+    context: typer.Context,
+    workers: Path = typer.Option(
+        Path("runs/workers"),
+        "--workers",
+        help="Run folder of train-workers holding a per-term worker with its critic for every term; the new "
+        "workers are added to it.",
+    ),
+    support: int = typer.Option(
+        4, "--support", help="The most workers the support holds, per-term ones included."
+    ),
+    budget: int = typer.Option(150_000, "--budget", help="Env steps all new workers may train together."),
+    tolerance: float = typer.Option(
+        0.01,
+        "--tolerance",
+        help="Stop when the largest optimistic gain is below this fraction of the front's value.",
+    ),
+    start_states: int = typer.Option(
+        32, "--start-states", help="Development episodes whose start states value each worker."
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="Hyperparameters in RL Zoo format for the new workers (block <env>/mix, else the env's).",
+    ),
+    resume: ResumeOpt = False,
+) -> None:
+    """Add workers on weightings of the terms where the front gains most (optimistic linear support), each warm-started from its nearest neighbour."""
+    with usage_errors("'--support'"):
+        options = SupportOptions(support, budget, tolerance, start_states)
+    if not (workers / "workers" / "manifest.json").is_file() and not (workers / "manifest.json").is_file():
+        raise typer.BadParameter(
+            f"no workers manifest in {str(workers)!r}; run train-workers first", param_hint="'--workers'"
+        )
+    root = workers if (workers / "workers" / "manifest.json").is_file() else workers.parent
+    with usage_errors("'--workers'"):  # before anything trains; a failure while training is no usage error
+        check_growable(root, resume)
+    with training_interrupt_exits():
+        record = grow(root, options, run=run_options_of(context), config=config)
+    table = Table(title=f"Support in {root / 'workers'}")
+    for column in ("worker", "weights", "gain", "env steps", "warm start"):
+        table.add_column(column)
+    for step in record.added:
+        weights = ", ".join(f"{t}={w:.3g}" for t, w in step.weights.items())
+        table.add_row(step.name, weights, f"{step.gain:.4g}", str(step.steps), step.warm_start or "-")
+    console.print(table)
+    console.print(f"Stopped: {record.stopped}.  Record: {root / 'workers' / SUPPORT_FILE}")

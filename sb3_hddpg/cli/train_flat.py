@@ -9,20 +9,18 @@ import typer
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
     ENV_HELP,
+    ENV_OPTIONS,
+    RUN_OPTIONS,
     SNAKE_DEFAULT,
     BackendOpt,
-    EpisodeStepsOpt,
     ForceOpt,
-    InfoKeyOpt,
     ResumeOpt,
-    TermBoundsOpt,
-    TermsOpt,
     at_least,
     existing_file,
     prepare_out_dir,
     run_options_of,
-    takes_run_options,
-    terms_env_option,
+    takes_options,
+    terms_env_of,
     usage_errors,
 )
 from sb3_hddpg.cli.train import metrics_table, training_interrupt_exits
@@ -36,22 +34,14 @@ from sb3_hddpg.training.flat import check_flat_env, train_flat
 
 
 @app.command("train-flat")
-@takes_run_options(
-    "seed",
-    "n_envs",
-    "stop_on_plateau",
-    "eval_freq",
-    "eval_episodes",
-    "threads",
-    "progress_bar",
-    "keep_checkpoints",
-)
+@takes_options(*ENV_OPTIONS, *(name for name in RUN_OPTIONS if name != "checkpoint_freq"))
 def train_flat_command(
     context: typer.Context,
     algo: str = typer.Option("ddpg", "--algo", help=f"Algorithm, one of {list(ALGO_NAMES)}."),
     config: Path | None = typer.Option(
         None,
         "--config",
+        callback=existing_file,
         help="Hyperparameters in RL Zoo format (default: the bundled zoo_configs/<algo>.yml).",
     ),
     timesteps: int | None = typer.Option(
@@ -70,36 +60,25 @@ def train_flat_command(
         "get 1); default: the env's own reward (the normalised sum).",
     ),
     env: str | None = typer.Option(None, "--env", help=ENV_HELP + SNAKE_DEFAULT),
-    terms: TermsOpt = None,
-    term_bounds: TermBoundsOpt = None,
-    info_key: InfoKeyOpt = None,
-    episode_steps: EpisodeStepsOpt = None,
 ) -> None:
     """Train one SB3 agent on both objectives at once (the paper's single-DDPG baseline)."""
-    shared = terms_env_option(env, terms, term_bounds, info_key, episode_steps)
-    env_id = shared.env_id if shared is not None else SNAKE_REACH_ENV_ID
+    shared = terms_env_of(context, env)
+    env_id, env_kwargs = (shared.env_id, shared.env_kwargs) if shared else (SNAKE_REACH_ENV_ID, None)
     with usage_errors("'--preference'"):
         preferences = parse_preferences(preference) if preference is not None else None
         if preferences is not None:
-            make_preference_env(env_id, shared.env_kwargs if shared else {}, preferences).close()
-
+            make_preference_env(env_id, env_kwargs or {}, preferences).close()
     algo = algo.lower()
     if algo not in ALGO_NAMES:
         raise typer.BadParameter(f"must be one of {list(ALGO_NAMES)}, got {algo!r}", param_hint="'--algo'")
-    try:
-        existing_file(config)
-    except typer.BadParameter as error:
-        raise typer.BadParameter(error.message, param_hint="'--config'") from None
-
     with usage_errors("'--config'"):  # a bad block fails now, as a usage error, not after start-up
         hyperparams = load_hyperparams(
             shared.config_key if shared is not None else env_id,
             algo_class(algo),
             config if config is not None else default_config(algo),
         )
-
     with usage_errors("'--algo'"):
-        check_flat_env(algo, env_id, shared.env_kwargs if shared is not None else None)
+        check_flat_env(algo, env_id, env_kwargs)
     with usage_errors("'--backend'"):
         check_algo(algo, resolve_backend(backend, hyperparams.backend))
     prepare_out_dir(context, out, resume, force)
@@ -110,7 +89,7 @@ def train_flat_command(
             config=config,
             run=run_options_of(context),
             env_id=env_id,
-            env_kwargs=shared.env_kwargs if shared is not None else None,
+            env_kwargs=env_kwargs,
             preferences=preferences,
         )
     entry = result.manifest["models"][algo]

@@ -1,5 +1,7 @@
 """The environments of sb3-hddpg, registered with gymnasium when :mod:`sb3_hddpg` is imported."""
 
+from typing import Any
+
 from gymnasium.envs.registration import register, registry
 
 from sb3_hddpg.envs.adapters import (
@@ -40,30 +42,23 @@ OWN_ENV_IDS = (*ENV_IDS, SNAKE_MO_ENV_ID, *ADAPTER_ENV_IDS)
 
 
 def register_envs() -> None:
-    """Register the snake-arm ids with gymnasium; safe to call more than once."""
-    for env_id, reward in ENV_IDS.items():
+    """Register this package's ids with gymnasium; safe to call more than once."""
+    snake: dict[str, Any] = {
+        "entry_point": "sb3_hddpg.envs.snake:SnakeArmEnv",
+        "max_episode_steps": MAX_EPISODE_STEPS,
+    }
+    # Gymnasium's checker expects a scalar reward, MO-Gymnasium's API returns a vector; an adapter's time
+    # limit is the adapted env's.
+    vector: dict[str, Any] = {"disable_env_checker": True}
+    settings: dict[str, dict[str, Any]] = {
+        env_id: {**snake, "kwargs": {"reward": reward}} for env_id, reward in ENV_IDS.items()
+    }
+    settings[SNAKE_MO_ENV_ID] = {**snake, **vector, "entry_point": "sb3_hddpg.envs.snake_mo:SnakeMOEnv"}
+    settings[MULTI_OBJECTIVE_ENV_ID] = {**vector, "entry_point": "sb3_hddpg.envs.adapters:MultiObjectiveEnv"}
+    settings[INFO_TERMS_ENV_ID] = {**vector, "entry_point": "sb3_hddpg.envs.adapters:InfoTermsEnv"}
+    for env_id, kwargs in settings.items():
         if env_id not in registry:
-            register(
-                id=env_id,
-                entry_point="sb3_hddpg.envs.snake:SnakeArmEnv",
-                max_episode_steps=MAX_EPISODE_STEPS,
-                kwargs={"reward": reward},
-            )
-    if SNAKE_MO_ENV_ID not in registry:
-        register(
-            id=SNAKE_MO_ENV_ID,
-            entry_point="sb3_hddpg.envs.snake_mo:SnakeMOEnv",
-            max_episode_steps=MAX_EPISODE_STEPS,
-            # Gymnasium's checker expects a scalar reward; MO-Gymnasium's API returns a vector.
-            disable_env_checker=True,
-        )
-    # The adapters: their own time limit is the inner env's (``max_episode_steps`` of the adapted id).
-    for env_id, entry_point in (
-        (MULTI_OBJECTIVE_ENV_ID, "sb3_hddpg.envs.adapters:MultiObjectiveEnv"),
-        (INFO_TERMS_ENV_ID, "sb3_hddpg.envs.adapters:InfoTermsEnv"),
-    ):
-        if env_id not in registry:
-            register(id=env_id, entry_point=entry_point, disable_env_checker=True)
+            register(id=env_id, **kwargs)
 
 
 register_envs()

@@ -1,19 +1,11 @@
 """
 Adapters: any Gymnasium env with several objectives as an env of the contract (:mod:`sb3_hddpg.envs.contract`).
 
-- :class:`MultiObjectiveEnv` (id ``hddpg/MultiObjective-v0``): an MO-Gymnasium env, whose ``step`` returns a
-  vector reward and whose ``reward_space`` declares its bounds.
-- :class:`InfoTermsEnv` (id ``hddpg/InfoTerms-v0``): any Gymnasium env that reports per-term rewards in
-  ``info`` (MuJoCo's ``reward_run``/``reward_ctrl``, highway-env's ``info["rewards"]``...).
-
-Both are made by id, so the env id and keyword arguments recorded in a manifest rebuild them::
+:class:`MultiObjectiveEnv` (``hddpg/MultiObjective-v0``) adapts an MO-Gymnasium env (a vector reward and its
+``reward_space``), :class:`InfoTermsEnv` (``hddpg/InfoTerms-v0``) an env that reports per-term rewards in
+``info``. Both are made by id, so a manifest's env id and keyword arguments rebuild them::
 
     env = gym.make("hddpg/MultiObjective-v0", env_id="mo-mountaincarcontinuous-v0", terms=["time", "fuel"])
-    speed = gym.make("hddpg/MultiObjective-v0", env_id="mo-mountaincarcontinuous-v0",
-                     terms=["time", "fuel"], term="time")  # a worker's view: the raw "time" term as reward
-
-Without ``term`` the step reward is the sum of the normalised terms (the manager's reward with every
-preference 1, and a flat agent's scalarisation); with ``term`` it is that raw term (a worker's reward).
 """
 
 from __future__ import annotations
@@ -23,7 +15,7 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from typing import Any, SupportsFloat
+from typing import Any, SupportsFloat, TypeAlias
 
 import gymnasium as gym
 import numpy as np
@@ -40,24 +32,20 @@ INFO_TERMS_ENV_ID = "hddpg/InfoTerms-v0"
 ADAPTER_ENV_IDS = (MULTI_OBJECTIVE_ENV_ID, INFO_TERMS_ENV_ID)
 #: Steps of the random-policy rollout that estimates bounds a ``reward_space`` leaves infinite.
 ESTIMATE_STEPS = 2000
-#: How far estimated bounds are widened beyond the range seen, as a fraction of it: a trained policy
-#: reaches values a random one did not.
+#: How far estimated bounds are widened beyond the range seen, as a fraction of it (a trained policy
+#: reaches values a random one did not).
 ESTIMATE_MARGIN = 0.25
 MAX_TERMS = 32
+#: A step's reward as the adapted env returns it: a number or an MO-Gymnasium vector.
+RawReward: TypeAlias = SupportsFloat | NDArray[np.floating]
 
 
 class EnvUnavailableError(ValueError):
-    """
-    An env that cannot be made here because an optional package it needs is not installed (highway-env,
-    MuJoCo...): the user's setup, not a bad input. Records of runs on it can still be read.
-    """
+    """An env that cannot be made here because an optional package it needs (highway-env, MuJoCo...) is missing."""
 
 
 def registered_env_id(env_id: object) -> str:
-    """
-    ``env_id`` if it is a registered id without a ``module:`` prefix (importing MO-Gymnasium, when
-    installed, to register its ids); raises ``ValueError`` otherwise.
-    """
+    """``env_id`` if it is a registered id without a ``module:`` prefix, else a ``ValueError``."""
     if not isinstance(env_id, str) or ":" in env_id:
         raise ValueError(
             f"Expected `env_id` to be a registered env id without a module prefix, actually: {env_id!r}"
@@ -82,16 +70,15 @@ def make_adapted(
         if isinstance(episode_steps, bool) or not isinstance(episode_steps, int) or episode_steps < 1:
             raise ValueError(f"Expected `episode_steps` to be an integer >= 1, actually: {episode_steps!r}")
         kwargs["max_episode_steps"] = episode_steps
-    # Gymnasium's checker expects a scalar reward; an MO-Gymnasium env returns a vector by design.
     if render_mode is not None:  # not passed otherwise: an env without rendering may not take it
         kwargs["render_mode"] = render_mode
     with warnings.catch_warnings():
         # Some MO-Gymnasium envs build float64 bounds into float32 spaces: noise on every make, not news.
         warnings.filterwarnings("ignore", message=".*precision lowered by casting to float32")
         try:
+            # Gymnasium's checker expects a scalar reward; an MO-Gymnasium env returns a vector by design.
             env = gym.make(env_id, disable_env_checker=True, **kwargs)
         except (ImportError, gym.error.DependencyNotInstalled) as error:
-            # A missing optional dependency of the adapted env (highway-env, MuJoCo...) is the user's setup.
             first = (str(error).splitlines() or [type(error).__name__])[0][:200]
             raise EnvUnavailableError(
                 f"{env_id!r} cannot be made here, a dependency is missing: {first}"
@@ -117,8 +104,7 @@ def _check_terms(terms: object, count: int | None) -> list[str]:
 
 class TermsAdapter(gym.Env[object, object]):
     """
-    The shared part of the adapters: an inner env, its terms with bounds, and the step reward (the sum of
-    the normalised terms, or one raw term with ``term``). Subclasses read the raw terms of a step.
+    The shared part of the adapters; subclasses read the raw terms of a step.
 
     :param inner: the env adapted.
     :param bounds: term name -> per-step ``(low, high)``, finite.
@@ -138,8 +124,7 @@ class TermsAdapter(gym.Env[object, object]):
         self.action_space = inner.action_space
         self.metadata = inner.metadata
         self.render_mode = inner.render_mode
-        # Bounds estimated here, merged into the recorded spec (see ``spec``) so that a rebuilt env
-        # normalises exactly as this one.
+        # Merged into the recorded spec, so that a rebuilt env normalises exactly as this one.
         self.estimated_bounds: dict[str, tuple[float, float]] = {}
         self._spec: EnvSpec | None = None
 
@@ -165,9 +150,7 @@ class TermsAdapter(gym.Env[object, object]):
         """Each raw term min-max normalised to [0, 1] with :attr:`reward_bounds`."""
         return self._normaliser(terms)
 
-    def _terms(
-        self, reward: SupportsFloat | NDArray[np.floating], info: dict[str, object]
-    ) -> dict[str, float]:
+    def _terms(self, reward: RawReward, info: dict[str, object]) -> dict[str, float]:
         raise NotImplementedError
 
     def reset(
@@ -178,13 +161,10 @@ class TermsAdapter(gym.Env[object, object]):
 
     def step(self, action: object) -> tuple[object, float, bool, bool, dict[str, object]]:
         obs, reward, terminated, truncated, info = self.inner.step(action)
-        terms = self._terms(reward, info)
-        info["reward_terms"] = terms
-        if self.term is None:
-            scalar = self._normaliser.weighted_sum(terms, self._all_terms)
-        else:
-            scalar = terms[self.term]
-        return obs, float(scalar), terminated, truncated, info
+        terms = info["reward_terms"] = self._terms(reward, info)
+        if self.term is not None:
+            return obs, float(terms[self.term]), terminated, truncated, info
+        return obs, float(self._normaliser.weighted_sum(terms, self._all_terms)), terminated, truncated, info
 
     def render(self) -> RenderFrame | list[RenderFrame] | None:
         return self.inner.render()
@@ -195,23 +175,16 @@ class TermsAdapter(gym.Env[object, object]):
 
 class MultiObjectiveEnv(TermsAdapter):
     """
-    An MO-Gymnasium env (vector reward, ``reward_space``) as an env of the contract.
-
-    Bounds come from ``reward_space`` where finite; a term whose bound is infinite takes the user's
-    ``term_bounds``, else an estimate from a seeded random-policy rollout of :data:`ESTIMATE_STEPS` steps,
-    widened by :data:`ESTIMATE_MARGIN` and announced with a warning. Estimated bounds are recorded in the
-    env's spec kwargs, so a manifest written from this env rebuilds it with the same bounds.
-
-    The inner env is wrapped in MO-Gymnasium's ``LinearReward``: with a one-hot weight for a worker's view
-    (``term``), so that the ecosystem's own scalarisation gives the worker its term.
+    An MO-Gymnasium env (vector reward, ``reward_space``) as an env of the contract. Bounds come from
+    ``reward_space`` where finite, else from ``term_bounds``, else from a seeded random-policy rollout of
+    :data:`ESTIMATE_STEPS` steps widened by :data:`ESTIMATE_MARGIN` (with a warning, and recorded in the
+    env's spec kwargs so that a manifest rebuilds it with the same bounds).
 
     :param env_id: the MO-Gymnasium id, e.g. ``"mo-mountaincarcontinuous-v0"``.
     :param terms: a name per objective, in the reward vector's order (default: ``obj0``..``objN``).
-    :param term_bounds: term name -> ``[low, high]`` per step, for terms whose ``reward_space`` is infinite
-        (or to override it).
+    :param term_bounds: term name -> ``[low, high]`` per step, overriding ``reward_space``.
     :param term: the term that is the step reward (a worker's view); ``None``: the sum of normalised terms.
-    :param episode_steps: the inner env's time limit (default: its registered one; named so because
-        ``gym.make`` keeps ``max_episode_steps`` for itself).
+    :param episode_steps: the inner env's time limit (default: its registered one).
     :param render_mode: passed to the inner env.
     :param env_kwargs: more keyword arguments of the inner env.
     """
@@ -257,9 +230,7 @@ class MultiObjectiveEnv(TermsAdapter):
         self.estimated_bounds = estimated
         self._names = names
 
-    def _terms(
-        self, reward: SupportsFloat | NDArray[np.floating], info: dict[str, object]
-    ) -> dict[str, float]:
+    def _terms(self, reward: RawReward, info: dict[str, object]) -> dict[str, float]:
         vector = np.asarray(info["vector_reward"], dtype=np.float64)
         return {name: float(vector[i]) for i, name in enumerate(self._names)}
 
@@ -267,15 +238,13 @@ class MultiObjectiveEnv(TermsAdapter):
 class InfoTermsEnv(TermsAdapter):
     """
     A Gymnasium env that reports per-term rewards in ``info`` as an env of the contract: ``info[term]``
-    per term (MuJoCo's ``reward_run``, ``reward_ctrl``...) or, with ``info_key``, ``info[info_key][term]``
-    (highway-env's ``info["rewards"]``). The env declares no bounds: the user gives them.
+    (MuJoCo's ``reward_run``...) or ``info[info_key][term]`` (highway-env's ``info["rewards"]``).
 
     :param env_id: the env's registered id.
     :param terms: the info keys that are reward terms.
     :param term_bounds: term name -> ``[low, high]`` per step, for every term.
     :param info_key: the ``info`` entry holding the terms (default: the terms are top-level ``info`` keys).
-    :param term: as :class:`MultiObjectiveEnv`'s (a worker's view), and so are ``episode_steps``,
-        ``render_mode`` and ``env_kwargs``.
+    :param term: as :class:`MultiObjectiveEnv`'s, and so are ``episode_steps``, ``render_mode``, ``env_kwargs``.
     """
 
     def __init__(
@@ -300,9 +269,7 @@ class InfoTermsEnv(TermsAdapter):
         inner = make_adapted(env_id, render_mode, episode_steps, **env_kwargs)
         super().__init__(inner, {n: bounds[n] for n in names}, term)
 
-    def _terms(
-        self, reward: SupportsFloat | NDArray[np.floating], info: dict[str, object]
-    ) -> dict[str, float]:
+    def _terms(self, reward: RawReward, info: dict[str, object]) -> dict[str, float]:
         source = info if self.info_key is None else info.get(self.info_key, {})
         where = "info" if self.info_key is None else f"info[{self.info_key!r}]"
         if not isinstance(source, Mapping):
@@ -346,7 +313,7 @@ def _estimate_bounds(
 class TermReward(gym.Wrapper[object, object, object, object]):
     """
     One term of a contract env as its scalar reward: a worker's view of an env that meets the contract
-    natively (a user's own env). The adapters' ``term`` argument does the same for adapted envs.
+    natively (the adapters' ``term`` argument does the same for adapted envs).
 
     :param env: an env that reports ``info["reward_terms"]``.
     :param term: the term that becomes the reward.

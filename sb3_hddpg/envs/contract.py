@@ -1,19 +1,12 @@
 """
 The env contract: what an environment declares so that workers and a manager can be trained on it.
 
-An environment with several objectives (the snake arm, an MO-Gymnasium env through
-:mod:`sb3_hddpg.envs.adapters`, or a user's own) declares:
-
 - ``reward_bounds``: term name -> its per-step ``(low, high)``, finite, ``low < high``;
-- ``normalise_terms(terms)``: each raw term min-max normalised to [0, 1] with those bounds (the
-  :class:`TermNormaliser` below is the one implementation: call it, don't write the formula again);
+- ``normalise_terms(terms)``: each raw term min-max normalised to [0, 1] (:class:`TermNormaliser`);
 - ``info["reward_terms"]`` at every step: term name -> raw value;
 - optionally ``state_layout``: a :class:`~sb3_hddpg.envs.layout.StateLayout` naming slices of the
   observation (absent: the whole observation is one component, ``"state"``);
-- optionally ``proximity``: a :class:`Proximity`, declaring that ``info`` reports the gap to the nearest
-  obstacle (``min_clearance``) read by proximity sensors of a given range, and the distance to a goal
-  (absent: the clearance bands of the state-dependence measure and the clearance and goal panels of
-  ``plot-selection`` are not available for the env).
+- optionally ``proximity``: a :class:`Proximity` (absent: no clearance bands nor clearance panels).
 
 :func:`env_contract` resolves any env, wrapped or not, to the object that declares the contract.
 """
@@ -22,26 +15,23 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Protocol, TypeVar, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.envs.layout import StateLayout
 
-#: The one component of an env that declares no ``state_layout``.
-WHOLE_STATE = "state"
+T = TypeVar("T")
 
 
 @runtime_checkable
 class RewardTermsEnv(Protocol):
     """
     An env with named reward terms (see the module docstring): the contract every env of a hierarchy meets.
-
-    A class complies by having the two members below and putting its raw terms in ``info["reward_terms"]``
-    at every step; :class:`TermNormaliser` implements ``normalise_terms`` in one line.
+    A class complies by having the two members below and putting its raw terms in ``info["reward_terms"]``.
     """
 
     #: term name -> per-step ``(low, high)`` of the raw term.
@@ -50,13 +40,6 @@ class RewardTermsEnv(Protocol):
     def normalise_terms(self, terms: Mapping[str, float]) -> dict[str, float]:
         """Each raw term min-max normalised to [0, 1] with :attr:`reward_bounds`."""
         ...
-
-
-@runtime_checkable
-class HasStateLayout(Protocol):
-    """An env whose observation is made of named components (optional part of the contract)."""
-
-    state_layout: StateLayout
 
 
 @dataclass(frozen=True)
@@ -81,13 +64,6 @@ class Proximity:
             math.isfinite(self.touch_radius) and self.touch_radius >= 0
         ):
             raise ValueError(f"Expected `touch_radius` finite and >= 0, actually: {self.touch_radius}")
-
-
-@runtime_checkable
-class HasProximity(Protocol):
-    """An env that reports its clearance to obstacles and its distance to a goal (optional part of the contract)."""
-
-    proximity: Proximity
 
 
 def check_bounds(
@@ -126,11 +102,7 @@ def check_bounds(
 
 
 def normalisable(low: float, high: float) -> bool:
-    """
-    Whether ``(value - low) / (high - low)`` is computable for values in the bounds: the width is finite and
-    a normal float (not subnormal) with a finite inverse, so that the normaliser's scale neither overflows
-    (``5e-324:1e-323``) nor underflows to 0 (``-1e308:1e308``, whose width overflows).
-    """
+    """Whether the width is a normal float with a finite inverse, so the normaliser's scale is finite and > 0."""
     width = high - low
     return math.isfinite(width) and width >= sys.float_info.min and math.isfinite(1.0 / width)
 
@@ -176,6 +148,17 @@ class TermNormaliser:
         return (raw_sum - length * low) * scale
 
 
+def find_declared(env: gym.Env, read: Callable[[gym.Env], T | None]) -> T | None:
+    """What ``read`` finds on the outermost layer of ``env`` (wrappers first, then the base env) that has it."""
+    layer: gym.Env | None = env
+    while layer is not None:
+        found = read(layer)
+        if found is not None:
+            return found
+        layer = getattr(layer, "env", None) if isinstance(layer, gym.Wrapper) else None
+    return None
+
+
 def env_contract(env: gym.Env) -> RewardTermsEnv:
     """
     The object that declares ``env``'s reward terms: the outermost wrapper that does, else the base env.
@@ -184,51 +167,38 @@ def env_contract(env: gym.Env) -> RewardTermsEnv:
     :return: an object with ``reward_bounds`` and ``normalise_terms``.
     :raises ValueError: one line naming the env when nothing in it declares the contract.
     """
-    layer: gym.Env | None = env
-    while layer is not None:
-        if isinstance(layer, RewardTermsEnv):
-            return layer
-        layer = getattr(layer, "env", None) if isinstance(layer, gym.Wrapper) else None
-    raise ValueError(
-        f"Expected an env that declares its reward terms (`reward_bounds` and `normalise_terms`, see "
-        f"sb3_hddpg.envs.contract), actually: {env!r}; wrap an MO-Gymnasium env or an env with per-term "
-        "rewards in `info` with sb3_hddpg.envs.adapters"
-    )
+    contract = find_declared(env, lambda layer: layer if isinstance(layer, RewardTermsEnv) else None)
+    if contract is None:
+        raise ValueError(
+            f"Expected an env that declares its reward terms (`reward_bounds` and `normalise_terms`, see "
+            f"sb3_hddpg.envs.contract), actually: {env!r}; wrap an MO-Gymnasium env or an env with per-term "
+            "rewards in `info` with sb3_hddpg.envs.adapters"
+        )
+    return contract
 
 
 def state_layout_of(env: gym.Env) -> StateLayout:
-    """
-    ``env``'s declared state layout, or one component :data:`WHOLE_STATE` spanning the whole (flat)
-    observation when it declares none.
-    """
-    layer: gym.Env | None = env
-    while layer is not None:
-        if isinstance(layer, HasStateLayout):
-            return layer.state_layout
-        layer = getattr(layer, "env", None) if isinstance(layer, gym.Wrapper) else None
-    return StateLayout([(WHOLE_STATE, int(np.prod(env.observation_space.shape or (0,))))])
+    """``env``'s declared state layout, else one component ``"state"`` spanning the whole (flat) observation."""
+    layout = find_declared(env, lambda layer: getattr(layer, "state_layout", None))
+    if layout is None:
+        return StateLayout([("state", int(np.prod(env.observation_space.shape or (0,))))])
+    return layout
 
 
 def proximity_of(env: gym.Env) -> Proximity | None:
     """``env``'s declared :class:`Proximity` (the outermost layer that declares one), else ``None``."""
-    layer: gym.Env | None = env
-    while layer is not None:
-        if isinstance(layer, HasProximity) and isinstance(layer.proximity, Proximity):
-            return layer.proximity
-        layer = getattr(layer, "env", None) if isinstance(layer, gym.Wrapper) else None
-    return None
+    return find_declared(
+        env, lambda layer: p if isinstance(p := getattr(layer, "proximity", None), Proximity) else None
+    )
 
 
 def mix_terms(
     specs: Mapping[str, str | Mapping[str, float]], preferences: Mapping[str, float]
 ) -> dict[str, float]:
     """
-    The weight of every term in a preference-weighted scalarisation of workers' rewards.
-
-    A worker's reward is one term (its name as a string) or a mix of normalised terms (term -> weight, the
-    weights taken over their sum so that the mix stays in [0, 1]); the scalarisation is
-    ``sum_w preference_w * reward_w``, linear in the normalised terms: this returns each term's coefficient,
-    so that :meth:`TermNormaliser.weighted_sum` computes it in one pass.
+    Each term's coefficient in ``sum_w preference_w * reward_w``, the preference-weighted scalarisation of
+    workers' rewards (each one term, or a mix of normalised terms over their weights' sum), so that
+    :meth:`TermNormaliser.weighted_sum` computes it in one pass.
 
     :param specs: worker name -> its reward (a term name, or term -> weight >= 0 with a positive sum).
     :param preferences: worker name -> preference factor; missing names get 1.

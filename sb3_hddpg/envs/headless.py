@@ -1,7 +1,6 @@
 """
-Rendering without a display: the errors MuJoCo's OpenGL back-ends raise on a headless machine, told apart
-from every other error and reported in one line that names the fix (``MUJOCO_GL=egl``); and a private runtime
-folder for the libraries that want one (:func:`private_runtime_dir`).
+Rendering without a display: OpenGL errors of a headless machine reported in one line naming the fix
+(``MUJOCO_GL=egl``), and a private runtime folder for the libraries that want one.
 """
 
 from __future__ import annotations
@@ -14,9 +13,8 @@ import stat
 import tempfile
 from collections.abc import Iterator
 
-#: Words in the type or message of an error that only an OpenGL context that could not be made raises:
-#: GLFW without a display (``GLFWError ... not initialized``), OSMesa without its library (PyOpenGL's
-#: ``'NoneType' object has no attribute 'glGetError'``), MuJoCo's own context checks, a bad ``MUJOCO_GL``.
+#: Words in the type or message of an error that only an OpenGL context that could not be made raises
+#: (GLFW without a display, OSMesa without its library, MuJoCo's own checks, a bad ``MUJOCO_GL``).
 GL_MARKERS = ("GLFW", "glGetError", "OpenGL", "OSMesa", "MUJOCO_GL", "mjr_makeContext", "opengl_context")
 
 #: The fix, named in every such error and in docs/ENVIRONMENTS.md.
@@ -32,11 +30,10 @@ class HeadlessRenderingError(RuntimeError):
 
 def as_rendering_error(error: BaseException) -> HeadlessRenderingError | None:
     """
-    The one-line rendering error ``error`` is, if it (or an error it was raised from) is an OpenGL
-    context that could not be made.
+    The one-line rendering error ``error`` (or an error it was raised from) is, if it is an OpenGL context
+    that could not be made, else ``None``.
 
     :param error: any error.
-    :return: a :class:`HeadlessRenderingError` naming ``MUJOCO_GL=egl``, or ``None`` for any other error.
     """
     seen: BaseException | None = error
     for _ in range(8):  # the chain of causes, bounded
@@ -66,11 +63,9 @@ def rendering_errors() -> Iterator[None]:
 
 def private_runtime_dir() -> str | None:
     """
-    Give this process (and the processes it starts) a private ``XDG_RUNTIME_DIR`` when it has no usable one, before
-    an env renders: SDL, GLFW and Wayland print "error: XDG_RUNTIME_DIR is invalid or not set" without one (as
-    root in a container, over ssh without a session) and then render all the same, so the line only alarms.
-    The folder is a new temporary one, readable by its owner only and removed when the process ends; a usable
-    folder the user set is kept, and nothing of the user's is touched.
+    Give this process (and its children) a private ``XDG_RUNTIME_DIR`` when it has no usable one: SDL, GLFW
+    and Wayland print an alarming "XDG_RUNTIME_DIR is invalid or not set" without one, then render all the
+    same. The folder is temporary, its owner's only, and removed at exit; a usable one of the user's is kept.
 
     :return: the folder made, or ``None`` when the user's own is kept.
     """

@@ -23,10 +23,9 @@ class StateLayout(Mapping[str, slice]):
         self.size = start
 
     def __getitem__(self, name: str) -> slice:
-        try:
-            return self._slices[name]
-        except KeyError:
-            raise KeyError(f"Unknown state component {name!r}; known: {list(self._slices)}") from None
+        if name not in self._slices:
+            raise KeyError(f"Unknown state component {name!r}; known: {list(self._slices)}")
+        return self._slices[name]
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._slices)
@@ -35,18 +34,13 @@ class StateLayout(Mapping[str, slice]):
         return len(self._slices)
 
     def indices(self, names: Iterable[str]) -> np.ndarray:
-        """
-        The observation indices of the named components, in the order given.
-
-        :param names: component names, e.g. ``["joint_positions", "ee_to_goal"]``.
-        :return: an integer index array that selects those components from an observation.
-        """
+        """The indices that select the components ``names`` (e.g. ``["ee_to_goal"]``) from an observation."""
         names = list(names)
         unknown = [n for n in names if n not in self._slices]
         if unknown:
-            raise ValueError(f"Unknown state components {unknown}; known: {list(self._slices)}")
+            raise ValueError(f"Unknown state components {unknown!r:.200}; known: {list(self._slices)}")
         if len(set(names)) != len(names):
-            raise ValueError(f"State components listed twice: {names}")
+            raise ValueError(f"Expected each state component named once, actually: {names!r:.200}")
         return np.concatenate([np.arange(self.size)[self._slices[n]] for n in names])
 
     def view(self, names: Iterable[str]) -> StateLayout:

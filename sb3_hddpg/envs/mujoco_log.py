@@ -1,10 +1,6 @@
 """
-MuJoCo's warnings sent to Python's :mod:`logging` instead of a file in the current folder.
-
-Without a warning callback of the program's, MuJoCo appends every warning (``Nan, Inf or huge value in
-QACC``...) to ``MUJOCO_LOG.TXT`` in the process's *current* folder, wherever the user ran the command; a
-callback replaces that, in this process (each env subprocess installs its own when it makes its env). MuJoCo
-offers exactly this hook (``mujoco.set_mju_user_warning``), so nothing needs to change folders.
+MuJoCo's warnings sent to :mod:`logging`: without a callback of the program's, MuJoCo appends them to
+``MUJOCO_LOG.TXT`` in whatever folder the user ran the command from.
 """
 
 from __future__ import annotations
@@ -27,8 +23,7 @@ def _log_warning(message: str) -> None:
 
 def route_mujoco_warnings() -> bool:
     """
-    Install the callback if MuJoCo is loaded in this process and no callback is set yet (a user's own
-    stays). Cheap and idempotent: called after each env is made, when a MuJoCo env has loaded the module.
+    Install the callback if MuJoCo is loaded in this process and none is set yet (cheap and idempotent).
 
     :return: whether MuJoCo's warnings now go to :mod:`logging`.
     """

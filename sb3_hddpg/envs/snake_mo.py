@@ -13,9 +13,7 @@ from sb3_hddpg.envs.snake import REWARD_TERMS, SnakeArmEnv
 class SnakeMOEnv(SnakeArmEnv):
     """
     :class:`~sb3_hddpg.envs.snake.SnakeArmEnv` whose step reward is the vector of its raw terms
-    ``[goal, avoid]`` (MO-Gymnasium's convention), with ``reward_space`` declaring their exact per-step
-    bounds, so that MORL libraries can train on it (e.g. ``mo_gymnasium.wrappers.LinearReward``). It still
-    meets this package's env contract (``reward_bounds``, ``normalise_terms``, ``info["reward_terms"]``).
+    ``[goal, avoid]``, with ``reward_space`` declaring their bounds, so that MORL libraries can train on it.
 
     :param kwargs: as :class:`~sb3_hddpg.envs.snake.SnakeArmEnv`, except ``reward`` (the vector is the reward).
     """

@@ -1,12 +1,10 @@
 """
-:func:`terms_env`: any env with several objectives, named by id, resolved once to the shared env that a
-manager acts in and one scalar-reward view per term that a worker learns on, all rebuilt from
-``(env_id, env_kwargs)`` as recorded in manifests.
+:func:`terms_env`: any env with several objectives resolved once to the shared env a manager acts in and a
+view per term a worker learns on, each rebuilt from ``(env_id, env_kwargs)`` as manifests record them.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,7 +19,7 @@ from sb3_hddpg.envs.adapters import (
     make_adapted,
     registered_env_id,
 )
-from sb3_hddpg.envs.contract import RewardTermsEnv, check_bounds, env_contract
+from sb3_hddpg.envs.contract import RewardTermsEnv, check_bounds, env_contract, find_declared
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.names import check_plain_name
 
@@ -43,17 +41,13 @@ class TermsEnv:
 
     @property
     def config_key(self) -> str:
-        """
-        The ``zoo_configs`` block its agents read, the adapted env's id for an adapter (so that a block for
-        ``mo-halfcheetah-v5`` applies to it), else :attr:`env_id` (RL Zoo's rule: else ``default``).
-        """
+        """The ``zoo_configs`` block its agents read: the adapted env's id for an adapter, else :attr:`env_id`."""
         return config_key(self.env_id, self.env_kwargs)
 
     def worker_config_keys(self, term: str) -> tuple[str, str]:
         """
-        The ``zoo_configs`` blocks a worker on ``term`` reads, most specific first: its own,
-        ``<config_key>/<term>`` (e.g. ``mo-halfcheetah-v5/energy``: a skill that needs another budget or
-        network than its siblings), else the env's, :attr:`config_key`.
+        The ``zoo_configs`` blocks a worker on ``term`` reads, most specific first: ``<config_key>/<term>``
+        (e.g. ``mo-halfcheetah-v5/energy``), then :attr:`config_key`.
         """
         return f"{self.config_key}/{term}", self.config_key
 
@@ -63,9 +57,8 @@ class TermsEnv:
 
     def term_view(self, term: str) -> tuple[str, dict[str, Any]]:
         """
-        ``(env_id, env_kwargs)`` of the env whose reward is ``term``'s raw value: the snake's registered
-        id for the term, an adapter with ``term=...``, or, for an env that meets the contract natively, the
-        env itself (:func:`make_term_view` then wraps it in :class:`~sb3_hddpg.envs.adapters.TermReward`).
+        ``(env_id, env_kwargs)`` of the env whose reward is ``term``'s raw value: the snake's id for the
+        term, an adapter with ``term=...``, or a native contract env itself (:func:`make_term_view` wraps it).
         """
         if term not in self.terms:
             raise ValueError(
@@ -82,22 +75,19 @@ def adapted_env_id(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> 
     """
     The env ``gym.make(env_id, **env_kwargs)`` is, by the id people know it by: the adapted env's id
     (``env_kwargs["env_id"]``, e.g. ``mo-hopper-v5``) for one of the adapters, else ``env_id`` itself.
+    It is also the ``zoo_configs`` block of agents trained on that env (:func:`config_key`).
     """
-    if env_id in ADAPTER_ENV_IDS and isinstance((env_kwargs or {}).get("env_id"), str):
-        return str((env_kwargs or {})["env_id"])
-    return env_id
+    inner = (env_kwargs or {}).get("env_id")
+    return inner if env_id in ADAPTER_ENV_IDS and isinstance(inner, str) else env_id
 
 
-def config_key(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> str:
-    """The ``zoo_configs`` block of agents trained on ``gym.make(env_id, **env_kwargs)``: the adapted env's id."""
-    return adapted_env_id(env_id, env_kwargs)
+config_key = adapted_env_id
 
 
 def make_term_view(env_id: str, env_kwargs: Mapping[str, Any], term: str) -> gym.Env:
     """
     The env ``(env_id, env_kwargs)`` with ``term``'s raw value as its reward (module-level: picklable for
-    subprocess envs): as made when the id already gives that reward (see :meth:`TermsEnv.term_view`), else
-    wrapped in :class:`~sb3_hddpg.envs.adapters.TermReward`.
+    subprocess envs), wrapped in :class:`~sb3_hddpg.envs.adapters.TermReward` unless the id already gives it.
     """
     env = gym.make(env_id, **env_kwargs)
     if env_id in WORKER_ENV_IDS.values() or env_kwargs.get("term") == term:
@@ -114,14 +104,10 @@ def terms_env(
     env_kwargs: Mapping[str, Any] | None = None,
 ) -> TermsEnv:
     """
-    Resolve an env id to a :class:`TermsEnv`, choosing the adapter it needs:
-
-    - an env that meets the contract natively (the snake ids, a user's compliant env) is used as it is;
-    - an MO-Gymnasium env (``reward_space`` and a vector reward) goes through
-      :class:`~sb3_hddpg.envs.adapters.MultiObjectiveEnv` (bounds from ``reward_space``; infinite ones from
-      ``term_bounds`` or estimated, with a warning, and recorded);
-    - any other env goes through :class:`~sb3_hddpg.envs.adapters.InfoTermsEnv`: ``terms`` are ``info`` keys
-      (under ``info[info_key]`` if given), and ``term_bounds`` must cover them.
+    Resolve an env id to a :class:`TermsEnv`, choosing the adapter it needs: an env that meets the contract
+    natively is used as it is, an MO-Gymnasium env goes through
+    :class:`~sb3_hddpg.envs.adapters.MultiObjectiveEnv`, any other through
+    :class:`~sb3_hddpg.envs.adapters.InfoTermsEnv` (``terms`` are then ``info`` keys that ``term_bounds`` cover).
 
     :param env_id: a registered id, without a module prefix.
     :param terms: term names (MO-Gymnasium: one per objective, default ``obj0..objN``; info terms: required).
@@ -149,7 +135,7 @@ def terms_env(
         adapter_kwargs["episode_steps"] = episode_steps
     probe = make_adapted(env_id, **kwargs)
     try:
-        native = _native(probe)
+        native = find_declared(probe, lambda layer: isinstance(layer, RewardTermsEnv) or None) is not None
         vector = hasattr(probe.unwrapped, "reward_space")  # MO-Gymnasium's declared API
     finally:
         probe.close()
@@ -167,14 +153,6 @@ def terms_env(
     if info_key is not None:
         adapter_kwargs["info_key"] = info_key
     return _resolved(INFO_TERMS_ENV_ID, adapter_kwargs)
-
-
-def _native(env: gym.Env) -> bool:
-    try:
-        env_contract(env)
-    except ValueError:
-        return False
-    return True
 
 
 def _resolved(env_id: str, env_kwargs: dict[str, Any]) -> TermsEnv:
@@ -197,11 +175,9 @@ def _resolved(env_id: str, env_kwargs: dict[str, Any]) -> TermsEnv:
             env_kwargs = {**env_kwargs, "term_bounds": spec_kwargs["term_bounds"]}
     finally:
         env.close()
+    check_bounds(contract.reward_bounds, f"reward_bounds of {env_id!r}")  # a native env's are its own
     for term in terms:  # every env's terms pass here: each becomes a worker's file name
         check_plain_name(term, f"term of {env_id!r}")
-    for term, (low, high) in contract.reward_bounds.items():
-        if not (math.isfinite(low) and math.isfinite(high)):  # pragma: no cover - check_bounds refuses it
-            raise ValueError(f"Term {term!r} of {env_id!r} has no finite bounds")
     return TermsEnv(env_id, env_kwargs, terms)
 
 

@@ -1,12 +1,6 @@
 """
-Weightings of an env's reward terms: a worker on any weighting (a per-term worker is a corner weight).
-
-A weighting is term name -> weight (finite, >= 0, a positive sum), checked like a preference and kept over
-its sum, so that the weighted sum of the normalised terms stays in [0, 1]. :class:`WeightedTermsReward`
-makes that sum the scalar reward of a contract env (a weighted worker's view); :func:`weighted_name` names
-such a worker.
-
-Example, a worker that reaches and keeps clear::
+Weightings of an env's reward terms (term -> weight >= 0, kept over their sum): a worker on any weighting
+learns the weighted sum of the normalised terms (a per-term worker is a corner weight)::
 
     env = make_weighted_view("hddpg/SnakeReach-v0", {}, {"goal": 0.7, "avoid": 0.3})
 """
@@ -46,12 +40,7 @@ def check_term_weights(
     checked: dict[str, float] = {}
     for term in terms:
         value = weights.get(term, 0.0)
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, (int, float))
-            or not math.isfinite(value)
-            or value < 0
-        ):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
             raise ValueError(f"Expected `{what}[{term!r}]` to be a finite number >= 0, actually: {value!r}")
         checked[term] = float(value)
     total = sum(checked.values())
@@ -61,10 +50,7 @@ def check_term_weights(
 
 
 def parse_term_weights(text: str) -> dict[str, float]:
-    """
-    Parse ``"goal=0.7,avoid=0.3"`` (the command line's form) into term -> number; the values are checked by
-    :func:`check_term_weights` against the env's terms.
-    """
+    """Parse ``"goal=0.7,avoid=0.3"`` into term -> number (:func:`check_term_weights` checks the values)."""
     result: dict[str, float] = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
         name, sep, value = (piece.strip() for piece in part.partition("="))
@@ -93,7 +79,7 @@ def weighted_name(weights: Mapping[str, float]) -> str:
     The worker name of a checked weighting: its term for a corner weight, else ``mix-`` and each weighted
     term with its percentage (``.`` spelt ``p``: names are plain), e.g. ``mix-goal70-avoid30``.
 
-    :raises ValueError: when the name would exceed the plain-name length (many terms with long names).
+    :raises ValueError: when the name would exceed the plain-name length.
     """
     corner = corner_term(weights)
     if corner is not None:
@@ -111,8 +97,7 @@ def weighted_name(weights: Mapping[str, float]) -> str:
 
 class WeightedTermsReward(gym.Wrapper[Any, Any, Any, Any]):
     """
-    A contract env whose scalar reward is a weighted sum of its normalised terms (the env contract's
-    normaliser, :class:`~sb3_hddpg.envs.contract.TermNormaliser`): a weighted worker's view.
+    A contract env whose scalar reward is the weighted sum of its normalised terms: a weighted worker's view.
 
     :param env: an env that meets the env contract (its raw terms in ``info["reward_terms"]``).
     :param weights: term -> weight, checked by :func:`check_term_weights`.
@@ -132,8 +117,5 @@ class WeightedTermsReward(gym.Wrapper[Any, Any, Any, Any]):
 
 
 def make_weighted_view(env_id: str, env_kwargs: Mapping[str, Any], weights: Mapping[str, float]) -> gym.Env:
-    """
-    ``gym.make(env_id, **env_kwargs)`` with the weighted normalised sum of its terms as reward (module-level:
-    picklable for subprocess envs).
-    """
+    """``gym.make(env_id, **env_kwargs)`` in a :class:`WeightedTermsReward` (module-level: picklable)."""
     return WeightedTermsReward(gym.make(env_id, **env_kwargs), weights)

@@ -1,11 +1,12 @@
 """
-The snake arm's hand-written controllers: Jacobian-transpose and damped-least-squares IK control of the tip
-toward the goal, blind to obstacles, and a potential-field avoider, blind to the goal. They read only the
-observation (through its state layout), so they are the baselines a learned worker is measured against, and
-a prior a learner may be pulled towards (:class:`~sb3_hddpg.callbacks.ControllerPrior`).
+The snake arm's hand-written controllers, reading only the observation: two reachers blind to obstacles and
+a potential-field avoider blind to the goal; baselines for the learned workers, and priors
+(:class:`~sb3_hddpg.callbacks.ControllerPrior`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -35,35 +36,31 @@ class _ObservationController:
         raise NotImplementedError
 
 
+@dataclass(eq=False)
 class JacobianReacher(_ObservationController):
     """
-    Moves the tip toward the goal by Jacobian-transpose control, using only the observation: for a planar
-    chain the tip velocity from joint ``i`` is ``w_i x (tip - p_i)``, so joint ``i`` turns by the 2-D cross
-    product of ``tip - p_i`` with the tip-to-goal vector. It ignores obstacles, so it shows what pure
-    reaching scores, and sanity-checks that the goal is reachable.
+    Moves the tip toward the goal by Jacobian-transpose control: joint ``i`` turns by the 2-D cross product
+    of ``tip - p_i`` with the tip-to-goal vector. It ignores obstacles.
 
     :param layout: the env's ``state_layout``.
     :param gain: command per unit of the Jacobian-transpose signal (clipped to [-1, 1]).
     """
 
-    def __init__(self, layout: StateLayout, gain: float = 8.0) -> None:
-        self.layout = layout
-        self.gain = gain
+    layout: StateLayout
+    gain: float = 8.0
 
     def _command(self, obs: np.ndarray) -> np.ndarray:
         lever, error = _levers_and_error(self.layout, obs)
         return self.gain * (lever[..., 0] * error[:, None, 1] - lever[..., 1] * error[:, None, 0])
 
 
+@dataclass(eq=False)
 class IKReacher(_ObservationController):
     """
-    Moves the tip toward the goal by damped-least-squares inverse kinematics, using only the observation:
-    joint rates ``J^T (J J^T + damping^2 I)^-1 (gain * error)``, with ``J``'s column ``i`` the tip velocity
-    ``perp(tip - p_i)`` that joint ``i`` makes, scaled to the action range by ``max_joint_speed``. Blind to
-    obstacles like :class:`JacobianReacher`, but proportional instead of bang-bang, so it holds a moving
-    goal within the touch radius: it is the ceiling that reaching alone reaches on this task, and with
-    ``bang_bang=True`` (every command pushed to ±1, what a saturated DDPG actor does) it shows what
-    saturation costs (docs/WORKERS.md).
+    Moves the tip toward the goal by damped-least-squares inverse kinematics: joint rates
+    ``J^T (J J^T + damping^2 I)^-1 (gain * error)``, scaled to the action range by ``max_joint_speed``.
+    Blind to obstacles, but proportional, so it holds a moving goal: the ceiling of reaching alone; with
+    ``bang_bang=True`` it shows what a saturated actor costs (docs/WORKERS.md).
 
     :param layout: the env's ``state_layout``.
     :param gain: the error fraction closed per second.
@@ -72,19 +69,11 @@ class IKReacher(_ObservationController):
     :param bang_bang: replace every command by its sign.
     """
 
-    def __init__(
-        self,
-        layout: StateLayout,
-        gain: float = 3.0,
-        damping: float = 0.1,
-        max_joint_speed: float = DEFAULT_MAX_JOINT_SPEED,
-        bang_bang: bool = False,
-    ) -> None:
-        self.layout = layout
-        self.gain = gain
-        self.damping = damping
-        self.max_joint_speed = max_joint_speed
-        self.bang_bang = bang_bang
+    layout: StateLayout
+    gain: float = 3.0
+    damping: float = 0.1
+    max_joint_speed: float = DEFAULT_MAX_JOINT_SPEED
+    bang_bang: bool = False
 
     def _command(self, obs: np.ndarray) -> np.ndarray:
         lever, error = _levers_and_error(self.layout, obs)  # (batch, joints, 2), (batch, 2)
@@ -95,16 +84,13 @@ class IKReacher(_ObservationController):
         return np.sign(rates) if self.bang_bang else rates
 
 
+@dataclass(eq=False)
 class FieldAvoider(_ObservationController):
     """
-    Moves every link away from its obstacle by a repulsive potential field, using only the observation: a
-    link whose clearance ``c`` (a fraction of the sensor range) is below ``margin`` is pushed away from its
-    obstacle with strength ``(margin - c) ** power``, and the pushes map to joint rates by the Jacobian
-    transpose (joint ``j`` turns by the 2-D cross product of ``x_i - p_j`` with link ``i``'s push, for every
-    link ``i`` it moves). The push acts at the link's midpoint: the observation gives the obstacle's
-    direction from the link's closest point but not where on the link that point lies. Blind to the goal,
-    and still when no obstacle is in range, so its commands stay small: it is the avoid worker's
-    counterpart of :class:`IKReacher`, the reference a learned avoider is measured against (docs/WORKERS.md).
+    Moves every link away from its obstacle by a repulsive potential field: a link whose clearance ``c`` (a
+    fraction of the sensor range) is below ``margin`` is pushed at its midpoint with strength
+    ``(margin - c) ** power``, mapped to joint rates by the Jacobian transpose. Blind to the goal: the avoid
+    worker's reference (docs/WORKERS.md).
 
     :param layout: the env's ``state_layout``.
     :param gain: command per unit of the Jacobian-transpose signal (clipped to [-1, 1]).
@@ -112,13 +98,10 @@ class FieldAvoider(_ObservationController):
     :param power: the push's growth as the clearance shrinks (2: quadratic, gentle at the range's edge).
     """
 
-    def __init__(
-        self, layout: StateLayout, gain: float = 4.0, margin: float = 1.0, power: float = 2.0
-    ) -> None:
-        self.layout = layout
-        self.gain = gain
-        self.margin = margin
-        self.power = power
+    layout: StateLayout
+    gain: float = 4.0
+    margin: float = 1.0
+    power: float = 2.0
 
     def _command(self, obs: np.ndarray) -> np.ndarray:
         ends, pivots = _ends_and_pivots(self.layout, obs)
@@ -145,10 +128,7 @@ def _ends_and_pivots(layout: StateLayout, obs: np.ndarray) -> tuple[np.ndarray, 
 
 
 def _levers_and_error(layout: StateLayout, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """
-    From a batch of observations: each joint's lever ``tip - p_i`` (the base pivot at the origin) and the
-    tip-to-goal vector, both in reach units.
-    """
+    """From a batch of observations: each joint's lever ``tip - p_i`` and the tip-to-goal vector."""
     ends, pivots = _ends_and_pivots(layout, obs)
     error = 2.0 * obs[:, layout["ee_to_goal"]]  # the observation halves it
     return ends[:, -1:, :] - pivots, error

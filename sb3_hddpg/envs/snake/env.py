@@ -40,16 +40,11 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     Lengths are in units of the arm's reach: every link is ``1 / n_joints`` long, so the stretched arm
     reaches exactly 1.
 
-    The arm is simulated by pymunk: every link is a dynamic body with the mass and moment of a thin rod
-    (each 0.6 times as heavy as its parent), joined to its
-    parent (the static base for link 0) by a ``PivotJoint`` and driven by a ``SimpleMotor`` whose rate is the
-    commanded joint velocity. A soft limit keeps every joint but the base within
-    ``±joint_limit`` radians: the commanded rate is reduced so that the joint stops at its limit within
-    the step, as a servo controller would (a pymunk ``RotaryLimitJoint`` fighting a motor made the chain
-    unstable). **Self-collision** is not simulated: the links have no pymunk collision shapes (nothing in
-    the space could collide with them, and pymunk's collision detection would cost a quarter of the
-    physics time), so they pass through each other, and the joint limits keep the chain from folding back
-    onto itself. **Obstacles** are kinematic discs, not pymunk bodies: like the paper's robot with a
+    The arm is simulated by pymunk: every link is a thin rod (each 0.6 times as heavy as its parent), joined
+    to its parent by a ``PivotJoint`` and driven by a ``SimpleMotor`` at the commanded joint velocity. A soft
+    limit slows every joint but the base so that it stops at ``±joint_limit`` radians, as a servo would.
+    **Self-collision** is not simulated: the links pass through each other, and the joint limits keep the
+    chain from folding back onto itself. **Obstacles** are kinematic discs: like the paper's robot with a
     sensitive skin, the arm is not pushed by an obstacle but *touches* it, which the avoid reward penalises.
     The goal and the obstacles move by a bounded random walk of their velocity (speed capped at
     ``goal_speed`` / ``obstacle_speed`` reach per second), reflected at the edge of their region.
@@ -61,7 +56,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Observation Space
 
-    ``Box(low, high, (5 * n_joints + 3,), float32)``, the paper's shared state (Table 1). "Link ``i``" is the
+    ``Box(low, high, (6 * n_joints + 3,), float32)``, the paper's shared state (Table 1). "Link ``i``" is the
     link that joint ``i`` drives; its *obstacle* is the obstacle whose disc is closest to the link segment.
     With ``n = n_joints``:
 
@@ -74,13 +69,10 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     | 5n+2            | ``goal_touched``         | 1 if the tip is within ``touch_radius`` of the goal            | 0   | 1   |
     | 5n+3 .. 6n+2    | ``obstacle_touched``     | 1 if link i touches its closest obstacle                       | 0   | 1   |
 
-    The total length is therefore ``6 n + 3`` (39 for the default six joints). Joint angles and velocities
-    are not observed: the link end points determine the angles, and with velocity-commanded motors the arm
-    has no momentum worth observing (the motor holds each commanded rate within a substep).
-    ``env.unwrapped.state_layout`` maps every name above to its slice, so an agent can be fed a chosen
-    subset of the state (the paper's design specification 4). With ``observe=[names...]`` the env itself
-    returns only those components, in that order (e.g. the goal worker's ``["joint_positions",
-    "ee_to_goal", "goal_touched"]``, 15 values): ``state_layout`` still describes the full state, and
+    The total length is therefore ``6 n + 3`` (39 for the default six joints); joint velocities are not
+    observed, since the motors hold the commanded rates. ``env.unwrapped.state_layout`` maps every name above
+    to its slice (the paper's design specification 4). With ``observe=[names...]`` the env returns only
+    those components, in that order: ``state_layout`` still describes the full state, and
     ``observed_components`` lists what the observation holds.
 
     ## Rewards
@@ -187,9 +179,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         :param obstacle_radius_max: obstacle centres stay at most this far from the base.
         :param spawn_margin: at reset, obstacles start at least this far from the arm and the goal.
         :param observe: the state components the observation holds, in this order (names of
-            ``state_layout``; default: all of them). A worker that needs only part of the shared state
-            (the paper's design specification 4: the goal worker needs no obstacle values) learns on less
-            noise; ``WorkerSelectionWrapper`` then feeds it the same components of the full state.
+            ``state_layout``; default: all of them).
         :param render_mode: ``None``, ``"rgb_array"`` or ``"human"``.
         """
         given = locals()  # the arguments, before any other local: the parameters are read from it
@@ -199,12 +189,11 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         #: The checked parameters; each is also an attribute of the env (``reward`` as ``reward_name``).
         self.params = params
         for field in fields(params):
-            setattr(self, _ATTRIBUTE.get(field.name, field.name), getattr(params, field.name))
+            name = "reward_name" if field.name == "reward" else field.name
+            setattr(self, name, getattr(params, field.name))
         self.render_mode = render_mode
         self.link_length = params.link_length
         self.state_layout: StateLayout = build_state_layout(params.n_joints)
-        # The optional proximity capability of the env contract: info reports min_clearance (read by the
-        # skin sensors up to sensor_range) and distance_to_goal (touched within touch_radius).
         self.proximity = Proximity(self.sensor_range, self.touch_radius)
         self.observed_components: tuple[str, ...] | None = _check_components(observe, self.state_layout)
         # None (the whole state, no copy) or the indices that select the observed components.
@@ -235,10 +224,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._inv_sensor_range = 1.0 / params.sensor_range
 
     def _set_observation(self) -> None:
-        """
-        The observation space ([-1, 1], distances and flags [0, 1]; only the observed components) and what
-        the step needs to fill it: the step fills the full state, then picks what is observed.
-        """
+        """The observation space (of the observed components) and what the step needs to fill the full state."""
         size = self._obs_size = self.state_layout.size
         self._pack_obs = struct.Struct(f"={size}f").pack
         self._obs_offsets = (self.state_layout["ee_to_goal"].start, self.state_layout["goal_touched"].start)
@@ -274,32 +260,19 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         """The arm's pymunk space."""
         return self._arm.space
 
-    @property
-    def links(self) -> list[pymunk.Body]:
-        """The links' pymunk bodies, base first."""
-        return self._arm.links
-
-    @property
-    def motors(self) -> list[pymunk.SimpleMotor]:
-        """The joints' pymunk motors, base first."""
-        return self._arm.motors
-
     def link_points(self) -> np.ndarray:
         """The ``(n_joints + 1, 2)`` chain points: the base, every joint, then the tip."""
         xs, ys = self._arm.chain_points()
         return np.array([xs, ys]).T
 
     def joint_gaps(self) -> np.ndarray:
-        """
-        How far each simulated pivot has come apart (reach units): the distance between a link's start and
-        its parent's far end (the base for link 0). pymunk solves joints iteratively, so these are small but
-        not zero; they show that the physics keeps the arm connected.
-        """
-        return self._arm.joint_gaps()
+        """How far each simulated pivot has come apart (reach units; small, not zero: pymunk iterates)."""
+        ends = [(0.0, 0.0)] + [body.local_to_world((self.link_length, 0.0)) for body in self._arm.links[:-1]]
+        return np.array([abs(body.position - end) for body, end in zip(self._arm.links, ends)])
 
     def joint_angles(self) -> np.ndarray:
         """Relative joint angles (rad); index 0 is the base joint's absolute angle."""
-        return self._arm.joint_angles()
+        return np.diff([body.angle for body in self._arm.links], prepend=0.0)
 
     @property
     def goal(self) -> np.ndarray:
@@ -314,13 +287,12 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
     # ------------------------------------------------------------------ sensing
     def _step_result(self) -> tuple[np.ndarray, float, dict[str, Any]]:
         """
-        Read the physics and compute the observation, the reward and the info in one pass. Also stores
-        the links' absolute angles in the arm's ``angles`` and updates the episode's touched / collided flags.
+        Read the physics and compute the observation, the reward and the info in one pass; store the links'
+        absolute angles in the arm's ``angles`` and update the episode's touched / collided flags.
         """
-        # The chain by forward kinematics from the simulated link angles: the points are exactly one link
-        # length apart (the pivot solver's slack, see joint_gaps, never reaches the observation), so the
-        # observation bounds hold without clipping. Plain Python on purpose: for a handful of points and
-        # obstacles, scalar math is several times faster than numpy's per-call overhead.
+        # Forward kinematics from the link angles: the points are exactly one link length apart (the pivot
+        # solver's slack never reaches the observation), so its bounds hold without clipping. Plain Python
+        # on purpose: for a handful of points, scalar math is several times faster than numpy calls.
         length = self.link_length
         radius = self.obstacle_radius
         sensor_range = self.sensor_range
@@ -328,7 +300,6 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         cos, sin, sqrt, inf = math.cos, math.sin, math.sqrt, math.inf
         angles = self._arm.angles
         obstacles = self._movers.obstacles
-        # The observation, filled in place; see the class docstring for the layout.
         obs = [0.0] * self._obs_size
         clipped_sum = 0.0
         min_clearance = inf
@@ -377,10 +348,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         return np.frombuffer(self._pack_obs(*obs), np.float32).copy(), reward, info
 
     def _sense_goal(self, tip_x: float, tip_y: float, obs: list[float]) -> tuple[float, float, bool]:
-        """
-        The goal term for the tip at (``tip_x``, ``tip_y``), its distance to the goal and whether it touches
-        it; writes the tip-to-goal vector and the touch flag into ``obs``.
-        """
+        """The goal term, distance and touch for the tip at (``tip_x``, ``tip_y``), written into ``obs`` too."""
         to_goal, goal_flag = self._obs_offsets
         gx, gy = self._movers.goal
         dgx = gx - tip_x
@@ -398,10 +366,7 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         return state if self._observe_index is None else state[self._observe_index]
 
     def view(self) -> SnakeView:
-        """
-        What the arm senses now, read-only (for drawing and inspection; it does not step the env nor change
-        the episode's flags).
-        """
+        """What the arm senses now, read-only (it does not step the env nor change the episode's flags)."""
         obs, _, info = self._step_result()  # the episode flags it updates are unchanged by a second call
         return SnakeView(
             link_points=self.link_points(),
@@ -503,18 +468,13 @@ class SnakeArmEnv(gym.Env[np.ndarray, np.ndarray]):
         self._release_space()
 
     def __del__(self) -> None:
-        # An env dropped without close() (or left in a reference cycle) still empties its space first:
-        # finalisers run before the collector clears the objects of a cycle (PEP 442). Envs still alive at
-        # interpreter exit were released by _release_live_spaces while the modules existed; a finaliser run
-        # later may find module globals set to None, hence a bare try (no contextlib lookup).
+        # An env dropped without close() still empties its space first (finalisers run before the collector
+        # clears a cycle, PEP 442); at interpreter exit module globals may be None, hence a bare try.
         try:  # noqa: SIM105 - contextlib may already be None here
             self._release_space()
         except Exception:
             pass
 
-
-#: The env attribute of a parameter, where it is not the parameter's name.
-_ATTRIBUTE = {"reward": "reward_name"}
 
 #: Every SnakeArmEnv not yet garbage-collected (weakly held, so it keeps none alive).
 _LIVE_ENVS: weakref.WeakSet[SnakeArmEnv] = weakref.WeakSet()
@@ -523,10 +483,8 @@ _LIVE_ENVS: weakref.WeakSet[SnakeArmEnv] = weakref.WeakSet()
 @atexit.register
 def _release_live_spaces() -> None:
     """
-    Free the pymunk spaces of envs still alive at interpreter exit, while pymunk can still free them.
-
-    Objects left at exit (an env held by a model in a script's globals, say) are freed after the modules'
-    globals are torn down, when pymunk's own finaliser fails and prints a traceback for every space.
+    Free the pymunk spaces of envs still alive at interpreter exit, while pymunk can: later, its finaliser
+    fails and prints a traceback for every space.
     """
     for env in list(_LIVE_ENVS):
         env._release_space()
@@ -569,15 +527,13 @@ def _check_components(observe: object, layout: StateLayout) -> tuple[str, ...] |
     """``observe`` as a tuple of known, distinct component names (``None``: the whole state)."""
     if observe is None:
         return None
-    if isinstance(observe, str) or not isinstance(observe, (list, tuple)) or not observe:
+    if not isinstance(observe, (list, tuple)) or not observe or not all(isinstance(n, str) for n in observe):
         raise ValueError(
             f"Expected `observe` to be a non-empty list of state components {list(layout)}, actually: "
             f"{observe!r:.200}"
         )
-    names = tuple(observe)
-    unknown = [n for n in names if not isinstance(n, str) or n not in layout]
-    if unknown:
-        raise ValueError(f"Unknown state components in `observe`: {unknown!r:.200}; known: {list(layout)}")
-    if len(set(names)) != len(names):
-        raise ValueError(f"Expected `observe` to name each state component once, actually: {list(names)}")
-    return names
+    try:
+        layout.indices(observe)  # unknown or repeated names are refused there
+    except ValueError as error:
+        raise ValueError(f"`observe`: {error}") from None
+    return tuple(observe)

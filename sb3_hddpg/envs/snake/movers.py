@@ -22,9 +22,7 @@ def sample_annulus(rng: np.random.Generator, r_min: float, r_max: float) -> list
 class Movers:
     """
     The goal (index 0) and the obstacles: positions and velocities as plain lists, which the step reads and
-    :meth:`walk` updates in place. Each mover's velocity takes a normal jitter per step, is capped at its
-    top speed (``goal_speed`` / ``obstacle_speed``) and its radial part is reflected at the edge of its
-    annulus.
+    :meth:`walk` updates in place.
 
     :param params: the arm's parameters.
     """
@@ -54,11 +52,8 @@ class Movers:
 
     def spawn(self, rng: np.random.Generator, points: np.ndarray) -> None:
         """
-        Place the goal uniform in its annulus and every obstacle uniform in its own, at least
-        ``spawn_margin`` from the arm's links and from the goal (re-drawn until so), all at rest.
-
-        :param rng: the env's generator.
-        :param points: the arm's chain points, base to tip.
+        Place the goal and the obstacles at rest, uniform in their annuli, the obstacles at least
+        ``spawn_margin`` from the arm's chain ``points`` and the goal (re-drawn until so), with ``rng``.
         """
         p = self.params
         goal = sample_annulus(rng, p.goal_radius_min, p.goal_radius_max)
@@ -84,10 +79,7 @@ class Movers:
         return bool(to_links > need and to_goal > need + self.params.touch_radius)
 
     def _link_walkers(self) -> None:
-        """
-        Gather, for the walks, the position, velocity, limits and noise offset of every mover that moves;
-        call whenever ``positions`` or ``velocities`` are replaced.
-        """
+        """Gather every moving mover's lists, limits and noise offset; call when the lists are replaced."""
         self._walkers = [
             (pos, vel, top, r_min, r_max, 2 * k)
             for k, (pos, vel, (top, r_min, r_max)) in enumerate(
@@ -101,9 +93,7 @@ class Movers:
         noise = self._noise
         k = self._noise_index
         per_step = 2 * len(self.positions)  # noise values per step: (x, y) per mover, moving or not
-        if k >= len(noise):
-            # Normal noise drawn in blocks of steps, (x, y) per mover per step, as one flat list: one
-            # generator call and one (cheap, flat) tolist per block instead of a generator call per step.
+        if k >= len(noise):  # drawn in blocks of steps: one generator call per block, not per step
             noise = self._noise = rng.normal(0.0, 0.3, size=_NOISE_BLOCK * per_step).tolist()
             k = 0
         self._noise_index = k + per_step

@@ -11,10 +11,8 @@ import numpy as np
 REWARD_CHOICES = ("goal", "avoid", "reach")
 #: The reward terms computed every step (Table 2 of the paper).
 REWARD_TERMS = ("goal", "avoid")
-#: Upper limits of the counts (the work per step and the observation grow with them). Env kwargs can
-#: come from a shared file; far above any sensible arm, they keep such a file from stalling a step.
-#: ``sb3_hddpg.artifacts.limits`` names them with the other limits; they are defined here because the env
-#: checks its own constructor and sits below the artefacts.
+#: Upper limits of the counts, far above any sensible arm: env kwargs from a shared file cannot stall a step
+#: (``sb3_hddpg.artifacts.limits`` names them with the other limits; the env checks its own constructor).
 MAX_JOINTS = 32
 MAX_OBSTACLES = 32
 MAX_SUBSTEPS = 100
@@ -39,10 +37,8 @@ _COUNTS = (("n_joints", 2, MAX_JOINTS), ("n_obstacles", 1, MAX_OBSTACLES), ("sub
 class SnakeParams:
     """
     The snake arm's task and physics, checked when built (a bad value is a ``ValueError`` naming it); the
-    counts become ``int`` and the lengths, speeds and factors ``float``. See
-    :class:`~sb3_hddpg.envs.snake.SnakeArmEnv` for the meaning of each (its constructor's parameters, one
-    per field, are the one description), and :data:`MAX_JOINTS`, :data:`MAX_OBSTACLES`, :data:`MAX_SUBSTEPS`
-    for the largest counts.
+    counts become ``int``, the rest ``float``. :class:`~sb3_hddpg.envs.snake.SnakeArmEnv`'s constructor
+    describes each.
     """
 
     reward: str = "reach"
@@ -68,10 +64,11 @@ class SnakeParams:
         check_choice("reward", self.reward, REWARD_CHOICES)
         for name, minimum, maximum in _COUNTS:
             _check_count(name, getattr(self, name), minimum, maximum)
-        for name in _POSITIVE:
-            _check_positive(name, getattr(self, name))
-        for name in _NON_NEGATIVE:
-            _check_non_negative(name, getattr(self, name))
+        for name in (*_POSITIVE, *_NON_NEGATIVE):
+            value, sign = getattr(self, name), ">" if name in _POSITIVE else ">="
+            number = isinstance(value, (int, float, np.number)) and math.isfinite(value)
+            if not number or value < 0 or (sign == ">" and value == 0):
+                raise ValueError(f"Expected `{name}` to be a finite number {sign} 0, actually: {value!r}")
         if not self.goal_radius_min < self.goal_radius_max <= 1.0:
             raise ValueError(
                 "Expected 0 <= goal_radius_min < goal_radius_max <= 1 (the goal must be reachable), "
@@ -83,8 +80,7 @@ class SnakeParams:
                 f"obstacle_radius_min={self.obstacle_radius_min}, "
                 f"obstacle_radius_max={self.obstacle_radius_max}"
             )
-        # Plain Python numbers from here on (a NumPy integer or a float given for an int field are
-        # accepted above): the step's scalar arithmetic is fastest on them.
+        # Plain Python numbers from here on: the step's scalar arithmetic is fastest on them.
         for field in fields(self):
             if field.name != "reward":
                 kind = int if field.type == "int" else float
@@ -105,13 +101,3 @@ def check_choice(name: str, value: object, choices: tuple[str, ...]) -> None:
 def _check_count(name: str, value: object, minimum: int, maximum: int) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not minimum <= value <= maximum:
         raise ValueError(f"Expected `{name}` to be an integer in [{minimum}, {maximum}], actually: {value!r}")
-
-
-def _check_positive(name: str, value: object) -> None:
-    if not isinstance(value, (int, float, np.number)) or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"Expected `{name}` to be a finite number > 0, actually: {value!r}")
-
-
-def _check_non_negative(name: str, value: object) -> None:
-    if not isinstance(value, (int, float, np.number)) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"Expected `{name}` to be a finite number >= 0, actually: {value!r}")

@@ -1,16 +1,13 @@
 """
-The snake arm's body: a pymunk chain of velocity-controlled links, driven and read through Chipmunk.
-
-The step calls Chipmunk through pymunk's cffi module directly, with the raw pointers pymunk keeps on its
-objects (``Body._body``, ``SimpleMotor._constraint``, ``Space._space``): the same C functions that pymunk's
-properties and ``Space.step`` call, without their Python wrapper layers (setting a motor rate through the
-property costs several times more than the C call). See docs/PERFORMANCE.md.
+The snake arm's body: a pymunk chain of velocity-controlled links. The step calls Chipmunk's C functions
+through pymunk's cffi module with the raw pointers pymunk keeps on its objects, without pymunk's Python
+layers, which cost several times more (docs/PERFORMANCE.md).
 """
 
 from __future__ import annotations
 
 import math
-from typing import TypedDict, cast
+from typing import Any
 
 import numpy as np
 import pymunk
@@ -24,20 +21,10 @@ _set_motor_rate = _chipmunk.cpSimpleMotorSetRate
 _space_step = _chipmunk.cpSpaceStep
 
 
-class MotionState(TypedDict):
-    """The chain's motion as plain values: per link position, angle, velocity and spin; motor rates; angles."""
-
-    links: list[tuple[tuple[float, float], float, tuple[float, float], float]]
-    motor_rates: list[float]
-    angles: list[float]
-
-
 class ArmPhysics:
     """
-    The pymunk chain of one snake arm: ``n_joints`` links, each a thin rod 0.6 times as heavy as its
-    parent, joined by a ``PivotJoint`` and driven by a ``SimpleMotor`` at the commanded joint velocity,
-    with soft joint limits. :meth:`build` makes a fresh space (``reset`` needs one: pymunk carries solver
-    state between steps).
+    The pymunk chain of one snake arm (see :class:`~sb3_hddpg.envs.snake.SnakeArmEnv`). :meth:`build` makes
+    a fresh space (``reset`` needs one: pymunk carries solver state between steps).
 
     :param params: the arm's parameters.
     """
@@ -67,9 +54,8 @@ class ArmPhysics:
         space = self.space = pymunk.Space()
         space.gravity = (0.0, 0.0)  # a planar arm on a table: gravity is normal to the plane
         space.iterations = 10
-        # Links get lighter toward the tip, as in a real arm. It also matters numerically: pymunk's
-        # iterative solver tracks a chain of equal-mass motor-driven links badly (the base overshoots
-        # and the tip lags), while a 0.6 mass ratio per link tracks the commanded rates within ~3 %.
+        # Lighter toward the tip: pymunk's solver tracks a chain of equal masses badly, a 0.6 ratio per link
+        # tracks the commanded rates within ~3 %.
         masses = [0.6**i for i in range(self.n_joints)]
         self.links: list[pymunk.Body] = []
         self.motors: list[pymunk.SimpleMotor] = []
@@ -87,8 +73,7 @@ class ArmPhysics:
             self.links.append(body)
             self.motors.append(motor)
             parent = body
-        # Raw Chipmunk pointers for the step; the pymunk objects in space, links and motors own them and
-        # keep them alive.
+        # Raw Chipmunk pointers for the step; the pymunk objects own them and keep them alive.
         self._space_handle: object = space._space
         self.link_handles = [body._body for body in self.links]
         self._motor_handles = [motor._constraint for motor in self.motors]
@@ -106,9 +91,9 @@ class ArmPhysics:
 
     def drive(self, commands: list[float]) -> None:
         """
-        Set every motor to its command (in [-1, 1] after clipping, times the top speed; counter-clockwise
-        positive), slowed where a joint would pass its limit within the step, and advance the physics one
-        env step. Reads the links' angles from :attr:`angles` (as the last observation left them).
+        Set every motor to its command (clipped to [-1, 1], times the top speed; counter-clockwise positive),
+        slowed where a joint would pass its limit within the step (reading :attr:`angles`), and advance the
+        physics one env step.
         """
         top = self.top_speed
         limit = self.joint_limit
@@ -122,9 +107,8 @@ class ArmPhysics:
             if first:
                 first = False
             else:
-                # Soft joint limit, as a servo controller would do it: slow the joint so that it stops at
-                # the limit within this step instead of pushing into it. Only a joint within one step at
-                # top speed of its limit can need it.
+                # Soft joint limit: stop at the limit within this step instead of pushing into it (a
+                # RotaryLimitJoint fighting the motor made the chain unstable).
                 relative = absolute - previous
                 if not -free < relative < free:
                     low = (-limit - relative) * inv_dt
@@ -142,10 +126,8 @@ class ArmPhysics:
 
     def chain_points(self) -> tuple[list[float], list[float]]:
         """
-        The chain's x and y from the base to the tip, by forward kinematics from the simulated link angles
-        (also stored in :attr:`angles`): the points are exactly one link length apart, the pivot solver's
-        slack (see :meth:`joint_gaps`) never reaches them. Plain Python on purpose: for a handful of points
-        it is several times faster than NumPy calls, and pymunk's angle is its cheapest accessor.
+        The chain's x and y from the base to the tip, by forward kinematics from the link angles (also stored
+        in :attr:`angles`), so exactly one link length apart.
         """
         length = self.link_length
         x = y = 0.0
@@ -160,61 +142,30 @@ class ArmPhysics:
             ys.append(y)
         return xs, ys
 
-    def joint_gaps(self) -> np.ndarray:
-        """How far each simulated pivot has come apart (reach units); see ``SnakeArmEnv.joint_gaps``."""
-        gaps = []
-        parent_end = pymunk.Vec2d(0.0, 0.0)
-        for body in self.links:
-            gaps.append(abs(body.position - parent_end))
-            parent_end = body.local_to_world((self.link_length, 0.0))
-        return np.array(gaps)
-
-    def joint_angles(self) -> np.ndarray:
-        """Relative joint angles (rad); index 0 is the base joint's absolute angle."""
-        absolute = np.array([b.angle for b in self.links])
-        return np.diff(absolute, prepend=0.0)
-
-    def motion_state(self) -> MotionState:
-        """The links' motion and the motors' rates as plain values (pymunk objects do not pickle faithfully)."""
-        return {
-            "links": [
-                ((b.position.x, b.position.y), b.angle, (b.velocity.x, b.velocity.y), b.angular_velocity)
-                for b in self.links
-            ],
-            "motor_rates": [m.rate for m in self.motors],
-            "angles": list(self.angles),
-        }
-
-    def restore(self, state: MotionState) -> None:
-        """Rebuild the chain in the state :meth:`motion_state` returned."""
-        self.build()
-        for body, (position, angle, velocity, spin) in zip(self.links, state["links"]):
-            body.position, body.angle, body.velocity, body.angular_velocity = position, angle, velocity, spin
-        for motor, rate in zip(self.motors, state["motor_rates"]):
-            motor.rate = rate
-        self.angles = list(state["angles"])
-
     def __getstate__(self) -> dict[str, object]:
-        # pymunk pickles a space with copies of its bodies, which would leave ``links`` and ``motors``
-        # pointing at bodies outside the simulation: pickle the links' motion state and rebuild instead.
+        # pymunk pickles a space with copies of its bodies, outside the simulation: keep the motion, rebuild.
         kept = {k: v for k, v in self.__dict__.items() if k not in _UNPICKLABLE}
-        kept["_motion"] = self.motion_state()
+        kept["_links"] = [
+            ((b.position.x, b.position.y), b.angle, (b.velocity.x, b.velocity.y), b.angular_velocity)
+            for b in self.links
+        ]
+        kept["_motor_rates"] = [m.rate for m in self.motors]
         return kept
 
-    def __setstate__(self, state: dict[str, object]) -> None:
-        motion = cast(MotionState, state.pop("_motion"))
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        links, rates = state.pop("_links"), state.pop("_motor_rates")
         self.__dict__.update(state)
         self.space = None
-        self.restore(motion)
+        self.build()
+        for body, (position, angle, velocity, spin) in zip(self.links, links):
+            body.position, body.angle, body.velocity, body.angular_velocity = position, angle, velocity, spin
+        for motor, rate in zip(self.motors, rates):
+            motor.rate = rate
 
     def release(self) -> None:
         """
-        Empty the current pymunk space before it is dropped.
-
-        A space, its bodies and its joints reference each other, so the cyclic garbage collector frees them,
-        in no fixed order; pymunk 7 aborts the whole process ("Cannot remove a constraint that was not
-        added to the space") when a joint is freed before its space. An empty space frees safely in any
-        order, so every space the arm lets go of is emptied first.
+        Empty the current pymunk space before it is dropped: the garbage collector frees a space and its
+        joints in no fixed order, and pymunk 7 aborts the process when a joint goes before its space.
         """
         space = getattr(self, "space", None)
         if space is not None:

@@ -1,10 +1,6 @@
 """
-The snake arm's reward terms (Table 2 of the paper) and their exact per-step bounds.
-
-One definition serves the env's step (one distance at a time, in plain Python floats, which is several
-times faster than NumPy for a scalar) and hindsight goal relabelling (a batch of distances as arrays): both
-compute ``-d + 1[d <= touch_radius]`` clipped to the bounds, so a relabelled reward is what the env would
-have paid.
+The snake arm's reward terms (Table 2 of the paper) and their exact per-step bounds; one goal term serves
+the step (a float) and hindsight relabelling (arrays), so a relabelled reward is what the env would pay.
 """
 
 from __future__ import annotations
@@ -17,12 +13,7 @@ from sb3_hddpg.envs.snake.params import SnakeParams
 
 
 def reward_bounds(params: SnakeParams) -> dict[str, tuple[float, float]]:
-    """
-    Each term's exact per-step ``(low, high)``.
-
-    :param params: the arm's parameters.
-    :return: ``goal in [-(1 + goal_radius_max), 1]`` and ``avoid in [-1, r_bf * n_joints * sensor_range]``.
-    """
+    """Each term's exact per-step ``(low, high)`` for the arm ``params``."""
     return {
         "goal": (-(1.0 + params.goal_radius_max), 1.0),
         "avoid": (-1.0, params.r_bf * params.n_joints * params.sensor_range),
@@ -72,7 +63,4 @@ def avoid_term(r_bf: float, clipped_clearances: float, collision: bool) -> float
     :param clipped_clearances: the links' clearances, each clipped to ``[0, sensor_range]``, summed.
     :param collision: whether some link touches an obstacle.
     """
-    avoid = r_bf * clipped_clearances
-    if collision:
-        avoid -= 1.0
-    return avoid
+    return r_bf * clipped_clearances - 1.0 if collision else r_bf * clipped_clearances

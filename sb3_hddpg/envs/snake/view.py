@@ -10,8 +10,7 @@ import numpy as np
 @dataclass(frozen=True)
 class SnakeView:
     """
-    The snake arm's state at one moment, as ``SnakeArmEnv.view()`` returns it (copies: changing them
-    changes nothing in the env).
+    The snake arm's state at one moment, as ``SnakeArmEnv.view()`` returns it (copies of the env's values).
 
     :param link_points: the ``(n_joints + 1, 2)`` chain points: the base, every joint, then the tip.
     :param goal: the goal's position, shape ``(2,)``.
