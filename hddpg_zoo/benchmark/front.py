@@ -89,6 +89,18 @@ RULE_FRONT_POINTS = 9
 BOOTSTRAP_SAMPLES = 2000
 
 
+#: The benchmark settings only the front scenario reads.
+FRONT_SETTINGS = (
+    "front_manager",
+    "front_timesteps",
+    "front_sweep",
+    "front_motion",
+    "front_option_steps",
+    "front_per_preference",
+    "morl_python",
+)
+
+
 def front_env(settings: MethodSettings) -> gym.Env:
     """The env a front is measured on: the snake arm, or the benchmark's other env with its combined reward."""
     shared = settings.terms_env
@@ -486,14 +498,6 @@ register_method(
             "over a threshold sweep (HAM on the snake arm) and each worker alone, with hypervolumes"
         ),
         config_blocks=_front_blocks,
-        own_settings=(
-            "front_manager",
-            "front_timesteps",
-            "front_sweep",
-            "front_motion",
-            "front_option_steps",
-            "front_per_preference",
-            "morl_python",
-        ),
+        own_settings=FRONT_SETTINGS,
     )
 )

@@ -118,6 +118,26 @@ def mo_gymnasium_env(env: TermsEnv) -> tuple[str, int | None, dict[str, Any]]:
     return str(env.env_kwargs["env_id"]), int(steps) if steps is not None else None, inner
 
 
+def run_in_morl_venv(python: str, script: Path, arguments: Sequence[str], what: str) -> None:
+    """
+    Run ``script`` with MORL-baselines' ``python``, one thread and wandb off (no network call, no wandb
+    folder), so that a benchmark's other process keeps its core.
+
+    :param what: the script, as the error names it (``runner``, ``protocol runner``).
+    :raises RuntimeError: the script failed; its last line of output says why.
+    """
+    environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "WANDB_MODE": "disabled"}
+    # A benchmark being stopped (SIGTERM to its pool's processes) must not leave the script training on:
+    # subprocess.run kills its child on the KeyboardInterrupt this turns SIGTERM into.
+    with sigterm_as_interrupt():
+        done = subprocess.run(
+            [python, str(script), *arguments], capture_output=True, text=True, env=environment, check=False
+        )
+    if done.returncode != 0:
+        lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
+        raise RuntimeError(f"MORL-baselines' {what} failed (exit {done.returncode}): {lines[-1][:300]}")
+
+
 def _run(python: str, arguments: Sequence[str], out: Path, keys: Sequence[str]) -> dict[str, Any]:
     """
     The runner's record at ``out``: read if an earlier invocation wrote it, else run the runner to write it.
@@ -126,21 +146,7 @@ def _run(python: str, arguments: Sequence[str], out: Path, keys: Sequence[str]) 
     """
     if not out.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
-        # One thread: the benchmark's other process shares the machine's cores. wandb off: no network call, no folder.
-        environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "WANDB_MODE": "disabled"}
-        # A benchmark being stopped (SIGTERM to its pool's processes) must not leave the runner training on:
-        # subprocess.run kills its child on the KeyboardInterrupt this turns SIGTERM into.
-        with sigterm_as_interrupt():
-            done = subprocess.run(
-                [python, str(RUNNER), *arguments, "--out", str(out)],
-                capture_output=True,
-                text=True,
-                env=environment,
-                check=False,
-            )
-        if done.returncode != 0:
-            lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
-            raise RuntimeError(f"MORL-baselines' runner failed (exit {done.returncode}): {lines[-1][:300]}")
+        run_in_morl_venv(python, RUNNER, [*arguments, "--out", str(out)], "runner")
     return read_morl_record(out, keys)
 
 

@@ -15,21 +15,19 @@ Layout of ``out``: ``protocol.json`` (the settings), ``records/<side>/seed-<n>.j
 from __future__ import annotations
 
 import logging
-import os
-import subprocess
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from hddpg_zoo.benchmark.morl import run_in_morl_venv
 from hddpg_zoo.benchmark.morl_protocol import EU_WEIGHTS, GAMMA, PEERS, ProtocolSettings
 from hddpg_zoo.benchmark.morl_protocol_runner import RECORD_KIND, RECORD_VERSION, WEIGHTS_SEED
 from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun, play_front
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import brief, read_json_record
 from sb3_hddpg.artifacts.values import is_finite_number
-from sb3_hddpg.training.agent import sigterm_as_interrupt
 
 logger = logging.getLogger(__name__)
 
@@ -162,21 +160,7 @@ def protocol_weights(objectives: int, n: int) -> list[list[float]]:
 def _invoke(python: str, arguments: Sequence[str], out: Path) -> None:
     """Run the protocol runner with MORL-baselines' python to write ``out``."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    # One thread each; wandb off: a run of record makes no network call and no wandb folder.
-    environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "WANDB_MODE": "disabled"}
-    with sigterm_as_interrupt():
-        done = subprocess.run(
-            [python, str(PROTOCOL_RUNNER), *arguments, "--out", str(out), "--force"],
-            capture_output=True,
-            text=True,
-            env=environment,
-            check=False,
-        )
-    if done.returncode != 0:
-        lines = (done.stderr or done.stdout).strip().splitlines() or ["no output"]
-        raise RuntimeError(
-            f"MORL-baselines' protocol runner failed (exit {done.returncode}): {lines[-1][:300]}"
-        )
+    run_in_morl_venv(python, PROTOCOL_RUNNER, [*arguments, "--out", str(out), "--force"], "protocol runner")
 
 
 def _common_arguments(settings: ProtocolSettings) -> list[str]:

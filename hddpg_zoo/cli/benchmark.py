@@ -25,6 +25,7 @@ from hddpg_zoo.benchmark import (
     output_files_in,
     run_benchmark,
 )
+from hddpg_zoo.benchmark.front import FRONT_SETTINGS
 from hddpg_zoo.benchmark.machine_paths import check_machine_paths
 from hddpg_zoo.benchmark.method_inputs import EnvChoice
 from hddpg_zoo.benchmark.tables import TextTable, console_tables, wall_time_text
@@ -434,13 +435,7 @@ _GIVEN_SETTINGS = (
     "backend",
     "final_test",
     "worker_algo",
-    "front_manager",
-    "front_timesteps",
-    "front_sweep",
-    "front_motion",
-    "front_option_steps",
-    "front_per_preference",
-    "morl_python",
+    *FRONT_SETTINGS,
 )
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from hddpg_zoo.cli.record import ActInEnvOpt, EpisodeSeedOpt, MaxStepsOpt, TrustOpt
+from hddpg_zoo.cli.record import ActInEnvOpt, EpisodeSeedOpt, MaxStepsOpt, TrustOpt, watched_policy
 from hddpg_zoo.media.figures import plot_selection_timeline
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import (
@@ -16,15 +16,12 @@ from sb3_hddpg.cli.options import (
     RunPreferenceOpt,
     TermBoundsOpt,
     TermsOpt,
-    apply_run_preference,
     count,
     output_file,
-    terms_env_option,
     usage_errors,
 )
 from sb3_hddpg.envs.contract import proximity_of
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.media.trace import selected_names, trace_episodes
 
 
@@ -54,29 +51,18 @@ def plot_selection_command(
     if out.suffix.lower() != ".png":
         raise typer.BadParameter(f"expected a .png file, got {str(out)!r}", param_hint="'--out'")
     output_file(out, force, "'--out'")
-    # Another env with several objectives resolves to the adapter it needs, as in evaluate.
-    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
-    with usage_errors("'PATH'"):  # the model named on the command line is unusable
-        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
-        loaded = load_policy(
-            path,
-            env_id=shared.env_id if shared else None,
-            env_kwargs=shared.env_kwargs if shared else None,
-            trusted=trust,
-            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
-        )
+    watched = watched_policy(
+        path, env_id, terms, term_bounds, info_key, episode_steps, max_steps, trust, preference
+    )
+    loaded = watched.loaded
     names = selected_names(loaded.policy)
     if not names:
         raise typer.BadParameter(
             f"{path!r} is a {loaded.kind}, which selects no worker; give a hierarchy bundle or a HAM switch",
             param_hint="'PATH'",
         )
-    apply_run_preference(loaded.policy, preference, loaded.kind)
-    kwargs = {**(shared.env_kwargs if shared else {})}
-    if max_steps:
-        kwargs["max_episode_steps"] = max_steps
-    with usage_errors("'--env'" if shared else "'PATH'"):
-        env = loaded.make_env(shared.env_id if shared else None, **kwargs)
+    with usage_errors(watched.env_option):
+        env = loaded.make_env(watched.env_id, **watched.env_kwargs)
     records, result = trace_episodes(loaded.policy, env, n_episodes=episodes, seed=seed)
     # The clearance and goal panels' reference lines come from the env's declared proximity; an env
     # without it gets its reward terms in those panels instead.
@@ -97,6 +83,6 @@ def plot_selection_command(
     )
     if proximity is None:
         console.print(
-            f"Obstacle clearance and goal distance: not available for {shared.env_id if shared else loaded.env_id} "
+            f"Obstacle clearance and goal distance: not available for {watched.env_id or loaded.env_id} "
             "(it declares no proximity); its reward terms are plotted instead."
         )

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -27,7 +28,7 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.hierarchy.loading import load_policy
+from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 
 POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK) / 'field' (potential-field avoider)."
 TRUST_HELP = "Allow SB3's full loader, which runs code stored in the file: only for files you trust."
@@ -50,6 +51,60 @@ MaxStepsOpt = Annotated[
     ),
 ]
 TrustOpt = Annotated[bool, typer.Option("--trust", help=TRUST_HELP)]
+
+
+@dataclass(frozen=True)
+class WatchedPolicy:
+    """
+    A policy named on the command line, loaded for the env it acts in.
+
+    :param loaded: the policy and what it was trained on.
+    :param env_id: the env given with ``--env`` (``None``: the one it was trained on).
+    :param env_kwargs: the env's keyword arguments, ``--max-steps`` included.
+    """
+
+    loaded: LoadedPolicy
+    env_id: str | None
+    env_kwargs: dict[str, Any]
+
+    @property
+    def env_option(self) -> str:
+        """The option a bad env is blamed on: ``--env`` if given, else the policy's path."""
+        return "'--env'" if self.env_id else "'PATH'"
+
+
+def watched_policy(
+    path: str,
+    env_id: str | None,
+    terms: str | None,
+    term_bounds: str | None,
+    info_key: str | None,
+    episode_steps: int | None,
+    max_steps: int | None,
+    trust: bool,
+    preference: str | None,
+    algo: str | None = None,
+) -> WatchedPolicy:
+    """
+    Load the policy at ``path`` as ``record`` and ``plot-selection`` run it: another env with several
+    objectives resolves to the adapter it needs (as in ``evaluate``), and naming it opts in to it (as
+    ``allowed_env_ids`` does in the library); the run-time preference is applied.
+    """
+    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
+    with usage_errors("'PATH'"):  # the model named on the command line is unusable
+        loaded = load_policy(
+            path,
+            env_id=shared.env_id if shared else None,
+            env_kwargs=shared.env_kwargs if shared else None,
+            trusted=trust,
+            algo=algo,
+            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
+        )
+    apply_run_preference(loaded.policy, preference, loaded.kind)
+    kwargs = {**(shared.env_kwargs if shared else {})}
+    if max_steps:
+        kwargs["max_episode_steps"] = max_steps
+    return WatchedPolicy(loaded, shared.env_id if shared else None, kwargs)
 
 
 @app.command("record")
@@ -82,26 +137,14 @@ def record_command(
     except ValueError as error:
         raise typer.BadParameter(str(error), param_hint="'--out'") from None
     output_file(out, force, "'--out'")
-    # Another env with several objectives resolves to the adapter it needs, as in evaluate.
-    shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
-    with usage_errors("'PATH'"):  # the model named on the command line is unusable
-        # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
-        loaded = load_policy(
-            path,
-            env_id=shared.env_id if shared else None,
-            env_kwargs=shared.env_kwargs if shared else None,
-            trusted=trust,
-            algo=algo,
-            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
-        )
-    apply_run_preference(loaded.policy, preference, loaded.kind)
-    kwargs = {**(shared.env_kwargs if shared else {})}
-    if max_steps:
-        kwargs["max_episode_steps"] = max_steps
-    make = functools.partial(loaded.make_env, shared.env_id if shared else None, **kwargs)
+    watched = watched_policy(
+        path, env_id, terms, term_bounds, info_key, episode_steps, max_steps, trust, preference, algo
+    )
+    loaded = watched.loaded
+    make = functools.partial(loaded.make_env, watched.env_id, **watched.env_kwargs)
     # The env the policy acts in must render frames; one that cannot is named in one line.
-    with usage_errors("'--env'" if shared else "'PATH'"):
-        env = make_recording_env(make, shared.env_id if shared else loaded.env_id)
+    with usage_errors(watched.env_option):
+        env = make_recording_env(make, watched.env_id or loaded.env_id)
     with console.status(f"Recording {episodes} episode(s) of {loaded.kind} {loaded.name!r}…"):
         result = record_video(
             loaded.policy,
