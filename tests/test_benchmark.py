@@ -31,6 +31,7 @@ from sb3_hddpg.artifacts.provenance import code_provenance
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
+from tests.cli_batch import run_batch
 from tests.cli_runner import CLI
 
 REPO = Path(__file__).resolve().parents[1]
@@ -316,21 +317,34 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     offsets = [int(r["total_timesteps"]) - int(r["timesteps"]) for r in hddpg_curve]
     assert offsets == [204] * -(-decisions // max(100 // k, 1))
 
-    # An occupied folder is refused without --resume or --force.
-    refused = cli(*args)
-    assert refused.returncode == 2 and "--resume" in refused.stderr
-
-    # Resume: finished runs are kept, a missing one is redone.
+    # Resume: finished runs are kept, a missing one is redone. The command lines between two edits of the
+    # folder run in one interpreter (tests/cli_batch.py): each still gets its own exit code and output.
     (out / "records" / "ddpg" / "seed-1.json").unlink()
     kept_mtime = (out / "records" / "hddpg" / "seed-0.json").stat().st_mtime_ns
-    resumed = cli(*args, "--resume")
+    grown = ("benchmark", "--seeds", "2", "--methods", "hddpg,ham,ddpg,goal-only", *TINY, "--out", str(out))
+    resumed, grown_resumed, refused, changed = run_batch(
+        [
+            [*args, "--resume"],
+            # More methods (or seeds) on resume: only the new runs start, on the same workers and episodes.
+            [*grown, "--resume"],
+            # An occupied folder is refused without --resume or --force.
+            list(args),
+            # Resuming with other settings would mix budgets: refused.
+            [*args[:-2], "--timesteps", "300", "--out", str(out), "--resume"],
+        ]
+    )
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert resumed.stdout.count("started") == 1 and "started  ddpg/seed-1" in resumed.stdout
     assert resumed.stdout.count("kept") == 7  # 2 x (workers + 3 methods) - 1
     assert (out / "records" / "hddpg" / "seed-0.json").stat().st_mtime_ns == kept_mtime
     # Each invocation's wall time is kept, and the total over them reported.
     invocations = json.loads((out / "benchmark.json").read_text())["invocations"]
-    assert [(i["runs_kept"], i["runs_to_do"], i["runs_done"]) for i in invocations] == [(0, 8, 8), (7, 1, 1)]
+    # The third is the grown resume below, run in the same batch before this folder is read.
+    assert [(i["runs_kept"], i["runs_to_do"], i["runs_done"]) for i in invocations] == [
+        (0, 8, 8),
+        (7, 1, 1),
+        (8, 2, 2),
+    ]
     assert all(i["wall_time_s"] > 0 and not i["interrupted"] for i in invocations)
     # Each invocation keeps the code it ran; both ran this checkout's commit, so nothing was mixed.
     codes = {(i["code"]["version"], i["code"]["commit"]) for i in invocations}
@@ -339,11 +353,8 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     assert total == pytest.approx(sum(i["wall_time_s"] for i in invocations))
     assert "over its 2 invocations" in resumed.stdout
 
-    # More methods (or seeds) on resume: only the new runs start, on the same workers and episodes.
-    grown = ("benchmark", "--seeds", "2", "--methods", "hddpg,ham,ddpg,goal-only", *TINY, "--out", str(out))
-    resumed = cli(*grown, "--resume")
-    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
-    assert resumed.stdout.count("started") == 2 and resumed.stdout.count("kept") == 8
+    assert grown_resumed.returncode == 0, grown_resumed.stdout + grown_resumed.stderr
+    assert grown_resumed.stdout.count("started") == 2 and grown_resumed.stdout.count("kept") == 8
     assert set(json.loads((out / "results.json").read_text())["methods"]) == {
         "hddpg",
         "ham",
@@ -351,8 +362,7 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
         "goal-only",
     }
 
-    # Resuming with other settings would mix budgets: refused.
-    changed = cli(*args[:-2], "--timesteps", "300", "--out", str(out), "--resume")
+    assert refused.returncode == 2 and "--resume" in refused.stderr
     assert changed.returncode == 2 and "different settings" in changed.stderr
 
     # A kept run made from another config block than the bundled one now (here: its record says it trained
@@ -362,12 +372,18 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     (block,) = record["config_blocks"]
     record["config_blocks"][block]["learning_rate"] = 0.5
     path.write_text(json.dumps(record))
-    stale = cli(*grown, "--resume")
+    stale, without_resume, not_a_method, redone = run_batch(
+        [
+            [*grown, "--resume"],
+            [*grown, "--redo", "ddpg"],
+            [*grown, "--resume", "--redo", "td3"],
+            [*grown, "--resume", "--redo", "ddpg"],
+        ]
+    )
     assert stale.returncode == 2 and "Traceback" not in stale.stderr
     assert "ddpg/seed-0" in stale.stderr and "--redo ddpg" in stale.stderr and block in stale.stderr
-    assert cli(*grown, "--redo", "ddpg").returncode == 2  # without --resume
-    assert cli(*grown, "--resume", "--redo", "td3").returncode == 2  # not among the methods
-    redone = cli(*grown, "--resume", "--redo", "ddpg")
+    assert without_resume.returncode == 2  # --redo without --resume
+    assert not_a_method.returncode == 2  # not among the methods
     assert redone.returncode == 0, redone.stdout + redone.stderr
     assert redone.stdout.count("started") == 2 and "started  ddpg/seed-0" in redone.stdout
     (aside,) = out.glob("replaced-*")
@@ -383,9 +399,10 @@ def test_tiny_benchmark_through_the_cli_and_resume(tmp_path):
     # HAM's threshold is HAM's alone: changing it is refused with the way out, and allowed with --redo ham,
     # which runs HAM again at the new threshold and nothing else.
     other_threshold = (*grown, "--ham-threshold", "1.5")
-    refused = cli(*other_threshold, "--resume")
+    refused, rethresholded = run_batch(
+        [[*other_threshold, "--resume"], [*other_threshold, "--resume", "--redo", "ham"]]
+    )
     assert refused.returncode == 2 and "ham_threshold" in refused.stderr and "--redo ham" in refused.stderr
-    rethresholded = cli(*other_threshold, "--resume", "--redo", "ham")
     assert rethresholded.returncode == 0, rethresholded.stdout + rethresholded.stderr
     assert rethresholded.stdout.count("started") == 2 and "started  ham/seed-0" in rethresholded.stdout
     assert json.loads((out / "records" / "ham" / "seed-1.json").read_text())["threshold"] == 1.5

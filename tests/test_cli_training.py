@@ -8,54 +8,52 @@ import sys
 import pytest
 from stable_baselines3 import DDPG
 
+from tests.cli_batch import run_batch
 from tests.cli_runner import CLI, run_cli
 from tests.helpers import sigterm_once_written
 
 TINY = ("--timesteps", "400", "--eval-freq", "200", "--eval-episodes", "1", "--no-progress")
 
 
+def _succeeded(result: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
+    """``result``, once checked to have exited 0 (its output in the failure message)."""
+    assert result.returncode == 0, f"{result.args} failed:\n{result.stdout}\n{result.stderr}"
+    return result
+
+
 def test_version_and_help():
-    assert run_cli("--version", check=True).stdout.startswith("sb3-hddpg ")
-    out = run_cli("--help", check=True).stdout
+    version, help_ = map(_succeeded, run_batch([["--version"], ["--help"]]))
+    assert version.stdout.startswith("sb3-hddpg ")
     for command in ("train-workers", "train-manager", "evaluate"):
-        assert command in out
+        assert command in help_.stdout
 
 
 def test_workers_manager_evaluate_end_to_end(tmp_path):
-    run_cli("train-workers", *TINY, "--out", tmp_path / "w", "--seed", "1", check=True)
+    # One interpreter runs the five command lines in turn (tests/cli_batch.py): each still gets its own exit
+    # code and output, and none starts torch again.
+    w, m = str(tmp_path / "w"), str(tmp_path / "m")
+    workers, manager, evaluated, worker_evaluated, refused = run_batch(
+        [
+            ["train-workers", *TINY, "--out", w, "--seed", "1"],
+            ["train-manager", "--workers", w, *TINY, "--out", m, "--prefer", "avoid"],
+            ["evaluate", f"{m}/hierarchy.zip", "--episodes", "2", "--json", str(tmp_path / "eval.json")],
+            # A worker zip evaluates through the manifest beside it (safe load, no --trust needed).
+            ["evaluate", str(tmp_path / "w" / "workers" / "goal.zip"), "--episodes", "1"],
+            # An output folder with results is refused without --force/--resume.
+            ["train-workers", *TINY, "--out", w],
+        ]
+    )
+    for result in (workers, manager, evaluated, worker_evaluated):
+        _succeeded(result)
     assert DDPG.load(tmp_path / "w" / "workers" / "goal.zip").num_timesteps > 0
     assert (tmp_path / "w" / "tensorboard" / "goal").is_dir()
-    result = run_cli(
-        "train-manager",
-        "--workers",
-        tmp_path / "w",
-        *TINY,
-        "--out",
-        tmp_path / "m",
-        "--prefer",
-        "avoid",
-        check=True,
-    )
-    assert "Worker choices" in result.stdout
-    result = run_cli(
-        "evaluate",
-        tmp_path / "m" / "hierarchy.zip",
-        "--episodes",
-        "2",
-        "--json",
-        tmp_path / "eval.json",
-        check=True,
-    )
+    assert "Worker choices" in manager.stdout
     report = json.loads((tmp_path / "eval.json").read_text())
     assert report["kind"] == "hierarchy" and report["summary"]["episodes"] == 2
     assert sum(report["summary"]["selection_rate"].values()) == pytest.approx(1.0)
     # Words and one unit per quantity, not raw keys and fractions mixed with percentages.
-    assert "steps run by the goal worker" in result.stdout and "% of steps" in result.stdout
-    assert "selection_rate" not in result.stdout and "goal_touch_rate" not in result.stdout
-    # A worker zip evaluates through the manifest beside it (safe load, no --trust needed).
-    run_cli("evaluate", tmp_path / "w" / "workers" / "goal.zip", "--episodes", "1", check=True)
-    # An output folder with results is refused without --force/--resume.
-    refused = run_cli("train-workers", *TINY, "--out", tmp_path / "w")
+    assert "steps run by the goal worker" in evaluated.stdout and "% of steps" in evaluated.stdout
+    assert "selection_rate" not in evaluated.stdout and "goal_touch_rate" not in evaluated.stdout
     assert refused.returncode == 2 and "already holds results" in refused.stderr
     assert "Traceback" not in refused.stderr
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from hddpg_zoo.baselines.ttc import TTC_GRID
+from tests.cli_batch import run_batch
 from tests.cli_runner import REPO, run_cli
 
 HIGHWAY = {
@@ -408,21 +409,28 @@ def test_capql_trains_and_scores_its_front(tmp_path):
 def test_morl_python_is_checked_before_anything_runs(tmp_path):
     pytest.importorskip("mo_gymnasium")
     front = ["--scenario", "front", "--seeds", "1", "--timesteps", "8", "--out", str(tmp_path / "b")]
-    missing = run_cli("benchmark", *MOUNTAIN_CAR, *front, "--morl-python", str(tmp_path / "none"))
-    assert missing.returncode == 2 and "executable python" in missing.stderr
-    assert "Traceback" not in missing.stderr and not (tmp_path / "b").exists()
-    snake = run_cli("benchmark", *front, "--morl-python", sys.executable)
-    assert snake.returncode == 2 and "MO-Gymnasium env" in snake.stderr
-    standard = run_cli(
-        "benchmark",
-        *MOUNTAIN_CAR,
-        "--methods",
-        "hddpg",
-        "--morl-python",
-        sys.executable,
-        "--out",
-        str(tmp_path),
+    # Three refusals, one interpreter (tests/cli_batch.py): each still gets its own exit code and output.
+    python = sys.executable
+    missing, snake, standard = run_batch(
+        [
+            ["benchmark", *MOUNTAIN_CAR, *front, "--morl-python", str(tmp_path / "none")],
+            ["benchmark", *front, "--morl-python", python],
+            [
+                "benchmark",
+                *MOUNTAIN_CAR,
+                "--methods",
+                "hddpg",
+                "--morl-python",
+                python,
+                "--out",
+                str(tmp_path),
+            ],
+        ]
     )
+    assert missing.returncode == 2 and "executable python" in missing.stderr
+    # Nor did the two refusals after it write the folder.
+    assert "Traceback" not in missing.stderr and not (tmp_path / "b").exists()
+    assert snake.returncode == 2 and "MO-Gymnasium env" in snake.stderr
     assert standard.returncode == 2 and "member of the front" in standard.stderr
 
 

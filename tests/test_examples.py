@@ -33,13 +33,23 @@ def run_example(
     return result
 
 
-def test_preference_landscape_scores_every_policy_and_names_the_best(tmp_path):
+@pytest.fixture(scope="module")
+def tiny_workers(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """
+    A ``train-workers`` folder of TINY_CONFIG's goal and avoid workers (150 steps each), trained once for
+    the examples that only read it.
+    """
     from sb3_hddpg.training.workers import train_workers
 
-    config = tmp_path / "tiny.yml"
+    root = tmp_path_factory.mktemp("tiny-workers")
+    config = root / "tiny.yml"
     config.write_text(TINY_CONFIG)
-    train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
-    args = ["--workers", str(tmp_path / "w"), "--episodes", "1", "--bias", "0.15", "3"]
+    train_workers(root / "w", config=config, timesteps=150, eval_freq=0, eval_episodes=1)
+    return root / "w"
+
+
+def test_preference_landscape_scores_every_policy_and_names_the_best(tiny_workers):
+    args = ["--workers", str(tiny_workers), "--episodes", "1", "--bias", "0.15", "3"]
     result = run_example("preference_landscape.py", args, folder=STUDIES)
     table = [line for line in result.stdout.splitlines() if line.startswith("│")]
     rows = [line for line in table if "mixture" in line or "HAM threshold" in line]
@@ -72,15 +82,10 @@ def test_worker_study_trains_with_every_setting_and_saves_a_plain_sb3_zip(tmp_pa
     assert DDPG.load(tmp_path / "goal.zip", device="cpu").observation_space.shape == (15,)
 
 
-def test_manager_study_reports_the_state_dependence(tmp_path):
+def test_manager_study_reports_the_state_dependence(tiny_workers):
     import json
 
-    from sb3_hddpg.training.workers import train_workers
-
-    config = tmp_path / "tiny.yml"
-    config.write_text(TINY_CONFIG)
-    train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
-    args = ["--workers", str(tmp_path / "w"), "--steps", "200", "--action-l2", "0.5", "--test-episodes", "1"]
+    args = ["--workers", str(tiny_workers), "--steps", "200", "--action-l2", "0.5", "--test-episodes", "1"]
     result = run_example("manager_study.py", args, folder=STUDIES)
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert report["args"]["action_l2"] == 0.5 and 0.0 <= report["action_saturation"] <= 1.0
@@ -155,13 +160,8 @@ def test_equal_effort_tuning_refuses_an_unknown_study_name(tmp_path):
     assert "Traceback" not in result.stderr and not any(tmp_path.iterdir())
 
 
-def test_goal_holding_measures_a_worker_and_the_reference_reachers(tmp_path):
-    from sb3_hddpg.training.workers import train_workers
-
-    config = tmp_path / "tiny.yml"
-    config.write_text(TINY_CONFIG)
-    train_workers(tmp_path / "w", config=config, eval_freq=0, eval_episodes=1)
-    worker = str(tmp_path / "w" / "workers" / "goal.zip")
+def test_goal_holding_measures_a_worker_and_the_reference_reachers(tiny_workers):
+    worker = str(tiny_workers / "workers" / "goal.zip")
     result = run_example("goal_holding.py", [worker, "ik", "random", "--episodes", "2"], folder=STUDIES)
     cells = [
         [cell.strip() for cell in line.strip("│").split("│")]
@@ -277,17 +277,13 @@ def test_confirm_pick_trains_both_blocks_and_reports_the_seed_pairs(tmp_path):
     assert again.stdout == result.stdout
 
 
-def test_confirm_pick_trains_a_managers_block_over_given_workers(tmp_path):
+def test_confirm_pick_trains_a_managers_block_over_given_workers(tiny_workers, tmp_path):
     import json
 
     import yaml
 
     from sb3_hddpg.training.config import default_config
-    from sb3_hddpg.training.workers import train_workers
 
-    config = tmp_path / "tiny.yml"
-    config.write_text(TINY_CONFIG)
-    train_workers(tmp_path / "w", config=config, timesteps=150, eval_freq=0, eval_episodes=1)
     # The pick: the bundled DQN manager block with another learning rate, as the front's study writes it.
     dqn = yaml.safe_load(default_config("dqn").read_text())
     dqn["manager"]["learning_rate"] = 3e-4
@@ -296,7 +292,7 @@ def test_confirm_pick_trains_a_managers_block_over_given_workers(tmp_path):
     pick = tmp_path / "dqn.yml"
     pick.write_text(yaml.safe_dump(dqn))
     out = tmp_path / "confirm"
-    args = ["--method", "hddpg-front", "--pick", str(pick), "--workers", str(tmp_path / "w"), "--seeds", "1"]
+    args = ["--method", "hddpg-front", "--pick", str(pick), "--workers", str(tiny_workers), "--seeds", "1"]
     options = ["--timesteps", "200", "--front-motion", "20", "--backend", "sb3", "--out", str(out)]
     result = run_example("confirm_pick.py", [*args, *options], folder=STUDIES)
     for arm in ("base", "pick"):

@@ -18,7 +18,7 @@ from sb3_hddpg.hierarchy.gpi import GpiSelector
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.term_critic import TermCriticOptions
 from sb3_hddpg.training.workers import train_workers
-from tests.cli_runner import run_cli
+from tests.cli_batch import run_batch
 
 
 def constant_critic(values, n_actions=0):
@@ -152,10 +152,15 @@ def test_gpi_needs_every_critic_and_no_manager(support):
 
 def test_evaluate_takes_a_preference_for_a_gpi_bundle(support, tmp_path):
     path = Hierarchy.gpi(load_workers(support)).save(tmp_path / "gpi.zip")
-    result = run_cli("evaluate", path, "--episodes", "1", "--preference", "goal=0.2,avoid=0.8")
+    # Both command lines in one interpreter (tests/cli_batch.py), each with its own exit code and output.
+    result, refused = run_batch(
+        [
+            ["evaluate", str(path), "--episodes", "1", "--preference", "goal=0.2,avoid=0.8"],
+            ["evaluate", str(path), "--episodes", "1", "--preference", "goal=nan"],
+        ]
+    )
     assert result.returncode == 0, result.stderr
-    result = run_cli("evaluate", path, "--episodes", "1", "--preference", "goal=nan")
-    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
 
 
 def test_gpi_over_dqn_workers_of_an_mo_gymnasium_env(tmp_path):

@@ -92,18 +92,23 @@ def test_grow_refuses_workers_without_critics_and_bad_options(tmp_path):
 def test_the_grow_command_adds_a_worker_and_refuses_bad_options(corners_trained, tmp_path):
     import shutil
 
-    from tests.cli_runner import run_cli
+    from tests.cli_batch import run_batch
 
     root = tmp_path / "run"
     shutil.copytree(corners_trained, root)
     tiny = ("--eval-freq", "0", "--eval-episodes", "1", "--no-progress", "--start-states", "2")
-    result = run_cli(
-        "grow", "--workers", root, "--support", "3", "--budget", "150", "--tolerance", "0", *tiny
+    # The four command lines in turn in one interpreter (tests/cli_batch.py), each with its own exit code and
+    # output; the refusals change nothing, so the workers counted after them are those the first one grew.
+    refusals = ((("--support", "1"), "--support"), (("--workers", str(tmp_path / "none")), "--workers"))
+    result, *bad_ones, again = run_batch(
+        [
+            ["grow", "--workers", str(root), "--support", "3", "--budget", "150", "--tolerance", "0", *tiny],
+            *(["grow", "--workers", str(root), "--budget", "10", *args, *tiny] for args, _ in refusals),
+            ["grow", "--workers", str(root), "--support", "4", "--budget", "150", *tiny],
+        ]
     )
     assert result.returncode == 0, result.stderr
     assert "reached 3 workers" in result.stdout and len(load_workers(root)) == 3
-    for args, option in ((("--support", "1"), "--support"), (("--workers", tmp_path / "none"), "--workers")):
-        bad = run_cli("grow", "--workers", root, "--budget", "10", *args, *tiny)
+    for bad, (_, option) in zip(bad_ones, refusals, strict=True):
         assert bad.returncode == 2 and option in bad.stderr and "Traceback" not in bad.stderr
-    again = run_cli("grow", "--workers", root, "--support", "4", "--budget", "150", *tiny)
     assert again.returncode == 2 and "--resume" in again.stderr

@@ -11,7 +11,7 @@ from sb3_hddpg.training.ham_start import HamStart, collect_ham_decisions, imitat
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import prepare_manager
 from sb3_hddpg.training.workers import train_workers
-from tests.cli_runner import run_cli
+from tests.cli_batch import run_batch
 
 
 @pytest.fixture(scope="module")
@@ -50,11 +50,15 @@ def test_train_manager_starts_from_ham_and_records_it(workers, tmp_path):
 
 
 def test_the_cli_option_and_its_refusals(workers, tmp_path):
-    ok = run_cli("train-manager", "--workers", workers / "w", "--out", tmp_path / "m", "--init-from-ham", "5",
-                 "--timesteps", "60", "--eval-freq", "30", "--eval-episodes", "1", "--no-progress")  # fmt: skip
+    # Both command lines in one interpreter (tests/cli_batch.py), each with its own exit code and output.
+    ok, bad = run_batch(
+        [
+            ["train-manager", "--workers", str(workers / "w"), "--out", str(tmp_path / "m"), "--init-from-ham",
+             "5", "--timesteps", "60", "--eval-freq", "30", "--eval-episodes", "1", "--no-progress"],
+            ["train-manager", "--workers", str(workers / "w"), "--out", str(tmp_path / "n"), "--init-from-ham",
+             "-1"],
+        ]
+    )  # fmt: skip
     assert ok.returncode == 0, ok.stdout + ok.stderr
     assert "imitated HAM" in ok.stdout
-    bad = run_cli(
-        "train-manager", "--workers", workers / "w", "--out", tmp_path / "n", "--init-from-ham", "-1"
-    )
     assert bad.returncode == 2 and "Traceback" not in bad.stdout + bad.stderr

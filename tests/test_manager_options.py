@@ -57,16 +57,21 @@ def test_setup_manager_refuses_bad_options_before_loading_anything(tmp_path, opt
 
 def test_a_managers_gamma_replaces_its_blocks_and_its_saved_model_keeps_it(tmp_path):
     from sb3_hddpg.training.workers import train_workers
-    from tests.cli_runner import run_cli
+    from tests.cli_batch import run_batch
 
     train_workers(tmp_path / "w", seed=2, timesteps=100, eval_freq=0, eval_episodes=1)
-    common = ["train-manager", "--workers", tmp_path / "w", "--algo", "dqn", "--option-steps", "1"]
-    refused = run_cli(*common, "--gamma", "0", "--out", tmp_path / "refused")
+    common = ["train-manager", "--workers", str(tmp_path / "w"), "--algo", "dqn", "--option-steps", "1"]
+    # Both command lines in one interpreter (tests/cli_batch.py), each with its own exit code and output.
+    refused, done = run_batch(
+        [
+            [*common, "--gamma", "0", "--out", str(tmp_path / "refused")],
+            [*common, "--gamma", "0.97", "--timesteps", "60", "--eval-freq", "60", "--eval-episodes", "1",
+             "--no-progress", "--out", str(tmp_path / "m")],
+        ]
+    )  # fmt: skip
     output = refused.stdout + refused.stderr
     assert refused.returncode == 2 and "--gamma" in output and "Traceback" not in output
     assert not (tmp_path / "refused").exists()
-    done = run_cli(*common, "--gamma", "0.97", "--timesteps", "60", "--eval-freq", "60", "--eval-episodes",
-                   "1", "--no-progress", "--out", tmp_path / "m")  # fmt: skip
     assert done.returncode == 0, done.stdout + done.stderr
     bundle = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
     # The model keeps the discount it trained with; the bundle's config is the block as written.

@@ -29,7 +29,7 @@ from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.media import StepRecorder
 from sb3_hddpg.media.trace import trace_episodes
-from tests.cli_runner import run_cli
+from tests.cli_batch import run_batch
 
 STEPS = 15  # per episode: short episodes keep the videos small
 
@@ -140,12 +140,19 @@ def test_figures_decode(bundle, tmp_path):
 
 def test_cli_record_and_plot_selection(bundle, tmp_path):
     args = ("--episodes", "2", "--max-steps", str(STEPS))
-    run_cli("record", bundle, "--out", tmp_path / "h.mp4", "--fps", "20", *args, check=True)
+    # The three command lines in one interpreter (tests/cli_batch.py), each with its own exit code and output.
+    recorded, result, refused = run_batch(
+        [
+            ["record", str(bundle), "--out", str(tmp_path / "h.mp4"), "--fps", "20", *args],
+            ["plot-selection", str(bundle), "--out", str(tmp_path / "sel.png"), *args],
+            ["plot-selection", "scripted", "--out", str(tmp_path / "x.png")],
+        ]
+    )
+    assert recorded.returncode == 0, recorded.stdout + recorded.stderr
     assert imageio_v2.get_reader(tmp_path / "h.mp4").count_frames() == 2 * STEPS
-    result = run_cli("plot-selection", bundle, "--out", tmp_path / "sel.png", *args, check=True)
+    assert result.returncode == 0, result.stdout + result.stderr
     assert "acted" in result.stdout
     assert Image.open(tmp_path / "sel.png").size[1] > 300
-    refused = run_cli("plot-selection", "scripted", "--out", tmp_path / "x.png")
     assert refused.returncode == 2 and "selects no worker" in refused.stderr
 
 
@@ -156,7 +163,15 @@ def _front_matter(card: str) -> dict:
 
 def test_cli_package_bundle_like_huggingface_sb3(bundle, tmp_path):
     out = tmp_path / "pkg"
-    run_cli("package", bundle, "--out", out, "--episodes", "2", "--video-steps", str(STEPS), check=True)
+    # Both command lines in one interpreter (tests/cli_batch.py); the second, refused, writes nothing, so the
+    # folder read below is the first one's.
+    packaged, again = run_batch(
+        [
+            ["package", str(bundle), "--out", str(out), "--episodes", "2", "--video-steps", str(STEPS)],
+            ["package", str(bundle), "--out", str(out)],
+        ]
+    )
+    assert packaged.returncode == 0, packaged.stdout + packaged.stderr
     assert (out / RUN_MARKER).is_file()  # hidden: it lets a later --force replace what the tool wrote
     assert sorted(p.name for p in out.iterdir() if p.name != RUN_MARKER) == [
         "README.md",
@@ -179,7 +194,6 @@ def test_cli_package_bundle_like_huggingface_sb3(bundle, tmp_path):
     assert json.loads((out / "manifest.json").read_text())["kind"] == "sb3-hddpg-hierarchy"
     assert imageio_v2.get_reader(out / "replay.mp4").count_frames() == STEPS
     assert isinstance(load_policy(out / "hierarchy.zip").policy, Hierarchy)
-    again = run_cli("package", bundle, "--out", out)
     assert again.returncode == 2 and "--force" in again.stderr
 
 

@@ -19,7 +19,7 @@ from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.workers import train_workers
-from tests.cli_runner import run_cli
+from tests.cli_batch import run_batch
 
 TINY = {"timesteps": 300, "eval_freq": 150, "eval_episodes": 1}
 NAMES = ["goal", "avoid"]
@@ -240,28 +240,37 @@ def test_a_per_preference_manager_refuses_another_preference(workers):
 
 def test_the_cli_takes_a_run_time_preference_and_refuses_one_outside_in_one_line(conditioned):
     path, _, _ = conditioned
-    ok = run_cli(*["evaluate", str(path), "--episodes", "1", "--preference", "goal=0.4,avoid=1.6"])
+    # Four command lines, one interpreter (tests/cli_batch.py): each still gets its own exit code and output.
+    ok, refused, bad, scripted = run_batch(
+        [
+            ["evaluate", str(path), "--episodes", "1", "--preference", "goal=0.4,avoid=1.6"],
+            ["evaluate", str(path), "--episodes", "1", "--preference", "goal=0.1,avoid=1.9"],
+            ["plot-selection", str(path), "--preference", "goal=x"],
+            ["evaluate", "random", "--episodes", "1", "--preference", "goal=1,avoid=1"],
+        ]
+    )
     assert ok.returncode == 0, ok.stdout + ok.stderr
-    refused = run_cli(*["evaluate", str(path), "--episodes", "1", "--preference", "goal=0.1,avoid=1.9"])
     assert refused.returncode == 2
     assert "outside those the manager was trained over" in (refused.stdout + refused.stderr)
     assert "Traceback" not in (refused.stdout + refused.stderr)
-    bad = run_cli(*["plot-selection", str(path), "--preference", "goal=x"])
     assert bad.returncode == 2 and "Traceback" not in (bad.stdout + bad.stderr)
-    scripted = run_cli(*["evaluate", "random", "--episodes", "1", "--preference", "goal=1,avoid=1"])
     assert scripted.returncode == 2 and "applies to a hierarchy" in (scripted.stdout + scripted.stderr)
 
 
 def test_train_manager_cli_trains_a_conditioned_manager(workers, tmp_path):
-    result = run_cli(*["train-manager", "--workers", str(workers / "w"), "--out", str(tmp_path / "m"),
-                      "--preferences", "goal=1.5,avoid=0.5;goal=0.5,avoid=1.5", "--timesteps", "120",
-                      "--eval-freq", "60", "--eval-episodes", "1", "--no-progress"])  # fmt: skip
+    result, bad = run_batch(
+        [
+            ["train-manager", "--workers", str(workers / "w"), "--out", str(tmp_path / "m"),
+             "--preferences", "goal=1.5,avoid=0.5;goal=0.5,avoid=1.5", "--timesteps", "120",
+             "--eval-freq", "60", "--eval-episodes", "1", "--no-progress"],
+            ["train-manager", "--workers", str(workers / "w"), "--out", str(tmp_path / "n"),
+             "--preferences", "goal=1,avoid=1;goal=1,avoid=3", "--timesteps", "10"],
+        ]
+    )  # fmt: skip
     assert result.returncode == 0, result.stdout + result.stderr
     assert "Conditioned on 2 preferences" in (result.stdout + result.stderr)
     loaded = Hierarchy.load(tmp_path / "m" / "hierarchy.zip")
     loaded.set_preference(goal=1, avoid=1)
-    bad = run_cli(*["train-manager", "--workers", str(workers / "w"), "--out", str(tmp_path / "n"),
-                   "--preferences", "goal=1,avoid=1;goal=1,avoid=3", "--timesteps", "10"])  # fmt: skip
     assert bad.returncode == 2 and "must sum to 2" in (bad.stdout + bad.stderr)
 
 

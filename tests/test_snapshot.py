@@ -59,20 +59,6 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
     shutil.copytree(snap, grown)
     shutil.move(aside, unfinished)
     before = _files(grown)
-    again = cli("snapshot", str(bench), str(grown))
-    assert again.returncode == 0, again.stdout + again.stderr
-    assert "3 runs copied" in again.stdout and "finished seeds: 0, 1;" in again.stdout
-    after = _files(grown)
-    assert {k: v for k, v in after.items() if k in before and k != "index.json"} == {
-        k: v for k, v in before.items() if k != "index.json"
-    }
-    assert len(read_index(grown)) == 6
-    # The docs' tables come from a snapshot's records as from the benchmark's own folder.
-    page = tmp_path / "page.md"
-    page.write_text("<!-- generated:grown/methods -->\n<!-- /generated:grown/methods -->\n")
-    reported = cli("report", str(grown), "--page", str(page), "--tuning-page", str(page))
-    assert reported.returncode == 0, reported.stdout + reported.stderr
-    assert "goal-only" in page.read_text() and "hddpg" in page.read_text()
 
     # What would replace a run or anyone's files, or write outside DEST, is refused.
     other = tmp_path / "other"
@@ -94,8 +80,11 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
     moved = tmp_path / "moved"
     shutil.copytree(bench, moved, ignore=shutil.ignore_patterns("checkpoints", "tensorboard", "best"))
     shutil.copy(moved / "records" / "hddpg" / "seed-0.json", moved / "records" / "goal-only" / "seed-0.json")
-    refused = run_batch(
+    # None of these command lines changes what another reads: one interpreter runs them all
+    # (tests/cli_batch.py), each with its own exit code and output.
+    again, *refused = run_batch(
         [
+            ["snapshot", str(bench), str(grown)],
             ["snapshot", str(moved), str(tmp_path / "new")],
             ["snapshot", str(bench), str(other)],
             ["snapshot", str(bench), str(theirs)],
@@ -104,6 +93,14 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
             ["snapshot", str(bench), str(linked)],
         ]
     )
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "3 runs copied" in again.stdout and "finished seeds: 0, 1;" in again.stdout
+    after = _files(grown)
+    assert {k: v for k, v in after.items() if k in before and k != "index.json"} == {
+        k: v for k, v in before.items() if k != "index.json"
+    }
+    assert len(read_index(grown)) == 6
+
     expected_errors = (
         "expected the record of goal-only/seed-0",
         "holds another run of goal-only/seed-0",
@@ -119,8 +116,12 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
     assert not (bench / "inside").exists() and not (tmp_path / "new").exists()
     assert sorted(p.name for p in elsewhere.iterdir()) == ["seed-0.json"]
 
-    # The snapshot resumes the benchmark (its runs kept, seed 1's run) and serves its workers.
-    resumed, reused = run_batch(
+    # The snapshot resumes the benchmark (its runs kept, seed 1's run) and serves its workers; resumed on
+    # its own, the snapshot is no longer one of the benchmark: never overwritten. The docs' tables come
+    # from a snapshot's records as from the benchmark's own folder.
+    page = tmp_path / "page.md"
+    page.write_text("<!-- generated:grown/methods -->\n<!-- /generated:grown/methods -->\n")
+    resumed, reused, overwrite, reported = run_batch(
         [
             [*ARGS, "--out", str(snap), "--resume"],
             [
@@ -135,14 +136,16 @@ def test_a_snapshot_holds_whole_seeds_resumes_and_grows_without_replacing_a_run(
                 "--out",
                 str(tmp_path / "reused"),
             ],
+            ["snapshot", str(bench), str(snap)],
+            ["report", str(grown), "--page", str(page), "--tuning-page", str(page)],
         ]
     )
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert resumed.stdout.count("kept") == 3 and resumed.stdout.count("started") == 3
     assert reused.returncode == 0, reused.stdout + reused.stderr
-    # Resumed on its own, the snapshot is no longer one of the benchmark: never overwritten.
-    overwrite = cli("snapshot", str(bench), str(snap))
     assert overwrite.returncode == 2 and "run on its own" in overwrite.stderr
+    assert reported.returncode == 0, reported.stdout + reported.stderr
+    assert "goal-only" in page.read_text() and "hddpg" in page.read_text()
 
 
 def test_a_benchmark_snapshots_each_seed_as_it_finishes(tmp_path):

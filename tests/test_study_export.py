@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import optuna
@@ -14,7 +13,7 @@ from optuna.trial import TrialState, create_trial
 from hddpg_zoo.benchmark.pages import render_page
 from hddpg_zoo.study_export import export_study, read_exports, studies_table, study_effort
 from hddpg_zoo.tuning import TuningTarget, check_budget_fraction
-from tests.cli_runner import CLI
+from tests.cli_batch import run_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -62,40 +61,17 @@ def test_studies_are_exported_and_summarised(tmp_path):
     make_study(url, "flat-sac", flat, [300.0, None, 301.5])
     make_study(url, "flat-ddpg", manager, [290.0, 295.0, None])
 
-    # Through the CLI: one JSON per study.
+    # Through the CLI: one JSON per study; the three command lines in one interpreter (tests/cli_batch.py),
+    # each with its own exit code and output.
     out = tmp_path / "run" / "studies"
-    for name in ("flat-sac", "flat-ddpg"):
-        done = subprocess.run(
-            [
-                *CLI,
-                "export-study",
-                "--storage",
-                url,
-                "--study-name",
-                name,
-                "--out",
-                str(out),
-            ],
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-        assert done.returncode == 0, done.stdout + done.stderr
-    missing = subprocess.run(
+    *done, missing = run_batch(
         [
-            *CLI,
-            "export-study",
-            "--storage",
-            url,
-            "--study-name",
-            "nope",
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
+            ["export-study", "--storage", url, "--study-name", name, "--out", str(out)]
+            for name in ("flat-sac", "flat-ddpg", "nope")
+        ]
     )
+    for result in done:
+        assert result.returncode == 0, result.stdout + result.stderr
     assert missing.returncode == 2 and "no study 'nope'" in missing.stderr + missing.stdout
     assert "Traceback" not in missing.stderr
 
@@ -142,12 +118,12 @@ def test_report_on_study_exports_alone_writes_only_the_tuning_table(tmp_path):
     page.write_text(
         "before\n<!-- generated:studies-run/studies -->\nstale\n<!-- /generated:studies-run/studies -->\n"
     )
-    done = subprocess.run(
-        [*CLI, "report", str(run), "--tuning-page", str(page)], capture_output=True, text=True
+    # Both command lines in one interpreter (tests/cli_batch.py), each with its own exit code and output;
+    # the second: a folder that is neither a benchmark folder nor holds study exports, one line, exit 2.
+    done, refused = run_batch(
+        [["report", str(run), "--tuning-page", str(page)], ["report", str(tmp_path / "empty")]]
     )
     assert done.returncode == 0, done.stderr
     text = page.read_text()
     assert text.startswith("before\n") and "stale" not in text and "| `ddpg` | flat | ddpg |" in text
-    # A folder that is neither a benchmark folder nor holds study exports: one line, exit 2.
-    refused = subprocess.run([*CLI, "report", str(tmp_path / "empty")], capture_output=True, text=True)
     assert refused.returncode == 2 and "Traceback" not in refused.stderr

@@ -85,12 +85,22 @@ def test_a_weighted_worker_trains_and_serves_a_manager(tmp_path):
 
 
 def test_the_command_line_trains_a_weighted_worker_and_refuses_bad_weights(tmp_path):
-    from tests.cli_runner import run_cli
+    from tests.cli_batch import run_batch
 
     tiny = ("--timesteps", "120", "--eval-freq", "0", "--eval-episodes", "1", "--no-progress")
-    run_cli("train-workers", "--weights", "goal=0.6,avoid=0.4", "--out", tmp_path, *tiny, check=True)
+    refusals = (("goal=-1,avoid=1", "finite number >= 0"), ("speed=1", "unknown terms"))
+    # The three command lines in one interpreter (tests/cli_batch.py), each with its own exit code and output.
+    trained, *refused = run_batch(
+        [
+            ["train-workers", "--weights", "goal=0.6,avoid=0.4", "--out", str(tmp_path), *tiny],
+            *(
+                ["train-workers", "--weights", bad, "--out", str(tmp_path / "bad"), *tiny]
+                for bad, _ in refusals
+            ),
+        ]
+    )
+    assert trained.returncode == 0, trained.stdout + trained.stderr
     assert list(load_workers(tmp_path)) == ["mix-goal60-avoid40"]
-    for bad, message in (("goal=-1,avoid=1", "finite number >= 0"), ("speed=1", "unknown terms")):
-        result = run_cli("train-workers", "--weights", bad, "--out", tmp_path / "bad", *tiny)
+    for result, (_, message) in zip(refused, refusals, strict=True):
         assert result.returncode == 2 and message in result.stderr and "Traceback" not in result.stderr
-        assert not (tmp_path / "bad").exists()
+    assert not (tmp_path / "bad").exists()
