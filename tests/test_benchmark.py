@@ -27,7 +27,7 @@ from hddpg_zoo.benchmark import (
     task_cost,
     write_outputs,
 )
-from sb3_hddpg.artifacts.provenance import code_provenance
+from hddpg_zoo.provenance import code_provenance
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps

@@ -14,9 +14,9 @@ from hddpg_zoo.benchmark.benchmark_file import (
     invocation_codes,
     read_benchmark_file,
 )
+from hddpg_zoo.provenance import CodeProvenance, code_provenance
 from sb3_hddpg import __version__
 from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.artifacts.provenance import CodeProvenance, code_provenance
 
 OTHER = "0" * 40
 

@@ -46,6 +46,7 @@ FLOORS = {
     # The harness, above the whole library: it may import any public module of it, the library none of its.
     "hddpg_zoo": 8,
     "hddpg_zoo.records": 8,
+    "hddpg_zoo.provenance": 8,
     "hddpg_zoo.runner": 8,
     "hddpg_zoo.study_storage": 8,
     "hddpg_zoo.hyperparams_opt": 8,

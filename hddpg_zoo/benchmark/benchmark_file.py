@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any, cast
 
 from hddpg_zoo.benchmark.settings import BenchmarkSettings
+from hddpg_zoo.provenance import CodeProvenance
 from sb3_hddpg.artifacts.limits import brief, read_json_record
-from sb3_hddpg.artifacts.provenance import CodeProvenance
 from sb3_hddpg.artifacts.values import is_finite_number
 
 

@@ -49,10 +49,10 @@ from hddpg_zoo.benchmark.statistics import check_episode_sets, compute_results
 from hddpg_zoo.benchmark.tasks import Task, plan_tasks, task_cost
 from hddpg_zoo.benchmark.workers_source import check_workers_source, copy_workers, worker_names
 from hddpg_zoo.executors import make_executor
+from hddpg_zoo.provenance import CodeProvenance, code_provenance
 from hddpg_zoo.records import BenchmarkResults, benchmark_record
 from hddpg_zoo.runner import Executor, Job, RunOutcome, run_jobs
 from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.artifacts.provenance import CodeProvenance, code_provenance
 from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.training.workers import train_workers, worker_hyperparams
 

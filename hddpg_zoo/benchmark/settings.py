@@ -27,6 +27,7 @@ from hddpg_zoo.benchmark.methods import (
     method_key,
 )
 from hddpg_zoo.benchmark.morl import mo_gymnasium_env
+from hddpg_zoo.records.field_types import check_field_types
 from sb3_hddpg.algorithms import algorithm, algorithms_for
 from sb3_hddpg.artifacts.limits import (
     MAX_BENCHMARK_SEEDS,
@@ -37,7 +38,7 @@ from sb3_hddpg.artifacts.limits import (
     check_env_id,
     check_name,
 )
-from sb3_hddpg.artifacts.values import RUN_SETTINGS, check_env_kwargs, check_field_types
+from sb3_hddpg.artifacts.values import RUN_SETTINGS, check_env_kwargs
 from sb3_hddpg.envs import EnvUnavailableError
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv

@@ -41,7 +41,7 @@ class TermsEnv:
 
     @property
     def config_key(self) -> str:
-        """The ``zoo_configs`` block its agents read: the adapted env's id for an adapter, else :attr:`env_id`."""
+        """The ``zoo_configs`` block its agents read (the adapted env's id for an adapter, else :attr:`env_id`)."""
         return config_key(self.env_id, self.env_kwargs)
 
     def worker_config_keys(self, term: str) -> tuple[str, str]:
