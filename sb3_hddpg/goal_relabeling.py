@@ -19,18 +19,16 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.type_aliases import ReplayBufferSamples
-from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 from sb3_hddpg.envs.snake.rewards import GoalTerm
+from sb3_hddpg.relabeling import RelabelingReplayBuffer
 
 #: The components relabelling needs in the observation.
 REQUIRED_COMPONENTS = ("joint_positions", "ee_to_goal", "goal_touched")
 
 
-class GoalRelabelingReplayBuffer(ReplayBuffer):
+class GoalRelabelingReplayBuffer(RelabelingReplayBuffer):
     """
     SB3's ``ReplayBuffer`` that replays a share of its samples with a hindsight goal (see the module's note).
 
@@ -73,18 +71,15 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         relabel_fraction: float = 0.8,
         goal_scale: float | None = None,
     ) -> None:
-        if optimize_memory_usage:
-            raise ValueError("GoalRelabelingReplayBuffer does not support optimize_memory_usage=True")
-        if not 0.0 <= relabel_fraction <= 1.0:
-            raise ValueError(f"Expected `relabel_fraction` in [0, 1], actually: {relabel_fraction!r:.50}")
         super().__init__(
             buffer_size,
             observation_space,
             action_space,
             device=device,
             n_envs=n_envs,
-            optimize_memory_usage=False,
+            optimize_memory_usage=optimize_memory_usage,
             handle_timeout_termination=handle_timeout_termination,
+            relabel_fraction=relabel_fraction,
         )
         full = build_state_layout(n_joints)
         names = list(observe) if observe is not None else list(full)
@@ -105,7 +100,6 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         self.goal_low = float(goal_low)
         # The env's own goal term: a relabelled reward is what the env would have paid for that goal.
         self._goal_term = GoalTerm(self.touch_radius, self.goal_low)
-        self.relabel_fraction = float(relabel_fraction)
         self.goal_scale = None if goal_scale is None else float(goal_scale)
         # Per stored step: its episode's number (to tell a step overwritten by a later episode) and, once
         # that episode has ended, the position of its last step; -1 while it runs. Arrays, so that drawing
@@ -178,26 +172,19 @@ class GoalRelabelingReplayBuffer(ReplayBuffer):
         same = self._episode[future, envs] == self._episode[indices, envs]
         return np.where(same, future, indices)
 
-    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
-        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
-        obs = self.observations[batch_inds, env_indices, :].copy()
-        next_obs = self.next_observations[batch_inds, env_indices, :].copy()
-        rewards = self.rewards[batch_inds, env_indices].copy()
+    def relabel_batch(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        rewards: np.ndarray,
+        batch_inds: np.ndarray,
+        env_indices: np.ndarray,
+    ) -> None:
         relabel = np.flatnonzero(np.random.random(len(batch_inds)) < self.relabel_fraction)
         if len(relabel):
             futures = self.future_indices(batch_inds[relabel], env_indices[relabel])
             goals = self.next_observations[futures, env_indices[relabel], self._tip]
             self.relabel(obs, next_obs, rewards, relabel, goals)
-        data = (
-            self._normalize_obs(obs, env),
-            self.actions[batch_inds, env_indices, :],
-            self._normalize_obs(next_obs, env),
-            (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(
-                -1, 1
-            ),
-            self._normalize_reward(rewards.reshape(-1, 1), env),
-        )
-        return ReplayBufferSamples(*tuple(map(self.to_torch, data)))
 
     def relabel(
         self, obs: np.ndarray, next_obs: np.ndarray, rewards: np.ndarray, rows: np.ndarray, goals: np.ndarray

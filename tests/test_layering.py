@@ -32,6 +32,7 @@ FLOORS = {
     "sb3_hddpg.episode_sets": 1,
     "sb3_hddpg.metric_labels": 1,
     "sb3_hddpg.threads": 1,
+    "sb3_hddpg.relabeling": 1,
     "sb3_hddpg.artifacts": 2,
     "sb3_hddpg.episode_metrics": 3,
     "sb3_hddpg.evaluation": 3,

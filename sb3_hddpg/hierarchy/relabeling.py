@@ -14,14 +14,12 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.type_aliases import ReplayBufferSamples
-from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+from sb3_hddpg.relabeling import RelabelingReplayBuffer
 
 
-class PreferenceRelabelingReplayBuffer(ReplayBuffer):
+class PreferenceRelabelingReplayBuffer(RelabelingReplayBuffer):
     """
     SB3's ``ReplayBuffer`` that replays a share of its samples at a freshly drawn preference (the stored data
     never change); ``train_manager(..., manager_preferences="ratio-sweep")`` sets it up.
@@ -49,10 +47,6 @@ class PreferenceRelabelingReplayBuffer(ReplayBuffer):
         relabel_fraction: float = 0.5,
         seed: int | None = None,
     ) -> None:
-        if optimize_memory_usage:
-            raise ValueError("PreferenceRelabelingReplayBuffer does not support optimize_memory_usage=True")
-        if not 0.0 <= relabel_fraction <= 1.0:
-            raise ValueError(f"Expected `relabel_fraction` in [0, 1], actually: {relabel_fraction!r:.50}")
         if names is None or space is None:
             raise ValueError(
                 "PreferenceRelabelingReplayBuffer needs the worker `names` and the preference `space`"
@@ -63,8 +57,9 @@ class PreferenceRelabelingReplayBuffer(ReplayBuffer):
             action_space,
             device=device,
             n_envs=n_envs,
-            optimize_memory_usage=False,
+            optimize_memory_usage=optimize_memory_usage,
             handle_timeout_termination=handle_timeout_termination,
+            relabel_fraction=relabel_fraction,
         )
         self.space = PreferenceSpace.from_json(space, names)
         self.n_workers = len(names)
@@ -73,7 +68,6 @@ class PreferenceRelabelingReplayBuffer(ReplayBuffer):
             raise ValueError(
                 f"The observation has {obs_size} values: too few to end with {self.n_workers} preference weights"
             )
-        self.relabel_fraction = float(relabel_fraction)
         self.total = self.space.total
         # Per stored step: each worker's own discounted option reward.
         self.worker_rewards = np.zeros((self.buffer_size, self.n_envs, self.n_workers), dtype=np.float32)
@@ -97,11 +91,14 @@ class PreferenceRelabelingReplayBuffer(ReplayBuffer):
             self.worker_rewards[self.pos, env_index] = info["worker_rewards"]
         super().add(obs, next_obs, action, reward, done, infos)
 
-    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
-        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
-        obs = self.observations[batch_inds, env_indices, :].copy()
-        next_obs = self.next_observations[batch_inds, env_indices, :].copy()
-        rewards = self.rewards[batch_inds, env_indices].reshape(-1, 1).copy()
+    def relabel_batch(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        rewards: np.ndarray,
+        batch_inds: np.ndarray,
+        env_indices: np.ndarray,
+    ) -> None:
         relabel = self._rng.random(len(batch_inds)) < self.relabel_fraction
         if np.any(relabel):
             weights = self.space.sample_weights(self._rng, int(relabel.sum())).astype(obs.dtype)
@@ -109,15 +106,4 @@ class PreferenceRelabelingReplayBuffer(ReplayBuffer):
             obs[relabel, -n:] = weights
             next_obs[relabel, -n:] = weights
             terms = self.worker_rewards[batch_inds[relabel], env_indices[relabel]]
-            rewards[relabel, 0] = self.total * np.sum(weights * terms, axis=1)
-        dones = (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(
-            -1, 1
-        )
-        data = (
-            self._normalize_obs(obs, env),
-            self.actions[batch_inds, env_indices, :],
-            self._normalize_obs(next_obs, env),
-            dones,
-            self._normalize_reward(rewards, env),
-        )
-        return ReplayBufferSamples(*tuple(map(self.to_torch, data)))  # type: ignore[arg-type]
+            rewards[relabel] = self.total * np.sum(weights * terms, axis=1)
