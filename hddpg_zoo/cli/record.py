@@ -11,6 +11,7 @@ import typer
 
 from hddpg_zoo.media.video import check_video_path, make_recording_env, record_video
 from sb3_hddpg.cli.app import app, console
+from sb3_hddpg.cli.evaluate import load_cli_policy
 from sb3_hddpg.cli.options import (
     ENV_HELP,
     EpisodeStepsOpt,
@@ -19,7 +20,6 @@ from sb3_hddpg.cli.options import (
     RunPreferenceOpt,
     TermBoundsOpt,
     TermsOpt,
-    apply_run_preference,
     at_least,
     count,
     output_file,
@@ -28,7 +28,7 @@ from sb3_hddpg.cli.options import (
     usage_errors,
 )
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
+from sb3_hddpg.hierarchy.loading import LoadedPolicy
 
 POLICY_HELP = "A worker or flat zip, a hierarchy.zip (or its folder), a ham.json, or 'random' / 'scripted' (Jacobian-transpose) / 'ik' (damped-least-squares IK) / 'field' (potential-field avoider)."
 TRUST_HELP = "Allow SB3's full loader, which runs code stored in the file: only for files you trust."
@@ -91,16 +91,7 @@ def watched_policy(
     ``allowed_env_ids`` does in the library); the run-time preference is applied.
     """
     shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
-    with usage_errors("'PATH'"):  # the model named on the command line is unusable
-        loaded = load_policy(
-            path,
-            env_id=shared.env_id if shared else None,
-            env_kwargs=shared.env_kwargs if shared else None,
-            trusted=trust,
-            algo=algo,
-            allowed_env_ids=[shared.env_id, shared.config_key] if shared else None,
-        )
-    apply_run_preference(loaded.policy, preference, loaded.kind)
+    loaded = load_cli_policy(path, shared, trust, algo, preference)
     kwargs = {**(shared.env_kwargs if shared else {})}
     if max_steps:
         kwargs["max_episode_steps"] = max_steps

@@ -117,7 +117,7 @@ def evaluate_command(
     # What depends only on the arguments is checked first, as a usage error; a failing episode is not one.
     output_file(json_path, force, "'--json'")
     shared = terms_env_of(context, env_id)
-    loaded = _loaded_policy(path, shared, trust, algo, preference)
+    loaded = load_cli_policy(path, shared, trust, algo, preference)
     # --state-worker: one of the workers the policy selects among (a hierarchy's or HAM's names).
     policy_names = getattr(loaded.policy, "names", None) or getattr(loaded.policy, "worker_names", None) or []
     names = [str(name) for name in policy_names]
@@ -203,10 +203,13 @@ def _summary_table(
     return table
 
 
-def _loaded_policy(
+def load_cli_policy(
     path: str, shared: TermsEnv | None, trust: bool, algo: str | None, preference: str | None
 ) -> LoadedPolicy:
-    """The policy to evaluate, checked (hashes, spaces, env id) as a usage error naming PATH; at ``--preference``."""
+    """
+    The policy named on the command line, checked (hashes, spaces, env id) as a usage error naming PATH, at
+    ``--preference``: what ``evaluate``, ``record`` and ``plot-selection`` act with.
+    """
     with usage_errors("'PATH'"):
         # Naming an env with --env opts in to it, as allowed_env_ids does in the library.
         loaded = load_policy(
