@@ -62,7 +62,7 @@ from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
 from sb3_hddpg.training.backends import backend_for, check_backend
 from sb3_hddpg.training.config import default_config, load_config_file, manager_option_steps
-from sb3_hddpg.training.ham_start import HamStart
+from sb3_hddpg.training.imitation_start import HamStart
 
 #: The stages, in order; the overall progress bar counts them.
 STAGES = ("train workers", "train managers + flat DDPG", "evaluate on shared seeds", "record GIF", "figures")

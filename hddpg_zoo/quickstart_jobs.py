@@ -15,7 +15,7 @@ from hddpg_zoo.runner import Job, report_progress, run_jobs
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.training.config import manager_option_steps
 from sb3_hddpg.training.flat import train_flat
-from sb3_hddpg.training.ham_start import HamStart
+from sb3_hddpg.training.imitation_start import HamStart
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.workers import train_workers

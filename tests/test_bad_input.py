@@ -281,6 +281,8 @@ CASES = [
     # ---- grow and morl-report
     case("gr-missing-workers", ("grow", "--workers", "{tmp}/nope"), 2, "nope"),
     case("gr-zero-support", ("grow", "--workers", "{tmp}/nope", "--support", "0"), 2, "--support"),
+    case("fc-missing-workers", ("fit-critics", "--workers", "{tmp}/nope"), 2, "nope"),
+    case("fc-not-workers", ("fit-critics", "--workers", "{folder}"), 2, "a-folder"),
     case("mr-missing-run", ("morl-report", "{tmp}/nope"), 2, "nope"),
     # ---- export-models
     case("ex-missing-run", ("export-models", "{tmp}/nope", "{tmp}/models"), 2, "nope"),

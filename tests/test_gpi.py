@@ -1,6 +1,8 @@
 """Generalized policy improvement: the selector on known critics, and GPI bundles over trained workers."""
 
+import dataclasses
 import io
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -185,3 +187,62 @@ def test_gpi_over_dqn_workers_of_an_mo_gymnasium_env(tmp_path):
     assert int(action) == int(np.unravel_index(np.argmax(scores), scores.shape)[1])
     loaded = Hierarchy.load(gpi.save(tmp_path / "gpi.zip"))
     assert int(loaded.predict(obs)[0]) == int(action)
+
+
+def state_critic(values, obs_dim=3):
+    """A state-value critic whose output is ``values`` whatever the state."""
+    critic = TermCritic(TermCriticSpec(("goal", "avoid"), obs_dim, 0, (), (), (4,), 0.9))
+    with torch.no_grad():
+        critic.net[-1].weight.zero_()
+        critic.net[-1].bias.copy_(torch.as_tensor(values, dtype=torch.float32))
+    return critic
+
+
+def test_state_value_critics_see_the_full_state_and_only_the_chosen_worker_acts():
+    calls = []
+
+    class Counted(Fixed):
+        def predict(self, observation, state=None, episode_start=None, deterministic=True):
+            calls.append(observation.shape)
+            return super().predict(observation)
+
+    # The workers see 2 of the 3 state values; their critics see all 3.
+    workers = [
+        FrozenWorker(Counted(np.float32([0.5])), np.array([0, 1])),
+        FrozenWorker(Counted(np.float32([-0.5])), np.array([1, 2])),
+    ]
+    gpi = GpiSelector(workers, [state_critic([10.0, 2.0]), state_critic([4.0, 6.0])])
+    obs = np.zeros(3, dtype=np.float32)
+    assert gpi.select(obs, {"goal": 0.2, "avoid": 0.8})[0] == 1 and calls == [(2,)]
+    assert gpi.select(obs, {"goal": 0.9, "avoid": 0.1})[0] == 0
+    with pytest.raises(ValueError, match="one kind"):
+        GpiSelector(workers, [state_critic([1.0, 1.0]), constant_critic([1, 1])])
+    critic = state_critic([3.0, 1.0])
+    again = TermCritic.from_bytes(critic.to_bytes(), "critic")
+    assert again.spec.state_value and np.allclose(again.values(obs[None]), [[3.0, 1.0]])
+
+
+def test_fit_critics_gives_state_values_and_a_gpi_start(support, tmp_path):
+    from sb3_hddpg.training.imitation_start import GpiStart
+    from sb3_hddpg.training.manager import train_manager
+    from sb3_hddpg.training.term_critic import STATE_CRITIC_OPTIONS, fit_state_critics
+
+    folder = tmp_path / "support"
+    shutil.copytree(support, folder)
+    options = dataclasses.replace(STATE_CRITIC_OPTIONS, rollout_steps=250, steps=30, net_arch=(16,))
+    facts = fit_state_critics(folder, options=options, seed=1)
+    workers = load_workers(folder)  # the new hashes verify
+    assert {n: (c.spec.state_value, c.spec.obs_dim) for n, c in workers.critics.items()} == dict.fromkeys(
+        workers, (True, 39)
+    )
+    entry = workers.manifest.entries["goal"]["term_critic"]
+    assert entry == facts["goal"] and entry["env_steps"] == 250 and entry["kind"] == "state_value"
+    gpi = Hierarchy.gpi(workers, {"goal": 0.5, "avoid": 0.5})
+    assert gpi.predict(gpi.make_env().reset(seed=0)[0])[0].shape == (6,)
+    hierarchy = train_manager(folder, tmp_path / "m", algo="dqn", manager_preferences="dirichlet",
+                              init_from_gpi=GpiStart(decisions=60, epochs=40), seed=1, timesteps=70,
+                              eval_freq=0, eval_episodes=1).hierarchy  # fmt: skip
+    report = hierarchy.metadata["init_from_gpi"]
+    assert report["decisions"] == 60 and report["agreement"] >= 0.8
+    with pytest.raises(ValueError, match="HAM or from GPI"):
+        train_manager(folder, tmp_path / "n", init_from_gpi=True, init_from_ham=5.0, timesteps=10)

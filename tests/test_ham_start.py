@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from stable_baselines3 import DDPG, DQN
 
-from sb3_hddpg.training.ham_start import HamStart, collect_ham_decisions, imitate
+from sb3_hddpg.training.imitation_start import HamStart, collect_start_decisions, imitate
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import prepare_manager
 from sb3_hddpg.training.workers import train_workers
@@ -28,7 +28,7 @@ def test_the_fitted_manager_agrees_with_ham_and_its_buffer_holds_hams_decisions(
     model = cls("MlpPolicy", env, learning_starts=10_000, seed=0, device="cpu")
     # A threshold at which HAM uses both workers on these episodes.
     start = HamStart(threshold=5.0, decisions=300, epochs=100)
-    observations, choices = collect_ham_decisions(env, start, model)
+    observations, choices = collect_start_decisions(env, start, model)
     assert len(choices) == 300 and model.replay_buffer.size() == 300
     assert 0 < choices.mean() < 1 or len(set(choices.tolist())) == 1
     untrained = imitate(model, observations, choices, HamStart(threshold=5.0, epochs=1, learning_rate=1e-9))

@@ -1,6 +1,11 @@
 """
-A worker's per-term critic (one Q head per reward term for its policy), stored in the worker's zip as
+A worker's per-term critic (one value head per reward term for its policy), stored in the worker's zip as
 :data:`TERM_CRITIC_MEMBER`, an ``.npz`` of plain arrays (SB3's ``load`` would take a ``.pth`` for parameters).
+
+It is of one of three kinds: ``Q(s, a)`` of a continuous worker or ``Q(s, .)`` of a discrete one, over the
+worker's own observation (trained on the transitions it collected), or the state value ``V(s)`` of a
+continuous worker over the shared env's full observation (trained on rollouts of its final policy): a worker
+that sees part of the state cannot value what it does not see, such as the snake's goal worker the obstacles.
 """
 
 from __future__ import annotations
@@ -42,9 +47,10 @@ class TermCriticSpec:
     What a per-term critic evaluates and how it is built.
 
     :param terms: the reward terms, in the order of its heads.
-    :param obs_dim: the flat size of the worker's observation.
+    :param obs_dim: the flat size of the worker's observation (of the shared env's, for a state-value critic).
     :param n_actions: a discrete worker's number of actions; 0 for a continuous worker.
-    :param action_low: a continuous worker's action bounds (actions are scaled to [-1, 1] as SB3 stores them).
+    :param action_low: a continuous worker's action bounds (actions are scaled to [-1, 1] as SB3 stores them);
+        empty, with no discrete actions, for a state-value critic.
     :param action_high: the upper bounds.
     :param net_arch: the hidden layers' sizes.
     :param gamma: the discount its values are for.
@@ -68,8 +74,8 @@ class TermCriticSpec:
             isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_CRITIC_INPUTS for v in sizes
         ):
             raise ValueError(f"Expected sizes in [0, {MAX_CRITIC_INPUTS}], actually: {sizes}")
-        if self.obs_dim < 1 or (self.n_actions == 0) == (not self.action_low):
-            raise ValueError("Expected an observation and either discrete actions or action bounds")
+        if self.obs_dim < 1 or (self.n_actions > 0 and self.action_low):
+            raise ValueError("Expected an observation and at most one of discrete actions and action bounds")
         if len(self.action_low) != len(self.action_high) or not all(
             math.isfinite(lo) and math.isfinite(hi) and lo < hi
             for lo, hi in zip(self.action_low, self.action_high)
@@ -108,8 +114,13 @@ class TermCriticSpec:
         return self.n_actions > 0
 
     @property
+    def state_value(self) -> bool:
+        """Whether the critic is a state value over the shared env's full observation (no actions)."""
+        return not self.discrete and not self.action_low
+
+    @property
     def input_dim(self) -> int:
-        return self.obs_dim + (0 if self.discrete else len(self.action_low))
+        return self.obs_dim + len(self.action_low)
 
     @property
     def output_dim(self) -> int:
@@ -135,8 +146,9 @@ class TermCriticSpec:
 
 class TermCritic(nn.Module):
     """
-    One Q head per reward term for one worker's policy: ``Q(s, a) -> (n_terms,)`` for a continuous worker,
-    ``Q(s) -> (n_actions, n_terms)`` for a discrete one, of the normalised terms discounted by ``spec.gamma``.
+    One value head per reward term for one worker's policy: ``Q(s, a) -> (n_terms,)`` for a continuous
+    worker, ``Q(s) -> (n_actions, n_terms)`` for a discrete one, ``V(s) -> (n_terms,)`` for a state-value
+    critic, of the normalised terms discounted by ``spec.gamma``.
 
     :param spec: what it evaluates and its layers.
     """
@@ -157,19 +169,23 @@ class TermCritic(nn.Module):
         return (2.0 * (flat - low) / (high - low) - 1.0).astype(np.float32)
 
     def forward(self, obs: torch.Tensor, actions: torch.Tensor | None = None) -> torch.Tensor:
-        """``(batch, n_terms)`` for scaled actions (continuous), or ``(batch, n_actions, n_terms)`` (discrete)."""
+        """``(batch, n_terms)`` for scaled actions (continuous) or none (state value), or
+        ``(batch, n_actions, n_terms)`` (discrete)."""
         obs = obs.reshape(len(obs), -1)
         if self.spec.discrete:
             return self.net(obs).reshape(len(obs), self.spec.n_actions, len(self.spec.terms))
+        if self.spec.state_value:
+            return self.net(obs)
         if actions is None:
             raise ValueError("A continuous worker's critic needs the actions")
         return self.net(torch.cat([obs, actions.reshape(len(obs), -1)], dim=1))
 
     @torch.no_grad()
     def values(self, obs: np.ndarray, env_actions: np.ndarray | None = None) -> np.ndarray:
-        """The per-term values (numpy): of the given env actions, or of every action of a discrete worker."""
+        """The per-term values (numpy): of the given env actions, of every action of a discrete worker, or
+        of the state (``env_actions`` unused)."""
         tensor = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(-1, self.spec.obs_dim))
-        if self.spec.discrete:
+        if self.spec.discrete or self.spec.state_value:
             return self(tensor).numpy()
         scaled = torch.as_tensor(self.scale_actions(np.asarray(env_actions)))
         return self(tensor, scaled).numpy()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -44,7 +45,7 @@ from sb3_hddpg.training.backends import check_algo, resolve_backend
 from sb3_hddpg.training.grow import SUPPORT_FILE, SupportOptions, check_growable, grow
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, setup_manager
-from sb3_hddpg.training.term_critic import TermCriticOptions
+from sb3_hddpg.training.term_critic import STATE_CRITIC_OPTIONS, TermCriticOptions, fit_state_critics
 from sb3_hddpg.training.workers import (
     parse_worker_algorithms,
     plan_workers,
@@ -282,6 +283,14 @@ _ManagerInitFromHamOpt = Annotated[
         "(its replay buffer filled with HAM's choices), so RL starts at HAM's level.",
     ),
 ]
+_ManagerInitFromGpiOpt = Annotated[
+    bool,
+    typer.Option(
+        "--init-from-gpi",
+        help="Start from GPI over the workers' per-term critics (see fit-critics): before RL the manager "
+        "imitates GPI's choice at each episode's preference, so RL starts at GPI's level.",
+    ),
+]
 _ManagerSelectionOpt = Annotated[
     str | None,
     typer.Option(
@@ -368,6 +377,7 @@ def train_manager_command(
     train_preferences: _ManagerTrainPreferencesOpt = None,
     relabel_fraction: _ManagerRelabelFractionOpt = None,
     init_from_ham: _ManagerInitFromHamOpt = None,
+    init_from_gpi: _ManagerInitFromGpiOpt = False,
     selection: _ManagerSelectionOpt = None,
     option_steps: _ManagerOptionStepsOpt = None,
     option_end: _ManagerOptionEndOpt = None,
@@ -411,6 +421,7 @@ def train_manager_command(
         manager_preferences=train_preferences,
         relabel_fraction=0.5 if relabel_fraction is None else relabel_fraction,
         init_from_ham=init_from_ham,
+        init_from_gpi=init_from_gpi or None,
         option_end=option_end,
         manager_motion=manager_motion,
         gamma=gamma,
@@ -421,9 +432,10 @@ def train_manager_command(
     with usage_errors("'--backend'"):
         resolved = resolve_backend(backend, setup.hyperparams.backend)
         check_algo(options.algo, resolved)
-        if options.init_from_ham is not None and resolved != "sb3":
+        if setup.start is not None and resolved != "sb3":
             raise ValueError(
-                "the start from HAM (--init-from-ham) fits SB3 (torch) managers: use --backend sb3"
+                "a start from HAM or GPI (--init-from-ham, --init-from-gpi) fits SB3 (torch) managers: "
+                "use --backend sb3"
             )
     prepare_out_dir(context, out, resume, force)
     with training_interrupt_exits():
@@ -453,12 +465,14 @@ def _print_manager(hierarchy: Hierarchy, outcome: TrainingOutcome, out: Path) ->
         + (f" of up to {option_steps} env steps each" if option_steps > 1 else " (one env step each)")
         + f". Preferences: {hierarchy.config.preferences}   Bundle: {out / 'hierarchy.zip'}"
     )
-    start = hierarchy.metadata.get("init_from_ham")
-    if start:
-        console.print(
-            f"Before RL the manager imitated HAM (threshold {start['threshold']:g}) on {start['decisions']:,} "
-            f"decisions: it agrees with HAM on {start['agreement']:.0%} of them"
-        )
+    for key, teacher in (("init_from_ham", "HAM"), ("init_from_gpi", "GPI")):
+        start = hierarchy.metadata.get(key)
+        if start:
+            rule = f" (threshold {start['threshold']:g})" if "threshold" in start else ""
+            console.print(
+                f"Before RL the manager imitated {teacher}{rule} on {start['decisions']:,} decisions: it "
+                f"agrees with {teacher} on {start['agreement']:.0%} of them"
+            )
     if hierarchy.preference_space is not None:
         console.print(f"Conditioned on {hierarchy.preference_space.describe()}")
 
@@ -512,3 +526,38 @@ def grow_command(
         table.add_row(step.name, weights, f"{step.gain:.4g}", str(step.steps), step.warm_start or "-")
     console.print(table)
     console.print(f"Stopped: {record.stopped}.  Record: {root / 'workers' / SUPPORT_FILE}")
+
+
+@app.command("fit-critics")
+@takes_options("seed")
+def fit_critics_command(
+    context: typer.Context,
+    workers: Path = typer.Option(
+        Path("runs/workers"), "--workers", help="Run folder of train-workers whose workers get the critics."
+    ),
+    names: list[str] | None = typer.Option(None, "--worker", help="A worker to fit (repeat; default: all)."),
+    rollout_steps: int = typer.Option(
+        STATE_CRITIC_OPTIONS.rollout_steps,
+        "--rollout-steps",
+        help="Env steps each worker is rolled out for, with exploration noise, to fit its critic on.",
+    ),
+    steps: int = typer.Option(
+        STATE_CRITIC_OPTIONS.steps or 1, "--steps", help="Gradient steps of each critic's TD fitting."
+    ),
+) -> None:
+    """Give each worker a per-term state-value critic over the full shared state, from rollouts of its policy: what GPI (Hierarchy.gpi, --init-from-gpi) acts with."""
+    if not (workers / "workers" / "manifest.json").is_file() and not (workers / "manifest.json").is_file():
+        raise typer.BadParameter(
+            f"no workers manifest in {str(workers)!r}; run train-workers first", param_hint="'--workers'"
+        )
+    with usage_errors("'--rollout-steps'"):
+        options = replace(STATE_CRITIC_OPTIONS, rollout_steps=rollout_steps, steps=steps)
+    run = run_options_of(context)
+    with usage_errors("'--workers'"):
+        facts = fit_state_critics(workers, names or None, options, seed=run.seed)
+    table = Table(title=f"State-value critics in {workers}")
+    for column in ("worker", "env steps", "TD steps", "last TD loss"):
+        table.add_column(column)
+    for name, fact in facts.items():
+        table.add_row(name, f"{fact['env_steps']:,}", f"{fact['steps']:,}", f"{fact['td_loss']:.4g}")
+    console.print(table)

@@ -2,8 +2,9 @@
 Generalized policy improvement (GPI; Barreto et al. 2017, "Successor features for transfer in RL"): acting
 for a weighting ``w`` of the reward terms with the workers' per-term critics, without training a manager.
 
-For continuous-action workers the worker ``i`` maximising ``w . Q_i(s, pi_i(s))`` acts; for discrete-action
-workers the action ``argmax_a max_i w . Q_i(s, a)`` is taken. For every ``w`` the result is at least as good
+For continuous-action workers the worker ``i`` maximising ``w . Q_i(s, pi_i(s))`` acts (or ``w . V_i(s)``
+with state-value critics, which see the full state); for discrete-action workers the action
+``argmax_a max_i w . Q_i(s, a)`` is taken. For every ``w`` the result is at least as good
 as each worker alone, up to the critics' errors; ``Hierarchy`` uses it for ``selection="gpi"``.
 """
 
@@ -26,8 +27,8 @@ class GpiSelector:
     GPI over workers that each carry a per-term critic (``Hierarchy.gpi`` builds one over loaded workers).
 
     :param workers: the frozen workers (each with the observation indices it sees).
-    :param critics: each worker's critic, in the same order: over the same terms, of one discount, all
-        continuous or all discrete.
+    :param critics: each worker's critic, in the same order: over the same terms, of one discount, all of
+        one kind (continuous, discrete or state values).
     """
 
     def __init__(self, workers: Sequence[FrozenWorker], critics: Sequence[TermCritic]) -> None:
@@ -39,7 +40,10 @@ class GpiSelector:
         for what, values in (
             ("over the same terms", [s.terms for s in specs]),
             ("of one discount (their values would not compare)", [s.gamma for s in specs]),
-            ("discrete or all continuous", [s.discrete for s in specs]),
+            (
+                "of one kind (continuous, discrete or state values)",
+                [(s.discrete, s.state_value) for s in specs],
+            ),
         ):
             if any(value != values[0] for value in values):
                 raise ValueError(f"Expected every critic {what}, actually: {values}")
@@ -47,7 +51,7 @@ class GpiSelector:
         for index, (worker, critic) in enumerate(zip(workers, critics)):
             space = getattr(worker.worker, "observation_space", None)
             size = int(np.prod(space.shape)) if space is not None and space.shape else None
-            if size is not None and size != critic.spec.obs_dim:
+            if size is not None and size != critic.spec.obs_dim and not critic.spec.state_value:
                 raise ValueError(
                     f"Worker {index} observes {size} values, its critic {critic.spec.obs_dim}: not its critic"
                 )
@@ -56,13 +60,17 @@ class GpiSelector:
         #: The terms the preference weighs, in the critics' order.
         self.terms = tuple(terms)
         self.discrete = critics[0].spec.discrete
+        self.state_value = critics[0].spec.state_value
 
     def scores(self, obs: np.ndarray, preference: Mapping[str, float]) -> tuple[np.ndarray, list[np.ndarray]]:
         """
         ``w . Q_i`` of every worker for one observation: shape ``(n_workers,)`` for continuous workers (of
-        each one's own action), ``(n_workers, n_actions)`` for discrete ones; and each worker's own action.
+        each one's own action, or of the state), ``(n_workers, n_actions)`` for discrete ones; and each
+        worker's own action (none with state-value critics).
         """
         w = np.array([float(preference.get(term, 0.0)) for term in self.terms], dtype=np.float32)
+        if self.state_value:  # one batch over the full state; only the chosen worker need act
+            return np.array([critic.values(obs[None])[0] @ w for critic in self.critics]), []
         actions = [worker.act(obs) for worker in self.workers]
         rows = []
         for worker, critic, action in zip(self.workers, self.critics, actions):
@@ -81,7 +89,7 @@ class GpiSelector:
             worker, action = np.unravel_index(int(np.argmax(scores)), scores.shape)
             return int(worker), np.asarray(action, dtype=np.int64)
         best = int(np.argmax(scores))
-        return best, np.asarray(actions[best])
+        return best, np.asarray(actions[best] if actions else self.workers[best].act(obs))
 
 
 def check_gpi_preference(preference: Mapping[str, object], terms: Sequence[str]) -> dict[str, float]:

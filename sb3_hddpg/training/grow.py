@@ -94,7 +94,9 @@ def policy_values(workers: Workers, start_states: int) -> dict[str, np.ndarray]:
         frozen = FrozenWorker(model, indices)
         seen = starts if indices is None else starts[..., indices]
         actions = np.asarray(frozen.act(starts))
-        if critic.spec.discrete:
+        if critic.spec.state_value:  # over the full state, of the worker's own policy
+            picked = critic.values(starts)
+        elif critic.spec.discrete:
             per_action = critic.values(seen)
             picked = per_action[np.arange(len(seen)), actions.reshape(-1).astype(int)]
         else:

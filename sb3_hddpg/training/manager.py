@@ -19,7 +19,7 @@ from sb3_hddpg.callbacks.checkpoint import read_checkpoint_state
 from sb3_hddpg.callbacks.selection_stats import SelectionStatsCallback
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.agent import AgentPaths, TrainingOutcome, agent_run, callback_list, train_agent
-from sb3_hddpg.training.ham_start import ham_start_hook
+from sb3_hddpg.training.imitation_start import HamStart, start_hook
 from sb3_hddpg.training.manager_setup import (
     MANAGER_OPTION_NAMES,
     ManagerOptions,
@@ -111,7 +111,7 @@ def train_manager(
     paths = AgentPaths(out_dir, "manager", out_dir / "manager" / "manager.zip")
     _check_manager_resume(paths, run.resume, setup)
     factory = setup.env_factory()
-    ham_report: dict[str, Any] = {}
+    start_report: dict[str, Any] = {}
     outcome = train_agent(
         factory,
         setup.hyperparams,
@@ -120,13 +120,18 @@ def train_manager(
         run=agent_run(run, paths, run.timesteps),
         callback=[SelectionStatsCallback(), *callback_list(callback)],
         prepare_model=(
-            ham_start_hook(setup.ham_start, factory, run.seed, ham_report)
-            if setup.ham_start is not None
+            start_hook(setup.start, factory, run.seed, start_report, setup.workers.critics)
+            if setup.start is not None
             else None
         ),
     )
-    hierarchy = _manager_bundle(setup, outcome, run.seed, ham_report)
+    hierarchy = _manager_bundle(setup, outcome, run.seed, start_report)
     return ManagerResult(hierarchy, hierarchy.save(out_dir / "hierarchy.zip"), outcome)
+
+
+def start_key(start: object) -> str:
+    """The bundle metadata's key for a manager's start: ``init_from_ham`` or ``init_from_gpi``."""
+    return "init_from_ham" if isinstance(start, HamStart) else "init_from_gpi"
 
 
 def _setup_of(
@@ -144,7 +149,7 @@ def _setup_of(
 
 
 def _manager_bundle(
-    setup: ManagerSetup, outcome: TrainingOutcome, seed: int, ham_report: dict[str, Any]
+    setup: ManagerSetup, outcome: TrainingOutcome, seed: int, start_report: dict[str, Any]
 ) -> Hierarchy:
     """The trained manager over its workers as a hierarchy, its metadata saying how it was trained."""
     return Hierarchy(
@@ -160,6 +165,6 @@ def _manager_bundle(
             "config": setup.hyperparams.raw,
             "metrics": outcome.metrics,
             "backend": outcome.backend,
-            **({"init_from_ham": ham_report} if ham_report else {}),
+            **({start_key(setup.start): start_report} if start_report else {}),
         },
     )

@@ -21,6 +21,8 @@ from sb3_hddpg.artifacts.records import ModelsManifest
 from sb3_hddpg.artifacts.values import check_make_kwargs
 from sb3_hddpg.artifacts.workers import Workers, shared_env_of
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
+from sb3_hddpg.hierarchy.gpi import gpi_of
 from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
 from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
@@ -28,7 +30,7 @@ from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import algo_class
 from sb3_hddpg.training.config import Hyperparams, default_config, manager_hyperparams
-from sb3_hddpg.training.ham_start import HAM_START_ALGOS, HamStart, check_ham_workers
+from sb3_hddpg.training.imitation_start import HAM_START_ALGOS, GpiStart, HamStart, check_ham_workers
 
 #: The algorithms a manager can be (DDPG is the paper's), each with a ``manager`` block in its bundled config;
 #: one acting in Discrete spaces (DQN) selects with the ``discrete`` mode, its action the worker's index.
@@ -100,7 +102,7 @@ class ManagerSetup:
     :param workers_dir: the workers' folder.
     :param trusted: load the workers with SB3's full loader.
     :param algo: the manager's algorithm, one of :data:`MANAGER_ALGOS`.
-    :param ham_start: imitate HAM before RL (``None``: start from the random initialisation).
+    :param start: imitate HAM or GPI before RL (``None``: start from the random initialisation).
     """
 
     workers: Workers
@@ -112,7 +114,7 @@ class ManagerSetup:
     workers_dir: str = ""
     trusted: bool = False
     algo: str = "ddpg"
-    ham_start: HamStart | None = None
+    start: HamStart | GpiStart | None = None
 
     @property
     def names(self) -> list[str]:
@@ -160,7 +162,9 @@ class ManagerOptions:
     :param relabel_fraction: a conditioned off-policy manager's share of replayed steps given another
         preference.
     :param init_from_ham: imitate HAM's choices before RL: HAM's threshold or a
-        :class:`~sb3_hddpg.training.ham_start.HamStart`.
+        :class:`~sb3_hddpg.training.imitation_start.HamStart`.
+    :param init_from_gpi: imitate GPI over the workers' per-term critics before RL, at each episode's
+        preference: ``True`` or a :class:`~sb3_hddpg.training.imitation_start.GpiStart`.
     :param option_end: options that also end by state: ``"distance=0.5"``, ``"touch"``, both
         (``"distance=0.5,touch"``) or an :class:`~sb3_hddpg.hierarchy.option_end.OptionEnd`.
     :param manager_motion: the manager also observes its state's change over the last env step, scaled by
@@ -184,6 +188,7 @@ class ManagerOptions:
     manager_preferences: str | PreferenceSpace | None = None
     relabel_fraction: float = 0.5
     init_from_ham: float | HamStart | None = None
+    init_from_gpi: bool | GpiStart | None = None
     option_end: str | OptionEnd | None = None
     manager_motion: float | None = None
     gamma: float | None = None
@@ -259,7 +264,7 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
         str(Path(workers_dir)),
         options.trusted,
         algo,
-        _ham_start(options.init_from_ham, list(workers), algo),
+        _start(options, workers, algo),
     )
 
 
@@ -327,14 +332,24 @@ def _check_workers_fit(
         WorkerSelectionWrapper(probe, workers, **selection_config.wrapper_kwargs())
 
 
-def _ham_start(given: float | HamStart | None, names: list[str], algo: str) -> HamStart | None:
-    """The start from HAM, checked: HAM switches between workers named ``goal`` and ``avoid``."""
-    if given is None:
+def _start(options: ManagerOptions, workers: Workers, algo: str) -> HamStart | GpiStart | None:
+    """
+    The manager's start, checked: HAM switches between workers named ``goal`` and ``avoid``; GPI needs a
+    per-term critic for every worker.
+    """
+    ham, gpi = options.init_from_ham, options.init_from_gpi
+    if ham is None and not gpi:
         return None
+    if ham is not None and gpi:
+        raise ValueError("Start the manager from HAM or from GPI, not both")
     if algo not in HAM_START_ALGOS:
-        raise ValueError(f"The start from HAM fits managers of {list(HAM_START_ALGOS)}, not {algo!r}")
-    check_ham_workers(names)
-    return given if isinstance(given, HamStart) else HamStart(float(given))
+        raise ValueError(f"A manager's start fits managers of {list(HAM_START_ALGOS)}, not {algo!r}")
+    if gpi:
+        # GPI's own checks (a critic for every worker, of one kind and discount), before anything trains
+        gpi_of([FrozenWorker(model) for model in workers.values()], workers.critics, list(workers))
+        return gpi if isinstance(gpi, GpiStart) else GpiStart()
+    check_ham_workers(list(workers))
+    return ham if isinstance(ham, HamStart) else HamStart(float(ham or 0.0))
 
 
 def _with_gamma(hyperparams: Hyperparams, gamma: float | None) -> Hyperparams:

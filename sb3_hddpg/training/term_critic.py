@@ -1,28 +1,44 @@
 """
-Training a worker's per-term critic (:class:`~sb3_hddpg.artifacts.term_critic.TermCritic`) by TD on the
-transitions it collected: policy evaluation of the worker's own policy, one head per normalised term,
-``y_k = r_k + gamma * (1 - done) * Q'_k(s', pi(s'))`` with a Polyak-averaged target network (for a discrete
-worker ``Q_k(s, a)`` of every action, the next action its greedy one). It costs gradient steps, no env steps.
+Training a worker's per-term critic (:class:`~sb3_hddpg.artifacts.term_critic.TermCritic`) by TD: policy
+evaluation of the worker's own policy, one head per normalised term, with a Polyak-averaged target network.
+
+- On the transitions it collected in training, over its own observation:
+  ``y_k = r_k + gamma * (1 - done) * Q'_k(s', pi(s'))`` (for a discrete worker ``Q_k(s, a)`` of every action,
+  the next action its greedy one). It costs gradient steps, no env steps.
+- On rollouts of its final policy in the shared env (:func:`rollout_transitions`), over the full state:
+  ``y_k = r_k + gamma * (1 - done) * V'_k(s')``. It costs the rollouts' env steps, and it is what GPI needs
+  when a worker sees part of the state (on the snake, the goal worker does not see the obstacles).
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
-from collections.abc import Sequence
+import hashlib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.utils import polyak_update
 
+from sb3_hddpg.artifacts.io import atomic_write_bytes, holds_folder_lock
 from sb3_hddpg.artifacts.limits import MAX_BATCH_SIZE
-from sb3_hddpg.artifacts.term_critic import TermCritic, TermCriticSpec
+from sb3_hddpg.artifacts.manifests import load_workers, save_manifest
+from sb3_hddpg.artifacts.term_critic import TERM_CRITIC_MEMBER, TermCritic, TermCriticSpec, with_term_critic
 from sb3_hddpg.artifacts.transitions import Transitions
 from sb3_hddpg.callbacks.term_record import TermRecorder
+from sb3_hddpg.envs.contract import TermNormaliser, env_contract, state_layout_of
+from sb3_hddpg.hierarchy.frozen import FrozenWorker
 
 #: The most gradient steps a critic takes by default (fewer when fewer transitions were collected).
 DEFAULT_CRITIC_STEPS = 20_000
+#: The first episode seed of the rollouts a state-value critic is fitted on: its own range, far from every
+#: evaluation set of :mod:`sb3_hddpg.episode_sets` (they start at 10,000 and are 5,000 episodes each).
+ROLLOUT_FIRST_SEED = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -37,6 +53,9 @@ class TermCriticOptions:
     :param tau: the target network's Polyak coefficient.
     :param gamma: the discount of the values: one for every worker of a support, not each worker's own, so
         that GPI and the support compare values of one kind.
+    :param rollout_steps: for a state-value critic, the env steps of its policy's rollouts it is fitted on.
+    :param noise: for a state-value critic, the std of the Gaussian noise on the rollouts' actions (as a
+        share of the action range's half), so that it also values states just off the policy's path.
     """
 
     steps: int | None = None
@@ -45,6 +64,8 @@ class TermCriticOptions:
     learning_rate: float = 1e-3
     tau: float = 0.02
     gamma: float = 0.99
+    rollout_steps: int = 40_000
+    noise: float = 0.1
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.gamma < 1.0:
@@ -55,6 +76,10 @@ class TermCriticOptions:
             raise ValueError(f"Expected `steps` in [1, 10000000], actually: {self.steps}")
         if not 1 <= self.batch_size <= MAX_BATCH_SIZE:
             raise ValueError(f"Expected `batch_size` in [1, {MAX_BATCH_SIZE}], actually: {self.batch_size}")
+        if isinstance(self.rollout_steps, bool) or not 1 <= int(self.rollout_steps) <= 10_000_000:
+            raise ValueError(f"Expected `rollout_steps` in [1, 10000000], actually: {self.rollout_steps}")
+        if not 0.0 <= self.noise <= 1.0:
+            raise ValueError(f"Expected `noise` in [0, 1], actually: {self.noise}")
         if not (0 < self.learning_rate < 1 and 0 < self.tau <= 1):
             raise ValueError(
                 f"Expected `learning_rate` and `tau` in (0, 1), actually: {self.learning_rate}, {self.tau}"
@@ -81,8 +106,66 @@ def recorded_transitions(recorder: TermRecorder) -> Transitions:
     )
 
 
+#: A state-value critic's settings, as chosen on the snake's development episodes: a wider net and a shorter
+#: horizon than the buffer critic's (contacts are near-term events).
+STATE_CRITIC_OPTIONS = TermCriticOptions(steps=20_000, net_arch=(256, 256), gamma=0.95)
+
+
+def rollout_transitions(
+    worker: FrozenWorker,
+    env: gym.Env,
+    bounds: Mapping[str, Sequence[float]],
+    options: TermCriticOptions,
+    seed: int = 0,
+) -> Transitions:
+    """
+    Roll ``worker`` out in the shared ``env`` for ``options.rollout_steps`` env steps, its actions with
+    Gaussian noise, episode ``k`` reset with seed ``ROLLOUT_FIRST_SEED + k``: on-policy transitions over the
+    full state, for a state-value critic (their ``actions`` are empty).
+
+    :param worker: the worker, frozen with the indices of the state it sees.
+    :param env: the shared env (full observations, ``info["reward_terms"]`` every step).
+    :param bounds: term name -> per-step ``(low, high)``, the env contract's.
+    :param options: the rollouts' length and noise.
+    :param seed: seeds the noise.
+    """
+    normaliser = TermNormaliser(bounds)
+    terms = tuple(normaliser.bounds)
+    space = env.action_space
+    if not isinstance(space, gym.spaces.Box):
+        raise ValueError(
+            "A state-value critic is for continuous workers: a discrete one's Q over actions is GPI's"
+        )
+    rng = np.random.default_rng(seed)
+    scale = options.noise * (space.high - space.low) / 2.0
+    n = int(options.rollout_steps)
+    obs_dim = int(np.prod(env.observation_space.shape or (1,)))
+    states = np.zeros((n + 1, obs_dim), dtype=np.float32)
+    next_states = np.zeros((n, obs_dim), dtype=np.float32)
+    rewards = np.zeros((n, len(terms)), dtype=np.float32)
+    continues = np.ones(n, dtype=np.float32)
+    episode = 0
+    obs, _ = env.reset(seed=ROLLOUT_FIRST_SEED)
+    worker.reset_episode()
+    for step in range(n):
+        states[step] = np.ravel(obs)
+        action = np.clip(
+            worker.act(np.asarray(obs)) + rng.normal(0.0, 1.0, space.shape) * scale, space.low, space.high
+        )
+        obs, _, terminated, truncated, info = env.step(action.astype(space.dtype))
+        normalised = normaliser(info["reward_terms"])
+        rewards[step] = [normalised[term] for term in terms]
+        next_states[step] = np.ravel(obs)
+        continues[step] = 0.0 if terminated else 1.0
+        if terminated or truncated:
+            episode += 1
+            obs, _ = env.reset(seed=ROLLOUT_FIRST_SEED + episode)
+            worker.reset_episode()
+    return Transitions(states[:n], np.zeros((n, 0), dtype=np.float32), next_states, rewards, continues)
+
+
 def fit_term_critic(
-    policy: BaseAlgorithm,
+    policy: BaseAlgorithm | None,
     transitions: Transitions,
     terms: Sequence[str],
     options: TermCriticOptions | None = None,
@@ -91,7 +174,8 @@ def fit_term_critic(
     """
     Train a per-term critic of ``policy`` on ``transitions``.
 
-    :param policy: the worker (an SB3 model; its ``predict`` gives ``pi(s')``).
+    :param policy: the worker (an SB3 model; its ``predict`` gives ``pi(s')``); ``None``: a state-value
+        critic of the policy that collected ``transitions`` (:func:`rollout_transitions`), over their states.
     :param transitions: its stored transitions with their normalised terms.
     :param terms: the terms' names, in the order of ``transitions.terms``' columns.
     :param options: the training settings.
@@ -99,29 +183,34 @@ def fit_term_critic(
     :return: the critic and its training facts (``steps``, ``transitions``, the last ``td_loss``).
     """
     options = options or TermCriticOptions()
-    spec = TermCriticSpec.for_spaces(
-        terms, policy.observation_space, policy.action_space, options.net_arch, options.gamma
-    )
+    if policy is None:
+        width = int(transitions.obs.shape[1])
+        spec = TermCriticSpec(tuple(terms), width, 0, (), (), tuple(options.net_arch), float(options.gamma))
+    else:
+        spec = TermCriticSpec.for_spaces(
+            terms, policy.observation_space, policy.action_space, options.net_arch, options.gamma
+        )
     generator = torch.Generator().manual_seed(seed)
     with torch.random.fork_rng():
         torch.manual_seed(seed)
         critic = TermCritic(spec)
     target = copy.deepcopy(critic)
     optimizer = torch.optim.Adam(critic.parameters(), lr=options.learning_rate)
-    # The policy is fixed: its next actions are computed once, not once per batch.
-    next_actions, _ = policy.predict(transitions.next_obs, deterministic=True)
     data = {
         "obs": torch.as_tensor(transitions.obs),
         "next_obs": torch.as_tensor(transitions.next_obs),
         "terms": torch.as_tensor(transitions.terms, dtype=torch.float32),
         "continues": torch.as_tensor(transitions.continues, dtype=torch.float32).reshape(-1, 1),
     }
-    if spec.discrete:
-        data["actions"] = torch.as_tensor(transitions.actions, dtype=torch.long).reshape(-1)
-        data["next_actions"] = torch.as_tensor(np.asarray(next_actions), dtype=torch.long).reshape(-1)
-    else:
-        data["actions"] = torch.as_tensor(transitions.actions, dtype=torch.float32)
-        data["next_actions"] = torch.as_tensor(critic.scale_actions(np.asarray(next_actions)))
+    if policy is not None:  # a state value needs no actions: the transitions' own were the policy's
+        # The policy is fixed: its next actions are computed once, not once per batch.
+        next_actions = np.asarray(policy.predict(transitions.next_obs, deterministic=True)[0])
+        if spec.discrete:
+            data["actions"] = torch.as_tensor(transitions.actions, dtype=torch.long).reshape(-1)
+            data["next_actions"] = torch.as_tensor(next_actions, dtype=torch.long).reshape(-1)
+        else:
+            data["actions"] = torch.as_tensor(transitions.actions, dtype=torch.float32)
+            data["next_actions"] = torch.as_tensor(critic.scale_actions(next_actions))
     steps = int(options.steps if options.steps is not None else min(len(transitions), DEFAULT_CRITIC_STEPS))
     loss_value = float("nan")
     for _ in range(steps):
@@ -144,11 +233,61 @@ def _td_loss(
     """The mean squared TD error over every term head of one batch."""
     rows = torch.arange(len(batch["obs"]))
 
-    def q(network: TermCritic, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    def q(network: TermCritic, obs: torch.Tensor, actions: torch.Tensor | None) -> torch.Tensor:
+        if critic.spec.state_value:
+            return network(obs)
         return network(obs)[rows, actions] if critic.spec.discrete else network(obs, actions)
 
     with torch.no_grad():
         targets = batch["terms"] + gamma * batch["continues"] * q(
-            target, batch["next_obs"], batch["next_actions"]
+            target, batch["next_obs"], batch.get("next_actions")
         )
-    return torch.nn.functional.mse_loss(q(critic, batch["obs"], batch["actions"]), targets)
+    return torch.nn.functional.mse_loss(q(critic, batch["obs"], batch.get("actions")), targets)
+
+
+@holds_folder_lock(lambda call: call.arguments["out_dir"])
+def fit_state_critics(
+    out_dir: str | Path,
+    names: Sequence[str] | None = None,
+    options: TermCriticOptions = STATE_CRITIC_OPTIONS,
+    seed: int = 0,
+) -> dict[str, dict[str, object]]:
+    """
+    Give each continuous worker of a run folder a state-value critic over the shared env's full state,
+    fitted on rollouts of its policy (:func:`rollout_transitions`), in place of the critic its zip holds: the
+    critics GPI and a start from GPI act with. Each zip is rewritten whole and the manifest records the new
+    hash and the critic's facts, its rollouts' ``env_steps`` among them.
+
+    :param out_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
+    :param names: which workers (default: all).
+    :param options: the critics' settings (default: :data:`STATE_CRITIC_OPTIONS`).
+    :param seed: seeds the rollouts' noise and the critics' training.
+    :return: worker name -> the critic's facts, as the manifest records them.
+    """
+    workers = load_workers(out_dir, names=names)
+    if workers.folder is None:
+        raise ValueError(f"{str(out_dir)!r}: no workers folder")
+    manifest_path = workers.folder / "manifest.json"
+    manifest = workers.manifest
+    done: dict[str, dict[str, object]] = {}
+    with contextlib.closing(workers.make_env()) as env:
+        bounds = dict(env_contract(env).reward_bounds)
+        layout = state_layout_of(env)
+        for name, model in workers.items():
+            indices = layout.indices(workers.states[name]) if name in workers.states else None
+            transitions = rollout_transitions(FrozenWorker(model, indices), env, bounds, options, seed)
+            critic, fit_facts = fit_term_critic(None, transitions, list(bounds), options, seed)
+            path = workers.folder / str(manifest.entries[name]["file"])
+            data = with_term_critic(path.read_bytes(), critic)
+            facts = {"member": TERM_CRITIC_MEMBER, "terms": list(bounds), "kind": "state_value",
+                     "env_steps": len(transitions), **fit_facts}  # fmt: skip
+            atomic_write_bytes(path, data)
+            entry = {
+                **manifest.entries[name],
+                "sha256": hashlib.sha256(data).hexdigest(),
+                "term_critic": facts,
+            }
+            manifest = manifest.with_entry(name, entry)
+            save_manifest(manifest_path, manifest)
+            done[name] = facts
+    return done

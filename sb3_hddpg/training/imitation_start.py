@@ -1,17 +1,21 @@
 """
-A manager's start from the hand-written rule: behaviour cloning on HAM's choices before RL.
+A manager's start from a teacher that needs no training: behaviour cloning on its choices before RL. The
+teacher is the hand-written rule (:class:`HamStart`, HAM's threshold switch) or generalized policy
+improvement over the workers' per-term critics (:class:`GpiStart`, at each episode's preference, for a
+conditioned manager).
 
-A freshly initialised manager starts far below HAM's threshold switch and spends much of its budget getting
-back to it. Here HAM first drives the manager's own env for a number of decisions, and the manager's network
-is fitted to its choices: a simplex manager's actor regressed onto ``+1`` for HAM's worker and ``-1`` for
-the others; a discrete manager's Q-values by DQfD's large-margin loss plus their cross-entropy. The same
-decisions go into the replay buffer with their real rewards, so RL starts at HAM's level. SB3 managers only.
+A freshly initialised manager starts far below the teacher and spends much of its budget getting back to
+it. Here the teacher first drives the manager's own env for a number of decisions, and the manager's network
+is fitted to its choices: a simplex manager's actor regressed onto ``+1`` for the teacher's worker and ``-1``
+for the others; a discrete manager's Q-values by DQfD's large-margin loss plus their cross-entropy. The same
+decisions go into the replay buffer with their real rewards, so RL starts at the teacher's level. SB3
+managers only.
 """
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -20,12 +24,15 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from sb3_hddpg.artifacts.term_critic import TermCritic
+from sb3_hddpg.envs.contract import mix_terms
+from sb3_hddpg.hierarchy.gpi import gpi_of
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 
 if TYPE_CHECKING:
     from sb3_hddpg.baselines.ham import HAMSwitch
 
-#: The manager algorithms whose network the start from HAM fits: a deterministic or squashed actor, or a Q-net.
+#: The manager algorithms whose network a start fits: a deterministic or squashed actor, or a Q-net.
 HAM_START_ALGOS = ("ddpg", "td3", "sac", "tqc", "crossq", "dqn")
 #: DQfD's margin between HAM's choice and every other worker's Q-value.
 MARGIN = 0.8
@@ -56,11 +63,37 @@ class HamStart:
             raise ValueError(
                 f"Expected HAM's threshold to be a finite number >= 0, actually: {self.threshold}"
             )
-        for name in ("decisions", "epochs", "batch_size"):
-            if getattr(self, name) < 1:
-                raise ValueError(
-                    f"Expected `{name}` >= 1 for the start from HAM, actually: {getattr(self, name)}"
-                )
+        _check_fitting(self)
+
+
+@dataclass(frozen=True)
+class GpiStart:
+    """
+    How a conditioned manager imitates GPI over its workers' per-term critics before RL: at each decision
+    GPI picks the worker for the term weights of the episode's preference (each worker's reward weighed by
+    its preference factor); the workers need critics (``fit-critics`` gives them state-value ones).
+
+    :param decisions: manager decisions of GPI's to imitate (and to store in the replay buffer).
+    :param epochs: passes of the fitting over those decisions.
+    :param batch_size: decisions per gradient step.
+    :param learning_rate: the fitting's Adam learning rate.
+    """
+
+    decisions: int = 2000
+    epochs: int = 30
+    batch_size: int = 256
+    learning_rate: float = 1e-3
+
+    def __post_init__(self) -> None:
+        _check_fitting(self)
+
+
+def _check_fitting(start: HamStart | GpiStart) -> None:
+    for name in ("decisions", "epochs", "batch_size"):
+        if getattr(start, name) < 1:
+            raise ValueError(
+                f"Expected `{name}` >= 1 for the manager's start, actually: {getattr(start, name)}"
+            )
 
 
 def check_ham_workers(names: Sequence[str]) -> None:
@@ -96,37 +129,57 @@ def _choice_action(wrapper: WorkerSelectionWrapper, choice: int) -> np.ndarray:
     return action
 
 
-def collect_ham_decisions(
-    env: gym.Env, start: HamStart, model: BaseAlgorithm | None = None, seed: int = 0
+def _teacher(
+    wrapper: WorkerSelectionWrapper, start: HamStart | GpiStart, critics: Mapping[str, TermCritic]
+) -> tuple[Callable[[np.ndarray], int], Callable[[], None]]:
+    """The teacher's choice (a worker index) for a full state, and what it does at an episode's start."""
+    if isinstance(start, GpiStart):
+        selector = gpi_of(wrapper.frozen, critics, wrapper.worker_names)
+        # The manager's reward is sum_i p_i r_i, each r_i a weighting of the terms: GPI weighs the terms so.
+        return (
+            lambda state: selector.select(state, mix_terms(wrapper.reward_specs, wrapper.preferences))[0],
+            lambda: None,
+        )
+    switch, avoid = ham_of(wrapper, start)
+    goal = wrapper.worker_names.index("goal")
+    return (lambda state: avoid if bool(switch.select(state)[0]) else goal), switch.reset_episode
+
+
+def collect_start_decisions(
+    env: gym.Env,
+    start: HamStart | GpiStart,
+    model: BaseAlgorithm | None = None,
+    seed: int = 0,
+    critics: Mapping[str, TermCritic] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """
-    Let HAM drive the manager's env for ``start.decisions`` decisions; store them in ``model``'s replay
-    buffer if it has one.
+    Let the teacher drive the manager's env for ``start.decisions`` decisions; store them in ``model``'s
+    replay buffer if it has one.
 
     :param env: the manager's env (a ``WorkerSelectionWrapper``, possibly wrapped).
-    :param start: the settings.
+    :param start: the settings (HAM's or GPI's).
     :param model: the manager (``None``: only collect).
     :param seed: the first episode's seed.
-    :return: the manager observations and HAM's choices (worker indices).
+    :param critics: worker name -> its per-term critic, for a start from GPI.
+    :return: the manager observations and the teacher's choices (worker indices).
     """
     wrapper = env
     while not isinstance(wrapper, WorkerSelectionWrapper):
         if not isinstance(wrapper, gym.Wrapper):
-            raise ValueError("The start from HAM needs the manager's WorkerSelectionWrapper env")
+            raise ValueError("A manager's start needs the manager's WorkerSelectionWrapper env")
         wrapper = wrapper.env
-    switch, avoid = ham_of(wrapper, start)
-    goal = wrapper.worker_names.index("goal")
+    choose, reset_episode = _teacher(wrapper, start, critics or {})
     buffer = getattr(model, "replay_buffer", None)
     observations: list[np.ndarray] = []
     choices: list[int] = []
     obs, _ = env.reset(seed=seed)
-    switch.reset_episode()
+    reset_episode()
     episode = 0
     while len(choices) < start.decisions:
         full_state = wrapper._last_obs
         if full_state is None:
             raise RuntimeError("The manager's env was not reset")
-        choice = avoid if bool(switch.select(full_state)[0]) else goal
+        choice = choose(full_state)
         action = _choice_action(wrapper, choice)
         next_obs, reward, terminated, truncated, info = env.step(action)
         observations.append(obs)
@@ -141,15 +194,17 @@ def collect_ham_decisions(
         if terminated or truncated:
             episode += 1
             obs, _ = env.reset(seed=seed + episode)
-            switch.reset_episode()
+            reset_episode()
     return np.asarray(observations, dtype=np.float32), np.asarray(choices, dtype=np.int64)
 
 
-def imitate(model: BaseAlgorithm, observations: np.ndarray, choices: np.ndarray, start: HamStart) -> float:
+def imitate(
+    model: BaseAlgorithm, observations: np.ndarray, choices: np.ndarray, start: HamStart | GpiStart
+) -> float:
     """
-    Fit the manager's network to HAM's choices (see the module's note).
+    Fit the manager's network to the teacher's choices (see the module's note).
 
-    :return: the share of the decisions on which the fitted manager's choice is HAM's.
+    :return: the share of the decisions on which the fitted manager's choice is the teacher's.
     """
     policy: Any = model.policy
     policy.set_training_mode(True)
@@ -204,19 +259,26 @@ def _copy_targets(policy: object, discrete: bool) -> None:
             getattr(policy, target).load_state_dict(getattr(policy, source).state_dict())
 
 
-def ham_start_hook(
-    start: HamStart, env_factory: Callable[[], gym.Env], seed: int, report: dict[str, Any]
+def start_hook(
+    start: HamStart | GpiStart,
+    env_factory: Callable[[], gym.Env],
+    seed: int,
+    report: dict[str, Any],
+    critics: Mapping[str, TermCritic] | None = None,
 ) -> Callable[[BaseAlgorithm], None]:
     """
-    The function :func:`~sb3_hddpg.training.agent.train_agent` calls on a fresh manager: collect HAM's
-    decisions, fill the replay buffer and fit the network; ``report`` gets the settings and the agreement.
+    The function :func:`~sb3_hddpg.training.agent.train_agent` calls on a fresh manager: collect the
+    teacher's decisions, fill the replay buffer and fit the network; ``report`` gets the settings and the
+    agreement.
+
+    :param critics: worker name -> its per-term critic, for a start from GPI.
     """
 
     def prepare(model: BaseAlgorithm) -> None:
         if not isinstance(model.policy, th.nn.Module):
-            raise ValueError("The start from HAM fits SB3 (torch) managers: use --backend sb3")
+            raise ValueError("A manager's start fits SB3 (torch) managers: use --backend sb3")
         with contextlib.closing(env_factory()) as env:
-            observations, choices = collect_ham_decisions(env, start, model, seed=seed)
+            observations, choices = collect_start_decisions(env, start, model, seed=seed, critics=critics)
         agreement = imitate(model, observations, choices, start)
         report.update({**asdict(start), "agreement": agreement})
 
