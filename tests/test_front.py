@@ -401,3 +401,35 @@ def test_decisions_are_counted_once_per_option(tmp_path):
 def test_benchmark_cli_refuses_methods_outside_the_front_scenario(tmp_path):
     result = run_cli("benchmark", "--scenario", "front", "--methods", "hddpg", "--out", str(tmp_path / "b"))
     assert result.returncode == 2 and "front scenario runs" in result.stdout + result.stderr
+
+
+@pytest.mark.slow
+def test_the_support_method_grows_a_support_with_critics_and_starts_its_manager_from_gpi(tmp_path):
+    preferences = ";".join(
+        ("goal=2,avoid=0.5,mix-goal50-avoid50=0.5", "goal=0.5,avoid=2,mix-goal50-avoid50=0.5",
+         "goal=0.5,avoid=0.5,mix-goal50-avoid50=2")
+    )  # fmt: skip
+    settings = BenchmarkSettings(
+        methods=["hddpg-support"], seeds=[0], timesteps=120, worker_timesteps=200, eval_episodes=1,
+        test_episodes=1, scenario="front", front_manager="dqn", front_timesteps=200, front_sweep=preferences,
+        front_support="goal=0.5,avoid=0.5", front_start="gpi", front_critic_steps=150,
+        front_per_preference=False, backend="sb3",
+    )  # fmt: skip
+    run_benchmark(settings, tmp_path)
+    record = json.loads((tmp_path / "records" / "hddpg-support" / "seed-0.json").read_text())
+    assert record["manager"]["start"] == "gpi" and record["manager"]["backend"] == "sb3"
+    assert record["manager"]["workers"] == ["goal", "avoid", "mix-goal50-avoid50"]
+    # Three workers of 200 steps, and each one's critic fitted on 150 env steps of its rollouts.
+    assert record["worker_timesteps"] == 3 * 200 + 3 * 150
+    front = record["front"]
+    assert {"conditioned", "ham", "goal", "avoid", "mix-goal50-avoid50", "gpi"} <= set(front)
+    assert len(front["conditioned"]["points"]) == len(front["gpi"]["points"]) == 3
+    bundle = Hierarchy.load(tmp_path / "seed-0" / "hddpg-support" / "conditioned" / "hierarchy.zip")
+    assert bundle.names == ["goal", "avoid", "mix-goal50-avoid50"] and "init_from_gpi" in bundle.metadata
+    # The seed's own workers are untouched: the support is a copy.
+    manifest = json.loads((tmp_path / "seed-0" / "workers" / "manifest.json").read_text())
+    assert list(manifest["workers"]) == ["goal", "avoid"]
+    with pytest.raises(ValueError, match="gpi or none"):
+        BenchmarkSettings(methods=["hddpg-support"], scenario="front", front_start="ham")
+    with pytest.raises(ValueError, match="front-support"):
+        BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_sweep=preferences)

@@ -27,7 +27,7 @@ pymoo's against a reference point fixed per env and stated in every record, so r
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
@@ -53,6 +53,7 @@ from hddpg_zoo.benchmark.front_points import (
     non_dominated,
     sweep_labels,
 )
+from hddpg_zoo.benchmark.front_support import SUPPORT_METHOD, support_folder, support_sweep, support_weights
 from hddpg_zoo.benchmark.method_inputs import MethodSettings, MethodTask
 from hddpg_zoo.benchmark.methods import (
     Method,
@@ -97,6 +98,9 @@ FRONT_SETTINGS = (
     "front_motion",
     "front_option_steps",
     "front_per_preference",
+    "front_support",
+    "front_start",
+    "front_critic_steps",
     "morl_python",
 )
 
@@ -110,14 +114,16 @@ def front_env(settings: MethodSettings) -> gym.Env:
 def front_spec(settings: MethodSettings, env: gym.Env) -> FrontSpec:
     """What the front measures on ``env`` (:func:`front_env`): the snake's, or the other env's terms and rule."""
     shared = settings.terms_env
+    # A sweep that lists preferences names the support's workers: the spec keeps the terms' ratio sweep.
+    form = settings.front_sweep if "=" not in settings.front_sweep else "ratio-sweep"
     if shared is None:
-        return replace(SNAKE_FRONT, sweep_form=settings.front_sweep)
+        return replace(SNAKE_FRONT, sweep_form=form)
     # An adapter's time limit is its inner env's (gym.make keeps max_episode_steps for itself).
     steps = env.spec.max_episode_steps if env.spec is not None else None
     steps = steps or getattr(env.unwrapped, "episode_steps", None)
     rule = "ttc" if kinematics_scales(env) is not None else None
     spec = env_front(shared.terms, env_contract(env).reward_bounds, steps, rule)
-    return replace(spec, sweep_form=settings.front_sweep)
+    return replace(spec, sweep_form=form)
 
 
 def decision_dependence(
@@ -234,14 +240,14 @@ def _test_point(
 
 
 def _train_managers(
-    task: MethodTask, settings: MethodSettings, folder: Path, sweep: PreferenceSpace
+    task: MethodTask, settings: MethodSettings, folder: Path, sweep: PreferenceSpace, run_dir: Path
 ) -> tuple[Hierarchy, float, list[tuple[str, Hierarchy]]]:
     """
-    The seed's conditioned manager over ``sweep``, the seconds it trained, and one manager per preference of it
-    (none when the settings' ``front_per_preference`` is off).
+    The seed's conditioned manager over ``sweep`` and the workers of ``folder``, the seconds it trained, and
+    one manager per preference of it (none when the settings' ``front_per_preference`` is off), in ``run_dir``.
     """
-    run_dir = folder / task.method
-    run, algo = settings.front_run_options(task.seed), settings.front_manager
+    start = settings.front_start if task.method == SUPPORT_METHOD else None
+    run, algo = settings.front_run_options(task.seed, start), settings.front_manager
     shared = settings.terms_env
     steps = settings.front_option_steps
     # The managers act over the workers in the sweep's order, whatever the manifest's; options of another
@@ -251,6 +257,7 @@ def _train_managers(
         "manager_motion": settings.front_motion,
         "option_steps": steps,
         "gamma": horizon_gamma(steps, algo) if steps is not None else None,
+        "init_from_gpi": start == "gpi" or None,
     }
     if shared is not None:
         env_options.update(env_id=shared.env_id, env_kwargs=shared.env_kwargs)
@@ -297,19 +304,25 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
         obstacle clearance), ``rule`` and ``rule_thresholds``.
     """
     run_dir = folder / task.method
+    support = task.method == SUPPORT_METHOD
+    # The support method's managers and GPI act over its own copy of the workers, grown and given critics.
+    workers_dir = support_folder(task, settings, folder) if support else folder
     env = front_env(settings)
     try:
         spec = front_spec(settings, env)
-        conditioned, conditioned_seconds, per_preference = _train_managers(task, settings, folder, spec.sweep)
+        sweep = support_sweep(settings, workers_dir) if support else spec.sweep
+        conditioned, conditioned_seconds, per_preference = _train_managers(
+            task, settings, workers_dir, sweep, run_dir
+        )
         front: dict[str, object] = {}
         dependence: dict[str, DecisionFigure | None] = {}
         points = []
         seeds = settings.test_set.seeds(settings.test_episodes or 1)
         # Told the sweep's own factors, not its rounded labels: an extreme of the sweep rounded may lie
         # just outside the preferences the manager was trained over.
-        for label, point in zip(sweep_labels(spec.sweep), spec.sweep.points):
+        for label, point in zip(sweep_labels(sweep), sweep.points):
             hierarchy = Hierarchy.load(run_dir / "conditioned" / "hierarchy.zip")
-            hierarchy.set_preference(dict(zip(spec.sweep.names, point)))
+            hierarchy.set_preference(dict(zip(sweep.names, point)))
             points.append(_test_point(label, hierarchy, env, settings, spec))
             dependence[label] = decision_dependence(
                 hierarchy, env, seeds, worker=spec.terms[-1], seed=task.seed
@@ -323,13 +336,14 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
         if spec.rule is not None:
             rule_points, thresholds = _rule_front(spec, folder, run_dir, task.seed, env, settings)
             front[spec.rule] = member_fields(rule_points, spec)
-        for worker in spec.terms:
-            front[worker] = member_fields([_alone_point(worker, folder, env, settings, spec)], spec)
+        for worker in (*spec.terms, *(n for n in sweep.names if n not in spec.terms)):
+            front[worker] = member_fields([_alone_point(worker, workers_dir, env, settings, spec)], spec)
         gpi = gpi_points(
-            folder,
+            workers_dir,
             spec,
             lambda label, policy: _test_point(label, policy, env, settings, spec),
             run_dir / "gpi.zip",
+            sweep,
         )
         if gpi is not None:  # GPI over the same workers: no manager, no env steps of its own
             front[GPI_MEMBER] = member_fields(gpi, spec)
@@ -341,12 +355,12 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
     finally:
         env.close()
     return {
-        "worker_timesteps": workers_steps(folder),
-        "manager": _manager_fields(settings, conditioned),
+        "worker_timesteps": workers_steps(workers_dir),
+        "manager": _manager_fields(settings, conditioned, sweep.names if support else None),
         "history": read_history(
             run_dir / "conditioned" / "evaluations" / "manager.json",
             conditioned.config.option_steps,
-            workers_steps(folder),
+            workers_steps(workers_dir),
         ),
         **test,
         "front": front,
@@ -385,11 +399,17 @@ def _morl_front(
     )
 
 
-def _manager_fields(settings: MethodSettings, conditioned: Hierarchy) -> FrontManager:
-    """The front's managers as the record states them: algorithm, env steps each, options, discount, backend."""
-    run = settings.front_run_options(0)
+def _manager_fields(
+    settings: MethodSettings, conditioned: Hierarchy, support: Sequence[str] | None = None
+) -> FrontManager:
+    """
+    The front's managers as the record states them: algorithm, env steps each, options, discount, backend;
+    for the support method, its workers and the managers' start.
+    """
+    start = settings.front_start if support is not None else None
+    run = settings.front_run_options(0, start)
     steps = conditioned.config.option_steps
-    return {
+    fields: FrontManager = {
         "algo": settings.front_manager,
         "env_steps": run.timesteps * steps if run.timesteps else None,
         "backend": run.backend,
@@ -400,6 +420,10 @@ def _manager_fields(settings: MethodSettings, conditioned: Hierarchy) -> FrontMa
         # Every manager algorithm, off- or on-policy, has the discount BaseAlgorithm does not declare.
         "gamma": float(cast(Any, conditioned.manager).gamma),
     }
+    if support is not None:
+        fields["start"] = start
+        fields["workers"] = list(support)
+    return fields
 
 
 def _alone_point(
@@ -473,9 +497,21 @@ def _front_cost(settings: MethodSettings) -> int:
     # The conditioned manager and, unless left out, one manager per sweep preference, each the front's env steps.
     shared = settings.terms_env
     terms = SWEEP.names if shared is None else shared.terms
-    sweep = PreferenceSpace.parse(settings.front_sweep, terms)
-    references = len(sweep.points) if settings.front_per_preference else 0
-    return (1 + references) * settings.front_env_steps
+    form = settings.front_sweep
+    size = len(form.split(";")) if "=" in form else len(PreferenceSpace.parse(form, terms).points)
+    return (1 + (size if settings.front_per_preference else 0)) * settings.front_env_steps
+
+
+def _support_cost(settings: MethodSettings) -> int:
+    # The front's managers, each weighted worker's budget (about a per-term worker's) and the critics' rollouts.
+    weighted = len(support_weights(settings))
+    workers = len(SWEEP.names if settings.terms_env is None else settings.terms_env.terms) + weighted
+    per_worker = settings.flat_budget - settings.manager_env_steps
+    return (
+        _front_cost(settings)
+        + weighted * per_worker // max(workers - weighted, 1)
+        + (workers * settings.front_critic_steps)
+    )
 
 
 def _front_blocks(settings: MethodSettings) -> dict[str, object]:
@@ -496,6 +532,23 @@ register_method(
             "the front scenario: a preference-conditioned manager and a manager per preference over the "
             "preference sweep (the ratio sweep's 7 preferences for two workers by default), the env's rule "
             "over a threshold sweep (HAM on the snake arm) and each worker alone, with hypervolumes"
+        ),
+        config_blocks=_front_blocks,
+        own_settings=FRONT_SETTINGS,
+    )
+)
+register_method(
+    Method(
+        SUPPORT_METHOD,
+        run_front,
+        _support_cost,
+        needs_workers=True,
+        colour="darkviolet",
+        challenger=True,
+        description=(
+            "the front scenario over a support: workers on weightings of the terms beside the per-term ones, "
+            "a state-value critic for each, the conditioned manager over all of them started from GPI, and "
+            "GPI itself, with every member of the front"
         ),
         config_blocks=_front_blocks,
         own_settings=FRONT_SETTINGS,

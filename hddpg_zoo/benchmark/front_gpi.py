@@ -11,6 +11,9 @@ from pathlib import Path
 
 from hddpg_zoo.benchmark.front_points import FrontPoint, FrontSpec, sweep_labels
 from sb3_hddpg.artifacts.manifests import load_workers
+from sb3_hddpg.artifacts.workers import reward_specs_of
+from sb3_hddpg.envs.contract import mix_terms
+from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.policy import Policy
 
@@ -19,29 +22,35 @@ GPI_MEMBER = "gpi"
 
 
 def gpi_points(
-    folder: Path, spec: FrontSpec, point: Callable[[str, Policy], FrontPoint], bundle: Path | None = None
+    folder: Path,
+    spec: FrontSpec,
+    point: Callable[[str, Policy], FrontPoint],
+    bundle: Path | None = None,
+    sweep: PreferenceSpace | None = None,
 ) -> list[FrontPoint] | None:
     """
-    GPI's points over the seed's workers, one per preference of ``spec``'s sweep (the sweep's names are the
-    env's terms: GPI weighs the terms), or ``None`` when a worker has no per-term critic (workers trained
-    with ``--no-term-critic``, or on-policy ones).
+    GPI's points over the seed's workers, one per preference of the sweep, or ``None`` when a worker has no
+    per-term critic (workers trained with ``--no-term-critic``, or on-policy ones). A preference over the
+    workers weighs the terms as the managers' reward does: each worker's reward (its term, or its weighting
+    of the terms) by its factor.
 
     :param folder: the seed's folder (its ``workers/``).
     :param spec: what the front measures.
     :param point: a policy's test point under a label (the front's own measure).
     :param bundle: where to save the GPI bundle (the one model that re-evaluates this member), if anywhere.
+    :param sweep: the preferences, over workers of ``folder`` (default: ``spec``'s, over the terms).
     """
+    sweep = sweep or spec.sweep
     workers = load_workers(folder)
-    if set(workers.critics) != set(workers) or not set(spec.sweep.names) <= set(
-        next(iter(workers.critics.values())).spec.terms
-    ):
+    if set(workers.critics) != set(workers) or not set(sweep.names) <= set(workers):
         return None
+    specs = {name: reward_specs_of(workers).get(name, name) for name in sweep.names}
     gpi = Hierarchy.gpi(workers)
     if bundle is not None:
         bundle.parent.mkdir(parents=True, exist_ok=True)
         gpi.save(bundle)
     points = []
-    for label, preference in zip(sweep_labels(spec.sweep), spec.sweep.points):
-        gpi.set_preference(dict(zip(spec.sweep.names, preference)))
+    for label, preference in zip(sweep_labels(sweep), sweep.points):
+        gpi.set_preference(mix_terms(specs, dict(zip(sweep.names, preference))))
         points.append(point(label, gpi))
     return points

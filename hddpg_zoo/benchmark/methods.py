@@ -182,11 +182,18 @@ def random_reference(settings: MethodSettings) -> dict[str, object]:
 
 
 def workers_steps(folder: Path) -> int:
-    """Env steps of the seed's workers together, as their manifest records them."""
+    """Env steps of the seed's workers together, their critics' rollouts included, as their manifest records them."""
     path = folder / "workers" / "manifest.json"
     manifest = read_workers_manifest(path)
     try:
-        return int(sum(int(entry["timesteps_trained"]) for entry in manifest.entries.values()))
+        # A critic fitted on rollouts (fit-critics) cost their env steps; one fitted on the worker's own
+        # transitions cost none.
+        return int(
+            sum(
+                int(entry["timesteps_trained"]) + int(entry.get("term_critic", {}).get("env_steps", 0))
+                for entry in manifest.entries.values()
+            )
+        )
     except (KeyError, TypeError, ValueError, OverflowError):
         raise ValueError(f"{path}: a worker entry has no whole timesteps_trained") from None
 

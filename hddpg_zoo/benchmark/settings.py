@@ -42,6 +42,7 @@ from sb3_hddpg.artifacts.values import RUN_SETTINGS, check_env_kwargs
 from sb3_hddpg.envs import EnvUnavailableError
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
 from sb3_hddpg.envs.terms_env import TermsEnv
+from sb3_hddpg.envs.weighted import parse_term_weights
 from sb3_hddpg.episode_sets import DEVELOPMENT, FINAL_TEST, FINAL_TEST_EPISODES, EpisodeSet
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.selection import parse_preferences, preferences_from_bias
@@ -86,12 +87,15 @@ def _env_is_discrete(env_json: str) -> bool:
 
 #: Test episodes per trained model of a development run (the final test set has its own number).
 DEVELOPMENT_TEST_EPISODES = 20
+#: The most env steps of rollouts a front's state-value critic is fitted on, per worker.
+MAX_CRITIC_STEPS = 10_000_000
 
 #: ``standard``: every method once per seed; ``transfer``: managers and flat agents on new preferences;
 #: ``front``: every hierarchy over the whole trade-off (:mod:`.front`).
 SCENARIOS = ("standard", "transfer", "front")
-#: The methods of the front scenario: the one that measures every front of a seed.
-FRONT_METHODS = ("hddpg-front",)
+#: The methods of the front scenario, each measuring every front of a seed: over the per-term workers, and
+#: over a support of workers with critics. The first is the scenario's default.
+FRONT_METHODS = ("hddpg-front", "hddpg-support")
 #: The preferences of the transfer scenario by default: the goal term weighted twice, then the avoid term.
 DEFAULT_TRANSFER_PREFERENCES = ("goal=2,avoid=1", "goal=1,avoid=2")
 #: The methods of the transfer scenario by default: the manager against flat DDPG.
@@ -176,6 +180,13 @@ class BenchmarkSettings:
     :param front_per_preference: the front also trains one manager per sweep preference, the reference the
         conditioned manager is measured against (``False``: the conditioned manager alone, which is what one
         policy for every preference costs; on a slow env it saves most of the front's training).
+    :param front_support: weightings of the terms (``goal=0.5,avoid=0.5``, several separated by ``;``), one
+        worker each, that the front's support method (``hddpg-support``) trains beside the per-term workers
+        (their config block ``<env>/mix``), in a copy of the seed's workers.
+    :param front_start: how the support method's conditioned manager starts: ``gpi`` (it imitates GPI over
+        the workers' critics before RL, ``init_from_gpi``; its manager then trains on SB3), or ``None``.
+    :param front_critic_steps: the support method fits each worker a state-value critic over the full state
+        on this many env steps of its rollouts (``fit-critics``; 0: the workers keep the critics they have).
     :param morl_python: the python of a virtual environment with MORL-baselines: the front then adds its
         CAPQL, trained for the hierarchy's env steps (:mod:`.morl`; an MO-Gymnasium env only). Records state
         its version instead of its path (:func:`~.machine_paths.settings_record`).
@@ -205,6 +216,9 @@ class BenchmarkSettings:
     front_motion: float = 0.0
     front_option_steps: int | None = None
     front_per_preference: bool = True
+    front_support: str | None = None
+    front_start: str | None = None
+    front_critic_steps: int = 0
     morl_python: str | None = None
 
     def __post_init__(self) -> None:
@@ -272,7 +286,7 @@ class BenchmarkSettings:
             self._check_transfer()
         # The standard scenario may add the front's method to its others, so that one run of record
         # measures every method and every front over the same workers.
-        if self.scenario == "front" and list(self.methods) != list(FRONT_METHODS):
+        if self.scenario == "front" and not set(self.methods) <= set(FRONT_METHODS):
             raise ValueError(f"The front scenario runs {list(FRONT_METHODS)}, actually: {self.methods}")
 
     def _check_methods(self) -> None:
@@ -310,11 +324,24 @@ class BenchmarkSettings:
         The front's sweep, a ``ratio-sweep`` form (any env's terms take it), its managers' motion scale and
         option steps.
         """
-        if self.front_sweep.partition(":")[0] != "ratio-sweep":
+        if self.front_sweep.partition(":")[0] == "ratio-sweep":
+            PreferenceSpace.parse(self.front_sweep, ("a", "b"))  # a bad MAX is refused by name
+        elif self.front_support is None or "=" not in self.front_sweep:
             raise ValueError(
-                f"Expected the front's sweep to be ratio-sweep[:MAX], actually: {self.front_sweep!r:.60}"
+                "Expected the front's sweep to be ratio-sweep[:MAX], or with --front-support the support's "
+                f"preferences (goal=1,avoid=0.5,...;...), actually: {self.front_sweep!r:.60}"
             )
-        PreferenceSpace.parse(self.front_sweep, ("a", "b"))  # a bad MAX is refused by name
+        if self.front_support is not None:
+            for part in self.front_support.split(";"):
+                parse_term_weights(part)
+        if self.front_start not in (None, "gpi"):
+            raise ValueError(
+                f"Expected the front's start to be gpi or none, actually: {self.front_start!r:.40}"
+            )
+        if isinstance(self.front_critic_steps, bool) or not 0 <= self.front_critic_steps <= MAX_CRITIC_STEPS:
+            raise ValueError(
+                f"Expected the front's critic steps in [0, {MAX_CRITIC_STEPS}], actually: {self.front_critic_steps!r}"
+            )
         motion = self.front_motion
         if isinstance(motion, bool) or not isinstance(motion, (int, float)) or not 0 <= motion < math.inf:
             raise ValueError(
@@ -511,11 +538,15 @@ class BenchmarkSettings:
         run = self.run_options(seed, decisions, decisions)
         return run.replace(eval_freq=every, backend=backend_for(algo, self.backend))
 
-    def front_run_options(self, seed: int) -> RunOptions:
-        """:meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_env_steps`."""
-        return self.manager_run_options(
+    def front_run_options(self, seed: int, start: str | None = None) -> RunOptions:
+        """
+        :meth:`manager_run_options` of the front's managers: :attr:`front_manager`, :attr:`front_env_steps`;
+        with a ``start`` (:attr:`front_start`) on SB3, the only backend a start fits.
+        """
+        run = self.manager_run_options(
             seed, self.front_manager, self.front_env_steps, option_steps=self.front_option_steps
         )
+        return run.replace(backend="sb3") if start is not None else run
 
     def run_options(self, seed: int, timesteps: int | None, budget: int) -> RunOptions:
         """

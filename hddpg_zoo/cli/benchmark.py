@@ -32,6 +32,18 @@ from hddpg_zoo.benchmark.tables import TextTable, console_tables, wall_time_text
 from hddpg_zoo.cli.benchmark_events import check_snapshot_option, event_printer, snapshotting, take_snapshot
 from hddpg_zoo.cli.benchmark_protocol import ProtocolOpt, protocol_command
 from hddpg_zoo.cli.export_models import export_run
+from hddpg_zoo.cli.front_options import (
+    FrontCriticStepsOpt,
+    FrontManagerOpt,
+    FrontMotionOpt,
+    FrontOptionStepsOpt,
+    FrontPerPreferenceOpt,
+    FrontStartOpt,
+    FrontSupportOpt,
+    FrontSweepOpt,
+    FrontTimestepsOpt,
+    MorlPythonOpt,
+)
 from hddpg_zoo.cli.options import (
     ExecutorOpt,
     ExperimentBackendOpt,
@@ -271,66 +283,6 @@ _WorkerAlgoOpt = Annotated[
         "e.g. qrdqn or sac.",
     ),
 ]
-_FrontManagerOpt = Annotated[
-    str,
-    typer.Option(
-        "--front-manager",
-        help="The algorithm of the front's managers (method hddpg-front): ddpg on the simplex as in the paper, "
-        "or e.g. dqn choosing a worker by index.",
-    ),
-]
-_FrontTimestepsOpt = Annotated[
-    int | None,
-    typer.Option(
-        "--front-timesteps",
-        help="Each of the front's managers' budget in env steps (default: the manager's, --timesteps).",
-    ),
-]
-
-_FrontSweepOpt = Annotated[
-    str,
-    typer.Option(
-        "--front-sweep",
-        help="The preferences the front's managers are trained over and measured at: ratio-sweep (each worker "
-        "weighted 1-4 times the others, 7 preferences) or ratio-sweep:MAX (ratios doubling up to MAX, a power "
-        "of two; ratio-sweep:16 reaches 16:1 and 1:16 with 9 preferences).",
-    ),
-]
-_FrontMotionOpt = Annotated[
-    float,
-    typer.Option(
-        "--front-motion",
-        help="The front's managers also see how their state moved over the last env step, scaled by this "
-        "factor (train-manager --manager-motion); 0: the state only.",
-    ),
-]
-_FrontOptionStepsOpt = Annotated[
-    int | None,
-    typer.Option(
-        "--front-option-steps",
-        help="Env steps per decision of the front's managers (default: their manager block's option_steps; "
-        "1 decides every env step, as a rule reading the state each step does). Their budget and their "
-        "horizon stay in env steps: the block's discount becomes gamma ** (N / its option_steps).",
-    ),
-]
-_FrontPerPreferenceOpt = Annotated[
-    bool,
-    typer.Option(
-        "--front-per-preference/--no-front-per-preference",
-        help="The front also trains one manager per sweep preference, the conditioned manager's reference; "
-        "--no-front-per-preference trains the conditioned manager alone (what one policy for every "
-        "preference costs).",
-    ),
-]
-_MorlPythonOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--morl-python",
-        help="The python of a virtual environment with MORL-baselines (it pins its own torch): the front "
-        "scenario on an MO-Gymnasium env then adds its CAPQL, trained for the env steps of the workers and the "
-        "conditioned manager, scored beside the hierarchy with MORL-baselines' indicators.",
-    ),
-]
 #: The options whose values the benchmark's settings check, named in their errors.
 _SETTINGS_OPTIONS = {
     "methods": "--methods",
@@ -357,6 +309,9 @@ _SETTINGS_OPTIONS = {
     "front_motion": "--front-motion",
     "front_option_steps": "--front-option-steps",
     "front_per_preference": "--front-per-preference",
+    "front_support": "--front-support",
+    "front_start": "--front-start",
+    "front_critic_steps": "--front-critic-steps",
     "morl_python": "--morl-python",
 }
 
@@ -392,13 +347,16 @@ def benchmark_command(
     workers_from: _WorkersFromOpt = None,
     env: _EnvOpt = None,
     worker_algo: _WorkerAlgoOpt = None,
-    front_manager: _FrontManagerOpt = "ddpg",
-    front_timesteps: _FrontTimestepsOpt = None,
-    front_sweep: _FrontSweepOpt = "ratio-sweep",
-    front_motion: _FrontMotionOpt = 0.0,
-    front_option_steps: _FrontOptionStepsOpt = None,
-    front_per_preference: _FrontPerPreferenceOpt = True,
-    morl_python: _MorlPythonOpt = None,
+    front_manager: FrontManagerOpt = "ddpg",
+    front_timesteps: FrontTimestepsOpt = None,
+    front_sweep: FrontSweepOpt = "ratio-sweep",
+    front_motion: FrontMotionOpt = 0.0,
+    front_option_steps: FrontOptionStepsOpt = None,
+    front_per_preference: FrontPerPreferenceOpt = True,
+    front_support: FrontSupportOpt = None,
+    front_start: FrontStartOpt = None,
+    front_critic_steps: FrontCriticStepsOpt = 0,
+    morl_python: MorlPythonOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,
     info_key: InfoKeyOpt = None,
@@ -522,7 +480,7 @@ def _scenario_methods(
     with usage_errors("'--env'"):
         chosen = _chosen_methods(methods, transfer, shared)
     if scenario == "front" and methods is None:
-        chosen = list(FRONT_METHODS)
+        chosen = list(FRONT_METHODS[:1])
     if ham_hysteresis < 0:
         raise typer.BadParameter(f"must be >= 0, got {ham_hysteresis}", param_hint="'--ham-hysteresis'")
     preferences = list(preference or DEFAULT_TRANSFER_PREFERENCES) if transfer else []

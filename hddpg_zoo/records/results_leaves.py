@@ -203,6 +203,10 @@ class FrontManager(TypedDict):
     option_steps: NotRequired[int]
     #: their discount per decision (absent from a front recorded before it was kept)
     gamma: NotRequired[float]
+    #: how the conditioned manager started (``gpi``; absent: from its random initialisation)
+    start: NotRequired[str | None]
+    #: the support method's workers, per-term and weighted (absent from the front over per-term workers)
+    workers: NotRequired[list[str]]
 
 
 class SafeTouch(TypedDict):
