@@ -28,6 +28,7 @@ from hddpg_zoo.benchmark import (
 )
 from hddpg_zoo.benchmark.front import FRONT_METHOD
 from hddpg_zoo.benchmark.front_points import preference_label
+from hddpg_zoo.benchmark.front_support import SUPPORT_METHOD
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import (
     MAX_MODEL_FILE_BYTES,
@@ -38,6 +39,7 @@ from sb3_hddpg.artifacts.limits import (
     read_file_bytes,
     read_json_file,
 )
+from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.artifacts.provenance import sha256_bytes, sha256_file, verify_sha256
 from sb3_hddpg.artifacts.run_folder import RunFolderError, protected_reason
 from sb3_hddpg.hierarchy.bundle import read_bundle
@@ -49,6 +51,11 @@ CONDITIONED = "hddpg-conditioned"
 PER_PREFERENCE = "hddpg-preference"
 #: The front's GPI over the seed's workers (no manager; any preference at run time).
 GPI = "hddpg-gpi"
+#: The support method's (``hddpg-support``) conditioned manager over its support, a bundle holding every
+#: worker; GPI over the support's critics; and HAM's threshold switch over the seed's two per-term workers.
+SUPPORT = "hddpg-support"
+SUPPORT_GPI = "hddpg-support-gpi"
+SUPPORT_HAM = "ham-threshold"
 #: The ``method`` values of ``index.json``: the workers, then the benchmark's methods.
 INDEX_METHODS = (
     "worker:goal",
@@ -61,6 +68,9 @@ INDEX_METHODS = (
     CONDITIONED,
     PER_PREFERENCE,
     GPI,
+    SUPPORT,
+    SUPPORT_GPI,
+    SUPPORT_HAM,
     "ham",
     "ham-tuned",
     *FLAT_METHODS,
@@ -236,6 +246,8 @@ def run_models(root: Path, record_file: Path, *, per_preference: bool = True) ->
     base, preference = split_key(key)
     if base == FRONT_METHOD:
         return _front_models(root, seed_folder / base, seed, per_preference)
+    if base == SUPPORT_METHOD:
+        return _support_models(root, seed_folder, seed)
     files = _model_files(key, base)
     if files is None:
         return []
@@ -264,6 +276,31 @@ def _front_models(root: Path, run: Path, seed: int, per_preference: bool) -> lis
         root / run / "gpi.zip"
     ).is_file():  # the front's GPI member, a bundle of the workers with their critics
         models.append(ModelFile(GPI, seed, run / "gpi.zip"))
+    return models
+
+
+def _support_models(root: Path, seed_folder: Path, seed: int) -> list[ModelFile]:
+    """
+    The support method's models of one seed: its conditioned bundle (with the preference space it was trained
+    over), its GPI bundle, and HAM over the seed's per-term workers (whose zips and manifest go with it; its
+    front's thresholds are in the record, one is set at run time).
+    """
+    run = seed_folder / SUPPORT_METHOD
+    models: list[ModelFile] = []
+    conditioned = run / "conditioned" / "hierarchy.zip"
+    if (root / conditioned).is_file():
+        manifest, _ = read_bundle(root / conditioned)
+        selection = manifest.selection if isinstance(manifest.selection, dict) else {}
+        models.append(
+            ModelFile(SUPPORT, seed, conditioned, manager_preferences=selection.get("manager_preferences"))
+        )
+    if (root / run / "gpi.zip").is_file():
+        models.append(ModelFile(SUPPORT_GPI, seed, run / "gpi.zip"))
+    if (root / run / "ham.json").is_file():
+        workers = seed_folder / "workers"
+        entries = read_workers_manifest(root / workers / "manifest.json").entries
+        needs = (workers / "manifest.json", *(workers / str(entries[n]["file"]) for n in ("goal", "avoid")))
+        models.append(ModelFile(SUPPORT_HAM, seed, run / "ham.json", needs))
     return models
 
 

@@ -404,7 +404,8 @@ def test_benchmark_cli_refuses_methods_outside_the_front_scenario(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_support_method_grows_a_support_with_critics_and_starts_its_manager_from_gpi(tmp_path):
+def test_the_support_method_grows_a_support_with_critics_and_starts_its_manager_from_gpi(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("support-benchmark")
     preferences = ";".join(
         ("goal=2,avoid=0.5,mix-goal50-avoid50=0.5", "goal=0.5,avoid=2,mix-goal50-avoid50=0.5",
          "goal=0.5,avoid=0.5,mix-goal50-avoid50=2")
@@ -426,6 +427,9 @@ def test_the_support_method_grows_a_support_with_critics_and_starts_its_manager_
     assert len(front["conditioned"]["points"]) == len(front["gpi"]["points"]) == 3
     bundle = Hierarchy.load(tmp_path / "seed-0" / "hddpg-support" / "conditioned" / "hierarchy.zip")
     assert bundle.names == ["goal", "avoid", "mix-goal50-avoid50"] and "init_from_gpi" in bundle.metadata
+    exported_to = tmp_path_factory.mktemp("support-export") / "models"
+    exported = {entry["method"] for entry in export_models(tmp_path, exported_to)}
+    assert {"hddpg-support", "hddpg-support-gpi", "ham-threshold", "worker:goal"} <= exported
     # The seed's own workers are untouched: the support is a copy.
     manifest = json.loads((tmp_path / "seed-0" / "workers" / "manifest.json").read_text())
     assert list(manifest["workers"]) == ["goal", "avoid"]

@@ -33,6 +33,7 @@ from sb3_hddpg.artifacts.transitions import Transitions
 from sb3_hddpg.callbacks.term_record import TermRecorder
 from sb3_hddpg.envs.contract import TermNormaliser, env_contract, state_layout_of
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
+from sb3_hddpg.threads import use_one_thread_unless_chosen
 
 #: The most gradient steps a critic takes by default (fewer when fewer transitions were collected).
 DEFAULT_CRITIC_STEPS = 20_000
@@ -264,6 +265,7 @@ def fit_state_critics(
     :param seed: seeds the rollouts' noise and the critics' training.
     :return: worker name -> the critic's facts, as the manifest records them.
     """
+    use_one_thread_unless_chosen()  # torch's default of one thread per core makes these small nets crawl
     workers = load_workers(out_dir, names=names)
     if workers.folder is None:
         raise ValueError(f"{str(out_dir)!r}: no workers folder")
