@@ -45,14 +45,28 @@ def corners_trained(tmp_path_factory):
     return root
 
 
+#: A weighted workers' block with the avoid worker's networks, so that its parameters can start them (the
+#: bundled block's [256, 256] networks cannot start from the avoid worker's [64, 64]).
+SMALL_MIX_BLOCK = """
+hddpg/SnakeReach-v0/mix:
+  n_timesteps: 1000
+  policy: 'MlpPolicy'
+  learning_starts: 100
+  batch_size: 32
+  gamma: 0.9
+  policy_kwargs: "dict(net_arch=[64, 64])"
+"""
+
+
 def test_grow_adds_a_warm_started_worker_at_the_corner_and_records_it(corners_trained, tmp_path):
     import shutil
 
     root = tmp_path / "run"
     shutil.copytree(corners_trained, root)
-    record = grow(
-        root, SupportOptions(size=3, budget=250, tolerance=0.0, start_states=4), term_critic=CRITIC, **RUN
-    )
+    config = tmp_path / "small.yml"
+    config.write_text(SMALL_MIX_BLOCK)
+    options = SupportOptions(size=3, budget=250, tolerance=0.0, start_states=4)
+    record = grow(root, options, term_critic=CRITIC, config=config, **RUN)
     assert len(record.added) == 1 and record.stopped == "reached 3 workers"
     step = record.added[0]
     assert step.name.startswith("mix-") and step.gain > 0 and step.steps >= 250
