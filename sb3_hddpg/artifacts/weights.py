@@ -68,8 +68,14 @@ def read_weights(
 ) -> tuple[dict[str, th.Tensor], dict[str, th.Tensor]]:
     """
     The policy's state dict (``policy.pth``, required) and the variables (``pytorch_variables.pth``, SAC's
-    entropy coefficient) of a model zip (a path or its bytes), the only members opened; a
-    :class:`SafeLoadError` naming ``path`` for anything but plain tensors within the limits.
+    entropy coefficient) of a model zip, the only members opened.
+
+    :param source: the zip, or its bytes.
+    :param path: how messages name it.
+    :param device: where the tensors are mapped.
+    :param budget: the bytes the whole load may still read.
+    :return: the state dict and the variables; a :class:`SafeLoadError` for anything but plain tensors
+        within the limits.
     """
     try:
         archive = zipfile.ZipFile(source)
@@ -99,6 +105,12 @@ def apply_weights(
     """
     Put the tensors :func:`read_weights` read into the model :func:`~sb3_hddpg.artifacts.spec.build_from_spec`
     built, after checking every key and shape (a :class:`SafeLoadError` naming ``path`` otherwise).
+
+    :param model: the spec-built model.
+    :param policy_state: the policy's state dict.
+    :param variables: the other tensors (only those this model declares are accepted).
+    :param path: how messages name the file.
+    :param device: where the tensors go.
     """
     # Compare before load_state_dict so the error names the key and both shapes instead of torch's long list.
     _check_state_dict(model.policy.state_dict(), policy_state, path, POLICY_MEMBER)

@@ -119,7 +119,13 @@ def shared_env_of(
 
 
 def observed_components(manifest: ModelsManifest, names: Iterable[str]) -> dict[str, list[str]]:
-    """Name -> the state components a worker of ``names`` was trained on, where only part (``observe``)."""
+    """
+    The state components each worker was trained on, from its entry's ``env_kwargs["observe"]``.
+
+    :param manifest: a workers manifest.
+    :param names: the workers to look at.
+    :return: name -> component names, for the workers trained on part of the state only.
+    """
     out: dict[str, list[str]] = {}
     for name in names:
         env_kwargs = manifest.entries[name].get("env_kwargs") or {}
