@@ -97,7 +97,7 @@ def _as_ent_coef(key: str, value: object) -> float | str:
     return _as_float(key, value)
 
 
-#: A hyperparameter's kind (:attr:`Algorithm.hyperparameters`) -> its converter.
+#: A hyperparameter's kind (:attr:`~sb3_hddpg.algorithms.Algorithm.hyperparameters`) -> its converter.
 _CONVERTERS: dict[str, Callable[[str, object], float | int | bool | str]] = {
     "float": _as_float,
     "int": _as_int,

@@ -18,7 +18,7 @@ VARIABLES_MEMBER = "pytorch_variables.pth"
 
 
 class SafeLoadError(ValueError):
-    """A model zip or its spec was refused by :func:`load_model_safely`; the message names the file and the cause."""
+    """A model zip or its spec refused by :func:`~sb3_hddpg.artifacts.safe_load.load_model_safely`."""
 
 
 def _read_tensors(
