@@ -51,15 +51,16 @@ def _check_state_dict(
 ) -> None:
     """Raise SafeLoadError naming the first key whose presence or shape differs between spec and file."""
 
-    def shape(tensors: Mapping[str, th.Tensor | None], key: str) -> object:
-        tensor = tensors.get(key)
-        return list(tensor.shape) if tensor is not None else "none" if key in tensors else "no such key"
+    def shape(tensors: Mapping[str, th.Tensor | None], key: str) -> str:
+        if (tensor := tensors.get(key)) is not None:
+            return f"shape {list(tensor.shape)}"
+        return "None" if key in tensors else "no such key"
 
     for key in dict.fromkeys([*expected, *found]):
         if shape(found, key) != shape(expected, key):
             raise SafeLoadError(
-                f"{path}: {brief(name)} key {brief(key)} has shape {shape(found, key)} but the spec builds "
-                f"{shape(expected, key)}; the spec does not describe this model"
+                f"{path}: {brief(name)} key {brief(key)}: {shape(found, key)} in the file, {shape(expected, key)} "
+                "in the spec-built model; the spec does not describe this model"
             )
 
 
