@@ -217,7 +217,8 @@ def test_net_arch_mismatch_names_key_and_shapes(trained: dict[str, tuple[Any, Pa
 
 
 def test_a_missing_or_extra_tensor_is_named_with_what_the_spec_builds() -> None:
-    model = DDPG("MlpPolicy", "Pendulum-v1", buffer_size=10, policy_kwargs=TINY)
+    # A dict of its own: SB3 writes use_sde into the policy_kwargs an off-policy model is given (TINY's).
+    model = DDPG("MlpPolicy", "Pendulum-v1", buffer_size=10, policy_kwargs={"net_arch": [16, 16]})
     state = model.policy.state_dict()
     missing = {key: value for key, value in state.items() if key != "actor.mu.0.weight"}
     with pytest.raises(
