@@ -38,7 +38,13 @@ class CodeProvenance:
 
     @classmethod
     def from_json(cls, value: object, what: str) -> CodeProvenance:
-        """An invocation's ``code`` field, checked; raises ``ValueError`` naming ``what``."""
+        """
+        An invocation's ``code`` field, checked: ``version`` a string, ``commit`` 40 hex digits or null,
+        ``clean`` a boolean or null.
+
+        :param value: the field as read.
+        :param what: where it is, for the ``ValueError`` naming the first problem.
+        """
         if not isinstance(value, dict) or not isinstance(value.get("version"), str):
             raise ValueError(f"{what}: expected an object with the package version, got {brief(value)}")
         commit, clean = value.get("commit"), value.get("clean")

@@ -6,7 +6,12 @@ from typing import Any
 
 
 def lazy_attributes(package: str, modules: Mapping[str, str]) -> Callable[[str], Any]:
-    """A module ``__getattr__`` for ``package``: each name of ``modules`` (name -> module) imported when asked."""
+    """
+    A module ``__getattr__`` for ``package``: each name of ``modules`` imported from its module when asked.
+
+    :param package: the package's name, for the message of an unknown attribute.
+    :param modules: exported name -> the module that defines it.
+    """
 
     def attribute(name: str) -> Any:
         if name in modules:

@@ -19,6 +19,7 @@ from stable_baselines3 import A2C, DDPG, SAC, TD3
 
 from sb3_hddpg.artifacts.safe_load import SafeLoadError, load_model, load_model_safely
 from sb3_hddpg.artifacts.spec import model_spec
+from sb3_hddpg.artifacts.weights import apply_weights
 
 TINY = {"net_arch": [16, 16]}
 
@@ -213,6 +214,21 @@ def test_net_arch_mismatch_names_key_and_shapes(trained: dict[str, tuple[Any, Pa
     message = str(excinfo.value)
     assert "'actor.mu.0.weight'" in message
     assert "[16, 3]" in message and "[32, 3]" in message
+
+
+def test_a_missing_or_extra_tensor_is_named_with_what_the_spec_builds() -> None:
+    # A dict of its own: SB3 writes use_sde into the policy_kwargs an off-policy model is given (TINY's).
+    model = DDPG("MlpPolicy", "Pendulum-v1", buffer_size=10, policy_kwargs={"net_arch": [16, 16]})
+    state = model.policy.state_dict()
+    missing = {key: value for key, value in state.items() if key != "actor.mu.0.weight"}
+    with pytest.raises(
+        SafeLoadError, match=r"'actor\.mu\.0\.weight': no such key in the file, shape \[16, 3\] in"
+    ):
+        apply_weights(model, missing, {}, "m.zip", "cpu")
+    with pytest.raises(
+        SafeLoadError, match=r"'evil': shape \[2\] in the file, no such key in the spec-built"
+    ):
+        apply_weights(model, {**state, "evil": th.zeros(2)}, {}, "m.zip", "cpu")
 
 
 @pytest.mark.parametrize(

@@ -70,7 +70,7 @@ def check_same_code(
     then come from code that no single commit holds.
 
     :param earlier: :func:`invocation_codes`.
-    :param code: the code of this invocation (:func:`~sb3_hddpg.artifacts.provenance.code_provenance`).
+    :param code: the code of this invocation (:func:`~hddpg_zoo.provenance.code_provenance`).
     :param allow_mixed: resume anyway (the invocation's record says so).
     :param what: the benchmark folder, for the error.
     :return: whether the benchmark's invocations now mix code.

@@ -123,6 +123,9 @@ def run_in_morl_venv(python: str, script: Path, arguments: Sequence[str], what: 
     Run ``script`` with MORL-baselines' ``python``, one thread and wandb off (no network call, no wandb
     folder), so that a benchmark's other process keeps its core.
 
+    :param python: MORL-baselines' interpreter.
+    :param script: the script to run.
+    :param arguments: its command-line arguments.
     :param what: the script, as the error names it (``runner``, ``protocol runner``).
     :raises RuntimeError: the script failed; its last line of output says why.
     """

@@ -89,6 +89,17 @@ def watched_policy(
     Load the policy at ``path`` as ``record`` and ``plot-selection`` run it: another env with several
     objectives resolves to the adapter it needs (as in ``evaluate``), and naming it opts in to it (as
     ``allowed_env_ids`` does in the library); the run-time preference is applied.
+
+    :param path: the policy (``PATH``).
+    :param env_id: ``--env`` (``None``: the env the policy was trained on).
+    :param terms: ``--terms`` of that env.
+    :param term_bounds: ``--term-bounds`` of that env.
+    :param info_key: ``--info-key`` of that env.
+    :param episode_steps: ``--episode-steps`` of that env.
+    :param max_steps: ``--max-steps``: the time limit of each episode (``None``: the env's).
+    :param trust: ``--trust``: allow SB3's full loader.
+    :param preference: ``--preference``: the run-time preference (``None``: the policy's own).
+    :param algo: ``--algo``: the algorithm of a zip without manifest.
     """
     shared = terms_env_option(env_id, terms, term_bounds, info_key, episode_steps)
     loaded = load_cli_policy(path, shared, trust, algo, preference)

@@ -459,9 +459,9 @@ def read_member(
 MAX_SWEEP_RATIO = 1024
 
 # Limits enforced below the artefacts, where the value is first read, named here with every other.
-MAX_JOINTS = _snake.MAX_JOINTS  #: The snake arm's most joints, obstacles and physics substeps per step.
-MAX_OBSTACLES = _snake.MAX_OBSTACLES
-MAX_SUBSTEPS = _snake.MAX_SUBSTEPS
+MAX_JOINTS = _snake.MAX_JOINTS  #: The snake arm's most joints.
+MAX_OBSTACLES = _snake.MAX_OBSTACLES  #: The snake arm's most obstacles.
+MAX_SUBSTEPS = _snake.MAX_SUBSTEPS  #: The snake arm's most physics substeps per step.
 #: The most reward terms of an adapted env (MO-Gymnasium objectives or info terms).
 MAX_TERMS = _adapters.MAX_TERMS
 MAX_NAME_CHARS = _MAX_NAME_CHARS  #: The longest plain name (a worker, a method, a term).

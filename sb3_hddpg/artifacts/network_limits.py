@@ -43,8 +43,18 @@ def check_parameter_count(
     what: str = "policy_kwargs.net_arch",
 ) -> int:
     """
-    The total parameters a spec or config would build (by the algorithm record's rule, ``n_critics=None``:
-    its default), refused over :data:`MAX_PARAMETERS`: each layer may be within bounds and the product not.
+    The total parameters a spec or config would build (by the algorithm record's rule), refused over
+    :data:`MAX_PARAMETERS`: each layer may be within bounds and the product not.
+
+    :param algo: a registered algorithm, by name or spec class name (any case).
+    :param obs_dim: the flattened observation size.
+    :param act_dim: action dimensions (a Box's size) or actions (a Discrete's ``n``).
+    :param pi_layers: the actor's (or Q-network's) hidden layers.
+    :param qf_layers: the critics' (or value function's) hidden layers.
+    :param n_critics: the critics (``None``: the algorithm's default).
+    :param n_quantiles: quantiles per critic output (distributional critics only).
+    :param what: the field, for the message.
+    :return: the count; raises :class:`LimitError` otherwise.
     """
     shape = NetworkShape(obs_dim, act_dim, pi_layers, qf_layers, n_critics, n_quantiles)
     total = algorithm(algo).parameter_count(shape)

@@ -1,4 +1,4 @@
-"""Provenance: sha256 of files checked against their record, library versions, the code a run ran."""
+"""Provenance: sha256 of files checked against their record, and the library versions a model came from."""
 
 from __future__ import annotations
 

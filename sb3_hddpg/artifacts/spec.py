@@ -97,7 +97,7 @@ def _as_ent_coef(key: str, value: object) -> float | str:
     return _as_float(key, value)
 
 
-#: A hyperparameter's kind (:attr:`Algorithm.hyperparameters`) -> its converter.
+#: A hyperparameter's kind (:attr:`~sb3_hddpg.algorithms.Algorithm.hyperparameters`) -> its converter.
 _CONVERTERS: dict[str, Callable[[str, object], float | int | bool | str]] = {
     "float": _as_float,
     "int": _as_int,
@@ -250,7 +250,7 @@ def _policy_kwargs(algo: str, value: object, to_json: bool) -> dict[str, object]
     out: dict[str, object] = {}
     for key, item in value.items():
         if key == "use_sde" and to_json:
-            continue  # recorded as a hyperparameter, see _POLICY_KWARGS
+            continue  # recorded as a hyperparameter (sb3_hddpg.algorithms)
         if key not in SPEC_ALGORITHMS[algo].policy_kwargs:
             raise ValueError(
                 f"policy_kwargs.{key}: not supported by the safe model spec (value {brief(item)})"

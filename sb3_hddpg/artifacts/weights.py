@@ -18,7 +18,7 @@ VARIABLES_MEMBER = "pytorch_variables.pth"
 
 
 class SafeLoadError(ValueError):
-    """A model zip or its spec was refused by :func:`load_model_safely`; the message names the file and the cause."""
+    """A model zip or its spec refused by :func:`~sb3_hddpg.artifacts.safe_load.load_model_safely`."""
 
 
 def _read_tensors(
@@ -51,15 +51,16 @@ def _check_state_dict(
 ) -> None:
     """Raise SafeLoadError naming the first key whose presence or shape differs between spec and file."""
 
-    def shape(tensors: Mapping[str, th.Tensor | None], key: str) -> object:
-        tensor = tensors.get(key)
-        return list(tensor.shape) if tensor is not None else "none" if key in tensors else "no such key"
+    def shape(tensors: Mapping[str, th.Tensor | None], key: str) -> str:
+        if (tensor := tensors.get(key)) is not None:
+            return f"shape {list(tensor.shape)}"
+        return "None" if key in tensors else "no such key"
 
     for key in dict.fromkeys([*expected, *found]):
         if shape(found, key) != shape(expected, key):
             raise SafeLoadError(
-                f"{path}: {brief(name)} key {brief(key)} has shape {shape(found, key)} but the spec builds "
-                f"{shape(expected, key)}; the spec does not describe this model"
+                f"{path}: {brief(name)} key {brief(key)}: {shape(found, key)} in the file, {shape(expected, key)} "
+                "in the spec-built model; the spec does not describe this model"
             )
 
 
@@ -68,8 +69,14 @@ def read_weights(
 ) -> tuple[dict[str, th.Tensor], dict[str, th.Tensor]]:
     """
     The policy's state dict (``policy.pth``, required) and the variables (``pytorch_variables.pth``, SAC's
-    entropy coefficient) of a model zip (a path or its bytes), the only members opened; a
-    :class:`SafeLoadError` naming ``path`` for anything but plain tensors within the limits.
+    entropy coefficient) of a model zip, the only members opened.
+
+    :param source: the zip, or its bytes.
+    :param path: how messages name it.
+    :param device: where the tensors are mapped.
+    :param budget: the bytes the whole load may still read.
+    :return: the state dict and the variables; a :class:`SafeLoadError` for anything but plain tensors
+        within the limits.
     """
     try:
         archive = zipfile.ZipFile(source)
@@ -99,6 +106,12 @@ def apply_weights(
     """
     Put the tensors :func:`read_weights` read into the model :func:`~sb3_hddpg.artifacts.spec.build_from_spec`
     built, after checking every key and shape (a :class:`SafeLoadError` naming ``path`` otherwise).
+
+    :param model: the spec-built model.
+    :param policy_state: the policy's state dict.
+    :param variables: the other tensors (only those this model declares are accepted).
+    :param path: how messages name the file.
+    :param device: where the tensors go.
     """
     # Compare before load_state_dict so the error names the key and both shapes instead of torch's long list.
     _check_state_dict(model.policy.state_dict(), policy_state, path, POLICY_MEMBER)

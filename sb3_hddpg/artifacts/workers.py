@@ -23,10 +23,10 @@ BUNDLED_FACTS = ("reward_term", "reward_weights", "reward_bounds", "env_id", "me
 @dataclass(frozen=True)
 class Workers(Mapping[str, BaseAlgorithm]):
     """
-    Name -> trained worker (an SB3 model), in the manager's action order, as :func:`load_workers` returns
-    them: a read-only mapping that also knows the state components each worker saw in training and the
-    shared env the manager acts in (:meth:`make_env`), so that ``Hierarchy(manager, workers)`` needs nothing
-    more.
+    Name -> trained worker (an SB3 model), in the manager's action order, as
+    :func:`~sb3_hddpg.artifacts.manifests.load_workers` returns them: a read-only mapping that also knows the
+    state components each worker saw in training and the shared env the manager acts in (:meth:`make_env`),
+    so that ``Hierarchy(manager, workers)`` needs nothing more.
 
     :param models: name -> loaded model, in order.
     :param states: name -> the state components that worker sees (absent: the full state).
@@ -119,7 +119,13 @@ def shared_env_of(
 
 
 def observed_components(manifest: ModelsManifest, names: Iterable[str]) -> dict[str, list[str]]:
-    """Name -> the state components a worker of ``names`` was trained on, where only part (``observe``)."""
+    """
+    The state components each worker was trained on, from its entry's ``env_kwargs["observe"]``.
+
+    :param manifest: a workers manifest.
+    :param names: the workers to look at.
+    :return: name -> component names, for the workers trained on part of the state only.
+    """
     out: dict[str, list[str]] = {}
     for name in names:
         env_kwargs = manifest.entries[name].get("env_kwargs") or {}

@@ -151,8 +151,8 @@ def evaluate_command(
     preferences = getattr(loaded.policy, "preferences", None)  # the one a hierarchy acted at
     if isinstance(preferences, dict) and preferences:
         shown = ",".join(f"{name}={factor:g}" for name, factor in preferences.items())
-        source = "given with --preference" if preference is not None else "the bundle's own"
-        console.print(f"Preference: {shown} ({source}; only the ratio matters)")
+        origin = "given with --preference" if preference is not None else "the bundle's own"
+        console.print(f"Preference: {shown} ({origin}; only the ratio matters)")
     console.print(_summary_table(title, summary, dependence, worker))
     console.print(_reward_note(summary))
     for warning in manager_warnings(summary):
@@ -209,6 +209,12 @@ def load_cli_policy(
     """
     The policy named on the command line, checked (hashes, spaces, env id) as a usage error naming PATH, at
     ``--preference``: what ``evaluate``, ``record`` and ``plot-selection`` act with.
+
+    :param path: the policy (``PATH``).
+    :param shared: the env the ``--env`` options name, which naming allows (``None``: the trained-on one).
+    :param trust: ``--trust``: allow SB3's full loader.
+    :param algo: ``--algo``: the algorithm of a zip without manifest.
+    :param preference: ``--preference``: the run-time preference (``None``: the policy's own).
     """
     with usage_errors("'PATH'"):
         # Naming an env with --env opts in to it, as allowed_env_ids does in the library.

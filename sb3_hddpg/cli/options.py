@@ -351,7 +351,12 @@ def run_options_of(context: typer.Context) -> RunOptions:
 
 
 def terms_env_of(context: typer.Context, env: str | None) -> Any:
-    """:func:`terms_env_option` of ``env`` and the :data:`ENV_OPTIONS` a command took with :func:`takes_options`."""
+    """
+    :func:`terms_env_option` of ``env`` and the :data:`ENV_OPTIONS` a command took with :func:`takes_options`.
+
+    :param context: the command's context (a ``typer.Context`` parameter of the command).
+    :param env: the command's ``--env``.
+    """
     return terms_env_option(env, *(context.params[name] for name in ENV_OPTIONS))
 
 
