@@ -244,8 +244,11 @@ def with_term_critic(zip_bytes: bytes, critic: TermCritic) -> bytes:
 
 def read_term_critic(source: str | Path | bytes, what: str) -> TermCritic | None:
     """
-    The per-term critic in a worker's zip (a path or its bytes), or ``None`` when it has none; a ``LimitError``
-    naming ``what`` for a member over the limits or not a critic this library wrote.
+    The per-term critic in a worker's zip, or ``None`` when it has none.
+
+    :param source: the zip's path or its bytes.
+    :param what: names the zip in errors: a ``LimitError`` for a member over the limits or not a critic this
+        library wrote.
     """
     opened = zipfile.ZipFile(io.BytesIO(source) if isinstance(source, bytes) else source)
     with opened as archive:
