@@ -168,15 +168,15 @@ class Hyperparams:
 
     def callbacks(self) -> list[Any]:
         """The SB3 callbacks the block asks for (as RL Zoo would build them from its ``callback`` key)."""
-
+        # Each imported only when asked for: a block without an actor term never loads the actor-loss code.
         callbacks: list[Any] = []
-        # Only a block that asks for an actor term loads the actor-loss machinery.
-        from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
-        from sb3_hddpg.callbacks.controller_prior import ControllerPrior
-
         if self.action_l2 > 0:
+            from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
+
             callbacks.append(ActionL2Penalty(self.action_l2, self.action_l2_margin))
         if self.controller_prior is not None:
+            from sb3_hddpg.callbacks.controller_prior import ControllerPrior
+
             callbacks.append(ControllerPrior(*self.controller_prior))
         return callbacks
 
@@ -474,6 +474,7 @@ def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) ->
     """
     The ``manager`` block a manager of ``algo`` trains from.
 
+    :param algo: the manager's algorithm.
     :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
     """
     return load_hyperparams(MANAGER_KEY, algorithm_class(algo), config or default_config(algo), manager=True)
