@@ -148,6 +148,8 @@ class Hyperparams:
         """
         The algorithm's constructor arguments for ``env``: the block's, with the action noise sized to the
         env and a named replay buffer resolved, its env-dependent arguments read from ``env``.
+
+        :param env: the training env (or a ``VecEnv``'s single env, for the buffer's arguments).
         """
         kwargs = dict(self.algo_kwargs)
         if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
