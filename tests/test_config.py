@@ -75,6 +75,10 @@ def test_policy_kwargs_round_trip_and_safety():
         ({"n_timesteps": 10, "learning_rate": "lin_-1e-3"}, "learning_rate"),
         ({"n_timesteps": 10, "learning_rate": "lin_nan"}, "learning_rate"),
         ({"n_timesteps": 10, "gamma": "lin_0.9"}, "gamma"),
+        (
+            {"n_timesteps": 10, "callback": {"sb3_hddpg.callbacks.ControllerPrior": {"controller": [1]}}},
+            "controller",
+        ),
     ],
 )
 def test_bad_blocks(block, message):

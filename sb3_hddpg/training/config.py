@@ -398,7 +398,7 @@ def _parse_callbacks(value: object, source: str) -> dict[str, object]:
         coefficient = float(check(kwargs.get("coefficient", default), f"{source}: {path}.coefficient"))
         if name == "controller_prior":
             controller = kwargs.get("controller", "ik")
-            if controller not in CONTROLLERS:
+            if not isinstance(controller, str) or controller not in CONTROLLERS:  # a YAML list is unhashable
                 raise ConfigError(
                     f"Unknown controller {brief(controller)} in {source}: {path}; choose from {sorted(CONTROLLERS)}"
                 )
