@@ -196,6 +196,15 @@ CASES = [
         2,
         "learning_rat",
     ),
+    case(
+        "tm-config-motion-text",
+        (*TM[:-1], "{motion_text}", "--out", "{tmp}/o"),
+        2,
+        "manager_motion: expected",
+    ),
+    case(
+        "tm-config-states-nested", (*TM[:-1], "{nested_states}", "--out", "{tmp}/o"), 2, "worker_states.goal"
+    ),
     case("tm-out-holds-results", (*TM, "--out", "{m}"), 2, "already holds results"),
     # ---- evaluate
     case("ev-missing", ("evaluate", "{tmp}/nope.zip"), 2, "nope.zip"),
@@ -541,6 +550,8 @@ def artifacts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
         "buffer_bomb": root / "buffer_bomb.yml",
         "net_arch_bomb": root / "net_arch_bomb.yml",
         "controller_list": root / "controller_list.yml",
+        "motion_text": root / "motion_text.yml",
+        "nested_states": root / "nested_states.yml",
         "ham_missing_keys": root / "ham.json",
         "traversal_algo": root / "traversal_algo",
         **{f"hostile_{key}": root / f"hostile_{key}.zip" for key in HOSTILE_BUNDLES},
@@ -588,6 +599,10 @@ def _hostile_files(root: Path, members: dict[str, bytes]) -> None:
     (root / "net_arch_bomb.yml").write_text(TINY_CONFIG.replace("net_arch=[16]", "net_arch=[65536, 65536]"))
     (root / "controller_list.yml").write_text(
         "default:\n  n_timesteps: 10\n  callback:\n    - sb3_hddpg.callbacks.ControllerPrior: {controller: [1]}\n"
+    )
+    (root / "motion_text.yml").write_text(TINY_CONFIG + "  wrapper_kwargs: {manager_motion: x}\n")
+    (root / "nested_states.yml").write_text(
+        TINY_CONFIG + "  wrapper_kwargs: {worker_states: {goal: [[1]]}}\n"
     )
     (root / "deep_yaml.yml").write_text("default: " + "[" * 100_000 + "]" * 100_000 + "\n")
     (root / "ham.json").write_text(json.dumps({"kind": "sb3-hddpg-ham", "schema_version": 1, "env_id": "x"}))

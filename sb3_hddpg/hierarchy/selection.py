@@ -394,9 +394,11 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
             raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
     for name, spec in out.get("reward_terms", {}).items():
         _check_reward_spec(name, spec, names, f"{what}.reward_terms")
-    state = out.get("manager_state")
-    if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
-        raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
+    states = {"manager_state": out["manager_state"]} if out.get("manager_state") is not None else {}
+    states.update({f"worker_states.{n}": s for n, s in out.get("worker_states", {}).items()})
+    for key, state in states.items():
+        if not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
+            raise LimitError(f"{what}.{key}: expected a list of names, got {brief(state)}")
     recorded = out.get("manager_preferences")  # read by PreferenceSpace.from_json
     if recorded is not None and not isinstance(recorded, Mapping):
         raise LimitError(f"{what}.manager_preferences: expected a mapping, got {brief(recorded)}")

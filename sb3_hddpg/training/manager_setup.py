@@ -23,7 +23,12 @@ from sb3_hddpg.artifacts.workers import Workers, shared_env_of
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
-from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.selection import (
+    SelectionConfig,
+    check_preferences,
+    check_selection_settings,
+    preferences_from_bias,
+)
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import algo_class
@@ -246,6 +251,8 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
         selection_config = SelectionConfig(**wrapper_kwargs)
     except TypeError as error:  # an unknown key in the config's wrapper_kwargs
         raise ValueError(f"Invalid wrapper_kwargs in the manager's config block: {error}") from None
+    # Checked as a bundle's are: a value of the wrong type is one line naming it, not a TypeError later.
+    check_selection_settings(wrapper_kwargs, list(workers), "the manager block's wrapper_kwargs")
     env_kwargs = check_make_kwargs(env_id, {**given_kwargs, **hyperparams.env_kwargs}, "manager env_kwargs")
     if "observe" in env_kwargs:
         raise ValueError(
