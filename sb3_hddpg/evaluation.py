@@ -353,6 +353,11 @@ class SummariesTable:
     """
     Evaluation summaries as a table of text, one row per agent, each column in one unit (named in the
     caption, so that the table fits an 80-column terminal); the CLI draws it.
+
+    :param title: the table's title.
+    :param caption: the units of the columns.
+    :param columns: the column headers after the agent's.
+    :param rows: per agent, its name and one text per column.
     """
 
     title: str
@@ -365,9 +370,13 @@ def summaries_table(
     title: str, summaries: Mapping[str, Mapping[str, Any]], reward: MetricLabel | None = None
 ) -> SummariesTable:
     """
-    The table of evaluation summaries (agent -> summary) a training command prints: the reward with its
-    spread, the normalised return where it differs, the snake's touch and collision rates (else every
-    reward term) and the deciding network's saturation; ``reward`` says what ``mean_reward`` is.
+    The table of evaluation summaries a training command prints: the reward with its spread, the normalised
+    return where it differs, the snake's touch and collision rates (else every reward term) and the deciding
+    network's saturation.
+
+    :param title: the table's title.
+    :param summaries: agent -> its evaluation summary.
+    :param reward: what ``mean_reward`` is for these agents (default: the env's own reward).
     """
     # The closest approach to an obstacle is in the evaluation history (and `evaluate`): 80 columns hold no more.
     snake = ("goal_touch_rate", "collisions_per_episode", "success_rate")

@@ -115,6 +115,12 @@ CASES = [
     case("tw-config-deep-yaml", (*TW, "--config", "{deep_yaml}", "--out", "{tmp}/o"), 2, "deep_yaml.yml"),
     case("tw-config-buffer-bomb", (*TW, "--config", "{buffer_bomb}", "--out", "{tmp}/o"), 2, "buffer_size"),
     case("tw-config-net-arch-bomb", (*TW, "--config", "{net_arch_bomb}", "--out", "{tmp}/o"), 2, "net_arch"),
+    case(
+        "tw-config-controller-list",
+        (*TW, "--config", "{controller_list}", "--out", "{tmp}/o"),
+        2,
+        "controller",
+    ),
     # ---- train-manager: names, preferences and selection
     case("tm-duplicate-worker", (*TM, "--worker", "goal", "--worker", "goal", "--out", "{tmp}/o"), 2, "goal"),
     case("tm-unknown-worker", (*TM, "--worker", "goal", "--worker", "nope", "--out", "{tmp}/o"), 2, "nope"),
@@ -189,6 +195,15 @@ CASES = [
         ("train-manager", "--workers", "{w}", "--config", "{unknown_key}", "--out", "{tmp}/o"),
         2,
         "learning_rat",
+    ),
+    case(
+        "tm-config-motion-text",
+        (*TM[:-1], "{motion_text}", "--out", "{tmp}/o"),
+        2,
+        "manager_motion: expected",
+    ),
+    case(
+        "tm-config-states-nested", (*TM[:-1], "{nested_states}", "--out", "{tmp}/o"), 2, "worker_states.goal"
     ),
     case("tm-out-holds-results", (*TM, "--out", "{m}"), 2, "already holds results"),
     # ---- evaluate
@@ -536,6 +551,9 @@ def artifacts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
         "deep_yaml": root / "deep_yaml.yml",
         "buffer_bomb": root / "buffer_bomb.yml",
         "net_arch_bomb": root / "net_arch_bomb.yml",
+        "controller_list": root / "controller_list.yml",
+        "motion_text": root / "motion_text.yml",
+        "nested_states": root / "nested_states.yml",
         "ham_missing_keys": root / "ham.json",
         "traversal_algo": root / "traversal_algo",
         **{f"hostile_{key}": root / f"hostile_{key}.zip" for key in HOSTILE_BUNDLES},
@@ -581,6 +599,13 @@ def _hostile_files(root: Path, members: dict[str, bytes]) -> None:
     (root / "alias_bomb.yml").write_text("\n".join(lines) + "\n")
     (root / "buffer_bomb.yml").write_text(TINY_CONFIG.replace("buffer_size: 1000", "buffer_size: 1e13"))
     (root / "net_arch_bomb.yml").write_text(TINY_CONFIG.replace("net_arch=[16]", "net_arch=[65536, 65536]"))
+    (root / "controller_list.yml").write_text(
+        "default:\n  n_timesteps: 10\n  callback:\n    - sb3_hddpg.callbacks.ControllerPrior: {controller: [1]}\n"
+    )
+    (root / "motion_text.yml").write_text(TINY_CONFIG + "  wrapper_kwargs: {manager_motion: x}\n")
+    (root / "nested_states.yml").write_text(
+        TINY_CONFIG + "  wrapper_kwargs: {worker_states: {goal: [[1]]}}\n"
+    )
     (root / "deep_yaml.yml").write_text("default: " + "[" * 100_000 + "]" * 100_000 + "\n")
     (root / "ham.json").write_text(json.dumps({"kind": "sb3-hddpg-ham", "schema_version": 1, "env_id": "x"}))
     # A worker whose manifest entry names its algorithm with a path (package used to write there).

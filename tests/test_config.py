@@ -1,12 +1,23 @@
 """Config parsing: RL Zoo's format, safe policy_kwargs, clear errors."""
 
+import os
+import subprocess
+import sys
+
 import pytest
 from stable_baselines3 import DDPG
 from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
-from sb3_hddpg.training.config import DEFAULT_CONFIG, load_config_file, load_hyperparams, parse_block
+from sb3_hddpg.training.config import (
+    DEFAULT_CONFIG,
+    Hyperparams,
+    load_config_file,
+    load_hyperparams,
+    parse_block,
+)
 from sb3_hddpg.training.config_values import ConfigError, parse_policy_kwargs
+from tests.cli_runner import REPO
 
 
 def test_bundled_config_has_every_env_and_the_manager():
@@ -64,6 +75,10 @@ def test_policy_kwargs_round_trip_and_safety():
         ({"n_timesteps": 10, "learning_rate": "lin_-1e-3"}, "learning_rate"),
         ({"n_timesteps": 10, "learning_rate": "lin_nan"}, "learning_rate"),
         ({"n_timesteps": 10, "gamma": "lin_0.9"}, "gamma"),
+        (
+            {"n_timesteps": 10, "callback": {"sb3_hddpg.callbacks.ControllerPrior": {"controller": [1]}}},
+            "controller",
+        ),
     ],
 )
 def test_bad_blocks(block, message):
@@ -90,3 +105,20 @@ def test_missing_file_and_bad_yaml(tmp_path):
     (tmp_path / "list.yml").write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="map env ids"):
         load_config_file(tmp_path / "list.yml")
+
+
+def test_a_block_without_actor_terms_loads_no_actor_loss_code():
+    # Every training asks its block for callbacks: one without an actor term must not import their modules.
+    code = (
+        "import sys\n"
+        "import sb3_hddpg.training.agent\n"
+        "from sb3_hddpg.training.config import Hyperparams\n"
+        "assert Hyperparams({}, 10).callbacks() == []\n"
+        "print(sorted(m for m in ('sb3_hddpg.callbacks.action_penalty', 'sb3_hddpg.callbacks.controller_prior')"
+        " if m in sys.modules))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["[]"]
+    assert [type(c).__name__ for c in Hyperparams({}, 10, action_l2=0.1).callbacks()] == ["ActionL2Penalty"]

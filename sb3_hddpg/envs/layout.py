@@ -34,7 +34,11 @@ class StateLayout(Mapping[str, slice]):
         return len(self._slices)
 
     def indices(self, names: Iterable[str]) -> np.ndarray:
-        """The indices that select the components ``names`` (e.g. ``["ee_to_goal"]``) from an observation."""
+        """
+        The indices that select the named components from an observation, in the order given.
+
+        :param names: component names, e.g. ``["joint_positions", "ee_to_goal"]``.
+        """
         names = list(names)
         unknown = [n for n in names if n not in self._slices]
         if unknown:

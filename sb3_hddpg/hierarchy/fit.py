@@ -1,7 +1,7 @@
 """
 What a new :class:`~sb3_hddpg.hierarchy.hierarchy.Hierarchy` takes from its models (the selection settings
-of the wrapper its manager trained on, the env its workers share), what its manager observes, and the checks
-that its models fit its env.
+of the wrapper its manager trained on, the env each model was trained on), what its manager observes, and the
+checks that its models fit its env.
 """
 
 from __future__ import annotations

@@ -18,10 +18,11 @@ from sb3_hddpg.policy import Policy
 
 class FrozenWorker:
     """
-    A worker used for inference only, as cheaply as possible. An SB3 actor of ``Linear`` layers and common activations (DDPG/TD3's ``actor.mu``; SAC/TQC's
-    ``latent_pi`` + ``mu`` + tanh without gSDE) is compiled into numpy products on copies of its weights,
-    about 10x faster than torch for one observation (``benchmarks/manager_env_speed.py``); any other SB3
-    policy runs a frozen copy under ``torch.no_grad()``. Either way the caller's model can keep training.
+    A worker used for inference only, as cheaply as possible. An SB3 actor of ``Linear`` layers and common
+    activations (DDPG/TD3's ``actor.mu``; SAC/TQC's ``latent_pi`` + ``mu`` + tanh without gSDE) is compiled
+    into numpy products on copies of its weights, about 10x faster than torch for one observation
+    (``benchmarks/manager_env_speed.py``); any other SB3 policy runs a frozen copy under ``torch.no_grad()``.
+    Either way the caller's model can keep training.
     Anything else (a ``Hierarchy``, the HAM switch) is called through ``predict(obs, deterministic=True)``.
 
     :param worker: the worker.

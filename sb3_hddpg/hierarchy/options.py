@@ -37,6 +37,8 @@ class OptionState:
         """
         The state of ``n_envs`` envs at their episodes' start: no option, nothing seen.
 
+        :param n_envs: the number of envs (rows of a batch; 1 for one observation).
+        :param n_workers: the number of workers.
         :param worker_states: a fresh state for each worker that is a hierarchy, called once per env.
         """
         if n_envs < 1:

@@ -394,9 +394,11 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
             raise LimitError(f"{what}.{key}: expected a mapping, got {brief(out[key])}")
     for name, spec in out.get("reward_terms", {}).items():
         _check_reward_spec(name, spec, names, f"{what}.reward_terms")
-    state = out.get("manager_state")
-    if state is not None and not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
-        raise LimitError(f"{what}.manager_state: expected a list of names, got {brief(state)}")
+    states = {"manager_state": out["manager_state"]} if out.get("manager_state") is not None else {}
+    states.update({f"worker_states.{n}": s for n, s in out.get("worker_states", {}).items()})
+    for key, state in states.items():
+        if not (isinstance(state, list) and all(isinstance(s, str) for s in state)):
+            raise LimitError(f"{what}.{key}: expected a list of names, got {brief(state)}")
     recorded = out.get("manager_preferences")  # read by PreferenceSpace.from_json
     if recorded is not None and not isinstance(recorded, Mapping):
         raise LimitError(f"{what}.manager_preferences: expected a mapping, got {brief(recorded)}")
@@ -411,16 +413,16 @@ def _check_numbers(out: Mapping[str, Any], n_workers: int, what: str) -> None:
         steps = out["option_steps"]
         if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10_000:
             raise LimitError(f"{what}.option_steps: expected an integer in [1, 10000], got {brief(steps)}")
-    # key -> (low, high, whether low itself is excluded)
+    # key -> (low, high, whether low itself is excluded, whether high is): SimplexMap's own ranges
     ranges = {
-        "temperature": (0.0, 1e6, True),
-        "floor": (0.0, 1.0 / max(n_workers, 1), False),
-        "option_gamma": (0.0, 1.0, True),
-        "manager_motion": (0.0, 1e6, False),
+        "temperature": (0.0, 1e6, True, False),
+        "floor": (0.0, 1.0 / max(n_workers, 1), False, True),
+        "option_gamma": (0.0, 1.0, True, False),
+        "manager_motion": (0.0, 1e6, False, False),
     }
-    for key, (low, high, low_open) in ranges.items():
+    for key, (low, high, low_open, high_open) in ranges.items():
         if key in out:
-            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open=low_open)
+            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open, high_open)
 
 
 def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: str) -> None:

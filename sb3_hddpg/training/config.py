@@ -148,6 +148,8 @@ class Hyperparams:
         """
         The algorithm's constructor arguments for ``env``: the block's, with the action noise sized to the
         env and a named replay buffer resolved, its env-dependent arguments read from ``env``.
+
+        :param env: the training env (or a ``VecEnv``'s single env, for the buffer's arguments).
         """
         kwargs = dict(self.algo_kwargs)
         if kwargs.get("replay_buffer_class") == "GoalRelabelingReplayBuffer":
@@ -168,15 +170,15 @@ class Hyperparams:
 
     def callbacks(self) -> list[Any]:
         """The SB3 callbacks the block asks for (as RL Zoo would build them from its ``callback`` key)."""
-
+        # Each imported only when asked for: a block without an actor term never loads the actor-loss code.
         callbacks: list[Any] = []
-        # Only a block that asks for an actor term loads the actor-loss machinery.
-        from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
-        from sb3_hddpg.callbacks.controller_prior import ControllerPrior
-
         if self.action_l2 > 0:
+            from sb3_hddpg.callbacks.action_penalty import ActionL2Penalty
+
             callbacks.append(ActionL2Penalty(self.action_l2, self.action_l2_margin))
         if self.controller_prior is not None:
+            from sb3_hddpg.callbacks.controller_prior import ControllerPrior
+
             callbacks.append(ControllerPrior(*self.controller_prior))
         return callbacks
 
@@ -396,7 +398,7 @@ def _parse_callbacks(value: object, source: str) -> dict[str, object]:
         coefficient = float(check(kwargs.get("coefficient", default), f"{source}: {path}.coefficient"))
         if name == "controller_prior":
             controller = kwargs.get("controller", "ik")
-            if controller not in CONTROLLERS:
+            if not isinstance(controller, str) or controller not in CONTROLLERS:  # a YAML list is unhashable
                 raise ConfigError(
                     f"Unknown controller {brief(controller)} in {source}: {path}; choose from {sorted(CONTROLLERS)}"
                 )
@@ -474,6 +476,7 @@ def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) ->
     """
     The ``manager`` block a manager of ``algo`` trains from.
 
+    :param algo: the manager's algorithm.
     :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
     """
     return load_hyperparams(MANAGER_KEY, algorithm_class(algo), config or default_config(algo), manager=True)

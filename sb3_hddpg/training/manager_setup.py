@@ -25,11 +25,16 @@ from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.gpi import gpi_of
 from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.relabeling import PreferenceRelabelingReplayBuffer
-from sb3_hddpg.hierarchy.selection import SelectionConfig, check_preferences, preferences_from_bias
+from sb3_hddpg.hierarchy.selection import (
+    SelectionConfig,
+    check_preferences,
+    check_selection_settings,
+    preferences_from_bias,
+)
 from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import algo_class
-from sb3_hddpg.training.config import Hyperparams, default_config, manager_hyperparams
+from sb3_hddpg.training.config import Hyperparams, manager_hyperparams
 from sb3_hddpg.training.imitation_start import HAM_START_ALGOS, GpiStart, HamStart, check_ham_workers
 
 #: The algorithms a manager can be (DDPG is the paper's), each with a ``manager`` block in its bundled config;
@@ -230,14 +235,18 @@ def manager_options(options: ManagerOptions | None, changes: dict[str, Any], cal
 
 
 def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSetup:
-    """:func:`prepare_manager` with its arguments as one record."""
+    """
+    :func:`prepare_manager` with its arguments as one record.
+
+    :param workers_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
+    :param options: what the manager is trained from.
+    """
     if isinstance(options.worker_names, str):
         raise ValueError(f"Expected a sequence of worker names, actually the string {options.worker_names!r}")
     algo = options.algo
     if algo not in MANAGER_ALGOS:
         raise ValueError(f"Unknown manager algorithm {algo!r}; choose from {list(MANAGER_ALGOS)}")
-    config = options.config if options.config is not None else default_config(algo)
-    hyperparams = _with_gamma(manager_hyperparams(algo, config), options.gamma)
+    hyperparams = _with_gamma(manager_hyperparams(algo, options.config), options.gamma)
     workers = load_workers(workers_dir, options.worker_names, trusted=options.trusted)
     env_id, given_kwargs = shared_env_of(
         workers.manifest, options.env_id, options.env_kwargs, options.trusted
@@ -247,6 +256,8 @@ def setup_manager(workers_dir: str | Path, options: ManagerOptions) -> ManagerSe
         selection_config = SelectionConfig(**wrapper_kwargs)
     except TypeError as error:  # an unknown key in the config's wrapper_kwargs
         raise ValueError(f"Invalid wrapper_kwargs in the manager's config block: {error}") from None
+    # Checked as a bundle's are: a value of the wrong type is one line naming it, not a TypeError later.
+    check_selection_settings(wrapper_kwargs, list(workers), "the manager block's wrapper_kwargs")
     env_kwargs = check_make_kwargs(env_id, {**given_kwargs, **hyperparams.env_kwargs}, "manager env_kwargs")
     if "observe" in env_kwargs:
         raise ValueError(

@@ -112,6 +112,10 @@ def parse_worker_algorithms(text: str, workers: Sequence[str], env: TermsEnv | N
     """
     Parse ``--algo``'s text: ``goal=crossq,avoid=sac`` (a worker not named keeps its default), or one
     algorithm name for every worker (``crossq``); checked by :func:`worker_algorithms`.
+
+    :param text: the option's value.
+    :param workers: the workers being trained.
+    :param env: the env they are trained on (``None``: the snake arm).
     """
     parts = [part.strip() for part in text.split(",") if part.strip()]
     if len(parts) == 1 and "=" not in parts[0]:
@@ -135,6 +139,10 @@ def worker_algorithms(
     """
     Each worker's algorithm (its registry name): the one ``algos`` names, else on the snake arm
     (``env=None``) :data:`SNAKE_WORKER_ALGOS`'s and on another env DDPG; refused if it cannot be a worker.
+
+    :param workers: the worker names.
+    :param algos: worker name -> algorithm name (any case); a name not among ``workers`` is refused.
+    :param env: the env with several objectives the workers are trained on (``None``: the snake arm).
     """
     defaults = SNAKE_WORKER_ALGOS if env is None else {}
     algos = dict(algos or {})
@@ -192,9 +200,14 @@ def plan_workers(
     algos: Mapping[str, str] | None = None,
 ) -> list[PlannedWorker]:
     """
-    Check what :func:`train_workers` is asked to train, before anything is trained (its arguments; a corner
-    weight is the per-term worker of its term).
+    Check what :func:`train_workers` is asked to train, before anything is trained (a corner weight is the
+    per-term worker of its term).
 
+    :param workers: per-term worker names (``None``: every term, unless ``weights`` are given).
+    :param weights: weightings of the terms (term -> weight, finite, >= 0, positive sum), one worker each.
+    :param config: a ``zoo_configs``-format file (default: each worker's algorithm's bundled one).
+    :param env: another env with several objectives (default: the snake arm).
+    :param algos: worker name -> algorithm; a weighted worker not named takes its heaviest term's.
     :return: the workers in order; raises ``ValueError`` naming the problem.
     """
     shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
