@@ -73,14 +73,6 @@ def resolve_backend(requested: str | None, configured: str | None = None) -> str
     return check_backend(requested or configured or DEFAULT_BACKEND)
 
 
-def backend_for(algo: str, backend: str) -> str:
-    """
-    The backend that trains ``algo`` when ``backend`` is asked for every agent of a run: ``backend`` if it
-    trains the algorithm, else SB3, which trains every one (e.g. a DQN manager in an SBX benchmark).
-    """
-    return backend if backend != "sbx" or algo.lower() in SBX_ALGOS else "sb3"
-
-
 def check_algo(algo: str, backend: str) -> None:
     """Raise :class:`BackendError` if ``backend`` cannot train ``algo``."""
     if backend == "sbx" and algo.lower() not in SBX_ALGOS:
