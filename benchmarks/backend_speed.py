@@ -42,8 +42,9 @@ from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 import sb3_hddpg  # noqa: E402, F401
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper  # noqa: E402
-from sb3_hddpg.training.backends import algo_class, make_model  # noqa: E402
+from sb3_hddpg.training.backends import algo_class  # noqa: E402
 from sb3_hddpg.training.config import MANAGER_KEY, default_config, load_hyperparams  # noqa: E402
+from sb3_hddpg.training.models import make_model  # noqa: E402
 
 CASES = ("worker", "manager", "flat-ddpg", "flat-td3", "flat-sac", "worker-k8", "worker-4envs")
 

@@ -31,8 +31,8 @@ from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 from sb3_hddpg.algorithms import algorithm  # noqa: E402
 from sb3_hddpg.envs.terms_env import make_term_view, terms_env  # noqa: E402
-from sb3_hddpg.training.backends import make_model  # noqa: E402
 from sb3_hddpg.training.config import default_config, load_hyperparams  # noqa: E402
+from sb3_hddpg.training.models import make_model  # noqa: E402
 
 #: case -> (algorithm, critic layers)
 CASES = {"crossq-1024": ("crossq", 1024), "crossq-256": ("crossq", 256), "sac-256": ("sac", 256)}

@@ -40,8 +40,8 @@ from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 import sb3_hddpg  # noqa: E402, F401
 from sb3_hddpg.hierarchy import WorkerSelectionWrapper  # noqa: E402
-from sb3_hddpg.training.backends import make_model  # noqa: E402
 from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams  # noqa: E402
+from sb3_hddpg.training.models import make_model  # noqa: E402
 
 #: (label, substrings of a frame's file path or function name), first match wins; order matters: SB3's
 #: ``predict``/``_sample_action`` are acting even though they live in SB3's files.

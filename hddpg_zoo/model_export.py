@@ -34,8 +34,8 @@ from sb3_hddpg.artifacts.limits import (
     MAX_MODEL_FILE_BYTES,
     MAX_SEED,
     MAX_WORKERS,
+    LimitError,
     brief,
-    file_inside,
     read_file_bytes,
     read_json_file,
 )
@@ -135,6 +135,28 @@ class ModelFile:
         if self.manager_preferences is not None:
             entry["manager_preferences"] = self.manager_preferences
         return entry
+
+
+def file_inside(root: str | Path, relative: str | Path) -> Path:
+    """
+    A file of a folder someone else may have made, by its path inside it: refused with :class:`LimitError`
+    when any part of that path is a symbolic link or it resolves outside ``root``.
+
+    :param root: the folder.
+    :param relative: the file's path inside it.
+    :return: the path.
+    """
+    root = Path(root)
+    current = root
+    for part in Path(relative).parts:
+        current = current / part
+        if current.is_symlink():
+            raise LimitError(
+                f"{str(current)!r} is a symbolic link inside {str(root)!r}; refused (it may lead anywhere)"
+            )
+    if root.resolve() not in current.resolve().parents:
+        raise LimitError(f"{str(current)!r} resolves outside {str(root)!r}; refused")
+    return current
 
 
 def destination(dest_root: Path, relative: Path) -> Path:

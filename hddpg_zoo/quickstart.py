@@ -39,6 +39,7 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
+from hddpg_zoo.agent_settings import backend_for, manager_option_steps, read_history
 from hddpg_zoo.media.figures import plot_comparison, plot_learning_curves, plot_selection_timeline
 from hddpg_zoo.media.video import RecordingResult
 from hddpg_zoo.packaging import write_zoo_layout
@@ -54,14 +55,13 @@ from sb3_hddpg.artifacts.provenance import library_versions
 from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION, models_manifest
 from sb3_hddpg.artifacts.run_folder import holds_run_folder
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, save_ham
-from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs import MAX_EPISODE_STEPS
 from sb3_hddpg.envs.contract import Proximity, state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID, WORKER_ENV_IDS
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, EvaluationResult, evaluate
 from sb3_hddpg.hierarchy.loading import LoadedPolicy, load_policy
-from sb3_hddpg.training.backends import backend_for, check_backend
-from sb3_hddpg.training.config import default_config, load_config_file, manager_option_steps
+from sb3_hddpg.training.backends import check_backend
+from sb3_hddpg.training.config import default_config, load_config_file
 from sb3_hddpg.training.imitation_start import HamStart
 
 #: The stages, in order; the overall progress bar counts them.

@@ -10,10 +10,10 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from hddpg_zoo.agent_settings import manager_option_steps
 from hddpg_zoo.executors import make_executor
 from hddpg_zoo.runner import Job, report_progress, run_jobs
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-from sb3_hddpg.training.config import manager_option_steps
 from sb3_hddpg.training.flat import train_flat
 from sb3_hddpg.training.imitation_start import HamStart
 from sb3_hddpg.training.manager import train_manager

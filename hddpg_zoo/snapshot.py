@@ -40,11 +40,12 @@ from hddpg_zoo.model_export import (
     ModelFile,
     copy_model,
     destination,
+    file_inside,
     run_models,
     write_index,
 )
 from sb3_hddpg.artifacts.io import atomic_write_json, locked_folder
-from sb3_hddpg.artifacts.limits import MAX_MODEL_FILE_BYTES, file_inside, read_file_bytes, read_json_file
+from sb3_hddpg.artifacts.limits import MAX_MODEL_FILE_BYTES, read_file_bytes, read_json_file
 from sb3_hddpg.artifacts.provenance import sha256_bytes
 from sb3_hddpg.artifacts.run_folder import RunFolderError, mark_run_folder, protected_reason
 

@@ -50,6 +50,7 @@ from pathlib import Path
 import gymnasium as gym
 
 import sb3_hddpg  # noqa: F401  (registers the env ids)
+from hddpg_zoo.agent_settings import manager_option_steps
 from hddpg_zoo.benchmark.front import SWEEP, ham_thresholds
 from hddpg_zoo.benchmark.front_points import (
     PLANES,
@@ -71,7 +72,6 @@ from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
-from sb3_hddpg.training.config import manager_option_steps
 from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.run_options import RunOptions
 

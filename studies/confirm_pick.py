@@ -112,7 +112,7 @@ def train_flat_arm(arm: ArmRun) -> tuple[int, Path]:
 
 def train_manager_arm(arm: ArmRun) -> tuple[int, Path]:
     """A manager as the benchmark trains ``arm.method``'s, at the unweighted preference: its env steps and bundle."""
-    from sb3_hddpg.training.config import manager_option_steps
+    from hddpg_zoo.agent_settings import manager_option_steps
     from sb3_hddpg.training.manager import train_manager
 
     front = arm.method == "hddpg-front"
@@ -160,10 +160,10 @@ def check_inputs(args: argparse.Namespace) -> None:
 
     :raises ValueError: one line naming the option.
     """
+    from hddpg_zoo.agent_settings import manager_option_steps
     from hddpg_zoo.benchmark.settings import BenchmarkSettings
     from sb3_hddpg.artifacts.manifests import load_workers
     from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
-    from sb3_hddpg.training.config import manager_option_steps
     from sb3_hddpg.training.flat import FLAT_HER_KEY, flat_hyperparams
     from sb3_hddpg.training.manager_setup import manager_hyperparams
 

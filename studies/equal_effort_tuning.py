@@ -46,6 +46,7 @@ from typing import Any
 
 import yaml
 
+from hddpg_zoo.agent_settings import backend_for
 from hddpg_zoo.benchmark.settings import FLAT_HER_METHODS, BenchmarkSettings
 from hddpg_zoo.study_export import export_study
 from hddpg_zoo.study_storage import default_storage_url
@@ -60,7 +61,6 @@ from hddpg_zoo.tuning import (
     tune,
 )
 from sb3_hddpg.envs.ids import WORKER_ENV_IDS
-from sb3_hddpg.training.backends import backend_for
 from sb3_hddpg.training.config import load_config_file
 from sb3_hddpg.training.flat import FLAT_HER_KEY
 from sb3_hddpg.training.run_options import RunOptions

@@ -24,8 +24,9 @@ import sb3_hddpg  # noqa: F401  (registers the env ids)
 from sb3_hddpg.callbacks import apply_action_l2
 from sb3_hddpg.evaluation import evaluate
 from sb3_hddpg.goal_relabeling import GoalRelabelingReplayBuffer
-from sb3_hddpg.training.backends import sbx_class, sbx_kwargs
+from sb3_hddpg.training.backends import sbx_class
 from sb3_hddpg.training.config import parse_schedule
+from sb3_hddpg.training.sbx_models import sbx_kwargs
 
 ENV_IDS = {"goal": "hddpg/SnakeGoal-v0", "avoid": "hddpg/SnakeAvoid-v0", "reach": "hddpg/SnakeReach-v0"}
 VIEWS = {"all": None, "goal": ["joint_positions", "ee_to_goal", "goal_touched"]}

@@ -25,8 +25,9 @@ from sb3_hddpg.artifacts.safe_load import load_model
 from sb3_hddpg.artifacts.spec import model_spec
 from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
-from sb3_hddpg.training.backends import make_model, sbx_installed, to_sb3
+from sb3_hddpg.training.backends import sbx_installed
 from sb3_hddpg.training.config import default_config
+from sb3_hddpg.training.models import make_model, to_sb3
 from sb3_hddpg.training.workers import parse_worker_algorithms, train_workers, worker_algorithms
 
 needs_sbx = pytest.mark.skipif(not sbx_installed(), reason='needs SBX: pip install "sb3-hddpg[fast]"')

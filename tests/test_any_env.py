@@ -705,7 +705,7 @@ def test_state_dependence_and_selection_figure_say_not_available(mountain_car_bu
 
 # ------------------------------------------------------------------------ benchmark --env
 def test_benchmark_on_an_mo_gymnasium_env(tmp_path):
-    from sb3_hddpg.training.config import manager_option_steps
+    from hddpg_zoo.agent_settings import manager_option_steps
     from tests.cli_batch import run_batch
 
     env_args = ["--env", "mo-mountaincarcontinuous-v0", "--terms", "time,fuel", "--episode-steps", "30"]

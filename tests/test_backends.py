@@ -149,7 +149,8 @@ def trained():
         pytest.skip("needs SBX")
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_hddpg.training.backends import configure_jax_threads, make_model, to_sb3
+    from sb3_hddpg.training.backends import configure_jax_threads
+    from sb3_hddpg.training.models import make_model, to_sb3
 
     configure_jax_threads(1)
     models = {}
@@ -172,7 +173,7 @@ def test_a_model_under_the_action_penalty_exports_as_its_algorithm(trained, algo
     from stable_baselines3 import DDPG, TD3
 
     from sb3_hddpg.callbacks import apply_action_l2
-    from sb3_hddpg.training.backends import to_sb3
+    from sb3_hddpg.training.models import to_sb3
 
     model, exported, _ = trained[algo]
     apply_action_l2(model, 0.5)
@@ -195,8 +196,8 @@ def test_a_learning_rate_schedule_reaches_the_jax_optimisers(algo, tmp_path):
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_hddpg.training.backends import load_native, make_model, to_sb3
     from sb3_hddpg.training.config_values import parse_schedule
+    from sb3_hddpg.training.models import load_native, make_model, to_sb3
 
     class RecordRates(BaseCallback):
         def __init__(self) -> None:
@@ -298,7 +299,7 @@ def test_sbx_starts_from_sb3s_initial_weights(trained, algo):
     """Same seed, same initial networks on both backends (flax's own initialisation would differ)."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_hddpg.training.backends import make_model
+    from sb3_hddpg.training.models import make_model
 
     _, _, kwargs = trained[algo]
     obs = _observations(64)
@@ -316,7 +317,7 @@ def test_no_recompile_per_model_or_learn_call():
     import jax
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_hddpg.training.backends import make_model
+    from sb3_hddpg.training.models import make_model
 
     compiled: list[str] = []
 

@@ -14,6 +14,7 @@ import pytest
 from stable_baselines3 import DDPG
 
 from hddpg_zoo import stats
+from hddpg_zoo.agent_settings import manager_option_steps
 from hddpg_zoo.benchmark import (
     OUTPUT_FILES,
     BenchmarkSettings,
@@ -30,7 +31,7 @@ from hddpg_zoo.benchmark import (
 from hddpg_zoo.provenance import code_provenance
 from sb3_hddpg.episode_sets import DEVELOPMENT
 from sb3_hddpg.evaluation import EVAL_SEED_BASE
-from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
+from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
 from tests.cli_batch import run_batch
 from tests.cli_runner import CLI
 
@@ -471,8 +472,8 @@ def test_flat_configs_give_every_algorithm_the_same_care(algo):
 def test_a_managers_budget_and_curve_are_counted_in_env_steps_with_options(tmp_path, monkeypatch):
     # With options of k env steps a manager's `timesteps` are decisions: k times as many env steps, which the
     # flat agents' equal budget, the curve window and the curve points must count.
+    from hddpg_zoo.agent_settings import read_history
     from hddpg_zoo.benchmark import settings as settings_module
-    from sb3_hddpg.callbacks.evaluation import read_history
 
     monkeypatch.setattr(settings_module, "_manager_option_steps", lambda: 4)
     settings = BenchmarkSettings(methods=["hddpg", "ddpg"], timesteps=1000, worker_timesteps=300)

@@ -3,7 +3,7 @@ The third pass of docs/ROBUSTNESS.md: each class of defect is held at its one ch
 here call that place (and, for a sample of the issue's reproductions, the CLI in one batch interpreter).
 
 1. folders the user owns: ``artifacts/run_folder.py::check_out_folder`` and the marker's inventory;
-2. reads and writes outside the named folder: ``artifacts/limits.py::file_inside``, plain names, storages
+2. reads and writes outside the named folder: ``hddpg_zoo/model_export.py::file_inside``, plain names, storages
    that are only read;
 3. files that are not what they seem: ``artifacts/limits.py::read_file_bytes`` and
    ``check_zip_directory``, ``artifacts/provenance.py::read_verified``;
@@ -30,6 +30,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import sb3_hddpg  # noqa: F401  (registers the ids)
+from hddpg_zoo.model_export import file_inside
 from hddpg_zoo.study_storage import StorageError, make_storage
 from hddpg_zoo.tuning.results import check_only_block_changed, replace_block
 from sb3_hddpg.artifacts import limits
@@ -40,7 +41,6 @@ from sb3_hddpg.artifacts.limits import (
     check_count,
     check_zip_directory,
     count_bounds,
-    file_inside,
     read_file_bytes,
 )
 from sb3_hddpg.artifacts.manifests import ResumeMismatch, check_resumed_agent, load_workers

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from hddpg_zoo.agent_settings import horizon_gamma
 from hddpg_zoo.benchmark import (
     REFERENCE_POINTS,
     SWEEP,
@@ -27,7 +28,7 @@ from hddpg_zoo.records import BenchmarkResults
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.training.backends import sbx_installed
 from sb3_hddpg.training.config import MANAGER_KEY
-from sb3_hddpg.training.manager_setup import horizon_gamma, manager_hyperparams
+from sb3_hddpg.training.manager_setup import manager_hyperparams
 from tests.cli_runner import run_cli
 
 

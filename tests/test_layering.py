@@ -48,6 +48,7 @@ FLOORS = {
     "hddpg_zoo": 8,
     "hddpg_zoo.records": 8,
     "hddpg_zoo.provenance": 8,
+    "hddpg_zoo.agent_settings": 8,
     "hddpg_zoo.runner": 8,
     "hddpg_zoo.study_storage": 8,
     "hddpg_zoo.hyperparams_opt": 8,

@@ -11,10 +11,11 @@ import pytest
 from PIL import Image
 from stable_baselines3 import DDPG
 
+from hddpg_zoo.agent_settings import manager_option_steps
 from hddpg_zoo.quickstart import BUDGETS, STAGES
 from sb3_hddpg.artifacts.records import QUICKSTART_RESULTS_VERSION
 from sb3_hddpg.hierarchy.hierarchy import Hierarchy
-from sb3_hddpg.training.config import load_hyperparams, manager_option_steps
+from sb3_hddpg.training.config import load_hyperparams
 from tests.cli_batch import run_batch
 from tests.cli_runner import run_cli
 

@@ -20,7 +20,6 @@ from hddpg_zoo.hyperparams_opt import (
 )
 from hddpg_zoo.study_storage import default_storage_url
 from hddpg_zoo.tuning import StudySettings, TuningTarget
-from sb3_hddpg.training.backends import sbx_kwargs
 from sb3_hddpg.training.config import (
     default_config,
     load_config_file,
@@ -28,6 +27,7 @@ from sb3_hddpg.training.config import (
     parse_block,
     select_block,
 )
+from sb3_hddpg.training.sbx_models import sbx_kwargs
 from tests.cli_batch import run_batch
 
 REPO = Path(__file__).resolve().parent.parent

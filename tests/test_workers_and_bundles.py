@@ -302,7 +302,7 @@ def test_a_sac_manager_trains_bundles_and_reloads(trained, tmp_path):
     """`train_manager(algo="sac")`: SAC on the same action, its own config block, in a bundle like DDPG's."""
     from stable_baselines3 import SAC
 
-    from sb3_hddpg.training.config import manager_option_steps
+    from hddpg_zoo.agent_settings import manager_option_steps
 
     root = trained[0]
     result = train_manager(root / "w", tmp_path / "m", algo="sac", seed=3, **TINY)

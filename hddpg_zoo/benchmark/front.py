@@ -35,6 +35,7 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
+from hddpg_zoo.agent_settings import horizon_gamma, read_history
 from hddpg_zoo.baselines.ttc import TTC_GRID, TTCSwitch
 from hddpg_zoo.benchmark.env_methods import (
     combined_env,
@@ -70,7 +71,6 @@ from hddpg_zoo.records.results_leaves import (
 from sb3_hddpg.artifacts.io import atomic_write_json
 from sb3_hddpg.artifacts.limits import read_json_record
 from sb3_hddpg.baselines.ham import HAMSwitch, load_ham, save_ham
-from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.episode_sets import CURVE
@@ -80,7 +80,6 @@ from sb3_hddpg.hierarchy.hierarchy import Hierarchy
 from sb3_hddpg.hierarchy.loading import load_policy
 from sb3_hddpg.policy import Policy
 from sb3_hddpg.training.manager import train_manager
-from sb3_hddpg.training.manager_setup import horizon_gamma
 
 #: The snake's sweep: goal:avoid 4:1, 3:1, 2:1, 1:1, 1:2, 1:3, 1:4 at sum 2.
 SWEEP = SNAKE_FRONT.sweep

@@ -86,6 +86,9 @@ class MethodSettings(Protocol):
     def front_support(self) -> str | None: ...
 
     @property
+    def worker_timesteps(self) -> int | None: ...
+
+    @property
     def front_start(self) -> str | None: ...
 
     @property

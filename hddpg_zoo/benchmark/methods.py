@@ -14,6 +14,7 @@ from pathlib import Path
 
 import gymnasium as gym
 
+from hddpg_zoo.agent_settings import read_history
 from hddpg_zoo.baselines.ttc import CLOSE_SECONDS, DecisionStates, KinematicsScales
 from hddpg_zoo.benchmark.episodes import episode_rows
 from hddpg_zoo.benchmark.method_inputs import MethodSettings, MethodTask
@@ -21,7 +22,6 @@ from sb3_hddpg.algorithms import REGISTRY, algorithms_for
 from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.baselines.ham import DEFAULT_MARGIN, HAMSwitch, load_ham, save_ham
 from sb3_hddpg.baselines.random import RandomPolicy
-from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.envs.ids import SNAKE_REACH_ENV_ID
 from sb3_hddpg.envs.snake.controllers import DEFAULT_MAX_JOINT_SPEED, make_controller

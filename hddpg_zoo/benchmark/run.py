@@ -17,6 +17,7 @@ from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any
 
+from hddpg_zoo.agent_settings import read_history
 from hddpg_zoo.benchmark.benchmark_file import (
     check_same_code,
     invocation_codes,
@@ -53,7 +54,6 @@ from hddpg_zoo.provenance import CodeProvenance, code_provenance
 from hddpg_zoo.records import BenchmarkResults, benchmark_record
 from hddpg_zoo.runner import Executor, Job, RunOutcome, run_jobs
 from sb3_hddpg.artifacts.io import atomic_write_json
-from sb3_hddpg.callbacks.evaluation import read_history
 from sb3_hddpg.training.workers import train_workers, worker_hyperparams
 
 

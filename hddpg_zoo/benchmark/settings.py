@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import gymnasium as gym
 from stable_baselines3 import DDPG
 
+from hddpg_zoo.agent_settings import backend_for, manager_option_steps
 from hddpg_zoo.benchmark.env_methods import (
     DISCRETE_FLAT_METHODS,
     DISCRETE_ONLY_METHODS,
@@ -46,8 +47,8 @@ from sb3_hddpg.envs.weighted import parse_term_weights
 from sb3_hddpg.episode_sets import DEVELOPMENT, FINAL_TEST, FINAL_TEST_EPISODES, EpisodeSet
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.hierarchy.selection import parse_preferences, preferences_from_bias
-from sb3_hddpg.training.backends import backend_for, check_algo, check_backend
-from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams, manager_option_steps
+from sb3_hddpg.training.backends import check_algo, check_backend
+from sb3_hddpg.training.config import MANAGER_KEY, load_hyperparams
 from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.workers import worker_hyperparams
 

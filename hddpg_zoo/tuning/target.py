@@ -42,7 +42,6 @@ from sb3_hddpg.training.config import (
     select_block,
 )
 from sb3_hddpg.training.manager_setup import ManagerEnvFactory
-from sb3_hddpg.training.workers import worker_env_factory
 
 #: What can be tuned.
 LEVELS = ("worker", "manager", "flat", "ham")
@@ -370,7 +369,10 @@ def trial_env_factory(target: TuningTarget, hyperparams: Hyperparams) -> Callabl
     env = target.env
     if target.level == "worker":
         if env is None:
-            return worker_env_factory(str(target.worker), hyperparams.env_kwargs)
+            # The worker is one of the snake arm's (checked when the target was built).
+            return functools.partial(
+                make_snake_env, WORKER_ENV_IDS[str(target.worker)], dict(hyperparams.env_kwargs)
+            )
         # As train_workers builds a worker's env: the term's view, the block's env_kwargs on top.
         env_id, view_kwargs = env.term_view(str(target.worker))
         return functools.partial(

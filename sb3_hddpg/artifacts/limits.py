@@ -19,7 +19,6 @@ import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from gymnasium.envs.registration import registry
@@ -293,28 +292,6 @@ def check_run_file(path: str | os.PathLike[str]) -> None:
     reason = run_folder_escape(path)
     if reason is not None:
         raise LimitError(reason)
-
-
-def file_inside(root: str | os.PathLike[str], relative: str | os.PathLike[str]) -> Path:
-    """
-    A file of a folder someone else may have made, by its path inside it: refused with :class:`LimitError`
-    when any part of that path is a symbolic link or it resolves outside ``root``.
-
-    :param root: the folder.
-    :param relative: the file's path inside it.
-    :return: the path.
-    """
-    root = Path(root)
-    current = root
-    for part in Path(relative).parts:
-        current = current / part
-        if current.is_symlink():
-            raise LimitError(
-                f"{str(current)!r} is a symbolic link inside {str(root)!r}; refused (it may lead anywhere)"
-            )
-    if root.resolve() not in current.resolve().parents:
-        raise LimitError(f"{str(current)!r} resolves outside {str(root)!r}; refused")
-    return current
 
 
 def read_json_file(path: str | os.PathLike[str], what: str | None = None) -> Any:

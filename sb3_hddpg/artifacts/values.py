@@ -11,7 +11,7 @@ import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 import gymnasium as gym
 from gymnasium.envs.registration import registry
@@ -93,7 +93,7 @@ def _number(value: object, kind: type) -> int | float | None:
     return int(value) if kind is int else float(value)
 
 
-def is_finite_number(value: object) -> bool:
+def is_finite_number(value: object) -> TypeGuard[int | float]:
     """``value`` is an ``int`` or ``float`` (never a ``bool``) and finite: a number as a JSON record may hold it."""
     return _number(value, float) is not None
 

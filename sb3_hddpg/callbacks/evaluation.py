@@ -11,7 +11,6 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
 from sb3_hddpg.artifacts.io import atomic_write, atomic_write_json
-from sb3_hddpg.artifacts.limits import read_json_file
 from sb3_hddpg.evaluation import EVAL_SEED_BASE, evaluate
 
 
@@ -140,24 +139,3 @@ def best_entry(history: list[dict[str, Any]]) -> dict[str, Any]:
     """
     trained = [entry for entry in history if entry.get("updates", 1) > 0]
     return max(trained, key=lambda h: h["mean_reward"]) if trained else history[-1]
-
-
-def read_history(path: Path, steps_per_timestep: int = 1, offset: int = 0) -> list[dict[str, Any]]:
-    """
-    A history written by :class:`MetricsEvalCallback`, over env steps: ``timesteps`` times
-    ``steps_per_timestep`` (a manager's decisions times its ``option_steps``; the decisions are kept as
-    ``decisions``), and ``total_timesteps`` = that + ``offset`` (e.g. the workers' steps before a manager's).
-
-    :param path: the run's own ``evaluations/<name>.json``.
-    :param steps_per_timestep: env steps per step the model counts.
-    :param offset: env steps spent before this model's first step.
-    """
-    out = []
-    points = read_json_file(path)
-    if not isinstance(points, list) or not all(isinstance(p, dict) for p in points):
-        raise ValueError(f"{path}: expected a list of evaluation points")
-    for point in points:
-        steps = int(point["timesteps"]) * steps_per_timestep
-        extra = {"decisions": int(point["timesteps"])} if steps_per_timestep != 1 else {}
-        out.append({**point, **extra, "timesteps": steps, "total_timesteps": steps + offset})
-    return out

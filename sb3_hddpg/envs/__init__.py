@@ -31,7 +31,7 @@ from sb3_hddpg.envs.ids import (
 )
 from sb3_hddpg.envs.layout import StateLayout, build_state_layout
 from sb3_hddpg.envs.snake import REWARD_TERMS, SnakeArmEnv
-from sb3_hddpg.envs.snake_mo import SnakeMOEnv
+from sb3_hddpg.lazy import lazy_attributes
 
 #: Steps per episode of every registered id (20 s of simulated time at the default ``dt``).
 MAX_EPISODE_STEPS = 200
@@ -62,6 +62,8 @@ def register_envs() -> None:
 
 
 register_envs()
+# The MO-Gymnasium speaker loads when made or first named: only MORL libraries use it.
+__getattr__ = lazy_attributes(__name__, {"SnakeMOEnv": "sb3_hddpg.envs.snake_mo"})
 
 __all__ = [
     "ADAPTER_ENV_IDS",

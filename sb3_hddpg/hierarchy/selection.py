@@ -11,19 +11,21 @@ import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any, ClassVar, TypeGuard
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
 
 from sb3_hddpg.artifacts.limits import (
     MAX_ITEMS,
+    MAX_MANAGER_MOTION,
     MAX_PREFERENCE,
     SIMPLEX_TOLERANCE,
     LimitError,
     brief,
     check_name,
 )
+from sb3_hddpg.artifacts.values import WRAPPER_SETTINGS, Bound, is_finite_number
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.gpi import GPI_SELECTION
 from sb3_hddpg.hierarchy.option_end import OptionEnd
@@ -301,7 +303,7 @@ def preferences_from_bias(
     """
     if prefer is not None and prefer not in names:
         raise ValueError(f"Unknown worker {prefer!r} to prefer; workers: {names}")
-    if not _finite(bias) or not 0 < bias <= MAX_PREFERENCE - 1:
+    if not is_finite_number(bias) or not 0 < bias <= MAX_PREFERENCE - 1:
         raise ValueError(
             f"Expected `bias` to be a finite number at most {MAX_PREFERENCE - 1:g} and > 0, actually: {bias}"
         )
@@ -328,11 +330,6 @@ def parse_preferences(text: str) -> dict[str, float]:
     return result
 
 
-def _finite(value: object) -> TypeGuard[float]:
-    """Whether ``value`` is a finite int or float (a bool is not a number here)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def check_preferences(
     preferences: dict[str, Any], names: list[str], max_factor: float | None = MAX_PREFERENCE
 ) -> dict[str, float]:
@@ -350,7 +347,7 @@ def check_preferences(
     checked = {}
     for name in names:
         value = preferences.get(name, 1.0)
-        if not _finite(value) or value <= 0:
+        if not is_finite_number(value) or value <= 0:
             raise ValueError(
                 f"Expected preference of {name!r} to be a finite number > 0, actually: {value!r}"
             )
@@ -407,22 +404,16 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
     return out
 
 
-def _check_numbers(out: Mapping[str, Any], n_workers: int, what: str) -> None:
+def _check_numbers(out: dict[str, Any], n_workers: int, what: str) -> None:
     """The numeric selection settings of a bundle, each within its range (one line naming the field)."""
-    if "option_steps" in out:
-        steps = out["option_steps"]
-        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10_000:
-            raise LimitError(f"{what}.option_steps: expected an integer in [1, 10000], got {brief(steps)}")
-    # key -> (low, high, whether low itself is excluded, whether high is): SimplexMap's own ranges
-    ranges = {
-        "temperature": (0.0, 1e6, True, False),
-        "floor": (0.0, 1.0 / max(n_workers, 1), False, True),
-        "option_gamma": (0.0, 1.0, True, False),
-        "manager_motion": (0.0, 1e6, False, False),
+    bounds = {
+        **WRAPPER_SETTINGS,  # a config's bounds; a bundle's floor also leaves room for each of its workers
+        "floor": Bound(float, 0.0, 1.0 / max(n_workers, 1), high_open=True),  # SimplexMap refuses 1/n
+        "manager_motion": Bound(float, 0.0, MAX_MANAGER_MOTION),
     }
-    for key, (low, high, low_open, high_open) in ranges.items():
+    for key, bound in bounds.items():
         if key in out:
-            _check_number_in_range(out[key], f"{what}.{key}", low, high, low_open, high_open)
+            out[key] = bound.check(out[key], f"{what}.{key}")
 
 
 def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: str) -> None:
@@ -444,7 +435,7 @@ def _check_reward_spec(name: object, spec: object, names: Sequence[str], what: s
     for term, weight in spec.items():
         if not isinstance(term, str) or not PLAIN_NAME.match(term):
             raise LimitError(f"{what}.{name}: expected term names, got {brief(term)}")
-        if not _finite(weight) or not 0 <= weight <= MAX_PREFERENCE:
+        if not is_finite_number(weight) or not 0 <= weight <= MAX_PREFERENCE:
             raise LimitError(
                 f"{what}.{name}.{term}: expected a finite weight in [0, {MAX_PREFERENCE:g}], got {brief(weight)}"
             )
@@ -469,23 +460,12 @@ def check_reward_terms(
                 )
 
 
-def _check_number_in_range(
-    value: object, what: str, low: float, high: float, low_open: bool = False, high_open: bool = False
-) -> None:
-    """A finite number from ``low`` to ``high`` (each end open or closed), else a ``LimitError``."""
-    if not _finite(value):
-        raise LimitError(f"{what}: expected a finite number, got {brief(value)}")
-    if value < low or value > high or (low_open and value == low) or (high_open and value == high):
-        bracket = ("(" if low_open else "[") + f"{low:g}, {high:g}" + (")" if high_open else "]")
-        raise LimitError(f"{what}: expected a number in {bracket}, got {value!r}")
-
-
 def _check_preference_factors(preferences: object, names: Sequence[str], what: str) -> None:
     """A bundle's preference factors: worker name -> a number in (0, 1e6)."""
     if not isinstance(preferences, Mapping) or set(preferences) - set(names):
         raise LimitError(f"{what}: expected worker name -> factor, got {brief(preferences)}")
     for name, value in preferences.items():
-        _check_number_in_range(value, f"{what}.{name}", 0.0, 1e6, low_open=True, high_open=True)
+        Bound(float, 0.0, 1e6, low_open=True, high_open=True).check(value, f"{what}.{name}")
 
 
 def _check_term_weights(weights: object, what: str) -> None:
@@ -494,4 +474,4 @@ def _check_term_weights(weights: object, what: str) -> None:
         raise LimitError(f"{what}: expected term name -> weight, got {brief(weights)}")
     for name, value in weights.items():
         check_name(name, what)
-        _check_number_in_range(value, f"{what}.{name}", 0.0, 1e6, high_open=True)
+        Bound(float, 0.0, 1e6, high_open=True).check(value, f"{what}.{name}")

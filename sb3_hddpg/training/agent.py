@@ -34,16 +34,9 @@ from sb3_hddpg.artifacts.io import atomic_write, holds_folder_lock, note_stop_si
 from sb3_hddpg.callbacks.checkpoint import ResumableCheckpointCallback, read_checkpoint_state
 from sb3_hddpg.callbacks.evaluation import MetricsEvalCallback, best_entry
 from sb3_hddpg.extras import configure
-from sb3_hddpg.training.backends import (
-    algo_class,
-    check_algo,
-    configure_jax_threads,
-    load_native,
-    make_model,
-    resolve_backend,
-    to_sb3,
-)
+from sb3_hddpg.training.backends import algo_class, check_algo, configure_jax_threads, resolve_backend
 from sb3_hddpg.training.config import Hyperparams
+from sb3_hddpg.training.models import load_native, make_model, to_sb3
 from sb3_hddpg.training.run_options import RunOptions, run_options
 
 #: Algorithm names accepted by ``--algo`` (the registry's, in its order).

@@ -480,14 +480,3 @@ def manager_hyperparams(algo: str = "ddpg", config: str | Path | None = None) ->
     :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
     """
     return load_hyperparams(MANAGER_KEY, algorithm_class(algo), config or default_config(algo), manager=True)
-
-
-def manager_option_steps(config: str | Path | None = None, algo: str = "ddpg") -> int:
-    """
-    Env steps per manager decision: the manager block's ``option_steps`` (1 when it sets none), by which a
-    manager's timesteps (decisions) multiply into env steps.
-
-    :param config: a ``zoo_configs``-format file (default: the bundled config of ``algo``).
-    :param algo: the manager's algorithm.
-    """
-    return int(wrapper_kwargs(config, algo).get("option_steps", 1))

@@ -42,22 +42,6 @@ from sb3_hddpg.training.imitation_start import HAM_START_ALGOS, GpiStart, HamSta
 MANAGER_ALGOS = algorithms_for("manager")
 
 
-def horizon_gamma(option_steps: int, algo: str = "ddpg", config: str | Path | None = None) -> float:
-    """
-    The discount per decision that keeps a manager block's horizon in env steps over options of another
-    length: the block's ``gamma ** (option_steps / block option_steps)`` (DQN's 0.9 over 4-step options
-    becomes ``0.9 ** 0.25`` over 1-step ones).
-
-    :param option_steps: env steps per decision of the manager to be trained.
-    :param algo: the manager's algorithm.
-    :param config: a ``zoo_configs``-format file (default: ``algo``'s bundled one).
-    """
-    hyperparams = manager_hyperparams(algo, config)
-    block_steps = int(hyperparams.wrapper_kwargs.get("option_steps", 1))
-    default = inspect.signature(algo_class(algo).__init__).parameters["gamma"].default
-    return float(hyperparams.algo_kwargs.get("gamma", default)) ** (option_steps / block_steps)
-
-
 @dataclass
 class ManagerEnvFactory:
     """

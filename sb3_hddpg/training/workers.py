@@ -44,7 +44,6 @@ from sb3_hddpg.training.agent import (
     agent_run,
     callback_list,
     finished_with_budget,
-    make_snake_env,
     train_agent,
 )
 from sb3_hddpg.training.config import Hyperparams, config_source, default_config, load_hyperparams
@@ -57,13 +56,6 @@ DEFAULT_WORKER_ALGO = "ddpg"
 #: The snake arm's workers' algorithms where ``algos`` names none, chosen by the workers study
 #: (docs/WORKERS.md): DDPG for both, each with its bundled block's prior towards a hand-written controller.
 SNAKE_WORKER_ALGOS = {"goal": "ddpg", "avoid": "ddpg"}
-
-
-def worker_env_factory(name: str, env_kwargs: dict[str, Any] | None = None) -> Callable[[], gym.Env]:
-    """A picklable factory of the registered env whose reward is worker ``name``'s."""
-    if name not in WORKER_ENV_IDS:
-        raise ValueError(f"Unknown worker {name!r}; choose from {sorted(WORKER_ENV_IDS)}")
-    return functools.partial(make_snake_env, WORKER_ENV_IDS[name], dict(env_kwargs or {}))
 
 
 def worker_hyperparams(
