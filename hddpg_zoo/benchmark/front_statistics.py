@@ -150,43 +150,47 @@ def _front_comparisons(
     planes: Mapping[str, object],
 ) -> dict[str, FrontComparison]:
     """
-    The conditioned manager's paired differences with every other member, per plane, adjusted by the one
-    decision rule (:func:`_adjust_front_comparisons`); none with fewer than two seeds.
+    The conditioned manager's paired differences with every other member, and GPI's (where the front has it)
+    with every member but the conditioned manager, per plane, adjusted by the one decision rule
+    (:func:`_adjust_front_comparisons`); none with fewer than two seeds.
 
     :param per_seed: member -> plane -> seed -> hypervolume.
     :param members: the members every seed has.
     :param seeds: the seeds.
     :param planes: the planes measured.
-    :return: ``"conditioned vs OTHER"`` -> its comparison.
+    :return: ``"CHALLENGER vs OTHER"`` -> its comparison.
     """
     comparisons: dict[str, FrontComparison] = {}
-    for other in members:
-        if other == "conditioned" or "conditioned" not in per_seed or len(seeds) < 2:
-            continue  # one seed makes no paired interval
-        entry: FrontComparison = {"seeds": seeds, "planes": {}}
-        for plane in planes:
-            xa = np.array([per_seed["conditioned"][plane][str(s)] for s in seeds])
-            xb = np.array([per_seed[other][plane][str(s)] for s in seeds])
-            interval = paired_t_interval(xa, xb)
-            entry["planes"][plane] = {
-                "difference": interval["difference"],
-                "ci_low": interval["ci_low"],
-                "ci_high": interval["ci_high"],
-                "p_value": interval["p_value"],
-                "wins": int(np.sum(xa > xb)),
-                "probability_of_improvement": probability_of_improvement(xa, xb),
-                "standard_error": interval["standard_error"],
-                "equivalence_margin": float(EQUIVALENCE_MARGIN * abs(xb.mean())),
-            }
-        comparisons[f"conditioned vs {other}"] = entry
+    # The conditioned manager against every other member; GPI, where the front has it, against the rest.
+    challengers = [c for c in ("conditioned", "gpi") if c in per_seed]
+    for challenger in challengers if len(seeds) >= 2 else ():  # one seed makes no paired interval
+        for other in members:
+            if other in challengers[: challengers.index(challenger) + 1]:
+                continue
+            entry: FrontComparison = {"seeds": seeds, "planes": {}}
+            for plane in planes:
+                xa = np.array([per_seed[challenger][plane][str(s)] for s in seeds])
+                xb = np.array([per_seed[other][plane][str(s)] for s in seeds])
+                interval = paired_t_interval(xa, xb)
+                entry["planes"][plane] = {
+                    "difference": interval["difference"],
+                    "ci_low": interval["ci_low"],
+                    "ci_high": interval["ci_high"],
+                    "p_value": interval["p_value"],
+                    "wins": int(np.sum(xa > xb)),
+                    "probability_of_improvement": probability_of_improvement(xa, xb),
+                    "standard_error": interval["standard_error"],
+                    "equivalence_margin": float(EQUIVALENCE_MARGIN * abs(xb.mean())),
+                }
+            comparisons[f"{challenger} vs {other}"] = entry
     _adjust_front_comparisons(comparisons)
     return comparisons
 
 
 def _adjust_front_comparisons(comparisons: Mapping[str, FrontComparison]) -> None:
     """
-    The benchmark's one decision rule on the front's table, in place: per plane the conditioned manager's
-    comparisons are one family, Holm-adjusted, each with the t interval at its Holm-consistent level
+    The benchmark's one decision rule on the front's table, in place: per plane the front's comparisons are
+    one family, Holm-adjusted, each with the t interval at its Holm-consistent level
     (:func:`~hddpg_zoo.stats.holm_confidences`).
     """
     planes = {plane for entry in comparisons.values() for plane in entry["planes"]}

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict
-from typing import TypedDict, cast
+from typing import Any, TypedDict, cast
 
 import numpy as np
 
@@ -31,6 +31,7 @@ from hddpg_zoo.benchmark.comparisons import adjust_for_comparisons, compare
 from hddpg_zoo.benchmark.episodes import seed_metrics, term_sum_keys
 from hddpg_zoo.benchmark.front import FRONT_METHOD
 from hddpg_zoo.benchmark.front_statistics import front_results
+from hddpg_zoo.benchmark.front_support import SUPPORT_METHOD
 from hddpg_zoo.benchmark.methods import (
     METHOD_REGISTRY,
     WORKERS,
@@ -48,6 +49,7 @@ from hddpg_zoo.records.results import (
 from hddpg_zoo.records.results_leaves import (
     Aggregates,
     DependenceFigure,
+    FrontResults,
     Summary,
     TransferComparison,
     TransferResults,
@@ -229,8 +231,14 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[JsonObject]) 
         workers=workers,
         colours={key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
         transfer=transfer_results(settings, by_method) if settings.scenario == "transfer" else None,
-        front=front_results(by_method[FRONT_METHOD], worker_records) if FRONT_METHOD in by_method else None,
+        front=_front_of(by_method, worker_records),
     )
+
+
+def _front_of(by_method: Mapping[str, Any], worker_records: Any) -> FrontResults | None:
+    """The front's statistics: of ``hddpg-front``'s records, else of ``hddpg-support``'s (``None``: neither ran)."""
+    method = next((m for m in (FRONT_METHOD, SUPPORT_METHOD) if m in by_method), None)
+    return front_results(by_method[method], worker_records) if method is not None else None
 
 
 def method_statistics(
