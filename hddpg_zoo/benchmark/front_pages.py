@@ -86,8 +86,9 @@ def front_table(front: FrontResults) -> list[str]:
         )
     comparisons = front.get("comparisons", {})
     if any("p_holm" in c for entry in comparisons.values() for c in entry["planes"].values()):
+        who = "the conditioned manager" + (" and GPI" if any(k.startswith("gpi vs") for k in comparisons) else "")
         lines.append(
-            "Comparisons: per plane, the conditioned manager against each other member, paired by seed; a paired "
+            f"Comparisons: per plane, {who} against each other member, paired by seed; a paired "
             "t test each, Holm's step-down over the plane's comparisons, each interval at its Holm-consistent "
             "level (it excludes 0 exactly where the word is ahead or behind); level only where it lies within "
             f"+-{EQUIVALENCE_MARGIN:.0%} of the other member's mean."
