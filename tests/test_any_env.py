@@ -780,7 +780,11 @@ def test_the_front_scenario_on_an_mo_gymnasium_env(tmp_path):
     assert record["references"]["returns"] == pytest.approx([30 * float(v) for v in low])
     points = record["front"]["conditioned"]["points"]
     assert len(points) == 7 and all(-30.0 <= p["time_return"] <= 0.0 for p in points)
-    assert set(front["comparisons"]) == {f"conditioned vs {m}" for m in ("time", "fuel", "gpi")}
+    assert set(front["comparisons"]) == {
+        *(f"conditioned vs {m}" for m in ("time", "fuel", "gpi")),
+        "gpi vs time",
+        "gpi vs fuel",
+    }
     assert [e["seed"] for e in index if e["method"] == "hddpg-gpi"] == [0, 1]
     assert set(front["comparisons"]["conditioned vs time"]["planes"]) == {"terms", "returns"}
     assert (out / "fronts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
