@@ -86,7 +86,9 @@ def front_table(front: FrontResults) -> list[str]:
         )
     comparisons = front.get("comparisons", {})
     if any("p_holm" in c for entry in comparisons.values() for c in entry["planes"].values()):
-        who = "the conditioned manager" + (" and GPI" if any(k.startswith("gpi vs") for k in comparisons) else "")
+        who = "the conditioned manager" + (
+            " and GPI" if any(k.startswith("gpi vs") for k in comparisons) else ""
+        )
         lines.append(
             f"Comparisons: per plane, {who} against each other member, paired by seed; a paired "
             "t test each, Holm's step-down over the plane's comparisons, each interval at its Holm-consistent "
