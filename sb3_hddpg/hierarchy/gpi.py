@@ -69,7 +69,7 @@ class GpiSelector:
         worker's own action (none with state-value critics).
         """
         w = np.array([float(preference.get(term, 0.0)) for term in self.terms], dtype=np.float32)
-        if self.state_value:  # one batch over the full state; only the chosen worker need act
+        if self.state_value:  # values of the state alone: only the chosen worker need act
             return np.array([critic.values(obs[None])[0] @ w for critic in self.critics]), []
         actions = [worker.act(obs) for worker in self.workers]
         rows = []
