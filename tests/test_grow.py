@@ -126,3 +126,43 @@ def test_the_grow_command_adds_a_worker_and_refuses_bad_options(corners_trained,
     for bad, (_, option) in zip(bad_ones, refusals, strict=True):
         assert bad.returncode == 2 and option in bad.stderr and "Traceback" not in bad.stderr
     assert again.returncode == 2 and "--resume" in again.stderr
+
+
+TINY_DQN = """\
+default:
+  n_timesteps: 150
+  policy: 'MlpPolicy'
+  learning_starts: 50
+  batch_size: 16
+  buffer_size: 500
+  policy_kwargs: "dict(net_arch=[16])"
+"""
+
+
+def test_a_weighted_worker_joins_a_discrete_support_as_its_kind_and_gpi_acts_over_them(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    import gymnasium as gym
+
+    from sb3_hddpg.envs.terms_env import terms_env
+    from sb3_hddpg.hierarchy.hierarchy import Hierarchy
+
+    shared = terms_env("resource-gathering-v0", terms=["death", "gold", "gem"])
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_DQN)
+    root = tmp_path / "run"
+    train_workers(
+        root, config=config, env=shared, algos=dict.fromkeys(shared.terms, "dqn"), term_critic=CRITIC, **RUN
+    )
+    # As grow and the front's support add one: no algorithm named.
+    weights = {"death": 0.2, "gold": 0.5, "gem": 0.3}
+    train_workers(root, [], config, env=shared, weights=[weights], term_critic=CRITIC, **RUN)
+    workers = load_workers(root)
+    name = list(workers)[-1]
+    # Not the default continuous worker: the support's own algorithm, with a critic over its actions.
+    assert name.startswith("mix-") and workers.manifest.entries[name]["algo"] == "dqn"
+    assert workers.critics[name].spec.discrete
+    hierarchy = Hierarchy.gpi(workers, weights)
+    env = gym.make(hierarchy.env_id, **hierarchy.env_kwargs)
+    obs, _ = env.reset(seed=0)
+    action, _ = hierarchy.predict(obs, deterministic=True)
+    assert env.action_space.contains(int(np.asarray(action).reshape(-1)[0]))

@@ -18,7 +18,7 @@ from sb3_hddpg.artifacts.manifests import read_workers_manifest
 from sb3_hddpg.envs.weighted import parse_term_weights
 from sb3_hddpg.hierarchy.conditioning import PreferenceSpace
 from sb3_hddpg.training.term_critic import STATE_CRITIC_OPTIONS, TermCriticOptions, fit_state_critics
-from sb3_hddpg.training.workers import plan_workers, train_workers
+from sb3_hddpg.training.workers import folder_algos, plan_workers, train_workers
 
 #: The front scenario's method over a support of workers with critics.
 SUPPORT_METHOD = "hddpg-support"
@@ -43,13 +43,14 @@ def support_folder(task: MethodTask, settings: MethodSettings, folder: Path) -> 
         copy_workers(folder, root)
     weights = support_weights(settings)
     if weights:
-        planned = plan_workers(None, weights, None, settings.terms_env, None)
+        algos = folder_algos(root, weights, settings.terms_env)
+        planned = plan_workers(None, weights, None, settings.terms_env, algos)
         budget = max(int(p.hyperparams.n_timesteps) for p in planned)
         # A benchmark's worker budget, where set, is every worker's (the block's otherwise).
         run = settings.run_options(task.seed, settings.worker_timesteps, settings.worker_timesteps or budget)
         # Without state critics to come, the weighted workers keep the critic of their own transitions.
         critic = None if settings.front_critic_steps else TermCriticOptions()
-        train_workers(root, weights=weights, env=settings.terms_env, run=run, term_critic=critic)
+        train_workers(root, weights=weights, env=settings.terms_env, algos=algos, run=run, term_critic=critic)
     steps = settings.front_critic_steps
     entries = read_workers_manifest(root / "workers" / "manifest.json").entries
     fitted = [entry.get("term_critic", {}) for entry in entries.values()]

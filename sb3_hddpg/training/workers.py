@@ -304,9 +304,9 @@ def train_workers(
     """
     run = run_options(run, run_changes, "train_workers")
     shared = env if env is not None else TermsEnv(SNAKE_REACH_ENV_ID, {}, REWARD_TERMS)
-    planned = plan_workers(workers, weights, config, env, algos)
     out_dir = Path(out_dir)
     manifest_path = out_dir / "workers" / "manifest.json"
+    planned = plan_workers(workers, weights, config, env, folder_algos(out_dir, weights, env, algos))
     manifest = _start_manifest(manifest_path, shared, env, planned, run.resume, (run.seed, resume_changes))
     with contextlib.closing(shared.make()) as probe:  # the bounds a worker's critic normalises by
         bounds = dict(env_contract(probe).reward_bounds)
@@ -403,6 +403,35 @@ def _train_worker(
         path = transitions.save(outcome.model_path.with_name(f"{worker.name}{TRANSITIONS_SUFFIX}"))
         facts["transitions"] = {"file": path.name, "sha256": sha256_file(path), "count": len(transitions)}
     return outcome, facts
+
+
+def folder_algos(
+    out_dir: str | Path,
+    weights: Sequence[Mapping[str, object]],
+    env: TermsEnv | None = None,
+    algos: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """
+    ``algos`` with each weighted worker it does not name given the algorithm of its heaviest term's worker in
+    the run folder, where there is one: a worker joins a support of its own kind (DQN beside DQN workers).
+
+    :param out_dir: the run folder (its ``workers/manifest.json``, if any).
+    :param weights: the weightings of :func:`train_workers`.
+    :param env: the env with several objectives (default: the snake arm).
+    :param algos: worker name -> algorithm, as given.
+    """
+    manifest_path = Path(out_dir) / "workers" / "manifest.json"
+    chosen = dict(algos or {})
+    if not weights or isinstance(weights, Mapping) or not manifest_path.exists():
+        return chosen
+    entries = read_models_manifest(manifest_path, "workers").entries
+    terms = list(env.terms if env is not None else REWARD_TERMS)
+    for index, given in enumerate(weights):
+        checked = check_term_weights(given, terms, f"weights[{index}]")
+        name, heaviest = weighted_name(checked), max(checked, key=checked.__getitem__)
+        if corner_term(checked) is None and name not in chosen and heaviest in entries:
+            chosen[name] = str(entries[heaviest]["algo"])
+    return chosen
 
 
 def _start_manifest(
