@@ -23,7 +23,7 @@ import pytest
 
 pytest.importorskip("ray")
 
-from hddpg_zoo.ray_executor import ClusterError, RayExecutor, check_address, parse_address
+from hddpg_zoo.ray_executor import CONNECT_TIMEOUT, ClusterError, RayExecutor, check_address, parse_address
 from hddpg_zoo.runner import Job, run_jobs
 from tests.cli_runner import CLI
 from tests.jobs import (
@@ -219,7 +219,8 @@ def test_the_cli_refuses_a_non_ray_port_in_one_line_and_honours_sigterm(tmp_path
             process.send_signal(signal.SIGTERM)
             started = time.monotonic()
             process.wait(timeout=10)
-            assert time.monotonic() - started < 1.0
+            # Well inside the answer's wait (CONNECT_TIMEOUT), with room for a loaded machine's start-up.
+            assert time.monotonic() - started < CONNECT_TIMEOUT / 2
         finally:
             process.kill()
             process.wait()

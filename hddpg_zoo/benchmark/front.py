@@ -546,8 +546,8 @@ register_method(
         challenger=True,
         description=(
             "the front scenario over a support: workers on weightings of the terms beside the per-term ones, "
-            "a state-value critic for each, the conditioned manager over all of them started from GPI, and "
-            "GPI itself, with every member of the front"
+            "a state-value critic for each, the conditioned manager over all of them (started from GPI with "
+            "--front-start gpi), and GPI itself, with every member of the front"
         ),
         config_blocks=_front_blocks,
         own_settings=FRONT_SETTINGS,

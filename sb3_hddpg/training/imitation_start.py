@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from sb3_hddpg.baselines.ham import HAMSwitch
 
 #: The manager algorithms whose network a start fits: a deterministic or squashed actor, or a Q-net.
-HAM_START_ALGOS = ("ddpg", "td3", "sac", "tqc", "crossq", "dqn")
+START_ALGOS = ("ddpg", "td3", "sac", "tqc", "crossq", "dqn")
 #: DQfD's margin between HAM's choice and every other worker's Q-value.
 MARGIN = 0.8
 

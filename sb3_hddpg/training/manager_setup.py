@@ -35,7 +35,7 @@ from sb3_hddpg.hierarchy.wrapper import WorkerSelectionWrapper
 from sb3_hddpg.training.agent import make_snake_env
 from sb3_hddpg.training.backends import algo_class
 from sb3_hddpg.training.config import Hyperparams, manager_hyperparams
-from sb3_hddpg.training.imitation_start import HAM_START_ALGOS, GpiStart, HamStart, check_ham_workers
+from sb3_hddpg.training.imitation_start import START_ALGOS, GpiStart, HamStart, check_ham_workers
 
 #: The algorithms a manager can be (DDPG is the paper's), each with a ``manager`` block in its bundled config;
 #: one acting in Discrete spaces (DQN) selects with the ``discrete`` mode, its action the worker's index.
@@ -337,8 +337,8 @@ def _start(options: ManagerOptions, workers: Workers, algo: str) -> HamStart | G
         return None
     if ham is not None and gpi:
         raise ValueError("Start the manager from HAM or from GPI, not both")
-    if algo not in HAM_START_ALGOS:
-        raise ValueError(f"A manager's start fits managers of {list(HAM_START_ALGOS)}, not {algo!r}")
+    if algo not in START_ALGOS:
+        raise ValueError(f"A manager's start fits managers of {list(START_ALGOS)}, not {algo!r}")
     if gpi:
         # GPI's own checks (a critic for every worker, of one kind and discount), before anything trains
         gpi_of([FrozenWorker(model) for model in workers.values()], workers.critics, list(workers))
