@@ -13,6 +13,7 @@ the folder and openable with :func:`sb3_hddpg.hierarchy.loading.load_policy` (``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TypedDict
@@ -341,7 +342,9 @@ def write_index(folder: Path, index: list[IndexEntry]) -> list[IndexEntry]:
     return index
 
 
-def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[IndexEntry]:
+def export_models(
+    benchmark_dir: str | Path, dest: str | Path, methods: Sequence[str] | None = None
+) -> list[IndexEntry]:
     """
     Copy a finished benchmark's final models into ``dest`` and write ``dest/index.json``.
 
@@ -352,8 +355,13 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[IndexEntr
     :param benchmark_dir: the benchmark folder (``--out`` of ``hddpg-cli benchmark``).
     :param dest: the folder to fill: missing, empty, or an earlier export (its ``index.json``), whose files of
         the same names are replaced; a folder holding anything else is refused, so nobody's files are lost.
+    :param methods: only the models of these ``index.json`` methods (default: every model), so that a run
+        ships the models its docs re-evaluate and no more.
     :return: the index's records.
     """
+    unknown = sorted(set(methods or ()) - set(INDEX_METHODS))
+    if unknown:
+        raise ValueError(f"Expected methods among {list(INDEX_METHODS)}, actually also {unknown}")
 
     root = Path(benchmark_dir)
     records_dir = root / "records"
@@ -364,9 +372,13 @@ def export_models(benchmark_dir: str | Path, dest: str | Path) -> list[IndexEntr
         copy_model(model, root, dest)
         for record_file in sorted(records_dir.glob("*/seed-*.json"))
         for model in run_models(root, record_file)
+        if methods is None or model.method in methods
     ]
     if not index:
-        raise ValueError(f"No finished runs to export in {str(benchmark_dir)!r}")
+        raise ValueError(
+            f"No finished runs to export in {str(benchmark_dir)!r}"
+            + (f" with models of {list(methods)}" if methods is not None else "")
+        )
     return write_index(dest, index)
 
 

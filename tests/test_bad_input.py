@@ -301,6 +301,12 @@ CASES = [
     case("mr-missing-run", ("morl-report", "{tmp}/nope"), 2, "nope"),
     # ---- export-models
     case("ex-missing-run", ("export-models", "{tmp}/nope", "{tmp}/models"), 2, "nope"),
+    case(
+        "ex-unknown-method",
+        ("export-models", "docs/results/bench-e20", "{tmp}/models", "--method", "hddpg-nope"),
+        2,
+        "hddpg-nope",
+    ),
     # ---- report and export-study: the docs' tables and the shipped studies
     case("rp-missing-run", ("report", "{tmp}/nope"), 2, "nope"),
     case("rp-not-a-benchmark", ("report", "{folder}"), 2, "a-folder"),

@@ -431,6 +431,14 @@ def test_the_support_method_grows_a_support_with_critics_and_starts_its_manager_
     exported_to = tmp_path_factory.mktemp("support-export") / "models"
     exported = {entry["method"] for entry in export_models(tmp_path, exported_to)}
     assert {"hddpg-support", "hddpg-support-gpi", "ham-threshold", "worker:goal"} <= exported
+    # Only the models the docs re-evaluate: GPI's bundle and HAM, whose per-term workers go with it.
+    chosen = tmp_path_factory.mktemp("support-chosen") / "models"
+    index = export_models(tmp_path, chosen, ["hddpg-support-gpi", "ham-threshold"])
+    assert sorted(entry["method"] for entry in index) == ["ham-threshold", "hddpg-support-gpi"]
+    assert (chosen / "seed-0" / "workers" / "goal.zip").is_file()
+    assert not (chosen / "seed-0" / "hddpg-support" / "conditioned").exists()
+    with pytest.raises(ValueError, match="also \\['hddpg-nope'\\]"):
+        export_models(tmp_path, chosen, ["hddpg-nope"])
     # The seed's own workers are untouched: the support is a copy.
     manifest = json.loads((tmp_path / "seed-0" / "workers" / "manifest.json").read_text())
     assert list(manifest["workers"]) == ["goal", "avoid"]

@@ -21,6 +21,11 @@ def export_run(run: Path, dest: Path) -> None:
 def export_models_command(
     run: Path = typer.Argument(..., help="A benchmark folder (the --out of hddpg-cli benchmark)."),
     dest: Path = typer.Argument(..., help="The folder to copy the final models into, with index.json."),
+    method: list[str] = typer.Option(
+        [],
+        "--method",
+        help="Only the models of this index.json method (e.g. hddpg-support-gpi); repeat for more (default: all).",
+    ),
 ) -> None:
     """
     Copy a benchmark's final models (worker zips, hierarchy bundles, ham.json, flat zips) into DEST, in the
@@ -30,5 +35,5 @@ def export_models_command(
         if not (run / "records").is_dir():
             raise FileNotFoundError(f"not a benchmark folder (no records/): {str(run)!r}")
 
-        index = export_models(run, dest)
+        index = export_models(run, dest, method or None)
     console.print(f"Exported {len(index)} models to {dest} (index: {dest / 'index.json'})")
