@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import hddpg_zoo.benchmark.morl_gpi  # noqa: F401  (registers the hddpg-gpi method)
 from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS
 from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS, MAX_SEED, brief
 
