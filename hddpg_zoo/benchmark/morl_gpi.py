@@ -44,7 +44,7 @@ from hddpg_zoo.benchmark.morl_sides import (
     pinned_env,
     register_protocol_method,
 )
-from sb3_hddpg.artifacts.manifests import load_workers
+from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.gpi import GpiSelector, gpi_of
@@ -138,7 +138,7 @@ def gpi_selector(folder: Path) -> GpiSelector:
 
 def trained_steps(folder: Path) -> dict[str, int]:
     """Each worker's env steps as its manifest records them (``workers/<name>``), critics' rollouts included."""
-    entries = load_workers(folder).manifest.entries
+    entries = read_workers_manifest(folder / "workers" / "manifest.json").entries
     return {
         f"workers/{name}": int(entry["timesteps_trained"])
         + int((entry.get("term_critic") or {}).get("env_steps", 0))
