@@ -47,6 +47,11 @@ def test_settings_refuse_what_the_protocol_does_not_allow(changes, option):
         ProtocolSettings(**given)
 
 
+def test_the_settings_take_both_hierarchy_methods():
+    settings = ProtocolSettings("minecart-v0", (0,), ("hddpg-conditioned", "hddpg-gpi"), morl_python="python")
+    assert settings.methods == ("hddpg-conditioned", "hddpg-gpi")
+
+
 def test_a_run_of_record_takes_the_protocols_budget_ten_seeds_and_the_final_test():
     record = ProtocolSettings("minecart-v0", tuple(range(10)), final_test=True, morl_python="python")
     assert record.of_record and record.budget == 150_000 and record.peers == ("gpi-pd", "envelope")

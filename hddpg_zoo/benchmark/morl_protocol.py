@@ -11,7 +11,7 @@ below are each checked against MORL-baselines 1.3 and MO-Gymnasium 1.3 (docs/MOR
 from and where the published runs differ).
 
 The hierarchy's side is a list of methods (:data:`~.morl_sides.PROTOCOL_METHODS`), so that a method added
-there runs under the same protocol without a change here.
+there runs under the same protocol without a change here beyond importing its module (:mod:`.morl_gpi`).
 """
 
 from __future__ import annotations
