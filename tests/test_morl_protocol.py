@@ -35,7 +35,7 @@ needs_morl = pytest.mark.skipif(not MORL_PYTHON, reason="MORL_PYTHON (MORL-basel
         ({"env_id": "mo-halfcheetah-v5"}, "--env"),
         ({"seeds": (0, 0)}, "--seeds"),
         ({"peers": ("capql",)}, "--methods"),
-        ({"methods": ("hddpg-gpi",)}, "--methods"),
+        ({"methods": ("hddpg-unknown",)}, "--methods"),
         ({"timesteps": 200_001}, "--timesteps"),
         ({"eval_weights": 0}, "--eval-weights"),
         ({"morl_python": None}, "--morl-python"),
@@ -45,6 +45,11 @@ def test_settings_refuse_what_the_protocol_does_not_allow(changes, option):
     given = {"env_id": "deep-sea-treasure-concave-v0", "seeds": (0, 1), "morl_python": "python", **changes}
     with pytest.raises(ValueError, match=option):
         ProtocolSettings(**given)
+
+
+def test_the_settings_take_both_hierarchy_methods():
+    settings = ProtocolSettings("minecart-v0", (0,), ("hddpg-conditioned", "hddpg-gpi"), morl_python="python")
+    assert settings.methods == ("hddpg-conditioned", "hddpg-gpi")
 
 
 def test_a_run_of_record_takes_the_protocols_budget_ten_seeds_and_the_final_test():
@@ -216,3 +221,83 @@ def test_deep_sea_treasures_constant_time_gets_bounds_and_costs_no_steps(tmp_pat
     assert steps == 0 and shared.env_kwargs["term_bounds"]["obj1"] == [-2.0, -1.0]
     with pytest.raises(ValueError, match="trains no model"):
         train_conditioned(SideRun("deep-sea-treasure-concave-v0", True, 0.99, 2, 0, tmp_path))
+
+
+def test_gpi_coefficients_carry_the_constant_objectives_offset():
+    from hddpg_zoo.benchmark.morl_gpi import gpi_coefficients
+
+    # DST-like, time pinned to 1 a step (bounds (-2, -1)): w.V = 0.5 (-L + 10 N0) + 0.5 (-L) = 5 N0 - L, and
+    # the time critic is L: coefficients (5, -1), negative on time.
+    bounds = {"treasure": (-1.0, 9.0), "time": (-2.0, -1.0)}
+    terms = ["treasure", "time"]
+    assert gpi_coefficients([0.5, 0.5], terms, bounds, {"time": -1.0}) == pytest.approx(
+        {"treasure": 5.0, "time": -1.0}
+    )
+    # With treasure's low 0 the time coefficient is -w_time.
+    dst = {"treasure": (0.0, 124.0), "time": (-2.0, -1.0)}
+    assert gpi_coefficients([0.3, 0.7], terms, dst, {"time": -1.0}) == pytest.approx(
+        {"treasure": 37.2, "time": -0.7}
+    )
+    # Time pinned with its sign (bounds (0, 1): -1 a step, critic -L): w.V = 0.3 * 124 N0 - 0.7 L, coefficient
+    # +0.7 on the critic -L.
+    signed = {"treasure": (0.0, 124.0), "time": (0.0, 1.0)}
+    assert gpi_coefficients([0.3, 0.7], terms, signed, {"time": -1.0}) == pytest.approx(
+        {"treasure": 37.2, "time": 0.7}
+    )
+    # Cheetah-like, no constant objective: w_i range_i alone (the length's offset is not known).
+    cheetah = {"speed": (-1.0, 3.0), "energy": (-2.0, 0.0)}
+    assert gpi_coefficients([0.25, 0.75], ["speed", "energy"], cheetah) == pytest.approx(
+        {"speed": 1.0, "energy": 1.5}
+    )
+
+
+def test_the_gpi_policy_plays_negative_coefficients_without_the_preference_check():
+    from hddpg_zoo.benchmark.morl_gpi import GpiPolicy
+    from sb3_hddpg.hierarchy.frozen import FrozenWorker
+    from sb3_hddpg.hierarchy.gpi import GpiSelector
+    from tests.test_gpi import Fixed, constant_critic
+
+    workers = [FrozenWorker(Fixed(np.float32([0.5, 0.5]))), FrozenWorker(Fixed(np.float32([-0.5, 0.0])))]
+    # "avoid" is a constant objective pinned to 1 a step: its critic is the remaining length.
+    selector = GpiSelector(workers, [constant_critic([1.0, 2.0]), constant_critic([0.5, 20.0])])
+    bounds = {"goal": (0.0, 10.0), "avoid": (-2.0, -1.0)}
+    policy = GpiPolicy(selector, ["goal", "avoid"], bounds, {"avoid": -1.0})
+    policy.set_weights([0.1, 0.9])
+    assert policy.coefficients == pytest.approx({"goal": 1.0, "avoid": -0.9})
+    # 1 - 0.9 * 2 > 0.5 - 0.9 * 20: the short episode's worker; without the offset, 1 + 1.8 < 0.5 + 18.
+    assert np.allclose(policy.act(np.zeros(3)), [0.5, 0.5])
+
+
+def test_hddpg_gpi_trains_a_support_within_one_budget_and_plays_its_weights(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from hddpg_zoo.benchmark.morl_gpi import GPI_EXTRA_WORKERS, train_gpi
+    from hddpg_zoo.benchmark.morl_protocol import GAMMA
+    from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun, pinned_env, play_front
+    from sb3_hddpg.artifacts.manifests import load_workers
+    from sb3_hddpg.artifacts.records.support import read_support_record
+
+    assert PROTOCOL_METHODS["hddpg-gpi"].train is train_gpi
+    shared, _ = pinned_env("deep-sea-treasure-concave-v0", keep_sign=True)
+    assert shared.env_kwargs["term_bounds"]["obj1"] == [0.0, 1.0]  # time: -1 a step, as raw
+    with pytest.raises(ValueError, match="trains no model"):
+        train_gpi(SideRun("deep-sea-treasure-concave-v0", True, GAMMA, 19, 0, tmp_path / "none"))
+    budget = 6000  # 1200 env steps per worker: past DQN's 1000 learning starts, so that the support grows
+    trained = train_gpi(SideRun("deep-sea-treasure-concave-v0", True, GAMMA, budget, 0, tmp_path))
+    record = read_support_record(tmp_path / "workers" / "support.json")
+    names = list(load_workers(tmp_path))
+    assert sorted([*record.start, *(s.name for s in record.added)]) == sorted(names)
+    assert record.start == ["obj0", "obj1"] and 1 <= len(record.added) <= GPI_EXTRA_WORKERS
+    assert set(trained.env_steps) == {"bounds", *(f"workers/{n}" for n in names)}
+    assert all(trained.env_steps[f"workers/{s.name}"] == s.steps for s in record.added)
+    assert sum(trained.env_steps.values()) <= budget
+    env = trained.env.make()
+    try:
+        discounted, returns = play_front(
+            trained.policy, env, [[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]], 1, 0, GAMMA
+        )
+    finally:
+        env.close()
+    assert len(discounted) == 3 and all(len(episodes) == 1 for episodes in returns)
+    assert all(r[0][1] <= -1.0 and r[0][0] >= 0.0 for r in returns)  # a step costs 1 time, treasure >= 0
+    # Time alone: the coefficient on the time critic (-L) is its weight, with nothing on treasure.
+    assert trained.policy.coefficients == pytest.approx({"obj0": 0.0, "obj1": 1.0})

@@ -9,6 +9,7 @@ run (a pilot, development episodes) is shown as what it is, and the page says th
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -28,10 +29,20 @@ from hddpg_zoo.benchmark.morl_protocol_run import (
     ProtocolRecord,
     read_protocol_run,
 )
+from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS
 from hddpg_zoo.stats import paired_t_interval, summarise
 
 #: Indicators where lower is better.
 LOWER_IS_BETTER = frozenset(KNOWN_FRONT_INDICATORS)
+
+
+def _methods() -> str:
+    """The page's list of the hierarchy's methods, from their registered descriptions."""
+    return "\n".join(
+        textwrap.fill(f"`{m.name}`: {m.description}.", 110, initial_indent="  - ", subsequent_indent="    ")
+        for m in PROTOCOL_METHODS.values()
+    )
+
 
 _HEADER = f"""# MORL-baselines' benchmark protocol
 
@@ -60,9 +71,9 @@ each played over the whole weight simplex by the same evaluator and scored by MO
 - **Peers** train with their published defaults (their own training-weight samplers: CAPQL samples within
   22.5 degrees of the equal weight, GPI's weights come from its linear support), without wandb. The env steps
   GPI-LS's weight search plays on its evaluation env during training are counted beside its budget.
-- **The hierarchy**: `hddpg-conditioned`, one worker per objective (DQN on discrete actions, DDPG on
-  continuous) on 0.8 of the budget, then a DQN manager choosing a worker every step, conditioned on the weight
-  (Dirichlet over the simplex, weights >= 0.01). Other methods join by registering in `morl_sides.py`.
+- **The hierarchy's methods** (each registered in `morl_sides.py` or beside it; DQN workers on discrete
+  actions, DDPG on continuous):
+{_methods()}
 
 | env | actions, objectives | episode steps | reference point | env steps | peers | known front |
 |---|---|---|---|---|---|---|

@@ -11,13 +11,14 @@ below are each checked against MORL-baselines 1.3 and MO-Gymnasium 1.3 (docs/MOR
 from and where the published runs differ).
 
 The hierarchy's side is a list of methods (:data:`~.morl_sides.PROTOCOL_METHODS`), so that a method added
-there runs under the same protocol without a change here.
+there runs under the same protocol without a change here beyond importing its module (:mod:`.morl_gpi`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import hddpg_zoo.benchmark.morl_gpi  # noqa: F401  (registers the hddpg-gpi method)
 from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS
 from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS, MAX_SEED, brief
 

@@ -110,25 +110,48 @@ def register_protocol_method(method: ProtocolMethod) -> ProtocolMethod:
     return method
 
 
-def pinned_env(env_id: str) -> tuple[TermsEnv, int]:
+def declared_objectives(env_id: str) -> tuple[np.ndarray, np.ndarray]:
+    """The per-step ``(lows, highs)`` of the env's ``reward_space``, one per objective (some may be infinite)."""
+    inner = make_adapted(env_id)
+    try:
+        space = inner.unwrapped.reward_space  # type: ignore[attr-defined]
+        return np.asarray(space.low, dtype=np.float64), np.asarray(space.high, dtype=np.float64)
+    finally:
+        inner.close()
+
+
+def constant_objectives(env_id: str) -> dict[str, float]:
+    """
+    The objectives the env declares constant (``reward_space``'s low = high: deep-sea-treasure's time, -1
+    every step), by term name (``obj<i>``), with their value.
+    """
+    return _constants(*declared_objectives(env_id))
+
+
+def _constants(lows: np.ndarray, highs: np.ndarray) -> dict[str, float]:
+    return {
+        f"obj{i}": float(high)
+        for i, (low, high) in enumerate(zip(lows, highs))
+        if math.isfinite(low) and low >= high
+    }
+
+
+def pinned_env(env_id: str, keep_sign: bool = False) -> tuple[TermsEnv, int]:
     """
     The env's adapter with its term bounds fixed once, and the env steps that cost: bounds its
     ``reward_space`` leaves infinite are estimated by one random rollout of :data:`ESTIMATE_STEPS` steps
     when the adapter is resolved, which keeps them in its arguments, so that no env made from it estimates
-    them again. An objective the env declares constant (deep-sea-treasure's time, -1 every step: low = high)
-    is given the bounds ``(low - 1, high)``, so that it normalises to 1 every step: a constant in the
-    manager's reward.
+    them again. An objective the env declares constant (:func:`constant_objectives`) is given the bounds
+    ``(value - 1, value)``, so that it normalises to 1 every step: a constant in the manager's reward.
+
+    :param keep_sign: bound a constant objective by ``(0, |value|)`` instead (``(0, 1)`` for 0), so that it
+        normalises to the sign of its value: a weighted sum of normalised terms then ranks episodes of
+        different lengths as the raw objective does (deep-sea-treasure's time: shorter is better).
     """
-    inner = make_adapted(env_id)
-    try:
-        space = inner.unwrapped.reward_space  # type: ignore[attr-defined]
-        lows, highs = np.asarray(space.low, dtype=np.float64), np.asarray(space.high, dtype=np.float64)
-    finally:
-        inner.close()
+    lows, highs = declared_objectives(env_id)
     constant = {
-        f"obj{i}": [float(low) - 1.0, float(high)]
-        for i, (low, high) in enumerate(zip(lows, highs))
-        if math.isfinite(low) and low >= high
+        term: ([0.0, abs(value) or 1.0] if keep_sign else [value - 1.0, value])
+        for term, value in _constants(lows, highs).items()
     }
     estimated = not (np.isfinite(lows).all() and np.isfinite(highs).all())
     return terms_env(env_id, term_bounds=constant or None), ESTIMATE_STEPS if estimated else 0
@@ -193,7 +216,8 @@ def train_conditioned(run: SideRun) -> TrainedSide:
 register_protocol_method(
     ProtocolMethod(
         "hddpg-conditioned",
-        "one worker per objective, a DQN manager conditioned on the weight choosing one every step",
+        f"one worker per objective on {WORKER_SHARE} of the budget, then a DQN manager choosing a worker every "
+        f"step, conditioned on the weight (Dirichlet over the simplex, weights >= {PREFERENCE_FLOOR})",
         train_conditioned,
     )
 )
@@ -245,6 +269,8 @@ __all__ = [
     "SideRun",
     "TrainedSide",
     "WeightedPolicy",
+    "constant_objectives",
+    "declared_objectives",
     "pinned_env",
     "play_front",
     "register_protocol_method",
