@@ -218,7 +218,8 @@ def test_deep_sea_treasures_constant_time_gets_bounds_and_costs_no_steps(tmp_pat
     from hddpg_zoo.benchmark.morl_sides import SideRun, pinned_env, train_conditioned
 
     shared, steps = pinned_env("deep-sea-treasure-concave-v0")
-    assert steps == 0 and shared.env_kwargs["term_bounds"]["obj1"] == [-2.0, -1.0]
+    # With its sign: -1 a step normalises to -1, so that shorter episodes are better, as the raw time says.
+    assert steps == 0 and shared.env_kwargs["term_bounds"]["obj1"] == [0.0, 1.0]
     with pytest.raises(ValueError, match="trains no model"):
         train_conditioned(SideRun("deep-sea-treasure-concave-v0", True, 0.99, 2, 0, tmp_path))
 
@@ -277,7 +278,7 @@ def test_hddpg_gpi_trains_a_support_within_one_budget_and_plays_its_weights(tmp_
     from sb3_hddpg.artifacts.records.support import read_support_record
 
     assert PROTOCOL_METHODS["hddpg-gpi"].train is train_gpi
-    shared, _ = pinned_env("deep-sea-treasure-concave-v0", keep_sign=True)
+    shared, _ = pinned_env("deep-sea-treasure-concave-v0")
     assert shared.env_kwargs["term_bounds"]["obj1"] == [0.0, 1.0]  # time: -1 a step, as raw
     with pytest.raises(ValueError, match="trains no model"):
         train_gpi(SideRun("deep-sea-treasure-concave-v0", True, GAMMA, 19, 0, tmp_path / "none"))

@@ -20,9 +20,9 @@ policy's discounted raw value is ``V_i = lo_i L + range_i N_i``, so ``w . V = su
 - Otherwise (minecart, hopper: episodes of varying length, no constant objective) the offset is unknown and
   left out: GPI then ranks by the first part only, an approximation wherever episode lengths differ.
 
-The constant objective is pinned with its sign (``pinned_env(keep_sign=True)``: deep-sea-treasure's time,
--1 every step, normalises to -1, ``lo = 0``), not to 1 as the conditioned method's: a per-term worker learns
-its raw term, so only then does the time worker's corner of the simplex mean what ``grow`` takes it to mean
+The constant objective is pinned with its sign (:func:`~.morl_sides.pinned_env`: deep-sea-treasure's time,
+-1 every step, normalises to -1, ``lo = 0``), not to 1: a per-term worker learns its raw term, so only then
+does the time worker's corner of the simplex mean what ``grow`` takes it to mean
 (shorter episodes), and the weighted workers it grows at inner corners rank episodes as a non-negative raw
 weighting does. On deep-sea-treasure the coefficients are then exactly ``w_i range_i`` (``w . lo = 0``).
 """
@@ -153,7 +153,7 @@ def train_gpi(run: SideRun) -> TrainedSide:
     protocol's discount and an equal share of one budget; GPI over all of them plays each weight.
     """
     started = time.perf_counter()
-    shared, bounds_steps = pinned_env(run.env_id, keep_sign=True)
+    shared, bounds_steps = pinned_env(run.env_id)
     terms = list(shared.terms)
     available = run.budget - bounds_steps
     share = available // (len(terms) + GPI_EXTRA_WORKERS) // STEP_QUANTUM * STEP_QUANTUM

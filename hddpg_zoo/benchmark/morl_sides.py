@@ -136,23 +136,19 @@ def _constants(lows: np.ndarray, highs: np.ndarray) -> dict[str, float]:
     }
 
 
-def pinned_env(env_id: str, keep_sign: bool = False) -> tuple[TermsEnv, int]:
+def pinned_env(env_id: str) -> tuple[TermsEnv, int]:
     """
     The env's adapter with its term bounds fixed once, and the env steps that cost: bounds its
     ``reward_space`` leaves infinite are estimated by one random rollout of :data:`ESTIMATE_STEPS` steps
     when the adapter is resolved, which keeps them in its arguments, so that no env made from it estimates
-    them again. An objective the env declares constant (:func:`constant_objectives`) is given the bounds
-    ``(value - 1, value)``, so that it normalises to 1 every step: a constant in the manager's reward.
-
-    :param keep_sign: bound a constant objective by ``(0, |value|)`` instead (``(0, 1)`` for 0), so that it
-        normalises to the sign of its value: a weighted sum of normalised terms then ranks episodes of
-        different lengths as the raw objective does (deep-sea-treasure's time: shorter is better).
+    them again. An objective the env declares constant (:func:`constant_objectives`) is bounded by
+    ``(0, |value|)`` (``(0, 1)`` for 0), so that it normalises to the sign of its value: a weighted sum of
+    normalised terms then ranks episodes of different lengths as the raw objective does (deep-sea-treasure's
+    time, -1 every step: shorter is better). Pinned to 1 every step instead, the time worker and a manager
+    weighing it would be paid for longer episodes.
     """
     lows, highs = declared_objectives(env_id)
-    constant = {
-        term: ([0.0, abs(value) or 1.0] if keep_sign else [value - 1.0, value])
-        for term, value in _constants(lows, highs).items()
-    }
+    constant = {term: [0.0, abs(value) or 1.0] for term, value in _constants(lows, highs).items()}
     estimated = not (np.isfinite(lows).all() and np.isfinite(highs).all())
     return terms_env(env_id, term_bounds=constant or None), ESTIMATE_STEPS if estimated else 0
 
