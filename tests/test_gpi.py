@@ -288,7 +288,9 @@ def test_fit_critics_gives_discrete_workers_q_over_actions_and_refuses_a_mixed_f
     manifest, theirs = (json.loads((f / "workers" / "manifest.json").read_text()) for f in (mixed, support))
     manifest["workers"]["goal"] = theirs["workers"]["goal"]
     (mixed / "workers" / "manifest.json").write_text(json.dumps(manifest))
-    with pytest.raises(ValueError, match=r"mixes discrete workers \['death', 'gold', 'gem'\]"):
+    with pytest.raises(
+        ValueError, match=r"mixes discrete workers \['death', 'gem', 'gold'\] with continuous"
+    ):
         fit_state_critics(mixed, names=["gold"], options=options)
     command = ["fit-critics", "--rollout-steps", "60", "--steps", "10", "--workers"]
     fitted, refused = run_batch([[*command, str(root)], [*command, str(mixed)]])
