@@ -2,6 +2,7 @@
 
 import dataclasses
 import io
+import json
 import shutil
 import subprocess
 import sys
@@ -246,3 +247,54 @@ def test_fit_critics_gives_state_values_and_a_gpi_start(support, tmp_path):
     assert report["decisions"] == 60 and report["agreement"] >= 0.8
     with pytest.raises(ValueError, match="HAM or from GPI"):
         train_manager(folder, tmp_path / "n", init_from_gpi=True, init_from_ham=5.0, timesteps=10)
+
+
+def test_fit_critics_gives_discrete_workers_q_over_actions_and_refuses_a_mixed_folder(support, tmp_path):
+    """DQN workers trained without critics (as the highway benchmark's were) get Q over their actions."""
+    pytest.importorskip("mo_gymnasium")
+    from stable_baselines3 import DQN
+
+    from sb3_hddpg.artifacts.provenance import sha256_file
+    from sb3_hddpg.envs.terms_env import terms_env
+    from sb3_hddpg.training.term_critic import STATE_CRITIC_OPTIONS, fit_state_critics
+    from tests.test_grow import TINY_DQN
+
+    shared = terms_env("resource-gathering-v0", terms=["death", "gold", "gem"])
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_DQN)
+    root = tmp_path / "run"
+    algos = dict.fromkeys(shared.terms, "dqn")
+    train_workers(root, config=config, env=shared, algos=algos, term_critic=None, seed=5, eval_freq=0,
+                  eval_episodes=1)  # fmt: skip
+    assert not load_workers(root).critics
+    options = dataclasses.replace(STATE_CRITIC_OPTIONS, rollout_steps=120, steps=30, net_arch=(16,))
+    facts = fit_state_critics(root, options=options, seed=1)
+    workers = load_workers(root)  # the rewritten zips' hashes verify
+    for name, entry in workers.manifest.entries.items():
+        assert entry["term_critic"] == facts[name]
+        assert (facts[name]["kind"], facts[name]["env_steps"]) == ("discrete", 120)
+        assert entry["sha256"] == sha256_file(root / "workers" / entry["file"])
+        assert DQN.load(root / "workers" / entry["file"]).num_timesteps >= 150  # still a plain SB3 zip
+        spec = workers.critics[name].spec
+        assert (spec.n_actions, spec.obs_dim, spec.gamma) == (4, 4, STATE_CRITIC_OPTIONS.gamma)
+    hierarchy = Hierarchy.gpi(workers, {"death": 0.2, "gold": 0.5, "gem": 0.3})
+    env = hierarchy.make_env()
+    action, _ = hierarchy.predict(env.reset(seed=0)[0], deterministic=True)
+    assert env.action_space.contains(int(np.asarray(action).reshape(-1)[0]))
+    # A folder of discrete and continuous workers would end with critics of two kinds: refused in one line.
+    mixed = tmp_path / "mixed"
+    shutil.copytree(root, mixed)
+    shutil.copy(support / "workers" / "goal.zip", mixed / "workers" / "goal.zip")
+    manifest, theirs = (json.loads((f / "workers" / "manifest.json").read_text()) for f in (mixed, support))
+    manifest["workers"]["goal"] = theirs["workers"]["goal"]
+    (mixed / "workers" / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(
+        ValueError, match=r"mixes discrete workers \['death', 'gem', 'gold'\] with continuous"
+    ):
+        fit_state_critics(mixed, names=["gold"], options=options)
+    command = ["fit-critics", "--rollout-steps", "60", "--steps", "10", "--workers"]
+    fitted, refused = run_batch([[*command, str(root)], [*command, str(mixed)]])
+    assert fitted.returncode == 0 and "discrete" in fitted.stdout, fitted.stderr
+    assert load_workers(root).manifest.entries["gold"]["term_critic"]["env_steps"] == 60
+    assert refused.returncode == 2 and "mixes discrete workers" in refused.stderr
+    assert "Traceback" not in refused.stderr

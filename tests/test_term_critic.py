@@ -126,3 +126,16 @@ def test_a_tampered_critic_is_refused(tmp_path):
     np.savez(raw, **arrays)
     with pytest.raises(LimitError, match="other parameters"):
         TermCritic.from_bytes(raw.getvalue(), "w.zip")
+
+
+def test_a_discrete_critic_of_a_worker_with_a_grid_observation_is_fitted_on_flat_transitions():
+    # Highway's DQN workers see a 5x5 grid; transitions are stored flat, their next actions asked in its shape.
+    env = gym.wrappers.ReshapeObservation(gym.make("CartPole-v1"), (2, 2))
+    policy = DQN("MlpPolicy", env, policy_kwargs={"net_arch": [8]}, seed=0)
+    obs = np.random.default_rng(2).uniform(-0.05, 0.05, (32, 4))
+    transitions = _transitions(obs, np.ones((32, 1), dtype=np.int64), (1.0, 0.0), 1.0)
+    critic, facts = fit_term_critic(
+        policy, transitions, ["x", "y"], TermCriticOptions(steps=5, net_arch=(8,))
+    )
+    assert critic.spec.obs_dim == 4 and critic.values(obs[:3].reshape(3, 2, 2)).shape == (3, 2, 2)
+    assert facts["transitions"] == 32

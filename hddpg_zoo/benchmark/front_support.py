@@ -2,7 +2,8 @@
 The front's support method (``hddpg-support``): the front scenario's members over a support of workers that
 cover the front, not one worker per term. In a copy of the seed's workers it trains a worker on each weighting
 of the terms the settings name (``front_support``, their ``<env>/mix`` config block), fits every worker a
-state-value critic over the full state (``front_critic_steps``), and trains the conditioned manager over all
+critic on rollouts (``front_critic_steps``: state values over the full state, or a discrete worker's Q over
+its actions), and trains the conditioned manager over all
 of them, started from GPI (``front_start``). GPI over the same critics is a member beside it. Every env step
 of the support, its critics' rollouts included, counts in the record's ``worker_timesteps``.
 """
@@ -54,7 +55,8 @@ def support_folder(task: MethodTask, settings: MethodSettings, folder: Path) -> 
     steps = settings.front_critic_steps
     entries = read_workers_manifest(root / "workers" / "manifest.json").entries
     fitted = [entry.get("term_critic", {}) for entry in entries.values()]
-    if steps and not all(f.get("kind") == "state_value" and f.get("env_steps") == steps for f in fitted):
+    # Only critics fitted on rollouts record their env steps (of either kind: state values, or discrete Q).
+    if steps and not all(f.get("env_steps") == steps for f in fitted):
         fit_state_critics(root, options=replace(STATE_CRITIC_OPTIONS, rollout_steps=steps), seed=task.seed)
     return root
 

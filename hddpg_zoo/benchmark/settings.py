@@ -186,8 +186,9 @@ class BenchmarkSettings:
         (their config block ``<env>/mix``), in a copy of the seed's workers.
     :param front_start: how the support method's conditioned manager starts: ``gpi`` (it imitates GPI over
         the workers' critics before RL, ``init_from_gpi``; its manager then trains on SB3), or ``None``.
-    :param front_critic_steps: the support method fits each worker a state-value critic over the full state
-        on this many env steps of its rollouts (``fit-critics``; 0: the workers keep the critics they have).
+    :param front_critic_steps: the support method fits each worker a critic on this many env steps of its
+        rollouts (``fit-critics``: a state value over the full state, or a discrete worker's Q over its
+        actions; 0: the workers keep the critics they have).
     :param morl_python: the python of a virtual environment with MORL-baselines: the front then adds its
         CAPQL, trained for the hierarchy's env steps (:mod:`.morl`; an MO-Gymnasium env only). Records state
         its version instead of its path (:func:`~.machine_paths.settings_record`).

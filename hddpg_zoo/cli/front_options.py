@@ -87,7 +87,8 @@ FrontCriticStepsOpt = Annotated[
     int,
     typer.Option(
         "--front-critic-steps",
-        help="Method hddpg-support: each worker gets a state-value critic fitted on this many env steps of "
-        "its rollouts (fit-critics; counted in its env steps). 0: the critics the workers have.",
+        help="Method hddpg-support: each worker gets a critic fitted on this many env steps of its rollouts "
+        "(fit-critics: a state value, or a discrete worker's Q over its actions; counted in its env steps). "
+        "0: the critics the workers have.",
     ),
 ]

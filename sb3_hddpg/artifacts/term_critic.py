@@ -3,9 +3,10 @@ A worker's per-term critic (one value head per reward term for its policy), stor
 :data:`TERM_CRITIC_MEMBER`, an ``.npz`` of plain arrays (SB3's ``load`` would take a ``.pth`` for parameters).
 
 It is of one of three kinds: ``Q(s, a)`` of a continuous worker or ``Q(s, .)`` of a discrete one, over the
-worker's own observation (trained on the transitions it collected), or the state value ``V(s)`` of a
-continuous worker over the shared env's full observation (trained on rollouts of its final policy): a worker
-that sees part of the state cannot value what it does not see, such as the snake's goal worker the obstacles.
+worker's own observation (trained on the transitions it collected, a discrete one's also on rollouts of its
+final policy), or the state value ``V(s)`` of a continuous worker over the shared env's full observation
+(trained on rollouts of its final policy): a worker that sees part of the state cannot value what it does
+not see, such as the snake's goal worker the obstacles.
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train-workers": ("train", "Train one worker (a plain SB3 model) per reward term."),
     "train-manager": ("train", "Train a manager that selects a worker, over trained workers."),
     "grow": ("train", "Add workers where the front gains most (optimistic linear support)."),
-    "fit-critics": ("train", "Give workers per-term state-value critics, for GPI."),
+    "fit-critics": ("train", "Give workers per-term critics fitted on rollouts, for GPI."),
     "train-flat": ("train_flat", "Train one SB3 agent on every objective (the flat baseline)."),
     "evaluate": ("evaluate", "Evaluate a policy: reward, each term, worker choices."),
     "record": ("hddpg_zoo.cli.record", "Render a policy to a GIF or MP4, showing the acting worker."),

@@ -545,7 +545,7 @@ def fit_critics_command(
         STATE_CRITIC_OPTIONS.steps or 1, "--steps", help="Gradient steps of each critic's TD fitting."
     ),
 ) -> None:
-    """Give each worker a per-term state-value critic over the full shared state, from rollouts of its policy: what GPI (Hierarchy.gpi, --init-from-gpi) acts with."""
+    """Give each worker a per-term critic fitted on rollouts of its policy, what GPI (Hierarchy.gpi, --init-from-gpi) acts with: a state value over the full shared state, or a discrete worker's Q over its actions."""
     if not (workers / "workers" / "manifest.json").is_file() and not (workers / "manifest.json").is_file():
         raise typer.BadParameter(
             f"no workers manifest in {str(workers)!r}; run train-workers first", param_hint="'--workers'"
@@ -555,9 +555,11 @@ def fit_critics_command(
     run = run_options_of(context)
     with usage_errors("'--workers'"):
         facts = fit_state_critics(workers, names or None, options, seed=run.seed)
-    table = Table(title=f"State-value critics in {workers}")
-    for column in ("worker", "env steps", "TD steps", "last TD loss"):
+    table = Table(title=f"Critics fitted on rollouts in {workers}")
+    for column in ("worker", "kind", "env steps", "TD steps", "last TD loss"):
         table.add_column(column)
     for name, fact in facts.items():
-        table.add_row(name, f"{fact['env_steps']:,}", f"{fact['steps']:,}", f"{fact['td_loss']:.4g}")
+        table.add_row(
+            name, str(fact["kind"]), f"{fact['env_steps']:,}", f"{fact['steps']:,}", f"{fact['td_loss']:.4g}"
+        )
     console.print(table)

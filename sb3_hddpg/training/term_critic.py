@@ -5,15 +5,18 @@ evaluation of the worker's own policy, one head per normalised term, with a Poly
 - On the transitions it collected in training, over its own observation:
   ``y_k = r_k + gamma * (1 - done) * Q'_k(s', pi(s'))`` (for a discrete worker ``Q_k(s, a)`` of every action,
   the next action its greedy one). It costs gradient steps, no env steps.
-- On rollouts of its final policy in the shared env (:func:`rollout_transitions`), over the full state:
-  ``y_k = r_k + gamma * (1 - done) * V'_k(s')``. It costs the rollouts' env steps, and it is what GPI needs
-  when a worker sees part of the state (on the snake, the goal worker does not see the obstacles).
+- On rollouts of its final policy in the shared env (:func:`rollout_transitions`): a continuous worker's
+  state value over the full state, ``y_k = r_k + gamma * (1 - done) * V'_k(s')``, what GPI needs when a
+  worker sees part of the state (on the snake, the goal worker does not see the obstacles); a discrete
+  worker's ``Q_k(s, a)`` over its own observation, as above (GPI over discrete workers takes an action, so
+  it needs values of every action). It costs the rollouts' env steps.
 """
 
 from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import hashlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -54,9 +57,10 @@ class TermCriticOptions:
     :param tau: the target network's Polyak coefficient.
     :param gamma: the discount of the values: one for every worker of a support, not each worker's own, so
         that GPI and the support compare values of one kind.
-    :param rollout_steps: for a state-value critic, the env steps of its policy's rollouts it is fitted on.
-    :param noise: for a state-value critic, the std of the Gaussian noise on the rollouts' actions (as a
-        share of the action range's half), so that it also values states just off the policy's path.
+    :param rollout_steps: for a critic fitted on rollouts, the env steps of its policy's rollouts.
+    :param noise: for a critic fitted on rollouts, so that it also values states (and actions) just off the
+        policy's path: the std of the Gaussian noise on a continuous worker's actions (as a share of the
+        action range's half), or the probability of a uniformly random action of a discrete worker.
     """
 
     steps: int | None = None
@@ -120,9 +124,10 @@ def rollout_transitions(
     seed: int = 0,
 ) -> Transitions:
     """
-    Roll ``worker`` out in the shared ``env`` for ``options.rollout_steps`` env steps, its actions with
-    Gaussian noise, episode ``k`` reset with seed ``ROLLOUT_FIRST_SEED + k``: on-policy transitions over the
-    full state, for a state-value critic (their ``actions`` are empty).
+    Roll ``worker`` out in the shared ``env`` for ``options.rollout_steps`` env steps with exploration,
+    episode ``k`` reset with seed ``ROLLOUT_FIRST_SEED + k``: on-policy transitions over the full state. A
+    continuous worker's actions get Gaussian noise and are not kept (a state value needs none); a discrete
+    worker's are its own or, with probability ``options.noise``, uniformly random, and are kept as indices.
 
     :param worker: the worker, frozen with the indices of the state it sees.
     :param env: the shared env (full observations, ``info["reward_terms"]`` every step).
@@ -133,16 +138,27 @@ def rollout_transitions(
     normaliser = TermNormaliser(bounds)
     terms = tuple(normaliser.bounds)
     space = env.action_space
-    if not isinstance(space, gym.spaces.Box):
-        raise ValueError(
-            "A state-value critic is for continuous workers: a discrete one's Q over actions is GPI's"
-        )
     rng = np.random.default_rng(seed)
-    scale = options.noise * (space.high - space.low) / 2.0
+    if isinstance(space, gym.spaces.Discrete):
+        n_actions, discrete = int(space.n), True
+
+        def explore(own: np.ndarray) -> np.ndarray:
+            return np.asarray(rng.integers(n_actions) if rng.random() < options.noise else np.ravel(own)[0])
+
+    elif isinstance(space, gym.spaces.Box):
+        low, high, discrete = space.low, space.high, False
+        scale = options.noise * (high - low) / 2.0
+
+        def explore(own: np.ndarray) -> np.ndarray:
+            return np.clip(own + rng.normal(0.0, 1.0, low.shape) * scale, low, high)
+
+    else:
+        raise ValueError(f"Expected a Box or Discrete action space for a worker's critic, actually: {space}")
     n = int(options.rollout_steps)
     obs_dim = int(np.prod(env.observation_space.shape or (1,)))
     states = np.zeros((n + 1, obs_dim), dtype=np.float32)
     next_states = np.zeros((n, obs_dim), dtype=np.float32)
+    actions = np.zeros((n, 1 if discrete else 0), dtype=np.int64 if discrete else np.float32)
     rewards = np.zeros((n, len(terms)), dtype=np.float32)
     continues = np.ones(n, dtype=np.float32)
     episode = 0
@@ -150,10 +166,9 @@ def rollout_transitions(
     worker.reset_episode()
     for step in range(n):
         states[step] = np.ravel(obs)
-        action = np.clip(
-            worker.act(np.asarray(obs)) + rng.normal(0.0, 1.0, space.shape) * scale, space.low, space.high
-        )
-        obs, _, terminated, truncated, info = env.step(action.astype(space.dtype))
+        action = explore(worker.act(np.asarray(obs)))
+        actions[step] = np.ravel(action)[: actions.shape[1]]  # a continuous worker's are not kept
+        obs, _, terminated, truncated, info = env.step(np.asarray(action).astype(space.dtype))
         normalised = normaliser(info["reward_terms"])
         rewards[step] = [normalised[term] for term in terms]
         next_states[step] = np.ravel(obs)
@@ -162,7 +177,7 @@ def rollout_transitions(
             episode += 1
             obs, _ = env.reset(seed=ROLLOUT_FIRST_SEED + episode)
             worker.reset_episode()
-    return Transitions(states[:n], np.zeros((n, 0), dtype=np.float32), next_states, rewards, continues)
+    return Transitions(states[:n], actions, next_states, rewards, continues)
 
 
 def fit_term_critic(
@@ -204,8 +219,11 @@ def fit_term_critic(
         "continues": torch.as_tensor(transitions.continues, dtype=torch.float32).reshape(-1, 1),
     }
     if policy is not None:  # a state value needs no actions: the transitions' own were the policy's
-        # The policy is fixed: its next actions are computed once, not once per batch.
-        next_actions = np.asarray(policy.predict(transitions.next_obs, deterministic=True)[0])
+        # The policy is fixed: its next actions are computed once, not once per batch, from observations in
+        # its own shape (the transitions' are flat: highway's 5x5 grid is 25 values).
+        shape = policy.observation_space.shape or ()
+        next_obs = transitions.next_obs.reshape(len(transitions), *shape)
+        next_actions = np.asarray(policy.predict(next_obs, deterministic=True)[0])
         if spec.discrete:
             data["actions"] = torch.as_tensor(transitions.actions, dtype=torch.long).reshape(-1)
             data["next_actions"] = torch.as_tensor(next_actions, dtype=torch.long).reshape(-1)
@@ -254,12 +272,14 @@ def fit_state_critics(
     seed: int = 0,
 ) -> dict[str, dict[str, object]]:
     """
-    Give each continuous worker of a run folder a state-value critic over the shared env's full state,
-    fitted on rollouts of its policy (:func:`rollout_transitions`), in place of the critic its zip holds: the
-    critics GPI and a start from GPI act with. Each zip is rewritten whole and the manifest records the new
-    hash and the critic's facts, its rollouts' ``env_steps`` among them.
+    Give each worker of a run folder a critic fitted on rollouts of its policy (:func:`rollout_transitions`)
+    in place of the critic its zip holds, the critics GPI and a start from GPI act with: a continuous worker a
+    state value over the shared env's full state (kind ``state_value``), a discrete one its ``Q(s, a)`` over
+    its own observation (kind ``discrete``). Each zip is rewritten whole and the manifest records the new hash
+    and the critic's facts, its rollouts' ``env_steps`` among them.
 
-    :param out_dir: the run folder of ``train-workers`` (or its ``workers`` folder).
+    :param out_dir: the run folder of ``train-workers`` (or its ``workers`` folder): its workers all act with
+        continuous actions or all with discrete ones (GPI compares critics of one kind only).
     :param names: which workers (default: all).
     :param options: the critics' settings (default: :data:`STATE_CRITIC_OPTIONS`).
     :param seed: seeds the rollouts' noise and the critics' training.
@@ -269,6 +289,13 @@ def fit_state_critics(
     workers = load_workers(out_dir, names=names)
     if workers.folder is None:
         raise ValueError(f"{str(out_dir)!r}: no workers folder")
+    everyone = load_workers(out_dir) if names else workers
+    discrete = {n: isinstance(m.action_space, gym.spaces.Discrete) for n, m in everyone.items()}
+    if len(set(discrete.values())) > 1:
+        raise ValueError(
+            f"{str(workers.folder)!r} mixes discrete workers {[n for n, d in discrete.items() if d]} with "
+            "continuous ones: their critics would be of two kinds, which GPI does not compare"
+        )
     manifest_path = workers.folder / "manifest.json"
     manifest = workers.manifest
     done: dict[str, dict[str, object]] = {}
@@ -278,10 +305,15 @@ def fit_state_critics(
         for name, model in workers.items():
             indices = layout.indices(workers.states[name]) if name in workers.states else None
             transitions = rollout_transitions(FrozenWorker(model, indices), env, bounds, options, seed)
-            critic, fit_facts = fit_term_critic(None, transitions, list(bounds), options, seed)
+            if discrete[name] and indices is not None:  # its Q is over what it sees, as GPI gives it
+                seen = {"obs": transitions.obs[:, indices], "next_obs": transitions.next_obs[:, indices]}
+                transitions = dataclasses.replace(transitions, **seen)
+            policy = model if discrete[name] else None
+            critic, fit_facts = fit_term_critic(policy, transitions, list(bounds), options, seed)
             path = workers.folder / str(manifest.entries[name]["file"])
             data = with_term_critic(path.read_bytes(), critic)
-            facts = {"member": TERM_CRITIC_MEMBER, "terms": list(bounds), "kind": "state_value",
+            kind = "discrete" if discrete[name] else "state_value"
+            facts = {"member": TERM_CRITIC_MEMBER, "terms": list(bounds), "kind": kind,
                      "env_steps": len(transitions), **fit_facts}  # fmt: skip
             atomic_write_bytes(path, data)
             entry = {
