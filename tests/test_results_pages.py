@@ -29,8 +29,8 @@ from sb3_hddpg.episode_sets import FINAL_TEST, FINAL_TEST_EPISODES
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS_PAGE = ROOT / "docs" / "RESULTS.md"
-#: The pages with tables generated from shipped records: the snake arm's, and the other envs'.
-GENERATED_PAGES = (RESULTS_PAGE, ROOT / "docs" / "ENVIRONMENTS.md")
+#: The pages with tables generated from shipped records: the snake arm's, the other envs', the support's.
+GENERATED_PAGES = (RESULTS_PAGE, ROOT / "docs" / "ENVIRONMENTS.md", ROOT / "docs" / "guide" / "support.md")
 
 
 def shipped_runs(page: Path = RESULTS_PAGE) -> list[str]:
@@ -261,3 +261,42 @@ def test_report_rewrites_a_shipped_runs_own_results_from_its_records(tmp_path):
     assert (run / "results.md").read_text() == markdown_report(run_results(run))
     # The records the results come from are left as they were.
     assert {p: p.read_bytes() for p in (run / "records").rglob("*.json")} == records
+
+
+def test_gpi_at_the_equal_weighting_is_compared_with_each_worker_alone():
+    from hddpg_zoo.benchmark.front_pages import _equal_weight_lines, _term_weights
+
+    # A weighted worker's share splits over its terms: 0.6 + 1.8 * 0.5 on each term is the equal weighting.
+    assert _term_weights("goal=0.6,avoid=0.6,mix-goal50-avoid50=1.8", ["goal", "avoid"]) == {
+        "goal": 1.5,
+        "avoid": 1.5,
+    }
+    assert _term_weights("goal=1,other=1", ["goal", "avoid"]) is None
+
+    def point(label, goal, avoid):
+        return {"label": label, "goal_term": goal, "avoid_term": avoid, "mean_reach_reward": 300 + goal}
+
+    points = {
+        str(seed): {
+            "gpi": [
+                point("goal=2.4,avoid=0.57,mix-goal50-avoid50=0.03", 9.0, 9.0),  # not equal: left out
+                point("goal=0.6,avoid=0.6,mix-goal50-avoid50=1.8", 0.8 - 0.01 * seed, 0.9),
+            ],
+            "goal": [point("goal", 0.9, 0.92)],
+            "avoid": [point("avoid", 0.3, 0.99)],
+        }
+        for seed in range(4)
+    }
+    front = {"planes": {"terms": [["goal_term", True], ["avoid_term", True]]}, "points": points}
+    lines = _equal_weight_lines(front)
+    by_comparison = {line.split(":")[0]: line for line in lines if line.startswith("- gpi vs")}
+    terms_vs_goal = by_comparison["- gpi vs goal (sum of the normalised terms)"]
+    assert terms_vs_goal.split("; ")[0].endswith("behind") and "difference -0.135 " in terms_vs_goal
+    assert "difference -0.115 " in by_comparison["- gpi vs goal (reach reward)"]
+    assert by_comparison["- gpi vs avoid (sum of the normalised terms)"].split("; ")[0].endswith("ahead")
+    # A seed without a worker alone is left out of the pairs.
+    del points["0"]["goal"]
+    by_comparison = {
+        line.split(":")[0]: line for line in _equal_weight_lines(front) if line.startswith("- gpi")
+    }
+    assert "difference -0.14 " in by_comparison["- gpi vs goal (sum of the normalised terms)"]

@@ -14,7 +14,7 @@ import numpy as np
 from hddpg_zoo.benchmark.front_mixtures import points_beyond
 from hddpg_zoo.benchmark.front_points import PLANES, label_factors
 from hddpg_zoo.records.results_leaves import FrontResults, Summary
-from hddpg_zoo.stats import EQUIVALENCE_MARGIN, verdict_word
+from hddpg_zoo.stats import EQUIVALENCE_MARGIN, paired_t_interval, verdict_word
 
 #: Colours of the snake's members; another env's members take the next ones of matplotlib's cycle.
 MEMBER_COLOURS = {
@@ -59,6 +59,7 @@ def front_table(front: FrontResults) -> list[str]:
             cells.append(f"{stats['mean']:.4g} [{stats['ci_low']:.4g}, {stats['ci_high']:.4g}]")
         lines.append(f"| {member} | " + " | ".join(cells) + " |")
     lines.extend(_safe_touch_lines(front))
+    lines.extend(_equal_weight_lines(front))
     lines.extend(_morl_lines(front))
     manager = front.get("manager")
     if manager is not None:
@@ -138,6 +139,74 @@ def _safe_touch_lines(front: FrontResults) -> list[str]:
             touch = sum(p["touch"] for p in points) / len(points)
             line += f"; highest reach reward {reach:.1f}, with {100 * touch:.1f} % touch at that point"
         lines.append(line)
+    return lines
+
+
+def _term_weights(label: str, terms: list[str]) -> dict[str, float] | None:
+    """
+    The terms' coefficients of a GPI point's preference over workers (each worker's reward by its factor, as
+    the manager's reward weighs them): a per-term worker is named by its term, a weighted one ``mix-`` and
+    each term with its percentage. ``None`` for a label over other names.
+    """
+    coefficients = dict.fromkeys(terms, 0.0)
+    for name, factor in label_factors(label).items():
+        if name in coefficients:
+            coefficients[name] += factor
+            continue
+        if not name.startswith("mix-"):
+            return None
+        for part in name[len("mix-") :].split("-"):
+            term = max((t for t in terms if part.startswith(t)), key=len, default=None)
+            if term is None:
+                return None
+            coefficients[term] += factor * float(part[len(term) :].replace("p", ".")) / 100.0
+    return coefficients
+
+
+def _equal_weight_lines(front: FrontResults) -> list[str]:
+    """
+    GPI at the equal weighting of the terms (the unweighted preference) against each per-term worker alone,
+    paired by seed: the sum of the normalised terms (the unweighted objective) and, where measured, the reach
+    reward.
+    """
+    terms = [str(key).removesuffix("_term") for key, _ in front["planes"].get("terms", [])]
+    by_seed = {s: m for s, m in front["points"].items() if "gpi" in m and all(t in m for t in terms)}
+    if not terms or not by_seed:
+        return []
+    per_seed: dict[str, dict[str, float]] = {}
+    for seed, members in by_seed.items():
+        for point in members["gpi"]:
+            weights = _term_weights(str(point["label"]), terms)
+            if weights is not None and np.ptp(list(weights.values())) <= 1e-9 * max(weights.values()):
+                per_seed[seed] = {k: float(cast(float, v)) for k, v in point.items() if k != "label"}
+    seeds = sorted(per_seed)
+    if len(seeds) < 2:
+        return []
+    measures = [m for m in ("terms_sum", "mean_reach_reward") if m == "terms_sum" or m in per_seed[seeds[0]]]
+
+    def value(point: Mapping[str, Any], measure: str) -> float:
+        if measure == "terms_sum":
+            return sum(float(point[f"{t}_term"]) for t in terms)
+        return float(point[measure])
+
+    pairs = [(worker, measure) for worker in terms for measure in measures]
+    lines = [
+        "",
+        "GPI at the equal weighting of the terms (the unweighted preference) against each worker alone, paired "
+        "by seed; each a paired t test at 95 %, not adjusted, since each answers its own question:",
+    ]
+    for worker, measure in pairs:
+        c = paired_t_interval(
+            [value(per_seed[s], measure) for s in seeds],
+            [value(by_seed[s][worker][0], measure) for s in seeds],
+        )
+        higher = sum(value(per_seed[s], measure) > value(by_seed[s][worker][0], measure) for s in seeds)
+        word = verdict_word(c["difference"], c["ci_low"], c["ci_high"], c["p_value"], len(seeds), higher)
+        what = "sum of the normalised terms" if measure == "terms_sum" else "reach reward"
+        lines.append(
+            f"- gpi vs {worker} ({what}): {word}; difference {c['difference']:.4g} "
+            f"[{c['ci_low']:.4g}, {c['ci_high']:.4g}], p {c['p_value']:.3f}"
+        )
     return lines
 
 
