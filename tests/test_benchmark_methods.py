@@ -565,6 +565,25 @@ def test_export_layout_and_index_from_a_benchmark_folder(tmp_path):
     assert export_models(run, tmp_path / "empty") == index
 
 
+def test_export_picks_another_envs_workers_by_their_index_method(tmp_path):
+    from hddpg_zoo.model_export import export_models
+
+    run = tmp_path / "bench"
+    for relative, text in {"seed-0/workers/manifest.json": "{}", "seed-0/workers/speed.zip": "speed"}.items():
+        (run / relative).parent.mkdir(parents=True, exist_ok=True)
+        (run / relative).write_text(text)
+    record = run / "records" / "workers" / "seed-0.json"
+    record.parent.mkdir(parents=True)
+    record.write_text(
+        json.dumps({"method": "workers", "seed": 0, "status": "done", "workers": {"speed": {}}})
+    )
+    # highway's workers are indexed as worker:speed, worker:lane...: --method takes what the index names.
+    index = export_models(run, tmp_path / "models", ["worker:speed"])
+    assert [(e["method"], e["path"]) for e in index] == [("worker:speed", "seed-0/workers/speed.zip")]
+    with pytest.raises(ValueError, match="also \\['worker:'\\]"):
+        export_models(run, tmp_path / "models", ["worker:"])
+
+
 def test_a_task_interrupted_and_resumed_keeps_the_time_of_both_invocations(tmp_path):
     from hddpg_zoo.benchmark.record_files import elapsed_path
     from hddpg_zoo.benchmark.run import run_task
