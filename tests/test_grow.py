@@ -166,3 +166,45 @@ def test_a_weighted_worker_joins_a_discrete_support_as_its_kind_and_gpi_acts_ove
     obs, _ = env.reset(seed=0)
     action, _ = hierarchy.predict(obs, deterministic=True)
     assert env.action_space.contains(int(np.asarray(action).reshape(-1)[0]))
+
+
+def test_train_workers_resumed_checks_a_weighted_worker_as_the_algorithm_it_joins(tmp_path):
+    """The command's checks before training plan the weighted worker as train_workers trains it: DQN here."""
+    pytest.importorskip("mo_gymnasium")
+    from sb3_hddpg.envs.terms_env import terms_env
+    from tests.cli_batch import run_batch
+
+    shared = terms_env("resource-gathering-v0", terms=["death", "gold", "gem"])
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY_DQN + "  exploration_fraction: 0.2\n")  # a key DQN takes and DDPG refuses
+    root = tmp_path / "run"
+    train_workers(root, config=config, env=shared, algos=dict.fromkeys(shared.terms, "dqn"), term_critic=None,
+                  **RUN)  # fmt: skip
+    command = ["train-workers", "--env", "resource-gathering-v0", "--terms", "death,gold,gem", "--config",
+               str(config), "--out", str(root), "--resume", "--weights", "gold=0.5,gem=0.5", "--no-term-critic",
+               "--eval-freq", "0", "--eval-episodes", "1", "--seed", "5"]  # fmt: skip
+    (result,) = run_batch([command])
+    assert result.returncode == 0, result.stderr
+    assert load_workers(root).manifest.entries["mix-gold50-gem50"]["algo"] == "dqn"
+
+
+def test_folder_algos_takes_the_heaviest_terms_algorithm_where_its_entry_names_one(tmp_path):
+    from pathlib import Path
+
+    from sb3_hddpg.envs.terms_env import TermsEnv
+    from sb3_hddpg.training.workers import folder_algos
+
+    shipped = Path(__file__).resolve().parents[1] / "docs" / "results" / "cheetah" / "seed-0" / "workers"
+    manifest = json.loads((shipped / "manifest.json").read_text())  # two CrossQ workers
+    (tmp_path / "workers").mkdir()
+    cheetah = TermsEnv("mo-halfcheetah-v5", {}, ("speed", "energy"))
+    weights = [{"speed": 0.7, "energy": 0.3}, {"speed": 1.0}]
+    (tmp_path / "workers" / "manifest.json").write_text(json.dumps(manifest))
+    assert folder_algos(tmp_path, weights, cheetah) == {"mix-speed70-energy30": "crossq"}
+    assert folder_algos(tmp_path, weights, cheetah, {"mix-speed70-energy30": "sac"}) == {
+        "mix-speed70-energy30": "sac"
+    }
+    # An entry without its algorithm (the manifest's reader allows one): the default stands, no KeyError.
+    del manifest["workers"]["speed"]["algo"]
+    (tmp_path / "workers" / "manifest.json").write_text(json.dumps(manifest))
+    assert folder_algos(tmp_path, weights, cheetah) == {}

@@ -47,6 +47,7 @@ from sb3_hddpg.training.manager import train_manager
 from sb3_hddpg.training.manager_setup import MANAGER_ALGOS, ManagerOptions, setup_manager
 from sb3_hddpg.training.term_critic import STATE_CRITIC_OPTIONS, TermCriticOptions, fit_state_critics
 from sb3_hddpg.training.workers import (
+    folder_algos,
     parse_worker_algorithms,
     plan_workers,
     train_workers,
@@ -187,6 +188,9 @@ def train_workers_command(
         all_names = [worker.name for worker in plan_workers(names, weightings, None, shared)]
     with usage_errors("'--algo'"):
         algos = parse_worker_algorithms(algo, all_names, shared) if algo is not None else {}
+    if resume:  # a weighted worker joins the folder's kind (folder_algos), as train_workers will train it
+        with usage_errors("'--out'"):
+            algos = folder_algos(out, weightings, shared, algos)
     with usage_errors("'--config'"):  # a bad block fails now, not after the first worker has trained
         planned = plan_workers(names, weightings, config, shared, algos)
     with usage_errors("'--backend'"):  # also a config's `backend: sbx` where SBX is not installed

@@ -429,7 +429,8 @@ def folder_algos(
     for index, given in enumerate(weights):
         checked = check_term_weights(given, terms, f"weights[{index}]")
         name, heaviest = weighted_name(checked), max(checked, key=checked.__getitem__)
-        if corner_term(checked) is None and name not in chosen and heaviest in entries:
+        # An entry need not name its algorithm (the manifest's reader allows it): then the default stands.
+        if corner_term(checked) is None and name not in chosen and "algo" in entries.get(heaviest, {}):
             chosen[name] = str(entries[heaviest]["algo"])
     return chosen
 
