@@ -446,3 +446,28 @@ def test_the_support_method_grows_a_support_with_critics_and_starts_its_manager_
         BenchmarkSettings(methods=["hddpg-support"], scenario="front", front_start="ham")
     with pytest.raises(ValueError, match="front-support"):
         BenchmarkSettings(methods=["hddpg-front"], scenario="front", front_sweep=preferences)
+
+
+def test_a_resumed_support_fits_only_the_workers_still_without_a_rollout_critic(tmp_path, monkeypatch):
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from hddpg_zoo.benchmark import front_support
+
+    shipped = Path(__file__).resolve().parents[1] / "docs" / "results" / "cheetah" / "seed-0" / "workers"
+    manifest = json.loads((shipped / "manifest.json").read_text())
+    # Interrupted after the first worker's critic: speed's is fitted on 40 rollout steps, energy's is not.
+    manifest["workers"]["speed"]["term_critic"] = {"kind": "state_value", "env_steps": 40}
+    workers = tmp_path / front_support.SUPPORT_METHOD / "support" / "workers"
+    workers.mkdir(parents=True)
+    (workers / "manifest.json").write_text(json.dumps(manifest))
+    calls = []
+    monkeypatch.setattr(front_support, "fit_state_critics", lambda *args, **kwargs: calls.append(args))
+    settings = SimpleNamespace(front_support=None, front_critic_steps=40)
+    front_support.support_folder(SimpleNamespace(seed=0), settings, tmp_path)
+    assert [list(args[1]) for args in calls] == [["energy"]]
+    # Every worker fitted on as many steps: nothing is fitted again.
+    manifest["workers"]["energy"]["term_critic"] = {"kind": "state_value", "env_steps": 40}
+    (workers / "manifest.json").write_text(json.dumps(manifest))
+    front_support.support_folder(SimpleNamespace(seed=0), settings, tmp_path)
+    assert len(calls) == 1

@@ -54,10 +54,15 @@ def support_folder(task: MethodTask, settings: MethodSettings, folder: Path) -> 
         train_workers(root, weights=weights, env=settings.terms_env, algos=algos, run=run, term_critic=critic)
     steps = settings.front_critic_steps
     entries = read_workers_manifest(root / "workers" / "manifest.json").entries
-    fitted = [entry.get("term_critic", {}) for entry in entries.values()]
     # Only critics fitted on rollouts record their env steps (of either kind: state values, or discrete Q).
-    if steps and not all(f.get("env_steps") == steps for f in fitted):
-        fit_state_critics(root, options=replace(STATE_CRITIC_OPTIONS, rollout_steps=steps), seed=task.seed)
+    # A resumed task fits only the workers still without one: each worker's fit is seeded on its own, so
+    # the critics come out as one call over all of them would make them.
+    stale = [
+        name for name, entry in entries.items() if (entry.get("term_critic") or {}).get("env_steps") != steps
+    ]
+    if steps and stale:
+        options = replace(STATE_CRITIC_OPTIONS, rollout_steps=steps)
+        fit_state_critics(root, stale, options=options, seed=task.seed)
     return root
 
 
