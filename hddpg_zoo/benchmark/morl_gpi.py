@@ -113,19 +113,33 @@ class GpiPolicy:
         self.set_weights([1.0 / len(self.terms)] * len(self.terms))
 
     def set_weights(self, weights: Sequence[float]) -> None:
+        """
+        Play the protocol's weight from now on.
+
+        :param weights: the weight of the raw objectives, one per term of ``terms``.
+        """
         self.coefficients = gpi_coefficients(weights, self.terms, self.bounds, self.constant)
 
     def reset_episode(self) -> None:
         """GPI decides anew at every step: nothing carries over."""
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        """
+        GPI's action at the current weight's coefficients.
+
+        :param obs: the shared env's observation.
+        """
         # Not through Hierarchy.set_preference: the coefficients may be negative, which it refuses.
         _, action = self.selector.select(np.asarray(obs, dtype=np.float32), self.coefficients)
         return action
 
 
 def gpi_selector(folder: Path) -> GpiSelector:
-    """The GPI selector over a folder's workers and their critics, each seeing its own state components."""
+    """
+    The GPI selector over a folder's workers and their critics, each seeing its own state components.
+
+    :param folder: the run folder (its ``workers/``).
+    """
     workers = load_workers(folder)
     with contextlib.closing(workers.make_env()) as env:
         layout = state_layout_of(env)
@@ -137,7 +151,11 @@ def gpi_selector(folder: Path) -> GpiSelector:
 
 
 def trained_steps(folder: Path) -> dict[str, int]:
-    """Each worker's env steps as its manifest records them (``workers/<name>``), critics' rollouts included."""
+    """
+    Each worker's env steps as its manifest records them (``workers/<name>``), critics' rollouts included.
+
+    :param folder: the run folder (its ``workers/manifest.json``).
+    """
     entries = read_workers_manifest(folder / "workers" / "manifest.json").entries
     return {
         f"workers/{name}": int(entry["timesteps_trained"])
@@ -151,6 +169,8 @@ def train_gpi(run: SideRun) -> TrainedSide:
     One worker per objective (DQN on discrete actions, DDPG on continuous), then the weighted workers ``grow``
     adds at the corner weights of largest optimistic gain, every worker with a per-term critic at the
     protocol's discount and an equal share of one budget; GPI over all of them plays each weight.
+
+    :param run: the env, seed, budget, discount and folder of the run.
     """
     started = time.perf_counter()
     shared, bounds_steps = pinned_env(run.env_id)

@@ -111,7 +111,11 @@ def register_protocol_method(method: ProtocolMethod) -> ProtocolMethod:
 
 
 def declared_objectives(env_id: str) -> tuple[np.ndarray, np.ndarray]:
-    """The per-step ``(lows, highs)`` of the env's ``reward_space``, one per objective (some may be infinite)."""
+    """
+    The per-step ``(lows, highs)`` of the env's ``reward_space``, one per objective (some may be infinite).
+
+    :param env_id: the protocol's env.
+    """
     inner = make_adapted(env_id)
     try:
         space = inner.unwrapped.reward_space  # type: ignore[attr-defined]
@@ -124,6 +128,8 @@ def constant_objectives(env_id: str) -> dict[str, float]:
     """
     The objectives the env declares constant (``reward_space``'s low = high: deep-sea-treasure's time, -1
     every step), by term name (``obj<i>``), with their value.
+
+    :param env_id: the protocol's env.
     """
     return _constants(*declared_objectives(env_id))
 
