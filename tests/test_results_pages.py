@@ -272,6 +272,11 @@ def test_gpi_at_the_equal_weighting_is_compared_with_each_worker_alone():
         "avoid": 1.5,
     }
     assert _term_weights("goal=1,other=1", ["goal", "avoid"]) is None
+    assert _term_weights("goal=1,mix-goal0-avoid0=1", ["goal", "avoid"]) is None
+    # A weighting's percentages are its share of the worker's reward, as the manager's reward takes them.
+    assert _term_weights("mix-goal70-avoid30=2", ["goal", "avoid"]) == pytest.approx(
+        {"goal": 1.4, "avoid": 0.6}
+    )
 
     def point(label, goal, avoid):
         return {"label": label, "goal_term": goal, "avoid_term": avoid, "mean_reach_reward": 300 + goal}

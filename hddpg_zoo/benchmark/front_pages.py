@@ -15,6 +15,7 @@ from hddpg_zoo.benchmark.front_mixtures import points_beyond
 from hddpg_zoo.benchmark.front_points import PLANES, label_factors
 from hddpg_zoo.records.results_leaves import FrontResults, Summary
 from hddpg_zoo.stats import EQUIVALENCE_MARGIN, paired_t_interval, verdict_word
+from sb3_hddpg.envs.contract import mix_terms
 
 #: Colours of the snake's members; another env's members take the next ones of matplotlib's cycle.
 MEMBER_COLOURS = {
@@ -145,22 +146,28 @@ def _safe_touch_lines(front: FrontResults) -> list[str]:
 def _term_weights(label: str, terms: list[str]) -> dict[str, float] | None:
     """
     The terms' coefficients of a GPI point's preference over workers (each worker's reward by its factor, as
-    the manager's reward weighs them): a per-term worker is named by its term, a weighted one ``mix-`` and
-    each term with its percentage. ``None`` for a label over other names.
+    the manager's reward weighs them: :func:`~sb3_hddpg.envs.contract.mix_terms`): a per-term worker is named
+    by its term, a weighted one ``mix-`` and each term with its percentage. ``None`` for a label over other
+    names.
     """
-    coefficients = dict.fromkeys(terms, 0.0)
-    for name, factor in label_factors(label).items():
-        if name in coefficients:
-            coefficients[name] += factor
+    factors = label_factors(label)
+    specs: dict[str, str | dict[str, float]] = {}
+    for name in factors:
+        if name in terms:
+            specs[name] = name
             continue
         if not name.startswith("mix-"):
             return None
+        weights: dict[str, float] = {}
         for part in name[len("mix-") :].split("-"):
             term = max((t for t in terms if part.startswith(t)), key=len, default=None)
             if term is None:
                 return None
-            coefficients[term] += factor * float(part[len(term) :].replace("p", ".")) / 100.0
-    return coefficients
+            weights[term] = float(part[len(term) :].replace("p", "."))
+        if not sum(weights.values()) > 0:  # not a weighting a worker is named by
+            return None
+        specs[name] = weights
+    return {**dict.fromkeys(terms, 0.0), **mix_terms(specs, factors)}
 
 
 def _equal_weight_lines(front: FrontResults) -> list[str]:
