@@ -183,17 +183,25 @@ def random_reference(settings: MethodSettings) -> dict[str, object]:
 
 def workers_steps(folder: Path) -> int:
     """Env steps of the seed's workers together, their critics' rollouts included, as their manifest records them."""
+    return sum(worker_steps(folder).values())
+
+
+def worker_steps(folder: Path) -> dict[str, int]:
+    """
+    Each worker's env steps, its critic's rollouts included, as the manifest records them.
+
+    :param folder: the run folder (its ``workers/manifest.json``).
+    :raises ValueError: naming the manifest when an entry has no whole ``timesteps_trained``.
+    """
     path = folder / "workers" / "manifest.json"
     manifest = read_workers_manifest(path)
     try:
         # A critic fitted on rollouts (fit-critics) cost their env steps; one fitted on the worker's own
         # transitions cost none.
-        return int(
-            sum(
-                int(entry["timesteps_trained"]) + int(entry.get("term_critic", {}).get("env_steps", 0))
-                for entry in manifest.entries.values()
-            )
-        )
+        return {
+            name: int(entry["timesteps_trained"]) + int((entry.get("term_critic") or {}).get("env_steps", 0))
+            for name, entry in manifest.entries.items()
+        }
     except (KeyError, TypeError, ValueError, OverflowError):
         raise ValueError(f"{path}: a worker entry has no whole timesteps_trained") from None
 

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hddpg_zoo.benchmark.methods import worker_steps
 from hddpg_zoo.benchmark.morl_sides import (
     ProtocolMethod,
     SideRun,
@@ -44,7 +45,7 @@ from hddpg_zoo.benchmark.morl_sides import (
     pinned_env,
     register_protocol_method,
 )
-from sb3_hddpg.artifacts.manifests import load_workers, read_workers_manifest
+from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.gpi import GpiSelector, gpi_of
@@ -156,12 +157,7 @@ def trained_steps(folder: Path) -> dict[str, int]:
 
     :param folder: the run folder (its ``workers/manifest.json``).
     """
-    entries = read_workers_manifest(folder / "workers" / "manifest.json").entries
-    return {
-        f"workers/{name}": int(entry["timesteps_trained"])
-        + int((entry.get("term_critic") or {}).get("env_steps", 0))
-        for name, entry in entries.items()
-    }
+    return {f"workers/{name}": steps for name, steps in worker_steps(folder).items()}
 
 
 def train_gpi(run: SideRun) -> TrainedSide:
