@@ -610,3 +610,20 @@ def test_a_task_interrupted_and_resumed_keeps_the_time_of_both_invocations(tmp_p
     # This invocation's time, and both invocations' (each slept 0.2 s).
     assert record["wall_time_s"] >= 0.2 and record["wall_time_s_total"] >= record["wall_time_s"] + 0.2
     assert not elapsed_path(tmp_path, task).exists()  # counted once: a later --redo starts from 0
+
+
+def test_worker_steps_count_each_workers_training_and_its_critics_rollouts(tmp_path):
+    from hddpg_zoo.benchmark.methods import worker_steps, workers_steps
+
+    shipped = Path(__file__).resolve().parents[1] / "docs" / "results" / "cheetah" / "seed-0" / "workers"
+    manifest = json.loads((shipped / "manifest.json").read_text())
+    manifest["workers"]["speed"]["term_critic"] = {"kind": "state_value", "env_steps": 40}
+    (tmp_path / "workers").mkdir()
+    (tmp_path / "workers" / "manifest.json").write_text(json.dumps(manifest))
+    trained = {n: e["timesteps_trained"] for n, e in manifest["workers"].items()}
+    assert worker_steps(tmp_path) == {"speed": trained["speed"] + 40, "energy": trained["energy"]}
+    assert workers_steps(tmp_path) == sum(trained.values()) + 40
+    manifest["workers"]["energy"]["timesteps_trained"] = "many"
+    (tmp_path / "workers" / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="no whole timesteps_trained"):
+        worker_steps(tmp_path)
