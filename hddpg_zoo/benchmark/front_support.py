@@ -34,7 +34,8 @@ def support_weights(settings: MethodSettings) -> list[dict[str, float]]:
 def support_folder(task: MethodTask, settings: MethodSettings, folder: Path) -> Path:
     """
     The seed's support, built or finished (a resumed task keeps what is done): the seed's workers copied,
-    the weighted workers trained beside them, every worker's state-value critic fitted.
+    the weighted workers trained beside them, every worker's critic fitted on rollouts (a state value, or a
+    discrete worker's Q).
 
     :param folder: the seed's folder (its per-term workers).
     :return: the support's run folder (its ``workers/``).
