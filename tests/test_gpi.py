@@ -281,6 +281,17 @@ def test_fit_critics_gives_discrete_workers_q_over_actions_and_refuses_a_mixed_f
     env = hierarchy.make_env()
     action, _ = hierarchy.predict(env.reset(seed=0)[0], deterministic=True)
     assert env.action_space.contains(int(np.asarray(action).reshape(-1)[0]))
+    # GPI over the workers' own actions: the chosen worker's action, the one whose critic values it most.
+    policies = Hierarchy.gpi(workers, {"death": 0.2, "gold": 0.5, "gem": 0.3}, over_actions=False)
+    for seed in range(5):
+        obs = np.asarray(env.reset(seed=seed)[0], dtype=np.float32)
+        scores, actions = policies._gpi.scores(obs, policies.config.preferences)
+        own = [int(np.asarray(a).reshape(-1)[0]) for a in actions]
+        best = int(np.argmax([scores[i, a] for i, a in enumerate(own)]))
+        assert int(np.asarray(policies.predict(obs, deterministic=True)[0]).reshape(-1)[0]) == own[best]
+    policies.save(tmp_path / "gpi-policies.zip")
+    loaded = Hierarchy.load(tmp_path / "gpi-policies.zip")
+    assert loaded.config.selection == "gpi-policies" and not loaded._gpi.over_actions
     # A folder of discrete and continuous workers would end with critics of two kinds: refused in one line.
     mixed = tmp_path / "mixed"
     shutil.copytree(root, mixed)

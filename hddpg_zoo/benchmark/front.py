@@ -100,6 +100,7 @@ FRONT_SETTINGS = (
     "front_support",
     "front_start",
     "front_critic_steps",
+    "front_gpi",
     "morl_python",
 )
 
@@ -343,6 +344,7 @@ def run_front(task: MethodTask, settings: MethodSettings, folder: Path) -> dict[
             lambda label, policy: _test_point(label, policy, env, settings, spec),
             run_dir / "gpi.zip",
             sweep,
+            over_actions=settings.front_gpi == "actions",
         )
         if gpi is not None:  # GPI over the same workers: no manager, no env steps of its own
             front[GPI_MEMBER] = member_fields(gpi, spec)

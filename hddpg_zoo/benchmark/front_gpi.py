@@ -27,6 +27,7 @@ def gpi_points(
     point: Callable[[str, Policy], FrontPoint],
     bundle: Path | None = None,
     sweep: PreferenceSpace | None = None,
+    over_actions: bool = True,
 ) -> list[FrontPoint] | None:
     """
     GPI's points over the seed's workers, one per preference of the sweep, or ``None`` when a worker has no
@@ -39,13 +40,15 @@ def gpi_points(
     :param point: a policy's test point under a label (the front's own measure).
     :param bundle: where to save the GPI bundle (the one model that re-evaluates this member), if anywhere.
     :param sweep: the preferences, over workers of ``folder`` (default: ``spec``'s, over the terms).
+    :param over_actions: discrete workers' GPI over actions, else over the workers' own actions
+        (``Hierarchy.gpi``).
     """
     sweep = sweep or spec.sweep
     workers = load_workers(folder)
     if set(workers.critics) != set(workers) or not set(sweep.names) <= set(workers):
         return None
     specs = {name: reward_specs_of(workers).get(name, name) for name in sweep.names}
-    gpi = Hierarchy.gpi(workers)
+    gpi = Hierarchy.gpi(workers, over_actions=over_actions)
     if bundle is not None:
         bundle.parent.mkdir(parents=True, exist_ok=True)
         gpi.save(bundle)

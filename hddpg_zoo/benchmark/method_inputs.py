@@ -94,6 +94,9 @@ class MethodSettings(Protocol):
     @property
     def front_critic_steps(self) -> int: ...
 
+    @property
+    def front_gpi(self) -> str: ...
+
     def manager_run_options(
         self, seed: int, algo: str = "ddpg", env_steps: int | None = None
     ) -> RunOptions: ...

@@ -189,6 +189,8 @@ class BenchmarkSettings:
     :param front_critic_steps: the support method fits each worker a critic on this many env steps of its
         rollouts (``fit-critics``: a state value over the full state, or a discrete worker's Q over its
         actions; 0: the workers keep the critics they have).
+    :param front_gpi: the front's GPI member over discrete workers: ``actions`` (GPI over actions) or
+        ``policies`` (the action of the worker whose critic values its own action most).
     :param morl_python: the python of a virtual environment with MORL-baselines: the front then adds its
         CAPQL, trained for the hierarchy's env steps (:mod:`.morl`; an MO-Gymnasium env only). Records state
         its version instead of its path (:func:`~.machine_paths.settings_record`).
@@ -221,6 +223,7 @@ class BenchmarkSettings:
     front_support: str | None = None
     front_start: str | None = None
     front_critic_steps: int = 0
+    front_gpi: str = "actions"
     morl_python: str | None = None
 
     def __post_init__(self) -> None:
@@ -336,6 +339,10 @@ class BenchmarkSettings:
         if self.front_support is not None:
             for part in self.front_support.split(";"):
                 parse_term_weights(part)
+        if self.front_gpi not in ("actions", "policies"):
+            raise ValueError(
+                f"Expected the front's GPI to be actions or policies, actually: {self.front_gpi!r:.40}"
+            )
         if self.front_start not in (None, "gpi"):
             raise ValueError(
                 f"Expected the front's start to be gpi or none, actually: {self.front_start!r:.40}"

@@ -34,6 +34,7 @@ from hddpg_zoo.cli.benchmark_protocol import ProtocolOpt, protocol_command
 from hddpg_zoo.cli.export_models import export_run
 from hddpg_zoo.cli.front_options import (
     FrontCriticStepsOpt,
+    FrontGpiOpt,
     FrontManagerOpt,
     FrontMotionOpt,
     FrontOptionStepsOpt,
@@ -312,6 +313,7 @@ _SETTINGS_OPTIONS = {
     "front_support": "--front-support",
     "front_start": "--front-start",
     "front_critic_steps": "--front-critic-steps",
+    "front_gpi": "--front-gpi",
     "morl_python": "--morl-python",
 }
 
@@ -356,6 +358,7 @@ def benchmark_command(
     front_support: FrontSupportOpt = None,
     front_start: FrontStartOpt = None,
     front_critic_steps: FrontCriticStepsOpt = 0,
+    front_gpi: FrontGpiOpt = "actions",
     morl_python: MorlPythonOpt = None,
     terms: TermsOpt = None,
     term_bounds: TermBoundsOpt = None,

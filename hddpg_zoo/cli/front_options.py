@@ -83,6 +83,14 @@ FrontStartOpt = Annotated[
         "critics (train-manager --init-from-gpi; the manager then trains on SB3).",
     ),
 ]
+FrontGpiOpt = Annotated[
+    str,
+    typer.Option(
+        "--front-gpi",
+        help="The front's GPI member over discrete workers: 'actions' (argmax over actions of the best "
+        "worker's value) or 'policies' (the action of the worker whose critic values its own action most).",
+    ),
+]
 FrontCriticStepsOpt = Annotated[
     int,
     typer.Option(

@@ -20,6 +20,11 @@ from sb3_hddpg.hierarchy.frozen import FrozenWorker
 
 #: The selection mode of a hierarchy that acts by GPI (no manager; the preference weighs the terms).
 GPI_SELECTION = "gpi"
+#: GPI over the workers' own actions: the worker maximising ``w . Q_i(s, pi_i(s))`` acts, also for discrete
+#: workers, whose critics are then read only where their data is (their own actions).
+GPI_POLICIES_SELECTION = "gpi-policies"
+#: Every selection mode that acts by GPI.
+GPI_SELECTIONS = (GPI_SELECTION, GPI_POLICIES_SELECTION)
 
 
 class GpiSelector:
@@ -29,9 +34,15 @@ class GpiSelector:
     :param workers: the frozen workers (each with the observation indices it sees).
     :param critics: each worker's critic, in the same order: over the same terms, of one discount, all of
         one kind (continuous, discrete or state values).
+    :param over_actions: for discrete workers, take ``argmax_a max_i w . Q_i(s, a)`` (GPI over actions); else
+        the action of the worker maximising ``w . Q_i(s, pi_i(s))``. A critic fitted on a worker's own
+        transitions or rollouts is least reliable at the actions the worker rarely takes, which only GPI over
+        actions reads.
     """
 
-    def __init__(self, workers: Sequence[FrozenWorker], critics: Sequence[TermCritic]) -> None:
+    def __init__(
+        self, workers: Sequence[FrozenWorker], critics: Sequence[TermCritic], over_actions: bool = True
+    ) -> None:
         if len(workers) != len(critics) or not workers:
             raise ValueError(
                 f"Expected one critic per worker, actually {len(critics)} for {len(workers)} workers"
@@ -60,6 +71,7 @@ class GpiSelector:
         #: The terms the preference weighs, in the critics' order.
         self.terms = tuple(terms)
         self.discrete = critics[0].spec.discrete
+        self.over_actions = over_actions
         self.state_value = critics[0].spec.state_value
 
     def scores(self, obs: np.ndarray, preference: Mapping[str, float]) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -85,9 +97,13 @@ class GpiSelector:
         action (for discrete workers GPI's, which may differ from that worker's own greedy one).
         """
         scores, actions = self.scores(obs, preference)
-        if self.discrete:
+        if self.discrete and self.over_actions:
             worker, action = np.unravel_index(int(np.argmax(scores)), scores.shape)
             return int(worker), np.asarray(action, dtype=np.int64)
+        if self.discrete:  # each worker valued at its own action
+            own = [int(np.asarray(a).reshape(-1)[0]) for a in actions]
+            best = int(np.argmax(scores[np.arange(len(own)), own]))
+            return best, np.asarray(own[best], dtype=np.int64)
         best = int(np.argmax(scores))
         return best, np.asarray(actions[best] if actions else self.workers[best].act(obs))
 
@@ -103,23 +119,29 @@ def check_gpi_preference(preference: Mapping[str, object], terms: Sequence[str])
 
 
 def gpi_of(
-    workers: Sequence[FrozenWorker], critics: Mapping[str, TermCritic], names: Sequence[str]
+    workers: Sequence[FrozenWorker],
+    critics: Mapping[str, TermCritic],
+    names: Sequence[str],
+    selection: str = GPI_SELECTION,
 ) -> GpiSelector:
-    """The GPI selector over named workers and their critics (a ``ValueError`` naming any without one)."""
+    """
+    The GPI selector over named workers and their critics (a ``ValueError`` naming any without one), over
+    actions or over the workers' own actions as ``selection`` (one of :data:`GPI_SELECTIONS`) says.
+    """
     missing = [name for name in names if name not in critics]
     if missing:
         raise ValueError(
             f"GPI needs a per-term critic for every worker; {missing} have none (train-workers trains one for "
             "every off-policy worker)"
         )
-    return GpiSelector(workers, [critics[name] for name in names])
+    return GpiSelector(workers, [critics[name] for name in names], over_actions=selection == GPI_SELECTION)
 
 
 def check_gpi_manager(manager: object | None, selection: str) -> None:
     """A hierarchy has a manager unless it selects by GPI, which acts with its workers' critics only."""
-    if (manager is None) != (selection == GPI_SELECTION):
+    if (manager is None) != (selection in GPI_SELECTIONS):
         raise ValueError(
-            f"Expected a manager for selection {selection!r}, or none for {GPI_SELECTION!r}"
+            f"Expected a manager for selection {selection!r}, or none for {list(GPI_SELECTIONS)}"
             if manager is None
-            else f"Selection {GPI_SELECTION!r} acts with the workers' critics: it takes no manager"
+            else f"Selection {selection!r} acts with the workers' critics: it takes no manager"
         )

@@ -55,7 +55,13 @@ from sb3_hddpg.hierarchy.fit import (
     training_env,
 )
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
-from sb3_hddpg.hierarchy.gpi import GPI_SELECTION, check_gpi_manager, check_gpi_preference, gpi_of
+from sb3_hddpg.hierarchy.gpi import (
+    GPI_POLICIES_SELECTION,
+    GPI_SELECTION,
+    check_gpi_manager,
+    check_gpi_preference,
+    gpi_of,
+)
 from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.hierarchy.options import OptionState
 from sb3_hddpg.hierarchy.selection import SelectionConfig, SimplexMap, check_preferences, get_selector
@@ -139,7 +145,9 @@ class Hierarchy:
         self._manager_input = manager_input_of(config, self.observation_space, layout, len(self.names))
         # The manager's input is built here (its state, motion and weights), so its frozen copy sees it all.
         self._manager = FrozenWorker(manager) if manager is not None else None
-        self._gpi = gpi_of(self._frozen, self.critics, self.names) if manager is None else None
+        self._gpi = (
+            gpi_of(self._frozen, self.critics, self.names, config.selection) if manager is None else None
+        )
         if self._gpi is not None:
             config = replace(config, preferences=check_gpi_preference(config.preferences, self._gpi.terms))
         self.config = config
@@ -170,6 +178,7 @@ class Hierarchy:
         env_id: str | None = None,
         env_kwargs: dict[str, Any] | None = None,
         critics: Mapping[str, TermCritic] | None = None,
+        over_actions: bool = True,
     ) -> Hierarchy:
         """
         A hierarchy that acts by generalized policy improvement (:mod:`~sb3_hddpg.hierarchy.gpi`), with no
@@ -181,8 +190,11 @@ class Hierarchy:
         :param env_id: the shared env (default: the workers').
         :param env_kwargs: its keyword arguments.
         :param critics: name -> per-term critic (default: the critics the workers carry).
+        :param over_actions: with discrete workers, GPI over actions (``selection="gpi"``); ``False``: the
+            action of the worker whose critic values its own action most (``"gpi-policies"``).
         """
-        config = SelectionConfig(preferences=dict(preference or {}), selection=GPI_SELECTION)
+        selection = GPI_SELECTION if over_actions else GPI_POLICIES_SELECTION
+        config = SelectionConfig(preferences=dict(preference or {}), selection=selection)
         return cls(None, workers, config, env_id=env_id, env_kwargs=env_kwargs, critics=critics)
 
     def make_env(self, **overrides: object) -> gym.Env:

@@ -27,7 +27,7 @@ from sb3_hddpg.artifacts.limits import (
 )
 from sb3_hddpg.artifacts.values import WRAPPER_SETTINGS, Bound, is_finite_number
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
-from sb3_hddpg.hierarchy.gpi import GPI_SELECTION
+from sb3_hddpg.hierarchy.gpi import GPI_SELECTIONS
 from sb3_hddpg.hierarchy.option_end import OptionEnd
 from sb3_hddpg.names import PLAIN_NAME
 
@@ -377,12 +377,12 @@ def check_selection_settings(selection: object, names: Sequence[str], what: str)
     if unknown:
         raise LimitError(f"{what}: unknown key {brief(unknown[0])}")
     out = dict(selection)
-    if "selection" in out and out["selection"] not in [*SELECTORS, GPI_SELECTION]:
+    if "selection" in out and out["selection"] not in [*SELECTORS, *GPI_SELECTIONS]:
         raise LimitError(
-            f"{what}.selection: expected one of {[*SELECTORS, GPI_SELECTION]}, got {brief(out['selection'])}"
+            f"{what}.selection: expected one of {[*SELECTORS, *GPI_SELECTIONS]}, got {brief(out['selection'])}"
         )
     _check_numbers(out, len(names), what)
-    if out.get("selection") == GPI_SELECTION:  # GPI's preference weighs the terms, not the workers
+    if out.get("selection") in GPI_SELECTIONS:  # GPI's preference weighs the terms, not the workers
         _check_term_weights(out.get("preferences", {}), f"{what}.preferences")
     else:
         _check_preference_factors(out.get("preferences", {}), names, f"{what}.preferences")

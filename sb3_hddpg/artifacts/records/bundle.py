@@ -71,7 +71,11 @@ class BundleManifest(JsonRecord):
         names, workers, manager = value.get("worker_names"), value.get("workers"), value.get("manager")
         selection = value.get("selection")
         # Only a GPI hierarchy acts without a manager (its workers' critics select).
-        managerless = manager is None and isinstance(selection, dict) and selection.get("selection") == "gpi"
+        managerless = (
+            manager is None
+            and isinstance(selection, dict)
+            and selection.get("selection") in ("gpi", "gpi-policies")
+        )
         if (
             not isinstance(names, list)
             or not isinstance(workers, dict)
