@@ -295,13 +295,13 @@ def test_gpi_at_the_equal_weighting_is_compared_with_each_worker_alone():
     front = {"planes": {"terms": [["goal_term", True], ["avoid_term", True]]}, "points": points}
     lines = _equal_weight_lines(front)
     by_comparison = {line.split(":")[0]: line for line in lines if line.startswith("- gpi vs")}
-    terms_vs_goal = by_comparison["- gpi vs goal (sum of the normalised terms)"]
+    terms_vs_goal = by_comparison["- gpi vs goal (normalised terms a step, summed)"]
     assert terms_vs_goal.split("; ")[0].endswith("behind") and "difference -0.135 " in terms_vs_goal
     assert "difference -0.115 " in by_comparison["- gpi vs goal (reach reward)"]
-    assert by_comparison["- gpi vs avoid (sum of the normalised terms)"].split("; ")[0].endswith("ahead")
+    assert by_comparison["- gpi vs avoid (normalised terms a step, summed)"].split("; ")[0].endswith("ahead")
     # A seed without a worker alone is left out of the pairs.
     del points["0"]["goal"]
     by_comparison = {
         line.split(":")[0]: line for line in _equal_weight_lines(front) if line.startswith("- gpi")
     }
-    assert "difference -0.14 " in by_comparison["- gpi vs goal (sum of the normalised terms)"]
+    assert "difference -0.14 " in by_comparison["- gpi vs goal (normalised terms a step, summed)"]

@@ -173,8 +173,8 @@ def _term_weights(label: str, terms: list[str]) -> dict[str, float] | None:
 def _equal_weight_lines(front: FrontResults) -> list[str]:
     """
     GPI at the equal weighting of the terms (the unweighted preference) against each per-term worker alone,
-    paired by seed: the sum of the normalised terms (the unweighted objective) and, where measured, the reach
-    reward.
+    paired by seed: the sum of the terms' per-step normalised means and, where measured, the reach reward
+    (the episode's unweighted normalised return, which also counts how long the episode lasts).
     """
     terms = [str(key).removesuffix("_term") for key, _ in front["planes"].get("terms", [])]
     by_seed = {s: m for s, m in front["points"].items() if "gpi" in m and all(t in m for t in terms)}
@@ -209,7 +209,7 @@ def _equal_weight_lines(front: FrontResults) -> list[str]:
         )
         higher = sum(value(per_seed[s], measure) > value(by_seed[s][worker][0], measure) for s in seeds)
         word = verdict_word(c["difference"], c["ci_low"], c["ci_high"], c["p_value"], len(seeds), higher)
-        what = "sum of the normalised terms" if measure == "terms_sum" else "reach reward"
+        what = "normalised terms a step, summed" if measure == "terms_sum" else "reach reward"
         lines.append(
             f"- gpi vs {worker} ({what}): {word}; difference {c['difference']:.4g} "
             f"[{c['ci_low']:.4g}, {c['ci_high']:.4g}], p {c['p_value']:.3f}"
