@@ -176,8 +176,8 @@ def _equal_weight_lines(front: FrontResults) -> list[str]:
     paired by seed: the sum of the terms' per-step normalised means and, where measured, the reach reward
     (the episode's unweighted normalised return, which also counts how long the episode lasts).
     """
-    terms = [str(key).removesuffix("_term") for key, _ in front["planes"].get("terms", [])]
-    by_seed = {s: m for s, m in front["points"].items() if "gpi" in m and all(t in m for t in terms)}
+    terms = [str(key).removesuffix("_term") for key, _ in front.get("planes", {}).get("terms", [])]
+    by_seed = {s: m for s, m in front.get("points", {}).items() if "gpi" in m and all(t in m for t in terms)}
     if not terms or not by_seed:
         return []
     per_seed: dict[str, dict[str, float]] = {}
