@@ -30,6 +30,7 @@ from hddpg_zoo.benchmark import (
 from hddpg_zoo.benchmark.front import FRONT_METHOD
 from hddpg_zoo.benchmark.front_points import preference_label
 from hddpg_zoo.benchmark.front_support import SUPPORT_METHOD
+from hddpg_zoo.benchmark.record_files import COPIED_FROM
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
 from sb3_hddpg.artifacts.limits import (
     MAX_MODEL_FILE_BYTES,
@@ -205,10 +206,11 @@ def copy_model(model: ModelFile, root: Path, dest: Path) -> IndexEntry:
 def _read_record(record_file: Path) -> tuple[str, int, list[str]] | None:
     """
     A finished run's key, seed and (for the workers' record) worker names, every one checked before it
-    becomes part of a path; ``None`` for a run that is not done.
+    becomes part of a path; ``None`` for a run that is not done, or one copied from another benchmark (its
+    models are there).
     """
     record = read_record_file(record_file)
-    if not isinstance(record, dict) or record.get("status") != "done":
+    if not isinstance(record, dict) or record.get("status") != "done" or COPIED_FROM in record:
         return None
     what = str(record_file)
     key = record.get("method")

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -243,7 +245,6 @@ def test_the_headline_figures_are_drawn_from_the_records(final_run):
 
 
 def test_report_rewrites_a_shipped_runs_own_results_from_its_records(tmp_path):
-    import json
     import shutil
 
     from hddpg_zoo.benchmark.pages import run_results
@@ -305,3 +306,65 @@ def test_gpi_at_the_equal_weighting_is_compared_with_each_worker_alone():
         line.split(":")[0]: line for line in _equal_weight_lines(front) if line.startswith("- gpi")
     }
     assert "difference -0.14 " in by_comparison["- gpi vs goal (normalised terms a step, summed)"]
+
+
+def test_a_front_sets_its_workers_benchmarks_flat_runs_beside_its_equal_weighting(tmp_path):
+    import shutil
+
+    from hddpg_zoo.benchmark.front_pages import _equal_weight_lines
+    from hddpg_zoo.benchmark.workers_source import copy_flat_runs
+
+    shipped = Path(__file__).parent.parent / "docs" / "results" / "highway" / "records"
+    source = tmp_path / "source"
+    for method, seed in (("dqn", 0), ("dqn", 1), ("term2-only", 0)):
+        (source / "records" / method).mkdir(parents=True, exist_ok=True)
+        shutil.copy(shipped / method / f"seed-{seed}.json", source / "records" / method / f"seed-{seed}.json")
+
+    def front(**kwargs):
+        kwargs = {"seeds": [0, 1, 2], "final_test": True, "test_episodes": 100, **kwargs}
+        return BenchmarkSettings(
+            methods=["hddpg-support"], scenario="front", workers_from=str(source), **kwargs
+        )
+
+    out = tmp_path / "front"
+    # Only flat agents (a worker alone is a member of the front already), only on the same test episodes.
+    assert copy_flat_runs(front(final_test=False, test_episodes=20), out) == []
+    assert copy_flat_runs(replace(front(), scenario="standard"), out) == []
+    copied = copy_flat_runs(front(), out)
+    assert [(r["method"], r["seed"]) for r in copied] == [("dqn", 0), ("dqn", 1)]
+    assert not (out / "records" / "term2-only").exists()
+    record = json.loads((out / "records" / "dqn" / "seed-1.json").read_text())
+    assert record["copied_from"] == "../source/records/dqn/seed-1.json"
+    assert record["episodes"] == json.loads((shipped / "dqn" / "seed-1.json").read_text())["episodes"]
+
+    def point(label, reach):
+        return {"label": label, "speed_term": 0.5, "lane_term": 0.5, "mean_reach_reward": reach}
+
+    reach = {"0": 60.0, "1": 50.0, "2": 70.0}
+    points = {
+        seed: {
+            "gpi": [point("speed=1,lane=1", value)],
+            "speed": [point("speed", value - 1)],
+            "lane": [point("lane", value - 2)],
+        }
+        for seed, value in reach.items()
+    }
+    flat = {
+        seed: {"mean_reach_reward": value, "env_steps": 130_000.0}
+        for seed, value in (("0", 55.0), ("1", 56.0))
+    }
+    results = {
+        "planes": {"terms": [["speed_term", True], ["lane_term", True]]},
+        "points": points,
+        "flat": {"dqn": flat},
+    }
+    line = next(line for line in _equal_weight_lines(results) if line.startswith("- gpi vs dqn"))
+    # Paired over the two seeds both have: (60 - 55 + 50 - 56) / 2.
+    assert line.startswith(
+        "- gpi vs dqn (reach reward; dqn of the workers' benchmark, 130,000 env steps a seed)"
+    )
+    assert "difference -0.5 " in line
+    # Its models stay in the benchmark it came from: an export of the front does not look for them.
+    from hddpg_zoo.model_export import run_models
+
+    assert run_models(out, out / "records" / "dqn" / "seed-1.json") == []

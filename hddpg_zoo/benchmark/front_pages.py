@@ -199,8 +199,9 @@ def _equal_weight_lines(front: FrontResults) -> list[str]:
     pairs = [(worker, measure) for worker in terms for measure in measures]
     lines = [
         "",
-        "GPI at the equal weighting of the terms (the unweighted preference) against each worker alone, paired "
-        "by seed; each a paired t test at 95 %, not adjusted, since each answers its own question:",
+        "GPI at the equal weighting of the terms (the unweighted preference) against each worker alone"
+        + (" and each flat agent" if front.get("flat") else "")
+        + ", paired by seed; each a paired t test at 95 %, not adjusted, since each answers its own question:",
     ]
     for worker, measure in pairs:
         c = paired_t_interval(
@@ -213,6 +214,31 @@ def _equal_weight_lines(front: FrontResults) -> list[str]:
         lines.append(
             f"- gpi vs {worker} ({what}): {word}; difference {c['difference']:.4g} "
             f"[{c['ci_low']:.4g}, {c['ci_high']:.4g}], p {c['p_value']:.3f}"
+        )
+    return lines + _flat_lines(front, per_seed)
+
+
+def _flat_lines(front: FrontResults, gpi: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """
+    GPI's equal-weighting reach reward against each flat agent of the workers' benchmark (same test episodes,
+    paired by seed), with both sides' env steps: GPI's are every worker's and critic's.
+    """
+    lines = []
+    for method, flat in front.get("flat", {}).items():
+        seeds = sorted(set(flat) & set(gpi))
+        if len(seeds) < 2 or not all("mean_reach_reward" in gpi[s] for s in seeds):
+            continue
+        ours = [float(gpi[s]["mean_reach_reward"]) for s in seeds]
+        theirs = [flat[s]["mean_reach_reward"] for s in seeds]
+        c = paired_t_interval(ours, theirs)
+        higher = sum(a > b for a, b in zip(ours, theirs, strict=True))
+        word = verdict_word(c["difference"], c["ci_low"], c["ci_high"], c["p_value"], len(seeds), higher)
+        steps = sorted({int(flat[s]["env_steps"]) for s in seeds})
+        budget = f"{steps[0]:,}" if len(steps) == 1 else f"{steps[0]:,} to {steps[-1]:,}"
+        lines.append(
+            f"- gpi vs {method} (reach reward; {method} of the workers' benchmark, {budget} env steps a seed): "
+            f"{word}; "
+            f"difference {c['difference']:.4g} [{c['ci_low']:.4g}, {c['ci_high']:.4g}], p {c['p_value']:.3f}"
         )
     return lines
 

@@ -74,7 +74,9 @@ def with_crash_rate(point: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def front_results(
-    runs: Mapping[int, JsonObject], workers: Mapping[int, JsonObject] | None = None
+    runs: Mapping[int, JsonObject],
+    workers: Mapping[int, JsonObject] | None = None,
+    flat: Mapping[str, Mapping[int, JsonObject]] | None = None,
 ) -> FrontResults:
     """
     The front scenario's statistics over seeds: per member and plane the per-seed hypervolumes and their
@@ -84,6 +86,8 @@ def front_results(
 
     :param runs: seed -> the ``hddpg-front`` record.
     :param workers: seed -> the workers' task record (for the hierarchy's wall-clock beside a MORL learner's).
+    :param flat: flat method -> seed -> its record, scored on the front's test episodes (beside the front's
+        equal-weighting point: each seed's reach reward and training env steps).
     """
     seeds = sorted(runs)
     first: Mapping[str, Any] = runs[seeds[0]] if seeds else {}
@@ -130,6 +134,12 @@ def front_results(
     morl = morl_results(runs, workers or {})
     if morl is not None:
         results["morl"] = morl
+    flat_runs = {
+        method: {str(s): _flat_point(by_seed[s]) for s in seeds if s in by_seed}
+        for method, by_seed in (flat or {}).items()
+    }
+    if any(flat_runs.values()):
+        results["flat"] = {method: points for method, points in flat_runs.items() if points}
     if "outcomes" in planes:
         results["safe_touch"] = {
             "contacts": SAFE_CONTACTS,
@@ -141,6 +151,17 @@ def front_results(
             },
         }
     return results
+
+
+def _flat_point(record: Mapping[str, Any]) -> dict[str, float]:
+    """A flat run's reach reward on its test episodes (their mean) and the env steps it trained."""
+    episodes = record.get("episodes") or []
+    reach = (
+        float(np.mean([float(e["reach_reward"]) for e in episodes]))
+        if episodes
+        else float(record["test"]["mean_reach_reward"])
+    )
+    return {"mean_reach_reward": reach, "env_steps": float(record["history"][-1]["total_timesteps"])}
 
 
 def _front_comparisons(

@@ -15,6 +15,10 @@ from hddpg_zoo.benchmark.tasks import Task
 from hddpg_zoo.records import read_benchmark_record
 from sb3_hddpg.artifacts.limits import read_json_file
 
+#: A record's field naming the record it was copied from (relative to the folder): a run of another
+#: benchmark, whose models stay there (:func:`~.workers_source.copy_flat_runs`).
+COPIED_FROM = "copied_from"
+
 
 def seed_dir(out: Path, seed: int) -> Path:
     """The folder of one seed's models."""

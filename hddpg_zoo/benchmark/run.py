@@ -48,7 +48,12 @@ from hddpg_zoo.benchmark.report import write_outputs
 from hddpg_zoo.benchmark.settings import BenchmarkSettings
 from hddpg_zoo.benchmark.statistics import check_episode_sets, compute_results
 from hddpg_zoo.benchmark.tasks import Task, plan_tasks, task_cost
-from hddpg_zoo.benchmark.workers_source import check_workers_source, copy_workers, worker_names
+from hddpg_zoo.benchmark.workers_source import (
+    check_workers_source,
+    copy_flat_runs,
+    copy_workers,
+    worker_names,
+)
 from hddpg_zoo.executors import make_executor
 from hddpg_zoo.provenance import CodeProvenance, code_provenance
 from hddpg_zoo.records import BenchmarkResults, benchmark_record
@@ -325,7 +330,8 @@ def run_benchmark(
     )
     records.update({by_label[label]: record for label, record in outcome.results.items()})
     failed = {by_label[label]: outcome.failure_message(label) for label in outcome.failures}
-    computed = compute_results(settings, [records[t] for t in tasks if t in records])
+    finished = [records[t] for t in tasks if t in records] + copy_flat_runs(settings, out)
+    computed = compute_results(settings, finished)
     results = replace(computed, settings=header["settings"]).with_run(
         wall_time_s_this_invocation=wall,
         wall_time_s_all_invocations=sum(float(i.get("wall_time_s", 0.0)) for i in invocations),

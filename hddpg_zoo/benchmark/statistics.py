@@ -40,6 +40,7 @@ from hddpg_zoo.benchmark.methods import (
 )
 from hddpg_zoo.benchmark.settings import BenchmarkSettings
 from hddpg_zoo.benchmark.tasks import Task, comparison_pairs
+from hddpg_zoo.benchmark.workers_source import flat_baselines
 from hddpg_zoo.records.results import (
     BenchmarkResults,
     CurveBand,
@@ -231,14 +232,23 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[JsonObject]) 
         workers=workers,
         colours={key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
         transfer=transfer_results(settings, by_method) if settings.scenario == "transfer" else None,
-        front=_front_of(by_method, worker_records),
+        front=_front_of(by_method, worker_records, settings),
     )
 
 
-def _front_of(by_method: Mapping[str, Any], worker_records: Any) -> FrontResults | None:
-    """The front's statistics: of ``hddpg-front``'s records, else of ``hddpg-support``'s (``None``: neither ran)."""
+def _front_of(
+    by_method: Mapping[str, Any], worker_records: Any, settings: BenchmarkSettings
+) -> FrontResults | None:
+    """
+    The front's statistics: of ``hddpg-front``'s records, else of ``hddpg-support``'s (``None``: neither ran),
+    with the flat runs a front scenario copied from its workers' benchmark
+    (:func:`~.workers_source.copy_flat_runs`).
+    """
     method = next((m for m in (FRONT_METHOD, SUPPORT_METHOD) if m in by_method), None)
-    return front_results(by_method[method], worker_records) if method is not None else None
+    if method is None:
+        return None
+    flat = {m: by_method[m] for m in flat_baselines() if m in by_method and m not in settings.method_keys}
+    return front_results(by_method[method], worker_records, flat)
 
 
 def method_statistics(

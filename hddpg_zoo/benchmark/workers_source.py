@@ -1,20 +1,24 @@
 """
 A benchmark's workers taken from another benchmark (``workers_from``): checked to be the workers this one
 would train (same config blocks, budget, backend, seed and evaluation schedule) before anything runs, and
-copied seed by seed with their hashes checked.
+copied seed by seed with their hashes checked; a front's flat baselines taken from the same benchmark
+(:func:`copy_flat_runs`), where they were scored on the same test episodes.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from hddpg_zoo.benchmark.benchmark_file import (
     read_benchmark_file,
 )
+from hddpg_zoo.benchmark.machine_paths import relative_to_run
 from hddpg_zoo.benchmark.methods import (
+    METHOD_REGISTRY,
     WORKERS,
 )
-from hddpg_zoo.benchmark.record_files import as_stored, read_record, seed_dir
+from hddpg_zoo.benchmark.record_files import COPIED_FROM, as_stored, read_record, record_path, seed_dir
 from hddpg_zoo.benchmark.settings import BenchmarkSettings
 from hddpg_zoo.benchmark.tasks import Task
 from sb3_hddpg.artifacts.io import atomic_write_bytes, atomic_write_json
@@ -124,3 +128,38 @@ def copy_workers(source: Path, folder: Path) -> None:
         history = source / "evaluations" / f"{name}.json"
         atomic_write_json(folder / "evaluations" / f"{name}.json", read_json_file(history))
     save_manifest(folder / "workers" / "manifest.json", manifest)
+
+
+def flat_baselines() -> list[str]:
+    """The methods that learn alone, without the seed's workers: the flat agents a front can be set beside."""
+    return [name for name, method in METHOD_REGISTRY.items() if method.baseline and not method.needs_workers]
+
+
+def copy_flat_runs(settings: BenchmarkSettings, out: Path) -> list[dict[str, Any]]:
+    """
+    The flat baselines of a front's workers' benchmark, beside the front: a front scenario trains no flat
+    agent, yet its equal-weighting point answers the question "as good as one agent trained on the summed
+    reward?". Where ``settings.workers_from`` holds finished flat runs of this benchmark's seeds, scored on
+    this benchmark's test episodes (the same seeds, so pairs by seed hold), their records are copied to
+    ``out``'s ``records/`` (each naming its source) and returned; others are left out, not rescored.
+
+    :param settings: the benchmark's settings (nothing is copied unless it is a front with ``workers_from``).
+    :param out: the benchmark folder.
+    :return: the copied records.
+    """
+    if settings.workers_from is None or settings.scenario != "front":
+        return []
+    source = Path(settings.workers_from)
+    copied = []
+    for method in flat_baselines():
+        for seed in settings.seeds:
+            task = Task(method, seed)
+            record = read_record(source, task)
+            if record is None or record.get("test_episode_set") != settings.test_episode_set:
+                continue
+            if not record.get("episodes"):  # its episodes are in the source's episodes.csv: not copied
+                continue
+            record[COPIED_FROM] = relative_to_run(str(record_path(source, task).absolute()), out)
+            atomic_write_json(record_path(out, task), record)
+            copied.append(record)
+    return copied

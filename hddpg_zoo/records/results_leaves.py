@@ -257,3 +257,6 @@ class FrontResults(TypedDict):
     safe_touch: NotRequired[SafeTouch]
     #: a MORL library's learner beside the hierarchy (``benchmark --morl-python``)
     morl: NotRequired[MorlResults]
+    #: flat method -> seed -> its reach reward and env steps: flat runs of the workers' benchmark on the same
+    #: test episodes, beside the equal-weighting point
+    flat: NotRequired[dict[str, dict[str, dict[str, float]]]]
