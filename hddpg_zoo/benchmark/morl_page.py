@@ -126,7 +126,10 @@ def _indicators(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str
 
 
 def side_table(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]:
-    """Per side: every indicator (mean and interval over seeds), env steps, and train and evaluation seconds."""
+    """
+    Per side: every indicator (mean and interval over seeds), env steps, and train and evaluation seconds;
+    the seeds whose training was resumed in a new process (not uninterrupted runs) are counted.
+    """
     names = _indicators(records)
     lines = [
         "| side | seeds | " + " | ".join(names) + " | env steps | train s | eval s |",
@@ -138,9 +141,9 @@ def side_table(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]
         steps = max(r.total_env_steps for r in ordered)
         train = _cell([r.wall_time_train_s for r in ordered])
         evaluate = _cell([r.wall_time_eval_s for r in ordered])
-        lines.append(
-            f"| {method} | {len(ordered)} | " + " | ".join(cells) + f" | {steps} | {train} | {evaluate} |"
-        )
+        resumed = sum(r.resumes > 0 for r in ordered)
+        seeds = f"{len(ordered)} ({resumed} resumed)" if resumed else str(len(ordered))
+        lines.append(f"| {method} | {seeds} | " + " | ".join(cells) + f" | {steps} | {train} | {evaluate} |")
     return lines
 
 
