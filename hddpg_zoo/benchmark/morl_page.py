@@ -71,6 +71,9 @@ each played over the whole weight simplex by the same evaluator and scored by MO
 - **Peers** train with their published defaults (their own training-weight samplers: CAPQL samples within
   22.5 degrees of the equal weight, GPI's weights come from its linear support), without wandb. The env steps
   GPI-LS's weight search plays on its evaluation env during training are counted beside its budget.
+  A peer's training saves its whole state every 10k env steps (GPI: every iteration), so that a run
+  stopped midway goes on from there with `--resume`; the table counts the seeds resumed in a new process
+  (the env's episode and random stream restart there: not an uninterrupted run).
 - **The hierarchy's methods** (each registered in `morl_sides.py` or beside it; DQN workers on discrete
   actions, DDPG on continuous):
 {_methods()}
@@ -98,6 +101,7 @@ _REGENERATE = """
 # one run per env (a run of record: the protocol's budget, 10 seeds, the final test episodes)
 hddpg-cli benchmark --protocol morl-baselines --env minecart-v0 --seeds 10 --final-test \\
     --morl-python ~/morl-venv/bin/python --out runs/morl/minecart-v0
+# stopped midway (a peer's seed takes hours): the same command with --resume goes on from the checkpoints
 # this page, from every run's records
 hddpg-cli morl-report runs/morl/* --page docs/MORL.md
 ```
