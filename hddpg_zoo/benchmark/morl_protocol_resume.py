@@ -154,7 +154,7 @@ def read_progress(folder: Path, run: dict[str, Any]) -> Progress | None:
         CHECKPOINT_VERSION,
     ):
         raise CheckpointError(f"{where}: not a checkpoint ({CHECKPOINT_KIND}, version {CHECKPOINT_VERSION})")
-    saved = data.get("run") if isinstance(data.get("run"), dict) else {}
+    saved: dict[str, Any] = data["run"] if isinstance(data.get("run"), dict) else {}
     for key in RUN_KEYS:
         if saved.get(key) != run[key]:
             raise CheckpointError(
@@ -291,7 +291,8 @@ def _keep_envelope_weight(env: Continuing) -> Callable[[], None]:
     """
     import morl_baselines.multi_policy.envelope.envelope as envelope
 
-    draw, episode = envelope.random_weights, []
+    draw = envelope.random_weights
+    episode: list[Any] = []  # the running episode's weight
 
     def weights(*args: Any, **kwargs: Any) -> Any:
         if not env.unweighted:
