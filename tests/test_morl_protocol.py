@@ -374,6 +374,13 @@ def test_a_peer_stopped_after_a_chunk_goes_on_from_its_checkpoint(learner, chunk
     # The learner's own global_step carried on: the whole budget, in chunks of 100, one resume.
     assert record["env_steps"]["learner"] == budget
     assert (record["chunks"], record["resumes"], record["chunk_steps"]) == (budget // 100, 1, 100)
+    # The replay buffer went on too: every step of both processes is in the last checkpoint's.
+    read = "import sys, torch; print(len(torch.load(sys.argv[1], weights_only=False)['learner']['replay_buffer']))"
+    last = checkpoint / f"learner-{budget // 100}.pt"
+    kept = subprocess.run(
+        [str(MORL_PYTHON), "-c", read, str(last)], capture_output=True, text=True, check=True
+    )
+    assert int(kept.stdout.strip().splitlines()[-1]) == budget
     if learner[1] == "gpi_ls_discrete":  # its weight search played the eval env in both processes
         assert record["env_steps"]["evaluations_in_training"] > state["evaluations_in_training"] > 0
     # The checkpoint is of seed 3: a run of seed 4 is refused in one line, and the checkpoint kept.
@@ -414,3 +421,49 @@ def test_a_protocol_peer_goes_on_from_its_checkpoint_and_deletes_it(tmp_path):
     assert record.method == "envelope" and record.total_env_steps == 300
     assert (record.resumes, record.chunk_steps) == (1, 10_000)
     assert not (folder / "checkpoint").exists() and not list(folder.iterdir())
+
+
+#: Run with MORL-baselines' python: Envelope trained by one ``train`` call and in chunks of 100 steps, from the
+#: same seeds; prints the largest difference of their networks' weights and both episode counts.
+_CHUNKED_IS_ONE_CALL = """
+import importlib.util, json, random, sys, tempfile, types
+from pathlib import Path
+import mo_gymnasium, numpy as np, torch
+from morl_baselines.multi_policy.envelope.envelope import Envelope
+spec = importlib.util.spec_from_file_location("resume", sys.argv[1])
+resume = importlib.util.module_from_spec(spec); sys.modules["resume"] = resume; spec.loader.exec_module(resume)
+def built(wrap):
+    random.seed(0); np.random.seed(0); torch.manual_seed(0)
+    env = mo_gymnasium.make("deep-sea-treasure-concave-v0"); env.action_space.seed(0); env.reset(seed=0)
+    env = resume.Continuing(env) if wrap else env
+    agent = Envelope(env, gamma=0.99, seed=0, log=False, device="cpu", learning_starts=50, batch_size=16)
+    return agent, env
+one, _ = built(False)
+evaluation = {"eval_env": types.SimpleNamespace(steps=0), "ref_point": np.array([0.0, -50.0])}
+one.train(total_timesteps=300, reset_num_timesteps=False, **evaluation)
+chunked, env = built(True)
+run = {"algo": "envelope", "env": "dst", "seed": 0, "timesteps": 300, "gamma": 0.99, "chunk_steps": 100}
+eval_env, kwargs = evaluation.pop("eval_env"), evaluation
+resume.train_in_chunks(chunked, env, eval_env, {**run, "stop_after": None}, Path(tempfile.mkdtemp()), kwargs)
+weights = [torch.cat([p.flatten() for p in a.q_net.parameters()]) for a in (one, chunked)]
+print(json.dumps({"difference": float((weights[0] - weights[1]).abs().max()),
+                  "episodes": [one.num_episodes, chunked.num_episodes], "steps": chunked.global_step}))
+"""
+
+
+@needs_morl
+def test_envelope_in_chunks_trains_as_one_train_call():
+    resume = PROTOCOL_RUNNER.with_name("morl_protocol_resume.py")
+    done = subprocess.run(
+        [str(MORL_PYTHON), "-c", _CHUNKED_IS_ONE_CALL, str(resume)],
+        capture_output=True,
+        text=True,
+        check=False,
+        env={**os.environ, "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    shown = json.loads(done.stdout.strip().splitlines()[-1])
+    # Chunk ends fell inside episodes and just after them (DST's episodes are short): the held env and
+    # Envelope's kept weight make the chunks one stream of episodes, the same updates to the last bit.
+    assert shown["steps"] == 300 and shown["episodes"][0] == shown["episodes"][1] > 10
+    assert shown["difference"] == 0.0
