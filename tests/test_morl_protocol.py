@@ -47,6 +47,7 @@ needs_morl = pytest.mark.skipif(not MORL_PYTHON, reason="MORL_PYTHON (MORL-basel
         ({"peers": ("capql",)}, "--methods"),
         ({"methods": ("hddpg-unknown",)}, "--methods"),
         ({"timesteps": 200_001}, "--timesteps"),
+        ({"timesteps": 9_999, "peers": ("gpi-ls",)}, "--timesteps"),
         ({"eval_weights": 0}, "--eval-weights"),
         ({"morl_python": None}, "--morl-python"),
     ],
@@ -66,7 +67,7 @@ def test_a_run_of_record_takes_the_protocols_budget_ten_seeds_and_the_final_test
     record = ProtocolSettings("minecart-v0", tuple(range(10)), final_test=True, morl_python="python")
     assert record.of_record and record.budget == 150_000 and record.peers == ("gpi-pd", "envelope")
     pilot = ProtocolSettings(
-        "minecart-v0", tuple(range(10)), timesteps=3000, final_test=True, morl_python="p"
+        "minecart-v0", tuple(range(10)), timesteps=10_000, final_test=True, morl_python="p"
     )
     assert not pilot.of_record
     written = json.dumps(record.to_json())

@@ -207,7 +207,8 @@ def run_peer(settings: ProtocolSettings, peer: str, seed: int, out: Path, folder
     record = read_json_record(written, f"{written}: not readable")
     # The runner names the learner by MORL-baselines' key; the record by the name ``--peers`` takes.
     atomic_write_json(out, {**record, "method": peer})
-    shutil.rmtree(checkpoint)
+    if checkpoint.exists():  # none where a budget below GPI's iteration trained nothing
+        shutil.rmtree(checkpoint)
     written.unlink()
 
 

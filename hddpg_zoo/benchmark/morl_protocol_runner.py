@@ -244,6 +244,12 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     if resume is not None and not iterated:
         env = resume.Continuing(env)
     agent = _agent(args.algo, env, args.gamma, args.seed)
+    per_iteration = args.iteration_steps or _resume().train_defaults(agent).get("timesteps_per_iter", 1)
+    if iterated and args.timesteps < per_iteration:
+        raise _runner().InputError(
+            f"--timesteps: {args.algo} trains in iterations of {per_iteration} env steps; {args.timesteps} "
+            "would train nothing"
+        )
     train_kwargs: dict[str, Any] = dict(_QUIET_TRAIN) if iterated else {}
     if args.iteration_steps is not None:
         train_kwargs["timesteps_per_iter"] = args.iteration_steps
