@@ -392,6 +392,18 @@ def test_a_peer_stopped_after_a_chunk_goes_on_from_its_checkpoint(learner, chunk
 
 
 @needs_morl
+def test_a_peer_seed_repeats(tmp_path):
+    arguments = ["--algo", "capql", "--env", "mo-mountaincarcontinuous-v0", "--ref-point=-100,-100"]
+    arguments += ["--timesteps", "300", "--chunk-steps", "100", "--seed", "5"]
+    records = []
+    for run in ("a", "b"):
+        done = _train(arguments, tmp_path / run / "checkpoint", tmp_path / run / "record.json")
+        assert done.returncode == 0, done.stderr[-2000:]
+        records.append(json.loads((tmp_path / run / "record.json").read_text()))
+    assert records[0]["discounted_returns"] == records[1]["discounted_returns"]
+
+
+@needs_morl
 def test_a_protocol_peer_goes_on_from_its_checkpoint_and_deletes_it(tmp_path):
     from hddpg_zoo.benchmark.morl_protocol_run import record_path, run_peer
 

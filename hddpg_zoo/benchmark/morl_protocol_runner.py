@@ -243,6 +243,12 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         )
     if resume is not None and not iterated:
         env = resume.Continuing(env)
+    # The learners draw from the global generators too (network initialisation, minibatches, exploration):
+    # MORL-baselines' own seed_everything makes a seed repeat, where the learner's seed alone does not.
+    from morl_baselines.common.evaluation import seed_everything
+
+    seed_everything(args.seed)
+    env.reset(seed=args.seed)
     agent = _agent(args.algo, env, args.gamma, args.seed)
     per_iteration = args.iteration_steps or _resume().train_defaults(agent).get("timesteps_per_iter", 1)
     if iterated and args.timesteps < per_iteration:
