@@ -26,6 +26,16 @@ SHIPPED = Path(__file__).parent / "data" / "morl_protocol" / "deep-sea-treasure-
 MORL_PYTHON = os.environ.get("MORL_PYTHON")
 COMMAND = [sys.executable, "-m", "sb3_hddpg", "benchmark", "--protocol", "morl-baselines"]
 COMMAND += ["--env", "deep-sea-treasure-concave-v0", "--seeds", "1"]
+TRAIN_TINY = [
+    "train",
+    "--algo",
+    "envelope",
+    "--timesteps",
+    "10",
+    "--env",
+    "minecart-v0",
+    "--ref-point=0,0,-200",
+]
 needs_morl = pytest.mark.skipif(not MORL_PYTHON, reason="MORL_PYTHON (MORL-baselines' python) is not set")
 
 
@@ -37,6 +47,7 @@ needs_morl = pytest.mark.skipif(not MORL_PYTHON, reason="MORL_PYTHON (MORL-basel
         ({"peers": ("capql",)}, "--methods"),
         ({"methods": ("hddpg-unknown",)}, "--methods"),
         ({"timesteps": 200_001}, "--timesteps"),
+        ({"timesteps": 9_999, "peers": ("gpi-ls",)}, "--timesteps"),
         ({"eval_weights": 0}, "--eval-weights"),
         ({"morl_python": None}, "--morl-python"),
     ],
@@ -56,7 +67,7 @@ def test_a_run_of_record_takes_the_protocols_budget_ten_seeds_and_the_final_test
     record = ProtocolSettings("minecart-v0", tuple(range(10)), final_test=True, morl_python="python")
     assert record.of_record and record.budget == 150_000 and record.peers == ("gpi-pd", "envelope")
     pilot = ProtocolSettings(
-        "minecart-v0", tuple(range(10)), timesteps=3000, final_test=True, morl_python="p"
+        "minecart-v0", tuple(range(10)), timesteps=10_000, final_test=True, morl_python="p"
     )
     assert not pilot.of_record
     written = json.dumps(record.to_json())
@@ -86,6 +97,9 @@ def test_the_protocols_time_limits_are_the_registered_ones():
             "--eval-weights",
             "0",
         ],
+        [*TRAIN_TINY, "--stop-after-chunks", "1"],
+        [*TRAIN_TINY, "--checkpoint-dir", "c", "--chunk-steps", "0"],
+        [*TRAIN_TINY, "--checkpoint-dir", __file__],
     ],
 )
 def test_the_runner_refuses_bad_options_before_anything_is_imported(arguments, tmp_path):
@@ -180,6 +194,9 @@ def test_a_tiny_protocol_run_end_to_end(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     settings, records = read_protocol_run(out)
     assert set(records) == {"hddpg-conditioned", "envelope"} and settings["budget"] == 1200
+    # The peer trained in one chunk, never resumed; its checkpoint went once its record was written.
+    assert (records["envelope"][0].resumes, records["envelope"][0].chunk_steps) == (0, 10_000)
+    assert not list((out / "runs" / "envelope").rglob("*.pt"))
     assert str(Path.home()) not in (out / "protocol.json").read_text()
     shutil.rmtree(out / "runs")
 
@@ -302,3 +319,164 @@ def test_hddpg_gpi_trains_a_support_within_one_budget_and_plays_its_weights(tmp_
     assert all(r[0][1] <= -1.0 and r[0][0] >= 0.0 for r in returns)  # a step costs 1 time, treasure >= 0
     # Time alone: the coefficient on the time critic (-L) is its weight, with nothing on treasure.
     assert trained.policy.coefficients == pytest.approx({"obj0": 0.0, "obj1": 1.0})
+
+
+def _train(arguments: list[str], checkpoint: Path, out: Path) -> subprocess.CompletedProcess[str]:
+    """The protocol runner's ``train`` with MORL-baselines' python, a tiny evaluation, checkpointed."""
+    evaluation = ["--eval-weights", "3", "--eval-episodes", "1", "--checkpoint-dir", str(checkpoint)]
+    return subprocess.run(
+        [
+            str(MORL_PYTHON),
+            str(PROTOCOL_RUNNER),
+            "train",
+            *arguments,
+            *evaluation,
+            "--out",
+            str(out),
+            "--force",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        env={**os.environ, "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"},
+    )
+
+
+@needs_morl
+@pytest.mark.parametrize(
+    ("learner", "chunking"),
+    [
+        (
+            ["--algo", "capql", "--env", "mo-mountaincarcontinuous-v0", "--ref-point=-100,-100"],
+            "--chunk-steps",
+        ),
+        (
+            ["--algo", "envelope", "--env", "deep-sea-treasure-concave-v0", "--ref-point=0,-50"],
+            "--chunk-steps",
+        ),
+        (
+            ["--algo", "gpi_ls_discrete", "--env", "deep-sea-treasure-concave-v0", "--ref-point=0,-50"],
+            "--iteration-steps",
+        ),
+    ],
+)
+def test_a_peer_stopped_after_a_chunk_goes_on_from_its_checkpoint(learner, chunking, tmp_path):
+    checkpoint, out = tmp_path / "checkpoint", tmp_path / "record.json"
+    budget = 200 if chunking == "--iteration-steps" else 300
+    arguments = [*learner, "--timesteps", str(budget), chunking, "100", "--seed", "3"]
+    stopped = _train([*arguments, "--stop-after-chunks", "1"], checkpoint, out)
+    assert stopped.returncode == 3, stopped.stderr[-2000:]
+    state = json.loads((checkpoint / "state.json").read_text())
+    assert (state["env_steps"], state["chunks"], state["resumes"]) == (100, 1, 0) and not out.exists()
+    assert [p.name for p in checkpoint.glob("*.pt")] == ["learner-1.pt"]
+    done = _train(arguments, checkpoint, out)
+    assert done.returncode == 0, done.stderr[-2000:]
+    record = json.loads(out.read_text())
+    # The learner's own global_step carried on: the whole budget, in chunks of 100, one resume.
+    assert record["env_steps"]["learner"] == budget
+    assert (record["chunks"], record["resumes"], record["chunk_steps"]) == (budget // 100, 1, 100)
+    # The replay buffer went on too: every step of both processes is in the last checkpoint's.
+    read = "import sys, torch; print(len(torch.load(sys.argv[1], weights_only=False)['learner']['replay_buffer']))"
+    last = checkpoint / f"learner-{budget // 100}.pt"
+    kept = subprocess.run(
+        [str(MORL_PYTHON), "-c", read, str(last)], capture_output=True, text=True, check=True
+    )
+    assert int(kept.stdout.strip().splitlines()[-1]) == budget
+    if learner[1] == "gpi_ls_discrete":  # its weight search played the eval env in both processes
+        assert record["env_steps"]["evaluations_in_training"] > state["evaluations_in_training"] > 0
+    # The checkpoint is of seed 3: a run of seed 4 is refused in one line, and the checkpoint kept.
+    other = _train([*learner, "--timesteps", str(budget), chunking, "100", "--seed", "4"], checkpoint, out)
+    assert other.returncode == 2 and "Traceback" not in other.stderr
+    assert "--checkpoint-dir" in other.stderr.splitlines()[-1] and "seed 3" in other.stderr.splitlines()[-1]
+    assert json.loads((checkpoint / "state.json").read_text())["chunks"] == budget // 100
+
+
+@needs_morl
+def test_a_peer_seed_repeats(tmp_path):
+    arguments = ["--algo", "capql", "--env", "mo-mountaincarcontinuous-v0", "--ref-point=-100,-100"]
+    arguments += ["--timesteps", "300", "--chunk-steps", "100", "--seed", "5"]
+    records = []
+    for run in ("a", "b"):
+        done = _train(arguments, tmp_path / run / "checkpoint", tmp_path / run / "record.json")
+        assert done.returncode == 0, done.stderr[-2000:]
+        records.append(json.loads((tmp_path / run / "record.json").read_text()))
+    assert records[0]["discounted_returns"] == records[1]["discounted_returns"]
+
+
+@needs_morl
+def test_a_protocol_peer_goes_on_from_its_checkpoint_and_deletes_it(tmp_path):
+    from hddpg_zoo.benchmark.morl_protocol_run import record_path, run_peer
+
+    settings = ProtocolSettings(
+        "deep-sea-treasure-concave-v0",
+        (0,),
+        peers=("envelope",),
+        timesteps=300,
+        eval_weights=3,
+        eval_episodes=1,
+        morl_python=MORL_PYTHON,
+    )
+    folder, out = tmp_path / "runs" / "envelope" / "seed-0", record_path(tmp_path, "envelope", 0)
+    # A run stopped after its (only) chunk, with the arguments run_peer passes.
+    learner = [
+        "--algo",
+        "envelope",
+        "--env",
+        "deep-sea-treasure-concave-v0",
+        "--ref-point=0,-50",
+        "--seed",
+        "0",
+    ]
+    stopped = _train([*learner, "--timesteps", "300", "--stop-after-chunks", "1"], folder / "checkpoint", out)
+    assert stopped.returncode == 3, stopped.stderr[-2000:]
+    run_peer(settings, "envelope", 0, out, folder)
+    record = read_protocol_record(out)
+    assert record.method == "envelope" and record.total_env_steps == 300
+    assert (record.resumes, record.chunk_steps) == (1, 10_000)
+    assert not (folder / "checkpoint").exists() and not list(folder.iterdir())
+
+
+#: Run with MORL-baselines' python: Envelope trained by one ``train`` call and in chunks of 100 steps, from the
+#: same seeds; prints the largest difference of their networks' weights and both episode counts.
+_CHUNKED_IS_ONE_CALL = """
+import importlib.util, json, random, sys, tempfile, types
+from pathlib import Path
+import mo_gymnasium, numpy as np, torch
+from morl_baselines.multi_policy.envelope.envelope import Envelope
+spec = importlib.util.spec_from_file_location("resume", sys.argv[1])
+resume = importlib.util.module_from_spec(spec); sys.modules["resume"] = resume; spec.loader.exec_module(resume)
+def built(wrap):
+    random.seed(0); np.random.seed(0); torch.manual_seed(0)
+    env = mo_gymnasium.make("deep-sea-treasure-concave-v0"); env.action_space.seed(0); env.reset(seed=0)
+    env = resume.Continuing(env) if wrap else env
+    agent = Envelope(env, gamma=0.99, seed=0, log=False, device="cpu", learning_starts=50, batch_size=16)
+    return agent, env
+one, _ = built(False)
+evaluation = {"eval_env": types.SimpleNamespace(steps=0), "ref_point": np.array([0.0, -50.0])}
+one.train(total_timesteps=300, reset_num_timesteps=False, **evaluation)
+chunked, env = built(True)
+run = {"algo": "envelope", "env": "dst", "seed": 0, "timesteps": 300, "gamma": 0.99, "chunk_steps": 100}
+eval_env, kwargs = evaluation.pop("eval_env"), evaluation
+resume.train_in_chunks(chunked, env, eval_env, {**run, "stop_after": None}, Path(tempfile.mkdtemp()), kwargs)
+weights = [torch.cat([p.flatten() for p in a.q_net.parameters()]) for a in (one, chunked)]
+print(json.dumps({"difference": float((weights[0] - weights[1]).abs().max()),
+                  "episodes": [one.num_episodes, chunked.num_episodes], "steps": chunked.global_step}))
+"""
+
+
+@needs_morl
+def test_envelope_in_chunks_trains_as_one_train_call():
+    resume = PROTOCOL_RUNNER.with_name("morl_protocol_resume.py")
+    done = subprocess.run(
+        [str(MORL_PYTHON), "-c", _CHUNKED_IS_ONE_CALL, str(resume)],
+        capture_output=True,
+        text=True,
+        check=False,
+        env={**os.environ, "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    shown = json.loads(done.stdout.strip().splitlines()[-1])
+    # Chunk ends fell inside episodes and just after them (DST's episodes are short): the held env and
+    # Envelope's kept weight make the chunks one stream of episodes, the same updates to the last bit.
+    assert shown["steps"] == 300 and shown["episodes"][0] == shown["episodes"][1] > 10
+    assert shown["difference"] == 0.0

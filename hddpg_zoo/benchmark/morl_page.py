@@ -71,6 +71,9 @@ each played over the whole weight simplex by the same evaluator and scored by MO
 - **Peers** train with their published defaults (their own training-weight samplers: CAPQL samples within
   22.5 degrees of the equal weight, GPI's weights come from its linear support), without wandb. The env steps
   GPI-LS's weight search plays on its evaluation env during training are counted beside its budget.
+  A peer's training saves its whole state every 10k env steps (GPI: every iteration), so that a run
+  stopped midway goes on from there with `--resume`; the table counts the seeds resumed in a new process
+  (the env's episode and random stream restart there: not an uninterrupted run).
 - **The hierarchy's methods** (each registered in `morl_sides.py` or beside it; DQN workers on discrete
   actions, DDPG on continuous):
 {_methods()}
@@ -98,6 +101,7 @@ _REGENERATE = """
 # one run per env (a run of record: the protocol's budget, 10 seeds, the final test episodes)
 hddpg-cli benchmark --protocol morl-baselines --env minecart-v0 --seeds 10 --final-test \\
     --morl-python ~/morl-venv/bin/python --out runs/morl/minecart-v0
+# stopped midway (a peer's seed takes hours): the same command with --resume goes on from the checkpoints
 # this page, from every run's records
 hddpg-cli morl-report runs/morl/* --page docs/MORL.md
 ```
@@ -126,7 +130,10 @@ def _indicators(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str
 
 
 def side_table(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]:
-    """Per side: every indicator (mean and interval over seeds), env steps, and train and evaluation seconds."""
+    """
+    Per side: every indicator (mean and interval over seeds), env steps, and train and evaluation seconds;
+    the seeds whose training was resumed in a new process (not uninterrupted runs) are counted.
+    """
     names = _indicators(records)
     lines = [
         "| side | seeds | " + " | ".join(names) + " | env steps | train s | eval s |",
@@ -138,9 +145,9 @@ def side_table(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]
         steps = max(r.total_env_steps for r in ordered)
         train = _cell([r.wall_time_train_s for r in ordered])
         evaluate = _cell([r.wall_time_eval_s for r in ordered])
-        lines.append(
-            f"| {method} | {len(ordered)} | " + " | ".join(cells) + f" | {steps} | {train} | {evaluate} |"
-        )
+        resumed = sum(r.resumes > 0 for r in ordered)
+        seeds = f"{len(ordered)} ({resumed} resumed)" if resumed else str(len(ordered))
+        lines.append(f"| {method} | {seeds} | " + " | ".join(cells) + f" | {steps} | {train} | {evaluate} |")
     return lines
 
 

@@ -187,6 +187,12 @@ class ProtocolSettings:
                 f"--timesteps: every side's budget is at most the protocol's {env.env_steps} env steps on "
                 f"{self.env_id}, got {self.timesteps}"
             )
+        idle = [p for p in self.peers if self.budget < PEERS[p].iteration]
+        if idle:
+            raise ValueError(
+                f"--timesteps: {idle} train in iterations of {PEERS[idle[0]].iteration} env steps: a budget of "
+                f"{self.budget} trains nothing (leave them out of --methods, or give more)"
+            )
         for name, value in (("--eval-weights", self.eval_weights), ("--eval-episodes", self.eval_episodes)):
             if not 1 <= value <= 1000:
                 raise ValueError(f"{name}: expected 1 to 1000, got {brief(value)}")

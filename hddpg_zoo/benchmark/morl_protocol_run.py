@@ -9,12 +9,14 @@ every indicator of both sides is computed by MORL-baselines' own functions. Both
 schema, per-episode vector returns included.
 
 Layout of ``out``: ``protocol.json`` (the settings), ``records/<side>/seed-<n>.json`` (the records),
-``runs/<method>/seed-<n>/`` (the hierarchy's models).
+``runs/<method>/seed-<n>/`` (the hierarchy's models), ``runs/<peer>/seed-<n>/checkpoint/`` (a peer's training
+state while it trains, so that a resumed run goes on from its last chunk; deleted once its record is written).
 """
 
 from __future__ import annotations
 
 import logging
+import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -51,6 +53,9 @@ class ProtocolRecord:
     :param front: per weight, the mean discounted return (the protocol's front).
     :param indicators: MORL-baselines' indicators of the front's non-dominated part.
     :param env_steps: model or phase -> its env steps of training.
+    :param resumes: times a peer's training went on from its checkpoint in a new process (its env's episode
+        and random stream restarted): ``0`` for an uninterrupted run.
+    :param chunk_steps: env steps of a chunk of a peer's checkpointed training (``None``: not chunked).
     """
 
     side: str
@@ -69,6 +74,8 @@ class ProtocolRecord:
     wall_time_train_s: float
     wall_time_eval_s: float
     versions: dict[str, str | None]
+    resumes: int = 0
+    chunk_steps: int | None = None
 
     @property
     def total_env_steps(self) -> int:
@@ -124,6 +131,13 @@ def read_protocol_record(path: Path) -> ProtocolRecord:
         "env_id": lambda v: isinstance(v, str) and 0 < len(v) <= 128,
         "versions": lambda v: isinstance(v, dict),
     }
+    optional: dict[str, Callable[[Any], bool]] = {
+        "resumes": lambda v: isinstance(v, int) and v >= 0,
+        "chunk_steps": lambda v: v is None or (isinstance(v, int) and v >= 1),
+    }
+    for key, check in optional.items():
+        if key in data and not check(data[key]):
+            raise ValueError(f"{path}: {key}: not what a protocol record holds, got {brief(data.get(key))}")
     for key, check in checks.items():
         if key not in data or not check(data[key]):
             raise ValueError(f"{path}: {key}: not what a protocol record holds, got {brief(data.get(key))}")
@@ -144,6 +158,8 @@ def read_protocol_record(path: Path) -> ProtocolRecord:
         wall_time_train_s=float(data["wall_time_train_s"]),
         wall_time_eval_s=float(data["wall_time_eval_s"]),
         versions={str(k): None if v is None else str(v) for k, v in data["versions"].items()},
+        resumes=data.get("resumes", 0),
+        chunk_steps=data.get("chunk_steps"),
     )
 
 
@@ -176,14 +192,24 @@ def _common_arguments(settings: ProtocolSettings) -> list[str]:
     ]
 
 
-def run_peer(settings: ProtocolSettings, peer: str, seed: int, out: Path) -> None:
-    """Train, play and score one peer on one seed in MORL-baselines' environment; its record at ``out``."""
+def run_peer(settings: ProtocolSettings, peer: str, seed: int, out: Path, folder: Path) -> None:
+    """
+    Train, play and score one peer on one seed in MORL-baselines' environment; its record at ``out``.
+
+    The runner checkpoints the peer's training in ``folder`` (``checkpoint/``) after every chunk, so that a
+    run stopped midway and resumed goes on from the last one; the checkpoint goes once the record is written.
+    """
     assert settings.morl_python is not None  # the settings refuse peers without it
+    checkpoint, written = folder / "checkpoint", folder / "peer-record.json"
     arguments = ["train", f"--algo={PEERS[peer].algo}", f"--timesteps={settings.budget}", f"--seed={seed}"]
-    _invoke(settings.morl_python, [*arguments, *_common_arguments(settings)], out)
-    record = read_json_record(out, f"{out}: not readable")
+    arguments.append(f"--checkpoint-dir={checkpoint}")
+    _invoke(settings.morl_python, [*arguments, *_common_arguments(settings)], written)
+    record = read_json_record(written, f"{written}: not readable")
     # The runner names the learner by MORL-baselines' key; the record by the name ``--peers`` takes.
     atomic_write_json(out, {**record, "method": peer})
+    if checkpoint.exists():  # none where a budget below GPI's iteration trained nothing
+        shutil.rmtree(checkpoint)
+    written.unlink()
 
 
 def run_method(settings: ProtocolSettings, method: str, seed: int, out: Path, folder: Path) -> None:
@@ -258,12 +284,16 @@ def run_protocol(settings: ProtocolSettings, out: str | Path) -> list[Path]:
     for seed in settings.seeds:
         for side in (*settings.methods, *(settings.peers or ())):
             path = record_path(out, side, seed)
+            folder = out / "runs" / side / f"seed-{seed}"
+            if path.exists() and side in PEERS:
+                # A checkpoint left by a run stopped between writing the record and deleting it.
+                shutil.rmtree(folder / "checkpoint", ignore_errors=True)
             if not path.exists():
                 logger.info("protocol: %s, seed %d", side, seed)
                 if side in PEERS:
-                    run_peer(settings, side, seed, path)
+                    run_peer(settings, side, seed, path, folder)
                 else:
-                    run_method(settings, side, seed, path, out / "runs" / side / f"seed-{seed}")
+                    run_method(settings, side, seed, path, folder)
             read_protocol_record(path)
             done.append(path)
     return done

@@ -12,6 +12,10 @@ runs it once per peer and seed (:mod:`.morl_protocol_run`), or by hand::
     ~/morl-venv/bin/python morl_protocol_runner.py score --returns hierarchy-seed-0.json \\
         --env minecart-v0 --gamma 0.99 --ref-point=0,0,-200 --out scored.json
 
+With ``--checkpoint-dir DIR``, ``train`` trains in chunks and saves the learner's whole training state to
+``DIR`` after each, and a later ``train`` of the same settings goes on from there (:mod:`morl_protocol_resume`
+says how, learner by learner); the record counts the chunks and the resumes.
+
 The protocol (MORL-baselines' ``launch_experiment.py`` and its learners' ``train``): the registered env and
 its time limit; discounted vector returns (``eval_mo``, the agent's gamma); the front is each of
 ``--eval-weights`` equally spaced weights' mean discounted return over ``--eval-episodes`` episodes
@@ -29,6 +33,7 @@ pymoo's energy directions unseeded, so that a record scores the same twice.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import importlib.util
 import os
@@ -55,16 +60,35 @@ _QUIET_TRAIN = {"checkpoints": False}
 #: Most episodes and weights evaluated, and most env steps of training.
 MAX_EVAL = 10_000
 MAX_TIMESTEPS = 100_000_000
+#: Env steps of a chunk of CAPQL and Envelope with ``--checkpoint-dir`` (GPI's chunk is its own iteration).
+CHUNK_STEPS = 10_000
+#: The exit status of ``train`` stopped by ``--stop-after-chunks`` (its checkpoint saved, no record).
+STOPPED_STATUS = 3
+
+
+@functools.cache
+def _sibling(file: str) -> Any:
+    """
+    A module beside this file, loaded by path (its folder is not on ``sys.path``), once: its exception
+    classes are the ones ``main`` catches.
+    """
+    path = Path(__file__).resolve().with_name(file)
+    spec = importlib.util.spec_from_file_location(f"_hddpg_{path.stem}", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # where dataclasses and pickle look a class's module up
+    spec.loader.exec_module(module)
+    return module
 
 
 def _runner() -> Any:
-    """:mod:`morl_runner`, loaded from beside this file by path (its folder is not on ``sys.path``)."""
-    path = Path(__file__).resolve().with_name("morl_runner.py")
-    spec = importlib.util.spec_from_file_location("_hddpg_morl_runner", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """:mod:`morl_runner`: its file helpers and its ``InputError``."""
+    return _sibling("morl_runner.py")
+
+
+def _resume() -> Any:
+    """:mod:`morl_protocol_resume`: training in chunks, checkpointed."""
+    return _sibling("morl_protocol_resume.py")
 
 
 class _Counting:
@@ -206,24 +230,53 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
     from morl_baselines.common.weights import equally_spaced_weights
 
     torch.set_num_threads(args.threads)
+    resume = _resume() if args.checkpoint_dir is not None else None
     env, eval_env = _make_env(args.env), _counting_env(args.env)
     _check_objectives(env, args)
     known = _known_front(env, args.gamma)
+    iterated = args.algo not in ("capql", "envelope")
+    if args.iteration_steps is not None and not iterated:
+        raise _runner().InputError(f"--iteration-steps: {args.algo} trains in no iterations")
+    if args.chunk_steps is not None and (iterated or resume is None):
+        raise _runner().InputError(
+            "--chunk-steps: only CAPQL and Envelope with --checkpoint-dir (GPI's chunk is its iteration)"
+        )
+    if resume is not None and not iterated:
+        env = resume.Continuing(env)
+    # The learners draw from the global generators too (network initialisation, minibatches, exploration):
+    # MORL-baselines' own seed_everything makes a seed repeat, where the learner's seed alone does not.
+    from morl_baselines.common.evaluation import seed_everything
+
+    seed_everything(args.seed)
+    env.reset(seed=args.seed)
     agent = _agent(args.algo, env, args.gamma, args.seed)
-    train_kwargs: dict[str, Any] = {} if args.algo in ("capql", "envelope") else dict(_QUIET_TRAIN)
+    per_iteration = args.iteration_steps or _resume().train_defaults(agent).get("timesteps_per_iter", 1)
+    if iterated and args.timesteps < per_iteration:
+        raise _runner().InputError(
+            f"--timesteps: {args.algo} trains in iterations of {per_iteration} env steps; {args.timesteps} "
+            "would train nothing"
+        )
+    train_kwargs: dict[str, Any] = dict(_QUIET_TRAIN) if iterated else {}
     if args.iteration_steps is not None:
-        if args.algo in ("capql", "envelope"):
-            raise _runner().InputError(f"--iteration-steps: {args.algo} trains in no iterations")
         train_kwargs["timesteps_per_iter"] = args.iteration_steps
-    started = time.perf_counter()
-    agent.train(
-        total_timesteps=args.timesteps,
-        eval_env=eval_env,
-        ref_point=np.asarray(args.ref_point_values),
-        known_pareto_front=known,
-        **train_kwargs,
-    )
-    train_seconds = time.perf_counter() - started
+    reference = np.asarray(args.ref_point_values)
+    if resume is None:
+        started = time.perf_counter()
+        agent.train(
+            total_timesteps=args.timesteps,
+            eval_env=eval_env,
+            ref_point=reference,
+            known_pareto_front=known,
+            **train_kwargs,
+        )
+        chunking = {"chunk_steps": None, "chunks": 1, "resumes": 0}
+        train_seconds = time.perf_counter() - started
+    else:
+        progress = _train_in_chunks(resume, agent, env, eval_env, args, reference, known)
+        chunking = {k: getattr(progress, k) for k in ("chunks", "resumes")}
+        chunking["chunk_steps"] = progress.run["chunk_steps"]
+        train_seconds = progress.wall_time_train_s
+        train_kwargs.pop("checkpoints", None)  # the chunks are the runner's, never the learner's files
     searched = eval_env.steps
     weights = equally_spaced_weights(len(args.ref_point_values), args.eval_weights, seed=WEIGHTS_SEED)
     started = time.perf_counter()
@@ -235,9 +288,10 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         "side": "peer",
         "algorithm": args.algo,
         "seed": args.seed,
-        "env_steps": {"learner": int(args.timesteps), "evaluations_in_training": int(searched)},
+        "env_steps": {"learner": int(agent.global_step), "evaluations_in_training": int(searched)},
         "published_kwargs": PUBLISHED.get(args.algo, {}),
         "train_kwargs": train_kwargs,
+        **chunking,
         "weights": [[float(v) for v in w] for w in weights],
         "discounted_returns": discounted,
         "returns": returns,
@@ -252,6 +306,34 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
             "python": sys.version.split()[0],
         },
     }
+
+
+def _train_in_chunks(
+    resume: Any,
+    agent: Any,
+    env: Any,
+    eval_env: _Counting,
+    args: argparse.Namespace,
+    reference: Any,
+    known: list[list[float]] | None,
+) -> Any:
+    """Train in chunks through :mod:`morl_protocol_resume`, from ``--checkpoint-dir``'s checkpoint if any."""
+    iterated = args.algo in resume.ITERATED
+    if iterated:
+        chunk = args.iteration_steps or resume.train_defaults(agent)["timesteps_per_iter"]
+    else:
+        chunk = args.chunk_steps or CHUNK_STEPS
+    run = {
+        "algo": args.algo,
+        "env": args.env,
+        "seed": args.seed,
+        "timesteps": args.timesteps,
+        "gamma": args.gamma,
+        "chunk_steps": chunk,
+        "stop_after": args.stop_after_chunks,
+    }
+    train_kwargs = {} if iterated else {"ref_point": reference, "known_pareto_front": known}
+    return resume.train_in_chunks(agent, env, eval_env, run, args.checkpoint_dir, train_kwargs)
 
 
 def _check_weights(given: object, count: int, dim: int) -> None:
@@ -334,6 +416,23 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="pilots only: GPI's env steps per iteration (default: its published timesteps_per_iter, 10000)",
     )
+    learn.add_argument(
+        "--checkpoint-dir",
+        default=None,
+        help="train in chunks, the learner's whole training state saved here after each; go on from here",
+    )
+    learn.add_argument(
+        "--chunk-steps",
+        type=int,
+        default=None,
+        help=f"CAPQL's and Envelope's env steps per chunk with --checkpoint-dir (default {CHUNK_STEPS})",
+    )
+    learn.add_argument(
+        "--stop-after-chunks",
+        type=int,
+        default=None,
+        help=f"tests: stop (exit {STOPPED_STATUS}, no record) after this many chunks of this process",
+    )
     given = commands.add_parser("score", help="score per-episode discounted returns played elsewhere")
     given.add_argument("--returns", required=True, help='JSON: {"discounted_returns": [[[...], ...], ...]}')
     for command in (learn, given):
@@ -357,6 +456,15 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
         ranges.update(timesteps=(1, MAX_TIMESTEPS), seed=(0, 2**32 - 1), threads=(1, 256))
         if args.iteration_steps is not None:
             ranges["iteration_steps"] = (1, args.timesteps)
+        if args.chunk_steps is not None:
+            ranges["chunk_steps"] = (1, MAX_TIMESTEPS)
+        if args.stop_after_chunks is not None:
+            ranges["stop_after_chunks"] = (1, MAX_TIMESTEPS)
+            if args.checkpoint_dir is None:
+                parser.error("--stop-after-chunks needs --checkpoint-dir")
+        folder = None if args.checkpoint_dir is None else Path(args.checkpoint_dir)
+        if folder is not None and (folder.is_symlink() or (folder.exists() and not folder.is_dir())):
+            parser.error(f"--checkpoint-dir: {str(folder)!r} is a file or a symbolic link; name a folder")
     for name, (low, high) in ranges.items():
         if not low <= getattr(args, name) <= high:
             parser.error(f"--{name.replace('_', '-')} must be in [{low}, {high}]")
@@ -381,7 +489,10 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print(f"error: morl_baselines is not installed in this python ({sys.executable})", file=sys.stderr)
         return 2
+    resume = _resume()
     out = Path(args.out).absolute()
+    if getattr(args, "checkpoint_dir", None) is not None:
+        args.checkpoint_dir = Path(args.checkpoint_dir).absolute()
     try:
         runner._write_json(out, {}, args.force, check_only=True)
         # Learners that save checkpoints or logs write them in the working folder: a temporary one.
@@ -389,9 +500,12 @@ def main(argv: list[str] | None = None) -> int:
             os.chdir(scratch)
             record = train(args) if args.command == "train" else score(args)
         runner._write_json(out, record, args.force)
-    except runner.InputError as error:
+    except (runner.InputError, resume.CheckpointError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except resume.Stopped as stopped:
+        print(stopped, file=sys.stderr)
+        return STOPPED_STATUS
     shown = ", ".join(f"{k} {v:.6g}" for k, v in record["indicators"].items())
     print(f"{record.get('algorithm', 'given front')}: {shown} -> {out}")
     return 0
