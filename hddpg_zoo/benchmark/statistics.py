@@ -236,19 +236,11 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[JsonObject]) 
     )
 
 
-def _front_of(
-    by_method: Mapping[str, Any], worker_records: Any, settings: BenchmarkSettings
-) -> FrontResults | None:
-    """
-    The front's statistics: of ``hddpg-front``'s records, else of ``hddpg-support``'s (``None``: neither ran),
-    with the flat runs a front scenario copied from its workers' benchmark
-    (:func:`~.workers_source.copy_flat_runs`).
-    """
+def _front_of(by_method: Mapping[str, Any], workers: Any, settings: BenchmarkSettings) -> FrontResults | None:
+    """The front's statistics, of ``hddpg-front`` else ``hddpg-support``, with its copied flat runs (or ``None``)."""
     method = next((m for m in (FRONT_METHOD, SUPPORT_METHOD) if m in by_method), None)
-    if method is None:
-        return None
     flat = {m: by_method[m] for m in flat_baselines() if m in by_method and m not in settings.method_keys}
-    return front_results(by_method[method], worker_records, flat)
+    return front_results(by_method[method], workers, flat) if method is not None else None
 
 
 def method_statistics(
