@@ -129,6 +129,12 @@ _CLASSES = {
 
 
 def _agent(algo: str, env: Any, gamma: float, seed: int) -> Any:
+    # The learners draw from the global generators too (network initialisation, minibatches, exploration):
+    # MORL-baselines' own seed_everything makes a seed repeat, where the learner's seed alone does not.
+    from morl_baselines.common.evaluation import seed_everything
+
+    seed_everything(seed)
+    env.reset(seed=seed)
     module, name = _CLASSES[algo]
     learner = getattr(importlib.import_module(module), name)
     return learner(env=env, gamma=gamma, seed=seed, log=False, device="cpu", **PUBLISHED.get(algo, {}))
@@ -243,12 +249,6 @@ def train(args: argparse.Namespace) -> dict[str, Any]:
         )
     if resume is not None and not iterated:
         env = resume.Continuing(env)
-    # The learners draw from the global generators too (network initialisation, minibatches, exploration):
-    # MORL-baselines' own seed_everything makes a seed repeat, where the learner's seed alone does not.
-    from morl_baselines.common.evaluation import seed_everything
-
-    seed_everything(args.seed)
-    env.reset(seed=args.seed)
     agent = _agent(args.algo, env, args.gamma, args.seed)
     per_iteration = args.iteration_steps or _resume().train_defaults(agent).get("timesteps_per_iter", 1)
     if iterated and args.timesteps < per_iteration:
