@@ -368,3 +368,19 @@ def test_a_front_sets_its_workers_benchmarks_flat_runs_beside_its_equal_weightin
     from hddpg_zoo.model_export import run_models
 
     assert run_models(out, out / "records" / "dqn" / "seed-1.json") == []
+
+
+def test_a_front_with_copied_flat_runs_writes_every_output(tmp_path):
+    import shutil
+
+    from hddpg_zoo.benchmark.pages import load_run
+    from hddpg_zoo.benchmark.report import write_outputs
+
+    run = tmp_path / "highway-support-record"
+    shutil.copytree(ROOT / "docs" / "results" / "highway-support-record", run)
+    settings, records = load_run(run)
+    assert {r["method"] for r in records} == {"workers", "hddpg-support", "dqn"}
+    results = write_outputs(run, compute_results(settings, records), records)
+    # The copies stand beside the front's point only: no method row, aggregate or figure of their own.
+    assert set(results.methods) == {"hddpg-support"} and "dqn" in results.front["flat"]
+    assert (run / "aggregates.png").is_file() and (run / "performance_profile.png").is_file()

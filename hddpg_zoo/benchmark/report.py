@@ -391,7 +391,8 @@ def headline_figures(out: Path, results: BenchmarkResults, records: list[JsonObj
     The rliable-style figures of a run: the aggregates' intervals (from ``results``) and the performance
     profile of the reach reward over the score matrices of the records.
     """
-    by_method = records_by_method(records)
+    # Only the run's own methods: a front's flat runs copied from its workers' benchmark stand beside its point.
+    by_method = {m: runs for m, runs in records_by_method(records).items() if m in results.methods}
     if not by_method or not results.aggregates:
         return []
     scores, unit = score_matrices(by_method)

@@ -228,7 +228,7 @@ def compute_results(settings: BenchmarkSettings, records: Iterable[JsonObject]) 
         methods=methods,
         comparisons=comparisons,
         comparison_families=families,
-        aggregates=aggregates(by_method, pairs),
+        aggregates=aggregates({m: runs for m, runs in by_method.items() if m in methods}, pairs),
         workers=workers,
         colours={key: METHOD_REGISTRY[split_key(key)[0]].colour for key in methods},
         transfer=transfer_results(settings, by_method) if settings.scenario == "transfer" else None,
