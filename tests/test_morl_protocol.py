@@ -66,10 +66,17 @@ def test_the_settings_take_both_hierarchy_methods():
 def test_a_run_of_record_takes_the_protocols_budget_ten_seeds_and_the_final_test():
     record = ProtocolSettings("minecart-v0", tuple(range(10)), final_test=True, morl_python="python")
     assert record.of_record and record.budget == 150_000 and record.peers == ("gpi-pd", "envelope")
-    pilot = ProtocolSettings(
+    assert record.full_budget
+    reduced = ProtocolSettings(
         "minecart-v0", tuple(range(10)), timesteps=10_000, final_test=True, morl_python="p"
     )
-    assert not pilot.of_record
+    assert reduced.of_record and not reduced.full_budget
+    for pilot in (
+        ProtocolSettings("minecart-v0", tuple(range(10)), timesteps=10_000, morl_python="p"),
+        ProtocolSettings("minecart-v0", tuple(range(9)), final_test=True, morl_python="p"),
+        ProtocolSettings("minecart-v0", tuple(range(10)), eval_episodes=1, final_test=True, morl_python="p"),
+    ):
+        assert not pilot.of_record
     written = json.dumps(record.to_json())
     assert "python" not in written.replace('"protocol"', "")  # no interpreter path of this machine
 
@@ -153,6 +160,44 @@ def test_the_page_replays_the_shipped_records(tmp_path):
     assert not write_morl_page([SHIPPED], page, check=True)  # regenerated: the same text
 
 
+def _as_record_at_a_reduced_budget(tmp_path: Path) -> Path:
+    """The shipped run, made a run of record at its 1,200 env steps: a second seed, the final test's flags."""
+    run = tmp_path / "run"
+    shutil.copytree(SHIPPED, run)
+    settings = json.loads((run / "protocol.json").read_text())
+    settings.update(final_test=True, of_record=True, seeds=[0, 1])
+    (run / "protocol.json").write_text(json.dumps(settings))
+    for path in (run / "records").glob("*/seed-0.json"):
+        record = json.loads(path.read_text())
+        record["seed"] = 1
+        record["indicators"]["hypervolume"] += 1.0 if record["side"] == "hierarchy" else 0.0
+        record["wall_time_train_s"] *= 1.5
+        path.with_name("seed-1.json").write_text(json.dumps(record))
+    return run
+
+
+def test_a_run_of_record_at_a_reduced_budget_says_so_with_the_peers_speed(tmp_path):
+    run = _as_record_at_a_reduced_budget(tmp_path)
+    _, records = read_protocol_run(run)
+    text = morl_page([run], tmp_path / "MORL.md", draw=False)
+    assert "**Not a result**" not in text and "No run of record exists yet" not in text
+    assert (
+        "A run of record at a **reduced budget**: 1,200 env steps per side, 1% of the protocol's 200,000"
+        in text
+    )
+    # The peer's speed, measured on its seeds, extrapolated to the protocol's budget.
+    envelope = list(records["envelope"].values())
+    hours = np.mean([r.wall_time_train_s / r.total_env_steps * 200_000 for r in envelope]) / 3600
+    assert f"a seed of envelope would train for about {hours:.2g} h" in text
+    row = next(line for line in text.splitlines() if line.startswith("| envelope |"))
+    assert row.rstrip(" |").endswith(f"{hours:.2g}")
+    # Worded as a result: the paired test's word beside each indicator.
+    comparison = next(
+        line for line in text.splitlines() if line.startswith("| hddpg-conditioned - envelope |")
+    )
+    assert "ahead" in comparison or "behind" in comparison or "not distinguishable" in comparison
+
+
 def test_the_page_without_runs_says_no_result_exists(tmp_path):
     text = morl_page([], tmp_path / "MORL.md")
     assert "No run of record exists yet" in text and "## Results" in text
@@ -201,6 +246,26 @@ def test_a_tiny_protocol_run_end_to_end(tmp_path):
     shutil.rmtree(out / "runs")
 
 
+@needs_morl
+def test_tasks_in_parallel_write_the_records_one_task_at_a_time_writes(tmp_path):
+    arguments = ["--timesteps", "1200", "--methods", "hddpg-conditioned,envelope", "--test-episodes", "1"]
+    runs = {}
+    for jobs in ("1", "2"):
+        out = tmp_path / f"jobs-{jobs}"
+        done = subprocess.run(
+            [*COMMAND, *arguments, "--n-jobs", jobs, "--morl-python", str(MORL_PYTHON), "--out", str(out)],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs[jobs] = read_protocol_run(out)
+    assert runs["1"][0] == runs["2"][0]
+    for side, by_seed in runs["1"][1].items():
+        # Seeded sides: the same front whether the tasks ran one after another or side by side.
+        assert by_seed[0].discounted_returns == runs["2"][1][side][0].discounted_returns
+
+
 def test_the_shipped_page_is_current():
     page = Path(__file__).parents[1] / "docs" / "MORL.md"
     assert not write_morl_page([], page, check=True)
@@ -216,6 +281,8 @@ def test_the_shipped_page_is_current():
         ),
         (["--protocol", "morl-baselines", "--env", "minecart-v0", "--methods", "capql"], "--methods"),
         (["--protocol", "morl-baselines", "--env", "minecart-v0"], "--morl-python"),
+        (["--protocol", "morl-baselines", "--env", "minecart-v0", "--n-jobs", "999"], "--n-jobs"),
+        (["--protocol", "morl-baselines", "--env", "minecart-v0", "--executor", "ray"], "--executor"),
     ],
 )
 def test_the_command_names_a_bad_option_in_one_line(arguments, named, tmp_path):

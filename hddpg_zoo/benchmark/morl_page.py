@@ -3,8 +3,9 @@ docs/MORL.md, generated from protocol runs' records (``hddpg-cli morl-report RUN
 the protocol and where each of its facts comes from, then per env its fronts figure and a table of every
 indicator with its interval over seeds, env steps and wall-clock, and the hierarchy against each peer.
 
-Only a run of record (:attr:`~.morl_protocol.ProtocolSettings.of_record`) is worded as a result; any other
-run (a pilot, development episodes) is shown as what it is, and the page says that no result exists yet.
+Only a run of record (:attr:`~.morl_protocol.ProtocolSettings.of_record`) is worded as a result, and one at a
+budget below the protocol's says so with the peers' measured speed; any other run (a pilot, development
+episodes) is shown as what it is, and the page says that no result exists yet.
 """
 
 from __future__ import annotations
@@ -90,8 +91,8 @@ own benchmark runs (its issue 43, "Performance report issue tracker", run with `
 which uses gamma 0.98 where this protocol keeps 0.99, and whose Envelope example trains 100k steps;
 deep-sea-treasure-concave's reference point (0, -50) and 200k steps are its Pareto Q-learning benchmark
 runs. GPI-PD's continuous example on hopper trains 150k steps with 500-step episodes of `mo-hopper-v4`;
-here every peer has the env's protocol budget. `gpi-ls` is MORL-baselines' deep GPI-LS (`GPILS`, its
-`gpi_ls_discrete`), not its tabular `MPMOQLearning`.
+here every peer has the env's protocol budget, unless its run says it has a smaller one. `gpi-ls` is
+MORL-baselines' deep GPI-LS (`GPILS`, its `gpi_ls_discrete`), not its tabular `MPMOQLearning`.
 """
 
 _REGENERATE = """
@@ -102,6 +103,7 @@ _REGENERATE = """
 hddpg-cli benchmark --protocol morl-baselines --env minecart-v0 --seeds 10 --final-test \\
     --morl-python ~/morl-venv/bin/python --out runs/morl/minecart-v0
 # stopped midway (a peer's seed takes hours): the same command with --resume goes on from the checkpoints
+# a peer too slow here for the protocol's budget: add --timesteps N (every side's budget), and the page says so
 # this page, from every run's records
 hddpg-cli morl-report runs/morl/* --page docs/MORL.md
 ```
@@ -129,15 +131,24 @@ def _indicators(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str
     return [k for k in (*INDICATORS, *KNOWN_FRONT_INDICATORS) if k in first.indicators]
 
 
-def side_table(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]:
+def protocol_hours(records: Sequence[ProtocolRecord], protocol_steps: int) -> float:
+    """A side's training hours a seed at the protocol's budget, at its measured speed (seconds per env step)."""
+    seconds = [r.wall_time_train_s / max(r.total_env_steps, 1) * protocol_steps for r in records]
+    return float(np.mean(seconds)) / 3600
+
+
+def side_table(records: Mapping[str, Mapping[int, ProtocolRecord]], protocol_steps: int) -> list[str]:
     """
-    Per side: every indicator (mean and interval over seeds), env steps, and train and evaluation seconds;
+    Per side: every indicator (mean and interval over seeds), env steps, train and evaluation seconds, and
+    the hours a seed would train for at the protocol's budget (``protocol_steps``) at the measured speed;
     the seeds whose training was resumed in a new process (not uninterrupted runs) are counted.
     """
     names = _indicators(records)
     lines = [
-        "| side | seeds | " + " | ".join(names) + " | env steps | train s | eval s |",
-        "|---|---|" + "---|" * (len(names) + 3),
+        "| side | seeds | "
+        + " | ".join(names)
+        + " | env steps | train s | eval s | h a seed at the protocol's |",
+        "|---|---|" + "---|" * (len(names) + 4),
     ]
     for method, by_seed in records.items():
         ordered = [by_seed[s] for s in sorted(by_seed)]
@@ -147,7 +158,10 @@ def side_table(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]
         evaluate = _cell([r.wall_time_eval_s for r in ordered])
         resumed = sum(r.resumes > 0 for r in ordered)
         seeds = f"{len(ordered)} ({resumed} resumed)" if resumed else str(len(ordered))
-        lines.append(f"| {method} | {seeds} | " + " | ".join(cells) + f" | {steps} | {train} | {evaluate} |")
+        hours = f"{protocol_hours(ordered, protocol_steps):.2g}"
+        lines.append(
+            f"| {method} | {seeds} | " + " | ".join(cells) + f" | {steps} | {train} | {evaluate} | {hours} |"
+        )
     return lines
 
 
@@ -202,6 +216,35 @@ def fronts_figure(records: Mapping[str, Mapping[int, ProtocolRecord]], path: Pat
     return path
 
 
+def _kind(settings: Mapping[str, Any], records: Mapping[str, Mapping[int, ProtocolRecord]]) -> str:
+    """What a run is: of record at the protocol's budget, of record at a smaller one (said why), or neither."""
+    env = PROTOCOL_ENVS[str(settings["env_id"])]
+    budget = int(settings["budget"])
+    if not settings.get("of_record"):
+        return (
+            f"**Not a result**: a {'pilot' if budget < env.env_steps else 'development'} run ({budget} env steps "
+            f"per side, {len(settings['seeds'])} seed(s), {settings['eval_weights']} weights x "
+            f"{settings['eval_episodes']} episodes, {'final test' if settings['final_test'] else 'development'} "
+            "episodes); no word of better or worse is said of it."
+        )
+    if budget == env.env_steps:
+        return "A run of record (the protocol's budget and evaluation, final test episodes)."
+    peers = {m: by for m, by in records.items() if next(iter(by.values())).side == "peer"}
+    slowest = max(peers, key=lambda m: protocol_hours(list(peers[m].values()), env.env_steps), default=None)
+    why = (
+        f": at the protocol's {env.env_steps:,}, a seed of {slowest} would train for about "
+        f"{protocol_hours(list(peers[slowest].values()), env.env_steps):.2g} h on one of this machine's cores "
+        "(its measured speed, last column)"
+        if slowest
+        else ""
+    )
+    return (
+        f"A run of record at a **reduced budget**: {budget:,} env steps per side, {budget / env.env_steps:.0%} "
+        f"of the protocol's{why}. Every side has the same budget and the protocol's evaluation on the final test "
+        "episodes; the peers' figures are theirs at this budget, not their published ones."
+    )
+
+
 def env_section(run: Path, figures: Path, page_dir: Path, draw: bool = True) -> list[str]:
     """One env's section from one protocol run's folder (``draw``: also draw its fronts figure)."""
     settings, records = read_protocol_run(run)
@@ -212,22 +255,14 @@ def env_section(run: Path, figures: Path, page_dir: Path, draw: bool = True) -> 
     figure = figures / f"morl-{env_id}.png"
     if draw:
         fronts_figure(records, figure, env_id)
-    kind = (
-        "A run of record (the protocol's budget and evaluation, final test episodes)."
-        if of_record
-        else f"**Not a result**: a {'pilot' if settings['budget'] < PROTOCOL_ENVS[env_id].env_steps else 'development'} "
-        f"run ({settings['budget']} env steps per side, {len(settings['seeds'])} seed(s), {settings['eval_weights']} "
-        f"weights x {settings['eval_episodes']} episodes, "
-        f"{'final test' if settings['final_test'] else 'development'} episodes); no word of better or worse is said of it."
-    )
     return [
         f"## {env_id}",
         "",
-        kind,
+        _kind(settings, records),
         "",
         f"![{env_id} fronts]({figure.relative_to(page_dir).as_posix() if figure.is_relative_to(page_dir) else figure.as_posix()})",
         "",
-        *side_table(records),
+        *side_table(records, PROTOCOL_ENVS[env_id].env_steps),
         "",
         *comparison_table(records, of_record),
         "",

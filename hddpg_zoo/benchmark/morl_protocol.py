@@ -219,13 +219,21 @@ class ProtocolSettings:
 
     @property
     def of_record(self) -> bool:
-        """Whether this run can be a run of record: the protocol's budget, its evaluation, >= 10 seeds."""
+        """
+        Whether this run can be a run of record: the protocol's evaluation on the final test episodes, >= 10
+        seeds, and every side's budget the protocol's or, where a peer cannot train at the protocol's budget
+        on this machine, a smaller one stated beside every figure (:attr:`full_budget`).
+        """
         return (
             self.final_test
-            and self.budget == self.env.env_steps
             and len(self.seeds) >= RECORD_SEEDS
             and (self.eval_weights, self.eval_episodes) == (EVAL_WEIGHTS, EVAL_EPISODES)
         )
+
+    @property
+    def full_budget(self) -> bool:
+        """Whether every side trains for the protocol's own budget on this env."""
+        return self.budget == self.env.env_steps
 
     def to_json(self) -> dict[str, object]:
         """The settings as ``protocol.json`` keeps them (no path of this machine: the python is not kept)."""

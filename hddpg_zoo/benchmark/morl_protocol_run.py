@@ -16,9 +16,11 @@ state while it trains, so that a resumed run goes on from its last chunk; delete
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import shutil
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -263,11 +265,31 @@ def record_path(out: Path, side: str, seed: int) -> Path:
     return out / "records" / side / f"seed-{seed}.json"
 
 
-def run_protocol(settings: ProtocolSettings, out: str | Path) -> list[Path]:
-    """
-    Every side of ``settings`` on every seed, one task at a time, each record written when its task ends;
-    a record already there (a resumed run) is read, not run again.
+def _run_task(settings: ProtocolSettings, side: str, seed: int, out: Path) -> Path:
+    """One side on one seed: its record, run unless already written (a resumed run), then read back."""
+    path = record_path(out, side, seed)
+    folder = out / "runs" / side / f"seed-{seed}"
+    if path.exists() and side in PEERS:
+        # A checkpoint left by a run stopped between writing the record and deleting it.
+        shutil.rmtree(folder / "checkpoint", ignore_errors=True)
+    if not path.exists():
+        logger.info("protocol: %s, seed %d", side, seed)
+        if side in PEERS:
+            run_peer(settings, side, seed, path, folder)
+        else:
+            run_method(settings, side, seed, path, folder)
+    read_protocol_record(path)
+    return path
 
+
+def run_protocol(settings: ProtocolSettings, out: str | Path, n_jobs: int = 1) -> list[Path]:
+    """
+    Every side of ``settings`` on every seed, each record written when its task ends; a record already there
+    (a resumed run) is read, not run again.
+
+    :param n_jobs: tasks (a side on a seed) at a time, each in its own process; they share nothing but
+        ``out``, where each writes only its own record and folder. A failed task lets the others finish
+        (their records are kept) before its error is raised.
     :raises ValueError: ``out`` holds a run of other settings (nothing of it is touched).
     :return: the records, in task order.
     """
@@ -280,23 +302,14 @@ def run_protocol(settings: ProtocolSettings, out: str | Path) -> list[Path]:
     else:
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(saved, settings.to_json())
-    done: list[Path] = []
-    for seed in settings.seeds:
-        for side in (*settings.methods, *(settings.peers or ())):
-            path = record_path(out, side, seed)
-            folder = out / "runs" / side / f"seed-{seed}"
-            if path.exists() and side in PEERS:
-                # A checkpoint left by a run stopped between writing the record and deleting it.
-                shutil.rmtree(folder / "checkpoint", ignore_errors=True)
-            if not path.exists():
-                logger.info("protocol: %s, seed %d", side, seed)
-                if side in PEERS:
-                    run_peer(settings, side, seed, path, folder)
-                else:
-                    run_method(settings, side, seed, path, folder)
-            read_protocol_record(path)
-            done.append(path)
-    return done
+    tasks = [(side, seed) for seed in settings.seeds for side in (*settings.methods, *(settings.peers or ()))]
+    if n_jobs <= 1:
+        return [_run_task(settings, side, seed, out) for side, seed in tasks]
+    # Spawned, not forked: a JAX backend and torch's thread pools are not fork-safe.
+    with ProcessPoolExecutor(n_jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(_run_task, settings, side, seed, out) for side, seed in tasks]
+        wait(futures)
+    return [future.result() for future in futures]
 
 
 def read_protocol_run(out: Path) -> tuple[dict[str, Any], dict[str, dict[int, ProtocolRecord]]]:

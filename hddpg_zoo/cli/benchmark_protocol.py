@@ -21,6 +21,7 @@ from hddpg_zoo.benchmark.morl_protocol_run import (
     read_protocol_run,
     run_protocol,
 )
+from hddpg_zoo.cli.options import check_jobs
 from sb3_hddpg.cli.app import app, console
 from sb3_hddpg.cli.options import prepare_out_dir, usage_errors
 
@@ -31,7 +32,8 @@ ProtocolOpt = Annotated[
         help=f"Run a field's benchmark protocol instead of this one's scenarios: {PROTOCOL!r} (MORL-baselines' "
         f"envs {list(PROTOCOL_ENVS)}, budgets, reference points, evaluator and indicators, docs/MORL.md). With "
         "it, --env names one of those envs, --methods the hierarchy's methods, --timesteps every side's env "
-        "steps (a pilot below the protocol's), --test-episodes the episodes per weight; --methods names the "
+        "steps (below the protocol's: a pilot, or with --final-test and >= 10 seeds a run of record at a "
+        "reduced budget, which its page states), --n-jobs the tasks (a side on a seed) in parallel, --test-episodes the episodes per weight; --methods names the "
         "hierarchy's methods and MORL-baselines' learners together (default: hddpg-conditioned and the env's "
         "two strongest learners).",
     ),
@@ -52,6 +54,11 @@ def protocol_command(context: typer.Context) -> None:
         raise typer.BadParameter(
             f"expected {PROTOCOL!r}, got {given['protocol'][:80]!r}", param_hint="'--protocol'"
         )
+    if given["executor"] != "local":
+        raise typer.BadParameter(
+            "the protocol's tasks run on this machine (--n-jobs at most its cores)", param_hint="'--executor'"
+        )
+    check_jobs(given["n_jobs"], "local")
     names = _names(given["methods"])
     hierarchy = tuple(n for n in names if n not in PEERS) or ("hddpg-conditioned",)
     with usage_errors():
@@ -68,7 +75,7 @@ def protocol_command(context: typer.Context) -> None:
     out = Path(given["out"])
     prepare_out_dir(context, out, given["resume"], force=False)
     with usage_errors("'--out'"):
-        paths = run_protocol(settings, out)
+        paths = run_protocol(settings, out, n_jobs=given["n_jobs"] or 1)
     for path in paths:
         record = read_protocol_record(path)
         shown = ", ".join(f"{k} {v:.4g}" for k, v in record.indicators.items())
@@ -77,8 +84,11 @@ def protocol_command(context: typer.Context) -> None:
             f"{record.wall_time_train_s:.0f} s"
         )
     if not settings.of_record:
+        console.print("Not a run of record (the protocol's evaluation, >= 10 seeds, --final-test).")
+    elif not settings.full_budget:
         console.print(
-            "Not a run of record (the protocol's budget and evaluation, >= 10 seeds, --final-test)."
+            f"A run of record at a reduced budget ({settings.budget} of the protocol's "
+            f"{settings.env.env_steps} env steps per side): its page says so."
         )
     console.print(f"Records in {out / 'records'}; the page: hddpg-cli morl-report {out} --page docs/MORL.md")
 
