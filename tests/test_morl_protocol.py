@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hddpg_zoo.benchmark.morl_coverage import recovered_points
 from hddpg_zoo.benchmark.morl_page import morl_page, write_morl_page
 from hddpg_zoo.benchmark.morl_protocol import PROTOCOL_ENVS, ProtocolSettings
 from hddpg_zoo.benchmark.morl_protocol_run import (
@@ -196,6 +197,49 @@ def test_a_run_of_record_at_a_reduced_budget_says_so_with_the_peers_speed(tmp_pa
         line for line in text.splitlines() if line.startswith("| hddpg-conditioned - envelope |")
     )
     assert "ahead" in comparison or "behind" in comparison or "not distinguishable" in comparison
+
+
+#: deep-sea-treasure-concave's true front at gamma 0.99 (MO-Gymnasium 1.3): only its two ends are convex.
+DST_FRONT = [
+    [1.0, -1.0],
+    [1.9602, -2.9701],
+    [2.88178803, -4.90099501],
+    [4.707400747005, -6.793465209301],
+    [7.456522783255919, -7.72553055720799],
+    [14.763915110846721, -8.64827525163591],
+    [21.273236921187102, -12.247897700103202],
+    [43.876051149948395, -13.12541872310217],
+    [63.00787506102079, -15.70568066160731],
+    [103.47970641981085, -17.383137616441324],
+]
+
+
+def test_a_side_recovers_the_points_of_the_convex_coverage_set_it_reaches():
+    assert recovered_points(DST_FRONT, DST_FRONT) == {0, 9}
+    assert recovered_points(DST_FRONT, [[1.0, -1.0], [63.0, -15.7]]) == {0}
+    # The far treasure two steps late is not the far treasure.
+    assert recovered_points(DST_FRONT, [[101.42, -19.03]]) == set()
+    assert recovered_points(DST_FRONT, [[103.4, -17.39], [0.0, -50.0]]) == {9}
+
+
+def test_the_page_counts_the_recovered_points_per_side(tmp_path):
+    run = _as_record_at_a_reduced_budget(tmp_path)
+    _, records = read_protocol_run(run)
+    assert records["envelope"][0].known_front == DST_FRONT
+    text = morl_page([run], tmp_path / "MORL.md", draw=False)
+    assert "Points of the true front's convex coverage set (2) recovered" in text
+    found = {m: {s: recovered_points(DST_FRONT, r.front) for s, r in by.items()} for m, by in records.items()}
+    covered = sum(found["envelope"][s] <= found["hddpg-conditioned"][s] for s in (0, 1))
+    assert f"- hddpg-conditioned recovers every point envelope recovers in {covered} of 2 seeds." in text
+
+
+def test_a_known_front_too_large_to_cover_is_refused(tmp_path):
+    path = next((SHIPPED / "records").glob("*/seed-0.json"))
+    record = json.loads(path.read_text())
+    record["known_front"] = [[float(i), -float(i)] for i in range(500)]
+    (tmp_path / "r.json").write_text(json.dumps(record))
+    with pytest.raises(ValueError, match="known_front"):
+        read_protocol_record(tmp_path / "r.json")
 
 
 def test_the_page_without_runs_says_no_result_exists(tmp_path):

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from hddpg_zoo.benchmark.morl_coverage import coverage_lines
 from hddpg_zoo.benchmark.morl_protocol import (
     EU_WEIGHTS,
     EVAL_EPISODES,
@@ -232,7 +233,7 @@ def _kind(settings: Mapping[str, Any], records: Mapping[str, Mapping[int, Protoc
     peers = {m: by for m, by in records.items() if next(iter(by.values())).side == "peer"}
     slowest = max(peers, key=lambda m: protocol_hours(list(peers[m].values()), env.env_steps), default=None)
     why = (
-        f": at the protocol's {env.env_steps:,}, a seed of {slowest} would train for about "
+        f": at that budget a seed of {slowest} would train for about "
         f"{protocol_hours(list(peers[slowest].values()), env.env_steps):.2g} h on one of this machine's cores "
         "(its measured speed, last column)"
         if slowest
@@ -240,7 +241,7 @@ def _kind(settings: Mapping[str, Any], records: Mapping[str, Mapping[int, Protoc
     )
     return (
         f"A run of record at a **reduced budget**: {budget:,} env steps per side, {budget / env.env_steps:.0%} "
-        f"of the protocol's{why}. Every side has the same budget and the protocol's evaluation on the final test "
+        f"of the protocol's {env.env_steps:,}{why}. Every side has the same budget and the protocol's evaluation on the final test "
         "episodes; the peers' figures are theirs at this budget, not their published ones."
     )
 
@@ -266,6 +267,7 @@ def env_section(run: Path, figures: Path, page_dir: Path, draw: bool = True) -> 
         "",
         *comparison_table(records, of_record),
         "",
+        *coverage_lines(records),
     ]
 
 

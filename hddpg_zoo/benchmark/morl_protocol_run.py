@@ -16,6 +16,7 @@ state while it trains, so that a resumed run goes on from its last chunk; delete
 from __future__ import annotations
 
 import logging
+import math
 import multiprocessing
 import shutil
 import time
@@ -40,6 +41,9 @@ PROTOCOL_RUNNER = Path(__file__).with_name("morl_protocol_runner.py")
 #: The indicators every record holds; those of an env whose true front is known.
 INDICATORS = ("hypervolume", "expected_utility", "cardinality")
 KNOWN_FRONT_INDICATORS = ("igd", "maximum_utility_loss")
+#: The most linear systems a known front's convex coverage set may take: it is found by solving every system
+#: of as many of its points and simplex faces as there are objectives (minecart's 20 points in 3: 1,771).
+MAX_COVERAGE_SYSTEMS = 100_000
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,7 @@ class ProtocolRecord:
     :param resumes: times a peer's training went on from its checkpoint in a new process (its env's episode
         and random stream restarted): ``0`` for an uninterrupted run.
     :param chunk_steps: env steps of a chunk of a peer's checkpointed training (``None``: not chunked).
+    :param known_front: the env's true front at the protocol's discount, where MO-Gymnasium knows it.
     """
 
     side: str
@@ -78,6 +83,7 @@ class ProtocolRecord:
     versions: dict[str, str | None]
     resumes: int = 0
     chunk_steps: int | None = None
+    known_front: list[list[float]] | None = None
 
     @property
     def total_env_steps(self) -> int:
@@ -136,6 +142,9 @@ def read_protocol_record(path: Path) -> ProtocolRecord:
     optional: dict[str, Callable[[Any], bool]] = {
         "resumes": lambda v: isinstance(v, int) and v >= 0,
         "chunk_steps": lambda v: v is None or (isinstance(v, int) and v >= 1),
+        "known_front": lambda v: (
+            v is None or (_numbers(v, 2, width) and math.comb(len(v) + width, width) <= MAX_COVERAGE_SYSTEMS)
+        ),
     }
     for key, check in optional.items():
         if key in data and not check(data[key]):
@@ -162,6 +171,7 @@ def read_protocol_record(path: Path) -> ProtocolRecord:
         versions={str(k): None if v is None else str(v) for k, v in data["versions"].items()},
         resumes=data.get("resumes", 0),
         chunk_steps=data.get("chunk_steps"),
+        known_front=data.get("known_front"),
     )
 
 

@@ -71,6 +71,25 @@ def corner_weights(values: np.ndarray) -> list[np.ndarray]:
     return found
 
 
+def convex_coverage_set(values: np.ndarray, tolerance: float = 1e-7) -> dict[int, np.ndarray]:
+    """
+    The convex coverage set of ``values`` (one row per policy or return, one column per term): the rows
+    that maximise ``w . V`` at some weighting ``w``, each with an inner weighting of the region where it does
+    (the mean of the corner weights where it is optimal), at which no other row of the set ties with it
+    unless the two are equal or it is optimal at a single corner.
+
+    :param tolerance: how far below the maximum at a corner a row still counts as optimal there.
+    :return: row index -> its weighting, in row order.
+    """
+    values = np.atleast_2d(np.asarray(values, dtype=np.float64))
+    optimal_at: dict[int, list[np.ndarray]] = {}
+    for w in corner_weights(values):
+        scores = values @ w
+        for i in np.flatnonzero(scores >= scores.max() - tolerance):
+            optimal_at.setdefault(int(i), []).append(w)
+    return {i: np.mean(optimal_at[i], axis=0) for i in sorted(optimal_at)}
+
+
 def optimistic_value(weights: np.ndarray, visited: Sequence[np.ndarray], values: np.ndarray) -> float:
     """
     OLS's upper bound at ``weights``: ``max_v w . v`` subject to ``w_j . v <= max_i w_j . V_i`` for every
