@@ -292,7 +292,7 @@ def test_a_tiny_protocol_run_end_to_end(tmp_path):
 
 @needs_morl
 def test_tasks_in_parallel_write_the_records_one_task_at_a_time_writes(tmp_path):
-    arguments = ["--timesteps", "1200", "--methods", "hddpg-conditioned,envelope", "--test-episodes", "1"]
+    arguments = ["--timesteps", "400", "--methods", "hddpg-conditioned,envelope", "--test-episodes", "1"]
     runs = {}
     for jobs in ("1", "2"):
         out = tmp_path / f"jobs-{jobs}"
