@@ -197,6 +197,11 @@ def test_a_run_of_record_at_a_reduced_budget_says_so_with_the_peers_speed(tmp_pa
         line for line in text.splitlines() if line.startswith("| hddpg-conditioned - envelope |")
     )
     assert "ahead" in comparison or "behind" in comparison or "not distinguishable" in comparison
+    ratios = [
+        records["hddpg-conditioned"][s].wall_time_train_s / records["envelope"][s].wall_time_train_s
+        for s in (0, 1)
+    ]
+    assert comparison.endswith(f"| {np.median(ratios):.3g} [{min(ratios):.3g}, {max(ratios):.3g}] |")
 
 
 #: deep-sea-treasure-concave's true front at gamma 0.99 (MO-Gymnasium 1.3): only its two ends are convex.

@@ -166,12 +166,28 @@ def side_table(records: Mapping[str, Mapping[int, ProtocolRecord]], protocol_ste
     return lines
 
 
+def _time_ratio(ours: Sequence[ProtocolRecord], theirs: Sequence[ProtocolRecord]) -> str:
+    """The median per-seed ratio of training wall-clock, with the smallest and largest."""
+    ratios = [
+        a.wall_time_train_s / b.wall_time_train_s for a, b in zip(ours, theirs) if b.wall_time_train_s > 0
+    ]
+    if not ratios:
+        return "-"
+    return f"{np.median(ratios):.3g} [{min(ratios):.3g}, {max(ratios):.3g}]"
+
+
 def comparison_table(records: Mapping[str, Mapping[int, ProtocolRecord]], of_record: bool) -> list[str]:
-    """Each hierarchy method against each peer: the paired difference per indicator over common seeds."""
+    """
+    Each hierarchy method against each peer: the paired difference per indicator over common seeds, and
+    the ratio of their training wall-clock (the median of the per-seed ratios, with their range).
+    """
     hierarchy = [m for m, by in records.items() if next(iter(by.values())).side == "hierarchy"]
     peers = [m for m in records if m not in hierarchy]
     names = _indicators(records)
-    lines = ["| hierarchy - peer | seeds | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+    lines = [
+        "| hierarchy - peer | seeds | " + " | ".join(names) + " | train s, hierarchy / peer |",
+        "|---|---|" + "---|" * (len(names) + 1),
+    ]
     for method in hierarchy:
         for peer in peers:
             seeds = sorted(set(records[method]) & set(records[peer]))
@@ -187,6 +203,7 @@ def comparison_table(records: Mapping[str, Mapping[int, ProtocolRecord]], of_rec
                 )
                 shown = f"{interval['difference']:+.4g} [{interval['ci_low']:.4g}, {interval['ci_high']:.4g}]"
                 cells.append(f"{shown} {word}".strip())
+            cells.append(_time_ratio([records[method][s] for s in seeds], [records[peer][s] for s in seeds]))
             lines.append(f"| {method} - {peer} | {len(seeds)} | " + " | ".join(cells) + " |")
     return lines
 
