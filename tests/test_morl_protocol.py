@@ -437,6 +437,21 @@ def test_hddpg_gpi_trains_a_support_within_one_budget_and_plays_its_weights(tmp_
     assert trained.policy.coefficients == pytest.approx({"obj0": 0.0, "obj1": 1.0})
 
 
+def test_gpi_over_the_per_term_workers_gives_them_the_whole_budget(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from hddpg_zoo.benchmark.morl_gpi import STEP_QUANTUM
+    from hddpg_zoo.benchmark.morl_protocol import GAMMA
+    from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun
+
+    budget = 2402
+    trained = PROTOCOL_METHODS["hddpg-gpi-terms"].train(
+        SideRun("deep-sea-treasure-concave-v0", True, GAMMA, budget, 0, tmp_path)
+    )
+    share = budget // 2 // STEP_QUANTUM * STEP_QUANTUM
+    assert trained.env_steps == {"workers/obj0": share, "workers/obj1": share, "bounds": 0}
+    assert not (tmp_path / "workers" / "support.json").exists()
+
+
 def _train(arguments: list[str], checkpoint: Path, out: Path) -> subprocess.CompletedProcess[str]:
     """The protocol runner's ``train`` with MORL-baselines' python, a tiny evaluation, checkpointed."""
     evaluation = ["--eval-weights", "3", "--eval-episodes", "1", "--checkpoint-dir", str(checkpoint)]

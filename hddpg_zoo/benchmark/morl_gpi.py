@@ -30,6 +30,7 @@ weighting does. On deep-sea-treasure the coefficients are then exactly ``w_i ran
 from __future__ import annotations
 
 import contextlib
+import functools
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -160,19 +161,21 @@ def trained_steps(folder: Path) -> dict[str, int]:
     return {f"workers/{name}": steps for name, steps in worker_steps(folder).items()}
 
 
-def train_gpi(run: SideRun) -> TrainedSide:
+def train_gpi(run: SideRun, extra_workers: int = GPI_EXTRA_WORKERS) -> TrainedSide:
     """
     One worker per objective (DQN on discrete actions, DDPG on continuous), then the weighted workers ``grow``
     adds at the corner weights of largest optimistic gain, every worker with a per-term critic at the
     protocol's discount and an equal share of one budget; GPI over all of them plays each weight.
 
     :param run: the env, seed, budget, discount and folder of the run.
+    :param extra_workers: the weighted workers the support may add (0: GPI over the per-term workers alone,
+        which then share the whole budget).
     """
     started = time.perf_counter()
     shared, bounds_steps = pinned_env(run.env_id)
     terms = list(shared.terms)
     available = run.budget - bounds_steps
-    share = available // (len(terms) + GPI_EXTRA_WORKERS) // STEP_QUANTUM * STEP_QUANTUM
+    share = available // (len(terms) + extra_workers) // STEP_QUANTUM * STEP_QUANTUM
     if share < 1:
         raise ValueError(
             f"A budget of {run.budget} env steps ({bounds_steps} to estimate bounds) trains no model"
@@ -189,11 +192,11 @@ def train_gpi(run: SideRun) -> TrainedSide:
         keep_transitions=True,
     )
     # Whatever the per-term workers left of their shares stays unspent: the support takes its own shares.
-    support_budget = min(GPI_EXTRA_WORKERS * share, available - sum(trained_steps(run.folder).values()))
+    support_budget = min(extra_workers * share, available - sum(trained_steps(run.folder).values()))
     if support_budget >= 1:
         grow(
             run.folder,
-            SupportOptions(len(terms) + GPI_EXTRA_WORKERS, support_budget),
+            SupportOptions(len(terms) + extra_workers, support_budget),
             run=options,
             env=shared,
             term_critic=critic,
@@ -217,10 +220,20 @@ GPI_METHOD = register_protocol_method(
     )
 )
 
+GPI_TERMS_METHOD = register_protocol_method(
+    ProtocolMethod(
+        "hddpg-gpi-terms",
+        "GPI as hddpg-gpi's over the per-term workers alone, which share the whole budget (no support is grown: "
+        "where the convex coverage set is the objectives' own optima, its budget goes to finding them)",
+        functools.partial(train_gpi, extra_workers=0),
+    )
+)
+
 
 __all__ = [
     "GPI_EXTRA_WORKERS",
     "GPI_METHOD",
+    "GPI_TERMS_METHOD",
     "STEP_QUANTUM",
     "GpiPolicy",
     "gpi_coefficients",
