@@ -238,6 +238,26 @@ def test_the_page_counts_the_recovered_points_per_side(tmp_path):
     assert f"- hddpg-conditioned recovers every point envelope recovers in {covered} of 2 seeds." in text
 
 
+def test_the_page_counts_a_peers_points_beyond_every_mixture_of_the_hierarchys(tmp_path):
+    run = _as_record_at_a_reduced_budget(tmp_path)
+    fronts = {
+        # A switch between two policies reaches the segment between their points.
+        "hddpg-conditioned": [[0.0, 0.0]] * 50 + [[10.0, -10.0]] * 50,
+        # On the segment; beyond it by 0.5 on both objectives at once; dominated (not counted).
+        "envelope": [[5.0, -5.0]] * 50 + [[2.0, -1.0]] * 49 + [[1.0, -20.0]],
+    }
+    for method, front in fronts.items():
+        for path in (run / "records" / method).glob("seed-*.json"):
+            record = json.loads(path.read_text())
+            record["front"] = front
+            path.write_text(json.dumps(record))
+    text = morl_page([run], tmp_path / "MORL.md", draw=False)
+    line = next(
+        line for line in text.splitlines() if line.startswith("- envelope's non-dominated points beyond")
+    )
+    assert line.endswith("per seed: 1 of 2, 1 of 2; the farthest by 0.5 on every objective at once.")
+
+
 def test_a_known_front_too_large_to_cover_is_refused(tmp_path):
     path = next((SHIPPED / "records").glob("*/seed-0.json"))
     record = json.loads(path.read_text())

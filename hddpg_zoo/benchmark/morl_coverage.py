@@ -8,6 +8,10 @@ region where it alone is optimal: :func:`~sb3_hddpg.training.linear_support.conv
 within a small share of the known front's spread of utilities there: a linear-utility user at that weighting
 then loses next to nothing. Points of a concave part of the front belong to no convex coverage set: no
 weighting of the terms reaches them, and none is counted.
+
+On every env the page also counts, per seed, a peer's non-dominated points beyond every mixture of the
+hierarchy's front (:func:`~.front_mixtures.points_beyond`): the points a manager switching between the
+hierarchy's policies cannot reach, which a learner blending the objectives in one policy can.
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from hddpg_zoo.benchmark.front_mixtures import points_beyond
+from hddpg_zoo.benchmark.front_pages import MIXTURE_TOLERANCE
 from hddpg_zoo.benchmark.morl_protocol_run import ProtocolRecord
 from sb3_hddpg.training.linear_support import convex_coverage_set
 
@@ -80,4 +86,42 @@ def coverage_lines(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[
     return [*lines, ""]
 
 
-__all__ = ["RECOVERY_SHARE", "coverage_lines", "recovered_points"]
+def non_dominated_points(front: Sequence[Sequence[float]]) -> np.ndarray:
+    """The distinct points of ``front`` no other point dominates (every objective maximised)."""
+    points = np.unique(np.asarray(front, dtype=np.float64), axis=0)
+    keep = [not any(np.all(other >= own) and np.any(other > own) for other in points) for own in points]
+    return points[np.asarray(keep, dtype=bool)]
+
+
+def beyond_mixture_lines(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]:
+    """
+    Per hierarchy method and peer, the peer's non-dominated points beyond every mixture of the method's front
+    points, per seed (``k of n``), and the largest margin (in the objectives' own units).
+    """
+    sides = {method: next(iter(by.values())).side for method, by in records.items()}
+    lines = []
+    for method in (m for m, side in sides.items() if side == "hierarchy"):
+        for peer in (m for m, side in sides.items() if side == "peer"):
+            counts, widest = [], 0.0
+            for seed in sorted(set(records[method]) & set(records[peer])):
+                theirs = non_dominated_points(records[peer][seed].front)
+                larger = [True] * theirs.shape[1]
+                margins = points_beyond(theirs.tolist(), records[method][seed].front, larger)
+                counts.append(f"{sum(m > MIXTURE_TOLERANCE for m in margins)} of {len(margins)}")
+                widest = max(widest, *margins)
+            if counts:
+                lines.append(
+                    f"- {peer}'s non-dominated points beyond every mixture of {method}'s (what switching between "
+                    f"its policies reaches, to first order), per seed: {', '.join(counts)}; the farthest by "
+                    f"{widest:.3g} on every objective at once."
+                )
+    return [*lines, ""] if lines else []
+
+
+__all__ = [
+    "RECOVERY_SHARE",
+    "beyond_mixture_lines",
+    "coverage_lines",
+    "non_dominated_points",
+    "recovered_points",
+]

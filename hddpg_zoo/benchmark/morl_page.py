@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from hddpg_zoo.benchmark.morl_coverage import coverage_lines
+from hddpg_zoo.benchmark.morl_coverage import beyond_mixture_lines, coverage_lines
 from hddpg_zoo.benchmark.morl_protocol import (
     EU_WEIGHTS,
     EVAL_EPISODES,
@@ -284,6 +284,7 @@ def env_section(run: Path, figures: Path, page_dir: Path, draw: bool = True) -> 
         "",
         *comparison_table(records, of_record),
         "",
+        *beyond_mixture_lines(records),
         *coverage_lines(records),
     ]
 
