@@ -220,4 +220,9 @@ def test_the_convex_coverage_set_leaves_out_concave_and_dominated_points():
         # Each point is the one best at its own weighting.
         assert scores[index] == pytest.approx(scores.max())
         assert np.all(np.delete(scores, index) < scores[index] - 1e-9)
-    assert set(convex_coverage_set(values[:3])) == {0, 1, 2}  # tied on a face: optimal at one corner
+    # A point on the segment between two others ties with them wherever it is optimal: not in the minimal set.
+    assert set(convex_coverage_set(values[:3])) == {0, 1}
+    # The same in three terms (on an edge of the front), a duplicate, a weakly dominated point.
+    assert set(convex_coverage_set(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0]]))) == {0, 1, 2}
+    assert set(convex_coverage_set(np.array([[0.0, 1.0], [1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))) == {0, 1}
+    assert set(convex_coverage_set(np.array([[1.0, 0.0], [1.0, -0.5], [0.0, 1.0]]))) == {0, 2}

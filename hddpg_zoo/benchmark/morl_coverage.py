@@ -29,17 +29,22 @@ from sb3_hddpg.training.linear_support import convex_coverage_set
 RECOVERY_SHARE = 0.01
 
 
-def recovered_points(known: Sequence[Sequence[float]], front: Sequence[Sequence[float]]) -> frozenset[int]:
+def recovered_points(
+    known: Sequence[Sequence[float]],
+    front: Sequence[Sequence[float]],
+    coverage: Mapping[int, np.ndarray] | None = None,
+) -> frozenset[int]:
     """
     The indices (into ``known``) of the convex coverage set's points that ``front`` recovers.
 
     :param known: the true front, one row per point.
     :param front: a side's front (the protocol's per-weight mean discounted returns).
+    :param coverage: ``known``'s convex coverage set, if already found (else it is found here).
     """
     points = np.asarray(known, dtype=np.float64)
     played = np.asarray(front, dtype=np.float64)
     found = set()
-    for index, weights in convex_coverage_set(points).items():
+    for index, weights in (coverage if coverage is not None else convex_coverage_set(points)).items():
         utilities = points @ weights
         slack = RECOVERY_SHARE * float(utilities.max() - utilities.min())
         if float(np.max(played @ weights)) >= utilities[index] - slack:
@@ -50,17 +55,18 @@ def recovered_points(known: Sequence[Sequence[float]], front: Sequence[Sequence[
 def coverage_lines(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]:
     """
     The page's block: per side the points recovered a seed and the seeds recovering all of them, then per
-    hierarchy method and peer the seeds where the method recovers every point the peer recovers (none
-    where the env's true front is unknown).
+    hierarchy method and peer, among the seeds where the peer recovers some point, those where the method
+    recovers every point the peer recovers (none where the env's true front is unknown).
     """
     known = next(r for by in records.values() for r in by.values()).known_front
     if known is None:
         return []
-    size = len(convex_coverage_set(np.asarray(known, dtype=np.float64)))
+    coverage = convex_coverage_set(np.asarray(known, dtype=np.float64))
     found = {
-        method: {seed: recovered_points(known, r.front) for seed, r in by.items()}
+        method: {seed: recovered_points(known, r.front, coverage) for seed, r in by.items()}
         for method, by in records.items()
     }
+    size = len(coverage)
     lines = [
         f"Points of the true front's convex coverage set ({size}) recovered: a side recovers one where its "
         f"front's best utility at the point's weighting is within {RECOVERY_SHARE:.0%} of the true front's "
@@ -79,9 +85,11 @@ def coverage_lines(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[
     for method in (m for m, side in sides.items() if side == "hierarchy"):
         for peer in (m for m, side in sides.items() if side == "peer"):
             seeds = sorted(set(found[method]) & set(found[peer]))
-            covered = sum(found[peer][s] <= found[method][s] for s in seeds)
+            some = [s for s in seeds if found[peer][s]]
+            covered = sum(found[peer][s] <= found[method][s] for s in some)
             lines.append(
-                f"- {method} recovers every point {peer} recovers in {covered} of {len(seeds)} seeds."
+                f"- {method} recovers every point {peer} recovers in {covered} of the {len(some)} seeds where "
+                f"{peer} recovers one ({peer} recovers none in {len(seeds) - len(some)})."
             )
     return [*lines, ""]
 

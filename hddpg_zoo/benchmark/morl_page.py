@@ -251,7 +251,7 @@ def _kind(settings: Mapping[str, Any], records: Mapping[str, Mapping[int, Protoc
     slowest = max(peers, key=lambda m: protocol_hours(list(peers[m].values()), env.env_steps), default=None)
     why = (
         f": at that budget a seed of {slowest} would train for about "
-        f"{protocol_hours(list(peers[slowest].values()), env.env_steps):.2g} h on one of this machine's cores "
+        f"{protocol_hours(list(peers[slowest].values()), env.env_steps):.2g} h on one core of the machine that ran it "
         "(its measured speed, last column)"
         if slowest
         else ""

@@ -33,6 +33,9 @@ EVAL_EPISODES = 5
 EU_WEIGHTS = 50
 #: Seeds of a run of record (MORL-baselines' benchmark runs 10 per learner and env).
 RECORD_SEEDS = 10
+#: The smallest share of the protocol's budget a run of record may take (below it, a learner's figures say
+#: little of what it learns at the protocol's budget).
+RECORD_MIN_SHARE = 0.1
 #: Seed of the first evaluation episode; ``FINAL_TEST`` of the protocol: development seeds start elsewhere.
 DEVELOPMENT_EVAL_SEED = 20_000
 FINAL_TEST_EVAL_SEED = 10_000
@@ -222,12 +225,14 @@ class ProtocolSettings:
         """
         Whether this run can be a run of record: the protocol's evaluation on the final test episodes, >= 10
         seeds, and every side's budget the protocol's or, where a peer cannot train at the protocol's budget
-        on this machine, a smaller one stated beside every figure (:attr:`full_budget`).
+        on this machine, a smaller one (at least :data:`RECORD_MIN_SHARE` of it) stated beside every figure
+        (:attr:`full_budget`).
         """
         return (
             self.final_test
             and len(self.seeds) >= RECORD_SEEDS
             and (self.eval_weights, self.eval_episodes) == (EVAL_WEIGHTS, EVAL_EPISODES)
+            and self.budget >= RECORD_MIN_SHARE * self.env.env_steps
         )
 
     @property

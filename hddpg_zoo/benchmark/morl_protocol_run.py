@@ -21,7 +21,7 @@ import multiprocessing
 import shutil
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -292,34 +292,75 @@ def _run_task(settings: ProtocolSettings, side: str, seed: int, out: Path) -> Pa
     return path
 
 
+def _same_run(kept: object, settings: ProtocolSettings) -> bool:
+    """Whether a saved ``protocol.json`` holds ``settings`` (``of_record`` is derived, so not compared)."""
+    derived = {"of_record"}
+    current = {k: v for k, v in settings.to_json().items() if k not in derived}
+    return isinstance(kept, dict) and {k: v for k, v in kept.items() if k not in derived} == current
+
+
+def _task_logging(level: int) -> None:
+    """A spawned task's logging: its lines reach the terminal as the parent's do."""
+    logging.basicConfig(level=level, format="%(message)s")
+
+
+def _run_in_parallel(
+    settings: ProtocolSettings, tasks: list[tuple[str, int]], out: Path, n_jobs: int
+) -> None:
+    """
+    ``tasks`` at most ``n_jobs`` at a time, each in its own spawned process (a JAX backend and torch's thread
+    pools are not fork-safe). Only as many are handed to the pool as it runs, so that nothing is queued behind
+    a failure or an interrupt: after a failure the running tasks finish (their records are kept) and no new
+    one starts; then every failure is logged and the first raised.
+    """
+    pending, running, failures = list(tasks), set(), []
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(
+        n_jobs, mp_context=context, initializer=_task_logging, initargs=(logging.getLogger().level,)
+    ) as pool:
+        try:
+            while pending or running:
+                while pending and not failures and len(running) < n_jobs:
+                    side, seed = pending.pop(0)
+                    running.add(pool.submit(_run_task, settings, side, seed, out))
+                if not running:
+                    break
+                done, running = wait(running, return_when=FIRST_COMPLETED)
+                failures += [f.exception() for f in done if f.exception() is not None]
+        except BaseException:
+            # Ctrl-C reaches the tasks too (one process group); nothing new starts.
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+    for failure in failures[1:]:
+        logger.error("protocol: another task failed: %s", failure)
+    if failures:
+        raise failures[0]
+
+
 def run_protocol(settings: ProtocolSettings, out: str | Path, n_jobs: int = 1) -> list[Path]:
     """
     Every side of ``settings`` on every seed, each record written when its task ends; a record already there
     (a resumed run) is read, not run again.
 
     :param n_jobs: tasks (a side on a seed) at a time, each in its own process; they share nothing but
-        ``out``, where each writes only its own record and folder. A failed task lets the others finish
-        (their records are kept) before its error is raised.
+        ``out``, where each writes only its own record and folder.
     :raises ValueError: ``out`` holds a run of other settings (nothing of it is touched).
     :return: the records, in task order.
     """
     out = Path(out)
     saved = out / "protocol.json"
     if saved.exists():
-        kept = read_json_record(saved, f"{saved}: not readable")
-        if kept != settings.to_json():
+        if not _same_run(read_json_record(saved, f"{saved}: not readable"), settings):
             raise ValueError(f"{out}: holds a protocol run of other settings; choose another --out")
     else:
         out.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(saved, settings.to_json())
+    # Written again on resume: a run begun before of_record's rule changed gets today's verdict.
+    atomic_write_json(saved, settings.to_json())
     tasks = [(side, seed) for seed in settings.seeds for side in (*settings.methods, *(settings.peers or ()))]
     if n_jobs <= 1:
         return [_run_task(settings, side, seed, out) for side, seed in tasks]
-    # Spawned, not forked: a JAX backend and torch's thread pools are not fork-safe.
-    with ProcessPoolExecutor(n_jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(_run_task, settings, side, seed, out) for side, seed in tasks]
-        wait(futures)
-    return [future.result() for future in futures]
+    _run_in_parallel(settings, tasks, out, n_jobs)
+    return [_run_task(settings, side, seed, out) for side, seed in tasks]  # each reads its record
 
 
 def read_protocol_run(out: Path) -> tuple[dict[str, Any], dict[str, dict[int, ProtocolRecord]]]:

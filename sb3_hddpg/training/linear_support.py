@@ -73,21 +73,30 @@ def corner_weights(values: np.ndarray) -> list[np.ndarray]:
 
 def convex_coverage_set(values: np.ndarray, tolerance: float = 1e-7) -> dict[int, np.ndarray]:
     """
-    The convex coverage set of ``values`` (one row per policy or return, one column per term): the rows
-    that maximise ``w . V`` at some weighting ``w``, each with an inner weighting of the region where it does
-    (the mean of the corner weights where it is optimal), at which no other row of the set ties with it
-    unless the two are equal or it is optimal at a single corner.
+    The minimal convex coverage set of ``values`` (one row per policy or return, one column per term): the
+    distinct rows that alone maximise ``w . V`` over some open region of weightings, each with an inner
+    weighting of that region (the mean of the corner weights where it is optimal), where it beats every other
+    distinct row by more than ``tolerance``. A row optimal only where it ties with others (on an edge of the
+    front, weakly dominated, or a duplicate of an earlier row) is left out.
 
-    :param tolerance: how far below the maximum at a corner a row still counts as optimal there.
-    :return: row index -> its weighting, in row order.
+    :return: row index (the first of equal rows) -> its weighting, in row order.
     """
     values = np.atleast_2d(np.asarray(values, dtype=np.float64))
+    _, first = np.unique(values, axis=0, return_index=True)
+    rows = np.sort(first)
+    distinct = values[rows]
     optimal_at: dict[int, list[np.ndarray]] = {}
-    for w in corner_weights(values):
-        scores = values @ w
+    for w in corner_weights(distinct):
+        scores = distinct @ w
         for i in np.flatnonzero(scores >= scores.max() - tolerance):
             optimal_at.setdefault(int(i), []).append(w)
-    return {i: np.mean(optimal_at[i], axis=0) for i in sorted(optimal_at)}
+    found: dict[int, np.ndarray] = {}
+    for i, corners in sorted(optimal_at.items()):
+        inner = np.mean(corners, axis=0)
+        scores = distinct @ inner
+        if np.all(np.delete(scores, i) < scores[i] - tolerance):
+            found[int(rows[i])] = inner
+    return found
 
 
 def optimistic_value(weights: np.ndarray, visited: Sequence[np.ndarray], values: np.ndarray) -> float:
