@@ -343,6 +343,20 @@ def test_tasks_in_parallel_write_the_records_one_task_at_a_time_writes(tmp_path)
         assert by_seed[0].discounted_returns == runs["2"][1][side][0].discounted_returns
 
 
+def test_a_failed_task_in_parallel_is_raised_and_writes_no_record(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from hddpg_zoo.benchmark.morl_protocol_run import run_protocol
+
+    # Two env steps train no model: every task fails in its own spawned process, before any scoring.
+    settings = ProtocolSettings(
+        "deep-sea-treasure-concave-v0", (0, 1, 2), ("hddpg-conditioned",), (), 2, morl_python=sys.executable
+    )
+    with pytest.raises(ValueError, match="trains no model"):
+        run_protocol(settings, tmp_path / "run", n_jobs=2)
+    assert not list((tmp_path / "run").glob("records/*/*.json"))
+    assert json.loads((tmp_path / "run" / "protocol.json").read_text()) == settings.to_json()
+
+
 def test_the_shipped_page_is_current():
     page = Path(__file__).parents[1] / "docs" / "MORL.md"
     assert not write_morl_page([], page, check=True)
