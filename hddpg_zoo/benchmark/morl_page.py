@@ -267,14 +267,16 @@ def env_section(run: Path, figures: Path, page_dir: Path, draw: bool = True) -> 
     """One env's section from one protocol run's folder (``draw``: also draw its fronts figure)."""
     settings, records = read_protocol_run(run)
     env_id = str(settings["env_id"])
+    # Several runs of one env (a pilot beside a run of record) each get their own heading and figure.
+    title = env_id if run.name == env_id else f"{env_id}: {run.name}"
     if not records:
-        return [f"## {env_id}", "", f"The run in `{run.name}` holds no records yet.", ""]
+        return [f"## {title}", "", f"The run in `{run.name}` holds no records yet.", ""]
     of_record = bool(settings.get("of_record"))
-    figure = figures / f"morl-{env_id}.png"
+    figure = figures / f"morl-{run.name}.png"
     if draw:
-        fronts_figure(records, figure, env_id)
+        fronts_figure(records, figure, title)
     return [
-        f"## {env_id}",
+        f"## {title}",
         "",
         _kind(settings, records),
         "",
