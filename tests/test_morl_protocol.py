@@ -358,8 +358,10 @@ def test_a_failed_task_in_parallel_is_raised_and_writes_no_record(tmp_path):
 
 
 def test_the_shipped_page_is_current():
-    page = Path(__file__).parents[1] / "docs" / "MORL.md"
-    assert not write_morl_page([], page, check=True)
+    docs = Path(__file__).parents[1] / "docs"
+    runs = sorted((docs / "results" / "morl-dev").iterdir())
+    assert runs and all((run / "protocol.json").is_file() for run in runs)
+    assert not write_morl_page(runs, docs / "MORL.md", check=True)
 
 
 @pytest.mark.parametrize(

@@ -107,6 +107,8 @@ hddpg-cli benchmark --protocol morl-baselines --env minecart-v0 --seeds 10 --fin
 # a peer too slow here for the protocol's budget: add --timesteps N (every side's budget), and the page says so
 # this page, from every run's records
 hddpg-cli morl-report runs/morl/* --page docs/MORL.md
+# as shipped: from the development runs' records
+hddpg-cli morl-report docs/results/morl-dev/* --page docs/MORL.md
 ```
 """
 
