@@ -304,6 +304,32 @@ def test_morl_baselines_indicators_of_a_fixed_front(tmp_path):
 
 
 @needs_morl
+def test_the_runner_reads_relative_paths_from_where_it_was_started(tmp_path):
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "r.json").write_text(
+        json.dumps({"discounted_returns": [[[1.0, -1.0]], [[8.2, -3.0]]]})
+    )
+    arguments = [
+        "score",
+        "--returns",
+        "in/r.json",
+        "--env",
+        "deep-sea-treasure-concave-v0",
+        "--ref-point=0,-50",
+    ]
+    done = subprocess.run(
+        [MORL_PYTHON, str(PROTOCOL_RUNNER), *arguments, "--out", "out/s.json"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env={**os.environ, "WANDB_MODE": "disabled"},
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-1000:]
+    assert json.loads((tmp_path / "out" / "s.json").read_text())["indicators"]["cardinality"] == 2
+
+
+@needs_morl
 def test_a_tiny_protocol_run_end_to_end(tmp_path):
     out = tmp_path / "run"
     arguments = ["--timesteps", "1200", "--methods", "envelope", "--test-episodes", "1"]

@@ -299,9 +299,15 @@ def _same_run(kept: object, settings: ProtocolSettings) -> bool:
     return isinstance(kept, dict) and {k: v for k, v in kept.items() if k not in derived} == current
 
 
-def _task_logging(level: int) -> None:
-    """A spawned task's logging: its lines reach the terminal as the parent's do."""
+def _task_setup(level: int, threads: int) -> None:
+    """
+    A spawned task's process as its parent: its log lines reach the terminal, and torch has the parent's
+    threads (the CLI's one), so that a seed plays the same episodes whether its task runs here or there.
+    """
+    import torch
+
     logging.basicConfig(level=level, format="%(message)s")
+    torch.set_num_threads(threads)
 
 
 def _run_in_parallel(
@@ -313,11 +319,12 @@ def _run_in_parallel(
     a failure or an interrupt: after a failure the running tasks finish (their records are kept) and no new
     one starts; then every failure is logged and the first raised.
     """
+    import torch
+
     pending, running, failures = list(tasks), set(), []
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(
-        n_jobs, mp_context=context, initializer=_task_logging, initargs=(logging.getLogger().level,)
-    ) as pool:
+    setup = (logging.getLogger().level, torch.get_num_threads())
+    with ProcessPoolExecutor(n_jobs, mp_context=context, initializer=_task_setup, initargs=setup) as pool:
         try:
             while pending or running:
                 while pending and not failures and len(running) < n_jobs:

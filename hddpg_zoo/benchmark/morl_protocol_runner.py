@@ -490,9 +490,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: morl_baselines is not installed in this python ({sys.executable})", file=sys.stderr)
         return 2
     resume = _resume()
+    # Every path is made absolute before the script moves to its scratch folder (relative --out of the CLI).
     out = Path(args.out).absolute()
-    if getattr(args, "checkpoint_dir", None) is not None:
-        args.checkpoint_dir = Path(args.checkpoint_dir).absolute()
+    for name in ("checkpoint_dir", "returns"):
+        if getattr(args, name, None) is not None:
+            setattr(args, name, Path(getattr(args, name)).absolute())
     try:
         runner._write_json(out, {}, args.force, check_only=True)
         # Learners that save checkpoints or logs write them in the working folder: a temporary one.
