@@ -21,7 +21,7 @@ import multiprocessing
 import shutil
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -321,7 +321,9 @@ def _run_in_parallel(
     """
     import torch
 
-    pending, running, failures = list(tasks), set(), []
+    pending = list(tasks)
+    running: set[Future[Path]] = set()
+    failures: list[BaseException] = []
     context = multiprocessing.get_context("spawn")
     setup = (logging.getLogger().level, torch.get_num_threads())
     with ProcessPoolExecutor(n_jobs, mp_context=context, initializer=_task_setup, initargs=setup) as pool:
@@ -333,7 +335,7 @@ def _run_in_parallel(
                 if not running:
                     break
                 done, running = wait(running, return_when=FIRST_COMPLETED)
-                failures += [f.exception() for f in done if f.exception() is not None]
+                failures += [error for f in done if (error := f.exception()) is not None]
         except BaseException:
             # Ctrl-C reaches the tasks too (one process group); nothing new starts.
             pool.shutdown(wait=False, cancel_futures=True)

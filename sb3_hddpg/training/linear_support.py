@@ -88,14 +88,14 @@ def convex_coverage_set(values: np.ndarray, tolerance: float = 1e-7) -> dict[int
     optimal_at: dict[int, list[np.ndarray]] = {}
     for w in corner_weights(distinct):
         scores = distinct @ w
-        for i in np.flatnonzero(scores >= scores.max() - tolerance):
-            optimal_at.setdefault(int(i), []).append(w)
+        for row in np.flatnonzero(scores >= scores.max() - tolerance):
+            optimal_at.setdefault(int(row), []).append(w)
     found: dict[int, np.ndarray] = {}
-    for i, corners in sorted(optimal_at.items()):
+    for index, corners in sorted(optimal_at.items()):
         inner = np.mean(corners, axis=0)
         scores = distinct @ inner
-        if np.all(np.delete(scores, i) < scores[i] - tolerance):
-            found[int(rows[i])] = inner
+        if np.all(np.delete(scores, index) < scores[index] - tolerance):
+            found[int(rows[index])] = inner
     return found
 
 
