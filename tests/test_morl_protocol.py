@@ -491,7 +491,6 @@ def test_hddpg_gpi_trains_a_support_within_one_budget_and_plays_its_weights(tmp_
     names = list(load_workers(tmp_path))
     assert sorted([*record.start, *(s.name for s in record.added)]) == sorted(names)
     assert record.start == ["obj0", "obj1"] and 1 <= len(record.added) <= GPI_EXTRA_WORKERS
-    assert record.tolerance == 0.0  # the budget is spent wherever any corner gains
     assert set(trained.env_steps) == {"bounds", *(f"workers/{n}" for n in names)}
     assert all(trained.env_steps[f"workers/{s.name}"] == s.steps for s in record.added)
     assert sum(trained.env_steps.values()) <= budget

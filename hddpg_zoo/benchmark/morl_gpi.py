@@ -196,9 +196,7 @@ def train_gpi(run: SideRun, extra_workers: int = GPI_EXTRA_WORKERS) -> TrainedSi
     if support_budget >= 1:
         grow(
             run.folder,
-            # Every side has the same budget: a share is spent wherever OLS sees any gain, not only a
-            # gain above grow's default 1 % of the front's value (on hopper that left 40 % of it unspent).
-            SupportOptions(len(terms) + extra_workers, support_budget, tolerance=0.0),
+            SupportOptions(len(terms) + extra_workers, support_budget),
             run=options,
             env=shared,
             term_critic=critic,
@@ -214,7 +212,7 @@ GPI_METHOD = register_protocol_method(
     ProtocolMethod(
         "hddpg-gpi",
         f"one worker per objective and up to {GPI_EXTRA_WORKERS} weighted workers grown by optimistic linear "
-        "support while any corner weight gains, each with per-term critics and an equal share of the budget; GPI over them plays each weight, "
+        "support, each with per-term critics and an equal share of the budget; GPI over them plays each weight, "
         "its coefficients on the normalised critics ranking by the raw weight exactly where episodes have one "
         "length (half-cheetah) or an objective is constant (deep-sea-treasure's time, pinned with its sign), "
         "and on minecart and hopper without the offset the episode's length adds (an approximation)",
