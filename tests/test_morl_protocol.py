@@ -275,6 +275,14 @@ def test_a_known_front_too_large_to_cover_is_refused(tmp_path):
         read_protocol_record(tmp_path / "r.json")
 
 
+def test_a_run_of_one_side_has_no_comparison_table(tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(SHIPPED, run)
+    shutil.rmtree(run / "records" / "envelope")
+    text = morl_page([run], tmp_path / "MORL.md", draw=False)
+    assert "| hddpg-conditioned | 1 |" in text and "| hierarchy - peer |" not in text
+
+
 def test_the_page_without_runs_says_no_result_exists(tmp_path):
     text = morl_page([], tmp_path / "MORL.md")
     assert "No run of record exists yet" in text and "## Results" in text

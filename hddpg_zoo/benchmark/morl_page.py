@@ -185,6 +185,8 @@ def comparison_table(records: Mapping[str, Mapping[int, ProtocolRecord]], of_rec
     """
     hierarchy = [m for m, by in records.items() if next(iter(by.values())).side == "hierarchy"]
     peers = [m for m in records if m not in hierarchy]
+    if not hierarchy or not peers:
+        return []  # one side alone: nothing to pair
     names = _indicators(records)
     lines = [
         "| hierarchy - peer | seeds | " + " | ".join(names) + " | train s, hierarchy / peer |",
