@@ -9,7 +9,7 @@ from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.artifacts.records.support import read_support_record
 from sb3_hddpg.artifacts.transitions import Transitions
 from sb3_hddpg.training.grow import SupportOptions, grow
-from sb3_hddpg.training.linear_support import convex_coverage_set, corner_weights, ranked_corners
+from sb3_hddpg.training.linear_support import corner_weights, ranked_corners
 from sb3_hddpg.training.term_critic import TermCriticOptions
 from sb3_hddpg.training.workers import train_workers
 
@@ -208,21 +208,3 @@ def test_folder_algos_takes_the_heaviest_terms_algorithm_where_its_entry_names_o
     del manifest["workers"]["speed"]["algo"]
     (tmp_path / "workers" / "manifest.json").write_text(json.dumps(manifest))
     assert folder_algos(tmp_path, weights, cheetah) == {}
-
-
-def test_the_convex_coverage_set_leaves_out_concave_and_dominated_points():
-    # Two ends, a point on the segment between them, one below it (concave) and one dominated.
-    values = np.array([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5], [0.4, 0.4], [0.9, -0.1], [0.8, 0.45]])
-    ccs = convex_coverage_set(values)
-    assert set(ccs) == {0, 1, 5}
-    for index, weights in ccs.items():
-        scores = values @ weights
-        # Each point is the one best at its own weighting.
-        assert scores[index] == pytest.approx(scores.max())
-        assert np.all(np.delete(scores, index) < scores[index] - 1e-9)
-    # A point on the segment between two others ties with them wherever it is optimal: not in the minimal set.
-    assert set(convex_coverage_set(values[:3])) == {0, 1}
-    # The same in three terms (on an edge of the front), a duplicate, a weakly dominated point.
-    assert set(convex_coverage_set(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0]]))) == {0, 1, 2}
-    assert set(convex_coverage_set(np.array([[0.0, 1.0], [1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))) == {0, 1}
-    assert set(convex_coverage_set(np.array([[1.0, 0.0], [1.0, -0.5], [0.0, 1.0]]))) == {0, 2}

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hddpg_zoo.benchmark.morl_coverage import recovered_points
+from hddpg_zoo.benchmark.morl_coverage import convex_coverage_set, recovered_points
 from hddpg_zoo.benchmark.morl_page import morl_page, write_morl_page
 from hddpg_zoo.benchmark.morl_protocol import PROTOCOL_ENVS, ProtocolSettings
 from hddpg_zoo.benchmark.morl_protocol_run import (
@@ -218,6 +218,24 @@ DST_FRONT = [
     [63.00787506102079, -15.70568066160731],
     [103.47970641981085, -17.383137616441324],
 ]
+
+
+def test_the_convex_coverage_set_leaves_out_concave_and_dominated_points():
+    # Two ends, a point on the segment between them, one below it (concave) and one dominated.
+    values = np.array([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5], [0.4, 0.4], [0.9, -0.1], [0.8, 0.45]])
+    ccs = convex_coverage_set(values)
+    assert set(ccs) == {0, 1, 5}
+    for index, weights in ccs.items():
+        scores = values @ weights
+        # Each point is the one best at its own weighting.
+        assert scores[index] == pytest.approx(scores.max())
+        assert np.all(np.delete(scores, index) < scores[index] - 1e-9)
+    # A point on the segment between two others ties with them wherever it is optimal: not in the minimal set.
+    assert set(convex_coverage_set(values[:3])) == {0, 1}
+    # The same in three terms (on an edge of the front), a duplicate, a weakly dominated point.
+    assert set(convex_coverage_set(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0]]))) == {0, 1, 2}
+    assert set(convex_coverage_set(np.array([[0.0, 1.0], [1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))) == {0, 1}
+    assert set(convex_coverage_set(np.array([[1.0, 0.0], [1.0, -0.5], [0.0, 1.0]]))) == {0, 2}
 
 
 def test_a_side_recovers_the_points_of_the_convex_coverage_set_it_reaches():

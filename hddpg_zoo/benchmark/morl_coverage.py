@@ -4,7 +4,7 @@ true front MO-Gymnasium knows (deep-sea-treasure-concave, minecart), the page co
 and says in how many seeds each of the hierarchy's methods recovers every point a peer recovers.
 
 A point of the convex coverage set is recovered where the side's front, at the point's inner weighting (the
-region where it alone is optimal: :func:`~sb3_hddpg.training.linear_support.convex_coverage_set`), comes
+region where it alone is optimal: :func:`convex_coverage_set`), comes
 within a small share of the known front's spread of utilities there: a linear-utility user at that weighting
 then loses next to nothing. Points of a concave part of the front belong to no convex coverage set: no
 weighting of the terms reaches them, and none is counted.
@@ -23,10 +23,38 @@ import numpy as np
 from hddpg_zoo.benchmark.front_mixtures import points_beyond
 from hddpg_zoo.benchmark.front_pages import MIXTURE_TOLERANCE
 from hddpg_zoo.benchmark.morl_protocol_run import ProtocolRecord
-from sb3_hddpg.training.linear_support import convex_coverage_set
+from sb3_hddpg.training.linear_support import corner_weights
 
 #: The share of the known front's spread of utilities at a point's weighting within which it is recovered.
 RECOVERY_SHARE = 0.01
+
+
+def convex_coverage_set(values: np.ndarray, tolerance: float = 1e-7) -> dict[int, np.ndarray]:
+    """
+    The minimal convex coverage set of ``values`` (one row per policy or return, one column per term): the
+    distinct rows that alone maximise ``w . V`` over some open region of weightings, each with an inner
+    weighting of that region (the mean of the corner weights where it is optimal), where it beats every other
+    distinct row by more than ``tolerance``. A row optimal only where it ties with others (on an edge of the
+    front, weakly dominated, or a duplicate of an earlier row) is left out.
+
+    :return: row index (the first of equal rows) -> its weighting, in row order.
+    """
+    values = np.atleast_2d(np.asarray(values, dtype=np.float64))
+    _, first = np.unique(values, axis=0, return_index=True)
+    rows = np.sort(first)
+    distinct = values[rows]
+    optimal_at: dict[int, list[np.ndarray]] = {}
+    for w in corner_weights(distinct):
+        scores = distinct @ w
+        for row in np.flatnonzero(scores >= scores.max() - tolerance):
+            optimal_at.setdefault(int(row), []).append(w)
+    found: dict[int, np.ndarray] = {}
+    for index, corners in sorted(optimal_at.items()):
+        inner = np.mean(corners, axis=0)
+        scores = distinct @ inner
+        if np.all(np.delete(scores, index) < scores[index] - tolerance):
+            found[int(rows[index])] = inner
+    return found
 
 
 def recovered_points(
@@ -129,6 +157,7 @@ def beyond_mixture_lines(records: Mapping[str, Mapping[int, ProtocolRecord]]) ->
 __all__ = [
     "RECOVERY_SHARE",
     "beyond_mixture_lines",
+    "convex_coverage_set",
     "coverage_lines",
     "non_dominated_points",
     "recovered_points",

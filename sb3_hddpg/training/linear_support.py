@@ -71,34 +71,6 @@ def corner_weights(values: np.ndarray) -> list[np.ndarray]:
     return found
 
 
-def convex_coverage_set(values: np.ndarray, tolerance: float = 1e-7) -> dict[int, np.ndarray]:
-    """
-    The minimal convex coverage set of ``values`` (one row per policy or return, one column per term): the
-    distinct rows that alone maximise ``w . V`` over some open region of weightings, each with an inner
-    weighting of that region (the mean of the corner weights where it is optimal), where it beats every other
-    distinct row by more than ``tolerance``. A row optimal only where it ties with others (on an edge of the
-    front, weakly dominated, or a duplicate of an earlier row) is left out.
-
-    :return: row index (the first of equal rows) -> its weighting, in row order.
-    """
-    values = np.atleast_2d(np.asarray(values, dtype=np.float64))
-    _, first = np.unique(values, axis=0, return_index=True)
-    rows = np.sort(first)
-    distinct = values[rows]
-    optimal_at: dict[int, list[np.ndarray]] = {}
-    for w in corner_weights(distinct):
-        scores = distinct @ w
-        for row in np.flatnonzero(scores >= scores.max() - tolerance):
-            optimal_at.setdefault(int(row), []).append(w)
-    found: dict[int, np.ndarray] = {}
-    for index, corners in sorted(optimal_at.items()):
-        inner = np.mean(corners, axis=0)
-        scores = distinct @ inner
-        if np.all(np.delete(scores, index) < scores[index] - tolerance):
-            found[int(rows[index])] = inner
-    return found
-
-
 def optimistic_value(weights: np.ndarray, visited: Sequence[np.ndarray], values: np.ndarray) -> float:
     """
     OLS's upper bound at ``weights``: ``max_v w . v`` subject to ``w_j . v <= max_i w_j . V_i`` for every
