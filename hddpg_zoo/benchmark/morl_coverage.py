@@ -22,7 +22,7 @@ import numpy as np
 
 from hddpg_zoo.benchmark.front_mixtures import points_beyond
 from hddpg_zoo.benchmark.front_pages import MIXTURE_TOLERANCE
-from hddpg_zoo.benchmark.morl_protocol_run import ProtocolRecord
+from hddpg_zoo.benchmark.morl_protocol_run import ProtocolRecord, hierarchy_peer_pairs
 from sb3_hddpg.training.linear_support import corner_weights
 
 #: The share of the known front's spread of utilities at a point's weighting within which it is recovered.
@@ -109,48 +109,37 @@ def coverage_lines(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[
             f"| {method} | {np.mean(counts):.3g} of {size} | {sum(c == size for c in counts)} of {len(counts)} |"
         )
     lines.append("")
-    sides = {method: next(iter(by.values())).side for method, by in records.items()}
-    for method in (m for m, side in sides.items() if side == "hierarchy"):
-        for peer in (m for m, side in sides.items() if side == "peer"):
-            seeds = sorted(set(found[method]) & set(found[peer]))
-            some = [s for s in seeds if found[peer][s]]
-            covered = sum(found[peer][s] <= found[method][s] for s in some)
-            lines.append(
-                f"- {method} recovers every point {peer} recovers in {covered} of the {len(some)} seeds where "
-                f"{peer} recovers one ({peer} recovers none in {len(seeds) - len(some)})."
-            )
+    for method, peer in hierarchy_peer_pairs(records):
+        seeds = sorted(set(found[method]) & set(found[peer]))
+        some = [s for s in seeds if found[peer][s]]
+        covered = sum(found[peer][s] <= found[method][s] for s in some)
+        lines.append(
+            f"- {method} recovers every point {peer} recovers in {covered} of the {len(some)} seeds where "
+            f"{peer} recovers one ({peer} recovers none in {len(seeds) - len(some)})."
+        )
     return [*lines, ""]
-
-
-def non_dominated_points(front: Sequence[Sequence[float]]) -> np.ndarray:
-    """The distinct points of ``front`` no other point dominates (every objective maximised)."""
-    points = np.unique(np.asarray(front, dtype=np.float64), axis=0)
-    keep = [not any(np.all(other >= own) and np.any(other > own) for other in points) for own in points]
-    return points[np.asarray(keep, dtype=bool)]
 
 
 def beyond_mixture_lines(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[str]:
     """
-    Per hierarchy method and peer, the peer's non-dominated points beyond every mixture of the method's front
-    points, per seed (``k of n``), and the largest margin (in the objectives' own units).
+    Per hierarchy method and peer, the peer's non-dominated points (those its indicators are computed on)
+    beyond every mixture of the method's front points, per seed (``k of n``), and the largest margin (in the
+    objectives' own units).
     """
-    sides = {method: next(iter(by.values())).side for method, by in records.items()}
     lines = []
-    for method in (m for m, side in sides.items() if side == "hierarchy"):
-        for peer in (m for m, side in sides.items() if side == "peer"):
-            counts, widest = [], 0.0
-            for seed in sorted(set(records[method]) & set(records[peer])):
-                theirs = non_dominated_points(records[peer][seed].front)
-                larger = [True] * theirs.shape[1]
-                margins = points_beyond(theirs.tolist(), records[method][seed].front, larger)
-                counts.append(f"{sum(m > MIXTURE_TOLERANCE for m in margins)} of {len(margins)}")
-                widest = max(widest, *margins)
-            if counts:
-                lines.append(
-                    f"- {peer}'s non-dominated points beyond every mixture of {method}'s (what switching between "
-                    f"its policies reaches, to first order), per seed: {', '.join(counts)}; the farthest by "
-                    f"{widest:.3g} on every objective at once."
-                )
+    for method, peer in hierarchy_peer_pairs(records):
+        counts, widest = [], 0.0
+        for seed in sorted(set(records[method]) & set(records[peer])):
+            theirs = records[peer][seed].non_dominated
+            margins = points_beyond(theirs, records[method][seed].front, [True] * len(theirs[0]))
+            counts.append(f"{sum(m > MIXTURE_TOLERANCE for m in margins)} of {len(margins)}")
+            widest = max(widest, *margins)
+        if counts:
+            lines.append(
+                f"- {peer}'s non-dominated points beyond every mixture of {method}'s (what switching between "
+                f"its policies reaches, to first order), per seed: {', '.join(counts)}; the farthest by "
+                f"{widest:.3g} on every objective at once."
+            )
     return [*lines, ""] if lines else []
 
 
@@ -159,6 +148,5 @@ __all__ = [
     "beyond_mixture_lines",
     "convex_coverage_set",
     "coverage_lines",
-    "non_dominated_points",
     "recovered_points",
 ]

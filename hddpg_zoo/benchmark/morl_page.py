@@ -29,6 +29,7 @@ from hddpg_zoo.benchmark.morl_protocol_run import (
     INDICATORS,
     KNOWN_FRONT_INDICATORS,
     ProtocolRecord,
+    hierarchy_peer_pairs,
     read_protocol_run,
 )
 from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS
@@ -183,32 +184,26 @@ def comparison_table(records: Mapping[str, Mapping[int, ProtocolRecord]], of_rec
     Each hierarchy method against each peer: the paired difference per indicator over common seeds, and
     the ratio of their training wall-clock (the median of the per-seed ratios, with their range).
     """
-    hierarchy = [m for m, by in records.items() if next(iter(by.values())).side == "hierarchy"]
-    peers = [m for m in records if m not in hierarchy]
-    if not hierarchy or not peers:
+    pairs = hierarchy_peer_pairs(records)
+    if not pairs:
         return []  # one side alone: nothing to pair
     names = _indicators(records)
     lines = [
         "| hierarchy - peer | seeds | " + " | ".join(names) + " | train s, hierarchy / peer |",
         "|---|---|" + "---|" * (len(names) + 1),
     ]
-    for method in hierarchy:
-        for peer in peers:
-            seeds = sorted(set(records[method]) & set(records[peer]))
-            cells = []
-            for key in names:
-                ours = np.array([records[method][s].indicators[key] for s in seeds])
-                theirs = np.array([records[peer][s].indicators[key] for s in seeds])
-                interval = paired_t_interval(ours, theirs)
-                word = (
-                    _word(interval["ci_low"], interval["ci_high"], key in LOWER_IS_BETTER)
-                    if of_record
-                    else ""
-                )
-                shown = f"{interval['difference']:+.4g} [{interval['ci_low']:.4g}, {interval['ci_high']:.4g}]"
-                cells.append(f"{shown} {word}".strip())
-            cells.append(_time_ratio([records[method][s] for s in seeds], [records[peer][s] for s in seeds]))
-            lines.append(f"| {method} - {peer} | {len(seeds)} | " + " | ".join(cells) + " |")
+    for method, peer in pairs:
+        seeds = sorted(set(records[method]) & set(records[peer]))
+        cells = []
+        for key in names:
+            ours = np.array([records[method][s].indicators[key] for s in seeds])
+            theirs = np.array([records[peer][s].indicators[key] for s in seeds])
+            interval = paired_t_interval(ours, theirs)
+            word = _word(interval["ci_low"], interval["ci_high"], key in LOWER_IS_BETTER) if of_record else ""
+            shown = f"{interval['difference']:+.4g} [{interval['ci_low']:.4g}, {interval['ci_high']:.4g}]"
+            cells.append(f"{shown} {word}".strip())
+        cells.append(_time_ratio([records[method][s] for s in seeds], [records[peer][s] for s in seeds]))
+        lines.append(f"| {method} - {peer} | {len(seeds)} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -251,12 +246,15 @@ def _kind(settings: Mapping[str, Any], records: Mapping[str, Mapping[int, Protoc
         )
     if budget == env.env_steps:
         return "A run of record (the protocol's budget and evaluation, final test episodes)."
-    peers = {m: by for m, by in records.items() if next(iter(by.values())).side == "peer"}
-    slowest = max(peers, key=lambda m: protocol_hours(list(peers[m].values()), env.env_steps), default=None)
+    hours = {
+        m: protocol_hours(list(by.values()), env.env_steps)
+        for m, by in records.items()
+        if next(iter(by.values())).side == "peer"
+    }
+    slowest = max(hours, key=hours.__getitem__, default=None)
     why = (
-        f": at that budget a seed of {slowest} would train for about "
-        f"{protocol_hours(list(peers[slowest].values()), env.env_steps):.2g} h on one core of the machine that ran it "
-        "(its measured speed, last column)"
+        f": at that budget a seed of {slowest} would train for about {hours[slowest]:.2g} h on one core of the "
+        "machine that ran it (its measured speed, last column)"
         if slowest
         else ""
     )

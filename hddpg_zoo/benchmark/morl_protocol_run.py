@@ -20,7 +20,7 @@ import math
 import multiprocessing
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -57,6 +57,8 @@ class ProtocolRecord:
     :param discounted_returns: per weight, per episode, the discounted vector return.
     :param returns: per weight, per episode, the undiscounted vector return.
     :param front: per weight, the mean discounted return (the protocol's front).
+    :param non_dominated: the front's distinct non-dominated points, as MORL-baselines' evaluator filters them
+        (its indicators are computed on these).
     :param indicators: MORL-baselines' indicators of the front's non-dominated part.
     :param env_steps: model or phase -> its env steps of training.
     :param resumes: times a peer's training went on from its checkpoint in a new process (its env's episode
@@ -76,6 +78,7 @@ class ProtocolRecord:
     discounted_returns: list[list[list[float]]]
     returns: list[list[list[float]]]
     front: list[list[float]]
+    non_dominated: list[list[float]]
     indicators: dict[str, float]
     env_steps: dict[str, int]
     wall_time_train_s: float
@@ -125,6 +128,7 @@ def read_protocol_record(path: Path) -> ProtocolRecord:
         "discounted_returns": lambda v: _numbers(v, 3, width) and len(v) == len(data.get("weights") or []),
         "returns": lambda v: _numbers(v, 3, width) and len(v) == len(data.get("weights") or []),
         "front": lambda v: _numbers(v, 2, width) and len(v) == len(data.get("weights") or []),
+        "non_dominated": lambda v: _numbers(v, 2, width) and len(v) <= len(data.get("weights") or []),
         "indicators": lambda v: (
             isinstance(v, dict) and all(map(is_finite_number, v.values())) and all(k in v for k in INDICATORS)
         ),
@@ -164,6 +168,7 @@ def read_protocol_record(path: Path) -> ProtocolRecord:
         discounted_returns=data["discounted_returns"],
         returns=data["returns"],
         front=data["front"],
+        non_dominated=data["non_dominated"],
         indicators={str(k): float(v) for k, v in data["indicators"].items()},
         env_steps={str(k): int(v) for k, v in data["env_steps"].items()},
         wall_time_train_s=float(data["wall_time_train_s"]),
@@ -372,6 +377,13 @@ def run_protocol(settings: ProtocolSettings, out: str | Path, n_jobs: int = 1) -
     return [_run_task(settings, side, seed, out) for side, seed in tasks]  # each reads its record
 
 
+def hierarchy_peer_pairs(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[tuple[str, str]]:
+    """Every (hierarchy method, peer) pair of a run's sides, in the records' order."""
+    sides = {method: next(iter(by.values())).side for method, by in records.items()}
+    hierarchy = [m for m, side in sides.items() if side == "hierarchy"]
+    return [(method, peer) for method in hierarchy for peer in sides if sides[peer] == "peer"]
+
+
 def read_protocol_run(out: Path) -> tuple[dict[str, Any], dict[str, dict[int, ProtocolRecord]]]:
     """A protocol run's settings and its records: side -> seed -> record."""
     settings = read_json_record(out / "protocol.json", f"{out / 'protocol.json'}: not readable")
@@ -389,6 +401,7 @@ __all__ = [
     "KNOWN_FRONT_INDICATORS",
     "PROTOCOL_RUNNER",
     "ProtocolRecord",
+    "hierarchy_peer_pairs",
     "protocol_weights",
     "read_protocol_record",
     "read_protocol_run",
