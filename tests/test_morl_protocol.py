@@ -411,6 +411,27 @@ def test_a_failed_task_in_parallel_is_raised_and_writes_no_record(tmp_path):
     assert json.loads((tmp_path / "run" / "protocol.json").read_text()) == settings.to_json()
 
 
+def test_morl_report_check_says_the_shipped_page_is_up_to_date():
+    root = Path(__file__).parents[1]
+    runs = sorted(str(run) for run in (root / "docs" / "results" / "morl-dev").iterdir())
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sb3_hddpg",
+            "morl-report",
+            *runs,
+            "--page",
+            str(root / "docs" / "MORL.md"),
+            "--check",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0 and "up to date" in done.stdout and "would change" not in done.stdout
+
+
 def test_the_shipped_page_is_current():
     docs = Path(__file__).parents[1] / "docs"
     runs = sorted((docs / "results" / "morl-dev").iterdir())

@@ -33,7 +33,8 @@ ProtocolOpt = Annotated[
         f"envs {list(PROTOCOL_ENVS)}, budgets, reference points, evaluator and indicators, docs/MORL.md). With "
         "it, --env names one of those envs, --methods the hierarchy's methods, --timesteps every side's env "
         "steps (below the protocol's: a pilot, or with --final-test and >= 10 seeds a run of record at a "
-        "reduced budget, which its page states), --n-jobs the tasks (a side on a seed) in parallel, --test-episodes the episodes per weight; --methods names the "
+        "reduced budget of at least a tenth of it, which its page states), --n-jobs the tasks (a side on a "
+        "seed) in parallel, --test-episodes the episodes per weight; --methods names the "
         "hierarchy's methods and MORL-baselines' learners together (default: hddpg-conditioned and the env's "
         "two strongest learners).",
     ),
@@ -84,7 +85,10 @@ def protocol_command(context: typer.Context) -> None:
             f"{record.wall_time_train_s:.0f} s"
         )
     if not settings.of_record:
-        console.print("Not a run of record (the protocol's evaluation, >= 10 seeds, --final-test).")
+        console.print(
+            "Not a run of record (the protocol's evaluation, >= 10 seeds, --final-test, at least a tenth of "
+            "the protocol's budget)."
+        )
     elif not settings.full_budget:
         console.print(
             f"A run of record at a reduced budget ({settings.budget} of the protocol's "
@@ -122,7 +126,7 @@ def morl_report_command(
     if check and changed:
         console.print(f"[red]Out of date[/]: {page} (run without --check to rewrite)")
         raise typer.Exit(1)
-    console.print(f"{page}: {'would change' if check else 'rewritten' if changed else 'unchanged'}")
+    console.print(f"{page}: {'up to date' if check else 'rewritten' if changed else 'unchanged'}")
 
 
 __all__ = ["ProtocolOpt", "morl_report_command", "protocol_command"]
