@@ -47,6 +47,7 @@ needs_morl = pytest.mark.skipif(not MORL_PYTHON, reason="MORL_PYTHON (MORL-basel
         ({"seeds": (0, 0)}, "--seeds"),
         ({"peers": ("capql",)}, "--methods"),
         ({"methods": ("hddpg-unknown",)}, "--methods"),
+        ({"methods": ("hddpg-gpi-sac",)}, "--methods"),  # SAC acts on continuous actions only
         ({"timesteps": 200_001}, "--timesteps"),
         ({"timesteps": 9_999, "peers": ("gpi-ls",)}, "--timesteps"),
         ({"eval_weights": 0}, "--eval-weights"),
@@ -569,6 +570,28 @@ def test_gpi_over_the_per_term_workers_gives_them_the_whole_budget(tmp_path):
     share = budget // 2 // STEP_QUANTUM * STEP_QUANTUM
     assert trained.env_steps == {"workers/obj0": share, "workers/obj1": share, "bounds": 0}
     assert not (tmp_path / "workers" / "support.json").exists()
+
+
+def test_hddpg_gpi_sac_trains_sac_workers_with_the_continuous_peers_settings(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from stable_baselines3 import SAC
+
+    from hddpg_zoo.benchmark.morl_protocol import GAMMA
+    from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun
+    from sb3_hddpg.artifacts.manifests import load_workers
+    from sb3_hddpg.training.config import default_config, load_hyperparams
+
+    for env_id in ("mo-halfcheetah-v4", "mo-hopper-2d-v4"):
+        block = load_hyperparams((f"{env_id}/mix", env_id), SAC, default_config("sac"))
+        kwargs = block.algo_kwargs
+        assert (kwargs["gamma"], kwargs["learning_rate"], kwargs["batch_size"]) == (0.99, 3e-4, 128)
+        assert kwargs["policy_kwargs"]["net_arch"] == [256, 256] and kwargs["buffer_size"] == 1_000_000
+    trained = PROTOCOL_METHODS["hddpg-gpi-sac"].train(
+        SideRun("mo-mountaincarcontinuous-v0", False, GAMMA, 4000, 0, tmp_path)
+    )
+    workers = load_workers(tmp_path)
+    assert len(workers) >= 2 and {type(model) for model in workers.models.values()} == {SAC}
+    assert sum(trained.env_steps.values()) <= 4000
 
 
 def _train(arguments: list[str], checkpoint: Path, out: Path) -> subprocess.CompletedProcess[str]:

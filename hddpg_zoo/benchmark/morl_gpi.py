@@ -161,15 +161,19 @@ def trained_steps(folder: Path) -> dict[str, int]:
     return {f"workers/{name}": steps for name, steps in worker_steps(folder).items()}
 
 
-def train_gpi(run: SideRun, extra_workers: int = GPI_EXTRA_WORKERS) -> TrainedSide:
+def train_gpi(
+    run: SideRun, extra_workers: int = GPI_EXTRA_WORKERS, continuous_algo: str = "ddpg"
+) -> TrainedSide:
     """
-    One worker per objective (DQN on discrete actions, DDPG on continuous), then the weighted workers ``grow``
+    One worker per objective (DQN on discrete actions, ``continuous_algo`` on continuous), then the weighted workers ``grow``
     adds at the corner weights of largest optimistic gain, every worker with a per-term critic at the
     protocol's discount and an equal share of one budget; GPI over all of them plays each weight.
 
     :param run: the env, seed, budget, discount and folder of the run.
     :param extra_workers: the weighted workers the support may add (0: GPI over the per-term workers alone,
         which then share the whole budget).
+    :param continuous_algo: the per-term workers' algorithm on continuous actions, read with its bundled
+        ``zoo_configs`` block of the env; the weighted workers take their heaviest term's.
     """
     started = time.perf_counter()
     shared, bounds_steps = pinned_env(run.env_id)
@@ -182,7 +186,7 @@ def train_gpi(run: SideRun, extra_workers: int = GPI_EXTRA_WORKERS) -> TrainedSi
         )
     critic = TermCriticOptions(gamma=run.gamma)
     options = RunOptions(seed=run.seed, eval_freq=0, eval_episodes=1, keep_best=False)
-    algo = "dqn" if run.discrete else "ddpg"
+    algo = "dqn" if run.discrete else continuous_algo
     train_workers(
         run.folder,
         env=shared,
@@ -229,10 +233,22 @@ GPI_TERMS_METHOD = register_protocol_method(
     )
 )
 
+GPI_SAC_METHOD = register_protocol_method(
+    ProtocolMethod(
+        "hddpg-gpi-sac",
+        "hddpg-gpi with SAC workers at CAPQL's learner settings (its discount 0.99, [256, 256] networks, "
+        "learning rate, batch and buffer; SB3's automatic entropy coefficient, since the workers learn "
+        "normalised terms where CAPQL's fixed 0.2 weighs raw ones), on continuous actions",
+        functools.partial(train_gpi, continuous_algo="sac"),
+        actions="continuous",
+    )
+)
+
 
 __all__ = [
     "GPI_EXTRA_WORKERS",
     "GPI_METHOD",
+    "GPI_SAC_METHOD",
     "GPI_TERMS_METHOD",
     "STEP_QUANTUM",
     "GpiPolicy",

@@ -185,6 +185,12 @@ class ProtocolSettings:
             raise ValueError(
                 f"--methods: expected some of {list(PROTOCOL_METHODS)}, got {brief(list(self.methods))}"
             )
+        foreign = [m for m in self.methods if PROTOCOL_METHODS[m].actions not in (None, env.actions)]
+        if foreign:
+            raise ValueError(
+                f"--methods: {foreign} take {PROTOCOL_METHODS[foreign[0]].actions} actions only, and "
+                f"{self.env_id}'s are {env.actions}"
+            )
         if self.timesteps is not None and not 1 <= self.timesteps <= env.env_steps:
             raise ValueError(
                 f"--timesteps: every side's budget is at most the protocol's {env.env_steps} env steps on "

@@ -91,11 +91,13 @@ class ProtocolMethod:
     :param name: the name ``--methods`` takes.
     :param description: one line for the page.
     :param train: trains it: a :class:`SideRun` -> a :class:`TrainedSide`.
+    :param actions: the only actions it takes (``"continuous"`` or ``"discrete"``), or ``None`` for both.
     """
 
     name: str
     description: str
     train: Callable[[SideRun], TrainedSide]
+    actions: str | None = None
 
 
 #: The hierarchy's methods, by name.
