@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -398,6 +399,30 @@ def test_tasks_in_parallel_write_the_records_one_task_at_a_time_writes(tmp_path)
         assert by_seed[0].discounted_returns == runs["2"][1][side][0].discounted_returns
 
 
+def _meeting_task(settings: ProtocolSettings, side: str, seed: int, out: Path) -> Path:
+    """A task that says it started, then waits (at most 60 s) to see every other task started too."""
+    (out / f"started-{side}").touch()
+    deadline = time.monotonic() + 60
+    while len(list(out.glob("started-*"))) < len(settings.methods) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    met = len(list(out.glob("started-*"))) == len(settings.methods)
+    (out / f"{'met' if met else 'alone'}-{side}").touch()
+    return out
+
+
+def test_tasks_in_parallel_overlap_in_time(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from hddpg_zoo.benchmark.morl_protocol_run import _run_in_parallel
+
+    methods = ("hddpg-conditioned", "hddpg-gpi")
+    settings = ProtocolSettings(
+        "deep-sea-treasure-concave-v0", (0,), methods, (), 400, morl_python=sys.executable
+    )
+    _run_in_parallel(settings, [(method, 0) for method in methods], tmp_path, n_jobs=2, task=_meeting_task)
+    # Each task, in its own process, saw the other one started while it was still running.
+    assert sorted(p.name for p in tmp_path.glob("met-*")) == [f"met-{m}" for m in sorted(methods)]
+
+
 def test_a_failed_task_in_parallel_is_raised_and_writes_no_record(tmp_path):
     pytest.importorskip("mo_gymnasium")
     from hddpg_zoo.benchmark.morl_protocol_run import run_protocol
@@ -590,7 +615,10 @@ def test_hddpg_gpi_sac_trains_sac_workers_with_the_continuous_peers_settings(tmp
         SideRun("mo-mountaincarcontinuous-v0", False, GAMMA, 4000, 0, tmp_path)
     )
     workers = load_workers(tmp_path)
-    assert len(workers) >= 2 and {type(model) for model in workers.models.values()} == {SAC}
+    weighted = [name for name in workers if workers.manifest.entries[name].get("reward_weights")]
+    # The support grew at least one weighted worker, and it took the per-term workers' algorithm.
+    assert weighted and len(workers) > len(weighted)
+    assert {type(model) for model in workers.models.values()} == {SAC}
     assert sum(trained.env_steps.values()) <= 4000
 
 
@@ -753,3 +781,35 @@ def test_envelope_in_chunks_trains_as_one_train_call():
     # Envelope's kept weight make the chunks one stream of episodes, the same updates to the last bit.
     assert shown["steps"] == 300 and shown["episodes"][0] == shown["episodes"][1] > 10
     assert shown["difference"] == 0.0
+
+
+def test_an_iterated_learner_whose_train_changed_is_refused():
+    from hddpg_zoo.benchmark.morl_protocol_resume import LoopChanged, check_loop_source
+
+    class GPIPD:  # the name MORL-baselines' class has, with a train that is not 1.3.0's
+        def train(self, total_timesteps: int) -> None:
+            """Another loop."""
+
+    with pytest.raises(LoopChanged, match=r"GPIPD\.train .* re-read it"):
+        check_loop_source(GPIPD)
+
+
+_INSTALLED_LOOPS = """
+import importlib.util, sys
+spec = importlib.util.spec_from_file_location("resume", sys.argv[1])
+resume = importlib.util.module_from_spec(spec); sys.modules["resume"] = resume; spec.loader.exec_module(resume)
+from morl_baselines.multi_policy.gpi_pd.gpi_pd import GPILS, GPIPD
+from morl_baselines.multi_policy.gpi_pd.gpi_pd_continuous_action import GPIPDContinuousAction
+for learner in (GPIPD, GPILS, GPIPDContinuousAction):
+    resume.check_loop_source(learner)
+print("same loops")
+"""
+
+
+@needs_morl
+def test_the_installed_gpi_learners_train_by_the_loop_the_chunks_re_run():
+    resume = PROTOCOL_RUNNER.with_name("morl_protocol_resume.py")
+    done = subprocess.run(
+        [str(MORL_PYTHON), "-c", _INSTALLED_LOOPS, str(resume)], capture_output=True, text=True, check=False
+    )
+    assert done.returncode == 0 and done.stdout.strip().endswith("same loops"), done.stderr[-2000:]

@@ -78,7 +78,7 @@ each played over the whole weight simplex by the same evaluator and scored by MO
   stopped midway goes on from there with `--resume`; the table counts the seeds resumed in a new process
   (the env's episode and random stream restart there: not an uninterrupted run).
 - **The hierarchy's methods** (each registered in `morl_sides.py` or beside it; DQN workers on discrete
-  actions, DDPG on continuous):
+  actions, DDPG on continuous unless the method names another algorithm):
 {_methods()}
 
 | env | actions, objectives | episode steps | reference point | env steps | peers | known front |

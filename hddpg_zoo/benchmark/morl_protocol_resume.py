@@ -31,6 +31,7 @@ unseeded reset and a new env random stream, so it is not an uninterrupted run, a
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import json
 import os
@@ -53,12 +54,36 @@ STATE_FILE = "state.json"
 ITERATED = ("gpi_pd_continuous", "gpi_pd_discrete", "gpi_ls_discrete")
 #: The settings a checkpoint belongs to: a checkpoint of other settings is refused.
 RUN_KEYS = ("algo", "env", "seed", "timesteps", "gamma", "chunk_steps")
+#: The first 16 hex digits of the sha256 of the source of each iterated learner's ``train``, as MORL-baselines
+#: 1.3.0 has it: :func:`gpi_iteration` re-runs that loop's body, so a learner whose ``train`` is another is
+#: refused rather than trained by a loop it may no longer have.
+LOOP_SOURCES = {"GPIPD.train": "d28d70f84e8384b5", "GPIPDContinuousAction.train": "ca63389db86e3fc4"}
 _LEARNER_FILE = re.compile(r"learner-[0-9]{1,9}\.pt")
 _MAX_STATE_BYTES = 1 << 16
 
 
 class CheckpointError(Exception):
     """A checkpoint folder that cannot be used: one line, naming ``--checkpoint-dir``."""
+
+
+class LoopChanged(Exception):
+    """The installed learner's ``train`` is not the one whose loop :func:`gpi_iteration` re-runs: one line."""
+
+
+def check_loop_source(learner: type) -> None:
+    """
+    Refuse an iterated learner's class whose ``train`` is not the one :data:`LOOP_SOURCES` names.
+
+    :raises LoopChanged: naming the method and what to re-read.
+    """
+    train = learner.train  # type: ignore[attr-defined]
+    digest = hashlib.sha256(inspect.getsource(train).encode()).hexdigest()[:16]
+    if LOOP_SOURCES.get(train.__qualname__) != digest:
+        raise LoopChanged(
+            f"{train.__qualname__} of the installed MORL-baselines is not 1.3.0's, whose loop the chunked "
+            "training re-runs (morl_protocol_resume.gpi_iteration): re-read it against that loop, then update "
+            "LOOP_SOURCES"
+        )
 
 
 class Stopped(Exception):
@@ -323,10 +348,13 @@ def train_in_chunks(
     :param run: :data:`RUN_KEYS` and ``stop_after`` (chunks of this process before :class:`Stopped`, or ``None``).
     :param train_kwargs: CAPQL's and Envelope's ``train`` arguments beyond the steps.
     :raises CheckpointError: the folder's checkpoint is not this run's.
+    :raises LoopChanged: an iterated learner whose ``train`` is not the one :func:`gpi_iteration` follows.
     :raises Stopped: after ``run["stop_after"]`` chunks (the checkpoint saved).
     """
     from morl_baselines.multi_policy.linear_support.linear_support import LinearSupport
 
+    if run["algo"] in ITERATED:
+        check_loop_source(type(agent))
     progress = read_progress(folder, {k: run[k] for k in RUN_KEYS})
     support = None
     if progress is None:
@@ -384,10 +412,13 @@ def _chunks(
 __all__ = [
     "CHECKPOINT_KIND",
     "ITERATED",
+    "LOOP_SOURCES",
     "CheckpointError",
     "Continuing",
+    "LoopChanged",
     "Progress",
     "Stopped",
+    "check_loop_source",
     "gpi_iteration",
     "load",
     "read_progress",

@@ -316,13 +316,20 @@ def _task_setup(level: int, threads: int) -> None:
 
 
 def _run_in_parallel(
-    settings: ProtocolSettings, tasks: list[tuple[str, int]], out: Path, n_jobs: int
+    settings: ProtocolSettings,
+    tasks: list[tuple[str, int]],
+    out: Path,
+    n_jobs: int,
+    task: Callable[[ProtocolSettings, str, int, Path], Path] = _run_task,
 ) -> None:
     """
     ``tasks`` at most ``n_jobs`` at a time, each in its own spawned process (a JAX backend and torch's thread
     pools are not fork-safe). Only as many are handed to the pool as it runs, so that nothing is queued behind
     a failure or an interrupt: after a failure the running tasks finish (their records are kept) and no new
     one starts; then every failure is logged and the first raised.
+
+    :param task: what a process runs for a side on a seed (a module-level function: spawned processes
+        import it by name).
     """
     import torch
 
@@ -336,7 +343,7 @@ def _run_in_parallel(
             while pending or running:
                 while pending and not failures and len(running) < n_jobs:
                     side, seed = pending.pop(0)
-                    running.add(pool.submit(_run_task, settings, side, seed, out))
+                    running.add(pool.submit(task, settings, side, seed, out))
                 if not running:
                     break
                 done, running = wait(running, return_when=FIRST_COMPLETED)

@@ -505,6 +505,9 @@ def main(argv: list[str] | None = None) -> int:
     except (runner.InputError, resume.CheckpointError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except resume.LoopChanged as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
     except resume.Stopped as stopped:
         print(stopped, file=sys.stderr)
         return STOPPED_STATUS
