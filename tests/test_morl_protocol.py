@@ -49,6 +49,7 @@ needs_morl = pytest.mark.skipif(not MORL_PYTHON, reason="MORL_PYTHON (MORL-basel
         ({"peers": ("capql",)}, "--methods"),
         ({"methods": ("hddpg-unknown",)}, "--methods"),
         ({"methods": ("hddpg-gpi-sac",)}, "--methods"),  # SAC acts on continuous actions only
+        ({"methods": ("hddpg-gpi-terms-sac",)}, "--methods"),
         ({"timesteps": 200_001}, "--timesteps"),
         ({"timesteps": 9_999, "peers": ("gpi-ls",)}, "--timesteps"),
         ({"eval_weights": 0}, "--eval-weights"),
@@ -397,6 +398,51 @@ def test_tasks_in_parallel_write_the_records_one_task_at_a_time_writes(tmp_path)
     for side, by_seed in runs["1"][1].items():
         # Seeded sides: the same front whether the tasks ran one after another or side by side.
         assert by_seed[0].discounted_returns == runs["2"][1][side][0].discounted_returns
+
+
+def test_a_resumed_protocol_run_may_add_seeds_and_sides_but_change_nothing_else(tmp_path):
+    pytest.importorskip("mo_gymnasium")
+    from hddpg_zoo.benchmark.morl_protocol_run import _continues_run, run_protocol
+
+    def settings(**changed: object) -> ProtocolSettings:
+        given = {"seeds": (0,), "methods": ("hddpg-gpi",), "peers": (), "timesteps": 400, **changed}
+        return ProtocolSettings("deep-sea-treasure-concave-v0", morl_python=sys.executable, **given)
+
+    kept = settings().to_json()
+    (tmp_path / "protocol.json").write_text(json.dumps(kept))
+    widened = settings(seeds=(0, 1), methods=("hddpg-gpi", "hddpg-gpi-terms"), peers=("envelope",))
+    assert _continues_run(kept, widened) and _continues_run(kept, settings())
+    others = [
+        settings(timesteps=800),
+        settings(eval_episodes=2),
+        settings(final_test=True),
+        settings(methods=("hddpg-gpi-terms",)),  # drops a side the folder holds records of
+        settings(seeds=(1,)),
+    ]
+    for other in others:
+        assert not _continues_run(kept, other)
+        with pytest.raises(ValueError, match="may only add seeds and sides"):
+            run_protocol(other, tmp_path)
+    assert json.loads((tmp_path / "protocol.json").read_text()) == kept
+
+
+@needs_morl
+def test_a_resumed_protocol_run_runs_only_its_new_tasks(tmp_path):
+    arguments = ["--timesteps", "400", "--test-episodes", "1", "--morl-python", str(MORL_PYTHON)]
+    out = ["--out", str(tmp_path / "run")]
+    first = [*COMMAND, *arguments, "--methods", "hddpg-gpi-terms", *out]
+    assert subprocess.run(first, capture_output=True, text=True, check=False).returncode == 0
+    kept = tmp_path / "run" / "records" / "hddpg-gpi-terms" / "seed-0.json"
+    before = (kept.read_bytes(), kept.stat().st_mtime_ns)
+    widened = [*COMMAND, *arguments, "--methods", "hddpg-gpi-terms,hddpg-conditioned", "--seeds", "2", *out]
+    done = subprocess.run([*widened, "--resume"], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    settings, records = read_protocol_run(tmp_path / "run")
+    assert {side: sorted(by) for side, by in records.items()} == {
+        "hddpg-gpi-terms": [0, 1],
+        "hddpg-conditioned": [0, 1],
+    }
+    assert settings["seeds"] == [0, 1] and (kept.read_bytes(), kept.stat().st_mtime_ns) == before
 
 
 def _meeting_task(settings: ProtocolSettings, side: str, seed: int, out: Path) -> Path:

@@ -244,12 +244,23 @@ GPI_SAC_METHOD = register_protocol_method(
     )
 )
 
+GPI_TERMS_SAC_METHOD = register_protocol_method(
+    ProtocolMethod(
+        "hddpg-gpi-terms-sac",
+        "GPI over hddpg-gpi-sac's per-term SAC workers alone, which share the whole budget (no weighted workers, "
+        "whose critics hddpg-gpi-sac's GPI can overrate)",
+        functools.partial(train_gpi, extra_workers=0, continuous_algo="sac"),
+        actions="continuous",
+    )
+)
+
 
 __all__ = [
     "GPI_EXTRA_WORKERS",
     "GPI_METHOD",
     "GPI_SAC_METHOD",
     "GPI_TERMS_METHOD",
+    "GPI_TERMS_SAC_METHOD",
     "STEP_QUANTUM",
     "GpiPolicy",
     "gpi_coefficients",

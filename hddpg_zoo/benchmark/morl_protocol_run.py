@@ -297,11 +297,26 @@ def _run_task(settings: ProtocolSettings, side: str, seed: int, out: Path) -> Pa
     return path
 
 
-def _same_run(kept: object, settings: ProtocolSettings) -> bool:
-    """Whether a saved ``protocol.json`` holds ``settings`` (``of_record`` is derived, so not compared)."""
-    derived = {"of_record"}
-    current = {k: v for k, v in settings.to_json().items() if k not in derived}
-    return isinstance(kept, dict) and {k: v for k, v in kept.items() if k not in derived} == current
+#: The settings a resumed run may widen: a side on a seed is a task of its own, scored on the same episodes.
+WIDENED = ("seeds", "methods", "peers")
+
+
+def _continues_run(kept: object, settings: ProtocolSettings) -> bool:
+    """
+    Whether ``settings`` go on with a saved ``protocol.json``: the same settings, but for seeds and sides
+    (:data:`WIDENED`) it may lack (``of_record`` is derived, so not compared).
+    """
+    current = settings.to_json()
+    keys = set(current) - {"of_record"}
+    if not isinstance(kept, dict) or set(kept) - {"of_record"} != keys:
+        return False
+    now: dict[str, list[object]] = {
+        "seeds": list(settings.seeds),
+        "methods": list(settings.methods),
+        "peers": list(settings.peers or ()),
+    }
+    widened = all(isinstance(kept[k], list) and all(v in now[k] for v in kept[k]) for k in WIDENED)
+    return widened and all(kept[k] == current[k] for k in keys - set(WIDENED))
 
 
 def _task_setup(level: int, threads: int) -> None:
@@ -371,8 +386,11 @@ def run_protocol(settings: ProtocolSettings, out: str | Path, n_jobs: int = 1) -
     out = Path(out)
     saved = out / "protocol.json"
     if saved.exists():
-        if not _same_run(read_json_record(saved, f"{saved}: not readable"), settings):
-            raise ValueError(f"{out}: holds a protocol run of other settings; choose another --out")
+        if not _continues_run(read_json_record(saved, f"{saved}: not readable"), settings):
+            raise ValueError(
+                f"{out}: holds a protocol run of other settings (a resumed run may only add seeds and sides "
+                "to its own); choose another --out"
+            )
     else:
         out.mkdir(parents=True, exist_ok=True)
     # Written again on resume: a run begun before of_record's rule changed gets today's verdict.
@@ -407,6 +425,7 @@ __all__ = [
     "INDICATORS",
     "KNOWN_FRONT_INDICATORS",
     "PROTOCOL_RUNNER",
+    "WIDENED",
     "ProtocolRecord",
     "hierarchy_peer_pairs",
     "protocol_weights",
