@@ -648,9 +648,10 @@ def test_hddpg_gpi_sac_trains_sac_workers_with_the_continuous_peers_settings(tmp
     from stable_baselines3 import SAC
 
     from hddpg_zoo.benchmark.morl_protocol import GAMMA
-    from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun
+    from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun, pinned_env
     from sb3_hddpg.artifacts.manifests import load_workers
     from sb3_hddpg.training.config import default_config, load_hyperparams
+    from sb3_hddpg.training.workers import train_workers
 
     for env_id in ("mo-halfcheetah-v4", "mo-hopper-2d-v4"):
         block = load_hyperparams((f"{env_id}/mix", env_id), SAC, default_config("sac"))
@@ -660,12 +661,27 @@ def test_hddpg_gpi_sac_trains_sac_workers_with_the_continuous_peers_settings(tmp
     trained = PROTOCOL_METHODS["hddpg-gpi-sac"].train(
         SideRun("mo-mountaincarcontinuous-v0", False, GAMMA, 4000, 0, tmp_path)
     )
+    assert sum(trained.env_steps.values()) <= 4000
+    # A weighted worker added as grow adds one (no algorithm named), whether or not this tiny support grew any.
+    shared, _ = pinned_env("mo-mountaincarcontinuous-v0")
+    # Not the equal weighting, which grow may take.
+    shares = np.arange(1.0, len(shared.terms) + 1)
+    weights = dict(zip(shared.terms, (shares / shares.sum()).tolist()))
+    train_workers(
+        tmp_path,
+        [],
+        env=shared,
+        weights=[weights],
+        timesteps=200,
+        term_critic=None,
+        eval_freq=0,
+        eval_episodes=1,
+        seed=0,
+    )
     workers = load_workers(tmp_path)
     weighted = [name for name in workers if workers.manifest.entries[name].get("reward_weights")]
-    # The support grew at least one weighted worker, and it took the per-term workers' algorithm.
     assert weighted and len(workers) > len(weighted)
     assert {type(model) for model in workers.models.values()} == {SAC}
-    assert sum(trained.env_steps.values()) <= 4000
 
 
 def _train(arguments: list[str], checkpoint: Path, out: Path) -> subprocess.CompletedProcess[str]:

@@ -34,7 +34,8 @@ ProtocolOpt = Annotated[
         "it, --env names one of those envs, --methods the hierarchy's methods, --timesteps every side's env "
         "steps (below the protocol's: a pilot, or with --final-test and >= 10 seeds a run of record at a "
         "reduced budget of at least a tenth of it, which its page states), --n-jobs the tasks (a side on a "
-        "seed) in parallel, --test-episodes the episodes per weight; --methods names the "
+        "seed) in parallel, --test-episodes the episodes per weight, --resume goes on with a run (from its "
+        "peers' checkpoints) and may add seeds and sides to it; --methods names the "
         "hierarchy's methods and MORL-baselines' learners together (default: hddpg-conditioned and the env's "
         "two strongest learners).",
     ),
