@@ -106,6 +106,7 @@ hddpg-cli benchmark --protocol morl-baselines --env minecart-v0 --seeds 10 --fin
     --morl-python ~/morl-venv/bin/python --out runs/morl/minecart-v0
 # stopped midway (a peer's seed takes hours): the same command with --resume goes on from the checkpoints
 # more seeds or sides for a run: the command with the wider --seeds or --methods and --resume runs only those
+# (also on a run's shipped records, e.g. --out docs/results/morl-dev/<run>: its protocol.json has the settings)
 # a peer too slow here for the protocol's budget: add --timesteps N (every side's budget), and the page says so
 # this page, from every run's records
 hddpg-cli morl-report runs/morl/* --page docs/MORL.md

@@ -15,9 +15,11 @@ state while it trains, so that a resumed run goes on from its last chunk; delete
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import multiprocessing
+import os
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -319,6 +321,16 @@ def _continues_run(kept: object, settings: ProtocolSettings) -> bool:
     return widened and all(kept[k] == current[k] for k in keys - set(WIDENED))
 
 
+def _check_continues(out: Path, settings: ProtocolSettings) -> None:
+    """Refuse (``ValueError``) a folder whose ``protocol.json`` ``settings`` do not go on with."""
+    saved = out / "protocol.json"
+    if not _continues_run(read_json_record(saved, f"{saved}: not readable"), settings):
+        raise ValueError(
+            f"{out}: holds a protocol run of other settings (a resumed run may only add seeds and sides to its "
+            "own); choose another --out"
+        )
+
+
 def _task_setup(level: int, threads: int) -> None:
     """
     A spawned task's process as its parent: its log lines reach the terminal, and torch has the parent's
@@ -386,11 +398,7 @@ def run_protocol(settings: ProtocolSettings, out: str | Path, n_jobs: int = 1) -
     out = Path(out)
     saved = out / "protocol.json"
     if saved.exists():
-        if not _continues_run(read_json_record(saved, f"{saved}: not readable"), settings):
-            raise ValueError(
-                f"{out}: holds a protocol run of other settings (a resumed run may only add seeds and sides "
-                "to its own); choose another --out"
-            )
+        _check_continues(out, settings)
     else:
         out.mkdir(parents=True, exist_ok=True)
     # Written again on resume: a run begun before of_record's rule changed gets today's verdict.
@@ -400,6 +408,49 @@ def run_protocol(settings: ProtocolSettings, out: str | Path, n_jobs: int = 1) -
         return [_run_task(settings, side, seed, out) for side, seed in tasks]
     _run_in_parallel(settings, tasks, out, n_jobs)
     return [_run_task(settings, side, seed, out) for side, seed in tasks]  # each reads its record
+
+
+#: The most records a shipped run may hold for ``--resume`` to take it (a side on a seed each).
+MAX_SHIPPED_RECORDS = 10_000
+
+
+def _plain_entries(folder: Path) -> list[os.DirEntry[str]]:
+    """A folder's entries, refused past :data:`MAX_SHIPPED_RECORDS` (its size bounds the walk's time)."""
+    with os.scandir(folder) as found:
+        entries = list(itertools.islice(found, MAX_SHIPPED_RECORDS + 1))
+    if len(entries) > MAX_SHIPPED_RECORDS:
+        raise ValueError(f"{folder}: more than {MAX_SHIPPED_RECORDS} entries; not a protocol run's records")
+    return entries
+
+
+def shipped_run(out: Path, settings: ProtocolSettings) -> bool:
+    """
+    Whether ``out`` holds nothing but a protocol run's records as shipped (``protocol.json`` and
+    ``records/<side>/seed-<n>.json``, no run marker: e.g. ``docs/results/morl-dev/<run>`` on another
+    machine) that ``settings`` go on with, so that ``--resume`` may take it as its own run folder. Every
+    entry is a plain file or folder (a link could lead a record's write out of ``out``), every record
+    reads and sits at its own path.
+
+    :return: ``False`` when ``out`` has other entries (it is not such a folder).
+    :raises ValueError: it is such a folder, but a record does not read, or ``settings`` change more
+        than its seeds and sides.
+    """
+    top = {e.name: e for e in _plain_entries(out) if not e.name.startswith(".")}
+    if set(top) != {"protocol.json", "records"} or any(e.is_symlink() for e in top.values()):
+        return False
+    if not (top["protocol.json"].is_file() and top["records"].is_dir()):
+        return False
+    for side in _plain_entries(out / "records"):
+        if side.is_symlink() or not side.is_dir():
+            return False
+        for entry in _plain_entries(Path(side.path)):
+            if entry.is_symlink() or not entry.is_file() or not entry.name.endswith(".json"):
+                return False
+            record = read_protocol_record(Path(entry.path))
+            if Path(entry.path) != record_path(out, record.method, record.seed):
+                raise ValueError(f"{entry.path}: holds {record.method}'s seed {record.seed}, not its path's")
+    _check_continues(out, settings)
+    return True
 
 
 def hierarchy_peer_pairs(records: Mapping[str, Mapping[int, ProtocolRecord]]) -> list[tuple[str, str]]:
@@ -424,6 +475,7 @@ def read_protocol_run(out: Path) -> tuple[dict[str, Any], dict[str, dict[int, Pr
 __all__ = [
     "INDICATORS",
     "KNOWN_FRONT_INDICATORS",
+    "MAX_SHIPPED_RECORDS",
     "PROTOCOL_RUNNER",
     "WIDENED",
     "ProtocolRecord",
@@ -435,4 +487,5 @@ __all__ = [
     "run_method",
     "run_peer",
     "run_protocol",
+    "shipped_run",
 ]

@@ -20,10 +20,13 @@ from hddpg_zoo.benchmark.morl_protocol_run import (
     read_protocol_record,
     read_protocol_run,
     run_protocol,
+    shipped_run,
 )
 from hddpg_zoo.cli.options import check_jobs
+from sb3_hddpg.artifacts.containment import is_run_folder
+from sb3_hddpg.artifacts.run_folder import mark_run_folder
 from sb3_hddpg.cli.app import app, console
-from sb3_hddpg.cli.options import prepare_out_dir, usage_errors
+from sb3_hddpg.cli.options import prepare_out_dir, refuse_protected_out, usage_errors
 
 ProtocolOpt = Annotated[
     str | None,
@@ -35,7 +38,8 @@ ProtocolOpt = Annotated[
         "steps (below the protocol's: a pilot, or with --final-test and >= 10 seeds a run of record at a "
         "reduced budget of at least a tenth of it, which its page states), --n-jobs the tasks (a side on a "
         "seed) in parallel, --test-episodes the episodes per weight, --resume goes on with a run (from its "
-        "peers' checkpoints) and may add seeds and sides to it; --methods names the "
+        "peers' checkpoints) and may add seeds and sides to it, also to a run's shipped records (protocol.json "
+        "and records/ only, e.g. docs/results/morl-dev/<run>); --methods names the "
         "hierarchy's methods and MORL-baselines' learners together (default: hddpg-conditioned and the env's "
         "two strongest learners).",
     ),
@@ -75,6 +79,8 @@ def protocol_command(context: typer.Context) -> None:
             morl_python=_python(given["morl_python"]),
         )
     out = Path(given["out"])
+    if given["resume"]:
+        _take_shipped_run(out, settings)
     prepare_out_dir(context, out, given["resume"], force=False)
     with usage_errors("'--out'"):
         paths = run_protocol(settings, out, n_jobs=given["n_jobs"] or 1)
@@ -96,6 +102,22 @@ def protocol_command(context: typer.Context) -> None:
             f"{settings.env.env_steps} env steps per side): its page says so."
         )
     console.print(f"Records in {out / 'records'}; the page: hddpg-cli morl-report {out} --page docs/MORL.md")
+
+
+def _take_shipped_run(out: Path, settings: ProtocolSettings) -> None:
+    """
+    ``--resume`` on a run's shipped records (``protocol.json`` and ``records/`` only, no run marker, e.g. a
+    development run of docs/results/morl-dev on another machine): mark the folder as this tool's run, its
+    records as its own, so that the run goes on there. Any other folder is left to the usual rules.
+    """
+    refuse_protected_out(out)
+    if out.is_symlink() or not out.is_dir() or is_run_folder(out):
+        return
+    with usage_errors("'--out'"):
+        if not shipped_run(out, settings):
+            return
+    mark_run_folder(out, "benchmark", entries=["protocol.json", "records"])
+    console.print(f"{out}: a protocol run's shipped records; --resume goes on with them there")
 
 
 def _python(path: str | None) -> str | None:
