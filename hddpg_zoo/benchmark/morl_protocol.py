@@ -18,7 +18,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import hddpg_zoo.benchmark.morl_gpi  # noqa: F401  (registers the hddpg-gpi method)
+# Imported for what they register: the hddpg-gpi methods, and the hddpg-gpi-raw ones.
+import hddpg_zoo.benchmark.morl_gpi
+import hddpg_zoo.benchmark.morl_gpi_raw  # noqa: F401
 from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS
 from sb3_hddpg.artifacts.limits import MAX_BENCHMARK_SEEDS, MAX_SEED, brief
 
