@@ -111,14 +111,15 @@ class RawGpiPolicy:
         return action
 
 
-def train_gpi_raw(run: SideRun, hold: bool = False) -> TrainedSide:
+def train_gpi_raw(run: SideRun, hold: bool = False, continuous_algo: str = "ddpg") -> TrainedSide:
     """
-    One worker per objective (DQN on discrete actions, DDPG on continuous), sharing the budget, each keeping
-    its transitions; then each worker's raw-objective critic (:func:`raw_selector`); GPI over them plays each
-    weight.
+    One worker per objective (DQN on discrete actions, ``continuous_algo`` on continuous), sharing the
+    budget, each keeping its transitions; then each worker's raw-objective critic (:func:`raw_selector`); GPI
+    over them plays each weight.
 
     :param run: the env, seed, budget, discount and folder of the run.
     :param hold: follow the worker picked at an episode's first step to its end.
+    :param continuous_algo: the workers' algorithm on continuous actions, with its bundled block of the env.
     """
     started = time.perf_counter()
     shared, bounds_steps = pinned_env(run.env_id)
@@ -131,7 +132,7 @@ def train_gpi_raw(run: SideRun, hold: bool = False) -> TrainedSide:
     train_workers(
         run.folder,
         env=shared,
-        algos=dict.fromkeys(terms, "dqn" if run.discrete else "ddpg"),
+        algos=dict.fromkeys(terms, "dqn" if run.discrete else continuous_algo),
         run=RunOptions(seed=run.seed, eval_freq=0, eval_episodes=1, keep_best=False, timesteps=share),
         term_critic=TermCriticOptions(gamma=run.gamma),
         keep_transitions=True,
@@ -160,5 +161,22 @@ GPI_RAW_HOLD_METHOD = register_protocol_method(
     )
 )
 
+GPI_RAW_SAC_METHOD = register_protocol_method(
+    ProtocolMethod(
+        "hddpg-gpi-raw-sac",
+        "hddpg-gpi-raw over SAC workers at CAPQL's learner settings (hddpg-gpi-terms-sac's workers), on "
+        "continuous actions",
+        functools.partial(train_gpi_raw, continuous_algo="sac"),
+        actions="continuous",
+    )
+)
 
-__all__ = ["GPI_RAW_HOLD_METHOD", "GPI_RAW_METHOD", "RawGpiPolicy", "raw_selector", "train_gpi_raw"]
+
+__all__ = [
+    "GPI_RAW_HOLD_METHOD",
+    "GPI_RAW_METHOD",
+    "GPI_RAW_SAC_METHOD",
+    "RawGpiPolicy",
+    "raw_selector",
+    "train_gpi_raw",
+]
