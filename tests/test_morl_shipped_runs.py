@@ -49,9 +49,10 @@ def test_a_shipped_run_is_taken_by_settings_that_add_seeds_or_sides(shipped):
 
 
 def test_a_folder_with_more_than_a_runs_records_is_not_a_shipped_run(shipped, tmp_path):
-    (shipped / "notes.txt").write_text("mine")
-    assert not shipped_run(shipped, _settings())
-    (shipped / "notes.txt").unlink()
+    for name in ("notes.txt", ".notes"):
+        (shipped / name).write_text("mine")
+        assert not shipped_run(shipped, _settings())
+        (shipped / name).unlink()
     # A side's folder that is a link would take a new record's write out of the folder.
     side = shipped / "records" / "hddpg-gpi"
     shutil.move(side, tmp_path / "elsewhere")

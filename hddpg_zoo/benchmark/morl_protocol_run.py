@@ -435,21 +435,25 @@ def shipped_run(out: Path, settings: ProtocolSettings) -> bool:
     :raises ValueError: it is such a folder, but a record does not read, or ``settings`` change more
         than its seeds and sides.
     """
-    top = {e.name: e for e in _plain_entries(out) if not e.name.startswith(".")}
+    top = {e.name: e for e in _plain_entries(out)}
     if set(top) != {"protocol.json", "records"} or any(e.is_symlink() for e in top.values()):
         return False
     if not (top["protocol.json"].is_file() and top["records"].is_dir()):
         return False
+    files = []
     for side in _plain_entries(out / "records"):
         if side.is_symlink() or not side.is_dir():
             return False
-        for entry in _plain_entries(Path(side.path)):
-            if entry.is_symlink() or not entry.is_file() or not entry.name.endswith(".json"):
-                return False
-            record = read_protocol_record(Path(entry.path))
-            if Path(entry.path) != record_path(out, record.method, record.seed):
-                raise ValueError(f"{entry.path}: holds {record.method}'s seed {record.seed}, not its path's")
+        files += _plain_entries(Path(side.path))
+        if len(files) > MAX_SHIPPED_RECORDS:
+            raise ValueError(f"{out}: more than {MAX_SHIPPED_RECORDS} records; not a protocol run's")
+    if any(e.is_symlink() or not e.is_file() or not e.name.endswith(".json") for e in files):
+        return False
     _check_continues(out, settings)
+    for entry in files:
+        record = read_protocol_record(Path(entry.path))
+        if Path(entry.path) != record_path(out, record.method, record.seed):
+            raise ValueError(f"{entry.path}: holds {record.method}'s seed {record.seed}, not its path's")
     return True
 
 
