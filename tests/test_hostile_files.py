@@ -33,8 +33,10 @@ from sb3_hddpg.hierarchy.hierarchy import Hierarchy, SelectionConfig
 from sb3_hddpg.hierarchy.loading import load_policy
 
 ROOT = Path(__file__).resolve().parents[1]
-#: Address space of a child that loads hostile files: imports take ~0.7 GB, so this leaves ~1.3 GB.
-MEMORY_LIMIT = 2 << 30
+#: Address space a child that loads hostile files may map beyond what its imports map. The imports' own share
+#: is measured, not assumed: PyTorch's CUDA build (what pip installs where its CPU index cannot be reached)
+#: maps several GB more than the CPU build's ~0.7 GB before any file is read.
+MEMORY_HEADROOM = 1300 << 20
 SMALL = {
     "buffer_size": 100,
     "learning_starts": 10,
@@ -44,15 +46,21 @@ SMALL = {
 }
 
 
-def run_limited(code: str, cwd: Path, limit: int = MEMORY_LIMIT, timeout: float = 300) -> dict[str, Any]:
+def run_limited(
+    code: str, cwd: Path, headroom: int = MEMORY_HEADROOM, timeout: float = 300
+) -> dict[str, Any]:
     """
-    Run ``code`` in a fresh interpreter under an address-space limit; it must print one JSON line. A
-    ``MemoryError`` or a kill shows as a failed run, never as a swapping machine.
+    Run ``code`` in a fresh interpreter whose address space may grow by ``headroom`` bytes past what the
+    imports of the code under test map; it must print one JSON line. A ``MemoryError`` or a kill shows as a
+    failed run, never as a swapping machine.
     """
     prologue = textwrap.dedent(
         f"""
         import json, resource, sys
-        resource.setrlimit(resource.RLIMIT_AS, ({limit}, {limit}))
+        import torch, stable_baselines3, sb3_hddpg.hierarchy.hierarchy  # their mappings are not the files'
+        with open("/proc/self/status") as status:
+            mapped = next(int(line.split()[1]) * 1024 for line in status if line.startswith("VmSize:"))
+        resource.setrlimit(resource.RLIMIT_AS, (mapped + {headroom}, mapped + {headroom}))
         """
     )
     done = subprocess.run(
