@@ -7,10 +7,10 @@ import pytest
 
 pytest.importorskip("mo_gymnasium")
 
-from hddpg_zoo.benchmark.morl_gpi import STEP_QUANTUM  # noqa: E402
-from hddpg_zoo.benchmark.morl_gpi_raw import RawGpiPolicy, train_gpi_raw  # noqa: E402
-from hddpg_zoo.benchmark.morl_protocol import GAMMA  # noqa: E402
-from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun, play_front  # noqa: E402
+from hddpg_zoo.benchmark.morl_gpi import STEP_QUANTUM
+from hddpg_zoo.benchmark.morl_gpi_raw import RawGpiPolicy, train_gpi_raw
+from hddpg_zoo.benchmark.morl_protocol import GAMMA
+from hddpg_zoo.benchmark.morl_sides import PROTOCOL_METHODS, SideRun, play_front
 
 ENV = "deep-sea-treasure-concave-v0"
 
