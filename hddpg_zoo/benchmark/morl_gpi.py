@@ -47,7 +47,9 @@ from hddpg_zoo.benchmark.morl_sides import (
     register_protocol_method,
 )
 from sb3_hddpg.artifacts.manifests import load_workers
+from sb3_hddpg.artifacts.workers import Workers
 from sb3_hddpg.envs.contract import env_contract, state_layout_of
+from sb3_hddpg.envs.terms_env import TermsEnv
 from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.gpi import GpiSelector, gpi_of
 from sb3_hddpg.training.grow import SupportOptions, grow
@@ -143,13 +145,17 @@ def gpi_selector(folder: Path) -> GpiSelector:
     :param folder: the run folder (its ``workers/``).
     """
     workers = load_workers(folder)
+    return gpi_of(frozen_workers(workers), workers.critics, list(workers))
+
+
+def frozen_workers(workers: Workers) -> list[FrozenWorker]:
+    """Loaded workers frozen for GPI, in their order, each seeing its own entries of the shared state."""
     with contextlib.closing(workers.make_env()) as env:
         layout = state_layout_of(env)
-    frozen = [
+    return [
         FrozenWorker(model, layout.indices(workers.states[name]) if name in workers.states else None)
         for name, model in workers.items()
     ]
-    return gpi_of(frozen, workers.critics, list(workers))
 
 
 def trained_steps(folder: Path) -> dict[str, int]:
@@ -161,21 +167,21 @@ def trained_steps(folder: Path) -> dict[str, int]:
     return {f"workers/{name}": steps for name, steps in worker_steps(folder).items()}
 
 
-def train_gpi(
+def train_gpi_workers(
     run: SideRun, extra_workers: int = GPI_EXTRA_WORKERS, continuous_algo: str = "ddpg"
-) -> TrainedSide:
+) -> tuple[TermsEnv, dict[str, tuple[float, float]], int]:
     """
-    One worker per objective (DQN on discrete actions, ``continuous_algo`` on continuous), then the weighted workers ``grow``
-    adds at the corner weights of largest optimistic gain, every worker with a per-term critic at the
-    protocol's discount and an equal share of one budget; GPI over all of them plays each weight.
+    One worker per objective (DQN on discrete actions, ``continuous_algo`` on continuous), then the weighted
+    workers ``grow`` adds at the corner weights of largest optimistic gain, every worker with a per-term critic
+    at the protocol's discount, its transitions kept, and an equal share of one budget.
 
     :param run: the env, seed, budget, discount and folder of the run.
-    :param extra_workers: the weighted workers the support may add (0: GPI over the per-term workers alone,
-        which then share the whole budget).
+    :param extra_workers: the weighted workers the support may add (0: the per-term workers alone, which then
+        share the whole budget).
     :param continuous_algo: the per-term workers' algorithm on continuous actions, read with its bundled
         ``zoo_configs`` block of the env; the weighted workers take their heaviest term's.
+    :return: the shared env, its per-term bounds, and the env steps spent estimating them.
     """
-    started = time.perf_counter()
     shared, bounds_steps = pinned_env(run.env_id)
     terms = list(shared.terms)
     available = run.budget - bounds_steps
@@ -206,8 +212,23 @@ def train_gpi(
             term_critic=critic,
         )
     with contextlib.closing(shared.make()) as env:
-        bounds = env_contract(env).reward_bounds
-    policy = GpiPolicy(gpi_selector(run.folder), terms, bounds, constant_objectives(run.env_id))
+        bounds = dict(env_contract(env).reward_bounds)
+    return shared, bounds, bounds_steps
+
+
+def train_gpi(
+    run: SideRun, extra_workers: int = GPI_EXTRA_WORKERS, continuous_algo: str = "ddpg"
+) -> TrainedSide:
+    """
+    :func:`train_gpi_workers`' support; GPI over all of its workers plays each weight.
+
+    :param run: the env, seed, budget, discount and folder of the run.
+    :param extra_workers: the weighted workers the support may add (0: GPI over the per-term workers alone).
+    :param continuous_algo: the per-term workers' algorithm on continuous actions.
+    """
+    started = time.perf_counter()
+    shared, bounds, bounds_steps = train_gpi_workers(run, extra_workers, continuous_algo)
+    policy = GpiPolicy(gpi_selector(run.folder), list(shared.terms), bounds, constant_objectives(run.env_id))
     steps = {**trained_steps(run.folder), "bounds": bounds_steps}
     return TrainedSide(policy, shared, steps, time.perf_counter() - started)
 
@@ -263,7 +284,9 @@ __all__ = [
     "GPI_TERMS_SAC_METHOD",
     "STEP_QUANTUM",
     "GpiPolicy",
+    "frozen_workers",
     "gpi_coefficients",
     "gpi_selector",
     "train_gpi",
+    "train_gpi_workers",
 ]

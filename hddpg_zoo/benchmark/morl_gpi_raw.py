@@ -21,7 +21,6 @@ heading apart, as per-step GPI did on minecart at weights between its two ores).
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import time
@@ -30,22 +29,17 @@ from pathlib import Path
 
 import numpy as np
 
-from hddpg_zoo.benchmark.morl_gpi import STEP_QUANTUM, trained_steps
+from hddpg_zoo.benchmark.morl_gpi import frozen_workers, train_gpi_workers, trained_steps
 from hddpg_zoo.benchmark.morl_sides import (
     ProtocolMethod,
     SideRun,
     TrainedSide,
-    pinned_env,
     register_protocol_method,
 )
 from sb3_hddpg.artifacts.manifests import load_workers
 from sb3_hddpg.artifacts.transitions import TRANSITIONS_SUFFIX, Transitions
-from sb3_hddpg.envs.contract import env_contract, state_layout_of
-from sb3_hddpg.hierarchy.frozen import FrozenWorker
 from sb3_hddpg.hierarchy.gpi import GpiSelector
-from sb3_hddpg.training.run_options import RunOptions
 from sb3_hddpg.training.term_critic import TermCriticOptions, fit_term_critic
-from sb3_hddpg.training.workers import train_workers
 
 
 def raw_selector(folder: Path, bounds: Mapping[str, Sequence[float]], gamma: float, seed: int) -> GpiSelector:
@@ -59,19 +53,15 @@ def raw_selector(folder: Path, bounds: Mapping[str, Sequence[float]], gamma: flo
     :param seed: seeds each critic's initial weights and batches.
     """
     workers = load_workers(folder)
-    with contextlib.closing(workers.make_env()) as env:
-        layout = state_layout_of(env)
-    frozen, critics = [], []
+    critics = []
     for name, model in workers.items():
         kept = Transitions.load(folder / "workers" / f"{name}{TRANSITIONS_SUFFIX}")
         terms = workers.critics[name].spec.terms  # the kept terms' columns, in this order
         lows = np.array([bounds[t][0] for t in terms], dtype=np.float32)
         ranges = np.array([bounds[t][1] for t in terms], dtype=np.float32) - lows
         raw = dataclasses.replace(kept, terms=kept.terms * ranges + lows)
-        critic, _ = fit_term_critic(model, raw, terms, TermCriticOptions(gamma=gamma), seed)
-        indices = layout.indices(workers.states[name]) if name in workers.states else None
-        frozen.append(FrozenWorker(model, indices))
-        critics.append(critic)
+        critics.append(fit_term_critic(model, raw, terms, TermCriticOptions(gamma=gamma), seed)[0])
+    frozen = frozen_workers(workers)
     return GpiSelector(frozen, critics, over_actions=False)
 
 
@@ -113,32 +103,17 @@ class RawGpiPolicy:
 
 def train_gpi_raw(run: SideRun, hold: bool = False, continuous_algo: str = "ddpg") -> TrainedSide:
     """
-    One worker per objective (DQN on discrete actions, ``continuous_algo`` on continuous), sharing the
-    budget, each keeping its transitions; then each worker's raw-objective critic (:func:`raw_selector`); GPI
-    over them plays each weight.
+    :func:`~.morl_gpi.train_gpi_workers`' per-term workers alone, sharing the budget, each keeping its
+    transitions; then each worker's raw-objective critic (:func:`raw_selector`); GPI over them plays each
+    weight.
 
     :param run: the env, seed, budget, discount and folder of the run.
     :param hold: follow the worker picked at an episode's first step to its end.
     :param continuous_algo: the workers' algorithm on continuous actions, with its bundled block of the env.
     """
     started = time.perf_counter()
-    shared, bounds_steps = pinned_env(run.env_id)
+    shared, bounds, bounds_steps = train_gpi_workers(run, 0, continuous_algo)
     terms = list(shared.terms)
-    share = (run.budget - bounds_steps) // len(terms) // STEP_QUANTUM * STEP_QUANTUM
-    if share < 1:
-        raise ValueError(
-            f"A budget of {run.budget} env steps ({bounds_steps} to estimate bounds) trains no model"
-        )
-    train_workers(
-        run.folder,
-        env=shared,
-        algos=dict.fromkeys(terms, "dqn" if run.discrete else continuous_algo),
-        run=RunOptions(seed=run.seed, eval_freq=0, eval_episodes=1, keep_best=False, timesteps=share),
-        term_critic=TermCriticOptions(gamma=run.gamma),
-        keep_transitions=True,
-    )
-    with contextlib.closing(shared.make()) as env:
-        bounds = env_contract(env).reward_bounds
     policy = RawGpiPolicy(raw_selector(run.folder, bounds, run.gamma, run.seed), terms, hold)
     steps = {**trained_steps(run.folder), "bounds": bounds_steps}
     return TrainedSide(policy, shared, steps, time.perf_counter() - started)
